@@ -1,0 +1,103 @@
+"""The robot's physical contract, defined once.
+
+Geometry, sensor layout, control period and the action -> wheel-speed table.
+The training twin (ground_station), the pymunk plant (sim_bridge) and the
+controller (firmware_py) all import these numbers; nothing redefines them.
+
+Units are integers in the control path: millimetres, mm/s, milliradians,
+microseconds. Float views (metres, radians) are derived helpers for the
+ground station and sim.
+
+World frame (shared by maps, sim, odometry and MAVLink conversion): x to the
+east along map columns, y to the north, so map row 0 (the first text row of a
+MovingAI file) is the northernmost row. Heading is measured counter-clockwise
+from +x (east). A cell (col, row) of an H-row map with cell size c has its
+centre at x = (col + 0.5) * c, y = (H - row - 0.5) * c.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# --- body -------------------------------------------------------------------
+ROBOT_RADIUS_MM = 150
+WHEEL_BASE_MM = 260  # distance between the wheel contact points
+WHEEL_RADIUS_MM = 40
+ENCODER_TICKS_PER_REV = 2048
+MAX_WHEEL_SPEED_MM_S = 600  # hard limit, commands are clamped to it
+
+# --- timing -----------------------------------------------------------------
+CONTROL_RATE_HZ = 20
+CONTROL_PERIOD_US = 1_000_000 // CONTROL_RATE_HZ
+PHYSICS_DT_US = 5_000  # the control period is an integer multiple of it
+assert CONTROL_PERIOD_US % PHYSICS_DT_US == 0
+
+# --- range sensors ----------------------------------------------------------
+# One range sensor per sector, angles CCW from the heading (mrad). Index order
+# is the order on the CAN bus and in the encoder.
+SENSOR_ANGLES_MRAD: tuple[int, ...] = (0, 785, 1571, 2356, 3142, -2356, -1571, -785)
+SENSOR_COUNT = len(SENSOR_ANGLES_MRAD)
+SENSOR_FOV_MRAD = 262  # ~15 deg cone per sensor (a fan of rays in the sim)
+RANGE_MIN_MM = 20
+RANGE_MAX_MM = 2000
+
+# Reading status, as DroneCAN's range_sensor.Measurement.
+RANGE_VALID = 0
+RANGE_TOO_CLOSE = 1
+RANGE_TOO_FAR = 2
+RANGE_INVALID = 3
+
+# --- actions ----------------------------------------------------------------
+# (left, right) wheel speed in mm/s for each discrete action of the sector
+# encoding, held for one control period.
+ACTION_NAMES: tuple[str, ...] = ("forward", "turn_left", "turn_right", "reverse")
+ACTION_WHEEL_SPEEDS_MM_S: tuple[tuple[int, int], ...] = (
+    (400, 400),
+    (-160, 160),
+    (160, -160),
+    (-200, -200),
+)
+# The cell encoding's grid actions (the paper's up/down/left/right), as world
+# directions; the controller executes them as motion primitives.
+CELL_ACTION_NAMES: tuple[str, ...] = ("up", "down", "left", "right")
+CELL_ACTION_DELTAS: tuple[tuple[int, int], ...] = ((0, -1), (0, 1), (-1, 0), (1, 0))  # (dcol, drow)
+
+GOAL_TOLERANCE_MM = 150  # goal counts as reached inside this distance
+DEFAULT_CELL_SIZE_MM = 500
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """Float view of the constants above, for the ground station and the sim."""
+
+    radius_m: float = ROBOT_RADIUS_MM / 1000
+    wheel_base_m: float = WHEEL_BASE_MM / 1000
+    wheel_radius_m: float = WHEEL_RADIUS_MM / 1000
+    control_period_s: float = CONTROL_PERIOD_US / 1e6
+    physics_dt_s: float = PHYSICS_DT_US / 1e6
+    range_min_m: float = RANGE_MIN_MM / 1000
+    range_max_m: float = RANGE_MAX_MM / 1000
+    goal_tolerance_m: float = GOAL_TOLERANCE_MM / 1000
+
+    @property
+    def sensor_angles_rad(self) -> tuple[float, ...]:
+        return tuple(a / 1000 for a in SENSOR_ANGLES_MRAD)
+
+    @property
+    def action_wheel_speeds_m_s(self) -> tuple[tuple[float, float], ...]:
+        return tuple((left / 1000, right / 1000) for left, right in ACTION_WHEEL_SPEEDS_MM_S)
+
+
+def clamp_wheel_speed(mm_s: int) -> int:
+    """Clamp a wheel speed command to the motor limit."""
+    return max(-MAX_WHEEL_SPEED_MM_S, min(MAX_WHEEL_SPEED_MM_S, int(mm_s)))
+
+
+def cell_center_mm(col: int, row: int, height: int, cell_mm: int = DEFAULT_CELL_SIZE_MM) -> tuple[int, int]:
+    """World position (mm) of a map cell's centre; see the module docstring."""
+    return (col * cell_mm + cell_mm // 2, (height - row) * cell_mm - cell_mm // 2)
+
+
+def world_to_cell(x_mm: int, y_mm: int, height: int, cell_mm: int = DEFAULT_CELL_SIZE_MM) -> tuple[int, int]:
+    """Map cell (col, row) containing a world point (mm)."""
+    return (x_mm // cell_mm, height - 1 - (y_mm // cell_mm))

@@ -1,0 +1,1 @@
+"""Benchmarks behind `qnav bench`; `common` holds the table/JSON output."""

@@ -1,0 +1,1 @@
+"""`qnav` subcommands, one module each (see `ground_station.cli`)."""
