@@ -42,3 +42,16 @@ def test_best_action_breaks_ties_low():
     assert best_action([1, 5, 5, 2]) == 1
     assert best_action([-3, -3, -3, -3]) == 0
     assert best_action([0, 0, 0, 7]) == 3
+
+
+def test_sim_clock_is_monotonic():
+    from firmware_py.clock import SimClock
+
+    c = SimClock()
+    c.set_us(500)
+    c.set_us(100)
+    assert c.now_us() == 500
+    c.advance_us(50)
+    assert c.now_us() == 550
+    assert c.wait_until(550, timeout_s=0.01)
+    assert not c.wait_until(10_000, timeout_s=0.01)
