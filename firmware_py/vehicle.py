@@ -1,0 +1,130 @@
+"""The seam between the controller and the robot's MAVLink node.
+
+The controller (`firmware_py.controller`) implements `VehicleControl`; the
+MAVLink node (params, commands, missions, telemetry, FTP activation) only
+talks to the vehicle through it. Both sides share `VehicleConfig` (the
+tunables the parameter table maps onto) and the enums below.
+
+Modes are numbered as ArduPilot Rover numbers its custom_mode so stock
+ground stations show the right names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Protocol
+
+from firmware_py import robot
+
+
+class Mode(IntEnum):
+    """HEARTBEAT custom_mode, ArduPilot Rover numbering."""
+
+    MANUAL = 0
+    HOLD = 4
+    AUTO = 10
+    GUIDED = 15
+
+
+class CtrlState(IntEnum):
+    """Controller state machine (see docs/architecture.md)."""
+
+    BOOT = 0
+    STANDBY = 1  # disarmed
+    HOLD = 2  # armed, no goal
+    DRIVING = 3
+    GOAL_REACHED = 4
+    FAULT = 5
+
+
+class FailsafeAction(IntEnum):
+    NONE = 0
+    HOLD = 1
+    DISARM = 2
+
+
+@dataclass
+class VehicleConfig:
+    """Controller tunables; every field is a MAVLink parameter (see params)."""
+
+    control_rate_hz: int = robot.CONTROL_RATE_HZ
+    sensor_timeout_ms: int = 250
+    motor_timeout_ms: int = 200
+    max_wheel_speed_mm_s: int = robot.MAX_WHEEL_SPEED_MM_S
+    speed_scale_pct: int = 100
+    goal_tolerance_mm: int = robot.GOAL_TOLERANCE_MM
+    gcs_timeout_ms: int = 5000
+    gcs_failsafe_action: int = FailsafeAction.HOLD
+    origin_lat_e7: int = 473_977_420  # a field near Zurich, so ground-station maps show the robot
+    origin_lon_e7: int = 85_455_940
+    origin_alt_mm: int = 408_000
+    cell_size_mm: int = robot.DEFAULT_CELL_SIZE_MM
+
+
+@dataclass
+class VehicleStatus:
+    """Snapshot of the vehicle for telemetry (one per control tick at most)."""
+
+    time_us: int = 0
+    state: CtrlState = CtrlState.BOOT
+    mode: Mode = Mode.HOLD
+    armed: bool = False
+    failsafe: bool = False
+    fault: str = ""
+    x_mm: int = 0
+    y_mm: int = 0
+    heading_mrad: int = 0
+    speed_mm_s: int = 0
+    yaw_rate_mrad_s: int = 0
+    goal_mm: tuple[int, int] | None = None
+    distance_to_goal_mm: int = 0
+    bearing_to_goal_mrad: int = 0  # relative to the heading, CCW positive
+    ranges_mm: list[int] = field(default_factory=lambda: [0] * robot.SENSOR_COUNT)
+    range_status: list[int] = field(default_factory=lambda: [robot.RANGE_INVALID] * robot.SENSOR_COUNT)
+    sensors_healthy: bool = False
+    motors_healthy: bool = False
+    bumper: bool = False
+    estop: bool = False
+    state_index: int = -1
+    action: int = -1
+    q_row: tuple[int, ...] = ()
+    mission_seq: int = 0
+    mission_count: int = 0
+    policy_id: int = 0
+    policy_crc: int = 0
+    ticks: int = 0
+    tick_overruns: int = 0
+    can_errors: int = 0
+
+
+@dataclass(frozen=True)
+class VehicleEvent:
+    """Something the ground station should hear about once.
+
+    kind: "transition" | "fault" | "refusal" | "info" (-> STATUSTEXT) or
+    "mission_item_reached" (-> MISSION_ITEM_REACHED, `seq` set).
+    """
+
+    kind: str
+    text: str = ""
+    seq: int = -1
+    severity: int = 6  # MAV_SEVERITY_INFO
+
+
+class VehicleControl(Protocol):
+    """What the MAVLink node may ask of the controller. Every command returns
+    (accepted, reason); a refusal's reason becomes a STATUSTEXT."""
+
+    def status(self) -> VehicleStatus: ...
+    def arm(self) -> tuple[bool, str]: ...
+    def disarm(self) -> tuple[bool, str]: ...
+    def set_mode(self, mode: Mode) -> tuple[bool, str]: ...
+    def set_goal(self, x_mm: int, y_mm: int) -> tuple[bool, str]: ...
+    def set_mission(self, waypoints_mm: list[tuple[int, int]]) -> tuple[bool, str]: ...
+    def set_mission_current(self, seq: int) -> tuple[bool, str]: ...
+    def start_mission(self) -> tuple[bool, str]: ...
+    def set_failsafe(self, active: bool) -> None: ...
+    def apply_config(self, cfg: VehicleConfig) -> None: ...
+    def activate_policy(self, path: str) -> tuple[bool, str]: ...
+    def drain_events(self) -> list[VehicleEvent]: ...
