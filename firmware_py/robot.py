@@ -38,6 +38,11 @@ assert CONTROL_PERIOD_US % PHYSICS_DT_US == 0
 SENSOR_ANGLES_MRAD: tuple[int, ...] = (0, 785, 1571, 2356, 3142, -2356, -1571, -785)
 SENSOR_COUNT = len(SENSOR_ANGLES_MRAD)
 SENSOR_FOV_MRAD = 262  # ~15 deg cone per sensor (a fan of rays in the sim)
+# Each sensor sits on the body's rim at its angle; a reading is the distance
+# from there to the nearest obstacle in its cone, which the twin and the sim
+# sample with SENSOR_FAN_RAYS rays spread evenly over SENSOR_FOV_MRAD.
+SENSOR_MOUNT_RADIUS_MM = ROBOT_RADIUS_MM
+SENSOR_FAN_RAYS = 3
 RANGE_MIN_MM = 20
 RANGE_MAX_MM = 2000
 
