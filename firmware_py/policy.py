@@ -1,0 +1,382 @@
+"""The `.qtab` int policy file: format constants, the robot's loader and the
+one byte-level writer.
+
+This module is the single definition of the byte layout (spec:
+docs/policy-format.md). The robot loads files with `load_policy`; the ground
+station's exporter (ground_station/export.py) quantises a float table and
+hands the ints to `dump_policy` so the layout is never written twice.
+
+Pure Python, no numpy: the table lives in an `array` ('b' int8 or 'h' int16)
+exposed as a read-only memoryview. The loader checks every field against the
+file size and the robot's configuration before it allocates anything, checks
+the CRC32, and either returns a complete `Policy` or raises `PolicyError`
+with a one-line reason -- never a partial table.
+
+Layout (little-endian), v1.0:
+
+    fixed header      48 bytes (HEADER, see below); header_size may be larger
+                      in a newer minor version: the loader skips the extra
+    encoder section   enc_len bytes (kind-specific, see _unpack_encoder)
+    metadata          meta_len bytes of UTF-8 JSON object
+    table             n_states * n_actions * itemsize, row-major by state
+    state scales      n_states float32, only with FLAG_PER_STATE_SCALES
+    crc32             u32, zlib.crc32 of every byte before it
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import sys
+import time
+import zlib
+from array import array
+from dataclasses import dataclass
+
+from firmware_py import robot
+from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
+
+# --- format constants ---------------------------------------------------------
+MAGIC = b"QTAB"
+VERSION_MAJOR = 1
+VERSION_MINOR = 0
+
+# magic, major, minor, header_size, flags, kind, dtype, n_actions, n_states,
+# policy_id, created (unix s), scale, enc_len, meta_len
+HEADER = struct.Struct("<4sBBHIBBHIIqdII")
+assert HEADER.size == 48
+CRC = struct.Struct("<I")
+
+FLAG_PER_STATE_SCALES = 0x1
+KNOWN_FLAGS = FLAG_PER_STATE_SCALES  # any other bit set -> reject (see the spec)
+
+KIND_CELL = 1
+KIND_SECTOR = 2
+KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector"}
+KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
+
+DTYPE_INT8 = 1
+DTYPE_INT16 = 2
+# code -> (name, array typecode, itemsize, max magnitude of a symmetric value)
+DTYPES = {DTYPE_INT8: ("int8", "b", 1, 127), DTYPE_INT16: ("int16", "h", 2, 32767)}
+DTYPE_CODES = {v[0]: k for k, v in DTYPES.items()}
+
+MAX_METADATA_BYTES = 16384
+MAX_FILE_BYTES = 64 * 1024 * 1024  # far above any table the robot can hold
+MIN_FILE_BYTES = HEADER.size + CRC.size
+
+_SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
+_CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
+_PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
+_GOAL = struct.Struct("<HH")  # goal cell (col, row)
+_ORDER_NATIVE = sys.byteorder == "little"
+
+
+class PolicyError(Exception):
+    """A policy file is unusable; the message is a one-line reason."""
+
+
+@dataclass(frozen=True)
+class Policy:
+    """A validated int Q-table with everything needed to use it on the robot."""
+
+    encoder: CellEncoder | SectorEncoder
+    dtype: str
+    n_states: int
+    n_actions: int
+    scale: float
+    policy_id: int
+    crc: int
+    created: int
+    metadata: dict
+    table: memoryview  # read-only, flat, n_states * n_actions ints
+    state_scales: memoryview | None = None  # read-only float32 per state, or None
+    goals: tuple[tuple[int, int], ...] = ()  # cell policies: goal index -> (col, row)
+    cell_mm: int = 0  # cell policies: map cell size
+    version: tuple[int, int] = (VERSION_MAJOR, VERSION_MINOR)
+    size: int = 0  # file size in bytes
+
+    @property
+    def kind(self) -> str:
+        return self.encoder.kind
+
+    def row(self, state: int) -> memoryview:
+        """The int Q-values of one state (a read-only memoryview slice)."""
+        if not 0 <= state < self.n_states:
+            raise IndexError(f"state {state} outside 0..{self.n_states - 1}")
+        a = self.n_actions
+        return self.table[state * a:(state + 1) * a]
+
+    def best_action(self, state: int) -> int:
+        """Greedy action; ties break to the lowest index (encoders.best_action)."""
+        return best_action(self.row(state))
+
+    def q_values(self, state: int) -> list[float]:
+        """Dequantised row, for display on the ground; the robot never needs it."""
+        s = self.scale if self.state_scales is None else float(self.state_scales[state])
+        return [v * s for v in self.row(state)]
+
+    def header(self) -> dict:
+        """JSON-able header fields (what `qnav policy inspect` prints)."""
+        d = {
+            "format_version": f"{self.version[0]}.{self.version[1]}",
+            "kind": self.kind,
+            "encoder": self.encoder.to_dict(),
+            "dtype": self.dtype,
+            "n_states": self.n_states,
+            "n_actions": self.n_actions,
+            "scale": self.scale,
+            "per_state_scales": self.state_scales is not None,
+            "policy_id": f"0x{self.policy_id:08x}",
+            "crc32": f"0x{self.crc:08x}",
+            "created": self.created,
+            "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(min(self.created, 253402300799))),
+            "bytes": self.size,
+            "metadata": self.metadata,
+        }
+        if self.kind == "cell":
+            d["goals"] = [list(g) for g in self.goals]
+            d["cell_mm"] = self.cell_mm
+        return d
+
+
+# --- loading ----------------------------------------------------------------------
+
+def _read_bounded(path: str | os.PathLike) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > MAX_FILE_BYTES:
+                raise PolicyError(f"file is {size} bytes, more than the {MAX_FILE_BYTES} limit")
+            data = f.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise PolicyError(f"cannot read {os.fspath(path)}: {exc.strerror or exc}") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise PolicyError(f"file is more than the {MAX_FILE_BYTES} byte limit")
+    return data
+
+
+def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
+    return robot.CELL_ACTION_DELTAS if kind == KIND_CELL else robot.ACTION_WHEEL_SPEEDS_MM_S
+
+
+def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int):
+    """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
+    if kind == KIND_SECTOR:
+        if len(sec) < _SECTOR_HEAD.size:
+            raise PolicyError("sector encoder section too short")
+        bearing, n_sensors, n_edges = _SECTOR_HEAD.unpack_from(sec, 0)
+        need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + _PAIR.size * n_actions
+        if len(sec) != need:
+            raise PolicyError(f"sector encoder section is {len(sec)} bytes, its fields need {need}")
+        if bearing < 1:
+            raise PolicyError("sector encoder: bearing_sectors is 0")
+        if n_sensors < 1 or n_sensors > expect_sensors:
+            raise PolicyError(f"sector encoder uses {n_sensors} sensors, robot has {expect_sensors}")
+        off = _SECTOR_HEAD.size
+        sensors = tuple(sec[off:off + n_sensors])
+        bad = [s for s in sensors if s >= expect_sensors]
+        if bad:
+            raise PolicyError(f"sector encoder: sensor index {bad[0]} but robot has {expect_sensors} sensors")
+        off += n_sensors
+        edges = struct.unpack_from(f"<{n_edges}H", sec, off)
+        off += 2 * n_edges
+        if list(edges) != sorted(set(edges)) or (edges and edges[0] == 0):
+            raise PolicyError("sector encoder: range edges not strictly ascending positive mm")
+        try:
+            enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
+        except ValueError as exc:
+            raise PolicyError(f"sector encoder: {exc}") from None
+        goals: tuple[tuple[int, int], ...] = ()
+        cell_mm = 0
+    else:
+        if len(sec) < _CELL_HEAD.size:
+            raise PolicyError("cell encoder section too short")
+        width, height, n_goals, cell_mm = _CELL_HEAD.unpack_from(sec, 0)
+        need = _CELL_HEAD.size + _GOAL.size * n_goals + _PAIR.size * n_actions
+        if len(sec) != need:
+            raise PolicyError(f"cell encoder section is {len(sec)} bytes, its fields need {need}")
+        if width < 1 or height < 1 or n_goals < 1:
+            raise PolicyError(f"cell encoder: grid {width}x{height} with {n_goals} goals")
+        if cell_mm < 1:
+            raise PolicyError("cell encoder: cell size is 0 mm")
+        off = _CELL_HEAD.size
+        goals = tuple(_GOAL.unpack_from(sec, off + _GOAL.size * i) for i in range(n_goals))
+        off += _GOAL.size * n_goals
+        for col, row in goals:
+            if col >= width or row >= height:
+                raise PolicyError(f"cell encoder: goal ({col},{row}) outside the {width}x{height} grid")
+        enc = CellEncoder(width=width, height=height, n_goals=n_goals)
+    actions = tuple(_PAIR.unpack_from(sec, off + _PAIR.size * i) for i in range(n_actions))
+    if actions != tuple(tuple(a) for a in _expected_actions(kind)):
+        raise PolicyError(f"{KIND_NAMES[kind]} action set {list(actions)} differs from the robot's")
+    return enc, goals, cell_mm
+
+
+def _declared_size(header_size: int, flags: int, dtype: int, n_actions: int, n_states: int,
+                   enc_len: int, meta_len: int) -> int | None:
+    """File size the header fields add up to (None if the dtype is unknown).
+    Every size is a Python int, so nothing overflows; the loader demands an exact match."""
+    if dtype not in DTYPES:
+        return None
+    scales = 4 * n_states if flags & FLAG_PER_STATE_SCALES else 0
+    return header_size + enc_len + meta_len + n_states * n_actions * DTYPES[dtype][2] + scales + CRC.size
+
+
+def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike,
+                expect_sensors: int = robot.SENSOR_COUNT) -> Policy:
+    """Validate and load a `.qtab` file (a path, or the file's bytes).
+
+    `expect_sensors` is the robot's range-sensor count; sector policies using
+    a sensor index at or above it are refused. Raises `PolicyError` only.
+    """
+    data = bytes(source) if isinstance(source, bytes | bytearray | memoryview) else _read_bounded(source)
+    n = len(data)
+    if n > MAX_FILE_BYTES:
+        raise PolicyError(f"file is {n} bytes, more than the {MAX_FILE_BYTES} limit")
+    if n < MIN_FILE_BYTES:
+        raise PolicyError(f"file is {n} bytes, shorter than the {MIN_FILE_BYTES}-byte minimum")
+    (magic, major, minor, header_size, flags, kind, dtype, n_actions, n_states,
+     policy_id, created, scale, enc_len, meta_len) = HEADER.unpack_from(data, 0)
+    if magic != MAGIC:
+        raise PolicyError(f"not a .qtab file (magic {magic!r})")
+    if major != VERSION_MAJOR:
+        raise PolicyError(f"format version {major}.{minor} unsupported (this loader reads {VERSION_MAJOR}.x)")
+    # Check the CRC before trusting any other field: most corruption stops here.
+    (stored_crc,) = CRC.unpack_from(data, n - CRC.size)
+    crc = zlib.crc32(memoryview(data)[:n - CRC.size])
+    if crc != stored_crc:
+        declared = _declared_size(header_size, flags, dtype, n_actions, n_states, enc_len, meta_len)
+        if declared is not None and declared != n:
+            raise PolicyError(f"file is {n} bytes but its header declares {declared} (truncated or extended)")
+        raise PolicyError(f"CRC32 mismatch (file says 0x{stored_crc:08x}, contents give 0x{crc:08x})")
+    if header_size < HEADER.size:
+        raise PolicyError(f"header_size {header_size} below the {HEADER.size}-byte v1 header")
+    if flags & ~KNOWN_FLAGS:
+        raise PolicyError(f"unknown flag bits 0x{flags & ~KNOWN_FLAGS:x}")
+    if kind not in KIND_NAMES:
+        raise PolicyError(f"unknown encoder kind {kind}")
+    if dtype not in DTYPES:
+        raise PolicyError(f"unknown dtype code {dtype}")
+    dname, typecode, itemsize, _ = DTYPES[dtype]
+    want_actions = len(_expected_actions(kind))
+    if n_actions != want_actions:
+        raise PolicyError(f"{n_actions} actions, the robot's {KIND_NAMES[kind]} action set has {want_actions}")
+    if n_states < 1:
+        raise PolicyError("table has no states")
+    if meta_len > MAX_METADATA_BYTES:
+        raise PolicyError(f"metadata is {meta_len} bytes, more than the {MAX_METADATA_BYTES} limit")
+    if not (math.isfinite(scale) and scale > 0):
+        raise PolicyError(f"scale {scale!r} is not a positive finite number")
+    if created < 0:
+        raise PolicyError(f"creation time {created} is negative")
+    table_bytes = n_states * n_actions * itemsize
+    scales_bytes = 4 * n_states if flags & FLAG_PER_STATE_SCALES else 0
+    expect = _declared_size(header_size, flags, dtype, n_actions, n_states, enc_len, meta_len)
+    if expect != n:
+        raise PolicyError(f"fields declare {expect} bytes but the file has {n}")
+
+    off = header_size
+    enc, goals, cell_mm = _unpack_encoder(kind, data[off:off + enc_len], n_actions, expect_sensors)
+    if enc.n_states != n_states:
+        raise PolicyError(f"encoder has {enc.n_states} states, table has {n_states}")
+    off += enc_len
+
+    try:
+        metadata = json.loads(data[off:off + meta_len].decode("utf-8")) if meta_len else {}
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise PolicyError(f"metadata is not UTF-8 JSON: {str(exc).splitlines()[0][:80]}") from None
+    if not isinstance(metadata, dict):
+        raise PolicyError("metadata is not a JSON object")
+    off += meta_len
+
+    table = array(typecode)
+    table.frombytes(data[off:off + table_bytes])
+    if not _ORDER_NATIVE:
+        table.byteswap()
+    off += table_bytes
+    state_scales = None
+    if scales_bytes:
+        arr = array("f")
+        arr.frombytes(data[off:off + scales_bytes])
+        if not _ORDER_NATIVE:
+            arr.byteswap()
+        for s in arr:
+            if not (math.isfinite(s) and s > 0):
+                raise PolicyError(f"state scale {s!r} is not a positive finite number")
+        state_scales = memoryview(arr).toreadonly()
+    return Policy(encoder=enc, dtype=dname, n_states=n_states, n_actions=n_actions, scale=scale,
+                  policy_id=policy_id, crc=stored_crc, created=created, metadata=metadata,
+                  table=memoryview(table).toreadonly(), state_scales=state_scales, goals=goals,
+                  cell_mm=cell_mm, version=(major, minor), size=n)
+
+
+# --- writing ------------------------------------------------------------------------
+
+def content_id(encoder_section: bytes, table: bytes, scales: bytes = b"") -> int:
+    """Default policy id: CRC32 of what decides behaviour (encoder + table), so
+    the same policy exported twice gets the same id whatever its metadata."""
+    return zlib.crc32(scales, zlib.crc32(table, zlib.crc32(encoder_section)))
+
+
+def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals, cell_mm: int) -> bytes:
+    if encoder.kind == "sector":
+        out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
+        out += bytes(encoder.sensors)
+        out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
+        actions = robot.ACTION_WHEEL_SPEEDS_MM_S
+    else:
+        if len(goals) != encoder.n_goals:
+            raise ValueError(f"{len(goals)} goal cells for an encoder with {encoder.n_goals} goals")
+        out = _CELL_HEAD.pack(encoder.width, encoder.height, encoder.n_goals, cell_mm)
+        out += b"".join(_GOAL.pack(int(c), int(r)) for c, r in goals)
+        actions = robot.CELL_ACTION_DELTAS
+    return out + b"".join(_PAIR.pack(*a) for a in actions)
+
+
+def dump_policy(encoder: CellEncoder | SectorEncoder, table: array, dtype: str, scale: float, *,
+                state_scales: array | None = None, goals=(), cell_mm: int = robot.DEFAULT_CELL_SIZE_MM,
+                metadata: dict | None = None, policy_id: int | None = None,
+                created: int | None = None) -> bytes:
+    """Serialise an int table (flat `array`, row-major by state) to `.qtab` bytes.
+
+    `policy_id` defaults to `content_id(...)`; `created` to now (unix s).
+    Raises ValueError on inconsistent arguments.
+    """
+    code = DTYPE_CODES.get(dtype)
+    if code is None:
+        raise ValueError(f"dtype must be one of {sorted(DTYPE_CODES)}")
+    _, typecode, _, qmax = DTYPES[code]
+    n_states, n_actions = encoder.n_states, encoder.n_actions
+    if len(table) != n_states * n_actions:
+        raise ValueError(f"table has {len(table)} values, encoder needs {n_states}x{n_actions}")
+    t = array(typecode, table)  # raises OverflowError if a value does not fit
+    if any(v < -qmax for v in t):
+        raise ValueError(f"symmetric {dtype} values must be >= {-qmax}")
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError("scale must be positive and finite")
+    flags = 0
+    sbytes = b""
+    if state_scales is not None:
+        s = array("f", state_scales)
+        if len(s) != n_states or not all(math.isfinite(x) and x > 0 for x in s):
+            raise ValueError("state_scales needs one positive finite value per state")
+        if not _ORDER_NATIVE:
+            s.byteswap()
+        sbytes = s.tobytes()
+        flags |= FLAG_PER_STATE_SCALES
+    if not _ORDER_NATIVE:
+        t.byteswap()
+    tbytes = t.tobytes()
+    enc = _pack_encoder(encoder, goals, cell_mm)
+    meta = json.dumps(metadata or {}, sort_keys=True, separators=(",", ":")).encode("utf-8")
+    if len(meta) > MAX_METADATA_BYTES:
+        raise ValueError(f"metadata JSON is {len(meta)} bytes, limit {MAX_METADATA_BYTES}")
+    pid = content_id(enc, tbytes, sbytes) if policy_id is None else policy_id
+    when = int(time.time()) if created is None else int(created)
+    head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, HEADER.size, flags, KIND_CODES[encoder.kind],
+                       code, n_actions, n_states, pid & 0xFFFFFFFF, when, float(scale), len(enc), len(meta))
+    body = head + enc + meta + tbytes + sbytes
+    return body + CRC.pack(zlib.crc32(body))

@@ -1,0 +1,203 @@
+"""Float Q-table -> int `.qtab` policy: symmetric quantisation, the
+float-vs-int comparison and the atomic file write.
+
+The byte layout belongs to `firmware_py.policy` (`dump_policy`); this module
+owns only the numbers: how a float table becomes int8/int16 plus scale(s),
+and how much the rounding changed (argmax agreement, ties). Whether the int
+table still drives as well is judged by rollouts (see `rollout_compare`),
+because rounding creates argmax ties that rarely change path optimality.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from array import array
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from firmware_py import policy as fmt
+from firmware_py import robot
+from firmware_py.encoders import CellEncoder, SectorEncoder
+
+NP_DTYPES = {"int8": np.int8, "int16": np.int16}
+
+
+@dataclass(frozen=True)
+class Quantised:
+    """An int table and the scale(s) that map it back: q ~= table * scale."""
+
+    table: np.ndarray  # (n_states, n_actions), int8 or int16
+    dtype: str
+    scale: float  # the table's scale (with per-state scales: their maximum)
+    state_scales: np.ndarray | None  # float32 (n_states,) or None
+    rounding_ties: int  # values exactly halfway between two ints before rounding
+
+    def dequantise(self) -> np.ndarray:
+        s = self.state_scales[:, None].astype(np.float64) if self.state_scales is not None else self.scale
+        return self.table.astype(np.float64) * s
+
+
+def quantise(q: np.ndarray, dtype: str = "int8", per_state: bool = False) -> Quantised:
+    """Symmetric quantisation: scale = max|q| / qmax, ints = round(q / scale).
+
+    One scale per table by default; `per_state=True` gives each row its own
+    scale (stored as float32), which keeps small-valued rows from collapsing
+    to ties. Rounding is half-to-even; exact halves are counted and reported.
+    """
+    if dtype not in NP_DTYPES:
+        raise ValueError(f"dtype must be int8 or int16, not {dtype!r}")
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim != 2 or q.size == 0:
+        raise ValueError(f"Q-table must be a non-empty 2-D array, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise ValueError("Q-table has NaN or infinite values")
+    qmax = fmt.DTYPES[fmt.DTYPE_CODES[dtype]][3]
+    if per_state:
+        peak = np.abs(q).max(axis=1)
+        # float32 first, so quantising and dequantising use the stored value
+        scales = np.where(peak > 0, peak / qmax, 1.0).astype(np.float32)
+        scales = np.where(scales > 0, scales, np.float32(1.0)).astype(np.float32)  # underflow guard
+        x = q / scales[:, None].astype(np.float64)
+        scale = float(scales.max())
+    else:
+        peak = float(np.abs(q).max())
+        scale = peak / qmax if peak > 0 else 1.0
+        scales = None
+        x = q / scale
+    frac = np.abs(x - np.trunc(x))
+    ties = int(np.count_nonzero(frac == 0.5))
+    ints = np.clip(np.rint(x), -qmax, qmax).astype(NP_DTYPES[dtype])
+    return Quantised(table=ints, dtype=dtype, scale=scale, state_scales=scales, rounding_ties=ties)
+
+
+def tie_rate(table: np.ndarray) -> float:
+    """Fraction of states whose best value is shared by two or more actions."""
+    t = np.asarray(table)
+    return float(np.mean((t == t.max(axis=1, keepdims=True)).sum(axis=1) > 1))
+
+
+def compare(q: np.ndarray, qt: Quantised) -> dict:
+    """How rounding changed the greedy choice (np.argmax ties -> lowest index,
+    the same rule as firmware_py.encoders.best_action)."""
+    agree = np.argmax(q, axis=1) == np.argmax(qt.table, axis=1)
+    return {
+        "argmax_agreement": float(np.mean(agree)),
+        "tie_rate": tie_rate(qt.table),
+        "float_tie_rate": tie_rate(q),
+        "rounding_ties": qt.rounding_ties,
+    }
+
+
+def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder:
+    """Rebuild a reference encoder from its `to_dict()` (as in meta.json)."""
+    kind = d.get("kind")
+    if kind == "cell":
+        return CellEncoder(width=int(d["width"]), height=int(d["height"]), n_goals=int(d.get("n_goals", 1)))
+    if kind == "sector":
+        return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
+                             sensors=tuple(int(s) for s in d["sensors"]),
+                             range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]))
+    raise ValueError(f"unknown encoder kind {kind!r}")
+
+
+def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder, *, goals=(),
+                 cell_mm: int = robot.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
+                 policy_id: int | None = None, created: int | None = None) -> bytes:
+    """`.qtab` bytes for a quantised table (layout from firmware_py.policy)."""
+    if qt.table.shape != (encoder.n_states, encoder.n_actions):
+        raise ValueError(f"table shape {qt.table.shape} does not match the encoder's "
+                         f"({encoder.n_states}, {encoder.n_actions})")
+    typecode = fmt.DTYPES[fmt.DTYPE_CODES[qt.dtype]][1]
+    flat = array(typecode)
+    flat.frombytes(np.ascontiguousarray(qt.table, dtype=qt.table.dtype.newbyteorder("=")).tobytes())
+    scales = None
+    if qt.state_scales is not None:
+        scales = array("f")
+        scales.frombytes(np.ascontiguousarray(qt.state_scales, dtype=np.float32).tobytes())
+    return fmt.dump_policy(encoder, flat, qt.dtype, qt.scale, state_scales=scales, goals=goals,
+                           cell_mm=cell_mm, metadata=metadata, policy_id=policy_id, created=created)
+
+
+def write_atomic(path: str | os.PathLike, data: bytes) -> None:
+    """Write a file so readers see the old or the new one, never a torn one."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# --- a training run directory -> policy file ------------------------------------
+
+@dataclass
+class TrainingRun:
+    """What `qnav train` left in its output directory."""
+
+    q: np.ndarray
+    meta: dict
+    encoder: CellEncoder | SectorEncoder
+    goals: list[tuple[int, int]]
+    cell_mm: int
+
+
+def load_run(run_dir: str | os.PathLike) -> TrainingRun:
+    """Read DIR/q.npy and DIR/meta.json; ValueError with one line if unusable."""
+    d = Path(run_dir)
+    try:
+        q = np.load(d / "q.npy", allow_pickle=False)
+        meta = json.loads((d / "meta.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{d}: not a training run ({exc})") from None
+    try:
+        encoder = encoder_from_dict(meta["encoder"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{d}/meta.json: bad encoder description ({exc})") from None
+    if q.shape != (encoder.n_states, encoder.n_actions):
+        raise ValueError(f"{d}/q.npy has shape {q.shape}, the encoder needs "
+                         f"({encoder.n_states}, {encoder.n_actions})")
+    goals = [(int(c), int(r)) for c, r in meta.get("goals", [])] if encoder.kind == "cell" else []
+    if encoder.kind == "cell" and len(goals) != encoder.n_goals:
+        raise ValueError(f"{d}/meta.json lists {len(goals)} goals for {encoder.n_goals} goal slots")
+    cell_mm = meta.get("cell_mm")
+    if cell_mm is None and "cell_size_m" in meta:
+        cell_mm = round(float(meta["cell_size_m"]) * 1000)
+    return TrainingRun(q=q, meta=meta, encoder=encoder, goals=goals,
+                       cell_mm=int(cell_mm or robot.DEFAULT_CELL_SIZE_MM))
+
+
+def _created(meta: dict) -> int:
+    """Creation time for the header: SOURCE_DATE_EPOCH (reproducible builds),
+    else the training run's own time, else now."""
+    if os.environ.get("SOURCE_DATE_EPOCH", "").isdigit():
+        return int(os.environ["SOURCE_DATE_EPOCH"])
+    c = meta.get("created")
+    if isinstance(c, int | float) and c >= 0:
+        return int(c)
+    if isinstance(c, str):
+        from datetime import datetime
+        try:
+            return max(0, int(datetime.fromisoformat(c.replace("Z", "+00:00")).timestamp()))
+        except ValueError:
+            pass
+    return int(time.time())
+
+
+def file_metadata(run: TrainingRun, qt: Quantised) -> dict:
+    """The training facts carried in the file (bounded: big fields dropped)."""
+    keep = {k: run.meta[k] for k in ("encoding", "map", "targets", "config", "steps", "train_seconds",
+                                     "created", "seed") if k in run.meta}
+    keep["quantisation"] = {"dtype": qt.dtype, "per_state_scales": qt.state_scales is not None}
+    if len(json.dumps(keep)) > fmt.MAX_METADATA_BYTES:
+        keep.pop("config", None)
+    return keep

@@ -1,0 +1,240 @@
+"""`.qtab` format: byte layout, round trip and the loader's field checks."""
+
+import json
+import math
+import random
+import struct
+import zlib
+from array import array
+
+import numpy as np
+import pytest
+
+from firmware_py import robot
+from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
+from firmware_py.policy import (
+    CRC,
+    HEADER,
+    MAX_FILE_BYTES,
+    MAX_METADATA_BYTES,
+    PolicyError,
+    dump_policy,
+    load_policy,
+)
+from ground_station.export import compare, policy_bytes, quantise
+
+GOALS = [(1, 1), (8, 2), (3, 7), (9, 9)]
+
+
+def cell_file(**kw) -> bytes:
+    enc = CellEncoder(10, 10, 4)
+    rng = random.Random(1)
+    table = array("b", [rng.randint(-127, 127) for _ in range(enc.n_states * enc.n_actions)])
+    args = {"goals": GOALS, "metadata": {"map": "paper10"}, "created": 1_700_000_000}
+    args.update(kw)
+    return dump_policy(enc, table, "int8", 0.25, **args)
+
+
+def fix_crc(b: bytes | bytearray) -> bytes:
+    body = bytes(b[:-4])
+    return body + CRC.pack(zlib.crc32(body))
+
+
+def set_field(b: bytes, index: int, value) -> bytes:
+    fields = list(HEADER.unpack_from(b, 0))
+    fields[index] = value
+    return fix_crc(HEADER.pack(*fields) + b[HEADER.size:])
+
+
+def test_header_layout_is_byte_exact():
+    b = cell_file(policy_id=0x01020304)
+    assert b[:4] == b"QTAB"
+    assert b[4] == 1 and b[5] == 0  # major, minor
+    assert struct.unpack_from("<H", b, 6)[0] == 48  # header_size
+    assert struct.unpack_from("<I", b, 8)[0] == 0  # flags
+    assert b[12] == 1 and b[13] == 1  # kind cell, dtype int8
+    assert struct.unpack_from("<HI", b, 14) == (4, 400)
+    assert b[20:24] == bytes([4, 3, 2, 1])  # little-endian policy id
+    assert struct.unpack_from("<q", b, 24)[0] == 1_700_000_000
+    assert struct.unpack_from("<d", b, 32)[0] == 0.25
+    enc_len, meta_len = struct.unpack_from("<II", b, 40)
+    # cell section: 4 x u16 head + 4 goals x 2 u16 + 4 actions x 2 i16
+    assert enc_len == 8 + 4 * 4 + 4 * 4
+    assert struct.unpack_from("<HHHH", b, 48) == (10, 10, 4, robot.DEFAULT_CELL_SIZE_MM)
+    assert struct.unpack_from("<HH", b, 56) == (1, 1)
+    meta = b[48 + enc_len:48 + enc_len + meta_len]
+    assert json.loads(meta) == {"map": "paper10"}
+    assert len(b) == 48 + enc_len + meta_len + 400 * 4 + 4
+    assert struct.unpack_from("<I", b, len(b) - 4)[0] == zlib.crc32(b[:-4])
+
+
+def test_round_trip_cell_and_sector_both_dtypes():
+    for enc in (CellEncoder(10, 10, 4), SectorEncoder(), SectorEncoder(4, (0, 2), (500,))):
+        for dtype, lo, hi in (("int8", -127, 127), ("int16", -32767, 32767)):
+            rng = random.Random(enc.n_states)
+            vals = [rng.randint(lo, hi) for _ in range(enc.n_states * enc.n_actions)]
+            goals = GOALS if enc.kind == "cell" else ()
+            b = dump_policy(enc, vals, dtype, 0.5, goals=goals, metadata={"x": [1, 2]})
+            p = load_policy(b)
+            assert p.encoder == enc and p.dtype == dtype and p.kind == enc.kind
+            assert isinstance(p.table, memoryview) and p.table.readonly
+            assert p.table.tolist() == vals
+            assert p.n_states == enc.n_states and p.n_actions == enc.n_actions
+            assert p.crc == zlib.crc32(b[:-4]) and p.size == len(b)
+            assert p.metadata == {"x": [1, 2]}
+            if enc.kind == "cell":
+                assert p.goals == tuple(GOALS) and p.cell_mm == robot.DEFAULT_CELL_SIZE_MM
+            for s in range(0, enc.n_states, 7):
+                row = vals[s * enc.n_actions:(s + 1) * enc.n_actions]
+                assert list(p.row(s)) == row
+                assert p.best_action(s) == best_action(row)
+
+
+def test_best_action_ties_break_to_lowest_index_like_the_ground_station():
+    enc = CellEncoder(3, 1, 1)
+    rows = [[5, 5, 1, 0], [-2, 3, 3, 3], [0, 0, 0, 0]]
+    p = load_policy(dump_policy(enc, [v for r in rows for v in r], "int16", 1.0, goals=[(0, 0)]))
+    assert [p.best_action(s) for s in range(3)] == [0, 1, 0]
+    assert [p.best_action(s) for s in range(3)] == np.argmax(np.array(rows), axis=1).tolist()
+    with pytest.raises(IndexError):
+        p.row(3)
+    with pytest.raises(IndexError):
+        p.best_action(-1)
+
+
+def test_quantised_table_robot_argmax_equals_numpy_argmax_on_every_state():
+    rng = np.random.default_rng(3)
+    enc = SectorEncoder()
+    q = rng.normal(size=(enc.n_states, 4)).round(1)  # rounding makes ties
+    for per_state in (False, True):
+        qt = quantise(q, "int8", per_state=per_state)
+        p = load_policy(policy_bytes(qt, enc))
+        robot_side = [p.best_action(s) for s in range(enc.n_states)]
+        assert robot_side == np.argmax(qt.table, axis=1).tolist()
+        assert compare(q, qt)["tie_rate"] > 0  # the case the tie rule matters for
+
+
+def test_policy_id_defaults_to_content_and_ignores_metadata_and_time():
+    a = load_policy(cell_file(metadata={"a": 1}, created=5))
+    b = load_policy(cell_file(metadata={"b": 2}, created=6))
+    assert a.policy_id == b.policy_id and a.crc != b.crc
+    assert load_policy(cell_file(policy_id=7)).policy_id == 7
+
+
+def test_per_state_scales_round_trip_and_q_values():
+    enc = CellEncoder(2, 1, 1)
+    b = dump_policy(enc, [1, 2, 3, 4, -4, 0, 0, 0], "int8", 2.0, state_scales=[0.5, 2.0], goals=[(0, 0)])
+    p = load_policy(b)
+    assert p.header()["per_state_scales"] is True
+    assert p.q_values(0) == [0.5, 1.0, 1.5, 2.0]
+    assert p.q_values(1) == [-8.0, 0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("index,value,reason", [
+    (0, b"QTAX", "magic"),
+    (1, 2, "version 2.0 unsupported"),
+    (1, 0, "version 0.0 unsupported"),
+    (3, 47, "header_size"),
+    (4, 0x2, "unknown flag"),
+    (5, 9, "encoder kind"),
+    (6, 3, "dtype"),
+    (7, 5, "actions"),
+    (8, 401, "declare"),
+    (8, 0, "no states"),
+    (8, 2**32 - 1, "declare"),
+    (10, -1, "negative"),
+    (11, 0.0, "scale"),
+    (11, -1.0, "scale"),
+    (11, math.nan, "scale"),
+    (11, math.inf, "scale"),
+    (12, 2**32 - 1, "declare"),
+    (13, MAX_METADATA_BYTES + 1, "metadata"),
+])
+def test_each_header_field_is_checked(index, value, reason):
+    with pytest.raises(PolicyError, match=reason):
+        load_policy(set_field(cell_file(), index, value))
+
+
+def test_newer_minor_version_with_a_longer_header_is_read():
+    b = cell_file()
+    fields = list(HEADER.unpack_from(b, 0))
+    fields[2] = 7  # minor
+    fields[3] = HEADER.size + 8  # 8 bytes of fields this loader does not know
+    newer = fix_crc(HEADER.pack(*fields) + b"\xaa" * 8 + b[HEADER.size:])
+    p = load_policy(newer)
+    assert p.version == (1, 7)
+    assert p.table.tolist() == load_policy(b).table.tolist()
+
+
+def test_robot_configuration_is_enforced():
+    enc = SectorEncoder(4, (0, 7), (500,))
+    b = dump_policy(enc, [0] * enc.n_states * 4, "int8", 1.0)
+    assert load_policy(b).encoder.sensors == (0, 7)
+    with pytest.raises(PolicyError, match="sensor index 7"):
+        load_policy(b, expect_sensors=6)
+    with pytest.raises(PolicyError, match="uses 2 sensors"):
+        load_policy(b, expect_sensors=1)
+    # a different action set (the wheel-speed pairs are in the encoder section)
+    off = HEADER.size + 4 + 2 + 2  # head, 2 sensors, 1 edge
+    tampered = bytearray(b)
+    struct.pack_into("<hh", tampered, off, 500, 500)
+    with pytest.raises(PolicyError, match="action set"):
+        load_policy(fix_crc(tampered))
+
+
+def test_goal_outside_grid_and_bad_metadata_are_rejected():
+    b = bytearray(cell_file())
+    struct.pack_into("<HH", b, HEADER.size + 8, 10, 0)
+    with pytest.raises(PolicyError, match=r"goal \(10,0\)"):
+        load_policy(fix_crc(b))
+    enc_len, meta_len = struct.unpack_from("<II", b, 40)
+    start = HEADER.size + enc_len
+    for bad, why in ((b"[" * meta_len, "not UTF-8 JSON"), (b"\xff" * meta_len, "not UTF-8 JSON"),
+                     (b"[1]".ljust(meta_len), "not a JSON object")):
+        c = bytearray(cell_file())
+        c[start:start + meta_len] = bad
+        with pytest.raises(PolicyError, match=why):
+            load_policy(fix_crc(c))
+
+
+def test_deeply_nested_metadata_of_max_size_is_a_policy_error():
+    enc = CellEncoder(1, 1, 1)
+    b = bytearray(dump_policy(enc, [0, 0, 0, 0], "int8", 1.0, goals=[(0, 0)]))
+    fields = list(HEADER.unpack_from(b, 0))
+    fields[13] = MAX_METADATA_BYTES
+    enc_sec = bytes(b[HEADER.size:HEADER.size + fields[12]])
+    body = HEADER.pack(*fields) + enc_sec + b"[" * MAX_METADATA_BYTES + bytes(4)
+    with pytest.raises(PolicyError, match="metadata"):
+        load_policy(fix_crc(body + bytes(4)))
+
+
+def test_files_on_disk(tmp_path):
+    good = tmp_path / "p.qtab"
+    good.write_bytes(cell_file())
+    assert load_policy(good).n_states == 400
+    assert load_policy(str(good)).n_states == 400
+    with pytest.raises(PolicyError, match="cannot read"):
+        load_policy(tmp_path / "missing.qtab")
+    with pytest.raises(PolicyError, match="cannot read"):
+        load_policy(tmp_path)
+    huge = tmp_path / "huge.qtab"
+    with open(huge, "wb") as f:  # sparse: costs no disk, must not be read
+        f.truncate(MAX_FILE_BYTES + 1)
+    with pytest.raises(PolicyError, match="limit"):
+        load_policy(huge)
+
+
+def test_writer_refuses_inconsistent_input():
+    enc = CellEncoder(2, 2, 1)
+    with pytest.raises(ValueError):
+        dump_policy(enc, [0] * 15, "int8", 1.0, goals=[(0, 0)])
+    with pytest.raises(ValueError):
+        dump_policy(enc, [-128] + [0] * 15, "int8", 1.0, goals=[(0, 0)])
+    with pytest.raises(OverflowError):
+        dump_policy(enc, [128] + [0] * 15, "int8", 1.0, goals=[(0, 0)])
+    with pytest.raises(ValueError):
+        dump_policy(enc, [0] * 16, "int8", 1.0, goals=[])
+    with pytest.raises(ValueError):
+        dump_policy(enc, [0] * 16, "int4", 1.0, goals=[(0, 0)])
+    with pytest.raises(ValueError):
+        dump_policy(enc, [0] * 16, "int8", 0.0, goals=[(0, 0)])
