@@ -1,0 +1,119 @@
+"""Symmetric quantiser and the float-vs-int comparison (ground_station.export)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.policy import load_policy
+from ground_station.export import (
+    compare,
+    encoder_from_dict,
+    file_metadata,
+    load_run,
+    policy_bytes,
+    quantise,
+    tie_rate,
+    write_atomic,
+)
+
+
+def test_one_scale_per_table_maps_the_peak_to_qmax():
+    q = np.array([[1.0, -2.0, 0.5, 0.0], [0.25, 0.0, 0.0, -0.1]])
+    qt = quantise(q, "int8")
+    assert qt.scale == pytest.approx(2.0 / 127)
+    assert qt.table.dtype == np.int8
+    assert qt.table[0].tolist() == [64, -127, 32, 0]  # 63.5 -> 64 (half to even), 31.75 -> 32
+    assert qt.rounding_ties == 1
+    assert np.max(np.abs(qt.dequantise() - q)) <= qt.scale / 2 + 1e-12
+    q16 = quantise(q, "int16")
+    assert q16.table.dtype == np.int16 and q16.table[0, 1] == -32767
+
+
+def test_rounding_ties_are_counted_and_round_half_to_even():
+    q = np.array([[127.0, 0.5, 1.5, -2.5]])  # scale 1: three exact halves
+    qt = quantise(q, "int8")
+    assert qt.scale == 1.0
+    assert qt.table[0].tolist() == [127, 0, 2, -2]
+    assert qt.rounding_ties == 3
+
+
+def test_per_state_scales_keep_small_rows_apart():
+    q = np.array([[100.0, 0.0, 0.0, 0.0], [0.010, 0.011, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    one = quantise(q, "int8")
+    per = quantise(q, "int8", per_state=True)
+    assert one.table[1].tolist() == [0, 0, 0, 0]  # collapsed to a tie
+    assert per.table[1].tolist() == [115, 127, 0, 0]
+    assert per.state_scales.dtype == np.float32 and per.state_scales[2] == 1.0  # all-zero row
+    assert compare(q, per)["argmax_agreement"] == 1.0
+    assert compare(q, one)["argmax_agreement"] == pytest.approx(2 / 3)
+    assert compare(q, one)["tie_rate"] == pytest.approx(2 / 3)
+    assert compare(q, one)["float_tie_rate"] == pytest.approx(1 / 3)
+    assert np.allclose(per.dequantise(), q, atol=1e-3)
+
+
+def test_quantise_refuses_bad_tables():
+    for bad in (np.zeros((0, 4)), np.zeros(4), np.array([[np.nan, 0, 0, 0]])):
+        with pytest.raises(ValueError):
+            quantise(bad)
+    with pytest.raises(ValueError):
+        quantise(np.zeros((1, 4)), "int4")
+    qt = quantise(np.zeros((2, 4)))
+    assert qt.scale == 1.0 and tie_rate(qt.table) == 1.0
+
+
+def test_policy_bytes_round_trip_equals_quantised_table():
+    rng = np.random.default_rng(0)
+    enc = SectorEncoder(4, (0, 1, 7), (300, 900))
+    q = rng.normal(size=(enc.n_states, 4)) * 50
+    for dtype in ("int8", "int16"):
+        for per in (False, True):
+            qt = quantise(q, dtype, per_state=per)
+            p = load_policy(policy_bytes(qt, enc, metadata={"k": 1}))
+            assert np.array_equal(np.array(p.table.tolist()).reshape(q.shape), qt.table)
+            assert p.scale == pytest.approx(qt.scale)
+            assert np.allclose([p.q_values(s) for s in range(enc.n_states)], qt.dequantise(), rtol=1e-6)
+    with pytest.raises(ValueError):
+        policy_bytes(quantise(q[:-1]), enc)
+
+
+def make_run(tmp_path, enc, goals=None, **meta):
+    q = np.random.default_rng(1).normal(size=(enc.n_states, enc.n_actions))
+    np.save(tmp_path / "q.npy", q)
+    m = {"encoding": enc.kind, "encoder": enc.to_dict(), "map": "paper10", "targets": ["A"],
+         "config": {"lr": 0.5}, "steps": 1000, "train_seconds": 0.1, "created": "2026-01-02T03:04:05Z"}
+    if goals is not None:
+        m["goals"] = goals
+    m.update(meta)
+    (tmp_path / "meta.json").write_text(json.dumps(m))
+    return q
+
+
+def test_load_run_reads_the_training_contract(tmp_path):
+    enc = CellEncoder(10, 10, 1)
+    q = make_run(tmp_path, enc, goals=[[2, 3]])
+    run = load_run(tmp_path)
+    assert run.encoder == enc and run.goals == [(2, 3)] and np.array_equal(run.q, q)
+    meta = file_metadata(run, quantise(run.q))
+    assert meta["map"] == "paper10" and meta["quantisation"] == {"dtype": "int8", "per_state_scales": False}
+    assert encoder_from_dict(SectorEncoder().to_dict()) == SectorEncoder()
+
+
+def test_load_run_errors_are_one_line(tmp_path):
+    with pytest.raises(ValueError, match="not a training run"):
+        load_run(tmp_path)
+    make_run(tmp_path, CellEncoder(10, 10, 2), goals=[[2, 3]])
+    with pytest.raises(ValueError, match="1 goals for 2"):
+        load_run(tmp_path)
+    np.save(tmp_path / "q.npy", np.zeros((3, 4)))
+    with pytest.raises(ValueError, match="shape"):
+        load_run(tmp_path)
+
+
+def test_write_atomic_replaces_whole_file(tmp_path):
+    p = tmp_path / "x.qtab"
+    write_atomic(p, b"old")
+    write_atomic(p, b"new contents")
+    assert p.read_bytes() == b"new contents"
+    assert [f.name for f in tmp_path.iterdir()] == ["x.qtab"]
