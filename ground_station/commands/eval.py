@@ -1,0 +1,55 @@
+"""`qnav eval`: greedy rollouts of a trained run against shortest paths.
+
+Every (start, goal) pair of the map (a seeded sample of --sample pairs on
+large maps): success rate, path length / shortest (mean, max), timeouts,
+collisions, loops, beside the greedy nearest-free-neighbour baseline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="evaluate a trained run (greedy rollouts vs shortest paths)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", metavar="DIR", help="run folder written by qnav train")
+    p.add_argument("--map", required=True, metavar="NAME|PATH", help="map to evaluate on")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--sample", type=int, default=None, metavar="N",
+                   help="evaluate a seeded sample of N (start, goal) pairs instead of all")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sample (default: 0)")
+    p.set_defaults(func=run)
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    return f"{v:.3f}" if isinstance(v, float) else str(v)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ground_station.cli import CliError
+    from ground_station.evaluate import evaluate_run
+    from ground_station.maps import MapError, load_map
+
+    if args.sample is not None and args.sample < 1:
+        raise CliError(f"--sample must be >= 1, got {args.sample}")
+    try:
+        gridmap = load_map(args.map)
+        rep = evaluate_run(args.run_dir, gridmap, sample=args.sample, seed=args.seed)
+    except (MapError, ValueError, NotImplementedError) as exc:
+        raise CliError(str(exc)) from None
+    if args.json:
+        print(json.dumps(rep, indent=1))
+        return 0
+    base = rep.get("baseline", {})
+    keys = ["success_rate", "path_ratio_mean", "path_ratio_max", "timeouts", "collisions", "loops", "episodes"]
+    print(f"== qnav eval {args.run_dir} on {gridmap.name} ({rep.get('encoding')}) ==")
+    print(f"{'':<16}{'policy':>10}{'baseline':>10}")
+    for k in keys:
+        print(f"{k:<16}{_fmt(rep.get(k)):>10}{_fmt(base.get(k)):>10}")
+    if rep.get("per_target"):
+        print("per target success: " + ", ".join(f"{k} {_fmt(v)}" for k, v in rep["per_target"].items()))
+    return 0

@@ -1,0 +1,49 @@
+"""`qnav train`: train a Q table and write the run folder.
+
+Writes DIR/q.npy (float64, n_states x n_actions), DIR/meta.json,
+DIR/metrics.csv and DIR/learning_curve.png (see `ground_station.train`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from ground_station.train_config import add_config_arguments
+
+    p = sub.add_parser("train", help="train a tabular Q policy (cell or sector encoding)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", required=True, metavar="DIR", help="run folder to write (created if missing)")
+    add_config_arguments(p)
+    p.add_argument("--epsilon", type=float, default=None,
+                   help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ground_station.cli import CliError
+    from ground_station.maps import MapError, load_map
+    from ground_station.train import config_from_args, train, validate_config, write_run
+
+    cfg = config_from_args(args)
+    if args.epsilon is not None:
+        cfg.epsilon_start = cfg.epsilon_end = args.epsilon
+    try:
+        validate_config(cfg)
+        gridmap = load_map(cfg.map)
+        t0 = time.perf_counter()
+        res = train(cfg, gridmap, progress=not args.quiet)
+    except (MapError, ValueError, NotImplementedError) as exc:
+        raise CliError(str(exc)) from None
+    meta = write_run(args.out, cfg, res)
+    if not args.quiet:
+        tail = res.successes[-max(1, len(res.successes) // 20):]
+        print(f"trained {cfg.encoding} on {gridmap.name}: {cfg.steps:,} steps, {len(res.returns):,} episodes "
+              f"in {res.seconds:.2f} s ({meta['steps_per_s'] or 0:,.0f} steps/s; "
+              f"{time.perf_counter() - t0:.2f} s with setup); "
+              f"last 5% of episodes: success {tail.mean():.3f} (with exploration)")
+        print(f"wrote {args.out}/q.npy {list(res.q.shape)}, meta.json, metrics.csv, learning_curve.png")
+    return 0

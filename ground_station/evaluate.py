@@ -1,0 +1,189 @@
+"""Greedy-policy evaluation against shortest paths, from saved artifacts only.
+
+For the `cell` encoding: one greedy rollout (ties -> lowest action index,
+as on the robot) from every free start cell to every goal (a seeded sample
+of `sample` pairs on large maps). Each rollout ends as
+
+* success: reached the goal; its path ratio = steps / BFS shortest steps,
+* collision: the chosen move enters an obstacle or leaves the map,
+* loop: the rollout revisits a cell (a deterministic policy then cycles
+  forever, so this is detected at the first revisit),
+* timeout: `max_steps` moves without any of the above.
+
+Beside it, in the same report, the greedy baseline "step to the free
+neighbour nearest (Euclidean) to the goal", judged the same way. Sector
+policies are evaluated by `ground_station.sector_twin.evaluate_sector`;
+`evaluate_run` dispatches on meta.json's encoding.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from firmware_py.encoders import CellEncoder, SectorEncoder
+from ground_station.envs.cell_env import cell_transitions, goal_distances, resolve_goals
+from ground_station.maps import GridMap, MapError
+
+SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
+POLICY_Q, POLICY_NEAREST = 0, 1
+
+
+@numba.njit(cache=True)
+def rollouts_cell(q, next_cell, width, goal_cells, pair_goal, pair_start, max_steps, policy):
+    """Run one deterministic rollout per (goal index, start cell) pair.
+
+    policy POLICY_Q: greedy on q (n_goals*H*W, 4); POLICY_NEAREST: the free
+    neighbour with the smallest Euclidean distance to the goal. Returns
+    (outcome int8[n], steps int32[n])."""
+    n = pair_goal.shape[0]
+    n_cells = next_cell.shape[0]
+    n_actions = next_cell.shape[1]
+    outcome = np.empty(n, dtype=np.int8)
+    steps = np.zeros(n, dtype=np.int32)
+    stamp = np.full(n_cells, -1, dtype=np.int64)  # rollout id that last visited a cell
+    for i in range(n):
+        g = pair_goal[i]
+        goal = goal_cells[g]
+        gc = goal % width
+        gr = goal // width
+        cell = pair_start[i]
+        stamp[cell] = i
+        res = TIMEOUT
+        for t in range(max_steps):
+            if policy == POLICY_Q:
+                s = g * n_cells + cell
+                a = 0
+                best = q[s, 0]
+                for k in range(1, n_actions):
+                    if q[s, k] > best:
+                        best = q[s, k]
+                        a = k
+                nxt = next_cell[cell, a]
+            else:
+                nxt = -1
+                best_d = np.inf
+                for k in range(n_actions):
+                    c2 = next_cell[cell, k]
+                    if c2 >= 0:
+                        dc = c2 % width - gc
+                        dr = c2 // width - gr
+                        d = dc * dc + dr * dr
+                        if d < best_d:
+                            best_d = d
+                            nxt = c2
+            steps[i] = t + 1
+            if nxt < 0:
+                res = COLLISION
+                break
+            if nxt == goal:
+                res = SUCCESS
+                break
+            if stamp[nxt] == i:
+                res = LOOP
+                break
+            stamp[nxt] = i
+            cell = nxt
+        outcome[i] = res
+    return outcome, steps
+
+
+def _summary(outcome: np.ndarray, steps: np.ndarray, shortest: np.ndarray) -> dict:
+    ok = outcome == SUCCESS
+    ratio = steps[ok] / shortest[ok]
+    n = len(outcome)
+    return {
+        "success_rate": float(ok.mean()) if n else 0.0,
+        "path_ratio_mean": float(ratio.mean()) if ok.any() else None,
+        "path_ratio_max": float(ratio.max()) if ok.any() else None,
+        "timeouts": int((outcome == TIMEOUT).sum()),
+        "collisions": int((outcome == COLLISION).sum()),
+        "loops": int((outcome == LOOP).sum()),
+        "episodes": int(n),
+    }
+
+
+def evaluate_cell(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int]],
+                  sample: int | None = None, seed: int = 0, max_steps: int | None = None,
+                  target_names: list[str] | None = None) -> dict:
+    """Greedy Q policy vs the nearest-neighbour baseline over all (start, goal) pairs."""
+    enc = CellEncoder(gridmap.width, gridmap.height, len(goals))
+    if q.shape != (enc.n_states, enc.n_actions):
+        raise ValueError(f"Q table shape {q.shape} does not fit a {gridmap.width}x{gridmap.height} map "
+                         f"with {len(goals)} goals (expected {(enc.n_states, enc.n_actions)})")
+    for c, r in goals:
+        if not gridmap.is_free(c, r):
+            raise MapError(f"goal ({c},{r}) is not a free cell of map {gridmap.name}")
+    w = gridmap.width
+    dist = goal_distances(gridmap, goals)
+    pair_goal, pair_start = np.nonzero(dist > 0)  # every start that can reach the goal, goal excluded
+    if sample is not None and len(pair_goal) > sample:
+        pick = np.sort(np.random.default_rng(seed).choice(len(pair_goal), sample, replace=False))
+        pair_goal, pair_start = pair_goal[pick], pair_start[pick]
+    pair_goal = pair_goal.astype(np.int64)
+    pair_start = pair_start.astype(np.int64)
+    shortest = dist[pair_goal, pair_start].astype(np.float64)
+    nxt = cell_transitions(gridmap.occ)
+    goal_cells = np.array([r * w + c for c, r in goals], dtype=np.int64)
+    limit = int(max_steps or gridmap.width * gridmap.height)
+    q64 = np.ascontiguousarray(q, dtype=np.float64)
+    out, steps = rollouts_cell(q64, nxt, w, goal_cells, pair_goal, pair_start, limit, POLICY_Q)
+    b_out, b_steps = rollouts_cell(q64, nxt, w, goal_cells, pair_goal, pair_start, limit, POLICY_NEAREST)
+    rep = _summary(out, steps, shortest)
+    base = _summary(b_out, b_steps, shortest)
+    rep["baseline_success_rate"] = base["success_rate"]
+    rep["baseline"] = base
+    names = target_names or [f"{c}:{r}" for c, r in goals]
+    rep["per_target"] = {
+        name: float((out[pair_goal == g] == SUCCESS).mean()) if (pair_goal == g).any() else None
+        for g, name in enumerate(names)}
+    rep["encoding"] = "cell"
+    rep["map"] = gridmap.name
+    return rep
+
+
+def load_run(run_dir: str | Path) -> tuple[np.ndarray, dict]:
+    """q.npy and meta.json of a training run folder (ValueError if unusable)."""
+    d = Path(run_dir)
+    try:
+        meta = json.loads((d / "meta.json").read_text())
+        q = np.load(d / "q.npy", allow_pickle=False)
+    except FileNotFoundError as exc:
+        raise ValueError(f"{d} is not a training run folder: missing {Path(exc.filename).name}") from None
+    except (json.JSONDecodeError, ValueError) as exc:
+        raise ValueError(f"{d}: unreadable run artifacts: {exc}") from None
+    if meta.get("encoding") not in ("cell", "sector"):
+        raise ValueError(f"{d}/meta.json: unknown encoding {meta.get('encoding')!r}")
+    if q.ndim != 2:
+        raise ValueError(f"{d}/q.npy: expected a 2-D table, got shape {q.shape}")
+    return q, meta
+
+
+def sector_encoder_from_meta(d: dict) -> SectorEncoder:
+    return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]), sensors=tuple(d["sensors"]),
+                         range_edges_mm=tuple(d["range_edges_mm"]))
+
+
+def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = None, seed: int = 0) -> dict:
+    """Evaluate a saved run on `gridmap`, dispatching on its encoding."""
+    q, meta = load_run(run_dir)
+    if meta["encoding"] == "cell":
+        goals = [tuple(g) for g in meta["goals"]]
+        enc = meta["encoder"]
+        if (enc["width"], enc["height"]) != (gridmap.width, gridmap.height):
+            raise ValueError(f"run was trained on a {enc['width']}x{enc['height']} map, "
+                             f"{gridmap.name} is {gridmap.width}x{gridmap.height}")
+        names, goals = resolve_goals(gridmap, [list(g) for g in goals])
+        return evaluate_cell(q, gridmap, goals, sample=sample, seed=seed,
+                             target_names=meta.get("targets") or names)
+    try:
+        from ground_station.sector_twin import evaluate_sector
+    except ImportError as exc:
+        raise NotImplementedError(f"the sector encoding is not available yet ({exc})") from None
+    rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample)
+    rep.setdefault("encoding", "sector")
+    rep.setdefault("map", gridmap.name)
+    return rep

@@ -1,0 +1,389 @@
+"""Tabular Q-learning trainer, CleanRL style: read it top to bottom.
+
+1. `TrainConfig`: every hyperparameter in one dataclass (defined in
+   `ground_station.train_config` so the CLI parser needs no numba; re-exported
+   here); its field help texts become `qnav train --help`.
+2. The numba kernel: exact sequential Q-learning on the `cell` encoding
+   (one environment, one update per step, in order), the update
+
+       Q(s, a) <- Q(s, a) + eta * (r + gamma * max_a' Q(s', a') - Q(s, a))
+
+   with no bootstrap on termination (goal or collision) and bootstrap on
+   truncation (episode step limit), epsilon-greedy actions (greedy ties
+   -> lowest action index, as on the robot), a linear epsilon schedule, and a
+   random goal and start at every episode (the paper's training protocol).
+   Its random numbers come from its own xorshift64* state, so a seed fixes
+   the table regardless of chunking or process.
+3. `train_cell` / `train_sector`: run the kernel (or the sector engineer's
+   `SectorTrainer`) in chunks under a tqdm progress bar.
+4. `learning_curve`, `write_run`: the run folder contract
+   (`q.npy`, `meta.json`, `metrics.csv`, `learning_curve.png`), written
+   atomically.
+
+The `cell` kernel's transitions come from `ground_station.envs.cell_env`, the
+same tables the Gymnasium `CellNavEnv` steps through.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from firmware_py.encoders import CellEncoder
+from ground_station.envs.cell_env import (
+    cell_transitions,
+    goal_distances,
+    reachable_starts,
+    resolve_goals,
+)
+from ground_station.maps import GridMap, MapError, load_map
+from ground_station.train_config import (  # noqa: F401 - re-exported
+    TrainConfig,
+    add_config_arguments,
+    config_from_args,
+    validate_config,
+)
+
+# --------------------------------------------------------------------------
+# 1. configuration (ground_station/train_config.py, imported without numba)
+# --------------------------------------------------------------------------
+# TrainConfig: map, encoding, targets, seed, steps, lr (eta), gamma,
+# epsilon_start/end/decay (linear schedule), max_episode_steps, rewards
+# (goal, step, collision), q_init_scale, curve_points, chunk_steps.
+
+
+# --------------------------------------------------------------------------
+# 2. the numba kernel
+# --------------------------------------------------------------------------
+def seed_state(seed: int) -> np.ndarray:
+    """xorshift64* state (uint64[1]) from a seed, mixed by splitmix64."""
+    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    z ^= z >> 31
+    return np.array([z or 1], dtype=np.uint64)
+
+
+@numba.njit(cache=True, inline="always")
+def rand01(rng):
+    """Uniform float in [0, 1) from the xorshift64* state `rng` (uint64[1])."""
+    x = rng[0]
+    x ^= x >> np.uint64(12)
+    x ^= x << np.uint64(25)
+    x ^= x >> np.uint64(27)
+    rng[0] = x
+    return ((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@numba.njit(cache=True)
+def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
+                    lr, gamma, eps_start, eps_end, eps_decay_steps,
+                    r_goal, r_step, r_coll, max_ep_steps,
+                    start_step, n_steps, rng, ep, ep_ret, out_ret, out_succ):
+    """Advance training by `n_steps` steps from global step `start_step`.
+
+    q: float64 (n_goals*H*W, 4), updated in place. next_cell: (H*W, 4) from
+    `cell_transitions`. starts_flat[starts_off[g]:starts_off[g+1]] are goal
+    g's start cells. ep = [cell, goal, steps in episode, active] and
+    ep_ret = [return so far] carry an unfinished episode across calls.
+    Finished episodes' returns/successes go to out_ret/out_succ; returns
+    how many finished."""
+    n_goals = goal_cells.shape[0]
+    n_cells = next_cell.shape[0]
+    n_actions = q.shape[1]
+    cell = ep[0]
+    g = ep[1]
+    t_ep = ep[2]
+    active = ep[3]
+    ret = ep_ret[0]
+    n_done = 0
+    for i in range(n_steps):
+        if active == 0:
+            g = int(rand01(rng) * n_goals)
+            lo = starts_off[g]
+            cell = starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
+            t_ep = 0
+            ret = 0.0
+            active = 1
+        t = start_step + i
+        if t >= eps_decay_steps:
+            eps = eps_end
+        else:
+            eps = eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
+        s = g * n_cells + cell
+        if rand01(rng) < eps:
+            a = int(rand01(rng) * n_actions)
+        else:
+            a = 0
+            best = q[s, 0]
+            for k in range(1, n_actions):
+                if q[s, k] > best:
+                    best = q[s, k]
+                    a = k
+        c2 = next_cell[cell, a]
+        t_ep += 1
+        done = False
+        success = False
+        if c2 < 0:  # collision: terminal, no bootstrap
+            r = r_coll
+            target = r
+            done = True
+        elif c2 == goal_cells[g]:  # goal: terminal, no bootstrap
+            r = r_goal
+            target = r
+            done = True
+            success = True
+        else:
+            r = r_step
+            s2 = g * n_cells + c2
+            m = q[s2, 0]
+            for k in range(1, n_actions):
+                if q[s2, k] > m:
+                    m = q[s2, k]
+            target = r + gamma * m  # also on truncation: time limits are not terminal
+            cell = c2
+        q[s, a] += lr * (target - q[s, a])
+        ret += r
+        if done or t_ep >= max_ep_steps:
+            out_ret[n_done] = ret
+            out_succ[n_done] = success
+            n_done += 1
+            active = 0
+    ep[0] = cell
+    ep[1] = g
+    ep[2] = t_ep
+    ep[3] = active
+    ep_ret[0] = ret
+    return n_done
+
+
+# --------------------------------------------------------------------------
+# 3. training loops
+# --------------------------------------------------------------------------
+@dataclass
+class TrainResult:
+    q: np.ndarray
+    returns: np.ndarray  # per finished episode
+    successes: np.ndarray  # bool per finished episode
+    meta: dict  # encoding-specific meta.json entries
+    seconds: float
+
+
+@dataclass
+class CellProblem:
+    """Everything the cell kernel needs, derived from a map and its goals."""
+
+    gridmap: GridMap
+    target_names: list[str]
+    goals: list[tuple[int, int]]
+    encoder: CellEncoder
+    next_cell: np.ndarray
+    goal_cells: np.ndarray
+    starts_flat: np.ndarray
+    starts_off: np.ndarray
+    dist: np.ndarray
+
+    @classmethod
+    def build(cls, gridmap: GridMap, targets: str | list | None = None) -> CellProblem:
+        names, goals = resolve_goals(gridmap, targets)
+        dist = goal_distances(gridmap, goals)
+        starts = reachable_starts(dist)
+        for name, s in zip(names, starts, strict=True):
+            if len(s) == 0:
+                raise MapError(f"target {name} of map {gridmap.name} cannot be reached from any free cell")
+        off = np.zeros(len(starts) + 1, dtype=np.int64)
+        off[1:] = np.cumsum([len(s) for s in starts])
+        w = gridmap.width
+        return cls(gridmap, names, goals, CellEncoder(w, gridmap.height, len(goals)),
+                   cell_transitions(gridmap.occ),
+                   np.array([r * w + c for c, r in goals], dtype=np.int64),
+                   np.concatenate(starts).astype(np.int64), off, dist)
+
+
+def _progress(total: int, enabled: bool, desc: str):
+    from tqdm import tqdm
+    return tqdm(total=total, unit="step", unit_scale=True, disable=not enabled, desc=desc, leave=False)
+
+
+def initial_table(cfg: TrainConfig, n_states: int, n_actions: int) -> np.ndarray:
+    if cfg.q_init_scale > 0:
+        rng = np.random.default_rng(cfg.seed)
+        return rng.uniform(-cfg.q_init_scale, cfg.q_init_scale, (n_states, n_actions))
+    return np.zeros((n_states, n_actions), dtype=np.float64)
+
+
+def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
+    """Exact sequential Q-learning on the cell encoding."""
+    prob = CellProblem.build(gridmap, cfg.targets or None)
+    q = initial_table(cfg, prob.encoder.n_states, prob.encoder.n_actions)
+    max_ep = cfg.max_episode_steps or gridmap.width * gridmap.height
+    rng = seed_state(cfg.seed)
+    ep = np.zeros(4, dtype=np.int64)
+    ep_ret = np.zeros(1, dtype=np.float64)
+    decay = int(cfg.epsilon_decay * cfg.steps)
+    chunk = min(cfg.chunk_steps, cfg.steps)
+    out_ret = np.empty(chunk, dtype=np.float64)
+    out_succ = np.empty(chunk, dtype=np.bool_)
+    rets, succs = [], []
+    t0 = time.perf_counter()
+    done = 0
+    with _progress(cfg.steps, progress, f"train cell {gridmap.name}") as bar:
+        while done < cfg.steps:
+            n = min(chunk, cfg.steps - done)
+            k = q_learning_cell(q, prob.next_cell, prob.goal_cells, prob.starts_flat, prob.starts_off,
+                                cfg.lr, cfg.gamma, cfg.epsilon_start, cfg.epsilon_end, decay,
+                                cfg.reward_goal, cfg.reward_step, cfg.reward_collision, max_ep,
+                                done, n, rng, ep, ep_ret, out_ret, out_succ)
+            rets.append(out_ret[:k].copy())
+            succs.append(out_succ[:k].copy())
+            done += n
+            bar.update(n)
+    seconds = time.perf_counter() - t0
+    meta = {"encoder": prob.encoder.to_dict(), "targets": prob.target_names,
+            "goals": [list(g) for g in prob.goals]}
+    return TrainResult(q, np.concatenate(rets), np.concatenate(succs), meta, seconds)
+
+
+def _sector_api():
+    try:
+        from ground_station.sector_twin import SectorTrainer, evaluate_sector
+    except ImportError as exc:
+        raise NotImplementedError(f"the sector encoding is not available yet ({exc})") from None
+    return SectorTrainer, evaluate_sector
+
+
+def sector_encoder(cfg: TrainConfig):
+    """The sector encoder a config trains (firmware_py's reference defaults)."""
+    from firmware_py.encoders import SectorEncoder
+    return SectorEncoder()
+
+
+def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
+    """Q-learning on the sector twin, through `ground_station.sector_twin.SectorTrainer`."""
+    SectorTrainer, _ = _sector_api()
+    encoder = sector_encoder(cfg)
+    trainer = SectorTrainer([gridmap], cfg, encoder)
+    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
+    rets, succs = [], []
+    t0 = time.perf_counter()
+    done = 0
+    with _progress(cfg.steps, progress, f"train sector {gridmap.name}") as bar:
+        while done < cfg.steps:
+            n = min(cfg.chunk_steps, cfg.steps - done)
+            r, s = trainer.run(q, done, n)
+            rets.append(np.asarray(r, dtype=np.float64))
+            succs.append(np.asarray(s, dtype=bool))
+            done += n
+            bar.update(n)
+    seconds = time.perf_counter() - t0
+    return TrainResult(q, np.concatenate(rets), np.concatenate(succs),
+                       {"encoder": encoder.to_dict()}, seconds)
+
+
+def train(cfg: TrainConfig, gridmap: GridMap | None = None, progress: bool = False) -> TrainResult:
+    """Train the configured encoding on `gridmap` (default: load `cfg.map`)."""
+    validate_config(cfg)
+    gm = gridmap if gridmap is not None else load_map(cfg.map)
+    if cfg.encoding == "cell":
+        return train_cell(cfg, gm, progress)
+    return train_sector(cfg, gm, progress)
+
+
+# --------------------------------------------------------------------------
+# 4. learning curve and the run folder
+# --------------------------------------------------------------------------
+def learning_curve(returns: np.ndarray, successes: np.ndarray, points: int = 200) -> list[dict]:
+    """Average return and success rate per window of consecutive episodes."""
+    n = len(returns)
+    if n == 0:
+        return []
+    window = max(1, n // points)
+    rows = []
+    for lo in range(0, n - window + 1, window):
+        hi = lo + window
+        rows.append({"episode": hi, "avg_return": float(np.mean(returns[lo:hi])),
+                     "success_rate": float(np.mean(successes[lo:hi]))})
+    return rows
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write temp + fsync + os.replace: a reader never sees a partial file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def plot_curve(rows: list[dict], title: str) -> bytes:
+    """PNG bytes of the learning curve (average return and success rate)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ep = [r["episode"] for r in rows]
+    fig, ax1 = plt.subplots(figsize=(7, 4), dpi=100)
+    ax1.plot(ep, [r["avg_return"] for r in rows], color="tab:blue", label="average return")
+    ax1.set_xlabel("episode")
+    ax1.set_ylabel("average return per episode", color="tab:blue")
+    ax2 = ax1.twinx()
+    ax2.plot(ep, [r["success_rate"] for r in rows], color="tab:green", label="success rate")
+    ax2.set_ylabel("success rate", color="tab:green")
+    ax2.set_ylim(-0.02, 1.02)
+    ax1.set_title(title)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def write_run(out: str | Path, cfg: TrainConfig, res: TrainResult) -> dict:
+    """Write q.npy, meta.json, metrics.csv, learning_curve.png into `out`."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(res.q, dtype=np.float64))
+    atomic_write_bytes(out / "q.npy", buf.getvalue())
+    rows = learning_curve(res.returns, res.successes, cfg.curve_points)
+    sio = io.StringIO()
+    w = csv.DictWriter(sio, fieldnames=["episode", "avg_return", "success_rate"], lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    atomic_write_bytes(out / "metrics.csv", sio.getvalue().encode())
+    title = f"{cfg.encoding} on {cfg.map}, lr={cfg.lr:g}, seed={cfg.seed}"
+    if rows:
+        atomic_write_bytes(out / "learning_curve.png", plot_curve(rows, title))
+    created = datetime.now(UTC)
+    meta = {
+        "encoding": cfg.encoding,
+        **res.meta,
+        "map": cfg.map,
+        "config": asdict(cfg),
+        "steps": cfg.steps,
+        "episodes": int(len(res.returns)),
+        "train_seconds": round(res.seconds, 4),
+        "steps_per_s": round(cfg.steps / res.seconds) if res.seconds > 0 else None,
+        "q_shape": list(res.q.shape),
+        "run_name": f"{cfg.map.replace('/', '_')}__{cfg.encoding}__{cfg.seed}__{int(created.timestamp())}",
+        "created": created.isoformat(timespec="seconds"),
+    }
+    atomic_write_bytes(out / "meta.json", (json.dumps(meta, indent=1) + "\n").encode())
+    return meta
