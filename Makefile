@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/qnav demo
+	$(BIN)/qnav train --map paper10 --encoding cell --targets A,B,C,D --out out/demo && $(BIN)/qnav eval out/demo --map paper10
 
 test: $(STAMP)
 	$(BIN)/ruff check .
