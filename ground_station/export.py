@@ -176,7 +176,7 @@ def load_run(run_dir: str | os.PathLike) -> TrainingRun:
                        cell_mm=int(cell_mm or robot.DEFAULT_CELL_SIZE_MM))
 
 
-def _created(meta: dict) -> int:
+def created_time(meta: dict) -> int:
     """Creation time for the header: SOURCE_DATE_EPOCH (reproducible builds),
     else the training run's own time, else now."""
     if os.environ.get("SOURCE_DATE_EPOCH", "").isdigit():
