@@ -1,0 +1,206 @@
+"""Where the monitor's messages come from: a live MAVLink link or a tlog.
+
+Both sources have the same small surface, polled without blocking from the
+dashboard's timer or the `--plain` loop:
+
+* `poll(limit)` -> list of (message, t) received since the last call, `t` in
+  the source's time base (wall seconds live, the recording's stamps in a
+  replay);
+* `now()` -> current time in that base (heartbeat age is measured on it);
+* `finished` -> a replay reached its end;
+* `send_command(kind)` -> "arm" | "disarm" | "hold" as COMMAND_LONG (live
+  only; a replay refuses with a one-line reason).
+
+`run_plain` is the `--plain` loop: one status line per second of source time.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import IO, Protocol
+
+os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: MAVLink 2 from the start
+
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
+
+from firmware_py.vehicle import Mode  # noqa: E402
+from ground_station.telemetry_model import VehicleView  # noqa: E402
+
+GCS_SYSID = 255
+GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
+HEARTBEAT_PERIOD_S = 1.0
+COMMANDS = ("arm", "disarm", "hold")
+
+
+class MessageSource(Protocol):
+    finished: bool
+
+    def poll(self, limit: int = 2000) -> list[tuple[object, float]]: ...
+    def now(self) -> float: ...
+    def send_command(self, kind: str, target: tuple[int, int]) -> str: ...
+    def close(self) -> None: ...
+
+
+def command_long_args(kind: str) -> tuple[int, list[float]]:
+    """(MAV_CMD, params 1-7) for a dashboard key."""
+    if kind == "arm":
+        return mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0, 0, 0, 0, 0, 0]
+    if kind == "disarm":
+        return mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [0, 0, 0, 0, 0, 0, 0]
+    if kind == "hold":
+        return mavlink.MAV_CMD_DO_SET_MODE, [mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, Mode.HOLD, 0, 0, 0, 0, 0]
+    raise ValueError(f"unknown command {kind!r}; expected one of {', '.join(COMMANDS)}")
+
+
+class LiveSource:
+    """A pymavlink connection to the robot; sends a GCS heartbeat each second
+    so the robot's GCS failsafe stays quiet while we watch."""
+
+    finished = False
+
+    def __init__(self, conn, clock=time.time) -> None:
+        self.conn = conn
+        self._clock = clock
+        self._next_hb = 0.0
+
+    def now(self) -> float:
+        return self._clock()
+
+    def poll(self, limit: int = 2000) -> list[tuple[object, float]]:
+        now = self.now()
+        if now >= self._next_hb:
+            self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            self._next_hb = now + HEARTBEAT_PERIOD_S
+        out = []
+        while len(out) < limit:
+            msg = self.conn.recv_match(blocking=False)
+            if msg is None:
+                break
+            out.append((msg, self.now()))
+        return out
+
+    def send_command(self, kind: str, target: tuple[int, int]) -> str:
+        cmd, params = command_long_args(kind)
+        self.conn.mav.command_long_send(target[0], target[1], cmd, 0, *params)
+        return f"sent {kind} (COMMAND_LONG {mavlink.enums['MAV_CMD'][cmd].name})"
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+def open_live(url: str, tlog: str | None = None, signing_key: str | None = None) -> LiveSource:
+    """Open the link to the robot on `url` (a pymavlink connection string)."""
+    # TODO(swap): use ground_station.link once it lands (signing key file, tlog of both directions).
+    if signing_key is not None:
+        raise ValueError("--signing-key needs ground_station.link, which is not in this checkout yet")
+    conn = mavutil.mavlink_connection(url, source_system=GCS_SYSID, source_component=GCS_COMPID,
+                                      dialect="common")
+    if tlog is not None:
+        conn.setup_logfile(tlog)
+    return LiveSource(conn)
+
+
+class ReplaySource:
+    """A .tlog played back at `speed` x the recorded pace (the stamps are the
+    tlog's own 8-byte µs timestamps). `speed=0` replays as fast as polled."""
+
+    def __init__(self, path: str, speed: float = 1.0, clock=time.monotonic) -> None:
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"no such tlog: {path}")
+        self.path = path
+        self.speed = speed
+        self._clock = clock
+        self._log = mavutil.mavlogfile(path, robust_parsing=True)
+        self._pending = None
+        self._t0_log: float | None = None
+        self._t0_wall: float | None = None
+        self._t_log = 0.0
+        self.finished = False
+        self._read_next()
+        if self._pending is None:
+            self.finished = True
+
+    def _read_next(self) -> None:
+        while True:
+            msg = self._log.recv_msg()
+            if msg is None:
+                self._pending = None
+                return
+            if msg.get_type() != "BAD_DATA":
+                self._pending = msg
+                return
+
+    def now(self) -> float:
+        if self._t0_log is None:
+            return self._pending._timestamp if self._pending is not None else 0.0
+        if self.speed <= 0 or self.finished:
+            return self._t_log
+        return self._t0_log + (self._clock() - self._t0_wall) * self.speed
+
+    def poll(self, limit: int = 2000) -> list[tuple[object, float]]:
+        out: list[tuple[object, float]] = []
+        if self._pending is None:
+            self.finished = True
+            return out
+        if self._t0_log is None:
+            self._t0_log = self._pending._timestamp
+            self._t0_wall = self._clock()
+        horizon = None if self.speed <= 0 else self.now()
+        while self._pending is not None and len(out) < limit:
+            t = self._pending._timestamp
+            if horizon is not None and t > horizon:
+                break
+            out.append((self._pending, t))
+            self._t_log = t
+            self._read_next()
+        if self._pending is None:
+            self.finished = True
+        return out
+
+    def send_command(self, kind: str, target: tuple[int, int]) -> str:
+        return f"{kind} ignored: replaying {os.path.basename(self.path)}, no link to the robot"
+
+    def close(self) -> None:
+        self._log.close()
+
+
+def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: float | None = None,
+              period_s: float = 1.0, wall=time.monotonic) -> int:
+    """Feed `view` from `source`, printing a status line every `period_s` of
+    source time and a last one at the end. Ends at the end of a replay or
+    after `duration` wall seconds. Returns the number of lines printed."""
+    start = wall()
+    next_line: float | None = None
+    lines = 0
+
+    def tick(now: float) -> None:
+        nonlocal next_line, lines
+        if next_line is None:
+            if view.t is not None:
+                next_line = now + period_s
+            return
+        while now >= next_line:  # replay batches can span several seconds
+            print(_stamp(view, next_line) + view.status_line(next_line), file=out, flush=True)
+            lines += 1
+            next_line += period_s
+
+    while True:
+        batch = source.poll()
+        for msg, t in batch:
+            tick(t)
+            view.update(msg, t)
+        tick(source.now())
+        if source.finished or (duration is not None and wall() - start >= duration):
+            break
+        if not batch:
+            time.sleep(0.02)
+    now = source.now()
+    print(_stamp(view, now) + view.status_line(now), file=out, flush=True)
+    return lines + 1
+
+
+def _stamp(view: VehicleView, now: float) -> str:
+    rel = now - view.t0 if view.t0 is not None else 0.0
+    return f"[{rel:8.1f}s] "

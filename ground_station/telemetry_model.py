@@ -1,0 +1,401 @@
+"""What the ground station knows about the robot, built from MAVLink alone.
+
+`VehicleView` is a pure model: feed it every received message with
+`update(msg, t)` (a decoded pymavlink message and the receive time in
+seconds, wall clock live or the tlog stamp in a replay) and read its fields.
+No I/O, no threads, no terminal: the textual dashboard, the `--plain` status
+line and `qnav report` all read the same view, and tests drive it with
+pymavlink-encoded messages.
+
+Frames: MAVLink LOCAL_POSITION_NED has x north, y east; the view stores
+positions in the project's world frame (`firmware_py.robot`: x east, y north,
+metres) and headings counter-clockwise from east (radians).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import deque
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from firmware_py.vehicle import CtrlState, Mode
+
+# NAMED_VALUE_INT names the robot's telemetry uses (firmware_py/telemetry.py).
+NV_CTRL_STATE = "CTRL"
+NV_STATE_INDEX = "STATE"
+NV_ACTION = "ACTION"
+NV_TICK_US = "TICK_US"
+NV_POLICY_ID = "POLICY_ID"
+_QROW_RE = re.compile(r"^Q(?:ROW)?(\d+)$")
+POLICY_PARAM = "POLICY_ID"
+
+MODE_NAMES = {m.value: m.name.capitalize() for m in Mode}
+CTRL_NAMES = {s.value: s.name for s in CtrlState}
+SEVERITY_NAMES = ("EMERG", "ALERT", "CRIT", "ERROR", "WARN", "NOTICE", "INFO", "DEBUG")
+
+_GLOBAL_FRAMES = {
+    mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL_INT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+}
+_EARTH_RADIUS_M = 6_378_137.0
+_TRAIL_STEP_M = 0.02  # trail points closer than this add nothing visible
+_TRAIL_MAX = 20_000
+_LOG_MAX = 500
+_SEQ_GAP_RESET = 128  # a jump this large is a reboot/reconnect, not loss
+
+
+@dataclass
+class LinkHealth:
+    """Link figures as the monitor shows them."""
+
+    last_heartbeat_t: float | None = None
+    received: int = 0  # frames from the vehicle with a sequence number
+    lost: int = 0  # frames missing from sequence gaps
+    signed_frames: int = 0  # frames carrying a signature block
+    verified_frames: int = 0  # frames whose signature our key verified
+    drop_rate_comm_pct: float = 0.0  # the robot's own view (SYS_STATUS)
+    errors_comm: int = 0
+    errors_count: tuple[int, int, int, int] = (0, 0, 0, 0)
+
+    @property
+    def loss_pct(self) -> float:
+        total = self.received + self.lost
+        return 100.0 * self.lost / total if total else 0.0
+
+    @property
+    def signing(self) -> bool:
+        """The vehicle signs what it sends (last frames carried a signature)."""
+        return self.signed_frames > 0
+
+
+@dataclass
+class Mission:
+    """Mission progress as the robot reports it (and items we saw pass)."""
+
+    current: int = -1
+    total: int = 0
+    state: int = 0
+    reached: list[int] = field(default_factory=list)
+    items: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> world (x, y) m
+
+
+@dataclass
+class LogLine:
+    t: float
+    severity: int
+    text: str
+
+    @property
+    def severity_name(self) -> str:
+        return SEVERITY_NAMES[self.severity] if 0 <= self.severity < len(SEVERITY_NAMES) else str(self.severity)
+
+
+class VehicleView:
+    """Latest known state of one vehicle (by default the first rover heard).
+
+    Messages from other systems (the GCS itself, a radio) are ignored, except
+    mission items addressed to the vehicle, which tell us the mission targets.
+    """
+
+    def __init__(self, sysid: int | None = None, trail_max: int = _TRAIL_MAX) -> None:
+        self.sysid = sysid
+        self.compid: int | None = None  # component of the vehicle's heartbeat (command target)
+        self.t: float | None = None  # time of the last message from the vehicle
+        self.t0: float | None = None
+        self.link = LinkHealth()
+        self._last_seq: dict[int, int] = {}  # compid -> seq
+        # HEARTBEAT
+        self.mav_type: int | None = None
+        self.mode: int | None = None
+        self.armed = False
+        self.system_status: int | None = None
+        # SYS_STATUS
+        self.sensors_present = 0
+        self.sensors_health = 0
+        self.load_pct: float | None = None
+        # pose (world frame: x east, y north, metres; heading CCW from east)
+        self.boot_ms: int | None = None
+        self.x: float | None = None
+        self.y: float | None = None
+        self.vx = 0.0  # world frame m/s
+        self.vy = 0.0
+        self.heading: float | None = None
+        self.trail: deque[tuple[float, float]] = deque(maxlen=trail_max)
+        self.origin_e7: tuple[int, int] | None = None
+        # goal
+        self.wp_dist_m: float | None = None  # NAV_CONTROLLER_OUTPUT (whole metres)
+        self.target_bearing_deg: float | None = None  # compass, from north clockwise
+        self._position_target: tuple[float, float] | None = None
+        # sensors (angle CCW from heading in radians, range m or None if no reading)
+        self.sectors: list[tuple[float, float | None]] = []
+        self.sector_max_m: float | None = None
+        # controller
+        self.ctrl_state: int | None = None
+        self.state_index: int | None = None
+        self.action: int | None = None
+        self.q_row: dict[int, int] = {}
+        self.tick_us: int | None = None
+        self.named: dict[str, int] = {}
+        self.params: dict[str, float] = {}
+        self.policy_id: int | None = None
+        self.mission = Mission()
+        self.log: deque[LogLine] = deque(maxlen=_LOG_MAX)
+        self._text_chunks: dict[int, list[str]] = {}
+        self.last_ack: tuple[int, int] | None = None  # (command, result)
+        self.counts: dict[str, int] = {}
+        self.version = 0  # bumped on every accepted message (redraw-if-changed)
+
+    # --- derived -----------------------------------------------------------
+    @property
+    def mode_name(self) -> str:
+        if self.mode is None:
+            return "-"
+        return MODE_NAMES.get(self.mode, f"mode{self.mode}")
+
+    @property
+    def ctrl_name(self) -> str:
+        if self.ctrl_state is None:
+            return "-"
+        return CTRL_NAMES.get(self.ctrl_state, f"state{self.ctrl_state}")
+
+    @property
+    def failsafe(self) -> bool:
+        return self.system_status == mavlink.MAV_STATE_CRITICAL
+
+    @property
+    def speed(self) -> float:
+        return math.hypot(self.vx, self.vy)
+
+    @property
+    def pose(self) -> tuple[float, float, float] | None:
+        if self.x is None or self.y is None:
+            return None
+        return (self.x, self.y, self.heading if self.heading is not None else 0.0)
+
+    def heartbeat_age(self, now: float) -> float | None:
+        hb = self.link.last_heartbeat_t
+        return None if hb is None else max(0.0, now - hb)
+
+    @property
+    def goal(self) -> tuple[float, float] | None:
+        """The exact current target: the current mission item in Auto, the
+        POSITION_TARGET_LOCAL_NED otherwise (each the fallback of the other)."""
+        item = self.mission.items.get(self.mission.current)
+        if self.mode == Mode.AUTO:
+            return item if item is not None else self._position_target
+        return self._position_target if self._position_target is not None else item
+
+    def goal_estimate(self) -> tuple[float, float] | None:
+        """The goal: exact if known, else from the robot's bearing/distance."""
+        if self.goal is not None:
+            return self.goal
+        if None in (self.x, self.y, self.wp_dist_m, self.target_bearing_deg):
+            return None
+        b = math.radians(self.target_bearing_deg)  # compass: east = sin, north = cos
+        return (self.x + self.wp_dist_m * math.sin(b), self.y + self.wp_dist_m * math.cos(b))
+
+    def distance_to_goal(self) -> float | None:
+        if self.goal is not None and self.x is not None:
+            return math.hypot(self.goal[0] - self.x, self.goal[1] - self.y)
+        return self.wp_dist_m
+
+    # --- update ------------------------------------------------------------
+    def update(self, msg, t: float) -> bool:
+        """Fold one received message in; True if it changed the view."""
+        mtype = msg.get_type()
+        if mtype == "BAD_DATA":
+            return False
+        src = msg.get_srcSystem()
+        if mtype == "MISSION_ITEM_INT" and (self.sysid is None or msg.target_system == self.sysid):
+            self._mission_item(msg)
+            self.version += 1
+            return True
+        if self.sysid is None:
+            if mtype != "HEARTBEAT" or msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER) \
+                    or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+                return False
+            self.sysid = src  # lock onto the first vehicle heartbeat, as mavutil does
+        if src != self.sysid:
+            return False
+        self._link_stats(msg)
+        self.t = t
+        if self.t0 is None:
+            self.t0 = t
+        self.counts[mtype] = self.counts.get(mtype, 0) + 1
+        handler = getattr(self, "_on_" + mtype.lower(), None)
+        if handler is not None:
+            handler(msg, t)
+        self.version += 1
+        return True
+
+    def _link_stats(self, msg) -> None:
+        comp = msg.get_srcComponent()
+        seq = msg.get_seq()
+        last = self._last_seq.get(comp)
+        if last is not None:
+            gap = (seq - last - 1) % 256
+            if gap < _SEQ_GAP_RESET:
+                self.link.lost += gap
+        self._last_seq[comp] = seq
+        self.link.received += 1
+        header = getattr(msg, "_header", None)
+        if header is not None and header.incompat_flags & mavlink.MAVLINK_IFLAG_SIGNED:
+            self.link.signed_frames += 1
+        if msg.get_signed():
+            self.link.verified_frames += 1
+
+    def _on_heartbeat(self, msg, t: float) -> None:
+        self.link.last_heartbeat_t = t
+        self.compid = msg.get_srcComponent()
+        self.mav_type = msg.type
+        self.mode = msg.custom_mode
+        self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        self.system_status = msg.system_status
+
+    def _on_sys_status(self, msg, t: float) -> None:
+        self.sensors_present = msg.onboard_control_sensors_present
+        self.sensors_health = msg.onboard_control_sensors_health
+        self.load_pct = msg.load / 10.0
+        self.link.drop_rate_comm_pct = msg.drop_rate_comm / 100.0
+        self.link.errors_comm = msg.errors_comm
+        self.link.errors_count = (msg.errors_count1, msg.errors_count2, msg.errors_count3, msg.errors_count4)
+
+    def _on_local_position_ned(self, msg, t: float) -> None:
+        self.boot_ms = msg.time_boot_ms
+        self.x, self.y = float(msg.y), float(msg.x)  # NED -> east/north
+        self.vx, self.vy = float(msg.vy), float(msg.vx)
+        if not self.trail or math.hypot(self.trail[-1][0] - self.x, self.trail[-1][1] - self.y) >= _TRAIL_STEP_M:
+            self.trail.append((self.x, self.y))
+
+    def _on_attitude(self, msg, t: float) -> None:
+        # NED yaw is clockwise from north; world heading is CCW from east.
+        self.heading = math.atan2(math.cos(msg.yaw), math.sin(msg.yaw))
+
+    def _on_gps_global_origin(self, msg, t: float) -> None:
+        self.origin_e7 = (msg.latitude, msg.longitude)
+
+    def _on_position_target_local_ned(self, msg, t: float) -> None:
+        self._position_target = (float(msg.y), float(msg.x))
+
+    def _on_nav_controller_output(self, msg, t: float) -> None:
+        self.wp_dist_m = float(msg.wp_dist)
+        self.target_bearing_deg = float(msg.target_bearing)
+
+    def _on_obstacle_distance(self, msg, t: float) -> None:
+        inc = msg.increment_f if msg.increment_f > 0 else float(msg.increment)
+        if inc <= 0:
+            return
+        n = min(len(msg.distances), int(round(360.0 / inc)))
+        sectors = []
+        for i in range(n):
+            d = msg.distances[i]
+            if d == 65535:  # UINT16_MAX: no sensor in this direction
+                continue
+            angle_cw = math.radians(msg.angle_offset + i * inc)  # BODY_FRD: clockwise from forward
+            angle = math.atan2(-math.sin(angle_cw), math.cos(angle_cw))
+            rng = None if d > msg.max_distance or d < msg.min_distance else d / 100.0
+            sectors.append((angle, rng))
+        self.sectors = sectors
+        self.sector_max_m = msg.max_distance / 100.0
+
+    def _on_mission_current(self, msg, t: float) -> None:
+        self.mission.current = msg.seq
+        self.mission.total = msg.total
+        self.mission.state = msg.mission_state
+
+    def _on_mission_item_reached(self, msg, t: float) -> None:
+        self.mission.reached.append(msg.seq)
+
+    def _on_mission_count(self, msg, t: float) -> None:
+        self.mission.total = msg.count
+
+    def _mission_item(self, msg) -> None:
+        xy = self._item_world(msg.frame, msg.x, msg.y)
+        if xy is not None:
+            self.mission.items[msg.seq] = xy
+
+    def _item_world(self, frame: int, x: int, y: int) -> tuple[float, float] | None:
+        if frame == mavlink.MAV_FRAME_LOCAL_NED:
+            return (y / 1e4, x / 1e4)
+        if frame == mavlink.MAV_FRAME_LOCAL_ENU:
+            return (x / 1e4, y / 1e4)
+        if frame in _GLOBAL_FRAMES and self.origin_e7 is not None:
+            lat0, lon0 = self.origin_e7
+            north = math.radians((x - lat0) / 1e7) * _EARTH_RADIUS_M
+            east = math.radians((y - lon0) / 1e7) * _EARTH_RADIUS_M * math.cos(math.radians(lat0 / 1e7))
+            return (east, north)
+        return None
+
+    def _on_named_value_int(self, msg, t: float) -> None:
+        name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
+        self.named[name] = msg.value
+        if name == NV_STATE_INDEX:
+            self.state_index = msg.value
+        elif name == NV_ACTION:
+            self.action = msg.value
+        elif name == NV_CTRL_STATE:
+            self.ctrl_state = msg.value
+        elif name == NV_TICK_US:
+            self.tick_us = msg.value
+        elif name == NV_POLICY_ID:
+            self.policy_id = msg.value
+        else:
+            m = _QROW_RE.match(name)
+            if m:
+                self.q_row[int(m.group(1))] = msg.value
+
+    def _on_param_value(self, msg, t: float) -> None:
+        pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id
+        self.params[pid] = msg.param_value
+        if pid == POLICY_PARAM:
+            self.policy_id = int(round(msg.param_value))
+
+    def _on_statustext(self, msg, t: float) -> None:
+        text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text
+        if msg.id:  # chunked: collect until a short chunk ends it
+            parts = self._text_chunks.setdefault(msg.id, [])
+            parts.append(text)
+            if len(text) == 50:
+                return
+            text = "".join(self._text_chunks.pop(msg.id))
+        self.log.append(LogLine(t, msg.severity, text))
+
+    def _on_command_ack(self, msg, t: float) -> None:
+        self.last_ack = (msg.command, msg.result)
+        try:
+            cmd = mavlink.enums["MAV_CMD"][msg.command].name
+            res = mavlink.enums["MAV_RESULT"][msg.result].name
+        except KeyError:
+            cmd, res = str(msg.command), str(msg.result)
+        self.log.append(LogLine(t, mavlink.MAV_SEVERITY_INFO if msg.result == 0 else mavlink.MAV_SEVERITY_WARNING,
+                                f"ACK {cmd}: {res}"))
+
+    # --- presentation helpers ---------------------------------------------
+    def status_line(self, now: float) -> str:
+        """One line for logs (`qnav monitor --plain`)."""
+        age = self.heartbeat_age(now)
+        pose = self.pose
+        pose_s = f"x={pose[0]:.2f} y={pose[1]:.2f} hdg={round(math.degrees(pose[2])):d}" if pose else "pose=-"
+        d = self.distance_to_goal()
+        q = ",".join(str(self.q_row[k]) for k in sorted(self.q_row)) if self.q_row else "-"
+        parts = [
+            f"hb_age={age:.1f}s" if age is not None else "hb_age=-",
+            f"loss={self.link.loss_pct:.1f}%",
+            f"signed={'yes' if self.link.signing else 'no'}",
+            f"mode={self.mode_name}",
+            f"armed={'yes' if self.armed else 'no'}",
+            f"ctrl={self.ctrl_name}",
+            f"failsafe={'yes' if self.failsafe else 'no'}",
+            f"policy={self.policy_id if self.policy_id is not None else '-'}",
+            pose_s,
+            f"goal_dist={d:.2f}" if d is not None else "goal_dist=-",
+            f"state={self.state_index if self.state_index is not None else '-'}",
+            f"action={self.action if self.action is not None else '-'}",
+            f"q=[{q}]",
+            f"mission={self.mission.current}/{self.mission.total} reached={len(self.mission.reached)}",
+        ]
+        return " ".join(parts)
