@@ -1,0 +1,73 @@
+"""The policies shipped in policies/: they load with the robot's loader,
+match what tools/make_policy.py recorded beside them, still drive as
+recorded, and the cell one regenerates to the same policy id."""
+
+import json
+import shlex
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from firmware_py.policy import load_policy
+from ground_station.cli import main
+
+POLICIES = Path(__file__).resolve().parents[1] / "policies"
+SHIPPED = sorted(POLICIES.glob("*.qtab"))
+
+
+def int_table(pol) -> np.ndarray:
+    return np.array(pol.table.tolist(), dtype=np.float64).reshape(pol.n_states, pol.n_actions)
+
+
+def test_the_paper10_cell_policy_ships():
+    assert POLICIES / "paper10_cell.qtab" in SHIPPED
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+def test_shipped_file_matches_its_record(path):
+    rec = json.loads(path.with_suffix(".json").read_text())
+    pol = load_policy(path)
+    assert f"0x{pol.policy_id:08x}" == rec["policy_id"]
+    assert f"0x{pol.crc:08x}" == rec["crc32"]
+    assert pol.size == rec["bytes"] == path.stat().st_size
+    assert (pol.kind, pol.dtype, pol.n_states) == (rec["encoding"], rec["dtype"], rec["n_states"])
+    assert pol.metadata["quantisation"]["dtype"] == rec["dtype"]
+    assert pol.metadata["map"] == rec["map"]
+    readme = (POLICIES / "README.md").read_text()
+    assert path.name in readme and f"tools/make_policy.py {path.stem}" in readme
+
+
+def test_paper10_cell_policy_reaches_a_to_d_optimally_as_recorded():
+    from ground_station.evaluate import evaluate_cell
+    from ground_station.maps import load_map
+
+    path = POLICIES / "paper10_cell.qtab"
+    rec = json.loads(path.with_suffix(".json").read_text())
+    pol = load_policy(path)
+    gm = load_map("paper10")
+    assert pol.metadata["targets"] == ["A", "B", "C", "D"]
+    assert list(pol.goals) == [gm.targets[t] for t in "ABCD"]
+    rep = evaluate_cell(int_table(pol), gm, list(pol.goals))
+    assert rep["success_rate"] == rec["success_rate"]["int"] == rec["success_rate"]["float"] == 1.0
+    assert rep["path_ratio_mean"] == rec["path_ratio_mean"]["int"] == rec["path_ratio_mean"]["float"] == 1.0
+
+
+def test_paper10_cell_policy_regenerates_to_the_same_policy_id(tmp_path, capsys):
+    rec = json.loads((POLICIES / "paper10_cell.json").read_text())
+    train = shlex.split(rec["commands"][0])[1:]
+    train[train.index("--out") + 1] = str(tmp_path / "run")
+    assert main(train) == 0
+    out = tmp_path / "p.qtab"
+    assert main(["export", str(tmp_path / "run"), "--dtype", rec["dtype"], "--out", str(out), "--no-rollouts"]) == 0
+    capsys.readouterr()
+    assert f"0x{load_policy(out).policy_id:08x}" == rec["policy_id"]
+
+
+def test_inspect_prints_the_shipped_header(capsys):
+    assert main(["policy", "inspect", *map(str, SHIPPED)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == len(SHIPPED)
+    for path, line in zip(SHIPPED, lines, strict=True):
+        rec = json.loads(path.with_suffix(".json").read_text())
+        assert line.startswith(f"{path}: valid v1.0 {rec['encoding']}") and rec["policy_id"] in line
