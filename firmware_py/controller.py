@@ -1,0 +1,641 @@
+"""The robot's control core: a pure state machine, one `step` per control tick.
+
+`Controller.step(inputs, now_us) -> Outputs` reads the latest CAN inputs
+(each with the clock time it arrived), runs safety, odometry and the policy,
+and returns the motor command and heartbeat to send. No threads, sockets or
+clock reads here: time comes in as an argument, I/O lives in
+`firmware_py.robot_node`. The controller also implements
+`firmware_py.vehicle.VehicleControl` for the MAVLink node; those calls may
+come from another thread, so every public method takes one lock and a policy
+swap lands between two ticks.
+
+States (CtrlState): BOOT -> STANDBY (disarmed) -> HOLD (armed, no goal) ->
+DRIVING -> GOAL_REACHED -> next mission item or HOLD; FAULT from any armed
+state, left only by disarming. Every transition is logged with its cause and
+queued as a VehicleEvent. See docs/architecture.md.
+
+Decision: `sector` policies map (goal bearing, ranges) through the reference
+encoder to a row of the int table; the greedy action's wheel speeds come from
+robot.ACTION_WHEEL_SPEEDS_MM_S and are held for one tick. `cell` policies run
+as motion primitives: localise the cell from odometry, take the greedy grid
+action, turn in place to its grid heading, drive to the next cell's centre,
+re-localise and repeat.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+from firmware_py import robot
+from firmware_py.odometry import Odometry, wrap_mrad
+from firmware_py.policy import Policy, PolicyError, load_policy
+from firmware_py.safety import EStopLatch, MotorWatchdog, clamp_speeds
+from firmware_py.vehicle import (
+    CtrlState,
+    FailsafeAction,
+    Mode,
+    VehicleConfig,
+    VehicleEvent,
+    VehicleStatus,
+)
+
+log = logging.getLogger("qnav.controller")
+
+# Ctrl_Errors bit field of the controller heartbeat (docs/can-protocol.md).
+ERR_SENSOR_STALE = 1 << 0
+ERR_DRIVER_FAULT = 1 << 1
+ERR_ESTOP = 1 << 2
+ERR_BUMPER = 1 << 3
+ERR_NO_POLICY = 1 << 4
+ERR_DRIVER_SILENT = 1 << 5
+ERR_FAILSAFE = 1 << 6
+ERR_LOCALISATION = 1 << 7
+
+SEV_CRITICAL = 2
+SEV_ERROR = 3
+SEV_WARNING = 4
+SEV_NOTICE = 5
+SEV_INFO = 6
+
+# Cell motion primitive tuning (integers: mrad, mm, mm/s).
+TURN_TOLERANCE_MRAD = 35  # heading error at which a turn counts as done
+ARRIVE_TOLERANCE_MM = 30  # distance to a cell centre at which a step is done
+RETURN_TO_TURN_MRAD = 600  # bearing error that aborts a straight drive back to turning
+TURN_GAIN_PER_S = 4  # wheel speed = gain * error * base/2, capped by the turn action
+MIN_TURN_MM_S = 30
+MIN_DRIVE_MM_S = 80
+DRIVE_GAIN_PER_S = 3  # forward speed = gain * distance, capped by the forward action
+STEER_GAIN_PER_S = 3  # yaw rate (mrad/s) = gain * bearing (mrad)
+STOP_BURST_TICKS = 3  # zero commands sent after leaving DRIVING when not in lockstep
+
+# Grid action (dcol, drow) -> world heading (mrad): rows grow southwards.
+_GRID_HEADING = {(1, 0): 0, (0, -1): 1571, (-1, 0): 3142, (0, 1): -1571}
+
+
+@dataclass
+class Inputs:
+    """Latest value of every CAN input and the clock time it arrived (None:
+    never). The node's receive side fills it; `step` only reads it."""
+
+    ranges_mm: list[int] = field(default_factory=lambda: [robot.RANGE_MAX_MM] * robot.SENSOR_COUNT)
+    range_status: list[int] = field(default_factory=lambda: [robot.RANGE_INVALID] * robot.SENSOR_COUNT)
+    ranges_us: list[int | None] = field(default_factory=lambda: [None, None])  # one per range frame
+    enc_left: int = 0
+    enc_right: int = 0
+    enc_us: int | None = None
+    bumper: bool = False
+    bumper_events: int = 0
+    bumper_us: int | None = None
+    driver_state: int = 0
+    driver_errors: int = 0
+    driver_estop: bool = False
+    driver_left_mm_s: int = 0
+    driver_right_mm_s: int = 0
+    driver_us: int | None = None
+    estop: bool = False  # an EStop frame from another node engaged it
+    estop_us: int | None = None
+
+    def copy(self) -> Inputs:
+        return replace(self, ranges_mm=list(self.ranges_mm), range_status=list(self.range_status),
+                       ranges_us=list(self.ranges_us))
+
+
+@dataclass(frozen=True)
+class MotorCommand:
+    left_mm_s: int
+    right_mm_s: int
+    counter: int
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    state: int
+    mode: int
+    armed: bool
+    policy_loaded: bool
+    goal_active: bool
+    errors: int
+    counter: int
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """What one tick sends: a motor command (None: send nothing, let the
+    driver's watchdog hold the wheels) and the controller heartbeat."""
+
+    motor: MotorCommand | None
+    heartbeat: Heartbeat
+
+
+@dataclass(frozen=True)
+class Transition:
+    t_us: int
+    src: CtrlState
+    dst: CtrlState
+    cause: str
+
+
+@dataclass
+class _Primitive:
+    """One cell step: turn to `heading_mrad`, then drive to `target`."""
+
+    target: tuple[int, int]
+    heading_mrad: int
+    turning: bool = True
+
+
+class Controller:
+    """The control state machine; implements vehicle.VehicleControl."""
+
+    def __init__(self, config: VehicleConfig | None = None, policy: Policy | None = None, *,
+                 start_pose_mm: tuple[int, int, int] = (0, 0, 0), lockstep: bool = False) -> None:
+        self.cfg = config or VehicleConfig()
+        self._lock = threading.RLock()
+        self.lockstep = lockstep
+        self.policy = policy
+        self.last_known_good: Policy | None = None
+        self.odom = Odometry(*start_pose_mm)
+        self.watchdog = MotorWatchdog(self.cfg.motor_timeout_ms * 1000)
+        self.estop_latch = EStopLatch()
+        self.state = CtrlState.BOOT
+        self.mode = Mode.HOLD
+        self.armed = False
+        self.failsafe = False
+        self.fault = ""
+        self.goal: tuple[int, int] | None = None
+        self._goal_index = 0
+        self.mission: list[tuple[int, int]] = []
+        self.mission_seq = 0
+        self._prim: _Primitive | None = None
+        self._events: deque[VehicleEvent] = deque(maxlen=256)
+        self.transitions: deque[Transition] = deque(maxlen=1024)
+        self._now = 0
+        self._inputs = Inputs()
+        self._last_enc_us: int | None = None
+        self._stop_burst = 0
+        self._cmd_counter = 0
+        self._hb_counter = 0
+        self._ticks = 0
+        self._errors = 0
+        self._state_index = -1
+        self._action = -1
+        self._q_row: tuple[int, ...] = ()
+        self.tick_overruns = 0
+        self.can_errors = 0
+
+    # --- helpers ------------------------------------------------------------------
+    def _event(self, kind: str, text: str, severity: int = SEV_INFO, seq: int = -1) -> None:
+        self._events.append(VehicleEvent(kind=kind, text=text[:50], seq=seq, severity=severity))
+
+    def _transition(self, dst: CtrlState, cause: str, severity: int = SEV_INFO) -> None:
+        src = self.state
+        if src == dst:
+            return
+        self.state = dst
+        self.transitions.append(Transition(self._now, src, dst, cause))
+        log.log(logging.WARNING if severity <= SEV_WARNING else logging.INFO,
+                "t=%d us %s -> %s: %s", self._now, src.name, dst.name, cause)
+        self._event("transition", f"{src.name}->{dst.name}: {cause}", severity)
+        if src == CtrlState.DRIVING and dst != CtrlState.DRIVING:
+            self._stop()
+
+    def _stop(self) -> None:
+        self.watchdog.stop()
+        self._prim = None
+        self._stop_burst = STOP_BURST_TICKS
+
+    def _enter_fault(self, cause: str) -> None:
+        self.fault = cause
+        self._transition(CtrlState.FAULT, cause, SEV_CRITICAL)
+        self._event("fault", cause, SEV_CRITICAL)
+
+    def _stale_inputs(self, inp: Inputs, now_us: int) -> list[str]:
+        tmo = self.cfg.sensor_timeout_ms * 1000
+        stale = []
+        for i, t in enumerate(inp.ranges_us):
+            if t is None or now_us - t > tmo:
+                stale.append(f"ranges{i}")
+        for name, t in (("encoders", inp.enc_us), ("bumper", inp.bumper_us)):
+            if t is None or now_us - t > tmo:
+                stale.append(name)
+        return stale
+
+    def _driver_silent(self, inp: Inputs, now_us: int) -> bool:
+        return inp.driver_us is None or now_us - inp.driver_us > self.cfg.sensor_timeout_ms * 1000
+
+    def _goal_index_for(self, x_mm: int, y_mm: int, policy: Policy | None = None) -> tuple[int, str]:
+        """Goal index of a world point for a cell policy (-1 and a reason if none)."""
+        pol = policy or self.policy
+        if pol is None or pol.kind != "cell":
+            return 0, ""
+        enc = pol.encoder
+        col, row = robot.world_to_cell(x_mm, y_mm, enc.height, pol.cell_mm)
+        if (col, row) in pol.goals:
+            return pol.goals.index((col, row)), ""
+        return -1, f"goal cell ({col},{row}) is not a policy target"
+
+    def _can_drive(self) -> tuple[bool, str]:
+        if not self.armed:
+            return False, "disarmed: arm first"
+        if self.state == CtrlState.FAULT:
+            return False, f"in FAULT ({self.fault}): disarm first"
+        if self.policy is None:
+            return False, "no policy loaded"
+        if self._inputs.bumper:
+            return False, "bumper pressed"
+        return True, ""
+
+    def _start_driving(self, goal: tuple[int, int], goal_index: int, cause: str) -> None:
+        self.goal = goal
+        self._goal_index = goal_index
+        self._prim = None
+        if self.state == CtrlState.DRIVING:
+            log.info("t=%d us retarget: %s", self._now, cause)
+            self._event("info", f"retarget: {cause}")
+        else:
+            self._transition(CtrlState.DRIVING, cause)
+
+    # --- VehicleControl ---------------------------------------------------------------
+    def status(self) -> VehicleStatus:
+        with self._lock:
+            inp = self._inputs
+            dist = bearing = 0
+            if self.goal is not None:
+                dist, bearing = self.odom.goal_vector(*self.goal)
+            return VehicleStatus(
+                time_us=self._now, state=self.state, mode=self.mode, armed=self.armed,
+                failsafe=self.failsafe, fault=self.fault,
+                x_mm=self.odom.x_mm, y_mm=self.odom.y_mm, heading_mrad=self.odom.heading_mrad,
+                speed_mm_s=self.odom.speed_mm_s, yaw_rate_mrad_s=self.odom.yaw_rate_mrad_s,
+                goal_mm=self.goal, distance_to_goal_mm=dist, bearing_to_goal_mrad=bearing,
+                ranges_mm=list(inp.ranges_mm), range_status=list(inp.range_status),
+                sensors_healthy=not self._stale_inputs(inp, self._now),
+                motors_healthy=not self._driver_silent(inp, self._now) and inp.driver_errors == 0,
+                bumper=inp.bumper, estop=self.estop_latch.latched or inp.estop or inp.driver_estop,
+                state_index=self._state_index, action=self._action, q_row=self._q_row,
+                mission_seq=self.mission_seq, mission_count=len(self.mission),
+                policy_id=self.policy.policy_id if self.policy else 0,
+                policy_crc=self.policy.crc if self.policy else 0,
+                ticks=self._ticks, tick_overruns=self.tick_overruns, can_errors=self.can_errors)
+
+    def arm(self) -> tuple[bool, str]:
+        with self._lock:
+            if self.armed:
+                return True, "already armed"
+            if self.state == CtrlState.BOOT:
+                return False, "still booting"
+            inp = self._inputs
+            ok, why = self.estop_latch.may_arm(inp.estop or inp.driver_estop)
+            if not ok:
+                return False, why
+            stale = self._stale_inputs(inp, self._now)
+            if stale:
+                return False, f"sensor data stale: {','.join(stale)}"
+            if self._driver_silent(inp, self._now):
+                return False, "motor driver silent"
+            if inp.driver_errors:
+                return False, f"motor driver errors 0x{inp.driver_errors:02x}"
+            self.armed = True
+            self.fault = ""
+            self._transition(CtrlState.HOLD, "armed")
+            return True, ""
+
+    def disarm(self) -> tuple[bool, str]:
+        with self._lock:
+            if not self.armed:
+                return True, "already disarmed"
+            self.armed = False
+            self.estop_latch.on_disarm()
+            self._stop()
+            self.goal = None
+            self._transition(CtrlState.STANDBY, "disarmed")
+            return True, ""
+
+    def set_mode(self, mode: Mode) -> tuple[bool, str]:
+        with self._lock:
+            try:
+                mode = Mode(mode)
+            except ValueError:
+                return False, f"unknown mode {mode}"
+            if mode == Mode.MANUAL:
+                return False, "MANUAL unsupported: policy drives only"
+            self.mode = mode
+            if mode == Mode.HOLD and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                self.goal = None
+                self._transition(CtrlState.HOLD, "mode HOLD")
+            elif mode == Mode.AUTO and self.armed and self.mission and self.state != CtrlState.FAULT:
+                return self._start_mission_locked()
+            return True, ""
+
+    def set_goal(self, x_mm: int, y_mm: int) -> tuple[bool, str]:
+        with self._lock:
+            ok, why = self._can_drive()
+            if not ok:
+                return False, why
+            gi, why = self._goal_index_for(int(x_mm), int(y_mm))
+            if gi < 0:
+                return False, why
+            self.mode = Mode.GUIDED
+            self._start_driving((int(x_mm), int(y_mm)), gi, f"goal ({int(x_mm)},{int(y_mm)}) mm")
+            return True, ""
+
+    def set_mission(self, waypoints_mm: list[tuple[int, int]]) -> tuple[bool, str]:
+        with self._lock:
+            wps = [(int(x), int(y)) for x, y in waypoints_mm]
+            if self.policy is not None:
+                for i, (x, y) in enumerate(wps):
+                    gi, why = self._goal_index_for(x, y)
+                    if gi < 0:
+                        return False, f"item {i}: {why}"
+            self.mission = wps
+            self.mission_seq = 0
+            if self.mode == Mode.AUTO and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                self.goal = None
+                self._transition(CtrlState.HOLD, "mission replaced")
+            return True, ""
+
+    def set_mission_current(self, seq: int) -> tuple[bool, str]:
+        with self._lock:
+            if not 0 <= seq < len(self.mission):
+                return False, f"mission item {seq} outside 0..{len(self.mission) - 1}"
+            self.mission_seq = seq
+            if self.mode == Mode.AUTO and self.state == CtrlState.DRIVING:
+                x, y = self.mission[seq]
+                gi, _ = self._goal_index_for(x, y)
+                self._start_driving((x, y), gi, f"mission item {seq}")
+            return True, ""
+
+    def _start_mission_locked(self) -> tuple[bool, str]:
+        ok, why = self._can_drive()
+        if not ok:
+            return False, why
+        if not self.mission:
+            return False, "no mission loaded"
+        if self.mission_seq >= len(self.mission):
+            self.mission_seq = 0
+        x, y = self.mission[self.mission_seq]
+        gi, why = self._goal_index_for(x, y)
+        if gi < 0:
+            return False, f"item {self.mission_seq}: {why}"
+        self.mode = Mode.AUTO
+        self._start_driving((x, y), gi, f"mission item {self.mission_seq}")
+        return True, ""
+
+    def start_mission(self) -> tuple[bool, str]:
+        with self._lock:
+            return self._start_mission_locked()
+
+    def set_failsafe(self, active: bool) -> None:
+        with self._lock:
+            if active == self.failsafe:
+                return
+            self.failsafe = active
+            if not active:
+                self._event("info", "GCS failsafe cleared", SEV_NOTICE)
+                return
+            action = self.cfg.gcs_failsafe_action
+            self._event("fault", "GCS Failsafe", SEV_CRITICAL)
+            if not self.armed or action == FailsafeAction.NONE:
+                return
+            if action == FailsafeAction.DISARM:
+                self.disarm()
+            elif self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                self.mode = Mode.HOLD
+                self.goal = None
+                self._transition(CtrlState.HOLD, "GCS failsafe", SEV_CRITICAL)
+
+    def apply_config(self, cfg: VehicleConfig) -> None:
+        with self._lock:
+            self.cfg = replace(cfg)
+            self.watchdog.timeout_us = max(1, cfg.motor_timeout_ms) * 1000
+
+    def activate_policy(self, path: str) -> tuple[bool, str]:
+        """Validate a policy file with the loader and swap it in between two
+        ticks; the one it replaces is kept as `last_known_good`."""
+        with self._lock:
+            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                return False, "refused while driving: stop first"
+        try:
+            new = load_policy(path)  # file I/O outside the lock: ticks keep running
+        except PolicyError as exc:
+            return False, f"policy rejected: {exc}"
+        return self.activate_loaded(new)
+
+    def activate_loaded(self, new: Policy) -> tuple[bool, str]:
+        """Swap in an already validated policy (see activate_policy)."""
+        with self._lock:
+            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                return False, "refused while driving: stop first"
+            for i, (x, y) in enumerate(self.mission):
+                gi, why = self._goal_index_for(x, y, new)
+                if gi < 0:
+                    return False, f"mission item {i}: {why}"
+            old = self.policy
+            self.policy = new
+            if old is not None:
+                self.last_known_good = old
+            text = f"policy 0x{new.policy_id:08x} {new.kind} active"
+            log.info("t=%d us %s", self._now, text)
+            self._event("info", text)
+            return True, ""
+
+    def revert_policy(self) -> tuple[bool, str]:
+        """Swap back to the last-known-good policy."""
+        with self._lock:
+            if self.last_known_good is None:
+                return False, "no last-known-good policy"
+            lkg = self.last_known_good
+        return self.activate_loaded(lkg)
+
+    def drain_events(self) -> list[VehicleEvent]:
+        with self._lock:
+            out = list(self._events)
+            self._events.clear()
+            return out
+
+    def set_pose(self, x_mm: int, y_mm: int, heading_mrad: int) -> None:
+        """Set the odometry pose (start pose, or a re-localisation fix)."""
+        with self._lock:
+            self.odom.reset(int(x_mm), int(y_mm), int(heading_mrad))
+            self._last_enc_us = None
+            self._prim = None
+
+    def note_loop_stats(self, overruns: int, can_errors: int) -> None:
+        with self._lock:
+            self.tick_overruns = overruns
+            self.can_errors = can_errors
+
+    # --- the tick -------------------------------------------------------------------------
+    def step(self, inputs: Inputs, now_us: int, tick: int | None = None) -> Outputs:
+        """One control tick at clock time `now_us`. `tick` is the SimTick
+        counter being answered in lockstep (the motor command carries it)."""
+        with self._lock:
+            self._now = now_us
+            self._inputs = inputs
+            self._ticks += 1
+            inp = inputs
+            if self.state == CtrlState.BOOT:
+                what = f"policy 0x{self.policy.policy_id:08x}" if self.policy else "no policy"
+                self._transition(CtrlState.STANDBY, f"boot complete, {what}")
+            if inp.enc_us is not None and inp.enc_us != self._last_enc_us:
+                self.odom.update(inp.enc_left, inp.enc_right, inp.enc_us)
+                self._last_enc_us = inp.enc_us
+            errors = self._safety(inp, now_us)
+            if self.state == CtrlState.GOAL_REACHED:
+                self._after_goal()
+            self._state_index = self._action = -1
+            self._q_row = ()
+            if self.state == CtrlState.DRIVING:
+                self._drive(inp, now_us)
+            return self._outputs(now_us, tick, errors)
+
+    def _safety(self, inp: Inputs, now_us: int) -> int:
+        errors = 0
+        estop = inp.estop or inp.driver_estop
+        stale = self._stale_inputs(inp, now_us)
+        silent = self._driver_silent(inp, now_us)
+        if stale:
+            errors |= ERR_SENSOR_STALE
+        if silent:
+            errors |= ERR_DRIVER_SILENT
+        if inp.driver_errors:
+            errors |= ERR_DRIVER_FAULT
+        if inp.bumper:
+            errors |= ERR_BUMPER
+        if self.policy is None:
+            errors |= ERR_NO_POLICY
+        if self.failsafe:
+            errors |= ERR_FAILSAFE
+        if self.armed:
+            if estop and self.estop_latch.trip():
+                self._enter_fault("e-stop engaged")
+            if self.state != CtrlState.FAULT:
+                if stale:
+                    self._enter_fault(f"sensor data stale: {','.join(stale)}")
+                elif silent:
+                    self._enter_fault("motor driver status stale")
+                elif inp.driver_errors:
+                    self._enter_fault(f"motor driver fault 0x{inp.driver_errors:02x}")
+            if inp.bumper and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                self.goal = None
+                self.mode = Mode.HOLD
+                self._transition(CtrlState.HOLD, "bumper pressed", SEV_WARNING)
+        if self.estop_latch.latched:
+            errors |= ERR_ESTOP
+        if self.fault.startswith("localisation"):
+            errors |= ERR_LOCALISATION
+        self._errors = errors
+        return errors
+
+    def _after_goal(self) -> None:
+        if self.mode == Mode.AUTO and self.mission_seq + 1 < len(self.mission):
+            self.mission_seq += 1
+            x, y = self.mission[self.mission_seq]
+            gi, why = self._goal_index_for(x, y)
+            if gi >= 0:
+                self.goal = (x, y)
+                self._goal_index = gi
+                self._prim = None
+                self._transition(CtrlState.DRIVING, f"next mission item {self.mission_seq}")
+                return
+            self._event("refusal", f"item {self.mission_seq}: {why}", SEV_WARNING)
+        cause = "mission complete" if self.mode == Mode.AUTO else "goal reached"
+        if self.mode == Mode.AUTO:
+            self.mode = Mode.HOLD
+        self.goal = None
+        self._transition(CtrlState.HOLD, cause)
+
+    def _drive(self, inp: Inputs, now_us: int) -> None:
+        assert self.goal is not None and self.policy is not None
+        dist, bearing = self.odom.goal_vector(*self.goal)
+        if dist <= self.cfg.goal_tolerance_mm:
+            self._transition(CtrlState.GOAL_REACHED, f"goal reached, {dist} mm off")
+            if self.mode == Mode.AUTO:
+                self._event("mission_item_reached", f"reached item {self.mission_seq}",
+                            seq=self.mission_seq)
+            return
+        pol = self.policy
+        if pol.kind == "sector":
+            s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
+            a = pol.best_action(s)
+            left, right = robot.ACTION_WHEEL_SPEEDS_MM_S[a]
+            self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
+        else:
+            wheels = self._cell_primitive()
+            if wheels is None:
+                return
+            left, right = wheels
+        pct = self.cfg.speed_scale_pct
+        left, right = clamp_speeds(left * pct // 100, right * pct // 100, self.cfg.max_wheel_speed_mm_s)
+        self.watchdog.feed(now_us, left, right)
+
+    def _cell_primitive(self, depth: int = 0) -> tuple[int, int] | None:
+        pol = self.policy
+        enc = pol.encoder
+        x, y, heading = self.odom.pose_mm()
+        if self._prim is None:
+            col, row = robot.world_to_cell(x, y, enc.height, pol.cell_mm)
+            if not (0 <= col < enc.width and 0 <= row < enc.height):
+                self.fault = f"localisation: cell ({col},{row}) off the map"
+                self._enter_fault(self.fault)
+                return None
+            goal_cell = robot.world_to_cell(*self.goal, enc.height, pol.cell_mm)
+            if (col, row) == goal_cell:
+                target = self.goal
+                _, b = self.odom.goal_vector(*target)
+                head = wrap_mrad(heading + b)
+            else:
+                s = enc.encode(col, row, self._goal_index)
+                a = pol.best_action(s)
+                dc, dr = robot.CELL_ACTION_DELTAS[a]
+                target = robot.cell_center_mm(col + dc, row + dr, enc.height, pol.cell_mm)
+                head = _GRID_HEADING[(dc, dr)]
+                self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
+            self._prim = _Primitive(target, head)
+        prim = self._prim
+        half_base = robot.WHEEL_BASE_MM // 2
+        turn_cap = abs(robot.ACTION_WHEEL_SPEEDS_MM_S[1][1])
+        if prim.turning:
+            err = wrap_mrad(prim.heading_mrad - heading)
+            if abs(err) > TURN_TOLERANCE_MRAD:
+                w = TURN_GAIN_PER_S * abs(err) * half_base // 1000
+                w = max(MIN_TURN_MM_S, min(turn_cap, w))
+                return (-w, w) if err > 0 else (w, -w)
+            prim.turning = False
+        dist, bearing = self.odom.goal_vector(*prim.target)
+        if dist <= ARRIVE_TOLERANCE_MM or (abs(bearing) > 1571 and dist < pol.cell_mm // 2):
+            self._prim = None  # arrived (or just past it): re-localise from odometry
+            return self._cell_primitive(depth + 1) if depth == 0 else (0, 0)
+        if abs(bearing) > RETURN_TO_TURN_MRAD:
+            prim.turning = True
+            prim.heading_mrad = wrap_mrad(heading + bearing)
+            return (0, 0)
+        fwd_cap = robot.ACTION_WHEEL_SPEEDS_MM_S[0][0]
+        v = max(MIN_DRIVE_MM_S, min(fwd_cap, DRIVE_GAIN_PER_S * dist))
+        dv = STEER_GAIN_PER_S * bearing * half_base // 1000
+        return (v - dv, v + dv)
+
+    def _outputs(self, now_us: int, tick: int | None, errors: int) -> Outputs:
+        left, right = self.watchdog.output(now_us)
+        left, right = clamp_speeds(left, right, self.cfg.max_wheel_speed_mm_s)
+        if tick is not None:
+            counter = tick & 0xFFFFFF
+        else:
+            self._cmd_counter = (self._cmd_counter + 1) & 0xFFFFFF
+            counter = self._cmd_counter
+        live = self.state == CtrlState.DRIVING and not self.watchdog.expired(now_us)
+        if live or self.lockstep or tick is not None:
+            motor = MotorCommand(left, right, counter)
+        elif self._stop_burst > 0:
+            self._stop_burst -= 1
+            motor = MotorCommand(0, 0, counter)
+        else:
+            motor = None
+        self._hb_counter = (self._hb_counter + 1) & 0xFF
+        hb = Heartbeat(state=int(self.state), mode=int(self.mode), armed=self.armed,
+                       policy_loaded=self.policy is not None, goal_active=self.goal is not None,
+                       errors=errors, counter=self._hb_counter)
+        return Outputs(motor=motor, heartbeat=hb)

@@ -1,0 +1,273 @@
+"""The controller's thin shell: CAN in, one `Controller.step` per tick, CAN out.
+
+`RobotNode` owns the threads and the bus; all decisions are in
+`firmware_py.controller`. Three ways to tick:
+
+* wall clock (a real robot): a fixed-rate loop at `control_rate_hz` on a
+  `WallClock`; a receive thread stamps every input with the clock on arrival.
+* lockstep HIL (`lockstep=True`, `SimClock`): each SimTick frame sets the
+  clock to the sim time it carries, stamps the sensor frames that arrived
+  since the previous tick with that time, runs one step and answers with the
+  motor command carrying the tick's counter (the sim waits for it).
+* paced HIL (`SimClock`, not lockstep): SimTick frames only advance the
+  clock; the control loop waits on the sim clock for its next period.
+
+Overruns are counted (a wall-clock deadline missed, a sim tick skipped), and
+the wall time from the last input frame of a tick (the SimTick; in wall mode
+the loop's wake-up) to the command being handed to the bus is recorded per
+tick for `qnav bench controller`.
+
+Hook for the MAVLink shell: `node.controller` is the `VehicleControl`;
+callables in `node.after_tick` run in the control thread after each tick with
+the tick's `Outputs` (keep them short; telemetry should hand off to its own
+thread).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+import can
+
+from firmware_py import can_protocol as proto
+from firmware_py.clock import Clock, SimClock
+from firmware_py.controller import Controller, Inputs, Outputs
+
+log = logging.getLogger("qnav.node")
+
+_RANGE_INDEX = {f"RangeSectors{i}": i for i in range(len(proto.RANGE_SECTORS_IDS))}
+
+
+class InputTracker:
+    """The latest inputs, updated from the receive thread, read by the loop.
+
+    With `defer_stamps` (sim time), a frame's freshness is the time of the
+    next SimTick (the sim sends a tick's sensor frames before its tick
+    frame, all sampled at that tick's sim time)."""
+
+    def __init__(self, defer_stamps: bool) -> None:
+        self._lock = threading.Lock()
+        self._inp = Inputs()
+        self._defer = defer_stamps
+        self._pending: set[str] = set()
+
+    def _stamp(self, key: str, t_us: int) -> None:
+        inp = self._inp
+        if key.startswith("ranges"):
+            inp.ranges_us[int(key[6:])] = t_us
+        else:
+            setattr(inp, f"{key}_us", t_us)
+
+    def apply(self, name: str, sig: dict[str, int], t_us: int) -> bool:
+        """Take one decoded frame; False if it is not an input of ours."""
+        with self._lock:
+            inp = self._inp
+            if name in _RANGE_INDEX:
+                for i, (mm, st) in proto.ranges_from(name, sig).items():
+                    inp.ranges_mm[i] = mm
+                    inp.range_status[i] = st
+                key = f"ranges{_RANGE_INDEX[name]}"
+            elif name == "EncoderCounts":
+                inp.enc_left, inp.enc_right = sig["Enc_Left"], sig["Enc_Right"]
+                key = "enc"
+            elif name == "Bumper":
+                inp.bumper = bool(sig["Bump_Pressed"])
+                inp.bumper_events = sig["Bump_Events"]
+                key = "bumper"
+            elif name == "MotorStatus":
+                inp.driver_state = sig["Mot_State"]
+                inp.driver_errors = sig["Mot_Errors"]
+                inp.driver_estop = bool(sig["Mot_EStop"]) or sig["Mot_State"] == proto.MOTOR_ESTOP
+                inp.driver_left_mm_s = sig["Mot_LeftSpeed"]
+                inp.driver_right_mm_s = sig["Mot_RightSpeed"]
+                key = "driver"
+            elif name == "EStop" and sig["EStop_Source"] != proto.NODE_CONTROLLER:
+                inp.estop = bool(sig["EStop_Engage"])
+                key = "estop"
+            else:
+                return False
+            if self._defer:
+                self._pending.add(key)
+            else:
+                self._stamp(key, t_us)
+            return True
+
+    def stamp_pending(self, t_us: int) -> None:
+        with self._lock:
+            for key in self._pending:
+                self._stamp(key, t_us)
+            self._pending.clear()
+
+    def snapshot(self) -> Inputs:
+        with self._lock:
+            return self._inp.copy()
+
+
+class RobotNode:
+    """Bus + clock + controller, run by one or two threads (see module doc)."""
+
+    def __init__(self, bus: can.BusABC, controller: Controller, clock: Clock, *,
+                 lockstep: bool = False, latency_window: int = 200_000) -> None:
+        if lockstep and not isinstance(clock, SimClock):
+            raise ValueError("lockstep needs a SimClock (the sim owns time)")
+        self.bus = bus
+        self.controller = controller
+        self.clock = clock
+        self.lockstep = lockstep
+        self.sim_time = isinstance(clock, SimClock)
+        self.inputs = InputTracker(defer_stamps=self.sim_time)
+        self.after_tick: list[Callable[[Outputs], None]] = []
+        self.ticks = 0
+        self.overruns = 0
+        self.can_errors = 0
+        self.send_errors = 0
+        self.sim_ticks = 0
+        self.last_tick: int | None = None
+        self.latency_ns: deque[int] = deque(maxlen=latency_window)
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._last_rx_ns = 0
+        self._last_answer: can.Message | None = None
+
+    # --- lifecycle --------------------------------------------------------------
+    def start(self) -> RobotNode:
+        self._stop.clear()
+        self._threads = [threading.Thread(target=self._rx_loop, name="qnav-rx", daemon=True)]
+        if not self.lockstep:
+            self._threads.append(threading.Thread(target=self._control_loop, name="qnav-ctrl",
+                                                  daemon=True))
+        for t in self._threads:
+            t.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=5)
+        self._threads = []
+
+    @property
+    def running(self) -> bool:
+        return any(t.is_alive() for t in self._threads)
+
+    def __enter__(self) -> RobotNode:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # --- receive side ---------------------------------------------------------------
+    def _rx_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.bus.recv(timeout=0.05)
+            except (can.CanError, OSError) as exc:  # a broken bus must not kill the thread
+                self.can_errors += 1
+                log.warning("CAN receive failed: %s", exc)
+                time.sleep(0.05)
+                continue
+            if msg is None:
+                continue
+            rx_ns = time.perf_counter_ns()
+            try:
+                name, sig = proto.decode(msg)
+            except proto.ProtocolError:
+                self.can_errors += 1
+                continue
+            if name == "SimTick":
+                self._on_tick(sig["Tick_Counter"], sig["Tick_SimTimeUs"], rx_ns)
+                continue
+            self.inputs.apply(name, sig, self.clock.now_us())
+            self._last_rx_ns = rx_ns
+
+    def _on_tick(self, counter: int, sim_us: int, rx_ns: int) -> None:
+        if not self.sim_time:
+            return  # a wall-clock robot ignores stray sim ticks
+        if self.lockstep and counter == self.last_tick and self._last_answer is not None:
+            self._send_frame(self._last_answer)  # a retransmitted tick: same answer, no step
+            return
+        if self.last_tick is not None:
+            gap = (counter - self.last_tick) % proto.TICK_MODULUS
+            if gap > 1:
+                self.overruns += gap - 1  # ticks we never saw: lost or late
+        self.last_tick = counter
+        self.sim_ticks += 1
+        self.clock.set_us(sim_us)
+        self.inputs.stamp_pending(self.clock.now_us())
+        self._last_rx_ns = rx_ns
+        if self.lockstep:
+            self._tick(sim_us, counter, rx_ns)
+
+    # --- control side ---------------------------------------------------------------
+    def _tick(self, now_us: int, counter: int | None, t0_ns: int) -> None:
+        out = self.controller.step(self.inputs.snapshot(), now_us, tick=counter)
+        self._send(out)
+        self.latency_ns.append(time.perf_counter_ns() - t0_ns)
+        self.ticks += 1
+        self.controller.note_loop_stats(self.overruns, self.can_errors)
+        for hook in self.after_tick:
+            try:
+                hook(out)
+            except Exception:  # a telemetry bug must not stop the wheels' loop
+                log.exception("after_tick hook failed")
+
+    def _send(self, out: Outputs) -> None:
+        hb = out.heartbeat
+        self._send_frame(proto.encode("ControllerHeartbeat", {
+            "Ctrl_State": hb.state, "Ctrl_Mode": hb.mode, "Ctrl_Armed": int(hb.armed),
+            "Ctrl_PolicyLoaded": int(hb.policy_loaded), "Ctrl_GoalActive": int(hb.goal_active),
+            "Ctrl_Errors": hb.errors & 0xFFFF, "Ctrl_Counter": hb.counter}))
+        if out.motor is not None:  # last: in lockstep it is the tick's answer
+            m = out.motor
+            self._last_answer = proto.motor_command(m.left_mm_s, m.right_mm_s, m.counter)
+            self._send_frame(self._last_answer)
+
+    def _send_frame(self, frame: can.Message) -> None:
+        try:
+            self.bus.send(frame)
+        except (can.CanError, OSError) as exc:
+            self.send_errors += 1
+            log.warning("CAN send failed: %s", exc)
+
+    def _period_us(self) -> int:
+        return 1_000_000 // max(1, self.controller.cfg.control_rate_hz)
+
+    def _control_loop(self) -> None:
+        period = self._period_us()
+        next_us = self.clock.now_us() + period
+        while not self._stop.is_set():
+            if self.sim_time:
+                if not self.clock.wait_until(next_us, timeout_s=0.1):
+                    continue  # sim paused: sim time, hence every timeout, stands still
+                t0 = self._last_rx_ns
+            else:
+                delay = (next_us - self.clock.now_us()) / 1e6
+                if delay > 0 and self._stop.wait(delay):
+                    break
+                t0 = time.perf_counter_ns()
+            now = self.clock.now_us()
+            self._tick(now, None, t0)
+            period = self._period_us()  # the rate is a parameter: pick up changes
+            next_us += period
+            late = self.clock.now_us() - next_us
+            if late >= 0:  # missed the next deadline: count and skip the lost periods
+                missed = late // period + 1
+                self.overruns += missed
+                next_us += missed * period
+
+    # --- stats -------------------------------------------------------------------
+    def latency_stats(self) -> dict[str, float]:
+        """p50 / p99 / max of the per-tick input-to-command time, in µs."""
+        lat = sorted(self.latency_ns)
+        if not lat:
+            return {"tick_p50_us": 0.0, "tick_p99_us": 0.0, "tick_max_us": 0.0, "samples": 0}
+
+        def pct(p: float) -> float:
+            return lat[min(len(lat) - 1, int(p * (len(lat) - 1) + 0.5))] / 1000
+
+        return {"tick_p50_us": pct(0.50), "tick_p99_us": pct(0.99), "tick_max_us": lat[-1] / 1000,
+                "samples": len(lat)}
