@@ -238,3 +238,11 @@ def test_writer_refuses_inconsistent_input():
         dump_policy(enc, [0] * 16, "int4", 1.0, goals=[(0, 0)])
     with pytest.raises(ValueError):
         dump_policy(enc, [0] * 16, "int8", 0.0, goals=[(0, 0)])
+
+
+def test_free_form_fields_at_extremes_are_accepted_and_printable():
+    for pid, created in ((0, 0), (2**32 - 1, 2**63 - 1)):
+        p = load_policy(set_field(set_field(cell_file(), 9, pid), 10, created))
+        h = p.header()
+        assert (p.policy_id, p.created) == (pid, created)
+        assert h["policy_id"] == f"0x{pid:08x}" and h["created_utc"][:4] in ("1970", "9999")
