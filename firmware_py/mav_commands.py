@@ -1,0 +1,127 @@
+"""MAVLink commands (COMMAND_LONG / COMMAND_INT, SET_MODE) -> COMMAND_ACK.
+
+Owns which MAV_CMDs the robot supports and the MAV_RESULT each outcome maps
+to: ACCEPTED; DENIED when the vehicle (or a bad argument) refuses, with the
+reason as a STATUSTEXT sent just before the ACK; TEMPORARILY_REJECTED when
+the same command would succeed later (reboot while armed, mission upload in
+progress); UNSUPPORTED for anything else. A pure engine: `handle(msg,
+now_us, stats)` returns the replies.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from firmware_py.mission import MissionEngine
+from firmware_py.telemetry import STREAMS, NodeStats, Telemetry
+from firmware_py.vehicle import Mode, VehicleControl
+
+M = mavlink2
+SETTABLE_MODES = {Mode.HOLD: "Hold", Mode.GUIDED: "Guided", Mode.AUTO: "Auto"}
+ARM_FORCE_MAGIC = 21196  # ArduPilot's "force" value in param2; we never bypass the vehicle's checks
+
+ACCEPTED = M.MAV_RESULT_ACCEPTED
+DENIED = M.MAV_RESULT_DENIED
+TEMP_REJECTED = M.MAV_RESULT_TEMPORARILY_REJECTED
+UNSUPPORTED = M.MAV_RESULT_UNSUPPORTED
+
+
+class CommandHandler:
+    """Executes commands on the vehicle / node and acknowledges them."""
+
+    def __init__(self, mav: mavlink2.MAVLink, vehicle: VehicleControl, telemetry: Telemetry,
+                 mission: MissionEngine, reboot: Callable[[], list]) -> None:
+        self.mav = mav
+        self.vehicle = vehicle
+        self.telemetry = telemetry
+        self.mission = mission
+        self._reboot = reboot  # performs the reboot; returns messages to send after the ACK
+
+    def handle(self, msg, now_us: int, stats: NodeStats) -> list:
+        kind = msg.get_type()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if kind == "SET_MODE":  # legacy message; ArduPilot answers it with a DO_SET_MODE ack
+            result, reason, after = self._set_mode(msg.base_mode, msg.custom_mode)
+            return self._reply(M.MAV_CMD_DO_SET_MODE, src, result, reason, after)
+        if kind == "COMMAND_LONG":
+            p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+        else:  # COMMAND_INT: x/y are ints, z float
+            p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
+        result, reason, after = self._execute(msg.command, p, now_us, stats)
+        return self._reply(msg.command, src, result, reason, after)
+
+    def _reply(self, command: int, src: tuple[int, int], result: int, reason: str, after: list) -> list:
+        out = []
+        if reason:
+            severity = M.MAV_SEVERITY_WARNING if result != ACCEPTED else M.MAV_SEVERITY_INFO
+            out += self.telemetry.statustext(reason, severity)
+        out.append(self.mav.command_ack_encode(command, result, 0, 0, src[0], src[1]))
+        return out + after
+
+    def _execute(self, cmd: int, p: tuple, now_us: int, stats: NodeStats) -> tuple[int, str, list]:
+        if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
+            if p[0] not in (0.0, 1.0):
+                return DENIED, f"arm/disarm: param1 must be 0 or 1, got {p[0]:g}", []
+            ok, reason = self.vehicle.arm() if p[0] == 1.0 else self.vehicle.disarm()
+            what = "arm" if p[0] == 1.0 else "disarm"
+            return (ACCEPTED, "", []) if ok else (DENIED, f"{what} refused: {reason}", [])
+        if cmd == M.MAV_CMD_DO_SET_MODE:
+            return self._set_mode(int(p[0]), int(p[1]))
+        if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+            msg_id, interval = int(p[0]), int(p[1])
+            ok, reason = self.telemetry.set_interval(msg_id, interval)
+            return (ACCEPTED, "", []) if ok else (DENIED, f"message interval refused: {reason}", [])
+        if cmd == M.MAV_CMD_GET_MESSAGE_INTERVAL:
+            msg_id = int(p[0])
+            interval = self.telemetry.interval_us(msg_id) if msg_id in STREAMS else 0
+            return ACCEPTED, "", [self.mav.message_interval_encode(msg_id, interval if interval > 0 else -1)]
+        if cmd == M.MAV_CMD_REQUEST_MESSAGE:
+            return self._request_message(int(p[0]), now_us, stats)
+        if cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            return self._request_message(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, now_us, stats)
+        if cmd == M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
+            action = int(p[0])
+            if action == 0:
+                return ACCEPTED, "", []  # "do nothing" for the autopilot
+            if action != 1:
+                return UNSUPPORTED, "only reboot (param1=1) is supported", []
+            if self.vehicle.status().armed:
+                return TEMP_REJECTED, "reboot refused: disarm first", []
+            return ACCEPTED, "rebooting: reloading params and policy", self._reboot()
+        if cmd == M.MAV_CMD_MISSION_START:
+            if self.mission.uploading:
+                return TEMP_REJECTED, "mission start refused: upload in progress", []
+            ok, reason = self.vehicle.start_mission()
+            return (ACCEPTED, "", []) if ok else (DENIED, f"mission start refused: {reason}", [])
+        if cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:
+            seq = int(p[0])
+            if not 0 <= seq < len(self.mission.items):
+                return DENIED, f"set mission current refused: no item {seq}", []
+            ok, reason = self.vehicle.set_mission_current(seq)
+            return (ACCEPTED, "", []) if ok else (DENIED, f"set mission current refused: {reason}", [])
+        return UNSUPPORTED, "", []
+
+    def _set_mode(self, base_mode: int, custom_mode: int) -> tuple[int, str, list]:
+        if not base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return DENIED, "mode refused: custom mode flag not set", []
+        try:
+            mode = Mode(custom_mode)
+        except ValueError:
+            return DENIED, f"mode refused: unknown mode {custom_mode}", []
+        if mode not in SETTABLE_MODES:
+            return DENIED, f"mode refused: {mode.name.title()} not supported", []
+        ok, reason = self.vehicle.set_mode(mode)
+        if not ok:
+            return DENIED, f"mode {SETTABLE_MODES[mode]} refused: {reason}", []
+        return ACCEPTED, "", []
+
+    def _request_message(self, msg_id: int, now_us: int, stats: NodeStats) -> tuple[int, str, list]:
+        if not self.telemetry.can_build(msg_id):
+            return DENIED, f"message {msg_id} not available", []
+        msgs = self.telemetry.build(msg_id, now_us, self.vehicle.status(), stats)
+        if not msgs:
+            return DENIED, f"message {msg_id} has no data now", []
+        return ACCEPTED, "", msgs
+

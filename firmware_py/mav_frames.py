@@ -1,0 +1,52 @@
+"""Coordinate conversions between the robot's world frame and MAVLink frames.
+
+World (firmware_py.robot): x east, y north, millimetres; heading CCW from
+east. MAVLink LOCAL_NED: x north, y east, z down, metres; yaw clockwise from
+north. Global: latitude/longitude in 1e-7 degrees around the configured
+origin (the world's (0, 0)), with ArduPilot's flat-earth scaling, accurate
+to millimetres over an arena.
+
+Not in the control path: float maths is fine here.
+"""
+
+from __future__ import annotations
+
+import math
+
+# metres per 1e-7 degree of latitude (ArduPilot's LOCATION_SCALING_FACTOR)
+M_PER_E7 = 0.011131884502145034
+
+
+def world_to_ned_m(x_mm: int, y_mm: int) -> tuple[float, float]:
+    """World (east, north mm) -> NED (north, east) metres."""
+    return y_mm / 1000.0, x_mm / 1000.0
+
+
+def ned_m_to_world(north_m: float, east_m: float) -> tuple[int, int]:
+    """NED (north, east) metres -> world (x east, y north) mm."""
+    return round(east_m * 1000.0), round(north_m * 1000.0)
+
+
+def heading_to_yaw(heading_mrad: int) -> float:
+    """World heading (CCW from east, mrad) -> NED yaw (CW from north, rad, -pi..pi)."""
+    yaw = math.pi / 2 - heading_mrad / 1000.0
+    return math.atan2(math.sin(yaw), math.cos(yaw))
+
+
+def _lon_scale(lat_e7: int) -> float:
+    return max(math.cos(math.radians(lat_e7 * 1e-7)), 0.01)
+
+
+def world_to_global(x_mm: int, y_mm: int, origin_lat_e7: int, origin_lon_e7: int) -> tuple[int, int]:
+    """World mm -> (lat_e7, lon_e7)."""
+    north_m, east_m = world_to_ned_m(x_mm, y_mm)
+    lat = origin_lat_e7 + round(north_m / M_PER_E7)
+    lon = origin_lon_e7 + round(east_m / (M_PER_E7 * _lon_scale(origin_lat_e7)))
+    return lat, lon
+
+
+def global_to_world(lat_e7: int, lon_e7: int, origin_lat_e7: int, origin_lon_e7: int) -> tuple[int, int]:
+    """(lat_e7, lon_e7) -> world mm."""
+    north_m = (lat_e7 - origin_lat_e7) * M_PER_E7
+    east_m = (lon_e7 - origin_lon_e7) * M_PER_E7 * _lon_scale(origin_lat_e7)
+    return ned_m_to_world(north_m, east_m)

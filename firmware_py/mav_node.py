@@ -1,0 +1,340 @@
+"""The robot's MAVLink 2 node: core engine plus a thin transport shell.
+
+`MavNode` (the core) owns the routing of every incoming message - signing
+filter, target check, parameters, commands, missions, goals, SETUP_SIGNING,
+FTP - plus the GCS failsafe and the telemetry schedule: `handle(msg,
+now_us)` and `tick(now_us)` return the messages to send, nothing else
+happens; time is the robot clock's.
+
+`MavShell` is the I/O around it on any pymavlink connection string
+(`udpout:127.0.0.1:14550` by default, `udpin:`, `tcp:`, `tcpin:`, a serial
+device). `poll(now_us)` is non-blocking and meant to be called from the
+control loop once per tick (so timeouts resolve within one control period
+and the vehicle is only touched from one thread); `serve(stop)` runs it in
+its own loop for a standalone node.
+
+GCS failsafe (as ArduPilot Rover): armed only after a GCS heartbeat
+(HEARTBEAT with type MAV_TYPE_GCS) has been seen; no GCS heartbeat for
+FS_GCS_TOUT_MS -> `vehicle.set_failsafe(True)` (the vehicle applies
+FS_GCS_ACTION) + STATUSTEXT "GCS failsafe"; the next GCS heartbeat clears it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import threading
+import time
+from collections.abc import Callable
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from firmware_py import mav_frames
+from firmware_py.clock import Clock
+from firmware_py.mav_commands import CommandHandler
+from firmware_py.mission import MissionEngine
+from firmware_py.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
+from firmware_py.signing import Signing
+from firmware_py.telemetry import NodeStats, Telemetry
+from firmware_py.vehicle import VehicleControl
+
+M = mavlink2
+DEFAULT_URL = "udpout:127.0.0.1:14550"
+MISSION_MSGS = frozenset({
+    "MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT",
+    "MISSION_REQUEST", "MISSION_ACK", "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT",
+})
+POSITION_MASK_XY = 0b11  # type_mask bits "ignore x" / "ignore y"
+
+
+class MavNode:
+    """MAVLink node core: a pure state machine over pymavlink message objects.
+
+    `ftp` is any object with `handle(payload: bytes, now_us) -> list[bytes]`
+    (the FTP server); its replies go back in FILE_TRANSFER_PROTOCOL frames to
+    the requester. `reboot_hook` reloads the policy from storage on a
+    PREFLIGHT_REBOOT_SHUTDOWN (after the node reloaded its params).
+    """
+
+    def __init__(self, vehicle: VehicleControl, params: ParamStore, signing: Signing | None = None, *,
+                 reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp=None) -> None:
+        self.vehicle = vehicle
+        self.params = params
+        self.signing = signing if signing is not None else Signing(None)
+        self.reboot_hook = reboot_hook
+        self.ftp = ftp
+        self.sysid = params.get("SYSID_THISMAV")
+        self.compid = params.get("MAV_COMPID")
+        self.mav = mavlink2.MAVLink(None, self.sysid, self.compid)  # message factory only
+        self.stats = NodeStats()
+        self.telemetry = Telemetry(self.mav, params)
+        self.mission = MissionEngine(self.mav, vehicle, params, self.telemetry.statustext)
+        self.mission.on_mission_changed = self.telemetry.mission_changed
+        self.commands = CommandHandler(self.mav, vehicle, self.telemetry, self.mission, self._reboot)
+        self.gcs_last_heartbeat_us: int | None = None
+        self.failsafe = False
+        self.reboots = 0
+        self._pending: list = []
+        self._now_us = 0
+
+    # --- boot ---------------------------------------------------------------------
+    def boot(self, now_us: int, key_file: str | os.PathLike[str] | None = None) -> None:
+        """Load params and signing state from storage and configure the vehicle.
+        Warnings (corrupt files) are sent as STATUSTEXT on the first tick."""
+        warnings = self.params.load() + self.signing.load(now_us, key_file)
+        self._apply_params(reboot=True)
+        for w in warnings:
+            self._pending += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
+
+    def _apply_params(self, reboot: bool) -> None:
+        self.vehicle.apply_config(self.params.vehicle_config())
+        self.signing.require = bool(self.params.get("SIGN_REQUIRE"))
+        if reboot:
+            self.sysid = self.params.get("SYSID_THISMAV")
+            self.compid = self.params.get("MAV_COMPID")
+            self.mav.srcSystem, self.mav.srcComponent = self.sysid, self.compid
+            self.telemetry.reset_intervals()
+
+    def _reboot(self) -> list:
+        self.reboots += 1
+        out = []
+        for w in self.params.load():
+            out += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
+        self._apply_params(reboot=True)
+        self.signing.persist(self._now_us)
+        if self.reboot_hook is not None:
+            ok, reason = self.reboot_hook()
+            if not ok:
+                out += self.telemetry.statustext(f"reboot: policy reload failed: {reason}", M.MAV_SEVERITY_ERROR)
+        out += self.telemetry.statustext("reboot complete", M.MAV_SEVERITY_INFO)
+        return out
+
+    # --- input ----------------------------------------------------------------------
+    def handle(self, msg, now_us: int) -> list:
+        self._now_us = now_us
+        self.stats.rx_total += 1
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.stats.rx_dropped += 1
+            return []
+        if not self.signing.accept(msg):
+            self.stats.rx_dropped += 1
+            self.stats.signing_dropped = self.signing.dropped
+            return []
+        if (msg.get_srcSystem(), msg.get_srcComponent()) == (self.sysid, self.compid):
+            return []  # our own frame looped back
+        target = getattr(msg, "target_system", None)
+        if target not in (None, 0, self.sysid):
+            return []
+        target_comp = getattr(msg, "target_component", None)
+        if target_comp not in (None, 0, self.compid):
+            return []
+        if kind == "HEARTBEAT":
+            return self._heartbeat(msg, now_us)
+        if kind.startswith("PARAM_"):
+            return self._param(msg)
+        if kind in ("COMMAND_LONG", "COMMAND_INT", "SET_MODE"):
+            return self.commands.handle(msg, now_us, self.stats)
+        if kind in MISSION_MSGS:
+            return self.mission.handle(msg, now_us)
+        if kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
+            return self._goal(msg, now_us)
+        if kind == "SETUP_SIGNING":
+            text = self.signing.setup(bytes(msg.secret_key), msg.initial_timestamp)
+            return self.telemetry.statustext(text, M.MAV_SEVERITY_NOTICE)
+        if kind == "FILE_TRANSFER_PROTOCOL" and self.ftp is not None:
+            src = (msg.get_srcSystem(), msg.get_srcComponent())
+            return [self.mav.file_transfer_protocol_encode(0, src[0], src[1], list(p))
+                    for p in self.ftp.handle(bytes(msg.payload), now_us)]
+        return []
+
+    def _heartbeat(self, msg, now_us: int) -> list:
+        if msg.type != M.MAV_TYPE_GCS:
+            return []
+        self.gcs_last_heartbeat_us = now_us
+        if self.failsafe:
+            self.failsafe = False
+            self.vehicle.set_failsafe(False)
+            return self.telemetry.statustext("GCS failsafe cleared", M.MAV_SEVERITY_NOTICE)
+        return []
+
+    # --- parameters ---------------------------------------------------------------------
+    def param_value(self, name: str):
+        value = self.params.get(name)
+        return self.mav.param_value_encode(name.encode(), as_float32(value), MAV_PARAM_TYPE_INT32,
+                                           len(self.params), self.params.index(name))
+
+    def _param(self, msg) -> list:
+        kind = msg.get_type()
+        self._refresh_readonly()
+        if kind == "PARAM_REQUEST_LIST":
+            return [self.param_value(n) for n in self.params.names()]
+        if kind == "PARAM_REQUEST_READ":
+            if msg.param_index >= 0:
+                names = self.params.names()
+                if msg.param_index < len(names):
+                    return [self.param_value(names[msg.param_index])]
+                return self.telemetry.statustext(f"no parameter index {msg.param_index}", M.MAV_SEVERITY_WARNING)
+            if msg.param_id in self.params:
+                return [self.param_value(msg.param_id)]
+            return self.telemetry.statustext(f"unknown parameter {msg.param_id}", M.MAV_SEVERITY_WARNING)
+        if kind == "PARAM_SET":
+            name = msg.param_id
+            ok, reason = self.params.set(name, msg.param_value)
+            if name not in self.params:
+                return self.telemetry.statustext(reason, M.MAV_SEVERITY_WARNING)
+            out = [] if ok else self.telemetry.statustext(f"param set refused: {reason}", M.MAV_SEVERITY_WARNING)
+            if ok:
+                d = self.params.definition(name)
+                if d.reboot_required:
+                    out += self.telemetry.statustext(f"{name} takes effect after reboot", M.MAV_SEVERITY_NOTICE)
+                else:
+                    self._apply_params(reboot=False)
+            return out + [self.param_value(name)]
+        return []
+
+    def _refresh_readonly(self) -> None:
+        st = self.vehicle.status()
+        self.params.update_policy(st.policy_id, st.policy_crc)
+
+    # --- goals ----------------------------------------------------------------------------
+    def _goal(self, msg, now_us: int) -> list:
+        if msg.type_mask & POSITION_MASK_XY:
+            return self.telemetry.statustext("goal refused: position ignored in type_mask", M.MAV_SEVERITY_WARNING)
+        if msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
+            if msg.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
+                return self.telemetry.statustext(
+                    f"goal refused: frame {msg.coordinate_frame} unsupported (LOCAL_NED only)", M.MAV_SEVERITY_WARNING)
+            x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
+        else:
+            x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
+                                                    self.params.get("ORIGIN_LON"))
+        ok, reason = self.vehicle.set_goal(x_mm, y_mm)
+        if not ok:
+            return self.telemetry.statustext(f"goal refused: {reason}", M.MAV_SEVERITY_WARNING)
+        return [self.telemetry.position_target((now_us // 1000) & 0xFFFFFFFF, x_mm, y_mm)]
+
+    # --- time -------------------------------------------------------------------------------
+    def tick(self, now_us: int) -> list:
+        """Failsafe check, vehicle events, mission timeouts, due telemetry."""
+        self._now_us = now_us
+        out, self._pending = self._pending, []
+        out += self._check_failsafe(now_us)
+        for ev in self.vehicle.drain_events():
+            out += self.telemetry.event(ev)
+        out += self.mission.tick(now_us)
+        self.signing.tick(now_us)
+        self.stats.signing_dropped = self.signing.dropped
+        out += self.telemetry.due(now_us, self.vehicle.status(), self.stats)
+        return out
+
+    def _check_failsafe(self, now_us: int) -> list:
+        enabled = bool(self.params.get("FS_GCS_ENABLE"))
+        if self.failsafe and not enabled:
+            self.failsafe = False
+            self.vehicle.set_failsafe(False)
+            return self.telemetry.statustext("GCS failsafe cleared (disabled)", M.MAV_SEVERITY_NOTICE)
+        if self.failsafe or not enabled or self.gcs_last_heartbeat_us is None:
+            return []
+        timeout_ms = self.params.get("FS_GCS_TOUT_MS")
+        if now_us - self.gcs_last_heartbeat_us <= timeout_ms * 1000:
+            return []
+        self.failsafe = True
+        self.vehicle.set_failsafe(True)
+        action = ("none", "Hold", "disarm")[self.params.get("FS_GCS_ACTION")]
+        return self.telemetry.statustext(f"GCS failsafe: no GCS heartbeat for {timeout_ms} ms, {action}",
+                                         M.MAV_SEVERITY_CRITICAL)
+
+
+class MavShell:
+    """Moves frames between a pymavlink connection and a `MavNode`."""
+
+    def __init__(self, node: MavNode, url: str = DEFAULT_URL, *, baud: int = 57600) -> None:
+        # MAVLink 2 from the first frame: pymavlink's v1 -> v2 switch would
+        # replace the codec and lose the signing setup.
+        os.environ["MAVLINK20"] = "1"
+        from pymavlink import mavutil
+
+        self.node = node
+        self.url = url
+        self.conn = mavutil.mavlink_connection(url, baud=baud, dialect="common", source_system=node.sysid,
+                                               source_component=node.compid, autoreconnect=True)
+        self._key_version = -1
+        self.sent = 0
+        self._cpu = (time.process_time(), time.monotonic())
+
+    def _sync_signing(self, now_us: int) -> None:
+        sig, s = self.node.signing, self.conn.mav.signing
+        if self._key_version != sig.key_version:
+            self._key_version = sig.key_version
+            s.secret_key = sig.key
+            s.sign_outgoing = sig.key is not None
+            # accept everything at the parser: the node's Signing decides and counts
+            s.allow_unsigned_callback = (lambda mav, msg_id: True) if sig.key is not None else None
+            s.link_id = 0
+        if sig.key is not None:
+            s.timestamp = max(s.timestamp, sig.current_timestamp(now_us))
+
+    def send(self, msgs: list, now_us: int) -> None:
+        if not msgs:
+            return
+        self._sync_signing(now_us)
+        mav = self.conn.mav
+        mav.srcSystem, mav.srcComponent = self.node.sysid, self.node.compid
+        for m in msgs:
+            try:
+                mav.send(m)
+                self.sent += 1
+            except OSError:
+                pass  # no peer yet (udpin before the first frame) or link down: telemetry is periodic
+        if self.node.signing.key is not None:
+            self.node.signing.note_sent(mav.signing.timestamp)
+
+    def poll(self, now_us: int, max_msgs: int = 200) -> None:
+        """Handle everything that has arrived, then tick. Never blocks."""
+        self._sync_signing(now_us)
+        for _ in range(max_msgs):
+            try:
+                msg = self.conn.recv_msg()
+            except OSError:
+                break
+            if msg is None:
+                break
+            self.send(self.node.handle(msg, now_us), now_us)
+        cpu, wall = time.process_time(), time.monotonic()
+        if wall - self._cpu[1] >= 1.0:
+            self.node.stats.load_permille = int(1000 * (cpu - self._cpu[0]) / (wall - self._cpu[1]))
+            self._cpu = (cpu, wall)
+        self.send(self.node.tick(now_us), now_us)
+
+    def serve(self, clock: Clock, stop: threading.Event, idle_s: float = 0.005) -> None:
+        """Standalone loop: poll, then wait for input up to `idle_s`."""
+        while not stop.is_set():
+            self.poll(clock.now_us())
+            try:
+                self.conn.select(idle_s)
+            except (OSError, ValueError):
+                time.sleep(idle_s)
+
+    def close(self) -> None:
+        self.node.signing.persist()
+        self.conn.close()
+
+
+def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
+    """`--mavlink URL` and `--signing-key FILE` for the robot's command line."""
+    parser.add_argument("--mavlink", metavar="URL", default=DEFAULT_URL,
+                        help=f"pymavlink connection string (default {DEFAULT_URL}; also udpin:, tcp:, "
+                             "tcpin:, a serial device)")
+    parser.add_argument("--mavlink-baud", type=int, default=57600, help="baud rate for a serial device")
+    parser.add_argument("--signing-key", metavar="FILE", default=None,
+                        help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
+
+
+def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | None, url: str, now_us: int, *,
+              signing_key: str | None = None, baud: int = 57600,
+              reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp=None) -> MavShell:
+    """Build, boot and connect the node (params and signing state from `storage_dir`)."""
+    node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=ftp)
+    node.boot(now_us, signing_key)
+    return MavShell(node, url, baud=baud)

@@ -1,0 +1,251 @@
+"""Mission protocol engine (MAVLink mission microservice, robot side).
+
+Owns the stored mission (the items exactly as uploaded, so a download
+returns what was sent) and the transfer state machines:
+
+- upload: MISSION_COUNT -> MISSION_REQUEST_INT(seq) ... MISSION_ITEM_INT /
+  MISSION_ITEM -> MISSION_ACK; a missing item is re-requested every
+  MIS_TIMEOUT_MS on the robot clock, MIS_RETRIES times, then the upload is
+  cancelled (old mission kept);
+- download: MISSION_REQUEST_LIST -> MISSION_COUNT, MISSION_REQUEST_INT /
+  MISSION_REQUEST -> item, ended by the GCS's MISSION_ACK or a timeout;
+- MISSION_CLEAR_ALL, MISSION_SET_CURRENT (-> MISSION_CURRENT).
+
+Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED (x north, y east:
+metres, or metres * 1e4 in MISSION_ITEM_INT) or a global frame (converted
+around the configured origin). Waypoints go to the vehicle in world
+millimetres (x east, y north). Only mission_type MISSION; fence and rally
+are answered MAV_MISSION_UNSUPPORTED. Pure engine: `handle(msg, now_us)`
+and `tick(now_us)` return replies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from firmware_py import mav_frames
+from firmware_py.params import ParamStore
+from firmware_py.vehicle import VehicleControl
+
+M = mavlink2
+MAX_ITEMS = 128
+LOCAL_FRAMES = frozenset({M.MAV_FRAME_LOCAL_NED})
+GLOBAL_FRAMES = frozenset({
+    M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_INT,
+    M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+})
+INT_SCALED_GLOBAL = frozenset({M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                               M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT})
+
+
+@dataclass(frozen=True)
+class Item:
+    """A stored mission item in MISSION_ITEM_INT terms (x, y: 1e7 deg for
+    global frames, metres * 1e4 for local)."""
+
+    seq: int
+    frame: int
+    command: int
+    autocontinue: int
+    params: tuple[float, float, float, float]
+    x: int
+    y: int
+    z: float
+
+
+def item_from_msg(msg) -> Item:
+    """Normalise MISSION_ITEM (float) and MISSION_ITEM_INT to `Item`."""
+    params = (msg.param1, msg.param2, msg.param3, msg.param4)
+    if msg.get_type() == "MISSION_ITEM_INT":
+        x, y = msg.x, msg.y
+        frame = msg.frame
+    else:  # float item: scale like MISSION_ITEM_INT, keeping the frame's meaning
+        scale = 1e4 if msg.frame in LOCAL_FRAMES else 1e7
+        x, y = round(msg.x * scale), round(msg.y * scale)
+        frame = msg.frame
+    return Item(msg.seq, frame, msg.command, msg.autocontinue, params, x, y, msg.z)
+
+
+def item_to_world(item: Item, origin_lat_e7: int, origin_lon_e7: int) -> tuple[int, int]:
+    if item.frame in LOCAL_FRAMES:
+        return mav_frames.ned_m_to_world(item.x / 1e4, item.y / 1e4)
+    return mav_frames.global_to_world(item.x, item.y, origin_lat_e7, origin_lon_e7)
+
+
+class MissionEngine:
+    """Robot side of the mission protocol."""
+
+    def __init__(self, mav: mavlink2.MAVLink, vehicle: VehicleControl, params: ParamStore,
+                 statustext) -> None:
+        self.mav = mav
+        self.vehicle = vehicle
+        self.params = params
+        self._statustext = statustext  # (text, severity) -> list[msg]
+        self.items: list[Item] = []
+        self.on_mission_changed = None  # callback after a new mission is stored
+        # upload transfer
+        self._up_partner: tuple[int, int] | None = None
+        self._up_count = 0
+        self._up_items: list[Item] = []
+        self._up_deadline = 0
+        self._up_retries = 0
+        # download transfer
+        self._down_partner: tuple[int, int] | None = None
+        self._down_deadline = 0
+
+    @property
+    def uploading(self) -> bool:
+        return self._up_partner is not None
+
+    def _ack(self, partner: tuple[int, int], result: int):
+        return self.mav.mission_ack_encode(partner[0], partner[1], result, M.MAV_MISSION_TYPE_MISSION)
+
+    def _timeout_us(self) -> int:
+        return self.params.get("MIS_TIMEOUT_MS") * 1000
+
+    def _request(self, seq: int):
+        assert self._up_partner is not None
+        tsys, tcomp = self._up_partner
+        return self.mav.mission_request_int_encode(tsys, tcomp, seq, M.MAV_MISSION_TYPE_MISSION)
+
+    # --- engine ------------------------------------------------------------------
+    def handle(self, msg, now_us: int) -> list:
+        kind = msg.get_type()
+        partner = (msg.get_srcSystem(), msg.get_srcComponent())
+        mission_type = getattr(msg, "mission_type", M.MAV_MISSION_TYPE_MISSION)
+        if kind in ("MISSION_COUNT", "MISSION_REQUEST_LIST", "MISSION_CLEAR_ALL") and \
+                mission_type != M.MAV_MISSION_TYPE_MISSION:
+            if kind == "MISSION_REQUEST_LIST":  # an empty fence/rally list, as ArduPilot-less GCSs expect
+                return [self.mav.mission_count_encode(partner[0], partner[1], 0, mission_type)]
+            return [self.mav.mission_ack_encode(partner[0], partner[1], M.MAV_MISSION_UNSUPPORTED, mission_type)]
+        if kind == "MISSION_COUNT":
+            return self._start_upload(msg, partner, now_us)
+        if kind in ("MISSION_ITEM_INT", "MISSION_ITEM"):
+            return self._item(msg, partner, now_us)
+        if kind == "MISSION_REQUEST_LIST":
+            self._down_partner = partner
+            self._down_deadline = now_us + self._timeout_us() * (self.params.get("MIS_RETRIES") + 1)
+            return [self.mav.mission_count_encode(partner[0], partner[1], len(self.items),
+                                                  M.MAV_MISSION_TYPE_MISSION)]
+        if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
+            return self._send_item(msg, partner, now_us, kind == "MISSION_REQUEST_INT")
+        if kind == "MISSION_ACK":
+            if self._down_partner == partner:
+                self._down_partner = None
+            return []
+        if kind == "MISSION_CLEAR_ALL":
+            if self.uploading:
+                return self._statustext("mission clear refused: upload in progress", M.MAV_SEVERITY_WARNING) + \
+                    [self._ack(partner, M.MAV_MISSION_DENIED)]
+            ok, reason = self.vehicle.set_mission([])
+            if not ok:
+                return self._statustext(f"mission clear refused: {reason}", M.MAV_SEVERITY_WARNING) + \
+                    [self._ack(partner, M.MAV_MISSION_DENIED)]
+            self.items = []
+            self._changed()
+            return [self._ack(partner, M.MAV_MISSION_ACCEPTED)]
+        if kind == "MISSION_SET_CURRENT":
+            return self.set_current(msg.seq)
+        return []
+
+    def set_current(self, seq: int) -> list:
+        """MISSION_SET_CURRENT: answered by MISSION_CURRENT (STATUSTEXT on refusal)."""
+        out = []
+        if not 0 <= seq < len(self.items):
+            out += self._statustext(f"mission set current refused: no item {seq}", M.MAV_SEVERITY_WARNING)
+        else:
+            ok, reason = self.vehicle.set_mission_current(seq)
+            if not ok:
+                out += self._statustext(f"mission set current refused: {reason}", M.MAV_SEVERITY_WARNING)
+        st = self.vehicle.status()
+        return out + [self.mav.mission_current_encode(st.mission_seq, st.mission_count, 0, 0)]
+
+    def _start_upload(self, msg, partner, now_us: int) -> list:
+        if self.uploading and partner != self._up_partner:
+            return [self._ack(partner, M.MAV_MISSION_DENIED)]
+        count = msg.count
+        if count > MAX_ITEMS:
+            return self._statustext(f"mission of {count} items exceeds {MAX_ITEMS}", M.MAV_SEVERITY_WARNING) + \
+                [self._ack(partner, M.MAV_MISSION_NO_SPACE)]
+        if count == 0:
+            self._up_partner = None
+            return self._commit([], partner)
+        self._up_partner, self._up_count, self._up_items = partner, count, []
+        self._up_retries = 0
+        self._up_deadline = now_us + self._timeout_us()
+        return [self._request(0)]
+
+    def _item(self, msg, partner, now_us: int) -> list:
+        if not self.uploading or partner != self._up_partner:
+            return []  # stray item: nothing is being uploaded from this GCS
+        expected = len(self._up_items)
+        if msg.seq != expected:  # duplicate or out of order: ask again for the one we need
+            return [self._request(expected)]
+        item = item_from_msg(msg)
+        error = None
+        if item.command != M.MAV_CMD_NAV_WAYPOINT:
+            error = (M.MAV_MISSION_UNSUPPORTED, f"mission item {item.seq}: command {item.command} unsupported "
+                     "(NAV_WAYPOINT only)")
+        elif item.frame not in LOCAL_FRAMES and item.frame not in GLOBAL_FRAMES:
+            error = (M.MAV_MISSION_UNSUPPORTED_FRAME, f"mission item {item.seq}: frame {item.frame} unsupported")
+        if error is not None:
+            self._up_partner = None
+            return self._statustext(error[1], M.MAV_SEVERITY_WARNING) + [self._ack(partner, error[0])]
+        self._up_items.append(item)
+        self._up_retries = 0
+        self._up_deadline = now_us + self._timeout_us()
+        if len(self._up_items) < self._up_count:
+            return [self._request(len(self._up_items))]
+        self._up_partner = None
+        return self._commit(self._up_items, partner)
+
+    def _commit(self, items: list[Item], partner) -> list:
+        lat0, lon0 = self.params.get("ORIGIN_LAT"), self.params.get("ORIGIN_LON")
+        waypoints = [item_to_world(it, lat0, lon0) for it in items]
+        ok, reason = self.vehicle.set_mission(waypoints)
+        if not ok:
+            return self._statustext(f"mission refused: {reason}", M.MAV_SEVERITY_WARNING) + \
+                [self._ack(partner, M.MAV_MISSION_DENIED)]
+        self.items = list(items)
+        self._changed()
+        return self._statustext(f"mission of {len(items)} items stored", M.MAV_SEVERITY_INFO) + \
+            [self._ack(partner, M.MAV_MISSION_ACCEPTED)]
+
+    def _changed(self) -> None:
+        if self.on_mission_changed is not None:
+            self.on_mission_changed()
+
+    def _send_item(self, msg, partner, now_us: int, as_int: bool) -> list:
+        if not 0 <= msg.seq < len(self.items):
+            return [self._ack(partner, M.MAV_MISSION_INVALID_SEQUENCE)]
+        if self._down_partner == partner:
+            self._down_deadline = now_us + self._timeout_us() * (self.params.get("MIS_RETRIES") + 1)
+        it = self.items[msg.seq]
+        current = 1 if msg.seq == self.vehicle.status().mission_seq else 0
+        if as_int:
+            return [self.mav.mission_item_int_encode(
+                partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
+                *it.params, it.x, it.y, it.z, M.MAV_MISSION_TYPE_MISSION)]
+        scale = 1e4 if it.frame in LOCAL_FRAMES else 1e7
+        return [self.mav.mission_item_encode(
+            partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
+            *it.params, it.x / scale, it.y / scale, it.z, M.MAV_MISSION_TYPE_MISSION)]
+
+    def tick(self, now_us: int) -> list:
+        out = []
+        if self.uploading and now_us >= self._up_deadline:
+            if self._up_retries >= self.params.get("MIS_RETRIES"):
+                partner = self._up_partner
+                self._up_partner = None
+                out += self._statustext("mission upload timed out; previous mission kept", M.MAV_SEVERITY_WARNING)
+                out.append(self._ack(partner, M.MAV_MISSION_OPERATION_CANCELLED))
+            else:
+                self._up_retries += 1
+                self._up_deadline = now_us + self._timeout_us()
+                out.append(self._request(len(self._up_items)))
+        if self._down_partner is not None and now_us >= self._down_deadline:
+            self._down_partner = None
+        return out

@@ -1,0 +1,224 @@
+"""The robot's MAVLink parameter table and its persistence.
+
+Owns the list of parameters (name <= 16 chars, type, default, range,
+description), which `VehicleConfig` field or node setting each one drives,
+range enforcement, and the JSON file in the storage directory that keeps
+them across reboots. The file is replaced atomically (temp + fsync +
+os.replace) so a power cut leaves either the old or the new table; a
+corrupt or unreadable file means defaults plus a warning, never a crash.
+
+All tunables are integers (MAVLink INT32 params). MAVLink carries every
+param value as a float32, so integers above 2**24 (the origin in 1e-7
+degrees) travel rounded to float32; the robot stores the exact integer.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from firmware_py import robot
+from firmware_py.vehicle import FailsafeAction, VehicleConfig
+
+PARAM_FILE = "params.json"
+FILE_VERSION = 1
+
+MAV_PARAM_TYPE_INT32 = 6  # MAVLink MAV_PARAM_TYPE_INT32 (ArduPilot style: value cast to float)
+
+
+@dataclass(frozen=True)
+class ParamDef:
+    """One parameter: `field` names the VehicleConfig field it drives (None
+    for node settings); read-only ones mirror the vehicle's status."""
+
+    name: str
+    default: int
+    min: int
+    max: int
+    description: str
+    field: str | None = None
+    readonly: bool = False
+    reboot_required: bool = False
+
+
+_CFG = VehicleConfig()
+
+PARAMS: tuple[ParamDef, ...] = (
+    # --- node ---------------------------------------------------------------
+    ParamDef("SYSID_THISMAV", 1, 1, 254, "MAVLink system id of the robot (applied at reboot)",
+             reboot_required=True),
+    ParamDef("MAV_COMPID", 1, 1, 254, "MAVLink component id of the robot (applied at reboot)",
+             reboot_required=True),
+    ParamDef("SIGN_REQUIRE", 1, 0, 1,
+             "1: with a signing key set, drop unsigned/badly signed input (RADIO_STATUS excepted); "
+             "0: accept unsigned input too (outgoing still signed)"),
+    ParamDef("TELEM_POS_HZ", 5, 0, 50,
+             "default rate of LOCAL_POSITION_NED, ATTITUDE, GLOBAL_POSITION_INT (0 = off)"),
+    ParamDef("TELEM_NAV_HZ", 2, 0, 50,
+             "default rate of NAV_CONTROLLER_OUTPUT, OBSTACLE_DISTANCE, MISSION_CURRENT, "
+             "NAMED_VALUE_INT, POSITION_TARGET_LOCAL_NED (0 = off)"),
+    ParamDef("MIS_TIMEOUT_MS", 1500, 100, 10_000,
+             "mission transfer: wait for the next item this long before re-requesting it"),
+    ParamDef("MIS_RETRIES", 3, 0, 10, "mission transfer: re-requests before the upload is cancelled"),
+    ParamDef("FS_GCS_ENABLE", 1, 0, 1,
+             "1: GCS failsafe armed once a GCS heartbeat has been seen; 0: off"),
+    # --- controller (VehicleConfig) -----------------------------------------
+    ParamDef("CTRL_RATE_HZ", _CFG.control_rate_hz, 1, 100, "control loop rate", "control_rate_hz"),
+    ParamDef("SENS_TIMEOUT_MS", _CFG.sensor_timeout_ms, 20, 5000,
+             "sensor data older than this -> stop and FAULT", "sensor_timeout_ms"),
+    ParamDef("MOT_TIMEOUT_MS", _CFG.motor_timeout_ms, 20, 2000,
+             "motor driver watchdog timeout", "motor_timeout_ms"),
+    ParamDef("MAX_WHEEL_SPD", _CFG.max_wheel_speed_mm_s, 10, robot.MAX_WHEEL_SPEED_MM_S,
+             "wheel speed limit (mm/s)", "max_wheel_speed_mm_s"),
+    ParamDef("SPEED_SCALE", _CFG.speed_scale_pct, 10, 100,
+             "scale of the action table's wheel speeds (%)", "speed_scale_pct"),
+    ParamDef("GOAL_TOL_MM", _CFG.goal_tolerance_mm, 20, 2000,
+             "goal counts as reached inside this distance (mm)", "goal_tolerance_mm"),
+    ParamDef("FS_GCS_TOUT_MS", _CFG.gcs_timeout_ms, 500, 120_000,
+             "no GCS heartbeat for this long -> GCS failsafe (robot clock, ms)", "gcs_timeout_ms"),
+    ParamDef("FS_GCS_ACTION", int(_CFG.gcs_failsafe_action), 0, 2,
+             "GCS failsafe action: 0 none (report only), 1 Hold, 2 disarm", "gcs_failsafe_action"),
+    ParamDef("ORIGIN_LAT", _CFG.origin_lat_e7, -900_000_000, 900_000_000,
+             "latitude of the world origin (1e-7 deg)", "origin_lat_e7"),
+    ParamDef("ORIGIN_LON", _CFG.origin_lon_e7, -1_800_000_000, 1_800_000_000,
+             "longitude of the world origin (1e-7 deg)", "origin_lon_e7"),
+    ParamDef("ORIGIN_ALT_MM", _CFG.origin_alt_mm, -1_000_000, 10_000_000,
+             "altitude AMSL of the world origin (mm)", "origin_alt_mm"),
+    ParamDef("CELL_SIZE_MM", _CFG.cell_size_mm, 50, 5000, "map cell size (mm)", "cell_size_mm"),
+    # --- read-only mirrors of the vehicle status ------------------------------
+    ParamDef("POLICY_ID", 0, 0, 2**32 - 1, "id of the active policy (read-only)", readonly=True),
+    ParamDef("POLICY_CRC", 0, 0, 2**32 - 1,
+             "CRC32 of the active policy file (read-only; float32 on the wire, exact in the "
+             "two 16-bit halves below)", readonly=True),
+    ParamDef("POLICY_CRC_HI", 0, 0, 0xFFFF, "upper 16 bits of POLICY_CRC (read-only)", readonly=True),
+    ParamDef("POLICY_CRC_LO", 0, 0, 0xFFFF, "lower 16 bits of POLICY_CRC (read-only)", readonly=True),
+)
+
+assert all(len(p.name) <= 16 for p in PARAMS)
+assert {p.field for p in PARAMS if p.field} == {f.name for f in fields(VehicleConfig)}
+assert FailsafeAction.DISARM == 2
+
+
+def as_float32(value: int) -> float:
+    """The value a PARAM_VALUE carries for an integer (C cast to float32)."""
+    return struct.unpack("<f", struct.pack("<f", float(value)))[0]
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Replace `path` with `data` so a crash leaves the old or the new file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+class ParamStore:
+    """Parameter values, range-checked, persisted in `<storage>/params.json`.
+
+    `storage_dir=None` keeps the table in memory only (tests, no storage).
+    """
+
+    def __init__(self, storage_dir: str | os.PathLike[str] | None = None) -> None:
+        self._defs = {p.name: p for p in PARAMS}
+        self._order = [p.name for p in PARAMS]
+        self._values = {p.name: p.default for p in PARAMS}
+        self.path = Path(storage_dir) / PARAM_FILE if storage_dir is not None else None
+
+    # --- table ----------------------------------------------------------------
+    def names(self) -> list[str]:
+        return list(self._order)
+
+    def index(self, name: str) -> int:
+        return self._order.index(name)
+
+    def definition(self, name: str) -> ParamDef:
+        return self._defs[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._defs
+
+    def __len__(self) -> int:
+        return len(self._order)
+
+    def get(self, name: str) -> int:
+        return self._values[name]
+
+    def set(self, name: str, value: float) -> tuple[bool, str]:
+        """Set from a MAVLink PARAM_SET value. On refusal the stored value is
+        unchanged and the reason says why. Persists on success."""
+        d = self._defs.get(name)
+        if d is None:
+            return False, f"unknown parameter {name}"
+        if d.readonly:
+            return False, f"{name} is read-only"
+        if value != value or value in (float("inf"), float("-inf")):
+            return False, f"{name}: not a number"
+        ivalue = round(value)
+        # float32 cannot hold every int > 2**24 exactly: accept the float32 image of an int
+        if abs(value - ivalue) > max(1e-6, abs(value) * 1.2e-7):
+            return False, f"{name} must be an integer, got {value:g}"
+        if not d.min <= ivalue <= d.max:
+            return False, f"{name}={ivalue} out of range [{d.min}, {d.max}]"
+        if ivalue != self._values[name]:
+            self._values[name] = ivalue
+            self.save()
+        return True, ""
+
+    def set_readonly(self, name: str, value: int) -> None:
+        """Update a read-only mirror (POLICY_ID, ...) from the vehicle status."""
+        assert self._defs[name].readonly
+        self._values[name] = int(value)
+
+    def update_policy(self, policy_id: int, policy_crc: int) -> None:
+        self.set_readonly("POLICY_ID", policy_id & 0xFFFFFFFF)
+        self.set_readonly("POLICY_CRC", policy_crc & 0xFFFFFFFF)
+        self.set_readonly("POLICY_CRC_HI", (policy_crc >> 16) & 0xFFFF)
+        self.set_readonly("POLICY_CRC_LO", policy_crc & 0xFFFF)
+
+    def vehicle_config(self) -> VehicleConfig:
+        return VehicleConfig(**{p.field: self._values[p.name] for p in PARAMS if p.field})
+
+    # --- persistence ------------------------------------------------------------
+    def save(self) -> None:
+        if self.path is None:
+            return
+        values = {p.name: self._values[p.name] for p in PARAMS if not p.readonly}
+        text = json.dumps({"version": FILE_VERSION, "params": values}, indent=1, sort_keys=True)
+        atomic_write(self.path, (text + "\n").encode())
+
+    def load(self) -> list[str]:
+        """Reset to defaults, then apply the stored file. Returns warnings
+        (one line each) for anything ignored; never raises on bad content."""
+        self._values.update({p.name: p.default for p in PARAMS if not p.readonly})
+        if self.path is None or not self.path.exists():
+            return []
+        try:
+            doc = json.loads(self.path.read_text())
+            if not isinstance(doc, dict) or doc.get("version") != FILE_VERSION:
+                raise ValueError(f"unsupported version {doc.get('version') if isinstance(doc, dict) else doc!r}")
+            stored = doc["params"]
+            if not isinstance(stored, dict):
+                raise ValueError("'params' is not an object")
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            return [f"params file corrupt ({exc}); using defaults"]
+        warnings = []
+        for name, value in stored.items():
+            d = self._defs.get(name)
+            if d is None or d.readonly:
+                warnings.append(f"params file: ignored unknown {name}")
+            elif not isinstance(value, int) or isinstance(value, bool) or not d.min <= value <= d.max:
+                warnings.append(f"params file: {name}={value!r} invalid; default {d.default}")
+            else:
+                self._values[name] = value
+        return warnings

@@ -1,0 +1,281 @@
+"""Telemetry: what the robot streams, how often, and how each message is built.
+
+Owns the per-message interval table (defaults from params, changed by
+MAV_CMD_SET_MESSAGE_INTERVAL, one-shot by MAV_CMD_REQUEST_MESSAGE), the
+builders that turn a `VehicleStatus` into MAVLink messages in the frames
+stock ground stations expect (LOCAL_NED, global around the configured
+origin, BODY_FRD obstacle sectors), and the translation of vehicle events
+into STATUSTEXT / MISSION_ITEM_REACHED. A pure engine: `due(now_us, ...)`
+returns the messages to send; the node shell sends them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from firmware_py import mav_frames, robot
+from firmware_py.params import ParamStore
+from firmware_py.vehicle import CtrlState, Mode, VehicleEvent, VehicleStatus
+
+M = mavlink2
+UINT16_MAX = 0xFFFF
+OBSTACLE_SECTORS = 72
+OBSTACLE_INCREMENT_DEG = 5
+STATUSTEXT_LEN = 50
+MIN_INTERVAL_US = 10_000
+
+# message id -> stream group; the group's rate comes from params or is fixed
+STREAMS: dict[int, str] = {
+    M.MAVLINK_MSG_ID_HEARTBEAT: "1hz",
+    M.MAVLINK_MSG_ID_SYS_STATUS: "1hz",
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "pos",
+    M.MAVLINK_MSG_ID_ATTITUDE: "pos",
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: "pos",
+    M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT: "nav",
+    M.MAVLINK_MSG_ID_OBSTACLE_DISTANCE: "nav",
+    M.MAVLINK_MSG_ID_MISSION_CURRENT: "nav",
+    M.MAVLINK_MSG_ID_NAMED_VALUE_INT: "nav",
+    M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: "nav",
+    M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: "origin",
+    M.MAVLINK_MSG_ID_HOME_POSITION: "origin",
+}
+# only on request (REQUEST_MESSAGE), never streamed by default
+ON_REQUEST = frozenset({M.MAVLINK_MSG_ID_AUTOPILOT_VERSION})
+
+CAPABILITIES = (
+    M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | M.MAV_PROTOCOL_CAPABILITY_FTP
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+)
+FLIGHT_SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # 0.1.0 official
+
+SENSOR_PRESENT = (M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+                  | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL)
+
+
+@dataclass
+class NodeStats:
+    """Link-side numbers the node adds to SYS_STATUS."""
+
+    load_permille: int = 0
+    rx_dropped: int = 0  # signing drops + unparseable frames
+    rx_total: int = 0
+    signing_dropped: int = 0
+
+
+def _wrap_deg(deg: float) -> float:
+    return (deg + 180.0) % 360.0 - 180.0
+
+
+class Telemetry:
+    """Interval table + message builders."""
+
+    def __init__(self, mav: mavlink2.MAVLink, params: ParamStore) -> None:
+        self.mav = mav
+        self.params = params
+        self._override: dict[int, int] = {}  # msg id -> interval us (-1 off)
+        self._next_due: dict[int, int] = {}
+        self._statustext_id = 0
+        self.last_reached = -1
+
+    # --- intervals ----------------------------------------------------------------
+    def default_interval_us(self, msg_id: int) -> int:
+        """Default interval in us; 0 means not streamed."""
+        group = STREAMS.get(msg_id)
+        if group == "1hz":
+            return 1_000_000
+        if group == "origin":
+            return 5_000_000
+        if group in ("pos", "nav"):
+            hz = self.params.get("TELEM_POS_HZ" if group == "pos" else "TELEM_NAV_HZ")
+            return 1_000_000 // hz if hz > 0 else 0
+        return 0
+
+    def interval_us(self, msg_id: int) -> int:
+        """Current interval (us); 0 = not streamed."""
+        override = self._override.get(msg_id)
+        if override is None:
+            return self.default_interval_us(msg_id)
+        return 0 if override < 0 else override
+
+    def set_interval(self, msg_id: int, interval_us: int) -> tuple[bool, str]:
+        """SET_MESSAGE_INTERVAL semantics: -1 off, 0 default, >0 interval."""
+        if msg_id not in STREAMS:
+            return False, f"message {msg_id} cannot be streamed"
+        if interval_us == 0:
+            self._override.pop(msg_id, None)
+        elif interval_us < 0:
+            self._override[msg_id] = -1
+        elif interval_us < MIN_INTERVAL_US:
+            return False, f"interval {interval_us} us below {MIN_INTERVAL_US} us"
+        else:
+            self._override[msg_id] = int(interval_us)
+        self._next_due.pop(msg_id, None)
+        return True, ""
+
+    def reset_intervals(self) -> None:
+        self._override.clear()
+        self._next_due.clear()
+
+    def due(self, now_us: int, status: VehicleStatus, stats: NodeStats) -> list:
+        """Messages whose interval has elapsed (catch-up skips, no bursts)."""
+        out = []
+        for msg_id in STREAMS:
+            interval = self.interval_us(msg_id)
+            if interval <= 0:
+                continue
+            next_due = self._next_due.get(msg_id, now_us)
+            if now_us < next_due:
+                continue
+            self._next_due[msg_id] = max(next_due + interval, now_us + interval // 2)
+            out.extend(self.build(msg_id, now_us, status, stats))
+        return out
+
+    # --- builders -------------------------------------------------------------------
+    def can_build(self, msg_id: int) -> bool:
+        return msg_id in STREAMS or msg_id in ON_REQUEST
+
+    def build(self, msg_id: int, now_us: int, st: VehicleStatus, stats: NodeStats) -> list:
+        """All instances of message `msg_id` for this status (may be empty)."""
+        ms = (now_us // 1000) & 0xFFFFFFFF
+        p = self.params.get
+        m = self.mav
+        if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
+            return [self.heartbeat(st)]
+        if msg_id == M.MAVLINK_MSG_ID_SYS_STATUS:
+            health = 0
+            if st.sensors_healthy:
+                health |= M.MAV_SYS_STATUS_SENSOR_PROXIMITY
+            if st.motors_healthy:
+                health |= M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+            if st.state != CtrlState.FAULT:
+                health |= M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+            drop_rate = 0 if stats.rx_total == 0 else min(10_000, stats.rx_dropped * 10_000 // stats.rx_total)
+            return [m.sys_status_encode(
+                SENSOR_PRESENT, SENSOR_PRESENT, health, min(1000, stats.load_permille),
+                UINT16_MAX, -1, -1, drop_rate, min(UINT16_MAX, stats.rx_dropped),
+                min(UINT16_MAX, st.can_errors), min(UINT16_MAX, st.tick_overruns),
+                min(UINT16_MAX, stats.signing_dropped), 0)]
+        north, east = mav_frames.world_to_ned_m(st.x_mm, st.y_mm)
+        heading = st.heading_mrad / 1000.0
+        v_north = st.speed_mm_s * math.sin(heading) / 1000.0
+        v_east = st.speed_mm_s * math.cos(heading) / 1000.0
+        yaw = mav_frames.heading_to_yaw(st.heading_mrad)
+        if msg_id == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            return [m.local_position_ned_encode(ms, north, east, 0.0, v_north, v_east, 0.0)]
+        if msg_id == M.MAVLINK_MSG_ID_ATTITUDE:
+            return [m.attitude_encode(ms, 0.0, 0.0, yaw, 0.0, 0.0, -st.yaw_rate_mrad_s / 1000.0)]
+        if msg_id == M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            lat, lon = mav_frames.world_to_global(st.x_mm, st.y_mm, p("ORIGIN_LAT"), p("ORIGIN_LON"))
+            hdg = round(math.degrees(yaw) * 100) % 36000
+            return [m.global_position_int_encode(ms, lat, lon, p("ORIGIN_ALT_MM"), 0,
+                                                 round(v_north * 100), round(v_east * 100), 0, hdg)]
+        if msg_id == M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
+            return [m.gps_global_origin_encode(p("ORIGIN_LAT"), p("ORIGIN_LON"), p("ORIGIN_ALT_MM"), now_us)]
+        if msg_id == M.MAVLINK_MSG_ID_HOME_POSITION:
+            return [m.home_position_encode(p("ORIGIN_LAT"), p("ORIGIN_LON"), p("ORIGIN_ALT_MM"),
+                                           0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, now_us)]
+        if msg_id == M.MAVLINK_MSG_ID_OBSTACLE_DISTANCE:
+            return [self.obstacle_distance(now_us, st)]
+        if msg_id == M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT:
+            if st.goal_mm is None:
+                bearing_deg, dist_m = 0, 0
+            else:
+                bearing_deg = round(_wrap_deg(math.degrees(yaw - st.bearing_to_goal_mrad / 1000.0)))
+                dist_m = min(UINT16_MAX, round(st.distance_to_goal_mm / 1000))
+            return [m.nav_controller_output_encode(0.0, 0.0, bearing_deg, bearing_deg, dist_m, 0.0, 0.0, 0.0)]
+        if msg_id == M.MAVLINK_MSG_ID_MISSION_CURRENT:
+            return [m.mission_current_encode(min(st.mission_seq, UINT16_MAX), st.mission_count,
+                                             self.mission_state(st), 0)]
+        if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_INT:
+            return [m.named_value_int_encode(ms, b"STATE_IDX", st.state_index),
+                    m.named_value_int_encode(ms, b"ACTION", st.action),
+                    m.named_value_int_encode(ms, b"CTRL_ST", int(st.state))]
+        if msg_id == M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
+            return [] if st.goal_mm is None else [self.position_target(ms, *st.goal_mm)]
+        if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return [m.autopilot_version_encode(CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0,
+                                               [0] * 8, [0] * 8, [0] * 8, 0, 0, 0)]
+        return []
+
+    def heartbeat(self, st: VehicleStatus):
+        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if st.armed:
+            base |= M.MAV_MODE_FLAG_SAFETY_ARMED
+        if st.mode == Mode.GUIDED:
+            base |= M.MAV_MODE_FLAG_GUIDED_ENABLED
+        if st.mode == Mode.AUTO:
+            base |= M.MAV_MODE_FLAG_AUTO_ENABLED | M.MAV_MODE_FLAG_GUIDED_ENABLED
+        if st.failsafe or st.state == CtrlState.FAULT or st.estop:
+            system_status = M.MAV_STATE_CRITICAL
+        elif st.state == CtrlState.BOOT:
+            system_status = M.MAV_STATE_BOOT
+        elif st.armed:
+            system_status = M.MAV_STATE_ACTIVE
+        else:
+            system_status = M.MAV_STATE_STANDBY
+        return self.mav.heartbeat_encode(M.MAV_TYPE_GROUND_ROVER, M.MAV_AUTOPILOT_GENERIC,
+                                         base, int(st.mode), system_status)
+
+    def obstacle_distance(self, now_us: int, st: VehicleStatus):
+        """Sector ranges in BODY_FRD: 72 bins of 5 deg clockwise from the nose;
+        each sensor fills the bins inside its field of view."""
+        min_cm, max_cm = robot.RANGE_MIN_MM // 10, robot.RANGE_MAX_MM // 10
+        bins = [UINT16_MAX] * OBSTACLE_SECTORS
+        half_fov = math.degrees(robot.SENSOR_FOV_MRAD / 1000.0) / 2
+        for angle_mrad, rng, status in zip(robot.SENSOR_ANGLES_MRAD, st.ranges_mm, st.range_status, strict=False):
+            if status == robot.RANGE_VALID:
+                value = max(min_cm, min(max_cm, rng // 10))
+            elif status == robot.RANGE_TOO_FAR:
+                value = max_cm + 1
+            elif status == robot.RANGE_TOO_CLOSE:
+                value = min_cm
+            else:
+                continue
+            frd = (-math.degrees(angle_mrad / 1000.0)) % 360.0  # CCW from nose -> clockwise
+            for i in range(OBSTACLE_SECTORS):
+                centre = i * OBSTACLE_INCREMENT_DEG
+                if abs(_wrap_deg(centre - frd)) <= max(half_fov, OBSTACLE_INCREMENT_DEG / 2):
+                    bins[i] = value
+        return self.mav.obstacle_distance_encode(
+            now_us, M.MAV_DISTANCE_SENSOR_LASER, bins, OBSTACLE_INCREMENT_DEG, min_cm, max_cm,
+            float(OBSTACLE_INCREMENT_DEG), 0.0, M.MAV_FRAME_BODY_FRD)
+
+    def position_target(self, ms: int, x_mm: int, y_mm: int):
+        north, east = mav_frames.world_to_ned_m(x_mm, y_mm)
+        mask = 0xFFF8  # position only (x, y, z valid)
+        return self.mav.position_target_local_ned_encode(
+            ms, M.MAV_FRAME_LOCAL_NED, mask, north, east, 0.0, 0, 0, 0, 0, 0, 0, 0, 0)
+
+    def mission_state(self, st: VehicleStatus) -> int:
+        if st.mission_count == 0:
+            return M.MISSION_STATE_NO_MISSION
+        if self.last_reached >= st.mission_count - 1:
+            return M.MISSION_STATE_COMPLETE
+        if st.mode == Mode.AUTO and st.armed:
+            return M.MISSION_STATE_ACTIVE
+        return M.MISSION_STATE_PAUSED if st.mission_seq > 0 or self.last_reached >= 0 else M.MISSION_STATE_NOT_STARTED
+
+    # --- events -------------------------------------------------------------------------
+    def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> list:
+        """STATUSTEXT, split into MAVLink 2 chunks (id, chunk_seq) when longer than 50."""
+        data = text.encode("utf-8", "replace")
+        if len(data) <= STATUSTEXT_LEN:
+            return [self.mav.statustext_encode(severity, data, 0, 0)]
+        self._statustext_id = self._statustext_id % 0xFFFF + 1
+        chunks = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
+        return [self.mav.statustext_encode(severity, c, self._statustext_id, n) for n, c in enumerate(chunks)]
+
+    def event(self, ev: VehicleEvent) -> list:
+        if ev.kind == "mission_item_reached":
+            self.last_reached = ev.seq
+            out = [self.mav.mission_item_reached_encode(ev.seq)]
+            return out + (self.statustext(ev.text, ev.severity) if ev.text else [])
+        return self.statustext(ev.text or ev.kind, ev.severity)
+
+    def mission_changed(self) -> None:
+        self.last_reached = -1
