@@ -124,6 +124,7 @@ class VehicleView:
         self.vx = 0.0  # world frame m/s
         self.vy = 0.0
         self.heading: float | None = None
+        self.yaw_rate = 0.0  # rad/s, CCW positive
         self.trail: deque[tuple[float, float]] = deque(maxlen=trail_max)
         self.origin_e7: tuple[int, int] | None = None
         # goal
@@ -144,6 +145,7 @@ class VehicleView:
         self.policy_id: int | None = None
         self.mission = Mission()
         self.log: deque[LogLine] = deque(maxlen=_LOG_MAX)
+        self.log_total = 0  # lines ever appended (the deque keeps the last _LOG_MAX)
         self._text_chunks: dict[int, list[str]] = {}
         self.last_ack: tuple[int, int] | None = None  # (command, result)
         self.counts: dict[str, int] = {}
@@ -274,6 +276,7 @@ class VehicleView:
     def _on_attitude(self, msg, t: float) -> None:
         # NED yaw is clockwise from north; world heading is CCW from east.
         self.heading = math.atan2(math.cos(msg.yaw), math.sin(msg.yaw))
+        self.yaw_rate = -float(msg.yawspeed)
 
     def _on_gps_global_origin(self, msg, t: float) -> None:
         self.origin_e7 = (msg.latitude, msg.longitude)
@@ -297,6 +300,8 @@ class VehicleView:
                 continue
             angle_cw = math.radians(msg.angle_offset + i * inc)  # BODY_FRD: clockwise from forward
             angle = math.atan2(-math.sin(angle_cw), math.cos(angle_cw))
+            if angle < -math.pi + 1e-9:  # straight back is +180°, not -180°
+                angle = math.pi
             rng = None if d > msg.max_distance or d < msg.min_distance else d / 100.0
             sectors.append((angle, rng))
         self.sectors = sectors
@@ -362,7 +367,11 @@ class VehicleView:
             if len(text) == 50:
                 return
             text = "".join(self._text_chunks.pop(msg.id))
-        self.log.append(LogLine(t, msg.severity, text))
+        self._append_log(LogLine(t, msg.severity, text))
+
+    def _append_log(self, line: LogLine) -> None:
+        self.log.append(line)
+        self.log_total += 1
 
     def _on_command_ack(self, msg, t: float) -> None:
         self.last_ack = (msg.command, msg.result)
@@ -371,8 +380,8 @@ class VehicleView:
             res = mavlink.enums["MAV_RESULT"][msg.result].name
         except KeyError:
             cmd, res = str(msg.command), str(msg.result)
-        self.log.append(LogLine(t, mavlink.MAV_SEVERITY_INFO if msg.result == 0 else mavlink.MAV_SEVERITY_WARNING,
-                                f"ACK {cmd}: {res}"))
+        self._append_log(LogLine(t, mavlink.MAV_SEVERITY_INFO if msg.result == 0 else mavlink.MAV_SEVERITY_WARNING,
+                                 f"ACK {cmd}: {res}"))
 
     # --- presentation helpers ---------------------------------------------
     def status_line(self, now: float) -> str:

@@ -55,6 +55,7 @@ class State:
     ctrl: int
     failsafe: bool
     action: int
+    yaw_rate: float
     mission_seq: int
     goal: tuple[float, float]
 
@@ -96,23 +97,23 @@ class RoverScript:
                 f = tau / dur
                 if kind == "turn":
                     dh = math.remainder(h1 - h0, 2 * math.pi)
-                    return p0, h0 + f * dh, 0.0, (1 if dh > 0 else 2)
-                return ((p0[0] + f * (p1[0] - p0[0]), p0[1] + f * (p1[1] - p0[1])), h1, SPEED, 0)
+                    return p0, h0 + f * dh, 0.0, (1 if dh > 0 else 2), dh / dur
+                return ((p0[0] + f * (p1[0] - p0[0]), p0[1] + f * (p1[1] - p0[1])), h1, SPEED, 0, 0.0)
             tau -= dur
         kind, dur, (p0, h0), (p1, h1) = legs[-1]
-        return p1, h1, 0.0, 0
+        return p1, h1, 0.0, 0, 0.0
 
     def state(self, t: float) -> State:
         hold, auto = int(Mode.HOLD), int(Mode.AUTO)
         if t < T_ARM:
             p, h = cell_xy(START), math.pi / 2
-            return State(t, *p, h, 0.0, False, hold, 1, False, -1, 0, self.goal_a)
+            return State(t, *p, h, 0.0, False, hold, 1, False, -1, 0.0, 0, self.goal_a)
         if t < self.t_reach_a:
-            p, h, v, a = self._along(self.legs_a, t - T_ARM)
-            return State(t, *p, h, v, True, auto, 3, False, a, 0, self.goal_a)
+            p, h, v, a, w = self._along(self.legs_a, t - T_ARM)
+            return State(t, *p, h, v, True, auto, 3, False, a, w, 0, self.goal_a)
         if t < self.t_leave_a:
-            p, h, v, a = self._along(self.legs_a, 1e9)
-            return State(t, *p, h, 0.0, True, auto, 3, False, 0, 1, self.goal_b)
+            p, h, v, a, w = self._along(self.legs_a, 1e9)
+            return State(t, *p, h, 0.0, True, auto, 3, False, 0, 0.0, 1, self.goal_b)
         if t < self.t_reach_b:
             tau = t - self.t_leave_a
             fault = self.t_fault <= t < self.t_fault + FAULT_S
@@ -120,12 +121,12 @@ class RoverScript:
                 tau -= FAULT_S
             elif fault:
                 tau = self.t_fault - self.t_leave_a
-            p, h, v, a = self._along(self.legs_b, tau)
+            p, h, v, a, w = self._along(self.legs_b, tau)
             if fault:
-                return State(t, *p, h, 0.0, True, auto, 5, True, -1, 1, self.goal_b)
-            return State(t, *p, h, v, True, auto, 3, False, a, 1, self.goal_b)
+                return State(t, *p, h, 0.0, True, auto, 5, True, -1, 0.0, 1, self.goal_b)
+            return State(t, *p, h, v, True, auto, 3, False, a, w, 1, self.goal_b)
         p, h = self.goal_b, self._along(self.legs_b, 1e9)[1]
-        return State(t, *p, h, 0.0, t < self.t_reach_b + 1.0, hold, 4, False, -1, 2, self.goal_b)
+        return State(t, *p, h, 0.0, t < self.t_reach_b + 1.0, hold, 4, False, -1, 0.0, 2, self.goal_b)
 
     def times(self) -> list[float]:
         n = int(self.t_end * TELEMETRY_HZ)
@@ -151,7 +152,7 @@ class RoverScript:
         ned_yaw = math.atan2(math.cos(s.heading), math.sin(s.heading))
         out.append(mavlink.MAVLink_local_position_ned_message(
             ms, s.y, s.x, 0.0, s.speed * math.sin(s.heading), s.speed * math.cos(s.heading), 0.0))
-        out.append(mavlink.MAVLink_attitude_message(ms, 0.0, 0.0, ned_yaw, 0.0, 0.0, 0.0))
+        out.append(mavlink.MAVLink_attitude_message(ms, 0.0, 0.0, ned_yaw, 0.0, 0.0, -s.yaw_rate))
         dists = [65535] * 72
         for j in range(8):
             dists[j] = 100 + 10 * j
@@ -192,8 +193,25 @@ class RoverScript:
             prev = self.state(t)
 
 
+class _Sink:
+    """File-like end of a MAVLink encoder: `MAVLink.send` writes frames here
+    (send, not pack, so sequence numbers advance as on a real link)."""
+
+    def __init__(self) -> None:
+        self.frames: list[bytes] = []
+
+    def write(self, buf) -> None:
+        self.frames.append(bytes(buf))
+
+
+def frame(mav: mavlink.MAVLink, msg) -> bytes:
+    """Encode one message exactly as pymavlink sends it."""
+    mav.send(msg)
+    return mav.file.frames.pop()
+
+
 def encoder(sysid: int = 1, compid: int = 1, key: bytes | None = None) -> mavlink.MAVLink:
-    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    mav = mavlink.MAVLink(_Sink(), srcSystem=sysid, srcComponent=compid)
     if key is not None:
         mav.signing.secret_key = key
         mav.signing.sign_outgoing = True
@@ -209,21 +227,24 @@ def gcs_mission_items(mav: mavlink.MAVLink, items: list[tuple[float, float]]) ->
         int(round(y * 1e4)), int(round(x * 1e4)), 0.0) for seq, (x, y) in enumerate(items)]
 
 
-def write_tlog(path, script: RoverScript, t0: float = 1_700_000_000.0, with_gcs_items: bool = True) -> int:
+def write_tlog(path, script: RoverScript, t0: float = 1_700_000_000.0, with_gcs_items: bool = True,
+               drop_types: tuple[str, ...] = ()) -> int:
     """Record the script as a .tlog (8-byte big-endian µs stamp + raw frame,
-    the format mavutil's logfile writer uses). Returns the frame count."""
+    the format mavutil's logfile writer uses), leaving out `drop_types`.
+    Returns the frame count."""
     rover, gcs = encoder(1, 1), encoder(255, 190)
     n = 0
     with open(path, "wb") as f:
         def put(t: float, msg, mav) -> None:
             nonlocal n
-            f.write(struct.pack(">Q", int((t0 + t) * 1e6) & ~3) + msg.pack(mav))
+            f.write(struct.pack(">Q", int((t0 + t) * 1e6) & ~3) + frame(mav, msg))
             n += 1
         if with_gcs_items:
             for m in gcs_mission_items(gcs, [script.goal_a, script.goal_b]):
                 put(0.0, m, gcs)
         for t, m in script.stream():
-            put(t, m, rover)
+            if m.get_type() not in drop_types:
+                put(t, m, rover)
     return n
 
 

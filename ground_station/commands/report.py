@@ -1,0 +1,58 @@
+"""`qnav report FILE.tlog`: summary JSON and PNG plots of a recorded run.
+
+Writes into --out (default `out/report-<tlog name>/`): summary.json,
+trajectory.png, distance_to_goal.png, actions.png, timing.png (a plot whose
+data is not in the recording is skipped and listed under plots_skipped).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="plots + summary JSON from a .tlog",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("tlog", metavar="FILE.tlog", help="telemetry recording (qnav monitor --tlog, qnav demo, MAVProxy)")
+    p.add_argument("--out", metavar="DIR", help="output directory (default out/report-<tlog name>)")
+    p.add_argument("--map", metavar="NAME|PATH", default="paper10",
+                   help="map under the trajectory: built-in name, generator spec or .map path "
+                        "(default paper10; 'none' for no map)")
+    p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size in metres (default 0.5)")
+    p.add_argument("--json", action="store_true", help="print the summary JSON instead of a short text summary")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ground_station.cli import CliError
+    from ground_station.commands.monitor import _load_map
+    from ground_station.report import analyse, write_report
+
+    if not os.path.isfile(args.tlog):
+        raise CliError(f"no such tlog: {args.tlog}")
+    if args.cell_size <= 0:
+        raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
+    grid_map = _load_map(args.map, args.cell_size)
+    rec = analyse(args.tlog, progress=True)
+    if rec.messages == 0:
+        raise CliError(f"{args.tlog}: no MAVLink messages from a vehicle (is it a .tlog?)")
+    out = Path(args.out) if args.out else Path("out") / f"report-{Path(args.tlog).stem}"
+    try:
+        summary = write_report(rec, out, grid_map)
+    except OSError as exc:
+        raise CliError(f"cannot write report to {out}: {exc}") from exc
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    print(f"{args.tlog}: {summary['duration_s']:.1f} s, goals reached {summary['goals_reached']}, "
+          f"path {summary['path_length_m']:.2f} m, stops {summary['stops']}, faults {summary['faults']}, "
+          f"link loss {summary['link']['loss_pct']:.1f}%")
+    for name, path in summary["plots"].items():
+        print(f"  {name:<17} {path}")
+    for name, why in summary["plots_skipped"].items():
+        print(f"  {name:<17} skipped: {why}")
+    print(f"  {'summary':<17} {summary['summary_json']}")
+    return 0

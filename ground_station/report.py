@@ -1,0 +1,355 @@
+"""Post-run report from a .tlog: summary JSON and PNG plots.
+
+`analyse(path)` replays the recording through the same `VehicleView` the
+monitor uses and samples it into a `RunRecord`; `write_report(record, out,
+grid_map)` writes `summary.json` and the plots:
+
+* trajectory.png      trajectory over the map, targets, mission items
+* distance_to_goal.png distance to the current goal over time, goal events
+* actions.png         histogram of the ACTION telemetry samples
+* timing.png          control-loop tick time (NAMED_VALUE_INT TICK_US) or,
+                      failing that, the robot's SYS_STATUS load
+
+A plot whose data the recording does not hold is not drawn; the JSON says
+which and why under `plots_skipped` (nothing is faked).
+
+Definitions (also in docs/monitor.md):
+* goals reached: MISSION_ITEM_REACHED messages, plus entries into the
+  controller's GOAL_REACHED state more than 1 s from any of them (Guided goals);
+* stops: the robot standing still (speed < 2 cm/s, yaw rate < 0.05 rad/s) for
+  at least 1 s while armed, in Auto/Guided, its controller DRIVING;
+* faults: STATUSTEXT of severity ERROR or worse, entries into the FAULT
+  state, entries into failsafe (HEARTBEAT system_status CRITICAL); events
+  less than 1 s apart form one episode.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from firmware_py import robot
+from firmware_py.vehicle import CtrlState, Mode
+from ground_station.telemetry_model import VehicleView
+
+STOP_SPEED_M_S = 0.02
+STOP_YAW_RATE = 0.05
+STOP_MIN_S = 1.0
+EPISODE_GAP_S = 1.0
+GOAL_DEDUP_S = 1.0
+
+
+@dataclass
+class RunRecord:
+    """Samples and events of one recording (times in seconds from its start)."""
+
+    path: str
+    messages: int = 0
+    t0: float | None = None
+    t_end: float = 0.0
+    pose: list[tuple[float, float, float, float, float]] = field(default_factory=list)  # t, x, y, speed, yaw rate
+    driving: list[bool] = field(default_factory=list)  # per pose sample: armed, Auto/Guided, DRIVING
+    distance: list[tuple[float, float]] = field(default_factory=list)  # t, metres to goal
+    actions: list[int] = field(default_factory=list)
+    tick_us: list[tuple[float, int]] = field(default_factory=list)
+    load_pct: list[tuple[float, float]] = field(default_factory=list)
+    mission_reached: list[tuple[float, int]] = field(default_factory=list)
+    goal_state_entries: list[float] = field(default_factory=list)
+    fault_events: list[tuple[float, str]] = field(default_factory=list)
+    first_armed: float | None = None
+    view: VehicleView = field(default_factory=VehicleView)
+
+
+def analyse(path: str | os.PathLike[str], progress: bool = False) -> RunRecord:
+    """Replay a .tlog through a VehicleView and collect what the report needs."""
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+    from tqdm import tqdm
+
+    path = str(path)
+    rec = RunRecord(path=path)
+    view = rec.view
+    log = mavutil.mavlogfile(path, robust_parsing=True)
+    size = os.path.getsize(path)
+    bar = tqdm(total=size, unit="B", unit_scale=True, desc="reading tlog", disable=not progress or None)
+    prev_ctrl, prev_failsafe = None, False
+    try:
+        while True:
+            msg = log.recv_msg()
+            if msg is None:
+                break
+            bar.update(log.f.tell() - bar.n)
+            if msg.get_type() == "BAD_DATA":
+                continue
+            t_abs = msg._timestamp
+            log_before = view.log_total
+            if not view.update(msg, t_abs):
+                continue
+            rec.messages += 1
+            if rec.t0 is None:
+                rec.t0 = t_abs
+            t = t_abs - rec.t0
+            rec.t_end = t
+            mtype = msg.get_type()
+            if view.armed and rec.first_armed is None:
+                rec.first_armed = t
+            if mtype == "LOCAL_POSITION_NED":
+                rec.pose.append((t, view.x, view.y, view.speed, view.yaw_rate))
+                rec.driving.append(view.armed and view.mode in (Mode.AUTO, Mode.GUIDED)
+                                   and view.ctrl_state in (None, CtrlState.DRIVING))
+                d = view.distance_to_goal()
+                if d is not None and view.armed:
+                    rec.distance.append((t, d))
+            elif mtype == "NAMED_VALUE_INT":
+                name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
+                if name == "ACTION" and msg.value >= 0:
+                    rec.actions.append(msg.value)
+                elif name == "TICK_US":
+                    rec.tick_us.append((t, msg.value))
+            elif mtype == "SYS_STATUS":
+                rec.load_pct.append((t, view.load_pct))
+            elif mtype == "MISSION_ITEM_REACHED":
+                rec.mission_reached.append((t, msg.seq))
+            elif mtype == "STATUSTEXT" and msg.severity <= 3 and view.log_total > log_before:
+                rec.fault_events.append((t, f"{view.log[-1].severity_name}: {view.log[-1].text}"))
+            if view.ctrl_state != prev_ctrl:
+                if view.ctrl_state == CtrlState.GOAL_REACHED:
+                    rec.goal_state_entries.append(t)
+                elif view.ctrl_state == CtrlState.FAULT:
+                    rec.fault_events.append((t, "controller entered FAULT"))
+                prev_ctrl = view.ctrl_state
+            if view.failsafe and not prev_failsafe:
+                rec.fault_events.append((t, "failsafe (system status CRITICAL)"))
+            prev_failsafe = view.failsafe
+    finally:
+        bar.close()
+        log.close()
+    return rec
+
+
+def _stops(rec: RunRecord) -> list[dict]:
+    stops, start = [], None
+    for (t, _x, _y, v, w), driving in zip(rec.pose, rec.driving, strict=True):
+        still = driving and v < STOP_SPEED_M_S and abs(w) < STOP_YAW_RATE
+        if still and start is None:
+            start = t
+        elif not still and start is not None:
+            if t - start >= STOP_MIN_S:
+                stops.append({"t_s": round(start, 3), "duration_s": round(t - start, 3)})
+            start = None
+    if start is not None and rec.pose and rec.pose[-1][0] - start >= STOP_MIN_S:
+        stops.append({"t_s": round(start, 3), "duration_s": round(rec.pose[-1][0] - start, 3)})
+    return stops
+
+
+def _episodes(events: list[tuple[float, str]]) -> list[dict]:
+    episodes: list[dict] = []
+    for t, what in sorted(events):
+        if episodes and t - episodes[-1]["t_end"] < EPISODE_GAP_S:
+            episodes[-1]["t_end"] = t
+            if what not in episodes[-1]["events"]:
+                episodes[-1]["events"].append(what)
+        else:
+            episodes.append({"t_s": t, "t_end": t, "events": [what]})
+    return [{"t_s": round(e["t_s"], 3), "events": e["events"]} for e in episodes]
+
+
+def _target_name(xy: tuple[float, float], grid_map) -> str | None:
+    if grid_map is None:
+        return None
+    cell_mm = int(round(grid_map.cell_size_m * 1000))
+    cell = robot.world_to_cell(int(math.floor(xy[0] * 1000)), int(math.floor(xy[1] * 1000)), grid_map.height, cell_mm)
+    return next((n for n, pos in grid_map.targets.items() if pos == cell), None)
+
+
+def summarise(rec: RunRecord, grid_map=None) -> dict:
+    """The summary JSON (without plot paths)."""
+    view = rec.view
+    reached_t = [t for t, _ in rec.mission_reached]
+    guided = [t for t in rec.goal_state_entries if all(abs(t - r) > GOAL_DEDUP_S for r in reached_t)]
+    goal_times = sorted(reached_t + guided)
+    path_len = sum(math.hypot(b[1] - a[1], b[2] - a[2]) for a, b in zip(rec.pose, rec.pose[1:], strict=False))
+    reached_items = []
+    for t, seq in rec.mission_reached:
+        item = {"t_s": round(t, 3), "seq": seq}
+        xy = view.mission.items.get(seq)
+        if xy is not None:
+            item["x_m"], item["y_m"] = round(xy[0], 3), round(xy[1], 3)
+            name = _target_name(xy, grid_map)
+            if name:
+                item["target"] = name
+        reached_items.append(item)
+    faults = _episodes(rec.fault_events)
+    summary = {
+        "tlog": rec.path,
+        "messages": rec.messages,
+        "vehicle_sysid": view.sysid,
+        "policy_id": view.policy_id,
+        "duration_s": round(rec.t_end, 3),
+        "time_to_last_goal_s": (round(goal_times[-1] - (rec.first_armed or 0.0), 3) if goal_times else None),
+        "goals_reached": len(goal_times),
+        "mission_items_reached": reached_items,
+        "guided_goals_reached_s": [round(t, 3) for t in guided],
+        "mission_total": view.mission.total,
+        "path_length_m": round(path_len, 3),
+        "stops": len(_stops(rec)),
+        "stop_list": _stops(rec),
+        "faults": len(faults),
+        "fault_list": faults,
+        "link": {"packets": view.link.received, "lost": view.link.lost, "loss_pct": round(view.link.loss_pct, 3),
+                 "signed": view.link.signing},
+        "actions": {str(a): rec.actions.count(a) for a in sorted(set(rec.actions))},
+        "actions_source": "NAMED_VALUE_INT ACTION samples (telemetry rate, not every control tick)",
+        "timing": _timing(rec),
+    }
+    return summary
+
+
+def _timing(rec: RunRecord) -> dict:
+    if rec.tick_us:
+        vals = sorted(v for _, v in rec.tick_us)
+        n = len(vals)
+        return {"available": True, "source": "NAMED_VALUE_INT TICK_US", "samples": n,
+                "mean_us": round(sum(vals) / n, 1), "p50_us": vals[n // 2],
+                "p99_us": vals[min(n - 1, int(math.ceil(0.99 * n)) - 1)], "max_us": vals[-1],
+                "control_period_us": robot.CONTROL_PERIOD_US,
+                "over_period": sum(v > robot.CONTROL_PERIOD_US for v in vals)}
+    if rec.load_pct:
+        vals = [v for _, v in rec.load_pct]
+        return {"available": True, "source": "SYS_STATUS load (tick time not in the recording)",
+                "samples": len(vals), "mean_load_pct": round(sum(vals) / len(vals), 2),
+                "max_load_pct": max(vals)}
+    return {"available": False,
+            "reason": "the recording has no TICK_US NAMED_VALUE_INT and no SYS_STATUS from the vehicle"}
+
+
+def _atomic_savefig(fig, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            fig.savefig(f, format="png", dpi=110, bbox_inches="tight")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None) -> dict:
+    """Write the PNGs and summary.json into out_dir; return the summary."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = summarise(rec, grid_map)
+    plots: dict[str, str] = {}
+    skipped: dict[str, str] = {}
+
+    def save(name: str, fig) -> None:
+        path = out / f"{name}.png"
+        _atomic_savefig(fig, path)
+        plt.close(fig)
+        plots[name] = str(path)
+
+    # trajectory over the map
+    if rec.pose:
+        fig, ax = plt.subplots(figsize=(6, 6))
+        if grid_map is not None:
+            c = grid_map.cell_size_m
+            ax.imshow(grid_map.occ, cmap="Greys", origin="upper", vmin=0, vmax=1.4,
+                      extent=(0, grid_map.width * c, 0, grid_map.height * c))
+            for name, (col, row) in grid_map.targets.items():
+                x, y = (v / 1000 for v in robot.cell_center_mm(col, row, grid_map.height, int(round(c * 1000))))
+                ax.plot(x, y, "s", color="gold", ms=12, mec="k")
+                ax.annotate(name, (x, y), ha="center", va="center", fontweight="bold")
+        for seq, (x, y) in sorted(rec.view.mission.items.items()):
+            ax.plot(x, y, "o", mfc="none", mec="tab:orange", ms=16)
+            ax.annotate(str(seq), (x, y), xytext=(8, 8), textcoords="offset points", color="tab:orange")
+        xs, ys = [p[1] for p in rec.pose], [p[2] for p in rec.pose]
+        ax.plot(xs, ys, "-", color="tab:blue", lw=2, label=f"path {summary['path_length_m']:.2f} m")
+        ax.plot(xs[0], ys[0], "o", color="tab:green", label="start")
+        ax.plot(xs[-1], ys[-1], "X", color="tab:red", label="end")
+        ax.set_xlabel("x east [m]")
+        ax.set_ylabel("y north [m]")
+        ax.set_aspect("equal")
+        ax.set_title(f"trajectory ({grid_map.name if grid_map is not None else 'no map'})")
+        ax.legend(loc="best", fontsize=8)
+        save("trajectory", fig)
+    else:
+        skipped["trajectory"] = "no LOCAL_POSITION_NED from the vehicle in the recording"
+
+    if rec.distance:
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.plot([d[0] for d in rec.distance], [d[1] for d in rec.distance], color="tab:blue")
+        for t, seq in rec.mission_reached:
+            ax.axvline(t, color="tab:green", ls="--", lw=1)
+            ax.annotate(f"item {seq}", (t, 0), rotation=90, va="bottom", fontsize=8)
+        for f in summary["fault_list"]:
+            ax.axvspan(f["t_s"], f["t_s"] + 0.2, color="tab:red", alpha=0.4)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("distance to goal [m]")
+        ax.set_title("distance to goal (green: mission item reached, red: fault)")
+        save("distance_to_goal", fig)
+    else:
+        skipped["distance_to_goal"] = "no goal known while armed (no mission, POSITION_TARGET or NAV_CONTROLLER_OUTPUT)"
+
+    if rec.actions:
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        keys = sorted(set(rec.actions))
+        ax.bar([str(k) for k in keys], [rec.actions.count(k) for k in keys], color="tab:purple")
+        ax.set_xlabel("action index (sector: " + ", ".join(robot.ACTION_NAMES)
+                      + "; cell: " + ", ".join(robot.CELL_ACTION_NAMES) + ")", fontsize=7)
+        ax.set_ylabel("telemetry samples")
+        ax.set_title("actions")
+        save("actions", fig)
+    else:
+        skipped["actions"] = "no ACTION NAMED_VALUE_INT in the recording"
+
+    if rec.tick_us:
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.plot([t for t, _ in rec.tick_us], [v for _, v in rec.tick_us], ".", ms=2, color="tab:blue")
+        ax.axhline(robot.CONTROL_PERIOD_US, color="tab:red", ls="--", label="control period")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("tick time [µs]")
+        ax.set_title("control-loop tick time (TICK_US)")
+        ax.legend(loc="best", fontsize=8)
+        save("timing", fig)
+    elif rec.load_pct:
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.plot([t for t, _ in rec.load_pct], [v for _, v in rec.load_pct], color="tab:blue")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("load [%]")
+        ax.set_title("robot load (SYS_STATUS; tick time not in the recording)")
+        save("timing", fig)
+    else:
+        skipped["timing"] = summary["timing"]["reason"]
+
+    summary["plots"] = plots
+    summary["plots_skipped"] = skipped
+    summary["map"] = grid_map.name if grid_map is not None else None
+    _atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    summary["summary_json"] = str(out / "summary.json")
+    return summary

@@ -1,0 +1,186 @@
+"""VehicleView fed with real pymavlink-encoded and -decoded frames."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from monitor_support import encoder, frame, gcs_mission_items
+from pymavlink.dialects.v20 import common as mavlink
+
+from firmware_py.vehicle import CtrlState, Mode
+from ground_station.telemetry_model import VehicleView
+
+
+def wire(mav: mavlink.MAVLink, *msgs) -> bytes:
+    return b"".join(frame(mav, m) for m in msgs)
+
+
+def decode(buf: bytes, key: bytes | None = None) -> list:
+    rx = mavlink.MAVLink(None)
+    rx.robust_parsing = True
+    if key is not None:
+        rx.signing.secret_key = key
+    return [m for m in rx.parse_buffer(buf) or [] if m.get_type() != "BAD_DATA"]
+
+
+def feed(view: VehicleView, buf: bytes, t: float = 0.0, key: bytes | None = None) -> list:
+    msgs = decode(buf, key)
+    for m in msgs:
+        view.update(m, t)
+    return msgs
+
+
+def heartbeat(mode=Mode.HOLD, armed=False, status=mavlink.MAV_STATE_STANDBY, vtype=mavlink.MAV_TYPE_GROUND_ROVER):
+    base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
+    return mavlink.MAVLink_heartbeat_message(vtype, mavlink.MAV_AUTOPILOT_GENERIC, base, int(mode), status, 3)
+
+
+@pytest.fixture
+def rover():
+    return encoder(1, 1)
+
+
+def test_locks_onto_the_rover_and_ignores_other_systems(rover):
+    view = VehicleView()
+    gcs, other = encoder(255, 190), encoder(2, 1)
+    gcs_hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+    feed(view, wire(gcs, gcs_hb))
+    assert view.sysid is None and view.link.last_heartbeat_t is None
+    feed(view, wire(rover, heartbeat(Mode.AUTO, armed=True, status=mavlink.MAV_STATE_ACTIVE)), t=10.0)
+    assert view.sysid == 1 and view.compid == 1
+    assert view.mode_name == "Auto" and view.armed and not view.failsafe
+    feed(view, wire(other, heartbeat(Mode.HOLD), mavlink.MAVLink_local_position_ned_message(0, 9, 9, 0, 0, 0, 0)))
+    assert view.mode == Mode.AUTO and view.x is None
+    assert view.heartbeat_age(12.5) == pytest.approx(2.5)
+    feed(view, wire(rover, heartbeat(Mode.HOLD, armed=True, status=mavlink.MAV_STATE_CRITICAL)), t=13.0)
+    assert view.failsafe and view.mode_name == "Hold"
+
+
+def test_ned_position_and_yaw_become_world_frame(rover):
+    view = VehicleView()
+    feed(view, wire(rover, heartbeat(),
+                    mavlink.MAVLink_local_position_ned_message(100, 3.0, 1.0, 0.0, 0.4, 0.0, 0.0),
+                    mavlink.MAVLink_attitude_message(100, 0.0, 0.0, 0.0, 0, 0, 0)))
+    assert (view.x, view.y) == (1.0, 3.0)  # x east = NED y, y north = NED x
+    assert (view.vx, view.vy) == (0.0, pytest.approx(0.4))
+    assert view.heading == pytest.approx(math.pi / 2)  # yaw 0 = north = CCW 90° from east
+    feed(view, wire(rover, mavlink.MAVLink_attitude_message(200, 0, 0, math.pi / 2, 0, 0, 0)))
+    assert view.heading == pytest.approx(0.0, abs=1e-6)  # yaw +90° (clockwise) = east
+    feed(view, wire(rover, mavlink.MAVLink_attitude_message(300, 0, 0, -3 * math.pi / 4, 0, 0, 0)))
+    assert math.degrees(view.heading) == pytest.approx(-135.0)  # south-west
+
+
+def test_trail_skips_tiny_moves(rover):
+    view = VehicleView()
+    feed(view, wire(rover, heartbeat()))
+    for i in range(10):  # 1.5 cm steps: only every other one is >= 2 cm from the last trail point
+        feed(view, wire(rover, mavlink.MAVLink_local_position_ned_message(i, 0.0, i * 0.015, 0, 0, 0, 0)))
+    assert [round(p[0], 3) for p in view.trail] == [0.0, 0.03, 0.06, 0.09, 0.12]
+
+
+def test_packet_loss_from_sequence_gaps_including_wraparound(rover):
+    view = VehicleView()
+    frames = [frame(rover, heartbeat())] + [
+        frame(rover, mavlink.MAVLink_named_value_int_message(i, b"STATE", i)) for i in range(299)]
+    dropped = {5, 6, 7, 100, 254, 255, 256, 290}  # crosses the 255 -> 0 wrap
+    feed(view, b"".join(f for i, f in enumerate(frames) if i not in dropped))
+    assert view.link.lost == len(dropped)
+    assert view.link.received == len(frames) - len(dropped)
+    assert view.link.loss_pct == pytest.approx(100 * len(dropped) / len(frames))
+
+
+def test_signing_seen_and_verified_with_the_key():
+    key = bytes(range(32))
+    signer = encoder(1, 1, key=key)
+    buf = wire(signer, heartbeat(), mavlink.MAVLink_named_value_int_message(0, b"ACTION", 2))
+    blind = VehicleView()
+    feed(blind, buf)
+    assert blind.link.signing and blind.link.signed_frames == 2 and blind.link.verified_frames == 0
+    keyed = VehicleView()
+    feed(keyed, buf, key=key)
+    assert keyed.link.verified_frames == 2 and keyed.action == 2
+    plain = VehicleView()
+    feed(plain, wire(encoder(1, 1), heartbeat()))
+    assert not plain.link.signing
+
+
+def test_sys_status_counters_and_load(rover):
+    view = VehicleView()
+    feed(view, wire(rover, heartbeat(), mavlink.MAVLink_sys_status_message(
+        1, 1, 1, 237, 12000, -1, -1, 125, 17, 1, 2, 3, 4)))
+    assert view.load_pct == pytest.approx(23.7)
+    assert view.link.drop_rate_comm_pct == pytest.approx(1.25)
+    assert view.link.errors_comm == 17 and view.link.errors_count == (1, 2, 3, 4)
+
+
+def test_obstacle_distance_sectors(rover):
+    view = VehicleView()
+    d = [65535] * 72
+    d[:8] = [50, 60, 201, 80, 1, 100, 110, 120]  # 201 > max: no obstacle; 1 < min: no reading
+    feed(view, wire(rover, heartbeat(), mavlink.MAVLink_obstacle_distance_message(
+        0, 0, d, 0, 2, 200, 45.0, 0.0, mavlink.MAV_FRAME_BODY_FRD)))
+    assert len(view.sectors) == 8
+    by_deg = {round(math.degrees(a)): r for a, r in view.sectors}
+    assert by_deg[0] == pytest.approx(0.5)
+    assert by_deg[-45] == pytest.approx(0.6)  # FRD index 1 = 45° clockwise = right-front
+    assert by_deg[-90] is None and by_deg[180] is None
+    assert by_deg[45] == pytest.approx(1.2)
+    assert view.sector_max_m == pytest.approx(2.0)
+
+
+def test_named_values_param_and_statustext_chunks(rover):
+    view = VehicleView()
+    msgs = [heartbeat()]
+    for name, value in (("CTRL", int(CtrlState.DRIVING)), ("STATE", 117), ("ACTION", 3), ("TICK_US", 812),
+                        ("Q0", 10), ("Q1", 40), ("Q2", 40), ("Q3", -5)):
+        msgs.append(mavlink.MAVLink_named_value_int_message(5, name.encode(), value))
+    msgs.append(mavlink.MAVLink_param_value_message(b"POLICY_ID", 77.0, mavlink.MAV_PARAM_TYPE_INT32, 3, 1))
+    long_text = "x" * 50 + "tail"
+    msgs.append(mavlink.MAVLink_statustext_message(4, long_text[:50].encode(), 9, 0))
+    msgs.append(mavlink.MAVLink_statustext_message(4, long_text[50:].encode(), 9, 1))
+    msgs.append(mavlink.MAVLink_statustext_message(6, b"hello", 0, 0))
+    feed(view, wire(rover, *msgs), t=3.0)
+    assert view.ctrl_name == "DRIVING" and view.state_index == 117 and view.action == 3
+    assert view.tick_us == 812 and view.q_row == {0: 10, 1: 40, 2: 40, 3: -5}
+    assert view.policy_id == 77
+    assert [(e.severity_name, e.text) for e in view.log] == [("WARN", long_text), ("INFO", "hello")]
+
+
+def test_mission_goal_sources(rover):
+    view = VehicleView()
+    gcs = encoder(255, 190)
+    items = [(1.25, 3.75), (4.75, 4.75)]
+    feed(view, wire(gcs, *gcs_mission_items(gcs, items)))
+    assert view.mission.items == {0: pytest.approx(items[0]), 1: pytest.approx(items[1])}
+    feed(view, wire(rover, heartbeat(Mode.AUTO, armed=True),
+                    mavlink.MAVLink_local_position_ned_message(0, 1.75, 1.25, 0, 0, 0, 0),
+                    mavlink.MAVLink_mission_current_message(1, 2, 0, 0)))
+    assert view.goal == pytest.approx(items[1])
+    assert view.distance_to_goal() == pytest.approx(math.hypot(3.5, 3.0))
+    feed(view, wire(rover, mavlink.MAVLink_mission_item_reached_message(1)))
+    assert view.mission.reached == [1]
+    # Guided: the robot's POSITION_TARGET_LOCAL_NED wins over the mission item
+    feed(view, wire(rover, heartbeat(Mode.GUIDED, armed=True), mavlink.MAVLink_position_target_local_ned_message(
+        0, mavlink.MAV_FRAME_LOCAL_NED, 0xDF8, 2.0, 0.5, 0, 0, 0, 0, 0, 0, 0, 0, 0)))
+    assert view.goal == pytest.approx((0.5, 2.0))
+
+
+def test_goal_estimate_from_nav_controller_output(rover):
+    view = VehicleView()
+    feed(view, wire(rover, heartbeat(Mode.GUIDED),
+                    mavlink.MAVLink_local_position_ned_message(0, 1.0, 1.0, 0, 0, 0, 0),
+                    mavlink.MAVLink_nav_controller_output_message(0, 0, 0, 90, 3, 0, 0, 0)))
+    assert view.goal is None
+    assert view.distance_to_goal() == 3.0
+    assert view.goal_estimate() == pytest.approx((4.0, 1.0))  # bearing 90° = east
+
+
+def test_status_line_reports_what_the_view_holds(rover):
+    view = VehicleView()
+    feed(view, wire(rover, heartbeat(Mode.AUTO, armed=True),
+                    mavlink.MAVLink_local_position_ned_message(0, 2.0, 1.5, 0, 0, 0, 0),
+                    mavlink.MAVLink_named_value_int_message(0, b"STATE", 42)), t=100.0)
+    line = view.status_line(101.5)
+    for part in ("hb_age=1.5s", "mode=Auto", "armed=yes", "x=1.50 y=2.00", "state=42", "signed=no"):
+        assert part in line

@@ -1,0 +1,108 @@
+"""qnav report on tlogs generated here with pymavlink (scripted rover run)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib.image as mpimg
+import pytest
+from monitor_support import FAULT_S, PATH_LENGTH_M, STOP_AT_A_S, T_ARM, RoverScript, write_tlog
+
+from ground_station.maps import load_map
+from ground_station.report import analyse, write_report
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def full_tlog(tmp_path_factory):
+    path = tmp_path_factory.mktemp("tlog") / "run.tlog"
+    write_tlog(path, RoverScript())
+    return path
+
+
+def test_summary_matches_the_scripted_run(full_tlog, tmp_path):
+    script = RoverScript()
+    s = write_report(analyse(full_tlog), tmp_path, load_map("paper10"))
+    assert s["goals_reached"] == 2
+    assert [(i["seq"], i.get("target")) for i in s["mission_items_reached"]] == [(0, "A"), (1, "B")]
+    assert s["mission_items_reached"][0]["t_s"] == pytest.approx(script.t_reach_a, abs=0.11)
+    assert s["time_to_last_goal_s"] == pytest.approx(script.t_reach_b - T_ARM, abs=0.11)
+    assert s["duration_s"] == pytest.approx(script.t_end, abs=0.11)
+    assert s["path_length_m"] == pytest.approx(PATH_LENGTH_M, abs=0.01)
+    # the 1.5 s pause at A is a stop; the 0.5 s turns in place and the fault are not
+    assert s["stops"] == 1
+    assert s["stop_list"][0]["t_s"] == pytest.approx(script.t_reach_a, abs=0.11)
+    assert s["stop_list"][0]["duration_s"] == pytest.approx(STOP_AT_A_S, abs=0.21)
+    assert s["faults"] == 1
+    fault = s["fault_list"][0]
+    assert fault["t_s"] == pytest.approx(script.t_fault, abs=0.11)
+    assert "controller entered FAULT" in fault["events"] and any("sensor timeout" in e for e in fault["events"])
+    assert s["policy_id"] == 4242
+    assert s["link"] == {"packets": s["link"]["packets"], "lost": 0, "loss_pct": 0.0, "signed": False}
+    assert set(s["actions"]) == {"0", "1", "2"} and s["actions"]["0"] > s["actions"]["1"]
+    assert s["timing"]["available"] and s["timing"]["source"].startswith("NAMED_VALUE_INT")
+    assert 900 <= s["timing"]["p50_us"] <= 1200 and s["timing"]["over_period"] == 0
+    assert s["plots_skipped"] == {}
+    for name in ("trajectory", "distance_to_goal", "actions", "timing"):
+        path = tmp_path / f"{name}.png"
+        assert s["plots"][name] == str(path)
+        assert path.read_bytes()[:8] == PNG_MAGIC
+        h, w = mpimg.imread(path).shape[:2]
+        assert h > 100 and w > 100
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    assert on_disk["goals_reached"] == 2 and on_disk["plots"] == s["plots"]
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_fault_lasts_and_gaps_do_not_merge_episodes(full_tlog):
+    rec = analyse(full_tlog)
+    times = sorted(t for t, _ in rec.fault_events)
+    assert times[-1] - times[0] < FAULT_S  # one episode's events
+
+
+def test_missing_timing_data_is_said_not_faked(tmp_path):
+    tlog = tmp_path / "bare.tlog"
+    write_tlog(tlog, RoverScript(tick_us=False), with_gcs_items=False, drop_types=("SYS_STATUS",))
+    s = write_report(analyse(tlog), tmp_path / "out", None)
+    assert s["timing"]["available"] is False and "TICK_US" in s["timing"]["reason"]
+    assert "timing" in s["plots_skipped"] and not (tmp_path / "out" / "timing.png").exists()
+    assert s["map"] is None and (tmp_path / "out" / "trajectory.png").exists()
+    # without the GCS's mission items the goals still count, just without target names
+    assert s["goals_reached"] == 2 and all("target" not in i for i in s["mission_items_reached"])
+
+
+def test_load_is_the_timing_fallback(tmp_path):
+    tlog = tmp_path / "load.tlog"
+    write_tlog(tlog, RoverScript(tick_us=False))
+    s = write_report(analyse(tlog), tmp_path / "out", None)
+    assert s["timing"]["source"].startswith("SYS_STATUS") and s["timing"]["mean_load_pct"] == 15.0
+    assert (tmp_path / "out" / "timing.png").exists()
+
+
+def _qnav(*args):
+    return subprocess.run([str(Path(sys.executable).parent / "qnav"), *args],
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_cli_writes_report_and_prints_json(full_tlog, tmp_path):
+    r = _qnav("report", str(full_tlog), "--out", str(tmp_path / "rep"), "--json")
+    assert r.returncode == 0, r.stderr
+    s = json.loads(r.stdout)
+    assert s["goals_reached"] == 2 and s["map"] == "paper10"
+    assert sorted(p.name for p in (tmp_path / "rep").iterdir()) == [
+        "actions.png", "distance_to_goal.png", "summary.json", "timing.png", "trajectory.png"]
+
+
+def test_cli_rejects_bad_input(tmp_path):
+    r = _qnav("report", str(tmp_path / "missing.tlog"))
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "no such tlog" in r.stderr
+    junk = tmp_path / "junk.tlog"
+    junk.write_bytes(bytes(range(256)) * 8)
+    r = _qnav("report", str(junk), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "no MAVLink messages" in r.stderr
+    r = _qnav("report", str(junk), "--map", "no-such-map")
+    assert r.returncode == 2 and "--map no-such-map" in r.stderr
