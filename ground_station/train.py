@@ -85,6 +85,20 @@ def rand01(rng):
     return ((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
+@numba.njit(cache=True, inline="always")
+def q_update(q, s, a, r, s2, terminal, lr, gamma):
+    """The paper's update: Q(s,a) += lr * (r + gamma * max Q(s2, .) - Q(s,a));
+    no bootstrap when `terminal` (goal or collision)."""
+    target = r
+    if not terminal:
+        m = q[s2, 0]
+        for k in range(1, q.shape[1]):
+            if q[s2, k] > m:
+                m = q[s2, k]
+        target += gamma * m
+    q[s, a] += lr * (target - q[s, a])
+
+
 @numba.njit(cache=True)
 def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
                     lr, gamma, eps_start, eps_end, eps_decay_steps,
@@ -132,27 +146,21 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
                     a = k
         c2 = next_cell[cell, a]
         t_ep += 1
-        done = False
-        success = False
-        if c2 < 0:  # collision: terminal, no bootstrap
+        if c2 < 0:  # collision: terminal, the robot stays
             r = r_coll
-            target = r
             done = True
-        elif c2 == goal_cells[g]:  # goal: terminal, no bootstrap
+            success = False
+            c2 = cell
+        elif c2 == goal_cells[g]:  # goal: terminal
             r = r_goal
-            target = r
             done = True
             success = True
-        else:
+        else:  # bootstrap also on truncation: time limits are not terminal
             r = r_step
-            s2 = g * n_cells + c2
-            m = q[s2, 0]
-            for k in range(1, n_actions):
-                if q[s2, k] > m:
-                    m = q[s2, k]
-            target = r + gamma * m  # also on truncation: time limits are not terminal
-            cell = c2
-        q[s, a] += lr * (target - q[s, a])
+            done = False
+            success = False
+        q_update(q, s, a, r, g * n_cells + c2, done, lr, gamma)
+        cell = c2
         ret += r
         if done or t_ep >= max_ep_steps:
             out_ret[n_done] = ret
