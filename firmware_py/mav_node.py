@@ -44,15 +44,18 @@ MISSION_MSGS = frozenset({
     "MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT",
     "MISSION_REQUEST", "MISSION_ACK", "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT",
 })
+SIGNED_ONLY = frozenset({"SETUP_SIGNING", "FILE_TRANSFER_PROTOCOL"})
+FTP_PAYLOAD_LEN = 251
 POSITION_MASK_XY = 0b11  # type_mask bits "ignore x" / "ignore y"
 
 
 class MavNode:
     """MAVLink node core: a pure state machine over pymavlink message objects.
 
-    `ftp` is any object with `handle(payload: bytes, now_us) -> list[bytes]`
-    (the FTP server); its replies go back in FILE_TRANSFER_PROTOCOL frames to
-    the requester. `reboot_hook` reloads the policy from storage on a
+    `ftp` is the `firmware_py.ftp_server.FtpServer` (or anything with its
+    `handle(payload, now_us) -> list[bytes]`, `expire(now_us)` and
+    `drain_texts()`); its replies go back in FILE_TRANSFER_PROTOCOL frames to
+    the requester, its texts as STATUSTEXT. `reboot_hook` reloads the policy from storage on a
     PREFLIGHT_REBOOT_SHUTDOWN (after the node reloaded its params).
     """
 
@@ -139,14 +142,26 @@ class MavNode:
             return self.mission.handle(msg, now_us)
         if kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             return self._goal(msg, now_us)
+        if self.signing.key is not None and not self.signing.last_signed and kind in SIGNED_ONLY:
+            # SIGN_REQUIRE=0 relaxes commands, never key changes or file access
+            self.signing.dropped_unsigned += 1
+            self.stats.rx_dropped += 1
+            return []
         if kind == "SETUP_SIGNING":
             text = self.signing.setup(bytes(msg.secret_key), msg.initial_timestamp)
             return self.telemetry.statustext(text, M.MAV_SEVERITY_NOTICE)
         if kind == "FILE_TRANSFER_PROTOCOL" and self.ftp is not None:
             src = (msg.get_srcSystem(), msg.get_srcComponent())
-            return [self.mav.file_transfer_protocol_encode(0, src[0], src[1], list(p))
-                    for p in self.ftp.handle(bytes(msg.payload), now_us)]
+            replies = self.ftp.handle(bytes(msg.payload), now_us)
+            return [self.mav.file_transfer_protocol_encode(0, src[0], src[1], list(p.ljust(FTP_PAYLOAD_LEN, b"\0")))
+                    for p in replies] + self._ftp_texts()
         return []
+
+    def _ftp_texts(self) -> list:
+        out = []
+        for severity, text in self.ftp.drain_texts():
+            out += self.telemetry.statustext(text, severity)
+        return out
 
     def _heartbeat(self, msg, now_us: int) -> list:
         if msg.type != M.MAV_TYPE_GCS:
@@ -223,6 +238,9 @@ class MavNode:
         for ev in self.vehicle.drain_events():
             out += self.telemetry.event(ev)
         out += self.mission.tick(now_us)
+        if self.ftp is not None:
+            self.ftp.expire(now_us)
+            out += self._ftp_texts()
         self.signing.tick(now_us)
         self.stats.signing_dropped = self.signing.dropped
         out += self.telemetry.due(now_us, self.vehicle.status(), self.stats)

@@ -23,7 +23,7 @@ from pathlib import Path
 from firmware_py import robot
 from firmware_py.vehicle import FailsafeAction, VehicleConfig
 
-PARAM_FILE = "params.json"
+PARAM_FILE = "params/params.json"  # storage layout: firmware_py.storage.PARAMS_FILE
 FILE_VERSION = 1
 
 MAV_PARAM_TYPE_INT32 = 6  # MAVLink MAV_PARAM_TYPE_INT32 (ArduPilot style: value cast to float)

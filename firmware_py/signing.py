@@ -6,6 +6,10 @@ persisted signing state (`<storage>/signing.json`: key set by SETUP_SIGNING,
 last timestamp, per-stream timestamps) so replays are refused across
 reboots too.
 
+The file is under the FTP root, but FTP (and SETUP_SIGNING) is refused
+unsigned whenever a key is set, even with SIGN_REQUIRE=0, so only a key
+holder can read it.
+
 Rules (as ArduPilot): with no key every frame is accepted. With a key, a
 frame must carry a valid signature whose 48-bit timestamp (10 us units since
 2015-01-01) is strictly greater than the last one seen on its stream
@@ -30,7 +34,7 @@ from pathlib import Path
 
 from firmware_py.params import atomic_write
 
-SIGNING_FILE = "signing.json"
+SIGNING_FILE = "params/signing.json"  # under the storage root, beside params.json
 EPOCH_2015_UNIX_S = 1_420_070_400
 NEW_STREAM_SLACK = 60 * 100_000  # one minute in 10 us units
 PERSIST_INTERVAL_US = 10_000_000
@@ -89,6 +93,7 @@ class Signing:
         self._dirty = False
         self._last_persist_us = 0
         self._key_from_file = False
+        self.last_signed = False  # was the last accepted frame validly signed
 
     @property
     def dropped(self) -> int:
@@ -142,6 +147,7 @@ class Signing:
     # --- input filter -----------------------------------------------------------
     def accept(self, msg) -> bool:
         """True if `msg` (a pymavlink message with its raw frame) may be handled."""
+        self.last_signed = False
         if self.key is None:
             return True
         buf = bytes(msg.get_msgbuf())
@@ -166,6 +172,7 @@ class Signing:
             del self.streams[min(self.streams, key=self.streams.__getitem__)]
         self.timestamp = max(self.timestamp, ts)
         self.accepted_signed += 1
+        self.last_signed = True
         self._dirty = True
         return True
 

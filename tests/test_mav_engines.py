@@ -85,7 +85,7 @@ def test_param_list_read_and_set_persist(tmp_path):
     (pv,) = link.send(link.gcs.param_set_encode(1, 1, b"FS_GCS_TOUT_MS", 2500, 6))
     assert (pv.param_id, pv.param_value) == ("FS_GCS_TOUT_MS", 2500)
     assert link.vehicle.cfg.gcs_timeout_ms == 2500  # applied to the vehicle at once
-    assert json.loads((tmp_path / "params.json").read_text())["params"]["FS_GCS_TOUT_MS"] == 2500
+    assert json.loads((tmp_path / "params" / "params.json").read_text())["params"]["FS_GCS_TOUT_MS"] == 2500
 
     (pv,) = link.send(link.gcs.param_request_read_encode(1, 1, b"", link.node.params.index("GOAL_TOL_MM")))
     assert pv.param_id == "GOAL_TOL_MM" and pv.param_value == robot.GOAL_TOLERANCE_MM
@@ -121,11 +121,12 @@ def test_unknown_and_readonly_params_are_refused(tmp_path):
 
 
 def test_corrupt_param_file_means_defaults_and_a_statustext(tmp_path):
-    (tmp_path / "params.json").write_text("{ not json")
+    (tmp_path / "params").mkdir()
+    (tmp_path / "params" / "params.json").write_text("{ not json")
     link = Link(tmp_path)
     assert link.node.params.get("SPEED_SCALE") == 100
     assert any("corrupt" in t for t in texts(link.tick()))
-    (tmp_path / "params.json").write_text(json.dumps({"version": 1, "params": {"SPEED_SCALE": 5, "BOGUS": 1,
+    (tmp_path / "params" / "params.json").write_text(json.dumps({"version": 1, "params": {"SPEED_SCALE": 5, "BOGUS": 1,
                                                                                 "GOAL_TOL_MM": 300}}))
     link = Link(tmp_path)
     assert link.node.params.get("GOAL_TOL_MM") == 300 and link.node.params.get("SPEED_SCALE") == 100
@@ -424,7 +425,7 @@ def test_setup_signing_provisions_persists_and_disables(tmp_path):
     link = Link(tmp_path)
     replies = link.send(link.gcs.setup_signing_encode(1, 1, list(KEY), link.node.signing.timestamp))
     assert texts(replies) == ["signing key set"]
-    assert json.loads((tmp_path / "signing.json").read_text())["key"] == KEY.hex()
+    assert json.loads((tmp_path / "params" / "signing.json").read_text())["key"] == KEY.hex()
     # now unsigned commands are ignored...
     assert link.cmd(m.MAV_CMD_COMPONENT_ARM_DISARM, 1) == [] and not link.vehicle.st.armed
     # ...a rebooted robot still has the key...
@@ -440,7 +441,37 @@ def test_setup_signing_provisions_persists_and_disables(tmp_path):
 
 
 def test_corrupt_signing_state_resets_with_warning(tmp_path):
-    (tmp_path / "signing.json").write_text("garbage")
+    (tmp_path / "params").mkdir()
+    (tmp_path / "params" / "signing.json").write_text("garbage")
     link = Link(tmp_path)
     assert link.node.signing.key is None
     assert any("signing state corrupt" in t for t in texts(link.tick()))
+
+
+def test_ftp_is_routed_to_the_ftp_server_and_always_needs_a_signature_with_a_key(tmp_path):
+    from firmware_py.ftp_server import HEADER, FtpServer, Op
+    from firmware_py.storage import Storage
+
+    server = FtpServer(Storage(tmp_path))
+    link = Link(tmp_path)
+    link.node.ftp = server
+    (tmp_path / "hello.txt").write_bytes(b"hi robot")
+    path = b"/hello.txt"
+    req = HEADER.pack(7, 0, Op.OPEN_FILE_RO, len(path), 0, 0, 0, 0) + path
+    (reply,) = of(link.send(link.gcs.file_transfer_protocol_encode(0, 1, 1, list(req.ljust(251, b"\0")))),
+                  "FILE_TRANSFER_PROTOCOL")
+    assert (reply.target_system, reply.target_component) == GCS
+    seq, _session, opcode, size, req_op, *_ = HEADER.unpack_from(bytes(reply.payload))
+    assert (seq, opcode, req_op, size) == (8, Op.ACK, Op.OPEN_FILE_RO, 4)
+    assert int.from_bytes(bytes(reply.payload)[12:16], "little") == 8  # file size
+    # with a key and SIGN_REQUIRE=0, unsigned commands pass but unsigned FTP does not
+    signed = Link(tmp_path, key=KEY)
+    signed.node.ftp = server
+    signed.send(signed.gcs.setup_signing_encode(1, 1, list(KEY), signed.node.signing.timestamp))
+    assert of(signed.send(signed.gcs.param_set_encode(1, 1, b"SIGN_REQUIRE", 0, 6)), "PARAM_VALUE")[0].param_value == 0
+    plain = m.MAVLink(None, *GCS)
+    arm = plain.command_long_encode(1, 1, m.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    assert ack(signed.feed(bytes(arm.pack(plain)))) == m.MAV_RESULT_ACCEPTED
+    ftp = plain.file_transfer_protocol_encode(0, 1, 1, list(req.ljust(251, b"\0")))
+    assert signed.feed(bytes(ftp.pack(plain))) == []
+    assert of(signed.send(ftp), "FILE_TRANSFER_PROTOCOL")
