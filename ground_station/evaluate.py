@@ -187,3 +187,46 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
     rep.setdefault("encoding", "sector")
     rep.setdefault("map", gridmap.name)
     return rep
+
+
+def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int]],
+                     names: list[str] | None = None) -> bytes:
+    """PNG: per goal, the map with the greedy action of every free cell as an
+    arrow (north up, row 0 at the top) and the goal marked."""
+    import io
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from firmware_py import robot
+
+    h, w = gridmap.height, gridmap.width
+    names = names or [f"{c}:{r}" for c, r in goals]
+    n = len(goals)
+    cols = min(n, 4)
+    rows = (n + cols - 1) // cols
+    size = max(3.0, min(6.0, 40.0 / max(h, w) * 1.0 + 2.5))
+    fig, axes = plt.subplots(rows, cols, figsize=(size * cols, size * rows), dpi=100, squeeze=False)
+    dc = np.array([d[0] for d in robot.CELL_ACTION_DELTAS], dtype=float)
+    dr = np.array([d[1] for d in robot.CELL_ACTION_DELTAS], dtype=float)
+    free = np.argwhere(~gridmap.occ)  # (row, col)
+    for g, (gc, gr) in enumerate(goals):
+        ax = axes[g // cols][g % cols]
+        ax.imshow(gridmap.occ, cmap="Greys", vmin=0, vmax=1.5, origin="upper")
+        states = g * h * w + free[:, 0] * w + free[:, 1]
+        acts = np.argmax(q[states], axis=1)  # ties -> lowest index, as on the robot
+        keep = ~((free[:, 0] == gr) & (free[:, 1] == gc))
+        ax.quiver(free[keep, 1], free[keep, 0], dc[acts[keep]], -dr[acts[keep]],
+                  angles="xy", scale_units="xy", scale=1.5, pivot="middle", color="tab:blue", width=0.006)
+        ax.plot([gc], [gr], marker="*", markersize=14, color="tab:red")
+        ax.set_title(f"greedy policy to {names[g]} ({gc},{gr})")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for k in range(n, rows * cols):
+        axes[k // cols][k % cols].axis("off")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return buf.getvalue()

@@ -169,3 +169,11 @@ def test_cli_sweep_smoke(tmp_path):
     assert data["lrs"] == [0.2, 0.6] and len(data["runs"]) == 4
     assert {r["seed"] for r in data["runs"]} == {0, 1}
     assert (tmp_path / "sweep.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_cli_eval_plot_writes_a_png(tmp_path):
+    out = tmp_path / "run"
+    qnav("train", "--steps", "20000", "--targets", "B", "--out", str(out), "--quiet")
+    r = qnav("eval", str(out), "--map", "paper10", "--plot", str(out / "policy.png"))
+    assert "success_rate" in r.stdout
+    assert (out / "policy.png").read_bytes()[:4] == b"\x89PNG"

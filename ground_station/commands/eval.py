@@ -20,6 +20,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sample", type=int, default=None, metavar="N",
                    help="evaluate a seeded sample of N (start, goal) pairs instead of all")
     p.add_argument("--seed", type=int, default=0, help="seed of the sample (default: 0)")
+    p.add_argument("--plot", metavar="FILE", default=None,
+                   help="cell runs: write a PNG of the greedy policy (an arrow per cell, one panel per goal)")
     p.set_defaults(func=run)
 
 
@@ -41,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
         rep = evaluate_run(args.run_dir, gridmap, sample=args.sample, seed=args.seed)
     except (MapError, ValueError, NotImplementedError) as exc:
         raise CliError(str(exc)) from None
+    if args.plot:
+        _plot(args, gridmap)
     if args.json:
         print(json.dumps(rep, indent=1))
         return 0
@@ -52,4 +56,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"{k:<16}{_fmt(rep.get(k)):>10}{_fmt(base.get(k)):>10}")
     if rep.get("per_target"):
         print("per target success: " + ", ".join(f"{k} {_fmt(v)}" for k, v in rep["per_target"].items()))
+    if args.plot:
+        print(f"wrote {args.plot}")
     return 0
+
+
+def _plot(args: argparse.Namespace, gridmap) -> None:
+    from pathlib import Path
+
+    from ground_station.cli import CliError
+    from ground_station.evaluate import load_run, plot_cell_policy
+    from ground_station.train import atomic_write_bytes
+
+    q, meta = load_run(args.run_dir)
+    if meta["encoding"] != "cell":
+        raise CliError("--plot draws cell policies only (a sector policy has no per-cell action)")
+    goals = [tuple(g) for g in meta["goals"]]
+    atomic_write_bytes(Path(args.plot), plot_cell_policy(q, gridmap, goals, meta.get("targets")))
