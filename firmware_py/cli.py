@@ -1,0 +1,296 @@
+"""`qnav-robot`: run the robot controller on a CAN bus.
+
+    qnav-robot --can remote:ws://127.0.0.1:PORT/ --policy policies/sector.qtab \\
+               --lockstep --start 0.75,0.75,90 --goal 4.75,4.75 --exit-when-done
+
+Goals come from the command line until a MAVLink node is attached: with
+`--goal` (repeatable: a mission) the robot arms as soon as its inputs are
+fresh and drives the goals in order. Without a goal it idles in STANDBY.
+
+Extension hook (the MAVLink shell): append an object to `EXTENSIONS` with
+`add_arguments(parser)` and `attach(node, args) -> stop_callable | None`.
+`node.controller` is the `vehicle.VehicleControl`; `node.after_tick` takes
+per-tick callbacks. Both run before the node starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import resource
+import sys
+import threading
+import time
+from typing import Protocol
+
+from firmware_py import robot
+from firmware_py.clock import SimClock, WallClock
+from firmware_py.controller import Controller
+from firmware_py.robot_node import RobotNode
+from firmware_py.vehicle import CtrlState, VehicleConfig
+
+
+class Extension(Protocol):
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None: ...
+    def attach(self, node: RobotNode, args: argparse.Namespace): ...
+
+
+EXTENSIONS: list[Extension] = []
+
+EXIT_OK = 0
+EXIT_USAGE = 2
+EXIT_FAULT = 3
+EXIT_TIMEOUT = 4
+
+
+class UsageError(Exception):
+    """Bad command-line input; printed as one line, exit 2."""
+
+
+def _floats(text: str, n_min: int, n_max: int, what: str) -> list[float]:
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UsageError(f"{what} {text!r}: expected numbers separated by commas") from None
+    if not n_min <= len(vals) <= n_max:
+        raise UsageError(f"{what} {text!r}: expected {n_min}{'-' + str(n_max) if n_max > n_min else ''} values")
+    return vals
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="qnav-robot", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--can", metavar="SPEC", default=None,
+                   help="CAN bus: virtual:NAME, remote:ws://127.0.0.1:PORT/, socketcan:CH, slcan:DEV "
+                        "(default: python-can's own configuration)")
+    p.add_argument("--policy", metavar="FILE", help=".qtab policy to run (default: the active one in --storage)")
+    p.add_argument("--storage", metavar="DIR", help="the robot's file store (active/last-good policies)")
+    clk = p.add_mutually_exclusive_group()
+    clk.add_argument("--lockstep", action="store_true",
+                     help="HIL lockstep: step on every SimTick and answer it (the sim waits)")
+    clk.add_argument("--sim-clock", action="store_true",
+                     help="paced HIL: run on sim time from SimTick frames, do not answer ticks")
+    p.add_argument("--rate", type=int, default=robot.CONTROL_RATE_HZ, metavar="HZ",
+                   help=f"control rate on the wall or sim clock (default {robot.CONTROL_RATE_HZ}; "
+                        "in lockstep the sim's tick sets it)")
+    p.add_argument("--start", metavar="X,Y[,DEG]", help="start pose in metres (world frame) and heading in degrees CCW from east")
+    p.add_argument("--start-cell", metavar="COL,ROW[,DEG]", help="start pose at a map cell's centre")
+    p.add_argument("--goal", action="append", default=[], metavar="X,Y",
+                   help="goal in metres; repeat for a mission driven in order")
+    p.add_argument("--goal-cell", action="append", default=[], metavar="COL,ROW",
+                   help="goal at a map cell's centre; repeatable")
+    p.add_argument("--map-height", type=int, metavar="H",
+                   help="map rows, for --start-cell/--goal-cell with a sector policy (cell policies know it)")
+    p.add_argument("--cell-size", type=float, metavar="M", help="cell size in metres (default: the policy's, else 0.5)")
+    p.add_argument("--sensor-timeout-ms", type=int, default=VehicleConfig.sensor_timeout_ms)
+    p.add_argument("--motor-timeout-ms", type=int, default=VehicleConfig.motor_timeout_ms)
+    p.add_argument("--exit-when-done", action="store_true",
+                   help="exit 0 when the goals are reached, 3 on FAULT")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="stop after S seconds (sim time with --lockstep/--sim-clock); exit 4 if goals are pending")
+    p.add_argument("--stats-json", metavar="FILE", help="write loop statistics and the final state as JSON at exit")
+    p.add_argument("-q", "--quiet", action="store_true", help="only warnings (transitions are logged by default)")
+    for ext in EXTENSIONS:
+        ext.add_arguments(p)
+    return p
+
+
+def _load_policy(args: argparse.Namespace):
+    from firmware_py.policy import PolicyError, load_policy
+    if args.policy:
+        try:
+            return load_policy(args.policy)
+        except PolicyError as exc:
+            raise UsageError(f"policy {args.policy}: {exc}") from None
+    if args.storage:
+        from firmware_py.storage import Storage, boot_policy_candidates
+        for path in boot_policy_candidates(Storage(args.storage)):
+            try:
+                return load_policy(path)
+            except PolicyError as exc:
+                logging.getLogger("qnav.robot").warning("boot policy %s rejected: %s", path, exc)
+    return None
+
+
+class GoalRunner:
+    """Arms and starts the command-line goals from the control thread (so a
+    lockstep run is deterministic), and notices when they are done."""
+
+    def __init__(self, ctrl: Controller, goals: list[tuple[int, int]]) -> None:
+        self.ctrl = ctrl
+        self.goals = goals
+        self.started = False
+        self.done = threading.Event()
+        self.result = ""
+        self._last_refusal = ""
+
+    def __call__(self, _out) -> None:
+        c = self.ctrl
+        if not self.started:
+            if c.state == CtrlState.STANDBY:
+                ok, why = c.arm()
+                if not ok:
+                    if why != self._last_refusal:
+                        logging.getLogger("qnav.robot").info("waiting to arm: %s", why)
+                        self._last_refusal = why
+                    return
+            if c.state != CtrlState.HOLD:
+                return
+            if len(self.goals) == 1:
+                ok, why = c.set_goal(*self.goals[0])
+            else:
+                ok, why = c.set_mission(self.goals)
+                if ok:
+                    ok, why = c.start_mission()
+            if not ok:
+                self.result = f"goal refused: {why}"
+                self.done.set()
+            self.started = True
+            return
+        if self.done.is_set():
+            return
+        if c.state == CtrlState.FAULT:
+            self.result = f"FAULT: {c.fault}"
+            self.done.set()
+        elif c.state == CtrlState.HOLD:
+            last = c.transitions[-1] if c.transitions else None
+            if last is not None and last.cause in ("goal reached", "mission complete"):
+                self.result = "reached"
+            else:
+                self.result = f"stopped: {last.cause if last else '?'}"
+            self.done.set()
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def run(args: argparse.Namespace) -> int:
+    from firmware_py.canbus import CanSpecError, open_bus
+
+    policy = _load_policy(args)
+    cell_mm = round(args.cell_size * 1000) if args.cell_size else (
+        policy.cell_mm if policy is not None and policy.kind == "cell" else robot.DEFAULT_CELL_SIZE_MM)
+    height = args.map_height or (policy.encoder.height if policy is not None and policy.kind == "cell" else None)
+
+    def cell_point(text: str, what: str, with_heading: bool) -> tuple[int, int, int]:
+        if height is None:
+            raise UsageError(f"{what} needs --map-height (or a cell policy)")
+        v = _floats(text, 2, 3 if with_heading else 2, what)
+        x, y = robot.cell_center_mm(int(v[0]), int(v[1]), height, cell_mm)
+        return x, y, round(v[2] * 3141.5927 / 180) if len(v) > 2 else 0
+
+    start = (0, 0, 0)
+    if args.start and args.start_cell:
+        raise UsageError("give --start or --start-cell, not both")
+    if args.start:
+        v = _floats(args.start, 2, 3, "--start")
+        start = (round(v[0] * 1000), round(v[1] * 1000), round(v[2] * 3141.5927 / 180) if len(v) > 2 else 0)
+    elif args.start_cell:
+        start = cell_point(args.start_cell, "--start-cell", True)
+    goals = [tuple(round(c * 1000) for c in _floats(g, 2, 2, "--goal")) for g in args.goal]
+    goals += [cell_point(g, "--goal-cell", False)[:2] for g in args.goal_cell]
+    if not 1 <= args.rate <= 1000:
+        raise UsageError(f"--rate {args.rate}: expected 1..1000 Hz")
+
+    cfg = VehicleConfig(control_rate_hz=args.rate, sensor_timeout_ms=args.sensor_timeout_ms,
+                        motor_timeout_ms=args.motor_timeout_ms, cell_size_mm=cell_mm)
+    sim = args.lockstep or args.sim_clock
+    clock = SimClock() if sim else WallClock()
+    ctrl = Controller(cfg, policy, start_pose_mm=start, lockstep=args.lockstep)
+    try:
+        bus = open_bus(args.can)
+    except CanSpecError as exc:
+        raise UsageError(str(exc)) from None
+    node = RobotNode(bus, ctrl, clock, lockstep=args.lockstep)
+    runner = None
+    if goals:
+        runner = GoalRunner(ctrl, goals)
+        node.after_tick.append(runner)
+    stoppers = []
+    for ext in EXTENSIONS:  # the MAVLink shell attaches here
+        stop = ext.attach(node, args)
+        if stop is not None:
+            stoppers.append(stop)
+    log = logging.getLogger("qnav.robot")
+    log.info("policy %s, start (%d, %d) mm %d mrad, %d goal(s), %s clock",
+             f"0x{policy.policy_id:08x} {policy.kind}" if policy else "none", *start, len(goals),
+             "lockstep sim" if args.lockstep else "paced sim" if sim else "wall")
+    wall0 = time.monotonic()
+    cpu0 = time.process_time()
+    code = EXIT_OK
+    node.start()
+    try:
+        while True:
+            if runner is not None and runner.done.wait(0.05):
+                if runner.result != "reached":
+                    log.warning("%s", runner.result)
+                    code = EXIT_FAULT
+                if args.exit_when_done:
+                    break
+            elif runner is None or runner.done.is_set():
+                time.sleep(0.05)
+            if args.duration is not None:
+                elapsed = clock.now_us() / 1e6 if sim else time.monotonic() - wall0
+                if elapsed >= args.duration:
+                    if runner is not None and not runner.done.is_set():
+                        log.warning("duration reached with goals pending")
+                        code = EXIT_TIMEOUT
+                    break
+    except KeyboardInterrupt:
+        code = 130
+    finally:
+        for stop in stoppers:
+            stop()
+        node.stop()
+        bus.shutdown()
+    wall = time.monotonic() - wall0
+    cpu = time.process_time() - cpu0
+    st = ctrl.status()
+    summary = {
+        "result": runner.result if runner else "",
+        "state": st.state.name, "fault": st.fault,
+        "pose_mm": [st.x_mm, st.y_mm, st.heading_mrad],
+        "sim_time_s": clock.now_us() / 1e6 if sim else None,
+        "wall_s": wall, "cpu_s": cpu, "cpu_percent": 100 * cpu / wall if wall > 0 else 0.0,
+        "rss_mb": _rss_mb(), "ticks": node.ticks, "sim_ticks": node.sim_ticks,
+        "overruns": node.overruns, "can_errors": node.can_errors, "send_errors": node.send_errors,
+        "period_us": 1_000_000 // cfg.control_rate_hz,
+        **node.latency_stats(),
+        "transitions": [[t.t_us, t.src.name, t.dst.name, t.cause] for t in ctrl.transitions],
+    }
+    log.info("done: %s, %d ticks, sim %.1f s, wall %.2f s, p99 %.0f us",
+             summary["result"] or summary["state"], node.ticks,
+             (summary["sim_time_s"] or 0.0), wall, summary["tick_p99_us"])
+    if args.stats_json:
+        tmp = f"{args.stats_json}.tmp"
+        with open(tmp, "w") as f:
+            json.dump(summary, f, indent=1)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, args.stats_json)
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
+                        format="qnav-robot %(levelname)s %(message)s", stream=sys.stderr)
+    try:
+        return run(args)
+    except UsageError as exc:
+        print(f"qnav-robot: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,264 @@
+"""`qnav bench hil`: lockstep hardware-in-the-loop episodes, in one process.
+
+The real pieces on a python-can `virtual` bus: the pymunk plant
+(`sim_bridge.plant.Plant`, driven by a lockstep loop that can also cut
+frames for fault tests) in the calling thread and the robot's
+`firmware_py.robot_node.RobotNode` + `Controller` in its own threads.
+`run_episode` is also what the HIL tests use.
+
+The benchmark runs the acceptance sets on `paper10`: the sector policy on
+seeded random (start, goal) pairs and the cell policy on targets A-D from
+seeded random starts, and reports success (goal reached with no wall
+contact), contacts, and sim time against wall time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import random
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+
+from firmware_py import can_protocol as cp
+from firmware_py import robot
+from firmware_py.cli import GoalRunner
+from firmware_py.clock import SimClock
+from firmware_py.controller import Controller
+from firmware_py.policy import Policy
+from firmware_py.robot_node import RobotNode
+from firmware_py.vehicle import VehicleConfig
+
+SENSOR_FRAMES = frozenset({"RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper"})
+
+
+@dataclass
+class Episode:
+    result: str  # "reached", "FAULT: ...", "stopped: ...", "timeout", "goal refused: ..."
+    contacts: int  # wall contact events in the plant
+    sim_s: float
+    wall_s: float
+    ticks: int
+    final_error_mm: float  # ground truth distance to the goal at the end
+    commands: list[tuple[int, int, int, int]] = field(default_factory=list)  # (t_us, left, right, counter)
+    transitions: list[tuple[int, str, str, str]] = field(default_factory=list)
+    latency_us: list[float] = field(default_factory=list)
+
+    @property
+    def success(self) -> bool:
+        return self.result == "reached" and self.contacts == 0
+
+
+FrameFilter = Callable[[int, list[can.Message]], list[can.Message]]
+
+
+def cut_sensors_after(t_us: int) -> FrameFilter:
+    """A frame filter that drops every sensor frame from sim time `t_us` on."""
+    def f(now_us: int, frames: list[can.Message]) -> list[can.Message]:
+        if now_us < t_us:
+            return frames
+        return [m for m in frames if cp.frame_name(m.arbitration_id) not in SENSOR_FRAMES]
+    return f
+
+
+def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
+                goals_mm: list[tuple[int, int]], *, max_sim_s: float = 120.0, seed: int = 0,
+                vehicle: VehicleConfig | None = None, frame_filter: FrameFilter | None = None,
+                inject: Callable[[object, can.BusABC], None] | None = None,
+                stop_when_done: bool = True, answer_timeout_s: float = 5.0) -> Episode:
+    """Drive one lockstep episode; `start` is (x_m, y_m, heading_rad).
+
+    `inject(plant, sim_bus)` runs before every tick (e.g. to send an EStop);
+    `frame_filter(now_us, frames)` may drop frames the plant sends."""
+    from sim_bridge.plant import Plant, SimConfig
+    from sim_bridge.world import Pose
+
+    channel = f"hil-{uuid.uuid4().hex}"
+    sim_bus = can.Bus(interface="virtual", channel=channel)
+    node_bus = can.Bus(interface="virtual", channel=channel)
+    plant = Plant(occ, SimConfig(seed=seed), Pose(*start))
+    ctrl = Controller(vehicle or VehicleConfig(), policy, lockstep=True,
+                      start_pose_mm=(round(start[0] * 1000), round(start[1] * 1000),
+                                     round(start[2] * 1000)))
+    node = RobotNode(node_bus, ctrl, SimClock(), lockstep=True)
+    runner = GoalRunner(ctrl, goals_mm)
+    if goals_mm:
+        node.after_tick.append(runner)
+    commands: list[tuple[int, int, int, int]] = []
+    end_us = round(max_sim_s * 1e6)
+    t0 = time.perf_counter()
+    try:
+        node.start()
+        while plant.time_us < end_us:
+            if stop_when_done and runner.done.is_set():
+                break
+            if inject is not None:
+                inject(plant, sim_bus)
+            frames = plant.tick_frames()
+            if frame_filter is not None:
+                frames = frame_filter(plant.time_us, frames)
+            for f in frames:
+                sim_bus.send(f)
+            deadline = time.perf_counter() + answer_timeout_s
+            answered = False
+            while not answered:
+                msg = sim_bus.recv(timeout=max(0.0, deadline - time.perf_counter()))
+                if msg is None:
+                    raise RuntimeError(f"controller did not answer SimTick {plant.tick}")
+                if msg.arbitration_id == cp.MOTOR_COMMAND_ID:
+                    _, sig = cp.decode(msg)
+                    commands.append((plant.time_us, sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"],
+                                     sig["Cmd_Counter"]))
+                answered = plant.handle(msg, lockstep=True)
+            plant.step_period()
+    finally:
+        node.stop()
+        sim_bus.shutdown()
+        node_bus.shutdown()
+    wall = time.perf_counter() - t0
+    pose = plant.world.pose
+    err = math.inf
+    if goals_mm:
+        gx, gy = goals_mm[-1]
+        err = math.hypot(pose.x * 1000 - gx, pose.y * 1000 - gy)
+    result = runner.result if runner.done.is_set() else "timeout"
+    return Episode(result=result, contacts=plant.world.contact_events, sim_s=plant.time_us / 1e6,
+                   wall_s=wall, ticks=plant.tick, final_error_mm=err, commands=commands,
+                   transitions=[(t.t_us, t.src.name, t.dst.name, t.cause) for t in ctrl.transitions],
+                   latency_us=[v / 1000 for v in node.latency_ns])
+
+
+# --- acceptance sets ----------------------------------------------------------------
+
+def free_cells(occ) -> list[tuple[int, int]]:
+    h, w = occ.shape
+    return [(c, r) for r in range(h) for c in range(w) if not occ[r][c]]
+
+
+def random_pairs(occ, n: int, seed: int) -> list[tuple[tuple[int, int], float, tuple[int, int]]]:
+    """n seeded (start cell, start heading rad, goal cell) with start != goal."""
+    rng = random.Random(seed)
+    cells = free_cells(occ)
+    out = []
+    while len(out) < n:
+        s, g = rng.sample(cells, 2)
+        out.append((s, rng.uniform(-math.pi, math.pi), g))
+    return out
+
+
+def _centre_m(col: int, row: int, height: int, cell_mm: int) -> tuple[float, float]:
+    x, y = robot.cell_center_mm(col, row, height, cell_mm)
+    return x / 1000, y / 1000
+
+
+def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None) -> list[dict]:
+    cell_mm = round(gm.cell_size_m * 1000)
+    rows = []
+    for i, (s, heading, g) in enumerate(random_pairs(gm.occ, pairs, seed)):
+        sx, sy = _centre_m(*s, gm.height, cell_mm)
+        goal = robot.cell_center_mm(*g, gm.height, cell_mm)
+        ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s, seed=seed + i)
+        rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g),
+                     "result": ep.result, "contacts": ep.contacts, "success": ep.success,
+                     "sim_s": ep.sim_s, "wall_s": ep.wall_s,
+                     "final_error_mm": round(ep.final_error_mm, 1)})
+        if progress is not None:
+            progress.update(1)
+    return rows
+
+
+def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None) -> list[dict]:
+    cell_mm = policy.cell_mm
+    rng = random.Random(seed)
+    goals = {name: cell for name, cell in gm.targets.items() if cell in policy.goals}
+    cells = [c for c in free_cells(gm.occ) if c not in goals.values()]
+    rows = []
+    for i in range(starts):
+        s = rng.choice(cells)
+        heading = rng.uniform(-math.pi, math.pi)
+        sx, sy = _centre_m(*s, gm.height, cell_mm)
+        for name, g in goals.items():
+            goal = robot.cell_center_mm(*g, gm.height, cell_mm)
+            ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s,
+                             seed=seed + i)
+            rows.append({"start": list(s), "heading_rad": round(heading, 3), "target": name,
+                         "goal": list(g), "result": ep.result, "contacts": ep.contacts,
+                         "success": ep.success, "sim_s": ep.sim_s, "wall_s": ep.wall_s,
+                         "final_error_mm": round(ep.final_error_mm, 1)})
+            if progress is not None:
+                progress.update(1)
+    return rows
+
+
+def _summary(rows: list[dict]) -> dict:
+    n = len(rows)
+    sim = sum(r["sim_s"] for r in rows)
+    wall = sum(r["wall_s"] for r in rows)
+    return {"episodes": n, "success": sum(r["success"] for r in rows),
+            "success_rate": sum(r["success"] for r in rows) / n if n else 0.0,
+            "reached": sum(r["result"] == "reached" for r in rows),
+            "with_contact": sum(r["contacts"] > 0 for r in rows),
+            "sim_s": sim, "wall_s": wall, "sim_per_wall": sim / wall if wall else 0.0}
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("hil", help="lockstep HIL acceptance episodes on paper10 (sector pairs, cell targets)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--map", default="paper10")
+    p.add_argument("--sector-policy", default="policies/sector.qtab", metavar="FILE")
+    p.add_argument("--cell-policy", default="policies/paper10_cell.qtab", metavar="FILE")
+    p.add_argument("--pairs", type=int, default=50, help="sector: seeded random (start, goal) pairs")
+    p.add_argument("--starts", type=int, default=20, help="cell: seeded random starts, each to every target")
+    p.add_argument("--only", choices=("sector", "cell"), help="run one set only")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-sim-s", type=float, default=120.0, help="episode limit in sim seconds")
+    p.add_argument("--json", metavar="FILE", help="write the result (with every episode) as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from firmware_py.policy import PolicyError, load_policy
+    from ground_station.bench.common import report
+    from ground_station.cli import CliError
+    from ground_station.maps import MapError, load_map
+
+    try:
+        gm = load_map(args.map)
+    except MapError as exc:
+        raise CliError(str(exc)) from None
+    sets = [args.only] if args.only else ["sector", "cell"]
+    result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s}
+    rows_out: list[tuple[str, object]] = []
+    for kind in sets:
+        path = args.sector_policy if kind == "sector" else args.cell_policy
+        try:
+            pol = load_policy(path)
+        except PolicyError as exc:
+            raise CliError(f"{kind} policy {path}: {exc}") from None
+        if pol.kind != kind:
+            raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
+        if kind == "sector":
+            total = args.pairs
+            with tqdm(total=total, desc="sector pairs", unit="ep") as bar:
+                rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar)
+        else:
+            total = args.starts * sum(1 for c in gm.targets.values() if c in pol.goals)
+            with tqdm(total=total, desc="cell targets", unit="ep") as bar:
+                rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar)
+        s = _summary(rows)
+        result[kind] = {"policy": path, "policy_id": f"0x{pol.policy_id:08x}", **s, "episodes_detail": rows}
+        rows_out += [(f"{kind}: success (reached, no contact)", f"{s['success']}/{s['episodes']}"),
+                     (f"{kind}: success_rate", s["success_rate"]),
+                     (f"{kind}: reached", s["reached"]),
+                     (f"{kind}: episodes with wall contact", s["with_contact"]),
+                     (f"{kind}: sim_s total", s["sim_s"]),
+                     (f"{kind}: wall_s total", s["wall_s"]),
+                     (f"{kind}: sim/wall (x real time)", s["sim_per_wall"])]
+    report("hil", rows_out, result, args.json)
+    return 0
