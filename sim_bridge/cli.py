@@ -1,0 +1,159 @@
+"""`qnav-sim`: run the pymunk plant on a CAN bus.
+
+The plant plays the robot's motor driver, range sensors, encoders and bumper
+and owns the clock (docs/can-protocol.md). Maps load through
+`ground_station.maps` (built-in names or MovingAI files): the sim is a
+test-PC tool, so it shares the ground station's map reader instead of
+keeping a second one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+EPILOG = """examples:
+  qnav-sim --map paper10 --can virtual:qnav --lockstep --duration 30 --png run.png
+  qnav-sim --map maps/room.map --can remote:ws://127.0.0.1:54701/ --realtime --log run.blf
+  qnav-sim --map paper10 --can remote:ws://127.0.0.1:54701/ --speed 5 --start 1.25,1.25,90
+"""
+
+
+class CliError(Exception):
+    pass
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="qnav-sim", description=__doc__, epilog=EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--map", required=True, metavar="NAME|PATH",
+                   help="built-in map name (e.g. paper10) or a MovingAI .map file")
+    p.add_argument("--can", default=None, metavar="SPEC",
+                   help="virtual:NAME, remote:ws://127.0.0.1:PORT/, socketcan:CHANNEL, slcan:DEVICE; "
+                        "omitted: python-can's own configuration")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--lockstep", action="store_true",
+                      help="wait for the controller's command every tick (default; deterministic)")
+    mode.add_argument("--realtime", action="store_true", help="paced at real time")
+    mode.add_argument("--speed", type=float, metavar="X", help="paced at X times real time")
+    p.add_argument("--start", metavar="X,Y,HEADING",
+                   help="start pose: metres east, metres north, heading in degrees CCW from east "
+                        "(default: free cell nearest the map centre, heading east)")
+    p.add_argument("--seed", type=int, default=0, help="seed of sensor noise, dropout and slip")
+    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="sim seconds to run")
+    p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size (m)")
+    p.add_argument("--noise-mm", type=float, default=10.0, help="range noise std dev (mm)")
+    p.add_argument("--dropout", type=float, default=0.0, help="range dropout probability")
+    p.add_argument("--fan-rays", type=int, default=3, help="rays per range sensor")
+    p.add_argument("--slip", type=float, default=0.0, help="encoder slip std dev (fraction)")
+    p.add_argument("--watchdog-ms", type=int, default=200, help="motor watchdog, sim ms")
+    p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
+                   help="lockstep: wall seconds to wait for a tick's command before stepping anyway")
+    p.add_argument("--start-timeout", type=float, default=30.0, metavar="S",
+                   help="lockstep: wall seconds to wait for the controller's first answer")
+    p.add_argument("--log", metavar="FILE", help="CAN log (.blf, .asc, ...), sim-time stamps")
+    p.add_argument("--trajectory", metavar="FILE", help="ground-truth trajectory CSV")
+    p.add_argument("--png", metavar="FILE", help="plot of map, trajectory, goals and last rays")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def parse_start(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        x, y, heading_deg = (float(v) for v in parts)
+    except ValueError:
+        raise CliError(f"--start {text!r}: expected X,Y,HEADING (metres, metres, degrees)") from None
+    if not all(math.isfinite(v) for v in (x, y, heading_deg)):
+        raise CliError(f"--start {text!r}: values must be finite")
+    return x, y, math.radians(heading_deg)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from firmware_py import robot
+    from firmware_py.canbus import CanSpecError, open_bus
+    from ground_station.maps import MapError, load_map
+    from sim_bridge.motors import MotorParams
+    from sim_bridge.outputs import CanLog, write_png, write_trajectory
+    from sim_bridge.plant import LockstepError, Plant, SimConfig, run_lockstep, run_paced
+    from sim_bridge.sensors import RangeParams
+    from sim_bridge.world import Pose
+
+    if not args.duration > 0:
+        raise CliError(f"--duration must be positive, got {args.duration:g}")
+    if args.speed is not None and not args.speed > 0:
+        raise CliError(f"--speed must be positive, got {args.speed:g}")
+    speed = 1.0 if args.realtime else args.speed
+    try:
+        gm = load_map(args.map, cell_size_m=args.cell_size)
+    except (MapError, OSError, ValueError) as exc:
+        raise CliError(f"--map {args.map}: {exc}") from None
+    try:
+        config = SimConfig(seed=args.seed, cell_size_m=gm.cell_size_m,
+                           ranges=RangeParams(args.fan_rays, args.noise_mm, args.dropout),
+                           motors=MotorParams(watchdog_ms=args.watchdog_ms),
+                           encoder_slip_std=args.slip)
+        start = Pose(*parse_start(args.start)) if args.start else None
+        plant = Plant(gm.occ, config, start)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    try:
+        bus = open_bus(args.can)
+    except CanSpecError as exc:
+        raise CliError(str(exc)) from None
+    log = None
+    try:
+        if args.log:
+            log = CanLog(args.log)
+        ticks = math.ceil(args.duration * 1e6 / robot.CONTROL_PERIOD_US)
+        mode = "lockstep" if speed is None else f"paced x{speed:g}"
+        print(f"qnav-sim: {gm.name} ({gm.width}x{gm.height}, {gm.cell_size_m:g} m cells), "
+              f"{mode}, bus {args.can or 'python-can default'}", file=sys.stderr)
+        interrupted = False
+        with tqdm(total=ticks, unit="tick", disable=True if args.quiet else None) as bar:
+            try:
+                if speed is None:
+                    stats = run_lockstep(plant, bus, args.duration, logger=log, progress=bar,
+                                         tick_timeout_s=args.tick_timeout,
+                                         start_timeout_s=args.start_timeout)
+                else:
+                    stats = run_paced(plant, bus, args.duration, speed, logger=log, progress=bar)
+            except KeyboardInterrupt:
+                interrupted, stats = True, plant.stats
+    except LockstepError as exc:
+        raise CliError(str(exc)) from None
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    finally:
+        bus.shutdown()
+        if log is not None:
+            log.close(keep=True)
+    if args.trajectory:
+        write_trajectory(plant, args.trajectory)
+    if args.png:
+        goals = {name: plant.world.cell_center(c, r) for name, (c, r) in gm.targets.items()}
+        write_png(plant, args.png, goals, title=f"{gm.name}: {stats.sim_s:.1f} s sim")
+    pose = plant.world.pose
+    wall = stats.wall_s or 1e-9
+    print(f"ticks {stats.ticks} (missed {stats.missed_ticks}, stale commands "
+          f"{stats.stale_commands}, bad frames {stats.bad_frames}); sim {stats.sim_s:.2f} s, "
+          f"wall {wall:.2f} s, real-time factor {stats.sim_s / wall:.2f}"
+          f"{'' if speed is None else f' (target {speed:g})'}, {stats.ticks / wall:.0f} ticks/s; "
+          f"final pose x={pose.x:.3f} y={pose.y:.3f} heading={math.degrees(pose.heading) % 360:.1f} deg")
+    return 130 if interrupted else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except CliError as exc:
+        print(f"qnav-sim: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

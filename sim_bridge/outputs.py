@@ -1,0 +1,116 @@
+"""What a sim run leaves behind: CAN log, trajectory CSV, PNG plot.
+
+Every file is written atomically (temporary file in the same directory,
+fsync, os.replace), so an interrupted run never leaves a half file under the
+final name. The CAN log goes through python-can's `can.Logger`, which picks
+the format (.blf, .asc, .csv, .log, ...) from the suffix.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import tempfile
+from pathlib import Path
+
+import can
+import numpy as np
+
+from sim_bridge.plant import TRAJECTORY_FIELDS, Plant
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 is for the temporary name only
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class CanLog:
+    """A `can.Logger` writing to a temporary name, moved into place on `close()`."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.parent.is_dir():
+            raise ValueError(f"log directory {self.path.parent} does not exist")
+        self.tmp = self.path.with_name(f".{self.path.stem}.partial{self.path.suffix}")
+        try:
+            self.logger = can.Logger(str(self.tmp))
+        except ValueError as exc:
+            raise ValueError(f"cannot write CAN log {self.path.name}: {exc}") from None
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.logger.on_message_received(msg)
+
+    def close(self, keep: bool = True) -> None:
+        self.logger.stop()
+        if keep:
+            with open(self.tmp, "rb+") as f:
+                os.fsync(f.fileno())
+            os.replace(self.tmp, self.path)
+        else:
+            self.tmp.unlink(missing_ok=True)
+
+
+def trajectory_csv(plant: Plant) -> str:
+    """The ground-truth trajectory, one row per control tick, floats at full precision."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(TRAJECTORY_FIELDS)
+    for row in plant.trajectory:
+        w.writerow([repr(v) if isinstance(v, float) else v for v in row])
+    return buf.getvalue()
+
+
+def write_trajectory(plant: Plant, path: str | Path) -> None:
+    _atomic_write_bytes(Path(path), trajectory_csv(plant).encode())
+
+
+def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, float]] | None = None,
+              title: str = "") -> None:
+    """Map, trajectory, start, goal(s) and the last sensor rays."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from firmware_py import robot
+
+    world = plant.world
+    w_m, h_m = world.size_m
+    fig, ax = plt.subplots(figsize=(7, 7 * h_m / w_m + 0.4), dpi=110)
+    ax.imshow(world.occ, cmap="Greys", vmin=0, vmax=1.4, extent=(0, w_m, 0, h_m),
+              origin="upper", interpolation="nearest")
+    traj = np.array([(r[2], r[3]) for r in plant.trajectory])
+    ax.plot(traj[:, 0], traj[:, 1], "-", color="tab:blue", lw=1.5, label="trajectory")
+    ax.plot(*traj[0], "o", color="tab:green", label="start")
+    pose = world.pose
+    ax.add_patch(plt.Circle((pose.x, pose.y), world.radius_m, fill=False, color="tab:blue"))
+    colours = {robot.RANGE_VALID: "tab:orange", robot.RANGE_TOO_CLOSE: "tab:red",
+               robot.RANGE_TOO_FAR: "0.6", robot.RANGE_INVALID: "tab:purple"}
+    for (x0, y0), (x1, y1), status in plant.ranges.last_rays:
+        ax.plot([x0, x1], [y0, y1], "-", color=colours[status], lw=0.8)
+    for name, (gx, gy) in (goals or {}).items():
+        ax.plot(gx, gy, "*", color="tab:red", ms=14)
+        ax.annotate(name, (gx, gy), textcoords="offset points", xytext=(6, 6), color="tab:red")
+    ax.set_xlim(0, w_m)
+    ax.set_ylim(0, h_m)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_title(title or f"qnav sim, {plant.time_us / 1e6:.2f} s")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    _atomic_write_bytes(Path(path), buf.getvalue())

@@ -1,0 +1,241 @@
+"""The CAN-facing plant: the robot's boards and the sim clock on one bus.
+
+`Plant` is the core, free of I/O: `tick_frames()` samples every sensor at the
+current sim time and returns the frames of one control tick (SimTick last),
+`handle(msg)` applies a received frame, `step_period()` advances physics by
+one control period in fixed `robot.PHYSICS_DT_US` steps. `run_lockstep` and
+`run_paced` are the thin shells that move frames over a python-can bus; the
+lockstep handshake is specified in docs/can-protocol.md.
+
+Outputs: CAN log through python-can's `can.Logger` (sim-time stamps), the
+ground-truth trajectory CSV and a PNG (see `sim_bridge.outputs`).
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+
+from firmware_py import can_protocol as cp
+from firmware_py import robot
+from sim_bridge.motors import MotorDriver, MotorParams
+from sim_bridge.sensors import RangeParams, RangeSensors, WheelEncoders, bumper_signals
+from sim_bridge.world import BodyParams, Pose, World
+
+STEPS_PER_TICK = robot.CONTROL_PERIOD_US // robot.PHYSICS_DT_US
+TRAJECTORY_FIELDS = ("t_s", "tick", "x_m", "y_m", "heading_rad", "wheel_left_mm_s",
+                     "wheel_right_mm_s", "cmd_left_mm_s", "cmd_right_mm_s", "bumper")
+
+
+class LockstepError(RuntimeError):
+    """The lockstep handshake could not start (no controller answered)."""
+
+
+@dataclass
+class SimConfig:
+    seed: int = 0
+    cell_size_m: float = robot.DEFAULT_CELL_SIZE_MM / 1000
+    ranges: RangeParams = field(default_factory=RangeParams)
+    motors: MotorParams = field(default_factory=MotorParams)
+    body: BodyParams = field(default_factory=BodyParams)
+    encoder_slip_std: float = 0.0
+
+
+@dataclass
+class RunStats:
+    ticks: int = 0
+    missed_ticks: int = 0
+    stale_commands: int = 0
+    bad_frames: int = 0
+    frames_sent: int = 0
+    frames_received: int = 0
+    wall_s: float = 0.0
+    sim_s: float = 0.0
+
+    @property
+    def rtf(self) -> float:
+        return self.sim_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+class Plant:
+    """World + sensors + motor driver, speaking qnav CAN frames."""
+
+    def __init__(self, occ: np.ndarray, config: SimConfig | None = None,
+                 start: Pose | None = None) -> None:
+        config = config if config is not None else SimConfig()
+        self.config = config
+        self.world = World(occ, config.cell_size_m, start, config.body)
+        # one seeded stream per noise source, so changing one model leaves the others alone
+        seeds = random.Random(config.seed)
+        self.ranges = RangeSensors(self.world, config.ranges, random.Random(seeds.getrandbits(64)))
+        self.encoders = WheelEncoders(self.world, random.Random(seeds.getrandbits(64)),
+                                      config.encoder_slip_std)
+        self.motors = MotorDriver(config.motors)
+        self.tick = 0
+        self.time_us = 0
+        self.stats = RunStats()
+        self.trajectory: list[tuple] = []
+        self._answered_tick: int | None = None
+        self._last_cmd = (0, 0)
+        self.record()
+
+    # --- frames out ----------------------------------------------------------
+    def tick_frames(self) -> list[can.Message]:
+        """All frames of the current control tick, sampled now; SimTick last."""
+        t_s = self.time_us / 1e6
+        left, right = self.encoders.counts()
+        frames = cp.range_frames(self.ranges.read())
+        frames.append(cp.encode("EncoderCounts", {"Enc_Left": left, "Enc_Right": right}))
+        frames.append(cp.encode("Bumper", bumper_signals(self.world)))
+        frames.append(cp.encode("MotorStatus", self.motors.status()))
+        frames.append(cp.sim_tick(self.tick, self.time_us))
+        for f in frames:
+            f.timestamp = t_s
+        return frames
+
+    # --- frames in -----------------------------------------------------------
+    def handle(self, msg: can.Message, lockstep: bool = True) -> bool:
+        """Apply a received frame at the current sim time.
+
+        Returns True when `msg` is the controller's answer to the current tick
+        (a MotorCommand carrying its counter; in paced mode any MotorCommand).
+        """
+        try:
+            name, sig = cp.decode(msg)
+        except cp.ProtocolError:
+            self.stats.bad_frames += 1
+            if msg.arbitration_id == cp.MOTOR_COMMAND_ID:
+                self.motors.bad_command()
+            return False
+        if name == "MotorCommand":
+            if lockstep and sig["Cmd_Counter"] != self.tick % cp.TICK_MODULUS:
+                self.stats.stale_commands += 1
+                return False
+            self.motors.command(sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"], sig["Cmd_Counter"],
+                                self.time_us)
+            self._last_cmd = (sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"])
+            return True
+        if name == "EStop":
+            self.motors.estop(bool(sig["EStop_Engage"]))
+        return False
+
+    # --- physics ---------------------------------------------------------------
+    def step_period(self) -> None:
+        """Advance one control period in fixed physics steps, then record the pose."""
+        dt_us = robot.PHYSICS_DT_US
+        dt_s = dt_us / 1e6
+        world, motors, encoders = self.world, self.motors, self.encoders
+        for _ in range(STEPS_PER_TICK):
+            self.time_us += dt_us
+            left, right = motors.step(dt_us, self.time_us)
+            world.drive(left / 1000, right / 1000)
+            encoders.integrate(dt_s)  # pymunk moves the body by its pre-step velocity
+            world.step(dt_s)
+            gl, gr = world.wheel_ground_speeds()
+            motors.observe_ground((gl * 1000, gr * 1000), dt_us)
+        self.tick += 1
+        self.stats.ticks += 1
+        self.stats.sim_s = self.time_us / 1e6
+        self.record()
+
+    def record(self) -> None:
+        pose = self.world.pose
+        self.trajectory.append((
+            self.time_us / 1e6, self.tick, pose.x, pose.y, pose.heading,
+            self.motors.speed[0], self.motors.speed[1], self._last_cmd[0], self._last_cmd[1],
+            int(bool(self.world.contacts))))
+
+
+# --- shells: move frames over a bus ------------------------------------------------
+
+class _Io:
+    def __init__(self, plant: Plant, bus: can.BusABC, logger: can.Listener | None) -> None:
+        self.plant, self.bus, self.logger = plant, bus, logger
+
+    def send(self, frames: list[can.Message]) -> None:
+        for f in frames:
+            self.bus.send(f)
+            if self.logger is not None:
+                self.logger.on_message_received(f)
+        self.plant.stats.frames_sent += len(frames)
+
+    def recv(self, timeout: float) -> can.Message | None:
+        msg = self.bus.recv(timeout=max(0.0, timeout))
+        if msg is not None:
+            self.plant.stats.frames_received += 1
+            msg.timestamp = self.plant.time_us / 1e6  # logs are in sim time
+            msg.is_rx = True
+            if self.logger is not None:
+                self.logger.on_message_received(msg)
+        return msg
+
+
+def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
+                 logger: can.Listener | None = None, tick_timeout_s: float = 1.0,
+                 start_timeout_s: float = 30.0, resend_s: float = 0.2,
+                 progress=None) -> RunStats:
+    """Lockstep until `duration_s` of sim time: each tick waits for its MotorCommand."""
+    io = _Io(plant, bus, logger)
+    stats = plant.stats
+    end_us = round(duration_s * 1e6)
+    started = False
+    t0 = time.perf_counter()
+    while plant.time_us < end_us:
+        frames = plant.tick_frames()
+        io.send(frames)
+        now = time.perf_counter()
+        deadline = now + (tick_timeout_s if started else start_timeout_s)
+        next_resend = now + resend_s
+        answered = False
+        while not answered:
+            msg = io.recv(min(deadline, next_resend) - now)
+            if msg is not None:
+                answered = plant.handle(msg, lockstep=True)
+            now = time.perf_counter()
+            if answered or now >= deadline:
+                break
+            if now >= next_resend:
+                io.send(frames[-1:])  # the SimTick again (lost frame, late controller)
+                next_resend = now + resend_s
+        if not answered:
+            if not started:
+                raise LockstepError(f"no controller answered SimTick 0 within {start_timeout_s:g} s")
+            stats.missed_ticks += 1
+        started = True
+        plant.step_period()
+        if progress is not None:
+            progress.update(1)
+    stats.wall_s = time.perf_counter() - t0
+    return stats
+
+
+def run_paced(plant: Plant, bus: can.BusABC, duration_s: float, speed: float = 1.0, *,
+              logger: can.Listener | None = None, progress=None) -> RunStats:
+    """Send each tick at wall time t_k / speed, never wait for the controller."""
+    if not speed > 0:
+        raise ValueError(f"speed must be positive, got {speed}")
+    io = _Io(plant, bus, logger)
+    stats = plant.stats
+    end_us = round(duration_s * 1e6)
+    t0 = time.perf_counter()
+    while plant.time_us < end_us:
+        io.send(plant.tick_frames())
+        wake = t0 + (plant.time_us + robot.CONTROL_PERIOD_US) / 1e6 / speed
+        while True:
+            remaining = wake - time.perf_counter()
+            if remaining <= 0:
+                break
+            msg = io.recv(remaining)
+            if msg is not None:
+                plant.handle(msg, lockstep=False)
+        while (msg := io.recv(0.0)) is not None:  # frames that arrived meanwhile
+            plant.handle(msg, lockstep=False)
+        plant.step_period()
+        if progress is not None:
+            progress.update(1)
+    stats.wall_s = time.perf_counter() - t0
+    return stats

@@ -1,0 +1,161 @@
+"""Simulated range sensors, wheel encoders and bumper ring.
+
+Range sensors: one sensor per sector at robot.SENSOR_ANGLES_MRAD, each a fan
+of rays spread over robot.SENSOR_FOV_MRAD, cast with pymunk's
+`segment_query_first` and a ShapeFilter that excludes the robot. Rays start at
+the robot's centre (never inside a wall, unlike the rim when touching one) and
+the reading is the nearest hit minus the robot radius: the distance from the
+sensor face on the rim. Seeded Gaussian noise and dropout; readings below
+RANGE_MIN_MM or beyond RANGE_MAX_MM are flagged as DroneCAN does.
+
+Encoders integrate each wheel's ground speed (from the body's motion) into
+ticks at robot.ENCODER_TICKS_PER_REV, with optional seeded slip. The bumper
+reads the contacts kept by the world's collision handlers.
+
+Every random draw comes from one seeded `random.Random` in a fixed order, so
+a run is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+import pymunk
+
+from firmware_py import robot
+from sim_bridge.world import ROBOT_CATEGORY, World
+
+
+@dataclass(frozen=True)
+class RangeParams:
+    fan_rays: int = 3
+    noise_std_mm: float = 10.0
+    dropout: float = 0.0  # probability that a reading is INVALID
+
+    def __post_init__(self) -> None:
+        if self.fan_rays < 1:
+            raise ValueError(f"fan needs at least one ray, got {self.fan_rays}")
+        if not 0.0 <= self.dropout <= 1.0:
+            raise ValueError(f"dropout must be in [0, 1], got {self.dropout}")
+        if self.noise_std_mm < 0:
+            raise ValueError(f"noise must be >= 0, got {self.noise_std_mm}")
+
+
+class RangeSensors:
+    """Eight range sensors on the robot's rim."""
+
+    def __init__(self, world: World, params: RangeParams, rng: random.Random) -> None:
+        self.world = world
+        self.p = params
+        self.rng = rng
+        self.filter = pymunk.ShapeFilter(mask=pymunk.ShapeFilter.ALL_MASKS() ^ ROBOT_CATEGORY)
+        fov = robot.SENSOR_FOV_MRAD / 1000
+        n = params.fan_rays
+        offsets = [0.0] if n == 1 else [-fov / 2 + fov * j / (n - 1) for j in range(n)]
+        self.directions = [[a / 1000 + o for o in offsets] for a in robot.SENSOR_ANGLES_MRAD]
+        self.reach_m = world.radius_m + robot.RANGE_MAX_MM / 1000 + 0.05
+        self.last_rays: list[tuple[tuple[float, float], tuple[float, float], int]] = []
+
+    def true_ranges_mm(self) -> list[float | None]:
+        """Noise-free distance from the rim to the nearest obstacle per sector (None: nothing in reach)."""
+        x, y = self.world.body.position
+        heading = self.world.body.angle
+        radius_mm = self.world.radius_m * 1000
+        query = self.world.space.segment_query_first
+        reach = self.reach_m
+        out: list[float | None] = []
+        rays = []
+        for fan in self.directions:
+            best = None
+            best_end = None
+            for d in fan:
+                a = heading + d
+                end = (x + reach * math.cos(a), y + reach * math.sin(a))
+                hit = query((x, y), end, 0.0, self.filter)
+                if hit is not None and (best is None or hit.alpha < best):
+                    best, best_end = hit.alpha, hit.point
+            if best is None:
+                out.append(None)
+                a = heading + fan[len(fan) // 2]
+                best_end = (x + reach * math.cos(a), y + reach * math.sin(a))
+            else:
+                out.append(best * reach * 1000 - radius_mm)
+            rays.append(((x, y), (best_end[0], best_end[1])))
+        self._geometry = rays
+        return out
+
+    def read(self) -> list[tuple[int, int]]:
+        """(mm, status) per sensor, as on the bus."""
+        readings = []
+        rays = []
+        true = self.true_ranges_mm()
+        for dist, ray in zip(true, self._geometry, strict=True):
+            drop = self.rng.random() < self.p.dropout
+            noise = self.rng.gauss(0.0, self.p.noise_std_mm) if self.p.noise_std_mm > 0 else 0.0
+            if drop:
+                reading = (0, robot.RANGE_INVALID)
+            elif dist is None or dist + noise > robot.RANGE_MAX_MM:
+                reading = (robot.RANGE_MAX_MM, robot.RANGE_TOO_FAR)
+            elif dist + noise < robot.RANGE_MIN_MM:
+                reading = (robot.RANGE_MIN_MM, robot.RANGE_TOO_CLOSE)
+            else:
+                reading = (round(dist + noise), robot.RANGE_VALID)
+            readings.append(reading)
+            rays.append((ray[0], ray[1], reading[1]))
+        self.last_rays = rays
+        return readings
+
+
+class WheelEncoders:
+    """Cumulative tick counts of both wheels."""
+
+    def __init__(self, world: World, rng: random.Random, slip_std: float = 0.0) -> None:
+        if slip_std < 0:
+            raise ValueError(f"slip must be >= 0, got {slip_std}")
+        self.world = world
+        self.rng = rng
+        self.slip_std = slip_std
+        self.ticks_per_m = robot.ENCODER_TICKS_PER_REV / (2 * math.pi * robot.WHEEL_RADIUS_MM / 1000)
+        self.ticks = [0.0, 0.0]
+
+    def integrate(self, dt_s: float) -> None:
+        left, right = self.world.wheel_ground_speeds()
+        if self.slip_std > 0:
+            left *= 1.0 + self.rng.gauss(0.0, self.slip_std)
+            right *= 1.0 + self.rng.gauss(0.0, self.slip_std)
+        self.ticks[0] += left * dt_s * self.ticks_per_m
+        self.ticks[1] += right * dt_s * self.ticks_per_m
+
+    def counts(self) -> tuple[int, int]:
+        """int32 counts as on the bus (wrapping modulo 2^32)."""
+        return _wrap_i32(math.floor(self.ticks[0])), _wrap_i32(math.floor(self.ticks[1]))
+
+
+def _wrap_i32(v: int) -> int:
+    return (v + 2**31) % 2**32 - 2**31
+
+
+def bumper_signals(world: World) -> dict[str, int]:
+    """Bumper frame signals from the world's current contacts."""
+    heading = world.body.angle
+    zones = {"Bump_Front": 0, "Bump_Left": 0, "Bump_Rear": 0, "Bump_Right": 0}
+    for angle in world.contacts.values():
+        rel = _wrap_pi(angle - heading)
+        if abs(rel) <= math.pi / 4:
+            zones["Bump_Front"] = 1
+        elif math.pi / 4 < rel < 3 * math.pi / 4:
+            zones["Bump_Left"] = 1
+        elif -3 * math.pi / 4 < rel < -math.pi / 4:
+            zones["Bump_Right"] = 1
+        else:
+            zones["Bump_Rear"] = 1
+    rel_last = round(_wrap_pi(world.last_contact_angle - heading) * 1000)
+    return {"Bump_Pressed": int(bool(world.contacts)), **zones,
+            "Bump_Events": world.contact_events % 256,
+            "Bump_AngleMrad": max(-3142, min(3142, rel_last))}
+
+
+def _wrap_pi(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
