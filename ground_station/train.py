@@ -324,11 +324,18 @@ def learning_curve(returns: np.ndarray, successes: np.ndarray, points: int = 200
     return rows
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write temp + fsync + os.replace: a reader never sees a partial file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; use the normal file mode
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

@@ -122,10 +122,17 @@ def read_map(path: str | Path, cell_size_m: float = 0.5) -> GridMap:
     return gm
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _atomic_write(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; use the normal file mode
         with os.fdopen(fd, "w") as f:
             f.write(text)
             f.flush()
