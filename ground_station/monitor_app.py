@@ -100,8 +100,8 @@ def render_link(view: VehicleView, now: float) -> Text:
     if link.verified_frames:
         sig += f", {link.verified_frames} verified"
     t.append(f"signing {sig}\n", style="green" if link.signing else "yellow")
-    t.append(f"robot drops {link.drop_rate_comm_pct:.2f}%  comm errors {link.errors_comm}  "
-             f"counters {'/'.join(str(c) for c in link.errors_count)}")
+    t.append(f"robot rx drops {link.rx_dropped} ({link.drop_rate_comm_pct:.2f}%)  "
+             f"signing drops {link.signing_dropped}  CAN errors {link.can_errors}")
     return t
 
 
@@ -122,8 +122,7 @@ def render_vehicle(view: VehicleView) -> Text:
                  f"v {view.speed:.2f} m/s")
     if view.load_pct is not None:
         t.append(f"\nload {view.load_pct:.1f}%")
-    if view.tick_us is not None:
-        t.append(f"  tick {view.tick_us} µs")
+        t.append(f"  tick overruns {view.link.tick_overruns}")
     return t
 
 
@@ -151,7 +150,7 @@ def render_sectors(view: VehicleView) -> Text:
     for angle, rng in sorted(view.sectors, key=lambda s: -s[0]):
         deg = int(round(math.degrees(angle)))
         if rng is None:
-            t.append(f"{deg:+5d}°   -- \n", style="grey50")
+            t.append(f"{deg:+5d}° clear (> {rmax:.1f} m)\n", style="grey50")
             continue
         n = int(round(10 * min(rng, rmax) / rmax))
         style = "red" if rng < 0.3 else ("yellow" if rng < 0.6 else "green")

@@ -7,8 +7,9 @@ grid_map)` writes `summary.json` and the plots:
 * trajectory.png      trajectory over the map, targets, mission items
 * distance_to_goal.png distance to the current goal over time, goal events
 * actions.png         histogram of the ACTION telemetry samples
-* timing.png          control-loop tick time (NAMED_VALUE_INT TICK_US) or,
-                      failing that, the robot's SYS_STATUS load
+* timing.png          control-loop timing as the robot reports it: its CPU
+                      load and its tick-overrun counter (SYS_STATUS load and
+                      errors_count2; the robot does not send per-tick times)
 
 A plot whose data the recording does not hold is not drawn; the JSON says
 which and why under `plots_skipped` (nothing is faked).
@@ -34,7 +35,7 @@ from pathlib import Path
 
 from firmware_py import robot
 from firmware_py.vehicle import CtrlState, Mode
-from ground_station.telemetry_model import VehicleView
+from ground_station.telemetry_model import NV_ACTION, VehicleView
 
 STOP_SPEED_M_S = 0.02
 STOP_YAW_RATE = 0.05
@@ -55,8 +56,8 @@ class RunRecord:
     driving: list[bool] = field(default_factory=list)  # per pose sample: armed, Auto/Guided, DRIVING
     distance: list[tuple[float, float]] = field(default_factory=list)  # t, metres to goal
     actions: list[int] = field(default_factory=list)
-    tick_us: list[tuple[float, int]] = field(default_factory=list)
     load_pct: list[tuple[float, float]] = field(default_factory=list)
+    overruns: list[tuple[float, int]] = field(default_factory=list)  # cumulative tick overruns
     mission_reached: list[tuple[float, int]] = field(default_factory=list)
     goal_state_entries: list[float] = field(default_factory=list)
     fault_events: list[tuple[float, str]] = field(default_factory=list)
@@ -106,12 +107,11 @@ def analyse(path: str | os.PathLike[str], progress: bool = False) -> RunRecord:
                     rec.distance.append((t, d))
             elif mtype == "NAMED_VALUE_INT":
                 name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
-                if name == "ACTION" and msg.value >= 0:
+                if name == NV_ACTION and msg.value >= 0:
                     rec.actions.append(msg.value)
-                elif name == "TICK_US":
-                    rec.tick_us.append((t, msg.value))
             elif mtype == "SYS_STATUS":
                 rec.load_pct.append((t, view.load_pct))
+                rec.overruns.append((t, view.link.tick_overruns))
             elif mtype == "MISSION_ITEM_REACHED":
                 rec.mission_reached.append((t, msg.seq))
             elif mtype == "STATUSTEXT" and msg.severity <= 3 and view.log_total > log_before:
@@ -210,21 +210,18 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
 
 
 def _timing(rec: RunRecord) -> dict:
-    if rec.tick_us:
-        vals = sorted(v for _, v in rec.tick_us)
-        n = len(vals)
-        return {"available": True, "source": "NAMED_VALUE_INT TICK_US", "samples": n,
-                "mean_us": round(sum(vals) / n, 1), "p50_us": vals[n // 2],
-                "p99_us": vals[min(n - 1, int(math.ceil(0.99 * n)) - 1)], "max_us": vals[-1],
-                "control_period_us": robot.CONTROL_PERIOD_US,
-                "over_period": sum(v > robot.CONTROL_PERIOD_US for v in vals)}
-    if rec.load_pct:
-        vals = [v for _, v in rec.load_pct]
-        return {"available": True, "source": "SYS_STATUS load (tick time not in the recording)",
-                "samples": len(vals), "mean_load_pct": round(sum(vals) / len(vals), 2),
-                "max_load_pct": max(vals)}
-    return {"available": False,
-            "reason": "the recording has no TICK_US NAMED_VALUE_INT and no SYS_STATUS from the vehicle"}
+    if not rec.load_pct:
+        return {"available": False,
+                "reason": "the recording has no SYS_STATUS from the vehicle (load, tick overruns)"}
+    vals = sorted(v for _, v in rec.load_pct)
+    n = len(vals)
+    first, last = rec.overruns[0][1], rec.overruns[-1][1]
+    return {"available": True,
+            "source": "SYS_STATUS load (robot CPU) and errors_count2 (tick overruns); "
+                      "per-tick times are not sent by the robot",
+            "samples": n, "mean_load_pct": round(sum(vals) / n, 2), "p50_load_pct": vals[n // 2],
+            "max_load_pct": vals[-1], "control_period_us": robot.CONTROL_PERIOD_US,
+            "tick_overruns": last - first if last >= first else last, "tick_overruns_total": last}
 
 
 def _atomic_savefig(fig, path: Path) -> None:
@@ -328,21 +325,19 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
     else:
         skipped["actions"] = "no ACTION NAMED_VALUE_INT in the recording"
 
-    if rec.tick_us:
+    if rec.load_pct:
         fig, ax = plt.subplots(figsize=(7, 3.5))
-        ax.plot([t for t, _ in rec.tick_us], [v for _, v in rec.tick_us], ".", ms=2, color="tab:blue")
-        ax.axhline(robot.CONTROL_PERIOD_US, color="tab:red", ls="--", label="control period")
+        ax.plot([t for t, _ in rec.load_pct], [v for _, v in rec.load_pct], color="tab:blue", label="load")
         ax.set_xlabel("time [s]")
-        ax.set_ylabel("tick time [µs]")
-        ax.set_title("control-loop tick time (TICK_US)")
-        ax.legend(loc="best", fontsize=8)
-        save("timing", fig)
-    elif rec.load_pct:
-        fig, ax = plt.subplots(figsize=(7, 3.5))
-        ax.plot([t for t, _ in rec.load_pct], [v for _, v in rec.load_pct], color="tab:blue")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("load [%]")
-        ax.set_title("robot load (SYS_STATUS; tick time not in the recording)")
+        ax.set_ylabel("robot load [%]")
+        ax.set_ylim(0, max(10.0, max(v for _, v in rec.load_pct) * 1.3))
+        ax2 = ax.twinx()
+        ax2.step([t for t, _ in rec.overruns], [v for _, v in rec.overruns], where="post", color="tab:red",
+                 label="tick overruns")
+        ax2.set_ylabel("tick overruns (cumulative)")
+        ax2.set_ylim(bottom=0, top=max(1, max(v for _, v in rec.overruns)) * 1.2)
+        ax.set_title(f"control loop ({robot.CONTROL_RATE_HZ} Hz): load and overruns (SYS_STATUS)")
+        fig.legend(loc="upper left", bbox_to_anchor=(0.0, 1.0), bbox_transform=ax.transAxes, fontsize=8)
         save("timing", fig)
     else:
         skipped["timing"] = summary["timing"]["reason"]

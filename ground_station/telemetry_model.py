@@ -21,16 +21,17 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from firmware_py import mav_frames
 from firmware_py.vehicle import CtrlState, Mode
 
-# NAMED_VALUE_INT names the robot's telemetry uses (firmware_py/telemetry.py).
-NV_CTRL_STATE = "CTRL"
-NV_STATE_INDEX = "STATE"
+# NAMED_VALUE_INT names the robot's telemetry uses (firmware_py/telemetry.py):
+# the controller state (CtrlState), the encoder's state index, the chosen
+# action and that state's int Q-row as Q0..Qn.
+NV_CTRL_STATE = "CTRL_ST"
+NV_STATE_INDEX = "STATE_IDX"
 NV_ACTION = "ACTION"
-NV_TICK_US = "TICK_US"
-NV_POLICY_ID = "POLICY_ID"
-_QROW_RE = re.compile(r"^Q(?:ROW)?(\d+)$")
-POLICY_PARAM = "POLICY_ID"
+_QROW_RE = re.compile(r"^Q(\d+)$")
+POLICY_PARAM = "POLICY_ID"  # read-only parameter (firmware_py/params.py)
 
 MODE_NAMES = {m.value: m.name.capitalize() for m in Mode}
 CTRL_NAMES = {s.value: s.name for s in CtrlState}
@@ -41,7 +42,6 @@ _GLOBAL_FRAMES = {
     mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
     mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
 }
-_EARTH_RADIUS_M = 6_378_137.0
 _TRAIL_STEP_M = 0.02  # trail points closer than this add nothing visible
 _TRAIL_MAX = 20_000
 _LOG_MAX = 500
@@ -57,9 +57,12 @@ class LinkHealth:
     lost: int = 0  # frames missing from sequence gaps
     signed_frames: int = 0  # frames carrying a signature block
     verified_frames: int = 0  # frames whose signature our key verified
-    drop_rate_comm_pct: float = 0.0  # the robot's own view (SYS_STATUS)
-    errors_comm: int = 0
-    errors_count: tuple[int, int, int, int] = (0, 0, 0, 0)
+    # the robot's own counters (SYS_STATUS, as firmware_py/telemetry.py fills it)
+    drop_rate_comm_pct: float = 0.0  # frames the robot dropped / received
+    rx_dropped: int = 0  # errors_comm: signing drops + unparseable frames
+    can_errors: int = 0  # errors_count1
+    tick_overruns: int = 0  # errors_count2: control ticks that missed their period
+    signing_dropped: int = 0  # errors_count3
 
     @property
     def loss_pct(self) -> float:
@@ -92,6 +95,29 @@ class LogLine:
     @property
     def severity_name(self) -> str:
         return SEVERITY_NAMES[self.severity] if 0 <= self.severity < len(SEVERITY_NAMES) else str(self.severity)
+
+
+def _runs(bins: list[int]) -> list[tuple[int, int]]:
+    """(start, length) of runs of equal known values (not UINT16_MAX) in a
+    circular list of bins."""
+    n = len(bins)
+    known = [b != 65535 for b in bins]
+    if not any(known):
+        return []
+    # start scanning at a run boundary so a run crossing index 0 stays whole
+    first = next((i for i in range(n) if bins[i] != bins[i - 1] or not known[i - 1]), 0)
+    runs, i = [], 0
+    while i < n:
+        j = (first + i) % n
+        if not known[j]:
+            i += 1
+            continue
+        length = 1
+        while i + length < n and bins[(j + length) % n] == bins[j]:
+            length += 1
+        runs.append((j, length))
+        i += length
+    return runs
 
 
 class VehicleView:
@@ -139,7 +165,6 @@ class VehicleView:
         self.state_index: int | None = None
         self.action: int | None = None
         self.q_row: dict[int, int] = {}
-        self.tick_us: int | None = None
         self.named: dict[str, int] = {}
         self.params: dict[str, float] = {}
         self.policy_id: int | None = None
@@ -263,8 +288,10 @@ class VehicleView:
         self.sensors_health = msg.onboard_control_sensors_health
         self.load_pct = msg.load / 10.0
         self.link.drop_rate_comm_pct = msg.drop_rate_comm / 100.0
-        self.link.errors_comm = msg.errors_comm
-        self.link.errors_count = (msg.errors_count1, msg.errors_count2, msg.errors_count3, msg.errors_count4)
+        self.link.rx_dropped = msg.errors_comm
+        self.link.can_errors = msg.errors_count1
+        self.link.tick_overruns = msg.errors_count2
+        self.link.signing_dropped = msg.errors_count3
 
     def _on_local_position_ned(self, msg, t: float) -> None:
         self.boot_ms = msg.time_boot_ms
@@ -293,16 +320,17 @@ class VehicleView:
         if inc <= 0:
             return
         n = min(len(msg.distances), int(round(360.0 / inc)))
+        bins = [msg.distances[i] for i in range(n)]
         sectors = []
-        for i in range(n):
-            d = msg.distances[i]
-            if d == 65535:  # UINT16_MAX: no sensor in this direction
-                continue
-            angle_cw = math.radians(msg.angle_offset + i * inc)  # BODY_FRD: clockwise from forward
+        # One sensor fills the consecutive bins inside its field of view with
+        # one value: each such run (wrapping past 360°) is one sector.
+        for start, length in _runs(bins):
+            d = bins[start]
+            angle_cw = math.radians(msg.angle_offset + (start + (length - 1) / 2) * inc)  # BODY_FRD: clockwise
             angle = math.atan2(-math.sin(angle_cw), math.cos(angle_cw))
             if angle < -math.pi + 1e-9:  # straight back is +180°, not -180°
                 angle = math.pi
-            rng = None if d > msg.max_distance or d < msg.min_distance else d / 100.0
+            rng = None if d > msg.max_distance or d < msg.min_distance else d / 100.0  # None: nothing in range
             sectors.append((angle, rng))
         self.sectors = sectors
         self.sector_max_m = msg.max_distance / 100.0
@@ -326,13 +354,9 @@ class VehicleView:
     def _item_world(self, frame: int, x: int, y: int) -> tuple[float, float] | None:
         if frame == mavlink.MAV_FRAME_LOCAL_NED:
             return (y / 1e4, x / 1e4)
-        if frame == mavlink.MAV_FRAME_LOCAL_ENU:
-            return (x / 1e4, y / 1e4)
         if frame in _GLOBAL_FRAMES and self.origin_e7 is not None:
-            lat0, lon0 = self.origin_e7
-            north = math.radians((x - lat0) / 1e7) * _EARTH_RADIUS_M
-            east = math.radians((y - lon0) / 1e7) * _EARTH_RADIUS_M * math.cos(math.radians(lat0 / 1e7))
-            return (east, north)
+            x_mm, y_mm = mav_frames.global_to_world(x, y, *self.origin_e7)
+            return (x_mm / 1000, y_mm / 1000)
         return None
 
     def _on_named_value_int(self, msg, t: float) -> None:
@@ -340,14 +364,12 @@ class VehicleView:
         self.named[name] = msg.value
         if name == NV_STATE_INDEX:
             self.state_index = msg.value
+            if msg.value < 0:  # no policy decision: no row (the robot stops sending Qn)
+                self.q_row = {}
         elif name == NV_ACTION:
             self.action = msg.value
         elif name == NV_CTRL_STATE:
             self.ctrl_state = msg.value
-        elif name == NV_TICK_US:
-            self.tick_us = msg.value
-        elif name == NV_POLICY_ID:
-            self.policy_id = msg.value
         else:
             m = _QROW_RE.match(name)
             if m:
@@ -402,8 +424,8 @@ class VehicleView:
             f"policy={self.policy_id if self.policy_id is not None else '-'}",
             pose_s,
             f"goal_dist={d:.2f}" if d is not None else "goal_dist=-",
-            f"state={self.state_index if self.state_index is not None else '-'}",
-            f"action={self.action if self.action is not None else '-'}",
+            f"state={self.state_index if self.state_index is not None and self.state_index >= 0 else '-'}",
+            f"action={self.action if self.action is not None and self.action >= 0 else '-'}",
             f"q=[{q}]",
             f"mission={self.mission.current}/{self.mission.total} reached={len(self.mission.reached)}",
         ]

@@ -77,8 +77,7 @@ def _segments(path: list[tuple[int, int]], heading0: float):
 class RoverScript:
     """The scripted run; `state(t)` is the truth, `messages(t)` its telemetry."""
 
-    def __init__(self, tick_us: bool = True) -> None:
-        self.tick_us = tick_us
+    def __init__(self) -> None:
         self.legs_a = _segments(PATH_A, math.pi / 2)
         self.t_reach_a = T_ARM + sum(leg[1] for leg in self.legs_a)
         h_at_a = self.legs_a[-1][3][1]
@@ -146,8 +145,9 @@ class RoverScript:
             out.append(mavlink.MAVLink_heartbeat_message(
                 mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_AUTOPILOT_GENERIC, base, s.mode, status, 3))
         if tick % TELEMETRY_HZ == 0:
-            out.append(mavlink.MAVLink_sys_status_message(0x2000000, 0x2000000, 0x2000000, 150, 12000, -1, -1,
-                                                          25, 3, 0, 0, 0, 0))
+            overruns = 0 if t < self.t_fault else 2  # the fault's tick overran twice
+            out.append(mavlink.MAVLink_sys_status_message(0x2000000, 0x2000000, 0x2000000, 150, 0xFFFF, -1, -1,
+                                                          25, 3, 1, overruns, 0, 0))
             out.append(mavlink.MAVLink_param_value_message(b"POLICY_ID", 4242.0, mavlink.MAV_PARAM_TYPE_INT32, 1, 0))
         ned_yaw = math.atan2(math.cos(s.heading), math.sin(s.heading))
         out.append(mavlink.MAVLink_local_position_ned_message(
@@ -167,11 +167,12 @@ class RoverScript:
             ms, mavlink.MAV_FRAME_LOCAL_NED, 0xDF8, s.goal[1], s.goal[0], 0.0, 0, 0, 0, 0, 0, 0, 0, 0))
         out.append(mavlink.MAVLink_mission_current_message(min(s.mission_seq, 1), 2, 0, 0))
         state_index = int(s.x / CELL_M) * 10 + int(s.y / CELL_M)
-        for name, value in (("CTRL", s.ctrl), ("STATE", state_index), ("ACTION", s.action),
-                            ("Q0", 100 + state_index), ("Q1", 50), ("Q2", -20), ("Q3", -100)):
+        # as firmware_py/telemetry.py names them; no Q-row without a decision
+        named = [("STATE_IDX", state_index if s.action >= 0 else -1), ("ACTION", s.action), ("CTRL_ST", s.ctrl)]
+        if s.action >= 0:
+            named += [("Q0", 100 + state_index), ("Q1", 50), ("Q2", -20), ("Q3", -100)]
+        for name, value in named:
             out.append(mavlink.MAVLink_named_value_int_message(ms, name.encode(), value))
-        if self.tick_us:
-            out.append(mavlink.MAVLink_named_value_int_message(ms, b"TICK_US", 900 + (tick % 7) * 50))
         if prev is not None:
             if prev.mission_seq != s.mission_seq and s.mission_seq >= 1:
                 out.append(mavlink.MAVLink_mission_item_reached_message(s.mission_seq - 1))

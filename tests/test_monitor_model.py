@@ -82,7 +82,7 @@ def test_trail_skips_tiny_moves(rover):
 def test_packet_loss_from_sequence_gaps_including_wraparound(rover):
     view = VehicleView()
     frames = [frame(rover, heartbeat())] + [
-        frame(rover, mavlink.MAVLink_named_value_int_message(i, b"STATE", i)) for i in range(299)]
+        frame(rover, mavlink.MAVLink_named_value_int_message(i, b"STATE_IDX", i)) for i in range(299)]
     dropped = {5, 6, 7, 100, 254, 255, 256, 290}  # crosses the 255 -> 0 wrap
     feed(view, b"".join(f for i, f in enumerate(frames) if i not in dropped))
     assert view.link.lost == len(dropped)
@@ -111,7 +111,8 @@ def test_sys_status_counters_and_load(rover):
         1, 1, 1, 237, 12000, -1, -1, 125, 17, 1, 2, 3, 4)))
     assert view.load_pct == pytest.approx(23.7)
     assert view.link.drop_rate_comm_pct == pytest.approx(1.25)
-    assert view.link.errors_comm == 17 and view.link.errors_count == (1, 2, 3, 4)
+    assert view.link.rx_dropped == 17
+    assert (view.link.can_errors, view.link.tick_overruns, view.link.signing_dropped) == (1, 2, 3)
 
 
 def test_obstacle_distance_sectors(rover):
@@ -132,7 +133,7 @@ def test_obstacle_distance_sectors(rover):
 def test_named_values_param_and_statustext_chunks(rover):
     view = VehicleView()
     msgs = [heartbeat()]
-    for name, value in (("CTRL", int(CtrlState.DRIVING)), ("STATE", 117), ("ACTION", 3), ("TICK_US", 812),
+    for name, value in (("CTRL_ST", int(CtrlState.DRIVING)), ("STATE_IDX", 117), ("ACTION", 3),
                         ("Q0", 10), ("Q1", 40), ("Q2", 40), ("Q3", -5)):
         msgs.append(mavlink.MAVLink_named_value_int_message(5, name.encode(), value))
     msgs.append(mavlink.MAVLink_param_value_message(b"POLICY_ID", 77.0, mavlink.MAV_PARAM_TYPE_INT32, 3, 1))
@@ -142,9 +143,11 @@ def test_named_values_param_and_statustext_chunks(rover):
     msgs.append(mavlink.MAVLink_statustext_message(6, b"hello", 0, 0))
     feed(view, wire(rover, *msgs), t=3.0)
     assert view.ctrl_name == "DRIVING" and view.state_index == 117 and view.action == 3
-    assert view.tick_us == 812 and view.q_row == {0: 10, 1: 40, 2: 40, 3: -5}
+    assert view.q_row == {0: 10, 1: 40, 2: 40, 3: -5}
     assert view.policy_id == 77
     assert [(e.severity_name, e.text) for e in view.log] == [("WARN", long_text), ("INFO", "hello")]
+    feed(view, wire(rover, mavlink.MAVLink_named_value_int_message(6, b"STATE_IDX", -1)))
+    assert view.q_row == {} and "state=-" in view.status_line(3.0)  # no decision: no stale row
 
 
 def test_mission_goal_sources(rover):
@@ -180,7 +183,48 @@ def test_status_line_reports_what_the_view_holds(rover):
     view = VehicleView()
     feed(view, wire(rover, heartbeat(Mode.AUTO, armed=True),
                     mavlink.MAVLink_local_position_ned_message(0, 2.0, 1.5, 0, 0, 0, 0),
-                    mavlink.MAVLink_named_value_int_message(0, b"STATE", 42)), t=100.0)
+                    mavlink.MAVLink_named_value_int_message(0, b"STATE_IDX", 42)), t=100.0)
     line = view.status_line(101.5)
     for part in ("hb_age=1.5s", "mode=Auto", "armed=yes", "x=1.50 y=2.00", "state=42", "signed=no"):
         assert part in line
+
+
+def test_reads_what_the_robot_telemetry_builds():
+    """Contract with firmware_py.telemetry: the robot's own builders -> wire -> view."""
+    from firmware_py import robot
+    from firmware_py.params import ParamStore
+    from firmware_py.telemetry import STREAMS, NodeStats, Telemetry
+    from firmware_py.vehicle import VehicleStatus
+
+    mav = encoder(1, 1)
+    tel = Telemetry(mav, ParamStore(None))
+    ranges = [300, 400, 500, 600, 700, 800, 900, 1000]
+    status_codes = [robot.RANGE_VALID] * 8
+    status_codes[2] = robot.RANGE_TOO_FAR
+    status_codes[5] = robot.RANGE_INVALID
+    st = VehicleStatus(time_us=5_000_000, state=CtrlState.DRIVING, mode=Mode.GUIDED, armed=True,
+                       x_mm=1250, y_mm=3750, heading_mrad=785, speed_mm_s=300, goal_mm=(4750, 4750),
+                       distance_to_goal_mm=3640, bearing_to_goal_mrad=0, ranges_mm=ranges,
+                       range_status=status_codes, state_index=57, action=1, q_row=(5, 9, -3, 0),
+                       mission_seq=0, mission_count=0, tick_overruns=4, can_errors=2)
+    view = VehicleView()
+    msgs = []
+    for msg_id in STREAMS:
+        msgs += tel.build(msg_id, st.time_us, st, NodeStats(load_permille=123))
+    feed(view, wire(mav, *msgs), t=5.0)
+    assert view.mode_name == "Guided" and view.armed and view.ctrl_name == "DRIVING"
+    assert (view.x, view.y) == (pytest.approx(1.25), pytest.approx(3.75))
+    assert view.heading == pytest.approx(0.785, abs=1e-3)
+    assert view.speed == pytest.approx(0.3, abs=1e-3)
+    assert view.goal == pytest.approx((4.75, 4.75))
+    assert (view.state_index, view.action, view.q_row) == (57, 1, {0: 5, 1: 9, 2: -3, 3: 0})
+    assert view.load_pct == pytest.approx(12.3)
+    assert view.link.tick_overruns == 4 and view.link.can_errors == 2
+    sectors = {round(math.degrees(a)): r for a, r in view.sectors}
+    want = {round(a * 180 / 1000 / math.pi): r / 1000 for a, r in zip(robot.SENSOR_ANGLES_MRAD, ranges, strict=True)}
+    assert set(sectors) == set(want) - {round(robot.SENSOR_ANGLES_MRAD[5] * 0.18 / math.pi)}
+    for deg, rng in sectors.items():
+        if deg == round(robot.SENSOR_ANGLES_MRAD[2] * 0.18 / math.pi):
+            assert rng is None  # too far: clear
+        else:
+            assert rng == pytest.approx(want[deg])
