@@ -1,0 +1,458 @@
+"""MAVLink FTP server (FILE_TRANSFER_PROTOCOL, msg 110) as a pure state machine.
+
+`FtpServer.handle(payload, now_us) -> list[bytes]` takes the 251-byte FTP
+payload of one request and returns the FTP payloads to send back (none, one,
+or a burst). No sockets, no threads, no wall clock: the shell
+(`firmware_py.ftp_link` or the MAVLink node) wraps replies in
+FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()`
+into STATUSTEXT.
+
+Protocol rules followed (docs/mavlink.md, "FTP server"):
+- reply seq = request seq + 1 (a burst counts up from there), req_opcode =
+  request opcode, the request's session and offset echoed;
+- sessions are numbered by the client (MAVProxy picks its own ids, pymavlink
+  counts from 0): opening a file on session N creates session N, replacing a
+  stale session N; at most `max_sessions` at once;
+- a retried request (byte-identical to the last one on that session, within
+  the session timeout) gets the cached reply again instead of being re-run, so
+  a lost ACK never makes a Rename or a CreateFile happen twice;
+- files written via CreateFile/OpenFileWO go to a temporary name and only
+  replace the real name at TerminateSession; ResetSessions, session expiry
+  and a crash discard them;
+- Rename onto /policies/active.qtab activates a policy through the injected
+  hook; refusals are NAK Fail plus a STATUSTEXT with the reason;
+- anything malformed (short payload, size beyond the data, offsets past the
+  end, unknown sessions or opcodes) gets a NAK, never an exception.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import IntEnum
+
+from firmware_py.storage import (
+    ACTIVE_POLICY,
+    LAST_GOOD_POLICY,
+    Storage,
+    Upload,
+    promote_policy,
+)
+
+HEADER = struct.Struct("<HBBBBBBI")  # seq, session, opcode, size, req_opcode, burst_complete, pad, offset
+MAX_DATA = 239
+PAYLOAD_LEN = HEADER.size + MAX_DATA  # 251
+
+SEVERITY_WARNING = 4
+SEVERITY_INFO = 6
+
+
+class Op(IntEnum):
+    NONE = 0
+    TERMINATE_SESSION = 1
+    RESET_SESSIONS = 2
+    LIST_DIRECTORY = 3
+    OPEN_FILE_RO = 4
+    READ_FILE = 5
+    CREATE_FILE = 6
+    WRITE_FILE = 7
+    REMOVE_FILE = 8
+    CREATE_DIRECTORY = 9
+    REMOVE_DIRECTORY = 10
+    OPEN_FILE_WO = 11
+    TRUNCATE_FILE = 12
+    RENAME = 13
+    CALC_FILE_CRC32 = 14
+    BURST_READ_FILE = 15
+    LIST_DIRECTORY_WITH_TIME = 16
+    ACK = 128
+    NAK = 129
+
+
+class Nak(IntEnum):
+    FAIL = 1
+    FAIL_ERRNO = 2
+    INVALID_DATA_SIZE = 3
+    INVALID_SESSION = 4
+    NO_SESSIONS_AVAILABLE = 5
+    EOF = 6
+    UNKNOWN_COMMAND = 7
+    FILE_EXISTS = 8
+    FILE_PROTECTED = 9
+    FILE_NOT_FOUND = 10
+
+
+# Files only activation may write: a direct CreateFile/Remove/Truncate would
+# bypass the loader's validation.
+PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY})
+
+
+@dataclass
+class Request:
+    seq: int
+    session: int
+    opcode: int
+    size: int
+    offset: int
+    data: bytes
+
+
+@dataclass
+class _Session:
+    sid: int
+    path: str
+    last_us: int
+    fd: int = -1  # open for reading
+    file_size: int = 0
+    upload: Upload | None = None  # open for writing
+
+
+@dataclass
+class FtpStats:
+    requests: int = 0
+    naks: int = 0
+    retries_answered_from_cache: int = 0
+    malformed: int = 0
+    expired_sessions: int = 0
+    commits: int = 0
+    activations: int = 0
+    refusals: int = 0
+
+
+def pack(seq: int, session: int, opcode: int, req_opcode: int, offset: int,
+         data: bytes = b"", burst_complete: int = 0) -> bytes:
+    """One FTP payload (header + data, unpadded)."""
+    return HEADER.pack(seq & 0xFFFF, session, opcode, len(data), req_opcode,
+                       burst_complete, 0, offset & 0xFFFFFFFF) + data
+
+
+def parse(payload: bytes) -> tuple[int, int, int, int, int, int, int, bytes]:
+    """(seq, session, opcode, size, req_opcode, burst_complete, offset, data[:size])."""
+    seq, session, opcode, size, req_opcode, burst, _pad, offset = HEADER.unpack_from(payload, 0)
+    return seq, session, opcode, size, req_opcode, burst, offset, bytes(payload[HEADER.size:HEADER.size + size])
+
+
+def _errno_nak(exc: OSError) -> bytes:
+    """NAK data for a storage error."""
+    code = exc.errno or 0
+    if code in (errno.ENOENT, errno.ENOTDIR):
+        return bytes([Nak.FILE_NOT_FOUND])
+    if code == errno.EEXIST:
+        return bytes([Nak.FILE_EXISTS])
+    if code in (errno.EACCES, errno.EPERM, errno.ELOOP):
+        return bytes([Nak.FILE_PROTECTED])
+    if 0 < code < 256:
+        return bytes([Nak.FAIL_ERRNO, code])
+    return bytes([Nak.FAIL])
+
+
+class FtpServer:
+    """See the module docstring. `activate(host_path) -> (ok, reason)` is the
+    vehicle's `activate_policy`; None refuses every activation."""
+
+    def __init__(self, storage: Storage, activate: Callable[[str], tuple[bool, str]] | None = None,
+                 *, max_sessions: int = 4, session_timeout_us: int = 10_000_000,
+                 burst_max_packets: int = 64) -> None:
+        self.storage = storage
+        self.activate = activate
+        self.max_sessions = max_sessions
+        self.session_timeout_us = session_timeout_us
+        self.burst_max_packets = burst_max_packets
+        self.sessions: dict[int, _Session] = {}
+        self._cache: dict[int, tuple[bytes, list[bytes], int]] = {}  # session -> (request, replies, t)
+        self._texts: list[tuple[int, str]] = []
+        self.stats = FtpStats()
+
+    # --- public ------------------------------------------------------------------
+    def handle(self, payload: bytes | bytearray, now_us: int) -> list[bytes]:
+        """Process one request payload; return the reply payloads."""
+        self.expire(now_us)
+        payload = bytes(payload)
+        if len(payload) < HEADER.size:
+            self.stats.malformed += 1
+            return []  # no header, nothing to address a reply to
+        seq, session, opcode, size, _req, _burst, _pad, offset = HEADER.unpack_from(payload, 0)
+        if opcode in (Op.ACK, Op.NAK):
+            return []  # a reply, not a request (another server on the link)
+        self.stats.requests += 1
+        key = payload[:HEADER.size + min(size, MAX_DATA)]
+        cached = self._cache.get(session)
+        if (cached is not None and cached[0] == key and now_us - cached[2] <= self.session_timeout_us
+                and opcode != Op.BURST_READ_FILE):
+            self.stats.retries_answered_from_cache += 1
+            return list(cached[1])
+        req = Request(seq, session, opcode, size, offset, payload[HEADER.size:HEADER.size + size])
+        if size > MAX_DATA or size > len(payload) - HEADER.size:
+            self.stats.malformed += 1
+            replies = [self._nak(req, Nak.INVALID_DATA_SIZE)]
+        else:
+            replies = self._dispatch(req, now_us)
+        if opcode == Op.RESET_SESSIONS:
+            self._cache.clear()
+        elif opcode != Op.BURST_READ_FILE:
+            self._cache[session] = (key, replies, now_us)
+        return replies
+
+    def expire(self, now_us: int) -> None:
+        """Close sessions idle longer than the timeout (uncommitted writes dropped)."""
+        for sid, s in list(self.sessions.items()):
+            if now_us - s.last_us > self.session_timeout_us:
+                self._close(sid, commit=False)
+                self.stats.expired_sessions += 1
+        for sid, (_k, _r, t) in list(self._cache.items()):
+            if now_us - t > self.session_timeout_us:
+                del self._cache[sid]
+
+    def drain_texts(self) -> list[tuple[int, str]]:
+        """(severity, text) messages for STATUSTEXT since the last call."""
+        out, self._texts = self._texts, []
+        return out
+
+    def close(self) -> None:
+        """Drop every session (uncommitted writes discarded)."""
+        for sid in list(self.sessions):
+            self._close(sid, commit=False)
+
+    # --- helpers -----------------------------------------------------------------
+    def _ack(self, req: Request, data: bytes = b"", offset: int | None = None) -> bytes:
+        return pack(req.seq + 1, req.session, Op.ACK, req.opcode,
+                    req.offset if offset is None else offset, data)
+
+    def _nak(self, req: Request, code: Nak, extra: bytes = b"") -> bytes:
+        self.stats.naks += 1
+        return pack(req.seq + 1, req.session, Op.NAK, req.opcode, req.offset, bytes([code]) + extra)
+
+    def _nak_os(self, req: Request, exc: OSError) -> bytes:
+        self.stats.naks += 1
+        return pack(req.seq + 1, req.session, Op.NAK, req.opcode, req.offset, _errno_nak(exc))
+
+    @staticmethod
+    def _path(req: Request) -> str:
+        raw = req.data.split(b"\0", 1)[0]
+        return raw.decode("utf-8")  # UnicodeDecodeError is a ValueError -> NAK Fail
+
+    @staticmethod
+    def _norm(path: str) -> str:
+        return "/" + "/".join(p for p in path.split("/") if p not in ("", "."))
+
+    def _close(self, sid: int, commit: bool) -> None:
+        s = self.sessions.pop(sid, None)
+        if s is None:
+            return
+        if s.fd >= 0:
+            os.close(s.fd)
+        if s.upload is not None:
+            if commit:
+                s.upload.commit()
+                self.stats.commits += 1
+            else:
+                s.upload.abort()
+
+    def _open_session(self, req: Request, now_us: int) -> _Session | bytes:
+        """A fresh session numbered like the request, or a NAK."""
+        if req.session in self.sessions:
+            self._close(req.session, commit=False)  # the client reused its id: the old one is dead
+        if len(self.sessions) >= self.max_sessions:
+            return self._nak(req, Nak.NO_SESSIONS_AVAILABLE)
+        return _Session(req.session, "", now_us)
+
+    def _session(self, req: Request, now_us: int, writing: bool) -> _Session | None:
+        s = self.sessions.get(req.session)
+        if s is None or (s.upload is not None) != writing:
+            return None
+        s.last_us = now_us
+        return s
+
+    def _protected(self, path: str) -> bool:
+        return self._norm(path) in PROTECTED
+
+    # --- dispatch ------------------------------------------------------------------
+    def _dispatch(self, req: Request, now_us: int) -> list[bytes]:
+        handler = self._HANDLERS.get(req.opcode)
+        if handler is None:
+            return [self._nak(req, Nak.UNKNOWN_COMMAND)]
+        try:
+            out = handler(self, req, now_us)
+        except OSError as exc:
+            return [self._nak_os(req, exc)]
+        except ValueError:  # undecodable path, bad rename payload
+            return [self._nak(req, Nak.FAIL)]
+        return out if isinstance(out, list) else [out]
+
+    def _op_terminate(self, req: Request, now_us: int) -> bytes:
+        if req.session not in self.sessions:
+            return self._nak(req, Nak.INVALID_SESSION)
+        self._close(req.session, commit=True)
+        return self._ack(req)
+
+    def _op_reset(self, req: Request, now_us: int) -> bytes:
+        self.close()
+        return self._ack(req)
+
+    def _op_list(self, req: Request, now_us: int) -> bytes:
+        with_time = req.opcode == Op.LIST_DIRECTORY_WITH_TIME
+        entries = self.storage.listdir(self._path(req))
+        if req.offset >= len(entries):
+            return self._nak(req, Nak.EOF)
+        out = b""
+        for e in entries[req.offset:]:
+            if e.is_dir:
+                text = f"D{e.name}\t0\t{e.mtime}" if with_time else f"D{e.name}"
+            else:
+                text = f"F{e.name}\t{e.size}\t{e.mtime}" if with_time else f"F{e.name}\t{e.size}"
+            item = text.encode("utf-8", "replace") + b"\0"
+            if len(out) + len(item) > MAX_DATA:
+                break
+            out += item
+        if not out:  # one entry too long for a packet: skip it rather than loop forever
+            return self._nak(req, Nak.FAIL)
+        return self._ack(req, out)
+
+    def _op_open_ro(self, req: Request, now_us: int) -> bytes:
+        path = self._path(req)
+        fd, size = self.storage.open_read(path)
+        s = self._open_session(req, now_us)
+        if isinstance(s, bytes):
+            os.close(fd)
+            return s
+        s.path, s.fd, s.file_size = path, fd, size
+        self.sessions[s.sid] = s
+        return self._ack(req, struct.pack("<I", size & 0xFFFFFFFF))
+
+    def _open_write(self, req: Request, now_us: int, keep: bool) -> bytes:
+        path = self._path(req)
+        if self._protected(path):
+            return self._nak(req, Nak.FILE_PROTECTED)
+        s = self._open_session(req, now_us)
+        if isinstance(s, bytes):
+            return s
+        s.path, s.upload = path, self.storage.begin_write(path, keep_contents=keep)
+        self.sessions[s.sid] = s
+        if keep:
+            return self._ack(req, struct.pack("<I", s.upload.size & 0xFFFFFFFF))
+        return self._ack(req)
+
+    def _op_create(self, req: Request, now_us: int) -> bytes:
+        return self._open_write(req, now_us, keep=False)
+
+    def _op_open_wo(self, req: Request, now_us: int) -> bytes:
+        return self._open_write(req, now_us, keep=True)
+
+    def _read_chunk(self, s: _Session, offset: int, size: int) -> bytes:
+        n = MAX_DATA if size == 0 or size > MAX_DATA else size
+        return os.pread(s.fd, n, offset)
+
+    def _op_read(self, req: Request, now_us: int) -> bytes:
+        s = self._session(req, now_us, writing=False)
+        if s is None:
+            return self._nak(req, Nak.INVALID_SESSION)
+        if req.offset >= s.file_size:
+            return self._nak(req, Nak.EOF)
+        return self._ack(req, self._read_chunk(s, req.offset, req.size))
+
+    def _op_burst(self, req: Request, now_us: int) -> list[bytes]:
+        s = self._session(req, now_us, writing=False)
+        if s is None:
+            return [self._nak(req, Nak.INVALID_SESSION)]
+        if req.offset >= s.file_size:
+            return [self._nak(req, Nak.EOF)]
+        chunk_size = MAX_DATA if req.size == 0 or req.size > MAX_DATA else req.size
+        out = []
+        offset = req.offset
+        for i in range(self.burst_max_packets):
+            data = self._read_chunk(s, offset, chunk_size)
+            last = (i == self.burst_max_packets - 1 or len(data) < chunk_size
+                    or offset + len(data) >= s.file_size)
+            out.append(pack(req.seq + 1 + i, req.session, Op.ACK, req.opcode, offset, data,
+                            burst_complete=1 if last else 0))
+            offset += len(data)
+            if last:
+                break
+        return out
+
+    def _op_write(self, req: Request, now_us: int) -> bytes:
+        s = self._session(req, now_us, writing=True)
+        if s is None:
+            return self._nak(req, Nak.INVALID_SESSION)
+        assert s.upload is not None
+        s.upload.write(req.offset, req.data)
+        return self._ack(req)
+
+    def _op_remove(self, req: Request, now_us: int) -> bytes:
+        path = self._path(req)
+        if self._protected(path):
+            return self._nak(req, Nak.FILE_PROTECTED)
+        self.storage.remove(path)
+        return self._ack(req)
+
+    def _op_mkdir(self, req: Request, now_us: int) -> bytes:
+        self.storage.mkdir(self._path(req))
+        return self._ack(req)
+
+    def _op_rmdir(self, req: Request, now_us: int) -> bytes:
+        self.storage.rmdir(self._path(req))
+        return self._ack(req)
+
+    def _op_truncate(self, req: Request, now_us: int) -> bytes:
+        path = self._path(req)
+        if self._protected(path):
+            return self._nak(req, Nak.FILE_PROTECTED)
+        self.storage.truncate(path, req.offset)
+        return self._ack(req)
+
+    def _op_rename(self, req: Request, now_us: int) -> bytes:
+        parts = req.data.split(b"\0")
+        if len(parts) < 2 or not parts[0] or not parts[1]:
+            return self._nak(req, Nak.FAIL)
+        old, new = parts[0].decode("utf-8"), parts[1].decode("utf-8")
+        if self._protected(old):
+            return self._nak(req, Nak.FILE_PROTECTED)
+        if self._norm(new) == ACTIVE_POLICY:
+            return self._activate(req, old)
+        if self._protected(new):
+            return self._nak(req, Nak.FILE_PROTECTED)
+        self.storage.rename(old, new)
+        return self._ack(req)
+
+    def _activate(self, req: Request, old: str) -> bytes:
+        if self.activate is None:
+            ok, reason = False, "no vehicle attached to activate policies"
+        else:
+            try:
+                ok, reason = promote_policy(self.storage, old, self.activate)
+            except OSError:
+                raise
+            except Exception as exc:  # a hook that raises is a refusal, never a crash of the link
+                ok, reason = False, f"{type(exc).__name__}: {exc}"
+        if not ok:
+            self.stats.refusals += 1
+            self._texts.append((SEVERITY_WARNING, f"policy refused: {reason}"))
+            return self._nak(req, Nak.FAIL)
+        self.stats.activations += 1
+        self._texts.append((SEVERITY_INFO, f"policy active: {reason or old}"))
+        return self._ack(req)
+
+    def _op_crc(self, req: Request, now_us: int) -> bytes:
+        return self._ack(req, struct.pack("<I", self.storage.crc32(self._path(req))))
+
+    _HANDLERS: dict[int, Callable[[FtpServer, Request, int], bytes | list[bytes]]] = {
+        Op.TERMINATE_SESSION: _op_terminate,
+        Op.RESET_SESSIONS: _op_reset,
+        Op.LIST_DIRECTORY: _op_list,
+        Op.OPEN_FILE_RO: _op_open_ro,
+        Op.READ_FILE: _op_read,
+        Op.CREATE_FILE: _op_create,
+        Op.WRITE_FILE: _op_write,
+        Op.REMOVE_FILE: _op_remove,
+        Op.CREATE_DIRECTORY: _op_mkdir,
+        Op.REMOVE_DIRECTORY: _op_rmdir,
+        Op.OPEN_FILE_WO: _op_open_wo,
+        Op.TRUNCATE_FILE: _op_truncate,
+        Op.RENAME: _op_rename,
+        Op.CALC_FILE_CRC32: _op_crc,
+        Op.BURST_READ_FILE: _op_burst,
+        Op.LIST_DIRECTORY_WITH_TIME: _op_list,
+    }

@@ -1,0 +1,168 @@
+"""`qnav bench upload`: policy upload over an emulated 57600-baud radio.
+
+For 10 KiB and 100 KiB payloads (seeded random bytes of policy size), with
+and without MAVLink 2 signing, at 0 / 5 / 20 % frame loss each way, runs the
+real path: `qnav upload`'s code (pymavlink's MAVFTP client) -> link emulator
+(tools/link_emulator.py, 5760 B/s each way, 8N1) -> the robot's FTP shell in
+its own process (`python -m firmware_py.ftp_link`).
+
+Per case: seconds from the first FTP request to the robot's CRC32 verified,
+the theoretical link time (design.md: every WriteFile frame is data + 27
+bytes, + 13 signed, at 5760 B/s; pymavlink writes 80-byte blocks) and their
+ratio; success = the file on the robot is byte-identical to the local one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib.util
+import os
+import random
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size
+FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
+SIGNATURE = 13
+
+
+def load_link_emulator():
+    """tools/link_emulator.py as a module (tools/ is not an installed package)."""
+    name = "qnav_link_emulator"
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, REPO / "tools" / "link_emulator.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) -> float:
+    """Link time of the WriteFile frames alone (design.md section 3)."""
+    blocks = -(-size // WRITE_BLOCK)
+    return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None):
+    """The robot's standalone FTP shell in a child process; always stopped on exit."""
+    cmd = [sys.executable, "-m", "firmware_py.ftp_link", "--root", str(root), "--mavlink", url]
+    if key_file is not None:
+        cmd += ["--signing-key", str(key_file)]
+    env = dict(os.environ, MAVLINK20="1")
+    proc = subprocess.Popen(cmd + (extra or []), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        line = proc.stdout.readline()  # "serving ..." once the socket is up
+        if "serving" not in line:
+            raise RuntimeError(f"robot FTP shell did not start: {line.strip()}")
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        proc.stdout.close()
+
+
+def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port: int, root: Path,
+             seed: int) -> dict:
+    from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
+
+    emu = load_link_emulator()
+    data = random.Random(seed).randbytes(size)
+    with tempfile.TemporaryDirectory() as tmp:
+        local = Path(tmp) / f"bench-{size}.qtab"
+        local.write_bytes(data)
+        remote = f"/policies/bench-{size}-{int(loss * 100)}-{int(signed)}.qtab"
+        cfg = emu.LinkConfig(loss=loss, seed=seed)
+        row = {"size": size, "loss": loss, "signed": signed, "theoretical_s": theoretical_seconds(size, signed)}
+        with emu.LinkEmulator(cfg, robot_peer=("127.0.0.1", robot_port)) as link:
+            gcs = RobotLink(f"udpout:127.0.0.1:{link.gcs_port}", key, timeout_s=10)
+            try:
+                t0 = time.monotonic()
+                res = upload_policy(gcs, local, remote, deadline_s=600, attempts=10)
+                row["seconds"] = time.monotonic() - t0
+                row["attempts"] = res.put_attempts
+            except UploadFailed as exc:
+                row["seconds"] = None
+                row["error"] = str(exc)
+            finally:
+                gcs.close()
+            row["link_up"] = vars(link.stats.up).copy()
+            row["link_down"] = vars(link.stats.down).copy()
+        on_robot = root / remote.lstrip("/")
+        row["byte_exact"] = on_robot.is_file() and on_robot.read_bytes() == data
+        row["success"] = row["byte_exact"] and row["seconds"] is not None
+        row["ratio"] = row["seconds"] / row["theoretical_s"] if row["seconds"] else None
+    return row
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("upload", help="policy upload time over an emulated 57600-baud lossy link",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--json", metavar="FILE", default=None, help="write the result as JSON")
+    p.add_argument("--sizes", default="10240,102400", help="payload sizes in bytes (default %(default)s)")
+    p.add_argument("--losses", default="0,0.05,0.2", help="frame loss per direction (default %(default)s)")
+    p.add_argument("--signing", choices=["both", "off", "on"], default="both", help="signing cases to run")
+    p.add_argument("--seed", type=int, default=1, help="link and payload seed (default %(default)s)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from ground_station.bench.common import report
+    from ground_station.cli import CliError
+
+    try:
+        sizes = [int(s) for s in args.sizes.split(",")]
+        losses = [float(x) for x in args.losses.split(",")]
+    except ValueError as exc:
+        raise CliError(f"--sizes/--losses: {exc}") from exc
+    modes = {"both": [False, True], "off": [False], "on": [True]}[args.signing]
+    cases = [(s, signed, loss) for s in sizes for signed in modes for loss in losses]
+    rows = []
+    key = bytes(range(32))
+    with tempfile.TemporaryDirectory() as tmp, tqdm(total=len(cases), desc="bench upload") as bar:
+        key_file = Path(tmp) / "signing.key"
+        key_file.write_bytes(key)
+        for signed in modes:
+            root = Path(tmp) / f"robot-{int(signed)}"
+            port = free_port()
+            with robot_ftp_process(root, f"udpin:127.0.0.1:{port}", key_file if signed else None):
+                for i, (size, s, loss) in enumerate(cases):
+                    if s != signed:
+                        continue
+                    rows.append(run_case(size, loss, signed, key if signed else None, port, root,
+                                         args.seed * 1000 + i))
+                    bar.update(1)
+    table = [("link", "57600 baud 8N1 = 5760 B/s each way, pymavlink MAVFTP 80-byte writes, 5 in flight")]
+    for r in rows:
+        name = f"{r['size'] // 1024:>4} KiB {'signed  ' if r['signed'] else 'unsigned'} loss {r['loss'] * 100:>4.0f}%"
+        if r["success"]:
+            text = (f"{r['seconds']:7.2f} s  theory {r['theoretical_s']:6.2f} s  ratio {r['ratio']:.3f}  "
+                    f"puts {r['attempts']}  byte-exact")
+        else:
+            text = f"FAILED ({r.get('error', 'file differs on the robot')})"
+        table.append((name, text))
+    ok = all(r["success"] for r in rows)
+    table.append(("all byte-exact", ok))
+    report("upload", table, {"cases": rows, "all_success": ok}, args.json)
+    return 0 if ok else 1

@@ -1,0 +1,331 @@
+"""`qnav upload FILE [--activate] --mavlink URL`: put a policy on the robot
+with pymavlink's own MAVLink FTP client, prove it arrived byte-exact, and
+optionally activate it.
+
+Steps (docs/mavlink.md, "Uploading a policy"):
+1. `MAVFTP.cmd_put` to /policies/<name> (temporary name on the robot until the
+   FTP session ends), with a progress bar;
+2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file, else the
+   whole put is repeated (a lossy link can eat the CreateFile or the
+   TerminateSession, which pymavlink's client never retries);
+3. with --activate: FTP Rename onto /policies/active.qtab; the robot
+   validates the file and refuses with NAK + STATUSTEXT reason (exit 3);
+   a lost reply is resolved by asking the CRC of active.qtab;
+4. confirm: the robot's read-only parameter POLICY_ID must equal the file's
+   policy id; a robot that serves no parameters (the standalone FTP shell) is
+   checked by the CRC of /policies/active.qtab instead, and says so.
+
+Exit status: 0 done, 2 bad arguments, 3 refused by the robot, 4 timeout or
+no robot, 5 CRC or policy-id mismatch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import struct
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ground_station.cli import CliError
+
+EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
+ACTIVE_POLICY = "/policies/active.qtab"  # firmware_py.storage.ACTIVE_POLICY; imported lazily below
+GCS_SYSID, GCS_COMPID = 255, 190  # MAV_COMP_ID_MISSIONPLANNER, as ground stations use
+
+
+class UploadFailed(Exception):
+    """The upload did not complete; `code` is the exit status."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass
+class UploadResult:
+    remote: str
+    size: int
+    crc: int
+    put_attempts: int = 0
+    put_seconds: float = 0.0  # first ResetSessions to CRC verified
+    activated: bool = False
+    confirmed_by: str = ""  # "POLICY_ID param" | "active.qtab CRC"
+    policy_id: int | None = None
+    texts: list[str] = field(default_factory=list)
+
+
+def _import_pymavlink():
+    # Without MAVLINK20=1 pymavlink starts in MAVLink 1 and its later switch to
+    # 2 throws away setup_signing() (design.md section 3).
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavftp, mavutil
+
+    return mavutil, mavftp
+
+
+class RobotLink:
+    """A pymavlink connection to the robot plus what we overhear on it."""
+
+    def __init__(self, url: str, signing_key: bytes | None = None, timeout_s: float = 10.0) -> None:
+        mavutil, self.mavftp = _import_pymavlink()
+        self.conn = mavutil.mavlink_connection(url, source_system=GCS_SYSID, source_component=GCS_COMPID)
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=True, allow_unsigned_callback=None)
+        self.ftp_replies: dict[tuple[int, int], tuple[int, bytes]] = {}  # (req_opcode, seq) -> (opcode, data)
+        self.texts: list[str] = []
+        self.params: dict[str, object] = {}
+        self.conn.message_hooks.append(self._hook)
+        self.target_system, self.target_component = self._wait_heartbeat(timeout_s)
+
+    def _hook(self, _conn, msg) -> None:
+        t = msg.get_type()
+        if t == "FILE_TRANSFER_PROTOCOL":
+            seq, _session, opcode, size, req_opcode = struct.unpack_from("<HBBBB", bytes(msg.payload), 0)
+            self.ftp_replies[(req_opcode, seq)] = (opcode, bytes(msg.payload[12:12 + size]))
+        elif t == "STATUSTEXT":
+            self.texts.append(msg.text)
+        elif t == "PARAM_VALUE":
+            self.params[msg.param_id] = msg
+
+    def _wait_heartbeat(self, timeout_s: float) -> tuple[int, int]:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            # our heartbeat lets a robot (or radio relay) that listens learn our address
+            self.conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
+            msg = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0)
+            if msg is not None and msg.get_srcSystem() != GCS_SYSID:
+                return msg.get_srcSystem(), msg.get_srcComponent()
+        raise UploadFailed(EXIT_TIMEOUT, f"no HEARTBEAT from a robot within {timeout_s:.0f} s")
+
+    def ftp(self):
+        """A fresh pymavlink MAVFTP client (it starts with ResetSessions)."""
+        self.ftp_replies.clear()  # each client counts seq from 0 again
+        settings = self.mavftp.MAVFTPSettings(
+            [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
+        quick(settings)
+        return self.mavftp.MAVFTP(self.conn, self.target_system, self.target_component, settings=settings)
+
+    def reply_to(self, ftp, opcode: int) -> tuple[int, bytes] | None:
+        """The robot's reply to the client's last request of `opcode`, if one arrived."""
+        last = ftp.last_op
+        if last is None or last.opcode != opcode:
+            return None
+        return self.ftp_replies.get((opcode, (last.seq + 1) % 65536))
+
+    def remote_crc(self, ftp, path: str, tries: int = 3) -> int | None:
+        """CalcFileCRC32 of `path`, None if the file does not exist."""
+        op_crc = self.mavftp.OP_CalcFileCRC32
+        for _ in range(tries):
+            ftp.cmd_crc([path])
+            reply = self.reply_to(ftp, op_crc)
+            if reply is None:
+                continue  # request or reply lost: ask again
+            opcode, data = reply
+            if opcode == self.mavftp.OP_Ack and len(data) == 4:
+                return struct.unpack("<I", data)[0]
+            return None
+        raise UploadFailed(EXIT_TIMEOUT, f"no CRC reply for {path} after {tries} requests")
+
+    def read_param(self, name: str, tries: int = 3, timeout_s: float = 1.0):
+        for _ in range(tries):
+            self.params.pop(name, None)
+            self.conn.mav.param_request_read_send(self.target_system, self.target_component,
+                                                  name.encode(), -1)
+            deadline = time.monotonic() + timeout_s
+            while time.monotonic() < deadline:
+                self.conn.recv_match(blocking=True, timeout=0.1)
+                if name in self.params:
+                    return self.params[name]
+        return None
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+# pymavlink MAVFTP's own defaults (mavftp.MAVFTP.__init__).
+DEFAULT_FTP_SETTINGS = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_backlog": 5,
+                        "burst_read_size": 80, "write_size": 80, "write_qsize": 5,
+                        "idle_detection_time": 3.7, "read_retry_time": 1.0, "retry_time": 0.5}
+
+
+def quick(settings) -> None:
+    """Single-reply operations (CRC, Rename, ResetSessions) have no completion
+    signal in MAVFTP: it waits `idle_detection_time` of silence after the
+    reply. A 57600 link answers in tens of ms, so wait 0.8 s instead of 3.7 s;
+    a reply later than that counts as lost and the caller asks again."""
+    settings.read_retry_time = 0.5
+    settings.idle_detection_time = 0.8
+
+
+def patient(settings) -> None:
+    """pymavlink's defaults, for the put itself (its retry timers run up to 1 s)."""
+    settings.idle_detection_time = DEFAULT_FTP_SETTINGS["idle_detection_time"]
+    settings.read_retry_time = DEFAULT_FTP_SETTINGS["read_retry_time"]
+
+
+def _param_int(msg) -> int:
+    """An integer parameter's value: pymavlink gives a float; int32 params are sent
+    either cast (ArduPilot) or bit-copied (PX4); accept the bit-copy when it is a
+    32-bit integer type."""
+    value = msg.param_value
+    if msg.param_type in (5, 6):  # MAV_PARAM_TYPE_UINT32 / INT32
+        bits = struct.unpack("<I", struct.pack("<f", value))[0]
+        return bits if msg.param_type == 5 else struct.unpack("<i", struct.pack("<I", bits))[0]
+    return int(value)
+
+
+def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool = False,
+                  deadline_s: float = 300.0, attempts: int = 8, progress=None) -> UploadResult:
+    """Put `local` at `remote` on the robot, verify its CRC, optionally activate.
+
+    Raises UploadFailed. `progress(fraction)` is called during the put.
+    """
+    from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.storage import ftp_crc32
+
+    data = local.read_bytes()
+    res = UploadResult(remote=remote, size=len(data), crc=ftp_crc32(data))
+    try:
+        res.policy_id = load_policy(data).policy_id
+    except PolicyError:
+        res.policy_id = None  # not a policy this robot build can load: the robot will judge it
+    deadline = time.monotonic() + deadline_s
+    t0 = time.monotonic()
+    mavftp = link.mavftp
+    ftp = None
+    for attempt in range(1, attempts + 1):
+        if time.monotonic() > deadline:
+            raise UploadFailed(EXIT_TIMEOUT, f"upload not verified within {deadline_s:.0f} s")
+        res.put_attempts = attempt
+        ftp = link.ftp()
+        patient(ftp.ftp_settings)
+        put_session = ftp.session  # the robot numbers the session as we do
+        ftp.cmd_put([str(local), remote], progress_callback=progress)
+        ftp.process_ftp_reply("put", timeout=max(10.0, deadline - time.monotonic()))
+        quick(ftp.ftp_settings)
+        crc = link.remote_crc(ftp, remote)
+        if crc is None and link.reply_to(ftp, mavftp.OP_CalcFileCRC32) is not None:
+            # Not there: if only the TerminateSession was lost (pymavlink never
+            # repeats it) the data waits under a temporary name until the
+            # session expires; end that session again and look once more.
+            ftp.session = put_session
+            ftp.cmd_cancel()
+            crc = link.remote_crc(ftp, remote)
+        if crc == res.crc:
+            break
+        if crc is not None and attempt == attempts:
+            raise UploadFailed(EXIT_MISMATCH, f"robot CRC32 0x{crc:08x} != local 0x{res.crc:08x} for {remote}")
+    else:
+        raise UploadFailed(EXIT_TIMEOUT, f"{remote} not on the robot after {attempts} puts")
+    res.put_seconds = time.monotonic() - t0
+    if not activate:
+        return res
+
+    # Rename onto active.qtab; every outcome is decided by the robot's reply or,
+    # if that is lost, by what active.qtab now holds.
+    for _ in range(attempts):
+        if time.monotonic() > deadline:
+            raise UploadFailed(EXIT_TIMEOUT, "activation not confirmed in time")
+        n_texts = len(link.texts)
+        ftp.cmd_rename([remote, ACTIVE_POLICY])
+        reply = link.reply_to(ftp, mavftp.OP_Rename)
+        if reply is not None and reply[0] == mavftp.OP_Ack:
+            res.activated = True
+            break
+        if reply is not None and reply[1][:1] == bytes([1]):  # NAK Fail: refused by the vehicle
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end and not any("refused" in t for t in link.texts[n_texts:]):
+                link.conn.recv_match(blocking=True, timeout=0.1)
+            reasons = [t for t in link.texts[n_texts:] if "refused" in t]
+            raise UploadFailed(EXIT_REFUSED, reasons[-1] if reasons else "robot refused the policy (reason lost)")
+        if link.remote_crc(ftp, ACTIVE_POLICY) == res.crc:
+            res.activated = True  # the rename happened; only its reply was lost
+            break
+        if reply is not None:
+            code = reply[1][0] if reply[1] else 0
+            raise UploadFailed(EXIT_REFUSED, f"robot rejected the rename (FTP NAK {code})")
+    if not res.activated:
+        raise UploadFailed(EXIT_TIMEOUT, "no answer to the activation rename")
+    res.texts = list(link.texts)
+
+    param = link.read_param("POLICY_ID")
+    if param is not None and res.policy_id is not None:
+        got = _param_int(param) & 0xFFFFFFFF
+        if got != res.policy_id & 0xFFFFFFFF:
+            raise UploadFailed(EXIT_MISMATCH, f"robot reports POLICY_ID 0x{got:08x}, file has 0x{res.policy_id:08x}")
+        res.confirmed_by = "POLICY_ID param"
+    else:
+        crc = link.remote_crc(ftp, ACTIVE_POLICY)
+        if crc != res.crc:
+            raise UploadFailed(EXIT_MISMATCH, f"{ACTIVE_POLICY} CRC32 is {crc} after activation, expected 0x{res.crc:08x}")
+        res.confirmed_by = "active.qtab CRC"
+    return res
+
+
+def default_remote(local: Path) -> str:
+    name = local.name
+    if f"/policies/{name}" in (ACTIVE_POLICY, "/policies/last_good.qtab"):
+        name = f"upload-{name}"
+    return f"/policies/{name}"
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("upload", help="upload a policy to the robot over MAVLink FTP (and activate it)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", type=Path, help="the .qtab policy file")
+    p.add_argument("--mavlink", required=True,
+                   help="pymavlink connection string, e.g. udpin:127.0.0.1:14550 or /dev/ttyUSB0,57600")
+    p.add_argument("--activate", action="store_true", help="make it the robot's active policy")
+    p.add_argument("--signing-key", type=Path, help="MAVLink 2 signing key file (32 bytes or 64 hex digits)")
+    p.add_argument("--remote", help="path on the robot (default /policies/<file name>)")
+    p.add_argument("--timeout", type=float, default=300.0, help="give up after this many seconds (default %(default)s)")
+    p.add_argument("--attempts", type=int, default=8, help="whole-file put attempts (default %(default)s)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from firmware_py.ftp_link import load_signing_key
+
+    if not args.file.is_file():
+        raise CliError(f"{args.file}: no such file")
+    key = None
+    if args.signing_key is not None:
+        try:
+            key = load_signing_key(args.signing_key)
+        except (OSError, ValueError) as exc:
+            raise CliError(str(exc)) from exc
+    remote = args.remote or default_remote(args.file)
+    size = args.file.stat().st_size
+    try:
+        link = RobotLink(args.mavlink, key, timeout_s=min(10.0, args.timeout))
+    except UploadFailed as exc:
+        print(f"qnav upload: error: {exc}", flush=True)
+        return exc.code
+    bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"upload {args.file.name}")
+
+    def progress(frac):
+        if frac is not None:
+            bar.n = int(frac * size)
+            bar.refresh()
+
+    try:
+        res = upload_policy(link, args.file, remote, activate=args.activate, deadline_s=args.timeout,
+                            attempts=args.attempts, progress=progress)
+    except UploadFailed as exc:
+        bar.close()
+        print(f"qnav upload: error: {exc}", flush=True)
+        return exc.code
+    finally:
+        link.close()
+    bar.n = size
+    bar.close()
+    print(f"uploaded {args.file} -> {remote}: {res.size} B, CRC32 0x{res.crc:08x} verified on the robot, "
+          f"{res.put_seconds:.1f} s, {res.put_attempts} attempt(s)")
+    if args.activate:
+        pid = f"0x{res.policy_id:08x}" if res.policy_id is not None else "unknown"
+        print(f"activated: policy id {pid}, confirmed by {res.confirmed_by}")
+    return 0
