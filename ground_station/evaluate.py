@@ -27,6 +27,7 @@ import numpy as np
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from ground_station.envs.cell_env import cell_transitions, goal_distances, resolve_goals
 from ground_station.maps import GridMap, MapError
+from ground_station.train import cell_state
 
 SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
 POLICY_Q, POLICY_NEAREST = 0, 1
@@ -55,7 +56,7 @@ def rollouts_cell(q, next_cell, width, goal_cells, pair_goal, pair_start, max_st
         res = TIMEOUT
         for t in range(max_steps):
             if policy == POLICY_Q:
-                s = g * n_cells + cell
+                s = cell_state(g, cell, n_cells)
                 a = 0
                 best = q[s, 0]
                 for k in range(1, n_actions):

@@ -86,6 +86,13 @@ def rand01(rng):
 
 
 @numba.njit(cache=True, inline="always")
+def cell_state(goal_index, cell, n_cells):
+    """Jitted copy of `CellEncoder.encode` (cell = row * W + col); a test
+    checks it against the reference on random inputs."""
+    return goal_index * n_cells + cell
+
+
+@numba.njit(cache=True, inline="always")
 def q_update(q, s, a, r, s2, terminal, lr, gamma):
     """The paper's update: Q(s,a) += lr * (r + gamma * max Q(s2, .) - Q(s,a));
     no bootstrap when `terminal` (goal or collision)."""
@@ -134,7 +141,7 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
             eps = eps_end
         else:
             eps = eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
-        s = g * n_cells + cell
+        s = cell_state(g, cell, n_cells)
         if rand01(rng) < eps:
             a = int(rand01(rng) * n_actions)
         else:
@@ -159,7 +166,7 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
             r = r_step
             done = False
             success = False
-        q_update(q, s, a, r, g * n_cells + c2, done, lr, gamma)
+        q_update(q, s, a, r, cell_state(g, c2, n_cells), done, lr, gamma)
         cell = c2
         ret += r
         if done or t_ep >= max_ep_steps:

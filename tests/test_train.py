@@ -10,7 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from firmware_py.encoders import CellEncoder
 from ground_station.envs.cell_env import cell_transitions
 from ground_station.evaluate import (
     COLLISION,
@@ -23,6 +26,7 @@ from ground_station.evaluate import (
 from ground_station.maps import GridMap, load_map, parse_map
 from ground_station.train import (
     TrainConfig,
+    cell_state,
     learning_curve,
     q_update,
     train,
@@ -177,3 +181,12 @@ def test_cli_eval_plot_writes_a_png(tmp_path):
     r = qnav("eval", str(out), "--map", "paper10", "--plot", str(out / "policy.png"))
     assert "success_rate" in r.stdout
     assert (out / "policy.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@settings(max_examples=300, deadline=None)
+@given(w=st.integers(1, 64), h=st.integers(1, 64), n_goals=st.integers(1, 8), data=st.data())
+def test_jitted_cell_state_equals_reference_encoder(w, h, n_goals, data):
+    col = data.draw(st.integers(0, w - 1))
+    row = data.draw(st.integers(0, h - 1))
+    g = data.draw(st.integers(0, n_goals - 1))
+    assert cell_state(g, row * w + col, w * h) == CellEncoder(w, h, n_goals).encode(col, row, g)
