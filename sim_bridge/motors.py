@@ -5,7 +5,7 @@ and what it reports in `MotorStatus`. Per wheel: first-order response to the
 setpoint, acceleration limit, speed limit. Every command feeds a watchdog
 measured in SIM time (integer µs); when it expires the setpoints go to zero
 and the status says so until the next command, as ODrive/VESC/DroneCAN ESCs
-do. Stall detection compares each wheel's speed with the ground speed the
+do (zeroed at once, a brake, not a ramp). Stall detection compares each wheel's speed with the ground speed the
 world reports.
 """
 
@@ -35,6 +35,11 @@ class MotorDriver:
     def __init__(self, params: MotorParams = MotorParams()) -> None:
         if params.watchdog_ms <= 0:
             raise ValueError(f"watchdog must be positive, got {params.watchdog_ms} ms")
+        if not 0 < params.speed_limit_mm_s <= robot.MAX_WHEEL_SPEED_MM_S:
+            raise ValueError(f"speed limit must be in (0, {robot.MAX_WHEEL_SPEED_MM_S}] mm/s, "
+                             f"got {params.speed_limit_mm_s}")
+        if params.time_constant_s <= 0 or params.accel_limit_mm_s2 <= 0:
+            raise ValueError("motor time constant and acceleration limit must be positive")
         self.p = params
         self.target = [0.0, 0.0]  # mm/s setpoints after clamping
         self.speed = [0.0, 0.0]  # mm/s actual wheel speeds
@@ -68,6 +73,7 @@ class MotorDriver:
         if engage:
             self.estopped = True
             self.target = [0.0, 0.0]
+            self.speed = [0.0, 0.0]
             self.state = cp.MOTOR_ESTOP
         elif self.estopped:
             self.estopped = False
@@ -78,6 +84,7 @@ class MotorDriver:
         if (self.state == cp.MOTOR_RUNNING and self.last_command_us is not None
                 and now_us - self.last_command_us >= self.p.watchdog_ms * 1000):
             self.target = [0.0, 0.0]
+            self.speed = [0.0, 0.0]  # brake: the wheels are zeroed, not ramped down
             self.watchdog_tripped = True
             self.state = cp.MOTOR_WATCHDOG_STOP
         dt = dt_us / 1e6
