@@ -176,9 +176,9 @@ class LinkEmulator:
             if peer is None:
                 self._stats(direction).no_peer += 1
                 continue
+            self._stats(direction).delivered += 1
             try:
                 self._socks[out_side].sendto(data, peer)
-                self._stats(direction).delivered += 1
             except OSError:
                 pass  # peer not listening (ECONNREFUSED etc.): the radio cannot tell either
         return self._heap[0][0] - now if self._heap else None
