@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"ticks {stats.ticks} (missed {stats.missed_ticks}, stale commands "
           f"{stats.stale_commands}, bad frames {stats.bad_frames}); sim {stats.sim_s:.2f} s, "
           f"wall {wall:.2f} s, real-time factor {stats.sim_s / wall:.2f}"
-          f"{'' if speed is None else f' (target {speed:g})'}, {stats.ticks / wall:.0f} ticks/s; "
+          f"{'' if speed is None else f' (target {speed:g})'}, {stats.ticks_per_s:.0f} ticks/s; "
           f"final pose x={pose.x:.3f} y={pose.y:.3f} heading={math.degrees(pose.heading) % 360:.1f} deg")
     return 130 if interrupted else 0
 

@@ -54,11 +54,18 @@ class RunStats:
     frames_sent: int = 0
     frames_received: int = 0
     wall_s: float = 0.0
+    start_wait_s: float = 0.0  # lockstep: wall time until the controller's first answer
     sim_s: float = 0.0
 
     @property
     def rtf(self) -> float:
         return self.sim_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+    @property
+    def ticks_per_s(self) -> float:
+        """Control ticks per wall second once the controller is up."""
+        busy = self.wall_s - self.start_wait_s
+        return self.ticks / busy if busy > 0 else float("inf")
 
 
 class Plant:
@@ -205,6 +212,8 @@ def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
             if not started:
                 raise LockstepError(f"no controller answered SimTick 0 within {start_timeout_s:g} s")
             stats.missed_ticks += 1
+        if not started:
+            stats.start_wait_s = time.perf_counter() - t0
         started = True
         plant.step_period()
         if progress is not None:
