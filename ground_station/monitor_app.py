@@ -100,8 +100,8 @@ def render_link(view: VehicleView, now: float) -> Text:
     if link.verified_frames:
         sig += f", {link.verified_frames} verified"
     t.append(f"signing {sig}\n", style="green" if link.signing else "yellow")
-    t.append(f"robot rx drops {link.rx_dropped} ({link.drop_rate_comm_pct:.2f}%)  "
-             f"signing drops {link.signing_dropped}  CAN errors {link.can_errors}")
+    t.append(f"robot rx drops {link.rx_dropped} ({link.drop_rate_comm_pct:.2f}%)\n")
+    t.append(f"signing drops {link.signing_dropped}  CAN errors {link.can_errors}")
     return t
 
 
@@ -118,8 +118,8 @@ def render_vehicle(view: VehicleView) -> Text:
     if pose is None:
         t.append("pose -")
     else:
-        t.append(f"pose x {pose[0]:.2f} y {pose[1]:.2f} m  hdg {math.degrees(pose[2]):.0f}°  "
-                 f"v {view.speed:.2f} m/s")
+        t.append(f"pose x {pose[0]:.2f} y {pose[1]:.2f} m  hdg {round(math.degrees(pose[2]))}°\n"
+                 f"speed {view.speed:.2f} m/s")
     if view.load_pct is not None:
         t.append(f"\nload {view.load_pct:.1f}%")
         t.append(f"  tick overruns {view.link.tick_overruns}")
@@ -197,10 +197,11 @@ class MonitorApp(App):
 
     TITLE = "qnav monitor"
     CSS = """
-    #map { width: auto; min-width: 24; border: round $accent; padding: 0 1; }
-    #side { width: 1fr; }
+    #top { height: 1fr; }
+    #map { width: auto; min-width: 24; height: auto; border: round $accent; padding: 0 1; }
+    .column { width: 1fr; height: auto; }
     .panel { border: round $primary; height: auto; padding: 0 1; }
-    #log { border: round $primary; height: 1fr; min-height: 6; padding: 0 1; }
+    #log { border: round $primary; height: 10; padding: 0 1; }
     """
     BINDINGS = [
         Binding("a", "command('arm')", "arm"),
@@ -223,13 +224,14 @@ class MonitorApp(App):
 
     def compose(self) -> ComposeResult:
         yield Header()
-        with Horizontal():
+        with Horizontal(id="top"):
             yield Static(id="map")
-            with Vertical(id="side"):
-                for name in ("link", "vehicle", "policy", "sectors", "mission"):
-                    panel = Static(id=name, classes="panel")
-                    panel.border_title = name
-                    yield panel
+            for column in (("link", "vehicle", "policy"), ("sectors", "mission")):
+                with Vertical(classes="column"):
+                    for name in column:
+                        panel = Static(id=name, classes="panel")
+                        panel.border_title = name
+                        yield panel
         log = Static(id="log")
         log.border_title = "log"
         yield log

@@ -398,8 +398,8 @@ class VehicleView:
     def _on_command_ack(self, msg, t: float) -> None:
         self.last_ack = (msg.command, msg.result)
         try:
-            cmd = mavlink.enums["MAV_CMD"][msg.command].name
-            res = mavlink.enums["MAV_RESULT"][msg.result].name
+            cmd = mavlink.enums["MAV_CMD"][msg.command].name.removeprefix("MAV_CMD_")
+            res = mavlink.enums["MAV_RESULT"][msg.result].name.removeprefix("MAV_RESULT_")
         except KeyError:
             cmd, res = str(msg.command), str(msg.result)
         self._append_log(LogLine(t, mavlink.MAV_SEVERITY_INFO if msg.result == 0 else mavlink.MAV_SEVERITY_WARNING,

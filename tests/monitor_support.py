@@ -266,7 +266,8 @@ class UdpRover(threading.Thread):
         self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
         self.script = script or RoverScript()
         self.speed = speed
-        self.commands: list[tuple[int, float]] = []
+        self.commands: list[tuple[int, float, float]] = []  # (command, param1, param2)
+        self.received: dict[str, int] = {}  # what the monitor sent us, by type
         self._stop_ev = threading.Event()
 
     def run(self) -> None:
@@ -285,10 +286,13 @@ class UdpRover(threading.Thread):
 
     def _serve_commands(self) -> None:
         while True:
-            m = self.conn.recv_match(type="COMMAND_LONG", blocking=False)
+            m = self.conn.recv_match(blocking=False)
             if m is None:
                 return
-            self.commands.append((m.command, m.param1))
+            self.received[m.get_type()] = self.received.get(m.get_type(), 0) + 1
+            if m.get_type() != "COMMAND_LONG":
+                continue
+            self.commands.append((m.command, m.param1, m.param2))
             self.conn.mav.command_ack_send(m.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, m.get_srcSystem(),
                                            m.get_srcComponent())
 
