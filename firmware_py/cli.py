@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exit 0 when the goals are reached, 3 on FAULT")
     p.add_argument("--duration", type=float, metavar="S",
                    help="stop after S seconds (sim time with --lockstep/--sim-clock); exit 4 if goals are pending")
+    p.add_argument("--rt-priority", type=int, metavar="N",
+                   help="run the ticking threads SCHED_FIFO at priority N (Linux, needs privilege; "
+                        "falls back to normal scheduling with a warning)")
     p.add_argument("--stats-json", metavar="FILE", help="write loop statistics and the final state as JSON at exit")
     p.add_argument("-q", "--quiet", action="store_true", help="only warnings (transitions are logged by default)")
     for ext in EXTENSIONS:
@@ -211,7 +214,9 @@ def run(args: argparse.Namespace) -> int:
         bus = open_bus(args.can)
     except CanSpecError as exc:
         raise UsageError(str(exc)) from None
-    node = RobotNode(bus, ctrl, clock, lockstep=args.lockstep)
+    if args.rt_priority is not None and not 1 <= args.rt_priority <= 99:
+        raise UsageError(f"--rt-priority {args.rt_priority}: expected 1..99")
+    node = RobotNode(bus, ctrl, clock, lockstep=args.lockstep, rt_priority=args.rt_priority)
     runner = None
     if goals:
         runner = GoalRunner(ctrl, goals)
@@ -264,7 +269,8 @@ def run(args: argparse.Namespace) -> int:
         "wall_s": wall, "cpu_s": cpu, "cpu_percent": 100 * cpu / wall if wall > 0 else 0.0,
         "rss_mb": _rss_mb(), "ticks": node.ticks, "sim_ticks": node.sim_ticks,
         "overruns": node.overruns, "can_errors": node.can_errors, "send_errors": node.send_errors,
-        "period_us": 1_000_000 // cfg.control_rate_hz,
+        "period_us": 1_000_000 // cfg.control_rate_hz, "rt_priority": args.rt_priority,
+        "rt_active": node.rt_active,
         **node.latency_stats(),
         "transitions": [[t.t_us, t.src.name, t.dst.name, t.cause] for t in ctrl.transitions],
     }

@@ -9,8 +9,9 @@
   clock to the sim time it carries, stamps the sensor frames that arrived
   since the previous tick with that time, runs one step and answers with the
   motor command carrying the tick's counter (the sim waits for it).
-* paced HIL (`SimClock`, not lockstep): SimTick frames only advance the
-  clock; the control loop waits on the sim clock for its next period.
+* paced HIL (`SimClock`, not lockstep): SimTick frames advance the clock;
+  the tick that reaches the next control deadline runs a step in the
+  receive thread (no hand-off to another thread); the sim does not wait.
 
 Overruns are counted (a wall-clock deadline missed, a sim tick skipped), and
 the wall time from the last input frame of a tick (the SimTick; in wall mode
@@ -18,14 +19,16 @@ the loop's wake-up) to the command being handed to the bus is recorded per
 tick for `qnav bench controller`.
 
 Hook for the MAVLink shell: `node.controller` is the `VehicleControl`;
-callables in `node.after_tick` run in the control thread after each tick with
+callables in `node.after_tick` run in the ticking thread after each tick with
 the tick's `Outputs` (keep them short; telemetry should hand off to its own
 thread).
 """
 
 from __future__ import annotations
 
+import gc
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -111,7 +114,8 @@ class RobotNode:
     """Bus + clock + controller, run by one or two threads (see module doc)."""
 
     def __init__(self, bus: can.BusABC, controller: Controller, clock: Clock, *,
-                 lockstep: bool = False, latency_window: int = 200_000) -> None:
+                 lockstep: bool = False, latency_window: int = 200_000,
+                 rt_priority: int | None = None) -> None:
         if lockstep and not isinstance(clock, SimClock):
             raise ValueError("lockstep needs a SimClock (the sim owns time)")
         self.bus = bus
@@ -120,6 +124,8 @@ class RobotNode:
         self.lockstep = lockstep
         self.sim_time = isinstance(clock, SimClock)
         self.inputs = InputTracker(defer_stamps=self.sim_time)
+        self.rt_priority = rt_priority
+        self.rt_active = False
         self.after_tick: list[Callable[[Outputs], None]] = []
         self.ticks = 0
         self.overruns = 0
@@ -132,12 +138,14 @@ class RobotNode:
         self._threads: list[threading.Thread] = []
         self._last_rx_ns = 0
         self._last_answer: can.Message | None = None
+        self._next_us: int | None = None  # paced sim clock: next control deadline
 
     # --- lifecycle --------------------------------------------------------------
     def start(self) -> RobotNode:
+        gc.freeze()  # start-up objects out of the collector's way: shorter pauses in the loop
         self._stop.clear()
         self._threads = [threading.Thread(target=self._rx_loop, name="qnav-rx", daemon=True)]
-        if not self.lockstep:
+        if not self.sim_time:
             self._threads.append(threading.Thread(target=self._control_loop, name="qnav-ctrl",
                                                   daemon=True))
         for t in self._threads:
@@ -160,8 +168,21 @@ class RobotNode:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def _enter_rt(self) -> None:
+        """SCHED_FIFO for the calling (ticking) thread, as firmware runs its control
+        loop: other processes then cannot preempt a tick. Linux; needs privilege."""
+        if self.rt_priority is None:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            self.rt_active = True
+        except (AttributeError, OSError, ValueError) as exc:
+            log.warning("real-time priority %d not available (%s): normal scheduling",
+                        self.rt_priority, exc)
+
     # --- receive side ---------------------------------------------------------------
     def _rx_loop(self) -> None:
+        self._enter_rt()
         while not self._stop.is_set():
             try:
                 msg = self.bus.recv(timeout=0.05)
@@ -190,7 +211,7 @@ class RobotNode:
         if self.lockstep and counter == self.last_tick and self._last_answer is not None:
             self._send_frame(self._last_answer)  # a retransmitted tick: same answer, no step
             return
-        if self.last_tick is not None:
+        if self.lockstep and self.last_tick is not None:
             gap = (counter - self.last_tick) % proto.TICK_MODULUS
             if gap > 1:
                 self.overruns += gap - 1  # ticks we never saw: lost or late
@@ -201,12 +222,20 @@ class RobotNode:
         self._last_rx_ns = rx_ns
         if self.lockstep:
             self._tick(sim_us, counter, rx_ns)
+        elif self._next_us is None or sim_us >= self._next_us:
+            self._paced_tick(rx_ns)
 
     # --- control side ---------------------------------------------------------------
     def _tick(self, now_us: int, counter: int | None, t0_ns: int) -> None:
         out = self.controller.step(self.inputs.snapshot(), now_us, tick=counter)
-        self._send(out)
-        self.latency_ns.append(time.perf_counter_ns() - t0_ns)
+        if self.lockstep:  # the motor command is the tick's answer: always the last frame
+            self._send_heartbeat(out)
+            self._send_motor(out)
+            self.latency_ns.append(time.perf_counter_ns() - t0_ns)
+        else:  # latency counts to the command; the heartbeat can follow it
+            self._send_motor(out)
+            self.latency_ns.append(time.perf_counter_ns() - t0_ns)
+            self._send_heartbeat(out)
         self.ticks += 1
         self.controller.note_loop_stats(self.overruns, self.can_errors)
         for hook in self.after_tick:
@@ -215,13 +244,15 @@ class RobotNode:
             except Exception:  # a telemetry bug must not stop the wheels' loop
                 log.exception("after_tick hook failed")
 
-    def _send(self, out: Outputs) -> None:
+    def _send_heartbeat(self, out: Outputs) -> None:
         hb = out.heartbeat
         self._send_frame(proto.encode("ControllerHeartbeat", {
             "Ctrl_State": hb.state, "Ctrl_Mode": hb.mode, "Ctrl_Armed": int(hb.armed),
             "Ctrl_PolicyLoaded": int(hb.policy_loaded), "Ctrl_GoalActive": int(hb.goal_active),
             "Ctrl_Errors": hb.errors & 0xFFFF, "Ctrl_Counter": hb.counter}))
-        if out.motor is not None:  # last: in lockstep it is the tick's answer
+
+    def _send_motor(self, out: Outputs) -> None:
+        if out.motor is not None:
             m = out.motor
             self._last_answer = proto.motor_command(m.left_mm_s, m.right_mm_s, m.counter)
             self._send_frame(self._last_answer)
@@ -236,25 +267,30 @@ class RobotNode:
     def _period_us(self) -> int:
         return 1_000_000 // max(1, self.controller.cfg.control_rate_hz)
 
+    def _paced_tick(self, rx_ns: int) -> None:
+        """Paced HIL: a SimTick reached the next control deadline. Stepping
+        here, in the receive thread, saves a thread hand-off per tick."""
+        now = self.clock.now_us()
+        period = self._period_us()
+        if self._next_us is not None and now - self._next_us >= period:
+            self.overruns += (now - self._next_us) // period  # whole periods without a step
+        self._tick(now, None, rx_ns)
+        self._next_us = now + period
+
     def _control_loop(self) -> None:
+        """Wall clock: a fixed-rate loop; missed deadlines are counted and skipped."""
+        self._enter_rt()
         period = self._period_us()
         next_us = self.clock.now_us() + period
         while not self._stop.is_set():
-            if self.sim_time:
-                if not self.clock.wait_until(next_us, timeout_s=0.1):
-                    continue  # sim paused: sim time, hence every timeout, stands still
-                t0 = self._last_rx_ns
-            else:
-                delay = (next_us - self.clock.now_us()) / 1e6
-                if delay > 0 and self._stop.wait(delay):
-                    break
-                t0 = time.perf_counter_ns()
-            now = self.clock.now_us()
-            self._tick(now, None, t0)
+            delay = (next_us - self.clock.now_us()) / 1e6
+            if delay > 0 and self._stop.wait(delay):
+                break
+            self._tick(self.clock.now_us(), None, time.perf_counter_ns())
             period = self._period_us()  # the rate is a parameter: pick up changes
             next_us += period
             late = self.clock.now_us() - next_us
-            if late >= 0:  # missed the next deadline: count and skip the lost periods
+            if late >= 0:
                 missed = late // period + 1
                 self.overruns += missed
                 next_us += missed * period

@@ -1,0 +1,154 @@
+"""`qnav bench controller`: the robot control loop's latency, CPU and memory.
+
+Runs the real processes at the real rate: a python-can-remote hub on
+127.0.0.1, `qnav-sim --realtime` (paced at 20 Hz sim ticks on paper10) and
+`qnav-robot --sim-clock` driving the shipped cell policy to a target. The
+robot process measures, per tick, the wall time from the tick's last input
+frame (the SimTick) to its command handed to the bus, and reports its CPU
+time and resident memory at exit.
+
+It runs twice: with normal scheduling, and with the robot's ticking thread
+at SCHED_FIFO (`qnav-robot --rt-priority`, how firmware runs its loop; on a
+shared, loaded machine the difference is the OS preempting the tick).
+
+Baselines measured in the same run: the control period (the deadline the
+loop must meet) and `Controller.step` alone in this process on recorded-like
+inputs (the decision's pure compute, no bus, no threads).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("controller", help="control loop tick latency (p50/p99/max vs the period), CPU, RSS",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--seconds", type=float, default=20.0, help="wall seconds of paced (real-time) HIL")
+    p.add_argument("--policy", default=str(ROOT / "policies" / "paper10_cell.qtab"), metavar="FILE")
+    p.add_argument("--goal-cell", default="9,0", metavar="COL,ROW", help="target cell on paper10 (default B)")
+    p.add_argument("--start", default="0.25,0.25,0", metavar="X,Y,DEG")
+    p.add_argument("--rt-priority", type=int, default=10, metavar="N",
+                   help="also run with the robot's ticking thread SCHED_FIFO at N (0: skip)")
+    p.add_argument("--json", metavar="FILE", help="write the result as JSON")
+    p.set_defaults(func=run)
+
+
+def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
+    """`Controller.step` alone: p50/p99 µs over n ticks of a kinematic drive."""
+    import math
+
+    from firmware_py import robot
+    from firmware_py.controller import Controller, Inputs
+    from firmware_py.policy import load_policy
+
+    pol = load_policy(policy_path)
+    ctrl = Controller(policy=pol, start_pose_mm=(250, 250, 0))
+    per_mm = robot.ENCODER_TICKS_PER_REV / (2 * math.pi * robot.WHEEL_RADIUS_MM)
+    left = right = 0.0
+    times = []
+    goal = pol.goals[1] if pol.kind == "cell" and len(pol.goals) > 1 else (9, 0)
+    gx, gy = robot.cell_center_mm(*goal, 10)
+    for k in range(n):
+        t = k * robot.CONTROL_PERIOD_US
+        inp = Inputs(ranges_mm=[1500] * robot.SENSOR_COUNT, range_status=[0] * robot.SENSOR_COUNT,
+                     ranges_us=[t, t], enc_left=round(left * per_mm), enc_right=round(right * per_mm),
+                     enc_us=t, bumper_us=t, driver_us=t)
+        t0 = time.perf_counter_ns()
+        out = ctrl.step(inp, t)
+        times.append(time.perf_counter_ns() - t0)
+        if k == 1:
+            ctrl.arm()
+            ctrl.set_goal(gx, gy)
+        if out.motor is not None:  # ideal wheels: enough to keep the decision path busy
+            left += out.motor.left_mm_s * robot.CONTROL_PERIOD_US / 1e6
+            right += out.motor.right_mm_s * robot.CONTROL_PERIOD_US / 1e6
+    times.sort()
+    return {"core_step_p50_us": times[len(times) // 2] / 1000,
+            "core_step_p99_us": times[int(0.99 * (len(times) - 1))] / 1000}
+
+
+def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
+    """One paced HIL run (hub + qnav-sim --realtime + qnav-robot); the robot's stats."""
+    from firmware_py import robot
+    from firmware_py.canbus import CanHub
+    from ground_station.cli import CliError
+
+    bindir = Path(sys.executable).parent
+    rt = [] if rt_priority is None else ["--rt-priority", str(rt_priority)]
+    with tempfile.TemporaryDirectory() as tmp, CanHub("bench") as hub:
+        stats_path = Path(tmp) / "robot.json"
+        sim = subprocess.Popen(
+            [str(bindir / "qnav-sim"), "--map", "paper10", "--can", hub.spec, "--realtime",
+             "--duration", str(args.seconds), "--start", args.start, "-q"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        rob = subprocess.Popen(
+            [str(bindir / "qnav-robot"), "--can", hub.spec, "--sim-clock", "--policy", args.policy,
+             "--start", args.start, "--goal-cell", args.goal_cell, *rt,
+             "--duration", str(args.seconds - robot.CONTROL_PERIOD_US / 1e6),
+             "--stats-json", str(stats_path), "-q"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            _, sim_err = sim.communicate(timeout=args.seconds + 60)
+            _, rob_err = rob.communicate(timeout=30)
+        finally:
+            for p in (sim, rob):
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+        if sim.returncode != 0 or not stats_path.is_file():
+            raise CliError(f"HIL run failed: sim rc {sim.returncode} {sim_err.strip()[-200:]!r}; "
+                           f"robot rc {rob.returncode} {rob_err.strip()[-200:]!r}")
+        return json.loads(stats_path.read_text())
+
+
+KEYS = ("tick_p50_us", "tick_p99_us", "tick_max_us", "ticks", "overruns", "cpu_percent", "rss_mb")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ground_station.bench.common import report
+    from ground_station.cli import CliError
+
+    if not args.seconds > 0:
+        raise CliError(f"--seconds must be positive, got {args.seconds:g}")
+    if not Path(args.policy).is_file():
+        raise CliError(f"policy {args.policy} not found")
+    variants = [("normal", None)]
+    if args.rt_priority:
+        variants.append((f"fifo{args.rt_priority}", args.rt_priority))
+    base = core_step_baseline(args.policy)
+    result: dict = {"period_us": 0, **base, "variants": {}}
+    rows: list[tuple[str, object]] = []
+    for name, prio in variants:
+        stats = paced_run(args, prio)
+        period = stats["period_us"]
+        result["period_us"] = period
+        v = {k: stats[k] for k in KEYS}
+        v.update(p99_over_period=stats["tick_p99_us"] / period,
+                 p50_over_core_step=stats["tick_p50_us"] / base["core_step_p50_us"],
+                 rt_active=stats.get("rt_active", False), robot_result=stats["result"])
+        result["variants"][name] = v
+        if name == "normal":
+            result.update({k: v[k] for k in KEYS})  # the headline figures: default scheduling
+        label = "normal scheduling" if prio is None else (
+            f"SCHED_FIFO {prio}" + ("" if v["rt_active"] else " (NOT granted)"))
+        rows += [(f"[{label}] tick_p50_us", v["tick_p50_us"]),
+                 (f"[{label}] tick_p99_us", v["tick_p99_us"]),
+                 (f"[{label}] tick_max_us", v["tick_max_us"]),
+                 (f"[{label}] tick_p99 / period", v["p99_over_period"]),
+                 (f"[{label}] tick_p50 / core_step_p50", v["p50_over_core_step"]),
+                 (f"[{label}] ticks / overruns", f"{v['ticks']} / {v['overruns']}"),
+                 (f"[{label}] cpu_percent (1 core = 100)", v["cpu_percent"]),
+                 (f"[{label}] rss_mb", v["rss_mb"])]
+    rows = [("period_us (deadline)", result["period_us"]),
+            ("core_step_p50_us (baseline: step alone)", base["core_step_p50_us"])] + rows
+    report("controller", rows, result, args.json)
+    return 0
