@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import pymunk
 
+from firmware_py import can_protocol as cp
 from firmware_py import robot
 from sim_bridge.world import ROBOT_CATEGORY, World
 
@@ -57,6 +58,7 @@ class RangeSensors:
         self.directions = [[a / 1000 + o for o in offsets] for a in robot.SENSOR_ANGLES_MRAD]
         self.reach_m = world.radius_m + robot.RANGE_MAX_MM / 1000 + 0.05
         self.last_rays: list[tuple[tuple[float, float], tuple[float, float], int]] = []
+        self._geometry: list[tuple[tuple[float, float], tuple[float, float]]] = []
 
     def true_ranges_mm(self) -> list[float | None]:
         """Noise-free distance from the rim to the nearest obstacle per sector (None: nothing in reach)."""
@@ -133,6 +135,9 @@ class WheelEncoders:
         return _wrap_i32(math.floor(self.ticks[0])), _wrap_i32(math.floor(self.ticks[1]))
 
 
+_ANGLE = cp.DB.get_message_by_name("Bumper").get_signal_by_name("Bump_AngleMrad")
+
+
 def _wrap_i32(v: int) -> int:
     return (v + 2**31) % 2**32 - 2**31
 
@@ -154,7 +159,7 @@ def bumper_signals(world: World) -> dict[str, int]:
     rel_last = round(_wrap_pi(world.last_contact_angle - heading) * 1000)
     return {"Bump_Pressed": int(bool(world.contacts)), **zones,
             "Bump_Events": world.contact_events % 256,
-            "Bump_AngleMrad": max(-3142, min(3142, rel_last))}
+            "Bump_AngleMrad": max(int(_ANGLE.minimum), min(int(_ANGLE.maximum), rel_last))}
 
 
 def _wrap_pi(a: float) -> float:
