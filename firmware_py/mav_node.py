@@ -76,6 +76,7 @@ class MavNode:
         self.commands = CommandHandler(self.mav, vehicle, self.telemetry, self.mission, self._reboot)
         self.gcs_last_heartbeat_us: int | None = None
         self.failsafe = False
+        self.failsafe_since_us: int | None = None  # robot time the failsafe last tripped
         self.reboots = 0
         self._pending: list = []
         self._now_us = 0
@@ -258,6 +259,7 @@ class MavNode:
         if now_us - self.gcs_last_heartbeat_us <= timeout_ms * 1000:
             return []
         self.failsafe = True
+        self.failsafe_since_us = now_us
         self.vehicle.set_failsafe(True)
         action = ("none", "Hold", "disarm")[self.params.get("FS_GCS_ACTION")]
         return self.telemetry.statustext(f"GCS failsafe: no GCS heartbeat for {timeout_ms} ms, {action}",

@@ -1,0 +1,66 @@
+"""`qnav param list|get NAME|set NAME VALUE`: the robot's parameters over MAVLink.
+
+`set` waits for the robot's PARAM_VALUE echo and fails (exit 3) with the
+robot's reason when it kept another value (out of range, read-only,
+unknown); no answer -> exit 4. The robot stores a set value atomically and
+keeps it across reboots. See docs/mavlink.md for the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from ground_station.link import add_link_args
+
+    p = sub.add_parser("param", help="list, read or set robot parameters (MAVLink)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    verbs = p.add_subparsers(dest="verb", metavar="VERB")
+    verbs.required = True
+    lst = verbs.add_parser("list", help="print every parameter")
+    lst.add_argument("--json", action="store_true", help="print as a JSON object")
+    get = verbs.add_parser("get", help="print one parameter")
+    get.add_argument("name", metavar="NAME")
+    st = verbs.add_parser("set", help="set one parameter and verify the echo")
+    st.add_argument("name", metavar="NAME")
+    st.add_argument("value", metavar="VALUE")
+    for v in (lst, get, st):
+        add_link_args(v)
+        v.set_defaults(func=run)
+
+
+def _fmt(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from ground_station.cli import CliError
+    from ground_station.link import run_on_link
+
+    name = getattr(args, "name", None)
+    if name is not None and not 0 < len(name) <= 16:
+        raise CliError(f"parameter name must be 1-16 characters, got {name!r}")
+    if args.verb == "set":
+        try:
+            value = float(args.value)
+        except ValueError as exc:
+            raise CliError(f"VALUE must be a number, got {args.value!r}") from exc
+
+    def body(link) -> int:
+        if args.verb == "list":
+            params = link.param_list()
+            if args.json:
+                print(json.dumps({k: int(v) if float(v).is_integer() else v for k, v in params.items()}, indent=1))
+            else:
+                for k, v in params.items():
+                    print(f"{k:<16} {_fmt(v)}")
+        elif args.verb == "get":
+            print(f"{name} {_fmt(link.param_get(name))}")
+        else:
+            print(f"{name} {_fmt(link.param_set(name, value))}")
+        return 0
+
+    return run_on_link(args, f"param {args.verb}", body)

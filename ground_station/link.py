@@ -1,0 +1,402 @@
+"""The ground station's MAVLink link to the robot, shared by every command.
+
+Owns: opening a pymavlink connection in MAVLink 2 (MAVLINK20=1 before
+pymavlink is imported, so a signing setup survives), the signing key file,
+a `.tlog` of every session in both directions (by default under
+`runs/tlogs/`; 8-byte big-endian µs timestamp + raw frame, what
+`mavlogdump.py` reads), finding the robot by its HEARTBEAT, and the
+request/answer patterns with timeouts and retries: COMMAND_LONG ->
+COMMAND_ACK, PARAM_* -> PARAM_VALUE, the mission upload/download exchange.
+
+Refusals and timeouts raise `LinkError(code, one line)`; the line carries
+the robot's reason (the STATUSTEXT it sent with the refusal). Exit codes
+match `qnav upload`: 3 refused, 4 timeout.
+
+One-shot commands send no HEARTBEAT: the robot's GCS failsafe watches
+ground-station heartbeats, and a command that exits would trip it 5 s later.
+A long-running tool (`qnav monitor`, MAVProxy) passes `heartbeat=True`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+EXIT_REFUSED, EXIT_TIMEOUT = 3, 4
+DEFAULT_URL = "udpin:127.0.0.1:14550"
+DEFAULT_TLOG_DIR = Path("runs") / "tlogs"
+GCS_SYSID, GCS_COMPID = 255, 190  # MAV_COMP_ID_MISSIONPLANNER, as ground stations use
+MAV_TYPE_GCS = 6
+
+
+class LinkError(Exception):
+    """A refusal or timeout, with the exit code the command should return."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def mavutil():
+    """pymavlink's mavutil, imported in MAVLink 2 mode."""
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink import mavutil as mu
+
+    return mu
+
+
+def mavlink():
+    return mavutil().mavlink
+
+
+def add_link_args(parser: argparse.ArgumentParser) -> None:
+    """--mavlink, --signing-key, --tlog/--no-tlog, --timeout for a command."""
+    parser.add_argument("--mavlink", metavar="URL", default=DEFAULT_URL,
+                        help=f"pymavlink connection string (default {DEFAULT_URL}; udpout:, tcp:, serial also)")
+    parser.add_argument("--signing-key", metavar="FILE", default=None,
+                        help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
+    parser.add_argument("--tlog", metavar="FILE", default=None,
+                        help=f"session log (default: a new file under {DEFAULT_TLOG_DIR}/)")
+    parser.add_argument("--no-tlog", action="store_true", help="do not write a session log")
+    parser.add_argument("--timeout", type=float, default=10.0, metavar="S",
+                        help="seconds to wait for the robot's heartbeat (default 10)")
+
+
+@dataclass
+class CommandResult:
+    result: int
+    texts: list[str]
+
+
+class Link:
+    """A connection to one robot. Use as a context manager."""
+
+    def __init__(self, url: str = DEFAULT_URL, *, signing_key: str | os.PathLike[str] | None = None,
+                 tlog: str | os.PathLike[str] | None = None, name: str = "session",
+                 heartbeat: bool = False, source_system: int = GCS_SYSID,
+                 source_component: int = GCS_COMPID) -> None:
+        mu = mavutil()
+        self.m = mu.mavlink
+        self.conn = mu.mavlink_connection(url, source_system=source_system, source_component=source_component,
+                                          dialect="common", autoreconnect=True)
+        self.url = url
+        self.key: bytes | None = None
+        if signing_key is not None:
+            from firmware_py.signing import load_key_file
+
+            self.key = load_key_file(signing_key)
+            self.conn.setup_signing(self.key, sign_outgoing=True, allow_unsigned_callback=None)
+        self.tlog_path: Path | None = None
+        self._tlog = None
+        self._tlog_lock = threading.Lock()
+        if tlog is not False:
+            self.tlog_path = Path(tlog) if tlog else default_tlog_path(name)
+            self.tlog_path.parent.mkdir(parents=True, exist_ok=True)
+            self._tlog = open(self.tlog_path, "wb")  # noqa: SIM115 - closed in close()
+            self.conn.message_hooks.append(self._log_received)
+            self.conn.mav.set_send_callback(self._log_sent)
+        self.texts: list[str] = []
+        self.conn.message_hooks.append(self._collect)
+        self.target: tuple[int, int] | None = None
+        self._hb_stop = threading.Event()
+        self._hb_thread: threading.Thread | None = None
+        self._heartbeat = heartbeat
+
+    # --- session ---------------------------------------------------------------------
+    def __enter__(self) -> Link:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._hb_stop.set()
+        if self._hb_thread is not None:
+            self._hb_thread.join(timeout=2)
+        self.conn.close()
+        with self._tlog_lock:
+            if self._tlog is not None:
+                self._tlog.close()
+                self._tlog = None
+
+    def _write_tlog(self, msg) -> None:
+        with self._tlog_lock:
+            if self._tlog is not None and msg.get_type() != "BAD_DATA":
+                usec = int(time.time() * 1e6) & ~3
+                self._tlog.write(struct.pack(">Q", usec) + bytes(msg.get_msgbuf()))
+                self._tlog.flush()
+
+    def _log_received(self, _conn, msg) -> None:
+        self._write_tlog(msg)
+
+    def _log_sent(self, msg, *_a, **_k) -> None:
+        self._write_tlog(msg)
+
+    def _collect(self, _conn, msg) -> None:
+        if msg.get_type() == "STATUSTEXT":
+            self.texts.append(msg.text)
+
+    def connect(self, timeout_s: float = 10.0) -> tuple[int, int]:
+        """Wait for the robot's HEARTBEAT; returns (sysid, compid)."""
+        deadline = time.monotonic() + timeout_s
+        next_poke = 0.0
+        while time.monotonic() < deadline:
+            if time.monotonic() >= next_poke:
+                # ask for a heartbeat now rather than waiting up to 1 s for the next one
+                # (over udpin this goes out once the robot's first frame taught us its address)
+                self.conn.mav.command_long_send(0, 0, self.m.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                self.m.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0)
+                next_poke = time.monotonic() + 1.0
+            msg = self.conn.recv_match(blocking=True, timeout=0.1)
+            if msg is None or msg.get_type() == "BAD_DATA":
+                continue
+            if msg.get_type() != "HEARTBEAT":
+                if msg.get_srcSystem() != GCS_SYSID and next_poke - time.monotonic() > 0.2:
+                    next_poke = time.monotonic() + 0.2  # the robot is there: poke again soon
+                continue
+            if msg.type != MAV_TYPE_GCS:
+                self.target = (msg.get_srcSystem(), msg.get_srcComponent())
+                self.conn.target_system, self.conn.target_component = self.target
+                if self._heartbeat:
+                    self._start_heartbeat()
+                return self.target
+        signed = " (signed; is it the robot's key?)" if self.key is not None else ""
+        raise LinkError(EXIT_TIMEOUT, f"no HEARTBEAT{signed} from a robot on {self.url} within {timeout_s:g} s")
+
+    def _start_heartbeat(self) -> None:
+        def beat() -> None:
+            while not self._hb_stop.wait(1.0):
+                self.send_heartbeat()
+        self.send_heartbeat()
+        self._hb_thread = threading.Thread(target=beat, name="gcs-heartbeat", daemon=True)
+        self._hb_thread.start()
+
+    def send_heartbeat(self) -> None:
+        self.conn.mav.heartbeat_send(MAV_TYPE_GCS, self.m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+    @property
+    def sysid(self) -> int:
+        assert self.target is not None, "connect() first"
+        return self.target[0]
+
+    @property
+    def compid(self) -> int:
+        assert self.target is not None, "connect() first"
+        return self.target[1]
+
+    def recv(self, types: str | list[str] | None = None, timeout_s: float = 1.0,
+             cond: Callable[[object], bool] | None = None):
+        """Next message from the robot (of `types`, passing `cond`) or None."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            msg = self.conn.recv_match(type=types, blocking=True, timeout=left)
+            if msg is None:
+                return None
+            if self.target is not None and msg.get_srcSystem() != self.target[0]:
+                continue
+            if cond is None or cond(msg):
+                return msg
+
+    def _reason(self, since: int, fallback: str) -> str:
+        new = [t for t in self.texts[since:] if t]
+        return "; ".join(new) if new else fallback
+
+    # --- commands ----------------------------------------------------------------------
+    def command(self, command: int, *params: float, timeout_s: float = 1.5, retries: int = 3,
+                check: bool = True) -> CommandResult:
+        """COMMAND_LONG with retries until its COMMAND_ACK; raises on refusal if `check`."""
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        name = _enum_name(self.m, "MAV_CMD", command)
+        since = len(self.texts)
+        for attempt in range(retries + 1):
+            self.conn.mav.command_long_send(self.sysid, self.compid, command, attempt, *p)
+            ack = self.recv("COMMAND_ACK", timeout_s, cond=lambda a: a.command == command)
+            if ack is None:
+                continue
+            self.recv("STATUSTEXT", 0.05)  # a reason sent just before the ACK may still be queued
+            texts = self.texts[since:]
+            if check and ack.result != self.m.MAV_RESULT_ACCEPTED:
+                result = _enum_name(self.m, "MAV_RESULT", ack.result)
+                raise LinkError(EXIT_REFUSED, f"{name}: {result}: {self._reason(since, 'no reason given')}")
+            return CommandResult(ack.result, texts)
+        raise LinkError(EXIT_TIMEOUT, f"{name}: no COMMAND_ACK after {retries + 1} tries{self._signing_hint()}")
+
+    def _signing_hint(self) -> str:
+        hb = self.conn.messages.get("HEARTBEAT")
+        buf = bytes(hb.get_msgbuf()) if hb is not None else b""
+        if self.key is None and len(buf) > 2 and buf[0] == 0xFD and buf[2] & 0x01:
+            return " (the robot signs its frames: it ignores unsigned commands; use --signing-key FILE)"
+        return ""
+
+    # --- parameters ----------------------------------------------------------------------
+    def param_list(self, timeout_s: float = 3.0, retries: int = 3) -> dict[str, float]:
+        """All parameters in index order; missing indices are re-read one by one."""
+        values: dict[int, tuple[str, float]] = {}
+        count = None
+        self.conn.mav.param_request_list_send(self.sysid, self.compid)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and (count is None or len(values) < count):
+            pv = self.recv("PARAM_VALUE", min(0.5, max(0.01, deadline - time.monotonic())))
+            if pv is None:
+                if count is not None:
+                    break
+                continue
+            count = pv.param_count
+            values[pv.param_index] = (pv.param_id, pv.param_value)
+        if count is None:
+            raise LinkError(EXIT_TIMEOUT, "no PARAM_VALUE answer to PARAM_REQUEST_LIST")
+        for index in range(count):
+            for _ in range(retries):
+                if index in values:
+                    break
+                self.conn.mav.param_request_read_send(self.sysid, self.compid, b"", index)
+                pv = self.recv("PARAM_VALUE", 1.0, cond=lambda p, i=index: p.param_index == i)
+                if pv is not None:
+                    values[index] = (pv.param_id, pv.param_value)
+            if index not in values:
+                raise LinkError(EXIT_TIMEOUT, f"parameter #{index} never arrived")
+        return dict(values[i] for i in range(count))
+
+    def param_get(self, name: str, timeout_s: float = 1.0, retries: int = 3) -> float:
+        since = len(self.texts)
+        for _ in range(retries):
+            self.conn.mav.param_request_read_send(self.sysid, self.compid, name.encode(), -1)
+            pv = self.recv(["PARAM_VALUE", "STATUSTEXT"], timeout_s,
+                           cond=lambda p: p.get_type() == "STATUSTEXT" or p.param_id == name)
+            if pv is None:
+                continue
+            if pv.get_type() == "PARAM_VALUE":
+                return pv.param_value
+            if name in pv.text:  # "unknown parameter NAME"
+                raise LinkError(EXIT_REFUSED, pv.text)
+        raise LinkError(EXIT_TIMEOUT, self._reason(since, f"no PARAM_VALUE for {name}"))
+
+    def param_set(self, name: str, value: float, timeout_s: float = 1.0, retries: int = 3) -> float:
+        """Set and verify the echo; raises with the robot's reason if it kept another value."""
+        since = len(self.texts)
+        want = struct.unpack("<f", struct.pack("<f", float(value)))[0]
+        for _ in range(retries):
+            self.conn.mav.param_set_send(self.sysid, self.compid, name.encode(), float(value),
+                                         self.m.MAV_PARAM_TYPE_INT32)
+            pv = self.recv(["PARAM_VALUE", "STATUSTEXT"], timeout_s,
+                           cond=lambda p: (p.get_type() == "STATUSTEXT" and name in p.text)
+                           or (p.get_type() == "PARAM_VALUE" and p.param_id == name))
+            if pv is None:
+                continue
+            if pv.get_type() == "STATUSTEXT":
+                # a refusal comes as STATUSTEXT + PARAM_VALUE with the kept value
+                self.recv("PARAM_VALUE", timeout_s, cond=lambda p: p.param_id == name)
+                raise LinkError(EXIT_REFUSED, self._reason(since, pv.text))
+            if pv.param_value != want:
+                raise LinkError(EXIT_REFUSED, self._reason(since, f"{name} stayed {pv.param_value:g}"))
+            return pv.param_value
+        raise LinkError(EXIT_TIMEOUT, f"no PARAM_VALUE echo for {name}")
+
+    # --- missions --------------------------------------------------------------------------
+    def mission_upload(self, items: list[tuple[int, int, int]], timeout_s: float = 2.0, retries: int = 3) -> int:
+        """Upload NAV_WAYPOINT items (frame, x, y as MISSION_ITEM_INT); returns the count."""
+        m = self.m
+        since = len(self.texts)
+        sent_count = 0
+        for _ in range(retries + 1):
+            self.conn.mav.mission_count_send(self.sysid, self.compid, len(items), m.MAV_MISSION_TYPE_MISSION)
+            sent_count += 1
+            while True:
+                msg = self.recv(["MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"], timeout_s)
+                if msg is None:
+                    break  # silence: start over (the robot cancels a stalled upload itself)
+                if msg.get_type() == "MISSION_ACK":
+                    if msg.type == m.MAV_MISSION_ACCEPTED:
+                        return len(items)
+                    result = _enum_name(m, "MAV_MISSION_RESULT", msg.type)
+                    raise LinkError(EXIT_REFUSED, f"mission upload: {result}: {self._reason(since, 'no reason given')}")
+                seq = msg.seq
+                if not 0 <= seq < len(items):
+                    continue
+                frame, x, y = items[seq]
+                self.conn.mav.mission_item_int_send(self.sysid, self.compid, seq, frame, m.MAV_CMD_NAV_WAYPOINT,
+                                                    0, 1, 0, 0, 0, 0, x, y, 0, m.MAV_MISSION_TYPE_MISSION)
+        raise LinkError(EXIT_TIMEOUT, f"mission upload: no MISSION_ACK after {sent_count} MISSION_COUNT")
+
+    def mission_download(self, timeout_s: float = 1.5, retries: int = 3) -> list:
+        """All mission items (MISSION_ITEM_INT messages) in order."""
+        m = self.m
+        count = None
+        for _ in range(retries + 1):
+            self.conn.mav.mission_request_list_send(self.sysid, self.compid, m.MAV_MISSION_TYPE_MISSION)
+            msg = self.recv("MISSION_COUNT", timeout_s)
+            if msg is not None:
+                count = msg.count
+                break
+        if count is None:
+            raise LinkError(EXIT_TIMEOUT, "mission download: no MISSION_COUNT")
+        items = []
+        for seq in range(count):
+            for _ in range(retries + 1):
+                self.conn.mav.mission_request_int_send(self.sysid, self.compid, seq, m.MAV_MISSION_TYPE_MISSION)
+                it = self.recv(["MISSION_ITEM_INT", "MISSION_ACK"], timeout_s,
+                               cond=lambda x, s=seq: x.get_type() == "MISSION_ACK" or x.seq == s)
+                if it is not None and it.get_type() == "MISSION_ACK":
+                    raise LinkError(EXIT_REFUSED, f"mission download: item {seq} refused "
+                                                  f"({_enum_name(m, 'MAV_MISSION_RESULT', it.type)})")
+                if it is not None:
+                    items.append(it)
+                    break
+            else:
+                raise LinkError(EXIT_TIMEOUT, f"mission download: item {seq} never arrived")
+        self.conn.mav.mission_ack_send(self.sysid, self.compid, m.MAV_MISSION_ACCEPTED, m.MAV_MISSION_TYPE_MISSION)
+        return items
+
+
+def _enum_name(m, enum: str, value: int) -> str:
+    entry = m.enums.get(enum, {}).get(value)
+    if entry is None:
+        return str(value)
+    return entry.name.removeprefix(f"{enum}_").removeprefix("MAV_RESULT_").removeprefix("MAV_MISSION_")
+
+
+def default_tlog_path(name: str) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return DEFAULT_TLOG_DIR / f"{stamp}-{name}-{os.getpid()}.tlog"
+
+
+def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False) -> Link:
+    """Open and connect a `Link` from the common command-line options."""
+    tlog = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
+    try:
+        link = Link(args.mavlink, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat)
+    except ValueError as exc:  # bad key file
+        from ground_station.cli import CliError
+
+        raise CliError(str(exc)) from exc
+    except OSError as exc:
+        from ground_station.cli import CliError
+
+        raise CliError(f"cannot open {args.mavlink}: {exc}") from exc
+    try:
+        link.connect(getattr(args, "timeout", 10.0))
+    except BaseException:
+        link.close()
+        raise
+    return link
+
+
+def run_on_link(args: argparse.Namespace, name: str, body: Callable[[Link], int]) -> int:
+    """Open the link, run `body`, print a LinkError as one line with its exit code."""
+    import sys
+
+    try:
+        with open_link(args, name) as link:
+            return body(link)
+    except LinkError as exc:
+        print(f"qnav {name}: {exc}", file=sys.stderr)
+        return exc.code

@@ -1,0 +1,230 @@
+"""The MAVLink node over real UDP loopback: the robot shell (udpout, as a
+robot talks to a ground station) against `qnav` commands and pymavlink
+clients (udpin). The vehicle is tests/mav_test_vehicle.py; the full HIL run
+with the controller and the pymunk sim is in the integration tests."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from mav_test_vehicle import TestVehicle
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402
+
+from firmware_py import robot  # noqa: E402
+from firmware_py.clock import WallClock  # noqa: E402
+from firmware_py.mav_node import open_node  # noqa: E402
+from ground_station import cli  # noqa: E402
+from ground_station.link import Link  # noqa: E402
+
+m = mavutil.mavlink
+VENV_BIN = Path(sys.executable).parent
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Robot:
+    """The node shell + test vehicle, ticking once per control period like
+    the controller's loop would call `poll`."""
+
+    def __init__(self, storage: Path, port: int, key_file: Path | None = None) -> None:
+        self.clock = WallClock()
+        self.vehicle = TestVehicle(speed_mm_s=10_000)
+        self.shell = open_node(self.vehicle, storage, f"udpout:127.0.0.1:{port}", self.clock.now_us(),
+                               signing_key=str(key_file) if key_file else None)
+        self.node = self.shell.node
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        period = robot.CONTROL_PERIOD_US
+        next_t = self.clock.now_us()
+        while not self._stop.is_set():
+            with self._lock:
+                self.vehicle.step(period)
+                self.shell.poll(self.clock.now_us())
+            next_t += period
+            time.sleep(max(0.0, (next_t - self.clock.now_us()) / 1e6))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.shell.close()
+
+
+@pytest.fixture
+def rig(tmp_path):
+    port = free_udp_port()
+    robots = []
+
+    def start(key_file: Path | None = None) -> Robot:
+        r = Robot(tmp_path / "storage", port, key_file)
+        robots.append(r)
+        return r
+
+    yield port, start, tmp_path
+    for r in robots:
+        r.stop()
+
+
+def qnav(port: int, *argv: str, key: Path | None = None, tlog: Path | None = None,
+         timeout: float = 5) -> tuple[int, str]:
+    """Run a qnav command in-process; returns (exit code, stderr+stdout)."""
+    import contextlib
+    import io
+
+    args = list(argv) + ["--mavlink", f"udpin:127.0.0.1:{port}", "--timeout", str(timeout)]
+    args += ["--signing-key", str(key)] if key else []
+    args += ["--tlog", str(tlog)] if tlog else ["--no-tlog"]
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(args)
+    return code, err.getvalue() + out.getvalue()
+
+
+def test_commands_params_and_tlog_over_udp(rig):
+    port, start, tmp = rig
+    r = start()
+    tlog = tmp / "arm.tlog"
+    code, out = qnav(port, "arm", tlog=tlog)
+    assert code == 0 and r.vehicle.st.armed, out
+    # mavlogdump (pymavlink's own tool) reads our tlog, both directions
+    dump = subprocess.run([sys.executable, str(VENV_BIN / "mavlogdump.py"), "--types", "COMMAND_LONG,COMMAND_ACK",
+                           str(tlog)], capture_output=True, text=True, timeout=60)
+    assert dump.returncode == 0, dump.stderr
+    sent = [ln for ln in dump.stdout.splitlines() if "COMMAND_LONG" in ln and "command : 400" in ln]
+    acks = [ln for ln in dump.stdout.splitlines() if "COMMAND_ACK" in ln and "command : 400" in ln]
+    assert sent and acks and "result : 0" in acks[-1], dump.stdout
+
+    code, out = qnav(port, "mode", "auto")
+    assert code == 3 and "no mission" in out  # the robot's reason reaches the user
+    assert qnav(port, "mode", "guided")[0] == 0 and r.vehicle.st.mode == 15
+    code, out = qnav(port, "goal", "1.5", "2.0")
+    assert code == 0 and r.vehicle.st.goal_mm in ((1500, 2000), None)  # may already be reached
+    assert qnav(port, "disarm")[0] == 0 and not r.vehicle.st.armed
+
+    code, out = qnav(port, "param", "set", "GOAL_TOL_MM", "200")
+    assert code == 0 and out.split() == ["GOAL_TOL_MM", "200"]
+    code, out = qnav(port, "param", "set", "GOAL_TOL_MM", "99999")
+    assert code == 3 and "out of range" in out
+    code, out = qnav(port, "param", "list")
+    assert code == 0 and "GOAL_TOL_MM      200" in out and "SYSID_THISMAV" in out
+    code, out = qnav(port, "param", "get", "NOPE")
+    assert code == 3 and "unknown parameter NOPE" in out
+
+    # reboot: params reloaded from storage, the refused value never stored
+    with Link(f"udpin:127.0.0.1:{port}", tlog=False) as link:
+        link.connect(5)
+        link.command(m.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+    assert r.node.reboots == 1
+    assert qnav(port, "param", "get", "GOAL_TOL_MM")[1].split() == ["GOAL_TOL_MM", "200"]
+
+
+def test_mission_targets_upload_download_and_auto_run(rig):
+    port, start, tmp = rig
+    r = start()
+    code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D")
+    assert code == 0 and "4 waypoints" in out, out
+    # paper10 targets A (2,2) B (9,0) C (0,9) D (9,7), 0.5 m cells, 10 rows
+    assert r.vehicle.mission == [robot.cell_center_mm(c, row, 10) for c, row in ((2, 2), (9, 0), (0, 9), (9, 7))]
+    wpl = tmp / "down.waypoints"
+    code, out = qnav(port, "mission", "download", "--out", str(wpl))
+    assert code == 0 and "x=1.250 m east  y=3.750 m north" in out
+    assert wpl.read_text().startswith("QGC WPL 110")
+    # the file goes back up unchanged
+    code, _ = qnav(port, "mission", "upload", str(wpl))
+    assert code == 0 and r.vehicle.mission[3] == robot.cell_center_mm(9, 7, 10)
+    assert qnav(port, "mission", "upload", "--targets", "A,Z")[0] == 2  # no target Z: CLI error
+
+    with Link(f"udpin:127.0.0.1:{port}", tlog=False) as link:
+        link.connect(5)
+        link.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        link.command(m.MAV_CMD_MISSION_START)
+        reached = []
+        deadline = time.monotonic() + 30
+        while len(reached) < 4 and time.monotonic() < deadline:
+            msg = link.recv("MISSION_ITEM_REACHED", 1.0)
+            if msg is not None:
+                reached.append(msg.seq)
+        assert reached == [0, 1, 2, 3]
+        cur = link.recv("MISSION_CURRENT", 3.0)
+        assert cur is not None and cur.mission_state == m.MISSION_STATE_COMPLETE
+
+
+def test_gcs_failsafe_within_timeout_plus_one_period(rig):
+    port, start, _tmp = rig
+    r = start()
+    with Link(f"udpin:127.0.0.1:{port}", tlog=False) as link:
+        link.connect(5)
+        link.param_set("FS_GCS_TOUT_MS", 1000)
+        link.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        link.command(m.MAV_CMD_DO_SET_MODE, 1, 15)
+        for _ in range(3):
+            link.send_heartbeat()
+            time.sleep(0.2)
+        assert not r.node.failsafe
+        last_hb = r.node.gcs_last_heartbeat_us
+        text = link.recv("STATUSTEXT", 5.0, cond=lambda t: t.text.startswith("GCS failsafe"))
+        assert text is not None and text.severity == m.MAV_SEVERITY_CRITICAL
+        delay = r.node.failsafe_since_us - last_hb
+        assert 1_000_000 < delay <= 1_000_000 + robot.CONTROL_PERIOD_US  # on the robot clock
+        hb = link.recv("HEARTBEAT", 2.0)
+        assert hb.custom_mode == 4 and hb.system_status == m.MAV_STATE_CRITICAL  # Hold
+        link.send_heartbeat()
+        assert link.recv("STATUSTEXT", 3.0, cond=lambda t: t.text == "GCS failsafe cleared") is not None
+        assert not r.node.failsafe
+
+
+def test_signing_over_udp_unsigned_ignored_signed_works_replay_dropped(rig):
+    port, start, tmp = rig
+    key_file = tmp / "robot.key"
+    key_file.write_text(hashlib.sha256(b"field key").hexdigest() + "\n")
+    r = start(key_file)
+    # an unsigned ground station: its ARM is ignored and counted
+    plain = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190)
+    try:
+        assert plain.recv_match(type="HEARTBEAT", blocking=True, timeout=5) is not None
+        for _ in range(3):
+            plain.mav.command_long_send(1, 1, m.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        assert plain.recv_match(type="COMMAND_ACK", blocking=True, timeout=1.0) is None
+    finally:
+        plain.close()
+    assert not r.vehicle.st.armed and r.node.signing.dropped_unsigned >= 3
+    dropped_before = r.node.signing.dropped
+    # a signed one works
+    code, out = qnav(port, "arm", key=key_file)
+    assert code == 0 and r.vehicle.st.armed, out
+    with Link(f"udpin:127.0.0.1:{port}", signing_key=key_file, tlog=False) as link:
+        link.connect(5)
+        sent = []
+        link.conn.mav.set_send_callback(lambda msg, *a, **k: sent.append(bytes(msg.get_msgbuf())))
+        link.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        signed_arm = sent[-1]
+        assert signed_arm[2] & 1  # incompat flag: signed
+        link.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+        assert not r.vehicle.st.armed
+        link.conn.write(signed_arm)  # replay the captured signed ARM
+        time.sleep(0.5)
+        assert not r.vehicle.st.armed and r.node.signing.dropped_replay >= 1
+        # the drop counter is visible to the ground station in SYS_STATUS
+        link.command(m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_SYS_STATUS)
+        st = link.recv("SYS_STATUS", 2.0)
+        assert st is not None and st.errors_count3 > dropped_before
+        # robot frames are signed
+        hb = link.recv("HEARTBEAT", 2.0)
+        assert hb.get_signed()
