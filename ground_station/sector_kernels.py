@@ -1,0 +1,283 @@
+"""Jitted kernels of the sector encoding: the exact sequential Q-learning
+loop and greedy evaluation rollouts, both on the kinematic twin
+(`ground_station.sector_twin`).
+
+Maps are packed for numba: `occ` uint8 (M, Hmax, Wmax) padded with
+obstacles, `dims` int64 (M, 2) = (H, W), `cell` float64 (M,) mm, free cells
+`free` int64 (M, Fmax, 2) = (col, row) with counts `nfree`, and per map the
+octile distance field (cells) to every free cell `dist` float32
+(M, Fmax, Hmax, Wmax). Random numbers come from a xorshift64* generator whose
+state lives in a caller-owned array, so a run split into chunks draws exactly
+the same numbers as one call (same seed -> same table).
+
+Reward of one control period (parameters `rw`):
+  rw[0] * (progress in cells along the potential) - rw[1] (time cost)
+  - rw[2] extra if the action is `reverse`;
+  on reaching the goal + rw[3]; on a collision -rw[4] (and nothing else).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from ground_station.sector_twin import (
+    ACTION_V_MM_S,
+    GOAL_TOL_MM,
+    N_ACTIONS,
+    N_SUBSTEPS,
+    RADIUS_MM,
+    SUB_DT_S,
+    bearing_mrad,
+    cell_centre,
+    encode_fast,
+    move,
+    potential,
+    sense,
+)
+
+# fastest forward travel in one control period (the step budget's unit)
+FWD_MM_PER_PERIOD = float(np.max(ACTION_V_MM_S)) * N_SUBSTEPS * SUB_DT_S
+
+_M12 = np.uint64(12)
+_M25 = np.uint64(25)
+_M27 = np.uint64(27)
+_M11 = np.uint64(11)
+_MUL = np.uint64(0x2545F4914F6CDD1D)
+_INV53 = 1.0 / 9007199254740992.0
+REVERSE = 3  # index of `reverse` in robot.ACTION_NAMES (asserted in tests)
+
+# episode-state slots (float64 array carried between chunks)
+(E_ACTIVE, E_MAP, E_X, E_Y, E_TH, E_GOAL, E_GX, E_GY, E_T, E_RET, E_S, E_PHI,
+ E_K, E_A, E_S0, E_R, E_G) = range(17)
+EP_LEN = 17
+
+
+def seed_rng(seed: int) -> np.ndarray:
+    """A fresh generator state (uint64[1]) from an int seed (splitmix64)."""
+    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    z ^= z >> 31
+    return np.array([z or 1], dtype=np.uint64)
+
+
+@numba.njit(cache=True, inline="always")
+def rand01(rng) -> float:
+    x = rng[0]
+    x ^= x >> _M12
+    x ^= x << _M25
+    x ^= x >> _M27
+    rng[0] = x
+    return float((x * _MUL) >> _M11) * _INV53
+
+
+@numba.njit(cache=True, inline="always")
+def randint(rng, n: int) -> int:
+    k = int(rand01(rng) * n)
+    return k if k < n else n - 1
+
+
+@numba.njit(cache=True, inline="always")
+def greedy(q, s: int) -> int:
+    """argmax of q[s]; ties break to the lowest index (as firmware best_action)."""
+    best = 0
+    bv = q[s, 0]
+    for a in range(1, q.shape[1]):
+        if q[s, a] > bv:
+            bv = q[s, a]
+            best = a
+    return best
+
+
+@numba.njit(cache=True)
+def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
+                 ranges, status):
+    m = randint(rng, occ.shape[0])
+    h = dims[m, 0]
+    w = dims[m, 1]
+    c = cell[m]
+    nf = nfree[m]
+    g = randint(rng, nf)
+    gcol = free[m, g, 0]
+    grow = free[m, g, 1]
+    d = dist[m, g]
+    while True:  # a start cell connected to the goal, not the goal itself
+        k = randint(rng, nf)
+        scol = free[m, k, 0]
+        srow = free[m, k, 1]
+        if k != g and d[srow, scol] < np.inf:
+            break
+    half = 0.5 * c - RADIUS_MM - 1.0  # stays inside the start cell: no contact
+    cx, cy = cell_centre(scol, srow, h, c)
+    x = cx + (2.0 * rand01(rng) - 1.0) * half
+    y = cy + (2.0 * rand01(rng) - 1.0) * half
+    th = (2.0 * rand01(rng) - 1.0) * math.pi
+    gx, gy = cell_centre(gcol, grow, h, c)
+    og = occ[m]
+    sense(og, h, w, c, x, y, th, which, ranges, status)
+    ep[E_ACTIVE] = 1.0
+    ep[E_MAP] = m
+    ep[E_X] = x
+    ep[E_Y] = y
+    ep[E_TH] = th
+    ep[E_GOAL] = g
+    ep[E_GX] = gx
+    ep[E_GY] = gy
+    ep[E_T] = 0.0
+    ep[E_RET] = 0.0
+    ep[E_K] = 0.0
+    ep[E_S] = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
+    ep[E_PHI] = potential(d, og, h, w, c, x, y)
+
+
+@numba.njit(cache=True)
+def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
+                 sectors, sensors, edges, which,
+                 lr, gamma, eps_start, eps_end, eps_decay_steps, rw, max_episode_steps, hold_max,
+                 start_step, n_steps, out_ret, out_succ):
+    """Advance exact sequential Q-learning by n_steps env steps (control periods).
+
+    Epsilon at global step t: linear from eps_start to eps_end over
+    eps_decay_steps, then eps_end. A chosen action is held while the state
+    index stays the same, up to hold_max periods, and learnt as one
+    semi-Markov transition (discount gamma^k, rewards summed with discount):
+    the greedy policy holds it anyway (same state -> same action), so this is
+    what the robot executes. hold_max = 1 is the plain one-step update.
+    Writes one entry per finished episode to out_ret/out_succ and returns how
+    many."""
+    ranges = np.zeros(which.shape[0], dtype=np.int64)
+    status = np.zeros(which.shape[0], dtype=np.int64)
+    n_done = 0
+    for i in range(n_steps):
+        if ep[E_ACTIVE] == 0.0:
+            _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
+                         ranges, status)
+        s = int(ep[E_S])
+        if ep[E_K] == 0.0:  # a decision: start a new option in state s
+            t_glob = start_step + i
+            if eps_decay_steps > 0 and t_glob < eps_decay_steps:
+                eps = eps_start + (eps_end - eps_start) * (t_glob / eps_decay_steps)
+            else:
+                eps = eps_end
+            if rand01(rng) < eps:
+                a = randint(rng, N_ACTIONS)
+            else:
+                a = greedy(q, s)
+            ep[E_A] = a
+            ep[E_S0] = s
+            ep[E_R] = 0.0
+            ep[E_G] = 1.0
+        a = int(ep[E_A])
+        m = int(ep[E_MAP])
+        h = dims[m, 0]
+        w = dims[m, 1]
+        c = cell[m]
+        og = occ[m]
+        x, y, th, _, hit = move(og, h, w, c, ep[E_X], ep[E_Y], ep[E_TH], a)
+        ep[E_T] += 1.0
+        ep[E_K] += 1.0
+        terminal = False
+        success = False
+        s2 = s
+        if hit:
+            r = -rw[4]
+            terminal = True
+        else:
+            gx = ep[E_GX]
+            gy = ep[E_GY]
+            d = dist[m, int(ep[E_GOAL])]
+            phi2 = potential(d, og, h, w, c, x, y)
+            r = rw[0] * (ep[E_PHI] - phi2) / c - rw[1]
+            if a == REVERSE:
+                r -= rw[2]
+            if (x - gx) * (x - gx) + (y - gy) * (y - gy) <= GOAL_TOL_MM * GOAL_TOL_MM:
+                r += rw[3]
+                terminal = True
+                success = True
+            else:
+                sense(og, h, w, c, x, y, th, which, ranges, status)
+                s2 = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
+            ep[E_X] = x
+            ep[E_Y] = y
+            ep[E_TH] = th
+            ep[E_PHI] = phi2
+            ep[E_S] = s2
+        ep[E_R] += ep[E_G] * r
+        ep[E_G] *= gamma
+        ep[E_RET] += r
+        end = terminal or ep[E_T] >= max_episode_steps
+        if end or s2 != int(ep[E_S0]) or ep[E_K] >= hold_max:
+            s0 = int(ep[E_S0])
+            if terminal:
+                target = ep[E_R]
+            else:  # also on truncation: bootstrap
+                target = ep[E_R] + ep[E_G] * q[s2, greedy(q, s2)]
+            q[s0, a] += lr * (target - q[s0, a])
+            ep[E_K] = 0.0
+        if end:
+            out_ret[n_done] = ep[E_RET]
+            out_succ[n_done] = success
+            n_done += 1
+            ep[E_ACTIVE] = 0.0
+    return n_done
+
+
+# evaluation outcomes
+SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
+
+
+@numba.njit(cache=True)
+def eval_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sectors, sensors, edges,
+                which, max_steps, budget_base, budget_factor, stall_steps,
+                out_outcome, out_path, out_steps):
+    """Greedy rollouts of episodes i = (starts[i], goals[i], headings[i]) from
+    the start cell's centre; dists[goal_slot[i]] is the goal's octile field.
+
+    An episode ends on success, collision, loop (the potential has not reached
+    a new minimum for stall_steps periods: the policy cycles or is stuck) or
+    timeout (step budget: max_steps if > 0, else budget_base + budget_factor
+    x the shortest path length in forward control periods)."""
+    ranges = np.zeros(which.shape[0], dtype=np.int64)
+    status = np.zeros(which.shape[0], dtype=np.int64)
+    for i in range(starts.shape[0]):
+        d = dists[goal_slot[i]]
+        x, y = cell_centre(starts[i, 0], starts[i, 1], h, c)
+        gx, gy = cell_centre(goals[i, 0], goals[i, 1], h, c)
+        th = headings[i]
+        if max_steps > 0:
+            budget = max_steps
+        else:
+            budget = int(budget_base + budget_factor * d[starts[i, 1], starts[i, 0]] * c / FWD_MM_PER_PERIOD)
+        best = potential(d, occ, h, w, c, x, y)
+        since = 0
+        path = 0.0
+        outcome = TIMEOUT
+        t = 0
+        while t < budget:
+            sense(occ, h, w, c, x, y, th, which, ranges, status)
+            s = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
+            a = greedy(q, s)
+            x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
+            path += driven
+            t += 1
+            if hit:
+                outcome = COLLISION
+                break
+            if (x - gx) * (x - gx) + (y - gy) * (y - gy) <= GOAL_TOL_MM * GOAL_TOL_MM:
+                outcome = SUCCESS
+                break
+            phi = potential(d, occ, h, w, c, x, y)
+            if phi < best - 1.0:
+                best = phi
+                since = 0
+            else:
+                since += 1
+                if since >= stall_steps:
+                    outcome = LOOP
+                    break
+        out_outcome[i] = outcome
+        out_path[i] = path
+        out_steps[i] = t
