@@ -45,4 +45,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Run through the package module so commands' `CliError` is this class,
+    # not a second copy living in __main__.
+    from ground_station.cli import main as _main
+
+    sys.exit(_main())
