@@ -9,7 +9,8 @@ MAVProxy) find the robot; tests and `qnav bench upload` use that mode. The
 standalone activation hook only validates the file with the policy loader
 (there is no vehicle); the real robot passes `VehicleControl.activate_policy`.
 
-Signing: pass a 32-byte key (`load_signing_key`); the connection then signs
+Signing: pass a 32-byte key (`firmware_py.signing.load_key_file`: raw, hex
+or passphrase, as the MAVLink node reads it); the connection then signs
 everything it sends and drops unsigned input. MAVLINK20=1 must be in the
 environment before pymavlink is imported, or pymavlink's later switch to
 MAVLink 2 throws the signing setup away (design.md section 3).
@@ -23,29 +24,15 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 from firmware_py.clock import Clock, WallClock
 from firmware_py.ftp_server import PAYLOAD_LEN, FtpServer
+from firmware_py.signing import load_key_file
 from firmware_py.storage import DEFAULT_QUOTA_BYTES, Storage
 
 STATUSTEXT_CHARS = 50
 MAV_TYPE_GROUND_ROVER = 10
 MAV_AUTOPILOT_GENERIC = 0
-
-
-def load_signing_key(path: str | os.PathLike) -> bytes:
-    """A MAVLink signing key file: 32 raw bytes, or 64 hex digits (text)."""
-    raw = Path(path).read_bytes()
-    text = raw.strip()
-    if len(text) == 64:
-        try:
-            return bytes.fromhex(text.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
-    if len(raw) == 32:
-        return raw
-    raise ValueError(f"{path}: a signing key is 32 raw bytes or 64 hex digits, got {len(raw)} bytes")
 
 
 def validate_only_activate(path: str) -> tuple[bool, str]:
@@ -135,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--root", required=True, help="storage root directory (created if missing)")
     p.add_argument("--mavlink", default="udpin:127.0.0.1:14551",
                    help="pymavlink connection string (default %(default)s)")
-    p.add_argument("--signing-key", help="MAVLink 2 signing key file (32 bytes or 64 hex digits)")
+    p.add_argument("--signing-key", help="MAVLink 2 signing key file (32 bytes, 64 hex digits or a passphrase)")
     p.add_argument("--quota", type=int, default=DEFAULT_QUOTA_BYTES, help="storage quota in bytes")
     p.add_argument("--no-validate", action="store_true",
                    help="accept any file on activation (default: the policy loader decides)")
@@ -143,8 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     key = None
     if args.signing_key:
         try:
-            key = load_signing_key(args.signing_key)
-        except (OSError, ValueError) as exc:
+            key = load_key_file(args.signing_key)
+        except ValueError as exc:
             print(f"ftp_link: error: {exc}", file=sys.stderr)
             return 2
     activate = (lambda path: (True, "not validated")) if args.no_validate else validate_only_activate

@@ -139,10 +139,12 @@ def run(args: argparse.Namespace) -> int:
     modes = {"both": [False, True], "off": [False], "on": [True]}[args.signing]
     cases = [(s, signed, loss) for s in sizes for signed in modes for loss in losses]
     rows = []
-    key = bytes(range(32))
+    from firmware_py.signing import load_key_file
+
     with tempfile.TemporaryDirectory() as tmp, tqdm(total=len(cases), desc="bench upload") as bar:
         key_file = Path(tmp) / "signing.key"
-        key_file.write_bytes(key)
+        key_file.write_text(random.Random(args.seed).randbytes(32).hex() + "\n")
+        key = load_key_file(key_file)
         for signed in modes:
             root = Path(tmp) / f"robot-{int(signed)}"
             port = free_port()

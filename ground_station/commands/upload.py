@@ -52,7 +52,8 @@ class UploadResult:
     put_seconds: float = 0.0  # first ResetSessions to CRC verified
     activated: bool = False
     confirmed_by: str = ""  # "POLICY_ID param" | "active.qtab CRC"
-    policy_id: int | None = None
+    policy_id: int | None = None  # from the local file, when it loads
+    policy_crc: int | None = None  # the .qtab's own CRC32 (what POLICY_CRC reports)
     texts: list[str] = field(default_factory=list)
 
 
@@ -165,15 +166,9 @@ def patient(settings) -> None:
     settings.read_retry_time = DEFAULT_FTP_SETTINGS["read_retry_time"]
 
 
-def _param_int(msg) -> int:
-    """An integer parameter's value: pymavlink gives a float; int32 params are sent
-    either cast (ArduPilot) or bit-copied (PX4); accept the bit-copy when it is a
-    32-bit integer type."""
-    value = msg.param_value
-    if msg.param_type in (5, 6):  # MAV_PARAM_TYPE_UINT32 / INT32
-        bits = struct.unpack("<I", struct.pack("<f", value))[0]
-        return bits if msg.param_type == 5 else struct.unpack("<i", struct.pack("<I", bits))[0]
-    return int(value)
+def _float32(value: int) -> float:
+    """What a PARAM_VALUE carries for an integer parameter (C cast to float32)."""
+    return struct.unpack("<f", struct.pack("<f", float(value)))[0]
 
 
 def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool = False,
@@ -188,9 +183,10 @@ def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool =
     data = local.read_bytes()
     res = UploadResult(remote=remote, size=len(data), crc=ftp_crc32(data))
     try:
-        res.policy_id = load_policy(data).policy_id
+        pol = load_policy(data)
+        res.policy_id, res.policy_crc = pol.policy_id, pol.crc
     except PolicyError:
-        res.policy_id = None  # not a policy this robot build can load: the robot will judge it
+        pass  # not a policy this build can load: the robot will judge it
     deadline = time.monotonic() + deadline_s
     t0 = time.monotonic()
     mavftp = link.mavftp
@@ -250,18 +246,34 @@ def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool =
         raise UploadFailed(EXIT_TIMEOUT, "no answer to the activation rename")
     res.texts = list(link.texts)
 
-    param = link.read_param("POLICY_ID")
-    if param is not None and res.policy_id is not None:
-        got = _param_int(param) & 0xFFFFFFFF
-        if got != res.policy_id & 0xFFFFFFFF:
-            raise UploadFailed(EXIT_MISMATCH, f"robot reports POLICY_ID 0x{got:08x}, file has 0x{res.policy_id:08x}")
-        res.confirmed_by = "POLICY_ID param"
-    else:
-        crc = link.remote_crc(ftp, ACTIVE_POLICY)
-        if crc != res.crc:
-            raise UploadFailed(EXIT_MISMATCH, f"{ACTIVE_POLICY} CRC32 is {crc} after activation, expected 0x{res.crc:08x}")
-        res.confirmed_by = "active.qtab CRC"
+    confirm_activation(link, ftp, res, deadline)
     return res
+
+
+def confirm_activation(link: RobotLink, ftp, res: UploadResult, deadline: float) -> None:
+    """The robot must report the new policy: its read-only parameters
+    POLICY_CRC_HI/LO (exact) and POLICY_ID (float32 on the wire, so compared at
+    float32 precision) against the file. A robot serving no parameters (the
+    standalone FTP shell) is checked by the CRC of active.qtab instead."""
+    first = link.read_param("POLICY_ID", tries=2)
+    if first is not None and res.policy_id is not None and res.policy_crc is not None:
+        want = {"POLICY_ID": _float32(res.policy_id), "POLICY_CRC_HI": float(res.policy_crc >> 16),
+                "POLICY_CRC_LO": float(res.policy_crc & 0xFFFF)}
+        give_up = min(deadline, time.monotonic() + 10.0)
+        while True:  # the swap happens between two control ticks: allow it a moment
+            got = {name: link.read_param(name) for name in want}
+            values = {k: (m.param_value if m is not None else None) for k, m in got.items()}
+            if values == want:
+                res.confirmed_by = "POLICY_ID/POLICY_CRC params"
+                return
+            if time.monotonic() > give_up:
+                raise UploadFailed(EXIT_MISMATCH, f"robot reports {values}, file has {want}")
+            time.sleep(0.2)
+    crc = link.remote_crc(ftp, ACTIVE_POLICY)
+    if crc != res.crc:
+        shown = "missing" if crc is None else f"0x{crc:08x}"
+        raise UploadFailed(EXIT_MISMATCH, f"{ACTIVE_POLICY} CRC32 is {shown} after activation, expected 0x{res.crc:08x}")
+    res.confirmed_by = "active.qtab CRC (robot serves no POLICY_ID parameter)"
 
 
 def default_remote(local: Path) -> str:
@@ -278,7 +290,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mavlink", required=True,
                    help="pymavlink connection string, e.g. udpin:127.0.0.1:14550 or /dev/ttyUSB0,57600")
     p.add_argument("--activate", action="store_true", help="make it the robot's active policy")
-    p.add_argument("--signing-key", type=Path, help="MAVLink 2 signing key file (32 bytes or 64 hex digits)")
+    p.add_argument("--signing-key", type=Path, help="MAVLink 2 signing key file (32 bytes, 64 hex digits or a passphrase)")
     p.add_argument("--remote", help="path on the robot (default /policies/<file name>)")
     p.add_argument("--timeout", type=float, default=300.0, help="give up after this many seconds (default %(default)s)")
     p.add_argument("--attempts", type=int, default=8, help="whole-file put attempts (default %(default)s)")
@@ -288,15 +300,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from firmware_py.ftp_link import load_signing_key
+    from firmware_py.signing import load_key_file
 
     if not args.file.is_file():
         raise CliError(f"{args.file}: no such file")
     key = None
     if args.signing_key is not None:
         try:
-            key = load_signing_key(args.signing_key)
-        except (OSError, ValueError) as exc:
+            key = load_key_file(args.signing_key)
+        except ValueError as exc:
             raise CliError(str(exc)) from exc
     remote = args.remote or default_remote(args.file)
     size = args.file.stat().st_size
