@@ -134,6 +134,29 @@ def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, 
 
 
 @numba.njit(cache=True)
+def period_step(occ, h, w, c, dist, x, y, th, phi, gx, gy, a, rw, which, ranges, status,
+                sectors, sensors, edges):
+    """One control period of the sector task from pose (x, y, th) with
+    potential phi toward goal (gx, gy) (octile field `dist`): the one
+    definition of the reward, shared by the trainer and the Gymnasium env.
+
+    Returns (x, y, th, phi, reward, state, hit, success, driven_mm); after a
+    hit or success the state is -1 and ranges/status are not refreshed."""
+    x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
+    if hit:
+        return x, y, th, phi, -rw[4], -1, True, False, driven
+    phi2 = potential(dist, occ, h, w, c, x, y)
+    r = rw[0] * (phi - phi2) / c - rw[1]
+    if a == REVERSE:
+        r -= rw[2]
+    if (x - gx) * (x - gx) + (y - gy) * (y - gy) <= GOAL_TOL_MM * GOAL_TOL_MM:
+        return x, y, th, phi2, r + rw[3], -1, False, True, driven
+    sense(occ, h, w, c, x, y, th, which, ranges, status)
+    s2 = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
+    return x, y, th, phi2, r, s2, False, False, driven
+
+
+@numba.njit(cache=True)
 def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
                  sectors, sensors, edges, which,
                  lr, gamma, eps_start, eps_end, eps_decay_steps, rw, max_episode_steps, hold_max,
@@ -176,35 +199,21 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
         w = dims[m, 1]
         c = cell[m]
         og = occ[m]
-        x, y, th, _, hit = move(og, h, w, c, ep[E_X], ep[E_Y], ep[E_TH], a)
+        d = dist[m, int(ep[E_GOAL])]
+        x, y, th, phi2, r, s2, hit, success, _ = period_step(
+            og, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], ep[E_GX], ep[E_GY], a, rw,
+            which, ranges, status, sectors, sensors, edges)
         ep[E_T] += 1.0
         ep[E_K] += 1.0
-        terminal = False
-        success = False
-        s2 = s
-        if hit:
-            r = -rw[4]
-            terminal = True
-        else:
-            gx = ep[E_GX]
-            gy = ep[E_GY]
-            d = dist[m, int(ep[E_GOAL])]
-            phi2 = potential(d, og, h, w, c, x, y)
-            r = rw[0] * (ep[E_PHI] - phi2) / c - rw[1]
-            if a == REVERSE:
-                r -= rw[2]
-            if (x - gx) * (x - gx) + (y - gy) * (y - gy) <= GOAL_TOL_MM * GOAL_TOL_MM:
-                r += rw[3]
-                terminal = True
-                success = True
-            else:
-                sense(og, h, w, c, x, y, th, which, ranges, status)
-                s2 = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
+        terminal = hit or success
+        if not terminal:
             ep[E_X] = x
             ep[E_Y] = y
             ep[E_TH] = th
             ep[E_PHI] = phi2
             ep[E_S] = s2
+        else:
+            s2 = s
         ep[E_R] += ep[E_G] * r
         ep[E_G] *= gamma
         ep[E_RET] += r

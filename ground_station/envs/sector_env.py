@@ -1,0 +1,173 @@
+"""The `sector` encoding as a Gymnasium environment on the kinematic twin.
+
+Physics, sensing and reward are the jitted functions the fast trainer uses
+(`ground_station.sector_twin`, `sector_kernels.period_step`), so the env and
+the trainer cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from firmware_py import robot
+from firmware_py.encoders import SectorEncoder
+from ground_station.maps import GridMap, MapError, load_map, octile_distances
+from ground_station.sector_kernels import period_step
+from ground_station.sector_train import SectorReward
+from ground_station.sector_twin import (
+    RADIUS_MM,
+    bearing_mrad,
+    cell_centre,
+    encode_fast,
+    encoder_arrays,
+    grid_of,
+    potential,
+    sense,
+)
+
+
+class SectorNavEnv(gym.Env):
+    """Drive the robot's kinematic twin to a goal cell on a grid map.
+
+    The robot is a disc of `robot.ROBOT_RADIUS_MM` with continuous pose
+    (x, y mm; heading rad, CCW from east) on `gridmap` (cell size from the
+    map); the map border is a wall.
+
+    * Action space: `Discrete(4)` = `robot.ACTION_NAMES` (forward, turn_left,
+      turn_right, reverse), each the wheel speeds of
+      `robot.ACTION_WHEEL_SPEEDS_MM_S` held for one control period
+      (`robot.CONTROL_PERIOD_US`).
+    * Observation space: `Discrete(encoder.n_states)`, the state index of the
+      reference `SectorEncoder` (goal-bearing sector relative to the heading
+      x binned ranges of the encoder's sensors), computed from the simulated
+      range readings (fan of rays from the rim, too close / too far status)
+      exactly as the robot computes it from its CAN frames.
+    * Reward per period (`SectorReward`): `progress` x the decrease of the
+      remaining shortest-path estimate in cells (octile distance field of the
+      goal, continuous between cell centres), minus `step_cost`, minus
+      `reverse_cost` when reversing; plus `goal` on reaching the goal, or
+      exactly `-collision` on a collision.
+    * Episode end: terminated when the robot's centre is within
+      `robot.GOAL_TOLERANCE_MM` of the goal cell's centre (success) or the
+      disc touches an obstacle or the border (collision). Truncation is the
+      TimeLimit wrapper's job (registered with 1000 periods = 50 s).
+    * Reset: goal = `goal` if given (target name or (col, row)), else a
+      random free cell; start = a random other free cell connected to the
+      goal, position uniform within +-(cell/2 - radius) of its centre (no
+      contact), heading uniform. `options` may fix `start` (col, row; placed
+      at the centre), `heading` (rad) and `goal`. Randomness only from
+      `self.np_random`, seeded through `reset(seed=...)`.
+    * Info: pose, goal, ranges/status of all sensors the encoder uses,
+      `success`, `collision`, `driven_mm`.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, gridmap: GridMap | str = "paper10", encoder: SectorEncoder | None = None,
+                 goal: str | tuple[int, int] | None = None, reward: SectorReward | None = None) -> None:
+        self.gridmap = load_map(gridmap) if isinstance(gridmap, str) else gridmap
+        self.encoder = encoder or SectorEncoder()
+        self.reward = reward or SectorReward()
+        self._rw = self.reward.array()
+        self._occ, self._h, self._w, self._c = grid_of(self.gridmap)
+        self._enc = encoder_arrays(self.encoder)
+        self._free = self.gridmap.free_cells()
+        if len(self._free) < 2:
+            raise MapError(f"map {self.gridmap.name} needs at least two free cells")
+        self._fixed_goal = None if goal is None else self._resolve_goal(goal)
+        self._dist_cache: dict[tuple[int, int], np.ndarray] = {}
+        self.observation_space = gym.spaces.Discrete(self.encoder.n_states)
+        self.action_space = gym.spaces.Discrete(self.encoder.n_actions)
+        self._ranges = np.zeros(robot.SENSOR_COUNT, dtype=np.int64)
+        self._status = np.zeros(robot.SENSOR_COUNT, dtype=np.int64)
+        self._pose = (0.0, 0.0, 0.0)
+        self._goal = (0, 0)
+        self._phi = 0.0
+        self._state = 0
+
+    def _resolve_goal(self, goal) -> tuple[int, int]:
+        if isinstance(goal, str):
+            if goal not in self.gridmap.targets:
+                raise MapError(f"map {self.gridmap.name} has no target {goal!r}")
+            return self.gridmap.targets[goal]
+        col, row = int(goal[0]), int(goal[1])
+        if not self.gridmap.is_free(col, row):
+            raise MapError(f"goal ({col},{row}) is not a free cell of map {self.gridmap.name}")
+        return col, row
+
+    def _dist(self, goal: tuple[int, int]) -> np.ndarray:
+        if goal not in self._dist_cache:
+            self._dist_cache[goal] = octile_distances(self.gridmap.occ, *goal)
+        return self._dist_cache[goal]
+
+    def _goal_xy(self) -> tuple[float, float]:
+        return cell_centre(self._goal[0], self._goal[1], self._h, self._c)
+
+    def _observe(self) -> int:
+        x, y, th = self._pose
+        sectors, sensors, edges, which = self._enc
+        sense(self._occ, self._h, self._w, self._c, x, y, th, which, self._ranges, self._status)
+        gx, gy = self._goal_xy()
+        return int(encode_fast(bearing_mrad(x, y, th, gx, gy), self._ranges, self._status,
+                               sectors, sensors, edges))
+
+    def _info(self, **extra) -> dict[str, Any]:
+        x, y, th = self._pose
+        sensors = list(self.encoder.sensors)
+        return {"x_mm": x, "y_mm": y, "heading_rad": th, "goal": self._goal,
+                "ranges_mm": self._ranges[sensors].copy(), "status": self._status[sensors].copy(),
+                "potential_mm": self._phi, **extra}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        rng = self.np_random
+        if "goal" in options:
+            self._goal = self._resolve_goal(options["goal"])
+        elif self._fixed_goal is not None:
+            self._goal = self._fixed_goal
+        else:
+            self._goal = self._free[int(rng.integers(len(self._free)))]
+        dist = self._dist(self._goal)
+        if "start" in options:
+            scol, srow = (int(v) for v in options["start"])
+            if not self.gridmap.is_free(scol, srow) or not np.isfinite(dist[srow, scol]):
+                raise MapError(f"start ({scol},{srow}) is not a free cell connected to the goal")
+            x, y = cell_centre(scol, srow, self._h, self._c)
+        else:
+            starts = [cr for cr in self._free if cr != self._goal and np.isfinite(dist[cr[1], cr[0]])]
+            if not starts:
+                raise MapError(f"goal {self._goal} of map {self.gridmap.name} has no connected start cell")
+            scol, srow = starts[int(rng.integers(len(starts)))]
+            cx, cy = cell_centre(scol, srow, self._h, self._c)
+            half = 0.5 * self._c - RADIUS_MM - 1.0
+            x = cx + float(rng.uniform(-half, half))
+            y = cy + float(rng.uniform(-half, half))
+        th = float(options["heading"]) if "heading" in options else float(rng.uniform(-math.pi, math.pi))
+        th = (th + math.pi) % (2 * math.pi) - math.pi
+        self._pose = (x, y, th)
+        self._phi = float(potential(dist, self._occ, self._h, self._w, self._c, x, y))
+        self._state = self._observe()
+        return self._state, self._info(success=False, collision=False, driven_mm=0.0)
+
+    def step(self, action):
+        a = int(action)
+        if not self.action_space.contains(a):
+            raise ValueError(f"action {action!r} outside {self.action_space}")
+        x, y, th = self._pose
+        gx, gy = self._goal_xy()
+        sectors, sensors, edges, which = self._enc
+        x, y, th, phi, r, s2, hit, success, driven = period_step(
+            self._occ, self._h, self._w, self._c, self._dist(self._goal), x, y, th, self._phi,
+            gx, gy, a, self._rw, which, self._ranges, self._status, sectors, sensors, edges)
+        self._pose = (float(x), float(y), float(th))
+        self._phi = float(phi)
+        if s2 >= 0:
+            self._state = int(s2)
+        terminated = bool(hit or success)
+        return self._state, float(r), terminated, False, self._info(
+            success=bool(success), collision=bool(hit), driven_mm=float(driven))
