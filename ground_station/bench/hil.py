@@ -21,6 +21,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import can
 
@@ -33,6 +34,7 @@ from firmware_py.policy import Policy
 from firmware_py.robot_node import RobotNode
 from firmware_py.vehicle import VehicleConfig
 
+ROOT = Path(__file__).resolve().parents[2]
 SENSOR_FRAMES = frozenset({"RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper"})
 
 
@@ -209,8 +211,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("hil", help="lockstep HIL acceptance episodes on paper10 (sector pairs, cell targets)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--map", default="paper10")
-    p.add_argument("--sector-policy", default="policies/sector.qtab", metavar="FILE")
-    p.add_argument("--cell-policy", default="policies/paper10_cell.qtab", metavar="FILE")
+    p.add_argument("--sector-policy", default=str(ROOT / "policies" / "sector.qtab"), metavar="FILE")
+    p.add_argument("--cell-policy", default=str(ROOT / "policies" / "paper10_cell.qtab"), metavar="FILE")
     p.add_argument("--pairs", type=int, default=50, help="sector: seeded random (start, goal) pairs")
     p.add_argument("--starts", type=int, default=20, help="cell: seeded random starts, each to every target")
     p.add_argument("--only", choices=("sector", "cell"), help="run one set only")
