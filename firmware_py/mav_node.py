@@ -353,8 +353,16 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
 
 def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | None, url: str, now_us: int, *,
               signing_key: str | None = None, baud: int = 57600,
-              reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp=None) -> MavShell:
-    """Build, boot and connect the node (params and signing state from `storage_dir`)."""
-    node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=ftp)
+              reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp: bool = True) -> MavShell:
+    """Build, boot and connect the node: params and signing state from
+    `storage_dir`, and (with `ftp`) an FTP server on it whose policy
+    activation is the vehicle's `activate_policy`."""
+    server = None
+    if ftp and storage_dir is not None:
+        from firmware_py.ftp_server import FtpServer
+        from firmware_py.storage import Storage
+
+        server = FtpServer(Storage(storage_dir), activate=vehicle.activate_policy)
+    node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server)
     node.boot(now_us, signing_key)
     return MavShell(node, url, baud=baud)
