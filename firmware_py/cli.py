@@ -235,14 +235,16 @@ def run(args: argparse.Namespace) -> int:
     code = EXIT_OK
     node.start()
     try:
+        reported = False
         while True:
-            if runner is not None and runner.done.wait(0.05):
+            if runner is not None and not reported and runner.done.wait(0.05):
+                reported = True
                 if runner.result != "reached":
                     log.warning("%s", runner.result)
                     code = EXIT_FAULT
                 if args.exit_when_done:
                     break
-            elif runner is None or runner.done.is_set():
+            else:
                 time.sleep(0.05)
             if args.duration is not None:
                 elapsed = clock.now_us() / 1e6 if sim else time.monotonic() - wall0
