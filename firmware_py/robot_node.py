@@ -228,6 +228,7 @@ class RobotNode:
     # --- control side ---------------------------------------------------------------
     def _tick(self, now_us: int, counter: int | None, t0_ns: int) -> None:
         out = self.controller.step(self.inputs.snapshot(), now_us, tick=counter)
+        self.ticks += 1
         if self.lockstep:  # the motor command is the tick's answer: always the last frame
             self._send_heartbeat(out)
             self._send_motor(out)
@@ -236,7 +237,6 @@ class RobotNode:
             self._send_motor(out)
             self.latency_ns.append(time.perf_counter_ns() - t0_ns)
             self._send_heartbeat(out)
-        self.ticks += 1
         self.controller.note_loop_stats(self.overruns, self.can_errors)
         for hook in self.after_tick:
             try:

@@ -1,0 +1,118 @@
+"""RobotNode over a real python-can virtual bus, driven frame by frame from the
+test: lockstep answers, retransmitted ticks, sim-time stamping, paced mode."""
+
+import can
+import pytest
+from ctrl_support import sector_seek_policy
+
+from firmware_py import can_protocol as cp
+from firmware_py import robot
+from firmware_py.clock import SimClock
+from firmware_py.controller import Controller
+from firmware_py.robot_node import RobotNode
+
+
+def sensor_frames(enc=(0, 0)):
+    frames = cp.range_frames([(robot.RANGE_MAX_MM, robot.RANGE_TOO_FAR)] * robot.SENSOR_COUNT)
+    frames.append(cp.encode("EncoderCounts", {"Enc_Left": enc[0], "Enc_Right": enc[1]}))
+    frames.append(cp.encode("Bumper", {"Bump_Pressed": 0, "Bump_Front": 0, "Bump_Left": 0, "Bump_Rear": 0,
+                                       "Bump_Right": 0, "Bump_Events": 0, "Bump_AngleMrad": 0}))
+    frames.append(cp.encode("MotorStatus", {"Mot_State": 1, "Mot_WatchdogTripped": 0, "Mot_EStop": 0,
+                                            "Mot_AccelLimited": 0, "Mot_Errors": 0, "Mot_CmdCounterLsb": 0,
+                                            "Mot_LeftSpeed": 0, "Mot_RightSpeed": 0}))
+    return frames
+
+
+def expect(bus, name, timeout=2.0):
+    """Next frame called `name` (others skipped)."""
+    while True:
+        msg = bus.recv(timeout=timeout)
+        assert msg is not None, f"no {name} frame"
+        if cp.frame_name(msg.arbitration_id) == name:
+            return cp.decode(msg)[1]
+
+
+@pytest.fixture
+def rig(request):
+    ch = f"node-{request.node.name}"
+    sim = can.Bus(interface="virtual", channel=ch)
+    ctrl = Controller(policy=sector_seek_policy(), lockstep=True)
+    node = RobotNode(can.Bus(interface="virtual", channel=ch), ctrl, SimClock(), lockstep=True)
+    node.start()
+    yield sim, ctrl, node
+    node.stop()
+    node.bus.shutdown()
+    sim.shutdown()
+
+
+def test_lockstep_answer_retransmission_and_sim_time_stamps(rig):
+    sim, ctrl, node = rig
+    for k in range(3):
+        for f in sensor_frames():
+            sim.send(f)
+        sim.send(cp.sim_tick(k, k * robot.CONTROL_PERIOD_US))
+        hb = expect(sim, "ControllerHeartbeat")
+        cmd = expect(sim, "MotorCommand")  # after the heartbeat: the answer is the last frame
+        assert cmd["Cmd_Counter"] == k and hb["Ctrl_State"] == ctrl.state
+    assert node.ticks == 3
+    # sensor frames are stamped with the sim time of the tick that follows them
+    snap = node.inputs.snapshot()
+    assert snap.ranges_us == [100_000, 100_000] and snap.enc_us == 100_000
+    # a retransmitted tick gets the same answer and no second step
+    sim.send(cp.sim_tick(2, 100_000))
+    assert expect(sim, "MotorCommand")["Cmd_Counter"] == 2
+    assert node.ticks == 3
+    # a skipped tick counts as an overrun
+    sim.send(cp.sim_tick(4, 200_000))
+    assert expect(sim, "MotorCommand")["Cmd_Counter"] == 4
+    assert node.overruns == 1
+
+
+def test_lockstep_arm_and_drive_then_sensor_silence_faults(rig):
+    sim, ctrl, node = rig
+    t = 0
+    for k in range(2):
+        for f in sensor_frames():
+            sim.send(f)
+        sim.send(cp.sim_tick(k, t))
+        expect(sim, "MotorCommand")
+        t += robot.CONTROL_PERIOD_US
+    assert ctrl.arm() == (True, "")
+    assert ctrl.set_goal(3000, 0) == (True, "")
+    k = 2
+    for f in sensor_frames():
+        sim.send(f)
+    sim.send(cp.sim_tick(k, t))
+    cmd = expect(sim, "MotorCommand")
+    assert (cmd["Cmd_LeftSpeed"], cmd["Cmd_RightSpeed"]) == (400, 400)
+    last_fresh = t
+    while True:  # ticks keep coming, sensors do not
+        k += 1
+        t += robot.CONTROL_PERIOD_US
+        sim.send(cp.sim_tick(k, t))
+        cmd = expect(sim, "MotorCommand")
+        if cmd["Cmd_LeftSpeed"] == 0:
+            break
+        assert t - last_fresh <= 250_000
+    assert 250_000 < t - last_fresh <= 250_000 + robot.CONTROL_PERIOD_US
+    assert ctrl.state.name == "FAULT"
+
+
+def test_paced_sim_clock_steps_once_per_period_without_answer_counters():
+    ch = "node-paced"
+    sim = can.Bus(interface="virtual", channel=ch)
+    ctrl = Controller(policy=sector_seek_policy())
+    node = RobotNode(can.Bus(interface="virtual", channel=ch), ctrl, SimClock())
+    node.start()
+    try:
+        for k in range(4):
+            for f in sensor_frames():
+                sim.send(f)
+            sim.send(cp.sim_tick(1000 + k, k * robot.CONTROL_PERIOD_US))
+            expect(sim, "ControllerHeartbeat")
+        assert node.ticks == 4
+        assert node.clock.now_us() == 3 * robot.CONTROL_PERIOD_US
+    finally:
+        node.stop()
+        node.bus.shutdown()
+        sim.shutdown()
