@@ -33,7 +33,8 @@ from ground_station.sector_kernels import (
 )
 from ground_station.sector_twin import encoder_arrays, grid_of
 
-MAX_TRAIN_CELLS = 64 * 64  # all-pairs distance tables are kept per training map
+MAX_TRAIN_CELLS = 64 * 64
+DEFAULT_HOLD_MAX = 100  # periods an action is held while the state is unchanged (see sector_kernels)  # all-pairs distance tables are kept per training map
 
 
 @dataclass(frozen=True)
@@ -100,10 +101,11 @@ def _cfg(cfg, name: str, default):
 
 
 def epsilon_schedule(cfg) -> tuple[float, float, int]:
-    """(start, end, decay steps) of the linear epsilon schedule from a TrainConfig."""
-    start = float(_cfg(cfg, "epsilon", 1.0))
+    """(start, end, decay steps) of the linear epsilon schedule from a TrainConfig
+    (epsilon_start, epsilon_end, epsilon_decay = fraction of steps)."""
+    start = float(_cfg(cfg, "epsilon_start", 1.0))
     end = float(_cfg(cfg, "epsilon_end", 0.05))
-    frac = float(_cfg(cfg, "epsilon_decay_fraction", 0.5))
+    frac = float(_cfg(cfg, "epsilon_decay", 0.5))
     return start, end, int(round(frac * int(cfg.steps)))
 
 
@@ -115,12 +117,14 @@ class SectorTrainer:
         self.maps = list(maps)
         self.cfg = cfg
         self.encoder = encoder
+        # TrainConfig's reward_goal / reward_step / reward_collision (signed as
+        # rewards) plus the sector-only progress and reverse terms
         self.reward = reward or SectorReward(
             progress=float(_cfg(cfg, "sector_progress_reward", SectorReward.progress)),
-            step_cost=float(_cfg(cfg, "sector_step_cost", SectorReward.step_cost)),
+            step_cost=-float(_cfg(cfg, "reward_step", -SectorReward.step_cost)),
             reverse_cost=float(_cfg(cfg, "sector_reverse_cost", SectorReward.reverse_cost)),
-            goal=float(_cfg(cfg, "sector_goal_reward", SectorReward.goal)),
-            collision=float(_cfg(cfg, "sector_collision_penalty", SectorReward.collision)),
+            goal=float(_cfg(cfg, "reward_goal", SectorReward.goal)),
+            collision=-float(_cfg(cfg, "reward_collision", -SectorReward.collision)),
         )
         self.packed = pack_maps(self.maps)
         self.n_states = encoder.n_states
@@ -130,8 +134,10 @@ class SectorTrainer:
         self._ep = np.zeros(EP_LEN)
         self._eps = epsilon_schedule(cfg)
         self._rw = self.reward.array()
-        self.max_episode_steps = int(_cfg(cfg, "max_episode_steps", 1000))
-        self.hold_max = int(_cfg(cfg, "sector_hold_max", 1))
+        # 0 = automatic: 1000 periods (50 s) on paper10, scaled with the map area
+        mes = int(_cfg(cfg, "max_episode_steps", 0))
+        self.max_episode_steps = mes if mes > 0 else 10 * max(gm.occ.size for gm in self.maps)
+        self.hold_max = int(_cfg(cfg, "sector_hold_max", DEFAULT_HOLD_MAX))
 
     def run(self, q: np.ndarray, start_step: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
         """Advance n_steps env steps, updating q (float64 (n_states, n_actions))
