@@ -475,3 +475,19 @@ def test_ftp_is_routed_to_the_ftp_server_and_always_needs_a_signature_with_a_key
     ftp = plain.file_transfer_protocol_encode(0, 1, 1, list(req.ljust(251, b"\0")))
     assert signed.feed(bytes(ftp.pack(plain))) == []
     assert of(signed.send(ftp), "FILE_TRANSFER_PROTOCOL")
+
+
+def test_docs_parameter_table_matches_the_code():
+    import pathlib
+
+    doc = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "mavlink.md").read_text()
+    rows = {}
+    for line in doc.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 6 and cells[0].startswith("`") and cells[0].strip("`").isupper():
+            rows[cells[0].strip("`")] = cells
+    assert list(rows) == [p.name for p in PARAMS]
+    for p in PARAMS:
+        _, default, lo, hi, drives, _ = rows[p.name]
+        assert (int(default), int(lo), int(hi)) == (p.default, p.min, p.max), p.name
+        assert (p.field or "") in drives.strip("`") or (not p.field and drives.startswith(("node", "read")))
