@@ -30,6 +30,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 from firmware_py import robot
+from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
 from firmware_py.odometry import Odometry, wrap_mrad
 from firmware_py.policy import Policy, PolicyError, load_policy
 from firmware_py.safety import EStopLatch, MotorWatchdog, clamp_speeds
@@ -176,6 +177,7 @@ class Controller:
         self._inputs = Inputs()
         self._last_enc_us: int | None = None
         self._stop_burst = 0
+        self._driving_since_us = 0
         self._cmd_counter = 0
         self._hb_counter = 0
         self._ticks = 0
@@ -201,6 +203,8 @@ class Controller:
         self._event("transition", f"{src.name}->{dst.name}: {cause}", severity)
         if src == CtrlState.DRIVING and dst != CtrlState.DRIVING:
             self._stop()
+        if dst == CtrlState.DRIVING:
+            self._driving_since_us = self._now
 
     def _stop(self) -> None:
         self.watchdog.stop()
@@ -519,6 +523,8 @@ class Controller:
                     self._enter_fault("motor driver status stale")
                 elif inp.driver_errors:
                     self._enter_fault(f"motor driver fault 0x{inp.driver_errors:02x}")
+                elif self._driver_watchdog_tripped(inp):
+                    self._enter_fault("motor driver watchdog tripped while driving")
             if inp.bumper and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 self.goal = None
                 self.mode = Mode.HOLD
@@ -529,6 +535,14 @@ class Controller:
             errors |= ERR_LOCALISATION
         self._errors = errors
         return errors
+
+    def _driver_watchdog_tripped(self, inp: Inputs) -> bool:
+        """The driver stopped the wheels for want of commands although we are
+        DRIVING (commands lost on the way). Its status may still show the
+        HOLD-time watchdog stop for a tick or two after DRIVING starts."""
+        grace_us = 2 * 1_000_000 // max(1, self.cfg.control_rate_hz)
+        return (self.state == CtrlState.DRIVING and inp.driver_state == MOTOR_WATCHDOG_STOP
+                and inp.driver_us is not None and inp.driver_us - self._driving_since_us > grace_us)
 
     def _after_goal(self) -> None:
         if self.mode == Mode.AUTO and self.mission_seq + 1 < len(self.mission):
