@@ -132,6 +132,7 @@ class RobotNode:
         self.can_errors = 0
         self.send_errors = 0
         self.sim_ticks = 0
+        self.late_ticks = 0  # SimTicks older than the last one seen, ignored
         self.last_tick: int | None = None
         self.latency_ns: deque[int] = deque(maxlen=latency_window)
         self._stop = threading.Event()
@@ -211,9 +212,12 @@ class RobotNode:
         if self.lockstep and counter == self.last_tick and self._last_answer is not None:
             self._send_frame(self._last_answer)  # a retransmitted tick: same answer, no step
             return
-        if self.lockstep and self.last_tick is not None:
+        if self.last_tick is not None:
             gap = (counter - self.last_tick) % proto.TICK_MODULUS
-            if gap > 1:
+            if gap >= proto.TICK_MODULUS // 2:
+                self.late_ticks += 1  # an older tick arriving late (reordered): already past it
+                return
+            if self.lockstep and gap > 1:
                 self.overruns += gap - 1  # ticks we never saw: lost or late
         self.last_tick = counter
         self.sim_ticks += 1
