@@ -1,0 +1,69 @@
+"""Result type and registry shared by the fault scenarios."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+MAX_FAILURES_KEPT = 20
+
+
+@dataclass
+class ScenarioResult:
+    """Outcome of `tried` trials: `survived` kept the invariant, the rest are lost.
+
+    `failures` holds one line per lost trial (the first MAX_FAILURES_KEPT);
+    `figures` carries measured numbers worth reporting (counters, rates)."""
+
+    name: str
+    tried: int = 0
+    survived: int = 0
+    failures: list[str] = field(default_factory=list)
+    figures: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def lost(self) -> int:
+        return self.tried - self.survived
+
+    @property
+    def ok(self) -> bool:
+        return self.tried > 0 and self.lost == 0
+
+    def trial(self, ok: bool, why: str = "") -> None:
+        """Count one trial; `why` says what broke when it did not hold."""
+        self.tried += 1
+        if ok:
+            self.survived += 1
+        elif len(self.failures) < MAX_FAILURES_KEPT:
+            self.failures.append(why or "invariant violated")
+
+    def check(self, problems: list[str], label: str) -> None:
+        """A trial that holds when `problems` is empty."""
+        self.trial(not problems, f"{label}: {'; '.join(problems)}")
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "tried": self.tried, "survived": self.survived, "lost": self.lost,
+                "failures": self.failures, "figures": self.figures}
+
+
+Runner = Callable[..., ScenarioResult]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    run: Runner
+    small: int  # count in tests/faults (make test)
+    large: int  # count in qnav bench faults
+    unit: str  # what one trial is
+    what: str  # one-line description of the invariant
+
+
+SCENARIOS: dict[str, Scenario] = {}
+
+
+def register(name: str, small: int, large: int, unit: str, what: str) -> Callable[[Runner], Runner]:
+    def deco(fn: Runner) -> Runner:
+        SCENARIOS[name] = Scenario(name, fn, small, large, unit, what)
+        return fn
+    return deco
