@@ -100,13 +100,18 @@ class RobotLink:
                 return msg.get_srcSystem(), msg.get_srcComponent()
         raise UploadFailed(EXIT_TIMEOUT, f"no HEARTBEAT from a robot within {timeout_s:.0f} s")
 
-    def ftp(self):
-        """A fresh pymavlink MAVFTP client (it starts with ResetSessions)."""
-        self.ftp_replies.clear()  # each client counts seq from 0 again
-        settings = self.mavftp.MAVFTPSettings(
-            [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
-        quick(settings)
-        return self.mavftp.MAVFTP(self.conn, self.target_system, self.target_component, settings=settings)
+    def ftp(self, tries: int = 4):
+        """A fresh pymavlink MAVFTP client whose ResetSessions the robot answered."""
+        for _ in range(tries):
+            self.ftp_replies.clear()  # each client counts seq from 0 again
+            settings = self.mavftp.MAVFTPSettings(
+                [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
+            quick(settings)
+            ftp = self.mavftp.MAVFTP(self.conn, self.target_system, self.target_component, settings=settings)
+            if ftp.pending_reset_seq is None:  # answered
+                return ftp
+        raise UploadFailed(EXIT_TIMEOUT, f"the robot does not answer MAVLink FTP ({tries} ResetSessions "
+                                         "unanswered; wrong or missing --signing-key?)")
 
     def reply_to(self, ftp, opcode: int) -> tuple[int, bytes] | None:
         """The robot's reply to the client's last request of `opcode`, if one arrived."""

@@ -1,0 +1,109 @@
+"""`qnav upload` end to end: pymavlink's MAVFTP client -> emulated lossy radio
+-> the robot's FTP shell (own process, policy-loader activation hook)."""
+
+import os
+import random
+import subprocess
+import sys
+from array import array
+
+import pytest
+
+from firmware_py.encoders import CellEncoder
+from firmware_py.policy import dump_policy, load_policy
+from ground_station.bench.upload import free_port, load_link_emulator, robot_ftp_process
+
+ENV = dict(os.environ, MAVLINK20="1")
+emu = load_link_emulator()
+
+
+def make_policy(seed: int) -> bytes:
+    rnd = random.Random(seed)
+    enc = CellEncoder(10, 10, 2)
+    table = array("b", [rnd.randint(-127, 127) for _ in range(enc.n_states * enc.n_actions)])
+    return dump_policy(enc, table, "int8", 0.1, goals=[(1, 1), (8, 8)], metadata={"seed": seed})
+
+
+def qnav_upload(*args, timeout=120):
+    return subprocess.run([sys.executable, "-m", "ground_station.cli", "upload", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout, env=ENV)
+
+
+@pytest.fixture
+def lossy_robot(tmp_path):
+    """(root, url): robot FTP shell behind a radio losing 5 % of frames, with
+    duplicates and reordering."""
+    root = tmp_path / "root"
+    robot_port = free_port()
+    cfg = emu.LinkConfig(loss=0.05, duplicate=0.02, reorder=0.02, seed=11)
+    with robot_ftp_process(root, f"udpin:127.0.0.1:{robot_port}"), \
+            emu.LinkEmulator(cfg, robot_peer=("127.0.0.1", robot_port)) as link:
+        yield root, f"udpout:127.0.0.1:{link.gcs_port}"
+
+
+def test_upload_activate_keeps_last_good_and_refuses_corrupt_files(lossy_robot, tmp_path):
+    root, url = lossy_robot
+    first, second = tmp_path / "first.qtab", tmp_path / "second.qtab"
+    first.write_bytes(make_policy(1))
+    second.write_bytes(make_policy(2))
+
+    out = qnav_upload(first, "--activate", "--mavlink", url)
+    assert out.returncode == 0, out.stdout + out.stderr
+    pid = load_policy(first).policy_id
+    assert f"policy id 0x{pid:08x}" in out.stdout and "verified" in out.stdout
+    assert (root / "policies" / "active.qtab").read_bytes() == first.read_bytes()
+
+    out = qnav_upload(second, "--activate", "--mavlink", url)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert (root / "policies" / "active.qtab").read_bytes() == second.read_bytes()
+    assert (root / "policies" / "last_good.qtab").read_bytes() == first.read_bytes()
+
+    bad = bytearray(second.read_bytes())
+    bad[200] ^= 0xFF  # inside the table: the file CRC no longer matches
+    corrupt = tmp_path / "corrupt.qtab"
+    corrupt.write_bytes(bytes(bad))
+    out = qnav_upload(corrupt, "--activate", "--mavlink", url)
+    assert out.returncode == 3, out.stdout + out.stderr
+    assert "refused" in out.stdout and "crc" in out.stdout.lower()
+    assert (root / "policies" / "active.qtab").read_bytes() == second.read_bytes()
+    assert (root / "policies" / "last_good.qtab").read_bytes() == first.read_bytes()
+    assert (root / "policies" / "corrupt.qtab").read_bytes() == bytes(bad)  # uploaded, not activated
+
+
+def test_signed_upload(tmp_path):
+    key = tmp_path / "key"
+    key.write_text("correct horse battery staple\n")  # a passphrase, as MAVProxy's signing setup
+    policy = tmp_path / "p.qtab"
+    policy.write_bytes(make_policy(3))
+    root = tmp_path / "root"
+    port = free_port()
+    with robot_ftp_process(root, f"udpin:127.0.0.1:{port}", key_file=key):
+        out = qnav_upload(policy, "--activate", "--mavlink", f"udpout:127.0.0.1:{port}", "--signing-key", key)
+        assert out.returncode == 0, out.stdout + out.stderr
+        assert (root / "policies" / "active.qtab").read_bytes() == policy.read_bytes()
+        # the robot drops unsigned FTP: an unsigned client gets nowhere
+        other = tmp_path / "other.qtab"
+        other.write_bytes(make_policy(4))
+        out = qnav_upload(other, "--mavlink", f"udpout:127.0.0.1:{port}", "--attempts", "1", "--timeout", "30")
+        assert out.returncode == 4 and "does not answer" in out.stdout, out.stdout + out.stderr
+        assert not (root / "policies" / "other.qtab").exists()
+
+
+def test_clear_errors(tmp_path):
+    out = qnav_upload(tmp_path / "missing.qtab", "--mavlink", "udpout:127.0.0.1:9")
+    assert out.returncode == 2 and "no such file" in out.stderr
+    f = tmp_path / "p.qtab"
+    f.write_bytes(make_policy(5))
+    out = qnav_upload(f, "--mavlink", f"udpout:127.0.0.1:{free_port()}", "--timeout", "2")
+    assert out.returncode == 4 and "no HEARTBEAT" in out.stdout
+    out = qnav_upload(f, "--mavlink", "udpout:127.0.0.1:9", "--signing-key", tmp_path / "nokey")
+    assert out.returncode == 2 and "signing key" in out.stderr
+
+
+def test_help():
+    out = subprocess.run([sys.executable, "-m", "ground_station.cli", "upload", "--help"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "--activate" in out.stdout and "--signing-key" in out.stdout
+    out = subprocess.run([sys.executable, "-m", "ground_station.cli", "bench", "upload", "--help"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "--json" in out.stdout
