@@ -71,3 +71,18 @@ def test_inspect_prints_the_shipped_header(capsys):
     for path, line in zip(SHIPPED, lines, strict=True):
         rec = json.loads(path.with_suffix(".json").read_text())
         assert line.startswith(f"{path}: valid v1.0 {rec['encoding']}") and rec["policy_id"] in line
+
+
+def test_sector_policy_drives_as_recorded_and_int8_is_within_half_a_point_of_float():
+    from ground_station.maps import load_map
+    from ground_station.sector_twin import evaluate_sector
+
+    path = POLICIES / "sector.qtab"
+    rec = json.loads(path.with_suffix(".json").read_text())
+    pol = load_policy(path)
+    args = shlex.split(rec["commands"][1])
+    sample, seed = int(args[args.index("--sample") + 1]), int(args[args.index("--seed") + 1])
+    rep = evaluate_sector(int_table(pol), load_map(rec["map"]), pol.encoder, sample=sample, seed=seed)
+    assert rep["episodes"] == rec["episodes"] == sample
+    assert rep["success_rate"] == rec["success_rate"]["int"]
+    assert abs(rec["success_rate"]["int"] - rec["success_rate"]["float"]) <= 0.005
