@@ -26,10 +26,8 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 from firmware_py.vehicle import Mode  # noqa: E402
-from ground_station.telemetry_model import VehicleView  # noqa: E402
+from ground_station.telemetry_model import POLICY_PARAM, VehicleView  # noqa: E402
 
-GCS_SYSID = 255
-GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 HEARTBEAT_PERIOD_S = 1.0
 COMMANDS = ("arm", "disarm", "hold")
 
@@ -55,15 +53,21 @@ def command_long_args(kind: str) -> tuple[int, list[float]]:
 
 
 class LiveSource:
-    """A pymavlink connection to the robot; sends a GCS heartbeat each second
-    so the robot's GCS failsafe stays quiet while we watch."""
+    """The ground-station link to the robot (`ground_station.link.Link`,
+    which owns signing and the session .tlog). Sends a GCS heartbeat each
+    second so the robot's GCS failsafe stays quiet while we watch, and asks
+    for the read-only POLICY_ID parameter every few seconds (it changes when
+    a policy is activated). Never blocks: command ACKs arrive via `poll`."""
 
     finished = False
+    POLICY_POLL_S = 5.0
 
-    def __init__(self, conn, clock=time.time) -> None:
-        self.conn = conn
+    def __init__(self, link, clock=time.time) -> None:
+        self.link = link
+        self.conn = link.conn
         self._clock = clock
         self._next_hb = 0.0
+        self._next_param = 0.0
 
     def now(self) -> float:
         return self._clock()
@@ -71,14 +75,19 @@ class LiveSource:
     def poll(self, limit: int = 2000) -> list[tuple[object, float]]:
         now = self.now()
         if now >= self._next_hb:
-            self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            self.link.send_heartbeat()
             self._next_hb = now + HEARTBEAT_PERIOD_S
+        if now >= self._next_param and self.conn.target_system:
+            self.conn.mav.param_request_read_send(self.conn.target_system, self.conn.target_component or 1,
+                                                  POLICY_PARAM.encode(), -1)
+            self._next_param = now + self.POLICY_POLL_S
         out = []
         while len(out) < limit:
             msg = self.conn.recv_match(blocking=False)
             if msg is None:
                 break
-            out.append((msg, self.now()))
+            if msg.get_type() != "BAD_DATA":
+                out.append((msg, self.now()))
         return out
 
     def send_command(self, kind: str, target: tuple[int, int]) -> str:
@@ -87,19 +96,15 @@ class LiveSource:
         return f"sent {kind} (COMMAND_LONG {mavlink.enums['MAV_CMD'][cmd].name})"
 
     def close(self) -> None:
-        self.conn.close()
+        self.link.close()
 
 
-def open_live(url: str, tlog: str | None = None, signing_key: str | None = None) -> LiveSource:
-    """Open the link to the robot on `url` (a pymavlink connection string)."""
-    # TODO(swap): use ground_station.link once it lands (signing key file, tlog of both directions).
-    if signing_key is not None:
-        raise ValueError("--signing-key needs ground_station.link, which is not in this checkout yet")
-    conn = mavutil.mavlink_connection(url, source_system=GCS_SYSID, source_component=GCS_COMPID,
-                                      dialect="common")
-    if tlog is not None:
-        conn.setup_logfile(tlog)
-    return LiveSource(conn)
+def open_live(url: str, tlog=None, signing_key: str | None = None) -> LiveSource:
+    """Open the link to the robot on `url` (a pymavlink connection string).
+    `tlog`: a path, None for a new session log under runs/tlogs/, False for none."""
+    from ground_station.link import Link
+
+    return LiveSource(Link(url, signing_key=signing_key, tlog=tlog, name="monitor"))
 
 
 class ReplaySource:

@@ -11,16 +11,19 @@ import argparse
 import os
 import sys
 
-DEFAULT_URL = "udpin:127.0.0.1:14550"
-
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("monitor", help="telemetry dashboard (live, --plain, or --replay a .tlog)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from ground_station.link import DEFAULT_TLOG_DIR, DEFAULT_URL
+
     p.add_argument("--mavlink", metavar="URL", default=None,
                    help=f"pymavlink connection string to the robot (default {DEFAULT_URL})")
-    p.add_argument("--tlog", metavar="FILE", help="record the live link to this .tlog")
-    p.add_argument("--signing-key", metavar="FILE", help="MAVLink 2 signing key file (sign what we send)")
+    p.add_argument("--tlog", metavar="FILE",
+                   help=f"record the session to this .tlog (default: a new file under {DEFAULT_TLOG_DIR}/)")
+    p.add_argument("--no-tlog", action="store_true", help="do not record the session")
+    p.add_argument("--signing-key", metavar="FILE",
+                   help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
     p.add_argument("--map", metavar="NAME|PATH", default="paper10",
                    help="map drawn under the robot: built-in name, generator spec or .map path "
                         "(default paper10; 'none' for a blank field)")
@@ -49,21 +52,32 @@ def _load_map(spec: str, cell_size: float):
 def open_source(args):
     """The message source the flags ask for (ReplaySource or LiveSource)."""
     from ground_station.cli import CliError
+    from ground_station.link import DEFAULT_URL
     from ground_station.monitor_sources import ReplaySource, open_live
 
     if args.replay:
         if args.mavlink or args.tlog or args.signing_key:
             raise CliError("--replay reads a recording; it cannot be combined with --mavlink/--tlog/--signing-key")
+        if args.duration is not None:
+            raise CliError("--duration is for a live link; a replay ends with its recording")
         if args.speed < 0:
             raise CliError(f"--speed must be >= 0, got {args.speed}")
         if not os.path.isfile(args.replay):
             raise CliError(f"no such tlog: {args.replay}")
         return ReplaySource(args.replay, speed=args.speed), f"replay {os.path.basename(args.replay)} x{args.speed:g}"
+    if args.tlog and args.no_tlog:
+        raise CliError("--tlog and --no-tlog contradict each other")
     url = args.mavlink or DEFAULT_URL
+    tlog = False if args.no_tlog else args.tlog
     try:
-        return open_live(url, tlog=args.tlog, signing_key=args.signing_key), url
-    except (OSError, ValueError) as exc:
+        source = open_live(url, tlog=tlog, signing_key=args.signing_key)
+    except ValueError as exc:  # bad signing key file
+        raise CliError(str(exc)) from exc
+    except OSError as exc:
         raise CliError(f"cannot open {url}: {exc}") from exc
+    if source.link.tlog_path is not None:
+        print(f"recording to {source.link.tlog_path}", file=sys.stderr)
+    return source, url
 
 
 def run(args: argparse.Namespace) -> int:
