@@ -28,6 +28,7 @@ from typing import Protocol
 from firmware_py import robot
 from firmware_py.clock import SimClock, WallClock
 from firmware_py.controller import Controller
+from firmware_py.mav_robot import MavlinkExtension
 from firmware_py.robot_node import RobotNode
 from firmware_py.vehicle import CtrlState, VehicleConfig
 
@@ -37,7 +38,7 @@ class Extension(Protocol):
     def attach(self, node: RobotNode, args: argparse.Namespace): ...
 
 
-EXTENSIONS: list[Extension] = []
+EXTENSIONS: list[Extension] = [MavlinkExtension()]
 
 EXIT_OK = 0
 EXIT_USAGE = 2

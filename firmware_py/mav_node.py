@@ -345,7 +345,7 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
     """`--mavlink URL` and `--signing-key FILE` for the robot's command line."""
     parser.add_argument("--mavlink", metavar="URL", default=DEFAULT_URL,
                         help=f"pymavlink connection string (default {DEFAULT_URL}; also udpin:, tcp:, "
-                             "tcpin:, a serial device)")
+                             "tcpin:, a serial device; 'none': no MAVLink)")
     parser.add_argument("--mavlink-baud", type=int, default=57600, help="baud rate for a serial device")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
                         help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")

@@ -1,0 +1,90 @@
+"""Glue between `qnav-robot` (firmware_py.cli) and the MAVLink node.
+
+Owns the `--mavlink`/`--signing-key` options of `qnav-robot` and attaching
+the node to a running `RobotNode`: the node polls once per control tick from
+the ticking thread (`node.after_tick`), so MAVLink timeouts resolve within
+one control period of robot time and every vehicle call lands between two
+ticks. The command line's controller settings (`--rate`, timeouts, the
+policy's cell size) win over stored parameters for this run and are written
+into the parameter table, so the ground station sees what is in effect.
+A reboot command reloads the params and the active policy from `--storage`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+from dataclasses import fields
+
+from firmware_py.vehicle import VehicleConfig
+
+log = logging.getLogger("qnav.mavlink")
+
+
+class MavlinkExtension:
+    """`firmware_py.cli.Extension` for the MAVLink node."""
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        from firmware_py.mav_node import add_mavlink_args
+
+        add_mavlink_args(parser)
+
+    def attach(self, node, args: argparse.Namespace):
+        if str(args.mavlink).lower() == "none":
+            return None
+        from firmware_py.mav_node import open_node
+        from firmware_py.params import PARAMS
+
+        ctrl = node.controller
+        clock = node.clock
+        cli_cfg = getattr(ctrl, "cfg", None)
+
+        def reboot_hook() -> tuple[bool, str]:
+            if not args.storage:
+                return True, ""
+            from firmware_py.storage import Storage, boot_policy_candidates
+
+            reasons = []
+            for path in boot_policy_candidates(Storage(args.storage)):
+                ok, why = ctrl.activate_policy(str(path))
+                if ok:
+                    return True, ""
+                reasons.append(why)
+            return (False, "; ".join(reasons)) if reasons else (True, "")
+
+        try:
+            shell = open_node(ctrl, args.storage, args.mavlink, clock.now_us(), signing_key=args.signing_key,
+                              baud=args.mavlink_baud, reboot_hook=reboot_hook)
+        except ValueError as exc:  # unreadable key file
+            from firmware_py.cli import UsageError
+
+            raise UsageError(str(exc)) from None
+        if cli_cfg is not None:
+            defaults = VehicleConfig()
+            by_field = {p.field: p.name for p in PARAMS if p.field}
+            for f in fields(VehicleConfig):
+                value = getattr(cli_cfg, f.name)
+                if value != getattr(defaults, f.name):
+                    ok, why = shell.node.params.set(by_field[f.name], value)
+                    if not ok:
+                        log.warning("command line %s=%s not representable as a parameter: %s", f.name, value, why)
+            ctrl.apply_config(shell.node.params.vehicle_config())
+
+        closed = []
+
+        def poll(_out) -> None:
+            if not closed:
+                shell.poll(clock.now_us())
+
+        node.after_tick.append(poll)
+        log.info("MAVLink node sysid %d on %s%s", shell.node.sysid, args.mavlink,
+                 ", signing" if shell.node.signing.key is not None else "")
+
+        def stop() -> None:
+            closed.append(True)
+            with contextlib.suppress(ValueError):
+                node.after_tick.remove(poll)
+            shell.close()
+
+        return stop
