@@ -69,10 +69,15 @@ def _import_pymavlink():
 class RobotLink:
     """A pymavlink connection to the robot plus what we overhear on it."""
 
-    def __init__(self, url: str, signing_key: bytes | None = None, timeout_s: float = 10.0) -> None:
+    def __init__(self, url: str, signing_key: bytes | None = None, timeout_s: float = 10.0,
+                 conn=None) -> None:
+        """`conn`: an open pymavlink connection to share (signing already set
+        up on it), e.g. `ground_station.link.Link.conn`; else one is opened on `url`."""
         mavutil, self.mavftp = _import_pymavlink()
-        self.conn = mavutil.mavlink_connection(url, source_system=GCS_SYSID, source_component=GCS_COMPID)
-        if signing_key is not None:
+        shared = conn is not None
+        self.conn = conn if shared else mavutil.mavlink_connection(
+            url, source_system=GCS_SYSID, source_component=GCS_COMPID)
+        if signing_key is not None and not shared:
             self.conn.setup_signing(signing_key, sign_outgoing=True, allow_unsigned_callback=None)
         self.ftp_replies: dict[tuple[int, int], tuple[int, bytes]] = {}  # (req_opcode, seq) -> (opcode, data)
         self.texts: list[str] = []
