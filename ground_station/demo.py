@@ -1,0 +1,571 @@
+"""The one-command demo (`qnav demo`): the whole system on one machine.
+
+This module owns only the orchestration; every step is the project's own
+piece, used the way an operator would use it:
+
+1. a python-can-remote hub on 127.0.0.1 (`firmware_py.canbus.CanHub`);
+2. `qnav-sim` (pymunk plant, lockstep by default, paced at real time with
+   `realtime=True`) and `qnav-robot` (controller + MAVLink node, its file
+   store in the run folder) as separate processes, each in its own process
+   group, talking CAN through the hub;
+3. one ground-station MAVLink link (`ground_station.link.Link`, its .tlog in
+   the run folder) over UDP loopback;
+4. the policy uploaded and activated over MAVLink FTP with pymavlink's
+   client (`ground_station.commands.upload.upload_policy`);
+5. the mission from map targets (`commands.mission.target_items` +
+   `Link.mission_upload`), arm and Auto (`Link.command`);
+6. the monitor (`MonitorApp` on a `LiveSource`) or, headless, the same
+   `VehicleView` fed in a loop, until the mission completes, the vehicle
+   faults, a process dies or the timeout passes;
+7. every process stopped (SIGINT to its group, so the sim writes its
+   trajectory, PNG and CAN log; then SIGTERM, SIGKILL), whatever happened.
+
+The sim runs faster than real time in lockstep (tens of times), while the
+robot measures its GCS failsafe on sim time: the ground station therefore
+sends its heartbeat every 50 ms of wall time there and raises
+FS_GCS_TOUT_MS to its maximum, so a scheduling hiccup on a busy machine
+does not trip the failsafe mid-mission.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED_POLICY = ROOT / "policies" / "paper10_cell.qtab"
+DEFAULT_TARGETS = ("A", "B", "C", "D")
+DEFAULT_MAP = "paper10"
+ACTIVE_REMOTE_DIR = "/policies"
+
+EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
+LOCKSTEP_HEARTBEAT_S = 0.05  # wall; ~2 sim s at the lockstep's ~40x
+REALTIME_HEARTBEAT_S = 1.0
+LOCKSTEP_GCS_TIMEOUT_MS = 120_000  # FS_GCS_TOUT_MS maximum (firmware_py/params.py)
+MAV_MISSION_STATE_COMPLETE = 5
+
+
+class DemoError(Exception):
+    """A step of the demo failed; the text is one line naming the step."""
+
+
+@dataclass
+class DemoOptions:
+    map_name: str = DEFAULT_MAP
+    targets: tuple[str, ...] = DEFAULT_TARGETS
+    policy: Path | None = None  # None: the shipped paper10 policy (or a trained one)
+    train: bool = False
+    train_steps: int = 3_000_000
+    realtime: bool = False
+    headless: bool = False
+    out: Path | None = None  # None: runs/demo-<timestamp>/
+    timeout_s: float | None = None  # wall seconds for the mission; None: 120 lockstep, 400 real time
+    seed: int = 0  # the sim's noise seed
+
+    def mission_timeout_s(self) -> float:
+        if self.timeout_s is not None:
+            return self.timeout_s
+        return 400.0 if self.realtime else 120.0
+
+
+@dataclass
+class DemoSummary:
+    ok: bool = False
+    result: str = ""
+    targets: list[str] = field(default_factory=list)
+    targets_reached: int = 0
+    targets_total: int = 0
+    collisions: int | None = None
+    sim_seconds: float | None = None  # robot (sim) time from Auto to the last target
+    wall_seconds: float = 0.0  # the whole demo, start-up to shut-down
+    mission_wall_seconds: float | None = None  # Auto to the last target
+    mode: str = "lockstep"
+    policy: str = ""
+    policy_id: str | None = None
+    upload_seconds: float | None = None
+    run_dir: str = ""
+    tlog: str | None = None
+    can_log: str | None = None
+    trajectory_png: str | None = None
+    trajectory_csv: str | None = None
+    robot_stats: str | None = None
+    logs: dict[str, str] = field(default_factory=dict)
+    exit_codes: dict[str, int | None] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=1)
+
+
+# --- small helpers ---------------------------------------------------------------
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def default_run_dir(base: Path = Path("runs")) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    path = base / f"demo-{stamp}"
+    n = 1
+    while path.exists():
+        n += 1
+        path = base / f"demo-{stamp}-{n}"
+    return path
+
+
+def start_cell(occ) -> tuple[int, int]:
+    """The free cell nearest the map centre (the sim's own default start)."""
+    height, width = occ.shape
+    cy, cx = (height - 1) / 2, (width - 1) / 2
+    free = [(r, c) for r in range(height) for c in range(width) if not occ[r, c]]
+    if not free:
+        raise DemoError("the map has no free cell to start in")
+    row, col = min(free, key=lambda rc: ((rc[0] - cy) ** 2 + (rc[1] - cx) ** 2, rc))
+    return col, row
+
+
+def count_collisions(trajectory_csv: Path) -> int:
+    """Contacts in the sim's ground-truth trajectory: rising edges of its bumper column."""
+    count, last = 0, 0
+    with open(trajectory_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            pressed = int(float(row["bumper"])) != 0
+            if pressed and not last:
+                count += 1
+            last = pressed
+    return count
+
+
+def _console_script(name: str, module: str) -> list[str]:
+    """argv prefix for one of our console scripts, next to this interpreter if
+    installed there, else through the interpreter (same code either way)."""
+    script = Path(sys.executable).with_name(name)
+    if script.is_file() and os.access(script, os.X_OK):
+        return [str(script)]
+    return [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())"]
+
+
+class Processes:
+    """Child processes, each in its own session/process group, stopped in order."""
+
+    def __init__(self) -> None:
+        self.procs: list[tuple[str, subprocess.Popen]] = []
+        self._logs: list = []
+
+    def start(self, name: str, argv: list[str], log_path: Path) -> subprocess.Popen:
+        log = open(log_path, "wb")  # noqa: SIM115 - closed in stop_all
+        self._logs.append(log)
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                                env=env, start_new_session=True)
+        self.procs.append((name, proc))
+        return proc
+
+    def dead(self) -> list[tuple[str, int]]:
+        return [(name, p.returncode) for name, p in self.procs if p.poll() is not None]
+
+    @staticmethod
+    def _signal(proc: subprocess.Popen, sig: int) -> None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, sig)  # start_new_session: pgid == pid
+
+    def stop_all(self, grace_s: float = 15.0) -> dict[str, int | None]:
+        """SIGINT each (so it writes its outputs), then SIGTERM, then SIGKILL."""
+        codes: dict[str, int | None] = {}
+        for name, proc in self.procs:
+            if proc.poll() is None:
+                self._signal(proc, signal.SIGINT)
+                try:
+                    proc.wait(timeout=grace_s)
+                except subprocess.TimeoutExpired:
+                    self._signal(proc, signal.SIGTERM)
+                    try:
+                        proc.wait(timeout=5)
+                    except subprocess.TimeoutExpired:
+                        self._signal(proc, signal.SIGKILL)
+                        proc.wait(timeout=5)
+            codes[name] = proc.returncode
+        for log in self._logs:
+            log.close()
+        self._logs.clear()
+        return codes
+
+
+class Heartbeat:
+    """The ground station's HEARTBEAT at a fixed wall period, in its own thread."""
+
+    def __init__(self, link, period_s: float) -> None:
+        self.link = link
+        self.period_s = period_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="demo-gcs-heartbeat", daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            with contextlib.suppress(OSError):
+                self.link.send_heartbeat()
+
+    def start(self) -> Heartbeat:
+        with contextlib.suppress(OSError):
+            self.link.send_heartbeat()
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
+
+
+class MissionWatch:
+    """Follows the mission from every frame the link parses (a pymavlink
+    message hook, so frames consumed by another reader count too)."""
+
+    def __init__(self, total: int) -> None:
+        self.total = total
+        self.reached: set[int] = set()
+        self.boot_ms: int | None = None  # latest robot time seen (LOCAL_POSITION_NED)
+        self.mission_state = 0
+        self.fault = ""
+        self.texts: list[str] = []
+        self.start_ms: int | None = None
+        self.start_wall: float | None = None
+        self.done_ms: int | None = None
+        self.done_wall: float | None = None
+        self.sysid: int | None = None
+
+    def hook(self, _conn, msg) -> None:
+        kind = msg.get_type()
+        if self.sysid is not None and msg.get_srcSystem() != self.sysid:
+            return
+        if kind == "LOCAL_POSITION_NED":
+            self.boot_ms = msg.time_boot_ms
+        elif kind == "MISSION_ITEM_REACHED":
+            if self.start_wall is not None:
+                self.reached.add(msg.seq)
+        elif kind == "MISSION_CURRENT":
+            self.mission_state = msg.mission_state
+        elif kind == "NAMED_VALUE_INT":
+            name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
+            if name == "CTRL_ST":
+                from firmware_py.vehicle import CtrlState
+
+                if msg.value == CtrlState.FAULT and not self.fault:
+                    self.fault = "controller FAULT" + (f" ({self.texts[-1]})" if self.texts else "")
+        elif kind == "STATUSTEXT":
+            text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text
+            self.texts.append(text)
+        if self.complete and self.done_wall is None:
+            self.done_wall = time.monotonic()
+            self.done_ms = self.boot_ms
+
+    def started(self) -> None:
+        self.start_wall = time.monotonic()
+        self.start_ms = self.boot_ms
+
+    @property
+    def complete(self) -> bool:
+        return self.start_wall is not None and len(self.reached) >= self.total
+
+    @property
+    def sim_seconds(self) -> float | None:
+        if self.done_ms is None or self.start_ms is None:
+            return None
+        return (self.done_ms - self.start_ms) / 1000
+
+    @property
+    def mission_wall_seconds(self) -> float | None:
+        if self.done_wall is None or self.start_wall is None:
+            return None
+        return self.done_wall - self.start_wall
+
+
+# --- the steps ---------------------------------------------------------------------
+def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -> Path:
+    """Train (progress bar) and export an int8 cell policy into the run folder."""
+    from firmware_py.policy import PolicyError, load_policy
+    from ground_station import export
+    from ground_station.maps import load_map
+    from ground_station.train import TrainConfig, train, validate_config, write_run
+
+    cfg = TrainConfig(map=opts.map_name, encoding="cell", targets=",".join(opts.targets),
+                      steps=opts.train_steps, seed=0)
+    validate_config(cfg)
+    say(f"training a cell policy on {opts.map_name}, targets {cfg.targets}, {cfg.steps:,} steps")
+    res = train(cfg, load_map(cfg.map), progress=True)
+    train_dir = run_dir / "train"
+    write_run(train_dir, cfg, res)
+    run = export.load_run(train_dir)
+    qt = export.quantise(run.q, "int8")
+    data = export.policy_bytes(qt, run.encoder, goals=run.goals, cell_mm=run.cell_mm,
+                               metadata=export.file_metadata(run, qt), created=export.created_time(run.meta))
+    try:
+        load_policy(data)  # the robot's loader judges the file before it flies
+    except PolicyError as exc:
+        raise DemoError(f"exported policy fails the robot's loader: {exc}") from None
+    out = run_dir / "policy.qtab"
+    export.write_atomic(out, data)
+    say(f"exported {out} ({len(data)} B, int8)")
+    return out
+
+
+def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tuple[float, str | None]:
+    from tqdm import tqdm
+
+    from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
+
+    size = policy.stat().st_size
+    remote = f"{ACTIVE_REMOTE_DIR}/upload-{policy.name}"
+    rl = RobotLink(link.url, conn=link.conn, timeout_s=10.0)
+    with tqdm(total=size, unit="B", unit_scale=True, desc=f"upload {policy.name}", disable=quiet or None,
+              file=sys.stderr) as bar:
+        def progress(frac):
+            if frac is not None:
+                bar.n = int(frac * size)
+                bar.refresh()
+
+        try:
+            res = upload_policy(rl, policy, remote, activate=True, deadline_s=120.0, progress=progress)
+        except UploadFailed as exc:
+            raise DemoError(f"policy upload: {exc}") from None
+        bar.n = size
+    pid = f"0x{res.policy_id:08x}" if res.policy_id is not None else None
+    say(f"uploaded {policy.name} ({res.size} B, CRC 0x{res.crc:08x}) in {res.put_seconds:.1f} s, "
+        f"activated: policy id {pid}, confirmed by {res.confirmed_by}")
+    return res.put_seconds, pid
+
+
+def _command_mission(link, opts: DemoOptions, say: Callable[[str], None]) -> None:
+    from ground_station.commands.mission import target_items
+    from ground_station.link import LinkError
+
+    m = link.m
+    try:
+        items = target_items(",".join(opts.targets), opts.map_name)
+        n = link.mission_upload(items)
+        say(f"mission {' -> '.join(opts.targets)} accepted ({n} waypoints)")
+        link.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        say("armed")
+    except LinkError as exc:
+        raise DemoError(str(exc)) from None
+
+
+def _set_auto(link, say: Callable[[str], None]) -> None:
+    from firmware_py.vehicle import Mode
+    from ground_station.link import LinkError
+
+    m = link.m
+    try:
+        link.command(m.MAV_CMD_DO_SET_MODE, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))
+    except LinkError as exc:
+        raise DemoError(str(exc)) from None
+    say("mode Auto: driving the mission")
+
+
+def _wait_headless(source, view, watch: MissionWatch, procs: Processes, deadline: float,
+                   status: Callable[[str], None] | None) -> str:
+    next_line = time.monotonic() + 1.0
+    while True:
+        batch = source.poll()
+        for msg, t in batch:
+            view.update(msg, t)
+        verdict = _verdict(watch, procs, deadline)
+        if verdict:
+            return verdict
+        if status is not None and time.monotonic() >= next_line:
+            status(view.status_line(source.now()))
+            next_line += 1.0
+        if not batch:
+            time.sleep(0.02)
+
+
+def _verdict(watch: MissionWatch, procs: Processes, deadline: float) -> str:
+    """Why the wait is over ("" while it is not)."""
+    if watch.complete:
+        return "mission complete"
+    if watch.fault:
+        return watch.fault
+    dead = procs.dead()
+    if dead:
+        return "; ".join(f"{name} exited with status {code}" for name, code in dead)
+    if time.monotonic() >= deadline:
+        return f"timeout: {len(watch.reached)} of {watch.total} targets after the mission timeout"
+    return ""
+
+
+def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: Processes, deadline: float,
+              subtitle: str) -> str:
+    from textual.binding import Binding
+
+    from ground_station.monitor_app import MonitorApp
+
+    class DemoMonitor(MonitorApp):
+        TITLE = "qnav demo"
+        BINDINGS = [*MonitorApp.BINDINGS, Binding("ctrl+c", "quit", "quit", show=False)]
+        verdict = ""
+
+        def pump(self) -> None:
+            super().pump()
+            if not self.verdict:
+                self.verdict = _verdict(watch, procs, deadline)
+                if self.verdict:
+                    self.sub_title = f"{self.verdict} - closing"
+                    self.set_timer(2.0, self.exit)  # leave the final picture up a moment
+
+    app = DemoMonitor(source, grid_map=grid_map, view=view, subtitle=subtitle)
+    app.run()
+    return app.verdict or "monitor closed by the user"
+
+
+def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
+             status: Callable[[str], None] | None = None) -> DemoSummary:
+    """Run the whole demo; returns the summary (also written to the run folder).
+
+    `say` gets one line per step; `status` (headless only) a monitor status
+    line per second. Bad options (map, targets, policy file) raise
+    DemoError before anything starts; a step that fails later ends the run
+    with `result` "error: ..." and `ok` False, after the same clean-up.
+    """
+    say = say or (lambda _line: None)
+    t0 = time.monotonic()
+    run_dir = Path(opts.out) if opts.out else default_run_dir()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    summary = DemoSummary(targets=list(opts.targets), targets_total=len(opts.targets),
+                          mode="real time" if opts.realtime else "lockstep", run_dir=str(run_dir))
+
+    from firmware_py.canbus import CanHub
+    from ground_station.link import Link
+    from ground_station.maps import MapError, load_map
+    from ground_station.monitor_sources import LiveSource
+    from ground_station.telemetry_model import VehicleView
+
+    try:
+        grid_map = load_map(opts.map_name)
+    except (MapError, OSError) as exc:
+        raise DemoError(f"map {opts.map_name}: {exc}") from None
+    missing = [t for t in opts.targets if t not in grid_map.targets]
+    if missing:
+        raise DemoError(f"map {grid_map.name} has no target {', '.join(missing)} "
+                        f"(has {', '.join(sorted(grid_map.targets))})")
+
+    if opts.train:
+        policy = train_policy(opts, run_dir, say)
+    else:
+        policy = Path(opts.policy) if opts.policy else SHIPPED_POLICY
+        if not policy.is_file():
+            raise DemoError(f"policy {policy}: no such file")
+    summary.policy = str(policy)
+
+    col, row = start_cell(grid_map.occ)
+    x, y = grid_map.cell_size_m * (col + 0.5), grid_map.cell_size_m * (grid_map.height - row - 0.5)
+    start = f"{x:g},{y:g},0"
+    paths = {
+        "tlog": run_dir / "demo.tlog", "can_log": run_dir / "can.blf",
+        "trajectory_csv": run_dir / "trajectory.csv", "trajectory_png": run_dir / "trajectory.png",
+        "robot_stats": run_dir / "robot_stats.json",
+    }
+    logs = {"sim": run_dir / "sim.log", "robot": run_dir / "robot.log"}
+    summary.logs = {k: str(v) for k, v in logs.items()}
+    storage = run_dir / "robot"
+    storage.mkdir(exist_ok=True)
+
+    procs = Processes()
+    hub = CanHub(channel="qnav-demo")
+    link = None
+    heartbeat = None
+    verdict = ""
+    try:
+        hub.start()
+        say(f"CAN hub {hub.url} (python-can-remote)")
+        port = free_udp_port()
+        link = Link(f"udpin:127.0.0.1:{port}", tlog=paths["tlog"], name="demo")
+        summary.tlog = str(paths["tlog"])
+        sim_argv = [*_console_script("qnav-sim", "sim_bridge.cli"), "--map", opts.map_name, "--can", hub.spec,
+                    "--start", start, "--seed", str(opts.seed), "--log", str(paths["can_log"]),
+                    "--trajectory", str(paths["trajectory_csv"]), "--png", str(paths["trajectory_png"]),
+                    "-q"]
+        if opts.realtime:
+            sim_argv += ["--realtime", "--duration", f"{opts.mission_timeout_s() + 300:g}"]
+        else:
+            sim_argv += ["--lockstep", "--duration", "36000", "--start-timeout", "60"]
+        robot_argv = [*_console_script("qnav-robot", "firmware_py.cli"), "--can", hub.spec,
+                      "--lockstep" if not opts.realtime else "--sim-clock", "--start", start,
+                      "--storage", str(storage), "--mavlink", f"udpout:127.0.0.1:{port}",
+                      "--stats-json", str(paths["robot_stats"])]
+        procs.start("sim", sim_argv, logs["sim"])
+        procs.start("robot", robot_argv, logs["robot"])
+        say(f"qnav-sim ({summary.mode}) and qnav-robot started, start cell ({col}, {row}); "
+            f"MAVLink udp 127.0.0.1:{port}; logs in {run_dir}")
+
+        try:
+            link.connect(30.0)
+        except Exception as exc:
+            dead = procs.dead()
+            why = "; ".join(f"{n} exited with status {c} (see {logs[n]})" for n, c in dead) or str(exc)
+            raise DemoError(f"robot not reachable over MAVLink: {why}") from None
+        heartbeat = Heartbeat(link, REALTIME_HEARTBEAT_S if opts.realtime else LOCKSTEP_HEARTBEAT_S).start()
+        say(f"robot sysid {link.sysid} found")
+        if not opts.realtime:
+            from ground_station.link import LinkError
+
+            try:
+                link.param_set("FS_GCS_TOUT_MS", LOCKSTEP_GCS_TIMEOUT_MS)
+            except LinkError as exc:
+                raise DemoError(f"FS_GCS_TOUT_MS: {exc}") from None
+
+        summary.upload_seconds, summary.policy_id = _upload(link, policy, say, quiet=False)
+        watch = MissionWatch(len(opts.targets))
+        watch.sysid = link.sysid
+        link.conn.message_hooks.append(watch.hook)
+        _command_mission(link, opts, say)
+        watch.started()
+        _set_auto(link, say)
+
+        source = LiveSource(link)
+        view = VehicleView(sysid=link.sysid)
+        deadline = time.monotonic() + opts.mission_timeout_s()
+        if opts.headless:
+            verdict = _wait_headless(source, view, watch, procs, deadline, status)
+        else:
+            verdict = _wait_tui(source, view, grid_map, watch, procs, deadline,
+                                subtitle=f"{summary.mode}  {' -> '.join(opts.targets)}  {run_dir}")
+        say(verdict)
+        summary.targets_reached = len(watch.reached)
+        summary.sim_seconds = watch.sim_seconds
+        summary.mission_wall_seconds = watch.mission_wall_seconds
+    except DemoError as exc:  # a step failed: the summary says which, the processes still stop
+        verdict = f"error: {exc}"
+    except KeyboardInterrupt:
+        verdict = "interrupted"
+        raise
+    finally:
+        summary.result = verdict
+        if heartbeat is not None:
+            heartbeat.stop()
+        summary.exit_codes = procs.stop_all()
+        if link is not None:
+            link.close()
+        hub.stop()
+        for key, path in paths.items():
+            setattr(summary, key, str(path) if path.is_file() else None)
+        if paths["trajectory_csv"].is_file():
+            summary.collisions = count_collisions(paths["trajectory_csv"])
+        summary.wall_seconds = time.monotonic() - t0
+        summary.ok = (verdict == "mission complete" and summary.targets_reached == summary.targets_total
+                      and summary.collisions == 0)
+        with contextlib.suppress(OSError):
+            tmp = run_dir / "summary.json.tmp"
+            tmp.write_text(summary.to_json() + "\n")
+            os.replace(tmp, run_dir / "summary.json")
+    return summary
