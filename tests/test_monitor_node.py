@@ -1,0 +1,107 @@
+"""The dashboard against the robot's real MAVLink node over UDP (the node
+shell + tests/mav_test_vehicle.py's small vehicle state machine): mission
+A-D from the monitor's own link, keys arm/hold, the view following it all.
+The HIL-driven check (controller + pymunk sim) is the integrator's."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+from mav_test_vehicle import TestVehicle
+from monitor_support import free_udp_port
+from pymavlink.dialects.v20 import common as mavlink
+
+from firmware_py import robot
+from firmware_py.clock import WallClock
+from firmware_py.mav_node import open_node
+from ground_station.maps import load_map
+from ground_station.monitor_app import MonitorApp
+from ground_station.monitor_sources import open_live
+
+
+class NodeRobot:
+    """Node shell + test vehicle ticking at the control rate in a thread."""
+
+    def __init__(self, storage, port: int) -> None:
+        self.clock = WallClock()
+        self.vehicle = TestVehicle(speed_mm_s=2_000)
+        self.shell = open_node(self.vehicle, storage, f"udpout:127.0.0.1:{port}", self.clock.now_us())
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        period = robot.CONTROL_PERIOD_US
+        next_t = self.clock.now_us()
+        while not self._stop.is_set():
+            with self._lock:
+                self.vehicle.step(period)
+                self.shell.poll(self.clock.now_us())
+            next_t += period
+            time.sleep(max(0.0, (next_t - self.clock.now_us()) / 1e6))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.shell.close()
+
+
+def test_dashboard_on_the_real_node(tmp_path):
+    port = free_udp_port()
+    node = NodeRobot(tmp_path / "storage", port)
+    grid = load_map("paper10")
+    tlog = tmp_path / "session.tlog"
+    source = open_live(f"udpin:127.0.0.1:{port}", tlog=str(tlog))
+    link = source.link
+    try:
+        link.connect(10)
+        cells = [grid.targets[n] for n in "ABCD"]
+        items = []
+        for col, row in cells:
+            x_mm, y_mm = robot.cell_center_mm(col, row, grid.height)
+            items.append((mavlink.MAV_FRAME_LOCAL_NED, y_mm * 10, x_mm * 10))  # NED metres * 1e4
+        assert link.mission_upload(items) == 4
+        app = MonitorApp(source, grid_map=grid)
+
+        async def scenario():
+            async with app.run_test(size=(130, 48)) as pilot:
+                v = app.view
+
+                async def until(cond, timeout=20.0):
+                    deadline = time.monotonic() + timeout
+                    while time.monotonic() < deadline:
+                        await pilot.pause(0.1)
+                        if cond():
+                            return
+                    raise AssertionError(f"timed out; view: {v.status_line(source.now())}")
+
+                await until(lambda: v.mode_name == "Hold" and v.x is not None)
+                await pilot.press("a")
+                await until(lambda: v.armed)
+                assert "ARMED" in app.query_one("#vehicle").content.plain
+                link.conn.mav.command_long_send(v.sysid, v.compid, mavlink.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0)
+                await until(lambda: v.mode_name == "Auto" and v.ctrl_name == "DRIVING")
+                await until(lambda: len(v.mission.reached) >= 2)
+                assert v.mission.total == 4 and v.mission.reached[:2] == [0, 1]
+                assert v.goal is not None  # POSITION_TARGET_LOCAL_NED from the node
+                await pilot.press("h")
+                await until(lambda: v.mode_name == "Hold")
+                assert "ACK DO_SET_MODE: ACCEPTED" in app.query_one("#log").content.plain
+                assert "ACK COMPONENT_ARM_DISARM: ACCEPTED" in [e.text for e in v.log]
+                await pilot.press("q")
+
+        asyncio.run(scenario())
+    finally:
+        source.close()
+        node.stop()
+    assert app.view.policy_id == 0  # no policy on this vehicle: the read-only param says 0
+    assert app.view.link.lost == 0 and app.view.link.received > 50
+    from ground_station.report import analyse, summarise
+
+    s = summarise(analyse(tlog), grid)
+    assert [i["seq"] for i in s["mission_items_reached"]][:2] == [0, 1]
+    assert [i.get("target") for i in s["mission_items_reached"]][:2] == ["A", "B"]  # items seen on our own link
+    assert s["path_length_m"] > 1.0
