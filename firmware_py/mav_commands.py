@@ -49,7 +49,10 @@ class CommandHandler:
             p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
         else:  # COMMAND_INT: x/y are ints, z float
             p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
-        result, reason, after = self._execute(msg.command, p, now_us, stats)
+        try:
+            result, reason, after = self._execute(msg.command, p, now_us, stats)
+        except (OverflowError, ValueError):  # int() of a NaN/inf parameter: refuse, do not crash
+            result, reason, after = DENIED, f"command {msg.command}: a parameter is not a finite number", []
         return self._reply(msg.command, src, result, reason, after)
 
     def _reply(self, command: int, src: tuple[int, int], result: int, reason: str, after: list) -> list:
