@@ -34,9 +34,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
 
+from firmware_py.signing import SIGNING_FILE
 from firmware_py.storage import (
     ACTIVE_POLICY,
     LAST_GOOD_POLICY,
+    LAYOUT_DIRS,
+    PARAMS_FILE,
     Storage,
     Upload,
     promote_policy,
@@ -86,8 +89,10 @@ class Nak(IntEnum):
 
 
 # Files only activation may write: a direct CreateFile/Remove/Truncate would
-# bypass the loader's validation.
-PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY})
+# bypass the loader's validation. The robot's own state files and the layout
+# directories are off limits too: a directory created at params.json's name
+# made every later save raise (found by the issue 9 hostile-input suite).
+PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, PARAMS_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS})
 
 
 @dataclass
@@ -389,11 +394,17 @@ class FtpServer:
         return self._ack(req)
 
     def _op_mkdir(self, req: Request, now_us: int) -> bytes:
-        self.storage.mkdir(self._path(req))
+        path = self._path(req)
+        if self._protected(path):
+            return self._nak(req, Nak.FILE_PROTECTED)
+        self.storage.mkdir(path)
         return self._ack(req)
 
     def _op_rmdir(self, req: Request, now_us: int) -> bytes:
-        self.storage.rmdir(self._path(req))
+        path = self._path(req)
+        if self._protected(path):
+            return self._nak(req, Nak.FILE_PROTECTED)
+        self.storage.rmdir(path)
         return self._ack(req)
 
     def _op_truncate(self, req: Request, now_us: int) -> bytes:
