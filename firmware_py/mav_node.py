@@ -22,6 +22,7 @@ FS_GCS_ACTION) + STATUSTEXT "GCS failsafe"; the next GCS heartbeat clears it.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import threading
 import time
@@ -221,6 +222,9 @@ class MavNode:
             if msg.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
                 return self.telemetry.statustext(
                     f"goal refused: frame {msg.coordinate_frame} unsupported (LOCAL_NED only)", M.MAV_SEVERITY_WARNING)
+            if not (math.isfinite(msg.x) and math.isfinite(msg.y)):  # round(NaN) would raise
+                return self.telemetry.statustext("goal refused: position is not a finite number",
+                                                 M.MAV_SEVERITY_WARNING)
             x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
         else:
             x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
