@@ -323,7 +323,7 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
         ax.set_title("actions")
         save("actions", fig)
     else:
-        skipped["actions"] = "no ACTION NAMED_VALUE_INT in the recording"
+        skipped["actions"] = "no policy decision in the recording (no ACTION NAMED_VALUE_INT >= 0)"
 
     if rec.load_pct:
         fig, ax = plt.subplots(figsize=(7, 3.5))
