@@ -79,8 +79,8 @@ def test_sector_policy_across_processes_in_open_arena(tmp_path):
 
 def test_estop_from_another_node_faults_the_robot_process():
     with CanHub("hilestop") as hub:
-        sim = start([BIN / "qnav-sim", "--map", "paper10", "--can", hub.spec, "--realtime",
-                     "--duration", "8", "--start", "0.25,0.25,0", "-q"])
+        sim = start([BIN / "qnav-sim", "--map", "paper10", "--can", hub.spec, "--speed", "4",
+                     "--duration", "8", "--start", "0.25,0.25,0", "-q"])  # paced, 4x real time
         rob = start([BIN / "qnav-robot", "--can", hub.spec, "--sim-clock",
                      "--policy", "policies/paper10_cell.qtab", "--start", "0.25,0.25,0",
                      "--goal-cell", "9,0", "--exit-when-done", "--duration", "7.9"])
