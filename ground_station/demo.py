@@ -33,6 +33,7 @@ import contextlib
 import csv
 import json
 import os
+import queue
 import signal
 import socket
 import subprocess
@@ -87,9 +88,10 @@ class DemoSummary:
     targets_reached: int = 0
     targets_total: int = 0
     collisions: int | None = None
-    sim_seconds: float | None = None  # robot (sim) time from Auto to the last target
+    sim_seconds: float | None = None  # robot (sim) time from the first move to the last target
     wall_seconds: float = 0.0  # the whole demo, start-up to shut-down
     mission_wall_seconds: float | None = None  # Auto to the last target
+    telemetry_loss_pct: float | None = None  # MAVLink frames from the robot lost (sequence gaps)
     mode: str = "lockstep"
     policy: str = ""
     policy_id: str | None = None
@@ -145,6 +147,20 @@ def count_collisions(trajectory_csv: Path) -> int:
                 count += 1
             last = pressed
     return count
+
+
+def mission_sim_seconds(robot_stats: Path) -> float | None:
+    """Robot (sim) time from the first DRIVING to "mission complete", from the
+    controller's own transition record (`qnav-robot --stats-json`)."""
+    try:
+        transitions = json.loads(robot_stats.read_text())["transitions"]
+    except (OSError, ValueError, KeyError):
+        return None
+    start = next((t for t, _src, dst, _cause in transitions if dst == "DRIVING"), None)
+    end = next((t for t, _src, _dst, cause in transitions if cause == "mission complete"), None)
+    if start is None or end is None:
+        return None
+    return (end - start) / 1e6
 
 
 def _console_script(name: str, module: str) -> list[str]:
@@ -230,7 +246,9 @@ class Heartbeat:
 
 class MissionWatch:
     """Follows the mission from every frame the link parses (a pymavlink
-    message hook, so frames consumed by another reader count too)."""
+    message hook, so frames consumed by another reader count too): targets
+    reached from MISSION_ITEM_REACHED and the periodic MISSION_CURRENT,
+    robot time from LOCAL_POSITION_NED, a controller FAULT from CTRL_ST."""
 
     def __init__(self, total: int) -> None:
         self.total = total
@@ -256,6 +274,11 @@ class MissionWatch:
                 self.reached.add(msg.seq)
         elif kind == "MISSION_CURRENT":
             self.mission_state = msg.mission_state
+            if self.start_wall is not None:
+                # periodic, so a lost MISSION_ITEM_REACHED is made up: items
+                # before the current one are done, all of them once COMPLETE
+                done = msg.total if msg.mission_state == MAV_MISSION_STATE_COMPLETE else msg.seq
+                self.reached.update(range(min(done, self.total)))
         elif kind == "NAMED_VALUE_INT":
             name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
             if name == "CTRL_ST":
@@ -289,6 +312,56 @@ class MissionWatch:
         if self.done_wall is None or self.start_wall is None:
             return None
         return self.done_wall - self.start_wall
+
+
+class ThreadedSource:
+    """A `LiveSource` whose frames a background thread reads as they arrive.
+
+    In lockstep the robot's telemetry comes tens of times faster than real
+    time; a dashboard that reads the socket only between redraws lets the
+    kernel's UDP buffer overflow. The LiveSource keeps its other duties
+    (GCS heartbeat, POLICY_ID requests), called from `poll`."""
+
+    finished = False
+
+    def __init__(self, live) -> None:
+        self.live = live
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name="demo-mavlink-rx", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        conn = self.live.conn
+        while not self._stop.is_set():
+            try:
+                msg = conn.recv_match(blocking=True, timeout=0.05)
+            except (OSError, ValueError):
+                if self._stop.wait(0.05):
+                    return
+                continue
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                self._queue.put((msg, self.live.now()))
+
+    def now(self) -> float:
+        return self.live.now()
+
+    def poll(self, limit: int = 2000) -> list[tuple[object, float]]:
+        self.live.poll(limit=0)  # heartbeat / parameter duties only; the thread reads
+        out = []
+        while len(out) < limit:
+            try:
+                out.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return out
+
+    def send_command(self, kind: str, target: tuple[int, int]) -> str:
+        return self.live.send_command(kind, target)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
 
 
 # --- the steps ---------------------------------------------------------------------
@@ -439,11 +512,6 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     """
     say = say or (lambda _line: None)
     t0 = time.monotonic()
-    run_dir = Path(opts.out) if opts.out else default_run_dir()
-    run_dir.mkdir(parents=True, exist_ok=True)
-    summary = DemoSummary(targets=list(opts.targets), targets_total=len(opts.targets),
-                          mode="real time" if opts.realtime else "lockstep", run_dir=str(run_dir))
-
     from firmware_py.canbus import CanHub
     from ground_station.link import Link
     from ground_station.maps import MapError, load_map
@@ -459,12 +527,16 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         raise DemoError(f"map {grid_map.name} has no target {', '.join(missing)} "
                         f"(has {', '.join(sorted(grid_map.targets))})")
 
+    policy = Path(opts.policy) if opts.policy else SHIPPED_POLICY
+    if not opts.train and not policy.is_file():
+        raise DemoError(f"policy {policy}: no such file")
+
+    run_dir = Path(opts.out) if opts.out else default_run_dir()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    summary = DemoSummary(targets=list(opts.targets), targets_total=len(opts.targets),
+                          mode="real time" if opts.realtime else "lockstep", run_dir=str(run_dir))
     if opts.train:
         policy = train_policy(opts, run_dir, say)
-    else:
-        policy = Path(opts.policy) if opts.policy else SHIPPED_POLICY
-        if not policy.is_file():
-            raise DemoError(f"policy {policy}: no such file")
     summary.policy = str(policy)
 
     col, row = start_cell(grid_map.occ)
@@ -514,6 +586,9 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
             dead = procs.dead()
             why = "; ".join(f"{n} exited with status {c} (see {logs[n]})" for n, c in dead) or str(exc)
             raise DemoError(f"robot not reachable over MAVLink: {why}") from None
+        watch = MissionWatch(len(opts.targets))
+        watch.sysid = link.sysid
+        link.conn.message_hooks.append(watch.hook)
         heartbeat = Heartbeat(link, REALTIME_HEARTBEAT_S if opts.realtime else LOCKSTEP_HEARTBEAT_S).start()
         say(f"robot sysid {link.sysid} found")
         if not opts.realtime:
@@ -525,25 +600,26 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                 raise DemoError(f"FS_GCS_TOUT_MS: {exc}") from None
 
         summary.upload_seconds, summary.policy_id = _upload(link, policy, say, quiet=False)
-        watch = MissionWatch(len(opts.targets))
-        watch.sysid = link.sysid
-        link.conn.message_hooks.append(watch.hook)
         _command_mission(link, opts, say)
         watch.started()
         _set_auto(link, say)
 
-        source = LiveSource(link)
+        source = ThreadedSource(LiveSource(link))
         view = VehicleView(sysid=link.sysid)
         deadline = time.monotonic() + opts.mission_timeout_s()
-        if opts.headless:
-            verdict = _wait_headless(source, view, watch, procs, deadline, status)
-        else:
-            verdict = _wait_tui(source, view, grid_map, watch, procs, deadline,
-                                subtitle=f"{summary.mode}  {' -> '.join(opts.targets)}  {run_dir}")
+        try:
+            if opts.headless:
+                verdict = _wait_headless(source, view, watch, procs, deadline, status)
+            else:
+                verdict = _wait_tui(source, view, grid_map, watch, procs, deadline,
+                                    subtitle=f"{summary.mode}  {' -> '.join(opts.targets)}  {run_dir}")
+        finally:
+            source.close()
         say(verdict)
         summary.targets_reached = len(watch.reached)
         summary.sim_seconds = watch.sim_seconds
         summary.mission_wall_seconds = watch.mission_wall_seconds
+        summary.telemetry_loss_pct = round(view.link.loss_pct, 2)
     except DemoError as exc:  # a step failed: the summary says which, the processes still stop
         verdict = f"error: {exc}"
     except KeyboardInterrupt:
@@ -561,6 +637,9 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
             setattr(summary, key, str(path) if path.is_file() else None)
         if paths["trajectory_csv"].is_file():
             summary.collisions = count_collisions(paths["trajectory_csv"])
+        exact = mission_sim_seconds(paths["robot_stats"])
+        if exact is not None and summary.targets_reached:
+            summary.sim_seconds = exact
         summary.wall_seconds = time.monotonic() - t0
         summary.ok = (verdict == "mission complete" and summary.targets_reached == summary.targets_total
                       and summary.collisions == 0)

@@ -1,0 +1,126 @@
+"""`qnav demo` end to end, as CI and a user run it: real processes (hub,
+qnav-sim, qnav-robot), real CAN through python-can-remote, real MAVLink over
+UDP loopback, pymavlink's FTP client, pymunk. Then `qnav report` on the
+demo's tlog. Also: a policy the robot refuses, and Ctrl-C mid-run, both
+leaving no process behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+QNAV = [sys.executable, "-c", "import sys; from ground_station.cli import main; sys.exit(main())"]
+
+
+def _processes_mentioning(text: str) -> list[str]:
+    """Command lines of live processes that mention `text` (our run folder)."""
+    found = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            state = next((ln.split()[1] for ln in Path(f"/proc/{pid}/status").read_text().splitlines()
+                          if ln.startswith("State:")), "")
+        except OSError:
+            continue
+        if text in cmd and state != "Z":
+            found.append(f"{pid}: {cmd}")
+    return found
+
+
+def _demo(out: Path, *extra: str, timeout: float = 110) -> subprocess.CompletedProcess:
+    return subprocess.run([*QNAV, "demo", "--headless", "--json", "--out", str(out), *extra], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.slow
+def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_path):
+    out = tmp_path / "run"
+    proc = _demo(out)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout)
+    assert summary["targets_reached"] == summary["targets_total"] == 4, summary
+    assert summary["collisions"] == 0
+    assert summary["result"] == "mission complete" and summary["ok"] is True
+    assert 20 < summary["sim_seconds"] < 300  # four legs on a 5 m map, in robot (sim) time
+    assert summary["wall_seconds"] > 0
+    assert summary["policy_id"] == "0xb5d6060c"  # policies/paper10_cell.json: the shipped file went up
+    for key in ("tlog", "can_log", "trajectory_png", "trajectory_csv", "robot_stats"):
+        assert summary[key] and Path(summary[key]).stat().st_size > 0, key
+    assert json.loads((out / "summary.json").read_text()) == summary
+    # the processes were stopped by the demo (SIGINT -> 130), none is left
+    assert summary["exit_codes"] == {"sim": 130, "robot": 130}
+    assert _processes_mentioning(str(out)) == []
+    # the robot really activated the uploaded file and drove the mission
+    stats = json.loads(Path(summary["robot_stats"]).read_text())
+    causes = [t[3] for t in stats["transitions"]]
+    assert "mission complete" in causes and not any("FAULT" in t[2] for t in stats["transitions"])
+    assert (out / "robot" / "policies" / "active.qtab").read_bytes() == (ROOT / "policies" / "paper10_cell.qtab").read_bytes()
+
+    rep = subprocess.run([*QNAV, "report", summary["tlog"], "--out", str(tmp_path / "report"), "--json"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=110)
+    assert rep.returncode == 0, rep.stderr[-2000:]
+    report = json.loads(rep.stdout)
+    assert report["goals_reached"] == 4, report
+    for name in ("trajectory", "distance_to_goal", "actions", "timing"):
+        png = Path(report["plots"][name])
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    assert json.loads(Path(report["summary_json"]).read_text())["goals_reached"] == 4
+
+
+def test_demo_refused_policy_fails_with_the_robots_reason_and_cleans_up(tmp_path):
+    bad = tmp_path / "bad.qtab"
+    data = bytearray((ROOT / "policies" / "paper10_cell.qtab").read_bytes())
+    data[len(data) // 2] ^= 0xFF  # CRC no longer matches: the robot's loader must refuse it
+    bad.write_bytes(bytes(data))
+    out = tmp_path / "run"
+    proc = _demo(out, "--policy", str(bad))
+    assert proc.returncode == 1, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout)
+    assert summary["ok"] is False and summary["targets_reached"] == 0
+    assert summary["result"].startswith("error: policy upload:"), summary["result"]
+    assert "crc" in summary["result"].lower(), summary["result"]
+    assert not (out / "robot" / "policies" / "active.qtab").exists()
+    assert _processes_mentioning(str(out)) == []
+
+
+def test_demo_ctrl_c_stops_every_process(tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen([*QNAV, "demo", "--headless", "--json", "--out", str(out)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        # wait until the sim and the robot are both up
+        while time.monotonic() < deadline and proc.poll() is None:
+            line = proc.stderr.readline()
+            if "robot sysid" in line:
+                break
+        assert proc.poll() is None, "demo ended before the robot was found"
+        assert len(_processes_mentioning(str(out))) >= 2  # qnav-sim and qnav-robot
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130
+    assert _processes_mentioning(str(out)) == []
+
+
+def test_demo_bad_arguments_are_one_line_errors(tmp_path):
+    for args, needle in ((["--targets", "A,Z"], "Z"), (["--policy", str(tmp_path / "nope.qtab")], "nope.qtab"),
+                         (["--timeout", "0"], "--timeout")):
+        proc = subprocess.run([*QNAV, "demo", "--headless", "--out", str(tmp_path / "r"), *args], cwd=ROOT,
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2, (args, proc.stderr)
+        errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("qnav demo: error:")]
+        assert len(errors) == 1 and needle in errors[0], proc.stderr
