@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/qnav train --map paper10 --encoding cell --targets A,B,C,D --out out/demo && $(BIN)/qnav eval out/demo --map paper10 --plot out/demo/policy.png
+	$(BIN)/qnav demo
 
 test: $(STAMP)
 	$(BIN)/ruff check .
