@@ -196,6 +196,26 @@ def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, p
     return rows
 
 
+def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400) -> list[str]:
+    """The same (start, heading, goal) episodes greedily on the training twin
+    (`SectorNavEnv`): "reached", "collision" or "timeout" each."""
+    from ground_station.envs.sector_env import SectorNavEnv
+
+    env = SectorNavEnv(gm, encoder=policy.encoder)
+    out = []
+    for r in rows:
+        state, _ = env.reset(seed=0, options={"start": tuple(r["start"]), "goal": tuple(r["goal"]),
+                                              "heading": r["heading_rad"]})
+        result = "timeout"
+        for _ in range(max_periods):
+            state, _, terminated, _, info = env.step(policy.best_action(state))
+            if terminated:
+                result = "reached" if info["success"] else "collision"
+                break
+        out.append(result)
+    return out
+
+
 def _summary(rows: list[dict]) -> dict:
     n = len(rows)
     sim = sum(r["sim_s"] for r in rows)
@@ -217,6 +237,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--starts", type=int, default=20, help="cell: seeded random starts, each to every target")
     p.add_argument("--only", choices=("sector", "cell"), help="run one set only")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--compare-twin", action="store_true",
+                   help="sector: also roll the same episodes out on the training twin and report agreement")
     p.add_argument("--max-sim-s", type=float, default=120.0, help="episode limit in sim seconds")
     p.add_argument("--json", metavar="FILE", help="write the result (with every episode) as JSON")
     p.set_defaults(func=run)
@@ -254,6 +276,12 @@ def run(args: argparse.Namespace) -> int:
             with tqdm(total=total, desc="cell targets", unit="ep") as bar:
                 rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar)
         s = _summary(rows)
+        if kind == "sector" and args.compare_twin:
+            twin = twin_outcomes(gm, pol, rows)
+            for r, t in zip(rows, twin, strict=True):
+                r["twin"] = t
+            s["twin_success"] = sum(t == "reached" for t in twin)
+            s["twin_agreement"] = sum((t == "reached") == r["success"] for r, t in zip(rows, twin, strict=True))
         result[kind] = {"policy": path, "policy_id": f"0x{pol.policy_id:08x}", **s, "episodes_detail": rows}
         rows_out += [(f"{kind}: success (reached, no contact)", f"{s['success']}/{s['episodes']}"),
                      (f"{kind}: success_rate", s["success_rate"]),
@@ -262,5 +290,8 @@ def run(args: argparse.Namespace) -> int:
                      (f"{kind}: sim_s total", s["sim_s"]),
                      (f"{kind}: wall_s total", s["wall_s"]),
                      (f"{kind}: sim/wall (x real time)", s["sim_per_wall"])]
+        if "twin_success" in s:
+            rows_out += [("sector: twin success (same episodes)", f"{s['twin_success']}/{len(rows)}"),
+                         ("sector: HIL/twin success agreement", f"{s['twin_agreement']}/{len(rows)}")]
     report("hil", rows_out, result, args.json)
     return 0
