@@ -216,6 +216,7 @@ def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
             stats.start_wait_s = time.perf_counter() - t0
         started = True
         plant.step_period()
+        stats.wall_s = time.perf_counter() - t0  # kept current: a Ctrl-C ends the loop anywhere
         if progress is not None:
             progress.update(1)
     stats.wall_s = time.perf_counter() - t0
@@ -244,6 +245,7 @@ def run_paced(plant: Plant, bus: can.BusABC, duration_s: float, speed: float = 1
         while (msg := io.recv(0.0)) is not None:  # frames that arrived meanwhile
             plant.handle(msg, lockstep=False)
         plant.step_period()
+        stats.wall_s = time.perf_counter() - t0  # kept current: a Ctrl-C ends the loop anywhere
         if progress is not None:
             progress.update(1)
     stats.wall_s = time.perf_counter() - t0
