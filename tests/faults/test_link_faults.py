@@ -1,0 +1,30 @@
+"""MAVLink link faults at small counts (issue 9): GCS heartbeats stop (node
+core + controller in the lockstep HIL rig, sim clock), a lossy emulated radio
+in front of a real `qnav-robot` (uploads and commands), and three ground
+stations + 10 Hz telemetry + uploads against qnav-robot driving in qnav-sim.
+Times are measured and reported by `qnav bench faults`, never asserted here."""
+
+from ground_station.faults import link_faults
+
+
+def test_gcs_link_loss_failsafe_within_timeout_plus_one_period():
+    res = link_faults.link_loss(4, seed=3)
+    assert res.tried == 4
+    assert res.lost == 0, res.failures
+
+
+def test_lossy_link_uploads_exact_or_clear_error_and_commands_acked_or_timed_out():
+    res = link_faults.lossy_link(2, seed=4, deadline_s=40.0, levels=(0.2, 0.4), commands=2)
+    assert res.tried == 2
+    assert res.lost == 0, res.failures
+    sessions = res.figures["sessions"]
+    assert all(s.get("upload") in ("ok", "failed") for s in sessions)
+    assert all(s["acked"] + s["timed_out"] == s["commands"] for s in sessions)
+
+
+def test_three_clients_telemetry_and_upload_miss_no_control_tick():
+    res = link_faults.load(1, seed=5, duration_s=8.0)
+    assert res.lost == 0, res.failures
+    run = res.figures["runs"][0]
+    assert run["overruns"] == 0 and run["ticks"] == run["sim_ticks"]
+    assert run["uploads"] >= 1 and run["param_lists"] >= 1
