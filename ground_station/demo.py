@@ -97,6 +97,7 @@ class DemoSummary:
     policy_id: str | None = None
     upload_seconds: float | None = None
     run_dir: str = ""
+    can_hub: str | None = None  # the python-can-remote hub's URL (stopped at the end)
     tlog: str | None = None
     can_log: str | None = None
     trajectory_png: str | None = None
@@ -508,7 +509,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     `say` gets one line per step; `status` (headless only) a monitor status
     line per second. Bad options (map, targets, policy file) raise
     DemoError before anything starts; a step that fails later ends the run
-    with `result` "error: ..." and `ok` False, after the same clean-up.
+    with `result` "error: ..." and `ok` False, Ctrl-C with "interrupted",
+    after the same clean-up.
     """
     say = say or (lambda _line: None)
     t0 = time.monotonic()
@@ -559,6 +561,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     verdict = ""
     try:
         hub.start()
+        summary.can_hub = hub.url
         say(f"CAN hub {hub.url} (python-can-remote)")
         port = free_udp_port()
         link = Link(f"udpin:127.0.0.1:{port}", tlog=paths["tlog"], name="demo")
@@ -622,10 +625,12 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         summary.telemetry_loss_pct = round(view.link.loss_pct, 2)
     except DemoError as exc:  # a step failed: the summary says which, the processes still stop
         verdict = f"error: {exc}"
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C (or SIGTERM, see commands/demo.py): clean up, report what happened
         verdict = "interrupted"
-        raise
     finally:
+        # a second Ctrl-C must not cut the clean-up short and leave processes behind
+        in_main = threading.current_thread() is threading.main_thread()
+        previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
         summary.result = verdict
         if heartbeat is not None:
             heartbeat.stop()
@@ -647,4 +652,6 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
             tmp = run_dir / "summary.json.tmp"
             tmp.write_text(summary.to_json() + "\n")
             os.replace(tmp, run_dir / "summary.json")
+        if previous_sigint is not None:
+            signal.signal(signal.SIGINT, previous_sigint)
     return summary

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -37,6 +38,12 @@ def _processes_mentioning(text: str) -> list[str]:
     return found
 
 
+def _assert_hub_stopped(url: str) -> None:
+    host, port = url.removeprefix("ws://").rstrip("/").split(":")
+    with pytest.raises(OSError), socket.create_connection((host, int(port)), timeout=2):
+        pass
+
+
 def _demo(out: Path, *extra: str, timeout: float = 110) -> subprocess.CompletedProcess:
     return subprocess.run([*QNAV, "demo", "--headless", "--json", "--out", str(out), *extra], cwd=ROOT,
                           capture_output=True, text=True, timeout=timeout)
@@ -57,9 +64,10 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
     for key in ("tlog", "can_log", "trajectory_png", "trajectory_csv", "robot_stats"):
         assert summary[key] and Path(summary[key]).stat().st_size > 0, key
     assert json.loads((out / "summary.json").read_text()) == summary
-    # the processes were stopped by the demo (SIGINT -> 130), none is left
+    # the processes were stopped by the demo (SIGINT -> 130), none is left, the hub is gone
     assert summary["exit_codes"] == {"sim": 130, "robot": 130}
     assert _processes_mentioning(str(out)) == []
+    _assert_hub_stopped(summary["can_hub"])
     # the robot really activated the uploaded file and drove the mission
     stats = json.loads(Path(summary["robot_stats"]).read_text())
     causes = [t[3] for t in stats["transitions"]]
@@ -107,13 +115,16 @@ def test_demo_ctrl_c_stops_every_process(tmp_path):
         assert proc.poll() is None, "demo ended before the robot was found"
         assert len(_processes_mentioning(str(out))) >= 2  # qnav-sim and qnav-robot
         proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=60)
+        stdout, _ = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
     assert proc.returncode == 130
     assert _processes_mentioning(str(out)) == []
+    summary = json.loads(stdout)  # still reported: what ran, where its outputs are
+    assert summary["result"] == "interrupted" and summary["ok"] is False
+    _assert_hub_stopped(summary["can_hub"])
 
 
 def test_demo_bad_arguments_are_one_line_errors(tmp_path):

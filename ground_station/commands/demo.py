@@ -73,7 +73,14 @@ def run(args: argparse.Namespace) -> int:
     import signal
 
     from ground_station.cli import CliError
-    from ground_station.demo import EXIT_FAILED, EXIT_OK, DemoError, DemoOptions, run_demo
+    from ground_station.demo import (
+        EXIT_FAILED,
+        EXIT_INTERRUPTED,
+        EXIT_OK,
+        DemoError,
+        DemoOptions,
+        run_demo,
+    )
 
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     if not targets:
@@ -111,4 +118,6 @@ def run(args: argparse.Namespace) -> int:
         print(summary.to_json())
     else:
         _print_summary(summary, sys.stdout)
+    if summary.result == "interrupted":
+        return EXIT_INTERRUPTED
     return EXIT_OK if summary.ok else EXIT_FAILED
