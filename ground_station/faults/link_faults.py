@@ -302,8 +302,9 @@ TELEMETRY_10HZ = ("LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT", "NAV_
                   "OBSTACLE_DISTANCE")
 
 
-def load_run(duration_s: float, seed: int, tmp: Path) -> dict:
-    """One paced real-time HIL run across processes under MAVLink load; the robot's stats."""
+def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -> dict:
+    """One paced real-time HIL run across processes under MAVLink load; the robot's stats.
+    `clients_on=False` is the baseline: the same run with no ground station at all."""
     import json
     import subprocess
 
@@ -380,9 +381,10 @@ def load_run(duration_s: float, seed: int, tmp: Path) -> dict:
                     link.close()
 
             clients = [_Client(n, w, stop) for n, w in (("monitor", monitor), ("asker", asker),
-                                                         ("uploader", uploader))]
-            clients[0].start()
-            if not ready.wait(60.0):
+                                                         ("uploader", uploader))] if clients_on else []
+            if clients_on:
+                clients[0].start()
+            if clients_on and not ready.wait(60.0):
                 out["problems"].append(f"monitor client not ready: {clients[0].error}")
             for cl in clients[1:]:
                 cl.start()
@@ -427,17 +429,24 @@ def load_run(duration_s: float, seed: int, tmp: Path) -> dict:
         out["problems"].append(f"robot in FAULT: {st.get('fault')}")
     if not any(t[2] == "DRIVING" for t in out["transitions"]):
         out["problems"].append("the robot never drove")
+    if clients_on and not (out["uploads"] and out["param_lists"]):
+        out["problems"].append("setup: the clients did not get their work done")
     return out
 
 
 @register("load", small=1, large=3, unit="runs of 8 s (test) / 30 s (bench) sim time at real time",
           what="3 GCS clients + 10 Hz telemetry + upload while driving: no missed tick (p99 measured)")
-def load(count: int, seed: int = 0, progress=None, duration_s: float | None = None) -> ScenarioResult:
+def load(count: int, seed: int = 0, progress=None, duration_s: float | None = None,
+         baseline: bool = False) -> ScenarioResult:
+    """`baseline`: first one run without clients, reported beside (the bench's ratio)."""
     res = ScenarioResult("load")
     if duration_s is None:
         duration_s = 8.0 if count <= 1 else 30.0
     runs = []
     with tempfile.TemporaryDirectory(prefix="qnav-load-") as tmp:
+        if baseline:
+            base = load_run(duration_s, seed * 1000 + 999, Path(tmp), clients_on=False)
+            res.figures["baseline"] = {k: v for k, v in base.items() if k != "transitions"}
         for i in range(count):
             run = load_run(duration_s, seed * 1000 + i, Path(tmp))
             runs.append({k: v for k, v in run.items() if k != "transitions"})
