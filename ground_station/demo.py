@@ -474,7 +474,7 @@ def _verdict(watch: MissionWatch, procs: Processes, deadline: float) -> str:
     if dead:
         return "; ".join(f"{name} exited with status {code}" for name, code in dead)
     if time.monotonic() >= deadline:
-        return f"timeout: {len(watch.reached)} of {watch.total} targets after the mission timeout"
+        return f"timeout: only {len(watch.reached)} of {watch.total} targets reached within the mission timeout"
     return ""
 
 
@@ -560,7 +560,10 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     heartbeat = None
     verdict = ""
     try:
-        hub.start()
+        try:
+            hub.start()
+        except RuntimeError as exc:
+            raise DemoError(f"CAN hub: {exc}") from None
         summary.can_hub = hub.url
         say(f"CAN hub {hub.url} (python-can-remote)")
         port = free_udp_port()
