@@ -84,7 +84,7 @@ def test_signed_upload(tmp_path):
         # the robot drops unsigned FTP: an unsigned client gets nowhere
         other = tmp_path / "other.qtab"
         other.write_bytes(make_policy(4))
-        out = qnav_upload(other, "--mavlink", f"udpout:127.0.0.1:{port}", "--attempts", "1", "--timeout", "30")
+        out = qnav_upload(other, "--mavlink", f"udpout:127.0.0.1:{port}", "--attempts", "1", "--timeout", "5")
         assert out.returncode == 4 and "does not answer" in out.stdout, out.stdout + out.stderr
         assert not (root / "policies" / "other.qtab").exists()
 

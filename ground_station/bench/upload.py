@@ -57,18 +57,26 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None):
-    """The robot's standalone FTP shell in a child process; always stopped on exit."""
+def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None,
+                      log: Path | None = None):
+    """The robot's standalone FTP shell in a child process; always stopped on exit.
+
+    Its output goes to `log` (default: root/../<root name>.log), never to a pipe
+    nobody reads (a full pipe would freeze the robot)."""
     cmd = [sys.executable, "-m", "firmware_py.ftp_link", "--root", str(root), "--mavlink", url]
     if key_file is not None:
         cmd += ["--signing-key", str(key_file)]
     env = dict(os.environ, MAVLINK20="1")
-    proc = subprocess.Popen(cmd + (extra or []), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    log = log or root.parent / f"{root.name}.log"
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "w") as out:
+        proc = subprocess.Popen(cmd + (extra or []), env=env, stdout=out, stderr=subprocess.STDOUT)
     try:
-        line = proc.stdout.readline()  # "serving ..." once the socket is up
-        if "serving" not in line:
-            raise RuntimeError(f"robot FTP shell did not start: {line.strip()}")
+        deadline = time.monotonic() + 20
+        while "serving" not in log.read_text():  # printed once the socket is up
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"robot FTP shell did not start: {log.read_text().strip()}")
+            time.sleep(0.05)
         yield proc
     finally:
         if proc.poll() is None:
@@ -78,7 +86,6 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        proc.stdout.close()
 
 
 def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port: int, root: Path,
@@ -110,6 +117,9 @@ def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port
         on_robot = root / remote.lstrip("/")
         row["byte_exact"] = on_robot.is_file() and on_robot.read_bytes() == data
         row["success"] = row["byte_exact"] and row["seconds"] is not None
+        log = root.parent / f"{root.name}.log"
+        if not row["success"] and log.exists():
+            row["robot_log_tail"] = log.read_text()[-2000:]
         row["ratio"] = row["seconds"] / row["theoretical_s"] if row["seconds"] else None
     return row
 

@@ -105,9 +105,15 @@ class RobotLink:
                 return msg.get_srcSystem(), msg.get_srcComponent()
         raise UploadFailed(EXIT_TIMEOUT, f"no HEARTBEAT from a robot within {timeout_s:.0f} s")
 
-    def ftp(self, tries: int = 4):
-        """A fresh pymavlink MAVFTP client whose ResetSessions the robot answered."""
-        for _ in range(tries):
+    def ftp(self, wait_s: float = 15.0):
+        """A fresh pymavlink MAVFTP client whose ResetSessions the robot answered.
+
+        Retried for `wait_s`: after a lossy put the radio's queue can hold
+        seconds of retransmitted writes in front of our request."""
+        deadline = time.monotonic() + wait_s
+        tries = 0
+        while True:
+            tries += 1
             self.ftp_replies.clear()  # each client counts seq from 0 again
             settings = self.mavftp.MAVFTPSettings(
                 [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
@@ -115,29 +121,39 @@ class RobotLink:
             ftp = self.mavftp.MAVFTP(self.conn, self.target_system, self.target_component, settings=settings)
             if ftp.pending_reset_seq is None:  # answered
                 return ftp
-        raise UploadFailed(EXIT_TIMEOUT, f"the robot does not answer MAVLink FTP ({tries} ResetSessions "
-                                         "unanswered; wrong or missing --signing-key?)")
+            if time.monotonic() > deadline:
+                raise UploadFailed(EXIT_TIMEOUT, f"the robot does not answer MAVLink FTP ({tries} ResetSessions "
+                                                 f"unanswered in {wait_s:.0f} s; wrong or missing --signing-key?)")
 
-    def reply_to(self, ftp, opcode: int) -> tuple[int, bytes] | None:
-        """The robot's reply to the client's last request of `opcode`, if one arrived."""
-        last = ftp.last_op
-        if last is None or last.opcode != opcode:
-            return None
-        return self.ftp_replies.get((opcode, (last.seq + 1) % 65536))
+    def request(self, ftp, opcode: int, command: str, args: list[str]) -> tuple[int, bytes] | None:
+        """Run one single-reply MAVFTP command; the robot's (opcode, data) reply, or
+        None if it was lost. Matched by the request's own seq, which MAVFTP takes
+        from `ftp.seq` when it sends."""
+        seq = ftp.seq
+        ftp.cmd_ftp([command, *args])
+        return self.ftp_replies.get((opcode, (seq + 1) % 65536))
 
-    def remote_crc(self, ftp, path: str, tries: int = 3) -> int | None:
-        """CalcFileCRC32 of `path`, None if the file does not exist."""
+    def remote_crc(self, ftp, path: str, wait_s: float = 20.0) -> int | None:
+        """CalcFileCRC32 of `path`, None if the file does not exist.
+
+        A request that seems lost is sent again, and a late reply to any of the
+        earlier ones counts too (they all ask the same question)."""
         op_crc = self.mavftp.OP_CalcFileCRC32
-        for _ in range(tries):
-            ftp.cmd_crc([path])
-            reply = self.reply_to(ftp, op_crc)
-            if reply is None:
-                continue  # request or reply lost: ask again
-            opcode, data = reply
-            if opcode == self.mavftp.OP_Ack and len(data) == 4:
-                return struct.unpack("<I", data)[0]
-            return None
-        raise UploadFailed(EXIT_TIMEOUT, f"no CRC reply for {path} after {tries} requests")
+        deadline = time.monotonic() + wait_s
+        seqs = []
+        while True:
+            seqs.append(ftp.seq)
+            ftp.cmd_ftp(["crc", path])
+            for seq in seqs:
+                reply = self.ftp_replies.get((op_crc, (seq + 1) % 65536))
+                if reply is None:
+                    continue
+                opcode, data = reply
+                if opcode == self.mavftp.OP_Ack and len(data) == 4:
+                    return struct.unpack("<I", data)[0]
+                return None
+            if time.monotonic() > deadline:
+                raise UploadFailed(EXIT_TIMEOUT, f"no CRC reply for {path} to {len(seqs)} requests in {wait_s:.0f} s")
 
     def read_param(self, name: str, tries: int = 3, timeout_s: float = 1.0):
         for _ in range(tries):
@@ -205,14 +221,14 @@ def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool =
         if time.monotonic() > deadline:
             raise UploadFailed(EXIT_TIMEOUT, f"upload not verified within {deadline_s:.0f} s")
         res.put_attempts = attempt
-        ftp = link.ftp()
+        ftp = link.ftp(wait_s=min(15.0, max(2.0, deadline - time.monotonic())))
         patient(ftp.ftp_settings)
         put_session = ftp.session  # the robot numbers the session as we do
         ftp.cmd_put([str(local), remote], progress_callback=progress)
         ftp.process_ftp_reply("put", timeout=max(10.0, deadline - time.monotonic()))
         quick(ftp.ftp_settings)
         crc = link.remote_crc(ftp, remote)
-        if crc is None and link.reply_to(ftp, mavftp.OP_CalcFileCRC32) is not None:
+        if crc is None:
             # Not there: if only the TerminateSession was lost (pymavlink never
             # repeats it) the data waits under a temporary name until the
             # session expires; end that session again and look once more.
@@ -235,8 +251,7 @@ def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool =
         if time.monotonic() > deadline:
             raise UploadFailed(EXIT_TIMEOUT, "activation not confirmed in time")
         n_texts = len(link.texts)
-        ftp.cmd_rename([remote, ACTIVE_POLICY])
-        reply = link.reply_to(ftp, mavftp.OP_Rename)
+        reply = link.request(ftp, mavftp.OP_Rename, "rename", [remote, ACTIVE_POLICY])
         if reply is not None and reply[0] == mavftp.OP_Ack:
             res.activated = True
             break
