@@ -14,6 +14,7 @@ import pytest
 from firmware_py.storage import ACTIVE_POLICY, Storage, boot_policy_candidates, ftp_crc32
 from ground_station.bench.upload import REPO, free_port, load_link_emulator, robot_ftp_process
 
+pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")
 MAVPROXY = REPO / ".venv" / "bin" / "mavproxy.py"
 

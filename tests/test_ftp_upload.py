@@ -13,6 +13,7 @@ from firmware_py.encoders import CellEncoder
 from firmware_py.policy import dump_policy, load_policy
 from ground_station.bench.upload import free_port, load_link_emulator, robot_ftp_process
 
+pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")
 emu = load_link_emulator()
 

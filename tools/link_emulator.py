@@ -177,10 +177,9 @@ class LinkEmulator:
                 self._stats(direction).no_peer += 1
                 continue
             self._stats(direction).delivered += 1
-            try:
+            # a peer that is not listening (ECONNREFUSED etc.): the radio cannot tell either
+            with contextlib.suppress(OSError):
                 self._socks[out_side].sendto(data, peer)
-            except OSError:
-                pass  # peer not listening (ECONNREFUSED etc.): the radio cannot tell either
         return self._heap[0][0] - now if self._heap else None
 
     def _run(self) -> None:
