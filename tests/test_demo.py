@@ -135,3 +135,49 @@ def test_demo_bad_arguments_are_one_line_errors(tmp_path):
         assert proc.returncode == 2, (args, proc.stderr)
         errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("qnav demo: error:")]
         assert len(errors) == 1 and needle in errors[0], proc.stderr
+
+
+def test_demo_dashboard_path_runs_the_monitor_until_the_mission_completes(tmp_path, monkeypatch):
+    # what `make demo` shows in a terminal: MonitorApp on the live link, closing
+    # itself at the end; textual's headless driver stands in for the terminal
+    from textual.app import App
+
+    from firmware_py import robot
+    from ground_station.demo import DemoOptions, run_demo
+    from ground_station.maps import load_map
+    from ground_station.monitor_app import (
+        MonitorApp,
+        render_log,
+        render_map,
+        render_mission,
+        render_vehicle,
+    )
+
+    shown = {}
+    real_run = App.run
+
+    def run_headless(self, *args, **kwargs):
+        assert isinstance(self, MonitorApp)
+        result = real_run(self, headless=True)
+        # the panels are pure functions of the view the dashboard fed while it ran
+        shown["map"] = render_map(self.view, self.grid_map).plain
+        shown["vehicle"] = render_vehicle(self.view).plain
+        shown["mission"] = render_mission(self.view, self.grid_map).plain
+        shown["log"] = render_log(self.view, lines=100).plain
+        shown["pose"] = self.view.pose
+        return result
+
+    monkeypatch.setattr(App, "run", run_headless)
+    out = tmp_path / "run"
+    summary = run_demo(DemoOptions(out=out, headless=False))
+    assert summary.result == "mission complete" and summary.ok, summary
+    assert summary.targets_reached == 4 and summary.collisions == 0
+    # the dashboard saw the run: Auto, every item reached, then Hold at D, still armed; the map drawn
+    assert "mode Hold" in shown["vehicle"] and "ARMED" in shown["vehicle"], shown["vehicle"]
+    assert "reached 4" in shown["mission"], shown["mission"]
+    assert "GOAL_REACHED->HOLD: mission complete" in shown["log"], shown["log"]
+    d = robot.cell_center_mm(*load_map("paper10").targets["D"], 10)
+    assert abs(shown["pose"][0] - d[0] / 1000) < 0.3 and abs(shown["pose"][1] - d[1] / 1000) < 0.3, shown["pose"]
+    assert "A" in shown["map"] and "██" in shown["map"]
+    assert _processes_mentioning(str(out)) == []
+    _assert_hub_stopped(summary.can_hub)
