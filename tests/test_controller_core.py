@@ -229,7 +229,8 @@ def test_policy_hot_swap_refused_while_driving_and_keeps_last_good(tmp_path):
     ctrl.set_mode(Mode.HOLD)
     assert ctrl.state == CtrlState.HOLD
     bad = tmp_path / "bad.qtab"
-    bad.write_bytes(p.read_bytes()[:-1] + b"\0")
+    raw = p.read_bytes()
+    bad.write_bytes(raw[:-1] + bytes([raw[-1] ^ 0xFF]))  # always breaks the CRC
     ok, why = ctrl.activate_policy(str(bad))
     assert not ok and why.startswith("policy rejected:") and "CRC32" in why
     assert ctrl.policy.policy_id == 11
