@@ -27,6 +27,12 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+# `qnav-robot` with SIGINT restored: a parent started in the background (nohup, `&`) passes
+# SIGINT ignored on to its children, and the robot would then never end cleanly on stop().
+_MAIN = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+         "from firmware_py.cli import main; sys.exit(main())")
+
+
 class RobotProcess:
     """See the module docstring. `kill9()` is the crash; `stop()` the clean end."""
 
@@ -34,7 +40,7 @@ class RobotProcess:
                  can: str | None = None, extra: list[str] | None = None, log: Path | None = None) -> None:
         self.storage = Path(storage)
         self.port = port or free_udp_port()
-        self.cmd = [str(BIN / "qnav-robot"), "--can", can or f"virtual:faults-{uuid.uuid4().hex}",
+        self.cmd = [sys.executable, "-c", _MAIN, "--can", can or f"virtual:faults-{uuid.uuid4().hex}",
                     "--storage", str(self.storage), "--mavlink", f"udpin:127.0.0.1:{self.port}"]
         if key_file is not None:
             self.cmd += ["--signing-key", str(key_file)]
@@ -63,8 +69,9 @@ class RobotProcess:
             self.proc.send_signal(signal.SIGKILL)
             self.proc.wait(timeout=10)
 
-    def stop(self, timeout_s: float = 10.0) -> int | None:
-        """SIGINT (clean exit, stats written), then SIGKILL if it hangs."""
+    def stop(self, timeout_s: float = 20.0) -> int | None:
+        """SIGINT (clean exit, stats written), then SIGKILL if it hangs (its shutdown joins
+        two threads with 5 s timeouts, so allow more than that)."""
         if self.proc is None:
             return None
         if self.proc.poll() is None:
