@@ -168,6 +168,14 @@ def sector_encoder_from_meta(d: dict) -> SectorEncoder:
                          range_edges_mm=tuple(d["range_edges_mm"]))
 
 
+def sector_guidance_from_meta(meta: dict) -> dict:
+    """evaluate_sector's guidance keywords for a sector run: the run's own
+    (runs from before guidance existed trained direct but are judged guided,
+    the main figure; the direct figures are reported beside it)."""
+    from ground_station.guidance import guidance_from_metadata
+    return {"guidance": "path", **guidance_from_metadata(meta)}
+
+
 def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = None, seed: int = 0) -> dict:
     """Evaluate a saved run on `gridmap`, dispatching on its encoding."""
     q, meta = load_run(run_dir)
@@ -184,7 +192,8 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
         from ground_station.sector_twin import evaluate_sector
     except ImportError as exc:
         raise NotImplementedError(f"the sector encoding is not available yet ({exc})") from None
-    rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample)
+    rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample,
+                          **sector_guidance_from_meta(meta), direct=True, baseline=True)
     rep.setdefault("encoding", "sector")
     rep.setdefault("map", gridmap.name)
     return rep

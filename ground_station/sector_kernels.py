@@ -10,10 +10,19 @@ octile distance field (cells) to every free cell `dist` float32
 state lives in a caller-owned array, so a run split into chunks draws exactly
 the same numbers as one call (same seed -> same table).
 
+Guidance (`ground_station.guidance`): with `guided` set, every episode
+follows the planner's waypoints (cell centres, last = the goal), the state's
+bearing is to the current waypoint and the waypoint advances inside
+GOAL_TOLERANCE_MM, exactly as the robot runs a mission; without it the
+bearing is to the goal (pure reactive).
+
 Reward of one control period (parameters `rw`):
-  rw[0] * (progress in cells along the potential) - rw[1] (time cost)
+  rw[0] * (progress in cells along the guide potential) - rw[1] (time cost)
   - rw[2] extra if the action is `reverse`;
   on reaching the goal + rw[3]; on a collision -rw[4] (and nothing else).
+The guide potential is the remaining waypoint path (distance to the current
+waypoint + the path after it) when guided, else the continuous octile
+potential of the goal (`sector_twin.potential`).
 """
 
 from __future__ import annotations
@@ -23,6 +32,8 @@ import math
 import numba
 import numpy as np
 
+from firmware_py import robot
+from ground_station.guidance import plan_into, remaining_lengths
 from ground_station.sector_twin import (
     ACTION_V_MM_S,
     GOAL_TOL_MM,
@@ -48,11 +59,13 @@ _M11 = np.uint64(11)
 _MUL = np.uint64(0x2545F4914F6CDD1D)
 _INV53 = 1.0 / 9007199254740992.0
 REVERSE = 3  # index of `reverse` in robot.ACTION_NAMES (asserted in tests)
+RANGE_VALID_, RANGE_TOO_CLOSE_, RANGE_TOO_FAR_ = robot.RANGE_VALID, robot.RANGE_TOO_CLOSE, robot.RANGE_TOO_FAR
+RANGE_MIN_, RANGE_MAX_ = robot.RANGE_MIN_MM, robot.RANGE_MAX_MM
 
 # episode-state slots (float64 array carried between chunks)
 (E_ACTIVE, E_MAP, E_X, E_Y, E_TH, E_GOAL, E_GX, E_GY, E_T, E_RET, E_S, E_PHI,
- E_K, E_A, E_S0, E_R, E_G) = range(17)
-EP_LEN = 17
+ E_K, E_A, E_S0, E_R, E_G, E_NWP, E_WP) = range(19)
+EP_LEN = 19
 
 
 def seed_rng(seed: int) -> np.ndarray:
@@ -80,6 +93,36 @@ def randint(rng, n: int) -> int:
     return k if k < n else n - 1
 
 
+@numba.njit(cache=True)
+def gauss(rng) -> float:
+    """Standard normal draw (Box-Muller) from the xorshift state."""
+    u = rand01(rng)
+    v = rand01(rng)
+    return math.sqrt(-2.0 * math.log(1.0 - u)) * math.cos(2.0 * math.pi * v)
+
+
+@numba.njit(cache=True)
+def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus, sectors, sensors, edges) -> int:
+    """State index from the encoder's sensors' readings with Gaussian noise
+    (std noise_mm, whole mm) added to the valid ones, re-classified as too
+    close / too far past the sensor limits, as the sim's noisy sensors report."""
+    for j in range(sensors.shape[0]):
+        i = sensors[j]
+        noisy[i] = ranges[i]
+        nstatus[i] = status[i]
+        if status[i] == RANGE_VALID_:
+            r = ranges[i] + int(math.floor(noise_mm * gauss(rng) + 0.5))
+            if r < RANGE_MIN_:
+                noisy[i] = RANGE_MIN_
+                nstatus[i] = RANGE_TOO_CLOSE_
+            elif r > RANGE_MAX_:
+                noisy[i] = RANGE_MAX_
+                nstatus[i] = RANGE_TOO_FAR_
+            else:
+                noisy[i] = r
+    return encode_fast(bearing_mrad(x, y, th, tx, ty), noisy, nstatus, sectors, sensors, edges)
+
+
 @numba.njit(cache=True, inline="always")
 def greedy(q, s: int) -> int:
     """argmax of q[s]; ties break to the lowest index (as firmware best_action)."""
@@ -93,8 +136,34 @@ def greedy(q, s: int) -> int:
 
 
 @numba.njit(cache=True)
+def guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided) -> float:
+    """Remaining-path estimate (mm) the reward and the loop detector use.
+    Guided: straight distance to waypoint k plus the waypoint path after it.
+    Direct: the continuous octile potential of the goal (`potential`)."""
+    if guided:
+        return math.hypot(x - wps[k, 0], y - wps[k, 1]) + rem[k]
+    return potential(dist, occ, h, w, c, x, y)
+
+
+@numba.njit(cache=True)
+def start_guidance(occ, h, w, c, dist, x, y, gx, gy, guided, clear_r, max_seg, path, wps, rem) -> int:
+    """Fill wps/rem for an episode from (x, y) to the goal (gx, gy): the
+    planner's waypoints (`ground_station.guidance.plan_into`) when guided,
+    else the goal alone. Returns the waypoint count."""
+    n = 0
+    if guided:
+        n = plan_into(occ, h, w, c, dist, x, y, clear_r, max_seg, path, wps)
+    if n == 0:
+        wps[0, 0] = gx
+        wps[0, 1] = gy
+        n = 1
+    remaining_lengths(wps, n, rem)
+    return n
+
+
+@numba.njit(cache=True)
 def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
-                 ranges, status):
+                 ranges, status, guided, clear_r, max_seg, path, wps, rem):
     m = randint(rng, occ.shape[0])
     h = dims[m, 0]
     w = dims[m, 1]
@@ -117,6 +186,7 @@ def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, 
     th = (2.0 * rand01(rng) - 1.0) * math.pi
     gx, gy = cell_centre(gcol, grow, h, c)
     og = occ[m]
+    nwp = start_guidance(og, h, w, c, d, x, y, gx, gy, guided, clear_r, max_seg, path, wps, rem)
     sense(og, h, w, c, x, y, th, which, ranges, status)
     ep[E_ACTIVE] = 1.0
     ep[E_MAP] = m
@@ -129,55 +199,82 @@ def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, 
     ep[E_T] = 0.0
     ep[E_RET] = 0.0
     ep[E_K] = 0.0
-    ep[E_S] = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
-    ep[E_PHI] = potential(d, og, h, w, c, x, y)
+    ep[E_NWP] = nwp
+    ep[E_WP] = 0.0
+    ep[E_S] = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
+    ep[E_PHI] = guide_potential(d, og, h, w, c, x, y, wps, rem, 0, guided)
 
 
 @numba.njit(cache=True)
-def period_step(occ, h, w, c, dist, x, y, th, phi, gx, gy, a, rw, which, ranges, status,
-                sectors, sensors, edges):
+def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
+                sectors, sensors, edges, guided):
     """One control period of the sector task from pose (x, y, th) with
-    potential phi toward goal (gx, gy) (octile field `dist`): the one
-    definition of the reward, shared by the trainer and the Gymnasium env.
+    potential phi, heading for waypoint k of wps[:nwp] (the last one is the
+    goal; direct: nwp = 1, the goal alone; `dist` is the goal's octile
+    field): the one definition of the reward and of waypoint advance, shared
+    by the trainer, the evaluation and the Gymnasium env.
 
-    Returns (x, y, th, phi, reward, state, hit, success, driven_mm); after a
-    hit or success the state is -1 and ranges/status are not refreshed."""
+    A waypoint before the last is passed when the centre comes within
+    GOAL_TOLERANCE_MM of it (as the controller advances a mission item); the
+    state's bearing is to the current waypoint.
+    Returns (x, y, th, phi, reward, state, hit, success, driven_mm, k); after
+    a hit or success the state is -1 and ranges/status are not refreshed."""
+    b0 = abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))
     x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
     if hit:
-        return x, y, th, phi, -rw[4], -1, True, False, driven
-    phi2 = potential(dist, occ, h, w, c, x, y)
+        return x, y, th, phi, -rw[4], -1, True, False, driven, k
+    tol2 = GOAL_TOL_MM * GOAL_TOL_MM
+    success = False
+    while (x - wps[k, 0]) * (x - wps[k, 0]) + (y - wps[k, 1]) * (y - wps[k, 1]) <= tol2:
+        if k == nwp - 1:
+            success = True
+            break
+        k += 1
+    phi2 = guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided)
     r = rw[0] * (phi - phi2) / c - rw[1]
     if a == REVERSE:
         r -= rw[2]
-    if (x - gx) * (x - gx) + (y - gy) * (y - gy) <= GOAL_TOL_MM * GOAL_TOL_MM:
-        return x, y, th, phi2, r + rw[3], -1, False, True, driven
+    if rw[5] != 0.0 and not success:  # heading shaping: turning toward the target pays
+        r += rw[5] * (b0 - abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))) / 3141.5927
+    if success:
+        return x, y, th, phi2, r + rw[3], -1, False, True, driven, k
     sense(occ, h, w, c, x, y, th, which, ranges, status)
-    s2 = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
-    return x, y, th, phi2, r, s2, False, False, driven
+    s2 = encode_fast(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]), ranges, status, sectors, sensors, edges)
+    return x, y, th, phi2, r, s2, False, False, driven, k
 
 
 @numba.njit(cache=True)
 def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
                  sectors, sensors, edges, which,
-                 lr, gamma, eps_start, eps_end, eps_decay_steps, rw, max_episode_steps, hold_max,
+                 lr, lr_end, total_steps, gamma, eps_start, eps_end, eps_decay_steps, rw,
+                 max_episode_steps, hold_max, guided, clear_r, max_seg, path, wps, rem, noise_mm,
                  start_step, n_steps, out_ret, out_succ):
     """Advance exact sequential Q-learning by n_steps env steps (control periods).
 
     Epsilon at global step t: linear from eps_start to eps_end over
-    eps_decay_steps, then eps_end. A chosen action is held while the state
+    eps_decay_steps, then eps_end. Learning rate: linear from lr at step 0
+    to lr_end at total_steps (averages out the update noise that otherwise
+    flips the greedy action of rarely visited, aliased states). A chosen action is held while the state
     index stays the same, up to hold_max periods, and learnt as one
     semi-Markov transition (discount gamma^k, rewards summed with discount):
     the greedy policy holds it anyway (same state -> same action), so this is
     what the robot executes. hold_max = 1 is the plain one-step update.
-    Writes one entry per finished episode to out_ret/out_succ and returns how
-    many."""
+    guided: each episode follows the planner's waypoints from its start pose
+    (`start_guidance`; wps/rem/path are the caller's buffers and carry the
+    open episode across chunks). noise_mm > 0: the state the learner sees
+    comes from readings with Gaussian noise of that std (`noisy_state`), so
+    the policy does not rely on a reading being exactly on one side of a
+    range edge (the sim's sensors are noisy too). Writes one entry per
+    finished episode to out_ret/out_succ and returns how many."""
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
+    noisy = np.zeros(which.shape[0], dtype=np.int64)
+    nstatus = np.zeros(which.shape[0], dtype=np.int64)
     n_done = 0
     for i in range(n_steps):
         if ep[E_ACTIVE] == 0.0:
             _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
-                         ranges, status)
+                         ranges, status, guided, clear_r, max_seg, path, wps, rem)
         s = int(ep[E_S])
         if ep[E_K] == 0.0:  # a decision: start a new option in state s
             t_glob = start_step + i
@@ -200,9 +297,12 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
         c = cell[m]
         og = occ[m]
         d = dist[m, int(ep[E_GOAL])]
-        x, y, th, phi2, r, s2, hit, success, _ = period_step(
-            og, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], ep[E_GX], ep[E_GY], a, rw,
-            which, ranges, status, sectors, sensors, edges)
+        x, y, th, phi2, r, s2, hit, success, _, k = period_step(
+            og, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], wps, rem, int(ep[E_NWP]),
+            int(ep[E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided)
+        if noise_mm > 0.0 and not (hit or success):
+            s2 = noisy_state(rng, noise_mm, x, y, th, wps[k, 0], wps[k, 1], ranges, status, noisy, nstatus,
+                             sectors, sensors, edges)
         ep[E_T] += 1.0
         ep[E_K] += 1.0
         terminal = hit or success
@@ -212,6 +312,7 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
             ep[E_TH] = th
             ep[E_PHI] = phi2
             ep[E_S] = s2
+            ep[E_WP] = k
         else:
             s2 = s
         ep[E_R] += ep[E_G] * r
@@ -224,7 +325,8 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
                 target = ep[E_R]
             else:  # also on truncation: bootstrap
                 target = ep[E_R] + ep[E_G] * q[s2, greedy(q, s2)]
-            q[s0, a] += lr * (target - q[s0, a])
+            frac = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
+            q[s0, a] += (lr + (lr_end - lr) * frac) * (target - q[s0, a])
             ep[E_K] = 0.0
         if end:
             out_ret[n_done] = ep[E_RET]
@@ -241,44 +343,63 @@ SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
 @numba.njit(cache=True)
 def eval_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sectors, sensors, edges,
                 which, max_steps, budget_base, budget_factor, stall_steps,
+                guided, wp_all, nwp_all, rem_all, pair,
                 out_outcome, out_path, out_steps):
     """Greedy rollouts of episodes i = (starts[i], goals[i], headings[i]) from
     the start cell's centre; dists[goal_slot[i]] is the goal's octile field.
+    Guided: episode i follows waypoints wp_all[pair[i], :nwp_all[pair[i]]]
+    (remaining lengths rem_all), planned from the start cell's centre.
 
-    An episode ends on success, collision, loop (the potential has not reached
-    a new minimum for stall_steps periods: the policy cycles or is stuck) or
-    timeout (step budget: max_steps if > 0, else budget_base + budget_factor
-    x the shortest path length in forward control periods)."""
+    An episode ends on success, collision, loop (the guide potential has not
+    reached a new minimum for stall_steps periods: the policy cycles or is
+    stuck) or timeout (step budget: max_steps if > 0, else budget_base +
+    budget_factor x the shortest path length in forward control periods)."""
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
+    gwp = np.zeros((1, 2))
+    grem = np.zeros(1)
+    rw = np.zeros(6)
     for i in range(starts.shape[0]):
         d = dists[goal_slot[i]]
         x, y = cell_centre(starts[i, 0], starts[i, 1], h, c)
         gx, gy = cell_centre(goals[i, 0], goals[i, 1], h, c)
+        if guided:
+            wps = wp_all[pair[i]]
+            rem = rem_all[pair[i]]
+            nwp = nwp_all[pair[i]]
+        else:
+            gwp[0, 0] = gx
+            gwp[0, 1] = gy
+            wps = gwp
+            rem = grem
+            nwp = 1
         th = headings[i]
         if max_steps > 0:
             budget = max_steps
         else:
             budget = int(budget_base + budget_factor * d[starts[i, 1], starts[i, 0]] * c / FWD_MM_PER_PERIOD)
-        best = potential(d, occ, h, w, c, x, y)
+        k = 0
+        phi = guide_potential(d, occ, h, w, c, x, y, wps, rem, k, guided)
+        best = phi
         since = 0
         path = 0.0
         outcome = TIMEOUT
         t = 0
+        sense(occ, h, w, c, x, y, th, which, ranges, status)
+        s = encode_fast(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]), ranges, status, sectors, sensors, edges)
         while t < budget:
-            sense(occ, h, w, c, x, y, th, which, ranges, status)
-            s = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
             a = greedy(q, s)
-            x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
+            x, y, th, phi, _, s, hit, success, driven, k = period_step(
+                occ, h, w, c, d, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
+                sectors, sensors, edges, guided)
             path += driven
             t += 1
             if hit:
                 outcome = COLLISION
                 break
-            if (x - gx) * (x - gx) + (y - gy) * (y - gy) <= GOAL_TOL_MM * GOAL_TOL_MM:
+            if success:
                 outcome = SUCCESS
                 break
-            phi = potential(d, occ, h, w, c, x, y)
             if phi < best - 1.0:
                 best = phi
                 since = 0

@@ -7,9 +7,14 @@
   `run(q, start_step, n_steps)` advances n_steps env steps and returns the
   returns and successes of the episodes that finished; chunked runs equal
   one long run (the RNG and the open episode live in the trainer).
-* `evaluate_sector(q, gridmap, encoder, ...)`: greedy rollouts from every
-  (start cell centre, goal cell, heading) of a map, or a seeded sample of
-  them; success, path length / octile shortest, collisions, loops, timeouts.
+* `evaluate_sector(q, gridmap, encoder, ..., guidance="path"|"direct")`:
+  greedy rollouts from every (start cell centre, goal cell, heading) of a
+  map, or a seeded sample of them; success, path length / octile shortest,
+  collisions, loops, timeouts. Guidance "path" follows the ground station's
+  planned waypoints (`ground_station.guidance`, what the robot gets as a
+  mission); "direct" steers on the goal's bearing alone (pure reactive).
+  `direct=True` adds the direct figures beside the guided ones, and
+  `baseline=True` a hand-written seek table judged the same way.
 """
 
 from __future__ import annotations
@@ -20,6 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.encoders import SectorEncoder
+from ground_station.guidance import (
+    DEFAULT_MARGIN_MM,
+    DEFAULT_MAX_SEGMENT_MM,
+    clearance_mm,
+    plan_into,
+)
 from ground_station.maps import GridMap, octile_distances
 from ground_station.sector_kernels import (
     COLLISION,
@@ -33,8 +44,16 @@ from ground_station.sector_kernels import (
 )
 from ground_station.sector_twin import encoder_arrays, grid_of
 
-MAX_TRAIN_CELLS = 64 * 64
-DEFAULT_HOLD_MAX = 100  # periods an action is held while the state is unchanged (see sector_kernels)  # all-pairs distance tables are kept per training map
+MAX_TRAIN_CELLS = 64 * 64  # all-pairs distance tables are kept per training map
+DEFAULT_HOLD_MAX = 100  # periods an action is held while the state is unchanged (see sector_kernels)
+GUIDANCES = ("path", "direct")
+
+
+def check_guidance(guidance: str) -> int:
+    """1 for "path", 0 for "direct"; ValueError otherwise."""
+    if guidance not in GUIDANCES:
+        raise ValueError(f"guidance must be one of {', '.join(GUIDANCES)}, got {guidance!r}")
+    return int(guidance == "path")
 
 
 @dataclass(frozen=True)
@@ -46,9 +65,11 @@ class SectorReward:
     reverse_cost: float = 0.02  # extra per reverse period (the robot has no rear bumper view)
     goal: float = 1.0
     collision: float = 1.0
+    align: float = 1.0  # per pi rad the target's bearing moves toward straight ahead
 
     def array(self) -> np.ndarray:
-        return np.array([self.progress, self.step_cost, self.reverse_cost, self.goal, self.collision])
+        return np.array([self.progress, self.step_cost, self.reverse_cost, self.goal, self.collision,
+                         self.align])
 
 
 @dataclass
@@ -125,6 +146,7 @@ class SectorTrainer:
             reverse_cost=float(_cfg(cfg, "sector_reverse_cost", SectorReward.reverse_cost)),
             goal=float(_cfg(cfg, "reward_goal", SectorReward.goal)),
             collision=-float(_cfg(cfg, "reward_collision", -SectorReward.collision)),
+            align=float(_cfg(cfg, "sector_align_reward", SectorReward.align)),
         )
         self.packed = pack_maps(self.maps)
         self.n_states = encoder.n_states
@@ -138,6 +160,16 @@ class SectorTrainer:
         mes = int(_cfg(cfg, "max_episode_steps", 0))
         self.max_episode_steps = mes if mes > 0 else 10 * max(gm.occ.size for gm in self.maps)
         self.hold_max = int(_cfg(cfg, "sector_hold_max", DEFAULT_HOLD_MAX))
+        self.lr_end = float(_cfg(cfg, "sector_lr_end", cfg.lr))
+        self.noise_mm = float(_cfg(cfg, "sector_range_noise_mm", 0.0))
+        self.guidance = str(_cfg(cfg, "sector_guidance", "path"))
+        self._guided = check_guidance(self.guidance)
+        self._clear_r = clearance_mm(float(_cfg(cfg, "sector_margin_mm", DEFAULT_MARGIN_MM)))
+        self._max_seg = float(_cfg(cfg, "sector_max_segment_mm", DEFAULT_MAX_SEGMENT_MM))
+        cells = int(self.packed.occ.shape[1] * self.packed.occ.shape[2])
+        self._path = np.zeros((cells, 2), dtype=np.int64)  # planner scratch
+        self._wps = np.zeros((cells, 2))  # the open episode's waypoints (kept across chunks)
+        self._rem = np.zeros(cells)
 
     def run(self, q: np.ndarray, start_step: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
         """Advance n_steps env steps, updating q (float64 (n_states, n_actions))
@@ -150,8 +182,10 @@ class SectorTrainer:
         out_succ = np.empty(n_steps, dtype=np.bool_)
         n = train_kernel(q, self._rng, self._ep, p.occ, p.dims, p.cell, p.free, p.nfree, p.dist,
                          sectors, sensors, edges, which,
-                         float(self.cfg.lr), float(self.cfg.gamma), *self._eps, self._rw,
-                         self.max_episode_steps, self.hold_max, int(start_step), int(n_steps), out_ret, out_succ)
+                         float(self.cfg.lr), self.lr_end, int(self.cfg.steps), float(self.cfg.gamma),
+                         *self._eps, self._rw, self.max_episode_steps, self.hold_max, self._guided,
+                         self._clear_r, self._max_seg, self._path, self._wps, self._rem, self.noise_mm,
+                         int(start_step), int(n_steps), out_ret, out_succ)
         return out_ret[:n].copy(), out_succ[:n].copy()
 
 
@@ -194,27 +228,59 @@ def _components(gridmap: GridMap, cells: np.ndarray) -> np.ndarray:
     return label
 
 
-def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, seed: int = 0,
-                    sample: int | None = None, max_steps: int | None = None, headings: int = 8,
-                    stall_steps: int = 400) -> dict:
-    """Greedy rollouts of q over (start, goal, heading) on gridmap.
+def seek_table(encoder: SectorEncoder) -> np.ndarray:
+    """The hand-written baseline as a Q table: forward when the target is in
+    the bearing sector straight ahead, else turn toward it (ranges ignored)."""
+    q = np.zeros((encoder.n_states, encoder.n_actions))
+    per = encoder.nbins ** len(encoder.sensors)
+    n = encoder.bearing_sectors
+    for b in range(n):
+        a = 0 if b == 0 else (1 if b <= n // 2 else 2)  # sectors count counter-clockwise
+        q[b * per:(b + 1) * per, a] = 1.0
+    return q
 
-    Starts at cell centres with headings k*2pi/headings; goals at cell
-    centres (reached within robot.GOAL_TOLERANCE_MM). Step budget per episode:
-    max_steps if given, else 400 + 4 x the octile shortest path in forward
-    control periods. Path ratio = driven length / octile shortest length
-    between the cell centres, over successful episodes. A loop is an episode
-    whose progress potential found no new minimum for `stall_steps` periods."""
-    if q.shape != (encoder.n_states, encoder.n_actions):
-        raise ValueError(f"q shape {q.shape} does not match the encoder's "
-                         f"({encoder.n_states}, {encoder.n_actions})")
-    starts, goals, hidx = eval_episodes(gridmap, seed=seed, sample=sample, headings=headings)
+
+def plan_pairs(gridmap: GridMap, starts: np.ndarray, goals: np.ndarray, dists: np.ndarray,
+               slot: np.ndarray, margin_mm: float = DEFAULT_MARGIN_MM,
+               max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM):
+    """Waypoints for every distinct (start cell, goal cell) of an episode
+    list, planned from the start cell's centre: (wp_all (P, K, 2), nwp (P,),
+    rem (P, K), pair index per episode)."""
+    from ground_station.guidance import remaining_lengths
+
+    occ, h, w, c = grid_of(gridmap)
+    key = np.concatenate([starts, goals], axis=1)
+    ukey, first, pair = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    pair = pair.reshape(-1).astype(np.int64)
+    p = len(ukey)
+    kmax = h * w
+    wp_all = np.zeros((max(p, 1), kmax, 2))
+    rem_all = np.zeros((max(p, 1), kmax))
+    nwp = np.zeros(max(p, 1), dtype=np.int64)
+    scratch = np.zeros((kmax, 2), dtype=np.int64)
+    r = clearance_mm(margin_mm)
+    for j in range(p):
+        e = first[j]
+        sx, sy = (starts[e, 0] + 0.5) * c, (h - starts[e, 1] - 0.5) * c
+        nwp[j] = plan_into(occ, h, w, c, dists[slot[e]], sx, sy, r, float(max_segment_mm), scratch, wp_all[j])
+        remaining_lengths(wp_all[j], nwp[j], rem_all[j])
+    return wp_all, nwp, rem_all, pair
+
+
+def _rollouts(q, gridmap, encoder, starts, goals, hidx, headings, guidance, max_steps, stall_steps,
+              margin_mm, max_segment_mm) -> dict:
     n = len(starts)
     occ, h, w, c = grid_of(gridmap)
     ugoals, slot = np.unique(goals, axis=0, return_inverse=True)
     slot = slot.reshape(-1).astype(np.int64)
     dists = np.stack([octile_distances(gridmap.occ, int(gc), int(gr)) for gc, gr in ugoals]) \
         if n else np.zeros((0, h, w))
+    guided = check_guidance(guidance)
+    if guided and n:
+        wp_all, nwp, rem_all, pair = plan_pairs(gridmap, starts, goals, dists, slot, margin_mm, max_segment_mm)
+    else:
+        wp_all, nwp, rem_all = np.zeros((1, 1, 2)), np.ones(1, dtype=np.int64), np.zeros((1, 1))
+        pair = np.zeros(n, dtype=np.int64)
     sectors, sensors, edges, which = encoder_arrays(encoder)
     outcome = np.zeros(n, dtype=np.int64)
     path = np.zeros(n)
@@ -223,13 +289,11 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
     th = (th + math.pi) % (2.0 * math.pi) - math.pi
     eval_kernel(np.ascontiguousarray(q, dtype=np.float64), occ, h, w, c, dists, starts, goals, slot,
                 th, sectors, sensors, edges, which, int(max_steps or 0), 400.0, 4.0,
-                int(stall_steps), outcome, path, steps)
+                int(stall_steps), guided, wp_all, nwp, rem_all, pair, outcome, path, steps)
     shortest = dists[slot, starts[:, 1], starts[:, 0]] * c
     ok = outcome == SUCCESS
     ratios = path[ok] / shortest[ok]
     return {
-        "map": gridmap.name,
-        "episodes": int(n),
         "success_rate": float(ok.mean()) if n else 0.0,
         "path_ratio_mean": float(ratios.mean()) if ratios.size else float("nan"),
         "path_ratio_max": float(ratios.max()) if ratios.size else float("nan"),
@@ -238,7 +302,49 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
         "collisions": int((outcome == COLLISION).sum()),
         "loops": int((outcome == LOOP).sum()),
         "mean_steps": float(steps.mean()) if n else 0.0,
-        "headings": int(headings),
-        "sample": sample,
-        "seed": int(seed),
     }
+
+
+def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, seed: int = 0,
+                    sample: int | None = None, max_steps: int | None = None, headings: int = 8,
+                    stall_steps: int = 400, guidance: str = "path", direct: bool = False,
+                    baseline: bool = False, margin_mm: float = DEFAULT_MARGIN_MM,
+                    max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM) -> dict:
+    """Greedy rollouts of q over (start, goal, heading) on gridmap.
+
+    Starts at cell centres with headings k*2pi/headings; goals at cell
+    centres (reached within robot.GOAL_TOLERANCE_MM). guidance "path": the
+    robot follows the planner's waypoints from the start cell's centre
+    (`ground_station.guidance.plan_waypoints` with margin_mm /
+    max_segment_mm), each passed within GOAL_TOLERANCE_MM as the controller
+    does; "direct": the bearing is the goal's. Step budget per episode:
+    max_steps if given, else 400 + 4 x the octile shortest path in forward
+    control periods. Path ratio = driven length / octile shortest length
+    between the cell centres, over successful episodes. A loop is an episode
+    whose guide potential found no new minimum for `stall_steps` periods.
+
+    The main keys are the `guidance` figures; `direct=True` adds the same
+    figures without guidance as `direct_<key>` (and as a dict under
+    "direct"); `baseline=True` adds the hand-written `seek_table` under the
+    main guidance as `baseline_<key>` (and under "baseline")."""
+    if q.shape != (encoder.n_states, encoder.n_actions):
+        raise ValueError(f"q shape {q.shape} does not match the encoder's "
+                         f"({encoder.n_states}, {encoder.n_actions})")
+    check_guidance(guidance)
+    starts, goals, hidx = eval_episodes(gridmap, seed=seed, sample=sample, headings=headings)
+    args = (starts, goals, hidx, headings)
+    extra = (max_steps, stall_steps, margin_mm, max_segment_mm)
+    rep = {"map": gridmap.name, "episodes": int(len(starts)), "guidance": guidance,
+           **_rollouts(q, gridmap, encoder, *args, guidance, *extra)}
+    if direct:
+        d = _rollouts(q, gridmap, encoder, *args, "direct", *extra)
+        rep.update({f"direct_{k}": v for k, v in d.items()})
+        rep["direct"] = {**d, "episodes": rep["episodes"]}
+    if baseline:
+        b = _rollouts(seek_table(encoder), gridmap, encoder, *args, guidance, *extra)
+        rep.update({f"baseline_{k}": v for k, v in b.items()})
+        rep["baseline"] = {**b, "episodes": rep["episodes"]}
+    rep.update({"headings": int(headings), "sample": sample, "seed": int(seed)})
+    if guidance == "path":
+        rep.update({"margin_mm": float(margin_mm), "max_segment_mm": float(max_segment_mm)})
+    return rep

@@ -278,16 +278,21 @@ def _sector_api():
 
 
 def sector_encoder(cfg: TrainConfig):
-    """The sector encoder a config trains (firmware_py's reference defaults)."""
+    """The reference SectorEncoder a config trains (its sector_* fields)."""
     from firmware_py.encoders import SectorEncoder
-    return SectorEncoder()
+    from ground_station.train_config import int_list
+    return SectorEncoder(bearing_sectors=int(cfg.sector_bearing_sectors),
+                         sensors=int_list(cfg.sector_sensors, "sector_sensors"),
+                         range_edges_mm=int_list(cfg.sector_range_edges, "sector_range_edges"))
 
 
 def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Q-learning on the sector twin, through `ground_station.sector_twin.SectorTrainer`."""
+    """Q-learning on the sector twin, through `ground_station.sector_twin.SectorTrainer`,
+    on `gridmap` plus the `sector_maps` extras."""
     SectorTrainer, _ = _sector_api()
     encoder = sector_encoder(cfg)
-    trainer = SectorTrainer([gridmap], cfg, encoder)
+    extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
+    trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
     q = initial_table(cfg, trainer.n_states, trainer.n_actions)
     rets, succs = [], []
     t0 = time.perf_counter()
@@ -302,7 +307,9 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
             bar.update(n)
     seconds = time.perf_counter() - t0
     return TrainResult(q, np.concatenate(rets), np.concatenate(succs),
-                       {"encoder": encoder.to_dict()}, seconds)
+                       {"encoder": encoder.to_dict(), "guidance": trainer.guidance,
+                        "margin_mm": cfg.sector_margin_mm, "max_segment_mm": cfg.sector_max_segment_mm,
+                        "train_maps": [m.name for m in trainer.maps]}, seconds)
 
 
 def train(cfg: TrainConfig, gridmap: GridMap | None = None, progress: bool = False) -> TrainResult:

@@ -33,6 +33,18 @@ class TrainConfig:
     reward_goal: float = _f(1.0, "reward for reaching the goal (episode ends)")
     reward_step: float = _f(-0.01, "reward for every other move")
     reward_collision: float = _f(-1.0, "reward for hitting an obstacle or the map edge (episode ends)")
+    sector_guidance: str = _f("path", "sector: path = steer to the ground station's planned waypoints (ground_station/guidance.py; "
+                                      "the robot gets them as a mission), direct = steer to the goal's bearing only")
+    sector_bearing_sectors: int = _f(15, "sector: goal-bearing sectors (odd: no sector straddles straight behind)")
+    sector_sensors: str = _f("0,1,7", "sector: comma-separated range sensor indices in the state")
+    sector_range_edges: str = _f("100,400", "sector: comma-separated ascending range bin edges (mm)")
+    sector_margin_mm: float = _f(75.0, "sector: clearance beyond the robot radius a pruned waypoint segment keeps")
+    sector_max_segment_mm: float = _f(1000.0, "sector: longest waypoint segment (mm); 0 = no limit")
+    sector_align_reward: float = _f(1.0, "sector: shaping reward per pi rad the target's bearing turns toward ahead")
+    sector_lr_end: float = _f(0.005, "sector: learning rate at the last step (linear from --lr); = --lr for a constant rate")
+    sector_range_noise_mm: float = _f(10.0, "sector: std (mm) of Gaussian noise on the range readings the learner sees "
+                                            "(the sim's sensor noise); 0 = exact readings")
+    sector_maps: str = _f("", "sector: extra comma-separated training maps (names or generator specs) besides --map")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
@@ -66,5 +78,27 @@ def validate_config(cfg: TrainConfig) -> None:
         v = getattr(cfg, name)
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {v}")
+    if cfg.encoding == "sector":
+        _check_sector(cfg)
     if cfg.max_episode_steps < 0 or cfg.curve_points < 1 or cfg.chunk_steps < 1:
         raise ValueError("max_episode_steps must be >= 0, curve_points and chunk_steps >= 1")
+
+
+def int_list(text: str, name: str) -> tuple[int, ...]:
+    """'1,2,3' -> (1, 2, 3); ValueError naming the field otherwise."""
+    try:
+        return tuple(int(v) for v in str(text).split(",") if v.strip())
+    except ValueError:
+        raise ValueError(f"{name} must be comma-separated integers, got {text!r}") from None
+
+
+def _check_sector(cfg: TrainConfig) -> None:
+    if cfg.sector_guidance not in ("path", "direct"):
+        raise ValueError(f"sector_guidance must be path or direct, got {cfg.sector_guidance!r}")
+    if not 0.0 <= cfg.sector_lr_end <= 1.0:
+        raise ValueError(f"sector_lr_end must be in [0, 1], got {cfg.sector_lr_end}")
+    if cfg.sector_margin_mm < 0 or cfg.sector_max_segment_mm < 0 or cfg.sector_range_noise_mm < 0:
+        raise ValueError("sector_margin_mm, sector_max_segment_mm and sector_range_noise_mm must be >= 0")
+    if not int_list(cfg.sector_sensors, "sector_sensors"):
+        raise ValueError("sector_sensors must name at least one sensor")
+    int_list(cfg.sector_range_edges, "sector_range_edges")

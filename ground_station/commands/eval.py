@@ -3,6 +3,11 @@
 Every (start, goal) pair of the map (a seeded sample of --sample pairs on
 large maps): success rate, path length / shortest (mean, max), timeouts,
 collisions, loops, beside the greedy nearest-free-neighbour baseline.
+Sector runs: the main figures follow the ground station's planned waypoints
+(`ground_station.guidance`, what the robot gets as a mission); the same
+policy steering on the goal bearing alone is reported beside them
+(`direct_*` keys), and the baseline is a hand-written seek table on the same
+waypoints.
 """
 
 from __future__ import annotations
@@ -49,11 +54,15 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(rep, indent=1))
         return 0
     base = rep.get("baseline", {})
+    direct = rep.get("direct")  # sector: the same policy without waypoint guidance
     keys = ["success_rate", "path_ratio_mean", "path_ratio_max", "timeouts", "collisions", "loops", "episodes"]
     print(f"== qnav eval {args.run_dir} on {gridmap.name} ({rep.get('encoding')}) ==")
-    print(f"{'':<16}{'policy':>10}{'baseline':>10}")
+    if direct is not None:
+        print("policy and baseline (hand-written seek) follow the planned waypoints; direct = policy on the goal bearing")
+    print(f"{'':<16}{'policy':>10}{'baseline':>10}" + (f"{'direct':>10}" if direct is not None else ""))
     for k in keys:
-        print(f"{k:<16}{_fmt(rep.get(k)):>10}{_fmt(base.get(k)):>10}")
+        print(f"{k:<16}{_fmt(rep.get(k)):>10}{_fmt(base.get(k)):>10}"
+              + (f"{_fmt(direct.get(k)):>10}" if direct is not None else ""))
     if rep.get("per_target"):
         print("per target success: " + ", ".join(f"{k} {_fmt(v)}" for k, v in rep["per_target"].items()))
     if args.plot:

@@ -63,7 +63,9 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
         from ground_station.sector_twin import evaluate_sector
     except ImportError:
         from ground_station.sector_train import evaluate_sector
-    return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample)
+    from ground_station.evaluate import sector_guidance_from_meta
+    return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample,
+                           **sector_guidance_from_meta(run.meta))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,9 +15,10 @@ import numpy as np
 
 from firmware_py import robot
 from firmware_py.encoders import SectorEncoder
+from ground_station.guidance import DEFAULT_MARGIN_MM, DEFAULT_MAX_SEGMENT_MM, clearance_mm
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
-from ground_station.sector_kernels import period_step
-from ground_station.sector_train import SectorReward
+from ground_station.sector_kernels import guide_potential, period_step, start_guidance
+from ground_station.sector_train import SectorReward, check_guidance
 from ground_station.sector_twin import (
     RADIUS_MM,
     bearing_mrad,
@@ -25,7 +26,6 @@ from ground_station.sector_twin import (
     encode_fast,
     encoder_arrays,
     grid_of,
-    potential,
     sense,
 )
 
@@ -41,16 +41,24 @@ class SectorNavEnv(gym.Env):
       turn_right, reverse), each the wheel speeds of
       `robot.ACTION_WHEEL_SPEEDS_MM_S` held for one control period
       (`robot.CONTROL_PERIOD_US`).
+    * Guidance (`guidance`): "path" (default) = the robot follows the ground
+      station's planned waypoints (`ground_station.guidance`, planned at
+      reset from the start pose; the last is the goal), each passed within
+      `robot.GOAL_TOLERANCE_MM` as the controller runs a mission; "direct" =
+      the goal alone.
     * Observation space: `Discrete(encoder.n_states)`, the state index of the
-      reference `SectorEncoder` (goal-bearing sector relative to the heading
-      x binned ranges of the encoder's sensors), computed from the simulated
-      range readings (fan of rays from the rim, too close / too far status)
-      exactly as the robot computes it from its CAN frames.
+      reference `SectorEncoder` (bearing sector of the current waypoint
+      relative to the heading x binned ranges of the encoder's sensors),
+      computed from the simulated range readings (fan of rays from the rim,
+      too close / too far status) exactly as the robot computes it from its
+      CAN frames.
     * Reward per period (`SectorReward`): `progress` x the decrease of the
-      remaining shortest-path estimate in cells (octile distance field of the
-      goal, continuous between cell centres), minus `step_cost`, minus
-      `reverse_cost` when reversing; plus `goal` on reaching the goal, or
-      exactly `-collision` on a collision.
+      remaining path estimate in cells (guided: distance to the current
+      waypoint + the waypoint path after it; direct: octile distance field of
+      the goal, continuous between cell centres), minus `step_cost`, minus
+      `reverse_cost` when reversing, plus `align` x the turn of the target's
+      bearing toward straight ahead (per pi rad); plus `goal` on reaching the
+      goal, or exactly `-collision` on a collision.
     * Episode end: terminated when the robot's centre is within
       `robot.GOAL_TOLERANCE_MM` of the goal cell's centre (success) or the
       disc touches an obstacle or the border (collision). Truncation is the
@@ -61,18 +69,25 @@ class SectorNavEnv(gym.Env):
       contact), heading uniform. `options` may fix `start` (col, row; placed
       at the centre), `heading` (rad) and `goal`. Randomness only from
       `self.np_random`, seeded through `reset(seed=...)`.
-    * Info: pose, goal, ranges/status of all sensors the encoder uses,
+    * Info: pose, goal, `waypoints` (list of (x, y) mm) and `waypoint`
+      (current index), ranges/status of all sensors the encoder uses,
       `success`, `collision`, `driven_mm`.
     """
 
     metadata = {"render_modes": []}
 
     def __init__(self, gridmap: GridMap | str = "paper10", encoder: SectorEncoder | None = None,
-                 goal: str | tuple[int, int] | None = None, reward: SectorReward | None = None) -> None:
+                 goal: str | tuple[int, int] | None = None, reward: SectorReward | None = None,
+                 guidance: str = "path", margin_mm: float = DEFAULT_MARGIN_MM,
+                 max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM) -> None:
         self.gridmap = load_map(gridmap) if isinstance(gridmap, str) else gridmap
         self.encoder = encoder or SectorEncoder()
         self.reward = reward or SectorReward()
         self._rw = self.reward.array()
+        self.guidance = guidance
+        self._guided = check_guidance(guidance)
+        self._clear_r = clearance_mm(margin_mm)
+        self._max_seg = float(max_segment_mm)
         self._occ, self._h, self._w, self._c = grid_of(self.gridmap)
         self._enc = encoder_arrays(self.encoder)
         self._free = self.gridmap.free_cells()
@@ -88,6 +103,12 @@ class SectorNavEnv(gym.Env):
         self._goal = (0, 0)
         self._phi = 0.0
         self._state = 0
+        cells = self._h * self._w
+        self._path = np.zeros((cells, 2), dtype=np.int64)
+        self._wps = np.zeros((cells, 2))
+        self._rem = np.zeros(cells)
+        self._nwp = 1
+        self._k = 0
 
     def _resolve_goal(self, goal) -> tuple[int, int]:
         if isinstance(goal, str):
@@ -111,14 +132,15 @@ class SectorNavEnv(gym.Env):
         x, y, th = self._pose
         sectors, sensors, edges, which = self._enc
         sense(self._occ, self._h, self._w, self._c, x, y, th, which, self._ranges, self._status)
-        gx, gy = self._goal_xy()
-        return int(encode_fast(bearing_mrad(x, y, th, gx, gy), self._ranges, self._status,
+        tx, ty = self._wps[self._k]
+        return int(encode_fast(bearing_mrad(x, y, th, tx, ty), self._ranges, self._status,
                                sectors, sensors, edges))
 
     def _info(self, **extra) -> dict[str, Any]:
         x, y, th = self._pose
         sensors = list(self.encoder.sensors)
         return {"x_mm": x, "y_mm": y, "heading_rad": th, "goal": self._goal,
+                "waypoints": [(float(a), float(b)) for a, b in self._wps[:self._nwp]], "waypoint": self._k,
                 "ranges_mm": self._ranges[sensors].copy(), "status": self._status[sensors].copy(),
                 "potential_mm": self._phi, **extra}
 
@@ -150,7 +172,12 @@ class SectorNavEnv(gym.Env):
         th = float(options["heading"]) if "heading" in options else float(rng.uniform(-math.pi, math.pi))
         th = (th + math.pi) % (2 * math.pi) - math.pi
         self._pose = (x, y, th)
-        self._phi = float(potential(dist, self._occ, self._h, self._w, self._c, x, y))
+        gx, gy = self._goal_xy()
+        self._nwp = int(start_guidance(self._occ, self._h, self._w, self._c, dist, x, y, gx, gy, self._guided,
+                                       self._clear_r, self._max_seg, self._path, self._wps, self._rem))
+        self._k = 0
+        self._phi = float(guide_potential(dist, self._occ, self._h, self._w, self._c, x, y, self._wps,
+                                          self._rem, 0, self._guided))
         self._state = self._observe()
         return self._state, self._info(success=False, collision=False, driven_mm=0.0)
 
@@ -159,13 +186,14 @@ class SectorNavEnv(gym.Env):
         if not self.action_space.contains(a):
             raise ValueError(f"action {action!r} outside {self.action_space}")
         x, y, th = self._pose
-        gx, gy = self._goal_xy()
         sectors, sensors, edges, which = self._enc
-        x, y, th, phi, r, s2, hit, success, driven = period_step(
+        x, y, th, phi, r, s2, hit, success, driven, k = period_step(
             self._occ, self._h, self._w, self._c, self._dist(self._goal), x, y, th, self._phi,
-            gx, gy, a, self._rw, which, self._ranges, self._status, sectors, sensors, edges)
+            self._wps, self._rem, self._nwp, self._k, a, self._rw, which, self._ranges, self._status,
+            sectors, sensors, edges, self._guided)
         self._pose = (float(x), float(y), float(th))
         self._phi = float(phi)
+        self._k = int(k)
         if s2 >= 0:
             self._state = int(s2)
         terminated = bool(hit or success)
