@@ -32,9 +32,10 @@ POLICIES = {
         "export": ["--dtype", "int8"],
     },
     "sector": {
-        # the best plain-CLI settings measured so far (docs/training.md, sector section)
+        # waypoint-guided sector policy (TrainConfig sector_* defaults: guidance path, 15 bearing
+        # sectors, sensors 0,1,7, edges 100/400 mm, lr decaying to 0.005); docs/training.md, sector section
         "train": ["--map", "paper10", "--encoding", "sector", "--steps", "20000000", "--lr", "0.1",
-                  "--gamma", "0.9", "--reward-step", "-0.02", "--seed", "0"],
+                  "--gamma", "0.95", "--reward-step", "0", "--epsilon-end", "0.05", "--seed", "0"],
         # all 44 400 (start, goal, heading) rollouts take ~30 s per table: a seeded sample
         "export": ["--dtype", "int8", "--sample", "8000", "--seed", "0"],
     },
