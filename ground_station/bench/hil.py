@@ -7,7 +7,8 @@ frames for fault tests) in the calling thread and the robot's
 `run_episode` is also what the HIL tests use.
 
 The benchmark runs the acceptance sets on `paper10`: the sector policy on
-seeded random (start, goal) pairs and the cell policy on targets A-D from
+seeded random (start, goal) pairs (driving the ground station's planned
+waypoints as a mission, `--guidance path`, the default) and the cell policy on targets A-D from
 seeded random starts, and reports success (goal reached with no wall
 contact), contacts, and sim time against wall time.
 """
@@ -157,14 +158,22 @@ def _centre_m(col: int, row: int, height: int, cell_mm: int) -> tuple[float, flo
     return x / 1000, y / 1000
 
 
-def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None) -> list[dict]:
+def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None,
+                   guidance: str = "path") -> list[dict]:
+    """guidance "path": the robot gets the ground station's planned waypoints
+    (ground_station.guidance.plan_waypoints) as a mission, as the sector
+    policy is trained and evaluated; "direct": the goal alone."""
+    from ground_station.guidance import guidance_from_metadata, plan_waypoints
+
+    plan_kw = guidance_from_metadata(policy.metadata)  # the planner settings the policy trained with
     cell_mm = round(gm.cell_size_m * 1000)
     rows = []
     for i, (s, heading, g) in enumerate(random_pairs(gm.occ, pairs, seed)):
         sx, sy = _centre_m(*s, gm.height, cell_mm)
         goal = robot.cell_center_mm(*g, gm.height, cell_mm)
-        ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s, seed=seed + i)
-        rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g),
+        goals = plan_waypoints(gm, s, g, **plan_kw) if guidance == "path" else [goal]
+        ep = run_episode(gm.occ, policy, (sx, sy, heading), goals, max_sim_s=max_sim_s, seed=seed + i)
+        rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g), "waypoints": len(goals),
                      "result": ep.result, "contacts": ep.contacts, "success": ep.success,
                      "sim_s": ep.sim_s, "wall_s": ep.wall_s,
                      "final_error_mm": round(ep.final_error_mm, 1)})
@@ -237,6 +246,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--starts", type=int, default=20, help="cell: seeded random starts, each to every target")
     p.add_argument("--only", choices=("sector", "cell"), help="run one set only")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--guidance", choices=("path", "direct"), default="path",
+                   help="sector: drive the planned waypoints as a mission (path) or the goal alone (direct)")
     p.add_argument("--compare-twin", action="store_true",
                    help="sector: also roll the same episodes out on the training twin and report agreement")
     p.add_argument("--max-sim-s", type=float, default=120.0, help="episode limit in sim seconds")
@@ -257,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
     except MapError as exc:
         raise CliError(str(exc)) from None
     sets = [args.only] if args.only else ["sector", "cell"]
-    result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s}
+    result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s, "guidance": args.guidance}
     rows_out: list[tuple[str, object]] = []
     for kind in sets:
         path = args.sector_policy if kind == "sector" else args.cell_policy
@@ -270,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         if kind == "sector":
             total = args.pairs
             with tqdm(total=total, desc="sector pairs", unit="ep") as bar:
-                rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar)
+                rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar, args.guidance)
         else:
             total = args.starts * sum(1 for c in gm.targets.values() if c in pol.goals)
             with tqdm(total=total, desc="cell targets", unit="ep") as bar:
