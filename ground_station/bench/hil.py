@@ -205,12 +205,15 @@ def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, p
     return rows
 
 
-def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400) -> list[str]:
+def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
+                  guidance: str = "path") -> list[str]:
     """The same (start, heading, goal) episodes greedily on the training twin
-    (`SectorNavEnv`): "reached", "collision" or "timeout" each."""
+    (`SectorNavEnv`, with the same waypoint guidance): "reached", "collision"
+    or "timeout" each."""
     from ground_station.envs.sector_env import SectorNavEnv
+    from ground_station.guidance import guidance_from_metadata
 
-    env = SectorNavEnv(gm, encoder=policy.encoder)
+    env = SectorNavEnv(gm, encoder=policy.encoder, guidance=guidance, **guidance_from_metadata(policy.metadata))
     out = []
     for r in rows:
         state, _ = env.reset(seed=0, options={"start": tuple(r["start"]), "goal": tuple(r["goal"]),
@@ -288,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
                 rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar)
         s = _summary(rows)
         if kind == "sector" and args.compare_twin:
-            twin = twin_outcomes(gm, pol, rows)
+            twin = twin_outcomes(gm, pol, rows, guidance=args.guidance)
             for r, t in zip(rows, twin, strict=True):
                 r["twin"] = t
             s["twin_success"] = sum(t == "reached" for t in twin)
