@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import resource
 import sys
 import threading
@@ -26,6 +25,7 @@ import time
 from typing import Protocol
 
 from firmware_py import robot
+from firmware_py.atomic import atomic_write
 from firmware_py.clock import SimClock, WallClock
 from firmware_py.controller import Controller
 from firmware_py.mav_robot import MavlinkExtension
@@ -281,12 +281,7 @@ def run(args: argparse.Namespace) -> int:
              summary["result"] or summary["state"], node.ticks,
              (summary["sim_time_s"] or 0.0), wall, summary["tick_p99_us"])
     if args.stats_json:
-        tmp = f"{args.stats_json}.tmp"
-        with open(tmp, "w") as f:
-            json.dump(summary, f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, args.stats_json)
+        atomic_write(args.stats_json, json.dumps(summary, indent=1))
     return code
 
 

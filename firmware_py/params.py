@@ -21,6 +21,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from firmware_py import robot
+from firmware_py.atomic import atomic_write
 from firmware_py.vehicle import FailsafeAction, VehicleConfig
 
 PARAM_FILE = "params/params.json"  # storage layout: firmware_py.storage.PARAMS_FILE
@@ -107,22 +108,6 @@ def as_float32(value: int) -> float:
     return struct.unpack("<f", struct.pack("<f", float(value)))[0]
 
 
-def atomic_write(path: Path, data: bytes) -> None:
-    """Replace `path` with `data` so a crash leaves the old or the new file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-
-
 class ParamStore:
     """Parameter values, range-checked, persisted in `<storage>/params.json`.
 
@@ -195,7 +180,7 @@ class ParamStore:
             return
         values = {p.name: self._values[p.name] for p in PARAMS if not p.readonly}
         text = json.dumps({"version": FILE_VERSION, "params": values}, indent=1, sort_keys=True)
-        atomic_write(self.path, (text + "\n").encode())
+        atomic_write(self.path, text + "\n", make_parents=True)
 
     def load(self) -> list[str]:
         """Reset to defaults, then apply the stored file. Returns warnings

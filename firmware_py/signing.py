@@ -32,7 +32,7 @@ import os
 import time
 from pathlib import Path
 
-from firmware_py.params import atomic_write
+from firmware_py.atomic import atomic_write
 
 SIGNING_FILE = "params/signing.json"  # under the storage root, beside params.json
 EPOCH_2015_UNIX_S = 1_420_070_400
@@ -206,5 +206,4 @@ class Signing:
             "key": self.key.hex() if self.key is not None and not self._key_from_file else "",
             "streams": [[*k, v] for k, v in sorted(self.streams.items())],
         }
-        atomic_write(self.path, (json.dumps(doc) + "\n").encode())
-        os.chmod(self.path, 0o600)
+        atomic_write(self.path, json.dumps(doc) + "\n", make_parents=True, mode=0o600)

@@ -25,12 +25,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import secrets
 import stat
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+
+from firmware_py.atomic import TEMP_PREFIX, fsync_dir, temp_path
 
 # Robot layout (FTP paths). docs/mavlink.md "FTP paths" describes them.
 POLICY_DIR = "/policies"
@@ -40,7 +41,6 @@ PARAMS_DIR = "/params"
 PARAMS_FILE = "/params/params.json"
 LAYOUT_DIRS = (POLICY_DIR, PARAMS_DIR)
 
-TEMP_PREFIX = ".qnav-tmp-"  # hidden from listings, refused as a path component
 DEFAULT_QUOTA_BYTES = 8 * 1024 * 1024
 MAX_PATH_CHARS = 200  # fits one FTP payload with room for "old\0new"
 
@@ -68,14 +68,6 @@ def ftp_crc32(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
     Chains like zlib.crc32: ftp_crc32(b, ftp_crc32(a)) == ftp_crc32(a + b).
     """
     return zlib.crc32(data, crc ^ 0xFFFFFFFF) ^ 0xFFFFFFFF
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 class Upload:
@@ -108,7 +100,7 @@ class Upload:
             os.close(self.fd)
             self.fd = -1
         os.replace(self.temp, self.final)
-        _fsync_dir(self.final.parent)
+        fsync_dir(self.final.parent)
         self.storage.invalidate_usage()
 
     def abort(self) -> None:
@@ -272,7 +264,7 @@ class Storage:
         existing = b""
         if keep_contents and final.exists():
             existing = self.read_bytes(ftp_path)
-        temp = final.parent / f"{TEMP_PREFIX}{final.name}-{secrets.token_hex(4)}"
+        temp = temp_path(final)
         fd = os.open(temp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
         upload = Upload(self, final, temp, fd)
         if existing:
@@ -303,7 +295,7 @@ class Storage:
     def remove(self, ftp_path: str) -> None:
         path = self._existing_file(ftp_path)
         os.unlink(path)
-        _fsync_dir(path.parent)
+        fsync_dir(path.parent)
         self.invalidate_usage()
 
     def mkdir(self, ftp_path: str) -> None:
@@ -329,9 +321,9 @@ class Storage:
         src = self._existing_file(old)
         dst = self._new_file_path(new)
         os.replace(src, dst)
-        _fsync_dir(dst.parent)
+        fsync_dir(dst.parent)
         if src.parent != dst.parent:
-            _fsync_dir(src.parent)
+            fsync_dir(src.parent)
 
     # --- crash recovery --------------------------------------------------------
     def _remove_stale_temps(self) -> int:
@@ -368,9 +360,9 @@ def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook) -> t
     if active.exists():
         os.replace(active, storage.resolve(LAST_GOOD_POLICY))
     os.replace(src, active)
-    _fsync_dir(active.parent)
+    fsync_dir(active.parent)
     if src.parent != active.parent:
-        _fsync_dir(src.parent)
+        fsync_dir(src.parent)
     return True, reason
 
 

@@ -44,6 +44,8 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from firmware_py.atomic import atomic_write
+
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED_POLICY = ROOT / "policies" / "paper10_cell.qtab"
 DEFAULT_TARGETS = ("A", "B", "C", "D")
@@ -389,7 +391,7 @@ def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -
     except PolicyError as exc:
         raise DemoError(f"exported policy fails the robot's loader: {exc}") from None
     out = run_dir / "policy.qtab"
-    export.write_atomic(out, data)
+    atomic_write(out, data)
     say(f"exported {out} ({len(data)} B, int8)")
     return out
 
@@ -652,9 +654,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         summary.ok = (verdict == "mission complete" and summary.targets_reached == summary.targets_total
                       and summary.collisions == 0)
         with contextlib.suppress(OSError):
-            tmp = run_dir / "summary.json.tmp"
-            tmp.write_text(summary.to_json() + "\n")
-            os.replace(tmp, run_dir / "summary.json")
+            atomic_write(run_dir / "summary.json", summary.to_json() + "\n")
         if previous_sigint is not None:
             signal.signal(signal.SIGINT, previous_sigint)
     return summary

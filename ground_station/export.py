@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import time
 from array import array
 from dataclasses import dataclass
@@ -121,21 +120,6 @@ def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder, *, goals=(
         scales.frombytes(np.ascontiguousarray(qt.state_scales, dtype=np.float32).tobytes())
     return fmt.dump_policy(encoder, flat, qt.dtype, qt.scale, state_scales=scales, goals=goals,
                            cell_mm=cell_mm, metadata=metadata, policy_id=policy_id, created=created)
-
-
-def write_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Write a file so readers see the old or the new one, never a torn one."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 # --- a training run directory -> policy file ------------------------------------

@@ -26,14 +26,15 @@ Definitions (also in docs/monitor.md):
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from firmware_py import robot
+from firmware_py.atomic import atomic_write
 from firmware_py.vehicle import CtrlState, Mode
 from ground_station.telemetry_model import NV_ACTION, VehicleView
 
@@ -224,34 +225,6 @@ def _timing(rec: RunRecord) -> dict:
             "tick_overruns": last - first if last >= first else last, "tick_overruns_total": last}
 
 
-def _atomic_savefig(fig, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png", dpi=110, bbox_inches="tight")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None) -> dict:
     """Write the PNGs and summary.json into out_dir; return the summary."""
     import matplotlib
@@ -267,7 +240,9 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
 
     def save(name: str, fig) -> None:
         path = out / f"{name}.png"
-        _atomic_savefig(fig, path)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+        atomic_write(path, buf.getvalue())
         plt.close(fig)
         plots[name] = str(path)
 
@@ -345,6 +320,6 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
     summary["plots"] = plots
     summary["plots_skipped"] = skipped
     summary["map"] = grid_map.name if grid_map is not None else None
-    _atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    atomic_write(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     summary["summary_json"] = str(out / "summary.json")
     return summary

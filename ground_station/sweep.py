@@ -143,8 +143,8 @@ def plot_sweep(data: dict) -> bytes:
 
 
 def write_sweep(out: str | Path, data: dict) -> None:
-    from ground_station.train import atomic_write_bytes
+    from firmware_py.atomic import atomic_write
 
     out = Path(out)
-    atomic_write_bytes(out / "sweep.json", (json.dumps(data, indent=1) + "\n").encode())
-    atomic_write_bytes(out / "sweep.png", plot_sweep(data))
+    atomic_write(out / "sweep.json", json.dumps(data, indent=1) + "\n", make_parents=True)
+    atomic_write(out / "sweep.png", plot_sweep(data))

@@ -29,8 +29,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
@@ -39,6 +37,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from firmware_py.atomic import atomic_write
 from firmware_py.encoders import CellEncoder
 from ground_station.envs.cell_env import (
     cell_transitions,
@@ -338,29 +337,6 @@ def learning_curve(returns: np.ndarray, successes: np.ndarray, points: int = 200
     return rows
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write temp + fsync + os.replace: a reader never sees a partial file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; use the normal file mode
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def plot_curve(rows: list[dict], title: str) -> bytes:
     """PNG bytes of the learning curve (average return and success rate)."""
     import matplotlib
@@ -390,16 +366,16 @@ def write_run(out: str | Path, cfg: TrainConfig, res: TrainResult) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
     np.save(buf, np.ascontiguousarray(res.q, dtype=np.float64))
-    atomic_write_bytes(out / "q.npy", buf.getvalue())
+    atomic_write(out / "q.npy", buf.getvalue())
     rows = learning_curve(res.returns, res.successes, cfg.curve_points)
     sio = io.StringIO()
     w = csv.DictWriter(sio, fieldnames=["episode", "avg_return", "success_rate"], lineterminator="\n")
     w.writeheader()
     w.writerows(rows)
-    atomic_write_bytes(out / "metrics.csv", sio.getvalue().encode())
+    atomic_write(out / "metrics.csv", sio.getvalue().encode())
     title = f"{cfg.encoding} on {cfg.map}, lr={cfg.lr:g}, seed={cfg.seed}"
     if rows:
-        atomic_write_bytes(out / "learning_curve.png", plot_curve(rows, title))
+        atomic_write(out / "learning_curve.png", plot_curve(rows, title))
     created = datetime.now(UTC)
     meta = {
         "encoding": cfg.encoding,
@@ -414,5 +390,5 @@ def write_run(out: str | Path, cfg: TrainConfig, res: TrainResult) -> dict:
         "run_name": f"{cfg.map.replace('/', '_')}__{cfg.encoding}__{cfg.seed}__{int(created.timestamp())}",
         "created": created.isoformat(timespec="seconds"),
     }
-    atomic_write_bytes(out / "meta.json", (json.dumps(meta, indent=1) + "\n").encode())
+    atomic_write(out / "meta.json", (json.dumps(meta, indent=1) + "\n").encode())
     return meta

@@ -11,29 +11,13 @@ from __future__ import annotations
 import csv
 import io
 import os
-import tempfile
 from pathlib import Path
 
 import can
 import numpy as np
 
+from firmware_py.atomic import atomic_write
 from sim_bridge.plant import TRAJECTORY_FIELDS, Plant
-
-
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 is for the temporary name only
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class CanLog:
@@ -73,7 +57,7 @@ def trajectory_csv(plant: Plant) -> str:
 
 
 def write_trajectory(plant: Plant, path: str | Path) -> None:
-    _atomic_write_bytes(Path(path), trajectory_csv(plant).encode())
+    atomic_write(path, trajectory_csv(plant).encode())
 
 
 def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, float]] | None = None,
@@ -113,4 +97,4 @@ def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, floa
     buf = io.BytesIO()
     fig.savefig(buf, format="png", bbox_inches="tight")
     plt.close(fig)
-    _atomic_write_bytes(Path(path), buf.getvalue())
+    atomic_write(path, buf.getvalue())

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from firmware_py.atomic import atomic_write
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import load_policy
 from ground_station.export import (
@@ -15,7 +16,6 @@ from ground_station.export import (
     policy_bytes,
     quantise,
     tie_rate,
-    write_atomic,
 )
 
 
@@ -111,9 +111,9 @@ def test_load_run_errors_are_one_line(tmp_path):
         load_run(tmp_path)
 
 
-def test_write_atomic_replaces_whole_file(tmp_path):
+def test_atomic_write_replaces_whole_file(tmp_path):
     p = tmp_path / "x.qtab"
-    write_atomic(p, b"old")
-    write_atomic(p, b"new contents")
+    atomic_write(p, b"old")
+    atomic_write(p, b"new contents")
     assert p.read_bytes() == b"new contents"
     assert [f.name for f in tmp_path.iterdir()] == ["x.qtab"]

@@ -73,12 +73,12 @@ def run(args: argparse.Namespace) -> int:
 def _plot(args: argparse.Namespace, gridmap) -> None:
     from pathlib import Path
 
+    from firmware_py.atomic import atomic_write
     from ground_station.cli import CliError
     from ground_station.evaluate import load_run, plot_cell_policy
-    from ground_station.train import atomic_write_bytes
 
     q, meta = load_run(args.run_dir)
     if meta["encoding"] != "cell":
         raise CliError("--plot draws cell policies only (a sector policy has no per-cell action)")
     goals = [tuple(g) for g in meta["goals"]]
-    atomic_write_bytes(Path(args.plot), plot_cell_policy(q, gridmap, goals, meta.get("targets")))
+    atomic_write(Path(args.plot), plot_cell_policy(q, gridmap, goals, meta.get("targets")), make_parents=True)

@@ -71,6 +71,7 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from firmware_py.atomic import atomic_write
     from firmware_py.policy import PolicyError, load_policy
     from ground_station import export
     from ground_station.cli import CliError
@@ -88,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     except PolicyError as exc:
         raise CliError(f"exported file fails the robot's loader: {exc}") from None
     try:
-        export.write_atomic(args.out, data)
+        atomic_write(args.out, data)
     except OSError as exc:
         raise CliError(f"cannot write {args.out}: {exc.strerror or exc}") from None
 

@@ -120,9 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_wpl(path: str, items: list) -> None:
     """QGC WPL 110 (float x/y: metres for local frames, degrees for global)."""
-    from pathlib import Path
-
-    from firmware_py.params import atomic_write
+    from firmware_py.atomic import atomic_write
     from ground_station.link import mavlink
 
     m = mavlink()
@@ -132,4 +130,4 @@ def _write_wpl(path: str, items: list) -> None:
         lines.append("\t".join(str(v) for v in (
             it.seq, it.current, it.frame, it.command, it.param1, it.param2, it.param3, it.param4,
             f"{it.x / scale:.7f}", f"{it.y / scale:.7f}", f"{it.z:g}", it.autocontinue)))
-    atomic_write(Path(path).absolute(), ("\n".join(lines) + "\n").encode())
+    atomic_write(path, "\n".join(lines) + "\n", make_parents=True)

@@ -14,13 +14,12 @@ problem. Writes are atomic (temp file + fsync + os.replace).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from firmware_py.atomic import atomic_write
 from ground_station.maps.grid import GridMap, MapError
 
 PASSABLE = frozenset(".GS")
@@ -122,34 +121,12 @@ def read_map(path: str | Path, cell_size_m: float = 0.5) -> GridMap:
     return gm
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600; use the normal file mode
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_map(path: str | Path, gridmap: GridMap) -> None:
     """Write a `.map` file (atomically) and its targets sidecar if it has targets."""
     p = Path(path)
-    _atomic_write(p, dump_map(gridmap))
+    atomic_write(p, dump_map(gridmap), make_parents=True)
     if gridmap.targets:
-        _atomic_write(targets_path(p), dump_targets(gridmap.targets))
+        atomic_write(targets_path(p), dump_targets(gridmap.targets))
 
 
 @dataclass(frozen=True)
