@@ -26,6 +26,8 @@ from types import TracebackType
 
 import can
 
+from firmware_py.subprocs import free_port, stop_process
+
 SPEC_FORMS = ("virtual:NAME", "remote:ws://127.0.0.1:PORT/", "socketcan:CHANNEL", "slcan:DEVICE")
 
 
@@ -66,13 +68,6 @@ def open_bus(spec: str | None, **kwargs: object) -> can.BusABC:
         raise CanSpecError(f"cannot open CAN bus {where!r}: {detail}") from None
 
 
-def free_port(host: str = "127.0.0.1") -> int:
-    """A TCP port that was free a moment ago on `host`."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
-
-
 class CanHub:
     """A python-can-remote hub on 127.0.0.1 for one run (a context manager).
 
@@ -101,7 +96,7 @@ class CanHub:
         fixed = self.port is not None
         for _attempt in range(1 if fixed else 3):
             if not fixed:
-                self.port = free_port(self.host)
+                self.port = free_port(host=self.host)
             if self._launch():
                 return self
         raise RuntimeError(f"python-can-remote hub did not start on {self.host}:{self.port}")
@@ -127,14 +122,8 @@ class CanHub:
 
     def stop(self) -> None:
         proc, self._proc = self._proc, None
-        if proc is None or proc.poll() is not None:
-            return
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+        if proc is not None:
+            stop_process(proc)
 
     @property
     def running(self) -> bool:

@@ -35,7 +35,6 @@ import json
 import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -45,6 +44,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from firmware_py.atomic import atomic_write
+from firmware_py.subprocs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED_POLICY = ROOT / "policies" / "paper10_cell.qtab"
@@ -113,12 +113,6 @@ class DemoSummary:
 
 
 # --- small helpers ---------------------------------------------------------------
-def free_udp_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
-
-
 def default_run_dir(base: Path = Path("runs")) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     path = base / f"demo-{stamp}"

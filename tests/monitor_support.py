@@ -12,7 +12,6 @@ values independently (path length, reached targets, times).
 from __future__ import annotations
 
 import math
-import socket
 import struct
 import threading
 import time
@@ -247,12 +246,6 @@ def write_tlog(path, script: RoverScript, t0: float = 1_700_000_000.0, with_gcs_
             if m.get_type() not in drop_types:
                 put(t, m, rover)
     return n
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class UdpRover(threading.Thread):

@@ -10,6 +10,7 @@ import pytest
 
 from firmware_py import can_protocol as cp
 from firmware_py.canbus import CanHub, CanSpecError, open_bus, parse_spec
+from firmware_py.subprocs import free_port
 
 
 def test_parse_spec_maps_every_documented_form():
@@ -35,7 +36,7 @@ def test_bad_specs_give_one_line_errors(spec, words):
 
 
 def test_unopenable_bus_is_a_one_line_error():
-    port = _closed_port()
+    port = free_port()
     with pytest.raises(CanSpecError, match="cannot open CAN bus") as info:
         open_bus(f"remote:ws://127.0.0.1:{port}/")
     assert "\n" not in str(info.value)
@@ -98,8 +99,3 @@ def test_hub_carries_frames_across_processes_and_stops():
     with pytest.raises(OSError):
         socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
 
-
-def _closed_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]

@@ -12,7 +12,8 @@ import time
 import pytest
 
 from firmware_py.storage import ACTIVE_POLICY, Storage, boot_policy_candidates, ftp_crc32
-from ground_station.bench.upload import REPO, free_port, load_link_emulator, robot_ftp_process
+from firmware_py.subprocs import free_udp_port, stop_process
+from ground_station.bench.upload import REPO, load_link_emulator, robot_ftp_process
 
 pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")
@@ -30,7 +31,7 @@ def mavftp(port, *args, cwd, timeout=60):
 def robot(tmp_path_factory):
     """(storage root, client port) of a standalone robot FTP shell sending to the client port."""
     root = tmp_path_factory.mktemp("robot") / "root"
-    port = free_port()
+    port = free_udp_port()
     with robot_ftp_process(root, f"udpout:127.0.0.1:{port}"):
         yield root, port
 
@@ -107,13 +108,7 @@ def _wait_for(predicate, timeout_s):
 
 
 def _stop(proc):
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    stop_process(proc)
     out = proc.stdout.read()
     proc.stdout.close()
     return out
@@ -148,7 +143,7 @@ def test_kill_9_mid_upload_leaves_no_partial_file(tmp_path):
     store.write_atomic(ACTIVE_POLICY, b"the good policy")
     data = random.Random(3).randbytes(60_000)  # ~14 s at 57600 baud: plenty of time to kill
     (tmp_path / "big.qtab").write_bytes(data)
-    client_port = free_port()
+    client_port = free_udp_port()
     link = emu.LinkEmulator(emu.LinkConfig(), gcs_peer=("127.0.0.1", client_port))
     with link, robot_ftp_process(root, f"udpout:127.0.0.1:{link.robot_port}") as proc:
         put = subprocess.Popen(
@@ -168,7 +163,7 @@ def test_kill_9_mid_upload_leaves_no_partial_file(tmp_path):
             put.wait()
     # restart: the temporary file is swept away, the real name never appeared,
     # and boot picks the policy that was active before
-    with robot_ftp_process(root, f"udpout:127.0.0.1:{free_port()}"):
+    with robot_ftp_process(root, f"udpout:127.0.0.1:{free_udp_port()}"):
         assert _wait_for(lambda: sorted(p.name for p in (root / "policies").iterdir()) == ["active.qtab"], 10)
     assert boot_policy_candidates(Storage(root))[0] == str(root.resolve() / "policies" / "active.qtab")
     assert (root / "policies" / "active.qtab").read_bytes() == b"the good policy"

@@ -11,7 +11,8 @@ import pytest
 
 from firmware_py.encoders import CellEncoder
 from firmware_py.policy import dump_policy, load_policy
-from ground_station.bench.upload import free_port, load_link_emulator, robot_ftp_process
+from firmware_py.subprocs import free_udp_port
+from ground_station.bench.upload import load_link_emulator, robot_ftp_process
 
 pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")
@@ -35,7 +36,7 @@ def lossy_robot(tmp_path):
     """(root, url): robot FTP shell behind a radio losing 5 % of frames, with
     duplicates and reordering."""
     root = tmp_path / "root"
-    robot_port = free_port()
+    robot_port = free_udp_port()
     cfg = emu.LinkConfig(loss=0.05, duplicate=0.02, reorder=0.02, seed=11)
     with robot_ftp_process(root, f"udpin:127.0.0.1:{robot_port}"), \
             emu.LinkEmulator(cfg, robot_peer=("127.0.0.1", robot_port)) as link:
@@ -77,7 +78,7 @@ def test_signed_upload(tmp_path):
     policy = tmp_path / "p.qtab"
     policy.write_bytes(make_policy(3))
     root = tmp_path / "root"
-    port = free_port()
+    port = free_udp_port()
     with robot_ftp_process(root, f"udpin:127.0.0.1:{port}", key_file=key):
         out = qnav_upload(policy, "--activate", "--mavlink", f"udpout:127.0.0.1:{port}", "--signing-key", key)
         assert out.returncode == 0, out.stdout + out.stderr
@@ -95,7 +96,7 @@ def test_clear_errors(tmp_path):
     assert out.returncode == 2 and "no such file" in out.stderr
     f = tmp_path / "p.qtab"
     f.write_bytes(make_policy(5))
-    out = qnav_upload(f, "--mavlink", f"udpout:127.0.0.1:{free_port()}", "--timeout", "2")
+    out = qnav_upload(f, "--mavlink", f"udpout:127.0.0.1:{free_udp_port()}", "--timeout", "2")
     assert out.returncode == 4 and "no HEARTBEAT" in out.stdout
     out = qnav_upload(f, "--mavlink", "udpout:127.0.0.1:9", "--signing-key", tmp_path / "nokey")
     assert out.returncode == 2 and "signing key" in out.stderr

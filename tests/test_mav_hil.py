@@ -13,9 +13,9 @@ import time
 from pathlib import Path
 
 import pytest
-from test_mav_link import free_udp_port
 
 from firmware_py.canbus import CanHub
+from firmware_py.subprocs import free_udp_port, stop_process
 from ground_station import cli
 from ground_station.link import Link
 
@@ -74,10 +74,4 @@ def test_mission_a_b_c_d_over_mavlink_in_the_sim(tmp_path):
                 assert hb is not None and hb.base_mode & link.m.MAV_MODE_FLAG_SAFETY_ARMED
         finally:
             for p in procs:
-                p.terminate()
-            for p in procs:
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
+                stop_process(p, timeout_s=10)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -23,17 +22,12 @@ from pymavlink import mavutil  # noqa: E402
 from firmware_py import robot  # noqa: E402
 from firmware_py.clock import SimClock  # noqa: E402
 from firmware_py.mav_node import open_node  # noqa: E402
+from firmware_py.subprocs import free_udp_port  # noqa: E402
 from ground_station import cli  # noqa: E402
 from ground_station.link import Link  # noqa: E402
 
 m = mavutil.mavlink
 VENV_BIN = Path(sys.executable).parent
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Robot:

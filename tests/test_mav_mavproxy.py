@@ -15,10 +15,11 @@ import time
 from pathlib import Path
 
 import pytest
-from test_mav_link import Robot, free_udp_port
+from test_mav_link import Robot
 
 from firmware_py import mav_frames, robot
 from firmware_py.params import PARAMS
+from firmware_py.subprocs import free_udp_port
 
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 

@@ -7,10 +7,11 @@ import asyncio
 import time
 
 import pytest
-from monitor_support import CELL_M, MAP_H, RoverScript, UdpRover, free_udp_port, write_tlog
+from monitor_support import CELL_M, MAP_H, RoverScript, UdpRover, write_tlog
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py import robot
+from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor_app import MonitorApp, heading_arrow
 from ground_station.monitor_sources import ReplaySource, open_live

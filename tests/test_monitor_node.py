@@ -10,12 +10,12 @@ import threading
 import time
 
 from mav_test_vehicle import TestVehicle
-from monitor_support import free_udp_port
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py import robot
 from firmware_py.clock import WallClock
 from firmware_py.mav_node import open_node
+from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor_app import MonitorApp
 from ground_station.monitor_sources import open_live

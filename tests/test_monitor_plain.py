@@ -9,7 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from monitor_support import RoverScript, UdpRover, free_udp_port, write_tlog
+from monitor_support import RoverScript, UdpRover, write_tlog
+
+from firmware_py.subprocs import free_udp_port
 
 QNAV = str(Path(sys.executable).parent / "qnav")
 

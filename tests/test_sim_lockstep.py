@@ -15,6 +15,7 @@ import pytest
 from firmware_py import can_protocol as cp
 from firmware_py import robot
 from firmware_py.canbus import CanHub, open_bus
+from firmware_py.subprocs import stop_process
 from sim_bridge import reflex
 from sim_bridge.plant import LockstepError, Plant, SimConfig, run_lockstep, run_paced
 from sim_bridge.world import Pose
@@ -218,8 +219,7 @@ def test_cli_lockstep_across_processes_via_hub_writes_all_outputs(tmp_path):
                             "--trajectory", str(tmp_path / "traj.csv"),
                             "--png", str(tmp_path / "run.png"))
         finally:
-            ctl.terminate()
-            ctl.wait(10)
+            stop_process(ctl, timeout_s=10)
     assert out.returncode == 0, out.stderr
     assert "ticks 100 (missed 0" in out.stdout and "real-time factor" in out.stdout
     with open(tmp_path / "traj.csv") as f:

@@ -85,6 +85,7 @@ def measure_inprocess(occ, cell_size_m: float, ticks: int) -> dict:
 
 def measure_remote(occ, cell_size_m: float, ticks: int) -> dict:
     from firmware_py.canbus import CanHub, open_bus
+    from firmware_py.subprocs import stop_process
     from sim_bridge.plant import run_lockstep
 
     plant = _plant(occ, cell_size_m)
@@ -97,12 +98,7 @@ def measure_remote(occ, cell_size_m: float, ticks: int) -> dict:
                                  start_timeout_s=30.0)
         finally:
             bus.shutdown()
-            ctl.terminate()
-            try:
-                ctl.wait(10)
-            except subprocess.TimeoutExpired:
-                ctl.kill()
-                ctl.wait()
+            stop_process(ctl, timeout_s=10)
     frames = stats.frames_sent + stats.frames_received
     busy = stats.wall_s - stats.start_wait_s
     return {"ticks_per_s": stats.ticks_per_s, "ticks": stats.ticks, "missed": stats.missed_ticks,

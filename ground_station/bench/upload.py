@@ -19,12 +19,13 @@ import contextlib
 import importlib.util
 import os
 import random
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from firmware_py.subprocs import free_udp_port, stop_process
 
 REPO = Path(__file__).resolve().parents[2]
 WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size
@@ -50,12 +51,6 @@ def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) ->
     return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @contextlib.contextmanager
 def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None,
                       log: Path | None = None):
@@ -79,13 +74,7 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
             time.sleep(0.05)
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_process(proc)
 
 
 def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port: int, root: Path,
@@ -157,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         key = load_key_file(key_file)
         for signed in modes:
             root = Path(tmp) / f"robot-{int(signed)}"
-            port = free_port()
+            port = free_udp_port()
             with robot_ftp_process(root, f"udpin:127.0.0.1:{port}", key_file if signed else None):
                 for i, (size, s, loss) in enumerate(cases):
                     if s != signed:
