@@ -26,6 +26,7 @@ import numpy as np
 
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from ground_station.envs.cell_env import cell_transitions, goal_distances, resolve_goals
+from ground_station.jit_common import greedy
 from ground_station.maps import GridMap, MapError
 from ground_station.train import cell_state
 
@@ -57,12 +58,7 @@ def rollouts_cell(q, next_cell, width, goal_cells, pair_goal, pair_start, max_st
         for t in range(max_steps):
             if policy == POLICY_Q:
                 s = cell_state(g, cell, n_cells)
-                a = 0
-                best = q[s, 0]
-                for k in range(1, n_actions):
-                    if q[s, k] > best:
-                        best = q[s, k]
-                        a = k
+                a = greedy(q, s)
                 nxt = next_cell[cell, a]
             else:
                 nxt = -1

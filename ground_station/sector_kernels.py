@@ -34,6 +34,7 @@ import numpy as np
 
 from firmware_py import robot
 from ground_station.guidance import plan_into, remaining_lengths
+from ground_station.jit_common import greedy, rand01, randint
 from ground_station.sector_twin import (
     ACTION_V_MM_S,
     GOAL_TOL_MM,
@@ -52,12 +53,6 @@ from ground_station.sector_twin import (
 # fastest forward travel in one control period (the step budget's unit)
 FWD_MM_PER_PERIOD = float(np.max(ACTION_V_MM_S)) * N_SUBSTEPS * SUB_DT_S
 
-_M12 = np.uint64(12)
-_M25 = np.uint64(25)
-_M27 = np.uint64(27)
-_M11 = np.uint64(11)
-_MUL = np.uint64(0x2545F4914F6CDD1D)
-_INV53 = 1.0 / 9007199254740992.0
 REVERSE = 3  # index of `reverse` in robot.ACTION_NAMES (asserted in tests)
 RANGE_VALID_, RANGE_TOO_CLOSE_, RANGE_TOO_FAR_ = robot.RANGE_VALID, robot.RANGE_TOO_CLOSE, robot.RANGE_TOO_FAR
 RANGE_MIN_, RANGE_MAX_ = robot.RANGE_MIN_MM, robot.RANGE_MAX_MM
@@ -66,31 +61,6 @@ RANGE_MIN_, RANGE_MAX_ = robot.RANGE_MIN_MM, robot.RANGE_MAX_MM
 (E_ACTIVE, E_MAP, E_X, E_Y, E_TH, E_GOAL, E_GX, E_GY, E_T, E_RET, E_S, E_PHI,
  E_K, E_A, E_S0, E_R, E_G, E_NWP, E_WP) = range(19)
 EP_LEN = 19
-
-
-def seed_rng(seed: int) -> np.ndarray:
-    """A fresh generator state (uint64[1]) from an int seed (splitmix64)."""
-    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
-    z ^= z >> 31
-    return np.array([z or 1], dtype=np.uint64)
-
-
-@numba.njit(cache=True, inline="always")
-def rand01(rng) -> float:
-    x = rng[0]
-    x ^= x >> _M12
-    x ^= x << _M25
-    x ^= x >> _M27
-    rng[0] = x
-    return float((x * _MUL) >> _M11) * _INV53
-
-
-@numba.njit(cache=True, inline="always")
-def randint(rng, n: int) -> int:
-    k = int(rand01(rng) * n)
-    return k if k < n else n - 1
 
 
 @numba.njit(cache=True)
@@ -121,18 +91,6 @@ def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus,
             else:
                 noisy[i] = r
     return encode_fast(bearing_mrad(x, y, th, tx, ty), noisy, nstatus, sectors, sensors, edges)
-
-
-@numba.njit(cache=True, inline="always")
-def greedy(q, s: int) -> int:
-    """argmax of q[s]; ties break to the lowest index (as firmware best_action)."""
-    best = 0
-    bv = q[s, 0]
-    for a in range(1, q.shape[1]):
-        if q[s, a] > bv:
-            bv = q[s, a]
-            best = a
-    return best
 
 
 @numba.njit(cache=True)

@@ -31,6 +31,7 @@ from ground_station.guidance import (
     clearance_mm,
     plan_into,
 )
+from ground_station.jit_common import seed_state
 from ground_station.maps import GridMap, octile_distances
 from ground_station.sector_kernels import (
     COLLISION,
@@ -39,7 +40,6 @@ from ground_station.sector_kernels import (
     SUCCESS,
     TIMEOUT,
     eval_kernel,
-    seed_rng,
     train_kernel,
 )
 from ground_station.sector_twin import encoder_arrays, grid_of
@@ -152,7 +152,7 @@ class SectorTrainer:
         self.n_states = encoder.n_states
         self.n_actions = encoder.n_actions
         self._enc = encoder_arrays(encoder)
-        self._rng = seed_rng(int(cfg.seed))
+        self._rng = seed_state(int(cfg.seed))
         self._ep = np.zeros(EP_LEN)
         self._eps = epsilon_schedule(cfg)
         self._rw = self.reward.array()

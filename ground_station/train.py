@@ -45,6 +45,7 @@ from ground_station.envs.cell_env import (
     reachable_starts,
     resolve_goals,
 )
+from ground_station.jit_common import greedy, rand01, seed_state
 from ground_station.maps import GridMap, MapError, load_map
 from ground_station.train_config import (  # noqa: F401 - re-exported
     TrainConfig,
@@ -64,26 +65,6 @@ from ground_station.train_config import (  # noqa: F401 - re-exported
 # --------------------------------------------------------------------------
 # 2. the numba kernel
 # --------------------------------------------------------------------------
-def seed_state(seed: int) -> np.ndarray:
-    """xorshift64* state (uint64[1]) from a seed, mixed by splitmix64."""
-    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
-    z ^= z >> 31
-    return np.array([z or 1], dtype=np.uint64)
-
-
-@numba.njit(cache=True, inline="always")
-def rand01(rng):
-    """Uniform float in [0, 1) from the xorshift64* state `rng` (uint64[1])."""
-    x = rng[0]
-    x ^= x >> np.uint64(12)
-    x ^= x << np.uint64(25)
-    x ^= x >> np.uint64(27)
-    rng[0] = x
-    return ((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-
-
 @numba.njit(cache=True, inline="always")
 def cell_state(goal_index, cell, n_cells):
     """Jitted copy of `CellEncoder.encode` (cell = row * W + col); a test
@@ -144,12 +125,7 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
         if rand01(rng) < eps:
             a = int(rand01(rng) * n_actions)
         else:
-            a = 0
-            best = q[s, 0]
-            for k in range(1, n_actions):
-                if q[s, k] > best:
-                    best = q[s, k]
-                    a = k
+            a = greedy(q, s)
         c2 = next_cell[cell, a]
         t_ep += 1
         if c2 < 0:  # collision: terminal, the robot stays

@@ -1,0 +1,62 @@
+"""Jitted helpers every training and evaluation kernel shares (numba).
+
+Owns the random generator and the greedy choice, so the cell and sector
+kernels draw the same kind of numbers and break ties the same way:
+
+* xorshift64* whose state is a caller-owned uint64[1] array (seeded by
+  splitmix64 in `seed_state`), so a run split into chunks draws exactly the
+  numbers of one call: same seed -> same table;
+* `greedy`: argmax of a Q row, ties to the lowest index, as the robot's
+  `firmware_py.encoders.best_action`.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_M12 = np.uint64(12)
+_M25 = np.uint64(25)
+_M27 = np.uint64(27)
+_M11 = np.uint64(11)
+_MUL = np.uint64(0x2545F4914F6CDD1D)
+_INV53 = 1.0 / 9007199254740992.0
+
+
+def seed_state(seed: int) -> np.ndarray:
+    """A fresh generator state (uint64[1]) from an int seed, mixed by splitmix64."""
+    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    z ^= z >> 31
+    return np.array([z or 1], dtype=np.uint64)
+
+
+@numba.njit(cache=True, inline="always")
+def rand01(rng) -> float:
+    """Uniform float in [0, 1) from the xorshift64* state `rng` (uint64[1])."""
+    x = rng[0]
+    x ^= x >> _M12
+    x ^= x << _M25
+    x ^= x >> _M27
+    rng[0] = x
+    return float((x * _MUL) >> _M11) * _INV53
+
+
+@numba.njit(cache=True, inline="always")
+def randint(rng, n: int) -> int:
+    """Uniform int in [0, n)."""
+    k = int(rand01(rng) * n)
+    return k if k < n else n - 1
+
+
+@numba.njit(cache=True, inline="always")
+def greedy(q, s: int) -> int:
+    """argmax of q[s]; ties break to the lowest index (as firmware best_action)."""
+    best = 0
+    bv = q[s, 0]
+    for a in range(1, q.shape[1]):
+        if q[s, a] > bv:
+            bv = q[s, a]
+            best = a
+    return best
