@@ -199,13 +199,10 @@ def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int
                      names: list[str] | None = None) -> bytes:
     """PNG: per goal, the map with the greedy action of every free cell as an
     arrow (north up, row 0 at the top) and the goal marked."""
-    import io
-
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from firmware_py import robot
+    from ground_station.plotting import png_bytes, pyplot
+
+    plt = pyplot()
 
     h, w = gridmap.height, gridmap.width
     names = names or [f"{c}:{r}" for c, r in goals]
@@ -232,7 +229,4 @@ def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].axis("off")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    return buf.getvalue()
+    return png_bytes(fig)

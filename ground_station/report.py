@@ -26,7 +26,6 @@ Definitions (also in docs/monitor.md):
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
@@ -227,11 +226,9 @@ def _timing(rec: RunRecord) -> dict:
 
 def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None) -> dict:
     """Write the PNGs and summary.json into out_dir; return the summary."""
-    import matplotlib
+    from ground_station.plotting import png_bytes, pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     summary = summarise(rec, grid_map)
@@ -240,10 +237,7 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
 
     def save(name: str, fig) -> None:
         path = out / f"{name}.png"
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-        atomic_write(path, buf.getvalue())
-        plt.close(fig)
+        atomic_write(path, png_bytes(fig, dpi=110, bbox_inches="tight"))
         plots[name] = str(path)
 
     # trajectory over the map

@@ -7,7 +7,6 @@ jobs are spread over processes.
 
 from __future__ import annotations
 
-import io
 import json
 import multiprocessing as mp
 import os
@@ -106,10 +105,9 @@ def sweep(base: TrainConfig, lrs: list[float], seeds: int, processes: int | None
 def plot_sweep(data: dict) -> bytes:
     """PNG: learning curves per eta (mean over seeds); greedy success and
     final training return vs eta; path ratio vs eta."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ground_station.plotting import png_bytes, pyplot
 
+    plt = pyplot()
     fig, (ax1, ax2, ax4) = plt.subplots(1, 3, figsize=(16, 4.5), dpi=100)
     cmap = plt.get_cmap("viridis")
     lrs = data["lrs"]
@@ -136,10 +134,7 @@ def plot_sweep(data: dict) -> bytes:
     ax4.set_ylabel("greedy path length / shortest (mean)")
     ax4.set_title("path quality of successful rollouts")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    return buf.getvalue()
+    return png_bytes(fig)
 
 
 def write_sweep(out: str | Path, data: dict) -> None:

@@ -315,10 +315,9 @@ def learning_curve(returns: np.ndarray, successes: np.ndarray, points: int = 200
 
 def plot_curve(rows: list[dict], title: str) -> bytes:
     """PNG bytes of the learning curve (average return and success rate)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ground_station.plotting import png_bytes, pyplot
 
+    plt = pyplot()
     ep = [r["episode"] for r in rows]
     fig, ax1 = plt.subplots(figsize=(7, 4), dpi=100)
     ax1.plot(ep, [r["avg_return"] for r in rows], color="tab:blue", label="average return")
@@ -330,10 +329,7 @@ def plot_curve(rows: list[dict], title: str) -> bytes:
     ax2.set_ylim(-0.02, 1.02)
     ax1.set_title(title)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    return buf.getvalue()
+    return png_bytes(fig)
 
 
 def write_run(out: str | Path, cfg: TrainConfig, res: TrainResult) -> dict:
