@@ -4,13 +4,20 @@ Used by the MAVLink tests until/besides the real controller: it arms,
 disarms, switches modes, drives straight at a goal at a fixed speed when
 `step()` is called, walks a mission in Auto and reports every transition as
 an event, exactly through the seam the node uses. Not a protocol mock: the
-MAVLink side under test is the real node.
+MAVLink side under test is the real node. `Robot` runs it behind the real
+node shell on a UDP port, ticking in a thread.
 """
 
 from __future__ import annotations
 
 import math
+import threading
+import time
+from pathlib import Path
 
+from firmware_py import robot
+from firmware_py.clock import SimClock
+from firmware_py.mav_node import open_node
 from firmware_py.vehicle import (
     CtrlState,
     FailsafeAction,
@@ -164,3 +171,36 @@ class TestVehicle:
         st.x_mm += round(dx / dist * move)
         st.y_mm += round(dy / dist * move)
         st.speed_mm_s = self.speed
+
+
+class Robot:
+    """The node shell + test vehicle, ticking once per control period like
+    the controller's loop calls `poll`. The robot clock is a SimClock moved
+    one control period per tick (paced at about real time), as in HIL."""
+
+    def __init__(self, storage: Path, port: int, key_file: Path | None = None, speed_mm_s: int = 10_000) -> None:
+        self.clock = SimClock(1_000_000)
+        self.vehicle = TestVehicle(speed_mm_s=speed_mm_s)
+        self.shell = open_node(self.vehicle, storage, f"udpout:127.0.0.1:{port}", self.clock.now_us(),
+                               signing_key=str(key_file) if key_file else None)
+        self.node = self.shell.node
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        period = robot.CONTROL_PERIOD_US
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            with self._lock:
+                self.clock.advance_us(period)
+                self.vehicle.step(period)
+                self.shell.poll(self.clock.now_us())
+            next_t += period / 1e6
+            time.sleep(max(0.0, next_t - time.monotonic()))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.shell.close()

@@ -9,58 +9,22 @@ import hashlib
 import os
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
-from mav_test_vehicle import TestVehicle
+from mav_test_vehicle import Robot
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
 
 from firmware_py import robot  # noqa: E402
-from firmware_py.clock import SimClock  # noqa: E402
-from firmware_py.mav_node import open_node  # noqa: E402
 from firmware_py.subprocs import free_udp_port  # noqa: E402
 from ground_station import cli  # noqa: E402
 from ground_station.link import Link  # noqa: E402
 
 m = mavutil.mavlink
 VENV_BIN = Path(sys.executable).parent
-
-
-class Robot:
-    """The node shell + test vehicle, ticking once per control period like
-    the controller's loop calls `poll`. The robot clock is a SimClock moved
-    one control period per tick (paced at about real time), as in HIL."""
-
-    def __init__(self, storage: Path, port: int, key_file: Path | None = None) -> None:
-        self.clock = SimClock(1_000_000)
-        self.vehicle = TestVehicle(speed_mm_s=10_000)
-        self.shell = open_node(self.vehicle, storage, f"udpout:127.0.0.1:{port}", self.clock.now_us(),
-                               signing_key=str(key_file) if key_file else None)
-        self.node = self.shell.node
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        period = robot.CONTROL_PERIOD_US
-        next_t = time.monotonic()
-        while not self._stop.is_set():
-            with self._lock:
-                self.clock.advance_us(period)
-                self.vehicle.step(period)
-                self.shell.poll(self.clock.now_us())
-            next_t += period / 1e6
-            time.sleep(max(0.0, next_t - time.monotonic()))
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-        self.shell.close()
 
 
 @pytest.fixture

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_mav_link import Robot
+from mav_test_vehicle import Robot
 
 from firmware_py import mav_frames, robot
 from firmware_py.params import PARAMS

@@ -6,52 +6,21 @@ The HIL-driven check (controller + pymunk sim) is the integrator's."""
 from __future__ import annotations
 
 import asyncio
-import threading
 import time
 
-from mav_test_vehicle import TestVehicle
+from mav_test_vehicle import Robot
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py import robot
-from firmware_py.clock import WallClock
-from firmware_py.mav_node import open_node
 from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor_app import MonitorApp
 from ground_station.monitor_sources import open_live
 
 
-class NodeRobot:
-    """Node shell + test vehicle ticking at the control rate in a thread."""
-
-    def __init__(self, storage, port: int) -> None:
-        self.clock = WallClock()
-        self.vehicle = TestVehicle(speed_mm_s=2_000)
-        self.shell = open_node(self.vehicle, storage, f"udpout:127.0.0.1:{port}", self.clock.now_us())
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        period = robot.CONTROL_PERIOD_US
-        next_t = self.clock.now_us()
-        while not self._stop.is_set():
-            with self._lock:
-                self.vehicle.step(period)
-                self.shell.poll(self.clock.now_us())
-            next_t += period
-            time.sleep(max(0.0, (next_t - self.clock.now_us()) / 1e6))
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-        self.shell.close()
-
-
 def test_dashboard_on_the_real_node(tmp_path):
     port = free_udp_port()
-    node = NodeRobot(tmp_path / "storage", port)
+    node = Robot(tmp_path / "storage", port, speed_mm_s=2_000)
     grid = load_map("paper10")
     tlog = tmp_path / "session.tlog"
     source = open_live(f"udpin:127.0.0.1:{port}", tlog=str(tlog))
