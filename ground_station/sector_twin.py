@@ -149,6 +149,20 @@ def ray_cast(occ, h: int, w: int, cell: float, ox: float, oy: float, ang: float,
     return ray_cast_dir(occ, h, w, cell, ox, oy, math.cos(ang), math.sin(ang), maxd)
 
 
+@numba.njit(cache=True, inline="always")
+def _dda_axis(d: float, pos: float, idx: int, cell: float):
+    """One axis of the grid DDA: (cell step, ray length per cell, ray length to
+    the first cell boundary) for direction component d at grid position pos
+    inside cell idx."""
+    if d > 0.0:
+        t_delta = cell / d
+        return 1, t_delta, (idx + 1 - pos) * t_delta
+    if d < 0.0:
+        t_delta = -cell / d
+        return -1, t_delta, (pos - idx) * t_delta
+    return 0, np.inf, np.inf
+
+
 @numba.njit(cache=True)
 def ray_cast_dir(occ, h: int, w: int, cell: float, ox: float, oy: float, cx: float, cy: float,
                  maxd: float) -> float:
@@ -162,30 +176,8 @@ def ray_cast_dir(occ, h: int, w: int, cell: float, ox: float, oy: float, cx: flo
     row = int(math.floor(vv))
     if col < 0 or row < 0 or col >= w or row >= h or occ[row, col]:
         return 0.0
-    if du > 0.0:
-        sc = 1
-        tdu = cell / du
-        tmu = (col + 1 - u) * tdu
-    elif du < 0.0:
-        sc = -1
-        tdu = -cell / du
-        tmu = (u - col) * tdu
-    else:
-        sc = 0
-        tmu = np.inf
-        tdu = np.inf
-    if dv > 0.0:
-        sr = 1
-        tdv = cell / dv
-        tmv = (row + 1 - vv) * tdv
-    elif dv < 0.0:
-        sr = -1
-        tdv = -cell / dv
-        tmv = (vv - row) * tdv
-    else:
-        sr = 0
-        tmv = np.inf
-        tdv = np.inf
+    sc, tdu, tmu = _dda_axis(du, u, col, cell)
+    sr, tdv, tmv = _dda_axis(dv, vv, row, cell)
     while True:
         if tmu < tmv:
             t = tmu
