@@ -12,7 +12,7 @@ of `sample` pairs on large maps). Each rollout ends as
 
 Beside it, in the same report, the greedy baseline "step to the free
 neighbour nearest (Euclidean) to the goal", judged the same way. Sector
-policies are evaluated by `ground_station.sector_twin.evaluate_sector`;
+policies are evaluated by `ground_station.sector_train.evaluate_sector`;
 `evaluate_run` dispatches on meta.json's encoding.
 """
 
@@ -184,10 +184,8 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
         names, goals = resolve_goals(gridmap, [list(g) for g in goals])
         return evaluate_cell(q, gridmap, goals, sample=sample, seed=seed,
                              target_names=meta.get("targets") or names)
-    try:
-        from ground_station.sector_twin import evaluate_sector
-    except ImportError as exc:
-        raise NotImplementedError(f"the sector encoding is not available yet ({exc})") from None
+    from ground_station.sector_train import evaluate_sector
+
     rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample,
                           **sector_guidance_from_meta(meta), direct=True, baseline=True)
     rep.setdefault("encoding", "sector")

@@ -318,11 +318,3 @@ def grid_of(gridmap) -> tuple[np.ndarray, int, int, float]:
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
     return occ, int(occ.shape[0]), int(occ.shape[1]), float(gridmap.cell_size_m) * 1000.0
 
-
-def __getattr__(name: str):
-    # The trainer API lives in sector_train (which imports this module); it is
-    # re-exported here lazily because ground_station.train imports it from here.
-    if name in ("SectorTrainer", "evaluate_sector", "SectorReward"):
-        from ground_station import sector_train
-        return getattr(sector_train, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -244,14 +244,6 @@ def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> Tr
     return TrainResult(q, np.concatenate(rets), np.concatenate(succs), meta, seconds)
 
 
-def _sector_api():
-    try:
-        from ground_station.sector_twin import SectorTrainer, evaluate_sector
-    except ImportError as exc:
-        raise NotImplementedError(f"the sector encoding is not available yet ({exc})") from None
-    return SectorTrainer, evaluate_sector
-
-
 def sector_encoder(cfg: TrainConfig):
     """The reference SectorEncoder a config trains (its sector_* fields)."""
     from firmware_py.encoders import SectorEncoder
@@ -262,9 +254,10 @@ def sector_encoder(cfg: TrainConfig):
 
 
 def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Q-learning on the sector twin, through `ground_station.sector_twin.SectorTrainer`,
+    """Q-learning on the sector twin, through `ground_station.sector_train.SectorTrainer`,
     on `gridmap` plus the `sector_maps` extras."""
-    SectorTrainer, _ = _sector_api()
+    from ground_station.sector_train import SectorTrainer
+
     encoder = sector_encoder(cfg)
     extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
     trainer = SectorTrainer([gridmap, *extra], cfg, encoder)

@@ -75,7 +75,7 @@ def test_inspect_prints_the_shipped_header(capsys):
 
 def test_sector_policy_drives_as_recorded_and_int8_is_within_half_a_point_of_float():
     from ground_station.maps import load_map
-    from ground_station.sector_twin import evaluate_sector
+    from ground_station.sector_train import evaluate_sector
 
     path = POLICIES / "sector.qtab"
     rec = json.loads(path.with_suffix(".json").read_text())

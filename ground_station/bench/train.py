@@ -61,13 +61,10 @@ def python_loop(cfg, seconds: float) -> tuple[int, float]:
 
 
 def sector_speed(cfg, n_steps: int) -> tuple[float | None, str]:
-    try:
-        from ground_station.sector_twin import SectorTrainer
-    except ImportError as exc:
-        return None, f"missing (ground_station.sector_twin not available: {exc})"
     import numpy as np
 
     from ground_station.maps import load_map
+    from ground_station.sector_train import SectorTrainer
     from ground_station.train import sector_encoder
 
     trainer = SectorTrainer([load_map(cfg.map)], cfg, sector_encoder(cfg))

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         gridmap = load_map(args.map)
         rep = evaluate_run(args.run_dir, gridmap, sample=args.sample, seed=args.seed)
-    except (MapError, ValueError, NotImplementedError) as exc:
+    except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     if args.plot:
         _plot(args, gridmap)

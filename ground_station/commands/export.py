@@ -59,11 +59,8 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
                              f"{gridmap.name} is {gridmap.width}x{gridmap.height}")
         return evaluate_cell(q, gridmap, run.goals, sample=sample, seed=seed,
                              target_names=run.meta.get("targets"))
-    try:
-        from ground_station.sector_twin import evaluate_sector
-    except ImportError:
-        from ground_station.sector_train import evaluate_sector
     from ground_station.evaluate import sector_guidance_from_meta
+    from ground_station.sector_train import evaluate_sector
     return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample,
                            **sector_guidance_from_meta(run.meta))
 

@@ -44,10 +44,7 @@ def run(args: argparse.Namespace) -> int:
         lrs = parse_lrs(args.lrs)
         validate_config(cfg)
         load_map(cfg.map)
-        if cfg.encoding == "sector":
-            from ground_station.train import _sector_api
-            _sector_api()
-    except (MapError, ValueError, NotImplementedError) as exc:
+    except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     t0 = time.perf_counter()
     data = sweep(cfg, lrs, args.seeds, args.processes, progress=True)

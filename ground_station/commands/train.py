@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         gridmap = load_map(cfg.map)
         t0 = time.perf_counter()
         res = train(cfg, gridmap, progress=not args.quiet)
-    except (MapError, ValueError, NotImplementedError) as exc:
+    except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     meta = write_run(args.out, cfg, res)
     if not args.quiet:
