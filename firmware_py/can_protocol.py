@@ -86,10 +86,6 @@ MOTOR_ERR_STALL_LEFT = 2
 MOTOR_ERR_STALL_RIGHT = 4
 
 
-def message_names() -> list[str]:
-    return list(_BY_NAME)
-
-
 def encode(name: str, signals: Mapping[str, int], timestamp: float = 0.0) -> can.Message:
     """Encode frame `name` strictly (all signals present, each inside its range)."""
     try:

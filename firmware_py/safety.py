@@ -1,5 +1,5 @@
-"""Safety building blocks of the controller: input freshness, the motor
-command watchdog, the e-stop latch and wheel-speed clamping.
+"""Safety building blocks of the controller: the motor command watchdog,
+the e-stop latch and wheel-speed clamping.
 
 Pure logic on integer microseconds from the injected clock; the controller
 (`firmware_py.controller`) composes them and decides the state transitions.
@@ -14,29 +14,6 @@ def clamp_speeds(left_mm_s: int, right_mm_s: int, limit_mm_s: int) -> tuple[int,
     """Clamp both wheel speeds to +-min(limit, the robot's hard limit)."""
     lim = max(0, min(int(limit_mm_s), robot.MAX_WHEEL_SPEED_MM_S))
     return (max(-lim, min(lim, int(left_mm_s))), max(-lim, min(lim, int(right_mm_s))))
-
-
-class Freshness:
-    """Last-received time of each named input; stale if older than a timeout
-    or never received."""
-
-    def __init__(self, names: tuple[str, ...]) -> None:
-        self._t: dict[str, int | None] = {n: None for n in names}
-
-    def mark(self, name: str, t_us: int) -> None:
-        self._t[name] = t_us
-
-    def age_us(self, name: str, now_us: int) -> int | None:
-        t = self._t[name]
-        return None if t is None else now_us - t
-
-    def stale(self, now_us: int, timeout_us: int) -> list[str]:
-        """Names that are missing or older than `timeout_us`, in input order."""
-        out = []
-        for name, t in self._t.items():
-            if t is None or now_us - t > timeout_us:
-                out.append(name)
-        return out
 
 
 class MotorWatchdog:
