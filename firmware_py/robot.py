@@ -17,8 +17,6 @@ centre at x = (col + 0.5) * c, y = (H - row - 0.5) * c.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 # --- body -------------------------------------------------------------------
 ROBOT_RADIUS_MM = 150
 WHEEL_BASE_MM = 260  # distance between the wheel contact points
@@ -69,33 +67,6 @@ CELL_ACTION_DELTAS: tuple[tuple[int, int], ...] = ((0, -1), (0, 1), (-1, 0), (1,
 
 GOAL_TOLERANCE_MM = 150  # goal counts as reached inside this distance
 DEFAULT_CELL_SIZE_MM = 500
-
-
-@dataclass(frozen=True)
-class RobotConfig:
-    """Float view of the constants above, for the ground station and the sim."""
-
-    radius_m: float = ROBOT_RADIUS_MM / 1000
-    wheel_base_m: float = WHEEL_BASE_MM / 1000
-    wheel_radius_m: float = WHEEL_RADIUS_MM / 1000
-    control_period_s: float = CONTROL_PERIOD_US / 1e6
-    physics_dt_s: float = PHYSICS_DT_US / 1e6
-    range_min_m: float = RANGE_MIN_MM / 1000
-    range_max_m: float = RANGE_MAX_MM / 1000
-    goal_tolerance_m: float = GOAL_TOLERANCE_MM / 1000
-
-    @property
-    def sensor_angles_rad(self) -> tuple[float, ...]:
-        return tuple(a / 1000 for a in SENSOR_ANGLES_MRAD)
-
-    @property
-    def action_wheel_speeds_m_s(self) -> tuple[tuple[float, float], ...]:
-        return tuple((left / 1000, right / 1000) for left, right in ACTION_WHEEL_SPEEDS_MM_S)
-
-
-def clamp_wheel_speed(mm_s: int) -> int:
-    """Clamp a wheel speed command to the motor limit."""
-    return max(-MAX_WHEEL_SPEED_MM_S, min(MAX_WHEEL_SPEED_MM_S, int(mm_s)))
 
 
 def cell_center_mm(col: int, row: int, height: int, cell_mm: int = DEFAULT_CELL_SIZE_MM) -> tuple[int, int]:
