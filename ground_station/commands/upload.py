@@ -3,17 +3,29 @@ with pymavlink's own MAVLink FTP client, prove it arrived byte-exact, and
 optionally activate it.
 
 Steps (docs/mavlink.md, "Uploading a policy"):
-1. `MAVFTP.cmd_put` to /policies/<name> (temporary name on the robot until the
+1. RemoveFile of the remote name (a stale file there could pass step 3), then
+   `MAVFTP.cmd_put` to /policies/<name> (temporary name on the robot until the
    FTP session ends), with a progress bar;
 2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file, else the
    whole put is repeated (a lossy link can eat the CreateFile or the
    TerminateSession, which pymavlink's client never retries);
 3. with --activate: FTP Rename onto /policies/active.qtab; the robot
    validates the file and refuses with NAK + STATUSTEXT reason (exit 3);
-   a lost reply is resolved by asking the CRC of active.qtab;
-4. confirm: the robot's read-only parameter POLICY_ID must equal the file's
-   policy id; a robot that serves no parameters (the standalone FTP shell) is
-   checked by the CRC of /policies/active.qtab instead, and says so.
+4. the verdict comes from the robot's state, never from one reply: done only
+   when the robot reports the file's POLICY_ID and POLICY_CRC_HI/LO
+   parameters AND CalcFileCRC32 of active.qtab equals the local CRC. A lost
+   reply or read is asked again within the time budget; while the uploaded
+   file is still under its own name the rename did not happen and is sent
+   again. (The whole-file CRC alone cannot tell two policies apart: every
+   valid .qtab of one size has the same one, the file ending in its own
+   CRC32.) A robot that serves no parameters (the standalone FTP shell: its
+   HEARTBEAT reports no system state) is confirmed by the rename's ACK or the
+   file having left its name, plus the CRC of active.qtab, and says so.
+
+Every FTP reply is matched by the request's own seq. One MAVFTP client serves
+a RobotLink for its whole life, so seq never restarts and a late reply to an
+earlier request (a lossy radio queues seconds of them) cannot answer a later
+one.
 
 Exit status: 0 done, 2 bad arguments, 3 refused by the robot, 4 timeout or
 no robot, 5 CRC or policy-id mismatch.
@@ -33,6 +45,12 @@ from ground_station.cli import CliError
 EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 ACTIVE_POLICY = "/policies/active.qtab"  # firmware_py.storage.ACTIVE_POLICY; imported lazily below
 GCS_SYSID, GCS_COMPID = 255, 190  # MAV_COMP_ID_MISSIONPLANNER, as ground stations use
+POLICY_PARAMS = ("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO")
+MAV_STATE_UNINIT = 0
+NAK_FAIL, NAK_FAIL_ERRNO, NAK_FILE_NOT_FOUND = 1, 2, 10
+ENOENT = 2
+PARAM_ASK_INTERVAL_S = 0.5  # re-ask an unanswered PARAM_REQUEST_READ after this long
+READ_BUDGET_S = 10.0  # one round of reads (params, CRC) before the caller looks again
 
 
 class UploadFailed(Exception):
@@ -49,12 +67,20 @@ class UploadResult:
     size: int
     crc: int
     put_attempts: int = 0
-    put_seconds: float = 0.0  # first ResetSessions to CRC verified
+    put_seconds: float = 0.0  # first FTP request to CRC verified
     activated: bool = False
-    confirmed_by: str = ""  # "POLICY_ID param" | "active.qtab CRC"
+    confirmed_by: str = ""
     policy_id: int | None = None  # from the local file, when it loads
     policy_crc: int | None = None  # the .qtab's own CRC32 (what POLICY_CRC reports)
+    renames: int = 0  # Rename requests sent
     texts: list[str] = field(default_factory=list)
+
+    def want_params(self) -> dict[str, float] | None:
+        """What the robot's POLICY_* parameters read once this file runs."""
+        if self.policy_id is None or self.policy_crc is None:
+            return None
+        return {"POLICY_ID": _float32(self.policy_id), "POLICY_CRC_HI": float(self.policy_crc >> 16),
+                "POLICY_CRC_LO": float(self.policy_crc & 0xFFFF)}
 
 
 def _import_pymavlink():
@@ -79,9 +105,13 @@ class RobotLink:
             url, source_system=GCS_SYSID, source_component=GCS_COMPID)
         if signing_key is not None and not shared:
             self.conn.setup_signing(signing_key, sign_outgoing=True, allow_unsigned_callback=None)
-        self.ftp_replies: dict[tuple[int, int], tuple[int, bytes]] = {}  # (req_opcode, seq) -> (opcode, data)
+        # (req_opcode, reply seq) -> (opcode, data); seq never restarts (one MAVFTP client)
+        self.ftp_replies: dict[tuple[int, int], tuple[int, bytes]] = {}
         self.texts: list[str] = []
-        self.params: dict[str, object] = {}
+        self.params: dict[str, tuple[float, float]] = {}  # name -> (value, monotonic time received)
+        self.param_values_seen = 0
+        self.system_status: int | None = None  # the robot's HEARTBEAT system_status
+        self._ftp = None
         self.conn.message_hooks.append(self._hook)
         self.target_system, self.target_component = self._wait_heartbeat(timeout_s)
 
@@ -93,7 +123,10 @@ class RobotLink:
         elif t == "STATUSTEXT":
             self.texts.append(msg.text)
         elif t == "PARAM_VALUE":
-            self.params[msg.param_id] = msg
+            self.params[msg.param_id] = (msg.param_value, time.monotonic())
+            self.param_values_seen += 1
+        elif t == "HEARTBEAT" and msg.get_srcSystem() != GCS_SYSID:
+            self.system_status = msg.system_status
 
     def _wait_heartbeat(self, timeout_s: float) -> tuple[int, int]:
         deadline = time.monotonic() + timeout_s
@@ -105,67 +138,87 @@ class RobotLink:
                 return msg.get_srcSystem(), msg.get_srcComponent()
         raise UploadFailed(EXIT_TIMEOUT, f"no HEARTBEAT from a robot within {timeout_s:.0f} s")
 
-    def ftp(self, wait_s: float = 15.0):
-        """A fresh pymavlink MAVFTP client whose ResetSessions the robot answered.
+    @property
+    def serves_params(self) -> bool:
+        """The robot's node reports a system state in its HEARTBEAT and serves
+        parameters (POLICY_* among them); the bare FTP shell reports
+        MAV_STATE_UNINIT and serves none."""
+        return self.param_values_seen > 0 or self.system_status not in (None, MAV_STATE_UNINIT)
 
-        Retried for `wait_s`: after a lossy put the radio's queue can hold
-        seconds of retransmitted writes in front of our request."""
-        deadline = time.monotonic() + wait_s
-        tries = 0
-        while True:
-            tries += 1
-            self.ftp_replies.clear()  # each client counts seq from 0 again
+    def ftp(self):
+        """The link's one pymavlink MAVFTP client, made on first use.
+
+        Its request seq counts on for the link's whole life, so a late or
+        duplicated reply to an earlier request can never be matched to a later
+        one. Its ResetSessions (sent when it is made) is not waited for: the
+        first real request, asked until answered, tells whether the robot
+        serves FTP at all."""
+        if self._ftp is None:
             settings = self.mavftp.MAVFTPSettings(
                 [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
             quick(settings)
-            ftp = self.mavftp.MAVFTP(self.conn, self.target_system, self.target_component, settings=settings)
-            if ftp.pending_reset_seq is None:  # answered
-                return ftp
-            if time.monotonic() > deadline:
-                raise UploadFailed(EXIT_TIMEOUT, f"the robot does not answer MAVLink FTP ({tries} ResetSessions "
-                                                 f"unanswered in {wait_s:.0f} s; wrong or missing --signing-key?)")
+            self._ftp = self.mavftp.MAVFTP(self.conn, self.target_system, self.target_component,
+                                           settings=settings)
+        return self._ftp
 
-    def request(self, ftp, opcode: int, command: str, args: list[str]) -> tuple[int, bytes] | None:
-        """Run one single-reply MAVFTP command; the robot's (opcode, data) reply, or
-        None if it was lost. Matched by the request's own seq, which MAVFTP takes
-        from `ftp.seq` when it sends."""
-        seq = ftp.seq
-        ftp.cmd_ftp([command, *args])
-        return self.ftp_replies.get((opcode, (seq + 1) % 65536))
+    def ask(self, ftp, command: str, args: list[str], opcode: int, wait_s: float, what: str) -> tuple[int, bytes]:
+        """A single-reply MAVFTP request that may safely run twice (CRC,
+        RemoveFile), sent again until the robot answers, for at most `wait_s`.
+        Returns (opcode, data) of the newest answered copy; a late reply to an
+        earlier copy counts too (they all ask the same question)."""
+        deadline = time.monotonic() + wait_s
+        seqs: list[int] = []
+        while True:
+            seqs.append(ftp.seq)  # MAVFTP sends with this seq and then counts on
+            ftp.cmd_ftp([command, *args])
+            for seq in reversed(seqs):
+                reply = self.ftp_replies.get((opcode, (seq + 1) % 65536))
+                if reply is not None:
+                    return reply
+            if time.monotonic() > deadline:
+                raise UploadFailed(EXIT_TIMEOUT, f"no reply to {what} ({len(seqs)} requests in {wait_s:.0f} s)")
 
     def remote_crc(self, ftp, path: str, wait_s: float = 20.0) -> int | None:
-        """CalcFileCRC32 of `path`, None if the file does not exist.
-
-        A request that seems lost is sent again, and a late reply to any of the
-        earlier ones counts too (they all ask the same question)."""
-        op_crc = self.mavftp.OP_CalcFileCRC32
-        deadline = time.monotonic() + wait_s
-        seqs = []
-        while True:
-            seqs.append(ftp.seq)
-            ftp.cmd_ftp(["crc", path])
-            for seq in seqs:
-                reply = self.ftp_replies.get((op_crc, (seq + 1) % 65536))
-                if reply is None:
-                    continue
-                opcode, data = reply
-                if opcode == self.mavftp.OP_Ack and len(data) == 4:
-                    return struct.unpack("<I", data)[0]
-                return None
-            if time.monotonic() > deadline:
-                raise UploadFailed(EXIT_TIMEOUT, f"no CRC reply for {path} to {len(seqs)} requests in {wait_s:.0f} s")
-
-    def read_param(self, name: str, tries: int = 3, timeout_s: float = 1.0):
-        for _ in range(tries):
-            self.params.pop(name, None)
-            self.conn.mav.param_request_read_send(self.target_system, self.target_component,
-                                                  name.encode(), -1)
-            deadline = time.monotonic() + timeout_s
-            while time.monotonic() < deadline:
-                self.conn.recv_match(blocking=True, timeout=0.1)
-                if name in self.params:
-                    return self.params[name]
+        """CalcFileCRC32 of `path`, None if the robot has no such file."""
+        opcode, data = self.ask(ftp, "crc", [path], self.mavftp.OP_CalcFileCRC32, wait_s, f"the CRC of {path}")
+        if opcode == self.mavftp.OP_Ack and len(data) == 4:
+            return struct.unpack("<I", data)[0]
         return None
+
+    def read_params(self, names, budget_s: float = READ_BUDGET_S,
+                    want: dict[str, float] | None = None) -> dict[str, float | None]:
+        """Values of `names` the robot sent after this call began (None: not
+        answered within `budget_s`). A name is asked again every
+        PARAM_ASK_INTERVAL_S until answered - a lost PARAM_VALUE is only a
+        retry - and, with `want`, until it equals its wanted value (the robot
+        updates its read-only POLICY_* mirror on the next control tick).
+        Returns as soon as every name is answered (and matches `want`)."""
+        t0 = time.monotonic()
+        end = t0 + budget_s
+        asked: dict[str, float] = {}
+
+        def fresh(name):
+            got = self.params.get(name)
+            return got[0] if got is not None and got[1] >= t0 else None
+
+        def done(name):
+            value = fresh(name)
+            return value is not None and (want is None or value == want[name])
+
+        while True:
+            now = time.monotonic()
+            for name in names:
+                if not done(name) and now - asked.get(name, -1e9) >= PARAM_ASK_INTERVAL_S:
+                    self.conn.mav.param_request_read_send(self.target_system, self.target_component,
+                                                          name.encode(), -1)
+                    asked[name] = now
+            if all(done(n) for n in names) or now > end:
+                return {n: fresh(n) for n in names}
+            self.conn.recv_match(blocking=True, timeout=0.05)  # the hook records what arrives
+
+    def read_param(self, name: str, tries: int = 3, timeout_s: float = 1.0) -> float | None:
+        """One parameter's current value, asked for up to `tries` x `timeout_s`."""
+        return self.read_params([name], budget_s=tries * timeout_s)[name]
 
     def close(self) -> None:
         self.conn.close()
@@ -178,12 +231,13 @@ DEFAULT_FTP_SETTINGS = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_bac
 
 
 def quick(settings) -> None:
-    """Single-reply operations (CRC, Rename, ResetSessions) have no completion
+    """Single-reply operations (CRC, Rename, RemoveFile) have no completion
     signal in MAVFTP: it waits `idle_detection_time` of silence after the
-    reply. A 57600 link answers in tens of ms, so wait 0.8 s instead of 3.7 s;
-    a reply later than that counts as lost and the caller asks again."""
-    settings.read_retry_time = 0.5
-    settings.idle_detection_time = 0.8
+    reply. A 57600 link answers a short request in tens of ms, so wait 0.4 s
+    instead of 3.7 s; a reply later than that counts as lost, the caller asks
+    again and still accepts the late reply."""
+    settings.read_retry_time = 0.3
+    settings.idle_detection_time = 0.4
 
 
 def patient(settings) -> None:
@@ -195,6 +249,10 @@ def patient(settings) -> None:
 def _float32(value: int) -> float:
     """What a PARAM_VALUE carries for an integer parameter (C cast to float32)."""
     return struct.unpack("<f", struct.pack("<f", float(value)))[0]
+
+
+def _left(deadline: float) -> float:
+    return max(0.0, deadline - time.monotonic())
 
 
 def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool = False,
@@ -215,90 +273,150 @@ def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool =
         pass  # not a policy this build can load: the robot will judge it
     deadline = time.monotonic() + deadline_s
     t0 = time.monotonic()
-    mavftp = link.mavftp
-    ftp = None
-    for attempt in range(1, attempts + 1):
-        if time.monotonic() > deadline:
-            raise UploadFailed(EXIT_TIMEOUT, f"upload not verified within {deadline_s:.0f} s")
-        res.put_attempts = attempt
-        ftp = link.ftp(wait_s=min(15.0, max(2.0, deadline - time.monotonic())))
-        patient(ftp.ftp_settings)
-        put_session = ftp.session  # the robot numbers the session as we do
-        ftp.cmd_put([str(local), remote], progress_callback=progress)
-        ftp.process_ftp_reply("put", timeout=max(10.0, deadline - time.monotonic()))
-        quick(ftp.ftp_settings)
-        crc = link.remote_crc(ftp, remote)
-        if crc is None:
-            # Not there: if only the TerminateSession was lost (pymavlink never
-            # repeats it) the data waits under a temporary name until the
-            # session expires; end that session again and look once more.
-            ftp.session = put_session
-            ftp.cmd_cancel()
-            crc = link.remote_crc(ftp, remote)
-        if crc == res.crc:
-            break
-        if crc is not None and attempt == attempts:
-            raise UploadFailed(EXIT_MISMATCH, f"robot CRC32 0x{crc:08x} != local 0x{res.crc:08x} for {remote}")
-    else:
-        raise UploadFailed(EXIT_TIMEOUT, f"{remote} not on the robot after {attempts} puts")
+    ftp = link.ftp()
+    _put_verified(link, ftp, local, res, deadline, attempts, progress)
     res.put_seconds = time.monotonic() - t0
-    if not activate:
-        return res
-
-    # Rename onto active.qtab; every outcome is decided by the robot's reply or,
-    # if that is lost, by what active.qtab now holds.
-    for _ in range(attempts):
-        if time.monotonic() > deadline:
-            raise UploadFailed(EXIT_TIMEOUT, "activation not confirmed in time")
-        n_texts = len(link.texts)
-        reply = link.request(ftp, mavftp.OP_Rename, "rename", [remote, ACTIVE_POLICY])
-        if reply is not None and reply[0] == mavftp.OP_Ack:
-            res.activated = True
-            break
-        if reply is not None and reply[1][:1] == bytes([1]):  # NAK Fail: refused by the vehicle
-            end = time.monotonic() + 1.0
-            while time.monotonic() < end and not any("refused" in t for t in link.texts[n_texts:]):
-                link.conn.recv_match(blocking=True, timeout=0.1)
-            reasons = [t for t in link.texts[n_texts:] if "refused" in t]
-            raise UploadFailed(EXIT_REFUSED, reasons[-1] if reasons else "robot refused the policy (reason lost)")
-        if link.remote_crc(ftp, ACTIVE_POLICY) == res.crc:
-            res.activated = True  # the rename happened; only its reply was lost
-            break
-        if reply is not None:
-            code = reply[1][0] if reply[1] else 0
-            raise UploadFailed(EXIT_REFUSED, f"robot rejected the rename (FTP NAK {code})")
-    if not res.activated:
-        raise UploadFailed(EXIT_TIMEOUT, "no answer to the activation rename")
-    res.texts = list(link.texts)
-
-    confirm_activation(link, ftp, res, deadline)
+    if activate:
+        _activate(link, ftp, res, deadline, deadline_s)
+        res.texts = list(link.texts)
     return res
 
 
-def confirm_activation(link: RobotLink, ftp, res: UploadResult, deadline: float) -> None:
-    """The robot must report the new policy: its read-only parameters
-    POLICY_CRC_HI/LO (exact) and POLICY_ID (float32 on the wire, so compared at
-    float32 precision) against the file. A robot serving no parameters (the
-    standalone FTP shell) is checked by the CRC of active.qtab instead."""
-    first = link.read_param("POLICY_ID", tries=2)
-    if first is not None and res.policy_id is not None and res.policy_crc is not None:
-        want = {"POLICY_ID": _float32(res.policy_id), "POLICY_CRC_HI": float(res.policy_crc >> 16),
-                "POLICY_CRC_LO": float(res.policy_crc & 0xFFFF)}
-        give_up = min(deadline, time.monotonic() + 10.0)
-        while True:  # the swap happens between two control ticks: allow it a moment
-            got = {name: link.read_param(name) for name in want}
-            values = {k: (m.param_value if m is not None else None) for k, m in got.items()}
-            if values == want:
-                res.confirmed_by = "POLICY_ID/POLICY_CRC params"
+def _put_verified(link: RobotLink, ftp, local: Path, res: UploadResult, deadline: float, attempts: int,
+                  progress) -> None:
+    """Put until CalcFileCRC32 of `res.remote` equals the local CRC."""
+    mavftp = link.mavftp
+    remote = res.remote
+    # A file already under this name could pass the CRC check without the put
+    # (same size -> same whole-file CRC for any valid .qtab): remove it first.
+    # Its answer is also the first sign that the robot serves FTP to us.
+    wait = min(15.0, max(2.0, _left(deadline)))
+    try:
+        opcode, data = link.ask(ftp, "rm", [remote], mavftp.OP_RemoveFile, wait, f"RemoveFile {remote}")
+    except UploadFailed as exc:
+        raise UploadFailed(EXIT_TIMEOUT, f"the robot does not answer MAVLink FTP ({exc}; wrong or missing "
+                                         f"--signing-key?)") from None
+    absent = data[:1] == bytes([NAK_FILE_NOT_FOUND]) or data[:2] == bytes([NAK_FAIL_ERRNO, ENOENT])
+    if opcode != mavftp.OP_Ack and not absent:
+        code = data[0] if data else 0
+        raise UploadFailed(EXIT_REFUSED, f"robot refuses to replace {remote} (FTP NAK {code})")
+    problem = "no put attempted"
+    for attempt in range(1, attempts + 1):
+        if time.monotonic() > deadline:
+            raise UploadFailed(EXIT_TIMEOUT, f"{remote} not verified in time ({problem})")
+        res.put_attempts = attempt
+        if ftp.write_list is not None:  # a put still open in the client: end it first
+            ftp.cmd_cancel()
+        patient(ftp.ftp_settings)
+        put_session = ftp.session  # the robot numbers the session as we do
+        ftp.cmd_put([str(local), remote], progress_callback=progress)
+        ret = ftp.process_ftp_reply("put", timeout=max(10.0, _left(deadline)))
+        quick(ftp.ftp_settings)
+        if ret.error_code != mavftp.FtpError.Success:
+            # a NAKed or timed-out put is partial on the robot: put again
+            problem = f"put attempt {attempt}: {ret.operation_name} {getattr(ret.error_code, 'name', ret.error_code)}"
+            continue
+        wait = min(20.0, max(2.0, _left(deadline)))
+        crc = link.remote_crc(ftp, remote, wait)
+        if crc is None:
+            # Every block ACKed but no file: only the TerminateSession was lost
+            # (pymavlink never repeats it), so the data waits under a temporary
+            # name until the session expires. End that session again, look again.
+            ftp.session = put_session
+            ftp.cmd_cancel()
+            crc = link.remote_crc(ftp, remote, wait)
+        if crc == res.crc:
+            return
+        problem = "missing on the robot" if crc is None else f"robot CRC32 0x{crc:08x} != local 0x{res.crc:08x}"
+    code = EXIT_MISMATCH if problem.startswith("robot CRC32") else EXIT_TIMEOUT
+    raise UploadFailed(code, f"{remote} not verified after {attempts} puts ({problem})")
+
+
+def _activate(link: RobotLink, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
+    """Rename the verified file onto active.qtab until the robot's state shows
+    it active (see the module docstring, step 4). Replies only steer: a NAK
+    Fail is the robot's refusal; an ACK or a lost reply is checked against
+    what the robot reports."""
+    mavftp = link.mavftp
+    want = res.want_params()
+    params = link.serves_params
+    if params and want is None:
+        raise UploadFailed(EXIT_MISMATCH, f"{res.remote} is not a policy this ground station can read, so "
+                                          "the robot's POLICY_ID cannot confirm it")
+    rename_seqs: list[int] = []
+    texts_from = len(link.texts)
+    status = "no reply yet"
+    send_rename = True
+    while True:
+        if time.monotonic() > deadline:
+            raise UploadFailed(EXIT_TIMEOUT, f"activation not confirmed within {deadline_s:.0f} s ({status})")
+        if send_rename:
+            rename_seqs.append(ftp.seq)
+            res.renames += 1
+            ftp.cmd_ftp(["rename", res.remote, ACTIVE_POLICY])
+            send_rename = False
+        replies = [r for s in rename_seqs if (r := link.ftp_replies.get((mavftp.OP_Rename, (s + 1) % 65536)))]
+        acked = any(op == mavftp.OP_Ack for op, _ in replies)
+        refused = any(op == mavftp.OP_Nack and data[:1] == bytes([NAK_FAIL]) for op, data in replies)
+        wait = min(READ_BUDGET_S, _left(deadline))
+
+        if params:
+            got = link.read_params(POLICY_PARAMS, wait)
+            if None in got.values():
+                status = f"robot reports {got}"
+                continue  # reads lost: ask again
+            if got == want:
+                _confirm_crc(link, ftp, res, deadline, "POLICY_ID/POLICY_CRC params + active.qtab CRC32")
                 return
-            if time.monotonic() > give_up:
-                raise UploadFailed(EXIT_MISMATCH, f"robot reports {values}, file has {want}")
-            time.sleep(0.2)
-    crc = link.remote_crc(ftp, ACTIVE_POLICY)
+        elif acked:
+            _confirm_crc(link, ftp, res, deadline, "Rename ACK + active.qtab CRC32 (robot serves no parameters)")
+            return
+        if refused:
+            _raise_refusal(link, texts_from)
+        # Not (yet) the new policy. Still under its own name: the rename did not
+        # happen (request or reply lost) -> send it again.
+        remote_crc = link.remote_crc(ftp, res.remote, max(2.0, wait))
+        if remote_crc == res.crc:
+            status = f"{res.remote} still in place after {res.renames} rename(s)"
+            send_rename = True
+            continue
+        # The file left its name: the robot renamed it. Its POLICY_* mirror
+        # follows within a control tick.
+        if not params:
+            _confirm_crc(link, ftp, res, deadline, "file moved + active.qtab CRC32 (robot serves no parameters)")
+            return
+        got = link.read_params(POLICY_PARAMS, min(READ_BUDGET_S, _left(deadline)), want=want)
+        if got == want:
+            _confirm_crc(link, ftp, res, deadline, "POLICY_ID/POLICY_CRC params + active.qtab CRC32")
+            return
+        if None not in got.values():
+            raise UploadFailed(EXIT_MISMATCH, f"{res.remote} was renamed but the robot reports "
+                                              f"{_show(got)}, file has {_show(want)}")
+        status = f"{res.remote} renamed, robot's policy parameters unanswered"
+
+
+def _confirm_crc(link: RobotLink, ftp, res: UploadResult, deadline: float, how: str) -> None:
+    crc = link.remote_crc(ftp, ACTIVE_POLICY, min(20.0, max(2.0, _left(deadline))))
     if crc != res.crc:
         shown = "missing" if crc is None else f"0x{crc:08x}"
-        raise UploadFailed(EXIT_MISMATCH, f"{ACTIVE_POLICY} CRC32 is {shown} after activation, expected 0x{res.crc:08x}")
-    res.confirmed_by = "active.qtab CRC (robot serves no POLICY_ID parameter)"
+        raise UploadFailed(EXIT_MISMATCH, f"{ACTIVE_POLICY} CRC32 is {shown} after activation, "
+                                          f"expected 0x{res.crc:08x}")
+    res.activated = True
+    res.confirmed_by = how
+
+
+def _raise_refusal(link: RobotLink, texts_from: int) -> None:
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end and not any("refused" in t for t in link.texts[texts_from:]):
+        link.conn.recv_match(blocking=True, timeout=0.1)
+    reasons = [t for t in link.texts[texts_from:] if "refused" in t]
+    raise UploadFailed(EXIT_REFUSED, reasons[-1] if reasons else "robot refused the policy (reason lost)")
+
+
+def _show(values: dict[str, float | None] | None) -> str:
+    if values is None:
+        return "unknown"
+    return ", ".join(f"{k} {'?' if v is None else f'{v:.0f}'}" for k, v in values.items())
 
 
 def default_remote(local: Path) -> str:

@@ -119,13 +119,8 @@ class Crasher:
         self.link = RobotLink(self.robot.url, None, timeout_s=30.0)
 
     def reported_policy(self) -> tuple[float, float, float] | None:
-        vals = []
-        for name in ("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO"):
-            msg = self.link.read_param(name, tries=5)
-            if msg is None:
-                return None
-            vals.append(msg.param_value)
-        return tuple(vals)
+        got = self.link.read_params(("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO"), budget_s=5.0)
+        return None if None in got.values() else tuple(got.values())
 
     def close_link(self) -> None:
         if self.link is not None:
