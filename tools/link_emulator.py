@@ -18,6 +18,11 @@ Library:
     with LinkEmulator(gcs_peer=("127.0.0.1", 14550), config=LinkConfig(loss=0.05)) as link:
         robot connects udpout:127.0.0.1:{link.robot_port}
 
+Tests that must lose one particular frame pass `drop(direction, frame) ->
+bool` (library only): a frame it returns True for is lost like a random
+loss (it still uses its air time), counted in `dropped`, and draws its
+random numbers all the same, so the other frames keep their fates.
+
 CLI: python tools/link_emulator.py --help
 """
 
@@ -32,6 +37,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 HOST = "127.0.0.1"
@@ -70,6 +76,7 @@ class DirectionStats:
     frames_in: int = 0
     bytes_in: int = 0
     lost: int = 0
+    dropped: int = 0  # by the `drop` predicate
     overflowed: int = 0
     duplicated: int = 0
     reordered: int = 0
@@ -87,8 +94,10 @@ class LinkEmulator:
     """See the module docstring. Ports 0 pick free ports (read them back)."""
 
     def __init__(self, config: LinkConfig | None = None, *, gcs_port: int = 0, robot_port: int = 0,
-                 gcs_peer: tuple[str, int] | None = None, robot_peer: tuple[str, int] | None = None) -> None:
+                 gcs_peer: tuple[str, int] | None = None, robot_peer: tuple[str, int] | None = None,
+                 drop: Callable[[int, bytes], bool] | None = None) -> None:
         self.config = config or LinkConfig()
+        self.drop = drop
         self.config.validate()
         self._socks = []
         for port in (gcs_port, robot_port):
@@ -159,6 +168,9 @@ class LinkEmulator:
             self._free_at[direction] += airtime
         if r_loss < cfg.loss:
             st.lost += 1
+            return
+        if self.drop is not None and self.drop(direction, data):
+            st.dropped += 1
             return
         arrive = start + airtime + cfg.latency_s
         if r_reorder < cfg.reorder:
