@@ -22,6 +22,11 @@ Steps (docs/mavlink.md, "Uploading a policy"):
    HEARTBEAT reports no system state) is confirmed by the rename's ACK or the
    file having left its name, plus the CRC of active.qtab, and says so.
 
+The put keeps pymavlink's 80-byte writes; `WriteGate` gives it a real
+in-flight window (10 writes) and spaces copies of a write by the measured
+round trip, so a lossy radio's queue never fills with re-sends, and the put
+counts as done only when every block was ACKed.
+
 Every FTP reply is matched by the request's own seq. One MAVFTP client serves
 a RobotLink for its whole life, so seq never restarts and a late reply to an
 earlier request (a lossy radio queues seconds of them) cannot answer a later
@@ -51,6 +56,12 @@ NAK_FAIL, NAK_FAIL_ERRNO, NAK_FILE_NOT_FOUND = 1, 2, 10
 ENOENT = 2
 PARAM_ASK_INTERVAL_S = 0.5  # re-ask an unanswered PARAM_REQUEST_READ after this long
 READ_BUDGET_S = 10.0  # one round of reads (params, CRC) before the caller looks again
+# MAVFTP sends another write when none was ACKed for max(min(10 x rtt, 1 s), 0.2 s), rtt being
+# the smallest round trip it saw (0.5 s until then): at 40 % loss its 5 writes in flight are
+# often all lost and it then adds one write per 0.5 s. With WriteGate keeping the real window
+# and spacing copies, the put lets it re-send after 0.2 s and count 10 in flight.
+EAGER_RTT_S = 0.02
+PUT_QSIZE = 10
 
 
 class UploadFailed(Exception):
@@ -106,14 +117,16 @@ class WriteGate:
     every ACK skips many - so it refills its window of 5 on every ACK and
     cycles the last blocks faster than their ACKs return. Measured at 20 %
     loss + duplication + reordering (20 KiB): up to 29 copies of one block
-    and the radio queue at 3.4 s. The hold is 2.5 x the smoothed round trip
-    of writes sent once (Karn's rule), at least `min_hold_s`. Window 10:
-    100 KiB at 20 % + dup/reorder 56 s instead of 80 s (1.73 frames per block
-    instead of 2.62, radio queue <= 0.2 s); window 5 left the link idle while
-    lost writes held their slots; at 0 % loss MAVFTP keeps <= 5 in flight, so
-    the gate never holds and the put runs at the link rate."""
+    and the radio queue at 3.4 s. A slot is free again once its write is
+    answered or older than the hold, 1.5 x the smoothed round trip of writes
+    sent once (Karn's rule), at least `min_hold_s`; 10 writes of 80 bytes are
+    ~0.2 s of air at 57600 baud, so the radio queue stays below that. 100 KiB
+    signed at 20 % loss + 10 % duplication/reordering: 53 s instead of 80 s,
+    1.74 frames per block instead of 2.62. At 0 % loss the window is never
+    full and the put runs at the link rate, as before. (A hold of 2.5 x SRTT
+    and a window of 5 left the link idle in the tail at 40 % loss.) """
 
-    def __init__(self, conn, opcode_write: int, window: int = 10, min_hold_s: float = 0.3) -> None:
+    def __init__(self, conn, opcode_write: int, window: int = 10, min_hold_s: float = 0.15) -> None:
         self.opcode_write, self.window, self.min_hold_s = opcode_write, window, min_hold_s
         self.sent: dict[tuple[int, int], tuple[float, int]] = {}  # (session, seq) -> (last sent, copies)
         self.srtt: float | None = None
@@ -122,7 +135,7 @@ class WriteGate:
         conn.mav.file_transfer_protocol_send = self.send
 
     def hold_s(self) -> float:
-        return max(self.min_hold_s, 2.5 * self.srtt) if self.srtt is not None else 1.0
+        return max(self.min_hold_s, 1.5 * self.srtt) if self.srtt is not None else 1.0
 
     def send(self, network, target_system, target_component, payload, *args, **kwargs):
         seq, session, opcode = struct.unpack_from("<HBB", bytes(payload[:4]), 0)
@@ -289,19 +302,26 @@ DEFAULT_FTP_SETTINGS = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_bac
 
 
 def quick(settings) -> None:
-    """Single-reply operations (CRC, Rename, RemoveFile) have no completion
-    signal in MAVFTP: it waits `idle_detection_time` of silence after the
-    reply. A 57600 link answers a short request in tens of ms, so wait 0.4 s
+    """Single-reply operations (CRC, Rename, RemoveFile, TerminateSession)
+    have no completion signal in MAVFTP: it waits `idle_detection_time` of
+    silence after the reply. A 57600 link answers a short request in tens of ms, so wait 0.4 s
     instead of 3.7 s; a reply later than that counts as lost, the caller asks
     again and still accepts the late reply."""
     settings.read_retry_time = 0.3
     settings.idle_detection_time = 0.4
 
 
-def patient(settings) -> None:
-    """pymavlink's defaults, for the put itself (its retry timers run up to 1 s)."""
-    settings.idle_detection_time = DEFAULT_FTP_SETTINGS["idle_detection_time"]
-    settings.read_retry_time = DEFAULT_FTP_SETTINGS["read_retry_time"]
+def for_put(settings) -> None:
+    """The put: MAVFTP may keep PUT_QSIZE writes in flight by its own count
+    (WriteGate holds the real number to its window, so a larger count only
+    stops MAVFTP from stalling when its writes are lost). Idle time longer
+    than MAVFTP's slowest write re-send (max(min(10 x RTT, 1 s), 0.2 s)
+    without an ACK), so a put in progress never looks idle, and far below
+    pymavlink's 3.7 s, which a put whose TerminateSession reply was lost (or a
+    NAKed put) waits out in full."""
+    settings.write_qsize = PUT_QSIZE
+    settings.read_retry_time = 0.3
+    settings.idle_detection_time = 1.5
 
 
 def _float32(value: int) -> float:
@@ -365,14 +385,27 @@ def _put_verified(link: RobotLink, ftp, local: Path, res: UploadResult, deadline
         res.put_attempts = attempt
         if ftp.write_list is not None:  # a put still open in the client: end it first
             ftp.cmd_cancel()
-        patient(ftp.ftp_settings)
         put_session = ftp.session  # the robot numbers the session as we do
+        for_put(ftp.ftp_settings)
+        ftp.rtt = min(ftp.rtt, EAGER_RTT_S)
         ftp.cmd_put([str(local), remote], progress_callback=progress)
-        ret = ftp.process_ftp_reply("put", timeout=max(10.0, _left(deadline)))
+        # process_ftp_reply also returns after idle_detection_time without a
+        # send, reporting the last reply it handled: "Success" then only means
+        # the last ACK was one. The put is done when every block is ACKed
+        # (MAVFTP then ends the session itself); while blocks are left, go on.
+        ret = None
+        while ftp.write_list is not None and time.monotonic() < deadline:
+            ret = ftp.process_ftp_reply("put", timeout=max(10.0, _left(deadline)))
         quick(ftp.ftp_settings)
-        if ret.error_code != mavftp.FtpError.Success:
-            # a NAKed or timed-out put is partial on the robot: put again
-            problem = f"put attempt {attempt}: {ret.operation_name} {getattr(ret.error_code, 'name', ret.error_code)}"
+        if ftp.write_list is not None:  # out of time in the middle of the put
+            ftp.cmd_cancel()
+            raise UploadFailed(EXIT_TIMEOUT, f"{remote}: put not finished within the time budget "
+                                             f"({ftp.write_acks} of {ftp.write_total} blocks acknowledged)")
+        if ftp.write_acks < ftp.write_total:
+            # NAKed (e.g. WriteFile InvalidSession after a lost CreateFile): MAVFTP
+            # ended the session, the robot has a partial file at most -> put again
+            code = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
+            problem = f"put attempt {attempt} ended by {code} after {ftp.write_acks} of {ftp.write_total} blocks"
             continue
         wait = min(20.0, max(2.0, _left(deadline)))
         crc = link.remote_crc(ftp, remote, wait)
