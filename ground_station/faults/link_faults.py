@@ -166,7 +166,7 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
     new = policy_version(CELL_POLICY, 0x10550000 + seed)
     local = tmp / f"lossy-{seed}.qtab"
     local.write_bytes(new)
-    key_file = tmp / "link.key"
+    key_file = tmp / f"link-{seed}.key"  # per trial: trials may run side by side in one directory
     key_file.write_text(random.Random(seed).randbytes(32).hex())
     from firmware_py.signing import load_key_file
 
@@ -188,14 +188,17 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
         try:
             res = upload_policy(gcs, local, f"/policies/{local.name}", activate=True, deadline_s=deadline_s,
                                 attempts=8)
-            row.update(upload="ok", upload_s=time.monotonic() - t0, puts=res.put_attempts)
+            row.update(upload="ok", upload_s=time.monotonic() - t0, puts=res.put_attempts, renames=res.renames,
+                       confirmed_by=res.confirmed_by)
         except UploadFailed as exc:
             text = str(exc)
-            row.update(upload="failed", upload_s=time.monotonic() - t0, error=text)
+            row.update(upload="failed", upload_s=time.monotonic() - t0, error=text, exit=exc.code)
             if not text or "\n" in text or exc.code not in (3, 4, 5):
                 problems.append(f"unclear upload error (exit {exc.code}): {text!r}")
         finally:
+            row["writes"] = {"sent": gcs.gate.passed, "held": gcs.gate.held}
             gcs.close()
+        t_cmd = time.monotonic()
         # commands through the shared link layer, with its retries
         m = mavlink()
         glink = Link(url, signing_key=key_file, tlog=False)
@@ -235,13 +238,18 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
         finally:
             glink.close()
         row.update(commands=commands, acked=acked, acked_after_retry=retried, timed_out=timed_out,
+                   commands_s=time.monotonic() - t_cmd,
                    link_up=vars(link.stats.up).copy(), link_down=vars(link.stats.down).copy())
-    # the robot's storage: a complete version, and the one it ran
+    # the robot's storage: a complete version, and the one it ran; the verdict says what happened
     active = Storage(storage_dir).resolve(ACTIVE_POLICY).read_bytes()
     if active not in (base, new):
         problems.append(f"active.qtab is neither the old nor the new version ({len(active)} B)")
     elif row.get("upload") == "ok" and active != new:
         problems.append("upload reported done but active.qtab is the old version")
+    elif row.get("exit") in (3, 5) and active == new:
+        # a refusal or a mismatch is a statement about the robot; a timeout only says "not confirmed"
+        problems.append(f"upload said exit {row['exit']} ({row['error']}) but the robot activated the file")
+    row["unconfirmed_but_active"] = row.get("exit") == 4 and active == new
     crc = load_policy(active).crc if active in (base, new) else None
     if (crc is not None and reported and None not in reported.values()
             and (reported["POLICY_CRC_HI"], reported["POLICY_CRC_LO"]) != (crc >> 16, crc & 0xFFFF)):
@@ -253,17 +261,26 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
 @register("lossy_link", small=2, large=12, unit="uploads+commands sessions (0/5/20/40 % loss)",
           what="lossy radio: upload byte-exact+activated or clear error; commands ACKed or timed out")
 def lossy_link(count: int, seed: int = 0, progress=None, deadline_s: float = 120.0,
-               levels: tuple[float, ...] = LOSS_LEVELS, commands: int = 4) -> ScenarioResult:
+               levels: tuple[float, ...] = LOSS_LEVELS, commands: int = 4, workers: int = 1) -> ScenarioResult:
+    """Trial i runs at loss levels[i % len(levels)] with seed seed * 1000 + i (robot key,
+    link RNGs, policy version). `workers` > 1 runs trials side by side: each has its own
+    robot process, emulator, storage and sockets, and mostly waits on its 57600 link."""
+    from concurrent.futures import ThreadPoolExecutor
+
     res = ScenarioResult("lossy_link")
-    rows = []
+    _emulator()  # loaded once here, not by two trials at the same moment
     with tempfile.TemporaryDirectory(prefix="qnav-lossy-") as tmp:
-        for i in range(count):
-            loss = levels[i % len(levels)]
-            row = lossy_trial(loss, seed * 1000 + i, Path(tmp), deadline_s=deadline_s, commands=commands)
-            rows.append(row)
-            res.check(row["problems"], f"loss {loss:.0%} seed {seed * 1000 + i}")
+        def trial(i: int) -> dict:
+            row = lossy_trial(levels[i % len(levels)], seed * 1000 + i, Path(tmp), deadline_s=deadline_s,
+                              commands=commands)
             if progress is not None:
                 progress.update(1)
+            return row
+
+        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+            rows = list(pool.map(trial, range(count)))
+    for row in rows:
+        res.check(row["problems"], f"loss {row['loss']:.0%} seed {row['seed']}")
     per_loss = {}
     for loss in levels:
         rs = [r for r in rows if r["loss"] == loss]
@@ -274,6 +291,7 @@ def lossy_link(count: int, seed: int = 0, progress=None, deadline_s: float = 120
                 "commands": sum(r.get("commands", 0) for r in rs), "acked": sum(r.get("acked", 0) for r in rs),
                 "acked_after_retry": sum(r.get("acked_after_retry", 0) for r in rs),
                 "timed_out": sum(r.get("timed_out", 0) for r in rs),
+                "unconfirmed_but_active": sum(r.get("unconfirmed_but_active", False) for r in rs),
                 "max_upload_s": max((r.get("upload_s", 0.0) for r in rs), default=0.0)}
     res.figures.update({"per_loss": per_loss, "sessions": rows})
     return res

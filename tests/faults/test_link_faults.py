@@ -14,12 +14,22 @@ def test_gcs_link_loss_failsafe_within_timeout_plus_one_period():
 
 
 def test_lossy_link_uploads_exact_or_clear_error_and_commands_acked_or_timed_out():
-    res = link_faults.lossy_link(2, seed=4, deadline_s=40.0, levels=(0.2, 0.4), commands=2)
+    # 20 % and 40 % loss (+ duplication and reordering) side by side, seeded (seed 4 -> trials
+    # 4000, 4001). Per session the scenario checks: active.qtab is the old or the new complete
+    # file and the robot runs it; "ok" only if active.qtab is the new file; a refusal or
+    # mismatch verdict (exit 3/5) only if it is not; commands ACKed or a clear timeout.
+    res = link_faults.lossy_link(2, seed=4, deadline_s=25.0, levels=(0.2, 0.4), commands=1, workers=2)
     assert res.tried == 2
     assert res.lost == 0, res.failures
     sessions = res.figures["sessions"]
-    assert all(s.get("upload") in ("ok", "failed") for s in sessions)
-    assert all(s["acked"] + s["timed_out"] == s["commands"] for s in sessions)
+    assert [s["loss"] for s in sessions] == [0.2, 0.4] and [s["seed"] for s in sessions] == [4000, 4001]
+    for s in sessions:
+        assert s.get("upload") in ("ok", "failed"), s
+        assert (s["upload"] == "ok") == (s["byte_exact"] and "error" not in s), s
+        if s["upload"] == "failed":
+            assert s["exit"] in (3, 4, 5) and "\n" not in s["error"], s
+        assert s["acked"] + s["timed_out"] == s["commands"], s
+        assert s["link_up"]["lost"] > 0 and s["link_down"]["lost"] > 0  # the link did lose frames
 
 
 def test_three_clients_telemetry_and_upload_miss_no_control_tick():
