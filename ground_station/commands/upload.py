@@ -83,6 +83,7 @@ class UploadResult:
     confirmed_by: str = ""
     policy_id: int | None = None  # from the local file, when it loads
     policy_crc: int | None = None  # the .qtab's own CRC32 (what POLICY_CRC reports)
+    local_error: str = ""  # why the local loader refused the file, if it did
     renames: int = 0  # Rename requests sent
     texts: list[str] = field(default_factory=list)
 
@@ -347,8 +348,8 @@ def upload_policy(link: RobotLink, local: Path, remote: str, *, activate: bool =
     try:
         pol = load_policy(data)
         res.policy_id, res.policy_crc = pol.policy_id, pol.crc
-    except PolicyError:
-        pass  # not a policy this build can load: the robot will judge it
+    except PolicyError as exc:
+        res.local_error = str(exc)  # not a policy this build can load: the robot will judge it
     deadline = time.monotonic() + deadline_s
     t0 = time.monotonic()
     ftp = link.ftp()
@@ -432,8 +433,8 @@ def _activate(link: RobotLink, ftp, res: UploadResult, deadline: float, deadline
     want = res.want_params()
     params = link.serves_params
     if params and want is None:
-        raise UploadFailed(EXIT_MISMATCH, f"{res.remote} is not a policy this ground station can read, so "
-                                          "the robot's POLICY_ID cannot confirm it")
+        raise UploadFailed(EXIT_MISMATCH, f"{res.remote} is not a policy this ground station can read "
+                                          f"({res.local_error}), so the robot's POLICY_ID cannot confirm it")
     rename_seqs: list[int] = []
     texts_from = len(link.texts)
     status = "no reply yet"
