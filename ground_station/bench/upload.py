@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
                     rows.append(run_case(size, loss, signed, key if signed else None, port, root,
                                          args.seed * 1000 + i))
                     bar.update(1)
-    table = [("link", "57600 baud 8N1 = 5760 B/s each way, pymavlink MAVFTP 80-byte writes, 5 in flight")]
+    table = [("link", "57600 baud 8N1 = 5760 B/s each way, pymavlink MAVFTP 80-byte writes, up to 10 in flight (WriteGate)")]
     for r in rows:
         name = f"{r['size'] // 1024:>4} KiB {'signed  ' if r['signed'] else 'unsigned'} loss {r['loss'] * 100:>4.0f}%"
         if r["success"]:
