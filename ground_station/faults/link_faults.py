@@ -386,6 +386,8 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
                     link.close()
 
             def uploader(cl: _Client) -> None:  # uploads back to back (no activation: it is driving)
+                # 15 s each: well over a 2.2 KB put on loopback, and the thread ends soon after the
+                # robot does (its requests then go unanswered until the deadline)
                 link = RobotLink(robot.url, None, timeout_s=30.0)
                 try:
                     k = 0
@@ -393,7 +395,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
                         k += 1
                         local = tmp / f"load-{seed}-{k}.qtab"
                         local.write_bytes(policy_version(CELL_POLICY, 0x10AD0000 + k))
-                        upload_policy(link, local, f"/policies/{local.name}", deadline_s=60, attempts=3)
+                        upload_policy(link, local, f"/policies/{local.name}", deadline_s=15, attempts=3)
                         cl.counts["uploads"] = k
                 finally:
                     link.close()
