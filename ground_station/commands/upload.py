@@ -433,8 +433,7 @@ def _activate(link: RobotLink, ftp, res: UploadResult, deadline: float, deadline
     want = res.want_params()
     params = link.serves_params
     if params and want is None:
-        raise UploadFailed(EXIT_MISMATCH, f"{res.remote} is not a policy this ground station can read "
-                                          f"({res.local_error}), so the robot's POLICY_ID cannot confirm it")
+        _activate_unreadable(link, ftp, res, deadline, deadline_s)  # always raises
     rename_seqs: list[int] = []
     texts_from = len(link.texts)
     status = "no reply yet"
@@ -464,7 +463,7 @@ def _activate(link: RobotLink, ftp, res: UploadResult, deadline: float, deadline
             _confirm_crc(link, ftp, res, deadline, "Rename ACK + active.qtab CRC32 (robot serves no parameters)")
             return
         if refused:
-            _raise_refusal(link, texts_from)
+            _raise_refusal(link, texts_from, res.local_error)
         # Not (yet) the new policy. Still under its own name: the rename did not
         # happen (request or reply lost) -> send it again.
         remote_crc = link.remote_crc(ftp, res.remote, max(2.0, wait))
@@ -487,6 +486,31 @@ def _activate(link: RobotLink, ftp, res: UploadResult, deadline: float, deadline
         status = f"{res.remote} renamed, robot's policy parameters unanswered"
 
 
+def _activate_unreadable(link: RobotLink, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
+    """Activation of a file our policy loader refuses (`res.local_error`): the
+    robot still judges it - it runs the same loader, so its refusal (NAK Fail
+    + STATUSTEXT reason, exit 3) is the expected end. Should it take the file
+    anyway, its POLICY_* cannot be checked against a file we cannot read:
+    exit 5. A lost reply is resolved as in `_activate`: while the file is
+    still under its own name, the rename is sent again."""
+    mavftp = link.mavftp
+    rename_seqs: list[int] = []
+    texts_from = len(link.texts)
+    while time.monotonic() < deadline:
+        rename_seqs.append(ftp.seq)
+        res.renames += 1
+        ftp.cmd_ftp(["rename", res.remote, ACTIVE_POLICY])
+        replies = [r for s in rename_seqs if (r := link.ftp_replies.get((mavftp.OP_Rename, (s + 1) % 65536)))]
+        if any(op == mavftp.OP_Nack and data[:1] == bytes([NAK_FAIL]) for op, data in replies):
+            _raise_refusal(link, texts_from, res.local_error)
+        wait = min(READ_BUDGET_S, max(2.0, _left(deadline)))
+        if any(op == mavftp.OP_Ack for op, _ in replies) or link.remote_crc(ftp, res.remote, wait) != res.crc:
+            raise UploadFailed(EXIT_MISMATCH, f"the robot took {res.remote}, but this ground station cannot "
+                                              f"read it ({res.local_error}), so its POLICY_ID cannot confirm it")
+    raise UploadFailed(EXIT_TIMEOUT, f"no answer to the activation within {deadline_s:.0f} s "
+                                     f"(this ground station's loader: {res.local_error})")
+
+
 def _confirm_crc(link: RobotLink, ftp, res: UploadResult, deadline: float, how: str) -> None:
     crc = link.remote_crc(ftp, ACTIVE_POLICY, min(20.0, max(2.0, _left(deadline))))
     if crc != res.crc:
@@ -497,12 +521,15 @@ def _confirm_crc(link: RobotLink, ftp, res: UploadResult, deadline: float, how: 
     res.confirmed_by = how
 
 
-def _raise_refusal(link: RobotLink, texts_from: int) -> None:
+def _raise_refusal(link: RobotLink, texts_from: int, local_error: str = "") -> None:
     end = time.monotonic() + 1.0
     while time.monotonic() < end and not any("refused" in t for t in link.texts[texts_from:]):
         link.conn.recv_match(blocking=True, timeout=0.1)
     reasons = [t for t in link.texts[texts_from:] if "refused" in t]
-    raise UploadFailed(EXIT_REFUSED, reasons[-1] if reasons else "robot refused the policy (reason lost)")
+    if reasons:
+        raise UploadFailed(EXIT_REFUSED, reasons[-1])
+    local = f"; this ground station's loader: {local_error}" if local_error else ""
+    raise UploadFailed(EXIT_REFUSED, f"robot refused the policy (its reason lost{local})")
 
 
 def _show(values: dict[str, float | None] | None) -> str:
