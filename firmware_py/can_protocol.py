@@ -21,7 +21,7 @@ import cantools
 from cantools.database.can import Database
 from cantools.database.can import Message as DbcMessage
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 CMD_BITS = 5  # ODrive CANSimple: low 5 bits of the id are the command
 CMD_MASK = (1 << CMD_BITS) - 1
@@ -72,7 +72,7 @@ NODE_SIM = split_id(SIM_TICK_ID)[0]
 # --- counters ----------------------------------------------------------------
 TICK_MODULUS = 1 << _BY_NAME["SimTick"].get_signal_by_name("Tick_Counter").length
 COMMAND_COUNTER_MODULUS = 1 << _BY_NAME["MotorCommand"].get_signal_by_name("Cmd_Counter").length
-SENSORS_PER_RANGE_FRAME = robot.SENSOR_COUNT // len(RANGE_SECTORS_IDS)
+SENSORS_PER_RANGE_FRAME = robot_spec.SENSOR_COUNT // len(RANGE_SECTORS_IDS)
 
 # Motor driver state (Mot_State) and error bits (Mot_Errors), as in the DBC.
 _MOT_STATES = {str(name): int(value) for value, name in
@@ -135,9 +135,9 @@ def sim_tick(tick: int, sim_time_us: int) -> can.Message:
 
 
 def range_frames(readings: Sequence[tuple[int, int]]) -> list[can.Message]:
-    """RangeSectors frames from (mm, status) per sensor, in robot.SENSOR_ANGLES_MRAD order."""
-    if len(readings) != robot.SENSOR_COUNT:
-        raise ProtocolError(f"expected {robot.SENSOR_COUNT} range readings, got {len(readings)}")
+    """RangeSectors frames from (mm, status) per sensor, in robot_spec.SENSOR_ANGLES_MRAD order."""
+    if len(readings) != robot_spec.SENSOR_COUNT:
+        raise ProtocolError(f"expected {robot_spec.SENSOR_COUNT} range readings, got {len(readings)}")
     frames = []
     for f in range(len(RANGE_SECTORS_IDS)):
         signals = {}

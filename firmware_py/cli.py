@@ -20,34 +20,19 @@ import json
 import logging
 import resource
 import sys
-import threading
 import time
-from typing import Protocol
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
 from firmware_py.clock import SimClock, WallClock
-from firmware_py.controller import Controller
-from firmware_py.mav_robot import MavlinkExtension
-from firmware_py.robot_node import RobotNode
-from firmware_py.vehicle import CtrlState, VehicleConfig
-
-
-class Extension(Protocol):
-    def add_arguments(self, parser: argparse.ArgumentParser) -> None: ...
-    def attach(self, node: RobotNode, args: argparse.Namespace): ...
-
+from firmware_py.control.controller import Controller
+from firmware_py.control.goals import GoalRunner
+from firmware_py.control.node import RobotNode
+from firmware_py.mavlink.extension import MavlinkExtension
+from firmware_py.plugins import EXIT_FAULT, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, Extension, UsageError
+from firmware_py.vehicle import VehicleConfig
 
 EXTENSIONS: list[Extension] = [MavlinkExtension()]
-
-EXIT_OK = 0
-EXIT_USAGE = 2
-EXIT_FAULT = 3
-EXIT_TIMEOUT = 4
-
-
-class UsageError(Exception):
-    """Bad command-line input; printed as one line, exit 2."""
 
 
 def _floats(text: str, n_min: int, n_max: int, what: str) -> list[float]:
@@ -73,8 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="HIL lockstep: step on every SimTick and answer it (the sim waits)")
     clk.add_argument("--sim-clock", action="store_true",
                      help="paced HIL: run on sim time from SimTick frames, do not answer ticks")
-    p.add_argument("--rate", type=int, default=robot.CONTROL_RATE_HZ, metavar="HZ",
-                   help=f"control rate on the wall or sim clock (default {robot.CONTROL_RATE_HZ}; "
+    p.add_argument("--rate", type=int, default=robot_spec.CONTROL_RATE_HZ, metavar="HZ",
+                   help=f"control rate on the wall or sim clock (default {robot_spec.CONTROL_RATE_HZ}; "
                         "in lockstep the sim's tick sets it)")
     p.add_argument("--start", metavar="X,Y[,DEG]", help="start pose in metres (world frame) and heading in degrees CCW from east")
     p.add_argument("--start-cell", metavar="COL,ROW[,DEG]", help="start pose at a map cell's centre")
@@ -118,55 +103,6 @@ def _load_policy(args: argparse.Namespace):
     return None
 
 
-class GoalRunner:
-    """Arms and starts the command-line goals from the control thread (so a
-    lockstep run is deterministic), and notices when they are done."""
-
-    def __init__(self, ctrl: Controller, goals: list[tuple[int, int]]) -> None:
-        self.ctrl = ctrl
-        self.goals = goals
-        self.started = False
-        self.done = threading.Event()
-        self.result = ""
-        self._last_refusal = ""
-
-    def __call__(self, _out) -> None:
-        c = self.ctrl
-        if not self.started:
-            if c.state == CtrlState.STANDBY:
-                ok, why = c.arm()
-                if not ok:
-                    if why != self._last_refusal:
-                        logging.getLogger("qnav.robot").info("waiting to arm: %s", why)
-                        self._last_refusal = why
-                    return
-            if c.state != CtrlState.HOLD:
-                return
-            if len(self.goals) == 1:
-                ok, why = c.set_goal(*self.goals[0])
-            else:
-                ok, why = c.set_mission(self.goals)
-                if ok:
-                    ok, why = c.start_mission()
-            if not ok:
-                self.result = f"goal refused: {why}"
-                self.done.set()
-            self.started = True
-            return
-        if self.done.is_set():
-            return
-        if c.state == CtrlState.FAULT:
-            self.result = f"FAULT: {c.fault}"
-            self.done.set()
-        elif c.state == CtrlState.HOLD:
-            last = c.transitions[-1] if c.transitions else None
-            if last is not None and last.cause in ("goal reached", "mission complete"):
-                self.result = "reached"
-            else:
-                self.result = f"stopped: {last.cause if last else '?'}"
-            self.done.set()
-
-
 def _rss_mb() -> float:
     try:
         with open("/proc/self/status") as f:
@@ -183,14 +119,14 @@ def run(args: argparse.Namespace) -> int:
 
     policy = _load_policy(args)
     cell_mm = round(args.cell_size * 1000) if args.cell_size else (
-        policy.cell_mm if policy is not None and policy.kind == "cell" else robot.DEFAULT_CELL_SIZE_MM)
+        policy.cell_mm if policy is not None and policy.kind == "cell" else robot_spec.DEFAULT_CELL_SIZE_MM)
     height = args.map_height or (policy.encoder.height if policy is not None and policy.kind == "cell" else None)
 
     def cell_point(text: str, what: str, with_heading: bool) -> tuple[int, int, int]:
         if height is None:
             raise UsageError(f"{what} needs --map-height (or a cell policy)")
         v = _floats(text, 2, 3 if with_heading else 2, what)
-        x, y = robot.cell_center_mm(int(v[0]), int(v[1]), height, cell_mm)
+        x, y = robot_spec.cell_center_mm(int(v[0]), int(v[1]), height, cell_mm)
         return x, y, round(v[2] * 3141.5927 / 180) if len(v) > 2 else 0
 
     start = (0, 0, 0)

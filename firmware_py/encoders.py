@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 TWO_PI_MRAD = 6283  # 2*pi in milliradians, rounded
 
@@ -34,15 +34,15 @@ class SectorEncoder:
     """Goal-bearing sector x binned ranges of selected sensor sectors."""
 
     bearing_sectors: int = 8
-    sensors: tuple[int, ...] = (0, 1, 2, 6, 7)  # indices into robot.SENSOR_ANGLES_MRAD
+    sensors: tuple[int, ...] = (0, 1, 2, 6, 7)  # indices into robot_spec.SENSOR_ANGLES_MRAD
     range_edges_mm: tuple[int, ...] = (350, 700)  # ascending; len + 1 bins
     kind: str = field(default="sector", init=False)
 
     def __post_init__(self) -> None:
         if self.bearing_sectors < 1:
             raise ValueError("bearing_sectors must be >= 1")
-        if not self.sensors or any(not 0 <= s < robot.SENSOR_COUNT for s in self.sensors):
-            raise ValueError(f"sensor indices must be in 0..{robot.SENSOR_COUNT - 1}")
+        if not self.sensors or any(not 0 <= s < robot_spec.SENSOR_COUNT for s in self.sensors):
+            raise ValueError(f"sensor indices must be in 0..{robot_spec.SENSOR_COUNT - 1}")
         if list(self.range_edges_mm) != sorted(set(self.range_edges_mm)):
             raise ValueError("range_edges_mm must be strictly ascending")
 
@@ -56,12 +56,12 @@ class SectorEncoder:
 
     @property
     def n_actions(self) -> int:
-        return len(robot.ACTION_WHEEL_SPEEDS_MM_S)
+        return len(robot_spec.ACTION_WHEEL_SPEEDS_MM_S)
 
-    def range_bin(self, range_mm: int, status: int = robot.RANGE_VALID) -> int:
-        if status == robot.RANGE_TOO_CLOSE:
+    def range_bin(self, range_mm: int, status: int = robot_spec.RANGE_VALID) -> int:
+        if status == robot_spec.RANGE_TOO_CLOSE:
             return 0
-        if status != robot.RANGE_VALID:  # too far or invalid: nothing seen
+        if status != robot_spec.RANGE_VALID:  # too far or invalid: nothing seen
             return self.nbins - 1
         b = 0
         for edge in self.range_edges_mm:
@@ -76,7 +76,7 @@ class SectorEncoder:
         mult = 1
         nb = self.nbins
         for s in self.sensors:
-            st = robot.RANGE_VALID if status is None else status[s]
+            st = robot_spec.RANGE_VALID if status is None else status[s]
             state += self.range_bin(ranges_mm[s], st) * mult
             mult *= nb
         return bearing_sector(bearing_mrad, self.bearing_sectors) * mult + state
@@ -107,7 +107,7 @@ class CellEncoder:
 
     @property
     def n_actions(self) -> int:
-        return len(robot.CELL_ACTION_DELTAS)
+        return len(robot_spec.CELL_ACTION_DELTAS)
 
     def encode(self, col: int, row: int, goal_index: int = 0) -> int:
         if not (0 <= col < self.width and 0 <= row < self.height and 0 <= goal_index < self.n_goals):

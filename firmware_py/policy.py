@@ -35,7 +35,7 @@ import zlib
 from array import array
 from dataclasses import dataclass
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
 
 # --- format constants ---------------------------------------------------------
@@ -159,7 +159,7 @@ def _read_bounded(path: str | os.PathLike) -> bytes:
 
 
 def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
-    return robot.CELL_ACTION_DELTAS if kind == KIND_CELL else robot.ACTION_WHEEL_SPEEDS_MM_S
+    return robot_spec.CELL_ACTION_DELTAS if kind == KIND_CELL else robot_spec.ACTION_WHEEL_SPEEDS_MM_S
 
 
 def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int):
@@ -226,7 +226,7 @@ def _declared_size(header_size: int, flags: int, dtype: int, n_actions: int, n_s
 
 
 def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike,
-                expect_sensors: int = robot.SENSOR_COUNT) -> Policy:
+                expect_sensors: int = robot_spec.SENSOR_COUNT) -> Policy:
     """Validate and load a `.qtab` file (a path, or the file's bytes).
 
     `expect_sensors` is the robot's range-sensor count; sector policies using
@@ -326,18 +326,18 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals, cell_mm: int) -> 
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
         out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
-        actions = robot.ACTION_WHEEL_SPEEDS_MM_S
+        actions = robot_spec.ACTION_WHEEL_SPEEDS_MM_S
     else:
         if len(goals) != encoder.n_goals:
             raise ValueError(f"{len(goals)} goal cells for an encoder with {encoder.n_goals} goals")
         out = _CELL_HEAD.pack(encoder.width, encoder.height, encoder.n_goals, cell_mm)
         out += b"".join(_GOAL.pack(int(c), int(r)) for c, r in goals)
-        actions = robot.CELL_ACTION_DELTAS
+        actions = robot_spec.CELL_ACTION_DELTAS
     return out + b"".join(_PAIR.pack(*a) for a in actions)
 
 
 def dump_policy(encoder: CellEncoder | SectorEncoder, table: array, dtype: str, scale: float, *,
-                state_scales: array | None = None, goals=(), cell_mm: int = robot.DEFAULT_CELL_SIZE_MM,
+                state_scales: array | None = None, goals=(), cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM,
                 metadata: dict | None = None, policy_id: int | None = None,
                 created: int | None = None) -> bytes:
     """Serialise an int table (flat `array`, row-major by state) to `.qtab` bytes.

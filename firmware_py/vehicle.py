@@ -1,6 +1,6 @@
 """The seam between the controller and the robot's MAVLink node.
 
-The controller (`firmware_py.controller`) implements `VehicleControl`; the
+The controller (`firmware_py.control.controller`) implements `VehicleControl`; the
 MAVLink node (params, commands, missions, telemetry, FTP activation) only
 talks to the vehicle through it. Both sides share `VehicleConfig` (the
 tunables the parameter table maps onto) and the enums below.
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Protocol
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 
 class Mode(IntEnum):
@@ -48,18 +48,18 @@ class FailsafeAction(IntEnum):
 class VehicleConfig:
     """Controller tunables; every field is a MAVLink parameter (see params)."""
 
-    control_rate_hz: int = robot.CONTROL_RATE_HZ
+    control_rate_hz: int = robot_spec.CONTROL_RATE_HZ
     sensor_timeout_ms: int = 250
     motor_timeout_ms: int = 200
-    max_wheel_speed_mm_s: int = robot.MAX_WHEEL_SPEED_MM_S
+    max_wheel_speed_mm_s: int = robot_spec.MAX_WHEEL_SPEED_MM_S
     speed_scale_pct: int = 100
-    goal_tolerance_mm: int = robot.GOAL_TOLERANCE_MM
+    goal_tolerance_mm: int = robot_spec.GOAL_TOLERANCE_MM
     gcs_timeout_ms: int = 5000
     gcs_failsafe_action: int = FailsafeAction.HOLD
     origin_lat_e7: int = 473_977_420  # a field near Zurich, so ground-station maps show the robot
     origin_lon_e7: int = 85_455_940
     origin_alt_mm: int = 408_000
-    cell_size_mm: int = robot.DEFAULT_CELL_SIZE_MM
+    cell_size_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM
 
 
 @dataclass
@@ -80,8 +80,8 @@ class VehicleStatus:
     goal_mm: tuple[int, int] | None = None
     distance_to_goal_mm: int = 0
     bearing_to_goal_mrad: int = 0  # relative to the heading, CCW positive
-    ranges_mm: list[int] = field(default_factory=lambda: [0] * robot.SENSOR_COUNT)
-    range_status: list[int] = field(default_factory=lambda: [robot.RANGE_INVALID] * robot.SENSOR_COUNT)
+    ranges_mm: list[int] = field(default_factory=lambda: [0] * robot_spec.SENSOR_COUNT)
+    range_status: list[int] = field(default_factory=lambda: [robot_spec.RANGE_INVALID] * robot_spec.SENSOR_COUNT)
     sensors_healthy: bool = False
     motors_healthy: bool = False
     bumper: bool = False

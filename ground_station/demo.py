@@ -55,7 +55,7 @@ ACTIVE_REMOTE_DIR = "/policies"
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 LOCKSTEP_HEARTBEAT_S = 0.05  # wall; ~1-2 s of robot time at the lockstep's 20-35x
 REALTIME_HEARTBEAT_S = 1.0
-LOCKSTEP_GCS_TIMEOUT_MS = 120_000  # FS_GCS_TOUT_MS maximum (firmware_py/params.py)
+LOCKSTEP_GCS_TIMEOUT_MS = 120_000  # FS_GCS_TOUT_MS maximum (firmware_py/mavlink/params.py)
 MAV_MISSION_STATE_COMPLETE = 5
 
 

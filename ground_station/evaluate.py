@@ -197,7 +197,7 @@ def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int
                      names: list[str] | None = None) -> bytes:
     """PNG: per goal, the map with the greedy action of every free cell as an
     arrow (north up, row 0 at the top) and the goal marked."""
-    from firmware_py import robot
+    from firmware_py import robot_spec
     from ground_station.plotting import png_bytes, pyplot
 
     plt = pyplot()
@@ -209,8 +209,8 @@ def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int
     rows = (n + cols - 1) // cols
     size = max(3.0, min(6.0, 40.0 / max(h, w) * 1.0 + 2.5))
     fig, axes = plt.subplots(rows, cols, figsize=(size * cols, size * rows), dpi=100, squeeze=False)
-    dc = np.array([d[0] for d in robot.CELL_ACTION_DELTAS], dtype=float)
-    dr = np.array([d[1] for d in robot.CELL_ACTION_DELTAS], dtype=float)
+    dc = np.array([d[0] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
+    dr = np.array([d[1] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
     free = np.argwhere(~gridmap.occ)  # (row, col)
     for g, (gc, gr) in enumerate(goals):
         ax = axes[g // cols][g % cols]

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_py import policy as fmt
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
@@ -105,7 +105,7 @@ def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder:
 
 
 def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder, *, goals=(),
-                 cell_mm: int = robot.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
+                 cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
                  policy_id: int | None = None, created: int | None = None) -> bytes:
     """`.qtab` bytes for a quantised table (layout from firmware_py.policy)."""
     if qt.table.shape != (encoder.n_states, encoder.n_actions):
@@ -157,7 +157,7 @@ def load_run(run_dir: str | os.PathLike) -> TrainingRun:
     if cell_mm is None and "cell_size_m" in meta:
         cell_mm = round(float(meta["cell_size_m"]) * 1000)
     return TrainingRun(q=q, meta=meta, encoder=encoder, goals=goals,
-                       cell_mm=int(cell_mm or robot.DEFAULT_CELL_SIZE_MM))
+                       cell_mm=int(cell_mm or robot_spec.DEFAULT_CELL_SIZE_MM))
 
 
 def created_time(meta: dict) -> int:

@@ -11,7 +11,7 @@ behind it; with waypoints around the pocket it never has to.
 On the robot this is an ordinary mission (the controller already runs
 mission items in order and advances within `GOAL_TOL_MM`), so the firmware
 does not change. The training twin and the evaluation use the same planner
-and the same acceptance radius (`robot.GOAL_TOLERANCE_MM`) for every item.
+and the same acceptance radius (`robot_spec.GOAL_TOLERANCE_MM`) for every item.
 
 Plan: descend the octile distance field of the goal
 (`ground_station.maps.octile_distances`, 8-connected, no corner cutting)
@@ -33,7 +33,7 @@ import math
 import numba
 import numpy as np
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from ground_station.maps import GridMap, MapError, octile_distances
 
 DEFAULT_MARGIN_MM = 75  # extra clearance of a pruned segment beyond the robot's radius
@@ -42,7 +42,7 @@ DEFAULT_MARGIN_MM = 75  # extra clearance of a pruned segment beyond the robot's
 # and drift sideways ~7 % of a segment's length; 1 m keeps that well inside
 # the 100 mm a one-cell corridor leaves beside the disc. 0 = no limit.
 DEFAULT_MAX_SEGMENT_MM = 1000
-ACCEPT_RADIUS_MM = robot.GOAL_TOLERANCE_MM  # the controller advances a mission item inside this
+ACCEPT_RADIUS_MM = robot_spec.GOAL_TOLERANCE_MM  # the controller advances a mission item inside this
 _TIE = 1e-3  # distance fields are float32 in the trainer: equal within this
 
 
@@ -228,7 +228,7 @@ def remaining_lengths(wps, n: int, rem) -> None:
 
 
 def clearance_mm(margin_mm: float) -> float:
-    return float(robot.ROBOT_RADIUS_MM) + float(margin_mm)
+    return float(robot_spec.ROBOT_RADIUS_MM) + float(margin_mm)
 
 
 def guidance_from_metadata(meta: dict) -> dict:

@@ -88,7 +88,7 @@ class Link:
         self.url = url
         self.key: bytes | None = None
         if signing_key is not None:
-            from firmware_py.signing import load_key_file
+            from firmware_py.mavlink.signing import load_key_file
 
             self.key = load_key_file(signing_key)
             self.conn.setup_signing(self.key, sign_outgoing=True, allow_unsigned_callback=None)

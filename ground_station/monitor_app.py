@@ -19,7 +19,7 @@ from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Footer, Header, Static
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from ground_station.monitor_sources import MessageSource
 from ground_station.telemetry_model import VehicleView
 
@@ -33,7 +33,7 @@ def heading_arrow(heading: float) -> str:
 
 def _cell_of(x: float, y: float, height: int, cell_m: float) -> tuple[int, int]:
     cell_mm = int(round(cell_m * 1000))
-    return robot.world_to_cell(int(math.floor(x * 1000)), int(math.floor(y * 1000)), height, cell_mm)
+    return robot_spec.world_to_cell(int(math.floor(x * 1000)), int(math.floor(y * 1000)), height, cell_mm)
 
 
 def render_map(view: VehicleView, grid_map=None) -> Text:
@@ -46,7 +46,7 @@ def render_map(view: VehicleView, grid_map=None) -> Text:
         cell_m = grid_map.cell_size_m
         targets = {pos: name for name, pos in grid_map.targets.items()}
     else:  # no map: a blank field around what we know, 0.5 m cells
-        occ, cell_m, targets = None, robot.DEFAULT_CELL_SIZE_MM / 1000, {}
+        occ, cell_m, targets = None, robot_spec.DEFAULT_CELL_SIZE_MM / 1000, {}
         xs = [p[0] for p in view.trail] + ([view.x] if view.x is not None else [])
         ys = [p[1] for p in view.trail] + ([view.y] if view.y is not None else [])
         width = max(10, int(math.ceil(max(xs, default=0) / cell_m)) + 1)

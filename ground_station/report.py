@@ -32,7 +32,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
 from firmware_py.vehicle import CtrlState, Mode
 from ground_station.telemetry_model import NV_ACTION, VehicleView
@@ -162,7 +162,7 @@ def _target_name(xy: tuple[float, float], grid_map) -> str | None:
     if grid_map is None:
         return None
     cell_mm = int(round(grid_map.cell_size_m * 1000))
-    cell = robot.world_to_cell(int(math.floor(xy[0] * 1000)), int(math.floor(xy[1] * 1000)), grid_map.height, cell_mm)
+    cell = robot_spec.world_to_cell(int(math.floor(xy[0] * 1000)), int(math.floor(xy[1] * 1000)), grid_map.height, cell_mm)
     return next((n for n, pos in grid_map.targets.items() if pos == cell), None)
 
 
@@ -220,7 +220,7 @@ def _timing(rec: RunRecord) -> dict:
             "source": "SYS_STATUS load (robot CPU) and errors_count2 (tick overruns); "
                       "per-tick times are not sent by the robot",
             "samples": n, "mean_load_pct": round(sum(vals) / n, 2), "p50_load_pct": vals[n // 2],
-            "max_load_pct": vals[-1], "control_period_us": robot.CONTROL_PERIOD_US,
+            "max_load_pct": vals[-1], "control_period_us": robot_spec.CONTROL_PERIOD_US,
             "tick_overruns": last - first if last >= first else last, "tick_overruns_total": last}
 
 
@@ -248,7 +248,7 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
             ax.imshow(grid_map.occ, cmap="Greys", origin="upper", vmin=0, vmax=1.4,
                       extent=(0, grid_map.width * c, 0, grid_map.height * c))
             for name, (col, row) in grid_map.targets.items():
-                x, y = (v / 1000 for v in robot.cell_center_mm(col, row, grid_map.height, int(round(c * 1000))))
+                x, y = (v / 1000 for v in robot_spec.cell_center_mm(col, row, grid_map.height, int(round(c * 1000))))
                 ax.plot(x, y, "s", color="gold", ms=12, mec="k")
                 ax.annotate(name, (x, y), ha="center", va="center", fontweight="bold")
         for seq, (x, y) in sorted(rec.view.mission.items.items()):
@@ -286,8 +286,8 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
         fig, ax = plt.subplots(figsize=(5, 3.5))
         keys = sorted(set(rec.actions))
         ax.bar([str(k) for k in keys], [rec.actions.count(k) for k in keys], color="tab:purple")
-        ax.set_xlabel("action index (sector: " + ", ".join(robot.ACTION_NAMES)
-                      + "; cell: " + ", ".join(robot.CELL_ACTION_NAMES) + ")", fontsize=7)
+        ax.set_xlabel("action index (sector: " + ", ".join(robot_spec.ACTION_NAMES)
+                      + "; cell: " + ", ".join(robot_spec.CELL_ACTION_NAMES) + ")", fontsize=7)
         ax.set_ylabel("telemetry samples")
         ax.set_title("actions")
         save("actions", fig)
@@ -305,7 +305,7 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
                  label="tick overruns")
         ax2.set_ylabel("tick overruns (cumulative)")
         ax2.set_ylim(bottom=0, top=max(1, max(v for _, v in rec.overruns)) * 1.2)
-        ax.set_title(f"control loop ({robot.CONTROL_RATE_HZ} Hz): load and overruns (SYS_STATUS)")
+        ax.set_title(f"control loop ({robot_spec.CONTROL_RATE_HZ} Hz): load and overruns (SYS_STATUS)")
         fig.legend(loc="upper left", bbox_to_anchor=(0.0, 1.0), bbox_transform=ax.transAxes, fontsize=8)
         save("timing", fig)
     else:

@@ -32,7 +32,7 @@ import math
 import numba
 import numpy as np
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from ground_station.guidance import plan_into, remaining_lengths
 from ground_station.jit_common import greedy, rand01, randint
 from ground_station.sector_twin import (
@@ -53,9 +53,9 @@ from ground_station.sector_twin import (
 # fastest forward travel in one control period (the step budget's unit)
 FWD_MM_PER_PERIOD = float(np.max(ACTION_V_MM_S)) * N_SUBSTEPS * SUB_DT_S
 
-REVERSE = 3  # index of `reverse` in robot.ACTION_NAMES (asserted in tests)
-RANGE_VALID_, RANGE_TOO_CLOSE_, RANGE_TOO_FAR_ = robot.RANGE_VALID, robot.RANGE_TOO_CLOSE, robot.RANGE_TOO_FAR
-RANGE_MIN_, RANGE_MAX_ = robot.RANGE_MIN_MM, robot.RANGE_MAX_MM
+REVERSE = 3  # index of `reverse` in robot_spec.ACTION_NAMES (asserted in tests)
+RANGE_VALID_, RANGE_TOO_CLOSE_, RANGE_TOO_FAR_ = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE, robot_spec.RANGE_TOO_FAR
+RANGE_MIN_, RANGE_MAX_ = robot_spec.RANGE_MIN_MM, robot_spec.RANGE_MAX_MM
 
 # episode-state slots (float64 array carried between chunks)
 (E_ACTIVE, E_MAP, E_X, E_Y, E_TH, E_GOAL, E_GX, E_GY, E_T, E_RET, E_S, E_PHI,

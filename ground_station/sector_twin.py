@@ -1,13 +1,13 @@
 """Kinematic twin of the robot on an occupancy grid, jitted (numba).
 
 Owns the continuous-pose physics the `sector` encoding trains on: a disc of
-`robot.ROBOT_RADIUS_MM` driven by the action -> wheel-speed table for one
+`robot_spec.ROBOT_RADIUS_MM` driven by the action -> wheel-speed table for one
 control period, exact collision against obstacle cells and the map border,
 range sensors cast on the grid, and a jitted copy of the reference
 `firmware_py.encoders.SectorEncoder.encode` (tests prove it equals the
 reference).
 
-Conventions (all from `firmware_py.robot`): world x east along columns, y
+Conventions (all from `firmware_py.robot_spec`): world x east along columns, y
 north, map row 0 is the northernmost row; heading counter-clockwise from +x.
 Lengths are float millimetres, angles radians, except the encoder inputs
 (int mm, int mrad) which are what the robot sees.
@@ -35,28 +35,28 @@ import math
 import numba
 import numpy as np
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
-N_ACTIONS = len(robot.ACTION_WHEEL_SPEEDS_MM_S)
-ACTION_V_MM_S = np.array([(lw + rw) / 2.0 for lw, rw in robot.ACTION_WHEEL_SPEEDS_MM_S])
-ACTION_W_RAD_S = np.array([(rw - lw) / robot.WHEEL_BASE_MM for lw, rw in robot.ACTION_WHEEL_SPEEDS_MM_S])
-N_SUBSTEPS = robot.CONTROL_PERIOD_US // robot.PHYSICS_DT_US
-SUB_DT_S = robot.PHYSICS_DT_US / 1e6
-RADIUS_MM = float(robot.ROBOT_RADIUS_MM)
-MOUNT_MM = float(robot.SENSOR_MOUNT_RADIUS_MM)
-SENSOR_ANGLES_RAD = np.array(robot.SENSOR_ANGLES_MRAD, dtype=np.float64) / 1000.0
-if robot.SENSOR_FAN_RAYS > 1:
-    FAN_OFFSETS_RAD = (np.arange(robot.SENSOR_FAN_RAYS) / (robot.SENSOR_FAN_RAYS - 1) - 0.5) * (
-        robot.SENSOR_FOV_MRAD / 1000.0)
+N_ACTIONS = len(robot_spec.ACTION_WHEEL_SPEEDS_MM_S)
+ACTION_V_MM_S = np.array([(lw + rw) / 2.0 for lw, rw in robot_spec.ACTION_WHEEL_SPEEDS_MM_S])
+ACTION_W_RAD_S = np.array([(rw - lw) / robot_spec.WHEEL_BASE_MM for lw, rw in robot_spec.ACTION_WHEEL_SPEEDS_MM_S])
+N_SUBSTEPS = robot_spec.CONTROL_PERIOD_US // robot_spec.PHYSICS_DT_US
+SUB_DT_S = robot_spec.PHYSICS_DT_US / 1e6
+RADIUS_MM = float(robot_spec.ROBOT_RADIUS_MM)
+MOUNT_MM = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
+SENSOR_ANGLES_RAD = np.array(robot_spec.SENSOR_ANGLES_MRAD, dtype=np.float64) / 1000.0
+if robot_spec.SENSOR_FAN_RAYS > 1:
+    FAN_OFFSETS_RAD = (np.arange(robot_spec.SENSOR_FAN_RAYS) / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (
+        robot_spec.SENSOR_FOV_MRAD / 1000.0)
 else:
     FAN_OFFSETS_RAD = np.zeros(1)
 _SENS_COS = np.cos(SENSOR_ANGLES_RAD)
 _SENS_SIN = np.sin(SENSOR_ANGLES_RAD)
 _RAY_COS = np.cos(SENSOR_ANGLES_RAD[:, None] + FAN_OFFSETS_RAD[None, :])
 _RAY_SIN = np.sin(SENSOR_ANGLES_RAD[:, None] + FAN_OFFSETS_RAD[None, :])
-RANGE_MIN = robot.RANGE_MIN_MM
-RANGE_MAX = robot.RANGE_MAX_MM
-GOAL_TOL_MM = float(robot.GOAL_TOLERANCE_MM)
+RANGE_MIN = robot_spec.RANGE_MIN_MM
+RANGE_MAX = robot_spec.RANGE_MAX_MM
+GOAL_TOL_MM = float(robot_spec.GOAL_TOLERANCE_MM)
 TWO_PI_MRAD = 6283  # the reference encoder's 2*pi; asserted equal in the tests
 # Largest distance the disc centre can travel in one control period (any action).
 MAX_MOVE_MM = float(np.max(np.abs(ACTION_V_MM_S))) * N_SUBSTEPS * SUB_DT_S + 1e-6
@@ -196,10 +196,10 @@ def ray_cast_dir(occ, h: int, w: int, cell: float, ox: float, oy: float, cx: flo
 @numba.njit(cache=True)
 def _reading(d: float):
     if d < RANGE_MIN:
-        return RANGE_MIN, robot.RANGE_TOO_CLOSE
+        return RANGE_MIN, robot_spec.RANGE_TOO_CLOSE
     if d > RANGE_MAX:
-        return RANGE_MAX, robot.RANGE_TOO_FAR
-    return int(math.floor(d + 0.5)), robot.RANGE_VALID
+        return RANGE_MAX, robot_spec.RANGE_TOO_FAR
+    return int(math.floor(d + 0.5)), robot_spec.RANGE_VALID
 
 
 @numba.njit(cache=True)
@@ -289,9 +289,9 @@ def encode_fast(bearing_mrad: int, ranges, status, sectors: int, sensors, edges)
     for j in range(sensors.shape[0]):
         s = sensors[j]
         st = status[s]
-        if st == robot.RANGE_TOO_CLOSE:
+        if st == robot_spec.RANGE_TOO_CLOSE:
             b = 0
-        elif st != robot.RANGE_VALID:
+        elif st != robot_spec.RANGE_VALID:
             b = nb - 1
         else:
             b = 0
@@ -308,7 +308,7 @@ def encoder_arrays(encoder) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     kernels take them, from a `SectorEncoder`."""
     sensors = np.asarray(encoder.sensors, dtype=np.int64)
     edges = np.asarray(encoder.range_edges_mm, dtype=np.int64)
-    which = np.zeros(robot.SENSOR_COUNT, dtype=np.bool_)
+    which = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.bool_)
     which[sensors] = True
     return int(encoder.bearing_sectors), sensors, edges, which
 

@@ -8,7 +8,7 @@ line and `qnav report` all read the same view, and tests drive it with
 pymavlink-encoded messages.
 
 Frames: MAVLink LOCAL_POSITION_NED has x north, y east; the view stores
-positions in the project's world frame (`firmware_py.robot`: x east, y north,
+positions in the project's world frame (`firmware_py.robot_spec`: x east, y north,
 metres) and headings counter-clockwise from east (radians).
 """
 
@@ -21,17 +21,17 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py import mav_frames
+from firmware_py.mavlink import frames as mav_frames
 from firmware_py.vehicle import CtrlState, Mode
 
-# NAMED_VALUE_INT names the robot's telemetry uses (firmware_py/telemetry.py):
+# NAMED_VALUE_INT names the robot's telemetry uses (firmware_py/mavlink/telemetry.py):
 # the controller state (CtrlState), the encoder's state index, the chosen
 # action and that state's int Q-row as Q0..Qn.
 NV_CTRL_STATE = "CTRL_ST"
 NV_STATE_INDEX = "STATE_IDX"
 NV_ACTION = "ACTION"
 _QROW_RE = re.compile(r"^Q(\d+)$")
-POLICY_PARAM = "POLICY_ID"  # read-only parameter (firmware_py/params.py)
+POLICY_PARAM = "POLICY_ID"  # read-only parameter (firmware_py/mavlink/params.py)
 
 MODE_NAMES = {m.value: m.name.capitalize() for m in Mode}
 CTRL_NAMES = {s.value: s.name for s in CtrlState}
@@ -57,7 +57,7 @@ class LinkHealth:
     lost: int = 0  # frames missing from sequence gaps
     signed_frames: int = 0  # frames carrying a signature block
     verified_frames: int = 0  # frames whose signature our key verified
-    # the robot's own counters (SYS_STATUS, as firmware_py/telemetry.py fills it)
+    # the robot's own counters (SYS_STATUS, as firmware_py/mavlink/telemetry.py fills it)
     drop_rate_comm_pct: float = 0.0  # frames the robot dropped / received
     rx_dropped: int = 0  # errors_comm: signing drops + unparseable frames
     can_errors: int = 0  # errors_count1

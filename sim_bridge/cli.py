@@ -73,7 +73,7 @@ def parse_start(text: str) -> tuple[float, float, float]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from firmware_py import robot
+    from firmware_py import robot_spec
     from firmware_py.canbus import CanSpecError, open_bus
     from ground_station.maps import MapError, load_map
     from sim_bridge.motors import MotorParams
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.log:
             log = CanLog(args.log)
-        ticks = math.ceil(args.duration * 1e6 / robot.CONTROL_PERIOD_US)
+        ticks = math.ceil(args.duration * 1e6 / robot_spec.CONTROL_PERIOD_US)
         mode = "lockstep" if speed is None else f"paced x{speed:g}"
         print(f"qnav-sim: {gm.name} ({gm.width}x{gm.height}, {gm.cell_size_m:g} m cells), "
               f"{mode}, bus {args.can or 'python-can default'}", file=sys.stderr)

@@ -15,14 +15,14 @@ import math
 from dataclasses import dataclass
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 
 
 @dataclass(frozen=True)
 class MotorParams:
     time_constant_s: float = 0.05
     accel_limit_mm_s2: float = 3000.0
-    speed_limit_mm_s: int = robot.MAX_WHEEL_SPEED_MM_S
+    speed_limit_mm_s: int = robot_spec.MAX_WHEEL_SPEED_MM_S
     watchdog_ms: int = 200  # DroneCAN ESC_CMD_TIMO default
     stall_min_speed_mm_s: float = 50.0
     stall_ratio: float = 0.25  # ground speed below this fraction of wheel speed ...
@@ -35,8 +35,8 @@ class MotorDriver:
     def __init__(self, params: MotorParams = MotorParams()) -> None:
         if params.watchdog_ms <= 0:
             raise ValueError(f"watchdog must be positive, got {params.watchdog_ms} ms")
-        if not 0 < params.speed_limit_mm_s <= robot.MAX_WHEEL_SPEED_MM_S:
-            raise ValueError(f"speed limit must be in (0, {robot.MAX_WHEEL_SPEED_MM_S}] mm/s, "
+        if not 0 < params.speed_limit_mm_s <= robot_spec.MAX_WHEEL_SPEED_MM_S:
+            raise ValueError(f"speed limit must be in (0, {robot_spec.MAX_WHEEL_SPEED_MM_S}] mm/s, "
                              f"got {params.speed_limit_mm_s}")
         if params.time_constant_s <= 0 or params.accel_limit_mm_s2 <= 0:
             raise ValueError("motor time constant and acceleration limit must be positive")

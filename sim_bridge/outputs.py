@@ -68,8 +68,7 @@ def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, floa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from firmware_py import robot
-
+    from firmware_py import robot_spec
     world = plant.world
     w_m, h_m = world.size_m
     fig, ax = plt.subplots(figsize=(7, 7 * h_m / w_m + 0.4), dpi=110)
@@ -80,8 +79,8 @@ def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, floa
     ax.plot(*traj[0], "o", color="tab:green", label="start")
     pose = world.pose
     ax.add_patch(plt.Circle((pose.x, pose.y), world.radius_m, fill=False, color="tab:blue"))
-    colours = {robot.RANGE_VALID: "tab:orange", robot.RANGE_TOO_CLOSE: "tab:red",
-               robot.RANGE_TOO_FAR: "0.6", robot.RANGE_INVALID: "tab:purple"}
+    colours = {robot_spec.RANGE_VALID: "tab:orange", robot_spec.RANGE_TOO_CLOSE: "tab:red",
+               robot_spec.RANGE_TOO_FAR: "0.6", robot_spec.RANGE_INVALID: "tab:purple"}
     for (x0, y0), (x1, y1), status in plant.ranges.last_rays:
         ax.plot([x0, x1], [y0, y1], "-", color=colours[status], lw=0.8)
     for name, (gx, gy) in (goals or {}).items():

@@ -3,7 +3,7 @@
 `Plant` is the core, free of I/O: `tick_frames()` samples every sensor at the
 current sim time and returns the frames of one control tick (SimTick last),
 `handle(msg)` applies a received frame, `step_period()` advances physics by
-one control period in fixed `robot.PHYSICS_DT_US` steps. `run_lockstep` and
+one control period in fixed `robot_spec.PHYSICS_DT_US` steps. `run_lockstep` and
 `run_paced` are the thin shells that move frames over a python-can bus; the
 lockstep handshake is specified in docs/can-protocol.md.
 
@@ -21,12 +21,12 @@ import can
 import numpy as np
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 from sim_bridge.motors import MotorDriver, MotorParams
 from sim_bridge.sensors import RangeParams, RangeSensors, WheelEncoders, bumper_signals
 from sim_bridge.world import BodyParams, Pose, World
 
-STEPS_PER_TICK = robot.CONTROL_PERIOD_US // robot.PHYSICS_DT_US
+STEPS_PER_TICK = robot_spec.CONTROL_PERIOD_US // robot_spec.PHYSICS_DT_US
 TRAJECTORY_FIELDS = ("t_s", "tick", "x_m", "y_m", "heading_rad", "wheel_left_mm_s",
                      "wheel_right_mm_s", "cmd_left_mm_s", "cmd_right_mm_s", "bumper")
 
@@ -38,7 +38,7 @@ class LockstepError(RuntimeError):
 @dataclass
 class SimConfig:
     seed: int = 0
-    cell_size_m: float = robot.DEFAULT_CELL_SIZE_MM / 1000
+    cell_size_m: float = robot_spec.DEFAULT_CELL_SIZE_MM / 1000
     ranges: RangeParams = field(default_factory=RangeParams)
     motors: MotorParams = field(default_factory=MotorParams)
     body: BodyParams = field(default_factory=BodyParams)
@@ -133,7 +133,7 @@ class Plant:
     # --- physics ---------------------------------------------------------------
     def step_period(self) -> None:
         """Advance one control period in fixed physics steps, then record the pose."""
-        dt_us = robot.PHYSICS_DT_US
+        dt_us = robot_spec.PHYSICS_DT_US
         dt_s = dt_us / 1e6
         world, motors, encoders = self.world, self.motors, self.encoders
         for _ in range(STEPS_PER_TICK):
@@ -234,7 +234,7 @@ def run_paced(plant: Plant, bus: can.BusABC, duration_s: float, speed: float = 1
     t0 = time.perf_counter()
     while plant.time_us < end_us:
         io.send(plant.tick_frames())
-        wake = t0 + (plant.time_us + robot.CONTROL_PERIOD_US) / 1e6 / speed
+        wake = t0 + (plant.time_us + robot_spec.CONTROL_PERIOD_US) / 1e6 / speed
         while True:
             remaining = wake - time.perf_counter()
             if remaining <= 0:

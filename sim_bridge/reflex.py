@@ -17,9 +17,9 @@ import threading
 import can
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 
-FRONT_SENSORS = (0, 1, robot.SENSOR_COUNT - 1)
+FRONT_SENSORS = (0, 1, robot_spec.SENSOR_COUNT - 1)
 
 
 class ReflexDriver:
@@ -44,10 +44,10 @@ class ReflexDriver:
             return [self.last_answer]  # retransmitted tick: same answer, no new step
         self.sim_time_us = sig["Tick_SimTimeUs"]
         blocked = any(
-            status == robot.RANGE_TOO_CLOSE or (status == robot.RANGE_VALID and mm < self.stop_mm)
-            for mm, status in (self.ranges.get(i, (0, robot.RANGE_TOO_FAR)) for i in FRONT_SENSORS))
+            status == robot_spec.RANGE_TOO_CLOSE or (status == robot_spec.RANGE_VALID and mm < self.stop_mm)
+            for mm, status in (self.ranges.get(i, (0, robot_spec.RANGE_TOO_FAR)) for i in FRONT_SENSORS))
         action = 1 if blocked else 0  # turn_left / forward
-        left, right = robot.ACTION_WHEEL_SPEEDS_MM_S[action]
+        left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[action]
         self.last_tick = tick
         self.last_answer = cp.motor_command(left, right, tick)
         self.ticks += 1

@@ -1,7 +1,7 @@
 """Simulated range sensors, wheel encoders and bumper ring.
 
-Range sensors: one sensor per sector at robot.SENSOR_ANGLES_MRAD, each a fan
-of rays spread over robot.SENSOR_FOV_MRAD, cast with pymunk's
+Range sensors: one sensor per sector at robot_spec.SENSOR_ANGLES_MRAD, each a fan
+of rays spread over robot_spec.SENSOR_FOV_MRAD, cast with pymunk's
 `segment_query_first` and a ShapeFilter that excludes the robot. Rays start at
 the robot's centre (never inside a wall, unlike the rim when touching one) and
 the reading is the nearest hit minus the robot radius: the distance from the
@@ -9,7 +9,7 @@ sensor face on the rim. Seeded Gaussian noise and dropout; readings below
 RANGE_MIN_MM or beyond RANGE_MAX_MM are flagged as DroneCAN does.
 
 Encoders integrate each wheel's ground speed (from the body's motion) into
-ticks at robot.ENCODER_TICKS_PER_REV, with optional seeded slip. The bumper
+ticks at robot_spec.ENCODER_TICKS_PER_REV, with optional seeded slip. The bumper
 reads the contacts kept by the world's collision handlers.
 
 Every random draw comes from one seeded `random.Random` in a fixed order, so
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import pymunk
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 from sim_bridge.world import ROBOT_CATEGORY, World
 
 
@@ -52,11 +52,11 @@ class RangeSensors:
         self.p = params
         self.rng = rng
         self.filter = pymunk.ShapeFilter(mask=pymunk.ShapeFilter.ALL_MASKS() ^ ROBOT_CATEGORY)
-        fov = robot.SENSOR_FOV_MRAD / 1000
+        fov = robot_spec.SENSOR_FOV_MRAD / 1000
         n = params.fan_rays
         offsets = [0.0] if n == 1 else [-fov / 2 + fov * j / (n - 1) for j in range(n)]
-        self.directions = [[a / 1000 + o for o in offsets] for a in robot.SENSOR_ANGLES_MRAD]
-        self.reach_m = world.radius_m + robot.RANGE_MAX_MM / 1000 + 0.05
+        self.directions = [[a / 1000 + o for o in offsets] for a in robot_spec.SENSOR_ANGLES_MRAD]
+        self.reach_m = world.radius_m + robot_spec.RANGE_MAX_MM / 1000 + 0.05
         self.last_rays: list[tuple[tuple[float, float], tuple[float, float], int]] = []
         self._geometry: list[tuple[tuple[float, float], tuple[float, float]]] = []
 
@@ -97,13 +97,13 @@ class RangeSensors:
             drop = self.rng.random() < self.p.dropout
             noise = self.rng.gauss(0.0, self.p.noise_std_mm) if self.p.noise_std_mm > 0 else 0.0
             if drop:
-                reading = (0, robot.RANGE_INVALID)
-            elif dist is None or dist + noise > robot.RANGE_MAX_MM:
-                reading = (robot.RANGE_MAX_MM, robot.RANGE_TOO_FAR)
-            elif dist + noise < robot.RANGE_MIN_MM:
-                reading = (robot.RANGE_MIN_MM, robot.RANGE_TOO_CLOSE)
+                reading = (0, robot_spec.RANGE_INVALID)
+            elif dist is None or dist + noise > robot_spec.RANGE_MAX_MM:
+                reading = (robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)
+            elif dist + noise < robot_spec.RANGE_MIN_MM:
+                reading = (robot_spec.RANGE_MIN_MM, robot_spec.RANGE_TOO_CLOSE)
             else:
-                reading = (round(dist + noise), robot.RANGE_VALID)
+                reading = (round(dist + noise), robot_spec.RANGE_VALID)
             readings.append(reading)
             rays.append((ray[0], ray[1], reading[1]))
         self.last_rays = rays
@@ -119,7 +119,7 @@ class WheelEncoders:
         self.world = world
         self.rng = rng
         self.slip_std = slip_std
-        self.ticks_per_m = robot.ENCODER_TICKS_PER_REV / (2 * math.pi * robot.WHEEL_RADIUS_MM / 1000)
+        self.ticks_per_m = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM / 1000)
         self.ticks = [0.0, 0.0]
 
     def integrate(self, dt_s: float) -> None:

@@ -8,7 +8,7 @@ finite max_force) plus a `GearJoint` pull the robot after it. The solver then
 stops the robot at walls at any commanded speed; setting the body's velocity
 directly would tunnel through them.
 
-Units are SI (metres, seconds, radians); the world frame is robot.py's:
+Units are SI (metres, seconds, radians); the world frame is robot_spec.py's:
 x east along columns, y north, map row 0 is the northernmost row.
 """
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 ROBOT_TYPE = 1  # collision types
 WALL_TYPE = 2
@@ -45,7 +45,7 @@ class BodyParams:
 class World:
     """pymunk space with the map's obstacles and one differential-drive robot."""
 
-    def __init__(self, occ: np.ndarray, cell_size_m: float = robot.DEFAULT_CELL_SIZE_MM / 1000,
+    def __init__(self, occ: np.ndarray, cell_size_m: float = robot_spec.DEFAULT_CELL_SIZE_MM / 1000,
                  start: Pose | None = None, body: BodyParams = BodyParams()) -> None:
         occ = np.asarray(occ, dtype=bool)
         if occ.ndim != 2 or occ.size == 0:
@@ -56,8 +56,8 @@ class World:
         self.cell_size_m = float(cell_size_m)
         self.height, self.width = occ.shape
         self.size_m = (self.width * self.cell_size_m, self.height * self.cell_size_m)
-        self.radius_m = robot.ROBOT_RADIUS_MM / 1000
-        self.half_base_m = robot.WHEEL_BASE_MM / 2000
+        self.radius_m = robot_spec.ROBOT_RADIUS_MM / 1000
+        self.half_base_m = robot_spec.WHEEL_BASE_MM / 2000
 
         space = pymunk.Space()
         space.gravity = (0.0, 0.0)

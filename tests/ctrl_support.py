@@ -8,12 +8,12 @@ import math
 from array import array
 from collections import deque
 
-from firmware_py import robot
-from firmware_py.controller import Controller, Inputs
+from firmware_py import robot_spec
+from firmware_py.control.controller import Controller, Inputs
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import Policy, dump_policy, load_policy
 
-TICKS_PER_MM = robot.ENCODER_TICKS_PER_REV / (2 * math.pi * robot.WHEEL_RADIUS_MM)
+TICKS_PER_MM = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM)
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)
 UP, DOWN, LEFT, RIGHT = range(4)
 
@@ -38,7 +38,7 @@ def bfs(lines: list[str], goal: tuple[int, int]) -> dict[tuple[int, int], int]:
     q = deque([goal])
     while q:
         c, r = q.popleft()
-        for dc, dr in robot.CELL_ACTION_DELTAS:
+        for dc, dr in robot_spec.CELL_ACTION_DELTAS:
             n = (c + dc, r + dr)
             if 0 <= n[0] < w and 0 <= n[1] < h and lines[n[1]][n[0]] == "." and n not in dist:
                 dist[n] = dist[(c, r)] + 1
@@ -56,7 +56,7 @@ def cell_bfs_policy(lines: list[str], goals: list[tuple[int, int]], cell_mm: int
         dist = bfs(lines, goal)
         for (c, r) in dist:
             s = enc.encode(c, r, gi)
-            for a, (dc, dr) in enumerate(robot.CELL_ACTION_DELTAS):
+            for a, (dc, dr) in enumerate(robot_spec.CELL_ACTION_DELTAS):
                 n = (c + dc, r + dr)
                 if n in dist:
                     vals[s * enc.n_actions + a] = max(-126, -dist[n])
@@ -75,7 +75,7 @@ class Kinematic:
         n = 10
         for _ in range(n):
             dl, dr = left * dt_s / n, right * dt_s / n
-            ds, dth = (dl + dr) / 2, (dr - dl) / robot.WHEEL_BASE_MM
+            ds, dth = (dl + dr) / 2, (dr - dl) / robot_spec.WHEEL_BASE_MM
             self.x += ds * math.cos(self.th + dth / 2)
             self.y += ds * math.sin(self.th + dth / 2)
             self.th += dth
@@ -86,10 +86,10 @@ class Kinematic:
         return round(self.left_mm * TICKS_PER_MM), round(self.right_mm * TICKS_PER_MM)
 
 
-def fresh_inputs(plant: Kinematic, t_us: int, ranges_mm: int = robot.RANGE_MAX_MM) -> Inputs:
+def fresh_inputs(plant: Kinematic, t_us: int, ranges_mm: int = robot_spec.RANGE_MAX_MM) -> Inputs:
     inp = Inputs()
-    inp.ranges_mm = [ranges_mm] * robot.SENSOR_COUNT
-    inp.range_status = [robot.RANGE_TOO_FAR if ranges_mm >= robot.RANGE_MAX_MM else robot.RANGE_VALID] * robot.SENSOR_COUNT
+    inp.ranges_mm = [ranges_mm] * robot_spec.SENSOR_COUNT
+    inp.range_status = [robot_spec.RANGE_TOO_FAR if ranges_mm >= robot_spec.RANGE_MAX_MM else robot_spec.RANGE_VALID] * robot_spec.SENSOR_COUNT
     inp.ranges_us = [t_us, t_us]
     inp.enc_left, inp.enc_right = plant.counts()
     inp.enc_us = t_us
@@ -116,8 +116,8 @@ class Rig:
         self.commands.append(out.motor)
         if out.motor is not None:
             self.last_motor = out.motor
-            self.plant.step(out.motor.left_mm_s, out.motor.right_mm_s, robot.CONTROL_PERIOD_US / 1e6)
-        self.t += robot.CONTROL_PERIOD_US
+            self.plant.step(out.motor.left_mm_s, out.motor.right_mm_s, robot_spec.CONTROL_PERIOD_US / 1e6)
+        self.t += robot_spec.CONTROL_PERIOD_US
         return out
 
     def run_until(self, pred, max_ticks: int = 2000, **overrides) -> int:

@@ -15,9 +15,9 @@ import threading
 import time
 from pathlib import Path
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.clock import SimClock
-from firmware_py.mav_node import open_node
+from firmware_py.mavlink.node import open_node
 from firmware_py.vehicle import (
     CtrlState,
     FailsafeAction,
@@ -190,7 +190,7 @@ class Robot:
         self._thread.start()
 
     def _run(self) -> None:
-        period = robot.CONTROL_PERIOD_US
+        period = robot_spec.CONTROL_PERIOD_US
         next_t = time.monotonic()
         while not self._stop.is_set():
             with self._lock:

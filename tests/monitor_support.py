@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.vehicle import Mode
 
 CELL_M = 0.5
@@ -38,7 +38,7 @@ TELEMETRY_HZ = 10
 
 
 def cell_xy(c: tuple[int, int]) -> tuple[float, float]:
-    x, y = robot.cell_center_mm(c[0], c[1], MAP_H, int(CELL_M * 1000))
+    x, y = robot_spec.cell_center_mm(c[0], c[1], MAP_H, int(CELL_M * 1000))
     return x / 1000, y / 1000
 
 
@@ -166,7 +166,7 @@ class RoverScript:
             ms, mavlink.MAV_FRAME_LOCAL_NED, 0xDF8, s.goal[1], s.goal[0], 0.0, 0, 0, 0, 0, 0, 0, 0, 0))
         out.append(mavlink.MAVLink_mission_current_message(min(s.mission_seq, 1), 2, 0, 0))
         state_index = int(s.x / CELL_M) * 10 + int(s.y / CELL_M)
-        # as firmware_py/telemetry.py names them; no Q-row without a decision
+        # as firmware_py/mavlink/telemetry.py names them; no Q-row without a decision
         named = [("STATE_IDX", state_index if s.action >= 0 else -1), ("ACTION", s.action), ("CTRL_ST", s.ctrl)]
         if s.action >= 0:
             named += [("Q0", 100 + state_index), ("Q1", 50), ("Q2", -20), ("Q3", -100)]

@@ -12,7 +12,7 @@ import can
 import pytest
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot, vehicle
+from firmware_py import robot_spec, vehicle
 
 DBC = Path(cp.__file__).with_name("qnav.dbc")
 
@@ -57,7 +57,7 @@ def test_every_frame_has_the_odrive_shape_and_the_required_set_exists():
 def test_dbc_agrees_with_the_robot_contract_and_vehicle_enums():
     cmd = cp.DB.get_message_by_name("MotorCommand")
     for s in cmd.signals[:2]:
-        assert (s.minimum, s.maximum) == (-robot.MAX_WHEEL_SPEED_MM_S, robot.MAX_WHEEL_SPEED_MM_S)
+        assert (s.minimum, s.maximum) == (-robot_spec.MAX_WHEEL_SPEED_MM_S, robot_spec.MAX_WHEEL_SPEED_MM_S)
     hb = cp.DB.get_message_by_name("ControllerHeartbeat")
     states = {str(v): k for k, v in hb.get_signal_by_name("Ctrl_State").choices.items()}
     assert states == {s.name: s.value for s in vehicle.CtrlState}
@@ -65,23 +65,23 @@ def test_dbc_agrees_with_the_robot_contract_and_vehicle_enums():
     assert modes == {m.name: m.value for m in vehicle.Mode}
     status = cp.DB.get_message_by_name("RangeSectors0").get_signal_by_name("Range0Status").choices
     assert {str(v): k for k, v in status.items()} == {
-        "VALID": robot.RANGE_VALID, "TOO_CLOSE": robot.RANGE_TOO_CLOSE,
-        "TOO_FAR": robot.RANGE_TOO_FAR, "INVALID": robot.RANGE_INVALID}
+        "VALID": robot_spec.RANGE_VALID, "TOO_CLOSE": robot_spec.RANGE_TOO_CLOSE,
+        "TOO_FAR": robot_spec.RANGE_TOO_FAR, "INVALID": robot_spec.RANGE_INVALID}
     rng = cp.DB.get_message_by_name("RangeSectors0").get_signal_by_name("Range0")
-    assert rng.maximum >= robot.RANGE_MAX_MM
-    assert len(cp.RANGE_SECTORS_IDS) * cp.SENSORS_PER_RANGE_FRAME == robot.SENSOR_COUNT
+    assert rng.maximum >= robot_spec.RANGE_MAX_MM
+    assert len(cp.RANGE_SECTORS_IDS) * cp.SENSORS_PER_RANGE_FRAME == robot_spec.SENSOR_COUNT
     assert cp.TICK_MODULUS == cp.COMMAND_COUNTER_MODULUS  # a command can echo any tick
 
 
 def test_strict_encoding_rejects_out_of_range_and_missing_signals():
     with pytest.raises(cp.ProtocolError, match="MotorCommand"):
-        cp.motor_command(robot.MAX_WHEEL_SPEED_MM_S + 1, 0, 0)
+        cp.motor_command(robot_spec.MAX_WHEEL_SPEED_MM_S + 1, 0, 0)
     with pytest.raises(cp.ProtocolError, match="Bump_Pressed"):
         cp.encode("Bumper", {})
     with pytest.raises(cp.ProtocolError, match="unknown CAN frame"):
         cp.encode("NoSuchFrame", {})
     with pytest.raises(cp.ProtocolError):
-        cp.range_frames([(100, 0)] * (robot.SENSOR_COUNT - 1))
+        cp.range_frames([(100, 0)] * (robot_spec.SENSOR_COUNT - 1))
 
 
 def test_decode_rejects_foreign_short_and_extended_frames():
@@ -98,11 +98,11 @@ def test_typed_helpers_wrap_counters_and_split_ranges():
     assert sig == {"Tick_Counter": 5, "Tick_SimTimeUs": 123_456_789_012}
     _, sig = cp.decode(cp.motor_command(-600, 250, 2 * cp.COMMAND_COUNTER_MODULUS + 9))
     assert sig == {"Cmd_LeftSpeed": -600, "Cmd_RightSpeed": 250, "Cmd_Counter": 9}
-    readings = [(100 + i, i % 4) for i in range(robot.SENSOR_COUNT)]
+    readings = [(100 + i, i % 4) for i in range(robot_spec.SENSOR_COUNT)]
     got = {}
     for frame in cp.range_frames(readings):
         got.update(cp.ranges_from(*cp.decode(frame)))
-    assert [got[i] for i in range(robot.SENSOR_COUNT)] == readings
+    assert [got[i] for i in range(robot_spec.SENSOR_COUNT)] == readings
 
 
 def test_cantools_dump_reads_the_dbc():

@@ -12,8 +12,8 @@ from ctrl_support import (
     sector_seek_policy,
 )
 
-from firmware_py import robot
-from firmware_py.controller import ERR_ESTOP, ERR_SENSOR_STALE, Controller
+from firmware_py import robot_spec
+from firmware_py.control.controller import ERR_ESTOP, ERR_SENSOR_STALE, Controller
 from firmware_py.policy import dump_policy
 from firmware_py.vehicle import CtrlState, FailsafeAction, Mode, VehicleConfig
 
@@ -66,12 +66,12 @@ def test_sector_policy_drives_to_goal_then_holds():
     assert ctrl.set_goal(1500, 1000) == (True, "")
     assert ctrl.state == CtrlState.DRIVING and ctrl.mode == Mode.GUIDED
     rig.run_until(lambda: ctrl.state == CtrlState.HOLD, 400)
-    assert math.hypot(rig.plant.x - 1500, rig.plant.y - 1000) <= robot.GOAL_TOLERANCE_MM + 25
+    assert math.hypot(rig.plant.x - 1500, rig.plant.y - 1000) <= robot_spec.GOAL_TOLERANCE_MM + 25
     assert ("DRIVING", "GOAL_REACHED") in kinds(ctrl) and ("GOAL_REACHED", "HOLD") in kinds(ctrl)
     # every command came from the action table, and the robot stops after the goal
     sent = [c for c in rig.commands if c is not None]
     speeds = {(c.left_mm_s, c.right_mm_s) for c in sent}
-    assert speeds <= set(robot.ACTION_WHEEL_SPEEDS_MM_S) | {(0, 0)}
+    assert speeds <= set(robot_spec.ACTION_WHEEL_SPEEDS_MM_S) | {(0, 0)}
     assert (sent[-1].left_mm_s, sent[-1].right_mm_s) == (0, 0)
     for _ in range(10):
         rig.tick()
@@ -81,32 +81,32 @@ def test_sector_policy_drives_to_goal_then_holds():
 def test_cell_policy_drives_cell_by_cell_to_the_target():
     lines = ["....", ".@@.", "....", "...."]
     pol = cell_bfs_policy(lines, [(3, 0), (0, 3)])
-    start = robot.cell_center_mm(0, 0, 4)
+    start = robot_spec.cell_center_mm(0, 0, 4)
     rig = armed_rig(pol, pose=(*start, -1571))  # facing south
     ctrl = rig.ctrl
-    goal = robot.cell_center_mm(0, 3, 4)
+    goal = robot_spec.cell_center_mm(0, 3, 4)
     assert ctrl.set_goal(*goal) == (True, "")
     visited = []
 
     def track():
-        cell = robot.world_to_cell(int(rig.plant.x), int(rig.plant.y), 4)
+        cell = robot_spec.world_to_cell(int(rig.plant.x), int(rig.plant.y), 4)
         if not visited or visited[-1] != cell:
             visited.append(cell)
         return ctrl.state == CtrlState.HOLD
 
     rig.run_until(track, 600)
     assert visited == [(0, 0), (0, 1), (0, 2), (0, 3)]
-    assert math.hypot(rig.plant.x - goal[0], rig.plant.y - goal[1]) <= robot.GOAL_TOLERANCE_MM
+    assert math.hypot(rig.plant.x - goal[0], rig.plant.y - goal[1]) <= robot_spec.GOAL_TOLERANCE_MM
     # the other target of the same table
-    goal2 = robot.cell_center_mm(3, 0, 4)
+    goal2 = robot_spec.cell_center_mm(3, 0, 4)
     assert ctrl.set_goal(*goal2) == (True, "")
     rig.run_until(lambda: ctrl.state == CtrlState.HOLD, 1200)
-    assert math.hypot(rig.plant.x - goal2[0], rig.plant.y - goal2[1]) <= robot.GOAL_TOLERANCE_MM
+    assert math.hypot(rig.plant.x - goal2[0], rig.plant.y - goal2[1]) <= robot_spec.GOAL_TOLERANCE_MM
 
 
 def test_cell_goal_must_be_a_policy_target():
     rig = armed_rig(cell_bfs_policy(OPEN4, [(3, 3)]))
-    ok, why = rig.ctrl.set_goal(*robot.cell_center_mm(2, 2, 4))
+    ok, why = rig.ctrl.set_goal(*robot_spec.cell_center_mm(2, 2, 4))
     assert not ok and "(2,2) is not a policy target" in why
 
 
@@ -118,14 +118,14 @@ def test_stale_sensors_fault_and_zero_within_one_period():
     for _ in range(5):
         rig.tick()
     assert rig.commands[-1].left_mm_s == 400
-    cut = rig.t - robot.CONTROL_PERIOD_US  # last fresh data
+    cut = rig.t - robot_spec.CONTROL_PERIOD_US  # last fresh data
     inp = rig.inp
     while ctrl.state == CtrlState.DRIVING:
         rig.tick(fresh=False)
         inp.enc_us = inp.bumper_us = inp.driver_us = rig.t  # only the ranges go silent
     t_fault = ctrl.transitions[-1].t_us
     assert ctrl.state == CtrlState.FAULT and "ranges0" in ctrl.fault
-    assert cut + 250_000 < t_fault <= cut + 250_000 + robot.CONTROL_PERIOD_US
+    assert cut + 250_000 < t_fault <= cut + 250_000 + robot_spec.CONTROL_PERIOD_US
     assert (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
     assert rig.ctrl.status().state == CtrlState.FAULT
     # recovery only through disarm, and arm needs fresh data
@@ -281,8 +281,8 @@ def test_error_bits_in_heartbeat():
 @pytest.mark.parametrize("heading", [0, 1571, 3142, -1571, 700])
 def test_cell_primitive_turns_to_grid_heading_from_any_start_heading(heading):
     pol = cell_bfs_policy(OPEN4, [(3, 1)])
-    start = robot.cell_center_mm(1, 1, 4)
+    start = robot_spec.cell_center_mm(1, 1, 4)
     rig = armed_rig(pol, pose=(*start, heading))
-    rig.ctrl.set_goal(*robot.cell_center_mm(3, 1, 4))
+    rig.ctrl.set_goal(*robot_spec.cell_center_mm(3, 1, 4))
     rig.run_until(lambda: rig.ctrl.state == CtrlState.HOLD, 400)
     assert abs(rig.plant.y - start[1]) < 40  # drove along the row, not diagonally

@@ -6,14 +6,14 @@ import pytest
 from ctrl_support import sector_seek_policy
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.clock import SimClock
-from firmware_py.controller import Controller
-from firmware_py.robot_node import RobotNode
+from firmware_py.control.controller import Controller
+from firmware_py.control.node import RobotNode
 
 
 def sensor_frames(enc=(0, 0)):
-    frames = cp.range_frames([(robot.RANGE_MAX_MM, robot.RANGE_TOO_FAR)] * robot.SENSOR_COUNT)
+    frames = cp.range_frames([(robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)] * robot_spec.SENSOR_COUNT)
     frames.append(cp.encode("EncoderCounts", {"Enc_Left": enc[0], "Enc_Right": enc[1]}))
     frames.append(cp.encode("Bumper", {"Bump_Pressed": 0, "Bump_Front": 0, "Bump_Left": 0, "Bump_Rear": 0,
                                        "Bump_Right": 0, "Bump_Events": 0, "Bump_AngleMrad": 0}))
@@ -50,7 +50,7 @@ def test_lockstep_answer_retransmission_and_sim_time_stamps(rig):
     for k in range(3):
         for f in sensor_frames():
             sim.send(f)
-        sim.send(cp.sim_tick(k, k * robot.CONTROL_PERIOD_US))
+        sim.send(cp.sim_tick(k, k * robot_spec.CONTROL_PERIOD_US))
         hb = expect(sim, "ControllerHeartbeat")
         cmd = expect(sim, "MotorCommand")  # after the heartbeat: the answer is the last frame
         assert cmd["Cmd_Counter"] == k and hb["Ctrl_State"] == ctrl.state
@@ -76,7 +76,7 @@ def test_lockstep_arm_and_drive_then_sensor_silence_faults(rig):
             sim.send(f)
         sim.send(cp.sim_tick(k, t))
         expect(sim, "MotorCommand")
-        t += robot.CONTROL_PERIOD_US
+        t += robot_spec.CONTROL_PERIOD_US
     assert ctrl.arm() == (True, "")
     assert ctrl.set_goal(3000, 0) == (True, "")
     k = 2
@@ -88,13 +88,13 @@ def test_lockstep_arm_and_drive_then_sensor_silence_faults(rig):
     last_fresh = t
     while True:  # ticks keep coming, sensors do not
         k += 1
-        t += robot.CONTROL_PERIOD_US
+        t += robot_spec.CONTROL_PERIOD_US
         sim.send(cp.sim_tick(k, t))
         cmd = expect(sim, "MotorCommand")
         if cmd["Cmd_LeftSpeed"] == 0:
             break
         assert t - last_fresh <= 250_000
-    assert 250_000 < t - last_fresh <= 250_000 + robot.CONTROL_PERIOD_US
+    assert 250_000 < t - last_fresh <= 250_000 + robot_spec.CONTROL_PERIOD_US
     assert ctrl.state.name == "FAULT"
 
 
@@ -108,10 +108,10 @@ def test_paced_sim_clock_steps_once_per_period_without_answer_counters():
         for k in range(4):
             for f in sensor_frames():
                 sim.send(f)
-            sim.send(cp.sim_tick(1000 + k, k * robot.CONTROL_PERIOD_US))
+            sim.send(cp.sim_tick(1000 + k, k * robot_spec.CONTROL_PERIOD_US))
             expect(sim, "ControllerHeartbeat")
         assert node.ticks == 4
-        assert node.clock.now_us() == 3 * robot.CONTROL_PERIOD_US
+        assert node.clock.now_us() == 3 * robot_spec.CONTROL_PERIOD_US
     finally:
         node.stop()
         node.bus.shutdown()

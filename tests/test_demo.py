@@ -142,7 +142,7 @@ def test_demo_dashboard_path_runs_the_monitor_until_the_mission_completes(tmp_pa
     # itself at the end; textual's headless driver stands in for the terminal
     from textual.app import App
 
-    from firmware_py import robot
+    from firmware_py import robot_spec
     from ground_station.demo import DemoOptions, run_demo
     from ground_station.maps import load_map
     from ground_station.monitor_app import (
@@ -176,7 +176,7 @@ def test_demo_dashboard_path_runs_the_monitor_until_the_mission_completes(tmp_pa
     assert "mode Hold" in shown["vehicle"] and "ARMED" in shown["vehicle"], shown["vehicle"]
     assert "reached 4" in shown["mission"], shown["mission"]
     assert "GOAL_REACHED->HOLD: mission complete" in shown["log"], shown["log"]
-    d = robot.cell_center_mm(*load_map("paper10").targets["D"], 10)
+    d = robot_spec.cell_center_mm(*load_map("paper10").targets["D"], 10)
     assert abs(shown["pose"][0] - d[0] / 1000) < 0.3 and abs(shown["pose"][1] - d[1] / 1000) < 0.3, shown["pose"]
     assert "A" in shown["map"] and "██" in shown["map"]
     assert _processes_mentioning(str(out)) == []

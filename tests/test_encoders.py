@@ -2,7 +2,7 @@
 
 import pytest
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder, bearing_sector, best_action
 
 
@@ -19,14 +19,14 @@ def test_bearing_sector_is_centred_straight_ahead_and_counts_ccw():
 
 def test_sector_state_layout():
     enc = SectorEncoder(bearing_sectors=4, sensors=(0, 2), range_edges_mm=(500,))
-    ranges = [100] * robot.SENSOR_COUNT
+    ranges = [100] * robot_spec.SENSOR_COUNT
     assert enc.n_states == 4 * 2 * 2
     assert enc.encode(0, ranges) == 0
     ranges[2] = 900
     assert enc.encode(0, ranges) == 2
     assert enc.encode(1571, ranges) == 1 * 4 + 2
-    status = [robot.RANGE_VALID] * robot.SENSOR_COUNT
-    status[0] = robot.RANGE_TOO_FAR
+    status = [robot_spec.RANGE_VALID] * robot_spec.SENSOR_COUNT
+    status[0] = robot_spec.RANGE_TOO_FAR
     assert enc.encode(0, ranges, status) == 3
 
 

@@ -4,8 +4,8 @@ driving; boot picks the newest valid file."""
 
 from ctrl_support import Kinematic, Rig, sector_seek_policy
 
-from firmware_py.controller import Controller
-from firmware_py.ftp_server import HEADER, PAYLOAD_LEN, FtpServer, Nak, Op, parse
+from firmware_py.control.controller import Controller
+from firmware_py.mavlink.ftp_server import HEADER, PAYLOAD_LEN, FtpServer, Nak, Op, parse
 from firmware_py.policy import PolicyError, dump_policy, load_policy
 from firmware_py.storage import ACTIVE_POLICY, LAST_GOOD_POLICY, Storage, boot_policy_candidates
 from firmware_py.vehicle import CtrlState, Mode, VehicleConfig

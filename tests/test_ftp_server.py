@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_py.ftp_server import HEADER, MAX_DATA, PAYLOAD_LEN, FtpServer, Nak, Op, parse
+from firmware_py.mavlink.ftp_server import HEADER, MAX_DATA, PAYLOAD_LEN, FtpServer, Nak, Op, parse
 from firmware_py.storage import ACTIVE_POLICY, LAST_GOOD_POLICY, Storage
 
 S = 1_000_000  # µs per second

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from ground_station.guidance import plan_waypoints, segment_clear
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
@@ -34,11 +34,11 @@ def test_every_plan_is_clear_ends_at_the_goal_and_is_no_longer_than_the_grid_pat
     pairs = [(cells[i], cells[j]) for i, j in rng.integers(0, len(cells), size=(150, 2)) if i != j]
     for s, g in pairs:
         wps = plan_waypoints(gm, s, g, max_segment_mm=0)
-        assert wps[-1] == robot.cell_center_mm(*g, gm.height, int(c))
-        pts = [robot.cell_center_mm(*s, gm.height, int(c)), *wps]
+        assert wps[-1] == robot_spec.cell_center_mm(*g, gm.height, int(c))
+        pts = [robot_spec.cell_center_mm(*s, gm.height, int(c)), *wps]
         length = 0.0
         for a, b in zip(pts, pts[1:], strict=False):
-            assert _sampled_min_clear(occ, h, w, c, a, b, float(robot.ROBOT_RADIUS_MM)), (s, g, a, b)
+            assert _sampled_min_clear(occ, h, w, c, a, b, float(robot_spec.ROBOT_RADIUS_MM)), (s, g, a, b)
             length += math.hypot(b[0] - a[0], b[1] - a[1])
         assert length <= octile_distances(gm.occ, *g)[s[1], s[0]] * c + 1e-6
 
@@ -67,7 +67,7 @@ def test_max_segment_length_is_respected_except_between_neighbour_cells():
     gm = load_map("paper10")
     c = 500
     for s, g in [((0, 0), (9, 9)), ((0, 9), (9, 0)), ((2, 2), (9, 4))]:
-        pts = [robot.cell_center_mm(*s, gm.height, c), *plan_waypoints(gm, s, g, max_segment_mm=1000)]
+        pts = [robot_spec.cell_center_mm(*s, gm.height, c), *plan_waypoints(gm, s, g, max_segment_mm=1000)]
         for a, b in zip(pts, pts[1:], strict=False):
             assert math.hypot(b[0] - a[0], b[1] - a[1]) <= max(1000.0, math.sqrt(2) * c) + 1e-6
 
@@ -82,7 +82,7 @@ def test_waypoints_lead_out_of_a_u_pocket():
     start, goal = (4, 4), (4, 1)
     wps = plan_waypoints(gm, start, goal)
     assert len(wps) >= 3
-    rows = [robot.world_to_cell(x, y, 9)[1] for x, y in wps]
+    rows = [robot_spec.world_to_cell(x, y, 9)[1] for x, y in wps]
     assert max(rows) >= 7  # goes out of the pocket's open side first
     # the same policy table (hand seek) succeeds with guidance, a direct seek is trapped
     enc = SectorEncoder(bearing_sectors=15, sensors=(0,), range_edges_mm=(150,))
@@ -174,11 +174,11 @@ def test_shipped_sector_policy_leaves_a_paper10_pocket_in_hil_only_with_waypoint
     gm = load_map("paper10")
     pol = load_policy(ROOT / "policies" / "sector.qtab")
     start, goal = (2, 2), (2, 6)  # inside the north-west pocket, goal due south behind its wall
-    sx, sy = robot.cell_center_mm(*start, gm.height)
+    sx, sy = robot_spec.cell_center_mm(*start, gm.height)
     wps = plan_waypoints(gm, start, goal, **guidance_from_metadata(pol.metadata))
     ep = run_episode(gm.occ, pol, (sx / 1000, sy / 1000, math.pi / 2), wps, max_sim_s=60)
     assert ep.result == "reached" and ep.contacts == 0, ep.transitions
-    assert ep.final_error_mm <= robot.GOAL_TOLERANCE_MM + 50  # ground truth
+    assert ep.final_error_mm <= robot_spec.GOAL_TOLERANCE_MM + 50  # ground truth
     reached = [t for t in ep.transitions if t[2] == "GOAL_REACHED"]
     assert len(reached) == len(wps)  # every mission item passed in order
     direct = run_episode(gm.occ, pol, (sx / 1000, sy / 1000, math.pi / 2), [wps[-1]], max_sim_s=30)

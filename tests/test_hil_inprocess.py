@@ -10,7 +10,7 @@ import pytest
 from ctrl_support import sector_seek_policy
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import dump_policy, load_policy
 from ground_station.bench.hil import cut_sensors_after, run_episode
@@ -22,7 +22,7 @@ H = PAPER10.height
 
 
 def centre_m(col, row):
-    x, y = robot.cell_center_mm(col, row, H)
+    x, y = robot_spec.cell_center_mm(col, row, H)
     return x / 1000, y / 1000
 
 
@@ -35,11 +35,11 @@ def forward_only_policy():
 @pytest.mark.parametrize("target", ["A", "D"])
 def test_cell_policy_reaches_paper10_target_without_contact(target):
     pol = load_policy(ROOT / "policies" / "paper10_cell.qtab")
-    goal = robot.cell_center_mm(*PAPER10.targets[target], H, pol.cell_mm)
+    goal = robot_spec.cell_center_mm(*PAPER10.targets[target], H, pol.cell_mm)
     ep = run_episode(PAPER10.occ, pol, (*centre_m(0, 9), 0.5), [goal], max_sim_s=90)
     assert ep.result == "reached", ep.transitions
     assert ep.contacts == 0
-    assert ep.final_error_mm <= robot.GOAL_TOLERANCE_MM + 50  # ground truth, not odometry
+    assert ep.final_error_mm <= robot_spec.GOAL_TOLERANCE_MM + 50  # ground truth, not odometry
     # lockstep: one command per tick, each carrying its tick's counter
     assert [c[3] for c in ep.commands] == list(range(len(ep.commands)))
 
@@ -48,38 +48,38 @@ def test_sector_decisions_drive_the_plant_to_a_goal():
     # hand-made seek policy in an open 8x8 arena: exercises encoder -> table -> wheel speeds
     # (the trained sector policy on paper10 runs in `qnav bench hil` and the cross-process test)
     arena = np.zeros((8, 8), dtype=bool)
-    goal = robot.cell_center_mm(6, 2, 8)
-    start = robot.cell_center_mm(1, 6, 8)
+    goal = robot_spec.cell_center_mm(6, 2, 8)
+    start = robot_spec.cell_center_mm(1, 6, 8)
     ep = run_episode(arena, sector_seek_policy(), (start[0] / 1000, start[1] / 1000, -math.pi / 2),
                      [goal], max_sim_s=60)
     assert ep.result == "reached", ep.transitions
     assert ep.contacts == 0
-    assert ep.final_error_mm <= robot.GOAL_TOLERANCE_MM + 50
+    assert ep.final_error_mm <= robot_spec.GOAL_TOLERANCE_MM + 50
     speeds = {(c[1], c[2]) for c in ep.commands}
-    assert (400, 400) in speeds and speeds <= set(robot.ACTION_WHEEL_SPEEDS_MM_S) | {(0, 0)}
+    assert (400, 400) in speeds and speeds <= set(robot_spec.ACTION_WHEEL_SPEEDS_MM_S) | {(0, 0)}
 
 
 def test_sensor_cut_zeroes_commands_within_one_period_after_timeout():
     pol = load_policy(ROOT / "policies" / "paper10_cell.qtab")
-    goal = robot.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
+    goal = robot_spec.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
     cut_us = 2_000_000
     ep = run_episode(PAPER10.occ, pol, (*centre_m(0, 9), 0.0), [goal], max_sim_s=6,
                      frame_filter=cut_sensors_after(cut_us))
     assert ep.result.startswith("FAULT: sensor data stale"), ep.result
-    last_fresh = cut_us - robot.CONTROL_PERIOD_US
+    last_fresh = cut_us - robot_spec.CONTROL_PERIOD_US
     timeout_us = 250_000
     before = [c for c in ep.commands if c[0] < cut_us]
     assert any(c[1] or c[2] for c in before)  # it was driving
     first_zero_after = min(c[0] for c in ep.commands
                            if c[0] > last_fresh + timeout_us and c[1] == 0 and c[2] == 0)
-    assert first_zero_after <= last_fresh + timeout_us + robot.CONTROL_PERIOD_US
+    assert first_zero_after <= last_fresh + timeout_us + robot_spec.CONTROL_PERIOD_US
     assert all(c[1] == 0 and c[2] == 0 for c in ep.commands if c[0] >= first_zero_after)
     fault = [t for t in ep.transitions if t[2] == "FAULT"]
     assert fault and fault[0][0] == first_zero_after
 
 
 def test_bumper_stops_the_robot():
-    goal = robot.cell_center_mm(9, 9, H)
+    goal = robot_spec.cell_center_mm(9, 9, H)
     # facing the west outer wall, 100 mm away, with a policy that only drives forward
     ep = run_episode(PAPER10.occ, forward_only_policy(), (*centre_m(0, 9), math.pi), [goal],
                      max_sim_s=5, stop_when_done=False)
@@ -93,7 +93,7 @@ def test_bumper_stops_the_robot():
 
 def test_estop_frame_stops_and_latches():
     pol = load_policy(ROOT / "policies" / "paper10_cell.qtab")
-    goal = robot.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
+    goal = robot_spec.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
     sent = []
 
     def inject(plant, bus):

@@ -12,10 +12,11 @@ import pytest
 from mav_test_vehicle import TestVehicle
 from pymavlink.dialects.v20 import common as m
 
-from firmware_py import mav_frames, robot
-from firmware_py.mav_node import MavNode
-from firmware_py.params import PARAMS, ParamStore, as_float32
-from firmware_py.signing import Signing, load_key_file
+from firmware_py import robot_spec
+from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.node import MavNode
+from firmware_py.mavlink.params import PARAMS, ParamStore, as_float32
+from firmware_py.mavlink.signing import Signing, load_key_file
 from firmware_py.vehicle import CtrlState, Mode
 
 GCS = (255, 190)
@@ -88,7 +89,7 @@ def test_param_list_read_and_set_persist(tmp_path):
     assert json.loads((tmp_path / "params" / "params.json").read_text())["params"]["FS_GCS_TOUT_MS"] == 2500
 
     (pv,) = link.send(link.gcs.param_request_read_encode(1, 1, b"", link.node.params.index("GOAL_TOL_MM")))
-    assert pv.param_id == "GOAL_TOL_MM" and pv.param_value == robot.GOAL_TOLERANCE_MM
+    assert pv.param_id == "GOAL_TOL_MM" and pv.param_value == robot_spec.GOAL_TOLERANCE_MM
 
     # a fresh boot from the same storage sees the stored value
     again = Link(tmp_path)
@@ -137,7 +138,7 @@ def test_corrupt_param_file_means_defaults_and_a_statustext(tmp_path):
 def test_param_file_write_is_atomic(tmp_path, monkeypatch):
     store = ParamStore(tmp_path)
     assert store.set("SPEED_SCALE", 70)[0]
-    import firmware_py.params as params_mod
+    import firmware_py.mavlink.params as params_mod
 
     def crash(*_):
         raise OSError("disk full")
@@ -214,7 +215,7 @@ def test_telemetry_frames_match_the_world_frame():
     st = link.vehicle.st
     st.x_mm, st.y_mm, st.heading_mrad, st.speed_mm_s = 3000, 1000, 1571, 200  # facing north
     st.ranges_mm = [500, 2500, 800, 0, 0, 0, 0, 0]
-    st.range_status = [robot.RANGE_VALID, robot.RANGE_TOO_FAR, robot.RANGE_VALID] + [robot.RANGE_INVALID] * 5
+    st.range_status = [robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_VALID] + [robot_spec.RANGE_INVALID] * 5
     get = {}
     for msg_id in (m.MAVLINK_MSG_ID_LOCAL_POSITION_NED, m.MAVLINK_MSG_ID_ATTITUDE,
                    m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, m.MAVLINK_MSG_ID_OBSTACLE_DISTANCE,
@@ -248,7 +249,7 @@ def test_failsafe_events_and_heartbeat_state():
     assert not link.node.failsafe
     link.send(link.gcs.heartbeat_encode(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0))
     t_last = link.now
-    period = robot.CONTROL_PERIOD_US
+    period = robot_spec.CONTROL_PERIOD_US
     while not link.node.failsafe:
         out = link.tick(period)
         assert link.now <= t_last + 5_000_000 + period
@@ -449,7 +450,7 @@ def test_corrupt_signing_state_resets_with_warning(tmp_path):
 
 
 def test_ftp_is_routed_to_the_ftp_server_and_always_needs_a_signature_with_a_key(tmp_path):
-    from firmware_py.ftp_server import HEADER, FtpServer, Op
+    from firmware_py.mavlink.ftp_server import HEADER, FtpServer, Op
     from firmware_py.storage import Storage
 
     server = FtpServer(Storage(tmp_path))

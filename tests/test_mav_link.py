@@ -18,7 +18,7 @@ from mav_test_vehicle import Robot
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
 
-from firmware_py import robot  # noqa: E402
+from firmware_py import robot_spec  # noqa: E402
 from firmware_py.subprocs import free_udp_port  # noqa: E402
 from ground_station import cli  # noqa: E402
 from ground_station.link import Link  # noqa: E402
@@ -101,14 +101,14 @@ def test_mission_targets_upload_download_and_auto_run(rig):
     code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D")
     assert code == 0 and "4 waypoints" in out, out
     # paper10 targets A (2,2) B (9,0) C (0,9) D (9,7), 0.5 m cells, 10 rows
-    assert r.vehicle.mission == [robot.cell_center_mm(c, row, 10) for c, row in ((2, 2), (9, 0), (0, 9), (9, 7))]
+    assert r.vehicle.mission == [robot_spec.cell_center_mm(c, row, 10) for c, row in ((2, 2), (9, 0), (0, 9), (9, 7))]
     wpl = tmp / "down.waypoints"
     code, out = qnav(port, "mission", "download", "--out", str(wpl))
     assert code == 0 and "x=1.250 m east  y=3.750 m north" in out
     assert wpl.read_text().startswith("QGC WPL 110")
     # the file goes back up unchanged
     code, _ = qnav(port, "mission", "upload", str(wpl))
-    assert code == 0 and r.vehicle.mission[3] == robot.cell_center_mm(9, 7, 10)
+    assert code == 0 and r.vehicle.mission[3] == robot_spec.cell_center_mm(9, 7, 10)
     assert qnav(port, "mission", "upload", "--targets", "A,Z")[0] == 2  # no target Z: CLI error
 
     with Link(f"udpin:127.0.0.1:{port}", tlog=False) as link:
@@ -142,7 +142,7 @@ def test_gcs_failsafe_within_timeout_plus_one_period(rig):
         text = link.recv("STATUSTEXT", 5.0, cond=lambda t: t.text.startswith("GCS failsafe"))
         assert text is not None and text.severity == m.MAV_SEVERITY_CRITICAL
         delay = r.node.failsafe_since_us - last_hb
-        assert 1_000_000 < delay <= 1_000_000 + robot.CONTROL_PERIOD_US  # on the robot clock
+        assert 1_000_000 < delay <= 1_000_000 + robot_spec.CONTROL_PERIOD_US  # on the robot clock
         hb = link.recv("HEARTBEAT", 2.0)
         assert hb.custom_mode == 4 and hb.system_status == m.MAV_STATE_CRITICAL  # Hold
         link.send_heartbeat()

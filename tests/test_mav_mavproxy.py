@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 from mav_test_vehicle import Robot
 
-from firmware_py import mav_frames, robot
-from firmware_py.params import PARAMS
+from firmware_py import robot_spec
+from firmware_py.mavlink import frames
+from firmware_py.mavlink.params import PARAMS
 from firmware_py.subprocs import free_udp_port
 
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
@@ -85,7 +86,7 @@ def test_mavproxy_sees_lists_sets_arms_and_loads_a_mission(tmp_path):
         mp.expect(r"Detected vehicle 1:1")
         mp.expect(rf"Received {len(PARAMS)} parameters", 30)
         mp.send("param show GOAL_TOL_MM")
-        mp.expect(rf"GOAL_TOL_MM\s+{robot.GOAL_TOLERANCE_MM}")
+        mp.expect(rf"GOAL_TOL_MM\s+{robot_spec.GOAL_TOLERANCE_MM}")
         mp.send("param set GOAL_TOL_MM 250")
         assert wait_for(lambda: r.node.params.get("GOAL_TOL_MM") == 250)
         mp.send("arm throttle")
@@ -96,7 +97,7 @@ def test_mavproxy_sees_lists_sets_arms_and_loads_a_mission(tmp_path):
         targets = [(1250, 3750), (4750, 4750)]
         lines = ["QGC WPL 110"]
         for i, (x, y) in enumerate(targets):
-            lat, lon = mav_frames.world_to_global(x, y, lat0, lon0)
+            lat, lon = frames.world_to_global(x, y, lat0, lon0)
             lines.append(f"{i}\t0\t3\t16\t0\t0\t0\t0\t{lat / 1e7:.7f}\t{lon / 1e7:.7f}\t0\t1")
         (tmp_path / "tour.txt").write_text("\n".join(lines) + "\n")
         mp.send(f"wp load {tmp_path / 'tour.txt'}")

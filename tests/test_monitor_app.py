@@ -10,7 +10,7 @@ import pytest
 from monitor_support import CELL_M, MAP_H, RoverScript, UdpRover, write_tlog
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor_app import MonitorApp, heading_arrow
@@ -32,7 +32,7 @@ def arrow_cell(map_text: str) -> tuple[int, int, str]:
 
 
 def view_cell(view) -> tuple[int, int]:
-    return robot.world_to_cell(int(view.x * 1000), int(view.y * 1000), MAP_H, int(CELL_M * 1000))
+    return robot_spec.world_to_cell(int(view.x * 1000), int(view.y * 1000), MAP_H, int(CELL_M * 1000))
 
 
 async def wait_for(pilot, cond, timeout=20.0):

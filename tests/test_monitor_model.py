@@ -190,18 +190,18 @@ def test_status_line_reports_what_the_view_holds(rover):
 
 
 def test_reads_what_the_robot_telemetry_builds():
-    """Contract with firmware_py.telemetry: the robot's own builders -> wire -> view."""
-    from firmware_py import robot
-    from firmware_py.params import ParamStore
-    from firmware_py.telemetry import STREAMS, NodeStats, Telemetry
+    """Contract with firmware_py.mavlink.telemetry: the robot's own builders -> wire -> view."""
+    from firmware_py import robot_spec
+    from firmware_py.mavlink.params import ParamStore
+    from firmware_py.mavlink.telemetry import STREAMS, NodeStats, Telemetry
     from firmware_py.vehicle import VehicleStatus
 
     mav = encoder(1, 1)
     tel = Telemetry(mav, ParamStore(None))
     ranges = [300, 400, 500, 600, 700, 800, 900, 1000]
-    status_codes = [robot.RANGE_VALID] * 8
-    status_codes[2] = robot.RANGE_TOO_FAR
-    status_codes[5] = robot.RANGE_INVALID
+    status_codes = [robot_spec.RANGE_VALID] * 8
+    status_codes[2] = robot_spec.RANGE_TOO_FAR
+    status_codes[5] = robot_spec.RANGE_INVALID
     st = VehicleStatus(time_us=5_000_000, state=CtrlState.DRIVING, mode=Mode.GUIDED, armed=True,
                        x_mm=1250, y_mm=3750, heading_mrad=785, speed_mm_s=300, goal_mm=(4750, 4750),
                        distance_to_goal_mm=3640, bearing_to_goal_mrad=0, ranges_mm=ranges,
@@ -221,10 +221,10 @@ def test_reads_what_the_robot_telemetry_builds():
     assert view.load_pct == pytest.approx(12.3)
     assert view.link.tick_overruns == 4 and view.link.can_errors == 2
     sectors = {round(math.degrees(a)): r for a, r in view.sectors}
-    want = {round(a * 180 / 1000 / math.pi): r / 1000 for a, r in zip(robot.SENSOR_ANGLES_MRAD, ranges, strict=True)}
-    assert set(sectors) == set(want) - {round(robot.SENSOR_ANGLES_MRAD[5] * 0.18 / math.pi)}
+    want = {round(a * 180 / 1000 / math.pi): r / 1000 for a, r in zip(robot_spec.SENSOR_ANGLES_MRAD, ranges, strict=True)}
+    assert set(sectors) == set(want) - {round(robot_spec.SENSOR_ANGLES_MRAD[5] * 0.18 / math.pi)}
     for deg, rng in sectors.items():
-        if deg == round(robot.SENSOR_ANGLES_MRAD[2] * 0.18 / math.pi):
+        if deg == round(robot_spec.SENSOR_ANGLES_MRAD[2] * 0.18 / math.pi):
             assert rng is None  # too far: clear
         else:
             assert rng == pytest.approx(want[deg])

@@ -11,7 +11,7 @@ import time
 from mav_test_vehicle import Robot
 from pymavlink.dialects.v20 import common as mavlink
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor_app import MonitorApp
@@ -30,7 +30,7 @@ def test_dashboard_on_the_real_node(tmp_path):
         cells = [grid.targets[n] for n in "ABCD"]
         items = []
         for col, row in cells:
-            x_mm, y_mm = robot.cell_center_mm(col, row, grid.height)
+            x_mm, y_mm = robot_spec.cell_center_mm(col, row, grid.height)
             items.append((mavlink.MAV_FRAME_LOCAL_NED, y_mm * 10, x_mm * 10))  # NED metres * 1e4
         assert link.mission_upload(items) == 4
         app = MonitorApp(source, grid_map=grid)

@@ -5,10 +5,10 @@ import random
 
 import pytest
 
-from firmware_py import robot
-from firmware_py.odometry import Odometry, atan2_hypot, cos_sin_q30, wrap_mrad, wrap_urad
+from firmware_py import robot_spec
+from firmware_py.control.odometry import Odometry, atan2_hypot, cos_sin_q30, wrap_mrad, wrap_urad
 
-TICKS_PER_MM = robot.ENCODER_TICKS_PER_REV / (2 * math.pi * robot.WHEEL_RADIUS_MM)
+TICKS_PER_MM = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM)
 
 
 def ticks(mm: float) -> int:
@@ -49,9 +49,9 @@ def test_wraps():
 def test_straight_line_one_revolution():
     o = Odometry(1000, 2000, 1571)  # facing north
     o.update(0, 0, 0)
-    n = robot.ENCODER_TICKS_PER_REV
+    n = robot_spec.ENCODER_TICKS_PER_REV
     o.update(n, n, 500_000)
-    circ = 2 * math.pi * robot.WHEEL_RADIUS_MM
+    circ = 2 * math.pi * robot_spec.WHEEL_RADIUS_MM
     assert o.x_mm == 1000
     assert o.y_mm == round(2000 + circ)
     assert o.heading_mrad == 1571
@@ -62,7 +62,7 @@ def test_straight_line_one_revolution():
 def test_spin_in_place_half_turn_and_back():
     o = Odometry(0, 0, 0)
     o.update(0, 0)
-    half = ticks(math.pi * robot.WHEEL_BASE_MM / 2)  # each wheel's arc for a half turn
+    half = ticks(math.pi * robot_spec.WHEEL_BASE_MM / 2)  # each wheel's arc for a half turn
     o.update(-half, half)
     assert abs(wrap_mrad(o.heading_mrad - 3142)) <= 2
     assert (o.x_mm, o.y_mm) == (0, 0)
@@ -76,8 +76,8 @@ def test_circle_in_small_steps_returns_to_start():
     o = Odometry(0, 0, 0)
     o.update(0, 0)
     steps = 400
-    inner = 2 * math.pi * (r - robot.WHEEL_BASE_MM / 2)
-    outer = 2 * math.pi * (r + robot.WHEEL_BASE_MM / 2)
+    inner = 2 * math.pi * (r - robot_spec.WHEEL_BASE_MM / 2)
+    outer = 2 * math.pi * (r + robot_spec.WHEEL_BASE_MM / 2)
     for k in range(1, steps + 1):
         o.update(ticks(inner * k / steps), ticks(outer * k / steps))
         if k == steps // 4:  # a quarter circle CCW from heading east: at (r, r), facing north

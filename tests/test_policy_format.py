@@ -10,7 +10,7 @@ from array import array
 import numpy as np
 import pytest
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
 from firmware_py.policy import (
     CRC,
@@ -60,7 +60,7 @@ def test_header_layout_is_byte_exact():
     enc_len, meta_len = struct.unpack_from("<II", b, 40)
     # cell section: 4 x u16 head + 4 goals x 2 u16 + 4 actions x 2 i16
     assert enc_len == 8 + 4 * 4 + 4 * 4
-    assert struct.unpack_from("<HHHH", b, 48) == (10, 10, 4, robot.DEFAULT_CELL_SIZE_MM)
+    assert struct.unpack_from("<HHHH", b, 48) == (10, 10, 4, robot_spec.DEFAULT_CELL_SIZE_MM)
     assert struct.unpack_from("<HH", b, 56) == (1, 1)
     meta = b[48 + enc_len:48 + enc_len + meta_len]
     assert json.loads(meta) == {"map": "paper10"}
@@ -83,7 +83,7 @@ def test_round_trip_cell_and_sector_both_dtypes():
             assert p.crc == zlib.crc32(b[:-4]) and p.size == len(b)
             assert p.metadata == {"x": [1, 2]}
             if enc.kind == "cell":
-                assert p.goals == tuple(GOALS) and p.cell_mm == robot.DEFAULT_CELL_SIZE_MM
+                assert p.goals == tuple(GOALS) and p.cell_mm == robot_spec.DEFAULT_CELL_SIZE_MM
             for s in range(0, enc.n_states, 7):
                 row = vals[s * enc.n_actions:(s + 1) * enc.n_actions]
                 assert list(p.row(s)) == row

@@ -7,7 +7,7 @@ import numpy as np
 from gymnasium.utils.env_checker import check_env
 
 import ground_station.envs  # noqa: F401  (registers the ids)
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from ground_station.envs.sector_env import SectorNavEnv
 from ground_station.maps import load_map
@@ -45,8 +45,8 @@ def test_state_is_the_reference_encoding_of_the_readings():
         gx, gy = info["waypoints"][info["waypoint"]]  # the bearing is to the current waypoint
         bearing = int(math.floor((math.atan2(gy - y, gx - x) - th + math.pi) % (2 * math.pi) * 1000
                                  - math.pi * 1000 + 0.5))
-        ranges = [0] * robot.SENSOR_COUNT
-        status = [robot.RANGE_VALID] * robot.SENSOR_COUNT
+        ranges = [0] * robot_spec.SENSOR_COUNT
+        status = [robot_spec.RANGE_VALID] * robot_spec.SENSOR_COUNT
         for k, s in enumerate(enc.sensors):
             ranges[s] = int(info["ranges_mm"][k])
             status[s] = int(info["status"][k])
@@ -85,5 +85,5 @@ def test_driving_straight_to_the_goal_succeeds_with_positive_progress():
         if term:
             break
     assert info["success"] and not info["collision"]
-    assert math.isclose(info["y_mm"], robot.cell_center_mm(0, 6, 10)[1], abs_tol=robot.GOAL_TOLERANCE_MM)
+    assert math.isclose(info["y_mm"], robot_spec.cell_center_mm(0, 6, 10)[1], abs_tol=robot_spec.GOAL_TOLERANCE_MM)
     assert total > 0

@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_py import encoders, robot
+from firmware_py import encoders, robot_spec
 from firmware_py.encoders import SectorEncoder, bearing_sector
 from ground_station import sector_twin as T
 
@@ -23,15 +23,15 @@ def _occ(rows: list[str]) -> np.ndarray:
 _encoders = st.builds(
     SectorEncoder,
     bearing_sectors=st.integers(1, 32),
-    sensors=st.lists(st.integers(0, robot.SENSOR_COUNT - 1), min_size=1, max_size=robot.SENSOR_COUNT,
+    sensors=st.lists(st.integers(0, robot_spec.SENSOR_COUNT - 1), min_size=1, max_size=robot_spec.SENSOR_COUNT,
                      unique=True).map(tuple),
     range_edges_mm=st.lists(st.integers(0, 4000), min_size=0, max_size=5, unique=True).map(
         lambda v: tuple(sorted(v))),
 )
-_ranges = st.lists(st.integers(0, 5000), min_size=robot.SENSOR_COUNT, max_size=robot.SENSOR_COUNT)
-_status = st.lists(st.sampled_from([robot.RANGE_VALID, robot.RANGE_TOO_CLOSE, robot.RANGE_TOO_FAR,
-                                    robot.RANGE_INVALID]),
-                   min_size=robot.SENSOR_COUNT, max_size=robot.SENSOR_COUNT)
+_ranges = st.lists(st.integers(0, 5000), min_size=robot_spec.SENSOR_COUNT, max_size=robot_spec.SENSOR_COUNT)
+_status = st.lists(st.sampled_from([robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE, robot_spec.RANGE_TOO_FAR,
+                                    robot_spec.RANGE_INVALID]),
+                   min_size=robot_spec.SENSOR_COUNT, max_size=robot_spec.SENSOR_COUNT)
 
 
 @settings(max_examples=2000, deadline=None)
@@ -53,8 +53,8 @@ def test_fast_bearing_sector_equals_reference(bearing, sectors):
 def test_constants_follow_the_contract():
     assert T.TWO_PI_MRAD == encoders.TWO_PI_MRAD
     from ground_station import sector_kernels as K
-    assert robot.ACTION_NAMES[K.REVERSE] == "reverse"
-    assert T.N_SUBSTEPS * robot.PHYSICS_DT_US == robot.CONTROL_PERIOD_US
+    assert robot_spec.ACTION_NAMES[K.REVERSE] == "reverse"
+    assert T.N_SUBSTEPS * robot_spec.PHYSICS_DT_US == robot_spec.CONTROL_PERIOD_US
 
 
 # --- geometry -------------------------------------------------------------------
@@ -63,8 +63,8 @@ def test_cell_world_conventions_match_robot_helpers():
     h = 7
     for col, row in [(0, 0), (3, 6), (6, 2)]:
         x, y = T.cell_centre(col, row, h, CELL)
-        assert (x, y) == robot.cell_center_mm(col, row, h, int(CELL))
-        assert T.cell_of(x, y, h, CELL) == (col, row) == robot.world_to_cell(int(x), int(y), h, int(CELL))
+        assert (x, y) == robot_spec.cell_center_mm(col, row, h, int(CELL))
+        assert T.cell_of(x, y, h, CELL) == (col, row) == robot_spec.world_to_cell(int(x), int(y), h, int(CELL))
 
 
 def test_disc_collision_against_cells_and_border():
@@ -88,12 +88,12 @@ def test_disc_collision_against_cells_and_border():
 def test_motion_matches_the_wheel_speed_table():
     occ = _occ(["....", "....", "....", "...."])
     h, w = occ.shape
-    period = robot.CONTROL_PERIOD_US / 1e6
-    for a, (vl, vr) in enumerate(robot.ACTION_WHEEL_SPEEDS_MM_S):
+    period = robot_spec.CONTROL_PERIOD_US / 1e6
+    for a, (vl, vr) in enumerate(robot_spec.ACTION_WHEEL_SPEEDS_MM_S):
         th0 = 0.3
         x, y, th, driven, hit = T.move(occ, h, w, CELL, 1000.0, 1000.0, th0, a)
         v = (vl + vr) / 2
-        om = (vr - vl) / robot.WHEEL_BASE_MM
+        om = (vr - vl) / robot_spec.WHEEL_BASE_MM
         assert not hit
         assert math.isclose(driven, abs(v) * period)
         assert math.isclose(T.wrap_angle(th - th0 - om * period), 0.0, abs_tol=1e-12)
@@ -118,8 +118,8 @@ def test_driving_into_a_wall_is_a_collision_at_contact():
             break
     assert hit
     # stops within one substep of touching x = 1500 - radius
-    contact = 1500 - robot.ROBOT_RADIUS_MM
-    assert contact <= x <= contact + 400 * robot.PHYSICS_DT_US / 1e6 + 1e-9
+    contact = 1500 - robot_spec.ROBOT_RADIUS_MM
+    assert contact <= x <= contact + 400 * robot_spec.PHYSICS_DT_US / 1e6 + 1e-9
 
 
 def test_range_rays_match_hand_geometry():
@@ -139,37 +139,37 @@ def test_range_rays_match_hand_geometry():
     # sensor 0 (front) facing east: rim at x = 900; fan of rays +-FOV/2 -> the
     # nearest of the centre ray (1600) and the edge rays (border / wall)
     rng, status = T.sense_one(occ, h, w, CELL, x, y, 0.0, 0)
-    half = robot.SENSOR_FOV_MRAD / 2000
-    ox = x + robot.SENSOR_MOUNT_RADIUS_MM
+    half = robot_spec.SENSOR_FOV_MRAD / 2000
+    ox = x + robot_spec.SENSOR_MOUNT_RADIUS_MM
     edge_south = 750.0 / math.sin(half)  # to the border y = 0
-    expect = min(2500 - ox, edge_south) if robot.SENSOR_FAN_RAYS > 1 else 2500 - ox
-    assert status == robot.RANGE_VALID and rng == round(expect)
+    expect = min(2500 - ox, edge_south) if robot_spec.SENSOR_FAN_RAYS > 1 else 2500 - ox
+    assert status == robot_spec.RANGE_VALID and rng == round(expect)
     # back sensor (index 4) facing west: rim at x = 600, border at 0 -> 600
     rng, status = T.sense_one(occ, h, w, CELL, x, y, 0.0, 4)
-    assert (rng, status) == (600, robot.RANGE_VALID)
+    assert (rng, status) == (600, robot_spec.RANGE_VALID)
     # close to the border: too close; open view: too far
     rng, status = T.sense_one(occ, h, w, CELL, 160.0, 750.0, math.pi, 0)
-    assert (rng, status) == (robot.RANGE_MIN_MM, robot.RANGE_TOO_CLOSE)
+    assert (rng, status) == (robot_spec.RANGE_MIN_MM, robot_spec.RANGE_TOO_CLOSE)
     big = np.zeros((20, 20), dtype=np.uint8)
     rng, status = T.sense_one(big, 20, 20, CELL, 5000.0, 5000.0, 0.0, 0)
-    assert (rng, status) == (robot.RANGE_MAX_MM, robot.RANGE_TOO_FAR)
+    assert (rng, status) == (robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)
 
 
 def test_sense_equals_sense_one_everywhere():
     rng = np.random.default_rng(3)
     occ = (rng.random((8, 9)) < 0.25).astype(np.uint8)
     h, w = occ.shape
-    which = np.ones(robot.SENSOR_COUNT, dtype=np.bool_)
-    ranges = np.zeros(robot.SENSOR_COUNT, dtype=np.int64)
-    status = np.zeros(robot.SENSOR_COUNT, dtype=np.int64)
+    which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
+    ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
+    status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     n = 0
     while n < 300:
         x, y = rng.uniform(0, w * CELL), rng.uniform(0, h * CELL)
-        if T.disc_hits(occ, h, w, CELL, x, y, float(robot.ROBOT_RADIUS_MM)):
+        if T.disc_hits(occ, h, w, CELL, x, y, float(robot_spec.ROBOT_RADIUS_MM)):
             continue
         th = rng.uniform(-math.pi, math.pi)
         T.sense(occ, h, w, CELL, x, y, th, which, ranges, status)
-        for i in range(robot.SENSOR_COUNT):
+        for i in range(robot_spec.SENSOR_COUNT):
             r1, s1 = T.sense_one(occ, h, w, CELL, x, y, th, i)
             assert abs(r1 - ranges[i]) <= 1 and s1 == status[i]
         n += 1

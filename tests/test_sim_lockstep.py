@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.canbus import CanHub, open_bus
 from firmware_py.subprocs import stop_process
 from sim_bridge import reflex
@@ -57,10 +57,10 @@ def test_lockstep_answers_every_tick_and_logs_in_sim_time(tmp_path):
     finally:
         bus.shutdown()
         log.close()
-    n = round(3.0 * 1e6 / robot.CONTROL_PERIOD_US)
+    n = round(3.0 * 1e6 / robot_spec.CONTROL_PERIOD_US)
     assert stats.ticks == n and stats.missed_ticks == 0 and stats.stale_commands == 0
-    assert ctl.driver.ticks == n and ctl.driver.sim_time_us == (n - 1) * robot.CONTROL_PERIOD_US
-    assert plant.time_us == n * robot.CONTROL_PERIOD_US
+    assert ctl.driver.ticks == n and ctl.driver.sim_time_us == (n - 1) * robot_spec.CONTROL_PERIOD_US
+    assert plant.time_us == n * robot_spec.CONTROL_PERIOD_US
     moved = np.hypot(plant.world.pose.x - 1.0, plant.world.pose.y - 1.0)
     assert moved > 0.3  # the reflex driver's commands reached the wheels
     frames = list(can.LogReader(str(tmp_path / "run.asc")))

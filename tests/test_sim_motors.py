@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
+from firmware_py import robot_spec
 from sim_bridge.motors import MotorDriver, MotorParams
 from sim_bridge.plant import Plant, SimConfig
 from sim_bridge.world import Pose
 
-DT_US = robot.PHYSICS_DT_US
+DT_US = robot_spec.PHYSICS_DT_US
 
 
 def _run(m: MotorDriver, t_us: int, until_us: int) -> tuple[int, list[tuple[float, float]]]:
@@ -33,13 +33,13 @@ def test_first_order_response_respects_accel_and_speed_limits():
     for s in speeds:
         for i in (0, 1):
             assert abs(s[i] - prev[i]) <= p.accel_limit_mm_s2 * DT_US / 1e6 + 1e-9
-            assert abs(s[i]) <= robot.MAX_WHEEL_SPEED_MM_S
+            assert abs(s[i]) <= robot_spec.MAX_WHEEL_SPEED_MM_S
         prev = s
     assert speeds[-1] == pytest.approx((600.0, -300.0), abs=1e-6)
     assert m.status()["Mot_AccelLimited"] == 1
     m.command(10_000, 0, 2, 1_000_000)  # beyond the DBC range: clamped by the driver
     _run(m, 1_000_000, 1_150_000)
-    assert m.speed[0] == robot.MAX_WHEEL_SPEED_MM_S
+    assert m.speed[0] == robot_spec.MAX_WHEEL_SPEED_MM_S
 
 
 def test_watchdog_stops_the_wheels_within_its_timeout_in_sim_time():
@@ -64,7 +64,7 @@ def test_watchdog_trips_in_the_plant_when_commands_stop_and_reports_on_can():
     plant.tick_frames()
     assert plant.handle(cp.motor_command(400, 400, 0))
     plant.step_period()
-    watchdog_ticks = plant.config.motors.watchdog_ms * 1000 // robot.CONTROL_PERIOD_US
+    watchdog_ticks = plant.config.motors.watchdog_ms * 1000 // robot_spec.CONTROL_PERIOD_US
     for _ in range(watchdog_ticks - 2):  # no more commands: 150 ms since the last one
         plant.step_period()
     status = dict(cp.decode(plant.tick_frames()[4])[1])
@@ -119,4 +119,4 @@ def test_params_are_validated():
     with pytest.raises(ValueError, match="watchdog"):
         MotorDriver(MotorParams(watchdog_ms=0))
     with pytest.raises(ValueError, match="speed limit"):
-        MotorDriver(MotorParams(speed_limit_mm_s=robot.MAX_WHEEL_SPEED_MM_S + 1))
+        MotorDriver(MotorParams(speed_limit_mm_s=robot_spec.MAX_WHEEL_SPEED_MM_S + 1))

@@ -8,14 +8,14 @@ import random
 import numpy as np
 import pytest
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from sim_bridge.plant import Plant, SimConfig
 from sim_bridge.sensors import RangeParams, RangeSensors, WheelEncoders, bumper_signals
 from sim_bridge.world import Pose, World
 
-R = robot.ROBOT_RADIUS_MM / 1000
-DT = robot.PHYSICS_DT_US / 1e6
-VMAX = robot.MAX_WHEEL_SPEED_MM_S / 1000
+R = robot_spec.ROBOT_RADIUS_MM / 1000
+DT = robot_spec.PHYSICS_DT_US / 1e6
+VMAX = robot_spec.MAX_WHEEL_SPEED_MM_S / 1000
 
 
 def _drive(world: World, left: float, right: float, seconds: float) -> list[Pose]:
@@ -93,9 +93,9 @@ def test_ray_distances_match_hand_computed_geometry():
     # the readings on the bus: exact, valid, and too far where nothing is in reach
     world.body.angle = 0.0
     readings = sensors.read()
-    assert readings[0] == (round(1250 - r_mm), robot.RANGE_VALID)
-    assert readings[1] == (robot.RANGE_MAX_MM, robot.RANGE_TOO_FAR)
-    assert readings[6] == (robot.RANGE_MAX_MM, robot.RANGE_TOO_FAR)  # 2100 mm > RANGE_MAX
+    assert readings[0] == (round(1250 - r_mm), robot_spec.RANGE_VALID)
+    assert readings[1] == (robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)
+    assert readings[6] == (robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)  # 2100 mm > RANGE_MAX
 
 
 def test_fan_reports_the_nearest_ray_of_the_cone():
@@ -105,8 +105,8 @@ def test_fan_reports_the_nearest_ray_of_the_cone():
     one = RangeSensors(world, RangeParams(fan_rays=1, noise_std_mm=0.0), random.Random(0))
     # sensor 7 looks 45 deg right of the heading: world 45 deg. Its fan's right edge ray
     # (45 deg - FOV/2) meets the east wall first.
-    centre = math.pi / 2 + robot.SENSOR_ANGLES_MRAD[7] / 1000  # ~45 deg (angles are whole mrad)
-    edge = centre - robot.SENSOR_FOV_MRAD / 2000
+    centre = math.pi / 2 + robot_spec.SENSOR_ANGLES_MRAD[7] / 1000  # ~45 deg (angles are whole mrad)
+    edge = centre - robot_spec.SENSOR_FOV_MRAD / 2000
     assert fan.true_ranges_mm()[7] == pytest.approx(1000 / math.cos(edge) - R * 1000, abs=0.5)
     assert one.true_ranges_mm()[7] == pytest.approx(1000 / math.cos(centre) - R * 1000, abs=0.5)
 
@@ -115,9 +115,9 @@ def test_too_close_dropout_and_seeded_noise():
     occ = np.zeros((4, 4), bool)
     world = World(occ, 0.5, Pose(R + 0.010, 1.0, 0.0))  # rim 10 mm from the west wall
     quiet = RangeSensors(world, RangeParams(fan_rays=1, noise_std_mm=0.0), random.Random(0))
-    assert quiet.read()[4] == (robot.RANGE_MIN_MM, robot.RANGE_TOO_CLOSE)
+    assert quiet.read()[4] == (robot_spec.RANGE_MIN_MM, robot_spec.RANGE_TOO_CLOSE)
     dead = RangeSensors(world, RangeParams(dropout=1.0), random.Random(0))
-    assert dead.read() == [(0, robot.RANGE_INVALID)] * robot.SENSOR_COUNT
+    assert dead.read() == [(0, robot_spec.RANGE_INVALID)] * robot_spec.SENSOR_COUNT
 
     def readings(seed):
         s = RangeSensors(world, RangeParams(noise_std_mm=30.0, dropout=0.2), random.Random(seed))
@@ -126,8 +126,8 @@ def test_too_close_dropout_and_seeded_noise():
     assert readings(1) == readings(1)
     assert readings(1) != readings(2)
     flat = [r for rs in readings(3) for r in rs]
-    assert any(st == robot.RANGE_INVALID for _, st in flat)
-    assert any(st == robot.RANGE_VALID for _, st in flat)
+    assert any(st == robot_spec.RANGE_INVALID for _, st in flat)
+    assert any(st == robot_spec.RANGE_VALID for _, st in flat)
 
 
 def test_encoders_count_ground_travel_and_slip_is_seeded():
@@ -138,7 +138,7 @@ def test_encoders_count_ground_travel_and_slip_is_seeded():
         enc.integrate(DT)  # the plant's order: pymunk moves the body by its pre-step velocity
         world.step(DT)
     travelled = world.pose.x - 0.5
-    per_m = robot.ENCODER_TICKS_PER_REV / (2 * math.pi * robot.WHEEL_RADIUS_MM / 1000)
+    per_m = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM / 1000)
     left, right = enc.counts()
     assert travelled > 0.9
     assert left == pytest.approx(travelled * per_m, abs=3) and right == pytest.approx(left, abs=1)

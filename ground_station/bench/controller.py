@@ -46,20 +46,20 @@ def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
     """`Controller.step` alone: p50/p99 µs over n ticks of a kinematic drive."""
     import math
 
-    from firmware_py import robot
-    from firmware_py.controller import Controller, Inputs
+    from firmware_py import robot_spec
+    from firmware_py.control.controller import Controller, Inputs
     from firmware_py.policy import load_policy
 
     pol = load_policy(policy_path)
     ctrl = Controller(policy=pol, start_pose_mm=(250, 250, 0))
-    per_mm = robot.ENCODER_TICKS_PER_REV / (2 * math.pi * robot.WHEEL_RADIUS_MM)
+    per_mm = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM)
     left = right = 0.0
     times = []
     goal = pol.goals[1] if pol.kind == "cell" and len(pol.goals) > 1 else (9, 0)
-    gx, gy = robot.cell_center_mm(*goal, 10)
+    gx, gy = robot_spec.cell_center_mm(*goal, 10)
     for k in range(n):
-        t = k * robot.CONTROL_PERIOD_US
-        inp = Inputs(ranges_mm=[1500] * robot.SENSOR_COUNT, range_status=[0] * robot.SENSOR_COUNT,
+        t = k * robot_spec.CONTROL_PERIOD_US
+        inp = Inputs(ranges_mm=[1500] * robot_spec.SENSOR_COUNT, range_status=[0] * robot_spec.SENSOR_COUNT,
                      ranges_us=[t, t], enc_left=round(left * per_mm), enc_right=round(right * per_mm),
                      enc_us=t, bumper_us=t, driver_us=t)
         t0 = time.perf_counter_ns()
@@ -69,8 +69,8 @@ def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
             ctrl.arm()
             ctrl.set_goal(gx, gy)
         if out.motor is not None:  # ideal wheels: enough to keep the decision path busy
-            left += out.motor.left_mm_s * robot.CONTROL_PERIOD_US / 1e6
-            right += out.motor.right_mm_s * robot.CONTROL_PERIOD_US / 1e6
+            left += out.motor.left_mm_s * robot_spec.CONTROL_PERIOD_US / 1e6
+            right += out.motor.right_mm_s * robot_spec.CONTROL_PERIOD_US / 1e6
     times.sort()
     return {"core_step_p50_us": times[len(times) // 2] / 1000,
             "core_step_p99_us": times[int(0.99 * (len(times) - 1))] / 1000}
@@ -78,7 +78,7 @@ def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
 
 def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
     """One paced HIL run (hub + qnav-sim --realtime + qnav-robot); the robot's stats."""
-    from firmware_py import robot
+    from firmware_py import robot_spec
     from firmware_py.canbus import CanHub
     from ground_station.cli import CliError
 
@@ -93,7 +93,7 @@ def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
         rob = subprocess.Popen(
             [str(bindir / "qnav-robot"), "--can", hub.spec, "--sim-clock", "--policy", args.policy,
              "--start", args.start, "--goal-cell", args.goal_cell, *rt,
-             "--duration", str(args.seconds - robot.CONTROL_PERIOD_US / 1e6),
+             "--duration", str(args.seconds - robot_spec.CONTROL_PERIOD_US / 1e6),
              "--stats-json", str(stats_path), "-q"],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:

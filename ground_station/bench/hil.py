@@ -3,7 +3,7 @@
 The real pieces on a python-can `virtual` bus: the pymunk plant
 (`sim_bridge.plant.Plant`, driven by a lockstep loop that can also cut
 frames for fault tests) in the calling thread and the robot's
-`firmware_py.robot_node.RobotNode` + `Controller` in its own threads.
+`firmware_py.control.node.RobotNode` + `Controller` in its own threads.
 `run_episode` is also what the HIL tests use.
 
 The benchmark runs the acceptance sets on `paper10`: the sector policy on
@@ -27,12 +27,12 @@ from pathlib import Path
 import can
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
-from firmware_py.cli import GoalRunner
+from firmware_py import robot_spec
 from firmware_py.clock import SimClock
-from firmware_py.controller import Controller
+from firmware_py.control.controller import Controller
+from firmware_py.control.goals import GoalRunner
+from firmware_py.control.node import RobotNode
 from firmware_py.policy import Policy
-from firmware_py.robot_node import RobotNode
 from firmware_py.vehicle import VehicleConfig
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -154,7 +154,7 @@ def random_pairs(occ, n: int, seed: int) -> list[tuple[tuple[int, int], float, t
 
 
 def _centre_m(col: int, row: int, height: int, cell_mm: int) -> tuple[float, float]:
-    x, y = robot.cell_center_mm(col, row, height, cell_mm)
+    x, y = robot_spec.cell_center_mm(col, row, height, cell_mm)
     return x / 1000, y / 1000
 
 
@@ -170,7 +170,7 @@ def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, 
     rows = []
     for i, (s, heading, g) in enumerate(random_pairs(gm.occ, pairs, seed)):
         sx, sy = _centre_m(*s, gm.height, cell_mm)
-        goal = robot.cell_center_mm(*g, gm.height, cell_mm)
+        goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
         goals = plan_waypoints(gm, s, g, **plan_kw) if guidance == "path" else [goal]
         ep = run_episode(gm.occ, policy, (sx, sy, heading), goals, max_sim_s=max_sim_s, seed=seed + i)
         rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g), "waypoints": len(goals),
@@ -193,7 +193,7 @@ def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, p
         heading = rng.uniform(-math.pi, math.pi)
         sx, sy = _centre_m(*s, gm.height, cell_mm)
         for name, g in goals.items():
-            goal = robot.cell_center_mm(*g, gm.height, cell_mm)
+            goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
             ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s,
                              seed=seed + i)
             rows.append({"start": list(s), "heading_rad": round(heading, 3), "target": name,

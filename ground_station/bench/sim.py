@@ -1,6 +1,6 @@
 """`qnav bench sim`: how fast the pymunk plant runs.
 
-* `rtf`: physics (fixed `robot.PHYSICS_DT_US` steps) + all sensors sampled
+* `rtf`: physics (fixed `robot_spec.PHYSICS_DT_US` steps) + all sensors sampled
   and encoded into CAN frames at the control rate (20 Hz), driven by the
   reflex controller called directly (no bus), as sim seconds per wall second.
   Baseline: real time (1.0).
@@ -23,7 +23,7 @@ import threading
 import time
 import uuid
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 MAP_DEFAULT = "paper10"
 
@@ -49,7 +49,7 @@ def measure_rtf(occ, cell_size_m: float, sim_seconds: float) -> dict:
 
     plant = _plant(occ, cell_size_m)
     driver = ReflexDriver()
-    ticks = round(sim_seconds * 1e6 / robot.CONTROL_PERIOD_US)
+    ticks = round(sim_seconds * 1e6 / robot_spec.CONTROL_PERIOD_US)
     t0 = time.perf_counter()
     for _ in range(ticks):
         for frame in plant.tick_frames():
@@ -57,7 +57,7 @@ def measure_rtf(occ, cell_size_m: float, sim_seconds: float) -> dict:
                 plant.handle(reply)
         plant.step_period()
     wall = time.perf_counter() - t0
-    steps = ticks * robot.CONTROL_PERIOD_US // robot.PHYSICS_DT_US
+    steps = ticks * robot_spec.CONTROL_PERIOD_US // robot_spec.PHYSICS_DT_US
     return {"rtf": plant.time_us / 1e6 / wall, "physics_steps_per_s": steps / wall,
             "sim_s": plant.time_us / 1e6, "wall_s": wall, "contacts": plant.world.contact_events}
 
@@ -74,7 +74,7 @@ def measure_inprocess(occ, cell_size_m: float, ticks: int) -> dict:
     thread = threading.Thread(target=serve, args=(cbus, ReflexDriver(), stop))
     thread.start()
     try:
-        stats = run_lockstep(plant, bus, ticks * robot.CONTROL_PERIOD_US / 1e6)
+        stats = run_lockstep(plant, bus, ticks * robot_spec.CONTROL_PERIOD_US / 1e6)
     finally:
         stop.set()
         thread.join(5)
@@ -94,7 +94,7 @@ def measure_remote(occ, cell_size_m: float, ticks: int) -> dict:
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         bus = open_bus(hub.spec)
         try:
-            stats = run_lockstep(plant, bus, ticks * robot.CONTROL_PERIOD_US / 1e6,
+            stats = run_lockstep(plant, bus, ticks * robot_spec.CONTROL_PERIOD_US / 1e6,
                                  start_timeout_s=30.0)
         finally:
             bus.shutdown()
@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     rtf = measure_rtf(gm.occ, gm.cell_size_m, args.sim_seconds)
     inproc = measure_inprocess(gm.occ, gm.cell_size_m, args.ticks)
     remote = measure_remote(gm.occ, gm.cell_size_m, args.ticks)
-    realtime_ticks = 1e6 / robot.CONTROL_PERIOD_US
+    realtime_ticks = 1e6 / robot_spec.CONTROL_PERIOD_US
     result = {
         "map": gm.name,
         "rtf": rtf["rtf"],

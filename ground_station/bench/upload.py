@@ -4,7 +4,7 @@ For 10 KiB and 100 KiB payloads (seeded random bytes of policy size), with
 and without MAVLink 2 signing, at 0 / 5 / 20 % frame loss each way, runs the
 real path: `qnav upload`'s code (pymavlink's MAVFTP client) -> link emulator
 (tools/link_emulator.py, 5760 B/s each way, 8N1) -> the robot's FTP shell in
-its own process (`python -m firmware_py.ftp_link`).
+its own process (`python -m firmware_py.mavlink.ftp`).
 
 Per case: seconds from the first FTP request to the robot's CRC32 verified,
 the theoretical link time (design.md: every WriteFile frame is data + 27
@@ -58,7 +58,7 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
 
     Its output goes to `log` (default: root/../<root name>.log), never to a pipe
     nobody reads (a full pipe would freeze the robot)."""
-    cmd = [sys.executable, "-m", "firmware_py.ftp_link", "--root", str(root), "--mavlink", url]
+    cmd = [sys.executable, "-m", "firmware_py.mavlink.ftp", "--root", str(root), "--mavlink", url]
     if key_file is not None:
         cmd += ["--signing-key", str(key_file)]
     env = dict(os.environ, MAVLINK20="1")
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     modes = {"both": [False, True], "off": [False], "on": [True]}[args.signing]
     cases = [(s, signed, loss) for s in sizes for signed in modes for loss in losses]
     rows = []
-    from firmware_py.signing import load_key_file
+    from firmware_py.mavlink.signing import load_key_file
 
     with tempfile.TemporaryDirectory() as tmp, tqdm(total=len(cases), desc="bench upload") as bar:
         key_file = Path(tmp) / "signing.key"

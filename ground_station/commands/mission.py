@@ -38,7 +38,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
     """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * 1e4) for map targets."""
-    from firmware_py import robot
+    from firmware_py import robot_spec
     from ground_station.cli import CliError
     from ground_station.link import mavlink
     from ground_station.maps import MapError, load_map
@@ -56,7 +56,7 @@ def target_items(targets: str, map_name: str, cell_size_m: float | None = None) 
         if name not in gm.targets:
             raise CliError(f"map {gm.name} has no target {name!r} (has {', '.join(sorted(gm.targets))})")
         col, row = gm.targets[name]
-        x_mm, y_mm = robot.cell_center_mm(col, row, gm.height, cell_mm)
+        x_mm, y_mm = robot_spec.cell_center_mm(col, row, gm.height, cell_mm)
         items.append((mavlink().MAV_FRAME_LOCAL_NED, y_mm * 10, x_mm * 10))  # north, east in m * 1e4
     return items
 

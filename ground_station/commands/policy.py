@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -22,12 +22,12 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ins.add_argument("files", nargs="+", metavar="FILE", help=".qtab file(s)")
     ins.add_argument("--json", action="store_true", help="one JSON object per line")
-    ins.add_argument("--sensors", type=int, default=robot.SENSOR_COUNT,
+    ins.add_argument("--sensors", type=int, default=robot_spec.SENSOR_COUNT,
                      help="the robot's range-sensor count to validate against (default %(default)s)")
     ins.set_defaults(func=run)
 
 
-def describe(path: str, expect_sensors: int = robot.SENSOR_COUNT) -> dict:
+def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
     """Validation result and header of one file as a JSON-able dict."""
     from firmware_py.policy import PolicyError, load_policy
 

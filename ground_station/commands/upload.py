@@ -562,7 +562,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from firmware_py.signing import load_key_file
+    from firmware_py.mavlink.signing import load_key_file
 
     if not args.file.is_file():
         raise CliError(f"{args.file}: no such file")

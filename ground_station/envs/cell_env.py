@@ -13,11 +13,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder
 from ground_station.maps import GridMap, MapError, bfs_distances, load_map
 
-N_ACTIONS = len(robot.CELL_ACTION_DELTAS)
+N_ACTIONS = len(robot_spec.CELL_ACTION_DELTAS)
 
 
 def resolve_goals(gridmap: GridMap, targets: str | list | tuple | None = None,
@@ -69,7 +69,7 @@ def cell_transitions(occ: np.ndarray) -> np.ndarray:
     move leaves the map or enters an obstacle (a collision)."""
     h, w = occ.shape
     nxt = np.full((h * w, N_ACTIONS), -1, dtype=np.int64)
-    for a, (dc, dr) in enumerate(robot.CELL_ACTION_DELTAS):
+    for a, (dc, dr) in enumerate(robot_spec.CELL_ACTION_DELTAS):
         for r in range(h):
             for c in range(w):
                 nc, nr = c + dc, r + dr
@@ -93,8 +93,8 @@ class CellNavEnv(gym.Env):
 
     Observation: `Discrete(W*H*n_goals)`, the state index of
     `firmware_py.encoders.CellEncoder` = goal_index*W*H + row*W + col.
-    Actions: `Discrete(4)`, `robot.CELL_ACTION_NAMES` up, down, left, right
-    (one cell each, deltas `robot.CELL_ACTION_DELTAS`; up = north = row - 1).
+    Actions: `Discrete(4)`, `robot_spec.CELL_ACTION_NAMES` up, down, left, right
+    (one cell each, deltas `robot_spec.CELL_ACTION_DELTAS`; up = north = row - 1).
     Rewards: `reward_goal` on entering the goal cell, `reward_collision` on
     moving into an obstacle or off the map (the robot stays), otherwise
     `reward_step`. Episode end: terminated on goal or collision (the paper's

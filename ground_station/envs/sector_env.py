@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from ground_station.guidance import DEFAULT_MARGIN_MM, DEFAULT_MAX_SEGMENT_MM, clearance_mm
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
@@ -33,18 +33,18 @@ from ground_station.sector_twin import (
 class SectorNavEnv(gym.Env):
     """Drive the robot's kinematic twin to a goal cell on a grid map.
 
-    The robot is a disc of `robot.ROBOT_RADIUS_MM` with continuous pose
+    The robot is a disc of `robot_spec.ROBOT_RADIUS_MM` with continuous pose
     (x, y mm; heading rad, CCW from east) on `gridmap` (cell size from the
     map); the map border is a wall.
 
-    * Action space: `Discrete(4)` = `robot.ACTION_NAMES` (forward, turn_left,
+    * Action space: `Discrete(4)` = `robot_spec.ACTION_NAMES` (forward, turn_left,
       turn_right, reverse), each the wheel speeds of
-      `robot.ACTION_WHEEL_SPEEDS_MM_S` held for one control period
-      (`robot.CONTROL_PERIOD_US`).
+      `robot_spec.ACTION_WHEEL_SPEEDS_MM_S` held for one control period
+      (`robot_spec.CONTROL_PERIOD_US`).
     * Guidance (`guidance`): "path" (default) = the robot follows the ground
       station's planned waypoints (`ground_station.guidance`, planned at
       reset from the start pose; the last is the goal), each passed within
-      `robot.GOAL_TOLERANCE_MM` as the controller runs a mission; "direct" =
+      `robot_spec.GOAL_TOLERANCE_MM` as the controller runs a mission; "direct" =
       the goal alone.
     * Observation space: `Discrete(encoder.n_states)`, the state index of the
       reference `SectorEncoder` (bearing sector of the current waypoint
@@ -60,7 +60,7 @@ class SectorNavEnv(gym.Env):
       bearing toward straight ahead (per pi rad); plus `goal` on reaching the
       goal, or exactly `-collision` on a collision.
     * Episode end: terminated when the robot's centre is within
-      `robot.GOAL_TOLERANCE_MM` of the goal cell's centre (success) or the
+      `robot_spec.GOAL_TOLERANCE_MM` of the goal cell's centre (success) or the
       disc touches an obstacle or the border (collision). Truncation is the
       TimeLimit wrapper's job (registered with 1000 periods = 50 s).
     * Reset: goal = `goal` if given (target name or (col, row)), else a
@@ -97,8 +97,8 @@ class SectorNavEnv(gym.Env):
         self._dist_cache: dict[tuple[int, int], np.ndarray] = {}
         self.observation_space = gym.spaces.Discrete(self.encoder.n_states)
         self.action_space = gym.spaces.Discrete(self.encoder.n_actions)
-        self._ranges = np.zeros(robot.SENSOR_COUNT, dtype=np.int64)
-        self._status = np.zeros(robot.SENSOR_COUNT, dtype=np.int64)
+        self._ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
+        self._status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
         self._pose = (0.0, 0.0, 0.0)
         self._goal = (0, 0)
         self._phi = 0.0

@@ -336,10 +336,10 @@ class GarbageSender:
 
 def garbage_run(duration_s: float, seed: int, rate_hz: float = 5000.0) -> dict:
     """One paced real-time HIL run with garbage; returns the measured figures."""
-    from firmware_py.cli import GoalRunner
     from firmware_py.clock import SimClock
-    from firmware_py.controller import Controller
-    from firmware_py.robot_node import RobotNode
+    from firmware_py.control.controller import Controller
+    from firmware_py.control.goals import GoalRunner
+    from firmware_py.control.node import RobotNode
     from sim_bridge.plant import Plant, SimConfig, run_paced
     from sim_bridge.world import Pose
 

@@ -57,7 +57,7 @@ class Crasher:
     """Storage, known versions and the robot process of one crash run."""
 
     def __init__(self, tmp: Path, seed: int) -> None:
-        from firmware_py.params import PARAMS
+        from firmware_py.mavlink.params import PARAMS
         from firmware_py.policy import load_policy
         from firmware_py.storage import ACTIVE_POLICY, Storage
         from ground_station.faults.hil_rig import CELL_POLICY
@@ -153,7 +153,7 @@ class Crasher:
         marks["result"] = res
 
     def param_stream(self, n: int, marks: dict) -> None:
-        from firmware_py.params import PARAMS
+        from firmware_py.mavlink.params import PARAMS
 
         defs = {d.name: d for d in PARAMS}
         conn = self.link.conn
@@ -178,7 +178,7 @@ class Crasher:
         marks["total_s"] = time.monotonic() - t0
 
     def params_problems(self, inflight) -> list[str]:
-        from firmware_py.params import ParamStore
+        from firmware_py.mavlink.params import ParamStore
 
         store = ParamStore(self.storage_dir)
         warnings = store.load()

@@ -22,17 +22,17 @@ from pathlib import Path
 import can
 
 from firmware_py import can_protocol as cp
-from firmware_py import robot
-from firmware_py.cli import GoalRunner
+from firmware_py import robot_spec
 from firmware_py.clock import SimClock
-from firmware_py.controller import Controller
+from firmware_py.control.controller import Controller
+from firmware_py.control.goals import GoalRunner
+from firmware_py.control.node import RobotNode
 from firmware_py.policy import Policy, load_policy
-from firmware_py.robot_node import RobotNode
 from firmware_py.vehicle import CtrlState, VehicleConfig
 
 REPO = Path(__file__).resolve().parents[2]
 CELL_POLICY = REPO / "policies" / "paper10_cell.qtab"
-PERIOD_US = robot.CONTROL_PERIOD_US
+PERIOD_US = robot_spec.CONTROL_PERIOD_US
 
 FramesHook = Callable[[int, int, list[can.Message]], list[can.Message]]  # (tick, t_us, frames)
 
@@ -59,9 +59,9 @@ def far_trip(gm, policy: Policy, rng: random.Random, min_cells: int = 6):
         if cells:
             break
     col, row = rng.choice(cells)
-    x, y = robot.cell_center_mm(col, row, gm.height, policy.cell_mm)
+    x, y = robot_spec.cell_center_mm(col, row, gm.height, policy.cell_mm)
     heading = rng.uniform(-math.pi, math.pi)
-    return (x / 1000, y / 1000, heading), robot.cell_center_mm(*goal, gm.height, policy.cell_mm)
+    return (x / 1000, y / 1000, heading), robot_spec.cell_center_mm(*goal, gm.height, policy.cell_mm)
 
 
 def _bfs(occ, goal: tuple[int, int]) -> dict[tuple[int, int], int]:
@@ -71,7 +71,7 @@ def _bfs(occ, goal: tuple[int, int]) -> dict[tuple[int, int], int]:
     queue = deque([goal])
     while queue:
         c, r = queue.popleft()
-        for dc, dr in robot.CELL_ACTION_DELTAS:
+        for dc, dr in robot_spec.CELL_ACTION_DELTAS:
             n = (c + dc, r + dr)
             if 0 <= n[0] < w and 0 <= n[1] < h and not occ[n[1]][n[0]] and n not in dist:
                 dist[n] = dist[(c, r)] + 1

@@ -96,7 +96,7 @@ class FrameMaker:
     COMMANDS = (400, 176, 511, 512, 246, 300, 183, 31000)  # arm, mode, intervals, reboot, mission start, ...
 
     def __init__(self, rng: random.Random, key: bytes, good_policy: bytes) -> None:
-        from firmware_py.signing import wall_timestamp
+        from firmware_py.mavlink.signing import wall_timestamp
 
         m = _dialect()
         self.m, self.rng, self.good_policy = m, rng, good_policy
@@ -144,7 +144,7 @@ class FrameMaker:
         return cls(*[vals[f] for f in cls.fieldnames])
 
     def param_set(self):
-        from firmware_py.params import PARAMS
+        from firmware_py.mavlink.params import PARAMS
 
         rng = self.rng
         d = rng.choice(PARAMS)
@@ -280,12 +280,12 @@ class HostileRig:
     """The robot's MAVLink side with signing on, rooted in a sandbox directory."""
 
     def __init__(self, sandbox: Path, seed: int) -> None:
-        from firmware_py.controller import Controller
-        from firmware_py.ftp_server import FtpServer
-        from firmware_py.mav_node import MavNode
-        from firmware_py.params import ParamStore
+        from firmware_py.control.controller import Controller
+        from firmware_py.mavlink.ftp_server import FtpServer
+        from firmware_py.mavlink.node import MavNode
+        from firmware_py.mavlink.params import ParamStore
+        from firmware_py.mavlink.signing import Signing
         from firmware_py.policy import load_policy
-        from firmware_py.signing import Signing
         from firmware_py.storage import ACTIVE_POLICY, Storage
         from ground_station.faults.hil_rig import CELL_POLICY
 
@@ -363,7 +363,7 @@ class HostileRig:
         return ""
 
     def params_problems(self) -> list[str]:
-        from firmware_py.params import PARAMS, ParamStore
+        from firmware_py.mavlink.params import PARAMS, ParamStore
 
         out = [f"{d.name}={self.node.params.get(d.name)} outside [{d.min}, {d.max}]"
                for d in PARAMS if not d.readonly and not d.min <= self.node.params.get(d.name) <= d.max]
@@ -390,7 +390,7 @@ def _expected_drop(rig: HostileRig, kind: str, msg) -> str | None:
 @register("mav_hostile_core", small=3000, large=100_000, unit="frames",
           what="random/mutated/unsigned/replayed frames into the node core: no crash, nothing outside the root")
 def hostile_core(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    from firmware_py.params import PARAMS
+    from firmware_py.mavlink.params import PARAMS
 
     res = ScenarioResult("mav_hostile_core")
     kinds: dict[str, int] = {}

@@ -63,9 +63,9 @@ def _param_set(name: str, value: int):
 @register("link_loss", small=4, large=20, unit="episodes",
           what="GCS heartbeats stop -> failsafe action within timeout + 1 control period (sim clock)")
 def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    from firmware_py.mav_node import MavNode
-    from firmware_py.params import ParamStore
-    from firmware_py.signing import Signing
+    from firmware_py.mavlink.node import MavNode
+    from firmware_py.mavlink.params import ParamStore
+    from firmware_py.mavlink.signing import Signing
     from firmware_py.vehicle import CtrlState
     from ground_station.faults.hil_rig import PERIOD_US, LockstepRig, cell_policy, far_trip, paper10
 
@@ -168,7 +168,7 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
     local.write_bytes(new)
     key_file = tmp / f"link-{seed}.key"  # per trial: trials may run side by side in one directory
     key_file.write_text(random.Random(seed).randbytes(32).hex())
-    from firmware_py.signing import load_key_file
+    from firmware_py.mavlink.signing import load_key_file
 
     key = load_key_file(key_file)
     row: dict = {"loss": loss, "seed": seed, "problems": []}
@@ -326,7 +326,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
     import json
     import subprocess
 
-    from firmware_py import robot as rb
+    from firmware_py import robot_spec as rb
     from firmware_py.canbus import CanHub
     from firmware_py.storage import ACTIVE_POLICY, Storage
     from ground_station.commands.upload import RobotLink, upload_policy

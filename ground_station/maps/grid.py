@@ -1,7 +1,7 @@
 """The in-memory grid map: occupancy plus named targets.
 
 Row 0 is the first text row of a MovingAI file, i.e. the northernmost row in
-the world frame of `firmware_py.robot` (x east along columns, y north).
+the world frame of `firmware_py.robot_spec` (x east along columns, y north).
 Targets are (col, row) pairs, ordered: their order is the goal index of the
 cell encoding.
 """

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from firmware_py import mav_frames
-from firmware_py.params import ParamStore
+from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.params import ParamStore
 from firmware_py.vehicle import VehicleControl
 
 M = mavlink2

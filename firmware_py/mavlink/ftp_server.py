@@ -3,7 +3,7 @@
 `FtpServer.handle(payload, now_us) -> list[bytes]` takes the 251-byte FTP
 payload of one request and returns the FTP payloads to send back (none, one,
 or a burst). No sockets, no threads, no wall clock: the shell
-(`firmware_py.ftp_link` or the MAVLink node) wraps replies in
+(`firmware_py.mavlink.ftp` or the MAVLink node) wraps replies in
 FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()`
 into STATUSTEXT.
 
@@ -34,7 +34,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
 
-from firmware_py.signing import SIGNING_FILE
+from firmware_py.mavlink.signing import SIGNING_FILE
 from firmware_py.storage import (
     ACTIVE_POLICY,
     LAST_GOOD_POLICY,

@@ -4,7 +4,7 @@
 (each with the clock time it arrived), runs safety, odometry and the policy,
 and returns the motor command and heartbeat to send. No threads, sockets or
 clock reads here: time comes in as an argument, I/O lives in
-`firmware_py.robot_node`. The controller also implements
+`firmware_py.control.node`. The controller also implements
 `firmware_py.vehicle.VehicleControl` for the MAVLink node; those calls may
 come from another thread, so every public method takes one lock and a policy
 swap lands between two ticks.
@@ -16,7 +16,7 @@ queued as a VehicleEvent. See docs/architecture.md.
 
 Decision: `sector` policies map (goal bearing, ranges) through the reference
 encoder to a row of the int table; the greedy action's wheel speeds come from
-robot.ACTION_WHEEL_SPEEDS_MM_S and are held for one tick. `cell` policies run
+robot_spec.ACTION_WHEEL_SPEEDS_MM_S and are held for one tick. `cell` policies run
 as motion primitives: localise the cell from odometry, take the greedy grid
 action, turn in place to its grid heading, drive to the next cell's centre,
 re-localise and repeat.
@@ -29,11 +29,11 @@ import threading
 from collections import deque
 from dataclasses import dataclass, field, replace
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
-from firmware_py.odometry import Odometry, wrap_mrad
+from firmware_py.control.odometry import Odometry, wrap_mrad
+from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.policy import Policy, PolicyError, load_policy
-from firmware_py.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.vehicle import (
     CtrlState,
     FailsafeAction,
@@ -81,8 +81,8 @@ class Inputs:
     """Latest value of every CAN input and the clock time it arrived (None:
     never). The node's receive side fills it; `step` only reads it."""
 
-    ranges_mm: list[int] = field(default_factory=lambda: [robot.RANGE_MAX_MM] * robot.SENSOR_COUNT)
-    range_status: list[int] = field(default_factory=lambda: [robot.RANGE_INVALID] * robot.SENSOR_COUNT)
+    ranges_mm: list[int] = field(default_factory=lambda: [robot_spec.RANGE_MAX_MM] * robot_spec.SENSOR_COUNT)
+    range_status: list[int] = field(default_factory=lambda: [robot_spec.RANGE_INVALID] * robot_spec.SENSOR_COUNT)
     ranges_us: list[int | None] = field(default_factory=lambda: [None, None])  # one per range frame
     enc_left: int = 0
     enc_right: int = 0
@@ -236,7 +236,7 @@ class Controller:
         if pol is None or pol.kind != "cell":
             return 0, ""
         enc = pol.encoder
-        col, row = robot.world_to_cell(x_mm, y_mm, enc.height, pol.cell_mm)
+        col, row = robot_spec.world_to_cell(x_mm, y_mm, enc.height, pol.cell_mm)
         if (col, row) in pol.goals:
             return pol.goals.index((col, row)), ""
         return -1, f"goal cell ({col},{row}) is not a policy target"
@@ -575,7 +575,7 @@ class Controller:
         if pol.kind == "sector":
             s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
             a = pol.best_action(s)
-            left, right = robot.ACTION_WHEEL_SPEEDS_MM_S[a]
+            left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
             self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
         else:
             wheels = self._cell_primitive()
@@ -591,12 +591,12 @@ class Controller:
         enc = pol.encoder
         x, y, heading = self.odom.pose_mm()
         if self._prim is None:
-            col, row = robot.world_to_cell(x, y, enc.height, pol.cell_mm)
+            col, row = robot_spec.world_to_cell(x, y, enc.height, pol.cell_mm)
             if not (0 <= col < enc.width and 0 <= row < enc.height):
                 self.fault = f"localisation: cell ({col},{row}) off the map"
                 self._enter_fault(self.fault)
                 return None
-            goal_cell = robot.world_to_cell(*self.goal, enc.height, pol.cell_mm)
+            goal_cell = robot_spec.world_to_cell(*self.goal, enc.height, pol.cell_mm)
             if (col, row) == goal_cell:
                 target = self.goal
                 _, b = self.odom.goal_vector(*target)
@@ -604,14 +604,14 @@ class Controller:
             else:
                 s = enc.encode(col, row, self._goal_index)
                 a = pol.best_action(s)
-                dc, dr = robot.CELL_ACTION_DELTAS[a]
-                target = robot.cell_center_mm(col + dc, row + dr, enc.height, pol.cell_mm)
+                dc, dr = robot_spec.CELL_ACTION_DELTAS[a]
+                target = robot_spec.cell_center_mm(col + dc, row + dr, enc.height, pol.cell_mm)
                 head = _GRID_HEADING[(dc, dr)]
                 self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
             self._prim = _Primitive(target, head)
         prim = self._prim
-        half_base = robot.WHEEL_BASE_MM // 2
-        turn_cap = abs(robot.ACTION_WHEEL_SPEEDS_MM_S[1][1])
+        half_base = robot_spec.WHEEL_BASE_MM // 2
+        turn_cap = abs(robot_spec.ACTION_WHEEL_SPEEDS_MM_S[1][1])
         if prim.turning:
             err = wrap_mrad(prim.heading_mrad - heading)
             if abs(err) > TURN_TOLERANCE_MRAD:
@@ -627,7 +627,7 @@ class Controller:
             prim.turning = True
             prim.heading_mrad = wrap_mrad(heading + bearing)
             return (0, 0)
-        fwd_cap = robot.ACTION_WHEEL_SPEEDS_MM_S[0][0]
+        fwd_cap = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[0][0]
         v = max(MIN_DRIVE_MM_S, min(fwd_cap, DRIVE_GAIN_PER_S * dist))
         dv = STEER_GAIN_PER_S * bearing * half_base // 1000
         return (v - dv, v + dv)

@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from firmware_py.mission import MissionEngine
-from firmware_py.telemetry import STREAMS, NodeStats, Telemetry
+from firmware_py.mavlink.mission import MissionEngine
+from firmware_py.mavlink.telemetry import STREAMS, NodeStats, Telemetry
 from firmware_py.vehicle import Mode, VehicleControl
 
 M = mavlink2

@@ -30,13 +30,13 @@ from collections.abc import Callable
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from firmware_py import mav_frames
 from firmware_py.clock import Clock
-from firmware_py.mav_commands import CommandHandler
-from firmware_py.mission import MissionEngine
-from firmware_py.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
-from firmware_py.signing import Signing
-from firmware_py.telemetry import NodeStats, Telemetry
+from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.commands import CommandHandler
+from firmware_py.mavlink.mission import MissionEngine
+from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
+from firmware_py.mavlink.signing import Signing
+from firmware_py.mavlink.telemetry import NodeStats, Telemetry
 from firmware_py.vehicle import VehicleControl
 
 M = mavlink2
@@ -53,7 +53,7 @@ POSITION_MASK_XY = 0b11  # type_mask bits "ignore x" / "ignore y"
 class MavNode:
     """MAVLink node core: a pure state machine over pymavlink message objects.
 
-    `ftp` is the `firmware_py.ftp_server.FtpServer` (or anything with its
+    `ftp` is the `firmware_py.mavlink.ftp_server.FtpServer` (or anything with its
     `handle(payload, now_us) -> list[bytes]`, `expire(now_us)` and
     `drain_texts()`); its replies go back in FILE_TRANSFER_PROTOCOL frames to
     the requester, its texts as STATUSTEXT. `reboot_hook` reloads the policy from storage on a
@@ -363,7 +363,7 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
     activation is the vehicle's `activate_policy`."""
     server = None
     if ftp and storage_dir is not None:
-        from firmware_py.ftp_server import FtpServer
+        from firmware_py.mavlink.ftp_server import FtpServer
         from firmware_py.storage import Storage
 
         server = FtpServer(Storage(storage_dir), activate=vehicle.activate_policy)

@@ -1,4 +1,4 @@
-"""Glue between `qnav-robot` (firmware_py.cli) and the MAVLink node.
+"""The MAVLink shell as a `qnav-robot` extension (firmware_py.plugins.Extension).
 
 Owns the `--mavlink`/`--signing-key` options of `qnav-robot` and attaching
 the node to a running `RobotNode`: the node polls once per control tick from
@@ -15,8 +15,10 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+from collections.abc import Callable
 from dataclasses import fields
 
+from firmware_py.plugins import ControlNode, UsageError
 from firmware_py.vehicle import VehicleConfig
 
 log = logging.getLogger("qnav.mavlink")
@@ -26,15 +28,15 @@ class MavlinkExtension:
     """`firmware_py.cli.Extension` for the MAVLink node."""
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        from firmware_py.mav_node import add_mavlink_args
+        from firmware_py.mavlink.node import add_mavlink_args
 
         add_mavlink_args(parser)
 
-    def attach(self, node, args: argparse.Namespace):
+    def attach(self, node: ControlNode, args: argparse.Namespace) -> Callable[[], None] | None:
         if str(args.mavlink).lower() == "none":
             return None
-        from firmware_py.mav_node import open_node
-        from firmware_py.params import PARAMS
+        from firmware_py.mavlink.node import open_node
+        from firmware_py.mavlink.params import PARAMS
 
         ctrl = node.controller
         clock = node.clock
@@ -57,8 +59,6 @@ class MavlinkExtension:
             shell = open_node(ctrl, args.storage, args.mavlink, clock.now_us(), signing_key=args.signing_key,
                               baud=args.mavlink_baud, reboot_hook=reboot_hook)
         except ValueError as exc:  # unreadable key file
-            from firmware_py.cli import UsageError
-
             raise UsageError(str(exc)) from None
         if cli_cfg is not None:
             defaults = VehicleConfig()

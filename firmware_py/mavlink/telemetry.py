@@ -16,8 +16,9 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from firmware_py import mav_frames, robot
-from firmware_py.params import ParamStore
+from firmware_py import robot_spec
+from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.params import ParamStore
 from firmware_py.vehicle import CtrlState, Mode, VehicleEvent, VehicleStatus
 
 M = mavlink2
@@ -226,15 +227,15 @@ class Telemetry:
     def obstacle_distance(self, now_us: int, st: VehicleStatus):
         """Sector ranges in BODY_FRD: 72 bins of 5 deg clockwise from the nose;
         each sensor fills the bins inside its field of view."""
-        min_cm, max_cm = robot.RANGE_MIN_MM // 10, robot.RANGE_MAX_MM // 10
+        min_cm, max_cm = robot_spec.RANGE_MIN_MM // 10, robot_spec.RANGE_MAX_MM // 10
         bins = [UINT16_MAX] * OBSTACLE_SECTORS
-        half_fov = math.degrees(robot.SENSOR_FOV_MRAD / 1000.0) / 2
-        for angle_mrad, rng, status in zip(robot.SENSOR_ANGLES_MRAD, st.ranges_mm, st.range_status, strict=False):
-            if status == robot.RANGE_VALID:
+        half_fov = math.degrees(robot_spec.SENSOR_FOV_MRAD / 1000.0) / 2
+        for angle_mrad, rng, status in zip(robot_spec.SENSOR_ANGLES_MRAD, st.ranges_mm, st.range_status, strict=False):
+            if status == robot_spec.RANGE_VALID:
                 value = max(min_cm, min(max_cm, rng // 10))
-            elif status == robot.RANGE_TOO_FAR:
+            elif status == robot_spec.RANGE_TOO_FAR:
                 value = max_cm + 1
-            elif status == robot.RANGE_TOO_CLOSE:
+            elif status == robot_spec.RANGE_TOO_CLOSE:
                 value = min_cm
             else:
                 continue

@@ -1,7 +1,7 @@
 """The controller's thin shell: CAN in, one `Controller.step` per tick, CAN out.
 
 `RobotNode` owns the threads and the bus; all decisions are in
-`firmware_py.controller`. Three ways to tick:
+`firmware_py.control.controller`. Three ways to tick:
 
 * wall clock (a real robot): a fixed-rate loop at `control_rate_hz` on a
   `WallClock`; a receive thread stamps every input with the clock on arrival.
@@ -38,7 +38,7 @@ import can
 
 from firmware_py import can_protocol as proto
 from firmware_py.clock import Clock, SimClock
-from firmware_py.controller import Controller, Inputs, Outputs
+from firmware_py.control.controller import Controller, Inputs, Outputs
 
 log = logging.getLogger("qnav.node")
 

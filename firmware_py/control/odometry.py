@@ -1,6 +1,6 @@
 """Differential-drive dead reckoning from wheel encoder counts, in integers.
 
-Owns the robot's pose estimate (world frame of `firmware_py.robot`: x east,
+Owns the robot's pose estimate (world frame of `firmware_py.robot_spec`: x east,
 y north, heading CCW from east) and the distance / relative bearing to a
 goal. Everything is integer: positions in micrometres, angles in
 microradians internally, millimetres and milliradians at the API. Sine,
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 # --- integer trigonometry (CORDIC) ------------------------------------------
 PI_URAD = 3_141_593
@@ -97,9 +97,9 @@ class Odometry:
     """
 
     def __init__(self, x_mm: int = 0, y_mm: int = 0, heading_mrad: int = 0, *,
-                 ticks_per_rev: int = robot.ENCODER_TICKS_PER_REV,
-                 wheel_radius_mm: int = robot.WHEEL_RADIUS_MM,
-                 wheel_base_mm: int = robot.WHEEL_BASE_MM,
+                 ticks_per_rev: int = robot_spec.ENCODER_TICKS_PER_REV,
+                 wheel_radius_mm: int = robot_spec.WHEEL_RADIUS_MM,
+                 wheel_base_mm: int = robot_spec.WHEEL_BASE_MM,
                  counter_bits: int = 32) -> None:
         if ticks_per_rev <= 0 or wheel_radius_mm <= 0 or wheel_base_mm <= 0:
             raise ValueError("ticks_per_rev, wheel_radius_mm and wheel_base_mm must be > 0")

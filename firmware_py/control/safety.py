@@ -2,17 +2,17 @@
 the e-stop latch and wheel-speed clamping.
 
 Pure logic on integer microseconds from the injected clock; the controller
-(`firmware_py.controller`) composes them and decides the state transitions.
+(`firmware_py.control.controller`) composes them and decides the state transitions.
 """
 
 from __future__ import annotations
 
-from firmware_py import robot
+from firmware_py import robot_spec
 
 
 def clamp_speeds(left_mm_s: int, right_mm_s: int, limit_mm_s: int) -> tuple[int, int]:
     """Clamp both wheel speeds to +-min(limit, the robot's hard limit)."""
-    lim = max(0, min(int(limit_mm_s), robot.MAX_WHEEL_SPEED_MM_S))
+    lim = max(0, min(int(limit_mm_s), robot_spec.MAX_WHEEL_SPEED_MM_S))
     return (max(-lim, min(lim, int(left_mm_s))), max(-lim, min(lim, int(right_mm_s))))
 
 

@@ -1,15 +1,15 @@
 """Thin shell around `FtpServer`: FILE_TRANSFER_PROTOCOL in, replies out, on a
 pymavlink connection.
 
-The MAVLink node (`firmware_py.mav_node`) hands every FILE_TRANSFER_PROTOCOL
+The MAVLink node (`firmware_py.mavlink.node`) hands every FILE_TRANSFER_PROTOCOL
 message to `FtpLink.handle_message`. Standalone (`python -m
-firmware_py.ftp_link --root DIR --mavlink udpin:127.0.0.1:PORT`) it also
+firmware_py.mavlink.ftp --root DIR --mavlink udpin:127.0.0.1:PORT`) it also
 sends a 1 Hz HEARTBEAT so stock clients (`python -m pymavlink.mavftp`,
 MAVProxy) find the robot; tests and `qnav bench upload` use that mode. The
 standalone activation hook only validates the file with the policy loader
 (there is no vehicle); the real robot passes `VehicleControl.activate_policy`.
 
-Signing: pass a 32-byte key (`firmware_py.signing.load_key_file`: raw, hex
+Signing: pass a 32-byte key (`firmware_py.mavlink.signing.load_key_file`: raw, hex
 or passphrase, as the MAVLink node reads it); the connection then signs
 everything it sends and drops unsigned input. MAVLINK20=1 must be in the
 environment before pymavlink is imported, or pymavlink's later switch to
@@ -26,8 +26,8 @@ import time
 from collections.abc import Callable
 
 from firmware_py.clock import Clock, WallClock
-from firmware_py.ftp_server import PAYLOAD_LEN, FtpServer
-from firmware_py.signing import load_key_file
+from firmware_py.mavlink.ftp_server import PAYLOAD_LEN, FtpServer
+from firmware_py.mavlink.signing import load_key_file
 from firmware_py.storage import DEFAULT_QUOTA_BYTES, Storage
 
 STATUSTEXT_CHARS = 50
@@ -116,7 +116,7 @@ def open_link(root: str, url: str, *, signing_key: bytes | None = None, quota: i
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m firmware_py.ftp_link",
+        prog="python -m firmware_py.mavlink.ftp",
         description="Serve the robot's MAVLink FTP storage on its own (no controller): "
                     "for tests, benchmarks and bench bring-up.")
     p.add_argument("--root", required=True, help="storage root directory (created if missing)")

@@ -1,6 +1,6 @@
 """Coordinate conversions between the robot's world frame and MAVLink frames.
 
-World (firmware_py.robot): x east, y north, millimetres; heading CCW from
+World (firmware_py.robot_spec): x east, y north, millimetres; heading CCW from
 east. MAVLink LOCAL_NED: x north, y east, z down, metres; yaw clockwise from
 north. Global: latitude/longitude in 1e-7 degrees around the configured
 origin (the world's (0, 0)), with ArduPilot's flat-earth scaling, accurate

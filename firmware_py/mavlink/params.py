@@ -20,7 +20,7 @@ import struct
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from firmware_py import robot
+from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
 from firmware_py.vehicle import FailsafeAction, VehicleConfig
 
@@ -72,7 +72,7 @@ PARAMS: tuple[ParamDef, ...] = (
              "sensor data older than this -> stop and FAULT", "sensor_timeout_ms"),
     ParamDef("MOT_TIMEOUT_MS", _CFG.motor_timeout_ms, 20, 2000,
              "motor driver watchdog timeout", "motor_timeout_ms"),
-    ParamDef("MAX_WHEEL_SPD", _CFG.max_wheel_speed_mm_s, 10, robot.MAX_WHEEL_SPEED_MM_S,
+    ParamDef("MAX_WHEEL_SPD", _CFG.max_wheel_speed_mm_s, 10, robot_spec.MAX_WHEEL_SPEED_MM_S,
              "wheel speed limit (mm/s)", "max_wheel_speed_mm_s"),
     ParamDef("SPEED_SCALE", _CFG.speed_scale_pct, 10, 100,
              "scale of the action table's wheel speeds (%)", "speed_scale_pct"),
