@@ -3,7 +3,7 @@ one byte-level writer.
 
 This module is the single definition of the byte layout (spec:
 docs/policy-format.md). The robot loads files with `load_policy`; the ground
-station's exporter (ground_station/export.py) quantises a float table and
+station's exporter (ground_station/learn/export.py) quantises a float table and
 hands the ints to `dump_policy` so the layout is never written twice.
 
 Pure Python, no numpy: the table lives in an `array` ('b' int8 or 'h' int16)

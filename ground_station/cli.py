@@ -14,10 +14,7 @@ import pkgutil
 import sys
 
 from ground_station import commands
-
-
-class CliError(Exception):
-    """A user-facing error: printed as one line, exit status 2."""
+from ground_station.errors import CliError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,8 +42,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # Run through the package module so commands' `CliError` is this class,
-    # not a second copy living in __main__.
-    from ground_station.cli import main as _main
-
-    sys.exit(_main())
+    sys.exit(main())

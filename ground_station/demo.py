@@ -8,7 +8,7 @@ piece, used the way an operator would use it:
    `realtime=True`) and `qnav-robot` (controller + MAVLink node, its file
    store in the run folder) as separate processes, each in its own process
    group, talking CAN through the hub;
-3. one ground-station MAVLink link (`ground_station.link.Link`, its .tlog in
+3. one ground-station MAVLink link (`ground_station.mavlink.link.Link`, its .tlog in
    the run folder) over UDP loopback;
 4. the policy uploaded and activated over MAVLink FTP with pymavlink's
    client (`ground_station.commands.upload.upload_policy`);
@@ -365,9 +365,9 @@ class ThreadedSource:
 def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -> Path:
     """Train (progress bar) and export an int8 cell policy into the run folder."""
     from firmware_py.policy import PolicyError, load_policy
-    from ground_station import export
+    from ground_station.learn import export
+    from ground_station.learn.train import TrainConfig, train, validate_config, write_run
     from ground_station.maps import load_map
-    from ground_station.train import TrainConfig, train, validate_config, write_run
 
     cfg = TrainConfig(map=opts.map_name, encoding="cell", targets=",".join(opts.targets),
                       steps=opts.train_steps, seed=0)
@@ -418,7 +418,7 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
 
 def _command_mission(link, opts: DemoOptions, say: Callable[[str], None]) -> None:
     from ground_station.commands.mission import target_items
-    from ground_station.link import LinkError
+    from ground_station.mavlink.link import LinkError
 
     m = link.m
     try:
@@ -433,7 +433,7 @@ def _command_mission(link, opts: DemoOptions, say: Callable[[str], None]) -> Non
 
 def _set_auto(link, say: Callable[[str], None]) -> None:
     from firmware_py.vehicle import Mode
-    from ground_station.link import LinkError
+    from ground_station.mavlink.link import LinkError
 
     m = link.m
     try:
@@ -478,7 +478,7 @@ def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: Processes, dea
               subtitle: str) -> str:
     from textual.binding import Binding
 
-    from ground_station.monitor_app import MonitorApp
+    from ground_station.monitor.app import MonitorApp
 
     class DemoMonitor(MonitorApp):
         TITLE = "qnav demo"
@@ -511,10 +511,10 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     say = say or (lambda _line: None)
     t0 = time.monotonic()
     from firmware_py.canbus import CanHub
-    from ground_station.link import Link
     from ground_station.maps import MapError, load_map
-    from ground_station.monitor_sources import LiveSource
-    from ground_station.telemetry_model import VehicleView
+    from ground_station.mavlink.link import Link
+    from ground_station.monitor.model import VehicleView
+    from ground_station.monitor.sources import LiveSource
 
     try:
         grid_map = load_map(opts.map_name)
@@ -594,7 +594,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         heartbeat = Heartbeat(link, REALTIME_HEARTBEAT_S if opts.realtime else LOCKSTEP_HEARTBEAT_S).start()
         say(f"robot sysid {link.sysid} found")
         if not opts.realtime:
-            from ground_station.link import LinkError
+            from ground_station.mavlink.link import LinkError
 
             try:
                 link.param_set("FS_GCS_TOUT_MS", LOCKSTEP_GCS_TIMEOUT_MS)

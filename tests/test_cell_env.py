@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import ground_station.envs  # noqa: F401 - registers the ids
+import ground_station.learn.envs  # noqa: F401 - registers the ids
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder
-from ground_station.envs.cell_env import CellNavEnv, cell_transitions, resolve_goals
+from ground_station.learn.envs.cell_env import CellNavEnv, cell_transitions, resolve_goals
 from ground_station.maps import GridMap, MapError, load_map, parse_map
 
 UP, DOWN, LEFT, RIGHT = (robot_spec.CELL_ACTION_NAMES.index(n) for n in ("up", "down", "left", "right"))

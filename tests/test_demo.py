@@ -145,7 +145,7 @@ def test_demo_dashboard_path_runs_the_monitor_until_the_mission_completes(tmp_pa
     from firmware_py import robot_spec
     from ground_station.demo import DemoOptions, run_demo
     from ground_station.maps import load_map
-    from ground_station.monitor_app import (
+    from ground_station.monitor.app import (
         MonitorApp,
         render_log,
         render_map,

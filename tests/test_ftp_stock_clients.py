@@ -13,7 +13,8 @@ import pytest
 
 from firmware_py.storage import ACTIVE_POLICY, Storage, boot_policy_candidates, ftp_crc32
 from firmware_py.subprocs import free_udp_port, stop_process
-from ground_station.bench.upload import REPO, load_link_emulator, robot_ftp_process
+from ground_station.bench.upload import REPO, robot_ftp_process
+from ground_station.rigs import link_emulator
 
 pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")
@@ -137,7 +138,7 @@ def test_mavproxy_ftp_put_and_get(robot, tmp_path):
 
 
 def test_kill_9_mid_upload_leaves_no_partial_file(tmp_path):
-    emu = load_link_emulator()
+    emu = link_emulator
     root = tmp_path / "root"
     store = Storage(root)
     store.write_atomic(ACTIVE_POLICY, b"the good policy")

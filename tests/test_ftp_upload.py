@@ -12,11 +12,11 @@ import pytest
 from firmware_py.encoders import CellEncoder
 from firmware_py.policy import dump_policy, load_policy
 from firmware_py.subprocs import free_udp_port
-from ground_station.bench.upload import load_link_emulator, robot_ftp_process
+from ground_station.bench.upload import robot_ftp_process
+from ground_station.rigs import link_emulator as emu
 
 pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")
-emu = load_link_emulator()
 
 
 def make_policy(seed: int) -> bytes:

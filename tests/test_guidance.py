@@ -1,4 +1,4 @@
-"""Waypoint guidance (ground_station.guidance): planned segments are clear
+"""Waypoint guidance (ground_station.maps.planner): planned segments are clear
 for the robot's disc, end at the goal, are no longer than the shortest grid
 path, leave U-pockets, and the sector evaluation/env follow them."""
 
@@ -9,10 +9,10 @@ import pytest
 
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
-from ground_station.guidance import plan_waypoints, segment_clear
+from ground_station.learn.sector.trainer import evaluate_sector, seek_table
+from ground_station.learn.sector.twin import disc_hits, grid_of
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
-from ground_station.sector_train import evaluate_sector, seek_table
-from ground_station.sector_twin import disc_hits, grid_of
+from ground_station.maps.planner import plan_waypoints, segment_clear
 
 
 def _sampled_min_clear(occ, h, w, c, a, b, r, step=2.0) -> bool:
@@ -122,7 +122,7 @@ def test_guided_evaluation_reports_direct_and_baseline_beside_it():
 
 
 def test_env_follows_the_waypoints_to_the_goal():
-    from ground_station.envs.sector_env import SectorNavEnv
+    from ground_station.learn.envs.sector_env import SectorNavEnv
 
     enc = SectorEncoder(bearing_sectors=15, sensors=(0,), range_edges_mm=(150,))
     env = SectorNavEnv("paper10", encoder=enc)
@@ -169,7 +169,7 @@ def test_shipped_sector_policy_leaves_a_paper10_pocket_in_hil_only_with_waypoint
     # real pieces: pymunk plant + RobotNode/Controller on a virtual CAN bus, lockstep
     from firmware_py.policy import load_policy
     from ground_station.bench.hil import ROOT, run_episode
-    from ground_station.guidance import guidance_from_metadata
+    from ground_station.maps.planner import guidance_from_metadata
 
     gm = load_map("paper10")
     pol = load_policy(ROOT / "policies" / "sector.qtab")

@@ -1,4 +1,4 @@
-"""tools/link_emulator.py: the scheduling rules (pure) and the relay over UDP."""
+"""ground_station/rigs/link_emulator.py: the scheduling rules (pure) and the relay over UDP."""
 
 import socket
 import subprocess
@@ -6,9 +6,7 @@ import sys
 
 import pytest
 
-from ground_station.bench.upload import REPO, load_link_emulator
-
-emu = load_link_emulator()
+from ground_station.rigs import link_emulator as emu
 
 
 def scheduled(link):
@@ -127,6 +125,6 @@ def test_duplicating_link_over_udp():
 
 
 def test_cli_help():
-    out = subprocess.run([sys.executable, str(REPO / "tools" / "link_emulator.py"), "--help"],
+    out = subprocess.run([sys.executable, "-m", "ground_station.rigs.link_emulator", "--help"],
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 0 and "--loss" in out.stdout and "--seed" in out.stdout

@@ -17,7 +17,7 @@ import pytest
 from firmware_py.canbus import CanHub
 from firmware_py.subprocs import free_udp_port, stop_process
 from ground_station import cli
-from ground_station.link import Link
+from ground_station.mavlink.link import Link
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

@@ -13,8 +13,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from firmware_py import robot_spec
 from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
-from ground_station.monitor_app import MonitorApp, heading_arrow
-from ground_station.monitor_sources import ReplaySource, open_live
+from ground_station.monitor.app import MonitorApp, heading_arrow
+from ground_station.monitor.sources import ReplaySource, open_live
 
 ARROWS = set("→↗↑↖←↙↓↘")
 

@@ -9,7 +9,7 @@ from monitor_support import encoder, frame, gcs_mission_items
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py.vehicle import CtrlState, Mode
-from ground_station.telemetry_model import VehicleView
+from ground_station.monitor.model import VehicleView
 
 
 def wire(mav: mavlink.MAVLink, *msgs) -> bytes:

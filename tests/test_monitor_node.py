@@ -14,8 +14,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from firmware_py import robot_spec
 from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
-from ground_station.monitor_app import MonitorApp
-from ground_station.monitor_sources import open_live
+from ground_station.monitor.app import MonitorApp
+from ground_station.monitor.sources import open_live
 
 
 def test_dashboard_on_the_real_node(tmp_path):
@@ -68,7 +68,7 @@ def test_dashboard_on_the_real_node(tmp_path):
         node.stop()
     assert app.view.policy_id == 0  # no policy on this vehicle: the read-only param says 0
     assert app.view.link.lost == 0 and app.view.link.received > 50
-    from ground_station.report import analyse, summarise
+    from ground_station.monitor.report import analyse, summarise
 
     s = summarise(analyse(tlog), grid)
     assert [i["seq"] for i in s["mission_items_reached"]][:2] == [0, 1]

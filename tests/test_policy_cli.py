@@ -11,7 +11,7 @@ import pytest
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import load_policy
 from ground_station.cli import main
-from ground_station.export import policy_bytes, quantise
+from ground_station.learn.export import policy_bytes, quantise
 
 QNAV = [sys.executable, "-m", "ground_station.cli"]
 

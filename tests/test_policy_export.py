@@ -1,4 +1,4 @@
-"""Symmetric quantiser and the float-vs-int comparison (ground_station.export)."""
+"""Symmetric quantiser and the float-vs-int comparison (ground_station.learn.export)."""
 
 import json
 
@@ -8,7 +8,7 @@ import pytest
 from firmware_py.atomic import atomic_write
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import load_policy
-from ground_station.export import (
+from ground_station.learn.export import (
     compare,
     encoder_from_dict,
     file_metadata,

@@ -21,7 +21,7 @@ from firmware_py.policy import (
     dump_policy,
     load_policy,
 )
-from ground_station.export import compare, policy_bytes, quantise
+from ground_station.learn.export import compare, policy_bytes, quantise
 
 GOALS = [(1, 1), (8, 2), (3, 7), (9, 9)]
 

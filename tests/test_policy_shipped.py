@@ -39,7 +39,7 @@ def test_shipped_file_matches_its_record(path):
 
 
 def test_paper10_cell_policy_reaches_a_to_d_optimally_as_recorded():
-    from ground_station.evaluate import evaluate_cell
+    from ground_station.learn.evaluate import evaluate_cell
     from ground_station.maps import load_map
 
     path = POLICIES / "paper10_cell.qtab"
@@ -74,8 +74,8 @@ def test_inspect_prints_the_shipped_header(capsys):
 
 
 def test_sector_policy_drives_as_recorded_and_int8_is_within_half_a_point_of_float():
+    from ground_station.learn.sector.trainer import evaluate_sector
     from ground_station.maps import load_map
-    from ground_station.sector_train import evaluate_sector
 
     path = POLICIES / "sector.qtab"
     rec = json.loads(path.with_suffix(".json").read_text())

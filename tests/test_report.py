@@ -12,7 +12,7 @@ import pytest
 from monitor_support import FAULT_S, PATH_LENGTH_M, STOP_AT_A_S, T_ARM, RoverScript, write_tlog
 
 from ground_station.maps import load_map
-from ground_station.report import analyse, write_report
+from ground_station.monitor.report import analyse, write_report
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

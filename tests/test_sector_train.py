@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from firmware_py.encoders import SectorEncoder
+from ground_station.learn.sector.trainer import SectorTrainer, eval_episodes, evaluate_sector
+from ground_station.learn.train import TrainConfig
 from ground_station.maps import GridMap, load_map
-from ground_station.sector_train import SectorTrainer, eval_episodes, evaluate_sector
-from ground_station.train import TrainConfig
 
 
 def _cfg(**kw):

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from firmware_py import encoders, robot_spec
 from firmware_py.encoders import SectorEncoder, bearing_sector
-from ground_station import sector_twin as T
+from ground_station.learn.sector import twin as T
 
 CELL = 500.0
 
@@ -52,7 +52,7 @@ def test_fast_bearing_sector_equals_reference(bearing, sectors):
 
 def test_constants_follow_the_contract():
     assert T.TWO_PI_MRAD == encoders.TWO_PI_MRAD
-    from ground_station import sector_kernels as K
+    from ground_station.learn.sector import kernels as K
     assert robot_spec.ACTION_NAMES[K.REVERSE] == "reverse"
     assert T.N_SUBSTEPS * robot_spec.PHYSICS_DT_US == robot_spec.CONTROL_PERIOD_US
 

@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_py.encoders import CellEncoder
-from ground_station.envs.cell_env import cell_transitions
-from ground_station.evaluate import (
+from ground_station.learn.envs.cell_env import cell_transitions
+from ground_station.learn.evaluate import (
     COLLISION,
     LOOP,
     POLICY_NEAREST,
@@ -23,8 +23,7 @@ from ground_station.evaluate import (
     evaluate_cell,
     rollouts_cell,
 )
-from ground_station.maps import GridMap, load_map, parse_map
-from ground_station.train import (
+from ground_station.learn.train import (
     TrainConfig,
     cell_state,
     learning_curve,
@@ -32,6 +31,7 @@ from ground_station.train import (
     train,
     train_cell,
 )
+from ground_station.maps import GridMap, load_map, parse_map
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 

@@ -80,7 +80,7 @@ def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
     """One paced HIL run (hub + qnav-sim --realtime + qnav-robot); the robot's stats."""
     from firmware_py import robot_spec
     from firmware_py.canbus import CanHub
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
 
     bindir = Path(sys.executable).parent
     rt = [] if rt_priority is None else ["--rt-priority", str(rt_priority)]
@@ -115,7 +115,7 @@ KEYS = ("tick_p50_us", "tick_p99_us", "tick_max_us", "ticks", "overruns", "cpu_p
 
 def run(args: argparse.Namespace) -> int:
     from ground_station.bench.common import report
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
 
     if not args.seconds > 0:
         raise CliError(f"--seconds must be positive, got {args.seconds:g}")

@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ground_station.bench.common import report
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
     from ground_station.faults import load_all
 
     scenarios = load_all()

@@ -161,9 +161,9 @@ def _centre_m(col: int, row: int, height: int, cell_mm: int) -> tuple[float, flo
 def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None,
                    guidance: str = "path") -> list[dict]:
     """guidance "path": the robot gets the ground station's planned waypoints
-    (ground_station.guidance.plan_waypoints) as a mission, as the sector
+    (ground_station.maps.planner.plan_waypoints) as a mission, as the sector
     policy is trained and evaluated; "direct": the goal alone."""
-    from ground_station.guidance import guidance_from_metadata, plan_waypoints
+    from ground_station.maps.planner import guidance_from_metadata, plan_waypoints
 
     plan_kw = guidance_from_metadata(policy.metadata)  # the planner settings the policy trained with
     cell_mm = round(gm.cell_size_m * 1000)
@@ -210,8 +210,8 @@ def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
     """The same (start, heading, goal) episodes greedily on the training twin
     (`SectorNavEnv`, with the same waypoint guidance): "reached", "collision"
     or "timeout" each."""
-    from ground_station.envs.sector_env import SectorNavEnv
-    from ground_station.guidance import guidance_from_metadata
+    from ground_station.learn.envs.sector_env import SectorNavEnv
+    from ground_station.maps.planner import guidance_from_metadata
 
     env = SectorNavEnv(gm, encoder=policy.encoder, guidance=guidance, **guidance_from_metadata(policy.metadata))
     out = []
@@ -263,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
 
     from firmware_py.policy import PolicyError, load_policy
     from ground_station.bench.common import report
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
 
     try:

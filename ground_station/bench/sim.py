@@ -107,7 +107,7 @@ def measure_remote(occ, cell_size_m: float, ticks: int) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from ground_station.bench.common import report
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
 
     if args.sim_seconds <= 0 or args.ticks <= 0:

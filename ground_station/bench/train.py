@@ -32,7 +32,7 @@ def python_loop(cfg, seconds: float) -> tuple[int, float]:
     import gymnasium as gym
     import numpy as np
 
-    import ground_station.envs  # noqa: F401 - registers the ids
+    import ground_station.learn.envs  # noqa: F401 - registers the ids
 
     env = gym.make("qnav/CellNav-v0", gridmap=cfg.map, targets=cfg.targets,
                    reward_goal=cfg.reward_goal, reward_step=cfg.reward_step,
@@ -63,9 +63,9 @@ def python_loop(cfg, seconds: float) -> tuple[int, float]:
 def sector_speed(cfg, n_steps: int) -> tuple[float | None, str]:
     import numpy as np
 
+    from ground_station.learn.sector.trainer import SectorTrainer
+    from ground_station.learn.train import sector_encoder
     from ground_station.maps import load_map
-    from ground_station.sector_train import SectorTrainer
-    from ground_station.train import sector_encoder
 
     trainer = SectorTrainer([load_map(cfg.map)], cfg, sector_encoder(cfg))
     q = np.zeros((trainer.n_states, trainer.n_actions))
@@ -80,8 +80,8 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ground_station.bench.common import report
+    from ground_station.learn.train import TrainConfig, train_cell
     from ground_station.maps import load_map
-    from ground_station.train import TrainConfig, train_cell
 
     cfg = TrainConfig(map="paper10", targets="A,B,C,D", steps=args.steps, chunk_steps=args.steps)
     gm = load_map(cfg.map)

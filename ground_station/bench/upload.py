@@ -3,7 +3,7 @@
 For 10 KiB and 100 KiB payloads (seeded random bytes of policy size), with
 and without MAVLink 2 signing, at 0 / 5 / 20 % frame loss each way, runs the
 real path: `qnav upload`'s code (pymavlink's MAVFTP client) -> link emulator
-(tools/link_emulator.py, 5760 B/s each way, 8N1) -> the robot's FTP shell in
+(ground_station/rigs/link_emulator.py, 5760 B/s each way, 8N1) -> the robot's FTP shell in
 its own process (`python -m firmware_py.mavlink.ftp`).
 
 Per case: seconds from the first FTP request to the robot's CRC32 verified,
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import os
 import random
 import subprocess
@@ -31,18 +30,6 @@ REPO = Path(__file__).resolve().parents[2]
 WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size
 FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
 SIGNATURE = 13
-
-
-def load_link_emulator():
-    """tools/link_emulator.py as a module (tools/ is not an installed package)."""
-    name = "qnav_link_emulator"
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, REPO / "tools" / "link_emulator.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) -> float:
@@ -80,8 +67,8 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
 def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port: int, root: Path,
              seed: int) -> dict:
     from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
+    from ground_station.rigs import link_emulator as emu
 
-    emu = load_link_emulator()
     data = random.Random(seed).randbytes(size)
     with tempfile.TemporaryDirectory() as tmp:
         local = Path(tmp) / f"bench-{size}.qtab"
@@ -128,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ground_station.bench.common import report
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
 
     try:
         sizes = [int(s) for s in args.sizes.split(",")]

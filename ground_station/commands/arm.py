@@ -10,7 +10,7 @@ import argparse
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.link import add_link_args
+    from ground_station.mavlink.link import add_link_args
 
     for verb, text in (("arm", "arm the robot (motors enabled)"), ("disarm", "disarm the robot (motors stop)")):
         p = sub.add_parser(verb, help=f"{text} (MAVLink)", description=__doc__,
@@ -20,7 +20,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.link import mavlink, run_on_link
+    from ground_station.mavlink.link import mavlink, run_on_link
 
     verb = "arm" if args.arm else "disarm"
 

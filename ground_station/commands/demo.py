@@ -72,7 +72,6 @@ def _print_summary(s, out) -> None:
 def run(args: argparse.Namespace) -> int:
     import signal
 
-    from ground_station.cli import CliError
     from ground_station.demo import (
         EXIT_FAILED,
         EXIT_INTERRUPTED,
@@ -81,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
         DemoOptions,
         run_demo,
     )
+    from ground_station.errors import CliError
 
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     if not targets:

@@ -4,7 +4,7 @@ Every (start, goal) pair of the map (a seeded sample of --sample pairs on
 large maps): success rate, path length / shortest (mean, max), timeouts,
 collisions, loops, beside the greedy nearest-free-neighbour baseline.
 Sector runs: the main figures follow the ground station's planned waypoints
-(`ground_station.guidance`, what the robot gets as a mission); the same
+(`ground_station.maps.planner`, what the robot gets as a mission); the same
 policy steering on the goal bearing alone is reported beside them
 (`direct_*` keys), and the baseline is a hand-written seek table on the same
 waypoints.
@@ -37,8 +37,8 @@ def _fmt(v) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.cli import CliError
-    from ground_station.evaluate import evaluate_run
+    from ground_station.errors import CliError
+    from ground_station.learn.evaluate import evaluate_run
     from ground_station.maps import MapError, load_map
 
     if args.sample is not None and args.sample < 1:
@@ -74,8 +74,8 @@ def _plot(args: argparse.Namespace, gridmap) -> None:
     from pathlib import Path
 
     from firmware_py.atomic import atomic_write
-    from ground_station.cli import CliError
-    from ground_station.evaluate import load_run, plot_cell_policy
+    from ground_station.errors import CliError
+    from ground_station.learn.evaluate import load_run, plot_cell_policy
 
     q, meta = load_run(args.run_dir)
     if meta["encoding"] != "cell":

@@ -52,15 +52,15 @@ def _clean(x):
 def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
     """Greedy rollouts of table `q` with the run's encoder on `gridmap`."""
     if run.encoder.kind == "cell":
-        from ground_station.evaluate import evaluate_cell
+        from ground_station.learn.evaluate import evaluate_cell
 
         if (run.encoder.width, run.encoder.height) != (gridmap.width, gridmap.height):
             raise ValueError(f"policy is for a {run.encoder.width}x{run.encoder.height} map, "
                              f"{gridmap.name} is {gridmap.width}x{gridmap.height}")
         return evaluate_cell(q, gridmap, run.goals, sample=sample, seed=seed,
                              target_names=run.meta.get("targets"))
-    from ground_station.evaluate import sector_guidance_from_meta
-    from ground_station.sector_train import evaluate_sector
+    from ground_station.learn.evaluate import sector_guidance_from_meta
+    from ground_station.learn.sector.trainer import evaluate_sector
     return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample,
                            **sector_guidance_from_meta(run.meta))
 
@@ -70,8 +70,8 @@ def run(args: argparse.Namespace) -> int:
 
     from firmware_py.atomic import atomic_write
     from firmware_py.policy import PolicyError, load_policy
-    from ground_station import export
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
+    from ground_station.learn import export
 
     try:
         run_ = export.load_run(args.run_dir)

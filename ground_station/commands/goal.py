@@ -11,7 +11,7 @@ import argparse
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.link import add_link_args
+    from ground_station.mavlink.link import add_link_args
 
     p = sub.add_parser("goal", help="send a goal position (Guided mode, MAVLink)", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -22,7 +22,13 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.link import EXIT_REFUSED, EXIT_TIMEOUT, LinkError, mavlink, run_on_link
+    from ground_station.mavlink.link import (
+        EXIT_REFUSED,
+        EXIT_TIMEOUT,
+        LinkError,
+        mavlink,
+        run_on_link,
+    )
 
     m = mavlink()
     mask = 0xFFF8  # position only

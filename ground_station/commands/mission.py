@@ -17,7 +17,7 @@ import argparse
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.link import add_link_args
+    from ground_station.mavlink.link import add_link_args
 
     p = sub.add_parser("mission", help="upload or download the robot's mission (MAVLink)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -39,9 +39,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
     """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * 1e4) for map targets."""
     from firmware_py import robot_spec
-    from ground_station.cli import CliError
-    from ground_station.link import mavlink
+    from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
+    from ground_station.mavlink.link import mavlink
 
     try:
         gm = load_map(map_name) if cell_size_m is None else load_map(map_name, cell_size_m)
@@ -63,8 +63,8 @@ def target_items(targets: str, map_name: str, cell_size_m: float | None = None) 
 
 def file_items(path: str) -> list[tuple[int, int, int]]:
     """NAV_WAYPOINT items of a QGC WPL file, as MISSION_ITEM_INT (frame, x, y)."""
-    from ground_station.cli import CliError
-    from ground_station.link import mavutil
+    from ground_station.errors import CliError
+    from ground_station.mavlink.link import mavutil
 
     m = mavutil().mavlink  # MAVLINK20 set before mavwp pulls in pymavlink
     from pymavlink import mavwp
@@ -87,8 +87,8 @@ def file_items(path: str) -> list[tuple[int, int, int]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.cli import CliError
-    from ground_station.link import run_on_link
+    from ground_station.errors import CliError
+    from ground_station.mavlink.link import run_on_link
 
     if args.verb == "upload":
         if bool(args.targets) == bool(args.file):
@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
 def _write_wpl(path: str, items: list) -> None:
     """QGC WPL 110 (float x/y: metres for local frames, degrees for global)."""
     from firmware_py.atomic import atomic_write
-    from ground_station.link import mavlink
+    from ground_station.mavlink.link import mavlink
 
     m = mavlink()
     lines = ["QGC WPL 110"]

@@ -13,7 +13,7 @@ MODES = {"hold": 4, "guided": 15, "auto": 10}  # firmware_py.vehicle.Mode
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.link import add_link_args
+    from ground_station.mavlink.link import add_link_args
 
     p = sub.add_parser("mode", help="set the robot's mode (MAVLink)", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -24,7 +24,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from firmware_py.vehicle import Mode
-    from ground_station.link import mavlink, run_on_link
+    from ground_station.mavlink.link import mavlink, run_on_link
 
     assert all(Mode[k.upper()] == v for k, v in MODES.items())
     m = mavlink()

@@ -15,7 +15,7 @@ import sys
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("monitor", help="telemetry dashboard (live, --plain, or --replay a .tlog)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    from ground_station.link import DEFAULT_TLOG_DIR, DEFAULT_URL
+    from ground_station.mavlink.link import DEFAULT_TLOG_DIR, DEFAULT_URL
 
     p.add_argument("--mavlink", metavar="URL", default=None,
                    help=f"pymavlink connection string to the robot (default {DEFAULT_URL})")
@@ -37,7 +37,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def _load_map(spec: str, cell_size: float):
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
 
     if spec.lower() == "none":
         return None
@@ -51,9 +51,9 @@ def _load_map(spec: str, cell_size: float):
 
 def open_source(args):
     """The message source the flags ask for (ReplaySource or LiveSource)."""
-    from ground_station.cli import CliError
-    from ground_station.link import DEFAULT_URL
-    from ground_station.monitor_sources import ReplaySource, open_live
+    from ground_station.errors import CliError
+    from ground_station.mavlink.link import DEFAULT_URL
+    from ground_station.monitor.sources import ReplaySource, open_live
 
     if args.replay:
         if args.mavlink or args.tlog or args.signing_key:
@@ -81,8 +81,8 @@ def open_source(args):
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.cli import CliError
-    from ground_station.telemetry_model import VehicleView
+    from ground_station.errors import CliError
+    from ground_station.monitor.model import VehicleView
 
     if args.duration is not None and args.duration <= 0:
         raise CliError(f"--duration must be > 0, got {args.duration}")
@@ -93,11 +93,11 @@ def run(args: argparse.Namespace) -> int:
     view = VehicleView()
     try:
         if args.plain:
-            from ground_station.monitor_sources import run_plain
+            from ground_station.monitor.sources import run_plain
 
             run_plain(source, view, sys.stdout, duration=args.duration)
             return 0
-        from ground_station.monitor_app import MonitorApp
+        from ground_station.monitor.app import MonitorApp
 
         MonitorApp(source, grid_map=grid_map, view=view, subtitle=label).run()
         return 0

@@ -12,7 +12,7 @@ import argparse
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.link import add_link_args
+    from ground_station.mavlink.link import add_link_args
 
     p = sub.add_parser("param", help="list, read or set robot parameters (MAVLink)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -37,8 +37,8 @@ def _fmt(value: float) -> str:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from ground_station.cli import CliError
-    from ground_station.link import run_on_link
+    from ground_station.errors import CliError
+    from ground_station.mavlink.link import run_on_link
 
     name = getattr(args, "name", None)
     if name is not None and not 0 < len(name) <= 16:

@@ -27,9 +27,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.cli import CliError
     from ground_station.commands.monitor import _load_map
-    from ground_station.report import analyse, write_report
+    from ground_station.errors import CliError
+    from ground_station.monitor.report import analyse, write_report
 
     if not os.path.isfile(args.tlog):
         raise CliError(f"no such tlog: {args.tlog}")

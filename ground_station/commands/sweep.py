@@ -13,7 +13,7 @@ import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.train_config import add_config_arguments
+    from ground_station.learn.config import add_config_arguments
 
     p = sub.add_parser("sweep", help="learning-rate study over several seeds (figure + JSON)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -28,10 +28,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
+    from ground_station.learn.config import config_from_args, validate_config
+    from ground_station.learn.sweep import parse_lrs, sweep, write_sweep
     from ground_station.maps import MapError, load_map
-    from ground_station.sweep import parse_lrs, sweep, write_sweep
-    from ground_station.train_config import config_from_args, validate_config
 
     cfg = config_from_args(args)
     if args.epsilon is not None:

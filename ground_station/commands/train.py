@@ -1,7 +1,7 @@
 """`qnav train`: train a Q table and write the run folder.
 
 Writes DIR/q.npy (float64, n_states x n_actions), DIR/meta.json,
-DIR/metrics.csv and DIR/learning_curve.png (see `ground_station.train`).
+DIR/metrics.csv and DIR/learning_curve.png (see `ground_station.learn.train`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.train_config import add_config_arguments
+    from ground_station.learn.config import add_config_arguments
 
     p = sub.add_parser("train", help="train a tabular Q policy (cell or sector encoding)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -24,9 +24,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.cli import CliError
+    from ground_station.errors import CliError
+    from ground_station.learn.train import config_from_args, train, validate_config, write_run
     from ground_station.maps import MapError, load_map
-    from ground_station.train import config_from_args, train, validate_config, write_run
 
     cfg = config_from_args(args)
     if args.epsilon is not None:

@@ -45,7 +45,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ground_station.cli import CliError
+from ground_station.errors import CliError
 
 EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 ACTIVE_POLICY = "/policies/active.qtab"  # firmware_py.storage.ACTIVE_POLICY; imported lazily below
@@ -167,7 +167,7 @@ class RobotLink:
     def __init__(self, url: str, signing_key: bytes | None = None, timeout_s: float = 10.0,
                  conn=None) -> None:
         """`conn`: an open pymavlink connection to share (signing already set
-        up on it), e.g. `ground_station.link.Link.conn`; else one is opened on `url`."""
+        up on it), e.g. `ground_station.mavlink.link.Link.conn`; else one is opened on `url`."""
         mavutil, self.mavftp = _import_pymavlink()
         shared = conn is not None
         self.conn = conn if shared else mavutil.mavlink_connection(

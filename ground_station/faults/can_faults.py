@@ -40,7 +40,7 @@ import can
 from firmware_py import can_protocol as cp
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.faults.common import ScenarioResult, register
-from ground_station.faults.hil_rig import PERIOD_US, LockstepRig, cell_policy, far_trip, paper10
+from ground_station.rigs.lockstep import PERIOD_US, LockstepRig, cell_policy, far_trip, paper10
 
 INPUT_FRAMES = ("RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper", "MotorStatus")
 

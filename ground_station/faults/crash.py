@@ -60,7 +60,7 @@ class Crasher:
         from firmware_py.mavlink.params import PARAMS
         from firmware_py.policy import load_policy
         from firmware_py.storage import ACTIVE_POLICY, Storage
-        from ground_station.faults.hil_rig import CELL_POLICY
+        from ground_station.rigs.lockstep import CELL_POLICY
 
         self.tmp = tmp
         self.storage_dir = tmp / "robot"
@@ -77,7 +77,7 @@ class Crasher:
     # --- versions --------------------------------------------------------------------
     def new_version(self) -> Path:
         from firmware_py.policy import load_policy
-        from ground_station.faults.hil_rig import CELL_POLICY
+        from ground_station.rigs.lockstep import CELL_POLICY
 
         self.next_id += 1
         data = policy_version(CELL_POLICY, self.next_id)
@@ -113,7 +113,7 @@ class Crasher:
     # --- robot ------------------------------------------------------------------------
     def start_robot(self) -> None:
         from ground_station.commands.upload import RobotLink
-        from ground_station.faults.robot_proc import RobotProcess
+        from ground_station.rigs.processes import RobotProcess
 
         self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
         self.link = RobotLink(self.robot.url, None, timeout_s=30.0)

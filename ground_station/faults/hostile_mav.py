@@ -287,7 +287,7 @@ class HostileRig:
         from firmware_py.mavlink.signing import Signing
         from firmware_py.policy import load_policy
         from firmware_py.storage import ACTIVE_POLICY, Storage
-        from ground_station.faults.hil_rig import CELL_POLICY
+        from ground_station.rigs.lockstep import CELL_POLICY
 
         self.sandbox = sandbox
         self.root = sandbox / "robot"
@@ -465,8 +465,8 @@ def hostile_udp(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     over UDP, so the run is all survived or all lost."""
     import time
 
-    from ground_station.faults.robot_proc import RobotProcess
-    from ground_station.link import Link, LinkError
+    from ground_station.mavlink.link import Link, LinkError
+    from ground_station.rigs.processes import RobotProcess
 
     res = ScenarioResult("mav_hostile_udp")
     with tempfile.TemporaryDirectory(prefix="qnav-hostile-udp-") as tmp:

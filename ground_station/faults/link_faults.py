@@ -67,7 +67,7 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     from firmware_py.mavlink.params import ParamStore
     from firmware_py.mavlink.signing import Signing
     from firmware_py.vehicle import CtrlState
-    from ground_station.faults.hil_rig import PERIOD_US, LockstepRig, cell_policy, far_trip, paper10
+    from ground_station.rigs.lockstep import PERIOD_US, LockstepRig, cell_policy, far_trip, paper10
 
     res = ScenarioResult("link_loss")
     hb = _gcs_heartbeat()
@@ -128,13 +128,13 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
 # --- lossy radio: uploads and commands through the link emulator -------------------------
 
 def _emulator():
-    from ground_station.bench.upload import load_link_emulator
+    from ground_station.rigs import link_emulator
 
-    return load_link_emulator()
+    return link_emulator
 
 
 class _CountingLink:
-    """Counts COMMAND_LONGs a `ground_station.link.Link` sends (its retries)."""
+    """Counts COMMAND_LONGs a `ground_station.mavlink.link.Link` sends (its retries)."""
 
     def __init__(self, link) -> None:
         self.sent = 0
@@ -154,9 +154,9 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
     from firmware_py.storage import ACTIVE_POLICY, Storage
     from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
     from ground_station.faults.crash import policy_version
-    from ground_station.faults.hil_rig import CELL_POLICY
-    from ground_station.faults.robot_proc import RobotProcess
-    from ground_station.link import Link, LinkError, mavlink
+    from ground_station.mavlink.link import Link, LinkError, mavlink
+    from ground_station.rigs.lockstep import CELL_POLICY
+    from ground_station.rigs.processes import RobotProcess
 
     emu = _emulator()
     rng = random.Random(seed)
@@ -331,9 +331,9 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
     from firmware_py.storage import ACTIVE_POLICY, Storage
     from ground_station.commands.upload import RobotLink, upload_policy
     from ground_station.faults.crash import policy_version
-    from ground_station.faults.hil_rig import CELL_POLICY, paper10
-    from ground_station.faults.robot_proc import BIN, RobotProcess
-    from ground_station.link import Link
+    from ground_station.mavlink.link import Link
+    from ground_station.rigs.lockstep import CELL_POLICY, paper10
+    from ground_station.rigs.processes import BIN, RobotProcess
 
     gm = paper10()
     storage_dir = tmp / f"robot-{seed}"

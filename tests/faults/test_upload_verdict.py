@@ -13,11 +13,11 @@ import pytest
 
 from firmware_py.policy import load_policy
 from firmware_py.storage import ACTIVE_POLICY, Storage, ftp_crc32
-from ground_station.bench.upload import load_link_emulator
 from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
 from ground_station.faults.crash import policy_version
-from ground_station.faults.hil_rig import CELL_POLICY
-from ground_station.faults.robot_proc import RobotProcess
+from ground_station.rigs import link_emulator
+from ground_station.rigs.lockstep import CELL_POLICY
+from ground_station.rigs.processes import RobotProcess
 
 UP, DOWN = 0, 1
 MSG_PARAM_VALUE, MSG_FTP = 22, 110
@@ -64,7 +64,7 @@ class Dropper:
 @pytest.fixture
 def rig(tmp_path):
     """(start(dropper) -> RobotLink, storage, base bytes, new policy path); everything stopped after."""
-    emu = load_link_emulator()
+    emu = link_emulator
     storage_dir = tmp_path / "robot"
     base = CELL_POLICY.read_bytes()
     Storage(storage_dir).write_atomic(ACTIVE_POLICY, base)

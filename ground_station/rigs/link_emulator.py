@@ -23,7 +23,7 @@ bool` (library only): a frame it returns True for is lost like a random
 loss (it still uses its air time), counted in `dropped`, and draws its
 random numbers all the same, so the other frames keep their fates.
 
-CLI: python tools/link_emulator.py --help
+CLI: python -m ground_station.rigs.link_emulator --help
 """
 
 from __future__ import annotations
@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         description="Emulated telemetry radio between a ground station and the robot (UDP, 127.0.0.1). "
                     "Example: robot on udpin:127.0.0.1:14555, ground station on udpout:127.0.0.1:14550: "
-                    "link_emulator.py --gcs-port 14550 --robot-peer 127.0.0.1:14555 --loss 0.05")
+                    "python -m ground_station.rigs.link_emulator --gcs-port 14550 --robot-peer 127.0.0.1:14555 --loss 0.05")
     p.add_argument("--gcs-port", type=int, default=14550, help="port the ground station talks to (default %(default)s)")
     p.add_argument("--robot-port", type=int, default=0, help="port the robot talks to (default: any free)")
     p.add_argument("--gcs-peer", type=_hostport, help="fixed ground-station address (it listens); default: learnt")

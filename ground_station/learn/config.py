@@ -1,6 +1,6 @@
 """Training configuration: every hyperparameter in one dataclass.
 
-Kept apart from `ground_station.train` (which re-exports it) so that building
+Kept apart from `ground_station.learn.train` (which re-exports it) so that building
 the `qnav` argument parser does not import numba: the field help texts
 become `qnav train --help`.
 """
@@ -33,7 +33,7 @@ class TrainConfig:
     reward_goal: float = _f(1.0, "reward for reaching the goal (episode ends)")
     reward_step: float = _f(-0.01, "reward for every other move")
     reward_collision: float = _f(-1.0, "reward for hitting an obstacle or the map edge (episode ends)")
-    sector_guidance: str = _f("path", "sector: path = steer to the ground station's planned waypoints (ground_station/guidance.py; "
+    sector_guidance: str = _f("path", "sector: path = steer to the ground station's planned waypoints (ground_station/maps/planner.py; "
                                       "the robot gets them as a mission), direct = steer to the goal's bearing only")
     sector_bearing_sectors: int = _f(15, "sector: goal-bearing sectors (odd: no sector straddles straight behind)")
     sector_sensors: str = _f("0,1,7", "sector: comma-separated range sensor indices in the state")

@@ -35,7 +35,7 @@ from pathlib import Path
 from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
 from firmware_py.vehicle import CtrlState, Mode
-from ground_station.telemetry_model import NV_ACTION, VehicleView
+from ground_station.monitor.model import NV_ACTION, VehicleView
 
 STOP_SPEED_M_S = 0.02
 STOP_YAW_RATE = 0.05

@@ -20,8 +20,8 @@ from textual.containers import Horizontal, Vertical
 from textual.widgets import Footer, Header, Static
 
 from firmware_py import robot_spec
-from ground_station.monitor_sources import MessageSource
-from ground_station.telemetry_model import VehicleView
+from ground_station.monitor.model import VehicleView
+from ground_station.monitor.sources import MessageSource
 
 _ARROWS = "→↗↑↖←↙↓↘"  # heading CCW from east, 45° steps
 _POLL_S = 0.05

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ground_station.train_config import TrainConfig
+from ground_station.learn.config import TrainConfig
 
 
 def parse_lrs(spec: str) -> list[float]:
@@ -39,9 +39,9 @@ def parse_lrs(spec: str) -> list[float]:
 
 def run_job(cfg_dict: dict) -> dict:
     """Train one config and evaluate its greedy policy on the same map."""
-    from ground_station.evaluate import evaluate_cell
+    from ground_station.learn.evaluate import evaluate_cell
+    from ground_station.learn.train import learning_curve, train
     from ground_station.maps import load_map
-    from ground_station.train import learning_curve, train
 
     cfg = TrainConfig(**cfg_dict)
     gm = load_map(cfg.map)
@@ -50,8 +50,8 @@ def run_job(cfg_dict: dict) -> dict:
         goals = [tuple(g) for g in res.meta["goals"]]
         ev = evaluate_cell(res.q, gm, goals, sample=20_000, seed=cfg.seed)
     else:
-        from ground_station.evaluate import sector_encoder_from_meta
-        from ground_station.sector_train import evaluate_sector
+        from ground_station.learn.evaluate import sector_encoder_from_meta
+        from ground_station.learn.sector.trainer import evaluate_sector
         ev = evaluate_sector(res.q, gm, sector_encoder_from_meta(res.meta["encoder"]), seed=cfg.seed)
     curve = learning_curve(res.returns, res.successes, cfg.curve_points)
     return {"lr": cfg.lr, "seed": cfg.seed, "train_seconds": res.seconds, "episodes": int(len(res.returns)),

@@ -12,7 +12,7 @@ of `sample` pairs on large maps). Each rollout ends as
 
 Beside it, in the same report, the greedy baseline "step to the free
 neighbour nearest (Euclidean) to the goal", judged the same way. Sector
-policies are evaluated by `ground_station.sector_train.evaluate_sector`;
+policies are evaluated by `ground_station.learn.sector.trainer.evaluate_sector`;
 `evaluate_run` dispatches on meta.json's encoding.
 """
 
@@ -25,10 +25,10 @@ import numba
 import numpy as np
 
 from firmware_py.encoders import CellEncoder, SectorEncoder
-from ground_station.envs.cell_env import cell_transitions, goal_distances, resolve_goals
-from ground_station.jit_common import greedy
+from ground_station.learn.envs.cell_env import cell_transitions, goal_distances, resolve_goals
+from ground_station.learn.jit import greedy
+from ground_station.learn.train import cell_state
 from ground_station.maps import GridMap, MapError
-from ground_station.train import cell_state
 
 SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
 POLICY_Q, POLICY_NEAREST = 0, 1
@@ -168,7 +168,7 @@ def sector_guidance_from_meta(meta: dict) -> dict:
     """evaluate_sector's guidance keywords for a sector run: the run's own
     (runs from before guidance existed trained direct but are judged guided,
     the main figure; the direct figures are reported beside it)."""
-    from ground_station.guidance import guidance_from_metadata
+    from ground_station.maps.planner import guidance_from_metadata
     return {"guidance": "path", **guidance_from_metadata(meta)}
 
 
@@ -184,7 +184,7 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
         names, goals = resolve_goals(gridmap, [list(g) for g in goals])
         return evaluate_cell(q, gridmap, goals, sample=sample, seed=seed,
                              target_names=meta.get("targets") or names)
-    from ground_station.sector_train import evaluate_sector
+    from ground_station.learn.sector.trainer import evaluate_sector
 
     rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample,
                           **sector_guidance_from_meta(meta), direct=True, baseline=True)

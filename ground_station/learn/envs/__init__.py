@@ -9,7 +9,7 @@ defaults. Registration happens on import of this package.
 
 from gymnasium.envs.registration import register, registry
 
-from ground_station.envs.cell_env import CellNavEnv
+from ground_station.learn.envs.cell_env import CellNavEnv
 
 
 def _register(env_id: str, entry_point: str, **kwargs) -> None:
@@ -17,7 +17,7 @@ def _register(env_id: str, entry_point: str, **kwargs) -> None:
         register(id=env_id, entry_point=entry_point, **kwargs)
 
 
-_register("qnav/CellNav-v0", "ground_station.envs.cell_env:CellNavEnv", max_episode_steps=100)
-_register("qnav/SectorNav-v0", "ground_station.envs.sector_env:SectorNavEnv", max_episode_steps=1000)
+_register("qnav/CellNav-v0", "ground_station.learn.envs.cell_env:CellNavEnv", max_episode_steps=100)
+_register("qnav/SectorNav-v0", "ground_station.learn.envs.sector_env:SectorNavEnv", max_episode_steps=1000)
 
 __all__ = ["CellNavEnv"]

@@ -1,7 +1,7 @@
 """Sector-encoding Q-learning and evaluation on the kinematic twin.
 
 * `SectorTrainer(maps, cfg, encoder)`: exact sequential Q-learning (numba
-  kernel in `ground_station.sector_kernels`), epsilon-greedy with a linear
+  kernel in `ground_station.learn.sector.kernels`), epsilon-greedy with a linear
   schedule on the global step, a random map, goal cell, start pose (inside a
   random free cell) and heading each episode, dense shaped reward.
   `run(q, start_step, n_steps)` advances n_steps env steps and returns the
@@ -11,7 +11,7 @@
   greedy rollouts from every (start cell centre, goal cell, heading) of a
   map, or a seeded sample of them; success, path length / octile shortest,
   collisions, loops, timeouts. Guidance "path" follows the ground station's
-  planned waypoints (`ground_station.guidance`, what the robot gets as a
+  planned waypoints (`ground_station.maps.planner`, what the robot gets as a
   mission); "direct" steers on the goal's bearing alone (pure reactive).
   `direct=True` adds the direct figures beside the guided ones, and
   `baseline=True` a hand-written seek table judged the same way.
@@ -25,15 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.encoders import SectorEncoder
-from ground_station.guidance import (
-    DEFAULT_MARGIN_MM,
-    DEFAULT_MAX_SEGMENT_MM,
-    clearance_mm,
-    plan_into,
-)
-from ground_station.jit_common import seed_state
-from ground_station.maps import GridMap, octile_distances
-from ground_station.sector_kernels import (
+from ground_station.learn.jit import seed_state
+from ground_station.learn.sector.kernels import (
     COLLISION,
     EP_LEN,
     LOOP,
@@ -42,7 +35,14 @@ from ground_station.sector_kernels import (
     eval_kernel,
     train_kernel,
 )
-from ground_station.sector_twin import encoder_arrays, grid_of
+from ground_station.learn.sector.twin import encoder_arrays, grid_of
+from ground_station.maps import GridMap, octile_distances
+from ground_station.maps.planner import (
+    DEFAULT_MARGIN_MM,
+    DEFAULT_MAX_SEGMENT_MM,
+    clearance_mm,
+    plan_into,
+)
 
 MAX_TRAIN_CELLS = 64 * 64  # all-pairs distance tables are kept per training map
 DEFAULT_HOLD_MAX = 100  # periods an action is held while the state is unchanged (see sector_kernels)
@@ -246,7 +246,7 @@ def plan_pairs(gridmap: GridMap, starts: np.ndarray, goals: np.ndarray, dists: n
     """Waypoints for every distinct (start cell, goal cell) of an episode
     list, planned from the start cell's centre: (wp_all (P, K, 2), nwp (P,),
     rem (P, K), pair index per episode)."""
-    from ground_station.guidance import remaining_lengths
+    from ground_station.maps.planner import remaining_lengths
 
     occ, h, w, c = grid_of(gridmap)
     key = np.concatenate([starts, goals], axis=1)
@@ -315,7 +315,7 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
     Starts at cell centres with headings k*2pi/headings; goals at cell
     centres (reached within robot.GOAL_TOLERANCE_MM). guidance "path": the
     robot follows the planner's waypoints from the start cell's centre
-    (`ground_station.guidance.plan_waypoints` with margin_mm /
+    (`ground_station.maps.planner.plan_waypoints` with margin_mm /
     max_segment_mm), each passed within GOAL_TOLERANCE_MM as the controller
     does; "direct": the bearing is the goal's. Step budget per episode:
     max_steps if given, else 400 + 4 x the octile shortest path in forward

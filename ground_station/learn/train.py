@@ -1,7 +1,7 @@
 """Tabular Q-learning trainer, CleanRL style: read it top to bottom.
 
 1. `TrainConfig`: every hyperparameter in one dataclass (defined in
-   `ground_station.train_config` so the CLI parser needs no numba; re-exported
+   `ground_station.learn.config` so the CLI parser needs no numba; re-exported
    here); its field help texts become `qnav train --help`.
 2. The numba kernel: exact sequential Q-learning on the `cell` encoding
    (one environment, one update per step, in order), the update
@@ -20,7 +20,7 @@
    (`q.npy`, `meta.json`, `metrics.csv`, `learning_curve.png`), written
    atomically.
 
-The `cell` kernel's transitions come from `ground_station.envs.cell_env`, the
+The `cell` kernel's transitions come from `ground_station.learn.envs.cell_env`, the
 same tables the Gymnasium `CellNavEnv` steps through.
 """
 
@@ -39,23 +39,23 @@ import numpy as np
 
 from firmware_py.atomic import atomic_write
 from firmware_py.encoders import CellEncoder
-from ground_station.envs.cell_env import (
-    cell_transitions,
-    goal_distances,
-    reachable_starts,
-    resolve_goals,
-)
-from ground_station.jit_common import greedy, rand01, seed_state
-from ground_station.maps import GridMap, MapError, load_map
-from ground_station.train_config import (  # noqa: F401 - re-exported
+from ground_station.learn.config import (  # noqa: F401 - re-exported
     TrainConfig,
     add_config_arguments,
     config_from_args,
     validate_config,
 )
+from ground_station.learn.envs.cell_env import (
+    cell_transitions,
+    goal_distances,
+    reachable_starts,
+    resolve_goals,
+)
+from ground_station.learn.jit import greedy, rand01, seed_state
+from ground_station.maps import GridMap, MapError, load_map
 
 # --------------------------------------------------------------------------
-# 1. configuration (ground_station/train_config.py, imported without numba)
+# 1. configuration (ground_station/learn/config.py, imported without numba)
 # --------------------------------------------------------------------------
 # TrainConfig: map, encoding, targets, seed, steps, lr (eta), gamma,
 # epsilon_start/end/decay (linear schedule), max_episode_steps, rewards
@@ -247,16 +247,16 @@ def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> Tr
 def sector_encoder(cfg: TrainConfig):
     """The reference SectorEncoder a config trains (its sector_* fields)."""
     from firmware_py.encoders import SectorEncoder
-    from ground_station.train_config import int_list
+    from ground_station.learn.config import int_list
     return SectorEncoder(bearing_sectors=int(cfg.sector_bearing_sectors),
                          sensors=int_list(cfg.sector_sensors, "sector_sensors"),
                          range_edges_mm=int_list(cfg.sector_range_edges, "sector_range_edges"))
 
 
 def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Q-learning on the sector twin, through `ground_station.sector_train.SectorTrainer`,
+    """Q-learning on the sector twin, through `ground_station.learn.sector.trainer.SectorTrainer`,
     on `gridmap` plus the `sector_maps` extras."""
-    from ground_station.sector_train import SectorTrainer
+    from ground_station.learn.sector.trainer import SectorTrainer
 
     encoder = sector_encoder(cfg)
     extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]

@@ -26,7 +26,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 from firmware_py.vehicle import Mode  # noqa: E402
-from ground_station.telemetry_model import POLICY_PARAM, VehicleView  # noqa: E402
+from ground_station.monitor.model import POLICY_PARAM, VehicleView  # noqa: E402
 
 HEARTBEAT_PERIOD_S = 1.0
 COMMANDS = ("arm", "disarm", "hold")
@@ -53,7 +53,7 @@ def command_long_args(kind: str) -> tuple[int, list[float]]:
 
 
 class LiveSource:
-    """The ground-station link to the robot (`ground_station.link.Link`,
+    """The ground-station link to the robot (`ground_station.mavlink.link.Link`,
     which owns signing and the session .tlog). Sends a GCS heartbeat each
     second so the robot's GCS failsafe stays quiet while we watch, and asks
     for the read-only POLICY_ID parameter every few seconds (it changes when
@@ -102,7 +102,7 @@ class LiveSource:
 def open_live(url: str, tlog=None, signing_key: str | None = None) -> LiveSource:
     """Open the link to the robot on `url` (a pymavlink connection string).
     `tlog`: a path, None for a new session log under runs/tlogs/, False for none."""
-    from ground_station.link import Link
+    from ground_station.mavlink.link import Link
 
     return LiveSource(Link(url, signing_key=signing_key, tlog=tlog, name="monitor"))
 

@@ -1,7 +1,7 @@
 """The `sector` encoding as a Gymnasium environment on the kinematic twin.
 
 Physics, sensing and reward are the jitted functions the fast trainer uses
-(`ground_station.sector_twin`, `sector_kernels.period_step`), so the env and
+(`ground_station.learn.sector.twin`, `sector_kernels.period_step`), so the env and
 the trainer cannot drift apart.
 """
 
@@ -15,11 +15,9 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
-from ground_station.guidance import DEFAULT_MARGIN_MM, DEFAULT_MAX_SEGMENT_MM, clearance_mm
-from ground_station.maps import GridMap, MapError, load_map, octile_distances
-from ground_station.sector_kernels import guide_potential, period_step, start_guidance
-from ground_station.sector_train import SectorReward, check_guidance
-from ground_station.sector_twin import (
+from ground_station.learn.sector.kernels import guide_potential, period_step, start_guidance
+from ground_station.learn.sector.trainer import SectorReward, check_guidance
+from ground_station.learn.sector.twin import (
     RADIUS_MM,
     bearing_mrad,
     cell_centre,
@@ -28,6 +26,8 @@ from ground_station.sector_twin import (
     grid_of,
     sense,
 )
+from ground_station.maps import GridMap, MapError, load_map, octile_distances
+from ground_station.maps.planner import DEFAULT_MARGIN_MM, DEFAULT_MAX_SEGMENT_MM, clearance_mm
 
 
 class SectorNavEnv(gym.Env):
@@ -42,7 +42,7 @@ class SectorNavEnv(gym.Env):
       `robot_spec.ACTION_WHEEL_SPEEDS_MM_S` held for one control period
       (`robot_spec.CONTROL_PERIOD_US`).
     * Guidance (`guidance`): "path" (default) = the robot follows the ground
-      station's planned waypoints (`ground_station.guidance`, planned at
+      station's planned waypoints (`ground_station.maps.planner`, planned at
       reset from the start pose; the last is the goal), each passed within
       `robot_spec.GOAL_TOLERANCE_MM` as the controller runs a mission; "direct" =
       the goal alone.

@@ -1,6 +1,6 @@
 """Jitted kernels of the sector encoding: the exact sequential Q-learning
 loop and greedy evaluation rollouts, both on the kinematic twin
-(`ground_station.sector_twin`).
+(`ground_station.learn.sector.twin`).
 
 Maps are packed for numba: `occ` uint8 (M, Hmax, Wmax) padded with
 obstacles, `dims` int64 (M, 2) = (H, W), `cell` float64 (M,) mm, free cells
@@ -10,7 +10,7 @@ octile distance field (cells) to every free cell `dist` float32
 state lives in a caller-owned array, so a run split into chunks draws exactly
 the same numbers as one call (same seed -> same table).
 
-Guidance (`ground_station.guidance`): with `guided` set, every episode
+Guidance (`ground_station.maps.planner`): with `guided` set, every episode
 follows the planner's waypoints (cell centres, last = the goal), the state's
 bearing is to the current waypoint and the waypoint advances inside
 GOAL_TOLERANCE_MM, exactly as the robot runs a mission; without it the
@@ -33,9 +33,8 @@ import numba
 import numpy as np
 
 from firmware_py import robot_spec
-from ground_station.guidance import plan_into, remaining_lengths
-from ground_station.jit_common import greedy, rand01, randint
-from ground_station.sector_twin import (
+from ground_station.learn.jit import greedy, rand01, randint
+from ground_station.learn.sector.twin import (
     ACTION_V_MM_S,
     GOAL_TOL_MM,
     N_ACTIONS,
@@ -49,6 +48,7 @@ from ground_station.sector_twin import (
     potential,
     sense,
 )
+from ground_station.maps.planner import plan_into, remaining_lengths
 
 # fastest forward travel in one control period (the step budget's unit)
 FWD_MM_PER_PERIOD = float(np.max(ACTION_V_MM_S)) * N_SUBSTEPS * SUB_DT_S
@@ -106,7 +106,7 @@ def guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided) -> float:
 @numba.njit(cache=True)
 def start_guidance(occ, h, w, c, dist, x, y, gx, gy, guided, clear_r, max_seg, path, wps, rem) -> int:
     """Fill wps/rem for an episode from (x, y) to the goal (gx, gy): the
-    planner's waypoints (`ground_station.guidance.plan_into`) when guided,
+    planner's waypoints (`ground_station.maps.planner.plan_into`) when guided,
     else the goal alone. Returns the waypoint count."""
     n = 0
     if guided:

@@ -375,11 +375,11 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False) -> L
     try:
         link = Link(args.mavlink, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat)
     except ValueError as exc:  # bad key file
-        from ground_station.cli import CliError
+        from ground_station.errors import CliError
 
         raise CliError(str(exc)) from exc
     except OSError as exc:
-        from ground_station.cli import CliError
+        from ground_station.errors import CliError
 
         raise CliError(f"cannot open {args.mavlink}: {exc}") from exc
     try:
