@@ -15,12 +15,12 @@ import time
 from pathlib import Path
 
 import pytest
-from mav_test_vehicle import Robot
 
 from firmware_py import robot_spec
 from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.subprocs import free_udp_port
+from tests.support.mav_vehicle import Robot
 
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 

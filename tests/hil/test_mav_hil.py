@@ -19,7 +19,7 @@ from firmware_py.subprocs import free_udp_port, stop_process
 from ground_station import cli
 from ground_station.mavlink.link import Link
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 
 

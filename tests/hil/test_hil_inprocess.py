@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ctrl_support import sector_seek_policy
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
@@ -15,8 +14,9 @@ from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import dump_policy, load_policy
 from ground_station.bench.hil import cut_sensors_after, run_episode
 from ground_station.maps import load_map
+from tests.support.controller_rig import sector_seek_policy
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PAPER10 = load_map("paper10")
 H = PAPER10.height
 

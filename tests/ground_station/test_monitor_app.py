@@ -7,7 +7,6 @@ import asyncio
 import time
 
 import pytest
-from monitor_support import CELL_M, MAP_H, RoverScript, UdpRover, write_tlog
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py import robot_spec
@@ -15,6 +14,7 @@ from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor.app import MonitorApp, heading_arrow
 from ground_station.monitor.sources import ReplaySource, open_live
+from tests.support.rover_script import CELL_M, MAP_H, RoverScript, UdpRover, write_tlog
 
 ARROWS = set("→↗↑↖←↙↓↘")
 

@@ -4,18 +4,18 @@ an ideal kinematic plant, with real .qtab policies."""
 import math
 
 import pytest
-from ctrl_support import (
+
+from firmware_py import robot_spec
+from firmware_py.control.controller import ERR_ESTOP, ERR_SENSOR_STALE, Controller
+from firmware_py.policy import dump_policy
+from firmware_py.vehicle import CtrlState, FailsafeAction, Mode, VehicleConfig
+from tests.support.controller_rig import (
     Kinematic,
     Rig,
     cell_bfs_policy,
     fresh_inputs,
     sector_seek_policy,
 )
-
-from firmware_py import robot_spec
-from firmware_py.control.controller import ERR_ESTOP, ERR_SENSOR_STALE, Controller
-from firmware_py.policy import dump_policy
-from firmware_py.vehicle import CtrlState, FailsafeAction, Mode, VehicleConfig
 
 OPEN4 = ["....", "....", "....", "...."]
 

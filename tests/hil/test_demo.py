@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 QNAV = [sys.executable, "-c", "import sys; from ground_station.cli import main; sys.exit(main())"]
 
 

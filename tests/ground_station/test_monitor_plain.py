@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from monitor_support import RoverScript, UdpRover, write_tlog
 
 from firmware_py.subprocs import free_udp_port
+from tests.support.rover_script import RoverScript, UdpRover, write_tlog
 
 QNAV = str(Path(sys.executable).parent / "qnav")
 

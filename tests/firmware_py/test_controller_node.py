@@ -3,13 +3,13 @@ test: lockstep answers, retransmitted ticks, sim-time stamping, paced mode."""
 
 import can
 import pytest
-from ctrl_support import sector_seek_policy
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
 from firmware_py.clock import SimClock
 from firmware_py.control.controller import Controller
 from firmware_py.control.node import RobotNode
+from tests.support.controller_rig import sector_seek_policy
 
 
 def sensor_frames(enc=(0, 0)):

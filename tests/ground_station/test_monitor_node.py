@@ -1,5 +1,5 @@
 """The dashboard against the robot's real MAVLink node over UDP (the node
-shell + tests/mav_test_vehicle.py's small vehicle state machine): mission
+shell + tests/support/mav_vehicle.py's small vehicle state machine): mission
 A-D from the monitor's own link, keys arm/hold, the view following it all.
 The HIL-driven check (controller + pymunk sim) is the integrator's."""
 
@@ -8,7 +8,6 @@ from __future__ import annotations
 import asyncio
 import time
 
-from mav_test_vehicle import Robot
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py import robot_spec
@@ -16,6 +15,7 @@ from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor.app import MonitorApp
 from ground_station.monitor.sources import open_live
+from tests.support.mav_vehicle import Robot
 
 
 def test_dashboard_on_the_real_node(tmp_path):

@@ -1,6 +1,6 @@
 """The MAVLink node over real UDP loopback: the robot shell (udpout, as a
 robot talks to a ground station) against `qnav` commands and pymavlink
-clients (udpin). The vehicle is tests/mav_test_vehicle.py; the full HIL run
+clients (udpin). The vehicle is tests/support/mav_vehicle.py; the full HIL run
 with the controller and the pymunk sim is in the integration tests."""
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ import time
 from pathlib import Path
 
 import pytest
-from mav_test_vehicle import Robot
+
+from tests.support.mav_vehicle import Robot
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402

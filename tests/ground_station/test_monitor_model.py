@@ -5,11 +5,11 @@ from __future__ import annotations
 import math
 
 import pytest
-from monitor_support import encoder, frame, gcs_mission_items
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py.vehicle import CtrlState, Mode
 from ground_station.monitor.model import VehicleView
+from tests.support.rover_script import encoder, frame, gcs_mission_items
 
 
 def wire(mav: mavlink.MAVLink, *msgs) -> bytes:

@@ -9,7 +9,6 @@ import json
 import math
 
 import pytest
-from mav_test_vehicle import TestVehicle
 from pymavlink.dialects.v20 import common as m
 
 from firmware_py import robot_spec
@@ -18,6 +17,7 @@ from firmware_py.mavlink.node import MavNode
 from firmware_py.mavlink.params import PARAMS, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing, load_key_file
 from firmware_py.vehicle import CtrlState, Mode
+from tests.support.mav_vehicle import TestVehicle
 
 GCS = (255, 190)
 KEY = hashlib.sha256(b"qnav test key").digest()
@@ -481,7 +481,7 @@ def test_ftp_is_routed_to_the_ftp_server_and_always_needs_a_signature_with_a_key
 def test_docs_parameter_table_matches_the_code():
     import pathlib
 
-    doc = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "mavlink.md").read_text()
+    doc = (pathlib.Path(__file__).resolve().parents[2] / "docs" / "mavlink.md").read_text()
     rows = {}
     for line in doc.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]

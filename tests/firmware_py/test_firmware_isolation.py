@@ -5,7 +5,7 @@ import pathlib
 import subprocess
 import sys
 
-FIRMWARE = pathlib.Path(__file__).resolve().parents[1] / "firmware_py"
+FIRMWARE = pathlib.Path(__file__).resolve().parents[2] / "firmware_py"
 FORBIDDEN = ("numpy", "numba", "ground_station", "sim_bridge", "pymunk", "matplotlib", "gymnasium")
 
 

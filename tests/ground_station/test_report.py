@@ -9,10 +9,17 @@ from pathlib import Path
 
 import matplotlib.image as mpimg
 import pytest
-from monitor_support import FAULT_S, PATH_LENGTH_M, STOP_AT_A_S, T_ARM, RoverScript, write_tlog
 
 from ground_station.maps import load_map
 from ground_station.monitor.report import analyse, write_report
+from tests.support.rover_script import (
+    FAULT_S,
+    PATH_LENGTH_M,
+    STOP_AT_A_S,
+    T_ARM,
+    RoverScript,
+    write_tlog,
+)
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -2,13 +2,12 @@
 active.qtab calls Controller.activate_policy; refusals leave the old policy
 driving; boot picks the newest valid file."""
 
-from ctrl_support import Kinematic, Rig, sector_seek_policy
-
 from firmware_py.control.controller import Controller
 from firmware_py.mavlink.ftp_server import HEADER, PAYLOAD_LEN, FtpServer, Nak, Op, parse
 from firmware_py.policy import PolicyError, dump_policy, load_policy
 from firmware_py.storage import ACTIVE_POLICY, LAST_GOOD_POLICY, Storage, boot_policy_candidates
 from firmware_py.vehicle import CtrlState, Mode, VehicleConfig
+from tests.support.controller_rig import Kinematic, Rig, sector_seek_policy
 
 
 class FtpClient:

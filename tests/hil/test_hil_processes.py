@@ -8,13 +8,12 @@ import sys
 import time
 from pathlib import Path
 
-from ctrl_support import sector_seek_policy
-
 from firmware_py import can_protocol as cp
 from firmware_py.canbus import CanHub, open_bus
 from firmware_py.policy import dump_policy
+from tests.support.controller_rig import sector_seek_policy
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 
 

@@ -12,7 +12,7 @@ import pytest
 from firmware_py.policy import load_policy
 from ground_station.cli import main
 
-POLICIES = Path(__file__).resolve().parents[1] / "policies"
+POLICIES = Path(__file__).resolve().parents[2] / "policies"
 SHIPPED = sorted(POLICIES.glob("*.qtab"))
 
 
