@@ -33,7 +33,9 @@ class ProtocolError(ValueError):
 
 def _load() -> Database:
     text = resources.files("firmware_py").joinpath("qnav.dbc").read_text(encoding="utf-8")
-    return cantools.database.load_string(text, database_format="dbc", strict=True)
+    db = cantools.database.load_string(text, database_format="dbc", strict=True)
+    assert isinstance(db, Database)  # a "dbc" always loads as a CAN database
+    return db
 
 
 DB: Database = _load()
@@ -75,8 +77,9 @@ COMMAND_COUNTER_MODULUS = 1 << _BY_NAME["MotorCommand"].get_signal_by_name("Cmd_
 SENSORS_PER_RANGE_FRAME = robot_spec.SENSOR_COUNT // len(RANGE_SECTORS_IDS)
 
 # Motor driver state (Mot_State) and error bits (Mot_Errors), as in the DBC.
-_MOT_STATES = {str(name): int(value) for value, name in
-               _BY_NAME["MotorStatus"].get_signal_by_name("Mot_State").choices.items()}
+_MOT_STATE_CHOICES = _BY_NAME["MotorStatus"].get_signal_by_name("Mot_State").choices
+assert _MOT_STATE_CHOICES is not None, "qnav.dbc: Mot_State has no value table"
+_MOT_STATES = {str(name): int(value) for value, name in _MOT_STATE_CHOICES.items()}
 MOTOR_IDLE = _MOT_STATES["IDLE"]
 MOTOR_RUNNING = _MOT_STATES["RUNNING"]
 MOTOR_WATCHDOG_STOP = _MOT_STATES["WATCHDOG_STOP"]
@@ -110,10 +113,12 @@ def decode(msg: can.Message) -> tuple[str, dict[str, int]]:
     if len(msg.data) != spec.length:
         raise ProtocolError(f"{spec.name}: {len(msg.data)} data bytes, expected {spec.length}")
     try:
-        values = spec.decode(bytes(msg.data), decode_choices=False, scaling=True)
+        values = spec.decode_simple(bytes(msg.data), decode_choices=False, scaling=True)
     except cantools.database.DecodeError as exc:
         raise ProtocolError(f"cannot decode {spec.name}: {exc}") from None
-    return spec.name, {k: int(v) for k, v in values.items()}
+    # cantools types a value as int | float | str | NamedSignalValue whatever
+    # decode_choices says; with decode_choices=False it is a number.
+    return spec.name, {k: int(v) for k, v in values.items()}  # type: ignore[arg-type]
 
 
 def frame_name(frame_id: int) -> str | None:

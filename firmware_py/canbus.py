@@ -23,6 +23,7 @@ import subprocess
 import sys
 import time
 from types import TracebackType
+from typing import Any
 
 import can
 
@@ -35,7 +36,7 @@ class CanSpecError(ValueError):
     """A `--can` value that cannot be turned into a bus; the text is one line."""
 
 
-def parse_spec(spec: str | None) -> dict[str, object]:
+def parse_spec(spec: str | None) -> dict[str, Any]:
     """python-can keyword arguments for `spec` ({} means python-can's own config)."""
     if spec is None or spec.strip() == "":
         return {}
@@ -56,7 +57,7 @@ def parse_spec(spec: str | None) -> dict[str, object]:
                        f"(expected virtual, remote, socketcan or slcan)")
 
 
-def open_bus(spec: str | None, **kwargs: object) -> can.BusABC:
+def open_bus(spec: str | None, **kwargs: Any) -> can.BusABC:
     """Open the bus named by `spec` (see the module docstring); extra kwargs go to python-can."""
     config = parse_spec(spec)
     config.update(kwargs)
@@ -81,7 +82,7 @@ class CanHub:
         self.host = "127.0.0.1"
         self.port = port
         self.start_timeout_s = start_timeout_s
-        self._proc: subprocess.Popen | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
 
     @property
     def url(self) -> str:

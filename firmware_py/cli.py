@@ -21,6 +21,7 @@ import logging
 import resource
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
@@ -28,9 +29,13 @@ from firmware_py.clock import SimClock, WallClock
 from firmware_py.control.controller import Controller
 from firmware_py.control.goals import GoalRunner
 from firmware_py.control.node import RobotNode
+from firmware_py.encoders import CellEncoder
 from firmware_py.mavlink.extension import MavlinkExtension
 from firmware_py.plugins import EXIT_FAULT, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, Extension, UsageError
 from firmware_py.vehicle import VehicleConfig
+
+if TYPE_CHECKING:  # loaded lazily (see _load_policy)
+    from firmware_py.policy import Policy
 
 EXTENSIONS: list[Extension] = [MavlinkExtension()]
 
@@ -86,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_policy(args: argparse.Namespace):
+def _load_policy(args: argparse.Namespace) -> Policy | None:
     from firmware_py.policy import PolicyError, load_policy
     if args.policy:
         try:
@@ -120,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
     policy = _load_policy(args)
     cell_mm = round(args.cell_size * 1000) if args.cell_size else (
         policy.cell_mm if policy is not None and policy.kind == "cell" else robot_spec.DEFAULT_CELL_SIZE_MM)
-    height = args.map_height or (policy.encoder.height if policy is not None and policy.kind == "cell" else None)
+    height = args.map_height or (policy.encoder.height if policy is not None and isinstance(policy.encoder, CellEncoder)
+                                 else None)
 
     def cell_point(text: str, what: str, with_heading: bool) -> tuple[int, int, int]:
         if height is None:
@@ -137,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
         start = (round(v[0] * 1000), round(v[1] * 1000), round(v[2] * 3141.5927 / 180) if len(v) > 2 else 0)
     elif args.start_cell:
         start = cell_point(args.start_cell, "--start-cell", True)
-    goals = [tuple(round(c * 1000) for c in _floats(g, 2, 2, "--goal")) for g in args.goal]
+    goals = [(round(x * 1000), round(y * 1000)) for x, y in (_floats(g, 2, 2, "--goal") for g in args.goal)]
     goals += [cell_point(g, "--goal-cell", False)[:2] for g in args.goal_cell]
     if not 1 <= args.rate <= 1000:
         raise UsageError(f"--rate {args.rate}: expected 1..1000 Hz")

@@ -52,7 +52,8 @@ class SectorEncoder:
 
     @property
     def n_states(self) -> int:
-        return self.bearing_sectors * self.nbins ** len(self.sensors)
+        range_states: int = self.nbins ** len(self.sensors)  # int ** int is typed Any
+        return self.bearing_sectors * range_states
 
     @property
     def n_actions(self) -> int:
@@ -81,7 +82,7 @@ class SectorEncoder:
             mult *= nb
         return bearing_sector(bearing_mrad, self.bearing_sectors) * mult + state
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, object]:
         d = asdict(self)
         d["sensors"] = list(self.sensors)
         d["range_edges_mm"] = list(self.range_edges_mm)
@@ -114,7 +115,7 @@ class CellEncoder:
             raise ValueError(f"cell ({col},{row}) goal {goal_index} outside the {self.width}x{self.height}x{self.n_goals} grid")
         return (goal_index * self.height + row) * self.width + col
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, object]:
         return asdict(self)
 
 

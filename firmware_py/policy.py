@@ -33,7 +33,9 @@ import sys
 import time
 import zlib
 from array import array
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
@@ -90,7 +92,7 @@ class Policy:
     policy_id: int
     crc: int
     created: int
-    metadata: dict
+    metadata: dict[str, Any]  # the file's JSON object
     table: memoryview  # read-only, flat, n_states * n_actions ints
     state_scales: memoryview | None = None  # read-only float32 per state, or None
     goals: tuple[tuple[int, int], ...] = ()  # cell policies: goal index -> (col, row)
@@ -118,7 +120,7 @@ class Policy:
         s = self.scale if self.state_scales is None else float(self.state_scales[state])
         return [v * s for v in self.row(state)]
 
-    def header(self) -> dict:
+    def header(self) -> dict[str, Any]:
         """JSON-able header fields (what `qnav policy inspect` prints)."""
         d = {
             "format_version": f"{self.version[0]}.{self.version[1]}",
@@ -144,7 +146,7 @@ class Policy:
 
 # --- loading ----------------------------------------------------------------------
 
-def _read_bounded(path: str | os.PathLike) -> bytes:
+def _read_bounded(path: str | os.PathLike[str]) -> bytes:
     try:
         with open(path, "rb") as f:
             size = os.fstat(f.fileno()).st_size
@@ -162,8 +164,10 @@ def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
     return robot_spec.CELL_ACTION_DELTAS if kind == KIND_CELL else robot_spec.ACTION_WHEEL_SPEEDS_MM_S
 
 
-def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int):
+def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
+                    ) -> tuple[CellEncoder | SectorEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
+    enc: CellEncoder | SectorEncoder
     if kind == KIND_SECTOR:
         if len(sec) < _SECTOR_HEAD.size:
             raise PolicyError("sector encoder section too short")
@@ -225,7 +229,7 @@ def _declared_size(header_size: int, flags: int, dtype: int, n_actions: int, n_s
     return header_size + enc_len + meta_len + n_states * n_actions * DTYPES[dtype][2] + scales + CRC.size
 
 
-def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike,
+def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
                 expect_sensors: int = robot_spec.SENSOR_COUNT) -> Policy:
     """Validate and load a `.qtab` file (a path, or the file's bytes).
 
@@ -321,8 +325,9 @@ def content_id(encoder_section: bytes, table: bytes, scales: bytes = b"") -> int
     return zlib.crc32(scales, zlib.crc32(table, zlib.crc32(encoder_section)))
 
 
-def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals, cell_mm: int) -> bytes:
-    if encoder.kind == "sector":
+def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals: Sequence[tuple[int, int]],
+                  cell_mm: int) -> bytes:
+    if isinstance(encoder, SectorEncoder):
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
         out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
@@ -336,9 +341,9 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals, cell_mm: int) -> 
     return out + b"".join(_PAIR.pack(*a) for a in actions)
 
 
-def dump_policy(encoder: CellEncoder | SectorEncoder, table: array, dtype: str, scale: float, *,
-                state_scales: array | None = None, goals=(), cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM,
-                metadata: dict | None = None, policy_id: int | None = None,
+def dump_policy(encoder: CellEncoder | SectorEncoder, table: array[int], dtype: str, scale: float, *,
+                state_scales: array[float] | None = None, goals: Sequence[tuple[int, int]] = (),
+                cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict[str, Any] | None = None, policy_id: int | None = None,
                 created: int | None = None) -> bytes:
     """Serialise an int table (flat `array`, row-major by state) to `.qtab` bytes.
 

@@ -116,7 +116,7 @@ class Upload:
 class Storage:
     """All robot files live under `root`; see the module docstring."""
 
-    def __init__(self, root: str | os.PathLike, quota_bytes: int = DEFAULT_QUOTA_BYTES,
+    def __init__(self, root: str | os.PathLike[str], quota_bytes: int = DEFAULT_QUOTA_BYTES,
                  make_layout: bool = True) -> None:
         self.root = Path(root).resolve()
         self.root.mkdir(parents=True, exist_ok=True)

@@ -19,7 +19,8 @@ def free_port(kind: socket.SocketKind = socket.SOCK_STREAM, host: str = "127.0.0
     """A TCP (or, with kind=SOCK_DGRAM, UDP) port that was free a moment ago on `host`."""
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind((host, 0))
-        return s.getsockname()[1]
+        port: int = s.getsockname()[1]
+        return port
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:
@@ -27,7 +28,8 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
     return free_port(socket.SOCK_DGRAM, host)
 
 
-def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0, sig: int = signal.SIGTERM) -> int:
+def stop_process(proc: subprocess.Popen[bytes] | subprocess.Popen[str], timeout_s: float = 5.0,
+                 sig: int = signal.SIGTERM) -> int:
     """Send `sig` if `proc` still runs, wait up to timeout_s, then SIGKILL; the exit code."""
     if proc.poll() is None:
         proc.send_signal(sig)

@@ -345,7 +345,7 @@ class ThreadedSource:
 
     def poll(self, limit: int = 2000) -> list[tuple[object, float]]:
         self.live.poll(limit=0)  # heartbeat / parameter duties only; the thread reads
-        out = []
+        out: list[tuple[object, float]] = []
         while len(out) < limit:
             try:
                 out.append(self._queue.get_nowait())

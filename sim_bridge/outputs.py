@@ -20,7 +20,7 @@ from firmware_py.atomic import atomic_write
 from sim_bridge.plant import TRAJECTORY_FIELDS, Plant
 
 
-class CanLog:
+class CanLog(can.Listener):
     """A `can.Logger` writing to a temporary name, moved into place on `close()`."""
 
     def __init__(self, path: str | Path) -> None:

@@ -70,8 +70,8 @@ class RangeSensors:
         out: list[float | None] = []
         rays = []
         for fan in self.directions:
-            best = None
-            best_end = None
+            best: float | None = None
+            best_end: tuple[float, float] = (x, y)  # set with best, or below when nothing is hit
             for d in fan:
                 a = heading + d
                 end = (x + reach * math.cos(a), y + reach * math.sin(a))
@@ -136,6 +136,8 @@ class WheelEncoders:
 
 
 _ANGLE = cp.DB.get_message_by_name("Bumper").get_signal_by_name("Bump_AngleMrad")
+assert _ANGLE.minimum is not None and _ANGLE.maximum is not None, "qnav.dbc: Bump_AngleMrad has no range"
+_ANGLE_MIN_MRAD, _ANGLE_MAX_MRAD = int(_ANGLE.minimum), int(_ANGLE.maximum)
 
 
 def _wrap_i32(v: int) -> int:
@@ -159,7 +161,7 @@ def bumper_signals(world: World) -> dict[str, int]:
     rel_last = round(_wrap_pi(world.last_contact_angle - heading) * 1000)
     return {"Bump_Pressed": int(bool(world.contacts)), **zones,
             "Bump_Events": world.contact_events % 256,
-            "Bump_AngleMrad": max(int(_ANGLE.minimum), min(int(_ANGLE.maximum), rel_last))}
+            "Bump_AngleMrad": max(_ANGLE_MIN_MRAD, min(_ANGLE_MAX_MRAD, rel_last))}
 
 
 def _wrap_pi(a: float) -> float:

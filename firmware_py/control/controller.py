@@ -33,6 +33,7 @@ from firmware_py import robot_spec
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
+from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import Policy, PolicyError, load_policy
 from firmware_py.vehicle import (
     CtrlState,
@@ -233,7 +234,7 @@ class Controller:
     def _goal_index_for(self, x_mm: int, y_mm: int, policy: Policy | None = None) -> tuple[int, str]:
         """Goal index of a world point for a cell policy (-1 and a reason if none)."""
         pol = policy or self.policy
-        if pol is None or pol.kind != "cell":
+        if pol is None or not isinstance(pol.encoder, CellEncoder):  # pol.kind != "cell"
             return 0, ""
         enc = pol.encoder
         col, row = robot_spec.world_to_cell(x_mm, y_mm, enc.height, pol.cell_mm)
@@ -572,7 +573,7 @@ class Controller:
                             seq=self.mission_seq)
             return
         pol = self.policy
-        if pol.kind == "sector":
+        if isinstance(pol.encoder, SectorEncoder):  # pol.kind == "sector"
             s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
             a = pol.best_action(s)
             left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
@@ -588,7 +589,9 @@ class Controller:
 
     def _cell_primitive(self, depth: int = 0) -> tuple[int, int] | None:
         pol = self.policy
+        assert pol is not None and self.goal is not None  # called from _drive
         enc = pol.encoder
+        assert isinstance(enc, CellEncoder)  # _drive: not a sector policy
         x, y, heading = self.odom.pose_mm()
         if self._prim is None:
             col, row = robot_spec.world_to_cell(x, y, enc.height, pol.cell_mm)

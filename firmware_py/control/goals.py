@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 
-from firmware_py.control.controller import Controller
+from firmware_py.control.controller import Controller, Outputs
 from firmware_py.vehicle import CtrlState
 
 
@@ -28,7 +28,7 @@ class GoalRunner:
         self.result = ""
         self._last_refusal = ""
 
-    def __call__(self, _out) -> None:
+    def __call__(self, _out: Outputs) -> None:
         c = self.ctrl
         if not self.started:
             if c.state == CtrlState.STANDBY:

@@ -207,7 +207,8 @@ class RobotNode:
             self._last_rx_ns = rx_ns
 
     def _on_tick(self, counter: int, sim_us: int, rx_ns: int) -> None:
-        if not self.sim_time:
+        clock = self.clock
+        if not isinstance(clock, SimClock):  # i.e. not self.sim_time
             return  # a wall-clock robot ignores stray sim ticks
         if self.lockstep and counter == self.last_tick and self._last_answer is not None:
             self._send_frame(self._last_answer)  # a retransmitted tick: same answer, no step
@@ -221,7 +222,7 @@ class RobotNode:
                 self.overruns += gap - 1  # ticks we never saw: lost or late
         self.last_tick = counter
         self.sim_ticks += 1
-        self.clock.set_us(sim_us)
+        clock.set_us(sim_us)
         self.inputs.stamp_pending(self.clock.now_us())
         self._last_rx_ns = rx_ns
         if self.lockstep:

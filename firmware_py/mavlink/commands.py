@@ -32,14 +32,14 @@ class CommandHandler:
     """Executes commands on the vehicle / node and acknowledges them."""
 
     def __init__(self, mav: mavlink2.MAVLink, vehicle: VehicleControl, telemetry: Telemetry,
-                 mission: MissionEngine, reboot: Callable[[], list]) -> None:
+                 mission: MissionEngine, reboot: Callable[[], list[mavlink2.MAVLink_message]]) -> None:
         self.mav = mav
         self.vehicle = vehicle
         self.telemetry = telemetry
         self.mission = mission
         self._reboot = reboot  # performs the reboot; returns messages to send after the ACK
 
-    def handle(self, msg, now_us: int, stats: NodeStats) -> list:
+    def handle(self, msg: mavlink2.MAVLink_message, now_us: int, stats: NodeStats) -> list[mavlink2.MAVLink_message]:
         kind = msg.get_type()
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if kind == "SET_MODE":  # legacy message; ArduPilot answers it with a DO_SET_MODE ack
@@ -55,15 +55,16 @@ class CommandHandler:
             result, reason, after = DENIED, f"command {msg.command}: a parameter is not a finite number", []
         return self._reply(msg.command, src, result, reason, after)
 
-    def _reply(self, command: int, src: tuple[int, int], result: int, reason: str, after: list) -> list:
-        out = []
+    def _reply(self, command: int, src: tuple[int, int], result: int, reason: str,
+               after: list[mavlink2.MAVLink_message]) -> list[mavlink2.MAVLink_message]:
+        out: list[mavlink2.MAVLink_message] = []
         if reason:
             severity = M.MAV_SEVERITY_WARNING if result != ACCEPTED else M.MAV_SEVERITY_INFO
             out += self.telemetry.statustext(reason, severity)
         out.append(self.mav.command_ack_encode(command, result, 0, 0, src[0], src[1]))
         return out + after
 
-    def _execute(self, cmd: int, p: tuple, now_us: int, stats: NodeStats) -> tuple[int, str, list]:
+    def _execute(self, cmd: int, p: tuple[float, ...], now_us: int, stats: NodeStats) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
         if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
             if p[0] not in (0.0, 1.0):
                 return DENIED, f"arm/disarm: param1 must be 0 or 1, got {p[0]:g}", []
@@ -106,7 +107,7 @@ class CommandHandler:
             return (ACCEPTED, "", []) if ok else (DENIED, f"set mission current refused: {reason}", [])
         return UNSUPPORTED, "", []
 
-    def _set_mode(self, base_mode: int, custom_mode: int) -> tuple[int, str, list]:
+    def _set_mode(self, base_mode: int, custom_mode: int) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
         if not base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             return DENIED, "mode refused: custom mode flag not set", []
         try:
@@ -120,7 +121,7 @@ class CommandHandler:
             return DENIED, f"mode {SETTABLE_MODES[mode]} refused: {reason}", []
         return ACCEPTED, "", []
 
-    def _request_message(self, msg_id: int, now_us: int, stats: NodeStats) -> tuple[int, str, list]:
+    def _request_message(self, msg_id: int, now_us: int, stats: NodeStats) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
         if not self.telemetry.can_build(msg_id):
             return DENIED, f"message {msg_id} not available", []
         msgs = self.telemetry.build(msg_id, now_us, self.vehicle.status(), stats)

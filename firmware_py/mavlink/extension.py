@@ -71,9 +71,9 @@ class MavlinkExtension:
                         log.warning("command line %s=%s not representable as a parameter: %s", f.name, value, why)
             ctrl.apply_config(shell.node.params.vehicle_config())
 
-        closed = []
+        closed: list[bool] = []
 
-        def poll(_out) -> None:
+        def poll(_out: object) -> None:
             if not closed:
                 shell.poll(clock.now_us())
 

@@ -24,11 +24,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from firmware_py.clock import Clock, WallClock
 from firmware_py.mavlink.ftp_server import PAYLOAD_LEN, FtpServer
 from firmware_py.mavlink.signing import load_key_file
 from firmware_py.storage import DEFAULT_QUOTA_BYTES, Storage
+
+if TYPE_CHECKING:  # annotations only: pymavlink is imported after MAVLINK20 is set (see above)
+    from pymavlink import mavutil
+    from pymavlink.dialects.v20 import common as mavlink2
 
 STATUSTEXT_CHARS = 50
 MAV_TYPE_GROUND_ROVER = 10
@@ -49,7 +54,7 @@ def validate_only_activate(path: str) -> tuple[bool, str]:
 class FtpLink:
     """Serves `server` on the pymavlink connection `conn`."""
 
-    def __init__(self, conn, server: FtpServer, clock: Clock, *, sysid: int = 1, compid: int = 1) -> None:
+    def __init__(self, conn: mavutil.mavfile, server: FtpServer, clock: Clock, *, sysid: int = 1, compid: int = 1) -> None:
         self.conn = conn
         self.server = server
         self.clock = clock
@@ -57,7 +62,7 @@ class FtpLink:
         self.compid = compid
         self._statustext_id = 0
 
-    def handle_message(self, msg) -> None:
+    def handle_message(self, msg: mavlink2.MAVLink_message) -> None:
         """Serve one FILE_TRANSFER_PROTOCOL message addressed to us (or broadcast)."""
         if msg.target_system not in (0, self.sysid) or msg.target_component not in (0, self.compid):
             return

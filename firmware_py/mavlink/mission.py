@@ -21,6 +21,7 @@ and `tick(now_us)` return replies.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -56,7 +57,7 @@ class Item:
     z: float
 
 
-def item_from_msg(msg) -> Item:
+def item_from_msg(msg: mavlink2.MAVLink_message) -> Item:
     """Normalise MISSION_ITEM (float) and MISSION_ITEM_INT to `Item`."""
     params = (msg.param1, msg.param2, msg.param3, msg.param4)
     if msg.get_type() == "MISSION_ITEM_INT":
@@ -79,13 +80,13 @@ class MissionEngine:
     """Robot side of the mission protocol."""
 
     def __init__(self, mav: mavlink2.MAVLink, vehicle: VehicleControl, params: ParamStore,
-                 statustext) -> None:
+                 statustext: Callable[[str, int], list[mavlink2.MAVLink_message]]) -> None:
         self.mav = mav
         self.vehicle = vehicle
         self.params = params
         self._statustext = statustext  # (text, severity) -> list[msg]
         self.items: list[Item] = []
-        self.on_mission_changed = None  # callback after a new mission is stored
+        self.on_mission_changed: Callable[[], None] | None = None  # after a new mission is stored
         # upload transfer
         self._up_partner: tuple[int, int] | None = None
         self._up_count = 0
@@ -100,19 +101,19 @@ class MissionEngine:
     def uploading(self) -> bool:
         return self._up_partner is not None
 
-    def _ack(self, partner: tuple[int, int], result: int):
+    def _ack(self, partner: tuple[int, int], result: int) -> mavlink2.MAVLink_message:
         return self.mav.mission_ack_encode(partner[0], partner[1], result, M.MAV_MISSION_TYPE_MISSION)
 
     def _timeout_us(self) -> int:
         return self.params.get("MIS_TIMEOUT_MS") * 1000
 
-    def _request(self, seq: int):
+    def _request(self, seq: int) -> mavlink2.MAVLink_message:
         assert self._up_partner is not None
         tsys, tcomp = self._up_partner
         return self.mav.mission_request_int_encode(tsys, tcomp, seq, M.MAV_MISSION_TYPE_MISSION)
 
     # --- engine ------------------------------------------------------------------
-    def handle(self, msg, now_us: int) -> list:
+    def handle(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         kind = msg.get_type()
         partner = (msg.get_srcSystem(), msg.get_srcComponent())
         mission_type = getattr(msg, "mission_type", M.MAV_MISSION_TYPE_MISSION)
@@ -151,9 +152,9 @@ class MissionEngine:
             return self.set_current(msg.seq)
         return []
 
-    def set_current(self, seq: int) -> list:
+    def set_current(self, seq: int) -> list[mavlink2.MAVLink_message]:
         """MISSION_SET_CURRENT: answered by MISSION_CURRENT (STATUSTEXT on refusal)."""
-        out = []
+        out: list[mavlink2.MAVLink_message] = []
         if not 0 <= seq < len(self.items):
             out += self._statustext(f"mission set current refused: no item {seq}", M.MAV_SEVERITY_WARNING)
         else:
@@ -163,7 +164,7 @@ class MissionEngine:
         st = self.vehicle.status()
         return out + [self.mav.mission_current_encode(st.mission_seq, st.mission_count, 0, 0)]
 
-    def _start_upload(self, msg, partner, now_us: int) -> list:
+    def _start_upload(self, msg: mavlink2.MAVLink_message, partner: tuple[int, int], now_us: int) -> list[mavlink2.MAVLink_message]:
         if self.uploading and partner != self._up_partner:
             return [self._ack(partner, M.MAV_MISSION_DENIED)]
         count = msg.count
@@ -178,7 +179,7 @@ class MissionEngine:
         self._up_deadline = now_us + self._timeout_us()
         return [self._request(0)]
 
-    def _item(self, msg, partner, now_us: int) -> list:
+    def _item(self, msg: mavlink2.MAVLink_message, partner: tuple[int, int], now_us: int) -> list[mavlink2.MAVLink_message]:
         if not self.uploading or partner != self._up_partner:
             return []  # stray item: nothing is being uploaded from this GCS
         expected = len(self._up_items)
@@ -202,7 +203,7 @@ class MissionEngine:
         self._up_partner = None
         return self._commit(self._up_items, partner)
 
-    def _commit(self, items: list[Item], partner) -> list:
+    def _commit(self, items: list[Item], partner: tuple[int, int]) -> list[mavlink2.MAVLink_message]:
         lat0, lon0 = self.params.get("ORIGIN_LAT"), self.params.get("ORIGIN_LON")
         waypoints = [item_to_world(it, lat0, lon0) for it in items]
         ok, reason = self.vehicle.set_mission(waypoints)
@@ -218,7 +219,8 @@ class MissionEngine:
         if self.on_mission_changed is not None:
             self.on_mission_changed()
 
-    def _send_item(self, msg, partner, now_us: int, as_int: bool) -> list:
+    def _send_item(self, msg: mavlink2.MAVLink_message, partner: tuple[int, int], now_us: int,
+                   as_int: bool) -> list[mavlink2.MAVLink_message]:
         if not 0 <= msg.seq < len(self.items):
             return [self._ack(partner, M.MAV_MISSION_INVALID_SEQUENCE)]
         if self._down_partner == partner:
@@ -234,11 +236,12 @@ class MissionEngine:
             partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
             *it.params, it.x / scale, it.y / scale, it.z, M.MAV_MISSION_TYPE_MISSION)]
 
-    def tick(self, now_us: int) -> list:
-        out = []
+    def tick(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+        out: list[mavlink2.MAVLink_message] = []
         if self.uploading and now_us >= self._up_deadline:
             if self._up_retries >= self.params.get("MIS_RETRIES"):
                 partner = self._up_partner
+                assert partner is not None  # uploading
                 self._up_partner = None
                 out += self._statustext("mission upload timed out; previous mission kept", M.MAV_SEVERITY_WARNING)
                 out.append(self._ack(partner, M.MAV_MISSION_OPERATION_CANCELLED))

@@ -27,6 +27,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
+from typing import Protocol
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -50,6 +51,14 @@ FTP_PAYLOAD_LEN = 251
 POSITION_MASK_XY = 0b11  # type_mask bits "ignore x" / "ignore y"
 
 
+class FtpService(Protocol):
+    """What `MavNode` needs of its FTP server (`ftp_server.FtpServer` is one)."""
+
+    def handle(self, payload: bytes | bytearray, now_us: int) -> list[bytes]: ...
+    def expire(self, now_us: int) -> None: ...
+    def drain_texts(self) -> list[tuple[int, str]]: ...
+
+
 class MavNode:
     """MAVLink node core: a pure state machine over pymavlink message objects.
 
@@ -61,7 +70,8 @@ class MavNode:
     """
 
     def __init__(self, vehicle: VehicleControl, params: ParamStore, signing: Signing | None = None, *,
-                 reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp=None) -> None:
+                 reboot_hook: Callable[[], tuple[bool, str]] | None = None,
+                 ftp: FtpService | None = None) -> None:
         self.vehicle = vehicle
         self.params = params
         self.signing = signing if signing is not None else Signing(None)
@@ -79,7 +89,7 @@ class MavNode:
         self.failsafe = False
         self.failsafe_since_us: int | None = None  # robot time the failsafe last tripped
         self.reboots = 0
-        self._pending: list = []
+        self._pending: list[mavlink2.MAVLink_message] = []
         self._now_us = 0
 
     # --- boot ---------------------------------------------------------------------
@@ -100,9 +110,9 @@ class MavNode:
             self.mav.srcSystem, self.mav.srcComponent = self.sysid, self.compid
             self.telemetry.reset_intervals()
 
-    def _reboot(self) -> list:
+    def _reboot(self) -> list[mavlink2.MAVLink_message]:
         self.reboots += 1
-        out = []
+        out: list[mavlink2.MAVLink_message] = []
         for w in self.params.load():
             out += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
         self._apply_params(reboot=True)
@@ -115,7 +125,7 @@ class MavNode:
         return out
 
     # --- input ----------------------------------------------------------------------
-    def handle(self, msg, now_us: int) -> list:
+    def handle(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         self._now_us = now_us
         self.stats.rx_total += 1
         kind = msg.get_type()
@@ -159,13 +169,15 @@ class MavNode:
                     for p in replies] + self._ftp_texts()
         return []
 
-    def _ftp_texts(self) -> list:
-        out = []
+    def _ftp_texts(self) -> list[mavlink2.MAVLink_message]:
+        out: list[mavlink2.MAVLink_message] = []
+        if self.ftp is None:
+            return out
         for severity, text in self.ftp.drain_texts():
             out += self.telemetry.statustext(text, severity)
         return out
 
-    def _heartbeat(self, msg, now_us: int) -> list:
+    def _heartbeat(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         if msg.type != M.MAV_TYPE_GCS:
             return []
         self.gcs_last_heartbeat_us = now_us
@@ -176,12 +188,12 @@ class MavNode:
         return []
 
     # --- parameters ---------------------------------------------------------------------
-    def param_value(self, name: str):
+    def param_value(self, name: str) -> mavlink2.MAVLink_message:
         value = self.params.get(name)
         return self.mav.param_value_encode(name.encode(), as_float32(value), MAV_PARAM_TYPE_INT32,
                                            len(self.params), self.params.index(name))
 
-    def _param(self, msg) -> list:
+    def _param(self, msg: mavlink2.MAVLink_message) -> list[mavlink2.MAVLink_message]:
         kind = msg.get_type()
         self._refresh_readonly()
         if kind == "PARAM_REQUEST_LIST":
@@ -215,7 +227,7 @@ class MavNode:
         self.params.update_policy(st.policy_id, st.policy_crc)
 
     # --- goals ----------------------------------------------------------------------------
-    def _goal(self, msg, now_us: int) -> list:
+    def _goal(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         if msg.type_mask & POSITION_MASK_XY:
             return self.telemetry.statustext("goal refused: position ignored in type_mask", M.MAV_SEVERITY_WARNING)
         if msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
@@ -235,7 +247,7 @@ class MavNode:
         return [self.telemetry.position_target((now_us // 1000) & 0xFFFFFFFF, x_mm, y_mm)]
 
     # --- time -------------------------------------------------------------------------------
-    def tick(self, now_us: int) -> list:
+    def tick(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         """Failsafe check, vehicle events, mission timeouts, due telemetry."""
         self._now_us = now_us
         out, self._pending = self._pending, []
@@ -251,7 +263,7 @@ class MavNode:
         out += self.telemetry.due(now_us, self.vehicle.status(), self.stats)
         return out
 
-    def _check_failsafe(self, now_us: int) -> list:
+    def _check_failsafe(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         enabled = bool(self.params.get("FS_GCS_ENABLE"))
         if self.failsafe and not enabled:
             self.failsafe = False
@@ -299,7 +311,7 @@ class MavShell:
         if sig.key is not None:
             s.timestamp = max(s.timestamp, sig.current_timestamp(now_us))
 
-    def send(self, msgs: list, now_us: int) -> None:
+    def send(self, msgs: list[mavlink2.MAVLink_message], now_us: int) -> None:
         if not msgs:
             return
         self._sync_signing(now_us)

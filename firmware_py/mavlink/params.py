@@ -100,12 +100,13 @@ PARAMS: tuple[ParamDef, ...] = (
 
 assert all(len(p.name) <= 16 for p in PARAMS)
 assert {p.field for p in PARAMS if p.field} == {f.name for f in fields(VehicleConfig)}
-assert FailsafeAction.DISARM == 2
+assert FailsafeAction.DISARM.value == 2
 
 
 def as_float32(value: int) -> float:
     """The value a PARAM_VALUE carries for an integer (C cast to float32)."""
-    return struct.unpack("<f", struct.pack("<f", float(value)))[0]
+    wire: float = struct.unpack("<f", struct.pack("<f", float(value)))[0]
+    return wire
 
 
 class ParamStore:

@@ -31,8 +31,12 @@ import json
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from firmware_py.atomic import atomic_write
+
+if TYPE_CHECKING:  # only for the annotation: the filter works on any message's raw frame
+    from pymavlink.dialects.v20 import common as mavlink2
 
 SIGNING_FILE = "params/signing.json"  # under the storage root, beside params.json
 EPOCH_2015_UNIX_S = 1_420_070_400
@@ -145,7 +149,7 @@ class Signing:
         return text
 
     # --- input filter -----------------------------------------------------------
-    def accept(self, msg) -> bool:
+    def accept(self, msg: mavlink2.MAVLink_message) -> bool:
         """True if `msg` (a pymavlink message with its raw frame) may be handled."""
         self.last_signed = False
         if self.key is None:

@@ -122,9 +122,9 @@ class Telemetry:
         self._override.clear()
         self._next_due.clear()
 
-    def due(self, now_us: int, status: VehicleStatus, stats: NodeStats) -> list:
+    def due(self, now_us: int, status: VehicleStatus, stats: NodeStats) -> list[mavlink2.MAVLink_message]:
         """Messages whose interval has elapsed (catch-up skips, no bursts)."""
-        out = []
+        out: list[mavlink2.MAVLink_message] = []
         for msg_id in STREAMS:
             interval = self.interval_us(msg_id)
             if interval <= 0:
@@ -140,7 +140,7 @@ class Telemetry:
     def can_build(self, msg_id: int) -> bool:
         return msg_id in STREAMS or msg_id in ON_REQUEST
 
-    def build(self, msg_id: int, now_us: int, st: VehicleStatus, stats: NodeStats) -> list:
+    def build(self, msg_id: int, now_us: int, st: VehicleStatus, stats: NodeStats) -> list[mavlink2.MAVLink_message]:
         """All instances of message `msg_id` for this status (may be empty)."""
         ms = (now_us // 1000) & 0xFFFFFFFF
         p = self.params.get
@@ -205,7 +205,7 @@ class Telemetry:
                                                [0] * 8, [0] * 8, [0] * 8, 0, 0, 0)]
         return []
 
-    def heartbeat(self, st: VehicleStatus):
+    def heartbeat(self, st: VehicleStatus) -> mavlink2.MAVLink_message:
         base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         if st.armed:
             base |= M.MAV_MODE_FLAG_SAFETY_ARMED
@@ -224,7 +224,7 @@ class Telemetry:
         return self.mav.heartbeat_encode(M.MAV_TYPE_GROUND_ROVER, M.MAV_AUTOPILOT_GENERIC,
                                          base, int(st.mode), system_status)
 
-    def obstacle_distance(self, now_us: int, st: VehicleStatus):
+    def obstacle_distance(self, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
         """Sector ranges in BODY_FRD: 72 bins of 5 deg clockwise from the nose;
         each sensor fills the bins inside its field of view."""
         min_cm, max_cm = robot_spec.RANGE_MIN_MM // 10, robot_spec.RANGE_MAX_MM // 10
@@ -248,7 +248,7 @@ class Telemetry:
             now_us, M.MAV_DISTANCE_SENSOR_LASER, bins, OBSTACLE_INCREMENT_DEG, min_cm, max_cm,
             float(OBSTACLE_INCREMENT_DEG), 0.0, M.MAV_FRAME_BODY_FRD)
 
-    def position_target(self, ms: int, x_mm: int, y_mm: int):
+    def position_target(self, ms: int, x_mm: int, y_mm: int) -> mavlink2.MAVLink_message:
         north, east = mav_frames.world_to_ned_m(x_mm, y_mm)
         mask = 0xFFF8  # position only (x, y, z valid)
         return self.mav.position_target_local_ned_encode(
@@ -256,15 +256,16 @@ class Telemetry:
 
     def mission_state(self, st: VehicleStatus) -> int:
         if st.mission_count == 0:
-            return M.MISSION_STATE_NO_MISSION
+            return int(M.MISSION_STATE_NO_MISSION)
         if self.last_reached >= st.mission_count - 1:
-            return M.MISSION_STATE_COMPLETE
+            return int(M.MISSION_STATE_COMPLETE)
         if st.mode == Mode.AUTO and st.armed:
-            return M.MISSION_STATE_ACTIVE
-        return M.MISSION_STATE_PAUSED if st.mission_seq > 0 or self.last_reached >= 0 else M.MISSION_STATE_NOT_STARTED
+            return int(M.MISSION_STATE_ACTIVE)
+        paused = st.mission_seq > 0 or self.last_reached >= 0
+        return int(M.MISSION_STATE_PAUSED if paused else M.MISSION_STATE_NOT_STARTED)
 
     # --- events -------------------------------------------------------------------------
-    def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> list:
+    def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> list[mavlink2.MAVLink_message]:
         """STATUSTEXT, split into MAVLink 2 chunks (id, chunk_seq) when longer than 50."""
         data = text.encode("utf-8", "replace")
         if len(data) <= STATUSTEXT_LEN:
@@ -273,7 +274,7 @@ class Telemetry:
         chunks = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
         return [self.mav.statustext_encode(severity, c, self._statustext_id, n) for n, c in enumerate(chunks)]
 
-    def event(self, ev: VehicleEvent) -> list:
+    def event(self, ev: VehicleEvent) -> list[mavlink2.MAVLink_message]:
         if ev.kind == "mission_item_reached":
             self.last_reached = ev.seq
             out = [self.mav.mission_item_reached_encode(ev.seq)]

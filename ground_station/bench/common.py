@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 
-def report(name: str, rows: list[tuple[str, object]], result: dict, json_path: str | None) -> None:
+def report(name: str, rows: Sequence[tuple[str, object]], result: dict, json_path: str | None) -> None:
     """Print `rows` as a two-column table and write `result` as JSON if asked."""
     width = max(len(k) for k, _ in rows) if rows else 10
     print(f"== qnav bench {name} ==")

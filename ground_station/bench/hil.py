@@ -32,6 +32,7 @@ from firmware_py.clock import SimClock
 from firmware_py.control.controller import Controller
 from firmware_py.control.goals import GoalRunner
 from firmware_py.control.node import RobotNode
+from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import Policy
 from firmware_py.vehicle import VehicleConfig
 
@@ -146,7 +147,7 @@ def random_pairs(occ, n: int, seed: int) -> list[tuple[tuple[int, int], float, t
     """n seeded (start cell, start heading rad, goal cell) with start != goal."""
     rng = random.Random(seed)
     cells = free_cells(occ)
-    out = []
+    out: list[tuple[tuple[int, int], float, tuple[int, int]]] = []
     while len(out) < n:
         s, g = rng.sample(cells, 2)
         out.append((s, rng.uniform(-math.pi, math.pi), g))
@@ -185,7 +186,7 @@ def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, 
 def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None) -> list[dict]:
     cell_mm = policy.cell_mm
     rng = random.Random(seed)
-    goals = {name: cell for name, cell in gm.targets.items() if cell in policy.goals}
+    goals: dict[str, tuple[int, int]] = {name: cell for name, cell in gm.targets.items() if cell in policy.goals}
     cells = [c for c in free_cells(gm.occ) if c not in goals.values()]
     rows = []
     for i in range(starts):
@@ -213,6 +214,7 @@ def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
     from ground_station.learn.envs.sector_env import SectorNavEnv
     from ground_station.maps.planner import guidance_from_metadata
 
+    assert isinstance(policy.encoder, SectorEncoder)  # only sector policies have a twin
     env = SectorNavEnv(gm, encoder=policy.encoder, guidance=guidance, **guidance_from_metadata(policy.metadata))
     out = []
     for r in rows:

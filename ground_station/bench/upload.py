@@ -23,6 +23,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from firmware_py.subprocs import free_udp_port, stop_process
 
@@ -75,7 +76,7 @@ def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port
         local.write_bytes(data)
         remote = f"/policies/bench-{size}-{int(loss * 100)}-{int(signed)}.qtab"
         cfg = emu.LinkConfig(loss=loss, seed=seed)
-        row = {"size": size, "loss": loss, "signed": signed, "theoretical_s": theoretical_seconds(size, signed)}
+        row: dict[str, Any] = {"size": size, "loss": loss, "signed": signed, "theoretical_s": theoretical_seconds(size, signed)}
         with emu.LinkEmulator(cfg, robot_peer=("127.0.0.1", robot_port)) as link:
             gcs = RobotLink(f"udpout:127.0.0.1:{link.gcs_port}", key, timeout_s=10)
             try:
@@ -141,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
                     rows.append(run_case(size, loss, signed, key if signed else None, port, root,
                                          args.seed * 1000 + i))
                     bar.update(1)
-    table = [("link", "57600 baud 8N1 = 5760 B/s each way, pymavlink MAVFTP 80-byte writes, up to 10 in flight (WriteGate)")]
+    table: list[tuple[str, object]] = [("link", "57600 baud 8N1 = 5760 B/s each way, pymavlink MAVFTP 80-byte writes, up to 10 in flight (WriteGate)")]
     for r in rows:
         name = f"{r['size'] // 1024:>4} KiB {'signed  ' if r['signed'] else 'unsigned'} loss {r['loss'] * 100:>4.0f}%"
         if r["success"]:

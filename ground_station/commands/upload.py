@@ -42,6 +42,7 @@ import argparse
 import os
 import struct
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -405,8 +406,8 @@ def _put_verified(link: RobotLink, ftp, local: Path, res: UploadResult, deadline
         if ftp.write_acks < ftp.write_total:
             # NAKed (e.g. WriteFile InvalidSession after a lost CreateFile): MAVFTP
             # ended the session, the robot has a partial file at most -> put again
-            code = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
-            problem = f"put attempt {attempt} ended by {code} after {ftp.write_acks} of {ftp.write_total} blocks"
+            error = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
+            problem = f"put attempt {attempt} ended by {error} after {ftp.write_acks} of {ftp.write_total} blocks"
             continue
         wait = min(20.0, max(2.0, _left(deadline)))
         crc = link.remote_crc(ftp, remote, wait)
@@ -532,7 +533,7 @@ def _raise_refusal(link: RobotLink, texts_from: int, local_error: str = "") -> N
     raise UploadFailed(EXIT_REFUSED, f"robot refused the policy (its reason lost{local})")
 
 
-def _show(values: dict[str, float | None] | None) -> str:
+def _show(values: Mapping[str, float | None] | None) -> str:
     if values is None:
         return "unknown"
     return ", ".join(f"{k} {'?' if v is None else f'{v:.0f}'}" for k, v in values.items())

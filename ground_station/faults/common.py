@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 MAX_FAILURES_KEPT = 20
 
@@ -19,7 +20,7 @@ class ScenarioResult:
     tried: int = 0
     survived: int = 0
     failures: list[str] = field(default_factory=list)
-    figures: dict[str, object] = field(default_factory=dict)
+    figures: dict[str, Any] = field(default_factory=dict)  # JSON-ready numbers and nested dicts
 
     @property
     def lost(self) -> int:

@@ -33,8 +33,12 @@ import threading
 import time
 from array import array
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ground_station.faults.common import ScenarioResult, register
+
+if TYPE_CHECKING:
+    from ground_station.rigs.processes import RobotProcess
 
 PARAM_POOL = ("TELEM_POS_HZ", "TELEM_NAV_HZ", "GOAL_TOL_MM", "SPEED_SCALE", "MIS_TIMEOUT_MS", "MIS_RETRIES")
 
@@ -71,8 +75,9 @@ class Crasher:
         self.next_id = 0x5EED0000 + (seed & 0xFFF) * 0x100
         self.params = {d.name: d.default for d in PARAMS if not d.readonly}
         self.rng = random.Random(seed)
-        self.robot = None
-        self.link = None
+        self.robot: RobotProcess | None = None
+        # the robot's MAVLink client once started (loosely typed: it moves to ground_station.mavlink)
+        self.link: Any = None
 
     # --- versions --------------------------------------------------------------------
     def new_version(self) -> Path:
@@ -115,8 +120,8 @@ class Crasher:
         from ground_station.commands.upload import RobotLink
         from ground_station.rigs.processes import RobotProcess
 
-        self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
-        self.link = RobotLink(self.robot.url, None, timeout_s=30.0)
+        robot = self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
+        self.link = RobotLink(robot.url, None, timeout_s=30.0)
 
     def reported_policy(self) -> tuple[float, float, float] | None:
         got = self.link.read_params(("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO"), budget_s=5.0)
@@ -211,6 +216,7 @@ def _run_killed(target, delay_s: float, crasher: Crasher) -> tuple[bool, str]:
     th.start()
     th.join(delay_s)
     finished = not th.is_alive()
+    assert crasher.robot is not None  # started by the caller
     crasher.robot.kill9()
     crasher.close_link()  # the client's socket goes away: a waiting recv ends
     th.join(60)

@@ -36,6 +36,7 @@ import random
 import struct
 import tempfile
 from pathlib import Path
+from typing import Any
 
 from ground_station.faults.common import ScenarioResult, register
 
@@ -202,10 +203,10 @@ class FrameMaker:
         if r < 0.4:
             body = rng.randbytes(rng.randint(0, 3000))
         elif r < 0.85:
-            body = bytearray(self.good_policy)
+            flipped = bytearray(self.good_policy)
             for _ in range(rng.randint(1, 4)):
-                body[rng.randrange(len(body))] ^= 1 << rng.randrange(8)
-            body = bytes(body)
+                flipped[rng.randrange(len(flipped))] ^= 1 << rng.randrange(8)
+            body = bytes(flipped)
         else:
             body = self.good_policy
         name = f"/policies/up{rng.randrange(4)}.qtab".encode()
@@ -218,8 +219,8 @@ class FrameMaker:
         return [self.ftp(p) for p in frames]
 
     # --- frames -----------------------------------------------------------------
-    def next(self) -> tuple[str, bytes, object]:
-        """(kind, bytes, message or None)."""
+    def next(self) -> tuple[str, bytes, Any]:
+        """(kind, bytes, pymavlink message or None)."""
         rng = self.rng
         if self.script:
             msg = self.script.pop(0)

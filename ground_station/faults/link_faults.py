@@ -33,6 +33,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 from ground_station.faults.common import ScenarioResult, register
 
@@ -84,7 +85,7 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             echo = node.handle(_param_set(name, value), 0)[-1]
             assert echo.param_value == value, (name, value, echo)
         t_stop = rng.randrange(20, 41) * PERIOD_US  # heartbeats stop 1-2 s in
-        state = {"next_hb": 0, "last_hb": None, "texts": []}
+        state: dict[str, Any] = {"next_hb": 0, "last_hb": None, "texts": []}
 
         def poll(_out, node=node, rng=rng, t_stop=t_stop, state=state, rig=rig, timeout_ms=timeout_ms):
             now = rig.node.clock.now_us()
@@ -226,7 +227,7 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
                     if exc.code != 4 or "no COMMAND_ACK" not in str(exc):
                         problems.append(f"command error not a clear timeout: {exc}")
             # what the robot runs now, asked over the same lossy link
-            reported = {}
+            reported: dict[str, float | None] = {}
             for name in ("POLICY_CRC_HI", "POLICY_CRC_LO"):
                 try:
                     reported[name] = glink.param_get(name, timeout_s=1.0, retries=10)
@@ -306,7 +307,7 @@ class _Client(threading.Thread):
         super().__init__(name=name, daemon=True)
         self.work, self.stop_event = work, stop
         self.error = ""
-        self.counts: dict[str, int] = {}
+        self.counts: dict[str, float] = {}  # message counts, plus t0/t1 (monotonic s)
 
     def run(self) -> None:
         try:
@@ -409,6 +410,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
             for cl in clients[1:]:
                 cl.start()
             # the robot ends itself after `duration_s` of sim time (--duration)
+            assert robot.proc is not None  # started above
             robot.proc.wait(timeout=duration_s + 60)
         except subprocess.TimeoutExpired:
             out["problems"].append("qnav-robot did not end after its duration")
@@ -423,6 +425,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
             except subprocess.TimeoutExpired:
                 sim.kill()
                 sim.wait()
+    assert robot.proc is not None  # started (or this function raised)
     if robot.proc.returncode not in (0, 4):  # 4: the tour was still going at the end
         out["problems"].append(f"qnav-robot exit {robot.proc.returncode}: {robot.log_tail()}")
     for cl in clients:

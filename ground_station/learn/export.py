@@ -150,8 +150,8 @@ def load_run(run_dir: str | os.PathLike) -> TrainingRun:
     if q.shape != (encoder.n_states, encoder.n_actions):
         raise ValueError(f"{d}/q.npy has shape {q.shape}, the encoder needs "
                          f"({encoder.n_states}, {encoder.n_actions})")
-    goals = [(int(c), int(r)) for c, r in meta.get("goals", [])] if encoder.kind == "cell" else []
-    if encoder.kind == "cell" and len(goals) != encoder.n_goals:
+    goals = [(int(c), int(r)) for c, r in meta.get("goals", [])] if isinstance(encoder, CellEncoder) else []
+    if isinstance(encoder, CellEncoder) and len(goals) != encoder.n_goals:
         raise ValueError(f"{d}/meta.json lists {len(goals)} goals for {encoder.n_goals} goal slots")
     cell_mm = meta.get("cell_mm")
     if cell_mm is None and "cell_size_m" in meta:

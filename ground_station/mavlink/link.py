@@ -27,6 +27,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 EXIT_REFUSED, EXIT_TIMEOUT = 3, 4
 DEFAULT_URL = "udpin:127.0.0.1:14550"
@@ -78,7 +79,7 @@ class Link:
     """A connection to one robot. Use as a context manager."""
 
     def __init__(self, url: str = DEFAULT_URL, *, signing_key: str | os.PathLike[str] | None = None,
-                 tlog: str | os.PathLike[str] | None = None, name: str = "session",
+                 tlog: str | os.PathLike[str] | Literal[False] | None = None, name: str = "session",
                  heartbeat: bool = False, source_system: int = GCS_SYSID,
                  source_component: int = GCS_COMPID) -> None:
         mu = mavutil()
@@ -191,7 +192,7 @@ class Link:
         return self.target[1]
 
     def recv(self, types: str | list[str] | None = None, timeout_s: float = 1.0,
-             cond: Callable[[object], bool] | None = None):
+             cond: Callable[..., bool] | None = None):  # cond(msg); `...`: lambdas bind loop vars as defaults
         """Next message from the robot (of `types`, passing `cond`) or None."""
         deadline = time.monotonic() + timeout_s
         while True:
@@ -371,7 +372,7 @@ def default_tlog_path(name: str) -> Path:
 
 def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False) -> Link:
     """Open and connect a `Link` from the common command-line options."""
-    tlog = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
+    tlog: str | Literal[False] | None = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
     try:
         link = Link(args.mavlink, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat)
     except ValueError as exc:  # bad key file

@@ -17,6 +17,7 @@ from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.timer import Timer
 from textual.widgets import Footer, Header, Static
 
 from firmware_py import robot_spec
@@ -59,7 +60,7 @@ def render_map(view: VehicleView, grid_map=None) -> Text:
     mission = {_cell_of(x, y, height, cell_m) for x, y in view.mission.items.values()}
     goal = view.goal_estimate()
     goal_cell = _cell_of(*goal, height, cell_m) if goal is not None else None
-    robot_cell = _cell_of(view.x, view.y, height, cell_m) if view.x is not None else None
+    robot_cell = _cell_of(view.x, view.y, height, cell_m) if view.x is not None and view.y is not None else None
 
     out = Text()
     for row in range(height):
@@ -219,7 +220,7 @@ class MonitorApp(App):
         self._drawn_version = -1
         self._drawn_second = -1
         self._panels: dict[str, Static] = {}
-        self._timer = None
+        self._timer: Timer | None = None
         self.sub_title = subtitle
 
     def compose(self) -> ComposeResult:

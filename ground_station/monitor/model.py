@@ -220,13 +220,13 @@ class VehicleView:
         """The goal: exact if known, else from the robot's bearing/distance."""
         if self.goal is not None:
             return self.goal
-        if None in (self.x, self.y, self.wp_dist_m, self.target_bearing_deg):
+        if self.x is None or self.y is None or self.wp_dist_m is None or self.target_bearing_deg is None:
             return None
         b = math.radians(self.target_bearing_deg)  # compass: east = sin, north = cos
         return (self.x + self.wp_dist_m * math.sin(b), self.y + self.wp_dist_m * math.cos(b))
 
     def distance_to_goal(self) -> float | None:
-        if self.goal is not None and self.x is not None:
+        if self.goal is not None and self.x is not None and self.y is not None:
             return math.hypot(self.goal[0] - self.x, self.goal[1] - self.y)
         return self.wp_dist_m
 

@@ -99,6 +99,7 @@ def analyse(path: str | os.PathLike[str], progress: bool = False) -> RunRecord:
             if view.armed and rec.first_armed is None:
                 rec.first_armed = t
             if mtype == "LOCAL_POSITION_NED":
+                assert view.x is not None and view.y is not None  # set by this very message
                 rec.pose.append((t, view.x, view.y, view.speed, view.yaw_rate))
                 rec.driving.append(view.armed and view.mode in (Mode.AUTO, Mode.GUIDED)
                                    and view.ctrl_state in (None, CtrlState.DRIVING))
@@ -110,6 +111,7 @@ def analyse(path: str | os.PathLike[str], progress: bool = False) -> RunRecord:
                 if name == NV_ACTION and msg.value >= 0:
                     rec.actions.append(msg.value)
             elif mtype == "SYS_STATUS":
+                assert view.load_pct is not None  # set by this very message
                 rec.load_pct.append((t, view.load_pct))
                 rec.overruns.append((t, view.link.tick_overruns))
             elif mtype == "MISSION_ITEM_REACHED":
@@ -175,7 +177,7 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
     path_len = sum(math.hypot(b[1] - a[1], b[2] - a[2]) for a, b in zip(rec.pose, rec.pose[1:], strict=False))
     reached_items = []
     for t, seq in rec.mission_reached:
-        item = {"t_s": round(t, 3), "seq": seq}
+        item: dict[str, object] = {"t_s": round(t, 3), "seq": seq}
         xy = view.mission.items.get(seq)
         if xy is not None:
             item["x_m"], item["y_m"] = round(xy[0], 3), round(xy[1], 3)

@@ -81,7 +81,7 @@ class LiveSource:
             self.conn.mav.param_request_read_send(self.conn.target_system, self.conn.target_component or 1,
                                                   POLICY_PARAM.encode(), -1)
             self._next_param = now + self.POLICY_POLL_S
-        out = []
+        out: list[tuple[object, float]] = []
         while len(out) < limit:
             msg = self.conn.recv_match(blocking=False)
             if msg is None:

@@ -99,7 +99,7 @@ class LinkEmulator:
         self.config = config or LinkConfig()
         self.drop = drop
         self.config.validate()
-        self._socks = []
+        self._socks: list[socket.socket] = []
         for port in (gcs_port, robot_port):
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -207,7 +207,7 @@ class LinkEmulator:
                     continue
                 while True:
                     try:
-                        data, addr = key.fileobj.recvfrom(65535)
+                        data, addr = self._socks[side].recvfrom(65535)  # the socket key.fileobj is
                     except (BlockingIOError, InterruptedError):
                         break
                     except OSError:

@@ -65,9 +65,10 @@ class RobotProcess:
         return self.proc is not None and self.proc.poll() is None
 
     def kill9(self) -> None:
-        if self.alive:
-            self.proc.send_signal(signal.SIGKILL)
-            self.proc.wait(timeout=10)
+        proc = self.proc
+        if proc is not None and proc.poll() is None:  # self.alive
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=10)
 
     def stop(self, timeout_s: float = 20.0) -> int | None:
         """SIGINT (clean exit, stats written), then SIGKILL if it hangs (its shutdown joins

@@ -1,0 +1,201 @@
+"""The layering of the three packages, enforced from their import statements.
+
+Every `import` / `from ... import` in firmware_py, ground_station and
+sim_bridge counts, wherever it sits (module level, inside a function, under
+`if TYPE_CHECKING:`): a lazy import is still a dependency. The rules:
+
+* no import cycle among the modules of the three packages;
+* only the CLI (`ground_station/cli.py`, `ground_station/commands/`, and the
+  `python -m ground_station` entry point) imports the CLI: library code never
+  climbs up into a subcommand;
+* `firmware_py.control` and `firmware_py.mavlink` never import each other:
+  they meet only through the vehicle seam (`firmware_py.vehicle`,
+  `firmware_py.plugins`);
+* firmware_py imports only the stdlib, python-can, cantools, pymavlink and
+  pyserial (it runs on the robot). `test_firmware_isolation.py` checks the
+  same boundary at run time, after the imports actually execute.
+
+The graph has one edge per import statement target: `import a.b` and
+`from a import b` (b a submodule) point at `a.b`, `from a import name` (name
+defined in `a`) points at `a`. Parent packages are not implied edges: the
+`__init__` of a package is an edge only when it is named.
+"""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PACKAGES = ("firmware_py", "ground_station", "sim_bridge")
+
+# Imports of the CLI from library code that exist today and are being removed by
+# the mavlink-client change (the FTP upload client moves out of
+# `ground_station/commands/upload.py` into `ground_station/mavlink/`, and
+# `target_items` out of `commands/mission.py`). The integrator deletes these
+# entries after merging it; do not add new ones.
+KNOWN_CLI_IMPORTS: frozenset[tuple[str, str]] = frozenset({
+    # being removed by the mavlink-client change
+    ("ground_station.bench.upload", "ground_station.commands.upload"),
+    ("ground_station.demo", "ground_station.commands.mission"),
+    ("ground_station.demo", "ground_station.commands.upload"),
+    ("ground_station.faults.crash", "ground_station.commands.upload"),
+    ("ground_station.faults.link_faults", "ground_station.commands.upload"),
+})
+
+# Third-party top-level import names the robot may use (pyserial imports as `serial`).
+FIRMWARE_THIRD_PARTY = frozenset({"can", "cantools", "pymavlink", "serial"})
+
+
+def _module_name(path: pathlib.Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, pathlib.Path]:
+    found = {}
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            found[_module_name(path)] = path
+    return found
+
+
+MODULES = _modules()
+
+
+def _imports(module: str, path: pathlib.Path) -> list[tuple[str, int]]:
+    """(imported module, line) for every import statement in `path`, relative ones resolved."""
+    is_package = path.name == "__init__.py"
+    tree = ast.parse(path.read_text(), str(path))
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.extend((alias.name, node.lineno) for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                package = module.split(".")
+                if not is_package:
+                    package.pop()
+                package = package[: len(package) - (node.level - 1)]
+                base = ".".join(package + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            for alias in node.names:
+                submodule = f"{base}.{alias.name}"
+                found.append((submodule if submodule in MODULES else base, node.lineno))
+    return found
+
+
+IMPORTS = {module: _imports(module, path) for module, path in MODULES.items()}
+
+
+def _edges() -> dict[str, set[str]]:
+    """Module -> modules of the three packages it imports (self-imports dropped)."""
+    graph: dict[str, set[str]] = {module: set() for module in MODULES}
+    for module, targets in IMPORTS.items():
+        for target, _line in targets:
+            if target in MODULES and target != module:
+                graph[module].add(target)
+    return graph
+
+
+def _find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle as a path [a, b, ..., a], or None. Iterative DFS with colours."""
+    white, grey, black = 0, 1, 2
+    colour = dict.fromkeys(graph, white)
+    for start in sorted(graph):
+        if colour[start] != white:
+            continue
+        stack = [(start, iter(sorted(graph[start])))]
+        path = [start]
+        colour[start] = grey
+        while stack:
+            node, children = stack[-1]
+            child = next(children, None)
+            if child is None:
+                colour[node] = black
+                stack.pop()
+                path.pop()
+            elif colour[child] == grey:
+                return path[path.index(child):] + [child]
+            elif colour[child] == white:
+                colour[child] = grey
+                stack.append((child, iter(sorted(graph[child]))))
+                path.append(child)
+    return None
+
+
+def _is_cli(module: str) -> bool:
+    return module in ("ground_station.cli", "ground_station.commands") or module.startswith(
+        "ground_station.commands."
+    )
+
+
+def _where(module: str, line: int) -> str:
+    return f"{MODULES[module].relative_to(ROOT)}:{line}"
+
+
+def test_the_graph_sees_the_packages_and_their_imports():
+    assert {"firmware_py.vehicle", "ground_station.cli", "sim_bridge.plant"} <= set(MODULES)
+    assert sum(len(v) for v in _edges().values()) > 100
+
+
+def test_cycle_finder_reports_the_path():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert _find_cycle(graph) == ["a", "b", "c", "a"]
+    assert _find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_no_import_cycles():
+    cycle = _find_cycle(_edges())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_only_the_cli_imports_the_cli():
+    # `python -m ground_station` is the CLI's own entry point.
+    allowed_importers = {"ground_station.__main__"}
+    bad = []
+    seen_known = set()
+    for module, targets in IMPORTS.items():
+        if _is_cli(module) or module in allowed_importers:
+            continue
+        for target, line in targets:
+            if not _is_cli(target):
+                continue
+            if (module, target) in KNOWN_CLI_IMPORTS:
+                seen_known.add((module, target))
+                continue
+            bad.append(f"{_where(module, line)} imports {target}")
+    assert not bad, "library code imports the CLI:\n" + "\n".join(bad)
+    stale = sorted(KNOWN_CLI_IMPORTS - seen_known)
+    assert not stale, f"KNOWN_CLI_IMPORTS lists edges that are gone, delete them: {stale}"
+
+
+def test_control_and_mavlink_meet_only_through_the_vehicle_seam():
+    sides = ("firmware_py.control", "firmware_py.mavlink")
+    bad = []
+    for module, targets in IMPORTS.items():
+        for side, other in (sides, sides[::-1]):
+            if module != side and not module.startswith(side + "."):
+                continue
+            bad.extend(
+                f"{_where(module, line)} imports {target}"
+                for target, line in targets
+                if target == other or target.startswith(other + ".")
+            )
+    assert not bad, "control and mavlink import each other:\n" + "\n".join(bad)
+
+
+def test_firmware_imports_only_stdlib_and_the_robot_dependencies():
+    allowed = set(sys.stdlib_module_names) | FIRMWARE_THIRD_PARTY | {"firmware_py"}
+    bad = [
+        f"{_where(module, line)} imports {target}"
+        for module, targets in IMPORTS.items()
+        if module.split(".")[0] == "firmware_py"
+        for target, line in targets
+        if target.split(".")[0] not in allowed
+    ]
+    assert not bad, "firmware_py imports outside its allowed dependencies:\n" + "\n".join(bad)
