@@ -3,7 +3,8 @@
 `open_bus(spec)` is the one place a `--can` value becomes a python-can bus:
 
     virtual:NAME                  python-can's in-process virtual bus
-    remote:ws://127.0.0.1:PORT/   a python-can-remote hub (across processes)
+    remote:ws://127.0.0.1:PORT/   a python-can-remote hub (across processes; HIL runs
+                                  only, so python-can-remote is the `qnav[hil]` extra)
     socketcan:CHANNEL             Linux SocketCAN (vcan0, can0)
     slcan:DEVICE                  serial-line CAN adapter (DEVICE[@BAUD])
     None or ""                    python-can's own configuration (CAN_INTERFACE,
@@ -17,6 +18,7 @@ controller) meet on such a hub. Stdlib and python-can only.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import socket
 import subprocess
@@ -57,9 +59,19 @@ def parse_spec(spec: str | None) -> dict[str, Any]:
                        f"(expected virtual, remote, socketcan or slcan)")
 
 
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
 def open_bus(spec: str | None, **kwargs: Any) -> can.BusABC:
     """Open the bus named by `spec` (see the module docstring); extra kwargs go to python-can."""
     config = parse_spec(spec)
+    if config.get("interface") == "remote" and not _installed("can_remote"):
+        raise CanSpecError(f"--can {spec}: the HIL hub transport needs python-can-remote: "
+                           "pip install 'qnav[hil]'")
     config.update(kwargs)
     try:
         return can.Bus(**config)

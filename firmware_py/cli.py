@@ -1,6 +1,6 @@
 """`qnav-robot`: run the robot controller on a CAN bus.
 
-    qnav-robot --can remote:ws://127.0.0.1:PORT/ --policy policies/sector.qtab \\
+    qnav-robot --can remote:ws://127.0.0.1:PORT/ --policy policies:sector \\
                --lockstep --start 0.75,0.75,90 --goal 4.75,4.75 --exit-when-done
 
 Goals come from the command line until a MAVLink node is attached: with
@@ -56,7 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--can", metavar="SPEC", default=None,
                    help="CAN bus: virtual:NAME, remote:ws://127.0.0.1:PORT/, socketcan:CH, slcan:DEV "
                         "(default: python-can's own configuration)")
-    p.add_argument("--policy", metavar="FILE", help=".qtab policy to run (default: the active one in --storage)")
+    p.add_argument("--policy", metavar="FILE", help=".qtab policy to run, or policies:NAME for a shipped one "
+                                                    "(default: the active one in --storage)")
     p.add_argument("--storage", metavar="DIR", help="the robot's file store (active/last-good policies)")
     clk = p.add_mutually_exclusive_group()
     clk.add_argument("--lockstep", action="store_true",
@@ -93,10 +94,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _load_policy(args: argparse.Namespace) -> Policy | None:
     from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
     if args.policy:
         try:
-            return load_policy(args.policy)
-        except PolicyError as exc:
+            return load_policy(resolve_policy_spec(args.policy))
+        except (PolicyError, ShippedPolicyError) as exc:
             raise UsageError(f"policy {args.policy}: {exc}") from None
     if args.storage:
         from firmware_py.storage import Storage, boot_policy_candidates

@@ -15,6 +15,7 @@ import sys
 
 from ground_station import commands
 from ground_station.errors import CliError
+from ground_station.extras import require_station
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    require_station("qnav")  # before the commands import numpy & co.: one line, not a traceback
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -44,10 +44,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from firmware_py.atomic import atomic_write
+from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from firmware_py.subprocs import free_udp_port
 
-ROOT = Path(__file__).resolve().parents[1]
-SHIPPED_POLICY = ROOT / "policies" / "paper10_cell.qtab"
+SHIPPED_POLICY = "policies:paper10_cell"  # firmware_py.shipped_policies spec
 DEFAULT_TARGETS = ("A", "B", "C", "D")
 DEFAULT_MAP = "paper10"
 ACTIVE_REMOTE_DIR = "/policies"
@@ -67,7 +67,7 @@ class DemoError(Exception):
 class DemoOptions:
     map_name: str = DEFAULT_MAP
     targets: tuple[str, ...] = DEFAULT_TARGETS
-    policy: Path | None = None  # None: the shipped paper10 policy (or a trained one)
+    policy: Path | str | None = None  # a file or policies:NAME; None: the shipped paper10 policy (or a trained one)
     train: bool = False
     train_steps: int = 3_000_000
     realtime: bool = False
@@ -525,7 +525,10 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         raise DemoError(f"map {grid_map.name} has no target {', '.join(missing)} "
                         f"(has {', '.join(sorted(grid_map.targets))})")
 
-    policy = Path(opts.policy) if opts.policy else SHIPPED_POLICY
+    try:
+        policy = resolve_policy_spec(opts.policy or SHIPPED_POLICY)
+    except ShippedPolicyError as exc:
+        raise DemoError(f"policy {opts.policy or SHIPPED_POLICY}: {exc}") from None
     if not opts.train and not policy.is_file():
         raise DemoError(f"policy {policy}: no such file")
 

@@ -147,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from ground_station.extras import require_station
+
+    require_station("qnav-sim")  # pymunk, numpy, the maps: one line, not a traceback
     args = build_parser().parse_args(argv)
     try:
         return run(args)

@@ -26,14 +26,13 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("controller", help="control loop tick latency (p50/p99/max vs the period), CPU, RSS",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seconds", type=float, default=20.0, help="wall seconds of paced (real-time) HIL")
-    p.add_argument("--policy", default=str(ROOT / "policies" / "paper10_cell.qtab"), metavar="FILE")
+    p.add_argument("--policy", default="policies:paper10_cell", metavar="FILE",
+                   help="a .qtab file or policies:NAME (default %(default)s, shipped)")
     p.add_argument("--goal-cell", default="9,0", metavar="COL,ROW", help="target cell on paper10 (default B)")
     p.add_argument("--start", default="0.25,0.25,0", metavar="X,Y,DEG")
     p.add_argument("--rt-priority", type=int, default=10, metavar="N",
@@ -119,6 +118,12 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.seconds > 0:
         raise CliError(f"--seconds must be positive, got {args.seconds:g}")
+    from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
+
+    try:
+        args.policy = str(resolve_policy_spec(args.policy))
+    except ShippedPolicyError as exc:
+        raise CliError(f"policy {args.policy}: {exc}") from None
     if not Path(args.policy).is_file():
         raise CliError(f"policy {args.policy} not found")
     variants = [("normal", None)]

@@ -22,7 +22,6 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import can
 
@@ -36,7 +35,6 @@ from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import Policy
 from firmware_py.vehicle import VehicleConfig
 
-ROOT = Path(__file__).resolve().parents[2]
 SENSOR_FRAMES = frozenset({"RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper"})
 
 
@@ -245,8 +243,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("hil", help="lockstep HIL acceptance episodes on paper10 (sector pairs, cell targets)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--map", default="paper10")
-    p.add_argument("--sector-policy", default=str(ROOT / "policies" / "sector.qtab"), metavar="FILE")
-    p.add_argument("--cell-policy", default=str(ROOT / "policies" / "paper10_cell.qtab"), metavar="FILE")
+    p.add_argument("--sector-policy", default="policies:sector", metavar="FILE",
+                   help="a .qtab file or policies:NAME (default %(default)s, shipped)")
+    p.add_argument("--cell-policy", default="policies:paper10_cell", metavar="FILE",
+                   help="a .qtab file or policies:NAME (default %(default)s, shipped)")
     p.add_argument("--pairs", type=int, default=50, help="sector: seeded random (start, goal) pairs")
     p.add_argument("--starts", type=int, default=20, help="cell: seeded random starts, each to every target")
     p.add_argument("--only", choices=("sector", "cell"), help="run one set only")
@@ -264,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
     from ground_station.bench.common import report
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
@@ -276,11 +277,12 @@ def run(args: argparse.Namespace) -> int:
     result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s, "guidance": args.guidance}
     rows_out: list[tuple[str, object]] = []
     for kind in sets:
-        path = args.sector_policy if kind == "sector" else args.cell_policy
+        spec = args.sector_policy if kind == "sector" else args.cell_policy
         try:
+            path = str(resolve_policy_spec(spec))
             pol = load_policy(path)
-        except PolicyError as exc:
-            raise CliError(f"{kind} policy {path}: {exc}") from None
+        except (PolicyError, ShippedPolicyError) as exc:
+            raise CliError(f"{kind} policy {spec}: {exc}") from None
         if pol.kind != kind:
             raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
         if kind == "sector":

@@ -27,7 +27,6 @@ from typing import Any
 
 from firmware_py.subprocs import free_udp_port, stop_process
 
-REPO = Path(__file__).resolve().parents[2]
 WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size
 FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
 SIGNATURE = 13

@@ -27,6 +27,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from firmware_py.shipped_policies import policy_file_arg
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="one-command demo: hub + sim + robot, upload, mission A-D, monitor, summary",
@@ -40,8 +42,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="train and export a cell policy first (progress bar) instead of the shipped one")
     p.add_argument("--train-steps", type=int, default=3_000_000, metavar="N",
                    help="Q-learning steps with --train (default %(default)s)")
-    p.add_argument("--policy", type=Path, metavar="FILE.qtab",
-                   help="policy to upload (default policies/paper10_cell.qtab)")
+    p.add_argument("--policy", type=policy_file_arg, metavar="FILE.qtab",
+                   help="policy to upload: a file or policies:NAME (default policies:paper10_cell, shipped)")
     p.add_argument("--targets", default="A,B,C,D", metavar="A,B,...",
                    help="mission: paper10 targets in visiting order (default %(default)s)")
     p.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/demo-<timestamp>/)")

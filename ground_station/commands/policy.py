@@ -20,7 +20,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     inner.required = True
     ins = inner.add_parser("inspect", help="validate policy files and print their headers",
                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ins.add_argument("files", nargs="+", metavar="FILE", help=".qtab file(s)")
+    ins.add_argument("files", nargs="+", metavar="FILE", help=".qtab file(s), or policies:NAME (shipped)")
     ins.add_argument("--json", action="store_true", help="one JSON object per line")
     ins.add_argument("--sensors", type=int, default=robot_spec.SENSOR_COUNT,
                      help="the robot's range-sensor count to validate against (default %(default)s)")
@@ -30,10 +30,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
     """Validation result and header of one file as a JSON-able dict."""
     from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 
     try:
-        pol = load_policy(path, expect_sensors=expect_sensors)
-    except PolicyError as exc:
+        pol = load_policy(resolve_policy_spec(path), expect_sensors=expect_sensors)
+    except (PolicyError, ShippedPolicyError) as exc:
         return {"file": path, "valid": False, "error": str(exc)}
     return {"file": path, "valid": True, "error": None, **pol.header()}
 

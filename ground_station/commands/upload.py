@@ -46,6 +46,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from firmware_py.shipped_policies import policy_file_arg
 from ground_station.errors import CliError
 
 EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
@@ -549,7 +550,7 @@ def default_remote(local: Path) -> str:
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("upload", help="upload a policy to the robot over MAVLink FTP (and activate it)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("file", type=Path, help="the .qtab policy file")
+    p.add_argument("file", type=policy_file_arg, help="the .qtab policy file, or policies:NAME (shipped)")
     p.add_argument("--mavlink", required=True,
                    help="pymavlink connection string, e.g. udpin:127.0.0.1:14550 or /dev/ttyUSB0,57600")
     p.add_argument("--activate", action="store_true", help="make it the robot's active policy")

@@ -17,7 +17,6 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable
-from pathlib import Path
 
 import can
 
@@ -28,10 +27,10 @@ from firmware_py.control.controller import Controller
 from firmware_py.control.goals import GoalRunner
 from firmware_py.control.node import RobotNode
 from firmware_py.policy import Policy, load_policy
+from firmware_py.shipped_policies import shipped_policy
 from firmware_py.vehicle import CtrlState, VehicleConfig
 
-REPO = Path(__file__).resolve().parents[2]
-CELL_POLICY = REPO / "policies" / "paper10_cell.qtab"
+CELL_POLICY = shipped_policy("paper10_cell")
 PERIOD_US = robot_spec.CONTROL_PERIOD_US
 
 FramesHook = Callable[[int, int, list[can.Message]], list[can.Message]]  # (tick, t_us, frames)

@@ -168,11 +168,12 @@ def test_cli_sector_train_defaults_to_guidance_and_eval_reports_both(tmp_path, c
 def test_shipped_sector_policy_leaves_a_paper10_pocket_in_hil_only_with_waypoints():
     # real pieces: pymunk plant + RobotNode/Controller on a virtual CAN bus, lockstep
     from firmware_py.policy import load_policy
-    from ground_station.bench.hil import ROOT, run_episode
+    from firmware_py.shipped_policies import shipped_policy
+    from ground_station.bench.hil import run_episode
     from ground_station.maps.planner import guidance_from_metadata
 
     gm = load_map("paper10")
-    pol = load_policy(ROOT / "policies" / "sector.qtab")
+    pol = load_policy(shipped_policy("sector"))
     start, goal = (2, 2), (2, 6)  # inside the north-west pocket, goal due south behind its wall
     sx, sy = robot_spec.cell_center_mm(*start, gm.height)
     wps = plan_waypoints(gm, start, goal, **guidance_from_metadata(pol.metadata))

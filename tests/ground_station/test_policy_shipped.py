@@ -4,15 +4,15 @@ recorded, and the cell one regenerates to the same policy id."""
 
 import json
 import shlex
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from firmware_py.policy import load_policy
+from firmware_py.shipped_policies import shipped_policies_dir
 from ground_station.cli import main
 
-POLICIES = Path(__file__).resolve().parents[2] / "policies"
+POLICIES = shipped_policies_dir()
 SHIPPED = sorted(POLICIES.glob("*.qtab"))
 
 

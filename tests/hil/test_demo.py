@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from firmware_py.shipped_policies import shipped_policy
+
 ROOT = Path(__file__).resolve().parents[2]
 QNAV = [sys.executable, "-c", "import sys; from ground_station.cli import main; sys.exit(main())"]
 
@@ -72,7 +74,7 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
     stats = json.loads(Path(summary["robot_stats"]).read_text())
     causes = [t[3] for t in stats["transitions"]]
     assert "mission complete" in causes and not any("FAULT" in t[2] for t in stats["transitions"])
-    assert (out / "robot" / "policies" / "active.qtab").read_bytes() == (ROOT / "policies" / "paper10_cell.qtab").read_bytes()
+    assert (out / "robot" / "policies" / "active.qtab").read_bytes() == shipped_policy("paper10_cell").read_bytes()
 
     rep = subprocess.run([*QNAV, "report", summary["tlog"], "--out", str(tmp_path / "report"), "--json"],
                          cwd=ROOT, capture_output=True, text=True, timeout=110)
@@ -87,7 +89,7 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
 
 def test_demo_refused_policy_fails_with_the_robots_reason_and_cleans_up(tmp_path):
     bad = tmp_path / "bad.qtab"
-    data = bytearray((ROOT / "policies" / "paper10_cell.qtab").read_bytes())
+    data = bytearray(shipped_policy("paper10_cell").read_bytes())
     data[len(data) // 2] ^= 0xFF  # CRC no longer matches: the robot's loader must refuse it
     bad.write_bytes(bytes(data))
     out = tmp_path / "run"
@@ -129,6 +131,7 @@ def test_demo_ctrl_c_stops_every_process(tmp_path):
 
 def test_demo_bad_arguments_are_one_line_errors(tmp_path):
     for args, needle in ((["--targets", "A,Z"], "Z"), (["--policy", str(tmp_path / "nope.qtab")], "nope.qtab"),
+                         (["--policy", "policies:nope"], "no shipped policy 'nope'"),
                          (["--timeout", "0"], "--timeout")):
         proc = subprocess.run([*QNAV, "demo", "--headless", "--out", str(tmp_path / "r"), *args], cwd=ROOT,
                               capture_output=True, text=True, timeout=60)

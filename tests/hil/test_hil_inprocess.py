@@ -3,7 +3,6 @@ python-can virtual bus, lockstep handshake as specified."""
 
 import math
 from array import array
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,11 +11,11 @@ from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import dump_policy, load_policy
+from firmware_py.shipped_policies import shipped_policy
 from ground_station.bench.hil import cut_sensors_after, run_episode
 from ground_station.maps import load_map
 from tests.support.controller_rig import sector_seek_policy
 
-ROOT = Path(__file__).resolve().parents[2]
 PAPER10 = load_map("paper10")
 H = PAPER10.height
 
@@ -34,7 +33,7 @@ def forward_only_policy():
 
 @pytest.mark.parametrize("target", ["A", "D"])
 def test_cell_policy_reaches_paper10_target_without_contact(target):
-    pol = load_policy(ROOT / "policies" / "paper10_cell.qtab")
+    pol = load_policy(shipped_policy("paper10_cell"))
     goal = robot_spec.cell_center_mm(*PAPER10.targets[target], H, pol.cell_mm)
     ep = run_episode(PAPER10.occ, pol, (*centre_m(0, 9), 0.5), [goal], max_sim_s=90)
     assert ep.result == "reached", ep.transitions
@@ -60,7 +59,7 @@ def test_sector_decisions_drive_the_plant_to_a_goal():
 
 
 def test_sensor_cut_zeroes_commands_within_one_period_after_timeout():
-    pol = load_policy(ROOT / "policies" / "paper10_cell.qtab")
+    pol = load_policy(shipped_policy("paper10_cell"))
     goal = robot_spec.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
     cut_us = 2_000_000
     ep = run_episode(PAPER10.occ, pol, (*centre_m(0, 9), 0.0), [goal], max_sim_s=6,
@@ -92,7 +91,7 @@ def test_bumper_stops_the_robot():
 
 
 def test_estop_frame_stops_and_latches():
-    pol = load_policy(ROOT / "policies" / "paper10_cell.qtab")
+    pol = load_policy(shipped_policy("paper10_cell"))
     goal = robot_spec.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
     sent = []
 
