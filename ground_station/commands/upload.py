@@ -1,0 +1,78 @@
+"""`qnav upload FILE [--activate]`: put a policy on the robot over MAVLink FTP
+(pymavlink's own client), prove it arrived byte-exact, and optionally
+activate it; the verdict comes from the robot's state (its POLICY_ID and
+POLICY_CRC_HI/LO parameters plus the CRC32 of active.qtab), never from one
+reply. Steps and retries: docs/mavlink.md, "Uploading a policy"
+(`ground_station.mavlink.ftp_upload`).
+
+`--timeout` is the whole upload's budget; of it at most 10 s go to waiting
+for the robot's heartbeat.
+
+Exit status: 0 done, 2 bad arguments, 3 refused by the robot (its reason
+printed), 4 timeout, no robot or no FTP answer, 5 CRC or policy-id mismatch.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ground_station.errors import CliError
+
+DEFAULT_DEADLINE_S = 300.0
+HEARTBEAT_WAIT_S = 10.0
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from ground_station.mavlink.link import add_link_args
+
+    p = sub.add_parser("upload", help="upload a policy to the robot over MAVLink FTP (and activate it)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", type=Path, help="the .qtab policy file")
+    p.add_argument("--activate", action="store_true", help="make it the robot's active policy")
+    p.add_argument("--remote", help="path on the robot (default /policies/<file name>)")
+    p.add_argument("--attempts", type=int, default=8, help="whole-file put attempts (default %(default)s)")
+    add_link_args(p, timeout_s=DEFAULT_DEADLINE_S,
+                  timeout_help=f"give up after this many seconds (default {DEFAULT_DEADLINE_S:g}; "
+                               f"of them at most {HEARTBEAT_WAIT_S:g} s waiting for the robot's heartbeat)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from ground_station.mavlink.ftp_upload import default_remote, upload_policy
+    from ground_station.mavlink.link import LinkError, open_link
+
+    if not args.file.is_file():
+        raise CliError(f"{args.file}: no such file")
+    remote = args.remote or default_remote(args.file)
+    size = args.file.stat().st_size
+    try:
+        link = open_link(args, "upload", connect_timeout_s=min(HEARTBEAT_WAIT_S, args.timeout))
+    except LinkError as exc:
+        print(f"qnav upload: error: {exc}", flush=True)
+        return exc.code
+    bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"upload {args.file.name}")
+
+    def progress(frac: float | None) -> None:
+        if frac is not None:
+            bar.n = int(frac * size)
+            bar.refresh()
+
+    try:
+        with link:
+            res = upload_policy(link, args.file, remote, activate=args.activate, deadline_s=args.timeout,
+                                attempts=args.attempts, progress=progress)
+    except LinkError as exc:
+        bar.close()
+        print(f"qnav upload: error: {exc}", flush=True)
+        return exc.code
+    bar.n = size
+    bar.close()
+    print(f"uploaded {args.file} -> {remote}: {res.size} B, CRC32 0x{res.crc:08x} verified on the robot, "
+          f"{res.put_seconds:.1f} s, {res.put_attempts} attempt(s)")
+    if args.activate:
+        pid = f"0x{res.policy_id:08x}" if res.policy_id is not None else "unknown"
+        print(f"activated: policy id {pid}, confirmed by {res.confirmed_by}")
+    return 0
