@@ -45,9 +45,10 @@ def _from_gcs(make):
     """A message as the node receives it from a ground station: `make(m)` on
     pymavlink's common dialect, packed by the GCS and parsed back."""
     from ground_station.faults.hostile_mav import _dialect
+    from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
 
     m = _dialect()
-    gcs = m.MAVLink(None, 255, 190)
+    gcs = m.MAVLink(None, GCS_SYSID, GCS_COMPID)
     return m.MAVLink(None, 1, 1).parse_buffer(make(m).pack(gcs))[0]
 
 
