@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -330,8 +330,8 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
         if ftp.write_acks < ftp.write_total:
             # NAKed (e.g. WriteFile InvalidSession after a lost CreateFile): MAVFTP
             # ended the session, the robot has a partial file at most -> put again
-            code = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
-            problem = f"put attempt {attempt} ended by {code} after {ftp.write_acks} of {ftp.write_total} blocks"
+            ended_by = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
+            problem = f"put attempt {attempt} ended by {ended_by} after {ftp.write_acks} of {ftp.write_total} blocks"
             continue
         wait = min(20.0, max(2.0, _left(deadline)))
         crc = session.remote_crc(remote, wait)
@@ -457,7 +457,7 @@ def _raise_refusal(link: Link, texts_from: int, local_error: str = "") -> None:
     raise LinkError(EXIT_REFUSED, f"robot refused the policy (its reason lost{local})")
 
 
-def _show(values: dict[str, float | None] | None) -> str:
+def _show(values: Mapping[str, float | None] | None) -> str:
     if values is None:
         return "unknown"
     return ", ".join(f"{k} {'?' if v is None else f'{v:.0f}'}" for k, v in values.items())

@@ -34,7 +34,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from firmware_py.mavlink.params import as_float32
 
@@ -95,7 +95,7 @@ class Link:
     """A connection to one robot. Use as a context manager."""
 
     def __init__(self, url: str = DEFAULT_URL, *, signing_key: str | os.PathLike[str] | None = None,
-                 tlog: str | os.PathLike[str] | None = None, name: str = "session",
+                 tlog: str | os.PathLike[str] | Literal[False] | None = None, name: str = "session",
                  heartbeat: bool = False, source_system: int = GCS_SYSID,
                  source_component: int = GCS_COMPID) -> None:
         mu = mavutil()
@@ -220,7 +220,7 @@ class Link:
         return self.target[1]
 
     def recv(self, types: str | list[str] | None = None, timeout_s: float = 1.0,
-             cond: Callable[[object], bool] | None = None):
+             cond: Callable[[Any], bool] | None = None) -> Any:
         """Next message from the robot (of `types`, passing `cond`) or None."""
         deadline = time.monotonic() + timeout_s
         while True:
@@ -440,7 +440,7 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
               connect_timeout_s: float | None = None) -> Link:
     """Open and connect a `Link` from the common command-line options (the
     heartbeat wait is `--timeout` unless `connect_timeout_s` is given)."""
-    tlog = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
+    tlog: str | Literal[False] | None = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
     try:
         link = Link(args.mavlink, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat)
     except ValueError as exc:  # bad key file
