@@ -330,8 +330,8 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
         if ftp.write_acks < ftp.write_total:
             # NAKed (e.g. WriteFile InvalidSession after a lost CreateFile): MAVFTP
             # ended the session, the robot has a partial file at most -> put again
-            ended_by = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
-            problem = f"put attempt {attempt} ended by {ended_by} after {ftp.write_acks} of {ftp.write_total} blocks"
+            error = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
+            problem = f"put attempt {attempt} ended by {error} after {ftp.write_acks} of {ftp.write_total} blocks"
             continue
         wait = min(20.0, max(2.0, _left(deadline)))
         crc = session.remote_crc(remote, wait)

@@ -220,7 +220,7 @@ class Link:
         return self.target[1]
 
     def recv(self, types: str | list[str] | None = None, timeout_s: float = 1.0,
-             cond: Callable[[Any], bool] | None = None) -> Any:
+             cond: Callable[..., bool] | None = None):  # cond(msg); `...`: lambdas bind loop vars as defaults
         """Next message from the robot (of `types`, passing `cond`) or None."""
         deadline = time.monotonic() + timeout_s
         while True:
