@@ -11,8 +11,8 @@ piece, used the way an operator would use it:
 3. one ground-station MAVLink link (`ground_station.mavlink.link.Link`, its .tlog in
    the run folder) over UDP loopback;
 4. the policy uploaded and activated over MAVLink FTP with pymavlink's
-   client (`ground_station.commands.upload.upload_policy`);
-5. the mission from map targets (`commands.mission.target_items` +
+   client on the same link (`ground_station.mavlink.ftp_upload.upload_policy`);
+5. the mission from map targets (`mavlink.mission_items.target_items` +
    `Link.mission_upload`), arm and Auto (`Link.command`);
 6. the monitor (`MonitorApp` on a `LiveSource`) or, headless, the same
    `VehicleView` fed in a loop, until the mission completes, the vehicle
@@ -393,11 +393,11 @@ def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -
 def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tuple[float, str | None]:
     from tqdm import tqdm
 
-    from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
+    from ground_station.mavlink.ftp_upload import upload_policy
+    from ground_station.mavlink.link import LinkError
 
     size = policy.stat().st_size
     remote = f"{ACTIVE_REMOTE_DIR}/upload-{policy.name}"
-    rl = RobotLink(link.url, conn=link.conn, timeout_s=10.0)
     with tqdm(total=size, unit="B", unit_scale=True, desc=f"upload {policy.name}", disable=quiet or None,
               file=sys.stderr) as bar:
         def progress(frac):
@@ -406,8 +406,8 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
                 bar.refresh()
 
         try:
-            res = upload_policy(rl, policy, remote, activate=True, deadline_s=120.0, progress=progress)
-        except UploadFailed as exc:
+            res = upload_policy(link, policy, remote, activate=True, deadline_s=120.0, progress=progress)
+        except LinkError as exc:
             raise DemoError(f"policy upload: {exc}") from None
         bar.n = size
     pid = f"0x{res.policy_id:08x}" if res.policy_id is not None else None
@@ -417,8 +417,8 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
 
 
 def _command_mission(link, opts: DemoOptions, say: Callable[[str], None]) -> None:
-    from ground_station.commands.mission import target_items
     from ground_station.mavlink.link import LinkError
+    from ground_station.mavlink.mission_items import target_items
 
     m = link.m
     try:

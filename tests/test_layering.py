@@ -30,20 +30,6 @@ import sys
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGES = ("firmware_py", "ground_station", "sim_bridge")
 
-# Imports of the CLI from library code that exist today and are being removed by
-# the mavlink-client change (the FTP upload client moves out of
-# `ground_station/commands/upload.py` into `ground_station/mavlink/`, and
-# `target_items` out of `commands/mission.py`). The integrator deletes these
-# entries after merging it; do not add new ones.
-KNOWN_CLI_IMPORTS: frozenset[tuple[str, str]] = frozenset({
-    # being removed by the mavlink-client change
-    ("ground_station.bench.upload", "ground_station.commands.upload"),
-    ("ground_station.demo", "ground_station.commands.mission"),
-    ("ground_station.demo", "ground_station.commands.upload"),
-    ("ground_station.faults.crash", "ground_station.commands.upload"),
-    ("ground_station.faults.link_faults", "ground_station.commands.upload"),
-})
-
 # Third-party top-level import names the robot may use (pyserial imports as `serial`).
 FIRMWARE_THIRD_PARTY = frozenset({"can", "cantools", "pymavlink", "serial"})
 
@@ -158,20 +144,14 @@ def test_only_the_cli_imports_the_cli():
     # `python -m ground_station` is the CLI's own entry point.
     allowed_importers = {"ground_station.__main__"}
     bad = []
-    seen_known = set()
     for module, targets in IMPORTS.items():
         if _is_cli(module) or module in allowed_importers:
             continue
         for target, line in targets:
             if not _is_cli(target):
                 continue
-            if (module, target) in KNOWN_CLI_IMPORTS:
-                seen_known.add((module, target))
-                continue
             bad.append(f"{_where(module, line)} imports {target}")
     assert not bad, "library code imports the CLI:\n" + "\n".join(bad)
-    stale = sorted(KNOWN_CLI_IMPORTS - seen_known)
-    assert not stale, f"KNOWN_CLI_IMPORTS lists edges that are gone, delete them: {stale}"
 
 
 def test_control_and_mavlink_meet_only_through_the_vehicle_seam():

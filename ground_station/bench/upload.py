@@ -64,9 +64,10 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
         stop_process(proc)
 
 
-def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port: int, root: Path,
+def run_case(size: int, loss: float, signed: bool, key_file: Path | None, robot_port: int, root: Path,
              seed: int) -> dict:
-    from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
+    from ground_station.mavlink.ftp_upload import upload_policy
+    from ground_station.mavlink.link import Link, LinkError
     from ground_station.rigs import link_emulator as emu
 
     data = random.Random(seed).randbytes(size)
@@ -77,13 +78,14 @@ def run_case(size: int, loss: float, signed: bool, key: bytes | None, robot_port
         cfg = emu.LinkConfig(loss=loss, seed=seed)
         row: dict[str, Any] = {"size": size, "loss": loss, "signed": signed, "theoretical_s": theoretical_seconds(size, signed)}
         with emu.LinkEmulator(cfg, robot_peer=("127.0.0.1", robot_port)) as link:
-            gcs = RobotLink(f"udpout:127.0.0.1:{link.gcs_port}", key, timeout_s=10)
+            gcs = Link(f"udpout:127.0.0.1:{link.gcs_port}", signing_key=key_file, tlog=False)
             try:
+                gcs.connect(10.0)
                 t0 = time.monotonic()
                 res = upload_policy(gcs, local, remote, deadline_s=600, attempts=10)
                 row["seconds"] = time.monotonic() - t0
                 row["attempts"] = res.put_attempts
-            except UploadFailed as exc:
+            except LinkError as exc:
                 row["seconds"] = None
                 row["error"] = str(exc)
             finally:
@@ -125,12 +127,9 @@ def run(args: argparse.Namespace) -> int:
     modes = {"both": [False, True], "off": [False], "on": [True]}[args.signing]
     cases = [(s, signed, loss) for s in sizes for signed in modes for loss in losses]
     rows = []
-    from firmware_py.mavlink.signing import load_key_file
-
     with tempfile.TemporaryDirectory() as tmp, tqdm(total=len(cases), desc="bench upload") as bar:
         key_file = Path(tmp) / "signing.key"
         key_file.write_text(random.Random(args.seed).randbytes(32).hex() + "\n")
-        key = load_key_file(key_file)
         for signed in modes:
             root = Path(tmp) / f"robot-{int(signed)}"
             port = free_udp_port()
@@ -138,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
                 for i, (size, s, loss) in enumerate(cases):
                     if s != signed:
                         continue
-                    rows.append(run_case(size, loss, signed, key if signed else None, port, root,
+                    rows.append(run_case(size, loss, signed, key_file if signed else None, port, root,
                                          args.seed * 1000 + i))
                     bar.update(1)
     table: list[tuple[str, object]] = [("link", "57600 baud 8N1 = 5760 B/s each way, pymavlink MAVFTP 80-byte writes, up to 10 in flight (WriteGate)")]

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import contextlib
 import random
-import struct
 import tempfile
 import threading
 import time
@@ -35,16 +34,13 @@ from array import array
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from firmware_py.mavlink.params import as_float32
 from ground_station.faults.common import ScenarioResult, register
 
 if TYPE_CHECKING:
     from ground_station.rigs.processes import RobotProcess
 
 PARAM_POOL = ("TELEM_POS_HZ", "TELEM_NAV_HZ", "GOAL_TOL_MM", "SPEED_SCALE", "MIS_TIMEOUT_MS", "MIS_RETRIES")
-
-
-def _f32(v: int) -> float:
-    return struct.unpack("<f", struct.pack("<f", float(v)))[0]
 
 
 def policy_version(base_path: Path, policy_id: int) -> bytes:
@@ -76,7 +72,7 @@ class Crasher:
         self.params = {d.name: d.default for d in PARAMS if not d.readonly}
         self.rng = random.Random(seed)
         self.robot: RobotProcess | None = None
-        # the robot's MAVLink client once started (loosely typed: it moves to ground_station.mavlink)
+        # the robot's MAVLink client (ground_station.mavlink.link.Link) while the robot runs
         self.link: Any = None
 
     # --- versions --------------------------------------------------------------------
@@ -117,11 +113,12 @@ class Crasher:
 
     # --- robot ------------------------------------------------------------------------
     def start_robot(self) -> None:
-        from ground_station.commands.upload import RobotLink
+        from ground_station.mavlink.link import Link
         from ground_station.rigs.processes import RobotProcess
 
         robot = self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
-        self.link = RobotLink(robot.url, None, timeout_s=30.0)
+        self.link = Link(robot.url, tlog=False)
+        self.link.connect(30.0)
 
     def reported_policy(self) -> tuple[float, float, float] | None:
         got = self.link.read_params(("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO"), budget_s=5.0)
@@ -141,7 +138,7 @@ class Crasher:
 
     # --- actions ----------------------------------------------------------------------
     def upload(self, activate: bool, marks: dict) -> None:
-        from ground_station.commands.upload import upload_policy
+        from ground_station.mavlink.ftp_upload import upload_policy
 
         local = self.new_version()
         marks["new"] = self.versions[local.read_bytes()]
@@ -169,11 +166,11 @@ class Crasher:
             value = self.rng.randint(d.min, min(d.max, d.min + 1000))
             marks["inflight"] = (name, value)
             for _attempt in range(5):
-                conn.mav.param_set_send(self.link.target_system, self.link.target_component, name.encode(),
+                conn.mav.param_set_send(self.link.sysid, self.link.compid, name.encode(),
                                         float(value), 6)
                 echo = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0,
                                        condition=f"PARAM_VALUE.param_id=='{name}'")
-                if echo is not None and echo.param_value == _f32(value):
+                if echo is not None and echo.param_value == as_float32(value):
                     break
             else:
                 raise TimeoutError(f"no echo for {name}")
@@ -260,7 +257,7 @@ def crash_kill9(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 c.start_robot()  # the restart
                 reported = c.reported_policy()
                 if boot is not None:
-                    want = (_f32(boot.policy_id), float(boot.crc >> 16), float(boot.crc & 0xFFFF))
+                    want = (as_float32(boot.policy_id), float(boot.crc >> 16), float(boot.crc & 0xFFFF))
                     if reported != want:
                         problems.append(f"restarted robot reports {reported}, disk says {want}")
                 if action == "activate" and marks.get("activating") and not marks.get("activated"):

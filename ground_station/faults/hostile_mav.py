@@ -39,8 +39,9 @@ from pathlib import Path
 from typing import Any
 
 from ground_station.faults.common import ScenarioResult, register
+from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
 
-GCS = (255, 190)
+GCS = (GCS_SYSID, GCS_COMPID)
 FTP_PATHS = (
     "/policies/x.qtab", "policies/y.qtab", "/policies/active.qtab", "/policies/last_good.qtab",
     "/params/params.json", "/params/signing.json", "/", "", ".", "..", "../x", "/../x", "/policies/../../x",

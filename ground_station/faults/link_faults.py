@@ -46,9 +46,10 @@ def _from_gcs(make):
     """A message as the node receives it from a ground station: `make(m)` on
     pymavlink's common dialect, packed by the GCS and parsed back."""
     from ground_station.faults.hostile_mav import _dialect
+    from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
 
     m = _dialect()
-    gcs = m.MAVLink(None, 255, 190)
+    gcs = m.MAVLink(None, GCS_SYSID, GCS_COMPID)
     return m.MAVLink(None, 1, 1).parse_buffer(make(m).pack(gcs))[0]
 
 
@@ -153,8 +154,8 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
     """One robot behind the emulator at `loss`: one upload + activation, `commands` commands."""
     from firmware_py.policy import load_policy
     from firmware_py.storage import ACTIVE_POLICY, Storage
-    from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
     from ground_station.faults.crash import policy_version
+    from ground_station.mavlink.ftp_upload import ftp_session, upload_policy
     from ground_station.mavlink.link import Link, LinkError, mavlink
     from ground_station.rigs.lockstep import CELL_POLICY
     from ground_station.rigs.processes import RobotProcess
@@ -169,9 +170,6 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
     local.write_bytes(new)
     key_file = tmp / f"link-{seed}.key"  # per trial: trials may run side by side in one directory
     key_file.write_text(random.Random(seed).randbytes(32).hex())
-    from firmware_py.mavlink.signing import load_key_file
-
-    key = load_key_file(key_file)
     row: dict = {"loss": loss, "seed": seed, "problems": []}
     problems = row["problems"]
     cfg = emu.LinkConfig(loss=loss, duplicate=min(0.1, loss / 2), reorder=min(0.1, loss / 2),
@@ -181,9 +179,11 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
         url = f"udpout:127.0.0.1:{link.gcs_port}"
         # upload + activation with qnav upload's own code
         t0 = time.monotonic()
+        gcs = Link(url, signing_key=key_file, tlog=False)
         try:
-            gcs = RobotLink(url, key, timeout_s=30.0)
-        except UploadFailed as exc:
+            gcs.connect(30.0)
+        except LinkError as exc:
+            gcs.close()
             problems.append(f"setup: {exc}")
             return row
         try:
@@ -191,13 +191,14 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
                                 attempts=8)
             row.update(upload="ok", upload_s=time.monotonic() - t0, puts=res.put_attempts, renames=res.renames,
                        confirmed_by=res.confirmed_by)
-        except UploadFailed as exc:
+        except LinkError as exc:
             text = str(exc)
             row.update(upload="failed", upload_s=time.monotonic() - t0, error=text, exit=exc.code)
             if not text or "\n" in text or exc.code not in (3, 4, 5):
                 problems.append(f"unclear upload error (exit {exc.code}): {text!r}")
         finally:
-            row["writes"] = {"sent": gcs.gate.passed, "held": gcs.gate.held}
+            gate = ftp_session(gcs).gate
+            row["writes"] = {"sent": gate.passed, "held": gate.held}
             gcs.close()
         t_cmd = time.monotonic()
         # commands through the shared link layer, with its retries
@@ -330,8 +331,8 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
     from firmware_py import robot_spec as rb
     from firmware_py.canbus import CanHub
     from firmware_py.storage import ACTIVE_POLICY, Storage
-    from ground_station.commands.upload import RobotLink, upload_policy
     from ground_station.faults.crash import policy_version
+    from ground_station.mavlink.ftp_upload import upload_policy
     from ground_station.mavlink.link import Link
     from ground_station.rigs.lockstep import CELL_POLICY, paper10
     from ground_station.rigs.processes import BIN, RobotProcess
@@ -389,8 +390,9 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
             def uploader(cl: _Client) -> None:  # uploads back to back (no activation: it is driving)
                 # 15 s each: well over a 2.2 KB put on loopback, and the thread ends soon after the
                 # robot does (its requests then go unanswered until the deadline)
-                link = RobotLink(robot.url, None, timeout_s=30.0)
+                link = Link(robot.url, tlog=False)
                 try:
+                    link.connect(30.0)
                     k = 0
                     while not stop.is_set():
                         k += 1

@@ -8,9 +8,16 @@ a `.tlog` of every session in both directions (by default under
 request/answer patterns with timeouts and retries: COMMAND_LONG ->
 COMMAND_ACK, PARAM_* -> PARAM_VALUE, the mission upload/download exchange.
 
-Refusals and timeouts raise `LinkError(code, one line)`; the line carries
-the robot's reason (the STATUSTEXT it sent with the refusal). Exit codes
-match `qnav upload`: 3 refused, 4 timeout.
+It also overhears what every command may need later: STATUSTEXTs, the
+newest PARAM_VALUE of each name (`read_params` asks for several at once and
+waits for wanted values), the robot's HEARTBEAT system state. FTP upload
+(`ground_station.mavlink.ftp_upload`) runs on the same connection.
+
+Refusals, timeouts and mismatches raise `LinkError(code, one line)`; the
+line carries the robot's reason (the STATUSTEXT it sent with the refusal).
+`code` is the exit status of every MAVLink command: EXIT_REFUSED 3,
+EXIT_TIMEOUT 4 (timeout, no robot, no answer), EXIT_MISMATCH 5 (what the
+robot reports is not what was sent). 2 (bad arguments) is `CliError`'s.
 
 One-shot commands send no HEARTBEAT: the robot's GCS failsafe watches
 ground-station heartbeats, and a command that exits would trip it 5 s later.
@@ -24,20 +31,25 @@ import os
 import struct
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
-EXIT_REFUSED, EXIT_TIMEOUT = 3, 4
+from firmware_py.mavlink.params import as_float32
+
+EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 DEFAULT_URL = "udpin:127.0.0.1:14550"
 DEFAULT_TLOG_DIR = Path("runs") / "tlogs"
+DEFAULT_TIMEOUT_S = 10.0  # heartbeat wait
 GCS_SYSID, GCS_COMPID = 255, 190  # MAV_COMP_ID_MISSIONPLANNER, as ground stations use
 MAV_TYPE_GCS = 6
+MAV_STATE_UNINIT = 0
+PARAM_ASK_INTERVAL_S = 0.5  # read_params: re-ask an unanswered PARAM_REQUEST_READ after this long
 
 
 class LinkError(Exception):
-    """A refusal or timeout, with the exit code the command should return."""
+    """A refusal, timeout or mismatch, with the exit code the command should return."""
 
     def __init__(self, code: int, message: str) -> None:
         super().__init__(message)
@@ -56,8 +68,12 @@ def mavlink():
     return mavutil().mavlink
 
 
-def add_link_args(parser: argparse.ArgumentParser) -> None:
-    """--mavlink, --signing-key, --tlog/--no-tlog, --timeout for a command."""
+def add_link_args(parser: argparse.ArgumentParser, *, timeout_s: float = DEFAULT_TIMEOUT_S,
+                  timeout_help: str | None = None) -> None:
+    """--mavlink, --signing-key, --tlog/--no-tlog, --timeout for a command.
+
+    `--timeout` is the heartbeat wait unless the command gives it a wider
+    meaning (`timeout_s`, `timeout_help`: `qnav upload`'s whole budget)."""
     parser.add_argument("--mavlink", metavar="URL", default=DEFAULT_URL,
                         help=f"pymavlink connection string (default {DEFAULT_URL}; udpout:, tcp:, serial also)")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
@@ -65,8 +81,8 @@ def add_link_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tlog", metavar="FILE", default=None,
                         help=f"session log (default: a new file under {DEFAULT_TLOG_DIR}/)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write a session log")
-    parser.add_argument("--timeout", type=float, default=10.0, metavar="S",
-                        help="seconds to wait for the robot's heartbeat (default 10)")
+    parser.add_argument("--timeout", type=float, default=timeout_s, metavar="S",
+                        help=timeout_help or f"seconds to wait for the robot's heartbeat (default {timeout_s:g})")
 
 
 @dataclass
@@ -103,8 +119,14 @@ class Link:
             self.conn.message_hooks.append(self._log_received)
             self.conn.mav.set_send_callback(self._log_sent)
         self.texts: list[str] = []
+        self.params: dict[str, tuple[float, float]] = {}  # name -> (value, monotonic time received)
+        self.param_values_seen = 0
+        self.system_status: int | None = None  # the robot's HEARTBEAT system_status
         self.conn.message_hooks.append(self._collect)
         self.target: tuple[int, int] | None = None
+        # ground_station.mavlink.ftp_upload.FtpSession, made on the first FTP
+        # request: one MAVFTP client per link, so its request seq never restarts
+        self.ftp_session: Any = None
         self._hb_stop = threading.Event()
         self._hb_thread: threading.Thread | None = None
         self._heartbeat = heartbeat
@@ -140,10 +162,16 @@ class Link:
         self._write_tlog(msg)
 
     def _collect(self, _conn, msg) -> None:
-        if msg.get_type() == "STATUSTEXT":
+        t = msg.get_type()
+        if t == "STATUSTEXT":
             self.texts.append(msg.text)
+        elif t == "PARAM_VALUE":
+            self.params[msg.param_id] = (msg.param_value, time.monotonic())
+            self.param_values_seen += 1
+        elif t == "HEARTBEAT" and msg.get_srcSystem() != GCS_SYSID:
+            self.system_status = msg.system_status
 
-    def connect(self, timeout_s: float = 10.0) -> tuple[int, int]:
+    def connect(self, timeout_s: float = DEFAULT_TIMEOUT_S) -> tuple[int, int]:
         """Wait for the robot's HEARTBEAT; returns (sysid, compid)."""
         deadline = time.monotonic() + timeout_s
         next_poke = 0.0
@@ -284,7 +312,7 @@ class Link:
     def param_set(self, name: str, value: float, timeout_s: float = 1.0, retries: int = 3) -> float:
         """Set and verify the echo; raises with the robot's reason if it kept another value."""
         since = len(self.texts)
-        want = struct.unpack("<f", struct.pack("<f", float(value)))[0]
+        want = as_float32(round(value))  # an INT32 parameter: the robot keeps the integer and echoes it
         for _ in range(retries):
             self.conn.mav.param_set_send(self.sysid, self.compid, name.encode(), float(value),
                                          self.m.MAV_PARAM_TYPE_INT32)
@@ -301,6 +329,44 @@ class Link:
                 raise LinkError(EXIT_REFUSED, self._reason(since, f"{name} stayed {pv.param_value:g}"))
             return pv.param_value
         raise LinkError(EXIT_TIMEOUT, f"no PARAM_VALUE echo for {name}")
+
+    def read_params(self, names: Iterable[str], budget_s: float = 10.0,
+                    want: dict[str, float] | None = None) -> dict[str, float | None]:
+        """Values of `names` the robot sent after this call began (None: not
+        answered within `budget_s`). A name is asked again every
+        PARAM_ASK_INTERVAL_S until answered - a lost PARAM_VALUE is only a
+        retry - and, with `want`, until it equals its wanted value (the robot
+        updates its read-only POLICY_* mirror on the next control tick).
+        Returns as soon as every name is answered (and matches `want`)."""
+        names = list(names)
+        t0 = time.monotonic()
+        end = t0 + budget_s
+        asked: dict[str, float] = {}
+
+        def fresh(name: str) -> float | None:
+            got = self.params.get(name)
+            return got[0] if got is not None and got[1] >= t0 else None
+
+        def done(name: str) -> bool:
+            value = fresh(name)
+            return value is not None and (want is None or value == want[name])
+
+        while True:
+            now = time.monotonic()
+            for name in names:
+                if not done(name) and now - asked.get(name, -1e9) >= PARAM_ASK_INTERVAL_S:
+                    self.conn.mav.param_request_read_send(self.sysid, self.compid, name.encode(), -1)
+                    asked[name] = now
+            if all(done(n) for n in names) or now > end:
+                return {n: fresh(n) for n in names}
+            self.conn.recv_match(blocking=True, timeout=0.05)  # the hook records what arrives
+
+    @property
+    def serves_params(self) -> bool:
+        """The robot's node reports a system state in its HEARTBEAT and serves
+        parameters (POLICY_* among them); the bare FTP shell reports
+        MAV_STATE_UNINIT and serves none."""
+        return self.param_values_seen > 0 or self.system_status not in (None, MAV_STATE_UNINIT)
 
     # --- missions --------------------------------------------------------------------------
     def mission_upload(self, items: list[tuple[int, int, int]], timeout_s: float = 2.0, retries: int = 3) -> int:
@@ -370,8 +436,10 @@ def default_tlog_path(name: str) -> Path:
     return DEFAULT_TLOG_DIR / f"{stamp}-{name}-{os.getpid()}.tlog"
 
 
-def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False) -> Link:
-    """Open and connect a `Link` from the common command-line options."""
+def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
+              connect_timeout_s: float | None = None) -> Link:
+    """Open and connect a `Link` from the common command-line options (the
+    heartbeat wait is `--timeout` unless `connect_timeout_s` is given)."""
     tlog: str | Literal[False] | None = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
     try:
         link = Link(args.mavlink, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat)
@@ -384,7 +452,8 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False) -> L
 
         raise CliError(f"cannot open {args.mavlink}: {exc}") from exc
     try:
-        link.connect(getattr(args, "timeout", 10.0))
+        link.connect(connect_timeout_s if connect_timeout_s is not None
+                     else getattr(args, "timeout", DEFAULT_TIMEOUT_S))
     except BaseException:
         link.close()
         raise

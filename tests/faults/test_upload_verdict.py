@@ -13,8 +13,9 @@ import pytest
 
 from firmware_py.policy import load_policy
 from firmware_py.storage import ACTIVE_POLICY, Storage, ftp_crc32
-from ground_station.commands.upload import RobotLink, UploadFailed, upload_policy
 from ground_station.faults.crash import policy_version
+from ground_station.mavlink.ftp_upload import upload_policy
+from ground_station.mavlink.link import Link, LinkError
 from ground_station.rigs import link_emulator
 from ground_station.rigs.lockstep import CELL_POLICY
 from ground_station.rigs.processes import RobotProcess
@@ -63,7 +64,7 @@ class Dropper:
 
 @pytest.fixture
 def rig(tmp_path):
-    """(start(dropper) -> RobotLink, storage, base bytes, new policy path); everything stopped after."""
+    """(start(dropper) -> connected Link, storage, base bytes, new policy path); everything stopped after."""
     emu = link_emulator
     storage_dir = tmp_path / "robot"
     base = CELL_POLICY.read_bytes()
@@ -79,13 +80,14 @@ def rig(tmp_path):
         started.append(robot)
         link = emu.LinkEmulator(emu.LinkConfig(seed=1), robot_peer=("127.0.0.1", robot.port), drop=dropper)
         started.append(link.start())
-        gcs = RobotLink(f"udpout:127.0.0.1:{link.gcs_port}", timeout_s=30.0)
+        gcs = Link(f"udpout:127.0.0.1:{link.gcs_port}", tlog=False)
         started.append(gcs)
+        gcs.connect(30.0)
         return gcs
 
     yield start, Storage(storage_dir), base, local
     for thing in reversed(started):
-        (thing.close if isinstance(thing, RobotLink) else thing.stop)()
+        (thing.close if isinstance(thing, Link) else thing.stop)()
 
 
 def active_bytes(storage) -> bytes:
@@ -98,7 +100,7 @@ def test_rename_never_arrives_and_params_lost_is_a_timeout_not_a_success(rig):
     start, storage, base, local = rig
     drop = Dropper((ftp_request(OP_RENAME), None), (param_value, None))
     gcs = start(drop)
-    with pytest.raises(UploadFailed) as exc:
+    with pytest.raises(LinkError) as exc:
         upload_policy(gcs, local, "/policies/new.qtab", activate=True, deadline_s=8.0)
     assert exc.value.code == 4 and "\n" not in str(exc.value) and "not confirmed" in str(exc.value)
     assert drop.count(0) >= 1
@@ -136,7 +138,7 @@ def test_a_stale_same_size_file_under_the_remote_name_never_passes_for_the_uploa
     storage.write_atomic("/policies/new.qtab", base)
     drop = Dropper((ftp_request(OP_CREATE_FILE), None))
     gcs = start(drop)
-    with pytest.raises(UploadFailed) as exc:
+    with pytest.raises(LinkError) as exc:
         upload_policy(gcs, local, "/policies/new.qtab", deadline_s=20.0, attempts=2)
     assert exc.value.code in (4, 5) and "not verified" in str(exc.value)
     assert drop.count(0) == 2

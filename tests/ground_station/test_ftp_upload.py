@@ -27,7 +27,8 @@ def make_policy(seed: int) -> bytes:
 
 
 def qnav_upload(*args, timeout=120):
-    return subprocess.run([sys.executable, "-m", "ground_station.cli", "upload", *map(str, args)],
+    # --no-tlog: the session log (tested in test_mav_link.py) would land in the checkout's runs/
+    return subprocess.run([sys.executable, "-m", "ground_station.cli", "upload", "--no-tlog", *map(str, args)],
                           capture_output=True, text=True, timeout=timeout, env=ENV)
 
 

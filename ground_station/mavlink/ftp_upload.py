@@ -1,0 +1,471 @@
+"""Policy upload over MAVLink FTP on a `Link`: put a policy on the robot with
+pymavlink's own MAVLink FTP client, prove it arrived byte-exact, and
+optionally activate it. `qnav upload`, the demo, the upload bench and the
+fault scenarios all run `upload_policy`.
+
+Steps (docs/mavlink.md, "Uploading a policy"):
+1. RemoveFile of the remote name (a stale file there could pass step 3), then
+   `MAVFTP.cmd_put` to /policies/<name> (temporary name on the robot until the
+   FTP session ends), with a progress bar;
+2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file, else the
+   whole put is repeated (a lossy link can eat the CreateFile or the
+   TerminateSession, which pymavlink's client never retries);
+3. with --activate: FTP Rename onto /policies/active.qtab; the robot
+   validates the file and refuses with NAK + STATUSTEXT reason (exit 3);
+4. the verdict comes from the robot's state, never from one reply: done only
+   when the robot reports the file's POLICY_ID and POLICY_CRC_HI/LO
+   parameters AND CalcFileCRC32 of active.qtab equals the local CRC. A lost
+   reply or read is asked again within the time budget; while the uploaded
+   file is still under its own name the rename did not happen and is sent
+   again. (The whole-file CRC alone cannot tell two policies apart: every
+   valid .qtab of one size has the same one, the file ending in its own
+   CRC32.) A robot that serves no parameters (the standalone FTP shell: its
+   HEARTBEAT reports no system state) is confirmed by the rename's ACK or the
+   file having left its name, plus the CRC of active.qtab, and says so.
+
+The put keeps pymavlink's 80-byte writes; `WriteGate` gives it a real
+in-flight window (10 writes) and spaces copies of a write by the measured
+round trip, so a lossy radio's queue never fills with re-sends, and the put
+counts as done only when every block was ACKed.
+
+Every FTP reply is matched by the request's own seq. One MAVFTP client (its
+`FtpSession`) serves a `Link` for the link's whole life, so seq never
+restarts and a late reply to an earlier request (a lossy radio queues seconds
+of them) cannot answer a later one.
+
+Failures raise `LinkError` with the link's exit codes: EXIT_REFUSED (3)
+refused by the robot, EXIT_TIMEOUT (4) timeout or no FTP answer,
+EXIT_MISMATCH (5) CRC or policy-id mismatch.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from firmware_py.mavlink.params import as_float32
+from ground_station.mavlink.link import (
+    EXIT_MISMATCH,
+    EXIT_REFUSED,
+    EXIT_TIMEOUT,
+    Link,
+    LinkError,
+    mavutil,
+)
+
+ACTIVE_POLICY = "/policies/active.qtab"  # firmware_py.storage.ACTIVE_POLICY; imported lazily below
+POLICY_PARAMS = ("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO")
+NAK_FAIL, NAK_FAIL_ERRNO, NAK_FILE_NOT_FOUND = 1, 2, 10
+ENOENT = 2
+READ_BUDGET_S = 10.0  # one round of reads (params, CRC) before the caller looks again
+# MAVFTP sends another write when none was ACKed for max(min(10 x rtt, 1 s), 0.2 s), rtt being
+# the smallest round trip it saw (0.5 s until then): at 40 % loss its 5 writes in flight are
+# often all lost and it then adds one write per 0.5 s. With WriteGate keeping the real window
+# and spacing copies, the put lets it re-send after 0.2 s and count 10 in flight.
+EAGER_RTT_S = 0.02
+PUT_QSIZE = 10
+
+
+@dataclass
+class UploadResult:
+    remote: str
+    size: int
+    crc: int
+    put_attempts: int = 0
+    put_seconds: float = 0.0  # first FTP request to CRC verified
+    activated: bool = False
+    confirmed_by: str = ""
+    policy_id: int | None = None  # from the local file, when it loads
+    policy_crc: int | None = None  # the .qtab's own CRC32 (what POLICY_CRC reports)
+    local_error: str = ""  # why the local loader refused the file, if it did
+    renames: int = 0  # Rename requests sent
+    texts: list[str] = field(default_factory=list)
+
+    def want_params(self) -> dict[str, float] | None:
+        """What the robot's POLICY_* parameters read once this file runs."""
+        if self.policy_id is None or self.policy_crc is None:
+            return None
+        return {"POLICY_ID": as_float32(self.policy_id), "POLICY_CRC_HI": float(self.policy_crc >> 16),
+                "POLICY_CRC_LO": float(self.policy_crc & 0xFFFF)}
+
+
+class WriteGate:
+    """A real in-flight window for MAVFTP's WriteFile requests: a write goes
+    out only while fewer than `window` writes are unanswered and younger than
+    the hold time, and a copy of a write (same session and seq) only once
+    the previous copy's ACK is overdue. A held-back write counts for MAVFTP
+    as sent; it tries the block again on a later round, and that try goes out
+    when the window allows.
+
+    Why: after its first pass, pymavlink's MAVFTP re-sends every unanswered
+    block round-robin, and its own in-flight count treats each block index
+    skipped between two ACKs as lost - in the sparse set of remaining blocks
+    every ACK skips many - so it refills its window of 5 on every ACK and
+    cycles the last blocks faster than their ACKs return. Measured at 20 %
+    loss + duplication + reordering (20 KiB): up to 29 copies of one block
+    and the radio queue at 3.4 s. A slot is free again once its write is
+    answered or older than the hold, 1.5 x the smoothed round trip of writes
+    sent once (Karn's rule), at least `min_hold_s`; 10 writes of 80 bytes are
+    ~0.2 s of air at 57600 baud, so the radio queue stays below that. 100 KiB
+    signed at 20 % loss + 10 % duplication/reordering: 53 s instead of 80 s,
+    1.74 frames per block instead of 2.62. At 0 % loss the window is never
+    full and the put runs at the link rate, as before. (A hold of 2.5 x SRTT
+    and a window of 5 left the link idle in the tail at 40 % loss.) """
+
+    def __init__(self, conn, opcode_write: int, window: int = 10, min_hold_s: float = 0.15) -> None:
+        self.opcode_write, self.window, self.min_hold_s = opcode_write, window, min_hold_s
+        self.sent: dict[tuple[int, int], tuple[float, int]] = {}  # (session, seq) -> (last sent, copies)
+        self.srtt: float | None = None
+        self.held = self.passed = 0
+        self._send = conn.mav.file_transfer_protocol_send
+        conn.mav.file_transfer_protocol_send = self.send
+
+    def hold_s(self) -> float:
+        return max(self.min_hold_s, 1.5 * self.srtt) if self.srtt is not None else 1.0
+
+    def send(self, network, target_system, target_component, payload, *args, **kwargs):
+        seq, session, opcode = struct.unpack_from("<HBB", bytes(payload[:4]), 0)
+        if opcode == self.opcode_write:
+            now, hold = time.monotonic(), self.hold_s()
+            last, copies = self.sent.get((session, seq), (None, 0))
+            in_flight = sum(1 for t, _ in self.sent.values() if now - t < hold)
+            if (last is not None and now - last < hold) or in_flight >= self.window:
+                self.held += 1
+                return None
+            self.sent[(session, seq)] = (now, copies + 1)
+            self.passed += 1
+        elif opcode in (1, 2):  # TerminateSession, ResetSessions: the put's writes are over
+            self.sent.clear()
+        return self._send(network, target_system, target_component, payload, *args, **kwargs)
+
+    def acked(self, session: int, reply_seq: int) -> None:
+        """A WriteFile reply arrived: frees its slot; a round-trip sample if one copy went out."""
+        got = self.sent.pop((session, (reply_seq - 1) % 65536), None)
+        if got is not None and got[1] == 1:
+            rtt = time.monotonic() - got[0]
+            self.srtt = rtt if self.srtt is None else 0.875 * self.srtt + 0.125 * rtt
+
+
+class FtpSession:
+    """A link's one pymavlink MAVFTP client, the WriteGate on its writes, and
+    every FTP reply overheard, by (request opcode, reply seq). Made by
+    `ftp_session(link)` on the first FTP request; the link must be connected."""
+
+    def __init__(self, link: Link) -> None:
+        mavutil()  # MAVLINK20 before pymavlink is imported
+        from pymavlink import mavftp
+
+        self.link = link
+        self.mavftp = mavftp
+        self.gate = WriteGate(link.conn, mavftp.OP_WriteFile)
+        # (req_opcode, reply seq) -> (opcode, data); seq never restarts (one MAVFTP client)
+        self.replies: dict[tuple[int, int], tuple[int, bytes]] = {}
+        self._ftp: Any = None
+        link.conn.message_hooks.append(self._hook)
+
+    def _hook(self, _conn, msg) -> None:
+        if msg.get_type() == "FILE_TRANSFER_PROTOCOL":
+            seq, session, opcode, size, req_opcode = struct.unpack_from("<HBBBB", bytes(msg.payload), 0)
+            self.replies[(req_opcode, seq)] = (opcode, bytes(msg.payload[12:12 + size]))
+            if req_opcode == self.mavftp.OP_WriteFile:
+                self.gate.acked(session, seq)
+
+    def client(self):
+        """The link's one pymavlink MAVFTP client, made on first use.
+
+        Its request seq counts on for the link's whole life, so a late or
+        duplicated reply to an earlier request can never be matched to a later
+        one. Its ResetSessions (sent when it is made) is not waited for: the
+        first real request, asked until answered, tells whether the robot
+        serves FTP at all."""
+        if self._ftp is None:
+            settings = self.mavftp.MAVFTPSettings(
+                [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
+            quick(settings)
+            self._ftp = self.mavftp.MAVFTP(self.link.conn, self.link.sysid, self.link.compid,
+                                           settings=settings)
+        return self._ftp
+
+    def ask(self, command: str, args: list[str], opcode: int, wait_s: float, what: str) -> tuple[int, bytes]:
+        """A single-reply MAVFTP request that may safely run twice (CRC,
+        RemoveFile), sent again until the robot answers, for at most `wait_s`.
+        Returns (opcode, data) of the newest answered copy; a late reply to an
+        earlier copy counts too (they all ask the same question)."""
+        ftp = self.client()
+        deadline = time.monotonic() + wait_s
+        seqs: list[int] = []
+        while True:
+            seqs.append(ftp.seq)  # MAVFTP sends with this seq and then counts on
+            ftp.cmd_ftp([command, *args])
+            for seq in reversed(seqs):
+                reply = self.replies.get((opcode, (seq + 1) % 65536))
+                if reply is not None:
+                    return reply
+            if time.monotonic() > deadline:
+                raise LinkError(EXIT_TIMEOUT, f"no reply to {what} ({len(seqs)} requests in {wait_s:.0f} s)")
+
+    def remote_crc(self, path: str, wait_s: float = 20.0) -> int | None:
+        """CalcFileCRC32 of `path`, None if the robot has no such file."""
+        opcode, data = self.ask("crc", [path], self.mavftp.OP_CalcFileCRC32, wait_s, f"the CRC of {path}")
+        if opcode == self.mavftp.OP_Ack and len(data) == 4:
+            return struct.unpack("<I", data)[0]
+        return None
+
+
+def ftp_session(link: Link) -> FtpSession:
+    """The link's one FTP session, made on first use."""
+    if link.ftp_session is None:
+        link.ftp_session = FtpSession(link)
+    return link.ftp_session
+
+
+# pymavlink MAVFTP's own defaults (mavftp.MAVFTP.__init__).
+DEFAULT_FTP_SETTINGS = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_backlog": 5,
+                        "burst_read_size": 80, "write_size": 80, "write_qsize": 5,
+                        "idle_detection_time": 3.7, "read_retry_time": 1.0, "retry_time": 0.5}
+
+
+def quick(settings) -> None:
+    """Single-reply operations (CRC, Rename, RemoveFile, TerminateSession)
+    have no completion signal in MAVFTP: it waits `idle_detection_time` of
+    silence after the reply. A 57600 link answers a short request in tens of ms, so wait 0.4 s
+    instead of 3.7 s; a reply later than that counts as lost, the caller asks
+    again and still accepts the late reply."""
+    settings.read_retry_time = 0.3
+    settings.idle_detection_time = 0.4
+
+
+def for_put(settings) -> None:
+    """The put: MAVFTP may keep PUT_QSIZE writes in flight by its own count
+    (WriteGate holds the real number to its window, so a larger count only
+    stops MAVFTP from stalling when its writes are lost). Idle time longer
+    than MAVFTP's slowest write re-send (max(min(10 x RTT, 1 s), 0.2 s)
+    without an ACK), so a put in progress never looks idle, and far below
+    pymavlink's 3.7 s, which a put whose TerminateSession reply was lost (or a
+    NAKed put) waits out in full."""
+    settings.write_qsize = PUT_QSIZE
+    settings.read_retry_time = 0.3
+    settings.idle_detection_time = 1.5
+
+
+def _left(deadline: float) -> float:
+    return max(0.0, deadline - time.monotonic())
+
+
+def upload_policy(link: Link, local: Path, remote: str, *, activate: bool = False,
+                  deadline_s: float = 300.0, attempts: int = 8,
+                  progress: Callable[[float | None], None] | None = None) -> UploadResult:
+    """Put `local` at `remote` on the robot over the connected `link`, verify
+    its CRC, optionally activate.
+
+    Raises LinkError (exit codes 3, 4, 5). `progress(fraction)` is called during the put.
+    """
+    from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.storage import ftp_crc32
+
+    data = local.read_bytes()
+    res = UploadResult(remote=remote, size=len(data), crc=ftp_crc32(data))
+    try:
+        pol = load_policy(data)
+        res.policy_id, res.policy_crc = pol.policy_id, pol.crc
+    except PolicyError as exc:
+        res.local_error = str(exc)  # not a policy this build can load: the robot will judge it
+    deadline = time.monotonic() + deadline_s
+    t0 = time.monotonic()
+    session = ftp_session(link)
+    ftp = session.client()
+    _put_verified(session, ftp, local, res, deadline, attempts, progress)
+    res.put_seconds = time.monotonic() - t0
+    if activate:
+        _activate(session, ftp, res, deadline, deadline_s)
+        res.texts = list(link.texts)
+    return res
+
+
+def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, deadline: float, attempts: int,
+                  progress) -> None:
+    """Put until CalcFileCRC32 of `res.remote` equals the local CRC."""
+    mavftp = session.mavftp
+    remote = res.remote
+    # A file already under this name could pass the CRC check without the put
+    # (same size -> same whole-file CRC for any valid .qtab): remove it first.
+    # Its answer is also the first sign that the robot serves FTP to us.
+    wait = min(15.0, max(2.0, _left(deadline)))
+    try:
+        opcode, data = session.ask("rm", [remote], mavftp.OP_RemoveFile, wait, f"RemoveFile {remote}")
+    except LinkError as exc:
+        raise LinkError(EXIT_TIMEOUT, f"the robot does not answer MAVLink FTP ({exc}; wrong or missing "
+                                         f"--signing-key?)") from None
+    absent = data[:1] == bytes([NAK_FILE_NOT_FOUND]) or data[:2] == bytes([NAK_FAIL_ERRNO, ENOENT])
+    if opcode != mavftp.OP_Ack and not absent:
+        code = data[0] if data else 0
+        raise LinkError(EXIT_REFUSED, f"robot refuses to replace {remote} (FTP NAK {code})")
+    problem = "no put attempted"
+    for attempt in range(1, attempts + 1):
+        if time.monotonic() > deadline:
+            raise LinkError(EXIT_TIMEOUT, f"{remote} not verified in time ({problem})")
+        res.put_attempts = attempt
+        if ftp.write_list is not None:  # a put still open in the client: end it first
+            ftp.cmd_cancel()
+        put_session = ftp.session  # the robot numbers the session as we do
+        for_put(ftp.ftp_settings)
+        ftp.rtt = min(ftp.rtt, EAGER_RTT_S)
+        ftp.cmd_put([str(local), remote], progress_callback=progress)
+        # process_ftp_reply also returns after idle_detection_time without a
+        # send, reporting the last reply it handled: "Success" then only means
+        # the last ACK was one. The put is done when every block is ACKed
+        # (MAVFTP then ends the session itself); while blocks are left, go on.
+        ret = None
+        while ftp.write_list is not None and time.monotonic() < deadline:
+            ret = ftp.process_ftp_reply("put", timeout=max(10.0, _left(deadline)))
+        quick(ftp.ftp_settings)
+        if ftp.write_list is not None:  # out of time in the middle of the put
+            ftp.cmd_cancel()
+            raise LinkError(EXIT_TIMEOUT, f"{remote}: put not finished within the time budget "
+                                             f"({ftp.write_acks} of {ftp.write_total} blocks acknowledged)")
+        if ftp.write_acks < ftp.write_total:
+            # NAKed (e.g. WriteFile InvalidSession after a lost CreateFile): MAVFTP
+            # ended the session, the robot has a partial file at most -> put again
+            error = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
+            problem = f"put attempt {attempt} ended by {error} after {ftp.write_acks} of {ftp.write_total} blocks"
+            continue
+        wait = min(20.0, max(2.0, _left(deadline)))
+        crc = session.remote_crc(remote, wait)
+        if crc is None:
+            # Every block ACKed but no file: only the TerminateSession was lost
+            # (pymavlink never repeats it), so the data waits under a temporary
+            # name until the session expires. End that session again, look again.
+            ftp.session = put_session
+            ftp.cmd_cancel()
+            crc = session.remote_crc(remote, wait)
+        if crc == res.crc:
+            return
+        problem = "missing on the robot" if crc is None else f"robot CRC32 0x{crc:08x} != local 0x{res.crc:08x}"
+    code = EXIT_MISMATCH if problem.startswith("robot CRC32") else EXIT_TIMEOUT
+    raise LinkError(code, f"{remote} not verified after {attempts} puts ({problem})")
+
+
+def _activate(session: FtpSession, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
+    """Rename the verified file onto active.qtab until the robot's state shows
+    it active (see the module docstring, step 4). Replies only steer: a NAK
+    Fail is the robot's refusal; an ACK or a lost reply is checked against
+    what the robot reports."""
+    link, mavftp = session.link, session.mavftp
+    want = res.want_params()
+    params = link.serves_params
+    if params and want is None:
+        _activate_unreadable(session, ftp, res, deadline, deadline_s)  # always raises
+    rename_seqs: list[int] = []
+    texts_from = len(link.texts)
+    status = "no reply yet"
+    send_rename = True
+    while True:
+        if time.monotonic() > deadline:
+            raise LinkError(EXIT_TIMEOUT, f"activation not confirmed within {deadline_s:.0f} s ({status})")
+        if send_rename:
+            rename_seqs.append(ftp.seq)
+            res.renames += 1
+            ftp.cmd_ftp(["rename", res.remote, ACTIVE_POLICY])
+            send_rename = False
+        replies = [r for s in rename_seqs if (r := session.replies.get((mavftp.OP_Rename, (s + 1) % 65536)))]
+        acked = any(op == mavftp.OP_Ack for op, _ in replies)
+        refused = any(op == mavftp.OP_Nack and data[:1] == bytes([NAK_FAIL]) for op, data in replies)
+        wait = min(READ_BUDGET_S, _left(deadline))
+
+        if params:
+            got = link.read_params(POLICY_PARAMS, wait)
+            if None in got.values():
+                status = f"robot reports {got}"
+                continue  # reads lost: ask again
+            if got == want:
+                _confirm_crc(session, res, deadline, "POLICY_ID/POLICY_CRC params + active.qtab CRC32")
+                return
+        elif acked:
+            _confirm_crc(session, res, deadline, "Rename ACK + active.qtab CRC32 (robot serves no parameters)")
+            return
+        if refused:
+            _raise_refusal(link, texts_from, res.local_error)
+        # Not (yet) the new policy. Still under its own name: the rename did not
+        # happen (request or reply lost) -> send it again.
+        remote_crc = session.remote_crc(res.remote, max(2.0, wait))
+        if remote_crc == res.crc:
+            status = f"{res.remote} still in place after {res.renames} rename(s)"
+            send_rename = True
+            continue
+        # The file left its name: the robot renamed it. Its POLICY_* mirror
+        # follows within a control tick.
+        if not params:
+            _confirm_crc(session, res, deadline, "file moved + active.qtab CRC32 (robot serves no parameters)")
+            return
+        got = link.read_params(POLICY_PARAMS, min(READ_BUDGET_S, _left(deadline)), want=want)
+        if got == want:
+            _confirm_crc(session, res, deadline, "POLICY_ID/POLICY_CRC params + active.qtab CRC32")
+            return
+        if None not in got.values():
+            raise LinkError(EXIT_MISMATCH, f"{res.remote} was renamed but the robot reports "
+                                              f"{_show(got)}, file has {_show(want)}")
+        status = f"{res.remote} renamed, robot's policy parameters unanswered"
+
+
+def _activate_unreadable(session: FtpSession, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
+    """Activation of a file our policy loader refuses (`res.local_error`): the
+    robot still judges it - it runs the same loader, so its refusal (NAK Fail
+    + STATUSTEXT reason, exit 3) is the expected end. Should it take the file
+    anyway, its POLICY_* cannot be checked against a file we cannot read:
+    exit 5. A lost reply is resolved as in `_activate`: while the file is
+    still under its own name, the rename is sent again."""
+    link, mavftp = session.link, session.mavftp
+    rename_seqs: list[int] = []
+    texts_from = len(link.texts)
+    while time.monotonic() < deadline:
+        rename_seqs.append(ftp.seq)
+        res.renames += 1
+        ftp.cmd_ftp(["rename", res.remote, ACTIVE_POLICY])
+        replies = [r for s in rename_seqs if (r := session.replies.get((mavftp.OP_Rename, (s + 1) % 65536)))]
+        if any(op == mavftp.OP_Nack and data[:1] == bytes([NAK_FAIL]) for op, data in replies):
+            _raise_refusal(link, texts_from, res.local_error)
+        wait = min(READ_BUDGET_S, max(2.0, _left(deadline)))
+        if any(op == mavftp.OP_Ack for op, _ in replies) or session.remote_crc(res.remote, wait) != res.crc:
+            raise LinkError(EXIT_MISMATCH, f"the robot took {res.remote}, but this ground station cannot "
+                                              f"read it ({res.local_error}), so its POLICY_ID cannot confirm it")
+    raise LinkError(EXIT_TIMEOUT, f"no answer to the activation within {deadline_s:.0f} s "
+                                     f"(this ground station's loader: {res.local_error})")
+
+
+def _confirm_crc(session: FtpSession, res: UploadResult, deadline: float, how: str) -> None:
+    crc = session.remote_crc(ACTIVE_POLICY, min(20.0, max(2.0, _left(deadline))))
+    if crc != res.crc:
+        shown = "missing" if crc is None else f"0x{crc:08x}"
+        raise LinkError(EXIT_MISMATCH, f"{ACTIVE_POLICY} CRC32 is {shown} after activation, "
+                                          f"expected 0x{res.crc:08x}")
+    res.activated = True
+    res.confirmed_by = how
+
+
+def _raise_refusal(link: Link, texts_from: int, local_error: str = "") -> None:
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end and not any("refused" in t for t in link.texts[texts_from:]):
+        link.conn.recv_match(blocking=True, timeout=0.1)
+    reasons = [t for t in link.texts[texts_from:] if "refused" in t]
+    if reasons:
+        raise LinkError(EXIT_REFUSED, reasons[-1])
+    local = f"; this ground station's loader: {local_error}" if local_error else ""
+    raise LinkError(EXIT_REFUSED, f"robot refused the policy (its reason lost{local})")
+
+
+def _show(values: Mapping[str, float | None] | None) -> str:
+    if values is None:
+        return "unknown"
+    return ", ".join(f"{k} {'?' if v is None else f'{v:.0f}'}" for k, v in values.items())
+
+
+def default_remote(local: Path) -> str:
+    """/policies/<file name>, renamed if that is one of the robot's own slots."""
+    name = local.name
+    if f"/policies/{name}" in (ACTIVE_POLICY, "/policies/last_good.qtab"):
+        name = f"upload-{name}"
+    return f"/policies/{name}"
