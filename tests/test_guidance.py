@@ -168,11 +168,11 @@ def test_cli_sector_train_defaults_to_guidance_and_eval_reports_both(tmp_path, c
 def test_shipped_sector_policy_leaves_a_paper10_pocket_in_hil_only_with_waypoints():
     # real pieces: pymunk plant + RobotNode/Controller on a virtual CAN bus, lockstep
     from firmware_py.policy import load_policy
-    from ground_station.bench.hil import ROOT, run_episode
     from ground_station.maps.planner import guidance_from_metadata
+    from ground_station.rigs.lockstep import REPO, run_episode
 
     gm = load_map("paper10")
-    pol = load_policy(ROOT / "policies" / "sector.qtab")
+    pol = load_policy(REPO / "policies" / "sector.qtab")
     start, goal = (2, 2), (2, 6)  # inside the north-west pocket, goal due south behind its wall
     sx, sy = robot_spec.cell_center_mm(*start, gm.height)
     wps = plan_waypoints(gm, start, goal, **guidance_from_metadata(pol.metadata))
