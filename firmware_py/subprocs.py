@@ -21,7 +21,8 @@ def free_port(kind: socket.SocketKind = socket.SOCK_STREAM, host: str = "127.0.0
     """A TCP (or, with kind=SOCK_DGRAM, UDP) port that was free a moment ago on `host`."""
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind((host, 0))
-        return s.getsockname()[1]
+        port: int = s.getsockname()[1]
+        return port
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:
@@ -29,7 +30,10 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
     return free_port(socket.SOCK_DGRAM, host)
 
 
-def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0, sig: int = signal.SIGTERM, *,
+Process = subprocess.Popen[bytes] | subprocess.Popen[str]
+
+
+def stop_process(proc: Process, timeout_s: float = 5.0, sig: int = signal.SIGTERM, *,
                  group: bool = False) -> int:
     """Send `sig` if `proc` still runs, wait up to timeout_s, then SIGKILL; the exit code.
 
@@ -45,7 +49,7 @@ def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0, sig: int = sign
     return proc.returncode
 
 
-def signal_process(proc: subprocess.Popen, sig: int, *, group: bool = False) -> None:
+def signal_process(proc: Process, sig: int, *, group: bool = False) -> None:
     """`sig` to `proc` (or to its process group); nothing if it is already gone."""
     if not group:
         proc.send_signal(sig)

@@ -45,7 +45,7 @@ from ground_station.rigs.lockstep import PERIOD_US, LockstepRig, cell_policy, fa
 INPUT_FRAMES = ("RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper", "MotorStatus")
 
 
-def _zero(cmd: tuple[int, int, int]) -> bool:
+def _zero(cmd: tuple[int, ...]) -> bool:
     return cmd[1] == 0 and cmd[2] == 0
 
 

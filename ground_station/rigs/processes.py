@@ -94,22 +94,24 @@ class ChildProcess:
 
     def kill9(self) -> None:
         """The crash: SIGKILL, no clean-up in the child."""
-        if self.alive:
-            signal_process(self.proc, signal.SIGKILL, group=self.own_group)
-            self.proc.wait(timeout=10)
+        proc = self.proc
+        if proc is not None and proc.poll() is None:
+            signal_process(proc, signal.SIGKILL, group=self.own_group)
+            proc.wait(timeout=10)
 
     def stop(self, grace_s: float = 20.0) -> int | None:
         """SIGINT (a clean exit: outputs and stats written), then SIGTERM and SIGKILL if it
         hangs; the exit code (None if never started)."""
-        if self.proc is None:
+        proc = self.proc
+        if proc is None:
             return None
-        if self.proc.poll() is None:
-            signal_process(self.proc, signal.SIGINT, group=self.own_group)
+        if proc.poll() is None:
+            signal_process(proc, signal.SIGINT, group=self.own_group)
             try:
-                self.proc.wait(timeout=grace_s)
+                proc.wait(timeout=grace_s)
             except subprocess.TimeoutExpired:
-                stop_process(self.proc, 5.0, signal.SIGTERM, group=self.own_group)
-        return self.proc.returncode
+                stop_process(proc, 5.0, signal.SIGTERM, group=self.own_group)
+        return proc.returncode
 
     def log_text(self) -> str:
         try:
@@ -174,14 +176,15 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
         args += ["--signing-key", str(key_file)]
     child = ChildProcess([*program_argv(FTP_SHELL_MAIN, "qnav-ftp-shell"), *args, *(extra or [])],
                          log or root.parent / f"{root.name}.log")
-    child.start()
+    proc = child.start().proc
+    assert proc is not None
     try:
         deadline = time.monotonic() + 20
         while "serving" not in child.log_text():  # printed once the socket is up
             if not child.alive or time.monotonic() > deadline:
                 raise RuntimeError(f"robot FTP shell did not start: {child.log_text().strip()}")
             time.sleep(0.05)
-        yield child.proc
+        yield proc
     finally:
         child.stop(grace_s=5.0)
 
