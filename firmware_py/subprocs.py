@@ -10,6 +10,8 @@ tests import it from here.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import socket
 import subprocess
@@ -28,14 +30,29 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
     return free_port(socket.SOCK_DGRAM, host)
 
 
-def stop_process(proc: subprocess.Popen[bytes] | subprocess.Popen[str], timeout_s: float = 5.0,
-                 sig: int = signal.SIGTERM) -> int:
-    """Send `sig` if `proc` still runs, wait up to timeout_s, then SIGKILL; the exit code."""
+Process = subprocess.Popen[bytes] | subprocess.Popen[str]
+
+
+def stop_process(proc: Process, timeout_s: float = 5.0, sig: int = signal.SIGTERM, *,
+                 group: bool = False) -> int:
+    """Send `sig` if `proc` still runs, wait up to timeout_s, then SIGKILL; the exit code.
+
+    `group`: signal the child's whole process group (a child started with
+    start_new_session=True leads its own group, pgid == pid)."""
     if proc.poll() is None:
-        proc.send_signal(sig)
+        signal_process(proc, sig, group=group)
         try:
             proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            proc.kill()
+            signal_process(proc, signal.SIGKILL, group=group)
             proc.wait()
     return proc.returncode
+
+
+def signal_process(proc: Process, sig: int, *, group: bool = False) -> None:
+    """`sig` to `proc` (or to its process group); nothing if it is already gone."""
+    if not group:
+        proc.send_signal(sig)
+        return
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, sig)

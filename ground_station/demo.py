@@ -7,7 +7,8 @@ piece, used the way an operator would use it:
 2. `qnav-sim` (pymunk plant, lockstep by default, paced at real time with
    `realtime=True`) and `qnav-robot` (controller + MAVLink node, its file
    store in the run folder) as separate processes, each in its own process
-   group, talking CAN through the hub;
+   group (`ground_station.rigs.processes.ProcessGroup`), talking CAN through
+   the hub;
 3. one ground-station MAVLink link (`ground_station.mavlink.link.Link`, its .tlog in
    the run folder) over UDP loopback;
 4. the policy uploaded and activated over MAVLink FTP with pymavlink's
@@ -32,10 +33,8 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
-import os
 import queue
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -46,6 +45,7 @@ from pathlib import Path
 from firmware_py.atomic import atomic_write
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from firmware_py.subprocs import free_udp_port
+from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
 
 SHIPPED_POLICY = "policies:paper10_cell"  # firmware_py.shipped_policies spec
 DEFAULT_TARGETS = ("A", "B", "C", "D")
@@ -158,61 +158,6 @@ def mission_sim_seconds(robot_stats: Path) -> float | None:
     if start is None or end is None:
         return None
     return (end - start) / 1e6
-
-
-def _console_script(name: str, module: str) -> list[str]:
-    """argv prefix for one of our console scripts, next to this interpreter if
-    installed there, else through the interpreter (same code either way)."""
-    script = Path(sys.executable).with_name(name)
-    if script.is_file() and os.access(script, os.X_OK):
-        return [str(script)]
-    return [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())"]
-
-
-class Processes:
-    """Child processes, each in its own session/process group, stopped in order."""
-
-    def __init__(self) -> None:
-        self.procs: list[tuple[str, subprocess.Popen]] = []
-        self._logs: list = []
-
-    def start(self, name: str, argv: list[str], log_path: Path) -> subprocess.Popen:
-        log = open(log_path, "wb")  # noqa: SIM115 - closed in stop_all
-        self._logs.append(log)
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                                env=env, start_new_session=True)
-        self.procs.append((name, proc))
-        return proc
-
-    def dead(self) -> list[tuple[str, int]]:
-        return [(name, p.returncode) for name, p in self.procs if p.poll() is not None]
-
-    @staticmethod
-    def _signal(proc: subprocess.Popen, sig: int) -> None:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, sig)  # start_new_session: pgid == pid
-
-    def stop_all(self, grace_s: float = 15.0) -> dict[str, int | None]:
-        """SIGINT each (so it writes its outputs), then SIGTERM, then SIGKILL."""
-        codes: dict[str, int | None] = {}
-        for name, proc in self.procs:
-            if proc.poll() is None:
-                self._signal(proc, signal.SIGINT)
-                try:
-                    proc.wait(timeout=grace_s)
-                except subprocess.TimeoutExpired:
-                    self._signal(proc, signal.SIGTERM)
-                    try:
-                        proc.wait(timeout=5)
-                    except subprocess.TimeoutExpired:
-                        self._signal(proc, signal.SIGKILL)
-                        proc.wait(timeout=5)
-            codes[name] = proc.returncode
-        for log in self._logs:
-            log.close()
-        self._logs.clear()
-        return codes
 
 
 class Heartbeat:
@@ -443,7 +388,7 @@ def _set_auto(link, say: Callable[[str], None]) -> None:
     say("mode Auto: driving the mission")
 
 
-def _wait_headless(source, view, watch: MissionWatch, procs: Processes, deadline: float,
+def _wait_headless(source, view, watch: MissionWatch, procs: ProcessGroup, deadline: float,
                    status: Callable[[str], None] | None) -> str:
     next_line = time.monotonic() + 1.0
     while True:
@@ -460,7 +405,7 @@ def _wait_headless(source, view, watch: MissionWatch, procs: Processes, deadline
             time.sleep(0.02)
 
 
-def _verdict(watch: MissionWatch, procs: Processes, deadline: float) -> str:
+def _verdict(watch: MissionWatch, procs: ProcessGroup, deadline: float) -> str:
     """Why the wait is over ("" while it is not)."""
     if watch.complete:
         return "mission complete"
@@ -474,7 +419,7 @@ def _verdict(watch: MissionWatch, procs: Processes, deadline: float) -> str:
     return ""
 
 
-def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: Processes, deadline: float,
+def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: ProcessGroup, deadline: float,
               subtitle: str) -> str:
     from textual.binding import Binding
 
@@ -553,7 +498,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     storage = run_dir / "robot"
     storage.mkdir(exist_ok=True)
 
-    procs = Processes()
+    procs = ProcessGroup()
     hub = CanHub(channel="qnav-demo")
     link = None
     heartbeat = None
@@ -568,18 +513,18 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         port = free_udp_port()
         link = Link(f"udpin:127.0.0.1:{port}", tlog=paths["tlog"], name="demo")
         summary.tlog = str(paths["tlog"])
-        sim_argv = [*_console_script("qnav-sim", "sim_bridge.cli"), "--map", opts.map_name, "--can", hub.spec,
-                    "--start", start, "--seed", str(opts.seed), "--log", str(paths["can_log"]),
-                    "--trajectory", str(paths["trajectory_csv"]), "--png", str(paths["trajectory_png"]),
-                    "-q"]
+        sim_argv = qnav_sim("--map", opts.map_name, "--can", hub.spec,
+                            "--start", start, "--seed", str(opts.seed), "--log", str(paths["can_log"]),
+                            "--trajectory", str(paths["trajectory_csv"]), "--png", str(paths["trajectory_png"]),
+                            "-q")
         if opts.realtime:
             sim_argv += ["--realtime", "--duration", f"{opts.mission_timeout_s() + 300:g}"]
         else:
             sim_argv += ["--lockstep", "--duration", "36000", "--start-timeout", "60"]
-        robot_argv = [*_console_script("qnav-robot", "firmware_py.cli"), "--can", hub.spec,
-                      "--lockstep" if not opts.realtime else "--sim-clock", "--start", start,
-                      "--storage", str(storage), "--mavlink", f"udpout:127.0.0.1:{port}",
-                      "--stats-json", str(paths["robot_stats"])]
+        robot_argv = qnav_robot("--can", hub.spec,
+                                "--lockstep" if not opts.realtime else "--sim-clock", "--start", start,
+                                "--storage", str(storage), "--mavlink", f"udpout:127.0.0.1:{port}",
+                                "--stats-json", str(paths["robot_stats"]))
         procs.start("sim", sim_argv, logs["sim"])
         procs.start("robot", robot_argv, logs["robot"])
         say(f"qnav-sim ({summary.mode}) and qnav-robot started, start cell ({col}, {row}); "

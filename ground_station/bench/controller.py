@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -77,35 +75,33 @@ def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
 
 def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
     """One paced HIL run (hub + qnav-sim --realtime + qnav-robot); the robot's stats."""
+    import subprocess
+
     from firmware_py import robot_spec
     from firmware_py.canbus import CanHub
     from ground_station.errors import CliError
+    from ground_station.rigs.processes import ChildProcess, qnav_robot, qnav_sim
 
-    bindir = Path(sys.executable).parent
     rt = [] if rt_priority is None else ["--rt-priority", str(rt_priority)]
     with tempfile.TemporaryDirectory() as tmp, CanHub("bench") as hub:
         stats_path = Path(tmp) / "robot.json"
-        sim = subprocess.Popen(
-            [str(bindir / "qnav-sim"), "--map", "paper10", "--can", hub.spec, "--realtime",
-             "--duration", str(args.seconds), "--start", args.start, "-q"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        rob = subprocess.Popen(
-            [str(bindir / "qnav-robot"), "--can", hub.spec, "--sim-clock", "--policy", args.policy,
-             "--start", args.start, "--goal-cell", args.goal_cell, *rt,
-             "--duration", str(args.seconds - robot_spec.CONTROL_PERIOD_US / 1e6),
-             "--stats-json", str(stats_path), "-q"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        try:
-            _, sim_err = sim.communicate(timeout=args.seconds + 60)
-            _, rob_err = rob.communicate(timeout=30)
-        finally:
-            for p in (sim, rob):
-                if p.poll() is None:
-                    p.kill()
-                    p.wait()
+        sim = ChildProcess(qnav_sim("--map", "paper10", "--can", hub.spec, "--realtime",
+                                    "--duration", str(args.seconds), "--start", args.start, "-q"),
+                           Path(tmp) / "sim.log")
+        rob = ChildProcess(qnav_robot("--can", hub.spec, "--sim-clock", "--policy", args.policy,
+                                      "--start", args.start, "--goal-cell", args.goal_cell, *rt,
+                                      "--duration", str(args.seconds - robot_spec.CONTROL_PERIOD_US / 1e6),
+                                      "--stats-json", str(stats_path), "-q"),
+                           Path(tmp) / "robot.log")
+        with sim, rob:
+            try:
+                sim.wait(args.seconds + 60)
+                rob.wait(30)
+            except subprocess.TimeoutExpired:
+                pass  # stopped on leaving the block; reported below
         if sim.returncode != 0 or not stats_path.is_file():
-            raise CliError(f"HIL run failed: sim rc {sim.returncode} {sim_err.strip()[-200:]!r}; "
-                           f"robot rc {rob.returncode} {rob_err.strip()[-200:]!r}")
+            raise CliError(f"HIL run failed: sim rc {sim.returncode} {sim.log_text().strip()[-200:]!r}; "
+                           f"robot rc {rob.returncode} {rob.log_text().strip()[-200:]!r}")
         return json.loads(stats_path.read_text())
 
 

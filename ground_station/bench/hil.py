@@ -1,10 +1,8 @@
 """`qnav bench hil`: lockstep hardware-in-the-loop episodes, in one process.
 
-The real pieces on a python-can `virtual` bus: the pymunk plant
-(`sim_bridge.plant.Plant`, driven by a lockstep loop that can also cut
-frames for fault tests) in the calling thread and the robot's
-`firmware_py.control.node.RobotNode` + `Controller` in its own threads.
-`run_episode` is also what the HIL tests use.
+Each episode runs on the in-process lockstep rig
+(`ground_station.rigs.lockstep.run_episode`): the pymunk plant and the
+robot's `RobotNode` + `Controller` on a python-can `virtual` bus.
 
 The benchmark runs the acceptance sets on `paper10`: the sector policy on
 seeded random (start, goal) pairs (driving the ground station's planned
@@ -18,120 +16,14 @@ from __future__ import annotations
 import argparse
 import math
 import random
-import time
-import uuid
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from pathlib import Path
 
-import can
-
-from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
-from firmware_py.clock import SimClock
-from firmware_py.control.controller import Controller
-from firmware_py.control.goals import GoalRunner
-from firmware_py.control.node import RobotNode
 from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import Policy
-from firmware_py.vehicle import VehicleConfig
+from ground_station.rigs.lockstep import run_episode
 
-SENSOR_FRAMES = frozenset({"RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper"})
-
-
-@dataclass
-class Episode:
-    result: str  # "reached", "FAULT: ...", "stopped: ...", "timeout", "goal refused: ..."
-    contacts: int  # wall contact events in the plant
-    sim_s: float
-    wall_s: float
-    ticks: int
-    final_error_mm: float  # ground truth distance to the goal at the end
-    commands: list[tuple[int, int, int, int]] = field(default_factory=list)  # (t_us, left, right, counter)
-    transitions: list[tuple[int, str, str, str]] = field(default_factory=list)
-    latency_us: list[float] = field(default_factory=list)
-
-    @property
-    def success(self) -> bool:
-        return self.result == "reached" and self.contacts == 0
-
-
-FrameFilter = Callable[[int, list[can.Message]], list[can.Message]]
-
-
-def cut_sensors_after(t_us: int) -> FrameFilter:
-    """A frame filter that drops every sensor frame from sim time `t_us` on."""
-    def f(now_us: int, frames: list[can.Message]) -> list[can.Message]:
-        if now_us < t_us:
-            return frames
-        return [m for m in frames if cp.frame_name(m.arbitration_id) not in SENSOR_FRAMES]
-    return f
-
-
-def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
-                goals_mm: list[tuple[int, int]], *, max_sim_s: float = 120.0, seed: int = 0,
-                vehicle: VehicleConfig | None = None, frame_filter: FrameFilter | None = None,
-                inject: Callable[[object, can.BusABC], None] | None = None,
-                stop_when_done: bool = True, answer_timeout_s: float = 5.0) -> Episode:
-    """Drive one lockstep episode; `start` is (x_m, y_m, heading_rad).
-
-    `inject(plant, sim_bus)` runs before every tick (e.g. to send an EStop);
-    `frame_filter(now_us, frames)` may drop frames the plant sends."""
-    from sim_bridge.plant import Plant, SimConfig
-    from sim_bridge.world import Pose
-
-    channel = f"hil-{uuid.uuid4().hex}"
-    sim_bus = can.Bus(interface="virtual", channel=channel)
-    node_bus = can.Bus(interface="virtual", channel=channel)
-    plant = Plant(occ, SimConfig(seed=seed), Pose(*start))
-    ctrl = Controller(vehicle or VehicleConfig(), policy, lockstep=True,
-                      start_pose_mm=(round(start[0] * 1000), round(start[1] * 1000),
-                                     round(start[2] * 1000)))
-    node = RobotNode(node_bus, ctrl, SimClock(), lockstep=True)
-    runner = GoalRunner(ctrl, goals_mm)
-    if goals_mm:
-        node.after_tick.append(runner)
-    commands: list[tuple[int, int, int, int]] = []
-    end_us = round(max_sim_s * 1e6)
-    t0 = time.perf_counter()
-    try:
-        node.start()
-        while plant.time_us < end_us:
-            if stop_when_done and runner.done.is_set():
-                break
-            if inject is not None:
-                inject(plant, sim_bus)
-            frames = plant.tick_frames()
-            if frame_filter is not None:
-                frames = frame_filter(plant.time_us, frames)
-            for f in frames:
-                sim_bus.send(f)
-            deadline = time.perf_counter() + answer_timeout_s
-            answered = False
-            while not answered:
-                msg = sim_bus.recv(timeout=max(0.0, deadline - time.perf_counter()))
-                if msg is None:
-                    raise RuntimeError(f"controller did not answer SimTick {plant.tick}")
-                if msg.arbitration_id == cp.MOTOR_COMMAND_ID:
-                    _, sig = cp.decode(msg)
-                    commands.append((plant.time_us, sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"],
-                                     sig["Cmd_Counter"]))
-                answered = plant.handle(msg, lockstep=True)
-            plant.step_period()
-    finally:
-        node.stop()
-        sim_bus.shutdown()
-        node_bus.shutdown()
-    wall = time.perf_counter() - t0
-    pose = plant.world.pose
-    err = math.inf
-    if goals_mm:
-        gx, gy = goals_mm[-1]
-        err = math.hypot(pose.x * 1000 - gx, pose.y * 1000 - gy)
-    result = runner.result if runner.done.is_set() else "timeout"
-    return Episode(result=result, contacts=plant.world.contact_events, sim_s=plant.time_us / 1e6,
-                   wall_s=wall, ticks=plant.tick, final_error_mm=err, commands=commands,
-                   transitions=[(t.t_us, t.src.name, t.dst.name, t.cause) for t in ctrl.transitions],
-                   latency_us=[v / 1000 for v in node.latency_ns])
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # --- acceptance sets ----------------------------------------------------------------

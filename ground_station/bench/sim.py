@@ -7,7 +7,7 @@
 * `lockstep_ticks_per_s_inprocess`: the full lockstep handshake on a python-can
   `virtual` bus, plant in the main thread, reflex controller in a thread.
 * `lockstep_ticks_per_s_remote`: the same across processes — the plant here,
-  the reflex controller in its own process (`python -m sim_bridge.reflex`),
+  the reflex controller in its own process (`sim_bridge.reflex`),
   both on a python-can-remote hub on 127.0.0.1 (a third process).
 
 Tick rates are compared with the real-time control rate (20 ticks/s) and the
@@ -17,7 +17,6 @@ remote one also with the in-process one, all measured in this run.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import threading
 import time
@@ -85,20 +84,19 @@ def measure_inprocess(occ, cell_size_m: float, ticks: int) -> dict:
 
 def measure_remote(occ, cell_size_m: float, ticks: int) -> dict:
     from firmware_py.canbus import CanHub, open_bus
-    from firmware_py.subprocs import stop_process
+    from ground_station.rigs.processes import REFLEX_MAIN, ChildProcess, program_argv
     from sim_bridge.plant import run_lockstep
 
     plant = _plant(occ, cell_size_m)
     with CanHub("bench-sim") as hub:
-        ctl = subprocess.Popen([sys.executable, "-m", "sim_bridge.reflex", "--can", hub.spec],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        ctl = ChildProcess([*program_argv(REFLEX_MAIN, "reflex"), "--can", hub.spec], None).start()
         bus = open_bus(hub.spec)
         try:
             stats = run_lockstep(plant, bus, ticks * robot_spec.CONTROL_PERIOD_US / 1e6,
                                  start_timeout_s=30.0)
         finally:
             bus.shutdown()
-            stop_process(ctl, timeout_s=10)
+            ctl.stop(grace_s=10)
     frames = stats.frames_sent + stats.frames_received
     busy = stats.wall_s - stats.start_wait_s
     return {"ticks_per_s": stats.ticks_per_s, "ticks": stats.ticks, "missed": stats.missed_ticks,

@@ -4,7 +4,8 @@ For 10 KiB and 100 KiB payloads (seeded random bytes of policy size), with
 and without MAVLink 2 signing, at 0 / 5 / 20 % frame loss each way, runs the
 real path: `qnav upload`'s code (pymavlink's MAVFTP client) -> link emulator
 (ground_station/rigs/link_emulator.py, 5760 B/s each way, 8N1) -> the robot's FTP shell in
-its own process (`python -m firmware_py.mavlink.ftp`).
+its own process (`python -m firmware_py.mavlink.ftp`, started by
+`ground_station.rigs.processes.robot_ftp_process`).
 
 Per case: seconds from the first FTP request to the robot's CRC32 verified,
 the theoretical link time (design.md: every WriteFile frame is data + 27
@@ -15,17 +16,14 @@ ratio; success = the file on the robot is byte-identical to the local one.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import os
 import random
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
-from firmware_py.subprocs import free_udp_port, stop_process
+from firmware_py.subprocs import free_udp_port
+from ground_station.rigs.processes import robot_ftp_process
 
 WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size
 FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
@@ -36,32 +34,6 @@ def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) ->
     """Link time of the WriteFile frames alone (design.md section 3)."""
     blocks = -(-size // WRITE_BLOCK)
     return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s
-
-
-@contextlib.contextmanager
-def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None,
-                      log: Path | None = None):
-    """The robot's standalone FTP shell in a child process; always stopped on exit.
-
-    Its output goes to `log` (default: root/../<root name>.log), never to a pipe
-    nobody reads (a full pipe would freeze the robot)."""
-    cmd = [sys.executable, "-m", "firmware_py.mavlink.ftp", "--root", str(root), "--mavlink", url]
-    if key_file is not None:
-        cmd += ["--signing-key", str(key_file)]
-    env = dict(os.environ, MAVLINK20="1")
-    log = log or root.parent / f"{root.name}.log"
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "w") as out:
-        proc = subprocess.Popen(cmd + (extra or []), env=env, stdout=out, stderr=subprocess.STDOUT)
-    try:
-        deadline = time.monotonic() + 20
-        while "serving" not in log.read_text():  # printed once the socket is up
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"robot FTP shell did not start: {log.read_text().strip()}")
-            time.sleep(0.05)
-        yield proc
-    finally:
-        stop_process(proc)
 
 
 def run_case(size: int, loss: float, signed: bool, key_file: Path | None, robot_port: int, root: Path,

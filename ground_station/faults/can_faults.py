@@ -1,7 +1,7 @@
 """CAN fault scenarios against the controller on a real bus with the pymunk plant.
 
 Each trial drives the shipped paper10 cell policy from a seeded random start
-towards a target several cells away (lockstep, `hil_rig.LockstepRig`), then
+towards a target several cells away (lockstep, `rigs.lockstep.LockstepRig`), then
 injects one fault at a seeded random moment while it is DRIVING:
 
 - `can_sensor_stop`: a random non-empty set of the input frames (range
@@ -45,7 +45,7 @@ from ground_station.rigs.lockstep import PERIOD_US, LockstepRig, cell_policy, fa
 INPUT_FRAMES = ("RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper", "MotorStatus")
 
 
-def _zero(cmd: tuple[int, int, int]) -> bool:
+def _zero(cmd: tuple[int, ...]) -> bool:
     return cmd[1] == 0 and cmd[2] == 0
 
 
@@ -63,7 +63,7 @@ def _setup(seed: int, vehicle: VehicleConfig | None = None):
 
 def _zero_from(rig: LockstepRig, t_us: int) -> list[str]:
     late = [c for c in rig.commands if c[0] >= t_us and not _zero(c)]
-    return [f"non-zero command {late[0][1:]} at t={late[0][0]} us after the stop"] if late else []
+    return [f"non-zero command {late[0][1:3]} at t={late[0][0]} us after the stop"] if late else []
 
 
 @register("can_sensor_stop", small=4, large=100, unit="episodes",

@@ -335,7 +335,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
     from ground_station.mavlink.ftp_upload import upload_policy
     from ground_station.mavlink.link import Link
     from ground_station.rigs.lockstep import CELL_POLICY, paper10
-    from ground_station.rigs.processes import BIN, RobotProcess
+    from ground_station.rigs.processes import ChildProcess, RobotProcess, qnav_sim
 
     gm = paper10()
     storage_dir = tmp / f"robot-{seed}"
@@ -346,9 +346,9 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
     stop, ready = threading.Event(), threading.Event()
     out: dict = {"duration_s": duration_s, "problems": []}
     with CanHub(f"load{seed}") as hub:
-        sim = subprocess.Popen([str(BIN / "qnav-sim"), "--map", "paper10", "--can", hub.spec, "--realtime",
-                                "--duration", str(duration_s + 30), "--start", f"{x / 1000},{y / 1000},90", "-q"],
-                               stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        sim = ChildProcess(qnav_sim("--map", "paper10", "--can", hub.spec, "--realtime", "--duration",
+                                    str(duration_s + 30), "--start", f"{x / 1000},{y / 1000},90", "-q"), None)
+        sim.start()
         extra = ["--sim-clock", "--start-cell", "0,9,90", "--duration", str(duration_s),
                  "--stats-json", str(stats_file), "-q"]
         for c, r in tour:
@@ -412,8 +412,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
             for cl in clients[1:]:
                 cl.start()
             # the robot ends itself after `duration_s` of sim time (--duration)
-            assert robot.proc is not None  # started above
-            robot.proc.wait(timeout=duration_s + 60)
+            robot.wait(duration_s + 60)
         except subprocess.TimeoutExpired:
             out["problems"].append("qnav-robot did not end after its duration")
         finally:
@@ -421,15 +420,9 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
             for cl in clients:
                 cl.join(timeout=30)
             robot.stop()
-            sim.terminate()
-            try:
-                sim.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                sim.kill()
-                sim.wait()
-    assert robot.proc is not None  # started (or this function raised)
-    if robot.proc.returncode not in (0, 4):  # 4: the tour was still going at the end
-        out["problems"].append(f"qnav-robot exit {robot.proc.returncode}: {robot.log_tail()}")
+            sim.stop(grace_s=10)
+    if robot.returncode not in (0, 4):  # 4: the tour was still going at the end
+        out["problems"].append(f"qnav-robot exit {robot.returncode}: {robot.log_tail()}")
     for cl in clients:
         if cl.error:
             out["problems"].append(f"client {cl.name}: {cl.error}")

@@ -1,12 +1,25 @@
-"""A lockstep HIL rig for fault injection: pymunk plant + RobotNode/Controller
-on a real python-can `virtual` bus, with hooks on both directions.
+"""The in-process lockstep rig: the pymunk plant and the robot's controller on
+a real python-can `virtual` bus, one control tick at a time.
 
-Like `ground_station.bench.hil.run_episode`, but stepped one control tick at
-a time by the caller, so a scenario can mangle the plant's frames
-(`frames_hook`), withhold the controller's answers from the motor driver
-(`deliver=False`), send frames of other nodes and call the vehicle between
-ticks. The answer to tick k is the MotorCommand carrying counter k; other
-MotorCommands (answers to replayed ticks) are counted in `stale_answers`.
+The real pieces: `sim_bridge.plant.Plant` (its `tick_frames` / `handle` /
+`step_period`, the same stepping `qnav-sim --lockstep` runs) in the calling
+thread, and `firmware_py.control.node.RobotNode` + `Controller` on the sim
+clock in their own threads, with `firmware_py.control.goals.GoalRunner`
+arming and starting the goals as `qnav-robot --goal` does.
+
+`LockstepRig.tick()` sends one tick's frames and waits for its answer (the
+MotorCommand carrying counter k). Hooks for tests and fault scenarios: a
+`frames_hook` may mangle or drop the plant's frames, `deliver=False`
+withholds the answer from the motor driver, `before_answer` runs before it
+is delivered, `send()` puts frames of other nodes on the bus, and the
+vehicle can be called between ticks. Answers to other ticks are counted
+(`repeated_answers`, `stale_answers`) and offered to the driver, which must
+ignore them too.
+
+`run_episode` drives one whole episode on the rig (what `qnav bench hil`,
+the HIL tests and the guidance tests use). `sim_bridge.plant.run_lockstep`
+is the bus-facing loop for a controller in another process; it stays in
+sim_bridge, which does not import the ground station.
 """
 
 from __future__ import annotations
@@ -17,6 +30,7 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import can
 
@@ -32,6 +46,8 @@ from firmware_py.vehicle import CtrlState, VehicleConfig
 
 CELL_POLICY = shipped_policy("paper10_cell")
 PERIOD_US = robot_spec.CONTROL_PERIOD_US
+
+SENSOR_FRAMES = frozenset({"RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper"})
 
 FramesHook = Callable[[int, int, list[can.Message]], list[can.Message]]  # (tick, t_us, frames)
 
@@ -79,7 +95,9 @@ def _bfs(occ, goal: tuple[int, int]) -> dict[tuple[int, int], int]:
 
 
 class LockstepRig:
-    """See the module docstring. Use as a context manager."""
+    """See the module docstring. Use as a context manager; `start` is
+    (x_m, y_m, heading_rad), `goals_mm` the goal or mission for the GoalRunner
+    (none: the vehicle is left to the caller)."""
 
     def __init__(self, occ, policy: Policy | None, start: tuple[float, float, float],
                  goals_mm: list[tuple[int, int]], *, seed: int = 0,
@@ -99,7 +117,7 @@ class LockstepRig:
         if goals_mm:
             self.node.after_tick.append(self.runner)
         self.answer_timeout_s = answer_timeout_s
-        self.commands: list[tuple[int, int, int]] = []  # (t_us, left, right) of each tick's answer
+        self.commands: list[tuple[int, int, int, int]] = []  # (t_us, left, right, counter) of each answer
         self.states: list[tuple[int, CtrlState]] = []  # state after each tick
         self.stale_answers = 0  # answers to ticks other than the current and the previous one
         self.repeated_answers = 0  # the previous tick's answer again (a duplicated SimTick)
@@ -157,7 +175,7 @@ class LockstepRig:
         if before_answer is not None:
             before_answer()
         _, sig = cp.decode(answer)
-        self.commands.append((plant.time_us, sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]))
+        self.commands.append((plant.time_us, sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"], want))
         if deliver:
             plant.handle(answer, lockstep=True)
         else:
@@ -168,6 +186,7 @@ class LockstepRig:
         return sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]
 
     def run_until(self, t_us: int, **kw) -> None:
+        """Tick until sim time `t_us`; `kw` as for `tick()`."""
         while self.plant.time_us < t_us:
             self.tick(**kw)
 
@@ -182,3 +201,65 @@ class LockstepRig:
             if tr.dst == state and tr.t_us >= after_us:
                 return tr
         return None
+
+
+# --- whole episodes ---------------------------------------------------------------
+
+@dataclass
+class Episode:
+    result: str  # "reached", "FAULT: ...", "stopped: ...", "timeout", "goal refused: ..."
+    contacts: int  # wall contact events in the plant
+    sim_s: float
+    wall_s: float
+    ticks: int
+    final_error_mm: float  # ground truth distance to the goal at the end
+    commands: list[tuple[int, int, int, int]] = field(default_factory=list)  # (t_us, left, right, counter)
+    transitions: list[tuple[int, str, str, str]] = field(default_factory=list)
+    latency_us: list[float] = field(default_factory=list)
+
+    @property
+    def success(self) -> bool:
+        return self.result == "reached" and self.contacts == 0
+
+
+def cut_sensors_after(t_us: int) -> FramesHook:
+    """A frames hook that drops every sensor frame from sim time `t_us` on."""
+    def hook(_tick: int, now_us: int, frames: list[can.Message]) -> list[can.Message]:
+        if now_us < t_us:
+            return frames
+        return [m for m in frames if cp.frame_name(m.arbitration_id) not in SENSOR_FRAMES]
+    return hook
+
+
+def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
+                goals_mm: list[tuple[int, int]], *, max_sim_s: float = 120.0, seed: int = 0,
+                vehicle: VehicleConfig | None = None, frames_hook: FramesHook | None = None,
+                before_tick: Callable[[LockstepRig], None] | None = None,
+                stop_when_done: bool = True, answer_timeout_s: float = 5.0) -> Episode:
+    """Drive one lockstep episode on a `LockstepRig` until the GoalRunner is done
+    (unless `stop_when_done` is False) or `max_sim_s` of sim time.
+
+    `before_tick(rig)` runs before every tick (e.g. to send an EStop);
+    `frames_hook` as for `LockstepRig.tick`."""
+    end_us = round(max_sim_s * 1e6)
+    t0 = time.perf_counter()
+    with LockstepRig(occ, policy, start, goals_mm, seed=seed, vehicle=vehicle,
+                     answer_timeout_s=answer_timeout_s) as rig:
+        while rig.plant.time_us < end_us:
+            if stop_when_done and rig.runner.done.is_set():
+                break
+            if before_tick is not None:
+                before_tick(rig)
+            rig.tick(frames_hook=frames_hook)
+    wall = time.perf_counter() - t0
+    plant, runner = rig.plant, rig.runner
+    pose = plant.world.pose
+    err = math.inf
+    if goals_mm:
+        gx, gy = goals_mm[-1]
+        err = math.hypot(pose.x * 1000 - gx, pose.y * 1000 - gy)
+    result = runner.result if runner.done.is_set() else "timeout"
+    return Episode(result=result, contacts=plant.world.contact_events, sim_s=plant.time_us / 1e6,
+                   wall_s=wall, ticks=plant.tick, final_error_mm=err, commands=rig.commands,
+                   transitions=[(t.t_us, t.src.name, t.dst.name, t.cause) for t in rig.ctrl.transitions],
+                   latency_us=[v / 1000 for v in rig.node.latency_ns])

@@ -12,8 +12,8 @@ import pytest
 from firmware_py.encoders import CellEncoder
 from firmware_py.policy import dump_policy, load_policy
 from firmware_py.subprocs import free_udp_port
-from ground_station.bench.upload import robot_ftp_process
 from ground_station.rigs import link_emulator as emu
+from ground_station.rigs.processes import robot_ftp_process
 
 pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")

@@ -12,8 +12,8 @@ from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import dump_policy, load_policy
 from firmware_py.shipped_policies import shipped_policy
-from ground_station.bench.hil import cut_sensors_after, run_episode
 from ground_station.maps import load_map
+from ground_station.rigs.lockstep import cut_sensors_after, run_episode
 from tests.support.controller_rig import sector_seek_policy
 
 PAPER10 = load_map("paper10")
@@ -63,7 +63,7 @@ def test_sensor_cut_zeroes_commands_within_one_period_after_timeout():
     goal = robot_spec.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
     cut_us = 2_000_000
     ep = run_episode(PAPER10.occ, pol, (*centre_m(0, 9), 0.0), [goal], max_sim_s=6,
-                     frame_filter=cut_sensors_after(cut_us))
+                     frames_hook=cut_sensors_after(cut_us))
     assert ep.result.startswith("FAULT: sensor data stale"), ep.result
     last_fresh = cut_us - robot_spec.CONTROL_PERIOD_US
     timeout_us = 250_000
@@ -95,19 +95,19 @@ def test_estop_frame_stops_and_latches():
     goal = robot_spec.cell_center_mm(*PAPER10.targets["B"], H, pol.cell_mm)
     sent = []
 
-    def inject(plant, bus):
-        if plant.time_us == 1_000_000 and not sent:
+    def inject(rig):
+        if rig.time_us == 1_000_000 and not sent:
             msg = cp.encode("EStop", {"EStop_Engage": 1, "EStop_Source": cp.NODE_SIM, "EStop_Reason": 4})
-            bus.send(msg)
-            plant.handle(msg)  # the motor driver on the same bus latches too
-            sent.append(plant.time_us)
-        if plant.time_us == 2_000_000:  # released: the controller stays latched
+            rig.send(msg)
+            rig.plant.handle(msg)  # the motor driver on the same bus latches too
+            sent.append(rig.time_us)
+        if rig.time_us == 2_000_000:  # released: the controller stays latched
             msg = cp.encode("EStop", {"EStop_Engage": 0, "EStop_Source": cp.NODE_SIM, "EStop_Reason": 4})
-            bus.send(msg)
-            plant.handle(msg)
+            rig.send(msg)
+            rig.plant.handle(msg)
 
     ep = run_episode(PAPER10.occ, pol, (*centre_m(0, 9), 0.0), [goal], max_sim_s=4,
-                     inject=inject, stop_when_done=False)
+                     before_tick=inject, stop_when_done=False)
     fault = [t for t in ep.transitions if t[2] == "FAULT"]
     assert fault and fault[0][3] == "e-stop engaged" and fault[0][0] == 1_000_000
     assert all(c[1] == 0 and c[2] == 0 for c in ep.commands if c[0] >= 1_000_000)
