@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.encoders import SectorEncoder
+from ground_station.learn.config import TrainConfig
 from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.kernels import (
     COLLISION,
@@ -45,7 +46,6 @@ from ground_station.maps.planner import (
 )
 
 MAX_TRAIN_CELLS = 64 * 64  # all-pairs distance tables are kept per training map
-DEFAULT_HOLD_MAX = 100  # periods an action is held while the state is unchanged (see sector_kernels)
 GUIDANCES = ("path", "direct")
 
 
@@ -117,36 +117,29 @@ def pack_maps(maps: list[GridMap]) -> PackedMaps:
     return PackedMaps(occ, dims, cell, free, nfree, dist)
 
 
-def _cfg(cfg, name: str, default):
-    return getattr(cfg, name, default)
-
-
-def epsilon_schedule(cfg) -> tuple[float, float, int]:
-    """(start, end, decay steps) of the linear epsilon schedule from a TrainConfig
-    (epsilon_start, epsilon_end, epsilon_decay = fraction of steps)."""
-    start = float(_cfg(cfg, "epsilon_start", 1.0))
-    end = float(_cfg(cfg, "epsilon_end", 0.05))
-    frac = float(_cfg(cfg, "epsilon_decay", 0.5))
-    return start, end, int(round(frac * int(cfg.steps)))
+def epsilon_schedule(cfg: TrainConfig) -> tuple[float, float, int]:
+    """(start, end, decay steps) of the linear epsilon schedule
+    (epsilon_decay is a fraction of `steps`)."""
+    return float(cfg.epsilon_start), float(cfg.epsilon_end), int(round(cfg.epsilon_decay * cfg.steps))
 
 
 class SectorTrainer:
     """Exact sequential Q-learning of a SectorEncoder policy on the twin."""
 
-    def __init__(self, maps: list[GridMap], cfg, encoder: SectorEncoder,
+    def __init__(self, maps: list[GridMap], cfg: TrainConfig, encoder: SectorEncoder,
                  reward: SectorReward | None = None) -> None:
         self.maps = list(maps)
         self.cfg = cfg
         self.encoder = encoder
         # TrainConfig's reward_goal / reward_step / reward_collision (signed as
-        # rewards) plus the sector-only progress and reverse terms
+        # rewards) plus the sector-only progress, reverse and align terms
         self.reward = reward or SectorReward(
-            progress=float(_cfg(cfg, "sector_progress_reward", SectorReward.progress)),
-            step_cost=-float(_cfg(cfg, "reward_step", -SectorReward.step_cost)),
-            reverse_cost=float(_cfg(cfg, "sector_reverse_cost", SectorReward.reverse_cost)),
-            goal=float(_cfg(cfg, "reward_goal", SectorReward.goal)),
-            collision=-float(_cfg(cfg, "reward_collision", -SectorReward.collision)),
-            align=float(_cfg(cfg, "sector_align_reward", SectorReward.align)),
+            progress=float(cfg.sector_progress_reward),
+            step_cost=-float(cfg.reward_step),
+            reverse_cost=float(cfg.sector_reverse_cost),
+            goal=float(cfg.reward_goal),
+            collision=-float(cfg.reward_collision),
+            align=float(cfg.sector_align_reward),
         )
         self.packed = pack_maps(self.maps)
         self.n_states = encoder.n_states
@@ -157,15 +150,15 @@ class SectorTrainer:
         self._eps = epsilon_schedule(cfg)
         self._rw = self.reward.array()
         # 0 = automatic: 1000 periods (50 s) on paper10, scaled with the map area
-        mes = int(_cfg(cfg, "max_episode_steps", 0))
+        mes = int(cfg.max_episode_steps)
         self.max_episode_steps = mes if mes > 0 else 10 * max(gm.occ.size for gm in self.maps)
-        self.hold_max = int(_cfg(cfg, "sector_hold_max", DEFAULT_HOLD_MAX))
-        self.lr_end = float(_cfg(cfg, "sector_lr_end", cfg.lr))
-        self.noise_mm = float(_cfg(cfg, "sector_range_noise_mm", 0.0))
-        self.guidance = str(_cfg(cfg, "sector_guidance", "path"))
+        self.hold_max = int(cfg.sector_hold_max)
+        self.lr_end = float(cfg.sector_lr_end)
+        self.noise_mm = float(cfg.sector_range_noise_mm)
+        self.guidance = str(cfg.sector_guidance)
         self._guided = check_guidance(self.guidance)
-        self._clear_r = clearance_mm(float(_cfg(cfg, "sector_margin_mm", DEFAULT_MARGIN_MM)))
-        self._max_seg = float(_cfg(cfg, "sector_max_segment_mm", DEFAULT_MAX_SEGMENT_MM))
+        self._clear_r = clearance_mm(float(cfg.sector_margin_mm))
+        self._max_seg = float(cfg.sector_max_segment_mm)
         cells = int(self.packed.occ.shape[1] * self.packed.occ.shape[2])
         self._path = np.zeros((cells, 2), dtype=np.int64)  # planner scratch
         self._wps = np.zeros((cells, 2))  # the open episode's waypoints (kept across chunks)
