@@ -36,6 +36,7 @@ from ground_station.learn.sector.kernels import (
     eval_kernel,
     train_kernel,
 )
+from ground_station.learn.sector.reward import SectorReward, check_guidance
 from ground_station.learn.sector.twin import encoder_arrays, grid_of
 from ground_station.maps import GridMap, octile_distances
 from ground_station.maps.planner import (
@@ -46,30 +47,6 @@ from ground_station.maps.planner import (
 )
 
 MAX_TRAIN_CELLS = 64 * 64  # all-pairs distance tables are kept per training map
-GUIDANCES = ("path", "direct")
-
-
-def check_guidance(guidance: str) -> int:
-    """1 for "path", 0 for "direct"; ValueError otherwise."""
-    if guidance not in GUIDANCES:
-        raise ValueError(f"guidance must be one of {', '.join(GUIDANCES)}, got {guidance!r}")
-    return int(guidance == "path")
-
-
-@dataclass(frozen=True)
-class SectorReward:
-    """Shaped reward of one control period (see `sector_kernels`)."""
-
-    progress: float = 1.0   # per cell of progress along the octile potential
-    step_cost: float = 0.01  # per control period
-    reverse_cost: float = 0.02  # extra per reverse period (the robot has no rear bumper view)
-    goal: float = 1.0
-    collision: float = 1.0
-    align: float = 1.0  # per pi rad the target's bearing moves toward straight ahead
-
-    def array(self) -> np.ndarray:
-        return np.array([self.progress, self.step_cost, self.reverse_cost, self.goal, self.collision,
-                         self.align])
 
 
 @dataclass
@@ -131,16 +108,7 @@ class SectorTrainer:
         self.maps = list(maps)
         self.cfg = cfg
         self.encoder = encoder
-        # TrainConfig's reward_goal / reward_step / reward_collision (signed as
-        # rewards) plus the sector-only progress, reverse and align terms
-        self.reward = reward or SectorReward(
-            progress=float(cfg.sector_progress_reward),
-            step_cost=-float(cfg.reward_step),
-            reverse_cost=float(cfg.sector_reverse_cost),
-            goal=float(cfg.reward_goal),
-            collision=-float(cfg.reward_collision),
-            align=float(cfg.sector_align_reward),
-        )
+        self.reward = reward or SectorReward.from_config(cfg)
         self.packed = pack_maps(self.maps)
         self.n_states = encoder.n_states
         self.n_actions = encoder.n_actions
