@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from firmware_py.encoders import SectorEncoder
-from ground_station.learn.sector.trainer import SectorTrainer, eval_episodes, evaluate_sector
+from ground_station.learn.sector.evaluate import eval_episodes, evaluate_sector
+from ground_station.learn.sector.trainer import SectorTrainer
 from ground_station.learn.train import TrainConfig
 from ground_station.maps import GridMap, load_map
 
