@@ -2,7 +2,8 @@
 
 1. `pack_maps`: the training maps padded and stacked into the arrays the
    numba kernel takes, with the octile distance field to every free cell.
-2. `epsilon_schedule`: TrainConfig's linear epsilon schedule in steps.
+2. `sector_encoder`, `epsilon_schedule`: the encoder and the linear
+   epsilon schedule (in steps) a TrainConfig asks for.
 3. `SectorTrainer(maps, cfg, encoder)`: exact sequential Q-learning (the
    `train_kernel` of `ground_station.learn.sector.kernels`), epsilon-greedy
    on the global step, a random map, goal cell, start pose (inside a random
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.encoders import SectorEncoder
-from ground_station.learn.config import TrainConfig
+from ground_station.learn.config import TrainConfig, int_list
 from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.kernels import EP_LEN, train_kernel
 from ground_station.learn.sector.reward import SectorReward, check_guidance
@@ -78,6 +79,13 @@ def pack_maps(maps: list[GridMap]) -> PackedMaps:
             free[i, k] = (col, row)
             dist[i, k, :h, :w] = octile_distances(gm.occ, col, row)
     return PackedMaps(occ, dims, cell, free, nfree, dist)
+
+
+def sector_encoder(cfg: TrainConfig) -> SectorEncoder:
+    """The reference SectorEncoder a config trains (its sector_* fields)."""
+    return SectorEncoder(bearing_sectors=int(cfg.sector_bearing_sectors),
+                         sensors=int_list(cfg.sector_sensors, "sector_sensors"),
+                         range_edges_mm=int_list(cfg.sector_range_edges, "sector_range_edges"))
 
 
 def epsilon_schedule(cfg: TrainConfig) -> tuple[float, float, int]:
