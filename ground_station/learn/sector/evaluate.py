@@ -39,8 +39,8 @@ def eval_episodes(gridmap: GridMap, seed: int = 0, sample: int | None = None,
     sample of `sample` of them."""
     cells = np.array(gridmap.free_cells(), dtype=np.int64)
     n = len(cells)
-    si, gi = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    si, gi = si.ravel(), gi.ravel()
+    grid_s, grid_g = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    si, gi = grid_s.ravel(), grid_g.ravel()
     keep = si != gi
     si, gi = si[keep], gi[keep]
     # connected pairs only: label components by octile reachability from each goal's field
