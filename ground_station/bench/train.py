@@ -66,8 +66,7 @@ def python_loop(cfg, seconds: float) -> tuple[int, float]:
 def sector_speed(cfg, n_steps: int) -> tuple[float | None, str]:
     import numpy as np
 
-    from ground_station.learn.sector.trainer import SectorTrainer
-    from ground_station.learn.train import sector_encoder
+    from ground_station.learn.sector.trainer import SectorTrainer, sector_encoder
     from ground_station.maps import load_map
 
     trainer = SectorTrainer([load_map(cfg.map)], cfg, sector_encoder(cfg))

@@ -60,7 +60,7 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
         return evaluate_cell(q, gridmap, run.goals, sample=sample, seed=seed,
                              target_names=run.meta.get("targets"))
     from ground_station.learn.evaluate import sector_guidance_from_meta
-    from ground_station.learn.sector.trainer import evaluate_sector
+    from ground_station.learn.sector.evaluate import evaluate_sector
     return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample,
                            **sector_guidance_from_meta(run.meta))
 

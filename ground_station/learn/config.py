@@ -29,7 +29,8 @@ class TrainConfig:
     epsilon_start: float = _f(1.0, "exploration rate at step 0 (epsilon-greedy)")
     epsilon_end: float = _f(0.1, "exploration rate after the decay")
     epsilon_decay: float = _f(0.5, "fraction of `steps` over which epsilon falls linearly from start to end")
-    max_episode_steps: int = _f(0, "episode step limit (truncation, bootstrapped); 0 = width*height of the map")
+    max_episode_steps: int = _f(0, "episode step limit (truncation, bootstrapped); 0 = automatic: width*height "
+                                   "of the map (cell), 10 x the cells of the largest training map (sector)")
     reward_goal: float = _f(1.0, "reward for reaching the goal (episode ends)")
     reward_step: float = _f(-0.01, "reward for every other move")
     reward_collision: float = _f(-1.0, "reward for hitting an obstacle or the map edge (episode ends)")
@@ -41,6 +42,12 @@ class TrainConfig:
     sector_margin_mm: float = _f(75.0, "sector: clearance beyond the robot radius a pruned waypoint segment keeps")
     sector_max_segment_mm: float = _f(1000.0, "sector: longest waypoint segment (mm); 0 = no limit")
     sector_align_reward: float = _f(1.0, "sector: shaping reward per pi rad the target's bearing turns toward ahead")
+    sector_progress_reward: float = _f(1.0, "sector: reward per cell of progress along the guide potential "
+                                            "(remaining waypoint path, or the goal's octile field when direct)")
+    sector_reverse_cost: float = _f(0.02, "sector: extra cost per control period spent reversing "
+                                          "(the robot has no rear range sensor in the state)")
+    sector_hold_max: int = _f(100, "sector: control periods a chosen action is held while the state is unchanged, "
+                                   "learnt as one semi-Markov transition; 1 = plain one-step updates")
     sector_lr_end: float = _f(0.005, "sector: learning rate at the last step (linear from --lr); = --lr for a constant rate")
     sector_range_noise_mm: float = _f(10.0, "sector: std (mm) of Gaussian noise on the range readings the learner sees "
                                             "(the sim's sensor noise); 0 = exact readings")
@@ -95,6 +102,8 @@ def int_list(text: str, name: str) -> tuple[int, ...]:
 def _check_sector(cfg: TrainConfig) -> None:
     if cfg.sector_guidance not in ("path", "direct"):
         raise ValueError(f"sector_guidance must be path or direct, got {cfg.sector_guidance!r}")
+    if cfg.sector_hold_max < 1:
+        raise ValueError(f"sector_hold_max must be >= 1, got {cfg.sector_hold_max}")
     if not 0.0 <= cfg.sector_lr_end <= 1.0:
         raise ValueError(f"sector_lr_end must be in [0, 1], got {cfg.sector_lr_end}")
     if cfg.sector_margin_mm < 0 or cfg.sector_max_segment_mm < 0 or cfg.sector_range_noise_mm < 0:

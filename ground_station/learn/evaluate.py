@@ -12,7 +12,7 @@ of `sample` pairs on large maps). Each rollout ends as
 
 Beside it, in the same report, the greedy baseline "step to the free
 neighbour nearest (Euclidean) to the goal", judged the same way. Sector
-policies are evaluated by `ground_station.learn.sector.trainer.evaluate_sector`;
+policies are evaluated by `ground_station.learn.sector.evaluate.evaluate_sector`;
 `evaluate_run` dispatches on meta.json's encoding.
 """
 
@@ -184,7 +184,7 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
         names, goals = resolve_goals(gridmap, [list(g) for g in goals])
         return evaluate_cell(q, gridmap, goals, sample=sample, seed=seed,
                              target_names=meta.get("targets") or names)
-    from ground_station.learn.sector.trainer import evaluate_sector
+    from ground_station.learn.sector.evaluate import evaluate_sector
 
     rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample,
                           **sector_guidance_from_meta(meta), direct=True, baseline=True)

@@ -51,7 +51,7 @@ def run_job(cfg_dict: dict) -> dict:
         ev = evaluate_cell(res.q, gm, goals, sample=20_000, seed=cfg.seed)
     else:
         from ground_station.learn.evaluate import sector_encoder_from_meta
-        from ground_station.learn.sector.trainer import evaluate_sector
+        from ground_station.learn.sector.evaluate import evaluate_sector
         ev = evaluate_sector(res.q, gm, sector_encoder_from_meta(res.meta["encoder"]), seed=cfg.seed)
     curve = learning_curve(res.returns, res.successes, cfg.curve_points)
     return {"lr": cfg.lr, "seed": cfg.seed, "train_seconds": res.seconds, "episodes": int(len(res.returns)),

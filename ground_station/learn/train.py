@@ -14,8 +14,9 @@
    random goal and start at every episode (the paper's training protocol).
    Its random numbers come from its own xorshift64* state, so a seed fixes
    the table regardless of chunking or process.
-3. `train_cell` / `train_sector`: run the kernel (or the sector engineer's
-   `SectorTrainer`) in chunks under a tqdm progress bar.
+3. `train_cell` / `train_sector`: run the kernel (or the sector encoding's
+   `SectorTrainer`, `ground_station.learn.sector.trainer`) in chunks under a
+   tqdm progress bar.
 4. `learning_curve`, `write_run`: the run folder contract
    (`q.npy`, `meta.json`, `metrics.csv`, `learning_curve.png`), written
    atomically.
@@ -59,7 +60,9 @@ from ground_station.maps import GridMap, MapError, load_map
 # --------------------------------------------------------------------------
 # TrainConfig: map, encoding, targets, seed, steps, lr (eta), gamma,
 # epsilon_start/end/decay (linear schedule), max_episode_steps, rewards
-# (goal, step, collision), q_init_scale, curve_points, chunk_steps.
+# (goal, step, collision), the sector_* fields (encoder, guidance, reward
+# shaping, action hold, lr decay, range noise, extra maps), q_init_scale,
+# curve_points, chunk_steps. meta.json records every field.
 
 
 # --------------------------------------------------------------------------
@@ -244,19 +247,10 @@ def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> Tr
     return TrainResult(q, np.concatenate(rets), np.concatenate(succs), meta, seconds)
 
 
-def sector_encoder(cfg: TrainConfig):
-    """The reference SectorEncoder a config trains (its sector_* fields)."""
-    from firmware_py.encoders import SectorEncoder
-    from ground_station.learn.config import int_list
-    return SectorEncoder(bearing_sectors=int(cfg.sector_bearing_sectors),
-                         sensors=int_list(cfg.sector_sensors, "sector_sensors"),
-                         range_edges_mm=int_list(cfg.sector_range_edges, "sector_range_edges"))
-
-
 def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
     """Q-learning on the sector twin, through `ground_station.learn.sector.trainer.SectorTrainer`,
     on `gridmap` plus the `sector_maps` extras."""
-    from ground_station.learn.sector.trainer import SectorTrainer
+    from ground_station.learn.sector.trainer import SectorTrainer, sector_encoder
 
     encoder = sector_encoder(cfg)
     extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]

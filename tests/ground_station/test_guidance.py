@@ -9,7 +9,7 @@ import pytest
 
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
-from ground_station.learn.sector.trainer import evaluate_sector, seek_table
+from ground_station.learn.sector.evaluate import evaluate_sector, seek_table
 from ground_station.learn.sector.twin import disc_hits, grid_of
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
 from ground_station.maps.planner import plan_waypoints, segment_clear

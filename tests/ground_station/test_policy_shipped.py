@@ -74,7 +74,7 @@ def test_inspect_prints_the_shipped_header(capsys):
 
 
 def test_sector_policy_drives_as_recorded_and_int8_is_within_half_a_point_of_float():
-    from ground_station.learn.sector.trainer import evaluate_sector
+    from ground_station.learn.sector.evaluate import evaluate_sector
     from ground_station.maps import load_map
 
     path = POLICIES / "sector.qtab"

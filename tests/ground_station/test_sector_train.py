@@ -1,10 +1,14 @@
-"""SectorTrainer and evaluate_sector: determinism, chunking, API shape."""
+"""SectorTrainer and evaluate_sector: determinism, chunking, API shape, every
+hyperparameter taken from the TrainConfig."""
 
 import numpy as np
 import pytest
 
 from firmware_py.encoders import SectorEncoder
-from ground_station.learn.sector.trainer import SectorTrainer, eval_episodes, evaluate_sector
+from ground_station.learn.envs.sector_env import SectorNavEnv
+from ground_station.learn.sector.evaluate import eval_episodes, evaluate_sector
+from ground_station.learn.sector.reward import SectorReward
+from ground_station.learn.sector.trainer import SectorTrainer, epsilon_schedule
 from ground_station.learn.train import TrainConfig
 from ground_station.maps import GridMap, load_map
 
@@ -37,6 +41,26 @@ def test_same_seed_same_table_and_chunking_does_not_matter():
     assert len(r1) > 10 and np.any(q1 != 0)
     q3, _, _ = _train(_cfg(seed=4), [60_000])
     assert not np.array_equal(q1, q3)
+
+
+def test_every_sector_hyperparameter_comes_from_the_config():
+    cfg = _cfg(sector_hold_max=7, sector_progress_reward=0.5, sector_reverse_cost=0.3, reward_step=-0.02,
+               reward_goal=0.8, reward_collision=-0.9, sector_align_reward=0.0, sector_lr_end=0.05,
+               sector_range_noise_mm=0.0, epsilon_end=0.2, epsilon_decay=0.25)
+    tr = SectorTrainer([load_map("paper10")], cfg, SectorEncoder())
+    assert (tr.hold_max, tr.lr_end, tr.noise_mm) == (7, 0.05, 0.0)
+    assert tr.reward == SectorReward(progress=0.5, step_cost=0.02, reverse_cost=0.3, goal=0.8, collision=0.9,
+                                     align=0.0)
+    assert epsilon_schedule(cfg) == (1.0, 0.2, 15_000)
+    # the hold limit reaches the kernel: one-step updates learn a different table
+    q_hold, _, _ = _train(_cfg(), [20_000])
+    q_one, _, _ = _train(_cfg(sector_hold_max=1), [20_000])
+    assert not np.array_equal(q_hold, q_one)
+
+
+def test_env_and_trainer_share_the_default_reward():
+    assert SectorNavEnv().reward == SectorTrainer([load_map("paper10")], TrainConfig(encoding="sector"),
+                                                  SectorEncoder()).reward == SectorReward.from_config(TrainConfig())
 
 
 def test_trainer_shape_and_bad_table():

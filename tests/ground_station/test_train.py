@@ -5,7 +5,7 @@ CLI run folder contract (subprocess smoke tests)."""
 import json
 import subprocess
 import sys
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -145,6 +145,7 @@ def test_cli_train_then_eval_smoke(tmp_path):
     assert meta["encoding"] == "cell" and meta["targets"] == ["A", "C"] and meta["goals"] == [[2, 2], [0, 9]]
     assert meta["encoder"] == {"width": 10, "height": 10, "n_goals": 2, "kind": "cell"}
     assert meta["config"]["lr"] == 0.7 and meta["config"]["epsilon_end"] == 0.2 and meta["steps"] == 300000
+    assert set(meta["config"]) == {f.name for f in fields(TrainConfig)}  # every hyperparameter recorded
     assert (out / "metrics.csv").read_text().startswith("episode,avg_return,success_rate\n")
     assert (out / "learning_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     rep = json.loads(qnav("eval", str(out), "--map", "paper10", "--json").stdout)
@@ -161,6 +162,8 @@ def test_cli_errors_are_one_line_exit_2(tmp_path):
     assert r.returncode == 2 and "no target 'Q'" in r.stderr
     r = qnav("train", "--lr", "1.5", "--out", str(tmp_path / "x"), check=False)
     assert r.returncode == 2 and "lr must be in (0, 1]" in r.stderr
+    r = qnav("train", "--encoding", "sector", "--sector-hold-max", "0", "--out", str(tmp_path / "x"), check=False)
+    assert r.returncode == 2 and "sector_hold_max must be >= 1, got 0" in r.stderr
     r = qnav("eval", str(tmp_path), "--map", "paper10", check=False)
     assert r.returncode == 2 and "missing meta.json" in r.stderr
     assert not (tmp_path / "x").exists()

@@ -1,8 +1,9 @@
 """The `sector` encoding as a Gymnasium environment on the kinematic twin.
 
 Physics, sensing and reward are the jitted functions the fast trainer uses
-(`ground_station.learn.sector.twin`, `sector_kernels.period_step`), so the env and
-the trainer cannot drift apart.
+(`ground_station.learn.sector.twin`, `ground_station.learn.sector.kernels.period_step`
+with the weights of `ground_station.learn.sector.reward.SectorReward`), so the
+env and the trainer cannot drift apart.
 """
 
 from __future__ import annotations
@@ -15,8 +16,9 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
+from ground_station.learn.config import TrainConfig
 from ground_station.learn.sector.kernels import guide_potential, period_step, start_guidance
-from ground_station.learn.sector.trainer import SectorReward, check_guidance
+from ground_station.learn.sector.reward import SectorReward, check_guidance
 from ground_station.learn.sector.twin import (
     RADIUS_MM,
     bearing_mrad,
@@ -52,7 +54,7 @@ class SectorNavEnv(gym.Env):
       computed from the simulated range readings (fan of rays from the rim,
       too close / too far status) exactly as the robot computes it from its
       CAN frames.
-    * Reward per period (`SectorReward`): `progress` x the decrease of the
+    * Reward per period (`SectorReward`, default: the `TrainConfig` defaults): `progress` x the decrease of the
       remaining path estimate in cells (guided: distance to the current
       waypoint + the waypoint path after it; direct: octile distance field of
       the goal, continuous between cell centres), minus `step_cost`, minus
@@ -82,7 +84,7 @@ class SectorNavEnv(gym.Env):
                  max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM) -> None:
         self.gridmap = load_map(gridmap) if isinstance(gridmap, str) else gridmap
         self.encoder = encoder or SectorEncoder()
-        self.reward = reward or SectorReward()
+        self.reward = reward or SectorReward.from_config(TrainConfig())
         self._rw = self.reward.array()
         self.guidance = guidance
         self._guided = check_guidance(guidance)

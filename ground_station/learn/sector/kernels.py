@@ -16,13 +16,15 @@ bearing is to the current waypoint and the waypoint advances inside
 GOAL_TOLERANCE_MM, exactly as the robot runs a mission; without it the
 bearing is to the goal (pure reactive).
 
-Reward of one control period (parameters `rw`):
-  rw[0] * (progress in cells along the guide potential) - rw[1] (time cost)
-  - rw[2] extra if the action is `reverse`;
-  on reaching the goal + rw[3]; on a collision -rw[4] (and nothing else).
+Reward of one control period (weights `rw` = `SectorReward.array()`, slots
+`RW_*` of `ground_station.learn.sector.reward`):
+  progress x (progress in cells along the guide potential) - step_cost
+  - reverse_cost extra if the action is `reverse`
+  + align x (turn of the target's bearing toward straight ahead, per pi rad);
+  on reaching the goal + goal; on a collision -collision (and nothing else).
 The guide potential is the remaining waypoint path (distance to the current
 waypoint + the path after it) when guided, else the continuous octile
-potential of the goal (`sector_twin.potential`).
+potential of the goal (`ground_station.learn.sector.twin.potential`).
 """
 
 from __future__ import annotations
@@ -34,6 +36,14 @@ import numpy as np
 
 from firmware_py import robot_spec
 from ground_station.learn.jit import greedy, rand01, randint
+from ground_station.learn.sector.reward import (
+    RW_ALIGN,
+    RW_COLLISION,
+    RW_GOAL,
+    RW_PROGRESS,
+    RW_REVERSE_COST,
+    RW_STEP_COST,
+)
 from ground_station.learn.sector.twin import (
     ACTION_V_MM_S,
     GOAL_TOL_MM,
@@ -180,7 +190,7 @@ def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, whic
     b0 = abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))
     x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
     if hit:
-        return x, y, th, phi, -rw[4], -1, True, False, driven, k
+        return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, driven, k
     tol2 = GOAL_TOL_MM * GOAL_TOL_MM
     success = False
     while (x - wps[k, 0]) * (x - wps[k, 0]) + (y - wps[k, 1]) * (y - wps[k, 1]) <= tol2:
@@ -189,13 +199,13 @@ def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, whic
             break
         k += 1
     phi2 = guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided)
-    r = rw[0] * (phi - phi2) / c - rw[1]
+    r = rw[RW_PROGRESS] * (phi - phi2) / c - rw[RW_STEP_COST]
     if a == REVERSE:
-        r -= rw[2]
-    if rw[5] != 0.0 and not success:  # heading shaping: turning toward the target pays
-        r += rw[5] * (b0 - abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))) / 3141.5927
+        r -= rw[RW_REVERSE_COST]
+    if rw[RW_ALIGN] != 0.0 and not success:  # heading shaping: turning toward the target pays
+        r += rw[RW_ALIGN] * (b0 - abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))) / 3141.5927
     if success:
-        return x, y, th, phi2, r + rw[3], -1, False, True, driven, k
+        return x, y, th, phi2, r + rw[RW_GOAL], -1, False, True, driven, k
     sense(occ, h, w, c, x, y, th, which, ranges, status)
     s2 = encode_fast(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]), ranges, status, sectors, sensors, edges)
     return x, y, th, phi2, r, s2, False, False, driven, k
