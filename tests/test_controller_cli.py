@@ -23,7 +23,7 @@ def test_help_lists_the_options(capsys):
     (["--can", "virtual:x", "--goal", "1,2,3"], "--goal '1,2,3': expected 2 values"),
     (["--can", "virtual:x", "--goal-cell", "1,2"], "--goal-cell needs --map-height"),
     (["--can", "virtual:x", "--start", "a,b"], "--start 'a,b': expected numbers"),
-    (["--can", "virtual:x", "--rate", "0"], "--rate 0: expected 1..1000 Hz"),
+    (["--can", "virtual:x", "--rate", "0"], "--rate 0: expected 1..100 Hz"),
 ])
 def test_bad_input_is_one_line_and_exit_2(capsys, argv, needle):
     assert cli.main(argv) == 2
