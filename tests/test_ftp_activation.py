@@ -32,7 +32,8 @@ class FtpClient:
 
 def policy_bytes(policy_id, scale=0.5):
     base = sector_seek_policy(policy_id=1)
-    return dump_policy(base.encoder, base.table.tolist(), "int8", scale, policy_id=policy_id)
+    return dump_policy(base.encoder, base.table.tolist(), "int8", scale, policy_id=policy_id,
+                       map_geometry=base.map_geometry)
 
 
 def test_refused_while_driving_and_when_corrupt_then_activated_with_last_good(tmp_path):

@@ -12,7 +12,7 @@ from ctrl_support import sector_seek_policy
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
-from firmware_py.policy import dump_policy, load_policy
+from firmware_py.policy import MapGeometry, dump_policy, load_policy
 from ground_station.bench.hil import cut_sensors_after, run_episode
 from ground_station.maps import load_map
 
@@ -29,7 +29,7 @@ def centre_m(col, row):
 def forward_only_policy():
     enc = SectorEncoder()
     vals = array("b", [100, 0, 0, 0] * enc.n_states)
-    return load_policy(dump_policy(enc, vals, "int8", 0.01, policy_id=7))
+    return load_policy(dump_policy(enc, vals, "int8", 0.01, policy_id=7, map_geometry=MapGeometry(500, 10, 10)))
 
 
 @pytest.mark.parametrize("target", ["A", "D"])
