@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py import robot_spec
+from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import HEADER, HEADER_V1, MapGeometry, load_policy
 from ground_station.cli import main
 from ground_station.learn.export import policy_bytes, quantise

@@ -20,7 +20,15 @@ import zlib
 import pytest
 
 from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.policy import CRC, HEADER, MAX_FILE_BYTES, MapGeometry, PolicyError, dump_policy, load_policy
+from firmware_py.policy import (
+    CRC,
+    HEADER,
+    MAX_FILE_BYTES,
+    MapGeometry,
+    PolicyError,
+    dump_policy,
+    load_policy,
+)
 
 N_REJECTED = 10_000
 
