@@ -21,6 +21,7 @@ import logging
 import resource
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
@@ -31,6 +32,9 @@ from firmware_py.control.node import RobotNode
 from firmware_py.mavlink.extension import MavlinkExtension
 from firmware_py.plugins import EXIT_FAULT, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, Extension, UsageError
 from firmware_py.vehicle import VehicleConfig
+
+if TYPE_CHECKING:
+    from firmware_py.policy import Policy
 
 EXTENSIONS: list[Extension] = [MavlinkExtension()]
 
@@ -87,23 +91,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _policy_cell_mm(args: argparse.Namespace, policy) -> int:
+def _policy_cell_mm(args: argparse.Namespace, policy: Policy | None) -> int:
     """The robot's map cell size: --cell-size, else a cell policy's, else the default."""
     if args.cell_size:
         return round(args.cell_size * 1000)
     return policy.cell_mm if policy is not None and policy.kind == "cell" else robot_spec.DEFAULT_CELL_SIZE_MM
 
 
-def _fits(args: argparse.Namespace, policy) -> str:
+def _fits(args: argparse.Namespace, policy: Policy) -> str:
     """Why `policy` does not fit this command line's robot ('' if it does)."""
     from firmware_py.policy import config_mismatch
     why = config_mismatch(policy, robot_spec.control_period_us(args.rate), _policy_cell_mm(args, policy))
-    if not why and args.map_height and policy.kind == "cell" and policy.encoder.height != args.map_height:
-        why = f"policy grid height {policy.encoder.height} != robot --map-height {args.map_height}"
+    height = policy.map_geometry.height
+    if not why and args.map_height and policy.kind == "cell" and height != args.map_height:
+        why = f"policy grid height {height} != robot --map-height {args.map_height}"
     return why
 
 
-def _load_policy(args: argparse.Namespace):
+def _load_policy(args: argparse.Namespace) -> Policy | None:
     """The --policy file, else the first boot candidate in --storage that loads
     and fits the robot's control period and map (policy.config_mismatch)."""
     from firmware_py.policy import PolicyError, load_policy
