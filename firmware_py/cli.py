@@ -65,8 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     clk.add_argument("--sim-clock", action="store_true",
                      help="paced HIL: run on sim time from SimTick frames, do not answer ticks")
     p.add_argument("--rate", type=int, default=robot_spec.CONTROL_RATE_HZ, metavar="HZ",
-                   help=f"control rate on the wall or sim clock (default {robot_spec.CONTROL_RATE_HZ}; "
-                        "in lockstep the sim's tick sets it)")
+                   help=f"control rate on the wall or sim clock ({robot_spec.CONTROL_RATE_MIN_HZ}.."
+                        f"{robot_spec.CONTROL_RATE_MAX_HZ}, default {robot_spec.CONTROL_RATE_HZ}; in lockstep the "
+                        "sim's tick sets the pace); a policy must have been trained for this period")
     p.add_argument("--start", metavar="X,Y[,DEG]", help="start pose in metres (world frame) and heading in degrees CCW from east")
     p.add_argument("--start-cell", metavar="COL,ROW[,DEG]", help="start pose at a map cell's centre")
     p.add_argument("--goal", action="append", default=[], metavar="X,Y",
@@ -92,21 +93,49 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _policy_cell_mm(args: argparse.Namespace, policy: Policy | None) -> int:
+    """The robot's map cell size: --cell-size, else a cell policy's, else the default."""
+    if args.cell_size:
+        return round(float(args.cell_size) * 1000)
+    return policy.cell_mm if policy is not None and policy.kind == "cell" else robot_spec.DEFAULT_CELL_SIZE_MM
+
+
+def _fits(args: argparse.Namespace, policy: Policy) -> str:
+    """Why `policy` does not fit this command line's robot ('' if it does)."""
+    from firmware_py.policy import config_mismatch
+    why = config_mismatch(policy, robot_spec.control_period_us(args.rate), _policy_cell_mm(args, policy))
+    height = policy.map_geometry.height
+    if not why and args.map_height and policy.kind == "cell" and height != args.map_height:
+        why = f"policy grid height {height} != robot --map-height {args.map_height}"
+    return why
+
+
 def _load_policy(args: argparse.Namespace) -> Policy | None:
+    """The --policy file, else the first boot candidate in --storage that loads
+    and fits the robot's control period and map (policy.config_mismatch)."""
     from firmware_py.policy import PolicyError, load_policy
     from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
     if args.policy:
         try:
-            return load_policy(resolve_policy_spec(args.policy))
+            policy = load_policy(resolve_policy_spec(args.policy))
         except (PolicyError, ShippedPolicyError) as exc:
             raise UsageError(f"policy {args.policy}: {exc}") from None
+        why = _fits(args, policy)
+        if why:
+            raise UsageError(f"policy {args.policy}: {why}")
+        return policy
     if args.storage:
         from firmware_py.storage import Storage, boot_policy_candidates
         for path in boot_policy_candidates(Storage(args.storage)):
             try:
-                return load_policy(path)
+                policy = load_policy(path)
             except PolicyError as exc:
                 logging.getLogger("qnav.robot").warning("boot policy %s rejected: %s", path, exc)
+                continue
+            why = _fits(args, policy)
+            if not why:
+                return policy
+            logging.getLogger("qnav.robot").warning("boot policy %s rejected: %s", path, why)
     return None
 
 
@@ -124,9 +153,11 @@ def _rss_mb() -> float:
 def run(args: argparse.Namespace) -> int:
     from firmware_py.canbus import CanSpecError, open_bus
 
+    why = robot_spec.control_rate_error(args.rate)
+    if why:
+        raise UsageError(f"--rate {args.rate}: {why}")
     policy = _load_policy(args)
-    cell_mm = round(args.cell_size * 1000) if args.cell_size else (
-        policy.cell_mm if policy is not None and policy.kind == "cell" else robot_spec.DEFAULT_CELL_SIZE_MM)
+    cell_mm = _policy_cell_mm(args, policy)
     height = args.map_height or (policy.encoder.height if policy is not None and isinstance(policy.encoder, CellEncoder)
                                  else None)
 
@@ -147,8 +178,6 @@ def run(args: argparse.Namespace) -> int:
         start = cell_point(args.start_cell, "--start-cell", True)
     goals = [(round(x * 1000), round(y * 1000)) for x, y in (_floats(g, 2, 2, "--goal") for g in args.goal)]
     goals += [cell_point(g, "--goal-cell", False)[:2] for g in args.goal_cell]
-    if not 1 <= args.rate <= 1000:
-        raise UsageError(f"--rate {args.rate}: expected 1..1000 Hz")
 
     cfg = VehicleConfig(control_rate_hz=args.rate, sensor_timeout_ms=args.sensor_timeout_ms,
                         motor_timeout_ms=args.motor_timeout_ms, cell_size_mm=cell_mm)
@@ -216,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
         "wall_s": wall, "cpu_s": cpu, "cpu_percent": 100 * cpu / wall if wall > 0 else 0.0,
         "rss_mb": _rss_mb(), "ticks": node.ticks, "sim_ticks": node.sim_ticks,
         "overruns": node.overruns, "can_errors": node.can_errors, "send_errors": node.send_errors,
-        "period_us": 1_000_000 // cfg.control_rate_hz, "rt_priority": args.rt_priority,
+        "period_us": cfg.control_period_us, "rt_priority": args.rt_priority,
         "rt_active": node.rt_active,
         **node.latency_stats(),
         "transitions": [[t.t_us, t.src.name, t.dst.name, t.cause] for t in ctrl.transitions],

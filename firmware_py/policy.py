@@ -12,15 +12,23 @@ file size and the robot's configuration before it allocates anything, checks
 the CRC32, and either returns a complete `Policy` or raises `PolicyError`
 with a one-line reason -- never a partial table.
 
-Layout (little-endian), v1.0:
+Layout (little-endian), v2.0:
 
-    fixed header      48 bytes (HEADER, see below); header_size may be larger
-                      in a newer minor version: the loader skips the extra
+    fixed header      58 bytes (HEADER, see below): v1.0's 48 bytes, then the
+                      control period (us) and the map geometry (cell mm,
+                      width, height) the policy was trained for; header_size
+                      may be larger in a newer minor version: the loader
+                      skips the extra
     encoder section   enc_len bytes (kind-specific, see _unpack_encoder)
     metadata          meta_len bytes of UTF-8 JSON object
     table             n_states * n_actions * itemsize, row-major by state
     state scales      n_states float32, only with FLAG_PER_STATE_SCALES
     crc32             u32, zlib.crc32 of every byte before it
+
+Version 1.x files (no control period, no geometry) are refused with the
+command that migrates them (`qnav policy upgrade`, built on `upgrade_policy`).
+`config_mismatch` is the one rule for whether a policy fits a robot's
+configuration.
 """
 
 from __future__ import annotations
@@ -35,20 +43,23 @@ import zlib
 from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
 
 # --- format constants ---------------------------------------------------------
 MAGIC = b"QTAB"
-VERSION_MAJOR = 1
+VERSION_MAJOR = 2
 VERSION_MINOR = 0
 
 # magic, major, minor, header_size, flags, kind, dtype, n_actions, n_states,
-# policy_id, created (unix s), scale, enc_len, meta_len
-HEADER = struct.Struct("<4sBBHIBBHIIqdII")
-assert HEADER.size == 48
+# policy_id, created (unix s), scale, enc_len, meta_len,
+# control_period_us, map_cell_mm, map_width, map_height
+HEADER = struct.Struct("<4sBBHIBBHIIqdIIIHHH")
+assert HEADER.size == 58
+HEADER_V1 = struct.Struct("<4sBBHIBBHIIqdII")  # what a 1.x file starts with; read only by upgrade_policy
+assert HEADER_V1.size == 48
 CRC = struct.Struct("<I")
 
 FLAG_PER_STATE_SCALES = 0x1
@@ -80,6 +91,17 @@ class PolicyError(Exception):
     """A policy file is unusable; the message is a one-line reason."""
 
 
+class MapGeometry(NamedTuple):
+    """The map a policy was trained for: cell size (mm) and grid size (cells)."""
+
+    cell_mm: int
+    width: int
+    height: int
+
+    def __str__(self) -> str:
+        return f"{self.width}x{self.height} cells of {self.cell_mm} mm"
+
+
 @dataclass(frozen=True)
 class Policy:
     """A validated int Q-table with everything needed to use it on the robot."""
@@ -99,6 +121,8 @@ class Policy:
     cell_mm: int = 0  # cell policies: map cell size
     version: tuple[int, int] = (VERSION_MAJOR, VERSION_MINOR)
     size: int = 0  # file size in bytes
+    control_period_us: int = 0  # the period the actions were trained for (load_policy sets it)
+    map_geometry: MapGeometry = MapGeometry(0, 0, 0)  # the training map (load_policy sets it)
 
     @property
     def kind(self) -> str:
@@ -136,6 +160,8 @@ class Policy:
             "created": self.created,
             "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(min(self.created, 253402300799))),
             "bytes": self.size,
+            "control_period_us": self.control_period_us,
+            "map_geometry": self.map_geometry._asdict(),
             "metadata": self.metadata,
         }
         if self.kind == "cell":
@@ -242,12 +268,16 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         raise PolicyError(f"file is {n} bytes, more than the {MAX_FILE_BYTES} limit")
     if n < MIN_FILE_BYTES:
         raise PolicyError(f"file is {n} bytes, shorter than the {MIN_FILE_BYTES}-byte minimum")
-    (magic, major, minor, header_size, flags, kind, dtype, n_actions, n_states,
-     policy_id, created, scale, enc_len, meta_len) = HEADER.unpack_from(data, 0)
+    magic, major, minor = data[:4], data[4], data[5]
     if magic != MAGIC:
         raise PolicyError(f"not a .qtab file (magic {magic!r})")
+    if major == 1:
+        raise PolicyError(f"format version 1.{minor} records no control period or map geometry; migrate it with "
+                          "`qnav policy upgrade FILE --control-period-us US [--map NAME]`")
     if major != VERSION_MAJOR:
         raise PolicyError(f"format version {major}.{minor} unsupported (this loader reads {VERSION_MAJOR}.x)")
+    (_, _, _, header_size, flags, kind, dtype, n_actions, n_states, policy_id, created, scale, enc_len, meta_len,
+     period_us, map_cell_mm, map_width, map_height) = HEADER.unpack_from(data, 0)
     # Check the CRC before trusting any other field: most corruption stops here.
     (stored_crc,) = CRC.unpack_from(data, n - CRC.size)
     crc = zlib.crc32(memoryview(data)[:n - CRC.size])
@@ -257,7 +287,7 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
             raise PolicyError(f"file is {n} bytes but its header declares {declared} (truncated or extended)")
         raise PolicyError(f"CRC32 mismatch (file says 0x{stored_crc:08x}, contents give 0x{crc:08x})")
     if header_size < HEADER.size:
-        raise PolicyError(f"header_size {header_size} below the {HEADER.size}-byte v1 header")
+        raise PolicyError(f"header_size {header_size} below the {HEADER.size}-byte v{VERSION_MAJOR} header")
     if flags & ~KNOWN_FLAGS:
         raise PolicyError(f"unknown flag bits 0x{flags & ~KNOWN_FLAGS:x}")
     if kind not in KIND_NAMES:
@@ -276,6 +306,11 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         raise PolicyError(f"scale {scale!r} is not a positive finite number")
     if created < 0:
         raise PolicyError(f"creation time {created} is negative")
+    if period_us < 1:
+        raise PolicyError("control period is 0 us")
+    geometry = MapGeometry(map_cell_mm, map_width, map_height)
+    if min(geometry) < 1:
+        raise PolicyError(f"map geometry {geometry} has a zero field")
     table_bytes = n_states * n_actions * itemsize
     scales_bytes = 4 * n_states if flags & FLAG_PER_STATE_SCALES else 0
     expect = _declared_size(header_size, flags, dtype, n_actions, n_states, enc_len, meta_len)
@@ -286,6 +321,9 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
     enc, goals, cell_mm = _unpack_encoder(kind, data[off:off + enc_len], n_actions, expect_sensors)
     if enc.n_states != n_states:
         raise PolicyError(f"encoder has {enc.n_states} states, table has {n_states}")
+    if isinstance(enc, CellEncoder) and geometry != (cell_mm, enc.width, enc.height):
+        raise PolicyError(f"header map geometry {geometry} differs from the cell encoder's "
+                          f"{MapGeometry(cell_mm, enc.width, enc.height)}")
     off += enc_len
 
     try:
@@ -314,7 +352,26 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
     return Policy(encoder=enc, dtype=dname, n_states=n_states, n_actions=n_actions, scale=scale,
                   policy_id=policy_id, crc=stored_crc, created=created, metadata=metadata,
                   table=memoryview(table).toreadonly(), state_scales=state_scales, goals=goals,
-                  cell_mm=cell_mm, version=(major, minor), size=n)
+                  cell_mm=cell_mm, version=(major, minor), size=n, control_period_us=period_us,
+                  map_geometry=geometry)
+
+
+def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int) -> str:
+    """Why `policy` must not run on a robot with this control period and map
+    cell size ('' if it may), naming both values.
+
+    Every policy must match the control period: an action is held for one
+    period, so another period changes what the trained action means. A cell
+    policy's grid is the map the robot drives on, so its cell size must equal
+    the robot's (CELL_SIZE_MM / `--cell-size`). A sector policy observes
+    ranges and bearings in mm and mrad, not cells: the training map's
+    geometry it records is for the ground station and is not checked.
+    """
+    if policy.control_period_us != control_period_us:
+        return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
+    if policy.kind == "cell" and policy.cell_mm != cell_size_mm:
+        return f"policy cell size {policy.cell_mm} mm != robot {cell_size_mm} mm"
+    return ""
 
 
 # --- writing ------------------------------------------------------------------------
@@ -343,11 +400,17 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals: Sequence[tuple[in
 
 def dump_policy(encoder: CellEncoder | SectorEncoder, table: array[int], dtype: str, scale: float, *,
                 state_scales: array[float] | None = None, goals: Sequence[tuple[int, int]] = (),
-                cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict[str, Any] | None = None, policy_id: int | None = None,
-                created: int | None = None) -> bytes:
+                cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict[str, Any] | None = None,
+                policy_id: int | None = None, created: int | None = None,
+                control_period_us: int = robot_spec.CONTROL_PERIOD_US,
+                map_geometry: MapGeometry | None = None) -> bytes:
     """Serialise an int table (flat `array`, row-major by state) to `.qtab` bytes.
 
     `policy_id` defaults to `content_id(...)`; `created` to now (unix s).
+    `control_period_us` is the period the table was trained for (the twin and
+    the sim run at robot_spec.CONTROL_PERIOD_US). `map_geometry` is the
+    training map's; a cell policy's is its grid (derived when omitted, and
+    must agree when given), a sector policy must name it.
     Raises ValueError on inconsistent arguments.
     """
     code = DTYPE_CODES.get(dtype)
@@ -362,6 +425,9 @@ def dump_policy(encoder: CellEncoder | SectorEncoder, table: array[int], dtype: 
         raise ValueError(f"symmetric {dtype} values must be >= {-qmax}")
     if not (math.isfinite(scale) and scale > 0):
         raise ValueError("scale must be positive and finite")
+    if not 1 <= control_period_us <= 0xFFFFFFFF:
+        raise ValueError(f"control period {control_period_us} us outside 1..{0xFFFFFFFF}")
+    geometry = _geometry_for(encoder, cell_mm, map_geometry)
     flags = 0
     sbytes = b""
     if state_scales is not None:
@@ -382,6 +448,68 @@ def dump_policy(encoder: CellEncoder | SectorEncoder, table: array[int], dtype: 
     pid = content_id(enc, tbytes, sbytes) if policy_id is None else policy_id
     when = int(time.time()) if created is None else int(created)
     head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, HEADER.size, flags, KIND_CODES[encoder.kind],
-                       code, n_actions, n_states, pid & 0xFFFFFFFF, when, float(scale), len(enc), len(meta))
+                       code, n_actions, n_states, pid & 0xFFFFFFFF, when, float(scale), len(enc), len(meta),
+                       control_period_us, *geometry)
     body = head + enc + meta + tbytes + sbytes
     return body + CRC.pack(zlib.crc32(body))
+
+
+def _geometry_for(encoder: CellEncoder | SectorEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
+    """The header's map geometry: a cell policy's grid, a sector policy's training map."""
+    if isinstance(encoder, CellEncoder):
+        grid = MapGeometry(cell_mm, encoder.width, encoder.height)
+        if given is not None and MapGeometry(*given) != grid:
+            raise ValueError(f"map geometry {MapGeometry(*given)} differs from the cell policy's grid {grid}")
+        return grid
+    if given is None:
+        raise ValueError("a sector policy needs the training map's geometry (map_geometry)")
+    geometry = MapGeometry(*(int(v) for v in given))
+    if not all(1 <= v <= 0xFFFF for v in geometry):
+        raise ValueError(f"map geometry {geometry}: every field must be 1..65535")
+    return geometry
+
+
+def upgrade_policy(data: bytes, control_period_us: int, map_geometry: MapGeometry | None = None) -> bytes:
+    """A version 1.x file rewritten as the current version with the control
+    period and map geometry it was trained for.
+
+    Everything after the old header (encoder section, metadata, table, state
+    scales) is copied byte for byte, so the policy id, creation time and
+    table stay as they were; only the header grows and the CRC is new. A
+    cell policy's geometry comes from its grid (`map_geometry`, if given,
+    must agree); a sector policy needs `map_geometry`. The result is checked
+    by `load_policy`. Raises PolicyError with a one-line reason.
+    """
+    n = len(data)
+    if n < HEADER_V1.size + CRC.size or data[:4] != MAGIC:
+        raise PolicyError("not a .qtab file")
+    (_, major, minor, header_size, flags, kind, dtype, n_actions, n_states, policy_id, created, scale,
+     enc_len, meta_len) = HEADER_V1.unpack_from(data, 0)
+    if major != 1:
+        raise PolicyError(f"format version {major}.{minor} is not 1.x: nothing to upgrade")
+    (stored_crc,) = CRC.unpack_from(data, n - CRC.size)
+    if zlib.crc32(memoryview(data)[:n - CRC.size]) != stored_crc:
+        raise PolicyError("CRC32 mismatch: the file is damaged, re-export it instead")
+    if header_size < HEADER_V1.size or header_size + enc_len > n - CRC.size or kind not in KIND_NAMES:
+        raise PolicyError("version 1 header fields are inconsistent with the file")
+    geometry: MapGeometry | None = map_geometry
+    if kind == KIND_CELL:
+        if enc_len < _CELL_HEAD.size:
+            raise PolicyError("cell encoder section too short")
+        width, height, _, cell_mm = _CELL_HEAD.unpack_from(data, header_size)
+        grid = MapGeometry(cell_mm, width, height)
+        if map_geometry is not None and MapGeometry(*map_geometry) != grid:
+            raise PolicyError(f"map geometry {MapGeometry(*map_geometry)} differs from the cell policy's grid {grid}")
+        geometry = grid
+    elif geometry is None:
+        raise PolicyError("a sector policy records its training map's geometry: name the map")
+    if not 1 <= control_period_us <= 0xFFFFFFFF:
+        raise PolicyError(f"control period {control_period_us} us outside 1..{0xFFFFFFFF}")
+    if not all(1 <= v <= 0xFFFF for v in geometry):
+        raise PolicyError(f"map geometry {geometry}: every field must be 1..65535")
+    head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, HEADER.size, flags, kind, dtype, n_actions, n_states,
+                       policy_id, created, scale, enc_len, meta_len, control_period_us, *geometry)
+    body = head + data[header_size:n - CRC.size]
+    out = body + CRC.pack(zlib.crc32(body))
+    load_policy(out)  # the robot's loader judges the result
+    return out

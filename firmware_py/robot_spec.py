@@ -25,8 +25,29 @@ ENCODER_TICKS_PER_REV = 2048
 MAX_WHEEL_SPEED_MM_S = 600  # hard limit, commands are clamped to it
 
 # --- timing -----------------------------------------------------------------
-CONTROL_RATE_HZ = 20
-CONTROL_PERIOD_US = 1_000_000 // CONTROL_RATE_HZ
+# The control rate is the one owner of the control period: its default and
+# allowed range are defined here, and `VehicleConfig.control_rate_hz`, the
+# CTRL_RATE_HZ parameter and `qnav-robot --rate` all take them from here. A
+# policy file records the period it was trained for and the robot refuses a
+# policy whose period differs from `control_period_us(its rate)`.
+CONTROL_RATE_HZ = 20  # default
+CONTROL_RATE_MIN_HZ = 1
+CONTROL_RATE_MAX_HZ = 100
+
+
+def control_period_us(rate_hz: int) -> int:
+    """The control period (us) at `rate_hz`; the one place it is computed."""
+    return 1_000_000 // max(1, rate_hz)
+
+
+def control_rate_error(rate_hz: int) -> str:
+    """Why `rate_hz` is not an allowed control rate ('' if it is)."""
+    if not CONTROL_RATE_MIN_HZ <= rate_hz <= CONTROL_RATE_MAX_HZ:
+        return f"expected {CONTROL_RATE_MIN_HZ}..{CONTROL_RATE_MAX_HZ} Hz"
+    return ""
+
+
+CONTROL_PERIOD_US = control_period_us(CONTROL_RATE_HZ)  # the default; training and the sim run at it
 PHYSICS_DT_US = 5_000  # the control period is an integer multiple of it
 assert CONTROL_PERIOD_US % PHYSICS_DT_US == 0
 

@@ -324,7 +324,8 @@ def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -
     run = export.load_run(train_dir)
     qt = export.quantise(run.q, "int8")
     data = export.policy_bytes(qt, run.encoder, goals=run.goals, cell_mm=run.cell_mm,
-                               metadata=export.file_metadata(run, qt), created=export.created_time(run.meta))
+                               metadata=export.file_metadata(run, qt), created=export.created_time(run.meta),
+                               control_period_us=export.control_period_us(run), map_geometry=export.map_geometry(run))
     try:
         load_policy(data)  # the robot's loader judges the file before it flies
     except PolicyError as exc:

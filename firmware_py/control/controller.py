@@ -34,7 +34,7 @@ from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.policy import Policy, PolicyError, load_policy
+from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
 from firmware_py.vehicle import (
     CtrlState,
     FailsafeAction,
@@ -412,10 +412,33 @@ class Controller:
                 self.goal = None
                 self._transition(CtrlState.HOLD, "GCS failsafe", SEV_CRITICAL)
 
+    def check_config(self, cfg: VehicleConfig) -> tuple[bool, str]:
+        """Refuse a config the active policy does not fit (policy.config_mismatch)."""
+        with self._lock:
+            if self.policy is None:
+                return True, ""
+            why = config_mismatch(self.policy, cfg.control_period_us, cfg.cell_size_mm)
+            return (False, why) if why else (True, "")
+
     def apply_config(self, cfg: VehicleConfig) -> None:
+        """Take a new config. Parameter changes were checked (check_config); a
+        config that does not fit the active policy arrives only from stored
+        parameters at boot or reboot, and then the policy is unloaded (with
+        the reason as a warning) rather than run at a period it was not
+        trained for: the robot stays in STANDBY until a matching one is
+        activated."""
         with self._lock:
             self.cfg = replace(cfg)
             self.watchdog.timeout_us = max(1, cfg.motor_timeout_ms) * 1000
+            ok, why = self.check_config(cfg)
+            if not ok and self.policy is not None:
+                log.warning("t=%d us policy 0x%08x unloaded: %s", self._now, self.policy.policy_id, why)
+                self._event("refusal", why, SEV_WARNING)  # both values fit one STATUSTEXT
+                if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                    self.goal = None
+                    self._stop()
+                    self._transition(CtrlState.HOLD, "policy unloaded", SEV_WARNING)
+                self.policy = None
 
     def activate_policy(self, path: str) -> tuple[bool, str]:
         """Validate a policy file with the loader and swap it in between two
@@ -434,6 +457,9 @@ class Controller:
         with self._lock:
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
+            why = config_mismatch(new, self.cfg.control_period_us, self.cfg.cell_size_mm)
+            if why:
+                return False, why
             for i, (x, y) in enumerate(self.mission):
                 gi, why = self._goal_index_for(x, y, new)
                 if gi < 0:
@@ -541,7 +567,7 @@ class Controller:
         """The driver stopped the wheels for want of commands although we are
         DRIVING (commands lost on the way). Its status may still show the
         HOLD-time watchdog stop for a tick or two after DRIVING starts."""
-        grace_us = 2 * 1_000_000 // max(1, self.cfg.control_rate_hz)
+        grace_us = 2 * self.cfg.control_period_us
         return (self.state == CtrlState.DRIVING and inp.driver_state == MOTOR_WATCHDOG_STOP
                 and inp.driver_us is not None and inp.driver_us - self._driving_since_us > grace_us)
 

@@ -270,7 +270,7 @@ class RobotNode:
             log.warning("CAN send failed: %s", exc)
 
     def _period_us(self) -> int:
-        return 1_000_000 // max(1, self.controller.cfg.control_rate_hz)
+        return self.controller.cfg.control_period_us
 
     def _paced_tick(self, rx_ns: int) -> None:
         """Paced HIL: a SimTick reached the next control deadline. Stepping

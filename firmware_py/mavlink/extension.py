@@ -4,9 +4,11 @@ Owns the `--mavlink`/`--signing-key` options of `qnav-robot` and attaching
 the node to a running `RobotNode`: the node polls once per control tick from
 the ticking thread (`node.after_tick`), so MAVLink timeouts resolve within
 one control period of robot time and every vehicle call lands between two
-ticks. The command line's controller settings (`--rate`, timeouts, the
-policy's cell size) win over stored parameters for this run and are written
-into the parameter table, so the ground station sees what is in effect.
+ticks. The command line's controller settings win over stored parameters
+for this run and are written into the parameter table before the vehicle is
+configured, so the ground station sees what is in effect: the control rate
+and the cell size always (the command line checked its policy against
+them), other settings where they differ from the defaults.
 A reboot command reloads the params and the active policy from `--storage`.
 """
 
@@ -22,6 +24,9 @@ from firmware_py.plugins import ControlNode, UsageError
 from firmware_py.vehicle import VehicleConfig
 
 log = logging.getLogger("qnav.mavlink")
+
+# VehicleConfig fields the command line's policy was checked against (firmware_py.policy.config_mismatch)
+ALWAYS_FROM_COMMAND_LINE = frozenset({"control_rate_hz", "cell_size_mm"})
 
 
 class MavlinkExtension:
@@ -41,6 +46,14 @@ class MavlinkExtension:
         ctrl = node.controller
         clock = node.clock
         cli_cfg = getattr(ctrl, "cfg", None)
+        overrides: dict[str, int] = {}
+        if cli_cfg is not None:
+            defaults = VehicleConfig()
+            by_field = {p.field: p.name for p in PARAMS if p.field}
+            for f in fields(VehicleConfig):
+                value = getattr(cli_cfg, f.name)
+                if value != getattr(defaults, f.name) or f.name in ALWAYS_FROM_COMMAND_LINE:
+                    overrides[by_field[f.name]] = value
 
         def reboot_hook() -> tuple[bool, str]:
             if not args.storage:
@@ -57,19 +70,9 @@ class MavlinkExtension:
 
         try:
             shell = open_node(ctrl, args.storage, args.mavlink, clock.now_us(), signing_key=args.signing_key,
-                              baud=args.mavlink_baud, reboot_hook=reboot_hook)
+                              baud=args.mavlink_baud, reboot_hook=reboot_hook, overrides=overrides)
         except ValueError as exc:  # unreadable key file
             raise UsageError(str(exc)) from None
-        if cli_cfg is not None:
-            defaults = VehicleConfig()
-            by_field = {p.field: p.name for p in PARAMS if p.field}
-            for f in fields(VehicleConfig):
-                value = getattr(cli_cfg, f.name)
-                if value != getattr(defaults, f.name):
-                    ok, why = shell.node.params.set(by_field[f.name], value)
-                    if not ok:
-                        log.warning("command line %s=%s not representable as a parameter: %s", f.name, value, why)
-            ctrl.apply_config(shell.node.params.vehicle_config())
 
         closed: list[bool] = []
 

@@ -93,10 +93,17 @@ class MavNode:
         self._now_us = 0
 
     # --- boot ---------------------------------------------------------------------
-    def boot(self, now_us: int, key_file: str | os.PathLike[str] | None = None) -> None:
-        """Load params and signing state from storage and configure the vehicle.
-        Warnings (corrupt files) are sent as STATUSTEXT on the first tick."""
+    def boot(self, now_us: int, key_file: str | os.PathLike[str] | None = None,
+             overrides: dict[str, int] | None = None) -> None:
+        """Load params and signing state from storage, set `overrides` (the
+        command line's settings, which win for this run and are stored), then
+        configure the vehicle once. Warnings (corrupt files, an override out
+        of range) are sent as STATUSTEXT on the first tick."""
         warnings = self.params.load() + self.signing.load(now_us, key_file)
+        for name, value in (overrides or {}).items():
+            ok, why = self.params.set(name, value)
+            if not ok:
+                warnings.append(f"command line value not representable as a parameter: {why}")
         self._apply_params(reboot=True)
         for w in warnings:
             self._pending += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
@@ -209,7 +216,7 @@ class MavNode:
             return self.telemetry.statustext(f"unknown parameter {msg.param_id}", M.MAV_SEVERITY_WARNING)
         if kind == "PARAM_SET":
             name = msg.param_id
-            ok, reason = self.params.set(name, msg.param_value)
+            ok, reason = self.params.set(name, msg.param_value, check=self.vehicle.check_config)
             if name not in self.params:
                 return self.telemetry.statustext(reason, M.MAV_SEVERITY_WARNING)
             out = [] if ok else self.telemetry.statustext(f"param set refused: {reason}", M.MAV_SEVERITY_WARNING)
@@ -369,10 +376,11 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
 
 def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | None, url: str, now_us: int, *,
               signing_key: str | None = None, baud: int = 57600,
-              reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp: bool = True) -> MavShell:
+              reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp: bool = True,
+              overrides: dict[str, int] | None = None) -> MavShell:
     """Build, boot and connect the node: params and signing state from
-    `storage_dir`, and (with `ftp`) an FTP server on it whose policy
-    activation is the vehicle's `activate_policy`."""
+    `storage_dir` (then `overrides`, see MavNode.boot), and (with `ftp`) an
+    FTP server on it whose policy activation is the vehicle's `activate_policy`."""
     server = None
     if ftp and storage_dir is not None:
         from firmware_py.mavlink.ftp_server import FtpServer
@@ -380,5 +388,5 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
 
         server = FtpServer(Storage(storage_dir), activate=vehicle.activate_policy)
     node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server)
-    node.boot(now_us, signing_key)
+    node.boot(now_us, signing_key, overrides)
     return MavShell(node, url, baud=baud)

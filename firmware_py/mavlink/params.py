@@ -17,7 +17,8 @@ from __future__ import annotations
 import json
 import os
 import struct
-from dataclasses import dataclass, fields
+from collections.abc import Callable
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 from firmware_py import robot_spec
@@ -67,7 +68,8 @@ PARAMS: tuple[ParamDef, ...] = (
     ParamDef("FS_GCS_ENABLE", 1, 0, 1,
              "1: GCS failsafe armed once a GCS heartbeat has been seen; 0: off"),
     # --- controller (VehicleConfig) -----------------------------------------
-    ParamDef("CTRL_RATE_HZ", _CFG.control_rate_hz, 1, 100, "control loop rate", "control_rate_hz"),
+    ParamDef("CTRL_RATE_HZ", _CFG.control_rate_hz, robot_spec.CONTROL_RATE_MIN_HZ, robot_spec.CONTROL_RATE_MAX_HZ,
+             "control loop rate (the active policy's control period must match)", "control_rate_hz"),
     ParamDef("SENS_TIMEOUT_MS", _CFG.sensor_timeout_ms, 20, 5000,
              "sensor data older than this -> stop and FAULT", "sensor_timeout_ms"),
     ParamDef("MOT_TIMEOUT_MS", _CFG.motor_timeout_ms, 20, 2000,
@@ -140,9 +142,12 @@ class ParamStore:
     def get(self, name: str) -> int:
         return self._values[name]
 
-    def set(self, name: str, value: float) -> tuple[bool, str]:
+    def set(self, name: str, value: float,
+            check: Callable[[VehicleConfig], tuple[bool, str]] | None = None) -> tuple[bool, str]:
         """Set from a MAVLink PARAM_SET value. On refusal the stored value is
-        unchanged and the reason says why. Persists on success."""
+        unchanged and the reason says why. Persists on success. `check` (the
+        vehicle's `check_config`) judges the config a controller parameter
+        would make before anything is stored."""
         d = self._defs.get(name)
         if d is None:
             return False, f"unknown parameter {name}"
@@ -156,6 +161,10 @@ class ParamStore:
             return False, f"{name} must be an integer, got {value:g}"
         if not d.min <= ivalue <= d.max:
             return False, f"{name}={ivalue} out of range [{d.min}, {d.max}]"
+        if check is not None and d.field is not None and ivalue != self._values[name]:
+            ok, why = check(replace(self.vehicle_config(), **{d.field: ivalue}))
+            if not ok:
+                return False, f"{name}={ivalue}: {why}"
         if ivalue != self._values[name]:
             self._values[name] = ivalue
             self.save()

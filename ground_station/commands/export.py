@@ -78,7 +78,9 @@ def run(args: argparse.Namespace) -> int:
         qt = export.quantise(run_.q, args.dtype, per_state=args.per_state_scale)
         data = export.policy_bytes(qt, run_.encoder, goals=run_.goals, cell_mm=run_.cell_mm,
                                    metadata=export.file_metadata(run_, qt), policy_id=args.policy_id,
-                                   created=export.created_time(run_.meta))
+                                   created=export.created_time(run_.meta),
+                                   control_period_us=export.control_period_us(run_),
+                                   map_geometry=export.map_geometry(run_))
     except ValueError as exc:
         raise CliError(str(exc)) from None
     try:

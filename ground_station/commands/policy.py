@@ -1,14 +1,26 @@
 """`qnav policy inspect FILE...`: validate `.qtab` files and print their headers.
+`qnav policy upgrade OLD.qtab [--out NEW.qtab] --control-period-us US [--map NAME]`:
+migrate a version 1.x file to the current format.
 
-One line per file (a JSON object per line with `--json`: `file`, `valid`,
-`error` and the header fields). Exit status 0 only when every file is valid,
-2 otherwise. Validation is the robot's own loader (firmware_py.policy).
+inspect: one line per file (a JSON object per line with `--json`: `file`,
+`valid`, `error` and the header fields, among them `control_period_us` and
+`map_geometry`). Exit status 0 only when every file is valid, 2 otherwise.
+Validation is the robot's own loader (firmware_py.policy).
+
+upgrade: version 1.x files record neither the control period nor the map
+geometry they were trained for, and the robot refuses them. `upgrade` writes
+them into the header (atomically, over OLD unless --out is given) and copies
+everything else byte for byte, so the table, policy id and creation time are
+unchanged. A cell policy's geometry is its grid; a sector policy's is the
+training map's: --map, else the map named in the file's metadata. Every
+policy trained so far ran the twin at robot_spec.CONTROL_PERIOD_US (50000 us).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import struct
 
 from firmware_py import robot_spec
 
@@ -25,6 +37,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     ins.add_argument("--sensors", type=int, default=robot_spec.SENSOR_COUNT,
                      help="the robot's range-sensor count to validate against (default %(default)s)")
     ins.set_defaults(func=run)
+    up = inner.add_parser("upgrade", help="migrate a version 1.x file (records control period and map geometry)",
+                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    up.add_argument("file", metavar="OLD.qtab", help="version 1.x policy file")
+    up.add_argument("--out", metavar="NEW.qtab", help="where to write (default: replace OLD.qtab atomically)")
+    up.add_argument("--control-period-us", type=int, required=True, metavar="US",
+                    help=f"control period the policy was trained for (the twin's: {robot_spec.CONTROL_PERIOD_US})")
+    up.add_argument("--map", metavar="NAME|PATH",
+                    help="training map (sector policies; default: the map in the file's metadata)")
+    up.set_defaults(func=run_upgrade)
 
 
 def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
@@ -48,6 +69,8 @@ def _line(d: dict) -> str:
     else:
         geo = (f"sector bearing_sectors={enc['bearing_sectors']} sensors={enc['sensors']} "
                f"edges_mm={enc['range_edges_mm']}")
+    mg = d["map_geometry"]
+    geo += f" period_us={d['control_period_us']} map={mg['width']}x{mg['height']}x{mg['cell_mm']}mm"
     meta = d["metadata"]
     extra = " ".join(f"{k}={json.dumps(meta[k])}" for k in ("map", "targets", "steps") if k in meta)
     scale = "per-state" if d["per_state_scales"] else f"{d['scale']:.6g}"
@@ -61,3 +84,53 @@ def run(args: argparse.Namespace) -> int:
     for d in results:
         print(json.dumps(d, sort_keys=True) if args.json else _line(d))
     return 0 if all(d["valid"] for d in results) else 2
+
+
+def run_upgrade(args: argparse.Namespace) -> int:
+    from firmware_py.atomic import atomic_write
+    from firmware_py.policy import HEADER_V1, MapGeometry, PolicyError, upgrade_policy
+    from ground_station.errors import CliError
+    from ground_station.learn.export import geometry_of_map
+
+    try:
+        with open(args.file, "rb") as f:
+            data = f.read()
+    except OSError as exc:
+        raise CliError(f"cannot read {args.file}: {exc.strerror or exc}") from None
+    geometry: MapGeometry | None = None
+    # a sector 1.x file needs its training map; anything else goes straight to upgrade_policy's checks
+    is_old_sector = len(data) >= HEADER_V1.size and data[4] == 1 and data[12] == 2  # major, kind bytes
+    if args.map or is_old_sector:
+        map_name = args.map or _metadata_map(data)
+        if not map_name:
+            raise CliError(f"{args.file}: sector policy names no training map in its metadata; pass --map")
+        try:
+            geometry = geometry_of_map(map_name)
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+    try:
+        new = upgrade_policy(data, args.control_period_us, geometry)
+    except PolicyError as exc:
+        raise CliError(f"{args.file}: {exc}") from None
+    out = args.out or args.file
+    try:
+        atomic_write(out, new)
+    except OSError as exc:
+        raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
+    print(json.dumps(describe(out), sort_keys=True))
+    return 0
+
+
+def _metadata_map(data: bytes) -> str | None:
+    """The training map a version 1.x file's metadata names, if it can be read."""
+    from firmware_py.policy import HEADER_V1
+
+    try:
+        fields = HEADER_V1.unpack_from(data, 0)
+        header_size, enc_len, meta_len = fields[3], fields[12], fields[13]
+        off = header_size + enc_len
+        meta = json.loads(data[off:off + meta_len].decode("utf-8")) if meta_len else {}
+    except (struct.error, UnicodeDecodeError, ValueError):
+        return None
+    name = meta.get("map") if isinstance(meta, dict) else None
+    return name if isinstance(name, str) else None

@@ -50,7 +50,8 @@ def policy_version(base_path: Path, policy_id: int) -> bytes:
     pol = load_policy(base_path)
     table = array("b" if pol.dtype == "int8" else "h", pol.table)
     return dump_policy(pol.encoder, table, pol.dtype, pol.scale, goals=pol.goals, cell_mm=pol.cell_mm,
-                       metadata=dict(pol.metadata), policy_id=policy_id)
+                       metadata=dict(pol.metadata), policy_id=policy_id,
+                       control_period_us=pol.control_period_us, map_geometry=pol.map_geometry)
 
 
 class Crasher:

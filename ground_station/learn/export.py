@@ -106,8 +106,11 @@ def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder:
 
 def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder, *, goals=(),
                  cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
-                 policy_id: int | None = None, created: int | None = None) -> bytes:
-    """`.qtab` bytes for a quantised table (layout from firmware_py.policy)."""
+                 policy_id: int | None = None, created: int | None = None,
+                 control_period_us: int = robot_spec.CONTROL_PERIOD_US,
+                 map_geometry: fmt.MapGeometry | None = None) -> bytes:
+    """`.qtab` bytes for a quantised table (layout from firmware_py.policy);
+    `control_period_us` and `map_geometry` as `firmware_py.policy.dump_policy`."""
     if qt.table.shape != (encoder.n_states, encoder.n_actions):
         raise ValueError(f"table shape {qt.table.shape} does not match the encoder's "
                          f"({encoder.n_states}, {encoder.n_actions})")
@@ -119,7 +122,8 @@ def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder, *, goals=(
         scales = array("f")
         scales.frombytes(np.ascontiguousarray(qt.state_scales, dtype=np.float32).tobytes())
     return fmt.dump_policy(encoder, flat, qt.dtype, qt.scale, state_scales=scales, goals=goals,
-                           cell_mm=cell_mm, metadata=metadata, policy_id=policy_id, created=created)
+                           cell_mm=cell_mm, metadata=metadata, policy_id=policy_id, created=created,
+                           control_period_us=control_period_us, map_geometry=map_geometry)
 
 
 # --- a training run directory -> policy file ------------------------------------
@@ -158,6 +162,33 @@ def load_run(run_dir: str | os.PathLike) -> TrainingRun:
         cell_mm = round(float(meta["cell_size_m"]) * 1000)
     return TrainingRun(q=q, meta=meta, encoder=encoder, goals=goals,
                        cell_mm=int(cell_mm or robot_spec.DEFAULT_CELL_SIZE_MM))
+
+
+def control_period_us(run: TrainingRun) -> int:
+    """The control period the run trained for: the twin steps one
+    robot_spec.CONTROL_PERIOD_US per action (a run may record its own)."""
+    return int(run.meta.get("control_period_us", robot_spec.CONTROL_PERIOD_US))
+
+
+def map_geometry(run: TrainingRun) -> fmt.MapGeometry:
+    """The training map's geometry for the file header: a cell policy's grid,
+    else the map named in meta.json (ValueError with one line if unreadable)."""
+    if isinstance(run.encoder, CellEncoder):
+        return fmt.MapGeometry(run.cell_mm, run.encoder.width, run.encoder.height)
+    return geometry_of_map(run.meta.get("map"), run.cell_mm)
+
+
+def geometry_of_map(name: str | None, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> fmt.MapGeometry:
+    """Geometry of a built-in map or map file (ValueError with one line if it cannot be read)."""
+    from ground_station.maps import MapError, load_map
+
+    if not name:
+        raise ValueError("no training map named: cannot record its geometry")
+    try:
+        gm = load_map(str(name), cell_size_m=cell_mm / 1000)
+    except (MapError, OSError) as exc:
+        raise ValueError(f"training map {name}: {exc}") from None
+    return fmt.MapGeometry(round(gm.cell_size_m * 1000), gm.width, gm.height)
 
 
 def created_time(meta: dict) -> int:

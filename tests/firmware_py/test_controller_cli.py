@@ -2,10 +2,15 @@
 virtual bus that idles safely with no sensors."""
 
 import json
+import logging
+from pathlib import Path
 
 import pytest
 
 from firmware_py import cli
+from firmware_py.storage import ACTIVE_POLICY, Storage
+
+PAPER10_CELL = Path(__file__).resolve().parents[1] / "policies" / "paper10_cell.qtab"
 
 
 def test_help_lists_the_options(capsys):
@@ -23,7 +28,13 @@ def test_help_lists_the_options(capsys):
     (["--can", "virtual:x", "--goal", "1,2,3"], "--goal '1,2,3': expected 2 values"),
     (["--can", "virtual:x", "--goal-cell", "1,2"], "--goal-cell needs --map-height"),
     (["--can", "virtual:x", "--start", "a,b"], "--start 'a,b': expected numbers"),
-    (["--can", "virtual:x", "--rate", "0"], "--rate 0: expected 1..1000 Hz"),
+    (["--can", "virtual:x", "--rate", "0"], "--rate 0: expected 1..100 Hz"),
+    (["--can", "virtual:x", "--rate", "101"], "--rate 101: expected 1..100 Hz"),  # CTRL_RATE_HZ's bounds
+    # the policy file records what it was trained for; the robot names both values
+    (["--policy", str(PAPER10_CELL), "--rate", "25"],
+     f"policy {PAPER10_CELL}: policy control period 50000 us != robot 40000 us"),
+    (["--policy", str(PAPER10_CELL), "--cell-size", "0.25"], "policy cell size 500 mm != robot 250 mm"),
+    (["--policy", str(PAPER10_CELL), "--map-height", "12"], "policy grid height 10 != robot --map-height 12"),
 ])
 def test_bad_input_is_one_line_and_exit_2(capsys, argv, needle):
     assert cli.main(argv) == 2
@@ -47,3 +58,15 @@ def test_goal_without_sensors_times_out_unarmed(tmp_path):
                    "--stats-json", str(stats), "-q"])
     assert rc == 4  # goals pending when the duration ended
     assert json.loads(stats.read_text())["state"] == "STANDBY"  # never armed: inputs stale
+
+
+def test_boot_from_storage_skips_a_policy_for_another_period(tmp_path, caplog):
+    Storage(tmp_path / "store").write_atomic(ACTIVE_POLICY, PAPER10_CELL.read_bytes())
+    stats = tmp_path / "s.json"
+    with caplog.at_level(logging.WARNING, logger="qnav.robot"):
+        rc = cli.main(["--can", "virtual:cli-period", "--storage", str(tmp_path / "store"), "--mavlink", "none",
+                       "--rate", "25", "--duration", "0.2", "--stats-json", str(stats), "-q"])
+    assert rc == 0
+    assert any("rejected: policy control period 50000 us != robot 40000 us" in r.getMessage() for r in caplog.records)
+    s = json.loads(stats.read_text())
+    assert s["period_us"] == 40_000 and s["state"] == "STANDBY"

@@ -221,7 +221,7 @@ def test_policy_hot_swap_refused_while_driving_and_keeps_last_good(tmp_path):
     ctrl = rig.ctrl
     p = tmp_path / "new.qtab"
     enc = first.encoder
-    p.write_bytes(dump_policy(enc, first.table.tolist(), "int8", 0.5, policy_id=22))
+    p.write_bytes(dump_policy(enc, first.table.tolist(), "int8", 0.5, policy_id=22, map_geometry=first.map_geometry))
     ctrl.set_goal(5000, 0)
     rig.tick()
     assert ctrl.activate_policy(str(p)) == (False, "refused while driving: stop first")

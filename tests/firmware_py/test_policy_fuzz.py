@@ -20,7 +20,15 @@ import zlib
 import pytest
 
 from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.policy import CRC, HEADER, MAX_FILE_BYTES, PolicyError, dump_policy, load_policy
+from firmware_py.policy import (
+    CRC,
+    HEADER,
+    MAX_FILE_BYTES,
+    MapGeometry,
+    PolicyError,
+    dump_policy,
+    load_policy,
+)
 
 N_REJECTED = 10_000
 
@@ -28,8 +36,8 @@ N_REJECTED = 10_000
 # policy id and creation time are free-form, so only invalid extremes here
 EXTREMES = {
     0: [b"\x00" * 4, b"\xff" * 4, b"qtab", b"QTA\x00"],
-    1: [0, 2, 255],
-    3: [0, 1, 47, 49, 0xFFFF],
+    1: [0, 1, 3, 255],  # 1: a version 1.x file (no control period or geometry) is refused too
+    3: [0, 1, 47, 48, 57, 59, 0xFFFF],
     4: [0x2, 0x80000000, 0xFFFFFFFF],
     5: [0, 3, 255],
     6: [0, 3, 255],
@@ -39,6 +47,10 @@ EXTREMES = {
     11: [0.0, -0.0, -1.0, float("nan"), float("inf"), float("-inf")],
     12: [0, 1, 2**31, 2**32 - 1],
     13: [2**16, 2**31, 2**32 - 1],
+    14: [0],  # control period
+    15: [0],  # map geometry: cell mm, width, height (any other value is a valid sector header)
+    16: [0],
+    17: [0],
 }
 
 
@@ -52,8 +64,10 @@ def base_files() -> list[bytes]:
         out.append(dump_policy(cell, t, dtype, 0.1, goals=goals, metadata={"map": "paper10", "targets": "ABCD"}))
     sec = SectorEncoder(8, (0, 1, 7), (350, 700))
     t = [rng.randint(-127, 127) for _ in range(sec.n_states * 4)]
-    out.append(dump_policy(sec, t, "int8", 0.5, metadata={"encoding": "sector"}))
-    out.append(dump_policy(sec, t, "int8", 0.5, state_scales=[0.5] * sec.n_states))
+    paper10 = MapGeometry(500, 10, 10)
+    out.append(dump_policy(sec, t, "int8", 0.5, metadata={"encoding": "sector"}, map_geometry=paper10))
+    out.append(dump_policy(sec, t, "int8", 0.5, state_scales=[0.5] * sec.n_states, control_period_us=40_000,
+                           map_geometry=paper10))
     return out
 
 
@@ -121,7 +135,7 @@ def test_ten_thousand_mutated_files_are_all_rejected_with_policy_error():
             key = msg.split(" ")[0]
             reasons[key] = reasons.get(key, 0) + 1
         else:
-            pytest.fail(f"mutation {i} accepted: header {HEADER.unpack_from(bad, 0) if len(bad) >= 48 else bad!r}")
+            pytest.fail(f"mutation {i} accepted: header {HEADER.unpack_from(bad, 0) if len(bad) >= HEADER.size else bad!r}")
     # the mix reached past the CRC into the field checks, not only the CRC
     assert reasons.get("CRC32", 0) < N_REJECTED // 2
     assert len(reasons) >= 8, reasons

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.policy import load_policy
+from firmware_py.policy import HEADER, HEADER_V1, MapGeometry, load_policy
 from ground_station.cli import main
 from ground_station.learn.export import policy_bytes, quantise
 
@@ -25,7 +26,7 @@ def files(tmp_path):
                                   metadata={"map": "paper10", "targets": ["A", "B"]}))
     sec = tmp_path / "sector.qtab"
     sec.write_bytes(policy_bytes(quantise(rng.normal(size=(SectorEncoder().n_states, 4)), "int16"),
-                                 SectorEncoder()))
+                                 SectorEncoder(), map_geometry=MapGeometry(500, 12, 8), control_period_us=40_000))
     bad = tmp_path / "bad.qtab"
     bad.write_bytes(good.read_bytes()[:-1])
     return good, sec, bad
@@ -37,7 +38,8 @@ def test_inspect_prints_one_header_line_per_file_and_exit_0(files, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2
     pol = load_policy(good)
-    assert lines[0].startswith(f"{good}: valid v1.0 cell 10x10")
+    assert lines[0].startswith(f"{good}: valid v2.0 cell 10x10")
+    assert "period_us=50000 map=10x10x500mm" in lines[0] and "period_us=40000 map=12x8x500mm" in lines[1]
     assert f"id=0x{pol.policy_id:08x}" in lines[0] and f"crc=0x{pol.crc:08x}" in lines[0]
     assert 'targets=["A", "B"]' in lines[0] and "int8 200x4" in lines[0]
     assert "sector bearing_sectors=8" in lines[1] and "int16 1944x4" in lines[1]
@@ -50,6 +52,8 @@ def test_inspect_json_and_exit_2_when_any_file_is_invalid(files, capsys):
     assert [r["valid"] for r in rows] == [True, False, False]
     assert rows[0]["error"] is None and rows[0]["n_states"] == 200 and rows[0]["goals"] == [[0, 0], [9, 9]]
     assert rows[0]["crc32"] == f"0x{load_policy(good).crc:08x}"
+    assert rows[0]["control_period_us"] == robot_spec.CONTROL_PERIOD_US
+    assert rows[0]["map_geometry"] == {"cell_mm": 500, "width": 10, "height": 10}
     assert "truncated" in rows[1]["error"] and rows[1]["file"] == str(bad)
     assert "cannot read" in rows[2]["error"]
 
@@ -112,3 +116,45 @@ def test_export_per_state_int16_without_rollouts(tmp_path, capsys, monkeypatch):
     assert rep["argmax_agreement"] == 1.0 and rep["per_state_scales"] is True and "success_rate" not in rep
     pol = load_policy(Path(out))
     assert pol.policy_id == 0xBEEF and pol.created == 1234 and pol.state_scales is not None
+    # the header records the twin's period and the training map (paper10) of a sector run
+    assert pol.control_period_us == robot_spec.CONTROL_PERIOD_US and pol.map_geometry == (500, 10, 10)
+
+
+def as_version_1(b: bytes) -> bytes:
+    """The same policy as a format 1.0 file (48-byte header, no period or geometry)."""
+    import zlib
+
+    fields = list(HEADER.unpack_from(b, 0))[:14]
+    fields[1], fields[2], fields[3] = 1, 0, HEADER_V1.size
+    body = HEADER_V1.pack(*fields) + b[HEADER.size:-4]
+    return body + zlib.crc32(body).to_bytes(4, "little")
+
+
+def test_upgrade_migrates_version_1_files_atomically_and_inspect_then_accepts_them(files, tmp_path, capsys):
+    good, sec, _ = files
+    old_cell, old_sec = tmp_path / "old_cell.qtab", tmp_path / "old_sec.qtab"
+    old_cell.write_bytes(as_version_1(good.read_bytes()))
+    sector_v2 = sec.read_bytes()
+    old_sec.write_bytes(as_version_1(sector_v2))
+    assert main(["policy", "inspect", str(old_cell)]) == 2
+    assert "records no control period" in capsys.readouterr().out
+    # a cell policy's geometry is its grid; in place, atomically
+    assert main(["policy", "upgrade", str(old_cell), "--control-period-us", "50000"]) == 0
+    assert json.loads(capsys.readouterr().out)["format_version"] == "2.0"
+    assert old_cell.read_bytes() == good.read_bytes()
+    assert sorted(f.name for f in tmp_path.iterdir() if f.name.startswith("old_")) == ["old_cell.qtab", "old_sec.qtab"]
+    # a sector policy without a map in its metadata needs --map; nothing is written on refusal
+    assert main(["policy", "upgrade", str(old_sec), "--control-period-us", "40000"]) == 2
+    err = capsys.readouterr().err
+    assert "names no training map" in err and len(err.strip().splitlines()) == 1
+    assert old_sec.read_bytes() == as_version_1(sector_v2)
+    new = tmp_path / "new_sec.qtab"
+    assert main(["policy", "upgrade", str(old_sec), "--out", str(new), "--control-period-us", "40000",
+                 "--map", "paper10"]) == 0
+    row = json.loads(capsys.readouterr().out)
+    assert row["control_period_us"] == 40_000 and row["map_geometry"] == {"cell_mm": 500, "width": 10, "height": 10}
+    assert new.read_bytes()[HEADER.size:-4] == sector_v2[HEADER.size:-4]  # table and the rest copied
+    assert load_policy(new).policy_id == load_policy(sec).policy_id
+    # a current file has nothing to upgrade
+    assert main(["policy", "upgrade", str(new), "--control-period-us", "40000"]) == 2
+    assert "nothing to upgrade" in capsys.readouterr().err

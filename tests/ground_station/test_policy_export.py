@@ -7,7 +7,7 @@ import pytest
 
 from firmware_py.atomic import atomic_write
 from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.policy import load_policy
+from firmware_py.policy import MapGeometry, load_policy
 from ground_station.learn.export import (
     compare,
     encoder_from_dict,
@@ -70,7 +70,7 @@ def test_policy_bytes_round_trip_equals_quantised_table():
     for dtype in ("int8", "int16"):
         for per in (False, True):
             qt = quantise(q, dtype, per_state=per)
-            p = load_policy(policy_bytes(qt, enc, metadata={"k": 1}))
+            p = load_policy(policy_bytes(qt, enc, metadata={"k": 1}, map_geometry=MapGeometry(500, 10, 10)))
             assert np.array_equal(np.array(p.table.tolist()).reshape(q.shape), qt.table)
             assert p.scale == pytest.approx(qt.scale)
             assert np.allclose([p.q_values(s) for s in range(enc.n_states)], qt.dequantise(), rtol=1e-6)

@@ -70,7 +70,22 @@ def test_inspect_prints_the_shipped_header(capsys):
     assert len(lines) == len(SHIPPED)
     for path, line in zip(SHIPPED, lines, strict=True):
         rec = json.loads(path.with_suffix(".json").read_text())
-        assert line.startswith(f"{path}: valid v1.0 {rec['encoding']}") and rec["policy_id"] in line
+        assert line.startswith(f"{path}: valid v2.0 {rec['encoding']}") and rec["policy_id"] in line
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+def test_shipped_policy_records_the_robots_period_and_its_training_map(path):
+    from firmware_py import robot_spec
+    from firmware_py.policy import config_mismatch
+    from firmware_py.vehicle import VehicleConfig
+    from ground_station.maps import load_map
+
+    pol = load_policy(path)
+    gm = load_map(pol.metadata["map"])
+    assert pol.control_period_us == robot_spec.CONTROL_PERIOD_US == VehicleConfig().control_period_us
+    assert pol.map_geometry == (round(gm.cell_size_m * 1000), gm.width, gm.height)
+    cfg = VehicleConfig()
+    assert config_mismatch(pol, cfg.control_period_us, cfg.cell_size_mm) == ""  # the default robot runs it
 
 
 def test_sector_policy_drives_as_recorded_and_int8_is_within_half_a_point_of_float():

@@ -10,7 +10,7 @@ import pytest
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
-from firmware_py.policy import dump_policy, load_policy
+from firmware_py.policy import MapGeometry, dump_policy, load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.maps import load_map
 from ground_station.rigs.lockstep import cut_sensors_after, run_episode
@@ -28,7 +28,7 @@ def centre_m(col, row):
 def forward_only_policy():
     enc = SectorEncoder()
     vals = array("b", [100, 0, 0, 0] * enc.n_states)
-    return load_policy(dump_policy(enc, vals, "int8", 0.01, policy_id=7))
+    return load_policy(dump_policy(enc, vals, "int8", 0.01, policy_id=7, map_geometry=MapGeometry(500, 10, 10)))
 
 
 @pytest.mark.parametrize("target", ["A", "D"])

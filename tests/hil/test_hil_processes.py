@@ -60,7 +60,7 @@ def test_sector_policy_across_processes_in_open_arena(tmp_path):
     (tmp_path / "open.map").write_text("type octile\nheight 6\nwidth 6\nmap\n" + "......\n" * 6)
     pol = sector_seek_policy()
     qtab = tmp_path / "seek.qtab"
-    qtab.write_bytes(dump_policy(pol.encoder, pol.table.tolist(), "int8", 0.01))
+    qtab.write_bytes(dump_policy(pol.encoder, pol.table.tolist(), "int8", 0.01, map_geometry=pol.map_geometry))
     with CanHub("hilsec") as hub:
         sim = start([BIN / "qnav-sim", "--map", tmp_path / "open.map", "--can", hub.spec,
                      "--lockstep", "--duration", "30", "--start", "0.75,0.75,180", "-q",

@@ -11,11 +11,12 @@ from collections import deque
 from firmware_py import robot_spec
 from firmware_py.control.controller import Controller, Inputs
 from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.policy import Policy, dump_policy, load_policy
+from firmware_py.policy import MapGeometry, Policy, dump_policy, load_policy
 
 TICKS_PER_MM = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM)
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)
 UP, DOWN, LEFT, RIGHT = range(4)
+SECTOR_TRAINING_MAP = MapGeometry(500, 10, 10)  # what the hand-made sector policies record (paper10's)
 
 
 def sector_seek_policy(policy_id: int = 1) -> Policy:
@@ -29,7 +30,7 @@ def sector_seek_policy(policy_id: int = 1) -> Policy:
         b = s // per_bearing
         a = FORWARD if b == 0 else TURN_LEFT if b <= half else TURN_RIGHT
         vals.extend(100 if i == a else 0 for i in range(enc.n_actions))
-    return load_policy(dump_policy(enc, vals, "int8", 0.01, policy_id=policy_id))
+    return load_policy(dump_policy(enc, vals, "int8", 0.01, policy_id=policy_id, map_geometry=SECTOR_TRAINING_MAP))
 
 
 def bfs(lines: list[str], goal: tuple[int, int]) -> dict[tuple[int, int], int]:

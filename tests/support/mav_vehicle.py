@@ -128,6 +128,9 @@ class TestVehicle:
         elif active and self.cfg.gcs_failsafe_action == FailsafeAction.DISARM:
             self.disarm()
 
+    def check_config(self, cfg: VehicleConfig) -> tuple[bool, str]:
+        return True, ""  # runs no policy, so any config fits
+
     def apply_config(self, cfg: VehicleConfig) -> None:
         self.cfg = cfg
         self.config_applied += 1
