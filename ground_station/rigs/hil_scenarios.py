@@ -275,12 +275,13 @@ def _qnav(procs: _Procs, name: str, args: list, timeout_s: float = 60) -> tuple[
 
 
 def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavlink: str | None = None,
-            robot_extra: list[str] | None = None, upload: Path | None = None,
-            on_robot_start: Callable[[], None] | None = None) -> dict:
+            robot_extra: list[str] | None = None, upload: Path | None = None, speed: float | None = None) -> dict:
     """Mission A-D over MAVLink, the ground side as `qnav` commands (module docstring).
 
     Default link: robot `udpout:127.0.0.1:P`, ground station `udpin:127.0.0.1:P`; a serial radio
-    passes its two ends. `upload`: a policy file `qnav upload --activate`s first."""
+    passes its two ends. `upload`: a policy file `qnav upload --activate`s first. `speed`: paced
+    at that many times real time (robot on --sim-clock) instead of lockstep: a real-time link
+    such as a 57600-baud radio cannot carry telemetry sent on a clock running ~50x real time."""
     if robot_mavlink is None or gcs_mavlink is None:
         port = free_udp_port()
         robot_mavlink, gcs_mavlink = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
@@ -290,16 +291,17 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
     tlog = work / "mission.tlog"
     stats = work / "mission_robot.json"
     with _Procs(work) as procs:
-        sim = procs.start("mission_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
-                                          "--duration", 3000, "--start", START, "-q"])
-        rob = procs.start("mission_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", CELL_POLICY,
+        pace = ["--lockstep"] if speed is None else ["--speed", speed]
+        sim = procs.start("mission_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, *pace,
+                                          "--duration", 3000 if speed is None else 150 * speed, "--start", START,
+                                          "-q"])
+        clock = "--lockstep" if speed is None else "--sim-clock"
+        rob = procs.start("mission_robot", [BIN / "qnav-robot", "--can", can, clock, "--policy", CELL_POLICY,
                                             "--start", START, "--storage", work / "storage", "--duration", 2999.95,
                                             "--mavlink", robot_mavlink, "--stats-json", stats, *(robot_extra or [])])
-        if on_robot_start is not None:
-            on_robot_start()
         t0 = time.monotonic()
         if upload is not None:
-            code, out = _qnav(procs, "qnav_upload", ["upload", upload, "--activate", *link, "--no-tlog",
+            code, out = _qnav(procs, "qnav_upload", ["upload", upload, "--activate", *link,
                                                      "--timeout", "30"], 120)
             steps["upload"] = {"exit": code, "seconds": round(time.monotonic() - t0, 2), "out": out[-600:]}
         code, out = _qnav(procs, "qnav_mission", ["mission", "upload", "--targets", "A,B,C,D", *link,
@@ -325,7 +327,8 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
         until = time.monotonic() + 30
         while mode.poll() is None and "mode auto" not in procs.log("qnav_mode") and time.monotonic() < until:
             time.sleep(0.005)
-        sim.send_signal(signal.SIGSTOP)
+        if speed is None:  # paced, the sim's clock is the wall's: it would catch up in a burst
+            sim.send_signal(signal.SIGSTOP)
         try:
             steps["mode_auto"] = {"exit": _wait(mode, 30), "out": procs.log("qnav_mode")[-600:]}
             mon = procs.start("qnav_monitor", [BIN / "qnav", "monitor", "--plain", *link, "--tlog", tlog])
