@@ -18,6 +18,7 @@ demo: $(STAMP)
 	$(BIN)/qnav demo
 
 test: $(STAMP)
+	sh tools/install_test_deps.sh
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/python -m pytest -q

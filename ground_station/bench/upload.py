@@ -23,17 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from firmware_py.subprocs import free_udp_port
+from ground_station.mavlink.ftp_upload import theoretical_seconds
 from ground_station.rigs.processes import robot_ftp_process
-
-WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size
-FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
-SIGNATURE = 13
-
-
-def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) -> float:
-    """Link time of the WriteFile frames alone (design.md section 3)."""
-    blocks = -(-size // WRITE_BLOCK)
-    return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s
 
 
 def run_case(size: int, loss: float, signed: bool, key_file: Path | None, robot_port: int, root: Path,
@@ -82,13 +73,14 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--losses", default="0,0.05,0.2", help="frame loss per direction (default %(default)s)")
     p.add_argument("--signing", choices=["both", "off", "on"], default="both", help="signing cases to run")
     p.add_argument("--seed", type=int, default=1, help="link and payload seed (default %(default)s)")
+    p.add_argument("--serial", action="store_true",
+                   help="over the emulated serial radio (two ptys, 57600 baud; bench/upload_serial.py) instead of UDP")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from ground_station.bench.common import report
     from ground_station.errors import CliError
 
     try:
@@ -97,6 +89,11 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CliError(f"--sizes/--losses: {exc}") from exc
     modes = {"both": [False, True], "off": [False], "on": [True]}[args.signing]
+    if getattr(args, "serial", False):
+        from ground_station.bench import upload_serial
+
+        return _table(upload_serial.run(args, sizes, losses, modes), args.json,
+                      "emulated serial radio (pty pair), 57600 baud 8N1 = 5760 B/s each way, SiK-like frames")
     cases = [(s, signed, loss) for s in sizes for signed in modes for loss in losses]
     rows = []
     with tempfile.TemporaryDirectory() as tmp, tqdm(total=len(cases), desc="bench upload") as bar:
@@ -112,7 +109,13 @@ def run(args: argparse.Namespace) -> int:
                     rows.append(run_case(size, loss, signed, key_file if signed else None, port, root,
                                          args.seed * 1000 + i))
                     bar.update(1)
-    table: list[tuple[str, object]] = [("link", "57600 baud 8N1 = 5760 B/s each way, pymavlink MAVFTP 80-byte writes, up to 10 in flight (WriteGate)")]
+    return _table(rows, args.json, "UDP link emulator, 57600 baud 8N1 = 5760 B/s each way")
+
+
+def _table(rows: list[dict], json_path: str | None, link: str) -> int:
+    from ground_station.bench.common import report
+
+    table: list[tuple[str, object]] = [("link", f"{link}, pymavlink MAVFTP 80-byte writes, up to 10 in flight (WriteGate)")]
     for r in rows:
         name = f"{r['size'] // 1024:>4} KiB {'signed  ' if r['signed'] else 'unsigned'} loss {r['loss'] * 100:>4.0f}%"
         if r["success"]:
@@ -123,5 +126,5 @@ def run(args: argparse.Namespace) -> int:
         table.append((name, text))
     ok = all(r["success"] for r in rows)
     table.append(("all byte-exact", ok))
-    report("upload", table, {"cases": rows, "all_success": ok}, args.json)
+    report("upload", table, {"cases": rows, "all_success": ok}, json_path)
     return 0 if ok else 1

@@ -1,5 +1,9 @@
 """`qnav report FILE.tlog`: summary JSON and PNG plots of a recorded run.
 
+A `candump -L` log (can-utils) instead gives CAN-level facts: frames per
+message and per sim tick, motor commands, controller states, e-stops
+(ground_station/monitor/canlog.py); printed, or as JSON with --json.
+
 Writes into --out (default `out/report-<tlog name>/`): summary.json,
 trajectory.png, distance_to_goal.png, actions.png, timing.png (a plot whose
 data is not in the recording is skipped and listed under plots_skipped).
@@ -14,9 +18,10 @@ from pathlib import Path
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("report", help="plots + summary JSON from a .tlog",
+    p = sub.add_parser("report", help="plots + summary JSON from a .tlog; CAN facts from a candump -L log",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("tlog", metavar="FILE.tlog", help="telemetry recording (qnav monitor --tlog, qnav demo, MAVProxy)")
+    p.add_argument("tlog", metavar="FILE.tlog", help="telemetry recording (qnav monitor --tlog, qnav demo, MAVProxy) "
+                   "or a candump -L log")
     p.add_argument("--out", metavar="DIR", help="output directory (default out/report-<tlog name>)")
     p.add_argument("--map", metavar="NAME|PATH", default="paper10",
                    help="map under the trajectory: built-in name, generator spec or .map path "
@@ -33,6 +38,12 @@ def run(args: argparse.Namespace) -> int:
 
     if not os.path.isfile(args.tlog):
         raise CliError(f"no such tlog: {args.tlog}")
+    from ground_station.monitor.canlog import analyse_candump, is_candump_log, text_summary
+
+    if is_candump_log(args.tlog):
+        summary = analyse_candump(args.tlog)
+        print(json.dumps(summary, indent=2) if args.json else "\n".join(text_summary(summary)))
+        return 0
     if args.cell_size <= 0:
         raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
     grid_map = _load_map(args.map, args.cell_size)

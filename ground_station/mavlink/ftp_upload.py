@@ -469,3 +469,15 @@ def default_remote(local: Path) -> str:
     if f"/policies/{name}" in (ACTIVE_POLICY, "/policies/last_good.qtab"):
         name = f"upload-{name}"
     return f"/policies/{name}"
+
+
+# Link budget of an upload (design.md section 3), for benchmarks and estimates.
+WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size (bytes of file data per WriteFile)
+FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
+SIGNATURE = 13
+
+
+def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) -> float:
+    """Link time of the WriteFile frames alone (design.md section 3)."""
+    blocks = -(-size // WRITE_BLOCK)
+    return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s

@@ -1,0 +1,411 @@
+"""HIL scenarios across processes on any CAN transport, as facts for a test to judge.
+
+Each scenario starts the real programs (`qnav-sim`, `qnav-robot`, `qnav`) as
+child processes on the bus named by a `--can` spec (a python-can-remote hub,
+`socketcan:vcan0`, ...), stops every one of them, and returns a JSON-able
+dict of what happened: exit codes, the robot's `--stats-json`, frames seen on
+the bus. Assertions live in the tests (tests/test_hil_transports.py), the
+same for every transport. Logs go to files in the scenario's work directory
+(a pipe nobody reads would stall a program).
+
+- `goal_reached`: lockstep, paper10, cell policy from (0.25, 0.25) to
+  target B (cell 9,0); optionally `candump -L` records the bus meanwhile.
+- `estop`: paced (sim time at `speed` x real time, robot on `--sim-clock`);
+  once the robot's heartbeat says DRIVING an EStop frame is sent from another
+  node (python-can, or `cansend` from the shell); the robot must command
+  zero and exit 3 with "FAULT: e-stop engaged".
+- `sensor_stop`: lockstep with this process as the plant (sim_bridge's
+  Plant stepped here, frames sent on the bus); at 2 s the range boards and
+  encoders go quiet; the robot must command zero and fault within the
+  staleness timeout + one period.
+- `mission`: lockstep sim + robot with its MAVLink node on UDP loopback; the
+  ground-station side is the `qnav` command sequence an operator types:
+  `qnav mission upload --targets A,B,C,D`, `qnav param set FS_GCS_ENABLE 0`
+  (lockstep outruns a 1 Hz ground-station heartbeat), `qnav arm`, `qnav mode auto`
+  (starts the mission), `qnav monitor --plain` recording a tlog (the
+  caller may `qnav report` it). One command at a time, as a serial radio allows. The
+  sim is paused (SIGSTOP: the world's clock stops, and with it the robot's)
+  from the moment `qnav mode auto` answers until the monitor listens, so no
+  MISSION_ITEM_REACHED passes unheard.
+
+Batch CLI (used inside user-mode Linux by tests/test_hil_transports.py):
+    python -m ground_station.rigs.hil_scenarios --can socketcan:vcan0 --out DIR \\
+        goal_reached estop sensor_stop mission
+writes DIR/<name>.json per scenario ({"error": ...} if it raised) and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+from firmware_py import can_protocol as cp
+from firmware_py.canbus import open_bus
+from firmware_py.subprocs import free_udp_port, stop_process
+from firmware_py.vehicle import CtrlState
+
+REPO = Path(__file__).resolve().parents[2]
+BIN = Path(sys.executable).parent
+CELL_POLICY = "policies/paper10_cell.qtab"
+START = "0.25,0.25,0"
+ESTOP_SIGNALS = {"EStop_Engage": 1, "EStop_Source": cp.NODE_SIM, "EStop_Reason": 1}
+
+
+def estop_cansend_arg() -> str:
+    """The `cansend` argument (`ID#HEXDATA`) of an engaged EStop from the sim's node id."""
+    msg = cp.encode("EStop", ESTOP_SIGNALS)
+    return f"{msg.arbitration_id:03X}#{bytes(msg.data).hex().upper()}"
+
+
+class _Procs:
+    """Child processes with their logs in `work`; every one stopped on exit."""
+
+    def __init__(self, work: Path) -> None:
+        self.work = work
+        self.procs: list[subprocess.Popen] = []
+
+    def start(self, name: str, cmd: list, env: dict | None = None, sig: int = signal.SIGINT) -> subprocess.Popen:
+        with open(self.work / f"{name}.log", "wb") as log:
+            p = subprocess.Popen([str(c) for c in cmd], stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                                 cwd=REPO, env=dict(os.environ, MAVLINK20="1", PYTHONUNBUFFERED="1", **(env or {})))
+        p.stop_signal = sig  # type: ignore[attr-defined]
+        self.procs.append(p)
+        return p
+
+    def log(self, name: str) -> str:
+        try:
+            return (self.work / f"{name}.log").read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def __enter__(self) -> _Procs:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for p in reversed(self.procs):
+            with contextlib.suppress(ProcessLookupError):
+                p.send_signal(signal.SIGCONT)  # a paused sim must be able to die
+            stop_process(p, timeout_s=10, sig=p.stop_signal)  # type: ignore[attr-defined]
+
+
+def _wait(p: subprocess.Popen, timeout_s: float) -> int | None:
+    try:
+        return p.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return None
+
+
+def _stats(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _sim_summary(text: str) -> dict | None:
+    m = re.search(r"ticks (\d+) \(missed (\d+), stale commands (\d+)", text)
+    return None if m is None else dict(zip(("ticks", "missed", "stale"), map(int, m.groups()), strict=True))
+
+
+def goal_reached(can: str, work: Path, *, duration_s: float = 35.0, candump: str | None = None) -> dict:
+    """Lockstep drive to target B; `candump` = channel to record with `candump -L` into goal.candump."""
+    stats = work / "goal_robot.json"
+    res: dict = {"scenario": "goal_reached", "can": can}
+    with _Procs(work) as procs:
+        dump = None
+        if candump:
+            dump_out = open(work / "goal.candump", "wb")  # noqa: SIM115 - closed below
+            dump = subprocess.Popen(["candump", "-L", candump], stdout=dump_out, stderr=subprocess.DEVNULL)
+            time.sleep(0.3)  # its socket is bound before the first frame
+        t0 = time.monotonic()
+        sim = procs.start("goal_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
+                                       "--duration", duration_s, "--start", START, "-q"])
+        rob = procs.start("goal_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", CELL_POLICY,
+                                         "--start", START, "--goal-cell", "9,0", "--duration", duration_s - 0.05,
+                                         "--stats-json", stats])
+        res["sim_exit"], res["robot_exit"] = _wait(sim, 120), _wait(rob, 30)
+        res["wall_s"] = round(time.monotonic() - t0, 2)
+        if dump is not None:
+            time.sleep(0.2)
+            stop_process(dump, timeout_s=5, sig=signal.SIGINT)
+            dump_out.close()
+            res["candump_lines"] = len((work / "goal.candump").read_text().splitlines())
+        res["sim"] = _sim_summary(procs.log("goal_sim"))
+        res["robot"] = _stats(stats)
+        if res["sim_exit"] != 0 or res["robot_exit"] != 0:
+            res["logs"] = {"sim": procs.log("goal_sim")[-1500:], "robot": procs.log("goal_robot")[-1500:]}
+    return res
+
+
+def estop(can: str, work: Path, *, sender: str = "bus", speed: float = 4.0, duration_s: float = 8.0) -> dict:
+    """Paced drive; EStop from another node once DRIVING (`sender`: "bus" python-can, "cansend" can-utils)."""
+    res: dict = {"scenario": "estop", "can": can, "sender": sender}
+    tag = f"estop_{sender}"
+    bus = open_bus(can)
+    try:
+        with _Procs(work) as procs:
+            sim = procs.start(f"{tag}_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--speed", speed,
+                                             "--duration", duration_s, "--start", START, "-q"])
+            rob = procs.start(f"{tag}_robot", [BIN / "qnav-robot", "--can", can, "--sim-clock", "--policy",
+                                               CELL_POLICY, "--start", START, "--goal-cell", "9,0",
+                                               "--exit-when-done", "--duration", duration_s - 0.1])
+            driving = False
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and not driving:
+                msg = bus.recv(timeout=0.5)
+                if msg is not None and cp.frame_name(msg.arbitration_id) == "ControllerHeartbeat":
+                    driving = cp.decode(msg)[1]["Ctrl_State"] == CtrlState.DRIVING
+            res["driving_seen"] = driving
+            if driving:
+                if sender == "cansend":
+                    arg = estop_cansend_arg()
+                    res["cansend"] = f"cansend {can.partition(':')[2]} {arg}"
+                    r = subprocess.run(["cansend", can.partition(":")[2], arg], capture_output=True, text=True,
+                                       check=False)
+                    res["cansend_exit"] = r.returncode
+                else:
+                    bus.send(cp.encode("EStop", ESTOP_SIGNALS))
+                zero = fault = False
+                while time.monotonic() < deadline and not (zero and fault):
+                    msg = bus.recv(timeout=0.5)
+                    if msg is None:
+                        continue
+                    name = cp.frame_name(msg.arbitration_id)
+                    if name == "MotorCommand":
+                        sig = cp.decode(msg)[1]
+                        zero = zero or (sig["Cmd_LeftSpeed"] == 0 and sig["Cmd_RightSpeed"] == 0)
+                    elif name == "ControllerHeartbeat":
+                        fault = fault or cp.decode(msg)[1]["Ctrl_State"] == CtrlState.FAULT
+                res["zero_command_seen"], res["fault_heartbeat_seen"] = zero, fault
+            res["robot_exit"], res["sim_exit"] = _wait(rob, 30), _wait(sim, 30)
+            log = procs.log(f"{tag}_robot")
+            res["robot_fault_line"] = "FAULT: e-stop engaged" in log
+            if res["robot_exit"] != 3:
+                res["logs"] = {"robot": log[-1500:], "sim": procs.log(f"{tag}_sim")[-1500:]}
+    finally:
+        bus.shutdown()
+    return res
+
+
+CUT_FRAMES = ("RangeSectors0", "RangeSectors1", "EncoderCounts")
+
+
+def sensor_stop(can: str, work: Path, *, timeout_ms: int = 250, t_cut_s: float = 2.0) -> dict:
+    """This process is the plant (lockstep); at `t_cut_s` the range boards and encoders stop."""
+    from firmware_py import robot_spec
+    from ground_station.maps import load_map
+    from sim_bridge.plant import Plant, SimConfig
+    from sim_bridge.world import Pose
+
+    period = robot_spec.CONTROL_PERIOD_US
+    t_cut = round(t_cut_s * 1e6)
+    cut_ids = {cp.FRAME_IDS[n] for n in CUT_FRAMES}
+    stats = work / "sensor_robot.json"
+    res: dict = {"scenario": "sensor_stop", "can": can, "cut": list(CUT_FRAMES), "timeout_ms": timeout_ms,
+                 "t_cut_us": t_cut}
+    plant = Plant(load_map("paper10").occ, SimConfig(seed=1), Pose(0.25, 0.25, 0.0))
+    commands: list[tuple[int, int, int]] = []
+    states: list[tuple[int, int]] = []
+    bus = open_bus(can)
+    try:
+        with _Procs(work) as procs:
+            rob = procs.start("sensor_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", CELL_POLICY,
+                                               "--start", START, "--goal-cell", "9,0", "--sensor-timeout-ms",
+                                               timeout_ms, "--exit-when-done", "--duration", 20, "--stats-json", stats])
+            started = False
+            while plant.time_us < t_cut + timeout_ms * 1000 + 20 * period:
+                frames = plant.tick_frames()
+                if plant.time_us >= t_cut:
+                    frames = [f for f in frames if f.arbitration_id not in cut_ids]
+                for f in frames:
+                    bus.send(f)
+                answered = False
+                deadline = time.monotonic() + (5.0 if started else 30.0)
+                resend = time.monotonic() + 0.2
+                while not answered and time.monotonic() < deadline:
+                    msg = bus.recv(timeout=0.1)
+                    if msg is None:
+                        if not started and time.monotonic() > resend:  # a robot still starting up
+                            bus.send(frames[-1])
+                            resend = time.monotonic() + 0.2
+                        continue
+                    name = cp.frame_name(msg.arbitration_id)
+                    if name == "MotorCommand":
+                        sig = cp.decode(msg)[1]
+                        if sig["Cmd_Counter"] == plant.tick % cp.TICK_MODULUS:
+                            commands.append((plant.time_us, sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]))
+                    elif name == "ControllerHeartbeat":
+                        states.append((plant.time_us, cp.decode(msg)[1]["Ctrl_State"]))
+                    answered = plant.handle(msg, lockstep=True) or answered
+                if not answered:
+                    break  # the robot ended (FAULT with --exit-when-done) or hangs
+                started = True
+                plant.step_period()
+            res["robot_exit"] = _wait(rob, 30)
+            res["robot"] = _stats(stats)
+            res["robot_fault_line"] = "FAULT" in procs.log("sensor_robot")
+            if res["robot_exit"] != 3:
+                res["logs"] = {"robot": procs.log("sensor_robot")[-1500:]}
+    finally:
+        bus.shutdown()
+    res["deadline_us"] = t_cut - period + timeout_ms * 1000 + period
+    res["state_at_cut"] = next((CtrlState(s).name for t, s in reversed(states) if t < t_cut), None)
+    zeros = [t for t, left, right in commands if t >= t_cut and left == 0 and right == 0]
+    res["first_zero_us"] = zeros[0] if zeros else None
+    res["nonzero_after_first_zero"] = sum(1 for t, left, right in commands
+                                          if zeros and t >= zeros[0] and (left, right) != (0, 0))
+    res["ticks_answered"] = len(commands)
+    return res
+
+
+def _qnav(procs: _Procs, name: str, args: list, timeout_s: float = 60) -> tuple[int | None, str]:
+    p = procs.start(name, [BIN / "qnav", *args])
+    return _wait(p, timeout_s), procs.log(name).strip()
+
+
+def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavlink: str | None = None,
+            robot_extra: list[str] | None = None, upload: Path | None = None, speed: float | None = None) -> dict:
+    """Mission A-D over MAVLink, the ground side as `qnav` commands (module docstring).
+
+    Default link: robot `udpout:127.0.0.1:P`, ground station `udpin:127.0.0.1:P`; a serial radio
+    passes its two ends. `upload`: a policy file `qnav upload --activate`s first. `speed`: paced
+    at that many times real time (robot on --sim-clock) instead of lockstep: a real-time link
+    such as a 57600-baud radio cannot carry telemetry sent on a clock running ~50x real time."""
+    if robot_mavlink is None or gcs_mavlink is None:
+        port = free_udp_port()
+        robot_mavlink, gcs_mavlink = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
+    res: dict = {"scenario": "mission", "can": can, "gcs": gcs_mavlink, "steps": {}}
+    steps = res["steps"]
+    link = ["--mavlink", gcs_mavlink]
+    tlog = work / "mission.tlog"
+    stats = work / "mission_robot.json"
+    with _Procs(work) as procs:
+        pace = ["--lockstep"] if speed is None else ["--speed", speed]
+        sim = procs.start("mission_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, *pace,
+                                          "--duration", 3000 if speed is None else 150 * speed, "--start", START,
+                                          "-q"])
+        clock = "--lockstep" if speed is None else "--sim-clock"
+        rob = procs.start("mission_robot", [BIN / "qnav-robot", "--can", can, clock, "--policy", CELL_POLICY,
+                                            "--start", START, "--storage", work / "storage", "--duration", 2999.95,
+                                            "--mavlink", robot_mavlink, "--stats-json", stats, *(robot_extra or [])])
+        t0 = time.monotonic()
+        if upload is not None:
+            code, out = _qnav(procs, "qnav_upload", ["upload", upload, "--activate", *link,
+                                                     "--timeout", "30"], 120)
+            steps["upload"] = {"exit": code, "seconds": round(time.monotonic() - t0, 2), "out": out[-600:]}
+        code, out = _qnav(procs, "qnav_mission", ["mission", "upload", "--targets", "A,B,C,D", *link,
+                                                  "--no-tlog", "--timeout", "30"])
+        steps["mission_upload"] = {"exit": code, "out": out[-600:]}
+        # lockstep runs the robot's clock ~50x real time: a ground station's 1 Hz wall-clock
+        # heartbeat cannot hold its 5 s sim-time GCS failsafe, so the operator turns it off
+        code, out = _qnav(procs, "qnav_param", ["param", "set", "FS_GCS_ENABLE", "0", *link, "--no-tlog",
+                                                "--timeout", "30"])
+        steps["param_fs_off"] = {"exit": code, "out": out[-600:]}
+        deadline = time.monotonic() + 40
+        tries = 0
+        while True:  # arming waits for fresh sensor frames from the sim
+            tries += 1
+            code, out = _qnav(procs, f"qnav_arm{tries}", ["arm", *link, "--no-tlog", "--timeout", "20"])
+            if code == 0 or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        steps["arm"] = {"exit": code, "tries": tries, "out": out[-600:]}
+        # `qnav mode auto` starts the mission; the world is paused the moment it answers, until
+        # the monitor listens (the robot's clock is the sim's: paused, it sends nothing)
+        mode = procs.start("qnav_mode", [BIN / "qnav", "mode", "auto", *link, "--no-tlog", "--timeout", "20"])
+        until = time.monotonic() + 30
+        while mode.poll() is None and "mode auto" not in procs.log("qnav_mode") and time.monotonic() < until:
+            time.sleep(0.005)
+        if speed is None:  # paced, the sim's clock is the wall's: it would catch up in a burst
+            sim.send_signal(signal.SIGSTOP)
+        try:
+            steps["mode_auto"] = {"exit": _wait(mode, 30), "out": procs.log("qnav_mode")[-600:]}
+            mon = procs.start("qnav_monitor", [BIN / "qnav", "monitor", "--plain", *link, "--tlog", tlog])
+            until = time.monotonic() + 20
+            while time.monotonic() < until and mon.poll() is None and "recording to" not in procs.log("qnav_monitor"):
+                time.sleep(0.05)
+            time.sleep(0.3)
+        finally:
+            sim.send_signal(signal.SIGCONT)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and procs.log("mission_robot").count("-> GOAL_REACHED") < 4:
+            if rob.poll() is not None or sim.poll() is not None:
+                break
+            time.sleep(0.2)
+        time.sleep(1.0)  # the last MISSION_ITEM_REACHED on its way
+        stop_process(mon, timeout_s=10, sig=signal.SIGINT)
+        res["mission_wall_s"] = round(time.monotonic() - t0, 2)
+        steps["monitor"] = {"exit": mon.returncode, "lines": len(procs.log("qnav_monitor").splitlines()),
+                            "tail": procs.log("qnav_monitor")[-400:]}
+        res["tlog"] = str(tlog)
+        res["reached_seq"] = _reached_seq(tlog)
+    res["robot"] = _stats(stats)
+    res["robot_goal_reached_lines"] = procs.log("mission_robot").count("-> GOAL_REACHED")
+    if res["reached_seq"] != [0, 1, 2, 3]:
+        res["logs"] = {"robot": procs.log("mission_robot")[-2000:], "sim": procs.log("mission_sim")[-800:]}
+    return res
+
+
+def _reached_seq(tlog: Path) -> list[int]:
+    """MISSION_ITEM_REACHED seqs in a tlog, in order."""
+    from ground_station.mavlink.link import mavutil
+
+    if not tlog.exists():
+        return []
+    mlog = mavutil().mavlink_connection(str(tlog), dialect="common")
+    seqs = []
+    try:
+        while (msg := mlog.recv_match(type="MISSION_ITEM_REACHED")) is not None:
+            seqs.append(msg.seq)
+    finally:
+        mlog.close()
+    return seqs
+
+
+SCENARIOS: dict[str, Callable[..., dict]] = {
+    "goal_reached": goal_reached,
+    "estop": estop,
+    "estop_cansend": lambda can, work: estop(can, work, sender="cansend"),
+    "sensor_stop": sensor_stop,
+    "mission": mission,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description="Run HIL scenarios on one CAN transport; one JSON per scenario.")
+    p.add_argument("--can", required=True, help="--can spec of the bus (e.g. socketcan:vcan0)")
+    p.add_argument("--out", required=True, type=Path, help="directory for <scenario>.json, logs and work files")
+    p.add_argument("--candump", metavar="CHANNEL", help="goal_reached: record the bus with candump -L CHANNEL")
+    p.add_argument("names", nargs="+", choices=sorted(SCENARIOS), metavar="SCENARIO",
+                   help=f"one or more of {', '.join(sorted(SCENARIOS))}")
+    args = p.parse_args(argv)
+    if args.candump and shutil.which("candump") is None:
+        p.error("--candump needs candump (can-utils)")
+    for name in args.names:
+        work = args.out / name
+        work.mkdir(parents=True, exist_ok=True)
+        t0 = time.monotonic()
+        try:
+            kw = {"candump": args.candump} if name == "goal_reached" and args.candump else {}
+            res = SCENARIOS[name](args.can, work, **kw)
+        except Exception as exc:  # noqa: BLE001 - reported to the test, which fails on it
+            res = {"scenario": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+        res["scenario_wall_s"] = round(time.monotonic() - t0, 2)
+        (args.out / f"{name}.json").write_text(json.dumps(res, indent=1))
+        print(f"{name}: {res.get('error', 'done')} ({res['scenario_wall_s']} s)", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
