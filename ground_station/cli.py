@@ -9,11 +9,10 @@ broken optional dependency only fails the command that needs it.
 from __future__ import annotations
 
 import argparse
-import importlib
-import pkgutil
 import sys
 
 from ground_station import commands
+from ground_station.commands import add_module_subparsers
 from ground_station.errors import CliError
 from ground_station.extras import require_station
 
@@ -23,10 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="qnav", description="qnav ground station: train, evaluate, export, upload, command, monitor.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"{commands.__name__}.{info.name}")
-        if hasattr(module, "add_subparser"):
-            module.add_subparser(sub)
+    add_module_subparsers(sub, commands)
     return parser
 
 

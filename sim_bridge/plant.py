@@ -16,6 +16,7 @@ from __future__ import annotations
 import random
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import can
 import numpy as np
@@ -215,12 +216,17 @@ def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
         if not started:
             stats.start_wait_s = time.perf_counter() - t0
         started = True
-        plant.step_period()
-        stats.wall_s = time.perf_counter() - t0  # kept current: a Ctrl-C ends the loop anywhere
-        if progress is not None:
-            progress.update(1)
+        _end_period(plant, t0, progress)
     stats.wall_s = time.perf_counter() - t0
     return stats
+
+
+def _end_period(plant: Plant, t0: float, progress: Any) -> None:
+    """Step the physics over one control period and account for it."""
+    plant.step_period()
+    plant.stats.wall_s = time.perf_counter() - t0  # kept current: a Ctrl-C ends the loop anywhere
+    if progress is not None:
+        progress.update(1)
 
 
 def run_paced(plant: Plant, bus: can.BusABC, duration_s: float, speed: float = 1.0, *,
@@ -244,9 +250,6 @@ def run_paced(plant: Plant, bus: can.BusABC, duration_s: float, speed: float = 1
                 plant.handle(msg, lockstep=False)
         while (msg := io.recv(0.0)) is not None:  # frames that arrived meanwhile
             plant.handle(msg, lockstep=False)
-        plant.step_period()
-        stats.wall_s = time.perf_counter() - t0  # kept current: a Ctrl-C ends the loop anywhere
-        if progress is not None:
-            progress.update(1)
+        _end_period(plant, t0, progress)
     stats.wall_s = time.perf_counter() - t0
     return stats

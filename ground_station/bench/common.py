@@ -1,10 +1,12 @@
-"""Shared output for benchmarks: a plain table on stdout and a JSON file."""
+"""Shared by benchmarks: a plain table on stdout and a JSON file; one timed upload."""
 
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 
 def report(name: str, rows: Sequence[tuple[str, object]], result: dict, json_path: str | None) -> None:
@@ -18,3 +20,30 @@ def report(name: str, rows: Sequence[tuple[str, object]], result: dict, json_pat
     if json_path:
         Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
         print(f"wrote {json_path}")
+
+
+def timed_upload(url: str, key_file: Path | None, local: Path, remote: str, root: Path,
+                 row: dict[str, Any]) -> None:
+    """Upload `local` to `remote` over `url` with the ground station's client and
+    fill `row`: seconds from the first FTP request to the CRC verified (None on
+    failure, with `error`), put attempts, byte_exact (the file under the robot's
+    store `root` equals `local`), success and the ratio to `row["theoretical_s"]`."""
+    from ground_station.mavlink.ftp_upload import upload_policy
+    from ground_station.mavlink.link import Link, LinkError
+
+    gcs = Link(url, signing_key=key_file, tlog=False)
+    try:
+        gcs.connect(10.0)
+        t0 = time.monotonic()
+        res = upload_policy(gcs, local, remote, deadline_s=600, attempts=10)
+        row["seconds"] = time.monotonic() - t0
+        row["attempts"] = res.put_attempts
+    except LinkError as exc:
+        row["seconds"] = None
+        row["error"] = str(exc)
+    finally:
+        gcs.close()
+    on_robot = root / remote.lstrip("/")
+    row["byte_exact"] = on_robot.is_file() and on_robot.read_bytes() == local.read_bytes()
+    row["success"] = row["byte_exact"] and row["seconds"] is not None
+    row["ratio"] = row["seconds"] / row["theoretical_s"] if row["seconds"] else None

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import random
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +28,7 @@ from ground_station.rigs.processes import robot_ftp_process
 
 def run_case(size: int, loss: float, signed: bool, key_file: Path | None, robot_port: int, root: Path,
              seed: int) -> dict:
-    from ground_station.mavlink.ftp_upload import upload_policy
-    from ground_station.mavlink.link import Link, LinkError
+    from ground_station.bench.common import timed_upload
     from ground_station.rigs import link_emulator as emu
 
     data = random.Random(seed).randbytes(size)
@@ -41,27 +39,12 @@ def run_case(size: int, loss: float, signed: bool, key_file: Path | None, robot_
         cfg = emu.LinkConfig(loss=loss, seed=seed)
         row: dict[str, Any] = {"size": size, "loss": loss, "signed": signed, "theoretical_s": theoretical_seconds(size, signed)}
         with emu.LinkEmulator(cfg, robot_peer=("127.0.0.1", robot_port)) as link:
-            gcs = Link(f"udpout:127.0.0.1:{link.gcs_port}", signing_key=key_file, tlog=False)
-            try:
-                gcs.connect(10.0)
-                t0 = time.monotonic()
-                res = upload_policy(gcs, local, remote, deadline_s=600, attempts=10)
-                row["seconds"] = time.monotonic() - t0
-                row["attempts"] = res.put_attempts
-            except LinkError as exc:
-                row["seconds"] = None
-                row["error"] = str(exc)
-            finally:
-                gcs.close()
+            timed_upload(f"udpout:127.0.0.1:{link.gcs_port}", key_file, local, remote, root, row)
             row["link_up"] = vars(link.stats.up).copy()
             row["link_down"] = vars(link.stats.down).copy()
-        on_robot = root / remote.lstrip("/")
-        row["byte_exact"] = on_robot.is_file() and on_robot.read_bytes() == data
-        row["success"] = row["byte_exact"] and row["seconds"] is not None
         log = root.parent / f"{root.name}.log"
         if not row["success"] and log.exists():
             row["robot_log_tail"] = log.read_text()[-2000:]
-        row["ratio"] = row["seconds"] / row["theoretical_s"] if row["seconds"] else None
     return row
 
 

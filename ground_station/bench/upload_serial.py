@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import random
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +23,7 @@ from ground_station.rigs.processes import robot_ftp_process
 
 def run_case(radio: Any, size: int, loss: float, signed: bool, key_file: Path | None, root: Path,
              seed: int) -> dict[str, Any]:
-    from ground_station.mavlink.ftp_upload import upload_policy
-    from ground_station.mavlink.link import Link, LinkError
+    from ground_station.bench.common import timed_upload
 
     data = random.Random(seed).randbytes(size)
     remote = f"/policies/serial-{size}-{int(loss * 100)}-{int(signed)}.qtab"
@@ -35,24 +33,9 @@ def run_case(radio: Any, size: int, loss: float, signed: bool, key_file: Path | 
         local = Path(tmp) / f"bench-{size}.qtab"
         local.write_bytes(data)
         up0, down0 = vars(radio.stats.up).copy(), vars(radio.stats.down).copy()
-        gcs = Link(f"{radio.gcs_device},{radio.config.baud}", signing_key=key_file, tlog=False)
-        try:
-            gcs.connect(10.0)
-            t0 = time.monotonic()
-            res = upload_policy(gcs, local, remote, deadline_s=600, attempts=10)
-            row["seconds"] = time.monotonic() - t0
-            row["attempts"] = res.put_attempts
-        except LinkError as exc:
-            row["seconds"] = None
-            row["error"] = str(exc)
-        finally:
-            gcs.close()
+        timed_upload(f"{radio.gcs_device},{radio.config.baud}", key_file, local, remote, root, row)
         row["link_up"] = {k: v - up0[k] for k, v in vars(radio.stats.up).items()}
         row["link_down"] = {k: v - down0[k] for k, v in vars(radio.stats.down).items()}
-    on_robot = root / remote.lstrip("/")
-    row["byte_exact"] = on_robot.is_file() and on_robot.read_bytes() == data
-    row["success"] = row["byte_exact"] and row["seconds"] is not None
-    row["ratio"] = row["seconds"] / row["theoretical_s"] if row["seconds"] else None
     return row
 
 

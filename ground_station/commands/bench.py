@@ -7,10 +7,9 @@ baseline measured in the same run and their ratio.
 from __future__ import annotations
 
 import argparse
-import importlib
-import pkgutil
 
 from ground_station import bench
+from ground_station.commands import add_module_subparsers
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +17,4 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                        description=__doc__)
     inner = p.add_subparsers(dest="bench", metavar="NAME")
     inner.required = True
-    for info in sorted(pkgutil.iter_modules(bench.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"{bench.__name__}.{info.name}")
-        if hasattr(module, "add_subparser"):
-            module.add_subparser(inner)
+    add_module_subparsers(inner, bench)

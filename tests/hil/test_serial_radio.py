@@ -64,26 +64,25 @@ def test_bytes_cross_at_the_baud_rate_both_ways_unchanged():
     assert radio.stats.up.frames_in == 12 and radio.stats.up.delivered == 12
 
 
+def _through_radio(cfg: RadioConfig, data: bytes, want: int) -> tuple[bytes, SerialRadio]:
+    """Write `data` into the ground end of a radio, read what reaches the robot end."""
+    with SerialRadio(cfg) as radio:
+        gcs, robot = _open(radio.gcs_device), _open(radio.robot_device)
+        try:
+            os.write(gcs, data)
+            got = _read(robot, want, 1.5)
+        finally:
+            os.close(gcs)
+            os.close(robot)
+    return got, radio
+
+
 def test_lost_packets_and_bytes_are_dropped_seeded():
     frames = [bytes([0xFD, 20, 0, 0, i, 1, 1, 0, 0, 0]) + bytes(20) + b"\x01\x02" for i in range(100)]
-    with SerialRadio(RadioConfig(baud=576000, loss=0.3, seed=5)) as radio:
-        gcs, robot = _open(radio.gcs_device), _open(radio.robot_device)
-        try:
-            os.write(gcs, b"".join(frames))
-            got = _read(robot, 100 * 32, 1.5)
-        finally:
-            os.close(gcs)
-            os.close(robot)
+    got, radio = _through_radio(RadioConfig(baud=576000, loss=0.3, seed=5), b"".join(frames), 100 * 32)
     lost = radio.stats.up.lost
     assert 15 <= lost <= 45 and len(got) == (100 - lost) * 32
-    with SerialRadio(RadioConfig(baud=576000, byte_loss=0.1, seed=5)) as radio:
-        gcs, robot = _open(radio.gcs_device), _open(radio.robot_device)
-        try:
-            os.write(gcs, b"".join(frames))
-            got = _read(robot, 100 * 32, 1.5)
-        finally:
-            os.close(gcs)
-            os.close(robot)
+    got, radio = _through_radio(RadioConfig(baud=576000, byte_loss=0.1, seed=5), b"".join(frames), 100 * 32)
     assert radio.bytes_lost[0] > 100 and len(got) == 100 * 32 - radio.bytes_lost[0]
 
 
