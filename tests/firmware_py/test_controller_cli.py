@@ -10,7 +10,7 @@ import pytest
 from firmware_py import cli
 from firmware_py.storage import ACTIVE_POLICY, Storage
 
-PAPER10_CELL = Path(__file__).resolve().parents[1] / "policies" / "paper10_cell.qtab"
+PAPER10_CELL = Path(__file__).resolve().parents[2] / "policies" / "paper10_cell.qtab"
 
 
 def test_help_lists_the_options(capsys):
