@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         twin_run(jobs[0])  # compile the kernels once, outside both timings (numba caches them on disk)
     except (OSError, ValueError) as exc:
         raise CliError(f"campaign job: {exc}") from None
-    outcomes = {}
+    outcomes: dict[int, dict] = {}
     for workers in (1, args.workers):
         t0 = time.perf_counter()
         with make_engine(args.engine, workers, args.ray_address) as engine:
