@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml setup.py
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[station,dev]'
+	$(BIN)/python -m pip install --quiet -e '.[station,dev,cluster]'
 	touch $(STAMP)
 
 venv: $(STAMP)

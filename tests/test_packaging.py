@@ -77,7 +77,7 @@ def test_base_dependencies_are_exactly_what_firmware_py_imports():
     assert third_party | {"serial"} == set(ROBOT_DISTS.values())
 
 
-def test_extras_split_station_hil_and_dev():
+def test_extras_split_station_hil_cluster_and_dev():
     extras = {k: {_dist_name(r) for r in v} for k, v in PYPROJECT["project"]["optional-dependencies"].items()}
     assert extras["station"] == set(STATION_IMPORTS)  # the guard checks every station package
     assert extras["hil"] == {"python-can-remote"}
@@ -85,7 +85,8 @@ def test_extras_split_station_hil_and_dev():
     assert not (extras["station"] | extras["hil"]) & set(ROBOT_DISTS)
     assert PYPROJECT["project"]["license"] == "MIT"  # SPDX string: no setuptools deprecation banner
     assert "setuptools>=77" in PYPROJECT["build-system"]["requires"]
-    assert "[station,dev]" in (ROOT / "Makefile").read_text()
+    assert extras["cluster"] == {"ray"}  # Ray only for campaigns, imported lazily by ground_station.campaign
+    assert "[station,dev,cluster]" in (ROOT / "Makefile").read_text()
 
 
 def test_robot_runs_without_any_station_package(tmp_path):

@@ -49,51 +49,72 @@ def _centre_m(col: int, row: int, height: int, cell_mm: int) -> tuple[float, flo
     return x / 1000, y / 1000
 
 
-def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None,
-                   guidance: str = "path") -> list[dict]:
-    """guidance "path": the robot gets the ground station's planned waypoints
-    (ground_station.maps.planner.plan_waypoints) as a mission, as the sector
-    policy is trained and evaluated; "direct": the goal alone."""
-    from ground_station.maps.planner import guidance_from_metadata, plan_waypoints
-
-    plan_kw = guidance_from_metadata(policy.metadata)  # the planner settings the policy trained with
-    cell_mm = round(gm.cell_size_m * 1000)
-    rows = []
-    for i, (s, heading, g) in enumerate(random_pairs(gm.occ, pairs, seed)):
-        sx, sy = _centre_m(*s, gm.height, cell_mm)
-        goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
-        goals = plan_waypoints(gm, s, g, **plan_kw) if guidance == "path" else [goal]
-        ep = run_episode(gm.occ, policy, (sx, sy, heading), goals, max_sim_s=max_sim_s, seed=seed + i)
-        rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g), "waypoints": len(goals),
-                     "result": ep.result, "contacts": ep.contacts, "success": ep.success,
-                     "sim_s": ep.sim_s, "wall_s": ep.wall_s,
-                     "final_error_mm": round(ep.final_error_mm, 1)})
-        if progress is not None:
-            progress.update(1)
-    return rows
+def sector_episodes(gm, pairs: int, seed: int) -> list[dict]:
+    """The seeded sector set: (start cell, heading, goal cell, episode seed) each."""
+    return [{"start": list(s), "heading_rad": heading, "goal": list(g), "seed": seed + i}
+            for i, (s, heading, g) in enumerate(random_pairs(gm.occ, pairs, seed))]
 
 
-def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None) -> list[dict]:
-    cell_mm = policy.cell_mm
+def cell_episodes(gm, policy: Policy, starts: int, seed: int) -> list[dict]:
+    """The seeded cell set: every target from each of `starts` random starts."""
     rng = random.Random(seed)
     goals: dict[str, tuple[int, int]] = {name: cell for name, cell in gm.targets.items() if cell in policy.goals}
     cells = [c for c in free_cells(gm.occ) if c not in goals.values()]
-    rows = []
+    out = []
     for i in range(starts):
         s = rng.choice(cells)
         heading = rng.uniform(-math.pi, math.pi)
+        out += [{"start": list(s), "heading_rad": heading, "target": name, "goal": list(g), "seed": seed + i}
+                for name, g in goals.items()]
+    return out
+
+
+def run_batch(job: dict) -> list[dict]:
+    """Run one batch of episodes (a campaign job: map, policy file, episode
+    specs); each episode is seeded by its own spec, so a batch's rows do not
+    depend on which worker runs it or what ran before."""
+    from firmware_py.policy import load_policy
+    from ground_station.maps import load_map
+    from ground_station.maps.planner import guidance_from_metadata, plan_waypoints
+
+    gm = load_map(job["map"])
+    policy = load_policy(job["policy"])
+    plan_kw = guidance_from_metadata(policy.metadata)  # the planner settings the policy trained with
+    cell_mm = round(gm.cell_size_m * 1000) if job["kind"] == "sector" else policy.cell_mm
+    rows = []
+    for ep_spec in job["episodes"]:
+        s = (int(ep_spec["start"][0]), int(ep_spec["start"][1]))
+        g = (int(ep_spec["goal"][0]), int(ep_spec["goal"][1]))
         sx, sy = _centre_m(*s, gm.height, cell_mm)
-        for name, g in goals.items():
-            goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
-            ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s,
-                             seed=seed + i)
-            rows.append({"start": list(s), "heading_rad": round(heading, 3), "target": name,
-                         "goal": list(g), "result": ep.result, "contacts": ep.contacts,
-                         "success": ep.success, "sim_s": ep.sim_s, "wall_s": ep.wall_s,
-                         "final_error_mm": round(ep.final_error_mm, 1)})
-            if progress is not None:
-                progress.update(1)
+        goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
+        if job["kind"] == "sector" and job["guidance"] == "path":
+            goals = plan_waypoints(gm, s, g, **plan_kw)
+        else:
+            goals = [goal]
+        ep = run_episode(gm.occ, policy, (sx, sy, ep_spec["heading_rad"]), goals, max_sim_s=job["max_sim_s"],
+                         seed=ep_spec["seed"])
+        row = {"start": list(s), "heading_rad": round(ep_spec["heading_rad"], 3)}
+        row.update({"target": ep_spec["target"]} if "target" in ep_spec else {})
+        row.update({"goal": list(g)})
+        row.update({"waypoints": len(goals)} if job["kind"] == "sector" else {})
+        row.update({"result": ep.result, "contacts": ep.contacts, "success": ep.success,
+                    "sim_s": ep.sim_s, "wall_s": ep.wall_s, "final_error_mm": round(ep.final_error_mm, 1)})
+        rows.append(row)
     return rows
+
+
+def run_set(kind: str, map_name: str, policy_path: str, episodes: list[dict], max_sim_s: float,
+            guidance: str = "path", engine=None, batch: int = 5, progress: bool = True) -> tuple[list[dict], dict]:
+    """All episodes of one set, in batches of `batch` on `engine` (default: in
+    this process). Returns the rows in episode order and the campaign stats."""
+    from ground_station.campaign.engines import LocalEngine
+
+    engine = engine or LocalEngine(1)
+    jobs = [{"kind": kind, "map": map_name, "policy": policy_path, "guidance": guidance, "max_sim_s": max_sim_s,
+             "episodes": episodes[i:i + batch]} for i in range(0, len(episodes), batch)]
+    batches, stats = engine.map(run_batch, jobs, desc=f"{kind} episodes (batches of {batch})",
+                                progress=progress, unit="batch")
+    return [r for rows in batches for r in rows], stats.as_dict()
 
 
 def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
@@ -123,15 +144,15 @@ def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
 def _summary(rows: list[dict]) -> dict:
     n = len(rows)
     sim = sum(r["sim_s"] for r in rows)
-    wall = sum(r["wall_s"] for r in rows)
     return {"episodes": n, "success": sum(r["success"] for r in rows),
             "success_rate": sum(r["success"] for r in rows) / n if n else 0.0,
             "reached": sum(r["result"] == "reached" for r in rows),
-            "with_contact": sum(r["contacts"] > 0 for r in rows),
-            "sim_s": sim, "wall_s": wall, "sim_per_wall": sim / wall if wall else 0.0}
+            "with_contact": sum(r["contacts"] > 0 for r in rows), "sim_s": sim}
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from ground_station.campaign.engines import add_engine_arguments
+
     p = sub.add_parser("hil", help="lockstep HIL acceptance episodes on paper10 (sector pairs, cell targets)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--map", default="paper10")
@@ -148,15 +169,16 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compare-twin", action="store_true",
                    help="sector: also roll the same episodes out on the training twin and report agreement")
     p.add_argument("--max-sim-s", type=float, default=120.0, help="episode limit in sim seconds")
-    p.add_argument("--json", metavar="FILE", help="write the result (with every episode) as JSON")
+    p.add_argument("--json", metavar="FILE",
+                   help="write the result (with every episode) as JSON; where and how long it ran goes to "
+                        "FILE's sibling *.campaign.json, so FILE is the same on every engine")
+    p.add_argument("--batch", type=int, default=5, metavar="N", help="episodes per campaign job (default: 5)")
+    add_engine_arguments(p, "episode batches")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
 
-    from firmware_py.policy import PolicyError, load_policy
-    from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
     from ground_station.bench.common import report
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
@@ -165,8 +187,28 @@ def run(args: argparse.Namespace) -> int:
         gm = load_map(args.map)
     except MapError as exc:
         raise CliError(str(exc)) from None
+    from ground_station.campaign.engines import engine_from_args, write_campaign
+
+    if args.batch < 1:
+        raise CliError(f"--batch must be >= 1, got {args.batch}")
     sets = [args.only] if args.only else ["sector", "cell"]
+    campaign: dict = {}
     result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s, "guidance": args.guidance}
+    engine = engine_from_args(args)
+    try:
+        rows_out = _run_sets(args, gm, sets, engine, result, campaign)
+    finally:
+        engine.close()
+    report("hil", rows_out, result, args.json)
+    write_campaign(args.json, campaign)
+    return 0
+
+
+def _run_sets(args: argparse.Namespace, gm, sets: list[str], engine, result: dict, campaign: dict) -> list:
+    from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
+    from ground_station.errors import CliError
+
     rows_out: list[tuple[str, object]] = []
     for kind in sets:
         spec = args.sector_policy if kind == "sector" else args.cell_policy
@@ -177,14 +219,10 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"{kind} policy {spec}: {exc}") from None
         if pol.kind != kind:
             raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
-        if kind == "sector":
-            total = args.pairs
-            with tqdm(total=total, desc="sector pairs", unit="ep") as bar:
-                rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar, args.guidance)
-        else:
-            total = args.starts * sum(1 for c in gm.targets.values() if c in pol.goals)
-            with tqdm(total=total, desc="cell targets", unit="ep") as bar:
-                rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar)
+        episodes = (sector_episodes(gm, args.pairs, args.seed) if kind == "sector"
+                    else cell_episodes(gm, pol, args.starts, args.seed))
+        rows, stats = run_set(kind, args.map, path, episodes, args.max_sim_s, args.guidance, engine, args.batch)
+        campaign[kind] = {**stats, "episode_wall_s": [r.pop("wall_s") for r in rows]}
         s = _summary(rows)
         if kind == "sector" and args.compare_twin:
             twin = twin_outcomes(gm, pol, rows, guidance=args.guidance)
@@ -198,10 +236,11 @@ def run(args: argparse.Namespace) -> int:
                      (f"{kind}: reached", s["reached"]),
                      (f"{kind}: episodes with wall contact", s["with_contact"]),
                      (f"{kind}: sim_s total", s["sim_s"]),
-                     (f"{kind}: wall_s total", s["wall_s"]),
-                     (f"{kind}: sim/wall (x real time)", s["sim_per_wall"])]
+                     (f"{kind}: episode wall_s total", sum(campaign[kind]["episode_wall_s"])),
+                     (f"{kind}: sim/wall per episode (x real time)",
+                      s["sim_s"] / max(1e-9, sum(campaign[kind]["episode_wall_s"]))),
+                     (f"{kind}: campaign wall_s ({stats['engine']}, {stats['workers']} workers)", stats["wall_s"])]
         if "twin_success" in s:
             rows_out += [("sector: twin success (same episodes)", f"{s['twin_success']}/{len(rows)}"),
                          ("sector: HIL/twin success agreement", f"{s['twin_agreement']}/{len(rows)}")]
-    report("hil", rows_out, result, args.json)
-    return 0
+    return rows_out

@@ -1,18 +1,27 @@
 """`qnav sweep`: the learning-rate study (the paper's Fig. 5).
 
-Trains every learning rate in --lrs with --seeds seeds each, on all CPU
-cores, evaluates each greedy policy on the map, and writes DIR/sweep.json
-and DIR/sweep.png (learning curves per eta; greedy success and final
-average return against eta). Other training flags apply to every run.
+Trains every learning rate in --lrs with --seeds seeds each (and every
+point of the --space search space), evaluates each greedy policy on the map,
+and writes DIR/sweep.json, DIR/sweep.png (learning curves per eta; greedy
+success and final average return against eta) and DIR/campaign.json (engine,
+workers, nodes, wall time). Other training flags apply to every run.
+
+The runs go to all local cores by default (--engine local), or to Ray
+(--engine ray: a private local instance, or a cluster with --ray-address;
+--tune runs them as a resumable Ray Tune experiment). sweep.json depends only
+on the seeded runs: the same command gives the same file on every engine.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
+from pathlib import Path
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from ground_station.campaign.engines import add_engine_arguments
     from ground_station.learn.config import add_config_arguments
 
     p = sub.add_parser("sweep", help="learning-rate study over several seeds (figure + JSON)",
@@ -20,7 +29,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for sweep.json and sweep.png")
     p.add_argument("--lrs", default="0.1:0.9:0.1", help="learning rates, start:stop:step or a,b,c (default: 0.1:0.9:0.1)")
     p.add_argument("--seeds", type=int, default=3, help="seeds per learning rate (default: 3)")
-    p.add_argument("--processes", type=int, default=None, help="worker processes (default: all cores)")
+    p.add_argument("--space", action="append", default=[], metavar="FIELD=KIND:VALUES",
+                   help="also vary any training field: FIELD=grid:a,b,c, or sampled --samples times with "
+                        "uniform:LO,HI, loguniform:LO,HI, int:LO,HI, choice:a,b,c (repeatable)")
+    p.add_argument("--samples", type=int, default=1, help="random draws of the sampled --space axes (default: 1)")
+    p.add_argument("--tune", action="store_true",
+                   help="with --engine ray: run the jobs as a Ray Tune experiment in DIR/tune/ "
+                        "(re-run the same command to resume an interrupted sweep)")
+    add_engine_arguments(p, "training runs")
+    p.add_argument("--processes", type=int, default=None, dest="workers", help=argparse.SUPPRESS)
     add_config_arguments(p, skip=("lr",))
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
@@ -28,6 +45,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ground_station.campaign.engines import engine_from_args
+    from ground_station.campaign.space import label, parse_axis
+    from ground_station.campaign.space import points as space_points
     from ground_station.errors import CliError
     from ground_station.learn.config import config_from_args, validate_config
     from ground_station.learn.sweep import parse_lrs, sweep, write_sweep
@@ -38,22 +58,29 @@ def run(args: argparse.Namespace) -> int:
         cfg.epsilon_start = cfg.epsilon_end = args.epsilon
     if args.seeds < 1:
         raise CliError(f"--seeds must be >= 1, got {args.seeds}")
-    if args.processes is not None and args.processes < 1:
-        raise CliError(f"--processes must be >= 1, got {args.processes}")
+    if args.tune and args.engine != "ray":
+        raise CliError("--tune needs --engine ray")
     try:
         lrs = parse_lrs(args.lrs)
-        validate_config(cfg)
+        points = space_points([parse_axis(a) for a in args.space], args.samples, cfg.seed)
+        for point in points:
+            validate_config(replace(cfg, **point))
         load_map(cfg.map)
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     t0 = time.perf_counter()
-    data = sweep(cfg, lrs, args.seeds, args.processes, progress=True)
+    with engine_from_args(args) as engine:
+        data = sweep(cfg, lrs, args.seeds, engine, progress=True, points=points if args.space else None,
+                     tune_dir=Path(args.out) / "tune" if args.tune else None)
     write_sweep(args.out, data)
-    print(f"sweep {cfg.encoding} on {cfg.map}: {len(lrs)} learning rates x {args.seeds} seeds, "
-          f"{cfg.steps:,} steps each, {data['processes']} processes, {time.perf_counter() - t0:.1f} s")
-    print(f"{'eta':>5}  {'greedy success':>16}  {'path ratio':>10}  {'final avg return':>18}")
+    c = data["campaign"]
+    print(f"sweep {cfg.encoding} on {cfg.map}: {len(points)} point(s) x {len(lrs)} learning rates x "
+          f"{args.seeds} seeds = {c['jobs']} runs of {cfg.steps:,} steps; engine {c['engine']}, "
+          f"{c['workers']} workers on {len(c['nodes'])} node(s), {time.perf_counter() - t0:.1f} s wall, "
+          f"{c['train_seconds_total']:.1f} s of training")
+    print(f"{'eta':>5}  {'greedy success':>16}  {'path ratio':>10}  {'final avg return':>18}  point")
     for s in data["summary"]:
         print(f"{s['lr']:>5g}  {s['success_mean']:>8.3f} ± {s['success_std']:<5.3f}  {s['path_ratio_mean']:>10.3f}  "
-              f"{s['final_avg_return_mean']:>9.3f} ± {s['final_avg_return_std']:<6.3f}")
-    print(f"wrote {args.out}/sweep.json, {args.out}/sweep.png")
+              f"{s['final_avg_return_mean']:>9.3f} ± {s['final_avg_return_std']:<6.3f}  {label(s['point'])}")
+    print(f"wrote {args.out}/sweep.json, {args.out}/campaign.json, {args.out}/sweep.png")
     return 0

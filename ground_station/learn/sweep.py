@@ -8,8 +8,6 @@ jobs are spread over processes.
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
-import os
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -60,28 +58,38 @@ def run_job(cfg_dict: dict) -> dict:
             "q_max_mean": float(res.q.max(axis=1).mean()), "curve": curve}
 
 
-def sweep(base: TrainConfig, lrs: list[float], seeds: int, processes: int | None = None,
-          progress: bool = False) -> dict:
-    """Run every (lr, seed) job on `processes` workers (default: all cores)."""
-    from tqdm import tqdm
+def sweep_jobs(base: TrainConfig, lrs: list[float], seeds: int,
+               points: list[dict] | None = None) -> list[dict]:
+    """The campaign's job list: every search point x learning rate x seed,
+    each a full TrainConfig dict (seeds base.seed .. base.seed + seeds - 1)."""
+    return [asdict(replace(base, **point, lr=lr, seed=base.seed + k))
+            for point in (points or [{}]) for lr in lrs for k in range(seeds)]
 
-    jobs = [asdict(replace(base, lr=lr, seed=base.seed + k)) for lr in lrs for k in range(seeds)]
-    procs = processes or os.cpu_count() or 1
-    results: list[dict] = []
-    with tqdm(total=len(jobs), unit="run", disable=not progress, desc="sweep", leave=False) as bar:
-        if procs == 1:
-            for j in jobs:
-                results.append(run_job(j))
-                bar.update(1)
-        else:
-            with mp.get_context("fork").Pool(min(procs, len(jobs))) as pool:
-                for r in pool.imap_unordered(run_job, jobs):
-                    results.append(r)
-                    bar.update(1)
-    results.sort(key=lambda r: (r["lr"], r["seed"]))
+
+def sweep(base: TrainConfig, lrs: list[float], seeds: int, engine=None, progress: bool = False,
+          points: list[dict] | None = None, tune_dir: Path | None = None) -> dict:
+    """Run every (point, lr, seed) job on `engine` (default: the local pool on
+    all cores), or as Ray Tune trials stored in `tune_dir` when given
+    (resumable). The result depends only on the jobs; where and how long they
+    ran is in `data["campaign"]`, which `write_sweep` keeps apart."""
+    from ground_station.campaign.engines import LocalEngine
+
+    jobs = sweep_jobs(base, lrs, seeds, points)
+    if tune_dir is not None:
+        from ground_station.campaign.tune import run_on_tune
+
+        results, stats = run_on_tune(run_job, jobs, tune_dir, engine, progress=progress)
+    else:
+        engine = engine or LocalEngine()
+        results, stats = engine.map(run_job, jobs, desc="sweep", progress=progress, unit="run")
+    seconds = [r.pop("train_seconds") for r in results]
+    for r, job in zip(results, jobs, strict=True):
+        r["point"] = {k: job[k] for k in (points or [{}])[0]}
+    campaign = {**stats.as_dict(), "tune_dir": str(tune_dir) if tune_dir else None,
+                "train_seconds_total": round(sum(seconds), 3)}
     summary = []
-    for lr in lrs:
-        rs = [r for r in results if r["lr"] == lr]
+    for point, lr in [(p, lr) for p in (points or [{}]) for lr in lrs]:
+        rs = [r for r in results if r["lr"] == lr and r["point"] == point]
         succ = np.array([r["success_rate"] for r in rs])
         final_ret = np.array([r["curve"][-1]["avg_return"] if r["curve"] else np.nan for r in rs])
         n = min(len(r["curve"]) for r in rs)
@@ -89,7 +97,7 @@ def sweep(base: TrainConfig, lrs: list[float], seeds: int, processes: int | None
                   "avg_return": float(np.mean([r["curve"][i]["avg_return"] for r in rs])),
                   "success_rate": float(np.mean([r["curve"][i]["success_rate"] for r in rs]))}
                  for i in range(n)]
-        summary.append({"lr": lr, "success_mean": float(succ.mean()), "success_std": float(succ.std()),
+        summary.append({"point": point, "lr": lr, "success_mean": float(succ.mean()), "success_std": float(succ.std()),
                         "final_avg_return_mean": float(np.nanmean(final_ret)),
                         "final_avg_return_std": float(np.nanstd(final_ret)),
                         "path_ratio_mean": float(np.mean([r["path_ratio_mean"] for r in rs
@@ -99,7 +107,8 @@ def sweep(base: TrainConfig, lrs: list[float], seeds: int, processes: int | None
     for r in results:
         del r["curve"]
     return {"map": base.map, "encoding": base.encoding, "lrs": lrs, "seeds": seeds,
-            "processes": procs, "config": asdict(base), "summary": summary, "runs": results}
+            "points": points or [{}], "config": asdict(base), "summary": summary, "runs": results,
+            "campaign": campaign}
 
 
 def plot_sweep(data: dict) -> bytes:
@@ -110,26 +119,38 @@ def plot_sweep(data: dict) -> bytes:
     plt = pyplot()
     fig, (ax1, ax2, ax4) = plt.subplots(1, 3, figsize=(16, 4.5), dpi=100)
     cmap = plt.get_cmap("viridis")
+    from ground_station.campaign.space import label
+
     lrs = data["lrs"]
+    n_curves = max(1, len(data["summary"]) - 1)
     for i, s in enumerate(data["summary"]):
+        name = f"eta={s['lr']:g}" + (f", {label(s['point'])}" if s.get("point") else "")
         ax1.plot([p["episode"] for p in s["curve"]], [p["avg_return"] for p in s["curve"]],
-                 color=cmap(i / max(1, len(lrs) - 1)), label=f"eta={s['lr']:g}")
+                 color=cmap(i / n_curves), label=name)
     ax1.set_xlabel("episode")
     ax1.set_ylabel("average return per episode (mean over seeds)")
     ax1.set_title(f"learning curves, {data['encoding']} on {data['map']}")
     ax1.legend(fontsize=7, ncol=2)
-    sm = data["summary"]
-    ax2.errorbar(lrs, [s["success_mean"] for s in sm], yerr=[s["success_std"] for s in sm],
-                 marker="o", color="tab:green", capsize=3, label="greedy success rate")
-    ax2.set_xlabel("learning rate eta")
-    ax2.set_ylabel("greedy success rate", color="tab:green")
-    ax2.set_ylim(-0.02, 1.05)
     ax3 = ax2.twinx()
-    ax3.errorbar(lrs, [s["final_avg_return_mean"] for s in sm], yerr=[s["final_avg_return_std"] for s in sm],
-                 marker="s", color="tab:blue", capsize=3, label="final average return")
-    ax3.set_ylabel("final average return (training)", color="tab:blue")
+    series = data.get("points") or [{}]
+    for point in series:
+        sm = [s for s in data["summary"] if s.get("point", {}) == point]
+        suffix = f" ({label(point)})" if point else ""
+        ax2.errorbar(lrs, [s["success_mean"] for s in sm], yerr=[s["success_std"] for s in sm],
+                     marker="o", capsize=3, label="greedy success rate" + suffix,
+                     color="tab:green" if len(series) == 1 else None)
+        ax3.errorbar(lrs, [s["final_avg_return_mean"] for s in sm], yerr=[s["final_avg_return_std"] for s in sm],
+                     marker="s", capsize=3, linestyle="--", label="final average return" + suffix,
+                     color="tab:blue" if len(series) == 1 else None)
+        ax4.plot(lrs, [s["path_ratio_mean"] for s in sm], marker="o", label=label(point),
+                 color="tab:red" if len(series) == 1 else None)
+    ax2.set_xlabel("learning rate eta")
+    ax2.set_ylabel("greedy success rate (solid)", color="tab:green")
+    ax2.set_ylim(-0.02, 1.05)
+    ax3.set_ylabel("final average return, training (dashed)", color="tab:blue")
     ax2.set_title(f"learning-rate study, {data['seeds']} seeds each")
-    ax4.plot(lrs, [s["path_ratio_mean"] for s in sm], marker="o", color="tab:red")
+    if len(series) > 1:
+        ax4.legend(fontsize=7)
     ax4.set_xlabel("learning rate eta")
     ax4.set_ylabel("greedy path length / shortest (mean)")
     ax4.set_title("path quality of successful rollouts")
@@ -138,8 +159,13 @@ def plot_sweep(data: dict) -> bytes:
 
 
 def write_sweep(out: str | Path, data: dict) -> None:
+    """sweep.json (depends only on the seeded jobs: identical on every engine),
+    campaign.json (engine, workers, nodes, wall time) and sweep.png."""
     from firmware_py.atomic import atomic_write
 
     out = Path(out)
-    atomic_write(out / "sweep.json", json.dumps(data, indent=1) + "\n", make_parents=True)
+    result = {k: v for k, v in data.items() if k != "campaign"}
+    atomic_write(out / "sweep.json", json.dumps(result, indent=1) + "\n", make_parents=True)
+    if "campaign" in data:
+        atomic_write(out / "campaign.json", json.dumps(data["campaign"], indent=1) + "\n")
     atomic_write(out / "sweep.png", plot_sweep(data))

@@ -1,0 +1,233 @@
+"""Where a campaign's jobs run: the local process pool or a Ray cluster.
+
+A campaign is a list of independent, self-seeded jobs (one training run, or
+a batch of seeded episodes) and one top-level function that runs a job.
+`Engine.map` runs them and returns the results in job order, so a result
+file depends only on the jobs, never on the engine, the number of workers
+or the order in which they finished.
+
+`LocalEngine` is the embedded default (a fork pool over the local cores,
+no extra dependency). `RayEngine` submits one Ray task per job to a local
+Ray instance or to a cluster (`--ray-address`); Ray is imported only here
+and only when asked for (`pip install 'qnav[cluster]'`).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import socket
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from ground_station.errors import CliError
+
+ENGINES = ("local", "ray")
+RAY_INSTALL_HINT = "Ray is not installed: pip install 'qnav[cluster]' (or: pip install 'ray[tune]')"
+
+
+@dataclass
+class RunStats:
+    """What a `map` call cost: engine, workers, wall time and where jobs ran."""
+
+    engine: str
+    workers: int
+    jobs: int
+    wall_s: float = 0.0
+    nodes: dict[str, int] = field(default_factory=dict)  # node -> jobs run there
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"engine": self.engine, "workers": self.workers, "jobs": self.jobs,
+                "wall_s": round(self.wall_s, 3), "nodes": dict(sorted(self.nodes.items()))}
+
+
+def _local_node() -> str:
+    return socket.gethostname()
+
+
+def _call(fn: Callable[[Any], Any], job: Any) -> tuple[Any, str]:
+    return fn(job), _local_node()
+
+
+def _call_indexed(args: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any, str]:
+    fn, i, job = args
+    res, node = _call(fn, job)
+    return i, res, node
+
+
+class Engine(ABC):
+    """Runs a campaign's jobs; results come back in job order."""
+
+    name: str
+    workers: int
+
+    @abstractmethod
+    def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any], *, desc: str = "jobs",
+            progress: bool = True, unit: str = "job") -> tuple[list[Any], RunStats]:
+        """Run `fn(job)` for every job (fn must be a module-level function)."""
+
+    def close(self) -> None:  # noqa: B027 - engines without resources need nothing
+        """Release what the engine holds (a Ray connection)."""
+
+    def __enter__(self) -> Engine:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class LocalEngine(Engine):
+    """A fork pool over the local cores; one worker runs in-process."""
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None) -> None:
+        self.workers = workers or os.cpu_count() or 1
+
+    def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any], *, desc: str = "jobs",
+            progress: bool = True, unit: str = "job") -> tuple[list[Any], RunStats]:
+        from tqdm import tqdm
+
+        stats = RunStats(self.name, self.workers, len(jobs))
+        out: list[Any] = [None] * len(jobs)
+        t0 = time.perf_counter()
+        with tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress, leave=False) as bar:
+            if self.workers == 1 or len(jobs) <= 1:
+                for i, job in enumerate(jobs):
+                    out[i], node = _call(fn, job)
+                    stats.nodes[node] = stats.nodes.get(node, 0) + 1
+                    bar.update(1)
+            else:
+                with mp.get_context("fork").Pool(min(self.workers, len(jobs))) as pool:
+                    for i, res, node in pool.imap_unordered(_call_indexed, [(fn, i, j) for i, j in enumerate(jobs)]):
+                        out[i] = res
+                        stats.nodes[node] = stats.nodes.get(node, 0) + 1
+                        bar.update(1)
+        stats.wall_s = time.perf_counter() - t0
+        return out, stats
+
+
+def import_ray() -> Any:
+    """`ray`, or a CliError with the one-line install hint."""
+    try:
+        import ray
+    except ImportError:
+        raise CliError(RAY_INSTALL_HINT) from None
+    return ray
+
+
+class RayEngine(Engine):
+    """One Ray task per job (1 CPU each) on a local Ray instance or a cluster.
+
+    Without `address` a private local instance with `workers` CPUs is started
+    (and stopped on close); with one (`auto`, `HOST:PORT` or `ray://...`) the
+    engine joins that cluster, and `workers` is the cluster's CPU count.
+    Results are fetched in submission order, so they do not depend on which
+    node ran which task; `RunStats.nodes` records where each ran.
+    """
+
+    name = "ray"
+
+    def __init__(self, workers: int | None = None, address: str | None = None) -> None:
+        ray = import_ray()
+        self._ray = ray
+        self._own = address is None
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
+                                  "configure_logging": False}
+        if self._own:
+            kwargs["num_cpus"] = workers or os.cpu_count() or 1
+        else:
+            kwargs["address"] = address
+        try:
+            # Workers import the qnav packages from the driver's tree when they run on this machine;
+            # cluster workers need qnav installed (docs/campaigns.md).
+            ray.init(**kwargs)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            raise CliError(f"cannot reach Ray at {address or 'a local instance'}: "
+                           f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        self.workers = int(ray.cluster_resources().get("CPU", 1)) if not self._own else kwargs["num_cpus"]
+        self._remote = ray.remote(num_cpus=1, max_retries=2)(_ray_task)
+
+    def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any], *, desc: str = "jobs",
+            progress: bool = True, unit: str = "job") -> tuple[list[Any], RunStats]:
+        from tqdm import tqdm
+
+        ray = self._ray
+        stats = RunStats(self.name, self.workers, len(jobs))
+        t0 = time.perf_counter()
+        fn_ref = ray.put(fn)
+        refs = [self._remote.remote(fn_ref, job) for job in jobs]
+        pending = list(refs)
+        with tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress, leave=False) as bar:
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                bar.update(len(done))
+        out: list[Any] = []
+        for res, node in ray.get(refs):
+            out.append(res)
+            stats.nodes[node] = stats.nodes.get(node, 0) + 1
+        stats.wall_s = time.perf_counter() - t0
+        return out, stats
+
+    def close(self) -> None:
+        if self._ray.is_initialized():
+            self._ray.shutdown()
+
+
+def _ray_task(fn: Callable[[Any], Any], job: Any) -> tuple[Any, str]:
+    """Runs on a Ray worker: the job, and the Ray node id it ran on."""
+    import ray
+
+    return fn(job), ray.get_runtime_context().get_node_id()
+
+
+def make_engine(name: str, workers: int | None = None, address: str | None = None) -> Engine:
+    """The engine a command's `--engine/--workers/--ray-address` ask for."""
+    if workers is not None and workers < 1:
+        raise CliError(f"--workers must be >= 1, got {workers}")
+    if name == "local":
+        if address:
+            raise CliError("--ray-address needs --engine ray")
+        return LocalEngine(workers)
+    if name == "ray":
+        return RayEngine(workers, address)
+    raise CliError(f"unknown engine {name!r}: choose from {', '.join(ENGINES)}")
+
+
+def add_engine_arguments(p: Any, what: str = "jobs") -> None:
+    """`--engine`, `--workers`, `--ray-address` on a campaign command."""
+    p.add_argument("--engine", choices=ENGINES, default="local",
+                   help=f"where the {what} run: a local process pool (default) or Ray "
+                        "(pip install 'qnav[cluster]')")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel workers (default: all local cores; with --ray-address: the cluster's CPUs)")
+    p.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="join a running Ray cluster (auto, HOST:PORT or ray://HOST:10001) instead of "
+                        "starting a private one; needs --engine ray")
+
+
+def engine_from_args(args: Any) -> Engine:
+    return make_engine(args.engine, args.workers, args.ray_address)
+
+
+def campaign_path(json_path: str | os.PathLike[str]) -> str:
+    """Where a result file's campaign record goes: FILE.json -> FILE.campaign.json."""
+    p = os.fspath(json_path)
+    return (p[:-5] if p.endswith(".json") else p) + ".campaign.json"
+
+
+def write_campaign(json_path: str | None, campaign: dict[str, Any]) -> None:
+    """Write the campaign record (engine, workers, nodes, wall times) beside a
+    result file, so the result file itself depends only on the seeded jobs."""
+    if not json_path:
+        return
+    import json
+
+    from firmware_py.atomic import atomic_write
+
+    path = campaign_path(json_path)
+    atomic_write(path, json.dumps(campaign, indent=1) + "\n")
+    print(f"wrote {path}")

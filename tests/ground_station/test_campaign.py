@@ -1,0 +1,175 @@
+"""The campaign layer: search spaces, the local engine, and the same seeded
+campaigns on the local pool and on a two-node Ray cluster (head + worker node
+started as separate `ray start` processes on this machine)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ground_station.campaign import engines, space
+from ground_station.errors import CliError
+
+ROOT = Path(__file__).resolve().parents[2]
+SWEEP = ["sweep", "--map", "paper10", "--encoding", "cell", "--lrs", "0.2,0.6", "--seeds", "2",
+         "--steps", "20000", "--curve-points", "20"]
+
+
+def qnav(*args: str, env: dict | None = None, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ground_station.cli", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=timeout, check=False)
+
+
+# --- search spaces --------------------------------------------------------------------
+
+def test_space_grid_and_seeded_samples():
+    axes = [space.parse_axis("gamma=grid:0.9,0.95"), space.parse_axis("epsilon_end=uniform:0.05,0.2"),
+            space.parse_axis("max-episode-steps=int:50,80")]
+    pts = space.points(axes, samples=3, seed=5)
+    assert len(pts) == 6
+    assert {p["gamma"] for p in pts} == {0.9, 0.95}
+    assert all(0.05 <= p["epsilon_end"] <= 0.2 and 50 <= p["max_episode_steps"] <= 80 for p in pts)
+    assert pts == space.points(axes, samples=3, seed=5)          # seeded: the same draws every time
+    assert pts != space.points(axes, samples=3, seed=6)
+    assert isinstance(pts[0]["max_episode_steps"], int)
+
+
+@pytest.mark.parametrize("spec, msg", [
+    ("gamma", "FIELD=KIND:VALUES"), ("nope=grid:1", "no field 'nope'"), ("gamma=grid:abc", "not a valid"),
+    ("lr=uniform:0.5", "LO,HI"), ("lr=loguniform:0,1", "0 < LO < HI"), ("lr=bell:1,2", "unknown kind"),
+    ("seed=grid:1,2", "--seeds"), ("gamma=grid:nan", "not a valid"),
+])
+def test_space_bad_specs(spec, msg):
+    with pytest.raises(ValueError, match=msg):
+        space.parse_axis(spec)
+
+
+# --- engines --------------------------------------------------------------------------
+
+def _slow_square(x: int) -> int:
+    time.sleep(0.05 * (4 - x % 4))  # later jobs finish first
+    return x * x
+
+
+def test_local_engine_keeps_job_order_and_counts():
+    out, stats = engines.LocalEngine(2).map(_slow_square, list(range(8)), progress=False)
+    assert out == [x * x for x in range(8)]
+    assert stats.jobs == 8 and sum(stats.nodes.values()) == 8 and stats.workers == 2
+
+
+def test_engine_arguments_refused_with_one_line():
+    with pytest.raises(CliError, match="--workers must be >= 1"):
+        engines.make_engine("local", 0)
+    with pytest.raises(CliError, match="needs --engine ray"):
+        engines.make_engine("local", 1, "127.0.0.1:1")
+    r = qnav(*SWEEP, "--out", "/tmp/x", "--tune")
+    assert r.returncode != 0 and "--tune needs --engine ray" in r.stderr
+
+
+def test_ray_missing_says_how_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` sees without the extra
+    with pytest.raises(CliError, match=r"pip install 'qnav\[cluster\]'"):
+        engines.make_engine("ray", 1)
+
+
+def test_campaign_path():
+    assert engines.campaign_path("out/hil.json") == "out/hil.campaign.json"
+    assert engines.campaign_path("res") == "res.campaign.json"
+
+
+# --- the same campaigns on the local pool and on a Ray cluster ------------------------
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    pytest.importorskip("ray", reason="Ray (qnav[cluster]) is not installed: the Ray engine cannot run")
+    from ground_station.rigs.ray_cluster import LocalRayCluster
+
+    c = LocalRayCluster(tmp_path_factory.mktemp("raycluster"), workers=1)
+    try:
+        c.start()
+    except BaseException:
+        c.stop()
+        raise
+    yield c
+    c.stop()
+    assert c.pids() == [], "Ray processes left running"
+
+
+@pytest.fixture(scope="module")
+def local_sweep(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep_local")
+    r = qnav(*SWEEP, "--out", str(out), "--workers", "2")
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+@pytest.mark.ray
+def test_sweep_identical_on_ray_cluster_and_runs_on_both_nodes(cluster, local_sweep, tmp_path):
+    r = qnav(*SWEEP, "--out", str(tmp_path), "--engine", "ray", "--ray-address", cluster.address,
+             env=cluster.env())
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "sweep.json").read_bytes() == (local_sweep / "sweep.json").read_bytes()
+    camp = json.loads((tmp_path / "campaign.json").read_text())
+    assert camp["engine"] == "ray" and camp["jobs"] == 4
+    assert len(camp["nodes"]) == 2, f"tasks ran on {camp['nodes']}, expected both nodes"
+
+
+@pytest.mark.ray
+def test_bench_hil_identical_on_ray_cluster(cluster, tmp_path):
+    args = ["bench", "hil", "--only", "cell", "--starts", "2", "--batch", "1"]
+    local = qnav(*args, "--json", str(tmp_path / "local.json"))
+    assert local.returncode == 0, local.stderr[-2000:]
+    on_ray = qnav(*args, "--json", str(tmp_path / "ray.json"), "--engine", "ray", "--ray-address", cluster.address,
+                  env=cluster.env())
+    assert on_ray.returncode == 0, on_ray.stderr[-2000:]
+    assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
+    camp = json.loads((tmp_path / "ray.campaign.json").read_text())
+    assert camp["cell"]["jobs"] == 8 and len(camp["cell"]["nodes"]) == 2
+
+
+@pytest.mark.ray
+def test_tune_sweep_resumes_after_interruption(cluster, local_sweep, tmp_path):
+    """Interrupt a Tune sweep once its first trial has finished, run the same
+    command again: it restores the experiment and the result equals the local
+    engine's."""
+    cmd = [sys.executable, "-m", "ground_station.cli", *SWEEP, "--out", str(tmp_path), "--engine", "ray",
+           "--ray-address", cluster.address, "--tune"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=cluster.env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and proc.poll() is None:
+            if any(p.stat().st_size > 0 for p in (tmp_path / "tune").glob("sweep/job_*/result.json")):
+                break
+            time.sleep(0.2)
+        interrupted = proc.poll() is None
+        if interrupted:
+            os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=60)
+        assert interrupted, "the sweep finished before it could be interrupted"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert (tmp_path / "tune" / "sweep").is_dir()
+    r = qnav(*SWEEP, "--out", str(tmp_path), "--engine", "ray", "--ray-address", cluster.address, "--tune",
+             env=cluster.env())
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "sweep.json").read_bytes() == (local_sweep / "sweep.json").read_bytes()
+    assert json.loads((tmp_path / "campaign.json").read_text())["engine"] == "ray-tune"
+
+
+def test_ray_is_imported_only_when_asked_for():
+    code = ("import sys; from ground_station.cli import build_parser; build_parser(); "
+            "from ground_station.campaign import engines, space; from ground_station.learn import sweep; "
+            "from ground_station.bench import hil, campaign; print('ray' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "False"
