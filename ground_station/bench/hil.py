@@ -239,7 +239,8 @@ def _run_sets(args: argparse.Namespace, gm, sets: list[str], engine, result: dic
                      (f"{kind}: episode wall_s total", sum(campaign[kind]["episode_wall_s"])),
                      (f"{kind}: sim/wall per episode (x real time)",
                       s["sim_s"] / max(1e-9, sum(campaign[kind]["episode_wall_s"]))),
-                     (f"{kind}: campaign wall_s ({stats['engine']}, {stats['workers']} workers)", stats["wall_s"])]
+                     (f"{kind}: campaign wall_s ({stats['engine']}, {stats['workers']} workers)", stats["wall_s"]),
+                     (f"{kind}: campaign speedup over one core (job time / wall)", stats["speedup_over_one_core"])]
         if "twin_success" in s:
             rows_out += [("sector: twin success (same episodes)", f"{s['twin_success']}/{len(rows)}"),
                          ("sector: HIL/twin success agreement", f"{s['twin_agreement']}/{len(rows)}")]

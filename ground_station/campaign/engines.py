@@ -37,25 +37,42 @@ class RunStats:
     workers: int
     jobs: int
     wall_s: float = 0.0
+    job_s: float = 0.0  # the jobs' own run times, summed: what one core would need
     nodes: dict[str, int] = field(default_factory=dict)  # node -> jobs run there
+
+    def add(self, node: str, seconds: float) -> None:
+        self.nodes[node] = self.nodes.get(node, 0) + 1
+        self.job_s += seconds
+
+    @property
+    def speedup(self) -> float:
+        """Sum of job times over the campaign's wall time: the speedup over one core."""
+        return self.job_s / self.wall_s if self.wall_s > 0 else 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return {"engine": self.engine, "workers": self.workers, "jobs": self.jobs,
-                "wall_s": round(self.wall_s, 3), "nodes": dict(sorted(self.nodes.items()))}
+                "wall_s": round(self.wall_s, 3), "job_s": round(self.job_s, 3),
+                "speedup_over_one_core": round(self.speedup, 2), "nodes": dict(sorted(self.nodes.items()))}
+
+    def summary(self) -> str:
+        return (f"engine {self.engine}, {self.workers} workers on {len(self.nodes)} node(s): {self.jobs} jobs, "
+                f"{self.wall_s:.1f} s wall, {self.job_s:.1f} s of job time, "
+                f"speedup over one core {self.speedup:.2f}x")
 
 
 def _local_node() -> str:
     return socket.gethostname()
 
 
-def _call(fn: Callable[[Any], Any], job: Any) -> tuple[Any, str]:
-    return fn(job), _local_node()
+def _call(fn: Callable[[Any], Any], job: Any) -> tuple[Any, str, float]:
+    t0 = time.perf_counter()
+    res = fn(job)
+    return res, _local_node(), time.perf_counter() - t0
 
 
-def _call_indexed(args: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any, str]:
+def _call_indexed(args: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any, str, float]:
     fn, i, job = args
-    res, node = _call(fn, job)
-    return i, res, node
+    return (i, *_call(fn, job))
 
 
 class Engine(ABC):
@@ -97,14 +114,15 @@ class LocalEngine(Engine):
         with tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress, leave=False) as bar:
             if self.workers == 1 or len(jobs) <= 1:
                 for i, job in enumerate(jobs):
-                    out[i], node = _call(fn, job)
-                    stats.nodes[node] = stats.nodes.get(node, 0) + 1
+                    out[i], node, seconds = _call(fn, job)
+                    stats.add(node, seconds)
                     bar.update(1)
             else:
                 with mp.get_context("fork").Pool(min(self.workers, len(jobs))) as pool:
-                    for i, res, node in pool.imap_unordered(_call_indexed, [(fn, i, j) for i, j in enumerate(jobs)]):
+                    for i, res, node, seconds in pool.imap_unordered(
+                            _call_indexed, [(fn, i, j) for i, j in enumerate(jobs)]):
                         out[i] = res
-                        stats.nodes[node] = stats.nodes.get(node, 0) + 1
+                        stats.add(node, seconds)
                         bar.update(1)
         stats.wall_s = time.perf_counter() - t0
         return out, stats
@@ -166,9 +184,9 @@ class RayEngine(Engine):
                 done, pending = ray.wait(pending, num_returns=1)
                 bar.update(len(done))
         out: list[Any] = []
-        for res, node in ray.get(refs):
+        for res, node, seconds in ray.get(refs):
             out.append(res)
-            stats.nodes[node] = stats.nodes.get(node, 0) + 1
+            stats.add(node, seconds)
         stats.wall_s = time.perf_counter() - t0
         return out, stats
 
@@ -177,11 +195,13 @@ class RayEngine(Engine):
             self._ray.shutdown()
 
 
-def _ray_task(fn: Callable[[Any], Any], job: Any) -> tuple[Any, str]:
-    """Runs on a Ray worker: the job, and the Ray node id it ran on."""
+def _ray_task(fn: Callable[[Any], Any], job: Any) -> tuple[Any, str, float]:
+    """Runs on a Ray worker: the job, the Ray node id it ran on, its run time."""
     import ray
 
-    return fn(job), ray.get_runtime_context().get_node_id()
+    t0 = time.perf_counter()
+    res = fn(job)
+    return res, ray.get_runtime_context().get_node_id(), time.perf_counter() - t0
 
 
 def make_engine(name: str, workers: int | None = None, address: str | None = None) -> Engine:

@@ -29,8 +29,10 @@ def _trial(config: dict[str, Any], fn: Callable[[Any], Any]) -> None:
     from ray import tune
 
     item = config["item"]
+    t0 = time.perf_counter()
     result = fn(item["job"])
     tune.report({"result_json": json.dumps(result), "job_index": item["index"],
+                 "job_s": time.perf_counter() - t0,
                  "node": ray.get_runtime_context().get_node_id()})
 
 
@@ -82,8 +84,7 @@ def run_on_tune(fn: Callable[[Any], Any], jobs: list[Any], tune_dir: Path, engin
             raise CliError(f"a Tune trial failed ({res.path}): {res.error}")
         i = int(res.metrics["job_index"])
         out[i] = json.loads(res.metrics["result_json"])
-        node = str(res.metrics.get("node", "?"))
-        stats.nodes[node] = stats.nodes.get(node, 0) + 1
+        stats.add(str(res.metrics.get("node", "?")), float(res.metrics.get("job_s", 0.0)))
     missing = [i for i, r in enumerate(out) if r is None]
     if missing:
         raise CliError(f"Tune experiment {path} lacks results for jobs {missing[:5]}")

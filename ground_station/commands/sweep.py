@@ -75,9 +75,10 @@ def run(args: argparse.Namespace) -> int:
     write_sweep(args.out, data)
     c = data["campaign"]
     print(f"sweep {cfg.encoding} on {cfg.map}: {len(points)} point(s) x {len(lrs)} learning rates x "
-          f"{args.seeds} seeds = {c['jobs']} runs of {cfg.steps:,} steps; engine {c['engine']}, "
-          f"{c['workers']} workers on {len(c['nodes'])} node(s), {time.perf_counter() - t0:.1f} s wall, "
-          f"{c['train_seconds_total']:.1f} s of training")
+          f"{args.seeds} seeds = {c['jobs']} runs of {cfg.steps:,} steps in {time.perf_counter() - t0:.1f} s")
+    print(f"campaign: engine {c['engine']}, {c['workers']} workers on {len(c['nodes'])} node(s), "
+          f"{c['wall_s']:.1f} s wall, {c['job_s']:.1f} s of job time, "
+          f"speedup over one core {c['speedup_over_one_core']:.2f}x")
     print(f"{'eta':>5}  {'greedy success':>16}  {'path ratio':>10}  {'final avg return':>18}  point")
     for s in data["summary"]:
         print(f"{s['lr']:>5g}  {s['success_mean']:>8.3f} ± {s['success_std']:<5.3f}  {s['path_ratio_mean']:>10.3f}  "
