@@ -72,6 +72,13 @@ MIN_DRIVE_MM_S = 80
 DRIVE_GAIN_PER_S = 3  # forward speed = gain * distance, capped by the forward action
 STEER_GAIN_PER_S = 3  # yaw rate (mrad/s) = gain * bearing (mrad)
 STOP_BURST_TICKS = 3  # zero commands sent after leaving DRIVING when not in lockstep
+# Encoder plausibility: a wheel cannot turn faster than MAX_WHEEL_SPEED_MM_S; a
+# count difference beyond ENC_JUMP_MARGIN x that (plus a few ticks of slack for
+# sampling jitter) over the time since the last sample is a broken or forged
+# encoder frame.
+ENC_JUMP_MARGIN = 2
+ENC_JUMP_SLACK_TICKS = 64
+_WHEEL_CIRC_UM = round(2 * 3.141592653589793 * robot_spec.WHEEL_RADIUS_MM * 1000)
 
 # Grid action (dcol, drow) -> world heading (mrad): rows grow southwards.
 _GRID_HEADING = {(1, 0): 0, (0, -1): 1571, (-1, 0): 3142, (0, 1): -1571}
@@ -177,6 +184,7 @@ class Controller:
         self._now = 0
         self._inputs = Inputs()
         self._last_enc_us: int | None = None
+        self.encoder_jumps = 0  # implausible encoder samples (not integrated)
         self._stop_burst = 0
         self._driving_since_us = 0
         self._cmd_counter = 0
@@ -511,9 +519,17 @@ class Controller:
             if self.state == CtrlState.BOOT:
                 what = f"policy 0x{self.policy.policy_id:08x}" if self.policy else "no policy"
                 self._transition(CtrlState.STANDBY, f"boot complete, {what}")
+            enc_jump = ""
             if inp.enc_us is not None and inp.enc_us != self._last_enc_us:
-                self.odom.update(inp.enc_left, inp.enc_right, inp.enc_us)
+                enc_jump = self._encoder_jump(inp)
+                if enc_jump:
+                    self.encoder_jumps += 1
+                    self.odom.rebase(inp.enc_left, inp.enc_right, inp.enc_us)  # the pose stays put
+                else:
+                    self.odom.update(inp.enc_left, inp.enc_right, inp.enc_us)
                 self._last_enc_us = inp.enc_us
+            if enc_jump and self.armed and self.state != CtrlState.FAULT:
+                self._enter_fault(enc_jump)
             errors = self._safety(inp, now_us)
             if self.state == CtrlState.GOAL_REACHED:
                 self._after_goal()
@@ -522,6 +538,19 @@ class Controller:
             if self.state == CtrlState.DRIVING:
                 self._drive(inp, now_us)
             return self._outputs(now_us, tick, errors)
+
+    def _encoder_jump(self, inp: Inputs) -> str:
+        """Why the new encoder sample is implausible ("" if it is not)."""
+        d = self.odom.deltas(inp.enc_left, inp.enc_right)
+        if d is None or self._last_enc_us is None or inp.enc_us is None:
+            return ""
+        dt_us = max(0, inp.enc_us - self._last_enc_us)
+        limit = (ENC_JUMP_MARGIN * robot_spec.MAX_WHEEL_SPEED_MM_S * dt_us * robot_spec.ENCODER_TICKS_PER_REV
+                 // (_WHEEL_CIRC_UM * 1000) + ENC_JUMP_SLACK_TICKS)
+        for side, ticks in (("left", d[0]), ("right", d[1])):
+            if abs(ticks) > limit:
+                return f"encoder jump: {side} {ticks} ticks/{dt_us // 1000} ms (max {limit})"
+        return ""
 
     def _safety(self, inp: Inputs, now_us: int) -> int:
         errors = 0
