@@ -30,7 +30,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 from firmware_py import robot_spec
-from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
+from firmware_py.can_protocol import ENCODER_BITS, MOTOR_WATCHDOG_STOP
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.encoders import CellEncoder, SectorEncoder
@@ -106,10 +106,18 @@ class Inputs:
     driver_us: int | None = None
     estop: bool = False  # an EStop frame from another node engaged it
     estop_us: int | None = None
+    # rolling counter of the last frame per sensor input ("ranges0", "ranges1",
+    # "enc", "bumper"); absent: the sender carries none (only stamps count then)
+    counters: dict[str, int] = field(default_factory=dict)
+
+    def note_counter(self, key: str, value: int | None) -> None:
+        """Record a sensor frame's rolling counter (the node's receive side)."""
+        if value is not None:
+            self.counters[key] = value
 
     def copy(self) -> Inputs:
         return replace(self, ranges_mm=list(self.ranges_mm), range_status=list(self.range_status),
-                       ranges_us=list(self.ranges_us))
+                       ranges_us=list(self.ranges_us), counters=dict(self.counters))
 
 
 @dataclass(frozen=True)
@@ -166,7 +174,7 @@ class Controller:
         self.lockstep = lockstep
         self.policy = policy
         self.last_known_good: Policy | None = None
-        self.odom = Odometry(*start_pose_mm)
+        self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS)
         self.watchdog = MotorWatchdog(self.cfg.motor_timeout_ms * 1000)
         self.estop_latch = EStopLatch()
         self.state = CtrlState.BOOT
@@ -185,6 +193,8 @@ class Controller:
         self._inputs = Inputs()
         self._last_enc_us: int | None = None
         self.encoder_jumps = 0  # implausible encoder samples (not integrated)
+        # key -> (counter, stamp of the frame where it last advanced): frozen senders
+        self._counter_seen: dict[str, tuple[int, int | None]] = {}
         self._stop_burst = 0
         self._driving_since_us = 0
         self._cmd_counter = 0
@@ -225,15 +235,32 @@ class Controller:
         self._transition(CtrlState.FAULT, cause, SEV_CRITICAL)
         self._event("fault", cause, SEV_CRITICAL)
 
+    def _note_counters(self, inp: Inputs) -> None:
+        """Remember when each sensor's rolling counter last advanced."""
+        stamps = {"ranges0": inp.ranges_us[0], "ranges1": inp.ranges_us[1], "enc": inp.enc_us,
+                  "bumper": inp.bumper_us}
+        for key, ctr in inp.counters.items():
+            seen = self._counter_seen.get(key)
+            if seen is None or seen[0] != ctr:
+                self._counter_seen[key] = (ctr, stamps.get(key))
+
+    def _fresh_since(self, inp: Inputs, key: str, stamp: int | None) -> int | None:
+        """The input's time for staleness: its stamp, or, while its counter has
+        not advanced, the stamp of the frame where it last did (a sender stuck
+        re-sending one frame goes stale like a silent one)."""
+        seen = self._counter_seen.get(key)
+        if seen is not None and inp.counters.get(key) == seen[0]:
+            return seen[1] if seen[1] is None or stamp is None else min(stamp, seen[1])
+        return stamp
+
     def _stale_inputs(self, inp: Inputs, now_us: int) -> list[str]:
         tmo = self.cfg.sensor_timeout_ms * 1000
         stale = []
-        for i, t in enumerate(inp.ranges_us):
+        for name, key, stamp in (("ranges0", "ranges0", inp.ranges_us[0]), ("ranges1", "ranges1", inp.ranges_us[1]),
+                                 ("encoders", "enc", inp.enc_us), ("bumper", "bumper", inp.bumper_us)):
+            t = self._fresh_since(inp, key, stamp)
             if t is None or now_us - t > tmo:
-                stale.append(f"ranges{i}")
-        for name, t in (("encoders", inp.enc_us), ("bumper", inp.bumper_us)):
-            if t is None or now_us - t > tmo:
-                stale.append(name)
+                stale.append(name if t == stamp else f"{name} frozen")
         return stale
 
     def _driver_silent(self, inp: Inputs, now_us: int) -> bool:
@@ -519,6 +546,7 @@ class Controller:
             if self.state == CtrlState.BOOT:
                 what = f"policy 0x{self.policy.policy_id:08x}" if self.policy else "no policy"
                 self._transition(CtrlState.STANDBY, f"boot complete, {what}")
+            self._note_counters(inp)
             enc_jump = ""
             if inp.enc_us is not None and inp.enc_us != self._last_enc_us:
                 enc_jump = self._encoder_jump(inp)

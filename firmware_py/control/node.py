@@ -93,6 +93,7 @@ class InputTracker:
                 key = "estop"
             else:
                 return False
+            inp.note_counter(key, sig.get(proto.SENSOR_COUNTER_SIGNALS.get(name, "")))
             if self._defer:
                 self._pending.add(key)
             else:
