@@ -333,6 +333,19 @@ def _exchange(m, node, frame: bytes, gcs_parser) -> list:
     return out
 
 
+def _codec(m, key: bytes, link_id: int, ts: int, sysid: int = GCS[0]):
+    """A GCS codec signing with `key` on stream `link_id`, stamping from `ts`."""
+    c = m.MAVLink(None, sysid, GCS[1])
+    c.signing.secret_key, c.signing.sign_outgoing, c.signing.link_id = key, True, link_id
+    c.signing.timestamp = ts
+    return c
+
+
+def _ask(m, c) -> bytes:
+    """A REQUEST_MESSAGE (HEARTBEAT) frame from codec `c`: always answered when accepted."""
+    return bytes(c.command_long_encode(1, 1, m.MAV_CMD_REQUEST_MESSAGE, 0, 0, 0, 0, 0, 0, 0, 0).pack(c))
+
+
 @register("mav_signing_bounds", small=2, large=20, unit="restarts",
           what="signed frame near 2^48 dropped; a correct GCS reaches the robot before and after a restart")
 def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
@@ -351,24 +364,14 @@ def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             key_file = root / "key.hex"
             key_file.write_text(key.hex())
 
-            def codec(link_id: int, ts: int, sysid: int = GCS[0]):
-                c = m.MAVLink(None, sysid, GCS[1])
-                c.signing.secret_key, c.signing.sign_outgoing, c.signing.link_id = key, True, link_id
-                c.signing.timestamp = ts
-                return c
-
-            def ask(c) -> bytes:
-                return bytes(c.command_long_encode(1, 1, m.MAV_CMD_REQUEST_MESSAGE, 0, 0, 0, 0, 0, 0, 0, 0)
-                             .pack(c))
-
             gcs_parser = m.MAVLink(None)
             gcs_parser.signing.secret_key = key  # checks the robot's signatures and stream timestamps
             node = _signing_node(root, key_file)
             rogue_ts = rng.choice((MAX_TIMESTAMP - rng.randrange(1, 1000), wall_timestamp() + 10 * FUTURE_WINDOW))
-            if _exchange(m, node, ask(codec(3, rogue_ts, sysid=rng.randint(1, 250))), gcs_parser):
+            if _exchange(m, node, _ask(m, _codec(m, key, 3, rogue_ts, sysid=rng.randint(1, 250))), gcs_parser):
                 problems.append(f"a frame stamped {rogue_ts} was answered")
-            good = codec(1, wall_timestamp())
-            captured = ask(good)
+            good = _codec(m, key, 1, wall_timestamp())
+            captured = _ask(m, good)
             if not _exchange(m, node, captured, gcs_parser):
                 problems.append("the correct GCS got no (verifiable) answer before the restart")
             if rng.random() < 0.5:
@@ -380,7 +383,7 @@ def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if _exchange(m, again, captured, gcs_parser):
                 problems.append("a frame captured before the restart was answered after it")
             good.signing.timestamp = max(good.signing.timestamp, wall_timestamp())
-            if not _exchange(m, again, ask(good), gcs_parser):
+            if not _exchange(m, again, _ask(m, good), gcs_parser):
                 problems.append("the correct GCS got no (verifiable) answer after the restart")
             # unsigned SETUP_SIGNING over the network on a robot without a key
             bare_root = root / "bare"
@@ -403,10 +406,32 @@ def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     return res
 
 
+class _Ftp:
+    """Requests to an FtpServer from any (sysid, compid), on an injected clock."""
+
+    def __init__(self, server) -> None:
+        self.server = server
+        self.seq = 0
+        self.now = 0
+
+    def req(self, owner: tuple[int, int], op: int, data: bytes = b"", session: int = 0, offset: int = 0) -> list:
+        from firmware_py.mavlink.ftp_server import HEADER, PAYLOAD_LEN, parse
+
+        self.seq += 1
+        p = HEADER.pack(self.seq & 0xFFFF, session, op, len(data), 0, 0, 0, offset) + data
+        return [parse(r) for r in self.server.handle(p.ljust(PAYLOAD_LEN, b"\0"), self.now, owner)]
+
+    @staticmethod
+    def is_nak(replies: list, code: int | None = None) -> bool:
+        from firmware_py.mavlink.ftp_server import Op
+
+        return bool(replies) and replies[0][2] == Op.NAK and (code is None or replies[0][7][0] == code)
+
+
 @register("ftp_sessions_quota", small=3, large=50, unit="rounds",
           what="foreign sysid cannot touch a session; idle sessions yield; sparse write / huge truncate refused")
 def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    from firmware_py.mavlink.ftp_server import HEADER, PAYLOAD_LEN, FtpServer, Nak, Op, parse
+    from firmware_py.mavlink.ftp_server import FtpServer, Nak, Op
     from firmware_py.storage import Storage
 
     res = ScenarioResult("ftp_sessions_quota")
@@ -416,17 +441,8 @@ def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResu
         problems: list[str] = []
         with tempfile.TemporaryDirectory(prefix="qnav-ftp-") as tmp:
             quota = 1 << 20
-            server = FtpServer(Storage(tmp, quota_bytes=quota, quota_files=24, quota_dirs=6))
-            seq = [0]
-            now = [0]
-
-            def req(owner, op, data=b"", session=0, offset=0):
-                seq[0] += 1
-                p = HEADER.pack(seq[0] & 0xFFFF, session, op, len(data), 0, 0, 0, offset) + data
-                return [parse(r) for r in server.handle(p.ljust(PAYLOAD_LEN, b"\0"), now[0], owner)]
-
-            def is_nak(replies, code=None):
-                return bool(replies) and replies[0][2] == Op.NAK and (code is None or replies[0][7][0] == code)
+            ftp = _Ftp(FtpServer(Storage(tmp, quota_bytes=quota, quota_files=24, quota_dirs=6)))
+            server, req, is_nak = ftp.server, ftp.req, ftp.is_nak
 
             victim = (255, 190)
             thief = (rng.randint(1, 250), rng.randint(0, 255))
@@ -455,7 +471,7 @@ def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResu
             for k, owner in enumerate(((101, 1), (102, 1))):
                 for s in range(2):
                     req(owner, Op.CREATE_FILE, f"/policies/sq{k}{s}".encode(), s)
-            now[0] += rng.randint(1_050_000, 2_000_000)
+            ftp.now += rng.randint(1_050_000, 2_000_000)
             if is_nak(req(victim, Op.CREATE_FILE, b"/policies/late.qtab", sid)):
                 problems.append("idle sessions locked a new client out after > 1 s")
             req(victim, Op.TERMINATE_SESSION, b"", sid)
