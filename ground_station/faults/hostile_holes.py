@@ -41,6 +41,7 @@ through pymavlink's parser):
 
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import random
@@ -505,3 +506,74 @@ def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResu
             progress.update(1)
     res.figures["slowest_huge_truncate_ms"] = round(slowest_truncate * 1000, 3)
     return res
+
+
+@register("mav_signing_process", small=1, large=5, unit="kill -9 + restart of qnav-robot",
+          what="signed frames stamped near 2^48 at a running qnav-robot: a correct GCS still reaches it, "
+               "also after kill -9 and a restart")
+def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+    """The whole robot (`qnav-robot --signing-key`, UDP, its own storage): a key
+    holder with a clock near 2^48 sends signed frames; the operator's `Link`
+    (pymavlink, checking the robot's signatures and timestamps) must still
+    read parameters from it, after a kill -9 and a restart too."""
+    import json
+
+    from firmware_py.mavlink.signing import MAX_TIMESTAMP, load_key_file
+    from ground_station.mavlink.link import Link, mavutil
+    from ground_station.rigs.processes import RobotProcess
+
+    res = ScenarioResult("mav_signing_process")
+    rng = random.Random(seed)
+    mu = mavutil()
+    for i in range(count):
+        problems: list[str] = []
+        with tempfile.TemporaryDirectory(prefix="qnav-signproc-") as tmp:
+            root = Path(tmp)
+            key_file = root / "key.txt"
+            key_file.write_text(rng.randbytes(16).hex() + "-passphrase\n")
+            key = load_key_file(key_file)
+            robot = RobotProcess(root / "robot", key_file=key_file, log=root / "robot.log").start()
+            links: list = []
+            try:
+                link = Link(robot.url, signing_key=key_file, tlog=False)
+                links.append(link)
+                link.connect(30.0)
+                rogue = mu.mavlink_connection(robot.url, source_system=rng.randint(1, 250), source_component=190,
+                                              dialect="common")
+                links.append(rogue)
+                rogue.setup_signing(key, sign_outgoing=True, link_id=7,
+                                    initial_timestamp=MAX_TIMESTAMP - rng.randrange(2, 30))
+                for _ in range(20):
+                    rogue.mav.command_long_send(1, 1, mu.mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 0, 0, 0, 0, 0, 0, 0)
+                    rogue.mav.signing.timestamp = min(rogue.mav.signing.timestamp, MAX_TIMESTAMP - 1)
+                time.sleep(1.0)  # the robot's telemetry would carry its timestamps past 2^48 (wrap)
+                if link.read_params(("SYSID_THISMAV",), budget_s=5.0)["SYSID_THISMAV"] is None:
+                    problems.append("the correct GCS lost the robot after the 2^48 frames")
+                robot.kill9()
+                for c in links:
+                    with contextlib.suppress(Exception):
+                        c.close()
+                links.clear()
+                state = json.loads((root / "robot" / "params" / "signing.json").read_text()) \
+                    if (root / "robot" / "params" / "signing.json").exists() else {"timestamp": 0, "streams": []}
+                if state["timestamp"] > MAX_TIMESTAMP or any(s[-1] > MAX_TIMESTAMP for s in state["streams"]):
+                    problems.append("signing state beyond 2^48 - 1 on disk")
+                robot.start()  # the restart, on the same storage
+                link = Link(robot.url, signing_key=key_file, tlog=False)
+                links.append(link)
+                link.connect(30.0)
+                if link.read_params(("SYSID_THISMAV",), budget_s=5.0)["SYSID_THISMAV"] is None:
+                    problems.append("the correct GCS cannot reach the robot after kill -9 and a restart")
+            except Exception as exc:  # a connect that times out is the failure being looked for
+                problems.append(f"{type(exc).__name__}: {exc}")
+            finally:
+                for c in links:
+                    with contextlib.suppress(Exception):
+                        c.close()
+                robot.stop()
+        res.check(problems, f"seed {seed}/{i}")
+        if progress is not None:
+            progress.update(1)
+    return res
+
+

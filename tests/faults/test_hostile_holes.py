@@ -10,7 +10,7 @@ from ground_station.faults import hostile_holes  # noqa: F401  (registers the sc
 from ground_station.faults.common import SCENARIOS
 
 NAMES = ["can_future_tick", "can_encoder_jump", "can_frozen_sensor", "mav_failsafe_garbage",
-         "mav_signing_bounds", "ftp_sessions_quota"]
+         "mav_signing_bounds", "mav_signing_process", "ftp_sessions_quota"]
 
 
 @pytest.mark.parametrize("name", NAMES)
