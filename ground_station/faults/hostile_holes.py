@@ -48,6 +48,7 @@ import random
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from firmware_py import can_protocol as cp
 from firmware_py.vehicle import CtrlState, VehicleConfig
@@ -554,8 +555,9 @@ def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                     with contextlib.suppress(Exception):
                         c.close()
                 links.clear()
-                state = json.loads((root / "robot" / "params" / "signing.json").read_text()) \
-                    if (root / "robot" / "params" / "signing.json").exists() else {"timestamp": 0, "streams": []}
+                state_file = root / "robot" / "params" / "signing.json"
+                state: dict[str, Any] = json.loads(state_file.read_text()) if state_file.exists() else \
+                    {"timestamp": 0, "streams": []}
                 if state["timestamp"] > MAX_TIMESTAMP or any(s[-1] > MAX_TIMESTAMP for s in state["streams"]):
                     problems.append("signing state beyond 2^48 - 1 on disk")
                 robot.start()  # the restart, on the same storage
