@@ -75,7 +75,7 @@ def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     for i in range(count):
         rng, rig = _setup(seed * 7919 + 5000 + i)
         t_forge = _fault_time(rng)
-        forged_us = rng.choice((10**9, 10**12, (1 << 40) - 1)) + rng.randrange(1000)
+        forged_us = rng.choice((10**9, 10**12, (1 << 40) - 1)) - rng.randrange(1000)
         timeout_us = rig.ctrl.cfg.sensor_timeout_ms * 1000
         problems: list[str] = []
         with rig:
