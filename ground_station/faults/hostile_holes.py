@@ -290,6 +290,13 @@ def failsafe_garbage(count: int, seed: int = 0, progress=None) -> ScenarioResult
             problems.append(f"poll raised: {polled.errors[0]}")
         if polled.node.handler_errors:
             problems.append(f"handler exceptions: {polled.node.handler_errors}")
+        # the heartbeat's own handling time: the poll after a tick may run while the
+        # next tick's frames are queued, so the node's record is the reference
+        handled = polled.node.gcs_last_heartbeat_us
+        if handled is None or handled > last_hb:
+            problems.append(f"last heartbeat counted at {handled} us, the own GCS's last was sent at {last_hb} us")
+        else:
+            last_hb = handled
         fs_at = polled.failsafe_at
         if fs_at is None or not fs_ms * 1000 < fs_at - last_hb <= fs_ms * 1000 + PERIOD_US:
             problems.append(f"failsafe at {fs_at} us, last own heartbeat {last_hb} us, timeout {fs_ms} ms")
