@@ -191,6 +191,9 @@ def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         fault = _first_fault(rig, t_freeze)
         if fault is None or fault.t_us > deadline or "frozen" not in fault.cause:
             problems.append(f"no FAULT '... frozen' by {deadline} us ({fault})")
+        else:  # detection time past the timeout, from the last sample whose counter advanced
+            late = fault.t_us - (t_freeze - PERIOD_US) - timeout_ms * 1000
+            res.figures["max_us_after_timeout"] = max(res.figures.get("max_us_after_timeout", 0), late)
         res.check(problems, f"seed {seed}/{i} {name} frozen at {t_freeze} us, timeout {timeout_ms} ms")
         if progress is not None:
             progress.update(1)
@@ -300,6 +303,11 @@ def failsafe_garbage(count: int, seed: int = 0, progress=None) -> ScenarioResult
         fs_at = polled.failsafe_at
         if fs_at is None or not fs_ms * 1000 < fs_at - last_hb <= fs_ms * 1000 + PERIOD_US:
             problems.append(f"failsafe at {fs_at} us, last own heartbeat {last_hb} us, timeout {fs_ms} ms")
+        else:
+            late = fs_at - last_hb - fs_ms * 1000
+            res.figures["max_us_after_timeout"] = max(res.figures.get("max_us_after_timeout", 0), late)
+        res.figures["foreign_heartbeats"] = res.figures.get("foreign_heartbeats", 0) + \
+            polled.node.foreign_gcs_heartbeats
         if state == CtrlState.DRIVING:
             problems.append("still DRIVING after the failsafe")
         if polled.node.foreign_gcs_heartbeats == 0:
