@@ -75,6 +75,16 @@ NODE_SIM = split_id(SIM_TICK_ID)[0]
 TICK_MODULUS = 1 << _BY_NAME["SimTick"].get_signal_by_name("Tick_Counter").length
 COMMAND_COUNTER_MODULUS = 1 << _BY_NAME["MotorCommand"].get_signal_by_name("Cmd_Counter").length
 SENSORS_PER_RANGE_FRAME = robot_spec.SENSOR_COUNT // len(RANGE_SECTORS_IDS)
+ENCODER_BITS = _BY_NAME["EncoderCounts"].get_signal_by_name("Enc_Left").length  # counts wrap modulo 2^bits
+# Rolling counter of each sensor frame (+1 per new sample): a sender stuck on
+# one frame is told from a live one by a counter that stops advancing.
+SENSOR_COUNTER_SIGNALS: dict[str, str] = {
+    "RangeSectors0": "Rng0_Counter", "RangeSectors1": "Rng1_Counter",
+    "EncoderCounts": "Enc_Counter", "Bumper": "Bump_Counter",
+}
+SENSOR_COUNTER_MODULUS = 1 << _BY_NAME["EncoderCounts"].get_signal_by_name("Enc_Counter").length
+assert all(1 << _BY_NAME[f].get_signal_by_name(c).length == SENSOR_COUNTER_MODULUS
+           for f, c in SENSOR_COUNTER_SIGNALS.items())
 
 # Motor driver state (Mot_State) and error bits (Mot_Errors), as in the DBC.
 _MOT_STATE_CHOICES = _BY_NAME["MotorStatus"].get_signal_by_name("Mot_State").choices
@@ -139,13 +149,26 @@ def sim_tick(tick: int, sim_time_us: int) -> can.Message:
     return encode("SimTick", {"Tick_Counter": tick % TICK_MODULUS, "Tick_SimTimeUs": sim_time_us})
 
 
-def range_frames(readings: Sequence[tuple[int, int]]) -> list[can.Message]:
-    """RangeSectors frames from (mm, status) per sensor, in robot_spec.SENSOR_ANGLES_MRAD order."""
+def wrap_counts(ticks: int) -> int:
+    """A cumulative encoder count as the frame carries it (ENCODER_BITS two's complement)."""
+    half = 1 << (ENCODER_BITS - 1)
+    return (ticks + half) % (1 << ENCODER_BITS) - half
+
+
+def encoder_counts(left: int, right: int, counter: int) -> can.Message:
+    """EncoderCounts from cumulative counts (wrapped to the frame's width) and the sample counter."""
+    return encode("EncoderCounts", {"Enc_Left": wrap_counts(left), "Enc_Right": wrap_counts(right),
+                                    "Enc_Counter": counter % SENSOR_COUNTER_MODULUS})
+
+
+def range_frames(readings: Sequence[tuple[int, int]], counter: int = 0) -> list[can.Message]:
+    """RangeSectors frames from (mm, status) per sensor, in robot_spec.SENSOR_ANGLES_MRAD order,
+    carrying the sample `counter` (taken modulo the counter width)."""
     if len(readings) != robot_spec.SENSOR_COUNT:
         raise ProtocolError(f"expected {robot_spec.SENSOR_COUNT} range readings, got {len(readings)}")
     frames = []
     for f in range(len(RANGE_SECTORS_IDS)):
-        signals = {}
+        signals = {f"Rng{f}_Counter": counter % SENSOR_COUNTER_MODULUS}
         for i in range(f * SENSORS_PER_RANGE_FRAME, (f + 1) * SENSORS_PER_RANGE_FRAME):
             mm, status = readings[i]
             signals[f"Range{i}"] = mm

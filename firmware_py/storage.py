@@ -7,7 +7,11 @@ Owns
   `..` components, symlinks anywhere in the path (checked with lstat on every
   component, files opened with O_NOFOLLOW), NUL/control characters and names
   of in-flight temporary files are refused with EACCES;
-- a size quota over everything under the root, temporary files included;
+- a quota over everything under the root, temporary files included: bytes
+  (apparent size, so a sparse file counts in full), files and directories;
+  a write may not leave a hole of more than MAX_HOLE_BYTES past the end of
+  the file (clients write in order, with a few blocks in flight), and every
+  length is checked against the quota before anything is allocated;
 - crash-safe writes: data goes to a hidden temporary name in the target's
   directory, is fsynced, then `os.replace`d over the real name and the
   directory fsynced, so a reader (or a reboot) sees the old file or the new
@@ -42,6 +46,9 @@ PARAMS_FILE = "/params/params.json"
 LAYOUT_DIRS = (POLICY_DIR, PARAMS_DIR)
 
 DEFAULT_QUOTA_BYTES = 8 * 1024 * 1024
+DEFAULT_QUOTA_FILES = 256  # regular files under the root, temporary files included
+DEFAULT_QUOTA_DIRS = 32  # directories under the root (the layout's own included)
+MAX_HOLE_BYTES = 64 * 1024  # a write may start at most this far past the end of the file
 MAX_PATH_CHARS = 200  # fits one FTP payload with room for "old\0new"
 
 
@@ -84,6 +91,11 @@ class Upload:
         """Write `data` at `offset`, refusing growth beyond the quota."""
         if self.fd < 0:
             raise StorageError(errno.EBADF, "upload already closed")
+        if offset < 0:
+            raise StorageError(errno.EINVAL, "negative offset")
+        if offset - self.size > MAX_HOLE_BYTES:
+            raise StorageError(errno.EINVAL, f"write at {offset} would leave a hole of "
+                                             f"{offset - self.size} bytes (max {MAX_HOLE_BYTES})")
         end = offset + len(data)
         growth = max(0, end - self.size)
         self.storage.reserve(growth)
@@ -117,11 +129,15 @@ class Storage:
     """All robot files live under `root`; see the module docstring."""
 
     def __init__(self, root: str | os.PathLike[str], quota_bytes: int = DEFAULT_QUOTA_BYTES,
-                 make_layout: bool = True) -> None:
+                 make_layout: bool = True, *, quota_files: int = DEFAULT_QUOTA_FILES,
+                 quota_dirs: int = DEFAULT_QUOTA_DIRS) -> None:
         self.root = Path(root).resolve()
         self.root.mkdir(parents=True, exist_ok=True)
         self.quota_bytes = int(quota_bytes)
+        self.quota_files = int(quota_files)
+        self.quota_dirs = int(quota_dirs)
         self._used: int | None = None
+        self._counts: tuple[int, int] | None = None  # (files, directories)
         self.removed_temps = self._remove_stale_temps()
         if make_layout:
             for d in LAYOUT_DIRS:
@@ -193,6 +209,26 @@ class Storage:
 
     def invalidate_usage(self) -> None:
         self._used = None
+        self._counts = None
+
+    def counts(self) -> tuple[int, int]:
+        """(files, directories) under the root, temporary files included."""
+        if self._counts is None:
+            files = dirs = 0
+            for _dirpath, dnames, fnames in os.walk(self.root):
+                files += len(fnames)
+                dirs += len(dnames)
+            self._counts = (files, dirs)
+        return self._counts
+
+    def reserve_entry(self, is_dir: bool) -> None:
+        """Account for one more file (or directory), or StorageError(ENOSPC)."""
+        files, dirs = self.counts()
+        if is_dir and dirs + 1 > self.quota_dirs:
+            raise StorageError(errno.ENOSPC, f"storage quota of {self.quota_dirs} directories exceeded")
+        if not is_dir and files + 1 > self.quota_files:
+            raise StorageError(errno.ENOSPC, f"storage quota of {self.quota_files} files exceeded")
+        self._counts = (files, dirs + 1) if is_dir else (files + 1, dirs)
 
     def reserve(self, nbytes: int) -> None:
         """Account for `nbytes` of growth, or StorageError(ENOSPC)."""
@@ -265,7 +301,12 @@ class Storage:
         if keep_contents and final.exists():
             existing = self.read_bytes(ftp_path)
         temp = temp_path(final)
-        fd = os.open(temp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+        self.reserve_entry(is_dir=False)  # the temporary file is a file until it replaces `final`
+        try:
+            fd = os.open(temp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+        except OSError:
+            self.invalidate_usage()
+            raise
         upload = Upload(self, final, temp, fd)
         if existing:
             try:
@@ -289,8 +330,19 @@ class Storage:
         """Atomically cut (or zero-extend) a file to `length` bytes."""
         if length < 0:
             raise StorageError(errno.EINVAL, "negative length")
-        data = self.read_bytes(ftp_path)
-        self.write_atomic(ftp_path, data[:length] + bytes(max(0, length - len(data))))
+        size = self.size(ftp_path)
+        if length - size > self.quota_bytes - self.usage():  # checked before anything is allocated
+            raise StorageError(errno.ENOSPC, f"truncate to {length} bytes exceeds the storage quota "
+                                             f"of {self.quota_bytes} bytes")
+        upload = self.begin_write(ftp_path, keep_contents=True)
+        try:
+            self.reserve(length - upload.size)
+            os.ftruncate(upload.fd, length)
+            upload.size = length
+        except OSError:
+            upload.abort()
+            raise
+        upload.commit()
 
     def remove(self, ftp_path: str) -> None:
         path = self._existing_file(ftp_path)
@@ -304,6 +356,7 @@ class Storage:
             raise StorageError(errno.EEXIST, f"{ftp_path!r} already exists")
         if not path.parent.is_dir():
             raise StorageError(errno.ENOENT, f"parent of {ftp_path!r} does not exist")
+        self.reserve_entry(is_dir=True)
         os.mkdir(path)
 
     def rmdir(self, ftp_path: str) -> None:
@@ -315,12 +368,14 @@ class Storage:
         if any(True for _ in os.scandir(path)):
             raise StorageError(errno.ENOTEMPTY, f"{ftp_path!r} is not empty")
         os.rmdir(path)
+        self.invalidate_usage()
 
     def rename(self, old: str, new: str) -> None:
         """Atomic rename of a file; an existing file at `new` is replaced."""
         src = self._existing_file(old)
         dst = self._new_file_path(new)
         os.replace(src, dst)
+        self.invalidate_usage()  # replacing a file frees one
         fsync_dir(dst.parent)
         if src.parent != dst.parent:
             fsync_dir(src.parent)

@@ -96,9 +96,9 @@ class Plant:
         """All frames of the current control tick, sampled now; SimTick last."""
         t_s = self.time_us / 1e6
         left, right = self.encoders.counts()
-        frames = cp.range_frames(self.ranges.read())
-        frames.append(cp.encode("EncoderCounts", {"Enc_Left": left, "Enc_Right": right}))
-        frames.append(cp.encode("Bumper", bumper_signals(self.world)))
+        frames = cp.range_frames(self.ranges.read(), self.tick)  # one new sample per tick: counter = tick
+        frames.append(cp.encoder_counts(left, right, self.tick))
+        frames.append(cp.encode("Bumper", bumper_signals(self.world, self.tick)))
         frames.append(cp.encode("MotorStatus", self.motors.status()))
         frames.append(cp.sim_tick(self.tick, self.time_us))
         for f in frames:

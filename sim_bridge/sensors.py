@@ -131,8 +131,8 @@ class WheelEncoders:
         self.ticks[1] += right * dt_s * self.ticks_per_m
 
     def counts(self) -> tuple[int, int]:
-        """int32 counts as on the bus (wrapping modulo 2^32)."""
-        return _wrap_i32(math.floor(self.ticks[0])), _wrap_i32(math.floor(self.ticks[1]))
+        """Counts as on the bus (two's complement of the frame's width, wrapping)."""
+        return cp.wrap_counts(math.floor(self.ticks[0])), cp.wrap_counts(math.floor(self.ticks[1]))
 
 
 _ANGLE = cp.DB.get_message_by_name("Bumper").get_signal_by_name("Bump_AngleMrad")
@@ -140,12 +140,8 @@ assert _ANGLE.minimum is not None and _ANGLE.maximum is not None, "qnav.dbc: Bum
 _ANGLE_MIN_MRAD, _ANGLE_MAX_MRAD = int(_ANGLE.minimum), int(_ANGLE.maximum)
 
 
-def _wrap_i32(v: int) -> int:
-    return (v + 2**31) % 2**32 - 2**31
-
-
-def bumper_signals(world: World) -> dict[str, int]:
-    """Bumper frame signals from the world's current contacts."""
+def bumper_signals(world: World, counter: int = 0) -> dict[str, int]:
+    """Bumper frame signals from the world's current contacts; `counter` is the sample counter."""
     heading = world.body.angle
     zones = {"Bump_Front": 0, "Bump_Left": 0, "Bump_Rear": 0, "Bump_Right": 0}
     for angle in world.contacts.values():
@@ -161,7 +157,8 @@ def bumper_signals(world: World) -> dict[str, int]:
     rel_last = round(_wrap_pi(world.last_contact_angle - heading) * 1000)
     return {"Bump_Pressed": int(bool(world.contacts)), **zones,
             "Bump_Events": world.contact_events % 256,
-            "Bump_AngleMrad": max(_ANGLE_MIN_MRAD, min(_ANGLE_MAX_MRAD, rel_last))}
+            "Bump_AngleMrad": max(_ANGLE_MIN_MRAD, min(_ANGLE_MAX_MRAD, rel_last)),
+            "Bump_Counter": counter % cp.SENSOR_COUNTER_MODULUS}
 
 
 def _wrap_pi(a: float) -> float:

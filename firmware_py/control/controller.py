@@ -30,7 +30,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 from firmware_py import robot_spec
-from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
+from firmware_py.can_protocol import ENCODER_BITS, MOTOR_WATCHDOG_STOP
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.encoders import CellEncoder, SectorEncoder
@@ -72,6 +72,13 @@ MIN_DRIVE_MM_S = 80
 DRIVE_GAIN_PER_S = 3  # forward speed = gain * distance, capped by the forward action
 STEER_GAIN_PER_S = 3  # yaw rate (mrad/s) = gain * bearing (mrad)
 STOP_BURST_TICKS = 3  # zero commands sent after leaving DRIVING when not in lockstep
+# Encoder plausibility: a wheel cannot turn faster than MAX_WHEEL_SPEED_MM_S; a
+# count difference beyond ENC_JUMP_MARGIN x that (plus a few ticks of slack for
+# sampling jitter) over the time since the last sample is a broken or forged
+# encoder frame.
+ENC_JUMP_MARGIN = 2
+ENC_JUMP_SLACK_TICKS = 64
+_WHEEL_CIRC_UM = round(2 * 3.141592653589793 * robot_spec.WHEEL_RADIUS_MM * 1000)
 
 # Grid action (dcol, drow) -> world heading (mrad): rows grow southwards.
 _GRID_HEADING = {(1, 0): 0, (0, -1): 1571, (-1, 0): 3142, (0, 1): -1571}
@@ -99,10 +106,18 @@ class Inputs:
     driver_us: int | None = None
     estop: bool = False  # an EStop frame from another node engaged it
     estop_us: int | None = None
+    # rolling counter of the last frame per sensor input ("ranges0", "ranges1",
+    # "enc", "bumper"); absent: the sender carries none (only stamps count then)
+    counters: dict[str, int] = field(default_factory=dict)
+
+    def note_counter(self, key: str, value: int | None) -> None:
+        """Record a sensor frame's rolling counter (the node's receive side)."""
+        if value is not None:
+            self.counters[key] = value
 
     def copy(self) -> Inputs:
         return replace(self, ranges_mm=list(self.ranges_mm), range_status=list(self.range_status),
-                       ranges_us=list(self.ranges_us))
+                       ranges_us=list(self.ranges_us), counters=dict(self.counters))
 
 
 @dataclass(frozen=True)
@@ -159,7 +174,7 @@ class Controller:
         self.lockstep = lockstep
         self.policy = policy
         self.last_known_good: Policy | None = None
-        self.odom = Odometry(*start_pose_mm)
+        self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS)
         self.watchdog = MotorWatchdog(self.cfg.motor_timeout_ms * 1000)
         self.estop_latch = EStopLatch()
         self.state = CtrlState.BOOT
@@ -177,6 +192,9 @@ class Controller:
         self._now = 0
         self._inputs = Inputs()
         self._last_enc_us: int | None = None
+        self.encoder_jumps = 0  # implausible encoder samples (not integrated)
+        # key -> (counter, stamp of the frame where it last advanced): frozen senders
+        self._counter_seen: dict[str, tuple[int, int | None]] = {}
         self._stop_burst = 0
         self._driving_since_us = 0
         self._cmd_counter = 0
@@ -217,15 +235,32 @@ class Controller:
         self._transition(CtrlState.FAULT, cause, SEV_CRITICAL)
         self._event("fault", cause, SEV_CRITICAL)
 
+    def _note_counters(self, inp: Inputs) -> None:
+        """Remember when each sensor's rolling counter last advanced."""
+        stamps = {"ranges0": inp.ranges_us[0], "ranges1": inp.ranges_us[1], "enc": inp.enc_us,
+                  "bumper": inp.bumper_us}
+        for key, ctr in inp.counters.items():
+            seen = self._counter_seen.get(key)
+            if seen is None or seen[0] != ctr:
+                self._counter_seen[key] = (ctr, stamps.get(key))
+
+    def _fresh_since(self, inp: Inputs, key: str, stamp: int | None) -> int | None:
+        """The input's time for staleness: its stamp, or, while its counter has
+        not advanced, the stamp of the frame where it last did (a sender stuck
+        re-sending one frame goes stale like a silent one)."""
+        seen = self._counter_seen.get(key)
+        if seen is not None and inp.counters.get(key) == seen[0]:
+            return seen[1] if seen[1] is None or stamp is None else min(stamp, seen[1])
+        return stamp
+
     def _stale_inputs(self, inp: Inputs, now_us: int) -> list[str]:
         tmo = self.cfg.sensor_timeout_ms * 1000
         stale = []
-        for i, t in enumerate(inp.ranges_us):
+        for name, key, stamp in (("ranges0", "ranges0", inp.ranges_us[0]), ("ranges1", "ranges1", inp.ranges_us[1]),
+                                 ("encoders", "enc", inp.enc_us), ("bumper", "bumper", inp.bumper_us)):
+            t = self._fresh_since(inp, key, stamp)
             if t is None or now_us - t > tmo:
-                stale.append(f"ranges{i}")
-        for name, t in (("encoders", inp.enc_us), ("bumper", inp.bumper_us)):
-            if t is None or now_us - t > tmo:
-                stale.append(name)
+                stale.append(name if t == stamp else f"{name} frozen")
         return stale
 
     def _driver_silent(self, inp: Inputs, now_us: int) -> bool:
@@ -511,9 +546,18 @@ class Controller:
             if self.state == CtrlState.BOOT:
                 what = f"policy 0x{self.policy.policy_id:08x}" if self.policy else "no policy"
                 self._transition(CtrlState.STANDBY, f"boot complete, {what}")
+            self._note_counters(inp)
+            enc_jump = ""
             if inp.enc_us is not None and inp.enc_us != self._last_enc_us:
-                self.odom.update(inp.enc_left, inp.enc_right, inp.enc_us)
+                enc_jump = self._encoder_jump(inp)
+                if enc_jump:
+                    self.encoder_jumps += 1
+                    self.odom.rebase(inp.enc_left, inp.enc_right, inp.enc_us)  # the pose stays put
+                else:
+                    self.odom.update(inp.enc_left, inp.enc_right, inp.enc_us)
                 self._last_enc_us = inp.enc_us
+            if enc_jump and self.armed and self.state != CtrlState.FAULT:
+                self._enter_fault(enc_jump)
             errors = self._safety(inp, now_us)
             if self.state == CtrlState.GOAL_REACHED:
                 self._after_goal()
@@ -522,6 +566,19 @@ class Controller:
             if self.state == CtrlState.DRIVING:
                 self._drive(inp, now_us)
             return self._outputs(now_us, tick, errors)
+
+    def _encoder_jump(self, inp: Inputs) -> str:
+        """Why the new encoder sample is implausible ("" if it is not)."""
+        d = self.odom.deltas(inp.enc_left, inp.enc_right)
+        if d is None or self._last_enc_us is None or inp.enc_us is None:
+            return ""
+        dt_us = max(0, inp.enc_us - self._last_enc_us)
+        limit = (ENC_JUMP_MARGIN * robot_spec.MAX_WHEEL_SPEED_MM_S * dt_us * robot_spec.ENCODER_TICKS_PER_REV
+                 // (_WHEEL_CIRC_UM * 1000) + ENC_JUMP_SLACK_TICKS)
+        for side, ticks in (("left", d[0]), ("right", d[1])):
+            if abs(ticks) > limit:
+                return f"encoder jump: {side} {ticks} ticks/{dt_us // 1000} ms (max {limit})"
+        return ""
 
     def _safety(self, inp: Inputs, now_us: int) -> int:
         errors = 0

@@ -93,6 +93,7 @@ class InputTracker:
                 key = "estop"
             else:
                 return False
+            inp.note_counter(key, sig.get(proto.SENSOR_COUNTER_SIGNALS.get(name, "")))
             if self._defer:
                 self._pending.add(key)
             else:
@@ -213,21 +214,24 @@ class RobotNode:
         if self.lockstep and counter == self.last_tick and self._last_answer is not None:
             self._send_frame(self._last_answer)  # a retransmitted tick: same answer, no step
             return
+        gap = 0
         if self.last_tick is not None:
             gap = (counter - self.last_tick) % proto.TICK_MODULUS
             if gap >= proto.TICK_MODULUS // 2:
                 self.late_ticks += 1  # an older tick arriving late (reordered): already past it
                 return
-            if self.lockstep and gap > 1:
-                self.overruns += gap - 1  # ticks we never saw: lost or late
+        if not clock.set_us(sim_us):
+            return  # an implausible jump of sim time: not stepped, counted in clock.refused_jumps
+        if self.lockstep and gap > 1:
+            self.overruns += gap - 1  # ticks we never saw: lost or late
         self.last_tick = counter
         self.sim_ticks += 1
-        clock.set_us(sim_us)
-        self.inputs.stamp_pending(self.clock.now_us())
+        now = clock.now_us()
+        self.inputs.stamp_pending(now)
         self._last_rx_ns = rx_ns
         if self.lockstep:
-            self._tick(sim_us, counter, rx_ns)
-        elif self._next_us is None or sim_us >= self._next_us:
+            self._tick(now, counter, rx_ns)
+        elif self._next_us is None or now >= self._next_us:
             self._paced_tick(rx_ns)
 
     # --- control side ---------------------------------------------------------------

@@ -124,6 +124,19 @@ class Odometry:
         self.distance_mm = 0  # path length travelled since reset (odometer)
         self._odo_nm = 0
 
+    def deltas(self, left_ticks: int, right_ticks: int) -> tuple[int, int] | None:
+        """Counter differences (wrap handled) since the last update; None before the first."""
+        if self._last is None:
+            return None
+        return ((left_ticks - self._last[0] + self._half) % self._mod - self._half,
+                (right_ticks - self._last[1] + self._half) % self._mod - self._half)
+
+    def rebase(self, left_ticks: int, right_ticks: int, t_us: int | None = None) -> None:
+        """Take these counts as the new reference without moving the pose
+        (an implausible jump must not teleport the robot)."""
+        self._last = (left_ticks, right_ticks)
+        self._last_t_us = t_us
+
     def _ticks_to_nm(self, wheel: int, dticks: int) -> int:
         num = dticks * self._circ_nm + self._rem[wheel]
         q, self._rem[wheel] = divmod(num, self.ticks_per_rev)

@@ -66,8 +66,8 @@ class FtpLink:
         """Serve one FILE_TRANSFER_PROTOCOL message addressed to us (or broadcast)."""
         if msg.target_system not in (0, self.sysid) or msg.target_component not in (0, self.compid):
             return
-        replies = self.server.handle(bytes(msg.payload), self.clock.now_us())
         dst_sys, dst_comp = msg.get_srcSystem(), msg.get_srcComponent()
+        replies = self.server.handle(bytes(msg.payload), self.clock.now_us(), (dst_sys, dst_comp))
         for severity, text in self.server.drain_texts():
             self.send_statustext(severity, text)
         for r in replies:

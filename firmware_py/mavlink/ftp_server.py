@@ -11,8 +11,16 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
 - reply seq = request seq + 1 (a burst counts up from there), req_opcode =
   request opcode, the request's session and offset echoed;
 - sessions are numbered by the client (MAVProxy picks its own ids, pymavlink
-  counts from 0): opening a file on session N creates session N, replacing a
-  stale session N; at most `max_sessions` at once;
+  counts from 0) and belong to the (sysid, compid) that opened them: the
+  session table is keyed by (owner, N), so another system id cannot read,
+  write, terminate (commit) or reset a session it did not open (it gets
+  NAK InvalidSession), and two clients may both use session 0. Opening a
+  file on session N creates the owner's session N, replacing a stale one;
+  at most `max_sessions` at once and `max_sessions_per_client` per owner;
+  idle sessions expire after `session_timeout_us` (5 s), and when the table
+  is full a new open evicts the least recently used session idle for more
+  than `evict_idle_us` (1 s), so idle sessions cannot lock other clients out;
+- ResetSessions resets the caller's sessions only;
 - a retried request (byte-identical to the last one on that session, within
   the session timeout) gets the cached reply again instead of being re-run, so
   a lost ACK never makes a Rename or a CreateFile happen twice;
@@ -22,7 +30,9 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
 - Rename onto /policies/active.qtab activates a policy through the injected
   hook; refusals are NAK Fail plus a STATUSTEXT with the reason;
 - anything malformed (short payload, size beyond the data, offsets past the
-  end, unknown sessions or opcodes) gets a NAK, never an exception.
+  end, unknown sessions or opcodes) gets a NAK, never an exception; lengths
+  (TruncateFile, write offsets) are checked against the storage quota before
+  anything is allocated (firmware_py.storage).
 """
 
 from __future__ import annotations
@@ -105,6 +115,10 @@ class Request:
     data: bytes
 
 
+Owner = tuple[int, int]  # (sysid, compid) of the client
+LOCAL_OWNER: Owner = (0, 0)  # requests without a MAVLink source (tests, a local shell)
+
+
 @dataclass
 class _Session:
     sid: int
@@ -122,6 +136,8 @@ class FtpStats:
     retries_answered_from_cache: int = 0
     malformed: int = 0
     expired_sessions: int = 0
+    evicted_sessions: int = 0
+    foreign_session_requests: int = 0  # a request on a session id another client owns
     commits: int = 0
     activations: int = 0
     refusals: int = 0
@@ -159,22 +175,28 @@ class FtpServer:
     vehicle's `activate_policy`; None refuses every activation."""
 
     def __init__(self, storage: Storage, activate: Callable[[str], tuple[bool, str]] | None = None,
-                 *, max_sessions: int = 4, session_timeout_us: int = 10_000_000,
-                 burst_max_packets: int = 64) -> None:
+                 *, max_sessions: int = 4, session_timeout_us: int = 5_000_000,
+                 burst_max_packets: int = 64, max_sessions_per_client: int = 2,
+                 evict_idle_us: int = 1_000_000) -> None:
         self.storage = storage
         self.activate = activate
         self.max_sessions = max_sessions
+        self.max_sessions_per_client = max_sessions_per_client
         self.session_timeout_us = session_timeout_us
+        self.evict_idle_us = evict_idle_us
         self.burst_max_packets = burst_max_packets
-        self.sessions: dict[int, _Session] = {}
-        self._cache: dict[int, tuple[bytes, list[bytes], int]] = {}  # session -> (request, replies, t)
+        self.sessions: dict[tuple[Owner, int], _Session] = {}
+        # (owner, session) -> (request, replies, t)
+        self._cache: dict[tuple[Owner, int], tuple[bytes, list[bytes], int]] = {}
+        self._owner: Owner = LOCAL_OWNER  # of the request being handled
         self._texts: list[tuple[int, str]] = []
         self.stats = FtpStats()
 
     # --- public ------------------------------------------------------------------
-    def handle(self, payload: bytes | bytearray, now_us: int) -> list[bytes]:
-        """Process one request payload; return the reply payloads."""
+    def handle(self, payload: bytes | bytearray, now_us: int, owner: Owner = LOCAL_OWNER) -> list[bytes]:
+        """Process one request payload from `owner` (sysid, compid); return the reply payloads."""
         self.expire(now_us)
+        self._owner = owner
         payload = bytes(payload)
         if len(payload) < HEADER.size:
             self.stats.malformed += 1
@@ -184,7 +206,7 @@ class FtpServer:
             return []  # a reply, not a request (another server on the link)
         self.stats.requests += 1
         key = payload[:HEADER.size + min(size, MAX_DATA)]
-        cached = self._cache.get(session)
+        cached = self._cache.get((owner, session))
         if (cached is not None and cached[0] == key and now_us - cached[2] <= self.session_timeout_us
                 and opcode != Op.BURST_READ_FILE):
             self.stats.retries_answered_from_cache += 1
@@ -196,30 +218,32 @@ class FtpServer:
         else:
             replies = self._dispatch(req, now_us)
         if opcode == Op.RESET_SESSIONS:
-            self._cache.clear()
+            for k in [k for k in self._cache if k[0] == owner]:
+                del self._cache[k]
         elif opcode != Op.BURST_READ_FILE:
-            self._cache[session] = (key, replies, now_us)
+            self._cache[(owner, session)] = (key, replies, now_us)
         return replies
 
     def expire(self, now_us: int) -> None:
         """Close sessions idle longer than the timeout (uncommitted writes dropped)."""
-        for sid, s in list(self.sessions.items()):
+        for key, s in list(self.sessions.items()):
             if now_us - s.last_us > self.session_timeout_us:
-                self._close(sid, commit=False)
+                self._close(key, commit=False)
                 self.stats.expired_sessions += 1
-        for sid, (_k, _r, t) in list(self._cache.items()):
+        for key, (_k, _r, t) in list(self._cache.items()):
             if now_us - t > self.session_timeout_us:
-                del self._cache[sid]
+                del self._cache[key]
 
     def drain_texts(self) -> list[tuple[int, str]]:
         """(severity, text) messages for STATUSTEXT since the last call."""
         out, self._texts = self._texts, []
         return out
 
-    def close(self) -> None:
-        """Drop every session (uncommitted writes discarded)."""
-        for sid in list(self.sessions):
-            self._close(sid, commit=False)
+    def close(self, owner: Owner | None = None) -> None:
+        """Drop every session of `owner` (None: of everyone); uncommitted writes discarded."""
+        for key in list(self.sessions):
+            if owner is None or key[0] == owner:
+                self._close(key, commit=False)
 
     # --- helpers -----------------------------------------------------------------
     def _ack(self, req: Request, data: bytes = b"", offset: int | None = None) -> bytes:
@@ -243,8 +267,8 @@ class FtpServer:
     def _norm(path: str) -> str:
         return "/" + "/".join(p for p in path.split("/") if p not in ("", "."))
 
-    def _close(self, sid: int, commit: bool) -> None:
-        s = self.sessions.pop(sid, None)
+    def _close(self, key: tuple[Owner, int], commit: bool) -> None:
+        s = self.sessions.pop(key, None)
         if s is None:
             return
         if s.fd >= 0:
@@ -256,16 +280,28 @@ class FtpServer:
             else:
                 s.upload.abort()
 
+    def _key(self, req: Request) -> tuple[Owner, int]:
+        return (self._owner, req.session)
+
     def _open_session(self, req: Request, now_us: int) -> _Session | bytes:
         """A fresh session numbered like the request, or a NAK."""
-        if req.session in self.sessions:
-            self._close(req.session, commit=False)  # the client reused its id: the old one is dead
-        if len(self.sessions) >= self.max_sessions:
+        key = self._key(req)
+        if key in self.sessions:
+            self._close(key, commit=False)  # the client reused its id: the old one is dead
+        if sum(1 for k in self.sessions if k[0] == self._owner) >= self.max_sessions_per_client:
             return self._nak(req, Nak.NO_SESSIONS_AVAILABLE)
+        if len(self.sessions) >= self.max_sessions:
+            idle = min(self.sessions.items(), key=lambda kv: kv[1].last_us)
+            if now_us - idle[1].last_us <= self.evict_idle_us:
+                return self._nak(req, Nak.NO_SESSIONS_AVAILABLE)
+            self._close(idle[0], commit=False)  # least recently used and idle: it yields
+            self.stats.evicted_sessions += 1
         return _Session(req.session, "", now_us)
 
     def _session(self, req: Request, now_us: int, writing: bool) -> _Session | None:
-        s = self.sessions.get(req.session)
+        s = self.sessions.get(self._key(req))
+        if s is None and any(k[1] == req.session for k in self.sessions):
+            self.stats.foreign_session_requests += 1
         if s is None or (s.upload is not None) != writing:
             return None
         s.last_us = now_us
@@ -288,13 +324,15 @@ class FtpServer:
         return out if isinstance(out, list) else [out]
 
     def _op_terminate(self, req: Request, now_us: int) -> bytes:
-        if req.session not in self.sessions:
+        if self._key(req) not in self.sessions:
+            if any(k[1] == req.session for k in self.sessions):
+                self.stats.foreign_session_requests += 1
             return self._nak(req, Nak.INVALID_SESSION)
-        self._close(req.session, commit=True)
+        self._close(self._key(req), commit=True)
         return self._ack(req)
 
     def _op_reset(self, req: Request, now_us: int) -> bytes:
-        self.close()
+        self.close(self._owner)
         return self._ack(req)
 
     def _op_list(self, req: Request, now_us: int) -> bytes:
@@ -324,7 +362,7 @@ class FtpServer:
             os.close(fd)
             return s
         s.path, s.fd, s.file_size = path, fd, size
-        self.sessions[s.sid] = s
+        self.sessions[self._key(req)] = s
         return self._ack(req, struct.pack("<I", size & 0xFFFFFFFF))
 
     def _open_write(self, req: Request, now_us: int, keep: bool) -> bytes:
@@ -335,7 +373,7 @@ class FtpServer:
         if isinstance(s, bytes):
             return s
         s.path, s.upload = path, self.storage.begin_write(path, keep_contents=keep)
-        self.sessions[s.sid] = s
+        self.sessions[self._key(req)] = s
         if keep:
             return self._ack(req, struct.pack("<I", s.upload.size & 0xFFFFFFFF))
         return self._ack(req)

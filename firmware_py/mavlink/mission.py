@@ -17,10 +17,18 @@ around the configured origin). Waypoints go to the vehicle in world
 millimetres (x east, y north). Only mission_type MISSION; fence and rally
 are answered MAV_MISSION_UNSUPPORTED. Pure engine: `handle(msg, now_us)`
 and `tick(now_us)` return replies.
+
+Every item is validated before anything is computed from it (`check_item`):
+x / y must be finite and inside the frame's range (local: |x|, |y| <= 200 km;
+global: |lat| <= 90 deg, |lon| <= 180 deg), else the upload ends with
+MAV_MISSION_INVALID_PARAM5_X / _PARAM6_Y and the old mission stays; z must
+be finite (MAV_MISSION_INVALID_PARAM7) and param1-4 not infinite
+(MAV_MISSION_INVALID_PARAM1..4; NaN is MAVLink's "unused").
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -38,6 +46,9 @@ GLOBAL_FRAMES = frozenset({
     M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT,
     M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
 })
+LOCAL_LIMIT_M = 200_000.0  # |x|, |y| of a local item: x * 1e4 stays inside int32
+LAT_LIMIT_E7 = 900_000_000
+LON_LIMIT_E7 = 1_800_000_000
 INT_SCALED_GLOBAL = frozenset({M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
                                M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT})
 
@@ -55,6 +66,30 @@ class Item:
     x: int
     y: int
     z: float
+
+
+def check_item(msg: mavlink2.MAVLink_message) -> tuple[int, str] | None:
+    """(MAV_MISSION_RESULT, reason) if a MISSION_ITEM(_INT) cannot be stored, else None."""
+    for i, p in enumerate((msg.param1, msg.param2, msg.param3, msg.param4)):
+        if math.isinf(p):  # NaN means "unused" in MAVLink; an infinity means nothing
+            return M.MAV_MISSION_INVALID_PARAM1 + i, f"mission item {msg.seq}: param{i + 1} is infinite"
+    if not math.isfinite(msg.z):
+        return M.MAV_MISSION_INVALID_PARAM7, f"mission item {msg.seq}: z is not a finite number"
+    local = msg.frame in LOCAL_FRAMES
+    for which, value, code in (("x", msg.x, M.MAV_MISSION_INVALID_PARAM5_X),
+                               ("y", msg.y, M.MAV_MISSION_INVALID_PARAM6_Y)):
+        if msg.get_type() == "MISSION_ITEM_INT":
+            if local:
+                limit = LOCAL_LIMIT_M * 1e4
+            else:
+                limit = LAT_LIMIT_E7 if which == "x" else LON_LIMIT_E7
+        else:
+            if not math.isfinite(value):
+                return code, f"mission item {msg.seq}: {which} is not a finite number"
+            limit = LOCAL_LIMIT_M if local else (90.0 if which == "x" else 180.0)
+        if abs(value) > limit:
+            return code, f"mission item {msg.seq}: {which}={value:g} out of range"
+    return None
 
 
 def item_from_msg(msg: mavlink2.MAVLink_message) -> Item:
@@ -185,8 +220,11 @@ class MissionEngine:
         expected = len(self._up_items)
         if msg.seq != expected:  # duplicate or out of order: ask again for the one we need
             return [self._request(expected)]
+        error = check_item(msg)
+        if error is not None:
+            self._up_partner = None
+            return self._statustext(error[1], M.MAV_SEVERITY_WARNING) + [self._ack(partner, error[0])]
         item = item_from_msg(msg)
-        error = None
         if item.command != M.MAV_CMD_NAV_WAYPOINT:
             error = (M.MAV_MISSION_UNSUPPORTED, f"mission item {item.seq}: command {item.command} unsupported "
                      "(NAV_WAYPOINT only)")

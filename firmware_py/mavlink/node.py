@@ -17,11 +17,28 @@ GCS failsafe (as ArduPilot Rover): armed only after a GCS heartbeat
 (HEARTBEAT with type MAV_TYPE_GCS) has been seen; no GCS heartbeat for
 FS_GCS_TOUT_MS -> `vehicle.set_failsafe(True)` (the vehicle applies
 FS_GCS_ACTION) + STATUSTEXT "GCS failsafe"; the next GCS heartbeat clears it.
+Only the operator's GCS counts: the system id in SYSID_MYGCS, or (0, the
+default) the first GCS heartbeat's system id after boot; heartbeats of other
+system ids are counted in `foreign_gcs_heartbeats` and keep nothing alive.
+
+Per-message isolation: `handle` never raises. Every field a handler uses
+is validated (finite, in range) and refused with DENIED / MAV_MISSION_INVALID_*
+/ a STATUSTEXT; an unexpected exception in a handler is counted per message
+kind in `handler_errors`, logged once per kind and answered with a
+STATUSTEXT, and the node carries on (so `tick`, with the failsafe, runs).
+
+SETUP_SIGNING while no key is set arrives unsigned: over a network link it
+is refused unless the operator set SIGN_NET_SETUP=1 on the robot (a robot
+parameter that PARAM_SET cannot change); over a serial link (physical
+access) it is accepted. Recovery when no ground station holds the key:
+`qnav-robot --signing-key FILE` (the file wins over the stored key), or
+SIGN_NET_SETUP=1 in `<storage>/params/params.json` and a restart.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import threading
@@ -40,6 +57,7 @@ from firmware_py.mavlink.signing import Signing
 from firmware_py.mavlink.telemetry import NodeStats, Telemetry
 from firmware_py.vehicle import VehicleControl
 
+log = logging.getLogger("qnav.mavlink")
 M = mavlink2
 DEFAULT_URL = "udpout:127.0.0.1:14550"
 MISSION_MSGS = frozenset({
@@ -49,12 +67,18 @@ MISSION_MSGS = frozenset({
 SIGNED_ONLY = frozenset({"SETUP_SIGNING", "FILE_TRANSFER_PROTOCOL"})
 FTP_PAYLOAD_LEN = 251
 POSITION_MASK_XY = 0b11  # type_mask bits "ignore x" / "ignore y"
+NETWORK_PREFIXES = ("udp", "tcp", "ws")  # pymavlink connection strings that are not a local serial line
+
+
+def is_network_url(url: str) -> bool:
+    """True unless `url` is a serial device (the robot's physical link)."""
+    return url.lower().startswith(NETWORK_PREFIXES) or ":" in url.split("/")[0]
 
 
 class FtpService(Protocol):
     """What `MavNode` needs of its FTP server (`ftp_server.FtpServer` is one)."""
 
-    def handle(self, payload: bytes | bytearray, now_us: int) -> list[bytes]: ...
+    def handle(self, payload: bytes | bytearray, now_us: int, owner: tuple[int, int] = (0, 0)) -> list[bytes]: ...
     def expire(self, now_us: int) -> None: ...
     def drain_texts(self) -> list[tuple[int, str]]: ...
 
@@ -71,8 +95,9 @@ class MavNode:
 
     def __init__(self, vehicle: VehicleControl, params: ParamStore, signing: Signing | None = None, *,
                  reboot_hook: Callable[[], tuple[bool, str]] | None = None,
-                 ftp: FtpService | None = None) -> None:
+                 ftp: FtpService | None = None, network_link: bool = True) -> None:
         self.vehicle = vehicle
+        self.network_link = network_link  # SETUP_SIGNING without a key needs SIGN_NET_SETUP then
         self.params = params
         self.signing = signing if signing is not None else Signing(None)
         self.reboot_hook = reboot_hook
@@ -86,6 +111,10 @@ class MavNode:
         self.mission.on_mission_changed = self.telemetry.mission_changed
         self.commands = CommandHandler(self.mav, vehicle, self.telemetry, self.mission, self._reboot)
         self.gcs_last_heartbeat_us: int | None = None
+        self.gcs_sysid: int | None = None  # the GCS that keeps the failsafe alive (SYSID_MYGCS)
+        self.foreign_gcs_heartbeats = 0
+        self.handler_errors: dict[str, int] = {}  # message kind -> unexpected exceptions
+        self.refused_setup_signing = 0
         self.failsafe = False
         self.failsafe_since_us: int | None = None  # robot time the failsafe last tripped
         self.reboots = 0
@@ -133,12 +162,30 @@ class MavNode:
 
     # --- input ----------------------------------------------------------------------
     def handle(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
+        """Route one message; never raises (see the module doc)."""
+        try:
+            return self._handle(msg, now_us)
+        except Exception as exc:  # the last line of per-message isolation: count, log once, go on
+            try:
+                kind = str(msg.get_type())
+            except Exception:
+                kind = type(msg).__name__
+            n = self.handler_errors.get(kind, 0) + 1
+            self.handler_errors[kind] = n
+            self.stats.rx_dropped += 1
+            if n == 1:
+                log.exception("handler for %s failed (counted; logged once per kind)", kind)
+            return self.telemetry.statustext(f"{kind} refused: {type(exc).__name__}", M.MAV_SEVERITY_ERROR)
+
+    def _handle(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         self._now_us = now_us
         self.stats.rx_total += 1
         kind = msg.get_type()
         if kind == "BAD_DATA":
             self.stats.rx_dropped += 1
             return []
+        if self.signing.key is not None:
+            self.signing.current_timestamp(now_us)  # the window ahead is measured from now
         if not self.signing.accept(msg):
             self.stats.rx_dropped += 1
             self.stats.signing_dropped = self.signing.dropped
@@ -167,11 +214,20 @@ class MavNode:
             self.stats.rx_dropped += 1
             return []
         if kind == "SETUP_SIGNING":
-            text = self.signing.setup(bytes(msg.secret_key), msg.initial_timestamp)
+            if (self.signing.key is None and self.network_link and not self.params.get("SIGN_NET_SETUP")):
+                self.refused_setup_signing += 1
+                return self.telemetry.statustext(
+                    "unsigned SETUP_SIGNING refused: SIGN_NET_SETUP=0",
+                    M.MAV_SEVERITY_WARNING)
+            key = bytes(msg.secret_key)
+            if len(key) != 32:
+                return self.telemetry.statustext("SETUP_SIGNING refused: key is not 32 bytes",
+                                                 M.MAV_SEVERITY_WARNING)
+            text = self.signing.setup(key, int(msg.initial_timestamp))
             return self.telemetry.statustext(text, M.MAV_SEVERITY_NOTICE)
         if kind == "FILE_TRANSFER_PROTOCOL" and self.ftp is not None:
             src = (msg.get_srcSystem(), msg.get_srcComponent())
-            replies = self.ftp.handle(bytes(msg.payload), now_us)
+            replies = self.ftp.handle(bytes(msg.payload), now_us, src)
             return [self.mav.file_transfer_protocol_encode(0, src[0], src[1], list(p.ljust(FTP_PAYLOAD_LEN, b"\0")))
                     for p in replies] + self._ftp_texts()
         return []
@@ -186,6 +242,14 @@ class MavNode:
 
     def _heartbeat(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         if msg.type != M.MAV_TYPE_GCS:
+            return []
+        src = msg.get_srcSystem()
+        mine = self.params.get("SYSID_MYGCS") or self.gcs_sysid
+        if mine is None:
+            self.gcs_sysid = mine = src  # SYSID_MYGCS=0: the first GCS seen after boot
+            log.info("GCS failsafe follows system id %d (first GCS heartbeat)", src)
+        if src != mine:
+            self.foreign_gcs_heartbeats += 1  # another GCS (or a spoofer) keeps nothing alive
             return []
         self.gcs_last_heartbeat_us = now_us
         if self.failsafe:
@@ -216,7 +280,7 @@ class MavNode:
             return self.telemetry.statustext(f"unknown parameter {msg.param_id}", M.MAV_SEVERITY_WARNING)
         if kind == "PARAM_SET":
             name = msg.param_id
-            ok, reason = self.params.set(name, msg.param_value, check=self.vehicle.check_config)
+            ok, reason = self.params.set(name, msg.param_value, check=self.vehicle.check_config, remote=True)
             if name not in self.params:
                 return self.telemetry.statustext(reason, M.MAV_SEVERITY_WARNING)
             out = [] if ok else self.telemetry.statustext(f"param set refused: {reason}", M.MAV_SEVERITY_WARNING)
@@ -246,6 +310,9 @@ class MavNode:
                                                  M.MAV_SEVERITY_WARNING)
             x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
         else:
+            if not (abs(msg.lat_int) <= 900_000_000 and abs(msg.lon_int) <= 1_800_000_000):
+                return self.telemetry.statustext("goal refused: latitude/longitude out of range",
+                                                 M.MAV_SEVERITY_WARNING)
             x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
                                                     self.params.get("ORIGIN_LON"))
         ok, reason = self.vehicle.set_goal(x_mm, y_mm)
@@ -258,17 +325,38 @@ class MavNode:
         """Failsafe check, vehicle events, mission timeouts, due telemetry."""
         self._now_us = now_us
         out, self._pending = self._pending, []
-        out += self._check_failsafe(now_us)
+        out += self._check_failsafe(now_us)  # first, and outside the guarded parts below
+        for part in (self._tick_events, self.mission.tick, self._tick_ftp, self._tick_signing,
+                     self._tick_telemetry):
+            try:
+                out += part(now_us)
+            except Exception:  # one broken part must not starve the others (or the failsafe)
+                kind = f"tick:{getattr(part, '__name__', 'part')}"
+                n = self.handler_errors.get(kind, 0) + 1
+                self.handler_errors[kind] = n
+                if n == 1:
+                    log.exception("%s failed (counted; logged once)", kind)
+        return out
+
+    def _tick_events(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+        out: list[mavlink2.MAVLink_message] = []
         for ev in self.vehicle.drain_events():
             out += self.telemetry.event(ev)
-        out += self.mission.tick(now_us)
-        if self.ftp is not None:
-            self.ftp.expire(now_us)
-            out += self._ftp_texts()
+        return out
+
+    def _tick_ftp(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+        if self.ftp is None:
+            return []
+        self.ftp.expire(now_us)
+        return self._ftp_texts()
+
+    def _tick_signing(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         self.signing.tick(now_us)
         self.stats.signing_dropped = self.signing.dropped
-        out += self.telemetry.due(now_us, self.vehicle.status(), self.stats)
-        return out
+        return []
+
+    def _tick_telemetry(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+        return self.telemetry.due(now_us, self.vehicle.status(), self.stats)
 
     def _check_failsafe(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         enabled = bool(self.params.get("FS_GCS_ENABLE"))
@@ -316,7 +404,10 @@ class MavShell:
             s.allow_unsigned_callback = (lambda mav, msg_id: True) if sig.key is not None else None
             s.link_id = 0
         if sig.key is not None:
-            s.timestamp = max(s.timestamp, sig.current_timestamp(now_us))
+            # pymavlink's parser moves its timestamp up to any validly signed input
+            # (2^48 wrap, issue 13): the robot's own Signing decides what we send with.
+            s.timestamp = sig.current_timestamp(now_us)
+            s.stream_timestamps.clear()  # the node's Signing keeps the streams (bounded)
 
     def send(self, msgs: list[mavlink2.MAVLink_message], now_us: int) -> None:
         if not msgs:
@@ -387,6 +478,7 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
         from firmware_py.storage import Storage
 
         server = FtpServer(Storage(storage_dir), activate=vehicle.activate_policy)
-    node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server)
+    node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server,
+                   network_link=is_network_url(url))
     node.boot(now_us, signing_key, overrides)
     return MavShell(node, url, baud=baud)

@@ -44,6 +44,7 @@ class ParamDef:
     field: str | None = None
     readonly: bool = False
     reboot_required: bool = False
+    local: bool = False  # settable on the robot only (params file, command line), never by PARAM_SET
 
 
 _CFG = VehicleConfig()
@@ -57,6 +58,12 @@ PARAMS: tuple[ParamDef, ...] = (
     ParamDef("SIGN_REQUIRE", 1, 0, 1,
              "1: with a signing key set, drop unsigned/badly signed input (RADIO_STATUS excepted); "
              "0: accept unsigned input too (outgoing still signed)"),
+    ParamDef("SIGN_NET_SETUP", 0, 0, 1,
+             "1: accept an unsigned SETUP_SIGNING over a network link while no key is set; 0: only "
+             "over a serial link or with --signing-key (set on the robot only: params.json)", local=True),
+    ParamDef("SYSID_MYGCS", 0, 0, 255,
+             "system id of the GCS whose heartbeats keep the GCS failsafe alive (0: the first GCS "
+             "seen after boot)"),
     ParamDef("TELEM_POS_HZ", 5, 0, 50,
              "default rate of LOCAL_POSITION_NED, ATTITUDE, GLOBAL_POSITION_INT (0 = off)"),
     ParamDef("TELEM_NAV_HZ", 2, 0, 50,
@@ -143,16 +150,22 @@ class ParamStore:
         return self._values[name]
 
     def set(self, name: str, value: float,
-            check: Callable[[VehicleConfig], tuple[bool, str]] | None = None) -> tuple[bool, str]:
+            check: Callable[[VehicleConfig], tuple[bool, str]] | None = None, *,
+            remote: bool = False) -> tuple[bool, str]:
         """Set from a MAVLink PARAM_SET value. On refusal the stored value is
         unchanged and the reason says why. Persists on success. `check` (the
         vehicle's `check_config`) judges the config a controller parameter
-        would make before anything is stored."""
+        would make before anything is stored. `remote`: the value came over
+        MAVLink (robot-local parameters are refused then)."""
         d = self._defs.get(name)
         if d is None:
             return False, f"unknown parameter {name}"
         if d.readonly:
             return False, f"{name} is read-only"
+        if remote and d.local:
+            return False, f"{name} can only be set on the robot (params.json)"
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            return False, f"{name}: not a number"
         if value != value or value in (float("inf"), float("-inf")):
             return False, f"{name}: not a number"
         ivalue = round(value)

@@ -19,6 +19,18 @@ cannot sign), unless SIGN_REQUIRE=0. Badly signed frames are always dropped.
 A stream's timestamp only advances after the signature verified, so a forged
 frame cannot block a stream.
 
+Bounds (hostile testing, issue 13): a timestamp more than FUTURE_WINDOW
+(60 s) ahead of the robot's own is dropped (`dropped_future`), and incoming
+timestamps never move the robot's own clock, so no frame, however signed,
+can push the robot's outgoing timestamps towards 2^48 (they would wrap and
+lock every ground station out). Nothing beyond MAX_TIMESTAMP (2^48 - 1) is
+ever sent or stored; a stored state beyond it (or beyond the window) is
+reset at boot with a warning. After a boot no frame older than the boot's
+timestamp is accepted on any stream (`replay_floor`), so a frame captured
+before a crash (kill -9, power cut) is refused after it even if the last
+periodic save of the stream timestamps was lost; this needs the robot's
+wall clock to be set (NTP/RTC), else only the last save (every 10 s) holds.
+
 The verification is done here rather than by pymavlink's parser so the
 counters and the new-stream and persistence rules are ours; pymavlink still
 signs outgoing frames (the shell copies `key`/`timestamp` to it).
@@ -41,6 +53,8 @@ if TYPE_CHECKING:  # only for the annotation: the filter works on any message's 
 SIGNING_FILE = "params/signing.json"  # under the storage root, beside params.json
 EPOCH_2015_UNIX_S = 1_420_070_400
 NEW_STREAM_SLACK = 60 * 100_000  # one minute in 10 us units
+FUTURE_WINDOW = 60 * 100_000  # a frame may be at most one minute ahead of the robot's timestamp
+MAX_TIMESTAMP = (1 << 48) - 1  # the signature's timestamp field is 48 bits
 PERSIST_INTERVAL_US = 10_000_000
 MAX_STREAMS = 64
 MSG_ID_RADIO_STATUS = 109
@@ -91,6 +105,8 @@ class Signing:
         self.dropped_unsigned = 0
         self.dropped_badsig = 0
         self.dropped_replay = 0
+        self.dropped_future = 0
+        self.replay_floor = 0  # no frame older than the boot timestamp (see module doc)
         self.key_version = 0  # bumped on every key change; the shell re-applies it
         self._boot_ts = 0
         self._boot_us = 0
@@ -101,7 +117,7 @@ class Signing:
 
     @property
     def dropped(self) -> int:
-        return self.dropped_unsigned + self.dropped_badsig + self.dropped_replay
+        return self.dropped_unsigned + self.dropped_badsig + self.dropped_replay + self.dropped_future
 
     # --- boot ---------------------------------------------------------------
     def load(self, now_us: int, key_file: str | os.PathLike[str] | None = None) -> list[str]:
@@ -123,10 +139,18 @@ class Signing:
             except (OSError, ValueError, TypeError, AttributeError) as exc:
                 warnings.append(f"signing state corrupt ({exc}); key and timestamps reset")
                 self.key, self.streams, stored_ts = None, {}, 0
+        wall = wall_timestamp()
+        ceiling = min(MAX_TIMESTAMP, wall + FUTURE_WINDOW) if wall > 0 else MAX_TIMESTAMP
+        if stored_ts > ceiling or any(ts > ceiling for ts in self.streams.values()):
+            # written by an older robot that let a frame push it towards 2^48: unusable
+            warnings.append("signing timestamps beyond the bound; timestamps reset to the clock")
+            stored_ts = 0
+            self.streams = {k: v for k, v in self.streams.items() if v <= ceiling}
         self._key_from_file = key_file is not None
         if key_file is not None:
             self.key = load_key_file(key_file)
-        self.timestamp = max(self.timestamp, stored_ts + 1, wall_timestamp())
+        self.timestamp = min(MAX_TIMESTAMP, max(self.timestamp, stored_ts + 1, wall))
+        self.replay_floor = self.timestamp
         self._boot_ts, self._boot_us = self.timestamp, now_us
         self._last_persist_us = now_us
         self.key_version += 1
@@ -134,14 +158,19 @@ class Signing:
 
     # --- provisioning ---------------------------------------------------------
     def setup(self, secret_key: bytes, initial_timestamp: int) -> str:
-        """Apply SETUP_SIGNING: all-zero key and timestamp 0 disable signing."""
+        """Apply SETUP_SIGNING: all-zero key and timestamp 0 disable signing.
+        An initial timestamp beyond the window ahead of the robot's is not
+        taken (the key is), so provisioning cannot wedge the timestamps."""
         if not any(secret_key) and initial_timestamp == 0:
             self.key = None
             text = "signing disabled"
         else:
             self.key = bytes(secret_key)
-            self.timestamp = max(self.timestamp, int(initial_timestamp))
             text = "signing key set"
+            if int(initial_timestamp) <= min(MAX_TIMESTAMP, self.timestamp + FUTURE_WINDOW):
+                self.timestamp = max(self.timestamp, int(initial_timestamp))
+            else:
+                text = "signing key set; initial timestamp too far ahead, robot clock kept"
         self.streams.clear()
         self._key_from_file = False
         self.key_version += 1
@@ -168,13 +197,18 @@ class Signing:
         ts = int.from_bytes(buf[-12:-6], "little")
         stream = (buf[-13], msg.get_srcSystem(), msg.get_srcComponent())
         last = self.streams.get(stream)
-        if (last is not None and ts <= last) or (last is None and ts + NEW_STREAM_SLACK < self.timestamp):
+        if ts > min(MAX_TIMESTAMP, self.timestamp + FUTURE_WINDOW):
+            self.dropped_future += 1  # would drag the stream (and, before, the robot) towards 2^48
+            return False
+        if (ts < self.replay_floor or (last is not None and ts <= last)
+                or (last is None and ts + NEW_STREAM_SLACK < self.timestamp)):
             self.dropped_replay += 1
             return False
         self.streams[stream] = ts
         if len(self.streams) > MAX_STREAMS:
             del self.streams[min(self.streams, key=self.streams.__getitem__)]
-        self.timestamp = max(self.timestamp, ts)
+        # the robot's own timestamp is NOT advanced from input: a key holder's
+        # bad clock must not ratchet it forwards (see the module doc)
         self.accepted_signed += 1
         self.last_signed = True
         self._dirty = True
@@ -183,13 +217,14 @@ class Signing:
     # --- outgoing timestamp and persistence ---------------------------------------
     def current_timestamp(self, now_us: int) -> int:
         """Timestamp to sign with now: never behind boot time + elapsed robot time."""
-        self.timestamp = max(self.timestamp, self._boot_ts + max(0, now_us - self._boot_us) // 10)
+        self.timestamp = min(MAX_TIMESTAMP, max(self.timestamp,
+                                                self._boot_ts + max(0, now_us - self._boot_us) // 10))
         return self.timestamp
 
     def note_sent(self, timestamp: int) -> None:
         """The shell reports the signer's timestamp after sending."""
         if timestamp > self.timestamp:
-            self.timestamp = timestamp
+            self.timestamp = min(MAX_TIMESTAMP, timestamp)
             self._dirty = True
 
     def tick(self, now_us: int) -> None:
@@ -205,7 +240,7 @@ class Signing:
             return
         doc = {
             "version": 1,
-            "timestamp": self.timestamp,
+            "timestamp": min(MAX_TIMESTAMP, self.timestamp),
             # a key from --signing-key stays in its file, not copied here
             "key": self.key.hex() if self.key is not None and not self._key_from_file else "",
             "streams": [[*k, v] for k, v in sorted(self.streams.items())],

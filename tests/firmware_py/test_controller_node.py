@@ -11,12 +11,17 @@ from firmware_py.control.controller import Controller
 from firmware_py.control.node import RobotNode
 from tests.support.controller_rig import sector_seek_policy
 
+_SAMPLE = [0]
+
 
 def sensor_frames(enc=(0, 0)):
-    frames = cp.range_frames([(robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)] * robot_spec.SENSOR_COUNT)
-    frames.append(cp.encode("EncoderCounts", {"Enc_Left": enc[0], "Enc_Right": enc[1]}))
+    _SAMPLE[0] += 1  # every call is a new sample: the rolling counters advance
+    n = _SAMPLE[0]
+    frames = cp.range_frames([(robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)] * robot_spec.SENSOR_COUNT, n)
+    frames.append(cp.encoder_counts(enc[0], enc[1], n))
     frames.append(cp.encode("Bumper", {"Bump_Pressed": 0, "Bump_Front": 0, "Bump_Left": 0, "Bump_Rear": 0,
-                                       "Bump_Right": 0, "Bump_Events": 0, "Bump_AngleMrad": 0}))
+                                       "Bump_Right": 0, "Bump_Events": 0, "Bump_AngleMrad": 0,
+                                       "Bump_Counter": n % cp.SENSOR_COUNTER_MODULUS}))
     frames.append(cp.encode("MotorStatus", {"Mot_State": 1, "Mot_WatchdogTripped": 0, "Mot_EStop": 0,
                                             "Mot_AccelLimited": 0, "Mot_Errors": 0, "Mot_CmdCounterLsb": 0,
                                             "Mot_LeftSpeed": 0, "Mot_RightSpeed": 0}))

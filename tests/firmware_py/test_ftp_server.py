@@ -23,14 +23,15 @@ def req(seq, opcode, data=b"", session=0, offset=0, size=None):
 class Client:
     """Just enough of a client to drive the server in tests."""
 
-    def __init__(self, server, session=0):
+    def __init__(self, server, session=0, owner=(255, 190)):
         self.server, self.session, self.seq, self.now = server, session, 0, 0
+        self.owner = owner
 
     def send(self, opcode, data=b"", offset=0, size=None, session=None):
         self.seq += 1
         payload = req(self.seq, opcode, data, self.session if session is None else session, offset, size)
         self.last = payload
-        return [parse(r) for r in self.server.handle(payload, self.now)]
+        return [parse(r) for r in self.server.handle(payload, self.now, self.owner)]
 
     def one(self, *a, **k):
         replies = self.send(*a, **k)
@@ -170,7 +171,7 @@ def test_retried_request_gets_the_cached_reply_not_a_second_run(server, c):
     put(c, "/policies/a", b"abc")
     first = c.one(Op.RENAME, b"/policies/a\0/policies/b")
     assert ack(first)
-    again = [parse(r) for r in server.handle(c.last, c.now)]  # same seq: the ACK was lost
+    again = [parse(r) for r in server.handle(c.last, c.now, c.owner)]  # same seq: the ACK was lost
     assert again == [first]
     assert server.stats.retries_answered_from_cache == 1
     fresh = c.one(Op.RENAME, b"/policies/a\0/policies/b")  # new seq: really runs, and fails
@@ -181,7 +182,7 @@ def test_create_retry_keeps_written_data(server, c):
     assert ack(c.one(Op.CREATE_FILE, b"/policies/a"))
     create = c.last
     assert ack(c.one(Op.WRITE_FILE, b"data", offset=0))
-    assert ack(parse(server.handle(create, c.now)[0]))  # not the last request: runs again
+    assert ack(parse(server.handle(create, c.now, c.owner)[0]))  # not the last request: runs again
     # re-running CreateFile on the same session starts the file over, as the client asked
     assert ack(c.one(Op.TERMINATE_SESSION))
     assert server.storage.read_bytes("/policies/a") == b""
@@ -202,8 +203,8 @@ def test_hostile_payloads(server, c):
     assert nak(c.one(Op.CREATE_FILE, b"\xff\xfe"), Nak.FAIL)
     assert nak(c.one(Op.RENAME, b"/policies/only_one_name"), Nak.FAIL)
     assert ack(c.one(Op.CREATE_FILE, b"/policies/big"))
-    huge = c.one(Op.WRITE_FILE, b"x", offset=0xFFFFFFF0)
-    assert huge[2] == Op.NAK and huge[7][:1] == bytes([Nak.FAIL_ERRNO]) and huge[7][1] == 28  # ENOSPC
+    huge = c.one(Op.WRITE_FILE, b"x", offset=0xFFFFFFF0)  # a sparse write far past the end: a hole
+    assert huge[2] == Op.NAK and huge[7][:1] == bytes([Nak.FAIL_ERRNO]) and huge[7][1] == 22  # EINVAL
     assert nak(c.one(Op.OPEN_FILE_RO, b"/policies"), Nak.FAIL_ERRNO)  # a directory
     assert server.handle(HEADER.pack(1, 0, Op.ACK, 0, 0, 0, 0, 0), 0) == []  # replies are ignored
 
@@ -231,19 +232,25 @@ def test_path_escapes_are_refused_and_nothing_is_written_outside(tmp_path, serve
 def test_idle_sessions_expire_on_the_injected_clock(server, c):
     assert ack(c.one(Op.CREATE_FILE, b"/policies/slow"))
     assert ack(c.one(Op.WRITE_FILE, b"part", offset=0))
-    c.now = 9 * S
+    c.now = 4 * S
     assert ack(c.one(Op.WRITE_FILE, b"more", offset=4))  # activity keeps it alive
-    c.now = 20 * S
+    c.now = 10 * S
     assert nak(c.one(Op.WRITE_FILE, b"late", offset=8), Nak.INVALID_SESSION)
     assert server.stats.expired_sessions == 1
     assert os.listdir(server.storage.root / "policies") == []  # temp removed, nothing committed
 
 
 def test_reset_sessions_discards_uploads_and_sessions_are_limited(server, c):
-    for sid in range(4):
+    other = Client(server, owner=(7, 1))
+    for sid in range(2):  # per client: max_sessions_per_client
         assert ack(c.one(Op.CREATE_FILE, f"/policies/f{sid}".encode(), session=sid))
+        assert ack(other.one(Op.CREATE_FILE, f"/policies/g{sid}".encode(), session=sid))
     assert nak(c.one(Op.CREATE_FILE, b"/policies/f9", session=9), Nak.NO_SESSIONS_AVAILABLE)
-    assert ack(c.one(Op.RESET_SESSIONS))
+    third = Client(server, owner=(8, 1))  # the table is full and nobody is idle yet
+    assert nak(third.one(Op.CREATE_FILE, b"/policies/h0"), Nak.NO_SESSIONS_AVAILABLE)
+    assert ack(c.one(Op.RESET_SESSIONS))  # resets the caller's sessions only
+    assert sorted(server.sessions) == [((7, 1), 0), ((7, 1), 1)]
+    assert ack(other.one(Op.RESET_SESSIONS))
     assert server.sessions == {}
     assert os.listdir(server.storage.root / "policies") == []
 

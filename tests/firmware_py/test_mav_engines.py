@@ -424,6 +424,7 @@ def test_signing_drops_unsigned_bad_and_replayed(tmp_path):
 
 def test_setup_signing_provisions_persists_and_disables(tmp_path):
     link = Link(tmp_path)
+    assert link.node.params.set("SIGN_NET_SETUP", 1)[0]  # the operator allows it on the robot
     replies = link.send(link.gcs.setup_signing_encode(1, 1, list(KEY), link.node.signing.timestamp))
     assert texts(replies) == ["signing key set"]
     assert json.loads((tmp_path / "params" / "signing.json").read_text())["key"] == KEY.hex()
@@ -468,6 +469,7 @@ def test_ftp_is_routed_to_the_ftp_server_and_always_needs_a_signature_with_a_key
     # with a key and SIGN_REQUIRE=0, unsigned commands pass but unsigned FTP does not
     signed = Link(tmp_path, key=KEY)
     signed.node.ftp = server
+    signed.node.params.set("SIGN_NET_SETUP", 1)
     signed.send(signed.gcs.setup_signing_encode(1, 1, list(KEY), signed.node.signing.timestamp))
     assert of(signed.send(signed.gcs.param_set_encode(1, 1, b"SIGN_REQUIRE", 0, 6)), "PARAM_VALUE")[0].param_value == 0
     plain = m.MAVLink(None, *GCS)

@@ -1,0 +1,127 @@
+"""Plausibility of what the bus says (issue 13): far-future SimTicks, encoder
+jumps and sensor boards stuck re-sending one frame. The controller and the
+clock are driven directly; the SimTick path once more through RobotNode on a
+python-can virtual bus."""
+
+from __future__ import annotations
+
+import can
+import pytest
+
+from firmware_py import can_protocol as cp
+from firmware_py import robot_spec
+from firmware_py.clock import MAX_TICK_JUMP_US, RESYNC_TICKS, SimClock
+from firmware_py.control.controller import Controller
+from firmware_py.control.node import RobotNode
+from firmware_py.vehicle import CtrlState
+from tests.firmware_py.test_controller_core import armed_rig
+from tests.firmware_py.test_controller_node import expect, sensor_frames
+from tests.support.controller_rig import sector_seek_policy
+
+P = robot_spec.CONTROL_PERIOD_US
+
+
+def test_sim_clock_refuses_a_far_jump_and_keeps_following_real_ticks():
+    c = SimClock()
+    assert c.set_us(120_000_000)  # the first tick is taken: a robot joining a running sim
+    assert not c.set_us(10**12) and c.refused_jumps == 1 and c.now_us() == 120_000_000
+    for _ in range(5):  # the same forged value again and again never resyncs
+        assert not c.set_us(10**12)
+    assert c.set_us(120_000_000 + P) and c.now_us() == 120_000_000 + P
+    assert c.set_us(120_000_000 + P + MAX_TICK_JUMP_US)  # at the bound: still taken
+    # the sim really jumped (ticks lost): RESYNC_TICKS consecutive agreeing ticks move the clock
+    t0 = c.now_us() + 5_000_000
+    taken = [c.set_us(t0 + i * P) for i in range(RESYNC_TICKS)]
+    assert taken == [False] * (RESYNC_TICKS - 1) + [True] and c.now_us() == t0 + (RESYNC_TICKS - 1) * P
+
+
+def test_encoder_jump_is_a_fault_with_the_reason_and_does_not_move_the_pose():
+    rig = armed_rig(sector_seek_policy())
+    ctrl = rig.ctrl
+    assert ctrl.set_goal(3000, 250)[0]
+    for _ in range(5):
+        rig.tick()
+    assert ctrl.state == CtrlState.DRIVING
+    pose = ctrl.odom.pose_mm()
+    inp = rig.inp
+    rig.tick(fresh=False, enc_left=inp.enc_left + 1_000_000, enc_us=rig.t)
+    assert ctrl.state == CtrlState.FAULT and ctrl.fault.startswith("encoder jump: left 1000000 ticks/50 ms")
+    assert abs(ctrl.odom.x_mm - pose[0]) < 100 and abs(ctrl.odom.y_mm - pose[1]) < 100
+    assert rig.commands[-1] is None or (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
+    assert ctrl.encoder_jumps == 1
+    rig.tick(fresh=False, enc_us=rig.t)  # the next (plausible) sample integrates from the new reference
+    assert abs(ctrl.odom.x_mm - pose[0]) < 100
+
+
+def test_fast_but_possible_wheels_are_not_a_jump():
+    rig = armed_rig(None)
+    ctrl = rig.ctrl
+    ticks_per_period = robot_spec.MAX_WHEEL_SPEED_MM_S * P * robot_spec.ENCODER_TICKS_PER_REV // (
+        round(2 * 3.14159265 * robot_spec.WHEEL_RADIUS_MM * 1000) * 1000)
+    left = rig.inp.enc_left
+    for _ in range(10):
+        left += ticks_per_period  # full speed
+        rig.tick(fresh=False, enc_left=left, enc_us=rig.t, ranges_us=[rig.t, rig.t], bumper_us=rig.t,
+                 driver_us=rig.t)
+    assert ctrl.state == CtrlState.HOLD and ctrl.encoder_jumps == 0
+
+
+@pytest.mark.parametrize("frozen", ["enc", "ranges1", "bumper"])
+def test_a_sensor_frame_whose_counter_stops_goes_stale_within_the_timeout(frozen):
+    rig = armed_rig(sector_seek_policy())
+    ctrl = rig.ctrl
+    assert ctrl.set_goal(3000, 250)[0]
+    counters = {"ranges0": 0, "ranges1": 0, "enc": 0, "bumper": 0}
+    t_frozen = None
+    tmo = ctrl.cfg.sensor_timeout_ms * 1000
+    for k in range(40):
+        if k == 10:
+            t_frozen = rig.t - P  # the last frame with a new counter came with the previous tick
+        for key in counters:
+            if not (key == frozen and k >= 10):
+                counters[key] = (counters[key] + 1) % cp.SENSOR_COUNTER_MODULUS
+        rig.tick(counters=dict(counters))  # the frames keep arriving (fresh stamps), one counter does not
+        if ctrl.state == CtrlState.FAULT:
+            break
+    assert ctrl.state == CtrlState.FAULT and "frozen" in ctrl.fault, ctrl.fault
+    t_fault = ctrl.transitions[-1].t_us
+    assert tmo < t_fault - t_frozen <= tmo + P
+    assert rig.commands[-1] is None or (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
+
+
+def test_robot_node_drops_a_far_future_sim_tick_and_keeps_detecting_stale_sensors():
+    ch = "plausibility-lockstep"
+    sim = can.Bus(interface="virtual", channel=ch)
+    ctrl = Controller(policy=sector_seek_policy(), lockstep=True)
+    node = RobotNode(can.Bus(interface="virtual", channel=ch), ctrl, SimClock(), lockstep=True)
+    node.start()
+    try:
+        t = 0
+        for k in range(3):
+            for f in sensor_frames():
+                sim.send(f)
+            sim.send(cp.sim_tick(k, t))
+            expect(sim, "MotorCommand")
+            t += P
+        assert ctrl.arm() == (True, "") and ctrl.set_goal(3000, 0)[0]
+        sim.send(cp.sim_tick(3, 10**12))  # forged: far in the future, the next counter
+        for f in sensor_frames():
+            sim.send(f)
+        sim.send(cp.sim_tick(3, t))  # the real tick 3: answered and stepped (not taken as a resend)
+        cmd = expect(sim, "MotorCommand")
+        assert cmd["Cmd_Counter"] == 3 and node.clock.now_us() == t and node.ticks == 4
+        assert node.clock.refused_jumps == 1 and node.overruns == 0
+        last_fresh, k = t, 3
+        while True:  # sensors stop, ticks go on: stale within the timeout + one period
+            k += 1
+            t += P
+            sim.send(cp.sim_tick(k, t))
+            cmd = expect(sim, "MotorCommand")
+            if cmd["Cmd_LeftSpeed"] == 0 and ctrl.state == CtrlState.FAULT:
+                break
+            assert t - last_fresh <= 250_000
+        assert 250_000 < t - last_fresh <= 250_000 + P
+    finally:
+        node.stop()
+        node.bus.shutdown()
+        sim.shutdown()
