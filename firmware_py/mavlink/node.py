@@ -34,7 +34,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from firmware_py.clock import Clock
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.commands import CommandHandler
-from firmware_py.mavlink.mission import MissionEngine
+from firmware_py.mavlink.mission import MissionEngine, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
 from firmware_py.mavlink.telemetry import NodeStats, Telemetry
@@ -248,7 +248,8 @@ class MavNode:
         else:
             x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
                                                     self.params.get("ORIGIN_LON"))
-        ok, reason = self.vehicle.set_goal(x_mm, y_mm)
+        _, off_map = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
+        ok, reason = (False, off_map) if off_map else self.vehicle.set_goal(x_mm, y_mm)
         if not ok:
             return self.telemetry.statustext(f"goal refused: {reason}", M.MAV_SEVERITY_WARNING)
         return [self.telemetry.position_target((now_us // 1000) & 0xFFFFFFFF, x_mm, y_mm)]

@@ -56,6 +56,9 @@ FLIGHT_SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # 0.1.0 official
 
 SENSOR_PRESENT = (M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
                   | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL)
+# No fence: present and enabled stay clear, and the health bit is set as ArduPilot
+# does without a fence (a clear health bit reads as "fence breach" in MAVProxy).
+HEALTHY_ABSENT = M.MAV_SYS_STATUS_GEOFENCE
 
 
 @dataclass
@@ -148,7 +151,7 @@ class Telemetry:
         if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
             return [self.heartbeat(st)]
         if msg_id == M.MAVLINK_MSG_ID_SYS_STATUS:
-            health = 0
+            health = HEALTHY_ABSENT
             if st.sensors_healthy:
                 health |= M.MAV_SYS_STATUS_SENSOR_PROXIMITY
             if st.motors_healthy:
