@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from firmware_py.canbus import CanHub
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from ground_station.errors import CliError
 from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
@@ -190,13 +191,11 @@ class Sitl:
         self.opts = opts
         self.say = say or (lambda _line: None)
         self.procs = ProcessGroup()
-        self.hub = None
+        self.hub: CanHub | None = None
         self.info: SitlInfo | None = None
         self.exit_codes: dict[str, int | None] = {}
 
     def start(self) -> SitlInfo:
-        from firmware_py.canbus import CanHub
-
         opts = self.opts
         start, cell = start_pose(opts.map_name)
         policy = resolve_policy(opts)
@@ -207,12 +206,12 @@ class Sitl:
             raise SitlError(f"run folder {run_dir}: {exc.strerror or exc}") from None
         can_spec = opts.can
         if can_spec is None:
-            self.hub = CanHub(channel="qnav-sitl")
+            hub = self.hub = CanHub(channel="qnav-sitl")
             try:
-                self.hub.start()
+                hub.start()
             except RuntimeError as exc:
                 raise SitlError(f"CAN hub: {exc}") from None
-            can_spec = self.hub.spec
+            can_spec = hub.spec
         logs = {"sim": run_dir / "sim.log", "robot": run_dir / "robot.log"}
         info = SitlInfo(run_dir=run_dir, mavlink=opts.mavlink, gcs_url=gcs_side(opts.mavlink), can_spec=can_spec,
                         hub=self.hub is not None, policy=policy or "none", start=start, logs=logs)
