@@ -56,6 +56,7 @@ class SitlOptions:
     seed: int = 0
     duration_s: float | None = None  # wall seconds, then stop (None: until Ctrl-C)
     robots: int = 1
+    autopilot: str = "generic"  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
     probe_timeout_s: float = 60.0
 
 
@@ -220,7 +221,8 @@ class Sitl:
                             "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
                             "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q")
         robot_argv = qnav_robot("--can", can_spec, "--sim-clock", "--start", start, "--storage", run_dir / "robot",
-                                "--mavlink", opts.mavlink, "--stats-json", run_dir / "robot_stats.json")
+                                "--mavlink", opts.mavlink, "--mavlink-autopilot", opts.autopilot,
+                                "--stats-json", run_dir / "robot_stats.json")
         if policy:
             robot_argv += ["--policy", policy]
         self.procs.start("sim", sim_argv, logs["sim"])

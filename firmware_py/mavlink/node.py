@@ -37,7 +37,7 @@ from firmware_py.mavlink.commands import CommandHandler
 from firmware_py.mavlink.mission import MissionEngine, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
-from firmware_py.mavlink.telemetry import NodeStats, Telemetry
+from firmware_py.mavlink.telemetry import AUTOPILOTS, NodeStats, Telemetry
 from firmware_py.vehicle import VehicleControl
 
 M = mavlink2
@@ -373,12 +373,15 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mavlink-baud", type=int, default=57600, help="baud rate for a serial device")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
                         help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
+    parser.add_argument("--mavlink-autopilot", choices=sorted(AUTOPILOTS), default="generic",
+                        help="autopilot type in the HEARTBEAT (default %(default)s): 'ardupilot' for MAVSDK, "
+                             "which reads int parameters and names modes only for ArduPilot (docs/mavlink.md)")
 
 
 def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | None, url: str, now_us: int, *,
               signing_key: str | None = None, baud: int = 57600,
               reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp: bool = True,
-              overrides: dict[str, int] | None = None) -> MavShell:
+              overrides: dict[str, int] | None = None, autopilot: str = "generic") -> MavShell:
     """Build, boot and connect the node: params and signing state from
     `storage_dir` (then `overrides`, see MavNode.boot), and (with `ftp`) an
     FTP server on it whose policy activation is the vehicle's `activate_policy`."""
@@ -390,4 +393,5 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
         server = FtpServer(Storage(storage_dir), activate=vehicle.activate_policy)
     node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server)
     node.boot(now_us, signing_key, overrides)
+    node.telemetry.autopilot = int(AUTOPILOTS[autopilot])
     return MavShell(node, url, baud=baud)

@@ -42,6 +42,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mavlink", default=DEFAULT_MAVLINK, metavar="URL",
                    help="the robot's MAVLink connection string (default %(default)s: it listens, ground "
                         "stations send to it; udpout:127.0.0.1:14550 feeds a QGroundControl directly)")
+    p.add_argument("--autopilot", choices=("generic", "ardupilot"), default="generic",
+                   help="autopilot type the robot's HEARTBEAT gives (default %(default)s; 'ardupilot' for MAVSDK, "
+                        "which decodes int parameters and names flight modes only for ArduPilot or PX4)")
     p.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/sitl-<timestamp>/)")
     p.add_argument("--seed", type=int, default=0, help="sim noise seed (default %(default)s)")
     p.add_argument("--duration", type=float, metavar="S",
@@ -58,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = SitlOptions(map_name=args.map, policy=args.policy, can=args.can, speed=args.speed,
                        mavlink=args.mavlink, out=args.out, seed=args.seed, duration_s=args.duration,
-                       robots=args.robots)
+                       robots=args.robots, autopilot=args.autopilot)
 
     def say(line: str) -> None:
         print(f"qnav sitl: {line}", file=sys.stderr, flush=True)

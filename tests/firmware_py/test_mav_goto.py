@@ -184,3 +184,13 @@ def test_policy_telemetry_holds_the_decision_in_force_while_driving(kind):
     if kind == "cell":  # one decision per cell move, held in between
         assert len({s for s, _, _ in samples}) < len(samples) / 5
     assert ctrl.status().action == -1 and ctrl.status().q_row == ()  # HOLD again: none in force
+
+
+def test_statustext_of_whole_chunks_ends_with_an_empty_chunk():
+    """MAVProxy (and the spec) read a full 50-byte last chunk as "more to come"."""
+    link = Link()
+    texts_100 = link.node.telemetry.statustext("x" * 100)
+    assert [len(t.text) for t in texts_100] == [50, 50, 0]
+    assert [t.chunk_seq for t in texts_100] == [0, 1, 2] and len({t.id for t in texts_100}) == 1
+    assert [len(t.text) for t in link.node.telemetry.statustext("y" * 70)] == [50, 20]
+    assert [t.id for t in link.node.telemetry.statustext("z" * 50)] == [0]  # one frame: no chunking
