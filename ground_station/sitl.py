@@ -133,10 +133,10 @@ def connection_help(info: SitlInfo) -> list[str]:
     if info.can_spec.startswith("socketcan:"):
         channel = info.can_spec.partition(":")[2]
         lines += [f"  candump -L {channel}      cansniffer -c {channel}",
-                  f"  cantools monitor -c {channel} {dbc}"]
+                  f"  cantools monitor -i socketcan -c {channel} {dbc}"]
     elif info.can_spec.startswith("remote:"):
         url = info.can_spec.partition(":")[2]
-        lines += [f"  cantools monitor -b remote -c {url} {dbc}",
+        lines += [f"  cantools monitor -i remote -c {url} {dbc}",
                   f"  python -m can.viewer -i remote -c {url}"]
     lines += [f"run folder {info.run_dir} (sim.log, robot.log; can.blf and trajectory.csv when stopped)",
               "Ctrl-C stops every process"]
