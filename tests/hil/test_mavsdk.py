@@ -78,6 +78,7 @@ def mavsdk_url(sitl: SitlProcess) -> str:
     return line.split('system_address="')[1].split('"')[0]
 
 
+@pytest.mark.timeout(300)
 def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
     mavsdk = mavsdk_or_skip()
     from mavsdk.param import ParamError
@@ -120,6 +121,7 @@ def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
         assert sitl.stop(signal.SIGINT) == 0, "\n".join(sitl.log[-20:])
 
 
+@pytest.mark.timeout(300)
 def test_mavsdk_with_a_generic_autopilot_shows_why_the_option_exists(tmp_path):
     mavsdk = mavsdk_or_skip()
     sitl = SitlProcess(tmp_path, "--policy", "none")

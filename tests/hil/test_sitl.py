@@ -13,6 +13,7 @@ import os
 import queue
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -101,6 +102,16 @@ class UdpoutMavProxy(MavProxy):
         threading.Thread(target=self._read, daemon=True).start()
 
 
+def hub_port(lines: list[str]) -> int:
+    (line,) = [ln for ln in lines if ln.startswith("CAN bus: remote:ws://127.0.0.1:")]
+    return int(line.split("127.0.0.1:")[1].split("/")[0])
+
+
+def port_open(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
 def no_children_left(out: Path) -> list[str]:
     """Processes still running from this run (their command line names its folder)."""
     left = []
@@ -117,8 +128,11 @@ def no_children_left(out: Path) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(400)
 def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
-    sitl = SitlProcess(tmp_path, "--speed", "3")
+    # real time: the sim's 200 ms motor watchdog is sim time, so at --speed X a wall-clock stall of
+    # 200/X ms on a loaded machine stops the wheels (seen at x3: FAULT "motor driver watchdog tripped")
+    sitl = SitlProcess(tmp_path)
     mp = None
     try:
         master = sitl.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]
@@ -128,8 +142,8 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
         mp = UdpoutMavProxy(master, tmp_path)
         mp.expect(r"Detected vehicle 1:1", 30)
         mp.expect(rf"Received {len(PARAMS)} parameters", 60)
-        mp.send("param show FS_GCS_TOUT_MS")  # raised by sitl for x3 sim time
-        mp.expect(r"FS_GCS_TOUT_MS\s+15000")
+        mp.send("param show FS_GCS_TOUT_MS")  # left alone at real time
+        mp.expect(r"FS_GCS_TOUT_MS\s+5000")
         cfg = VehicleConfig()
         lat0, lon0 = cfg.origin_lat_e7, cfg.origin_lon_e7
         a_mm, d_mm = cell_world_mm(2, 2), cell_world_mm(9, 7)  # paper10 targets A and D
@@ -155,6 +169,7 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
     assert code == 0, "\n".join(sitl.log[-20:])
     assert any("every process stopped" in line for line in sitl.log)
     assert no_children_left(sitl.out) == []
+    assert not port_open(hub_port(sitl.log))  # the hub stopped too
     with open(sitl.out / "trajectory.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     x, y = float(rows[-1]["x_m"]), float(rows[-1]["y_m"])
@@ -162,12 +177,32 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
     assert (sitl.out / "can.blf").stat().st_size > 0
 
 
+@pytest.mark.timeout(300)
 def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
-    sitl = SitlProcess(tmp_path)
+    sitl = SitlProcess(tmp_path, "--speed", "4")
     sitl.expect(r"Ctrl-C stops every process")
+    # at x4 sim time the GCS failsafe timeout was raised to match (5 s x 4)
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{sitl.port}", source_system=250)
+    try:
+        value = None
+        for _ in range(20):
+            conn.mav.param_request_read_send(1, 1, b"FS_GCS_TOUT_MS", -1)
+            msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1)
+            if msg is not None and msg.param_id == "FS_GCS_TOUT_MS":
+                value = msg.param_value
+                break
+    finally:
+        conn.close()
+    assert value == 20000
+    assert any("FS_GCS_TOUT_MS set to 20000 ms" in line for line in sitl.log), sitl.log
+    port = hub_port(sitl.log)
+    assert port_open(port)
     code = sitl.stop(signal.SIGTERM)
     assert code == 0 and any("every process stopped" in line for line in sitl.log), sitl.log[-10:]
-    assert no_children_left(sitl.out) == []
+    assert no_children_left(sitl.out) == [] and not port_open(port)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     for args, why in ((["--robots", "2"], "only 1 robot"), (["--speed", "0"], "--speed must be a positive"),
                       (["--mavlink", "bogus"], "--mavlink bogus: expected"),
