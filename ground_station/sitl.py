@@ -100,6 +100,9 @@ def validate(opts: SitlOptions) -> None:
         raise SitlError(f"--robots {opts.robots}: only 1 robot for now (a fleet in one world is reserved)")
     if not (opts.speed > 0 and math.isfinite(opts.speed)):
         raise SitlError(f"--speed must be a positive number, got {opts.speed:g}")
+    if opts.can is not None and opts.can.startswith("virtual"):
+        raise SitlError(f"--can {opts.can}: a virtual bus does not reach another process; leave --can out "
+                        "for a hub")
     if opts.duration_s is not None and not opts.duration_s > 0:
         raise SitlError(f"--duration must be positive, got {opts.duration_s:g}")
     scheme = opts.mavlink.partition(":")[0]

@@ -34,7 +34,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="policy the robot boots with: a file, policies:NAME, or 'none' (upload one later over "
                         "MAVLink FTP); default policies:paper10_cell on paper10, else policies:sector")
     p.add_argument("--can", metavar="SPEC",
-                   help="CAN bus for sim and robot: socketcan:vcan0, remote:ws://HOST:PORT/, virtual:NAME "
+                   help="CAN bus for sim and robot: socketcan:vcan0, socketcan:can0, remote:ws://HOST:PORT/ "
                         "(default: a python-can-remote hub on 127.0.0.1, free port)")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="sim pace in times real time (default %(default)g); above 1 FS_GCS_TOUT_MS is raised "

@@ -32,6 +32,7 @@ def test_gcs_side_of_the_robot_url(robot, gcs):
     (SitlOptions(speed=-1), "--speed must be a positive number"),
     (SitlOptions(speed=float("inf")), "--speed must be a positive number"),
     (SitlOptions(duration_s=0), "--duration must be positive"),
+    (SitlOptions(can="virtual:x"), "a virtual bus does not reach another process"),
     (SitlOptions(mavlink="udpin:127.0.0.1"), "expected udpin:HOST:PORT"),
     (SitlOptions(mavlink="udpin:127.0.0.1:99999"), "expected udpin:HOST:PORT"),
     (SitlOptions(mavlink="bogus://foo"), "--mavlink bogus://foo: expected"),
