@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
+from firmware_py.subprocs import free_udp_port
 from ground_station.rigs.vcan import VcanUnavailable, find_vcan
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
-PORT = 24655  # inside UML's own loopback (or a host vcan machine): nothing else listens there
 
 PROBE = """
 import json, os, sys, time
@@ -57,13 +57,14 @@ def test_sitl_on_socketcan_vcan0_heartbeat_and_candump(tmp_path):
     env["PYTHONPATH"] = f"{ROOT}{os.pathsep}{env.get('PYTHONPATH', '')}"
     env["PATH"] = f"{BIN}:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
     ch = vcan.channel
+    port = free_udp_port()  # free here; inside UML its own loopback is empty anyway
     script = f"""
 candump -L {ch} > {out}/sitl.candump &
 CANDUMP=$!
-{sys.executable} -m ground_station.cli sitl --can {vcan.can_spec} --mavlink udpin:127.0.0.1:{PORT} \\
+{sys.executable} -m ground_station.cli sitl --can {vcan.can_spec} --mavlink udpin:127.0.0.1:{port} \\
     --out {out}/run --duration 10 > {out}/sitl.out 2>&1 &
 SITL=$!
-{sys.executable} {out}/probe.py {out} {PORT}
+{sys.executable} {out}/probe.py {out} {port}
 wait $SITL
 echo $? > {out}/sitl_exit
 kill $CANDUMP
