@@ -98,6 +98,7 @@ class VehicleStatus:
     mission_count: int = 0
     policy_id: int = 0
     policy_crc: int = 0
+    map_mm: tuple[int, int] | None = None  # the robot's map extent (world mm, x east, y north, from 0)
     ticks: int = 0
     tick_overruns: int = 0
     can_errors: int = 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
 
 EPILOG = """examples:
   qnav-sim --map paper10 --can virtual:qnav --lockstep --duration 30 --png run.png
@@ -70,6 +71,19 @@ def parse_start(text: str) -> tuple[float, float, float]:
     return x, y, math.radians(heading_deg)
 
 
+def _make_output_folders(args: argparse.Namespace) -> None:
+    """Create the folders of --log/--trajectory/--png before the run (a missing
+    `run/` must not fail the run, nor lose its outputs at the end)."""
+    for flag, value in (("--log", args.log), ("--trajectory", args.trajectory), ("--png", args.png)):
+        if not value:
+            continue
+        folder = Path(value).parent
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CliError(f"{flag} {value}: cannot create folder {folder}: {exc.strerror or exc}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -87,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     if args.speed is not None and not args.speed > 0:
         raise CliError(f"--speed must be positive, got {args.speed:g}")
     speed = 1.0 if args.realtime else args.speed
+    _make_output_folders(args)
     try:
         gm = load_map(args.map, cell_size_m=args.cell_size)
     except (MapError, OSError, ValueError) as exc:

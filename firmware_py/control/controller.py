@@ -319,7 +319,16 @@ class Controller:
                 mission_seq=self.mission_seq, mission_count=len(self.mission),
                 policy_id=self.policy.policy_id if self.policy else 0,
                 policy_crc=self.policy.crc if self.policy else 0,
+                map_mm=self._map_mm(),
                 ticks=self._ticks, tick_overruns=self.tick_overruns, can_errors=self.can_errors)
+
+    def _map_mm(self) -> tuple[int, int] | None:
+        """The robot's map extent in world mm (x east, y north, from 0): the
+        active policy's recorded map geometry; None without one."""
+        geo = self.policy.map_geometry if self.policy is not None else None
+        if geo is None or geo.cell_mm <= 0 or geo.width <= 0 or geo.height <= 0:
+            return None
+        return geo.width * geo.cell_mm, geo.height * geo.cell_mm
 
     def arm(self) -> tuple[bool, str]:
         with self._lock:
@@ -561,10 +570,13 @@ class Controller:
             errors = self._safety(inp, now_us)
             if self.state == CtrlState.GOAL_REACHED:
                 self._after_goal()
-            self._state_index = self._action = -1
-            self._q_row = ()
             if self.state == CtrlState.DRIVING:
                 self._drive(inp, now_us)
+            if self.state != CtrlState.DRIVING:
+                # no decision in force; while DRIVING the last one holds until the next (a
+                # cell policy decides once per cell move), so telemetry always shows it
+                self._state_index = self._action = -1
+                self._q_row = ()
             return self._outputs(now_us, tick, errors)
 
     def _encoder_jump(self, inp: Inputs) -> str:

@@ -4,22 +4,26 @@ Owns which MAV_CMDs the robot supports and the MAV_RESULT each outcome maps
 to: ACCEPTED; DENIED when the vehicle (or a bad argument) refuses, with the
 reason as a STATUSTEXT sent just before the ACK; TEMPORARILY_REJECTED when
 the same command would succeed later (reboot while armed, mission upload in
-progress); UNSUPPORTED for anything else. A pure engine: `handle(msg,
+progress); UNSUPPORTED for anything else. DO_REPOSITION (the guided go-to) sets a goal
+on the robot's map. A pure engine: `handle(msg,
 now_us, stats)` returns the replies.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from firmware_py.mavlink.mission import MissionEngine
+from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.mission import GLOBAL_FRAMES, LOCAL_FRAMES, MissionEngine, map_bounds_error
 from firmware_py.mavlink.telemetry import STREAMS, NodeStats, Telemetry
 from firmware_py.vehicle import Mode, VehicleControl
 
 M = mavlink2
 SETTABLE_MODES = {Mode.HOLD: "Hold", Mode.GUIDED: "Guided", Mode.AUTO: "Auto"}
+INT32_MAX = 0x7FFFFFFF
 ARM_FORCE_MAGIC = 21196  # ArduPilot's "force" value in param2; we never bypass the vehicle's checks
 
 ACCEPTED = M.MAV_RESULT_ACCEPTED
@@ -50,7 +54,10 @@ class CommandHandler:
         else:  # COMMAND_INT: x/y are ints, z float
             p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
         try:
-            result, reason, after = self._execute(msg.command, p, now_us, stats)
+            if msg.command == M.MAV_CMD_DO_REPOSITION:
+                result, reason, after = self._reposition(msg, now_us)
+            else:
+                result, reason, after = self._execute(msg.command, p, now_us, stats)
         except (OverflowError, ValueError):  # int() of a NaN/inf parameter: refuse, do not crash
             result, reason, after = DENIED, f"command {msg.command}: a parameter is not a finite number", []
         return self._reply(msg.command, src, result, reason, after)
@@ -106,6 +113,37 @@ class CommandHandler:
             ok, reason = self.vehicle.set_mission_current(seq)
             return (ACCEPTED, "", []) if ok else (DENIED, f"set mission current refused: {reason}", [])
         return UNSUPPORTED, "", []
+
+    def _reposition(self, msg: mavlink2.MAVLink_message, now_us: int) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
+        """MAV_CMD_DO_REPOSITION, the guided go-to (MAVProxy `guided LAT LON ALT`,
+        QGroundControl "go to location"): the point becomes the goal in Guided.
+        COMMAND_INT: x/y in the command's frame (global: 1e-7 deg around the
+        home origin; LOCAL_NED: metres * 1e4); COMMAND_LONG: param5/6 in degrees."""
+        lat0, lon0 = self.telemetry.params.get("ORIGIN_LAT"), self.telemetry.params.get("ORIGIN_LON")
+        if msg.get_type() == "COMMAND_INT":
+            if INT32_MAX in (msg.x, msg.y):  # "unchanged": there is no position to keep going to
+                return DENIED, "reposition refused: no position given", []
+            if msg.frame in LOCAL_FRAMES:
+                x_mm, y_mm = mav_frames.ned_m_to_world(msg.x / 1e4, msg.y / 1e4)
+            elif msg.frame in GLOBAL_FRAMES:
+                x_mm, y_mm = mav_frames.global_to_world(msg.x, msg.y, lat0, lon0)
+            else:
+                return DENIED, f"reposition refused: frame {msg.frame} unsupported (global or LOCAL_NED)", []
+        else:
+            if not (math.isfinite(msg.param5) and math.isfinite(msg.param6)):
+                return DENIED, "reposition refused: no position given", []
+            x_mm, y_mm = mav_frames.global_to_world(round(msg.param5 * 1e7), round(msg.param6 * 1e7), lat0, lon0)
+        code, why = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
+        if code:
+            return DENIED, f"reposition refused: {why}", []
+        if int(msg.param2) & M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE and self.vehicle.status().mode != Mode.GUIDED:
+            ok, reason = self.vehicle.set_mode(Mode.GUIDED)
+            if not ok:
+                return DENIED, f"reposition refused: mode Guided: {reason}", []
+        ok, reason = self.vehicle.set_goal(x_mm, y_mm)
+        if not ok:
+            return DENIED, f"reposition refused: {reason}", []
+        return ACCEPTED, "", [self.telemetry.position_target((now_us // 1000) & 0xFFFFFFFF, x_mm, y_mm)]
 
     def _set_mode(self, base_mode: int, custom_mode: int) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
         if not base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:

@@ -70,7 +70,8 @@ class MavlinkExtension:
 
         try:
             shell = open_node(ctrl, args.storage, args.mavlink, clock.now_us(), signing_key=args.signing_key,
-                              baud=args.mavlink_baud, reboot_hook=reboot_hook, overrides=overrides)
+                              baud=args.mavlink_baud, reboot_hook=reboot_hook, overrides=overrides,
+                              autopilot=getattr(args, "mavlink_autopilot", "generic"))
         except ValueError as exc:  # unreadable key file
             raise UsageError(str(exc)) from None
 

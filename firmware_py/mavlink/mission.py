@@ -9,7 +9,14 @@ returns what was sent) and the transfer state machines:
   cancelled (old mission kept);
 - download: MISSION_REQUEST_LIST -> MISSION_COUNT, MISSION_REQUEST_INT /
   MISSION_REQUEST -> item, ended by the GCS's MISSION_ACK or a timeout;
-- MISSION_CLEAR_ALL, MISSION_SET_CURRENT (-> MISSION_CURRENT).
+- MISSION_CLEAR_ALL, MISSION_SET_CURRENT (-> MISSION_CURRENT);
+- a "guided mode" item (current=2 outside an upload, as ArduPilot takes
+  it): a goal, acknowledged with MISSION_ACK.
+
+Every waypoint must lie on the robot's map (`VehicleStatus.map_mm`, from the
+active policy's recorded map geometry): an item off it ends the upload with
+MAV_MISSION_INVALID_PARAM5_X (north/south) or _PARAM6_Y (east/west) and a
+STATUSTEXT naming the point and the map; the previous mission is kept.
 
 Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED (x north, y east:
 metres, or metres * 1e4 in MISSION_ITEM_INT) or a global frame (converted
@@ -109,6 +116,23 @@ def item_to_world(item: Item, origin_lat_e7: int, origin_lon_e7: int) -> tuple[i
     if item.frame in LOCAL_FRAMES:
         return mav_frames.ned_m_to_world(item.x / 1e4, item.y / 1e4)
     return mav_frames.global_to_world(item.x, item.y, origin_lat_e7, origin_lon_e7)
+
+
+def map_bounds_error(map_mm: tuple[int, int] | None, x_mm: int, y_mm: int) -> tuple[int, str]:
+    """Whether world point (x_mm, y_mm) lies on the robot's map (`VehicleStatus.map_mm`,
+    None: no map known, nothing to check): (0, "") if so, else the MAV_MISSION_RESULT
+    naming the MAVLink field that is off (x/param5 is north = world y, y/param6 is
+    east = world x, in the local and the global frames alike) and the reason."""
+    if map_mm is None:
+        return 0, ""
+    width, height = map_mm
+    where = f"({x_mm / 1000:.2f}, {y_mm / 1000:.2f}) m"
+    extent = f"the map's 0..{width / 1000:g} x 0..{height / 1000:g} m"
+    if not 0 <= y_mm <= height:
+        return int(M.MAV_MISSION_INVALID_PARAM5_X), f"{where} is north/south of {extent}"
+    if not 0 <= x_mm <= width:
+        return int(M.MAV_MISSION_INVALID_PARAM6_Y), f"{where} is east/west of {extent}"
+    return 0, ""
 
 
 class MissionEngine:
@@ -215,6 +239,8 @@ class MissionEngine:
         return [self._request(0)]
 
     def _item(self, msg: mavlink2.MAVLink_message, partner: tuple[int, int], now_us: int) -> list[mavlink2.MAVLink_message]:
+        if getattr(msg, "current", 0) == 2 and not (self.uploading and partner == self._up_partner):
+            return self._guided_item(msg, partner)
         if not self.uploading or partner != self._up_partner:
             return []  # stray item: nothing is being uploaded from this GCS
         expected = len(self._up_items)
@@ -230,6 +256,11 @@ class MissionEngine:
                      "(NAV_WAYPOINT only)")
         elif item.frame not in LOCAL_FRAMES and item.frame not in GLOBAL_FRAMES:
             error = (M.MAV_MISSION_UNSUPPORTED_FRAME, f"mission item {item.seq}: frame {item.frame} unsupported")
+        else:
+            x_mm, y_mm = item_to_world(item, self.params.get("ORIGIN_LAT"), self.params.get("ORIGIN_LON"))
+            code, why = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
+            if code:
+                error = (code, f"mission item {item.seq} refused: {why}")
         if error is not None:
             self._up_partner = None
             return self._statustext(error[1], M.MAV_SEVERITY_WARNING) + [self._ack(partner, error[0])]
@@ -240,6 +271,24 @@ class MissionEngine:
             return [self._request(len(self._up_items))]
         self._up_partner = None
         return self._commit(self._up_items, partner)
+
+    def _guided_item(self, msg: mavlink2.MAVLink_message, partner: tuple[int, int]) -> list[mavlink2.MAVLink_message]:
+        """A "guided mode" waypoint (MISSION_ITEM(_INT) with current=2, ArduPilot's
+        go-to outside a mission upload): a goal, answered by MISSION_ACK."""
+        item = item_from_msg(msg)
+        result, reason = int(M.MAV_MISSION_ACCEPTED), ""
+        if item.command != M.MAV_CMD_NAV_WAYPOINT:
+            result, reason = int(M.MAV_MISSION_UNSUPPORTED), f"command {item.command} unsupported"
+        elif item.frame not in LOCAL_FRAMES and item.frame not in GLOBAL_FRAMES:
+            result, reason = int(M.MAV_MISSION_UNSUPPORTED_FRAME), f"frame {item.frame} unsupported"
+        else:
+            x_mm, y_mm = item_to_world(item, self.params.get("ORIGIN_LAT"), self.params.get("ORIGIN_LON"))
+            result, reason = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
+            if not result:
+                ok, reason = self.vehicle.set_goal(x_mm, y_mm)
+                result = int(M.MAV_MISSION_ACCEPTED if ok else M.MAV_MISSION_DENIED)
+        out = self._statustext(f"guided goal refused: {reason}", M.MAV_SEVERITY_WARNING) if result else []
+        return out + [self._ack(partner, result)]
 
     def _commit(self, items: list[Item], partner: tuple[int, int]) -> list[mavlink2.MAVLink_message]:
         lat0, lon0 = self.params.get("ORIGIN_LAT"), self.params.get("ORIGIN_LON")

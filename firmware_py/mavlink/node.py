@@ -51,10 +51,10 @@ from pymavlink.dialects.v20 import common as mavlink2
 from firmware_py.clock import Clock
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.commands import CommandHandler
-from firmware_py.mavlink.mission import MissionEngine
+from firmware_py.mavlink.mission import MissionEngine, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
-from firmware_py.mavlink.telemetry import NodeStats, Telemetry
+from firmware_py.mavlink.telemetry import AUTOPILOTS, NodeStats, Telemetry
 from firmware_py.vehicle import VehicleControl
 
 log = logging.getLogger("qnav.mavlink")
@@ -315,7 +315,8 @@ class MavNode:
                                                  M.MAV_SEVERITY_WARNING)
             x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
                                                     self.params.get("ORIGIN_LON"))
-        ok, reason = self.vehicle.set_goal(x_mm, y_mm)
+        _, off_map = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
+        ok, reason = (False, off_map) if off_map else self.vehicle.set_goal(x_mm, y_mm)
         if not ok:
             return self.telemetry.statustext(f"goal refused: {reason}", M.MAV_SEVERITY_WARNING)
         return [self.telemetry.position_target((now_us // 1000) & 0xFFFFFFFF, x_mm, y_mm)]
@@ -463,12 +464,15 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mavlink-baud", type=int, default=57600, help="baud rate for a serial device")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
                         help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
+    parser.add_argument("--mavlink-autopilot", choices=sorted(AUTOPILOTS), default="generic",
+                        help="autopilot type in the HEARTBEAT (default %(default)s): 'ardupilot' for MAVSDK, "
+                             "which reads int parameters and names modes only for ArduPilot (docs/mavlink.md)")
 
 
 def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | None, url: str, now_us: int, *,
               signing_key: str | None = None, baud: int = 57600,
               reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp: bool = True,
-              overrides: dict[str, int] | None = None) -> MavShell:
+              overrides: dict[str, int] | None = None, autopilot: str = "generic") -> MavShell:
     """Build, boot and connect the node: params and signing state from
     `storage_dir` (then `overrides`, see MavNode.boot), and (with `ftp`) an
     FTP server on it whose policy activation is the vehicle's `activate_policy`."""
@@ -481,4 +485,5 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
     node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server,
                    network_link=is_network_url(url))
     node.boot(now_us, signing_key, overrides)
+    node.telemetry.autopilot = int(AUTOPILOTS[autopilot])
     return MavShell(node, url, baud=baud)

@@ -52,10 +52,21 @@ CAPABILITIES = (
     | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | M.MAV_PROTOCOL_CAPABILITY_FTP
     | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )
+# What the HEARTBEAT says the autopilot is. Stock clients pick the PARAM_VALUE
+# encoding from it, not from AUTOPILOT_VERSION's capability bits: MAVSDK reads
+# C-cast values only from ArduPilot (bytewise from anything else) and names
+# flight modes only for PX4 and ArduPilot; MAVProxy reads bytewise only from PX4.
+# The robot always sends C-cast values (advertised as PARAM_ENCODE_C_CAST), so
+# "generic" suits MAVProxy, QGroundControl's generic plugin and qnav, and
+# "ardupilot" (Rover's mode numbers, as the robot uses) adds MAVSDK.
+AUTOPILOTS = {"generic": M.MAV_AUTOPILOT_GENERIC, "ardupilot": M.MAV_AUTOPILOT_ARDUPILOTMEGA}
 FLIGHT_SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # 0.1.0 official
 
 SENSOR_PRESENT = (M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
                   | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL)
+# No fence: present and enabled stay clear, and the health bit is set as ArduPilot
+# does without a fence (a clear health bit reads as "fence breach" in MAVProxy).
+HEALTHY_ABSENT = M.MAV_SYS_STATUS_GEOFENCE
 
 
 @dataclass
@@ -82,6 +93,7 @@ class Telemetry:
         self._next_due: dict[int, int] = {}
         self._statustext_id = 0
         self.last_reached = -1
+        self.autopilot = int(M.MAV_AUTOPILOT_GENERIC)  # HEARTBEAT.autopilot (AUTOPILOTS)
 
     # --- intervals ----------------------------------------------------------------
     def default_interval_us(self, msg_id: int) -> int:
@@ -148,7 +160,7 @@ class Telemetry:
         if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
             return [self.heartbeat(st)]
         if msg_id == M.MAVLINK_MSG_ID_SYS_STATUS:
-            health = 0
+            health = HEALTHY_ABSENT
             if st.sensors_healthy:
                 health |= M.MAV_SYS_STATUS_SENSOR_PROXIMITY
             if st.motors_healthy:
@@ -221,7 +233,7 @@ class Telemetry:
             system_status = M.MAV_STATE_ACTIVE
         else:
             system_status = M.MAV_STATE_STANDBY
-        return self.mav.heartbeat_encode(M.MAV_TYPE_GROUND_ROVER, M.MAV_AUTOPILOT_GENERIC,
+        return self.mav.heartbeat_encode(M.MAV_TYPE_GROUND_ROVER, self.autopilot,
                                          base, int(st.mode), system_status)
 
     def obstacle_distance(self, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
@@ -272,6 +284,8 @@ class Telemetry:
             return [self.mav.statustext_encode(severity, data, 0, 0)]
         self._statustext_id = self._statustext_id % 0xFFFF + 1
         chunks = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
+        if len(chunks[-1]) == STATUSTEXT_LEN:  # a full last chunk reads as "more to come": end it
+            chunks.append(b"")
         return [self.mav.statustext_encode(severity, c, self._statustext_id, n) for n, c in enumerate(chunks)]
 
     def event(self, ev: VehicleEvent) -> list[mavlink2.MAVLink_message]:

@@ -1,0 +1,311 @@
+"""`qnav sitl`: a simulated robot that stays up, as ArduPilot's sim_vehicle.py does.
+
+Owns the bring-up of one vehicle for stock ground stations: a CAN bus (a
+python-can-remote hub on 127.0.0.1, or the `--can` spec given, e.g.
+`socketcan:vcan0`), `qnav-sim` paced at `speed` times real time and
+`qnav-robot` on the sim's clock with its MAVLink node on one connection
+string, each a child in its own process group (`rigs/processes.ProcessGroup`).
+It then waits: until Ctrl-C / SIGTERM (the caller turns SIGTERM into
+KeyboardInterrupt), the optional wall-clock `duration_s`, or a child's death;
+every child is stopped on the way out (SIGINT so the sim writes its CAN log
+and trajectory, then SIGTERM, SIGKILL) and the hub last.
+
+Nothing here drives the robot: MAVProxy, QGroundControl, MAVSDK or `qnav`
+connect with the strings `connection_help()` prints. Before reporting "up"
+the robot's HEARTBEAT is awaited through a short-lived probe that announces
+itself as an onboard controller (not a GCS), so the robot's GCS failsafe is
+not armed by it. At `speed` > 1 the probe raises FS_GCS_TOUT_MS: the robot
+measures the GCS failsafe on sim time, and a ground station's 1 Hz
+heartbeat would otherwise look late.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from firmware_py.canbus import CanHub
+from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
+from ground_station.errors import CliError
+from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
+
+DEFAULT_MAP = "paper10"
+DEFAULT_MAVLINK = "udpin:127.0.0.1:14555"  # the robot listens; GCSs connect to it (14550 stays free for QGC)
+SHIPPED_FOR_MAP = {"paper10": "policies:paper10_cell"}
+FALLBACK_POLICY = "policies:sector"  # observes ranges and bearings: runs on any map
+SIM_DURATION_S = 30 * 24 * 3600  # the sim's own end: far away, the wait ends it
+GCS_TIMEOUT_MAX_MS = 120_000  # FS_GCS_TOUT_MS maximum (firmware_py/mavlink/params.py)
+GCS_TIMEOUT_DEFAULT_MS = 5000
+
+
+class SitlError(CliError):
+    """A bring-up step failed; the text names it (and the log to read)."""
+
+
+@dataclass
+class SitlOptions:
+    map_name: str = DEFAULT_MAP
+    policy: str | None = None  # a file or policies:NAME; None: shipped for the map; "none": no policy
+    can: str | None = None  # None: start a python-can-remote hub
+    speed: float = 1.0
+    mavlink: str = DEFAULT_MAVLINK
+    out: Path | None = None  # None: runs/sitl-<timestamp>/
+    seed: int = 0
+    duration_s: float | None = None  # wall seconds, then stop (None: until Ctrl-C)
+    robots: int = 1
+    autopilot: str = "generic"  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
+    probe_timeout_s: float = 60.0
+
+
+@dataclass
+class SitlInfo:
+    """What is up, for the connection help and for tests."""
+
+    run_dir: Path
+    mavlink: str  # the robot's own connection string
+    gcs_url: str  # what a pymavlink-based GCS (MAVProxy, qnav) gives as its connection string
+    can_spec: str
+    hub: bool
+    policy: str
+    start: str
+    sysid: int | None = None
+    logs: dict[str, Path] = field(default_factory=dict)
+
+
+def default_run_dir(base: Path = Path("runs")) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    path, n = base / f"sitl-{stamp}", 1
+    while path.exists():
+        n += 1
+        path = base / f"sitl-{stamp}-{n}"
+    return path
+
+
+def gcs_side(robot_url: str) -> str:
+    """The connection string a ground station uses to reach a robot on `robot_url`:
+    the robot listening (udpin/tcpin) -> the GCS sends there (udpout/tcp); the
+    robot sending (udpout/udp) -> the GCS listens (udpin)."""
+    scheme, sep, rest = robot_url.partition(":")
+    if not sep:
+        return robot_url  # a serial device: the other end of the line
+    return {"udpin": f"udpout:{rest}", "tcpin": f"tcp:{rest}", "udpout": f"udpin:{rest}",
+            "udp": f"udpin:{rest}", "tcp": f"tcpin:{rest}"}.get(scheme, robot_url)
+
+
+def validate(opts: SitlOptions) -> None:
+    if opts.robots != 1:
+        raise SitlError(f"--robots {opts.robots}: only 1 robot for now (a fleet in one world is reserved)")
+    if not (opts.speed > 0 and math.isfinite(opts.speed)):
+        raise SitlError(f"--speed must be a positive number, got {opts.speed:g}")
+    if opts.can is not None and opts.can.startswith("virtual"):
+        raise SitlError(f"--can {opts.can}: a virtual bus does not reach another process; leave --can out "
+                        "for a hub")
+    if opts.duration_s is not None and not opts.duration_s > 0:
+        raise SitlError(f"--duration must be positive, got {opts.duration_s:g}")
+    scheme = opts.mavlink.partition(":")[0]
+    if scheme in ("udpin", "udpout", "udp", "tcp", "tcpin"):
+        host, _, port = opts.mavlink.partition(":")[2].rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise SitlError(f"--mavlink {opts.mavlink}: expected {scheme}:HOST:PORT")
+    elif not opts.mavlink.startswith("/dev/"):
+        raise SitlError(f"--mavlink {opts.mavlink}: expected udpin:, udpout:, tcpin:, tcp: or a /dev/ device")
+
+
+def connection_help(info: SitlInfo) -> list[str]:
+    """The lines `qnav sitl` prints once the robot is up."""
+    gcs = info.gcs_url
+    dbc = Path(__file__).resolve().parents[1] / "firmware_py" / "qnav.dbc"
+    lines = [
+        f"robot sysid {info.sysid if info.sysid is not None else '?'} up; its MAVLink: {info.mavlink}",
+        "connect a ground station:",
+        f"  MAVProxy        mavproxy.py --master={gcs}   (add --out udp:127.0.0.1:14550 to feed QGroundControl)",
+    ]
+    scheme, _, rest = gcs.partition(":")
+    if scheme == "udpout":
+        lines.append(f"  QGroundControl  Comm Links > Add > UDP, target host {rest} (or via MAVProxy --out above)")
+    elif scheme == "udpin" and rest.endswith(":14550"):
+        lines.append("  QGroundControl  connects by itself (it listens on UDP 14550)")
+    elif scheme == "tcp":
+        lines.append(f"  QGroundControl  Comm Links > Add > TCP, {rest}")
+    lines += [f"  MAVSDK          System().connect(system_address=\"{_mavsdk_address(gcs)}\")",
+              f"  qnav            qnav monitor --mavlink {gcs}   (also qnav upload/mission/arm/mode/goal)",
+              f"CAN bus: {info.can_spec}" + (" (python-can-remote hub)" if info.hub else "")]
+    if info.can_spec.startswith("socketcan:"):
+        channel = info.can_spec.partition(":")[2]
+        lines += [f"  candump -L {channel}      cansniffer -c {channel}",
+                  f"  cantools monitor -i socketcan -c {channel} {dbc}"]
+    elif info.can_spec.startswith("remote:"):
+        url = info.can_spec.partition(":")[2]
+        lines += [f"  cantools monitor -i remote -c {url} {dbc}",
+                  f"  python -m can.viewer -i remote -c {url}"]
+    lines += [f"run folder {info.run_dir} (sim.log, robot.log; can.blf and trajectory.csv when stopped)",
+              "Ctrl-C stops every process"]
+    return lines
+
+
+def _mavsdk_address(gcs_url: str) -> str:
+    scheme, _, rest = gcs_url.partition(":")
+    host, _, port = rest.rpartition(":")
+    if scheme == "udpout":
+        return f"udpout://{host}:{port}"
+    if scheme == "udpin":
+        return f"udpin://{host}:{port}"
+    if scheme == "tcp":
+        return f"tcpout://{host}:{port}"
+    return gcs_url
+
+
+def start_pose(map_name: str) -> tuple[str, tuple[int, int]]:
+    """The sim's default start (the free cell nearest the map centre, heading east)
+    as a --start value, given to both programs so the robot's odometry starts true."""
+    from ground_station.demo import start_cell
+    from ground_station.maps import MapError, load_map
+
+    try:
+        grid_map = load_map(map_name)
+    except (MapError, OSError, ValueError) as exc:
+        raise SitlError(f"--map {map_name}: {exc}") from None
+    col, row = start_cell(grid_map.occ)
+    x, y = grid_map.cell_size_m * (col + 0.5), grid_map.cell_size_m * (grid_map.height - row - 0.5)
+    return f"{x:g},{y:g},0", (col, row)
+
+
+def resolve_policy(opts: SitlOptions) -> str:
+    spec = opts.policy or SHIPPED_FOR_MAP.get(Path(opts.map_name).stem if opts.map_name.endswith(".map")
+                                              else opts.map_name, FALLBACK_POLICY)
+    if spec == "none":
+        return ""
+    try:
+        path = resolve_policy_spec(spec)
+    except ShippedPolicyError as exc:
+        raise SitlError(f"--policy {spec}: {exc}") from None
+    if not Path(path).is_file():
+        raise SitlError(f"--policy {spec}: no such file")
+    return str(path)
+
+
+class Sitl:
+    """The running bring-up; `start()`, then `wait()`, `stop()` always."""
+
+    def __init__(self, opts: SitlOptions, say: Callable[[str], None] | None = None) -> None:
+        validate(opts)
+        self.opts = opts
+        self.say = say or (lambda _line: None)
+        self.procs = ProcessGroup()
+        self.hub: CanHub | None = None
+        self.info: SitlInfo | None = None
+        self.exit_codes: dict[str, int | None] = {}
+
+    def start(self) -> SitlInfo:
+        opts = self.opts
+        start, cell = start_pose(opts.map_name)
+        policy = resolve_policy(opts)
+        run_dir = Path(opts.out) if opts.out else default_run_dir()
+        try:
+            (run_dir / "robot").mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SitlError(f"run folder {run_dir}: {exc.strerror or exc}") from None
+        can_spec = opts.can
+        if can_spec is None:
+            hub = self.hub = CanHub(channel="qnav-sitl")
+            try:
+                hub.start()
+            except RuntimeError as exc:
+                raise SitlError(f"CAN hub: {exc}") from None
+            can_spec = hub.spec
+        logs = {"sim": run_dir / "sim.log", "robot": run_dir / "robot.log"}
+        info = SitlInfo(run_dir=run_dir, mavlink=opts.mavlink, gcs_url=gcs_side(opts.mavlink), can_spec=can_spec,
+                        hub=self.hub is not None, policy=policy or "none", start=start, logs=logs)
+        self.info = info
+        sim_argv = qnav_sim("--map", opts.map_name, "--can", can_spec, "--speed", f"{opts.speed:g}",
+                            "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
+                            "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q")
+        robot_argv = qnav_robot("--can", can_spec, "--sim-clock", "--start", start, "--storage", run_dir / "robot",
+                                "--mavlink", opts.mavlink, "--mavlink-autopilot", opts.autopilot,
+                                "--stats-json", run_dir / "robot_stats.json")
+        if policy:
+            robot_argv += ["--policy", policy]
+        self.procs.start("sim", sim_argv, logs["sim"])
+        self.procs.start("robot", robot_argv, logs["robot"])
+        self.say(f"qnav-sim (map {opts.map_name}, x{opts.speed:g} real time) and qnav-robot "
+                 f"(policy {info.policy}) started at cell {cell}, start {start}")
+        info.sysid = self._probe(info)
+        return info
+
+    def _probe(self, info: SitlInfo) -> int | None:
+        """Wait for the robot's HEARTBEAT (only when it listens: a robot sending to a
+        fixed address is heard by the GCS there, not by us)."""
+        if not info.mavlink.startswith(("udpin:", "tcpin:")):
+            return None
+        import os
+
+        os.environ.setdefault("MAVLINK20", "1")
+        from pymavlink import mavutil
+
+        deadline = time.monotonic() + self.opts.probe_timeout_s
+        conn = None
+        try:
+            while conn is None:
+                try:
+                    conn = mavutil.mavlink_connection(info.gcs_url, source_system=254, source_component=191)
+                except OSError:  # tcpin not listening yet
+                    self._check_children()
+                    if time.monotonic() > deadline:
+                        raise SitlError(f"robot's {info.mavlink} never accepted a connection") from None
+                    time.sleep(0.2)
+            M = mavutil.mavlink
+            while time.monotonic() < deadline:
+                self._check_children()
+                conn.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                msg = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+                if msg is None or msg.get_srcSystem() == 254:
+                    continue
+                sysid = msg.get_srcSystem()
+                if self.opts.speed > 1:
+                    self._raise_gcs_timeout(conn, sysid, msg.get_srcComponent())
+                return int(sysid)
+            raise SitlError(f"no HEARTBEAT from the robot on {info.mavlink} within "
+                            f"{self.opts.probe_timeout_s:g} s (see {info.logs['robot']})")
+        finally:
+            if conn is not None:
+                conn.close()
+
+    def _raise_gcs_timeout(self, conn, sysid: int, compid: int) -> None:
+        value = min(GCS_TIMEOUT_MAX_MS, math.ceil(GCS_TIMEOUT_DEFAULT_MS * self.opts.speed))
+        for _attempt in range(5):
+            conn.mav.param_set_send(sysid, compid, b"FS_GCS_TOUT_MS", float(value), 6)  # MAV_PARAM_TYPE_INT32
+            msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+            if msg is not None and msg.param_id == "FS_GCS_TOUT_MS":
+                self.say(f"FS_GCS_TOUT_MS set to {round(msg.param_value)} ms (robot time runs x{self.opts.speed:g})")
+                return
+        self.say("warning: could not raise FS_GCS_TOUT_MS; the GCS failsafe may trip at this speed")
+
+    def _check_children(self) -> None:
+        dead = self.procs.dead()
+        if dead:
+            name, code = dead[0]
+            child = dict(self.procs.children)[name]
+            raise SitlError(f"{name} exited with status {code}: {child.log_tail(3)}")
+
+    def wait(self, poll_s: float = 0.25) -> str:
+        """Until a child ends ("<name> exited ..."), `duration_s` passes ("duration
+        reached") or KeyboardInterrupt (raised through)."""
+        deadline = None if self.opts.duration_s is None else time.monotonic() + self.opts.duration_s
+        while True:
+            try:
+                self._check_children()
+            except SitlError as exc:
+                return str(exc)
+            if deadline is not None and time.monotonic() >= deadline:
+                return "duration reached"
+            time.sleep(poll_s)
+
+    def stop(self) -> dict[str, int | None]:
+        self.exit_codes = self.procs.stop_all()
+        if self.hub is not None:
+            self.hub.stop()
+            self.hub = None
+        return self.exit_codes

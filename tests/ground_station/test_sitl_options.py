@@ -1,0 +1,62 @@
+"""`qnav sitl`'s pure parts: the ground station's side of the robot's
+connection string, option checks, and the connection help it prints."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from ground_station.sitl import (
+    SitlError,
+    SitlInfo,
+    SitlOptions,
+    connection_help,
+    gcs_side,
+    validate,
+)
+
+
+@pytest.mark.parametrize(("robot", "gcs"), [
+    ("udpin:127.0.0.1:14555", "udpout:127.0.0.1:14555"),
+    ("udpout:127.0.0.1:14550", "udpin:127.0.0.1:14550"),
+    ("tcpin:0.0.0.0:5760", "tcp:0.0.0.0:5760"),
+    ("/dev/ttyUSB0", "/dev/ttyUSB0"),
+])
+def test_gcs_side_of_the_robot_url(robot, gcs):
+    assert gcs_side(robot) == gcs
+
+
+@pytest.mark.parametrize(("opts", "why"), [
+    (SitlOptions(robots=3), "--robots 3: only 1 robot"),
+    (SitlOptions(speed=-1), "--speed must be a positive number"),
+    (SitlOptions(speed=float("inf")), "--speed must be a positive number"),
+    (SitlOptions(duration_s=0), "--duration must be positive"),
+    (SitlOptions(can="virtual:x"), "a virtual bus does not reach another process"),
+    (SitlOptions(mavlink="udpin:127.0.0.1"), "expected udpin:HOST:PORT"),
+    (SitlOptions(mavlink="udpin:127.0.0.1:99999"), "expected udpin:HOST:PORT"),
+    (SitlOptions(mavlink="bogus://foo"), "--mavlink bogus://foo: expected"),
+])
+def test_bad_options_are_refused_with_the_reason(opts, why):
+    with pytest.raises(SitlError, match=why.replace("(", r"\(").replace("+", r"\+")):
+        validate(opts)
+
+
+def info(can_spec: str, mavlink: str = "udpin:127.0.0.1:14555", hub: bool = False) -> SitlInfo:
+    return SitlInfo(run_dir=Path("runs/sitl-x"), mavlink=mavlink, gcs_url=gcs_side(mavlink), can_spec=can_spec,
+                    hub=hub, policy="p.qtab", start="2.75,2.75,0", sysid=1)
+
+
+def test_connection_help_names_every_client_and_the_can_tools():
+    text = "\n".join(connection_help(info("remote:ws://127.0.0.1:4000/", hub=True)))
+    assert "mavproxy.py --master=udpout:127.0.0.1:14555" in text
+    assert 'system_address="udpout://127.0.0.1:14555"' in text
+    assert "qnav monitor --mavlink udpout:127.0.0.1:14555" in text
+    assert "target host 127.0.0.1:14555" in text
+    assert "CAN bus: remote:ws://127.0.0.1:4000/ (python-can-remote hub)" in text
+    assert "cantools monitor -i remote -c ws://127.0.0.1:4000/ " in text and "qnav.dbc" in text
+    text = "\n".join(connection_help(info("socketcan:vcan0")))
+    assert "candump -L vcan0" in text and "cansniffer -c vcan0" in text
+    assert "cantools monitor -i socketcan -c vcan0" in text
+    text = "\n".join(connection_help(info("socketcan:vcan0", mavlink="udpout:127.0.0.1:14550")))
+    assert "QGroundControl  connects by itself" in text and "--master=udpin:127.0.0.1:14550" in text

@@ -1,0 +1,214 @@
+"""`qnav sitl` as an ArduPilot user meets it: the bring-up stays up, MAVProxy
+connects with the printed connection string, lists parameters (no fence
+breach announced), loads a waypoint file, arms, runs it in Auto, then
+switches to Guided with a `guided LAT LON ALT` go-to (DO_REPOSITION) and the
+robot drives there (checked on the sim's ground-truth trajectory). Ctrl-C
+and SIGTERM stop every process."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import queue
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from firmware_py.mavlink import frames
+from firmware_py.mavlink.params import PARAMS
+from firmware_py.subprocs import free_udp_port
+from firmware_py.vehicle import VehicleConfig
+from tests.hil.test_mav_mavproxy import MAVPROXY, MavProxy
+
+ROOT = Path(__file__).resolve().parents[2]
+CELL_M, ROWS = 0.5, 10  # paper10
+
+
+def cell_world_mm(col: int, row: int) -> tuple[int, int]:
+    return round((col + 0.5) * CELL_M * 1000), round((ROWS - row - 0.5) * CELL_M * 1000)
+
+
+class SitlProcess:
+    """`qnav sitl` in its own session, its stdout read line by line."""
+
+    def __init__(self, tmp_path: Path, *args: str) -> None:
+        self.port = free_udp_port()
+        self.out = tmp_path / "sitl"
+        env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+                   PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "ground_station.cli", "sitl", "--mavlink", f"udpin:127.0.0.1:{self.port}",
+             "--out", str(self.out), *args],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+            cwd=tmp_path, start_new_session=True)
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.log: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(line.rstrip("\n"))
+
+    def expect(self, pattern: str, timeout_s: float = 60.0) -> str:
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=0.2)
+            except queue.Empty:
+                if self.proc.poll() is not None and self.lines.empty():
+                    break
+                continue
+            self.log.append(line)
+            if rx.search(line):
+                return line
+        raise AssertionError(f"qnav sitl never printed /{pattern}/:\n" + "\n".join(self.log[-30:]))
+
+    def stop(self, sig: int = signal.SIGINT) -> int:
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, sig) if sig == signal.SIGTERM else self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(timeout=10)
+        time.sleep(0.3)  # let the reader thread take the last lines
+        while not self.lines.empty():
+            self.log.append(self.lines.get())
+        return self.proc.returncode
+
+
+class UdpoutMavProxy(MavProxy):
+    """MAVProxy with the master string `qnav sitl` printed (the robot listens)."""
+
+    def __init__(self, master: str, workdir: Path) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(
+            [sys.executable, str(MAVPROXY), f"--master={master}", f"--state-basedir={workdir}",
+             "--default-modules=param,wp,mode,arm,cmdlong,fence"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+            cwd=workdir)
+        self.lines = queue.Queue()
+        self.log = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+
+def hub_port(lines: list[str]) -> int:
+    (line,) = [ln for ln in lines if ln.startswith("CAN bus: remote:ws://127.0.0.1:")]
+    return int(line.split("127.0.0.1:")[1].split("/")[0])
+
+
+def port_open(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def no_children_left(out: Path) -> list[str]:
+    """Processes still running from this run (their command line names its folder)."""
+    left = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if str(out) in cmd and int(pid) != os.getpid():
+            left.append(cmd[:120])
+    return left
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(400)
+def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
+    # real time: the sim's 200 ms motor watchdog is sim time, so at --speed X a wall-clock stall of
+    # 200/X ms on a loaded machine stops the wheels (seen at x3: FAULT "motor driver watchdog tripped")
+    sitl = SitlProcess(tmp_path)
+    mp = None
+    try:
+        master = sitl.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]
+        assert master == f"udpout:127.0.0.1:{sitl.port}"
+        sitl.expect(r"CAN bus: remote:ws://127\.0\.0\.1:\d+/")
+        sitl.expect(r"Ctrl-C stops every process")
+        mp = UdpoutMavProxy(master, tmp_path)
+        mp.expect(r"Detected vehicle 1:1", 30)
+        mp.expect(rf"Received {len(PARAMS)} parameters", 60)
+        mp.send("param show FS_GCS_TOUT_MS")  # left alone at real time
+        mp.expect(r"FS_GCS_TOUT_MS\s+5000")
+        cfg = VehicleConfig()
+        lat0, lon0 = cfg.origin_lat_e7, cfg.origin_lon_e7
+        a_mm, d_mm = cell_world_mm(2, 2), cell_world_mm(9, 7)  # paper10 targets A and D
+        lat, lon = frames.world_to_global(*a_mm, lat0, lon0)
+        # home (seq 0) at the origin as MAVProxy/ArduPilot files have it is a waypoint here; start at A
+        (tmp_path / "a.txt").write_text(f"QGC WPL 110\n0\t1\t3\t16\t0\t0\t0\t0\t{lat / 1e7:.7f}\t{lon / 1e7:.7f}\t0\t1\n")
+        mp.send(f"wp load {tmp_path / 'a.txt'}")
+        mp.expect(r"MISSION_ACK: TYPE_MISSION: ACCEPTED|Sent all 1 waypoints|Loaded 1 waypoints", 30)
+        mp.send("arm throttle")
+        mp.expect(r"COMPONENT_ARM_DISARM: ACCEPTED", 30)
+        mp.send("mode AUTO")
+        mp.expect(r"mission complete", 120)
+        lat, lon = frames.world_to_global(*d_mm, lat0, lon0)
+        mp.send(f"guided {lat / 1e7:.7f} {lon / 1e7:.7f} 0")
+        mp.expect(r"DO_REPOSITION: ACCEPTED", 30)
+        mp.expect(r"GUIDED", 10)
+        mp.expect(r"goal reached", 180)
+        assert not [line for line in mp.log if "fence breach" in line], "MAVProxy announced a fence breach"
+    finally:
+        if mp is not None:
+            mp.close()
+        code = sitl.stop(signal.SIGINT)
+    assert code == 0, "\n".join(sitl.log[-20:])
+    assert any("every process stopped" in line for line in sitl.log)
+    assert no_children_left(sitl.out) == []
+    assert not port_open(hub_port(sitl.log))  # the hub stopped too
+    with open(sitl.out / "trajectory.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    x, y = float(rows[-1]["x_m"]), float(rows[-1]["y_m"])
+    assert math.hypot(x - d_mm[0] / 1000, y - d_mm[1] / 1000) < 0.2, (x, y)  # ground truth: at D
+    assert (sitl.out / "can.blf").stat().st_size > 0
+
+
+@pytest.mark.timeout(300)
+def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
+    sitl = SitlProcess(tmp_path, "--speed", "4")
+    sitl.expect(r"Ctrl-C stops every process")
+    # at x4 sim time the GCS failsafe timeout was raised to match (5 s x 4)
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{sitl.port}", source_system=250)
+    try:
+        value = None
+        for _ in range(20):
+            conn.mav.param_request_read_send(1, 1, b"FS_GCS_TOUT_MS", -1)
+            msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1)
+            if msg is not None and msg.param_id == "FS_GCS_TOUT_MS":
+                value = msg.param_value
+                break
+    finally:
+        conn.close()
+    assert value == 20000
+    assert any("FS_GCS_TOUT_MS set to 20000 ms" in line for line in sitl.log), sitl.log
+    port = hub_port(sitl.log)
+    assert port_open(port)
+    code = sitl.stop(signal.SIGTERM)
+    assert code == 0 and any("every process stopped" in line for line in sitl.log), sitl.log[-10:]
+    assert no_children_left(sitl.out) == [] and not port_open(port)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for args, why in ((["--robots", "2"], "only 1 robot"), (["--speed", "0"], "--speed must be a positive"),
+                      (["--mavlink", "bogus"], "--mavlink bogus: expected"),
+                      (["--map", "nosuchmap"], "--map nosuchmap"),
+                      (["--policy", "policies:nosuch"], "--policy policies:nosuch")):
+        r = subprocess.run([sys.executable, "-m", "ground_station.cli", "sitl", "--out", str(tmp_path / "bad"), *args],
+                           capture_output=True, text=True, env=env, cwd=tmp_path, timeout=60)
+        assert r.returncode == 2 and why in r.stderr, (args, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr
