@@ -8,6 +8,11 @@ reply. Steps and retries: docs/mavlink.md, "Uploading a policy"
 `--timeout` is the whole upload's budget; of it at most 10 s go to waiting
 for the robot's heartbeat.
 
+Two CRCs are named: the "file CRC32" (MAVLink FTP's CRC32 of the whole
+file, compared with the robot's copy) and the "policy CRC" (the .qtab
+header's own, what the robot reports as POLICY_CRC_HI/LO); `qnav policy
+inspect` prints both.
+
 Exit status: 0 done, 2 bad arguments, 3 refused by the robot (its reason
 printed), 4 timeout, no robot or no FTP answer, 5 CRC or policy-id mismatch.
 """
@@ -15,6 +20,7 @@ printed), 4 timeout, no robot or no FTP answer, 5 CRC or policy-id mismatch.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ground_station.errors import CliError
@@ -51,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         link = open_link(args, "upload", connect_timeout_s=min(HEARTBEAT_WAIT_S, args.timeout))
     except LinkError as exc:
-        print(f"qnav upload: error: {exc}", flush=True)
+        print(f"qnav upload: error: {exc}", file=sys.stderr, flush=True)
         return exc.code
     bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"upload {args.file.name}")
 
@@ -66,13 +72,14 @@ def run(args: argparse.Namespace) -> int:
                                 attempts=args.attempts, progress=progress)
     except LinkError as exc:
         bar.close()
-        print(f"qnav upload: error: {exc}", flush=True)
+        print(f"qnav upload: error: {exc}", file=sys.stderr, flush=True)
         return exc.code
     bar.n = size
     bar.close()
-    print(f"uploaded {args.file} -> {remote}: {res.size} B, CRC32 0x{res.crc:08x} verified on the robot, "
-          f"{res.put_seconds:.1f} s, {res.put_attempts} attempt(s)")
+    print(f"uploaded {args.file} -> {remote}: {res.size} B, file CRC32 0x{res.crc:08x} (MAVFTP) verified on "
+          f"the robot, {res.put_seconds:.1f} s, {res.put_attempts} attempt(s)")
     if args.activate:
         pid = f"0x{res.policy_id:08x}" if res.policy_id is not None else "unknown"
-        print(f"activated: policy id {pid}, confirmed by {res.confirmed_by}")
+        pcrc = f"0x{res.policy_crc:08x}" if res.policy_crc is not None else "unknown"
+        print(f"activated: policy id {pid}, policy CRC {pcrc}, confirmed by {res.confirmed_by}")
     return 0
