@@ -102,6 +102,7 @@ class DemoSummary:
     can_hub: str | None = None  # the python-can-remote hub's URL (stopped at the end)
     tlog: str | None = None
     can_log: str | None = None
+    can_log_candump: str | None = None  # can.log: the .blf's frames in candump -L format
     trajectory_png: str | None = None
     trajectory_csv: str | None = None
     robot_stats: str | None = None
@@ -588,6 +589,13 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         hub.stop()
         for key, path in paths.items():
             setattr(summary, key, str(path) if path.is_file() else None)
+        if paths["can_log"].is_file():  # the same frames as candump -L text, for cantools decode / canplayer
+            from ground_station.monitor.canlog import write_candump
+
+            candump = paths["can_log"].with_suffix(".log")
+            with contextlib.suppress(OSError, ValueError):
+                write_candump(paths["can_log"], candump)
+                summary.can_log_candump = str(candump)
         if paths["trajectory_csv"].is_file():
             summary.collisions = count_collisions(paths["trajectory_csv"])
         exact = mission_sim_seconds(paths["robot_stats"])

@@ -61,6 +61,8 @@ _TRAIL_MAX = 20_000
 _LOG_MAX = 500
 _SEQ_GAP_RESET = 128  # a jump this large is a reboot/reconnect, not loss
 BACKWARDS_MS = 2000  # a time_boot_ms this far behind the newest is another time base
+FORWARDS_MS = 10_000  # ... or this far ahead (timed telemetry comes at >= 1 Hz of robot time)
+SEQ_WINDOW = 32  # with two time bases heard: an untimed frame is ours if its seq follows ours this closely
 REBOOT_S = 3.0  # only the other time base heard for this long (receive time): a reboot
 
 
@@ -280,7 +282,11 @@ class VehicleView:
                 self.foreign[src] = self.foreign.get(src, 0) + 1
             return False
         boot_ms = getattr(msg, "time_boot_ms", None)
-        if boot_ms is not None and not self._robot_clock(int(boot_ms), t):
+        if boot_ms is not None:
+            if not self._robot_clock(int(boot_ms), t):
+                return False
+        elif self.time_conflicts and not self._follows_own_seq(msg):
+            self.time_conflicts += 1  # two processes share our system id: keep to the one we follow
             return False
         self._link_stats(msg)
         self.t = t
@@ -296,14 +302,16 @@ class VehicleView:
     def _robot_clock(self, boot_ms: int, t: float) -> bool:
         """Advance the robot clock; False if this frame is from another time base."""
         last = self.boot_ms_last
-        if last is not None and boot_ms < last - BACKWARDS_MS:
+        if last is not None and not last - BACKWARDS_MS <= boot_ms <= last + FORWARDS_MS:
             if self._conflict_since is None:
                 self._conflict_since = t
             if t - self._conflict_since < REBOOT_S:
                 self.time_conflicts += 1
                 return False
-            self.reboots += 1  # only the new time base for REBOOT_S: the robot rebooted
-            self._boot_offset_s += last / 1000.0
+            # only the new time base for REBOOT_S: the robot rebooted (or came back after an outage)
+            if boot_ms < last:
+                self.reboots += 1
+                self._boot_offset_s += last / 1000.0
         self._conflict_since = None
         self.boot_ms_last = boot_ms
         self.robot_s = self._boot_offset_s + boot_ms / 1000.0
@@ -311,6 +319,10 @@ class VehicleView:
         if self.robot_s0 is None:
             self.robot_s0 = self.robot_s
         return True
+
+    def _follows_own_seq(self, msg) -> bool:
+        last = self._last_seq.get(msg.get_srcComponent())
+        return last is None or 0 < (msg.get_seq() - last) % 256 <= SEQ_WINDOW
 
     def robot_clock(self, t: float | None = None) -> float | None:
         """Seconds of robot time since the first timed message (sim time in HIL).
