@@ -335,14 +335,15 @@ class VehicleView:
 
     @property
     def mission_reached_count(self) -> int:
-        """Items reached: those we saw reported, or what MISSION_CURRENT implies
-        (every item before the current one; all of them once complete) for a
-        monitor attached mid-mission."""
-        implied = 0
+        """Items reached: those we saw reported, or what the robot's reports
+        imply for a monitor attached mid-mission (items are driven in order:
+        reaching item k means 0..k are done; MISSION_CURRENT: every item before
+        the current one, all of them once complete)."""
+        implied = max(self.mission.reached) + 1 if self.mission.reached else 0
         if self.mission.state == mavlink.MISSION_STATE_COMPLETE:
             implied = self.mission.total
         elif self.mission.state in (mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED):
-            implied = max(0, self.mission.current)
+            implied = max(implied, self.mission.current)
         return max(len(set(self.mission.reached)), implied)
 
     @property

@@ -229,6 +229,8 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
         "mission_items_reached": reached_items,
         "guided_goals_reached_s": [round(t, 3) for t in guided],
         "mission_total": view.mission.total,
+        # reached items including those before the recording began (implied by the robot's reports)
+        "mission_items_done": view.mission_reached_count,
         "path_length_m": round(path_len, 3),
         "stops": len(_stops(rec)),
         "stop_list": _stops(rec),
