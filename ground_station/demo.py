@@ -45,6 +45,7 @@ from pathlib import Path
 from firmware_py.atomic import atomic_write
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from firmware_py.subprocs import free_udp_port
+from ground_station.mavlink.statustext import StatusTextAssembler
 from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
 
 SHIPPED_POLICY = "policies:paper10_cell"  # firmware_py.shipped_policies spec
@@ -200,6 +201,7 @@ class MissionWatch:
         self.mission_state = 0
         self.fault = ""
         self.texts: list[str] = []
+        self._assembler = StatusTextAssembler()
         self.start_ms: int | None = None
         self.start_wall: float | None = None
         self.done_ms: int | None = None
@@ -229,9 +231,8 @@ class MissionWatch:
 
                 if msg.value == CtrlState.FAULT and not self.fault:
                     self.fault = "controller FAULT" + (f" ({self.texts[-1]})" if self.texts else "")
-        elif kind == "STATUSTEXT":
-            text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text
-            self.texts.append(text)
+        elif kind == "STATUSTEXT":  # whole texts, as every other reader sees them
+            self.texts.extend(st.text for st in self._assembler.add(msg, time.monotonic()))
         if self.complete and self.done_wall is None:
             self.done_wall = time.monotonic()
             self.done_ms = self.boot_ms
