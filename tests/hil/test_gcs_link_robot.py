@@ -148,3 +148,29 @@ def test_wrong_signing_key_gets_a_signing_hint(tmp_path):
         assert "signature does not verify with --signing-key" in out + err, out + err
     finally:
         stop_process(proc, timeout_s=10)
+
+
+def test_two_robots_on_one_port_each_command_keeps_to_one(robot, tmp_path):
+    """A second robot process (system id 2) sends to the same ground-station
+    port: a command talks to the one asked for and counts the other's frames."""
+    import json
+
+    from firmware_py.mavlink.params import FILE_VERSION, PARAM_FILE
+
+    port = int(robot.rsplit(":", 1)[1])
+    storage = tmp_path / f"storage-{port}"
+    (storage / PARAM_FILE).parent.mkdir(parents=True)
+    (storage / PARAM_FILE).write_text(json.dumps({"version": FILE_VERSION, "params": {"SYSID_THISMAV": 2}}))
+    second = start_robot(tmp_path, port)
+    try:
+        time.sleep(1.5)
+        code, out, err = qnav("param", "get", "SYSID_THISMAV", "--mavlink", robot, "--no-tlog",
+                              "--target-system", "2", "--timeout", "20")
+        assert code == 0 and out.strip() == "SYSID_THISMAV 2", out + err
+        assert "ignored frames from other systems (system 1:" in err and "talking to system 2" in err, err
+        code, out, err = qnav("monitor", "--plain", "--mavlink", robot, "--no-tlog", "--target-system", "1",
+                              "--duration", "3")
+        assert code == 0, out + err
+        assert "ignored frames from other vehicles (system 2:" in err and "showing system 1" in err, err
+    finally:
+        stop_process(second, timeout_s=10)
