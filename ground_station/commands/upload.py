@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ground_station.mavlink.ftp_upload import default_remote, upload_policy
-    from ground_station.mavlink.link import LinkError, open_link
+    from ground_station.mavlink.link import LinkError, open_link, warn_foreign
 
     if not args.file.is_file():
         raise CliError(f"{args.file}: no such file")
@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         return exc.code
     bar.n = size
     bar.close()
+    warn_foreign(link, "upload")
     print(f"uploaded {args.file} -> {remote}: {res.size} B, file CRC32 0x{res.crc:08x} (MAVFTP) verified on "
           f"the robot, {res.put_seconds:.1f} s, {res.put_attempts} attempt(s)")
     if args.activate:
