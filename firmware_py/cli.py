@@ -30,6 +30,7 @@ from firmware_py.control.controller import Controller
 from firmware_py.control.goals import GoalRunner
 from firmware_py.control.node import RobotNode
 from firmware_py.encoders import CellEncoder
+from firmware_py.helpformat import DefaultsHelpFormatter
 from firmware_py.mavlink.extension import MavlinkExtension
 from firmware_py.plugins import EXIT_FAULT, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, Extension, UsageError
 from firmware_py.vehicle import VehicleConfig
@@ -52,13 +53,14 @@ def _floats(text: str, n_min: int, n_max: int, what: str) -> list[float]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="qnav-robot", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+                                formatter_class=DefaultsHelpFormatter)
     p.add_argument("--can", metavar="SPEC", default=None,
                    help="CAN bus: virtual:NAME, remote:ws://127.0.0.1:PORT/, socketcan:CH, slcan:DEV "
                         "(default: python-can's own configuration)")
     p.add_argument("--policy", metavar="FILE", help=".qtab policy to run, or policies:NAME for a shipped one "
                                                     "(default: the active one in --storage)")
-    p.add_argument("--storage", metavar="DIR", help="the robot's file store (active/last-good policies)")
+    p.add_argument("--storage", metavar="DIR", help="the robot's file store (active/last-good policies, parameters; "
+                   "default: none: parameters in memory only and no MAVLink FTP uploads)")
     clk = p.add_mutually_exclusive_group()
     clk.add_argument("--lockstep", action="store_true",
                      help="HIL lockstep: step on every SimTick and answer it (the sim waits)")
@@ -77,8 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--map-height", type=int, metavar="H",
                    help="map rows, for --start-cell/--goal-cell with a sector policy (cell policies know it)")
     p.add_argument("--cell-size", type=float, metavar="M", help="cell size in metres (default: the policy's, else 0.5)")
-    p.add_argument("--sensor-timeout-ms", type=int, default=VehicleConfig.sensor_timeout_ms)
-    p.add_argument("--motor-timeout-ms", type=int, default=VehicleConfig.motor_timeout_ms)
+    p.add_argument("--sensor-timeout-ms", type=int, default=VehicleConfig.sensor_timeout_ms, metavar="MS",
+                   help="a sensor input older than this is stale: the motors stop")
+    p.add_argument("--motor-timeout-ms", type=int, default=VehicleConfig.motor_timeout_ms, metavar="MS",
+                   help="the motor driver's command watchdog the robot configures")
     p.add_argument("--exit-when-done", action="store_true",
                    help="exit 0 when the goals are reached, 3 on FAULT")
     p.add_argument("--duration", type=float, metavar="S",

@@ -45,6 +45,7 @@ from pathlib import Path
 from firmware_py.atomic import atomic_write
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from firmware_py.subprocs import free_udp_port
+from ground_station.mavlink.statustext import StatusTextAssembler
 from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
 
 SHIPPED_POLICY = "policies:paper10_cell"  # firmware_py.shipped_policies spec
@@ -102,6 +103,7 @@ class DemoSummary:
     can_hub: str | None = None  # the python-can-remote hub's URL (stopped at the end)
     tlog: str | None = None
     can_log: str | None = None
+    can_log_candump: str | None = None  # can.log: the .blf's frames in candump -L format
     trajectory_png: str | None = None
     trajectory_csv: str | None = None
     robot_stats: str | None = None
@@ -199,6 +201,7 @@ class MissionWatch:
         self.mission_state = 0
         self.fault = ""
         self.texts: list[str] = []
+        self._assembler = StatusTextAssembler()
         self.start_ms: int | None = None
         self.start_wall: float | None = None
         self.done_ms: int | None = None
@@ -228,9 +231,8 @@ class MissionWatch:
 
                 if msg.value == CtrlState.FAULT and not self.fault:
                     self.fault = "controller FAULT" + (f" ({self.texts[-1]})" if self.texts else "")
-        elif kind == "STATUSTEXT":
-            text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text
-            self.texts.append(text)
+        elif kind == "STATUSTEXT":  # whole texts, as every other reader sees them
+            self.texts.extend(st.text for st in self._assembler.add(msg, time.monotonic()))
         if self.complete and self.done_wall is None:
             self.done_wall = time.monotonic()
             self.done_ms = self.boot_ms
@@ -588,6 +590,13 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         hub.stop()
         for key, path in paths.items():
             setattr(summary, key, str(path) if path.is_file() else None)
+        if paths["can_log"].is_file():  # the same frames as candump -L text, for cantools decode / canplayer
+            from ground_station.monitor.canlog import write_candump
+
+            candump = paths["can_log"].with_suffix(".log")
+            with contextlib.suppress(OSError, ValueError):
+                write_candump(paths["can_log"], candump)
+                summary.can_log_candump = str(candump)
         if paths["trajectory_csv"].is_file():
             summary.collisions = count_collisions(paths["trajectory_csv"])
         exact = mission_sim_seconds(paths["robot_stats"])

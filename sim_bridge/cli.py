@@ -14,6 +14,8 @@ import math
 import sys
 from pathlib import Path
 
+from firmware_py.helpformat import DefaultsHelpFormatter
+
 EPILOG = """examples:
   qnav-sim --map paper10 --can virtual:qnav --lockstep --duration 30 --png run.png
   qnav-sim --map maps/room.map --can remote:ws://127.0.0.1:54701/ --realtime --log run.blf
@@ -27,7 +29,7 @@ class CliError(Exception):
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="qnav-sim", description=__doc__, epilog=EPILOG,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+                                formatter_class=DefaultsHelpFormatter)
     p.add_argument("--map", required=True, metavar="NAME|PATH",
                    help="built-in map name (e.g. paper10) or a MovingAI .map file")
     p.add_argument("--can", default=None, metavar="SPEC",
@@ -133,7 +135,9 @@ def run(args: argparse.Namespace) -> int:
                 if speed is None:
                     stats = run_lockstep(plant, bus, args.duration, logger=log, progress=bar,
                                          tick_timeout_s=args.tick_timeout,
-                                         start_timeout_s=args.start_timeout)
+                                         start_timeout_s=args.start_timeout,
+                                         on_wait=lambda line: print(f"qnav-sim: {line}", file=sys.stderr,
+                                                                    flush=True))
                 else:
                     stats = run_paced(plant, bus, args.duration, speed, logger=log, progress=bar)
             except KeyboardInterrupt:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import random
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -185,8 +186,11 @@ class _Io:
 def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
                  logger: can.Listener | None = None, tick_timeout_s: float = 1.0,
                  start_timeout_s: float = 30.0, resend_s: float = 0.2,
-                 progress=None) -> RunStats:
-    """Lockstep until `duration_s` of sim time: each tick waits for its MotorCommand."""
+                 progress=None, on_wait: Callable[[str], None] | None = None,
+                 wait_notice_s: float = 1.0) -> RunStats:
+    """Lockstep until `duration_s` of sim time: each tick waits for its MotorCommand.
+    `on_wait(line)` is told once what the sim waits for when the controller's
+    first answer has not come within `wait_notice_s`."""
     io = _Io(plant, bus, logger)
     stats = plant.stats
     end_us = round(duration_s * 1e6)
@@ -206,6 +210,10 @@ def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
             now = time.perf_counter()
             if answered or now >= deadline:
                 break
+            if on_wait is not None and not started and now - t0 >= wait_notice_s:
+                on_wait(f"waiting for a controller to answer SimTick 0 with a MotorCommand "
+                        f"(e.g. qnav-robot --lockstep on the same --can bus), up to {start_timeout_s:g} s ...")
+                on_wait = None
             if now >= next_resend:
                 io.send(frames[-1:])  # the SimTick again (lost frame, late controller)
                 next_resend = now + resend_s

@@ -43,6 +43,7 @@ from firmware_py.control.controller import Controller, Inputs, Outputs
 log = logging.getLogger("qnav.node")
 
 _RANGE_INDEX = {f"RangeSectors{i}": i for i in range(len(proto.RANGE_SECTORS_IDS))}
+SIM_QUIET_S = 3.0  # wall seconds without a SimTick before the robot says the sim went quiet
 
 
 class InputTracker:
@@ -141,6 +142,8 @@ class RobotNode:
         self._last_rx_ns = 0
         self._last_answer: can.Message | None = None
         self._next_us: int | None = None  # paced sim clock: next control deadline
+        self._last_tick_ns = 0  # perf_counter_ns of the last SimTick (sim time: the sim is alive)
+        self._sim_quiet = False  # logged that SimTicks stopped
 
     # --- lifecycle --------------------------------------------------------------
     def start(self) -> RobotNode:
@@ -194,6 +197,7 @@ class RobotNode:
                 time.sleep(0.05)
                 continue
             if msg is None:
+                self._check_sim_quiet()
                 continue
             rx_ns = time.perf_counter_ns()
             try:
@@ -224,6 +228,11 @@ class RobotNode:
             return  # an implausible jump of sim time: not stepped, counted in clock.refused_jumps
         if self.lockstep and gap > 1:
             self.overruns += gap - 1  # ticks we never saw: lost or late
+        if self._sim_quiet:
+            log.warning("SimTicks resumed at sim time %.2f s after %.1f s (wall) without any",
+                        sim_us / 1e6, (rx_ns - self._last_tick_ns) / 1e9)
+            self._sim_quiet = False
+        self._last_tick_ns = rx_ns
         self.last_tick = counter
         self.sim_ticks += 1
         now = clock.now_us()
@@ -233,6 +242,18 @@ class RobotNode:
             self._tick(now, counter, rx_ns)
         elif self._next_us is None or now >= self._next_us:
             self._paced_tick(rx_ns)
+
+    def _check_sim_quiet(self) -> None:
+        """On sim time, say once when the sim stopped ticking (it exited or
+        hangs): the clock stands still, so do control, timeouts and telemetry."""
+        if not self.sim_time or self._sim_quiet or self.last_tick is None:
+            return
+        quiet_s = (time.perf_counter_ns() - self._last_tick_ns) / 1e9
+        if quiet_s >= SIM_QUIET_S:
+            self._sim_quiet = True
+            log.warning("no SimTick from the sim for %.0f s (wall): sim time stands still at %.2f s; "
+                        "control, failsafes and MAVLink telemetry wait for it (did qnav-sim exit?)",
+                        quiet_s, self.clock.now_us() / 1e6)
 
     # --- control side ---------------------------------------------------------------
     def _tick(self, now_us: int, counter: int | None, t0_ns: int) -> None:

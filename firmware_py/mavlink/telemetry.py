@@ -284,8 +284,8 @@ class Telemetry:
             return [self.mav.statustext_encode(severity, data, 0, 0)]
         self._statustext_id = self._statustext_id % 0xFFFF + 1
         chunks = [data[i:i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
-        if len(chunks[-1]) == STATUSTEXT_LEN:  # a full last chunk reads as "more to come": end it
-            chunks.append(b"")
+        if len(chunks[-1]) == STATUSTEXT_LEN:
+            chunks.append(b"")  # the terminating short chunk tells the receiver the text is whole
         return [self.mav.statustext_encode(severity, c, self._statustext_id, n) for n, c in enumerate(chunks)]
 
     def event(self, ev: VehicleEvent) -> list[mavlink2.MAVLink_message]:

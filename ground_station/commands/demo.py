@@ -10,7 +10,8 @@ reached, time, collisions, and where the trajectory PNG, the .tlog and the
 CAN log are. Every process it started is stopped on exit, error or Ctrl-C.
 
 Outputs go to runs/demo-<timestamp>/ (or --out DIR): demo.tlog (MAVLink,
-both directions), can.blf (every CAN frame, sim-time stamps),
+both directions), can.blf (every CAN frame, sim-time stamps), can.log (the
+same frames in candump -L format: `cantools decode firmware_py/qnav.dbc < can.log`),
 trajectory.csv / trajectory.png (the sim's ground truth), robot/ (the
 robot's file store), robot_stats.json, sim.log, robot.log, summary.json.
 `qnav report runs/demo-.../demo.tlog` plots the run from the telemetry.

@@ -20,7 +20,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate a trained run (greedy rollouts vs shortest paths)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", metavar="DIR", help="run folder written by qnav train")
-    p.add_argument("--map", required=True, metavar="NAME|PATH", help="map to evaluate on")
+    p.add_argument("--map", metavar="NAME|PATH",
+                   help="map to evaluate on (default: the training map recorded in DIR/meta.json)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--sample", type=int, default=None, metavar="N",
                    help="evaluate a seeded sample of N (start, goal) pairs instead of all")
@@ -43,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.sample is not None and args.sample < 1:
         raise CliError(f"--sample must be >= 1, got {args.sample}")
+    if args.map is None:
+        args.map = _run_map(args.run_dir)
     try:
         gridmap = load_map(args.map)
         rep = evaluate_run(args.run_dir, gridmap, sample=args.sample, seed=args.seed)
@@ -68,6 +71,24 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         print(f"wrote {args.plot}")
     return 0
+
+
+def _run_map(run_dir: str) -> str:
+    """The map a run was trained on (meta.json `map`), or a one-line error."""
+    from pathlib import Path
+
+    from ground_station.errors import CliError
+
+    meta_path = Path(run_dir) / "meta.json"
+    try:
+        meta = json.loads(meta_path.read_text())
+    except FileNotFoundError:
+        raise CliError(f"{meta_path}: no such file (is {run_dir} a qnav train run folder?)") from None
+    except (OSError, ValueError) as exc:
+        raise CliError(f"{meta_path}: cannot read: {exc}") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("map"), str):
+        raise CliError(f"{meta_path} names no training map; pass --map")
+    return meta["map"]
 
 
 def _plot(args: argparse.Namespace, gridmap) -> None:

@@ -8,6 +8,7 @@ with a STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4.
 from __future__ import annotations
 
 import argparse
+import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -24,7 +25,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ground_station.mavlink.link import (
         EXIT_REFUSED,
-        EXIT_TIMEOUT,
         LinkError,
         mavlink,
         run_on_link,
@@ -33,20 +33,24 @@ def run(args: argparse.Namespace) -> int:
     m = mavlink()
     mask = 0xFFF8  # position only
 
+    def refused(t: str) -> bool:
+        return t.startswith("goal refused")
+
     def body(link) -> int:
+        since = len(link.texts)
         for _ in range(3):
             link.conn.mav.set_position_target_local_ned_send(0, link.sysid, link.compid, m.MAV_FRAME_LOCAL_NED,
                                                             mask, args.y, args.x, 0, 0, 0, 0, 0, 0, 0, 0, 0)
-            reply = link.recv(["POSITION_TARGET_LOCAL_NED", "STATUSTEXT"], 1.5,
-                              cond=lambda r: r.get_type() == "POSITION_TARGET_LOCAL_NED"
-                              or r.text.startswith("goal refused"))
-            if reply is None:
-                continue
-            if reply.get_type() == "STATUSTEXT":
-                raise LinkError(EXIT_REFUSED, reply.text)
-            if abs(reply.x - args.y) < 0.01 and abs(reply.y - args.x) < 0.01:
-                print(f"goal x={args.x:g} y={args.y:g} m accepted")
-                return 0
-        raise LinkError(EXIT_TIMEOUT, "goal: no echo from the robot")
+            end = time.monotonic() + 1.5
+            while time.monotonic() < end:
+                reply = link.recv("POSITION_TARGET_LOCAL_NED", min(0.1, end - time.monotonic()))
+                # the refusal is a whole (reassembled) STATUSTEXT, however many chunks it took
+                reason = link.wait_text(since, refused, 0.0)
+                if reason is not None:
+                    raise LinkError(EXIT_REFUSED, reason)
+                if reply is not None and abs(reply.x - args.y) < 0.01 and abs(reply.y - args.x) < 0.01:
+                    print(f"goal x={args.x:g} y={args.y:g} m accepted")
+                    return 0
+        raise link.no_answer("goal: no echo from the robot")
 
     return run_on_link(args, "goal", body)

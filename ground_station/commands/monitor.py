@@ -3,6 +3,12 @@
     qnav monitor [--mavlink URL] [--tlog FILE] [--signing-key FILE] [--map NAME|PATH]
     qnav monitor --plain [--duration S]          one status line per second
     qnav monitor --replay FILE.tlog [--speed X]  a recording through the same view
+
+Stamps are the robot's clock (its time_boot_ms: sim time in HIL) once it
+has sent one. The view follows one system id (the first robot heard, or
+--target-system); frames from other systems, or from a second process using
+the same id (its clock runs behind), are ignored and counted on exit.
+Live --plain exits 4 when no robot was heard within --timeout.
 """
 
 from __future__ import annotations
@@ -15,15 +21,10 @@ import sys
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("monitor", help="telemetry dashboard (live, --plain, or --replay a .tlog)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    from ground_station.mavlink.link import DEFAULT_TLOG_DIR, DEFAULT_URL
+    from ground_station.mavlink.link import add_link_args
 
-    p.add_argument("--mavlink", metavar="URL", default=None,
-                   help=f"pymavlink connection string to the robot (default {DEFAULT_URL})")
-    p.add_argument("--tlog", metavar="FILE",
-                   help=f"record the session to this .tlog (default: a new file under {DEFAULT_TLOG_DIR}/)")
-    p.add_argument("--no-tlog", action="store_true", help="do not record the session")
-    p.add_argument("--signing-key", metavar="FILE",
-                   help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
+    add_link_args(p, url_default=None,
+                  timeout_help="live --plain: exit 4 if no robot is heard within S seconds (> 0, default 10)")
     p.add_argument("--map", metavar="NAME|PATH", default="paper10",
                    help="map drawn under the robot: built-in name, generator spec or .map path "
                         "(default paper10; 'none' for a blank field)")
@@ -70,7 +71,7 @@ def open_source(args):
     url = args.mavlink or DEFAULT_URL
     tlog = False if args.no_tlog else args.tlog
     try:
-        source = open_live(url, tlog=tlog, signing_key=args.signing_key)
+        source = open_live(url, tlog=tlog, signing_key=args.signing_key, target_system=args.target_system)
     except ValueError as exc:  # bad signing key file
         raise CliError(str(exc)) from exc
     except OSError as exc:
@@ -90,16 +91,38 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
     grid_map = None if args.plain else _load_map(args.map, args.cell_size)
     source, label = open_source(args)
-    view = VehicleView()
+    view = VehicleView(sysid=args.target_system)
     try:
         if args.plain:
             from ground_station.monitor.sources import run_plain
 
-            run_plain(source, view, sys.stdout, duration=args.duration)
-            return 0
-        from ground_station.monitor.app import MonitorApp
+            live = not args.replay
+            run_plain(source, view, sys.stdout, duration=args.duration,
+                      no_robot_s=args.timeout if live else None,
+                      on_wait=(lambda line: print(f"qnav monitor: {line}", file=sys.stderr, flush=True))
+                      if live else None)
+            if view.t is None:
+                who = f"robot {args.target_system}" if args.target_system else "a robot"
+                where = f"on {label}" if live else f"in {args.replay}"
+                waited = f" within {args.timeout:g} s" if live and args.duration is None else ""
+                print(f"qnav monitor: no HEARTBEAT from {who} {where}{waited}", file=sys.stderr)
+                return 4
+        else:
+            from ground_station.monitor.app import MonitorApp
 
-        MonitorApp(source, grid_map=grid_map, view=view, subtitle=label).run()
+            MonitorApp(source, grid_map=grid_map, view=view, subtitle=label).run()
+        warn_ignored(view)
         return 0
     finally:
         source.close()
+
+
+def warn_ignored(view) -> None:
+    """Say what the view ignored: other systems, a second process with our system id."""
+    if view.foreign:
+        counts = ", ".join(f"system {s}: {n}" for s, n in sorted(view.foreign.items()))
+        print(f"qnav monitor: warning: ignored frames from other vehicles ({counts}); "
+              f"showing system {view.sysid}", file=sys.stderr)
+    if view.time_conflicts:
+        print(f"qnav monitor: warning: ignored {view.time_conflicts} frames of system {view.sysid} whose clock "
+              f"ran behind (a second process with the same system id?)", file=sys.stderr)

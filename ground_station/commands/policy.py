@@ -7,6 +7,12 @@ inspect: one line per file (a JSON object per line with `--json`: `file`,
 `map_geometry`). Exit status 0 only when every file is valid, 2 otherwise.
 Validation is the robot's own loader (firmware_py.policy).
 
+Two CRCs, named alike in `qnav upload`: the "policy CRC" is the .qtab's own
+header field (what the robot reports as POLICY_CRC_HI/LO); the "file CRC32"
+is MAVLink FTP's CRC32 of the whole file (CalcFileCRC32: zlib's polynomial,
+no final xor, so it differs from `zlib.crc32`/`crc32(1)` of the same bytes),
+what the upload compares with the robot's copy.
+
 upgrade: version 1.x files record neither the control period nor the map
 geometry they were trained for, and the robot refuses them. `upgrade` writes
 them into the header (atomically, over OLD unless --out is given) and copies
@@ -52,12 +58,16 @@ def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
     """Validation result and header of one file as a JSON-able dict."""
     from firmware_py.policy import PolicyError, load_policy
     from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
+    from firmware_py.storage import ftp_crc32
 
     try:
-        pol = load_policy(resolve_policy_spec(path), expect_sensors=expect_sensors)
+        resolved = resolve_policy_spec(path)
+        pol = load_policy(resolved, expect_sensors=expect_sensors)
+        with open(resolved, "rb") as f:
+            file_crc = ftp_crc32(f.read())
     except (PolicyError, ShippedPolicyError) as exc:
         return {"file": path, "valid": False, "error": str(exc)}
-    return {"file": path, "valid": True, "error": None, **pol.header()}
+    return {"file": path, "valid": True, "error": None, **pol.header(), "file_crc32": f"0x{file_crc:08x}"}
 
 
 def _line(d: dict) -> str:
@@ -75,7 +85,8 @@ def _line(d: dict) -> str:
     extra = " ".join(f"{k}={json.dumps(meta[k])}" for k in ("map", "targets", "steps") if k in meta)
     scale = "per-state" if d["per_state_scales"] else f"{d['scale']:.6g}"
     return (f"{d['file']}: valid v{d['format_version']} {geo} {d['dtype']} "
-            f"{d['n_states']}x{d['n_actions']} scale={scale} id={d['policy_id']} crc={d['crc32']} "
+            f"{d['n_states']}x{d['n_actions']} scale={scale} id={d['policy_id']} "
+            f"policy CRC {d['crc32']} file CRC32 {d['file_crc32']} "
             f"created={d['created_utc']} bytes={d['bytes']}" + (f" {extra}" if extra else ""))
 
 

@@ -7,6 +7,12 @@ message and per sim tick, motor commands, controller states, e-stops
 Writes into --out (default `out/report-<tlog name>/`): summary.json,
 trajectory.png, distance_to_goal.png, actions.png, timing.png (a plot whose
 data is not in the recording is skipped and listed under plots_skipped).
+
+Times are the robot's clock (its time_boot_ms: sim time in HIL) when the
+recording carries it, else the tlog's receive stamps; the summary names the
+clock. One vehicle per report: the first robot heard or --target-system;
+frames of other systems, or of a second process with the same system id, are
+ignored and counted (a warning line).
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 
@@ -28,6 +35,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                         "(default paper10; 'none' for no map)")
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size in metres (default 0.5)")
     p.add_argument("--json", action="store_true", help="print the summary JSON instead of a short text summary")
+    p.add_argument("--target-system", type=int, default=None, metavar="SYSID",
+                   help="report on this system id (default: the first robot in the recording)")
+    p.add_argument("--clock", choices=("auto", "robot", "wall"), default="auto",
+                   help="time base: robot = its time_boot_ms (sim time in HIL), wall = tlog stamps "
+                        "(default auto: robot when recorded)")
     p.set_defaults(func=run)
 
 
@@ -47,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     if args.cell_size <= 0:
         raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
     grid_map = _load_map(args.map, args.cell_size)
-    rec = analyse(args.tlog, progress=True)
+    rec = analyse(args.tlog, progress=True, sysid=args.target_system, clock=args.clock)
     if rec.messages == 0:
         raise CliError(f"{args.tlog}: no MAVLink messages from a vehicle (is it a .tlog?)")
     out = Path(args.out) if args.out else Path("out") / f"report-{Path(args.tlog).stem}"
@@ -55,10 +67,22 @@ def run(args: argparse.Namespace) -> int:
         summary = write_report(rec, out, grid_map)
     except OSError as exc:
         raise CliError(f"cannot write report to {out}: {exc}") from exc
+    ignored = summary["ignored"]
+    if ignored["other_systems"] or ignored["clock_behind_frames"]:
+        others = ", ".join(f"system {k}: {v}" for k, v in ignored["other_systems"].items())
+        behind = ignored["clock_behind_frames"]
+        print(f"qnav report: warning: reporting system {summary['vehicle_sysid']} only; ignored "
+              + "; ".join(x for x in (f"frames of other systems ({others})" if others else "",
+                                      f"{behind} frames whose clock ran behind (a second process with the "
+                                      f"same system id?)" if behind else "") if x), file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
-    print(f"{args.tlog}: {summary['duration_s']:.1f} s, goals reached {summary['goals_reached']}, "
+    ttg = summary["time_to_last_goal_s"]
+    print(f"{args.tlog}: system {summary['vehicle_sysid']}, {summary['duration_s']:.1f} s ({summary['clock']}"
+          f"; {summary['wall_duration_s']:.1f} s wall), "
+          f"last goal at {'-' if ttg is None else f'{ttg:.1f} s'} after arming")
+    print(f"  goals reached {summary['goals_reached']}, "
           f"path {summary['path_length_m']:.2f} m, stops {summary['stops']}, faults {summary['faults']}, "
           f"link loss {summary['link']['loss_pct']:.1f}%")
     for name, path in summary["plots"].items():

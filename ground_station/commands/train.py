@@ -2,6 +2,8 @@
 
 Writes DIR/q.npy (float64, n_states x n_actions), DIR/meta.json,
 DIR/metrics.csv and DIR/learning_curve.png (see `ground_station.learn.train`).
+Without --out the run folder is named for what it holds (CleanRL style):
+runs/<map>-<encoding>-s<seed>-<YYYYmmdd-HHMMSS>. Integer options take 1e6.
 """
 
 from __future__ import annotations
@@ -15,12 +17,28 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("train", help="train a tabular Q policy (cell or sector encoding)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", required=True, metavar="DIR", help="run folder to write (created if missing)")
+    p.add_argument("--out", metavar="DIR", help="run folder to write (created if missing; default "
+                   "runs/<map>-<encoding>-s<seed>-<time>)")
     add_config_arguments(p)
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     p.set_defaults(func=run)
+
+
+def default_run_dir(map_spec: str, encoding: str, seed: int) -> str:
+    """runs/<map>-<encoding>-s<seed>-<time>; a map path contributes its file stem."""
+    import re
+    from pathlib import Path
+
+    name = Path(map_spec).stem if map_spec.endswith(".map") else map_spec
+    name = re.sub(r"[^A-Za-z0-9_.]+", "_", name).strip("_") or "map"
+    base = Path("runs") / f"{name}-{encoding}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path, n = base, 1
+    while path.exists():  # two runs in the same second
+        n += 1
+        path = base.with_name(f"{base.name}-{n}")
+    return str(path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,12 +56,13 @@ def run(args: argparse.Namespace) -> int:
         res = train(cfg, gridmap, progress=not args.quiet)
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
-    meta = write_run(args.out, cfg, res)
+    out = args.out or default_run_dir(cfg.map, cfg.encoding, cfg.seed)
+    meta = write_run(out, cfg, res)
     if not args.quiet:
         tail = res.successes[-max(1, len(res.successes) // 20):]
         print(f"trained {cfg.encoding} on {gridmap.name}: {cfg.steps:,} steps, {len(res.returns):,} episodes "
               f"in {res.seconds:.2f} s ({meta['steps_per_s'] or 0:,.0f} steps/s; "
               f"{time.perf_counter() - t0:.2f} s with setup); "
               f"last 5% of episodes: success {tail.mean():.3f} (with exploration)")
-        print(f"wrote {args.out}/q.npy {list(res.q.shape)}, meta.json, metrics.csv, learning_curve.png")
+        print(f"wrote {out}/q.npy {list(res.q.shape)}, meta.json, metrics.csv, learning_curve.png")
     return 0

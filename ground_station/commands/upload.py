@@ -8,6 +8,11 @@ reply. Steps and retries: docs/mavlink.md, "Uploading a policy"
 `--timeout` is the whole upload's budget; of it at most 10 s go to waiting
 for the robot's heartbeat.
 
+Two CRCs are named: the "file CRC32" (MAVLink FTP's CRC32 of the whole
+file, compared with the robot's copy) and the "policy CRC" (the .qtab
+header's own, what the robot reports as POLICY_CRC_HI/LO); `qnav policy
+inspect` prints both.
+
 Exit status: 0 done, 2 bad arguments, 3 refused by the robot (its reason
 printed), 4 timeout, no robot or no FTP answer, 5 CRC or policy-id mismatch.
 """
@@ -42,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ground_station.mavlink.ftp_upload import default_remote, upload_policy
-    from ground_station.mavlink.link import LinkError, open_link
+    from ground_station.mavlink.link import LinkError, open_link, warn_foreign
 
     if not args.file.is_file():
         raise CliError(f"{args.file}: no such file")
@@ -70,9 +75,11 @@ def run(args: argparse.Namespace) -> int:
         return exc.code
     bar.n = size
     bar.close()
-    print(f"uploaded {args.file} -> {remote}: {res.size} B, CRC32 0x{res.crc:08x} verified on the robot, "
-          f"{res.put_seconds:.1f} s, {res.put_attempts} attempt(s)")
+    warn_foreign(link, "upload")
+    print(f"uploaded {args.file} -> {remote}: {res.size} B, file CRC32 0x{res.crc:08x} (MAVFTP) verified on "
+          f"the robot, {res.put_seconds:.1f} s, {res.put_attempts} attempt(s)")
     if args.activate:
         pid = f"0x{res.policy_id:08x}" if res.policy_id is not None else "unknown"
-        print(f"activated: policy id {pid}, confirmed by {res.confirmed_by}")
+        pcrc = f"0x{res.policy_crc:08x}" if res.policy_crc is not None else "unknown"
+        print(f"activated: policy id {pid}, policy CRC {pcrc}, confirmed by {res.confirmed_by}")
     return 0

@@ -63,8 +63,24 @@ def add_config_arguments(parser: argparse.ArgumentParser, skip: tuple[str, ...] 
         if f.name in skip:
             continue
         flag = "--" + f.name.replace("_", "-")
-        parser.add_argument(flag, type=type(f.default), default=f.default, dest=f.name,
+        kind = type(f.default)
+        parser.add_argument(flag, type=int_arg if kind is int else kind, default=f.default, dest=f.name,
                             help=f"{f.metadata.get('help', '')} (default: {f.default})")
+
+
+def int_arg(text: str) -> int:
+    """An integer option that also takes 1e6, 3_000_000 or 2.5e5 (whole numbers only)."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer (1000000, 1e6), got {text!r}") from None
+    if not value.is_integer():
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
+    return int(value)
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:

@@ -8,8 +8,9 @@ a `.tlog` of every session in both directions (by default under
 request/answer patterns with timeouts and retries: COMMAND_LONG ->
 COMMAND_ACK, PARAM_* -> PARAM_VALUE, the mission upload/download exchange.
 
-It also overhears what every command may need later: STATUSTEXTs, the
-newest PARAM_VALUE of each name (`read_params` asks for several at once and
+It also overhears what every command may need later: STATUSTEXTs
+(reassembled from their MAVLink 2 chunks by `statustext.StatusTextAssembler`,
+so `texts` holds whole texts only, as MAVProxy shows them), the newest PARAM_VALUE of each name (`read_params` asks for several at once and
 waits for wanted values), the robot's HEARTBEAT system state. FTP upload
 (`ground_station.mavlink.ftp_upload`) runs on the same connection.
 
@@ -37,6 +38,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from firmware_py.mavlink.params import as_float32
+from ground_station.mavlink.statustext import StatusText, StatusTextAssembler
 
 EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 DEFAULT_URL = "udpin:127.0.0.1:14550"
@@ -68,21 +70,82 @@ def mavlink():
     return mavutil().mavlink
 
 
+URL_SCHEMES = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin", "mcast")
+WAIT_NOTICE_S = 1.0  # say what we wait for once a wait has lasted this long
+
+
+def check_url(url: str) -> str | None:
+    """None if `url` is a connection string pymavlink can open, else the one-line reason.
+
+    Accepted: SCHEME:HOST:PORT for the UDP/TCP schemes, a serial device
+    (a path that exists, `/dev/...`, `COMn`), optionally `DEVICE,BAUD`."""
+    head, sep, rest = url.partition(":")
+    if sep and head in URL_SCHEMES:
+        host, sep2, port = rest.rpartition(":")
+        if head == "mcast" and not rest:
+            return None
+        if not sep2 or not host:
+            return f"{url!r}: expected {head}:HOST:PORT"
+        if not port.isdigit() or not 0 < int(port) < 65536:
+            return f"{url!r}: port must be a number 1-65535, got {port!r}"
+        return None
+    device = url.split(",", 1)[0]
+    if device.startswith("/dev/") or os.path.exists(device) or (device.upper().startswith("COM")
+                                                                 and device[3:].isdigit()):
+        baud = url.split(",", 1)[1] if "," in url else "1"
+        return None if baud.isdigit() else f"{url!r}: baud rate must be a number, got {baud!r}"
+    return (f"{url!r} is not a MAVLink connection string: use "
+            f"{'|'.join(s for s in URL_SCHEMES if s != 'mcast')}:HOST:PORT or a serial device")
+
+
+def _url_arg(value: str) -> str:
+    problem = check_url(value)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return value
+
+
+def _positive_seconds(value: str) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {value!r}") from None
+    if not x > 0 or x != x or x == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be > 0 seconds, got {value}")
+    return x
+
+
+def _sysid(value: str) -> int:
+    try:
+        x = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a system id 1-254, got {value!r}") from None
+    if not 1 <= x <= 254:
+        raise argparse.ArgumentTypeError(f"system id must be 1-254, got {x}")
+    return x
+
+
 def add_link_args(parser: argparse.ArgumentParser, *, timeout_s: float = DEFAULT_TIMEOUT_S,
-                  timeout_help: str | None = None) -> None:
-    """--mavlink, --signing-key, --tlog/--no-tlog, --timeout for a command.
+                  timeout_help: str | None = None, url_default: str | None = DEFAULT_URL) -> None:
+    """The one link-argument set of every MAVLink command: --mavlink,
+    --signing-key, --tlog/--no-tlog, --timeout (> 0), --target-system.
 
     `--timeout` is the heartbeat wait unless the command gives it a wider
-    meaning (`timeout_s`, `timeout_help`: `qnav upload`'s whole budget)."""
-    parser.add_argument("--mavlink", metavar="URL", default=DEFAULT_URL,
+    meaning (`timeout_s`, `timeout_help`: `qnav upload`'s whole budget).
+    The URL is checked when parsed (one-line error, exit 2)."""
+    parser.add_argument("--mavlink", metavar="URL", default=url_default, type=_url_arg,
                         help=f"pymavlink connection string (default {DEFAULT_URL}; udpout:, tcp:, serial also)")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
                         help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
-    parser.add_argument("--tlog", metavar="FILE", default=None,
-                        help=f"session log (default: a new file under {DEFAULT_TLOG_DIR}/)")
-    parser.add_argument("--no-tlog", action="store_true", help="do not write a session log")
-    parser.add_argument("--timeout", type=float, default=timeout_s, metavar="S",
-                        help=timeout_help or f"seconds to wait for the robot's heartbeat (default {timeout_s:g})")
+    tl = parser.add_mutually_exclusive_group()
+    tl.add_argument("--tlog", metavar="FILE", default=None,
+                    help=f"session log (default: a new file under {DEFAULT_TLOG_DIR}/)")
+    tl.add_argument("--no-tlog", action="store_true", help="do not write a session log")
+    parser.add_argument("--timeout", type=_positive_seconds, default=timeout_s, metavar="S",
+                        help=timeout_help or f"seconds to wait for the robot's heartbeat (> 0, default {timeout_s:g})")
+    parser.add_argument("--target-system", type=_sysid, default=None, metavar="SYSID",
+                        help="talk to this system id only (default: the first robot heard); "
+                             "frames from other systems are ignored and counted")
 
 
 @dataclass
@@ -97,7 +160,7 @@ class Link:
     def __init__(self, url: str = DEFAULT_URL, *, signing_key: str | os.PathLike[str] | None = None,
                  tlog: str | os.PathLike[str] | Literal[False] | None = None, name: str = "session",
                  heartbeat: bool = False, source_system: int = GCS_SYSID,
-                 source_component: int = GCS_COMPID) -> None:
+                 source_component: int = GCS_COMPID, target_system: int | None = None) -> None:
         mu = mavutil()
         self.m = mu.mavlink
         self.conn = mu.mavlink_connection(url, source_system=source_system, source_component=source_component,
@@ -118,7 +181,12 @@ class Link:
             self._tlog = open(self.tlog_path, "wb")  # noqa: SIM115 - closed in close()
             self.conn.message_hooks.append(self._log_received)
             self.conn.mav.set_send_callback(self._log_sent)
-        self.texts: list[str] = []
+        self.texts: list[str] = []  # whole STATUSTEXTs from the robot, in arrival order
+        self.status_texts: list[StatusText] = []  # the same with severity, sender and time
+        self._assembler = StatusTextAssembler()
+        self.want_sysid = target_system  # --target-system: None = the first robot heard
+        self.foreign_frames: dict[int, int] = {}  # sysid -> frames ignored from a system not our robot
+        self.bad_signatures = 0  # frames dropped because their signature did not verify with our key
         self.params: dict[str, tuple[float, float]] = {}  # name -> (value, monotonic time received)
         self.param_values_seen = 0
         self.system_status: int | None = None  # the robot's HEARTBEAT system_status
@@ -163,19 +231,43 @@ class Link:
 
     def _collect(self, _conn, msg) -> None:
         t = msg.get_type()
+        if t == "BAD_DATA":
+            if "signature" in str(getattr(msg, "reason", "")).lower():
+                self.bad_signatures += 1
+            return
+        src = msg.get_srcSystem()
+        if src != GCS_SYSID and self.target is not None and src != self.target[0]:
+            self.foreign_frames[src] = self.foreign_frames.get(src, 0) + 1
+            return
+        now = time.monotonic()
+        done = self._assembler.add(msg, now) if t == "STATUSTEXT" else self._assembler.flush(now)
+        for st in done:
+            if st.sysid != GCS_SYSID:
+                self.texts.append(st.text)
+                self.status_texts.append(st)
         if t == "STATUSTEXT":
-            self.texts.append(msg.text)
-        elif t == "PARAM_VALUE":
+            return
+        if t == "PARAM_VALUE":
             self.params[msg.param_id] = (msg.param_value, time.monotonic())
             self.param_values_seen += 1
-        elif t == "HEARTBEAT" and msg.get_srcSystem() != GCS_SYSID:
+        elif t == "HEARTBEAT" and src != GCS_SYSID:
             self.system_status = msg.system_status
 
-    def connect(self, timeout_s: float = DEFAULT_TIMEOUT_S) -> tuple[int, int]:
-        """Wait for the robot's HEARTBEAT; returns (sysid, compid)."""
-        deadline = time.monotonic() + timeout_s
+    def connect(self, timeout_s: float = DEFAULT_TIMEOUT_S,
+                on_wait: Callable[[str], None] | None = None) -> tuple[int, int]:
+        """Wait for the robot's HEARTBEAT (of `target_system` if given); returns
+        (sysid, compid). `on_wait(line)` is told what we wait for once the wait
+        has lasted WAIT_NOTICE_S."""
+        start = time.monotonic()
+        deadline = start + timeout_s
         next_poke = 0.0
+        told = on_wait is None
+        who = f"robot {self.want_sysid}" if self.want_sysid is not None else "a robot"
         while time.monotonic() < deadline:
+            if not told and time.monotonic() - start >= WAIT_NOTICE_S:
+                assert on_wait is not None
+                on_wait(f"waiting for a HEARTBEAT from {who} on {self.url} (up to {timeout_s:g} s) ...")
+                told = True
             if time.monotonic() >= next_poke:
                 # ask for a heartbeat now rather than waiting up to 1 s for the next one
                 # (over udpin this goes out once the robot's first frame taught us its address)
@@ -190,13 +282,33 @@ class Link:
                     next_poke = time.monotonic() + 0.2  # the robot is there: poke again soon
                 continue
             if msg.type != MAV_TYPE_GCS:
+                if self.want_sysid is not None and msg.get_srcSystem() != self.want_sysid:
+                    src = msg.get_srcSystem()
+                    self.foreign_frames[src] = self.foreign_frames.get(src, 0) + 1
+                    continue
                 self.target = (msg.get_srcSystem(), msg.get_srcComponent())
                 self.conn.target_system, self.conn.target_component = self.target
                 if self._heartbeat:
                     self._start_heartbeat()
                 return self.target
-        signed = " (signed; is it the robot's key?)" if self.key is not None else ""
-        raise LinkError(EXIT_TIMEOUT, f"no HEARTBEAT{signed} from a robot on {self.url} within {timeout_s:g} s")
+        raise LinkError(EXIT_TIMEOUT, f"no HEARTBEAT from {who} on {self.url} within {timeout_s:g} s"
+                                      f"{self._no_heartbeat_hint()}")
+
+    def _no_heartbeat_hint(self) -> str:
+        if self.bad_signatures:
+            return (f" ({self.bad_signatures} frames arrived whose signature does not verify with "
+                    f"--signing-key: is it the robot's key?)")
+        if self.foreign_frames:
+            seen = ", ".join(str(s) for s in sorted(self.foreign_frames))
+            return f" (heard only system(s) {seen}; check --target-system)"
+        if self.key is not None:
+            return " (signed; is it the robot's key?)"
+        return ""
+
+    def no_answer(self, what: str) -> LinkError:
+        """The timeout error of a request the robot left unanswered, with a hint
+        at signing when its heartbeats arrive but our requests are ignored."""
+        return LinkError(EXIT_TIMEOUT, f"{what}{self._signing_hint()}")
 
     def _start_heartbeat(self) -> None:
         def beat() -> None:
@@ -231,13 +343,25 @@ class Link:
             if msg is None:
                 return None
             if self.target is not None and msg.get_srcSystem() != self.target[0]:
-                continue
+                continue  # counted in foreign_frames by _collect
             if cond is None or cond(msg):
                 return msg
 
     def _reason(self, since: int, fallback: str) -> str:
-        new = [t for t in self.texts[since:] if t]
+        """The robot's whole texts since index `since` (and any still arriving), one line."""
+        new = [t for t in self.texts[since:] + self._assembler.pending() if t]
         return "; ".join(new) if new else fallback
+
+    def wait_text(self, since: int, pred: Callable[[str], bool], timeout_s: float) -> str | None:
+        """The first whole STATUSTEXT after index `since` passing `pred`, waiting up to `timeout_s`."""
+        end = time.monotonic() + timeout_s
+        while True:
+            for t in self.texts[since:]:
+                if pred(t):
+                    return t
+            if time.monotonic() >= end:
+                return None
+            self.conn.recv_match(blocking=True, timeout=min(0.05, max(0.0, end - time.monotonic())))
 
     # --- commands ----------------------------------------------------------------------
     def command(self, command: int, *params: float, timeout_s: float = 1.5, retries: int = 3,
@@ -257,13 +381,16 @@ class Link:
                 result = _enum_name(self.m, "MAV_RESULT", ack.result)
                 raise LinkError(EXIT_REFUSED, f"{name}: {result}: {self._reason(since, 'no reason given')}")
             return CommandResult(ack.result, texts)
-        raise LinkError(EXIT_TIMEOUT, f"{name}: no COMMAND_ACK after {retries + 1} tries{self._signing_hint()}")
+        raise self.no_answer(f"{name}: no COMMAND_ACK after {retries + 1} tries")
 
     def _signing_hint(self) -> str:
         hb = self.conn.messages.get("HEARTBEAT")
         buf = bytes(hb.get_msgbuf()) if hb is not None else b""
         if self.key is None and len(buf) > 2 and buf[0] == 0xFD and buf[2] & 0x01:
             return " (the robot signs its frames: it ignores unsigned commands; use --signing-key FILE)"
+        if self.key is not None and self.target is not None:
+            return (" (its heartbeats arrive but it answers nothing: does it use this --signing-key, "
+                    "or no signing at all?)")
         return ""
 
     # --- parameters ----------------------------------------------------------------------
@@ -282,7 +409,7 @@ class Link:
             count = pv.param_count
             values[pv.param_index] = (pv.param_id, pv.param_value)
         if count is None:
-            raise LinkError(EXIT_TIMEOUT, "no PARAM_VALUE answer to PARAM_REQUEST_LIST")
+            raise self.no_answer("no PARAM_VALUE answer to PARAM_REQUEST_LIST")
         for index in range(count):
             for _ in range(retries):
                 if index in values:
@@ -299,15 +426,20 @@ class Link:
         since = len(self.texts)
         for _ in range(retries):
             self.conn.mav.param_request_read_send(self.sysid, self.compid, name.encode(), -1)
-            pv = self.recv(["PARAM_VALUE", "STATUSTEXT"], timeout_s,
-                           cond=lambda p: p.get_type() == "STATUSTEXT" or p.param_id == name)
-            if pv is None:
-                continue
-            if pv.get_type() == "PARAM_VALUE":
-                return pv.param_value
-            if name in pv.text:  # "unknown parameter NAME"
-                raise LinkError(EXIT_REFUSED, pv.text)
-        raise LinkError(EXIT_TIMEOUT, self._reason(since, f"no PARAM_VALUE for {name}"))
+            end = time.monotonic() + timeout_s
+            while time.monotonic() < end:
+                pv = self.recv(["PARAM_VALUE", "STATUSTEXT"], end - time.monotonic(),
+                               cond=lambda p: p.get_type() == "STATUSTEXT" or p.param_id == name)
+                if pv is None:
+                    break
+                if pv.get_type() == "PARAM_VALUE":
+                    return pv.param_value
+                refusal = self.wait_text(since, lambda t: name in t, 0.0)  # "unknown parameter NAME"
+                if refusal is not None:
+                    raise LinkError(EXIT_REFUSED, refusal)
+        if self.texts[since:]:
+            raise LinkError(EXIT_TIMEOUT, self._reason(since, ""))
+        raise self.no_answer(f"no PARAM_VALUE for {name}")
 
     def param_set(self, name: str, value: float, timeout_s: float = 1.0, retries: int = 3) -> float:
         """Set and verify the echo; raises with the robot's reason if it kept another value."""
@@ -316,19 +448,19 @@ class Link:
         for _ in range(retries):
             self.conn.mav.param_set_send(self.sysid, self.compid, name.encode(), float(value),
                                          self.m.MAV_PARAM_TYPE_INT32)
-            pv = self.recv(["PARAM_VALUE", "STATUSTEXT"], timeout_s,
-                           cond=lambda p: (p.get_type() == "STATUSTEXT" and name in p.text)
-                           or (p.get_type() == "PARAM_VALUE" and p.param_id == name))
+            # a refusal comes as a (possibly chunked) STATUSTEXT naming the
+            # parameter, then the PARAM_VALUE with the kept value
+            pv = self.recv("PARAM_VALUE", timeout_s, cond=lambda p: p.param_id == name)
             if pv is None:
+                refusal = self.wait_text(since, lambda t: name in t, 0.0)
+                if refusal is not None:
+                    raise LinkError(EXIT_REFUSED, refusal)
                 continue
-            if pv.get_type() == "STATUSTEXT":
-                # a refusal comes as STATUSTEXT + PARAM_VALUE with the kept value
-                self.recv("PARAM_VALUE", timeout_s, cond=lambda p: p.param_id == name)
-                raise LinkError(EXIT_REFUSED, self._reason(since, pv.text))
             if pv.param_value != want:
-                raise LinkError(EXIT_REFUSED, self._reason(since, f"{name} stayed {pv.param_value:g}"))
+                refusal = self.wait_text(since, lambda t: name in t, 0.2)
+                raise LinkError(EXIT_REFUSED, refusal or self._reason(since, f"{name} stayed {pv.param_value:g}"))
             return pv.param_value
-        raise LinkError(EXIT_TIMEOUT, f"no PARAM_VALUE echo for {name}")
+        raise self.no_answer(f"no PARAM_VALUE echo for {name}")
 
     def read_params(self, names: Iterable[str], budget_s: float = 10.0,
                     want: dict[str, float] | None = None) -> dict[str, float | None]:
@@ -392,7 +524,7 @@ class Link:
                 frame, x, y = items[seq]
                 self.conn.mav.mission_item_int_send(self.sysid, self.compid, seq, frame, m.MAV_CMD_NAV_WAYPOINT,
                                                     0, 1, 0, 0, 0, 0, x, y, 0, m.MAV_MISSION_TYPE_MISSION)
-        raise LinkError(EXIT_TIMEOUT, f"mission upload: no MISSION_ACK after {sent_count} MISSION_COUNT")
+        raise self.no_answer(f"mission upload: no MISSION_ACK after {sent_count} MISSION_COUNT")
 
     def mission_download(self, timeout_s: float = 1.5, retries: int = 3) -> list:
         """All mission items (MISSION_ITEM_INT messages) in order."""
@@ -405,7 +537,7 @@ class Link:
                 count = msg.count
                 break
         if count is None:
-            raise LinkError(EXIT_TIMEOUT, "mission download: no MISSION_COUNT")
+            raise self.no_answer("mission download: no MISSION_COUNT")
         items = []
         for seq in range(count):
             for _ in range(retries + 1):
@@ -440,9 +572,18 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
               connect_timeout_s: float | None = None) -> Link:
     """Open and connect a `Link` from the common command-line options (the
     heartbeat wait is `--timeout` unless `connect_timeout_s` is given)."""
+    import sys
+
     tlog: str | Literal[False] | None = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
+    url = args.mavlink or DEFAULT_URL
+    problem = check_url(url)
+    if problem is not None:
+        from ground_station.errors import CliError
+
+        raise CliError(f"--mavlink {problem}")
     try:
-        link = Link(args.mavlink, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat)
+        link = Link(url, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat,
+                    target_system=getattr(args, "target_system", None))
     except ValueError as exc:  # bad key file
         from ground_station.errors import CliError
 
@@ -450,10 +591,11 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
     except OSError as exc:
         from ground_station.errors import CliError
 
-        raise CliError(f"cannot open {args.mavlink}: {exc}") from exc
+        raise CliError(f"cannot open {url}: {exc}") from exc
     try:
         link.connect(connect_timeout_s if connect_timeout_s is not None
-                     else getattr(args, "timeout", DEFAULT_TIMEOUT_S))
+                     else getattr(args, "timeout", DEFAULT_TIMEOUT_S),
+                     on_wait=lambda line: print(f"qnav {name}: {line}", file=sys.stderr, flush=True))
     except BaseException:
         link.close()
         raise
@@ -466,7 +608,19 @@ def run_on_link(args: argparse.Namespace, name: str, body: Callable[[Link], int]
 
     try:
         with open_link(args, name) as link:
-            return body(link)
+            code = body(link)
+            warn_foreign(link, name)
+            return code
     except LinkError as exc:
         print(f"qnav {name}: {exc}", file=sys.stderr)
         return exc.code
+
+
+def warn_foreign(link: Link, name: str) -> None:
+    """One stderr line when frames from systems other than our robot were ignored."""
+    import sys
+
+    if link.foreign_frames:
+        counts = ", ".join(f"system {s}: {n}" for s, n in sorted(link.foreign_frames.items()))
+        print(f"qnav {name}: warning: ignored frames from other systems ({counts}); "
+              f"talking to system {link.target[0] if link.target else '?'}", file=sys.stderr)

@@ -167,7 +167,7 @@ def render_mission(view: VehicleView, grid_map=None) -> Text:
     if m.total == 0 and m.current < 0:
         t.append("no mission")
     else:
-        t.append(f"item {m.current} of {m.total}  reached {len(m.reached)}"
+        t.append(f"item {view.mission_progress}  reached {view.mission_reached_count}"
                  + (f" ({', '.join(str(s) for s in m.reached)})" if m.reached else ""))
     d = view.distance_to_goal()
     goal = view.goal_estimate()
@@ -188,7 +188,9 @@ def render_log(view: VehicleView, lines: int = 8) -> Text:
     t0 = view.t0 or 0.0
     for entry in list(view.log)[-lines:]:
         style = "bold red" if entry.severity <= 3 else ("yellow" if entry.severity == 4 else "")
-        t.append(f"{entry.t - t0:7.1f}s {entry.severity_name:<6} {entry.text}\n", style=style)
+        # the robot's clock (sim time in HIL) when it has sent one, else receive time
+        when = entry.robot_t if entry.robot_t is not None else entry.t - t0
+        t.append(f"{when:7.1f}s {entry.severity_name:<6} {entry.text}\n", style=style)
     t.rstrip()
     return t
 

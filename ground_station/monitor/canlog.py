@@ -130,3 +130,27 @@ def text_summary(s: dict) -> list[str]:
         lines.append(f"  {name:<20} {n:>7}  {s['rate_hz'].get(name, 0):8.1f}/s  "
                      f"{s['per_sim_tick'].get(name, 0):6.3f}/tick")
     return lines
+
+
+def write_candump(src: str | Path, dst: str | Path, channel: str = "can0") -> int:
+    """Copy a python-can log (`.blf`, `.asc`, ...) to a `candump -L` file
+    (`(SECONDS) CHANNEL ID#HEXDATA`, what `cantools decode`, `canplayer` and
+    `qnav report` read), written to a temporary name and moved into place.
+    Returns the frame count."""
+    import os
+
+    import can
+
+    dst = Path(dst)
+    tmp = dst.with_name(f".{dst.name}.partial")
+    n = 0
+    with open(tmp, "w") as out:
+        for msg in can.LogReader(str(src)):
+            if msg.is_error_frame:
+                continue
+            ident = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
+            data = "R" if msg.is_remote_frame else bytes(msg.data).hex().upper()
+            out.write(f"({msg.timestamp:.6f}) {channel} {ident}#{data}\n")
+            n += 1
+    os.replace(tmp, dst)
+    return n

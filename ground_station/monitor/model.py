@@ -3,6 +3,19 @@
 `VehicleView` is a pure model: feed it every received message with
 `update(msg, t)` (a decoded pymavlink message and the receive time in
 seconds, wall clock live or the tlog stamp in a replay) and read its fields.
+
+Clocks: `t` is the receive time; the robot's own time base is
+`robot_s` (its `time_boot_ms`, from every message that carries one:
+LOCAL_POSITION_NED, ATTITUDE, NAMED_VALUE_INT, SYSTEM_TIME, ...). In HIL the
+robot runs on the sim's clock, so `robot_s` is sim time; the monitor's stamps
+and `qnav report` use it whenever the robot sends it.
+
+One vehicle: the view locks onto one system id (the first rover heard, or
+the one given) and counts frames from other systems in `foreign` without
+using them. A second process with the same system id shows as a time base
+going backwards: its timed frames are ignored and counted in
+`time_conflicts` (a reboot - the old time base silent and the new one
+steady for REBOOT_S - is accepted and continues the clock).
 No I/O, no threads, no terminal: the textual dashboard, the `--plain` status
 line and `qnav report` all read the same view, and tests drive it with
 pymavlink-encoded messages.
@@ -23,6 +36,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.vehicle import CtrlState, Mode
+from ground_station.mavlink.statustext import StatusTextAssembler
 
 # NAMED_VALUE_INT names the robot's telemetry uses (firmware_py/mavlink/telemetry.py):
 # the controller state (CtrlState), the encoder's state index, the chosen
@@ -46,6 +60,10 @@ _TRAIL_STEP_M = 0.02  # trail points closer than this add nothing visible
 _TRAIL_MAX = 20_000
 _LOG_MAX = 500
 _SEQ_GAP_RESET = 128  # a jump this large is a reboot/reconnect, not loss
+BACKWARDS_MS = 2000  # a time_boot_ms this far behind the newest is another time base
+FORWARDS_MS = 10_000  # ... or this far ahead (timed telemetry comes at >= 1 Hz of robot time)
+SEQ_WINDOW = 32  # with two time bases heard: an untimed frame is ours if its seq follows ours this closely
+REBOOT_S = 3.0  # only the other time base heard for this long (receive time): a reboot
 
 
 @dataclass
@@ -91,6 +109,7 @@ class LogLine:
     t: float
     severity: int
     text: str
+    robot_t: float | None = None  # VehicleView.robot_clock() when it arrived
 
     @property
     def severity_name(self) -> str:
@@ -144,7 +163,8 @@ class VehicleView:
         self.sensors_health = 0
         self.load_pct: float | None = None
         # pose (world frame: x east, y north, metres; heading CCW from east)
-        self.boot_ms: int | None = None
+        self.boot_ms: int | None = None  # time_boot_ms of the last LOCAL_POSITION_NED
+        self.boot_ms_last: int | None = None  # newest time_boot_ms of any message
         self.x: float | None = None
         self.y: float | None = None
         self.vx = 0.0  # world frame m/s
@@ -171,10 +191,19 @@ class VehicleView:
         self.mission = Mission()
         self.log: deque[LogLine] = deque(maxlen=_LOG_MAX)
         self.log_total = 0  # lines ever appended (the deque keeps the last _LOG_MAX)
-        self._text_chunks: dict[int, list[str]] = {}
+        self._texts = StatusTextAssembler()
         self.last_ack: tuple[int, int] | None = None  # (command, result)
         self.counts: dict[str, int] = {}
         self.version = 0  # bumped on every accepted message (redraw-if-changed)
+        # the robot's time base (see the module docstring)
+        self.robot_s: float | None = None  # robot clock, seconds (continues across a reboot)
+        self.robot_s0: float | None = None  # robot clock of the first timed message
+        self._boot_offset_s = 0.0
+        self._robot_rx_t = 0.0  # receive time of the newest timed message
+        self._conflict_since: float | None = None
+        self.time_conflicts = 0  # timed frames ignored: another process with our system id
+        self.reboots = 0
+        self.foreign: dict[int, int] = {}  # sysid -> frames ignored from other vehicles
 
     # --- derived -----------------------------------------------------------
     @property
@@ -247,6 +276,17 @@ class VehicleView:
                 return False
             self.sysid = src  # lock onto the first vehicle heartbeat, as mavutil does
         if src != self.sysid:
+            vehicle_hb = (mtype == "HEARTBEAT" and msg.type != mavlink.MAV_TYPE_GCS
+                          and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID)
+            if vehicle_hb or src in self.foreign:  # another vehicle (not the GCS or a radio)
+                self.foreign[src] = self.foreign.get(src, 0) + 1
+            return False
+        boot_ms = getattr(msg, "time_boot_ms", None)
+        if boot_ms is not None:
+            if not self._robot_clock(int(boot_ms), t):
+                return False
+        elif self.time_conflicts and not self._follows_own_seq(msg):
+            self.time_conflicts += 1  # two processes share our system id: keep to the one we follow
             return False
         self._link_stats(msg)
         self.t = t
@@ -258,6 +298,64 @@ class VehicleView:
             handler(msg, t)
         self.version += 1
         return True
+
+    def _robot_clock(self, boot_ms: int, t: float) -> bool:
+        """Advance the robot clock; False if this frame is from another time base."""
+        last = self.boot_ms_last
+        if last is not None and not last - BACKWARDS_MS <= boot_ms <= last + FORWARDS_MS:
+            if self._conflict_since is None:
+                self._conflict_since = t
+            if t - self._conflict_since < REBOOT_S:
+                self.time_conflicts += 1
+                return False
+            # only the new time base for REBOOT_S: the robot rebooted (or came back after an outage)
+            if boot_ms < last:
+                self.reboots += 1
+                self._boot_offset_s += last / 1000.0
+        self._conflict_since = None
+        self.boot_ms_last = boot_ms
+        self.robot_s = self._boot_offset_s + boot_ms / 1000.0
+        self._robot_rx_t = t
+        if self.robot_s0 is None:
+            self.robot_s0 = self.robot_s
+        return True
+
+    def _follows_own_seq(self, msg) -> bool:
+        last = self._last_seq.get(msg.get_srcComponent())
+        return last is None or 0 < (msg.get_seq() - last) % 256 <= SEQ_WINDOW
+
+    def robot_clock(self, t: float | None = None) -> float | None:
+        """Seconds of robot time since the first timed message (sim time in HIL).
+        With a receive time `t`: the newest robot time plus the receive time
+        since it arrived (for messages that carry no time of their own)."""
+        if self.robot_s is None or self.robot_s0 is None:
+            return None
+        ahead = 0.0 if t is None else max(0.0, t - self._robot_rx_t)
+        return self.robot_s - self.robot_s0 + ahead
+
+    @property
+    def mission_reached_count(self) -> int:
+        """Items reached: those we saw reported, or what the robot's reports
+        imply for a monitor attached mid-mission (items are driven in order:
+        reaching item k means 0..k are done; MISSION_CURRENT: every item before
+        the current one, all of them once complete)."""
+        implied = max(self.mission.reached) + 1 if self.mission.reached else 0
+        if self.mission.state == mavlink.MISSION_STATE_COMPLETE:
+            implied = self.mission.total
+        elif self.mission.state in (mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED):
+            implied = max(implied, self.mission.current)
+        return max(len(set(self.mission.reached)), implied)
+
+    @property
+    def mission_progress(self) -> str:
+        """"N/T": item N (1-based) of T in progress, T/T when complete, -/T with no item."""
+        if self.mission.total <= 0:
+            return "-/0"
+        if self.mission.state == mavlink.MISSION_STATE_COMPLETE:
+            return f"{self.mission.total}/{self.mission.total}"
+        if self.mission.current < 0:
+            return f"-/{self.mission.total}"
+        return f"{min(self.mission.current + 1, self.mission.total)}/{self.mission.total}"
 
     def _link_stats(self, msg) -> None:
         comp = msg.get_srcComponent()
@@ -382,14 +480,9 @@ class VehicleView:
             self.policy_id = int(round(msg.param_value))
 
     def _on_statustext(self, msg, t: float) -> None:
-        text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text
-        if msg.id:  # chunked: collect until a short chunk ends it
-            parts = self._text_chunks.setdefault(msg.id, [])
-            parts.append(text)
-            if len(text) == 50:
-                return
-            text = "".join(self._text_chunks.pop(msg.id))
-        self._append_log(LogLine(t, msg.severity, text))
+        # chunked texts are reassembled by id/chunk_seq (the link's assembler)
+        for st in self._texts.add(msg, t):
+            self._append_log(LogLine(st.t, st.severity, st.text, self.robot_clock()))
 
     def _append_log(self, line: LogLine) -> None:
         self.log.append(line)
@@ -403,7 +496,7 @@ class VehicleView:
         except KeyError:
             cmd, res = str(msg.command), str(msg.result)
         self._append_log(LogLine(t, mavlink.MAV_SEVERITY_INFO if msg.result == 0 else mavlink.MAV_SEVERITY_WARNING,
-                                 f"ACK {cmd}: {res}"))
+                                 f"ACK {cmd}: {res}", self.robot_clock()))
 
     # --- presentation helpers ---------------------------------------------
     def status_line(self, now: float) -> str:
@@ -427,6 +520,6 @@ class VehicleView:
             f"state={self.state_index if self.state_index is not None and self.state_index >= 0 else '-'}",
             f"action={self.action if self.action is not None and self.action >= 0 else '-'}",
             f"q=[{q}]",
-            f"mission={self.mission.current}/{self.mission.total} reached={len(self.mission.reached)}",
+            f"mission={self.mission_progress} reached={self.mission_reached_count}",
         ]
         return " ".join(parts)

@@ -14,6 +14,13 @@ grid_map)` writes `summary.json` and the plots:
 A plot whose data the recording does not hold is not drawn; the JSON says
 which and why under `plots_skipped` (nothing is faked).
 
+Clock: the robot's own time base (`time_boot_ms`, sim time in HIL) when the
+recording has it from the vehicle, else the tlog's receive stamps (wall
+clock); `summary.json` names the one used under `clock`. One vehicle: the
+first robot heard (or `sysid`); frames from other systems and from a second
+process with the same id (its clock behind) are ignored and counted under
+`ignored`.
+
 Definitions (also in docs/monitor.md):
 * goals reached: MISSION_ITEM_REACHED messages, plus entries into the
   controller's GOAL_REACHED state more than 1 s from any of them (Guided goals);
@@ -49,6 +56,8 @@ class RunRecord:
     """Samples and events of one recording (times in seconds from its start)."""
 
     path: str
+    clock: str = "robot"  # "robot": time_boot_ms (sim time in HIL); "wall": tlog receive stamps
+    wall_s: float = 0.0  # the recording's span in receive (wall) time
     messages: int = 0
     t0: float | None = None
     t_end: float = 0.0
@@ -65,14 +74,29 @@ class RunRecord:
     view: VehicleView = field(default_factory=VehicleView)
 
 
-def analyse(path: str | os.PathLike[str], progress: bool = False) -> RunRecord:
-    """Replay a .tlog through a VehicleView and collect what the report needs."""
+CLOCK_NAMES = {"robot": "robot time_boot_ms (sim time in HIL)", "wall": "tlog receive time (wall clock)"}
+
+
+def analyse(path: str | os.PathLike[str], progress: bool = False, sysid: int | None = None,
+            clock: str = "auto") -> RunRecord:
+    """Replay a .tlog through a VehicleView and collect what the report needs.
+
+    `clock`: "robot" (the vehicle's time_boot_ms), "wall" (tlog stamps) or
+    "auto" (robot when the recording carries it, else wall)."""
+    if clock == "auto":
+        rec = _analyse(str(path), progress, sysid, "robot")
+        if rec.view.robot_s is not None:
+            return rec
+        clock = "wall"
+    return _analyse(str(path), progress, sysid, clock)
+
+
+def _analyse(path: str, progress: bool, sysid: int | None, clock: str) -> RunRecord:
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink import mavutil
     from tqdm import tqdm
 
-    path = str(path)
-    rec = RunRecord(path=path)
+    rec = RunRecord(path=path, clock=clock, view=VehicleView(sysid=sysid))
     view = rec.view
     log = mavutil.mavlogfile(path, robust_parsing=True)
     size = os.path.getsize(path)
@@ -93,8 +117,12 @@ def analyse(path: str | os.PathLike[str], progress: bool = False) -> RunRecord:
             rec.messages += 1
             if rec.t0 is None:
                 rec.t0 = t_abs
-            t = t_abs - rec.t0
-            rec.t_end = t
+            if clock == "robot":
+                t = view.robot_clock(t_abs) or 0.0  # messages before the first timed one: its start
+            else:
+                t = t_abs - rec.t0
+            rec.t_end = max(rec.t_end, t)
+            rec.wall_s = t_abs - rec.t0
             mtype = msg.get_type()
             if view.armed and rec.first_armed is None:
                 rec.first_armed = t
@@ -191,12 +219,18 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
         "messages": rec.messages,
         "vehicle_sysid": view.sysid,
         "policy_id": view.policy_id,
+        "clock": CLOCK_NAMES[rec.clock],
         "duration_s": round(rec.t_end, 3),
+        "wall_duration_s": round(rec.wall_s, 3),
+        "ignored": {"other_systems": {str(k): v for k, v in sorted(view.foreign.items())},
+                    "clock_behind_frames": view.time_conflicts, "reboots": view.reboots},
         "time_to_last_goal_s": (round(goal_times[-1] - (rec.first_armed or 0.0), 3) if goal_times else None),
         "goals_reached": len(goal_times),
         "mission_items_reached": reached_items,
         "guided_goals_reached_s": [round(t, 3) for t in guided],
         "mission_total": view.mission.total,
+        # reached items including those before the recording began (implied by the robot's reports)
+        "mission_items_done": view.mission_reached_count,
         "path_length_m": round(path_len, 3),
         "stops": len(_stops(rec)),
         "stop_list": _stops(rec),

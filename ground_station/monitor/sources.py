@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from typing import IO, Protocol
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: MAVLink 2 from the start
@@ -99,12 +100,12 @@ class LiveSource:
         self.link.close()
 
 
-def open_live(url: str, tlog=None, signing_key: str | None = None) -> LiveSource:
+def open_live(url: str, tlog=None, signing_key: str | None = None, target_system: int | None = None) -> LiveSource:
     """Open the link to the robot on `url` (a pymavlink connection string).
     `tlog`: a path, None for a new session log under runs/tlogs/, False for none."""
     from ground_station.mavlink.link import Link
 
-    return LiveSource(Link(url, signing_key=signing_key, tlog=tlog, name="monitor"))
+    return LiveSource(Link(url, signing_key=signing_key, tlog=tlog, name="monitor", target_system=target_system))
 
 
 class ReplaySource:
@@ -172,13 +173,18 @@ class ReplaySource:
 
 
 def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: float | None = None,
-              period_s: float = 1.0, wall=time.monotonic) -> int:
+              period_s: float = 1.0, wall=time.monotonic, no_robot_s: float | None = None,
+              on_wait: Callable[[str], None] | None = None) -> int:
     """Feed `view` from `source`, printing a status line every `period_s` of
-    source time and a last one at the end. Ends at the end of a replay or
-    after `duration` wall seconds. Returns the number of lines printed."""
+    source time and a last one at the end. Ends at the end of a replay, after
+    `duration` wall seconds, or when no vehicle was heard within `no_robot_s`
+    wall seconds (then without a status line; the caller sees `view.sysid is
+    None`). `on_wait(line)` is told once what we wait for after 1 s without a
+    vehicle. Returns the number of lines printed."""
     start = wall()
     next_line: float | None = None
     lines = 0
+    told = on_wait is None
 
     def tick(now: float) -> None:
         nonlocal next_line, lines
@@ -199,6 +205,15 @@ def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: 
         tick(source.now())
         if source.finished or (duration is not None and wall() - start >= duration):
             break
+        if view.sysid is None:
+            waited = wall() - start
+            if not told and waited >= 1.0:
+                assert on_wait is not None
+                on_wait("waiting for a HEARTBEAT from a robot"
+                        + (f" (up to {no_robot_s:g} s)" if no_robot_s is not None else "") + " ...")
+                told = True
+            if no_robot_s is not None and waited >= no_robot_s:
+                return lines
         if not batch:
             time.sleep(0.02)
     now = source.now()
@@ -207,5 +222,9 @@ def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: 
 
 
 def _stamp(view: VehicleView, now: float) -> str:
+    """The robot's clock (sim time in HIL) when it sends one, else receive time since the first message."""
+    robot = view.robot_clock(now)
+    if robot is not None:
+        return f"[{robot:8.1f}s] "
     rel = now - view.t0 if view.t0 is not None else 0.0
     return f"[{rel:8.1f}s] "

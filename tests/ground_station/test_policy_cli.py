@@ -11,6 +11,7 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import HEADER, HEADER_V1, MapGeometry, load_policy
+from firmware_py.storage import ftp_crc32
 from ground_station.cli import main
 from ground_station.learn.export import policy_bytes, quantise
 
@@ -40,7 +41,8 @@ def test_inspect_prints_one_header_line_per_file_and_exit_0(files, capsys):
     pol = load_policy(good)
     assert lines[0].startswith(f"{good}: valid v2.0 cell 10x10")
     assert "period_us=50000 map=10x10x500mm" in lines[0] and "period_us=40000 map=12x8x500mm" in lines[1]
-    assert f"id=0x{pol.policy_id:08x}" in lines[0] and f"crc=0x{pol.crc:08x}" in lines[0]
+    assert f"id=0x{pol.policy_id:08x}" in lines[0] and f"policy CRC 0x{pol.crc:08x}" in lines[0]
+    assert f"file CRC32 0x{ftp_crc32(good.read_bytes()):08x}" in lines[0]
     assert 'targets=["A", "B"]' in lines[0] and "int8 200x4" in lines[0]
     assert "sector bearing_sectors=8" in lines[1] and "int16 1944x4" in lines[1]
 

@@ -85,6 +85,34 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
         png = Path(report["plots"][name])
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
     assert json.loads(Path(report["summary_json"]).read_text())["goals_reached"] == 4
+    # issue 15 item 3: the report runs on the robot's (sim) clock, as the demo's own figure
+    assert report["clock"].startswith("robot time_boot_ms"), report["clock"]
+    assert report["time_to_last_goal_s"] == pytest.approx(summary["sim_seconds"], abs=1.0)
+    assert report["wall_duration_s"] < report["duration_s"]  # lockstep runs faster than real time
+    assert (out / "can.log").read_text().startswith("(") and summary["can_log_candump"] == str(out / "can.log")
+    # a monitor attached mid-mission (the second half of the recording) ends with the whole mission
+    half = tmp_path / "half.tlog"
+    half.write_bytes(_second_half(Path(summary["tlog"])))
+    mon = subprocess.run([*QNAV, "monitor", "--replay", str(half), "--plain", "--speed", "0"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=110)
+    assert mon.returncode == 0, mon.stderr[-2000:]
+    assert "mission=4/4 reached=4" in mon.stdout.splitlines()[-1], mon.stdout[-500:]
+
+
+def _second_half(tlog: Path) -> bytes:
+    """The records of a .tlog from its middle on, cut at a record boundary."""
+    import struct
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    log = mavutil.mavlogfile(str(tlog), robust_parsing=True)
+    recs = []
+    while (msg := log.recv_msg()) is not None:
+        if msg.get_type() != "BAD_DATA":
+            recs.append(struct.pack(">Q", int(msg._timestamp * 1e6) & ~3) + bytes(msg.get_msgbuf()))
+    log.close()
+    return b"".join(recs[len(recs) // 2:])
 
 
 def test_demo_refused_policy_fails_with_the_robots_reason_and_cleans_up(tmp_path):

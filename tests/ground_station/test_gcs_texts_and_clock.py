@@ -1,0 +1,142 @@
+"""Issue 15 items 1, 3 and 7 on the ground station's pure parts, with real
+pymavlink frames: STATUSTEXT reassembly (the robot's own chunker), the robot
+clock in the view and the report, a monitor attached mid-mission, and one
+vehicle per view/report (other systems, a second process with the same id)."""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from firmware_py.mavlink.telemetry import Telemetry
+from ground_station.mavlink.statustext import MISSING, StatusTextAssembler
+from ground_station.monitor.model import VehicleView
+from ground_station.monitor.report import analyse, summarise
+from tests.support.rover_script import RoverScript, encoder, frame, write_tlog
+
+
+def decode(buf: bytes) -> list:
+    rx = mavlink.MAVLink(None)
+    rx.robust_parsing = True
+    return [m for m in rx.parse_buffer(buf) or [] if m.get_type() != "BAD_DATA"]
+
+
+def robot_texts(text: str, sysid: int = 1) -> list:
+    """`text` chunked by the robot's telemetry engine, encoded and decoded."""
+    mav = encoder(sysid, 1)
+    tel = Telemetry(mav, None)  # type: ignore[arg-type]  # statustext() needs no parameters
+    return decode(b"".join(frame(mav, m) for m in tel.statustext(text, mavlink.MAV_SEVERITY_WARNING)))
+
+
+@pytest.mark.parametrize("length", [10, 50, 51, 100, 149, 150, 200])
+def test_robot_texts_of_any_length_come_back_whole(length):
+    text = "".join(chr(ord("a") + i % 26) for i in range(length))
+    msgs = robot_texts(text)
+    asm = StatusTextAssembler()
+    got = [st.text for m in msgs for st in asm.add(m, 0.0)]
+    assert got == [text]
+    assert asm.pending() == []
+
+
+def test_interleaved_senders_and_a_lost_terminator():
+    a = robot_texts("A" * 60 + " from one", sysid=1)
+    b = robot_texts("B" * 70 + " from two", sysid=2)
+    asm = StatusTextAssembler(stale_s=0.5)
+    got = []
+    for m1, m2 in zip(a, b, strict=True):
+        got += [st.text for st in asm.add(m1, 0.0)] + [st.text for st in asm.add(m2, 0.0)]
+    assert got == ["A" * 60 + " from one", "B" * 70 + " from two"]
+    # a 100-character text whose empty terminator was lost: complete after stale_s, nothing else lost
+    chunks = robot_texts("C" * 100)[:-1]
+    assert [st.text for m in chunks for st in asm.add(m, 1.0)] == []
+    assert asm.pending() == ["C" * 100]
+    assert [st.text for st in asm.flush(1.6)] == ["C" * 100]
+    # a lost middle chunk is marked, not glued
+    first, _, last = robot_texts("D" * 50 + "E" * 50 + "F")
+    texts = [st.text for m in (first, last) for st in asm.add(m, 2.0)]
+    assert texts == ["D" * 50 + MISSING + "F"]
+
+
+def test_view_log_holds_whole_texts():
+    view = VehicleView()
+    mav = encoder(1, 1)
+    hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, 3, 3)
+    for m in decode(frame(mav, hb)):
+        view.update(m, 0.0)
+    reason = "arm refused: sensor data stale: ranges0,ranges1,encoders,bumper"
+    for m in robot_texts(reason):
+        view.update(m, 0.1)
+    assert [line.text for line in view.log] == [reason]
+
+
+def _mission_current(seq: int, total: int, state: int):
+    return mavlink.MAVLink_mission_current_message(seq, total, state, 0)
+
+
+def test_monitor_attached_mid_mission_ends_with_the_right_counts():
+    """The view hears the mission from item 2 on (items 0 and 1 were reached
+    before it attached); the robot's MISSION_CURRENT says the rest."""
+    view = VehicleView()
+    mav = encoder(1, 1)
+    hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, 3, 3)
+    stream = [hb, _mission_current(2, 4, mavlink.MISSION_STATE_ACTIVE),
+              mavlink.MAVLink_mission_item_reached_message(2), _mission_current(3, 4, mavlink.MISSION_STATE_ACTIVE)]
+    for m in decode(b"".join(frame(mav, x) for x in stream)):
+        view.update(m, 0.0)
+    assert "mission=4/4 reached=3" in view.status_line(0.0)
+    for m in decode(frame(mav, mavlink.MAVLink_mission_item_reached_message(3))
+                    + frame(mav, _mission_current(3, 4, mavlink.MISSION_STATE_COMPLETE))):
+        view.update(m, 1.0)
+    assert "mission=4/4 reached=4" in view.status_line(1.0)
+
+
+def _write(path, streams: list[tuple[float, float, object]]) -> None:
+    """(wall t, robot time offset s, (mav, msg)) sorted by wall time -> a tlog."""
+    with open(path, "wb") as f:
+        for t, mav, msg in streams:
+            f.write(struct.pack(">Q", int((1_700_000_000.0 + t) * 1e6) & ~3) + frame(mav, msg))
+
+
+def _timed(script: RoverScript, wall_scale: float, boot_offset_ms: int, sysid: int = 1):
+    """The scripted run with its wall stamps scaled (lockstep runs faster than
+    real time) and its time_boot_ms shifted (another process booted earlier)."""
+    mav = encoder(sysid, 1)
+    for t, m in script.stream():
+        if hasattr(m, "time_boot_ms"):
+            m.time_boot_ms += boot_offset_ms
+        yield t * wall_scale, mav, m
+
+
+def test_report_uses_the_robot_clock_and_names_it(tmp_path):
+    script = RoverScript()
+    path = tmp_path / "fast.tlog"
+    _write(path, list(_timed(script, 0.1, 0)))  # 10x faster than real time, as in lockstep
+    robot = summarise(analyse(path))
+    assert robot["clock"].startswith("robot time_boot_ms")
+    assert robot["duration_s"] == pytest.approx(script.t_end, abs=0.11)
+    assert robot["wall_duration_s"] == pytest.approx(script.t_end * 0.1, abs=0.02)
+    wall = summarise(analyse(path, clock="wall"))
+    assert wall["clock"].startswith("tlog receive time")
+    assert wall["duration_s"] == pytest.approx(script.t_end * 0.1, abs=0.02)
+
+
+def test_report_ignores_a_second_process_with_the_same_sysid_and_other_systems(tmp_path):
+    script = RoverScript()
+    one = tmp_path / "one.tlog"
+    write_tlog(one, script, with_gcs_items=False)
+    alone = summarise(analyse(one))
+    # the same run three times at once: the process we follow (booted 1000 s
+    # ago), a second process with the same sysid booted later, and sysid 2
+    first = list(_timed(script, 1.0, 1_000_000, sysid=1))
+    later = list(_timed(script, 1.0, 0, sysid=1))
+    other = list(_timed(script, 1.0, 5_000, sysid=2))
+    mixed = tmp_path / "mixed.tlog"
+    _write(mixed, sorted(first + later + other, key=lambda x: x[0]))
+    s = summarise(analyse(mixed))
+    assert s["vehicle_sysid"] == 1
+    assert s["path_length_m"] == pytest.approx(alone["path_length_m"], abs=0.01)
+    assert s["ignored"]["clock_behind_frames"] > 100
+    assert s["ignored"]["other_systems"]["2"] > 0
+    assert s["goals_reached"] == alone["goals_reached"]

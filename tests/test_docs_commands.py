@@ -1,0 +1,185 @@
+"""Every command line in README.md and docs/*.md, checked against the programs
+as built (issue 15: "every command in README and docs run by a test").
+
+Each documented line of `qnav`, `qnav-sim` or `qnav-robot` (fenced code
+blocks and inline code) is parsed by the program's own argument parser, so
+a flag that was renamed or removed, or a value the program refuses, fails
+here. Synopsis lines (placeholders such as FILE, DIR, `A|B`) are checked
+after dropping their placeholder parts where that leaves a real command.
+The lines that can run on this machine within a test's time are then run
+verbatim in a scratch folder (`RUN`); every other line is listed in
+`NOT_RUN` with the reason, and a documented line in neither list fails the
+test, so new docs get a decision.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+PROGRAMS = ("qnav", "qnav-sim", "qnav-robot")
+PLACEHOLDER = re.compile(r"^(?:FILE|DIR|URL|S|X|Y|N|NAME|PATH|SPEC|VALUE|SYSID|M|HZ|DEG|MS|COL|ROW|H|SEED|US|"
+                         r"KEY|DEV|DEVICE|CH|CHANNEL|PORT|OLD|NEW|MAP|VERB|COMMAND|ACTION|HEADING|LAT|LON)"
+                         r"(?:[.|,][A-Za-z0-9_|,.]*)?$|\.\.\.|\\\|")
+
+# documented lines run verbatim here, in this order, in one scratch folder
+RUN = [
+    "qnav train --map paper10 --encoding cell --targets A,B,C,D --out out/demo",
+    "qnav eval out/demo [--json] [--plot out/demo/policy.png]",
+    "qnav sweep --map paper10 --encoding cell --lrs 0.1:0.9:0.1 --seeds 5 --steps 10000 --out out/sweep",
+]
+
+_HIL = "a hub + qnav-sim + qnav-robot bring-up on fixed ports; the same commands run on free ports in " \
+       "tests/hil/test_mav_hil.py and tests/hil/test_gcs_link_robot.py"
+_VCAN = "needs kernel CAN (vcan0/can0); none on this host (tests/hil/test_hil_transports.py runs it in user-mode Linux)"
+_ROBOT = "a real robot on a radio or CAN bus"
+# documented lines (or their prefix) not run here, and why; they are still parsed
+NOT_RUN = {
+    "make demo": "installs into the shared venv; `qnav demo` runs in tests/hil/test_demo.py",
+    "make test": "the test suite itself",
+    "qnav bench train": "a benchmark (about a minute); tests check a benchmark's code, never a time",
+    "qnav-sim --map paper10 --can remote:": _HIL,
+    "qnav-robot --can remote:": _HIL,
+    "qnav param set FS_GCS_ENABLE 0": _HIL,
+    "qnav upload policies/paper10_cell.qtab --activate --mavlink udpin:": _HIL,
+    "qnav mission upload --targets A,B,C,D": _HIL,
+    "qnav arm": _HIL,
+    "qnav mode auto": _HIL,
+    "qnav monitor": "a live dashboard or link; tests/ground_station/test_monitor_*.py drive it",
+    "qnav-sim   --map paper10 --can socketcan:vcan0": _VCAN,
+    "qnav-sim --map paper10 --can socketcan:vcan0": _VCAN,
+    "qnav-robot --can socketcan:vcan0": _VCAN,
+    "qnav report run/bus.log": _VCAN + " (the log comes from candump on vcan0)",
+    "qnav-robot --can socketcan:can0": _ROBOT,
+    "qnav upload policies/paper10_cell.qtab --activate --mavlink /dev/ttyUSB0": _ROBOT,
+    "qnav demo": "tests/hil/test_demo.py runs it",
+    "qnav ": "an inline example in prose (parsed above)",
+    "qnav-sim ": "an inline example in prose (parsed above)",
+    "qnav-robot ": "an inline example in prose (parsed above)",
+}
+
+
+def _documented() -> list[tuple[str, str, bool]]:
+    """(where, line, is_command) of every documented command line: shell
+    blocks hold command lines; other blocks (synopses) and inline code in
+    prose (`qnav upload --activate`) name commands and flags."""
+    out = []
+    for doc in DOCS:
+        text = doc.read_text()
+        rel = doc.relative_to(ROOT)
+        for block in re.finditer(r"```([^\n]*)\n(.*?)```", text, re.S):
+            shell = block.group(1).strip() in ("sh", "bash", "shell", "console")
+            body = re.sub(r"\\\n\s*", " ", block.group(2))
+            for line in body.splitlines():
+                line = re.sub(r"\s+#\s.*$", "", line.strip()).strip()
+                if re.match(r"(qnav(-sim|-robot)?|make) ", line + " ") and "  qnav-robot (robot)" not in line:
+                    out.append((f"{rel}", line, shell))
+        prose = re.sub(r"```.*?```", "", text, flags=re.S)
+        for span in re.finditer(r"`((?:qnav|qnav-sim|qnav-robot) [^`]+)`", prose):
+            out.append((f"{rel}", span.group(1).strip(), False))
+    return out
+
+
+def _concrete(line: str) -> list[str] | None:
+    """argv of a documented line with optional [...] parts kept unless they
+    hold placeholders; None when placeholders remain (a synopsis)."""
+    def keep(m: re.Match) -> str:
+        inner = m.group(1)
+        return "" if any(PLACEHOLDER.search(t) for t in inner.replace("|", " | ").split()) or "|" in inner \
+            else inner
+    text = re.sub(r"\[([^\[\]]*)\]", keep, line)
+    try:
+        argv = shlex.split(text.replace("\\|", "|"))
+    except ValueError:
+        return None
+    if any(PLACEHOLDER.search(t) for t in argv) or any("|" in t and not t.startswith(("udp", "tcp")) for t in argv):
+        return None
+    return argv
+
+
+def _parser(program: str):
+    if program == "qnav":
+        from ground_station.cli import build_parser
+    elif program == "qnav-sim":
+        from sim_bridge.cli import build_parser
+    else:
+        from firmware_py.cli import build_parser
+    return build_parser()
+
+
+DOCUMENTED = _documented()
+
+
+def test_the_docs_hold_commands():
+    assert len(DOCUMENTED) > 30
+    assert any(line.startswith("qnav-robot") for _, line, _ in DOCUMENTED)
+
+
+@pytest.mark.parametrize("where, line, fenced", DOCUMENTED, ids=[f"{w}:{ln[:60]}" for w, ln, _ in DOCUMENTED])
+def test_documented_command_parses(where, line, fenced):
+    argv = _concrete(line)
+    if not fenced or argv is None or argv[0] == "make":
+        return  # a synopsis or prose naming a command: its flags are checked below
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            _parser(argv[0]).parse_args(argv[1:])
+        except SystemExit as exc:
+            pytest.fail(f"{where}: `{line}` is refused by {argv[0]} (exit {exc.code}): {err.getvalue().strip()}")
+
+
+@pytest.mark.parametrize("where, line, fenced", DOCUMENTED, ids=[f"{w}:{ln[:60]}" for w, ln, _ in DOCUMENTED])
+def test_every_documented_flag_exists(where, line, fenced):
+    """Synopsis lines too: each --flag they name exists on that command."""
+    words = line.replace("[", " ").replace("]", " ").replace("\\|", " ").replace("|", " ").split()
+    if not words or words[0] not in PROGRAMS:
+        return
+    parser = _parser(words[0])
+    flags = set()
+    for a in parser._actions:
+        flags.update(a.option_strings)
+    sub = [a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction"]
+    node, i = parser, 1
+    while sub and i < len(words) and words[i] in sub[0].choices:
+        node = sub[0].choices[words[i]]
+        for a in node._actions:
+            flags.update(a.option_strings)
+        sub = [a for a in node._actions if a.__class__.__name__ == "_SubParsersAction"]
+        i += 1
+    for w in words[i:]:
+        flag = w.split("=", 1)[0]
+        if flag.startswith("--") and re.fullmatch(r"--[a-z][a-z0-9-]*", flag) and flag != "--flag":
+            assert flag in flags, f"{where}: `{line}` names {flag}, which `{' '.join(words[:i])}` does not have"
+
+
+def test_every_fenced_line_is_run_or_says_why_not():
+    for where, line, fenced in DOCUMENTED:
+        if not fenced or line in RUN:
+            continue
+        assert any(line.startswith(prefix) for prefix in NOT_RUN), \
+            f"{where}: `{line}` is neither run by this test (RUN) nor listed in NOT_RUN with a reason"
+
+
+@pytest.mark.slow
+def test_runnable_documented_commands_run(tmp_path):
+    documented = {line for _, line, _ in DOCUMENTED}
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    for line in RUN:
+        assert line in documented, f"RUN names `{line}`, which no doc shows any more"
+        argv = _concrete(line)
+        assert argv is not None
+        exe = [sys.executable, "-m", "ground_station.cli"] if argv[0] == "qnav" else [str(Path(sys.executable).parent / argv[0])]
+        proc = subprocess.run(exe + argv[1:], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, f"`{line}` exit {proc.returncode}: {proc.stderr[-2000:]}"
+    assert (tmp_path / "out" / "demo" / "policy.png").is_file()
+    assert (tmp_path / "out" / "sweep" / "sweep.json").is_file()
