@@ -78,6 +78,8 @@ def _documented() -> list[tuple[str, str, bool]]:
         text = doc.read_text()
         rel = doc.relative_to(ROOT)
         for block in re.finditer(r"```([^\n]*)\n(.*?)```", text, re.S):
+            if block.group(1).strip() == "text":
+                continue  # a program's output shown in the docs, not a command line
             shell = block.group(1).strip() in ("sh", "bash", "shell", "console")
             body = re.sub(r"\\\n\s*", " ", block.group(2))
             for line in body.splitlines():
