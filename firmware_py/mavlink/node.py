@@ -8,24 +8,34 @@ happens; time is the robot clock's.
 
 `MavShell` is the I/O around it on any pymavlink connection string
 (`udpout:127.0.0.1:14550` by default, `udpin:`, `tcp:`, `tcpin:`, a serial
-device). `poll(now_us)` is non-blocking and meant to be called from the
-control loop once per tick (so timeouts resolve within one control period
-and the vehicle is only touched from one thread); `serve(stop)` runs it in
-its own loop for a standalone node.
+device). `poll(now_us, budget_s)` is non-blocking: it handles what has
+arrived until the time budget is spent, then runs `tick`. In `qnav-robot`
+it runs in the link thread (firmware_py.mavlink.link_thread), never in the
+control loop; `serve(stop)` runs it in a loop for a standalone node. No
+frame can raise out of the shell: an exception in a handler is caught per
+message, counted per kind (`handler_errors`) and logged once per kind, and
+the poll goes on.
 
 GCS failsafe (as ArduPilot Rover): armed only after a GCS heartbeat
 (HEARTBEAT with type MAV_TYPE_GCS) has been seen; no GCS heartbeat for
 FS_GCS_TOUT_MS -> `vehicle.set_failsafe(True)` (the vehicle applies
 FS_GCS_ACTION) + STATUSTEXT "GCS failsafe"; the next GCS heartbeat clears it.
+The check is `check_failsafe(now_us)`: `tick` runs it, unless
+`failsafe_on_control` is set, when the control loop calls it after every
+tick (the link thread then only records heartbeat times; its texts are
+queued for the link thread to send), so a stalled or flooded link cannot
+delay it.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Protocol
 
@@ -40,6 +50,7 @@ from firmware_py.mavlink.signing import Signing
 from firmware_py.mavlink.telemetry import NodeStats, Telemetry
 from firmware_py.vehicle import VehicleControl
 
+log = logging.getLogger("qnav.mavlink")
 M = mavlink2
 DEFAULT_URL = "udpout:127.0.0.1:14550"
 MISSION_MSGS = frozenset({
@@ -88,6 +99,8 @@ class MavNode:
         self.gcs_last_heartbeat_us: int | None = None
         self.failsafe = False
         self.failsafe_since_us: int | None = None  # robot time the failsafe last tripped
+        self.failsafe_on_control = False  # True: the control loop calls check_failsafe (module doc)
+        self._control_texts: deque[tuple[str, int]] = deque(maxlen=64)  # control thread -> link thread
         self.reboots = 0
         self._pending: list[mavlink2.MAVLink_message] = []
         self._now_us = 0
@@ -258,7 +271,11 @@ class MavNode:
         """Failsafe check, vehicle events, mission timeouts, due telemetry."""
         self._now_us = now_us
         out, self._pending = self._pending, []
-        out += self._check_failsafe(now_us)
+        if not self.failsafe_on_control:
+            self.check_failsafe(now_us)
+        while self._control_texts:
+            text, severity = self._control_texts.popleft()
+            out += self.telemetry.statustext(text, severity)
         for ev in self.vehicle.drain_events():
             out += self.telemetry.event(ev)
         out += self.mission.tick(now_us)
@@ -270,23 +287,33 @@ class MavNode:
         out += self.telemetry.due(now_us, self.vehicle.status(), self.stats)
         return out
 
-    def _check_failsafe(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+    def check_failsafe(self, now_us: int) -> None:
+        """Trip the GCS failsafe when the last GCS heartbeat is older than
+        FS_GCS_TOUT_MS; reads only ints and params, so the control loop can
+        call it every tick. Its STATUSTEXTs go out with the next `tick`."""
         enabled = bool(self.params.get("FS_GCS_ENABLE"))
         if self.failsafe and not enabled:
             self.failsafe = False
             self.vehicle.set_failsafe(False)
-            return self.telemetry.statustext("GCS failsafe cleared (disabled)", M.MAV_SEVERITY_NOTICE)
-        if self.failsafe or not enabled or self.gcs_last_heartbeat_us is None:
-            return []
+            self._control_texts.append(("GCS failsafe cleared (disabled)", M.MAV_SEVERITY_NOTICE))
+            return
+        last = self.gcs_last_heartbeat_us
+        if self.failsafe or not enabled or last is None:
+            return
         timeout_ms = self.params.get("FS_GCS_TOUT_MS")
-        if now_us - self.gcs_last_heartbeat_us <= timeout_ms * 1000:
-            return []
+        if now_us - last <= timeout_ms * 1000:
+            return
         self.failsafe = True
         self.failsafe_since_us = now_us
         self.vehicle.set_failsafe(True)
+        if self.gcs_last_heartbeat_us != last and self.failsafe:
+            # a heartbeat landed (link thread) between the check and the trip: undo, no text
+            self.failsafe = False
+            self.vehicle.set_failsafe(False)
+            return
         action = ("none", "Hold", "disarm")[self.params.get("FS_GCS_ACTION")]
-        return self.telemetry.statustext(f"GCS failsafe: no GCS heartbeat for {timeout_ms} ms, {action}",
-                                         M.MAV_SEVERITY_CRITICAL)
+        self._control_texts.append((f"GCS failsafe: no GCS heartbeat for {timeout_ms} ms, {action}",
+                                    M.MAV_SEVERITY_CRITICAL))
 
 
 class MavShell:
@@ -304,6 +331,8 @@ class MavShell:
                                                source_component=node.compid, autoreconnect=True)
         self._key_version = -1
         self.sent = 0
+        self.budget_exhausted = 0  # polls that stopped on their time budget with input left
+        self.handler_errors: dict[str, int] = {}  # message type (or parser/tick) -> exceptions caught
         self._cpu = (time.process_time(), time.monotonic())
 
     def _sync_signing(self, now_us: int) -> None:
@@ -333,22 +362,52 @@ class MavShell:
         if self.node.signing.key is not None:
             self.node.signing.note_sent(mav.signing.timestamp)
 
-    def poll(self, now_us: int, max_msgs: int = 200) -> None:
-        """Handle everything that has arrived, then tick. Never blocks."""
+    def poll(self, now_us: int, budget_s: float = 0.02, max_msgs: int = 200) -> int:
+        """Handle what has arrived (at most `max_msgs` frames, stopping once
+        `budget_s` of wall time is spent; the rest waits in the socket's
+        bounded buffer for the next poll), then tick. Never blocks, never
+        raises for a frame. Returns the number of frames handled."""
         self._sync_signing(now_us)
-        for _ in range(max_msgs):
+        t_end = time.perf_counter() + budget_s
+        n = 0
+        while n < max_msgs:
             try:
                 msg = self.conn.recv_msg()
             except OSError:
                 break
+            except Exception as exc:  # the parser itself: count, never stop the poll
+                self._handler_error("parser", exc)
+                continue
             if msg is None:
                 break
-            self.send(self.node.handle(msg, now_us), now_us)
+            n += 1
+            try:
+                replies = self.node.handle(msg, now_us)
+            except Exception as exc:  # one bad frame costs one frame, not the poll (and never the tick)
+                self._handler_error(msg.get_type(), exc)
+                replies = []
+            self.send(replies, now_us)
+            if time.perf_counter() >= t_end:
+                self.budget_exhausted += 1
+                break
         cpu, wall = time.process_time(), time.monotonic()
         if wall - self._cpu[1] >= 1.0:
             self.node.stats.load_permille = int(1000 * (cpu - self._cpu[0]) / (wall - self._cpu[1]))
             self._cpu = (cpu, wall)
-        self.send(self.node.tick(now_us), now_us)
+        try:
+            out = self.node.tick(now_us)
+        except Exception as exc:
+            self._handler_error("tick", exc)
+            out = []
+        self.send(out, now_us)
+        return n
+
+    def _handler_error(self, kind: str, exc: BaseException) -> None:
+        """Count an exception out of a handler; log the first one of each kind."""
+        self.handler_errors[kind] = self.handler_errors.get(kind, 0) + 1
+        if self.handler_errors[kind] == 1:
+            log.error("MAVLink %s handler raised %s: %s (dropped; further %s errors only counted)",
+                      kind, type(exc).__name__, exc, kind)
 
     def serve(self, clock: Clock, stop: threading.Event, idle_s: float = 0.005) -> None:
         """Standalone loop: poll, then wait for input up to `idle_s`."""
