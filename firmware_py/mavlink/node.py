@@ -14,7 +14,10 @@ it runs in the link thread (firmware_py.mavlink.link_thread), never in the
 control loop; `serve(stop)` runs it in a loop for a standalone node. No
 frame can raise out of the shell: an exception in a handler is caught per
 message, counted per kind (`handler_errors`) and logged once per kind, and
-the poll goes on.
+the poll goes on. On UDP the parser is reset after a datagram that ends
+inside a frame (`partial_dropped`): pymavlink parses all senders as one byte
+stream, so one truncated frame from anyone would otherwise swallow the next
+frame that arrives, whoever sent it (a GCS heartbeat among garbage).
 
 GCS failsafe (as ArduPilot Rover): armed only after a GCS heartbeat
 (HEARTBEAT with type MAV_TYPE_GCS) has been seen; no GCS heartbeat for
@@ -331,6 +334,8 @@ class MavShell:
                                                source_component=node.compid, autoreconnect=True)
         self._key_version = -1
         self.sent = 0
+        self._datagrams = isinstance(self.conn, mavutil.mavudp)
+        self.partial_dropped = 0  # UDP datagrams that ended inside a frame (see poll)
         self.budget_exhausted = 0  # polls that stopped on their time budget with input left
         self.handler_errors: dict[str, int] = {}  # message type (or parser/tick) -> exceptions caught
         self._cpu = (time.process_time(), time.monotonic())
@@ -379,7 +384,14 @@ class MavShell:
                 self._handler_error("parser", exc)
                 continue
             if msg is None:
-                break
+                if not (self._datagrams and self.conn.mav.buf_len() > 0):
+                    break  # nothing more has arrived
+                # UDP: a datagram that ended inside a frame. Each sender's frames come whole in
+                # their own datagrams, so the rest is garbage; kept, it would swallow the start of
+                # the next datagram (another client's heartbeat): drop it and read on.
+                self._drop_partial()
+                n += 1
+                continue
             n += 1
             try:
                 replies = self.node.handle(msg, now_us)
@@ -401,6 +413,14 @@ class MavShell:
             out = []
         self.send(out, now_us)
         return n
+
+    def _drop_partial(self) -> None:
+        mav = self.conn.mav
+        self.partial_dropped += 1
+        self.node.stats.rx_dropped += 1
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
 
     def _handler_error(self, kind: str, exc: BaseException) -> None:
         """Count an exception out of a handler; log the first one of each kind."""

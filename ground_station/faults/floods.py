@@ -9,11 +9,16 @@ storage with a large file in it) driving the paper10 tour A, B, D, C.
   save), 300 PARAM_REQUEST_LIST (~13 000 PARAM_VALUEs to send) and 150
   MAVLink FTP CalcFileCRC32 of a 6 MB file, each at up to 1000 frames/s. A
   flood (one trial) holds when, after it, the robot still answers a
-  PARAM_REQUEST_READ, its HEARTBEAT does not say FAULT (MAV_STATE_CRITICAL /
-  EMERGENCY) and SYS_STATUS errors_count2 (control periods lost on the wall
-  clock) did not grow. At the end of the run (one more trial): no FAULT
-  transition, every SimTick stepped (ticks == sim_ticks, no sim-time
-  overrun), no wall-clock overrun, and the robot drove.
+  PARAM_REQUEST_READ and its HEARTBEAT does not say FAULT (MAV_STATE_CRITICAL /
+  EMERGENCY). At the end of the run (one more trial): no FAULT transition
+  (a tick held up longer than MOT_TIMEOUT_MS trips the sim's motor-driver
+  watchdog, paced in real time), every SimTick stepped (ticks == sim_ticks,
+  no sim-time overrun), and the robot drove. Control periods lost on the
+  wall clock (SYS_STATUS errors_count2 around each flood, `wall_overruns`
+  at the end) are always measured; with `wall_strict` (the bench) they
+  count as lost trials too. Tests leave it off: on a shared two-core
+  machine the lag also holds the sim's and the hub's own lateness, which
+  the robot cannot tell from its own.
 - `failsafe_garbage`: FS_GCS_TOUT_MS=1000, FS_GCS_ACTION=Hold; while the
   robot drives, a second sender (another system id) floods malformed input:
   NaN/inf MISSION_ITEMs inside a mission upload, NaN goals, NaN PARAM_SETs
@@ -99,8 +104,9 @@ def driving_robot(tmp: Path, seed: int, duration_s: float, *, big_file: bool = F
         ctx["problems"].append(f"no robot stats: {exc}; {robot.log_tail()}")
 
 
-def run_problems(st: dict[str, Any]) -> list[str]:
-    """End-of-run invariants from the robot's stats: every tick, no FAULT, it drove."""
+def run_problems(st: dict[str, Any], wall_strict: bool = False) -> list[str]:
+    """End-of-run invariants from the robot's stats: every tick, no FAULT, it drove
+    (with `wall_strict`, no control period lost on the wall clock)."""
     out = []
     trans = st.get("transitions", [])
     faults = [t for t in trans if t[2] == "FAULT"]
@@ -108,7 +114,7 @@ def run_problems(st: dict[str, Any]) -> list[str]:
         out.append(f"FAULT at {faults[0][0]} us: {faults[0][3]}")
     if st["overruns"] or st["ticks"] != st["sim_ticks"]:
         out.append(f"missed ticks: {st['ticks']} steps for {st['sim_ticks']} SimTicks, {st['overruns']} overruns")
-    if st.get("wall_overruns", 0):
+    if wall_strict and st.get("wall_overruns", 0):
         out.append(f"{st['wall_overruns']} control periods lost on the wall clock (lag max {st['lag_max_us']:.0f} us)")
     if not any(t[2] == "DRIVING" for t in trans):
         out.append("the robot never drove")
@@ -186,7 +192,7 @@ def _sys_status(link: Any) -> Any:
 @register("floods", small=3, large=9, unit="floods (600 PARAM_SET / 300 PARAM_REQUEST_LIST / 150 CRC32 of 6 MB)",
           what="MAVLink floods while driving in paced HIL: no FAULT, no missed tick, robot answers")
 def floods(count: int, seed: int = 0, progress: Any = None, duration_s: float | None = None,
-           counts: dict[str, int] | None = None) -> ScenarioResult:
+           counts: dict[str, int] | None = None, wall_strict: bool = False) -> ScenarioResult:
     """Flood i is FLOOD_KINDS[i % 3]; all of them in one robot run, plus one
     end-of-run trial on the robot's stats."""
     from ground_station.mavlink.link import Link, LinkError
@@ -225,7 +231,7 @@ def floods(count: int, seed: int = 0, progress: Any = None, duration_s: float | 
                     problems.append("no SYS_STATUS around the flood")
                 else:
                     row["wall_overruns_during"] = st1.errors_count2 - st0.errors_count2
-                    if st1.errors_count2 > st0.errors_count2:
+                    if wall_strict and st1.errors_count2 > st0.errors_count2:
                         problems.append(f"{row['wall_overruns_during']} control periods lost during the flood")
                 row["problems"] = problems
                 rows.append(row)
@@ -240,7 +246,7 @@ def floods(count: int, seed: int = 0, progress: Any = None, duration_s: float | 
                 beats.join(2)
             link.close()
     st = ctx.get("stats")
-    end = list(ctx["problems"]) + (run_problems(st) if st else [])
+    end = list(ctx["problems"]) + (run_problems(st, wall_strict) if st else [])
     res.check(end, "end of run")
     res.figures["floods"] = rows
     if st:
@@ -308,7 +314,7 @@ class _Garbage(threading.Thread):
 @register("failsafe_garbage", small=1, large=5, unit="runs",
           what="GCS heartbeats stop while malformed frames flood in: Hold within timeout + 1 period")
 def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
-                     duration_s: float = 9.0) -> ScenarioResult:
+                     duration_s: float = 9.0, wall_strict: bool = False) -> ScenarioResult:
     from ground_station.mavlink.link import Link, LinkError
 
     res = ScenarioResult("failsafe_garbage")
@@ -324,10 +330,10 @@ def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
             garbage: _Garbage | None = None
             try:
                 link.connect(30.0)
+                beats = _Heartbeats(link)  # first: a 1 s timeout must not run out during the setup
+                beats.start()
                 for name, value in (("FS_GCS_TOUT_MS", FS_TIMEOUT_MS), ("FS_GCS_ACTION", 1)):
                     link.param_set(name, value)
-                beats = _Heartbeats(link)
-                beats.start()
                 if not _wait_armed(link, 20.0, beats.stop):
                     problems.append("setup: the robot did not arm")
                 garbage = _Garbage(ctx["robot"].url, s)
@@ -350,7 +356,7 @@ def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
         st = ctx.get("stats")
         if st:
             problems += check_failsafe_timing(st, FS_TIMEOUT_MS)
-            problems += [p for p in run_problems(st) if "never drove" not in p]
+            problems += [p for p in run_problems(st, wall_strict) if "never drove" not in p]
             row.update({k: st.get(k) for k in ("gcs_last_heartbeat_us", "failsafe_since_us", "link_handler_errors",
                                                 "tick_p99_us", "compute_p99_us", "lag_max_us", "wall_overruns")})
             tr = _failsafe_transition(st)
@@ -376,6 +382,9 @@ def check_failsafe_timing(st: dict[str, Any], timeout_ms: int) -> list[str]:
     last = st.get("gcs_last_heartbeat_us")
     if last is None:
         return ["the robot recorded no GCS heartbeat"]
+    before = [t for t in st.get("transitions", []) if t[0] <= last]
+    if not before or before[-1][2] != "DRIVING":
+        return [f"setup: not DRIVING at the last heartbeat ({before[-1:]})"]
     tr = _failsafe_transition(st)
     deadline = last + timeout_ms * 1000 + st["period_us"]
     if tr is None:

@@ -155,3 +155,23 @@ def test_storage_worker_coalesces_param_saves_and_a_reload_sees_the_newest(tmp_p
         assert params.load() == [] and params.get("MIS_RETRIES") == 7  # load flushed the queued save first
     finally:
         worker.close()
+
+
+def test_a_truncated_udp_frame_does_not_swallow_the_next_senders_heartbeat(tmp_path):
+    port = free_udp_port()
+    shell = open_node(TestVehicle(), tmp_path, f"udpin:127.0.0.1:{port}", 1_000_000)
+    garbage = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=77, dialect="common")
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190,
+                                     dialect="common")
+    try:
+        frame = garbage.mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(garbage.mav)
+        garbage.write(frame[:7])  # a datagram that ends inside a frame
+        gcs.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        time.sleep(0.2)
+        shell.poll(2_000_000)
+        assert shell.node.gcs_last_heartbeat_us == 2_000_000  # the heartbeat got through whole
+        assert shell.partial_dropped == 1
+    finally:
+        shell.close()
+        garbage.close()
+        gcs.close()
