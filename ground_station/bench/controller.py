@@ -23,6 +23,10 @@ stations, 10 Hz telemetry, uploads back to back, and the floods of
 CalcFileCRC32 of a 6 MB file, in turn). Reported on the wall clock for
 each: tick (SimTick arrival -> command), compute (step start -> command),
 lag against the pace, periods lost; the loaded/quiet ratio of the p99s.
+And in this process, the interpreter-lock wait behind the thread/process
+choice: how late a thread waking every 10 ms runs alone, and beside a
+thread running pure Python at CPython's default switch interval (5 ms) and
+at qnav-robot's (0.5 ms).
 """
 
 from __future__ import annotations
@@ -118,6 +122,45 @@ def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
         return json.loads(stats_path.read_text())
 
 
+def gil_wait(switch_us: int | None, busy: bool, seconds: float = 1.5, period_s: float = 0.01) -> dict:
+    """How late a thread that wakes every `period_s` runs (p50/p99/max µs), with or
+    without a second thread running pure Python (a link handler) at the given
+    switch interval: the interpreter-lock wait a tick can see beside the link thread."""
+    import sys
+    import threading
+
+    old = sys.getswitchinterval()
+    if switch_us is not None:
+        sys.setswitchinterval(switch_us / 1e6)
+    stop = threading.Event()
+
+    def spin() -> None:
+        x = 0
+        while not stop.is_set():
+            for i in range(1000):
+                x += i * i
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    if busy:
+        spinner.start()
+    late = []
+    try:
+        t_next = time.perf_counter() + period_s
+        t_end = time.perf_counter() + seconds
+        while t_next < t_end:
+            time.sleep(max(0.0, t_next - time.perf_counter()))
+            late.append(time.perf_counter() - t_next)
+            t_next += period_s
+    finally:
+        stop.set()
+        if busy:
+            spinner.join()
+        sys.setswitchinterval(old)
+    late.sort()
+    n = len(late) - 1
+    return {"p50_us": late[n // 2] * 1e6, "p99_us": late[int(0.99 * n)] * 1e6, "max_us": late[-1] * 1e6}
+
+
 LOAD_FIGURES = ("tick_p50_us", "tick_p99_us", "tick_max_us", "compute_p50_us", "compute_p99_us", "compute_max_us",
                 "lag_p99_us", "lag_max_us", "wall_overruns", "overruns", "ticks", "sim_ticks", "cpu_percent")
 
@@ -187,6 +230,11 @@ def run(args: argparse.Namespace) -> int:
                  (f"[{label}] ticks / overruns", f"{v['ticks']} / {v['overruns']}"),
                  (f"[{label}] cpu_percent (1 core = 100)", v["cpu_percent"]),
                  (f"[{label}] rss_mb", v["rss_mb"])]
+    gil = {"no second thread": gil_wait(None, False), "busy thread, CPython default 5000 us": gil_wait(5000, True),
+           "busy thread, 500 us (qnav-robot default)": gil_wait(500, True)}
+    result["gil_wait"] = gil
+    rows += [(f"[GIL wait] {k}: wake-up late p50 / p99 / max us",
+              f"{v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}") for k, v in gil.items()]
     if args.load:
         lv = load_variants(args)
         result["load"] = lv
