@@ -201,7 +201,7 @@ def floods(count: int, seed: int = 0, progress: Any = None, duration_s: float | 
     res = ScenarioResult("floods")
     kinds = [FLOOD_KINDS[i % len(FLOOD_KINDS)] for i in range(count)]
     if duration_s is None:
-        duration_s = 8.0 + 4.0 * count  # each flood ~1-2 s + 1 s catching up, plus arming
+        duration_s = 8.0 + 3.0 * count  # each flood ~1-2 s + 1 s catching up, plus arming
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="qnav-floods-") as tmp, \
             driving_robot(Path(tmp), seed, duration_s, big_file=True) as ctx:
