@@ -25,8 +25,11 @@ the interpreter lock until the link thread is forced to drop it, up to
 `sys.getswitchinterval()` (CPython's default 5 ms). `LinkThread.start` sets
 it to `switch_interval_s` (0.5 ms by default; `qnav-robot --gil-switch-us`),
 so a tick waits at most that long even when one handler is long. The slot
-schedule keeps that case rare; docs/reliability.md has the measurements
-behind the choice of a thread over a process.
+schedule keeps that case rare, and the poll sleeps 0.2 ms after every 1 ms
+of work (`yield_every_s`): the ticking thread's frame-by-frame I/O needs
+the lock once per read and send, and beside a busy thread each of those
+would wait a switch interval (the convoy effect). docs/reliability.md has
+the measurements, and why they point to a process for the link.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ log = logging.getLogger("qnav.mavlink")
 
 DEFAULT_SWITCH_INTERVAL_S = 0.0005
 DEFAULT_BUDGET_FRACTION = 0.4
+DEFAULT_YIELD_EVERY_S = 0.001  # after 1 ms of link work, 0.2 ms with the interpreter lock free
 
 
 class StorageWorker:
@@ -114,12 +118,14 @@ class LinkThread:
 
     def __init__(self, shell: MavShell, clock: Clock, period_us: Callable[[], int], *,
                  budget_fraction: float = DEFAULT_BUDGET_FRACTION,
-                 switch_interval_s: float | None = DEFAULT_SWITCH_INTERVAL_S) -> None:
+                 switch_interval_s: float | None = DEFAULT_SWITCH_INTERVAL_S,
+                 yield_every_s: float = DEFAULT_YIELD_EVERY_S) -> None:
         self.shell = shell
         self.clock = clock
         self.period_us = period_us
         self.budget_fraction = budget_fraction
         self.switch_interval_s = switch_interval_s
+        self.yield_every_s = yield_every_s
         self.polls = 0
         self.frames = 0
         self.unslotted_polls = 0  # polls without a control tick (none for two periods)
@@ -158,7 +164,8 @@ class LinkThread:
                 break
             t0 = time.perf_counter()
             try:
-                self.frames += self.shell.poll(self.clock.now_us(), budget_s=period_s * self.budget_fraction)
+                self.frames += self.shell.poll(self.clock.now_us(), budget_s=period_s * self.budget_fraction,
+                                               yield_every_s=self.yield_every_s)
             except Exception as exc:  # poll catches per frame; this is the socket layer itself
                 self.shell.handler_errors["poll"] = self.shell.handler_errors.get("poll", 0) + 1
                 if self.shell.handler_errors["poll"] == 1:

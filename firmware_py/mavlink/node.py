@@ -367,15 +367,25 @@ class MavShell:
         if self.node.signing.key is not None:
             self.node.signing.note_sent(mav.signing.timestamp)
 
-    def poll(self, now_us: int, budget_s: float = 0.02, max_msgs: int = 200) -> int:
+    def poll(self, now_us: int, budget_s: float = 0.02, max_msgs: int = 200,
+             yield_every_s: float = 0.0, yield_s: float = 0.0002) -> int:
         """Handle what has arrived (at most `max_msgs` frames, stopping once
         `budget_s` of wall time is spent; the rest waits in the socket's
         bounded buffer for the next poll), then tick. Never blocks, never
-        raises for a frame. Returns the number of frames handled."""
+        raises for a frame. Returns the number of frames handled.
+
+        `yield_every_s` > 0: after that much work, sleep `yield_s` (the link
+        thread in qnav-robot): the interpreter lock is then free for the
+        ticking thread, whose frame-by-frame I/O would otherwise wait a
+        switch interval for every reacquisition (the convoy effect)."""
         self._sync_signing(now_us)
         t_end = time.perf_counter() + budget_s
+        t_yield = time.perf_counter() + yield_every_s
         n = 0
         while n < max_msgs:
+            if yield_every_s > 0 and time.perf_counter() >= t_yield:
+                time.sleep(yield_s)
+                t_yield = time.perf_counter() + yield_every_s
             try:
                 msg = self.conn.recv_msg()
             except OSError:
