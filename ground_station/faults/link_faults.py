@@ -333,10 +333,12 @@ LOAD_KEYS = ("ticks", "sim_ticks", "overruns", "can_errors", "tick_p50_us", "tic
 
 
 def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True, floods: bool = False,
-             extra_args: tuple[str, ...] = ()) -> dict:
+             extra_args: tuple[str, ...] = (), wall_strict: bool = False) -> dict:
     """One paced real-time HIL run across processes under MAVLink load; the robot's stats.
     `clients_on=False` is the baseline: the same run (same robot, storage and
-    MAVLink node) with no ground station at all; `floods` adds the flood client."""
+    MAVLink node) with no ground station at all; `floods` adds the flood client.
+    `wall_strict`: control periods lost on the wall clock are a problem too
+    (the bench; see ground_station.faults.floods for why tests leave it off)."""
     import json
     import subprocess
 
@@ -471,7 +473,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True, f
     out["transitions"] = st.get("transitions", [])
     if st["overruns"]:
         out["problems"].append(f"{st['overruns']} control ticks missed")
-    if st.get("wall_overruns"):
+    if wall_strict and st.get("wall_overruns"):
         out["problems"].append(f"{st['wall_overruns']} control periods lost on the wall clock "
                                f"(lag max {st.get('lag_max_us', 0):.0f} us)")
     if st["ticks"] != st["sim_ticks"] or st["ticks"] < duration_s * 20 * 0.5:
@@ -502,7 +504,7 @@ def load(count: int, seed: int = 0, progress=None, duration_s: float | None = No
             base = load_run(duration_s, seed * 1000 + 999, Path(tmp), clients_on=False)
             res.figures["baseline"] = {k: v for k, v in base.items() if k != "transitions"}
         for i in range(count):
-            run = load_run(duration_s, seed * 1000 + i, Path(tmp), floods=floods)
+            run = load_run(duration_s, seed * 1000 + i, Path(tmp), floods=floods, wall_strict=baseline)
             runs.append({k: v for k, v in run.items() if k != "transitions"})
             res.check(run["problems"], f"run {i}")
             if progress is not None:
