@@ -24,7 +24,8 @@
   `qnav upload`'s code uploading policies back to back; with `floods`, a
   fourth client sends the floods of `ground_station.faults.floods` in turn
   (600 PARAM_SET, 300 PARAM_REQUEST_LIST, 150 CalcFileCRC32 of a 6 MB file).
-  No control tick may be missed, on the sim clock or the wall clock; the
+  No control tick may be missed on the sim clock (in the bench, none on the
+  wall clock either); the
   robot's tick_p99_us / compute_p99_us are reported beside a baseline run
   without clients (the ratio is checked only by the bench, never a test).
 """
