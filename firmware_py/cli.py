@@ -10,7 +10,10 @@ fresh and drives the goals in order. Without a goal it idles in STANDBY.
 Extension hook (the MAVLink shell): append an object to `EXTENSIONS` with
 `add_arguments(parser)` and `attach(node, args) -> stop_callable | None`.
 `node.controller` is the `vehicle.VehicleControl`; `node.after_tick` takes
-per-tick callbacks. Both run before the node starts.
+per-tick callbacks (they run in the ticking thread and must not wait: the
+MAVLink extension runs its link in its own thread). Both run before the node
+starts. An extension with a `stats()` method adds its counters to
+`--stats-json`.
 """
 
 from __future__ import annotations
@@ -90,6 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rt-priority", type=int, metavar="N",
                    help="run the ticking threads SCHED_FIFO at priority N (Linux, needs privilege; "
                         "falls back to normal scheduling with a warning)")
+    p.add_argument("--gil-switch-us", type=int, default=500, metavar="US",
+                   help="CPython's thread switch interval while the MAVLink link thread runs (default "
+                        "%(default)s; 0 keeps CPython's 5000): how long a tick can wait for the interpreter "
+                        "lock held by the link thread")
     p.add_argument("--stats-json", metavar="FILE", help="write loop statistics and the final state as JSON at exit")
     p.add_argument("-q", "--quiet", action="store_true", help="only warnings (transitions are logged by default)")
     for ext in EXTENSIONS:
@@ -194,6 +201,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if args.rt_priority is not None and not 1 <= args.rt_priority <= 99:
         raise UsageError(f"--rt-priority {args.rt_priority}: expected 1..99")
+    if not 0 <= args.gil_switch_us <= 100_000:
+        raise UsageError(f"--gil-switch-us {args.gil_switch_us}: expected 0..100000")
     node = RobotNode(bus, ctrl, clock, lockstep=args.lockstep, rt_priority=args.rt_priority)
     runner = None
     if goals:
@@ -252,6 +261,7 @@ def run(args: argparse.Namespace) -> int:
         "period_us": cfg.control_period_us, "rt_priority": args.rt_priority,
         "rt_active": node.rt_active,
         **node.latency_stats(),
+        **{k: v for ext in EXTENSIONS for k, v in getattr(ext, "stats", dict)().items()},
         "transitions": [[t.t_us, t.src.name, t.dst.name, t.cause] for t in ctrl.transitions],
     }
     log.info("done: %s, %d ticks, sim %.1f s, wall %.2f s, p99 %.0f us",

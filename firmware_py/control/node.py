@@ -13,15 +13,32 @@
   the tick that reaches the next control deadline runs a step in the
   receive thread (no hand-off to another thread); the sim does not wait.
 
-Overruns are counted (a wall-clock deadline missed, a sim tick skipped), and
-the wall time from the last input frame of a tick (the SimTick; in wall mode
-the loop's wake-up) to the command being handed to the bus is recorded per
-tick for `qnav bench controller`.
+Loop statistics, all on the WALL clock whatever clock the controller runs on
+(a tick late in wall time is late for the motors even when sim time says
+otherwise):
+
+* `latency_ns`: per tick, from the tick's input (the SimTick frame's arrival:
+  the bus timestamp when it is a wall time, as on socketcan, else the moment
+  `recv` returned it; in wall mode the scheduled deadline, so oversleeping
+  counts) to the motor command handed to the bus. `compute_ns`: the same
+  tick from the step's start to the command (the controller's own cost).
+* `lag_ns`: how much later than its pace a tick ran: wall mode, the wake-up
+  after the deadline; paced HIL, the wall gap since the previous step minus
+  the sim gap scaled by the run's measured wall/sim ratio (so a receive
+  thread held up for 30 ms shows as 30 ms even though the SimTicks it then
+  drains carry on-time sim stamps); lockstep, the latency (the sim waits for
+  us, so only our own time can be late).
+* `wall_late_ticks`: ticks with lag or latency above a quarter period;
+  `wall_overruns`: whole control periods lost in wall time (lag of at least a
+  period, or a latency beyond the period). `overruns` keeps its meaning in
+  the controller's own clock (deadlines missed on the wall clock, sim ticks
+  skipped in lockstep or paced HIL), `late_ticks` counts reordered SimTicks.
 
 Hook for the MAVLink shell: `node.controller` is the `VehicleControl`;
 callables in `node.after_tick` run in the ticking thread after each tick with
-the tick's `Outputs` (keep them short; telemetry should hand off to its own
-thread).
+the tick's `Outputs`. They must not wait on anything: the MAVLink extension
+only checks the GCS failsafe there and wakes its link thread
+(firmware_py.mavlink.link_thread).
 """
 
 from __future__ import annotations
@@ -135,8 +152,15 @@ class RobotNode:
         self.send_errors = 0
         self.sim_ticks = 0
         self.late_ticks = 0  # SimTicks older than the last one seen, ignored
+        self.wall_late_ticks = 0  # ticks late by more than a quarter period in wall time
+        self.wall_overruns = 0  # control periods lost in wall time (module doc)
+        self.hook_errors = 0
         self.last_tick: int | None = None
         self.latency_ns: deque[int] = deque(maxlen=latency_window)
+        self.compute_ns: deque[int] = deque(maxlen=latency_window)
+        self.lag_ns: deque[int] = deque(maxlen=latency_window)
+        self._pace0: tuple[int, int] | None = None  # (wall ns, sim us) of the first paced step
+        self._prev_step: tuple[int, int] | None = None  # (wall ns, sim us) of the previous step
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._last_rx_ns = 0
@@ -200,6 +224,9 @@ class RobotNode:
                 self._check_sim_quiet()
                 continue
             rx_ns = time.perf_counter_ns()
+            age_s = time.time() - msg.timestamp  # a wall-clock bus timestamp (socketcan) shows queueing
+            if 0.0 < age_s < 1.0:
+                rx_ns -= int(age_s * 1e9)
             try:
                 name, sig = proto.decode(msg)
             except proto.ProtocolError:
@@ -256,23 +283,54 @@ class RobotNode:
                         quiet_s, self.clock.now_us() / 1e6)
 
     # --- control side ---------------------------------------------------------------
-    def _tick(self, now_us: int, counter: int | None, t0_ns: int) -> None:
+    def _tick(self, now_us: int, counter: int | None, t0_ns: int, lag_ns: int | None = None) -> None:
+        """One step. `t0_ns`: the tick's input on the wall clock (perf_counter);
+        `lag_ns`: how late the tick runs against its pace (None: lockstep)."""
+        c0 = time.perf_counter_ns()
         out = self.controller.step(self.inputs.snapshot(), now_us, tick=counter)
         self.ticks += 1
         if self.lockstep:  # the motor command is the tick's answer: always the last frame
             self._send_heartbeat(out)
             self._send_motor(out)
-            self.latency_ns.append(time.perf_counter_ns() - t0_ns)
+            done = time.perf_counter_ns()
         else:  # latency counts to the command; the heartbeat can follow it
             self._send_motor(out)
-            self.latency_ns.append(time.perf_counter_ns() - t0_ns)
+            done = time.perf_counter_ns()
             self._send_heartbeat(out)
-        self.controller.note_loop_stats(self.overruns, self.can_errors)
+        self._note_wall(done - t0_ns, done - c0, lag_ns)
+        # SYS_STATUS errors_count2: periods lost on the wall clock (in wall mode `overruns` are those)
+        self.controller.note_loop_stats(self.overruns + self.wall_overruns if self.sim_time else self.overruns,
+                                        self.can_errors)
         for hook in self.after_tick:
             try:
                 hook(out)
             except Exception:  # a telemetry bug must not stop the wheels' loop
-                log.exception("after_tick hook failed")
+                self.hook_errors += 1
+                if self.hook_errors == 1:
+                    log.exception("after_tick hook failed (logged once, counted in hook_errors)")
+
+    def _note_wall(self, latency_ns: int, compute_ns: int, lag_ns: int | None) -> None:
+        """Wall-clock lateness of the tick just run (module doc)."""
+        period_ns = self._period_us() * 1000
+        self.latency_ns.append(latency_ns)
+        self.compute_ns.append(compute_ns)
+        lag = latency_ns if lag_ns is None else max(0, lag_ns)
+        self.lag_ns.append(lag)
+        if lag > period_ns // 4 or latency_ns > period_ns // 4:
+            self.wall_late_ticks += 1
+        self.wall_overruns += max(lag // period_ns, 1 if latency_ns > period_ns else 0)
+
+    def _paced_lag_ns(self, now_us: int) -> int:
+        """Paced HIL: wall gap since the previous step minus the sim gap at the
+        run's wall/sim ratio (0 for the first two steps)."""
+        wall = time.perf_counter_ns()
+        prev, self._prev_step = self._prev_step, (wall, now_us)
+        if self._pace0 is None:
+            self._pace0 = (wall, now_us)
+        if prev is None or now_us <= self._pace0[1]:
+            return 0
+        ratio = (wall - self._pace0[0]) / ((now_us - self._pace0[1]) * 1000)  # wall ns per sim ns
+        return int((wall - prev[0]) - (now_us - prev[1]) * 1000 * ratio)
 
     def _send_heartbeat(self, out: Outputs) -> None:
         hb = out.heartbeat
@@ -304,7 +362,7 @@ class RobotNode:
         period = self._period_us()
         if self._next_us is not None and now - self._next_us >= period:
             self.overruns += (now - self._next_us) // period  # whole periods without a step
-        self._tick(now, None, rx_ns)
+        self._tick(now, None, rx_ns, self._paced_lag_ns(now))
         self._next_us = now + period
 
     def _control_loop(self) -> None:
@@ -316,7 +374,10 @@ class RobotNode:
             delay = (next_us - self.clock.now_us()) / 1e6
             if delay > 0 and self._stop.wait(delay):
                 break
-            self._tick(self.clock.now_us(), None, time.perf_counter_ns())
+            now = self.clock.now_us()
+            lag_ns = max(0, now - next_us) * 1000
+            # the deadline is the tick's input: oversleeping counts in its latency
+            self._tick(now, None, time.perf_counter_ns() - lag_ns, lag_ns)
             period = self._period_us()  # the rate is a parameter: pick up changes
             next_us += period
             late = self.clock.now_us() - next_us
@@ -327,13 +388,17 @@ class RobotNode:
 
     # --- stats -------------------------------------------------------------------
     def latency_stats(self) -> dict[str, float]:
-        """p50 / p99 / max of the per-tick input-to-command time, in µs."""
-        lat = sorted(self.latency_ns)
-        if not lat:
-            return {"tick_p50_us": 0.0, "tick_p99_us": 0.0, "tick_max_us": 0.0, "samples": 0}
-
-        def pct(p: float) -> float:
-            return lat[min(len(lat) - 1, int(p * (len(lat) - 1) + 0.5))] / 1000
-
-        return {"tick_p50_us": pct(0.50), "tick_p99_us": pct(0.99), "tick_max_us": lat[-1] / 1000,
-                "samples": len(lat)}
+        """Wall clock, µs: p50 / p99 / max of the per-tick input-to-command time
+        (tick_*), of the step-to-command time (compute_*), of the lag against
+        the pace (lag_*); the wall counters."""
+        out: dict[str, float] = {"samples": len(self.latency_ns), "wall_late_ticks": self.wall_late_ticks,
+                                 "wall_overruns": self.wall_overruns, "hook_errors": self.hook_errors}
+        for name, values in (("tick", self.latency_ns), ("compute", self.compute_ns), ("lag", self.lag_ns)):
+            lat = sorted(values)
+            if not lat:
+                out.update({f"{name}_p50_us": 0.0, f"{name}_p99_us": 0.0, f"{name}_max_us": 0.0})
+                continue
+            n = len(lat) - 1
+            out.update({f"{name}_p50_us": lat[int(0.50 * n + 0.5)] / 1000,
+                        f"{name}_p99_us": lat[int(0.99 * n + 0.5)] / 1000, f"{name}_max_us": lat[-1] / 1000})
+        return out

@@ -1,10 +1,13 @@
 """The MAVLink shell as a `qnav-robot` extension (firmware_py.plugins.Extension).
 
 Owns the `--mavlink`/`--signing-key` options of `qnav-robot` and attaching
-the node to a running `RobotNode`: the node polls once per control tick from
-the ticking thread (`node.after_tick`), so MAVLink timeouts resolve within
-one control period of robot time and every vehicle call lands between two
-ticks. The command line's controller settings win over stored parameters
+the node to a running `RobotNode`: the node runs in its own link thread
+(firmware_py.mavlink.link_thread), one budgeted poll per control tick, so
+MAVLink timeouts resolve within one control period of robot time and every
+vehicle call lands between two ticks (the controller's lock); the ticking
+thread only runs the GCS failsafe check and opens the link thread's slot
+(`node.after_tick`). Parameter saves go to a storage worker thread. The
+command line's controller settings win over stored parameters
 for this run and are written into the parameter table before the vehicle is
 configured, so the ground station sees what is in effect: the control rate
 and the cell size always (the command line checked its policy against
@@ -19,6 +22,7 @@ import contextlib
 import logging
 from collections.abc import Callable
 from dataclasses import fields
+from typing import Any
 
 from firmware_py.plugins import ControlNode, UsageError
 from firmware_py.vehicle import VehicleConfig
@@ -31,6 +35,13 @@ ALWAYS_FROM_COMMAND_LINE = frozenset({"control_rate_hz", "cell_size_mm"})
 
 class MavlinkExtension:
     """`firmware_py.cli.Extension` for the MAVLink node."""
+
+    def __init__(self) -> None:
+        self._stats: Callable[[], dict[str, Any]] | None = None
+
+    def stats(self) -> dict[str, Any]:
+        """Link thread and storage worker counters of the attached node ({} if none)."""
+        return self._stats() if self._stats is not None else {}
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         from firmware_py.mavlink.node import add_mavlink_args
@@ -75,20 +86,30 @@ class MavlinkExtension:
         except ValueError as exc:  # unreadable key file
             raise UsageError(str(exc)) from None
 
-        closed: list[bool] = []
+        from firmware_py.mavlink.link_thread import LinkThread, StorageWorker
 
-        def poll(_out: object) -> None:
-            if not closed:
-                shell.poll(clock.now_us())
+        worker = StorageWorker()
+        shell.node.params.deferred = worker
+        switch_us = getattr(args, "gil_switch_us", None)
+        link = LinkThread(shell, clock, lambda: int(getattr(ctrl, "cfg", VehicleConfig()).control_period_us),
+                          switch_interval_s=switch_us / 1e6 if switch_us else None)
+        node.after_tick.append(link.on_tick)
+        link.start()
 
-        node.after_tick.append(poll)
+        def stats() -> dict[str, Any]:
+            return {**link.stats(), "gcs_last_heartbeat_us": shell.node.gcs_last_heartbeat_us,
+                    "failsafe_since_us": shell.node.failsafe_since_us, "storage_saves": worker.done, "storage_coalesced": worker.coalesced,
+                    "storage_dropped": worker.dropped, "storage_errors": worker.errors}
+
+        self._stats = stats
         log.info("MAVLink node sysid %d on %s%s", shell.node.sysid, args.mavlink,
                  ", signing" if shell.node.signing.key is not None else "")
 
         def stop() -> None:
-            closed.append(True)
             with contextlib.suppress(ValueError):
-                node.after_tick.remove(poll)
+                node.after_tick.remove(link.on_tick)
+            link.stop()
+            worker.close()
             shell.close()
 
         return stop

@@ -8,15 +8,27 @@ happens; time is the robot clock's.
 
 `MavShell` is the I/O around it on any pymavlink connection string
 (`udpout:127.0.0.1:14550` by default, `udpin:`, `tcp:`, `tcpin:`, a serial
-device). `poll(now_us)` is non-blocking and meant to be called from the
-control loop once per tick (so timeouts resolve within one control period
-and the vehicle is only touched from one thread); `serve(stop)` runs it in
-its own loop for a standalone node.
+device). `poll(now_us, budget_s)` is non-blocking: it handles what has
+arrived until the time budget is spent, then runs `tick`. In `qnav-robot`
+it runs in the link thread (firmware_py.mavlink.link_thread), never in the
+control loop; `serve(stop)` runs it in a loop for a standalone node. No
+frame can raise out of the shell: an exception in a handler is caught per
+message, counted per kind (`handler_errors`) and logged once per kind, and
+the poll goes on. On UDP the parser is reset after a datagram that ends
+inside a frame (`partial_dropped`): pymavlink parses all senders as one byte
+stream, so one truncated frame from anyone would otherwise swallow the next
+frame that arrives, whoever sent it (a GCS heartbeat among garbage).
 
 GCS failsafe (as ArduPilot Rover): armed only after a GCS heartbeat
 (HEARTBEAT with type MAV_TYPE_GCS) has been seen; no GCS heartbeat for
 FS_GCS_TOUT_MS -> `vehicle.set_failsafe(True)` (the vehicle applies
 FS_GCS_ACTION) + STATUSTEXT "GCS failsafe"; the next GCS heartbeat clears it.
+The check is `check_failsafe(now_us)`: `tick` runs it, unless
+`failsafe_on_control` is set, when the control loop calls it after every
+tick (the link thread then only records heartbeat times; its texts are
+queued for the link thread to send), so a stalled or flooded link cannot
+delay it.
+
 Only the operator's GCS counts: the system id in SYSID_MYGCS, or (0, the
 default) the first GCS heartbeat's system id after boot; heartbeats of other
 system ids are counted in `foreign_gcs_heartbeats` and keep nothing alive.
@@ -43,6 +55,7 @@ import math
 import os
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Protocol
 
@@ -117,6 +130,8 @@ class MavNode:
         self.refused_setup_signing = 0
         self.failsafe = False
         self.failsafe_since_us: int | None = None  # robot time the failsafe last tripped
+        self.failsafe_on_control = False  # True: the control loop calls check_failsafe (module doc)
+        self._control_texts: deque[tuple[str, int]] = deque(maxlen=64)  # control thread -> link thread
         self.reboots = 0
         self._pending: list[mavlink2.MAVLink_message] = []
         self._now_us = 0
@@ -326,7 +341,11 @@ class MavNode:
         """Failsafe check, vehicle events, mission timeouts, due telemetry."""
         self._now_us = now_us
         out, self._pending = self._pending, []
-        out += self._check_failsafe(now_us)  # first, and outside the guarded parts below
+        if not self.failsafe_on_control:
+            self.check_failsafe(now_us)  # first, and outside the guarded parts below
+        while self._control_texts:
+            text, severity = self._control_texts.popleft()
+            out += self.telemetry.statustext(text, severity)
         for part in (self._tick_events, self.mission.tick, self._tick_ftp, self._tick_signing,
                      self._tick_telemetry):
             try:
@@ -359,23 +378,33 @@ class MavNode:
     def _tick_telemetry(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         return self.telemetry.due(now_us, self.vehicle.status(), self.stats)
 
-    def _check_failsafe(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+    def check_failsafe(self, now_us: int) -> None:
+        """Trip the GCS failsafe when the last GCS heartbeat is older than
+        FS_GCS_TOUT_MS; reads only ints and params, so the control loop can
+        call it every tick. Its STATUSTEXTs go out with the next `tick`."""
         enabled = bool(self.params.get("FS_GCS_ENABLE"))
         if self.failsafe and not enabled:
             self.failsafe = False
             self.vehicle.set_failsafe(False)
-            return self.telemetry.statustext("GCS failsafe cleared (disabled)", M.MAV_SEVERITY_NOTICE)
-        if self.failsafe or not enabled or self.gcs_last_heartbeat_us is None:
-            return []
+            self._control_texts.append(("GCS failsafe cleared (disabled)", M.MAV_SEVERITY_NOTICE))
+            return
+        last = self.gcs_last_heartbeat_us
+        if self.failsafe or not enabled or last is None:
+            return
         timeout_ms = self.params.get("FS_GCS_TOUT_MS")
-        if now_us - self.gcs_last_heartbeat_us <= timeout_ms * 1000:
-            return []
+        if now_us - last <= timeout_ms * 1000:
+            return
         self.failsafe = True
         self.failsafe_since_us = now_us
         self.vehicle.set_failsafe(True)
+        if self.gcs_last_heartbeat_us != last and self.failsafe:
+            # a heartbeat landed (link thread) between the check and the trip: undo, no text
+            self.failsafe = False
+            self.vehicle.set_failsafe(False)
+            return
         action = ("none", "Hold", "disarm")[self.params.get("FS_GCS_ACTION")]
-        return self.telemetry.statustext(f"GCS failsafe: no GCS heartbeat for {timeout_ms} ms, {action}",
-                                         M.MAV_SEVERITY_CRITICAL)
+        self._control_texts.append((f"GCS failsafe: no GCS heartbeat for {timeout_ms} ms, {action}",
+                                    M.MAV_SEVERITY_CRITICAL))
 
 
 class MavShell:
@@ -393,6 +422,10 @@ class MavShell:
                                                source_component=node.compid, autoreconnect=True)
         self._key_version = -1
         self.sent = 0
+        self._datagrams = isinstance(self.conn, mavutil.mavudp)
+        self.partial_dropped = 0  # UDP datagrams that ended inside a frame (see poll)
+        self.budget_exhausted = 0  # polls that stopped on their time budget with input left
+        self.handler_errors: dict[str, int] = {}  # message type (or parser/tick) -> exceptions caught
         self._cpu = (time.process_time(), time.monotonic())
 
     def _sync_signing(self, now_us: int) -> None:
@@ -425,22 +458,77 @@ class MavShell:
         if self.node.signing.key is not None:
             self.node.signing.note_sent(mav.signing.timestamp)
 
-    def poll(self, now_us: int, max_msgs: int = 200) -> None:
-        """Handle everything that has arrived, then tick. Never blocks."""
+    def poll(self, now_us: int, budget_s: float = 0.02, max_msgs: int = 200,
+             yield_every_s: float = 0.0, yield_s: float = 0.0002) -> int:
+        """Handle what has arrived (at most `max_msgs` frames, stopping once
+        `budget_s` of wall time is spent; the rest waits in the socket's
+        bounded buffer for the next poll), then tick. Never blocks, never
+        raises for a frame. Returns the number of frames handled.
+
+        `yield_every_s` > 0: after that much work, sleep `yield_s` (the link
+        thread in qnav-robot): the interpreter lock is then free for the
+        ticking thread, whose frame-by-frame I/O would otherwise wait a
+        switch interval for every reacquisition (the convoy effect)."""
         self._sync_signing(now_us)
-        for _ in range(max_msgs):
+        t_end = time.perf_counter() + budget_s
+        t_yield = time.perf_counter() + yield_every_s
+        n = 0
+        while n < max_msgs:
+            if yield_every_s > 0 and time.perf_counter() >= t_yield:
+                time.sleep(yield_s)
+                t_yield = time.perf_counter() + yield_every_s
             try:
                 msg = self.conn.recv_msg()
             except OSError:
                 break
+            except Exception as exc:  # the parser itself: count, never stop the poll
+                self._handler_error("parser", exc)
+                continue
             if msg is None:
+                if not (self._datagrams and self.conn.mav.buf_len() > 0):
+                    break  # nothing more has arrived
+                # UDP: a datagram that ended inside a frame. Each sender's frames come whole in
+                # their own datagrams, so the rest is garbage; kept, it would swallow the start of
+                # the next datagram (another client's heartbeat): drop it and read on.
+                self._drop_partial()
+                n += 1
+                continue
+            n += 1
+            try:
+                replies = self.node.handle(msg, now_us)
+            except Exception as exc:  # one bad frame costs one frame, not the poll (and never the tick)
+                self._handler_error(msg.get_type(), exc)
+                replies = []
+            self.send(replies, now_us)
+            if time.perf_counter() >= t_end:
+                self.budget_exhausted += 1
                 break
-            self.send(self.node.handle(msg, now_us), now_us)
         cpu, wall = time.process_time(), time.monotonic()
         if wall - self._cpu[1] >= 1.0:
             self.node.stats.load_permille = int(1000 * (cpu - self._cpu[0]) / (wall - self._cpu[1]))
             self._cpu = (cpu, wall)
-        self.send(self.node.tick(now_us), now_us)
+        try:
+            out = self.node.tick(now_us)
+        except Exception as exc:
+            self._handler_error("tick", exc)
+            out = []
+        self.send(out, now_us)
+        return n
+
+    def _drop_partial(self) -> None:
+        mav = self.conn.mav
+        self.partial_dropped += 1
+        self.node.stats.rx_dropped += 1
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+
+    def _handler_error(self, kind: str, exc: BaseException) -> None:
+        """Count an exception out of a handler; log the first one of each kind."""
+        self.handler_errors[kind] = self.handler_errors.get(kind, 0) + 1
+        if self.handler_errors[kind] == 1:
+            log.error("MAVLink %s handler raised %s: %s (dropped; further %s errors only counted)",
+                      kind, type(exc).__name__, exc, kind)
 
     def serve(self, clock: Clock, stop: threading.Event, idle_s: float = 0.005) -> None:
         """Standalone loop: poll, then wait for input up to `idle_s`."""

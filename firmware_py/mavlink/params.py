@@ -20,6 +20,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Protocol
 
 from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
@@ -29,6 +30,13 @@ PARAM_FILE = "params/params.json"  # storage layout: firmware_py.storage.PARAMS_
 FILE_VERSION = 1
 
 MAV_PARAM_TYPE_INT32 = 6  # MAVLink MAV_PARAM_TYPE_INT32 (ArduPilot style: value cast to float)
+
+
+class DeferredSaver(Protocol):
+    """Where `ParamStore` hands its saves when one is attached (a storage worker)."""
+
+    def submit(self, key: str, job: Callable[[], None]) -> bool: ...
+    def flush(self, timeout_s: float = 5.0) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -129,6 +137,9 @@ class ParamStore:
         self._order = [p.name for p in PARAMS]
         self._values = {p.name: p.default for p in PARAMS}
         self.path = Path(storage_dir) / PARAM_FILE if storage_dir is not None else None
+        # a storage worker (firmware_py.mavlink.link_thread.StorageWorker): saves run there,
+        # coalesced, instead of in the caller's thread; load() flushes it first
+        self.deferred: DeferredSaver | None = None
 
     # --- table ----------------------------------------------------------------
     def names(self) -> list[str]:
@@ -180,7 +191,10 @@ class ParamStore:
                 return False, f"{name}={ivalue}: {why}"
         if ivalue != self._values[name]:
             self._values[name] = ivalue
-            self.save()
+            if self.deferred is not None:
+                self.deferred.submit("params", self.save)
+            else:
+                self.save()
         return True, ""
 
     def set_readonly(self, name: str, value: int) -> None:
@@ -208,6 +222,8 @@ class ParamStore:
     def load(self) -> list[str]:
         """Reset to defaults, then apply the stored file. Returns warnings
         (one line each) for anything ignored; never raises on bad content."""
+        if self.deferred is not None:
+            self.deferred.flush()  # a save still queued would be read back as the old table
         self._values.update({p.name: p.default for p in PARAMS if not p.readonly})
         if self.path is None or not self.path.exists():
             return []

@@ -14,6 +14,19 @@ shared, loaded machine the difference is the OS preempting the tick).
 Baselines measured in the same run: the control period (the deadline the
 loop must meet) and `Controller.step` alone in this process on recorded-like
 inputs (the decision's pure compute, no bus, no threads).
+
+Then, unless `--no-load`, the link isolation (issue 13): the robot with its
+MAVLink node on UDP (`ground_station.faults.link_faults.load_run`), once
+quiet (no ground station: the baseline) and once loaded (three ground
+stations, 10 Hz telemetry, uploads back to back, and the floods of
+`ground_station.faults.floods`: 600 PARAM_SET, 300 PARAM_REQUEST_LIST, 150
+CalcFileCRC32 of a 6 MB file, in turn). Reported on the wall clock for
+each: tick (SimTick arrival -> command), compute (step start -> command),
+lag against the pace, periods lost; the loaded/quiet ratio of the p99s.
+And in this process, the interpreter-lock wait behind the thread/process
+choice: how late a thread waking every 10 ms runs alone, and beside a
+thread running pure Python at CPython's default switch interval (5 ms) and
+at qnav-robot's (0.5 ms).
 """
 
 from __future__ import annotations
@@ -35,6 +48,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--start", default="0.25,0.25,0", metavar="X,Y,DEG")
     p.add_argument("--rt-priority", type=int, default=10, metavar="N",
                    help="also run with the robot's ticking thread SCHED_FIFO at N (0: skip)")
+    p.add_argument("--no-load", dest="load", action="store_false",
+                   help="skip the quiet-vs-loaded MAVLink runs")
+    p.add_argument("--gil-switch-us", type=int, default=None, metavar="US",
+                   help="qnav-robot --gil-switch-us for the quiet and loaded runs (default: the robot's)")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
     p.set_defaults(func=run)
 
@@ -105,6 +122,70 @@ def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
         return json.loads(stats_path.read_text())
 
 
+def gil_wait(switch_us: int | None, busy: bool, seconds: float = 1.5, period_s: float = 0.01) -> dict:
+    """How late a thread that wakes every `period_s` runs (p50/p99/max µs), with or
+    without a second thread running pure Python (a link handler) at the given
+    switch interval: the interpreter-lock wait a tick can see beside the link thread."""
+    import sys
+    import threading
+
+    old = sys.getswitchinterval()
+    if switch_us is not None:
+        sys.setswitchinterval(switch_us / 1e6)
+    stop = threading.Event()
+
+    def spin() -> None:
+        x = 0
+        while not stop.is_set():
+            for i in range(1000):
+                x += i * i
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    if busy:
+        spinner.start()
+    late = []
+    try:
+        t_next = time.perf_counter() + period_s
+        t_end = time.perf_counter() + seconds
+        while t_next < t_end:
+            time.sleep(max(0.0, t_next - time.perf_counter()))
+            late.append(time.perf_counter() - t_next)
+            t_next += period_s
+    finally:
+        stop.set()
+        if busy:
+            spinner.join()
+        sys.setswitchinterval(old)
+    late.sort()
+    n = len(late) - 1
+    return {"p50_us": late[n // 2] * 1e6, "p99_us": late[int(0.99 * n)] * 1e6, "max_us": late[-1] * 1e6}
+
+
+LOAD_FIGURES = ("tick_p50_us", "tick_p99_us", "tick_max_us", "compute_p50_us", "compute_p99_us", "compute_max_us",
+                "lag_p99_us", "lag_max_us", "wall_overruns", "overruns", "ticks", "sim_ticks", "cpu_percent")
+
+
+def load_variants(args: argparse.Namespace) -> dict:
+    """Quiet and loaded runs of the robot with MAVLink (module doc); both dicts + ratios."""
+    from ground_station.errors import CliError
+    from ground_station.faults.link_faults import load_run
+
+    extra = () if args.gil_switch_us is None else ("--gil-switch-us", str(args.gil_switch_us))
+    out: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, clients in (("quiet", False), ("loaded", True)):
+            r = load_run(args.seconds, 77 if clients else 76, Path(tmp), clients_on=clients, floods=clients,
+                         extra_args=extra)
+            if "tick_p99_us" not in r:
+                raise CliError(f"{name} run failed: {'; '.join(r['problems'])}")
+            out[name] = {k: r.get(k) for k in (*LOAD_FIGURES, "problems", "floods_done", "uploads", "param_lists",
+                                               "link_frames", "link_budget_exhausted", "switch_interval_us")}
+    for k in ("tick_p99_us", "compute_p99_us"):
+        q = out["quiet"][k]
+        out[f"{k}_ratio"] = out["loaded"][k] / q if q else None
+    return out
+
+
 KEYS = ("tick_p50_us", "tick_p99_us", "tick_max_us", "ticks", "overruns", "cpu_percent", "rss_mb")
 
 
@@ -149,6 +230,28 @@ def run(args: argparse.Namespace) -> int:
                  (f"[{label}] ticks / overruns", f"{v['ticks']} / {v['overruns']}"),
                  (f"[{label}] cpu_percent (1 core = 100)", v["cpu_percent"]),
                  (f"[{label}] rss_mb", v["rss_mb"])]
+    gil = {"no second thread": gil_wait(None, False), "busy thread, CPython default 5000 us": gil_wait(5000, True),
+           "busy thread, 500 us (qnav-robot default)": gil_wait(500, True)}
+    result["gil_wait"] = gil
+    rows += [(f"[GIL wait] {k}: wake-up late p50 / p99 / max us",
+              f"{v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}") for k, v in gil.items()]
+    if args.load:
+        lv = load_variants(args)
+        result["load"] = lv
+        for name in ("quiet", "loaded"):
+            v = lv[name]
+            label = ("MAVLink quiet (baseline)" if name == "quiet" else
+                     "MAVLink loaded: 3 GCS + uploads + floods")
+            rows += [(f"[{label}] tick p50 / p99 / max us",
+                      f"{v['tick_p50_us']:.0f} / {v['tick_p99_us']:.0f} / {v['tick_max_us']:.0f}"),
+                     (f"[{label}] compute p50 / p99 / max us",
+                      f"{v['compute_p50_us']:.0f} / {v['compute_p99_us']:.0f} / {v['compute_max_us']:.0f}"),
+                     (f"[{label}] lag p99 / max us", f"{v['lag_p99_us']:.0f} / {v['lag_max_us']:.0f}"),
+                     (f"[{label}] ticks / SimTicks / wall periods lost",
+                      f"{v['ticks']} / {v['sim_ticks']} / {v['wall_overruns']}")]
+        rows += [("loaded / quiet tick_p99", lv["tick_p99_us_ratio"]),
+                 ("loaded / quiet compute_p99", lv["compute_p99_us_ratio"]),
+                 ("floods done (loaded run)", lv["loaded"].get("floods_done"))]
     rows = [("period_us (deadline)", result["period_us"]),
             ("core_step_p50_us (baseline: step alone)", base["core_step_p50_us"])] + rows
     report("controller", rows, result, args.json)

@@ -21,9 +21,13 @@
   python-can-remote hub, driving the paper10 tour, with three ground-station
   clients at once: a monitor-like client (heartbeats, all telemetry at
   10 Hz), a client asking for the parameter list and messages in a loop, and
-  `qnav upload`'s code uploading policies back to back. No control tick may
-  be missed; the robot's tick_p99_us is reported (asserted < 1000 only by
-  the bench, never by a test).
+  `qnav upload`'s code uploading policies back to back; with `floods`, a
+  fourth client sends the floods of `ground_station.faults.floods` in turn
+  (600 PARAM_SET, 300 PARAM_REQUEST_LIST, 150 CalcFileCRC32 of a 6 MB file).
+  No control tick may be missed on the sim clock (in the bench, none on the
+  wall clock either); the
+  robot's tick_p99_us / compute_p99_us are reported beside a baseline run
+  without clients (the ratio is checked only by the bench, never a test).
 """
 
 from __future__ import annotations
@@ -322,15 +326,27 @@ TELEMETRY_10HZ = ("LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT", "NAV_
                   "OBSTACLE_DISTANCE")
 
 
-def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -> dict:
+LOAD_KEYS = ("ticks", "sim_ticks", "overruns", "can_errors", "tick_p50_us", "tick_p99_us", "tick_max_us",
+             "compute_p50_us", "compute_p99_us", "compute_max_us", "lag_p99_us", "lag_max_us", "wall_overruns",
+             "wall_late_ticks", "period_us", "cpu_percent", "rss_mb", "state", "link_polls", "link_frames",
+             "link_budget_exhausted", "link_poll_max_ms", "link_handler_errors", "storage_saves",
+             "storage_coalesced", "switch_interval_us")
+
+
+def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True, floods: bool = False,
+             extra_args: tuple[str, ...] = (), wall_strict: bool = False) -> dict:
     """One paced real-time HIL run across processes under MAVLink load; the robot's stats.
-    `clients_on=False` is the baseline: the same run with no ground station at all."""
+    `clients_on=False` is the baseline: the same run (same robot, storage and
+    MAVLink node) with no ground station at all; `floods` adds the flood client.
+    `wall_strict`: control periods lost on the wall clock are a problem too
+    (the bench; see ground_station.faults.floods for why tests leave it off)."""
     import json
     import subprocess
 
     from firmware_py import robot_spec as rb
     from firmware_py.canbus import CanHub
     from firmware_py.storage import ACTIVE_POLICY, Storage
+    from ground_station.faults import floods as flood_mod
     from ground_station.faults.crash import policy_version
     from ground_station.mavlink.ftp_upload import upload_policy
     from ground_station.mavlink.link import Link
@@ -340,6 +356,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
     gm = paper10()
     storage_dir = tmp / f"robot-{seed}"
     Storage(storage_dir).write_atomic(ACTIVE_POLICY, CELL_POLICY.read_bytes())
+    (storage_dir / flood_mod.BIG_FILE).write_bytes(random.Random(seed).randbytes(flood_mod.BIG_BYTES))
     stats_file = tmp / f"load-{seed}.json"
     x, y = rb.cell_center_mm(0, 9, gm.height)
     tour = [gm.targets[t] for t in ("A", "B", "D", "C")]
@@ -350,7 +367,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
                                     str(duration_s + 30), "--start", f"{x / 1000},{y / 1000},90", "-q"), None)
         sim.start()
         extra = ["--sim-clock", "--start-cell", "0,9,90", "--duration", str(duration_s),
-                 "--stats-json", str(stats_file), "-q"]
+                 "--stats-json", str(stats_file), "-q", *extra_args]
         for c, r in tour:
             extra += ["--goal-cell", f"{c},{r}"]
         robot = RobotProcess(storage_dir, can=hub.spec, extra=extra, log=tmp / f"load-{seed}.log")
@@ -403,8 +420,23 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
                 finally:
                     link.close()
 
-            clients = [_Client(n, w, stop) for n, w in (("monitor", monitor), ("asker", asker),
-                                                         ("uploader", uploader))] if clients_on else []
+            def flooder(cl: _Client) -> None:  # the floods in turn, each followed by its catch-up second
+                link = Link(robot.url, tlog=False)
+                try:
+                    link.connect(30.0)
+                    k = 0
+                    while not stop.is_set():
+                        kind = flood_mod.FLOOD_KINDS[k % len(flood_mod.FLOOD_KINDS)]
+                        flood_mod.flood(link, kind, flood_mod.FLOOD_COUNTS[kind])
+                        k += 1
+                        cl.counts[kind] = cl.counts.get(kind, 0) + 1
+                finally:
+                    link.close()
+
+            work = [("monitor", monitor), ("asker", asker), ("uploader", uploader)]
+            if floods:
+                work.append(("flooder", flooder))
+            clients = [_Client(n, w, stop) for n, w in work] if clients_on else []
             if clients_on:
                 clients[0].start()
             if clients_on and not ready.wait(60.0):
@@ -433,14 +465,18 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
         return out
     mon = clients[0].counts if clients else {}
     span = mon.get("t1", 0) - mon.get("t0", 0)
-    out.update({k: st[k] for k in ("ticks", "sim_ticks", "overruns", "can_errors", "tick_p50_us", "tick_p99_us",
-                                   "tick_max_us", "period_us", "cpu_percent", "rss_mb", "state")})
+    out.update({k: st[k] for k in LOAD_KEYS if k in st})
+    if floods and len(clients) > 3:
+        out["floods_done"] = {k: v for k, v in clients[3].counts.items() if k in flood_mod.FLOOD_COUNTS}
     out["telemetry_hz"] = {t: mon.get(t, 0) / span for t in TELEMETRY_10HZ} if span > 0 else {}
     out["uploads"] = clients[2].counts.get("uploads", 0) if clients else 0
     out["param_lists"] = clients[1].counts.get("param_lists", 0) if clients else 0
     out["transitions"] = st.get("transitions", [])
     if st["overruns"]:
         out["problems"].append(f"{st['overruns']} control ticks missed")
+    if wall_strict and st.get("wall_overruns"):
+        out["problems"].append(f"{st['wall_overruns']} control periods lost on the wall clock "
+                               f"(lag max {st.get('lag_max_us', 0):.0f} us)")
     if st["ticks"] != st["sim_ticks"] or st["ticks"] < duration_s * 20 * 0.5:
         out["problems"].append(f"{st['ticks']} control ticks for {st['sim_ticks']} sim ticks")
     if st["state"] == "FAULT":
@@ -453,10 +489,13 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True) -
 
 
 @register("load", small=1, large=3, unit="runs of 8 s (test) / 30 s (bench) sim time at real time",
-          what="3 GCS clients + 10 Hz telemetry + upload while driving: no missed tick (p99 measured)")
+          what="3 GCS clients + 10 Hz telemetry + uploads (+ floods in the bench) while driving: no missed tick")
 def load(count: int, seed: int = 0, progress=None, duration_s: float | None = None,
-         baseline: bool = False) -> ScenarioResult:
-    """`baseline`: first one run without clients, reported beside (the bench's ratio)."""
+         baseline: bool = False, floods: bool | None = None) -> ScenarioResult:
+    """`baseline`: first one run without clients, reported beside (the bench's ratio).
+    `floods` (default: with the baseline, i.e. in the bench) adds the flood client."""
+    if floods is None:
+        floods = baseline
     res = ScenarioResult("load")
     if duration_s is None:
         duration_s = 8.0 if count <= 1 else 30.0
@@ -466,7 +505,7 @@ def load(count: int, seed: int = 0, progress=None, duration_s: float | None = No
             base = load_run(duration_s, seed * 1000 + 999, Path(tmp), clients_on=False)
             res.figures["baseline"] = {k: v for k, v in base.items() if k != "transitions"}
         for i in range(count):
-            run = load_run(duration_s, seed * 1000 + i, Path(tmp))
+            run = load_run(duration_s, seed * 1000 + i, Path(tmp), floods=floods, wall_strict=baseline)
             runs.append({k: v for k, v in run.items() if k != "transitions"})
             res.check(run["problems"], f"run {i}")
             if progress is not None:
@@ -476,4 +515,5 @@ def load(count: int, seed: int = 0, progress=None, duration_s: float | None = No
     if p99:
         res.figures["tick_p99_us_max"] = max(p99)
         res.figures["tick_max_us_max"] = max(r["tick_max_us"] for r in runs if "tick_max_us" in r)
+        res.figures["compute_p99_us_max"] = max(r.get("compute_p99_us", 0.0) for r in runs)
     return res
