@@ -186,5 +186,5 @@ class LinkThread:
                 "link_poll_max_ms": round(self.poll_max_s * 1000, 3),
                 "link_budget_exhausted": self.shell.budget_exhausted,
                 "link_partial_dropped": self.shell.partial_dropped,
-                "link_handler_errors": dict(self.shell.handler_errors),
+                "link_handler_errors": self.shell.all_handler_errors(),
                 "switch_interval_us": round(sys.getswitchinterval() * 1e6)}

@@ -523,6 +523,14 @@ class MavShell:
         mav.buf_index = 0
         mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
 
+    def all_handler_errors(self) -> dict[str, int]:
+        """Exceptions caught per kind, by the node's own per-message catch and
+        by this shell's (parser, socket, anything the node let through)."""
+        merged = dict(self.node.handler_errors)
+        for kind, n in self.handler_errors.items():
+            merged[kind] = merged.get(kind, 0) + n
+        return merged
+
     def _handler_error(self, kind: str, exc: BaseException) -> None:
         """Count an exception out of a handler; log the first one of each kind."""
         self.handler_errors[kind] = self.handler_errors.get(kind, 0) + 1

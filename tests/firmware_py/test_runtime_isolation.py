@@ -108,7 +108,7 @@ def test_link_thread_survives_raising_handlers_and_failsafe_runs_on_the_control_
                                                      0, 0, 0, 0, 0)
             m.param_request_read_send(1, 1, b"FS_GCS_TOUT_MS", -1)
             assert wait_for("PARAM_VALUE", lambda p: p.param_id == "FS_GCS_TOUT_MS") is not None
-        assert shell.handler_errors == {"SET_POSITION_TARGET_LOCAL_NED": 5}
+        assert shell.all_handler_errors() == {"SET_POSITION_TARGET_LOCAL_NED": 5}
         assert sum("SET_POSITION_TARGET_LOCAL_NED" in r.getMessage() for r in caplog.records) == 1  # once per kind
         assert polled_in == {"qnav-link"}  # never in the ticking thread
 
