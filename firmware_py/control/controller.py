@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 from firmware_py import robot_spec
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
+from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.encoders import CellEncoder, SectorEncoder
@@ -153,7 +154,8 @@ class Controller:
     """The control state machine; implements vehicle.VehicleControl."""
 
     def __init__(self, config: VehicleConfig | None = None, policy: Policy | None = None, *,
-                 start_pose_mm: tuple[int, int, int] = (0, 0, 0), lockstep: bool = False) -> None:
+                 start_pose_mm: tuple[int, int, int] = (0, 0, 0), lockstep: bool = False,
+                 localise: bool = True, localiser_config: LocaliserConfig | None = None) -> None:
         self.cfg = config or VehicleConfig()
         self._lock = threading.RLock()
         self.lockstep = lockstep
@@ -188,8 +190,30 @@ class Controller:
         self._q_row: tuple[int, ...] = ()
         self.tick_overruns = 0
         self.can_errors = 0
+        # Monte Carlo localisation on the policy's map (control/localiser.py) when the policy carries one
+        self.localise = localise
+        self._loc_cfg = localiser_config
+        self.loc: Localiser | None = None
+        self._make_localiser(policy)
 
     # --- helpers ------------------------------------------------------------------
+    def _make_localiser(self, pol: Policy | None) -> None:
+        """A localiser for `pol`'s map (kept when the map is the same), else
+        none: the robot then drives on odometry alone."""
+        grid = pol.map_grid if pol is not None and self.localise else None
+        if grid is None:
+            self.loc = None
+            return
+        if self.loc is not None and self.loc.grid == grid:
+            return
+        self.loc = Localiser(grid, self._loc_cfg)
+        self.loc.init_pose(*self.odom.pose_mm())
+
+    @property
+    def nav(self) -> Localiser | Odometry:
+        """The pose the robot drives by: the localiser's when it runs, else odometry."""
+        return self.loc if self.loc is not None else self.odom
+
     def _event(self, kind: str, text: str, severity: int = SEV_INFO, seq: int = -1) -> None:
         self._events.append(VehicleEvent(kind=kind, text=text[:50], seq=seq, severity=severity))
 
@@ -251,6 +275,9 @@ class Controller:
             return False, "no policy loaded"
         if self._inputs.bumper:
             return False, "bumper pressed"
+        if self.loc is not None and not self.loc.localised:
+            sx, sy, sa = self.loc.std()
+            return False, f"not localised (std {max(sx, sy):.0f} mm {sa:.0f} mrad)"
         return True, ""
 
     def _start_driving(self, goal: tuple[int, int], goal_index: int, cause: str) -> None:
@@ -269,11 +296,13 @@ class Controller:
             inp = self._inputs
             dist = bearing = 0
             if self.goal is not None:
-                dist, bearing = self.odom.goal_vector(*self.goal)
+                dist, bearing = self.nav.goal_vector(*self.goal)
+            x_mm, y_mm, heading_mrad = self.nav.pose_mm()
+            std = self.loc.std() if self.loc is not None else (0.0, 0.0, 0.0)
             return VehicleStatus(
                 time_us=self._now, state=self.state, mode=self.mode, armed=self.armed,
                 failsafe=self.failsafe, fault=self.fault,
-                x_mm=self.odom.x_mm, y_mm=self.odom.y_mm, heading_mrad=self.odom.heading_mrad,
+                x_mm=x_mm, y_mm=y_mm, heading_mrad=heading_mrad,
                 speed_mm_s=self.odom.speed_mm_s, yaw_rate_mrad_s=self.odom.yaw_rate_mrad_s,
                 goal_mm=self.goal, distance_to_goal_mm=dist, bearing_to_goal_mrad=bearing,
                 ranges_mm=list(inp.ranges_mm), range_status=list(inp.range_status),
@@ -284,7 +313,11 @@ class Controller:
                 mission_seq=self.mission_seq, mission_count=len(self.mission),
                 policy_id=self.policy.policy_id if self.policy else 0,
                 policy_crc=self.policy.crc if self.policy else 0,
-                ticks=self._ticks, tick_overruns=self.tick_overruns, can_errors=self.can_errors)
+                ticks=self._ticks, tick_overruns=self.tick_overruns, can_errors=self.can_errors,
+                odom_x_mm=self.odom.x_mm, odom_y_mm=self.odom.y_mm, odom_heading_mrad=self.odom.heading_mrad,
+                localiser=("off" if self.loc is None else "global" if self.loc.global_mode else "tracking"),
+                localised=self.loc is None or self.loc.localised,
+                pose_std_mm=(round(std[0]), round(std[1])), pose_std_mrad=round(std[2]))
 
     def arm(self) -> tuple[bool, str]:
         with self._lock:
@@ -466,6 +499,7 @@ class Controller:
                     return False, f"mission item {i}: {why}"
             old = self.policy
             self.policy = new
+            self._make_localiser(new)
             if old is not None:
                 self.last_known_good = old
             text = f"policy 0x{new.policy_id:08x} {new.kind} active"
@@ -493,6 +527,19 @@ class Controller:
             self.odom.reset(int(x_mm), int(y_mm), int(heading_mrad))
             self._last_enc_us = None
             self._prim = None
+            if self.loc is not None:
+                self.loc.init_pose(int(x_mm), int(y_mm), int(heading_mrad))
+
+    def localise_global(self) -> tuple[bool, str]:
+        """Forget the pose: particles uniform over the map (global localisation)."""
+        with self._lock:
+            if self.loc is None:
+                return False, "no map: the active policy carries none (qnav policy attach-map)"
+            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                return False, "refused while driving: stop first"
+            self.loc.init_global()
+            self._event("info", "global localisation started")
+            return True, ""
 
     def note_loop_stats(self, overruns: int, can_errors: int) -> None:
         with self._lock:
@@ -514,6 +561,12 @@ class Controller:
             if inp.enc_us is not None and inp.enc_us != self._last_enc_us:
                 self.odom.update(inp.enc_left, inp.enc_right, inp.enc_us)
                 self._last_enc_us = inp.enc_us
+            if self.loc is not None:
+                was = self.loc.localised
+                self.loc.tick(self.odom.pose_mm(), inp.ranges_mm, inp.range_status)
+                if self.loc.localised != was:
+                    self._event("info", "localised" if self.loc.localised else "localisation lost",
+                                SEV_INFO if self.loc.localised else SEV_WARNING)
             errors = self._safety(inp, now_us)
             if self.state == CtrlState.GOAL_REACHED:
                 self._after_goal()
@@ -591,7 +644,7 @@ class Controller:
 
     def _drive(self, inp: Inputs, now_us: int) -> None:
         assert self.goal is not None and self.policy is not None
-        dist, bearing = self.odom.goal_vector(*self.goal)
+        dist, bearing = self.nav.goal_vector(*self.goal)
         if dist <= self.cfg.goal_tolerance_mm:
             self._transition(CtrlState.GOAL_REACHED, f"goal reached, {dist} mm off")
             if self.mode == Mode.AUTO:
@@ -618,7 +671,7 @@ class Controller:
         assert pol is not None and self.goal is not None  # called from _drive
         enc = pol.encoder
         assert isinstance(enc, CellEncoder)  # _drive: not a sector policy
-        x, y, heading = self.odom.pose_mm()
+        x, y, heading = self.nav.pose_mm()
         if self._prim is None:
             col, row = robot_spec.world_to_cell(x, y, enc.height, pol.cell_mm)
             if not (0 <= col < enc.width and 0 <= row < enc.height):
@@ -628,7 +681,7 @@ class Controller:
             goal_cell = robot_spec.world_to_cell(*self.goal, enc.height, pol.cell_mm)
             if (col, row) == goal_cell:
                 target = self.goal
-                _, b = self.odom.goal_vector(*target)
+                _, b = self.nav.goal_vector(*target)
                 head = wrap_mrad(heading + b)
             else:
                 s = enc.encode(col, row, self._goal_index)
@@ -648,7 +701,7 @@ class Controller:
                 w = max(MIN_TURN_MM_S, min(turn_cap, w))
                 return (-w, w) if err > 0 else (w, -w)
             prim.turning = False
-        dist, bearing = self.odom.goal_vector(*prim.target)
+        dist, bearing = self.nav.goal_vector(*prim.target)
         if dist <= ARRIVE_TOLERANCE_MM or (abs(bearing) > 1571 and dist < pol.cell_mm // 2):
             self._prim = None  # arrived (or just past it): re-localise from odometry
             return self._cell_primitive(depth + 1) if depth == 0 else (0, 0)

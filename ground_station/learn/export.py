@@ -10,6 +10,7 @@ because rounding creates argmax ties that rarely change path optimality.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -213,10 +214,10 @@ def file_metadata(run: TrainingRun, qt: Quantised) -> dict:
     keep = {k: run.meta[k] for k in ("encoding", "map", "targets", "config", "steps", "train_seconds",
                                      "created", "seed") if k in run.meta}
     keep["quantisation"] = {"dtype": qt.dtype, "per_state_scales": qt.state_scales is not None}
-    try:  # the robot's localiser needs the training map's cells (firmware_py.mapdata)
+    # the robot's localiser needs the training map's cells (firmware_py.mapdata); an unnamed or
+    # unreadable map: the file carries no grid and the robot runs on odometry
+    with contextlib.suppress(ValueError):
         keep[META_GRID] = map_grid_rows(str(run.meta.get("map") or ""), run.cell_mm)
-    except ValueError:
-        pass  # an unnamed or unreadable map: the file carries no grid, the robot runs on odometry
     if len(json.dumps(keep)) > fmt.MAX_METADATA_BYTES:
         keep.pop("config", None)
     return keep
