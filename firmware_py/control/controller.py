@@ -74,6 +74,13 @@ DRIVE_GAIN_PER_S = 3  # forward speed = gain * distance, capped by the forward a
 STEER_GAIN_PER_S = 3  # yaw rate (mrad/s) = gain * bearing (mrad)
 STOP_BURST_TICKS = 3  # zero commands sent after leaving DRIVING when not in lockstep
 
+# Exploration while localising globally (a reactive wander: forward while the front is clear, else turn).
+EXPLORE_FORWARD_MM_S = 250
+EXPLORE_TURN_MM_S = 160
+EXPLORE_CLEAR_FRONT_MM = 450
+EXPLORE_CLEAR_DIAGONAL_MM = 300
+EXPLORE_TIMEOUT_US = 30_000_000
+
 # Grid action (dcol, drow) -> world heading (mrad): rows grow southwards.
 _GRID_HEADING = {(1, 0): 0, (0, -1): 1571, (-1, 0): 3142, (0, 1): -1571}
 
@@ -194,6 +201,7 @@ class Controller:
         self.localise = localise
         self._loc_cfg = localiser_config
         self.loc: Localiser | None = None
+        self._explore_until_us: int | None = None  # exploring for global localisation (armed, HOLD)
         self._make_localiser(policy)
 
     # --- helpers ------------------------------------------------------------------
@@ -530,16 +538,49 @@ class Controller:
             if self.loc is not None:
                 self.loc.init_pose(int(x_mm), int(y_mm), int(heading_mrad))
 
-    def localise_global(self) -> tuple[bool, str]:
-        """Forget the pose: particles uniform over the map (global localisation)."""
+    def localise_global(self, explore: bool = True) -> tuple[bool, str]:
+        """Forget the pose: particles uniform over the map (global
+        localisation). With `explore` and armed in HOLD the robot wanders
+        (forward while the front is clear, else turning in place) until the
+        localiser has converged, the bumper is pressed, it is disarmed or
+        EXPLORE_TIMEOUT_US passes; goals are refused until it is localised."""
         with self._lock:
             if self.loc is None:
                 return False, "no map: the active policy carries none (qnav policy attach-map)"
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
             self.loc.init_global()
-            self._event("info", "global localisation started")
+            self._explore_until_us = self._now + EXPLORE_TIMEOUT_US if explore else None
+            self._event("info", "global localisation started" + (", exploring" if explore else ""))
             return True, ""
+
+    def _explore(self, inp: Inputs, now_us: int) -> None:
+        """One tick of the wander that feeds global localisation (HOLD, armed)."""
+        assert self._explore_until_us is not None and self.loc is not None
+        done = ""
+        if not self.loc.global_mode:
+            done = "localised"
+        elif not self.armed or self.state != CtrlState.HOLD or inp.bumper:
+            done = "exploration stopped"
+        elif now_us >= self._explore_until_us:
+            done = "exploration timed out, not localised"
+        if done:
+            self._explore_until_us = None
+            self._stop()
+            self._event("info", done, SEV_INFO if done == "localised" else SEV_WARNING)
+            return
+
+        def rng(k: int) -> int:
+            st = inp.range_status[k]
+            return robot_spec.RANGE_MAX_MM if st == robot_spec.RANGE_TOO_FAR else (
+                inp.ranges_mm[k] if st == robot_spec.RANGE_VALID else 0)
+
+        front = rng(0)
+        diag = min(rng(1), rng(7))
+        if front > EXPLORE_CLEAR_FRONT_MM and diag > EXPLORE_CLEAR_DIAGONAL_MM:
+            self.watchdog.feed(now_us, EXPLORE_FORWARD_MM_S, EXPLORE_FORWARD_MM_S)
+        else:
+            self.watchdog.feed(now_us, -EXPLORE_TURN_MM_S, EXPLORE_TURN_MM_S)
 
     def note_loop_stats(self, overruns: int, can_errors: int) -> None:
         with self._lock:
@@ -574,6 +615,8 @@ class Controller:
             self._q_row = ()
             if self.state == CtrlState.DRIVING:
                 self._drive(inp, now_us)
+            elif self._explore_until_us is not None:
+                self._explore(inp, now_us)
             return self._outputs(now_us, tick, errors)
 
     def _safety(self, inp: Inputs, now_us: int) -> int:
@@ -722,7 +765,8 @@ class Controller:
         else:
             self._cmd_counter = (self._cmd_counter + 1) & 0xFFFFFF
             counter = self._cmd_counter
-        live = self.state == CtrlState.DRIVING and not self.watchdog.expired(now_us)
+        moving = self.state == CtrlState.DRIVING or self._explore_until_us is not None
+        live = moving and not self.watchdog.expired(now_us)
         if live or self.lockstep or tick is not None:
             motor = MotorCommand(left, right, counter)
         elif self._stop_burst > 0:

@@ -63,8 +63,13 @@ class LocaliserConfig:
     """Every tuning value of the filter (units in the names)."""
 
     particles: int = 200
-    global_particles: int = 3000
+    global_particles: int = 2000
     chunk: int = 25  # particles weighed per control tick
+    global_chunk: int = 150  # the same while localising globally (the robot explores, no policy runs)
+    global_jitter_mm: float = 40.0  # roughening of resampled particles while localising globally
+    global_jitter_mrad: float = 80.0
+    cluster_mm: float = 400.0  # global mode: the best particle's cluster (radius) that must hold ...
+    cluster_share: float = 0.8  # ... this share of the weight to count as converged
     fan_rays: int = robot_spec.SENSOR_FAN_RAYS  # rays per sensor cone in the sensor model
     update_mm: float = 40.0
     update_mrad: float = 80.0
@@ -80,6 +85,7 @@ class LocaliserConfig:
     max_field_mm: float = 400.0  # distances beyond it are floor
     field_res_mm: int = 25
     beam_weight: float = 0.6  # log-likelihood multiplier: the 8 readings are not independent
+    global_beam_weight: float = 0.2  # softer while localising globally, so no wrong mode wins early
     alpha_slow: float = 0.01
     alpha_fast: float = 0.2
     max_random_share: float = 0.1  # at most this share of a resample is drawn uniformly
@@ -101,8 +107,10 @@ class LocaliserConfig:
 
 class LikelihoodField:
     """log(z_hit * exp(-d^2 / 2 sigma^2) + z_floor) on a `res_mm` raster of
-    the map, d the distance (mm) from the square's centre to the nearest
-    occupied cell or the map's edge, capped at `max_mm`."""
+    the map and a `max_mm` margin around it (end points of readings of the
+    outer walls land there), d the distance (mm) from the square's centre to
+    the nearest occupied cell or the outside of the map (0 inside them),
+    capped at `max_mm`. Beyond the raster: the floor."""
 
     def __init__(self, grid: OccupancyGrid, res_mm: int, sigma_mm: float, z_hit: float, z_floor: float,
                  max_mm: float) -> None:
@@ -111,16 +119,17 @@ class LikelihoodField:
         c = grid.cell_mm
         self.width_mm = grid.width * c
         self.height_mm = grid.height * c
-        self.nx = -(-self.width_mm // res_mm)
-        self.ny = -(-self.height_mm // res_mm)
+        self.margin = -(-int(max_mm) // res_mm) * res_mm
+        self.nx = -(-(self.width_mm + 2 * self.margin) // res_mm)
+        self.ny = -(-(self.height_mm + 2 * self.margin) // res_mm)
         self.floor = math.log(z_floor)
         reach = max(1, math.ceil(max_mm / c))
         table = array("f", bytes(4 * self.nx * self.ny))
         two_s2 = 2 * sigma_mm * sigma_mm
         for iy in range(self.ny):
-            py = (iy + 0.5) * res_mm
+            py = (iy + 0.5) * res_mm - self.margin
             for ix in range(self.nx):
-                px = (ix + 0.5) * res_mm
+                px = (ix + 0.5) * res_mm - self.margin
                 d = self.distance_mm(px, py, reach)
                 d = min(d, max_mm)
                 table[iy * self.nx + ix] = math.log(z_hit * math.exp(-d * d / two_s2) + z_floor)
@@ -131,8 +140,10 @@ class LikelihoodField:
         the map's edge, looking `reach` cells around (exact below reach * cell)."""
         g = self.grid
         c = g.cell_mm
-        col = int(px // c)
-        row = g.height - 1 - int(py // c)
+        col = math.floor(px / c)
+        row = g.height - 1 - math.floor(py / c)
+        if g.occupied(col, row):
+            return 0.0
         best = math.inf
         for r in range(row - reach, row + reach + 1):
             y0 = (g.height - 1 - r) * c
@@ -149,11 +160,13 @@ class LikelihoodField:
         return best
 
     def log_p(self, x_mm: float, y_mm: float) -> float:
-        """The field at a world point; outside the map: the floor."""
-        if x_mm < 0 or y_mm < 0:
+        """The field at a world point; beyond the raster: the floor."""
+        fx = x_mm + self.margin
+        fy = y_mm + self.margin
+        if fx < 0 or fy < 0:
             return self.floor
-        ix = int(x_mm / self.res)
-        iy = int(y_mm / self.res)
+        ix = int(fx / self.res)
+        iy = int(fy / self.res)
         if ix >= self.nx or iy >= self.ny:
             return self.floor
         return self.table[iy * self.nx + ix]
@@ -201,6 +214,7 @@ class Localiser:
         self._cursor = 0
         self._finish_due = False
         self._motion = (0.0, 0.0, 0.0)
+        self._force_update = False
         self.random_drawn = 0  # particles drawn uniformly at the last resample (recovery)
         self.localised = False
         self.init_pose(0, 0, 0)
@@ -235,6 +249,7 @@ class Localiser:
             self.ths.append(th)
         self.global_mode = True
         self._reset_estimate(*self._mean_cov())
+        self._force_update = True
         self.localised = False
 
     def _reset_estimate(self, est: tuple[float, float, float], cov: tuple[float, float, float]) -> None:
@@ -268,8 +283,9 @@ class Localiser:
             ex, ey, eth = self._est_odom
             moved = math.hypot(ox - ex, oy - ey) >= self.cfg.update_mm
             turned = abs(_wrap(oth - eth)) * 1000 >= self.cfg.update_mrad
-            if not (moved or turned or (self.global_mode and self.updates == 0)):
+            if not (moved or turned or self._force_update):
                 return
+            self._force_update = False
             beams = []
             for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
                 if st == robot_spec.RANGE_VALID:
@@ -306,11 +322,12 @@ class Localiser:
         g = self.rng.gauss
         beams = [(d, self._beams[int(k)]) for d, k in self._pending[1]]
         ninf = -math.inf
-        table, res, nx, ny, floor = self.field.table, self.field.res, self.field.nx, self.field.ny, self.field.floor
-        bw = cfg.beam_weight
+        f = self.field
+        table, res, nx, ny, floor, mg = f.table, f.res, f.nx, f.ny, f.floor, f.margin
+        bw = cfg.global_beam_weight if self.global_mode else cfg.beam_weight
         xs, ys, ths, lw = self.xs, self.ys, self.ths, self.lw
         start = self._cursor
-        end = min(len(xs), start + cfg.chunk)
+        end = min(len(xs), start + (cfg.global_chunk if self.global_mode else cfg.chunk))
         for i in range(start, end):
             r1 = rot1 + g(0, s_r1) if s_r1 > 0 else rot1
             t = trans + g(0, s_t) if s_t > 0 else trans
@@ -321,6 +338,8 @@ class Localiser:
             th = _wrap(th + r2)
             xs[i], ys[i], ths[i] = x, y, th
             c, s = math.cos(th), math.sin(th)
+            x += mg  # raster coordinates (the field's margin)
+            y += mg
             ll = 0.0
             for d, fan in beams:
                 # the reading is the nearest hit in the sensor's cone: the best-fitting ray explains it
@@ -353,14 +372,26 @@ class Localiser:
         total = sum(ws)
         # mean likelihood per particle (augmented MCL), in the same units every update: exp(lw) averaged
         nb = max(1, len(self._pending[1]))
-        w_avg = math.exp((m + math.log(total / n)) / (cfg.beam_weight * nb))  # per-beam geometric mean
+        bw = cfg.global_beam_weight if self.global_mode else cfg.beam_weight
+        w_avg = math.exp((m + math.log(total / n)) / (bw * nb))  # per-beam geometric mean
         if self.updates == 0 or self.w_slow == 0.0:
             self.w_slow = self.w_fast = w_avg
         else:
             self.w_slow += cfg.alpha_slow * (w_avg - self.w_slow)
             self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
         ws = [w / total for w in ws]
-        est, cov = self._mean_cov(ws)
+        share = 1.0
+        if self.global_mode:
+            # the estimate is the best particle's cluster; it must hold most of the weight
+            b = max(range(n), key=ws.__getitem__)
+            bx, by = self.xs[b], self.ys[b]
+            r2 = cfg.cluster_mm ** 2
+            cw = [w if (x - bx) ** 2 + (y - by) ** 2 <= r2 else 0.0
+                  for w, x, y in zip(ws, self.xs, self.ys, strict=True)]
+            share = sum(cw)
+            est, cov = self._mean_cov([w / share for w in cw])
+        else:
+            est, cov = self._mean_cov(ws)
         self.est, self.cov = est, cov
         self._est_odom = self._pending[0]
         self._pending = None
@@ -368,7 +399,7 @@ class Localiser:
         self.updates += 1
         sd = math.sqrt(max(cov[0], cov[1]))
         sa = math.sqrt(cov[2]) * 1000
-        tight = sd <= cfg.localised_std_mm and sa <= cfg.localised_std_mrad
+        tight = sd <= cfg.localised_std_mm and sa <= cfg.localised_std_mrad and share >= cfg.cluster_share
         if tight and self.global_mode:
             self.global_mode = False
         self.localised = tight and not self.global_mode
@@ -376,6 +407,12 @@ class Localiser:
         ratio = self.w_fast / self.w_slow if self.w_slow > 0 else 1.0
         p_random = 0.0 if self.global_mode else min(cfg.max_random_share, max(0.0, 1.0 - ratio / cfg.recovery_ratio))
         self._resample(ws, n_out, p_random)
+        if self.global_mode:  # roughening: explore around the survivors
+            g = self.rng.gauss
+            jx, ja = cfg.global_jitter_mm, cfg.global_jitter_mrad / 1000
+            self.xs = [x + g(0, jx) for x in self.xs]
+            self.ys = [y + g(0, jx) for y in self.ys]
+            self.ths = [_wrap(t + g(0, ja)) for t in self.ths]
 
     def _mean_cov(self, ws: list[float] | None = None
                   ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
@@ -425,6 +462,23 @@ class Localiser:
             nt.append(th)
         self.xs, self.ys, self.ths = nx, ny, nt
         self.random_drawn = n_rand
+
+    def log_likelihood(self, x_mm: float, y_mm: float, heading_rad: float, ranges_mm: list[int],
+                       status: list[int]) -> float:
+        """The sensor model for one pose (what an update weighs each particle
+        by, written plainly: the reference the tests check by hand)."""
+        total = 0.0
+        c, s = math.cos(heading_rad), math.sin(heading_rad)
+        for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
+            if st == robot_spec.RANGE_VALID:
+                d = self._mount + r
+            elif st == robot_spec.RANGE_TOO_CLOSE:
+                d = self._mount + robot_spec.RANGE_MIN_MM
+            else:
+                continue
+            total += max(self.field.log_p(x_mm + d * (c * ca - s * sa), y_mm + d * (s * ca + c * sa))
+                         for ca, sa in self._beams[k])
+        return self.cfg.beam_weight * total
 
     # --- the pose ----------------------------------------------------------------------
     def pose_f(self) -> tuple[float, float, float]:

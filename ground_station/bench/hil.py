@@ -9,6 +9,17 @@ seeded random (start, goal) pairs (driving the ground station's planned
 waypoints as a mission, `--guidance path`, the default) and the cell policy on targets A-D from
 seeded random starts, and reports success (goal reached with no wall
 contact), contacts, and sim time against wall time.
+
+`--profile ideal|realistic` names the plant's wheel and sensor error
+(`sim_bridge/profiles.py`; realistic: one encoder 3 % long, 10 % slip, 10 mm
+range noise, 2 % dropout). The robot localises on the map its policy
+carries (`firmware_py/control/localiser.py`); `--compare-odometry` runs the
+same episodes again with the localiser off (dead reckoning only, as before)
+as the baseline. Ground truth against belief: the distance from the true
+position to the goal at the end (`final_error_mm`, bounded below by the
+goal tolerance), the localisation error |true - believed| at the end and its
+maximum while driving, and the dead-reckoning error. `step_cpu_us` is the
+thread CPU time of `Controller.step` per tick (localiser included).
 """
 
 from __future__ import annotations
@@ -16,12 +27,14 @@ from __future__ import annotations
 import argparse
 import math
 import random
+import time
 from pathlib import Path
 
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import Policy
 from ground_station.rigs.lockstep import run_episode
+from sim_bridge.profiles import PlantProfile
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -49,8 +62,28 @@ def _centre_m(col: int, row: int, height: int, cell_mm: int) -> tuple[float, flo
     return x / 1000, y / 1000
 
 
+def _row(ep) -> dict:
+    """The figures every episode row carries (ground truth vs belief, tick CPU)."""
+    cpu = sorted(ep.step_cpu_us)
+    return {"result": ep.result, "contacts": ep.contacts, "success": ep.success,
+            "sim_s": ep.sim_s, "wall_s": ep.wall_s,
+            "final_error_mm": round(ep.final_error_mm, 1),
+            "belief_error_mm": round(ep.belief_error_mm, 1),
+            "belief_error_max_mm": round(ep.belief_error_max_mm, 1),
+            "odom_error_mm": round(ep.odom_error_mm, 1),
+            "step_cpu_p50_us": round(cpu[len(cpu) // 2], 1) if cpu else 0.0,
+            "step_cpu_p99_us": round(_pct(cpu, 0.99), 1) if cpu else 0.0,
+            "step_cpu_max_us": round(cpu[-1], 1) if cpu else 0.0,
+            "_cpu": ep.step_cpu_us}
+
+
+def _pct(sorted_vals: list[float], q: float) -> float:
+    return sorted_vals[min(len(sorted_vals) - 1, int(q * len(sorted_vals)))]
+
+
 def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None,
-                   guidance: str = "path") -> list[dict]:
+                   guidance: str = "path", profile: PlantProfile | None = None,
+                   localise: bool = True) -> list[dict]:
     """guidance "path": the robot gets the ground station's planned waypoints
     (ground_station.maps.planner.plan_waypoints) as a mission, as the sector
     policy is trained and evaluated; "direct": the goal alone."""
@@ -63,17 +96,17 @@ def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, 
         sx, sy = _centre_m(*s, gm.height, cell_mm)
         goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
         goals = plan_waypoints(gm, s, g, **plan_kw) if guidance == "path" else [goal]
-        ep = run_episode(gm.occ, policy, (sx, sy, heading), goals, max_sim_s=max_sim_s, seed=seed + i)
+        ep = run_episode(gm.occ, policy, (sx, sy, heading), goals, max_sim_s=max_sim_s, seed=seed + i,
+                         profile=profile, localise=localise)
         rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g), "waypoints": len(goals),
-                     "result": ep.result, "contacts": ep.contacts, "success": ep.success,
-                     "sim_s": ep.sim_s, "wall_s": ep.wall_s,
-                     "final_error_mm": round(ep.final_error_mm, 1)})
+                     **_row(ep)})
         if progress is not None:
             progress.update(1)
     return rows
 
 
-def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None) -> list[dict]:
+def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None,
+                 profile: PlantProfile | None = None, localise: bool = True) -> list[dict]:
     cell_mm = policy.cell_mm
     rng = random.Random(seed)
     goals: dict[str, tuple[int, int]] = {name: cell for name, cell in gm.targets.items() if cell in policy.goals}
@@ -86,13 +119,55 @@ def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, p
         for name, g in goals.items():
             goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
             ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s,
-                             seed=seed + i)
+                             seed=seed + i, profile=profile, localise=localise)
             rows.append({"start": list(s), "heading_rad": round(heading, 3), "target": name,
-                         "goal": list(g), "result": ep.result, "contacts": ep.contacts,
-                         "success": ep.success, "sim_s": ep.sim_s, "wall_s": ep.wall_s,
-                         "final_error_mm": round(ep.final_error_mm, 1)})
+                         "goal": list(g), **_row(ep)})
             if progress is not None:
                 progress.update(1)
+    return rows
+
+
+def run_global_set(gm, policy: Policy, n: int, seed: int, limit_s: float = 10.0, progress=None,
+                   profile: PlantProfile | None = None, converged_mm: float = 150.0) -> list[dict]:
+    """Global localisation from unknown seeded starts: the robot is armed,
+    told its pose is unknown (`Controller.localise_global`, exploring), and
+    the episode runs `limit_s` sim seconds. Converged: the localiser reports
+    localised by then with |true - believed| <= `converged_mm`, and no
+    wall contact."""
+    from ground_station.rigs.lockstep import LockstepRig
+
+    rows = []
+    for i, (s, heading, _) in enumerate(random_pairs(gm.occ, n, seed)):
+        sx, sy = _centre_m(*s, gm.height, round(gm.cell_size_m * 1000))
+        t_wall = time.perf_counter()
+        with LockstepRig(gm.occ, policy, (sx, sy, heading), [], seed=seed + i, profile=profile) as rig:
+            for _ in range(3):  # every input fresh before arming
+                rig.tick()
+            ok, why = rig.ctrl.arm()
+            ok2, why2 = rig.ctrl.localise_global()
+            t0 = rig.time_us
+            loc = rig.ctrl.loc
+            t_loc: float | None = None
+            err_loc = math.nan
+            while rig.time_us - t0 < limit_s * 1e6:
+                rig.tick()
+                if loc is not None and loc.localised and t_loc is None:
+                    p = rig.poses[-1]
+                    t_loc = (rig.time_us - t0) / 1e6
+                    err_loc = math.hypot(p[1] - p[3], p[2] - p[4])
+            p = rig.poses[-1]
+            err_end = math.hypot(p[1] - p[3], p[2] - p[4])
+            contacts = rig.plant.world.contact_events
+            cpu = sorted(rig.ctrl.step_cpu_ns)
+        rows.append({"start": list(s), "heading_rad": round(heading, 3), "armed": ok or why,
+                     "global": ok2 or why2, "localised_after_s": t_loc,
+                     "error_at_localised_mm": round(err_loc, 1), "error_at_end_mm": round(err_end, 1),
+                     "contacts": contacts,
+                     "success": t_loc is not None and err_loc <= converged_mm and contacts == 0,
+                     "step_cpu_p99_us": round(_pct(cpu, 0.99) / 1000, 1) if cpu else 0.0,
+                     "wall_s": time.perf_counter() - t_wall})
+        if progress is not None:
+            progress.update(1)
     return rows
 
 
@@ -124,11 +199,43 @@ def _summary(rows: list[dict]) -> dict:
     n = len(rows)
     sim = sum(r["sim_s"] for r in rows)
     wall = sum(r["wall_s"] for r in rows)
+    cpu = sorted(v for r in rows for v in r.pop("_cpu", []))
+    reached = [r for r in rows if r["result"] == "reached"]
+
+    def med_max(key: str) -> tuple[float, float]:
+        vals = sorted(r[key] for r in reached)
+        return (vals[len(vals) // 2], vals[-1]) if vals else (math.nan, math.nan)
+
+    fin, bel, odo = med_max("final_error_mm"), med_max("belief_error_mm"), med_max("odom_error_mm")
     return {"episodes": n, "success": sum(r["success"] for r in rows),
             "success_rate": sum(r["success"] for r in rows) / n if n else 0.0,
-            "reached": sum(r["result"] == "reached" for r in rows),
+            "reached": len(reached),
             "with_contact": sum(r["contacts"] > 0 for r in rows),
+            "contacts": sum(r["contacts"] for r in rows),
+            "goal_error_median_mm": fin[0], "goal_error_max_mm": fin[1],
+            "belief_error_median_mm": bel[0], "belief_error_max_mm": bel[1],
+            "odom_error_median_mm": odo[0], "odom_error_max_mm": odo[1],
+            "step_cpu_p50_us": _pct(cpu, 0.5) if cpu else 0.0, "step_cpu_p99_us": _pct(cpu, 0.99) if cpu else 0.0,
+            "step_cpu_max_us": cpu[-1] if cpu else 0.0,
             "sim_s": sim, "wall_s": wall, "sim_per_wall": sim / wall if wall else 0.0}
+
+
+def _summary_rows(label: str, s: dict) -> list[tuple[str, object]]:
+    return [(f"{label}: success (reached, no contact)", f"{s['success']}/{s['episodes']}"),
+            (f"{label}: success_rate", s["success_rate"]),
+            (f"{label}: reached", s["reached"]),
+            (f"{label}: episodes with wall contact", s["with_contact"]),
+            (f"{label}: goal error at the end, median / max (mm, true)",
+             f"{s['goal_error_median_mm']:.0f} / {s['goal_error_max_mm']:.0f}"),
+            (f"{label}: localisation error |true-believed| at the end, median / max (mm)",
+             f"{s['belief_error_median_mm']:.0f} / {s['belief_error_max_mm']:.0f}"),
+            (f"{label}: dead-reckoning error at the end, median / max (mm)",
+             f"{s['odom_error_median_mm']:.0f} / {s['odom_error_max_mm']:.0f}"),
+            (f"{label}: Controller.step CPU p50 / p99 / max (us)",
+             f"{s['step_cpu_p50_us']:.0f} / {s['step_cpu_p99_us']:.0f} / {s['step_cpu_max_us']:.0f}"),
+            (f"{label}: sim_s total", s["sim_s"]),
+            (f"{label}: wall_s total", s["wall_s"]),
+            (f"{label}: sim/wall (x real time)", s["sim_per_wall"])]
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -148,6 +255,16 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compare-twin", action="store_true",
                    help="sector: also roll the same episodes out on the training twin and report agreement")
     p.add_argument("--max-sim-s", type=float, default=120.0, help="episode limit in sim seconds")
+    p.add_argument("--profile", default="ideal", metavar="NAME",
+                   help="plant wheel/sensor error: ideal or realistic (sim_bridge/profiles.py; default %(default)s)")
+    p.add_argument("--no-localiser", action="store_true",
+                   help="drive on dead reckoning only (the localiser off, as before the map travelled)")
+    p.add_argument("--global-starts", type=int, default=0, metavar="N",
+                   help="also N seeded global-localisation episodes (unknown start, exploring; the sector "
+                        "policy's map): converged within --global-limit-s with |true - believed| <= 150 mm")
+    p.add_argument("--global-limit-s", type=float, default=10.0, help="sim seconds a global episode may take")
+    p.add_argument("--compare-odometry", action="store_true",
+                   help="also run the same episodes with the localiser off and report both")
     p.add_argument("--json", metavar="FILE", help="write the result (with every episode) as JSON")
     p.set_defaults(func=run)
 
@@ -160,13 +277,16 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.bench.common import report
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
+    from sim_bridge.profiles import profile
 
     try:
         gm = load_map(args.map)
-    except MapError as exc:
+        prof = profile(args.profile)
+    except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     sets = [args.only] if args.only else ["sector", "cell"]
-    result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s, "guidance": args.guidance}
+    result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s, "guidance": args.guidance,
+                    "profile": prof.to_dict(), "localiser": not args.no_localiser}
     rows_out: list[tuple[str, object]] = []
     for kind in sets:
         spec = args.sector_policy if kind == "sector" else args.cell_policy
@@ -177,31 +297,61 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"{kind} policy {spec}: {exc}") from None
         if pol.kind != kind:
             raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
-        if kind == "sector":
-            total = args.pairs
-            with tqdm(total=total, desc="sector pairs", unit="ep") as bar:
-                rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar, args.guidance)
-        else:
-            total = args.starts * sum(1 for c in gm.targets.values() if c in pol.goals)
-            with tqdm(total=total, desc="cell targets", unit="ep") as bar:
-                rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar)
-        s = _summary(rows)
+        if kind == "cell" and not args.no_localiser and pol.map_grid is None:
+            print(f"note: {path} carries no map (qnav policy attach-map): the cell set runs on dead reckoning")
+        main_rows: list[dict] = []
+        runs = [not args.no_localiser] + ([False] if args.compare_odometry and not args.no_localiser else [])
+        for localise in runs:
+            tag = "" if localise == runs[0] else " (odometry only)"
+            if kind == "sector":
+                with tqdm(total=args.pairs, desc=f"sector pairs{tag}", unit="ep") as bar:
+                    rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar, args.guidance,
+                                          prof, localise)
+            else:
+                total = args.starts * sum(1 for c in gm.targets.values() if c in pol.goals)
+                with tqdm(total=total, desc=f"cell targets{tag}", unit="ep") as bar:
+                    rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar, prof, localise)
+            if tag:
+                base = _summary(rows)
+                result[kind]["odometry_only"] = {**base, "episodes_detail": rows}
+                rows_out += _summary_rows(f"{kind} odometry only", base)
+                continue
+            s = _summary(rows)
+            main_rows = rows
+            result[kind] = {"policy": path, "policy_id": f"0x{pol.policy_id:08x}",
+                            "localiser": localise and pol.map_grid is not None, **s}
+            rows_out += _summary_rows(kind, s)
+        rows = main_rows
         if kind == "sector" and args.compare_twin:
             twin = twin_outcomes(gm, pol, rows, guidance=args.guidance)
             for r, t in zip(rows, twin, strict=True):
                 r["twin"] = t
             s["twin_success"] = sum(t == "reached" for t in twin)
             s["twin_agreement"] = sum((t == "reached") == r["success"] for r, t in zip(rows, twin, strict=True))
-        result[kind] = {"policy": path, "policy_id": f"0x{pol.policy_id:08x}", **s, "episodes_detail": rows}
-        rows_out += [(f"{kind}: success (reached, no contact)", f"{s['success']}/{s['episodes']}"),
-                     (f"{kind}: success_rate", s["success_rate"]),
-                     (f"{kind}: reached", s["reached"]),
-                     (f"{kind}: episodes with wall contact", s["with_contact"]),
-                     (f"{kind}: sim_s total", s["sim_s"]),
-                     (f"{kind}: wall_s total", s["wall_s"]),
-                     (f"{kind}: sim/wall (x real time)", s["sim_per_wall"])]
+        result[kind].update({k: s[k] for k in ("twin_success", "twin_agreement") if k in s}, episodes_detail=rows)
         if "twin_success" in s:
             rows_out += [("sector: twin success (same episodes)", f"{s['twin_success']}/{len(rows)}"),
                          ("sector: HIL/twin success agreement", f"{s['twin_agreement']}/{len(rows)}")]
+    if args.global_starts > 0:
+        try:
+            pol = load_policy(str(resolve_policy_spec(args.sector_policy)))
+        except (PolicyError, ShippedPolicyError) as exc:
+            raise CliError(f"sector policy {args.sector_policy}: {exc}") from None
+        if pol.map_grid is None:
+            raise CliError(f"{args.sector_policy} carries no map: global localisation needs one (qnav policy attach-map)")
+        with tqdm(total=args.global_starts, desc="global localisation", unit="ep") as bar:
+            grows = run_global_set(gm, pol, args.global_starts, args.seed, args.global_limit_s, bar, prof)
+        conv = sum(r["success"] for r in grows)
+        times = sorted(r["localised_after_s"] for r in grows if r["localised_after_s"] is not None)
+        cpu = sorted(r["step_cpu_p99_us"] for r in grows)
+        result["global"] = {"episodes": len(grows), "converged": conv, "converged_rate": conv / len(grows),
+                            "limit_s": args.global_limit_s, "localised": len(times),
+                            "localised_after_s_median": times[len(times) // 2] if times else None,
+                            "episodes_detail": grows}
+        rows_out += [(f"global: converged within {args.global_limit_s:g} s (<= 150 mm)", f"{conv}/{len(grows)}"),
+                     ("global: reported localised (any error)", f"{len(times)}/{len(grows)}"),
+                     ("global: time to localised, median (sim s)",
+                      f"{times[len(times) // 2]:.1f}" if times else "-"),
+                     ("global: Controller.step CPU p99 per episode, median (us)", f"{cpu[len(cpu) // 2]:.0f}")]
     report("hil", rows_out, result, args.json)
     return 0
