@@ -28,6 +28,7 @@ import argparse
 import math
 import random
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from firmware_py import robot_spec
@@ -77,7 +78,7 @@ def _row(ep) -> dict:
             "_cpu": ep.step_cpu_us}
 
 
-def _pct(sorted_vals: list[float], q: float) -> float:
+def _pct(sorted_vals: Sequence[float], q: float) -> float:
     return sorted_vals[min(len(sorted_vals) - 1, int(q * len(sorted_vals)))]
 
 
