@@ -156,3 +156,37 @@ def test_goal_refused_while_not_localised_and_runs_on_odometry_without_a_map():
     assert not ctrl.status().localised and ctrl.status().localiser == "global"
     off = Controller(policy=pol, localise=False)
     assert off.loc is None and off.nav is off.odom and off.status().localiser == "off"
+
+
+# --- telemetry and the monitor -----------------------------------------------------------
+
+def test_telemetry_carries_belief_covariance_localised_flag_and_raw_odometry():
+    from pymavlink.dialects.v20 import common as m
+
+    from firmware_py.mavlink.params import ParamStore
+    from firmware_py.mavlink.telemetry import NodeStats, Telemetry
+    from firmware_py.vehicle import VehicleStatus
+    from ground_station.monitor.model import VehicleView
+
+    mav = m.MAVLink(None, srcSystem=1, srcComponent=1)
+    tel = Telemetry(mav, ParamStore())
+    st = VehicleStatus(x_mm=1000, y_mm=2000, odom_x_mm=1300, odom_y_mm=2400, localiser="tracking", localised=True,
+                       pose_std_mm=(30, 40), pose_std_mrad=50)
+    view = VehicleView(sysid=1)
+    out = {}
+    for msg_id in (m.MAVLINK_MSG_ID_HEARTBEAT, m.MAVLINK_MSG_ID_LOCAL_POSITION_NED, m.MAVLINK_MSG_ID_ESTIMATOR_STATUS,
+                   m.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV, m.MAVLINK_MSG_ID_ODOMETRY):
+        for msg in tel.build(msg_id, 1_000_000, st, NodeStats()):
+            msg = mav.parse_char(msg.pack(mav))  # over the wire and back
+            out[msg.get_type()] = msg
+            view.update(msg, 1.0)
+    assert out["ESTIMATOR_STATUS"].flags & m.ESTIMATOR_POS_HORIZ_ABS
+    assert out["ESTIMATOR_STATUS"].pos_horiz_accuracy == pytest.approx(0.04)
+    cov = out["LOCAL_POSITION_NED_COV"]
+    assert (cov.x, cov.y) == pytest.approx((2.0, 1.0)) and cov.covariance[0] == pytest.approx(0.04 ** 2)
+    odo = out["ODOMETRY"]
+    assert (odo.x, odo.y) == pytest.approx((2.4, 1.3)) and odo.estimator_type == m.MAV_ESTIMATOR_TYPE_NAIVE
+    assert view.localised is True and view.localisation_text == "localised=yes std=0.04m odo_err=0.50m"
+    lost = VehicleStatus(localiser="global", localised=False, pose_std_mm=(900, 800))
+    (msg,) = tel.build(m.MAVLINK_MSG_ID_ESTIMATOR_STATUS, 2_000_000, lost, NodeStats())
+    assert not msg.flags & m.ESTIMATOR_POS_HORIZ_ABS and msg.flags & m.ESTIMATOR_CONST_POS_MODE
