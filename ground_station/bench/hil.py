@@ -78,13 +78,66 @@ def _row(ep) -> dict:
             "_cpu": ep.step_cpu_us}
 
 
+def clearance_mm(gm, poses: Sequence[tuple]) -> float:
+    """Smallest distance (mm) between the robot's true outline and a wall
+    over an episode (`Episode.poses`; negative: overlap, i.e. contact)."""
+    from firmware_py.control.localiser import LikelihoodField
+    from firmware_py.mapdata import grid_from_rows
+
+    cell_mm = round(gm.cell_size_m * 1000)
+    rows = ["".join("@" if v else "." for v in row) for row in gm.occ.tolist()]
+    field = LikelihoodField(grid_from_rows(rows, cell_mm), cell_mm, 1.0, 1.0, 1.0, 1.0)  # distances only
+    step = max(1, len(poses) // 2000)
+    d = min((field.distance_mm(p[1], p[2], 2) for p in poses[::step]), default=math.inf)
+    return d - robot_spec.ROBOT_RADIUS_MM
+
+
+def write_belief_png(gm, ep, goals_mm: list[tuple[int, int]], path: str, title: str = "") -> None:
+    """The map with the true path (sim), the believed path (localiser) and the
+    dead-reckoning path of one episode, and the localisation error over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = ep.poses
+    t = [r[0] / 1e6 for r in p]
+    w_m, h_m = gm.width * gm.cell_size_m, gm.height * gm.cell_size_m
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 6), dpi=100, gridspec_kw={"width_ratios": [1, 1]})
+    ax.imshow(gm.occ, cmap="Greys", vmin=0, vmax=1.4, extent=(0, w_m, 0, h_m), origin="upper",
+              interpolation="nearest")
+    ax.plot([r[1] / 1000 for r in p], [r[2] / 1000 for r in p], "-", color="tab:blue", lw=1.8, label="true (sim)")
+    ax.plot([r[3] / 1000 for r in p], [r[4] / 1000 for r in p], "--", color="tab:orange", lw=1.2,
+            label="believed (localiser)")
+    ax.plot([r[5] / 1000 for r in p], [r[6] / 1000 for r in p], ":", color="tab:red", lw=1.2,
+            label="dead reckoning")
+    for gx, gy in goals_mm:
+        ax.plot(gx / 1000, gy / 1000, "*", color="tab:green", ms=10)
+    ax.set_xlim(0, w_m)
+    ax.set_ylim(0, h_m)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(title, fontsize=9)
+    ax2.plot(t, [math.hypot(r[1] - r[3], r[2] - r[4]) for r in p], color="tab:orange", label="|true - believed|")
+    ax2.plot(t, [math.hypot(r[1] - r[5], r[2] - r[6]) for r in p], color="tab:red", label="|true - dead reckoning|")
+    ax2.set_xlabel("sim time (s)")
+    ax2.set_ylabel("position error (mm)")
+    ax2.legend(fontsize=8)
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def _pct(sorted_vals: Sequence[float], q: float) -> float:
     return sorted_vals[min(len(sorted_vals) - 1, int(q * len(sorted_vals)))]
 
 
 def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None,
                    guidance: str = "path", profile: PlantProfile | None = None,
-                   localise: bool = True) -> list[dict]:
+                   localise: bool = True, png_dir: str | None = None) -> list[dict]:
     """guidance "path": the robot gets the ground station's planned waypoints
     (ground_station.maps.planner.plan_waypoints) as a mission, as the sector
     policy is trained and evaluated; "direct": the goal alone."""
@@ -100,14 +153,17 @@ def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, 
         ep = run_episode(gm.occ, policy, (sx, sy, heading), goals, max_sim_s=max_sim_s, seed=seed + i,
                          profile=profile, localise=localise)
         rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g), "waypoints": len(goals),
-                     **_row(ep)})
+                     **_row(ep), "clearance_mm": round(clearance_mm(gm, ep.poses), 1)})
+        if png_dir:
+            write_belief_png(gm, ep, goals, str(Path(png_dir) / f"sector_{i:03d}.png"),
+                             f"sector {i}: {s} -> {g}, {ep.result}, seed {seed + i}")
         if progress is not None:
             progress.update(1)
     return rows
 
 
 def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None,
-                 profile: PlantProfile | None = None, localise: bool = True) -> list[dict]:
+                 profile: PlantProfile | None = None, localise: bool = True, png_dir: str | None = None) -> list[dict]:
     cell_mm = policy.cell_mm
     rng = random.Random(seed)
     goals: dict[str, tuple[int, int]] = {name: cell for name, cell in gm.targets.items() if cell in policy.goals}
@@ -122,7 +178,10 @@ def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, p
             ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s,
                              seed=seed + i, profile=profile, localise=localise)
             rows.append({"start": list(s), "heading_rad": round(heading, 3), "target": name,
-                         "goal": list(g), **_row(ep)})
+                         "goal": list(g), **_row(ep), "clearance_mm": round(clearance_mm(gm, ep.poses), 1)})
+            if png_dir:
+                write_belief_png(gm, ep, [goal], str(Path(png_dir) / f"cell_{i:03d}_{name}.png"),
+                                 f"cell {i} {name}: {s} -> {g}, {ep.result}, seed {seed + i}")
             if progress is not None:
                 progress.update(1)
     return rows
@@ -208,6 +267,7 @@ def _summary(rows: list[dict]) -> dict:
         return (vals[len(vals) // 2], vals[-1]) if vals else (math.nan, math.nan)
 
     fin, bel, odo = med_max("final_error_mm"), med_max("belief_error_mm"), med_max("odom_error_mm")
+    clear = min((r["clearance_mm"] for r in rows if "clearance_mm" in r), default=math.nan)
     return {"episodes": n, "success": sum(r["success"] for r in rows),
             "success_rate": sum(r["success"] for r in rows) / n if n else 0.0,
             "reached": len(reached),
@@ -215,7 +275,7 @@ def _summary(rows: list[dict]) -> dict:
             "contacts": sum(r["contacts"] for r in rows),
             "goal_error_median_mm": fin[0], "goal_error_max_mm": fin[1],
             "belief_error_median_mm": bel[0], "belief_error_max_mm": bel[1],
-            "odom_error_median_mm": odo[0], "odom_error_max_mm": odo[1],
+            "odom_error_median_mm": odo[0], "odom_error_max_mm": odo[1], "clearance_min_mm": clear,
             "step_cpu_p50_us": _pct(cpu, 0.5) if cpu else 0.0, "step_cpu_p99_us": _pct(cpu, 0.99) if cpu else 0.0,
             "step_cpu_max_us": cpu[-1] if cpu else 0.0,
             "sim_s": sim, "wall_s": wall, "sim_per_wall": sim / wall if wall else 0.0}
@@ -232,6 +292,7 @@ def _summary_rows(label: str, s: dict) -> list[tuple[str, object]]:
              f"{s['belief_error_median_mm']:.0f} / {s['belief_error_max_mm']:.0f}"),
             (f"{label}: dead-reckoning error at the end, median / max (mm)",
              f"{s['odom_error_median_mm']:.0f} / {s['odom_error_max_mm']:.0f}"),
+            (f"{label}: smallest true clearance to a wall (mm)", f"{s['clearance_min_mm']:.0f}"),
             (f"{label}: Controller.step CPU p50 / p99 / max (us)",
              f"{s['step_cpu_p50_us']:.0f} / {s['step_cpu_p99_us']:.0f} / {s['step_cpu_max_us']:.0f}"),
             (f"{label}: sim_s total", s["sim_s"]),
@@ -260,6 +321,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="plant wheel/sensor error: ideal or realistic (sim_bridge/profiles.py; default %(default)s)")
     p.add_argument("--no-localiser", action="store_true",
                    help="drive on dead reckoning only (the localiser off, as before the map travelled)")
+    p.add_argument("--png-dir", metavar="DIR",
+                   help="write one PNG per episode: true, believed and dead-reckoning paths, error over time")
     p.add_argument("--global-starts", type=int, default=0, metavar="N",
                    help="also N seeded global-localisation episodes (unknown start, exploring; the sector "
                         "policy's map): converged within --global-limit-s with |true - believed| <= 150 mm")
@@ -288,6 +351,8 @@ def run(args: argparse.Namespace) -> int:
     sets = [args.only] if args.only else ["sector", "cell"]
     result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s, "guidance": args.guidance,
                     "profile": prof.to_dict(), "localiser": not args.no_localiser}
+    if args.png_dir:
+        Path(args.png_dir).mkdir(parents=True, exist_ok=True)
     rows_out: list[tuple[str, object]] = []
     for kind in sets:
         spec = args.sector_policy if kind == "sector" else args.cell_policy
@@ -307,11 +372,12 @@ def run(args: argparse.Namespace) -> int:
             if kind == "sector":
                 with tqdm(total=args.pairs, desc=f"sector pairs{tag}", unit="ep") as bar:
                     rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar, args.guidance,
-                                          prof, localise)
+                                          prof, localise, None if tag else args.png_dir)
             else:
                 total = args.starts * sum(1 for c in gm.targets.values() if c in pol.goals)
                 with tqdm(total=total, desc=f"cell targets{tag}", unit="ep") as bar:
-                    rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar, prof, localise)
+                    rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar, prof, localise,
+                                        None if tag else args.png_dir)
             if tag:
                 base = _summary(rows)
                 result[kind]["odometry_only"] = {**base, "episodes_detail": rows}
