@@ -202,20 +202,28 @@ class Controller:
         self._loc_cfg = localiser_config
         self.loc: Localiser | None = None
         self._explore_until_us: int | None = None  # exploring for global localisation (armed, HOLD)
-        self._make_localiser(policy)
+        self._use_localiser(policy, self._new_localiser(policy))
 
     # --- helpers ------------------------------------------------------------------
-    def _make_localiser(self, pol: Policy | None) -> None:
-        """A localiser for `pol`'s map (kept when the map is the same), else
-        none: the robot then drives on odometry alone."""
+    def _new_localiser(self, pol: Policy | None) -> Localiser | None:
+        """A localiser for `pol`'s map when the running one is for another map
+        (None: keep the running one, or there is no map). Building one
+        precomputes its likelihood field (~0.1-0.5 s for paper10), so it runs
+        outside the lock: the ticks keep going."""
         grid = pol.map_grid if pol is not None and self.localise else None
-        if grid is None:
+        cur = self.loc
+        if grid is None or (cur is not None and cur.grid == grid):
+            return None
+        return Localiser(grid, self._loc_cfg)
+
+    def _use_localiser(self, pol: Policy | None, new: Localiser | None) -> None:
+        """Under the lock: switch to `new` (started at the odometry pose), keep
+        the running one for the same map, or drop it (no map: odometry alone)."""
+        if pol is None or pol.map_grid is None or not self.localise:
             self.loc = None
-            return
-        if self.loc is not None and self.loc.grid == grid:
-            return
-        self.loc = Localiser(grid, self._loc_cfg)
-        self.loc.init_pose(*self.odom.pose_mm())
+        elif new is not None and (self.loc is None or self.loc.grid != new.grid):
+            new.init_pose(*self.odom.pose_mm())
+            self.loc = new
 
     @property
     def nav(self) -> Localiser | Odometry:
@@ -495,6 +503,7 @@ class Controller:
 
     def activate_loaded(self, new: Policy) -> tuple[bool, str]:
         """Swap in an already validated policy (see activate_policy)."""
+        loc = self._new_localiser(new)  # outside the lock (see _new_localiser)
         with self._lock:
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
@@ -507,7 +516,7 @@ class Controller:
                     return False, f"mission item {i}: {why}"
             old = self.policy
             self.policy = new
-            self._make_localiser(new)
+            self._use_localiser(new, loc if loc is not None else self._new_localiser(new))
             if old is not None:
                 self.last_known_good = old
             text = f"policy 0x{new.policy_id:08x} {new.kind} active"

@@ -43,6 +43,7 @@ come back at the API: mm and mrad).
 
 from __future__ import annotations
 
+import functools
 import math
 import random
 from array import array
@@ -178,6 +179,15 @@ class LikelihoodField:
         return self.distance_mm(x_mm, y_mm, 1) >= clearance_mm
 
 
+@functools.lru_cache(maxsize=4)
+def likelihood_field(grid: OccupancyGrid, res_mm: int, sigma_mm: float, z_hit: float, z_floor: float,
+                     max_mm: float) -> LikelihoodField:
+    """The field for a map and model, computed once (a reactivated policy, a
+    new episode on the same map: no second precomputation). Fields are never
+    written after construction, so sharing one is safe."""
+    return LikelihoodField(grid, res_mm, sigma_mm, z_hit, z_floor, max_mm)
+
+
 class Localiser:
     """The particle filter; see the module docstring. All public methods are
     called from the controller's tick (under its lock)."""
@@ -186,8 +196,8 @@ class Localiser:
                  field: LikelihoodField | None = None) -> None:
         self.cfg = cfg = config or LocaliserConfig()
         self.grid = grid
-        self.field = field or LikelihoodField(grid, cfg.field_res_mm, cfg.sigma_hit_mm, cfg.z_hit, cfg.z_floor,
-                                              cfg.max_field_mm)
+        self.field = field or likelihood_field(grid, cfg.field_res_mm, cfg.sigma_hit_mm, cfg.z_hit, cfg.z_floor,
+                                               cfg.max_field_mm)
         self.rng = random.Random(cfg.seed)
         mount = robot_spec.SENSOR_MOUNT_RADIUS_MM
         # each sensor's fan of rays (the reading is the nearest hit in its cone): (cos, sin) per ray
