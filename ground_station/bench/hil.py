@@ -34,6 +34,7 @@ from pathlib import Path
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import Policy
+from firmware_py.vehicle import VehicleConfig
 from ground_station.rigs.lockstep import run_episode
 from sim_bridge.profiles import PlantProfile
 
@@ -137,7 +138,8 @@ def _pct(sorted_vals: Sequence[float], q: float) -> float:
 
 def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None,
                    guidance: str = "path", profile: PlantProfile | None = None,
-                   localise: bool = True, png_dir: str | None = None) -> list[dict]:
+                   localise: bool = True, png_dir: str | None = None,
+                   vehicle: VehicleConfig | None = None) -> list[dict]:
     """guidance "path": the robot gets the ground station's planned waypoints
     (ground_station.maps.planner.plan_waypoints) as a mission, as the sector
     policy is trained and evaluated; "direct": the goal alone."""
@@ -151,7 +153,7 @@ def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, 
         goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
         goals = plan_waypoints(gm, s, g, **plan_kw) if guidance == "path" else [goal]
         ep = run_episode(gm.occ, policy, (sx, sy, heading), goals, max_sim_s=max_sim_s, seed=seed + i,
-                         profile=profile, localise=localise)
+                         profile=profile, localise=localise, vehicle=vehicle)
         rows.append({"start": list(s), "heading_rad": round(heading, 3), "goal": list(g), "waypoints": len(goals),
                      **_row(ep), "clearance_mm": round(clearance_mm(gm, ep.poses), 1)})
         if png_dir:
@@ -163,7 +165,8 @@ def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, 
 
 
 def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None,
-                 profile: PlantProfile | None = None, localise: bool = True, png_dir: str | None = None) -> list[dict]:
+                 profile: PlantProfile | None = None, localise: bool = True, png_dir: str | None = None,
+                 vehicle: VehicleConfig | None = None) -> list[dict]:
     cell_mm = policy.cell_mm
     rng = random.Random(seed)
     goals: dict[str, tuple[int, int]] = {name: cell for name, cell in gm.targets.items() if cell in policy.goals}
@@ -176,7 +179,7 @@ def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, p
         for name, g in goals.items():
             goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
             ep = run_episode(gm.occ, policy, (sx, sy, heading), [goal], max_sim_s=max_sim_s,
-                             seed=seed + i, profile=profile, localise=localise)
+                             seed=seed + i, profile=profile, localise=localise, vehicle=vehicle)
             rows.append({"start": list(s), "heading_rad": round(heading, 3), "target": name,
                          "goal": list(g), **_row(ep), "clearance_mm": round(clearance_mm(gm, ep.poses), 1)})
             if png_dir:
@@ -321,6 +324,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="plant wheel/sensor error: ideal or realistic (sim_bridge/profiles.py; default %(default)s)")
     p.add_argument("--no-localiser", action="store_true",
                    help="drive on dead reckoning only (the localiser off, as before the map travelled)")
+    p.add_argument("--goal-tolerance-mm", type=int, metavar="MM",
+                   help="the robot's GOAL_TOL_MM for these episodes (default: the robot's, "
+                        f"{robot_spec.GOAL_TOLERANCE_MM}); the true end error cannot be below it by much")
     p.add_argument("--png-dir", metavar="DIR",
                    help="write one PNG per episode: true, believed and dead-reckoning paths, error over time")
     p.add_argument("--global-starts", type=int, default=0, metavar="N",
@@ -353,6 +359,12 @@ def run(args: argparse.Namespace) -> int:
                     "profile": prof.to_dict(), "localiser": not args.no_localiser}
     if args.png_dir:
         Path(args.png_dir).mkdir(parents=True, exist_ok=True)
+    vehicle = None
+    if args.goal_tolerance_mm is not None:
+        if not 1 <= args.goal_tolerance_mm <= 10_000:
+            raise CliError(f"--goal-tolerance-mm {args.goal_tolerance_mm}: expected 1..10000")
+        vehicle = VehicleConfig(goal_tolerance_mm=args.goal_tolerance_mm)
+    result["goal_tolerance_mm"] = args.goal_tolerance_mm or robot_spec.GOAL_TOLERANCE_MM
     rows_out: list[tuple[str, object]] = []
     for kind in sets:
         spec = args.sector_policy if kind == "sector" else args.cell_policy
@@ -372,12 +384,12 @@ def run(args: argparse.Namespace) -> int:
             if kind == "sector":
                 with tqdm(total=args.pairs, desc=f"sector pairs{tag}", unit="ep") as bar:
                     rows = run_sector_set(gm, pol, args.pairs, args.seed, args.max_sim_s, bar, args.guidance,
-                                          prof, localise, None if tag else args.png_dir)
+                                          prof, localise, None if tag else args.png_dir, vehicle)
             else:
                 total = args.starts * sum(1 for c in gm.targets.values() if c in pol.goals)
                 with tqdm(total=total, desc=f"cell targets{tag}", unit="ep") as bar:
                     rows = run_cell_set(gm, pol, args.starts, args.seed, args.max_sim_s, bar, prof, localise,
-                                        None if tag else args.png_dir)
+                                        None if tag else args.png_dir, vehicle)
             if tag:
                 base = _summary(rows)
                 result[kind]["odometry_only"] = {**base, "episodes_detail": rows}

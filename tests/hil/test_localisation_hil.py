@@ -56,3 +56,18 @@ def test_global_localisation_episode_runs_and_reports():
     assert r["armed"] is True and r["global"] is True
     assert r["start"] == list(random_pairs(gm.occ, 1, 0)[0][0])
     assert r["localised_after_s"] is None or r["localised_after_s"] <= 2.0
+
+
+def test_tight_goal_tolerance_ends_close_to_the_goal_in_truth():
+    """With the localiser the robot's belief is good enough for a 40 mm goal
+    tolerance (GOAL_TOL_MM): the true end error stays within the acceptance's
+    120 mm bound at the realistic profile."""
+    from firmware_py.vehicle import VehicleConfig
+
+    gm = paper10()
+    pol = cell_policy()
+    goal = robot_spec.cell_center_mm(*pol.goals[3], gm.height, pol.cell_mm)  # target D (9, 7)
+    ep = run_episode(gm.occ, pol, (0.25, 4.75, 0.0), [goal], max_sim_s=60, seed=1, profile=REALISTIC,
+                     vehicle=VehicleConfig(goal_tolerance_mm=40))
+    assert ep.success, ep.result
+    assert ep.final_error_mm <= 120
