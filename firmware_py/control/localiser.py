@@ -64,12 +64,13 @@ class LocaliserConfig:
     """Every tuning value of the filter (units in the names)."""
 
     particles: int = 200
-    global_particles: int = 2000
+    global_particles: int = 1500
     chunk: int = 25  # particles weighed per control tick
     global_chunk: int = 150  # the same while localising globally (the robot explores, no policy runs)
-    global_jitter_mm: float = 40.0  # roughening of resampled particles while localising globally
-    global_jitter_mrad: float = 80.0
+    global_jitter_mm: float = 25.0  # roughening of resampled particles while localising globally
+    global_jitter_mrad: float = 50.0
     cluster_mm: float = 400.0  # global mode: the best particle's cluster (radius) that must hold ...
+    cluster_mrad: float = 500.0  # (and heading half-width)
     cluster_share: float = 0.8  # ... this share of the weight to count as converged
     fan_rays: int = robot_spec.SENSOR_FAN_RAYS  # rays per sensor cone in the sensor model
     update_mm: float = 40.0
@@ -224,6 +225,8 @@ class Localiser:
         self._cursor = 0
         self._finish_due = False
         self._motion = (0.0, 0.0, 0.0)
+        self._probes: list[tuple[float, tuple[float, float]]] = []
+        self.last_share = 1.0  # global mode: weight share of the best cluster at the last update
         self._force_update = False
         self.random_drawn = 0  # particles drawn uniformly at the last resample (recovery)
         self.localised = False
@@ -303,6 +306,14 @@ class Localiser:
                 elif st == robot_spec.RANGE_TOO_CLOSE:
                     beams.append((k, float(robot_spec.RANGE_MIN_MM)))
             self._pending = (self._odom_now, [(self._mount + r, float(k)) for k, r in beams])
+            # negative information, while localising globally: space a reading looked through is free
+            # (3/4 of a valid reading; 1 and 1.9 m along a TOO_FAR one), checked against the grid's cells
+            probes = [(self._mount + 0.75 * r, k) for k, r in beams if r > 100]
+            for k, st in enumerate(status):
+                if st == robot_spec.RANGE_TOO_FAR:
+                    probes += [(self._mount + 1000.0, k), (self._mount + 1900.0, k)]
+            mid = len(self._beams[0]) // 2
+            self._probes = [(d, self._beams[k][mid]) for d, k in probes] if self.global_mode else []
             self._motion = self._motion_delta(self._est_odom, self._odom_now)
             self._cursor = 0
             self.lw = [0.0] * len(self.xs)
@@ -336,6 +347,8 @@ class Localiser:
         table, res, nx, ny, floor, mg = f.table, f.res, f.nx, f.ny, f.floor, f.margin
         bw = cfg.global_beam_weight if self.global_mode else cfg.beam_weight
         xs, ys, ths, lw = self.xs, self.ys, self.ths, self.lw
+        probes = self._probes
+        occupied, cell, gh1 = self.grid.occupied, self.grid.cell_mm, self.grid.height - 1
         start = self._cursor
         end = min(len(xs), start + (cfg.global_chunk if self.global_mode else cfg.chunk))
         for i in range(start, end):
@@ -366,6 +379,11 @@ class Localiser:
                     if v > best:
                         best = v
                 ll += best
+            for d, (ca, sa) in probes:
+                px = x - mg + d * (c * ca - s * sa)
+                py = y - mg + d * (s * ca + c * sa)
+                if occupied(math.floor(px / cell), gh1 - math.floor(py / cell)):
+                    ll += floor  # the sensor saw through a wall or off the map
             lw[i] = bw * ll
         self._cursor = end
         if end >= len(xs):
@@ -391,15 +409,18 @@ class Localiser:
             self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
         ws = [w / total for w in ws]
         share = 1.0
+        cw: list[float] = []
         if self.global_mode:
             # the estimate is the best particle's cluster; it must hold most of the weight
             b = max(range(n), key=ws.__getitem__)
-            bx, by = self.xs[b], self.ys[b]
+            bx, by, bt = self.xs[b], self.ys[b], self.ths[b]
             r2 = cfg.cluster_mm ** 2
-            cw = [w if (x - bx) ** 2 + (y - by) ** 2 <= r2 else 0.0
-                  for w, x, y in zip(ws, self.xs, self.ys, strict=True)]
+            ca = cfg.cluster_mrad / 1000
+            cw = [w if (x - bx) ** 2 + (y - by) ** 2 <= r2 and abs(_wrap(t - bt)) <= ca else 0.0
+                  for w, x, y, t in zip(ws, self.xs, self.ys, self.ths, strict=True)]
             share = sum(cw)
-            est, cov = self._mean_cov([w / share for w in cw])
+            cw = [w / share for w in cw]
+            est, cov = self._mean_cov(cw)
         else:
             est, cov = self._mean_cov(ws)
         self.est, self.cov = est, cov
@@ -410,8 +431,10 @@ class Localiser:
         sd = math.sqrt(max(cov[0], cov[1]))
         sa = math.sqrt(cov[2]) * 1000
         tight = sd <= cfg.localised_std_mm and sa <= cfg.localised_std_mrad and share >= cfg.cluster_share
+        self.last_share = share
         if tight and self.global_mode:
             self.global_mode = False
+            ws = cw  # track the converged cluster only, not the modes it beat
         self.localised = tight and not self.global_mode
         n_out = cfg.global_particles if self.global_mode else cfg.particles
         ratio = self.w_fast / self.w_slow if self.w_slow > 0 else 1.0
