@@ -8,7 +8,10 @@ from ground_station.cli import main
 from ground_station.learn.export import policy_bytes, quantise
 
 
-def _sector(path, geometry=MapGeometry(500, 10, 10), meta=None):
+PAPER10 = MapGeometry(500, 10, 10)
+
+
+def _sector(path, geometry=PAPER10, meta=None):
     q = quantise(np.random.default_rng(1).normal(size=(SectorEncoder().n_states, 4)))
     path.write_bytes(policy_bytes(q, SectorEncoder(), map_geometry=geometry, metadata=meta or {"map": "paper10"}))
     return path
