@@ -7,7 +7,6 @@ from firmware_py.policy import MapGeometry, load_policy
 from ground_station.cli import main
 from ground_station.learn.export import policy_bytes, quantise
 
-
 PAPER10 = MapGeometry(500, 10, 10)
 
 
