@@ -47,6 +47,7 @@ from typing import Any, NamedTuple
 
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
+from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
 
 # --- format constants ---------------------------------------------------------
 MAGIC = b"QTAB"
@@ -123,6 +124,7 @@ class Policy:
     size: int = 0  # file size in bytes
     control_period_us: int = 0  # the period the actions were trained for (load_policy sets it)
     map_geometry: MapGeometry = MapGeometry(0, 0, 0)  # the training map (load_policy sets it)
+    map_grid: OccupancyGrid | None = None  # the training map's cells, if the file carries them (mapdata)
 
     @property
     def kind(self) -> str:
@@ -162,6 +164,7 @@ class Policy:
             "bytes": self.size,
             "control_period_us": self.control_period_us,
             "map_geometry": self.map_geometry._asdict(),
+            "map_grid": self.map_grid.summary() if self.map_grid is not None else None,
             "metadata": self.metadata,
         }
         if self.kind == "cell":
@@ -333,6 +336,10 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
     if not isinstance(metadata, dict):
         raise PolicyError("metadata is not a JSON object")
     off += meta_len
+    try:
+        grid = grid_from_metadata(metadata, *geometry)
+    except MapDataError as exc:
+        raise PolicyError(str(exc)) from None
 
     table = array(typecode)
     table.frombytes(data[off:off + table_bytes])
@@ -353,7 +360,7 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
                   policy_id=policy_id, crc=stored_crc, created=created, metadata=metadata,
                   table=memoryview(table).toreadonly(), state_scales=state_scales, goals=goals,
                   cell_mm=cell_mm, version=(major, minor), size=n, control_period_us=period_us,
-                  map_geometry=geometry)
+                  map_geometry=geometry, map_grid=grid)
 
 
 def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int) -> str:

@@ -102,6 +102,15 @@ class VehicleStatus:
     ticks: int = 0
     tick_overruns: int = 0
     can_errors: int = 0
+    # x_mm/y_mm/heading_mrad above are the pose the robot drives by (the localiser's when it runs);
+    # the raw dead-reckoning pose stays here for comparison
+    odom_x_mm: int = 0
+    odom_y_mm: int = 0
+    odom_heading_mrad: int = 0
+    localiser: str = "off"  # "off" (no map: odometry), "tracking", "global"
+    localised: bool = True
+    pose_std_mm: tuple[int, int] = (0, 0)  # 1-sigma of x, y
+    pose_std_mrad: int = 0  # 1-sigma of the heading
 
 
 @dataclass(frozen=True)

@@ -46,10 +46,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of sensor noise, dropout and slip")
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="sim seconds to run")
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size (m)")
-    p.add_argument("--noise-mm", type=float, default=10.0, help="range noise std dev (mm)")
-    p.add_argument("--dropout", type=float, default=0.0, help="range dropout probability")
+    p.add_argument("--profile", default="ideal", metavar="NAME",
+                   help="named wheel/sensor error (sim_bridge/profiles.py: ideal, realistic); the options "
+                        "below override its fields (default %(default)s)")
+    p.add_argument("--noise-mm", type=float, default=None, help="range noise std dev (mm; ideal: 10)")
+    p.add_argument("--dropout", type=float, default=None,
+                   help="probability that a range reading is INVALID (ideal: 0)")
     p.add_argument("--fan-rays", type=int, default=3, help="rays per range sensor")
-    p.add_argument("--slip", type=float, default=0.0, help="encoder slip std dev (fraction)")
+    p.add_argument("--slip", type=float, default=None,
+                   help="encoder slip: std dev of each wheel's measured travel per physics step, as a "
+                        "fraction (ideal: 0; realistic: 0.1)")
+    p.add_argument("--enc-scale-left", type=float, default=None, metavar="F",
+                   help="left encoder's measured / true travel (ideal: 1.0; realistic: 1.03)")
+    p.add_argument("--enc-scale-right", type=float, default=None, metavar="F",
+                   help="right encoder's measured / true travel (ideal: 1.0)")
     p.add_argument("--watchdog-ms", type=int, default=200, help="motor watchdog, sim ms")
     p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
                    help="lockstep: wall seconds to wait for a tick's command before stepping anyway")
@@ -95,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from sim_bridge.motors import MotorParams
     from sim_bridge.outputs import CanLog, write_png, write_trajectory
     from sim_bridge.plant import LockstepError, Plant, SimConfig, run_lockstep, run_paced
+    from sim_bridge.profiles import profile
     from sim_bridge.sensors import RangeParams
     from sim_bridge.world import Pose
 
@@ -109,10 +120,17 @@ def run(args: argparse.Namespace) -> int:
     except (MapError, OSError, ValueError) as exc:
         raise CliError(f"--map {args.map}: {exc}") from None
     try:
+        prof = profile(args.profile)
+        scale = (prof.encoder_scale[0] if args.enc_scale_left is None else args.enc_scale_left,
+                 prof.encoder_scale[1] if args.enc_scale_right is None else args.enc_scale_right)
+        prof = prof.with_(encoder_scale=scale,
+                          slip_std=prof.slip_std if args.slip is None else args.slip,
+                          range_noise_mm=prof.range_noise_mm if args.noise_mm is None else args.noise_mm,
+                          range_dropout=prof.range_dropout if args.dropout is None else args.dropout)
         config = SimConfig(seed=args.seed, cell_size_m=gm.cell_size_m,
-                           ranges=RangeParams(args.fan_rays, args.noise_mm, args.dropout),
+                           ranges=RangeParams(args.fan_rays, prof.range_noise_mm, prof.range_dropout),
                            motors=MotorParams(watchdog_ms=args.watchdog_ms),
-                           encoder_slip_std=args.slip)
+                           encoder_slip_std=prof.slip_std, encoder_scale=prof.encoder_scale)
         start = Pose(*parse_start(args.start)) if args.start else None
         plant = Plant(gm.occ, config, start)
     except ValueError as exc:

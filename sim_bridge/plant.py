@@ -25,6 +25,7 @@ import numpy as np
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
 from sim_bridge.motors import MotorDriver, MotorParams
+from sim_bridge.profiles import PlantProfile
 from sim_bridge.sensors import RangeParams, RangeSensors, WheelEncoders, bumper_signals
 from sim_bridge.world import BodyParams, Pose, World
 
@@ -45,6 +46,13 @@ class SimConfig:
     motors: MotorParams = field(default_factory=MotorParams)
     body: BodyParams = field(default_factory=BodyParams)
     encoder_slip_std: float = 0.0
+    encoder_scale: tuple[float, float] = (1.0, 1.0)  # (left, right) measured / true travel
+
+    @classmethod
+    def from_profile(cls, profile: PlantProfile, **kw: Any) -> SimConfig:
+        """A config with a named profile's wheel and sensor error (sim_bridge.profiles)."""
+        return cls(ranges=RangeParams(noise_std_mm=profile.range_noise_mm, dropout=profile.range_dropout),
+                   encoder_slip_std=profile.slip_std, encoder_scale=profile.encoder_scale, **kw)
 
 
 @dataclass
@@ -82,7 +90,7 @@ class Plant:
         seeds = random.Random(config.seed)
         self.ranges = RangeSensors(self.world, config.ranges, random.Random(seeds.getrandbits(64)))
         self.encoders = WheelEncoders(self.world, random.Random(seeds.getrandbits(64)),
-                                      config.encoder_slip_std)
+                                      config.encoder_slip_std, config.encoder_scale)
         self.motors = MotorDriver(config.motors)
         self.tick = 0
         self.time_us = 0

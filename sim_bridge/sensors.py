@@ -9,7 +9,9 @@ sensor face on the rim. Seeded Gaussian noise and dropout; readings below
 RANGE_MIN_MM or beyond RANGE_MAX_MM are flagged as DroneCAN does.
 
 Encoders integrate each wheel's ground speed (from the body's motion) into
-ticks at robot_spec.ENCODER_TICKS_PER_REV, with optional seeded slip. The bumper
+ticks at robot_spec.ENCODER_TICKS_PER_REV, with an optional per-wheel scale
+error (measured / true travel) and seeded slip (each wheel's travel in each
+physics step times 1 + N(0, slip)). Named combinations: sim_bridge/profiles.py. The bumper
 reads the contacts kept by the world's collision handlers.
 
 Every random draw comes from one seeded `random.Random` in a fixed order, so
@@ -113,12 +115,16 @@ class RangeSensors:
 class WheelEncoders:
     """Cumulative tick counts of both wheels."""
 
-    def __init__(self, world: World, rng: random.Random, slip_std: float = 0.0) -> None:
+    def __init__(self, world: World, rng: random.Random, slip_std: float = 0.0,
+                 scale: tuple[float, float] = (1.0, 1.0)) -> None:
         if slip_std < 0:
             raise ValueError(f"slip must be >= 0, got {slip_std}")
+        if not all(s > 0 for s in scale):
+            raise ValueError(f"encoder scale must be > 0, got {scale}")
         self.world = world
         self.rng = rng
         self.slip_std = slip_std
+        self.scale = scale  # (left, right): measured / true travel (a worn or different wheel)
         self.ticks_per_m = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM / 1000)
         self.ticks = [0.0, 0.0]
 
@@ -127,8 +133,8 @@ class WheelEncoders:
         if self.slip_std > 0:
             left *= 1.0 + self.rng.gauss(0.0, self.slip_std)
             right *= 1.0 + self.rng.gauss(0.0, self.slip_std)
-        self.ticks[0] += left * dt_s * self.ticks_per_m
-        self.ticks[1] += right * dt_s * self.ticks_per_m
+        self.ticks[0] += left * dt_s * self.ticks_per_m * self.scale[0]
+        self.ticks[1] += right * dt_s * self.ticks_per_m * self.scale[1]
 
     def counts(self) -> tuple[int, int]:
         """Counts as on the bus (two's complement of the frame's width, wrapping)."""

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 from firmware_py import robot_spec
 from firmware_py.can_protocol import ENCODER_BITS, MOTOR_WATCHDOG_STOP
+from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.encoders import CellEncoder, SectorEncoder
@@ -79,6 +80,13 @@ STOP_BURST_TICKS = 3  # zero commands sent after leaving DRIVING when not in loc
 ENC_JUMP_MARGIN = 2
 ENC_JUMP_SLACK_TICKS = 64
 _WHEEL_CIRC_UM = round(2 * 3.141592653589793 * robot_spec.WHEEL_RADIUS_MM * 1000)
+
+# Exploration while localising globally (a reactive wander: forward while the front is clear, else turn).
+EXPLORE_FORWARD_MM_S = 250
+EXPLORE_TURN_MM_S = 160
+EXPLORE_CLEAR_FRONT_MM = 450
+EXPLORE_CLEAR_DIAGONAL_MM = 300
+EXPLORE_TIMEOUT_US = 30_000_000
 
 # Grid action (dcol, drow) -> world heading (mrad): rows grow southwards.
 _GRID_HEADING = {(1, 0): 0, (0, -1): 1571, (-1, 0): 3142, (0, 1): -1571}
@@ -168,7 +176,8 @@ class Controller:
     """The control state machine; implements vehicle.VehicleControl."""
 
     def __init__(self, config: VehicleConfig | None = None, policy: Policy | None = None, *,
-                 start_pose_mm: tuple[int, int, int] = (0, 0, 0), lockstep: bool = False) -> None:
+                 start_pose_mm: tuple[int, int, int] = (0, 0, 0), lockstep: bool = False,
+                 localise: bool = True, localiser_config: LocaliserConfig | None = None) -> None:
         self.cfg = config or VehicleConfig()
         self._lock = threading.RLock()
         self.lockstep = lockstep
@@ -206,8 +215,39 @@ class Controller:
         self._q_row: tuple[int, ...] = ()
         self.tick_overruns = 0
         self.can_errors = 0
+        # Monte Carlo localisation on the policy's map (control/localiser.py) when the policy carries one
+        self.localise = localise
+        self._loc_cfg = localiser_config
+        self.loc: Localiser | None = None
+        self._explore_until_us: int | None = None  # exploring for global localisation (armed, HOLD)
+        self._use_localiser(policy, self._new_localiser(policy))
 
     # --- helpers ------------------------------------------------------------------
+    def _new_localiser(self, pol: Policy | None) -> Localiser | None:
+        """A localiser for `pol`'s map when the running one is for another map
+        (None: keep the running one, or there is no map). Building one
+        precomputes its likelihood field (~0.1-0.5 s for paper10), so it runs
+        outside the lock: the ticks keep going."""
+        grid = pol.map_grid if pol is not None and self.localise else None
+        cur = self.loc
+        if grid is None or (cur is not None and cur.grid == grid):
+            return None
+        return Localiser(grid, self._loc_cfg)
+
+    def _use_localiser(self, pol: Policy | None, new: Localiser | None) -> None:
+        """Under the lock: switch to `new` (started at the odometry pose), keep
+        the running one for the same map, or drop it (no map: odometry alone)."""
+        if pol is None or pol.map_grid is None or not self.localise:
+            self.loc = None
+        elif new is not None and (self.loc is None or self.loc.grid != new.grid):
+            new.init_pose(*self.odom.pose_mm())
+            self.loc = new
+
+    @property
+    def nav(self) -> Localiser | Odometry:
+        """The pose the robot drives by: the localiser's when it runs, else odometry."""
+        return self.loc if self.loc is not None else self.odom
+
     def _event(self, kind: str, text: str, severity: int = SEV_INFO, seq: int = -1) -> None:
         self._events.append(VehicleEvent(kind=kind, text=text[:50], seq=seq, severity=severity))
 
@@ -286,6 +326,9 @@ class Controller:
             return False, "no policy loaded"
         if self._inputs.bumper:
             return False, "bumper pressed"
+        if self.loc is not None and not self.loc.localised:
+            sx, sy, sa = self.loc.std()
+            return False, f"not localised (std {max(sx, sy):.0f} mm {sa:.0f} mrad)"
         return True, ""
 
     def _start_driving(self, goal: tuple[int, int], goal_index: int, cause: str) -> None:
@@ -304,11 +347,13 @@ class Controller:
             inp = self._inputs
             dist = bearing = 0
             if self.goal is not None:
-                dist, bearing = self.odom.goal_vector(*self.goal)
+                dist, bearing = self.nav.goal_vector(*self.goal)
+            x_mm, y_mm, heading_mrad = self.nav.pose_mm()
+            std = self.loc.std() if self.loc is not None else (0.0, 0.0, 0.0)
             return VehicleStatus(
                 time_us=self._now, state=self.state, mode=self.mode, armed=self.armed,
                 failsafe=self.failsafe, fault=self.fault,
-                x_mm=self.odom.x_mm, y_mm=self.odom.y_mm, heading_mrad=self.odom.heading_mrad,
+                x_mm=x_mm, y_mm=y_mm, heading_mrad=heading_mrad,
                 speed_mm_s=self.odom.speed_mm_s, yaw_rate_mrad_s=self.odom.yaw_rate_mrad_s,
                 goal_mm=self.goal, distance_to_goal_mm=dist, bearing_to_goal_mrad=bearing,
                 ranges_mm=list(inp.ranges_mm), range_status=list(inp.range_status),
@@ -320,7 +365,11 @@ class Controller:
                 policy_id=self.policy.policy_id if self.policy else 0,
                 policy_crc=self.policy.crc if self.policy else 0,
                 map_mm=self._map_mm(),
-                ticks=self._ticks, tick_overruns=self.tick_overruns, can_errors=self.can_errors)
+                ticks=self._ticks, tick_overruns=self.tick_overruns, can_errors=self.can_errors,
+                odom_x_mm=self.odom.x_mm, odom_y_mm=self.odom.y_mm, odom_heading_mrad=self.odom.heading_mrad,
+                localiser=("off" if self.loc is None else "global" if self.loc.global_mode else "tracking"),
+                localised=self.loc is None or self.loc.localised,
+                pose_std_mm=(round(std[0]), round(std[1])), pose_std_mrad=round(std[2]))
 
     def _map_mm(self) -> tuple[int, int] | None:
         """The robot's map extent in world mm (x east, y north, from 0): the
@@ -498,6 +547,7 @@ class Controller:
 
     def activate_loaded(self, new: Policy) -> tuple[bool, str]:
         """Swap in an already validated policy (see activate_policy)."""
+        loc = self._new_localiser(new)  # outside the lock (see _new_localiser)
         with self._lock:
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
@@ -510,6 +560,7 @@ class Controller:
                     return False, f"mission item {i}: {why}"
             old = self.policy
             self.policy = new
+            self._use_localiser(new, loc if loc is not None else self._new_localiser(new))
             if old is not None:
                 self.last_known_good = old
             text = f"policy 0x{new.policy_id:08x} {new.kind} active"
@@ -537,6 +588,52 @@ class Controller:
             self.odom.reset(int(x_mm), int(y_mm), int(heading_mrad))
             self._last_enc_us = None
             self._prim = None
+            if self.loc is not None:
+                self.loc.init_pose(int(x_mm), int(y_mm), int(heading_mrad))
+
+    def localise_global(self, explore: bool = True) -> tuple[bool, str]:
+        """Forget the pose: particles uniform over the map (global
+        localisation). With `explore` and armed in HOLD the robot wanders
+        (forward while the front is clear, else turning in place) until the
+        localiser has converged, the bumper is pressed, it is disarmed or
+        EXPLORE_TIMEOUT_US passes; goals are refused until it is localised."""
+        with self._lock:
+            if self.loc is None:
+                return False, "no map: the active policy carries none (qnav policy attach-map)"
+            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                return False, "refused while driving: stop first"
+            self.loc.init_global()
+            self._explore_until_us = self._now + EXPLORE_TIMEOUT_US if explore else None
+            self._event("info", "global localisation started" + (", exploring" if explore else ""))
+            return True, ""
+
+    def _explore(self, inp: Inputs, now_us: int) -> None:
+        """One tick of the wander that feeds global localisation (HOLD, armed)."""
+        assert self._explore_until_us is not None and self.loc is not None
+        done = ""
+        if not self.loc.global_mode:
+            done = "localised"
+        elif not self.armed or self.state != CtrlState.HOLD or inp.bumper:
+            done = "exploration stopped"
+        elif now_us >= self._explore_until_us:
+            done = "exploration timed out, not localised"
+        if done:
+            self._explore_until_us = None
+            self._stop()
+            self._event("info", done, SEV_INFO if done == "localised" else SEV_WARNING)
+            return
+
+        def rng(k: int) -> int:
+            st = inp.range_status[k]
+            return robot_spec.RANGE_MAX_MM if st == robot_spec.RANGE_TOO_FAR else (
+                inp.ranges_mm[k] if st == robot_spec.RANGE_VALID else 0)
+
+        front = rng(0)
+        diag = min(rng(1), rng(7))
+        if front > EXPLORE_CLEAR_FRONT_MM and diag > EXPLORE_CLEAR_DIAGONAL_MM:
+            self.watchdog.feed(now_us, EXPLORE_FORWARD_MM_S, EXPLORE_FORWARD_MM_S)
+        else:
+            self.watchdog.feed(now_us, -EXPLORE_TURN_MM_S, EXPLORE_TURN_MM_S)
 
     def note_loop_stats(self, overruns: int, can_errors: int) -> None:
         with self._lock:
@@ -567,11 +664,19 @@ class Controller:
                 self._last_enc_us = inp.enc_us
             if enc_jump and self.armed and self.state != CtrlState.FAULT:
                 self._enter_fault(enc_jump)
+            if self.loc is not None:
+                was = self.loc.localised
+                self.loc.tick(self.odom.pose_mm(), inp.ranges_mm, inp.range_status)
+                if self.loc.localised != was:
+                    self._event("info", "localised" if self.loc.localised else "localisation lost",
+                                SEV_INFO if self.loc.localised else SEV_WARNING)
             errors = self._safety(inp, now_us)
             if self.state == CtrlState.GOAL_REACHED:
                 self._after_goal()
             if self.state == CtrlState.DRIVING:
                 self._drive(inp, now_us)
+            elif self._explore_until_us is not None:
+                self._explore(inp, now_us)
             if self.state != CtrlState.DRIVING:
                 # no decision in force; while DRIVING the last one holds until the next (a
                 # cell policy decides once per cell move), so telemetry always shows it
@@ -660,7 +765,7 @@ class Controller:
 
     def _drive(self, inp: Inputs, now_us: int) -> None:
         assert self.goal is not None and self.policy is not None
-        dist, bearing = self.odom.goal_vector(*self.goal)
+        dist, bearing = self.nav.goal_vector(*self.goal)
         if dist <= self.cfg.goal_tolerance_mm:
             self._transition(CtrlState.GOAL_REACHED, f"goal reached, {dist} mm off")
             if self.mode == Mode.AUTO:
@@ -687,7 +792,7 @@ class Controller:
         assert pol is not None and self.goal is not None  # called from _drive
         enc = pol.encoder
         assert isinstance(enc, CellEncoder)  # _drive: not a sector policy
-        x, y, heading = self.odom.pose_mm()
+        x, y, heading = self.nav.pose_mm()
         if self._prim is None:
             col, row = robot_spec.world_to_cell(x, y, enc.height, pol.cell_mm)
             if not (0 <= col < enc.width and 0 <= row < enc.height):
@@ -697,7 +802,7 @@ class Controller:
             goal_cell = robot_spec.world_to_cell(*self.goal, enc.height, pol.cell_mm)
             if (col, row) == goal_cell:
                 target = self.goal
-                _, b = self.odom.goal_vector(*target)
+                _, b = self.nav.goal_vector(*target)
                 head = wrap_mrad(heading + b)
             else:
                 s = enc.encode(col, row, self._goal_index)
@@ -717,7 +822,7 @@ class Controller:
                 w = max(MIN_TURN_MM_S, min(turn_cap, w))
                 return (-w, w) if err > 0 else (w, -w)
             prim.turning = False
-        dist, bearing = self.odom.goal_vector(*prim.target)
+        dist, bearing = self.nav.goal_vector(*prim.target)
         if dist <= ARRIVE_TOLERANCE_MM or (abs(bearing) > 1571 and dist < pol.cell_mm // 2):
             self._prim = None  # arrived (or just past it): re-localise from odometry
             return self._cell_primitive(depth + 1) if depth == 0 else (0, 0)
@@ -738,7 +843,8 @@ class Controller:
         else:
             self._cmd_counter = (self._cmd_counter + 1) & 0xFFFFFF
             counter = self._cmd_counter
-        live = self.state == CtrlState.DRIVING and not self.watchdog.expired(now_us)
+        moving = self.state == CtrlState.DRIVING or self._explore_until_us is not None
+        live = moving and not self.watchdog.expired(now_us)
         if live or self.lockstep or tick is not None:
             motor = MotorCommand(left, right, counter)
         elif self._stop_burst > 0:

@@ -42,6 +42,11 @@ STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: "nav",
     M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: "origin",
     M.MAVLINK_MSG_ID_HOME_POSITION: "origin",
+    # localisation (control/localiser.py): LOCAL_POSITION_NED carries the believed pose; these add its
+    # covariance, the "localised" flag (ESTIMATOR_POS_HORIZ_ABS) and the raw dead-reckoning pose (ODOMETRY)
+    M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: "pos",
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV: "pos",
+    M.MAVLINK_MSG_ID_ODOMETRY: "pos",
 }
 # only on request (REQUEST_MESSAGE), never streamed by default
 ON_REQUEST = frozenset({M.MAVLINK_MSG_ID_AUTOPILOT_VERSION})
@@ -212,10 +217,45 @@ class Telemetry:
                 m.named_value_int_encode(ms, f"Q{i}".encode(), int(q)) for i, q in enumerate(st.q_row)]
         if msg_id == M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
             return [] if st.goal_mm is None else [self.position_target(ms, *st.goal_mm)]
+        if msg_id in (M.MAVLINK_MSG_ID_ESTIMATOR_STATUS, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV,
+                      M.MAVLINK_MSG_ID_ODOMETRY):
+            return [self.localisation(msg_id, now_us, st)]
         if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return [m.autopilot_version_encode(CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0,
                                                [0] * 8, [0] * 8, [0] * 8, 0, 0, 0)]
         return []
+
+    def localisation(self, msg_id: int, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
+        """ESTIMATOR_STATUS (flags: ESTIMATOR_POS_HORIZ_ABS while localised on
+        the map; pos_horiz_accuracy: 1-sigma in m), LOCAL_POSITION_NED_COV
+        (the believed pose and its x/y/heading variances; NaN first element:
+        no localiser) or ODOMETRY (the raw dead-reckoning pose)."""
+        m = self.mav
+        std_n, std_e = st.pose_std_mm[1] / 1000.0, st.pose_std_mm[0] / 1000.0  # y north, x east
+        if msg_id == M.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
+            flags = M.ESTIMATOR_ATTITUDE | M.ESTIMATOR_POS_HORIZ_REL
+            if st.localiser != "off" and st.localised:
+                flags |= M.ESTIMATOR_POS_HORIZ_ABS
+            if st.localiser == "global":
+                flags |= M.ESTIMATOR_CONST_POS_MODE  # the pose is not known yet
+            acc = max(std_n, std_e) if st.localiser != "off" else 0.0
+            return m.estimator_status_encode(now_us, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, acc, 0.0)
+        if msg_id == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV:
+            north, east = mav_frames.world_to_ned_m(st.x_mm, st.y_mm)
+            cov = [0.0] * 45
+            if st.localiser == "off":
+                cov[0] = math.nan
+            else:
+                # upper triangle of (x, y, z, vx, vy, vz, ax, ay, az); the heading variance has no slot
+                cov[0], cov[9] = std_n * std_n, std_e * std_e
+            return m.local_position_ned_cov_encode(now_us, M.MAV_ESTIMATOR_TYPE_AUTOPILOT, north, east, 0.0,
+                                                   0.0, 0.0, 0.0, 0.0, 0.0, 0.0, cov)
+        north, east = mav_frames.world_to_ned_m(st.odom_x_mm, st.odom_y_mm)
+        yaw = mav_frames.heading_to_yaw(st.odom_heading_mrad)
+        q = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+        return m.odometry_encode(now_us, M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_BODY_FRD, north, east, 0.0, q,
+                                 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, [math.nan] + [0.0] * 20, [math.nan] + [0.0] * 20,
+                                 0, M.MAV_ESTIMATOR_TYPE_NAIVE, 0)
 
     def heartbeat(self, st: VehicleStatus) -> mavlink2.MAVLink_message:
         base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED

@@ -1,6 +1,8 @@
 """`qnav policy inspect FILE...`: validate `.qtab` files and print their headers.
 `qnav policy upgrade OLD.qtab [--out NEW.qtab] --control-period-us US [--map NAME]`:
 migrate a version 1.x file to the current format.
+`qnav policy attach-map FILE --map NAME [--out NEW.qtab]`: put the training
+map's cells into the file (metadata `map_grid`) for the robot's localiser.
 
 inspect: one line per file (a JSON object per line with `--json`: `file`,
 `valid`, `error` and the header fields, among them `control_period_us` and
@@ -52,6 +54,13 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--map", metavar="NAME|PATH",
                     help="training map (sector policies; default: the map in the file's metadata)")
     up.set_defaults(func=run_upgrade)
+    am = inner.add_parser("attach-map", help="carry the training map's cells in the file (for the localiser)",
+                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    am.add_argument("file", metavar="FILE.qtab", help="a valid policy file")
+    am.add_argument("--map", metavar="NAME|PATH",
+                    help="the training map (default: the map named in the file's metadata)")
+    am.add_argument("--out", metavar="NEW.qtab", help="where to write (default: replace FILE atomically)")
+    am.set_defaults(func=run_attach_map)
 
 
 def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
@@ -81,6 +90,8 @@ def _line(d: dict) -> str:
                f"edges_mm={enc['range_edges_mm']}")
     mg = d["map_geometry"]
     geo += f" period_us={d['control_period_us']} map={mg['width']}x{mg['height']}x{mg['cell_mm']}mm"
+    grid = d.get("map_grid")
+    geo += f" map_grid={grid['occupied_cells']}/{grid['width'] * grid['height']} occupied" if grid else " map_grid=none"
     meta = d["metadata"]
     extra = " ".join(f"{k}={json.dumps(meta[k])}" for k in ("map", "targets", "steps") if k in meta)
     scale = "per-state" if d["per_state_scales"] else f"{d['scale']:.6g}"
@@ -129,6 +140,35 @@ def run_upgrade(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
     print(json.dumps(describe(out), sort_keys=True))
+    return 0
+
+
+def run_attach_map(args: argparse.Namespace) -> int:
+    from firmware_py.atomic import atomic_write
+    from firmware_py.policy import PolicyError, load_policy
+    from ground_station.errors import CliError
+    from ground_station.learn.export import attach_map
+
+    try:
+        with open(args.file, "rb") as f:
+            data = f.read()
+        name = args.map or load_policy(data).metadata.get("map")
+    except OSError as exc:
+        raise CliError(f"cannot read {args.file}: {exc.strerror or exc}") from None
+    except PolicyError as exc:
+        raise CliError(f"{args.file}: {exc}") from None
+    if not isinstance(name, str) or not name:
+        raise CliError(f"{args.file}: names no training map in its metadata; pass --map")
+    try:
+        new = attach_map(data, name)
+    except ValueError as exc:
+        raise CliError(f"{args.file}: {exc}") from None
+    out = args.out or args.file
+    try:
+        atomic_write(out, new)
+    except OSError as exc:
+        raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
+    print(_line(describe(out)))
     return 0
 
 

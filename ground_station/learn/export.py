@@ -10,6 +10,7 @@ because rounding creates argmax ties that rarely change path optimality.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -213,6 +214,51 @@ def file_metadata(run: TrainingRun, qt: Quantised) -> dict:
     keep = {k: run.meta[k] for k in ("encoding", "map", "targets", "config", "steps", "train_seconds",
                                      "created", "seed") if k in run.meta}
     keep["quantisation"] = {"dtype": qt.dtype, "per_state_scales": qt.state_scales is not None}
+    # the robot's localiser needs the training map's cells (firmware_py.mapdata); an unnamed or
+    # unreadable map: the file carries no grid and the robot runs on odometry
+    with contextlib.suppress(ValueError):
+        keep[META_GRID] = map_grid_rows(str(run.meta.get("map") or ""), run.cell_mm)
     if len(json.dumps(keep)) > fmt.MAX_METADATA_BYTES:
         keep.pop("config", None)
     return keep
+
+
+META_GRID = "map_grid"  # firmware_py.mapdata.META_KEY
+
+
+def map_grid_rows(name: str, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> list[str]:
+    """A map's cells as `map_grid` metadata rows ('.' free, '@' occupied;
+    ValueError with one line if the map cannot be read)."""
+    from ground_station.maps import MapError, load_map
+
+    if not name:
+        raise ValueError("no map named")
+    try:
+        gm = load_map(name, cell_size_m=cell_mm / 1000)
+    except (MapError, OSError) as exc:
+        raise ValueError(f"map {name}: {exc}") from None
+    return ["".join("@" if v else "." for v in row) for row in gm.occ.tolist()]
+
+
+def attach_map(data: bytes, map_name: str) -> bytes:
+    """A `.qtab` with the named map's cells in its metadata (`map_grid`),
+    everything else (table, policy id, creation time, geometry) unchanged.
+    Raises ValueError (one line) if the file or map is unusable or the map's
+    size differs from the file's map geometry."""
+    try:
+        pol = fmt.load_policy(data)
+    except fmt.PolicyError as exc:
+        raise ValueError(str(exc)) from None
+    geo = pol.map_geometry
+    rows = map_grid_rows(map_name, geo.cell_mm)
+    if (len(rows[0]), len(rows)) != (geo.width, geo.height):
+        raise ValueError(f"map {map_name} is {len(rows[0])}x{len(rows)} cells, the policy was trained on "
+                         f"{geo.width}x{geo.height}")
+    meta = dict(pol.metadata)
+    meta[META_GRID] = rows
+    typecode = fmt.DTYPES[fmt.DTYPE_CODES[pol.dtype]][1]
+    scales = array("f", pol.state_scales) if pol.state_scales is not None else None
+    return fmt.dump_policy(pol.encoder, array(typecode, pol.table), pol.dtype, pol.scale, state_scales=scales,
+                           goals=pol.goals, cell_mm=pol.cell_mm or geo.cell_mm, metadata=meta,
+                           policy_id=pol.policy_id, created=pol.created,
+                           control_period_us=pol.control_period_us, map_geometry=geo)

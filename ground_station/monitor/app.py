@@ -121,6 +121,9 @@ def render_vehicle(view: VehicleView) -> Text:
     else:
         t.append(f"pose x {pose[0]:.2f} y {pose[1]:.2f} m  hdg {round(math.degrees(pose[2]))}°\n"
                  f"speed {view.speed:.2f} m/s")
+    if view.localised is not None:
+        t.append("\n" + view.localisation_text.replace("localised=no", "NOT LOCALISED"),
+                 style="" if view.localised else "bold yellow")
     if view.load_pct is not None:
         t.append(f"\nload {view.load_pct:.1f}%")
         t.append(f"  tick overruns {view.link.tick_overruns}")

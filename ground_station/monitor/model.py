@@ -173,6 +173,11 @@ class VehicleView:
         self.yaw_rate = 0.0  # rad/s, CCW positive
         self.trail: deque[tuple[float, float]] = deque(maxlen=trail_max)
         self.origin_e7: tuple[int, int] | None = None
+        # localisation: ESTIMATOR_STATUS, LOCAL_POSITION_NED_COV, ODOMETRY (raw dead reckoning)
+        self.localised: bool | None = None  # None: the vehicle sends no estimator status
+        self.localising_global = False
+        self.pose_std_m: float | None = None  # 1-sigma horizontal (None: no localiser)
+        self.odom_xy: tuple[float, float] | None = None  # world frame m
         # goal
         self.wp_dist_m: float | None = None  # NAV_CONTROLLER_OUTPUT (whole metres)
         self.target_bearing_deg: float | None = None  # compass, from north clockwise
@@ -398,6 +403,20 @@ class VehicleView:
         if not self.trail or math.hypot(self.trail[-1][0] - self.x, self.trail[-1][1] - self.y) >= _TRAIL_STEP_M:
             self.trail.append((self.x, self.y))
 
+    def _on_estimator_status(self, msg, t: float) -> None:
+        self.localised = bool(msg.flags & mavlink.ESTIMATOR_POS_HORIZ_ABS)
+        self.localising_global = bool(msg.flags & mavlink.ESTIMATOR_CONST_POS_MODE)
+        self.pose_std_m = float(msg.pos_horiz_accuracy) if msg.pos_horiz_accuracy > 0 else None
+
+    def _on_local_position_ned_cov(self, msg, t: float) -> None:
+        c = msg.covariance
+        if not math.isnan(c[0]):
+            self.pose_std_m = math.sqrt(max(c[0], c[9], 0.0))
+
+    def _on_odometry(self, msg, t: float) -> None:
+        if msg.estimator_type == mavlink.MAV_ESTIMATOR_TYPE_NAIVE:
+            self.odom_xy = (float(msg.y), float(msg.x))  # NED -> east/north
+
     def _on_attitude(self, msg, t: float) -> None:
         # NED yaw is clockwise from north; world heading is CCW from east.
         self.heading = math.atan2(math.cos(msg.yaw), math.sin(msg.yaw))
@@ -498,6 +517,21 @@ class VehicleView:
         self._append_log(LogLine(t, mavlink.MAV_SEVERITY_INFO if msg.result == 0 else mavlink.MAV_SEVERITY_WARNING,
                                  f"ACK {cmd}: {res}", self.robot_clock()))
 
+    @property
+    def localisation_text(self) -> str:
+        """`localised=yes std=0.03m odo_err=0.42m` (odo_err: believed - dead reckoning)."""
+        if self.localised is None:
+            return "localised=-"
+        state = "global" if self.localising_global else ("yes" if self.localised else "no")
+        if self.localised and self.pose_std_m is None:
+            state = "off"  # no map on the robot: odometry only
+        out = f"localised={state}"
+        if self.pose_std_m is not None:
+            out += f" std={self.pose_std_m:.2f}m"
+        if self.odom_xy is not None and self.x is not None and self.y is not None:
+            out += f" odo_err={math.hypot(self.odom_xy[0] - self.x, self.odom_xy[1] - self.y):.2f}m"
+        return out
+
     # --- presentation helpers ---------------------------------------------
     def status_line(self, now: float) -> str:
         """One line for logs (`qnav monitor --plain`)."""
@@ -516,6 +550,7 @@ class VehicleView:
             f"failsafe={'yes' if self.failsafe else 'no'}",
             f"policy={self.policy_id if self.policy_id is not None else '-'}",
             pose_s,
+            self.localisation_text,
             f"goal_dist={d:.2f}" if d is not None else "goal_dist=-",
             f"state={self.state_index if self.state_index is not None and self.state_index >= 0 else '-'}",
             f"action={self.action if self.action is not None and self.action >= 0 else '-'}",

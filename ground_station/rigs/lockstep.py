@@ -39,10 +39,12 @@ from firmware_py import robot_spec
 from firmware_py.clock import SimClock
 from firmware_py.control.controller import Controller
 from firmware_py.control.goals import GoalRunner
+from firmware_py.control.localiser import LocaliserConfig
 from firmware_py.control.node import RobotNode
 from firmware_py.policy import Policy, load_policy
 from firmware_py.shipped_policies import shipped_policy
 from firmware_py.vehicle import CtrlState, VehicleConfig
+from sim_bridge.profiles import PlantProfile
 
 CELL_POLICY = shipped_policy("paper10_cell")
 PERIOD_US = robot_spec.CONTROL_PERIOD_US
@@ -94,6 +96,21 @@ def _bfs(occ, goal: tuple[int, int]) -> dict[tuple[int, int], int]:
     return dist
 
 
+class _TimedController(Controller):
+    """The controller, with the CPU time of every `step` recorded (thread CPU
+    time: what the tick costs, not what the shared machine's scheduler adds)."""
+
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.step_cpu_ns: list[int] = []
+
+    def step(self, inputs, now_us, tick=None):  # type: ignore[no-untyped-def]
+        t0 = time.thread_time_ns()
+        out = super().step(inputs, now_us, tick)
+        self.step_cpu_ns.append(time.thread_time_ns() - t0)
+        return out
+
+
 class LockstepRig:
     """See the module docstring. Use as a context manager; `start` is
     (x_m, y_m, heading_rad), `goals_mm` the goal or mission for the GoalRunner
@@ -101,15 +118,18 @@ class LockstepRig:
 
     def __init__(self, occ, policy: Policy | None, start: tuple[float, float, float],
                  goals_mm: list[tuple[int, int]], *, seed: int = 0,
-                 vehicle: VehicleConfig | None = None, answer_timeout_s: float = 5.0) -> None:
+                 vehicle: VehicleConfig | None = None, answer_timeout_s: float = 5.0,
+                 profile: PlantProfile | None = None, localise: bool = True) -> None:
         from sim_bridge.plant import Plant, SimConfig
         from sim_bridge.world import Pose
 
         channel = f"faults-{uuid.uuid4().hex}"
         self.sim_bus = can.Bus(interface="virtual", channel=channel)
         self.node_bus = can.Bus(interface="virtual", channel=channel)
-        self.plant = Plant(occ, SimConfig(seed=seed), Pose(*start))
-        self.ctrl = Controller(vehicle or VehicleConfig(), policy, lockstep=True,
+        config = SimConfig(seed=seed) if profile is None else SimConfig.from_profile(profile, seed=seed)
+        self.plant = Plant(occ, config, Pose(*start))
+        self.ctrl = _TimedController(vehicle or VehicleConfig(), policy, lockstep=True, localise=localise,
+                               localiser_config=LocaliserConfig(seed=seed),
                                start_pose_mm=(round(start[0] * 1000), round(start[1] * 1000),
                                               round(start[2] * 1000)))
         self.node = RobotNode(self.node_bus, self.ctrl, SimClock(), lockstep=True)
@@ -123,6 +143,8 @@ class LockstepRig:
         self.repeated_answers = 0  # the previous tick's answer again (a duplicated SimTick)
         self._last_counter: int | None = None
         self.answers_withheld = 0
+        # (t_us, true x, y mm, believed x, y mm, odometry x, y mm) after each tick
+        self.poses: list[tuple[int, float, float, int, int, int, int]] = []
 
     def __enter__(self) -> LockstepRig:
         self.node.start()
@@ -182,6 +204,9 @@ class LockstepRig:
             self.answers_withheld += 1
         self._last_counter = want
         self.states.append((plant.time_us, self.ctrl.state))
+        st = self.ctrl.status()
+        true = plant.world.pose
+        self.poses.append((plant.time_us, true.x * 1000, true.y * 1000, st.x_mm, st.y_mm, st.odom_x_mm, st.odom_y_mm))
         plant.step_period()
         return sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]
 
@@ -216,6 +241,11 @@ class Episode:
     commands: list[tuple[int, int, int, int]] = field(default_factory=list)  # (t_us, left, right, counter)
     transitions: list[tuple[int, str, str, str]] = field(default_factory=list)
     latency_us: list[float] = field(default_factory=list)
+    step_cpu_us: list[float] = field(default_factory=list)  # Controller.step thread CPU time per tick
+    belief_error_mm: float = 0.0  # |true - believed position| at the end
+    odom_error_mm: float = 0.0  # |true - dead-reckoning position| at the end
+    belief_error_max_mm: float = 0.0  # largest |true - believed| while driving
+    poses: list[tuple[int, float, float, int, int, int, int]] = field(default_factory=list)  # LockstepRig.poses
 
     @property
     def success(self) -> bool:
@@ -235,7 +265,8 @@ def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
                 goals_mm: list[tuple[int, int]], *, max_sim_s: float = 120.0, seed: int = 0,
                 vehicle: VehicleConfig | None = None, frames_hook: FramesHook | None = None,
                 before_tick: Callable[[LockstepRig], None] | None = None,
-                stop_when_done: bool = True, answer_timeout_s: float = 5.0) -> Episode:
+                stop_when_done: bool = True, answer_timeout_s: float = 5.0,
+                profile: PlantProfile | None = None, localise: bool = True) -> Episode:
     """Drive one lockstep episode on a `LockstepRig` until the GoalRunner is done
     (unless `stop_when_done` is False) or `max_sim_s` of sim time.
 
@@ -244,7 +275,7 @@ def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
     end_us = round(max_sim_s * 1e6)
     t0 = time.perf_counter()
     with LockstepRig(occ, policy, start, goals_mm, seed=seed, vehicle=vehicle,
-                     answer_timeout_s=answer_timeout_s) as rig:
+                     answer_timeout_s=answer_timeout_s, profile=profile, localise=localise) as rig:
         while rig.plant.time_us < end_us:
             if stop_when_done and rig.runner.done.is_set():
                 break
@@ -259,7 +290,12 @@ def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
         gx, gy = goals_mm[-1]
         err = math.hypot(pose.x * 1000 - gx, pose.y * 1000 - gy)
     result = runner.result if runner.done.is_set() else "timeout"
-    return Episode(result=result, contacts=plant.world.contact_events, sim_s=plant.time_us / 1e6,
+    errs = [math.hypot(p[1] - p[3], p[2] - p[4]) for p in rig.poses] or [0.0]
+    last = rig.poses[-1] if rig.poses else (0, 0.0, 0.0, 0, 0, 0, 0)
+    return Episode(belief_error_mm=errs[-1], odom_error_mm=math.hypot(last[1] - last[5], last[2] - last[6]),
+                   belief_error_max_mm=max(errs), poses=rig.poses,
+                   step_cpu_us=[v / 1000 for v in rig.ctrl.step_cpu_ns],
+                   result=result, contacts=plant.world.contact_events, sim_s=plant.time_us / 1e6,
                    wall_s=wall, ticks=plant.tick, final_error_mm=err, commands=rig.commands,
                    transitions=[(t.t_us, t.src.name, t.dst.name, t.cause) for t in rig.ctrl.transitions],
                    latency_us=[v / 1000 for v in rig.node.latency_ns])

@@ -1,0 +1,545 @@
+"""Monte Carlo localisation (particle filter) against the policy's map.
+
+Owns the robot's believed pose when the active policy carries its training
+map (`firmware_py.mapdata`): the controller feeds it the dead-reckoning pose
+and the range readings every tick and drives, encodes states and checks
+goals with `Localiser.pose_mm()` / `goal_vector()`; the raw odometry stays
+beside it in telemetry.
+
+* **Sensor model: a likelihood field**, precomputed once per map
+  (`LikelihoodField`): for every `res_mm` square the distance to the nearest
+  occupied cell (the map's outside counts as wall: the world's outer walls),
+  turned into log(z_hit * N(d; 0, sigma) + z_floor). A reading r of sensor k
+  puts an end point at R + r along each ray of the sensor's cone (the sim's
+  and a real sensor's reading is the nearest hit in the cone, so the
+  best-fitting ray explains it); the particle's log weight is the sum over
+  valid readings of the best ray's field value (no ray casting). `z_floor` is the outlier floor: a reading that ends in free space
+  (an obstacle the map does not know, a person, a box) costs a bounded
+  amount instead of killing the particle, so unmapped obstacles degrade the
+  estimate gracefully rather than break it. TOO_FAR and INVALID readings
+  carry no end point and are skipped (as AMCL's likelihood field does).
+* **Motion model**: the odometry motion model (rot1, trans, rot2 between two
+  odometry poses) with noise alpha1..alpha4 (`LocaliserConfig`), so
+  systematic encoder scale error and slip are covered by the spread.
+* **Resampling**: fixed size, low-variance; with augmented MCL's short/long
+  averages of the mean weight (`alpha_fast`, `alpha_slow`) a share of the
+  new particles is drawn uniformly over free space when the sensors disagree
+  with the particles (recovery from a wrong or kidnapped pose).
+* **Global localisation**: `init_global()` spreads `global_particles`
+  uniformly over free space; once the estimate is tight it shrinks back to
+  `particles`.
+* **Schedule**: an update is due when the odometry moved `update_mm` or
+  turned `update_mrad` since the last one; its particles are weighed in
+  chunks of `chunk` per control tick and the resample happens on a tick of
+  its own, so one tick never carries a whole update (the control tick keeps
+  its budget; the filter runs at ~20 Hz / (N / chunk + 1)). Between updates
+  the believed pose is the last estimate composed with the odometry's motion
+  since the readings it used. Deterministic for a given seed (lockstep runs
+  repeat exactly).
+
+Floats throughout (the robot's Python has them; the control path's integers
+come back at the API: mm and mrad).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import random
+from array import array
+from dataclasses import dataclass
+
+from firmware_py import robot_spec
+from firmware_py.mapdata import OccupancyGrid
+
+TWO_PI = 2 * math.pi
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+@dataclass(frozen=True)
+class LocaliserConfig:
+    """Every tuning value of the filter (units in the names)."""
+
+    particles: int = 200
+    global_particles: int = 1500
+    chunk: int = 25  # particles weighed per control tick
+    global_chunk: int = 150  # the same while localising globally (the robot explores, no policy runs)
+    global_jitter_mm: float = 25.0  # roughening of resampled particles while localising globally
+    global_jitter_mrad: float = 50.0
+    cluster_mm: float = 400.0  # global mode: the best particle's cluster (radius) that must hold ...
+    cluster_mrad: float = 500.0  # (and heading half-width)
+    cluster_share: float = 0.8  # ... this share of the weight to count as converged
+    fan_rays: int = robot_spec.SENSOR_FAN_RAYS  # rays per sensor cone in the sensor model
+    update_mm: float = 40.0
+    update_mrad: float = 80.0
+    # odometry motion model noise (Thrun's alpha1..4): rot from rot [rad/rad], rot from trans [rad/mm],
+    # trans from trans [mm/mm], trans from rot [mm/rad]
+    alpha1: float = 0.08
+    alpha2: float = 0.0002
+    alpha3: float = 0.06
+    alpha4: float = 5.0
+    sigma_hit_mm: float = 50.0
+    z_hit: float = 0.85
+    z_floor: float = 0.15  # outlier share: readings the map cannot explain (unmapped obstacles)
+    max_field_mm: float = 400.0  # distances beyond it are floor
+    field_res_mm: int = 25
+    beam_weight: float = 0.6  # log-likelihood multiplier: the 8 readings are not independent
+    global_beam_weight: float = 0.2  # softer while localising globally, so no wrong mode wins early
+    alpha_slow: float = 0.01
+    alpha_fast: float = 0.2
+    max_random_share: float = 0.1  # at most this share of a resample is drawn uniformly
+    recovery_ratio: float = 0.6  # recovery starts when the short-term mean weight falls below this x long-term
+    localised_std_mm: float = 120.0
+    localised_std_mrad: float = 150.0
+    start_std_mm: float = 30.0
+    start_std_mrad: float = 30.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.particles < 1 or self.global_particles < 1 or self.chunk < 1:
+            raise ValueError("particles, global_particles and chunk must be >= 1")
+        if not (self.z_hit > 0 and self.z_floor > 0):
+            raise ValueError("z_hit and z_floor must be > 0")
+        if self.sigma_hit_mm <= 0 or self.field_res_mm < 1:
+            raise ValueError("sigma_hit_mm and field_res_mm must be > 0")
+
+
+class LikelihoodField:
+    """log(z_hit * exp(-d^2 / 2 sigma^2) + z_floor) on a `res_mm` raster of
+    the map and a `max_mm` margin around it (end points of readings of the
+    outer walls land there), d the distance (mm) from the square's centre to
+    the nearest occupied cell or the outside of the map (0 inside them),
+    capped at `max_mm`. Beyond the raster: the floor."""
+
+    def __init__(self, grid: OccupancyGrid, res_mm: int, sigma_mm: float, z_hit: float, z_floor: float,
+                 max_mm: float) -> None:
+        self.grid = grid
+        self.res = res_mm
+        c = grid.cell_mm
+        self.width_mm = grid.width * c
+        self.height_mm = grid.height * c
+        self.margin = -(-int(max_mm) // res_mm) * res_mm
+        self.nx = -(-(self.width_mm + 2 * self.margin) // res_mm)
+        self.ny = -(-(self.height_mm + 2 * self.margin) // res_mm)
+        self.floor = math.log(z_floor)
+        reach = max(1, math.ceil(max_mm / c))
+        table = array("f", bytes(4 * self.nx * self.ny))
+        two_s2 = 2 * sigma_mm * sigma_mm
+        for iy in range(self.ny):
+            py = (iy + 0.5) * res_mm - self.margin
+            for ix in range(self.nx):
+                px = (ix + 0.5) * res_mm - self.margin
+                d = self.distance_mm(px, py, reach)
+                d = min(d, max_mm)
+                table[iy * self.nx + ix] = math.log(z_hit * math.exp(-d * d / two_s2) + z_floor)
+        self.table = table
+
+    def distance_mm(self, px: float, py: float, reach: int = 2) -> float:
+        """Distance from a world point (mm) to the nearest occupied cell or
+        the map's edge, looking `reach` cells around (exact below reach * cell)."""
+        g = self.grid
+        c = g.cell_mm
+        col = math.floor(px / c)
+        row = g.height - 1 - math.floor(py / c)
+        if g.occupied(col, row):
+            return 0.0
+        best = math.inf
+        for r in range(row - reach, row + reach + 1):
+            y0 = (g.height - 1 - r) * c
+            y1 = y0 + c
+            dy = max(y0 - py, 0.0, py - y1)
+            for cc in range(col - reach, col + reach + 1):
+                if not g.occupied(cc, r):
+                    continue
+                x0 = cc * c
+                dx = max(x0 - px, 0.0, px - (x0 + c))
+                d = math.hypot(dx, dy)
+                if d < best:
+                    best = d
+        return best
+
+    def log_p(self, x_mm: float, y_mm: float) -> float:
+        """The field at a world point; beyond the raster: the floor."""
+        fx = x_mm + self.margin
+        fy = y_mm + self.margin
+        if fx < 0 or fy < 0:
+            return self.floor
+        ix = int(fx / self.res)
+        iy = int(fy / self.res)
+        if ix >= self.nx or iy >= self.ny:
+            return self.floor
+        return self.table[iy * self.nx + ix]
+
+    def free(self, x_mm: float, y_mm: float, clearance_mm: float) -> bool:
+        """A robot centred here would not overlap a wall (for uniform draws)."""
+        if not (0 <= x_mm < self.width_mm and 0 <= y_mm < self.height_mm):
+            return False
+        return self.distance_mm(x_mm, y_mm, 1) >= clearance_mm
+
+
+@functools.lru_cache(maxsize=4)
+def likelihood_field(grid: OccupancyGrid, res_mm: int, sigma_mm: float, z_hit: float, z_floor: float,
+                     max_mm: float) -> LikelihoodField:
+    """The field for a map and model, computed once (a reactivated policy, a
+    new episode on the same map: no second precomputation). Fields are never
+    written after construction, so sharing one is safe."""
+    return LikelihoodField(grid, res_mm, sigma_mm, z_hit, z_floor, max_mm)
+
+
+class Localiser:
+    """The particle filter; see the module docstring. All public methods are
+    called from the controller's tick (under its lock)."""
+
+    def __init__(self, grid: OccupancyGrid, config: LocaliserConfig | None = None,
+                 field: LikelihoodField | None = None) -> None:
+        self.cfg = cfg = config or LocaliserConfig()
+        self.grid = grid
+        self.field = field or likelihood_field(grid, cfg.field_res_mm, cfg.sigma_hit_mm, cfg.z_hit, cfg.z_floor,
+                                               cfg.max_field_mm)
+        self.rng = random.Random(cfg.seed)
+        mount = robot_spec.SENSOR_MOUNT_RADIUS_MM
+        # each sensor's fan of rays (the reading is the nearest hit in its cone): (cos, sin) per ray
+        fov = robot_spec.SENSOR_FOV_MRAD / 1000
+        nr = max(1, cfg.fan_rays)
+        offs = [0.0] if nr == 1 else [-fov / 2 + fov * j / (nr - 1) for j in range(nr)]
+        self._beams = [tuple((math.cos(a / 1000 + o), math.sin(a / 1000 + o)) for o in offs)
+                       for a in robot_spec.SENSOR_ANGLES_MRAD]
+        self._mount = float(mount)
+        self.xs: list[float] = []
+        self.ys: list[float] = []
+        self.ths: list[float] = []
+        self.lw: list[float] = []  # log weights of the update in progress
+        self.w_slow = 0.0
+        self.w_fast = 0.0
+        self.updates = 0
+        self.global_mode = False
+        # estimate at the last update and the odometry pose of the readings it used
+        self.est = (0.0, 0.0, 0.0)
+        self.cov = (0.0, 0.0, 0.0)  # var x [mm^2], var y [mm^2], var heading [rad^2]
+        self._est_odom = (0.0, 0.0, 0.0)
+        self._odom_now = (0.0, 0.0, 0.0)
+        self._pending: tuple[tuple[float, float, float], list[tuple[float, float]]] | None = None
+        self._cursor = 0
+        self._finish_due = False
+        self._motion = (0.0, 0.0, 0.0)
+        self._probes: list[tuple[float, tuple[float, float]]] = []
+        self.last_share = 1.0  # global mode: weight share of the best cluster at the last update
+        self._force_update = False
+        self.random_drawn = 0  # particles drawn uniformly at the last resample (recovery)
+        self.localised = False
+        self.init_pose(0, 0, 0)
+
+    # --- initialisation --------------------------------------------------------------
+    def init_pose(self, x_mm: int, y_mm: int, heading_mrad: int,
+                  std_mm: float | None = None, std_mrad: float | None = None) -> None:
+        """Particles around a known pose (start pose, MISSION home). The
+        caller has reset the odometry to the same pose."""
+        cfg = self.cfg
+        sd = cfg.start_std_mm if std_mm is None else std_mm
+        sa = (cfg.start_std_mrad if std_mrad is None else std_mrad) / 1000
+        g = self.rng.gauss
+        th0 = heading_mrad / 1000
+        n = cfg.particles
+        self.xs = [x_mm + g(0, sd) for _ in range(n)]
+        self.ys = [y_mm + g(0, sd) for _ in range(n)]
+        self.ths = [_wrap(th0 + g(0, sa)) for _ in range(n)]
+        self.global_mode = False
+        self._odom_now = (float(x_mm), float(y_mm), th0)
+        self._reset_estimate((float(x_mm), float(y_mm), th0), (sd * sd, sd * sd, sa * sa))
+        self.localised = True
+
+    def init_global(self) -> None:
+        """Particles uniform over free space: the pose is unknown."""
+        n = self.cfg.global_particles
+        self.xs, self.ys, self.ths = [], [], []
+        for _ in range(n):
+            x, y, th = self._random_pose()
+            self.xs.append(x)
+            self.ys.append(y)
+            self.ths.append(th)
+        self.global_mode = True
+        self._reset_estimate(*self._mean_cov())
+        self._force_update = True
+        self.localised = False
+
+    def _reset_estimate(self, est: tuple[float, float, float], cov: tuple[float, float, float]) -> None:
+        self.est = est
+        self.cov = cov
+        self._est_odom = self._odom_now
+        self._pending = None
+        self._cursor = 0
+        self._finish_due = False
+        self.w_slow = self.w_fast = 0.0
+
+    def _random_pose(self) -> tuple[float, float, float]:
+        f = self.field
+        rnd = self.rng.random
+        for _ in range(1000):
+            x, y = rnd() * f.width_mm, rnd() * f.height_mm
+            if f.free(x, y, robot_spec.ROBOT_RADIUS_MM * 0.9):
+                return x, y, (rnd() * 2 - 1) * math.pi
+        return f.width_mm / 2, f.height_mm / 2, 0.0  # a map with no room for the robot: anything
+
+    # --- the tick ----------------------------------------------------------------------
+    def tick(self, odom_pose: tuple[int, int, int], ranges_mm: list[int], status: list[int]) -> None:
+        """One control tick: the dead-reckoning pose (mm, mm, mrad) and the
+        latest readings. Does at most one chunk of work."""
+        ox, oy, oth = odom_pose[0], odom_pose[1], odom_pose[2] / 1000
+        self._odom_now = (float(ox), float(oy), oth)
+        if self._finish_due:
+            self._finish()
+            return
+        if self._pending is None:
+            ex, ey, eth = self._est_odom
+            moved = math.hypot(ox - ex, oy - ey) >= self.cfg.update_mm
+            turned = abs(_wrap(oth - eth)) * 1000 >= self.cfg.update_mrad
+            if not (moved or turned or self._force_update):
+                return
+            self._force_update = False
+            beams = []
+            for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
+                if st == robot_spec.RANGE_VALID:
+                    beams.append((k, float(r)))
+                elif st == robot_spec.RANGE_TOO_CLOSE:
+                    beams.append((k, float(robot_spec.RANGE_MIN_MM)))
+            self._pending = (self._odom_now, [(self._mount + r, float(k)) for k, r in beams])
+            # negative information, while localising globally: space a reading looked through is free
+            # (3/4 of a valid reading; 1 and 1.9 m along a TOO_FAR one), checked against the grid's cells
+            probes = [(self._mount + 0.75 * r, k) for k, r in beams if r > 100]
+            for k, st in enumerate(status):
+                if st == robot_spec.RANGE_TOO_FAR:
+                    probes += [(self._mount + 1000.0, k), (self._mount + 1900.0, k)]
+            mid = len(self._beams[0]) // 2
+            self._probes = [(d, self._beams[k][mid]) for d, k in probes] if self.global_mode else []
+            self._motion = self._motion_delta(self._est_odom, self._odom_now)
+            self._cursor = 0
+            self.lw = [0.0] * len(self.xs)
+        self._weigh_chunk()
+
+    def _motion_delta(self, a: tuple[float, float, float], b: tuple[float, float, float]
+                      ) -> tuple[float, float, float]:
+        """(rot1, trans, rot2) of the odometry motion model from pose a to b
+        (driving backwards: trans < 0, rot1 measured from the rear)."""
+        dx, dy = b[0] - a[0], b[1] - a[1]
+        trans = math.hypot(dx, dy)
+        rot1 = _wrap(math.atan2(dy, dx) - a[2]) if trans > 1.0 else 0.0
+        if abs(rot1) > math.pi / 2:
+            rot1 = _wrap(rot1 - math.pi)
+            trans = -trans
+        rot2 = _wrap(b[2] - a[2] - rot1)
+        return rot1, trans, rot2
+
+    def _weigh_chunk(self) -> None:
+        assert self._pending is not None
+        cfg = self.cfg
+        rot1, trans, rot2 = self._motion
+        at = abs(trans)
+        s_r1 = cfg.alpha1 * abs(rot1) + cfg.alpha2 * at
+        s_t = cfg.alpha3 * at + cfg.alpha4 * (abs(rot1) + abs(rot2))
+        s_r2 = cfg.alpha1 * abs(rot2) + cfg.alpha2 * at
+        g = self.rng.gauss
+        beams = [(d, self._beams[int(k)]) for d, k in self._pending[1]]
+        ninf = -math.inf
+        f = self.field
+        table, res, nx, ny, floor, mg = f.table, f.res, f.nx, f.ny, f.floor, f.margin
+        bw = cfg.global_beam_weight if self.global_mode else cfg.beam_weight
+        xs, ys, ths, lw = self.xs, self.ys, self.ths, self.lw
+        probes = self._probes
+        occupied, cell, gh1 = self.grid.occupied, self.grid.cell_mm, self.grid.height - 1
+        start = self._cursor
+        end = min(len(xs), start + (cfg.global_chunk if self.global_mode else cfg.chunk))
+        for i in range(start, end):
+            r1 = rot1 + g(0, s_r1) if s_r1 > 0 else rot1
+            t = trans + g(0, s_t) if s_t > 0 else trans
+            r2 = rot2 + g(0, s_r2) if s_r2 > 0 else rot2
+            th = ths[i] + r1
+            x = xs[i] + t * math.cos(th)
+            y = ys[i] + t * math.sin(th)
+            th = _wrap(th + r2)
+            xs[i], ys[i], ths[i] = x, y, th
+            c, s = math.cos(th), math.sin(th)
+            x += mg  # raster coordinates (the field's margin)
+            y += mg
+            ll = 0.0
+            for d, fan in beams:
+                # the reading is the nearest hit in the sensor's cone: the best-fitting ray explains it
+                best = ninf
+                for ca, sa in fan:
+                    ex = x + d * (c * ca - s * sa)
+                    ey = y + d * (s * ca + c * sa)
+                    if ex < 0 or ey < 0:
+                        v = floor
+                    else:
+                        ix = int(ex / res)
+                        iy = int(ey / res)
+                        v = table[iy * nx + ix] if ix < nx and iy < ny else floor
+                    if v > best:
+                        best = v
+                ll += best
+            for d, (ca, sa) in probes:
+                px = x - mg + d * (c * ca - s * sa)
+                py = y - mg + d * (s * ca + c * sa)
+                if occupied(math.floor(px / cell), gh1 - math.floor(py / cell)):
+                    ll += floor  # the sensor saw through a wall or off the map
+            lw[i] = bw * ll
+        self._cursor = end
+        if end >= len(xs):
+            self._finish_due = True
+
+    def _finish(self) -> None:
+        """Normalise, estimate, resample (one tick of its own)."""
+        assert self._pending is not None
+        cfg = self.cfg
+        n = len(self.xs)
+        lw = self.lw
+        m = max(lw) if lw else 0.0
+        ws = [math.exp(v - m) for v in lw]
+        total = sum(ws)
+        # mean likelihood per particle (augmented MCL), in the same units every update: exp(lw) averaged
+        nb = max(1, len(self._pending[1]))
+        bw = cfg.global_beam_weight if self.global_mode else cfg.beam_weight
+        w_avg = math.exp((m + math.log(total / n)) / (bw * nb))  # per-beam geometric mean
+        if self.updates == 0 or self.w_slow == 0.0:
+            self.w_slow = self.w_fast = w_avg
+        else:
+            self.w_slow += cfg.alpha_slow * (w_avg - self.w_slow)
+            self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
+        ws = [w / total for w in ws]
+        share = 1.0
+        cw: list[float] = []
+        if self.global_mode:
+            # the estimate is the best particle's cluster; it must hold most of the weight
+            b = max(range(n), key=ws.__getitem__)
+            bx, by, bt = self.xs[b], self.ys[b], self.ths[b]
+            r2 = cfg.cluster_mm ** 2
+            ca = cfg.cluster_mrad / 1000
+            cw = [w if (x - bx) ** 2 + (y - by) ** 2 <= r2 and abs(_wrap(t - bt)) <= ca else 0.0
+                  for w, x, y, t in zip(ws, self.xs, self.ys, self.ths, strict=True)]
+            share = sum(cw)
+            cw = [w / share for w in cw]
+            est, cov = self._mean_cov(cw)
+        else:
+            est, cov = self._mean_cov(ws)
+        self.est, self.cov = est, cov
+        self._est_odom = self._pending[0]
+        self._pending = None
+        self._finish_due = False
+        self.updates += 1
+        sd = math.sqrt(max(cov[0], cov[1]))
+        sa = math.sqrt(cov[2]) * 1000
+        tight = sd <= cfg.localised_std_mm and sa <= cfg.localised_std_mrad and share >= cfg.cluster_share
+        self.last_share = share
+        if tight and self.global_mode:
+            self.global_mode = False
+            ws = cw  # track the converged cluster only, not the modes it beat
+        self.localised = tight and not self.global_mode
+        n_out = cfg.global_particles if self.global_mode else cfg.particles
+        ratio = self.w_fast / self.w_slow if self.w_slow > 0 else 1.0
+        p_random = 0.0 if self.global_mode else min(cfg.max_random_share, max(0.0, 1.0 - ratio / cfg.recovery_ratio))
+        self._resample(ws, n_out, p_random)
+        if self.global_mode:  # roughening: explore around the survivors
+            g = self.rng.gauss
+            jx, ja = cfg.global_jitter_mm, cfg.global_jitter_mrad / 1000
+            self.xs = [x + g(0, jx) for x in self.xs]
+            self.ys = [y + g(0, jx) for y in self.ys]
+            self.ths = [_wrap(t + g(0, ja)) for t in self.ths]
+
+    def _mean_cov(self, ws: list[float] | None = None
+                  ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        xs, ys, ths = self.xs, self.ys, self.ths
+        n = len(xs)
+        if ws is None:
+            ws = [1.0 / n] * n
+        mx = sum(w * x for w, x in zip(ws, xs, strict=True))
+        my = sum(w * y for w, y in zip(ws, ys, strict=True))
+        cs = sum(w * math.cos(t) for w, t in zip(ws, ths, strict=True))
+        sn = sum(w * math.sin(t) for w, t in zip(ws, ths, strict=True))
+        mth = math.atan2(sn, cs)
+        vx = sum(w * (x - mx) ** 2 for w, x in zip(ws, xs, strict=True))
+        vy = sum(w * (y - my) ** 2 for w, y in zip(ws, ys, strict=True))
+        r = min(1.0, math.hypot(cs, sn))
+        vth = -2.0 * math.log(r) if r > 1e-9 else math.pi ** 2  # circular variance as a Gaussian's
+        return (mx, my, mth), (vx, vy, vth)
+
+    def _resample(self, ws: list[float], n_out: int, p_random: float) -> None:
+        """Low-variance resampling to `n_out` particles, a share `p_random` of
+        them drawn uniformly over free space (recovery)."""
+        rnd = self.rng.random
+        xs, ys, ths = self.xs, self.ys, self.ths
+        n_rand = int(round(p_random * n_out))
+        n_keep = n_out - n_rand
+        nx: list[float] = []
+        ny: list[float] = []
+        nt: list[float] = []
+        if n_keep > 0:
+            step = 1.0 / n_keep
+            u = rnd() * step
+            c = ws[0]
+            i = 0
+            last = len(ws) - 1
+            for _ in range(n_keep):
+                while u > c and i < last:
+                    i += 1
+                    c += ws[i]
+                nx.append(xs[i])
+                ny.append(ys[i])
+                nt.append(ths[i])
+                u += step
+        for _ in range(n_rand):
+            x, y, th = self._random_pose()
+            nx.append(x)
+            ny.append(y)
+            nt.append(th)
+        self.xs, self.ys, self.ths = nx, ny, nt
+        self.random_drawn = n_rand
+
+    def log_likelihood(self, x_mm: float, y_mm: float, heading_rad: float, ranges_mm: list[int],
+                       status: list[int]) -> float:
+        """The sensor model for one pose (what an update weighs each particle
+        by, written plainly: the reference the tests check by hand)."""
+        total = 0.0
+        c, s = math.cos(heading_rad), math.sin(heading_rad)
+        for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
+            if st == robot_spec.RANGE_VALID:
+                d = self._mount + r
+            elif st == robot_spec.RANGE_TOO_CLOSE:
+                d = self._mount + robot_spec.RANGE_MIN_MM
+            else:
+                continue
+            total += max(self.field.log_p(x_mm + d * (c * ca - s * sa), y_mm + d * (s * ca + c * sa))
+                         for ca, sa in self._beams[k])
+        return self.cfg.beam_weight * total
+
+    # --- the pose ----------------------------------------------------------------------
+    def pose_f(self) -> tuple[float, float, float]:
+        """The believed pose now (mm, mm, rad): the last estimate composed
+        with the odometry's motion since the readings it used."""
+        ex, ey, eth = self.est
+        ax, ay, ath = self._est_odom
+        bx, by, bth = self._odom_now
+        dx, dy = bx - ax, by - ay
+        # the odometry's displacement in its own frame at the reference, rotated onto the estimate
+        c, s = math.cos(-ath), math.sin(-ath)
+        lx, ly = c * dx - s * dy, s * dx + c * dy
+        c, s = math.cos(eth), math.sin(eth)
+        return ex + c * lx - s * ly, ey + s * lx + c * ly, _wrap(eth + bth - ath)
+
+    def pose_mm(self) -> tuple[int, int, int]:
+        """(x_mm, y_mm, heading_mrad), as `Odometry.pose_mm`."""
+        x, y, th = self.pose_f()
+        return round(x), round(y), round(th * 1000)
+
+    def goal_vector(self, gx_mm: int, gy_mm: int) -> tuple[int, int]:
+        """(distance_mm, bearing_mrad) to a goal, as `Odometry.goal_vector`."""
+        x, y, th = self.pose_f()
+        dist = math.hypot(gx_mm - x, gy_mm - y)
+        rel = _wrap(math.atan2(gy_mm - y, gx_mm - x) - th)
+        return round(dist), max(-3142, min(3141, round(rel * 1000)))
+
+    def std(self) -> tuple[float, float, float]:
+        """Standard deviations of the last estimate: x, y (mm), heading (mrad)."""
+        vx, vy, vth = self.cov
+        return math.sqrt(vx), math.sqrt(vy), math.sqrt(vth) * 1000

@@ -1,0 +1,90 @@
+"""The occupancy grid a policy carries to the robot (for the localiser).
+
+The map travels inside the `.qtab` file, in its metadata JSON under the key
+`map_grid`: a list of `height` strings of `width` characters each, row 0 the
+northernmost row (as in a MovingAI file and `robot_spec`'s world frame),
+`.` a free cell and any of `@ T O W` an occupied one. Being part of the
+policy file it is covered by the file's CRC32, uploaded, activated and kept
+as last-known-good with the policy, and shown by `qnav policy inspect`.
+
+`grid_from_metadata` is the one parser: `firmware_py.policy.load_policy`
+calls it so a file whose grid does not match the header's map geometry (or
+is malformed) is refused with a one-line reason before it can be activated.
+Pure stdlib, no numpy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+META_KEY = "map_grid"
+FREE = "."
+BLOCKED = frozenset("@TOW")
+MAX_CELLS = 128 * 128  # metadata is bounded (policy.MAX_METADATA_BYTES); so is the grid
+
+
+class MapDataError(ValueError):
+    """The map in a policy file is unusable; the message is a one-line reason."""
+
+
+@dataclass(frozen=True)
+class OccupancyGrid:
+    """A map's cells: `occ[row * width + col]` is 1 for an occupied cell."""
+
+    cell_mm: int
+    width: int
+    height: int
+    occ: bytes
+
+    def occupied(self, col: int, row: int) -> bool:
+        """Occupied cell, and everything outside the grid (the world's outer walls)."""
+        if not (0 <= col < self.width and 0 <= row < self.height):
+            return True
+        return self.occ[row * self.width + col] != 0
+
+    def rows(self) -> list[str]:
+        """The grid as metadata rows ('.' free, '@' occupied)."""
+        w = self.width
+        return ["".join("@" if self.occ[r * w + c] else FREE for c in range(w)) for r in range(self.height)]
+
+    def summary(self) -> dict[str, Any]:
+        return {"width": self.width, "height": self.height, "cell_mm": self.cell_mm,
+                "occupied_cells": sum(1 for v in self.occ if v)}
+
+
+def grid_from_rows(rows: list[str], cell_mm: int) -> OccupancyGrid:
+    """Parse metadata rows; raises MapDataError with the first problem."""
+    if not isinstance(rows, list) or not rows:
+        raise MapDataError(f"{META_KEY} is not a non-empty list of row strings")
+    if not all(isinstance(r, str) for r in rows):
+        raise MapDataError(f"{META_KEY} has a row that is not a string")
+    width = len(rows[0])
+    if width == 0 or len(rows) * width > MAX_CELLS:
+        raise MapDataError(f"{META_KEY} is {width}x{len(rows)} cells (allowed 1..{MAX_CELLS} cells)")
+    occ = bytearray()
+    for i, r in enumerate(rows):
+        if len(r) != width:
+            raise MapDataError(f"{META_KEY} row {i} has {len(r)} cells, row 0 has {width}")
+        for ch in r:
+            if ch == FREE:
+                occ.append(0)
+            elif ch in BLOCKED:
+                occ.append(1)
+            else:
+                raise MapDataError(f"{META_KEY} row {i}: unknown cell {ch!r} (expected '.' or one of @TOW)")
+    if cell_mm < 1:
+        raise MapDataError(f"{META_KEY}: cell size {cell_mm} mm")
+    return OccupancyGrid(cell_mm, width, len(rows), bytes(occ))
+
+
+def grid_from_metadata(metadata: dict[str, Any], cell_mm: int, width: int, height: int) -> OccupancyGrid | None:
+    """The grid a policy's metadata carries (None: it carries none), checked
+    against the header's map geometry (`cell_mm`, `width`, `height`)."""
+    if META_KEY not in metadata:
+        return None
+    grid = grid_from_rows(metadata[META_KEY], cell_mm)
+    if (grid.width, grid.height) != (width, height):
+        raise MapDataError(f"{META_KEY} is {grid.width}x{grid.height} cells but the header's map geometry "
+                           f"is {width}x{height}")
+    return grid
