@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log", metavar="FILE", help="CAN log (.blf, .asc, ...), sim-time stamps")
     p.add_argument("--trajectory", metavar="FILE", help="ground-truth trajectory CSV")
     p.add_argument("--png", metavar="FILE", help="plot of map, trajectory, goals and last rays")
+    p.add_argument("--scenario", metavar="FILE",
+                   help="JSON with unmapped obstacles: \"discs\" [[x, y, r], ...] and \"movers\" "
+                        "[[x, y, vx, vy, r], ...] in mm, mm/s (sim_bridge/obstacles.py; qnav demo writes it)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -68,6 +71,21 @@ def parse_start(text: str) -> tuple[float, float, float]:
     if not all(math.isfinite(v) for v in (x, y, heading_deg)):
         raise CliError(f"--start {text!r}: values must be finite")
     return x, y, math.radians(heading_deg)
+
+
+def load_obstacles(plant, path: str):  # type: ignore[no-untyped-def]
+    """The ObstacleLayer of a scenario JSON file; ValueError with one line if it is unusable."""
+    import json
+    from pathlib import Path
+
+    from sim_bridge.obstacles import ObstacleLayer
+
+    try:
+        d = json.loads(Path(path).read_text())
+        layer = ObstacleLayer(plant.world, d.get("discs", []), d.get("movers", []))
+    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        raise ValueError(f"--scenario {path}: {exc}") from None
+    return layer
 
 
 def run(args: argparse.Namespace) -> int:
@@ -98,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
                            encoder_slip_std=args.slip)
         start = Pose(*parse_start(args.start)) if args.start else None
         plant = Plant(gm.occ, config, start)
+        if args.scenario:
+            plant.obstacles = load_obstacles(plant, args.scenario)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     try:

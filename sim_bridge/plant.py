@@ -89,6 +89,7 @@ class Plant:
         self.trajectory: list[tuple] = []
         self._answered_tick: int | None = None
         self._last_cmd = (0, 0)
+        self.obstacles: Any = None  # a sim_bridge.obstacles.ObstacleLayer: its movers move once per period
         self.record()
 
     # --- frames out ----------------------------------------------------------
@@ -145,6 +146,8 @@ class Plant:
             world.step(dt_s)
             gl, gr = world.wheel_ground_speeds()
             motors.observe_ground((gl * 1000, gr * 1000), dt_us)
+        if self.obstacles is not None:
+            self.obstacles.step()
         self.tick += 1
         self.stats.ticks += 1
         self.stats.sim_s = self.time_us / 1e6
