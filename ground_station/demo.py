@@ -532,11 +532,11 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
 
         try:
             pol = load_policy(str(policy))
-        except PolicyError as exc:
-            raise DemoError(f"policy {policy}: {exc}") from None
-        if opts.plan is None:
+        except PolicyError:
+            pol = None  # the robot's loader judges it on upload and gives the reason
+        if pol is not None and opts.plan is None:
             planned = pol.kind == "sector"  # a sector policy steers to the planner's waypoints
-        if pol.kind == "sector":
+        if pol is not None and pol.kind == "sector":
             plan_kw = guidance_from_metadata(pol.metadata)
 
     run_dir = Path(opts.out) if opts.out else default_run_dir()

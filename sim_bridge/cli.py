@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 
 EPILOG = """examples:
@@ -133,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"qnav-sim: {gm.name} ({gm.width}x{gm.height}, {gm.cell_size_m:g} m cells), "
               f"{mode}, bus {args.can or 'python-can default'}", file=sys.stderr)
         interrupted = False
+        # Ctrl-C / the demo's SIGINT lands between physics steps (Plant.interrupt), never inside pymunk
+        previous_sigint = signal.signal(signal.SIGINT, lambda _sig, _frame: plant.interrupt())
         with tqdm(total=ticks, unit="tick", disable=True if args.quiet else None) as bar:
             try:
                 if speed is None:
@@ -143,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
                     stats = run_paced(plant, bus, args.duration, speed, logger=log, progress=bar)
             except KeyboardInterrupt:
                 interrupted, stats = True, plant.stats
+            finally:
+                signal.signal(signal.SIGINT, previous_sigint)
     except LockstepError as exc:
         raise CliError(str(exc)) from None
     except ValueError as exc:
