@@ -34,7 +34,7 @@ def test_episodes_are_seeded_and_round_trip_through_json(paper10):
     back = [sc.Episode.from_json(json.loads(json.dumps(e.to_json()))) for e in a]
     assert [e.to_json() for e in back] == [e.to_json() for e in a]
     assert all(len(e.movers) == 2 and len(e.discs) <= 3 for e in a)
-    assert sum(len(e.discs) for e in a) > 12  # most episodes on paper10 get discs
+    assert sum(len(e.discs) for e in a) >= 6  # paper10 has room for discs in about half its episodes
 
 
 def test_every_placed_disc_is_detourable(paper10):
