@@ -75,7 +75,10 @@ class DemoOptions:
     headless: bool = False
     out: Path | None = None  # None: runs/demo-<timestamp>/
     timeout_s: float | None = None  # wall seconds for the mission; None: 120 lockstep, 400 real time
-    seed: int = 0  # the sim's noise seed
+    seed: int = 0  # the sim's noise seed (and the obstacles' placement)
+    obstacles: int = 0  # unmapped static discs on or beside the planned path (ground_station/nav/scenario.py)
+    movers: int = 0  # moving discs
+    plan: bool | None = None  # send the planner's waypoints; None: for sector policies
 
     def mission_timeout_s(self) -> float:
         if self.timeout_s is not None:
@@ -90,6 +93,9 @@ class DemoSummary:
     targets: list[str] = field(default_factory=list)
     targets_reached: int = 0
     targets_total: int = 0
+    mission_items: int = 0  # waypoints sent (more than the targets when planned)
+    planned: bool = False
+    scenario: dict | None = None  # the unmapped obstacles (discs, movers; mm), also in scenario.json
     collisions: int | None = None
     sim_seconds: float | None = None  # robot (sim) time from the first move to the last target
     wall_seconds: float = 0.0  # the whole demo, start-up to shut-down
@@ -194,12 +200,14 @@ class MissionWatch:
     reached from MISSION_ITEM_REACHED and the periodic MISSION_CURRENT,
     robot time from LOCAL_POSITION_NED, a controller FAULT from CTRL_ST."""
 
-    def __init__(self, total: int) -> None:
-        self.total = total
+    def __init__(self, total: int, target_seqs: list[int] | None = None) -> None:
+        self.total = total  # mission items
+        self.target_seqs = list(target_seqs) if target_seqs is not None else list(range(total))
         self.reached: set[int] = set()
         self.boot_ms: int | None = None  # latest robot time seen (LOCAL_POSITION_NED)
         self.mission_state = 0
         self.fault = ""
+        self.stopped = ""  # the robot stopped driving for good (bumper -> HOLD)
         self.texts: list[str] = []
         self._assembler = StatusTextAssembler()
         self.start_ms: int | None = None
@@ -232,7 +240,10 @@ class MissionWatch:
                 if msg.value == CtrlState.FAULT and not self.fault:
                     self.fault = "controller FAULT" + (f" ({self.texts[-1]})" if self.texts else "")
         elif kind == "STATUSTEXT":  # whole texts, as every other reader sees them
-            self.texts.extend(st.text for st in self._assembler.add(msg, time.monotonic()))
+            for st in self._assembler.add(msg, time.monotonic()):
+                self.texts.append(st.text)
+                if self.start_wall is not None and "bumper pressed" in st.text and not self.stopped:
+                    self.stopped = f"stopped: {st.text}"  # the controller holds; waiting out the timeout tells nothing
         if self.complete and self.done_wall is None:
             self.done_wall = time.monotonic()
             self.done_ms = self.boot_ms
@@ -244,6 +255,11 @@ class MissionWatch:
     @property
     def complete(self) -> bool:
         return self.start_wall is not None and len(self.reached) >= self.total
+
+    @property
+    def targets_reached(self) -> int:
+        """Targets done (items that end a planned leg, or every item)."""
+        return sum(seq in self.reached for seq in self.target_seqs)
 
     @property
     def sim_seconds(self) -> float | None:
@@ -364,13 +380,41 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
     return res.put_seconds, pid
 
 
-def _command_mission(link, opts: DemoOptions, say: Callable[[str], None]) -> None:
+def mission_plan(opts: DemoOptions, grid_map, start_mm: tuple[float, float], planned: bool,
+                 plan_kw: dict | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
+    """(mission items, item index of each target): the targets' centres, or
+    with `planned` the ground station's waypoints through them."""
+    from ground_station.mavlink.mission_items import planned_items, target_cells, target_items
+
+    if planned:
+        return planned_items(target_cells(",".join(opts.targets), grid_map), start_mm, grid_map, plan_kw)
+    items = target_items(",".join(opts.targets), opts.map_name)
+    return items, list(range(len(items)))
+
+
+def demo_scenario(opts: DemoOptions, grid_map, start_mm: tuple[float, float],
+                  items: list[tuple[int, int, int]]) -> dict:
+    """Seeded unmapped obstacles for the demo: up to `obstacles` detourable
+    discs along the whole mission path and `movers` movers
+    (`ground_station.nav.scenario`, the definition the benchmark uses)."""
+    import numpy as np
+
+    from ground_station.nav.scenario import place_discs, place_movers
+
+    rng = np.random.default_rng(opts.seed)
+    wps = [(east / 10.0, north / 10.0) for _f, north, east in items]  # LOCAL_NED m*1e4 -> world mm
+    discs = place_discs(grid_map, start_mm, wps, opts.obstacles, rng)
+    movers = place_movers(grid_map, start_mm, discs, opts.movers, rng)
+    return {"map": grid_map.name, "seed": opts.seed, "discs": discs, "movers": movers,
+            "definition": "ground_station/nav/scenario.py"}
+
+
+def _command_mission(link, opts: DemoOptions, say: Callable[[str], None],
+                     items: list[tuple[int, int, int]]) -> None:
     from ground_station.mavlink.link import LinkError
-    from ground_station.mavlink.mission_items import target_items
 
     m = link.m
     try:
-        items = target_items(",".join(opts.targets), opts.map_name)
         n = link.mission_upload(items)
         say(f"mission {' -> '.join(opts.targets)} accepted ({n} waypoints)")
         link.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
@@ -414,11 +458,14 @@ def _verdict(watch: MissionWatch, procs: ProcessGroup, deadline: float) -> str:
         return "mission complete"
     if watch.fault:
         return watch.fault
+    if watch.stopped:
+        return watch.stopped
     dead = procs.dead()
     if dead:
         return "; ".join(f"{name} exited with status {code}" for name, code in dead)
     if time.monotonic() >= deadline:
-        return f"timeout: only {len(watch.reached)} of {watch.total} targets reached within the mission timeout"
+        return (f"timeout: only {watch.targets_reached} of {len(watch.target_seqs)} targets reached "
+                "within the mission timeout")
     return ""
 
 
@@ -459,6 +506,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     say = say or (lambda _line: None)
     t0 = time.monotonic()
     from firmware_py.canbus import CanHub
+    from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
     from ground_station.mavlink.link import Link
     from ground_station.monitor.model import VehicleView
@@ -479,6 +527,20 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         raise DemoError(f"policy {opts.policy or SHIPPED_POLICY}: {exc}") from None
     if not opts.train and not policy.is_file():
         raise DemoError(f"policy {policy}: no such file")
+    plan_kw: dict = {}
+    planned = bool(opts.plan)
+    if not opts.train:
+        from firmware_py.policy import PolicyError, load_policy
+        from ground_station.maps.planner import guidance_from_metadata
+
+        try:
+            pol = load_policy(str(policy))
+        except PolicyError:
+            pol = None  # the robot's loader judges it on upload and gives the reason
+        if pol is not None and opts.plan is None:
+            planned = pol.kind == "sector"  # a sector policy steers to the planner's waypoints
+        if pol is not None and pol.kind == "sector":
+            plan_kw = guidance_from_metadata(pol.metadata)
 
     run_dir = Path(opts.out) if opts.out else default_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -491,6 +553,18 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     col, row = start_cell(grid_map.occ)
     x, y = grid_map.cell_size_m * (col + 0.5), grid_map.cell_size_m * (grid_map.height - row - 0.5)
     start = f"{x:g},{y:g},0"
+    try:
+        items, target_seqs = mission_plan(opts, grid_map, (x * 1000, y * 1000), planned, plan_kw)
+    except CliError as exc:
+        raise DemoError(f"mission: {exc}") from None
+    summary.mission_items, summary.planned = len(items), planned
+    scenario_file = None
+    if opts.obstacles > 0 or opts.movers > 0:
+        summary.scenario = demo_scenario(opts, grid_map, (x * 1000, y * 1000), items)
+        scenario_file = run_dir / "scenario.json"
+        atomic_write(scenario_file, json.dumps(summary.scenario, indent=1) + "\n")
+        say(f"unmapped obstacles: {len(summary.scenario['discs'])} discs, {len(summary.scenario['movers'])} "
+            f"movers ({scenario_file})")
     paths = {
         "tlog": run_dir / "demo.tlog", "can_log": run_dir / "can.blf",
         "trajectory_csv": run_dir / "trajectory.csv", "trajectory_png": run_dir / "trajectory.png",
@@ -520,6 +594,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                             "--start", start, "--seed", str(opts.seed), "--log", str(paths["can_log"]),
                             "--trajectory", str(paths["trajectory_csv"]), "--png", str(paths["trajectory_png"]),
                             "-q")
+        if scenario_file is not None:
+            sim_argv += ["--scenario", str(scenario_file)]
         if opts.realtime:
             sim_argv += ["--realtime", "--duration", f"{opts.mission_timeout_s() + 300:g}"]
         else:
@@ -539,7 +615,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
             dead = procs.dead()
             why = "; ".join(f"{n} exited with status {c} (see {logs[n]})" for n, c in dead) or str(exc)
             raise DemoError(f"robot not reachable over MAVLink: {why}") from None
-        watch = MissionWatch(len(opts.targets))
+        watch = MissionWatch(len(items), target_seqs)
         watch.sysid = link.sysid
         link.conn.message_hooks.append(watch.hook)
         heartbeat = Heartbeat(link, REALTIME_HEARTBEAT_S if opts.realtime else LOCKSTEP_HEARTBEAT_S).start()
@@ -553,7 +629,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                 raise DemoError(f"FS_GCS_TOUT_MS: {exc}") from None
 
         summary.upload_seconds, summary.policy_id = _upload(link, policy, say, quiet=False)
-        _command_mission(link, opts, say)
+        _command_mission(link, opts, say, items)
         watch.started()
         _set_auto(link, say)
 
@@ -569,7 +645,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         finally:
             source.close()
         say(verdict)
-        summary.targets_reached = len(watch.reached)
+        summary.targets_reached = watch.targets_reached
         summary.sim_seconds = watch.sim_seconds
         summary.mission_wall_seconds = watch.mission_wall_seconds
         summary.telemetry_loss_pct = round(view.link.loss_pct, 2)

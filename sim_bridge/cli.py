@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 from pathlib import Path
 
@@ -68,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log", metavar="FILE", help="CAN log (.blf, .asc, ...), sim-time stamps")
     p.add_argument("--trajectory", metavar="FILE", help="ground-truth trajectory CSV")
     p.add_argument("--png", metavar="FILE", help="plot of map, trajectory, goals and last rays")
+    p.add_argument("--scenario", metavar="FILE",
+                   help="JSON with unmapped obstacles: \"discs\" [[x, y, r], ...] and \"movers\" "
+                        "[[x, y, vx, vy, r], ...] in mm, mm/s (sim_bridge/obstacles.py; qnav demo writes it)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -94,6 +98,21 @@ def _make_output_folders(args: argparse.Namespace) -> None:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise CliError(f"{flag} {value}: cannot create folder {folder}: {exc.strerror or exc}") from None
+
+
+def load_obstacles(plant, path: str):  # type: ignore[no-untyped-def]
+    """The ObstacleLayer of a scenario JSON file; ValueError with one line if it is unusable."""
+    import json
+    from pathlib import Path
+
+    from sim_bridge.obstacles import ObstacleLayer
+
+    try:
+        d = json.loads(Path(path).read_text())
+        layer = ObstacleLayer(plant.world, d.get("discs", []), d.get("movers", []))
+    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        raise ValueError(f"--scenario {path}: {exc}") from None
+    return layer
 
 
 def run(args: argparse.Namespace) -> int:
@@ -133,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
                            encoder_slip_std=prof.slip_std, encoder_scale=prof.encoder_scale)
         start = Pose(*parse_start(args.start)) if args.start else None
         plant = Plant(gm.occ, config, start)
+        if args.scenario:
+            plant.obstacles = load_obstacles(plant, args.scenario)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     try:
@@ -148,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"qnav-sim: {gm.name} ({gm.width}x{gm.height}, {gm.cell_size_m:g} m cells), "
               f"{mode}, bus {args.can or 'python-can default'}", file=sys.stderr)
         interrupted = False
+        # Ctrl-C / the demo's SIGINT lands between physics steps (Plant.interrupt), never inside pymunk
+        previous_sigint = signal.signal(signal.SIGINT, lambda _sig, _frame: plant.interrupt())
         with tqdm(total=ticks, unit="tick", disable=True if args.quiet else None) as bar:
             try:
                 if speed is None:
@@ -160,6 +183,8 @@ def run(args: argparse.Namespace) -> int:
                     stats = run_paced(plant, bus, args.duration, speed, logger=log, progress=bar)
             except KeyboardInterrupt:
                 interrupted, stats = True, plant.stats
+            finally:
+                signal.signal(signal.SIGINT, previous_sigint)
     except LockstepError as exc:
         raise CliError(str(exc)) from None
     except ValueError as exc:

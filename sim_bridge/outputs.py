@@ -79,6 +79,14 @@ def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, floa
     ax.plot(*traj[0], "o", color="tab:green", label="start")
     pose = world.pose
     ax.add_patch(plt.Circle((pose.x, pose.y), world.radius_m, fill=False, color="tab:blue"))
+    layer = getattr(plant, "obstacles", None)
+    if layer is not None:  # unmapped obstacles: static discs (solid), movers where they are now (hatched)
+        for i, (x, y, r) in enumerate(layer.discs):
+            ax.add_patch(plt.Circle((x / 1000, y / 1000), r / 1000, color="tab:red", alpha=0.8,
+                                    label="unmapped obstacle" if i == 0 else None))
+        for i, (x, y, r) in enumerate(layer.positions_mm()):
+            ax.add_patch(plt.Circle((x / 1000, y / 1000), r / 1000, fill=False, hatch="//", color="tab:purple",
+                                    label="mover (end)" if i == 0 else None))
     colours = {robot_spec.RANGE_VALID: "tab:orange", robot_spec.RANGE_TOO_CLOSE: "tab:red",
                robot_spec.RANGE_TOO_FAR: "0.6", robot_spec.RANGE_INVALID: "tab:purple"}
     for (x0, y0), (x1, y1), status in plant.ranges.last_rays:

@@ -98,6 +98,9 @@ class Plant:
         self.trajectory: list[tuple] = []
         self._answered_tick: int | None = None
         self._last_cmd = (0, 0)
+        self.obstacles: Any = None  # a sim_bridge.obstacles.ObstacleLayer: its movers move once per period
+        self._in_step = False
+        self._interrupt_pending = False
         self.record()
 
     # --- frames out ----------------------------------------------------------
@@ -146,6 +149,25 @@ class Plant:
         dt_us = robot_spec.PHYSICS_DT_US
         dt_s = dt_us / 1e6
         world, motors, encoders = self.world, self.motors, self.encoders
+        self._in_step = True
+        try:
+            self._physics(dt_us, dt_s, world, motors, encoders)
+        finally:
+            self._in_step = False
+        if self._interrupt_pending:
+            self._interrupt_pending = False
+            raise KeyboardInterrupt
+
+    def interrupt(self) -> None:
+        """SIGINT handler body: raise KeyboardInterrupt now, or at the end of
+        the physics step if one is running (raised inside a pymunk contact
+        callback, cffi would print and swallow it and the sim would run on)."""
+        if self._in_step:
+            self._interrupt_pending = True
+        else:
+            raise KeyboardInterrupt
+
+    def _physics(self, dt_us: int, dt_s: float, world: Any, motors: Any, encoders: Any) -> None:
         for _ in range(STEPS_PER_TICK):
             self.time_us += dt_us
             left, right = motors.step(dt_us, self.time_us)
@@ -154,6 +176,8 @@ class Plant:
             world.step(dt_s)
             gl, gr = world.wheel_ground_speeds()
             motors.observe_ground((gl * 1000, gr * 1000), dt_us)
+        if self.obstacles is not None:
+            self.obstacles.step()
         self.tick += 1
         self.stats.ticks += 1
         self.stats.sim_s = self.time_us / 1e6

@@ -33,6 +33,7 @@ from firmware_py import robot_spec
 from firmware_py.can_protocol import ENCODER_BITS, MOTOR_WATCHDOG_STOP
 from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.odometry import Odometry, wrap_mrad
+from firmware_py.control.progress import ProgressWatch
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
@@ -197,6 +198,7 @@ class Controller:
         self.mission_seq = 0
         self._prim: _Primitive | None = None
         self._events: deque[VehicleEvent] = deque(maxlen=256)
+        self.progress = ProgressWatch()  # STATUSTEXT when the way is blocked
         self.transitions: deque[Transition] = deque(maxlen=1024)
         self._now = 0
         self._inputs = Inputs()
@@ -772,6 +774,10 @@ class Controller:
                 self._event("mission_item_reached", f"reached item {self.mission_seq}",
                             seq=self.mission_seq)
             return
+        stalled = self.progress.update(now_us, self.goal, dist)
+        if stalled:
+            item = f"item {self.mission_seq}: " if self.mode == Mode.AUTO else ""
+            self._event("info", item + stalled, SEV_WARNING)
         pol = self.policy
         if isinstance(pol.encoder, SectorEncoder):  # pol.kind == "sector"
             s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)

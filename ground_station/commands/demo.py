@@ -4,7 +4,10 @@ Starts a python-can-remote hub on 127.0.0.1, `qnav-sim` (lockstep: fast and
 deterministic; --realtime: paced at real time, to watch) and `qnav-robot`
 as separate processes; uploads the shipped paper10 policy (or, with
 --train, one trained and exported first) over MAVLink FTP; sends the
-mission A -> B -> C -> D, arms, sets Auto; shows the monitor until the
+mission A -> B -> C -> D (a sector policy gets the planner's waypoints
+through them, `--plan`), arms, sets Auto; with --obstacles K / --movers M
+the sim adds unmapped discs on the path and moving discs (scenario.json,
+drawn in trajectory.png); shows the monitor until the
 mission completes (or a fault, or the timeout); prints a summary: targets
 reached, time, collisions, and where the trajectory PNG, the .tlog and the
 CAN log are. Every process it started is stopped on exit, error or Ctrl-C.
@@ -50,7 +53,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/demo-<timestamp>/)")
     p.add_argument("--timeout", type=float, metavar="S",
                    help="wall seconds to wait for the mission (default 120; 400 with --realtime)")
-    p.add_argument("--seed", type=int, default=0, help="sim noise seed (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="sim noise and obstacle placement seed (default %(default)s)")
+    p.add_argument("--obstacles", type=int, default=0, metavar="K",
+                   help="unmapped static discs on or beside the planned path (ground_station/nav/scenario.py)")
+    p.add_argument("--movers", type=int, default=0, metavar="M", help="moving discs (pedestrian pace)")
+    plan = p.add_mutually_exclusive_group()
+    plan.add_argument("--plan", dest="plan", action="store_const", const=True, default=None,
+                      help="send the planner's waypoints through the targets (default for sector policies)")
+    plan.add_argument("--no-plan", dest="plan", action="store_const", const=False,
+                      help="send the targets alone (default for cell policies)")
     p.set_defaults(func=run)
 
 
@@ -61,6 +72,11 @@ def _print_summary(s, out) -> None:
     print(f"\nqnav demo {verdict}: {s.result}", file=out)
     print(f"  targets reached  {s.targets_reached} of {s.targets_total} ({' -> '.join(s.targets)})", file=out)
     print(f"  mission time     {sim}{mission_wall} ({s.mode}); whole demo {s.wall_seconds:.1f} s wall", file=out)
+    if s.planned:
+        print(f"  mission          {s.mission_items} planned waypoints", file=out)
+    if s.scenario:
+        print(f"  obstacles        {len(s.scenario['discs'])} unmapped discs, {len(s.scenario['movers'])} movers "
+              f"(scenario.json)", file=out)
     print(f"  collisions       {s.collisions if s.collisions is not None else 'unknown (no trajectory)'}",
           file=out)
     print(f"  policy           {s.policy} (id {s.policy_id or '-'}), upload "
@@ -92,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--timeout must be positive, got {args.timeout:g}")
     if args.train and args.policy:
         raise CliError("--train and --policy exclude each other")
+    if args.obstacles < 0 or args.movers < 0:
+        raise CliError("--obstacles and --movers must be >= 0")
     if args.train_steps < 1:
         raise CliError(f"--train-steps must be >= 1, got {args.train_steps}")
     headless = args.headless or not (sys.stdout.isatty() and sys.stdin.isatty())
@@ -99,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         print("qnav demo: no terminal, running headless", file=sys.stderr)
     opts = DemoOptions(targets=targets, policy=args.policy, train=args.train, train_steps=args.train_steps,
                        realtime=args.realtime, headless=headless, out=args.out, timeout_s=args.timeout,
-                       seed=args.seed)
+                       seed=args.seed, obstacles=args.obstacles, movers=args.movers, plan=args.plan)
 
     def say(line: str) -> None:
         print(f"qnav demo: {line}", file=sys.stderr, flush=True)

@@ -3,6 +3,12 @@
 Sent as SET_POSITION_TARGET_LOCAL_NED (north = Y, east = X). The robot
 answers an accepted goal with POSITION_TARGET_LOCAL_NED and a refused one
 with a STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4.
+
+With `--plan` (for sector policies, which steer to the bearing of the
+current target and need the planner's intermediate waypoints) the goal
+goes instead as a mission of the planner's waypoints (`--map`) from the
+robot's position (its LOCAL_POSITION_NED, or `--start X,Y`) to the goal's
+cell, and the robot is switched to Auto to drive it.
 """
 
 from __future__ import annotations
@@ -18,6 +24,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("x", type=float, metavar="X", help="east, metres (world frame)")
     p.add_argument("y", type=float, metavar="Y", help="north, metres (world frame)")
+    p.add_argument("--plan", action="store_true",
+                   help="send the planner's waypoints to the goal as a mission and start it (sector policies)")
+    p.add_argument("--map", default="paper10", metavar="NAME|PATH", help="--plan: the map (default paper10)")
+    p.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
     add_link_args(p)
     p.set_defaults(func=run)
 
@@ -32,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
 
     m = mavlink()
     mask = 0xFFF8  # position only
+    if args.plan:
+        return run_on_link(args, "goal", lambda link: planned_goal(args, link))
 
     def refused(t: str) -> bool:
         return t.startswith("goal refused")
@@ -54,3 +66,31 @@ def run(args: argparse.Namespace) -> int:
         raise link.no_answer("goal: no echo from the robot")
 
     return run_on_link(args, "goal", body)
+
+
+def planned_goal(args: argparse.Namespace, link) -> int:
+    """Upload the planned waypoints to (X, Y) as a mission and set mode Auto."""
+    from firmware_py.vehicle import Mode
+    from ground_station.commands.mission import _start
+    from ground_station.errors import CliError
+    from ground_station.maps import MapError, load_map
+    from ground_station.mavlink.link import mavlink
+    from ground_station.mavlink.mission_items import planned_items, robot_position_mm
+
+    try:
+        gm = load_map(args.map)
+    except (MapError, OSError) as exc:
+        raise CliError(str(exc)) from None
+    cell = gm.cell_size_m
+    col, row = int(args.x // cell), gm.height - 1 - int(args.y // cell)
+    if not gm.in_bounds(col, row) or not gm.is_free(col, row):
+        raise CliError(f"goal ({args.x:g}, {args.y:g}) m is not in a free cell of map {gm.name}")
+    start = _start(args.start) if args.start else robot_position_mm(link)
+    items, _ = planned_items([(col, row)], start, gm)
+    m = mavlink()
+    frame = m.MAV_FRAME_LOCAL_NED
+    items[-1] = (frame, round(args.y * 1e4), round(args.x * 1e4))  # the goal itself, not its cell's centre
+    n = link.mission_upload(items)
+    link.command(m.MAV_CMD_DO_SET_MODE, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))
+    print(f"goal x={args.x:g} y={args.y:g} m: mission of {n} planned waypoints accepted, mode Auto")
+    return 0

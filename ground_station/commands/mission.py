@@ -5,7 +5,11 @@ Upload: waypoints from map targets (their cell centres in world metres,
 MAVProxy, QGroundControl or `mission download --out`), sent through the
 MAVLink mission protocol; waits for MISSION_ACK and exits 3 with the robot's
 reason on refusal, 4 on timeout. Target waypoints travel in
-MAV_FRAME_LOCAL_NED (x north, y east) so they are exact.
+MAV_FRAME_LOCAL_NED (x north, y east) so they are exact. With `--plan` the
+ground station's planner (`ground_station.maps.planner`, what the sector
+policy is trained to follow) fills in the waypoints from the robot's
+position (its LOCAL_POSITION_NED, or `--start X,Y` in metres) through the
+targets on the map; the planned legs are printed.
 
 Download: prints the robot's mission (world metres, x east / y north) and
 with `--out FILE` writes it as QGC WPL 110.
@@ -29,6 +33,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--map", default="paper10", metavar="NAME|PATH", help="map of the targets (default paper10)")
     up.add_argument("--cell-size", type=float, default=None, metavar="M",
                     help="cell size in metres (default: the map's, 0.5)")
+    up.add_argument("--plan", action="store_true",
+                    help="send the planner's waypoints through the targets (what a sector policy needs)")
+    up.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
     down = verbs.add_parser("download", help="print the robot's mission")
     down.add_argument("--out", metavar="FILE", help="also write it as a QGC WPL 110 file")
     for v in (up, down):
@@ -44,9 +51,15 @@ def run(args: argparse.Namespace) -> int:
     if args.verb == "upload":
         if bool(args.targets) == bool(args.file):
             raise CliError("give either --targets A,B,... or a waypoint FILE")
+        if args.plan and not args.targets:
+            raise CliError("--plan needs --targets A,B,...")
         items = target_items(args.targets, args.map, args.cell_size) if args.targets else file_items(args.file)
+        start = _start(args.start) if args.start else None
 
         def upload(link) -> int:
+            nonlocal items
+            if args.plan:
+                items = plan_mission(args, link, start)
             n = link.mission_upload(items)
             print(f"mission of {n} waypoints accepted")
             return 0
@@ -67,3 +80,29 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     return run_on_link(args, "mission download", download)
+
+
+def _start(text: str) -> tuple[float, float]:
+    from ground_station.errors import CliError
+
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise CliError(f"--start must be X,Y in metres, got {text!r}") from None
+    return x * 1000.0, y * 1000.0
+
+
+def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> list[tuple[int, int, int]]:
+    from ground_station.errors import CliError
+    from ground_station.maps import MapError, load_map
+    from ground_station.mavlink.mission_items import planned_items, robot_position_mm, target_cells
+
+    try:
+        gm = load_map(args.map) if args.cell_size is None else load_map(args.map, args.cell_size)
+    except (MapError, OSError) as exc:
+        raise CliError(str(exc)) from None
+    start = start_mm if start_mm is not None else robot_position_mm(link)
+    items, target_seq = planned_items(target_cells(args.targets, gm), start, gm)
+    print(f"planned {len(items)} waypoints from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "
+          f"targets at items {', '.join(str(i) for i in target_seq)}")
+    return items

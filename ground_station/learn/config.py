@@ -52,6 +52,13 @@ class TrainConfig:
     sector_range_noise_mm: float = _f(10.0, "sector: std (mm) of Gaussian noise on the range readings the learner sees "
                                             "(the sim's sensor noise); 0 = exact readings")
     sector_maps: str = _f("", "sector: extra comma-separated training maps (names or generator specs) besides --map")
+    sector_obstacles: int = _f(0, "sector: unmapped static discs per training episode, uniform in 0..N "
+                                  "(ground_station/nav/scenario.py); > 0 or --sector-movers trains on a scenario pool")
+    sector_movers: int = _f(0, "sector: moving discs per training episode, uniform in 0..N")
+    sector_pool: int = _f(4000, "sector: scenario episodes in the training pool (with obstacles or movers)")
+    sector_clear_reward: float = _f(0.0, "sector: cost per control period closer than --sector-clear-mm to an "
+                                         "unmapped obstacle (with obstacles or movers)")
+    sector_clear_mm: float = _f(100.0, "sector: clearance (mm, rim to an unmapped obstacle) the clearance cost keeps")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
@@ -127,3 +134,5 @@ def _check_sector(cfg: TrainConfig) -> None:
     if not int_list(cfg.sector_sensors, "sector_sensors"):
         raise ValueError("sector_sensors must name at least one sensor")
     int_list(cfg.sector_range_edges, "sector_range_edges")
+    if cfg.sector_obstacles < 0 or cfg.sector_movers < 0 or cfg.sector_pool < 1:
+        raise ValueError("sector_obstacles and sector_movers must be >= 0 and sector_pool >= 1")

@@ -254,7 +254,11 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
 
     encoder = sector_encoder(cfg)
     extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
-    trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
+    if cfg.sector_obstacles > 0 or cfg.sector_movers > 0:
+        from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer
+        trainer: SectorTrainer | ObstacleSectorTrainer = ObstacleSectorTrainer([gridmap, *extra], cfg, encoder)
+    else:
+        trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
     q = initial_table(cfg, trainer.n_states, trainer.n_actions)
     rets, succs = [], []
     t0 = time.perf_counter()

@@ -67,3 +67,51 @@ def write_wpl(path: str, items: list) -> None:
             it.seq, it.current, it.frame, it.command, it.param1, it.param2, it.param3, it.param4,
             f"{it.x / scale:.7f}", f"{it.y / scale:.7f}", f"{it.z:g}", it.autocontinue)))
     atomic_write(path, "\n".join(lines) + "\n", make_parents=True)
+
+
+def planned_items(targets: list[tuple[int, int]], start_mm: tuple[float, float], gridmap,
+                  plan_kw: dict | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
+    """The ground station's planned waypoints (`ground_station.maps.planner`)
+    from `start_mm` through the target cells in order, as LOCAL_NED mission
+    items, and the item index of each target (the last waypoint of its leg).
+    A sector policy steers to the current item's bearing, so it needs these
+    intermediate waypoints; a cell policy does not. CliError if a leg
+    cannot be planned."""
+    from ground_station.maps import MapError
+    from ground_station.maps.planner import plan_waypoints
+
+    items: list[tuple[int, int, int]] = []
+    target_seq: list[int] = []
+    frame = mavlink().MAV_FRAME_LOCAL_NED
+    start: tuple = tuple(start_mm)
+    from_mm = True
+    for cell in targets:
+        try:
+            wps = plan_waypoints(gridmap, start, cell, start_mm=from_mm, **(plan_kw or {}))
+        except MapError as exc:
+            raise CliError(f"cannot plan to {cell}: {exc}") from None
+        items += [(frame, round(y * 10), round(x * 10)) for x, y in wps]  # north, east in m * 1e4
+        target_seq.append(len(items) - 1)
+        start, from_mm = cell, False
+    return items, target_seq
+
+
+def target_cells(targets: str, gridmap) -> list[tuple[int, int]]:
+    """The cells of comma-separated target names on gridmap (CliError on an unknown one)."""
+    names = [t.strip() for t in targets.split(",") if t.strip()]
+    if not names:
+        raise CliError("--targets is empty")
+    for name in names:
+        if name not in gridmap.targets:
+            raise CliError(f"map {gridmap.name} has no target {name!r} (has {', '.join(sorted(gridmap.targets))})")
+    return [gridmap.targets[n] for n in names]
+
+
+def robot_position_mm(link, timeout_s: float = 3.0) -> tuple[float, float]:
+    """The robot's world position (x east, y north, mm) from its LOCAL_POSITION_NED
+    telemetry; CliError if none arrives within timeout_s."""
+    msg = link.recv("LOCAL_POSITION_NED", timeout_s)
+    if msg is None:
+        raise CliError(f"--plan: no LOCAL_POSITION_NED from the robot within {timeout_s:g} s "
+                       "(give the start with --start X,Y)")
+    return msg.y * 1000.0, msg.x * 1000.0  # east, north

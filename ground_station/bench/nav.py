@@ -1,0 +1,184 @@
+"""`qnav bench nav`: controllers against unmapped static and moving obstacles.
+
+Every controller (`learnt` sector policy, `seek` table, `vfh` reactive
+baseline, `direct` = the learnt table without waypoints; see
+`ground_station.nav.controllers`) drives the same seeded scenario episodes
+(`ground_station.nav.scenario`: start, goal, the planner's waypoints on the
+known map, up to K detourable static discs, M movers) on each map: on the
+kinematic twin (`--episodes` per map) and, with `--hil`, on the lockstep
+pymunk rig with the robot's own controller (`--hil-episodes` per
+controller, spread over the maps). Prints a table, writes JSON (`--json`)
+and a PNG comparing the controllers (`--png`, default: the JSON's name with
+.png).
+
+JSON: `scenario` (maps, obstacles, movers, seed, episodes), per controller
+(`learnt`, `seek`, `vfh`, `direct`) the twin figures over all maps
+(`success_rate`, `collision_rate`, `path_ratio_mean`, `episodes`,
+`time_to_goal_mean_s`, `near_miss_rate`, `outcomes`), `per_map` the same per
+map, and with `--hil` a `hil` object with the same per-controller keys (and
+`twin_same_episodes`: the twin on exactly the HIL episodes).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+DEFAULT_MAPS = ("paper10", "rooms-16x16-s1", "trap-16x16-s1", "random-16x16-s1", "maze-16x16-s1")
+KEYS = ("success_rate", "collision_rate", "path_ratio_mean", "time_to_goal_mean_s", "near_miss_rate")
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("nav", help="controllers vs unmapped static and moving obstacles (twin, --hil lockstep)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--map", action="append", metavar="NAME|PATH",
+                   help=f"map (repeatable; built-in, generator spec or .map file); default {', '.join(DEFAULT_MAPS)}")
+    p.add_argument("--obstacles", type=int, default=3, metavar="K", help="static discs per episode (default %(default)s)")
+    p.add_argument("--movers", type=int, default=2, metavar="M", help="moving discs per episode (default %(default)s)")
+    p.add_argument("--episodes", type=int, default=1000, help="twin episodes per map (default %(default)s)")
+    p.add_argument("--hil", action="store_true", help="also run lockstep HIL episodes (pymunk plant, robot controller)")
+    p.add_argument("--hil-episodes", type=int, default=50,
+                   help="HIL episodes per controller, spread over the maps (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
+    p.add_argument("--policy", default="policies:sector", metavar="FILE",
+                   help="the learnt sector policy (.qtab or policies:NAME; default %(default)s)")
+    p.add_argument("--controllers", default="learnt,seek,vfh,direct",
+                   help="comma-separated subset of learnt,seek,vfh,direct")
+    p.add_argument("--json", metavar="FILE", help="write the result as JSON")
+    p.add_argument("--png", metavar="FILE", help="comparison figure (default: the JSON path with .png)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
+    from ground_station.bench.common import report
+    from ground_station.errors import CliError
+    from ground_station.maps import MapError, load_map
+    from ground_station.nav.controllers import CONTROLLER_NAMES, standard_controllers
+    from ground_station.nav.episodes import run_hil, run_twin, summarise
+    from ground_station.nav.scenario import episodes
+
+    names = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
+    bad = [c for c in names if c not in CONTROLLER_NAMES]
+    if bad or not names:
+        raise CliError(f"--controllers: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(CONTROLLER_NAMES)}")
+    if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1:
+        raise CliError("--obstacles/--movers must be >= 0, --episodes/--hil-episodes >= 1")
+    try:
+        path = resolve_policy_spec(args.policy)
+        pol = load_policy(str(path))
+    except (PolicyError, ShippedPolicyError, OSError) as exc:
+        raise CliError(f"policy {args.policy}: {exc}") from None
+    try:
+        ctrls = standard_controllers(pol, names)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    map_names = args.map or list(DEFAULT_MAPS)
+    maps = {}
+    try:
+        for name in map_names:
+            gm = load_map(name)
+            maps[gm.name] = gm
+    except (MapError, OSError) as exc:
+        raise CliError(str(exc)) from None
+    eps_by_map = {}
+    with tqdm(total=len(maps), desc="scenarios", unit="map") as bar:
+        for name, gm in maps.items():
+            try:
+                eps_by_map[name] = episodes(gm, args.episodes, args.seed, args.obstacles, args.movers)
+            except MapError as exc:
+                raise CliError(str(exc)) from None
+            bar.update(1)
+    all_eps = [e for eps in eps_by_map.values() for e in eps]
+    result: dict = {"scenario": {
+        "maps": list(maps), "obstacles": args.obstacles, "movers": args.movers, "seed": args.seed,
+        "episodes_per_map": args.episodes,
+        "discs_placed_mean": sum(len(e.discs) for e in all_eps) / len(all_eps),
+        "movers_placed_mean": sum(len(e.movers) for e in all_eps) / len(all_eps),
+        "definition": "ground_station/nav/scenario.py (detourable discs, movers)"},
+        "policy": str(path), "policy_id": f"0x{pol.policy_id:08x}", "per_map": {}}
+    rows: list[tuple[str, object]] = []
+    with tqdm(total=len(ctrls) * len(maps), desc="twin", unit="set") as bar:
+        for c in ctrls:
+            twin_rows = []
+            for name, eps in eps_by_map.items():
+                r = run_twin(eps, maps, c)
+                twin_rows += r
+                result["per_map"].setdefault(name, {})[c.name] = summarise(r)
+                bar.update(1)
+            result[c.name] = summarise(twin_rows)
+    for c in ctrls:
+        s = result[c.name]
+        rows.append((f"twin {c.name}", _fmt(s)))
+    for name in maps:
+        for c in ctrls:
+            rows.append((f"  {name} {c.name}", _fmt(result["per_map"][name][c.name])))
+    if args.hil:
+        names_list = list(maps)
+        per = [args.hil_episodes // len(names_list) + (1 if i < args.hil_episodes % len(names_list) else 0)
+               for i in range(len(names_list))]
+        hil_eps = [e for name, k in zip(names_list, per, strict=True) for e in eps_by_map[name][:k]]
+        result["hil"] = {"episodes_per_map": dict(zip(names_list, per, strict=True)),
+                         "plant": "sim_bridge default SimConfig (pymunk, lockstep, sensor noise as qnav-sim)"}
+        with tqdm(total=len(ctrls) * len(hil_eps), desc="hil", unit="ep") as bar:
+            for c in ctrls:
+                hr = run_hil(hil_eps, maps, c, progress=lambda: bar.update(1))
+                result["hil"][c.name] = summarise(hr)
+                result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(run_twin(hil_eps, maps, c))
+                result["hil"].setdefault("episodes_detail", {})[c.name] = hr
+        for c in ctrls:
+            rows.append((f"hil {c.name}", _fmt(result["hil"][c.name])))
+            rows.append((f"  twin, same episodes {c.name}", _fmt(result["hil"]["twin_same_episodes"][c.name])))
+    report("nav", rows, result, args.json)
+    png = args.png or (str(Path(args.json).with_suffix(".png")) if args.json else None)
+    if png:
+        Path(png).write_bytes(plot(result, [c.name for c in ctrls]))
+        print(f"wrote {png}")
+    return 0
+
+
+def _fmt(s: dict) -> str:
+    pr = s["path_ratio_mean"]
+    tt = s["time_to_goal_mean_s"]
+    return (f"n={s['episodes']:5d} success {s['success_rate']:.3f} collision {s['collision_rate']:.3f} "
+            f"path ratio {pr:.3f} " if pr is not None else
+            f"n={s['episodes']:5d} success {s['success_rate']:.3f} collision {s['collision_rate']:.3f} "
+            "path ratio   -   ") + (f"time {tt:5.1f} s " if tt is not None else "time   -   ") + \
+        f"near-miss {s['near_miss_rate']:.3f}"
+
+
+def plot(result: dict, names: list[str]) -> bytes:
+    """Grouped bars: success and collision rate per controller, per map and
+    overall (twin), plus the HIL figures when present."""
+    from ground_station.plotting import png_bytes, pyplot
+
+    plt = pyplot()
+    groups = [*result["per_map"], "all (twin)"] + (["HIL"] if "hil" in result else [])
+
+    def fig_of(g: str, c: str) -> dict:
+        if g == "all (twin)":
+            return result[c]
+        if g == "HIL":
+            return result["hil"][c]
+        return result["per_map"][g][c]
+
+    fig, axes = plt.subplots(2, 1, figsize=(max(7, 1.6 * len(groups)), 6), dpi=100, sharex=True)
+    width = 0.8 / len(names)
+    for ax, key, title in ((axes[0], "success_rate", "success"), (axes[1], "collision_rate", "collision")):
+        for j, c in enumerate(names):
+            xs = [i + (j - (len(names) - 1) / 2) * width for i in range(len(groups))]
+            ax.bar(xs, [fig_of(g, c)[key] for g in groups], width, label=c)
+        ax.set_ylabel(f"{title} rate")
+        ax.set_ylim(0, 1.05)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(ncol=len(names), fontsize=8)
+    axes[1].set_xticks(range(len(groups)))
+    axes[1].set_xticklabels(groups, rotation=20, fontsize=8)
+    sc = result["scenario"]
+    axes[0].set_title(f"qnav bench nav: {sc['obstacles']} static + {sc['movers']} moving obstacles, "
+                      f"seed {sc['seed']}, {sc['episodes_per_map']} twin episodes/map")
+    fig.tight_layout()
+    return png_bytes(fig)

@@ -1,0 +1,119 @@
+"""The controllers `qnav bench nav` compares, all through one interface.
+
+A `NavController` is a table over a reference `SectorEncoder` state
+(goal-bearing sector x binned ranges) plus the guidance it drives with:
+"path" (the planner's waypoints as a mission) or "direct" (the goal alone).
+That is exactly what the robot runs (`Controller.step`: encoder -> greedy
+row -> action), so every controller also runs in HIL as an exported
+`.qtab` (`NavController.policy()`), and the twin rolls the same table out.
+
+* `learnt`: the trained sector policy (a `.qtab`), guidance path;
+* `seek`: the hand-written seek table (`learn.sector.evaluate.seek_table`:
+  forward when the target is in the sector ahead, else turn to it), path;
+* `vfh`: a Vector-Field-Histogram-style reactive controller on the same
+  range sectors (`vfh_table`), path;
+* `direct`: the paper's direct setting, the learnt table steering on the
+  goal's bearing alone (no waypoints).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmware_py import robot_spec
+from firmware_py.encoders import SectorEncoder
+from firmware_py.policy import Policy, load_policy
+from ground_station.learn.export import geometry_of_map, policy_bytes, quantise
+from ground_station.learn.sector.evaluate import seek_table
+
+FORWARD, LEFT, RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
+CONTROLLER_NAMES = ("learnt", "seek", "vfh", "direct")
+
+
+@dataclass
+class NavController:
+    name: str
+    encoder: SectorEncoder
+    q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
+    guidance: str  # "path" | "direct"
+
+    def policy(self, map_name: str = "paper10") -> Policy:
+        """The table as the robot loads it (int8 .qtab, via the exporter)."""
+        qt = quantise(self.q, "int8")
+        data = policy_bytes(qt, self.encoder, metadata={"controller": self.name, "guidance": self.guidance},
+                            map_geometry=geometry_of_map(map_name))
+        return load_policy(data)
+
+
+def vfh_table(encoder: SectorEncoder, steer_mrad: int = 1050, free_bin: int = 1) -> np.ndarray:
+    """VFH (Borenstein and Koren 1991) on the encoder's range sectors, as a table.
+
+    The polar histogram is the encoder's sensors' range bins; a direction is
+    free when its bin is >= `free_bin` (default: beyond the first edge, so a
+    waypoint next to a wall can still be approached). Per state, with the
+    target's bearing at its sector's centre:
+    * target in the sector ahead: forward if the front is free, else turn
+      to the side whose reading is larger (the wider valley);
+    * target more than `steer_mrad` to a side: turn toward it (in place);
+    * else: the target side's sensor free -> turn toward it; otherwise the
+      front free -> forward (the free valley nearest the target is ahead);
+      otherwise turn to the side with the larger reading.
+    Turning in place cannot hit anything (a disc), so the baseline never
+    reverses (no rear sensor in the state). Needs the front sensor (0) in
+    the encoder; the side sensors are the ones nearest +-45 deg."""
+    sensors = list(encoder.sensors)
+    if 0 not in sensors:
+        raise ValueError("the VFH baseline needs the front range sensor (0) in the encoder")
+    q = np.zeros((encoder.n_states, encoder.n_actions))
+    nb = encoder.nbins
+    angles = [math.remainder(robot_spec.SENSOR_ANGLES_MRAD[s] / 1000.0, 2 * math.pi) for s in sensors]
+    front = sensors.index(0)
+    left = min((j for j in range(len(sensors)) if angles[j] > 0), key=lambda j: abs(angles[j] - math.pi / 4),
+               default=None)
+    right = min((j for j in range(len(sensors)) if angles[j] < 0), key=lambda j: abs(angles[j] + math.pi / 4),
+                default=None)
+    per = nb ** len(sensors)
+    n = encoder.bearing_sectors
+    for b in range(n):
+        tgt = math.remainder(b * 2.0 * math.pi / n, 2.0 * math.pi)
+        toward = LEFT if tgt >= 0 else RIGHT
+        for rs in range(per):
+            bins = [(rs // nb ** j) % nb for j in range(len(sensors))]  # first sensor least significant
+            lb = bins[left] if left is not None else 0
+            rb = bins[right] if right is not None else 0
+            wider = LEFT if lb >= rb else RIGHT
+            front_free = bins[front] >= free_bin
+            if b == 0:
+                a = FORWARD if front_free else wider
+            elif abs(tgt) * 1000.0 > steer_mrad or (lb if toward == LEFT else rb) >= free_bin:
+                a = toward
+            elif front_free:
+                a = FORWARD
+            else:
+                a = wider
+            q[b * per + rs, a] = 1.0
+    return q
+
+
+def policy_table(policy: Policy) -> np.ndarray:
+    """The policy's int table as float64 (greedy choices unchanged)."""
+    t = np.frombuffer(policy.table.tobytes(), dtype=np.int8 if policy.dtype == "int8" else np.int16)
+    return t.reshape(policy.n_states, policy.n_actions).astype(np.float64)
+
+
+def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAMES) -> list[NavController]:
+    """learnt / seek / vfh / direct on the learnt policy's encoder."""
+    enc = policy.encoder
+    if not isinstance(enc, SectorEncoder):
+        raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
+    q = policy_table(policy)
+    make = {
+        "learnt": lambda: NavController("learnt", enc, q, "path"),
+        "seek": lambda: NavController("seek", enc, seek_table(enc), "path"),
+        "vfh": lambda: NavController("vfh", enc, vfh_table(enc), "path"),
+        "direct": lambda: NavController("direct", enc, q, "direct"),
+    }
+    return [make[n]() for n in names]

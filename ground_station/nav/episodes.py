@@ -1,0 +1,146 @@
+"""The episode loop of `qnav bench nav`: (scenario episodes, controller) -> rows.
+
+`run_twin(episodes, maps, controller)` rolls a controller out on the
+kinematic twin with the episodes' obstacles (one jitted call for all of
+them); `run_hil(episodes, maps, controller)` drives each episode on the
+in-process lockstep rig (`ground_station.rigs.lockstep.LockstepRig`: pymunk
+plant + the robot's own `RobotNode`/`Controller`, the controller's table
+exported as a `.qtab`) with the episode's discs and movers as pymunk bodies
+(`sim_bridge.obstacles.ObstacleLayer`). Both return one plain dict per
+episode and depend only on their arguments, so episode lists can be split
+and farmed out; `summarise(rows)` gives the figures of a table row.
+
+Outcome per episode: success (goal reached, no contact), collision (twin:
+the disc touched a wall, disc or mover; HIL: any bumper contact event),
+loop/timeout. Path ratio = driven length / the planned waypoint path length
+(successful episodes); time to goal in seconds of robot time; a near miss is
+a control period whose clearance to an unmapped obstacle (rim to the
+nearest disc or mover) is below `NEAR_MISS_MM` without contact.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from firmware_py import robot_spec
+from ground_station.learn.sector.obstacles import (
+    COLLISION,
+    LOOP,
+    NEAR_MISS_MM,
+    SUCCESS,
+    TIMEOUT,
+    nav_eval_kernel,
+    obstacle_clearance_mm,
+)
+from ground_station.learn.sector.twin import encoder_arrays
+from ground_station.maps import GridMap
+from ground_station.nav.controllers import NavController
+from ground_station.nav.scenario import Episode, episode_arrays
+
+OUTCOMES = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop", TIMEOUT: "timeout"}
+PERIOD_S = robot_spec.CONTROL_PERIOD_US / 1e6
+BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS = 400.0, 4.0, 400
+
+
+def plan_length(ep: Episode) -> float:
+    pts = [ep.start[:2], *ep.waypoints]
+    return float(sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(pts[:-1], pts[1:], strict=True)))
+
+
+def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
+    """Greedy rollouts of `ctrl` on the twin over `eps` (obstacles included)."""
+    if not eps:
+        return []
+    a = episode_arrays(eps, maps)
+    sectors, sensors, edges, which = encoder_arrays(ctrl.encoder)
+    n = len(eps)
+    outcome = np.zeros(n, dtype=np.int64)
+    path = np.zeros(n)
+    steps = np.zeros(n, dtype=np.int64)
+    minclear = np.zeros(n)
+    near = np.zeros(n, dtype=np.int64)
+    nav_eval_kernel(np.ascontiguousarray(ctrl.q, dtype=np.float64), a["occ"], a["dims"], a["cells"], a["map"],
+                    a["start"], a["goal"], a["wp"], a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"], a["nm"],
+                    sectors, sensors, edges, which, int(ctrl.guidance == "path"),
+                    BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, outcome, path, steps, minclear, near)
+    rows = []
+    for i, ep in enumerate(eps):
+        o = int(outcome[i])
+        rows.append({"outcome": OUTCOMES[o], "success": o == SUCCESS, "collision": o == COLLISION,
+                     "path_ratio": float(path[i] / plan_length(ep)) if o == SUCCESS else None,
+                     "time_s": float(steps[i] * PERIOD_S), "near_miss_periods": int(near[i]),
+                     "min_clearance_mm": round(float(minclear[i]), 1), "discs": len(ep.discs),
+                     "movers": len(ep.movers)})
+    return rows
+
+
+def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
+            progress: Callable[[], None] | None = None, max_sim_s: float | None = None) -> list[dict]:
+    """Each episode on the lockstep rig with its obstacles in the pymunk world."""
+    from ground_station.rigs.lockstep import LockstepRig
+    from sim_bridge.obstacles import ObstacleLayer
+
+    rows = []
+    policies: dict[str, object] = {}
+    for i, ep in enumerate(eps):
+        gm = maps[ep.map]
+        if ep.map not in policies:
+            policies[ep.map] = ctrl.policy(ep.map)
+        goals = [(round(x), round(y)) for x, y in (ep.waypoints if ctrl.guidance == "path" else [ep.goal_mm])]
+        limit = max_sim_s or (BUDGET_BASE + BUDGET_FACTOR * plan_length(ep) /
+                              (max(v for v, _ in robot_spec.ACTION_WHEEL_SPEEDS_MM_S) * PERIOD_S)) * PERIOD_S
+        t0 = time.perf_counter()
+        start = (ep.start[0] / 1000.0, ep.start[1] / 1000.0, ep.start[2])
+        near = 0
+        minclear = math.inf
+        driven = 0.0
+        with LockstepRig(gm.occ, policies[ep.map], start, goals, seed=ep.seed + i) as rig:  # type: ignore[arg-type]
+            layer = ObstacleLayer(rig.plant.world, ep.discs, ep.movers)
+            rig.plant.obstacles = layer  # movers move at the end of every period, as in the twin
+            end_us = round(limit * 1e6)
+            last = rig.plant.world.pose
+            while rig.plant.time_us < end_us and not rig.runner.done.is_set():
+                rig.tick()
+                pose = rig.plant.world.pose
+                driven += math.hypot(pose.x - last.x, pose.y - last.y) * 1000.0
+                last = pose
+                cl = float(obstacle_clearance_mm(pose.x * 1000.0, pose.y * 1000.0, layer.discs, layer.movers))
+                minclear = min(minclear, cl)
+                if 0.0 < cl < NEAR_MISS_MM:
+                    near += 1
+            result = rig.runner.result if rig.runner.done.is_set() else "timeout"
+            contacts = rig.plant.world.contact_events
+            sim_s = rig.plant.time_us / 1e6
+        reached = result == "reached"
+        success = reached and contacts == 0
+        outcome = "success" if success else ("collision" if contacts else ("timeout" if result == "timeout" else
+                                                                            "stopped"))
+        rows.append({"outcome": outcome, "success": success, "collision": contacts > 0, "result": result,
+                     "contacts": contacts, "path_ratio": driven / plan_length(ep) if success else None,
+                     "time_s": sim_s, "near_miss_periods": near, "min_clearance_mm": round(minclear, 1),
+                     "discs": len(ep.discs), "movers": len(ep.movers),
+                     "wall_s": round(time.perf_counter() - t0, 3)})
+        if progress is not None:
+            progress()
+    return rows
+
+
+def summarise(rows: list[dict]) -> dict:
+    """success_rate, collision_rate, path_ratio_mean, time_to_goal_mean_s,
+    near_miss_rate (episodes with a near miss), episodes."""
+    n = len(rows)
+    ok = [r for r in rows if r["success"]]
+    ratios = [r["path_ratio"] for r in ok if r["path_ratio"] is not None]
+    return {
+        "episodes": n,
+        "success_rate": len(ok) / n if n else 0.0,
+        "collision_rate": sum(r["collision"] for r in rows) / n if n else 0.0,
+        "path_ratio_mean": float(np.mean(ratios)) if ratios else None,
+        "time_to_goal_mean_s": float(np.mean([r["time_s"] for r in ok])) if ok else None,
+        "near_miss_rate": sum(r["near_miss_periods"] > 0 for r in rows) / n if n else 0.0,
+        "outcomes": {k: sum(r["outcome"] == k for r in rows) for k in sorted({r["outcome"] for r in rows})},
+    }

@@ -1,0 +1,362 @@
+"""Navigation scenarios: a map, an episode, and obstacles the planner does not know.
+
+The one definition of a scenario episode, used by the twin's training and
+evaluation (`ground_station.learn.sector.obstacles`), the pymunk plant
+(`sim_bridge.obstacles.ObstacleLayer`), `qnav bench nav` and `qnav demo
+--obstacles/--movers`. An `Episode` is plain data (JSON round trip):
+start pose, goal, the planner's waypoints on the known map, static discs and
+movers; `make_episode(gridmap, start, goal, heading, k, m, rng)` builds one
+from a seeded `numpy.random.Generator`.
+
+**Static obstacles** are discs of radius 100-200 mm placed on or beside the
+planned path: the centre at a uniform point of the waypoint polyline between
+15 % and 85 % of its length, moved sideways by up to `LATERAL_MM`. One is
+kept only if the set stays **detourable**:
+
+1. every disc lies in free space (overlaps no obstacle cell or the border);
+2. the start pose and every waypoint keep >= robot radius + `WAYPOINT_CLEAR_MM`
+   from every disc surface (the robot can still stand on each waypoint, as
+   the controller needs to pass within `GOAL_TOLERANCE_MM` of it);
+3. on a `RASTER_MM` raster of the configuration space (points where the
+   robot's disc grown by `CSPACE_MARGIN_MM` touches no obstacle cell,
+   border or disc), consecutive waypoints (from the start) stay connected
+   (8-connected), and the shortest raster path between them is at most
+   `DETOUR_MAX_MM` longer than the same path without the discs: a local
+   detour exists. Corridors one cell (500 mm) wide never pass this with a
+   disc in them (500 - 200 < 300 + 2 x 25 mm), so obstacles land in rooms and
+   open stretches; where no position passes after `TRIES` draws, fewer than
+   k discs are placed (`Episode.discs` says how many).
+
+**Movers** are discs of `MOVER_RADIUS_MM` walking straight lines at a
+pedestrian's slow pace (`MOVER_SPEED_MM_S`, uniform in that range, random
+direction), starting in free space at least `MOVER_START_MM` from the robot,
+bouncing off walls, discs and the robot (`sim_bridge.obstacles.step_movers`).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import asdict, dataclass, field
+
+import numba
+import numpy as np
+
+from firmware_py import robot_spec
+from ground_station.maps import GridMap, MapError
+from ground_station.maps.planner import plan_waypoints
+
+LATERAL_MM = 300.0
+DISC_RADIUS_MM = (100.0, 200.0)
+WAYPOINT_CLEAR_MM = 50.0
+RASTER_MM = 50.0
+CSPACE_MARGIN_MM = 75.0
+DETOUR_MAX_MM = 1500.0
+TRIES = 40
+MOVER_RADIUS_MM = 150.0
+MOVER_SPEED_MM_S = (300.0, 600.0)
+MOVER_START_MM = 1200.0
+
+
+@dataclass
+class Episode:
+    """One scenario episode, all lengths mm, angles rad (world frame of robot_spec)."""
+
+    map: str
+    start: tuple[float, float, float]  # x, y, heading
+    goal: tuple[int, int]  # (col, row)
+    goal_mm: tuple[float, float]
+    waypoints: list[tuple[float, float]]  # the planner's, last = the goal's centre
+    discs: list[tuple[float, float, float]] = field(default_factory=list)  # x, y, r
+    movers: list[tuple[float, float, float, float, float]] = field(default_factory=list)  # x, y, vx, vy, r
+    seed: int = 0
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, d: dict) -> Episode:
+        return cls(map=str(d["map"]), start=tuple(d["start"]), goal=tuple(d["goal"]),  # type: ignore[arg-type]
+                   goal_mm=tuple(d["goal_mm"]), waypoints=[tuple(p) for p in d["waypoints"]],  # type: ignore[misc]
+                   discs=[tuple(p) for p in d.get("discs", [])],  # type: ignore[misc]
+                   movers=[tuple(p) for p in d.get("movers", [])], seed=int(d.get("seed", 0)))  # type: ignore[misc]
+
+
+# --- configuration space ---------------------------------------------------------
+
+@numba.njit(cache=True)
+def _cspace(occ, cell, discs, step, clear):
+    """bool raster (ny, nx) of points (ix+0.5, iy+0.5)*step where a disc of
+    radius `clear` touches no obstacle cell, border or disc. Row 0 = south."""
+    h, w = occ.shape
+    nx = int(w * cell / step)
+    ny = int(h * cell / step)
+    out = np.zeros((ny, nx), dtype=np.bool_)
+    top = h * cell
+    for iy in range(ny):
+        y = (iy + 0.5) * step
+        for ix in range(nx):
+            x = (ix + 0.5) * step
+            ok = x >= clear and y >= clear and x <= w * cell - clear and y <= top - clear
+            if ok:
+                c0 = max(0, int(math.floor((x - clear) / cell)))
+                c1 = min(w - 1, int(math.floor((x + clear) / cell)))
+                r0 = max(0, int(math.floor((top - (y + clear)) / cell)))
+                r1 = min(h - 1, int(math.floor((top - (y - clear)) / cell)))
+                for row in range(r0, r1 + 1):
+                    ylo = top - (row + 1) * cell
+                    for col in range(c0, c1 + 1):
+                        if occ[row, col]:
+                            px = min(max(x, col * cell), (col + 1) * cell)
+                            py = min(max(y, ylo), ylo + cell)
+                            if (x - px) ** 2 + (y - py) ** 2 < clear * clear:
+                                ok = False
+            if ok:
+                for k in range(discs.shape[0]):
+                    d = clear + discs[k, 2]
+                    if (x - discs[k, 0]) ** 2 + (y - discs[k, 1]) ** 2 < d * d:
+                        ok = False
+                        break
+            out[iy, ix] = ok
+    return out
+
+
+@numba.njit(cache=True)
+def _geodesic(free, sx, sy, gx, gy):
+    """Shortest 8-connected raster path length (in raster steps) from (sx, sy)
+    to (gx, gy) over `free`; inf if none or an end is not free. Dijkstra."""
+    ny, nx = free.shape
+    if not free[sy, sx] or not free[gy, gx]:
+        return np.inf
+    dist = np.full((ny, nx), np.inf)
+    dist[sy, sx] = 0.0
+    heap = [(0.0, sy, sx)]
+    while heap:
+        d, y, x = heapq.heappop(heap)
+        if y == gy and x == gx:
+            return d
+        if d > dist[y, x]:
+            continue
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                if dy == 0 and dx == 0:
+                    continue
+                yy = y + dy
+                xx = x + dx
+                if yy < 0 or xx < 0 or yy >= ny or xx >= nx or not free[yy, xx]:
+                    continue
+                if dy != 0 and dx != 0 and (not free[y + dy, x] or not free[y, x + dx]):
+                    continue
+                nd = d + (1.4142135623730951 if dy != 0 and dx != 0 else 1.0)
+                if nd < dist[yy, xx]:
+                    dist[yy, xx] = nd
+                    heapq.heappush(heap, (nd, yy, xx))
+    return np.inf
+
+
+def _raster_index(free: np.ndarray, x: float, y: float) -> tuple[int, int]:
+    """Nearest free raster point to (x, y) mm (the point itself when free)."""
+    ny, nx = free.shape
+    ix = min(nx - 1, max(0, int(x // RASTER_MM)))
+    iy = min(ny - 1, max(0, int(y // RASTER_MM)))
+    if free[iy, ix]:
+        return ix, iy
+    best, pick = math.inf, (ix, iy)
+    for yy in range(max(0, iy - 3), min(ny, iy + 4)):
+        for xx in range(max(0, ix - 3), min(nx, ix + 4)):
+            if free[yy, xx]:
+                d = (xx - ix) ** 2 + (yy - iy) ** 2
+                if d < best:
+                    best, pick = d, (xx, yy)
+    return pick
+
+
+def _leg_lengths(gridmap: GridMap, points: list[tuple[float, float]], discs: np.ndarray) -> list[float]:
+    occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
+    cell = gridmap.cell_size_m * 1000.0
+    free = _cspace(occ, cell, discs.reshape(-1, 3), RASTER_MM, robot_spec.ROBOT_RADIUS_MM + CSPACE_MARGIN_MM)
+    out = []
+    for a, b in zip(points[:-1], points[1:], strict=True):
+        ia, ib = _raster_index(free, *a), _raster_index(free, *b)
+        out.append(float(_geodesic(free, ia[0], ia[1], ib[0], ib[1])) * RASTER_MM)
+    return out
+
+
+def detourable(gridmap: GridMap, start: tuple[float, float], waypoints: list[tuple[float, float]],
+               discs: list[tuple[float, float, float]], base: list[float] | None = None) -> bool:
+    """The definition in the module docstring: discs in free space, start and
+    waypoints clear of them, and every leg connected with a detour of at most
+    DETOUR_MAX_MM over the leg without discs (`base`, computed if not given)."""
+    occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
+    cell = gridmap.cell_size_m * 1000.0
+    arr = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
+    for x, y, r in arr:  # 1. in free space (a point-sized robot: the disc itself)
+        if _disc_blocked(occ, cell, x, y, r):
+            return False
+    keep = robot_spec.ROBOT_RADIUS_MM + WAYPOINT_CLEAR_MM
+    for px, py in [start, *waypoints]:  # 2. start and waypoints clear
+        for x, y, r in arr:
+            if math.hypot(px - x, py - y) < r + keep:
+                return False
+    points = [start, *waypoints]
+    if base is None:
+        base = _leg_lengths(gridmap, points, np.zeros((0, 3)))
+    legs = _leg_lengths(gridmap, points, arr)  # 3. connected, local detour
+    return all(math.isfinite(a) and a <= b + DETOUR_MAX_MM for a, b in zip(legs, base, strict=True))
+
+
+def _disc_blocked(occ: np.ndarray, cell: float, x: float, y: float, r: float) -> bool:
+    h, w = occ.shape
+    if x < r or y < r or x > w * cell - r or y > h * cell - r:
+        return True
+    top = h * cell
+    for row in range(max(0, int((top - y - r) // cell)), min(h, int((top - y + r) // cell) + 1)):
+        ylo = top - (row + 1) * cell
+        for col in range(max(0, int((x - r) // cell)), min(w, int((x + r) // cell) + 1)):
+            if occ[row, col]:
+                px = min(max(x, col * cell), (col + 1) * cell)
+                py = min(max(y, ylo), ylo + cell)
+                if (x - px) ** 2 + (y - py) ** 2 < r * r:
+                    return True
+    return False
+
+
+def _point_along(points: list[tuple[float, float]], s: float) -> tuple[float, float, float]:
+    """Point at arc length s along the polyline and the segment's direction (rad)."""
+    for (ax, ay), (bx, by) in zip(points[:-1], points[1:], strict=True):
+        seg = math.hypot(bx - ax, by - ay)
+        if s <= seg or (bx, by) == points[-1]:
+            t = min(1.0, s / seg) if seg > 0 else 0.0
+            return ax + t * (bx - ax), ay + t * (by - ay), math.atan2(by - ay, bx - ax)
+        s -= seg
+    x, y = points[-1]
+    return x, y, 0.0
+
+
+def place_discs(gridmap: GridMap, start: tuple[float, float], waypoints: list[tuple[float, float]],
+                k: int, rng: np.random.Generator) -> list[tuple[float, float, float]]:
+    """Up to k detourable discs on or beside the path start -> waypoints."""
+    points = [start, *waypoints]
+    total = sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(points[:-1], points[1:], strict=True))
+    discs: list[tuple[float, float, float]] = []
+    if k <= 0 or total <= 0:
+        return discs
+    base = _leg_lengths(gridmap, points, np.zeros((0, 3)))
+    for _ in range(k):
+        for _try in range(TRIES):
+            x, y, ang = _point_along(points, float(rng.uniform(0.15, 0.85)) * total)
+            off = float(rng.uniform(-LATERAL_MM, LATERAL_MM))
+            x, y = x - off * math.sin(ang), y + off * math.cos(ang)
+            r = float(rng.uniform(*DISC_RADIUS_MM))
+            cand = (round(x, 1), round(y, 1), round(r, 1))
+            if detourable(gridmap, start, waypoints, [*discs, cand], base):
+                discs.append(cand)
+                break
+    return discs
+
+
+def place_movers(gridmap: GridMap, start: tuple[float, float], discs: list[tuple[float, float, float]],
+                 m: int, rng: np.random.Generator) -> list[tuple[float, float, float, float, float]]:
+    """m movers in free space away from the start (fewer if no place is found)."""
+    occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
+    cell = gridmap.cell_size_m * 1000.0
+    cells = gridmap.free_cells()
+    h = gridmap.height
+    out: list[tuple[float, float, float, float, float]] = []
+    r = MOVER_RADIUS_MM
+    for _ in range(m):
+        for _try in range(TRIES):
+            col, row = cells[int(rng.integers(len(cells)))]
+            x = (col + 0.5) * cell + float(rng.uniform(-0.3, 0.3)) * cell
+            y = (h - row - 0.5) * cell + float(rng.uniform(-0.3, 0.3)) * cell
+            if math.hypot(x - start[0], y - start[1]) < MOVER_START_MM or _disc_blocked(occ, cell, x, y, r):
+                continue
+            if any(math.hypot(x - dx, y - dy) < r + dr for dx, dy, dr in discs):
+                continue
+            v = float(rng.uniform(*MOVER_SPEED_MM_S))
+            a = float(rng.uniform(-math.pi, math.pi))
+            out.append((round(x, 1), round(y, 1), round(v * math.cos(a), 1), round(v * math.sin(a), 1), r))
+            break
+    return out
+
+
+def make_episode(gridmap: GridMap, start: tuple[int, int], goal: tuple[int, int], heading: float,
+                 k: int = 0, m: int = 0, seed: int = 0, plan_kw: dict | None = None) -> Episode:
+    """A seeded scenario episode from start cell (its centre) to goal cell with
+    up to k static discs and m movers. Raises MapError if the planner finds no path."""
+    rng = np.random.default_rng(seed)
+    cell = gridmap.cell_size_m * 1000.0
+    h = gridmap.height
+    sx, sy = (start[0] + 0.5) * cell, (h - start[1] - 0.5) * cell
+    wps = [(float(x), float(y)) for x, y in plan_waypoints(gridmap, start, goal, **(plan_kw or {}))]
+    discs = place_discs(gridmap, (sx, sy), wps, k, rng)
+    movers = place_movers(gridmap, (sx, sy), discs, m, rng)
+    gx, gy = (goal[0] + 0.5) * cell, (h - goal[1] - 0.5) * cell
+    return Episode(map=gridmap.name, start=(sx, sy, float(heading)), goal=(int(goal[0]), int(goal[1])),
+                   goal_mm=(gx, gy), waypoints=wps, discs=discs, movers=movers, seed=int(seed))
+
+
+def episodes(gridmap: GridMap, n: int, seed: int, k: int, m: int, plan_kw: dict | None = None,
+             min_cells: float = 3.0) -> list[Episode]:
+    """n seeded episodes on gridmap: random connected (start, goal) free cells
+    at least `min_cells` cells apart (straight line), random heading; episode
+    i uses seed (seed, i) for its obstacles, so a list is reproducible and
+    its prefixes agree."""
+    rng = np.random.default_rng(seed)
+    cells = gridmap.free_cells()
+    out: list[Episode] = []
+    attempts = 0
+    while len(out) < n:
+        attempts += 1
+        if attempts > 50 * n + 100:
+            raise MapError(f"map {gridmap.name}: cannot draw {n} connected start/goal pairs")
+        a, b = rng.choice(len(cells), size=2, replace=False)
+        s, g = cells[int(a)], cells[int(b)]
+        if math.hypot(s[0] - g[0], s[1] - g[1]) < min_cells:
+            continue
+        heading = float(rng.uniform(-math.pi, math.pi))
+        try:
+            ep = make_episode(gridmap, s, g, heading, k, m, seed=int(seed) * 1_000_003 + len(out), plan_kw=plan_kw)
+        except MapError:
+            continue
+        out.append(ep)
+    return out
+
+
+def episode_arrays(eps: list[Episode], maps: dict[str, GridMap]) -> dict[str, np.ndarray]:
+    """Pack episodes (and their maps, by name) into the arrays the twin kernels take."""
+    names = list(dict.fromkeys(e.map for e in eps))
+    gms = [maps[n] for n in names]
+    hmax = max(g.height for g in gms)
+    wmax = max(g.width for g in gms)
+    occ = np.ones((len(gms), hmax, wmax), dtype=np.uint8)
+    dims = np.zeros((len(gms), 2), dtype=np.int64)
+    cells = np.zeros(len(gms))
+    for i, g in enumerate(gms):
+        occ[i, :g.height, :g.width] = g.occ
+        dims[i] = (g.height, g.width)
+        cells[i] = g.cell_size_m * 1000.0
+    n = len(eps)
+    kw = max(len(e.waypoints) for e in eps)
+    kd = max(1, max(len(e.discs) for e in eps))
+    km = max(1, max(len(e.movers) for e in eps))
+    a: dict[str, np.ndarray] = {
+        "occ": occ, "dims": dims, "cells": cells,
+        "map": np.array([names.index(e.map) for e in eps], dtype=np.int64),
+        "start": np.array([e.start for e in eps], dtype=np.float64),
+        "goal": np.array([e.goal_mm for e in eps], dtype=np.float64),
+        "wp": np.zeros((n, kw, 2)), "nwp": np.array([len(e.waypoints) for e in eps], dtype=np.int64),
+        "rem": np.zeros((n, kw)),
+        "discs": np.zeros((n, kd, 3)), "nd": np.array([len(e.discs) for e in eps], dtype=np.int64),
+        "movers": np.zeros((n, km, 5)), "nm": np.array([len(e.movers) for e in eps], dtype=np.int64),
+    }
+    for i, e in enumerate(eps):
+        w = np.asarray(e.waypoints, dtype=np.float64)
+        a["wp"][i, :len(w)] = w
+        seg = np.hypot(*np.diff(w, axis=0).T) if len(w) > 1 else np.zeros(0)
+        a["rem"][i, :len(w)] = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+        if e.discs:
+            a["discs"][i, :len(e.discs)] = e.discs
+        if e.movers:
+            a["movers"][i, :len(e.movers)] = e.movers
+    return a

@@ -1,0 +1,157 @@
+"""The controllers of `qnav bench nav` (ground_station/nav/controllers.py),
+the bench's contract (table + JSON keys + PNG), the HIL episode loop on the
+lockstep rig with obstacles, and the obstacle trainer's determinism."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from firmware_py import robot_spec
+from firmware_py.encoders import SectorEncoder, best_action
+from firmware_py.policy import load_policy
+from firmware_py.shipped_policies import shipped_policy
+from ground_station import cli
+from ground_station.learn.sector.evaluate import seek_table
+from ground_station.maps import load_map
+from ground_station.nav import controllers as nc
+from ground_station.nav.episodes import run_hil, run_twin, summarise
+from ground_station.nav.scenario import episodes
+
+ENC = SectorEncoder(15, (0, 1, 7), (100, 400))
+
+
+def _state(enc: SectorEncoder, bearing_mrad: int, front: int, left: int, right: int) -> int:
+    ranges = [2000] * robot_spec.SENSOR_COUNT
+    ranges[0], ranges[1], ranges[7] = front, left, right
+    return enc.encode(bearing_mrad, ranges, [robot_spec.RANGE_VALID] * robot_spec.SENSOR_COUNT)
+
+
+def test_vfh_table_steers_to_the_free_valley_nearest_the_target():
+    q = nc.vfh_table(ENC)
+    act = lambda *a: int(np.argmax(q[_state(ENC, *a)]))  # noqa: E731
+    assert act(0, 1500, 1500, 1500) == nc.FORWARD  # target ahead, free
+    assert act(0, 50, 1500, 300) == nc.LEFT  # blocked ahead: the wider side
+    assert act(0, 50, 300, 1500) == nc.RIGHT
+    assert act(2500, 1500, 1500, 1500) == nc.LEFT  # target far left: turn to it
+    assert act(-2500, 1500, 1500, 1500) == nc.RIGHT
+    assert act(800, 1500, 50, 1500) == nc.FORWARD  # target left, left blocked, ahead free: the valley ahead
+    assert act(800, 1500, 1500, 1500) == nc.LEFT  # target left, left free: toward it
+    assert not q[:, nc.REVERSE].any()
+    with pytest.raises(ValueError, match="front range sensor"):
+        nc.vfh_table(SectorEncoder(15, (1, 7), (100, 400)))
+
+
+def test_standard_controllers_share_the_policy_encoder_and_export_as_qtab():
+    pol = load_policy(str(shipped_policy("sector")))
+    ctrls = nc.standard_controllers(pol)
+    assert [c.name for c in ctrls] == ["learnt", "seek", "vfh", "direct"]
+    assert [c.guidance for c in ctrls] == ["path", "path", "path", "direct"]
+    np.testing.assert_array_equal(ctrls[1].q, seek_table(pol.encoder))
+    for c in ctrls:
+        exported = c.policy("paper10")
+        assert exported.encoder == pol.encoder
+        for s in range(0, pol.n_states, 7):  # the robot's greedy choice is the table's
+            assert best_action(exported.row(s)) == int(np.argmax(c.q[s]))
+    learnt = ctrls[0]
+    assert all(best_action(pol.row(s)) == int(np.argmax(learnt.q[s])) for s in range(pol.n_states))
+
+
+def test_hil_episodes_with_obstacles_on_the_lockstep_rig():
+    gm = load_map("paper10")
+    eps = episodes(gm, 2, 5, 3, 2)
+    pol = load_policy(str(shipped_policy("sector")))
+    learnt = nc.standard_controllers(pol, ("learnt",))[0]
+    rows = run_hil(eps, {"paper10": gm}, learnt)
+    assert len(rows) == 2
+    for r in rows:
+        assert r["outcome"] in ("success", "collision", "timeout", "stopped")
+        assert r["success"] == (r["result"] == "reached" and r["contacts"] == 0)
+        assert r["time_s"] > 0 and r["movers"] == 2
+    s = summarise(rows + run_twin(eps, {"paper10": gm}, learnt))
+    assert s["episodes"] == 4 and 0.0 <= s["success_rate"] <= 1.0
+
+
+def test_hil_counts_a_drive_into_a_disc_as_a_collision():
+    """An episode with a disc right on the first leg and the seek table, which
+    ignores ranges: the bumper must register it."""
+    from ground_station.nav.scenario import Episode
+
+    gm = load_map("paper10")
+    # row 0 (north corridor) is free end to end: start (0,0) -> goal (3,0), a disc at (1.0 m, 4.75 m)
+    ep = Episode(map="paper10", start=(250.0, 4750.0, 0.0), goal=(3, 0), goal_mm=(1750.0, 4750.0),
+                 waypoints=[(1750.0, 4750.0)], discs=[(1000.0, 4750.0, 150.0)], movers=[])
+    pol = load_policy(str(shipped_policy("sector")))
+    seek = nc.standard_controllers(pol, ("seek",))[0]
+    hil = run_hil([ep], {"paper10": gm}, seek)[0]
+    twin = run_twin([ep], {"paper10": gm}, seek)[0]
+    assert hil["collision"] and not hil["success"] and hil["contacts"] >= 1
+    assert twin["outcome"] == "collision"
+
+
+def _qnav(*argv: str) -> tuple[int, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(list(argv))
+    return code, out.getvalue() + err.getvalue()
+
+
+def test_bench_nav_contract_table_json_png(tmp_path):
+    js = tmp_path / "nav.json"
+    code, out = _qnav("bench", "nav", "--map", "paper10", "--map", "rooms-16x16-s1", "--episodes", "12",
+                      "--obstacles", "2", "--movers", "1", "--json", str(js))
+    assert code == 0, out
+    assert "twin learnt" in out and "twin vfh" in out and "paper10 seek" in out
+    d = json.loads(js.read_text())
+    assert d["scenario"]["maps"] == ["paper10", "rooms-16x16-s1"]
+    assert d["scenario"]["obstacles"] == 2 and d["scenario"]["movers"] == 1
+    for c in ("learnt", "seek", "vfh", "direct"):
+        for key in ("success_rate", "collision_rate", "path_ratio_mean", "episodes"):
+            assert key in d[c]
+        assert d[c]["episodes"] == 24
+        assert d["per_map"]["paper10"][c]["episodes"] == 12
+    png = js.with_suffix(".png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_nav_hil_part_and_bad_input(tmp_path):
+    js = tmp_path / "nav.json"
+    code, out = _qnav("bench", "nav", "--map", "paper10", "--episodes", "3", "--hil", "--hil-episodes", "2",
+                      "--controllers", "learnt", "--json", str(js))
+    assert code == 0, out
+    d = json.loads(js.read_text())
+    assert d["hil"]["learnt"]["episodes"] == 2 and d["hil"]["twin_same_episodes"]["learnt"]["episodes"] == 2
+    assert "hil learnt" in out
+    code, out = _qnav("bench", "nav", "--controllers", "learnt,dwa")
+    assert code == 2 and "dwa" in out and len(out.strip().splitlines()) == 1
+    code, out = _qnav("bench", "nav", "--map", "no-such-map")
+    assert code == 2 and "no-such-map" in out
+    code, out = _qnav("bench", "nav", "--policy", "policies:paper10_cell", "--episodes", "2")
+    assert code == 2 and "sector policy" in out
+
+
+def test_obstacle_trainer_is_seeded():
+    from ground_station.learn.config import TrainConfig
+    from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer
+    from ground_station.learn.sector.trainer import sector_encoder
+
+    cfg = TrainConfig(map="paper10", encoding="sector", steps=40_000, sector_obstacles=2, sector_movers=1,
+                      sector_pool=30, seed=3)
+    gm = load_map("paper10")
+    enc = sector_encoder(cfg)
+    tables = []
+    for _ in range(2):
+        tr = ObstacleSectorTrainer([gm], cfg, enc)
+        q = np.zeros((enc.n_states, enc.n_actions))
+        _, succ = tr.run(q, 0, 40_000)
+        tables.append(q)
+    np.testing.assert_array_equal(tables[0], tables[1])
+    assert np.abs(tables[0]).sum() > 0 and len(succ) > 10
+    assert any(e.discs for e in tr.pool) and any(e.movers for e in tr.pool)
+    with pytest.raises(ValueError, match="guidance must be path"):
+        ObstacleSectorTrainer([gm], TrainConfig(encoding="sector", sector_obstacles=1,
+                                                sector_guidance="direct"), enc)

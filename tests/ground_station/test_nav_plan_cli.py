@@ -1,0 +1,58 @@
+"""`qnav mission upload --plan` and `qnav goal --plan` over real UDP loopback
+against the MAVLink node with the test vehicle (tests/support/mav_vehicle.py):
+the planner's waypoints (ground_station/maps/planner.py) go up as the
+mission, from the robot's reported position or `--start`."""
+
+from __future__ import annotations
+
+import math
+
+from firmware_py import robot_spec
+from ground_station.maps import load_map
+from ground_station.maps.planner import plan_waypoints
+from tests.ground_station.test_mav_link import qnav, rig  # noqa: F401 (fixture)
+
+
+def _centre(col: int, row: int) -> tuple[int, int]:
+    return robot_spec.cell_center_mm(col, row, 10)
+
+
+def test_mission_upload_plan_from_the_robot_position(rig):  # noqa: F811
+    port, start, _tmp = rig
+    r = start()
+    r.vehicle.st.x_mm, r.vehicle.st.y_mm = 2750, 2750  # cell (5, 4) of paper10
+    code, out = qnav(port, "mission", "upload", "--targets", "A,B", "--plan")
+    assert code == 0, out
+    gm = load_map("paper10")
+    leg1 = plan_waypoints(gm, (2750, 2750), (2, 2), start_mm=True)
+    leg2 = plan_waypoints(gm, (2, 2), (9, 0))
+    want = [(round(x), round(y)) for x, y in leg1 + leg2]
+    got = r.vehicle.mission
+    assert len(got) == len(want) > 2
+    assert all(math.dist(a, b) <= 1 for a, b in zip(got, want, strict=True))
+    assert math.dist(got[len(leg1) - 1], _centre(2, 2)) <= 1 and math.dist(got[-1], _centre(9, 0)) <= 1
+    assert f"targets at items {len(leg1) - 1}, {len(want) - 1}" in out
+
+
+def test_mission_upload_plan_from_start_and_bad_input(rig):  # noqa: F811
+    port, start, _tmp = rig
+    r = start()
+    code, out = qnav(port, "mission", "upload", "--targets", "C", "--plan", "--start", "0.25,0.25")
+    assert code == 0, out
+    assert r.vehicle.mission[-1] == _centre(0, 9) and len(r.vehicle.mission) == 1  # C is the start cell itself
+    assert qnav(port, "mission", "upload", "--plan", "some.waypoints")[0] == 2  # --plan needs --targets
+    code, out = qnav(port, "mission", "upload", "--targets", "A", "--plan", "--start", "nope")
+    assert code == 2 and "--start" in out
+
+
+def test_goal_plan_uploads_the_planned_mission_and_starts_it(rig):  # noqa: F811
+    port, start, _tmp = rig
+    r = start()
+    r.vehicle.st.x_mm, r.vehicle.st.y_mm = 250, 250  # cell (0, 9)
+    assert qnav(port, "arm")[0] == 0
+    code, out = qnav(port, "goal", "4.7", "4.8", "--plan")
+    assert code == 0, out
+    assert len(r.vehicle.mission) > 2 and r.vehicle.mission[-1] == (4700, 4800)
+    assert r.vehicle.st.mode == 10  # Auto
+    code, out = qnav(port, "goal", "0.75", "4.25", "--plan")  # (1, 1) is an obstacle cell of paper10
+    assert code == 2 and "not in a free cell" in out

@@ -1,0 +1,44 @@
+"""`qnav demo` with the shipped sector policy, as a new user runs it: the
+demo plans the waypoints a sector policy needs (it reached 0 of 4 without
+them), and `--obstacles/--movers` put the seeded unmapped obstacles into
+the sim (scenario.json, drawn in trajectory.png) and the summary."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+QNAV = [sys.executable, "-c", "import sys; from ground_station.cli import main; sys.exit(main())"]
+
+
+def _demo(out: Path, *extra: str, timeout: float = 200) -> dict:
+    proc = subprocess.run([*QNAV, "demo", "--headless", "--json", "--out", str(out), *extra], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    return json.loads(proc.stdout)
+
+
+@pytest.mark.slow
+def test_demo_with_the_sector_policy_plans_and_reaches_all_targets(tmp_path):
+    s = _demo(tmp_path / "run", "--policy", "policies:sector")
+    assert s["planned"] and s["mission_items"] > 4
+    assert s["targets_reached"] == s["targets_total"] == 4, s["result"]
+    assert s["collisions"] == 0 and s["ok"]
+    assert s["scenario"] is None
+
+
+@pytest.mark.slow
+def test_demo_obstacles_reach_the_sim_and_the_summary(tmp_path):
+    out = tmp_path / "run"
+    s = _demo(out, "--policy", "policies:sector", "--obstacles", "3", "--movers", "2", "--no-plan",
+              "--timeout", "20")
+    scen = json.loads((out / "scenario.json").read_text())
+    assert scen == s["scenario"] and len(scen["movers"]) == 2 and scen["map"] == "paper10"
+    assert not s["planned"] and s["mission_items"] == 4
+    assert s["exit_codes"]["sim"] == 130  # the sim loaded the scenario and ran until the demo stopped it
+    assert Path(s["trajectory_png"]).stat().st_size > 0
