@@ -33,7 +33,7 @@ from firmware_py import robot_spec
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
-from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.encoders import BugMemory, CellEncoder, MemorySectorEncoder, SectorEncoder
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
 from firmware_py.vehicle import (
     CtrlState,
@@ -186,6 +186,9 @@ class Controller:
         self._state_index = -1
         self._action = -1
         self._q_row: tuple[int, ...] = ()
+        # sector-memory policies: the Bug memory of the current goal (reset when the goal or the drive changes)
+        self.memory = BugMemory()
+        self._memory_key: tuple[tuple[int, int], int] | None = None
         self.tick_overruns = 0
         self.can_errors = 0
 
@@ -599,8 +602,15 @@ class Controller:
                             seq=self.mission_seq)
             return
         pol = self.policy
-        if isinstance(pol.encoder, SectorEncoder):  # pol.kind == "sector"
-            s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
+        if isinstance(pol.encoder, SectorEncoder | MemorySectorEncoder):  # pol.kind == "sector" / "sector-memory"
+            if isinstance(pol.encoder, MemorySectorEncoder):
+                key = (self.goal, self._driving_since_us)
+                if key != self._memory_key:  # a new goal (or mission item, or a new drive): forget the wall
+                    self.memory.reset()
+                    self._memory_key = key
+                s = pol.encoder.encode(self.memory, bearing, dist, inp.ranges_mm, inp.range_status)
+            else:
+                s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
             a = pol.best_action(s)
             left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
             self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))

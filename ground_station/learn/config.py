@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, field, fields
 
+ENCODINGS = ("cell", "sector", "sector-memory")
+
 
 def _f(default, help: str):
     return field(default=default, metadata={"help": help})
@@ -20,7 +22,8 @@ class TrainConfig:
     """All training hyperparameters; `asdict(cfg)` is stored in meta.json."""
 
     map: str = _f("paper10", "built-in map name, generator spec (e.g. trap-16x16-s0) or path to a .map file")
-    encoding: str = _f("cell", "state encoding: cell (robot cell x goal) or sector (kinematic twin)")
+    encoding: str = _f("cell", "state encoding: cell (robot cell x goal), sector (kinematic twin) or sector-memory "
+                                   "(sector x Bug-style wall-following mode, direct setting)")
     targets: str = _f("", "comma-separated target names or col:row cells (cell encoding); empty = all map targets")
     seed: int = _f(0, "random seed; same seed and config -> bit-identical table")
     steps: int = _f(3_000_000, "environment steps (Q updates) to train for")
@@ -52,6 +55,13 @@ class TrainConfig:
     sector_range_noise_mm: float = _f(10.0, "sector: std (mm) of Gaussian noise on the range readings the learner sees "
                                             "(the sim's sensor noise); 0 = exact readings")
     sector_maps: str = _f("", "sector: extra comma-separated training maps (names or generator specs) besides --map")
+    memory_block_mm: int = _f(400, "sector-memory: front range (mm) below which the way to a goal ahead counts as blocked "
+                                   "(GO -> follow the wall)")
+    memory_block_bearing_mrad: int = _f(785, "sector-memory: the goal counts as ahead within +- this bearing (mrad)")
+    memory_leave_margin_mm: int = _f(250, "sector-memory: leave the wall once the goal is this much closer than where it was hit")
+    memory_wall_reward: float = _f(0.5, "sector-memory: reward per cell of forward travel in a wall mode while the followed "
+                                        "side sees the wall (the wall modes' own task)")
+    memory_wall_reach_mm: int = _f(400, "sector-memory: the followed wall counts as seen below this side range (mm)")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
@@ -73,8 +83,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def validate_config(cfg: TrainConfig) -> None:
     """Raise ValueError (one line) on an impossible configuration."""
-    if cfg.encoding not in ("cell", "sector"):
-        raise ValueError(f"encoding must be cell or sector, got {cfg.encoding!r}")
+    if cfg.encoding not in ENCODINGS:
+        raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got {cfg.encoding!r}")
     if cfg.steps < 1:
         raise ValueError(f"steps must be >= 1, got {cfg.steps}")
     if not 0.0 < cfg.lr <= 1.0:
@@ -85,8 +95,11 @@ def validate_config(cfg: TrainConfig) -> None:
         v = getattr(cfg, name)
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {v}")
-    if cfg.encoding == "sector":
+    if cfg.encoding in ("sector", "sector-memory"):
         _check_sector(cfg)
+    if cfg.encoding == "sector-memory" and (cfg.memory_block_mm < 1 or cfg.memory_block_bearing_mrad < 0
+                                            or cfg.memory_leave_margin_mm < 0):
+        raise ValueError("memory_block_mm must be >= 1, memory_block_bearing_mrad and memory_leave_margin_mm >= 0")
     if cfg.max_episode_steps < 0 or cfg.curve_points < 1 or cfg.chunk_steps < 1:
         raise ValueError("max_episode_steps must be >= 0, curve_points and chunk_steps >= 1")
 
