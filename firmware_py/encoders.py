@@ -18,7 +18,9 @@ here is integer arithmetic so the robot's control path stays int-only.
   what to do in each mode is learnt. In the go mode the state is the
   `SectorEncoder` index (bearing x ranges); in a wall mode it is the ranges
   alone (wall following does not depend on where the goal is), after the
-  go states: bearing_sectors*R + (mode-1)*R + range index, R = nbins**k.
+  go states: bearing_sectors*R + (mode-1)*R + range index, R = nbins**k;
+  all of it times the previous tick's turn (none, left, right), which
+  breaks the left-right dithers a memoryless state learns at boundaries.
   The robot runs this reference; training uses a jitted copy
   (`ground_station.learn.sector.memory`) that a test compares with it.
 """
@@ -134,6 +136,17 @@ MODE_GO = 0  # head for the goal
 MODE_WALL_RIGHT = 1  # the way was blocked with the goal to the left: go round keeping the wall on the right
 MODE_WALL_LEFT = 2  # the mirror image: wall on the left
 N_MODES = 3
+# The previous tick's turn, the state's top digit: a period-2 dither (left, right, left, ...) across a bin
+# or sector boundary is a fixed point of Q-learning on a memoryless state; with the last turn in the
+# state, "keep turning" and "turn back" are different rows.
+TURN_NONE, TURN_LEFT, TURN_RIGHT = 0, 1, 2
+N_TURNS = 3
+
+
+def turn_of(action: int) -> int:
+    """TURN_LEFT / TURN_RIGHT for the turn-in-place actions, else TURN_NONE."""
+    name = robot_spec.ACTION_NAMES[action]
+    return TURN_LEFT if name == "turn_left" else TURN_RIGHT if name == "turn_right" else TURN_NONE
 
 
 @dataclass
@@ -146,11 +159,17 @@ class BugMemory:
     mode: int = MODE_GO
     side: int = 0  # 0 = not chosen yet, else MODE_WALL_RIGHT or MODE_WALL_LEFT
     hit_mm: int = 0
+    last_turn: int = 0  # TURN_NONE / TURN_LEFT / TURN_RIGHT: the action of the previous tick
 
     def reset(self) -> None:
         self.mode = MODE_GO
         self.side = 0
         self.hit_mm = 0
+        self.last_turn = TURN_NONE
+
+    def note_action(self, action: int) -> None:
+        """Remember the action just chosen (index into robot_spec.ACTION_NAMES)."""
+        self.last_turn = turn_of(action)
 
 
 @dataclass(frozen=True)
@@ -165,8 +184,10 @@ class MemorySectorEncoder:
       goal from the bearing's sign (goal to the left: wall on the right) and
       kept; the goal distance there is remembered as the hit distance.
     * wall mode -> GO when the goal distance is at least `leave_margin_mm`
-      below the hit distance (the Bug family's leaving rule: each new hit is
-      closer than the last, so the robot cannot circle for ever).
+      below the hit distance and the sensor pointing nearest the goal sees
+      nothing within `block_mm` (the Bug family's leaving rule: each new hit
+      is closer than the last, so the robot cannot circle for ever; the way
+      to the goal is open where it leaves).
     """
 
     bearing_sectors: int = 15
@@ -194,8 +215,13 @@ class MemorySectorEncoder:
         return n
 
     @property
-    def n_states(self) -> int:
+    def mode_states(self) -> int:
+        """States per last-turn value: go (bearing x ranges) + one range block per wall mode."""
         return (self.bearing_sectors + N_MODES - 1) * self.range_states
+
+    @property
+    def n_states(self) -> int:
+        return N_TURNS * self.mode_states
 
     @property
     def n_actions(self) -> int:
@@ -218,22 +244,34 @@ class MemorySectorEncoder:
                     memory.side = MODE_WALL_RIGHT if b >= 0 else MODE_WALL_LEFT
                 memory.mode = memory.side
                 memory.hit_mm = distance_mm
-        elif distance_mm + self.leave_margin_mm <= memory.hit_mm:
+        elif distance_mm + self.leave_margin_mm <= memory.hit_mm and self.goalward_free(bearing_mrad, ranges_mm, status):
             memory.mode = MODE_GO
         return memory.mode
 
+    def goalward_free(self, bearing_mrad: int, ranges_mm: list[int] | tuple[int, ...],
+                      status: list[int] | tuple[int, ...] | None = None) -> bool:
+        """The sensor pointing nearest the goal (SENSOR_ANGLES_MRAD are 45 deg
+        apart, CCW from ahead) sees nothing within block_mm."""
+        i = bearing_sector(bearing_mrad, robot_spec.SENSOR_COUNT)
+        st = robot_spec.RANGE_VALID if status is None else status[i]
+        if st == robot_spec.RANGE_TOO_CLOSE:
+            return False
+        return st != robot_spec.RANGE_VALID or ranges_mm[i] >= self.block_mm
+
     def encode(self, memory: BugMemory, bearing_mrad: int, distance_mm: int,
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...] | None = None) -> int:
-        """Update `memory` for this tick, then the state index: in the go
-        mode the base `SectorEncoder` index, in wall mode m the range index
-        after the go states (bearing_sectors + m - 1) * range_states."""
+        """Update `memory` for this tick, then the state index:
+        last_turn * mode_states + (in the go mode the base `SectorEncoder`
+        index; in wall mode m the range index after the go states,
+        (bearing_sectors + m - 1) * range_states + range index). The caller
+        reports the action it takes with `memory.note_action`."""
         base = self.base
         mode = self.update(memory, bearing_mrad, distance_mm, ranges_mm, status)
         s = base.encode(bearing_mrad, ranges_mm, status)
-        if mode == MODE_GO:
-            return s
-        r = self.range_states
-        return (self.bearing_sectors + mode - 1) * r + s % r
+        if mode != MODE_GO:
+            r = self.range_states
+            s = (self.bearing_sectors + mode - 1) * r + s % r
+        return memory.last_turn * self.mode_states + s
 
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)

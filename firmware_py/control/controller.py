@@ -609,9 +609,11 @@ class Controller:
                     self.memory.reset()
                     self._memory_key = key
                 s = pol.encoder.encode(self.memory, bearing, dist, inp.ranges_mm, inp.range_status)
+                a = pol.best_action(s)
+                self.memory.note_action(a)
             else:
                 s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
-            a = pol.best_action(s)
+                a = pol.best_action(s)
             left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
             self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
         else:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 ENCODINGS = ("cell", "sector", "sector-memory")
 
@@ -61,10 +62,28 @@ class TrainConfig:
     memory_leave_margin_mm: int = _f(250, "sector-memory: leave the wall once the goal is this much closer than where it was hit")
     memory_wall_reward: float = _f(0.5, "sector-memory: reward per cell of forward travel in a wall mode while the followed "
                                         "side sees the wall (the wall modes' own task)")
+    memory_wall_away: float = _f(0.5, "sector-memory: share of the wall reward paid for forward travel while the "
+                                      "followed side sees no wall (drive on to find one rather than turn on the spot)")
     memory_wall_reach_mm: int = _f(400, "sector-memory: the followed wall counts as seen below this side range (mm)")
+    memory_go_progress: str = _f("octile", "sector-memory: progress the go mode is rewarded for: euclid = straight-line "
+                                           "distance to the goal (no map knowledge), octile = along the goal's octile field")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
+
+
+# The shipped recipe of an encoding: the TrainConfig fields that differ from
+# the dataclass defaults. `qnav train --encoding E` starts from RECIPES[E];
+# flags given on the command line override it (docs/training.md).
+RECIPES: dict[str, dict[str, Any]] = {
+    "sector-memory": {"steps": 12_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
+                      "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
+}
+
+
+def recipe_config(encoding: str, given: dict[str, Any]) -> TrainConfig:
+    """TrainConfig from the encoding's recipe, then `given` (explicit values win)."""
+    return TrainConfig(**{**RECIPES.get(encoding, {}), **given, "encoding": encoding})
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, skip: tuple[str, ...] = ()) -> None:
@@ -100,6 +119,8 @@ def validate_config(cfg: TrainConfig) -> None:
     if cfg.encoding == "sector-memory" and (cfg.memory_block_mm < 1 or cfg.memory_block_bearing_mrad < 0
                                             or cfg.memory_leave_margin_mm < 0):
         raise ValueError("memory_block_mm must be >= 1, memory_block_bearing_mrad and memory_leave_margin_mm >= 0")
+    if cfg.encoding == "sector-memory" and cfg.memory_go_progress not in ("euclid", "octile"):
+        raise ValueError(f"memory_go_progress must be euclid or octile, got {cfg.memory_go_progress!r}")
     if cfg.max_episode_steps < 0 or cfg.curve_points < 1 or cfg.chunk_steps < 1:
         raise ValueError("max_episode_steps must be >= 0, curve_points and chunk_steps >= 1")
 

@@ -12,6 +12,7 @@ from firmware_py.encoders import (
     MODE_GO,
     MODE_WALL_LEFT,
     MODE_WALL_RIGHT,
+    TURN_RIGHT,
     BugMemory,
     MemorySectorEncoder,
 )
@@ -43,6 +44,13 @@ def test_go_until_blocked_ahead_then_side_from_bearing_and_kept():
     assert (mem.side, mem.hit_mm) == (MODE_WALL_RIGHT, 3000)
     # not yet clearly closer: stay on the wall, whatever the bearing
     assert enc.update(mem, -300, 3000 - enc.leave_margin_mm + 1, free, free_st) == MODE_WALL_RIGHT
+    # closer, but the sensor pointing nearest the goal (-300 mrad: the front one) sees the wall: stay
+    assert enc.update(mem, -300, 3000 - enc.leave_margin_mm, wall, wall_st) == MODE_WALL_RIGHT
+    side_blocked = list(free), list(free_st)
+    side_blocked[0][7], side_blocked[1][7] = 50, V  # front-right: not the goal's direction at -300 mrad
+    assert enc.update(mem, -300, 3000 - enc.leave_margin_mm, *side_blocked) == MODE_GO
+    mem.mode = MODE_WALL_RIGHT
+    assert enc.update(mem, -600, 3000 - enc.leave_margin_mm, *side_blocked) == MODE_WALL_RIGHT  # -600: sensor 7
     assert enc.update(mem, -300, 3000 - enc.leave_margin_mm, free, free_st) == MODE_GO
     # the next hit keeps the side chosen first, although the goal is now to the right
     assert enc.update(mem, -300, 2500, wall, wall_st) == MODE_WALL_RIGHT
@@ -67,7 +75,7 @@ def test_state_layout_go_states_then_one_range_block_per_wall_mode():
     enc = MemorySectorEncoder()
     base = enc.base
     r_states = enc.range_states
-    assert enc.n_states == (enc.bearing_sectors + 2) * r_states
+    assert enc.n_states == 3 * enc.mode_states == 3 * (enc.bearing_sectors + 2) * r_states
     free, free_st = _ranges(1500)
     mem = BugMemory()
     s = enc.encode(mem, 700, 3000, free, free_st)
@@ -79,7 +87,13 @@ def test_state_layout_go_states_then_one_range_block_per_wall_mode():
     # in a wall mode the bearing does not matter
     assert enc.encode(mem, -2500, 3000, wall, wall_st) == s
     mem.mode = mem.side = MODE_WALL_LEFT
-    assert enc.encode(mem, 0, 3000, wall, wall_st) == s + r_states < enc.n_states
+    assert enc.encode(mem, 0, 3000, wall, wall_st) == s + r_states
+    # the previous tick's turn is the top digit: turn_right = action 2
+    mem.note_action(2)
+    assert mem.last_turn == TURN_RIGHT
+    assert enc.encode(mem, 0, 3000, wall, wall_st) == s + r_states + 2 * enc.mode_states < enc.n_states
+    mem.note_action(0)
+    assert enc.encode(mem, 0, 3000, wall, wall_st) == s + r_states
 
 
 def test_invalid_memory_encoders_refused():
@@ -95,7 +109,7 @@ def _table(enc: MemorySectorEncoder, go_action: int, wall_action: int) -> array:
     vals = array("b")
     go_states = enc.bearing_sectors * enc.range_states
     for s in range(enc.n_states):
-        a = go_action if s < go_states else wall_action
+        a = go_action if s % enc.mode_states < go_states else wall_action
         vals.extend(100 if i == a else 0 for i in range(enc.n_actions))
     return vals
 
@@ -134,7 +148,7 @@ def test_controller_runs_the_memory_and_resets_it_per_goal():
     rig.tick(ranges_mm=blocked, range_status=status)
     assert ctrl.state == CtrlState.DRIVING and ctrl.memory.mode == MODE_WALL_RIGHT
     assert (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == robot_spec.ACTION_WHEEL_SPEEDS_MM_S[1]
-    assert ctrl.memory.hit_mm > 2800
+    assert ctrl.memory.hit_mm > 2800 and ctrl.memory.last_turn == 1  # turn_left remembered
     assert ctrl.set_goal(0, 3000) == (True, "")
     rig.tick()
-    assert ctrl.memory.mode == MODE_GO and ctrl.memory.side == 0
+    assert ctrl.memory.mode == MODE_GO and ctrl.memory.side == 0 and ctrl.memory.last_turn == 0

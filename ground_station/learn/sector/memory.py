@@ -15,7 +15,9 @@ only, no waypoints).
   epsilon and learning-rate schedules and noisy readings. The memory sees
   the same (noisy) readings the state is encoded from, as on the robot.
   Reward: in the go mode `period_step`'s (progress along the goal's octile
-  field); in a wall mode its own task, wall following: wall_rw per cell of
+  field), or with go_euclid the same terms with straight-line progress (no
+  map knowledge: the go mode is meant to head for the goal and leave
+  obstacles to the wall modes); in a wall mode its own task, wall following: wall_rw per cell of
   forward travel while the followed side's sensors see the wall within
   reach (`near_wall`), minus the step and reverse costs; the goal and
   collision terms are the same in every mode.
@@ -30,6 +32,7 @@ import numba
 import numpy as np
 
 from firmware_py import robot_spec
+from firmware_py.encoders import turn_of
 from ground_station.learn.jit import greedy, rand01, randint
 from ground_station.learn.sector.kernels import (
     COLLISION,
@@ -61,8 +64,20 @@ from ground_station.learn.sector.kernels import (
     noisy_state,
     period_step,
 )
-from ground_station.learn.sector.reward import RW_GOAL, RW_REVERSE_COST, RW_STEP_COST
-from ground_station.learn.sector.twin import bearing_mrad, cell_centre, encode_fast, sense
+from ground_station.learn.sector.reward import (
+    RW_ALIGN,
+    RW_GOAL,
+    RW_PROGRESS,
+    RW_REVERSE_COST,
+    RW_STEP_COST,
+)
+from ground_station.learn.sector.twin import (
+    bearing_mrad,
+    bearing_sector_fast,
+    cell_centre,
+    encode_fast,
+    sense,
+)
 
 MODE_GO = 0
 MODE_WALL_RIGHT = 1
@@ -70,14 +85,18 @@ MODE_WALL_LEFT = 2
 N_MODES = 3
 HALF_TURN_MRAD = 3141  # TWO_PI_MRAD // 2 of the reference
 TWO_PI_MRAD = 6283
-M_MODE, M_SIDE, M_HIT = range(3)  # slots of the int64 memory array
+M_MODE, M_SIDE, M_HIT, M_TURN = range(4)  # slots of the int64 memory array (BugMemory's fields)
+MEM_LEN = 4
+TURN_OF = np.array([turn_of(a) for a in range(len(robot_spec.ACTION_NAMES))], dtype=np.int64)
 
 
 @numba.njit(cache=True)
-def memory_update_fast(mem, bearing: int, dist_mm: int, r0: int, st0: int, block_mm: int,
+def memory_update_fast(mem, bearing: int, dist_mm: int, ranges, status, block_mm: int,
                        block_bearing: int, leave_mm: int) -> int:
     """MemorySectorEncoder.update on mem (int64[3]: mode, side, hit mm) with
-    the front sensor's reading (r0, st0); returns the new mode."""
+    all SENSOR_COUNT readings; returns the new mode."""
+    r0 = ranges[0]
+    st0 = status[0]
     if mem[M_MODE] == MODE_GO:
         b = (bearing + HALF_TURN_MRAD) % TWO_PI_MRAD - HALF_TURN_MRAD
         blocked = st0 == robot_spec.RANGE_TOO_CLOSE or (st0 == robot_spec.RANGE_VALID and r0 < block_mm)
@@ -87,7 +106,9 @@ def memory_update_fast(mem, bearing: int, dist_mm: int, r0: int, st0: int, block
             mem[M_MODE] = mem[M_SIDE]
             mem[M_HIT] = dist_mm
     elif dist_mm + leave_mm <= mem[M_HIT]:
-        mem[M_MODE] = MODE_GO
+        i = bearing_sector_fast(bearing, robot_spec.SENSOR_COUNT)  # the sensor pointing nearest the goal
+        if status[i] != robot_spec.RANGE_TOO_CLOSE and (status[i] != robot_spec.RANGE_VALID or ranges[i] >= block_mm):
+            mem[M_MODE] = MODE_GO
     return mem[M_MODE]
 
 
@@ -98,15 +119,17 @@ def dist_mm(x: float, y: float, gx: float, gy: float) -> int:
 
 @numba.njit(cache=True)
 def memory_state(mem, base_state: int, n_base: int, x: float, y: float, th: float, gx: float, gy: float,
-                 r0: int, st0: int, mp) -> int:
+                 ranges, status, mp) -> int:
     """Update mem for the pose and return the memory state index (layout of
     MemorySectorEncoder.encode; n_base = bearing_sectors x R).
-    mp = (block_mm, block_bearing_mrad, leave_margin_mm, bearing_sectors, R, wall reach mm)."""
-    mode = memory_update_fast(mem, bearing_mrad(x, y, th, gx, gy), dist_mm(x, y, gx, gy), r0, st0,
+    mp = (block_mm, block_bearing_mrad, leave_margin_mm, bearing_sectors, R, wall reach mm, mode_states);
+    mem[M_TURN] is the previous action's turn (set by the caller after each choice)."""
+    mode = memory_update_fast(mem, bearing_mrad(x, y, th, gx, gy), dist_mm(x, y, gx, gy), ranges, status,
                               mp[0], mp[1], mp[2])
-    if mode == MODE_GO:
-        return base_state
-    return (mp[3] + mode - 1) * mp[4] + base_state % mp[4]
+    s = base_state
+    if mode != MODE_GO:
+        s = (mp[3] + mode - 1) * mp[4] + base_state % mp[4]
+    return mem[M_TURN] * mp[6] + s
 
 
 @numba.njit(cache=True)
@@ -126,7 +149,7 @@ def near_wall(mode: int, ranges, status, reach_mm: int) -> bool:
 
 @numba.njit(cache=True)
 def train_memory_kernel(q, rng, ep, mem, occ, dims, cell, free, nfree, dist,
-                        sectors, sensors, edges, which, mp, n_base, wall_rw,
+                        sectors, sensors, edges, which, mp, n_base, wall_rw, wall_away, go_euclid,
                         lr, lr_end, total_steps, gamma, eps_start, eps_end, eps_decay_steps, rw,
                         max_episode_steps, hold_max, path, wps, rem, noise_mm,
                         start_step, n_steps, out_ret, out_succ):
@@ -140,11 +163,9 @@ def train_memory_kernel(q, rng, ep, mem, occ, dims, cell, free, nfree, dist,
         if ep[E_ACTIVE] == 0.0:
             _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
                          ranges, status, 0, 0.0, 0.0, path, wps, rem)
-            mem[M_MODE] = MODE_GO
-            mem[M_SIDE] = 0
-            mem[M_HIT] = 0
+            mem[:] = 0
             ep[E_S] = memory_state(mem, int(ep[E_S]), n_base, ep[E_X], ep[E_Y], ep[E_TH], ep[E_GX], ep[E_GY],
-                                   ranges[0], status[0], mp)
+                                   ranges, status, mp)
         s = int(ep[E_S])
         if ep[E_K] == 0.0:
             t_glob = start_step + i
@@ -162,6 +183,11 @@ def train_memory_kernel(q, rng, ep, mem, occ, dims, cell, free, nfree, dist,
             ep[E_G] = 1.0
         a = int(ep[E_A])
         mode0 = mem[M_MODE]
+        mem[M_TURN] = TURN_OF[a]
+        gx = wps[0, 0]
+        gy = wps[0, 1]
+        eu0 = math.hypot(ep[E_X] - gx, ep[E_Y] - gy)
+        b0 = abs(bearing_mrad(ep[E_X], ep[E_Y], ep[E_TH], gx, gy))
         m = int(ep[E_MAP])
         h = dims[m, 0]
         w = dims[m, 1]
@@ -172,19 +198,23 @@ def train_memory_kernel(q, rng, ep, mem, occ, dims, cell, free, nfree, dist,
             og, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], wps, rem, 1, 0, a, rw, which, ranges,
             status, sectors, sensors, edges, 0)
         terminal = hit or success
-        if mode0 != MODE_GO and not hit:  # the wall modes' own reward: forward travel along the wall
+        if not hit and (mode0 != MODE_GO or go_euclid):
             r = -rw[RW_STEP_COST] - (rw[RW_REVERSE_COST] if a == REVERSE else 0.0)
             if success:
                 r += rw[RW_GOAL]
-            elif near_wall(mode0, ranges, status, mp[5]):
-                r += wall_rw * (-drv if a == REVERSE else drv) / c
+            elif mode0 != MODE_GO:  # the wall modes' own reward: forward travel, full along the wall
+                fwd = wall_rw * (-drv if a == REVERSE else drv) / c
+                r += fwd if near_wall(mode0, ranges, status, mp[5]) else wall_away * fwd
+            else:  # go mode, straight-line progress: head for the goal, the wall modes do the rest
+                r += rw[RW_PROGRESS] * (eu0 - math.hypot(x - gx, y - gy)) / c
+                r += rw[RW_ALIGN] * (b0 - abs(bearing_mrad(x, y, th, gx, gy))) / 3141.5927
         if not terminal:
             if noise_mm > 0.0:
                 s2 = noisy_state(rng, noise_mm, x, y, th, wps[0, 0], wps[0, 1], ranges, status, noisy, nstatus,
                                  sectors, sensors, edges)
-                s2 = memory_state(mem, s2, n_base, x, y, th, wps[0, 0], wps[0, 1], noisy[0], nstatus[0], mp)
+                s2 = memory_state(mem, s2, n_base, x, y, th, wps[0, 0], wps[0, 1], noisy, nstatus, mp)
             else:
-                s2 = memory_state(mem, s2, n_base, x, y, th, wps[0, 0], wps[0, 1], ranges[0], status[0], mp)
+                s2 = memory_state(mem, s2, n_base, x, y, th, wps[0, 0], wps[0, 1], ranges, status, mp)
         ep[E_T] += 1.0
         ep[E_K] += 1.0
         if not terminal:
@@ -228,7 +258,7 @@ def eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, heading
     wps = np.zeros((1, 2))
     rem = np.zeros(1)
     rw = np.zeros(6)
-    mem = np.zeros(3, dtype=np.int64)
+    mem = np.zeros(MEM_LEN, dtype=np.int64)
     for i in range(starts.shape[0]):
         d = dists[goal_slot[i]]
         x, y = cell_centre(starts[i, 0], starts[i, 1], h, c)
@@ -250,9 +280,10 @@ def eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, heading
         mem[:] = 0
         sense(occ, h, w, c, x, y, th, which, ranges, status)
         s = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
-        s = memory_state(mem, s, n_base, x, y, th, gx, gy, ranges[0], status[0], mp)
+        s = memory_state(mem, s, n_base, x, y, th, gx, gy, ranges, status, mp)
         while t < budget:
             a = greedy(q, s)
+            mem[M_TURN] = TURN_OF[a]
             x, y, th, phi, _, s, hit, success, driven, _k = period_step(
                 occ, h, w, c, d, x, y, th, phi, wps, rem, 1, 0, a, rw, which, ranges, status,
                 sectors, sensors, edges, 0)
@@ -264,7 +295,7 @@ def eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, heading
             if success:
                 outcome = SUCCESS
                 break
-            s = memory_state(mem, s, n_base, x, y, th, gx, gy, ranges[0], status[0], mp)
+            s = memory_state(mem, s, n_base, x, y, th, gx, gy, ranges, status, mp)
             if mem[M_MODE] != MODE_GO:
                 wall += 1
             if phi < best - 1.0:

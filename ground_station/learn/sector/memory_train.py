@@ -22,7 +22,7 @@ from firmware_py.encoders import MemorySectorEncoder
 from ground_station.learn.config import TrainConfig, int_list
 from ground_station.learn.sector.evaluate import eval_episodes
 from ground_station.learn.sector.kernels import COLLISION, LOOP, SUCCESS, TIMEOUT
-from ground_station.learn.sector.memory import eval_memory_kernel, train_memory_kernel
+from ground_station.learn.sector.memory import MEM_LEN, eval_memory_kernel, train_memory_kernel
 from ground_station.learn.sector.trainer import SectorTrainer
 from ground_station.learn.sector.twin import encoder_arrays, grid_of
 from ground_station.maps import GridMap, octile_distances
@@ -39,9 +39,9 @@ def memory_encoder(cfg: TrainConfig) -> MemorySectorEncoder:
 
 def memory_params(encoder: MemorySectorEncoder, reach_mm: int = 400) -> np.ndarray:
     """The kernels' `mp` array: (block_mm, block_bearing_mrad,
-    leave_margin_mm, bearing_sectors, range states, wall reach mm)."""
+    leave_margin_mm, bearing_sectors, range states, wall reach mm, mode states)."""
     return np.array([encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm,
-                     encoder.bearing_sectors, encoder.range_states, reach_mm], dtype=np.int64)
+                     encoder.bearing_sectors, encoder.range_states, reach_mm, encoder.mode_states], dtype=np.int64)
 
 
 class MemoryTrainer(SectorTrainer):
@@ -52,12 +52,13 @@ class MemoryTrainer(SectorTrainer):
         self.memory = encoder
         self.n_states = encoder.n_states
         self.guidance = "direct"
-        self._mem = np.zeros(3, dtype=np.int64)
+        self._mem = np.zeros(MEM_LEN, dtype=np.int64)
         self._mp = memory_params(encoder, int(cfg.memory_wall_reach_mm))
         self._wall_rw = float(cfg.memory_wall_reward)
-        which = self._enc[3].copy()
-        which[[1, 2, 6, 7]] = True  # the wall reward reads the side sensors
-        self._enc = (*self._enc[:3], which)
+        self._wall_away = float(cfg.memory_wall_away)
+        self._go_euclid = int(cfg.memory_go_progress == "euclid")
+        # the leaving rule reads the sensor nearest the goal, the wall reward the side sensors: sense all
+        self._enc = (*self._enc[:3], np.ones_like(self._enc[3]))
 
     def run(self, q: np.ndarray, start_step: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
         if q.shape != (self.n_states, self.n_actions) or q.dtype != np.float64:
@@ -67,7 +68,7 @@ class MemoryTrainer(SectorTrainer):
         out_ret = np.empty(n_steps)
         out_succ = np.empty(n_steps, dtype=np.bool_)
         n = train_memory_kernel(q, self._rng, self._ep, self._mem, p.occ, p.dims, p.cell, p.free, p.nfree, p.dist,
-                                sectors, sensors, edges, which, self._mp, self.encoder.n_states, self._wall_rw,
+                                sectors, sensors, edges, which, self._mp, self.encoder.n_states, self._wall_rw, self._wall_away, self._go_euclid,
                                 float(self.cfg.lr), self.lr_end, int(self.cfg.steps), float(self.cfg.gamma),
                                 *self._eps, self._rw, self.max_episode_steps, self.hold_max,
                                 self._path, self._wps, self._rem, self.noise_mm,
@@ -91,6 +92,7 @@ def evaluate_memory(q: np.ndarray, gridmap: GridMap, encoder: MemorySectorEncode
     dists = np.stack([octile_distances(gridmap.occ, int(gc), int(gr)) for gc, gr in ugoals]) \
         if n else np.zeros((0, h, w))
     sectors, sensors, edges, which = encoder_arrays(encoder.base)
+    which = np.ones_like(which)  # the leaving rule may read any sensor
     outcome = np.zeros(n, dtype=np.int64)
     path = np.zeros(n)
     steps = np.zeros(n, dtype=np.int64)
