@@ -76,7 +76,7 @@ class TrainConfig:
 # the dataclass defaults. `qnav train --encoding E` starts from RECIPES[E];
 # flags given on the command line override it (docs/training.md).
 RECIPES: dict[str, dict[str, Any]] = {
-    "sector-memory": {"steps": 12_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
+    "sector-memory": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
                       "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
 }
 
