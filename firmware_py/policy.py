@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
+from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder, best_action
 from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
 
 # --- format constants ---------------------------------------------------------
@@ -68,7 +68,8 @@ KNOWN_FLAGS = FLAG_PER_STATE_SCALES  # any other bit set -> reject (see the spec
 
 KIND_CELL = 1
 KIND_SECTOR = 2
-KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector"}
+KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
+KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory"}
 KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
 
 DTYPE_INT8 = 1
@@ -82,6 +83,7 @@ MAX_FILE_BYTES = 64 * 1024 * 1024  # far above any table the robot can hold
 MIN_FILE_BYTES = HEADER.size + CRC.size
 
 _SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
+_MEMORY = struct.Struct("<HHH")  # block_mm, block_bearing_mrad, leave_margin_mm
 _CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
 _PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
 _GOAL = struct.Struct("<HH")  # goal cell (col, row)
@@ -107,7 +109,7 @@ class MapGeometry(NamedTuple):
 class Policy:
     """A validated int Q-table with everything needed to use it on the robot."""
 
-    encoder: CellEncoder | SectorEncoder
+    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder
     dtype: str
     n_states: int
     n_actions: int
@@ -194,14 +196,15 @@ def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
 
 
 def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
-                    ) -> tuple[CellEncoder | SectorEncoder, tuple[tuple[int, int], ...], int]:
+                    ) -> tuple[CellEncoder | SectorEncoder | MemorySectorEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
-    enc: CellEncoder | SectorEncoder
-    if kind == KIND_SECTOR:
+    enc: CellEncoder | SectorEncoder | MemorySectorEncoder
+    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY):
         if len(sec) < _SECTOR_HEAD.size:
             raise PolicyError("sector encoder section too short")
         bearing, n_sensors, n_edges = _SECTOR_HEAD.unpack_from(sec, 0)
-        need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + _PAIR.size * n_actions
+        extra = _MEMORY.size if kind == KIND_SECTOR_MEMORY else 0
+        need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + extra + _PAIR.size * n_actions
         if len(sec) != need:
             raise PolicyError(f"sector encoder section is {len(sec)} bytes, its fields need {need}")
         if bearing < 1:
@@ -219,9 +222,15 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
         if list(edges) != sorted(set(edges)) or (edges and edges[0] == 0):
             raise PolicyError("sector encoder: range edges not strictly ascending positive mm")
         try:
-            enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
+            if kind == KIND_SECTOR_MEMORY:
+                block, block_mrad, leave = _MEMORY.unpack_from(sec, off)
+                off += _MEMORY.size
+                enc = MemorySectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
+                                          block_mm=block, block_bearing_mrad=block_mrad, leave_margin_mm=leave)
+            else:
+                enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
         except ValueError as exc:
-            raise PolicyError(f"sector encoder: {exc}") from None
+            raise PolicyError(f"{KIND_NAMES[kind]} encoder: {exc}") from None
         goals: tuple[tuple[int, int], ...] = ()
         cell_mm = 0
     else:
@@ -389,12 +398,17 @@ def content_id(encoder_section: bytes, table: bytes, scales: bytes = b"") -> int
     return zlib.crc32(scales, zlib.crc32(table, zlib.crc32(encoder_section)))
 
 
-def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals: Sequence[tuple[int, int]],
+def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, goals: Sequence[tuple[int, int]],
                   cell_mm: int) -> bytes:
-    if isinstance(encoder, SectorEncoder):
+    if isinstance(encoder, SectorEncoder | MemorySectorEncoder):
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
         out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
+        if isinstance(encoder, MemorySectorEncoder):
+            if not all(0 <= v <= 0xFFFF for v in (encoder.block_mm, encoder.block_bearing_mrad,
+                                                  encoder.leave_margin_mm)):
+                raise ValueError("memory rule fields must be 0..65535")
+            out += _MEMORY.pack(encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm)
         actions = robot_spec.ACTION_WHEEL_SPEEDS_MM_S
     else:
         if len(goals) != encoder.n_goals:
@@ -405,7 +419,7 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder, goals: Sequence[tuple[in
     return out + b"".join(_PAIR.pack(*a) for a in actions)
 
 
-def dump_policy(encoder: CellEncoder | SectorEncoder, table: array[int], dtype: str, scale: float, *,
+def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, table: array[int], dtype: str, scale: float, *,
                 state_scales: array[float] | None = None, goals: Sequence[tuple[int, int]] = (),
                 cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict[str, Any] | None = None,
                 policy_id: int | None = None, created: int | None = None,
@@ -461,7 +475,7 @@ def dump_policy(encoder: CellEncoder | SectorEncoder, table: array[int], dtype: 
     return body + CRC.pack(zlib.crc32(body))
 
 
-def _geometry_for(encoder: CellEncoder | SectorEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
+def _geometry_for(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
     """The header's map geometry: a cell policy's grid, a sector policy's training map."""
     if isinstance(encoder, CellEncoder):
         grid = MapGeometry(cell_mm, encoder.width, encoder.height)

@@ -39,6 +39,13 @@ POLICIES = {
         # all 44 400 (start, goal, heading) rollouts take ~30 s per table: a seeded sample
         "export": ["--dtype", "int8", "--sample", "8000", "--seed", "0"],
     },
+    "sector_memory": {
+        # sector-memory, direct setting (no waypoints): the recipe is the CLI default for the encoding
+        # (ground_station/learn/config.py RECIPES); docs/training.md, sector-memory section
+        "train": ["--map", "paper10", "--encoding", "sector-memory", "--seed", "0"],
+        # one scale per state: with one table scale int8 rounding ties half the wall-mode rows (0.61 -> 0.42)
+        "export": ["--dtype", "int8", "--per-state-scale", "--sample", "8000", "--seed", "0"],
+    },
 }
 
 

@@ -35,7 +35,7 @@ from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.progress import ProgressWatch
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
-from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.encoders import BugMemory, CellEncoder, MemorySectorEncoder, SectorEncoder
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
 from firmware_py.vehicle import (
     CtrlState,
@@ -215,6 +215,9 @@ class Controller:
         self._state_index = -1
         self._action = -1
         self._q_row: tuple[int, ...] = ()
+        # sector-memory policies: the Bug memory of the current goal (reset when the goal or the drive changes)
+        self.memory = BugMemory()
+        self._memory_key: tuple[tuple[int, int], int] | None = None
         self.tick_overruns = 0
         self.can_errors = 0
         # Monte Carlo localisation on the policy's map (control/localiser.py) when the policy carries one
@@ -779,9 +782,18 @@ class Controller:
             item = f"item {self.mission_seq}: " if self.mode == Mode.AUTO else ""
             self._event("info", item + stalled, SEV_WARNING)
         pol = self.policy
-        if isinstance(pol.encoder, SectorEncoder):  # pol.kind == "sector"
-            s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
-            a = pol.best_action(s)
+        if isinstance(pol.encoder, SectorEncoder | MemorySectorEncoder):  # pol.kind == "sector" / "sector-memory"
+            if isinstance(pol.encoder, MemorySectorEncoder):
+                key = (self.goal, self._driving_since_us)
+                if key != self._memory_key:  # a new goal (or mission item, or a new drive): forget the wall
+                    self.memory.reset()
+                    self._memory_key = key
+                s = pol.encoder.encode(self.memory, bearing, dist, inp.ranges_mm, inp.range_status)
+                a = pol.best_action(s)
+                self.memory.note_action(a)
+            else:
+                s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
+                a = pol.best_action(s)
             left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
             self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
         else:

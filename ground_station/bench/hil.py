@@ -309,6 +309,37 @@ def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
     return out
 
 
+def twin_outcomes_memory(gm, policy: Policy, rows: list[dict], max_periods: int = 2400) -> list[str]:
+    """`twin_outcomes` for a sector-memory policy: the same episodes greedily
+    on the twin with the jitted Bug memory (`evaluate_memory`'s kernel), direct."""
+    import numpy as np
+
+    from firmware_py.encoders import MemorySectorEncoder
+    from ground_station.learn.sector.kernels import COLLISION, SUCCESS
+    from ground_station.learn.sector.memory import eval_memory_kernel
+    from ground_station.learn.sector.memory_train import memory_params
+    from ground_station.learn.sector.twin import encoder_arrays, grid_of
+    from ground_station.maps import octile_distances
+
+    enc = policy.encoder
+    assert isinstance(enc, MemorySectorEncoder)
+    q = np.array(policy.table.tolist(), dtype=np.float64).reshape(policy.n_states, policy.n_actions)
+    occ, h, w, c = grid_of(gm)
+    starts = np.array([r["start"] for r in rows], dtype=np.int64).reshape(-1, 2)
+    goals = np.array([r["goal"] for r in rows], dtype=np.int64).reshape(-1, 2)
+    dists = np.stack([octile_distances(gm.occ, int(g[0]), int(g[1])) for g in goals]) if len(rows) \
+        else np.zeros((0, h, w))
+    headings = np.array([r["heading_rad"] for r in rows], dtype=np.float64)
+    sectors, sensors, edges, which = encoder_arrays(enc.base)
+    n = len(rows)
+    outcome = np.zeros(n, dtype=np.int64)
+    eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, np.arange(n, dtype=np.int64), headings,
+                       sectors, sensors, edges, np.ones_like(which), memory_params(enc), enc.base.n_states,
+                       max_periods, 0.0, 0.0, max_periods + 1, outcome, np.zeros(n), np.zeros(n, dtype=np.int64),
+                       np.zeros(n, dtype=np.int64))
+    return ["reached" if o == SUCCESS else "collision" if o == COLLISION else "timeout" for o in outcome]
+
+
 def _summary(rows: list[dict]) -> dict:
     n = len(rows)
     sim = sum(r["sim_s"] for r in rows)
@@ -363,7 +394,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("hil", help="lockstep HIL acceptance episodes on paper10 (sector pairs, cell targets)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--map", default="paper10")
-    p.add_argument("--sector-policy", default="policies:sector", metavar="FILE",
+    p.add_argument("--sector-policy", default="policies:sector", metavar="FILE",  # or a sector-memory file
                    help="a .qtab file or policies:NAME (default %(default)s, shipped)")
     p.add_argument("--cell-policy", default="policies:paper10_cell", metavar="FILE",
                    help="a .qtab file or policies:NAME (default %(default)s, shipped)")
@@ -415,8 +446,10 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
             pol = load_policy(path)
         except (PolicyError, ShippedPolicyError) as exc:
             raise CliError(f"{kind} policy {spec}: {exc}") from None
-        if pol.kind != kind:
+        if pol.kind != kind and not (kind == "sector" and pol.kind == "sector-memory"):
             raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
+        if pol.kind == "sector-memory" and args.guidance != "direct":
+            raise CliError(f"{path} is a sector-memory policy: it drives to the goal alone, use --guidance direct")
         if kind == "cell" and not args.no_localiser and pol.map_grid is None:
             print(f"note: {path} carries no map (qnav policy attach-map): the cell set runs on dead reckoning")
         main_rows: list[dict] = []
@@ -443,7 +476,8 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
             rows_out += _summary_rows(kind, {**s, **timing}, stats)
         rows = main_rows
         if kind == "sector" and args.compare_twin:
-            twin = twin_outcomes(gm, pol, rows, guidance=args.guidance)
+            twin = twin_outcomes_memory(gm, pol, rows) if pol.kind == "sector-memory" else \
+                twin_outcomes(gm, pol, rows, guidance=args.guidance)
             for r, t in zip(rows, twin, strict=True):
                 r["twin"] = t
             s["twin_success"] = sum(t == "reached" for t in twin)

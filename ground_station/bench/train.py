@@ -3,7 +3,9 @@
 Measured in one run: the numba kernel (exact sequential Q-learning, cell
 encoding, targets A-D) against a plain-Python loop doing the same
 Q-learning over the Gymnasium `CellNavEnv` (the usual way to write it), and
-beside them the sector twin's `SectorTrainer` when it is available. Compile
+beside them the sector twin's `SectorTrainer` when it is available and the
+sector-memory `MemoryTrainer` with its shipped recipe (all eight sensors
+cast, for the leaving rule and the wall reward). Compile
 time is excluded (one warm-up call first).
 """
 
@@ -78,6 +80,23 @@ def sector_speed(cfg, n_steps: int) -> tuple[float | None, str]:
     return n_steps / dt, f"{n_steps:,} steps in {dt:.2f} s"
 
 
+def memory_speed(n_steps: int) -> float:
+    """Steps/s of the sector-memory trainer with its shipped recipe on paper10."""
+    import numpy as np
+
+    from ground_station.learn.config import recipe_config
+    from ground_station.learn.sector.memory_train import MemoryTrainer, memory_encoder
+    from ground_station.maps import load_map
+
+    cfg = recipe_config("sector-memory", {"map": "paper10"})
+    trainer = MemoryTrainer([load_map(cfg.map)], cfg, memory_encoder(cfg))
+    q = np.zeros((trainer.n_states, trainer.n_actions))
+    trainer.run(q, 0, 1000)  # compile
+    t0 = time.perf_counter()
+    trainer.run(q, 1000, n_steps)
+    return n_steps / (time.perf_counter() - t0)
+
+
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -96,11 +115,13 @@ def run(args: argparse.Namespace) -> int:
     b_steps, b_dt = python_loop(cfg, args.baseline_seconds)
     baseline = b_steps / b_dt
     sector, sector_note = sector_speed(replace(cfg, encoding="sector"), args.sector_steps)
+    memory = memory_speed(args.sector_steps)
     result = {
         "steps_per_s": steps_per_s,
         "baseline_steps_per_s": baseline,
         "ratio": steps_per_s / baseline,
         "sector_steps_per_s": sector,
+        "sector_memory_steps_per_s": memory,
         "map": cfg.map,
         "kernel_steps": cfg.steps,
         "baseline_steps": b_steps,
@@ -112,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         ("baseline steps/s (Python loop over gymnasium)", baseline),
         ("ratio", result["ratio"]),
         ("sector steps/s (SectorTrainer)", sector if sector is not None else sector_note),
+        ("sector-memory steps/s (MemoryTrainer, recipe)", memory),
     ]
     report("train", rows, result, args.json)
     return 0

@@ -7,7 +7,9 @@ Sector runs: the main figures follow the ground station's planned waypoints
 (`ground_station.maps.planner`, what the robot gets as a mission); the same
 policy steering on the goal bearing alone is reported beside them
 (`direct_*` keys), and the baseline is a hand-written seek table on the same
-waypoints.
+waypoints. Sector-memory runs are judged in the direct setting only (goal
+bearing and distance, no waypoints: `success_rate` is the direct figure)
+and add `wall_share`, the share of periods spent following a wall.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     base = rep.get("baseline", {})
     direct = rep.get("direct")  # sector: the same policy without waypoint guidance
     keys = ["success_rate", "path_ratio_mean", "path_ratio_max", "timeouts", "collisions", "loops", "episodes"]
+    if "wall_share" in rep:
+        keys.append("wall_share")
     print(f"== qnav eval {args.run_dir} on {gridmap.name} ({rep.get('encoding')}) ==")
     if direct is not None:
         print("policy and baseline (hand-written seek) follow the planned waypoints; direct = policy on the goal bearing")

@@ -59,6 +59,10 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
                              f"{gridmap.name} is {gridmap.width}x{gridmap.height}")
         return evaluate_cell(q, gridmap, run.goals, sample=sample, seed=seed,
                              target_names=run.meta.get("targets"))
+    if run.encoder.kind == "sector-memory":
+        from ground_station.learn.sector.memory_train import evaluate_memory
+
+        return evaluate_memory(q, gridmap, run.encoder, seed=seed, sample=sample)
     from ground_station.learn.evaluate import sector_guidance_from_meta
     from ground_station.learn.sector.evaluate import evaluate_sector
     return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample,

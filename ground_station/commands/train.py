@@ -1,5 +1,10 @@
 """`qnav train`: train a Q table and write the run folder.
 
+A flag left out takes the encoding's shipped recipe where it has one
+(`ground_station/learn/config.py` RECIPES: sector-memory), else the default
+shown below; so `qnav train --encoding sector-memory --map M --seed N --out
+DIR` trains the shipped policy's recipe.
+
 Writes DIR/q.npy (float64, n_states x n_actions), DIR/meta.json,
 DIR/metrics.csv and DIR/learning_curve.png (see `ground_station.learn.train`).
 Without --out the run folder is named for what it holds (CleanRL style):
@@ -15,11 +20,14 @@ import time
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.learn.config import add_config_arguments
 
-    p = sub.add_parser("train", help="train a tabular Q policy (cell or sector encoding)",
+    p = sub.add_parser("train", help="train a tabular Q policy (cell, sector or sector-memory encoding)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", metavar="DIR", help="run folder to write (created if missing; default "
                    "runs/<map>-<encoding>-s<seed>-<time>)")
     add_config_arguments(p)
+    # recipe-aware defaults: a flag left out takes the encoding's shipped recipe (learn/config.RECIPES),
+    # else the TrainConfig default shown in its help
+    p.set_defaults(**{f: None for f in _recipe_fields()})
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
@@ -41,12 +49,23 @@ def default_run_dir(map_spec: str, encoding: str, seed: int) -> str:
     return str(path)
 
 
+def _recipe_fields() -> set[str]:
+    from ground_station.learn.config import RECIPES
+
+    return {k for r in RECIPES.values() for k in r}
+
+
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import fields
+
     from ground_station.errors import CliError
-    from ground_station.learn.train import config_from_args, train, validate_config, write_run
+    from ground_station.learn.config import TrainConfig, recipe_config
+    from ground_station.learn.train import train, validate_config, write_run
     from ground_station.maps import MapError, load_map
 
-    cfg = config_from_args(args)
+    given = {f.name: getattr(args, f.name) for f in fields(TrainConfig)
+             if getattr(args, f.name, None) is not None and f.name != "encoding"}
+    cfg = recipe_config(args.encoding, given)
     if args.epsilon is not None:
         cfg.epsilon_start = cfg.epsilon_end = args.epsilon
     try:

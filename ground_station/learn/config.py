@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass, field, fields
+from typing import Any
+
+ENCODINGS = ("cell", "sector", "sector-memory")
 
 
 def _f(default, help: str):
@@ -20,7 +23,8 @@ class TrainConfig:
     """All training hyperparameters; `asdict(cfg)` is stored in meta.json."""
 
     map: str = _f("paper10", "built-in map name, generator spec (e.g. trap-16x16-s0) or path to a .map file")
-    encoding: str = _f("cell", "state encoding: cell (robot cell x goal) or sector (kinematic twin)")
+    encoding: str = _f("cell", "state encoding: cell (robot cell x goal), sector (kinematic twin) or sector-memory "
+                                   "(sector x Bug-style wall-following mode, direct setting)")
     targets: str = _f("", "comma-separated target names or col:row cells (cell encoding); empty = all map targets")
     seed: int = _f(0, "random seed; same seed and config -> bit-identical table")
     steps: int = _f(3_000_000, "environment steps (Q updates) to train for")
@@ -59,9 +63,34 @@ class TrainConfig:
     sector_clear_reward: float = _f(0.0, "sector: cost per control period closer than --sector-clear-mm to an "
                                          "unmapped obstacle (with obstacles or movers)")
     sector_clear_mm: float = _f(100.0, "sector: clearance (mm, rim to an unmapped obstacle) the clearance cost keeps")
+    memory_block_mm: int = _f(400, "sector-memory: front range (mm) below which the way to a goal ahead counts as blocked "
+                                   "(GO -> follow the wall)")
+    memory_block_bearing_mrad: int = _f(785, "sector-memory: the goal counts as ahead within +- this bearing (mrad)")
+    memory_leave_margin_mm: int = _f(250, "sector-memory: leave the wall once the goal is this much closer than where it was hit")
+    memory_wall_reward: float = _f(0.5, "sector-memory: reward per cell of forward travel in a wall mode while the followed "
+                                        "side sees the wall (the wall modes' own task)")
+    memory_wall_away: float = _f(0.5, "sector-memory: share of the wall reward paid for forward travel while the "
+                                      "followed side sees no wall (drive on to find one rather than turn on the spot)")
+    memory_wall_reach_mm: int = _f(400, "sector-memory: the followed wall counts as seen below this side range (mm)")
+    memory_go_progress: str = _f("octile", "sector-memory: progress the go mode is rewarded for: euclid = straight-line "
+                                           "distance to the goal (no map knowledge), octile = along the goal's octile field")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
+
+
+# The shipped recipe of an encoding: the TrainConfig fields that differ from
+# the dataclass defaults. `qnav train --encoding E` starts from RECIPES[E];
+# flags given on the command line override it (docs/training.md).
+RECIPES: dict[str, dict[str, Any]] = {
+    "sector-memory": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
+                      "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
+}
+
+
+def recipe_config(encoding: str, given: dict[str, Any]) -> TrainConfig:
+    """TrainConfig from the encoding's recipe, then `given` (explicit values win)."""
+    return TrainConfig(**{**RECIPES.get(encoding, {}), **given, "encoding": encoding})
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, skip: tuple[str, ...] = ()) -> None:
@@ -96,8 +125,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def validate_config(cfg: TrainConfig) -> None:
     """Raise ValueError (one line) on an impossible configuration."""
-    if cfg.encoding not in ("cell", "sector"):
-        raise ValueError(f"encoding must be cell or sector, got {cfg.encoding!r}")
+    if cfg.encoding not in ENCODINGS:
+        raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got {cfg.encoding!r}")
     if cfg.steps < 1:
         raise ValueError(f"steps must be >= 1, got {cfg.steps}")
     if not 0.0 < cfg.lr <= 1.0:
@@ -108,8 +137,13 @@ def validate_config(cfg: TrainConfig) -> None:
         v = getattr(cfg, name)
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {v}")
-    if cfg.encoding == "sector":
+    if cfg.encoding in ("sector", "sector-memory"):
         _check_sector(cfg)
+    if cfg.encoding == "sector-memory" and (cfg.memory_block_mm < 1 or cfg.memory_block_bearing_mrad < 0
+                                            or cfg.memory_leave_margin_mm < 0):
+        raise ValueError("memory_block_mm must be >= 1, memory_block_bearing_mrad and memory_leave_margin_mm >= 0")
+    if cfg.encoding == "sector-memory" and cfg.memory_go_progress not in ("euclid", "octile"):
+        raise ValueError(f"memory_go_progress must be euclid or octile, got {cfg.memory_go_progress!r}")
     if cfg.max_episode_steps < 0 or cfg.curve_points < 1 or cfg.chunk_steps < 1:
         raise ValueError("max_episode_steps must be >= 0, curve_points and chunk_steps >= 1")
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
 from ground_station.learn.envs.cell_env import cell_transitions, goal_distances, resolve_goals
 from ground_station.learn.jit import greedy
 from ground_station.learn.train import cell_state
@@ -152,7 +152,7 @@ def load_run(run_dir: str | Path) -> tuple[np.ndarray, dict]:
         raise ValueError(f"{d} is not a training run folder: missing {Path(exc.filename).name}") from None
     except (json.JSONDecodeError, ValueError) as exc:
         raise ValueError(f"{d}: unreadable run artifacts: {exc}") from None
-    if meta.get("encoding") not in ("cell", "sector"):
+    if meta.get("encoding") not in ("cell", "sector", "sector-memory"):
         raise ValueError(f"{d}/meta.json: unknown encoding {meta.get('encoding')!r}")
     if q.ndim != 2:
         raise ValueError(f"{d}/q.npy: expected a 2-D table, got shape {q.shape}")
@@ -162,6 +162,13 @@ def load_run(run_dir: str | Path) -> tuple[np.ndarray, dict]:
 def sector_encoder_from_meta(d: dict) -> SectorEncoder:
     return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]), sensors=tuple(d["sensors"]),
                          range_edges_mm=tuple(d["range_edges_mm"]))
+
+
+def memory_encoder_from_meta(d: dict) -> MemorySectorEncoder:
+    return MemorySectorEncoder(bearing_sectors=int(d["bearing_sectors"]), sensors=tuple(d["sensors"]),
+                               range_edges_mm=tuple(d["range_edges_mm"]), block_mm=int(d["block_mm"]),
+                               block_bearing_mrad=int(d["block_bearing_mrad"]),
+                               leave_margin_mm=int(d["leave_margin_mm"]))
 
 
 def sector_guidance_from_meta(meta: dict) -> dict:
@@ -184,6 +191,12 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
         names, goals = resolve_goals(gridmap, [list(g) for g in goals])
         return evaluate_cell(q, gridmap, goals, sample=sample, seed=seed,
                              target_names=meta.get("targets") or names)
+    if meta["encoding"] == "sector-memory":
+        from ground_station.learn.sector.memory_train import evaluate_memory
+
+        rep = evaluate_memory(q, gridmap, memory_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample)
+        rep["encoding"] = "sector-memory"
+        return rep
     from ground_station.learn.sector.evaluate import evaluate_sector
 
     rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample,

@@ -22,7 +22,7 @@ import numpy as np
 
 from firmware_py import policy as fmt
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
 
@@ -93,7 +93,7 @@ def compare(q: np.ndarray, qt: Quantised) -> dict:
     }
 
 
-def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder:
+def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEncoder:
     """Rebuild a reference encoder from its `to_dict()` (as in meta.json)."""
     kind = d.get("kind")
     if kind == "cell":
@@ -102,10 +102,16 @@ def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder:
         return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
                              sensors=tuple(int(s) for s in d["sensors"]),
                              range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]))
+    if kind == "sector-memory":
+        return MemorySectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
+                                   sensors=tuple(int(s) for s in d["sensors"]),
+                                   range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
+                                   block_mm=int(d["block_mm"]), block_bearing_mrad=int(d["block_bearing_mrad"]),
+                                   leave_margin_mm=int(d["leave_margin_mm"]))
     raise ValueError(f"unknown encoder kind {kind!r}")
 
 
-def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder, *, goals=(),
+def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, *, goals=(),
                  cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
                  policy_id: int | None = None, created: int | None = None,
                  control_period_us: int = robot_spec.CONTROL_PERIOD_US,
@@ -135,7 +141,7 @@ class TrainingRun:
 
     q: np.ndarray
     meta: dict
-    encoder: CellEncoder | SectorEncoder
+    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder
     goals: list[tuple[int, int]]
     cell_mm: int
 

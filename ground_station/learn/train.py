@@ -278,12 +278,41 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
                         "train_maps": [m.name for m in trainer.maps]}, seconds)
 
 
+def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
+    """Q-learning of the sector-memory encoding (direct setting) on the twin,
+    through `ground_station.learn.sector.memory_train.MemoryTrainer`, on
+    `gridmap` plus the `sector_maps` extras."""
+    from ground_station.learn.sector.memory_train import MemoryTrainer, memory_encoder
+
+    encoder = memory_encoder(cfg)
+    extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
+    trainer = MemoryTrainer([gridmap, *extra], cfg, encoder)
+    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
+    rets, succs = [], []
+    t0 = time.perf_counter()
+    done = 0
+    with _progress(cfg.steps, progress, f"train sector-memory {gridmap.name}") as bar:
+        while done < cfg.steps:
+            n = min(cfg.chunk_steps, cfg.steps - done)
+            r, s = trainer.run(q, done, n)
+            rets.append(np.asarray(r, dtype=np.float64))
+            succs.append(np.asarray(s, dtype=bool))
+            done += n
+            bar.update(n)
+    seconds = time.perf_counter() - t0
+    return TrainResult(q, np.concatenate(rets), np.concatenate(succs),
+                       {"encoder": encoder.to_dict(), "guidance": "direct",
+                        "train_maps": [m.name for m in trainer.maps]}, seconds)
+
+
 def train(cfg: TrainConfig, gridmap: GridMap | None = None, progress: bool = False) -> TrainResult:
     """Train the configured encoding on `gridmap` (default: load `cfg.map`)."""
     validate_config(cfg)
     gm = gridmap if gridmap is not None else load_map(cfg.map)
     if cfg.encoding == "cell":
         return train_cell(cfg, gm, progress)
+    if cfg.encoding == "sector-memory":
+        return train_sector_memory(cfg, gm, progress)
     return train_sector(cfg, gm, progress)
 
 

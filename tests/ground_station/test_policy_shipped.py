@@ -101,3 +101,19 @@ def test_sector_policy_drives_as_recorded_and_int8_is_within_half_a_point_of_flo
     assert rep["episodes"] == rec["episodes"] == sample
     assert rep["success_rate"] == rec["success_rate"]["int"]
     assert abs(rec["success_rate"]["int"] - rec["success_rate"]["float"]) <= 0.005
+
+
+def test_sector_memory_policy_drives_as_recorded_in_the_direct_setting():
+    from ground_station.learn.sector.memory_train import evaluate_memory
+    from ground_station.maps import load_map
+
+    path = POLICIES / "sector_memory.qtab"
+    rec = json.loads(path.with_suffix(".json").read_text())
+    pol = load_policy(path)
+    assert pol.kind == "sector-memory" and pol.metadata["config"]["sector_guidance"] == "direct"
+    args = shlex.split(rec["commands"][1])
+    sample, seed = int(args[args.index("--sample") + 1]), int(args[args.index("--seed") + 1])
+    rep = evaluate_memory(int_table(pol), load_map(rec["map"]), pol.encoder, sample=sample, seed=seed)
+    assert rep["episodes"] == rec["episodes"] == sample
+    assert rep["success_rate"] == rec["success_rate"]["int"]
+    assert rep["collisions"] == rec["collisions"]["int"]
