@@ -191,7 +191,7 @@ def estop(can: str, work: Path, *, sender: str = "bus", speed: float = 4.0, dura
             res["robot_exit"], res["sim_exit"] = _wait(rob, 30), _wait(sim, 30)
             log = procs.log(f"{tag}_robot")
             res["robot_fault_line"] = "FAULT: e-stop engaged" in log
-            if res["robot_exit"] != 3:
+            if res["robot_exit"] != 3 or not res["robot_fault_line"]:
                 res["logs"] = {"robot": log[-1500:], "sim": procs.log(f"{tag}_sim")[-1500:]}
     finally:
         bus.shutdown()
