@@ -18,7 +18,9 @@ def report(name: str, rows: Sequence[tuple[str, object]], result: dict, json_pat
             value = f"{value:,.3f}" if abs(value) < 1000 else f"{value:,.0f}"
         print(f"{key:<{width}}  {value}")
     if json_path:
-        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
+        from firmware_py.atomic import atomic_write
+
+        atomic_write(json_path, json.dumps(result, indent=2) + "\n", make_parents=True)
         print(f"wrote {json_path}")
 
 

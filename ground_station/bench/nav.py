@@ -29,6 +29,8 @@ KEYS = ("success_rate", "collision_rate", "path_ratio_mean", "time_to_goal_mean_
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from ground_station.campaign.engines import add_engine_arguments
+
     p = sub.add_parser("nav", help="controllers vs unmapped static and moving obstacles (twin, --hil lockstep)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--map", action="append", metavar="NAME|PATH",
@@ -44,8 +46,13 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="the learnt sector policy (.qtab or policies:NAME; default %(default)s)")
     p.add_argument("--controllers", default="learnt,seek,vfh,direct",
                    help="comma-separated subset of learnt,seek,vfh,direct")
-    p.add_argument("--json", metavar="FILE", help="write the result as JSON")
+    p.add_argument("--json", metavar="FILE",
+                   help="write the result as JSON (depends only on the seeded episodes: the same on every engine; "
+                        "timings and where the jobs ran go to FILE's sibling *.campaign.json)")
     p.add_argument("--png", metavar="FILE", help="comparison figure (default: the JSON path with .png)")
+    p.add_argument("--batch", type=int, default=250, metavar="N",
+                   help="twin episodes per campaign job (default %(default)s; HIL: N // 50 + 1)")
+    add_engine_arguments(p, "episode batches")
     p.set_defaults(func=run)
 
 
@@ -55,18 +62,19 @@ def run(args: argparse.Namespace) -> int:
     from firmware_py.policy import PolicyError, load_policy
     from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
     from ground_station.bench.common import report
+    from ground_station.campaign.engines import engine_from_args, write_campaign
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
     from ground_station.nav.controllers import CONTROLLER_NAMES, standard_controllers
-    from ground_station.nav.episodes import run_hil, run_twin, summarise
+    from ground_station.nav.episodes import run_job, run_twin, summarise
     from ground_station.nav.scenario import episodes
 
     names = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
     bad = [c for c in names if c not in CONTROLLER_NAMES]
     if bad or not names:
         raise CliError(f"--controllers: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(CONTROLLER_NAMES)}")
-    if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1:
-        raise CliError("--obstacles/--movers must be >= 0, --episodes/--hil-episodes >= 1")
+    if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1 or args.batch < 1:
+        raise CliError("--obstacles/--movers must be >= 0, --episodes/--hil-episodes/--batch >= 1")
     try:
         path = resolve_policy_spec(args.policy)
         pol = load_policy(str(path))
@@ -78,10 +86,12 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(str(exc)) from None
     map_names = args.map or list(DEFAULT_MAPS)
     maps = {}
+    specs: dict[str, str] = {}  # map name -> the spec that loads it (for campaign workers)
     try:
         for name in map_names:
             gm = load_map(name)
             maps[gm.name] = gm
+            specs[gm.name] = name
     except (MapError, OSError) as exc:
         raise CliError(str(exc)) from None
     eps_by_map = {}
@@ -101,15 +111,39 @@ def run(args: argparse.Namespace) -> int:
         "definition": "ground_station/nav/scenario.py (detourable discs, movers)"},
         "policy": str(path), "policy_id": f"0x{pol.policy_id:08x}", "per_map": {}}
     rows: list[tuple[str, object]] = []
-    with tqdm(total=len(ctrls) * len(maps), desc="twin", unit="set") as bar:
+    base = {"policy": str(path), "maps": specs}
+    campaign: dict = {}
+    with engine_from_args(args) as engine:
+        jobs = [{**base, "kind": "twin", "controller": c.name, "map": name, "episodes": eps[i:i + args.batch]}
+                for c in ctrls for name, eps in eps_by_map.items() for i in range(0, len(eps), args.batch)]
+        out, stats = engine.map(run_job, jobs, desc="twin", unit="batch")
+        campaign["twin"] = stats.as_dict()
         for c in ctrls:
             twin_rows = []
-            for name, eps in eps_by_map.items():
-                r = run_twin(eps, maps, c)
+            for name in maps:
+                r = [row for job, res in zip(jobs, out, strict=True)
+                     if job["controller"] == c.name and job["map"] == name for row in res]
                 twin_rows += r
                 result["per_map"].setdefault(name, {})[c.name] = summarise(r)
-                bar.update(1)
             result[c.name] = summarise(twin_rows)
+        if args.hil:
+            names_list = list(maps)
+            per = [args.hil_episodes // len(names_list) + (1 if i < args.hil_episodes % len(names_list) else 0)
+                   for i in range(len(names_list))]
+            hil_eps = [e for name, k in zip(names_list, per, strict=True) for e in eps_by_map[name][:k]]
+            result["hil"] = {"episodes_per_map": dict(zip(names_list, per, strict=True)),
+                             "plant": "sim_bridge default SimConfig (pymunk, lockstep, sensor noise as qnav-sim)"}
+            hb = max(1, args.batch // 50)
+            hjobs = [{**base, "kind": "hil", "controller": c.name, "episodes": hil_eps[i:i + hb], "offset": i}
+                     for c in ctrls for i in range(0, len(hil_eps), hb)]
+            hout, hstats = engine.map(run_job, hjobs, desc="hil", unit="batch")
+            campaign["hil"] = {**hstats.as_dict(), "episode_wall_s": {}}
+            for c in ctrls:
+                hr = [row for job, res in zip(hjobs, hout, strict=True) if job["controller"] == c.name for row in res]
+                campaign["hil"]["episode_wall_s"][c.name] = [row.pop("wall_s") for row in hr]
+                result["hil"][c.name] = summarise(hr)
+                result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(run_twin(hil_eps, maps, c))
+                result["hil"].setdefault("episodes_detail", {})[c.name] = hr
     for c in ctrls:
         s = result[c.name]
         rows.append((f"twin {c.name}", _fmt(s)))
@@ -117,22 +151,15 @@ def run(args: argparse.Namespace) -> int:
         for c in ctrls:
             rows.append((f"  {name} {c.name}", _fmt(result["per_map"][name][c.name])))
     if args.hil:
-        names_list = list(maps)
-        per = [args.hil_episodes // len(names_list) + (1 if i < args.hil_episodes % len(names_list) else 0)
-               for i in range(len(names_list))]
-        hil_eps = [e for name, k in zip(names_list, per, strict=True) for e in eps_by_map[name][:k]]
-        result["hil"] = {"episodes_per_map": dict(zip(names_list, per, strict=True)),
-                         "plant": "sim_bridge default SimConfig (pymunk, lockstep, sensor noise as qnav-sim)"}
-        with tqdm(total=len(ctrls) * len(hil_eps), desc="hil", unit="ep") as bar:
-            for c in ctrls:
-                hr = run_hil(hil_eps, maps, c, progress=lambda: bar.update(1))
-                result["hil"][c.name] = summarise(hr)
-                result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(run_twin(hil_eps, maps, c))
-                result["hil"].setdefault("episodes_detail", {})[c.name] = hr
         for c in ctrls:
             rows.append((f"hil {c.name}", _fmt(result["hil"][c.name])))
             rows.append((f"  twin, same episodes {c.name}", _fmt(result["hil"]["twin_same_episodes"][c.name])))
+    for part, st in campaign.items():
+        rows.append((f"campaign {part}", f"{st['engine']}, {st['workers']} workers on {len(st['nodes'])} node(s): "
+                     f"{st['jobs']} jobs, {st['wall_s']:.1f} s wall, speedup over one core "
+                     f"{st['speedup_over_one_core']:.2f}x"))
     report("nav", rows, result, args.json)
+    write_campaign(args.json, campaign)
     png = args.png or (str(Path(args.json).with_suffix(".png")) if args.json else None)
     if png:
         Path(png).write_bytes(plot(result, [c.name for c in ctrls]))

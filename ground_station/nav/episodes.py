@@ -79,8 +79,12 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
 
 
 def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
-            progress: Callable[[], None] | None = None, max_sim_s: float | None = None) -> list[dict]:
-    """Each episode on the lockstep rig with its obstacles in the pymunk world."""
+            progress: Callable[[], None] | None = None, max_sim_s: float | None = None,
+            index_offset: int = 0) -> list[dict]:
+    """Each episode on the lockstep rig with its obstacles in the pymunk world.
+
+    Episode i of the list runs with plant seed `ep.seed + index_offset + i`:
+    a slice of a longer list passes its offset and gets the same rows."""
     from ground_station.rigs.lockstep import LockstepRig
     from sim_bridge.obstacles import ObstacleLayer
 
@@ -98,7 +102,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
         near = 0
         minclear = math.inf
         driven = 0.0
-        with LockstepRig(gm.occ, policies[ep.map], start, goals, seed=ep.seed + i) as rig:  # type: ignore[arg-type]
+        with LockstepRig(gm.occ, policies[ep.map], start, goals, seed=ep.seed + index_offset + i) as rig:  # type: ignore[arg-type]
             layer = ObstacleLayer(rig.plant.world, ep.discs, ep.movers)
             rig.plant.obstacles = layer  # movers move at the end of every period, as in the twin
             end_us = round(limit * 1e6)
@@ -127,6 +131,21 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
         if progress is not None:
             progress()
     return rows
+
+
+def run_job(job: dict) -> list[dict]:
+    """One campaign job of `qnav bench nav` (a fresh worker may run it): the
+    controller `job["controller"]` built from the policy file, the maps loaded
+    from their specs, then `run_twin` or `run_hil` over `job["episodes"]`."""
+    from firmware_py.policy import load_policy
+    from ground_station.maps import load_map
+    from ground_station.nav.controllers import standard_controllers
+
+    ctrl = standard_controllers(load_policy(job["policy"]), (job["controller"],))[0]
+    maps = {name: load_map(spec) for name, spec in job["maps"].items()}
+    if job["kind"] == "twin":
+        return run_twin(job["episodes"], maps, ctrl)
+    return run_hil(job["episodes"], maps, ctrl, index_offset=job["offset"])
 
 
 def summarise(rows: list[dict]) -> dict:

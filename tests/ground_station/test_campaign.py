@@ -134,6 +134,32 @@ def test_bench_hil_identical_on_ray_cluster(cluster, tmp_path):
     assert camp["cell"]["jobs"] == 8 and len(camp["cell"]["nodes"]) == 2
 
 
+def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
+    args = ["bench", "nav", "--map", "paper10", "--map", "trap-16x16-s1", "--episodes", "12", "--hil",
+            "--hil-episodes", "2", "--controllers", "learnt,vfh"]
+    one = qnav(*args, "--workers", "1", "--batch", "12", "--json", str(tmp_path / "one.json"))
+    assert one.returncode == 0, one.stderr[-2000:]
+    two = qnav(*args, "--workers", "2", "--batch", "5", "--json", str(tmp_path / "two.json"))
+    assert two.returncode == 0, two.stderr[-2000:]
+    assert (tmp_path / "one.json").read_bytes() == (tmp_path / "two.json").read_bytes()
+    camp = json.loads((tmp_path / "two.campaign.json").read_text())
+    assert camp["twin"]["jobs"] == 2 * 2 * 3 and camp["twin"]["workers"] == 2
+
+
+@pytest.mark.ray
+def test_bench_nav_identical_on_ray_cluster(cluster, tmp_path):
+    args = ["bench", "nav", "--map", "paper10", "--episodes", "8", "--hil", "--hil-episodes", "2",
+            "--controllers", "learnt,seek", "--batch", "4"]
+    local = qnav(*args, "--json", str(tmp_path / "local.json"))
+    assert local.returncode == 0, local.stderr[-2000:]
+    on_ray = qnav(*args, "--json", str(tmp_path / "ray.json"), "--engine", "ray", "--ray-address", cluster.address,
+                  env=cluster.env())
+    assert on_ray.returncode == 0, on_ray.stderr[-2000:]
+    assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
+    camp = json.loads((tmp_path / "ray.campaign.json").read_text())
+    assert camp["twin"]["engine"] == "ray" and len(camp["twin"]["nodes"]) == 2
+
+
 @pytest.mark.ray
 def test_tune_sweep_resumes_after_interruption(cluster, local_sweep, tmp_path):
     """Interrupt a Tune sweep once its first trial has finished, run the same
