@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from ground_station.mavlink.ftp_upload import theoretical_seconds
+from ground_station.mavlink.ftp_upload import FLOOR_BLOCK, theoretical_seconds
 from ground_station.rigs.processes import robot_ftp_process
 
 
@@ -28,7 +28,8 @@ def run_case(radio: Any, size: int, loss: float, signed: bool, key_file: Path | 
     data = random.Random(seed).randbytes(size)
     remote = f"/policies/serial-{size}-{int(loss * 100)}-{int(signed)}.qtab"
     row: dict[str, Any] = {"size": size, "loss": loss, "signed": signed, "link": "serial",
-           "theoretical_s": theoretical_seconds(size, signed, radio.config.bytes_per_s)}
+           "theoretical_s": theoretical_seconds(size, signed, radio.config.bytes_per_s),
+           "floor_s": theoretical_seconds(size, signed, radio.config.bytes_per_s, block=FLOOR_BLOCK)}
     with tempfile.TemporaryDirectory() as tmp:
         local = Path(tmp) / f"bench-{size}.qtab"
         local.write_bytes(data)

@@ -10,28 +10,42 @@ per 80, 34 %; 239-byte blocks: 11 %), re-sends only on timers (0.2-1 s)
 and counts every block index skipped between two ACKs as lost, so under
 loss it either idles or floods the radio with copies (docs/mavlink.md).
 
-How the put finds out what was lost, cheaply:
-* every transmission of a write carries a fresh seq, so each ACK names the
-  exact copy it answers: a clean round-trip sample every time (no Karn
-  ambiguity) and a smoothed RTT / variance as in TCP (RFC 6298);
-* the radio is first-in first-out, so an ACK for a write sent later than
-  an unanswered one means that one (or its ACK) was lost: it is sent again
-  at once, no timer (RACK, RFC 8985; a reordering margin of a quarter of the
-  smallest RTT);
-* the last writes (no later ACK can come) are sent again after the
-  retransmit timeout, SRTT + 4 RTTVAR, at least 1.5 x SRTT;
-* the window (writes unanswered, not yet known lost) is a few frames: the
-  bandwidth-delay product of a 57600-baud radio is about one 266-byte
-  frame, and anything beyond it only waits in the radio's queue, where it
-  lengthens every round trip and delays every loss signal.
+How the put finds out what was lost, cheaply (standard opcodes only):
+* the put runs in rounds: CreateFile (later OpenFileWO, which keeps the
+  contents), each of the round's blocks written ONCE, TerminateSession
+  (commits) and CalcFileCRC32 sent right behind it;
+* every copy of a write carries its own seq, so each ACK names the copy it
+  answers: exact round-trip samples (SRTT/RTTVAR as RFC 6298); the window
+  (5 writes, a little over the radio's bandwidth-delay product) is freed by
+  ACKs, by a later write's ACK (the link is FIFO: RACK, RFC 8985) and by the
+  retransmit timeout (SRTT + 4 RTTVAR, at least 2 x SRTT);
+* a write whose ACK never came is *unknown*: lost, or only its ACK lost.
+  The robot's CRC32 of the committed file decides: MAVLink FTP's CRC32
+  (initial 0, no final xor) is linear over GF(2), so CRC(file) xor
+  CRC(answered blocks only, holes as zeros) is the XOR of the CRCs of the
+  unknown blocks that arrived, each alone in a zero file of the same length:
+  32 equations, solved by elimination when the candidates are independent
+  (rounds are sized for ~16 unknowns, at most 24 accepted); the file length
+  (its highest block may be unknown) is tried from the top down and two
+  fitting lengths count as "cannot tell". Only blocks found missing are
+  written again; when it cannot tell, every unknown block is;
+* the last 1-3 blocks are written twice in one round (a frame of air is
+  cheaper than another round), and the next round's OpenFileWO goes out on
+  the TerminateSession ACK, before the CRC is back.
+So a block costs about 1 / (1 - p) frames at loss p per direction instead of
+1 / (1 - p)^2 (resending whatever was not ACKed), plus three small control
+frames and about two round trips per round. The caller still checks the
+CRC32 of the whole file before it reports success (a wrong solution only
+costs a put).
 
-The lost-ACK ambiguity stays: a write whose ACK is lost looks exactly like a
-lost write and is sent again (with independent loss p each way a block
-costs 1 / (1 - p)^2 frames on average instead of 1 / (1 - p); the bench
-shows the figures). A standard server cannot be asked about a block of a
-file it is still writing (the robot keeps it under a protected temporary
-name until TerminateSession), and repeating ACKs on the server would break
-stock clients, which count every ACK.
+239-byte writes "hung" an earlier client through the link emulator; the
+first version of this engine reproduced it and showed why: a window of
+266-byte frames queues 46 ms each in a 57600-baud radio, so a retransmit
+timeout taken from the small CreateFile's round trip fired before every
+write's ACK, and the late ACKs of superseded copies were thrown away - no
+RTT sample ever grew the timeout. The emulator, server and framing were
+fine (239-byte writes sent one by one were all answered). Here an ACK of
+any copy counts and the timeout comes from the writes' own round trips.
 
 CreateFile and TerminateSession are re-sent with the same seq and bytes, so
 the robot's retry cache answers a copy instead of running it twice.
@@ -49,8 +63,13 @@ MAX_DATA = 239
 OP_TERMINATE, OP_CREATE, OP_WRITE, OP_OPEN_WO, OP_CRC = 1, 6, 7, 11, 14
 OP_ACK, OP_NAK = 128, 129
 NAK_INVALID_SESSION = 4
-UNKNOWNS_PER_ROUND = 20  # CRC32 gives 32 equations: stay well below for a unique solution
+MAX_COPIES = 10  # of one control request before the put gives up (the caller may put again)
+OP_NAMES = {OP_TERMINATE: "TerminateSession", OP_CREATE: "CreateFile", OP_OPEN_WO: "OpenFileWO",
+            OP_CRC: "CalcFileCRC32"}
+UNKNOWNS_PER_ROUND = 16  # expected unanswered writes per round (CRC32: 32 equations)
+MAX_UNKNOWNS = 24  # more unknowns than this: a wrong solution gets too likely (2^(n-32))
 FIRST_ROUND_BLOCKS = 48
+TWICE_AT_MOST = 3  # a last round of this many blocks or fewer sends each twice
 
 
 def request(seq: int, session: int, opcode: int, offset: int = 0, data: bytes = b"") -> bytes:
@@ -110,6 +129,8 @@ class _Ctrl:
     payload: bytes
     kind: int
     sent_at: float
+    copies: int = 1
+    behind_writes: bool = False  # sent right after the round's writes: their round trip
 
 
 @dataclass
@@ -154,6 +175,7 @@ class FtpPut:
         self.ctrls: list[_Ctrl] = []  # control requests awaiting their reply
         self.remote_crc: int | None = None
         self.opened = False  # the file exists on the robot (first session committed)
+        self.checking: tuple[set[int], list[int]] | None = None  # (answered, unanswered) at the commit
 
     # --- timing -------------------------------------------------------------------
     def rto(self) -> float:
@@ -162,8 +184,8 @@ class FtpPut:
             return 0.5
         return min(self.max_rto, max(self.min_rto, self.srtt + 4 * self.rttvar, 2 * self.srtt))
 
-    def ctrl_rto(self, kind: int) -> float:
-        if kind == OP_TERMINATE:  # queued behind the round's last writes
+    def ctrl_rto(self, ctrl: _Ctrl) -> float:
+        if ctrl.behind_writes:  # queued behind the round's last writes
             return self.rto()
         return 0.3 if self.ctrl_srtt is None else min(self.max_rto, max(self.min_rto, 3 * self.ctrl_srtt))
 
@@ -180,7 +202,7 @@ class FtpPut:
         """When `poll` has something to do without a reply arriving."""
         if self.finished:
             return None
-        times = [c.sent_at + self.ctrl_rto(c.kind) for c in self.ctrls]
+        times = [c.sent_at + self.ctrl_rto(c) for c in self.ctrls]
         times += [self.sent[s].sent_at + self.rto() for s in self.flight]
         return min(times) if times else None
 
@@ -230,8 +252,13 @@ class FtpPut:
         if self.state == "open" and not self.ctrls:
             out.append(self._open(now))
         for c in self.ctrls:  # first send, or a copy: same seq and bytes (the retry cache answers)
-            if now - c.sent_at >= self.ctrl_rto(c.kind):
+            if now - c.sent_at >= self.ctrl_rto(c) and c.copies >= MAX_COPIES:
+                self._fail(OP_NAMES.get(c.kind, str(c.kind)), b"", f"no reply to {OP_NAMES.get(c.kind)} "
+                                                                    f"({c.copies} copies)")
+                return []
+            if now - c.sent_at >= self.ctrl_rto(c):
                 c.sent_at = now
+                c.copies += 1
                 self.stats.control_sent += 1
                 out.append(c.payload)
         if self.state != "write":
@@ -241,11 +268,23 @@ class FtpPut:
             if now - self.sent[seq].sent_at >= rto:
                 self.flight.discard(seq)  # still in `sent`: a late ACK counts
         while len(self.flight) < self.window and self.queue:
-            out.append(self._write(self.queue.pop(0), now))
-        if not self.queue:  # every write of the round is out: commit behind them (FIFO link)
-            self.state = "terminate"
+            block = self.queue.pop(0)
+            if block not in self.acked:  # a second copy of an answered block is not needed
+                out.append(self._write(block, now))
+        if not self.queue:  # every write of the round is out: commit behind them (FIFO link),
+            self.state = "terminate"  # and ask the CRC right behind the commit
             out.append(self._control(OP_TERMINATE, b"", now))
+            self.ctrls[-1].behind_writes = True
+            out.append(self._crc_request(now))
         return out
+
+    def _crc_request(self, now: float) -> bytes:
+        # its own session number: the put's session keeps the Terminate in the retry cache
+        seq = self._next_seq()
+        payload = request(seq, (self.session + 1) & 0xFF, OP_CRC, 0, self.path.encode() + b"\0")
+        self.ctrls.append(_Ctrl(seq, payload, OP_CRC, now, behind_writes=True))
+        self.stats.control_sent += 1
+        return payload
 
     # --- replies ------------------------------------------------------------------
     def on_reply(self, payload: bytes, now: float) -> None:
@@ -263,7 +302,7 @@ class FtpPut:
             if ctrl.kind != OP_TERMINATE:
                 rtt = now - ctrl.sent_at
                 self.ctrl_srtt = rtt if self.ctrl_srtt is None else 0.875 * self.ctrl_srtt + 0.125 * rtt
-            self._control_reply(ctrl.kind, opcode, data, now)
+            self._control_reply(ctrl, opcode, data, now)
         elif req_opcode == OP_WRITE and asked in self.sent:
             if opcode == OP_NAK:
                 self._fail("WriteFile", data)
@@ -280,7 +319,8 @@ class FtpPut:
                 if t.order < self.rack_order and t.sent_at + margin < self.rack_sent:
                     self.flight.discard(s)  # frees its slot; the CRC will tell what happened
 
-    def _control_reply(self, kind: int, opcode: int, data: bytes, now: float) -> None:
+    def _control_reply(self, ctrl: _Ctrl, opcode: int, data: bytes, now: float) -> None:
+        kind = ctrl.kind
         if kind in (OP_CREATE, OP_OPEN_WO):
             if opcode != OP_ACK:
                 self._fail("CreateFile" if kind == OP_CREATE else "OpenFileWO", data)
@@ -300,12 +340,29 @@ class FtpPut:
             self.sent.clear()
             self.flight.clear()
             self.unknown -= self.acked
-            self.state = "check"
-            # its own session number: the retry cache of the put's session keeps the Terminate
-            seq = self._next_seq()
-            crc = request(seq, (self.session + 1) & 0xFF, OP_CRC, 0, self.path.encode() + b"\0")
-            self.ctrls.append(_Ctrl(seq, crc, OP_CRC, float("-inf")))  # due at the next poll
+            stale = self.checking is not None  # the last round's CRC never came: one check for both
+            if self.checking is not None:
+                self.unknown.update(self.checking[1])
+            self.checking = (set(self.acked), sorted(self.unknown))
+            self.unknown.clear()
+            if stale or ctrl.copies > 1 or not any(c.kind == OP_CRC for c in self.ctrls):
+                # the CRC asked behind the first Terminate may have run before the commit
+                # (that copy lost, a later one ran it): ask again, behind this ACK
+                self.ctrls = [c for c in self.ctrls if c.kind != OP_CRC]
+                self.ctrls.append(_Ctrl(self._next_seq(), b"", OP_CRC, float("-inf")))
+                self.ctrls[-1].payload = request(self.ctrls[-1].seq, (self.session + 1) & 0xFF, OP_CRC, 0,
+                                                 self.path.encode() + b"\0")
+            if self.next_new < self.n_blocks:  # more to write whatever the CRC says: open now
+                self.state = "open"
+                self.stats.rounds += 1
+                self.ctrls.append(_Ctrl(self._next_seq(), b"", OP_OPEN_WO, float("-inf")))
+                self.ctrls[-1].payload = request(self.ctrls[-1].seq, self.session, OP_OPEN_WO, 0,
+                                                 self.path.encode() + b"\0")
+            else:
+                self.state = "check"
         elif kind == OP_CRC:
+            if self.checking is None:
+                return  # answered before the commit was confirmed: asked again then
             if opcode != OP_ACK or len(data) != 4:
                 self._fail("CalcFileCRC32", data)
                 return
@@ -318,15 +375,20 @@ class FtpPut:
         while len(self.queue) < size and self.next_new < self.n_blocks:
             self.queue.append(self.next_new)
             self.next_new += 1
+        if self.next_new >= self.n_blocks and len(self.queue) <= TWICE_AT_MOST:
+            # the last few blocks: a second copy (one frame of air each) is cheaper than
+            # another round (two round trips, the CRC and a session)
+            self.queue = self.queue * 2
         self.state = "write"
 
     def _check(self, remote: int) -> None:
         """Which unanswered writes reached the robot, from its CRC32 of the
-        committed file (`_solve`); the missing ones go into the next round."""
+        committed file (`_solve`); the missing ones are written next."""
+        assert self.checking is not None
+        acked, unknown = self.checking
+        self.checking = None
         self.remote_crc = remote
-        unknown = sorted(self.unknown)
-        self.unknown.clear()
-        present = self._solve(remote, unknown)
+        present = self._solve(remote, acked, unknown)
         if present is None:  # cannot tell: every unanswered block is sent again
             if not unknown:
                 self._fail("CalcFileCRC32", b"", f"robot CRC32 0x{remote:08x} is not the file's "
@@ -337,15 +399,25 @@ class FtpPut:
         else:
             self.stats.solved_lost += len(unknown) - len(present)
         self.acked.update(present)
-        self.lost.extend(b for b in unknown if b not in self.acked)
+        missing = [b for b in unknown if b not in self.acked]
+        if self.state == "write":  # the next round is under way: these go first
+            self.queue[:0] = missing
+        else:
+            self.lost.extend(missing)
+        if self.state != "check":
+            return
         if not self.lost and self.next_new >= self.n_blocks and remote == self.crc:
             self.state = "done"
         elif self.stats.rounds >= self.max_rounds:
             self._fail("put", b"", f"{len(self.lost)} blocks still missing after {self.stats.rounds} rounds")
         else:
             self.state = "open"
+            self.stats.rounds += 1
+            self.ctrls.append(_Ctrl(self._next_seq(), b"", OP_OPEN_WO, float("-inf")))
+            self.ctrls[-1].payload = request(self.ctrls[-1].seq, self.session, OP_OPEN_WO, 0,
+                                             self.path.encode() + b"\0")
 
-    def _solve(self, remote: int, unknown: list[int]) -> list[int] | None:
+    def _solve(self, remote: int, acked: set[int], unknown: list[int]) -> list[int] | None:
         """The unanswered blocks that are on the robot, if its CRC32 tells
         them apart; else None.
 
@@ -360,20 +432,20 @@ class FtpPut:
         independent (UNKNOWNS_PER_ROUND keeps them well under 32), then
         checked by computing the whole file's CRC once more."""
         pending = set(unknown)
-        for top in sorted(self.acked | pending, reverse=True):
+        answers: list[list[int]] = []
+        for top in sorted(acked | pending, reverse=True):
             length = min(len(self.data), (top + 1) * self.block)
             below = [u for u in unknown if u < top]
-            if len(below) <= 32:
-                known = [b for b in self.acked if b <= top] + ([top] if top in pending else [])
-                base = self._content(length, known)
-                found = solve_gf2([self._content_crc(length, [u]) for u in below], remote ^ ftp_crc32(base))
-                if found is not None:
-                    arrived = [below[i] for i in found] + ([top] if top in pending else [])
-                    if self._content_crc(length, known + arrived) == remote:
-                        return arrived
+            if len(below) > MAX_UNKNOWNS:
+                return None
+            known = [b for b in acked if b <= top] + ([top] if top in pending else [])
+            base = self._content(length, known)
+            found = solve_gf2([self._content_crc(length, [u]) for u in below], remote ^ ftp_crc32(base))
+            if found is not None:
+                answers.append([below[i] for i in found] + ([top] if top in pending else []))
             if top not in pending:
                 break  # an answered block: the file reaches at least this far
-        return None
+        return answers[0] if len(answers) == 1 else None  # two lengths fit: cannot tell
 
     def _content(self, length: int, blocks: list[int]) -> bytearray:
         buf = bytearray(length)

@@ -1,15 +1,16 @@
-"""Policy upload over MAVLink FTP on a `Link`: put a policy on the robot with
-pymavlink's own MAVLink FTP client, prove it arrived byte-exact, and
-optionally activate it. `qnav upload`, the demo, the upload bench and the
-fault scenarios all run `upload_policy`.
+"""Policy upload over MAVLink FTP on a `Link`: put a policy on the robot,
+prove it arrived byte-exact, and optionally activate it. `qnav upload`, the
+demo, the upload bench and the fault scenarios all run `upload_policy`.
 
 Steps (docs/mavlink.md, "Uploading a policy"):
-1. RemoveFile of the remote name (a stale file there could pass step 3), then
-   `MAVFTP.cmd_put` to /policies/<name> (temporary name on the robot until the
-   FTP session ends), with a progress bar;
+1. RemoveFile of the remote name (a stale file there could pass step 2);
+   then the put: `ftp_put.FtpPut` (standard opcodes only: CreateFile /
+   OpenFileWO, WriteFile in 239-byte blocks, TerminateSession,
+   CalcFileCRC32), in rounds whose unanswered writes the robot's CRC32 of
+   the committed file resolves, so a lost ACK costs no copy of the block
+   (ftp_put's docstring has the method, docs/mavlink.md the figures);
 2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file, else the
-   whole put is repeated (a lossy link can eat the CreateFile or the
-   TerminateSession, which pymavlink's client never retries);
+   whole put is repeated (up to `attempts`);
 3. with --activate: FTP Rename onto /policies/active.qtab; the robot
    validates the file and refuses with NAK + STATUSTEXT reason (exit 3);
 4. the verdict comes from the robot's state, never from one reply: done only
@@ -23,10 +24,10 @@ Steps (docs/mavlink.md, "Uploading a policy"):
    HEARTBEAT reports no system state) is confirmed by the rename's ACK or the
    file having left its name, plus the CRC of active.qtab, and says so.
 
-The put keeps pymavlink's 80-byte writes; `WriteGate` gives it a real
-in-flight window (10 writes) and spaces copies of a write by the measured
-round trip, so a lossy radio's queue never fills with re-sends, and the put
-counts as done only when every block was ACKed.
+Single requests (RemoveFile, CRC) are sent again after 3 x the put's
+smoothed round trip (0.3 s before any put), not after pymavlink's quiet
+wait; the Rename still goes through pymavlink's MAVFTP client, whose seq
+counter is the link's one counter for every FTP request.
 
 Every FTP reply is matched by the request's own seq. One MAVFTP client (its
 `FtpSession`) serves a `Link` for the link's whole life, so seq never
@@ -439,11 +440,14 @@ def default_remote(local: Path) -> str:
 
 # Link budget of an upload (design.md section 3), for benchmarks and estimates.
 WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size (bytes of file data per WriteFile)
+FLOOR_BLOCK = 239  # the largest WriteFile (what ftp_put writes)
 FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
 SIGNATURE = 13
 
 
-def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) -> float:
-    """Link time of the WriteFile frames alone (design.md section 3)."""
-    blocks = -(-size // WRITE_BLOCK)
+def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0, block: int = WRITE_BLOCK) -> float:
+    """Link time of the WriteFile frames alone (design.md section 3), in
+    `block`-byte writes: 80 (pymavlink's, the issue's yardstick) or 239 (the
+    largest: the least time any MAVLink FTP client can take)."""
+    blocks = -(-size // block)
     return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s
