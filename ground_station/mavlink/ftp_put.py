@@ -130,6 +130,7 @@ class _Ctrl:
     kind: int
     sent_at: float
     copies: int = 1
+    order: int = -1  # send order of its last copy (writes and controls share the count)
     behind_writes: bool = False  # sent right after the round's writes: their round trip
 
 
@@ -176,6 +177,7 @@ class FtpPut:
         self.remote_crc: int | None = None
         self.opened = False  # the file exists on the robot (first session committed)
         self.checking: tuple[set[int], list[int]] | None = None  # (answered, unanswered) at the commit
+        self.sid = self.session  # the round's session number
 
     # --- timing -------------------------------------------------------------------
     def rto(self) -> float:
@@ -216,12 +218,14 @@ class FtpPut:
         self.seq = (self.seq + 1) & 0xFFFF
         return seq
 
-    def _control(self, opcode: int, data: bytes, now: float, session: int | None = None) -> bytes:
+    def _control(self, opcode: int, data: bytes, now: float, session: int | None = None,
+                 behind_writes: bool = False) -> _Ctrl:
+        """A control request, due at the next `poll` (which sends it)."""
         seq = self._next_seq()
-        payload = request(seq, self.session if session is None else session, opcode, 0, data)
-        self.ctrls.append(_Ctrl(seq, payload, opcode, now))
-        self.stats.control_sent += 1
-        return payload
+        payload = request(seq, self.sid if session is None else session, opcode, 0, data)
+        ctrl = _Ctrl(seq, payload, opcode, float("-inf"), copies=0, behind_writes=behind_writes)
+        self.ctrls.append(ctrl)
+        return ctrl
 
     def _write(self, block: int, now: float) -> bytes:
         seq = self._next_seq()
@@ -230,7 +234,7 @@ class FtpPut:
         self.flight.add(seq)
         self.order += 1
         self.stats.writes_sent += 1
-        return request(seq, self.session, OP_WRITE, off, self.data[off:off + self.block])
+        return request(seq, self.sid, OP_WRITE, off, self.data[off:off + self.block])
 
     def _round_size(self) -> int:
         """Blocks to write this round: about UNKNOWNS_PER_ROUND unanswered ones expected."""
@@ -239,10 +243,14 @@ class FtpPut:
         frac = self.stats.unknown / self.stats.writes_sent
         return max(8, int(UNKNOWNS_PER_ROUND / frac)) if frac > 0 else self.n_blocks
 
-    def _open(self, now: float) -> bytes:
+    def _open(self, now: float) -> None:
+        """CreateFile (first round) or OpenFileWO, on a session number other
+        than the last round's: a late copy of that round's TerminateSession
+        then finds no session instead of ending this one."""
         self.stats.rounds += 1
-        path = self.path.encode() + b"\0"
-        return self._control(OP_OPEN_WO if self.opened else OP_CREATE, path, now)
+        self.sid = (self.session + self.stats.rounds % 2) & 0xFF
+        self.state = "open"
+        self._control(OP_OPEN_WO if self.opened else OP_CREATE, self.path.encode() + b"\0", now)
 
     def poll(self, now: float) -> list[bytes]:
         """Requests due now (first call: the CreateFile)."""
@@ -250,17 +258,21 @@ class FtpPut:
             return []
         out: list[bytes] = []
         if self.state == "open" and not self.ctrls:
-            out.append(self._open(now))
+            self._open(now)
         for c in self.ctrls:  # first send, or a copy: same seq and bytes (the retry cache answers)
             if now - c.sent_at >= self.ctrl_rto(c) and c.copies >= MAX_COPIES:
                 self._fail(OP_NAMES.get(c.kind, str(c.kind)), b"", f"no reply to {OP_NAMES.get(c.kind)} "
                                                                     f"({c.copies} copies)")
                 return []
             if now - c.sent_at >= self.ctrl_rto(c):
-                c.sent_at = now
+                c.sent_at, c.order = now, self.order
+                self.order += 1
                 c.copies += 1
                 self.stats.control_sent += 1
                 out.append(c.payload)
+                if c.kind in (OP_TERMINATE, OP_CRC):  # harmless twice (retry cache): two chances
+                    out.append(c.payload)
+                    self.stats.control_sent += 1
         if self.state != "write":
             return out
         rto = self.rto()
@@ -273,18 +285,15 @@ class FtpPut:
                 out.append(self._write(block, now))
         if not self.queue:  # every write of the round is out: commit behind them (FIFO link),
             self.state = "terminate"  # and ask the CRC right behind the commit
-            out.append(self._control(OP_TERMINATE, b"", now))
-            self.ctrls[-1].behind_writes = True
-            out.append(self._crc_request(now))
+            self._control(OP_TERMINATE, b"", now, behind_writes=True)
+            self._crc_request(now, behind_writes=True)
+            out += self.poll(now)
         return out
 
-    def _crc_request(self, now: float) -> bytes:
-        # its own session number: the put's session keeps the Terminate in the retry cache
-        seq = self._next_seq()
-        payload = request(seq, (self.session + 1) & 0xFF, OP_CRC, 0, self.path.encode() + b"\0")
-        self.ctrls.append(_Ctrl(seq, payload, OP_CRC, now, behind_writes=True))
-        self.stats.control_sent += 1
-        return payload
+    def _crc_request(self, now: float, behind_writes: bool = False) -> None:
+        # its own session number: the round's session keeps the Terminate in the retry cache
+        self.ctrls = [c for c in self.ctrls if c.kind != OP_CRC]  # an older copy's answer may predate the commit
+        self._control(OP_CRC, self.path.encode() + b"\0", now, (self.session + 2) & 0xFF, behind_writes)
 
     # --- replies ------------------------------------------------------------------
     def on_reply(self, payload: bytes, now: float) -> None:
@@ -297,9 +306,13 @@ class FtpPut:
         asked = (seq - 1) & 0xFFFF
         data = bytes(payload[HEADER.size:HEADER.size + size])
         ctrl = next((c for c in self.ctrls if c.seq == asked and c.kind == req_opcode), None)
+        answered = ctrl.order if ctrl is not None else self.sent[asked].order if asked in self.sent else -1
+        for c in self.ctrls:  # a request sent before an answered one, unanswered: lost, send again
+            if c is not ctrl and 0 <= c.order < answered:
+                c.sent_at = float("-inf")
         if ctrl is not None:
             self.ctrls.remove(ctrl)
-            if ctrl.kind != OP_TERMINATE:
+            if not ctrl.behind_writes:
                 rtt = now - ctrl.sent_at
                 self.ctrl_srtt = rtt if self.ctrl_srtt is None else 0.875 * self.ctrl_srtt + 0.125 * rtt
             self._control_reply(ctrl, opcode, data, now)
@@ -348,16 +361,9 @@ class FtpPut:
             if stale or ctrl.copies > 1 or not any(c.kind == OP_CRC for c in self.ctrls):
                 # the CRC asked behind the first Terminate may have run before the commit
                 # (that copy lost, a later one ran it): ask again, behind this ACK
-                self.ctrls = [c for c in self.ctrls if c.kind != OP_CRC]
-                self.ctrls.append(_Ctrl(self._next_seq(), b"", OP_CRC, float("-inf")))
-                self.ctrls[-1].payload = request(self.ctrls[-1].seq, (self.session + 1) & 0xFF, OP_CRC, 0,
-                                                 self.path.encode() + b"\0")
+                self._crc_request(now)
             if self.next_new < self.n_blocks:  # more to write whatever the CRC says: open now
-                self.state = "open"
-                self.stats.rounds += 1
-                self.ctrls.append(_Ctrl(self._next_seq(), b"", OP_OPEN_WO, float("-inf")))
-                self.ctrls[-1].payload = request(self.ctrls[-1].seq, self.session, OP_OPEN_WO, 0,
-                                                 self.path.encode() + b"\0")
+                self._open(now)
             else:
                 self.state = "check"
         elif kind == OP_CRC:
@@ -366,7 +372,7 @@ class FtpPut:
             if opcode != OP_ACK or len(data) != 4:
                 self._fail("CalcFileCRC32", data)
                 return
-            self._check(struct.unpack("<I", data)[0])
+            self._check(struct.unpack("<I", data)[0], now)
 
     def _start_round(self) -> None:
         size = self._round_size()
@@ -381,7 +387,7 @@ class FtpPut:
             self.queue = self.queue * 2
         self.state = "write"
 
-    def _check(self, remote: int) -> None:
+    def _check(self, remote: int, now: float) -> None:
         """Which unanswered writes reached the robot, from its CRC32 of the
         committed file (`_solve`); the missing ones are written next."""
         assert self.checking is not None
@@ -411,11 +417,7 @@ class FtpPut:
         elif self.stats.rounds >= self.max_rounds:
             self._fail("put", b"", f"{len(self.lost)} blocks still missing after {self.stats.rounds} rounds")
         else:
-            self.state = "open"
-            self.stats.rounds += 1
-            self.ctrls.append(_Ctrl(self._next_seq(), b"", OP_OPEN_WO, float("-inf")))
-            self.ctrls[-1].payload = request(self.ctrls[-1].seq, self.session, OP_OPEN_WO, 0,
-                                             self.path.encode() + b"\0")
+            self._open(now)
 
     def _solve(self, remote: int, acked: set[int], unknown: list[int]) -> list[int] | None:
         """The unanswered blocks that are on the robot, if its CRC32 tells

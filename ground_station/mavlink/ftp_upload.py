@@ -9,8 +9,9 @@ Steps (docs/mavlink.md, "Uploading a policy"):
    CalcFileCRC32), in rounds whose unanswered writes the robot's CRC32 of
    the committed file resolves, so a lost ACK costs no copy of the block
    (ftp_put's docstring has the method, docs/mavlink.md the figures);
-2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file, else the
-   whole put is repeated (up to `attempts`);
+2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file (the put's
+   own last request, asked after its last commit; asked again if the put
+   ended otherwise), else the whole put is repeated (up to `attempts`);
 3. with --activate: FTP Rename onto /policies/active.qtab; the robot
    validates the file and refuses with NAK + STATUSTEXT reason (exit 3);
 4. the verdict comes from the robot's state, never from one reply: done only
@@ -149,9 +150,10 @@ class FtpSession:
 
     def ask(self, opcode: int, data: bytes, wait_s: float, what: str, session: int = 0) -> tuple[int, bytes]:
         """A single-reply request that may safely run twice (CRC, RemoveFile),
-        sent again (new seq) until the robot answers, for at most `wait_s`;
-        a copy is due after 3 x the put's smoothed RTT (0.3 s before any put),
-        doubling up to 1 s. Returns (opcode, data) of the first answered copy;
+        twice at first (the second copy is answered from the robot's retry
+        cache: a lost frame costs no timeout), then again (new seq) until the
+        robot answers, for at most `wait_s`; a copy is due after 3 x the
+        put's smoothed RTT (0.3 s before any put), doubling up to 1 s. Returns (opcode, data) of the first answered copy;
         a late reply to an earlier copy counts too (they all ask the same)."""
         deadline = time.monotonic() + wait_s
         seqs: list[int] = []
@@ -160,7 +162,10 @@ class FtpSession:
         while True:
             seq = self.take_seq()
             seqs.append(seq)
-            self.send(ftp_put.request(seq, session, opcode, 0, data))
+            payload = ftp_put.request(seq, session, opcode, 0, data)
+            self.send(payload)
+            if len(seqs) == 1:  # a copy at once: the robot's retry cache answers it, two chances
+                self.send(payload)
             until = min(deadline, time.monotonic() + rto)
             while True:
                 for s in seqs:
@@ -307,6 +312,8 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
         if not put.finished:
             raise LinkError(EXIT_TIMEOUT, f"{remote}: put not finished within the time budget "
                                              f"({len(put.acked)} of {put.n_blocks} blocks acknowledged)")
+        if put.remote_crc == res.crc:  # the put's last answer: CalcFileCRC32 after the last commit
+            return
         wait = min(20.0, max(2.0, _left(deadline)))
         crc = session.remote_crc(remote, wait)
         if crc == res.crc:
