@@ -1,5 +1,6 @@
-"""The put of a policy upload as a pure state machine: CreateFile, WriteFile
-blocks in a window with loss detection from the replies, TerminateSession.
+"""The put of a policy upload as a pure state machine: rounds of CreateFile /
+OpenFileWO, 239-byte WriteFiles in a window, TerminateSession and
+CalcFileCRC32, whose answer tells which unanswered writes were lost.
 Standard MAVLink FTP opcodes only; no socket, no clock: `poll(now)` returns
 the request payloads to send, `on_reply(payload, now)` takes every FTP reply
 (`ground_station.mavlink.ftp_upload` is the shell on a `Link`).
