@@ -149,6 +149,7 @@ class FtpPut:
     min_rto: float = 0.05
     max_rto: float = 2.0
     max_rounds: int = 40
+    ctrl_rtt: float | None = None  # a small request's round trip measured before (seeds the timers)
     state: str = "open"
     error: str = ""
     nak: bytes = b""
@@ -173,7 +174,7 @@ class FtpPut:
         self.srtt: float | None = None
         self.rttvar = 0.0
         self.rtt_min: float | None = None
-        self.ctrl_srtt: float | None = None
+        self.ctrl_srtt: float | None = self.ctrl_rtt
         self.ctrls: list[_Ctrl] = []  # control requests awaiting their reply
         self.remote_crc: int | None = None
         self.opened = False  # the file exists on the robot (first session committed)
@@ -359,6 +360,9 @@ class FtpPut:
                 self.unknown.update(self.checking[1])
             self.checking = (set(self.acked), sorted(self.unknown))
             self.unknown.clear()
+            for c in self.ctrls:  # the writes have drained (FIFO): the CRC's answer is one round trip off
+                if c.kind == OP_CRC and c.behind_writes:
+                    c.behind_writes, c.sent_at = False, now
             if stale or ctrl.copies > 1 or not any(c.kind == OP_CRC for c in self.ctrls):
                 # the CRC asked behind the first Terminate may have run before the commit
                 # (that copy lost, a later one ran it): ask again, behind this ACK

@@ -109,6 +109,7 @@ class FtpSession:
         self.replies: dict[tuple[int, int], tuple[int, bytes]] = {}
         self.listener: Callable[[bytes], None] | None = None  # the put in progress
         self.srtt: float | None = None  # from the last put: paces the single requests
+        self.ask_rtt: float | None = None  # the last single request's round trip (seeds the put's)
         self.puts: list[PutStats] = []
         self._ftp: Any = None
         link.conn.message_hooks.append(self._hook)
@@ -159,9 +160,11 @@ class FtpSession:
         seqs: list[int] = []
         rto = max(0.1, 3 * self.srtt) if self.srtt is not None else 0.3
         conn = self.link.conn
+        sent_at: dict[int, float] = {}
         while True:
             seq = self.take_seq()
             seqs.append(seq)
+            sent_at[seq] = time.monotonic()
             payload = ftp_put.request(seq, session, opcode, 0, data)
             self.send(payload)
             if len(seqs) == 1:  # a copy at once: the robot's retry cache answers it, two chances
@@ -171,6 +174,7 @@ class FtpSession:
                 for s in seqs:
                     reply = self.replies.get((opcode, (s + 1) % 65536))
                     if reply is not None:
+                        self.ask_rtt = time.monotonic() - sent_at[s]  # each copy has its seq: exact
                         return reply
                 left = until - time.monotonic()
                 if left <= 0:
@@ -192,7 +196,7 @@ class FtpSession:
             progress: Callable[[float | None], None] | None = None) -> FtpPut:
         """Run one `FtpPut` of `data` to `remote` until done, failed or the deadline."""
         ftp = self.client()
-        put = FtpPut(data, remote, session=ftp.session, seq=ftp.seq)
+        put = FtpPut(data, remote, session=ftp.session, seq=ftp.seq, ctrl_rtt=self.ask_rtt)
         conn = self.link.conn
         self.listener = lambda payload: put.on_reply(payload, time.monotonic())
         shown = -1
