@@ -1,17 +1,22 @@
 """`qnav bench upload`: policy upload over an emulated 57600-baud radio.
 
 For 10 KiB and 100 KiB payloads (seeded random bytes of policy size), with
-and without MAVLink 2 signing, at 0 / 5 / 20 % frame loss each way, runs the
-real path: `qnav upload`'s code (pymavlink's MAVFTP client) -> link emulator
-(ground_station/rigs/link_emulator.py, 5760 B/s each way, 8N1) -> the robot's FTP shell in
-its own process (`python -m firmware_py.mavlink.ftp`, started by
+and without MAVLink 2 signing, at 0 / 5 / 20 % frame loss each way (each
+frame lost independently, per direction), runs the real path: `qnav
+upload`'s code (`ftp_upload.upload_policy`, the `ftp_put` engine) -> link
+emulator (ground_station/rigs/link_emulator.py, 5760 B/s each way, 8N1) ->
+the robot's FTP shell in its own process (`python -m
+firmware_py.mavlink.ftp`, started by
 `ground_station.rigs.processes.robot_ftp_process`).
 
 Per case: seconds from the first FTP request to the robot's CRC32 verified,
-the theoretical link time (design.md: every WriteFile frame is data + 27
-bytes, + 13 signed, at 5760 B/s; pymavlink writes 80-byte blocks) and their
-ratio; success = the file on the robot is byte-identical to the local one.
+two yardsticks - t80, the WriteFile frames in pymavlink's 80-byte writes
+(data + 27 bytes, + 13 signed, at 5760 B/s; issue 16's), and t239, the same
+in 239-byte writes (the least any MAVLink FTP client can take) - and the
+ratios; the losses the link drew each way; WriteFile frames per block;
+success = the file on the robot is byte-identical to the local one.
 """
+
 
 from __future__ import annotations
 

@@ -5,8 +5,9 @@ with the link a pair of pseudo-terminals joined by the SiK-like radio
 emulator (ground_station/rigs/serial_radio.py, 57600 baud, 10 bits per
 byte): the robot's FTP shell opens one end as a serial device, `qnav
 upload`'s code the other as `/dev/pts/M,57600`. Per case: seconds from the
-first FTP request to the robot's CRC32 verified, the link's theoretical time
-for the WriteFile frames and the ratio; success = byte-identical on the robot.
+first FTP request to the robot's CRC32 verified, the link's time for the
+WriteFile frames in 80-byte (t80) and 239-byte (t239) writes and the ratios,
+the packets the radio lost each way; success = byte-identical on the robot.
 """
 
 from __future__ import annotations
