@@ -49,3 +49,9 @@ def timed_upload(url: str, key_file: Path | None, local: Path, remote: str, root
     row["byte_exact"] = on_robot.is_file() and on_robot.read_bytes() == local.read_bytes()
     row["success"] = row["byte_exact"] and row["seconds"] is not None
     row["ratio"] = row["seconds"] / row["theoretical_s"] if row["seconds"] else None
+    if "floor_s" in row:
+        row["ratio_floor"] = row["seconds"] / row["floor_s"] if row["seconds"] else None
+    if gcs.ftp_session is not None and gcs.ftp_session.puts:
+        st = gcs.ftp_session.puts[-1]
+        row["put"] = {k: getattr(st, k) for k in ("writes_sent", "rounds", "unknown", "solved_lost", "unsolved",
+                                                  "blocks")}

@@ -5,8 +5,9 @@ with the link a pair of pseudo-terminals joined by the SiK-like radio
 emulator (ground_station/rigs/serial_radio.py, 57600 baud, 10 bits per
 byte): the robot's FTP shell opens one end as a serial device, `qnav
 upload`'s code the other as `/dev/pts/M,57600`. Per case: seconds from the
-first FTP request to the robot's CRC32 verified, the link's theoretical time
-for the WriteFile frames and the ratio; success = byte-identical on the robot.
+first FTP request to the robot's CRC32 verified, the link's time for the
+WriteFile frames in 80-byte (t80) and 239-byte (t239) writes and the ratios,
+the packets the radio lost each way; success = byte-identical on the robot.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from ground_station.mavlink.ftp_upload import theoretical_seconds
+from ground_station.mavlink.ftp_upload import FLOOR_BLOCK, theoretical_seconds
 from ground_station.rigs.processes import robot_ftp_process
 
 
@@ -28,7 +29,8 @@ def run_case(radio: Any, size: int, loss: float, signed: bool, key_file: Path | 
     data = random.Random(seed).randbytes(size)
     remote = f"/policies/serial-{size}-{int(loss * 100)}-{int(signed)}.qtab"
     row: dict[str, Any] = {"size": size, "loss": loss, "signed": signed, "link": "serial",
-           "theoretical_s": theoretical_seconds(size, signed, radio.config.bytes_per_s)}
+           "theoretical_s": theoretical_seconds(size, signed, radio.config.bytes_per_s),
+           "floor_s": theoretical_seconds(size, signed, radio.config.bytes_per_s, block=FLOOR_BLOCK)}
     with tempfile.TemporaryDirectory() as tmp:
         local = Path(tmp) / f"bench-{size}.qtab"
         local.write_bytes(data)

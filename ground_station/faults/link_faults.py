@@ -201,8 +201,8 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
             if not text or "\n" in text or exc.code not in (3, 4, 5):
                 problems.append(f"unclear upload error (exit {exc.code}): {text!r}")
         finally:
-            gate = ftp_session(gcs).gate
-            row["writes"] = {"sent": gate.passed, "held": gate.held}
+            puts = ftp_session(gcs).puts
+            row["writes"] = {"sent": sum(p.writes_sent for p in puts), "blocks": sum(p.blocks for p in puts)}
             gcs.close()
         t_cmd = time.monotonic()
         # commands through the shared link layer, with its retries

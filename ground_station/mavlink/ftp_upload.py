@@ -1,15 +1,17 @@
-"""Policy upload over MAVLink FTP on a `Link`: put a policy on the robot with
-pymavlink's own MAVLink FTP client, prove it arrived byte-exact, and
-optionally activate it. `qnav upload`, the demo, the upload bench and the
-fault scenarios all run `upload_policy`.
+"""Policy upload over MAVLink FTP on a `Link`: put a policy on the robot,
+prove it arrived byte-exact, and optionally activate it. `qnav upload`, the
+demo, the upload bench and the fault scenarios all run `upload_policy`.
 
 Steps (docs/mavlink.md, "Uploading a policy"):
-1. RemoveFile of the remote name (a stale file there could pass step 3), then
-   `MAVFTP.cmd_put` to /policies/<name> (temporary name on the robot until the
-   FTP session ends), with a progress bar;
-2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file, else the
-   whole put is repeated (a lossy link can eat the CreateFile or the
-   TerminateSession, which pymavlink's client never retries);
+1. RemoveFile of the remote name (a stale file there could pass step 2);
+   then the put: `ftp_put.FtpPut` (standard opcodes only: CreateFile /
+   OpenFileWO, WriteFile in 239-byte blocks, TerminateSession,
+   CalcFileCRC32), in rounds whose unanswered writes the robot's CRC32 of
+   the committed file resolves, so a lost ACK costs no copy of the block
+   (ftp_put's docstring has the method, docs/mavlink.md the figures);
+2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file (the put's
+   own last request, asked after its last commit; asked again if the put
+   ended otherwise), else the whole put is repeated (up to `attempts`);
 3. with --activate: FTP Rename onto /policies/active.qtab; the robot
    validates the file and refuses with NAK + STATUSTEXT reason (exit 3);
 4. the verdict comes from the robot's state, never from one reply: done only
@@ -23,10 +25,10 @@ Steps (docs/mavlink.md, "Uploading a policy"):
    HEARTBEAT reports no system state) is confirmed by the rename's ACK or the
    file having left its name, plus the CRC of active.qtab, and says so.
 
-The put keeps pymavlink's 80-byte writes; `WriteGate` gives it a real
-in-flight window (10 writes) and spaces copies of a write by the measured
-round trip, so a lossy radio's queue never fills with re-sends, and the put
-counts as done only when every block was ACKed.
+Single requests (RemoveFile, CRC) are sent again after 3 x the put's
+smoothed round trip (0.3 s before any put), not after pymavlink's quiet
+wait; the Rename still goes through pymavlink's MAVFTP client, whose seq
+counter is the link's one counter for every FTP request.
 
 Every FTP reply is matched by the request's own seq. One MAVFTP client (its
 `FtpSession`) serves a `Link` for the link's whole life, so seq never
@@ -47,7 +49,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from firmware_py.mavlink.ftp_server import PAYLOAD_LEN
 from firmware_py.mavlink.params import as_float32
+from ground_station.mavlink import ftp_put
+from ground_station.mavlink.ftp_put import FtpPut, PutStats
 from ground_station.mavlink.link import (
     EXIT_MISMATCH,
     EXIT_REFUSED,
@@ -62,12 +67,6 @@ POLICY_PARAMS = ("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO")
 NAK_FAIL, NAK_FAIL_ERRNO, NAK_FILE_NOT_FOUND = 1, 2, 10
 ENOENT = 2
 READ_BUDGET_S = 10.0  # one round of reads (params, CRC) before the caller looks again
-# MAVFTP sends another write when none was ACKed for max(min(10 x rtt, 1 s), 0.2 s), rtt being
-# the smallest round trip it saw (0.5 s until then): at 40 % loss its 5 writes in flight are
-# often all lost and it then adds one write per 0.5 s. With WriteGate keeping the real window
-# and spacing copies, the put lets it re-send after 0.2 s and count 10 in flight.
-EAGER_RTT_S = 0.02
-PUT_QSIZE = 10
 
 
 @dataclass
@@ -83,6 +82,7 @@ class UploadResult:
     policy_crc: int | None = None  # the .qtab's own CRC32 (what POLICY_CRC reports)
     local_error: str = ""  # why the local loader refused the file, if it did
     renames: int = 0  # Rename requests sent
+    writes_sent: int = 0  # WriteFile frames over all puts, copies included
     texts: list[str] = field(default_factory=list)
 
     def want_params(self) -> dict[str, float] | None:
@@ -93,66 +93,10 @@ class UploadResult:
                 "POLICY_CRC_LO": float(self.policy_crc & 0xFFFF)}
 
 
-class WriteGate:
-    """A real in-flight window for MAVFTP's WriteFile requests: a write goes
-    out only while fewer than `window` writes are unanswered and younger than
-    the hold time, and a copy of a write (same session and seq) only once
-    the previous copy's ACK is overdue. A held-back write counts for MAVFTP
-    as sent; it tries the block again on a later round, and that try goes out
-    when the window allows.
-
-    Why: after its first pass, pymavlink's MAVFTP re-sends every unanswered
-    block round-robin, and its own in-flight count treats each block index
-    skipped between two ACKs as lost - in the sparse set of remaining blocks
-    every ACK skips many - so it refills its window of 5 on every ACK and
-    cycles the last blocks faster than their ACKs return. Measured at 20 %
-    loss + duplication + reordering (20 KiB): up to 29 copies of one block
-    and the radio queue at 3.4 s. A slot is free again once its write is
-    answered or older than the hold, 1.5 x the smoothed round trip of writes
-    sent once (Karn's rule), at least `min_hold_s`; 10 writes of 80 bytes are
-    ~0.2 s of air at 57600 baud, so the radio queue stays below that. 100 KiB
-    signed at 20 % loss + 10 % duplication/reordering: 53 s instead of 80 s,
-    1.74 frames per block instead of 2.62. At 0 % loss the window is never
-    full and the put runs at the link rate, as before. (A hold of 2.5 x SRTT
-    and a window of 5 left the link idle in the tail at 40 % loss.) """
-
-    def __init__(self, conn, opcode_write: int, window: int = 10, min_hold_s: float = 0.15) -> None:
-        self.opcode_write, self.window, self.min_hold_s = opcode_write, window, min_hold_s
-        self.sent: dict[tuple[int, int], tuple[float, int]] = {}  # (session, seq) -> (last sent, copies)
-        self.srtt: float | None = None
-        self.held = self.passed = 0
-        self._send = conn.mav.file_transfer_protocol_send
-        conn.mav.file_transfer_protocol_send = self.send
-
-    def hold_s(self) -> float:
-        return max(self.min_hold_s, 1.5 * self.srtt) if self.srtt is not None else 1.0
-
-    def send(self, network, target_system, target_component, payload, *args, **kwargs):
-        seq, session, opcode = struct.unpack_from("<HBB", bytes(payload[:4]), 0)
-        if opcode == self.opcode_write:
-            now, hold = time.monotonic(), self.hold_s()
-            last, copies = self.sent.get((session, seq), (None, 0))
-            in_flight = sum(1 for t, _ in self.sent.values() if now - t < hold)
-            if (last is not None and now - last < hold) or in_flight >= self.window:
-                self.held += 1
-                return None
-            self.sent[(session, seq)] = (now, copies + 1)
-            self.passed += 1
-        elif opcode in (1, 2):  # TerminateSession, ResetSessions: the put's writes are over
-            self.sent.clear()
-        return self._send(network, target_system, target_component, payload, *args, **kwargs)
-
-    def acked(self, session: int, reply_seq: int) -> None:
-        """A WriteFile reply arrived: frees its slot; a round-trip sample if one copy went out."""
-        got = self.sent.pop((session, (reply_seq - 1) % 65536), None)
-        if got is not None and got[1] == 1:
-            rtt = time.monotonic() - got[0]
-            self.srtt = rtt if self.srtt is None else 0.875 * self.srtt + 0.125 * rtt
-
-
 class FtpSession:
-    """A link's one pymavlink MAVFTP client, the WriteGate on its writes, and
-    every FTP reply overheard, by (request opcode, reply seq). Made by
+    """A link's one pymavlink MAVFTP client (its seq counter is the link's),
+    the shell that runs `ftp_put.FtpPut` and quick single requests, and every
+    FTP reply overheard, by (request opcode, reply seq). Made by
     `ftp_session(link)` on the first FTP request; the link must be connected."""
 
     def __init__(self, link: Link) -> None:
@@ -161,27 +105,31 @@ class FtpSession:
 
         self.link = link
         self.mavftp = mavftp
-        self.gate = WriteGate(link.conn, mavftp.OP_WriteFile)
-        # (req_opcode, reply seq) -> (opcode, data); seq never restarts (one MAVFTP client)
+        # (req_opcode, reply seq) -> (opcode, data); seq never restarts (one counter per link)
         self.replies: dict[tuple[int, int], tuple[int, bytes]] = {}
+        self.listener: Callable[[bytes], None] | None = None  # the put in progress
+        self.srtt: float | None = None  # from the last put: paces the single requests
+        self.ask_rtt: float | None = None  # the last single request's round trip (seeds the put's)
+        self.puts: list[PutStats] = []
         self._ftp: Any = None
         link.conn.message_hooks.append(self._hook)
 
     def _hook(self, _conn, msg) -> None:
         if msg.get_type() == "FILE_TRANSFER_PROTOCOL":
-            seq, session, opcode, size, req_opcode = struct.unpack_from("<HBBBB", bytes(msg.payload), 0)
-            self.replies[(req_opcode, seq)] = (opcode, bytes(msg.payload[12:12 + size]))
-            if req_opcode == self.mavftp.OP_WriteFile:
-                self.gate.acked(session, seq)
+            payload = bytes(msg.payload)
+            seq, _session, opcode, size, req_opcode = struct.unpack_from("<HBBBB", payload, 0)
+            self.replies[(req_opcode, seq)] = (opcode, payload[12:12 + size])
+            if self.listener is not None:
+                self.listener(payload)
 
     def client(self):
         """The link's one pymavlink MAVFTP client, made on first use.
 
-        Its request seq counts on for the link's whole life, so a late or
-        duplicated reply to an earlier request can never be matched to a later
-        one. Its ResetSessions (sent when it is made) is not waited for: the
-        first real request, asked until answered, tells whether the robot
-        serves FTP at all."""
+        Its request seq counts on for the link's whole life (the put and the
+        single requests take theirs from it too), so a late or duplicated
+        reply to an earlier request can never be matched to a later one. Its
+        ResetSessions (sent when it is made) is not waited for: the first real
+        request, asked until answered, tells whether the robot serves FTP."""
         if self._ftp is None:
             settings = self.mavftp.MAVFTPSettings(
                 [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
@@ -190,30 +138,89 @@ class FtpSession:
                                            settings=settings)
         return self._ftp
 
-    def ask(self, command: str, args: list[str], opcode: int, wait_s: float, what: str) -> tuple[int, bytes]:
-        """A single-reply MAVFTP request that may safely run twice (CRC,
-        RemoveFile), sent again until the robot answers, for at most `wait_s`.
-        Returns (opcode, data) of the newest answered copy; a late reply to an
-        earlier copy counts too (they all ask the same question)."""
+    def take_seq(self) -> int:
         ftp = self.client()
+        seq = ftp.seq
+        ftp.seq = (seq + 1) % 65536
+        return seq
+
+    def send(self, payload: bytes) -> None:
+        """One FTP request payload to the robot (padded to the message's 251 bytes)."""
+        padded = bytearray(payload) + bytearray(PAYLOAD_LEN - len(payload))
+        self.link.conn.mav.file_transfer_protocol_send(0, self.link.sysid, self.link.compid, padded)
+
+    def ask(self, opcode: int, data: bytes, wait_s: float, what: str, session: int = 0) -> tuple[int, bytes]:
+        """A single-reply request that may safely run twice (CRC, RemoveFile),
+        twice at first (the second copy is answered from the robot's retry
+        cache: a lost frame costs no timeout), then again (new seq) until the
+        robot answers, for at most `wait_s`; a copy is due after 3 x the
+        put's smoothed RTT (0.3 s before any put), doubling up to 1 s. Returns (opcode, data) of the first answered copy;
+        a late reply to an earlier copy counts too (they all ask the same)."""
         deadline = time.monotonic() + wait_s
         seqs: list[int] = []
+        rto = max(0.1, 3 * self.srtt) if self.srtt is not None else 0.3
+        conn = self.link.conn
+        sent_at: dict[int, float] = {}
         while True:
-            seqs.append(ftp.seq)  # MAVFTP sends with this seq and then counts on
-            ftp.cmd_ftp([command, *args])
-            for seq in reversed(seqs):
-                reply = self.replies.get((opcode, (seq + 1) % 65536))
-                if reply is not None:
-                    return reply
-            if time.monotonic() > deadline:
+            seq = self.take_seq()
+            seqs.append(seq)
+            sent_at[seq] = time.monotonic()
+            payload = ftp_put.request(seq, session, opcode, 0, data)
+            self.send(payload)
+            if len(seqs) == 1:  # a copy at once: the robot's retry cache answers it, two chances
+                self.send(payload)
+            until = min(deadline, time.monotonic() + rto)
+            while True:
+                for s in seqs:
+                    reply = self.replies.get((opcode, (s + 1) % 65536))
+                    if reply is not None:
+                        self.ask_rtt = time.monotonic() - sent_at[s]  # each copy has its seq: exact
+                        return reply
+                left = until - time.monotonic()
+                if left <= 0:
+                    break
+                conn.recv_match(type="FILE_TRANSFER_PROTOCOL", blocking=True, timeout=min(left, 0.05))
+            if time.monotonic() >= deadline:
                 raise LinkError(EXIT_TIMEOUT, f"no reply to {what} ({len(seqs)} requests in {wait_s:.0f} s)")
+            rto = min(1.0, 2 * rto)
 
     def remote_crc(self, path: str, wait_s: float = 20.0) -> int | None:
         """CalcFileCRC32 of `path`, None if the robot has no such file."""
-        opcode, data = self.ask("crc", [path], self.mavftp.OP_CalcFileCRC32, wait_s, f"the CRC of {path}")
+        opcode, data = self.ask(self.mavftp.OP_CalcFileCRC32, path.encode() + b"\0", wait_s,
+                                f"the CRC of {path}")
         if opcode == self.mavftp.OP_Ack and len(data) == 4:
             return struct.unpack("<I", data)[0]
         return None
+
+    def put(self, data: bytes, remote: str, deadline: float,
+            progress: Callable[[float | None], None] | None = None) -> FtpPut:
+        """Run one `FtpPut` of `data` to `remote` until done, failed or the deadline."""
+        ftp = self.client()
+        put = FtpPut(data, remote, session=ftp.session, seq=ftp.seq, ctrl_rtt=self.ask_rtt)
+        conn = self.link.conn
+        self.listener = lambda payload: put.on_reply(payload, time.monotonic())
+        shown = -1
+        try:
+            while not put.finished:
+                now = time.monotonic()
+                if now > deadline:
+                    break
+                for payload in put.poll(now):
+                    self.send(payload)
+                ftp.seq = put.seq
+                wake = put.wake_at()
+                wait = 0.05 if wake is None else min(0.05, max(0.001, wake - time.monotonic()))
+                conn.recv_match(type="FILE_TRANSFER_PROTOCOL", blocking=True, timeout=wait)
+                if progress is not None and len(put.acked) != shown:
+                    shown = len(put.acked)
+                    progress(shown / put.n_blocks)
+        finally:
+            self.listener = None
+            ftp.seq = put.seq
+            if put.srtt is not None:
+                self.srtt = put.srtt
+            self.puts.append(put.stats)
+        return put
 
 
 def ftp_session(link: Link) -> FtpSession:
@@ -237,19 +244,6 @@ def quick(settings) -> None:
     again and still accepts the late reply."""
     settings.read_retry_time = 0.3
     settings.idle_detection_time = 0.4
-
-
-def for_put(settings) -> None:
-    """The put: MAVFTP may keep PUT_QSIZE writes in flight by its own count
-    (WriteGate holds the real number to its window, so a larger count only
-    stops MAVFTP from stalling when its writes are lost). Idle time longer
-    than MAVFTP's slowest write re-send (max(min(10 x RTT, 1 s), 0.2 s)
-    without an ACK), so a put in progress never looks idle, and far below
-    pymavlink's 3.7 s, which a put whose TerminateSession reply was lost (or a
-    NAKed put) waits out in full."""
-    settings.write_qsize = PUT_QSIZE
-    settings.read_retry_time = 0.3
-    settings.idle_detection_time = 1.5
 
 
 def _left(deadline: float) -> float:
@@ -296,7 +290,7 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
     # Its answer is also the first sign that the robot serves FTP to us.
     wait = min(15.0, max(2.0, _left(deadline)))
     try:
-        opcode, data = session.ask("rm", [remote], mavftp.OP_RemoveFile, wait, f"RemoveFile {remote}")
+        opcode, data = session.ask(mavftp.OP_RemoveFile, remote.encode() + b"\0", wait, f"RemoveFile {remote}")
     except LinkError as exc:
         raise LinkError(EXIT_TIMEOUT, f"the robot does not answer MAVLink FTP ({exc}; wrong or missing "
                                          f"--signing-key?)") from None
@@ -305,43 +299,27 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
         code = data[0] if data else 0
         raise LinkError(EXIT_REFUSED, f"robot refuses to replace {remote} (FTP NAK {code})")
     problem = "no put attempted"
+    data = local.read_bytes()
     for attempt in range(1, attempts + 1):
         if time.monotonic() > deadline:
             raise LinkError(EXIT_TIMEOUT, f"{remote} not verified in time ({problem})")
         res.put_attempts = attempt
-        if ftp.write_list is not None:  # a put still open in the client: end it first
-            ftp.cmd_cancel()
-        put_session = ftp.session  # the robot numbers the session as we do
-        for_put(ftp.ftp_settings)
-        ftp.rtt = min(ftp.rtt, EAGER_RTT_S)
-        ftp.cmd_put([str(local), remote], progress_callback=progress)
-        # process_ftp_reply also returns after idle_detection_time without a
-        # send, reporting the last reply it handled: "Success" then only means
-        # the last ACK was one. The put is done when every block is ACKed
-        # (MAVFTP then ends the session itself); while blocks are left, go on.
-        ret = None
-        while ftp.write_list is not None and time.monotonic() < deadline:
-            ret = ftp.process_ftp_reply("put", timeout=max(10.0, _left(deadline)))
-        quick(ftp.ftp_settings)
-        if ftp.write_list is not None:  # out of time in the middle of the put
-            ftp.cmd_cancel()
-            raise LinkError(EXIT_TIMEOUT, f"{remote}: put not finished within the time budget "
-                                             f"({ftp.write_acks} of {ftp.write_total} blocks acknowledged)")
-        if ftp.write_acks < ftp.write_total:
-            # NAKed (e.g. WriteFile InvalidSession after a lost CreateFile): MAVFTP
-            # ended the session, the robot has a partial file at most -> put again
-            error = getattr(ret.error_code, "name", ret.error_code) if ret is not None else "?"
-            problem = f"put attempt {attempt} ended by {error} after {ftp.write_acks} of {ftp.write_total} blocks"
+        put = session.put(data, remote, deadline, progress)
+        res.writes_sent += put.stats.writes_sent
+        if put.state == "failed":
+            # NAKed: CreateFile refused (protected name, quota) is the robot's answer;
+            # a WriteFile NAK (e.g. InvalidSession after the session expired) -> put again
+            if put.error.startswith("CreateFile") and put.nak[:1] in (bytes([9]), bytes([2])):
+                raise LinkError(EXIT_REFUSED, f"robot refuses to write {remote} ({put.error})")
+            problem = f"put attempt {attempt} ended by {put.error} after {len(put.acked)} of {put.n_blocks} blocks"
             continue
+        if not put.finished:
+            raise LinkError(EXIT_TIMEOUT, f"{remote}: put not finished within the time budget "
+                                             f"({len(put.acked)} of {put.n_blocks} blocks acknowledged)")
+        if put.remote_crc == res.crc:  # the put's last answer: CalcFileCRC32 after the last commit
+            return
         wait = min(20.0, max(2.0, _left(deadline)))
         crc = session.remote_crc(remote, wait)
-        if crc is None:
-            # Every block ACKed but no file: only the TerminateSession was lost
-            # (pymavlink never repeats it), so the data waits under a temporary
-            # name until the session expires. End that session again, look again.
-            ftp.session = put_session
-            ftp.cmd_cancel()
-            crc = session.remote_crc(remote, wait)
         if crc == res.crc:
             return
         problem = "missing on the robot" if crc is None else f"robot CRC32 0x{crc:08x} != local 0x{res.crc:08x}"
@@ -473,11 +451,14 @@ def default_remote(local: Path) -> str:
 
 # Link budget of an upload (design.md section 3), for benchmarks and estimates.
 WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size (bytes of file data per WriteFile)
+FLOOR_BLOCK = 239  # the largest WriteFile (what ftp_put writes)
 FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
 SIGNATURE = 13
 
 
-def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0) -> float:
-    """Link time of the WriteFile frames alone (design.md section 3)."""
-    blocks = -(-size // WRITE_BLOCK)
+def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0, block: int = WRITE_BLOCK) -> float:
+    """Link time of the WriteFile frames alone (design.md section 3), in
+    `block`-byte writes: 80 (pymavlink's, the issue's yardstick) or 239 (the
+    largest: the least time any MAVLink FTP client can take)."""
+    blocks = -(-size // block)
     return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s

@@ -141,5 +141,5 @@ def test_a_stale_same_size_file_under_the_remote_name_never_passes_for_the_uploa
     with pytest.raises(LinkError) as exc:
         upload_policy(gcs, local, "/policies/new.qtab", deadline_s=20.0, attempts=2)
     assert exc.value.code in (4, 5) and "not verified" in str(exc.value)
-    assert drop.count(0) == 2
+    assert drop.count(0) >= 2  # both puts sent CreateFile (copies included), all lost
     assert active_bytes(storage) == base
