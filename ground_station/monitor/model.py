@@ -165,6 +165,8 @@ class VehicleView:
         # pose (world frame: x east, y north, metres; heading CCW from east)
         self.boot_ms: int | None = None  # time_boot_ms of the last LOCAL_POSITION_NED
         self.boot_ms_last: int | None = None  # newest time_boot_ms of any message
+        # SYSTEM_TIME: the robot's wall clock (us since 1970; 0: the robot's clock is not set), None: not sent
+        self.robot_unix_us: int | None = None
         self.x: float | None = None
         self.y: float | None = None
         self.vx = 0.0  # world frame m/s
@@ -385,6 +387,9 @@ class VehicleView:
         self.mode = msg.custom_mode
         self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         self.system_status = msg.system_status
+
+    def _on_system_time(self, msg, t: float) -> None:
+        self.robot_unix_us = int(msg.time_unix_usec)
 
     def _on_sys_status(self, msg, t: float) -> None:
         self.sensors_present = msg.onboard_control_sensors_present
