@@ -24,10 +24,10 @@ from pathlib import Path
 import pytest
 
 from firmware_py import robot_spec
+from firmware_py.mavlink import frames
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import resolve_policy_spec
 from firmware_py.subprocs import free_port
-from firmware_py.mavlink import frames
 from tests.hil.test_sitl import SitlProcess, cell_world_mm
 
 pytestmark = pytest.mark.slow
