@@ -145,7 +145,7 @@ def test_wrong_signing_key_gets_a_signing_hint(tmp_path):
         code, out, err = qnav("upload", str(ROOT / "policies" / "sector.qtab"), "--mavlink",
                               f"udpin:127.0.0.1:{port}", "--signing-key", str(our_key), "--no-tlog", "--timeout", "4")
         assert code == 4, out + err
-        assert "signature does not verify with --signing-key" in out + err, out + err
+        assert "signature does not verify with --signing-key" in err, out + err  # stderr, like every error
     finally:
         stop_process(proc, timeout_s=10)
 
