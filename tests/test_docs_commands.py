@@ -57,16 +57,47 @@ NOT_RUN = {
     "qnav mode auto": _HIL,
     "qnav monitor": "a live dashboard or link; tests/ground_station/test_monitor_*.py drive it",
     "qnav-sim   --map paper10 --can socketcan:vcan0": _VCAN,
-    "qnav-sim --map paper10 --can socketcan:vcan0": _VCAN,
     "qnav-robot --can socketcan:vcan0": _VCAN,
     "qnav report run/bus.log": _VCAN + " (the log comes from candump on vcan0)",
     "qnav-robot --can socketcan:can0": _ROBOT,
     "qnav upload policies/paper10_cell.qtab --activate --mavlink /dev/ttyUSB0": _ROBOT,
     "qnav demo": "tests/hil/test_demo.py runs it",
-    "qnav ": "an inline example in prose (parsed above)",
-    "qnav-sim ": "an inline example in prose (parsed above)",
-    "qnav-robot ": "an inline example in prose (parsed above)",
+    "qnav sitl --can socketcan:vcan0": _VCAN + "; tests/hil/test_sitl_vcan.py runs it there",
+    "qnav sitl": "stays up until Ctrl-C; tests/hil/test_sitl.py runs it on free ports and drives MAVProxy on it",
+    "qnav sweep --map paper10 --encoding cell --lrs 0.1:0.9:0.1 --seeds 20":
+        "9 learning rates x 20 seeds of full training (many minutes); the 5-seed, 10 000-step sweep is in RUN",
+    "qnav sweep ... --engine ray": "a Ray campaign on 8 workers or a cluster (qnav[cluster]); "
+                                   "tests/ground_station/test_campaign.py runs the Ray engine where Ray is installed",
+    "qnav bench hil": "a benchmark (minutes of HIL episodes); tests check a benchmark's code, never a time",
+    "qnav bench campaign": "a benchmark (200 twin runs per engine); tests check a benchmark's code, never a time",
+    "qnav bench nav": "a benchmark (1000 twin / 50 HIL episodes); tests check a benchmark's code, never a time",
+    "qnav policy upgrade OLD.qtab": "a synopsis (placeholders); its flags are checked above",
+    "qnav export RUN_DIR": "a synopsis (placeholders); its flags are checked above",
+    "qnav train --encoding sector-memory": "the shipped sector-memory table's recipe: 24 M steps (tens of minutes)",
+    "qnav eval build/policies/sector_memory": "reads that 24 M-step training's output",
+    "qnav export build/policies/sector_memory": "reads that 24 M-step training's output",
+    "qnav train --map paper10 --encoding sector --lr 0.1 --gamma 0.95 --reward-step 0":
+        "the obstacle experiments' 10-100 M-step trainings (hours)",
 }
+# Inline examples in prose (`qnav upload --activate`) are parsed and their flags checked, never run.
+
+
+def _command_lines(body: str) -> list[str]:
+    """The qnav/make lines of a code block, continuations joined, comments
+    dropped, and the block's own `NAME="..."` shell variables expanded."""
+    body = re.sub(r"\\\n\s*", " ", body)
+    variables: dict[str, str] = {}
+    out = []
+    for line in body.splitlines():
+        line = re.sub(r"\s+#\s.*$", "", line.strip()).strip()
+        var = re.fullmatch(r"([A-Z_][A-Z0-9_]*)=(.*)", line)
+        if var:
+            variables[var.group(1)] = " ".join(shlex.split(var.group(2)))
+            continue
+        line = re.sub(r"\$([A-Z_][A-Z0-9_]*)", lambda m: variables.get(m.group(1), m.group(0)), line)
+        if re.match(r"(qnav(-sim|-robot)?|make) ", line + " "):
+            out.append(line)
+    return out
 
 
 def _documented() -> list[tuple[str, str, bool]]:
@@ -81,12 +112,13 @@ def _documented() -> list[tuple[str, str, bool]]:
             if block.group(1).strip() == "text":
                 continue  # a program's output shown in the docs, not a command line
             shell = block.group(1).strip() in ("sh", "bash", "shell", "console")
-            body = re.sub(r"\\\n\s*", " ", block.group(2))
-            for line in body.splitlines():
-                line = re.sub(r"\s+#\s.*$", "", line.strip()).strip()
-                if re.match(r"(qnav(-sim|-robot)?|make) ", line + " ") and "  qnav-robot (robot)" not in line:
-                    out.append((f"{rel}", line, shell))
+            out += [(f"{rel}", line, shell) for line in _command_lines(block.group(2))
+                    if "  qnav-robot (robot)" not in line]
         prose = re.sub(r"```.*?```", "", text, flags=re.S)
+        # indented (4-space) code blocks hold command lines as shell blocks do (docs/campaigns.md)
+        for block in re.finditer(r"(?:^|\n\n)((?:(?: {4}[^\n]*)?\n)+)", prose + "\n"):
+            out += [(f"{rel}", line, True) for line in _command_lines(block.group(1))]
+        prose = re.sub(r"(?:^|\n\n)(?:(?: {4}[^\n]*)?\n)+", "\n\n", prose + "\n")
         for span in re.finditer(r"`((?:qnav|qnav-sim|qnav-robot) [^`]+)`", prose):
             out.append((f"{rel}", span.group(1).strip(), False))
     return out
@@ -170,6 +202,29 @@ def test_every_fenced_line_is_run_or_says_why_not():
             continue
         assert any(line.startswith(prefix) for prefix in NOT_RUN), \
             f"{where}: `{line}` is neither run by this test (RUN) nor listed in NOT_RUN with a reason"
+
+
+def test_not_run_decides_lines_not_whole_programs():
+    """Each NOT_RUN entry names a documented command (more than a program
+    name, so a new shell line cannot slip through under a catch-all) and
+    still matches a documented line."""
+    for prefix in NOT_RUN:
+        words = prefix.split()
+        assert len(words) >= 2 and words[0] in (*PROGRAMS, "make"), f"NOT_RUN `{prefix}` is a catch-all"
+        assert any(line.startswith(prefix) for _, line, _ in DOCUMENTED), f"NOT_RUN `{prefix}`: no doc shows it"
+
+
+def test_indented_and_fenced_blocks_and_their_variables_are_read():
+    """docs/campaigns.md's indented blocks, docs/hil.md's sitl/vcan lines and
+    docs/training.md's `$COMMON` lines are extracted as shell command lines."""
+    shell = {(where, line) for where, line, fenced in DOCUMENTED if fenced}
+    assert ("docs/campaigns.md", "qnav bench campaign --runs 200 --json campaign.json") in shell
+    assert ("docs/hil.md", "qnav sitl --can socketcan:vcan0") in shell
+    assert ("docs/hil.md", "qnav-robot --can socketcan:vcan0 --lockstep --start 0.25,0.25,0 --goal-cell 9,0") \
+        in {(w, " ".join(ln.split()[:8])) for w, ln in shell}
+    assert not any("$COMMON" in line for _, line in shell)
+    (got,) = _command_lines('X="--map paper10 --seed 3"\nqnav train $X \\\n  --out o  # why\n')
+    assert got.split() == ["qnav", "train", "--map", "paper10", "--seed", "3", "--out", "o"]
 
 
 @pytest.mark.slow

@@ -50,3 +50,18 @@ def global_to_world(lat_e7: int, lon_e7: int, origin_lat_e7: int, origin_lon_e7:
     north_m = (lat_e7 - origin_lat_e7) * M_PER_E7
     east_m = (lon_e7 - origin_lon_e7) * M_PER_E7 * _lon_scale(origin_lat_e7)
     return ned_m_to_world(north_m, east_m)
+
+
+def offset_to_world(x_mm: int, y_mm: int, heading_mrad: int, frame_body: bool,
+                    x_m: float, y_m: float) -> tuple[int, int]:
+    """A position target relative to the robot -> world mm, as ArduPilot Rover
+    reads them: LOCAL_OFFSET_NED (`frame_body` False: x north, y east metres
+    from the robot) or BODY_NED / BODY_OFFSET_NED (True: x forward, y right
+    metres from the robot, rotated by its heading)."""
+    if not frame_body:
+        dx, dy = ned_m_to_world(x_m, y_m)
+        return x_mm + dx, y_mm + dy
+    h = heading_mrad / 1000.0
+    east = x_m * math.cos(h) + y_m * math.sin(h)  # forward along the heading, right is heading - 90 deg
+    north = x_m * math.sin(h) - y_m * math.cos(h)
+    return x_mm + round(east * 1000.0), y_mm + round(north * 1000.0)

@@ -80,6 +80,9 @@ MISSION_MSGS = frozenset({
 SIGNED_ONLY = frozenset({"SETUP_SIGNING", "FILE_TRANSFER_PROTOCOL"})
 FTP_PAYLOAD_LEN = 251
 POSITION_MASK_XY = 0b11  # type_mask bits "ignore x" / "ignore y"
+# SET_POSITION_TARGET_LOCAL_NED frames: absolute, or offsets from the robot (north/east, or forward/right)
+LOCAL_TARGET_FRAMES = frozenset({M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_OFFSET_NED, M.MAV_FRAME_BODY_NED,
+                                 M.MAV_FRAME_BODY_OFFSET_NED})
 NETWORK_PREFIXES = ("udp", "tcp", "ws")  # pymavlink connection strings that are not a local serial line
 
 
@@ -317,13 +320,20 @@ class MavNode:
         if msg.type_mask & POSITION_MASK_XY:
             return self.telemetry.statustext("goal refused: position ignored in type_mask", M.MAV_SEVERITY_WARNING)
         if msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
-            if msg.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
+            if msg.coordinate_frame not in LOCAL_TARGET_FRAMES:
                 return self.telemetry.statustext(
-                    f"goal refused: frame {msg.coordinate_frame} unsupported (LOCAL_NED only)", M.MAV_SEVERITY_WARNING)
+                    f"goal refused: frame {msg.coordinate_frame} unsupported "
+                    "(LOCAL_NED, LOCAL_OFFSET_NED, BODY_NED, BODY_OFFSET_NED)", M.MAV_SEVERITY_WARNING)
             if not (math.isfinite(msg.x) and math.isfinite(msg.y)):  # round(NaN) would raise
                 return self.telemetry.statustext("goal refused: position is not a finite number",
                                                  M.MAV_SEVERITY_WARNING)
-            x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
+            if msg.coordinate_frame == M.MAV_FRAME_LOCAL_NED:
+                x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
+            else:  # relative to where the robot is now (its believed pose), as ArduPilot Rover reads them
+                st = self.vehicle.status()
+                x_mm, y_mm = mav_frames.offset_to_world(st.x_mm, st.y_mm, st.heading_mrad,
+                                                        msg.coordinate_frame != M.MAV_FRAME_LOCAL_OFFSET_NED,
+                                                        msg.x, msg.y)
         else:
             if not (abs(msg.lat_int) <= 900_000_000 and abs(msg.lon_int) <= 1_800_000_000):
                 return self.telemetry.statustext("goal refused: latitude/longitude out of range",

@@ -12,6 +12,8 @@ returns the messages to send; the node shell sends them.
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -32,6 +34,8 @@ MIN_INTERVAL_US = 10_000
 STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: "1hz",
     M.MAVLINK_MSG_ID_SYS_STATUS: "1hz",
+    # the robot's two clocks: time_boot_ms (its control clock, sim time in HIL) and its wall clock
+    M.MAVLINK_MSG_ID_SYSTEM_TIME: "1hz",
     M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "pos",
     M.MAVLINK_MSG_ID_ATTITUDE: "pos",
     M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: "pos",
@@ -72,6 +76,15 @@ SENSOR_PRESENT = (M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_MO
 # No fence: present and enabled stay clear, and the health bit is set as ArduPilot
 # does without a fence (a clear health bit reads as "fence breach" in MAVProxy).
 HEALTHY_ABSENT = M.MAV_SYS_STATUS_GEOFENCE
+# A wall clock before this (2020-01-01) was never set (no RTC/NTP): SYSTEM_TIME then
+# says time_unix_usec = 0, "unknown", as the message's definition asks.
+WALL_CLOCK_SET_AFTER_US = 1_577_836_800_000_000
+
+
+def wall_clock_us() -> int:
+    """The host's wall clock in us since 1970, 0 when it was evidently never set."""
+    now = int(time.time() * 1_000_000)
+    return now if now >= WALL_CLOCK_SET_AFTER_US else 0
 
 
 @dataclass
@@ -91,9 +104,11 @@ def _wrap_deg(deg: float) -> float:
 class Telemetry:
     """Interval table + message builders."""
 
-    def __init__(self, mav: mavlink2.MAVLink, params: ParamStore) -> None:
+    def __init__(self, mav: mavlink2.MAVLink, params: ParamStore,
+                 wall_us: Callable[[], int] = wall_clock_us) -> None:
         self.mav = mav
         self.params = params
+        self.wall_us = wall_us  # SYSTEM_TIME.time_unix_usec; injected so tests can pin it
         self._override: dict[int, int] = {}  # msg id -> interval us (-1 off)
         self._next_due: dict[int, int] = {}
         self._statustext_id = 0
@@ -178,6 +193,9 @@ class Telemetry:
                 UINT16_MAX, -1, -1, drop_rate, min(UINT16_MAX, stats.rx_dropped),
                 min(UINT16_MAX, st.can_errors), min(UINT16_MAX, st.tick_overruns),
                 min(UINT16_MAX, stats.signing_dropped), 0)]
+        if msg_id == M.MAVLINK_MSG_ID_SYSTEM_TIME:
+            wall = self.wall_us()
+            return [m.system_time_encode(wall if wall >= WALL_CLOCK_SET_AFTER_US else 0, ms)]
         north, east = mav_frames.world_to_ned_m(st.x_mm, st.y_mm)
         heading = st.heading_mrad / 1000.0
         v_north = st.speed_mm_s * math.sin(heading) / 1000.0

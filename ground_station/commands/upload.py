@@ -20,6 +20,7 @@ printed), 4 timeout, no robot or no FTP answer, 5 CRC or policy-id mismatch.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ground_station.errors import CliError
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         link = open_link(args, "upload", connect_timeout_s=min(HEARTBEAT_WAIT_S, args.timeout))
     except LinkError as exc:
-        print(f"qnav upload: error: {exc}", flush=True)
+        print(f"qnav upload: error: {exc}", file=sys.stderr, flush=True)
         return exc.code
     bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"upload {args.file.name}")
 
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
                                 attempts=args.attempts, progress=progress)
     except LinkError as exc:
         bar.close()
-        print(f"qnav upload: error: {exc}", flush=True)
+        print(f"qnav upload: error: {exc}", file=sys.stderr, flush=True)
         return exc.code
     bar.n = size
     bar.close()

@@ -15,7 +15,11 @@ the one given) and counts frames from other systems in `foreign` without
 using them. A second process with the same system id shows as a time base
 going backwards: its timed frames are ignored and counted in
 `time_conflicts` (a reboot - the old time base silent and the new one
-steady for REBOOT_S - is accepted and continues the clock).
+steady for REBOOT_S - is accepted and continues the clock). A jump ahead
+in the frame right after ours in sequence, at most PAUSE_MAX_SPEEDUP x the
+receive time since our last timed frame, is the same robot after a pause
+in its telemetry (a lockstep sim running on while its link thread starved)
+and is followed at once.
 No I/O, no threads, no terminal: the textual dashboard, the `--plain` status
 line and `qnav report` all read the same view, and tests drive it with
 pymavlink-encoded messages.
@@ -64,6 +68,11 @@ BACKWARDS_MS = 2000  # a time_boot_ms this far behind the newest is another time
 FORWARDS_MS = 10_000  # ... or this far ahead (timed telemetry comes at >= 1 Hz of robot time)
 SEQ_WINDOW = 32  # with two time bases heard: an untimed frame is ours if its seq follows ours this closely
 REBOOT_S = 3.0  # only the other time base heard for this long (receive time): a reboot
+# A jump ahead by more than FORWARDS_MS from the very process we follow (its frame's seq is
+# within this of our last one): the robot went quiet while its clock ran on (a lockstep sim
+# outruns a starved link thread by 10 s of sim time in a second of wall time), not a second process.
+PAUSE_SEQ_WINDOW = 4
+PAUSE_MAX_SPEEDUP = 50.0  # ... and no faster than this many robot seconds per receive second
 
 
 @dataclass
@@ -165,6 +174,8 @@ class VehicleView:
         # pose (world frame: x east, y north, metres; heading CCW from east)
         self.boot_ms: int | None = None  # time_boot_ms of the last LOCAL_POSITION_NED
         self.boot_ms_last: int | None = None  # newest time_boot_ms of any message
+        # SYSTEM_TIME: the robot's wall clock (us since 1970; 0: the robot's clock is not set), None: not sent
+        self.robot_unix_us: int | None = None
         self.x: float | None = None
         self.y: float | None = None
         self.vx = 0.0  # world frame m/s
@@ -288,7 +299,7 @@ class VehicleView:
             return False
         boot_ms = getattr(msg, "time_boot_ms", None)
         if boot_ms is not None:
-            if not self._robot_clock(int(boot_ms), t):
+            if not self._robot_clock(int(boot_ms), t, self._follows_own_seq(msg, PAUSE_SEQ_WINDOW)):
                 return False
         elif self.time_conflicts and not self._follows_own_seq(msg):
             self.time_conflicts += 1  # two processes share our system id: keep to the one we follow
@@ -304,10 +315,13 @@ class VehicleView:
         self.version += 1
         return True
 
-    def _robot_clock(self, boot_ms: int, t: float) -> bool:
-        """Advance the robot clock; False if this frame is from another time base."""
+    def _robot_clock(self, boot_ms: int, t: float, next_in_seq: bool = False) -> bool:
+        """Advance the robot clock; False if this frame is from another time base.
+        `next_in_seq`: the frame follows ours in sequence, so a jump ahead is a pause."""
         last = self.boot_ms_last
-        if last is not None and not last - BACKWARDS_MS <= boot_ms <= last + FORWARDS_MS:
+        paused = (next_in_seq and last is not None and self._conflict_since is None
+                  and last + FORWARDS_MS < boot_ms <= last + FORWARDS_MS + PAUSE_MAX_SPEEDUP * 1000 * (t - self._robot_rx_t))
+        if last is not None and not last - BACKWARDS_MS <= boot_ms <= last + FORWARDS_MS and not paused:
             if self._conflict_since is None:
                 self._conflict_since = t
             if t - self._conflict_since < REBOOT_S:
@@ -325,9 +339,9 @@ class VehicleView:
             self.robot_s0 = self.robot_s
         return True
 
-    def _follows_own_seq(self, msg) -> bool:
+    def _follows_own_seq(self, msg, window: int = SEQ_WINDOW) -> bool:
         last = self._last_seq.get(msg.get_srcComponent())
-        return last is None or 0 < (msg.get_seq() - last) % 256 <= SEQ_WINDOW
+        return last is None or 0 < (msg.get_seq() - last) % 256 <= window
 
     def robot_clock(self, t: float | None = None) -> float | None:
         """Seconds of robot time since the first timed message (sim time in HIL).
@@ -385,6 +399,9 @@ class VehicleView:
         self.mode = msg.custom_mode
         self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         self.system_status = msg.system_status
+
+    def _on_system_time(self, msg, t: float) -> None:
+        self.robot_unix_us = int(msg.time_unix_usec)
 
     def _on_sys_status(self, msg, t: float) -> None:
         self.sensors_present = msg.onboard_control_sensors_present

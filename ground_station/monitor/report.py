@@ -33,6 +33,7 @@ Definitions (also in docs/monitor.md):
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
 import os
@@ -89,6 +90,14 @@ def analyse(path: str | os.PathLike[str], progress: bool = False, sysid: int | N
             return rec
         clock = "wall"
     return _analyse(str(path), progress, sysid, clock)
+
+
+def _robot_wall_clock(unix_us: int | None) -> str | None:
+    if unix_us is None:
+        return None  # the robot sent no SYSTEM_TIME
+    if unix_us == 0:
+        return "unset"
+    return datetime.datetime.fromtimestamp(unix_us / 1e6, tz=datetime.UTC).isoformat(timespec="seconds")
 
 
 def _analyse(path: str, progress: bool, sysid: int | None, clock: str) -> RunRecord:
@@ -220,6 +229,8 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
         "vehicle_sysid": view.sysid,
         "policy_id": view.policy_id,
         "clock": CLOCK_NAMES[rec.clock],
+        # SYSTEM_TIME.time_unix_usec of the last one read: the robot's own wall clock, "unset" if it has none
+        "robot_wall_clock": _robot_wall_clock(view.robot_unix_us),
         "duration_s": round(rec.t_end, 3),
         "wall_duration_s": round(rec.wall_s, 3),
         "ignored": {"other_systems": {str(k): v for k, v in sorted(view.foreign.items())},

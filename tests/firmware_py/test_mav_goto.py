@@ -194,3 +194,51 @@ def test_statustext_of_whole_chunks_ends_with_an_empty_chunk():
     assert [t.chunk_seq for t in texts_100] == [0, 1, 2] and len({t.id for t in texts_100}) == 1
     assert [len(t.text) for t in link.node.telemetry.statustext("y" * 70)] == [50, 20]
     assert [t.id for t in link.node.telemetry.statustext("z" * 50)] == [0]  # one frame: no chunking
+
+
+def local_target(link, frame, x, y, mask=0xFFF8):
+    return link.send(link.gcs.set_position_target_local_ned_encode(0, 1, 1, frame, mask, x, y, 0,
+                                                                   0, 0, 0, 0, 0, 0, 0, 0))
+
+
+@pytest.mark.parametrize("frame, x, y, heading_mrad, want_mm", [
+    # LOCAL_OFFSET_NED: x north, y east of the robot (heading does not matter)
+    (m.MAV_FRAME_LOCAL_OFFSET_NED, 1.0, 0.5, 1234, (2500, 2000)),
+    # BODY_OFFSET_NED / BODY_NED: x forward, y right; robot at (2000, 1000) facing north (1571 mrad)
+    (m.MAV_FRAME_BODY_OFFSET_NED, 1.0, 0.0, 1571, (2000, 2000)),
+    (m.MAV_FRAME_BODY_OFFSET_NED, 0.0, 1.0, 1571, (3000, 1000)),  # right of north is east
+    (m.MAV_FRAME_BODY_NED, 1.0, -0.5, 0, (3000, 1500)),  # facing east: left is north
+    (m.MAV_FRAME_BODY_OFFSET_NED, -1.0, 0.0, 3142, (3000, 1000)),  # facing west, 1 m back
+])
+def test_position_target_offsets_from_the_robot_as_ardupilot_rover_reads_them(frame, x, y, heading_mrad, want_mm):
+    link = armed_link()
+    link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.GUIDED)
+    link.vehicle.st.x_mm, link.vehicle.st.y_mm, link.vehicle.st.heading_mrad = 2000, 1000, heading_mrad
+    replies = local_target(link, frame, x, y)
+    (echo,) = of(replies, "POSITION_TARGET_LOCAL_NED")
+    assert link.vehicle.st.goal_mm == pytest.approx(want_mm, abs=2)
+    assert (echo.x, echo.y) == pytest.approx((want_mm[1] / 1000, want_mm[0] / 1000), abs=0.002)  # absolute NED
+
+
+def test_position_target_offsets_are_checked_like_absolute_targets():
+    link = armed_link()
+    link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.GUIDED)
+    link.vehicle.st.x_mm, link.vehicle.st.y_mm, link.vehicle.st.heading_mrad = 4500, 1000, 0
+    old = link.vehicle.st.goal_mm
+    # 1 m forward from 0.5 m before the east wall: off the map, refused with the reason, goal kept
+    assert text_of(local_target(link, m.MAV_FRAME_BODY_OFFSET_NED, 1.0, 0.0)).startswith(
+        "goal refused: (5.50, 1.00) m is east/west")
+    assert text_of(local_target(link, m.MAV_FRAME_LOCAL_OFFSET_NED, float("nan"), 0.0)) == \
+        "goal refused: position is not a finite number"
+    assert "unsupported" in text_of(local_target(link, m.MAV_FRAME_BODY_FRD, 1.0, 0.0))
+    assert link.vehicle.st.goal_mm == old
+
+
+def test_mavproxy_position_command_body_ned_moves_the_goal_relative_to_the_robot():
+    """MAVProxy's `position X Y Z` (cmdlong module) sends SET_POSITION_TARGET_LOCAL_NED
+    in MAV_FRAME_BODY_NED with type_mask 3576 (position only): X forward, Y right."""
+    link = armed_link()
+    link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.GUIDED)
+    link.vehicle.st.x_mm, link.vehicle.st.y_mm, link.vehicle.st.heading_mrad = 2750, 2750, 0  # facing east
+    of(local_target(link, m.MAV_FRAME_BODY_NED, -1.5, -1.0, mask=3576), "POSITION_TARGET_LOCAL_NED")
+    assert link.vehicle.st.goal_mm == pytest.approx((1250, 3750), abs=2)  # 1.5 m back, 1 m to the left

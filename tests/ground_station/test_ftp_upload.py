@@ -67,7 +67,7 @@ def test_upload_activate_keeps_last_good_and_refuses_corrupt_files(lossy_robot, 
     corrupt.write_bytes(bytes(bad))
     out = qnav_upload(corrupt, "--activate", "--mavlink", url)
     assert out.returncode == 3, out.stdout + out.stderr
-    assert "refused" in out.stdout and "crc" in out.stdout.lower()
+    assert "refused" in out.stderr and "crc" in out.stderr.lower() and "refused" not in out.stdout
     assert (root / "policies" / "active.qtab").read_bytes() == second.read_bytes()
     assert (root / "policies" / "last_good.qtab").read_bytes() == first.read_bytes()
     assert (root / "policies" / "corrupt.qtab").read_bytes() == bytes(bad)  # uploaded, not activated
@@ -88,7 +88,7 @@ def test_signed_upload(tmp_path):
         other = tmp_path / "other.qtab"
         other.write_bytes(make_policy(4))
         out = qnav_upload(other, "--mavlink", f"udpout:127.0.0.1:{port}", "--attempts", "1", "--timeout", "5")
-        assert out.returncode == 4 and "does not answer" in out.stdout, out.stdout + out.stderr
+        assert out.returncode == 4 and "does not answer" in out.stderr, out.stdout + out.stderr
         assert not (root / "policies" / "other.qtab").exists()
 
 
@@ -98,7 +98,7 @@ def test_clear_errors(tmp_path):
     f = tmp_path / "p.qtab"
     f.write_bytes(make_policy(5))
     out = qnav_upload(f, "--mavlink", f"udpout:127.0.0.1:{free_udp_port()}", "--timeout", "2")
-    assert out.returncode == 4 and "no HEARTBEAT" in out.stdout
+    assert out.returncode == 4 and "no HEARTBEAT" in out.stderr and "error" not in out.stdout
     out = qnav_upload(f, "--mavlink", "udpout:127.0.0.1:9", "--signing-key", tmp_path / "nokey")
     assert out.returncode == 2 and "signing key" in out.stderr
 

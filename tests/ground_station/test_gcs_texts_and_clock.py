@@ -140,3 +140,51 @@ def test_report_ignores_a_second_process_with_the_same_sysid_and_other_systems(t
     assert s["ignored"]["clock_behind_frames"] > 100
     assert s["ignored"]["other_systems"]["2"] > 0
     assert s["goals_reached"] == alone["goals_reached"]
+
+
+def _paused(script: RoverScript, at_s: float, pause_ms: int):
+    """The scripted run from one process that goes quiet for one second of
+    receive time at `at_s` while its clock runs `pause_ms` on, as when a
+    lockstep sim outruns the robot's starved link thread: nothing lost (the
+    sequence numbers run on), only robot time skipped."""
+    mav = encoder(1, 1)
+    for t, m in script.stream():
+        if t >= at_s:
+            t += 1.0
+            if hasattr(m, "time_boot_ms"):
+                m.time_boot_ms += pause_ms
+        yield t, mav, m
+
+
+def test_report_follows_its_robot_across_a_pause_of_its_telemetry(tmp_path):
+    """Seen on a loaded machine: a demo's robot time jumped 13 s between two
+    consecutive frames; the report dropped 1328 frames as "another process"
+    and said 103.7 s to the last goal instead of the demo's 87.4 s."""
+    script = RoverScript()
+    one = tmp_path / "one.tlog"
+    write_tlog(one, script, with_gcs_items=False)
+    alone = summarise(analyse(one))
+    paused = tmp_path / "paused.tlog"
+    _write(paused, list(_paused(script, script.t_end / 3, 13_000)))
+    s = summarise(analyse(paused))
+    assert s["ignored"]["clock_behind_frames"] == 0 and s["ignored"]["reboots"] == 0
+    assert s["duration_s"] == pytest.approx(alone["duration_s"] + 13.0, abs=0.11)
+    assert s["path_length_m"] == pytest.approx(alone["path_length_m"], abs=0.01)
+    assert s["goals_reached"] == alone["goals_reached"]
+
+
+def test_report_ignores_a_second_process_whose_clock_is_ahead(tmp_path):
+    """The mirror of the case above: the process we follow booted last, the
+    other one's frames are far ahead but do not follow our sequence."""
+    script = RoverScript()
+    one = tmp_path / "one.tlog"
+    write_tlog(one, script, with_gcs_items=False)
+    alone = summarise(analyse(one))
+    ours = list(_timed(script, 1.0, 0, sysid=1))
+    ahead = [(t + 0.001, mav, m) for t, mav, m in _timed(script, 1.0, 1_000_000, sysid=1)]
+    mixed = tmp_path / "mixed.tlog"
+    _write(mixed, sorted(ours + ahead, key=lambda x: x[0]))
+    s = summarise(analyse(mixed))
+    assert s["ignored"]["clock_behind_frames"] > 100
+    assert s["path_length_m"] == pytest.approx(alone["path_length_m"], abs=0.01)
+    assert s["goals_reached"] == alone["goals_reached"]

@@ -89,6 +89,12 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
     assert report["clock"].startswith("robot time_boot_ms"), report["clock"]
     assert report["time_to_last_goal_s"] == pytest.approx(summary["sim_seconds"], abs=1.0)
     assert report["wall_duration_s"] < report["duration_s"]  # lockstep runs faster than real time
+    assert report["robot_wall_clock"] not in (None, "unset")  # SYSTEM_TIME with this host's set clock
+    # issue 15 item 2: the decision in force is held while DRIVING (a cell policy decides once per
+    # cell move), so the action histogram and the monitor's policy panel have real data
+    assert sum(report["actions"].values()) >= 50, report["actions"]
+    held = _state_idx_while_driving(Path(summary["tlog"]))
+    assert len(held) >= 50 and sum(v >= 0 for v in held) >= 0.95 * len(held), held
     assert (out / "can.log").read_text().startswith("(") and summary["can_log_candump"] == str(out / "can.log")
     # a monitor attached mid-mission (the second half of the recording) ends with the whole mission
     half = tmp_path / "half.tlog"
@@ -97,6 +103,27 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
                          cwd=ROOT, capture_output=True, text=True, timeout=110)
     assert mon.returncode == 0, mon.stderr[-2000:]
     assert "mission=4/4 reached=4" in mon.stdout.splitlines()[-1], mon.stdout[-500:]
+
+
+def _state_idx_while_driving(tlog: Path) -> list[int]:
+    """The robot's STATE_IDX samples sent while its CTRL_ST said DRIVING."""
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    from firmware_py.vehicle import CtrlState
+
+    log = mavutil.mavlogfile(str(tlog), robust_parsing=True)
+    ctrl, out = None, []
+    while (msg := log.recv_msg()) is not None:
+        if msg.get_type() != "NAMED_VALUE_INT" or msg.get_srcSystem() != 1:
+            continue
+        name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
+        if name == "CTRL_ST":
+            ctrl = msg.value
+        elif name == "STATE_IDX" and ctrl == CtrlState.DRIVING:
+            out.append(msg.value)
+    log.close()
+    return out
 
 
 def _second_half(tlog: Path) -> bytes:

@@ -3,7 +3,9 @@ gRPC wrapper with its bundled mavsdk_server) against `qnav sitl --autopilot
 ardupilot`: int parameters read with their true values (and one set), the
 robot's lack of float parameters seen as such, a policy uploaded over FTP and
 activated by a Rename onto /policies/active.qtab, arming with live sensors,
-and the flight mode named.
+and the flight mode named: HOLD, MISSION in Auto (a mission uploaded and
+started with MAVSDK's own mission_raw), OFFBOARD in Guided (MAVSDK's
+goto_location), HOLD again.
 
 Why `--autopilot ardupilot`: MAVSDK picks the PARAM_VALUE decoding from the
 HEARTBEAT's autopilot field (C cast for ArduPilot, bytewise for anything else;
@@ -22,10 +24,11 @@ from pathlib import Path
 import pytest
 
 from firmware_py import robot_spec
+from firmware_py.mavlink import frames
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import resolve_policy_spec
 from firmware_py.subprocs import free_port
-from tests.hil.test_sitl import SitlProcess
+from tests.hil.test_sitl import SitlProcess, cell_world_mm
 
 pytestmark = pytest.mark.slow
 
@@ -73,6 +76,19 @@ async def first(stream):
     raise AssertionError("stream ended")
 
 
+async def mode_becomes(drone, name: str, timeout_s: float = 20.0) -> bool:
+    """True once MAVSDK's flight mode reads `name` (False after `timeout_s`)."""
+    async def wait() -> bool:
+        async for mode in drone.telemetry.flight_mode():
+            if str(mode) == name:
+                return True
+        return False
+    try:
+        return await asyncio.wait_for(wait(), timeout_s)
+    except TimeoutError:
+        return False
+
+
 def mavsdk_url(sitl: SitlProcess) -> str:
     line = sitl.expect(r'MAVSDK\s+System\(\)\.connect\(system_address="(\S+)"\)')
     return line.split('system_address="')[1].split('"')[0]
@@ -81,7 +97,10 @@ def mavsdk_url(sitl: SitlProcess) -> str:
 @pytest.mark.timeout(300)
 def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
     mavsdk = mavsdk_or_skip()
+    from mavsdk.mission_raw import MissionItem
     from mavsdk.param import ParamError
+
+    mavsdk_frame = 6  # MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, as MAVSDK's mission plugin sends
 
     sitl = SitlProcess(tmp_path, "--autopilot", "ardupilot", "--policy", "none")
     policy_file = tmp_path / "paper10_cell.qtab"
@@ -113,6 +132,20 @@ def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
         assert str(await first(drone.telemetry.flight_mode())) == "HOLD"
         await drone.action.arm()
         assert await first(drone.telemetry.armed())
+        # AUTO and GUIDED as MAVSDK's ArduPilot Rover table names them: Auto (10) is MISSION,
+        # Guided (15) is OFFBOARD; a mission of targets A and D, MAVSDK's own start and go-to
+        home = await first(drone.telemetry.home())
+        lat0, lon0 = round(home.latitude_deg * 1e7), round(home.longitude_deg * 1e7)
+        a, d = (frames.world_to_global(*cell_world_mm(c, r), lat0, lon0) for c, r in ((2, 2), (9, 7)))
+        await drone.mission_raw.upload_mission([
+            MissionItem(i, mavsdk_frame, 16, int(i == 0), 1, 0, 0, 0, float("nan"), lat, lon, 0.0, 0)
+            for i, (lat, lon) in enumerate((a, d))])
+        await drone.mission_raw.start_mission()  # DO_SET_MODE Auto, then MISSION_START
+        assert await mode_becomes(drone, "MISSION")
+        await drone.action.goto_location(d[0] / 1e7, d[1] / 1e7, 0.0, float("nan"))
+        assert await mode_becomes(drone, "OFFBOARD")
+        await drone.action.hold()
+        assert await mode_becomes(drone, "HOLD")
         await drone.action.disarm()
 
     try:
