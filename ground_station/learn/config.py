@@ -87,12 +87,18 @@ class TrainConfig:
 
 
 # The shipped recipe of an encoding: the TrainConfig fields that differ from
-# the dataclass defaults. `qnav train --encoding E` starts from RECIPES[E];
-# flags given on the command line override it (docs/training.md).
+# the dataclass defaults (the cell encoding's recipe is the defaults). `qnav
+# train --encoding E` starts from RECIPES[E]; flags given on the command line
+# override it; `qnav train --recipe NAME` names one (SHIPPED_RECIPES: the
+# policies/ files, with map paper10 and seed 0 as the defaults;
+# docs/training.md).
 RECIPES: dict[str, dict[str, Any]] = {
+    "cell": {},
+    "sector": {"steps": 20_000_000, "lr": 0.1, "gamma": 0.95, "reward_step": 0.0, "epsilon_end": 0.05},
     "sector-memory": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
                       "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
 }
+SHIPPED_RECIPES = {"shipped-cell": "cell", "shipped-sector": "sector", "shipped-sector-memory": "sector-memory"}
 
 
 def recipe_config(encoding: str, given: dict[str, Any]) -> TrainConfig:
