@@ -90,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
     meta = write_run(out, cfg, res)
     if not args.quiet:
         tail = res.successes[-max(1, len(res.successes) // 20):]
-        print(f"trained {cfg.encoding} on {gridmap.name}: {cfg.steps:,} steps, {len(res.returns):,} episodes "
+        learner = "" if cfg.learner == "q" else f" ({cfg.learner})"
+        print(f"trained {cfg.encoding}{learner} on {gridmap.name}: {cfg.steps:,} steps, {len(res.returns):,} episodes "
               f"in {res.seconds:.2f} s ({meta['steps_per_s'] or 0:,.0f} steps/s; "
               f"{time.perf_counter() - t0:.2f} s with setup); "
               f"last 5% of episodes: success {tail.mean():.3f} (with exploration)")
