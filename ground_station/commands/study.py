@@ -52,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.learn.config import LEARNERS, config_from_args, validate_config
     from ground_station.learn.study import study, tables, write_study
     from ground_station.learn.sweep import parse_lrs
+    from ground_station.learn.train import CellProblem
     from ground_station.maps import MapError, load_map
 
     cfg = config_from_args(args)
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         lrs = parse_lrs(args.lrs)
         learner_lrs = parse_lrs(args.learner_lrs)
         validate_config(cfg)
-        load_map(cfg.map)
+        CellProblem.build(load_map(cfg.map), cfg.targets or None)  # the goals resolve, every one reachable
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     t0 = time.perf_counter()

@@ -91,6 +91,8 @@ def test_cli_study_writes_json_png_and_campaign(tmp_path):
     (["--seeds", "0"], "--seeds"),
     (["--lrs", "0"], "learning rates"),
     (["--map", "nosuchmap"], "nosuchmap"),
+    (["--map", "maze-15x15-s2", "--targets", ""], "defines no targets"),
+    (["--targets", "A,Z"], "Z"),
 ])
 def test_cli_study_bad_input_is_one_line(tmp_path, args, text):
     p = qnav("study", "--out", str(tmp_path), *args)
