@@ -108,5 +108,13 @@ def test_recipes_are_the_train_defaults(tmp_path):
     assert p.returncode == 0, p.stderr
     meta = json.loads((tmp_path / "c" / "meta.json").read_text())
     assert meta["encoding"] == "cell" and meta["config"]["lr"] == 0.5 and meta["config"]["steps"] == 20000
+    # the sector recipe is both --recipe shipped-sector and the CLI defaults of --encoding sector
+    for name, argv in (("r", ["--recipe", "shipped-sector"]), ("e", ["--encoding", "sector"])):
+        p = qnav("train", *argv, "--steps", "1000", "--out", str(tmp_path / name), "--quiet")
+        assert p.returncode == 0, p.stderr
+        cfg = json.loads((tmp_path / name / "meta.json").read_text())["config"]
+        assert cfg["encoding"] == "sector" and cfg["steps"] == 1000
+        assert {k: cfg[k] for k in RECIPES["sector"] if k != "steps"} == \
+            {k: v for k, v in RECIPES["sector"].items() if k != "steps"}
     p = qnav("train", "--recipe", "shipped-sector", "--encoding", "cell", "--out", str(tmp_path / "x"))
     assert p.returncode == 2 and "trains the sector encoding" in p.stderr
