@@ -36,7 +36,8 @@ PLACEHOLDER = re.compile(r"^(?:FILE|DIR|URL|S|X|Y|N|NAME|PATH|SPEC|VALUE|SYSID|M
 RUN = [
     "qnav train --map paper10 --encoding cell --targets A,B,C,D --out out/demo",
     "qnav eval out/demo [--json] [--plot out/demo/policy.png]",
-    "qnav sweep --map paper10 --encoding cell --lrs 0.1:0.9:0.1 --seeds 5 --steps 10000 --out out/sweep",
+    "qnav sweep --map paper10 --encoding cell --lrs 0.1:0.9:0.1 --seeds 20 --steps 10000 --out out/sweep",
+    "qnav study --out out/study",
 ]
 
 _HIL = "a hub + qnav-sim + qnav-robot bring-up on fixed ports; the same commands run on free ports in " \
@@ -240,3 +241,4 @@ def test_runnable_documented_commands_run(tmp_path):
         assert proc.returncode == 0, f"`{line}` exit {proc.returncode}: {proc.stderr[-2000:]}"
     assert (tmp_path / "out" / "demo" / "policy.png").is_file()
     assert (tmp_path / "out" / "sweep" / "sweep.json").is_file()
+    assert (tmp_path / "out" / "study" / "study.json").is_file()

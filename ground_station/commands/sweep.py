@@ -79,9 +79,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"campaign: engine {c['engine']}, {c['workers']} workers on {len(c['nodes'])} node(s), "
           f"{c['wall_s']:.1f} s wall, {c['job_s']:.1f} s of job time, "
           f"speedup over one core {c['speedup_over_one_core']:.2f}x")
-    print(f"{'eta':>5}  {'greedy success':>16}  {'path ratio':>10}  {'final avg return':>18}  point")
+    print(f"mean [bootstrapped 95 % CI] over {args.seeds} seeds")
+    print(f"{'eta':>5}  {'greedy success':>22}  {'path ratio':>10}  {'final avg return':>26}  point")
     for s in data["summary"]:
-        print(f"{s['lr']:>5g}  {s['success_mean']:>8.3f} ± {s['success_std']:<5.3f}  {s['path_ratio_mean']:>10.3f}  "
-              f"{s['final_avg_return_mean']:>9.3f} ± {s['final_avg_return_std']:<6.3f}  {label(s['point'])}")
+        sc = s["success_ci95"] or [s["success_mean"]] * 2
+        rc = s["final_avg_return_ci95"] or [s["final_avg_return_mean"]] * 2
+        print(f"{s['lr']:>5g}  {s['success_mean']:.3f} [{sc[0]:.3f}, {sc[1]:.3f}]  {s['path_ratio_mean']:>10.3f}  "
+              f"{s['final_avg_return_mean']:>8.3f} [{rc[0]:.3f}, {rc[1]:.3f}]  {label(s['point'])}")
     print(f"wrote {args.out}/sweep.json, {args.out}/campaign.json, {args.out}/sweep.png")
     return 0

@@ -1,9 +1,12 @@
 """`qnav train`: train a Q table and write the run folder.
 
-A flag left out takes the encoding's shipped recipe where it has one
-(`ground_station/learn/config.py` RECIPES: sector-memory), else the default
-shown below; so `qnav train --encoding sector-memory --map M --seed N --out
-DIR` trains the shipped policy's recipe.
+A flag left out takes the encoding's shipped recipe
+(`ground_station/learn/config.py` RECIPES: the cell recipe is the defaults
+shown below; sector: 20M steps, lr 0.1, reward-step 0, epsilon-end 0.05;
+sector-memory: see RECIPES), else the default shown below; so `qnav train
+--encoding sector-memory --map M --seed N --out DIR` trains the shipped
+policy's recipe, and `qnav train --recipe shipped-sector` (map paper10,
+seed 0 unless given) the shipped policies/sector.qtab's table.
 
 Writes DIR/q.npy (float64, n_states x n_actions), DIR/meta.json,
 DIR/metrics.csv and DIR/learning_curve.png (see `ground_station.learn.train`).
@@ -22,12 +25,16 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("train", help="train a tabular Q policy (cell, sector or sector-memory encoding)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from ground_station.learn.config import SHIPPED_RECIPES
+
+    p.add_argument("--recipe", choices=sorted(SHIPPED_RECIPES), default=None,
+                   help="train a shipped policy's recipe (sets the encoding; other flags still win)")
     p.add_argument("--out", metavar="DIR", help="run folder to write (created if missing; default "
                    "runs/<map>-<encoding>-s<seed>-<time>)")
     add_config_arguments(p)
     # recipe-aware defaults: a flag left out takes the encoding's shipped recipe (learn/config.RECIPES),
     # else the TrainConfig default shown in its help
-    p.set_defaults(**{f: None for f in _recipe_fields()})
+    p.set_defaults(encoding=None, **{f: None for f in _recipe_fields()})
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
@@ -59,13 +66,17 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import fields
 
     from ground_station.errors import CliError
-    from ground_station.learn.config import TrainConfig, recipe_config
+    from ground_station.learn.config import SHIPPED_RECIPES, TrainConfig, recipe_config
     from ground_station.learn.train import train, validate_config, write_run
     from ground_station.maps import MapError, load_map
 
     given = {f.name: getattr(args, f.name) for f in fields(TrainConfig)
              if getattr(args, f.name, None) is not None and f.name != "encoding"}
-    cfg = recipe_config(args.encoding, given)
+    encoding = args.encoding or SHIPPED_RECIPES.get(args.recipe or "", "cell")
+    if args.recipe and encoding != SHIPPED_RECIPES[args.recipe]:
+        raise CliError(f"--recipe {args.recipe} trains the {SHIPPED_RECIPES[args.recipe]} encoding, "
+                       f"not --encoding {encoding}")
+    cfg = recipe_config(encoding, given)
     if args.epsilon is not None:
         cfg.epsilon_start = cfg.epsilon_end = args.epsilon
     try:
@@ -79,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
     meta = write_run(out, cfg, res)
     if not args.quiet:
         tail = res.successes[-max(1, len(res.successes) // 20):]
-        print(f"trained {cfg.encoding} on {gridmap.name}: {cfg.steps:,} steps, {len(res.returns):,} episodes "
+        learner = "" if cfg.learner == "q" else f" ({cfg.learner})"
+        print(f"trained {cfg.encoding}{learner} on {gridmap.name}: {cfg.steps:,} steps, {len(res.returns):,} episodes "
               f"in {res.seconds:.2f} s ({meta['steps_per_s'] or 0:,.0f} steps/s; "
               f"{time.perf_counter() - t0:.2f} s with setup); "
               f"last 5% of episodes: success {tail.mean():.3f} (with exploration)")

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 ENCODINGS = ("cell", "sector", "sector-memory")
+# tabular learners (ground_station/learn/learners.py); the sector encodings train with q only
+LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
 
 
 def _f(default, help: str):
@@ -26,6 +28,11 @@ class TrainConfig:
     encoding: str = _f("cell", "state encoding: cell (robot cell x goal), sector (kinematic twin) or sector-memory "
                                    "(sector x Bug-style wall-following mode, direct setting)")
     targets: str = _f("", "comma-separated target names or col:row cells (cell encoding); empty = all map targets")
+    learner: str = _f("q", "tabular learner (cell encoding; sector encodings: q): q = Q-learning, sarsa, expected-sarsa, "
+                           "double-q, dyna-q, q-lambda = Watkins' Q(lambda) (ground_station/learn/learners.py)")
+    learner_lambda: float = _f(0.9, "q-lambda: trace decay lambda (traces decay by gamma * lambda per step)")
+    trace_min: float = _f(1e-3, "q-lambda: a trace smaller than this is dropped (bounds the trace ring)")
+    dyna_planning: int = _f(10, "dyna-q: simulated updates from the learnt model per real step")
     seed: int = _f(0, "random seed; same seed and config -> bit-identical table")
     steps: int = _f(3_000_000, "environment steps (Q updates) to train for")
     lr: float = _f(0.5, "learning rate eta in the Q update")
@@ -80,12 +87,18 @@ class TrainConfig:
 
 
 # The shipped recipe of an encoding: the TrainConfig fields that differ from
-# the dataclass defaults. `qnav train --encoding E` starts from RECIPES[E];
-# flags given on the command line override it (docs/training.md).
+# the dataclass defaults (the cell encoding's recipe is the defaults). `qnav
+# train --encoding E` starts from RECIPES[E]; flags given on the command line
+# override it; `qnav train --recipe NAME` names one (SHIPPED_RECIPES: the
+# policies/ files, with map paper10 and seed 0 as the defaults;
+# docs/training.md).
 RECIPES: dict[str, dict[str, Any]] = {
+    "cell": {},
+    "sector": {"steps": 20_000_000, "lr": 0.1, "gamma": 0.95, "reward_step": 0.0, "epsilon_end": 0.05},
     "sector-memory": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
                       "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
 }
+SHIPPED_RECIPES = {"shipped-cell": "cell", "shipped-sector": "sector", "shipped-sector-memory": "sector-memory"}
 
 
 def recipe_config(encoding: str, given: dict[str, Any]) -> TrainConfig:
@@ -127,6 +140,12 @@ def validate_config(cfg: TrainConfig) -> None:
     """Raise ValueError (one line) on an impossible configuration."""
     if cfg.encoding not in ENCODINGS:
         raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got {cfg.encoding!r}")
+    if cfg.learner not in LEARNERS:
+        raise ValueError(f"learner must be one of {', '.join(LEARNERS)}, got {cfg.learner!r}")
+    if cfg.learner != "q" and cfg.encoding != "cell":
+        raise ValueError(f"learner {cfg.learner} is implemented for the cell encoding only (sector encodings: q)")
+    if not 0.0 <= cfg.learner_lambda <= 1.0 or not 0.0 < cfg.trace_min < 1.0 or cfg.dyna_planning < 0:
+        raise ValueError("learner_lambda must be in [0, 1], trace_min in (0, 1), dyna_planning >= 0")
     if cfg.steps < 1:
         raise ValueError(f"steps must be >= 1, got {cfg.steps}")
     if not 0.0 < cfg.lr <= 1.0:

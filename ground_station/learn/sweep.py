@@ -97,7 +97,10 @@ def sweep(base: TrainConfig, lrs: list[float], seeds: int, engine=None, progress
                   "avg_return": float(np.mean([r["curve"][i]["avg_return"] for r in rs])),
                   "success_rate": float(np.mean([r["curve"][i]["success_rate"] for r in rs]))}
                  for i in range(n)]
+        ratios = [r["path_ratio_mean"] for r in rs if r["path_ratio_mean"] is not None]
         summary.append({"point": point, "lr": lr, "success_mean": float(succ.mean()), "success_std": float(succ.std()),
+                        "success_ci95": _ci95(succ), "final_avg_return_ci95": _ci95(final_ret[~np.isnan(final_ret)]),
+                        "path_ratio_ci95": _ci95(np.array(ratios)),
                         "final_avg_return_mean": float(np.nanmean(final_ret)),
                         "final_avg_return_std": float(np.nanstd(final_ret)),
                         "path_ratio_mean": float(np.mean([r["path_ratio_mean"] for r in rs
@@ -109,6 +112,23 @@ def sweep(base: TrainConfig, lrs: list[float], seeds: int, engine=None, progress
     return {"map": base.map, "encoding": base.encoding, "lrs": lrs, "seeds": seeds,
             "points": points or [{}], "config": asdict(base), "summary": summary, "runs": results,
             "campaign": campaign}
+
+
+def _ci95(values: np.ndarray) -> list[float] | None:
+    """Bootstrapped 95 % CI of the mean over seeds (`ground_station.learn.study.bootstrap_ci`)."""
+    from ground_station.learn.study import bootstrap_ci
+
+    if len(values) == 0:
+        return None
+    _, lo, hi = bootstrap_ci(values)
+    return [float(lo), float(hi)]
+
+
+def _yerr(sm: list[dict], mean: str, ci: str) -> list[list[float]]:
+    """errorbar's (below, above) from the summaries' CIs (0 where a CI is missing)."""
+    lo = [s[mean] - s[ci][0] if s.get(ci) else 0.0 for s in sm]
+    hi = [s[ci][1] - s[mean] if s.get(ci) else 0.0 for s in sm]
+    return [lo, hi]
 
 
 def plot_sweep(data: dict) -> bytes:
@@ -136,24 +156,30 @@ def plot_sweep(data: dict) -> bytes:
     for point in series:
         sm = [s for s in data["summary"] if s.get("point", {}) == point]
         suffix = f" ({label(point)})" if point else ""
-        ax2.errorbar(lrs, [s["success_mean"] for s in sm], yerr=[s["success_std"] for s in sm],
+        ax2.errorbar(lrs, [s["success_mean"] for s in sm], yerr=_yerr(sm, "success_mean", "success_ci95"),
                      marker="o", capsize=3, label="greedy success rate" + suffix,
                      color="tab:green" if len(series) == 1 else None)
-        ax3.errorbar(lrs, [s["final_avg_return_mean"] for s in sm], yerr=[s["final_avg_return_std"] for s in sm],
+        ax3.errorbar(lrs, [s["final_avg_return_mean"] for s in sm],
+                     yerr=_yerr(sm, "final_avg_return_mean", "final_avg_return_ci95"),
                      marker="s", capsize=3, linestyle="--", label="final average return" + suffix,
                      color="tab:blue" if len(series) == 1 else None)
-        ax4.plot(lrs, [s["path_ratio_mean"] for s in sm], marker="o", label=label(point),
-                 color="tab:red" if len(series) == 1 else None)
+        ax4.errorbar(lrs, [s["path_ratio_mean"] for s in sm], yerr=_yerr(sm, "path_ratio_mean", "path_ratio_ci95"),
+                     marker="o", capsize=3, label=label(point), color="tab:red" if len(series) == 1 else None)
     ax2.set_xlabel("learning rate eta")
     ax2.set_ylabel("greedy success rate (solid)", color="tab:green")
     ax2.set_ylim(-0.02, 1.05)
     ax3.set_ylabel("final average return, training (dashed)", color="tab:blue")
-    ax2.set_title(f"learning-rate study, {data['seeds']} seeds each")
+    ax2.set_title(f"learning-rate study: mean, bootstrapped 95 % CI, {data['seeds']} seeds")
     if len(series) > 1:
         ax4.legend(fontsize=7)
     ax4.set_xlabel("learning rate eta")
-    ax4.set_ylabel("greedy path length / shortest (mean)")
-    ax4.set_title("path quality of successful rollouts")
+    ax4.set_ylabel("greedy path length / shortest (mean over successful rollouts)")
+    # a fixed scale from the optimum (1.0): an auto-scaled axis made 0.1 % look like a trend
+    ratios = [v for s in data["summary"] for v in (s.get("path_ratio_ci95") or [s["path_ratio_mean"]])
+              if v is not None and np.isfinite(v)]
+    top = max([1.1, *ratios]) if ratios else 1.1
+    ax4.set_ylim(min([1.0, *ratios]) - 0.02 if ratios else 0.9, top + 0.02)
+    ax4.set_title(f"path quality of successful rollouts\n(mean, bootstrapped 95 % CI, {data['seeds']} seeds)")
     fig.tight_layout()
     return png_bytes(fig)
 

@@ -170,6 +170,7 @@ class TrainResult:
     successes: np.ndarray  # bool per finished episode
     meta: dict  # encoding-specific meta.json entries
     seconds: float
+    q2: np.ndarray | None = None  # Double Q's second table (q is then (A + B) / 2)
 
 
 @dataclass
@@ -216,9 +217,18 @@ def initial_table(cfg: TrainConfig, n_states: int, n_actions: int) -> np.ndarray
 
 
 def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Exact sequential Q-learning on the cell encoding."""
+    """Exact sequential Q-learning on the cell encoding (other learners:
+    `ground_station.learn.learners`, same problem, schedule and rewards)."""
     prob = CellProblem.build(gridmap, cfg.targets or None)
     q = initial_table(cfg, prob.encoder.n_states, prob.encoder.n_actions)
+    meta = {"encoder": prob.encoder.to_dict(), "targets": prob.target_names,
+            "goals": [list(g) for g in prob.goals], "learner": cfg.learner}
+    if cfg.learner != "q":
+        from ground_station.learn.learners import train_cell_learner
+
+        with _progress(cfg.steps, progress, f"train cell {cfg.learner} {gridmap.name}") as bar:
+            table, q2, rets_a, succs_a, secs = train_cell_learner(cfg, prob, q, bar)
+        return TrainResult(table, rets_a, succs_a, meta, secs, q2)
     max_ep = cfg.max_episode_steps or gridmap.width * gridmap.height
     rng = seed_state(cfg.seed)
     ep = np.zeros(4, dtype=np.int64)
@@ -242,8 +252,6 @@ def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> Tr
             done += n
             bar.update(n)
     seconds = time.perf_counter() - t0
-    meta = {"encoder": prob.encoder.to_dict(), "targets": prob.target_names,
-            "goals": [list(g) for g in prob.goals]}
     return TrainResult(q, np.concatenate(rets), np.concatenate(succs), meta, seconds)
 
 
@@ -359,6 +367,10 @@ def write_run(out: str | Path, cfg: TrainConfig, res: TrainResult) -> dict:
     buf = io.BytesIO()
     np.save(buf, np.ascontiguousarray(res.q, dtype=np.float64))
     atomic_write(out / "q.npy", buf.getvalue())
+    if res.q2 is not None:  # Double Q: q.npy = (A + B) / 2, q_b.npy = B (A = 2 q - B)
+        buf = io.BytesIO()
+        np.save(buf, np.ascontiguousarray(res.q2, dtype=np.float64))
+        atomic_write(out / "q_b.npy", buf.getvalue())
     rows = learning_curve(res.returns, res.successes, cfg.curve_points)
     sio = io.StringIO()
     w = csv.DictWriter(sio, fieldnames=["episode", "avg_return", "success_rate"], lineterminator="\n")

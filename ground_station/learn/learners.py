@@ -1,0 +1,311 @@
+"""Tabular learners beside Q-learning on the `cell` encoding, CleanRL style.
+
+One numba kernel, `td_cell`, with a documented switch (`learner`, the index
+of `TrainConfig.learner` in `LEARNERS`) over six algorithms that share
+everything else with the Q-learning kernel of `ground_station.learn.train`:
+the transition table, the random goal and start per episode, the linear
+epsilon schedule, the rewards, termination (goal, collision: no bootstrap)
+and truncation (bootstrap), and the xorshift generator (same seed -> same
+table, regardless of chunking). With learner = q it reproduces
+`q_learning_cell` bit for bit (a test checks it).
+
+The next action a' is drawn (epsilon-greedy, behaviour policy) before the
+current step's update: SARSA needs it in its target and Watkins' Q(lambda)
+needs it to decide whether to cut the traces. In the cell world s' != s on
+every non-terminal step, so for the one-step learners this equals drawing
+it after the update. It is drawn only when the episode continues (SARSA
+also draws it on truncation, where its target needs it), so the random
+stream of learner q is that of `q_learning_cell`.
+
+Targets (terminal: r alone):
+
+* q:               r + gamma * max_b Q(s', b)
+* sarsa:           r + gamma * Q(s', a')
+* expected-sarsa:  r + gamma * sum_b pi(b | s') Q(s', b), pi = epsilon-greedy
+                   at the current epsilon (ties: greedy = lowest index)
+* double-q:        two tables A and B (van Hasselt 2010); a coin picks which
+                   one learns: A(s,a) toward r + gamma * B(s', argmax_b A(s', b))
+                   (or B toward A's value of B's argmax); the behaviour acts
+                   greedily on A + B; the run's table is (A + B) / 2 (same
+                   greedy actions).
+* dyna-q:          Q-learning plus `dyna_planning` simulated updates per real
+                   step from a learnt model (the world is deterministic: the
+                   model stores the last seen s', r, terminal per (s, a));
+                   planning draws uniformly among the (s, a) pairs seen so far.
+* q-lambda:        Watkins' Q(lambda): delta = r + gamma * max_b Q(s', b) - Q(s, a),
+                   every traced pair moves by lr * delta * e, traces decay by
+                   gamma * lambda and are cut (emptied) when a' is exploratory
+                   (not greedy at s'). Accumulating traces, kept as a ring of
+                   the episode's recent pairs: a pair older than
+                   log(trace_min) / log(gamma * lambda) steps has e < trace_min
+                   and is dropped.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numba
+import numpy as np
+
+from ground_station.learn.config import LEARNERS, TrainConfig
+from ground_station.learn.jit import greedy, rand01, randint, seed_state
+
+Q, SARSA, EXPECTED_SARSA, DOUBLE_Q, DYNA_Q, Q_LAMBDA = range(6)
+assert LEARNERS == ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
+
+
+@numba.njit(cache=True, inline="always")
+def _greedy_sum(qa, qb, s):
+    """argmax of qa[s] + qb[s], ties to the lowest index (Double Q's behaviour)."""
+    best = 0
+    bv = qa[s, 0] + qb[s, 0]
+    for a in range(1, qa.shape[1]):
+        v = qa[s, a] + qb[s, a]
+        if v > bv:
+            bv = v
+            best = a
+    return best
+
+
+@numba.njit(cache=True, inline="always")
+def _act(learner, qa, qb, s, eps, rng):
+    """Epsilon-greedy behaviour action (Double Q: greedy on A + B)."""
+    if rand01(rng) < eps:
+        return int(rand01(rng) * qa.shape[1])
+    if learner == DOUBLE_Q:
+        return _greedy_sum(qa, qb, s)
+    return greedy(qa, s)
+
+
+@numba.njit(cache=True, inline="always")
+def _max(q, s):
+    m = q[s, 0]
+    for k in range(1, q.shape[1]):
+        if q[s, k] > m:
+            m = q[s, k]
+    return m
+
+
+@numba.njit(cache=True)
+def td_cell(learner, qa, qb, next_cell, goal_cells, starts_flat, starts_off,
+            lr, gamma, eps_start, eps_end, eps_decay_steps,
+            r_goal, r_step, r_coll, max_ep_steps, lam, n_plan,
+            model_s2, model_r, model_term, seen, n_seen,
+            tr_s, tr_a, tr_e, tr,
+            start_step, n_steps, rng, ep, ep_ret, out_ret, out_succ):
+    """Advance training by `n_steps` steps from global step `start_step`.
+
+    qa: the table (n_goals*H*W, 4); qb: Double Q's second table (else unused).
+    model_s2/model_r/model_term (n_states*4, s2 = -1 unseen), seen[:n_seen[0]]
+    (keys s*4+a): Dyna-Q's model. tr_s/tr_a/tr_e: Q(lambda)'s trace ring,
+    tr = [head, length]. ep = [cell, goal, steps in episode, active, a]
+    carries an unfinished episode (and its next action) across calls.
+    Returns how many episodes finished (their returns/successes in out_*)."""
+    n_goals = goal_cells.shape[0]
+    n_cells = next_cell.shape[0]
+    n_actions = qa.shape[1]
+    cap = tr_s.shape[0]
+    cell = ep[0]
+    g = ep[1]
+    t_ep = ep[2]
+    active = ep[3]
+    a = ep[4]
+    ret = ep_ret[0]
+    n_done = 0
+    for i in range(n_steps):
+        t = start_step + i
+        eps = eps_end if t >= eps_decay_steps else eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
+        if active == 0:
+            g = int(rand01(rng) * n_goals)
+            lo = starts_off[g]
+            cell = starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
+            t_ep = 0
+            ret = 0.0
+            active = 1
+            tr[0] = 0
+            tr[1] = 0
+            a = _act(learner, qa, qb, g * n_cells + cell, eps, rng)
+        s = g * n_cells + cell
+        c2 = next_cell[cell, a]
+        t_ep += 1
+        if c2 < 0:  # collision: terminal, the robot stays
+            r = r_coll
+            done = True
+            success = False
+            c2 = cell
+        elif c2 == goal_cells[g]:  # goal: terminal
+            r = r_goal
+            done = True
+            success = True
+        else:  # bootstrap also on truncation: time limits are not terminal
+            r = r_step
+            done = False
+            success = False
+        truncated = not done and t_ep >= max_ep_steps
+        s2 = g * n_cells + c2
+        # the next action (behaviour policy), before this step's update
+        a2 = 0
+        if not done and (not truncated or learner == SARSA):
+            t2 = t + 1
+            eps2 = eps_end if t2 >= eps_decay_steps else eps_start + (eps_end - eps_start) * (t2 / eps_decay_steps)
+            a2 = _act(learner, qa, qb, s2, eps2, rng)
+
+        if learner == DOUBLE_Q:
+            if rand01(rng) < 0.5:
+                learn, other = qa, qb
+            else:
+                learn, other = qb, qa
+            target = r
+            if not done:
+                target += gamma * other[s2, greedy(learn, s2)]
+            learn[s, a] += lr * (target - learn[s, a])
+        elif learner == Q_LAMBDA:
+            a_star = greedy(qa, s2)
+            target = r
+            if not done:
+                target += gamma * qa[s2, a_star]
+            delta = target - qa[s, a]
+            # push (s, a) with e = 1 (accumulating: a revisit is a second entry)
+            k = (tr[0] + tr[1]) % cap
+            if tr[1] == cap:
+                tr[0] = (tr[0] + 1) % cap  # the oldest entry's e < trace_min: dropped
+            else:
+                tr[1] += 1
+            tr_s[k] = s
+            tr_a[k] = a
+            tr_e[k] = 1.0
+            exploratory = not done and not truncated and qa[s2, a2] < qa[s2, a_star]
+            for j in range(tr[1]):
+                m = (tr[0] + j) % cap
+                qa[tr_s[m], tr_a[m]] += lr * delta * tr_e[m]
+                tr_e[m] *= gamma * lam
+            if exploratory:  # Watkins: the greedy chain is broken, cut the traces
+                tr[0] = 0
+                tr[1] = 0
+        else:
+            target = r
+            if not done:
+                if learner == SARSA:
+                    target += gamma * qa[s2, a2]
+                elif learner == EXPECTED_SARSA:
+                    b = greedy(qa, s2)
+                    v = 0.0
+                    for k2 in range(n_actions):
+                        v += qa[s2, k2]
+                    target += gamma * ((eps / n_actions) * v + (1.0 - eps) * qa[s2, b])
+                else:  # q, dyna-q
+                    target += gamma * _max(qa, s2)
+            qa[s, a] += lr * (target - qa[s, a])
+            if learner == DYNA_Q:
+                key = s * n_actions + a
+                if model_s2[key] < 0:
+                    seen[n_seen[0]] = key
+                    n_seen[0] += 1
+                model_s2[key] = s2
+                model_r[key] = r
+                model_term[key] = done
+                for _ in range(n_plan):
+                    key = seen[randint(rng, n_seen[0])]
+                    ps = key // n_actions
+                    pa = key % n_actions
+                    pt = model_r[key]
+                    if not model_term[key]:
+                        pt += gamma * _max(qa, model_s2[key])
+                    qa[ps, pa] += lr * (pt - qa[ps, pa])
+        cell = c2
+        a = a2
+        ret += r
+        if done or truncated:
+            out_ret[n_done] = ret
+            out_succ[n_done] = success
+            n_done += 1
+            active = 0
+    ep[0] = cell
+    ep[1] = g
+    ep[2] = t_ep
+    ep[3] = active
+    ep[4] = a
+    ep_ret[0] = ret
+    return n_done
+
+
+def trace_capacity(cfg: TrainConfig, max_ep: int) -> int:
+    """Ring length of Q(lambda)'s traces: steps until (gamma * lambda)^k < trace_min,
+    at most one episode."""
+    gl = cfg.gamma * cfg.learner_lambda
+    if gl <= 0.0:
+        return 1
+    if gl >= 1.0:
+        return max_ep
+    return max(1, min(max_ep, math.ceil(math.log(cfg.trace_min) / math.log(gl)) + 1))
+
+
+class CellLearner:
+    """One learner's state on a `CellProblem`: the table(s), the model or traces,
+    the generator and the unfinished episode; `run(n)` advances n steps."""
+
+    def __init__(self, cfg: TrainConfig, prob, q: np.ndarray) -> None:
+        self.cfg = cfg
+        self.prob = prob
+        self.code = LEARNERS.index(cfg.learner)
+        self.q = q
+        n_states, n_actions = q.shape
+        # Double Q's second table starts where A starts (zeros or the same random init)
+        self.q2 = q.copy() if self.code == DOUBLE_Q else np.zeros((1, n_actions))
+        self.max_ep = cfg.max_episode_steps or prob.gridmap.width * prob.gridmap.height
+        dyna = self.code == DYNA_Q
+        nk = n_states * n_actions if dyna else 1
+        self.model_s2 = np.full(nk, -1, dtype=np.int64)
+        self.model_r = np.zeros(nk, dtype=np.float64)
+        self.model_term = np.zeros(nk, dtype=np.bool_)
+        self.seen = np.zeros(nk, dtype=np.int64)
+        self.n_seen = np.zeros(1, dtype=np.int64)
+        cap = trace_capacity(cfg, self.max_ep) if self.code == Q_LAMBDA else 1
+        self.tr_s = np.zeros(cap, dtype=np.int64)
+        self.tr_a = np.zeros(cap, dtype=np.int64)
+        self.tr_e = np.zeros(cap, dtype=np.float64)
+        self.tr = np.zeros(2, dtype=np.int64)
+        self.rng = seed_state(cfg.seed)
+        self.ep = np.zeros(5, dtype=np.int64)
+        self.ep_ret = np.zeros(1, dtype=np.float64)
+        self.decay = int(cfg.epsilon_decay * cfg.steps)
+        self.done = 0
+
+    def run(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Advance n steps; the returns and successes of the episodes that finished."""
+        c, p = self.cfg, self.prob
+        out_ret = np.empty(n, dtype=np.float64)
+        out_succ = np.empty(n, dtype=np.bool_)
+        k = td_cell(self.code, self.q, self.q2, p.next_cell, p.goal_cells, p.starts_flat, p.starts_off,
+                    c.lr, c.gamma, c.epsilon_start, c.epsilon_end, self.decay,
+                    c.reward_goal, c.reward_step, c.reward_collision, self.max_ep, c.learner_lambda,
+                    c.dyna_planning, self.model_s2, self.model_r, self.model_term, self.seen, self.n_seen,
+                    self.tr_s, self.tr_a, self.tr_e, self.tr,
+                    self.done, n, self.rng, self.ep, self.ep_ret, out_ret, out_succ)
+        self.done += n
+        return out_ret[:k].copy(), out_succ[:k].copy()
+
+    def table(self) -> np.ndarray:
+        """The run's greedy table: Q, or (A + B) / 2 for Double Q."""
+        return (self.q + self.q2) / 2.0 if self.code == DOUBLE_Q else self.q
+
+
+def train_cell_learner(cfg: TrainConfig, prob, q: np.ndarray, progress_bar=None):
+    """Train `cfg.learner` on a CellProblem in chunks; (table, second table or None,
+    returns, successes, seconds)."""
+    lrn = CellLearner(cfg, prob, q)
+    chunk = min(cfg.chunk_steps, cfg.steps)
+    rets, succs = [], []
+    t0 = time.perf_counter()
+    while lrn.done < cfg.steps:
+        n = min(chunk, cfg.steps - lrn.done)
+        r, s = lrn.run(n)
+        rets.append(r)
+        succs.append(s)
+        if progress_bar is not None:
+            progress_bar.update(n)
+    seconds = time.perf_counter() - t0
+    q2 = lrn.q2 if lrn.code == DOUBLE_Q else None
+    return lrn.table(), q2, np.concatenate(rets), np.concatenate(succs), seconds

@@ -1,0 +1,120 @@
+"""`qnav study` (ground_station/learn/study.py): bootstrapped CIs, steps to
+threshold from the greedy checkpoints, study.json identical on one worker and
+on the two-process pool (timings only in campaign.json), the CLI run and its
+errors, and `qnav train --recipe`."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ground_station.campaign.engines import LocalEngine
+from ground_station.learn.config import RECIPES, TrainConfig, recipe_config
+from ground_station.learn.study import bootstrap_ci, run_job, study, tables
+
+ROOT = Path(__file__).resolve().parents[2]
+BASE = TrainConfig(map="paper10", targets="A,B,C,D", steps=30_000)
+
+
+def qnav(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ground_station.cli", *args], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300, check=False)
+
+
+def test_bootstrap_ci_brackets_the_mean_and_narrows_with_n():
+    rng = np.random.default_rng(1)
+    small = rng.normal(10, 2, 10)
+    big = rng.normal(10, 2, 400)
+    m, lo, hi = bootstrap_ci(small)
+    assert lo < m < hi and m == pytest.approx(small.mean())
+    m2, lo2, hi2 = bootstrap_ci(big)
+    assert hi2 - lo2 < hi - lo
+    assert lo2 < 10 < hi2
+    assert bootstrap_ci(small) == bootstrap_ci(small)  # seeded resampling: reproducible
+    m3, lo3, hi3 = bootstrap_ci(np.stack([small, small + 1]), axis=1)  # per row
+    assert m3[1] == pytest.approx(m3[0] + 1) and np.all(lo3 < m3) and np.all(m3 < hi3)
+    assert bootstrap_ci([3.0]) == (3.0, 3.0, 3.0)
+
+
+def test_job_steps_to_threshold_is_the_first_checkpoint_at_or_above_it():
+    job = {"group": "lr", "schedule": "decay", "config": asdict(BASE), "eval_every": 1000, "threshold": 0.95}
+    r = run_job(job)
+    c = r["curve"]
+    assert c["steps"] == list(range(1000, 30_001, 1000))
+    assert c["episodes"] == sorted(c["episodes"]) and c["episodes"][-1] > 0
+    first = next(s for s, v in zip(c["steps"], c["success"], strict=True) if v >= 0.95)
+    assert r["steps_to_threshold"] == first
+    assert r["final_success"] == c["success"][-1]
+    assert c["qmax"][-1] > c["qmax"][0]  # values grow toward the goal reward, as in the paper's Fig. 5
+    never = run_job({**job, "threshold": 1.0, "config": asdict(
+        TrainConfig(map="paper10", targets="A,B,C,D", steps=2000))})
+    assert never["steps_to_threshold"] is None
+
+
+def test_study_json_is_the_same_on_one_worker_and_on_the_pool():
+    kw = {"constant_epsilon": 0.1, "learners": ["q", "sarsa", "double-q"], "learner_lrs": [0.5],
+          "eval_every": 2000}
+    a = study(BASE, [0.3, 0.9], 3, engine=LocalEngine(1), **kw)
+    b = study(BASE, [0.3, 0.9], 3, engine=LocalEngine(2), **kw)
+    ca, cb = a.pop("campaign"), b.pop("campaign")
+    assert json.dumps(a) == json.dumps(b)
+    assert ca["workers"] == 1 and cb["workers"] == 2 and "learner_train_seconds" in ca
+    assert len(a["runs"]) == 2 * 2 * 3 + 3 * 3
+    assert "bootstrapped 95 % CI" in a["ci"] and "bootstrapped 95 % CI" in tables({**a, "campaign": ca})
+    rows = {(r["schedule"], r["lr"]): r for r in a["lr_study"]}
+    assert rows[("decay", 0.9)]["steps_to_threshold"]["mean"] < rows[("decay", 0.3)]["steps_to_threshold"]["mean"]
+    assert a["optimum"]["success"] == 1.0 and a["optimum"]["path_ratio_mean"] == 1.0
+    ex = a["optimum"]["example"]
+    assert len(ex["bfs_path"]) == ex["bfs_steps"] + 1 and len(ex["greedy_path"]) == ex["greedy_steps"] + 1
+
+
+def test_cli_study_writes_json_png_and_campaign(tmp_path):
+    p = qnav("study", "--out", str(tmp_path), "--seeds", "2", "--lrs", "0.5", "--learners", "q,dyna-q",
+             "--learner-lrs", "0.5", "--steps", "10000", "--eval-every", "2000")
+    assert p.returncode == 0, p.stderr
+    assert "bootstrapped 95 % CI" in p.stdout
+    data = json.loads((tmp_path / "study.json").read_text())
+    assert "campaign" not in data and "train_seconds" not in json.dumps(data)
+    camp = json.loads((tmp_path / "campaign.json").read_text())
+    assert camp["jobs"] == 2 * 2 + 2 * 2 and "bfs_all_pairs_s" in camp["optimum"]
+    assert (tmp_path / "study.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("args,text", [
+    (["--learners", "q,td0"], "unknown learner"),
+    (["--seeds", "0"], "--seeds"),
+    (["--lrs", "0"], "learning rates"),
+    (["--map", "nosuchmap"], "nosuchmap"),
+    (["--map", "maze-15x15-s2", "--targets", ""], "defines no targets"),
+    (["--targets", "A,Z"], "Z"),
+])
+def test_cli_study_bad_input_is_one_line(tmp_path, args, text):
+    p = qnav("study", "--out", str(tmp_path), *args)
+    assert p.returncode == 2 and text in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_recipes_are_the_train_defaults(tmp_path):
+    assert recipe_config("sector", {}).steps == 20_000_000 and recipe_config("sector", {}).reward_step == 0.0
+    assert recipe_config("cell", {}) == TrainConfig()
+    assert recipe_config("sector", {"lr": 0.3}).lr == 0.3  # given flags win
+    assert set(RECIPES) == {"cell", "sector", "sector-memory"}
+    p = qnav("train", "--recipe", "shipped-cell", "--steps", "20000", "--out", str(tmp_path / "c"), "--quiet")
+    assert p.returncode == 0, p.stderr
+    meta = json.loads((tmp_path / "c" / "meta.json").read_text())
+    assert meta["encoding"] == "cell" and meta["config"]["lr"] == 0.5 and meta["config"]["steps"] == 20000
+    # the sector recipe is both --recipe shipped-sector and the CLI defaults of --encoding sector
+    for name, argv in (("r", ["--recipe", "shipped-sector"]), ("e", ["--encoding", "sector"])):
+        p = qnav("train", *argv, "--steps", "1000", "--out", str(tmp_path / name), "--quiet")
+        assert p.returncode == 0, p.stderr
+        cfg = json.loads((tmp_path / name / "meta.json").read_text())["config"]
+        assert cfg["encoding"] == "sector" and cfg["steps"] == 1000
+        assert {k: cfg[k] for k in RECIPES["sector"] if k != "steps"} == \
+            {k: v for k, v in RECIPES["sector"].items() if k != "steps"}
+    p = qnav("train", "--recipe", "shipped-sector", "--encoding", "cell", "--out", str(tmp_path / "x"))
+    assert p.returncode == 2 and "trains the sector encoding" in p.stderr
