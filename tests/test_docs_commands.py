@@ -48,6 +48,8 @@ _ROBOT = "a real robot on a radio or CAN bus"
 NOT_RUN = {
     "make demo": "installs into the shared venv; `qnav demo` runs in tests/hil/test_demo.py",
     "make test": "the test suite itself",
+    "qnav study --map maze-15x15-s2": "the same study on a second map (~25 s); `qnav study --out out/study` "
+                                      "above runs the same code",
     "qnav bench train": "a benchmark (about a minute); tests check a benchmark's code, never a time",
     "qnav-sim --map paper10 --can remote:": _HIL,
     "qnav-robot --can remote:": _HIL,
