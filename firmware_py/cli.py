@@ -62,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: python-can's own configuration)")
     p.add_argument("--policy", metavar="FILE", help=".qtab policy to run, or policies:NAME for a shipped one "
                                                     "(default: the active one in --storage)")
+    p.add_argument("--localiser", choices=("on", "off"), default="on",
+                   help="Monte Carlo localisation on the map the policy carries (on), or dead reckoning alone "
+                        "(off: what the ideal sim plant, with exact encoders, needs; docs/architecture.md)")
     p.add_argument("--storage", metavar="DIR", help="the robot's file store (active/last-good policies, parameters; "
                    "default: none: parameters in memory only and no MAVLink FTP uploads)")
     clk = p.add_mutually_exclusive_group()
@@ -194,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
                         motor_timeout_ms=args.motor_timeout_ms, cell_size_mm=cell_mm)
     sim = args.lockstep or args.sim_clock
     clock = SimClock() if sim else WallClock()
-    ctrl = Controller(cfg, policy, start_pose_mm=start, lockstep=args.lockstep)
+    ctrl = Controller(cfg, policy, start_pose_mm=start, lockstep=args.lockstep, localise=args.localiser == "on")
     try:
         bus = open_bus(args.can)
     except CanSpecError as exc:

@@ -422,7 +422,7 @@ class Localiser:
             cw = [w / share for w in cw]
             est, cov = self._mean_cov(cw)
         else:
-            est, cov = self._mean_cov(ws)
+            est, cov = self._tracking_estimate(ws)
         self.est, self.cov = est, cov
         self._est_odom = self._pending[0]
         self._pending = None
@@ -446,6 +446,33 @@ class Localiser:
             self.xs = [x + g(0, jx) for x in self.xs]
             self.ys = [y + g(0, jx) for y in self.ys]
             self.ths = [_wrap(t + g(0, ja)) for t in self.ths]
+
+    def _tracking_estimate(self, ws: list[float]
+                           ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """While tracking: the weighted mean of the particles near the pose the
+        last estimate predicts (cluster_mm / cluster_mrad around it), so the few
+        particles drawn uniformly for recovery, or a look-alike place (a second
+        corridor), cannot pull the estimate away: a plain weighted mean over all
+        particles moved it by up to 0.3 m in a demo run on exact odometry. When
+        that cluster holds under half of the weight the prediction is stale
+        (the robot is lost or was moved): all particles count, as before."""
+        cfg = self.cfg
+        assert self._pending is not None
+        ex, ey, eth = self.est
+        ax, ay, ath = self._est_odom
+        bx, by, bth = self._pending[0]
+        c, s = math.cos(-ath), math.sin(-ath)
+        lx, ly = c * (bx - ax) - s * (by - ay), s * (bx - ax) + c * (by - ay)
+        c, s = math.cos(eth), math.sin(eth)
+        px, py, pth = ex + c * lx - s * ly, ey + s * lx + c * ly, _wrap(eth + bth - ath)
+        r2 = cfg.cluster_mm ** 2
+        ca = cfg.cluster_mrad / 1000
+        cw = [w if (x - px) ** 2 + (y - py) ** 2 <= r2 and abs(_wrap(t - pth)) <= ca else 0.0
+              for w, x, y, t in zip(ws, self.xs, self.ys, self.ths, strict=True)]
+        share = sum(cw)
+        if self.updates == 0 or share < 0.5:
+            return self._mean_cov(ws)
+        return self._mean_cov([w / share for w in cw])
 
     def _mean_cov(self, ws: list[float] | None = None
                   ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
