@@ -507,6 +507,7 @@ class Localiser:
         xs, ys, ths, lw = self.xs, self.ys, self.ths, self.lw
         probes = [(d * ca, d * sa) for d, (ca, sa) in self._probes]
         cos, sin = math.cos, math.sin
+        ninf = -math.inf
         start = self._cursor
         end = min(len(xs), start + (cfg.global_chunk if self.global_mode else cfg.chunk))
         for i in range(start, end):
@@ -524,17 +525,18 @@ class Localiser:
             ll = 0.0
             for fan in beams:
                 # the reading is the nearest hit in the sensor's cone: the best-fitting ray explains it
-                best = floor
+                best = ninf
                 for dc, ds in fan:
                     ex = x + c * dc - s * ds
                     ey = y + s * dc + c * ds
+                    v = floor
                     if ex >= 0 and ey >= 0:
                         ix = int(ex / res)
                         iy = int(ey / res)
                         if ix < nx and iy < ny:
                             v = table[iy * nx + ix]
-                            if v > best:
-                                best = v
+                    if v > best:
+                        best = v
                 ll += best
             for dc, ds in probes:
                 ex = x + c * dc - s * ds
