@@ -601,7 +601,8 @@ class Controller:
     def localise_global(self, explore: bool = True) -> tuple[bool, str]:
         """Forget the pose: particles uniform over the map (global
         localisation). With `explore` and armed in HOLD the robot wanders
-        (forward while the front is clear, else turning in place) until the
+        (forward while the front is clear, steering towards the side with
+        more room, else turning in place) until the
         localiser has converged, the bumper is pressed, it is disarmed or
         EXPLORE_TIMEOUT_US passes; goals are refused until it is localised."""
         with self._lock:

@@ -25,9 +25,13 @@ beside it in telemetry.
   averages of the mean weight (`alpha_fast`, `alpha_slow`) a share of the
   new particles is drawn uniformly over free space when the sensors disagree
   with the particles (recovery from a wrong or kidnapped pose).
-* **Global localisation**: `init_global()` spreads `global_particles`
-  uniformly over free space; once the estimate is tight it shrinks back to
-  `particles`.
+* **Global localisation**: `init_global()` scores the next readings at
+  every pose of a grid over free space (`seed_step_mm` x `seed_headings`, a
+  share per tick) and draws `global_particles` from those scores, so the
+  true pose has particles from the start; then global-mode updates
+  (negative information, roughening). Converged when the best particle's
+  cluster dominates and is tight `converge_updates` updates in a row, moving
+  as the odometry says; then only that cluster is tracked, with `particles`.
 * **Schedule**: an update is due when the odometry moved `update_mm` or
   turned `update_mrad` since the last one; its particles are weighed in
   chunks of `chunk` per control tick and the resample happens on a tick of

@@ -1,6 +1,6 @@
 """Global localisation: the grid-scored first update, the convergence test
-(a dominant cluster several updates in a row) and a seeded HIL run at the
-realistic plant profile (pymunk plant in lockstep)."""
+(a dominant cluster several updates in a row) and the exploration's
+steering (the seeded HIL run: tests/hil/test_global_localisation_hil.py)."""
 
 import math
 
@@ -97,17 +97,24 @@ def test_converged_only_after_the_cluster_dominates_several_updates():
     assert seen == [False, False, True] and not loc.global_mode
 
 
-def test_global_localisation_converges_in_hil_at_the_realistic_profile():
-    """Three seeded unknown starts on paper10 in the lockstep rig (the
-    realistic plant profile): each localises within 10 s sim time, within
-    150 mm of the true pose, without wall contact."""
-    pytest.importorskip("pymunk")
+@pytest.mark.parametrize(("left", "right", "want"), [
+    (200, 200, (250, 250)),  # centred in a 500 mm corridor: the diagonals read ~200 mm each: straight on
+    (300, 200, (220, 280)),  # more room on the left: steer left (right wheel faster), 0.3 (mm/s)/mm
+    (2000, 130, (170, 330)),  # capped at 80 mm/s
+    (100, 900, (-160, 160)),  # a diagonal within 120 mm: turn in place
+])
+def test_exploration_drives_through_corridors_and_steers_to_the_room(left, right, want):
+    from firmware_py.control.controller import Controller, Inputs
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy
-    from ground_station.bench.hil import run_global_set
-    from ground_station.maps import load_map
-    from sim_bridge.profiles import profile
+    from firmware_py.vehicle import CtrlState
 
-    rows = run_global_set(load_map("paper10"), load_policy(shipped_policy("sector")), 3, seed=0,
-                          limit_s=10.0, profile=profile("realistic"))
-    assert [r["success"] for r in rows] == [True] * 3, rows
+    ctrl = Controller(policy=load_policy(shipped_policy("sector")), start_pose_mm=(1250, 1250, 0))
+    ok, why = ctrl.localise_global(explore=True)
+    assert ok, why
+    ctrl.armed, ctrl.state = True, CtrlState.HOLD  # arming itself is covered by the controller tests
+    inp = Inputs()
+    inp.ranges_mm = [900, left, 900, 900, 900, 900, 900, right]
+    inp.range_status = [robot_spec.RANGE_VALID] * 8
+    ctrl._explore(inp, 1000)
+    assert ctrl.watchdog._setpoint == want
