@@ -101,7 +101,7 @@ def test_converged_only_after_the_cluster_dominates_several_updates():
     (200, 200, (250, 250)),  # centred in a 500 mm corridor: the diagonals read ~200 mm each: straight on
     (300, 200, (220, 280)),  # more room on the left: steer left (right wheel faster), 0.3 (mm/s)/mm
     (2000, 130, (170, 330)),  # capped at 80 mm/s
-    (100, 900, (-160, 160)),  # a diagonal within 120 mm: turn in place
+    (70, 900, (-160, 160)),  # a diagonal within 80 mm: turn in place
 ])
 def test_exploration_drives_through_corridors_and_steers_to_the_room(left, right, want):
     from firmware_py.control.controller import Controller, Inputs
