@@ -86,7 +86,9 @@ _WHEEL_CIRC_UM = round(2 * 3.141592653589793 * robot_spec.WHEEL_RADIUS_MM * 1000
 EXPLORE_FORWARD_MM_S = 250
 EXPLORE_TURN_MM_S = 160
 EXPLORE_CLEAR_FRONT_MM = 450
-EXPLORE_CLEAR_DIAGONAL_MM = 300
+EXPLORE_CLEAR_DIAGONAL_MM = 80  # a 500 mm corridor leaves ~200 mm; 80 mm on a diagonal is ~160 mm beside the path
+EXPLORE_STEER_GAIN = 0.3  # (mm/s) / mm of left-right diagonal difference
+EXPLORE_STEER_MM_S = 80
 EXPLORE_TIMEOUT_US = 30_000_000
 
 # Grid action (dcol, drow) -> world heading (mrad): rows grow southwards.
@@ -599,7 +601,8 @@ class Controller:
     def localise_global(self, explore: bool = True) -> tuple[bool, str]:
         """Forget the pose: particles uniform over the map (global
         localisation). With `explore` and armed in HOLD the robot wanders
-        (forward while the front is clear, else turning in place) until the
+        (forward while the front is clear, steering towards the side with
+        more room, else turning in place) until the
         localiser has converged, the bumper is pressed, it is disarmed or
         EXPLORE_TIMEOUT_US passes; goals are refused until it is localised."""
         with self._lock:
@@ -634,9 +637,11 @@ class Controller:
                 inp.ranges_mm[k] if st == robot_spec.RANGE_VALID else 0)
 
         front = rng(0)
-        diag = min(rng(1), rng(7))
-        if front > EXPLORE_CLEAR_FRONT_MM and diag > EXPLORE_CLEAR_DIAGONAL_MM:
-            self.watchdog.feed(now_us, EXPLORE_FORWARD_MM_S, EXPLORE_FORWARD_MM_S)
+        left, right = rng(1), rng(7)
+        if front > EXPLORE_CLEAR_FRONT_MM and min(left, right) > EXPLORE_CLEAR_DIAGONAL_MM:
+            # steer towards the side with more room (keeps it centred in a 500 mm corridor)
+            steer = max(-EXPLORE_STEER_MM_S, min(EXPLORE_STEER_MM_S, (left - right) * EXPLORE_STEER_GAIN))
+            self.watchdog.feed(now_us, round(EXPLORE_FORWARD_MM_S - steer), round(EXPLORE_FORWARD_MM_S + steer))
         else:
             self.watchdog.feed(now_us, -EXPLORE_TURN_MM_S, EXPLORE_TURN_MM_S)
 

@@ -25,9 +25,13 @@ beside it in telemetry.
   averages of the mean weight (`alpha_fast`, `alpha_slow`) a share of the
   new particles is drawn uniformly over free space when the sensors disagree
   with the particles (recovery from a wrong or kidnapped pose).
-* **Global localisation**: `init_global()` spreads `global_particles`
-  uniformly over free space; once the estimate is tight it shrinks back to
-  `particles`.
+* **Global localisation**: `init_global()` scores the next readings at
+  every pose of a grid over free space (`seed_step_mm` x `seed_headings`, a
+  share per tick) and draws `global_particles` from those scores, so the
+  true pose has particles from the start; then global-mode updates
+  (negative information, roughening). Converged when the best particle's
+  cluster dominates and is tight `converge_updates` updates in a row, moving
+  as the odometry says; then only that cluster is tracked, with `particles`.
 * **Schedule**: an update is due when the odometry moved `update_mm` or
   turned `update_mrad` since the last one; its particles are weighed in
   chunks of `chunk` per control tick and the resample happens on a tick of
@@ -48,6 +52,7 @@ import math
 import random
 from array import array
 from dataclasses import dataclass
+from dataclasses import field as dc_field
 
 from firmware_py import robot_spec
 from firmware_py.mapdata import OccupancyGrid
@@ -59,6 +64,20 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % TWO_PI - math.pi
 
 
+def _compose(est: tuple[float, float, float], odom_a: tuple[float, float, float],
+             odom_b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """`est` (the pose believed when the odometry read `odom_a`) moved on by
+    the odometry's motion from `odom_a` to `odom_b` (in its own frame)."""
+    ex, ey, eth = est
+    ax, ay, ath = odom_a
+    bx, by, bth = odom_b
+    dx, dy = bx - ax, by - ay
+    c, s = math.cos(-ath), math.sin(-ath)
+    lx, ly = c * dx - s * dy, s * dx + c * dy
+    c, s = math.cos(eth), math.sin(eth)
+    return ex + c * lx - s * ly, ey + s * lx + c * ly, _wrap(eth + bth - ath)
+
+
 @dataclass(frozen=True)
 class LocaliserConfig:
     """Every tuning value of the filter (units in the names)."""
@@ -66,9 +85,14 @@ class LocaliserConfig:
     particles: int = 200
     global_particles: int = 1500
     chunk: int = 25  # particles weighed per control tick
-    global_chunk: int = 150  # the same while localising globally (the robot explores, no policy runs)
+    global_chunk: int = 300  # the same while localising globally (the robot explores, no policy runs)
     global_jitter_mm: float = 25.0  # roughening of resampled particles while localising globally
     global_jitter_mrad: float = 50.0
+    seed_step_mm: int = 100  # global mode's first update: candidate positions on this grid over free space ...
+    seed_headings: int = 48  # ... times this many headings (48: the fan's rays fall on the heading steps)
+    seed_positions_per_tick: int = 40  # candidate positions scored per control tick
+    converge_updates: int = 3  # global mode: updates in a row the same cluster must dominate
+    converge_agree_mm: float = 200.0  # (same: its estimate moved as the odometry says, within this)
     cluster_mm: float = 400.0  # global mode: the best particle's cluster (radius) that must hold ...
     cluster_mrad: float = 500.0  # (and heading half-width)
     cluster_share: float = 0.8  # ... this share of the weight to count as converged
@@ -87,7 +111,7 @@ class LocaliserConfig:
     max_field_mm: float = 400.0  # distances beyond it are floor
     field_res_mm: int = 25
     beam_weight: float = 0.6  # log-likelihood multiplier: the 8 readings are not independent
-    global_beam_weight: float = 0.2  # softer while localising globally, so no wrong mode wins early
+    global_beam_weight: float = 0.35  # softer while localising globally, so no wrong mode wins early
     alpha_slow: float = 0.01
     alpha_fast: float = 0.2
     max_random_share: float = 0.1  # at most this share of a resample is drawn uniformly
@@ -99,6 +123,8 @@ class LocaliserConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if self.seed_headings < 8 or self.seed_headings % 8 or self.seed_step_mm < 1 or self.seed_positions_per_tick < 1:
+            raise ValueError("seed_headings must be a multiple of 8; seed_step_mm and seed_positions_per_tick >= 1")
         if self.particles < 1 or self.global_particles < 1 or self.chunk < 1:
             raise ValueError("particles, global_particles and chunk must be >= 1")
         if not (self.z_hit > 0 and self.z_floor > 0):
@@ -136,6 +162,9 @@ class LikelihoodField:
                 d = min(d, max_mm)
                 table[iy * self.nx + ix] = math.log(z_hit * math.exp(-d * d / two_s2) + z_floor)
         self.table = table
+        self.values = table.tolist()  # the same as a list: indexing it is faster in the weighing loop
+        # a square inside an occupied cell or off the map (distance 0) has the field's top value
+        self.wall = array("f", [math.log(z_hit + z_floor)])[0] - 1e-6
 
     def distance_mm(self, px: float, py: float, reach: int = 2) -> float:
         """Distance from a world point (mm) to the nearest occupied cell or
@@ -189,6 +218,19 @@ def likelihood_field(grid: OccupancyGrid, res_mm: int, sigma_mm: float, z_hit: f
     return LikelihoodField(grid, res_mm, sigma_mm, z_hit, z_floor, max_mm)
 
 
+@dataclass
+class _Seeding:
+    """Global localisation's first update in progress: the readings (as
+    end-point offsets per heading index), the odometry pose they were taken
+    at, the candidates scored so far."""
+
+    readings: tuple[list[tuple[int, list[tuple[float, float]]]], list[tuple[int, list[tuple[float, float]]]],
+                    int] | None = None
+    odom: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    cursor: int = 0
+    scores: list[float] = dc_field(default_factory=list)
+
+
 class Localiser:
     """The particle filter; see the module docstring. All public methods are
     called from the controller's tick (under its lock)."""
@@ -226,6 +268,11 @@ class Localiser:
         self._finish_due = False
         self._motion = (0.0, 0.0, 0.0)
         self._probes: list[tuple[float, tuple[float, float]]] = []
+        self._seed: _Seeding | None = None  # global mode's grid-scored first update, in progress
+        self._seed_cells: list[tuple[float, float]] | None = None  # its candidate positions (per map, lazily)
+        self._streak = 0  # global mode: updates in a row the same cluster dominated
+        self._prev_cluster: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+        self.last_fit = 0.0  # global mode: the cluster's mean per-beam log-likelihood at the last update
         self.last_share = 1.0  # global mode: weight share of the best cluster at the last update
         self._force_update = False
         self.random_drawn = 0  # particles drawn uniformly at the last resample (recovery)
@@ -252,7 +299,11 @@ class Localiser:
         self.localised = True
 
     def init_global(self) -> None:
-        """Particles uniform over free space: the pose is unknown."""
+        """The pose is unknown: the next readings are scored at every
+        candidate pose of a grid over free space (`seed_step_mm` x
+        `seed_headings`, a share of them per tick, `_seed_tick`), and the
+        particles drawn from those scores; then ordinary (global mode)
+        updates follow. Until then the particles are uniform over free space."""
         n = self.cfg.global_particles
         self.xs, self.ys, self.ths = [], [], []
         for _ in range(n):
@@ -262,8 +313,116 @@ class Localiser:
             self.ths.append(th)
         self.global_mode = True
         self._reset_estimate(*self._mean_cov())
-        self._force_update = True
+        self._force_update = False
+        self._seed = _Seeding()
+        self._streak = 0
+        self._prev_cluster = None
         self.localised = False
+
+    def _candidate_cells(self) -> list[tuple[float, float]]:
+        """Grid positions (raster coordinates: world + margin) where the robot fits."""
+        if self._seed_cells is None:
+            f, step = self.field, self.cfg.seed_step_mm
+            self._seed_cells = [(x + f.margin, y + f.margin)
+                                for y in range(step // 2, int(f.height_mm), step)
+                                for x in range(step // 2, int(f.width_mm), step)
+                                if f.free(x, y, robot_spec.ROBOT_RADIUS_MM * 0.9)]
+        return self._seed_cells
+
+    def _seed_tick(self, ranges_mm: list[int], status: list[int]) -> None:
+        """One tick of the grid-scored first update of global localisation.
+        Heading step h = 2 pi / seed_headings; sensor k looks along heading
+        index j + k * seed_headings / 8, its fan's rays (with 48 headings:
+        exactly) along the neighbouring indices, so per position every
+        (sensor, direction) end point is looked up once."""
+        sd = self._seed
+        assert sd is not None
+        cfg = self.cfg
+        nh = cfg.seed_headings
+        f = self.field
+        table, res, nx, ny, floor, wall = f.values, f.res, f.nx, f.ny, f.floor, f.wall
+        cells = self._candidate_cells()
+        if sd.readings is None:  # the readings every candidate is scored against
+            sd.odom = self._odom_now
+            beams: list[tuple[int, float]] = []
+            probes: list[tuple[int, float]] = []
+            for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
+                if st == robot_spec.RANGE_VALID or st == robot_spec.RANGE_TOO_CLOSE:
+                    d = float(r if st == robot_spec.RANGE_VALID else robot_spec.RANGE_MIN_MM)
+                    beams.append((k, self._mount + d))
+                    if d > 100:
+                        probes.append((k, self._mount + 0.75 * d))
+                elif st == robot_spec.RANGE_TOO_FAR:
+                    probes += [(k, self._mount + 1000.0), (k, self._mount + 1900.0)]
+            angles = [(round(robot_spec.SENSOR_ANGLES_MRAD[k] / 1000 / (TWO_PI / nh))) for k in range(8)]
+            dirs = [(math.cos(m * TWO_PI / nh), math.sin(m * TWO_PI / nh)) for m in range(nh)]
+            half = 1 if cfg.fan_rays > 1 else 0  # the fan's edge rays: the neighbouring heading indices
+            sd.readings = ([(angles[k] % nh, [(d * c, d * s) for c, s in dirs]) for k, d in beams],
+                           [(angles[k] % nh, [(d * c, d * s) for c, s in dirs]) for k, d in probes], half)
+        beams_r, probes_r, half = sd.readings
+        end = min(len(cells), sd.cursor + cfg.seed_positions_per_tick)
+        scores = sd.scores
+        for ci in range(sd.cursor, end):
+            x, y = cells[ci]
+            tot = [0.0] * nh
+            for k0, pts in beams_r:
+                # raster index of each direction's end point (-1: off the raster)
+                idx = [int((y + dy) / res) * nx + int((x + dx) / res)
+                       if 0 <= x + dx < nx * res and 0 <= y + dy < ny * res else -1 for dx, dy in pts]
+                vals = [table[i] if i >= 0 else floor for i in idx]
+                if half:  # the best ray of the fan
+                    vals = [max(a, b, c) for a, b, c in zip(vals[-1:] + vals[:-1], vals, vals[1:] + vals[:1],
+                                                           strict=True)]
+                rot = vals[k0:] + vals[:k0]  # rot[j]: the direction sensor k looks along at heading j
+                tot = [t + v for t, v in zip(tot, rot, strict=True)]
+            for k0, pts in probes_r:  # negative information: the sensor saw through a wall or off the map
+                idx = [int((y + dy) / res) * nx + int((x + dx) / res)
+                       if 0 <= x + dx < nx * res and 0 <= y + dy < ny * res else -1 for dx, dy in pts]
+                pen = [floor if i < 0 or table[i] >= wall else 0.0 for i in idx]
+                rot = pen[k0:] + pen[:k0]
+                tot = [t + v for t, v in zip(tot, rot, strict=True)]
+            scores.extend(tot)
+        sd.cursor = end
+        if end < len(cells):
+            return
+        self._seed = None
+        self._draw_from_scores(scores, cells, sd.odom)
+
+    def _draw_from_scores(self, scores: list[float], cells: list[tuple[float, float]],
+                          odom: tuple[float, float, float]) -> None:
+        """Particles drawn from the grid's scores (softened by the global beam
+        weight), each spread uniformly over its grid square and heading step."""
+        cfg = self.cfg
+        nh = cfg.seed_headings
+        n = cfg.global_particles
+        if not scores:
+            return  # no room for the robot anywhere: keep the uniform particles
+        bw = cfg.global_beam_weight
+        m = max(scores)
+        ws = [math.exp(bw * (v - m)) for v in scores]
+        total = sum(ws)
+        rnd = self.rng.random
+        step, hstep, mg = cfg.seed_step_mm, TWO_PI / nh, self.field.margin
+        xs: list[float] = []
+        ys: list[float] = []
+        ths: list[float] = []
+        u = rnd() * total / n
+        c = ws[0]
+        i = 0
+        last = len(ws) - 1
+        for _ in range(n):
+            while u > c and i < last:
+                i += 1
+                c += ws[i]
+            x, y = cells[i // nh]
+            xs.append(x - mg + (rnd() - 0.5) * step)
+            ys.append(y - mg + (rnd() - 0.5) * step)
+            ths.append(_wrap((i % nh + rnd() - 0.5) * hstep))
+            u += total / n
+        self.xs, self.ys, self.ths = xs, ys, ths
+        self._reset_estimate(*self._mean_cov())
+        self._est_odom = odom  # the particles are poses at the readings' time: the next update moves them on
+        self.updates += 1
 
     def _reset_estimate(self, est: tuple[float, float, float], cov: tuple[float, float, float]) -> None:
         self.est = est
@@ -289,6 +448,9 @@ class Localiser:
         latest readings. Does at most one chunk of work."""
         ox, oy, oth = odom_pose[0], odom_pose[1], odom_pose[2] / 1000
         self._odom_now = (float(ox), float(oy), oth)
+        if self._seed is not None:
+            self._seed_tick(ranges_mm, status)
+            return
         if self._finish_due:
             self._finish()
             return
@@ -341,14 +503,15 @@ class Localiser:
         s_t = cfg.alpha3 * at + cfg.alpha4 * (abs(rot1) + abs(rot2))
         s_r2 = cfg.alpha1 * abs(rot2) + cfg.alpha2 * at
         g = self.rng.gauss
-        beams = [(d, self._beams[int(k)]) for d, k in self._pending[1]]
-        ninf = -math.inf
+        # each reading's end points in the robot frame, one per ray of its fan (d cos, d sin)
+        beams = [tuple((d * ca, d * sa) for ca, sa in self._beams[int(k)]) for d, k in self._pending[1]]
         f = self.field
-        table, res, nx, ny, floor, mg = f.table, f.res, f.nx, f.ny, f.floor, f.margin
+        table, res, nx, ny, floor, mg, wall = f.values, f.res, f.nx, f.ny, f.floor, f.margin, f.wall
         bw = cfg.global_beam_weight if self.global_mode else cfg.beam_weight
         xs, ys, ths, lw = self.xs, self.ys, self.ths, self.lw
-        probes = self._probes
-        occupied, cell, gh1 = self.grid.occupied, self.grid.cell_mm, self.grid.height - 1
+        probes = [(d * ca, d * sa) for d, (ca, sa) in self._probes]
+        cos, sin = math.cos, math.sin
+        ninf = -math.inf
         start = self._cursor
         end = min(len(xs), start + (cfg.global_chunk if self.global_mode else cfg.chunk))
         for i in range(start, end):
@@ -356,33 +519,38 @@ class Localiser:
             t = trans + g(0, s_t) if s_t > 0 else trans
             r2 = rot2 + g(0, s_r2) if s_r2 > 0 else rot2
             th = ths[i] + r1
-            x = xs[i] + t * math.cos(th)
-            y = ys[i] + t * math.sin(th)
+            x = xs[i] + t * cos(th)
+            y = ys[i] + t * sin(th)
             th = _wrap(th + r2)
             xs[i], ys[i], ths[i] = x, y, th
-            c, s = math.cos(th), math.sin(th)
+            c, s = cos(th), sin(th)
             x += mg  # raster coordinates (the field's margin)
             y += mg
             ll = 0.0
-            for d, fan in beams:
+            for fan in beams:
                 # the reading is the nearest hit in the sensor's cone: the best-fitting ray explains it
                 best = ninf
-                for ca, sa in fan:
-                    ex = x + d * (c * ca - s * sa)
-                    ey = y + d * (s * ca + c * sa)
-                    if ex < 0 or ey < 0:
-                        v = floor
-                    else:
+                for dc, ds in fan:
+                    ex = x + c * dc - s * ds
+                    ey = y + s * dc + c * ds
+                    v = floor
+                    if ex >= 0 and ey >= 0:
                         ix = int(ex / res)
                         iy = int(ey / res)
-                        v = table[iy * nx + ix] if ix < nx and iy < ny else floor
+                        if ix < nx and iy < ny:
+                            v = table[iy * nx + ix]
                     if v > best:
                         best = v
                 ll += best
-            for d, (ca, sa) in probes:
-                px = x - mg + d * (c * ca - s * sa)
-                py = y - mg + d * (s * ca + c * sa)
-                if occupied(math.floor(px / cell), gh1 - math.floor(py / cell)):
+            for dc, ds in probes:
+                ex = x + c * dc - s * ds
+                ey = y + s * dc + c * ds
+                if ex < 0 or ey < 0:
+                    ll += floor  # the sensor saw off the map
+                    continue
+                ix = int(ex / res)
+                iy = int(ey / res)
+                if ix >= nx or iy >= ny or table[iy * nx + ix] >= wall:
                     ll += floor  # the sensor saw through a wall or off the map
             lw[i] = bw * ll
         self._cursor = end
@@ -421,8 +589,12 @@ class Localiser:
             share = sum(cw)
             cw = [w / share for w in cw]
             est, cov = self._mean_cov(cw)
+            # how well the cluster explains the readings: weighted mean per-beam log-likelihood
+            self.last_fit = sum(w * v for w, v in zip(cw, lw, strict=True)) / (bw * nb)
         else:
             est, cov = self._tracking_estimate(ws)
+        # the previous estimate carried to these readings by the odometry (global mode's consistency test)
+        carried = _compose(self.est, self._est_odom, self._pending[0])
         self.est, self.cov = est, cov
         self._est_odom = self._pending[0]
         self._pending = None
@@ -432,6 +604,12 @@ class Localiser:
         sa = math.sqrt(cov[2]) * 1000
         tight = sd <= cfg.localised_std_mm and sa <= cfg.localised_std_mrad and share >= cfg.cluster_share
         self.last_share = share
+        if self.global_mode:
+            # converged only when the same cluster dominated `converge_updates` updates in a row (a
+            # look-alike place often wins one update, rarely several while the robot moves)
+            agree = math.hypot(est[0] - carried[0], est[1] - carried[1]) <= cfg.converge_agree_mm
+            self._streak = (self._streak + 1 if agree and self._streak else 1) if tight else 0
+            tight = self._streak >= cfg.converge_updates
         if tight and self.global_mode:
             self.global_mode = False
             ws = cw  # track the converged cluster only, not the modes it beat
@@ -458,13 +636,7 @@ class Localiser:
         (the robot is lost or was moved): all particles count, as before."""
         cfg = self.cfg
         assert self._pending is not None
-        ex, ey, eth = self.est
-        ax, ay, ath = self._est_odom
-        bx, by, bth = self._pending[0]
-        c, s = math.cos(-ath), math.sin(-ath)
-        lx, ly = c * (bx - ax) - s * (by - ay), s * (bx - ax) + c * (by - ay)
-        c, s = math.cos(eth), math.sin(eth)
-        px, py, pth = ex + c * lx - s * ly, ey + s * lx + c * ly, _wrap(eth + bth - ath)
+        px, py, pth = _compose(self.est, self._est_odom, self._pending[0])
         r2 = cfg.cluster_mm ** 2
         ca = cfg.cluster_mrad / 1000
         cw = [w if (x - px) ** 2 + (y - py) ** 2 <= r2 and abs(_wrap(t - pth)) <= ca else 0.0
@@ -544,15 +716,7 @@ class Localiser:
     def pose_f(self) -> tuple[float, float, float]:
         """The believed pose now (mm, mm, rad): the last estimate composed
         with the odometry's motion since the readings it used."""
-        ex, ey, eth = self.est
-        ax, ay, ath = self._est_odom
-        bx, by, bth = self._odom_now
-        dx, dy = bx - ax, by - ay
-        # the odometry's displacement in its own frame at the reference, rotated onto the estimate
-        c, s = math.cos(-ath), math.sin(-ath)
-        lx, ly = c * dx - s * dy, s * dx + c * dy
-        c, s = math.cos(eth), math.sin(eth)
-        return ex + c * lx - s * ly, ey + s * lx + c * ly, _wrap(eth + bth - ath)
+        return _compose(self.est, self._est_odom, self._odom_now)
 
     def pose_mm(self) -> tuple[int, int, int]:
         """(x_mm, y_mm, heading_mrad), as `Odometry.pose_mm`."""

@@ -30,6 +30,9 @@ ACCEPTED = M.MAV_RESULT_ACCEPTED
 DENIED = M.MAV_RESULT_DENIED
 TEMP_REJECTED = M.MAV_RESULT_TEMPORARILY_REJECTED
 UNSUPPORTED = M.MAV_RESULT_UNSUPPORTED
+# qnav's own command (MAVLink reserves MAV_CMD_USER_1..5 for the vehicle's use): forget the pose and
+# localise globally on the policy's map; param1 1 = explore (armed in HOLD), 0 = stay put
+CMD_LOCALISE_GLOBAL = M.MAV_CMD_USER_1
 
 
 class CommandHandler:
@@ -112,6 +115,11 @@ class CommandHandler:
                 return DENIED, f"set mission current refused: no item {seq}", []
             ok, reason = self.vehicle.set_mission_current(seq)
             return (ACCEPTED, "", []) if ok else (DENIED, f"set mission current refused: {reason}", [])
+        if cmd == CMD_LOCALISE_GLOBAL:
+            if p[0] not in (0.0, 1.0):
+                return DENIED, f"global localisation: param1 must be 0 (stay put) or 1 (explore), got {p[0]:g}", []
+            ok, reason = self.vehicle.localise_global(explore=p[0] == 1.0)
+            return (ACCEPTED, "", []) if ok else (DENIED, f"global localisation refused: {reason}", [])
         return UNSUPPORTED, "", []
 
     def _reposition(self, msg: mavlink2.MAVLink_message, now_us: int) -> tuple[int, str, list[mavlink2.MAVLink_message]]:

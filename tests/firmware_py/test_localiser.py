@@ -120,7 +120,8 @@ def test_update_weighs_each_particle_as_the_reference_does():
     xs, ys, ths = list(loc.xs), list(loc.ys), list(loc.ths)
     ranges = [300, 250, 180, 900, 2000, 400, 60, 10]
     status = [0, 0, 0, 0, robot_spec.RANGE_TOO_FAR, 0, 0, robot_spec.RANGE_TOO_CLOSE]
-    loc.init_global()  # forces an update on the next tick ...
+    loc.init_global()
+    loc._seed, loc._force_update = None, True  # an update on the next tick ...
     loc.xs, loc.ys, loc.ths, loc.global_mode = xs, ys, ths, False  # ... of these particles, tracking
     ticks = 0
     while not loc._finish_due:

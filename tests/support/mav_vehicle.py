@@ -62,6 +62,9 @@ class TestVehicle:
         self.st.mission_count = len(self.mission)
         return self.st
 
+    def localise_global(self, explore: bool = True) -> tuple[bool, str]:
+        return False, "no map: the active policy carries none (qnav policy attach-map)"
+
     def arm(self) -> tuple[bool, str]:
         if self.refuse_arm:
             return False, self.refuse_arm
