@@ -186,3 +186,17 @@ def test_fresh_venv_without_extras_is_the_robot(tmp_path):
         assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [
             f"{prog}: error: needs the ground station packages (missing: "
             f"{', '.join(STATION_IMPORTS)}): {INSTALL_HINT}"], refused.stderr
+
+
+def test_make_test_runs_every_test_folder_and_file():
+    """`make test` splits the suite (parallel unit tests, serial HIL/faults,
+    the Ray cluster tests): every folder and top-level test file must be in
+    one of its pytest lines, or new tests would silently not run in CI."""
+    make = (ROOT / "Makefile").read_text()
+    recipe = make[make.index("\ntest:"):]
+    recipe = recipe[:recipe.index("\n\n")]
+    for p in sorted((ROOT / "tests").iterdir()):
+        if p.name in ("__init__.py", "support", "__pycache__") or p.name.startswith("."):
+            continue
+        if p.is_dir() or (p.suffix == ".py" and p.name.startswith("test_")):
+            assert f"tests/{p.name}" in recipe, f"tests/{p.name} is not run by make test"
