@@ -61,15 +61,15 @@ from firmware_py.storage import ftp_crc32
 
 HEADER = struct.Struct("<HBBBBBBI")  # seq, session, opcode, size, req_opcode, burst_complete, pad, offset
 MAX_DATA = 239
-OP_TERMINATE, OP_CREATE, OP_WRITE, OP_OPEN_WO, OP_CRC = 1, 6, 7, 11, 14
+OP_TERMINATE, OP_RESET, OP_CREATE, OP_WRITE, OP_OPEN_WO, OP_CRC = 1, 2, 6, 7, 11, 14
 OP_ACK, OP_NAK = 128, 129
 NAK_INVALID_SESSION = 4
 MAX_COPIES = 10  # of one control request before the put gives up (the caller may put again)
 OP_NAMES = {OP_TERMINATE: "TerminateSession", OP_CREATE: "CreateFile", OP_OPEN_WO: "OpenFileWO",
             OP_CRC: "CalcFileCRC32"}
-UNKNOWNS_PER_ROUND = 16  # expected unanswered writes per round (CRC32: 32 equations)
-MAX_UNKNOWNS = 24  # more unknowns than this: a wrong solution gets too likely (2^(n-32))
-FIRST_ROUND_BLOCKS = 48
+UNKNOWNS_PER_ROUND = 20  # expected unanswered writes per round (CRC32: 32 equations)
+MAX_UNKNOWNS = 28  # more unknowns than this: a wrong solution gets too likely (2^(n-32))
+FIRST_ROUND_BLOCKS = 56
 TWICE_AT_MOST = 3  # a last round of this many blocks or fewer sends each twice
 
 
@@ -107,6 +107,7 @@ class PutStats:
     unknown: int = 0  # writes sent whose ACK never came
     solved_lost: int = 0  # of those, found lost by the CRC (the rest: only the ACK was lost)
     unsolved: int = 0  # unknowns the CRC could not resolve (sent again)
+    reopened: int = 0  # sessions opened again: the open sent ahead may have preceded the commit
     control_sent: int = 0  # CreateFile / OpenFileWO / TerminateSession / CalcFileCRC32 frames
     blocks: int = 0
     rtt_min: float | None = None
@@ -145,7 +146,7 @@ class FtpPut:
     session: int
     seq: int  # the next seq to use; read it back when done (the link's counter)
     block: int = MAX_DATA
-    window: int = 5
+    window: int = 6
     min_rto: float = 0.05
     max_rto: float = 2.0
     max_rounds: int = 40
@@ -180,6 +181,11 @@ class FtpPut:
         self.opened = False  # the file exists on the robot (first session committed)
         self.checking: tuple[set[int], list[int]] | None = None  # (answered, unanswered) at the commit
         self.sid = self.session  # the round's session number
+        self.opens = 0  # sessions opened (the session number alternates)
+        self.next_open: _Ctrl | None = None  # the next round's OpenFileWO, sent behind the commit
+        self.open_ready = False  # that OpenFileWO answered after the commit: the round may write
+        self.open_refused = False  # it was refused before the commit's ACK came: open again
+        self.outbox: list[bytes] = []  # sent by the first poll after the put finished
 
     # --- timing -------------------------------------------------------------------
     def rto(self) -> float:
@@ -249,16 +255,37 @@ class FtpPut:
         """CreateFile (first round) or OpenFileWO, on a session number other
         than the last round's: a late copy of that round's TerminateSession
         then finds no session instead of ending this one."""
-        self.stats.rounds += 1
-        self.sid = (self.session + self.stats.rounds % 2) & 0xFF
+        self.opens += 1
+        self.sid = (self.session + self.opens % 2) & 0xFF
         self.state = "open"
         self._control(OP_OPEN_WO if self.opened else OP_CREATE, self.path.encode() + b"\0", now)
+
+    def _open_next(self, now: float, behind_writes: bool) -> None:
+        """The next round's OpenFileWO, sent right behind this round's
+        TerminateSession and CalcFileCRC32 (pipelined: the link is FIFO and
+        the robot serves requests in order, so it opens the committed file).
+        Its writes wait for the commit's ACK: only an ACK of the commit's
+        first copies proves the commit ran before this open (`_reopen`)."""
+        self.opens += 1
+        self.sid = (self.session + self.opens % 2) & 0xFF
+        self.open_ready = self.open_refused = False
+        self.next_open = self._control(OP_OPEN_WO, self.path.encode() + b"\0", now, behind_writes=behind_writes)
+
+    def _reopen(self, now: float) -> None:
+        """The pipelined open may have run before the commit (or was refused
+        for it): open the same session again (the robot replaces it; no write
+        went to it yet)."""
+        self.ctrls = [c for c in self.ctrls if c is not self.next_open]
+        self.stats.reopened += 1
+        self.open_ready = self.open_refused = False
+        self.next_open = self._control(OP_OPEN_WO, self.path.encode() + b"\0", now)
 
     def poll(self, now: float) -> list[bytes]:
         """Requests due now (first call: the CreateFile)."""
         if self.finished:
-            return []
-        out: list[bytes] = []
+            out, self.outbox = self.outbox, []
+            return out
+        out = []
         if self.state == "open" and not self.ctrls:
             self._open(now)
         for c in self.ctrls:  # first send, or a copy: same seq and bytes (the retry cache answers)
@@ -272,7 +299,9 @@ class FtpPut:
                 c.copies += 1
                 self.stats.control_sent += 1
                 out.append(c.payload)
-                if c.kind in (OP_TERMINATE, OP_CRC):  # harmless twice (retry cache): two chances
+                if c.kind == OP_TERMINATE or c.kind == OP_CRC and self.next_new >= self.n_blocks:
+                    # harmless twice (retry cache): two chances. The CRC only when the put waits
+                    # for it; mid-put its answer only reorders the next round's queue
                     out.append(c.payload)
                     self.stats.control_sent += 1
         if self.state != "write":
@@ -289,6 +318,7 @@ class FtpPut:
             self.state = "terminate"  # and ask the CRC right behind the commit
             self._control(OP_TERMINATE, b"", now, behind_writes=True)
             self._crc_request(now, behind_writes=True)
+            self._open_next(now, behind_writes=True)
             out += self.poll(now)
         return out
 
@@ -337,9 +367,20 @@ class FtpPut:
     def _control_reply(self, ctrl: _Ctrl, opcode: int, data: bytes, now: float) -> None:
         kind = ctrl.kind
         if kind in (OP_CREATE, OP_OPEN_WO):
+            if ctrl is self.next_open and self.state == "terminate":
+                # answered before the commit's ACK: the commit may not have run before it
+                # (refused: the file may not exist yet); decided when the commit answers
+                self.open_ready = opcode == OP_ACK
+                self.open_refused = opcode != OP_ACK
+                return
             if opcode != OP_ACK:
                 self._fail("CreateFile" if kind == OP_CREATE else "OpenFileWO", data)
                 return
+            if ctrl is self.next_open:
+                self.open_ready = True
+                if self.state != "open":
+                    return  # "check": the CRC decides what the round writes
+            self.next_open = None
             self._start_round()
         elif kind == OP_TERMINATE:
             # NAK InvalidSession on a copy: the first copy closed the session after the
@@ -360,15 +401,20 @@ class FtpPut:
                 self.unknown.update(self.checking[1])
             self.checking = (set(self.acked), sorted(self.unknown))
             self.unknown.clear()
-            for c in self.ctrls:  # the writes have drained (FIFO): the CRC's answer is one round trip off
-                if c.kind == OP_CRC and c.behind_writes:
+            for c in self.ctrls:  # the writes have drained (FIFO): the answers are one round trip off
+                if c.kind in (OP_CRC, OP_OPEN_WO) and c.behind_writes:
                     c.behind_writes, c.sent_at = False, now
             if stale or ctrl.copies > 1 or not any(c.kind == OP_CRC for c in self.ctrls):
                 # the CRC asked behind the first Terminate may have run before the commit
                 # (that copy lost, a later one ran it): ask again, behind this ACK
                 self._crc_request(now)
-            if self.next_new < self.n_blocks:  # more to write whatever the CRC says: open now
-                self._open(now)
+            if (ctrl.copies > 1 or self.open_refused) and self.next_open is not None:
+                self._reopen(now)  # a copy ran the commit, perhaps after the pipelined open
+            if self.next_new < self.n_blocks:  # more to write whatever the CRC says
+                self.state = "open"
+                if self.open_ready:
+                    self.next_open = None
+                    self._start_round()
             else:
                 self.state = "check"
         elif kind == OP_CRC:
@@ -380,6 +426,7 @@ class FtpPut:
             self._check(struct.unpack("<I", data)[0], now)
 
     def _start_round(self) -> None:
+        self.stats.rounds += 1
         size = self._round_size()
         self.queue = list(self.lost)
         self.lost.clear()
@@ -419,10 +466,17 @@ class FtpPut:
             return
         if not self.lost and self.next_new >= self.n_blocks and remote == self.crc:
             self.state = "done"
+            if self.next_open is not None:  # the pipelined session is not needed: close it uncommitted
+                self.outbox.append(request(self._next_seq(), self.sid, OP_RESET))
         elif self.stats.rounds >= self.max_rounds:
             self._fail("put", b"", f"{len(self.lost)} blocks still missing after {self.stats.rounds} rounds")
-        else:
+        elif self.next_open is None:
             self._open(now)
+        else:
+            self.state = "open"
+            if self.open_ready:
+                self.next_open = None
+                self._start_round()
 
     def _solve(self, remote: int, acked: set[int], unknown: list[int]) -> list[int] | None:
         """The unanswered blocks that are on the robot, if its CRC32 tells
