@@ -134,6 +134,7 @@ class _Ctrl:
     copies: int = 1
     order: int = -1  # send order of its last copy (writes and controls share the count)
     behind_writes: bool = False  # sent right after the round's writes: their round trip
+    timed: bool = True  # its reply is a round-trip sample (not queued behind writes, not an open)
 
 
 @dataclass
@@ -231,7 +232,8 @@ class FtpPut:
         """A control request, due at the next `poll` (which sends it)."""
         seq = self._next_seq()
         payload = request(seq, self.sid if session is None else session, opcode, 0, data)
-        ctrl = _Ctrl(seq, payload, opcode, float("-inf"), copies=0, behind_writes=behind_writes)
+        ctrl = _Ctrl(seq, payload, opcode, float("-inf"), copies=0, behind_writes=behind_writes,
+                     timed=not behind_writes and opcode != OP_OPEN_WO)
         self.ctrls.append(ctrl)
         return ctrl
 
@@ -344,7 +346,8 @@ class FtpPut:
                 c.sent_at = float("-inf")
         if ctrl is not None:
             self.ctrls.remove(ctrl)
-            if not ctrl.behind_writes:
+            if ctrl.timed and ctrl.copies == 1:  # Karn: a copy's reply may answer the first
+                # (an OpenFileWO's reply waits for the robot to copy the file: no sample)
                 rtt = now - ctrl.sent_at
                 self.ctrl_srtt = rtt if self.ctrl_srtt is None else 0.875 * self.ctrl_srtt + 0.125 * rtt
             self._control_reply(ctrl, opcode, data, now)
