@@ -14,10 +14,18 @@ loss it either idles or floods the radio with copies (docs/mavlink.md).
 How the put finds out what was lost, cheaply (standard opcodes only):
 * the put runs in rounds: CreateFile (later OpenFileWO, which keeps the
   contents), each of the round's blocks written ONCE, TerminateSession
-  (commits) and CalcFileCRC32 sent right behind it;
+  (commits, sent twice) and CalcFileCRC32 sent right behind it (twice
+  when the put waits for it, once mid-put), and the next round's
+  OpenFileWO right behind those (the link is FIFO and the robot serves in
+  order: it opens the committed file). That round writes once the
+  commit's ACK is in; if that ACK answered a later copy (the first two,
+  or their ACKs, lost) or the open was refused, the open may have run
+  before the commit, so the same session is opened again (no write went
+  to it yet); when the last CRC shows the file complete, the session
+  opened ahead is closed uncommitted (ResetSessions, not waited for);
 * every copy of a write carries its own seq, so each ACK names the copy it
   answers: exact round-trip samples (SRTT/RTTVAR as RFC 6298); the window
-  (5 writes, a little over the radio's bandwidth-delay product) is freed by
+  (6 writes, a little over the radio's bandwidth-delay product) is freed by
   ACKs, by a later write's ACK (the link is FIFO: RACK, RFC 8985) and by the
   retransmit timeout (SRTT + 4 RTTVAR, at least 2 x SRTT);
 * a write whose ACK never came is *unknown*: lost, or only its ACK lost.
@@ -26,16 +34,16 @@ How the put finds out what was lost, cheaply (standard opcodes only):
   CRC(answered blocks only, holes as zeros) is the XOR of the CRCs of the
   unknown blocks that arrived, each alone in a zero file of the same length:
   32 equations, solved by elimination when the candidates are independent
-  (rounds are sized for ~16 unknowns, at most 24 accepted); the file length
+  (rounds are sized for ~20 unknowns, at most 28 accepted); the file length
   (its highest block may be unknown) is tried from the top down and two
   fitting lengths count as "cannot tell". Only blocks found missing are
   written again; when it cannot tell, every unknown block is;
 * the last 1-3 blocks are written twice in one round (a frame of air is
-  cheaper than another round), and the next round's OpenFileWO goes out on
-  the TerminateSession ACK, before the CRC is back.
+  cheaper than another round); a round with new blocks starts before the
+  CRC is back (the missing ones go first when it comes).
 So a block costs about 1 / (1 - p) frames at loss p per direction instead of
-1 / (1 - p)^2 (resending whatever was not ACKed), plus three small control
-frames and about two round trips per round. The caller still checks the
+1 / (1 - p)^2 (resending whatever was not ACKed), plus four or five small control
+frames and about one round trip plus the robot's commit and open per round. The caller still checks the
 CRC32 of the whole file before it reports success (a wrong solution only
 costs a put).
 
@@ -69,6 +77,7 @@ OP_NAMES = {OP_TERMINATE: "TerminateSession", OP_CREATE: "CreateFile", OP_OPEN_W
             OP_CRC: "CalcFileCRC32"}
 UNKNOWNS_PER_ROUND = 20  # expected unanswered writes per round (CRC32: 32 equations)
 MAX_UNKNOWNS = 28  # more unknowns than this: a wrong solution gets too likely (2^(n-32))
+CUT_UNKNOWNS = 24  # a round ends early with this many writes unanswered (window still out)
 FIRST_ROUND_BLOCKS = 56
 TWICE_AT_MOST = 3  # a last round of this many blocks or fewer sends each twice
 
@@ -107,6 +116,7 @@ class PutStats:
     unknown: int = 0  # writes sent whose ACK never came
     solved_lost: int = 0  # of those, found lost by the CRC (the rest: only the ACK was lost)
     unsolved: int = 0  # unknowns the CRC could not resolve (sent again)
+    cut: int = 0  # rounds ended early (CUT_UNKNOWNS)
     reopened: int = 0  # sessions opened again: the open sent ahead may have preceded the commit
     control_sent: int = 0  # CreateFile / OpenFileWO / TerminateSession / CalcFileCRC32 frames
     blocks: int = 0
@@ -312,6 +322,12 @@ class FtpPut:
         for seq in sorted(self.flight):  # the round's tail: no later ACK will tell
             if now - self.sent[seq].sent_at >= rto:
                 self.flight.discard(seq)  # still in `sent`: a late ACK counts
+        if len(self.sent) - len(self.flight) >= CUT_UNKNOWNS and self.queue:
+            # an unlucky round: more unanswered writes already than the CRC can sort out
+            # with the window's still to come; the rest waits for the next round
+            self.lost[:0] = list(dict.fromkeys(b for b in self.queue if b not in self.acked))
+            self.queue.clear()
+            self.stats.cut += 1
         while len(self.flight) < self.window and self.queue:
             block = self.queue.pop(0)
             if block not in self.acked:  # a second copy of an answered block is not needed
@@ -413,7 +429,7 @@ class FtpPut:
                 self._crc_request(now)
             if (ctrl.copies > 1 or self.open_refused) and self.next_open is not None:
                 self._reopen(now)  # a copy ran the commit, perhaps after the pipelined open
-            if self.next_new < self.n_blocks:  # more to write whatever the CRC says
+            if self.next_new < self.n_blocks or self.lost:  # more to write whatever the CRC says
                 self.state = "open"
                 if self.open_ready:
                     self.next_open = None
