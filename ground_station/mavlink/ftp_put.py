@@ -14,10 +14,18 @@ loss it either idles or floods the radio with copies (docs/mavlink.md).
 How the put finds out what was lost, cheaply (standard opcodes only):
 * the put runs in rounds: CreateFile (later OpenFileWO, which keeps the
   contents), each of the round's blocks written ONCE, TerminateSession
-  (commits) and CalcFileCRC32 sent right behind it;
+  (commits, sent twice) and CalcFileCRC32 sent right behind it (twice
+  when the put waits for it, once mid-put), and the next round's
+  OpenFileWO right behind those (the link is FIFO and the robot serves in
+  order: it opens the committed file). That round writes once the
+  commit's ACK is in; if that ACK answered a later copy (the first two,
+  or their ACKs, lost) or the open was refused, the open may have run
+  before the commit, so the same session is opened again (no write went
+  to it yet); when the last CRC shows the file complete, the session
+  opened ahead is closed uncommitted (ResetSessions, not waited for);
 * every copy of a write carries its own seq, so each ACK names the copy it
   answers: exact round-trip samples (SRTT/RTTVAR as RFC 6298); the window
-  (5 writes, a little over the radio's bandwidth-delay product) is freed by
+  (6 writes, a little over the radio's bandwidth-delay product) is freed by
   ACKs, by a later write's ACK (the link is FIFO: RACK, RFC 8985) and by the
   retransmit timeout (SRTT + 4 RTTVAR, at least 2 x SRTT);
 * a write whose ACK never came is *unknown*: lost, or only its ACK lost.
@@ -26,16 +34,16 @@ How the put finds out what was lost, cheaply (standard opcodes only):
   CRC(answered blocks only, holes as zeros) is the XOR of the CRCs of the
   unknown blocks that arrived, each alone in a zero file of the same length:
   32 equations, solved by elimination when the candidates are independent
-  (rounds are sized for ~16 unknowns, at most 24 accepted); the file length
+  (rounds are sized for ~20 unknowns, at most 28 accepted); the file length
   (its highest block may be unknown) is tried from the top down and two
   fitting lengths count as "cannot tell". Only blocks found missing are
   written again; when it cannot tell, every unknown block is;
 * the last 1-3 blocks are written twice in one round (a frame of air is
-  cheaper than another round), and the next round's OpenFileWO goes out on
-  the TerminateSession ACK, before the CRC is back.
+  cheaper than another round); a round with new blocks starts before the
+  CRC is back (the missing ones go first when it comes).
 So a block costs about 1 / (1 - p) frames at loss p per direction instead of
-1 / (1 - p)^2 (resending whatever was not ACKed), plus three small control
-frames and about two round trips per round. The caller still checks the
+1 / (1 - p)^2 (resending whatever was not ACKed), plus four or five small control
+frames and about one round trip plus the robot's commit and open per round. The caller still checks the
 CRC32 of the whole file before it reports success (a wrong solution only
 costs a put).
 
@@ -61,15 +69,16 @@ from firmware_py.storage import ftp_crc32
 
 HEADER = struct.Struct("<HBBBBBBI")  # seq, session, opcode, size, req_opcode, burst_complete, pad, offset
 MAX_DATA = 239
-OP_TERMINATE, OP_CREATE, OP_WRITE, OP_OPEN_WO, OP_CRC = 1, 6, 7, 11, 14
+OP_TERMINATE, OP_RESET, OP_CREATE, OP_WRITE, OP_OPEN_WO, OP_CRC = 1, 2, 6, 7, 11, 14
 OP_ACK, OP_NAK = 128, 129
 NAK_INVALID_SESSION = 4
 MAX_COPIES = 10  # of one control request before the put gives up (the caller may put again)
 OP_NAMES = {OP_TERMINATE: "TerminateSession", OP_CREATE: "CreateFile", OP_OPEN_WO: "OpenFileWO",
             OP_CRC: "CalcFileCRC32"}
-UNKNOWNS_PER_ROUND = 16  # expected unanswered writes per round (CRC32: 32 equations)
-MAX_UNKNOWNS = 24  # more unknowns than this: a wrong solution gets too likely (2^(n-32))
-FIRST_ROUND_BLOCKS = 48
+UNKNOWNS_PER_ROUND = 20  # expected unanswered writes per round (CRC32: 32 equations)
+MAX_UNKNOWNS = 28  # more unknowns than this: a wrong solution gets too likely (2^(n-32))
+CUT_UNKNOWNS = 24  # a round ends early with this many writes unanswered (window still out)
+FIRST_ROUND_BLOCKS = 56
 TWICE_AT_MOST = 3  # a last round of this many blocks or fewer sends each twice
 
 
@@ -107,6 +116,8 @@ class PutStats:
     unknown: int = 0  # writes sent whose ACK never came
     solved_lost: int = 0  # of those, found lost by the CRC (the rest: only the ACK was lost)
     unsolved: int = 0  # unknowns the CRC could not resolve (sent again)
+    cut: int = 0  # rounds ended early (CUT_UNKNOWNS)
+    reopened: int = 0  # sessions opened again: the open sent ahead may have preceded the commit
     control_sent: int = 0  # CreateFile / OpenFileWO / TerminateSession / CalcFileCRC32 frames
     blocks: int = 0
     rtt_min: float | None = None
@@ -133,6 +144,7 @@ class _Ctrl:
     copies: int = 1
     order: int = -1  # send order of its last copy (writes and controls share the count)
     behind_writes: bool = False  # sent right after the round's writes: their round trip
+    timed: bool = True  # its reply is a round-trip sample (not queued behind writes, not an open)
 
 
 @dataclass
@@ -145,7 +157,7 @@ class FtpPut:
     session: int
     seq: int  # the next seq to use; read it back when done (the link's counter)
     block: int = MAX_DATA
-    window: int = 5
+    window: int = 6
     min_rto: float = 0.05
     max_rto: float = 2.0
     max_rounds: int = 40
@@ -180,6 +192,11 @@ class FtpPut:
         self.opened = False  # the file exists on the robot (first session committed)
         self.checking: tuple[set[int], list[int]] | None = None  # (answered, unanswered) at the commit
         self.sid = self.session  # the round's session number
+        self.opens = 0  # sessions opened (the session number alternates)
+        self.next_open: _Ctrl | None = None  # the next round's OpenFileWO, sent behind the commit
+        self.open_ready = False  # that OpenFileWO answered after the commit: the round may write
+        self.open_refused = False  # it was refused before the commit's ACK came: open again
+        self.outbox: list[bytes] = []  # sent by the first poll after the put finished
 
     # --- timing -------------------------------------------------------------------
     def rto(self) -> float:
@@ -225,7 +242,8 @@ class FtpPut:
         """A control request, due at the next `poll` (which sends it)."""
         seq = self._next_seq()
         payload = request(seq, self.sid if session is None else session, opcode, 0, data)
-        ctrl = _Ctrl(seq, payload, opcode, float("-inf"), copies=0, behind_writes=behind_writes)
+        ctrl = _Ctrl(seq, payload, opcode, float("-inf"), copies=0, behind_writes=behind_writes,
+                     timed=not behind_writes and opcode != OP_OPEN_WO)
         self.ctrls.append(ctrl)
         return ctrl
 
@@ -249,16 +267,37 @@ class FtpPut:
         """CreateFile (first round) or OpenFileWO, on a session number other
         than the last round's: a late copy of that round's TerminateSession
         then finds no session instead of ending this one."""
-        self.stats.rounds += 1
-        self.sid = (self.session + self.stats.rounds % 2) & 0xFF
+        self.opens += 1
+        self.sid = (self.session + self.opens % 2) & 0xFF
         self.state = "open"
         self._control(OP_OPEN_WO if self.opened else OP_CREATE, self.path.encode() + b"\0", now)
+
+    def _open_next(self, now: float, behind_writes: bool) -> None:
+        """The next round's OpenFileWO, sent right behind this round's
+        TerminateSession and CalcFileCRC32 (pipelined: the link is FIFO and
+        the robot serves requests in order, so it opens the committed file).
+        Its writes wait for the commit's ACK: only an ACK of the commit's
+        first copies proves the commit ran before this open (`_reopen`)."""
+        self.opens += 1
+        self.sid = (self.session + self.opens % 2) & 0xFF
+        self.open_ready = self.open_refused = False
+        self.next_open = self._control(OP_OPEN_WO, self.path.encode() + b"\0", now, behind_writes=behind_writes)
+
+    def _reopen(self, now: float) -> None:
+        """The pipelined open may have run before the commit (or was refused
+        for it): open the same session again (the robot replaces it; no write
+        went to it yet)."""
+        self.ctrls = [c for c in self.ctrls if c is not self.next_open]
+        self.stats.reopened += 1
+        self.open_ready = self.open_refused = False
+        self.next_open = self._control(OP_OPEN_WO, self.path.encode() + b"\0", now)
 
     def poll(self, now: float) -> list[bytes]:
         """Requests due now (first call: the CreateFile)."""
         if self.finished:
-            return []
-        out: list[bytes] = []
+            out, self.outbox = self.outbox, []
+            return out
+        out = []
         if self.state == "open" and not self.ctrls:
             self._open(now)
         for c in self.ctrls:  # first send, or a copy: same seq and bytes (the retry cache answers)
@@ -272,7 +311,9 @@ class FtpPut:
                 c.copies += 1
                 self.stats.control_sent += 1
                 out.append(c.payload)
-                if c.kind in (OP_TERMINATE, OP_CRC):  # harmless twice (retry cache): two chances
+                if c.kind == OP_TERMINATE or c.kind == OP_CRC and self.next_new >= self.n_blocks:
+                    # harmless twice (retry cache): two chances. The CRC only when the put waits
+                    # for it; mid-put its answer only reorders the next round's queue
                     out.append(c.payload)
                     self.stats.control_sent += 1
         if self.state != "write":
@@ -281,6 +322,12 @@ class FtpPut:
         for seq in sorted(self.flight):  # the round's tail: no later ACK will tell
             if now - self.sent[seq].sent_at >= rto:
                 self.flight.discard(seq)  # still in `sent`: a late ACK counts
+        if len(self.sent) - len(self.flight) >= CUT_UNKNOWNS and self.queue:
+            # an unlucky round: more unanswered writes already than the CRC can sort out
+            # with the window's still to come; the rest waits for the next round
+            self.lost[:0] = list(dict.fromkeys(b for b in self.queue if b not in self.acked))
+            self.queue.clear()
+            self.stats.cut += 1
         while len(self.flight) < self.window and self.queue:
             block = self.queue.pop(0)
             if block not in self.acked:  # a second copy of an answered block is not needed
@@ -289,6 +336,7 @@ class FtpPut:
             self.state = "terminate"  # and ask the CRC right behind the commit
             self._control(OP_TERMINATE, b"", now, behind_writes=True)
             self._crc_request(now, behind_writes=True)
+            self._open_next(now, behind_writes=True)
             out += self.poll(now)
         return out
 
@@ -314,7 +362,8 @@ class FtpPut:
                 c.sent_at = float("-inf")
         if ctrl is not None:
             self.ctrls.remove(ctrl)
-            if not ctrl.behind_writes:
+            if ctrl.timed and ctrl.copies == 1:  # Karn: a copy's reply may answer the first
+                # (an OpenFileWO's reply waits for the robot to copy the file: no sample)
                 rtt = now - ctrl.sent_at
                 self.ctrl_srtt = rtt if self.ctrl_srtt is None else 0.875 * self.ctrl_srtt + 0.125 * rtt
             self._control_reply(ctrl, opcode, data, now)
@@ -337,9 +386,20 @@ class FtpPut:
     def _control_reply(self, ctrl: _Ctrl, opcode: int, data: bytes, now: float) -> None:
         kind = ctrl.kind
         if kind in (OP_CREATE, OP_OPEN_WO):
+            if ctrl is self.next_open and self.state == "terminate":
+                # answered before the commit's ACK: the commit may not have run before it
+                # (refused: the file may not exist yet); decided when the commit answers
+                self.open_ready = opcode == OP_ACK
+                self.open_refused = opcode != OP_ACK
+                return
             if opcode != OP_ACK:
                 self._fail("CreateFile" if kind == OP_CREATE else "OpenFileWO", data)
                 return
+            if ctrl is self.next_open:
+                self.open_ready = True
+                if self.state != "open":
+                    return  # "check": the CRC decides what the round writes
+            self.next_open = None
             self._start_round()
         elif kind == OP_TERMINATE:
             # NAK InvalidSession on a copy: the first copy closed the session after the
@@ -360,15 +420,20 @@ class FtpPut:
                 self.unknown.update(self.checking[1])
             self.checking = (set(self.acked), sorted(self.unknown))
             self.unknown.clear()
-            for c in self.ctrls:  # the writes have drained (FIFO): the CRC's answer is one round trip off
-                if c.kind == OP_CRC and c.behind_writes:
+            for c in self.ctrls:  # the writes have drained (FIFO): the answers are one round trip off
+                if c.kind in (OP_CRC, OP_OPEN_WO) and c.behind_writes:
                     c.behind_writes, c.sent_at = False, now
             if stale or ctrl.copies > 1 or not any(c.kind == OP_CRC for c in self.ctrls):
                 # the CRC asked behind the first Terminate may have run before the commit
                 # (that copy lost, a later one ran it): ask again, behind this ACK
                 self._crc_request(now)
-            if self.next_new < self.n_blocks:  # more to write whatever the CRC says: open now
-                self._open(now)
+            if (ctrl.copies > 1 or self.open_refused) and self.next_open is not None:
+                self._reopen(now)  # a copy ran the commit, perhaps after the pipelined open
+            if self.next_new < self.n_blocks or self.lost:  # more to write whatever the CRC says
+                self.state = "open"
+                if self.open_ready:
+                    self.next_open = None
+                    self._start_round()
             else:
                 self.state = "check"
         elif kind == OP_CRC:
@@ -380,6 +445,7 @@ class FtpPut:
             self._check(struct.unpack("<I", data)[0], now)
 
     def _start_round(self) -> None:
+        self.stats.rounds += 1
         size = self._round_size()
         self.queue = list(self.lost)
         self.lost.clear()
@@ -419,10 +485,17 @@ class FtpPut:
             return
         if not self.lost and self.next_new >= self.n_blocks and remote == self.crc:
             self.state = "done"
+            if self.next_open is not None:  # the pipelined session is not needed: close it uncommitted
+                self.outbox.append(request(self._next_seq(), self.sid, OP_RESET))
         elif self.stats.rounds >= self.max_rounds:
             self._fail("put", b"", f"{len(self.lost)} blocks still missing after {self.stats.rounds} rounds")
-        else:
+        elif self.next_open is None:
             self._open(now)
+        else:
+            self.state = "open"
+            if self.open_ready:
+                self.next_open = None
+                self._start_round()
 
     def _solve(self, remote: int, acked: set[int], unknown: list[int]) -> list[int] | None:
         """The unanswered blocks that are on the robot, if its CRC32 tells

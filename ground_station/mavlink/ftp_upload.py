@@ -151,9 +151,9 @@ class FtpSession:
 
     def ask(self, opcode: int, data: bytes, wait_s: float, what: str, session: int = 0) -> tuple[int, bytes]:
         """A single-reply request that may safely run twice (CRC, RemoveFile),
-        twice at first (the second copy is answered from the robot's retry
+        three times at first (the copies are answered from the robot's retry
         cache: a lost frame costs no timeout), then again (new seq) until the
-        robot answers, for at most `wait_s`; a copy is due after 3 x the
+        robot answers, for at most `wait_s`; three copies at first, then one after 3 x the
         put's smoothed RTT (0.3 s before any put), doubling up to 1 s. Returns (opcode, data) of the first answered copy;
         a late reply to an earlier copy counts too (they all ask the same)."""
         deadline = time.monotonic() + wait_s
@@ -167,7 +167,8 @@ class FtpSession:
             sent_at[seq] = time.monotonic()
             payload = ftp_put.request(seq, session, opcode, 0, data)
             self.send(payload)
-            if len(seqs) == 1:  # a copy at once: the robot's retry cache answers it, two chances
+            if len(seqs) == 1:  # copies at once: the robot's retry cache answers them, three chances
+                self.send(payload)  # (a copy is a few ms of air; a timeout, 0.3 s)
                 self.send(payload)
             until = min(deadline, time.monotonic() + rto)
             while True:
@@ -214,6 +215,8 @@ class FtpSession:
                 if progress is not None and len(put.acked) != shown:
                     shown = len(put.acked)
                     progress(shown / put.n_blocks)
+            for payload in put.poll(time.monotonic()):  # e.g. closing a session opened ahead
+                self.send(payload)
         finally:
             self.listener = None
             ftp.seq = put.seq
