@@ -47,10 +47,13 @@ STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: "origin",
     M.MAVLINK_MSG_ID_HOME_POSITION: "origin",
     # localisation (control/localiser.py): LOCAL_POSITION_NED carries the believed pose; these add its
-    # covariance, the "localised" flag (ESTIMATOR_POS_HORIZ_ABS) and the raw dead-reckoning pose (ODOMETRY)
-    M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: "pos",
-    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV: "pos",
-    M.MAVLINK_MSG_ID_ODOMETRY: "pos",
+    # covariance, the "localised" flag (ESTIMATOR_POS_HORIZ_ABS) and the raw dead-reckoning pose (ODOMETRY).
+    # At 1 Hz: COV and ODOMETRY are ~230-byte frames; at TELEM_POS_HZ they took 40 % of a 57600-baud
+    # radio and, at 3x sim pacing, saturated it (every reply queued behind telemetry). A ground station
+    # that wants them faster asks with SET_MESSAGE_INTERVAL.
+    M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: "1hz",
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV: "1hz",
+    M.MAVLINK_MSG_ID_ODOMETRY: "1hz",
 }
 # only on request (REQUEST_MESSAGE), never streamed by default
 ON_REQUEST = frozenset({M.MAVLINK_MSG_ID_AUTOPILOT_VERSION})
