@@ -120,5 +120,7 @@ def test_bench_upload_serial_is_byte_exact_and_reports_the_link_ratio(tmp_path):
     assert code == 0, out.getvalue()
     cases = json.loads((tmp_path / "b.json").read_text())["cases"]
     assert [(c["link"], c["loss"], c["byte_exact"]) for c in cases] == [("serial", 0.0, True), ("serial", 0.05, True)]
-    assert cases[0]["seconds"] >= cases[0]["theoretical_s"] * 0.95  # the radio does throttle
+    # the radio does throttle: no put beats the file sent as 239-byte writes at the baud rate (t239,
+    # the floor); t80 (80-byte writes, the older yardstick) the put engine does beat
+    assert cases[0]["seconds"] >= cases[0]["floor_s"] * 0.95
     assert "emulated serial radio" in out.getvalue()
