@@ -167,7 +167,9 @@ class RayEngine(Engine):
             raise CliError(f"cannot reach Ray at {address or 'a local instance'}: "
                            f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
         self.workers = int(ray.cluster_resources().get("CPU", 1)) if not self._own else kwargs["num_cpus"]
-        self._remote = ray.remote(num_cpus=1, max_retries=2)(_ray_task)
+        # SPREAD: campaign jobs are CPU-bound and independent; the default (pack the local node first)
+        # ran all jobs of a short campaign on one node of a two-node cluster
+        self._remote = ray.remote(num_cpus=1, max_retries=2, scheduling_strategy="SPREAD")(_ray_task)
 
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any], *, desc: str = "jobs",
             progress: bool = True, unit: str = "job") -> tuple[list[Any], RunStats]:
