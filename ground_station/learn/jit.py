@@ -7,7 +7,9 @@ kernels draw the same kind of numbers and break ties the same way:
   splitmix64 in `seed_state`), so a run split into chunks draws exactly the
   numbers of one call: same seed -> same table;
 * `greedy`: argmax of a Q row, ties to the lowest index, as the robot's
-  `firmware_py.encoders.best_action`.
+  `firmware_py.encoders.best_action`;
+* `cell_step`: the grid world's reward and termination, so Q-learning and
+  the other tabular learners score a move identically.
 """
 
 from __future__ import annotations
@@ -60,3 +62,17 @@ def greedy(q, s: int) -> int:
             bv = q[s, a]
             best = a
     return best
+
+
+@numba.njit(cache=True, inline="always")
+def cell_step(cell, c2, goal_cell, r_goal, r_step, r_coll):
+    """The grid world's reward and termination for a move from `cell` whose
+    transition table entry is `c2` (-1: into a wall or off the map): (next
+    cell, reward, terminal, success). A collision is terminal and the robot
+    stays; reaching the goal is terminal; otherwise the episode goes on
+    (truncation by the step limit bootstraps: time limits are not terminal)."""
+    if c2 < 0:
+        return cell, r_coll, True, False
+    if c2 == goal_cell:
+        return c2, r_goal, True, True
+    return c2, r_step, False, False

@@ -50,7 +50,7 @@ import numba
 import numpy as np
 
 from ground_station.learn.config import LEARNERS, TrainConfig
-from ground_station.learn.jit import greedy, rand01, randint, seed_state
+from ground_station.learn.jit import cell_step, greedy, rand01, randint, seed_state
 
 Q, SARSA, EXPECTED_SARSA, DOUBLE_Q, DYNA_Q, Q_LAMBDA = range(6)
 assert LEARNERS == ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
@@ -130,19 +130,7 @@ def td_cell(learner, qa, qb, next_cell, goal_cells, starts_flat, starts_off,
         s = g * n_cells + cell
         c2 = next_cell[cell, a]
         t_ep += 1
-        if c2 < 0:  # collision: terminal, the robot stays
-            r = r_coll
-            done = True
-            success = False
-            c2 = cell
-        elif c2 == goal_cells[g]:  # goal: terminal
-            r = r_goal
-            done = True
-            success = True
-        else:  # bootstrap also on truncation: time limits are not terminal
-            r = r_step
-            done = False
-            success = False
+        c2, r, done, success = cell_step(cell, c2, goal_cells[g], r_goal, r_step, r_coll)
         truncated = not done and t_ep >= max_ep_steps
         s2 = g * n_cells + c2
         # the next action (behaviour policy), before this step's update

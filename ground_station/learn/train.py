@@ -52,7 +52,7 @@ from ground_station.learn.envs.cell_env import (
     reachable_starts,
     resolve_goals,
 )
-from ground_station.learn.jit import greedy, rand01, seed_state
+from ground_station.learn.jit import cell_step, greedy, rand01, seed_state
 from ground_station.maps import GridMap, MapError, load_map
 
 # --------------------------------------------------------------------------
@@ -131,19 +131,7 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
             a = greedy(q, s)
         c2 = next_cell[cell, a]
         t_ep += 1
-        if c2 < 0:  # collision: terminal, the robot stays
-            r = r_coll
-            done = True
-            success = False
-            c2 = cell
-        elif c2 == goal_cells[g]:  # goal: terminal
-            r = r_goal
-            done = True
-            success = True
-        else:  # bootstrap also on truncation: time limits are not terminal
-            r = r_step
-            done = False
-            success = False
+        c2, r, done, success = cell_step(cell, c2, goal_cells[g], r_goal, r_step, r_coll)
         q_update(q, s, a, r, cell_state(g, c2, n_cells), done, lr, gamma)
         cell = c2
         ret += r
@@ -255,6 +243,24 @@ def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> Tr
     return TrainResult(q, np.concatenate(rets), np.concatenate(succs), meta, seconds)
 
 
+def _run_in_chunks(trainer, q: np.ndarray, cfg: TrainConfig, progress: bool,
+                   desc: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """`trainer.run(q, done, n)` in chunks of `cfg.chunk_steps` (the progress
+    bar's granularity) until `cfg.steps`: episode returns, successes, seconds."""
+    rets, succs = [], []
+    t0 = time.perf_counter()
+    done = 0
+    with _progress(cfg.steps, progress, desc) as bar:
+        while done < cfg.steps:
+            n = min(cfg.chunk_steps, cfg.steps - done)
+            r, s = trainer.run(q, done, n)
+            rets.append(np.asarray(r, dtype=np.float64))
+            succs.append(np.asarray(s, dtype=bool))
+            done += n
+            bar.update(n)
+    return np.concatenate(rets), np.concatenate(succs), time.perf_counter() - t0
+
+
 def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
     """Q-learning on the sector twin, through `ground_station.learn.sector.trainer.SectorTrainer`,
     on `gridmap` plus the `sector_maps` extras."""
@@ -268,19 +274,8 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
     else:
         trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
     q = initial_table(cfg, trainer.n_states, trainer.n_actions)
-    rets, succs = [], []
-    t0 = time.perf_counter()
-    done = 0
-    with _progress(cfg.steps, progress, f"train sector {gridmap.name}") as bar:
-        while done < cfg.steps:
-            n = min(cfg.chunk_steps, cfg.steps - done)
-            r, s = trainer.run(q, done, n)
-            rets.append(np.asarray(r, dtype=np.float64))
-            succs.append(np.asarray(s, dtype=bool))
-            done += n
-            bar.update(n)
-    seconds = time.perf_counter() - t0
-    return TrainResult(q, np.concatenate(rets), np.concatenate(succs),
+    rets, succs, seconds = _run_in_chunks(trainer, q, cfg, progress, f"train sector {gridmap.name}")
+    return TrainResult(q, rets, succs,
                        {"encoder": encoder.to_dict(), "guidance": trainer.guidance,
                         "margin_mm": cfg.sector_margin_mm, "max_segment_mm": cfg.sector_max_segment_mm,
                         "train_maps": [m.name for m in trainer.maps]}, seconds)
@@ -296,19 +291,8 @@ def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = Fal
     extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
     trainer = MemoryTrainer([gridmap, *extra], cfg, encoder)
     q = initial_table(cfg, trainer.n_states, trainer.n_actions)
-    rets, succs = [], []
-    t0 = time.perf_counter()
-    done = 0
-    with _progress(cfg.steps, progress, f"train sector-memory {gridmap.name}") as bar:
-        while done < cfg.steps:
-            n = min(cfg.chunk_steps, cfg.steps - done)
-            r, s = trainer.run(q, done, n)
-            rets.append(np.asarray(r, dtype=np.float64))
-            succs.append(np.asarray(s, dtype=bool))
-            done += n
-            bar.update(n)
-    seconds = time.perf_counter() - t0
-    return TrainResult(q, np.concatenate(rets), np.concatenate(succs),
+    rets, succs, seconds = _run_in_chunks(trainer, q, cfg, progress, f"train sector-memory {gridmap.name}")
+    return TrainResult(q, rets, succs,
                        {"encoder": encoder.to_dict(), "guidance": "direct",
                         "train_maps": [m.name for m in trainer.maps]}, seconds)
 
