@@ -111,8 +111,19 @@ def run(args: argparse.Namespace) -> int:
     return 0 if all(d["valid"] for d in results) else 2
 
 
-def run_upgrade(args: argparse.Namespace) -> int:
+def _replace(out: str, data: bytes) -> str:
+    """Write `data` to `out` atomically (a crash leaves the old file); returns `out`."""
     from firmware_py.atomic import atomic_write
+    from ground_station.errors import CliError
+
+    try:
+        atomic_write(out, data)
+    except OSError as exc:
+        raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
+    return out
+
+
+def run_upgrade(args: argparse.Namespace) -> int:
     from firmware_py.policy import HEADER_V1, MapGeometry, PolicyError, upgrade_policy
     from ground_station.errors import CliError
     from ground_station.learn.export import geometry_of_map
@@ -137,17 +148,12 @@ def run_upgrade(args: argparse.Namespace) -> int:
         new = upgrade_policy(data, args.control_period_us, geometry)
     except PolicyError as exc:
         raise CliError(f"{args.file}: {exc}") from None
-    out = args.out or args.file
-    try:
-        atomic_write(out, new)
-    except OSError as exc:
-        raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
+    out = _replace(args.out or args.file, new)
     print(json.dumps(describe(out), sort_keys=True))
     return 0
 
 
 def run_attach_map(args: argparse.Namespace) -> int:
-    from firmware_py.atomic import atomic_write
     from firmware_py.policy import PolicyError, load_policy
     from ground_station.errors import CliError
     from ground_station.learn.export import attach_map
@@ -166,11 +172,7 @@ def run_attach_map(args: argparse.Namespace) -> int:
         new = attach_map(data, name)
     except ValueError as exc:
         raise CliError(f"{args.file}: {exc}") from None
-    out = args.out or args.file
-    try:
-        atomic_write(out, new)
-    except OSError as exc:
-        raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
+    out = _replace(args.out or args.file, new)
     print(_line(describe(out)))
     return 0
 

@@ -34,6 +34,7 @@ import random
 import threading
 import time
 import uuid
+from collections.abc import Callable
 
 import can
 
@@ -66,6 +67,39 @@ def _zero_from(rig: LockstepRig, t_us: int) -> list[str]:
     return [f"non-zero command {late[0][1:3]} at t={late[0][0]} us after the stop"] if late else []
 
 
+def _stopped_by(rig: LockstepRig, t_us: int, deadline_us: int) -> list[str]:
+    """Problems unless the first zero command from `t_us` on came by
+    `deadline_us` and every command after it is zero."""
+    zeros = [c[0] for c in rig.commands if c[0] >= t_us and _zero(c)]
+    if not zeros or zeros[0] > deadline_us:
+        return [f"first zero command at {zeros[0] if zeros else None} us > deadline {deadline_us}"]
+    return _zero_from(rig, zeros[0])
+
+
+def _first_fault(rig: LockstepRig, after_us: int):
+    return rig.first_transition_to(CtrlState.FAULT, after_us)
+
+
+def _edit_after(t_from_us: int, message: str, edit: Callable[[dict], None]):
+    """A frames hook that decodes every `message` frame from `t_from_us` on,
+    lets `edit` change its signals in place and re-encodes it (a board that
+    starts lying at a given tick)."""
+    fid = cp.FRAME_IDS[message]
+
+    def hook(_tick, t_us, frames):
+        if t_us < t_from_us:
+            return frames
+        out = []
+        for f in frames:
+            if f.arbitration_id == fid:
+                _, sig = cp.decode(f)
+                edit(sig)
+                f = cp.encode(message, sig)
+            out.append(f)
+        return out
+    return hook
+
+
 @register("can_sensor_stop", small=4, large=100, unit="episodes",
           what="input frames stop -> zero command within staleness timeout + 1 period, FAULT")
 def sensor_stop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
@@ -88,12 +122,8 @@ def sensor_stop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 problems.append(f"setup: {rig.ctrl.state.name} at the cut, not DRIVING")
             deadline = t_cut - PERIOD_US + timeout_ms * 1000 + PERIOD_US
             rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
-        zeros = [c[0] for c in rig.commands if c[0] >= t_cut and _zero(c)]
-        if not zeros or zeros[0] > deadline:
-            problems.append(f"first zero command at {zeros[0] if zeros else None} us > deadline {deadline}")
-        else:
-            problems += _zero_from(rig, zeros[0])
-        fault = rig.first_transition_to(CtrlState.FAULT, t_cut)
+        problems += _stopped_by(rig, t_cut, deadline)
+        fault = _first_fault(rig, t_cut)
         if fault is None or fault.t_us > deadline:
             problems.append(f"no FAULT by {deadline} us ({fault})")
         res.check(problems, f"seed {seed}/{i} cut {sorted(cut)} at {t_cut} us, timeout {timeout_ms} ms")
@@ -111,17 +141,10 @@ def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         t_fault = _fault_time(rng)
         bits = rng.randint(1, 7)
 
-        def hook(_tick, t_us, frames, t_fault=t_fault, bits=bits):
-            if t_us < t_fault:
-                return frames
-            out = []
-            for f in frames:
-                if f.arbitration_id == cp.MOTOR_STATUS_ID:
-                    _, sig = cp.decode(f)
-                    sig["Mot_Errors"] = bits
-                    f = cp.encode("MotorStatus", sig)
-                out.append(f)
-            return out
+        def set_errors(sig: dict, bits: int = bits) -> None:
+            sig["Mot_Errors"] = bits
+
+        hook = _edit_after(t_fault, "MotorStatus", set_errors)
 
         problems = []
         with rig:
@@ -129,7 +152,7 @@ def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if rig.ctrl.state != CtrlState.DRIVING:
                 problems.append(f"setup: {rig.ctrl.state.name} at the fault, not DRIVING")
             rig.run_until(t_fault + 6 * PERIOD_US, frames_hook=hook)
-        fault = rig.first_transition_to(CtrlState.FAULT, t_fault)
+        fault = _first_fault(rig, t_fault)
         if fault is None or fault.t_us != t_fault:
             problems.append(f"FAULT transition {fault}, expected at {t_fault} us")
         problems += _zero_from(rig, t_fault)
@@ -156,7 +179,7 @@ def driver_watchdog(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             deadline = last_cmd + wd_us + 2 * PERIOD_US
             rig.run_until(deadline + 4 * PERIOD_US, deliver=False)
         tripped = rig.plant.motors.watchdog_tripped
-        fault = rig.first_transition_to(CtrlState.FAULT, t_cut)
+        fault = _first_fault(rig, t_cut)
         if not tripped:
             problems.append("setup: the driver watchdog did not trip")
         if fault is None or fault.t_us > deadline:
@@ -207,7 +230,7 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if not ok:
                 problems.append(f"arm after release + disarm refused: {why}")
             rig.tick()
-        fault = rig.first_transition_to(CtrlState.FAULT, t_stop)
+        fault = _first_fault(rig, t_stop)
         if fault is None or fault.t_us != t_stop or "e-stop" not in fault.cause:
             problems.append(f"FAULT transition {fault}, expected e-stop at {t_stop} us")
         problems += _zero_from(rig, t_stop)

@@ -52,17 +52,20 @@ from typing import Any
 
 from firmware_py import can_protocol as cp
 from firmware_py.vehicle import CtrlState, VehicleConfig
-from ground_station.faults.can_faults import _fault_time, _setup, _zero, _zero_from
+from ground_station.faults.can_faults import (
+    _edit_after,
+    _fault_time,
+    _first_fault,
+    _setup,
+    _stopped_by,
+    _zero_from,
+)
 from ground_station.faults.common import ScenarioResult, register
 from ground_station.faults.hostile_mav import _dialect
 from ground_station.rigs.lockstep import PERIOD_US, SENSOR_FRAMES
 
 GCS = (255, 190)
 FOREIGN_GCS = (77, 190)
-
-
-def _first_fault(rig, after_us: int):
-    return rig.first_transition_to(CtrlState.FAULT, after_us)
 
 
 # --- CAN ------------------------------------------------------------------------------------------
@@ -119,17 +122,10 @@ def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         jump = rng.choice((3000, -3000, 10**6, -(10**6), 1 << 26)) * rng.choice((1, 1, 2))
         side = rng.choice(("Enc_Left", "Enc_Right"))
 
-        def hook(_tick, t_us, frames, t_jump=t_jump, jump=jump, side=side):
-            if t_us < t_jump:
-                return frames
-            out = []
-            for f in frames:
-                if f.arbitration_id == cp.ENCODER_COUNTS_ID:
-                    _, sig = cp.decode(f)
-                    sig[side] = cp.wrap_counts(sig[side] + jump)  # the offset stays, as a glitched encoder's
-                    f = cp.encode("EncoderCounts", sig)
-                out.append(f)
-            return out
+        def jump_counts(sig, jump=jump, side=side):
+            sig[side] = cp.wrap_counts(sig[side] + jump)  # the offset stays, as a glitched encoder's
+
+        hook = _edit_after(t_jump, "EncoderCounts", jump_counts)
 
         problems: list[str] = []
         with rig:
@@ -183,11 +179,7 @@ def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 problems.append(f"setup: {rig.ctrl.state.name} at the freeze, not DRIVING")
             deadline = t_freeze - PERIOD_US + timeout_ms * 1000 + PERIOD_US
             rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
-        zeros = [c[0] for c in rig.commands if c[0] >= t_freeze and _zero(c)]
-        if not zeros or zeros[0] > deadline:
-            problems.append(f"first zero command at {zeros[0] if zeros else None} us > deadline {deadline}")
-        else:
-            problems += _zero_from(rig, zeros[0])
+        problems += _stopped_by(rig, t_freeze, deadline)
         fault = _first_fault(rig, t_freeze)
         if fault is None or fault.t_us > deadline or "frozen" not in fault.cause:
             problems.append(f"no FAULT '... frozen' by {deadline} us ({fault})")
