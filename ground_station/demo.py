@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from firmware_py.atomic import atomic_write
+from firmware_py.mavlink.params import PARAMS
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from firmware_py.subprocs import free_udp_port
 from ground_station.mavlink.statustext import StatusTextAssembler
@@ -56,7 +57,7 @@ ACTIVE_REMOTE_DIR = "/policies"
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 LOCKSTEP_HEARTBEAT_S = 0.05  # wall; ~1-2 s of robot time at the lockstep's 20-35x
 REALTIME_HEARTBEAT_S = 1.0
-LOCKSTEP_GCS_TIMEOUT_MS = 120_000  # FS_GCS_TOUT_MS maximum (firmware_py/mavlink/params.py)
+LOCKSTEP_GCS_TIMEOUT_MS = next(p.max for p in PARAMS if p.name == "FS_GCS_TOUT_MS")  # the robot's own bound
 MAV_MISSION_STATE_COMPLETE = 5
 
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from firmware_py.canbus import CanHub
+from firmware_py.mavlink.params import PARAMS
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from ground_station.errors import CliError
 from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
@@ -37,7 +38,7 @@ DEFAULT_MAVLINK = "udpin:127.0.0.1:14555"  # the robot listens; GCSs connect to 
 SHIPPED_FOR_MAP = {"paper10": "policies:paper10_cell"}
 FALLBACK_POLICY = "policies:sector"  # observes ranges and bearings: runs on any map
 SIM_DURATION_S = 30 * 24 * 3600  # the sim's own end: far away, the wait ends it
-GCS_TIMEOUT_MAX_MS = 120_000  # FS_GCS_TOUT_MS maximum (firmware_py/mavlink/params.py)
+GCS_TIMEOUT_MAX_MS = next(p.max for p in PARAMS if p.name == "FS_GCS_TOUT_MS")  # the robot's own bound
 GCS_TIMEOUT_DEFAULT_MS = 5000
 
 

@@ -5,14 +5,7 @@ parameter, set one, arm, and load a waypoint file."""
 
 from __future__ import annotations
 
-import os
-import queue
-import re
-import subprocess
-import sys
-import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -20,52 +13,8 @@ from firmware_py import robot_spec
 from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.subprocs import free_udp_port
+from tests.support.consoles import MavProxy
 from tests.support.mav_vehicle import Robot
-
-MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
-
-
-class MavProxy:
-    def __init__(self, port: int, workdir: Path) -> None:
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(
-            [sys.executable, str(MAVPROXY), f"--master=udpin:127.0.0.1:{port}", f"--state-basedir={workdir}",
-             "--default-modules=param,wp,mode,arm,cmdlong,ftp"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-            cwd=workdir)
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.log: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.put(line.rstrip("\n"))
-
-    def send(self, cmd: str) -> None:
-        self.proc.stdin.write(cmd + "\n")
-        self.proc.stdin.flush()
-
-    def expect(self, pattern: str, timeout_s: float = 20.0) -> str:
-        rx = re.compile(pattern)
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            try:
-                line = self.lines.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            self.log.append(line)
-            if rx.search(line):
-                return line
-        raise AssertionError(f"MAVProxy never printed /{pattern}/; output:\n" + "\n".join(self.log[-40:]))
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            try:
-                self.send("exit")
-                self.proc.wait(timeout=5)
-            except (OSError, subprocess.TimeoutExpired):
-                self.proc.kill()
-                self.proc.wait(timeout=5)
 
 
 def wait_for(pred, timeout_s: float = 10.0) -> bool:
@@ -81,7 +30,7 @@ def wait_for(pred, timeout_s: float = 10.0) -> bool:
 def test_mavproxy_sees_lists_sets_arms_and_loads_a_mission(tmp_path):
     port = free_udp_port()
     r = Robot(tmp_path / "storage", port)
-    mp = MavProxy(port, tmp_path)
+    mp = MavProxy(f"udpin:127.0.0.1:{port}", tmp_path)
     try:
         mp.expect(r"Detected vehicle 1:1")
         mp.expect(rf"Received {len(PARAMS)} parameters", 30)

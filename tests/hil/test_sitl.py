@@ -10,14 +10,10 @@ from __future__ import annotations
 import csv
 import math
 import os
-import queue
-import re
 import signal
 import socket
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -26,7 +22,7 @@ from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.subprocs import free_udp_port
 from firmware_py.vehicle import VehicleConfig
-from tests.hil.test_mav_mavproxy import MAVPROXY, MavProxy
+from tests.support.consoles import ConsoleProcess, MavProxy
 
 ROOT = Path(__file__).resolve().parents[2]
 CELL_M, ROWS = 0.5, 10  # paper10
@@ -36,42 +32,22 @@ def cell_world_mm(col: int, row: int) -> tuple[int, int]:
     return round((col + 0.5) * CELL_M * 1000), round((ROWS - row - 0.5) * CELL_M * 1000)
 
 
-class SitlProcess:
+class SitlProcess(ConsoleProcess):
     """`qnav sitl` in its own session, its stdout read line by line."""
+
+    what = "qnav sitl"
 
     def __init__(self, tmp_path: Path, *args: str) -> None:
         self.port = free_udp_port()
         self.out = tmp_path / "sitl"
         env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
                    PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "ground_station.cli", "sitl", "--mavlink", f"udpin:127.0.0.1:{self.port}",
-             "--out", str(self.out), *args],
-            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-            cwd=tmp_path, start_new_session=True)
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.log: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.put(line.rstrip("\n"))
+        super().__init__([sys.executable, "-m", "ground_station.cli", "sitl", "--mavlink",
+                          f"udpin:127.0.0.1:{self.port}", "--out", str(self.out), *args],
+                         cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, new_session=True)
 
     def expect(self, pattern: str, timeout_s: float = 60.0) -> str:
-        rx = re.compile(pattern)
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            try:
-                line = self.lines.get(timeout=0.2)
-            except queue.Empty:
-                if self.proc.poll() is not None and self.lines.empty():
-                    break
-                continue
-            self.log.append(line)
-            if rx.search(line):
-                return line
-        raise AssertionError(f"qnav sitl never printed /{pattern}/:\n" + "\n".join(self.log[-30:]))
+        return super().expect(pattern, timeout_s)
 
     def stop(self, sig: int = signal.SIGINT) -> int:
         if self.proc.poll() is None:
@@ -81,25 +57,8 @@ class SitlProcess:
             except subprocess.TimeoutExpired:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(timeout=10)
-        time.sleep(0.3)  # let the reader thread take the last lines
-        while not self.lines.empty():
-            self.log.append(self.lines.get())
+        self.drain()
         return self.proc.returncode
-
-
-class UdpoutMavProxy(MavProxy):
-    """MAVProxy with the master string `qnav sitl` printed (the robot listens)."""
-
-    def __init__(self, master: str, workdir: Path) -> None:
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(
-            [sys.executable, str(MAVPROXY), f"--master={master}", f"--state-basedir={workdir}",
-             "--default-modules=param,wp,mode,arm,cmdlong,fence"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-            cwd=workdir)
-        self.lines = queue.Queue()
-        self.log = []
-        threading.Thread(target=self._read, daemon=True).start()
 
 
 def hub_port(lines: list[str]) -> int:
@@ -139,7 +98,7 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
         assert master == f"udpout:127.0.0.1:{sitl.port}"
         sitl.expect(r"CAN bus: remote:ws://127\.0\.0\.1:\d+/")
         sitl.expect(r"Ctrl-C stops every process")
-        mp = UdpoutMavProxy(master, tmp_path)
+        mp = MavProxy(master, tmp_path, modules="param,wp,mode,arm,cmdlong,fence")
         mp.expect(r"Detected vehicle 1:1", 30)
         mp.expect(rf"Received {len(PARAMS)} parameters", 60)
         mp.send("param show FS_GCS_TOUT_MS")  # left alone at real time
