@@ -21,14 +21,14 @@ test: $(STAMP)
 	sh tools/install_test_deps.sh
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	# Unit and in-process tests on both cores (pytest-xdist); the HIL and fault
-	# tests time robots, sims and links on the wall clock, so they run one at a
-	# time (two at a time, the vcan e-stop and serial-bench tests failed); the
-	# Ray tests start their own two-node cluster.
-	$(BIN)/python -m pytest -q -n 2 -m "not ray" tests/firmware_py tests/sim_bridge tests/ground_station \
-		tests/test_layering.py tests/test_packaging.py tests/test_docs_commands.py
-	$(BIN)/python -m pytest -q tests/hil tests/faults
-	$(BIN)/python -m pytest -q -m ray tests/ground_station
+	# Everything on both cores (pytest-xdist), the Ray cluster tests on one
+	# worker (xdist_group); then, one at a time, the tests judged on the wall
+	# clock (marker `wallclock`: paced sims, link timing, the UML vcan batch),
+	# which a second busy worker could fail.
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
+		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
+		tests/test_docs_commands.py
+	$(BIN)/python -m pytest -q -m wallclock tests/hil tests/faults
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -41,7 +41,7 @@ RUN = [
 ]
 
 _HIL = "a hub + qnav-sim + qnav-robot bring-up on fixed ports; the same commands run on free ports in " \
-       "tests/hil/test_mav_hil.py and tests/hil/test_gcs_link_robot.py"
+       "tests/hil/test_hil_transports.py and tests/hil/test_gcs_link_robot.py"
 _VCAN = "needs kernel CAN (vcan0/can0); none on this host (tests/hil/test_hil_transports.py runs it in user-mode Linux)"
 _ROBOT = "a real robot on a radio or CAN bus"
 # documented lines (or their prefix) not run here, and why; they are still parsed

@@ -189,9 +189,10 @@ def test_fresh_venv_without_extras_is_the_robot(tmp_path):
 
 
 def test_make_test_runs_every_test_folder_and_file():
-    """`make test` splits the suite (parallel unit tests, serial HIL/faults,
-    the Ray cluster tests): every folder and top-level test file must be in
-    one of its pytest lines, or new tests would silently not run in CI."""
+    """`make test` splits the suite (everything on both cores, then the
+    `wallclock` tests one at a time): every folder and top-level test file
+    must be in one of its pytest lines, or new tests would silently not run
+    in CI."""
     make = (ROOT / "Makefile").read_text()
     recipe = make[make.index("\ntest:"):]
     recipe = recipe[:recipe.index("\n\n")]

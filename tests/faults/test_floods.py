@@ -6,7 +6,11 @@ measured and reported; `qnav bench faults` counts them as lost); the
 GCS failsafe trips within timeout + one period while malformed frames keep
 arriving. Times are reported by `qnav bench faults`, never asserted here."""
 
+import pytest
+
 from ground_station.faults import floods
+
+pytestmark = pytest.mark.wallclock  # paced HIL: a starved robot process trips the 200 ms motor watchdog
 
 
 def test_each_flood_while_driving_no_fault_no_missed_tick():

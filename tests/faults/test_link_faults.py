@@ -4,6 +4,8 @@ in front of a real `qnav-robot` (uploads and commands), and three ground
 stations + 10 Hz telemetry + uploads against qnav-robot driving in qnav-sim.
 Times are measured and reported by `qnav bench faults`, never asserted here."""
 
+import pytest
+
 from ground_station.faults import link_faults
 
 
@@ -32,6 +34,7 @@ def test_lossy_link_uploads_exact_or_clear_error_and_commands_acked_or_timed_out
         assert s["link_up"]["lost"] > 0 and s["link_down"]["lost"] > 0  # the link did lose frames
 
 
+@pytest.mark.wallclock  # counts control periods lost on the wall clock
 def test_three_clients_telemetry_and_upload_miss_no_control_tick():
     res = link_faults.load(1, seed=5, duration_s=8.0)
     assert res.lost == 0, res.failures

@@ -111,6 +111,7 @@ def local_sweep(tmp_path_factory):
 
 
 @pytest.mark.ray
+@pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
 def test_sweep_identical_on_ray_cluster_and_runs_on_both_nodes(cluster, local_sweep, tmp_path):
     r = qnav(*SWEEP, "--out", str(tmp_path), "--engine", "ray", "--ray-address", cluster.address,
              env=cluster.env())
@@ -122,6 +123,7 @@ def test_sweep_identical_on_ray_cluster_and_runs_on_both_nodes(cluster, local_sw
 
 
 @pytest.mark.ray
+@pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
 def test_bench_hil_identical_on_ray_cluster(cluster, tmp_path):
     args = ["bench", "hil", "--only", "cell", "--starts", "2", "--batch", "1"]
     local = qnav(*args, "--json", str(tmp_path / "local.json"))
@@ -147,6 +149,7 @@ def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
 
 
 @pytest.mark.ray
+@pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
 def test_bench_nav_identical_on_ray_cluster(cluster, tmp_path):
     args = ["bench", "nav", "--map", "paper10", "--episodes", "8", "--hil", "--hil-episodes", "2",
             "--controllers", "learnt,seek", "--batch", "4"]
@@ -161,6 +164,7 @@ def test_bench_nav_identical_on_ray_cluster(cluster, tmp_path):
 
 
 @pytest.mark.ray
+@pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
 def test_tune_sweep_resumes_after_interruption(cluster, local_sweep, tmp_path):
     """Interrupt a Tune sweep once its first trial has finished, run the same
     command again: it restores the experiment and the result equals the local

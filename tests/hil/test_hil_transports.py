@@ -34,7 +34,8 @@ from ground_station.rigs.vcan import VcanUnavailable, find_vcan
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
-TRANSPORTS = ["hub", "vcan"]
+# the vcan batch runs paced scenarios inside user-mode Linux: judged on the wall clock
+TRANSPORTS = ["hub", pytest.param("vcan", marks=pytest.mark.wallclock)]
 CAN_UTILS = all(shutil.which(t) for t in ("candump", "cansend"))
 can_utils = pytest.mark.skipif(not CAN_UTILS, reason="can-utils (candump, cansend) not installed")
 # on vcan the e-stop's other node is can-utils' cansend where it exists (the same scenario)
@@ -152,6 +153,7 @@ def _qnav(*argv: str) -> tuple[int, str]:
 # --- can-utils interoperability (kernel SocketCAN only) ----------------------------------------
 
 @can_utils
+@pytest.mark.wallclock  # reads the vcan batch
 @pytest.mark.timeout(300)
 def test_can_utils_cansend_estop_stops_a_driving_robot(vcan_batch):
     r = json.loads((vcan_batch / "estop_cansend.json").read_text())
@@ -162,6 +164,7 @@ def test_can_utils_cansend_estop_stops_a_driving_robot(vcan_batch):
 
 
 @can_utils
+@pytest.mark.wallclock  # reads the vcan batch
 @pytest.mark.timeout(300)
 def test_can_utils_candump_log_decodes_with_cantools(vcan_batch):
     log = vcan_batch / "goal_reached" / "goal.candump"
@@ -178,6 +181,7 @@ def test_can_utils_candump_log_decodes_with_cantools(vcan_batch):
 
 
 @can_utils
+@pytest.mark.wallclock  # reads the vcan batch
 @pytest.mark.timeout(300)
 def test_can_utils_qnav_report_reads_the_candump_log(vcan_batch, tmp_path):
     log = vcan_batch / "goal_reached" / "goal.candump"
