@@ -406,19 +406,11 @@ class Localiser:
         xs: list[float] = []
         ys: list[float] = []
         ths: list[float] = []
-        u = rnd() * total / n
-        c = ws[0]
-        i = 0
-        last = len(ws) - 1
-        for _ in range(n):
-            while u > c and i < last:
-                i += 1
-                c += ws[i]
+        for i in _low_variance_indices(ws, n, rnd() * total / n, total / n):
             x, y = cells[i // nh]
             xs.append(x - mg + (rnd() - 0.5) * step)
             ys.append(y - mg + (rnd() - 0.5) * step)
             ths.append(_wrap((i % nh + rnd() - 0.5) * hstep))
-            u += total / n
         self.xs, self.ys, self.ths = xs, ys, ths
         self._reset_estimate(*self._mean_cov())
         self._est_odom = odom  # the particles are poses at the readings' time: the next update moves them on
@@ -675,18 +667,10 @@ class Localiser:
         nt: list[float] = []
         if n_keep > 0:
             step = 1.0 / n_keep
-            u = rnd() * step
-            c = ws[0]
-            i = 0
-            last = len(ws) - 1
-            for _ in range(n_keep):
-                while u > c and i < last:
-                    i += 1
-                    c += ws[i]
+            for i in _low_variance_indices(ws, n_keep, rnd() * step, step):
                 nx.append(xs[i])
                 ny.append(ys[i])
                 nt.append(ths[i])
-                u += step
         for _ in range(n_rand):
             x, y, th = self._random_pose()
             nx.append(x)
@@ -734,3 +718,21 @@ class Localiser:
         """Standard deviations of the last estimate: x, y (mm), heading (mrad)."""
         vx, vy, vth = self.cov
         return math.sqrt(vx), math.sqrt(vy), math.sqrt(vth) * 1000
+
+
+def _low_variance_indices(ws: list[float], n: int, u0: float, step: float) -> list[int]:
+    """Systematic (low-variance) resampling: the indices of `n` draws from
+    the weights `ws`, at u0, u0 + step, ... along their running sum (one
+    random number for the whole draw, so the spread follows the weights)."""
+    out: list[int] = []
+    u = u0
+    c = ws[0]
+    i = 0
+    last = len(ws) - 1
+    for _ in range(n):
+        while u > c and i < last:
+            i += 1
+            c += ws[i]
+        out.append(i)
+        u += step
+    return out
