@@ -18,7 +18,9 @@ After every kill the storage must hold only complete versions: every policy
 slot present is byte-identical to a version that was uploaded, the policy
 the robot boots (active, else last-good) is the one active before the action
 or the one being activated, params.json loads without a warning and equals
-the last acknowledged parameter state or the one in flight. Then the robot
+an acknowledged parameter state of the stream (saves are coalesced, so the
+newest acknowledged sets may not have reached storage) or the one in flight,
+never a mix of two states. Then the robot
 is restarted on that storage, and it must report (POLICY_ID and
 POLICY_CRC_HI/LO parameters) exactly the policy the check expects it to boot.
 """
@@ -160,6 +162,7 @@ class Crasher:
 
         defs = {d.name: d for d in PARAMS}
         conn = self.link.conn
+        marks["acked_states"] = [dict(self.params)]
         t0 = time.monotonic()
         for _ in range(n):
             name = self.rng.choice(PARAM_POOL)
@@ -176,11 +179,17 @@ class Crasher:
             else:
                 raise TimeoutError(f"no echo for {name}")
             self.params[name] = value
+            marks["acked_states"].append(dict(self.params))
             marks["inflight"] = None
             marks["acked"] = marks.get("acked", 0) + 1
         marks["total_s"] = time.monotonic() - t0
 
-    def params_problems(self, inflight) -> list[str]:
+    def params_problems(self, inflight, acked_states: list[dict] | None = None) -> list[str]:
+        """Problems unless params.json loads cleanly and holds a state the
+        stream went through: the robot echoes a PARAM_SET before its storage
+        worker saves it (coalesced, as ArduPilot defers its saves), so a kill
+        may leave any acknowledged state of the stream, or the one in flight
+        (its save landed, its echo was lost to the kill); never a mix."""
         from firmware_py.mavlink.params import ParamStore
 
         store = ParamStore(self.storage_dir)
@@ -188,14 +197,14 @@ class Crasher:
         if warnings:
             return [f"params after restart: {w}" for w in warnings]
         stored = {n: store.get(n) for n in self.params}
-        if stored == self.params:
-            return []
+        states = list(acked_states or [])
         if inflight is not None:
             alt = dict(self.params)
             alt[inflight[0]] = inflight[1]
-            if stored == alt:
-                self.params = alt  # the save landed, only its echo was lost to the kill
-                return []
+            states.append(alt)
+        if stored == self.params or stored in states:
+            self.params = stored  # what the robot restarts with is the state the next trials build on
+            return []
         diff = {n: (stored[n], self.params[n]) for n in self.params if stored[n] != self.params[n]}
         return [f"params not a saved state: (stored, expected) {diff}"]
 
@@ -254,7 +263,8 @@ def crash_kill9(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 allowed = {before.crc} | ({marks["new"].crc} if action == "activate" and "new" in marks else set())
                 if boot is not None and boot.crc not in allowed:
                     problems.append(f"boots policy 0x{boot.policy_id:08x}, expected one of the last-good")
-                problems += c.params_problems(marks.get("inflight") if action == "params" else None)
+                problems += c.params_problems(marks.get("inflight") if action == "params" else None,
+                                              marks.get("acked_states"))
                 c.start_robot()  # the restart
                 reported = c.reported_policy()
                 if boot is not None:
