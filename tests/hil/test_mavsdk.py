@@ -95,6 +95,7 @@ def mavsdk_url(sitl: SitlProcess) -> str:
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.wallclock  # `qnav sitl` in real time and MAVSDK's own FTP/command timeouts
 def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
     mavsdk = mavsdk_or_skip()
     from mavsdk.mission_raw import MissionItem
@@ -155,6 +156,7 @@ def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.wallclock  # `qnav sitl` in real time and MAVSDK's own FTP/command timeouts
 def test_mavsdk_with_a_generic_autopilot_shows_why_the_option_exists(tmp_path):
     mavsdk = mavsdk_or_skip()
     sitl = SitlProcess(tmp_path, "--policy", "none")

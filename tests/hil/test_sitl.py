@@ -87,6 +87,7 @@ def no_children_left(out: Path) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.wallclock  # a real-time sim: a 200 ms stall of the robot process trips the motor watchdog
 @pytest.mark.timeout(400)
 def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
     # real time: the sim's 200 ms motor watchdog is sim time, so at --speed X a wall-clock stall of
