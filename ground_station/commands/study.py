@@ -12,8 +12,8 @@ paper's Fig. 5) along training per eta, the learners' final success, steps
 to threshold and kernel time, and one Q-learning run's greedy policy beside
 BFS (optimal) with the time each takes.
 
-The same learners on the sector encoding (--sector-seeds seeds each, 0 =
-skip): the shipped sector recipe with --sector-steps steps (its epsilon and
+With --sector-seeds N > 0, the same learners on the sector encoding (N
+seeds each): the shipped sector recipe with --sector-steps steps (its epsilon and
 learning-rate schedules scale with the steps), greedy checkpoints every
 --sector-eval-every steps on --sector-sample fixed (start, goal, heading)
 episodes of the twin; final success, steps to threshold, training time and
@@ -52,8 +52,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threshold", type=float, default=0.95, help="greedy success threshold (default: 0.95)")
     p.add_argument("--sector-learners", default=",".join(LEARNERS),
                    help=f"learners compared on the sector encoding (default: {','.join(LEARNERS)})")
-    p.add_argument("--sector-seeds", type=int, default=20, help="seeds per sector learner; 0 = no sector part "
-                   "(default: 20)")
+    p.add_argument("--sector-seeds", type=int, default=0, help="seeds per sector learner, e.g. 20 (~2 min on two "
+                   "cores); 0 = no sector part (default: 0)")
     p.add_argument("--sector-steps", type=int_arg, default=SECTOR_STEPS,
                    help=f"training steps of a sector run (default: {SECTOR_STEPS:,})")
     p.add_argument("--sector-eval-every", type=int_arg, default=SECTOR_EVAL_EVERY,
@@ -104,7 +104,11 @@ def run(args: argparse.Namespace) -> int:
     c = data["campaign"]
     print(tables(data))
     print()
-    print(f"study on {cfg.map}: {c['jobs']} runs of {cfg.steps:,} steps in {time.perf_counter() - t0:.1f} s "
+    runs = f"{c['jobs']} runs ({cfg.steps:,} steps per cell run"
+    if "sector" in data:
+        sec = data["sector"]
+        runs += f"; {sec['seeds'] * len(sec['learners'])} of them sector runs of {sec['steps']:,} steps"
+    print(f"study on {cfg.map}: {runs}) in {time.perf_counter() - t0:.1f} s "
           f"(engine {c['engine']}, {c['workers']} workers, {c['wall_s']:.1f} s wall, {c['job_s']:.1f} s of job time)")
     print(f"wrote {args.out}/study.json, {args.out}/campaign.json, {args.out}/study.png")
     return 0
