@@ -165,7 +165,7 @@ def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, 
     return bearing_sector_fast(bearing, sectors) * mult + state
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided) -> float:
     """Remaining-path estimate (mm) the reward and the loop detector use.
     Guided: straight distance to waypoint k plus the waypoint path after it.
@@ -395,6 +395,15 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
     cap = tr_s.shape[0]
     n_done = 0
     b0 = 0.0
+    # the episode's map and goal field as views, taken once per episode: a view
+    # made in the loop costs two atomic reference-count updates per step
+    m = int(ep[E_MAP])
+    og = occ[m]
+    ob = occb[m]
+    d = dist[m, int(ep[E_GOAL])]
+    h = dims[m, 0]
+    w = dims[m, 1]
+    c = cell[m]
     if ep[E_ACTIVE] != 0.0:  # the open episode's |bearing| (what its state was encoded with)
         kk = int(ep[E_WP])
         b0 = float(abs(bearing_mrad(ep[E_X], ep[E_Y], ep[E_TH], wps[kk, 0], wps[kk, 1])))
@@ -407,6 +416,13 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
             ep[E_NEXT] = 0.0
             tr[0] = 0
             tr[1] = 0
+            m = int(ep[E_MAP])
+            og = occ[m]
+            ob = occb[m]
+            d = dist[m, int(ep[E_GOAL])]
+            h = dims[m, 0]
+            w = dims[m, 1]
+            c = cell[m]
         s = int(ep[E_S])
         if ep[E_K] == 0.0:  # a decision: start a new option in state s
             if ep[E_NEXT] > 0.0:  # drawn at the last update (sarsa, q-lambda)
@@ -419,13 +435,8 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
             ep[E_R] = 0.0
             ep[E_G] = 1.0
         a = int(ep[E_A])
-        m = int(ep[E_MAP])
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cell[m]
-        d = dist[m, int(ep[E_GOAL])]
         x, y, th, phi2, r, s2, hit, success, k, b1 = train_period(
-            occ[m], occb[m], h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], b0, wps, rem, int(ep[E_NWP]),
+            og, ob, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], b0, wps, rem, int(ep[E_NWP]),
             int(ep[E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided, rng, noise_mm,
             noisy, nstatus)
         ep[E_T] += 1.0

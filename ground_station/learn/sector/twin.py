@@ -75,7 +75,7 @@ def cell_centre(col: int, row: int, h: int, cell: float) -> tuple[float, float]:
     return (col + 0.5) * cell, (h - row - 0.5) * cell
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def disc_hits(occ, h: int, w: int, cell: float, x: float, y: float, r: float) -> bool:
     """True if the open disc (x, y, r) overlaps an obstacle cell or leaves the map."""
     if x < r or y < r or x > w * cell - r or y > h * cell - r:
@@ -102,7 +102,7 @@ def disc_hits(occ, h: int, w: int, cell: float, x: float, y: float, r: float) ->
     return False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def move(occ, h: int, w: int, cell: float, x: float, y: float, th: float, action: int):
     """Hold `action` for one control period from pose (x, y, th).
 
@@ -218,7 +218,7 @@ def ray_cast_dir(occ, h: int, w: int, cell: float, ox: float, oy: float, cx: flo
             return t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _reading(d: float):
     if d < RANGE_MIN:
         return RANGE_MIN, robot_spec.RANGE_TOO_CLOSE
@@ -301,7 +301,7 @@ def _cast_bordered(occb, u: float, vv: float, col: int, row: int, du: float, dv:
             return t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def sense_bordered(occb, h: int, w: int, cell: float, x: float, y: float, th: float, which, ranges,
                    status) -> None:
     """`sense` on a `bordered` occupancy grid: the same readings bit for bit
@@ -374,7 +374,7 @@ def bearing_sector_fast(bearing_mrad: int, sectors: int) -> int:
     return ((2 * b * sectors + TWO_PI_MRAD) // (2 * TWO_PI_MRAD)) % sectors
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def encode_fast(bearing_mrad: int, ranges, status, sectors: int, sensors, edges) -> int:
     """Same index as SectorEncoder(sectors, sensors, edges).encode(bearing, ranges, status)."""
     nb = edges.shape[0] + 1
