@@ -1,4 +1,5 @@
-"""The learning-rate and learner study on the cell encoding, with statistics.
+"""The learning-rate and learner study on the cell encoding, and the learner
+comparison on the sector encoding, with statistics.
 
 The questions (issue 19): how many training steps does Q-learning need to
 reach 95 % greedy success, as a function of the learning rate eta, with and
@@ -15,6 +16,13 @@ chunk rolls the greedy policy out from every (start, goal) pair
 training has changed) of max_a Q. A job's result depends only on its
 config, so study.json is identical on every engine; the jobs' own run
 times go to campaign.json.
+
+Sector part (`sector_jobs`, `run_sector_job`, with sector_seeds > 0): each
+learner trains the shipped sector recipe (`sector_base`, fewer steps) on
+the twin, and every eval_every steps its greedy table is rolled out on a
+fixed episode sample (`SectorEval`: success, and over the successes the
+driven length against the octile grid path and against the disc robot's
+any-angle optimum, `ground_station.learn.anyangle`).
 
 Statistics: every figure is a mean over seeds with a bootstrapped 95 %
 confidence interval of that mean (percentile bootstrap, `BOOTSTRAP`
