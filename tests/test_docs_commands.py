@@ -51,6 +51,8 @@ NOT_RUN = {
     "qnav study --map maze-15x15-s2": "the same study on a second map (~25 s); `qnav study --out out/study` "
                                       "above runs the same code",
     "qnav bench train": "a benchmark (about a minute); tests check a benchmark's code, never a time",
+    "qnav study --out out/study-sector": "the sector learner study (~2 min on two idle cores); "
+                                         "tests/ground_station/test_study.py runs its code at a small scale",
     "qnav-sim --map paper10 --can remote:": _HIL,
     "qnav-robot --can remote:": _HIL,
     "qnav param set FS_GCS_ENABLE 0": _HIL,

@@ -12,7 +12,8 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 ENCODINGS = ("cell", "sector", "sector-memory")
-# tabular learners (ground_station/learn/learners.py); the sector encodings train with q only
+# tabular learners (ground_station/learn/learners.py, the sector trainer's switch in
+# ground_station/learn/sector/kernels.py); sector-memory and obstacle training: q only
 LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
 
 
@@ -28,7 +29,7 @@ class TrainConfig:
     encoding: str = _f("cell", "state encoding: cell (robot cell x goal), sector (kinematic twin) or sector-memory "
                                    "(sector x Bug-style wall-following mode, direct setting)")
     targets: str = _f("", "comma-separated target names or col:row cells (cell encoding); empty = all map targets")
-    learner: str = _f("q", "tabular learner (cell encoding; sector encodings: q): q = Q-learning, sarsa, expected-sarsa, "
+    learner: str = _f("q", "tabular learner (cell, sector; sector-memory: q): q = Q-learning, sarsa, expected-sarsa, "
                            "double-q, dyna-q, q-lambda = Watkins' Q(lambda) (ground_station/learn/learners.py)")
     learner_lambda: float = _f(0.9, "q-lambda: trace decay lambda (traces decay by gamma * lambda per step)")
     trace_min: float = _f(1e-3, "q-lambda: a trace smaller than this is dropped (bounds the trace ring)")
@@ -142,8 +143,10 @@ def validate_config(cfg: TrainConfig) -> None:
         raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got {cfg.encoding!r}")
     if cfg.learner not in LEARNERS:
         raise ValueError(f"learner must be one of {', '.join(LEARNERS)}, got {cfg.learner!r}")
-    if cfg.learner != "q" and cfg.encoding != "cell":
-        raise ValueError(f"learner {cfg.learner} is implemented for the cell encoding only (sector encodings: q)")
+    obstacles = cfg.encoding == "sector" and (cfg.sector_obstacles > 0 or cfg.sector_movers > 0)
+    if cfg.learner != "q" and (cfg.encoding == "sector-memory" or obstacles):
+        raise ValueError(f"learner {cfg.learner} is implemented for the cell and sector encodings without "
+                         "unmapped obstacles (sector-memory and obstacle training: q)")
     if not 0.0 <= cfg.learner_lambda <= 1.0 or not 0.0 < cfg.trace_min < 1.0 or cfg.dyna_planning < 0:
         raise ValueError("learner_lambda must be in [0, 1], trace_min in (0, 1), dyna_planning >= 0")
     if cfg.steps < 1:

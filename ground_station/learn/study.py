@@ -1,4 +1,5 @@
-"""The learning-rate and learner study on the cell encoding, with statistics.
+"""The learning-rate and learner study on the cell encoding, and the learner
+comparison on the sector encoding, with statistics.
 
 The questions (issue 19): how many training steps does Q-learning need to
 reach 95 % greedy success, as a function of the learning rate eta, with and
@@ -15,6 +16,13 @@ chunk rolls the greedy policy out from every (start, goal) pair
 training has changed) of max_a Q. A job's result depends only on its
 config, so study.json is identical on every engine; the jobs' own run
 times go to campaign.json.
+
+Sector part (`sector_jobs`, `run_sector_job`, with sector_seeds > 0): each
+learner trains the shipped sector recipe (`sector_base`, fewer steps) on
+the twin, and every eval_every steps its greedy table is rolled out on a
+fixed episode sample (`SectorEval`: success, and over the successes the
+driven length against the octile grid path and against the disc robot's
+any-angle optimum, `ground_station.learn.anyangle`).
 
 Statistics: every figure is a mean over seeds with a bootstrapped 95 %
 confidence interval of that mean (percentile bootstrap, `BOOTSTRAP`
@@ -35,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ground_station.learn.config import LEARNERS, TrainConfig
+from ground_station.learn.study_defaults import SECTOR_EVAL_EVERY, SECTOR_SAMPLE, SECTOR_STEPS
 
 BOOTSTRAP = 4000
 CI_SEED = 0
@@ -166,6 +175,152 @@ def summarise(results: list[dict], lrs: list[float], learners: list[str], learne
 
 
 # --------------------------------------------------------------------------
+# the learners on the sector encoding (the kinematic twin)
+# --------------------------------------------------------------------------
+
+
+def sector_base(base: TrainConfig, steps: int = SECTOR_STEPS) -> TrainConfig:
+    """The shipped sector recipe (`RECIPES["sector"]`) on base's map and seed, with `steps`."""
+    from ground_station.learn.config import recipe_config
+
+    return recipe_config("sector", {"map": base.map, "seed": base.seed, "steps": steps,
+                                    "learner_lambda": base.learner_lambda, "trace_min": base.trace_min,
+                                    "dyna_planning": base.dyna_planning})
+
+
+def sector_jobs(sbase: TrainConfig, learners: list[str], seeds: int, eval_every: int, threshold: float,
+                sample: int) -> list[dict]:
+    """learner x seed runs of the sector recipe (seeds sbase.seed .. + seeds - 1)."""
+    return [{"group": "sector", "schedule": "decay", "config": asdict(replace(sbase, learner=learner,
+                                                                              seed=sbase.seed + k)),
+             "eval_every": eval_every, "threshold": threshold, "sample": sample}
+            for learner in learners for k in range(seeds)]
+
+
+class SectorEval:
+    """The fixed greedy evaluation of a sector study run: `sample` episodes
+    (`sector.evaluate.eval_episodes`, seed 0) on the recipe's guidance
+    (waypoints planned once), and each episode's any-angle optimum for the
+    disc robot (`ground_station.learn.anyangle`)."""
+
+    def __init__(self, gridmap: Any, cfg: TrainConfig, sample: int) -> None:
+        import math
+
+        from firmware_py import robot_spec
+        from ground_station.learn.anyangle import anyangle_distances
+        from ground_station.learn.sector.evaluate import eval_episodes, plan_pairs
+        from ground_station.learn.sector.reward import check_guidance
+        from ground_station.learn.sector.twin import grid_of
+        from ground_station.maps import octile_distances
+
+        self.headings = 8
+        starts, goals, hidx = eval_episodes(gridmap, seed=0, sample=sample, headings=self.headings)
+        self.occ, self.h, self.w, self.c = grid_of(gridmap)
+        ugoals, slot = np.unique(goals, axis=0, return_inverse=True)
+        self.slot = slot.reshape(-1).astype(np.int64)
+        self.dists = np.stack([octile_distances(gridmap.occ, int(gc), int(gr)) for gc, gr in ugoals])
+        self.guided = check_guidance(cfg.sector_guidance)
+        if self.guided:
+            self.wp, self.nwp, self.rem, self.pair = plan_pairs(gridmap, starts, goals, self.dists, self.slot,
+                                                                cfg.sector_margin_mm, cfg.sector_max_segment_mm)
+        else:
+            self.wp, self.nwp, self.rem = np.zeros((1, 1, 2)), np.ones(1, dtype=np.int64), np.zeros((1, 1))
+            self.pair = np.zeros(len(starts), dtype=np.int64)
+        th = hidx.astype(np.float64) * (2.0 * math.pi / self.headings)
+        self.th = (th + math.pi) % (2.0 * math.pi) - math.pi
+        self.starts, self.goals = starts, goals
+        self.octile = self.dists[self.slot, starts[:, 1], starts[:, 0]] * self.c
+        cells, dmat = anyangle_distances(gridmap, float(robot_spec.ROBOT_RADIUS_MM))
+        index = {(int(a), int(b)): i for i, (a, b) in enumerate(cells)}
+        si = np.array([index[(int(a), int(b))] for a, b in starts])
+        gi = np.array([index[(int(a), int(b))] for a, b in goals])
+        # the robot is done within the goal tolerance: the optimum of the task ends that much early
+        self.anyangle = dmat[si, gi] - float(robot_spec.GOAL_TOLERANCE_MM)
+
+    def __call__(self, q: np.ndarray, encoder: Any) -> dict:
+        """Greedy success and the mean path ratios over the successes."""
+        from ground_station.learn.sector.kernels import SUCCESS
+
+        outcome, path = self.rollouts(q, encoder)
+        ok = outcome == SUCCESS
+        return {"success": float(ok.mean()),
+                "octile_ratio": float((path[ok] / self.octile[ok]).mean()) if ok.any() else None,
+                "anyangle_ratio": float((path[ok] / self.anyangle[ok]).mean()) if ok.any() else None}
+
+    def rollouts(self, q: np.ndarray, encoder: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(outcome, driven mm) of every episode (`sector.kernels.eval_kernel`)."""
+        from ground_station.learn.sector.kernels import eval_kernel
+        from ground_station.learn.sector.twin import encoder_arrays
+
+        n = len(self.starts)
+        sectors, sensors, edges, which = encoder_arrays(encoder)
+        outcome = np.zeros(n, dtype=np.int64)
+        path = np.zeros(n)
+        steps = np.zeros(n, dtype=np.int64)
+        eval_kernel(np.ascontiguousarray(q, dtype=np.float64), self.occ, self.h, self.w, self.c, self.dists,
+                    self.starts, self.goals, self.slot, self.th, sectors, sensors, edges, which, 0, 400.0, 4.0,
+                    400, self.guided, self.wp, self.nwp, self.rem, self.pair, outcome, path, steps)
+        return outcome, path
+
+
+def run_sector_job(job: dict) -> dict:
+    """Train job["config"] (sector encoding) with its learner, evaluating the
+    greedy policy every job["eval_every"] steps on `SectorEval`."""
+    from ground_station.learn.sector.trainer import SectorTrainer, sector_encoder
+    from ground_station.learn.train import initial_table
+    from ground_station.maps import load_map
+
+    cfg = TrainConfig(**job["config"])
+    gm = load_map(cfg.map)
+    trainer = SectorTrainer([gm], cfg, sector_encoder(cfg))
+    ev = SectorEval(gm, cfg, int(job["sample"]))
+    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
+    every = int(job["eval_every"])
+    done = 0
+    train_s = 0.0
+    steps, success = [], []
+    reached = None
+    res: dict = {}
+    while done < cfg.steps:
+        n = min(every, cfg.steps - done)
+        t0 = time.perf_counter()
+        trainer.run(q, done, n)
+        train_s += time.perf_counter() - t0
+        done += n
+        res = ev(trainer.table(q), trainer.encoder)
+        steps.append(done)
+        success.append(round(res["success"], 6))
+        if reached is None and res["success"] >= job["threshold"]:
+            reached = done
+    rnd = {k: (round(v, 6) if v is not None else None) for k, v in res.items()}
+    return {"group": "sector", "learner": cfg.learner, "lr": cfg.lr, "schedule": "decay", "seed": cfg.seed,
+            "steps_to_threshold": reached, "final_success": success[-1],
+            "final_path_ratio": rnd["octile_ratio"], "final_anyangle_ratio": rnd["anyangle_ratio"],
+            "curve": {"steps": steps, "success": success}, "train_seconds": train_s}
+
+
+def summarise_sector(results: list[dict], learners: list[str], budget: int) -> list[dict]:
+    """Per learner: final success, steps to threshold, path ratios (octile and
+    any-angle), means with bootstrapped 95 % CIs over the seeds."""
+    rows = []
+    for learner in learners:
+        rs = [r for r in results if r["group"] == "sector" and r["learner"] == learner]
+        if not rs:
+            continue
+        row: dict[str, Any] = {"learner": learner, "steps_to_threshold": _threshold_stats(rs, budget),
+                               "final_success": _ci([r["final_success"] for r in rs])}
+        for key in ("final_path_ratio", "final_anyangle_ratio"):
+            vals = [r[key] for r in rs if r[key] is not None]
+            row[key] = _ci(vals) if vals else None
+        n = min(len(r["curve"]["steps"]) for r in rs)
+        m, lo, hi = bootstrap_ci(np.array([r["curve"]["success"][:n] for r in rs]), axis=0)
+        row["curve"] = {"steps": rs[0]["curve"]["steps"][:n], "success": {
+            "mean": np.round(m, 6).tolist(), "lo": np.round(lo, 6).tolist(), "hi": np.round(hi, 6).tolist()}}
+        rows.append(row)
+    return rows
+
+
+# --------------------------------------------------------------------------
 # the optimum beside it: BFS
 # --------------------------------------------------------------------------
 def optimum(base: TrainConfig) -> tuple[dict, dict]:
@@ -243,18 +398,31 @@ def _bfs_path(dist: np.ndarray, next_cell: np.ndarray, cell: int) -> list[int]:
 # --------------------------------------------------------------------------
 # the whole study
 # --------------------------------------------------------------------------
+def run_any_job(job: dict) -> dict:
+    """`run_sector_job` for the sector runs, `run_job` for the cell runs."""
+    return run_sector_job(job) if job["group"] == "sector" else run_job(job)
+
+
 def study(base: TrainConfig, lrs: list[float], seeds: int, *, constant_epsilon: float = 0.1,
           learners: list[str] | None = None, learner_lrs: list[float] | None = None, eval_every: int = 1000,
-          threshold: float = 0.95, engine: Any = None, progress: bool = False) -> dict:
+          threshold: float = 0.95, sector_learners: list[str] | None = None, sector_seeds: int = 0,
+          sector_steps: int = SECTOR_STEPS, sector_eval_every: int = SECTOR_EVAL_EVERY,
+          sector_sample: int = SECTOR_SAMPLE, engine: Any = None, progress: bool = False) -> dict:
     """Run every job on `engine` (default: local pool); the result and, under
-    "campaign", what it cost (kept apart by `write_study`)."""
+    "campaign", what it cost (kept apart by `write_study`). sector_seeds > 0
+    adds the learner comparison on the sector encoding (`sector_base`: the
+    shipped recipe with sector_steps) under "sector"."""
     from ground_station.campaign.engines import LocalEngine
 
     learners = list(learners or LEARNERS)
     learner_lrs = list(learner_lrs or [base.lr])
+    sector_learners = list(sector_learners or LEARNERS)
     jobs = study_jobs(base, lrs, seeds, constant_epsilon, learners, learner_lrs, eval_every, threshold)
+    sbase = sector_base(base, sector_steps)
+    if sector_seeds > 0:
+        jobs += sector_jobs(sbase, sector_learners, sector_seeds, sector_eval_every, threshold, sector_sample)
     engine = engine or LocalEngine()
-    results, stats = engine.map(run_job, jobs, desc="study", progress=progress, unit="run")
+    results, stats = engine.map(run_any_job, jobs, desc="study", progress=progress, unit="run")
     seconds = [r.pop("train_seconds") for r in results]
     opt, opt_timing = optimum(base)
     wall = {f"{learner} lr={lr:g}": _ci([s for r, s in zip(results, seconds, strict=True)
@@ -262,12 +430,23 @@ def study(base: TrainConfig, lrs: list[float], seeds: int, *, constant_epsilon: 
             for learner in learners for lr in learner_lrs}
     campaign = {**stats.as_dict(), "train_seconds_total": round(sum(seconds), 3),
                 "learner_train_seconds": wall, "optimum": opt_timing}
-    return {"map": base.map, "encoding": "cell", "targets": base.targets, "seeds": seeds, "lrs": lrs,
-            "constant_epsilon": constant_epsilon, "learners": learners, "learner_lrs": learner_lrs,
-            "eval_every": eval_every, "threshold": threshold, "ci": f"bootstrapped 95 % CI of the mean over seeds "
-            f"(percentile, {BOOTSTRAP} resamples)", "config": asdict(base),
-            **summarise(results, lrs, learners, learner_lrs, base.steps), "optimum": opt,
-            "runs": [{k: v for k, v in r.items() if k != "curve"} for r in results], "campaign": campaign}
+    cell_results = [r for r in results if r["group"] != "sector"]
+    out = {"map": base.map, "encoding": "cell", "targets": base.targets, "seeds": seeds, "lrs": lrs,
+           "constant_epsilon": constant_epsilon, "learners": learners, "learner_lrs": learner_lrs,
+           "eval_every": eval_every, "threshold": threshold, "ci": f"bootstrapped 95 % CI of the mean over seeds "
+           f"(percentile, {BOOTSTRAP} resamples)", "config": asdict(base),
+           **summarise(cell_results, lrs, learners, learner_lrs, base.steps), "optimum": opt}
+    if sector_seeds > 0:
+        campaign["sector_train_seconds"] = {
+            learner: _ci([s for r, s in zip(results, seconds, strict=True)
+                          if r["group"] == "sector" and r["learner"] == learner]) for learner in sector_learners}
+        out["sector"] = {"map": sbase.map, "seeds": sector_seeds, "learners": sector_learners,
+                         "steps": sector_steps, "eval_every": sector_eval_every, "sample": sector_sample,
+                         "guidance": sbase.sector_guidance, "config": asdict(sbase),
+                         "rows": summarise_sector(results, sector_learners, sector_steps)}
+    out["runs"] = [{k: v for k, v in r.items() if k != "curve"} for r in results]
+    out["campaign"] = campaign
+    return out
 
 
 # --------------------------------------------------------------------------
@@ -282,8 +461,11 @@ def plot_study(data: dict) -> bytes:
     from ground_station.plotting import png_bytes, pyplot
 
     plt = pyplot()
-    fig, axes = plt.subplots(2, 3, figsize=(18, 10), dpi=90)
-    (a1, a2, a3), (a4, a5, a6) = axes
+    sector = "sector" in data
+    fig, axes = plt.subplots(3 if sector else 2, 3, figsize=(18, 15 if sector else 10), dpi=90)
+    (a1, a2, a3), (a4, a5, a6) = axes[0], axes[1]
+    if sector:
+        _plot_sector(data, axes[2], plt)
     cmap = plt.get_cmap("viridis")
     n, thr = data["seeds"], data["threshold"]
     ci = "mean, bootstrapped 95 % CI"
@@ -360,6 +542,45 @@ def plot_study(data: dict) -> bytes:
     return png_bytes(fig)
 
 
+def _plot_sector(data: dict, axes: Any, plt: Any) -> None:
+    """Third row: the learners on the sector encoding (success along training,
+    steps to threshold, path ratio against the any-angle optimum)."""
+    sec = data["sector"]
+    rows, n, thr = sec["rows"], sec["seeds"], data["threshold"]
+    ci = "mean, bootstrapped 95 % CI"
+    b1, b2, b3 = axes
+    cmap = plt.get_cmap("tab10")
+    for i, r in enumerate(rows):
+        c = r["curve"]
+        b1.plot(c["steps"], c["success"]["mean"], color=cmap(i), marker=".", label=r["learner"])
+        b1.fill_between(c["steps"], c["success"]["lo"], c["success"]["hi"], color=cmap(i), alpha=0.15)
+    b1.axhline(thr, color="grey", linestyle=":")
+    b1.set_xlabel("training steps (control periods)")
+    b1.set_ylabel(f"greedy success, {sec['sample']} episodes ({sec['guidance']})")
+    b1.set_title(f"sector encoding on {sec['map']}: learners\n({ci}, {n} seeds)")
+    b1.legend(fontsize=8)
+    x = np.arange(len(rows))
+    names = [r["learner"] for r in rows]
+    for ax, key, color, label in ((b2, "steps_to_threshold", "tab:green",
+                                   f"steps to {thr:.0%} greedy success (budget if never)"),
+                                  (b3, "final_anyangle_ratio", "tab:brown",
+                                   "driven / any-angle optimum of the disc (successes)")):
+        vals = [r[key] or {"mean": np.nan, "ci95": [np.nan, np.nan]} for r in rows]
+        m = np.array([v["mean"] for v in vals])
+        lo = np.array([v["ci95"][0] for v in vals])
+        hi = np.array([v["ci95"][1] for v in vals])
+        ax.bar(x, m, yerr=[m - lo, hi - m], capsize=3, color=color)
+        ax.set_xticks(x, names, fontsize=8, rotation=30)
+        ax.set_ylabel(label)
+        ax.set_title(f"sector learners, final checkpoint\n({ci}, {n} seeds)")
+    for xi, r in zip(x, rows, strict=True):
+        b2.text(xi, r["steps_to_threshold"]["mean"], f"{r['steps_to_threshold']['reached']}/{n}", ha="center",
+                va="bottom", fontsize=7)
+    finite = [r["final_anyangle_ratio"]["ci95"][0] for r in rows if r["final_anyangle_ratio"]]
+    if finite:
+        b3.set_ylim(min(1.0, min(finite)) - 0.02, None)  # from 1 (the optimum), not auto-scaled to the noise
+
+
 def write_study(out: str | Path, data: dict) -> None:
     """study.json (depends only on the seeded jobs: identical on every engine),
     campaign.json (engine, wall and job times, learner and BFS timings), study.png."""
@@ -404,6 +625,8 @@ def tables(data: dict) -> str:
         lines.append(f"| {r['learner']} | {r['lr']:g} | {fmt_ci(r['final_success'])} "
                      f"| {fmt_ci(r['steps_to_threshold'], 1, 0)} | {r['steps_to_threshold']['reached']}/{n} "
                      f"| {fmt_ci(r['final_path_ratio'])} | {fmt_ci(w, 1e3, 1)} |")
+    if "sector" in data:
+        lines += ["", *sector_table(data)]
     o = data["optimum"]
     t = data.get("campaign", {}).get("optimum")
     lines += ["", f"Optimum: the greedy Q policy (eta {o['config']['lr']:g}, {o['config']['steps']:,} steps, seed "
@@ -415,3 +638,25 @@ def tables(data: dict) -> str:
                      f" BFS to the training goals {t['bfs_goals_s'] * 1e3:.3f} ms, all pairs of the "
                      f"{t['free_cells']} free cells {t['bfs_all_pairs_s'] * 1e3:.2f} ms (as measured).")
     return "\n".join(lines)
+
+
+def sector_table(data: dict) -> list[str]:
+    """Markdown lines of the sector learner comparison."""
+    sec = data["sector"]
+    n = sec["seeds"]
+    thr = f"{data['threshold']:.0%}"
+    wall = data.get("campaign", {}).get("sector_train_seconds", {})
+    lines = [f"Learners on the sector encoding ({sec['map']}, shipped sector recipe with {sec['steps']:,} steps, "
+             f"guidance {sec['guidance']}; greedy checkpoints every {sec['eval_every']:,} steps on {sec['sample']} "
+             f"fixed (start, goal, heading) episodes; mean [bootstrapped 95 % CI], {n} seeds; a run that never "
+             f"reaches {thr} counts as the budget; path ratios over successes: driven / octile grid path, and "
+             f"driven / (any-angle optimum of the disc robot - goal tolerance); time = training only, as measured):",
+             "",
+             f"| learner | final greedy success | steps to {thr} | reached | path / octile | path / any-angle "
+             "| train s |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in sec["rows"]:
+        lines.append(f"| {r['learner']} | {fmt_ci(r['final_success'])} | {fmt_ci(r['steps_to_threshold'], 1, 0)} "
+                     f"| {r['steps_to_threshold']['reached']}/{n} | {fmt_ci(r['final_path_ratio'])} "
+                     f"| {fmt_ci(r['final_anyangle_ratio'])} | {fmt_ci(wall.get(r['learner']), 1, 2)} |")
+    return lines

@@ -275,10 +275,13 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
         trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
     q = initial_table(cfg, trainer.n_states, trainer.n_actions)
     rets, succs, seconds = _run_in_chunks(trainer, q, cfg, progress, f"train sector {gridmap.name}")
+    q2 = None
+    if isinstance(trainer, SectorTrainer):
+        q, q2 = trainer.table(q), trainer.q2  # Double Q: (A + B) / 2 and B
     return TrainResult(q, rets, succs,
                        {"encoder": encoder.to_dict(), "guidance": trainer.guidance,
                         "margin_mm": cfg.sector_margin_mm, "max_segment_mm": cfg.sector_max_segment_mm,
-                        "train_maps": [m.name for m in trainer.maps]}, seconds)
+                        "train_maps": [m.name for m in trainer.maps]}, seconds, q2)
 
 
 def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:

@@ -114,8 +114,9 @@ def test_dyna_q_plans_from_its_model():
     assert ev_d > ev_q
 
 
-def test_sector_encodings_refuse_other_learners():
-    with pytest.raises(ValueError, match="cell encoding only"):
-        validate_config(TrainConfig(encoding="sector", learner="sarsa"))
+def test_sector_memory_refuses_other_learners():
+    with pytest.raises(ValueError, match="sector-memory and obstacle training: q"):
+        validate_config(TrainConfig(encoding="sector-memory", learner="sarsa"))
+    validate_config(TrainConfig(encoding="sector", learner="sarsa"))  # tests/ground_station/test_sector_learners.py
     with pytest.raises(ValueError, match="learner must be one of"):
         validate_config(TrainConfig(learner="td0"))

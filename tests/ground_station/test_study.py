@@ -16,7 +16,7 @@ import pytest
 
 from ground_station.campaign.engines import LocalEngine
 from ground_station.learn.config import RECIPES, TrainConfig, recipe_config
-from ground_station.learn.study import bootstrap_ci, run_job, study, tables
+from ground_station.learn.study import bootstrap_ci, run_any_job, run_job, study, tables
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE = TrainConfig(map="paper10", targets="A,B,C,D", steps=30_000)
@@ -76,18 +76,25 @@ def test_study_json_is_the_same_on_one_worker_and_on_the_pool():
 
 def test_cli_study_writes_json_png_and_campaign(tmp_path):
     p = qnav("study", "--out", str(tmp_path), "--seeds", "2", "--lrs", "0.5", "--learners", "q,dyna-q",
-             "--learner-lrs", "0.5", "--steps", "10000", "--eval-every", "2000")
+             "--learner-lrs", "0.5", "--steps", "10000", "--eval-every", "2000", "--sector-seeds", "2",
+             "--sector-learners", "q,q-lambda", "--sector-steps", "100000", "--sector-eval-every", "50000",
+             "--sector-sample", "100")
     assert p.returncode == 0, p.stderr
-    assert "bootstrapped 95 % CI" in p.stdout
+    assert "bootstrapped 95 % CI" in p.stdout and "| q-lambda |" in p.stdout and "path / any-angle" in p.stdout
     data = json.loads((tmp_path / "study.json").read_text())
     assert "campaign" not in data and "train_seconds" not in json.dumps(data)
+    assert [r["learner"] for r in data["sector"]["rows"]] == ["q", "q-lambda"]
+    assert data["sector"]["config"]["steps"] == 100_000 and data["sector"]["config"]["encoding"] == "sector"
     camp = json.loads((tmp_path / "campaign.json").read_text())
-    assert camp["jobs"] == 2 * 2 + 2 * 2 and "bfs_all_pairs_s" in camp["optimum"]
+    assert camp["jobs"] == 2 * 2 + 2 * 2 + 2 * 2 and "bfs_all_pairs_s" in camp["optimum"]
+    assert set(camp["sector_train_seconds"]) == {"q", "q-lambda"}
     assert (tmp_path / "study.png").read_bytes()[:4] == b"\x89PNG"
 
 
 @pytest.mark.parametrize("args,text", [
     (["--learners", "q,td0"], "unknown learner"),
+    (["--sector-learners", "sarsa,td1"], "--sector-learners: unknown learner"),
+    (["--sector-seeds", "-1"], "--sector-seeds"),
     (["--seeds", "0"], "--seeds"),
     (["--lrs", "0"], "learning rates"),
     (["--map", "nosuchmap"], "nosuchmap"),
@@ -118,3 +125,34 @@ def test_recipes_are_the_train_defaults(tmp_path):
             {k: v for k, v in RECIPES["sector"].items() if k != "steps"}
     p = qnav("train", "--recipe", "shipped-sector", "--encoding", "cell", "--out", str(tmp_path / "x"))
     assert p.returncode == 2 and "trains the sector encoding" in p.stderr
+
+
+def test_sector_job_checkpoints_and_path_ratios():
+    from ground_station.learn.sector.kernels import SUCCESS
+    from ground_station.learn.sector.trainer import SectorTrainer, sector_encoder
+    from ground_station.learn.study import SectorEval, sector_base, sector_jobs
+    from ground_station.maps import load_map
+
+    sbase = sector_base(BASE, 400_000)
+    assert (sbase.encoding, sbase.steps, sbase.lr) == ("sector", 400_000, RECIPES["sector"]["lr"])
+    jobs = sector_jobs(sbase, ["q", "expected-sarsa"], 2, 200_000, 0.5, 300)
+    assert [(j["config"]["learner"], j["config"]["seed"]) for j in jobs] == [
+        ("q", 0), ("q", 1), ("expected-sarsa", 0), ("expected-sarsa", 1)]
+    r = run_any_job(jobs[2])
+    assert r["curve"]["steps"] == [200_000, 400_000] and r["final_success"] == r["curve"]["success"][-1]
+    first = next((s for s, v in zip(r["curve"]["steps"], r["curve"]["success"], strict=True) if v >= 0.5), None)
+    assert r["steps_to_threshold"] == first and r["learner"] == "expected-sarsa"
+    assert r == {**run_any_job(jobs[2]), "train_seconds": r["train_seconds"]}  # seeded: the same run
+    # every success drives at least the disc's any-angle optimum (to within the goal tolerance)
+    # and often less than the 8-connected grid path
+    gm = load_map("paper10")
+    cfg = TrainConfig(**jobs[0]["config"])
+    tr = SectorTrainer([gm], cfg, sector_encoder(cfg))
+    q = np.zeros((tr.n_states, tr.n_actions))
+    tr.run(q, 0, cfg.steps)
+    ev = SectorEval(gm, cfg, 300)
+    outcome, path = ev.rollouts(q, tr.encoder)
+    ok = outcome == SUCCESS
+    assert ok.mean() > 0.3
+    assert np.all(path[ok] / ev.anyangle[ok] >= 0.995)
+    assert np.mean(path[ok] < ev.octile[ok]) > 0.5

@@ -52,11 +52,13 @@ from ground_station.learn.sector.twin import (
     RADIUS_MM,
     SUB_DT_S,
     bearing_mrad,
+    bearing_sector_fast,
     cell_centre,
     encode_fast,
     move,
     potential,
     sense,
+    sense_bordered,
 )
 from ground_station.maps.planner import plan_into, remaining_lengths
 
@@ -69,8 +71,8 @@ RANGE_MIN_, RANGE_MAX_ = robot_spec.RANGE_MIN_MM, robot_spec.RANGE_MAX_MM
 
 # episode-state slots (float64 array carried between chunks)
 (E_ACTIVE, E_MAP, E_X, E_Y, E_TH, E_GOAL, E_GX, E_GY, E_T, E_RET, E_S, E_PHI,
- E_K, E_A, E_S0, E_R, E_G, E_NWP, E_WP) = range(19)
-EP_LEN = 19
+ E_K, E_A, E_S0, E_R, E_G, E_NWP, E_WP, E_NEXT) = range(20)
+EP_LEN = 20
 
 
 @numba.njit(cache=True)
@@ -86,6 +88,13 @@ def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus,
     """State index from the encoder's sensors' readings with Gaussian noise
     (std noise_mm, whole mm) added to the valid ones, re-classified as too
     close / too far past the sensor limits, as the sim's noisy sensors report."""
+    return noisy_encode(rng, noise_mm, bearing_mrad(x, y, th, tx, ty), ranges, status, noisy, nstatus,
+                        sectors, sensors, edges)
+
+
+@numba.njit(cache=True, inline="always")
+def noisy_encode(rng, noise_mm, bearing, ranges, status, noisy, nstatus, sectors, sensors, edges) -> int:
+    """`noisy_state` with the target's bearing (int mrad) already known."""
     for j in range(sensors.shape[0]):
         i = sensors[j]
         noisy[i] = ranges[i]
@@ -100,10 +109,63 @@ def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus,
                 nstatus[i] = RANGE_TOO_FAR_
             else:
                 noisy[i] = r
-    return encode_fast(bearing_mrad(x, y, th, tx, ty), noisy, nstatus, sectors, sensors, edges)
+    return encode_fast(bearing, noisy, nstatus, sectors, sensors, edges)
 
 
-@numba.njit(cache=True)
+# |Box-Muller draw| <= sqrt(-2 ln 2^-53) = 8.5717 (rand01 <= 1 - 2^-53, so 1 - u >= 2^-53)
+GAUSS_MAX = 8.6
+
+
+@numba.njit(cache=True, inline="always")
+def _noisy_bin(r, edges) -> int:
+    """Range bin of `encode_fast` for a noisy reading r (mm) before the sensor
+    limits are applied (too close -> bin 0, too far -> the top bin)."""
+    if r < RANGE_MIN_:
+        return 0
+    if r > RANGE_MAX_:
+        return edges.shape[0]
+    b = 0
+    for e in range(edges.shape[0]):
+        if r >= edges[e]:
+            b += 1
+    return b
+
+
+@numba.njit(cache=True, inline="always")
+def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, sensors, edges) -> int:
+    """The index `noisy_encode` returns, with the same generator draws, but
+    the Gaussian itself (a log and a cos) computed only where it can change
+    the index: the bin is monotone in the noisy reading, and a draw moves
+    the reading by at most `noise_bound` mm, so if both ends of that
+    interval fall into one bin, every draw does and the two uniforms are
+    drawn and dropped. (The noisy readings themselves are not produced;
+    noisy_state / noisy_encode do.)"""
+    bound = int(math.ceil(noise_mm * GAUSS_MAX)) + 1
+    state = 0
+    mult = 1
+    nb = edges.shape[0] + 1
+    for j in range(sensors.shape[0]):
+        i = sensors[j]
+        st = status[i]
+        if st == RANGE_VALID_:
+            r0 = ranges[i]
+            lo = _noisy_bin(r0 - bound, edges)
+            if lo == _noisy_bin(r0 + bound, edges):
+                rand01(rng)
+                rand01(rng)
+                b = lo
+            else:
+                b = _noisy_bin(r0 + int(math.floor(noise_mm * gauss(rng) + 0.5)), edges)
+        elif st == RANGE_TOO_CLOSE_:
+            b = 0
+        else:
+            b = nb - 1
+        state += b * mult
+        mult *= nb
+    return bearing_sector_fast(bearing, sectors) * mult + state
+
+
+@numba.njit(cache=True, inline="always")
 def guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided) -> float:
     """Remaining-path estimate (mm) the reward and the loop detector use.
     Guided: straight distance to waypoint k plus the waypoint path after it.
@@ -211,20 +273,97 @@ def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, whic
     return x, y, th, phi2, r, s2, False, False, driven, k
 
 
+@numba.njit(cache=True, inline="always")
+def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, a, rw, which, ranges, status,
+                 sectors, sensors, edges, guided, rng, noise_mm, noisy, nstatus):
+    """`period_step` for the trainer's hot loop, the same numbers bit for bit
+    (a test compares whole trained tables): b0 = |bearing| to waypoint k at
+    the start pose is carried from the previous period (it is the bearing
+    the previous state was encoded with) instead of recomputed, the end
+    pose's bearing is computed once for the align term and the state, the
+    sensors are cast on the `bordered` grid occb, and with noise_mm > 0 the
+    state comes straight from the noisy readings (`noisy_encode`, the same
+    draws as `period_step` then `noisy_state`).
+    Returns (x, y, th, phi, reward, state, hit, success, k, |bearing|)."""
+    x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
+    if hit:
+        return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, k, b0
+    tol2 = GOAL_TOL_MM * GOAL_TOL_MM
+    success = False
+    while (x - wps[k, 0]) * (x - wps[k, 0]) + (y - wps[k, 1]) * (y - wps[k, 1]) <= tol2:
+        if k == nwp - 1:
+            success = True
+            break
+        k += 1
+    phi2 = guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided)
+    r = rw[RW_PROGRESS] * (phi - phi2) / c - rw[RW_STEP_COST]
+    if a == REVERSE:
+        r -= rw[RW_REVERSE_COST]
+    if success:
+        return x, y, th, phi2, r + rw[RW_GOAL], -1, False, True, k, b0
+    bm = bearing_mrad(x, y, th, wps[k, 0], wps[k, 1])
+    b1 = float(abs(bm))
+    if rw[RW_ALIGN] != 0.0:  # heading shaping: turning toward the target pays
+        r += rw[RW_ALIGN] * (b0 - b1) / 3141.5927
+    sense_bordered(occb, h, w, c, x, y, th, which, ranges, status)
+    if noise_mm > 0.0:
+        s2 = noisy_encode_fast(rng, noise_mm, bm, ranges, status, nstatus, sectors, sensors, edges)
+    else:
+        s2 = encode_fast(bm, ranges, status, sectors, sensors, edges)
+    return x, y, th, phi2, r, s2, False, False, k, b1
+
+
+# tabular learners of the sector trainer (the cell encoding's switch,
+# `ground_station.learn.learners`; LEARNERS order)
+L_Q, L_SARSA, L_EXPECTED_SARSA, L_DOUBLE_Q, L_DYNA_Q, L_Q_LAMBDA = range(6)
+
+
+@numba.njit(cache=True, inline="always")
+def epsilon_at(t, eps_start, eps_end, eps_decay_steps) -> float:
+    """Linear epsilon schedule at global step t."""
+    if eps_decay_steps > 0 and t < eps_decay_steps:
+        return eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
+    return eps_end
+
+
+@numba.njit(cache=True, inline="always")
+def _greedy_ab(learner, q, q2, s) -> int:
+    """The behaviour's greedy action: argmax Q, or argmax (A + B) for Double Q."""
+    if learner != L_DOUBLE_Q:
+        return greedy(q, s)
+    best = 0
+    bv = q[s, 0] + q2[s, 0]
+    for b in range(1, q.shape[1]):
+        v = q[s, b] + q2[s, b]
+        if v > bv:
+            bv = v
+            best = b
+    return best
+
+
+@numba.njit(cache=True, inline="always")
+def _behave(learner, q, q2, s, eps, rng) -> int:
+    """Epsilon-greedy action (the draws of the Q-learning kernel)."""
+    if rand01(rng) < eps:
+        return randint(rng, N_ACTIONS)
+    return _greedy_ab(learner, q, q2, s)
+
+
 @numba.njit(cache=True)
-def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
+def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, dist,
                  sectors, sensors, edges, which,
                  lr, lr_end, total_steps, gamma, eps_start, eps_end, eps_decay_steps, rw,
                  max_episode_steps, hold_max, guided, clear_r, max_seg, path, wps, rem, noise_mm,
+                 lam, n_plan, model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr,
                  start_step, n_steps, out_ret, out_succ):
-    """Advance exact sequential Q-learning by n_steps env steps (control periods).
+    """Advance exact sequential training by n_steps env steps (control periods).
 
     Epsilon at global step t: linear from eps_start to eps_end over
     eps_decay_steps, then eps_end. Learning rate: linear from lr at step 0
     to lr_end at total_steps (averages out the update noise that otherwise
     flips the greedy action of rarely visited, aliased states). A chosen action is held while the state
     index stays the same, up to hold_max periods, and learnt as one
-    semi-Markov transition (discount gamma^k, rewards summed with discount):
+    semi-Markov transition (discount G = gamma^k, rewards R summed with discount):
     the greedy policy holds it anyway (same state -> same action), so this is
     what the robot executes. hold_max = 1 is the plain one-step update.
     guided: each episode follows the planner's waypoints from its start pose
@@ -232,45 +371,74 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
     open episode across chunks). noise_mm > 0: the state the learner sees
     comes from readings with Gaussian noise of that std (`noisy_state`), so
     the policy does not rely on a reading being exactly on one side of a
-    range edge (the sim's sensors are noisy too). Writes one entry per
-    finished episode to out_ret/out_succ and returns how many."""
+    range edge (the sim's sensors are noisy too). occb: `bordered` copies of
+    the maps (M, Hmax + 2, Wmax + 2) for the sensors.
+
+    learner (L_*): the update at the end of a held action (s0, a) -> s2;
+    q-learning's target is R + G * max_b Q(s2, b) (terminal: R; truncation
+    bootstraps). The others, as in `ground_station.learn.learners` with the
+    one-step discount replaced by G (docs/training.md): sarsa and q-lambda
+    draw the next decision's action a2 at the update (stored in
+    ep[E_NEXT] = a2 + 1, used by the next decision); expected-sarsa takes
+    the epsilon-greedy expectation at the next decision's epsilon; double-q
+    updates q or q2 (a coin) and acts on q + q2; dyna-q stores the last seen
+    (s2, R, G, terminal) of each (s0, a) in model_* and replays n_plan
+    uniformly drawn seen pairs after every real update; q-lambda keeps
+    accumulating traces in the ring tr_s/tr_a/tr_e (tr = [head, length]),
+    decayed by G * lam per update and cut when a2 is exploratory.
+    Learner q draws exactly the numbers the Q-learning kernel always drew.
+    Writes one entry per finished episode to out_ret/out_succ and returns how many."""
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
     noisy = np.zeros(which.shape[0], dtype=np.int64)
     nstatus = np.zeros(which.shape[0], dtype=np.int64)
+    cap = tr_s.shape[0]
     n_done = 0
+    b0 = 0.0
+    # the episode's map and goal field as views, taken once per episode: a view
+    # made in the loop costs two atomic reference-count updates per step
+    m = int(ep[E_MAP])
+    og = occ[m]
+    ob = occb[m]
+    d = dist[m, int(ep[E_GOAL])]
+    h = dims[m, 0]
+    w = dims[m, 1]
+    c = cell[m]
+    if ep[E_ACTIVE] != 0.0:  # the open episode's |bearing| (what its state was encoded with)
+        kk = int(ep[E_WP])
+        b0 = float(abs(bearing_mrad(ep[E_X], ep[E_Y], ep[E_TH], wps[kk, 0], wps[kk, 1])))
     for i in range(n_steps):
+        t_glob = start_step + i
         if ep[E_ACTIVE] == 0.0:
             _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
                          ranges, status, guided, clear_r, max_seg, path, wps, rem)
+            b0 = float(abs(bearing_mrad(ep[E_X], ep[E_Y], ep[E_TH], wps[0, 0], wps[0, 1])))
+            ep[E_NEXT] = 0.0
+            tr[0] = 0
+            tr[1] = 0
+            m = int(ep[E_MAP])
+            og = occ[m]
+            ob = occb[m]
+            d = dist[m, int(ep[E_GOAL])]
+            h = dims[m, 0]
+            w = dims[m, 1]
+            c = cell[m]
         s = int(ep[E_S])
         if ep[E_K] == 0.0:  # a decision: start a new option in state s
-            t_glob = start_step + i
-            if eps_decay_steps > 0 and t_glob < eps_decay_steps:
-                eps = eps_start + (eps_end - eps_start) * (t_glob / eps_decay_steps)
+            if ep[E_NEXT] > 0.0:  # drawn at the last update (sarsa, q-lambda)
+                a = int(ep[E_NEXT]) - 1
+                ep[E_NEXT] = 0.0
             else:
-                eps = eps_end
-            if rand01(rng) < eps:
-                a = randint(rng, N_ACTIONS)
-            else:
-                a = greedy(q, s)
+                a = _behave(learner, q, q2, s, epsilon_at(t_glob, eps_start, eps_end, eps_decay_steps), rng)
             ep[E_A] = a
             ep[E_S0] = s
             ep[E_R] = 0.0
             ep[E_G] = 1.0
         a = int(ep[E_A])
-        m = int(ep[E_MAP])
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cell[m]
-        og = occ[m]
-        d = dist[m, int(ep[E_GOAL])]
-        x, y, th, phi2, r, s2, hit, success, _, k = period_step(
-            og, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], wps, rem, int(ep[E_NWP]),
-            int(ep[E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided)
-        if noise_mm > 0.0 and not (hit or success):
-            s2 = noisy_state(rng, noise_mm, x, y, th, wps[k, 0], wps[k, 1], ranges, status, noisy, nstatus,
-                             sectors, sensors, edges)
+        x, y, th, phi2, r, s2, hit, success, k, b1 = train_period(
+            og, ob, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], b0, wps, rem, int(ep[E_NWP]),
+            int(ep[E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided, rng, noise_mm,
+            noisy, nstatus)
         ep[E_T] += 1.0
         ep[E_K] += 1.0
         terminal = hit or success
@@ -281,6 +449,7 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
             ep[E_PHI] = phi2
             ep[E_S] = s2
             ep[E_WP] = k
+            b0 = b1
         else:
             s2 = s
         ep[E_R] += ep[E_G] * r
@@ -289,12 +458,20 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
         end = terminal or ep[E_T] >= max_episode_steps
         if end or s2 != int(ep[E_S0]) or ep[E_K] >= hold_max:
             s0 = int(ep[E_S0])
-            if terminal:
-                target = ep[E_R]
-            else:  # also on truncation: bootstrap
-                target = ep[E_R] + ep[E_G] * q[s2, greedy(q, s2)]
             frac = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
-            q[s0, a] += (lr + (lr_end - lr) * frac) * (target - q[s0, a])
+            alpha = lr + (lr_end - lr) * frac
+            big_r = ep[E_R]
+            big_g = ep[E_G]
+            if learner == L_Q:
+                if terminal:
+                    target = big_r
+                else:  # also on truncation: bootstrap
+                    target = big_r + big_g * q[s2, greedy(q, s2)]
+                q[s0, a] += alpha * (target - q[s0, a])
+            else:
+                _other_update(learner, q, q2, rng, ep, s0, a, s2, big_r, big_g, terminal, end, alpha,
+                              epsilon_at(t_glob + 1, eps_start, eps_end, eps_decay_steps), lam, n_plan,
+                              model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr, cap)
             ep[E_K] = 0.0
         if end:
             out_ret[n_done] = ep[E_RET]
@@ -302,6 +479,82 @@ def train_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
             n_done += 1
             ep[E_ACTIVE] = 0.0
     return n_done
+
+
+@numba.njit(cache=True)
+def _other_update(learner, q, q2, rng, ep, s0, a, s2, big_r, big_g, terminal, end, alpha, eps_next, lam,
+                  n_plan, model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr, cap):
+    """The update of a held action (s0, a) -> s2 for the learners other than q
+    (see `train_kernel`); eps_next: epsilon of the next decision."""
+    a2 = 0
+    draw = learner == L_SARSA or (learner == L_Q_LAMBDA and not end)  # sarsa's target needs it on truncation too
+    if draw and not terminal:
+        a2 = _behave(learner, q, q2, s2, eps_next, rng)
+        if not end:
+            ep[E_NEXT] = a2 + 1.0
+    if learner == L_DOUBLE_Q:
+        if rand01(rng) < 0.5:
+            learn, other = q, q2
+        else:
+            learn, other = q2, q
+        target = big_r
+        if not terminal:
+            target += big_g * other[s2, greedy(learn, s2)]
+        learn[s0, a] += alpha * (target - learn[s0, a])
+    elif learner == L_Q_LAMBDA:
+        a_star = greedy(q, s2)
+        target = big_r
+        if not terminal:
+            target += big_g * q[s2, a_star]
+        delta = target - q[s0, a]
+        j = (tr[0] + tr[1]) % cap  # push (s0, a) with e = 1 (accumulating: a revisit is a second entry)
+        if tr[1] == cap:
+            tr[0] = (tr[0] + 1) % cap  # the oldest entry's e < trace_min: dropped
+        else:
+            tr[1] += 1
+        tr_s[j] = s0
+        tr_a[j] = a
+        tr_e[j] = 1.0
+        exploratory = not end and q[s2, a2] < q[s2, a_star]
+        decay = big_g * lam
+        for n in range(tr[1]):
+            e = (tr[0] + n) % cap
+            q[tr_s[e], tr_a[e]] += alpha * delta * tr_e[e]
+            tr_e[e] *= decay
+        if exploratory:  # Watkins: the greedy chain is broken, cut the traces
+            tr[0] = 0
+            tr[1] = 0
+    else:
+        target = big_r
+        if not terminal:
+            if learner == L_SARSA:
+                target += big_g * q[s2, a2]
+            elif learner == L_EXPECTED_SARSA:
+                b = greedy(q, s2)
+                v = 0.0
+                for k2 in range(q.shape[1]):
+                    v += q[s2, k2]
+                target += big_g * ((eps_next / q.shape[1]) * v + (1.0 - eps_next) * q[s2, b])
+            else:  # dyna-q
+                target += big_g * q[s2, greedy(q, s2)]
+        q[s0, a] += alpha * (target - q[s0, a])
+        if learner == L_DYNA_Q:
+            key = s0 * q.shape[1] + a
+            if model_s2[key] < 0:
+                seen[n_seen[0]] = key
+                n_seen[0] += 1
+            model_s2[key] = s2
+            model_r[key] = big_r
+            model_g[key] = big_g
+            model_term[key] = terminal
+            for _ in range(n_plan):
+                key = seen[randint(rng, n_seen[0])]
+                ps = key // q.shape[1]
+                pa = key % q.shape[1]
+                pt = model_r[key]
+                if not model_term[key]:
+                    pt += model_g[key] * q[model_s2[key], greedy(q, model_s2[key])]
+                q[ps, pa] += alpha * (pt - q[ps, pa])
 
 
 # evaluation outcomes

@@ -25,11 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.encoders import SectorEncoder
-from ground_station.learn.config import TrainConfig, int_list
+from ground_station.learn.config import LEARNERS, TrainConfig, int_list
 from ground_station.learn.jit import seed_state
-from ground_station.learn.sector.kernels import EP_LEN, train_kernel
+from ground_station.learn.sector.kernels import (
+    EP_LEN,
+    L_DOUBLE_Q,
+    L_DYNA_Q,
+    L_Q_LAMBDA,
+    train_kernel,
+)
 from ground_station.learn.sector.reward import SectorReward, check_guidance
-from ground_station.learn.sector.twin import encoder_arrays, grid_of
+from ground_station.learn.sector.twin import bordered, encoder_arrays, grid_of
 from ground_station.maps import GridMap, octile_distances
 from ground_station.maps.planner import clearance_mm
 
@@ -46,6 +52,16 @@ class PackedMaps:
     free: np.ndarray
     nfree: np.ndarray
     dist: np.ndarray
+
+    def bordered(self) -> np.ndarray:
+        """Each map's occupancy in a one-cell obstacle frame (`twin.bordered`),
+        stacked (M, Hmax + 2, Wmax + 2): what the trainer's sensors read."""
+        m, hmax, wmax = self.occ.shape
+        out = np.ones((m, hmax + 2, wmax + 2), dtype=np.uint8)
+        for i in range(m):
+            h, w = int(self.dims[i, 0]), int(self.dims[i, 1])
+            out[i, :h + 2, :w + 2] = bordered(self.occ[i], h, w)
+        return out
 
 
 def pack_maps(maps: list[GridMap]) -> PackedMaps:
@@ -125,6 +141,37 @@ class SectorTrainer:
         self._path = np.zeros((cells, 2), dtype=np.int64)  # planner scratch
         self._wps = np.zeros((cells, 2))  # the open episode's waypoints (kept across chunks)
         self._rem = np.zeros(cells)
+        self._occb = self.packed.bordered()
+        self._learner_state(cfg)
+
+    def _learner_state(self, cfg: TrainConfig) -> None:
+        """The learner's tables besides q: Double Q's second table, Dyna-Q's
+        model, Q(lambda)'s trace ring (1-element dummies when unused)."""
+        from ground_station.learn.learners import trace_capacity
+
+        self.learner = str(cfg.learner)
+        self.code = LEARNERS.index(self.learner)
+        self._lam = float(cfg.learner_lambda)
+        self._n_plan = int(cfg.dyna_planning)
+        self.q2: np.ndarray | None = None  # Double Q's B, created on the first run (starts as q)
+        nk = self.n_states * self.n_actions if self.code == L_DYNA_Q else 1
+        self._model_s2 = np.full(nk, -1, dtype=np.int64)
+        self._model_r = np.zeros(nk)
+        self._model_g = np.zeros(nk)
+        self._model_term = np.zeros(nk, dtype=np.bool_)
+        self._seen = np.zeros(nk, dtype=np.int64)
+        self._n_seen = np.zeros(1, dtype=np.int64)
+        cap = trace_capacity(cfg, self.max_episode_steps) if self.code == L_Q_LAMBDA else 1
+        self._tr_s = np.zeros(cap, dtype=np.int64)
+        self._tr_a = np.zeros(cap, dtype=np.int64)
+        self._tr_e = np.zeros(cap)
+        self._tr = np.zeros(2, dtype=np.int64)
+
+    def table(self, q: np.ndarray) -> np.ndarray:
+        """The run's greedy table: q, or (A + B) / 2 for Double Q (q is A)."""
+        if self.code == L_DOUBLE_Q and self.q2 is not None:
+            return (q + self.q2) / 2.0
+        return q
 
     def run(self, q: np.ndarray, start_step: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
         """Advance n_steps env steps, updating q (float64 (n_states, n_actions))
@@ -135,10 +182,18 @@ class SectorTrainer:
         sectors, sensors, edges, which = self._enc
         out_ret = np.empty(n_steps)
         out_succ = np.empty(n_steps, dtype=np.bool_)
-        n = train_kernel(q, self._rng, self._ep, p.occ, p.dims, p.cell, p.free, p.nfree, p.dist,
-                         sectors, sensors, edges, which,
+        if self.code == L_DOUBLE_Q:
+            if self.q2 is None:
+                self.q2 = q.copy()  # B starts where A starts (zeros or the same random init)
+            q2 = self.q2
+        else:
+            q2 = q  # unused
+        n = train_kernel(self.code, q, q2, self._rng, self._ep, p.occ, self._occb, p.dims, p.cell, p.free,
+                         p.nfree, p.dist, sectors, sensors, edges, which,
                          float(self.cfg.lr), self.lr_end, int(self.cfg.steps), float(self.cfg.gamma),
                          *self._eps, self._rw, self.max_episode_steps, self.hold_max, self._guided,
                          self._clear_r, self._max_seg, self._path, self._wps, self._rem, self.noise_mm,
-                         int(start_step), int(n_steps), out_ret, out_succ)
+                         self._lam, self._n_plan, self._model_s2, self._model_r, self._model_g,
+                         self._model_term, self._seen, self._n_seen, self._tr_s, self._tr_a, self._tr_e,
+                         self._tr, int(start_step), int(n_steps), out_ret, out_succ)
         return out_ret[:n].copy(), out_succ[:n].copy()
