@@ -1,0 +1,94 @@
+"""The navigation diagnosis (ground_station/nav/diagnose.py) and the detour
+memory on the bench's twin: a `MemorySectorEncoder` table rolled out by
+`nav_eval_mem_kernel` drives exactly as the robot's reference encoder, the
+privileged oracle solves the detourable episodes, failures are classified by
+what was touched, and the memory trainer is seeded."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from firmware_py import robot_spec
+from firmware_py.encoders import BugMemory, MemorySectorEncoder, SectorEncoder, turn_of
+from ground_station.learn.sector.evaluate import seek_table
+from ground_station.learn.sector.twin import bearing_mrad
+from ground_station.maps import load_map
+from ground_station.nav import diagnose as dg
+from ground_station.nav.controllers import NavController
+from ground_station.nav.episodes import run_twin
+from ground_station.nav.scenario import episodes
+
+MEM = MemorySectorEncoder(15, (0, 1, 7), (100, 400), block_mm=250, leave_margin_mm=100)
+
+
+def _memory_table() -> np.ndarray:
+    """Go rows: the seek table; wall rows: forward unless the front bin is 0
+    or 1, then turn away from the followed side (enough to exercise every mode)."""
+    base = MEM.base
+    q = np.zeros((MEM.n_states, MEM.n_actions))
+    r = MEM.range_states
+    for t in range(3):
+        off = t * MEM.mode_states
+        q[off:off + base.n_states] = seek_table(base)
+        for mode, away in ((1, 1), (2, 2)):
+            for rs in range(r):
+                front = rs % base.nbins
+                q[off + (MEM.bearing_sectors + mode - 1) * r + rs, away if front < 2 else 0] = 1.0
+    return q
+
+
+def test_memory_rollouts_on_the_twin_are_the_reference_encoders():
+    gm = load_map("paper10")
+    eps = episodes(gm, 12, 5, 3, 1)
+    q = _memory_table()
+    rows = run_twin(eps, {gm.name: gm}, NavController("learnt", MEM, q, "path"))
+
+    def reference(o: dg.Obs) -> int:  # the robot's encoder and BugMemory, reset per waypoint
+        mem = o.memory.setdefault("bug", BugMemory())
+        gx, gy = o.ep.waypoints[o.k]
+        b = bearing_mrad(o.x, o.y, o.th, gx, gy)
+        d = int(math.floor(math.hypot(gx - o.x, gy - o.y) + 0.5))
+        s = MEM.encode(mem, b, d, [int(v) for v in o.ranges], [int(v) for v in o.status])
+        a = int(np.argmax(q[s]))
+        mem.note_action(a)
+        return a
+
+    ref = [dg.rollout(e, gm, MEM.base, reference) for e in eps]
+    assert [r["outcome"] for r in rows] == [r["outcome"] for r in ref]
+    assert [round(r["time_s"] / (robot_spec.CONTROL_PERIOD_US / 1e6)) for r in rows] == [r["steps"] for r in ref]
+    assert turn_of(1) != turn_of(0)  # the previous-turn digit is really in play
+
+
+def test_oracle_solves_detourable_episodes_and_failures_are_classified():
+    gm = load_map("paper10")
+    eps = [e for e in episodes(gm, 12, 0, 3, 0) if dg.blocked_segments(e)][:5]
+    assert len(eps) == 5
+    oracle = dg.Oracle(gm)
+    ok = [dg.rollout(e, gm, MEM.base, oracle)["outcome"] == "success" for e in eps]
+    assert sum(ok) >= 4, ok
+    blind = dg.table_act(seek_table(SectorEncoder(15, (0, 1, 7), (100, 400))))
+    rows = [dg.rollout(e, gm, MEM.base, blind) for e in eps]
+    assert any(r["outcome"] == "collision" and r["detail"] == "disc" for r in rows)
+    assert sum(dg.classify(rows).values()) == len(rows)
+
+
+def test_memory_obstacle_trainer_is_seeded_and_learns_the_wall_modes():
+    from ground_station.learn.config import TrainConfig
+    from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer
+
+    cfg = TrainConfig(map="paper10", encoding="sector", steps=60_000, sector_obstacles=3, sector_movers=1,
+                      sector_pool=40, seed=2)
+    gm = load_map("paper10")
+    tables = []
+    for _ in range(2):
+        tr = ObstacleSectorTrainer([gm], cfg, MEM)
+        q = np.zeros((MEM.n_states, MEM.n_actions))
+        tr.run(q, 0, 60_000)
+        tables.append(q)
+    np.testing.assert_array_equal(tables[0], tables[1])
+    r = MEM.range_states
+    wall_rows = np.concatenate([tables[0][t * MEM.mode_states + MEM.bearing_sectors * r:(t + 1) * MEM.mode_states]
+                                for t in range(3)])
+    assert np.abs(wall_rows).sum() > 0
