@@ -242,24 +242,19 @@ def _dijkstra(free: np.ndarray, gx: int, gy: int) -> np.ndarray:
     return dist
 
 
-def hand_bug_table(go_q: np.ndarray, go_encoder: SectorEncoder, encoder: MemorySectorEncoder) -> np.ndarray:
-    """A `MemorySectorEncoder` table: go rows = `go_q` (a table over
-    `go_encoder`, whose sensors must be among the memory encoder's; the
-    other sensors are ignored), wall rows hand-written Bug wall following
-    on the followed side's diagonal and side sensors (1, 2 or 7, 6): front
-    or either of them in the first bin -> turn away; both beyond the last
-    edge (the wall is lost) -> forward right after a turn away, else turn
-    toward it; otherwise forward. What a memory with fixed rules gives on
-    the robot's sensing, for the diagnosis (docs/training.md)."""
+def go_rows_table(go_q: np.ndarray, go_encoder: SectorEncoder, encoder: MemorySectorEncoder) -> np.ndarray:
+    """A `MemorySectorEncoder` table whose go rows (every previous turn) are
+    `go_q`, a table over `go_encoder` (same sectors and range edges, its
+    sensors among the memory encoder's; the others are ignored); wall rows 0."""
     if encoder.bearing_sectors != go_encoder.bearing_sectors or encoder.range_edges_mm != go_encoder.range_edges_mm:
         raise ValueError("the go table's encoder must have the memory encoder's sectors and range edges")
     sens = list(encoder.sensors)
-    if not {0, 1, 2, 6, 7} <= set(sens):
-        raise ValueError("hand_bug_table needs sensors 0, 1, 2, 6, 7")
+    if not set(go_encoder.sensors) <= set(sens):
+        raise ValueError("the go table's sensors must be among the memory encoder's")
     nb = encoder.base.nbins
     r_states = encoder.range_states
-    q = np.zeros((encoder.n_states, encoder.n_actions))
     gper = go_encoder.nbins ** len(go_encoder.sensors)
+    q = np.zeros((encoder.n_states, encoder.n_actions))
     for rs in range(r_states):
         bins = {s: (rs // nb ** j) % nb for j, s in enumerate(sens)}
         g = sum(bins[s] * nb ** j for j, s in enumerate(go_encoder.sensors))
@@ -267,6 +262,26 @@ def hand_bug_table(go_q: np.ndarray, go_encoder: SectorEncoder, encoder: MemoryS
             off = turn * encoder.mode_states
             for b in range(encoder.bearing_sectors):
                 q[off + b * r_states + rs] = go_q[b * gper + g]
+    return q
+
+
+def hand_bug_table(go_q: np.ndarray, go_encoder: SectorEncoder, encoder: MemorySectorEncoder) -> np.ndarray:
+    """`go_rows_table` plus hand-written Bug wall following in the wall rows,
+    on the followed side's diagonal and side sensors (1, 2 or 7, 6): front
+    or either of them in the first bin -> turn away; both beyond the last
+    edge (the wall is lost) -> forward right after a turn away, else turn
+    toward it; otherwise forward. What a memory with fixed rules gives on
+    the robot's sensing, for the diagnosis (docs/training.md)."""
+    sens = list(encoder.sensors)
+    if not {0, 1, 2, 6, 7} <= set(sens):
+        raise ValueError("hand_bug_table needs sensors 0, 1, 2, 6, 7")
+    q = go_rows_table(go_q, go_encoder, encoder)
+    nb = encoder.base.nbins
+    r_states = encoder.range_states
+    for rs in range(r_states):
+        bins = {s: (rs // nb ** j) % nb for j, s in enumerate(sens)}
+        for turn in range(3):
+            off = turn * encoder.mode_states
             for mode, (diag, side, away, toward) in ((1, (7, 6, LEFT, RIGHT)), (2, (1, 2, RIGHT, LEFT))):
                 if bins[0] < nb - 1 or bins[diag] == 0 or bins[side] == 0:
                     a = away

@@ -92,3 +92,35 @@ def test_memory_obstacle_trainer_is_seeded_and_learns_the_wall_modes():
     wall_rows = np.concatenate([tables[0][t * MEM.mode_states + MEM.bearing_sectors * r:(t + 1) * MEM.mode_states]
                                 for t in range(3)])
     assert np.abs(wall_rows).sum() > 0
+
+
+def test_hand_bug_table_keeps_the_go_rows_and_follows_the_chosen_side():
+    go_enc = SectorEncoder(15, (0, 1, 7), (100, 400))
+    go_q = seek_table(go_enc)
+    enc = MemorySectorEncoder(15, (0, 1, 2, 6, 7), (100, 400), block_mm=150, leave_margin_mm=100)
+    q = dg.hand_bug_table(go_q, go_enc, enc)
+    rng = np.random.default_rng(0)
+    for _ in range(200):  # go rows: the go table's row for the same bearing and sensors 0, 1, 7
+        ranges = [int(v) for v in rng.integers(20, 2000, robot_spec.SENSOR_COUNT)]
+        status = [robot_spec.RANGE_VALID] * robot_spec.SENSOR_COUNT
+        b = int(rng.integers(-3141, 3141))
+        mem = BugMemory()
+        mem.side = 1  # a side is chosen but the mode is go: go rows
+        s = enc.encode(mem, b, 5000, ranges, status)
+        if mem.mode == 0:
+            np.testing.assert_array_equal(q[s], go_q[go_enc.encode(b, ranges, status)])
+    far = [2000] * robot_spec.SENSOR_COUNT
+    st = [robot_spec.RANGE_VALID] * robot_spec.SENSOR_COUNT
+
+    def wall_action(front: int, diag: int, side: int, mode: int = 1, turn: int = 0) -> int:
+        r = list(far)
+        r[0] = front
+        r[7 if mode == 1 else 1], r[6 if mode == 1 else 2] = diag, side
+        mem = BugMemory(mode=mode, side=mode, hit_mm=100, last_turn=turn)
+        return int(np.argmax(q[enc.encode(mem, 0, 100, r, st)]))
+
+    assert wall_action(300, 300, 300) == 1  # front blocked, wall on the right: turn left (away)
+    assert wall_action(1500, 300, 300) == 0  # wall beside in reach: forward along it
+    assert wall_action(1500, 1500, 1500) == 2  # wall lost: turn back toward it
+    assert wall_action(1500, 1500, 1500, turn=1) == 0  # ... unless it just turned away: forward first
+    assert wall_action(1500, 300, 300, mode=2) == 0 and wall_action(300, 300, 300, mode=2) == 2
