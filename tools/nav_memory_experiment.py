@@ -67,6 +67,9 @@ def main() -> int:
     ap.add_argument("--pool", type=int, default=4000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--episodes", type=int, default=60, help="judging episodes per map (default %(default)s)")
+    ap.add_argument("--freeze-go", action="store_true", help="learn the wall rows only (go rows stay as initialised)")
+    ap.add_argument("--stall-cost", type=float, default=0.0,
+                    help="> 0: end a training episode that stalls for 400 periods (the bench's loop rule) with this cost")
     ap.add_argument("--out", help="save the table (.npy)")
     a = ap.parse_args()
     enc = MemorySectorEncoder(15, tuple(int(v) for v in a.sensors.split(",")),
@@ -78,6 +81,13 @@ def main() -> int:
                           sector_movers=a.movers, sector_pool=a.pool)
         t0 = time.perf_counter()
         tr = ObstacleSectorTrainer([load_map(m) for m in TRAIN_MAPS.split(",")], cfg, enc)
+        if a.stall_cost > 0:
+            tr.stall_steps, tr.stall_cost = 400, a.stall_cost
+        if a.freeze_go:
+            go = np.zeros(enc.n_states, dtype=np.bool_)
+            for t in range(3):
+                go[t * enc.mode_states:t * enc.mode_states + enc.bearing_sectors * enc.range_states] = True
+            tr.frozen = go
         done = 0
         while done < a.steps:
             n = min(2_000_000, a.steps - done)

@@ -124,3 +124,55 @@ def test_hand_bug_table_keeps_the_go_rows_and_follows_the_chosen_side():
     assert wall_action(1500, 1500, 1500) == 2  # wall lost: turn back toward it
     assert wall_action(1500, 1500, 1500, turn=1) == 0  # ... unless it just turned away: forward first
     assert wall_action(1500, 300, 300, mode=2) == 0 and wall_action(300, 300, 300, mode=2) == 2
+
+
+def test_memory_trainer_keeps_frozen_rows_and_ends_stalled_episodes():
+    from ground_station.learn.config import TrainConfig
+    from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer
+
+    cfg = TrainConfig(map="paper10", encoding="sector", steps=60_000, sector_obstacles=3, sector_movers=0,
+                      sector_pool=40, seed=4)
+    gm = load_map("paper10")
+    tr = ObstacleSectorTrainer([gm], cfg, MEM)
+    frozen = np.zeros(MEM.n_states, dtype=np.bool_)
+    frozen[: MEM.bearing_sectors * MEM.range_states] = True  # the go rows after no turn
+    tr.frozen = frozen
+    q0 = _memory_table()
+    q = q0.copy()
+    _, succ_plain = tr.run(q, 0, 60_000)
+    np.testing.assert_array_equal(q[frozen], q0[frozen])
+    assert np.abs(q[~frozen] - q0[~frozen]).sum() > 0
+    stalled = ObstacleSectorTrainer([gm], cfg, MEM)
+    stalled.frozen = frozen
+    stalled.stall_steps, stalled.stall_cost = 40, 1.0
+    _, succ_stall = stalled.run(_memory_table(), 0, 60_000)
+    assert len(succ_stall) > len(succ_plain)  # stalls end episodes early: more, shorter episodes
+
+
+def test_bench_rollouts_of_a_plain_table_are_the_old_kernels():
+    """run_twin now calls nav_eval_mem_kernel for every table: with no memory
+    it must give nav_eval_kernel's rows exactly (the shipped figures stand)."""
+    from firmware_py.policy import load_policy
+    from firmware_py.shipped_policies import shipped_policy
+    from ground_station.learn.sector.obstacles import nav_eval_kernel
+    from ground_station.learn.sector.twin import encoder_arrays
+    from ground_station.nav.controllers import standard_controllers
+    from ground_station.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, OUTCOMES, STALL_STEPS
+    from ground_station.nav.scenario import episode_arrays
+
+    gm = load_map("rooms-16x16-s1")
+    eps = episodes(gm, 40, 1, 3, 2)
+    for ctrl in standard_controllers(load_policy(shipped_policy("sector")), ("learnt", "vfh")):
+        rows = run_twin(eps, {gm.name: gm}, ctrl)
+        a = episode_arrays(eps, {gm.name: gm})
+        n = len(eps)
+        out = (np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n),
+               np.zeros(n, dtype=np.int64))
+        nav_eval_kernel(ctrl.q, a["occ"], a["dims"], a["cells"], a["map"], a["start"], a["goal"], a["wp"], a["nwp"],
+                        a["rem"], a["discs"], a["nd"], a["movers"], a["nm"], *encoder_arrays(ctrl.encoder), 1,
+                        BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, *out)
+        period = robot_spec.CONTROL_PERIOD_US / 1e6
+        assert [r["outcome"] for r in rows] == [OUTCOMES[int(v)] for v in out[0]]
+        assert [round(r["time_s"] / period) for r in rows] == list(out[2])
+        assert [r["min_clearance_mm"] for r in rows] == [round(float(v), 1) for v in out[3]]
+        assert [r["near_miss_periods"] for r in rows] == list(out[4])

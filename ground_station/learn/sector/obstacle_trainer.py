@@ -15,7 +15,9 @@ than `sector_clear_mm` to an unmapped obstacle. Same interface as
 With a `MemorySectorEncoder` (the detour memory: Bug-style mode + side
 held per waypoint + previous turn, the robot's reference encoder, reset per
 mission item by the controller) the kernel is `obs_mem_train_kernel`: the
-same loop with the memory carried in the episode.
+same loop with the memory carried in the episode; `frozen` (bool per
+state, set by the caller) keeps chosen rows as they are, e.g. go rows
+copied from the shipped sector table while the wall rows learn.
 """
 
 from __future__ import annotations
@@ -76,6 +78,9 @@ class ObstacleSectorTrainer:
         self.pool = scenario_pool(self.maps, int(cfg.sector_pool), int(cfg.sector_obstacles),
                                   int(cfg.sector_movers), int(cfg.seed), plan_kw)
         self.arrays = episode_arrays(self.pool, {gm.name: gm for gm in self.maps})
+        self.frozen = np.zeros(0, dtype=np.bool_)  # memory encoders: rows (states) Q-learning leaves alone
+        self.stall_steps = 0  # memory encoders: > 0 ends a stalled episode as a failure (the bench's loop rule)
+        self.stall_cost = 0.0
         if isinstance(encoder, MemorySectorEncoder):
             self._mp = memory_params(encoder)
             self._n_base = encoder.base.n_states
@@ -114,7 +119,8 @@ class ObstacleSectorTrainer:
         head = (q, self._rng, a["occ"], a["dims"], a["cells"], a["map"], a["start"], a["wp"], a["nwp"], a["rem"],
                 a["discs"], a["nd"], a["movers"], a["nm"])
         if self._mp.shape[0]:
-            n = obs_mem_train_kernel(*head, *common, self._mp, self._n_base, *tail)
+            n = obs_mem_train_kernel(*head, *common, self._mp, self._n_base, self.frozen,
+                                     self.stall_steps, self.stall_cost, *tail)
         else:
             n = obs_train_kernel(*head, *common, *tail)
         return out_ret[:n].copy(), out_succ[:n].copy()

@@ -515,7 +515,8 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
 
 @numba.njit(cache=True)
 def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem,
-                         ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, mp, n_base,
+                         ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, mp, n_base, frozen,
+                         stall_steps, stall_cost,
                          lr, lr_end, gamma, eps_start, eps_end, eps_decay_steps, rw, clear_mm,
                          max_episode_steps, hold_max, noise_mm, start_pose_jitter_mm, start_step, total_steps,
                          n_steps, out_ret, out_succ):
@@ -523,7 +524,14 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
     in the state (reset per waypoint, updated from the same noisy readings
     the state is encoded from, the previous turn noted per choice); the
     reward is the waypoint-progress reward of `obs_period_step` in every
-    mode. mp of length 0: exactly `obs_train_kernel`'s updates."""
+    mode. Rows s with frozen[s] set keep their values (e.g. go rows copied
+    from a trained sector table while the wall rows learn); frozen of
+    length 0 freezes nothing. stall_steps > 0: an episode whose guide
+    potential has found no new minimum for stall_steps periods (the bench's
+    loop rule) ends there as a failure, with reward -stall_cost (what the
+    bench counts as a loop is then as bad for the learner as it is for the
+    figure). mp of length 0, frozen empty, stall_steps 0: exactly
+    `obs_train_kernel`'s updates."""
     use_mem = mp.shape[0] > 0
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
@@ -552,6 +560,8 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
         th = (2.0 * rand01(rng) - 1.0) * math.pi
         k = 0
         phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
+        best = phi
+        since = 0
         mem[:] = 0
         sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
         s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
@@ -595,10 +605,20 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
             t += 1
             i += 1
             hold += 1
+            stalled = False
+            if stall_steps > 0 and not (hit or success):
+                if phi < best - 1.0:
+                    best = phi
+                    since = 0
+                else:
+                    since += 1
+                    if since >= stall_steps:
+                        stalled = True
+                        r -= stall_cost
             racc += g * r
             ret += r
             g *= gamma
-            terminal = hit or success
+            terminal = hit or success or stalled
             end = terminal or t >= max_episode_steps or i >= n_steps
             if end or s2 != s0 or hold >= hold_max:
                 if terminal:
@@ -606,7 +626,8 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
                 else:
                     target = racc + g * q[s2, greedy(q, s2)]
                 fr = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
-                q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
+                if frozen.shape[0] == 0 or not frozen[s0]:
+                    q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
                 hold = 0
             if not terminal:
                 s = s2
