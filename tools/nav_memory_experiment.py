@@ -2,7 +2,7 @@
 
     python tools/nav_memory_experiment.py [--steps N] [--sensors 0,1,7] [--edges 100,400] [--block MM]
         [--leave MM] [--init shipped|hand-bug|FILE.npy|zero] [--eps0 E] [--gamma G] [--step-reward R]
-        [--obstacles K] [--movers M] [--pool N] [--seed S] [--episodes N] [--out FILE.npy]
+        [--obstacles K] [--movers M] [--pool N] [--seed S] [--episodes N] [--out FILE.npy] [--qtab FILE]
 
 The policy is a `MemorySectorEncoder` table (the robot's reference encoder: Bug mode + side held per
 waypoint + previous turn; the controller resets the memory per mission item) trained by
@@ -29,6 +29,7 @@ from firmware_py.encoders import MemorySectorEncoder  # noqa: E402
 from firmware_py.policy import load_policy  # noqa: E402
 from ground_station.bench.nav import DEFAULT_MAPS  # noqa: E402
 from ground_station.learn.config import TrainConfig  # noqa: E402
+from ground_station.learn.export import geometry_of_map, policy_bytes, quantise  # noqa: E402
 from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer  # noqa: E402
 from ground_station.maps import load_map  # noqa: E402
 from ground_station.nav.controllers import NavController, policy_table  # noqa: E402
@@ -71,6 +72,8 @@ def main() -> int:
     ap.add_argument("--stall-cost", type=float, default=0.0,
                     help="> 0: end a training episode that stalls for 400 periods (the bench's loop rule) with this cost")
     ap.add_argument("--out", help="save the table (.npy)")
+    ap.add_argument("--qtab", help="also export it as a sector-memory .qtab (int8, per-state scales) for "
+                                   "`qnav bench nav --policy FILE`")
     a = ap.parse_args()
     enc = MemorySectorEncoder(15, tuple(int(v) for v in a.sensors.split(",")),
                               tuple(int(v) for v in a.edges.split(",")), block_mm=a.block, leave_margin_mm=a.leave)
@@ -97,6 +100,10 @@ def main() -> int:
                   f"{time.perf_counter() - t0:.0f} s", flush=True)
     if a.out:
         np.save(a.out, q)
+    if a.qtab:
+        data = policy_bytes(quantise(q, "int8", per_state=True), enc, metadata={"guidance": "path", "init": a.init},
+                            map_geometry=geometry_of_map("paper10"))
+        Path(a.qtab).write_bytes(data)
     ctrl = NavController("learnt", enc, q, "path")
     for k, m in ((3, 2), (0, 0)):
         rows = []
