@@ -7,7 +7,10 @@ That is exactly what the robot runs (`Controller.step`: encoder -> greedy
 row -> action), so every controller also runs in HIL as an exported
 `.qtab` (`NavController.policy()`), and the twin rolls the same table out.
 
-* `learnt`: the trained sector policy (a `.qtab`), guidance path;
+* `learnt`: the trained sector policy (a `.qtab`), guidance path; a
+  `sector-memory` policy (`MemorySectorEncoder`: the same state plus the
+  detour memory, reset per waypoint) is accepted too, and the baselines
+  then run on its base `SectorEncoder` (the same sensing without memory);
 * `seek`: the hand-written seek table (`learn.sector.evaluate.seek_table`:
   forward when the target is in the sector ahead, else turn to it), path;
 * `vfh`: a Vector-Field-Histogram-style reactive controller on the same
@@ -24,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
+from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
 from firmware_py.policy import Policy, load_policy
 from ground_station.learn.export import geometry_of_map, policy_bytes, quantise
 from ground_station.learn.sector.evaluate import seek_table
@@ -36,13 +39,13 @@ CONTROLLER_NAMES = ("learnt", "seek", "vfh", "direct")
 @dataclass
 class NavController:
     name: str
-    encoder: SectorEncoder
+    encoder: SectorEncoder | MemorySectorEncoder
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
-        qt = quantise(self.q, "int8")
+        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder))
         data = policy_bytes(qt, self.encoder, metadata={"controller": self.name, "guidance": self.guidance},
                             map_geometry=geometry_of_map(map_name))
         return load_policy(data)
@@ -105,15 +108,17 @@ def policy_table(policy: Policy) -> np.ndarray:
 
 
 def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAMES) -> list[NavController]:
-    """learnt / seek / vfh / direct on the learnt policy's encoder."""
+    """learnt / seek / vfh / direct on the learnt policy's encoder (the
+    baselines on its base `SectorEncoder` when it carries the detour memory)."""
     enc = policy.encoder
-    if not isinstance(enc, SectorEncoder):
+    if not isinstance(enc, SectorEncoder | MemorySectorEncoder):
         raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
     q = policy_table(policy)
+    base = enc.base if isinstance(enc, MemorySectorEncoder) else enc
     make = {
         "learnt": lambda: NavController("learnt", enc, q, "path"),
-        "seek": lambda: NavController("seek", enc, seek_table(enc), "path"),
-        "vfh": lambda: NavController("vfh", enc, vfh_table(enc), "path"),
+        "seek": lambda: NavController("seek", base, seek_table(base), "path"),
+        "vfh": lambda: NavController("vfh", base, vfh_table(base), "path"),
         "direct": lambda: NavController("direct", enc, q, "direct"),
     }
     return [make[n]() for n in names]

@@ -27,13 +27,15 @@ from collections.abc import Callable
 import numpy as np
 
 from firmware_py import robot_spec
+from firmware_py.encoders import MemorySectorEncoder
+from ground_station.learn.sector.memory_train import memory_params
 from ground_station.learn.sector.obstacles import (
     COLLISION,
     LOOP,
     NEAR_MISS_MM,
     SUCCESS,
     TIMEOUT,
-    nav_eval_kernel,
+    nav_eval_mem_kernel,
     obstacle_clearance_mm,
 )
 from ground_station.learn.sector.twin import encoder_arrays
@@ -56,17 +58,24 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
     if not eps:
         return []
     a = episode_arrays(eps, maps)
-    sectors, sensors, edges, which = encoder_arrays(ctrl.encoder)
+    enc = ctrl.encoder
+    if isinstance(enc, MemorySectorEncoder):  # the detour memory reads every sensor
+        sectors, sensors, edges, which = encoder_arrays(enc.base)
+        which = np.ones_like(which)
+        mp, n_base = memory_params(enc), enc.base.n_states
+    else:
+        sectors, sensors, edges, which = encoder_arrays(enc)
+        mp, n_base = np.zeros(0, dtype=np.int64), enc.n_states
     n = len(eps)
     outcome = np.zeros(n, dtype=np.int64)
     path = np.zeros(n)
     steps = np.zeros(n, dtype=np.int64)
     minclear = np.zeros(n)
     near = np.zeros(n, dtype=np.int64)
-    nav_eval_kernel(np.ascontiguousarray(ctrl.q, dtype=np.float64), a["occ"], a["dims"], a["cells"], a["map"],
-                    a["start"], a["goal"], a["wp"], a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"], a["nm"],
-                    sectors, sensors, edges, which, int(ctrl.guidance == "path"),
-                    BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, outcome, path, steps, minclear, near)
+    nav_eval_mem_kernel(np.ascontiguousarray(ctrl.q, dtype=np.float64), a["occ"], a["dims"], a["cells"], a["map"],
+                        a["start"], a["goal"], a["wp"], a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"],
+                        a["nm"], sectors, sensors, edges, which, int(ctrl.guidance == "path"),
+                        BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, mp, n_base, outcome, path, steps, minclear, near)
     rows = []
     for i, ep in enumerate(eps):
         o = int(outcome[i])

@@ -11,6 +11,13 @@ same reward (`SectorReward`) plus `sector_clear_reward` per period closer
 than `sector_clear_mm` to an unmapped obstacle. Same interface as
 `SectorTrainer` (`run(q, start_step, n_steps) -> (returns, successes)`), so
 `ground_station.learn.train.train_sector` drives either; seeded throughout.
+
+With a `MemorySectorEncoder` (the detour memory: Bug-style mode + side
+held per waypoint + previous turn, the robot's reference encoder, reset per
+mission item by the controller) the kernel is `obs_mem_train_kernel`: the
+same loop with the memory carried in the episode; `frozen` (bool per
+state, set by the caller) keeps chosen rows as they are, e.g. go rows
+copied from the shipped sector table while the wall rows learn.
 """
 
 from __future__ import annotations
@@ -19,10 +26,11 @@ import math
 
 import numpy as np
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.jit import seed_state
-from ground_station.learn.sector.obstacles import obs_train_kernel
+from ground_station.learn.sector.memory_train import memory_params
+from ground_station.learn.sector.obstacles import obs_mem_train_kernel, obs_train_kernel
 from ground_station.learn.sector.reward import SectorReward
 from ground_station.learn.sector.trainer import epsilon_schedule
 from ground_station.learn.sector.twin import RADIUS_MM, encoder_arrays
@@ -55,7 +63,7 @@ def scenario_pool(maps: list[GridMap], n: int, k_max: int, m_max: int, seed: int
 class ObstacleSectorTrainer:
     """Exact sequential Q-learning of a SectorEncoder policy on a scenario pool."""
 
-    def __init__(self, maps: list[GridMap], cfg: TrainConfig, encoder: SectorEncoder,
+    def __init__(self, maps: list[GridMap], cfg: TrainConfig, encoder: SectorEncoder | MemorySectorEncoder,
                  reward: SectorReward | None = None) -> None:
         if cfg.sector_guidance != "path":
             raise ValueError("training with obstacles follows the planner's waypoints: sector_guidance must be path")
@@ -70,7 +78,18 @@ class ObstacleSectorTrainer:
         self.pool = scenario_pool(self.maps, int(cfg.sector_pool), int(cfg.sector_obstacles),
                                   int(cfg.sector_movers), int(cfg.seed), plan_kw)
         self.arrays = episode_arrays(self.pool, {gm.name: gm for gm in self.maps})
-        self._enc = encoder_arrays(encoder)
+        self.frozen = np.zeros(0, dtype=np.bool_)  # memory encoders: rows (states) Q-learning leaves alone
+        self.stall_steps = 0  # memory encoders: > 0 ends a stalled episode as a failure (the bench's loop rule)
+        self.stall_cost = 0.0
+        if isinstance(encoder, MemorySectorEncoder):
+            self._mp = memory_params(encoder)
+            self._n_base = encoder.base.n_states
+            sectors, sensors, edges, which = encoder_arrays(encoder.base)
+            self._enc = (sectors, sensors, edges, np.ones_like(which))  # the memory reads every sensor
+        else:
+            self._mp = np.zeros(0, dtype=np.int64)
+            self._n_base = encoder.n_states
+            self._enc = encoder_arrays(encoder)
         self._rng = seed_state(int(cfg.seed))
         self._eps = epsilon_schedule(cfg)
         rw = np.zeros(7)
@@ -92,10 +111,16 @@ class ObstacleSectorTrainer:
         cfg = self.cfg
         out_ret = np.empty(n_steps)
         out_succ = np.empty(n_steps, dtype=np.bool_)
-        n = obs_train_kernel(q, self._rng, a["occ"], a["dims"], a["cells"], a["map"], a["start"], a["wp"],
-                             a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"], a["nm"],
-                             sectors, sensors, edges, which, float(cfg.lr), float(cfg.sector_lr_end),
-                             float(cfg.gamma), *self._eps, self._rw, float(cfg.sector_clear_mm),
-                             self.max_episode_steps, int(cfg.sector_hold_max), float(cfg.sector_range_noise_mm),
-                             self._jitter, int(start_step), int(cfg.steps), int(n_steps), out_ret, out_succ)
+        common = (sectors, sensors, edges, which)
+        tail = (float(cfg.lr), float(cfg.sector_lr_end), float(cfg.gamma), *self._eps, self._rw,
+                float(cfg.sector_clear_mm), self.max_episode_steps, int(cfg.sector_hold_max),
+                float(cfg.sector_range_noise_mm), self._jitter, int(start_step), int(cfg.steps), int(n_steps),
+                out_ret, out_succ)
+        head = (q, self._rng, a["occ"], a["dims"], a["cells"], a["map"], a["start"], a["wp"], a["nwp"], a["rem"],
+                a["discs"], a["nd"], a["movers"], a["nm"])
+        if self._mp.shape[0]:
+            n = obs_mem_train_kernel(*head, *common, self._mp, self._n_base, self.frozen,
+                                     self.stall_steps, self.stall_cost, *tail)
+        else:
+            n = obs_train_kernel(*head, *common, *tail)
         return out_ret[:n].copy(), out_succ[:n].copy()

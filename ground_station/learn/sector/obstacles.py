@@ -30,6 +30,7 @@ from ground_station.learn.sector.kernels import (
     REVERSE,
     noisy_state,
 )
+from ground_station.learn.sector.memory import M_TURN, MEM_LEN, TURN_OF, memory_state
 from ground_station.learn.sector.reward import (
     RW_ALIGN,
     RW_COLLISION,
@@ -398,6 +399,235 @@ def obs_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_n
                     target = racc + g * q[s2, greedy(q, s2)]
                 fr = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
                 q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
+                hold = 0
+            if not terminal:
+                s = s2
+            if end:
+                break
+        out_ret[n_done] = ret
+        out_succ[n_done] = success
+        n_done += 1
+    return n_done
+
+
+# --- the detour memory (a `MemorySectorEncoder` with the planner's waypoints) ----------------
+
+@numba.njit(cache=True)
+def _mem_state(use_mem, mem, base_state, n_base, x, y, th, gx, gy, ranges, status, mp) -> int:
+    if not use_mem:
+        return base_state
+    return memory_state(mem, base_state, n_base, x, y, th, gx, gy, ranges, status, mp)
+
+
+@numba.njit(cache=True)
+def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem,
+                        ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
+                        budget_base, budget_factor, stall_steps, mp, n_base,
+                        out_outcome, out_path, out_steps, out_minclear, out_near):
+    """`nav_eval_kernel` for a `MemorySectorEncoder` table (mp =
+    `memory_train.memory_params`, n_base = the base encoder's states): the
+    Bug memory is reset at the start and whenever the current waypoint
+    changes (as the robot's controller does per mission item), updated from
+    all eight readings every period, and the previous action's turn is
+    noted after each choice. mp of length 0: a plain sector table (the same
+    rollouts as `nav_eval_kernel`)."""
+    use_mem = mp.shape[0] > 0
+    ranges = np.zeros(which.shape[0], dtype=np.int64)
+    status = np.zeros(which.shape[0], dtype=np.int64)
+    mem = np.zeros(MEM_LEN, dtype=np.int64)
+    rw = np.zeros(7)
+    gwp = np.zeros((1, 2))
+    grem = np.zeros(1)
+    for e in range(ep_map.shape[0]):
+        m = ep_map[e]
+        h = dims[m, 0]
+        w = dims[m, 1]
+        c = cells[m]
+        occ = occ_all[m]
+        discs = ep_discs[e, :ep_nd[e]]
+        movers = ep_movers[e, :ep_nm[e]].copy()
+        if guided:
+            wps = ep_wp[e]
+            rem = ep_rem[e]
+            nwp = ep_nwp[e]
+        else:
+            gwp[0, 0] = ep_goal[e, 0]
+            gwp[0, 1] = ep_goal[e, 1]
+            wps = gwp
+            rem = grem
+            nwp = 1
+        x = ep_start[e, 0]
+        y = ep_start[e, 1]
+        th = ep_start[e, 2]
+        plan_len = ep_rem[e, 0] + math.hypot(x - ep_wp[e, 0, 0], y - ep_wp[e, 0, 1])
+        budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+        k = 0
+        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
+        best = phi
+        since = 0
+        path = 0.0
+        outcome = TIMEOUT
+        minclear = obstacle_clearance_mm(x, y, discs, movers)
+        near = 0
+        t = 0
+        mem[:] = 0
+        sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+        s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
+        s = _mem_state(use_mem, mem, s, n_base, x, y, th, wps[0, 0], wps[0, 1], ranges, status, mp)
+        while t < budget:
+            a = greedy(q, s)
+            mem[M_TURN] = TURN_OF[a]
+            k0 = k
+            x, y, th, phi, _, s, hit, success, driven, k = obs_period_step(
+                occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
+                sectors, sensors, edges, discs, movers, 0.0)
+            path += driven
+            t += 1
+            if hit:
+                outcome = COLLISION
+                minclear = 0.0
+                break
+            if k != k0:
+                mem[:] = 0
+            cl = obstacle_clearance_mm(x, y, discs, movers)
+            if cl < minclear:
+                minclear = cl
+            if cl < NEAR_MISS_MM:
+                near += 1
+            if success:
+                outcome = SUCCESS
+                break
+            s = _mem_state(use_mem, mem, s, n_base, x, y, th, wps[k, 0], wps[k, 1], ranges, status, mp)
+            if phi < best - 1.0:
+                best = phi
+                since = 0
+            else:
+                since += 1
+                if since >= stall_steps:
+                    outcome = LOOP
+                    break
+        out_outcome[e] = outcome
+        out_path[e] = path
+        out_steps[e] = t
+        out_minclear[e] = minclear
+        out_near[e] = near
+
+
+@numba.njit(cache=True)
+def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem,
+                         ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, mp, n_base, frozen,
+                         stall_steps, stall_cost,
+                         lr, lr_end, gamma, eps_start, eps_end, eps_decay_steps, rw, clear_mm,
+                         max_episode_steps, hold_max, noise_mm, start_pose_jitter_mm, start_step, total_steps,
+                         n_steps, out_ret, out_succ):
+    """`obs_train_kernel` with the detour memory of `nav_eval_mem_kernel`
+    in the state (reset per waypoint, updated from the same noisy readings
+    the state is encoded from, the previous turn noted per choice); the
+    reward is the waypoint-progress reward of `obs_period_step` in every
+    mode. Rows s with frozen[s] set keep their values (e.g. go rows copied
+    from a trained sector table while the wall rows learn); frozen of
+    length 0 freezes nothing. stall_steps > 0: an episode whose guide
+    potential has found no new minimum for stall_steps periods (the bench's
+    loop rule) ends there as a failure, with reward -stall_cost (what the
+    bench counts as a loop is then as bad for the learner as it is for the
+    figure). mp of length 0, frozen empty, stall_steps 0: exactly
+    `obs_train_kernel`'s updates."""
+    use_mem = mp.shape[0] > 0
+    ranges = np.zeros(which.shape[0], dtype=np.int64)
+    status = np.zeros(which.shape[0], dtype=np.int64)
+    noisy = np.zeros(which.shape[0], dtype=np.int64)
+    nstatus = np.zeros(which.shape[0], dtype=np.int64)
+    mem = np.zeros(MEM_LEN, dtype=np.int64)
+    n_done = 0
+    i = 0
+    while i < n_steps:
+        e = randint(rng, ep_map.shape[0])
+        m = ep_map[e]
+        h = dims[m, 0]
+        w = dims[m, 1]
+        c = cells[m]
+        occ = occ_all[m]
+        discs = ep_discs[e, :ep_nd[e]]
+        movers = ep_movers[e, :ep_nm[e]].copy()
+        wps = ep_wp[e]
+        rem = ep_rem[e]
+        nwp = ep_nwp[e]
+        x = ep_start[e, 0] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
+        y = ep_start[e, 1] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
+        if disc_hits(occ, h, w, c, x, y, RADIUS_MM) or hits_discs(x, y, RADIUS_MM + MAX_MOVE_MM, discs, movers):
+            x = ep_start[e, 0]
+            y = ep_start[e, 1]
+        th = (2.0 * rand01(rng) - 1.0) * math.pi
+        k = 0
+        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
+        best = phi
+        since = 0
+        mem[:] = 0
+        sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+        s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
+        s = _mem_state(use_mem, mem, s, n_base, x, y, th, wps[0, 0], wps[0, 1], ranges, status, mp)
+        t = 0
+        hold = 0
+        a = 0
+        s0 = s
+        racc = 0.0
+        g = 1.0
+        success = False
+        ret = 0.0
+        while True:
+            if hold == 0:
+                frac = ((start_step + i) / eps_decay_steps) if eps_decay_steps > 0 else 1.0
+                eps = eps_start + (eps_end - eps_start) * min(1.0, frac)
+                if rand01(rng) < eps:
+                    a = randint(rng, q.shape[1])
+                else:
+                    a = greedy(q, s)
+                s0 = s
+                racc = 0.0
+                g = 1.0
+            mem[M_TURN] = TURN_OF[a]
+            k0 = k
+            x, y, th, phi, r, s2, hit, success, _, k = obs_period_step(
+                occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
+                sectors, sensors, edges, discs, movers, clear_mm)
+            if not (hit or success):
+                if k != k0:
+                    mem[:] = 0
+                    mem[M_TURN] = TURN_OF[a]
+                if noise_mm > 0.0:
+                    noisy[:] = ranges
+                    nstatus[:] = status
+                    s2 = noisy_state(rng, noise_mm, x, y, th, wps[k, 0], wps[k, 1], ranges, status, noisy,
+                                     nstatus, sectors, sensors, edges)
+                    s2 = _mem_state(use_mem, mem, s2, n_base, x, y, th, wps[k, 0], wps[k, 1], noisy, nstatus, mp)
+                else:
+                    s2 = _mem_state(use_mem, mem, s2, n_base, x, y, th, wps[k, 0], wps[k, 1], ranges, status, mp)
+            t += 1
+            i += 1
+            hold += 1
+            stalled = False
+            if stall_steps > 0 and not (hit or success):
+                if phi < best - 1.0:
+                    best = phi
+                    since = 0
+                else:
+                    since += 1
+                    if since >= stall_steps:
+                        stalled = True
+                        r -= stall_cost
+            racc += g * r
+            ret += r
+            g *= gamma
+            terminal = hit or success or stalled
+            end = terminal or t >= max_episode_steps or i >= n_steps
+            if end or s2 != s0 or hold >= hold_max:
+                if terminal:
+                    target = racc
+                else:
+                    target = racc + g * q[s2, greedy(q, s2)]
+                fr = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
+                if frozen.shape[0] == 0 or not frozen[s0]:
+                    q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
                 hold = 0
             if not terminal:
                 s = s2
