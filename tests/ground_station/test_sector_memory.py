@@ -128,6 +128,7 @@ def test_cli_train_eval_export_direct(tmp_path):
     rep = json.loads(qnav("eval", str(out), "--map", "paper10", "--json", "--sample", "100").stdout)
     assert rep["encoding"] == "sector-memory" and rep["guidance"] == "direct" and rep["episodes"] == 100
     assert 0.0 <= rep["success_rate"] <= 1.0
+    assert sum(rep["failures"].values()) == rep["timeouts"] + rep["collisions"] + rep["loops"]
     pol_path = tmp_path / "m.qtab"
     exp = json.loads(qnav("export", str(out), "--dtype", "int8", "--sample", "100", "--out", str(pol_path)).stdout)
     assert exp["encoding"] == "sector-memory" and set(exp["success_rate"]) == {"float", "int"}
