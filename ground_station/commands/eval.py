@@ -9,7 +9,8 @@ policy steering on the goal bearing alone is reported beside them
 (`direct_*` keys), and the baseline is a hand-written seek table on the same
 waypoints. Sector-memory runs are judged in the direct setting only (goal
 bearing and distance, no waypoints: `success_rate` is the direct figure)
-and add `wall_share`, the share of periods spent following a wall.
+and add `wall_share`, the share of periods spent following a wall, and
+`failures`, the failed episodes by class (docs/training.md, sector-memory).
 """
 
 from __future__ import annotations
@@ -72,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
               + (f"{_fmt(direct.get(k)):>10}" if direct is not None else ""))
     if rep.get("per_target"):
         print("per target success: " + ", ".join(f"{k} {_fmt(v)}" for k, v in rep["per_target"].items()))
+    if rep.get("failures"):
+        print("failures: " + ", ".join(f"{k} {v}" for k, v in rep["failures"].items()))
     if args.plot:
         print(f"wrote {args.plot}")
     return 0

@@ -16,7 +16,7 @@ from ground_station.learn.config import RECIPES, TrainConfig, validate_config
 from ground_station.learn.sector import memory as M
 from ground_station.learn.sector import twin as T
 from ground_station.learn.sector.memory_train import MemoryTrainer, evaluate_memory, memory_params
-from ground_station.maps import load_map
+from ground_station.maps import load_map, octile_distances
 from tests.ground_station.test_train import qnav
 
 
@@ -128,6 +128,7 @@ def test_cli_train_eval_export_direct(tmp_path):
     rep = json.loads(qnav("eval", str(out), "--map", "paper10", "--json", "--sample", "100").stdout)
     assert rep["encoding"] == "sector-memory" and rep["guidance"] == "direct" and rep["episodes"] == 100
     assert 0.0 <= rep["success_rate"] <= 1.0
+    assert sum(rep["failures"].values()) == rep["timeouts"] + rep["collisions"] + rep["loops"]
     pol_path = tmp_path / "m.qtab"
     exp = json.loads(qnav("export", str(out), "--dtype", "int8", "--sample", "100", "--out", str(pol_path)).stdout)
     assert exp["encoding"] == "sector-memory" and set(exp["success_rate"]) == {"float", "int"}
@@ -148,3 +149,53 @@ def test_bench_hil_refuses_waypoints_for_a_memory_policy(tmp_path):
                                  map_geometry=MapGeometry(500, 10, 10)))
     r = qnav("bench", "hil", "--only", "sector", "--sector-policy", str(path), "--pairs", "1", check=False)
     assert r.returncode != 0 and "use --guidance direct" in r.stderr
+
+
+def test_failure_classes_account_for_every_failed_episode():
+    """Fixed tables with known failures: always forward ends every failure in
+    a collision; always turning in place never collides and never moves, so
+    its failures are spins in the go mode or a wall mode that never brought
+    the goal closer."""
+    enc = MemorySectorEncoder()
+    gm = load_map("paper10")
+    forward = np.zeros((enc.n_states, enc.n_actions))
+    forward[:, 0] = 1.0
+    rep = evaluate_memory(forward, gm, enc, sample=300, seed=2)
+    f = rep["failures"]
+    failed = 300 - round(rep["success_rate"] * 300)
+    assert sum(f.values()) == failed and failed > 0
+    assert f["collision_go"] + f["collision_wall"] == rep["collisions"] == failed
+    spin = np.zeros((enc.n_states, enc.n_actions))
+    spin[:, 1] = 1.0
+    rep = evaluate_memory(spin, gm, enc, sample=300, seed=2)
+    f = rep["failures"]
+    assert rep["collisions"] == 0 and sum(f.values()) == 300 - round(rep["success_rate"] * 300)
+    assert f["go_wandering"] == f["wall_leave_blocked"] == 0
+    assert f["go_stuck"] > 0 and f["go_stuck"] + f["wall_circling"] == sum(f.values())
+
+
+def test_eval_kernel_is_the_diagnostic_kernel_without_the_records():
+    """`eval_memory_kernel` (used by the HIL bench) gives the same rollouts as
+    `eval_memory_diag`."""
+    enc = MemorySectorEncoder()
+    gm = load_map("paper10")
+    occ, h, w, c = T.grid_of(gm)
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(enc.n_states, enc.n_actions))
+    free = gm.free_cells()
+    n = 40
+    starts = np.array([free[i] for i in rng.integers(0, len(free), n)], dtype=np.int64)
+    goals = np.array([free[i] for i in rng.integers(0, len(free), n)], dtype=np.int64)
+    dists = np.stack([octile_distances(gm.occ, int(gc), int(gr)) for gc, gr in goals])
+    heads = rng.uniform(-math.pi, math.pi, n)
+    sectors, sensors, edges, which = T.encoder_arrays(enc.base)
+    which = np.ones_like(which)
+    outs = []
+    for kernel, extra in ((M.eval_memory_kernel, ()),
+                          (M.eval_memory_diag, (np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)))):
+        o = (np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64))
+        kernel(q, occ, h, w, c, dists, starts, goals, np.arange(n, dtype=np.int64), heads, sectors, sensors, edges,
+               which, memory_params(enc), enc.base.n_states, 600, 400.0, 4.0, 1000, *o, *extra)
+        outs.append(o)
+    for a, b in zip(*outs, strict=True):
+        np.testing.assert_array_equal(a, b)

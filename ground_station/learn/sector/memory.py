@@ -21,7 +21,9 @@ only, no waypoints).
   forward travel while the followed side's sensors see the wall within
   reach (`near_wall`), minus the step and reverse costs; the goal and
   collision terms are the same in every mode.
-* `eval_memory_kernel` is `eval_kernel`'s greedy rollout with the memory.
+* `eval_memory_kernel` is `eval_kernel`'s greedy rollout with the memory;
+  `eval_memory_diag` the same rollouts recording each episode's final mode
+  and failure flags (F_CLOSER_BLOCKED, F_STUCK) for the failure classes.
 """
 
 from __future__ import annotations
@@ -247,12 +249,35 @@ def train_memory_kernel(q, rng, ep, mem, occ, dims, cell, free, nfree, dist,
     return n_done
 
 
+# Failure flags of `eval_memory_diag` (out_flags bits).
+F_CLOSER_BLOCKED = 1  # in a wall mode the goal came leave_margin closer than the hit, but the goal-ward sensor was blocked
+F_STUCK = 2  # the last STUCK_WINDOW periods of a failed episode moved the centre less than STUCK_MM
+STUCK_WINDOW = 200
+STUCK_MM = 100.0
+
+
 @numba.njit(cache=True)
 def eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sectors, sensors, edges,
                        which, mp, n_base, max_steps, budget_base, budget_factor, stall_steps,
                        out_outcome, out_path, out_steps, out_mode_steps):
     """Greedy rollouts as `eval_kernel` (direct) with the Bug memory; also
     counts the periods spent in a wall-following mode (out_mode_steps)."""
+    n = starts.shape[0]
+    eval_memory_diag(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sectors, sensors, edges,
+                     which, mp, n_base, max_steps, budget_base, budget_factor, stall_steps,
+                     out_outcome, out_path, out_steps, out_mode_steps,
+                     np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64))
+
+
+@numba.njit(cache=True)
+def eval_memory_diag(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sectors, sensors, edges,
+                     which, mp, n_base, max_steps, budget_base, budget_factor, stall_steps,
+                     out_outcome, out_path, out_steps, out_mode_steps, out_end_mode, out_flags):
+    """`eval_memory_kernel` that also records, per episode, the mode at the
+    end (out_end_mode: the mode the last action was chosen in) and the
+    failure flags F_CLOSER_BLOCKED / F_STUCK (out_flags): what
+    `evaluate_memory` classifies the failures by."""
+    trail = np.zeros((STUCK_WINDOW, 2))
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
     wps = np.zeros((1, 2))
@@ -277,11 +302,18 @@ def eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, heading
         outcome = TIMEOUT
         t = 0
         wall = 0
+        flags = 0
+        mode_at = 0
         mem[:] = 0
         sense(occ, h, w, c, x, y, th, which, ranges, status)
         s = encode_fast(bearing_mrad(x, y, th, gx, gy), ranges, status, sectors, sensors, edges)
         s = memory_state(mem, s, n_base, x, y, th, gx, gy, ranges, status, mp)
         while t < budget:
+            trail[t % STUCK_WINDOW, 0] = x
+            trail[t % STUCK_WINDOW, 1] = y
+            mode_at = mem[M_MODE]
+            if mode_at != MODE_GO and dist_mm(x, y, gx, gy) + mp[2] <= mem[M_HIT]:
+                flags |= F_CLOSER_BLOCKED  # still in the wall mode: the goal-ward sensor kept it there
             a = greedy(q, s)
             mem[M_TURN] = TURN_OF[a]
             x, y, th, phi, _, s, hit, success, driven, _k = period_step(
@@ -306,7 +338,13 @@ def eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, heading
                 if since >= stall_steps:
                     outcome = LOOP
                     break
+        if outcome != SUCCESS and outcome != COLLISION and t >= STUCK_WINDOW:
+            j = t % STUCK_WINDOW  # the oldest pose of the window
+            if math.hypot(x - trail[j, 0], y - trail[j, 1]) < STUCK_MM:
+                flags |= F_STUCK
         out_outcome[i] = outcome
         out_path[i] = path
         out_steps[i] = t
         out_mode_steps[i] = wall
+        out_end_mode[i] = mode_at
+        out_flags[i] = flags

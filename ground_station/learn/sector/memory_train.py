@@ -9,7 +9,9 @@ setting: the goal's bearing and distance, no waypoints).
 * `evaluate_memory(q, gridmap, encoder, ...)`: greedy rollouts over every
   (start cell centre, goal cell, heading) of a map or a seeded sample, the
   same episodes and figures as `evaluate_sector` in its direct setting, plus
-  the share of periods spent following a wall.
+  the share of periods spent following a wall and the failed episodes by
+  class (`failure_classes`: collisions per mode, wall modes that never left,
+  go-mode spins).
 """
 
 from __future__ import annotations
@@ -22,7 +24,14 @@ from firmware_py.encoders import MemorySectorEncoder
 from ground_station.learn.config import TrainConfig, int_list
 from ground_station.learn.sector.evaluate import eval_episodes
 from ground_station.learn.sector.kernels import COLLISION, LOOP, SUCCESS, TIMEOUT
-from ground_station.learn.sector.memory import MEM_LEN, eval_memory_kernel, train_memory_kernel
+from ground_station.learn.sector.memory import (
+    F_CLOSER_BLOCKED,
+    F_STUCK,
+    MEM_LEN,
+    MODE_GO,
+    eval_memory_diag,
+    train_memory_kernel,
+)
 from ground_station.learn.sector.trainer import SectorTrainer
 from ground_station.learn.sector.twin import encoder_arrays, grid_of
 from ground_station.maps import GridMap, octile_distances
@@ -76,6 +85,29 @@ class MemoryTrainer(SectorTrainer):
         return out_ret[:n].copy(), out_succ[:n].copy()
 
 
+def failure_classes(outcome: np.ndarray, end_mode: np.ndarray, flags: np.ndarray) -> dict[str, int]:
+    """Count the failed episodes by what went wrong (`eval_memory_diag`'s
+    records): a collision in the go mode or in a wall mode; a timeout or
+    loop ending in a wall mode after the goal had come `leave_margin_mm`
+    closer than the hit while the goal-ward sensor kept the robot on the
+    wall ("wall_leave_blocked"), or without that ("wall_circling": the
+    wall followed never brought the goal that much closer); ending in the go
+    mode with the centre (nearly) still over the last 200 periods
+    ("go_stuck": spinning or dithering) or moving ("go_wandering")."""
+    fail = outcome != SUCCESS
+    coll = outcome == COLLISION
+    go = end_mode == MODE_GO
+    other = fail & ~coll
+    return {
+        "collision_go": int((coll & go).sum()),
+        "collision_wall": int((coll & ~go).sum()),
+        "wall_leave_blocked": int((other & ~go & ((flags & F_CLOSER_BLOCKED) != 0)).sum()),
+        "wall_circling": int((other & ~go & ((flags & F_CLOSER_BLOCKED) == 0)).sum()),
+        "go_stuck": int((other & go & ((flags & F_STUCK) != 0)).sum()),
+        "go_wandering": int((other & go & ((flags & F_STUCK) == 0)).sum()),
+    }
+
+
 def evaluate_memory(q: np.ndarray, gridmap: GridMap, encoder: MemorySectorEncoder, seed: int = 0,
                     sample: int | None = None, max_steps: int | None = None, headings: int = 8,
                     stall_steps: int = 1000) -> dict:
@@ -99,9 +131,11 @@ def evaluate_memory(q: np.ndarray, gridmap: GridMap, encoder: MemorySectorEncode
     wall = np.zeros(n, dtype=np.int64)
     th = hidx.astype(np.float64) * (2.0 * math.pi / headings)
     th = (th + math.pi) % (2.0 * math.pi) - math.pi
-    eval_memory_kernel(np.ascontiguousarray(q, dtype=np.float64), occ, h, w, c, dists, starts, goals, slot, th,
-                       sectors, sensors, edges, which, memory_params(encoder), encoder.base.n_states,
-                       int(max_steps or 0), 400.0, 4.0, int(stall_steps), outcome, path, steps, wall)
+    end_mode = np.zeros(n, dtype=np.int64)
+    flags = np.zeros(n, dtype=np.int64)
+    eval_memory_diag(np.ascontiguousarray(q, dtype=np.float64), occ, h, w, c, dists, starts, goals, slot, th,
+                     sectors, sensors, edges, which, memory_params(encoder), encoder.base.n_states,
+                     int(max_steps or 0), 400.0, 4.0, int(stall_steps), outcome, path, steps, wall, end_mode, flags)
     shortest = dists[slot, starts[:, 1], starts[:, 0]] * c if n else np.zeros(0)
     ok = outcome == SUCCESS
     ratios = path[ok] / shortest[ok]
@@ -116,5 +150,6 @@ def evaluate_memory(q: np.ndarray, gridmap: GridMap, encoder: MemorySectorEncode
         "loops": int((outcome == LOOP).sum()),
         "mean_steps": float(steps.mean()) if n else 0.0,
         "wall_share": float(wall.sum() / max(1, steps.sum())),
+        "failures": failure_classes(outcome, end_mode, flags),
         "headings": int(headings), "sample": sample, "seed": int(seed),
     }
