@@ -64,7 +64,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from firmware_py.clock import Clock
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.commands import CommandHandler
-from firmware_py.mavlink.mission import MissionEngine, map_bounds_error
+from firmware_py.mavlink.mission import MissionEngine, check_position, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
 from firmware_py.mavlink.telemetry import AUTOPILOTS, NodeStats, Telemetry
@@ -327,6 +327,9 @@ class MavNode:
             if not (math.isfinite(msg.x) and math.isfinite(msg.y)):  # round(NaN) would raise
                 return self.telemetry.statustext("goal refused: position is not a finite number",
                                                  M.MAV_SEVERITY_WARNING)
+            bad = check_position(True, msg.x, msg.y)  # offsets too: metres from the robot
+            if bad is not None:
+                return self.telemetry.statustext(f"goal refused: {bad[1]}", M.MAV_SEVERITY_WARNING)
             if msg.coordinate_frame == M.MAV_FRAME_LOCAL_NED:
                 x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
             else:  # relative to where the robot is now (its believed pose), as ArduPilot Rover reads them
@@ -335,7 +338,7 @@ class MavNode:
                                                         msg.coordinate_frame != M.MAV_FRAME_LOCAL_OFFSET_NED,
                                                         msg.x, msg.y)
         else:
-            if not (abs(msg.lat_int) <= 900_000_000 and abs(msg.lon_int) <= 1_800_000_000):
+            if check_position(False, msg.lat_int / 1e7, msg.lon_int / 1e7) is not None:
                 return self.telemetry.statustext("goal refused: latitude/longitude out of range",
                                                  M.MAV_SEVERITY_WARNING)
             x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
