@@ -18,12 +18,12 @@ import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.mavlink.link import add_link_args
+    from ground_station.mavlink.link import add_link_args, finite_float
 
     p = sub.add_parser("goal", help="send a goal position (Guided mode, MAVLink)", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("x", type=float, metavar="X", help="east, metres (world frame)")
-    p.add_argument("y", type=float, metavar="Y", help="north, metres (world frame)")
+    p.add_argument("x", type=finite_float, metavar="X", help="east, metres (world frame)")
+    p.add_argument("y", type=finite_float, metavar="Y", help="north, metres (world frame)")
     p.add_argument("--plan", action="store_true",
                    help="send the planner's waypoints to the goal as a mission and start it (sector policies)")
     p.add_argument("--map", default="paper10", metavar="NAME|PATH", help="--plan: the map (default paper10)")
@@ -33,6 +33,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from firmware_py.mavlink.mission import LOCAL_LIMIT_M
+    from ground_station.errors import CliError
     from ground_station.mavlink.link import (
         EXIT_REFUSED,
         LinkError,
@@ -40,10 +42,17 @@ def run(args: argparse.Namespace) -> int:
         run_on_link,
     )
 
+    if max(abs(args.x), abs(args.y)) > LOCAL_LIMIT_M:  # the robot's local-frame range (float32 on the wire)
+        raise CliError(f"goal ({args.x:g}, {args.y:g}) m is out of range (|X|, |Y| <= {LOCAL_LIMIT_M:g} m)")
+    if args.start and not args.plan:
+        raise CliError("--start needs --plan")
     m = mavlink()
     mask = 0xFFF8  # position only
     if args.plan:
-        return run_on_link(args, "goal", lambda link: planned_goal(args, link))
+        from ground_station.mavlink.mission_items import parse_start
+
+        start = parse_start(args.start) if args.start else None  # bad input refused before connecting
+        return run_on_link(args, "goal", lambda link: planned_goal(args, link, start))
 
     def refused(t: str) -> bool:
         return t.startswith("goal refused")
@@ -68,10 +77,9 @@ def run(args: argparse.Namespace) -> int:
     return run_on_link(args, "goal", body)
 
 
-def planned_goal(args: argparse.Namespace, link) -> int:
+def planned_goal(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> int:
     """Upload the planned waypoints to (X, Y) as a mission and set mode Auto."""
     from firmware_py.vehicle import Mode
-    from ground_station.commands.mission import _start
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
     from ground_station.mavlink.link import mavlink
@@ -85,7 +93,7 @@ def planned_goal(args: argparse.Namespace, link) -> int:
     col, row = int(args.x // cell), gm.height - 1 - int(args.y // cell)
     if not gm.in_bounds(col, row) or not gm.is_free(col, row):
         raise CliError(f"goal ({args.x:g}, {args.y:g}) m is not in a free cell of map {gm.name}")
-    start = _start(args.start) if args.start else robot_position_mm(link)
+    start = start_mm if start_mm is not None else robot_position_mm(link)
     items, _ = planned_items([(col, row)], start, gm)
     m = mavlink()
     frame = m.MAV_FRAME_LOCAL_NED

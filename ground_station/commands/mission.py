@@ -46,15 +46,22 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
     from ground_station.mavlink.link import run_on_link
-    from ground_station.mavlink.mission_items import file_items, target_items, write_wpl
+    from ground_station.mavlink.mission_items import (
+        file_items,
+        parse_start,
+        target_items,
+        write_wpl,
+    )
 
     if args.verb == "upload":
         if bool(args.targets) == bool(args.file):
             raise CliError("give either --targets A,B,... or a waypoint FILE")
         if args.plan and not args.targets:
             raise CliError("--plan needs --targets A,B,...")
+        if args.start and not args.plan:
+            raise CliError("--start needs --plan")
         items = target_items(args.targets, args.map, args.cell_size) if args.targets else file_items(args.file)
-        start = _start(args.start) if args.start else None
+        start = parse_start(args.start) if args.start else None
 
         def upload(link) -> int:
             nonlocal items
@@ -80,16 +87,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     return run_on_link(args, "mission download", download)
-
-
-def _start(text: str) -> tuple[float, float]:
-    from ground_station.errors import CliError
-
-    try:
-        x, y = (float(v) for v in text.split(","))
-    except ValueError:
-        raise CliError(f"--start must be X,Y in metres, got {text!r}") from None
-    return x * 1000.0, y * 1000.0
 
 
 def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> list[tuple[int, int, int]]:

@@ -28,6 +28,7 @@ A long-running tool (`qnav monitor`, MAVProxy) passes `heartbeat=True`.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import struct
 import threading
@@ -112,6 +113,18 @@ def _positive_seconds(value: str) -> float:
         raise argparse.ArgumentTypeError(f"expected seconds, got {value!r}") from None
     if not x > 0 or x != x or x == float("inf"):
         raise argparse.ArgumentTypeError(f"must be > 0 seconds, got {value}")
+    return x
+
+
+def finite_float(value: str) -> float:
+    """argparse type for a coordinate: a finite number (float() also takes
+    "nan" and "inf", which nothing downstream can place)."""
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {value}")
     return x
 
 

@@ -5,8 +5,20 @@ Bad input raises `CliError` with one line naming what is wrong."""
 
 from __future__ import annotations
 
+import argparse
+
 from ground_station.errors import CliError
-from ground_station.mavlink.link import mavlink, mavutil
+from ground_station.mavlink.link import finite_float, mavlink, mavutil
+
+
+def parse_start(text: str) -> tuple[float, float]:
+    """`--start X,Y` (world metres, x east, y north) -> (x_mm, y_mm); CliError
+    naming the option unless both are finite numbers."""
+    try:
+        x, y = (finite_float(v) for v in text.split(","))
+    except (ValueError, argparse.ArgumentTypeError):  # ValueError: not two values
+        raise CliError(f"--start must be X,Y in metres (finite numbers), got {text!r}") from None
+    return x * 1000.0, y * 1000.0
 
 
 def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from firmware_py import robot_spec
 from ground_station.maps import load_map
 from ground_station.maps.planner import plan_waypoints
@@ -56,3 +58,34 @@ def test_goal_plan_uploads_the_planned_mission_and_starts_it(rig):  # noqa: F811
     assert r.vehicle.st.mode == 10  # Auto
     code, out = qnav(port, "goal", "0.75", "4.25", "--plan")  # (1, 1) is an obstacle cell of paper10
     assert code == 2 and "not in a free cell" in out
+
+
+def _run(*argv: str) -> tuple[int, str]:
+    """qnav in-process without a robot: the input is refused before any link opens."""
+    import contextlib
+    import io
+
+    from ground_station import cli
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(err):
+        try:
+            code = cli.main([*argv, "--mavlink", "udpin:127.0.0.1:9", "--timeout", "0.2", "--no-tlog"])
+        except SystemExit as exc:  # argparse's own refusal
+            code = int(exc.code or 0)
+    return code, err.getvalue()
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["goal", "nan", "1"], "argument X: must be a finite number, got nan"),
+    (["goal", "1", "inf", "--plan"], "argument Y: must be a finite number, got inf"),
+    (["goal", "1", "1e300"], "out of range"),
+    (["goal", "4.7", "4.8", "--plan", "--start", "nan,1"], "--start must be X,Y in metres"),
+    (["goal", "1", "1", "--start", "1,1"], "--start needs --plan"),
+    (["mission", "upload", "--targets", "A", "--plan", "--start", "1,inf"], "--start must be X,Y in metres"),
+    (["mission", "upload", "--targets", "A", "--start", "1,1"], "--start needs --plan"),
+])
+def test_non_finite_goal_and_start_are_refused_with_one_line(argv, says):
+    code, err = _run(*argv)
+    assert code == 2 and says in err, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1].count("error") == 1
