@@ -128,7 +128,7 @@ class _Stop(Exception):
                                                       ("study", "ground_station.learn.study", "study")])
 def test_sweep_and_study_take_the_recipe_of_their_encoding_like_train(monkeypatch, tmp_path, command, module, runner):
     """`qnav sweep --encoding sector` used to train with the cell defaults (3M steps,
-    reward_step -0.01, epsilon_end 0.01) where `qnav train --encoding sector` takes
+    reward_step -0.01, epsilon_end 0.1) where `qnav train --encoding sector` takes
     the sector recipe; a flag given still wins. The command runs as parsed, up to
     the campaign, whose runner here only records the config it is handed."""
     import importlib
