@@ -34,7 +34,7 @@ def test_gcs_side_of_the_robot_url(robot, gcs):
     (SitlOptions(duration_s=0), "--duration must be positive"),
     (SitlOptions(can="virtual:x"), "a virtual bus does not reach another process"),
     (SitlOptions(mavlink="udpin:127.0.0.1"), "expected udpin:HOST:PORT"),
-    (SitlOptions(mavlink="udpin:127.0.0.1:99999"), "expected udpin:HOST:PORT"),
+    (SitlOptions(mavlink="udpin:127.0.0.1:99999"), "port must be a number 1-65535"),  # link.check_url's words
     (SitlOptions(mavlink="bogus://foo"), "--mavlink bogus://foo: expected"),
 ])
 def test_bad_options_are_refused_with_the_reason(opts, why):
