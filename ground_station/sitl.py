@@ -78,6 +78,15 @@ class SitlInfo:
     logs: dict[str, Path] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class WaitResult:
+    """Why `Sitl.wait` returned: `reason` to print; `child_died` (a process
+    ended by itself, exit status 1) or not (--duration reached)."""
+
+    reason: str
+    child_died: bool
+
+
 def default_run_dir(base: Path = Path("runs")) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     path, n = base / f"sitl-{stamp}", 1
@@ -289,17 +298,17 @@ class Sitl:
             child = dict(self.procs.children)[name]
             raise SitlError(f"{name} exited with status {code}: {child.log_tail(3)}")
 
-    def wait(self, poll_s: float = 0.25) -> str:
-        """Until a child ends ("<name> exited ..."), `duration_s` passes ("duration
-        reached") or KeyboardInterrupt (raised through)."""
+    def wait(self, poll_s: float = 0.25) -> WaitResult:
+        """Until a child ends (child_died, "<name> exited ..."), `duration_s` passes
+        ("duration reached") or KeyboardInterrupt (raised through)."""
         deadline = None if self.opts.duration_s is None else time.monotonic() + self.opts.duration_s
         while True:
             try:
                 self._check_children()
             except SitlError as exc:
-                return str(exc)
+                return WaitResult(str(exc), child_died=True)
             if deadline is not None and time.monotonic() >= deadline:
-                return "duration reached"
+                return WaitResult("duration reached", child_died=False)
             time.sleep(poll_s)
 
     def stop(self) -> dict[str, int | None]:

@@ -71,13 +71,14 @@ def run(args: argparse.Namespace) -> int:
 
     sitl = Sitl(opts, say)  # validates the options
     previous = signal.signal(signal.SIGTERM, on_term)
-    verdict = "interrupted"
+    verdict, child_died = "interrupted", False
     try:
         try:
             info = sitl.start()
             for line in connection_help(info):
                 print(line, flush=True)
-            verdict = sitl.wait()
+            result = sitl.wait()
+            verdict, child_died = result.reason, result.child_died
         except KeyboardInterrupt:
             verdict = "stopped (Ctrl-C)"
         finally:
@@ -87,4 +88,4 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     say(f"{verdict}; every process stopped ({', '.join(f'{k} {v}' for k, v in codes.items()) or 'none started'})")
-    return 1 if "exited with status" in verdict else 0
+    return 1 if child_died else 0
