@@ -29,6 +29,7 @@ from pathlib import Path
 
 from firmware_py.canbus import CanHub
 from firmware_py.mavlink.params import PARAMS
+from firmware_py.mavlink.telemetry import DEFAULT_AUTOPILOT
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from ground_station.errors import CliError
 from ground_station.mavlink.link import check_url
@@ -59,7 +60,7 @@ class SitlOptions:
     seed: int = 0
     duration_s: float | None = None  # wall seconds, then stop (None: until Ctrl-C)
     robots: int = 1
-    autopilot: str = "generic"  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
+    autopilot: str = DEFAULT_AUTOPILOT  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
     probe_timeout_s: float = 60.0
 
 

@@ -67,7 +67,7 @@ from firmware_py.mavlink.commands import CommandHandler
 from firmware_py.mavlink.mission import MissionEngine, check_position, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
-from firmware_py.mavlink.telemetry import AUTOPILOTS, NodeStats, Telemetry
+from firmware_py.mavlink.telemetry import AUTOPILOTS, DEFAULT_AUTOPILOT, NodeStats, Telemetry
 from firmware_py.vehicle import VehicleControl
 
 log = logging.getLogger("qnav.mavlink")
@@ -573,7 +573,7 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mavlink-baud", type=int, default=57600, help="baud rate for a serial device")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
                         help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
-    parser.add_argument("--mavlink-autopilot", choices=sorted(AUTOPILOTS), default="generic",
+    parser.add_argument("--mavlink-autopilot", choices=sorted(AUTOPILOTS), default=DEFAULT_AUTOPILOT,
                         help="autopilot type in the HEARTBEAT (default %(default)s): 'ardupilot' for MAVSDK, "
                              "which reads int parameters and names modes only for ArduPilot (docs/mavlink.md)")
 
@@ -581,7 +581,7 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
 def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | None, url: str, now_us: int, *,
               signing_key: str | None = None, baud: int = 57600,
               reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp: bool = True,
-              overrides: dict[str, int] | None = None, autopilot: str = "generic") -> MavShell:
+              overrides: dict[str, int] | None = None, autopilot: str = DEFAULT_AUTOPILOT) -> MavShell:
     """Build, boot and connect the node: params and signing state from
     `storage_dir` (then `overrides`, see MavNode.boot), and (with `ftp`) an
     FTP server on it whose policy activation is the vehicle's `activate_policy`."""
