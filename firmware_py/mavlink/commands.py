@@ -132,7 +132,7 @@ class CommandHandler:
         """MAV_CMD_DO_REPOSITION, the guided go-to (MAVProxy `guided LAT LON ALT`,
         QGroundControl "go to location"): the point becomes the goal in Guided.
         COMMAND_INT: x/y in the command's frame (global: 1e-7 deg around the
-        home origin; LOCAL_NED: metres * 1e4); COMMAND_LONG: param5/6 in degrees."""
+        home origin; LOCAL_NED: metres * frames.LOCAL_ITEM_SCALE); COMMAND_LONG: param5/6 in degrees."""
         lat0, lon0 = self.telemetry.params.get("ORIGIN_LAT"), self.telemetry.params.get("ORIGIN_LON")
         if msg.get_type() == "COMMAND_INT":
             if INT32_MAX in (msg.x, msg.y):  # "unchanged": there is no position to keep going to

@@ -19,7 +19,7 @@ MAV_MISSION_INVALID_PARAM5_X (north/south) or _PARAM6_Y (east/west) and a
 STATUSTEXT naming the point and the map; the previous mission is kept.
 
 Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED (x north, y east:
-metres, or metres * 1e4 in MISSION_ITEM_INT) or a global frame (converted
+metres, or metres * frames.LOCAL_ITEM_SCALE in MISSION_ITEM_INT) or a global frame (converted
 around the configured origin). Waypoints go to the vehicle in world
 millimetres (x east, y north). Only mission_type MISSION; fence and rally
 are answered MAV_MISSION_UNSUPPORTED. Pure engine: `handle(msg, now_us)`
@@ -55,7 +55,7 @@ GLOBAL_FRAMES = frozenset({
     M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT,
     M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
 })
-LOCAL_LIMIT_M = 200_000.0  # |x|, |y| of a local item: x * 1e4 stays inside int32
+LOCAL_LIMIT_M = 200_000.0  # |x|, |y| of a local item: x * LOCAL_ITEM_SCALE stays inside int32
 LAT_LIMIT_E7 = 900_000_000
 LON_LIMIT_E7 = 1_800_000_000
 INT_SCALED_GLOBAL = frozenset({M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
@@ -65,7 +65,7 @@ INT_SCALED_GLOBAL = frozenset({M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATI
 @dataclass(frozen=True)
 class Item:
     """A stored mission item in MISSION_ITEM_INT terms (x, y: 1e7 deg for
-    global frames, metres * 1e4 for local)."""
+    global frames, metres * LOCAL_ITEM_SCALE for local)."""
 
     seq: int
     frame: int
@@ -119,7 +119,7 @@ def item_from_msg(msg: mavlink2.MAVLink_message) -> Item:
         x, y = msg.x, msg.y
         frame = msg.frame
     else:  # float item: scale like MISSION_ITEM_INT, keeping the frame's meaning
-        scale = 1e4 if msg.frame in LOCAL_FRAMES else 1e7
+        scale = mav_frames.LOCAL_ITEM_SCALE if msg.frame in LOCAL_FRAMES else 1e7
         x, y = round(msg.x * scale), round(msg.y * scale)
         frame = msg.frame
     return Item(msg.seq, frame, msg.command, msg.autocontinue, params, x, y, msg.z)
@@ -127,7 +127,7 @@ def item_from_msg(msg: mavlink2.MAVLink_message) -> Item:
 
 def item_to_world(item: Item, origin_lat_e7: int, origin_lon_e7: int) -> tuple[int, int]:
     if item.frame in LOCAL_FRAMES:
-        return mav_frames.ned_m_to_world(item.x / 1e4, item.y / 1e4)
+        return mav_frames.ned_m_to_world(item.x / mav_frames.LOCAL_ITEM_SCALE, item.y / mav_frames.LOCAL_ITEM_SCALE)
     return mav_frames.global_to_world(item.x, item.y, origin_lat_e7, origin_lon_e7)
 
 
@@ -336,7 +336,7 @@ class MissionEngine:
             return [self.mav.mission_item_int_encode(
                 partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
                 *it.params, it.x, it.y, it.z, M.MAV_MISSION_TYPE_MISSION)]
-        scale = 1e4 if it.frame in LOCAL_FRAMES else 1e7
+        scale = mav_frames.LOCAL_ITEM_SCALE if it.frame in LOCAL_FRAMES else 1e7
         return [self.mav.mission_item_encode(
             partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
             *it.params, it.x / scale, it.y / scale, it.z, M.MAV_MISSION_TYPE_MISSION)]

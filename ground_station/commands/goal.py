@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
 
 def planned_goal(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> int:
     """Upload the planned waypoints to (X, Y) as a mission and set mode Auto."""
+    from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
     from firmware_py.vehicle import Mode
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
@@ -97,7 +98,7 @@ def planned_goal(args: argparse.Namespace, link, start_mm: tuple[float, float] |
     items, _ = planned_items([(col, row)], start, gm)
     m = mavlink()
     frame = m.MAV_FRAME_LOCAL_NED
-    items[-1] = (frame, round(args.y * 1e4), round(args.x * 1e4))  # the goal itself, not its cell's centre
+    items[-1] = (frame, round(args.y * LOCAL_ITEM_SCALE), round(args.x * LOCAL_ITEM_SCALE))  # the goal itself, not its cell's centre
     n = link.mission_upload(items)
     link.command(m.MAV_CMD_DO_SET_MODE, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))
     print(f"goal x={args.x:g} y={args.y:g} m: mission of {n} planned waypoints accepted, mode Auto")

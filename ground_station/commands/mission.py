@@ -44,6 +44,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
     from ground_station.errors import CliError
     from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.mission_items import (
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{len(items)} items")
         for it in items:
             if it.frame == m.MAV_FRAME_LOCAL_NED:
-                print(f"{it.seq:3d} local  x={it.y / 1e4:.3f} m east  y={it.x / 1e4:.3f} m north")
+                print(f"{it.seq:3d} local  x={it.y / LOCAL_ITEM_SCALE:.3f} m east  "
+                      f"y={it.x / LOCAL_ITEM_SCALE:.3f} m north")
             else:
                 print(f"{it.seq:3d} global lat={it.x / 1e7:.7f} lon={it.y / 1e7:.7f} (frame {it.frame})")
         if args.out:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 
+from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from ground_station.errors import CliError
 from ground_station.mavlink.link import finite_float, mavlink, mavutil
 
@@ -22,7 +23,7 @@ def parse_start(text: str) -> tuple[float, float]:
 
 
 def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
-    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * 1e4) for map targets."""
+    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * LOCAL_ITEM_SCALE) for map targets."""
     from firmware_py import robot_spec
     from ground_station.maps import MapError, load_map
 
@@ -40,7 +41,7 @@ def target_items(targets: str, map_name: str, cell_size_m: float | None = None) 
             raise CliError(f"map {gm.name} has no target {name!r} (has {', '.join(sorted(gm.targets))})")
         col, row = gm.targets[name]
         x_mm, y_mm = robot_spec.cell_center_mm(col, row, gm.height, cell_mm)
-        items.append((mavlink().MAV_FRAME_LOCAL_NED, y_mm * 10, x_mm * 10))  # north, east in m * 1e4
+        items.append((mavlink().MAV_FRAME_LOCAL_NED, y_mm * LOCAL_ITEM_SCALE // 1000, x_mm * LOCAL_ITEM_SCALE // 1000))  # north, east
     return items
 
 
@@ -59,7 +60,7 @@ def file_items(path: str) -> list[tuple[int, int, int]]:
         w = loader.wp(i)
         if w.command != m.MAV_CMD_NAV_WAYPOINT:
             raise CliError(f"{path}: item {i} is command {w.command}, only NAV_WAYPOINT (16) is supported")
-        scale = 1e4 if w.frame == m.MAV_FRAME_LOCAL_NED else 1e7
+        scale = LOCAL_ITEM_SCALE if w.frame == m.MAV_FRAME_LOCAL_NED else 1e7
         x, y = (w.x, w.y) if w.get_type() == "MISSION_ITEM_INT" else (round(w.x * scale), round(w.y * scale))
         items.append((w.frame, x, y))
     if not items:
@@ -74,7 +75,7 @@ def write_wpl(path: str, items: list) -> None:
     m = mavlink()
     lines = ["QGC WPL 110"]
     for it in items:
-        scale = 1e4 if it.frame == m.MAV_FRAME_LOCAL_NED else 1e7
+        scale = LOCAL_ITEM_SCALE if it.frame == m.MAV_FRAME_LOCAL_NED else 1e7
         lines.append("\t".join(str(v) for v in (
             it.seq, it.current, it.frame, it.command, it.param1, it.param2, it.param3, it.param4,
             f"{it.x / scale:.7f}", f"{it.y / scale:.7f}", f"{it.z:g}", it.autocontinue)))
@@ -102,7 +103,7 @@ def planned_items(targets: list[tuple[int, int]], start_mm: tuple[float, float],
             wps = plan_waypoints(gridmap, start, cell, start_mm=from_mm, **(plan_kw or {}))
         except MapError as exc:
             raise CliError(f"cannot plan to {cell}: {exc}") from None
-        items += [(frame, round(y * 10), round(x * 10)) for x, y in wps]  # north, east in m * 1e4
+        items += [(frame, round(y * LOCAL_ITEM_SCALE / 1000), round(x * LOCAL_ITEM_SCALE / 1000)) for x, y in wps]  # N, E
         target_seq.append(len(items) - 1)
         start, from_mm = cell, False
     return items, target_seq

@@ -496,7 +496,7 @@ class VehicleView:
 
     def _item_world(self, frame: int, x: int, y: int) -> tuple[float, float] | None:
         if frame == mavlink.MAV_FRAME_LOCAL_NED:
-            return (y / 1e4, x / 1e4)
+            return (y / mav_frames.LOCAL_ITEM_SCALE, x / mav_frames.LOCAL_ITEM_SCALE)
         if frame in _GLOBAL_FRAMES and self.origin_e7 is not None:
             x_mm, y_mm = mav_frames.global_to_world(x, y, *self.origin_e7)
             return (x_mm / 1000, y_mm / 1000)
