@@ -14,7 +14,6 @@ cell, and the robot is switched to Auto to drive it.
 from __future__ import annotations
 
 import argparse
-import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -35,71 +34,44 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from firmware_py.mavlink.mission import LOCAL_LIMIT_M
     from ground_station.errors import CliError
-    from ground_station.mavlink.link import (
-        EXIT_REFUSED,
-        LinkError,
-        mavlink,
-        run_on_link,
-    )
+    from ground_station.mavlink.link import run_on_link
 
     if max(abs(args.x), abs(args.y)) > LOCAL_LIMIT_M:  # the robot's local-frame range (float32 on the wire)
         raise CliError(f"goal ({args.x:g}, {args.y:g}) m is out of range (|X|, |Y| <= {LOCAL_LIMIT_M:g} m)")
     if args.start and not args.plan:
         raise CliError("--start needs --plan")
-    m = mavlink()
-    mask = 0xFFF8  # position only
     if args.plan:
-        from ground_station.mavlink.mission_items import parse_start
-
-        start = parse_start(args.start) if args.start else None  # bad input refused before connecting
-        return run_on_link(args, "goal", lambda link: planned_goal(args, link, start))
-
-    def refused(t: str) -> bool:
-        return t.startswith("goal refused")
+        return _planned_goal(args)
 
     def body(link) -> int:
-        since = len(link.texts)
-        for _ in range(3):
-            link.conn.mav.set_position_target_local_ned_send(0, link.sysid, link.compid, m.MAV_FRAME_LOCAL_NED,
-                                                            mask, args.y, args.x, 0, 0, 0, 0, 0, 0, 0, 0, 0)
-            end = time.monotonic() + 1.5
-            while time.monotonic() < end:
-                reply = link.recv("POSITION_TARGET_LOCAL_NED", min(0.1, end - time.monotonic()))
-                # the refusal is a whole (reassembled) STATUSTEXT, however many chunks it took
-                reason = link.wait_text(since, refused, 0.0)
-                if reason is not None:
-                    raise LinkError(EXIT_REFUSED, reason)
-                if reply is not None and abs(reply.x - args.y) < 0.01 and abs(reply.y - args.x) < 0.01:
-                    print(f"goal x={args.x:g} y={args.y:g} m accepted")
-                    return 0
-        raise link.no_answer("goal: no echo from the robot")
+        link.set_goal(args.x, args.y)
+        print(f"goal x={args.x:g} y={args.y:g} m accepted")
+        return 0
 
     return run_on_link(args, "goal", body)
 
 
-def planned_goal(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> int:
+def _planned_goal(args: argparse.Namespace) -> int:
     """Upload the planned waypoints to (X, Y) as a mission and set mode Auto."""
-    from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
     from firmware_py.vehicle import Mode
-    from ground_station.errors import CliError
-    from ground_station.maps import MapError, load_map
-    from ground_station.mavlink.link import mavlink
-    from ground_station.mavlink.mission_items import planned_items, robot_position_mm
+    from ground_station.mavlink.link import run_on_link
+    from ground_station.mavlink.mission_items import (
+        goal_cell,
+        load_gridmap,
+        parse_start,
+        planned_goal_items,
+        robot_position_mm,
+    )
 
-    try:
-        gm = load_map(args.map)
-    except (MapError, OSError) as exc:
-        raise CliError(str(exc)) from None
-    cell = gm.cell_size_m
-    col, row = int(args.x // cell), gm.height - 1 - int(args.y // cell)
-    if not gm.in_bounds(col, row) or not gm.is_free(col, row):
-        raise CliError(f"goal ({args.x:g}, {args.y:g}) m is not in a free cell of map {gm.name}")
-    start = start_mm if start_mm is not None else robot_position_mm(link)
-    items, _ = planned_items([(col, row)], start, gm)
-    m = mavlink()
-    frame = m.MAV_FRAME_LOCAL_NED
-    items[-1] = (frame, round(args.y * LOCAL_ITEM_SCALE), round(args.x * LOCAL_ITEM_SCALE))  # the goal itself, not its cell's centre
-    n = link.mission_upload(items)
-    link.command(m.MAV_CMD_DO_SET_MODE, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))
-    print(f"goal x={args.x:g} y={args.y:g} m: mission of {n} planned waypoints accepted, mode Auto")
-    return 0
+    start = parse_start(args.start) if args.start else None  # bad input is refused before connecting
+    gm = load_gridmap(args.map)
+    goal_cell(gm, args.x, args.y)
+
+    def body(link) -> int:
+        items = planned_goal_items(gm, args.x, args.y, start if start is not None else robot_position_mm(link))
+        n = link.mission_upload(items)
+        link.command(link.m.MAV_CMD_DO_SET_MODE, link.m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))
+        print(f"goal x={args.x:g} y={args.y:g} m: mission of {n} planned waypoints accepted, mode Auto")
+        return 0
+
+    return run_on_link(args, "goal", body)

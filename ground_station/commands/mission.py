@@ -92,14 +92,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> list[tuple[int, int, int]]:
-    from ground_station.errors import CliError
-    from ground_station.maps import MapError, load_map
-    from ground_station.mavlink.mission_items import planned_items, robot_position_mm, target_cells
+    from ground_station.mavlink.mission_items import (
+        load_gridmap,
+        planned_items,
+        robot_position_mm,
+        target_cells,
+    )
 
-    try:
-        gm = load_map(args.map) if args.cell_size is None else load_map(args.map, args.cell_size)
-    except (MapError, OSError) as exc:
-        raise CliError(str(exc)) from None
+    gm = load_gridmap(args.map, args.cell_size)
     start = start_mm if start_mm is not None else robot_position_mm(link)
     items, target_seq = planned_items(target_cells(args.targets, gm), start, gm)
     print(f"planned {len(items)} waypoints from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "

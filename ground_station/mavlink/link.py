@@ -396,6 +396,26 @@ class Link:
             return CommandResult(ack.result, texts)
         raise self.no_answer(f"{name}: no COMMAND_ACK after {retries + 1} tries")
 
+    def set_goal(self, x_m: float, y_m: float, timeout_s: float = 1.5, retries: int = 3) -> None:
+        """Guided goal at world (x east, y north) metres: SET_POSITION_TARGET_LOCAL_NED
+        (north = y, east = x, position only), re-sent until the robot echoes it in
+        POSITION_TARGET_LOCAL_NED; raises with its "goal refused: ..." STATUSTEXT
+        (however many chunks it took) or on silence."""
+        since = len(self.texts)
+        mask = 0xFFF8  # position only
+        for _ in range(retries):
+            self.conn.mav.set_position_target_local_ned_send(0, self.sysid, self.compid, self.m.MAV_FRAME_LOCAL_NED,
+                                                             mask, y_m, x_m, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+            end = time.monotonic() + timeout_s
+            while time.monotonic() < end:
+                reply = self.recv("POSITION_TARGET_LOCAL_NED", min(0.1, end - time.monotonic()))
+                reason = self.wait_text(since, lambda t: t.startswith("goal refused"), 0.0)
+                if reason is not None:
+                    raise LinkError(EXIT_REFUSED, reason)
+                if reply is not None and abs(reply.x - y_m) < 0.01 and abs(reply.y - x_m) < 0.01:
+                    return
+        raise self.no_answer("goal: no echo from the robot")
+
     def _signing_hint(self) -> str:
         hb = self.conn.messages.get("HEARTBEAT")
         buf = bytes(hb.get_msgbuf()) if hb is not None else b""

@@ -22,15 +22,40 @@ def parse_start(text: str) -> tuple[float, float]:
     return x * 1000.0, y * 1000.0
 
 
-def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
-    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * LOCAL_ITEM_SCALE) for map targets."""
-    from firmware_py import robot_spec
+def load_gridmap(map_name: str, cell_size_m: float | None = None):
+    """The map (`ground_station.maps.load_map`), CliError with its reason if it cannot be read."""
     from ground_station.maps import MapError, load_map
 
     try:
-        gm = load_map(map_name) if cell_size_m is None else load_map(map_name, cell_size_m)
+        return load_map(map_name) if cell_size_m is None else load_map(map_name, cell_size_m)
     except (MapError, OSError) as exc:
-        raise CliError(str(exc)) from exc
+        raise CliError(str(exc)) from None
+
+
+def goal_cell(gridmap, x_m: float, y_m: float) -> tuple[int, int]:
+    """The map cell of world point (x_m, y_m); CliError unless it is a free cell."""
+    from firmware_py import robot_spec
+
+    cell_mm = round(gridmap.cell_size_m * 1000)
+    col, row = robot_spec.world_to_cell(round(x_m * 1000), round(y_m * 1000), gridmap.height, cell_mm)
+    if not gridmap.in_bounds(col, row) or not gridmap.is_free(col, row):
+        raise CliError(f"goal ({x_m:g}, {y_m:g}) m is not in a free cell of map {gridmap.name}")
+    return col, row
+
+
+def planned_goal_items(gridmap, x_m: float, y_m: float, start_mm: tuple[float, float]) -> list[tuple[int, int, int]]:
+    """`qnav goal --plan`: the planner's waypoints from `start_mm` to the goal's cell
+    (`planned_items`), the last one moved from the cell's centre to the goal itself."""
+    items, _ = planned_items([goal_cell(gridmap, x_m, y_m)], start_mm, gridmap)
+    items[-1] = (mavlink().MAV_FRAME_LOCAL_NED, round(y_m * LOCAL_ITEM_SCALE), round(x_m * LOCAL_ITEM_SCALE))
+    return items
+
+
+def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
+    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * LOCAL_ITEM_SCALE) for map targets."""
+    from firmware_py import robot_spec
+
+    gm = load_gridmap(map_name, cell_size_m)
     cell_mm = round(gm.cell_size_m * 1000)
     names = [t.strip() for t in targets.split(",") if t.strip()]
     if not names:
