@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from firmware_py.mavlink.params import as_float32
-from ground_station.mavlink.statustext import StatusText, StatusTextAssembler
+from ground_station.mavlink.statustext import StatusTextAssembler
 
 EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 DEFAULT_URL = "udpin:127.0.0.1:14550"
@@ -195,7 +195,6 @@ class Link:
             self.conn.message_hooks.append(self._log_received)
             self.conn.mav.set_send_callback(self._log_sent)
         self.texts: list[str] = []  # whole STATUSTEXTs from the robot, in arrival order
-        self.status_texts: list[StatusText] = []  # the same with severity, sender and time
         self._assembler = StatusTextAssembler()
         self.want_sysid = target_system  # --target-system: None = the first robot heard
         self.foreign_frames: dict[int, int] = {}  # sysid -> frames ignored from a system not our robot
@@ -257,7 +256,6 @@ class Link:
         for st in done:
             if st.sysid != GCS_SYSID:
                 self.texts.append(st.text)
-                self.status_texts.append(st)
         if t == "STATUSTEXT":
             return
         if t == "PARAM_VALUE":
