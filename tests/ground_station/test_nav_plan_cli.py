@@ -10,6 +10,7 @@ import math
 import pytest
 
 from firmware_py import robot_spec
+from firmware_py.vehicle import Mode
 from ground_station.maps import load_map
 from ground_station.maps.planner import plan_waypoints
 from tests.ground_station.test_mav_link import qnav, rig  # noqa: F401 (fixture)
@@ -27,6 +28,9 @@ def test_mission_upload_plan_from_the_robot_position(rig):  # noqa: F811
     assert code == 0, out
     gm = load_map("paper10")
     leg1 = plan_waypoints(gm, (2750, 2750), (2, 2), start_mm=True)
+    # by hand: (5, 4) has walls north (5, 3) and west (4, 4); east to (6, 4), north to row 2 over (6, 3),
+    # then west along row 2 to A (2, 2) in segments of at most 1 m (DEFAULT_MAX_SEGMENT_MM)
+    assert leg1 == [_centre(6, 4), _centre(6, 2), _centre(4, 2), _centre(2, 2)]
     leg2 = plan_waypoints(gm, (2, 2), (9, 0))
     want = [(round(x), round(y)) for x, y in leg1 + leg2]
     got = r.vehicle.mission
@@ -55,7 +59,7 @@ def test_goal_plan_uploads_the_planned_mission_and_starts_it(rig):  # noqa: F811
     code, out = qnav(port, "goal", "4.7", "4.8", "--plan")
     assert code == 0, out
     assert len(r.vehicle.mission) > 2 and r.vehicle.mission[-1] == (4700, 4800)
-    assert r.vehicle.st.mode == 10  # Auto
+    assert r.vehicle.st.mode == Mode.AUTO
     code, out = qnav(port, "goal", "0.75", "4.25", "--plan")  # (1, 1) is an obstacle cell of paper10
     assert code == 2 and "not in a free cell" in out
 
