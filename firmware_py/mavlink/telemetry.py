@@ -250,8 +250,9 @@ class Telemetry:
     def localisation(self, msg_id: int, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
         """ESTIMATOR_STATUS (flags: ESTIMATOR_POS_HORIZ_ABS while localised on
         the map; pos_horiz_accuracy: 1-sigma in m), LOCAL_POSITION_NED_COV
-        (the believed pose and its x/y/heading variances; NaN first element:
-        no localiser) or ODOMETRY (the raw dead-reckoning pose)."""
+        (the believed pose and its north/east variances; the message has no
+        heading slot; NaN first element: no localiser) or ODOMETRY (the raw
+        dead-reckoning pose)."""
         m = self.mav
         std_n, std_e = st.pose_std_mm[1] / 1000.0, st.pose_std_mm[0] / 1000.0  # y north, x east
         if msg_id == M.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
