@@ -2,13 +2,16 @@
 
 Sent as SET_POSITION_TARGET_LOCAL_NED (north = Y, east = X). The robot
 answers an accepted goal with POSITION_TARGET_LOCAL_NED and a refused one
-with a STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4.
+with a STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4 (the
+exchange is `mavlink.link.Link.set_goal`). X and Y must be finite numbers
+within the robot's local range (200 km), else exit 2 before connecting.
 
 With `--plan` (for sector policies, which steer to the bearing of the
 current target and need the planner's intermediate waypoints) the goal
 goes instead as a mission of the planner's waypoints (`--map`) from the
 robot's position (its LOCAL_POSITION_NED, or `--start X,Y`) to the goal's
-cell, and the robot is switched to Auto to drive it.
+cell, and the robot is switched to Auto to drive it (planning:
+`mavlink.mission_items.planned_goal_items`). `--start` needs `--plan`.
 """
 
 from __future__ import annotations
