@@ -17,6 +17,8 @@ centre at x = (col + 0.5) * c, y = (H - row - 0.5) * c.
 
 from __future__ import annotations
 
+import math
+
 # --- body -------------------------------------------------------------------
 ROBOT_RADIUS_MM = 150
 WHEEL_BASE_MM = 260  # distance between the wheel contact points
@@ -33,6 +35,12 @@ MAX_WHEEL_SPEED_MM_S = 600  # hard limit, commands are clamped to it
 CONTROL_RATE_HZ = 20  # default
 CONTROL_RATE_MIN_HZ = 1
 CONTROL_RATE_MAX_HZ = 100
+
+
+def wheel_circumference_nm(wheel_radius_mm: int = WHEEL_RADIUS_MM) -> int:
+    """The wheel's circumference in nanometres (integer): where pi enters the
+    integer odometry and the encoder plausibility limit, computed once."""
+    return round(2 * math.pi * wheel_radius_mm * 1_000_000)
 
 
 def control_period_us(rate_hz: int) -> int:

@@ -400,10 +400,12 @@ def demo_scenario(opts: DemoOptions, grid_map, start_mm: tuple[float, float],
     (`ground_station.nav.scenario`, the definition the benchmark uses)."""
     import numpy as np
 
+    from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
     from ground_station.nav.scenario import place_discs, place_movers
 
     rng = np.random.default_rng(opts.seed)
-    wps = [(east / 10.0, north / 10.0) for _f, north, east in items]  # LOCAL_NED m*1e4 -> world mm
+    per_mm = LOCAL_ITEM_SCALE / 1000  # LOCAL_NED item units per world mm
+    wps = [(east / per_mm, north / per_mm) for _f, north, east in items]
     discs = place_discs(grid_map, start_mm, wps, opts.obstacles, rng)
     movers = place_movers(grid_map, start_mm, discs, opts.movers, rng)
     return {"map": grid_map.name, "seed": opts.seed, "discs": discs, "movers": movers,

@@ -29,8 +29,10 @@ from pathlib import Path
 
 from firmware_py.canbus import CanHub
 from firmware_py.mavlink.params import PARAMS
+from firmware_py.mavlink.telemetry import DEFAULT_AUTOPILOT
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from ground_station.errors import CliError
+from ground_station.mavlink.link import check_url
 from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
 
 DEFAULT_MAP = "paper10"
@@ -38,8 +40,9 @@ DEFAULT_MAVLINK = "udpin:127.0.0.1:14555"  # the robot listens; GCSs connect to 
 SHIPPED_FOR_MAP = {"paper10": "policies:paper10_cell"}
 FALLBACK_POLICY = "policies:sector"  # observes ranges and bearings: runs on any map
 SIM_DURATION_S = 30 * 24 * 3600  # the sim's own end: far away, the wait ends it
-GCS_TIMEOUT_MAX_MS = next(p.max for p in PARAMS if p.name == "FS_GCS_TOUT_MS")  # the robot's own bound
-GCS_TIMEOUT_DEFAULT_MS = 5000
+_FS_GCS_TOUT = next(p for p in PARAMS if p.name == "FS_GCS_TOUT_MS")  # the robot's own parameter
+GCS_TIMEOUT_MAX_MS = _FS_GCS_TOUT.max
+GCS_TIMEOUT_DEFAULT_MS = _FS_GCS_TOUT.default  # VehicleConfig.gcs_timeout_ms, at real time
 
 
 class SitlError(CliError):
@@ -57,7 +60,7 @@ class SitlOptions:
     seed: int = 0
     duration_s: float | None = None  # wall seconds, then stop (None: until Ctrl-C)
     robots: int = 1
-    autopilot: str = "generic"  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
+    autopilot: str = DEFAULT_AUTOPILOT  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
     probe_timeout_s: float = 60.0
 
 
@@ -74,6 +77,15 @@ class SitlInfo:
     start: str
     sysid: int | None = None
     logs: dict[str, Path] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class WaitResult:
+    """Why `Sitl.wait` returned: `reason` to print; `child_died` (a process
+    ended by itself, exit status 1) or not (--duration reached)."""
+
+    reason: str
+    child_died: bool
 
 
 def default_run_dir(base: Path = Path("runs")) -> Path:
@@ -106,13 +118,9 @@ def validate(opts: SitlOptions) -> None:
                         "for a hub")
     if opts.duration_s is not None and not opts.duration_s > 0:
         raise SitlError(f"--duration must be positive, got {opts.duration_s:g}")
-    scheme = opts.mavlink.partition(":")[0]
-    if scheme in ("udpin", "udpout", "udp", "tcp", "tcpin"):
-        host, _, port = opts.mavlink.partition(":")[2].rpartition(":")
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
-            raise SitlError(f"--mavlink {opts.mavlink}: expected {scheme}:HOST:PORT")
-    elif not opts.mavlink.startswith("/dev/"):
-        raise SitlError(f"--mavlink {opts.mavlink}: expected udpin:, udpout:, tcpin:, tcp: or a /dev/ device")
+    problem = check_url(opts.mavlink)  # the check every MAVLink command's --mavlink gets
+    if problem is not None:
+        raise SitlError(f"--mavlink {opts.mavlink}: expected a MAVLink connection string ({problem})")
 
 
 def connection_help(info: SitlInfo) -> list[str]:
@@ -291,17 +299,17 @@ class Sitl:
             child = dict(self.procs.children)[name]
             raise SitlError(f"{name} exited with status {code}: {child.log_tail(3)}")
 
-    def wait(self, poll_s: float = 0.25) -> str:
-        """Until a child ends ("<name> exited ..."), `duration_s` passes ("duration
-        reached") or KeyboardInterrupt (raised through)."""
+    def wait(self, poll_s: float = 0.25) -> WaitResult:
+        """Until a child ends (child_died, "<name> exited ..."), `duration_s` passes
+        ("duration reached") or KeyboardInterrupt (raised through)."""
         deadline = None if self.opts.duration_s is None else time.monotonic() + self.opts.duration_s
         while True:
             try:
                 self._check_children()
             except SitlError as exc:
-                return str(exc)
+                return WaitResult(str(exc), child_died=True)
             if deadline is not None and time.monotonic() >= deadline:
-                return "duration reached"
+                return WaitResult("duration reached", child_died=False)
             time.sleep(poll_s)
 
     def stop(self) -> dict[str, int | None]:

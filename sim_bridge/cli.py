@@ -13,9 +13,11 @@ import argparse
 import math
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from firmware_py.helpformat import DefaultsHelpFormatter
+from sim_bridge.profiles import PROFILES, PlantProfile
 
 EPILOG = """examples:
   qnav-sim --map paper10 --can virtual:qnav --lockstep --duration 30 --png run.png
@@ -26,6 +28,11 @@ EPILOG = """examples:
 
 class CliError(Exception):
     pass
+
+
+def _per_profile(value: Callable[[PlantProfile], float]) -> str:
+    """"ideal: 10; realistic: 10": a field's value in every named profile, for the help."""
+    return "; ".join(f"{name}: {value(prof):g}" for name, prof in PROFILES.items())
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,19 +55,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="sim seconds to run")
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size (m)")
     p.add_argument("--profile", default="ideal", metavar="NAME",
-                   help="named wheel/sensor error (sim_bridge/profiles.py: ideal, realistic); the options "
+                   help=f"named wheel/sensor error (sim_bridge/profiles.py: {', '.join(PROFILES)}); the options "
                         "below override its fields (default %(default)s)")
-    p.add_argument("--noise-mm", type=float, default=None, help="range noise std dev (mm; ideal: 10)")
+    p.add_argument("--noise-mm", type=float, default=None,
+                   help=f"range noise std dev (mm; {_per_profile(lambda f: f.range_noise_mm)})")
     p.add_argument("--dropout", type=float, default=None,
-                   help="probability that a range reading is INVALID (ideal: 0)")
+                   help=f"probability that a range reading is INVALID ({_per_profile(lambda f: f.range_dropout)})")
     p.add_argument("--fan-rays", type=int, default=3, help="rays per range sensor")
     p.add_argument("--slip", type=float, default=None,
                    help="encoder slip: std dev of each wheel's measured travel per physics step, as a "
-                        "fraction (ideal: 0; realistic: 0.1)")
+                        f"fraction ({_per_profile(lambda f: f.slip_std)})")
     p.add_argument("--enc-scale-left", type=float, default=None, metavar="F",
-                   help="left encoder's measured / true travel (ideal: 1.0; realistic: 1.03)")
+                   help=f"left encoder's measured / true travel ({_per_profile(lambda f: f.encoder_scale[0])})")
     p.add_argument("--enc-scale-right", type=float, default=None, metavar="F",
-                   help="right encoder's measured / true travel (ideal: 1.0)")
+                   help=f"right encoder's measured / true travel ({_per_profile(lambda f: f.encoder_scale[1])})")
     p.add_argument("--watchdog-ms", type=int, default=200, help="motor watchdog, sim ms")
     p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
                    help="lockstep: wall seconds to wait for a tick's command before stepping anyway")

@@ -80,7 +80,16 @@ STOP_BURST_TICKS = 3  # zero commands sent after leaving DRIVING when not in loc
 # encoder frame.
 ENC_JUMP_MARGIN = 2
 ENC_JUMP_SLACK_TICKS = 64
-_WHEEL_CIRC_UM = round(2 * 3.141592653589793 * robot_spec.WHEEL_RADIUS_MM * 1000)
+_WHEEL_CIRC_NM = robot_spec.wheel_circumference_nm()
+
+
+def encoder_jump_limit(dt_us: int) -> int:
+    """Largest plausible encoder count change (ticks, either wheel) over dt_us:
+    ENC_JUMP_MARGIN x full wheel speed plus ENC_JUMP_SLACK_TICKS; more is a jump.
+    (mm/s x us is nm: the distance over the wheel's circumference in nm.)"""
+    return (ENC_JUMP_MARGIN * robot_spec.MAX_WHEEL_SPEED_MM_S * dt_us * robot_spec.ENCODER_TICKS_PER_REV
+            // _WHEEL_CIRC_NM + ENC_JUMP_SLACK_TICKS)
+
 
 # Exploration while localising globally (a reactive wander: forward while the front is clear, else turn).
 EXPLORE_FORWARD_MM_S = 250
@@ -700,8 +709,7 @@ class Controller:
         if d is None or self._last_enc_us is None or inp.enc_us is None:
             return ""
         dt_us = max(0, inp.enc_us - self._last_enc_us)
-        limit = (ENC_JUMP_MARGIN * robot_spec.MAX_WHEEL_SPEED_MM_S * dt_us * robot_spec.ENCODER_TICKS_PER_REV
-                 // (_WHEEL_CIRC_UM * 1000) + ENC_JUMP_SLACK_TICKS)
+        limit = encoder_jump_limit(dt_us)
         for side, ticks in (("left", d[0]), ("right", d[1])):
             if abs(ticks) > limit:
                 return f"encoder jump: {side} {ticks} ticks/{dt_us // 1000} ms (max {limit})"

@@ -105,8 +105,7 @@ class Odometry:
             raise ValueError("ticks_per_rev, wheel_radius_mm and wheel_base_mm must be > 0")
         self.ticks_per_rev = ticks_per_rev
         self.wheel_base_um = wheel_base_mm * 1000
-        # Wheel circumference in nm: the one place pi enters, as a constant.
-        self._circ_nm = round(2 * math.pi * wheel_radius_mm * 1_000_000)
+        self._circ_nm = robot_spec.wheel_circumference_nm(wheel_radius_mm)  # pi enters once, as a constant
         self._mod = 1 << counter_bits
         self._half = 1 << (counter_bits - 1)
         self.reset(x_mm, y_mm, heading_mrad)

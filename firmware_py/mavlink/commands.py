@@ -17,7 +17,13 @@ from collections.abc import Callable
 from pymavlink.dialects.v20 import common as mavlink2
 
 from firmware_py.mavlink import frames as mav_frames
-from firmware_py.mavlink.mission import GLOBAL_FRAMES, LOCAL_FRAMES, MissionEngine, map_bounds_error
+from firmware_py.mavlink.mission import (
+    GLOBAL_FRAMES,
+    LOCAL_FRAMES,
+    MissionEngine,
+    check_position,
+    map_bounds_error,
+)
 from firmware_py.mavlink.telemetry import STREAMS, NodeStats, Telemetry
 from firmware_py.vehicle import Mode, VehicleControl
 
@@ -126,21 +132,28 @@ class CommandHandler:
         """MAV_CMD_DO_REPOSITION, the guided go-to (MAVProxy `guided LAT LON ALT`,
         QGroundControl "go to location"): the point becomes the goal in Guided.
         COMMAND_INT: x/y in the command's frame (global: 1e-7 deg around the
-        home origin; LOCAL_NED: metres * 1e4); COMMAND_LONG: param5/6 in degrees."""
+        home origin; LOCAL_NED: metres * frames.LOCAL_ITEM_SCALE); COMMAND_LONG: param5/6 in degrees."""
         lat0, lon0 = self.telemetry.params.get("ORIGIN_LAT"), self.telemetry.params.get("ORIGIN_LON")
         if msg.get_type() == "COMMAND_INT":
             if INT32_MAX in (msg.x, msg.y):  # "unchanged": there is no position to keep going to
                 return DENIED, "reposition refused: no position given", []
             if msg.frame in LOCAL_FRAMES:
-                x_mm, y_mm = mav_frames.ned_m_to_world(msg.x / 1e4, msg.y / 1e4)
+                local, x, y = True, msg.x / mav_frames.LOCAL_ITEM_SCALE, msg.y / mav_frames.LOCAL_ITEM_SCALE
             elif msg.frame in GLOBAL_FRAMES:
-                x_mm, y_mm = mav_frames.global_to_world(msg.x, msg.y, lat0, lon0)
+                local, x, y = False, msg.x / 1e7, msg.y / 1e7
             else:
                 return DENIED, f"reposition refused: frame {msg.frame} unsupported (global or LOCAL_NED)", []
         else:
             if not (math.isfinite(msg.param5) and math.isfinite(msg.param6)):
                 return DENIED, "reposition refused: no position given", []
-            x_mm, y_mm = mav_frames.global_to_world(round(msg.param5 * 1e7), round(msg.param6 * 1e7), lat0, lon0)
+            local, x, y = False, msg.param5, msg.param6
+        bad = check_position(local, x, y)
+        if bad is not None:
+            return DENIED, f"reposition refused: {bad[1]}", []
+        if local:
+            x_mm, y_mm = mav_frames.ned_m_to_world(x, y)
+        else:
+            x_mm, y_mm = mav_frames.global_to_world(round(x * 1e7), round(y * 1e7), lat0, lon0)
         code, why = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
         if code:
             return DENIED, f"reposition refused: {why}", []

@@ -53,6 +53,7 @@ class MavlinkExtension:
             return None
         from firmware_py.mavlink.node import open_node
         from firmware_py.mavlink.params import PARAMS
+        from firmware_py.mavlink.telemetry import DEFAULT_AUTOPILOT
 
         ctrl = node.controller
         clock = node.clock
@@ -82,7 +83,7 @@ class MavlinkExtension:
         try:
             shell = open_node(ctrl, args.storage, args.mavlink, clock.now_us(), signing_key=args.signing_key,
                               baud=args.mavlink_baud, reboot_hook=reboot_hook, overrides=overrides,
-                              autopilot=getattr(args, "mavlink_autopilot", "generic"))
+                              autopilot=getattr(args, "mavlink_autopilot", DEFAULT_AUTOPILOT))
         except ValueError as exc:  # unreadable key file
             raise UsageError(str(exc)) from None
 

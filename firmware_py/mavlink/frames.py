@@ -13,6 +13,10 @@ from __future__ import annotations
 
 import math
 
+# MAVLink's integer encoding of a local (LOCAL_NED) position in MISSION_ITEM_INT and
+# COMMAND_INT x/y: metres * 1e4 (0.1 mm steps)
+LOCAL_ITEM_SCALE = 10_000
+
 # metres per 1e-7 degree of latitude (ArduPilot's LOCATION_SCALING_FACTOR)
 M_PER_E7 = 0.011131884502145034
 

@@ -19,13 +19,15 @@ MAV_MISSION_INVALID_PARAM5_X (north/south) or _PARAM6_Y (east/west) and a
 STATUSTEXT naming the point and the map; the previous mission is kept.
 
 Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED (x north, y east:
-metres, or metres * 1e4 in MISSION_ITEM_INT) or a global frame (converted
+metres, or metres * frames.LOCAL_ITEM_SCALE in MISSION_ITEM_INT) or a global frame (converted
 around the configured origin). Waypoints go to the vehicle in world
 millimetres (x east, y north). Only mission_type MISSION; fence and rally
 are answered MAV_MISSION_UNSUPPORTED. Pure engine: `handle(msg, now_us)`
 and `tick(now_us)` return replies.
 
-Every item is validated before anything is computed from it (`check_item`):
+Every item (uploaded or a guided waypoint) is validated before anything is
+computed from it (`check_item`, on `check_position`, which DO_REPOSITION and
+the position targets use too):
 x / y must be finite and inside the frame's range (local: |x|, |y| <= 200 km;
 global: |lat| <= 90 deg, |lon| <= 180 deg), else the upload ends with
 MAV_MISSION_INVALID_PARAM5_X / _PARAM6_Y and the old mission stays; z must
@@ -53,7 +55,7 @@ GLOBAL_FRAMES = frozenset({
     M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT,
     M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
 })
-LOCAL_LIMIT_M = 200_000.0  # |x|, |y| of a local item: x * 1e4 stays inside int32
+LOCAL_LIMIT_M = 200_000.0  # |x|, |y| of a local item: x * LOCAL_ITEM_SCALE stays inside int32
 LAT_LIMIT_E7 = 900_000_000
 LON_LIMIT_E7 = 1_800_000_000
 INT_SCALED_GLOBAL = frozenset({M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
@@ -63,7 +65,7 @@ INT_SCALED_GLOBAL = frozenset({M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATI
 @dataclass(frozen=True)
 class Item:
     """A stored mission item in MISSION_ITEM_INT terms (x, y: 1e7 deg for
-    global frames, metres * 1e4 for local)."""
+    global frames, metres * LOCAL_ITEM_SCALE for local)."""
 
     seq: int
     frame: int
@@ -75,6 +77,23 @@ class Item:
     z: float
 
 
+def check_position(local: bool, x: float, y: float) -> tuple[int, str] | None:
+    """Whether a position is finite and inside its frame's range (`local`: x north,
+    y east in metres, |x|, |y| <= LOCAL_LIMIT_M; global: latitude x, longitude y in
+    degrees, within LAT_LIMIT_E7 / LON_LIMIT_E7): None if so, else the
+    MAV_MISSION_RESULT naming the field (INVALID_PARAM5_X / _PARAM6_Y) and the reason.
+    The one range check for mission items, guided waypoints, DO_REPOSITION and
+    position targets, so that nothing downstream sees a NaN or a huge coordinate."""
+    for which, value, code in (("x", x, M.MAV_MISSION_INVALID_PARAM5_X),
+                               ("y", y, M.MAV_MISSION_INVALID_PARAM6_Y)):
+        if not math.isfinite(value):
+            return code, f"{which} is not a finite number"
+        limit = LOCAL_LIMIT_M if local else (LAT_LIMIT_E7 if which == "x" else LON_LIMIT_E7) / 1e7
+        if abs(value) > limit:
+            return code, f"{which}={value:g} out of range (|{which}| <= {limit:g})"
+    return None
+
+
 def check_item(msg: mavlink2.MAVLink_message) -> tuple[int, str] | None:
     """(MAV_MISSION_RESULT, reason) if a MISSION_ITEM(_INT) cannot be stored, else None."""
     for i, p in enumerate((msg.param1, msg.param2, msg.param3, msg.param4)):
@@ -83,19 +102,13 @@ def check_item(msg: mavlink2.MAVLink_message) -> tuple[int, str] | None:
     if not math.isfinite(msg.z):
         return M.MAV_MISSION_INVALID_PARAM7, f"mission item {msg.seq}: z is not a finite number"
     local = msg.frame in LOCAL_FRAMES
-    for which, value, code in (("x", msg.x, M.MAV_MISSION_INVALID_PARAM5_X),
-                               ("y", msg.y, M.MAV_MISSION_INVALID_PARAM6_Y)):
-        if msg.get_type() == "MISSION_ITEM_INT":
-            if local:
-                limit = LOCAL_LIMIT_M * 1e4
-            else:
-                limit = LAT_LIMIT_E7 if which == "x" else LON_LIMIT_E7
-        else:
-            if not math.isfinite(value):
-                return code, f"mission item {msg.seq}: {which} is not a finite number"
-            limit = LOCAL_LIMIT_M if local else (90.0 if which == "x" else 180.0)
-        if abs(value) > limit:
-            return code, f"mission item {msg.seq}: {which}={value:g} out of range"
+    x, y = msg.x, msg.y
+    if msg.get_type() == "MISSION_ITEM_INT":  # scaled integers: back to metres / degrees
+        scale = mav_frames.LOCAL_ITEM_SCALE if local else 1e7
+        x, y = x / scale, y / scale
+    error = check_position(local, x, y)
+    if error is not None:
+        return error[0], f"mission item {msg.seq}: {error[1]}"
     return None
 
 
@@ -106,7 +119,7 @@ def item_from_msg(msg: mavlink2.MAVLink_message) -> Item:
         x, y = msg.x, msg.y
         frame = msg.frame
     else:  # float item: scale like MISSION_ITEM_INT, keeping the frame's meaning
-        scale = 1e4 if msg.frame in LOCAL_FRAMES else 1e7
+        scale = mav_frames.LOCAL_ITEM_SCALE if msg.frame in LOCAL_FRAMES else 1e7
         x, y = round(msg.x * scale), round(msg.y * scale)
         frame = msg.frame
     return Item(msg.seq, frame, msg.command, msg.autocontinue, params, x, y, msg.z)
@@ -114,7 +127,7 @@ def item_from_msg(msg: mavlink2.MAVLink_message) -> Item:
 
 def item_to_world(item: Item, origin_lat_e7: int, origin_lon_e7: int) -> tuple[int, int]:
     if item.frame in LOCAL_FRAMES:
-        return mav_frames.ned_m_to_world(item.x / 1e4, item.y / 1e4)
+        return mav_frames.ned_m_to_world(item.x / mav_frames.LOCAL_ITEM_SCALE, item.y / mav_frames.LOCAL_ITEM_SCALE)
     return mav_frames.global_to_world(item.x, item.y, origin_lat_e7, origin_lon_e7)
 
 
@@ -274,7 +287,12 @@ class MissionEngine:
 
     def _guided_item(self, msg: mavlink2.MAVLink_message, partner: tuple[int, int]) -> list[mavlink2.MAVLink_message]:
         """A "guided mode" waypoint (MISSION_ITEM(_INT) with current=2, ArduPilot's
-        go-to outside a mission upload): a goal, answered by MISSION_ACK."""
+        go-to outside a mission upload): a goal, answered by MISSION_ACK. Checked
+        like an uploaded item first (a NaN or huge x/y is refused with its code)."""
+        error = check_item(msg)
+        if error is not None:
+            return self._statustext(f"guided goal refused: {error[1]}", M.MAV_SEVERITY_WARNING) + \
+                [self._ack(partner, error[0])]
         item = item_from_msg(msg)
         result, reason = int(M.MAV_MISSION_ACCEPTED), ""
         if item.command != M.MAV_CMD_NAV_WAYPOINT:
@@ -318,7 +336,7 @@ class MissionEngine:
             return [self.mav.mission_item_int_encode(
                 partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
                 *it.params, it.x, it.y, it.z, M.MAV_MISSION_TYPE_MISSION)]
-        scale = 1e4 if it.frame in LOCAL_FRAMES else 1e7
+        scale = mav_frames.LOCAL_ITEM_SCALE if it.frame in LOCAL_FRAMES else 1e7
         return [self.mav.mission_item_encode(
             partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
             *it.params, it.x / scale, it.y / scale, it.z, M.MAV_MISSION_TYPE_MISSION)]

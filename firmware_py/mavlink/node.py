@@ -64,10 +64,10 @@ from pymavlink.dialects.v20 import common as mavlink2
 from firmware_py.clock import Clock
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.commands import CommandHandler
-from firmware_py.mavlink.mission import MissionEngine, map_bounds_error
+from firmware_py.mavlink.mission import MissionEngine, check_position, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
-from firmware_py.mavlink.telemetry import AUTOPILOTS, NodeStats, Telemetry
+from firmware_py.mavlink.telemetry import AUTOPILOTS, DEFAULT_AUTOPILOT, NodeStats, Telemetry
 from firmware_py.vehicle import VehicleControl
 
 log = logging.getLogger("qnav.mavlink")
@@ -327,6 +327,9 @@ class MavNode:
             if not (math.isfinite(msg.x) and math.isfinite(msg.y)):  # round(NaN) would raise
                 return self.telemetry.statustext("goal refused: position is not a finite number",
                                                  M.MAV_SEVERITY_WARNING)
+            bad = check_position(True, msg.x, msg.y)  # offsets too: metres from the robot
+            if bad is not None:
+                return self.telemetry.statustext(f"goal refused: {bad[1]}", M.MAV_SEVERITY_WARNING)
             if msg.coordinate_frame == M.MAV_FRAME_LOCAL_NED:
                 x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
             else:  # relative to where the robot is now (its believed pose), as ArduPilot Rover reads them
@@ -335,7 +338,7 @@ class MavNode:
                                                         msg.coordinate_frame != M.MAV_FRAME_LOCAL_OFFSET_NED,
                                                         msg.x, msg.y)
         else:
-            if not (abs(msg.lat_int) <= 900_000_000 and abs(msg.lon_int) <= 1_800_000_000):
+            if check_position(False, msg.lat_int / 1e7, msg.lon_int / 1e7) is not None:
                 return self.telemetry.statustext("goal refused: latitude/longitude out of range",
                                                  M.MAV_SEVERITY_WARNING)
             x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
@@ -570,7 +573,7 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mavlink-baud", type=int, default=57600, help="baud rate for a serial device")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
                         help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
-    parser.add_argument("--mavlink-autopilot", choices=sorted(AUTOPILOTS), default="generic",
+    parser.add_argument("--mavlink-autopilot", choices=sorted(AUTOPILOTS), default=DEFAULT_AUTOPILOT,
                         help="autopilot type in the HEARTBEAT (default %(default)s): 'ardupilot' for MAVSDK, "
                              "which reads int parameters and names modes only for ArduPilot (docs/mavlink.md)")
 
@@ -578,7 +581,7 @@ def add_mavlink_args(parser: argparse.ArgumentParser) -> None:
 def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | None, url: str, now_us: int, *,
               signing_key: str | None = None, baud: int = 57600,
               reboot_hook: Callable[[], tuple[bool, str]] | None = None, ftp: bool = True,
-              overrides: dict[str, int] | None = None, autopilot: str = "generic") -> MavShell:
+              overrides: dict[str, int] | None = None, autopilot: str = DEFAULT_AUTOPILOT) -> MavShell:
     """Build, boot and connect the node: params and signing state from
     `storage_dir` (then `overrides`, see MavNode.boot), and (with `ftp`) an
     FTP server on it whose policy activation is the vehicle's `activate_policy`."""

@@ -72,6 +72,7 @@ CAPABILITIES = (
 # "generic" suits MAVProxy, QGroundControl's generic plugin and qnav, and
 # "ardupilot" (Rover's mode numbers, as the robot uses) adds MAVSDK.
 AUTOPILOTS = {"generic": M.MAV_AUTOPILOT_GENERIC, "ardupilot": M.MAV_AUTOPILOT_ARDUPILOTMEGA}
+DEFAULT_AUTOPILOT = "generic"
 FLIGHT_SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # 0.1.0 official
 
 SENSOR_PRESENT = (M.MAV_SYS_STATUS_SENSOR_PROXIMITY | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
@@ -116,7 +117,7 @@ class Telemetry:
         self._next_due: dict[int, int] = {}
         self._statustext_id = 0
         self.last_reached = -1
-        self.autopilot = int(M.MAV_AUTOPILOT_GENERIC)  # HEARTBEAT.autopilot (AUTOPILOTS)
+        self.autopilot = int(AUTOPILOTS[DEFAULT_AUTOPILOT])  # HEARTBEAT.autopilot
 
     # --- intervals ----------------------------------------------------------------
     def default_interval_us(self, msg_id: int) -> int:
@@ -249,8 +250,9 @@ class Telemetry:
     def localisation(self, msg_id: int, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
         """ESTIMATOR_STATUS (flags: ESTIMATOR_POS_HORIZ_ABS while localised on
         the map; pos_horiz_accuracy: 1-sigma in m), LOCAL_POSITION_NED_COV
-        (the believed pose and its x/y/heading variances; NaN first element:
-        no localiser) or ODOMETRY (the raw dead-reckoning pose)."""
+        (the believed pose and its north/east variances; the message has no
+        heading slot; NaN first element: no localiser) or ODOMETRY (the raw
+        dead-reckoning pose)."""
         m = self.mav
         std_n, std_e = st.pose_std_mm[1] / 1000.0, st.pose_std_mm[0] / 1000.0  # y north, x east
         if msg_id == M.MAVLINK_MSG_ID_ESTIMATOR_STATUS:

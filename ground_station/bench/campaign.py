@@ -16,7 +16,7 @@ import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.campaign.engines import ENGINES
+    from ground_station.campaign.engines import add_engine_arguments
 
     p = sub.add_parser("campaign", help="speedup of N workers over one on a campaign of twin runs",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -25,9 +25,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", default="paper10", help="map (default: paper10)")
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
                    help="sector policy, a .qtab file or policies:NAME (default: %(default)s)")
-    p.add_argument("--engine", choices=ENGINES, default="local", help="local process pool (default) or ray")
-    p.add_argument("--ray-address", default=None, metavar="ADDR", help="join a running Ray cluster")
-    p.add_argument("--workers", type=int, default=2, help="workers of the parallel run (default: 2)")
+    add_engine_arguments(p, "twin runs", workers=2, workers_help="workers of the parallel run (the baseline has 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
     p.set_defaults(func=run)

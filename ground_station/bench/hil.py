@@ -192,24 +192,6 @@ def run_episodes(gm, policy: Policy, kind: str, specs: list[dict], max_sim_s: fl
     return rows
 
 
-def run_sector_set(gm, policy: Policy, pairs: int, seed: int, max_sim_s: float, progress=None,
-                   guidance: str = "path", profile: PlantProfile | None = None,
-                   localise: bool = True, png_dir: str | None = None,
-                   vehicle: VehicleConfig | None = None) -> list[dict]:
-    """guidance "path": the robot gets the ground station's planned waypoints
-    (ground_station.maps.planner.plan_waypoints) as a mission, as the sector
-    policy is trained and evaluated; "direct": the goal alone."""
-    return run_episodes(gm, policy, "sector", sector_episodes(gm, pairs, seed), max_sim_s, guidance, profile,
-                        localise, png_dir, vehicle, progress)
-
-
-def run_cell_set(gm, policy: Policy, starts: int, seed: int, max_sim_s: float, progress=None,
-                 profile: PlantProfile | None = None, localise: bool = True, png_dir: str | None = None,
-                 vehicle: VehicleConfig | None = None) -> list[dict]:
-    return run_episodes(gm, policy, "cell", cell_episodes(gm, policy, starts, seed), max_sim_s, "path", profile,
-                        localise, png_dir, vehicle, progress)
-
-
 def run_batch(job: dict) -> list[dict]:
     """One campaign job: a batch of episode specs with everything needed to
     run them in a fresh worker (map, policy file, profile name, settings)."""

@@ -219,13 +219,15 @@ def make_engine(name: str, workers: int | None = None, address: str | None = Non
     raise CliError(f"unknown engine {name!r}: choose from {', '.join(ENGINES)}")
 
 
-def add_engine_arguments(p: Any, what: str = "jobs") -> None:
-    """`--engine`, `--workers`, `--ray-address` on a campaign command."""
+def add_engine_arguments(p: Any, what: str = "jobs", workers: int | None = None,
+                         workers_help: str = "parallel workers") -> None:
+    """`--engine`, `--workers`, `--ray-address` on a campaign command (`workers`:
+    the --workers default, None: all local cores / the cluster's CPUs)."""
     p.add_argument("--engine", choices=ENGINES, default="local",
                    help=f"where the {what} run: a local process pool (default) or Ray "
                         "(pip install 'qnav[cluster]')")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="parallel workers (default: all local cores; with --ray-address: the cluster's CPUs)")
+    default = ("all local cores; with --ray-address: the cluster's CPUs" if workers is None else str(workers))
+    p.add_argument("--workers", type=int, default=workers, metavar="N", help=f"{workers_help} (default: {default})")
     p.add_argument("--ray-address", default=None, metavar="ADDR",
                    help="join a running Ray cluster (auto, HOST:PORT or ray://HOST:10001) instead of "
                         "starting a private one; needs --engine ray")

@@ -44,17 +44,25 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
     from ground_station.errors import CliError
     from ground_station.mavlink.link import run_on_link
-    from ground_station.mavlink.mission_items import file_items, target_items, write_wpl
+    from ground_station.mavlink.mission_items import (
+        file_items,
+        parse_start,
+        target_items,
+        write_wpl,
+    )
 
     if args.verb == "upload":
         if bool(args.targets) == bool(args.file):
             raise CliError("give either --targets A,B,... or a waypoint FILE")
         if args.plan and not args.targets:
             raise CliError("--plan needs --targets A,B,...")
+        if args.start and not args.plan:
+            raise CliError("--start needs --plan")
         items = target_items(args.targets, args.map, args.cell_size) if args.targets else file_items(args.file)
-        start = _start(args.start) if args.start else None
+        start = parse_start(args.start) if args.start else None
 
         def upload(link) -> int:
             nonlocal items
@@ -72,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{len(items)} items")
         for it in items:
             if it.frame == m.MAV_FRAME_LOCAL_NED:
-                print(f"{it.seq:3d} local  x={it.y / 1e4:.3f} m east  y={it.x / 1e4:.3f} m north")
+                print(f"{it.seq:3d} local  x={it.y / LOCAL_ITEM_SCALE:.3f} m east  "
+                      f"y={it.x / LOCAL_ITEM_SCALE:.3f} m north")
             else:
                 print(f"{it.seq:3d} global lat={it.x / 1e7:.7f} lon={it.y / 1e7:.7f} (frame {it.frame})")
         if args.out:
@@ -82,25 +91,15 @@ def run(args: argparse.Namespace) -> int:
     return run_on_link(args, "mission download", download)
 
 
-def _start(text: str) -> tuple[float, float]:
-    from ground_station.errors import CliError
-
-    try:
-        x, y = (float(v) for v in text.split(","))
-    except ValueError:
-        raise CliError(f"--start must be X,Y in metres, got {text!r}") from None
-    return x * 1000.0, y * 1000.0
-
-
 def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> list[tuple[int, int, int]]:
-    from ground_station.errors import CliError
-    from ground_station.maps import MapError, load_map
-    from ground_station.mavlink.mission_items import planned_items, robot_position_mm, target_cells
+    from ground_station.mavlink.mission_items import (
+        load_gridmap,
+        planned_items,
+        robot_position_mm,
+        target_cells,
+    )
 
-    try:
-        gm = load_map(args.map) if args.cell_size is None else load_map(args.map, args.cell_size)
-    except (MapError, OSError) as exc:
-        raise CliError(str(exc)) from None
+    gm = load_gridmap(args.map, args.cell_size)
     start = start_mm if start_mm is not None else robot_position_mm(link)
     items, target_seq = planned_items(target_cells(args.targets, gm), start, gm)
     print(f"planned {len(items)} waypoints from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "

@@ -24,6 +24,7 @@ from pathlib import Path
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from firmware_py.mavlink.telemetry import AUTOPILOTS, DEFAULT_AUTOPILOT
     from ground_station.sitl import DEFAULT_MAP, DEFAULT_MAVLINK
 
     p = sub.add_parser("sitl", help="bring up sim + robot and keep them running for MAVProxy/QGroundControl",
@@ -42,7 +43,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mavlink", default=DEFAULT_MAVLINK, metavar="URL",
                    help="the robot's MAVLink connection string (default %(default)s: it listens, ground "
                         "stations send to it; udpout:127.0.0.1:14550 feeds a QGroundControl directly)")
-    p.add_argument("--autopilot", choices=("generic", "ardupilot"), default="generic",
+    p.add_argument("--autopilot", choices=sorted(AUTOPILOTS), default=DEFAULT_AUTOPILOT,
                    help="autopilot type the robot's HEARTBEAT gives (default %(default)s; 'ardupilot' for MAVSDK, "
                         "which decodes int parameters and names flight modes only for ArduPilot or PX4)")
     p.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/sitl-<timestamp>/)")
@@ -71,13 +72,14 @@ def run(args: argparse.Namespace) -> int:
 
     sitl = Sitl(opts, say)  # validates the options
     previous = signal.signal(signal.SIGTERM, on_term)
-    verdict = "interrupted"
+    verdict, child_died = "interrupted", False
     try:
         try:
             info = sitl.start()
             for line in connection_help(info):
                 print(line, flush=True)
-            verdict = sitl.wait()
+            result = sitl.wait()
+            verdict, child_died = result.reason, result.child_died
         except KeyboardInterrupt:
             verdict = "stopped (Ctrl-C)"
         finally:
@@ -87,4 +89,4 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     say(f"{verdict}; every process stopped ({', '.join(f'{k} {v}' for k, v in codes.items()) or 'none started'})")
-    return 1 if "exited with status" in verdict else 0
+    return 1 if child_died else 0

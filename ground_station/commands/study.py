@@ -68,14 +68,13 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ground_station.campaign.engines import engine_from_args
     from ground_station.errors import CliError
-    from ground_station.learn.config import LEARNERS, config_from_args, validate_config
+    from ground_station.learn.config import LEARNERS, config_from_recipe_args, validate_config
     from ground_station.learn.study import study, tables, write_study
     from ground_station.learn.sweep import parse_lrs
     from ground_station.learn.train import CellProblem
     from ground_station.maps import MapError, load_map
 
-    cfg = config_from_args(args)
-    cfg.encoding = "cell"
+    cfg = config_from_recipe_args(args, "cell")  # a cell study: the cell recipe (its defaults)
     learners = [v.strip() for v in args.learners.split(",") if v.strip()]
     sector_learners = [v.strip() for v in args.sector_learners.split(",") if v.strip()]
     for flag, names in (("--learners", learners), ("--sector-learners", sector_learners)):

@@ -4,7 +4,9 @@ Trains every learning rate in --lrs with --seeds seeds each (and every
 point of the --space search space), evaluates each greedy policy on the map,
 and writes DIR/sweep.json, DIR/sweep.png (learning curves per eta; greedy
 success and final average return against eta) and DIR/campaign.json (engine,
-workers, nodes, wall time). Other training flags apply to every run.
+workers, nodes, wall time). Other training flags apply to every run; as in
+`qnav train`, a flag left out takes the encoding's recipe
+(`ground_station/learn/config.py` RECIPES), else its default.
 
 The runs go to all local cores by default (--engine local), or to Ray
 (--engine ray: a private local instance, or a cluster with --ray-address;
@@ -22,7 +24,7 @@ from pathlib import Path
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.campaign.engines import add_engine_arguments
-    from ground_station.learn.config import add_config_arguments
+    from ground_station.learn.config import add_config_arguments, recipe_defaults
 
     p = sub.add_parser("sweep", help="learning-rate study over several seeds (figure + JSON)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -39,6 +41,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     add_engine_arguments(p, "training runs")
     p.add_argument("--processes", type=int, default=None, dest="workers", help=argparse.SUPPRESS)
     add_config_arguments(p, skip=("lr",))
+    recipe_defaults(p)  # as qnav train: a flag left out takes the encoding's recipe (learn/config.RECIPES)
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
     p.set_defaults(func=run)
@@ -49,11 +52,11 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.campaign.space import label, parse_axis
     from ground_station.campaign.space import points as space_points
     from ground_station.errors import CliError
-    from ground_station.learn.config import config_from_args, validate_config
+    from ground_station.learn.config import config_from_recipe_args, validate_config
     from ground_station.learn.sweep import parse_lrs, sweep, write_sweep
     from ground_station.maps import MapError, load_map
 
-    cfg = config_from_args(args)
+    cfg = config_from_recipe_args(args)
     if args.epsilon is not None:
         cfg.epsilon_start = cfg.epsilon_end = args.epsilon
     if args.seeds < 1:

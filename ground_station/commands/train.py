@@ -1,9 +1,8 @@
 """`qnav train`: train a Q table and write the run folder.
 
 A flag left out takes the encoding's shipped recipe
-(`ground_station/learn/config.py` RECIPES: the cell recipe is the defaults
-shown below; sector: 20M steps, lr 0.1, reward-step 0, epsilon-end 0.05;
-sector-memory: see RECIPES), else the default shown below; so `qnav train
+(`ground_station/learn/config.py` RECIPES; the cell recipe is the defaults
+shown below), else the default shown below; so `qnav train
 --encoding sector-memory --map M --seed N --out DIR` trains the shipped
 policy's recipe, and `qnav train --recipe shipped-sector` (map paper10,
 seed 0 unless given) the shipped policies/sector.qtab's table.
@@ -21,7 +20,7 @@ import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.learn.config import add_config_arguments
+    from ground_station.learn.config import add_config_arguments, recipe_defaults
 
     p = sub.add_parser("train", help="train a tabular Q policy (cell, sector or sector-memory encoding)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -32,9 +31,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="run folder to write (created if missing; default "
                    "runs/<map>-<encoding>-s<seed>-<time>)")
     add_config_arguments(p)
-    # recipe-aware defaults: a flag left out takes the encoding's shipped recipe (learn/config.RECIPES),
-    # else the TrainConfig default shown in its help
-    p.set_defaults(encoding=None, **{f: None for f in _recipe_fields()})
+    recipe_defaults(p)  # a flag left out takes the encoding's recipe, else the default shown in its help
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
@@ -56,27 +53,17 @@ def default_run_dir(map_spec: str, encoding: str, seed: int) -> str:
     return str(path)
 
 
-def _recipe_fields() -> set[str]:
-    from ground_station.learn.config import RECIPES
-
-    return {k for r in RECIPES.values() for k in r}
-
-
 def run(args: argparse.Namespace) -> int:
-    from dataclasses import fields
-
     from ground_station.errors import CliError
-    from ground_station.learn.config import SHIPPED_RECIPES, TrainConfig, recipe_config
+    from ground_station.learn.config import SHIPPED_RECIPES, config_from_recipe_args
     from ground_station.learn.train import train, validate_config, write_run
     from ground_station.maps import MapError, load_map
 
-    given = {f.name: getattr(args, f.name) for f in fields(TrainConfig)
-             if getattr(args, f.name, None) is not None and f.name != "encoding"}
     encoding = args.encoding or SHIPPED_RECIPES.get(args.recipe or "", "cell")
     if args.recipe and encoding != SHIPPED_RECIPES[args.recipe]:
         raise CliError(f"--recipe {args.recipe} trains the {SHIPPED_RECIPES[args.recipe]} encoding, "
                        f"not --encoding {encoding}")
-    cfg = recipe_config(encoding, given)
+    cfg = config_from_recipe_args(args, encoding)
     if args.epsilon is not None:
         cfg.epsilon_start = cfg.epsilon_end = args.epsilon
     try:

@@ -62,10 +62,11 @@ from ground_station.faults.can_faults import (
 )
 from ground_station.faults.common import ScenarioResult, register
 from ground_station.faults.hostile_mav import _dialect
+from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
 from ground_station.rigs.lockstep import PERIOD_US, SENSOR_FRAMES
 
-GCS = (255, 190)
-FOREIGN_GCS = (77, 190)
+GCS = (GCS_SYSID, GCS_COMPID)  # the ground station qnav is
+FOREIGN_GCS = (77, GCS_COMPID)
 
 
 # --- CAN ------------------------------------------------------------------------------------------
@@ -480,9 +481,10 @@ def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResu
             for k, owner in enumerate(((101, 1), (102, 1))):
                 for s in range(2):
                     req(owner, Op.CREATE_FILE, f"/policies/sq{k}{s}".encode(), s)
-            ftp.now += rng.randint(1_050_000, 2_000_000)
+            idle_us = server.evict_idle_us  # past the server's own eviction age, by 5 % to 2x
+            ftp.now += rng.randint(idle_us * 21 // 20, idle_us * 2)
             if is_nak(req(victim, Op.CREATE_FILE, b"/policies/late.qtab", sid)):
-                problems.append("idle sessions locked a new client out after > 1 s")
+                problems.append(f"idle sessions locked a new client out after > {idle_us / 1e6:g} s")
             req(victim, Op.TERMINATE_SESSION, b"", sid)
             # sparse write and huge truncate
             used = server.storage.usage()

@@ -192,3 +192,20 @@ def _check_sector(cfg: TrainConfig) -> None:
     int_list(cfg.sector_range_edges, "sector_range_edges")
     if cfg.sector_obstacles < 0 or cfg.sector_movers < 0 or cfg.sector_pool < 1:
         raise ValueError("sector_obstacles and sector_movers must be >= 0 and sector_pool >= 1")
+
+
+def recipe_defaults(parser: argparse.ArgumentParser) -> None:
+    """Leave the recipe fields (and --encoding) unset on a parser built with
+    `add_config_arguments`, so that `config_from_recipe_args` can tell a flag
+    left out (it takes the encoding's recipe) from one given."""
+    parser.set_defaults(encoding=None, **{k: None for r in RECIPES.values() for k in r})
+
+
+def config_from_recipe_args(args: argparse.Namespace, encoding: str | None = None) -> TrainConfig:
+    """TrainConfig from parsed flags, recipe-aware (`qnav train`, `sweep`, `study`):
+    the encoding (`encoding`, else --encoding, else cell) picks RECIPES[encoding];
+    a flag given (not None) wins over it, a flag left out takes it, else the
+    TrainConfig default."""
+    given = {f.name: getattr(args, f.name) for f in fields(TrainConfig)
+             if getattr(args, f.name, None) is not None and f.name != "encoding"}
+    return recipe_config(encoding or getattr(args, "encoding", None) or "cell", given)

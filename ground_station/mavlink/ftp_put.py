@@ -65,15 +65,15 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 
+from firmware_py.mavlink.ftp_server import HEADER, MAX_DATA, Nak, Op
 from firmware_py.storage import ftp_crc32
 
-HEADER = struct.Struct("<HBBBBBBI")  # seq, session, opcode, size, req_opcode, burst_complete, pad, offset
-MAX_DATA = 239
-OP_TERMINATE, OP_RESET, OP_CREATE, OP_WRITE, OP_OPEN_WO, OP_CRC = 1, 2, 6, 7, 11, 14
-OP_ACK, OP_NAK = 128, 129
-NAK_INVALID_SESSION = 4
+# the opcodes this engine sends and reads; the FTP contract (header, sizes, codes) is the server's
+OP_TERMINATE, OP_RESET, OP_CREATE, OP_WRITE = Op.TERMINATE_SESSION, Op.RESET_SESSIONS, Op.CREATE_FILE, Op.WRITE_FILE
+OP_OPEN_WO, OP_CRC, OP_ACK, OP_NAK = Op.OPEN_FILE_WO, Op.CALC_FILE_CRC32, Op.ACK, Op.NAK
+NAK_INVALID_SESSION = Nak.INVALID_SESSION
 MAX_COPIES = 10  # of one control request before the put gives up (the caller may put again)
-OP_NAMES = {OP_TERMINATE: "TerminateSession", OP_CREATE: "CreateFile", OP_OPEN_WO: "OpenFileWO",
+OP_NAMES: dict[int, str] = {OP_TERMINATE: "TerminateSession", OP_CREATE: "CreateFile", OP_OPEN_WO: "OpenFileWO",
             OP_CRC: "CalcFileCRC32"}
 UNKNOWNS_PER_ROUND = 20  # expected unanswered writes per round (CRC32: 32 equations)
 MAX_UNKNOWNS = 28  # more unknowns than this: a wrong solution gets too likely (2^(n-32))

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from firmware_py.mavlink.ftp_server import PAYLOAD_LEN
+from firmware_py.mavlink.ftp_server import MAX_DATA, PAYLOAD_LEN, Nak
 from firmware_py.mavlink.params import as_float32
 from ground_station.mavlink import ftp_put
 from ground_station.mavlink.ftp_put import FtpPut, PutStats
@@ -64,7 +64,7 @@ from ground_station.mavlink.link import (
 
 ACTIVE_POLICY = "/policies/active.qtab"  # firmware_py.storage.ACTIVE_POLICY; imported lazily below
 POLICY_PARAMS = ("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO")
-NAK_FAIL, NAK_FAIL_ERRNO, NAK_FILE_NOT_FOUND = 1, 2, 10
+NAK_FAIL, NAK_FAIL_ERRNO, NAK_FILE_NOT_FOUND = Nak.FAIL, Nak.FAIL_ERRNO, Nak.FILE_NOT_FOUND
 ENOENT = 2
 READ_BUDGET_S = 10.0  # one round of reads (params, CRC) before the caller looks again
 
@@ -454,7 +454,7 @@ def default_remote(local: Path) -> str:
 
 # Link budget of an upload (design.md section 3), for benchmarks and estimates.
 WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size (bytes of file data per WriteFile)
-FLOOR_BLOCK = 239  # the largest WriteFile (what ftp_put writes)
+FLOOR_BLOCK = MAX_DATA  # the largest WriteFile (what ftp_put writes)
 FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
 SIGNATURE = 13
 

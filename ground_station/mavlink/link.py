@@ -28,6 +28,7 @@ A long-running tool (`qnav monitor`, MAVProxy) passes `heartbeat=True`.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import struct
 import threading
@@ -38,7 +39,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from firmware_py.mavlink.params import as_float32
-from ground_station.mavlink.statustext import StatusText, StatusTextAssembler
+from ground_station.mavlink.statustext import StatusTextAssembler
 
 EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 DEFAULT_URL = "udpin:127.0.0.1:14550"
@@ -115,6 +116,18 @@ def _positive_seconds(value: str) -> float:
     return x
 
 
+def finite_float(value: str) -> float:
+    """argparse type for a coordinate: a finite number (float() also takes
+    "nan" and "inf", which nothing downstream can place)."""
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {value}")
+    return x
+
+
 def _sysid(value: str) -> int:
     try:
         x = int(value)
@@ -182,7 +195,6 @@ class Link:
             self.conn.message_hooks.append(self._log_received)
             self.conn.mav.set_send_callback(self._log_sent)
         self.texts: list[str] = []  # whole STATUSTEXTs from the robot, in arrival order
-        self.status_texts: list[StatusText] = []  # the same with severity, sender and time
         self._assembler = StatusTextAssembler()
         self.want_sysid = target_system  # --target-system: None = the first robot heard
         self.foreign_frames: dict[int, int] = {}  # sysid -> frames ignored from a system not our robot
@@ -244,7 +256,6 @@ class Link:
         for st in done:
             if st.sysid != GCS_SYSID:
                 self.texts.append(st.text)
-                self.status_texts.append(st)
         if t == "STATUSTEXT":
             return
         if t == "PARAM_VALUE":
@@ -382,6 +393,26 @@ class Link:
                 raise LinkError(EXIT_REFUSED, f"{name}: {result}: {self._reason(since, 'no reason given')}")
             return CommandResult(ack.result, texts)
         raise self.no_answer(f"{name}: no COMMAND_ACK after {retries + 1} tries")
+
+    def set_goal(self, x_m: float, y_m: float, timeout_s: float = 1.5, retries: int = 3) -> None:
+        """Guided goal at world (x east, y north) metres: SET_POSITION_TARGET_LOCAL_NED
+        (north = y, east = x, position only), re-sent until the robot echoes it in
+        POSITION_TARGET_LOCAL_NED; raises with its "goal refused: ..." STATUSTEXT
+        (however many chunks it took) or on silence."""
+        since = len(self.texts)
+        mask = 0xFFF8  # position only
+        for _ in range(retries):
+            self.conn.mav.set_position_target_local_ned_send(0, self.sysid, self.compid, self.m.MAV_FRAME_LOCAL_NED,
+                                                             mask, y_m, x_m, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+            end = time.monotonic() + timeout_s
+            while time.monotonic() < end:
+                reply = self.recv("POSITION_TARGET_LOCAL_NED", min(0.1, end - time.monotonic()))
+                reason = self.wait_text(since, lambda t: t.startswith("goal refused"), 0.0)
+                if reason is not None:
+                    raise LinkError(EXIT_REFUSED, reason)
+                if reply is not None and abs(reply.x - y_m) < 0.01 and abs(reply.y - x_m) < 0.01:
+                    return
+        raise self.no_answer("goal: no echo from the robot")
 
     def _signing_hint(self) -> str:
         hb = self.conn.messages.get("HEARTBEAT")

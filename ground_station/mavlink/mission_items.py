@@ -5,19 +5,57 @@ Bad input raises `CliError` with one line naming what is wrong."""
 
 from __future__ import annotations
 
+import argparse
+
+from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from ground_station.errors import CliError
-from ground_station.mavlink.link import mavlink, mavutil
+from ground_station.mavlink.link import finite_float, mavlink, mavutil
 
 
-def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
-    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * 1e4) for map targets."""
-    from firmware_py import robot_spec
+def parse_start(text: str) -> tuple[float, float]:
+    """`--start X,Y` (world metres, x east, y north) -> (x_mm, y_mm); CliError
+    naming the option unless both are finite numbers."""
+    try:
+        x, y = (finite_float(v) for v in text.split(","))
+    except (ValueError, argparse.ArgumentTypeError):  # ValueError: not two values
+        raise CliError(f"--start must be X,Y in metres (finite numbers), got {text!r}") from None
+    return x * 1000.0, y * 1000.0
+
+
+def load_gridmap(map_name: str, cell_size_m: float | None = None):
+    """The map (`ground_station.maps.load_map`), CliError with its reason if it cannot be read."""
     from ground_station.maps import MapError, load_map
 
     try:
-        gm = load_map(map_name) if cell_size_m is None else load_map(map_name, cell_size_m)
+        return load_map(map_name) if cell_size_m is None else load_map(map_name, cell_size_m)
     except (MapError, OSError) as exc:
-        raise CliError(str(exc)) from exc
+        raise CliError(str(exc)) from None
+
+
+def goal_cell(gridmap, x_m: float, y_m: float) -> tuple[int, int]:
+    """The map cell of world point (x_m, y_m); CliError unless it is a free cell."""
+    from firmware_py import robot_spec
+
+    cell_mm = round(gridmap.cell_size_m * 1000)
+    col, row = robot_spec.world_to_cell(round(x_m * 1000), round(y_m * 1000), gridmap.height, cell_mm)
+    if not gridmap.in_bounds(col, row) or not gridmap.is_free(col, row):
+        raise CliError(f"goal ({x_m:g}, {y_m:g}) m is not in a free cell of map {gridmap.name}")
+    return col, row
+
+
+def planned_goal_items(gridmap, x_m: float, y_m: float, start_mm: tuple[float, float]) -> list[tuple[int, int, int]]:
+    """`qnav goal --plan`: the planner's waypoints from `start_mm` to the goal's cell
+    (`planned_items`), the last one moved from the cell's centre to the goal itself."""
+    items, _ = planned_items([goal_cell(gridmap, x_m, y_m)], start_mm, gridmap)
+    items[-1] = (mavlink().MAV_FRAME_LOCAL_NED, round(y_m * LOCAL_ITEM_SCALE), round(x_m * LOCAL_ITEM_SCALE))
+    return items
+
+
+def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
+    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * LOCAL_ITEM_SCALE) for map targets."""
+    from firmware_py import robot_spec
+
+    gm = load_gridmap(map_name, cell_size_m)
     cell_mm = round(gm.cell_size_m * 1000)
     names = [t.strip() for t in targets.split(",") if t.strip()]
     if not names:
@@ -28,7 +66,7 @@ def target_items(targets: str, map_name: str, cell_size_m: float | None = None) 
             raise CliError(f"map {gm.name} has no target {name!r} (has {', '.join(sorted(gm.targets))})")
         col, row = gm.targets[name]
         x_mm, y_mm = robot_spec.cell_center_mm(col, row, gm.height, cell_mm)
-        items.append((mavlink().MAV_FRAME_LOCAL_NED, y_mm * 10, x_mm * 10))  # north, east in m * 1e4
+        items.append((mavlink().MAV_FRAME_LOCAL_NED, y_mm * LOCAL_ITEM_SCALE // 1000, x_mm * LOCAL_ITEM_SCALE // 1000))  # north, east
     return items
 
 
@@ -47,7 +85,7 @@ def file_items(path: str) -> list[tuple[int, int, int]]:
         w = loader.wp(i)
         if w.command != m.MAV_CMD_NAV_WAYPOINT:
             raise CliError(f"{path}: item {i} is command {w.command}, only NAV_WAYPOINT (16) is supported")
-        scale = 1e4 if w.frame == m.MAV_FRAME_LOCAL_NED else 1e7
+        scale = LOCAL_ITEM_SCALE if w.frame == m.MAV_FRAME_LOCAL_NED else 1e7
         x, y = (w.x, w.y) if w.get_type() == "MISSION_ITEM_INT" else (round(w.x * scale), round(w.y * scale))
         items.append((w.frame, x, y))
     if not items:
@@ -62,7 +100,7 @@ def write_wpl(path: str, items: list) -> None:
     m = mavlink()
     lines = ["QGC WPL 110"]
     for it in items:
-        scale = 1e4 if it.frame == m.MAV_FRAME_LOCAL_NED else 1e7
+        scale = LOCAL_ITEM_SCALE if it.frame == m.MAV_FRAME_LOCAL_NED else 1e7
         lines.append("\t".join(str(v) for v in (
             it.seq, it.current, it.frame, it.command, it.param1, it.param2, it.param3, it.param4,
             f"{it.x / scale:.7f}", f"{it.y / scale:.7f}", f"{it.z:g}", it.autocontinue)))
@@ -90,7 +128,7 @@ def planned_items(targets: list[tuple[int, int]], start_mm: tuple[float, float],
             wps = plan_waypoints(gridmap, start, cell, start_mm=from_mm, **(plan_kw or {}))
         except MapError as exc:
             raise CliError(f"cannot plan to {cell}: {exc}") from None
-        items += [(frame, round(y * 10), round(x * 10)) for x, y in wps]  # north, east in m * 1e4
+        items += [(frame, round(y * LOCAL_ITEM_SCALE / 1000), round(x * LOCAL_ITEM_SCALE / 1000)) for x, y in wps]  # N, E
         target_seq.append(len(items) - 1)
         start, from_mm = cell, False
     return items, target_seq

@@ -40,7 +40,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.vehicle import CtrlState, Mode
-from ground_station.mavlink.statustext import StatusTextAssembler
+from ground_station.mavlink.statustext import StatusText, StatusTextAssembler
 
 # NAMED_VALUE_INT names the robot's telemetry uses (firmware_py/mavlink/telemetry.py):
 # the controller state (CtrlState), the encoder's state index, the chosen
@@ -309,11 +309,20 @@ class VehicleView:
         if self.t0 is None:
             self.t0 = t
         self.counts[mtype] = self.counts.get(mtype, 0) + 1
+        if mtype != "STATUSTEXT":  # as Link._collect: a text whose last chunk was lost ends when chunks stop
+            self._log_texts(self._texts.flush(t))
         handler = getattr(self, "_on_" + mtype.lower(), None)
         if handler is not None:
             handler(msg, t)
         self.version += 1
         return True
+
+    def flush_texts(self) -> None:
+        """Log every chunked STATUSTEXT still waiting for a chunk (as far as it
+        goes): at the end of a recording nothing more will come."""
+        if self._texts.pending():
+            self._log_texts(self._texts.flush(None))
+            self.version += 1
 
     def _robot_clock(self, boot_ms: int, t: float, next_in_seq: bool = False) -> bool:
         """Advance the robot clock; False if this frame is from another time base.
@@ -487,7 +496,7 @@ class VehicleView:
 
     def _item_world(self, frame: int, x: int, y: int) -> tuple[float, float] | None:
         if frame == mavlink.MAV_FRAME_LOCAL_NED:
-            return (y / 1e4, x / 1e4)
+            return (y / mav_frames.LOCAL_ITEM_SCALE, x / mav_frames.LOCAL_ITEM_SCALE)
         if frame in _GLOBAL_FRAMES and self.origin_e7 is not None:
             x_mm, y_mm = mav_frames.global_to_world(x, y, *self.origin_e7)
             return (x_mm / 1000, y_mm / 1000)
@@ -517,7 +526,10 @@ class VehicleView:
 
     def _on_statustext(self, msg, t: float) -> None:
         # chunked texts are reassembled by id/chunk_seq (the link's assembler)
-        for st in self._texts.add(msg, t):
+        self._log_texts(self._texts.add(msg, t))
+
+    def _log_texts(self, texts: list[StatusText]) -> None:
+        for st in texts:
             self._append_log(LogLine(st.t, st.severity, st.text, self.robot_clock()))
 
     def _append_log(self, line: LogLine) -> None:

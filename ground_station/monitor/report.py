@@ -153,8 +153,7 @@ def _analyse(path: str, progress: bool, sysid: int | None, clock: str) -> RunRec
                 rec.overruns.append((t, view.link.tick_overruns))
             elif mtype == "MISSION_ITEM_REACHED":
                 rec.mission_reached.append((t, msg.seq))
-            elif mtype == "STATUSTEXT" and msg.severity <= 3 and view.log_total > log_before:
-                rec.fault_events.append((t, f"{view.log[-1].severity_name}: {view.log[-1].text}"))
+            _fault_texts(rec, view, log_before, t)  # a text may complete on any frame (its last chunk lost)
             if view.ctrl_state != prev_ctrl:
                 if view.ctrl_state == CtrlState.GOAL_REACHED:
                     rec.goal_state_entries.append(t)
@@ -164,10 +163,21 @@ def _analyse(path: str, progress: bool, sysid: int | None, clock: str) -> RunRec
             if view.failsafe and not prev_failsafe:
                 rec.fault_events.append((t, "failsafe (system status CRITICAL)"))
             prev_failsafe = view.failsafe
+        log_before = view.log_total
+        view.flush_texts()  # texts still waiting for a chunk when the recording ends
+        _fault_texts(rec, view, log_before, rec.t_end)
     finally:
         bar.close()
         log.close()
     return rec
+
+
+def _fault_texts(rec: RunRecord, view: VehicleView, log_before: int, t: float) -> None:
+    """The error-or-worse STATUSTEXTs (severity <= 3) the view logged since `log_before`."""
+    new = min(view.log_total - log_before, len(view.log))
+    for line in list(view.log)[len(view.log) - new:] if new else []:
+        if line.severity <= 3:  # ACK lines are INFO or WARNING
+            rec.fault_events.append((t, f"{line.severity_name}: {line.text}"))
 
 
 def _stops(rec: RunRecord) -> list[dict]:

@@ -242,3 +242,42 @@ def test_mavproxy_position_command_body_ned_moves_the_goal_relative_to_the_robot
     link.vehicle.st.x_mm, link.vehicle.st.y_mm, link.vehicle.st.heading_mrad = 2750, 2750, 0  # facing east
     of(local_target(link, m.MAV_FRAME_BODY_NED, -1.5, -1.0, mask=3576), "POSITION_TARGET_LOCAL_NED")
     assert link.vehicle.st.goal_mm == pytest.approx((1250, 3750), abs=2)  # 1.5 m back, 1 m to the left
+
+
+def guided_item(link, x, y):
+    """A float MISSION_ITEM in LOCAL_NED with current=2 (the guided go-to)."""
+    return link.send(link.gcs.mission_item_encode(1, 1, 0, m.MAV_FRAME_LOCAL_NED, m.MAV_CMD_NAV_WAYPOINT,
+                                                  2, 0, 0, 0, 0, 0, x, y, 0, 0))
+
+
+@pytest.mark.parametrize("x, y, code", [
+    (float("nan"), 1.0, m.MAV_MISSION_INVALID_PARAM5_X),
+    (float("inf"), 1.0, m.MAV_MISSION_INVALID_PARAM5_X),
+    (3e38, 1.0, m.MAV_MISSION_INVALID_PARAM5_X),  # near float32 max (1e300 cannot be packed)
+    (1.0, 3e5, m.MAV_MISSION_INVALID_PARAM6_Y),  # beyond the local frame's 200 km
+])
+def test_guided_waypoint_with_a_bad_position_is_refused_with_its_code_not_by_the_catch_all(x, y, code):
+    link = armed_link(map_mm=None)  # no map: only the frame's range stands between the item and the goal
+    link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.GUIDED)
+    old = link.vehicle.st.goal_mm
+    replies = guided_item(link, x, y)
+    (a,) = of(replies, "MISSION_ACK")
+    assert a.type == code
+    assert text_of(replies).startswith("guided goal refused: mission item 0:")
+    assert link.node.handler_errors == {} and link.vehicle.st.goal_mm == old
+
+
+def test_do_reposition_and_position_targets_out_of_the_frame_range_are_refused():
+    link = armed_link(map_mm=None)  # no map: the frame's range is the only check
+    link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.GUIDED)
+    old = link.vehicle.st.goal_mm
+    replies = link.cmd(m.MAV_CMD_DO_REPOSITION, -1, 1, 0, 0, 1e9, 10.0, 0)  # COMMAND_LONG: degrees
+    assert ack(replies) == m.MAV_RESULT_DENIED and "x=1e+09 out of range" in text_of(replies)
+    replies = reposition_int(link, m.MAV_FRAME_GLOBAL_INT, 470_000_000, 2_000_000_000)  # lon 200 deg
+    assert ack(replies) == m.MAV_RESULT_DENIED and text_of(replies).startswith("reposition refused: y=200")
+    replies = reposition_int(link, m.MAV_FRAME_LOCAL_NED, 2_100_000_000, 0)  # 210 km north
+    assert ack(replies) == m.MAV_RESULT_DENIED and "x=210000 out of range" in text_of(replies)
+    assert text_of(local_target(link, m.MAV_FRAME_LOCAL_NED, 3e5, 0.0)).startswith("goal refused: x=300000 out")
+    assert link.vehicle.st.goal_mm == old and link.node.handler_errors == {}
+    # the limits themselves are positions
+    assert ack(reposition_int(link, m.MAV_FRAME_LOCAL_NED, 20_000, 2_000_000_000)) == m.MAV_RESULT_ACCEPTED

@@ -5,6 +5,8 @@ python-can virtual bus."""
 
 from __future__ import annotations
 
+import math
+
 import can
 import pytest
 
@@ -57,13 +59,38 @@ def test_fast_but_possible_wheels_are_not_a_jump():
     rig = armed_rig(None)
     ctrl = rig.ctrl
     ticks_per_period = robot_spec.MAX_WHEEL_SPEED_MM_S * P * robot_spec.ENCODER_TICKS_PER_REV // (
-        round(2 * 3.14159265 * robot_spec.WHEEL_RADIUS_MM * 1000) * 1000)
+        robot_spec.wheel_circumference_nm())  # mm/s x us = nm
     left = rig.inp.enc_left
     for _ in range(10):
         left += ticks_per_period  # full speed
         rig.tick(fresh=False, enc_left=left, enc_us=rig.t, ranges_us=[rig.t, rig.t], bumper_us=rig.t,
                  driver_us=rig.t)
     assert ctrl.state == CtrlState.HOLD and ctrl.encoder_jumps == 0
+
+
+@pytest.mark.parametrize("over", [0, 1])
+def test_encoder_jump_limit_is_the_boundary(over):
+    """A count change of exactly encoder_jump_limit(dt) is plausible; one tick more is a jump.
+    The limit is ENC_JUMP_MARGIN x full wheel speed (plus the slack), worked out here in floats."""
+    from firmware_py.control.controller import (
+        ENC_JUMP_MARGIN,
+        ENC_JUMP_SLACK_TICKS,
+        encoder_jump_limit,
+    )
+
+    full_speed_ticks = (robot_spec.MAX_WHEEL_SPEED_MM_S * P / 1e6) / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM) \
+        * robot_spec.ENCODER_TICKS_PER_REV
+    limit = encoder_jump_limit(P)
+    assert abs(limit - (ENC_JUMP_MARGIN * full_speed_ticks + ENC_JUMP_SLACK_TICKS)) <= 1
+    rig = armed_rig(None)
+    ctrl = rig.ctrl
+    rig.tick(fresh=False, enc_us=rig.t)  # a reference sample
+    right = rig.inp.enc_right + limit + over
+    rig.tick(fresh=False, enc_right=right, enc_us=rig.t, ranges_us=[rig.t, rig.t], bumper_us=rig.t, driver_us=rig.t)
+    assert ctrl.encoder_jumps == over
+    assert (ctrl.state == CtrlState.FAULT) == bool(over), ctrl.fault
+    if over:
+        assert ctrl.fault.startswith(f"encoder jump: right {limit + 1} ticks/{P // 1000} ms (max {limit})")
 
 
 @pytest.mark.parametrize("frozen", ["enc", "ranges1", "bumper"])

@@ -64,13 +64,32 @@ def test_local_engine_keeps_job_order_and_counts():
     assert stats.jobs == 8 and sum(stats.nodes.values()) == 8 and stats.workers == 2
 
 
-def test_engine_arguments_refused_with_one_line():
+def test_engine_arguments_refused_with_one_line(tmp_path):
     with pytest.raises(CliError, match="--workers must be >= 1"):
         engines.make_engine("local", 0)
     with pytest.raises(CliError, match="needs --engine ray"):
         engines.make_engine("local", 1, "127.0.0.1:1")
-    r = qnav(*SWEEP, "--out", "/tmp/x", "--tune")
+    r = qnav(*SWEEP, "--out", str(tmp_path / "x"), "--tune")
     assert r.returncode != 0 and "--tune needs --engine ray" in r.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_bench_campaign_takes_the_shared_engine_arguments():
+    """The same --engine/--workers/--ray-address actions as sweep and study; its own --workers default (2)."""
+    from ground_station.cli import build_parser
+
+    def option(argv, dest):
+        parser = build_parser()
+        sub = parser._subparsers._group_actions[0].choices[argv[0]]
+        if argv[0] == "bench":
+            sub = sub._subparsers._group_actions[0].choices[argv[1]]
+        return next(a for a in sub._actions if a.dest == dest)
+
+    for dest in ("engine", "ray_address"):
+        assert option(["bench", "campaign"], dest).help.replace("twin runs", "X") == \
+            option(["sweep"], dest).help.replace("training runs", "X")
+    workers = option(["bench", "campaign"], "workers")
+    assert workers.default == 2 and "(default: 2)" in workers.help
 
 
 def test_ray_missing_says_how_to_install(monkeypatch):

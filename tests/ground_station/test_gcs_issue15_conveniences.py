@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -67,4 +66,3 @@ def test_training_md_describes_make_demo_as_the_makefile_runs_it():
     assert [ln.strip() for ln in recipe.splitlines()] == ["$(BIN)/qnav demo"]  # no training
     text = " ".join((ROOT / "docs" / "training.md").read_text().split())
     assert "`make demo` does not train: it installs the package and runs `qnav demo`" in text
-    assert sys.version_info >= (3, 11)  # tomllib above

@@ -228,3 +228,21 @@ def test_reads_what_the_robot_telemetry_builds():
             assert rng is None  # too far: clear
         else:
             assert rng == pytest.approx(want[deg])
+
+
+def test_a_chunked_text_whose_last_chunk_is_lost_is_logged_once_chunks_stop(rover):
+    """statustext.py's promise, at the view: the terminator of a 60-char text is
+    lost; the text is logged (as far as it goes) once other frames show that its
+    chunks stopped, and flush_texts() logs one still pending at the end."""
+    view = VehicleView()
+    first = "motor driver fault: overcurrent on the left whe"[:50].ljust(50, ".")
+    feed(view, wire(rover, heartbeat(), mavlink.MAVLink_statustext_message(3, first.encode(), 7, 0)), t=1.0)
+    feed(view, wire(rover, heartbeat()), t=1.1)  # within STALE_S: the rest may still come
+    assert [e.text for e in view.log] == []
+    feed(view, wire(rover, heartbeat()), t=2.0)
+    assert [(e.severity_name, e.text) for e in view.log] == [("ERROR", first)]
+    second = "y" * 50
+    feed(view, wire(rover, mavlink.MAVLink_statustext_message(4, second.encode(), 8, 0)), t=2.1)
+    assert len(view.log) == 1
+    view.flush_texts()
+    assert [e.text for e in view.log] == [first, second] and view.log_total == 2

@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from firmware_py import robot_spec
+from firmware_py.vehicle import Mode
 from ground_station.maps import load_map
 from ground_station.maps.planner import plan_waypoints
 from tests.ground_station.test_mav_link import qnav, rig  # noqa: F401 (fixture)
@@ -25,6 +28,9 @@ def test_mission_upload_plan_from_the_robot_position(rig):  # noqa: F811
     assert code == 0, out
     gm = load_map("paper10")
     leg1 = plan_waypoints(gm, (2750, 2750), (2, 2), start_mm=True)
+    # by hand: (5, 4) has walls north (5, 3) and west (4, 4); east to (6, 4), north to row 2 over (6, 3),
+    # then west along row 2 to A (2, 2) in segments of at most 1 m (DEFAULT_MAX_SEGMENT_MM)
+    assert leg1 == [_centre(6, 4), _centre(6, 2), _centre(4, 2), _centre(2, 2)]
     leg2 = plan_waypoints(gm, (2, 2), (9, 0))
     want = [(round(x), round(y)) for x, y in leg1 + leg2]
     got = r.vehicle.mission
@@ -53,6 +59,37 @@ def test_goal_plan_uploads_the_planned_mission_and_starts_it(rig):  # noqa: F811
     code, out = qnav(port, "goal", "4.7", "4.8", "--plan")
     assert code == 0, out
     assert len(r.vehicle.mission) > 2 and r.vehicle.mission[-1] == (4700, 4800)
-    assert r.vehicle.st.mode == 10  # Auto
+    assert r.vehicle.st.mode == Mode.AUTO
     code, out = qnav(port, "goal", "0.75", "4.25", "--plan")  # (1, 1) is an obstacle cell of paper10
     assert code == 2 and "not in a free cell" in out
+
+
+def _run(*argv: str) -> tuple[int, str]:
+    """qnav in-process without a robot: the input is refused before any link opens."""
+    import contextlib
+    import io
+
+    from ground_station import cli
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(err):
+        try:
+            code = cli.main([*argv, "--mavlink", "udpin:127.0.0.1:9", "--timeout", "0.2", "--no-tlog"])
+        except SystemExit as exc:  # argparse's own refusal
+            code = int(exc.code or 0)
+    return code, err.getvalue()
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["goal", "nan", "1"], "argument X: must be a finite number, got nan"),
+    (["goal", "1", "inf", "--plan"], "argument Y: must be a finite number, got inf"),
+    (["goal", "1", "1e300"], "out of range"),
+    (["goal", "4.7", "4.8", "--plan", "--start", "nan,1"], "--start must be X,Y in metres"),
+    (["goal", "1", "1", "--start", "1,1"], "--start needs --plan"),
+    (["mission", "upload", "--targets", "A", "--plan", "--start", "1,inf"], "--start must be X,Y in metres"),
+    (["mission", "upload", "--targets", "A", "--start", "1,1"], "--start needs --plan"),
+])
+def test_non_finite_goal_and_start_are_refused_with_one_line(argv, says):
+    code, err = _run(*argv)
+    assert code == 2 and says in err, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1].count("error") == 1

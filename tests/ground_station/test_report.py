@@ -105,3 +105,26 @@ def test_cli_rejects_bad_input(tmp_path):
     assert r.returncode == 2 and "no MAVLink messages" in r.stderr
     r = _qnav("report", str(junk), "--map", "no-such-map")
     assert r.returncode == 2 and "--map no-such-map" in r.stderr
+
+
+def test_report_keeps_error_texts_whose_last_chunk_was_lost(tmp_path):
+    """Two chunked ERROR texts lose their terminator: one mid-recording (it ends
+    when other frames show its chunks stopped), one as the recording's last frame."""
+    import struct
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from tests.support.rover_script import encoder, frame
+
+    rover = encoder(1, 1)
+    hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_AUTOPILOT_GENERIC,
+                                           mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3, 3)
+    lost_mid, lost_end = "a" * 50, "b" * 50
+    script = [(0.0, hb), (0.5, mavlink.MAVLink_statustext_message(3, lost_mid.encode(), 5, 0)),
+              (1.0, hb), (2.0, hb), (2.5, mavlink.MAVLink_statustext_message(2, lost_end.encode(), 6, 0))]
+    tlog = tmp_path / "lost.tlog"
+    with open(tlog, "wb") as f:
+        for t, msg in script:
+            f.write(struct.pack(">Q", int((1_700_000_000.0 + t) * 1e6)) + frame(rover, msg))
+    rec = analyse(tlog)
+    assert [what for _, what in rec.fault_events] == [f"ERROR: {lost_mid}", f"CRIT: {lost_end}"]

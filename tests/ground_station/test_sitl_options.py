@@ -11,6 +11,7 @@ from ground_station.sitl import (
     SitlError,
     SitlInfo,
     SitlOptions,
+    WaitResult,
     connection_help,
     gcs_side,
     validate,
@@ -34,7 +35,7 @@ def test_gcs_side_of_the_robot_url(robot, gcs):
     (SitlOptions(duration_s=0), "--duration must be positive"),
     (SitlOptions(can="virtual:x"), "a virtual bus does not reach another process"),
     (SitlOptions(mavlink="udpin:127.0.0.1"), "expected udpin:HOST:PORT"),
-    (SitlOptions(mavlink="udpin:127.0.0.1:99999"), "expected udpin:HOST:PORT"),
+    (SitlOptions(mavlink="udpin:127.0.0.1:99999"), "port must be a number 1-65535"),  # link.check_url's words
     (SitlOptions(mavlink="bogus://foo"), "--mavlink bogus://foo: expected"),
 ])
 def test_bad_options_are_refused_with_the_reason(opts, why):
@@ -60,3 +61,21 @@ def test_connection_help_names_every_client_and_the_can_tools():
     assert "cantools monitor -i socketcan -c vcan0" in text
     text = "\n".join(connection_help(info("socketcan:vcan0", mavlink="udpout:127.0.0.1:14550")))
     assert "QGroundControl  connects by itself" in text and "--master=udpin:127.0.0.1:14550" in text
+
+
+def test_wait_says_whether_a_child_died_or_the_duration_ran_out(tmp_path):
+    """The exit status of `qnav sitl` (1: a process died) comes from this flag, not from the wording."""
+    import sys
+
+    from ground_station.sitl import Sitl
+
+    sitl = Sitl(SitlOptions(duration_s=0.3))
+    try:
+        assert sitl.wait(poll_s=0.05) == WaitResult("duration reached", child_died=False)
+        sitl.procs.start("robot", [sys.executable, "-c", "import sys; print('bye'); sys.exit(3)"],
+                         tmp_path / "robot.log")
+        sitl.opts.duration_s = 30.0
+        result = sitl.wait(poll_s=0.05)
+        assert result.child_died and result.reason.startswith("robot exited with status 3")
+    finally:
+        sitl.stop()

@@ -156,3 +156,44 @@ def test_sector_job_checkpoints_and_path_ratios():
     assert ok.mean() > 0.3
     assert np.all(path[ok] / ev.anyangle[ok] >= 0.995)
     assert np.mean(path[ok] < ev.octile[ok]) > 0.5
+
+
+class _Stop(Exception):
+    """Raised by the stand-in campaign runner once the command has built its config."""
+
+
+@pytest.mark.parametrize("command, module, runner", [("sweep", "ground_station.learn.sweep", "sweep"),
+                                                      ("study", "ground_station.learn.study", "study")])
+def test_sweep_and_study_take_the_recipe_of_their_encoding_like_train(monkeypatch, tmp_path, command, module, runner):
+    """`qnav sweep --encoding sector` used to train with the cell defaults (3M steps,
+    reward_step -0.01, epsilon_end 0.1) where `qnav train --encoding sector` takes
+    the sector recipe; a flag given still wins. The command runs as parsed, up to
+    the campaign, whose runner here only records the config it is handed."""
+    import importlib
+
+    from ground_station import cli
+
+    seen = []
+
+    def record(cfg, *a, **kw):
+        seen.append(cfg)
+        raise _Stop
+
+    monkeypatch.setattr(importlib.import_module(module), runner, record)
+    if command == "sweep":
+        argv = ["sweep", "--out", str(tmp_path), "--encoding", "sector", "--lrs", "0.2", "--seeds", "1",
+                "--workers", "1"]
+        with pytest.raises(_Stop):
+            cli.main(argv)
+        with pytest.raises(_Stop):
+            cli.main([*argv, "--steps", "5000", "--epsilon-end", "0.2"])
+        (recipe, given) = seen
+        want = {k: v for k, v in RECIPES["sector"].items() if k != "lr"}  # sweep sets lr per run
+        assert {k: getattr(recipe, k) for k in want} == want and recipe.encoding == "sector"
+        assert (given.steps, given.epsilon_end, given.reward_step) == (5000, 0.2, RECIPES["sector"]["reward_step"])
+    else:  # a cell study: the cell recipe is the defaults, the study's own steps default stays
+        with pytest.raises(_Stop):
+            cli.main(["study", "--out", str(tmp_path), "--seeds", "1", "--lrs", "0.5", "--learners", "q",
+                      "--workers", "1"])
+        (cfg,) = seen
+        assert cfg.encoding == "cell" and cfg.steps == 100_000 and cfg.lr == TrainConfig().lr

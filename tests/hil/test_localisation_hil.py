@@ -3,22 +3,43 @@
 goals on the localiser's pose while dead reckoning drifts, seeded."""
 
 import math
+from pathlib import Path
 
 import pytest
 
 from firmware_py import robot_spec
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
-from ground_station.bench.hil import random_pairs, run_cell_set, run_global_set, run_sector_set
-from ground_station.rigs.lockstep import cell_policy, paper10, run_episode
+from ground_station.bench.hil import (
+    cell_episodes,
+    random_pairs,
+    run_batch,
+    run_global_set,
+    sector_episodes,
+)
+from ground_station.rigs.lockstep import CELL_POLICY, cell_policy, paper10, run_episode
 from sim_bridge.profiles import PROFILES, profile
 
 REALISTIC = PROFILES["realistic"]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_realistic_profile_is_what_the_docs_say():
-    assert REALISTIC.encoder_scale == (1.03, 1.0) and REALISTIC.slip_std == 0.10
-    assert REALISTIC.range_noise_mm == 10.0 and REALISTIC.range_dropout == 0.02
+    """docs/can-protocol.md's table of the profiles' values agrees with sim_bridge/profiles.PROFILES."""
+    text = (ROOT / "docs" / "can-protocol.md").read_text()
+    rows = {cells[1]: cells[3:5] for cells in (ln.split("|") for ln in text.splitlines())
+            if len(cells) == 6 and cells[1].strip().startswith("`--")}
+
+    def documented(option: str, column: int) -> list[float]:
+        (cells,) = [v for k, v in rows.items() if option in k]
+        return [float(x) for x in cells[column].split(",")]
+
+    for column, name in enumerate(("ideal", "realistic")):
+        prof = PROFILES[name]
+        assert documented("--enc-scale-left", column) == list(prof.encoder_scale)
+        assert documented("--slip", column) == [prof.slip_std]
+        assert documented("--noise-mm", column) == [prof.range_noise_mm]
+        assert documented("--dropout", column) == [prof.range_dropout]
     with pytest.raises(ValueError, match="unknown plant profile 'nope'; known: ideal, realistic"):
         profile("nope")
 
@@ -37,9 +58,14 @@ def test_cell_policy_reaches_on_the_localiser_where_odometry_drifts():
 
 
 def test_bench_sets_at_the_realistic_profile_report_belief_and_truth():
+    """Through run_batch, the job `qnav bench hil` farms out to its engine."""
     gm = paper10()
-    rows = run_sector_set(gm, load_policy(shipped_policy("sector")), 2, 7, 60.0, profile=REALISTIC)
-    rows += run_cell_set(gm, cell_policy(), 1, 7, 60.0, profile=REALISTIC)
+    job = {"map": "paper10", "guidance": "path", "max_sim_s": 60.0, "profile": "realistic",
+           "goal_tolerance_mm": None, "localise": True, "png_dir": None}
+    rows = run_batch({**job, "kind": "sector", "policy": str(shipped_policy("sector")),
+                      "episodes": sector_episodes(gm, 2, 7)})
+    rows += run_batch({**job, "kind": "cell", "policy": str(CELL_POLICY),
+                       "episodes": cell_episodes(gm, cell_policy(), 1, 7)})
     assert len(rows) == 6
     for r in rows:
         assert r["success"], r

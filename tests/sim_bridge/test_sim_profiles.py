@@ -30,9 +30,11 @@ def test_scale_error_makes_one_encoder_read_long():
 
 
 def test_profile_reaches_the_plant():
-    plant = Plant(np.zeros((4, 4), bool), SimConfig.from_profile(PROFILES["realistic"], seed=3), Pose(1.0, 1.0, 0.0))
-    assert plant.encoders.scale == (1.03, 1.0) and plant.encoders.slip_std == 0.10
-    assert plant.ranges.p.noise_std_mm == 10.0 and plant.ranges.p.dropout == 0.02
+    prof = PROFILES["realistic"]
+    assert prof != PROFILES["ideal"]
+    plant = Plant(np.zeros((4, 4), bool), SimConfig.from_profile(prof, seed=3), Pose(1.0, 1.0, 0.0))
+    assert plant.encoders.scale == prof.encoder_scale and plant.encoders.slip_std == prof.slip_std
+    assert plant.ranges.p.noise_std_mm == prof.range_noise_mm and plant.ranges.p.dropout == prof.range_dropout
     with pytest.raises(ValueError, match="outside 0.5..1.5"):
         PlantProfile("x", encoder_scale=(2.0, 1.0))
 
@@ -46,3 +48,12 @@ def test_bad_profile_options_are_one_line_errors(argv, why, capsys):
     assert main(["--map", "paper10", "--can", "virtual:x", "--duration", "0.1", *argv]) == 2
     err = capsys.readouterr().err
     assert why in err and err.count("\n") == 1
+
+
+def test_help_gives_every_profile_value_from_profiles(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for name, prof in PROFILES.items():
+        for value in (prof.range_noise_mm, prof.range_dropout, prof.slip_std, *prof.encoder_scale):
+            assert f"{name}: {value:g}" in text

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py import robot_spec
+from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from firmware_py.vehicle import Mode
 
 CELL_M = 0.5
@@ -221,10 +222,10 @@ def encoder(sysid: int = 1, compid: int = 1, key: bytes | None = None) -> mavlin
 
 
 def gcs_mission_items(mav: mavlink.MAVLink, items: list[tuple[float, float]]) -> list:
-    """MISSION_ITEM_INT messages as the GCS uploads them (local NED, m*1e4)."""
+    """MISSION_ITEM_INT messages as the GCS uploads them (local NED, m * LOCAL_ITEM_SCALE)."""
     return [mavlink.MAVLink_mission_item_int_message(
         1, 1, seq, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 0, 0, 0,
-        int(round(y * 1e4)), int(round(x * 1e4)), 0.0) for seq, (x, y) in enumerate(items)]
+        round(y * LOCAL_ITEM_SCALE), round(x * LOCAL_ITEM_SCALE), 0.0) for seq, (x, y) in enumerate(items)]
 
 
 def write_tlog(path, script: RoverScript, t0: float = 1_700_000_000.0, with_gcs_items: bool = True,
