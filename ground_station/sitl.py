@@ -59,7 +59,6 @@ class SitlOptions:
     out: Path | None = None  # None: runs/sitl-<timestamp>/
     seed: int = 0
     duration_s: float | None = None  # wall seconds, then stop (None: until Ctrl-C)
-    robots: int = 1
     autopilot: str = DEFAULT_AUTOPILOT  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
     probe_timeout_s: float = 60.0
 
@@ -109,8 +108,6 @@ def gcs_side(robot_url: str) -> str:
 
 
 def validate(opts: SitlOptions) -> None:
-    if opts.robots != 1:
-        raise SitlError(f"--robots {opts.robots}: only 1 robot for now (a fleet in one world is reserved)")
     if not (opts.speed > 0 and math.isfinite(opts.speed)):
         raise SitlError(f"--speed must be a positive number, got {opts.speed:g}")
     if opts.can is not None and opts.can.startswith("virtual"):

@@ -50,8 +50,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="sim noise seed (default %(default)s)")
     p.add_argument("--duration", type=float, metavar="S",
                    help="stop after S wall seconds (default: run until Ctrl-C)")
-    p.add_argument("--robots", type=int, default=1, metavar="N",
-                   help="reserved for a later fleet (one world, N robots, sysids 1..N); only 1 for now")
     p.set_defaults(func=run)
 
 
@@ -62,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = SitlOptions(map_name=args.map, policy=args.policy, can=args.can, speed=args.speed,
                        mavlink=args.mavlink, out=args.out, seed=args.seed, duration_s=args.duration,
-                       robots=args.robots, autopilot=args.autopilot)
+                       autopilot=args.autopilot)
 
     def say(line: str) -> None:
         print(f"qnav sitl: {line}", file=sys.stderr, flush=True)

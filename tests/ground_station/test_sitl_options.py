@@ -29,7 +29,6 @@ def test_gcs_side_of_the_robot_url(robot, gcs):
 
 
 @pytest.mark.parametrize(("opts", "why"), [
-    (SitlOptions(robots=3), "--robots 3: only 1 robot"),
     (SitlOptions(speed=-1), "--speed must be a positive number"),
     (SitlOptions(speed=float("inf")), "--speed must be a positive number"),
     (SitlOptions(duration_s=0), "--duration must be positive"),

@@ -164,7 +164,7 @@ def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
     assert code == 0 and any("every process stopped" in line for line in sitl.log), sitl.log[-10:]
     assert no_children_left(sitl.out) == [] and not port_open(port)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    for args, why in ((["--robots", "2"], "only 1 robot"), (["--speed", "0"], "--speed must be a positive"),
+    for args, why in ((["--speed", "0"], "--speed must be a positive"),
                       (["--mavlink", "bogus"], "--mavlink bogus: expected"),
                       (["--map", "nosuchmap"], "--map nosuchmap"),
                       (["--policy", "policies:nosuch"], "--policy policies:nosuch")):
