@@ -25,10 +25,10 @@ test: $(STAMP)
 	# worker (xdist_group); then, one at a time, the tests judged on the wall
 	# clock (marker `wallclock`: paced sims, link timing, the UML vcan batch),
 	# which a second busy worker could fail.
-	$(BIN)/python -m pytest -q -n 2 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
+	$(BIN)/python -m pytest -q --durations=15 -n 2 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py
-	$(BIN)/python -m pytest -q -m wallclock tests/hil tests/faults
+	$(BIN)/python -m pytest -q --durations=15 -m wallclock tests/hil tests/faults
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
