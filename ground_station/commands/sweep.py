@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
     from ground_station.learn.config import config_from_recipe_args, validate_config
     from ground_station.learn.sweep import parse_lrs, sweep, write_sweep
+    from ground_station.learn.train import CellProblem
     from ground_station.maps import MapError, load_map
 
     cfg = config_from_recipe_args(args)
@@ -68,7 +69,9 @@ def run(args: argparse.Namespace) -> int:
         points = space_points([parse_axis(a) for a in args.space], args.samples, cfg.seed)
         for point in points:
             validate_config(replace(cfg, **point))
-        load_map(cfg.map)
+        gridmap = load_map(cfg.map)
+        if cfg.encoding == "cell":  # the goals resolve, every one reachable (else a worker's traceback)
+            CellProblem.build(gridmap, cfg.targets or None)
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     t0 = time.perf_counter()

@@ -106,6 +106,15 @@ def test_cli_study_bad_input_is_one_line(tmp_path, args, text):
     assert p.returncode == 2 and text in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
 
 
+@pytest.mark.parametrize("args,text", [
+    (["--map", "maze-15x15-s2"], "defines no targets"),  # was a worker's traceback
+    (["--targets", "A,Z"], "Z"),
+])
+def test_cli_sweep_bad_map_targets_are_one_line(tmp_path, args, text):
+    p = qnav("sweep", "--out", str(tmp_path), "--lrs", "0.5", "--seeds", "1", "--steps", "1000", *args)
+    assert p.returncode == 2 and text in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
 def test_recipes_are_the_train_defaults(tmp_path):
     assert recipe_config("sector", {}).steps == 20_000_000 and recipe_config("sector", {}).reward_step == 0.0
     assert recipe_config("cell", {}) == TrainConfig()
