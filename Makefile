@@ -21,11 +21,13 @@ test: $(STAMP)
 	sh tools/install_test_deps.sh
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	# Everything on both cores (pytest-xdist), the Ray cluster tests on one
-	# worker (xdist_group); then, one at a time, the tests judged on the wall
-	# clock (marker `wallclock`: paced sims, link timing, the UML vcan batch),
-	# which a second busy worker could fail.
-	$(BIN)/python -m pytest -q --durations=15 -n 2 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
+	# Everything but the wall-clock tests on three pytest-xdist workers (at two,
+	# the 2 cores were busy 58 % of the run: many tests wait on processes and
+	# sockets), the Ray cluster tests on one worker (xdist_group); then, one at
+	# a time, the tests judged on the wall clock (marker `wallclock`: paced and
+	# real-time sims, link timing, the UML vcan batch), which busy neighbours
+	# could fail.
+	$(BIN)/python -m pytest -q --durations=15 -n 3 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py
 	$(BIN)/python -m pytest -q --durations=15 -m wallclock tests/hil tests/faults
