@@ -105,7 +105,9 @@ def test_campaign_path():
 
 # --- the same campaigns on the local pool and on a Ray cluster ------------------------
 
-@pytest.fixture(scope="module")
+# session scope: xdist interleaves other modules' tests on the Ray group's worker, and a module-scoped
+# cluster was torn down and started again between them (~17 s each time)
+@pytest.fixture(scope="session")
 def cluster(tmp_path_factory):
     pytest.importorskip("ray", reason="Ray (qnav[cluster]) is not installed: the Ray engine cannot run")
     from ground_station.rigs.ray_cluster import LocalRayCluster
@@ -121,7 +123,7 @@ def cluster(tmp_path_factory):
     assert c.pids() == [], "Ray processes left running"
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def local_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep_local")
     r = qnav(*SWEEP, "--out", str(out), "--workers", "2")
