@@ -9,7 +9,8 @@ kernels draw the same kind of numbers and break ties the same way:
 * `greedy`: argmax of a Q row, ties to the lowest index, as the robot's
   `firmware_py.encoders.best_action`;
 * `cell_step`: the grid world's reward and termination, so Q-learning and
-  the other tabular learners score a move identically.
+  the other tabular learners score a move identically;
+* `epsilon_at`: the linear exploration schedule every trainer follows.
 """
 
 from __future__ import annotations
@@ -76,3 +77,12 @@ def cell_step(cell, c2, goal_cell, r_goal, r_step, r_coll):
     if c2 == goal_cell:
         return c2, r_goal, True, True
     return c2, r_step, False, False
+
+
+@numba.njit(cache=True, inline="always")
+def epsilon_at(t, eps_start, eps_end, eps_decay_steps) -> float:
+    """Linear epsilon schedule at global step t: eps_start -> eps_end over
+    eps_decay_steps steps, then eps_end."""
+    if eps_decay_steps > 0 and t < eps_decay_steps:
+        return eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
+    return eps_end

@@ -50,7 +50,7 @@ import numba
 import numpy as np
 
 from ground_station.learn.config import LEARNERS, TrainConfig
-from ground_station.learn.jit import cell_step, greedy, rand01, randint, seed_state
+from ground_station.learn.jit import cell_step, epsilon_at, greedy, rand01, randint, seed_state
 
 Q, SARSA, EXPECTED_SARSA, DOUBLE_Q, DYNA_Q, Q_LAMBDA = range(6)
 assert LEARNERS == ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
@@ -116,7 +116,7 @@ def td_cell(learner, qa, qb, next_cell, goal_cells, starts_flat, starts_off,
     n_done = 0
     for i in range(n_steps):
         t = start_step + i
-        eps = eps_end if t >= eps_decay_steps else eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
+        eps = epsilon_at(t, eps_start, eps_end, eps_decay_steps)
         if active == 0:
             g = int(rand01(rng) * n_goals)
             lo = starts_off[g]
@@ -137,7 +137,7 @@ def td_cell(learner, qa, qb, next_cell, goal_cells, starts_flat, starts_off,
         a2 = 0
         if not done and (not truncated or learner == SARSA):
             t2 = t + 1
-            eps2 = eps_end if t2 >= eps_decay_steps else eps_start + (eps_end - eps_start) * (t2 / eps_decay_steps)
+            eps2 = epsilon_at(t2, eps_start, eps_end, eps_decay_steps)
             a2 = _act(learner, qa, qb, s2, eps2, rng)
 
         if learner == DOUBLE_Q:

@@ -52,7 +52,7 @@ from ground_station.learn.envs.cell_env import (
     reachable_starts,
     resolve_goals,
 )
-from ground_station.learn.jit import cell_step, greedy, rand01, seed_state
+from ground_station.learn.jit import cell_step, epsilon_at, greedy, rand01, seed_state
 from ground_station.maps import GridMap, MapError, load_map
 
 # --------------------------------------------------------------------------
@@ -120,10 +120,7 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
             ret = 0.0
             active = 1
         t = start_step + i
-        if t >= eps_decay_steps:
-            eps = eps_end
-        else:
-            eps = eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
+        eps = epsilon_at(t, eps_start, eps_end, eps_decay_steps)
         s = cell_state(g, cell, n_cells)
         if rand01(rng) < eps:
             a = int(rand01(rng) * n_actions)

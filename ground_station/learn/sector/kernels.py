@@ -35,7 +35,7 @@ import numba
 import numpy as np
 
 from firmware_py import robot_spec
-from ground_station.learn.jit import greedy, rand01, randint
+from ground_station.learn.jit import epsilon_at, greedy, rand01, randint
 from ground_station.learn.sector.reward import (
     RW_ALIGN,
     RW_COLLISION,
@@ -316,14 +316,6 @@ def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, 
 # tabular learners of the sector trainer (the cell encoding's switch,
 # `ground_station.learn.learners`; LEARNERS order)
 L_Q, L_SARSA, L_EXPECTED_SARSA, L_DOUBLE_Q, L_DYNA_Q, L_Q_LAMBDA = range(6)
-
-
-@numba.njit(cache=True, inline="always")
-def epsilon_at(t, eps_start, eps_end, eps_decay_steps) -> float:
-    """Linear epsilon schedule at global step t."""
-    if eps_decay_steps > 0 and t < eps_decay_steps:
-        return eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
-    return eps_end
 
 
 @numba.njit(cache=True, inline="always")

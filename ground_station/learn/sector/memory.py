@@ -35,7 +35,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import turn_of
-from ground_station.learn.jit import greedy, rand01, randint
+from ground_station.learn.jit import epsilon_at, greedy, rand01, randint
 from ground_station.learn.sector.kernels import (
     COLLISION,
     E_A,
@@ -171,10 +171,7 @@ def train_memory_kernel(q, rng, ep, mem, occ, dims, cell, free, nfree, dist,
         s = int(ep[E_S])
         if ep[E_K] == 0.0:
             t_glob = start_step + i
-            if eps_decay_steps > 0 and t_glob < eps_decay_steps:
-                eps = eps_start + (eps_end - eps_start) * (t_glob / eps_decay_steps)
-            else:
-                eps = eps_end
+            eps = epsilon_at(t_glob, eps_start, eps_end, eps_decay_steps)
             if rand01(rng) < eps:
                 a = randint(rng, q.shape[1])
             else:
