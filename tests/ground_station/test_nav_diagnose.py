@@ -8,12 +8,25 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import BugMemory, MemorySectorEncoder, SectorEncoder, turn_of
+from ground_station.learn.jit import greedy
 from ground_station.learn.sector.evaluate import seek_table
-from ground_station.learn.sector.twin import bearing_mrad
+from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD
+from ground_station.learn.sector.obstacles import (
+    COLLISION,
+    LOOP,
+    NEAR_MISS_MM,
+    SUCCESS,
+    TIMEOUT,
+    obs_period_step,
+    obstacle_clearance_mm,
+    sense_obs,
+)
+from ground_station.learn.sector.twin import bearing_mrad, encode_fast
 from ground_station.maps import load_map
 from ground_station.nav import diagnose as dg
 from ground_station.nav.controllers import NavController
@@ -149,12 +162,100 @@ def test_memory_trainer_keeps_frozen_rows_and_ends_stalled_episodes():
     assert len(succ_stall) > len(succ_plain)  # stalls end episodes early: more, shorter episodes
 
 
+@numba.njit
+def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem,
+                    ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
+                    budget_base, budget_factor, stall_steps,
+                    out_outcome, out_path, out_steps, out_minclear, out_near):
+    """The bench's twin core before the detour memory (moved here from
+    ground_station.learn.sector.obstacles as the reference the memory-aware
+    kernel is checked against). Greedy rollouts of table q over scenario episodes e (map ep_map[e],
+    start pose ep_start[e] = (x, y, th), goal point ep_goal[e], waypoints
+    ep_wp[e, :ep_nwp[e]] with remaining lengths ep_rem[e], discs
+    ep_discs[e, :ep_nd[e]], movers ep_movers[e, :ep_nm[e]] (copied: the
+    scenario arrays stay as given)). guided = 0 steers on the goal alone.
+    Outcomes: SUCCESS, COLLISION, LOOP (no new minimum of the guide
+    potential for stall_steps periods), TIMEOUT (budget_base + budget_factor
+    x planned path length in forward periods). Also: driven length, steps,
+    minimum clearance, periods with clearance < NEAR_MISS_MM."""
+    ranges = np.zeros(which.shape[0], dtype=np.int64)
+    status = np.zeros(which.shape[0], dtype=np.int64)
+    rw = np.zeros(7)
+    gwp = np.zeros((1, 2))
+    grem = np.zeros(1)
+    for e in range(ep_map.shape[0]):
+        m = ep_map[e]
+        h = dims[m, 0]
+        w = dims[m, 1]
+        c = cells[m]
+        occ = occ_all[m]
+        discs = ep_discs[e, :ep_nd[e]]
+        movers = ep_movers[e, :ep_nm[e]].copy()
+        if guided:
+            wps = ep_wp[e]
+            rem = ep_rem[e]
+            nwp = ep_nwp[e]
+        else:
+            gwp[0, 0] = ep_goal[e, 0]
+            gwp[0, 1] = ep_goal[e, 1]
+            wps = gwp
+            rem = grem
+            nwp = 1
+        x = ep_start[e, 0]
+        y = ep_start[e, 1]
+        th = ep_start[e, 2]
+        plan_len = ep_rem[e, 0] + math.hypot(x - ep_wp[e, 0, 0], y - ep_wp[e, 0, 1])
+        budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+        k = 0
+        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
+        best = phi
+        since = 0
+        path = 0.0
+        outcome = TIMEOUT
+        minclear = obstacle_clearance_mm(x, y, discs, movers)
+        near = 0
+        t = 0
+        sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+        s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
+        while t < budget:
+            a = greedy(q, s)
+            x, y, th, phi, _, s, hit, success, driven, k = obs_period_step(
+                occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
+                sectors, sensors, edges, discs, movers, 0.0)
+            path += driven
+            t += 1
+            if hit:
+                outcome = COLLISION
+                minclear = 0.0
+                break
+            cl = obstacle_clearance_mm(x, y, discs, movers)
+            if cl < minclear:
+                minclear = cl
+            if cl < NEAR_MISS_MM:
+                near += 1
+            if success:
+                outcome = SUCCESS
+                break
+            if phi < best - 1.0:
+                best = phi
+                since = 0
+            else:
+                since += 1
+                if since >= stall_steps:
+                    outcome = LOOP
+                    break
+        out_outcome[e] = outcome
+        out_path[e] = path
+        out_steps[e] = t
+        out_minclear[e] = minclear
+        out_near[e] = near
+
+
 def test_bench_rollouts_of_a_plain_table_are_the_old_kernels():
     """run_twin now calls nav_eval_mem_kernel for every table: with no memory
     it must give nav_eval_kernel's rows exactly (the shipped figures stand)."""
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy
-    from ground_station.learn.sector.obstacles import nav_eval_kernel
     from ground_station.learn.sector.twin import encoder_arrays
     from ground_station.nav.controllers import standard_controllers
     from ground_station.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, OUTCOMES, STALL_STEPS

@@ -12,9 +12,10 @@ compiled here from the sim's own source (one definition for both).
   disc or mover) for near-miss counting.
 * `obs_period_step`: `kernels.period_step` with obstacles (same reward terms
   and waypoint advance) plus an optional clearance reward.
-* `nav_eval_kernel`: greedy rollouts of one table over a list of scenario
-  episodes (the `qnav bench nav` twin core); `obs_train_kernel`: the sector
-  Q-learning loop drawing its episodes from a pool of scenarios.
+* `nav_eval_mem_kernel`: greedy rollouts of one table (plain or with the
+  detour memory) over a list of scenario episodes (the `qnav bench nav` twin
+  core); `obs_train_kernel` / `obs_mem_train_kernel`: the sector Q-learning
+  loop drawing its episodes from a pool of scenarios.
 """
 
 from __future__ import annotations
@@ -232,93 +233,6 @@ SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
 
 
 @numba.njit(cache=True)
-def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem,
-                    ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
-                    budget_base, budget_factor, stall_steps,
-                    out_outcome, out_path, out_steps, out_minclear, out_near):
-    """Greedy rollouts of table q over scenario episodes e (map ep_map[e],
-    start pose ep_start[e] = (x, y, th), goal point ep_goal[e], waypoints
-    ep_wp[e, :ep_nwp[e]] with remaining lengths ep_rem[e], discs
-    ep_discs[e, :ep_nd[e]], movers ep_movers[e, :ep_nm[e]] (copied: the
-    scenario arrays stay as given)). guided = 0 steers on the goal alone.
-    Outcomes: SUCCESS, COLLISION, LOOP (no new minimum of the guide
-    potential for stall_steps periods), TIMEOUT (budget_base + budget_factor
-    x planned path length in forward periods). Also: driven length, steps,
-    minimum clearance, periods with clearance < NEAR_MISS_MM."""
-    ranges = np.zeros(which.shape[0], dtype=np.int64)
-    status = np.zeros(which.shape[0], dtype=np.int64)
-    rw = np.zeros(7)
-    gwp = np.zeros((1, 2))
-    grem = np.zeros(1)
-    for e in range(ep_map.shape[0]):
-        m = ep_map[e]
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cells[m]
-        occ = occ_all[m]
-        discs = ep_discs[e, :ep_nd[e]]
-        movers = ep_movers[e, :ep_nm[e]].copy()
-        if guided:
-            wps = ep_wp[e]
-            rem = ep_rem[e]
-            nwp = ep_nwp[e]
-        else:
-            gwp[0, 0] = ep_goal[e, 0]
-            gwp[0, 1] = ep_goal[e, 1]
-            wps = gwp
-            rem = grem
-            nwp = 1
-        x = ep_start[e, 0]
-        y = ep_start[e, 1]
-        th = ep_start[e, 2]
-        plan_len = ep_rem[e, 0] + math.hypot(x - ep_wp[e, 0, 0], y - ep_wp[e, 0, 1])
-        budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
-        k = 0
-        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
-        best = phi
-        since = 0
-        path = 0.0
-        outcome = TIMEOUT
-        minclear = obstacle_clearance_mm(x, y, discs, movers)
-        near = 0
-        t = 0
-        sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
-        s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
-        while t < budget:
-            a = greedy(q, s)
-            x, y, th, phi, _, s, hit, success, driven, k = obs_period_step(
-                occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
-                sectors, sensors, edges, discs, movers, 0.0)
-            path += driven
-            t += 1
-            if hit:
-                outcome = COLLISION
-                minclear = 0.0
-                break
-            cl = obstacle_clearance_mm(x, y, discs, movers)
-            if cl < minclear:
-                minclear = cl
-            if cl < NEAR_MISS_MM:
-                near += 1
-            if success:
-                outcome = SUCCESS
-                break
-            if phi < best - 1.0:
-                best = phi
-                since = 0
-            else:
-                since += 1
-                if since >= stall_steps:
-                    outcome = LOOP
-                    break
-        out_outcome[e] = outcome
-        out_path[e] = path
-        out_steps[e] = t
-        out_minclear[e] = minclear
-        out_near[e] = near
-
-
-@numba.njit(cache=True)
 def obs_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem,
                      ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which,
                      lr, lr_end, gamma, eps_start, eps_end, eps_decay_steps, rw, clear_mm,
@@ -424,13 +338,23 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
                         ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
                         budget_base, budget_factor, stall_steps, mp, n_base,
                         out_outcome, out_path, out_steps, out_minclear, out_near):
-    """`nav_eval_kernel` for a `MemorySectorEncoder` table (mp =
+    """Greedy rollouts of table q over scenario episodes e (map ep_map[e],
+    start pose ep_start[e] = (x, y, th), goal point ep_goal[e], waypoints
+    ep_wp[e, :ep_nwp[e]] with remaining lengths ep_rem[e], discs
+    ep_discs[e, :ep_nd[e]], movers ep_movers[e, :ep_nm[e]] (copied: the
+    scenario arrays stay as given)). guided = 0 steers on the goal alone.
+    Outcomes: SUCCESS, COLLISION, LOOP (no new minimum of the guide
+    potential for stall_steps periods), TIMEOUT (budget_base + budget_factor
+    x planned path length in forward periods). Also: driven length, steps,
+    minimum clearance, periods with clearance < NEAR_MISS_MM.
+
+    For a `MemorySectorEncoder` table (mp =
     `memory_train.memory_params`, n_base = the base encoder's states): the
     Bug memory is reset at the start and whenever the current waypoint
     changes (as the robot's controller does per mission item), updated from
     all eight readings every period, and the previous action's turn is
     noted after each choice. mp of length 0: a plain sector table (the same
-    rollouts as `nav_eval_kernel`)."""
+    rollouts as the memoryless kernel this replaced: tests/ground_station/test_nav_diagnose.py)."""
     use_mem = mp.shape[0] > 0
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
