@@ -209,7 +209,8 @@ def run(args: argparse.Namespace) -> int:
     pose = plant.world.pose
     wall = stats.wall_s or 1e-9
     print(f"ticks {stats.ticks} (missed {stats.missed_ticks}, stale commands "
-          f"{stats.stale_commands}, bad frames {stats.bad_frames}); sim {stats.sim_s:.2f} s, "
+          f"{stats.stale_commands}, bad frames {stats.bad_frames}, repeated answers {stats.repeated_answers}); "
+          f"sim {stats.sim_s:.2f} s, "
           f"wall {wall:.2f} s, real-time factor {stats.sim_s / wall:.2f}"
           f"{'' if speed is None else f' (target {speed:g})'}, {stats.ticks_per_s:.0f} ticks/s; "
           f"final pose x={pose.x:.3f} y={pose.y:.3f} heading={math.degrees(pose.heading) % 360:.1f} deg")

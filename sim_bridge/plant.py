@@ -59,7 +59,8 @@ class SimConfig:
 class RunStats:
     ticks: int = 0
     missed_ticks: int = 0
-    stale_commands: int = 0
+    stale_commands: int = 0  # lockstep: MotorCommands for a tick that is not the current one (and was not answered)
+    repeated_answers: int = 0  # lockstep: a second answer to the tick just answered (the controller saw a resent SimTick)
     bad_frames: int = 0
     frames_sent: int = 0
     frames_received: int = 0
@@ -96,7 +97,7 @@ class Plant:
         self.time_us = 0
         self.stats = RunStats()
         self.trajectory: list[tuple] = []
-        self._answered_tick: int | None = None
+        self._answered_tick: int | None = None  # counter of the last tick the controller answered (lockstep)
         self._last_cmd = (0, 0)
         self.obstacles: Any = None  # a sim_bridge.obstacles.ObstacleLayer: its movers move once per period
         self._in_step = False
@@ -133,8 +134,15 @@ class Plant:
             return False
         if name == "MotorCommand":
             if lockstep and sig["Cmd_Counter"] != self.tick % cp.TICK_MODULUS:
-                self.stats.stale_commands += 1
+                # The sim resends a SimTick the controller is slow to answer, and the controller answers
+                # each copy: the second answer to a tick already answered is a repeat, not a stale command.
+                if sig["Cmd_Counter"] == self._answered_tick:
+                    self.stats.repeated_answers += 1
+                else:
+                    self.stats.stale_commands += 1
                 return False
+            if lockstep:
+                self._answered_tick = sig["Cmd_Counter"]
             self.motors.command(sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"], sig["Cmd_Counter"],
                                 self.time_us)
             self._last_cmd = (sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"])

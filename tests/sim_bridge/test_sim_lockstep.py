@@ -7,6 +7,7 @@ import hashlib
 import subprocess
 import sys
 import threading
+import time
 
 import can
 import numpy as np
@@ -116,6 +117,44 @@ def test_dead_controller_misses_ticks_and_the_watchdog_stops_the_robot():
     # last command at tick 2 (t = 100 ms): wheels zero from 300 ms sim time on
     wheels = {round(row[0] * 1000): (row[5], row[6]) for row in plant.trajectory}
     assert wheels[250] != (0.0, 0.0) and wheels[300] == (0.0, 0.0) and wheels[1000] == (0.0, 0.0)
+
+
+class _SlowOnce(reflex.ReflexDriver):
+    """Answers tick 3 only after the sim has resent it: the sim then sees two answers to one tick."""
+
+    def __init__(self, delay_s: float) -> None:
+        super().__init__()
+        self.delay_s = delay_s
+        self.delayed = False
+
+    def handle(self, msg: can.Message) -> list[can.Message]:
+        if msg.arbitration_id == cp.SIM_TICK_ID and not self.delayed and cp.decode(msg)[1]["Tick_Counter"] == 3:
+            self.delayed = True
+            time.sleep(self.delay_s)
+        return super().handle(msg)
+
+
+def test_second_answer_after_a_resent_tick_is_a_repeat_not_stale():
+    plant = Plant(ARENA, SimConfig(), Pose(1.0, 1.0, 0.0))
+    bus = open_bus("virtual:test_ls_resend")
+    try:
+        with _Controller("test_ls_resend", driver=_SlowOnce(0.15)):
+            stats = run_lockstep(plant, bus, 0.5, tick_timeout_s=2.0, resend_s=0.05)
+    finally:
+        bus.shutdown()
+    # tick 3 was resent while the controller slept; it answered the queued copies too
+    assert stats.ticks == 10 and stats.missed_ticks == 0
+    assert stats.repeated_answers >= 1 and stats.stale_commands == 0
+
+
+def test_repeat_counts_only_the_tick_just_answered():
+    plant = Plant(ARENA, SimConfig(), Pose(1.0, 1.0, 0.0))
+    plant.tick_frames()
+    assert plant.handle(cp.motor_command(100, 100, 0))
+    plant.step_period()
+    assert not plant.handle(cp.motor_command(100, 100, 0))  # tick 0 again: a repeat
+    assert not plant.handle(cp.motor_command(100, 100, 7))  # never sent: stale
+    assert plant.stats.repeated_answers == 1 and plant.stats.stale_commands == 1
 
 
 def test_stale_and_repeated_ticks():
