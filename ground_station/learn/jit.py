@@ -86,3 +86,15 @@ def epsilon_at(t, eps_start, eps_end, eps_decay_steps) -> float:
     if eps_decay_steps > 0 and t < eps_decay_steps:
         return eps_start + (eps_end - eps_start) * (t / eps_decay_steps)
     return eps_end
+
+
+@numba.njit(cache=True, inline="always")
+def draw_episode_start(rng, n_goals, starts_flat, starts_off):
+    """A cell-encoding episode's start: a uniform goal g, then a uniform cell of
+    its start list starts_flat[starts_off[g]:starts_off[g + 1]]; returns
+    (goal, start cell). Two uniform draws in that order, so every kernel that
+    calls it replays the same episodes from the same seed."""
+    g = int(rand01(rng) * n_goals)
+    lo = starts_off[g]
+    return g, starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
+

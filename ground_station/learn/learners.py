@@ -50,7 +50,15 @@ import numba
 import numpy as np
 
 from ground_station.learn.config import LEARNERS, TrainConfig
-from ground_station.learn.jit import cell_step, epsilon_at, greedy, rand01, randint, seed_state
+from ground_station.learn.jit import (
+    cell_step,
+    draw_episode_start,
+    epsilon_at,
+    greedy,
+    rand01,
+    randint,
+    seed_state,
+)
 
 Q, SARSA, EXPECTED_SARSA, DOUBLE_Q, DYNA_Q, Q_LAMBDA = range(6)
 assert LEARNERS == ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
@@ -118,9 +126,7 @@ def td_cell(learner, qa, qb, next_cell, goal_cells, starts_flat, starts_off,
         t = start_step + i
         eps = epsilon_at(t, eps_start, eps_end, eps_decay_steps)
         if active == 0:
-            g = int(rand01(rng) * n_goals)
-            lo = starts_off[g]
-            cell = starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
+            g, cell = draw_episode_start(rng, n_goals, starts_flat, starts_off)
             t_ep = 0
             ret = 0.0
             active = 1

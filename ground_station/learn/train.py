@@ -52,7 +52,14 @@ from ground_station.learn.envs.cell_env import (
     reachable_starts,
     resolve_goals,
 )
-from ground_station.learn.jit import cell_step, epsilon_at, greedy, rand01, seed_state
+from ground_station.learn.jit import (
+    cell_step,
+    draw_episode_start,
+    epsilon_at,
+    greedy,
+    rand01,
+    seed_state,
+)
 from ground_station.maps import GridMap, MapError, load_map
 
 # --------------------------------------------------------------------------
@@ -113,9 +120,7 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
     n_done = 0
     for i in range(n_steps):
         if active == 0:
-            g = int(rand01(rng) * n_goals)
-            lo = starts_off[g]
-            cell = starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
+            g, cell = draw_episode_start(rng, n_goals, starts_flat, starts_off)
             t_ep = 0
             ret = 0.0
             active = 1
