@@ -351,6 +351,7 @@ class Controller:
         self.goal = goal
         self._goal_index = goal_index
         self._prim = None
+        self.progress.restart()
         if self.state == CtrlState.DRIVING:
             log.info("t=%d us retarget: %s", self._now, cause)
             self._event("info", f"retarget: {cause}")

@@ -7,7 +7,10 @@ tick; when the distance to the current goal has found no new minimum (by
 `MIN_GAIN_MM`) for `timeout_us`, it returns a message once for that goal,
 which the controller sends as a STATUSTEXT warning, so the operator (and
 MAVProxy/QGC, beside the OBSTACLE_DISTANCE the robot streams) sees that
-the way is blocked. A new goal re-arms it.
+the way is blocked. A new goal re-arms it, and so does `restart()`, which
+the controller calls whenever it starts driving to a goal: a mission
+re-planned around the obstacle may begin with the very waypoint the robot
+stalled at, and a second stall there must be reported again.
 """
 
 from __future__ import annotations
@@ -23,6 +26,10 @@ class ProgressWatch:
         self._best = 0
         self._since_us = 0
         self._reported = False
+
+    def restart(self) -> None:
+        """Forget the goal: the next `update` starts a new watch."""
+        self._goal = None
 
     def update(self, now_us: int, goal: tuple[int, int], dist_mm: int) -> str | None:
         """The warning text, once per goal, when progress stalls; else None."""

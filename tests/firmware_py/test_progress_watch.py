@@ -62,3 +62,22 @@ def test_controller_warns_when_the_policy_stalls_and_not_when_it_drives():
             assert len(warned) == 1 and ctrl.state == CtrlState.DRIVING, texts
         else:
             assert warned == [], texts
+
+
+def test_a_replaced_mission_starting_at_the_stalled_waypoint_is_watched_again():
+    """A mission re-planned around an obstacle may start with the waypoint the robot stalled at:
+    the watch restarts with every drive, so the second stall is reported too."""
+    ctrl = Controller(VehicleConfig(), _spinning_policy(), start_pose_mm=(250, 250, 0))
+    rig = Rig(ctrl, Kinematic(250, 250, 0))
+    rig.tick()
+    assert ctrl.arm() == (True, "")
+    period = VehicleConfig().control_period_us
+    warned = []
+    for _ in range(2):
+        assert ctrl.set_mission([(5000, 250)]) == (True, "")  # the same first waypoint both times
+        ok, why = ctrl.start_mission()
+        assert ok, why
+        for _ in range(NO_PROGRESS_US // period + 20):
+            rig.tick()
+            warned += [e.text for e in ctrl.drain_events() if e.kind == "info" and "no progress" in e.text]
+    assert len(warned) == 2, warned
