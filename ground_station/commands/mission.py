@@ -9,7 +9,14 @@ MAV_FRAME_LOCAL_NED (x north, y east) so they are exact. With `--plan` the
 ground station's planner (`ground_station.maps.planner`, what the sector
 policy is trained to follow) fills in the waypoints from the robot's
 position (its LOCAL_POSITION_NED, or `--start X,Y` in metres) through the
-targets on the map; the planned legs are printed.
+targets on the map; the planned legs are printed. `--plan --follow` then
+stays on the link while the robot drives (start it with `qnav arm` and
+`qnav mode auto`): when it reports that it stopped progressing, the cells
+its range readings (OBSTACLE_DISTANCE) found blocked are marked on the
+ground station's copy of the map and the rest of the mission is planned
+again and uploaded (`ground_station.nav.replan`); exits 0 when every target
+is reached, 3 when it gives up (no new blocked cell, no path left), 4 after
+`--follow-timeout`.
 
 Download: prints the robot's mission (world metres, x east / y north) and
 with `--out FILE` writes it as QGC WPL 110.
@@ -18,6 +25,7 @@ with `--out FILE` writes it as QGC WPL 110.
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -36,6 +44,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--plan", action="store_true",
                     help="send the planner's waypoints through the targets (what a sector policy needs)")
     up.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
+    up.add_argument("--follow", action="store_true",
+                    help="--plan: watch the mission and re-plan around cells the robot finds blocked")
+    up.add_argument("--follow-timeout", type=float, default=600.0, metavar="S",
+                    help="--follow: give up after this many seconds (default 600)")
     down = verbs.add_parser("download", help="print the robot's mission")
     down.add_argument("--out", metavar="FILE", help="also write it as a QGC WPL 110 file")
     for v in (up, down):
@@ -61,16 +73,31 @@ def run(args: argparse.Namespace) -> int:
             raise CliError("--plan needs --targets A,B,...")
         if args.start and not args.plan:
             raise CliError("--start needs --plan")
+        if args.follow and not args.plan:
+            raise CliError("--follow needs --plan")
+        if not (math.isfinite(args.follow_timeout) and args.follow_timeout > 0):
+            raise CliError(f"--follow-timeout must be a positive number of seconds, got {args.follow_timeout:g}")
         items = target_items(args.targets, args.map, args.cell_size) if args.targets else file_items(args.file)
         start = parse_start(args.start) if args.start else None
 
         def upload(link) -> int:
             nonlocal items
+            target_seq: list[int] = []
             if args.plan:
-                items = plan_mission(args, link, start)
+                items, target_seq = plan_mission(args, link, start)
             n = link.mission_upload(items)
             print(f"mission of {n} waypoints accepted")
-            return 0
+            if not args.follow:
+                return 0
+            from ground_station.mavlink.mission_items import load_gridmap, target_cells
+            from ground_station.nav.replan import MissionFollower, follow_mission
+
+            gm = load_gridmap(args.map, args.cell_size)
+            follower = MissionFollower(gm, target_cells(args.targets, gm), target_seq)
+            print(f"following the mission (up to {args.follow_timeout:g} s) ...", flush=True)
+            done = follow_mission(link, follower, args.follow_timeout, lambda line: print(line, flush=True))
+            print(done.text)
+            return 0 if done.ok else 4 if done.text.startswith("timeout") else 3
 
         return run_on_link(args, "mission upload", upload)
 
@@ -91,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
     return run_on_link(args, "mission download", download)
 
 
-def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None) -> list[tuple[int, int, int]]:
+def plan_mission(args: argparse.Namespace, link,
+                 start_mm: tuple[float, float] | None) -> tuple[list[tuple[int, int, int]], list[int]]:
     from ground_station.mavlink.mission_items import (
         load_gridmap,
         planned_items,
@@ -104,4 +132,4 @@ def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] |
     items, target_seq = planned_items(target_cells(args.targets, gm), start, gm)
     print(f"planned {len(items)} waypoints from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "
           f"targets at items {', '.join(str(i) for i in target_seq)}")
-    return items
+    return items, target_seq

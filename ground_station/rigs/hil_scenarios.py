@@ -365,6 +365,73 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
     return res
 
 
+SECTOR_POLICY = "policies/sector.qtab"
+REPLAN_START = "1.25,3.75,0"  # target A's cell (2, 2) of paper10, facing east
+REPLAN_DISC = (3100.0, 4300.0, 150.0)  # in the open room north-east of A, across the plan to B: the policy stalls
+
+
+def replan(can: str, work: Path, *, disc: tuple[float, float, float] = REPLAN_DISC,
+           follow_timeout_s: float = 90.0) -> dict:
+    """`qnav mission upload --targets B --plan --follow` with an unmapped disc across the plan.
+
+    Lockstep sim on paper10 with the disc (`--scenario`), the robot on the shipped sector policy from
+    A (`--localiser off`: the ideal plant's odometry is exact); the operator's commands as in
+    `mission`, the follower in the background from before the robot is armed. The result has the
+    follower's exit code and output, the robot's GOAL_REACHED lines and the sim's bumper contacts."""
+    port = free_udp_port()
+    link = ["--mavlink", f"udpin:127.0.0.1:{port}", "--no-tlog"]
+    res: dict = {"scenario": "replan", "can": can, "disc": list(disc), "steps": {}}
+    steps = res["steps"]
+    scen = work / "scenario.json"
+    scen.write_text(json.dumps({"discs": [list(disc)], "movers": []}))
+    traj = work / "replan_trajectory.csv"
+    with _Procs(work) as procs:
+        sim = procs.start("replan_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
+                                         "--duration", 3000, "--start", REPLAN_START, "--scenario", scen,
+                                         "--trajectory", traj, "-q"])
+        rob = procs.start("replan_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", SECTOR_POLICY,
+                                           "--start", REPLAN_START, "--storage", work / "storage",
+                                           "--duration", 2999.95, "--mavlink", f"udpout:127.0.0.1:{port}",
+                                           "--localiser", "off"])
+        code, out = _qnav(procs, "replan_param", ["param", "set", "FS_GCS_ENABLE", "0", *link, "--timeout", "30"])
+        steps["param_fs_off"] = {"exit": code, "out": out[-600:]}
+        follow = procs.start("replan_follow", [BIN / "qnav", "mission", "upload", "--targets", "B", "--plan",
+                                               "--follow", "--follow-timeout", follow_timeout_s, "--mavlink", f"udpin:127.0.0.1:{port}", "--tlog", work / "follow.tlog",
+                                               "--timeout", "30"])
+        until = time.monotonic() + 30
+        while time.monotonic() < until and follow.poll() is None and "following" not in procs.log("replan_follow"):
+            time.sleep(0.05)
+        deadline = time.monotonic() + 40
+        tries = 0
+        while True:  # arming waits for fresh sensor frames from the sim
+            tries += 1
+            code, out = _qnav(procs, f"replan_arm{tries}", ["arm", *link, "--timeout", "20"])
+            if code == 0 or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        steps["arm"] = {"exit": code, "tries": tries, "out": out[-600:]}
+        code, out = _qnav(procs, "replan_mode", ["mode", "auto", *link, "--timeout", "20"])
+        steps["mode_auto"] = {"exit": code, "out": out[-600:]}
+        res["follow_exit"] = _wait(follow, follow_timeout_s + 30)
+        res["follow_out"] = procs.log("replan_follow")[-3000:]
+        res["robot_goal_reached_lines"] = procs.log("replan_robot").count("-> GOAL_REACHED")
+        res["robot_log_tail"] = procs.log("replan_robot")[-1500:]
+        for p in (rob, sim):
+            stop_process(p, timeout_s=10, sig=signal.SIGINT)
+    res["bumper_contacts"] = _bumper_contacts(traj)
+    return res
+
+
+def _bumper_contacts(trajectory_csv: Path) -> int | None:
+    """Bumper contact events in the sim's trajectory CSV (rows where contact starts); None without it."""
+    from ground_station.demo import count_collisions
+
+    try:
+        return count_collisions(trajectory_csv)
+    except (OSError, ValueError):
+        return None
+
+
 def _reached_seq(tlog: Path) -> list[int]:
     """MISSION_ITEM_REACHED seqs in a tlog, in order."""
     from ground_station.mavlink.link import mavutil
@@ -387,6 +454,7 @@ SCENARIOS: dict[str, Callable[..., dict]] = {
     "estop_cansend": lambda can, work: estop(can, work, sender="cansend"),
     "sensor_stop": sensor_stop,
     "mission": mission,
+    "replan": replan,
 }
 
 
