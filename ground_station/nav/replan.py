@@ -222,6 +222,8 @@ class MissionFollower:
 
     def _pose_at(self, t_ms: float) -> tuple[float, float, float] | None:
         """The pose at robot time t_ms, interpolated between the poses around it."""
+        if self._poses and self._poses[-1][0] == t_ms:  # sent in the same telemetry tick
+            return self._poses[-1][1:]
         for (t0, x0, y0, h0), (t1, x1, y1, h1) in zip(self._poses, self._poses[1:], strict=False):
             if t0 <= t_ms <= t1:
                 f = 0.0 if t1 == t0 else (t_ms - t0) / (t1 - t0)
@@ -260,7 +262,7 @@ class MissionFollower:
             pose = self._pose_at(t_us / 1000.0)
             if pose is not None:
                 self.seen.observe(t_us, *pose, readings)
-            elif self._poses and t_us / 1000.0 > self._poses[-1][0]:
+            elif not self._poses or t_us / 1000.0 > self._poses[-1][0]:
                 keep.append((t_us, readings))  # its later pose is still to come
         self._scans = keep
 

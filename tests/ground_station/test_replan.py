@@ -1,0 +1,142 @@
+"""The re-planning core of `qnav mission upload --plan --follow` (ground_station/nav/replan.py),
+fed with the robot's own telemetry encoding (firmware_py.mavlink.telemetry, packed and parsed by
+pymavlink): map walls are never taken for obstacles, an unmapped reading is placed where it
+was seen, a stall re-plans round it, and the last target reached ends the follow."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as m
+
+from firmware_py import robot_spec
+from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
+from firmware_py.mavlink.params import ParamStore
+from firmware_py.mavlink.telemetry import NodeStats, Telemetry
+from firmware_py.vehicle import VehicleStatus
+from ground_station.learn.sector.twin import sense_one
+from ground_station.maps import MapError, load_map
+from ground_station.nav.replan import Finished, MissionFollower, Replan, UnmappedPoints, raster_plan
+from tests.ground_station.test_nav_plan_cli import _run
+
+GM = load_map("paper10")
+OCC = np.ascontiguousarray(GM.occ, dtype=np.uint8)
+MAV = m.MAVLink(None, srcSystem=1, srcComponent=1)
+TEL = Telemetry(MAV, ParamStore())
+
+
+def _map_ranges(x: float, y: float, heading: float) -> tuple[list[int], list[int]]:
+    out = [sense_one(OCC, 10, 10, 500.0, x, y, heading, i) for i in range(robot_spec.SENSOR_COUNT)]
+    return [int(r) for r, _ in out], [int(s) for _, s in out]
+
+
+def _telemetry(t_ms: int, x: float, y: float, heading: float, ranges: list[int], status: list[int]) -> list:
+    """LOCAL_POSITION_NED, ATTITUDE and OBSTACLE_DISTANCE of one robot tick, over the wire and back."""
+    st = VehicleStatus(x_mm=round(x), y_mm=round(y), heading_mrad=round(heading * 1000), ranges_mm=ranges,
+                       range_status=status)
+    out = []
+    for msg_id in (m.MAVLINK_MSG_ID_OBSTACLE_DISTANCE, m.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+                   m.MAVLINK_MSG_ID_ATTITUDE):
+        for msg in TEL.build(msg_id, t_ms * 1000, st, NodeStats()):
+            out.append(MAV.parse_char(msg.pack(MAV)))
+    return out
+
+
+def _feed(f: MissionFollower, msgs: list) -> list:
+    return [r for r in (f.handle(msg) for msg in msgs) if r is not None]
+
+
+@pytest.mark.parametrize("pose", [(1250, 3750, 0.0), (2750, 2750, 1.2), (4750, 250, 2.6), (250, 4750, -0.7)])
+def test_the_known_map_alone_is_never_an_obstacle(pose):
+    f = MissionFollower(GM, [GM.targets["B"]], [3])
+    for t in range(0, 2000, 100):  # the robot turning in place: walls seen at every angle
+        x, y, h = pose[0], pose[1], pose[2] + t / 1000.0
+        assert _feed(f, _telemetry(t, x, y, h, *_map_ranges(x, y, h))) == []
+    assert f.seen is not None and f.seen.recent(2_000_000) == []
+
+
+def test_a_reading_shorter_than_the_map_is_placed_where_it_was_seen():
+    seen = UnmappedPoints(GM)
+    x, y, h = 1250.0, 3750.0, 0.0
+    ranges, status = _map_ranges(x, y, h)
+    assert ranges[0] > 700  # the way east is open on the map
+    ranges[0], status[0] = 300, robot_spec.RANGE_VALID  # something 300 mm ahead
+    f = MissionFollower(GM, [GM.targets["B"]], [3], seen=seen)
+    _feed(f, _telemetry(100, x, y, h, ranges, status) + _telemetry(200, x, y, h, ranges, status))
+    pts = seen.recent(200_000)
+    assert len(pts) == 2
+    for px, py in pts:
+        assert px == pytest.approx(x + robot_spec.SENSOR_MOUNT_RADIUS_MM + 300, abs=10) and py == pytest.approx(y, abs=1)
+
+
+def _stalled_before_a_disc(f: MissionFollower, disc=(3100.0, 4300.0, 150.0), pose=(2759.0, 4218.0, 1.07)) -> None:
+    """Scans of a robot dithering in front of a disc: the front and front-right sensors see it."""
+    x, y, h0 = pose
+    for t in range(0, 3000, 100):
+        h = h0 + 0.05 * math.sin(t / 300.0)
+        ranges, status = _map_ranges(x, y, h)
+        for i in range(robot_spec.SENSOR_COUNT):  # the disc: a ray from the mount along the axis
+            a = h + robot_spec.SENSOR_ANGLES_MRAD[i] / 1000.0
+            ox, oy = x + 150 * math.cos(a), y + 150 * math.sin(a)
+            dx, dy = disc[0] - ox, disc[1] - oy
+            along = dx * math.cos(a) + dy * math.sin(a)
+            miss = abs(-dx * math.sin(a) + dy * math.cos(a))
+            if along > 0 and miss < disc[2]:
+                d = along - math.sqrt(disc[2] ** 2 - miss ** 2)
+                if status[i] != robot_spec.RANGE_VALID or d < ranges[i]:
+                    ranges[i], status[i] = round(d), robot_spec.RANGE_VALID
+        _feed(f, _telemetry(t, x, y, h, ranges, status))
+
+
+def _item_mm(item: tuple[int, int, int]) -> tuple[float, float]:
+    return item[2] * 1000 / LOCAL_ITEM_SCALE, item[1] * 1000 / LOCAL_ITEM_SCALE  # east, north
+
+
+def test_a_stall_replans_round_the_obstacle_and_the_last_target_finishes():
+    disc = (3100.0, 4300.0, 150.0)
+    f = MissionFollower(GM, [GM.targets["A"], GM.targets["B"]], [2, 6])
+    assert _feed(f, [m.MAVLink_mission_item_reached_message(2)]) == []  # A reached
+    _stalled_before_a_disc(f, disc)
+    out = f.text("item 2: no progress for 10 s, 724 mm to go")
+    assert isinstance(out, Replan), out
+    path = [(2759.0, 4218.0)] + [_item_mm(it) for it in out.items]
+    bx, by = (9 + 0.5) * 500, (10 - 0 - 0.5) * 500
+    assert math.dist(path[-1], (bx, by)) < 1 and out.target_seq == [len(out.items) - 1]
+    assert all(math.dist(a, b) <= 1000 + 1 for a, b in zip(path[1:], path[2:], strict=False))
+    for (ax, ay), (qx, qy) in zip(path[1:], path[2:], strict=False):  # every leg after the first step clears the disc
+        t = np.linspace(0.0, 1.0, 50)
+        gap = np.hypot(ax + t * (qx - ax) - disc[0], ay + t * (qy - ay) - disc[1]).min() - disc[2]
+        assert gap >= robot_spec.ROBOT_RADIUS_MM, (gap, path)
+    assert f.handle(m.MAVLink_mission_item_reached_message(len(out.items) - 2)) is None
+    done = f.handle(m.MAVLink_mission_item_reached_message(len(out.items) - 1))
+    assert isinstance(done, Finished) and done.ok and "1 re-plan" in done.text
+
+
+def test_a_stall_with_nothing_unmapped_in_view_gives_up_with_a_reason():
+    f = MissionFollower(GM, [GM.targets["B"]], [3])
+    assert isinstance(f.text("no progress for 10 s"), Finished)  # no pose yet
+    x, y, h = 1250.0, 3750.0, 0.0
+    _feed(f, _telemetry(0, x, y, h, *_map_ranges(x, y, h)) + _telemetry(100, x, y, h, *_map_ranges(x, y, h)))
+    out = f.text("item 0: no progress for 10 s, 3000 mm to go")
+    assert isinstance(out, Finished) and not out.ok and "nothing the map does not" in out.text
+    assert f.text("reached item 0") is None
+
+
+def test_no_path_left_is_a_map_error():
+    ring = [(1250.0 + 350 * math.cos(k / 20), 3750.0 + 350 * math.sin(k / 20)) for k in range(126)]
+    assert len(raster_plan(GM, [], (1250.0, 3750.0), [(4750.0, 4750.0)])[0]) >= 2  # open without the ring
+    with pytest.raises(MapError, match="no path"):
+        raster_plan(GM, ring, (1250.0, 3750.0), [(4750.0, 4750.0)])
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["mission", "upload", "--targets", "A", "--follow"], "--follow needs --plan"),
+    (["mission", "upload", "--targets", "A", "--plan", "--follow", "--follow-timeout", "0"], "--follow-timeout"),
+    (["mission", "upload", "--targets", "A", "--plan", "--follow", "--follow-timeout", "nan"], "--follow-timeout"),
+])
+def test_follow_bad_arguments_are_refused_with_one_line(argv, says):
+    code, err = _run(*argv)
+    assert code == 2 and says in err, err
+    assert "Traceback" not in err
