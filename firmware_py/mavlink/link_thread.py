@@ -186,5 +186,6 @@ class LinkThread:
                 "link_poll_max_ms": round(self.poll_max_s * 1000, 3),
                 "link_budget_exhausted": self.shell.budget_exhausted,
                 "link_partial_dropped": self.shell.partial_dropped,
+                "link_telemetry_thinned": 0 if self.shell.tx_budget is None else self.shell.tx_budget.dropped,
                 "link_handler_errors": self.shell.all_handler_errors(),
                 "switch_interval_us": round(sys.getswitchinterval() * 1e6)}

@@ -18,6 +18,9 @@ the poll goes on. On UDP the parser is reset after a datagram that ends
 inside a frame (`partial_dropped`): pymavlink parses all senders as one byte
 stream, so one truncated frame from anyone would otherwise swallow the next
 frame that arrives, whoever sent it (a GCS heartbeat among garbage).
+On a serial device the shell sends within the line's byte rate
+(`tx_budget.TxBudget`, wall time): replies always go, telemetry stream
+messages are skipped while the share is spent (`link_telemetry_thinned`).
 
 GCS failsafe (as ArduPilot Rover): armed only after a GCS heartbeat
 (HEARTBEAT with type MAV_TYPE_GCS) has been seen; no GCS heartbeat for
@@ -67,7 +70,14 @@ from firmware_py.mavlink.commands import CommandHandler
 from firmware_py.mavlink.mission import MissionEngine, check_position, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
-from firmware_py.mavlink.telemetry import AUTOPILOTS, DEFAULT_AUTOPILOT, NodeStats, Telemetry
+from firmware_py.mavlink.telemetry import (
+    AUTOPILOTS,
+    DEFAULT_AUTOPILOT,
+    STREAMS,
+    NodeStats,
+    Telemetry,
+)
+from firmware_py.mavlink.tx_budget import TxBudget, frame_len
 from firmware_py.vehicle import VehicleControl
 
 log = logging.getLogger("qnav.mavlink")
@@ -440,6 +450,8 @@ class MavShell:
         self.budget_exhausted = 0  # polls that stopped on their time budget with input left
         self.handler_errors: dict[str, int] = {}  # message type (or parser/tick) -> exceptions caught
         self._cpu = (time.process_time(), time.monotonic())
+        # a serial line carries baud/10 bytes a wall second: telemetry streams thin out to fit (tx_budget.py)
+        self.tx_budget = None if is_network_url(url) else TxBudget.for_baud(baud)
 
     def _sync_signing(self, now_us: int) -> None:
         sig, s = self.node.signing, self.conn.mav.signing
@@ -462,7 +474,11 @@ class MavShell:
         self._sync_signing(now_us)
         mav = self.conn.mav
         mav.srcSystem, mav.srcComponent = self.node.sysid, self.node.compid
+        budget, signed = self.tx_budget, self.node.signing.key is not None
         for m in msgs:
+            if budget is not None and not budget.allow(
+                    frame_len(m, signed), m.get_msgId() in STREAMS and m.get_msgId() != M.MAVLINK_MSG_ID_HEARTBEAT):
+                continue  # this period's share of the radio is spent: the stream sends again next time it is due
             try:
                 mav.send(m)
                 self.sent += 1
