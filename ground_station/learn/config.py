@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-ENCODINGS = ("cell", "sector", "sector-memory")
+ENCODINGS = ("cell", "sector", "sector-memory", "sector-memory-grid")
 # tabular learners (ground_station/learn/learners.py, the sector trainer's switch in
 # ground_station/learn/sector/kernels.py); sector-memory and obstacle training: q only
 LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
@@ -82,6 +82,12 @@ class TrainConfig:
     memory_wall_reach_mm: int = _f(400, "sector-memory: the followed wall counts as seen below this side range (mm)")
     memory_go_progress: str = _f("octile", "sector-memory: progress the go mode is rewarded for: euclid = straight-line "
                                            "distance to the goal (no map knowledge), octile = along the goal's octile field")
+    grid_free_mm: int = _f(350, "sector-memory-grid: a neighbour cell counts as free when the range sensor looking at it "
+                                "reads at least this (mm; 100 mm = the cell's own wall, >= 600 mm = the next cell free)")
+    grid_leave_margin_mm: int = _f(1, "sector-memory-grid: leave the wall once the goal is this much closer than where it was hit")
+    grid_wall_bearing: int = _f(0, "sector-memory-grid: 1 = the wall modes' state includes the goal sector too")
+    grid_wall_reward: float = _f(0.0, "sector-memory-grid: shaping reward per move in a wall mode that ends with the "
+                                      "followed side's neighbour blocked (the wall kept)")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
