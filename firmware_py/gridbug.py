@@ -59,6 +59,8 @@ DIR_HEADING_MRAD: tuple[int, ...] = (0, 1571, 3142, -1571)
 MOVE_FORWARD, MOVE_LEFT, MOVE_BACK, MOVE_RIGHT = 0, 1, 2, 3
 MOVE_NAMES: tuple[str, ...] = ("forward", "left", "back", "right")
 N_MOVES = 4
+# Each move's one-cell step as (forward, left) in the reference frame: the .qtab action set of this kind.
+MOVE_STEPS: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))
 # Modes.
 MODE_GO = 0
 MODE_WALL_RIGHT = 1
@@ -124,7 +126,7 @@ class GridBugEncoder:
     leave_margin_mm: int = 1
     cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM
     wall_bearing: bool = False
-    kind: str = field(default="sector-memory", init=False)
+    kind: str = field(default="sector-memory-grid", init=False)
 
     def __post_init__(self) -> None:
         if not robot_spec.RANGE_MIN_MM < self.free_mm < robot_spec.RANGE_MAX_MM:

@@ -104,8 +104,13 @@ RECIPES: dict[str, dict[str, Any]] = {
     "sector": {"steps": 20_000_000, "lr": 0.1, "gamma": 0.95, "reward_step": 0.0, "epsilon_end": 0.05},
     "sector-memory": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
                       "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
+    # cell-stepped Bug memory (docs/training.md, "Sector state with memory"): paper10 plus two random maps
+    # (no rooms/trap/maze map, the evaluation's unseen families), the wall-keeping shaping term
+    "sector-memory-grid": {"steps": 10_000_000, "lr": 0.1, "gamma": 0.95, "epsilon_end": 0.05,
+                           "sector_maps": "random-16x16-s0,random-16x16-s1", "grid_wall_reward": 0.02},
 }
-SHIPPED_RECIPES = {"shipped-cell": "cell", "shipped-sector": "sector", "shipped-sector-memory": "sector-memory"}
+SHIPPED_RECIPES = {"shipped-cell": "cell", "shipped-sector": "sector", "shipped-sector-memory": "sector-memory",
+                   "shipped-sector-memory-grid": "sector-memory-grid"}
 
 
 def recipe_config(encoding: str, given: dict[str, Any]) -> TrainConfig:
@@ -150,7 +155,7 @@ def validate_config(cfg: TrainConfig) -> None:
     if cfg.learner not in LEARNERS:
         raise ValueError(f"learner must be one of {', '.join(LEARNERS)}, got {cfg.learner!r}")
     obstacles = cfg.encoding == "sector" and (cfg.sector_obstacles > 0 or cfg.sector_movers > 0)
-    if cfg.learner != "q" and (cfg.encoding == "sector-memory" or obstacles):
+    if cfg.learner != "q" and (cfg.encoding in ("sector-memory", "sector-memory-grid") or obstacles):
         raise ValueError(f"learner {cfg.learner} is implemented for the cell and sector encodings without "
                          "unmapped obstacles (sector-memory and obstacle training: q)")
     if not 0.0 <= cfg.learner_lambda <= 1.0 or not 0.0 < cfg.trace_min < 1.0 or cfg.dyna_planning < 0:
@@ -172,6 +177,14 @@ def validate_config(cfg: TrainConfig) -> None:
         raise ValueError("memory_block_mm must be >= 1, memory_block_bearing_mrad and memory_leave_margin_mm >= 0")
     if cfg.encoding == "sector-memory" and cfg.memory_go_progress not in ("euclid", "octile"):
         raise ValueError(f"memory_go_progress must be euclid or octile, got {cfg.memory_go_progress!r}")
+    if cfg.encoding == "sector-memory-grid":
+        from firmware_py.gridbug import GridBugEncoder
+
+        if cfg.grid_wall_bearing not in (0, 1):
+            raise ValueError(f"grid_wall_bearing must be 0 or 1, got {cfg.grid_wall_bearing}")
+        if not 0.0 <= cfg.sector_lr_end <= 1.0:
+            raise ValueError(f"sector_lr_end must be in [0, 1], got {cfg.sector_lr_end}")
+        GridBugEncoder(free_mm=cfg.grid_free_mm, leave_margin_mm=cfg.grid_leave_margin_mm)  # its own checks
     if cfg.max_episode_steps < 0 or cfg.curve_points < 1 or cfg.chunk_steps < 1:
         raise ValueError("max_episode_steps must be >= 0, curve_points and chunk_steps >= 1")
 

@@ -127,6 +127,7 @@ class GridBugTrainer:
         self.encoder = encoder
         self.n_states = encoder.n_states
         self.n_actions = encoder.n_actions
+        self.maps = maps
         self.packed = PackedMaps(maps)
         self.params = encoder_params(encoder)
         self._rng = seed_state(cfg.seed)
@@ -187,7 +188,7 @@ def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: GridBugEncoder, s
     ratios = moves[ok] / shortest[ok]
     fail = ~ok
     return {
-        "map": gridmap.name, "episodes": int(n), "guidance": "direct", "encoding": "sector-memory",
+        "map": gridmap.name, "episodes": int(n), "guidance": "direct", "encoding": "sector-memory-grid",
         "success_rate": float(ok.mean()) if n else 0.0,
         "collisions": int((outcome == COLLISION).sum()),
         "timeouts": int((outcome == TIMEOUT).sum()),
