@@ -86,8 +86,10 @@ class TrainConfig:
                                 "reads at least this (mm; 100 mm = the cell's own wall, >= 600 mm = the next cell free)")
     grid_leave_margin_mm: int = _f(1, "sector-memory-grid: leave the wall once the goal is this much closer than where it was hit")
     grid_wall_bearing: int = _f(0, "sector-memory-grid: 1 = the wall modes' state includes the goal sector too")
-    grid_wall_reward: float = _f(0.0, "sector-memory-grid: shaping reward per move in a wall mode that ends with the "
-                                      "followed side's neighbour blocked (the wall kept)")
+    grid_wall_cost: float = _f(0.0, "sector-memory-grid: shaping cost per move in a wall mode that ends with the "
+                                    "followed side's neighbour free (the wall lost)")
+    grid_go_reward: float = _f(0.0, "sector-memory-grid: shaping reward in the go mode per cell the straight-line "
+                                    "goal distance falls")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
@@ -107,7 +109,7 @@ RECIPES: dict[str, dict[str, Any]] = {
     # cell-stepped Bug memory (docs/training.md, "Sector state with memory"): paper10 plus two random maps
     # (no rooms/trap/maze map, the evaluation's unseen families), the wall-keeping shaping term
     "sector-memory-grid": {"steps": 10_000_000, "lr": 0.1, "gamma": 0.95, "epsilon_end": 0.05,
-                           "sector_maps": "random-16x16-s0,random-16x16-s1", "grid_wall_reward": 0.02},
+                           "sector_maps": "random-16x16-s0,random-16x16-s1", "grid_wall_cost": 0.02},
 }
 SHIPPED_RECIPES = {"shipped-cell": "cell", "shipped-sector": "sector", "shipped-sector-memory": "sector-memory",
                    "shipped-sector-memory-grid": "sector-memory-grid"}

@@ -16,8 +16,12 @@ wall_bearing (0/1), wall_states.
 
 Reward (training): `r_goal` on reaching the goal cell, `r_step` per move,
 `r_coll` for a move into an obstacle (terminal); with `wall_rw` > 0 a
-shaping term paid in a wall mode when, after the move, the neighbour on the
-followed side is blocked (the wall is still there).
+shaping cost in a wall mode when, after the move, the neighbour on the
+followed side is free (the wall lost). A cost, not a bonus for keeping the
+wall: a bonus above the step cost made circling a pillar for ever worth
+more than the goal (values 0.01 / (1 - gamma) = 0.2 measured); with `go_rw` > 0 a
+shaping term in the go mode: `go_rw` per cell the straight-line goal
+distance falls (what the robot knows: no map).
 """
 
 from __future__ import annotations
@@ -143,7 +147,7 @@ def _reset_mem(mem, heading: int) -> None:
 
 @numba.njit(cache=True)
 def train_kernel(q, rng, occs, dims, free_cells, nfree, bfs, params, lr, lr_end, total_steps, gamma,
-                 eps_start, eps_end, eps_decay_steps, r_goal, r_step, r_coll, wall_rw, max_episode_steps,
+                 eps_start, eps_end, eps_decay_steps, r_goal, r_step, r_coll, wall_rw, go_rw, max_episode_steps,
                  ep, mem, acc, start_step, n_steps, out_ret, out_succ):
     """Q-learning on the grid twin, `n_steps` moves from global step `start_step`.
 
@@ -206,10 +210,13 @@ def train_kernel(q, rng, occs, dims, free_cells, nfree, bfs, params, lr, lr_end,
             ep[2] = nc
             ep[3] = nr
             r = r_step
+            if mode == MODE_GO and go_rw != 0.0:
+                dx2, dy2 = goal_vector(nc, nr, gc, gr, params[0])
+                r += go_rw * (math.sqrt(dx * dx + dy * dy) - math.sqrt(dx2 * dx2 + dy2 * dy2)) / params[0]
             if mode != MODE_GO and wall_rw != 0.0:
                 sd = (d + 3) % 4 if side == MODE_WALL_RIGHT else (d + 1) % 4
-                if blocked(occ, h, w, nc + DCOL[sd], nr + DROW[sd]):
-                    r += wall_rw
+                if not blocked(occ, h, w, nc + DCOL[sd], nr + DROW[sd]):
+                    r -= wall_rw
             if nc == gc and nr == gr:
                 r += r_goal
                 q[s, a] += alpha * (r - q[s, a])

@@ -147,7 +147,7 @@ class GridBugTrainer:
         n = train_kernel(q, self._rng, p.occs, p.dims, p.free, p.nfree, p.bfs, self.params,
                          float(cfg.lr), float(cfg.sector_lr_end), int(cfg.steps), float(cfg.gamma), *self._eps,
                          float(cfg.reward_goal), float(cfg.reward_step), float(cfg.reward_collision),
-                         float(cfg.grid_wall_reward), self.max_episode_steps,
+                         float(cfg.grid_wall_cost), float(cfg.grid_go_reward), self.max_episode_steps,
                          self._ep, self._mem, self._acc, int(start_step), int(n_steps), out_ret, out_succ)
         return out_ret[:n].copy(), out_succ[:n].copy()
 
