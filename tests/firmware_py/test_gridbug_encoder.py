@@ -26,7 +26,14 @@ from firmware_py.gridbug import (
     grid_dir_of,
     rotate_into,
 )
-from firmware_py.policy import KIND_SECTOR_MEMORY_GRID, MapGeometry, PolicyError, config_mismatch, dump_policy, load_policy
+from firmware_py.policy import (
+    KIND_SECTOR_MEMORY_GRID,
+    MapGeometry,
+    PolicyError,
+    config_mismatch,
+    dump_policy,
+    load_policy,
+)
 
 C = 500
 ALL = 0b1111
