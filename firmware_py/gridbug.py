@@ -126,7 +126,7 @@ class GridBugEncoder:
     leave_margin_mm: int = 1
     cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM
     wall_bearing: bool = False
-    kind: str = field(default="sector-memory-grid", init=False)
+    kind: str = field(default="sector-memory", init=False)
 
     def __post_init__(self) -> None:
         if not robot_spec.RANGE_MIN_MM < self.free_mm < robot_spec.RANGE_MAX_MM:

@@ -71,8 +71,8 @@ KIND_CELL = 1
 KIND_SECTOR = 2
 KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
 KIND_SECTOR_MEMORY_GRID = 4  # GridBugEncoder: u16 free_mm, leave_margin_mm, cell_mm, u8 wall_bearing, the moves
-KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory",
-              KIND_SECTOR_MEMORY_GRID: "sector-memory-grid"}
+KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory-tick",
+              KIND_SECTOR_MEMORY_GRID: "sector-memory"}
 KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
 
 DTYPE_INT8 = 1

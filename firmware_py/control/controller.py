@@ -235,7 +235,7 @@ class Controller:
         self._q_row: tuple[int, ...] = ()
         # sector-memory policies: the Bug memory of the current goal (reset when the goal or the drive changes)
         self.memory = BugMemory()
-        self.grid_memory = GridBugMemory()  # sector-memory-grid policies: the cell-stepped Bug memory
+        self.grid_memory = GridBugMemory()  # sector-memory policies: the cell-stepped Bug memory
         self._memory_key: tuple[tuple[int, int], int] | None = None
         self.tick_overruns = 0
         self.can_errors = 0
@@ -829,7 +829,7 @@ class Controller:
     def _cell_primitive(self, depth: int = 0) -> tuple[int, int] | None:
         """The cell motion primitive's executor: when no step is open, the
         policy's decision (`_cell_decision` for a cell policy,
-        `_grid_decision` for a sector-memory-grid one) names the next cell
+        `_grid_decision` for a sector-memory one) names the next cell
         centre and grid heading; then turn in place, drive there, repeat."""
         pol = self.policy
         assert pol is not None and self.goal is not None  # called from _drive
@@ -885,7 +885,7 @@ class Controller:
         return robot_spec.cell_center_mm(col + dc, row + dr, enc.height, pol.cell_mm), _GRID_HEADING[(dc, dr)]
 
     def _grid_decision(self, x: int, y: int, heading: int) -> tuple[tuple[int, int], int]:
-        """sector-memory-grid policy (firmware_py.gridbug): at the centre of
+        """sector-memory policy (firmware_py.gridbug): at the centre of
         the current cell (world lattice of the encoder's cell size) and facing
         a grid direction, encode (Bug memory, goal vector from the cell
         centre, the four neighbours' sensors) -> greedy relative move -> the

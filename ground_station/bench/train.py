@@ -95,7 +95,7 @@ def memory_speed(n_steps: int) -> float:
     from ground_station.learn.sector.memory_train import MemoryTrainer, memory_encoder
     from ground_station.maps import load_map
 
-    cfg = recipe_config("sector-memory", {"map": "paper10"})
+    cfg = recipe_config("sector-memory-tick", {"map": "paper10"})
     trainer = MemoryTrainer([load_map(cfg.map)], cfg, memory_encoder(cfg))
     q = np.zeros((trainer.n_states, trainer.n_actions))
     trainer.run(q, 0, 1000)  # compile

@@ -103,13 +103,13 @@ def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEnco
         return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
                              sensors=tuple(int(s) for s in d["sensors"]),
                              range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]))
-    if kind == "sector-memory":
+    if kind == "sector-memory-tick":
         return MemorySectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
                                    sensors=tuple(int(s) for s in d["sensors"]),
                                    range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
                                    block_mm=int(d["block_mm"]), block_bearing_mrad=int(d["block_bearing_mrad"]),
                                    leave_margin_mm=int(d["leave_margin_mm"]))
-    if kind == "sector-memory-grid":
+    if kind == "sector-memory":
         return GridBugEncoder(free_mm=int(d["free_mm"]), leave_margin_mm=int(d["leave_margin_mm"]),
                               cell_mm=int(d["cell_mm"]), wall_bearing=bool(d["wall_bearing"]))
     raise ValueError(f"unknown encoder kind {kind!r}")

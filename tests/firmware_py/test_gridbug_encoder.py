@@ -145,7 +145,7 @@ def test_qtab_round_trip_and_bad_sections():
     enc = GridBugEncoder(free_mm=300, leave_margin_mm=7, wall_bearing=True)
     data = dump_policy(enc, _table(enc, MOVE_RIGHT), "int8", 0.01, map_geometry=MapGeometry(500, 10, 10))
     pol = load_policy(data)
-    assert pol.kind == "sector-memory-grid" and pol.encoder == enc and pol.n_states == enc.n_states
+    assert pol.kind == "sector-memory" and pol.encoder == enc and pol.n_states == enc.n_states
     assert pol.best_action(5) == MOVE_RIGHT and pol.header()["encoder"]["leave_margin_mm"] == 7
     assert config_mismatch(pol, robot_spec.CONTROL_PERIOD_US, 500) == ""
     assert config_mismatch(pol, robot_spec.CONTROL_PERIOD_US, 400) == "policy cell size 500 mm != robot 400 mm"

@@ -96,7 +96,7 @@ def test_a_move_into_a_wall_is_a_collision_in_evaluation():
 
 
 def test_trainer_deterministic_and_chunkable():
-    cfg = TrainConfig(encoding="sector-memory-grid", steps=60_000, lr=0.1, seed=4, grid_wall_cost=0.02)
+    cfg = TrainConfig(encoding="sector-memory", steps=60_000, lr=0.1, seed=4, grid_wall_cost=0.02)
     enc = gridbug_encoder(cfg)
     maps = [load_map("paper10")]
     q1 = np.zeros((enc.n_states, 4))
@@ -112,11 +112,11 @@ def test_trainer_deterministic_and_chunkable():
 
 def test_config_validation():
     with pytest.raises(ValueError, match="free_mm"):
-        validate_config(TrainConfig(encoding="sector-memory-grid", grid_free_mm=10))
+        validate_config(TrainConfig(encoding="sector-memory", grid_free_mm=10))
     with pytest.raises(ValueError, match="grid_wall_bearing"):
-        validate_config(TrainConfig(encoding="sector-memory-grid", grid_wall_bearing=2))
+        validate_config(TrainConfig(encoding="sector-memory", grid_wall_bearing=2))
     with pytest.raises(ValueError, match="training: q"):
-        validate_config(TrainConfig(encoding="sector-memory-grid", learner="sarsa"))
+        validate_config(TrainConfig(encoding="sector-memory", learner="sarsa"))
 
 
 def _qnav(*args: str) -> subprocess.CompletedProcess:
@@ -126,22 +126,22 @@ def _qnav(*args: str) -> subprocess.CompletedProcess:
 
 def test_cli_train_eval_export(tmp_path):
     run = tmp_path / "run"
-    p = _qnav("train", "--encoding", "sector-memory-grid", "--map", "paper10", "--steps", "200000", "--seed", "1",
+    p = _qnav("train", "--encoding", "sector-memory", "--map", "paper10", "--steps", "200000", "--seed", "1",
               "--out", str(run))
     assert p.returncode == 0, p.stderr
     meta = json.loads((run / "meta.json").read_text())
-    assert meta["encoding"] == "sector-memory-grid" and meta["guidance"] == "direct"
+    assert meta["encoding"] == "sector-memory" and meta["guidance"] == "direct"
     assert meta["config"]["grid_wall_cost"] == 0.02  # the recipe's default
     p = _qnav("eval", str(run), "--map", "maze-16x16-s1", "--sample", "200", "--json")
     assert p.returncode == 0, p.stderr
     rep = json.loads(p.stdout)
-    assert rep["encoding"] == "sector-memory-grid" and rep["episodes"] == 200 and 0 <= rep["success_rate"] <= 1
+    assert rep["encoding"] == "sector-memory" and rep["episodes"] == 200 and 0 <= rep["success_rate"] <= 1
     p = _qnav("export", str(run), "--out", str(tmp_path / "p.qtab"), "--sample", "200")
     assert p.returncode == 0, p.stderr
     exp = json.loads(p.stdout)
     assert set(exp["success_rate"]) == {"float", "int"}
-    assert load_policy(str(tmp_path / "p.qtab")).kind == "sector-memory-grid"
-    p = _qnav("train", "--encoding", "sector-memory-grid", "--grid-free-mm", "5", "--out", str(tmp_path / "x"))
+    assert load_policy(str(tmp_path / "p.qtab")).kind == "sector-memory"
+    p = _qnav("train", "--encoding", "sector-memory", "--grid-free-mm", "5", "--out", str(tmp_path / "x"))
     assert p.returncode != 0 and "free_mm" in p.stderr and "Traceback" not in p.stderr
 
 

@@ -188,7 +188,7 @@ def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: GridBugEncoder, s
     ratios = moves[ok] / shortest[ok]
     fail = ~ok
     return {
-        "map": gridmap.name, "episodes": int(n), "guidance": "direct", "encoding": "sector-memory-grid",
+        "map": gridmap.name, "episodes": int(n), "guidance": "direct", "encoding": "sector-memory",
         "success_rate": float(ok.mean()) if n else 0.0,
         "collisions": int((outcome == COLLISION).sum()),
         "timeouts": int((outcome == TIMEOUT).sum()),
