@@ -918,12 +918,12 @@ class Controller:
         if abs(wrap_mrad(heading - DIR_HEADING_MRAD[physical])) > 2 * TURN_TOLERANCE_MRAD:
             return (x, y), DIR_HEADING_MRAD[physical]
         status = self._inputs.range_status
-        if any(status[2 * k] == robot_spec.RANGE_INVALID for k in range(4)) \
-                and self._grid_invalid_ticks < GRID_INVALID_RETRY_TICKS:
+        if any(status[2 * k] == robot_spec.RANGE_INVALID for k in range(4)):
             if self._now != self._grid_invalid_at:  # a dropout: stand still and read again next tick
                 self._grid_invalid_ticks += 1
                 self._grid_invalid_at = self._now
-            return (x, y), heading
+            if self._grid_invalid_ticks <= GRID_INVALID_RETRY_TICKS:
+                return (x, y), heading
         self._grid_invalid_ticks = 0
         s = enc.encode(self.grid_memory, gx - centre[0], gy - centre[1], physical,
                        self._inputs.ranges_mm, status)

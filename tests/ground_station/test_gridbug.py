@@ -190,3 +190,46 @@ def test_controller_drives_the_hand_table_round_a_wall_on_the_twin():
         assert ctrl.state == CtrlState.GOAL_REACHED, ctrl.transitions[-1].cause
         walls += ctrl.grid_memory.side != 0
     assert walls > 0  # at least one of them needed the wall modes
+
+
+def test_controller_waits_for_valid_axis_readings_then_counts_a_dropout_as_blocked():
+    """A dropout (INVALID) on an axis sensor at a decision: the robot stands
+    still and reads again; after GRID_INVALID_RETRY_TICKS it decides with the
+    reading counted as blocked (never drives into what it did not see)."""
+    from firmware_py.control.controller import GRID_INVALID_RETRY_TICKS
+
+    gm = load_map("paper10")
+    enc = GridBugEncoder()
+    pol = load_policy(policy_bytes(quantise(hand_table(enc), "int8"), enc, map_geometry=(500, gm.width, gm.height)))
+    occ, h, w, c = grid_of(gm)
+    start, goal = (0, 0), (4, 0)  # open row: the hand table goes straight east
+    x0, y0 = robot_spec.cell_center_mm(*start, h, int(c))
+    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(x0, y0, 0), localise=False)
+    plant = Kinematic(x0, y0, 0.0)
+    rig = Rig(ctrl, plant)
+    which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
+    ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
+    status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
+
+    def readings(dropout: bool) -> dict:
+        sense(occ, h, w, c, plant.x, plant.y, plant.th, which, ranges, status)
+        st = [int(v) for v in status]
+        if dropout:
+            st[0] = robot_spec.RANGE_INVALID  # ahead (east): the way to the goal
+        return {"ranges_mm": [int(v) for v in ranges], "range_status": st}
+
+    rig.tick(**readings(False))
+    assert ctrl.arm() == (True, "") and ctrl.set_goal(*robot_spec.cell_center_mm(*goal, h, int(c))) == (True, "")
+    for _ in range(GRID_INVALID_RETRY_TICKS):
+        rig.tick(**readings(True))
+        assert ctrl._state_index == -1 and (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == (0, 0)
+    rig.tick(**readings(True))  # out of patience: decides with ahead blocked, so it does not go east
+    assert ctrl._state_index >= 0 and ctrl._action != 0 and ctrl.grid_memory.mode != 0
+    # with valid readings from the start the same decision is forward (east, goal-ward, free)
+    ctrl2 = Controller(VehicleConfig(), pol, start_pose_mm=(x0, y0, 0), localise=False)
+    plant2 = Kinematic(x0, y0, 0.0)
+    rig2 = Rig(ctrl2, plant2)
+    rig2.tick(**readings(False))
+    assert ctrl2.arm() == (True, "") and ctrl2.set_goal(*robot_spec.cell_center_mm(*goal, h, int(c))) == (True, "")
+    rig2.tick(**readings(False))
+    assert ctrl2._action == 0 and ctrl2.grid_memory.mode == 0
