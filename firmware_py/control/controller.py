@@ -19,7 +19,10 @@ encoder to a row of the int table; the greedy action's wheel speeds come from
 robot_spec.ACTION_WHEEL_SPEEDS_MM_S and are held for one tick. `cell` policies run
 as motion primitives: localise the cell from odometry, take the greedy grid
 action, turn in place to its grid heading, drive to the next cell's centre,
-re-localise and repeat.
+re-localise and repeat. `sector-memory` policies (firmware_py.gridbug) run on
+the same executor: at a cell centre facing a grid direction, the Bug memory
+and the four axis sensors give the row, the greedy relative move the next
+cell (`_grid_decision`).
 """
 
 from __future__ import annotations
