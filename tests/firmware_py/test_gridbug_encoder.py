@@ -174,3 +174,18 @@ def test_note_move_turns_the_reference_heading():
     mem.reset(3)
     assert mem.note_move(MOVE_LEFT) == 0 and mem.note_move(MOVE_BACK) == 2 and mem.note_move(MOVE_FORWARD) == 2
     assert mem.mode == MODE_GO
+
+
+def test_qnav_robot_takes_the_cell_size_from_a_sector_memory_policy():
+    """qnav-robot steps on the policy's grid unless --cell-size says otherwise
+    (a 400 mm policy is not refused for the 500 mm default)."""
+    from firmware_py import cli
+
+    enc = GridBugEncoder(cell_mm=400)
+    pol = load_policy(dump_policy(enc, _table(enc, MOVE_FORWARD), "int8", 0.01, map_geometry=MapGeometry(400, 10, 10)))
+    args = cli.build_parser().parse_args(["--can", "virtual:x"])
+    assert cli._policy_cell_mm(args, pol) == 400
+    assert config_mismatch(pol, robot_spec.CONTROL_PERIOD_US, cli._policy_cell_mm(args, pol)) == ""
+    args = cli.build_parser().parse_args(["--can", "virtual:x", "--cell-size", "0.5"])
+    assert config_mismatch(pol, robot_spec.CONTROL_PERIOD_US, cli._policy_cell_mm(args, pol)) \
+        == "policy cell size 400 mm != robot 500 mm"
