@@ -111,7 +111,9 @@ def _policy_cell_mm(args: argparse.Namespace, policy: Policy | None) -> int:
     """The robot's map cell size: --cell-size, else a cell policy's, else the default."""
     if args.cell_size:
         return round(float(args.cell_size) * 1000)
-    return policy.cell_mm if policy is not None and policy.kind == "cell" else robot_spec.DEFAULT_CELL_SIZE_MM
+    if policy is not None and policy.kind in ("cell", "sector-memory"):  # both step on the policy's grid
+        return policy.cell_mm
+    return robot_spec.DEFAULT_CELL_SIZE_MM
 
 
 def _fits(args: argparse.Namespace, policy: Policy) -> str:

@@ -196,7 +196,7 @@ class MemorySectorEncoder:
     block_mm: int = 400
     block_bearing_mrad: int = 785
     leave_margin_mm: int = 250
-    kind: str = field(default="sector-memory", init=False)
+    kind: str = field(default="sector-memory-tick", init=False)
 
     def __post_init__(self) -> None:
         SectorEncoder(self.bearing_sectors, self.sensors, self.range_edges_mm)  # validates the base fields

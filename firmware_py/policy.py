@@ -47,6 +47,7 @@ from typing import Any, NamedTuple
 
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder, best_action
+from firmware_py.gridbug import MOVE_STEPS, GridBugEncoder
 from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
 
 # --- format constants ---------------------------------------------------------
@@ -69,7 +70,9 @@ KNOWN_FLAGS = FLAG_PER_STATE_SCALES  # any other bit set -> reject (see the spec
 KIND_CELL = 1
 KIND_SECTOR = 2
 KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
-KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory"}
+KIND_SECTOR_MEMORY_GRID = 4  # GridBugEncoder: u16 free_mm, leave_margin_mm, cell_mm, u8 wall_bearing, the moves
+KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory-tick",
+              KIND_SECTOR_MEMORY_GRID: "sector-memory"}
 KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
 
 DTYPE_INT8 = 1
@@ -85,6 +88,7 @@ MIN_FILE_BYTES = HEADER.size + CRC.size
 _SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 _MEMORY = struct.Struct("<HHH")  # block_mm, block_bearing_mrad, leave_margin_mm
 _CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
+_GRID = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
 _PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
 _GOAL = struct.Struct("<HH")  # goal cell (col, row)
 _ORDER_NATIVE = sys.byteorder == "little"
@@ -109,7 +113,7 @@ class MapGeometry(NamedTuple):
 class Policy:
     """A validated int Q-table with everything needed to use it on the robot."""
 
-    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder
+    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
     dtype: str
     n_states: int
     n_actions: int
@@ -192,13 +196,15 @@ def _read_bounded(path: str | os.PathLike[str]) -> bytes:
 
 
 def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
+    if kind == KIND_SECTOR_MEMORY_GRID:
+        return MOVE_STEPS
     return robot_spec.CELL_ACTION_DELTAS if kind == KIND_CELL else robot_spec.ACTION_WHEEL_SPEEDS_MM_S
 
 
 def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
-                    ) -> tuple[CellEncoder | SectorEncoder | MemorySectorEncoder, tuple[tuple[int, int], ...], int]:
+                    ) -> tuple[CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
-    enc: CellEncoder | SectorEncoder | MemorySectorEncoder
+    enc: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
     if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY):
         if len(sec) < _SECTOR_HEAD.size:
             raise PolicyError("sector encoder section too short")
@@ -233,6 +239,19 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
             raise PolicyError(f"{KIND_NAMES[kind]} encoder: {exc}") from None
         goals: tuple[tuple[int, int], ...] = ()
         cell_mm = 0
+    elif kind == KIND_SECTOR_MEMORY_GRID:
+        need = _GRID.size + _PAIR.size * n_actions
+        if len(sec) != need:
+            raise PolicyError(f"sector-memory-grid encoder section is {len(sec)} bytes, its fields need {need}")
+        free_mm, leave, cell_mm, wall_bearing = _GRID.unpack_from(sec, 0)
+        if wall_bearing > 1:
+            raise PolicyError(f"sector-memory-grid encoder: wall_bearing {wall_bearing} (0 or 1)")
+        try:
+            enc = GridBugEncoder(free_mm=free_mm, leave_margin_mm=leave, cell_mm=cell_mm, wall_bearing=bool(wall_bearing))
+        except ValueError as exc:
+            raise PolicyError(f"sector-memory-grid encoder: {exc}") from None
+        goals = ()
+        off = _GRID.size
     else:
         if len(sec) < _CELL_HEAD.size:
             raise PolicyError("cell encoder section too short")
@@ -387,6 +406,8 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int) -
         return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
     if policy.kind == "cell" and policy.cell_mm != cell_size_mm:
         return f"policy cell size {policy.cell_mm} mm != robot {cell_size_mm} mm"
+    if isinstance(policy.encoder, GridBugEncoder) and policy.encoder.cell_mm != cell_size_mm:
+        return f"policy cell size {policy.encoder.cell_mm} mm != robot {cell_size_mm} mm"
     return ""
 
 
@@ -398,8 +419,13 @@ def content_id(encoder_section: bytes, table: bytes, scales: bytes = b"") -> int
     return zlib.crc32(scales, zlib.crc32(table, zlib.crc32(encoder_section)))
 
 
-def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, goals: Sequence[tuple[int, int]],
+def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, goals: Sequence[tuple[int, int]],
                   cell_mm: int) -> bytes:
+    if isinstance(encoder, GridBugEncoder):
+        if not all(0 <= v <= 0xFFFF for v in (encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm)):
+            raise ValueError("sector-memory-grid fields must be 0..65535")
+        out = _GRID.pack(encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm, int(encoder.wall_bearing))
+        return out + b"".join(_PAIR.pack(*a) for a in MOVE_STEPS)
     if isinstance(encoder, SectorEncoder | MemorySectorEncoder):
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
@@ -419,7 +445,7 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, go
     return out + b"".join(_PAIR.pack(*a) for a in actions)
 
 
-def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, table: array[int], dtype: str, scale: float, *,
+def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, table: array[int], dtype: str, scale: float, *,
                 state_scales: array[float] | None = None, goals: Sequence[tuple[int, int]] = (),
                 cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict[str, Any] | None = None,
                 policy_id: int | None = None, created: int | None = None,
@@ -475,7 +501,7 @@ def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, tabl
     return body + CRC.pack(zlib.crc32(body))
 
 
-def _geometry_for(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
+def _geometry_for(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
     """The header's map geometry: a cell policy's grid, a sector policy's training map."""
     if isinstance(encoder, CellEncoder):
         grid = MapGeometry(cell_mm, encoder.width, encoder.height)

@@ -292,7 +292,7 @@ def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
 
 
 def twin_outcomes_memory(gm, policy: Policy, rows: list[dict], max_periods: int = 2400) -> list[str]:
-    """`twin_outcomes` for a sector-memory policy: the same episodes greedily
+    """`twin_outcomes` for a sector-memory-tick policy: the same episodes greedily
     on the twin with the jitted Bug memory (`evaluate_memory`'s kernel), direct."""
     import numpy as np
 
@@ -319,6 +319,30 @@ def twin_outcomes_memory(gm, policy: Policy, rows: list[dict], max_periods: int 
                        sectors, sensors, edges, np.ones_like(which), memory_params(enc), enc.base.n_states,
                        max_periods, 0.0, 0.0, max_periods + 1, outcome, np.zeros(n), np.zeros(n, dtype=np.int64),
                        np.zeros(n, dtype=np.int64))
+    return ["reached" if o == SUCCESS else "collision" if o == COLLISION else "timeout" for o in outcome]
+
+
+def twin_outcomes_gridbug(gm, policy: Policy, rows: list[dict]) -> list[str]:
+    """`twin_outcomes` for a sector-memory policy: the same episodes
+    greedily on the grid twin (`evaluate_gridbug`'s kernel; the initial
+    heading turned to the nearest grid direction, as the robot does)."""
+    import numpy as np
+
+    from firmware_py.gridbug import GridBugEncoder, grid_dir_of
+    from ground_station.learn.sector.gridbug import COLLISION, SUCCESS, eval_kernel
+    from ground_station.learn.sector.gridbug_train import encoder_params
+
+    enc = policy.encoder
+    assert isinstance(enc, GridBugEncoder)
+    q = np.array(policy.table.tolist(), dtype=np.float64).reshape(policy.n_states, policy.n_actions)
+    n = len(rows)
+    starts = np.array([r["start"] for r in rows], dtype=np.int64).reshape(-1, 2)
+    goals = np.array([r["goal"] for r in rows], dtype=np.int64).reshape(-1, 2)
+    dirs = np.array([grid_dir_of(round(r["heading_rad"] * 1000)) for r in rows], dtype=np.int64)
+    outcome = np.zeros(n, dtype=np.int64)
+    eval_kernel(q, np.ascontiguousarray(gm.occ, dtype=np.uint8), gm.height, gm.width, encoder_params(enc),
+                starts, goals, dirs, 10 * len(gm.free_cells()), outcome, np.zeros(n, dtype=np.int64),
+                np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64))
     return ["reached" if o == SUCCESS else "collision" if o == COLLISION else "timeout" for o in outcome]
 
 
@@ -428,10 +452,10 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
             pol = load_policy(path)
         except (PolicyError, ShippedPolicyError) as exc:
             raise CliError(f"{kind} policy {spec}: {exc}") from None
-        if pol.kind != kind and not (kind == "sector" and pol.kind == "sector-memory"):
+        if pol.kind != kind and not (kind == "sector" and pol.kind in ("sector-memory", "sector-memory-tick")):
             raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
-        if pol.kind == "sector-memory" and args.guidance != "direct":
-            raise CliError(f"{path} is a sector-memory policy: it drives to the goal alone, use --guidance direct")
+        if pol.kind in ("sector-memory", "sector-memory-tick") and args.guidance != "direct":
+            raise CliError(f"{path} is a {pol.kind} policy: it drives to the goal alone, use --guidance direct")
         if kind == "cell" and not args.no_localiser and pol.map_grid is None:
             print(f"note: {path} carries no map (qnav policy attach-map): the cell set runs on dead reckoning")
         main_rows: list[dict] = []
@@ -458,8 +482,12 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
             rows_out += _summary_rows(kind, {**s, **timing}, stats)
         rows = main_rows
         if kind == "sector" and args.compare_twin:
-            twin = twin_outcomes_memory(gm, pol, rows) if pol.kind == "sector-memory" else \
-                twin_outcomes(gm, pol, rows, guidance=args.guidance)
+            if pol.kind == "sector-memory":
+                twin = twin_outcomes_gridbug(gm, pol, rows)
+            elif pol.kind == "sector-memory-tick":
+                twin = twin_outcomes_memory(gm, pol, rows)
+            else:
+                twin = twin_outcomes(gm, pol, rows, guidance=args.guidance)
             for r, t in zip(rows, twin, strict=True):
                 r["twin"] = t
             s["twin_success"] = sum(t == "reached" for t in twin)

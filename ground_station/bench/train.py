@@ -4,7 +4,7 @@ Measured in one run: the numba kernel (exact sequential Q-learning, cell
 encoding, targets A-D) against a plain-Python loop doing the same
 Q-learning over the Gymnasium `CellNavEnv` (the usual way to write it), and
 beside them the sector twin's `SectorTrainer` and the
-sector-memory `MemoryTrainer` with its shipped recipe (all eight sensors
+sector-memory-tick `MemoryTrainer` with its recipe (all eight sensors
 cast, for the leaving rule and the wall reward). The sector trainer is also
 given per second of the process's CPU time (the machine is shared: other
 load stretches the wall time, much less the CPU time). Compile time is
@@ -88,14 +88,14 @@ def sector_speed(cfg, n_steps: int) -> tuple[float, float, str]:
 
 
 def memory_speed(n_steps: int) -> float:
-    """Steps/s of the sector-memory trainer with its shipped recipe on paper10."""
+    """Steps/s of the sector-memory-tick (period-level) trainer with its recipe on paper10."""
     import numpy as np
 
     from ground_station.learn.config import recipe_config
     from ground_station.learn.sector.memory_train import MemoryTrainer, memory_encoder
     from ground_station.maps import load_map
 
-    cfg = recipe_config("sector-memory", {"map": "paper10"})
+    cfg = recipe_config("sector-memory-tick", {"map": "paper10"})
     trainer = MemoryTrainer([load_map(cfg.map)], cfg, memory_encoder(cfg))
     q = np.zeros((trainer.n_states, trainer.n_actions))
     trainer.run(q, 0, 1000)  # compile
@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
         ("ratio", result["ratio"]),
         ("sector steps/s (SectorTrainer)", sector),
         ("sector steps/s of CPU time (same run)", sector_cpu),
-        ("sector-memory steps/s (MemoryTrainer, recipe)", memory),
+        ("sector-memory-tick steps/s (MemoryTrainer, recipe)", memory),
     ]
     report("train", rows, result, args.json)
     return 0

@@ -60,6 +60,10 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
         return evaluate_cell(q, gridmap, run.goals, sample=sample, seed=seed,
                              target_names=run.meta.get("targets"))
     if run.encoder.kind == "sector-memory":
+        from ground_station.learn.sector.gridbug_train import evaluate_gridbug
+
+        return evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
+    if run.encoder.kind == "sector-memory-tick":
         from ground_station.learn.sector.memory_train import evaluate_memory
 
         return evaluate_memory(q, gridmap, run.encoder, seed=seed, sample=sample)

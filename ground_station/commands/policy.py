@@ -85,10 +85,13 @@ def _line(d: dict) -> str:
     enc = d["encoder"]
     if d["kind"] == "cell":
         geo = f"cell {enc['width']}x{enc['height']} goals={d['goals']} cell_mm={d['cell_mm']}"
+    elif d["kind"] == "sector-memory":
+        geo = (f"sector-memory free_mm={enc['free_mm']} leave_margin_mm={enc['leave_margin_mm']} "
+               f"cell_mm={enc['cell_mm']} wall_bearing={int(enc['wall_bearing'])}")
     else:
         geo = (f"{d['kind']} bearing_sectors={enc['bearing_sectors']} sensors={enc['sensors']} "
                f"edges_mm={enc['range_edges_mm']}")
-        if d["kind"] == "sector-memory":
+        if d["kind"] == "sector-memory-tick":
             geo += (f" block_mm={enc['block_mm']} block_bearing_mrad={enc['block_bearing_mrad']} "
                     f"leave_margin_mm={enc['leave_margin_mm']}")
     mg = d["map_geometry"]

@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-ENCODINGS = ("cell", "sector", "sector-memory")
+ENCODINGS = ("cell", "sector", "sector-memory", "sector-memory-tick")
 # tabular learners (ground_station/learn/learners.py, the sector trainer's switch in
 # ground_station/learn/sector/kernels.py); sector-memory and obstacle training: q only
 LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
@@ -71,17 +71,25 @@ class TrainConfig:
     sector_clear_reward: float = _f(0.0, "sector: cost per control period closer than --sector-clear-mm to an "
                                          "unmapped obstacle (with obstacles or movers)")
     sector_clear_mm: float = _f(100.0, "sector: clearance (mm, rim to an unmapped obstacle) the clearance cost keeps")
-    memory_block_mm: int = _f(400, "sector-memory: front range (mm) below which the way to a goal ahead counts as blocked "
+    memory_block_mm: int = _f(400, "sector-memory-tick: front range (mm) below which the way to a goal ahead counts as blocked "
                                    "(GO -> follow the wall)")
-    memory_block_bearing_mrad: int = _f(785, "sector-memory: the goal counts as ahead within +- this bearing (mrad)")
-    memory_leave_margin_mm: int = _f(250, "sector-memory: leave the wall once the goal is this much closer than where it was hit")
-    memory_wall_reward: float = _f(0.5, "sector-memory: reward per cell of forward travel in a wall mode while the followed "
+    memory_block_bearing_mrad: int = _f(785, "sector-memory-tick: the goal counts as ahead within +- this bearing (mrad)")
+    memory_leave_margin_mm: int = _f(250, "sector-memory-tick: leave the wall once the goal is this much closer than where it was hit")
+    memory_wall_reward: float = _f(0.5, "sector-memory-tick: reward per cell of forward travel in a wall mode while the followed "
                                         "side sees the wall (the wall modes' own task)")
-    memory_wall_away: float = _f(0.5, "sector-memory: share of the wall reward paid for forward travel while the "
+    memory_wall_away: float = _f(0.5, "sector-memory-tick: share of the wall reward paid for forward travel while the "
                                       "followed side sees no wall (drive on to find one rather than turn on the spot)")
-    memory_wall_reach_mm: int = _f(400, "sector-memory: the followed wall counts as seen below this side range (mm)")
-    memory_go_progress: str = _f("octile", "sector-memory: progress the go mode is rewarded for: euclid = straight-line "
+    memory_wall_reach_mm: int = _f(400, "sector-memory-tick: the followed wall counts as seen below this side range (mm)")
+    memory_go_progress: str = _f("octile", "sector-memory-tick: progress the go mode is rewarded for: euclid = straight-line "
                                            "distance to the goal (no map knowledge), octile = along the goal's octile field")
+    grid_free_mm: int = _f(350, "sector-memory: a neighbour cell counts as free when the range sensor looking at it "
+                                "reads at least this (mm; 100 mm = the cell's own wall, >= 600 mm = the next cell free)")
+    grid_leave_margin_mm: int = _f(1, "sector-memory: leave the wall once the goal is this much closer than where it was hit")
+    grid_wall_bearing: int = _f(0, "sector-memory: 1 = the wall modes' state includes the goal sector too")
+    grid_wall_cost: float = _f(0.0, "sector-memory: shaping cost per move in a wall mode that ends with the "
+                                    "followed side's neighbour free (the wall lost)")
+    grid_go_reward: float = _f(0.0, "sector-memory: shaping reward in the go mode per cell the straight-line "
+                                    "goal distance falls")
     q_init_scale: float = _f(0.0, "initial Q values uniform in [-scale, scale] (the paper initialises randomly); 0 = zeros")
     curve_points: int = _f(200, "number of episode windows in the learning curve")
     chunk_steps: int = _f(1_000_000, "steps per kernel call (progress bar granularity)")
@@ -96,8 +104,13 @@ class TrainConfig:
 RECIPES: dict[str, dict[str, Any]] = {
     "cell": {},
     "sector": {"steps": 20_000_000, "lr": 0.1, "gamma": 0.95, "reward_step": 0.0, "epsilon_end": 0.05},
-    "sector-memory": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
+    "sector-memory-tick": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
                       "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
+    # cell-stepped Bug memory (docs/training.md, "Sector state with memory"): paper10 plus generated maps of
+    # seeds 0 (random) and 10 (maze, rooms, trap), never the evaluation's seeds 1 and 2; the wall-keeping cost
+    "sector-memory": {"steps": 10_000_000, "lr": 0.1, "gamma": 0.95, "epsilon_end": 0.05,
+                           "sector_maps": "random-16x16-s0,random-16x16-s1,maze-16x16-s10,rooms-16x16-s10,"
+                                          "trap-16x16-s10", "grid_wall_cost": 0.02},
 }
 SHIPPED_RECIPES = {"shipped-cell": "cell", "shipped-sector": "sector", "shipped-sector-memory": "sector-memory"}
 
@@ -144,7 +157,7 @@ def validate_config(cfg: TrainConfig) -> None:
     if cfg.learner not in LEARNERS:
         raise ValueError(f"learner must be one of {', '.join(LEARNERS)}, got {cfg.learner!r}")
     obstacles = cfg.encoding == "sector" and (cfg.sector_obstacles > 0 or cfg.sector_movers > 0)
-    if cfg.learner != "q" and (cfg.encoding == "sector-memory" or obstacles):
+    if cfg.learner != "q" and (cfg.encoding in ("sector-memory", "sector-memory-tick") or obstacles):
         raise ValueError(f"learner {cfg.learner} is implemented for the cell and sector encodings without "
                          "unmapped obstacles (sector-memory and obstacle training: q)")
     if not 0.0 <= cfg.learner_lambda <= 1.0 or not 0.0 < cfg.trace_min < 1.0 or cfg.dyna_planning < 0:
@@ -159,13 +172,21 @@ def validate_config(cfg: TrainConfig) -> None:
         v = getattr(cfg, name)
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {v}")
-    if cfg.encoding in ("sector", "sector-memory"):
+    if cfg.encoding in ("sector", "sector-memory-tick"):
         _check_sector(cfg)
-    if cfg.encoding == "sector-memory" and (cfg.memory_block_mm < 1 or cfg.memory_block_bearing_mrad < 0
+    if cfg.encoding == "sector-memory-tick" and (cfg.memory_block_mm < 1 or cfg.memory_block_bearing_mrad < 0
                                             or cfg.memory_leave_margin_mm < 0):
         raise ValueError("memory_block_mm must be >= 1, memory_block_bearing_mrad and memory_leave_margin_mm >= 0")
-    if cfg.encoding == "sector-memory" and cfg.memory_go_progress not in ("euclid", "octile"):
+    if cfg.encoding == "sector-memory-tick" and cfg.memory_go_progress not in ("euclid", "octile"):
         raise ValueError(f"memory_go_progress must be euclid or octile, got {cfg.memory_go_progress!r}")
+    if cfg.encoding == "sector-memory":
+        from firmware_py.gridbug import GridBugEncoder
+
+        if cfg.grid_wall_bearing not in (0, 1):
+            raise ValueError(f"grid_wall_bearing must be 0 or 1, got {cfg.grid_wall_bearing}")
+        if not 0.0 <= cfg.sector_lr_end <= 1.0:
+            raise ValueError(f"sector_lr_end must be in [0, 1], got {cfg.sector_lr_end}")
+        GridBugEncoder(free_mm=cfg.grid_free_mm, leave_margin_mm=cfg.grid_leave_margin_mm)  # its own checks
     if cfg.max_episode_steps < 0 or cfg.curve_points < 1 or cfg.chunk_steps < 1:
         raise ValueError("max_episode_steps must be >= 0, curve_points and chunk_steps >= 1")
 

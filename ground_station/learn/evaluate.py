@@ -25,6 +25,7 @@ import numba
 import numpy as np
 
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
+from firmware_py.gridbug import GridBugEncoder
 from ground_station.learn.envs.cell_env import cell_transitions, goal_distances, resolve_goals
 from ground_station.learn.jit import greedy
 from ground_station.learn.train import cell_state
@@ -152,7 +153,7 @@ def load_run(run_dir: str | Path) -> tuple[np.ndarray, dict]:
         raise ValueError(f"{d} is not a training run folder: missing {Path(exc.filename).name}") from None
     except (json.JSONDecodeError, ValueError) as exc:
         raise ValueError(f"{d}: unreadable run artifacts: {exc}") from None
-    if meta.get("encoding") not in ("cell", "sector", "sector-memory"):
+    if meta.get("encoding") not in ("cell", "sector", "sector-memory", "sector-memory-tick"):
         raise ValueError(f"{d}/meta.json: unknown encoding {meta.get('encoding')!r}")
     if q.ndim != 2:
         raise ValueError(f"{d}/q.npy: expected a 2-D table, got shape {q.shape}")
@@ -192,10 +193,19 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
         return evaluate_cell(q, gridmap, goals, sample=sample, seed=seed,
                              target_names=meta.get("targets") or names)
     if meta["encoding"] == "sector-memory":
+        from ground_station.learn.export import encoder_from_dict
+        from ground_station.learn.sector.gridbug_train import evaluate_gridbug
+
+        enc = encoder_from_dict(meta["encoder"])
+        assert isinstance(enc, GridBugEncoder)
+        rep = evaluate_gridbug(q, gridmap, enc, seed=seed, sample=sample)
+        rep["encoding"] = "sector-memory"
+        return rep
+    if meta["encoding"] == "sector-memory-tick":
         from ground_station.learn.sector.memory_train import evaluate_memory
 
         rep = evaluate_memory(q, gridmap, memory_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample)
-        rep["encoding"] = "sector-memory"
+        rep["encoding"] = "sector-memory-tick"
         return rep
     from ground_station.learn.sector.evaluate import evaluate_sector
 

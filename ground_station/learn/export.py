@@ -23,6 +23,7 @@ import numpy as np
 from firmware_py import policy as fmt
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
+from firmware_py.gridbug import GridBugEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
 
@@ -93,7 +94,7 @@ def compare(q: np.ndarray, qt: Quantised) -> dict:
     }
 
 
-def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEncoder:
+def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder:
     """Rebuild a reference encoder from its `to_dict()` (as in meta.json)."""
     kind = d.get("kind")
     if kind == "cell":
@@ -102,16 +103,19 @@ def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEnco
         return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
                              sensors=tuple(int(s) for s in d["sensors"]),
                              range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]))
-    if kind == "sector-memory":
+    if kind == "sector-memory-tick":
         return MemorySectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
                                    sensors=tuple(int(s) for s in d["sensors"]),
                                    range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
                                    block_mm=int(d["block_mm"]), block_bearing_mrad=int(d["block_bearing_mrad"]),
                                    leave_margin_mm=int(d["leave_margin_mm"]))
+    if kind == "sector-memory":
+        return GridBugEncoder(free_mm=int(d["free_mm"]), leave_margin_mm=int(d["leave_margin_mm"]),
+                              cell_mm=int(d["cell_mm"]), wall_bearing=bool(d["wall_bearing"]))
     raise ValueError(f"unknown encoder kind {kind!r}")
 
 
-def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, *, goals=(),
+def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, *, goals=(),
                  cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
                  policy_id: int | None = None, created: int | None = None,
                  control_period_us: int = robot_spec.CONTROL_PERIOD_US,
@@ -141,7 +145,7 @@ class TrainingRun:
 
     q: np.ndarray
     meta: dict
-    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder
+    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
     goals: list[tuple[int, int]]
     cell_mm: int
 

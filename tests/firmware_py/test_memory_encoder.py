@@ -118,7 +118,7 @@ def test_qtab_round_trip_and_damaged_memory_section():
     enc = MemorySectorEncoder(block_mm=350, block_bearing_mrad=600, leave_margin_mm=300)
     data = dump_policy(enc, _table(enc, 0, 1), "int8", 0.01, map_geometry=SECTOR_TRAINING_MAP)
     pol = load_policy(data)
-    assert pol.kind == "sector-memory" and pol.encoder == enc and pol.n_states == enc.n_states
+    assert pol.kind == "sector-memory-tick" and pol.encoder == enc and pol.n_states == enc.n_states
     assert pol.header()["encoder"]["leave_margin_mm"] == 300
     # the same bytes declared as a plain sector policy: the section length no longer adds up
     import struct

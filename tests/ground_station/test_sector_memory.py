@@ -63,7 +63,7 @@ def test_jitted_memory_equals_the_reference_along_random_drives(enc):
 
 
 def _cfg(**kw):
-    base = dict(encoding="sector-memory", seed=3, steps=40_000, lr=0.1, max_episode_steps=400)
+    base = dict(encoding="sector-memory-tick", seed=3, steps=40_000, lr=0.1, max_episode_steps=400)
     base.update(kw)
     return TrainConfig(**base)
 
@@ -116,24 +116,24 @@ def test_evaluation_counts_every_episode():
 
 def test_cli_train_eval_export_direct(tmp_path):
     out = tmp_path / "run"
-    qnav("train", "--map", "paper10", "--encoding", "sector-memory", "--steps", "30000", "--seed", "1",
+    qnav("train", "--map", "paper10", "--encoding", "sector-memory-tick", "--steps", "30000", "--seed", "1",
          "--out", str(out), "--quiet")
     meta = json.loads((out / "meta.json").read_text())
-    assert meta["encoding"] == "sector-memory" and meta["guidance"] == "direct"
+    assert meta["encoding"] == "sector-memory-tick" and meta["guidance"] == "direct"
     # flags left out come from the shipped recipe, given ones win
-    recipe = RECIPES["sector-memory"]
+    recipe = RECIPES["sector-memory-tick"]
     assert all(meta["config"][k] == v for k, v in recipe.items() if k != "steps")
     assert meta["config"]["steps"] == 30000 and meta["config"]["seed"] == 1
-    assert meta["encoder"]["kind"] == "sector-memory"
+    assert meta["encoder"]["kind"] == "sector-memory-tick"
     rep = json.loads(qnav("eval", str(out), "--map", "paper10", "--json", "--sample", "100").stdout)
-    assert rep["encoding"] == "sector-memory" and rep["guidance"] == "direct" and rep["episodes"] == 100
+    assert rep["encoding"] == "sector-memory-tick" and rep["guidance"] == "direct" and rep["episodes"] == 100
     assert 0.0 <= rep["success_rate"] <= 1.0
     assert sum(rep["failures"].values()) == rep["timeouts"] + rep["collisions"] + rep["loops"]
     pol_path = tmp_path / "m.qtab"
     exp = json.loads(qnav("export", str(out), "--dtype", "int8", "--sample", "100", "--out", str(pol_path)).stdout)
-    assert exp["encoding"] == "sector-memory" and set(exp["success_rate"]) == {"float", "int"}
+    assert exp["encoding"] == "sector-memory-tick" and set(exp["success_rate"]) == {"float", "int"}
     pol = load_policy(str(pol_path))
-    assert pol.kind == "sector-memory" and pol.n_states == MemorySectorEncoder(**{
+    assert pol.kind == "sector-memory-tick" and pol.n_states == MemorySectorEncoder(**{
         k: (tuple(v) if isinstance(v, list) else v) for k, v in meta["encoder"].items() if k != "kind"}).n_states
 
 
