@@ -74,7 +74,8 @@ NOT_RUN = {
     "qnav sitl --can socketcan:vcan0": _VCAN + "; tests/hil/test_sitl_vcan.py runs it there",
     "qnav sitl": "stays up until Ctrl-C; tests/hil/test_sitl.py runs it on free ports and drives MAVProxy on it",
     "qnav sweep --map paper10 --encoding cell --lrs 0.1:0.9:0.1 --seeds 20":
-        "9 learning rates x 20 seeds of full training (many minutes); the 5-seed, 10 000-step sweep is in RUN",
+        "9 learning rates x 20 seeds and their curves (both cores for seconds, measured in docs/training.md); "
+        "the 10 000-step sweep is in RUN",
     "qnav sweep ... --engine ray": "a Ray campaign on 8 workers or a cluster (qnav[cluster]); "
                                    "tests/ground_station/test_campaign.py runs the Ray engine where Ray is installed",
     "qnav bench hil": "a benchmark (minutes of HIL episodes); tests check a benchmark's code, never a time",

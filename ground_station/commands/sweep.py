@@ -4,7 +4,13 @@ Trains every learning rate in --lrs with --seeds seeds each (and every
 point of the --space search space), evaluates each greedy policy on the map,
 and writes DIR/sweep.json, DIR/sweep.png (learning curves per eta; greedy
 success and final average return against eta) and DIR/campaign.json (engine,
-workers, nodes, wall time). Other training flags apply to every run; as in
+workers, nodes, wall time). For the cell encoding it also runs the same
+learning rates and seeds with greedy checkpoints along training, with and
+without the epsilon schedule (`ground_station.learn.study`), and writes
+DIR/curves.png and DIR/curves.json: training steps to --threshold greedy
+success against eta, and greedy success and the mean max-Q of the visited
+states along training per eta (the paper's Fig. 5), each with bootstrapped
+95 % CIs over the seeds (--no-curves skips this). Other training flags apply to every run; as in
 `qnav train`, a flag left out takes the encoding's recipe
 (`ground_station/learn/config.py` RECIPES), else its default.
 
@@ -44,6 +50,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     recipe_defaults(p)  # as qnav train: a flag left out takes the encoding's recipe (learn/config.RECIPES)
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
+    p.add_argument("--curves", action=argparse.BooleanOptionalAction, default=True,
+                   help="cell encoding: also the steps-to-threshold and Q-value figures (curves.png; default on)")
+    p.add_argument("--threshold", type=float, default=0.95,
+                   help="--curves: greedy success threshold (default: 0.95)")
     p.set_defaults(func=run)
 
 
@@ -93,4 +103,33 @@ def run(args: argparse.Namespace) -> int:
         print(f"{s['lr']:>5g}  {s['success_mean']:.3f} [{sc[0]:.3f}, {sc[1]:.3f}]  {s['path_ratio_mean']:>10.3f}  "
               f"{s['final_avg_return_mean']:>8.3f} [{rc[0]:.3f}, {rc[1]:.3f}]  {label(s['point'])}")
     print(f"wrote {args.out}/sweep.json, {args.out}/campaign.json, {args.out}/sweep.png")
+    if args.curves and cfg.encoding == "cell" and not args.space:
+        _curves(args, cfg, lrs)
     return 0
+
+
+def _curves(args: argparse.Namespace, cfg, lrs: list[float]) -> None:  # noqa: ANN001 - a TrainConfig
+    """The study's Q-learning part on the sweep's rates and seeds: curves.json, curves.png."""
+    import json
+
+    from firmware_py.atomic import atomic_write
+    from ground_station.campaign.engines import engine_from_args
+    from ground_station.learn.study import fmt_ci, plot_curves, study
+
+    t0 = time.perf_counter()
+    eval_every = max(100, cfg.steps // 100)
+    with engine_from_args(args) as engine:
+        data = study(cfg, lrs, args.seeds, learners=["q"], learner_lrs=[lrs[0]], eval_every=eval_every,
+                     threshold=args.threshold, engine=engine, progress=True)
+    out = Path(args.out)
+    keep = {k: data[k] for k in ("map", "seeds", "lrs", "constant_epsilon", "eval_every", "threshold", "ci",
+                                 "config", "lr_study")}
+    atomic_write(out / "curves.json", json.dumps(keep, indent=1) + "\n")
+    atomic_write(out / "curves.png", plot_curves(data))
+    print(f"steps to {args.threshold:.0%} greedy success, mean [bootstrapped 95 % CI] over {args.seeds} seeds "
+          f"(greedy checkpoint every {eval_every:,} steps; the budget {cfg.steps:,} where never reached):")
+    print(f"{'eta':>5}  {'epsilon schedule':>30}  {'constant epsilon':>30}")
+    rows = {(r["schedule"], r["lr"]): r["steps_to_threshold"] for r in data["lr_study"]}
+    for lr in lrs:
+        print(f"{lr:>5g}  {fmt_ci(rows[('decay', lr)], digits=0):>30}  {fmt_ci(rows[('constant', lr)], digits=0):>30}")
+    print(f"curves in {time.perf_counter() - t0:.1f} s; wrote {args.out}/curves.json, {args.out}/curves.png")

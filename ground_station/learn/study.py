@@ -452,6 +452,77 @@ def study(base: TrainConfig, lrs: list[float], seeds: int, *, constant_epsilon: 
 # --------------------------------------------------------------------------
 # figure and files
 # --------------------------------------------------------------------------
+CI_LABEL = "mean, bootstrapped 95 % CI"
+
+
+def _panel_threshold(ax: Any, data: dict) -> None:
+    """Steps to the threshold against eta, with and without the epsilon schedule."""
+    n, thr = data["seeds"], data["threshold"]
+    for schedule, color in (("decay", "tab:blue"), ("constant", "tab:orange")):
+        rows = [r for r in data["lr_study"] if r["schedule"] == schedule]
+        m = np.array([r["steps_to_threshold"]["mean"] for r in rows])
+        lo = np.array([r["steps_to_threshold"]["ci95"][0] for r in rows])
+        hi = np.array([r["steps_to_threshold"]["ci95"][1] for r in rows])
+        lab = ("epsilon 1 -> {:g} over {:g} of the steps".format(data["config"]["epsilon_end"],
+                                                                 data["config"]["epsilon_decay"])
+               if schedule == "decay" else f"constant epsilon {data['constant_epsilon']:g}")
+        ax.errorbar([r["lr"] for r in rows], m, yerr=[m - lo, hi - m], marker="o", capsize=3, color=color, label=lab)
+    ax.set_xlabel("learning rate eta")
+    ax.set_ylabel(f"training steps to {thr:.0%} greedy success (budget if never)")
+    ax.set_title(f"steps to threshold\n({CI_LABEL}, {n} seeds)")
+    ax.legend(fontsize=8)
+
+
+def _decay_rows(data: dict) -> list[dict]:
+    return [r for r in data["lr_study"] if r["schedule"] == "decay"]
+
+
+def _panel_success(ax: Any, data: dict, cmap: Any) -> None:
+    """Greedy success along training per eta (epsilon schedule)."""
+    decay = _decay_rows(data)
+    for i, r in enumerate(decay):
+        c, col = r["curve"], cmap(i / max(1, len(decay) - 1))
+        ax.plot(c["steps"], c["success"]["mean"], color=col, label=f"eta={r['lr']:g}")
+        ax.fill_between(c["steps"], c["success"]["lo"], c["success"]["hi"], color=col, alpha=0.2)
+    ax.axhline(data["threshold"], color="grey", linestyle=":")
+    ax.set_xlabel("training steps")
+    ax.set_ylabel("greedy success, all (start, goal) pairs")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(f"greedy success, epsilon schedule\n({CI_LABEL}, {data['seeds']} seeds)")
+    ax.legend(fontsize=7, ncol=2)
+
+
+def _panel_q(ax: Any, data: dict, cmap: Any) -> None:
+    """Mean max-Q of the visited states along training per eta: the paper's Fig. 5."""
+    decay = _decay_rows(data)
+    for i, r in enumerate(decay):
+        c, col = r["curve"], cmap(i / max(1, len(decay) - 1))
+        ax.plot(c["episodes"], c["qmax"]["mean"], color=col, label=f"eta={r['lr']:g}")
+        ax.fill_between(c["episodes"], c["qmax"]["lo"], c["qmax"]["hi"], color=col, alpha=0.2)
+    ax.set_xlabel("episode")
+    ax.set_ylabel("mean max_a Q(s, a) over visited states")
+    ax.set_title(f"Q values, the paper's Fig. 5, epsilon schedule\n({CI_LABEL}, {data['seeds']} seeds)")
+    ax.legend(fontsize=7, ncol=2)
+
+
+def plot_curves(data: dict) -> bytes:
+    """PNG, three panels of `plot_study`'s Q-learning part: steps to threshold
+    against eta (both schedules), greedy success and the Fig. 5 Q values along
+    training per eta (`qnav sweep`'s curves.png)."""
+    from ground_station.plotting import png_bytes, pyplot
+
+    plt = pyplot()
+    fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(18, 5.5), dpi=90)
+    cmap = plt.get_cmap("viridis")
+    _panel_threshold(a1, data)
+    _panel_success(a2, data, cmap)
+    _panel_q(a3, data, cmap)
+    fig.suptitle(f"Q-learning, cell encoding on {data['map']}, {data['config']['steps']:,} steps per run: "
+                 f"{data['seeds']} seeds per point; intervals are bootstrapped 95 % confidence intervals of the mean")
+    fig.tight_layout()
+    return png_bytes(fig)
+
+
 def plot_study(data: dict) -> bytes:
     """PNG, six panels: steps to threshold vs eta (both schedules); greedy
     success vs steps per eta; mean max-Q of visited states vs episodes per
@@ -468,39 +539,10 @@ def plot_study(data: dict) -> bytes:
         _plot_sector(data, axes[2], plt)
     cmap = plt.get_cmap("viridis")
     n, thr = data["seeds"], data["threshold"]
-    ci = "mean, bootstrapped 95 % CI"
-    for schedule, color in (("decay", "tab:blue"), ("constant", "tab:orange")):
-        rows = [r for r in data["lr_study"] if r["schedule"] == schedule]
-        m = np.array([r["steps_to_threshold"]["mean"] for r in rows])
-        lo = np.array([r["steps_to_threshold"]["ci95"][0] for r in rows])
-        hi = np.array([r["steps_to_threshold"]["ci95"][1] for r in rows])
-        lab = ("epsilon 1 -> {:g} over {:g} of the steps".format(data["config"]["epsilon_end"],
-                                                                 data["config"]["epsilon_decay"])
-               if schedule == "decay" else f"constant epsilon {data['constant_epsilon']:g}")
-        a1.errorbar([r["lr"] for r in rows], m, yerr=[m - lo, hi - m], marker="o", capsize=3, color=color, label=lab)
-    a1.set_xlabel("learning rate eta")
-    a1.set_ylabel(f"training steps to {thr:.0%} greedy success")
-    a1.set_title(f"steps to threshold\n({ci}, {n} seeds)")
-    a1.legend(fontsize=8)
-    decay = [r for r in data["lr_study"] if r["schedule"] == "decay"]
-    k = max(1, len(decay) - 1)
-    for i, r in enumerate(decay):
-        c = r["curve"]
-        col = cmap(i / k)
-        a2.plot(c["steps"], c["success"]["mean"], color=col, label=f"eta={r['lr']:g}")
-        a2.fill_between(c["steps"], c["success"]["lo"], c["success"]["hi"], color=col, alpha=0.2)
-        a3.plot(c["episodes"], c["qmax"]["mean"], color=col, label=f"eta={r['lr']:g}")
-        a3.fill_between(c["episodes"], c["qmax"]["lo"], c["qmax"]["hi"], color=col, alpha=0.2)
-    a2.axhline(thr, color="grey", linestyle=":")
-    a2.set_xlabel("training steps")
-    a2.set_ylabel("greedy success, all (start, goal) pairs")
-    a2.set_ylim(-0.02, 1.02)
-    a2.set_title(f"greedy success, epsilon schedule\n({ci}, {n} seeds)")
-    a2.legend(fontsize=7, ncol=2)
-    a3.set_xlabel("episode")
-    a3.set_ylabel("mean max_a Q(s, a) over visited states")
-    a3.set_title(f"Q values, the paper's Fig. 5, epsilon schedule\n({ci}, {n} seeds)")
-    a3.legend(fontsize=7, ncol=2)
+    ci = CI_LABEL
+    _panel_threshold(a1, data)
+    _panel_success(a2, data, cmap)
+    _panel_q(a3, data, cmap)
     rows = data["learners"]
     names = [f"{r['learner']}\neta={r['lr']:g}" for r in rows]
     x = np.arange(len(rows))

@@ -176,6 +176,22 @@ def test_cli_sweep_smoke(tmp_path):
     assert data["lrs"] == [0.2, 0.6] and len(data["runs"]) == 4
     assert {r["seed"] for r in data["runs"]} == {0, 1}
     assert (tmp_path / "sweep.png").read_bytes()[:4] == b"\x89PNG"
+    curves = json.loads((tmp_path / "curves.json").read_text())  # cell: steps to threshold and Fig. 5, with CIs
+    assert curves["seeds"] == 2 and curves["threshold"] == 0.95
+    rows = {(r["schedule"], r["lr"]): r for r in curves["lr_study"]}
+    assert set(rows) == {(s, lr) for s in ("decay", "constant") for lr in (0.2, 0.6)}
+    for r in rows.values():
+        lo, hi = r["steps_to_threshold"]["ci95"]
+        assert lo <= r["steps_to_threshold"]["mean"] <= hi <= 20000
+        assert len(r["curve"]["qmax"]["mean"]) == len(r["curve"]["episodes"]) > 2
+        assert r["curve"]["qmax"]["mean"][-1] > r["curve"]["qmax"]["mean"][0]  # values grow as learning goes
+    # the larger rate reaches 95 % greedy success sooner (paper's question), with either schedule
+    for sched in ("decay", "constant"):
+        assert rows[(sched, 0.6)]["steps_to_threshold"]["mean"] < rows[(sched, 0.2)]["steps_to_threshold"]["mean"]
+    assert (tmp_path / "curves.png").read_bytes()[:4] == b"\x89PNG"
+    qnav("sweep", "--map", "paper10", "--encoding", "cell", "--lrs", "0.5", "--seeds", "1", "--steps", "5000",
+         "--no-curves", "--out", str(tmp_path / "bare"))
+    assert not (tmp_path / "bare" / "curves.json").exists()
 
 
 def test_cli_eval_plot_writes_a_png(tmp_path):
