@@ -48,6 +48,7 @@ from typing import Any, NamedTuple
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder, best_action
 from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
+from firmware_py.unmapped import UnmappedSectorEncoder
 
 # --- format constants ---------------------------------------------------------
 MAGIC = b"QTAB"
@@ -69,7 +70,11 @@ KNOWN_FLAGS = FLAG_PER_STATE_SCALES  # any other bit set -> reject (see the spec
 KIND_CELL = 1
 KIND_SECTOR = 2
 KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
-KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory"}
+# the sector section, then the detour: n detour sensors (u8), their indices (u8 each), four u16
+# (margin mm, block mm, block mrad, leave mm); firmware_py/unmapped.py
+KIND_SECTOR_UNMAPPED = 4
+KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory",
+              KIND_SECTOR_UNMAPPED: "sector-unmapped"}
 KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
 
 DTYPE_INT8 = 1
@@ -84,10 +89,14 @@ MIN_FILE_BYTES = HEADER.size + CRC.size
 
 _SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 _MEMORY = struct.Struct("<HHH")  # block_mm, block_bearing_mrad, leave_margin_mm
+_UNMAPPED = struct.Struct("<HHHH")  # margin_mm, block_mm, block_bearing_mrad, leave_margin_mm
 _CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
 _PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
 _GOAL = struct.Struct("<HH")  # goal cell (col, row)
 _ORDER_NATIVE = sys.byteorder == "little"
+
+
+AnyEncoder = CellEncoder | SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder
 
 
 class PolicyError(Exception):
@@ -109,7 +118,7 @@ class MapGeometry(NamedTuple):
 class Policy:
     """A validated int Q-table with everything needed to use it on the robot."""
 
-    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder
+    encoder: AnyEncoder
     dtype: str
     n_states: int
     n_actions: int
@@ -196,14 +205,19 @@ def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
 
 
 def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
-                    ) -> tuple[CellEncoder | SectorEncoder | MemorySectorEncoder, tuple[tuple[int, int], ...], int]:
+                    ) -> tuple[AnyEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
-    enc: CellEncoder | SectorEncoder | MemorySectorEncoder
-    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY):
+    enc: AnyEncoder
+    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY, KIND_SECTOR_UNMAPPED):
         if len(sec) < _SECTOR_HEAD.size:
             raise PolicyError("sector encoder section too short")
         bearing, n_sensors, n_edges = _SECTOR_HEAD.unpack_from(sec, 0)
         extra = _MEMORY.size if kind == KIND_SECTOR_MEMORY else 0
+        if kind == KIND_SECTOR_UNMAPPED:
+            at = _SECTOR_HEAD.size + n_sensors + 2 * n_edges
+            if len(sec) < at + 1:
+                raise PolicyError("sector-unmapped encoder section too short")
+            extra = 1 + sec[at] + _UNMAPPED.size
         need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + extra + _PAIR.size * n_actions
         if len(sec) != need:
             raise PolicyError(f"sector encoder section is {len(sec)} bytes, its fields need {need}")
@@ -227,6 +241,15 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
                 off += _MEMORY.size
                 enc = MemorySectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
                                           block_mm=block, block_bearing_mrad=block_mrad, leave_margin_mm=leave)
+            elif kind == KIND_SECTOR_UNMAPPED:
+                n_det = sec[off]
+                detour = tuple(sec[off + 1:off + 1 + n_det])
+                off += 1 + n_det
+                margin, block, block_mrad, leave = _UNMAPPED.unpack_from(sec, off)
+                off += _UNMAPPED.size
+                enc = UnmappedSectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
+                                            detour_sensors=detour, margin_mm=margin, block_mm=block,
+                                            block_bearing_mrad=block_mrad, leave_margin_mm=leave)
             else:
                 enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
         except ValueError as exc:
@@ -398,9 +421,9 @@ def content_id(encoder_section: bytes, table: bytes, scales: bytes = b"") -> int
     return zlib.crc32(scales, zlib.crc32(table, zlib.crc32(encoder_section)))
 
 
-def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, goals: Sequence[tuple[int, int]],
+def _pack_encoder(encoder: AnyEncoder, goals: Sequence[tuple[int, int]],
                   cell_mm: int) -> bytes:
-    if isinstance(encoder, SectorEncoder | MemorySectorEncoder):
+    if isinstance(encoder, SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder):
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
         out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
@@ -409,6 +432,11 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, go
                                                   encoder.leave_margin_mm)):
                 raise ValueError("memory rule fields must be 0..65535")
             out += _MEMORY.pack(encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm)
+        if isinstance(encoder, UnmappedSectorEncoder):
+            vals = (encoder.margin_mm, encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm)
+            if not all(0 <= v <= 0xFFFF for v in vals):
+                raise ValueError("detour rule fields must be 0..65535")
+            out += bytes([len(encoder.detour_sensors), *encoder.detour_sensors]) + _UNMAPPED.pack(*vals)
         actions = robot_spec.ACTION_WHEEL_SPEEDS_MM_S
     else:
         if len(goals) != encoder.n_goals:
@@ -419,7 +447,7 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, go
     return out + b"".join(_PAIR.pack(*a) for a in actions)
 
 
-def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, table: array[int], dtype: str, scale: float, *,
+def dump_policy(encoder: AnyEncoder, table: array[int], dtype: str, scale: float, *,
                 state_scales: array[float] | None = None, goals: Sequence[tuple[int, int]] = (),
                 cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict[str, Any] | None = None,
                 policy_id: int | None = None, created: int | None = None,
@@ -475,7 +503,7 @@ def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, tabl
     return body + CRC.pack(zlib.crc32(body))
 
 
-def _geometry_for(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
+def _geometry_for(encoder: AnyEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
     """The header's map geometry: a cell policy's grid, a sector policy's training map."""
     if isinstance(encoder, CellEncoder):
         grid = MapGeometry(cell_mm, encoder.width, encoder.height)

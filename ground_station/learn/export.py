@@ -23,6 +23,7 @@ import numpy as np
 from firmware_py import policy as fmt
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
+from firmware_py.unmapped import UnmappedSectorEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
 
@@ -93,7 +94,7 @@ def compare(q: np.ndarray, qt: Quantised) -> dict:
     }
 
 
-def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEncoder:
+def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
     """Rebuild a reference encoder from its `to_dict()` (as in meta.json)."""
     kind = d.get("kind")
     if kind == "cell":
@@ -108,10 +109,18 @@ def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEnco
                                    range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
                                    block_mm=int(d["block_mm"]), block_bearing_mrad=int(d["block_bearing_mrad"]),
                                    leave_margin_mm=int(d["leave_margin_mm"]))
+    if kind == "sector-unmapped":
+        return UnmappedSectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
+                                     sensors=tuple(int(s) for s in d["sensors"]),
+                                     range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
+                                     detour_sensors=tuple(int(s) for s in d["detour_sensors"]),
+                                     margin_mm=int(d["margin_mm"]), block_mm=int(d["block_mm"]),
+                                     block_bearing_mrad=int(d["block_bearing_mrad"]),
+                                     leave_margin_mm=int(d["leave_margin_mm"]))
     raise ValueError(f"unknown encoder kind {kind!r}")
 
 
-def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder | MemorySectorEncoder, *, goals=(),
+def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),
                  cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
                  policy_id: int | None = None, created: int | None = None,
                  control_period_us: int = robot_spec.CONTROL_PERIOD_US,
@@ -141,7 +150,7 @@ class TrainingRun:
 
     q: np.ndarray
     meta: dict
-    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder
+    encoder: fmt.AnyEncoder
     goals: list[tuple[int, int]]
     cell_mm: int
 

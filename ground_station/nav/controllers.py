@@ -29,7 +29,14 @@ import numpy as np
 from firmware_py import robot_spec
 from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
 from firmware_py.policy import Policy, load_policy
-from ground_station.learn.export import geometry_of_map, policy_bytes, quantise
+from firmware_py.unmapped import UnmappedSectorEncoder
+from ground_station.learn.export import (
+    META_GRID,
+    geometry_of_map,
+    map_grid_rows,
+    policy_bytes,
+    quantise,
+)
 from ground_station.learn.sector.evaluate import seek_table
 
 FORWARD, LEFT, RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
@@ -39,15 +46,17 @@ CONTROLLER_NAMES = ("learnt", "seek", "vfh", "direct")
 @dataclass
 class NavController:
     name: str
-    encoder: SectorEncoder | MemorySectorEncoder
+    encoder: SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
-        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder))
-        data = policy_bytes(qt, self.encoder, metadata={"controller": self.name, "guidance": self.guidance},
-                            map_geometry=geometry_of_map(map_name))
+        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder | UnmappedSectorEncoder))
+        meta: dict[str, object] = {"controller": self.name, "guidance": self.guidance}
+        if isinstance(self.encoder, UnmappedSectorEncoder):  # the detour needs the map (firmware_py.mapdata)
+            meta[META_GRID] = map_grid_rows(map_name)
+        data = policy_bytes(qt, self.encoder, metadata=meta, map_geometry=geometry_of_map(map_name))
         return load_policy(data)
 
 
