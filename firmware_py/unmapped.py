@@ -19,8 +19,10 @@ State (`UnmappedSectorEncoder.encode`), integers only:
 * **go** (no detour): exactly the `SectorEncoder(bearing_sectors, sensors,
   range_edges_mm)` index (rows 0 .. n_go - 1), so the shipped sector table
   drops in unchanged;
-* **detour** (side kept): n_go + ((side - 1) * N_TURNS + last turn) *
-  code_states + code index, where the code of each of `detour_sensors` is
+* **detour** (side kept): n_go + (((side - 1) * N_TURNS + last turn) *
+  SENSOR_COUNT + w) * code_states + code index, where w is the sensor
+  pointing nearest the waypoint (its bearing in 8 sectors) and the code of
+  each of `detour_sensors` is
   0 = anything nearer than the first edge (or too close), then per middle
   bin an unmapped and a mapped code, then one code for "nothing nearer than
   the last edge" (4 codes with two edges).
@@ -36,11 +38,16 @@ Transitions (`update`, checked every tick before encoding):
   side with more free range on its diagonal and side sensors goes round,
   ties to the waypoint's side. `DetourMemory.reset()` per waypoint (the
   controller does it per mission item).
-* detour -> go when the waypoint is `leave_margin_mm` closer than at the
-  hit (strictly; the Bug family's leaving rule: turning in place cannot leave, so no
-  go/detour dither) and the sensor nearest the waypoint and its neighbour
-  toward the heading see nothing unmapped nearer than `block_mm` (or
-  nearer than the waypoint).
+* detour -> go when the way is no longer blocked (the entry test fails:
+  leaving and entering are exact complements, so no go/detour flip-flop),
+  and either the obstacle is passed (the kept
+  side's diagonal, side and rear-diagonal sensors see nothing unmapped
+  nearer than `block_mm`) or the waypoint is more than `leave_margin_mm`
+  closer than at the hit (the Bug family's leaving rule). Turning away in
+  place keeps the obstacle on the kept side, so it does not leave (no
+  go/detour dither). With `leave` 0 the detour rows drive until the next
+  waypoint (the shipped go rows dither in places off the planned path,
+  where a detour leaves the robot).
 
 Without a map (`unmapped` None) the detour is never entered: the state is
 the go rows', i.e. the plain sector policy.
@@ -170,6 +177,7 @@ class UnmappedSectorEncoder:
     block_mm: int = 400
     block_bearing_mrad: int = 785
     leave_margin_mm: int = 0  # measured best of 0 / 50 / 100 / 300 with the hand-written rows
+    leave: int = 1  # 1: the leave rule below; 0: the detour lasts until the next waypoint
     kind: str = field(default="sector-unmapped", init=False)
 
     def __post_init__(self) -> None:
@@ -182,8 +190,8 @@ class UnmappedSectorEncoder:
             raise ValueError("sector-unmapped needs at least one range edge")
         if self.margin_mm < 0 or self.block_mm < 1 or not 0 <= self.block_bearing_mrad <= _HALF_TURN:
             raise ValueError("margin_mm must be >= 0, block_mm >= 1, block_bearing_mrad in 0..3141")
-        if self.leave_margin_mm < 0:
-            raise ValueError("leave_margin_mm must be >= 0")
+        if self.leave_margin_mm < 0 or self.leave not in (0, 1):
+            raise ValueError("leave_margin_mm must be >= 0 and leave 0 or 1")
 
     @property
     def base(self) -> SectorEncoder:
@@ -205,7 +213,7 @@ class UnmappedSectorEncoder:
 
     @property
     def n_states(self) -> int:
-        return self.n_go + 2 * N_TURNS * self.code_states
+        return self.n_go + 2 * N_TURNS * robot_spec.SENSOR_COUNT * self.code_states
 
     @property
     def n_actions(self) -> int:
@@ -214,6 +222,13 @@ class UnmappedSectorEncoder:
     def _blocks(self, i: int, distance_mm: int, unmapped: list[int] | tuple[int, ...]) -> bool:
         d = unmapped[i]
         return 0 <= d < self.block_mm and d < distance_mm
+
+    def _blocked(self, w: int, b: int, distance_mm: int, unmapped: list[int] | tuple[int, ...]) -> bool:
+        """The way to the waypoint (bearing b, nearest sensor w) is blocked by an unmapped reading."""
+        n = robot_spec.SENSOR_COUNT
+        return (self._blocks(w, distance_mm, unmapped) or self._blocks((w + 1) % n, distance_mm, unmapped)
+                or self._blocks((w + n - 1) % n, distance_mm, unmapped)
+                or (abs(b) <= self.block_bearing_mrad and self._blocks(0, distance_mm, unmapped)))
 
     def update(self, memory: DetourMemory, bearing_mrad: int, distance_mm: int,
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
@@ -226,22 +241,28 @@ class UnmappedSectorEncoder:
         n = robot_spec.SENSOR_COUNT
         w = bearing_sector(bearing_mrad, n)  # the sensor nearest the waypoint
         if not memory.detour:
-            if self._blocks(w, distance_mm, unmapped) or self._blocks((w + 1) % n, distance_mm, unmapped) or (
-                    self._blocks((w + n - 1) % n, distance_mm, unmapped)) or (
-                    abs(b) <= self.block_bearing_mrad and self._blocks(0, distance_mm, unmapped)):
+            if self._blocked(w, b, distance_mm, unmapped):
                 if memory.side == SIDE_NONE:
+                    # round the side the obstacle is not on; else the side with more room; else the waypoint's
+                    unm_l = unmapped[1] >= 0 or unmapped[2] >= 0
+                    unm_r = unmapped[7] >= 0 or unmapped[6] >= 0
                     left = min(_near_mm(ranges_mm[1], status[1]), _near_mm(ranges_mm[2], status[2]))
                     right = min(_near_mm(ranges_mm[7], status[7]), _near_mm(ranges_mm[6], status[6]))
-                    if left != right:
+                    if unm_l != unm_r:
+                        memory.side = KEEP_LEFT if unm_l else KEEP_RIGHT
+                    elif left != right:
                         memory.side = KEEP_RIGHT if left > right else KEEP_LEFT
                     else:
                         memory.side = KEEP_RIGHT if b >= 0 else KEEP_LEFT
                 memory.detour = True
                 memory.hit_mm = distance_mm
-        elif distance_mm + self.leave_margin_mm < memory.hit_mm:
-            # the neighbour of w toward the heading (w itself when the waypoint is straight ahead or behind)
-            nb = w if w in (0, n // 2) else (w - 1 if w < n // 2 else (w + 1) % n)
-            if not (self._blocks(w, distance_mm, unmapped) or self._blocks(nb, distance_mm, unmapped)):
+        elif self.leave:
+            # the kept side's diagonal, side and rear diagonal (right: 7, 6, 5; left: 1, 2, 3)
+            k0 = n - 1 if memory.side == KEEP_RIGHT else 1
+            step = -1 if memory.side == KEEP_RIGHT else 1
+            passed = not any(0 <= unmapped[k0 + j * step] < self.block_mm for j in range(3))
+            if (passed or distance_mm + self.leave_margin_mm < memory.hit_mm) and not self._blocked(
+                    w, b, distance_mm, unmapped):
                 memory.detour = False
         return memory.detour
 
@@ -272,7 +293,9 @@ class UnmappedSectorEncoder:
         for i in self.detour_sensors:
             s += self.code(i, ranges_mm, status, unmapped) * mult
             mult *= self.n_codes
-        return self.n_go + ((memory.side - 1) * N_TURNS + memory.last_turn) * self.code_states + s
+        w = bearing_sector(bearing_mrad, robot_spec.SENSOR_COUNT)
+        return self.n_go + (((memory.side - 1) * N_TURNS + memory.last_turn) * robot_spec.SENSOR_COUNT + w
+                            ) * self.code_states + s
 
     def encode_on_map(self, memory: DetourMemory, bearing_mrad: int, distance_mm: int,
                       ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],

@@ -11,6 +11,9 @@ row -> action), so every controller also runs in HIL as an exported
   `sector-memory` policy (`MemorySectorEncoder`: the same state plus the
   detour memory, reset per waypoint) is accepted too, and the baselines
   then run on its base `SectorEncoder` (the same sensing without memory);
+  so is a `sector-unmapped` policy (`firmware_py.unmapped`: the shipped
+  sector state plus a detour memory entered on readings the map does not
+  explain), the baselines again on its base encoder;
 * `seek`: the hand-written seek table (`learn.sector.evaluate.seek_table`:
   forward when the target is in the sector ahead, else turn to it), path;
 * `vfh`: a Vector-Field-Histogram-style reactive controller on the same
@@ -120,10 +123,10 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
     """learnt / seek / vfh / direct on the learnt policy's encoder (the
     baselines on its base `SectorEncoder` when it carries the detour memory)."""
     enc = policy.encoder
-    if not isinstance(enc, SectorEncoder | MemorySectorEncoder):
+    if not isinstance(enc, SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder):
         raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
     q = policy_table(policy)
-    base = enc.base if isinstance(enc, MemorySectorEncoder) else enc
+    base = enc.base if isinstance(enc, MemorySectorEncoder | UnmappedSectorEncoder) else enc
     make = {
         "learnt": lambda: NavController("learnt", enc, q, "path"),
         "seek": lambda: NavController("seek", base, seek_table(base), "path"),

@@ -60,40 +60,59 @@ def test_go_rows_are_the_sector_state_and_no_map_means_go_rows():
         assert ENC.encode(mem, b, 3000, ranges, status, None) == want  # no map
         assert ENC.encode(mem, b, 3000, ranges, status, [-1] * 8) == want  # nothing unmapped
         assert not mem.detour
-    assert ENC.n_go == base.n_states and ENC.n_states == base.n_states + 2 * 3 * 4 ** 5
+    assert ENC.n_go == base.n_states and ENC.n_states == base.n_states + 2 * 3 * 8 * 4 ** 5
 
 
 def test_detour_entry_side_hysteresis_and_leave():
+    enc = UnmappedSectorEncoder(leave_margin_mm=100)
     mem = DetourMemory()
     ranges = [250, 1500, 1500, 2000, 2000, 2000, 300, 400]  # free on the left, closer on the right
     status = [V] * 8
     um = [250] + [-1] * 7  # an unmapped obstacle 250 mm ahead, waypoint straight ahead 1000 mm away
-    s = ENC.encode(mem, 0, 1000, ranges, status, um)
+    s = enc.encode(mem, 0, 1000, ranges, status, um)
     assert mem.detour and mem.side == KEEP_RIGHT and mem.hit_mm == 1000  # go round it on the left
-    assert s >= ENC.n_go
+    assert s >= enc.n_go
     mem.note_action(1)  # turn left
     assert mem.last_turn == TURN_LEFT
-    # turned away in place: the waypoint is no closer, so the detour holds even with nothing unmapped
-    s2 = ENC.encode(mem, -500, 1000, ranges, status, [-1] * 8)
-    assert mem.detour and s2 >= ENC.n_go + 1 * ENC.code_states  # last turn left: the second block
-    # past it: closer than at the hit and the waypoint-ward sensors clear -> go
-    assert ENC.encode(mem, -500, 850, ranges, status, [-1] * 8) < ENC.n_go and not mem.detour
+    # turned away in place: the obstacle now on the right diagonal (kept side), the waypoint no closer
+    beside = [-1] * 7 + [260]
+    s2 = enc.encode(mem, -700, 1000, ranges, status, beside)
+    assert mem.detour and s2 >= enc.n_go + enc.code_states * 8  # last turn left: the second block
+    # the waypoint ahead-right still has the obstacle in its way: blocked, whatever the distance
+    enc.encode(mem, -785, 500, ranges, status, beside)
+    assert mem.detour
+    # closer by more than the leave margin and the way clear, the obstacle still beside -> go
+    side_only = [-1] * 6 + [200, -1]
+    assert enc.encode(mem, 300, 850, ranges, status, side_only) < enc.n_go and not mem.detour
+    # again blocked: the side is kept; passed (nothing unmapped on the kept side, way clear) -> go
+    enc.encode(mem, 0, 800, ranges, status, [150] + [-1] * 7)
+    assert mem.detour and mem.side == KEEP_RIGHT and mem.hit_mm == 800
+    assert enc.encode(mem, 0, 800, ranges, status, [-1] * 8) < enc.n_go and not mem.detour
     # an obstacle beyond the waypoint does not block
     mem.reset()
-    ENC.encode(mem, 0, 200, ranges, status, um)
+    enc.encode(mem, 0, 200, ranges, status, um)
     assert not mem.detour
-    # the side is kept for the waypoint; reset() forgets it
+    # the side: round the side the obstacle is not on, else the side with more room; reset() forgets it
     mem.reset()
     ranges_r = [250, 300, 300, 2000, 2000, 2000, 1500, 1500]
-    ENC.encode(mem, 0, 1000, ranges_r, status, um)
+    enc.encode(mem, 0, 1000, ranges_r, status, um)
     assert mem.side == KEEP_LEFT
+    mem.reset()
+    enc.encode(mem, 0, 1000, ranges_r, status, [250, -1, -1, -1, -1, -1, -1, 300])  # obstacle seen on the right
+    assert mem.side == KEEP_RIGHT
+    # leave 0: the detour lasts until the next waypoint
+    stay = UnmappedSectorEncoder(leave=0)
+    mem.reset()
+    stay.encode(stay_mem := mem, 0, 1000, ranges, status, um)
+    assert stay.encode(stay_mem, 0, 100, ranges, status, [-1] * 8) >= stay.n_go and stay_mem.detour
 
 
 def test_detour_codes_tell_a_disc_from_a_wall():
-    mem = DetourMemory(detour=True, side=KEEP_RIGHT, hit_mm=0)  # hit nearer than now: the detour holds
+    stay = UnmappedSectorEncoder(leave=0)  # the detour holds whatever is seen
+    mem = DetourMemory(detour=True, side=KEEP_RIGHT, hit_mm=0)
     ranges, status = [300, 2000, 2000, 2000, 2000, 2000, 2000, 2000], [V] + [FAR] * 7
-    disc = ENC.encode(mem, 0, 4000, ranges, status, [300] + [-1] * 7)
-    wall = ENC.encode(mem, 0, 4000, ranges, status, [-1] * 8)
+    disc = stay.encode(mem, 0, 4000, ranges, status, [300] + [-1] * 7)
+    wall = stay.encode(mem, 0, 4000, ranges, status, [-1] * 8)
     assert disc != wall and ENC.n_go <= min(disc, wall) and max(disc, wall) < ENC.n_states
     assert ENC.code(0, ranges, status, [300] + [-1] * 7) == 1 and ENC.code(0, ranges, status, [-1] * 8) == 2
 

@@ -67,13 +67,13 @@ R_VALID = robot_spec.RANGE_VALID
 R_CLOSE = robot_spec.RANGE_TOO_CLOSE
 TURN_OF = np.array([turn_of(a) for a in range(len(robot_spec.ACTION_NAMES))], dtype=np.int64)
 # up: the kernels' parameter array
-P_SECTORS, P_NGO, P_MARGIN, P_BLOCK, P_BLOCK_BEARING, P_NCODES, P_CODE_STATES, P_LEAVE = range(8)
+P_SECTORS, P_NGO, P_MARGIN, P_BLOCK, P_BLOCK_BEARING, P_NCODES, P_CODE_STATES, P_LEAVE, P_STAY = range(9)
 
 
 def unmapped_params(enc: UnmappedSectorEncoder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(up, detour sensors, range edges) as the kernels take them."""
     up = np.array([enc.bearing_sectors, enc.n_go, enc.margin_mm, enc.block_mm, enc.block_bearing_mrad,
-                   enc.n_codes, enc.code_states, enc.leave_margin_mm], dtype=np.int64)
+                   enc.n_codes, enc.code_states, enc.leave_margin_mm, 1 - enc.leave], dtype=np.int64)
     return up, np.asarray(enc.detour_sensors, dtype=np.int64), np.asarray(enc.range_edges_mm, dtype=np.int64)
 
 
@@ -138,33 +138,41 @@ def _blocks(i: int, dist: int, um, up) -> bool:
     return 0 <= d < up[P_BLOCK] and d < dist
 
 
+@numba.njit(cache=True, inline="always")
+def _blocked(w: int, b: int, dist: int, um, up) -> bool:
+    return (_blocks(w, dist, um, up) or _blocks((w + 1) % N_SENS, dist, um, up)
+            or _blocks((w + N_SENS - 1) % N_SENS, dist, um, up)
+            or (abs(b) <= up[P_BLOCK_BEARING] and _blocks(0, dist, um, up)))
+
+
 @numba.njit(cache=True)
 def unmapped_update_fast(mem, bearing: int, dist: int, ranges, status, um, up) -> int:
     """UnmappedSectorEncoder.update (with a map) on mem; returns mem[U_DETOUR]."""
     b = (bearing + HALF) % TWO_PI - HALF
     w = bearing_sector_fast(bearing, N_SENS)
     if mem[U_DETOUR] == 0:
-        blocked = _blocks(w, dist, um, up) or _blocks((w + 1) % N_SENS, dist, um, up) or _blocks(
-            (w + N_SENS - 1) % N_SENS, dist, um, up) or (abs(b) <= up[P_BLOCK_BEARING] and _blocks(0, dist, um, up))
-        if blocked:
+        if _blocked(w, b, dist, um, up):
             if mem[U_SIDE] == 0:
+                unm_l = um[1] >= 0 or um[2] >= 0
+                unm_r = um[7] >= 0 or um[6] >= 0
                 left = min(near_mm(ranges[1], status[1]), near_mm(ranges[2], status[2]))
                 right = min(near_mm(ranges[7], status[7]), near_mm(ranges[6], status[6]))
-                if left != right:
+                if unm_l != unm_r:
+                    mem[U_SIDE] = KEEP_LEFT if unm_l else KEEP_RIGHT
+                elif left != right:
                     mem[U_SIDE] = KEEP_RIGHT if left > right else KEEP_LEFT
                 else:
                     mem[U_SIDE] = KEEP_RIGHT if b >= 0 else KEEP_LEFT
             mem[U_DETOUR] = 1
             mem[U_HIT] = dist
-    elif dist + up[P_LEAVE] < mem[U_HIT]:
-        half = N_SENS // 2
-        if w == 0 or w == half:
-            nb = w
-        elif w < half:
-            nb = w - 1
-        else:
-            nb = (w + 1) % N_SENS
-        if not (_blocks(w, dist, um, up) or _blocks(nb, dist, um, up)):
+    elif up[P_STAY] == 0:
+        k0 = N_SENS - 1 if mem[U_SIDE] == KEEP_RIGHT else 1
+        step = -1 if mem[U_SIDE] == KEEP_RIGHT else 1
+        passed = True
+        for j in range(3):
+            if 0 <= um[k0 + j * step] < up[P_BLOCK]:
+                passed = False
+        if (passed or dist + up[P_LEAVE] < mem[U_HIT]) and not _blocked(w, b, dist, um, up):
             mem[U_DETOUR] = 0
     return mem[U_DETOUR]
 
@@ -200,7 +208,8 @@ def unmapped_state_fast(mem, base_state: int, bearing: int, dist: int, ranges, s
             code = 1 + 2 * (bn - 1) + (1 if mapped else 0)
         s += code * mult
         mult *= nc
-    return up[P_NGO] + ((mem[U_SIDE] - 1) * 3 + mem[U_TURN]) * up[P_CODE_STATES] + s
+    w = bearing_sector_fast(bearing, N_SENS)
+    return up[P_NGO] + (((mem[U_SIDE] - 1) * 3 + mem[U_TURN]) * N_SENS + w) * up[P_CODE_STATES] + s
 
 
 @numba.njit(cache=True, inline="always")
@@ -457,6 +466,9 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
 # --- tables --------------------------------------------------------------------
 
 FORWARD, LEFT, RIGHT, REVERSE = range(4)
+SIDE_NEAR_FORWARD = True
+FRONT_WALL_TO_WP = True
+REVERSAL_DIAG = False
 
 
 def go_rows(go_q: np.ndarray, enc: UnmappedSectorEncoder) -> np.ndarray:
@@ -478,25 +490,58 @@ def decode_codes(enc: UnmappedSectorEncoder, cs: int) -> dict[int, int]:
 def hand_detour_table(go_q: np.ndarray, enc: UnmappedSectorEncoder) -> np.ndarray:
     """`go_rows` plus hand-written detour rows (needs detour sensors 0, 1, 2,
     6, 7 and two range edges). Keeping the obstacle on side S (`away` turns
-    from it, `toward` to it): anything nearer than the first edge ahead, an
-    unmapped reading ahead, or anything nearer than the first edge on S's
-    diagonal or side sensor -> turn away; an unmapped reading on S's
-    diagonal or side -> forward (going round it); the obstacle no longer
-    seen on S -> forward right after a turn away, else turn toward it (round
-    its far side). Map walls in the middle bin are driven past, not followed."""
+    from it, `toward` to it), w the sensor nearest the waypoint, first match wins:
+    * ahead: anything nearer than the first edge or an unmapped reading ->
+      turn away; a map wall in the middle bin -> forward if the waypoint is
+      ahead (it lies before the wall), else turn away;
+    * S's diagonal nearer than the first edge -> turn away; S's side sensor
+      nearer than it -> forward if nothing is within the last edge ahead,
+      else turn away; the other diagonal nearer than it -> turn toward S;
+    * waypoint ahead (w = 0) -> forward;
+    * waypoint on S's side: the obstacle still seen there (unmapped on S's
+      diagonal or side) -> forward (going round it), else turn toward the
+      waypoint (forward right after a turn away, so the robot clears it);
+    * waypoint on the other side or behind -> turn toward it (away from S);
+    then no reversal: a turn opposite to the previous tick's turn becomes
+    forward when nothing is within the last edge ahead, else the previous
+    turn goes on (turning in place touches nothing; a reversal is the
+    period-2 dither at a bin or flag boundary)."""
     if not {0, 1, 2, 6, 7} <= set(enc.detour_sensors) or len(enc.range_edges_mm) != 2:
         raise ValueError("hand_detour_table needs detour sensors 0, 1, 2, 6, 7 and two range edges")
     q = go_rows(go_q, enc)
-    near, unm = 0, 1  # codes: nearer than the first edge; unmapped in the middle bin
+    near, unm, far = 0, 1, enc.n_codes - 1  # codes: nearer than the first edge; unmapped mid; beyond the last edge
+    n = robot_spec.SENSOR_COUNT
     for cs in range(enc.code_states):
         code = decode_codes(enc, cs)
-        for side, (diag, beside, away, toward) in ((KEEP_RIGHT, (7, 6, LEFT, RIGHT)), (KEEP_LEFT, (1, 2, RIGHT, LEFT))):
+        safe_diag = code[0] == far and code[1] != near and code[7] != near
+        safe = safe_diag and code[2] != near and code[6] != near
+        for side, (diag, beside, odiag, oside, away, toward) in ((KEEP_RIGHT, (7, 6, 1, 2, LEFT, RIGHT)),
+                                                                 (KEEP_LEFT, (1, 2, 7, 6, RIGHT, LEFT))):
             for turn in range(3):
-                if code[0] in (near, unm) or code[diag] == near or code[beside] == near:
-                    a = away
-                elif code[diag] == unm or code[beside] == unm:
-                    a = FORWARD
-                else:
-                    a = FORWARD if turn == away else toward  # TURN_LEFT/RIGHT == the action's index
-                q[enc.n_go + ((side - 1) * 3 + turn) * enc.code_states + cs, a] = 1.0
+                for w in range(n):
+                    on_s = (w > n // 2) if side == KEEP_RIGHT else (0 < w < n // 2)
+                    seen_s = code[diag] == unm or code[beside] == unm
+                    if code[0] in (near, unm) or code[diag] == near:
+                        a = away
+                    elif code[0] != far and w != 0:  # a map wall ahead, the waypoint elsewhere
+                        a = away if (on_s and seen_s) or w == n // 2 or not FRONT_WALL_TO_WP else (
+                            toward if on_s else away)
+                    elif code[odiag] == near:
+                        a = toward
+                    elif code[beside] == near:
+                        a = FORWARD if SIDE_NEAR_FORWARD and safe_diag else away
+                    elif code[oside] == near:
+                        a = FORWARD if SIDE_NEAR_FORWARD and safe_diag else toward
+                    elif w == 0:
+                        a = FORWARD
+                    elif on_s:
+                        if code[diag] == unm or code[beside] == unm:
+                            a = FORWARD
+                        else:
+                            a = FORWARD if turn == away else toward  # TURN_LEFT/RIGHT == the action's index
+                    else:
+                        a = away
+                    if a in (LEFT, RIGHT) and turn in (LEFT, RIGHT) and a != turn:
+                        a = FORWARD if (safe_diag if REVERSAL_DIAG else safe) else turn
+                    q[enc.n_go + (((side - 1) * 3 + turn) * n + w) * enc.code_states + cs, a] = 1.0
     return q
