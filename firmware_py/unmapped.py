@@ -45,7 +45,10 @@ Transitions (`update`, checked every tick before encoding):
   nearer than `block_mm`) or the waypoint is more than `leave_margin_mm`
   closer than at the hit (the Bug family's leaving rule). Turning away in
   place keeps the obstacle on the kept side, so it does not leave (no
-  go/detour dither). With `leave` 0 the detour rows drive until the next
+  go/detour dither); `clear_mm` > block_mm adds hysteresis. With
+  `switch_ticks` > 0 a detour that has not brought the waypoint nearer for
+  that many ticks goes round the other side (the chosen side can be closed
+  by a map wall). With `leave` 0 the detour rows drive until the next
   waypoint (the shipped go rows dither in places off the planned path,
   where a detour leaves the robot).
 
@@ -154,12 +157,16 @@ class DetourMemory:
     side: int = SIDE_NONE
     hit_mm: int = 0  # the waypoint distance where the current detour began
     last_turn: int = TURN_NONE
+    best_mm: int = 0  # the nearest the waypoint has been in this detour ...
+    stall: int = 0  # ... and the ticks since it was
 
     def reset(self) -> None:
         self.detour = False
         self.side = SIDE_NONE
         self.hit_mm = 0
         self.last_turn = TURN_NONE
+        self.best_mm = 0
+        self.stall = 0
 
     def note_action(self, action: int) -> None:
         self.last_turn = turn_of(action)
@@ -178,6 +185,8 @@ class UnmappedSectorEncoder:
     block_bearing_mrad: int = 785
     leave_margin_mm: int = 0  # measured best of 0 / 50 / 100 / 300 with the hand-written rows
     leave: int = 1  # 1: the leave rule below; 0: the detour lasts until the next waypoint
+    clear_mm: int = 0  # leaving needs the way clear of unmapped readings this far (0: block_mm)
+    switch_ticks: int = 100  # a detour this many ticks without getting nearer switches side (0: never)
     kind: str = field(default="sector-unmapped", init=False)
 
     def __post_init__(self) -> None:
@@ -192,6 +201,8 @@ class UnmappedSectorEncoder:
             raise ValueError("margin_mm must be >= 0, block_mm >= 1, block_bearing_mrad in 0..3141")
         if self.leave_margin_mm < 0 or self.leave not in (0, 1):
             raise ValueError("leave_margin_mm must be >= 0 and leave 0 or 1")
+        if self.clear_mm < 0 or self.switch_ticks < 0:
+            raise ValueError("clear_mm and switch_ticks must be >= 0")
 
     @property
     def base(self) -> SectorEncoder:
@@ -219,16 +230,18 @@ class UnmappedSectorEncoder:
     def n_actions(self) -> int:
         return len(robot_spec.ACTION_WHEEL_SPEEDS_MM_S)
 
-    def _blocks(self, i: int, distance_mm: int, unmapped: list[int] | tuple[int, ...]) -> bool:
+    @staticmethod
+    def _blocks(i: int, distance_mm: int, unmapped: list[int] | tuple[int, ...], reach: int) -> bool:
         d = unmapped[i]
-        return 0 <= d < self.block_mm and d < distance_mm
+        return 0 <= d < reach and d < distance_mm
 
-    def _blocked(self, w: int, b: int, distance_mm: int, unmapped: list[int] | tuple[int, ...]) -> bool:
-        """The way to the waypoint (bearing b, nearest sensor w) is blocked by an unmapped reading."""
+    def _blocked(self, w: int, b: int, distance_mm: int, unmapped: list[int] | tuple[int, ...], reach: int) -> bool:
+        """The way to the waypoint (bearing b, nearest sensor w) is blocked by
+        an unmapped reading nearer than reach (and than the waypoint)."""
         n = robot_spec.SENSOR_COUNT
-        return (self._blocks(w, distance_mm, unmapped) or self._blocks((w + 1) % n, distance_mm, unmapped)
-                or self._blocks((w + n - 1) % n, distance_mm, unmapped)
-                or (abs(b) <= self.block_bearing_mrad and self._blocks(0, distance_mm, unmapped)))
+        return (self._blocks(w, distance_mm, unmapped, reach) or self._blocks((w + 1) % n, distance_mm, unmapped, reach)
+                or self._blocks((w + n - 1) % n, distance_mm, unmapped, reach)
+                or (abs(b) <= self.block_bearing_mrad and self._blocks(0, distance_mm, unmapped, reach)))
 
     def update(self, memory: DetourMemory, bearing_mrad: int, distance_mm: int,
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
@@ -241,7 +254,7 @@ class UnmappedSectorEncoder:
         n = robot_spec.SENSOR_COUNT
         w = bearing_sector(bearing_mrad, n)  # the sensor nearest the waypoint
         if not memory.detour:
-            if self._blocked(w, b, distance_mm, unmapped):
+            if self._blocked(w, b, distance_mm, unmapped, self.block_mm):
                 if memory.side == SIDE_NONE:
                     # round the side the obstacle is not on; else the side with more room; else the waypoint's
                     unm_l = unmapped[1] >= 0 or unmapped[2] >= 0
@@ -256,13 +269,25 @@ class UnmappedSectorEncoder:
                         memory.side = KEEP_RIGHT if b >= 0 else KEEP_LEFT
                 memory.detour = True
                 memory.hit_mm = distance_mm
-        elif self.leave:
+                memory.best_mm = distance_mm
+                memory.stall = 0
+            return memory.detour
+        if distance_mm < memory.best_mm:
+            memory.best_mm = distance_mm
+            memory.stall = 0
+        else:
+            memory.stall += 1
+            if self.switch_ticks and memory.stall >= self.switch_ticks:  # no nearer for long: the other side
+                memory.side = KEEP_LEFT if memory.side == KEEP_RIGHT else KEEP_RIGHT
+                memory.stall = 0
+                memory.best_mm = distance_mm
+        if self.leave:
             # the kept side's diagonal, side and rear diagonal (right: 7, 6, 5; left: 1, 2, 3)
             k0 = n - 1 if memory.side == KEEP_RIGHT else 1
             step = -1 if memory.side == KEEP_RIGHT else 1
             passed = not any(0 <= unmapped[k0 + j * step] < self.block_mm for j in range(3))
             if (passed or distance_mm + self.leave_margin_mm < memory.hit_mm) and not self._blocked(
-                    w, b, distance_mm, unmapped):
+                    w, b, distance_mm, unmapped, max(self.block_mm, self.clear_mm)):
                 memory.detour = False
         return memory.detour
 

@@ -57,8 +57,8 @@ _FAN_L = ([(k / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (robot_spec.SENSOR_FOV
            for k in range(robot_spec.SENSOR_FAN_RAYS)] if robot_spec.SENSOR_FAN_RAYS > 1 else [0.0])
 RAY_COS_L = np.array([[math.cos(a / 1000.0 + f) for f in _FAN_L] for a in robot_spec.SENSOR_ANGLES_MRAD])
 RAY_SIN_L = np.array([[math.sin(a / 1000.0 + f) for f in _FAN_L] for a in robot_spec.SENSOR_ANGLES_MRAD])
-U_DETOUR, U_SIDE, U_HIT, U_TURN = range(4)
-U_LEN = 4
+U_DETOUR, U_SIDE, U_HIT, U_TURN, U_BEST, U_STALL = range(6)
+U_LEN = 6
 HALF = 3141
 TWO_PI = 6283
 N_SENS = robot_spec.SENSOR_COUNT
@@ -67,13 +67,15 @@ R_VALID = robot_spec.RANGE_VALID
 R_CLOSE = robot_spec.RANGE_TOO_CLOSE
 TURN_OF = np.array([turn_of(a) for a in range(len(robot_spec.ACTION_NAMES))], dtype=np.int64)
 # up: the kernels' parameter array
-P_SECTORS, P_NGO, P_MARGIN, P_BLOCK, P_BLOCK_BEARING, P_NCODES, P_CODE_STATES, P_LEAVE, P_STAY = range(9)
+(P_SECTORS, P_NGO, P_MARGIN, P_BLOCK, P_BLOCK_BEARING, P_NCODES, P_CODE_STATES, P_LEAVE, P_STAY, P_CLEAR,
+ P_SWITCH) = range(11)
 
 
 def unmapped_params(enc: UnmappedSectorEncoder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(up, detour sensors, range edges) as the kernels take them."""
     up = np.array([enc.bearing_sectors, enc.n_go, enc.margin_mm, enc.block_mm, enc.block_bearing_mrad,
-                   enc.n_codes, enc.code_states, enc.leave_margin_mm, 1 - enc.leave], dtype=np.int64)
+                   enc.n_codes, enc.code_states, enc.leave_margin_mm, 1 - enc.leave,
+                   max(enc.block_mm, enc.clear_mm), enc.switch_ticks], dtype=np.int64)
     return up, np.asarray(enc.detour_sensors, dtype=np.int64), np.asarray(enc.range_edges_mm, dtype=np.int64)
 
 
@@ -133,16 +135,16 @@ def unmapped_fast(occ, h: int, w: int, c: int, x_mm: int, y_mm: int, heading_mra
 
 
 @numba.njit(cache=True, inline="always")
-def _blocks(i: int, dist: int, um, up) -> bool:
+def _blocks(i: int, dist: int, um, reach: int) -> bool:
     d = um[i]
-    return 0 <= d < up[P_BLOCK] and d < dist
+    return 0 <= d < reach and d < dist
 
 
 @numba.njit(cache=True, inline="always")
-def _blocked(w: int, b: int, dist: int, um, up) -> bool:
-    return (_blocks(w, dist, um, up) or _blocks((w + 1) % N_SENS, dist, um, up)
-            or _blocks((w + N_SENS - 1) % N_SENS, dist, um, up)
-            or (abs(b) <= up[P_BLOCK_BEARING] and _blocks(0, dist, um, up)))
+def _blocked(w: int, b: int, dist: int, um, up, reach: int) -> bool:
+    return (_blocks(w, dist, um, reach) or _blocks((w + 1) % N_SENS, dist, um, reach)
+            or _blocks((w + N_SENS - 1) % N_SENS, dist, um, reach)
+            or (abs(b) <= up[P_BLOCK_BEARING] and _blocks(0, dist, um, reach)))
 
 
 @numba.njit(cache=True)
@@ -151,7 +153,7 @@ def unmapped_update_fast(mem, bearing: int, dist: int, ranges, status, um, up) -
     b = (bearing + HALF) % TWO_PI - HALF
     w = bearing_sector_fast(bearing, N_SENS)
     if mem[U_DETOUR] == 0:
-        if _blocked(w, b, dist, um, up):
+        if _blocked(w, b, dist, um, up, up[P_BLOCK]):
             if mem[U_SIDE] == 0:
                 unm_l = um[1] >= 0 or um[2] >= 0
                 unm_r = um[7] >= 0 or um[6] >= 0
@@ -165,14 +167,26 @@ def unmapped_update_fast(mem, bearing: int, dist: int, ranges, status, um, up) -
                     mem[U_SIDE] = KEEP_RIGHT if b >= 0 else KEEP_LEFT
             mem[U_DETOUR] = 1
             mem[U_HIT] = dist
-    elif up[P_STAY] == 0:
+            mem[U_BEST] = dist
+            mem[U_STALL] = 0
+        return mem[U_DETOUR]
+    if dist < mem[U_BEST]:
+        mem[U_BEST] = dist
+        mem[U_STALL] = 0
+    else:
+        mem[U_STALL] += 1
+        if up[P_SWITCH] > 0 and mem[U_STALL] >= up[P_SWITCH]:
+            mem[U_SIDE] = KEEP_LEFT if mem[U_SIDE] == KEEP_RIGHT else KEEP_RIGHT
+            mem[U_STALL] = 0
+            mem[U_BEST] = dist
+    if up[P_STAY] == 0:
         k0 = N_SENS - 1 if mem[U_SIDE] == KEEP_RIGHT else 1
         step = -1 if mem[U_SIDE] == KEEP_RIGHT else 1
         passed = True
         for j in range(3):
             if 0 <= um[k0 + j * step] < up[P_BLOCK]:
                 passed = False
-        if (passed or dist + up[P_LEAVE] < mem[U_HIT]) and not _blocked(w, b, dist, um, up):
+        if (passed or dist + up[P_LEAVE] < mem[U_HIT]) and not _blocked(w, b, dist, um, up, up[P_CLEAR]):
             mem[U_DETOUR] = 0
     return mem[U_DETOUR]
 
