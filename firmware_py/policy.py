@@ -70,8 +70,8 @@ KNOWN_FLAGS = FLAG_PER_STATE_SCALES  # any other bit set -> reject (see the spec
 KIND_CELL = 1
 KIND_SECTOR = 2
 KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
-# the sector section, then the detour: n detour sensors (u8), their indices (u8 each), seven u16
-# (margin mm, block mm, block mrad, leave mm, leave 0/1, clear mm, switch ticks); firmware_py/unmapped.py
+# the sector section, then the detour: n detour sensors (u8), their indices (u8 each), eight u16
+# (margin mm, block mm, block mrad, leave mm, leave 0/1, clear mm, switch ticks, rejoin 0/1); firmware_py/unmapped.py
 KIND_SECTOR_UNMAPPED = 4
 KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory",
               KIND_SECTOR_UNMAPPED: "sector-unmapped"}
@@ -89,7 +89,7 @@ MIN_FILE_BYTES = HEADER.size + CRC.size
 
 _SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 _MEMORY = struct.Struct("<HHH")  # block_mm, block_bearing_mrad, leave_margin_mm
-_UNMAPPED = struct.Struct("<HHHHHHH")  # margin, block, block mrad, leave margin, leave, clear, switch ticks
+_UNMAPPED = struct.Struct("<HHHHHHHH")  # margin, block, block mrad, leave margin, leave, clear, switch, rejoin
 _CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
 _PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
 _GOAL = struct.Struct("<HH")  # goal cell (col, row)
@@ -245,12 +245,12 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
                 n_det = sec[off]
                 detour = tuple(sec[off + 1:off + 1 + n_det])
                 off += 1 + n_det
-                margin, block, block_mrad, leave_mm, leave, clear, switch = _UNMAPPED.unpack_from(sec, off)
+                margin, block, block_mrad, leave_mm, leave, clear, switch, rejoin = _UNMAPPED.unpack_from(sec, off)
                 off += _UNMAPPED.size
                 enc = UnmappedSectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
                                             detour_sensors=detour, margin_mm=margin, block_mm=block,
                                             block_bearing_mrad=block_mrad, leave_margin_mm=leave_mm, leave=leave,
-                                            clear_mm=clear, switch_ticks=switch)
+                                            clear_mm=clear, switch_ticks=switch, rejoin=rejoin)
             else:
                 enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
         except ValueError as exc:
@@ -435,7 +435,7 @@ def _pack_encoder(encoder: AnyEncoder, goals: Sequence[tuple[int, int]],
             out += _MEMORY.pack(encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm)
         if isinstance(encoder, UnmappedSectorEncoder):
             vals = (encoder.margin_mm, encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm,
-                    encoder.leave, encoder.clear_mm, encoder.switch_ticks)
+                    encoder.leave, encoder.clear_mm, encoder.switch_ticks, encoder.rejoin)
             if not all(0 <= v <= 0xFFFF for v in vals):
                 raise ValueError("detour rule fields must be 0..65535")
             out += bytes([len(encoder.detour_sensors), *encoder.detour_sensors]) + _UNMAPPED.pack(*vals)

@@ -48,7 +48,11 @@ Transitions (`update`, checked every tick before encoding):
   go/detour dither); `clear_mm` > block_mm adds hysteresis. With
   `switch_ticks` > 0 a detour that has not brought the waypoint nearer for
   that many ticks goes round the other side (the chosen side can be closed
-  by a map wall). With `leave` 0 the detour rows drive until the next
+  by a map wall). With `rejoin` 1, once a waypoint has had a detour, a
+  left/right dither of the go rows (the last two ticks turned opposite
+  ways: the shipped go rows do that near wall corners off the planned
+  path, where a detour leaves the robot) enters the detour rows again.
+  With `leave` 0 the detour rows drive until the next
   waypoint (the shipped go rows dither in places off the planned path,
   where a detour leaves the robot).
 
@@ -71,6 +75,7 @@ from firmware_py.encoders import N_TURNS, TURN_NONE, SectorEncoder, bearing_sect
 from firmware_py.mapdata import OccupancyGrid
 
 SIDE_NONE = 0
+REJOIN_LEAVE_MM = 100  # a detour entered on a go-row dither ends only this much nearer the waypoint
 KEEP_RIGHT = 1  # the obstacle kept on the right: go round it to the left
 KEEP_LEFT = 2  # the mirror image
 _HALF_TURN = 3141
@@ -159,6 +164,8 @@ class DetourMemory:
     last_turn: int = TURN_NONE
     best_mm: int = 0  # the nearest the waypoint has been in this detour ...
     stall: int = 0  # ... and the ticks since it was
+    prev_turn: int = TURN_NONE  # the turn of the tick before last_turn's
+    rejoined: bool = False  # this detour was entered on a go-row dither (leaves only nearer the waypoint)
 
     def reset(self) -> None:
         self.detour = False
@@ -167,8 +174,11 @@ class DetourMemory:
         self.last_turn = TURN_NONE
         self.best_mm = 0
         self.stall = 0
+        self.prev_turn = TURN_NONE
+        self.rejoined = False
 
     def note_action(self, action: int) -> None:
+        self.prev_turn = self.last_turn
         self.last_turn = turn_of(action)
 
 
@@ -187,6 +197,7 @@ class UnmappedSectorEncoder:
     leave: int = 1  # 1: the leave rule below; 0: the detour lasts until the next waypoint
     clear_mm: int = 0  # leaving needs the way clear of unmapped readings this far (0: block_mm)
     switch_ticks: int = 100  # a detour this many ticks without getting nearer switches side (0: never)
+    rejoin: int = 0  # 1: after a detour of this waypoint, a go-row left/right dither enters the detour rows again
     kind: str = field(default="sector-unmapped", init=False)
 
     def __post_init__(self) -> None:
@@ -201,8 +212,8 @@ class UnmappedSectorEncoder:
             raise ValueError("margin_mm must be >= 0, block_mm >= 1, block_bearing_mrad in 0..3141")
         if self.leave_margin_mm < 0 or self.leave not in (0, 1):
             raise ValueError("leave_margin_mm must be >= 0 and leave 0 or 1")
-        if self.clear_mm < 0 or self.switch_ticks < 0:
-            raise ValueError("clear_mm and switch_ticks must be >= 0")
+        if self.clear_mm < 0 or self.switch_ticks < 0 or self.rejoin not in (0, 1):
+            raise ValueError("clear_mm and switch_ticks must be >= 0, rejoin 0 or 1")
 
     @property
     def base(self) -> SectorEncoder:
@@ -254,7 +265,13 @@ class UnmappedSectorEncoder:
         n = robot_spec.SENSOR_COUNT
         w = bearing_sector(bearing_mrad, n)  # the sensor nearest the waypoint
         if not memory.detour:
-            if self._blocked(w, b, distance_mm, unmapped, self.block_mm):
+            dither = (self.rejoin and memory.side != SIDE_NONE and memory.last_turn != TURN_NONE
+                      and memory.prev_turn != TURN_NONE and memory.last_turn != memory.prev_turn)
+            if dither:  # the go rows turn back and forth (off the planned path, after a detour)
+                memory.detour = memory.rejoined = True
+                memory.hit_mm = memory.best_mm = distance_mm
+                memory.stall = 0
+            elif self._blocked(w, b, distance_mm, unmapped, self.block_mm):
                 if memory.side == SIDE_NONE:
                     # round the side the obstacle is not on; else the side with more room; else the waypoint's
                     unm_l = unmapped[1] >= 0 or unmapped[2] >= 0
@@ -268,6 +285,7 @@ class UnmappedSectorEncoder:
                     else:
                         memory.side = KEEP_RIGHT if b >= 0 else KEEP_LEFT
                 memory.detour = True
+                memory.rejoined = False
                 memory.hit_mm = distance_mm
                 memory.best_mm = distance_mm
                 memory.stall = 0
@@ -286,7 +304,8 @@ class UnmappedSectorEncoder:
             k0 = n - 1 if memory.side == KEEP_RIGHT else 1
             step = -1 if memory.side == KEEP_RIGHT else 1
             passed = not any(0 <= unmapped[k0 + j * step] < self.block_mm for j in range(3))
-            if (passed or distance_mm + self.leave_margin_mm < memory.hit_mm) and not self._blocked(
+            if ((passed and not memory.rejoined) or distance_mm + REJOIN_LEAVE_MM * memory.rejoined
+                    + self.leave_margin_mm < memory.hit_mm) and not self._blocked(
                     w, b, distance_mm, unmapped, max(self.block_mm, self.clear_mm)):
                 memory.detour = False
         return memory.detour

@@ -51,6 +51,7 @@ def main() -> int:
     ap.add_argument("--stay", action="store_true", help="the detour lasts until the next waypoint (no leave rule)")
     ap.add_argument("--clear", type=int, default=0)
     ap.add_argument("--switch", type=int, default=100)
+    ap.add_argument("--rejoin", type=int, default=0)
     ap.add_argument("--detour-sensors", default="0,1,2,6,7")
     ap.add_argument("--eps0", type=float, default=0.2)
     ap.add_argument("--gamma", type=float, default=0.95)
@@ -68,7 +69,7 @@ def main() -> int:
     enc = UnmappedSectorEncoder(detour_sensors=tuple(int(v) for v in a.detour_sensors.split(",")),
                                 margin_mm=a.margin, block_mm=a.block, block_bearing_mrad=a.block_bearing,
                                 leave_margin_mm=a.leave, leave=0 if a.stay else 1, clear_mm=a.clear,
-                                switch_ticks=a.switch)
+                                switch_ticks=a.switch, rejoin=a.rejoin)
     pol = load_policy("policies/sector.qtab")
     go_q = policy_table(pol) * pol.scale
     if a.init == "hand":

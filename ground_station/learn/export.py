@@ -117,7 +117,8 @@ def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
                                      margin_mm=int(d["margin_mm"]), block_mm=int(d["block_mm"]),
                                      block_bearing_mrad=int(d["block_bearing_mrad"]),
                                      leave_margin_mm=int(d["leave_margin_mm"]), leave=int(d.get("leave", 1)),
-                                     clear_mm=int(d.get("clear_mm", 0)), switch_ticks=int(d.get("switch_ticks", 0)))
+                                     clear_mm=int(d.get("clear_mm", 0)), switch_ticks=int(d.get("switch_ticks", 0)),
+                                     rejoin=int(d.get("rejoin", 0)))
     raise ValueError(f"unknown encoder kind {kind!r}")
 
 

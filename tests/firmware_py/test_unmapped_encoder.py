@@ -14,6 +14,7 @@ from firmware_py.mapdata import grid_from_rows
 from firmware_py.unmapped import (
     KEEP_LEFT,
     KEEP_RIGHT,
+    REJOIN_LEAVE_MM,
     DetourMemory,
     UnmappedSectorEncoder,
     unmapped_readings,
@@ -117,9 +118,40 @@ def test_detour_codes_tell_a_disc_from_a_wall():
     assert ENC.code(0, ranges, status, [300] + [-1] * 7) == 1 and ENC.code(0, ranges, status, [-1] * 8) == 2
 
 
+def test_a_detour_that_gets_no_nearer_switches_side_and_a_dither_rejoins():
+    enc = UnmappedSectorEncoder(switch_ticks=3, rejoin=1)
+    mem = DetourMemory()
+    ranges, status = [250, 1500, 1500, 2000, 2000, 2000, 300, 400], [V] * 8
+    um = [250] + [-1] * 7
+    enc.encode(mem, 0, 1000, ranges, status, um)
+    assert mem.detour and mem.side == KEEP_RIGHT
+    for _ in range(3):  # three ticks no nearer than 1000 mm, still blocked
+        enc.encode(mem, 0, 1000, ranges, status, um)
+    assert mem.side == KEEP_LEFT and mem.stall == 0 and mem.best_mm == 1000
+    enc.encode(mem, 0, 990, ranges, status, um)
+    assert mem.best_mm == 990 and mem.stall == 0
+    # passed: go; then the go rows turn left, right: a dither enters the detour rows again ...
+    enc.encode(mem, 0, 990, ranges, status, [-1] * 8)
+    assert not mem.detour
+    mem.note_action(1)
+    mem.note_action(2)
+    assert enc.encode(mem, 0, 990, ranges, status, [-1] * 8) >= enc.n_go and mem.detour and mem.rejoined
+    # ... which ends only REJOIN_LEAVE_MM nearer the waypoint
+    enc.encode(mem, 0, 900, ranges, status, [-1] * 8)
+    assert mem.detour
+    enc.encode(mem, 0, 989 - REJOIN_LEAVE_MM, ranges, status, [-1] * 8)
+    assert not mem.detour
+    # no dither before a detour of this waypoint (side not chosen): the go rows stay in charge
+    mem.reset()
+    mem.note_action(1)
+    mem.note_action(2)
+    assert enc.encode(mem, 0, 990, ranges, status, [-1] * 8) < enc.n_go
+
+
 @pytest.mark.parametrize("kw", [{"detour_sensors": ()}, {"detour_sensors": (0, 8)}, {"detour_sensors": (1, 1)},
                                 {"margin_mm": -1}, {"block_mm": 0}, {"block_bearing_mrad": 4000},
-                                {"leave_margin_mm": -5}, {"range_edges_mm": (400, 100)}])
+                                {"leave_margin_mm": -5}, {"range_edges_mm": (400, 100)}, {"leave": 2},
+                                {"clear_mm": -1}, {"switch_ticks": -1}, {"rejoin": 3}])
 def test_bad_parameters_are_refused(kw):
     with pytest.raises(ValueError):
         UnmappedSectorEncoder(**kw)

@@ -21,7 +21,7 @@ from tests.support.controller_rig import SECTOR_TRAINING_MAP, Kinematic, Rig
 V, FAR = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR
 N = robot_spec.SENSOR_COUNT
 ENC = UnmappedSectorEncoder(margin_mm=120, block_mm=350, block_bearing_mrad=700, leave_margin_mm=50, leave=0,
-                            clear_mm=450, switch_ticks=77)
+                            clear_mm=450, switch_ticks=77, rejoin=1)
 OPEN = ["." * 10] * 10
 WALL = ["." * 3 + "@" + "." * 6] * 10  # column 3: x 1500..2000 mm
 
@@ -45,6 +45,7 @@ def test_qtab_round_trip():
     assert pol.map_grid is not None and pol.map_grid.width == 10
     assert pol.header()["encoder"]["detour_sensors"] == [0, 1, 2, 6, 7] and pol.header()["encoder"]["leave"] == 0
     assert pol.header()["encoder"]["switch_ticks"] == 77 and pol.header()["encoder"]["clear_mm"] == 450
+    assert pol.header()["encoder"]["rejoin"] == 1
 
 
 def _resealed(data: bytes, at: int, value: int) -> bytes:

@@ -18,10 +18,18 @@ from ground_station.learn.config import TrainConfig
 from ground_station.learn.sector.obstacles import sense_obs
 from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays, grid_of
 from ground_station.learn.sector.unmapped import (
+    U_BEST,
+    U_DETOUR,
+    U_HIT,
     U_LEN,
+    U_PREV,
+    U_REJOINED,
+    U_SIDE,
+    U_STALL,
     U_TURN,
     go_rows,
     hand_detour_table,
+    note_action_fast,
     unmapped_fast,
     unmapped_params,
     unmapped_state_fast,
@@ -33,7 +41,7 @@ from ground_station.nav.diagnose import rollout
 from ground_station.nav.episodes import run_twin
 from ground_station.nav.scenario import episodes
 
-ENC = UnmappedSectorEncoder(block_mm=400, leave_margin_mm=50)
+ENC = UnmappedSectorEncoder(block_mm=400, leave_margin_mm=50, switch_ticks=30, rejoin=1)
 
 
 def _grid(gm):
@@ -80,10 +88,13 @@ def test_unmapped_readings_and_states_equal_the_reference():
         base = encode_fast(b, ranges, status, sectors, sensors, bedges)
         s_fast = unmapped_state_fast(mem_f, base, b, d, ranges, status, um, up, dsens, edges)
         assert s_fast == s_ref
-        assert [bool(mem_f[0]), int(mem_f[1]), int(mem_f[2])] == [mem.detour, mem.side, mem.hit_mm]
+        assert [bool(mem_f[U_DETOUR]), int(mem_f[U_SIDE]), int(mem_f[U_HIT]), int(mem_f[U_BEST]),
+                int(mem_f[U_STALL]), bool(mem_f[U_REJOINED])] == [mem.detour, mem.side, mem.hit_mm, mem.best_mm,
+                                                                  mem.stall, mem.rejoined]
         a = int(rng.integers(4))
         mem.note_action(a)
-        mem_f[U_TURN] = mem.last_turn
+        note_action_fast(mem_f, a)
+        assert (mem_f[U_TURN], mem_f[U_PREV]) == (mem.last_turn, mem.prev_turn)
         n_detour += mem.detour
     assert n_unmapped > 300 and n_detour > 100  # both branches were exercised
 

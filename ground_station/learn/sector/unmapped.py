@@ -26,7 +26,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import turn_of
-from firmware_py.unmapped import KEEP_LEFT, KEEP_RIGHT, UnmappedSectorEncoder
+from firmware_py.unmapped import KEEP_LEFT, KEEP_RIGHT, REJOIN_LEAVE_MM, UnmappedSectorEncoder
 from ground_station.learn.jit import greedy, rand01, randint
 from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, gauss
 from ground_station.learn.sector.obstacles import (
@@ -57,8 +57,8 @@ _FAN_L = ([(k / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (robot_spec.SENSOR_FOV
            for k in range(robot_spec.SENSOR_FAN_RAYS)] if robot_spec.SENSOR_FAN_RAYS > 1 else [0.0])
 RAY_COS_L = np.array([[math.cos(a / 1000.0 + f) for f in _FAN_L] for a in robot_spec.SENSOR_ANGLES_MRAD])
 RAY_SIN_L = np.array([[math.sin(a / 1000.0 + f) for f in _FAN_L] for a in robot_spec.SENSOR_ANGLES_MRAD])
-U_DETOUR, U_SIDE, U_HIT, U_TURN, U_BEST, U_STALL = range(6)
-U_LEN = 6
+U_DETOUR, U_SIDE, U_HIT, U_TURN, U_BEST, U_STALL, U_PREV, U_REJOINED = range(8)
+U_LEN = 8
 HALF = 3141
 TWO_PI = 6283
 N_SENS = robot_spec.SENSOR_COUNT
@@ -68,14 +68,14 @@ R_CLOSE = robot_spec.RANGE_TOO_CLOSE
 TURN_OF = np.array([turn_of(a) for a in range(len(robot_spec.ACTION_NAMES))], dtype=np.int64)
 # up: the kernels' parameter array
 (P_SECTORS, P_NGO, P_MARGIN, P_BLOCK, P_BLOCK_BEARING, P_NCODES, P_CODE_STATES, P_LEAVE, P_STAY, P_CLEAR,
- P_SWITCH) = range(11)
+ P_SWITCH, P_REJOIN) = range(12)
 
 
 def unmapped_params(enc: UnmappedSectorEncoder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(up, detour sensors, range edges) as the kernels take them."""
     up = np.array([enc.bearing_sectors, enc.n_go, enc.margin_mm, enc.block_mm, enc.block_bearing_mrad,
                    enc.n_codes, enc.code_states, enc.leave_margin_mm, 1 - enc.leave,
-                   max(enc.block_mm, enc.clear_mm), enc.switch_ticks], dtype=np.int64)
+                   max(enc.block_mm, enc.clear_mm), enc.switch_ticks, enc.rejoin], dtype=np.int64)
     return up, np.asarray(enc.detour_sensors, dtype=np.int64), np.asarray(enc.range_edges_mm, dtype=np.int64)
 
 
@@ -153,7 +153,16 @@ def unmapped_update_fast(mem, bearing: int, dist: int, ranges, status, um, up) -
     b = (bearing + HALF) % TWO_PI - HALF
     w = bearing_sector_fast(bearing, N_SENS)
     if mem[U_DETOUR] == 0:
-        if _blocked(w, b, dist, um, up, up[P_BLOCK]):
+        dither = (up[P_REJOIN] != 0 and mem[U_SIDE] != 0 and mem[U_TURN] != 0 and mem[U_PREV] != 0
+                  and mem[U_TURN] != mem[U_PREV])
+        if dither:
+            mem[U_DETOUR] = 1
+            mem[U_REJOINED] = 1
+            mem[U_HIT] = dist
+            mem[U_BEST] = dist
+            mem[U_STALL] = 0
+        elif _blocked(w, b, dist, um, up, up[P_BLOCK]):
+            mem[U_REJOINED] = 0
             if mem[U_SIDE] == 0:
                 unm_l = um[1] >= 0 or um[2] >= 0
                 unm_r = um[7] >= 0 or um[6] >= 0
@@ -186,7 +195,8 @@ def unmapped_update_fast(mem, bearing: int, dist: int, ranges, status, um, up) -
         for j in range(3):
             if 0 <= um[k0 + j * step] < up[P_BLOCK]:
                 passed = False
-        if (passed or dist + up[P_LEAVE] < mem[U_HIT]) and not _blocked(w, b, dist, um, up, up[P_CLEAR]):
+        if ((passed and mem[U_REJOINED] == 0) or dist + REJOIN_LEAVE_MM * mem[U_REJOINED] + up[P_LEAVE] < mem[U_HIT]
+                ) and not _blocked(w, b, dist, um, up, up[P_CLEAR]):
             mem[U_DETOUR] = 0
     return mem[U_DETOUR]
 
@@ -224,6 +234,13 @@ def unmapped_state_fast(mem, base_state: int, bearing: int, dist: int, ranges, s
         mult *= nc
     w = bearing_sector_fast(bearing, N_SENS)
     return up[P_NGO] + (((mem[U_SIDE] - 1) * 3 + mem[U_TURN]) * N_SENS + w) * up[P_CODE_STATES] + s
+
+
+@numba.njit(cache=True, inline="always")
+def note_action_fast(mem, a: int) -> None:
+    """DetourMemory.note_action: the previous turn moves back one tick."""
+    mem[U_PREV] = mem[U_TURN]
+    mem[U_TURN] = TURN_OF[a]
 
 
 @numba.njit(cache=True, inline="always")
@@ -299,7 +316,7 @@ def nav_eval_unmapped_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal,
                    dsens, edges)
         while t < budget:
             a = greedy(q, s)
-            mem[U_TURN] = TURN_OF[a]
+            note_action_fast(mem, a)
             det += mem[U_DETOUR]
             k0 = k
             x, y, th, phi, _, s, hit, success, driven, k = obs_period_step(
@@ -312,8 +329,7 @@ def nav_eval_unmapped_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal,
                 minclear = 0.0
                 break
             if k != k0:
-                mem[:] = 0
-                mem[U_TURN] = TURN_OF[a]
+                mem[:] = 0  # a new waypoint: the controller resets the memory (last turn none)
             cl = obstacle_clearance_mm(x, y, discs, movers)
             if cl < minclear:
                 minclear = cl
@@ -426,7 +442,7 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
                 s0 = s
                 racc = 0.0
                 g = 1.0
-            mem[U_TURN] = TURN_OF[a]
+            note_action_fast(mem, a)
             k0 = k
             x, y, th, phi, r, s2, hit, success, _, k = obs_period_step(
                 occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
@@ -434,7 +450,6 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
             if not (hit or success):
                 if k != k0:
                     mem[:] = 0
-                    mem[U_TURN] = TURN_OF[a]
                 _add_noise(rng, noise_mm, ranges, status, noisy, nstatus)
                 s2 = encode_fast(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]), noisy, nstatus, sectors, sensors,
                                  edges)
