@@ -1,17 +1,22 @@
-"""Build, train and judge a `sector-unmapped` policy (docs/training.md, "Unmapped readings").
+"""Build, train and judge a `sector-unmapped` policy (docs/training.md, "Readings the map does not explain").
 
     python tools/nav_unmapped_experiment.py [--init hand|shipped|FILE.npy] [--steps N] [--margin MM]
-        [--block MM] [--block-bearing MRAD] [--detour-sensors 0,1,2,6,7] [--eps0 E] [--gamma G]
-        [--stall-cost C] [--pool N] [--seed S] [--episodes N] [--baselines] [--out FILE.npy] [--qtab FILE]
+        [--block MM] [--block-bearing MRAD] [--leave MM] [--stay] [--clear MM] [--switch TICKS] [--rejoin 0|1]
+        [--detour-sensors 0,1,2,6,7] [--eps0 E] [--gamma G] [--lr A] [--lr-end B] [--noise MM] [--stall-cost C]
+        [--obstacles K] [--movers M] [--pool N] [--seed S] [--episodes N] [--baselines] [--no-k0]
+        [--out FILE.npy] [--qtab FILE]
 
-The table is an `UnmappedSectorEncoder` one (the robot's reference encoder: the shipped sector state in
-the go rows, a detour memory entered on range readings the known map does not explain). `--init shipped`
-copies the shipped `policies/sector.qtab` into the go rows (detour rows zero), `hand` adds the
-hand-written detour rows (`unmapped.hand_detour_table`). `--steps N` Q-learns the detour rows (go rows
-frozen) on a pool over paper10 + the four s0 maps (0..3 discs, 0..2 movers), lr 0.1 -> 0.005, epsilon
-E -> 0.05. Judged with `nav.episodes.run_twin` on the bench's own episodes
-`nav.scenario.episodes(map, N, 0, 3, 2)` and `(map, N, 0, 0, 0)` over the bench's five maps;
-`--baselines` also judges the shipped table, seek and vfh on the same episodes.
+The table is an `UnmappedSectorEncoder` one (`firmware_py/unmapped.py`, the robot's reference encoder:
+the shipped sector state in the go rows, a detour memory entered on range readings the known map does
+not explain; the encoder flags default to its defaults). `--init shipped` copies the shipped
+`policies/sector.qtab` into the go rows (detour rows zero), `hand` adds the hand-written detour rows
+(`learn.sector.unmapped.hand_detour_table`), FILE.npy loads a table. `--steps N` Q-learns the detour
+rows (go rows frozen: `UnmappedSectorTrainer`) on a seeded pool over paper10 + the four s0 maps (0..K
+discs, 0..M movers per episode), lr A -> B, epsilon E -> 0.05, gamma G, range noise MM, a stall of 400
+periods ending a training episode with cost C. Judged (float table) with `nav.episodes.run_twin` on
+the bench's own episodes `nav.scenario.episodes(map, N, 0, 3, 2)` and `(map, N, 0, 0, 0)` over the
+bench's five maps; `--baselines` also judges the shipped table, seek and vfh on the same episodes;
+`--qtab` exports the int8 `.qtab` (with the map) for `qnav bench nav --policy FILE`.
 """
 
 from __future__ import annotations
@@ -55,6 +60,9 @@ def main() -> int:
     ap.add_argument("--detour-sensors", default="0,1,2,6,7")
     ap.add_argument("--eps0", type=float, default=0.2)
     ap.add_argument("--gamma", type=float, default=0.95)
+    ap.add_argument("--lr", type=float, default=0.1)
+    ap.add_argument("--lr-end", type=float, default=0.005)
+    ap.add_argument("--noise", type=float, default=10.0, help="range noise std (mm) in training")
     ap.add_argument("--stall-cost", type=float, default=1.0)
     ap.add_argument("--obstacles", type=int, default=3)
     ap.add_argument("--movers", type=int, default=2)
@@ -79,7 +87,8 @@ def main() -> int:
     else:
         q = np.load(a.init)
     if a.steps > 0:
-        cfg = TrainConfig(encoding="sector", steps=a.steps, lr=0.1, gamma=a.gamma, epsilon_start=a.eps0,
+        cfg = TrainConfig(encoding="sector", steps=a.steps, lr=a.lr, sector_lr_end=a.lr_end, gamma=a.gamma,
+                          sector_range_noise_mm=a.noise, epsilon_start=a.eps0,
                           epsilon_end=0.05, seed=a.seed, sector_obstacles=a.obstacles, sector_movers=a.movers,
                           sector_pool=a.pool)
         t0 = time.perf_counter()

@@ -3,7 +3,7 @@
 * `unmapped_state_fast` is the jitted copy of the robot's reference
   `firmware_py.unmapped.UnmappedSectorEncoder.encode` (update + index; a
   test compares them on many inputs). The memory is an int64 array
-  (`U_DETOUR`, `U_SIDE`, `U_HIT`, `U_TURN`: `DetourMemory`'s fields).
+  (`U_DETOUR` .. `U_REJOINED`: `DetourMemory`'s fields, `note_action_fast`).
 * `unmapped_fast` is the copy of `firmware_py.unmapped.unmapped_readings`
   (which readings the known map does not explain), fed with the pose the
   robot would report (the twin's exact pose rounded to whole mm and mrad)
