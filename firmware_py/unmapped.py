@@ -34,16 +34,18 @@ Transitions (`update`, checked every tick before encoding):
   waypoint or one of its two neighbours: an unmapped obstacle stands in
   the way (or where the robot turns to face the waypoint). The waypoint
   distance there is remembered (`hit_mm`). The side is chosen at a
-  waypoint's first blocking and kept (Bug2 keeps one turning direction): the
-  side with more free range on its diagonal and side sensors goes round,
-  ties to the waypoint's side. `DetourMemory.reset()` per waypoint (the
-  controller does it per mission item).
+  waypoint's first blocking and kept (Bug2 keeps one turning direction):
+  round the side the obstacle is not seen on (unmapped on sensors 1, 2 or
+  7, 6), else the side with more free range on its diagonal and side
+  sensors, else the waypoint's side. `DetourMemory.reset()` per waypoint
+  (the controller does it per mission item).
 * detour -> go when the way is no longer blocked (the entry test fails:
   leaving and entering are exact complements, so no go/detour flip-flop),
-  and either the obstacle is passed (the kept
-  side's diagonal, side and rear-diagonal sensors see nothing unmapped
-  nearer than `block_mm`) or the waypoint is more than `leave_margin_mm`
-  closer than at the hit (the Bug family's leaving rule). Turning away in
+  and either the obstacle is passed (the kept side's diagonal, side and
+  rear-diagonal sensors see nothing unmapped nearer than `block_mm`) or
+  the waypoint is more than `leave_margin_mm` closer than at the hit (the
+  Bug family's leaving rule; a rejoined detour, below, needs
+  `REJOIN_LEAVE_MM` more and ignores "passed"). Turning away in
   place keeps the obstacle on the kept side, so it does not leave (no
   go/detour dither); `clear_mm` > block_mm adds hysteresis. With
   `switch_ticks` > 0 a detour that has not brought the waypoint nearer for
@@ -52,9 +54,8 @@ Transitions (`update`, checked every tick before encoding):
   left/right dither of the go rows (the last two ticks turned opposite
   ways: the shipped go rows do that near wall corners off the planned
   path, where a detour leaves the robot) enters the detour rows again.
-  With `leave` 0 the detour rows drive until the next
-  waypoint (the shipped go rows dither in places off the planned path,
-  where a detour leaves the robot).
+  With `leave` 0 the detour rows drive until the next waypoint.
+  docs/training.md has what each rule measured.
 
 Without a map (`unmapped` None) the detour is never entered: the state is
 the go rows', i.e. the plain sector policy.
