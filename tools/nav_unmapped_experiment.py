@@ -2,7 +2,7 @@
 
     python tools/nav_unmapped_experiment.py [--init hand|shipped|FILE.npy] [--steps N] [--margin MM]
         [--block MM] [--block-bearing MRAD] [--leave MM] [--stay] [--clear MM] [--switch TICKS] [--rejoin 0|1]
-        [--detour-sensors 0,1,2,6,7] [--eps0 E] [--gamma G] [--lr A] [--lr-end B] [--noise MM] [--stall-cost C]
+        [--detour-sensors 0,1,2,6,7] [--eps0 E] [--gamma G] [--lr A] [--lr-end B] [--noise MM] [--stall-cost C] [--cspace-shaping]
         [--obstacles K] [--movers M] [--pool N] [--seed S] [--episodes N] [--baselines] [--no-k0]
         [--out FILE.npy] [--qtab FILE]
 
@@ -64,6 +64,8 @@ def main() -> int:
     ap.add_argument("--lr-end", type=float, default=0.005)
     ap.add_argument("--noise", type=float, default=10.0, help="range noise std (mm) in training")
     ap.add_argument("--stall-cost", type=float, default=1.0)
+    ap.add_argument("--cspace-shaping", action="store_true",
+                    help="training pays progress on the configuration-space path length with the discs (privileged)")
     ap.add_argument("--obstacles", type=int, default=3)
     ap.add_argument("--movers", type=int, default=2)
     ap.add_argument("--pool", type=int, default=4000)
@@ -95,6 +97,10 @@ def main() -> int:
         tr = UnmappedSectorTrainer([load_map(m) for m in TRAIN_MAPS.split(",")], cfg, enc)
         if a.stall_cost > 0:
             tr.stall_steps, tr.stall_cost = 400, a.stall_cost
+        if a.cspace_shaping:
+            tr.shape_with_cspace()
+            print(f"configuration-space fields for {len(tr.pool)} episodes, {time.perf_counter() - t0:.0f} s",
+                  flush=True)
         done = 0
         while done < a.steps:
             n = min(2_000_000, a.steps - done)

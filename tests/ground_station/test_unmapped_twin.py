@@ -147,3 +147,24 @@ def test_trainer_is_seeded_and_keeps_the_go_rows():
     assert np.array_equal(out[0], out[1])
     assert np.array_equal(out[0][:ENC.n_go], q0[:ENC.n_go])
     assert np.any(out[0][ENC.n_go:] != 0.0)
+
+
+def test_cspace_shaping_fields_and_training():
+    maps = [load_map("paper10")]
+    cfg = TrainConfig(encoding="sector", steps=20000, lr=0.1, seed=5, sector_obstacles=2, sector_movers=0,
+                      sector_pool=12, epsilon_start=0.3, epsilon_end=0.05)
+    pol = load_policy("policies/sector.qtab")
+    q0 = go_rows(policy_table(pol) * pol.scale, ENC)
+    tr = UnmappedSectorTrainer(maps, cfg, ENC)
+    tr.shape_with_cspace(raster_mm=100.0)
+    assert tr.fields.shape == (12, 50, 50)
+    for i, ep in enumerate(tr.pool):  # the goal's raster cell is 0, the start's a finite path length
+        gx, gy = ep.waypoints[-1]
+        assert tr.fields[i, int(gy // 100), int(gx // 100)] == 0.0
+        assert np.isfinite(tr.fields[i, int(ep.start[1] // 100), int(ep.start[0] // 100)])
+    q = q0.copy()
+    tr.run(q, 0, 20000)
+    q2 = q0.copy()
+    tr2 = UnmappedSectorTrainer(maps, cfg, ENC)
+    tr2.run(q2, 0, 20000)
+    assert np.array_equal(q[:ENC.n_go], q0[:ENC.n_go]) and not np.array_equal(q, q2)  # the shaping changes learning

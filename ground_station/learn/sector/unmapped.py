@@ -40,6 +40,7 @@ from ground_station.learn.sector.obstacles import (
     obstacle_clearance_mm,
     sense_obs,
 )
+from ground_station.learn.sector.reward import RW_PROGRESS
 from ground_station.learn.sector.twin import (
     MAX_MOVE_MM,
     MOUNT_MM,
@@ -373,10 +374,19 @@ def _add_noise(rng, noise_mm, ranges, status, noisy, nstatus) -> None:
                 noisy[i] = r
 
 
+@numba.njit(cache=True, inline="always")
+def _field_at(fields, e: int, x: float, y: float, raster: float) -> float:
+    ix = int(x // raster)
+    iy = int(y // raster)
+    if ix < 0 or iy < 0 or iy >= fields.shape[1] or ix >= fields.shape[2]:
+        return np.inf
+    return fields[e, iy, ix]
+
+
 @numba.njit(cache=True)
 def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem,
                               ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, up, dsens, frozen,
-                              stall_steps, stall_cost,
+                              stall_steps, stall_cost, fields, raster,
                               lr, lr_end, gamma, eps_start, eps_end, eps_decay_steps, rw, clear_mm,
                               max_episode_steps, hold_max, noise_mm, start_pose_jitter_mm, start_step, total_steps,
                               n_steps, out_ret, out_succ):
@@ -385,7 +395,12 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
     map's prediction at the robot's pose; rows with frozen[s] keep their
     values; stall_steps > 0 ends a stalled episode as a failure costing
     stall_cost. Reward: `obs_period_step`'s (waypoint progress, goal,
-    collision, optional clearance cost)."""
+    collision, optional clearance cost). With `fields` (per pool episode the
+    configuration-space path length to its goal in raster cells, row 0 =
+    south; `UnmappedSectorTrainer.shape_with_cspace`) the progress term is
+    paid on that length instead of the straight line to the waypoint: a
+    privileged shaping (the twin knows the discs) that pays for going round
+    them; the state stays the robot's."""
     which = np.ones(N_SENS, dtype=np.bool_)
     ranges = np.zeros(N_SENS, dtype=np.int64)
     status = np.zeros(N_SENS, dtype=np.int64)
@@ -444,9 +459,17 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
                 g = 1.0
             note_action_fast(mem, a)
             k0 = k
+            x0 = x
+            y0 = y
+            phi0 = phi
             x, y, th, phi, r, s2, hit, success, _, k = obs_period_step(
                 occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
                 sectors, sensors, edges, discs, movers, clear_mm)
+            if fields.shape[0] > 0 and not hit:
+                f0 = _field_at(fields, e, x0, y0, raster)
+                f1 = _field_at(fields, e, x, y, raster)
+                if f0 < np.inf and f1 < np.inf:
+                    r += rw[RW_PROGRESS] * ((f0 - f1) * raster - (phi0 - phi)) / c
             if not (hit or success):
                 if k != k0:
                     mem[:] = 0

@@ -19,7 +19,7 @@ from firmware_py.unmapped import UnmappedSectorEncoder
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer
 from ground_station.learn.sector.reward import SectorReward
-from ground_station.learn.sector.twin import encoder_arrays
+from ground_station.learn.sector.twin import RADIUS_MM, encoder_arrays
 from ground_station.learn.sector.unmapped import obs_unmapped_train_kernel, unmapped_params
 from ground_station.maps import GridMap
 
@@ -37,6 +37,33 @@ class UnmappedSectorTrainer(ObstacleSectorTrainer):
         self._base = (sectors, sensors, edges)
         self.frozen = np.zeros(encoder.n_states, dtype=np.bool_)
         self.frozen[:encoder.n_go] = True
+        self.fields = np.zeros((0, 1, 1), dtype=np.float64)  # shape_with_cspace: privileged progress
+        self.raster_mm = 100.0
+
+    def shape_with_cspace(self, raster_mm: float = 100.0, clear_mm: float = RADIUS_MM + 25.0) -> None:
+        """Pay progress on each pool episode's configuration-space path length
+        to its goal (discs included; `nav.scenario._cspace`, robot radius +
+        clear margin) instead of the straight line to the waypoint: going round
+        a disc is then progress. Training only; the state is unchanged."""
+        from ground_station.nav.diagnose import _dijkstra
+        from ground_station.nav.scenario import _cspace
+
+        maps = {gm.name: gm for gm in self.maps}
+        shapes = [(int(gm.occ.shape[0] * gm.cell_size_m * 1000 / raster_mm),
+                   int(gm.occ.shape[1] * gm.cell_size_m * 1000 / raster_mm)) for gm in self.maps]
+        ny = max(s[0] for s in shapes)
+        nx = max(s[1] for s in shapes)
+        fields = np.full((len(self.pool), ny, nx), np.inf)
+        for i, ep in enumerate(self.pool):
+            gm = maps[ep.map]
+            occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
+            free = _cspace(occ, gm.cell_size_m * 1000.0, np.asarray(ep.discs, dtype=np.float64).reshape(-1, 3),
+                           raster_mm, clear_mm)
+            gx, gy = ep.waypoints[-1]
+            d = _dijkstra(free, int(gx // raster_mm), int(gy // raster_mm))
+            fields[i, :d.shape[0], :d.shape[1]] = d
+        self.fields = fields
+        self.raster_mm = float(raster_mm)
 
     def run(self, q: np.ndarray, start_step: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
         if q.shape != (self.n_states, self.n_actions) or q.dtype != np.float64:
@@ -48,7 +75,7 @@ class UnmappedSectorTrainer(ObstacleSectorTrainer):
         n = obs_unmapped_train_kernel(
             q, self._rng, a["occ"], a["dims"], a["cells"], a["map"], a["start"], a["wp"], a["nwp"], a["rem"],
             a["discs"], a["nd"], a["movers"], a["nm"], *self._base, self._up, self._dsens, self.frozen,
-            self.stall_steps, self.stall_cost, float(cfg.lr), float(cfg.sector_lr_end), float(cfg.gamma),
+            self.stall_steps, self.stall_cost, self.fields, self.raster_mm, float(cfg.lr), float(cfg.sector_lr_end), float(cfg.gamma),
             *self._eps, self._rw, float(cfg.sector_clear_mm), self.max_episode_steps, int(cfg.sector_hold_max),
             float(cfg.sector_range_noise_mm), self._jitter, int(start_step), int(cfg.steps), int(n_steps),
             out_ret, out_succ)
