@@ -49,6 +49,7 @@ from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder, best_action
 from firmware_py.gridbug import MOVE_STEPS, GridBugEncoder
 from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
+from firmware_py.unmapped import UnmappedSectorEncoder
 
 # --- format constants ---------------------------------------------------------
 MAGIC = b"QTAB"
@@ -71,8 +72,11 @@ KIND_CELL = 1
 KIND_SECTOR = 2
 KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
 KIND_SECTOR_MEMORY_GRID = 4  # GridBugEncoder: u16 free_mm, leave_margin_mm, cell_mm, u8 wall_bearing, the moves
+# the sector section, then the detour: n detour sensors (u8), their indices (u8 each), eight u16
+# (margin mm, block mm, block mrad, leave mm, leave 0/1, clear mm, switch ticks, rejoin 0/1); firmware_py/unmapped.py
+KIND_SECTOR_UNMAPPED = 5
 KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory-tick",
-              KIND_SECTOR_MEMORY_GRID: "sector-memory"}
+              KIND_SECTOR_MEMORY_GRID: "sector-memory", KIND_SECTOR_UNMAPPED: "sector-unmapped"}
 KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
 
 DTYPE_INT8 = 1
@@ -87,11 +91,15 @@ MIN_FILE_BYTES = HEADER.size + CRC.size
 
 _SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 _MEMORY = struct.Struct("<HHH")  # block_mm, block_bearing_mrad, leave_margin_mm
+_UNMAPPED = struct.Struct("<HHHHHHHH")  # margin, block, block mrad, leave margin, leave, clear, switch, rejoin
 _CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
 _GRID = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
 _PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
 _GOAL = struct.Struct("<HH")  # goal cell (col, row)
 _ORDER_NATIVE = sys.byteorder == "little"
+
+
+AnyEncoder = CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder | UnmappedSectorEncoder
 
 
 class PolicyError(Exception):
@@ -113,7 +121,7 @@ class MapGeometry(NamedTuple):
 class Policy:
     """A validated int Q-table with everything needed to use it on the robot."""
 
-    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
+    encoder: AnyEncoder
     dtype: str
     n_states: int
     n_actions: int
@@ -202,14 +210,19 @@ def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
 
 
 def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
-                    ) -> tuple[CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, tuple[tuple[int, int], ...], int]:
+                    ) -> tuple[AnyEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
-    enc: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
-    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY):
+    enc: AnyEncoder
+    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY, KIND_SECTOR_UNMAPPED):
         if len(sec) < _SECTOR_HEAD.size:
             raise PolicyError("sector encoder section too short")
         bearing, n_sensors, n_edges = _SECTOR_HEAD.unpack_from(sec, 0)
         extra = _MEMORY.size if kind == KIND_SECTOR_MEMORY else 0
+        if kind == KIND_SECTOR_UNMAPPED:
+            at = _SECTOR_HEAD.size + n_sensors + 2 * n_edges
+            if len(sec) < at + 1:
+                raise PolicyError("sector-unmapped encoder section too short")
+            extra = 1 + sec[at] + _UNMAPPED.size
         need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + extra + _PAIR.size * n_actions
         if len(sec) != need:
             raise PolicyError(f"sector encoder section is {len(sec)} bytes, its fields need {need}")
@@ -233,6 +246,16 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
                 off += _MEMORY.size
                 enc = MemorySectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
                                           block_mm=block, block_bearing_mrad=block_mrad, leave_margin_mm=leave)
+            elif kind == KIND_SECTOR_UNMAPPED:
+                n_det = sec[off]
+                detour = tuple(sec[off + 1:off + 1 + n_det])
+                off += 1 + n_det
+                margin, block, block_mrad, leave_mm, leave, clear, switch, rejoin = _UNMAPPED.unpack_from(sec, off)
+                off += _UNMAPPED.size
+                enc = UnmappedSectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
+                                            detour_sensors=detour, margin_mm=margin, block_mm=block,
+                                            block_bearing_mrad=block_mrad, leave_margin_mm=leave_mm, leave=leave,
+                                            clear_mm=clear, switch_ticks=switch, rejoin=rejoin)
             else:
                 enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
         except ValueError as exc:
@@ -419,14 +442,14 @@ def content_id(encoder_section: bytes, table: bytes, scales: bytes = b"") -> int
     return zlib.crc32(scales, zlib.crc32(table, zlib.crc32(encoder_section)))
 
 
-def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, goals: Sequence[tuple[int, int]],
+def _pack_encoder(encoder: AnyEncoder, goals: Sequence[tuple[int, int]],
                   cell_mm: int) -> bytes:
     if isinstance(encoder, GridBugEncoder):
         if not all(0 <= v <= 0xFFFF for v in (encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm)):
             raise ValueError("sector-memory-grid fields must be 0..65535")
         out = _GRID.pack(encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm, int(encoder.wall_bearing))
         return out + b"".join(_PAIR.pack(*a) for a in MOVE_STEPS)
-    if isinstance(encoder, SectorEncoder | MemorySectorEncoder):
+    if isinstance(encoder, SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder):
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
         out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
@@ -435,6 +458,12 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | G
                                                   encoder.leave_margin_mm)):
                 raise ValueError("memory rule fields must be 0..65535")
             out += _MEMORY.pack(encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm)
+        if isinstance(encoder, UnmappedSectorEncoder):
+            vals = (encoder.margin_mm, encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm,
+                    encoder.leave, encoder.clear_mm, encoder.switch_ticks, encoder.rejoin)
+            if not all(0 <= v <= 0xFFFF for v in vals):
+                raise ValueError("detour rule fields must be 0..65535")
+            out += bytes([len(encoder.detour_sensors), *encoder.detour_sensors]) + _UNMAPPED.pack(*vals)
         actions = robot_spec.ACTION_WHEEL_SPEEDS_MM_S
     else:
         if len(goals) != encoder.n_goals:
@@ -445,7 +474,7 @@ def _pack_encoder(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | G
     return out + b"".join(_PAIR.pack(*a) for a in actions)
 
 
-def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, table: array[int], dtype: str, scale: float, *,
+def dump_policy(encoder: AnyEncoder, table: array[int], dtype: str, scale: float, *,
                 state_scales: array[float] | None = None, goals: Sequence[tuple[int, int]] = (),
                 cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict[str, Any] | None = None,
                 policy_id: int | None = None, created: int | None = None,
@@ -501,7 +530,7 @@ def dump_policy(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | Gri
     return body + CRC.pack(zlib.crc32(body))
 
 
-def _geometry_for(encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
+def _geometry_for(encoder: AnyEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
     """The header's map geometry: a cell policy's grid, a sector policy's training map."""
     if isinstance(encoder, CellEncoder):
         grid = MapGeometry(cell_mm, encoder.width, encoder.height)

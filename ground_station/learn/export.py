@@ -24,6 +24,7 @@ from firmware_py import policy as fmt
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
 from firmware_py.gridbug import GridBugEncoder
+from firmware_py.unmapped import UnmappedSectorEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
 
@@ -94,7 +95,7 @@ def compare(q: np.ndarray, qt: Quantised) -> dict:
     }
 
 
-def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder:
+def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
     """Rebuild a reference encoder from its `to_dict()` (as in meta.json)."""
     kind = d.get("kind")
     if kind == "cell":
@@ -112,10 +113,20 @@ def encoder_from_dict(d: dict) -> CellEncoder | SectorEncoder | MemorySectorEnco
     if kind == "sector-memory":
         return GridBugEncoder(free_mm=int(d["free_mm"]), leave_margin_mm=int(d["leave_margin_mm"]),
                               cell_mm=int(d["cell_mm"]), wall_bearing=bool(d["wall_bearing"]))
+    if kind == "sector-unmapped":
+        return UnmappedSectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
+                                     sensors=tuple(int(s) for s in d["sensors"]),
+                                     range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
+                                     detour_sensors=tuple(int(s) for s in d["detour_sensors"]),
+                                     margin_mm=int(d["margin_mm"]), block_mm=int(d["block_mm"]),
+                                     block_bearing_mrad=int(d["block_bearing_mrad"]),
+                                     leave_margin_mm=int(d["leave_margin_mm"]), leave=int(d.get("leave", 1)),
+                                     clear_mm=int(d.get("clear_mm", 0)), switch_ticks=int(d.get("switch_ticks", 0)),
+                                     rejoin=int(d.get("rejoin", 0)))
     raise ValueError(f"unknown encoder kind {kind!r}")
 
 
-def policy_bytes(qt: Quantised, encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder, *, goals=(),
+def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),
                  cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
                  policy_id: int | None = None, created: int | None = None,
                  control_period_us: int = robot_spec.CONTROL_PERIOD_US,
@@ -145,7 +156,7 @@ class TrainingRun:
 
     q: np.ndarray
     meta: dict
-    encoder: CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
+    encoder: fmt.AnyEncoder
     goals: list[tuple[int, int]]
     cell_mm: int
 

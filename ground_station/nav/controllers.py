@@ -8,9 +8,12 @@ row -> action), so every controller also runs in HIL as an exported
 `.qtab` (`NavController.policy()`), and the twin rolls the same table out.
 
 * `learnt`: the trained sector policy (a `.qtab`), guidance path; a
-  `sector-memory` policy (`MemorySectorEncoder`: the same state plus the
+  `sector-memory-tick` policy (`MemorySectorEncoder`: the same state plus the
   detour memory, reset per waypoint) is accepted too, and the baselines
   then run on its base `SectorEncoder` (the same sensing without memory);
+  so is a `sector-unmapped` policy (`firmware_py.unmapped`: the shipped
+  sector state plus a detour memory entered on readings the map does not
+  explain), the baselines again on its base encoder;
 * `seek`: the hand-written seek table (`learn.sector.evaluate.seek_table`:
   forward when the target is in the sector ahead, else turn to it), path;
 * `vfh`: a Vector-Field-Histogram-style reactive controller on the same
@@ -29,7 +32,14 @@ import numpy as np
 from firmware_py import robot_spec
 from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
 from firmware_py.policy import Policy, load_policy
-from ground_station.learn.export import geometry_of_map, policy_bytes, quantise
+from firmware_py.unmapped import UnmappedSectorEncoder
+from ground_station.learn.export import (
+    META_GRID,
+    geometry_of_map,
+    map_grid_rows,
+    policy_bytes,
+    quantise,
+)
 from ground_station.learn.sector.evaluate import seek_table
 
 FORWARD, LEFT, RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
@@ -39,15 +49,17 @@ CONTROLLER_NAMES = ("learnt", "seek", "vfh", "direct")
 @dataclass
 class NavController:
     name: str
-    encoder: SectorEncoder | MemorySectorEncoder
+    encoder: SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
-        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder))
-        data = policy_bytes(qt, self.encoder, metadata={"controller": self.name, "guidance": self.guidance},
-                            map_geometry=geometry_of_map(map_name))
+        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder | UnmappedSectorEncoder))
+        meta: dict[str, object] = {"controller": self.name, "guidance": self.guidance}
+        if isinstance(self.encoder, UnmappedSectorEncoder):  # the detour needs the map (firmware_py.mapdata)
+            meta[META_GRID] = map_grid_rows(map_name)
+        data = policy_bytes(qt, self.encoder, metadata=meta, map_geometry=geometry_of_map(map_name))
         return load_policy(data)
 
 
@@ -111,10 +123,10 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
     """learnt / seek / vfh / direct on the learnt policy's encoder (the
     baselines on its base `SectorEncoder` when it carries the detour memory)."""
     enc = policy.encoder
-    if not isinstance(enc, SectorEncoder | MemorySectorEncoder):
+    if not isinstance(enc, SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder):
         raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
     q = policy_table(policy)
-    base = enc.base if isinstance(enc, MemorySectorEncoder) else enc
+    base = enc.base if isinstance(enc, MemorySectorEncoder | UnmappedSectorEncoder) else enc
     make = {
         "learnt": lambda: NavController("learnt", enc, q, "path"),
         "seek": lambda: NavController("seek", base, seek_table(base), "path"),

@@ -28,6 +28,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import MemorySectorEncoder
+from firmware_py.unmapped import UnmappedSectorEncoder
 from ground_station.learn.sector.memory_train import memory_params
 from ground_station.learn.sector.obstacles import (
     COLLISION,
@@ -39,6 +40,7 @@ from ground_station.learn.sector.obstacles import (
     obstacle_clearance_mm,
 )
 from ground_station.learn.sector.twin import encoder_arrays
+from ground_station.learn.sector.unmapped import nav_eval_unmapped_kernel, unmapped_params
 from ground_station.maps import GridMap
 from ground_station.nav.controllers import NavController
 from ground_station.nav.scenario import Episode, episode_arrays
@@ -59,6 +61,22 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
         return []
     a = episode_arrays(eps, maps)
     enc = ctrl.encoder
+    n = len(eps)
+    outcome = np.zeros(n, dtype=np.int64)
+    path = np.zeros(n)
+    steps = np.zeros(n, dtype=np.int64)
+    minclear = np.zeros(n)
+    near = np.zeros(n, dtype=np.int64)
+    q = np.ascontiguousarray(ctrl.q, dtype=np.float64)
+    if isinstance(enc, UnmappedSectorEncoder):  # the detour memory on readings the map does not explain
+        sectors, sensors, edges, _ = encoder_arrays(enc.base)
+        up, dsens, _ = unmapped_params(enc)
+        detour = np.zeros(n, dtype=np.int64)
+        nav_eval_unmapped_kernel(q, a["occ"], a["dims"], a["cells"], a["map"], a["start"], a["goal"], a["wp"],
+                                 a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"], a["nm"], sectors, sensors,
+                                 edges, up, dsens, int(ctrl.guidance == "path"), BUDGET_BASE, BUDGET_FACTOR,
+                                 STALL_STEPS, outcome, path, steps, minclear, near, detour)
+        return _rows(eps, outcome, path, steps, minclear, near)
     if isinstance(enc, MemorySectorEncoder):  # the detour memory reads every sensor
         sectors, sensors, edges, which = encoder_arrays(enc.base)
         which = np.ones_like(which)
@@ -66,16 +84,15 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
     else:
         sectors, sensors, edges, which = encoder_arrays(enc)
         mp, n_base = np.zeros(0, dtype=np.int64), enc.n_states
-    n = len(eps)
-    outcome = np.zeros(n, dtype=np.int64)
-    path = np.zeros(n)
-    steps = np.zeros(n, dtype=np.int64)
-    minclear = np.zeros(n)
-    near = np.zeros(n, dtype=np.int64)
-    nav_eval_mem_kernel(np.ascontiguousarray(ctrl.q, dtype=np.float64), a["occ"], a["dims"], a["cells"], a["map"],
+    nav_eval_mem_kernel(q, a["occ"], a["dims"], a["cells"], a["map"],
                         a["start"], a["goal"], a["wp"], a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"],
                         a["nm"], sectors, sensors, edges, which, int(ctrl.guidance == "path"),
                         BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, mp, n_base, outcome, path, steps, minclear, near)
+    return _rows(eps, outcome, path, steps, minclear, near)
+
+
+def _rows(eps: list[Episode], outcome: np.ndarray, path: np.ndarray, steps: np.ndarray, minclear: np.ndarray,
+          near: np.ndarray) -> list[dict]:
     rows = []
     for i, ep in enumerate(eps):
         o = int(outcome[i])
