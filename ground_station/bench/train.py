@@ -5,7 +5,8 @@ encoding, targets A-D) against a plain-Python loop doing the same
 Q-learning over the Gymnasium `CellNavEnv` (the usual way to write it), and
 beside them the sector twin's `SectorTrainer` and the
 sector-memory-tick `MemoryTrainer` with its recipe (all eight sensors
-cast, for the leaving rule and the wall reward). The sector trainer is also
+cast, for the leaving rule and the wall reward) and the sector-memory
+`GridBugTrainer` (cell-stepped, grid twin: a step is one cell move). The sector trainer is also
 given per second of the process's CPU time (the machine is shared: other
 load stretches the wall time, much less the CPU time). Compile time is
 excluded (one warm-up call first).
@@ -104,6 +105,24 @@ def memory_speed(n_steps: int) -> float:
     return n_steps / (time.perf_counter() - t0)
 
 
+def grid_memory_speed(n_steps: int) -> float:
+    """Steps/s (moves) of the sector-memory (cell-stepped) trainer with its recipe on its training maps."""
+    import numpy as np
+
+    from ground_station.learn.config import recipe_config
+    from ground_station.learn.sector.gridbug_train import GridBugTrainer, gridbug_encoder
+    from ground_station.maps import load_map
+
+    cfg = recipe_config("sector-memory", {"map": "paper10"})
+    maps = [load_map(cfg.map)] + [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
+    trainer = GridBugTrainer(maps, cfg, gridbug_encoder(cfg))
+    q = np.zeros((trainer.n_states, trainer.n_actions))
+    trainer.run(q, 0, 1000)  # compile
+    t0 = time.perf_counter()
+    trainer.run(q, 1000, n_steps)
+    return n_steps / (time.perf_counter() - t0)
+
+
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -123,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
     baseline = b_steps / b_dt
     sector, sector_cpu, sector_note = sector_speed(replace(cfg, encoding="sector"), args.sector_steps)
     memory = memory_speed(args.sector_steps)
+    grid_memory = grid_memory_speed(args.sector_steps)
     result = {
         "steps_per_s": steps_per_s,
         "baseline_steps_per_s": baseline,
@@ -131,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
         "sector_cpu_steps_per_s": sector_cpu,
         "sector_note": sector_note,
         "sector_memory_steps_per_s": memory,
+        "sector_memory_grid_moves_per_s": grid_memory,
         "map": cfg.map,
         "kernel_steps": cfg.steps,
         "baseline_steps": b_steps,
@@ -142,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
         ("sector steps/s (SectorTrainer)", sector),
         ("sector steps/s of CPU time (same run)", sector_cpu),
         ("sector-memory-tick steps/s (MemoryTrainer, recipe)", memory),
+        ("sector-memory moves/s (GridBugTrainer, recipe; grid twin)", grid_memory),
     ]
     report("train", rows, result, args.json)
     return 0
