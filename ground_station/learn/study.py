@@ -473,36 +473,32 @@ def _panel_threshold(ax: Any, data: dict) -> None:
     ax.legend(fontsize=8)
 
 
-def _decay_rows(data: dict) -> list[dict]:
-    return [r for r in data["lr_study"] if r["schedule"] == "decay"]
+def _panel_per_eta(ax: Any, data: dict, cmap: Any, x: str, y: str) -> None:
+    """Curve `y` (mean and CI band) against `x` along training, one line per eta, epsilon schedule."""
+    decay = [r for r in data["lr_study"] if r["schedule"] == "decay"]
+    for i, r in enumerate(decay):
+        c, col = r["curve"], cmap(i / max(1, len(decay) - 1))
+        ax.plot(c[x], c[y]["mean"], color=col, label=f"eta={r['lr']:g}")
+        ax.fill_between(c[x], c[y]["lo"], c[y]["hi"], color=col, alpha=0.2)
+    ax.legend(fontsize=7, ncol=2)
 
 
 def _panel_success(ax: Any, data: dict, cmap: Any) -> None:
     """Greedy success along training per eta (epsilon schedule)."""
-    decay = _decay_rows(data)
-    for i, r in enumerate(decay):
-        c, col = r["curve"], cmap(i / max(1, len(decay) - 1))
-        ax.plot(c["steps"], c["success"]["mean"], color=col, label=f"eta={r['lr']:g}")
-        ax.fill_between(c["steps"], c["success"]["lo"], c["success"]["hi"], color=col, alpha=0.2)
+    _panel_per_eta(ax, data, cmap, "steps", "success")
     ax.axhline(data["threshold"], color="grey", linestyle=":")
     ax.set_xlabel("training steps")
     ax.set_ylabel("greedy success, all (start, goal) pairs")
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(f"greedy success, epsilon schedule\n({CI_LABEL}, {data['seeds']} seeds)")
-    ax.legend(fontsize=7, ncol=2)
 
 
 def _panel_q(ax: Any, data: dict, cmap: Any) -> None:
     """Mean max-Q of the visited states along training per eta: the paper's Fig. 5."""
-    decay = _decay_rows(data)
-    for i, r in enumerate(decay):
-        c, col = r["curve"], cmap(i / max(1, len(decay) - 1))
-        ax.plot(c["episodes"], c["qmax"]["mean"], color=col, label=f"eta={r['lr']:g}")
-        ax.fill_between(c["episodes"], c["qmax"]["lo"], c["qmax"]["hi"], color=col, alpha=0.2)
+    _panel_per_eta(ax, data, cmap, "episodes", "qmax")
     ax.set_xlabel("episode")
     ax.set_ylabel("mean max_a Q(s, a) over visited states")
     ax.set_title(f"Q values, the paper's Fig. 5, epsilon schedule\n({CI_LABEL}, {data['seeds']} seeds)")
-    ax.legend(fontsize=7, ncol=2)
 
 
 def plot_curves(data: dict) -> bytes:
