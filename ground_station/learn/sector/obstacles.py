@@ -232,6 +232,104 @@ def obs_period_step(occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which,
 SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
 
 
+@numba.njit(cache=True, inline="always")
+def draw_pool_episode(rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem, ep_discs, ep_nd,
+                      ep_movers, ep_nm, start_pose_jitter_mm):
+    """A training episode of the scenario pool, drawn uniformly, for every
+    obstacle trainer: its map, discs, movers (copied: they move) and
+    waypoints, the pool's start moved by up to start_pose_jitter_mm (kept
+    where the moved start would touch something) and a random heading, and
+    the guide potential there. Four uniform draws in this order, so each
+    trainer replays the same episodes from the same seed. Returns
+    (e, h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, phi), e the pool index."""
+    e = randint(rng, ep_map.shape[0])
+    m = ep_map[e]
+    h = dims[m, 0]
+    w = dims[m, 1]
+    c = cells[m]
+    occ = occ_all[m]
+    discs = ep_discs[e, :ep_nd[e]]
+    movers = ep_movers[e, :ep_nm[e]].copy()
+    wps = ep_wp[e]
+    rem = ep_rem[e]
+    x = ep_start[e, 0] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
+    y = ep_start[e, 1] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
+    if disc_hits(occ, h, w, c, x, y, RADIUS_MM) or hits_discs(x, y, RADIUS_MM + MAX_MOVE_MM, discs, movers):
+        x = ep_start[e, 0]
+        y = ep_start[e, 1]
+    th = (2.0 * rand01(rng) - 1.0) * math.pi
+    phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
+    return e, h, w, c, occ, discs, movers, wps, rem, ep_nwp[e], x, y, th, phi
+
+
+@numba.njit(cache=True, inline="always")
+def open_bench_episode(e, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem, ep_discs,
+                       ep_nd, ep_movers, ep_nm, guided, gwp, grem, budget_base, budget_factor):
+    """Scenario episode e as every bench kernel rolls it out: its map, discs,
+    movers (copied: they move), the waypoints (guided) or the goal alone (in
+    gwp, grem), the start pose, the period budget (budget_base +
+    budget_factor x planned length in forward periods) and the guide
+    potential. Returns (h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, budget, phi)."""
+    m = ep_map[e]
+    h = dims[m, 0]
+    w = dims[m, 1]
+    c = cells[m]
+    occ = occ_all[m]
+    discs = ep_discs[e, :ep_nd[e]]
+    movers = ep_movers[e, :ep_nm[e]].copy()
+    if guided:
+        wps = ep_wp[e]
+        rem = ep_rem[e]
+        nwp = ep_nwp[e]
+    else:
+        gwp[0, 0] = ep_goal[e, 0]
+        gwp[0, 1] = ep_goal[e, 1]
+        wps = gwp
+        rem = grem
+        nwp = 1
+    x = ep_start[e, 0]
+    y = ep_start[e, 1]
+    th = ep_start[e, 2]
+    plan_len = ep_rem[e, 0] + math.hypot(x - ep_wp[e, 0, 0], y - ep_wp[e, 0, 1])
+    budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+    phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
+    return h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, budget, phi
+
+
+@numba.njit(cache=True, inline="always")
+def explore_or_greedy(q, rng, s: int, t: int, eps_start: float, eps_end: float, eps_decay_steps: int) -> int:
+    """The obstacle trainers' epsilon-greedy choice at global step t (epsilon
+    linear from eps_start to eps_end over eps_decay_steps, then held)."""
+    frac = (t / eps_decay_steps) if eps_decay_steps > 0 else 1.0
+    eps = eps_start + (eps_end - eps_start) * min(1.0, frac)
+    if rand01(rng) < eps:
+        return randint(rng, q.shape[1])
+    return greedy(q, s)
+
+
+@numba.njit(cache=True, inline="always")
+def held_update(q, frozen, s0: int, a: int, s2: int, racc: float, g: float, terminal: bool, lr: float,
+                lr_end: float, t: int, total_steps: int) -> None:
+    """The semi-Markov Q update of action a held from state s0 (discounted
+    return racc, discount g of the state reached s2; no bootstrap when
+    terminal), the learning rate linear from lr to lr_end over total_steps;
+    rows with frozen[s0] set keep their values (frozen of length 0: none)."""
+    target = racc if terminal else racc + g * q[s2, greedy(q, s2)]
+    fr = min(1.0, t / total_steps) if total_steps > 0 else 0.0
+    if frozen.shape[0] == 0 or not frozen[s0]:
+        q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
+
+
+@numba.njit(cache=True, inline="always")
+def stall_check(phi: float, best: float, since: int, stall_steps: int):
+    """The bench's loop rule during training: (best, since, stalled) after a
+    period whose guide potential is phi (stalled: no new minimum for
+    stall_steps periods)."""
+    if phi < best - 1.0:
+        return phi, 0, False
+    return best, since + 1, since + 1 >= stall_steps
+
+
 @numba.njit(cache=True)
 def obs_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem,
                      ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which,
@@ -249,28 +347,14 @@ def obs_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_n
     status = np.zeros(which.shape[0], dtype=np.int64)
     noisy = np.zeros(which.shape[0], dtype=np.int64)
     nstatus = np.zeros(which.shape[0], dtype=np.int64)
+    no_frozen = np.zeros(0, dtype=np.bool_)
     n_done = 0
     i = 0
     while i < n_steps:
-        e = randint(rng, ep_map.shape[0])
-        m = ep_map[e]
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cells[m]
-        occ = occ_all[m]
-        discs = ep_discs[e, :ep_nd[e]]
-        movers = ep_movers[e, :ep_nm[e]].copy()
-        wps = ep_wp[e]
-        rem = ep_rem[e]
-        nwp = ep_nwp[e]
-        x = ep_start[e, 0] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
-        y = ep_start[e, 1] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
-        if disc_hits(occ, h, w, c, x, y, RADIUS_MM) or hits_discs(x, y, RADIUS_MM + MAX_MOVE_MM, discs, movers):
-            x = ep_start[e, 0]
-            y = ep_start[e, 1]
-        th = (2.0 * rand01(rng) - 1.0) * math.pi
+        e, h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, phi = draw_pool_episode(
+            rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem, ep_discs, ep_nd, ep_movers, ep_nm,
+            start_pose_jitter_mm)
         k = 0
-        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
         sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
         s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
         t = 0
@@ -283,12 +367,7 @@ def obs_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_n
         ret = 0.0
         while True:
             if hold == 0:
-                frac = ((start_step + i) / eps_decay_steps) if eps_decay_steps > 0 else 1.0
-                eps = eps_start + (eps_end - eps_start) * min(1.0, frac)
-                if rand01(rng) < eps:
-                    a = randint(rng, q.shape[1])
-                else:
-                    a = greedy(q, s)
+                a = explore_or_greedy(q, rng, s, start_step + i, eps_start, eps_end, eps_decay_steps)
                 s0 = s
                 racc = 0.0
                 g = 1.0
@@ -307,12 +386,7 @@ def obs_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_n
             terminal = hit or success
             end = terminal or t >= max_episode_steps or i >= n_steps
             if end or s2 != s0 or hold >= hold_max:
-                if terminal:
-                    target = racc
-                else:
-                    target = racc + g * q[s2, greedy(q, s2)]
-                fr = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
-                q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
+                held_update(q, no_frozen, s0, a, s2, racc, g, terminal, lr, lr_end, start_step + i, total_steps)
                 hold = 0
             if not terminal:
                 s = s2
@@ -363,30 +437,10 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
     gwp = np.zeros((1, 2))
     grem = np.zeros(1)
     for e in range(ep_map.shape[0]):
-        m = ep_map[e]
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cells[m]
-        occ = occ_all[m]
-        discs = ep_discs[e, :ep_nd[e]]
-        movers = ep_movers[e, :ep_nm[e]].copy()
-        if guided:
-            wps = ep_wp[e]
-            rem = ep_rem[e]
-            nwp = ep_nwp[e]
-        else:
-            gwp[0, 0] = ep_goal[e, 0]
-            gwp[0, 1] = ep_goal[e, 1]
-            wps = gwp
-            rem = grem
-            nwp = 1
-        x = ep_start[e, 0]
-        y = ep_start[e, 1]
-        th = ep_start[e, 2]
-        plan_len = ep_rem[e, 0] + math.hypot(x - ep_wp[e, 0, 0], y - ep_wp[e, 0, 1])
-        budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+        h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, budget, phi = open_bench_episode(
+            e, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem, ep_discs, ep_nd, ep_movers,
+            ep_nm, guided, gwp, grem, budget_base, budget_factor)
         k = 0
-        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
         best = phi
         since = 0
         path = 0.0
@@ -465,25 +519,10 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
     n_done = 0
     i = 0
     while i < n_steps:
-        e = randint(rng, ep_map.shape[0])
-        m = ep_map[e]
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cells[m]
-        occ = occ_all[m]
-        discs = ep_discs[e, :ep_nd[e]]
-        movers = ep_movers[e, :ep_nm[e]].copy()
-        wps = ep_wp[e]
-        rem = ep_rem[e]
-        nwp = ep_nwp[e]
-        x = ep_start[e, 0] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
-        y = ep_start[e, 1] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
-        if disc_hits(occ, h, w, c, x, y, RADIUS_MM) or hits_discs(x, y, RADIUS_MM + MAX_MOVE_MM, discs, movers):
-            x = ep_start[e, 0]
-            y = ep_start[e, 1]
-        th = (2.0 * rand01(rng) - 1.0) * math.pi
+        e, h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, phi = draw_pool_episode(
+            rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem, ep_discs, ep_nd, ep_movers, ep_nm,
+            start_pose_jitter_mm)
         k = 0
-        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
         best = phi
         since = 0
         mem[:] = 0
@@ -500,12 +539,7 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
         ret = 0.0
         while True:
             if hold == 0:
-                frac = ((start_step + i) / eps_decay_steps) if eps_decay_steps > 0 else 1.0
-                eps = eps_start + (eps_end - eps_start) * min(1.0, frac)
-                if rand01(rng) < eps:
-                    a = randint(rng, q.shape[1])
-                else:
-                    a = greedy(q, s)
+                a = explore_or_greedy(q, rng, s, start_step + i, eps_start, eps_end, eps_decay_steps)
                 s0 = s
                 racc = 0.0
                 g = 1.0
@@ -531,27 +565,16 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
             hold += 1
             stalled = False
             if stall_steps > 0 and not (hit or success):
-                if phi < best - 1.0:
-                    best = phi
-                    since = 0
-                else:
-                    since += 1
-                    if since >= stall_steps:
-                        stalled = True
-                        r -= stall_cost
+                best, since, stalled = stall_check(phi, best, since, stall_steps)
+                if stalled:
+                    r -= stall_cost
             racc += g * r
             ret += r
             g *= gamma
             terminal = hit or success or stalled
             end = terminal or t >= max_episode_steps or i >= n_steps
             if end or s2 != s0 or hold >= hold_max:
-                if terminal:
-                    target = racc
-                else:
-                    target = racc + g * q[s2, greedy(q, s2)]
-                fr = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
-                if frozen.shape[0] == 0 or not frozen[s0]:
-                    q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
+                held_update(q, frozen, s0, a, s2, racc, g, terminal, lr, lr_end, start_step + i, total_steps)
                 hold = 0
             if not terminal:
                 s = s2

@@ -27,27 +27,28 @@ import numpy as np
 from firmware_py import robot_spec
 from firmware_py.encoders import turn_of
 from firmware_py.unmapped import KEEP_LEFT, KEEP_RIGHT, REJOIN_LEAVE_MM, UnmappedSectorEncoder
-from ground_station.learn.jit import greedy, rand01, randint
-from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, gauss
+from ground_station.learn.jit import greedy
+from ground_station.learn.sector.kernels import gauss
 from ground_station.learn.sector.obstacles import (
     COLLISION,
     LOOP,
     NEAR_MISS_MM,
     SUCCESS,
     TIMEOUT,
-    hits_discs,
+    draw_pool_episode,
+    explore_or_greedy,
+    held_update,
     obs_period_step,
     obstacle_clearance_mm,
+    open_bench_episode,
     sense_obs,
+    stall_check,
 )
 from ground_station.learn.sector.reward import RW_PROGRESS
 from ground_station.learn.sector.twin import (
-    MAX_MOVE_MM,
     MOUNT_MM,
-    RADIUS_MM,
     bearing_mrad,
     bearing_sector_fast,
-    disc_hits,
     encode_fast,
 )
 
@@ -278,30 +279,10 @@ def nav_eval_unmapped_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal,
     gwp = np.zeros((1, 2))
     grem = np.zeros(1)
     for e in range(ep_map.shape[0]):
-        m = ep_map[e]
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cells[m]
-        occ = occ_all[m]
-        discs = ep_discs[e, :ep_nd[e]]
-        movers = ep_movers[e, :ep_nm[e]].copy()
-        if guided:
-            wps = ep_wp[e]
-            rem = ep_rem[e]
-            nwp = ep_nwp[e]
-        else:
-            gwp[0, 0] = ep_goal[e, 0]
-            gwp[0, 1] = ep_goal[e, 1]
-            wps = gwp
-            rem = grem
-            nwp = 1
-        x = ep_start[e, 0]
-        y = ep_start[e, 1]
-        th = ep_start[e, 2]
-        plan_len = ep_rem[e, 0] + math.hypot(x - ep_wp[e, 0, 0], y - ep_wp[e, 0, 1])
-        budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+        h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, budget, phi = open_bench_episode(
+            e, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem, ep_discs, ep_nd, ep_movers,
+            ep_nm, guided, gwp, grem, budget_base, budget_factor)
         k = 0
-        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
         best = phi
         since = 0
         path = 0.0
@@ -411,25 +392,10 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
     n_done = 0
     i = 0
     while i < n_steps:
-        e = randint(rng, ep_map.shape[0])
-        m = ep_map[e]
-        h = dims[m, 0]
-        w = dims[m, 1]
-        c = cells[m]
-        occ = occ_all[m]
-        discs = ep_discs[e, :ep_nd[e]]
-        movers = ep_movers[e, :ep_nm[e]].copy()
-        wps = ep_wp[e]
-        rem = ep_rem[e]
-        nwp = ep_nwp[e]
-        x = ep_start[e, 0] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
-        y = ep_start[e, 1] + (2.0 * rand01(rng) - 1.0) * start_pose_jitter_mm
-        if disc_hits(occ, h, w, c, x, y, RADIUS_MM) or hits_discs(x, y, RADIUS_MM + MAX_MOVE_MM, discs, movers):
-            x = ep_start[e, 0]
-            y = ep_start[e, 1]
-        th = (2.0 * rand01(rng) - 1.0) * math.pi
+        e, h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, phi = draw_pool_episode(
+            rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem, ep_discs, ep_nd, ep_movers, ep_nm,
+            start_pose_jitter_mm)
         k = 0
-        phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
         best = phi
         since = 0
         mem[:] = 0
@@ -448,12 +414,7 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
         ret = 0.0
         while True:
             if hold == 0:
-                frac = ((start_step + i) / eps_decay_steps) if eps_decay_steps > 0 else 1.0
-                eps = eps_start + (eps_end - eps_start) * min(1.0, frac)
-                if rand01(rng) < eps:
-                    a = randint(rng, q.shape[1])
-                else:
-                    a = greedy(q, s)
+                a = explore_or_greedy(q, rng, s, start_step + i, eps_start, eps_end, eps_decay_steps)
                 s0 = s
                 racc = 0.0
                 g = 1.0
@@ -483,27 +444,16 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
             hold += 1
             stalled = False
             if stall_steps > 0 and not (hit or success):
-                if phi < best - 1.0:
-                    best = phi
-                    since = 0
-                else:
-                    since += 1
-                    if since >= stall_steps:
-                        stalled = True
-                        r -= stall_cost
+                best, since, stalled = stall_check(phi, best, since, stall_steps)
+                if stalled:
+                    r -= stall_cost
             racc += g * r
             ret += r
             g *= gamma
             terminal = hit or success or stalled
             end = terminal or t >= max_episode_steps or i >= n_steps
             if end or s2 != s0 or hold >= hold_max:
-                if terminal:
-                    target = racc
-                else:
-                    target = racc + g * q[s2, greedy(q, s2)]
-                fr = min(1.0, (start_step + i) / total_steps) if total_steps > 0 else 0.0
-                if frozen.shape[0] == 0 or not frozen[s0]:
-                    q[s0, a] += (lr + (lr_end - lr) * fr) * (target - q[s0, a])
+                held_update(q, frozen, s0, a, s2, racc, g, terminal, lr, lr_end, start_step + i, total_steps)
                 hold = 0
             if not terminal:
                 s = s2
