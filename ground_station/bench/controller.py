@@ -108,7 +108,7 @@ def paced_run(args: argparse.Namespace, rt_priority: int | None) -> dict:
         rob = ChildProcess(qnav_robot("--can", hub.spec, "--sim-clock", "--policy", args.policy,
                                       "--start", args.start, "--goal-cell", args.goal_cell, *rt,
                                       "--duration", str(args.seconds - robot_spec.CONTROL_PERIOD_US / 1e6),
-                                      "--stats-json", str(stats_path), "-q"),
+                                      "--stats-json", str(stats_path), "--mavlink", "none", "-q"),
                            Path(tmp) / "robot.log")
         with sim, rob:
             try:

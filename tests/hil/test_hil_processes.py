@@ -44,7 +44,8 @@ def test_sector_policy_across_processes_in_open_arena(tmp_path):
                      "--lockstep", "--duration", "30", "--start", "0.75,0.75,180", "-q",
                      "--trajectory", tmp_path / "traj.csv"])
         rob = start([BIN / "qnav-robot", "--can", hub.spec, "--lockstep", "--policy", qtab,
-                     "--start", "0.75,0.75,180", "--goal", "2.25,2.25", "--duration", "29.95"])
+                     "--start", "0.75,0.75,180", "--goal", "2.25,2.25", "--duration", "29.95",
+                     "--mavlink", "none"])
         (_, sim_err), (_, rob_err) = finish(sim, rob)
     assert sim.returncode == 0, sim_err
     assert rob.returncode == 0, rob_err
