@@ -48,6 +48,8 @@ from typing import Any, NamedTuple
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder, best_action
 from firmware_py.gridbug import MOVE_STEPS, GridBugEncoder
+from firmware_py.localplan import META_KEY as PLANNER_KEY
+from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
 from firmware_py.unmapped import UnmappedSectorEncoder
 
@@ -139,6 +141,8 @@ class Policy:
     control_period_us: int = 0  # the period the actions were trained for (load_policy sets it)
     map_geometry: MapGeometry = MapGeometry(0, 0, 0)  # the training map (load_policy sets it)
     map_grid: OccupancyGrid | None = None  # the training map's cells, if the file carries them (mapdata)
+    # sector policies with a map: re-plan round unmapped obstacles on the robot (firmware_py.localplan)
+    local_planner: LocalPlannerConfig | None = None
 
     @property
     def kind(self) -> str:
@@ -391,6 +395,14 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         grid = grid_from_metadata(metadata, *geometry)
     except MapDataError as exc:
         raise PolicyError(str(exc)) from None
+    planner = None
+    if PLANNER_KEY in metadata:
+        if grid is None or type(enc) is not SectorEncoder:
+            raise PolicyError(f"{PLANNER_KEY} needs a plain sector policy that carries its map")
+        try:
+            planner = LocalPlannerConfig.from_metadata(metadata[PLANNER_KEY])
+        except ValueError as exc:
+            raise PolicyError(str(exc)) from None
 
     table = array(typecode)
     table.frombytes(data[off:off + table_bytes])
@@ -411,7 +423,7 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
                   policy_id=policy_id, crc=stored_crc, created=created, metadata=metadata,
                   table=memoryview(table).toreadonly(), state_scales=state_scales, goals=goals,
                   cell_mm=cell_mm, version=(major, minor), size=n, control_period_us=period_us,
-                  map_geometry=geometry, map_grid=grid)
+                  map_geometry=geometry, map_grid=grid, local_planner=planner)
 
 
 def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int) -> str:

@@ -47,6 +47,7 @@ from firmware_py.gridbug import (
     grid_dir_of,
 )
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
+from firmware_py.localplan import LocalPlanner, ObstacleMemory
 from firmware_py.unmapped import DetourMemory, UnmappedSectorEncoder
 from firmware_py.vehicle import (
     CtrlState,
@@ -249,6 +250,11 @@ class Controller:
         # sector-unmapped policies: the detour memory of the current goal (reset as the Bug memory)
         self.detour = DetourMemory()
         self._memory_key: tuple[tuple[int, int], int] | None = None
+        # sector policies with a map and planner parameters: sub-goals round unmapped obstacles
+        self.local: tuple[LocalPlanner, ObstacleMemory] | None = None
+        self._local_for: Policy | None = None
+        self._local_key: tuple[tuple[int, int], int] | None = None
+        self.target_mm: tuple[int, int] | None = None  # what the policy steered to (None: the goal itself)
         self.tick_overruns = 0
         self.can_errors = 0
         # Monte Carlo localisation on the policy's map (control/localiser.py) when the policy carries one
@@ -837,6 +843,8 @@ class Controller:
                 a = pol.best_action(s)
                 self.memory.note_action(a)
             else:
+                if pol.local_planner is not None and pol.map_grid is not None:
+                    bearing = self._local_bearing(pol, inp, now_us, bearing)
                 s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
                 a = pol.best_action(s)
             left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
@@ -849,6 +857,27 @@ class Controller:
         pct = self.cfg.speed_scale_pct
         left, right = clamp_speeds(left * pct // 100, right * pct // 100, self.cfg.max_wheel_speed_mm_s)
         self.watchdog.feed(now_us, left, right)
+
+    def _local_bearing(self, pol: Policy, inp: Inputs, now_us: int, bearing: int) -> int:
+        """The bearing to the local planner's target for this tick (firmware_py.localplan):
+        the goal's own bearing until an unmapped obstacle is in the way."""
+        assert pol.local_planner is not None and pol.map_grid is not None and self.goal is not None
+        if self.local is None or self._local_for is not pol:
+            self.local = (LocalPlanner(pol.map_grid, pol.local_planner), ObstacleMemory(pol.local_planner))
+            self._local_for = pol
+        planner, memory = self.local
+        key = (self.goal, self._driving_since_us)
+        if key != self._local_key:  # a new goal (mission item, drive): straight at it until blocked
+            planner.reset()
+            self._local_key = key
+        x, y, heading = self.nav.pose_mm()
+        memory.observe(pol.map_grid, x, y, heading, inp.ranges_mm, inp.range_status, now_us)
+        tx, ty = planner.target(x, y, self.goal, memory)
+        if not planner.detouring:
+            self.target_mm = None
+            return bearing
+        self.target_mm = (round(tx), round(ty))
+        return self.nav.goal_vector(*self.target_mm)[1]
 
     def _cell_primitive(self, depth: int = 0) -> tuple[int, int] | None:
         """The cell motion primitive's executor: when no step is open, the

@@ -44,8 +44,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
                    help="the learnt sector policy (.qtab or policies:NAME; default %(default)s)")
-    p.add_argument("--controllers", default="learnt,seek,vfh,direct",
-                   help="comma-separated subset of learnt,seek,vfh,direct")
+    p.add_argument("--controllers", default=None,
+                   help="comma-separated subset of learnt,seek,vfh,direct,seek_local (default: the first four, "
+                        "and seek_local when the policy steers on the robot's local planner)")
     p.add_argument("--json", metavar="FILE",
                    help="write the result as JSON (depends only on the seeded episodes: the same on every engine; "
                         "timings and where the jobs ran go to FILE's sibling *.campaign.json)")
@@ -65,14 +66,15 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.campaign.engines import engine_from_args, write_campaign
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
-    from ground_station.nav.controllers import CONTROLLER_NAMES, standard_controllers
+    from ground_station.nav.controllers import CONTROLLER_NAMES, EXTRA_CONTROLLERS, standard_controllers
     from ground_station.nav.episodes import run_job, run_twin, summarise
     from ground_station.nav.scenario import episodes
 
-    names = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
-    bad = [c for c in names if c not in CONTROLLER_NAMES]
+    known = CONTROLLER_NAMES + EXTRA_CONTROLLERS
+    names = tuple(c.strip() for c in (args.controllers or ",".join(CONTROLLER_NAMES)).split(",") if c.strip())
+    bad = [c for c in names if c not in known]
     if bad or not names:
-        raise CliError(f"--controllers: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(CONTROLLER_NAMES)}")
+        raise CliError(f"--controllers: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(known)}")
     if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1 or args.batch < 1:
         raise CliError("--obstacles/--movers must be >= 0, --episodes/--hil-episodes/--batch >= 1")
     try:
@@ -80,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         pol = load_policy(str(path))
     except (PolicyError, ShippedPolicyError, OSError) as exc:
         raise CliError(f"policy {args.policy}: {exc}") from None
+    if args.controllers is None and pol.local_planner is not None:
+        names += EXTRA_CONTROLLERS  # the planner with the hand-written seek table: what the learnt table adds
     try:
         ctrls = standard_controllers(pol, names)
     except ValueError as exc:

@@ -19,7 +19,15 @@ row -> action), so every controller also runs in HIL as an exported
 * `vfh`: a Vector-Field-Histogram-style reactive controller on the same
   range sectors (`vfh_table`), path;
 * `direct`: the paper's direct setting, the learnt table steering on the
-  goal's bearing alone (no waypoints).
+  goal's bearing alone (no waypoints);
+* `seek_local` (only with a learnt policy that carries local-planner
+  parameters): the seek table steering on the same local planner's targets,
+  i.e. what the planner alone is worth without the learnt table.
+
+A learnt policy with `local_planner` metadata (`firmware_py.localplan`)
+steers on the robot's local planner: `NavController.local` holds its
+parameters, the twin rolls it out with the robot's own planner code
+(`nav.planned`), and its `.qtab` carries the episode's map.
 """
 
 from __future__ import annotations
@@ -31,6 +39,8 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
+from firmware_py.localplan import META_KEY as PLANNER_KEY
+from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.policy import Policy, load_policy
 from firmware_py.unmapped import UnmappedSectorEncoder
 from ground_station.learn.export import (
@@ -44,6 +54,7 @@ from ground_station.learn.sector.evaluate import seek_table
 
 FORWARD, LEFT, RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
 CONTROLLER_NAMES = ("learnt", "seek", "vfh", "direct")
+EXTRA_CONTROLLERS = ("seek_local",)  # on request (--controllers), or by default with a local planner
 
 
 @dataclass
@@ -52,13 +63,16 @@ class NavController:
     encoder: SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
+    local: LocalPlannerConfig | None = None  # steer on the robot's local planner (firmware_py.localplan)
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
         qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder | UnmappedSectorEncoder))
         meta: dict[str, object] = {"controller": self.name, "guidance": self.guidance}
-        if isinstance(self.encoder, UnmappedSectorEncoder):  # the detour needs the map (firmware_py.mapdata)
+        if isinstance(self.encoder, UnmappedSectorEncoder) or self.local is not None:  # both need the map
             meta[META_GRID] = map_grid_rows(map_name)
+        if self.local is not None:
+            meta[PLANNER_KEY] = self.local.to_metadata()
         data = policy_bytes(qt, self.encoder, metadata=meta, map_geometry=geometry_of_map(map_name))
         return load_policy(data)
 
@@ -127,8 +141,11 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
         raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
     q = policy_table(policy)
     base = enc.base if isinstance(enc, MemorySectorEncoder | UnmappedSectorEncoder) else enc
+    local = policy.local_planner
     make = {
-        "learnt": lambda: NavController("learnt", enc, q, "path"),
+        "learnt": lambda: NavController("learnt", enc, q, "path", local),
+        "seek_local": lambda: NavController("seek_local", base, seek_table(base), "path",
+                                            local or LocalPlannerConfig()),
         "seek": lambda: NavController("seek", base, seek_table(base), "path"),
         "vfh": lambda: NavController("vfh", base, vfh_table(base), "path"),
         "direct": lambda: NavController("direct", enc, q, "direct"),

@@ -68,6 +68,12 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
     minclear = np.zeros(n)
     near = np.zeros(n, dtype=np.int64)
     q = np.ascontiguousarray(ctrl.q, dtype=np.float64)
+    if ctrl.local is not None:  # the robot's own local planner code in a Python loop (nav/planned.py)
+        from ground_station.nav.planned import run_twin_planned
+
+        outcome, path, steps, minclear, near = run_twin_planned(eps, maps, ctrl, BUDGET_BASE, BUDGET_FACTOR,
+                                                                STALL_STEPS)
+        return _rows(eps, outcome, path, steps, minclear, near)
     if isinstance(enc, UnmappedSectorEncoder):  # the detour memory on readings the map does not explain
         sectors, sensors, edges, _ = encoder_arrays(enc.base)
         up, dsens, _ = unmapped_params(enc)

@@ -1,0 +1,341 @@
+"""Local re-planning round obstacles the map does not show (robot side).
+
+The ground station plans waypoints on the known map; a box in a corridor or
+a person walking past is not on it. This module owns what the robot does
+about them before its learnt sector policy steers:
+
+* `ObstacleMemory` keeps the end points of range readings the map does not
+  explain (the `firmware_py.unmapped` test: on no ray of the sensor's fan
+  does the point at the read distance lie within `margin_mm` of a mapped
+  cell), in world millimetres, one per 50 mm square, each stamped with the
+  controller clock (sim time in HIL) and forgotten `memory_us` after it was
+  last seen: a person who walked on leaves no wall behind, a box in view is
+  seen again every tick.
+* `LocalPlanner.target(x, y, waypoint, memory)` is the point the policy
+  steers to. While no remembered point comes within `obstacle_clear_mm` of
+  the straight line to the waypoint it is the waypoint itself, so on the
+  known map the policy drives exactly as trained. Once one does (for this
+  waypoint: `reset()` per mission item), the planner runs Dijkstra on a
+  `raster_mm` raster of a window round the robot and the waypoint: map
+  walls grown by `wall_clear_mm` and remembered points grown by
+  `obstacle_clear_mm` are closed, and cells within `soft_mm` of a point
+  cost up to `weight` times more (nav2's inflation cost: the path keeps its
+  distance where there is room and squeezes through where there is not).
+  The target is then the furthest cell, within `lookahead_mm` along the
+  path, that the robot sees in a straight line keeping `los_clear_mm` from
+  every point, or the waypoint itself when that line is clear. The learnt
+  policy was trained to reach a point it can see with walls beside its
+  line; the planner hands it such points.
+
+Everything runs inside the control tick and is bounded: the raster window is
+at most (waypoint distance + 2 x `window_mm`) square, Dijkstra runs again
+only when the remembered set or the waypoint changes, and memory holds at
+most `max_points` points (the oldest go first). Pure stdlib (the robot has
+no numpy); the twin's bench runs this same code.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+from firmware_py import robot_spec
+from firmware_py.mapdata import OccupancyGrid
+from firmware_py.unmapped import _FAN, _MOUNT, _RAY_COS, _RAY_SIN, _SENS_COS, _SENS_SIN, _wall_within
+
+META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
+_KEY_MM = 50  # one remembered point per 50 mm square
+_SQRT2 = 1.4142
+
+
+@dataclass(frozen=True)
+class LocalPlannerConfig:
+    """The planner's parameters (mm, us); `from_metadata` checks each."""
+
+    margin_mm: int = 150  # a reading is explained by the map within this distance of a mapped cell
+    see_mm: int = 1500  # readings farther than this are not remembered (the fan is wide out there)
+    memory_us: int = 3_000_000  # a point not seen again for this long is forgotten
+    max_points: int = 400
+    raster_mm: int = 100
+    wall_clear_mm: int = robot_spec.ROBOT_RADIUS_MM + 25
+    obstacle_clear_mm: int = robot_spec.ROBOT_RADIUS_MM + 40
+    soft_mm: int = robot_spec.ROBOT_RADIUS_MM + 200
+    weight: int = 3
+    los_clear_mm: int = robot_spec.ROBOT_RADIUS_MM + 100
+    window_mm: int = 1000
+    lookahead_mm: int = 600
+
+    @classmethod
+    def from_metadata(cls, meta: Any) -> LocalPlannerConfig:
+        """The config in a policy's metadata value; ValueError with one line naming the bad field."""
+        if not isinstance(meta, dict):
+            raise ValueError(f"{META_KEY} is not a JSON object")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(meta) - known)
+        if unknown:
+            raise ValueError(f"{META_KEY}: unknown field {unknown[0]!r}")
+        for k, v in meta.items():
+            if not isinstance(v, int) or isinstance(v, bool) or not 0 < v <= 100_000_000:
+                raise ValueError(f"{META_KEY}.{k} = {v!r} is not a positive integer")
+        cfg = cls(**meta)
+        if not 10 <= cfg.raster_mm <= 500:
+            raise ValueError(f"{META_KEY}.raster_mm = {cfg.raster_mm} (allowed 10..500)")
+        if not cfg.obstacle_clear_mm <= cfg.los_clear_mm <= cfg.soft_mm:
+            raise ValueError(f"{META_KEY}: need obstacle_clear_mm <= los_clear_mm <= soft_mm")
+        if cfg.max_points > 5000 or cfg.window_mm > 5000 or cfg.soft_mm > 2000:
+            raise ValueError(f"{META_KEY}: max_points <= 5000, window_mm <= 5000 and soft_mm <= 2000")
+        return cfg
+
+    def to_metadata(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class ObstacleMemory:
+    """Unmapped reading end points (world mm) with the time each was last seen."""
+
+    def __init__(self, cfg: LocalPlannerConfig) -> None:
+        self.cfg = cfg
+        self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
+        self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
+
+    def clear(self) -> None:
+        if self.points:
+            self.points.clear()
+            self.version += 1
+
+    def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], now_us: int) -> None:
+        """Remember this tick's unmapped end points (the fan's middle ray at
+        the read distance) and forget the ones not seen for `memory_us`."""
+        cfg = self.cfg
+        th = heading_mrad / 1000.0
+        ct, st = math.cos(th), math.sin(th)
+        mid = len(_FAN) // 2
+        for i in range(robot_spec.SENSOR_COUNT):
+            if status[i] == robot_spec.RANGE_TOO_CLOSE:
+                r = robot_spec.RANGE_MIN_MM
+            elif status[i] == robot_spec.RANGE_VALID:
+                r = ranges_mm[i]
+            else:
+                continue
+            if r > cfg.see_mm:
+                continue
+            ox = x_mm + _MOUNT * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
+            oy = y_mm + _MOUNT * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
+            end = (0, 0)
+            explained = False
+            for k in range(len(_FAN)):
+                cx = ct * _RAY_COS[i][k] - st * _RAY_SIN[i][k]
+                cy = st * _RAY_COS[i][k] + ct * _RAY_SIN[i][k]
+                ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
+                if _wall_within(grid, ex, ey, cfg.margin_mm):
+                    explained = True
+                    break
+                if k == mid:
+                    end = (ex, ey)
+            if explained:
+                continue
+            key = (end[0] // _KEY_MM, end[1] // _KEY_MM)
+            if key not in self.points:
+                self.version += 1
+            self.points[key] = (end[0], end[1], now_us)
+        old = [k for k, v in self.points.items() if now_us - v[2] > cfg.memory_us]
+        if len(self.points) - len(old) > cfg.max_points:
+            keep = sorted((v[2], k) for k, v in self.points.items())
+            old = [k for _, k in keep[:len(self.points) - cfg.max_points]]
+        for k in old:
+            del self.points[k]
+        if old:
+            self.version += 1
+
+
+Cell = tuple[int, int]
+
+
+class LocalPlanner:
+    """Sub-goals round remembered obstacles on the policy's map (see the module docstring)."""
+
+    def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig) -> None:
+        self.grid = grid
+        self.cfg = cfg
+        r = cfg.raster_mm
+        self.nx = grid.width * grid.cell_mm // r
+        self.ny = grid.height * grid.cell_mm // r
+        h = r // 2
+        # the map's own configuration space, once: raster centres clear of walls by wall_clear_mm
+        self.map_free = bytearray(
+            0 if _wall_within(grid, ix * r + h, iy * r + h, cfg.wall_clear_mm) else 1
+            for iy in range(self.ny) for ix in range(self.nx))
+        self.plans = 0  # Dijkstra runs (telemetry / benchmarks)
+        self._active: tuple[int, int] | None = None
+        self._grown_version = -1
+        self._closed: set[Cell] = set()
+        self._tight: set[Cell] = set()
+        self._cost: dict[Cell, float] = {}
+        self._plan_key: tuple[int, int, int] | None = None
+        self._window = (0, 0, -1, -1)
+        self._dist: dict[Cell, float] = {}
+        self.detouring = False  # the last target was not the waypoint
+
+    def reset(self) -> None:
+        """A new waypoint (mission item): drive straight until something is in the way."""
+        self._active = None
+        self._plan_key = None
+        self.detouring = False
+
+    # --- the grown obstacles ----------------------------------------------------------------
+    def _grow(self, memory: ObstacleMemory) -> None:
+        if memory.version == self._grown_version:
+            return
+        self._grown_version = memory.version
+        cfg = self.cfg
+        r = cfg.raster_mm
+        closed: set[Cell] = set()
+        tight: set[Cell] = set()
+        cost: dict[Cell, float] = {}
+        c2, l2, s2 = cfg.obstacle_clear_mm ** 2, cfg.los_clear_mm ** 2, cfg.soft_mm ** 2
+        span = cfg.soft_mm - cfg.obstacle_clear_mm
+        k = cfg.soft_mm // r + 1
+        for px, py, _ in memory.points.values():
+            ix, iy = px // r, py // r
+            for dx in range(-k, k + 1):
+                cx = (ix + dx) * r + r // 2 - px
+                for dy in range(-k, k + 1):
+                    cy = (iy + dy) * r + r // 2 - py
+                    d2 = cx * cx + cy * cy
+                    if d2 >= s2:
+                        continue
+                    cell = (ix + dx, iy + dy)
+                    if d2 < c2:
+                        closed.add(cell)
+                    else:
+                        c = cfg.weight * (cfg.soft_mm - math.sqrt(d2)) / span
+                        if c > cost.get(cell, 0.0):
+                            cost[cell] = c
+                    if d2 < l2:
+                        tight.add(cell)
+        self._closed, self._tight, self._cost = closed, tight, cost
+
+    def _open(self, c: Cell) -> bool:
+        ix, iy = c
+        return (0 <= ix < self.nx and 0 <= iy < self.ny and self.map_free[iy * self.nx + ix] == 1
+                and c not in self._closed)
+
+    def _in_way(self, x: float, y: float, wx: float, wy: float, memory: ObstacleMemory) -> bool:
+        """A remembered point within obstacle_clear_mm of the segment robot -> waypoint."""
+        c2 = self.cfg.obstacle_clear_mm ** 2
+        dx, dy = wx - x, wy - y
+        l2 = dx * dx + dy * dy
+        for px, py, _ in memory.points.values():
+            t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((px - x) * dx + (py - y) * dy) / l2))
+            ex, ey = x + t * dx - px, y + t * dy - py
+            if ex * ex + ey * ey < c2:
+                return True
+        return False
+
+    def _line_clear(self, x: float, y: float, tx: float, ty: float) -> bool:
+        """The straight line keeps los_clear_mm from every point and stays in the
+        map's free space (its first 150 mm and the last 100 mm excepted: the robot
+        may stand closer than the raster's margin, the target is a point)."""
+        r = self.cfg.raster_mm
+        length = math.hypot(tx - x, ty - y)
+        n = int(2 * length / r) + 1
+        for i in range(1, n + 1):
+            f = i / n
+            along = f * length
+            if along < 150 or length - along < 100:
+                continue
+            c = (int((x + f * (tx - x)) // r), int((y + f * (ty - y)) // r))
+            if not self._open(c) or c in self._tight:
+                return False
+        return True
+
+    # --- the plan --------------------------------------------------------------------------------
+    def _plan(self, x: float, y: float, wx: int, wy: int, version: int) -> None:
+        cfg = self.cfg
+        r = cfg.raster_mm
+        key = (wx, wy, version)
+        ix, iy = int(x // r), int(y // r)
+        x0, y0, x1, y1 = self._window
+        if key == self._plan_key and x0 <= ix <= x1 and y0 <= iy <= y1:
+            return
+        self._plan_key = key
+        self.plans += 1
+        w = cfg.window_mm
+        x0 = max(0, int((min(x, wx) - w) // r))
+        x1 = min(self.nx - 1, int((max(x, wx) + w) // r))
+        y0 = max(0, int((min(y, wy) - w) // r))
+        y1 = min(self.ny - 1, int((max(y, wy) + w) // r))
+        self._window = (x0, y0, x1, y1)
+        goal = (wx // r, wy // r)
+        # the waypoint's own cells stay open: the ground station's waypoints keep robot radius + 50 mm
+        # from any obstacle it placed, closer than the grown points may reach
+        near_goal = {(goal[0] + dx, goal[1] + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+                     if math.hypot((goal[0] + dx) * r + r // 2 - wx, (goal[1] + dy) * r + r // 2 - wy) <= r * 1.1}
+        dist: dict[Cell, float] = {goal: 0.0}
+        heap: list[tuple[float, int, int]] = [(0.0, goal[0], goal[1])]
+        cost = self._cost
+
+        def passable(c: Cell) -> bool:
+            return x0 <= c[0] <= x1 and y0 <= c[1] <= y1 and (c in near_goal or self._open(c))
+
+        while heap:
+            d, cx, cy = heapq.heappop(heap)
+            if d > dist[(cx, cy)]:
+                continue
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    if not (dx or dy):
+                        continue
+                    n = (cx + dx, cy + dy)
+                    if not passable(n):
+                        continue
+                    if dx and dy and not (passable((cx + dx, cy)) and passable((cx, cy + dy))):
+                        continue  # no corner cutting
+                    nd = d + (_SQRT2 if dx and dy else 1.0) * (1.0 + cost.get(n, 0.0))
+                    if nd < dist.get(n, math.inf):
+                        dist[n] = nd
+                        heapq.heappush(heap, (nd, n[0], n[1]))
+        self._dist = dist
+
+    def target(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory) -> tuple[float, float]:
+        """The point the policy steers to this tick (world mm)."""
+        wx, wy = waypoint
+        if self._active != waypoint:
+            if not memory.points or not self._in_way(x, y, wx, wy, memory):
+                self.detouring = False
+                return float(wx), float(wy)
+            self._active = waypoint  # something was in the way: plan until this waypoint is reached
+        self._grow(memory)
+        if self._line_clear(x, y, wx, wy):
+            self.detouring = False
+            return float(wx), float(wy)
+        self._plan(x, y, wx, wy, memory.version)
+        dist = self._dist
+        r = self.cfg.raster_mm
+        ix, iy = int(x // r), int(y // r)
+        cur = (ix, iy)
+        if cur not in dist:  # inside a grown obstacle or a wall's margin: start from the best cell nearby
+            near = [(dist[c] + math.hypot(c[0] - ix, c[1] - iy), c)
+                    for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4)) if c in dist]
+            if not near:
+                self.detouring = False
+                return float(wx), float(wy)  # no way known: let the policy try (a mover may step aside)
+            cur = min(near)[1]
+        path = [cur]
+        for _ in range(self.cfg.lookahead_mm // r + 1):
+            c = path[-1]
+            d, nxt = min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
+                         for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+            if d >= dist[c]:
+                break
+            path.append(nxt)
+        best = path[1] if len(path) > 1 else path[0]
+        for c in path[2:]:
+            if not self._line_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2):
+                break
+            best = c
+        self.detouring = True
+        return best[0] * r + r / 2, best[1] * r + r / 2

@@ -1,0 +1,127 @@
+"""Twin rollouts of a sector policy steering on the robot's local planner.
+
+`run_twin_planned(episodes, maps, controller)` is `episodes.run_twin` for a
+controller with a `LocalPlannerConfig` (`NavController.local`): per control
+period the twin's physics, movers and sensing are the bench kernel's
+(`learn.sector.obstacles.obs_period_step`, all eight sensors read), and the
+steering is the robot's own Python: `firmware_py.localplan.ObstacleMemory`
+fed with the readings at the twin's pose, `LocalPlanner.target` for the
+current waypoint (reset per waypoint, as the controller does per mission
+item), the table's greedy action on the sector state toward that target.
+Budget, loop rule, near misses and outcomes are `nav_eval_mem_kernel`'s, so
+its rows sit beside the other controllers' in `qnav bench nav`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from firmware_py import robot_spec
+from firmware_py.localplan import LocalPlanner, ObstacleMemory
+from firmware_py.mapdata import grid_from_rows
+from ground_station.learn.sector.obstacles import (
+    COLLISION,
+    LOOP,
+    NEAR_MISS_MM,
+    SUCCESS,
+    TIMEOUT,
+    obs_period_step,
+    obstacle_clearance_mm,
+    sense_obs,
+)
+from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
+from ground_station.maps import GridMap
+from ground_station.nav.controllers import NavController
+from ground_station.nav.scenario import Episode
+
+PERIOD_US = robot_spec.CONTROL_PERIOD_US
+FWD_MM_PER_PERIOD = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[0][0] * PERIOD_US / 1e6
+
+
+def grid_of(gm: GridMap):
+    """The map as the robot's `OccupancyGrid` (what a `.qtab` with the map carries)."""
+    rows = ["".join("@" if v else "." for v in row) for row in gm.occ.tolist()]
+    return grid_from_rows(rows, round(gm.cell_size_m * 1000))
+
+
+def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, budget_factor: float,
+            stall_steps: int) -> tuple[int, float, int, float, int, int]:
+    """One greedy episode; returns (outcome, driven mm, periods, min clearance, near-miss periods, plans)."""
+    assert ctrl.local is not None
+    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
+    h, w = occ.shape
+    c = gm.cell_size_m * 1000.0
+    sectors, sensors, edges, _ = encoder_arrays(ctrl.encoder)
+    which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
+    discs = np.asarray(ep.discs, dtype=np.float64).reshape(-1, 3)
+    movers = np.asarray(ep.movers, dtype=np.float64).reshape(-1, 5).copy()
+    guided = ctrl.guidance == "path"
+    wps = np.asarray(ep.waypoints if guided else [ep.goal_mm], dtype=np.float64)
+    seg = np.hypot(*np.diff(wps, axis=0).T) if len(wps) > 1 else np.zeros(0)
+    rem = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    x, y, th = ep.start
+    plan_len = float(np.hypot(*np.diff(np.asarray([ep.start[:2], *ep.waypoints]), axis=0).T).sum())
+    budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+    phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
+    grid = grid_of(gm)
+    memory = ObstacleMemory(ctrl.local)
+    planner = LocalPlanner(grid, ctrl.local)
+    ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
+    status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
+    rw = np.zeros(7)
+    q = ctrl.q
+    k, best, since, path, t, near = 0, phi, 0, 0.0, 0, 0
+    outcome = TIMEOUT
+    minclear = float(obstacle_clearance_mm(x, y, discs, movers))
+    sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+    while t < budget:
+        xm, ym, thm = round(x), round(y), round(th * 1000.0)
+        memory.observe(grid, xm, ym, thm, ranges.tolist(), status.tolist(), t * PERIOD_US)
+        tx, ty = planner.target(x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
+        s = encode_fast(bearing_mrad(x, y, th, tx, ty), ranges, status, sectors, sensors, edges)
+        row = q[s]
+        a = int(np.argmax(row))
+        k0 = k
+        x, y, th, phi, _, _, hit, success, driven, k = obs_period_step(
+            occ, h, w, c, x, y, th, phi, wps, rem, len(wps), k, a, rw, which, ranges, status,
+            sectors, sensors, edges, discs, movers, 0.0)
+        path += driven
+        t += 1
+        if hit:
+            outcome, minclear = COLLISION, 0.0
+            break
+        if k != k0:
+            planner.reset()
+        cl = float(obstacle_clearance_mm(x, y, discs, movers))
+        minclear = min(minclear, cl)
+        if cl < NEAR_MISS_MM:
+            near += 1
+        if success:
+            outcome = SUCCESS
+            break
+        if phi < best - 1.0:
+            best, since = phi, 0
+        else:
+            since += 1
+            if since >= stall_steps:
+                outcome = LOOP
+                break
+    return outcome, path, t, minclear, near, planner.plans
+
+
+def run_twin_planned(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController, budget_base: float,
+                     budget_factor: float, stall_steps: int) -> tuple[np.ndarray, ...]:
+    """All episodes; arrays (outcome, path, steps, minclear, near) as the bench kernels fill them."""
+    n = len(eps)
+    outcome = np.zeros(n, dtype=np.int64)
+    path, minclear = np.zeros(n), np.zeros(n)
+    steps, near = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    for i, ep in enumerate(eps):
+        outcome[i], path[i], steps[i], minclear[i], near[i], _ = rollout(
+            ep, maps[ep.map], ctrl, budget_base, budget_factor, stall_steps)
+    return outcome, path, steps, minclear, near
+
+
+__all__ = ["COLLISION", "LOOP", "SUCCESS", "TIMEOUT", "rollout", "run_twin_planned", "grid_of"]
