@@ -43,7 +43,15 @@ from typing import Any
 
 from firmware_py import robot_spec
 from firmware_py.mapdata import OccupancyGrid
-from firmware_py.unmapped import _FAN, _MOUNT, _RAY_COS, _RAY_SIN, _SENS_COS, _SENS_SIN, _wall_within
+from firmware_py.unmapped import (
+    _FAN,
+    _MOUNT,
+    _RAY_COS,
+    _RAY_SIN,
+    _SENS_COS,
+    _SENS_SIN,
+    _wall_within,
+)
 
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
 _KEY_MM = 50  # one remembered point per 50 mm square
@@ -141,12 +149,12 @@ class ObstacleMemory:
             if key not in self.points:
                 self.version += 1
             self.points[key] = (end[0], end[1], now_us)
-        old = [k for k, v in self.points.items() if now_us - v[2] > cfg.memory_us]
+        old = [p for p, v in self.points.items() if now_us - v[2] > cfg.memory_us]
         if len(self.points) - len(old) > cfg.max_points:
-            keep = sorted((v[2], k) for k, v in self.points.items())
-            old = [k for _, k in keep[:len(self.points) - cfg.max_points]]
-        for k in old:
-            del self.points[k]
+            by_age = sorted(self.points, key=lambda p: self.points[p][2])
+            old = by_age[:len(self.points) - cfg.max_points]
+        for p in old:
+            del self.points[p]
         if old:
             self.version += 1
 

@@ -46,8 +46,8 @@ from firmware_py.gridbug import (
     GridBugMemory,
     grid_dir_of,
 )
-from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
 from firmware_py.localplan import LocalPlanner, ObstacleMemory
+from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
 from firmware_py.unmapped import DetourMemory, UnmappedSectorEncoder
 from firmware_py.vehicle import (
     CtrlState,

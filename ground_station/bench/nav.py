@@ -66,7 +66,11 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.campaign.engines import engine_from_args, write_campaign
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
-    from ground_station.nav.controllers import CONTROLLER_NAMES, EXTRA_CONTROLLERS, standard_controllers
+    from ground_station.nav.controllers import (
+        CONTROLLER_NAMES,
+        EXTRA_CONTROLLERS,
+        standard_controllers,
+    )
     from ground_station.nav.episodes import run_job, run_twin, summarise
     from ground_station.nav.scenario import episodes
 

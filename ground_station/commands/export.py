@@ -35,6 +35,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="evaluate a seeded sample of N episodes instead of all")
     p.add_argument("--seed", type=int, default=0, help="seed for --sample (default %(default)s)")
     p.add_argument("--no-rollouts", action="store_true", help="skip the rollout comparison")
+    p.add_argument("--local-planner", nargs="?", const="{}", default=None, metavar="JSON",
+                   help="sector policies: the robot re-plans round obstacles its map does not show "
+                        "(firmware_py.localplan); optional JSON object of planner parameters, default the defaults")
     p.set_defaults(func=run)
 
 
@@ -84,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         run_ = export.load_run(args.run_dir)
         qt = export.quantise(run_.q, args.dtype, per_state=args.per_state_scale)
+        meta = export.file_metadata(run_, qt)
+        if args.local_planner is not None:
+            meta[export.META_PLANNER] = export.planner_metadata(args.local_planner, run_.encoder.kind, meta)
         data = export.policy_bytes(qt, run_.encoder, goals=run_.goals, cell_mm=run_.cell_mm,
-                                   metadata=export.file_metadata(run_, qt), policy_id=args.policy_id,
+                                   metadata=meta, policy_id=args.policy_id,
                                    created=export.created_time(run_.meta),
                                    control_period_us=export.control_period_us(run_),
                                    map_geometry=export.map_geometry(run_))

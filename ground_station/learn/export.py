@@ -245,6 +245,24 @@ def file_metadata(run: TrainingRun, qt: Quantised) -> dict:
 
 
 META_GRID = "map_grid"  # firmware_py.mapdata.META_KEY
+META_PLANNER = "local_planner"  # firmware_py.localplan.META_KEY
+
+
+def planner_metadata(text: str, kind: str, meta: dict) -> dict:
+    """The `local_planner` metadata value from a JSON object of parameters
+    (ValueError, one line, for bad JSON, a bad parameter, a policy that is
+    not a plain sector policy or carries no map)."""
+    from firmware_py.localplan import LocalPlannerConfig
+
+    if kind != "sector":
+        raise ValueError(f"--local-planner: a {kind} policy cannot steer on the local planner (sector only)")
+    if META_GRID not in meta:
+        raise ValueError("--local-planner: the policy carries no map (its training map could not be read)")
+    try:
+        value = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"--local-planner: not JSON: {str(exc).splitlines()[0]}") from None
+    return LocalPlannerConfig.from_metadata(value).to_metadata()
 
 
 def map_grid_rows(name: str, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> list[str]:

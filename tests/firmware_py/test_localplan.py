@@ -1,0 +1,142 @@
+"""The robot's local planner (`firmware_py.localplan`): its parameters as
+policy metadata (checked at load), the obstacle memory (unmapped end points
+only, forgotten on the controller clock) and the sub-goals (the waypoint
+while nothing is in the way, a point beside an obstacle across the line,
+the waypoint again after `reset` with the way clear), and the controller
+steering a sector policy on them."""
+
+from __future__ import annotations
+
+import math
+from array import array
+
+import pytest
+
+from firmware_py import robot_spec
+from firmware_py.control.controller import Controller
+from firmware_py.encoders import SectorEncoder
+from firmware_py.localplan import META_KEY, LocalPlanner, LocalPlannerConfig, ObstacleMemory
+from firmware_py.mapdata import grid_from_rows
+from firmware_py.policy import PolicyError, dump_policy, load_policy
+from firmware_py.vehicle import VehicleConfig
+from tests.support.controller_rig import SECTOR_TRAINING_MAP, Kinematic, Rig
+
+V, FAR = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR
+N = robot_spec.SENSOR_COUNT
+OPEN = ["." * 10] * 10
+WALL = ["." * 3 + "@" + "." * 6] * 10  # column 3: x 1500..2000 mm
+CFG = LocalPlannerConfig()
+
+
+def _front(mm: int) -> tuple[list[int], list[int]]:
+    return [mm] + [2000] * (N - 1), [V] + [FAR] * (N - 1)
+
+
+def test_config_round_trips_and_bad_fields_are_named():
+    assert LocalPlannerConfig.from_metadata(CFG.to_metadata()) == CFG
+    assert LocalPlannerConfig.from_metadata({}) == CFG
+    assert LocalPlannerConfig.from_metadata({"memory_us": 500_000}).memory_us == 500_000
+    for bad, what in (([], "not a JSON object"), ({"speed": 1}, "unknown field 'speed'"),
+                      ({"raster_mm": 0}, "raster_mm = 0"), ({"weight": True}, "weight = True"),
+                      ({"memory_us": 1.5}, "memory_us = 1.5"), ({"raster_mm": 5}, "allowed 10..500"),
+                      ({"los_clear_mm": 100}, "obstacle_clear_mm <= los_clear_mm <= soft_mm"),
+                      ({"max_points": 10_000}, "max_points <= 5000")):
+        with pytest.raises(ValueError, match=what):
+            LocalPlannerConfig.from_metadata(bad)
+
+
+def test_memory_keeps_unmapped_end_points_and_forgets_them_on_the_clock():
+    mem = ObstacleMemory(CFG)
+    ranges, status = _front(300)  # front sensor at x 1150 + 300: x 1450 in the open
+    mem.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, ranges, status, 0)
+    assert len(mem.points) == 1 and mem.version == 1
+    (x, y, t), = mem.points.values()
+    assert (x, y, t) == (1450, 2250, 0)
+    mem.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, ranges, status, 2_000_000)  # seen again: no new version
+    assert mem.version == 1 and next(iter(mem.points.values()))[2] == 2_000_000
+    far, fstat = _front(2000)
+    mem.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, far, [FAR] * N, 2_000_000 + CFG.memory_us + 1)
+    assert not mem.points and mem.version == 2  # forgotten
+    walled = ObstacleMemory(CFG)
+    walled.observe(grid_from_rows(WALL, 500), 1000, 2250, 0, *_front(350), 0)  # ends on the wall's face
+    assert not walled.points
+    beyond = ObstacleMemory(CFG)
+    beyond.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, *_front(CFG.see_mm + 1), 0)
+    assert not beyond.points
+
+
+def _disc_points(cx: int, cy: int, r: int) -> ObstacleMemory:
+    mem = ObstacleMemory(CFG)
+    for k in range(12):  # the side of a disc facing the robot, as readings would leave it
+        a = math.pi / 2 + k * math.pi / 11
+        x, y = round(cx + r * math.cos(a)), round(cy + r * math.sin(a))
+        mem.points[(x // 50, y // 50)] = (x, y, 0)
+    mem.version += 1
+    return mem
+
+
+def test_sub_goal_goes_round_an_obstacle_across_the_line_only():
+    grid = grid_from_rows(OPEN, 500)
+    planner = LocalPlanner(grid, CFG)
+    empty = ObstacleMemory(CFG)
+    assert planner.target(1250, 2500, (3750, 2500), empty) == (3750.0, 2500.0) and not planner.detouring
+    mem = _disc_points(2500, 2500, 150)  # across the straight line
+    tx, ty = planner.target(1250, 2500, (3750, 2500), mem)
+    assert planner.detouring and planner.plans == 1
+    assert abs(ty - 2500) > 200  # beside the disc, not through it
+    # every point of the line to the target keeps the obstacle clearance from the remembered points
+    for f in (i / 20 for i in range(21)):
+        px, py = 1250 + f * (tx - 1250), 2500 + f * (ty - 2500)
+        assert min(math.hypot(px - x, py - y) for x, y, _ in mem.points.values()) >= CFG.obstacle_clear_mm
+    planner.target(1260, 2500, (3750, 2500), mem)
+    assert planner.plans == 1  # same memory, same waypoint: the plan is reused
+    side = _disc_points(2500, 3500, 150)  # 1 m beside the line: not in the way
+    planner.reset()
+    assert planner.target(1250, 2500, (3750, 2500), side) == (3750.0, 2500.0) and not planner.detouring
+
+
+def test_sub_goal_stays_out_of_map_walls():
+    rows = ["." * 10] * 4 + ["...@@@@..."] + ["." * 10] * 5  # a wall row at y 2500..3000, x 1500..3500
+    planner = LocalPlanner(grid_from_rows(rows, 500), CFG)
+    mem = _disc_points(2500, 1800, 150)  # a disc below the wall, on the line
+    tx, ty = planner.target(1000, 1800, (4000, 1800), mem)
+    assert planner.detouring and ty < 1800  # round the open side, not into the wall
+    assert not planner.map_free[int(2750 // 100) * planner.nx + 25]  # the wall's raster cells are closed
+
+
+def _policy(meta: dict) -> bytes:
+    enc = SectorEncoder(15, (0, 1, 7), (100, 400))
+    vals = array("b")
+    for s in range(enc.n_states):  # forward when the target is in the sector ahead, else turn toward it
+        b = s // 27
+        a = 0 if b == 0 else (1 if b <= 7 else 2)
+        vals.extend(100 if i == a else 0 for i in range(4))
+    return dump_policy(enc, vals, "int8", 0.01, map_geometry=SECTOR_TRAINING_MAP, metadata=meta)
+
+
+def test_policy_metadata_is_checked_at_load():
+    pol = load_policy(_policy({"map_grid": OPEN, META_KEY: {"memory_us": 1_000_000}}))
+    assert pol.local_planner == LocalPlannerConfig(memory_us=1_000_000)
+    assert load_policy(_policy({"map_grid": OPEN})).local_planner is None
+    with pytest.raises(PolicyError, match="needs a plain sector policy that carries its map"):
+        load_policy(_policy({META_KEY: {}}))
+    with pytest.raises(PolicyError, match="local_planner.weight = -1"):
+        load_policy(_policy({"map_grid": OPEN, META_KEY: {"weight": -1}}))
+
+
+def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
+    pol = load_policy(_policy({"map_grid": OPEN, META_KEY: {}}))
+    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(1000, 2250, 0), localise=False)
+    rig = Rig(ctrl, Kinematic(1000, 2250, 0))
+    rig.tick()
+    assert ctrl.arm() == (True, "")
+    assert ctrl.set_goal(4250, 2250) == (True, "")
+    rig.tick(ranges_mm=[2000] * N, range_status=[FAR] * N)
+    assert ctrl.target_mm is None and rig.last_motor.left_mm_s == rig.last_motor.right_mm_s > 0  # straight on
+    fr, fs = _front(400)
+    rig.tick(ranges_mm=fr, range_status=fs)  # something the map does not show 400 mm ahead
+    assert ctrl.target_mm is not None and abs(ctrl.target_mm[1] - 2250) > 100
+    assert rig.last_motor.left_mm_s != rig.last_motor.right_mm_s  # turning toward the side-step
+    assert ctrl.set_goal(1000, 4250) == (True, "")
+    rig.tick(ranges_mm=[2000] * N, range_status=[FAR] * N)
+    assert ctrl.target_mm is None  # a new goal with a clear way: the goal itself

@@ -1,0 +1,48 @@
+"""`qnav bench nav` with a sector policy that steers on the robot's local
+planner: the twin rolls it out with the robot's own planner code and gets
+round discs the plain table stalls at; its `.qtab` carries the map and the
+planner parameters; HIL drives it through the robot's controller."""
+
+from __future__ import annotations
+
+from firmware_py.localplan import LocalPlannerConfig
+from firmware_py.policy import load_policy
+from firmware_py.shipped_policies import shipped_policy
+from ground_station.maps import load_map
+from ground_station.nav import controllers as nc
+from ground_station.nav.diagnose import blocked_segments
+from ground_station.nav.episodes import run_hil, run_twin
+from ground_station.nav.scenario import episodes
+
+
+def _controllers() -> tuple[nc.NavController, nc.NavController, nc.NavController]:
+    pol = load_policy(str(shipped_policy("sector")))
+    plain, seek_local = nc.standard_controllers(pol, ("learnt", "seek_local"))
+    planned = nc.NavController("learnt", plain.encoder, plain.q, "path", LocalPlannerConfig())
+    return plain, planned, seek_local
+
+
+def test_planner_gets_round_discs_the_plain_table_stalls_at():
+    gm = load_map("paper10")
+    eps = [e for e in episodes(gm, 60, 0, 3, 0) if blocked_segments(e)][:12]  # a disc across the plan
+    assert len(eps) == 12
+    plain, planned, seek_local = _controllers()
+    assert seek_local.local == LocalPlannerConfig() and seek_local.encoder == plain.encoder
+    p = sum(r["success"] for r in run_twin(eps, {"paper10": gm}, plain))
+    lp = sum(r["success"] for r in run_twin(eps, {"paper10": gm}, planned))
+    assert lp >= p + 4, (p, lp)
+
+
+def test_exported_policy_carries_map_and_planner_and_runs_in_hil():
+    gm = load_map("paper10")
+    _, planned, _ = _controllers()
+    pol = planned.policy("paper10")
+    assert pol.kind == "sector" and pol.local_planner == LocalPlannerConfig()
+    assert pol.map_grid is not None and (pol.map_grid.width, pol.map_grid.height) == (10, 10)
+    again = nc.standard_controllers(pol, ("learnt",))[0]
+    assert again.local == LocalPlannerConfig()
+    eps = [e for e in episodes(gm, 60, 0, 3, 0) if blocked_segments(e)][:3]  # a disc across the plan
+    rows = run_hil(eps, {"paper10": gm}, planned)  # the robot's controller runs the planner on the pymunk plant
+    for r in rows:
+        assert r["success"] == (r["result"] == "reached" and r["contacts"] == 0)
+    assert sum(r["success"] for r in rows) >= 2, rows
