@@ -260,6 +260,19 @@ class LocalPlanner:
                 return False
         return True
 
+    @staticmethod
+    def _escape_clear(x: float, y: float, tx: float, ty: float, memory: ObstacleMemory) -> bool:
+        """The segment to (tx, ty) keeps the robot's radius + 10 mm from every remembered point."""
+        c2 = (robot_spec.ROBOT_RADIUS_MM + 10) ** 2
+        dx, dy = tx - x, ty - y
+        l2 = dx * dx + dy * dy
+        for px, py, _ in memory.points.values():
+            t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((px - x) * dx + (py - y) * dy) / l2))
+            ex, ey = x + t * dx - px, y + t * dy - py
+            if ex * ex + ey * ey < c2:
+                return False
+        return True
+
     # --- the plan --------------------------------------------------------------------------------
     def _plan(self, x: float, y: float, wx: int, wy: int, version: int) -> None:
         cfg = self.cfg
@@ -325,9 +338,12 @@ class LocalPlanner:
         r = self.cfg.raster_mm
         ix, iy = int(x // r), int(y // r)
         cur = (ix, iy)
-        if cur not in dist:  # inside a grown obstacle or a wall's margin: start from the best cell nearby
+        if cur not in dist:
+            # inside a grown obstacle or a wall's margin: start from the best cell nearby that the robot
+            # reaches in a straight line without going nearer a remembered point (not one across the obstacle)
             near = [(dist[c] + math.hypot(c[0] - ix, c[1] - iy), c)
-                    for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4)) if c in dist]
+                    for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
+                    if c in dist and self._escape_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory)]
             if not near:
                 self.detouring = False
                 return float(wx), float(wy)  # no way known: let the policy try (a mover may step aside)
