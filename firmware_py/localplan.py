@@ -180,7 +180,6 @@ class LocalPlanner:
         self._active: tuple[int, int] | None = None
         self._grown_version = -1
         self._closed: set[Cell] = set()
-        self._tight: set[Cell] = set()
         self._cost: dict[Cell, float] = {}
         self._plan_key: tuple[int, int, int] | None = None
         self._window = (0, 0, -1, -1)
@@ -201,9 +200,8 @@ class LocalPlanner:
         cfg = self.cfg
         r = cfg.raster_mm
         closed: set[Cell] = set()
-        tight: set[Cell] = set()
         cost: dict[Cell, float] = {}
-        c2, l2, s2 = cfg.obstacle_clear_mm ** 2, cfg.los_clear_mm ** 2, cfg.soft_mm ** 2
+        c2, s2 = cfg.obstacle_clear_mm ** 2, cfg.soft_mm ** 2
         span = cfg.soft_mm - cfg.obstacle_clear_mm
         k = cfg.soft_mm // r + 1
         for px, py, _ in memory.points.values():
@@ -222,9 +220,11 @@ class LocalPlanner:
                         c = cfg.weight * (cfg.soft_mm - math.sqrt(d2)) / span
                         if c > cost.get(cell, 0.0):
                             cost[cell] = c
-                    if d2 < l2:
-                        tight.add(cell)
-        self._closed, self._tight, self._cost = closed, tight, cost
+        self._closed, self._cost = closed, cost
+
+    def _open_map(self, c: Cell) -> bool:
+        ix, iy = c
+        return 0 <= ix < self.nx and 0 <= iy < self.ny and self.map_free[iy * self.nx + ix] == 1
 
     def _open(self, c: Cell) -> bool:
         ix, iy = c
@@ -243,10 +243,11 @@ class LocalPlanner:
                 return True
         return False
 
-    def _line_clear(self, x: float, y: float, tx: float, ty: float) -> bool:
-        """The straight line keeps los_clear_mm from every point and stays in the
-        map's free space (its first 150 mm and the last 100 mm excepted: the robot
-        may stand closer than the raster's margin, the target is a point)."""
+    def _line_clear(self, x: float, y: float, tx: float, ty: float, memory: ObstacleMemory) -> bool:
+        """The straight line stays in the map's free space (its first 150 mm and last 100 mm excepted:
+        the robot may stand closer to a wall than the raster's margin, the target is a point) and goes
+        no nearer than los_clear_mm to any remembered point, unless the robot is already nearer it
+        and the line does not get nearer still (moving away from an obstacle is always clear)."""
         r = self.cfg.raster_mm
         length = math.hypot(tx - x, ty - y)
         n = int(2 * length / r) + 1
@@ -255,8 +256,15 @@ class LocalPlanner:
             along = f * length
             if along < 150 or length - along < 100:
                 continue
-            c = (int((x + f * (tx - x)) // r), int((y + f * (ty - y)) // r))
-            if not self._open(c) or c in self._tight:
+            if not self._open_map((int((x + f * (tx - x)) // r), int((y + f * (ty - y)) // r))):
+                return False
+        los = self.cfg.los_clear_mm
+        dx, dy = tx - x, ty - y
+        l2 = dx * dx + dy * dy
+        for px, py, _ in memory.points.values():
+            t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((px - x) * dx + (py - y) * dy) / l2))
+            d = math.hypot(x + t * dx - px, y + t * dy - py)
+            if d < los and d < math.hypot(px - x, py - y) - 1.0:
                 return False
         return True
 
@@ -330,7 +338,7 @@ class LocalPlanner:
                 return float(wx), float(wy)
             self._active = waypoint  # something was in the way: plan until this waypoint is reached
         self._grow(memory)
-        if self._line_clear(x, y, wx, wy):
+        if self._line_clear(x, y, wx, wy, memory):
             self.detouring = False
             return float(wx), float(wy)
         self._plan(x, y, wx, wy, memory.version)
@@ -358,7 +366,7 @@ class LocalPlanner:
             path.append(nxt)
         best = path[1] if len(path) > 1 else path[0]
         for c in path[2:]:
-            if not self._line_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2):
+            if not self._line_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory):
                 break
             best = c
         self.detouring = True
