@@ -36,8 +36,9 @@ POLICIES = {
         # sectors, sensors 0,1,7, edges 100/400 mm, lr decaying to 0.005); docs/training.md, sector section
         "train": ["--map", "paper10", "--encoding", "sector", "--steps", "20000000", "--lr", "0.1",
                   "--gamma", "0.95", "--reward-step", "0", "--epsilon-end", "0.05", "--seed", "0"],
-        # all 44 400 (start, goal, heading) rollouts take ~30 s per table: a seeded sample
-        "export": ["--dtype", "int8", "--sample", "8000", "--seed", "0"],
+        # all 44 400 (start, goal, heading) rollouts take ~30 s per table: a seeded sample; the robot
+        # re-plans round obstacles its map does not show (firmware_py/localplan.py, default parameters)
+        "export": ["--dtype", "int8", "--sample", "8000", "--seed", "0", "--local-planner"],
     },
     "sector_memory": {
         # sector-memory (cell-stepped Bug memory), direct setting (no waypoints): the recipe is the CLI

@@ -140,3 +140,22 @@ def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
     assert ctrl.set_goal(1000, 4250) == (True, "")
     rig.tick(ranges_mm=[2000] * N, range_status=[FAR] * N)
     assert ctrl.target_mm is None  # a new goal with a clear way: the goal itself
+
+
+def test_localiser_does_not_weigh_readings_of_unmapped_obstacles():
+    rows = WALL  # a wall column at x 1500..2000 mm
+    pol = load_policy(_policy({"map_grid": rows, META_KEY: {}}))
+    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(1000, 2250, 0))
+    assert ctrl.loc is not None and ctrl.loc.localised  # started at a known pose: tracking
+    rig = Rig(ctrl, Kinematic(1000, 2250, 0))
+    out = rig.tick()
+    assert out is not None
+    fr, fs = _front(150)  # ends at x 1300, 200 mm short of the wall: nothing on the map there
+    inp = rig.inp
+    inp.ranges_mm, inp.range_status = fr, fs
+    assert ctrl._statuses_for_localiser(inp)[0] == robot_spec.RANGE_INVALID
+    inp.ranges_mm, inp.range_status = _front(350)  # ends on the wall's face
+    assert ctrl._statuses_for_localiser(inp)[0] == V
+    plain = Controller(VehicleConfig(), load_policy(_policy({"map_grid": rows})), start_pose_mm=(1000, 2250, 0))
+    inp.ranges_mm, inp.range_status = fr, fs
+    assert plain._statuses_for_localiser(inp)[0] == V  # without a planner the localiser sees everything
