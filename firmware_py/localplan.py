@@ -27,6 +27,15 @@ about them before its learnt sector policy steers:
   policy was trained to reach a point it can see with walls beside its
   line; the planner hands it such points.
 
+* `MotionGuard.action(...)` has the last word on the table's action (as
+  nav2's collision monitor and back-up recovery do for its controllers): a
+  forward step is replaced by a turn toward the target while the front or
+  a front diagonal sensor reads nearer than `veto_mm` (a round robot
+  turning in place touches nothing), and a robot that has not moved
+  `stuck_mm` for `stuck_us` with a remembered point within its radius +
+  `backoff_near_mm` backs off for `backoff_us` if the rear sensors are
+  clear: a person pinned between a wall and the robot can then step aside.
+
 Everything runs inside the control tick and is bounded: the raster window is
 at most (waypoint distance + 2 x `window_mm`) square, Dijkstra runs again
 only when the remembered set or the waypoint changes, and memory holds at
@@ -74,6 +83,15 @@ class LocalPlannerConfig:
     los_clear_mm: int = robot_spec.ROBOT_RADIUS_MM + 100
     window_mm: int = 1000
     lookahead_mm: int = 600
+    # the motion guard (MotionGuard): no forward step into a reading this near ...
+    veto_mm: int = 40
+    # ... and backing off when the robot has not moved stuck_mm for stuck_us next to a remembered point
+    stuck_mm: int = 50
+    stuck_us: int = 2_000_000
+    backoff_us: int = 500_000
+    backoff_near_mm: int = 100  # the point within robot radius + this
+    rear_clear_mm: int = 250  # the rear sensor must read at least this ...
+    rear_side_clear_mm: int = 120  # ... and the rear diagonals at least this
 
     @classmethod
     def from_metadata(cls, meta: Any) -> LocalPlannerConfig:
@@ -92,6 +110,8 @@ class LocalPlannerConfig:
             raise ValueError(f"{META_KEY}.raster_mm = {cfg.raster_mm} (allowed 10..500)")
         if not cfg.obstacle_clear_mm <= cfg.los_clear_mm <= cfg.soft_mm:
             raise ValueError(f"{META_KEY}: need obstacle_clear_mm <= los_clear_mm <= soft_mm")
+        if cfg.backoff_us >= cfg.stuck_us:
+            raise ValueError(f"{META_KEY}: need backoff_us < stuck_us")
         if cfg.max_points > 5000 or cfg.window_mm > 5000 or cfg.soft_mm > 2000:
             raise ValueError(f"{META_KEY}: max_points <= 5000, window_mm <= 5000 and soft_mm <= 2000")
         return cfg
@@ -371,3 +391,57 @@ class LocalPlanner:
             best = c
         self.detouring = True
         return best[0] * r + r / 2, best[1] * r + r / 2
+
+
+FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
+_FRONT = (robot_spec.SENSOR_COUNT - 1, 0, 1)  # -45, 0, +45 deg
+_REAR, _REAR_SIDES = 4, (3, 5)
+
+
+def _reading(ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], i: int) -> int:
+    """A reading as a distance (too close: 0; nothing or invalid: beyond any range)."""
+    if status[i] == robot_spec.RANGE_TOO_CLOSE:
+        return 0
+    if status[i] != robot_spec.RANGE_VALID:
+        return robot_spec.RANGE_MAX_MM + 1
+    return ranges_mm[i]
+
+
+class MotionGuard:
+    """The last word on the learnt table's action (see the module docstring); one per drive."""
+
+    def __init__(self, cfg: LocalPlannerConfig) -> None:
+        self.cfg = cfg
+        self.vetoes = 0  # forward steps replaced by a turn (telemetry / benchmarks)
+        self.backoffs = 0  # back-offs started
+        self.reset()
+
+    def reset(self) -> None:
+        self._anchor: tuple[float, float] | None = None
+        self._anchor_us = 0
+        self._backing_until_us = -1
+
+    def action(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
+               ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+               memory: ObstacleMemory) -> int:
+        cfg = self.cfg
+        if self._anchor is None or math.hypot(x - self._anchor[0], y - self._anchor[1]) > cfg.stuck_mm:
+            self._anchor, self._anchor_us = (x, y), now_us
+        if now_us < self._backing_until_us:
+            return REVERSE
+        if now_us - self._anchor_us >= cfg.stuck_us and self._rear_clear(ranges_mm, status):
+            reach = robot_spec.ROBOT_RADIUS_MM + cfg.backoff_near_mm
+            if any(math.hypot(px - x, py - y) < reach for px, py, _ in memory.points.values()):
+                self.backoffs += 1
+                self._backing_until_us = now_us + cfg.backoff_us
+                self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
+                return REVERSE
+        if action == FORWARD and any(_reading(ranges_mm, status, i) < cfg.veto_mm for i in _FRONT):
+            self.vetoes += 1
+            return TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
+        return action
+
+    def _rear_clear(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
+        cfg = self.cfg
+        return (_reading(ranges_mm, status, _REAR) > cfg.rear_clear_mm
+                and all(_reading(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES))

@@ -46,7 +46,7 @@ from firmware_py.gridbug import (
     GridBugMemory,
     grid_dir_of,
 )
-from firmware_py.localplan import LocalPlanner, ObstacleMemory
+from firmware_py.localplan import LocalPlanner, MotionGuard, ObstacleMemory
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
 from firmware_py.unmapped import DetourMemory, UnmappedSectorEncoder, unmapped_readings
 from firmware_py.vehicle import (
@@ -251,7 +251,7 @@ class Controller:
         self.detour = DetourMemory()
         self._memory_key: tuple[tuple[int, int], int] | None = None
         # sector policies with a map and planner parameters: sub-goals round unmapped obstacles
-        self.local: tuple[LocalPlanner, ObstacleMemory] | None = None
+        self.local: tuple[LocalPlanner, ObstacleMemory, MotionGuard] | None = None
         self._local_for: Policy | None = None
         self._local_key: tuple[tuple[int, int], int] | None = None
         self.target_mm: tuple[int, int] | None = None  # what the policy steered to (None: the goal itself)
@@ -843,10 +843,15 @@ class Controller:
                 a = pol.best_action(s)
                 self.memory.note_action(a)
             else:
-                if pol.local_planner is not None and pol.map_grid is not None:
+                local = pol.local_planner is not None and pol.map_grid is not None
+                if local:
                     bearing = self._local_bearing(pol, inp, now_us, bearing)
                 s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
                 a = pol.best_action(s)
+                if local and self.local is not None:
+                    x, y, _ = self.nav.pose_mm()
+                    a = self.local[2].action(now_us, x, y, a, bearing, inp.ranges_mm, inp.range_status,
+                                             self.local[1])
             left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
             self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
         else:
@@ -877,12 +882,15 @@ class Controller:
         the goal's own bearing until an unmapped obstacle is in the way."""
         assert pol.local_planner is not None and pol.map_grid is not None and self.goal is not None
         if self.local is None or self._local_for is not pol:
-            self.local = (LocalPlanner(pol.map_grid, pol.local_planner), ObstacleMemory(pol.local_planner))
+            cfg = pol.local_planner
+            self.local = (LocalPlanner(pol.map_grid, cfg), ObstacleMemory(cfg), MotionGuard(cfg))
             self._local_for = pol
-        planner, memory = self.local
+        planner, memory, guard = self.local
         key = (self.goal, self._driving_since_us)
         if key != self._local_key:  # a new goal (mission item, drive): straight at it until blocked
             planner.reset()
+            if self._local_key is None or key[1] != self._local_key[1]:
+                guard.reset()  # a new drive, not a new mission item (the twin: one guard per episode)
             self._local_key = key
         x, y, heading = self.nav.pose_mm()
         memory.observe(pol.map_grid, x, y, heading, inp.ranges_mm, inp.range_status, now_us)

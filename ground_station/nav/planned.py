@@ -7,7 +7,8 @@ period the twin's physics, movers and sensing are the bench kernel's
 steering is the robot's own Python: `firmware_py.localplan.ObstacleMemory`
 fed with the readings at the twin's pose, `LocalPlanner.target` for the
 current waypoint (reset per waypoint, as the controller does per mission
-item), the table's greedy action on the sector state toward that target.
+item), the table's greedy action on the sector state toward that target,
+and `MotionGuard.action` on it (one guard per episode: one drive).
 Budget, loop rule, near misses and outcomes are `nav_eval_mem_kernel`'s, so
 its rows sit beside the other controllers' in `qnav bench nav`.
 """
@@ -19,7 +20,7 @@ import math
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.localplan import LocalPlanner, ObstacleMemory
+from firmware_py.localplan import LocalPlanner, MotionGuard, ObstacleMemory
 from firmware_py.mapdata import grid_from_rows
 from ground_station.learn.sector.obstacles import (
     COLLISION,
@@ -68,6 +69,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     grid = grid_of(gm)
     memory = ObstacleMemory(ctrl.local)
     planner = LocalPlanner(grid, ctrl.local)
+    guard = MotionGuard(ctrl.local)
     ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     rw = np.zeros(7)
@@ -80,9 +82,9 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         xm, ym, thm = round(x), round(y), round(th * 1000.0)
         memory.observe(grid, xm, ym, thm, ranges.tolist(), status.tolist(), t * PERIOD_US)
         tx, ty = planner.target(x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
-        s = encode_fast(bearing_mrad(x, y, th, tx, ty), ranges, status, sectors, sensors, edges)
-        row = q[s]
-        a = int(np.argmax(row))
+        b = bearing_mrad(x, y, th, tx, ty)
+        s = encode_fast(b, ranges, status, sectors, sensors, edges)
+        a = guard.action(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, ranges.tolist(), status.tolist(), memory)
         k0 = k
         x, y, th, phi, _, _, hit, success, driven, k = obs_period_step(
             occ, h, w, c, x, y, th, phi, wps, rem, len(wps), k, a, rw, which, ranges, status,

@@ -159,3 +159,41 @@ def test_localiser_does_not_weigh_readings_of_unmapped_obstacles():
     plain = Controller(VehicleConfig(), load_policy(_policy({"map_grid": rows})), start_pose_mm=(1000, 2250, 0))
     inp.ranges_mm, inp.range_status = fr, fs
     assert plain._statuses_for_localiser(inp)[0] == V  # without a planner the localiser sees everything
+
+
+def _guard_inputs(front: int = 2000, rear: int = 2000, rear_sides: int = 2000) -> tuple[list[int], list[int]]:
+    ranges = [2000] * N
+    ranges[0], ranges[4], ranges[3], ranges[5] = front, rear, rear_sides, rear_sides
+    return ranges, [V if r < 2000 else FAR for r in ranges]
+
+
+def test_guard_vetoes_a_forward_step_into_a_near_reading():
+    from firmware_py.localplan import FORWARD, TURN_LEFT, TURN_RIGHT, MotionGuard
+
+    guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
+    assert guard.action(0, 0, 0, FORWARD, 300, *_guard_inputs(front=CFG.veto_mm + 1), mem) == FORWARD
+    assert guard.action(50_000, 0, 0, FORWARD, 300, *_guard_inputs(front=CFG.veto_mm - 1), mem) == TURN_LEFT
+    assert guard.action(100_000, 0, 0, FORWARD, -300, *_guard_inputs(front=0), mem) == TURN_RIGHT
+    assert guard.action(150_000, 0, 0, TURN_LEFT, -300, *_guard_inputs(front=0), mem) == TURN_LEFT
+    assert guard.vetoes == 2
+
+
+def test_guard_backs_off_when_stuck_beside_a_remembered_point_with_the_rear_clear():
+    from firmware_py.localplan import REVERSE, TURN_LEFT, MotionGuard
+
+    mem = ObstacleMemory(CFG)
+    mem.points[(4, 0)] = (200, 0, 0)  # 200 mm from the robot's centre: within radius + backoff_near_mm
+    period = robot_spec.CONTROL_PERIOD_US
+
+    def run(rear: int, memory: ObstacleMemory) -> list[int]:
+        guard = MotionGuard(CFG)
+        return [guard.action(t * period, 0.0, 0.0, TURN_LEFT, 100, *_guard_inputs(rear=rear), memory)
+                for t in range(CFG.stuck_us // period + 20)]
+
+    acts = run(2000, mem)
+    first = acts.index(REVERSE)
+    assert first == CFG.stuck_us // period  # turning in place for stuck_us: not moved stuck_mm
+    assert acts[first:first + CFG.backoff_us // period] == [REVERSE] * (CFG.backoff_us // period)
+    assert acts[first + CFG.backoff_us // period] == TURN_LEFT
+    assert REVERSE not in run(CFG.rear_clear_mm, mem)  # something behind: no back-off
+    assert REVERSE not in run(2000, ObstacleMemory(CFG))  # nothing remembered near: no back-off
