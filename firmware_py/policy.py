@@ -183,6 +183,7 @@ class Policy:
             "control_period_us": self.control_period_us,
             "map_geometry": self.map_geometry._asdict(),
             "map_grid": self.map_grid.summary() if self.map_grid is not None else None,
+            "local_planner": self.local_planner.to_metadata() if self.local_planner is not None else None,
             "metadata": self.metadata,
         }
         if self.kind == "cell":

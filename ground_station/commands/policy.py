@@ -98,6 +98,7 @@ def _line(d: dict) -> str:
     geo += f" period_us={d['control_period_us']} map={mg['width']}x{mg['height']}x{mg['cell_mm']}mm"
     grid = d.get("map_grid")
     geo += f" map_grid={grid['occupied_cells']}/{grid['width'] * grid['height']} occupied" if grid else " map_grid=none"
+    geo += " local_planner=on" if d.get("local_planner") else ""
     meta = d["metadata"]
     extra = " ".join(f"{k}={json.dumps(meta[k])}" for k in ("map", "targets", "steps") if k in meta)
     scale = "per-state" if d["per_state_scales"] else f"{d['scale']:.6g}"
