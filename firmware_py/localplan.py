@@ -37,7 +37,8 @@ about them before its learnt sector policy steers:
   clear: a person pinned between a wall and the robot can then step aside.
 
 Everything runs inside the control tick and is bounded: the raster window is
-at most (waypoint distance + 2 x `window_mm`) square, Dijkstra runs again
+at most (`max_plan_mm` + 2 x `window_mm`) square (5 m: 2500 cells; farther
+waypoints are driven at without planning until they are near enough), Dijkstra runs again
 only when the remembered set or the waypoint changes, and memory holds at
 most `max_points` points (the oldest go first). Pure stdlib (the robot has
 no numpy); the twin's bench runs this same code.
@@ -83,6 +84,7 @@ class LocalPlannerConfig:
     los_clear_mm: int = robot_spec.ROBOT_RADIUS_MM + 100
     window_mm: int = 1000
     lookahead_mm: int = 600
+    max_plan_mm: int = 3000  # no planning toward a waypoint farther than this (bounds the tick's work)
     # the motion guard (MotionGuard): no forward step into a reading this near ...
     veto_mm: int = 40
     # ... and backing off when the robot has not moved stuck_mm for stuck_us next to a remembered point
@@ -112,8 +114,9 @@ class LocalPlannerConfig:
             raise ValueError(f"{META_KEY}: need obstacle_clear_mm <= los_clear_mm <= soft_mm")
         if cfg.backoff_us >= cfg.stuck_us:
             raise ValueError(f"{META_KEY}: need backoff_us < stuck_us")
-        if cfg.max_points > 5000 or cfg.window_mm > 5000 or cfg.soft_mm > 2000:
-            raise ValueError(f"{META_KEY}: max_points <= 5000, window_mm <= 5000 and soft_mm <= 2000")
+        if cfg.max_points > 5000 or cfg.window_mm > 5000 or cfg.soft_mm > 2000 or cfg.max_plan_mm > 10_000:
+            raise ValueError(f"{META_KEY}: max_points <= 5000, window_mm <= 5000, soft_mm <= 2000 and "
+                             "max_plan_mm <= 10000")
         return cfg
 
     def to_metadata(self) -> dict[str, int]:
@@ -352,6 +355,9 @@ class LocalPlanner:
     def target(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory) -> tuple[float, float]:
         """The point the policy steers to this tick (world mm)."""
         wx, wy = waypoint
+        if math.hypot(wx - x, wy - y) > self.cfg.max_plan_mm:
+            self.detouring = False  # far: the ground station's waypoints are <= 1 m apart, a far goal
+            return float(wx), float(wy)  # is driven at until it is near enough to plan round things
         if self._active != waypoint:
             if not memory.points or not self._in_way(x, y, wx, wy, memory):
                 self.detouring = False

@@ -90,6 +90,9 @@ def test_sub_goal_goes_round_an_obstacle_across_the_line_only():
         assert min(math.hypot(px - x, py - y) for x, y, _ in mem.points.values()) >= CFG.obstacle_clear_mm
     planner.target(1260, 2500, (3750, 2500), mem)
     assert planner.plans == 1  # same memory, same waypoint: the plan is reused
+    far = LocalPlanner(grid_from_rows(["." * 20] * 10, 500), CFG)
+    assert far.target(1250, 2500, (1250 + CFG.max_plan_mm + 100, 2500), mem) == (1250.0 + CFG.max_plan_mm + 100, 2500.0)
+    assert far.plans == 0 and not far.detouring  # too far to plan: straight at it (bounded work per tick)
     side = _disc_points(2500, 3500, 150)  # 1 m beside the line: not in the way
     planner.reset()
     assert planner.target(1250, 2500, (3750, 2500), side) == (3750.0, 2500.0) and not planner.detouring
@@ -130,7 +133,7 @@ def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
     rig = Rig(ctrl, Kinematic(1000, 2250, 0))
     rig.tick()
     assert ctrl.arm() == (True, "")
-    assert ctrl.set_goal(4250, 2250) == (True, "")
+    assert ctrl.set_goal(3750, 2250) == (True, "")
     rig.tick(ranges_mm=[2000] * N, range_status=[FAR] * N)
     assert ctrl.target_mm is None and rig.last_motor.left_mm_s == rig.last_motor.right_mm_s > 0  # straight on
     fr, fs = _front(400)

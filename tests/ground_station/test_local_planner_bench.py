@@ -17,8 +17,9 @@ from ground_station.nav.scenario import episodes
 
 def _controllers() -> tuple[nc.NavController, nc.NavController, nc.NavController]:
     pol = load_policy(str(shipped_policy("sector")))
-    plain, seek_local = nc.standard_controllers(pol, ("learnt", "seek_local"))
-    planned = nc.NavController("learnt", plain.encoder, plain.q, "path", LocalPlannerConfig())
+    assert pol.local_planner == LocalPlannerConfig()  # the shipped sector policy steers on the planner
+    planned, seek_local = nc.standard_controllers(pol, ("learnt", "seek_local"))
+    plain = nc.NavController("learnt", planned.encoder, planned.q, "path")  # the same table without it
     return plain, planned, seek_local
 
 
