@@ -53,15 +53,7 @@ from typing import Any
 
 from firmware_py import robot_spec
 from firmware_py.mapdata import OccupancyGrid
-from firmware_py.unmapped import (
-    _FAN,
-    _MOUNT,
-    _RAY_COS,
-    _RAY_SIN,
-    _SENS_COS,
-    _SENS_SIN,
-    _wall_within,
-)
+from firmware_py.unmapped import _wall_within, unmapped_ends
 
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
 _KEY_MM = 50  # one remembered point per 50 mm square
@@ -141,37 +133,12 @@ class ObstacleMemory:
         """Remember this tick's unmapped end points (the fan's middle ray at
         the read distance) and forget the ones not seen for `memory_us`."""
         cfg = self.cfg
-        th = heading_mrad / 1000.0
-        ct, st = math.cos(th), math.sin(th)
-        mid = len(_FAN) // 2
-        for i in range(robot_spec.SENSOR_COUNT):
-            if status[i] == robot_spec.RANGE_TOO_CLOSE:
-                r = robot_spec.RANGE_MIN_MM
-            elif status[i] == robot_spec.RANGE_VALID:
-                r = ranges_mm[i]
-            else:
-                continue
-            if r > cfg.see_mm:
-                continue
-            ox = x_mm + _MOUNT * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
-            oy = y_mm + _MOUNT * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
-            end = (0, 0)
-            explained = False
-            for k in range(len(_FAN)):
-                cx = ct * _RAY_COS[i][k] - st * _RAY_SIN[i][k]
-                cy = st * _RAY_COS[i][k] + ct * _RAY_SIN[i][k]
-                ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
-                if _wall_within(grid, ex, ey, cfg.margin_mm):
-                    explained = True
-                    break
-                if k == mid:
-                    end = (ex, ey)
-            if explained:
-                continue
-            key = (end[0] // _KEY_MM, end[1] // _KEY_MM)
+        for _, _, ex, ey in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, cfg.margin_mm,
+                                          cfg.see_mm):
+            key = (ex // _KEY_MM, ey // _KEY_MM)
             if key not in self.points:
                 self.version += 1
-            self.points[key] = (end[0], end[1], now_us)
+            self.points[key] = (ex, ey, now_us)
         old = [p for p, v in self.points.items() if now_us - v[2] > cfg.memory_us]
         if len(self.points) - len(old) > cfg.max_points:
             by_age = sorted(self.points, key=lambda p: self.points[p][2])
@@ -183,6 +150,19 @@ class ObstacleMemory:
 
 
 Cell = tuple[int, int]
+
+
+def _segment_distance(px: float, py: float, x: float, y: float, dx: float, dy: float, l2: float) -> float:
+    """Distance from (px, py) to the segment from (x, y) along (dx, dy) (l2 its squared length)."""
+    t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((px - x) * dx + (py - y) * dy) / l2))
+    return math.hypot(x + t * dx - px, y + t * dy - py)
+
+
+def _segment_keeps(x: float, y: float, tx: float, ty: float, memory: ObstacleMemory, clear: float) -> bool:
+    """No remembered point within `clear` mm of the segment (x, y) -> (tx, ty)."""
+    dx, dy = tx - x, ty - y
+    l2 = dx * dx + dy * dy
+    return all(_segment_distance(px, py, x, y, dx, dy, l2) >= clear for px, py, _ in memory.points.values())
 
 
 class LocalPlanner:
@@ -256,15 +236,7 @@ class LocalPlanner:
 
     def _in_way(self, x: float, y: float, wx: float, wy: float, memory: ObstacleMemory) -> bool:
         """A remembered point within obstacle_clear_mm of the segment robot -> waypoint."""
-        c2 = self.cfg.obstacle_clear_mm ** 2
-        dx, dy = wx - x, wy - y
-        l2 = dx * dx + dy * dy
-        for px, py, _ in memory.points.values():
-            t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((px - x) * dx + (py - y) * dy) / l2))
-            ex, ey = x + t * dx - px, y + t * dy - py
-            if ex * ex + ey * ey < c2:
-                return True
-        return False
+        return not _segment_keeps(x, y, wx, wy, memory, self.cfg.obstacle_clear_mm)
 
     def _line_clear(self, x: float, y: float, tx: float, ty: float, memory: ObstacleMemory) -> bool:
         """The straight line stays in the map's free space (its first 150 mm and last 100 mm excepted:
@@ -285,22 +257,8 @@ class LocalPlanner:
         dx, dy = tx - x, ty - y
         l2 = dx * dx + dy * dy
         for px, py, _ in memory.points.values():
-            t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((px - x) * dx + (py - y) * dy) / l2))
-            d = math.hypot(x + t * dx - px, y + t * dy - py)
+            d = _segment_distance(px, py, x, y, dx, dy, l2)
             if d < los and d < math.hypot(px - x, py - y) - 1.0:
-                return False
-        return True
-
-    @staticmethod
-    def _escape_clear(x: float, y: float, tx: float, ty: float, memory: ObstacleMemory) -> bool:
-        """The segment to (tx, ty) keeps the robot's radius + 10 mm from every remembered point."""
-        c2 = (robot_spec.ROBOT_RADIUS_MM + 10) ** 2
-        dx, dy = tx - x, ty - y
-        l2 = dx * dx + dy * dy
-        for px, py, _ in memory.points.values():
-            t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((px - x) * dx + (py - y) * dy) / l2))
-            ex, ey = x + t * dx - px, y + t * dy - py
-            if ex * ex + ey * ey < c2:
                 return False
         return True
 
@@ -377,7 +335,8 @@ class LocalPlanner:
             # reaches in a straight line without going nearer a remembered point (not one across the obstacle)
             near = [(dist[c] + math.hypot(c[0] - ix, c[1] - iy), c)
                     for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
-                    if c in dist and self._escape_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory)]
+                    if c in dist and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
+                                                   robot_spec.ROBOT_RADIUS_MM + 10)]
             if not near:
                 self.detouring = False
                 return float(wx), float(wy)  # no way known: let the policy try (a mover may step aside)

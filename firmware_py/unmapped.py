@@ -111,18 +111,20 @@ def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
     return False
 
 
-def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
-                      ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
-                      margin_mm: int) -> list[int]:
-    """Per sensor: its distance (mm) when the map does not explain the
-    reading, else -1. A reading is explained when, on any ray of the
-    sensor's fan, the point at the read distance (rounded to whole mm) lies
-    within margin_mm of an occupied cell or the map's edge; too far and
-    invalid readings never count (nothing seen)."""
-    out = [-1] * _N
+def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                  ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+                  margin_mm: int, max_mm: int = robot_spec.RANGE_MAX_MM) -> list[tuple[int, int, int, int]]:
+    """(sensor, distance mm, x, y) per reading the map does not explain, the
+    point being the end of the fan's middle ray. A reading is explained when,
+    on any ray of the sensor's fan, the point at the read distance (rounded
+    to whole mm) lies within margin_mm of an occupied cell or the map's edge;
+    too far and invalid readings, and readings beyond max_mm, never count
+    (nothing seen); a too-close reading is taken at the range's minimum."""
+    out: list[tuple[int, int, int, int]] = []
     th = heading_mrad / 1000.0
     ct = math.cos(th)
     st = math.sin(th)
+    mid = len(_FAN) // 2
     for i in range(_N):
         if status[i] == robot_spec.RANGE_TOO_CLOSE:
             r = robot_spec.RANGE_MIN_MM
@@ -130,17 +132,34 @@ def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: i
             r = ranges_mm[i]
         else:
             continue
+        if r > max_mm:
+            continue
         ox = x_mm + _MOUNT * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
         oy = y_mm + _MOUNT * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
         explained = False
+        end = (0, 0)
         for k in range(len(_FAN)):
             cx = ct * _RAY_COS[i][k] - st * _RAY_SIN[i][k]
             cy = st * _RAY_COS[i][k] + ct * _RAY_SIN[i][k]
-            if _wall_within(grid, math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5), margin_mm):
+            ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
+            if _wall_within(grid, ex, ey, margin_mm):
                 explained = True
                 break
+            if k == mid:
+                end = (ex, ey)
         if not explained:
-            out[i] = 0 if status[i] == robot_spec.RANGE_TOO_CLOSE else r
+            out.append((i, r, end[0], end[1]))
+    return out
+
+
+def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                      ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+                      margin_mm: int) -> list[int]:
+    """Per sensor: its distance (mm) when the map does not explain the
+    reading (`unmapped_ends`; too close: 0), else -1."""
+    out = [-1] * _N
+    for i, r, _, _ in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, margin_mm):
+        out[i] = 0 if status[i] == robot_spec.RANGE_TOO_CLOSE else r
     return out
 
 
