@@ -295,6 +295,13 @@ def attach_map(data: bytes, map_name: str) -> bytes:
                          f"{geo.width}x{geo.height}")
     meta = dict(pol.metadata)
     meta[META_GRID] = rows
+    return with_metadata(pol, meta)
+
+
+def with_metadata(pol: fmt.Policy, meta: dict) -> bytes:
+    """`pol`'s file with `meta` as its metadata, everything else (table, policy id, creation time,
+    geometry) unchanged."""
+    geo = pol.map_geometry
     typecode = fmt.DTYPES[fmt.DTYPE_CODES[pol.dtype]][1]
     scales = array("f", pol.state_scales) if pol.state_scales is not None else None
     return fmt.dump_policy(pol.encoder, array(typecode, pol.table), pol.dtype, pol.scale, state_scales=scales,

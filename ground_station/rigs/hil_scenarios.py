@@ -52,8 +52,11 @@ from pathlib import Path
 
 from firmware_py import can_protocol as cp
 from firmware_py.canbus import open_bus
+from firmware_py.localplan import META_KEY as PLANNER_KEY
+from firmware_py.policy import load_policy
 from firmware_py.subprocs import free_udp_port, stop_process
 from firmware_py.vehicle import CtrlState
+from ground_station.learn.export import with_metadata
 
 REPO = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
@@ -378,8 +381,10 @@ def replan(can: str, work: Path, *, disc: tuple[float, float, float] = REPLAN_DI
            follow_timeout_s: float = 90.0) -> dict:
     """`qnav mission upload --targets B --plan --follow` with an unmapped disc across the plan.
 
-    Lockstep sim on paper10 with the disc (`--scenario`), the robot on the shipped sector policy from
-    A (`--localiser off`: the ideal plant's odometry is exact); the operator's commands as in
+    Lockstep sim on paper10 with the disc (`--scenario`), the robot on the shipped sector table
+    without its local planner (a copy of the file without the `local_planner` metadata: the
+    ground station's re-planning is for a robot that stalls; with the planner the robot goes round
+    the disc itself) from A (`--localiser off`: the ideal plant's odometry is exact); the operator's commands as in
     `mission`, the follower in the background from before the robot is armed. The result has the
     follower's exit code and output, the robot's GOAL_REACHED lines and the sim's bumper contacts."""
     port = free_udp_port()
@@ -389,11 +394,14 @@ def replan(can: str, work: Path, *, disc: tuple[float, float, float] = REPLAN_DI
     scen = work / "scenario.json"
     scen.write_text(json.dumps({"discs": [list(disc)], "movers": []}))
     traj = work / "replan_trajectory.csv"
+    policy = work / "sector_without_planner.qtab"
+    shipped = load_policy(REPO / SECTOR_POLICY)
+    policy.write_bytes(with_metadata(shipped, {k: v for k, v in shipped.metadata.items() if k != PLANNER_KEY}))
     with _Procs(work) as procs:
         sim = procs.start("replan_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
                                          "--duration", 3000, "--start", REPLAN_START, "--scenario", scen,
                                          "--trajectory", traj, "-q"])
-        rob = procs.start("replan_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", SECTOR_POLICY,
+        rob = procs.start("replan_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", policy,
                                            "--start", REPLAN_START, "--storage", work / "storage",
                                            "--duration", 2999.95, "--mavlink", f"udpout:127.0.0.1:{port}",
                                            "--localiser", "off"])
