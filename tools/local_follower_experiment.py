@@ -33,6 +33,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from firmware_py.policy import load_policy  # noqa: E402
+from ground_station.learn.export import quantise  # noqa: E402
 from ground_station.learn.sector.local_trainer import (  # noqa: E402
     BENCH_MAPS,
     LocalFollowerConfig,
@@ -70,6 +71,16 @@ def evaluate(q: np.ndarray, eps_by_map: dict[str, list], maps: dict, cfg_planner
     return res
 
 
+def keep_confident(q: np.ndarray, q0: np.ndarray, margin: float) -> tuple[np.ndarray, int]:
+    """q with the rows of q0 back where q's greedy action differs from q0's by a margin < `margin`."""
+    q = q.copy()
+    a_new, a_old = q.argmax(1), q0.argmax(1)
+    rows = np.nonzero(a_new != a_old)[0]
+    weak = [int(s) for s in rows if q[s, a_new[s]] - q[s, a_old[s]] < margin]
+    q[weak] = q0[weak]
+    return q, len(weak)
+
+
 def _rates(outs: list[str]) -> dict:
     n = max(1, len(outs))
     return {"episodes": len(outs), "success_rate": outs.count("success") / n,
@@ -91,6 +102,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=40, help="bench episodes per map (3 discs + 2 movers)")
     p.add_argument("--k0-episodes", type=int, default=200, help="paper10 episodes without obstacles")
     p.add_argument("--eval-seed", type=int, default=0, help="seed of the bench episodes (scenario.episodes)")
+    p.add_argument("--keep-margin", type=float, default=0.0,
+                   help="rows whose greedy action changed from the start table's by less than this margin "
+                        "(new value of the new action minus new value of the old one) get the start table's row "
+                        "back (0: off)")
+    p.add_argument("--int8", action="store_true",
+                   help="also roll out the table as the exporter quantises it (int8, one scale per table)")
     p.add_argument("--no-baseline", action="store_true", help="skip the shipped table's rollouts")
     p.add_argument("--out", required=True, help="output prefix: writes PREFIX.npy and PREFIX.json")
     return p
@@ -118,6 +135,12 @@ def main(argv: list[str] | None = None) -> int:
                                              "greedy_reverse_states": int((q.argmax(1) == 3).sum())}
         np.save(out.with_suffix(".npy"), q)
         print("train", json.dumps(report["train"]), flush=True)
+    if args.keep_margin > 0.0:
+        q, kept = keep_confident(q, np.load(args.start).astype(np.float64), args.keep_margin)
+        report["keep_margin"] = {"margin": args.keep_margin, "rows_restored": kept,
+                                 "greedy_changes_left": int((q.argmax(1) != np.load(args.start).argmax(1)).sum())}
+        np.save(out.with_name(out.name + "_kept.npy"), q)
+        print("keep", json.dumps(report["keep_margin"]), flush=True)
     maps = {n: load_map(n) for n in BENCH_MAPS}
     bench = {n: scenario.episodes(maps[n], args.episodes, args.eval_seed, 3, 2) for n in BENCH_MAPS}
     clear = {"paper10": scenario.episodes(maps["paper10"], args.k0_episodes, args.eval_seed, 0, 0)}
@@ -125,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
     report["scenario"] = {"maps": list(BENCH_MAPS), "episodes_per_map": args.episodes, "seed": args.eval_seed,
                           "discs": 3, "movers": 2, "k0_episodes": args.k0_episodes}
     report["learnt"] = {"bench": evaluate(q, bench, maps, pc), "k0m0": evaluate(q, clear, maps, pc)["all"]}
+    if args.int8:
+        qt = quantise(q, "int8", per_state=False).table.astype(np.float64)
+        report["learnt_int8"] = {"bench": evaluate(qt, bench, maps, pc), "k0m0": evaluate(qt, clear, maps, pc)["all"],
+                                 "greedy_changes_vs_float": int((qt.argmax(1) != q.argmax(1)).sum())}
     if not args.no_baseline:
         shipped = policy_table(load_policy(str(ROOT / "policies/sector.qtab")))
         report["shipped"] = {"bench": evaluate(shipped, bench, maps, pc), "k0m0": evaluate(shipped, clear, maps, pc)["all"]}
@@ -137,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:18} {le['success_rate']:.3f}/{le['collision_rate']:.3f}{'':8} {shs:>18}")
     k0 = report["learnt"]["k0m0"]
     sk0 = report.get("shipped", {}).get("k0m0")
+    if args.int8:
+        i8 = report["learnt_int8"]
+        print(f"int8: bench {i8['bench']['all']['success_rate']:.3f}/{i8['bench']['all']['collision_rate']:.3f}, "
+              f"K0 M0 {i8['k0m0']['success_rate']:.3f}, greedy changes {i8['greedy_changes_vs_float']}")
     sk0s = f"{sk0['success_rate']:.3f}/{sk0['collision_rate']:.3f}" if sk0 else "-"
     print(f"{'paper10 K0 M0':18} {k0['success_rate']:.3f}/{k0['collision_rate']:.3f}{'':8} {sk0s:>18}")
     print(f"wrote {out.with_suffix('.json')}")

@@ -76,6 +76,7 @@ class LocalFollowerConfig:
     pool: int = 2000  # scenario episodes in the training pool
     k_max: int = 3  # static discs per episode, uniform in 0..k_max
     m_max: int = 2  # movers per episode, uniform in 0..m_max
+    clear_share: float = 0.0  # share of episodes drawn from a second pool without obstacles (0: none)
     lr: float = 0.1  # learning rate at period 0 ...
     lr_end: float = 0.005  # ... linear to this at the last period
     gamma: float = 0.95  # discount per control period
@@ -91,6 +92,7 @@ class LocalFollowerConfig:
     collision: float = 1.0  # a contact's reward is -collision (episode ends)
     step_cost: float = 0.0  # cost per period
     reverse_cost: float = 0.02  # extra cost per reverse period
+    reverse: int = 1  # 0: reverse is neither explored nor learnt, and never greedy in the result
     stall_free: int = 40  # periods without a new guide-potential minimum before stall_cost is charged
     stall_cost: float = 0.0  # cost per period beyond stall_free without progress
     stall_penalty: float = 0.0  # terminal reward -stall_penalty when the bench's loop rule ends the episode
@@ -140,6 +142,8 @@ class LocalFollowerTrainer:
         self.sectors, self.sensors, self.edges, _ = encoder_arrays(self.encoder)
         self.which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
         self.pool: list[Episode] = scenario_pool(self.maps, cfg.pool, cfg.k_max, cfg.m_max, cfg.seed)
+        n_clear = int(round(cfg.pool * cfg.clear_share / max(1e-9, 1.0 - cfg.clear_share))) if cfg.clear_share else 0
+        self.clear_pool: list[Episode] = scenario_pool(self.maps, n_clear, 0, 0, cfg.seed + 1) if n_clear else []
         self.grids = {gm.name: grid_of(gm) for gm in self.maps}
         self.occs = {gm.name: np.ascontiguousarray(gm.occ, dtype=np.uint8) for gm in self.maps}
         self.rng = np.random.default_rng(cfg.seed)
@@ -149,6 +153,7 @@ class LocalFollowerTrainer:
         self.rw[RW_COLLISION] = 1.0  # the kernel's own reward is not used (ours is toward the planner's target)
         self.t = 0  # global period count (schedules)
         self.stats = TrainStats()
+        self.n_act = 4 if cfg.reverse else REVERSE  # reverse is the last action
         self._ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
         self._status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
         self._noisy = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
@@ -174,7 +179,7 @@ class LocalFollowerTrainer:
         return int(encode_fast(b, self._ranges, self._status, self.sectors, self.sensors, self.edges))
 
     def update(self, q: np.ndarray, s0: int, a: int, s2: int, racc: float, g: float, terminal: bool) -> None:
-        target = racc if terminal else racc + g * float(q[s2].max())
+        target = racc if terminal else racc + g * float(q[s2, :self.n_act].max())
         q[s0, a] += self.lr() * (target - q[s0, a])
 
     def episode(self, q: np.ndarray, ep: Episode, max_periods: int) -> tuple[str, float, int]:
@@ -206,7 +211,8 @@ class LocalFollowerTrainer:
         outcome = "timeout"
         while True:
             if hold == 0:
-                a = int(self.rng.integers(q.shape[1])) if self.rng.random() < self.epsilon() else int(np.argmax(q[s]))
+                explore = self.rng.random() < self.epsilon()
+                a = int(self.rng.integers(self.n_act)) if explore else int(np.argmax(q[s, :self.n_act]))
                 s0, racc, g = s, 0.0, 1.0
             d0 = math.hypot(x - tx, y - ty)
             b0 = abs(bearing_mrad(x, y, th, tx, ty))
@@ -276,7 +282,10 @@ class LocalFollowerTrainer:
         with tqdm(total=self.cfg.periods, unit="period", unit_scale=True, disable=not progress,
                   desc="local follower", leave=False) as bar:
             while self.t < self.cfg.periods:
-                ep = self.pool[int(self.rng.integers(len(self.pool)))]
+                if self.clear_pool and self.rng.random() < self.cfg.clear_share:
+                    ep = self.clear_pool[int(self.rng.integers(len(self.clear_pool)))]
+                else:
+                    ep = self.pool[int(self.rng.integers(len(self.pool)))]
                 t0 = self.t
                 outcome, ret, n = self.episode(q, ep, self.cfg.periods - self.t)
                 st.episodes += 1
@@ -288,6 +297,8 @@ class LocalFollowerTrainer:
                 bar.update(self.t - t0)
                 if st.episodes % 50 == 0:
                     bar.set_postfix(succ=f"{st.successes / st.episodes:.3f}", col=f"{st.collisions / st.episodes:.3f}")
+        if not self.cfg.reverse:  # ties break to the lowest index: reverse is never greedy
+            np.minimum(q[:, REVERSE], q[:, :REVERSE].max(axis=1), out=q[:, REVERSE])
         return st
 
 __all__ = ["BENCH_MAPS", "TRAIN_MAPS", "LocalFollowerConfig", "LocalFollowerTrainer", "TrainStats",
