@@ -48,6 +48,9 @@ def test_pool_comes_from_training_maps_only() -> None:
     assert not used & (set(BENCH_MAPS) - set(TRAIN_MAPS))
     assert len(used) >= 3  # draws over the maps, not one
     assert any(not ep.discs and not ep.movers for ep in tr.pool)  # plain waypoint following stays in the mix
+    mixed = LocalFollowerTrainer(LocalFollowerConfig(seed=1, pool=10, periods=1, clear_share=0.5))
+    assert len(mixed.clear_pool) == 10
+    assert all(not ep.discs and not ep.movers and ep.map in TRAIN_MAPS for ep in mixed.clear_pool)
     with pytest.raises(ValueError, match="bench maps"):
         LocalFollowerTrainer(LocalFollowerConfig(maps=("paper10", "maze-16x16-s1"), pool=2, periods=1))
 
