@@ -50,7 +50,7 @@ from ground_station.learn.sector.twin import (
 )
 from ground_station.maps import GridMap
 from ground_station.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS
-from ground_station.nav.scenario import RASTER_MM, Episode, _cspace
+from ground_station.nav.scenario import RASTER_MM, Episode, _cspace, rollout_arrays
 
 FORWARD, LEFT, RIGHT, REVERSE = range(4)
 FWD_MM = 400.0 * robot_spec.CONTROL_PERIOD_US / 1e6
@@ -93,13 +93,8 @@ def rollout(ep: Episode, gm: GridMap, encoder: SectorEncoder, act: Callable[[Obs
     c = gm.cell_size_m * 1000.0
     sectors, sensors, edges, _which = encoder_arrays(encoder)
     which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)  # all sensors (the oracle may look)
-    discs = np.asarray(ep.discs, dtype=np.float64).reshape(-1, 3)
-    movers = np.asarray(ep.movers, dtype=np.float64).reshape(-1, 5).copy()
-    wps = np.asarray(ep.waypoints, dtype=np.float64)
-    seg = np.hypot(*np.diff(wps, axis=0).T) if len(wps) > 1 else np.zeros(0)
-    rem = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    discs, movers, wps, rem, plan_len = rollout_arrays(ep)
     x, y, th = ep.start
-    plan_len = rem[0] + math.hypot(x - wps[0, 0], y - wps[0, 1])
     budget = int(BUDGET_BASE + BUDGET_FACTOR * plan_len / FWD_MM)
     ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)

@@ -35,7 +35,7 @@ from ground_station.learn.sector.obstacles import (
 from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
 from ground_station.maps import GridMap
 from ground_station.nav.controllers import NavController
-from ground_station.nav.scenario import Episode
+from ground_station.nav.scenario import Episode, rollout_arrays
 
 PERIOD_US = robot_spec.CONTROL_PERIOD_US
 FWD_MM_PER_PERIOD = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[0][0] * PERIOD_US / 1e6
@@ -56,14 +56,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     c = gm.cell_size_m * 1000.0
     sectors, sensors, edges, _ = encoder_arrays(ctrl.encoder)
     which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
-    discs = np.asarray(ep.discs, dtype=np.float64).reshape(-1, 3)
-    movers = np.asarray(ep.movers, dtype=np.float64).reshape(-1, 5).copy()
-    guided = ctrl.guidance == "path"
-    wps = np.asarray(ep.waypoints if guided else [ep.goal_mm], dtype=np.float64)
-    seg = np.hypot(*np.diff(wps, axis=0).T) if len(wps) > 1 else np.zeros(0)
-    rem = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    discs, movers, wps, rem, plan_len = rollout_arrays(ep, ctrl.guidance == "path")
     x, y, th = ep.start
-    plan_len = float(np.hypot(*np.diff(np.asarray([ep.start[:2], *ep.waypoints]), axis=0).T).sum())
     budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
     phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
     grid = grid_of(gm)

@@ -323,6 +323,21 @@ def episodes(gridmap: GridMap, n: int, seed: int, k: int, m: int, plan_kw: dict 
     return out
 
 
+def rollout_arrays(ep: Episode, guided: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """One episode as the Python-loop rollouts take it: (discs, movers (a copy: they move), waypoints
+    (the goal alone when not guided), remaining path after each, planned length from the start
+    through the waypoints: the bench kernels' budget basis)."""
+    discs = np.asarray(ep.discs, dtype=np.float64).reshape(-1, 3)
+    movers = np.asarray(ep.movers, dtype=np.float64).reshape(-1, 5).copy()
+    plan = np.asarray(ep.waypoints, dtype=np.float64)
+    wps = plan if guided else np.asarray([ep.goal_mm], dtype=np.float64)
+    seg = np.hypot(*np.diff(wps, axis=0).T) if len(wps) > 1 else np.zeros(0)
+    rem = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    pseg = np.hypot(*np.diff(plan, axis=0).T) if len(plan) > 1 else np.zeros(0)
+    plan_len = float(pseg.sum()) + math.hypot(ep.start[0] - plan[0, 0], ep.start[1] - plan[0, 1])
+    return discs, movers, wps, rem, plan_len
+
+
 def episode_arrays(eps: list[Episode], maps: dict[str, GridMap]) -> dict[str, np.ndarray]:
     """Pack episodes (and their maps, by name) into the arrays the twin kernels take."""
     names = list(dict.fromkeys(e.map for e in eps))

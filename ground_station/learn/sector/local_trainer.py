@@ -55,7 +55,7 @@ from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_
 from ground_station.maps import GridMap, load_map
 from ground_station.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS
 from ground_station.nav.planned import FWD_MM_PER_PERIOD, PERIOD_US, grid_of
-from ground_station.nav.scenario import Episode
+from ground_station.nav.scenario import Episode, rollout_arrays
 
 TRAIN_MAPS = ("paper10", "rooms-16x16-s0", "trap-16x16-s0", "random-16x16-s0", "maze-16x16-s0")
 BENCH_MAPS = ("paper10", "rooms-16x16-s1", "trap-16x16-s1", "random-16x16-s1", "maze-16x16-s1")
@@ -190,13 +190,8 @@ class LocalFollowerTrainer:
         grid = self.grids[ep.map]
         h, w = occ.shape
         c = gm.cell_size_m * 1000.0
-        discs = np.asarray(ep.discs, dtype=np.float64).reshape(-1, 3)
-        movers = np.asarray(ep.movers, dtype=np.float64).reshape(-1, 5).copy()
-        wps = np.asarray(ep.waypoints, dtype=np.float64)
-        seg = np.hypot(*np.diff(wps, axis=0).T) if len(wps) > 1 else np.zeros(0)
-        rem = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+        discs, movers, wps, rem, plan_len = rollout_arrays(ep)
         x, y, th = ep.start
-        plan_len = float(np.hypot(*np.diff(np.asarray([ep.start[:2], *ep.waypoints]), axis=0).T).sum())
         budget = min(max_periods, int(BUDGET_BASE + BUDGET_FACTOR * plan_len / FWD_MM_PER_PERIOD))
         phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
         memory = ObstacleMemory(self.lp)
