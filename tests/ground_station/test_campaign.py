@@ -158,7 +158,7 @@ def test_bench_hil_identical_on_ray_cluster(cluster, tmp_path):
 
 
 def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
-    args = ["bench", "nav", "--map", "paper10", "--map", "trap-16x16-s1", "--episodes", "12", "--hil",
+    args = ["bench", "nav", "--map", "paper10", "--map", "maze-16x16-s1", "--episodes", "12", "--hil",
             "--hil-episodes", "2", "--controllers", "learnt,vfh"]
     one = qnav(*args, "--workers", "1", "--batch", "12", "--json", str(tmp_path / "one.json"))
     assert one.returncode == 0, one.stderr[-2000:]
