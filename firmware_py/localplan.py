@@ -58,6 +58,7 @@ from firmware_py.unmapped import _wall_within, unmapped_ends
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
 _KEY_MM = 50  # one remembered point per 50 mm square
 _SQRT2 = 1.4142
+_UNKNOWN = 2  # a raster cell of the map's configuration space not computed yet
 
 
 @dataclass(frozen=True)
@@ -100,15 +101,21 @@ class LocalPlannerConfig:
             if not isinstance(v, int) or isinstance(v, bool) or not 0 < v <= 100_000_000:
                 raise ValueError(f"{META_KEY}.{k} = {v!r} is not a positive integer")
         cfg = cls(**meta)
-        if not 10 <= cfg.raster_mm <= 500:
-            raise ValueError(f"{META_KEY}.raster_mm = {cfg.raster_mm} (allowed 10..500)")
+        if not 50 <= cfg.raster_mm <= 500:
+            raise ValueError(f"{META_KEY}.raster_mm = {cfg.raster_mm} (allowed 50..500)")
+        for name in ("margin_mm", "wall_clear_mm", "obstacle_clear_mm"):  # bound the per-point work
+            if getattr(cfg, name) > 1000:
+                raise ValueError(f"{META_KEY}.{name} = {getattr(cfg, name)} (allowed up to 1000)")
         if not cfg.obstacle_clear_mm <= cfg.los_clear_mm <= cfg.soft_mm:
             raise ValueError(f"{META_KEY}: need obstacle_clear_mm <= los_clear_mm <= soft_mm")
         if cfg.backoff_us >= cfg.stuck_us:
             raise ValueError(f"{META_KEY}: need backoff_us < stuck_us")
-        if cfg.max_points > 5000 or cfg.window_mm > 5000 or cfg.soft_mm > 2000 or cfg.max_plan_mm > 10_000:
-            raise ValueError(f"{META_KEY}: max_points <= 5000, window_mm <= 5000, soft_mm <= 2000 and "
-                             "max_plan_mm <= 10000")
+        if (cfg.max_points > 1000 or cfg.window_mm > 5000 or cfg.soft_mm > 2000 or cfg.max_plan_mm > 10_000
+                or cfg.lookahead_mm > 5000):
+            raise ValueError(f"{META_KEY}: max_points <= 1000, window_mm <= 5000, soft_mm <= 2000, "
+                             "max_plan_mm <= 10000 and lookahead_mm <= 5000")
+        if cfg.soft_mm // cfg.raster_mm > 5:  # each point grows into (2 k + 3)^2 raster cells
+            raise ValueError(f"{META_KEY}: soft_mm is more than 5 raster cells ({cfg.soft_mm} / {cfg.raster_mm})")
         return cfg
 
     def to_metadata(self) -> dict[str, int]:
@@ -174,11 +181,9 @@ class LocalPlanner:
         r = cfg.raster_mm
         self.nx = grid.width * grid.cell_mm // r
         self.ny = grid.height * grid.cell_mm // r
-        h = r // 2
-        # the map's own configuration space, once: raster centres clear of walls by wall_clear_mm
-        self.map_free = bytearray(
-            0 if _wall_within(grid, ix * r + h, iy * r + h, cfg.wall_clear_mm) else 1
-            for iy in range(self.ny) for ix in range(self.nx))
+        # the map's own configuration space (raster centres clear of walls by wall_clear_mm), filled in
+        # cell by cell as windows need it (_UNKNOWN until then): a tick never pays for the whole map
+        self._map_free = bytearray([_UNKNOWN]) * (self.nx * self.ny)
         self.plans = 0  # Dijkstra runs (telemetry / benchmarks)
         self._active: tuple[int, int] | None = None
         self._grown_version = -1
@@ -226,13 +231,20 @@ class LocalPlanner:
         self._closed, self._cost = closed, cost
 
     def _open_map(self, c: Cell) -> bool:
+        """The raster cell is inside the map and its centre clear of walls by wall_clear_mm."""
         ix, iy = c
-        return 0 <= ix < self.nx and 0 <= iy < self.ny and self.map_free[iy * self.nx + ix] == 1
+        if not (0 <= ix < self.nx and 0 <= iy < self.ny):
+            return False
+        i = iy * self.nx + ix
+        v = self._map_free[i]
+        if v == _UNKNOWN:
+            r = self.cfg.raster_mm
+            v = 0 if _wall_within(self.grid, ix * r + r // 2, iy * r + r // 2, self.cfg.wall_clear_mm) else 1
+            self._map_free[i] = v
+        return v == 1
 
     def _open(self, c: Cell) -> bool:
-        ix, iy = c
-        return (0 <= ix < self.nx and 0 <= iy < self.ny and self.map_free[iy * self.nx + ix] == 1
-                and c not in self._closed)
+        return c not in self._closed and self._open_map(c)
 
     def _in_way(self, x: float, y: float, wx: float, wy: float, memory: ObstacleMemory) -> bool:
         """A remembered point within obstacle_clear_mm of the segment robot -> waypoint."""

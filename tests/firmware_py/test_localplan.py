@@ -38,9 +38,11 @@ def test_config_round_trips_and_bad_fields_are_named():
     assert LocalPlannerConfig.from_metadata({"memory_us": 500_000}).memory_us == 500_000
     for bad, what in (([], "not a JSON object"), ({"speed": 1}, "unknown field 'speed'"),
                       ({"raster_mm": 0}, "raster_mm = 0"), ({"weight": True}, "weight = True"),
-                      ({"memory_us": 1.5}, "memory_us = 1.5"), ({"raster_mm": 5}, "allowed 10..500"),
+                      ({"memory_us": 1.5}, "memory_us = 1.5"), ({"raster_mm": 20}, "allowed 50..500"),
+                      ({"wall_clear_mm": 5000}, "wall_clear_mm = 5000"), ({"lookahead_mm": 9000}, "lookahead_mm <= 5000"),
                       ({"los_clear_mm": 100}, "obstacle_clear_mm <= los_clear_mm <= soft_mm"),
-                      ({"max_points": 10_000}, "max_points <= 5000")):
+                      ({"max_points": 2000}, "max_points <= 1000"),
+                      ({"raster_mm": 50}, "more than 5 raster cells")):
         with pytest.raises(ValueError, match=what):
             LocalPlannerConfig.from_metadata(bad)
 
@@ -104,7 +106,7 @@ def test_sub_goal_stays_out_of_map_walls():
     mem = _disc_points(2500, 1800, 150)  # a disc below the wall, on the line
     tx, ty = planner.target(1000, 1800, (4000, 1800), mem)
     assert planner.detouring and ty < 1800  # round the open side, not into the wall
-    assert not planner.map_free[int(2750 // 100) * planner.nx + 25]  # the wall's raster cells are closed
+    assert not planner._open_map((25, 27)) and planner._open_map((25, 18))  # the wall's raster cells are closed
 
 
 def _policy(meta: dict) -> bytes:
