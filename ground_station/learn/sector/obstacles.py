@@ -330,6 +330,36 @@ def stall_check(phi: float, best: float, since: int, stall_steps: int):
     return best, since + 1, since + 1 >= stall_steps
 
 
+@numba.njit(cache=True, inline="always")
+def close_period(q, frozen, s, s0: int, a: int, s2: int, r: float, hit: bool, success: bool, phi: float,
+                 t: int, i: int, hold: int, best: float, since: int, racc: float, ret: float, g: float,
+                 gamma: float, stall_steps: int, stall_cost: float, max_episode_steps: int, n_steps: int,
+                 hold_max: int, lr: float, lr_end: float, start_step: int, total_steps: int):
+    """The end of a training period for the held-action trainers with memory (obs_mem_train_kernel,
+    the sector-unmapped trainer): the stall rule (cost stall_cost, episode over), the discounted
+    reward of the held action, its semi-Markov update when the hold ends (episode end, a new state
+    or hold_max periods). Returns (s, t, i, hold, best, since, racc, ret, g, end)."""
+    t += 1
+    i += 1
+    hold += 1
+    stalled = False
+    if stall_steps > 0 and not (hit or success):
+        best, since, stalled = stall_check(phi, best, since, stall_steps)
+        if stalled:
+            r -= stall_cost
+    racc += g * r
+    ret += r
+    g *= gamma
+    terminal = hit or success or stalled
+    end = terminal or t >= max_episode_steps or i >= n_steps
+    if end or s2 != s0 or hold >= hold_max:
+        held_update(q, frozen, s0, a, s2, racc, g, terminal, lr, lr_end, start_step + i, total_steps)
+        hold = 0
+    if not terminal:
+        s = s2
+    return s, t, i, hold, best, since, racc, ret, g, end
+
+
 @numba.njit(cache=True)
 def obs_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, ep_nwp, ep_rem,
                      ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which,
@@ -560,24 +590,10 @@ def obs_mem_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep_wp, 
                     s2 = _mem_state(use_mem, mem, s2, n_base, x, y, th, wps[k, 0], wps[k, 1], noisy, nstatus, mp)
                 else:
                     s2 = _mem_state(use_mem, mem, s2, n_base, x, y, th, wps[k, 0], wps[k, 1], ranges, status, mp)
-            t += 1
-            i += 1
-            hold += 1
-            stalled = False
-            if stall_steps > 0 and not (hit or success):
-                best, since, stalled = stall_check(phi, best, since, stall_steps)
-                if stalled:
-                    r -= stall_cost
-            racc += g * r
-            ret += r
-            g *= gamma
-            terminal = hit or success or stalled
-            end = terminal or t >= max_episode_steps or i >= n_steps
-            if end or s2 != s0 or hold >= hold_max:
-                held_update(q, frozen, s0, a, s2, racc, g, terminal, lr, lr_end, start_step + i, total_steps)
-                hold = 0
-            if not terminal:
-                s = s2
+            s, t, i, hold, best, since, racc, ret, g, end = close_period(
+                q, frozen, s, s0, a, s2, r, hit, success, phi, t, i, hold, best, since, racc, ret, g, gamma,
+                stall_steps, stall_cost, max_episode_steps, n_steps, hold_max, lr, lr_end, start_step,
+                total_steps)
             if end:
                 break
         out_ret[n_done] = ret

@@ -35,14 +35,13 @@ from ground_station.learn.sector.obstacles import (
     NEAR_MISS_MM,
     SUCCESS,
     TIMEOUT,
+    close_period,
     draw_pool_episode,
     explore_or_greedy,
-    held_update,
     obs_period_step,
     obstacle_clearance_mm,
     open_bench_episode,
     sense_obs,
-    stall_check,
 )
 from ground_station.learn.sector.reward import RW_PROGRESS
 from ground_station.learn.sector.twin import (
@@ -439,24 +438,10 @@ def obs_unmapped_train_kernel(q, rng, occ_all, dims, cells, ep_map, ep_start, ep
                                  edges)
                 s2 = _state(mem, s2, occ, h, w, c, x, y, th, wps[k, 0], wps[k, 1], noisy, nstatus, um,
                             up, dsens, edges)
-            t += 1
-            i += 1
-            hold += 1
-            stalled = False
-            if stall_steps > 0 and not (hit or success):
-                best, since, stalled = stall_check(phi, best, since, stall_steps)
-                if stalled:
-                    r -= stall_cost
-            racc += g * r
-            ret += r
-            g *= gamma
-            terminal = hit or success or stalled
-            end = terminal or t >= max_episode_steps or i >= n_steps
-            if end or s2 != s0 or hold >= hold_max:
-                held_update(q, frozen, s0, a, s2, racc, g, terminal, lr, lr_end, start_step + i, total_steps)
-                hold = 0
-            if not terminal:
-                s = s2
+            s, t, i, hold, best, since, racc, ret, g, end = close_period(
+                q, frozen, s, s0, a, s2, r, hit, success, phi, t, i, hold, best, since, racc, ret, g, gamma,
+                stall_steps, stall_cost, max_episode_steps, n_steps, hold_max, lr, lr_end, start_step,
+                total_steps)
             if end:
                 break
         out_ret[n_done] = ret
