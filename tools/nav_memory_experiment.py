@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -82,7 +81,6 @@ def main() -> int:
         cfg = TrainConfig(encoding="sector", steps=a.steps, lr=0.1, gamma=a.gamma, reward_step=a.step_reward,
                           epsilon_start=a.eps0, epsilon_end=0.05, seed=a.seed, sector_obstacles=a.obstacles,
                           sector_movers=a.movers, sector_pool=a.pool)
-        t0 = time.perf_counter()
         tr = ObstacleSectorTrainer([load_map(m) for m in TRAIN_MAPS.split(",")], cfg, enc)
         if a.stall_cost > 0:
             tr.stall_steps, tr.stall_cost = 400, a.stall_cost
@@ -91,13 +89,7 @@ def main() -> int:
             for t in range(3):
                 go[t * enc.mode_states:t * enc.mode_states + enc.bearing_sectors * enc.range_states] = True
             tr.frozen = go
-        done = 0
-        while done < a.steps:
-            n = min(2_000_000, a.steps - done)
-            _, succ = tr.run(q, done, n)
-            done += n
-            print(f"{done} steps, training success {succ.mean() if len(succ) else 0:.3f}, "
-                  f"{time.perf_counter() - t0:.0f} s", flush=True)
+        tr.train(q, a.steps, report=lambda line: print(line, flush=True))
     if a.out:
         np.save(a.out, q)
     if a.qtab:

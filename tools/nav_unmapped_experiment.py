@@ -101,13 +101,7 @@ def main() -> int:
             tr.shape_with_cspace()
             print(f"configuration-space fields for {len(tr.pool)} episodes, {time.perf_counter() - t0:.0f} s",
                   flush=True)
-        done = 0
-        while done < a.steps:
-            n = min(2_000_000, a.steps - done)
-            _, succ = tr.run(q, done, n)
-            done += n
-            print(f"{done} steps, training success {succ.mean() if len(succ) else 0:.3f}, "
-                  f"{time.perf_counter() - t0:.0f} s", flush=True)
+        tr.train(q, a.steps, report=lambda line: print(line, flush=True))
     if a.out:
         np.save(a.out, q)
     if a.qtab:

@@ -23,6 +23,8 @@ copied from the shipped sector table while the wall rows learn.
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -124,3 +126,17 @@ class ObstacleSectorTrainer:
         else:
             n = obs_train_kernel(*head, *common, *tail)
         return out_ret[:n].copy(), out_succ[:n].copy()
+
+    def train(self, q: np.ndarray, steps: int, chunk: int = 2_000_000,
+              report: Callable[[str], None] | None = print) -> None:
+        """`run` for `steps` steps from step 0 in chunks, reporting the training success after each
+        (the experiment tools' loop)."""
+        t0 = time.perf_counter()
+        done = 0
+        while done < steps:
+            n = min(chunk, steps - done)
+            _, succ = self.run(q, done, n)
+            done += n
+            if report is not None:
+                report(f"{done} steps, training success {succ.mean() if len(succ) else 0:.3f}, "
+                       f"{time.perf_counter() - t0:.0f} s")
