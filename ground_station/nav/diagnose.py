@@ -40,7 +40,12 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
-from ground_station.learn.sector.obstacles import hits_discs, obs_period_step, sense_obs
+from ground_station.learn.sector.obstacles import (
+    hits_discs,
+    obs_period_step,
+    sense_obs,
+    stall_check,
+)
 from ground_station.learn.sector.twin import (
     RADIUS_MM,
     bearing_mrad,
@@ -129,13 +134,10 @@ def rollout(ep: Episode, gm: GridMap, encoder: SectorEncoder, act: Callable[[Obs
         if success:
             outcome = "success"
             break
-        if phi < best - 1.0:
-            best, since = phi, 0
-        else:
-            since += 1
-            if since >= STALL_STEPS:
-                outcome = "loop"
-                break
+        best, since, stalled = stall_check(phi, best, since, STALL_STEPS)
+        if stalled:
+            outcome = "loop"
+            break
     if outcome in ("loop", "timeout"):
         gx, gy = wps[k]
         if any(_seg_hits_disc(x, y, gx, gy, cx, cy, r + RADIUS_MM) for cx, cy, r in discs):

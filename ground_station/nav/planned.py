@@ -31,6 +31,7 @@ from ground_station.learn.sector.obstacles import (
     obs_period_step,
     obstacle_clearance_mm,
     sense_obs,
+    stall_check,
 )
 from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
 from ground_station.maps import GridMap
@@ -97,13 +98,10 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         if success:
             outcome = SUCCESS
             break
-        if phi < best - 1.0:
-            best, since = phi, 0
-        else:
-            since += 1
-            if since >= stall_steps:
-                outcome = LOOP
-                break
+        best, since, stalled = stall_check(phi, best, since, stall_steps)
+        if stalled:
+            outcome = LOOP
+            break
     return outcome, path, t, minclear, near, planner.plans
 
 

@@ -506,14 +506,10 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
                 outcome = SUCCESS
                 break
             s = _mem_state(use_mem, mem, s, n_base, x, y, th, wps[k, 0], wps[k, 1], ranges, status, mp)
-            if phi < best - 1.0:
-                best = phi
-                since = 0
-            else:
-                since += 1
-                if since >= stall_steps:
-                    outcome = LOOP
-                    break
+            best, since, stalled = stall_check(phi, best, since, stall_steps)
+            if stalled:
+                outcome = LOOP
+                break
         out_outcome[e] = outcome
         out_path[e] = path
         out_steps[e] = t

@@ -42,6 +42,7 @@ from ground_station.learn.sector.obstacles import (
     obstacle_clearance_mm,
     open_bench_episode,
     sense_obs,
+    stall_check,
 )
 from ground_station.learn.sector.reward import RW_PROGRESS
 from ground_station.learn.sector.twin import (
@@ -321,14 +322,10 @@ def nav_eval_unmapped_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal,
                 break
             s = _state(mem, s, occ, h, w, c, x, y, th, wps[k, 0], wps[k, 1], ranges, status, um, up,
                        dsens, edges)
-            if phi < best - 1.0:
-                best = phi
-                since = 0
-            else:
-                since += 1
-                if since >= stall_steps:
-                    outcome = LOOP
-                    break
+            best, since, stalled = stall_check(phi, best, since, stall_steps)
+            if stalled:
+                outcome = LOOP
+                break
         out_outcome[e] = outcome
         out_path[e] = path
         out_steps[e] = t
