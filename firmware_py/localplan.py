@@ -130,11 +130,6 @@ class ObstacleMemory:
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
         self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
 
-    def clear(self) -> None:
-        if self.points:
-            self.points.clear()
-            self.version += 1
-
     def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                 ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], now_us: int) -> None:
         """Remember this tick's unmapped end points (the fan's middle ray at

@@ -40,11 +40,12 @@ from ground_station.learn.sector.local_trainer import (  # noqa: E402
     LocalFollowerTrainer,
     follower_encoder,
 )
+from ground_station.learn.sector.obstacles import COLLISION, LOOP, SUCCESS  # noqa: E402
 from ground_station.maps import load_map  # noqa: E402
 from ground_station.nav import scenario  # noqa: E402
 from ground_station.nav.controllers import NavController, policy_table  # noqa: E402
 from ground_station.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS  # noqa: E402
-from ground_station.nav.planned import COLLISION, LOOP, SUCCESS, rollout  # noqa: E402
+from ground_station.nav.planned import rollout  # noqa: E402
 
 OUT = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop"}
 

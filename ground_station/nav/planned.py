@@ -117,5 +117,3 @@ def run_twin_planned(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavCont
             ep, maps[ep.map], ctrl, budget_base, budget_factor, stall_steps)
     return outcome, path, steps, minclear, near
 
-
-__all__ = ["COLLISION", "LOOP", "SUCCESS", "TIMEOUT", "rollout", "run_twin_planned", "grid_of"]
