@@ -158,11 +158,11 @@ def test_bench_hil_identical_on_ray_cluster(cluster, tmp_path):
 
 
 def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
-    args = ["bench", "nav", "--map", "paper10", "--map", "maze-16x16-s1", "--episodes", "12", "--hil",
+    args = ["bench", "nav", "--map", "paper10", "--map", "maze-16x16-s1", "--episodes", "7", "--hil",
             "--hil-episodes", "2", "--controllers", "learnt,vfh"]
-    one = qnav(*args, "--workers", "1", "--batch", "12", "--json", str(tmp_path / "one.json"))
+    one = qnav(*args, "--workers", "1", "--batch", "7", "--json", str(tmp_path / "one.json"))
     assert one.returncode == 0, one.stderr[-2000:]
-    two = qnav(*args, "--workers", "2", "--batch", "5", "--json", str(tmp_path / "two.json"))
+    two = qnav(*args, "--workers", "2", "--batch", "3", "--json", str(tmp_path / "two.json"))
     assert two.returncode == 0, two.stderr[-2000:]
     assert (tmp_path / "one.json").read_bytes() == (tmp_path / "two.json").read_bytes()
     camp = json.loads((tmp_path / "two.campaign.json").read_text())
