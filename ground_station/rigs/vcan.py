@@ -1,25 +1,40 @@
 """A real kernel SocketCAN `vcan0` for hardware-in-the-loop runs, wherever one can be had.
 
-`find_vcan()` tries, in order:
+`find_vcan()` tries the providers in order and takes the first that works:
 
 - **host**: this kernel already has `vcan0` up, or has the `vcan` module and
   we may create the interface (root: `modprobe vcan`, `ip link add dev vcan0
-  type vcan`, `ip link set up vcan0`). The work runs here, directly.
+  type vcan`, `ip link set up vcan0`), as on an ordinary Linux PC. The work
+  runs here, directly.
 - **uml**: the kernel has no vcan (containers, these CI machines: `AF_CAN`
   refused), but Debian's user-mode Linux is installed (`linux.uml`, its CAN
-  modules under /usr/lib/uml/modules, `insmod`, `ip`). `Vcan.run()` boots a
-  Linux kernel as an ordinary process with the host's root filesystem
-  mounted read-write through hostfs, so the checkout, its venv and Python
-  are the same files. A PID-1 script (written into the work directory)
-  mounts proc and sysfs, loads can, can-raw, can-dev, vcan in that order
-  (vcan needs can-dev's symbols), brings up `lo` (MAVLink over UDP stays on
-  the UML's own loopback) and `vcan0`, runs the work script with the
-  environment given, writes its output and its exit status into the work
-  directory, syncs and powers off. UML's own exit status says nothing about
-  the work, so the status file is the only verdict: no file, no pass.
-  A timeout kills the UML process group (UML runs as several host
-  processes) and the run reports `timed_out`.
-- **none**: `VcanUnavailable(reason)`; tests skip with that reason printed.
+  modules under /usr/lib/uml/modules, `insmod`, `ip`).
+- **uml-cache**: a newer user-mode Linux unpacked by
+  `tools/install_test_deps.sh` into the project's `.cache/uml/` (Debian
+  testing's `user-mode-linux` with that suite's C library beside it), for
+  hosts where the installed one panics at boot (bookworm's 6.1 and trixie's
+  6.12 on CPUs with AVX-512/AMX: "ptrace set fp regs failed").
+- **none**: `VcanUnavailable(reason)`, the reason naming each provider tried
+  and why it failed; tests skip with it printed.
+
+A user-mode Linux provider counts only after it has booted once in this
+process (the health check: vcan0 up and an `AF_CAN` bind from Python, at most
+`HEALTH_TIMEOUT_S`); the verdict is cached. `Vcan.run()` boots a Linux kernel
+as an ordinary process with the host's root filesystem mounted read-write
+through hostfs, so the checkout, its venv and Python are the same files. A
+PID-1 script (written into the work directory) mounts proc and sysfs, loads
+can, can-raw, can-dev, vcan in that order (vcan needs can-dev's symbols),
+brings up `lo` (MAVLink over UDP stays on the UML's own loopback) and `vcan0`,
+runs the work script with the environment given, writes its output and its
+exit status into the work directory, syncs and powers off. UML's own exit
+status says nothing about the work, so the status file is the only verdict:
+no file, no pass. A timeout kills the UML process group (UML runs as several
+host processes) and the run reports `timed_out`.
+
+Environment: `QNAV_VCAN=host|uml|uml-cache|none` forces one provider (none:
+skip); `QNAV_VCAN_HIDE=NAME[,NAME]` hides providers from the search (to see
+what the tests do on a machine without them); `QNAV_UML_CACHE=DIR` moves the
+cache. `python -m ground_station.rigs.vcan` prints every provider's verdict.
 
 Work is a shell script (run by /bin/sh in `cwd`); everything it produces
 should go under the work directory, which both sides see. Inside UML system
@@ -48,6 +63,8 @@ from pathlib import Path
 CHANNEL = "vcan0"
 UML_KERNEL = "linux.uml"
 UML_MODULES = Path("/usr/lib/uml/modules")
+# the newer UML that tools/install_test_deps.sh unpacks where the installed one does not boot
+UML_CACHE = Path(__file__).resolve().parents[2] / ".cache" / "uml"
 # load order matters: vcan needs can-dev's symbols, can-raw needs can's
 UML_CAN_MODULES = ("net/can/can.ko", "net/can/can-raw.ko", "drivers/net/can/dev/can-dev.ko",
                    "drivers/net/can/vcan.ko")
@@ -55,6 +72,12 @@ SBIN = ("/usr/local/sbin", "/usr/sbin", "/sbin")
 UML_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 # what the work inherits when the caller passes no env (PID 1 starts with an empty one)
 PASSED_ENV = ("PATH", "PYTHONPATH", "HOME", "LANG", "LC_ALL", "VIRTUAL_ENV", "MAVLINK20", "TMPDIR")
+PROVIDERS = ("host", "uml", "uml-cache")
+HEALTH_TIMEOUT_S = 45.0  # one boot is 1-3 s here; a loaded machine may take far longer
+# a bind on vcan0 from Python is what the HIL programs need (python-can's socketcan)
+HEALTH_SCRIPT = ("ip -br link show {ch} && python3 -c \"import socket; "
+                 "s = socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW); "
+                 "s.bind(('{ch}',)); print('AF_CAN bind ok')\"")
 
 
 class VcanUnavailable(Exception):
@@ -128,36 +151,95 @@ def _host_vcan(channel: str, create: bool) -> str | None:
     return None
 
 
-def _uml_modules() -> Path | None:
-    """The newest UML module tree that has every CAN module we load."""
-    if not UML_MODULES.is_dir():
+def _can_modules(root: Path) -> Path | None:
+    """The newest UML module tree under `root` that has every CAN module we load."""
+    if not root.is_dir():
         return None
-    for d in sorted(UML_MODULES.iterdir(), reverse=True):
+    for d in sorted(root.iterdir(), reverse=True):
         if all((d / "kernel" / m).is_file() for m in UML_CAN_MODULES):
             return d
     return None
 
 
-def _uml_reason() -> str | None:
-    """None if user-mode Linux can give us a vcan0; else what is missing."""
+def _uml_cache() -> Path:
+    return Path(os.environ.get("QNAV_UML_CACHE") or UML_CACHE)
+
+
+def _uml_parts(where: str) -> tuple[str | None, Path | None, str | None]:
+    """(kernel, module tree, None) for a UML provider, or (.., .., what is missing)."""
     missing = []
-    if _tool(UML_KERNEL) is None:
-        missing.append(f"{UML_KERNEL} (Debian package user-mode-linux)")
-    elif _uml_modules() is None:
-        missing.append(f"UML CAN modules under {UML_MODULES}")
+    if where == "uml":
+        kernel = _tool(UML_KERNEL)
+        modules = _can_modules(UML_MODULES)
+        if kernel is None:
+            missing.append(f"{UML_KERNEL} (Debian package user-mode-linux)")
+        elif modules is None:
+            missing.append(f"UML CAN modules under {UML_MODULES}")
+    else:
+        root = _uml_cache()
+        k = root / "usr" / "bin" / UML_KERNEL
+        kernel = str(k) if k.is_file() and os.access(k, os.X_OK) else None
+        modules = _can_modules(root / "usr" / "lib" / "uml" / "modules")
+        if kernel is None or modules is None:
+            missing.append(f"a user-mode Linux unpacked under {root} (tools/install_test_deps.sh "
+                           "unpacks one where the installed one does not boot)")
     if _tool("insmod") is None:
         missing.append("insmod (package kmod)")
     if _tool("ip") is None:
         missing.append("ip (package iproute2)")
-    return f"missing {', '.join(missing)}" if missing else None
+    return kernel, modules, (f"missing {', '.join(missing)}" if missing else None)
+
+
+def _boot_failure(console: str) -> str:
+    """The console's most telling line for a boot that gave no status."""
+    lines = [ln.strip() for ln in console.splitlines() if ln.strip()]
+    for key in ("Kernel panic", "failed", "error", "Error"):
+        hits = [ln for ln in lines if key in ln]
+        if hits:
+            return hits[0][:160]
+    return lines[-1][:160] if lines else "no console output"
+
+
+_health: dict[tuple[str, str], str | None] = {}
+
+
+def provider_reason(where: str, channel: str = CHANNEL, *, create: bool = True) -> str | None:
+    """None if provider `where` gives a working `channel` here; else why not.
+
+    A user-mode Linux provider is booted once per process (vcan0 up and an AF_CAN
+    bind, at most HEALTH_TIMEOUT_S) and its verdict cached."""
+    if where == "host":
+        return _host_vcan(channel, create)
+    if where not in ("uml", "uml-cache"):
+        return f"unknown provider {where!r} (one of {', '.join(PROVIDERS)})"
+    kernel, modules, missing = _uml_parts(where)
+    if missing or kernel is None or modules is None:
+        return missing or "user-mode Linux vanished"
+    key = (where, kernel)
+    if key not in _health:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix=f"qnav-vcan-{where}-") as tmp:
+            run = Vcan(where, channel).run(HEALTH_SCRIPT.format(ch=channel), Path(tmp), cwd=Path(tmp),
+                                           timeout_s=HEALTH_TIMEOUT_S)
+        if run.timed_out:
+            _health[key] = f"{kernel} did not finish a boot in {HEALTH_TIMEOUT_S:.0f} s"
+        elif run.exit_status is None:
+            _health[key] = f"{kernel} failed to boot: {_boot_failure(run.console)}"
+        elif run.exit_status != 0 or "AF_CAN bind ok" not in run.output:
+            tail = (run.output.strip().splitlines() or ["no output"])[-1]
+            _health[key] = f"{kernel} booted but vcan0 did not work: {tail[:160]}"
+        else:
+            _health[key] = None
+    return _health[key]
 
 
 class Vcan:
     """A way to run work with a kernel `vcan0` (see the module docstring)."""
 
     def __init__(self, where: str, channel: str = CHANNEL, *, mem: str = "1G") -> None:
-        if where not in ("host", "uml"):
-            raise ValueError(f"where must be host or uml, got {where!r}")
+        if where not in PROVIDERS:
+            raise ValueError(f"where must be one of {', '.join(PROVIDERS)}, got {where!r}")
         self.where = where
         self.channel = channel
         self.mem = mem
@@ -196,10 +278,9 @@ class Vcan:
         return VcanRun("host", status, _read(workdir / "work.log"), time.monotonic() - t0, timed_out)
 
     def _run_uml(self, work: Path, workdir: Path, timeout_s: float) -> VcanRun:
-        modules = _uml_modules()
-        kernel = _tool(UML_KERNEL)
-        if modules is None or kernel is None:
-            raise VcanUnavailable(_uml_reason() or "user-mode Linux vanished")
+        kernel, modules, missing = _uml_parts(self.where)
+        if missing or modules is None or kernel is None:
+            raise VcanUnavailable(missing or "user-mode Linux vanished")
         w = shlex.quote(str(workdir))
         insmods = "\n".join(f"    insmod {shlex.quote(str(modules / 'kernel' / m))} &&" for m in UML_CAN_MODULES)
         init = workdir / "init.sh"
@@ -236,7 +317,7 @@ poweroff -f
         status_text = _read(workdir / "exit_status").strip()
         status = int(status_text) if status_text.lstrip("-").isdigit() and not timed_out else None
         console_text = _read(workdir / "console.log") + _read(workdir / "setup.log")
-        return VcanRun("uml", status, _read(workdir / "work.log"), wall, timed_out, console_text)
+        return VcanRun(self.where, status, _read(workdir / "work.log"), wall, timed_out, console_text)
 
 
 def _wait_or_kill(proc: subprocess.Popen, timeout_s: float) -> bool:
@@ -259,21 +340,51 @@ def _read(path: Path) -> str:
 
 
 def find_vcan(channel: str = CHANNEL, *, create: bool = True, allow_uml: bool = True) -> Vcan:
-    """The best way to a kernel `channel` here (module docstring); raises VcanUnavailable(reason).
+    """The first working provider of a kernel `channel` here (module docstring).
 
-    Environment: QNAV_VCAN=host|uml|none forces a choice (none: skip)."""
+    Raises VcanUnavailable with one line naming each provider tried and why it failed.
+    Environment: QNAV_VCAN forces one provider (none: skip), QNAV_VCAN_HIDE hides some."""
     forced = os.environ.get("QNAV_VCAN", "").strip().lower()
+    hidden = {h.strip().lower() for h in os.environ.get("QNAV_VCAN_HIDE", "").split(",") if h.strip()}
     if forced == "none":
         raise VcanUnavailable("QNAV_VCAN=none")
+    if forced and forced not in PROVIDERS:
+        raise VcanUnavailable(f"QNAV_VCAN={forced!r} unknown (one of {', '.join(PROVIDERS)}, none)")
     reasons = []
-    if forced in ("", "host"):
-        why = _host_vcan(channel, create)
+    for where in PROVIDERS:
+        if (forced and where != forced) or (where != "host" and not allow_uml):
+            continue
+        if where in hidden:
+            reasons.append(f"{where}: hidden by QNAV_VCAN_HIDE")
+            continue
+        why = provider_reason(where, channel, create=create)
         if why is None:
-            return Vcan("host", channel)
-        reasons.append(f"host: {why}")
-    if allow_uml and forced in ("", "uml"):
-        why = _uml_reason()
-        if why is None:
-            return Vcan("uml", channel)
-        reasons.append(f"user-mode Linux: {why}")
-    raise VcanUnavailable("; ".join(reasons) or f"QNAV_VCAN={forced!r} unknown (host, uml or none)")
+            return Vcan(where, channel)
+        reasons.append(f"{where}: {why}")
+    raise VcanUnavailable("; ".join(reasons) or "no provider allowed")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m ground_station.rigs.vcan [--quiet]`: each provider's verdict; exit 0 if one works."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m ground_station.rigs.vcan",
+                                 description="Which way to a kernel vcan0 works on this machine "
+                                             "(host kernel, user-mode Linux, the project's cached UML).")
+    ap.add_argument("--channel", default=CHANNEL, help="interface name (default %(default)s)")
+    ap.add_argument("--no-create", action="store_true", help="do not create the interface on the host")
+    args = ap.parse_args(argv)
+    for where in PROVIDERS:
+        why = provider_reason(where, args.channel, create=not args.no_create)
+        print(f"{where:9s} {'works' if why is None else 'no: ' + why}")
+    try:
+        vcan = find_vcan(args.channel, create=not args.no_create)
+    except VcanUnavailable as exc:
+        print(f"no kernel {args.channel} here: {exc}")
+        return 1
+    print(f"chosen: {vcan.where}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

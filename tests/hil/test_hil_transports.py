@@ -30,12 +30,12 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.canbus import CanHub
 from ground_station.rigs import hil_scenarios as hs
-from ground_station.rigs.vcan import VcanUnavailable, find_vcan
+from tests.support.vcan import kernel_vcan
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 # the vcan batch runs paced scenarios inside user-mode Linux: judged on the wall clock
-TRANSPORTS = ["hub", pytest.param("vcan", marks=pytest.mark.wallclock)]
+TRANSPORTS = ["hub", pytest.param("vcan", marks=[pytest.mark.wallclock, pytest.mark.vcan])]
 CAN_UTILS = all(shutil.which(t) for t in ("candump", "cansend"))
 can_utils = pytest.mark.skipif(not CAN_UTILS, reason="can-utils (candump, cansend) not installed")
 # on vcan the e-stop's other node is can-utils' cansend where it exists (the same scenario)
@@ -48,11 +48,7 @@ BATCHES = [["mission"], ["goal_reached", ESTOP_VCAN, "sensor_stop"]]
 @pytest.fixture(scope="module")
 def vcan_batch(tmp_path_factory):
     """Every scenario on socketcan:vcan0; the results directory (<scenario>.json)."""
-    try:
-        vcan = find_vcan()
-    except VcanUnavailable as exc:
-        print(f"vcan HIL tests skipped: {exc}")
-        pytest.skip(f"no kernel vcan0 here: {exc}")
+    vcan = kernel_vcan()
     out = tmp_path_factory.mktemp("vcan-batch")
     env = {k: os.environ[k] for k in ("PYTHONPATH", "HOME", "LANG") if k in os.environ}
     env["PATH"] = f"{BIN}:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
@@ -153,6 +149,7 @@ def _qnav(*argv: str) -> tuple[int, str]:
 # --- can-utils interoperability (kernel SocketCAN only) ----------------------------------------
 
 @can_utils
+@pytest.mark.vcan
 @pytest.mark.wallclock  # reads the vcan batch
 @pytest.mark.timeout(300)
 def test_can_utils_cansend_estop_stops_a_driving_robot(vcan_batch):
@@ -164,6 +161,7 @@ def test_can_utils_cansend_estop_stops_a_driving_robot(vcan_batch):
 
 
 @can_utils
+@pytest.mark.vcan
 @pytest.mark.wallclock  # reads the vcan batch
 @pytest.mark.timeout(300)
 def test_can_utils_candump_log_decodes_with_cantools(vcan_batch):
@@ -181,6 +179,7 @@ def test_can_utils_candump_log_decodes_with_cantools(vcan_batch):
 
 
 @can_utils
+@pytest.mark.vcan
 @pytest.mark.wallclock  # reads the vcan batch
 @pytest.mark.timeout(300)
 def test_can_utils_qnav_report_reads_the_candump_log(vcan_batch, tmp_path):

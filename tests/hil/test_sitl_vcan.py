@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from firmware_py.subprocs import free_udp_port
-from ground_station.rigs.vcan import VcanUnavailable, find_vcan
+from tests.support.vcan import kernel_vcan
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
@@ -42,14 +42,12 @@ json.dump(None if seen is None else {"sysid": seen.get_srcSystem(), "type": seen
 
 
 @pytest.mark.slow
+@pytest.mark.vcan
 @pytest.mark.timeout(400)
 def test_sitl_on_socketcan_vcan0_heartbeat_and_candump(tmp_path):
     if not shutil.which("candump"):
         pytest.skip("can-utils (candump) not installed")
-    try:
-        vcan = find_vcan()
-    except VcanUnavailable as exc:
-        pytest.skip(f"no kernel vcan0 here: {exc}")
+    vcan = kernel_vcan()
     out = tmp_path / "sitl"
     out.mkdir()
     (out / "probe.py").write_text(PROBE)
