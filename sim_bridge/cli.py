@@ -48,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="wait for the controller's command every tick (default; deterministic)")
     mode.add_argument("--realtime", action="store_true", help="paced at real time")
     mode.add_argument("--speed", type=float, metavar="X", help="paced at X times real time")
+    p.add_argument("--max-speed", type=float, metavar="X",
+                   help="lockstep, but never faster than X times real time (a real-time link such as a "
+                        "radio sees at most X times its telemetry rate; a loaded machine only slows the run)")
     p.add_argument("--start", metavar="X,Y,HEADING",
                    help="start pose: metres east, metres north, heading in degrees CCW from east "
                         "(default: free cell nearest the map centre, heading east)")
@@ -141,6 +144,8 @@ def run(args: argparse.Namespace) -> int:
     if args.speed is not None and not args.speed > 0:
         raise CliError(f"--speed must be positive, got {args.speed:g}")
     speed = 1.0 if args.realtime else args.speed
+    if args.max_speed is not None and (speed is not None or not args.max_speed > 0):
+        raise CliError(f"--max-speed {args.max_speed:g}: a positive factor, with --lockstep only")
     _make_output_folders(args)
     try:
         gm = load_map(args.map, cell_size_m=args.cell_size)
@@ -173,7 +178,8 @@ def run(args: argparse.Namespace) -> int:
         if args.log:
             log = CanLog(args.log)
         ticks = math.ceil(args.duration * 1e6 / robot_spec.CONTROL_PERIOD_US)
-        mode = "lockstep" if speed is None else f"paced x{speed:g}"
+        mode = (f"paced x{speed:g}" if speed is not None else "lockstep" if args.max_speed is None
+                else f"lockstep, at most x{args.max_speed:g}")
         print(f"qnav-sim: {gm.name} ({gm.width}x{gm.height}, {gm.cell_size_m:g} m cells), "
               f"{mode}, bus {args.can or 'python-can default'}", file=sys.stderr)
         interrupted = False
@@ -184,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
                 if speed is None:
                     stats = run_lockstep(plant, bus, args.duration, logger=log, progress=bar,
                                          tick_timeout_s=args.tick_timeout,
-                                         start_timeout_s=args.start_timeout,
+                                         start_timeout_s=args.start_timeout, max_speed=args.max_speed,
                                          on_wait=lambda line: print(f"qnav-sim: {line}", file=sys.stderr,
                                                                     flush=True))
                 else:
@@ -213,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
           f"sim {stats.sim_s:.2f} s, "
           f"wall {wall:.2f} s, real-time factor {stats.sim_s / wall:.2f}"
           f"{'' if speed is None else f' (target {speed:g})'}, {stats.ticks_per_s:.0f} ticks/s; "
+          f"{f'schedule slipped {stats.slipped_s:.2f} s (stalls); ' if stats.slipped_s else ''}"
           f"final pose x={pose.x:.3f} y={pose.y:.3f} heading={math.degrees(pose.heading) % 360:.1f} deg")
     return 130 if interrupted else 0
 

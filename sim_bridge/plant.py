@@ -67,6 +67,9 @@ class RunStats:
     wall_s: float = 0.0
     start_wait_s: float = 0.0  # lockstep: wall time until the controller's first answer
     sim_s: float = 0.0
+    # paced (and lockstep with a max speed): wall seconds the schedule was let slip because the
+    # loop fell more than a control period behind it (a stalled process), instead of catching up
+    slipped_s: float = 0.0
 
     @property
     def rtf(self) -> float:
@@ -227,15 +230,20 @@ def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
                  logger: can.Listener | None = None, tick_timeout_s: float = 1.0,
                  start_timeout_s: float = 30.0, resend_s: float = 0.2,
                  progress=None, on_wait: Callable[[str], None] | None = None,
-                 wait_notice_s: float = 1.0) -> RunStats:
+                 wait_notice_s: float = 1.0, max_speed: float | None = None) -> RunStats:
     """Lockstep until `duration_s` of sim time: each tick waits for its MotorCommand.
     `on_wait(line)` is told once what the sim waits for when the controller's
-    first answer has not come within `wait_notice_s`."""
+    first answer has not come within `wait_notice_s`. `max_speed`: never run faster
+    than that many times real time (for links that are real-time, such as a radio,
+    while a loaded machine only slows the run: no tick is ever stepped unanswered)."""
+    if max_speed is not None and not max_speed > 0:
+        raise ValueError(f"max_speed must be positive, got {max_speed}")
     io = _Io(plant, bus, logger)
     stats = plant.stats
     end_us = round(duration_s * 1e6)
     started = False
     t0 = time.perf_counter()
+    pace = None
     while plant.time_us < end_us:
         frames = plant.tick_frames()
         io.send(frames)
@@ -263,10 +271,42 @@ def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
             stats.missed_ticks += 1
         if not started:
             stats.start_wait_s = time.perf_counter() - t0
+            if max_speed is not None:
+                pace = _Pace(plant, max_speed)
         started = True
         _end_period(plant, t0, progress)
+        if pace is not None:
+            time.sleep(pace.wait_s())
     stats.wall_s = time.perf_counter() - t0
     return stats
+
+
+class _Pace:
+    """The wall-clock schedule of a paced loop: sim time t is due at base + t / speed.
+
+    A loop more than one control period behind (its process stalled) lets the
+    schedule slip instead of catching up: a burst of unanswered ticks would trip the
+    motor driver's watchdog (sim time) on a robot that did nothing wrong."""
+
+    def __init__(self, plant: Plant, speed: float, clock: Callable[[], float] = time.perf_counter) -> None:
+        self.plant = plant
+        self.speed = speed
+        self.clock = clock
+        self.base = clock() - plant.time_us / 1e6 / speed
+
+    def due(self) -> float:
+        """Wall time at which the next period may start."""
+        return self.base + self.plant.time_us / 1e6 / self.speed
+
+    def wait_s(self) -> float:
+        """Seconds to wait now; slips the schedule when it is behind by more than a period."""
+        late = self.clock() - self.due()
+        period_s = robot_spec.CONTROL_PERIOD_US / 1e6 / self.speed
+        if late > period_s:
+            self.base += late
+            self.plant.stats.slipped_s += late
+            return 0.0
+        return max(0.0, -late)
 
 
 def _end_period(plant: Plant, t0: float, progress: Any) -> None:
@@ -279,16 +319,19 @@ def _end_period(plant: Plant, t0: float, progress: Any) -> None:
 
 def run_paced(plant: Plant, bus: can.BusABC, duration_s: float, speed: float = 1.0, *,
               logger: can.Listener | None = None, progress=None) -> RunStats:
-    """Send each tick at wall time t_k / speed, never wait for the controller."""
+    """Send each tick at wall time t_k / speed, never wait for the controller; a loop
+    that fell more than a period behind (a stall) slips its schedule (RunStats.slipped_s)."""
     if not speed > 0:
         raise ValueError(f"speed must be positive, got {speed}")
     io = _Io(plant, bus, logger)
     stats = plant.stats
     end_us = round(duration_s * 1e6)
     t0 = time.perf_counter()
+    pace = _Pace(plant, speed)
     while plant.time_us < end_us:
         io.send(plant.tick_frames())
-        wake = t0 + (plant.time_us + robot_spec.CONTROL_PERIOD_US) / 1e6 / speed
+        pace.wait_s()  # slips the schedule if this loop fell behind (a stall), no burst
+        wake = pace.due() + robot_spec.CONTROL_PERIOD_US / 1e6 / speed
         while True:
             remaining = wake - time.perf_counter()
             if remaining <= 0:

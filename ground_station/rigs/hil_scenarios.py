@@ -282,13 +282,16 @@ def _qnav(procs: _Procs, name: str, args: list, timeout_s: float = 60) -> tuple[
 
 
 def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavlink: str | None = None,
-            robot_extra: list[str] | None = None, upload: Path | None = None, speed: float | None = None) -> dict:
+            robot_extra: list[str] | None = None, upload: Path | None = None, speed: float | None = None,
+            max_speed: float | None = None) -> dict:
     """Mission A-D over MAVLink, the ground side as `qnav` commands (module docstring).
 
     Default link: robot `udpout:127.0.0.1:P`, ground station `udpin:127.0.0.1:P`; a serial radio
     passes its two ends. `upload`: a policy file `qnav upload --activate`s first. `speed`: paced
-    at that many times real time (robot on --sim-clock) instead of lockstep: a real-time link
-    such as a 57600-baud radio cannot carry telemetry sent on a clock running ~50x real time."""
+    at that many times real time (robot on --sim-clock) instead of lockstep. `max_speed`: lockstep,
+    but never faster than that many times real time: a real-time link such as a 57600-baud radio
+    cannot carry telemetry sent on a clock running ~50x real time, and a loaded machine must only
+    slow the run (paced, a stalled process trips the motor watchdog; lockstep answers every tick)."""
     if robot_mavlink is None or gcs_mavlink is None:
         port = free_udp_port()
         robot_mavlink, gcs_mavlink = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
@@ -299,6 +302,8 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
     stats = work / "mission_robot.json"
     with _Procs(work) as procs:
         pace = ["--lockstep"] if speed is None else ["--speed", speed]
+        if max_speed is not None:
+            pace += ["--max-speed", max_speed]
         sim = procs.start("mission_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, *pace,
                                           "--duration", 3000 if speed is None else 150 * speed, "--start", START,
                                           "-q"])

@@ -269,3 +269,38 @@ def test_cli_lockstep_across_processes_via_hub_writes_all_outputs(tmp_path):
     frames = list(can.LogReader(str(tmp_path / "run.blf")))
     assert sum(f.arbitration_id == cp.MOTOR_COMMAND_ID for f in frames) == 100
     assert hashlib.sha256((tmp_path / "traj.csv").read_bytes()).hexdigest()
+
+
+def test_pace_slips_after_a_stall_instead_of_bursting():
+    from sim_bridge.plant import _Pace
+
+    plant = Plant(ARENA, SimConfig(), Pose(1.0, 1.0, 0.0))
+    now = [100.0]
+    pace = _Pace(plant, 2.0, clock=lambda: now[0])
+    period_wall = robot_spec.CONTROL_PERIOD_US / 1e6 / 2.0  # 25 ms at x2
+    plant.time_us += robot_spec.CONTROL_PERIOD_US
+    assert pace.wait_s() == pytest.approx(period_wall)  # early: wait for the schedule
+    now[0] += period_wall + 0.2 * period_wall  # a little late: no wait, nothing slipped
+    assert pace.wait_s() == 0.0 and plant.stats.slipped_s == 0.0
+    plant.time_us += robot_spec.CONTROL_PERIOD_US
+    now[0] += 0.5  # a stall of 0.5 s: far more than a period behind
+    assert pace.wait_s() == 0.0
+    assert plant.stats.slipped_s == pytest.approx(0.5 - 0.8 * period_wall)  # behind by 0.5 s less 0.8 period
+    plant.time_us += robot_spec.CONTROL_PERIOD_US
+    assert pace.wait_s() == pytest.approx(period_wall)  # the next period is paced again, no burst
+
+
+def test_lockstep_with_a_max_speed_answers_every_tick_and_is_never_faster():
+    plant = Plant(ARENA, SimConfig(), Pose(1.0, 1.0, 0.0))
+    bus = open_bus("virtual:test_maxspeed")
+    try:
+        with _Controller("test_maxspeed"):
+            stats = run_lockstep(plant, bus, 1.0, max_speed=10.0)
+    finally:
+        bus.shutdown()
+    assert stats.ticks == 20 and stats.missed_ticks == 0
+    # 1 s of sim at most 10x real time: at least 0.1 s of wall after the first answer (a loaded
+    # machine only makes it slower)
+    assert stats.wall_s - stats.start_wait_s >= 0.095
+    with pytest.raises(ValueError, match="max_speed"):
+        run_lockstep(plant, bus, 1.0, max_speed=0.0)
