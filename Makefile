@@ -18,15 +18,18 @@ demo: $(STAMP)
 	$(BIN)/qnav demo
 
 test: $(STAMP)
-	sh tools/install_test_deps.sh
-	$(BIN)/ruff check .
-	$(BIN)/mypy
+	# numba's cache filled once (tools/warm_numba.py) in the background, beside the
+	# Debian test packages and UML check, ruff and mypy: otherwise every xdist worker
+	# and every `qnav` process a test starts compiles the same kernels.
+	$(BIN)/python tools/warm_numba.py --quiet & warm=$$!; \
+	sh tools/install_test_deps.sh && $(BIN)/ruff check . && $(BIN)/mypy; status=$$?; \
+	wait $$warm || status=1; exit $$status
 	# Everything but the wall-clock tests on three pytest-xdist workers (at two,
 	# the 2 cores were busy 58 % of the run: many tests wait on processes and
-	# sockets), the Ray cluster tests on one worker (xdist_group); then, one at
-	# a time, the tests judged on the wall clock (marker `wallclock`: paced and
-	# real-time sims, link timing, the UML vcan batch), which busy neighbours
-	# could fail.
+	# sockets), grouped tests on one worker each (xdist_group: the Ray cluster, the
+	# UML vcan batch); then, one at a time, the tests judged on the wall clock
+	# (marker `wallclock`: real-time sims under MAVSDK, floods and link timing
+	# against the control tick), which busy neighbours could fail.
 	$(BIN)/python -m pytest -q --durations=15 -n 3 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py

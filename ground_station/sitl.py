@@ -55,6 +55,7 @@ class SitlOptions:
     policy: str | None = None  # a file or policies:NAME; None: shipped for the map; "none": no policy
     can: str | None = None  # None: start a python-can-remote hub
     speed: float = 1.0
+    lockstep: bool = False  # the sim waits for every robot command, at most `speed` times real time
     mavlink: str = DEFAULT_MAVLINK
     out: Path | None = None  # None: runs/sitl-<timestamp>/
     seed: int = 0
@@ -226,17 +227,20 @@ class Sitl:
         info = SitlInfo(run_dir=run_dir, mavlink=opts.mavlink, gcs_url=gcs_side(opts.mavlink), can_spec=can_spec,
                         hub=self.hub is not None, policy=policy or "none", start=start, logs=logs)
         self.info = info
-        sim_argv = qnav_sim("--map", opts.map_name, "--can", can_spec, "--speed", f"{opts.speed:g}",
+        pace = ["--lockstep", "--max-speed", f"{opts.speed:g}"] if opts.lockstep else ["--speed", f"{opts.speed:g}"]
+        sim_argv = qnav_sim("--map", opts.map_name, "--can", can_spec, *pace,
                             "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
                             "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q")
-        robot_argv = qnav_robot("--can", can_spec, "--sim-clock", "--start", start, "--storage", run_dir / "robot",
+        robot_argv = qnav_robot("--can", can_spec, "--lockstep" if opts.lockstep else "--sim-clock", "--start", start,
+                                "--storage", run_dir / "robot",
                                 "--mavlink", opts.mavlink, "--mavlink-autopilot", opts.autopilot,
                                 "--stats-json", run_dir / "robot_stats.json")
         if policy:
             robot_argv += ["--policy", policy]
         self.procs.start("sim", sim_argv, logs["sim"])
         self.procs.start("robot", robot_argv, logs["robot"])
-        self.say(f"qnav-sim (map {opts.map_name}, x{opts.speed:g} real time) and qnav-robot "
+        pace_text = f"lockstep, at most x{opts.speed:g}" if opts.lockstep else f"x{opts.speed:g} real time"
+        self.say(f"qnav-sim (map {opts.map_name}, {pace_text}) and qnav-robot "
                  f"(policy {info.policy}) started at cell {cell}, start {start}")
         info.sysid = self._probe(info)
         return info

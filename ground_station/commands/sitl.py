@@ -40,6 +40,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="sim pace in times real time (default %(default)g); above 1 FS_GCS_TOUT_MS is raised "
                         "to match, as the robot measures the GCS failsafe on sim time")
+    p.add_argument("--lockstep", action="store_true",
+                   help="the sim waits for the robot's command every tick and runs at most --speed times real "
+                        "time: a loaded machine slows the run instead of tripping the motor watchdog (default: "
+                        "paced, the sim never waits, as a real robot's world does not)")
     p.add_argument("--mavlink", default=DEFAULT_MAVLINK, metavar="URL",
                    help="the robot's MAVLink connection string (default %(default)s: it listens, ground "
                         "stations send to it; udpout:127.0.0.1:14550 feeds a QGroundControl directly)")
@@ -58,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ground_station.sitl import Sitl, SitlOptions, connection_help
 
-    opts = SitlOptions(map_name=args.map, policy=args.policy, can=args.can, speed=args.speed,
+    opts = SitlOptions(map_name=args.map, policy=args.policy, can=args.can, speed=args.speed, lockstep=args.lockstep,
                        mavlink=args.mavlink, out=args.out, seed=args.seed, duration_s=args.duration,
                        autopilot=args.autopilot)
 

@@ -153,16 +153,18 @@ def goal_reached(can: str, work: Path, *, duration_s: float = 35.0, candump: str
 
 def estop(can: str, work: Path, *, sender: str = "bus", speed: float = 2.0, duration_s: float = 8.0) -> dict:
     """Paced drive; EStop from another node once DRIVING (`sender`: "bus" python-can, "cansend" can-utils).
-    At 2x real time the motor watchdog's 200 ms of sim time is 100 ms of wall time: at 4x, in user-mode
-    Linux with its twin booted beside it, the robot's slow first ticks (p99 49 ms) once tripped it first."""
+    Paced as lockstep at most `speed` times real time (qnav-sim --max-speed): the e-stop arrives from
+    another node at a wall-clock moment, while every tick is answered, so a slow or loaded machine
+    (user-mode Linux with its twin beside it: robot tick p99 49 ms) slows the run instead of tripping
+    the motor watchdog first (seen when it was paced at 4x)."""
     res: dict = {"scenario": "estop", "can": can, "sender": sender}
     tag = f"estop_{sender}"
     bus = open_bus(can)
     try:
         with _Procs(work) as procs:
-            sim = procs.start(f"{tag}_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--speed", speed,
-                                             "--duration", duration_s, "--start", START, "-q"])
-            rob = procs.start(f"{tag}_robot", [BIN / "qnav-robot", "--can", can, "--sim-clock", "--policy",
+            sim = procs.start(f"{tag}_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
+                                             "--max-speed", speed, "--duration", duration_s, "--start", START, "-q"])
+            rob = procs.start(f"{tag}_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy",
                                                CELL_POLICY, "--start", START, "--goal-cell", "9,0",
                                                "--exit-when-done", "--duration", duration_s - 0.1,
                                                "--mavlink", "none"])
@@ -194,7 +196,9 @@ def estop(can: str, work: Path, *, sender: str = "bus", speed: float = 2.0, dura
                     elif name == "ControllerHeartbeat":
                         fault = fault or cp.decode(msg)[1]["Ctrl_State"] == CtrlState.FAULT
                 res["zero_command_seen"], res["fault_heartbeat_seen"] = zero, fault
-            res["robot_exit"], res["sim_exit"] = _wait(rob, 30), _wait(sim, 30)
+            res["robot_exit"] = _wait(rob, 30)
+            # lockstep: with the robot gone the sim would wait out each remaining tick; Ctrl-C it
+            res["sim_exit"] = stop_process(sim, timeout_s=10, sig=signal.SIGINT)
             log = procs.log(f"{tag}_robot")
             res["robot_fault_line"] = "FAULT: e-stop engaged" in log
             if res["robot_exit"] != 3 or not res["robot_fault_line"]:

@@ -87,13 +87,12 @@ def no_children_left(out: Path) -> list[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock  # a real-time sim: a 200 ms stall of the robot process trips the motor watchdog
 @pytest.mark.timeout(400)
 def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
-    # twice real time: the sim's 200 ms motor watchdog is sim time, so at --speed X a wall-clock stall
-    # of 200/X ms stops the wheels (seen at x3 on a loaded machine: FAULT "motor driver watchdog
-    # tripped"); make test runs this one alone (marker wallclock), where 100 ms is far off
-    sitl = SitlProcess(tmp_path, "--speed", "2")
+    # lockstep at most twice real time: paced, the sim's 200 ms motor watchdog is sim time, so a
+    # wall-clock stall of 200/X ms of the robot process stopped the wheels on a loaded machine (FAULT
+    # "motor driver watchdog tripped"); in lockstep every tick is answered and load only slows the run
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
     mp = None
     try:
         master = sitl.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]

@@ -1,0 +1,85 @@
+"""Fill numba's on-disk cache (`cache=True` kernels, `__pycache__/*.nbi|*.nbc`) once,
+before the test suite runs.
+
+Why: on a fresh clone nothing is compiled, and the suite's pytest-xdist workers
+and the `qnav` processes its tests start each compile the same training,
+evaluation, twin and planner kernels while none is cached yet (measured: the
+`qnav bench train` test took 32-42 s cold and 1.9 s warm). One process that
+runs the station's commands at toy sizes compiles each kernel once, with the
+argument types the commands use, and every later process loads it.
+
+`make test` runs this in the background beside ruff, mypy and the Debian test
+packages, then waits for it before pytest. It is not a test: it checks
+nothing but exits non-zero (with the failing command named) if a command fails.
+
+    python tools/warm_numba.py [--quiet]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def commands(out: Path) -> list[list[str]]:
+    """`qnav` argv lists that between them call every cached kernel family."""
+    return [
+        # training kernels of every shipped encoding (cell, sector, sector-memory)
+        ["bench", "train", "--steps", "20000", "--baseline-seconds", "0.05", "--sector-steps", "2000",
+         "--json", str(out / "bench_train.json")],
+        # greedy evaluation kernels per encoding
+        ["train", "--map", "paper10", "--encoding", "cell", "--targets", "A,B", "--steps", "20000",
+         "--out", str(out / "cell"), "--quiet"],
+        ["eval", str(out / "cell"), "--json"],
+        ["train", "--map", "paper10", "--encoding", "sector", "--steps", "2000", "--out", str(out / "sector"),
+         "--quiet"],
+        ["eval", str(out / "sector"), "--sample", "4", "--json"],
+        ["train", "--map", "paper10", "--encoding", "sector-memory", "--steps", "2000",
+         "--out", str(out / "sector_memory"), "--quiet"],
+        ["eval", str(out / "sector_memory"), "--sample", "4", "--json"],
+        # the learners of the study (SARSA, Expected SARSA, Double Q, Dyna-Q, Q(lambda)), BFS optimum
+        ["study", "--out", str(out / "study"), "--lrs", "0.5:0.5:0.1", "--seeds", "1", "--steps", "3000",
+         "--eval-every", "1000", "--learner-lrs", "0.5", "--workers", "1"],
+        # the twin's rollouts with discs and movers, the scenario sampler, the baselines
+        ["bench", "nav", "--map", "paper10", "--episodes", "2", "--workers", "1",
+         "--json", str(out / "bench_nav.json")],
+    ]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quiet", action="store_true", help="print only failures")
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    from ground_station import cli
+
+    t_all = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="qnav-warm-") as tmp:
+        for argv_ in commands(Path(tmp)):
+            t0 = time.monotonic()
+            out = io.StringIO()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+                try:
+                    code = cli.main(argv_)
+                except SystemExit as exc:
+                    code = exc.code if isinstance(exc.code, int) else 1
+            if code != 0:
+                print(f"warm_numba: qnav {' '.join(argv_)} failed (exit {code}):\n{out.getvalue()[-2000:]}",
+                      file=sys.stderr)
+                return 1
+            if not args.quiet:
+                print(f"warm_numba: qnav {argv_[0]} {argv_[1]}: {time.monotonic() - t0:.1f} s")
+    if not args.quiet:
+        print(f"warm_numba: numba cache filled in {time.monotonic() - t_all:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
