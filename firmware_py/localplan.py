@@ -4,10 +4,18 @@ The ground station plans waypoints on the known map; a box in a corridor or
 a person walking past is not on it. This module owns what the robot does
 about them before its learnt sector policy steers:
 
+* `unmapped_ends` / `unmapped_readings` tell which range readings the map
+  does not explain: on no ray of the sensor's fan (the sensor geometry of
+  `robot_spec`, as the twin's `sense` casts it) does the point at the read
+  distance lie within `margin_mm` of an occupied cell or the map's edge. A
+  disc, a box or a person in the open is unmapped; a map wall never is,
+  also from a pose a little off (the margin absorbs the localiser's ~0.1 m
+  corridor error) and also where a fan ray grazes a corner. The ray end
+  points are computed in floats and rounded to whole mm; the wall test is
+  integers. The controller also withholds these readings from its
+  localiser (`Controller._statuses_for_localiser`).
 * `ObstacleMemory` keeps the end points of range readings the map does not
-  explain (the `firmware_py.unmapped` test: on no ray of the sensor's fan
-  does the point at the read distance lie within `margin_mm` of a mapped
-  cell), in world millimetres, one per 50 mm square, each stamped with the
+  explain, in world millimetres, one per 50 mm square, each stamped with the
   controller clock (sim time in HIL) and forgotten `memory_us` after it was
   last seen: a person who walked on leaves no wall behind, a box in view is
   seen again every tick.
@@ -53,12 +61,92 @@ from typing import Any
 
 from firmware_py import robot_spec
 from firmware_py.mapdata import OccupancyGrid
-from firmware_py.unmapped import _wall_within, unmapped_ends
 
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
 _KEY_MM = 50  # one remembered point per 50 mm square
 _SQRT2 = 1.4142
 _UNKNOWN = 2  # a raster cell of the map's configuration space not computed yet
+
+# the sensor fans of robot_spec, for `unmapped_ends` (the twin's `sense` casts the same rays)
+_N = robot_spec.SENSOR_COUNT
+_ANG = [a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD]
+_SENS_COS = [math.cos(a) for a in _ANG]
+_SENS_SIN = [math.sin(a) for a in _ANG]
+_FAN = ([(k / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (robot_spec.SENSOR_FOV_MRAD / 1000.0)
+         for k in range(robot_spec.SENSOR_FAN_RAYS)] if robot_spec.SENSOR_FAN_RAYS > 1 else [0.0])
+_RAY_COS = [[math.cos(a + f) for f in _FAN] for a in _ANG]
+_RAY_SIN = [[math.sin(a + f) for f in _FAN] for a in _ANG]
+_MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
+
+
+def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
+    """An occupied cell (or the outside of the grid: the world's outer walls)
+    has a point within m mm of the point (x, y) mm (integers only)."""
+    c = grid.cell_mm
+    top = grid.height * c
+    for row in range((top - (y + m)) // c, (top - (y - m)) // c + 1):
+        ylo = top - (row + 1) * c
+        dy = ylo - y if y < ylo else (y - ylo - c if y > ylo + c else 0)
+        for col in range((x - m) // c, (x + m) // c + 1):
+            if not grid.occupied(col, row):
+                continue
+            xlo = col * c
+            dx = xlo - x if x < xlo else (x - xlo - c if x > xlo + c else 0)
+            if dx * dx + dy * dy <= m * m:
+                return True
+    return False
+
+
+def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                  ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+                  margin_mm: int, max_mm: int = robot_spec.RANGE_MAX_MM) -> list[tuple[int, int, int, int]]:
+    """(sensor, distance mm, x, y) per reading the map does not explain, the
+    point being the end of the fan's middle ray. A reading is explained when,
+    on any ray of the sensor's fan, the point at the read distance (rounded
+    to whole mm) lies within margin_mm of an occupied cell or the map's edge;
+    too far and invalid readings, and readings beyond max_mm, never count
+    (nothing seen); a too-close reading is taken at the range's minimum."""
+    out: list[tuple[int, int, int, int]] = []
+    th = heading_mrad / 1000.0
+    ct = math.cos(th)
+    st = math.sin(th)
+    mid = len(_FAN) // 2
+    for i in range(_N):
+        if status[i] == robot_spec.RANGE_TOO_CLOSE:
+            r = robot_spec.RANGE_MIN_MM
+        elif status[i] == robot_spec.RANGE_VALID:
+            r = ranges_mm[i]
+        else:
+            continue
+        if r > max_mm:
+            continue
+        ox = x_mm + _MOUNT * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
+        oy = y_mm + _MOUNT * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
+        explained = False
+        end = (0, 0)
+        for k in range(len(_FAN)):
+            cx = ct * _RAY_COS[i][k] - st * _RAY_SIN[i][k]
+            cy = st * _RAY_COS[i][k] + ct * _RAY_SIN[i][k]
+            ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
+            if _wall_within(grid, ex, ey, margin_mm):
+                explained = True
+                break
+            if k == mid:
+                end = (ex, ey)
+        if not explained:
+            out.append((i, r, end[0], end[1]))
+    return out
+
+
+def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                      ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+                      margin_mm: int) -> list[int]:
+    """Per sensor: its distance (mm) when the map does not explain the
+    reading (`unmapped_ends`; too close: 0), else -1."""
+    out = [-1] * _N
+    for i, r, _, _ in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, margin_mm):
+        out[i] = 0 if status[i] == robot_spec.RANGE_TOO_CLOSE else r
+    return out
 
 
 @dataclass(frozen=True)

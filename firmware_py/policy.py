@@ -51,7 +51,6 @@ from firmware_py.gridbug import MOVE_STEPS, GridBugEncoder
 from firmware_py.localplan import META_KEY as PLANNER_KEY
 from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
-from firmware_py.unmapped import UnmappedSectorEncoder
 
 # --- format constants ---------------------------------------------------------
 MAGIC = b"QTAB"
@@ -74,12 +73,13 @@ KIND_CELL = 1
 KIND_SECTOR = 2
 KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
 KIND_SECTOR_MEMORY_GRID = 4  # GridBugEncoder: u16 free_mm, leave_margin_mm, cell_mm, u8 wall_bearing, the moves
-# the sector section, then the detour: n detour sensors (u8), their indices (u8 each), eight u16
-# (margin mm, block mm, block mrad, leave mm, leave 0/1, clear mm, switch ticks, rejoin 0/1); firmware_py/unmapped.py
-KIND_SECTOR_UNMAPPED = 5
 KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory-tick",
-              KIND_SECTOR_MEMORY_GRID: "sector-memory", KIND_SECTOR_UNMAPPED: "sector-unmapped"}
+              KIND_SECTOR_MEMORY_GRID: "sector-memory"}
 KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
+# Kind codes of experiments that were removed from qnav (docs/research.md): never reused, and a file of
+# one is refused by name (`removed_kind_reason`)
+REMOVED_KINDS = {5: "sector-unmapped"}
+REMOVED_AT = "research-experiments"  # the git tag of the last commit that has them
 
 DTYPE_INT8 = 1
 DTYPE_INT16 = 2
@@ -93,7 +93,6 @@ MIN_FILE_BYTES = HEADER.size + CRC.size
 
 _SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 _MEMORY = struct.Struct("<HHH")  # block_mm, block_bearing_mrad, leave_margin_mm
-_UNMAPPED = struct.Struct("<HHHHHHHH")  # margin, block, block mrad, leave margin, leave, clear, switch, rejoin
 _CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
 _GRID = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
 _PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
@@ -101,11 +100,17 @@ _GOAL = struct.Struct("<HH")  # goal cell (col, row)
 _ORDER_NATIVE = sys.byteorder == "little"
 
 
-AnyEncoder = CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder | UnmappedSectorEncoder
+AnyEncoder = CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
 
 
 class PolicyError(Exception):
     """A policy file is unusable; the message is a one-line reason."""
+
+
+def removed_kind_reason(kind: int) -> str:
+    """The one-line refusal of a file whose kind code is in REMOVED_KINDS."""
+    return (f"policy kind {REMOVED_KINDS[kind]} was an experiment, removed from qnav; "
+            f"git checkout {REMOVED_AT} to run it")
 
 
 class MapGeometry(NamedTuple):
@@ -218,16 +223,11 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
                     ) -> tuple[AnyEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
     enc: AnyEncoder
-    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY, KIND_SECTOR_UNMAPPED):
+    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY):
         if len(sec) < _SECTOR_HEAD.size:
             raise PolicyError("sector encoder section too short")
         bearing, n_sensors, n_edges = _SECTOR_HEAD.unpack_from(sec, 0)
         extra = _MEMORY.size if kind == KIND_SECTOR_MEMORY else 0
-        if kind == KIND_SECTOR_UNMAPPED:
-            at = _SECTOR_HEAD.size + n_sensors + 2 * n_edges
-            if len(sec) < at + 1:
-                raise PolicyError("sector-unmapped encoder section too short")
-            extra = 1 + sec[at] + _UNMAPPED.size
         need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + extra + _PAIR.size * n_actions
         if len(sec) != need:
             raise PolicyError(f"sector encoder section is {len(sec)} bytes, its fields need {need}")
@@ -251,16 +251,6 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
                 off += _MEMORY.size
                 enc = MemorySectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
                                           block_mm=block, block_bearing_mrad=block_mrad, leave_margin_mm=leave)
-            elif kind == KIND_SECTOR_UNMAPPED:
-                n_det = sec[off]
-                detour = tuple(sec[off + 1:off + 1 + n_det])
-                off += 1 + n_det
-                margin, block, block_mrad, leave_mm, leave, clear, switch, rejoin = _UNMAPPED.unpack_from(sec, off)
-                off += _UNMAPPED.size
-                enc = UnmappedSectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
-                                            detour_sensors=detour, margin_mm=margin, block_mm=block,
-                                            block_bearing_mrad=block_mrad, leave_margin_mm=leave_mm, leave=leave,
-                                            clear_mm=clear, switch_ticks=switch, rejoin=rejoin)
             else:
                 enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
         except ValueError as exc:
@@ -349,6 +339,8 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         raise PolicyError(f"header_size {header_size} below the {HEADER.size}-byte v{VERSION_MAJOR} header")
     if flags & ~KNOWN_FLAGS:
         raise PolicyError(f"unknown flag bits 0x{flags & ~KNOWN_FLAGS:x}")
+    if kind in REMOVED_KINDS:
+        raise PolicyError(removed_kind_reason(kind))
     if kind not in KIND_NAMES:
         raise PolicyError(f"unknown encoder kind {kind}")
     if dtype not in DTYPES:
@@ -462,7 +454,7 @@ def _pack_encoder(encoder: AnyEncoder, goals: Sequence[tuple[int, int]],
             raise ValueError("sector-memory-grid fields must be 0..65535")
         out = _GRID.pack(encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm, int(encoder.wall_bearing))
         return out + b"".join(_PAIR.pack(*a) for a in MOVE_STEPS)
-    if isinstance(encoder, SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder):
+    if isinstance(encoder, SectorEncoder | MemorySectorEncoder):
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
         out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
@@ -471,12 +463,6 @@ def _pack_encoder(encoder: AnyEncoder, goals: Sequence[tuple[int, int]],
                                                   encoder.leave_margin_mm)):
                 raise ValueError("memory rule fields must be 0..65535")
             out += _MEMORY.pack(encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm)
-        if isinstance(encoder, UnmappedSectorEncoder):
-            vals = (encoder.margin_mm, encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm,
-                    encoder.leave, encoder.clear_mm, encoder.switch_ticks, encoder.rejoin)
-            if not all(0 <= v <= 0xFFFF for v in vals):
-                raise ValueError("detour rule fields must be 0..65535")
-            out += bytes([len(encoder.detour_sensors), *encoder.detour_sensors]) + _UNMAPPED.pack(*vals)
         actions = robot_spec.ACTION_WHEEL_SPEEDS_MM_S
     else:
         if len(goals) != encoder.n_goals:
@@ -579,6 +565,8 @@ def upgrade_policy(data: bytes, control_period_us: int, map_geometry: MapGeometr
     (stored_crc,) = CRC.unpack_from(data, n - CRC.size)
     if zlib.crc32(memoryview(data)[:n - CRC.size]) != stored_crc:
         raise PolicyError("CRC32 mismatch: the file is damaged, re-export it instead")
+    if kind in REMOVED_KINDS:
+        raise PolicyError(removed_kind_reason(kind))
     if header_size < HEADER_V1.size or header_size + enc_len > n - CRC.size or kind not in KIND_NAMES:
         raise PolicyError("version 1 header fields are inconsistent with the file")
     geometry: MapGeometry | None = map_geometry

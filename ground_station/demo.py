@@ -541,9 +541,9 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         except PolicyError:
             pol = None  # the robot's loader judges it on upload and gives the reason
         if pol is not None and opts.plan is None:
-            # a sector policy (also one with the unmapped-reading detour) steers to the planner's waypoints
-            planned = pol.kind in ("sector", "sector-unmapped")
-        if pol is not None and pol.kind in ("sector", "sector-unmapped"):
+            # a sector policy steers to the planner's waypoints
+            planned = pol.kind == "sector"
+        if pol is not None and pol.kind == "sector":
             plan_kw = guidance_from_metadata(pol.metadata)
 
     run_dir = Path(opts.out) if opts.out else default_run_dir()

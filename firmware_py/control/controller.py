@@ -46,9 +46,8 @@ from firmware_py.gridbug import (
     GridBugMemory,
     grid_dir_of,
 )
-from firmware_py.localplan import LocalPlanner, MotionGuard, ObstacleMemory
+from firmware_py.localplan import LocalPlanner, MotionGuard, ObstacleMemory, unmapped_readings
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
-from firmware_py.unmapped import DetourMemory, UnmappedSectorEncoder, unmapped_readings
 from firmware_py.vehicle import (
     CtrlState,
     FailsafeAction,
@@ -247,8 +246,6 @@ class Controller:
         self.grid_memory = GridBugMemory()  # sector-memory policies: the cell-stepped Bug memory
         self._grid_invalid_ticks = 0  # ticks waited for valid axis readings at this decision
         self._grid_invalid_at = -1
-        # sector-unmapped policies: the detour memory of the current goal (reset as the Bug memory)
-        self.detour = DetourMemory()
         self._memory_key: tuple[tuple[int, int], int] | None = None
         # sector policies with a map and planner parameters: sub-goals round unmapped obstacles
         self.local: tuple[LocalPlanner, ObstacleMemory, MotionGuard] | None = None
@@ -822,19 +819,8 @@ class Controller:
             item = f"item {self.mission_seq}: " if self.mode == Mode.AUTO else ""
             self._event("info", item + stalled, SEV_WARNING)
         pol = self.policy
-        if isinstance(pol.encoder, SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder):  # sector kinds
-            if isinstance(pol.encoder, UnmappedSectorEncoder):
-                key = (self.goal, self._driving_since_us)
-                if key != self._memory_key:  # a new goal (mission item, drive): forget the detour
-                    self.detour.reset()
-                    self._memory_key = key
-                # the readings the policy's map does not explain, at the pose the robot drives by;
-                # without a map (map_grid None) the encoder stays on its go rows (the plain sector policy)
-                s = pol.encoder.encode_on_map(self.detour, bearing, dist, inp.ranges_mm, inp.range_status,
-                                              pol.map_grid, self.nav.pose_mm())
-                a = pol.best_action(s)
-                self.detour.note_action(a)
-            elif isinstance(pol.encoder, MemorySectorEncoder):
+        if isinstance(pol.encoder, SectorEncoder | MemorySectorEncoder):  # sector kinds
+            if isinstance(pol.encoder, MemorySectorEncoder):
                 key = (self.goal, self._driving_since_us)
                 if key != self._memory_key:  # a new goal (or mission item, or a new drive): forget the wall
                     self.memory.reset()

@@ -24,7 +24,6 @@ from firmware_py import policy as fmt
 from firmware_py import robot_spec
 from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
 from firmware_py.gridbug import GridBugEncoder
-from firmware_py.unmapped import UnmappedSectorEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
 
@@ -113,16 +112,6 @@ def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
     if kind == "sector-memory":
         return GridBugEncoder(free_mm=int(d["free_mm"]), leave_margin_mm=int(d["leave_margin_mm"]),
                               cell_mm=int(d["cell_mm"]), wall_bearing=bool(d["wall_bearing"]))
-    if kind == "sector-unmapped":
-        return UnmappedSectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
-                                     sensors=tuple(int(s) for s in d["sensors"]),
-                                     range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
-                                     detour_sensors=tuple(int(s) for s in d["detour_sensors"]),
-                                     margin_mm=int(d["margin_mm"]), block_mm=int(d["block_mm"]),
-                                     block_bearing_mrad=int(d["block_bearing_mrad"]),
-                                     leave_margin_mm=int(d["leave_margin_mm"]), leave=int(d.get("leave", 1)),
-                                     clear_mm=int(d.get("clear_mm", 0)), switch_ticks=int(d.get("switch_ticks", 0)),
-                                     rejoin=int(d.get("rejoin", 0)))
     raise ValueError(f"unknown encoder kind {kind!r}")
 
 

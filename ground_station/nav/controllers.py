@@ -11,9 +11,6 @@ row -> action), so every controller also runs in HIL as an exported
   `sector-memory-tick` policy (`MemorySectorEncoder`: the same state plus the
   detour memory, reset per waypoint) is accepted too, and the baselines
   then run on its base `SectorEncoder` (the same sensing without memory);
-  so is a `sector-unmapped` policy (`firmware_py.unmapped`: the shipped
-  sector state plus a detour memory entered on readings the map does not
-  explain), the baselines again on its base encoder;
 * `seek`: the hand-written seek table (`learn.sector.evaluate.seek_table`:
   forward when the target is in the sector ahead, else turn to it), path;
 * `vfh`: a Vector-Field-Histogram-style reactive controller on the same
@@ -42,7 +39,6 @@ from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
 from firmware_py.localplan import META_KEY as PLANNER_KEY
 from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.policy import Policy, load_policy
-from firmware_py.unmapped import UnmappedSectorEncoder
 from ground_station.learn.export import (
     META_GRID,
     geometry_of_map,
@@ -60,16 +56,16 @@ EXTRA_CONTROLLERS = ("seek_local",)  # on request (--controllers), or by default
 @dataclass
 class NavController:
     name: str
-    encoder: SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder
+    encoder: SectorEncoder | MemorySectorEncoder
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
     local: LocalPlannerConfig | None = None  # steer on the robot's local planner (firmware_py.localplan)
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
-        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder | UnmappedSectorEncoder))
+        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder))
         meta: dict[str, object] = {"controller": self.name, "guidance": self.guidance}
-        if isinstance(self.encoder, UnmappedSectorEncoder) or self.local is not None:  # both need the map
+        if self.local is not None:  # the planner needs the map
             meta[META_GRID] = map_grid_rows(map_name)
         if self.local is not None:
             meta[PLANNER_KEY] = self.local.to_metadata()
@@ -137,10 +133,10 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
     """learnt / seek / vfh / direct on the learnt policy's encoder (the
     baselines on its base `SectorEncoder` when it carries the detour memory)."""
     enc = policy.encoder
-    if not isinstance(enc, SectorEncoder | MemorySectorEncoder | UnmappedSectorEncoder):
+    if not isinstance(enc, SectorEncoder | MemorySectorEncoder):
         raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
     q = policy_table(policy)
-    base = enc.base if isinstance(enc, MemorySectorEncoder | UnmappedSectorEncoder) else enc
+    base = enc.base if isinstance(enc, MemorySectorEncoder) else enc
     local = policy.local_planner
     make = {
         "learnt": lambda: NavController("learnt", enc, q, "path", local),

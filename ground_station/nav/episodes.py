@@ -28,7 +28,6 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import MemorySectorEncoder
-from firmware_py.unmapped import UnmappedSectorEncoder
 from ground_station.learn.sector.memory_train import memory_params
 from ground_station.learn.sector.obstacles import (
     COLLISION,
@@ -40,7 +39,6 @@ from ground_station.learn.sector.obstacles import (
     obstacle_clearance_mm,
 )
 from ground_station.learn.sector.twin import encoder_arrays
-from ground_station.learn.sector.unmapped import nav_eval_unmapped_kernel, unmapped_params
 from ground_station.maps import GridMap
 from ground_station.nav.controllers import NavController
 from ground_station.nav.scenario import Episode, episode_arrays
@@ -73,15 +71,6 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
 
         outcome, path, steps, minclear, near = run_twin_planned(eps, maps, ctrl, BUDGET_BASE, BUDGET_FACTOR,
                                                                 STALL_STEPS)
-        return _rows(eps, outcome, path, steps, minclear, near)
-    if isinstance(enc, UnmappedSectorEncoder):  # the detour memory on readings the map does not explain
-        sectors, sensors, edges, _ = encoder_arrays(enc.base)
-        up, dsens, _ = unmapped_params(enc)
-        detour = np.zeros(n, dtype=np.int64)
-        nav_eval_unmapped_kernel(q, a["occ"], a["dims"], a["cells"], a["map"], a["start"], a["goal"], a["wp"],
-                                 a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"], a["nm"], sectors, sensors,
-                                 edges, up, dsens, int(ctrl.guidance == "path"), BUDGET_BASE, BUDGET_FACTOR,
-                                 STALL_STEPS, outcome, path, steps, minclear, near, detour)
         return _rows(eps, outcome, path, steps, minclear, near)
     if isinstance(enc, MemorySectorEncoder):  # the detour memory reads every sensor
         sectors, sensors, edges, which = encoder_arrays(enc.base)

@@ -1,4 +1,6 @@
-"""The robot's local planner (`firmware_py.localplan`): its parameters as
+"""The robot's local planner (`firmware_py.localplan`): which readings the
+map explains (a map wall, also from a pose a little off, the border and a
+grazed corner) and which it does not (a disc in the open), its parameters as
 policy metadata (checked at load), the obstacle memory (unmapped end points
 only, forgotten on the controller clock) and the sub-goals (the waypoint
 while nothing is in the way, a point beside an obstacle across the line,
@@ -15,13 +17,19 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.control.controller import Controller
 from firmware_py.encoders import SectorEncoder
-from firmware_py.localplan import META_KEY, LocalPlanner, LocalPlannerConfig, ObstacleMemory
+from firmware_py.localplan import (
+    META_KEY,
+    LocalPlanner,
+    LocalPlannerConfig,
+    ObstacleMemory,
+    unmapped_readings,
+)
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.policy import PolicyError, dump_policy, load_policy
 from firmware_py.vehicle import VehicleConfig
 from tests.support.controller_rig import SECTOR_TRAINING_MAP, Kinematic, Rig
 
-V, FAR = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR
+V, FAR, CLOSE = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_TOO_CLOSE
 N = robot_spec.SENSOR_COUNT
 OPEN = ["." * 10] * 10
 WALL = ["." * 3 + "@" + "." * 6] * 10  # column 3: x 1500..2000 mm
@@ -30,6 +38,36 @@ CFG = LocalPlannerConfig()
 
 def _front(mm: int) -> tuple[list[int], list[int]]:
     return [mm] + [2000] * (N - 1), [V] + [FAR] * (N - 1)
+
+
+# 6 x 5 cells of 500 mm, a wall column at col 4 (x 2000..2500 mm) with the map's border around
+GRID = grid_from_rows(["......", "....@.", "....@.", "....@.", "......"], 500)
+
+
+def test_a_map_wall_is_explained_a_disc_in_the_open_is_not():
+    # robot at x 1500 facing east (heading 0): front sensor's mount at x 1650, the wall's face at x 2000
+    ranges = [350] + [2000] * 7
+    status = [V] + [FAR] * 7
+    assert unmapped_readings(GRID, 1500, 1250, 0, ranges, status, 150)[0] == -1
+    # the same reading 100 mm off in x (the localiser's corridor error) is still the wall
+    assert unmapped_readings(GRID, 1400, 1250, 0, ranges, status, 150)[0] == -1
+    # a reading of 200 mm ends 150 mm short of the wall (within the margin); 190 mm ends 160 short: a disc
+    ranges[0] = 200
+    assert unmapped_readings(GRID, 1500, 1250, 0, ranges, status, 150)[0] == -1
+    ranges[0] = 190
+    assert unmapped_readings(GRID, 1500, 1250, 0, ranges, status, 150)[0] == 190
+    # too far never counts; too close in the open is an unmapped contact (distance 0)
+    assert unmapped_readings(GRID, 1500, 1250, 0, [20] + [2000] * 7, [CLOSE] + [FAR] * 7, 150)[0] == 0
+    assert all(d == -1 for d in unmapped_readings(GRID, 1500, 1250, 0, [2000] * 8, [FAR] * 8, 150))
+
+
+def test_the_outer_border_and_a_grazed_corner_are_explained():
+    # facing north from (750, 2000): the border (y 2500) 500 - 150 = 350 mm from the front sensor
+    um = unmapped_readings(GRID, 750, 2000, 1571, [350] + [0] * 7, [V] + [FAR] * 7, 150)
+    assert um[0] == -1
+    # heading at the wall block's south-west corner (2000, 1000) from (1600, 700): a reading ending at the corner
+    um = unmapped_readings(GRID, 1600, 700, 644, [350] + [0] * 7, [V] + [FAR] * 7, 150)
+    assert um[0] == -1
 
 
 def test_config_round_trips_and_bad_fields_are_named():

@@ -16,6 +16,7 @@ from firmware_py.policy import (
     CRC,
     HEADER,
     HEADER_V1,
+    MAGIC,
     MAX_FILE_BYTES,
     MAX_METADATA_BYTES,
     MapGeometry,
@@ -313,6 +314,21 @@ def test_upgrade_refuses_what_it_cannot_know_or_trust():
     with pytest.raises(PolicyError, match="name the map"):
         upgrade_policy(old_sector, 50_000)
     assert load_policy(upgrade_policy(old_sector, 40_000, MapGeometry(250, 20, 8))).map_geometry == (250, 20, 8)
+
+
+@pytest.mark.parametrize("code, name", [(5, "sector-unmapped")])
+def test_a_removed_experiment_kind_is_refused_by_name(code, name):
+    """A file of a policy kind that was an experiment and left qnav (docs/research.md): its
+    header alone, with a valid CRC, gets one line naming the kind and where it still runs."""
+    head = HEADER.pack(MAGIC, 2, 0, HEADER.size, 0, code, 1, 4, 405, 0x1234, 1_700_000_000, 0.5, 0, 0,
+                       robot_spec.CONTROL_PERIOD_US, 500, 10, 10)
+    want = f"policy kind {name} was an experiment, removed from qnav; git checkout research-experiments to run it"
+    with pytest.raises(PolicyError) as err:
+        load_policy(head + CRC.pack(zlib.crc32(head)))
+    assert str(err.value) == want
+    with pytest.raises(PolicyError) as err:  # a version 1 file of it is not upgraded either
+        upgrade_policy(as_version_1(head + CRC.pack(zlib.crc32(head))), robot_spec.CONTROL_PERIOD_US, PAPER10)
+    assert str(err.value) == want
 
 
 def test_config_mismatch_names_both_values():
