@@ -19,8 +19,9 @@ with that, as nav2 re-plans on an updated costmap:
   forgotten (a mover walks on).
 * `raster_plan` plans on the scenario raster (`nav.scenario`: 50 mm points
   where the robot's disc grown by 75 mm touches neither a map cell nor one of
-  the points), shortest 8-connected path, pruned to line-of-sight segments of
-  at most 1 m: the waypoints a sector policy follows round the obstacle.
+  the points), shortest 8-connected path (`maps.octile_distances` on the
+  raster: diagonal steps sqrt 2, no corner cutting, then steepest descent),
+  pruned to line-of-sight segments of at most 1 m: the waypoints a sector policy follows round the obstacle.
 * `MissionFollower` is the pure core of the follow loop (messages and
   texts in, actions out; `follow_mission` is the thin shell on a `Link`): it
   tracks which targets the robot has reached (MISSION_ITEM_REACHED of each
@@ -111,8 +112,7 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
                 goals_mm: list[tuple[float, float]], max_segment_mm: float = 1000.0) -> list[list[tuple[float, float]]]:
     """Per goal, the waypoints (mm) from the previous one (first: start_mm) round
     the points, on the scenario raster; MapError when a leg has no path."""
-    from ground_station.maps import MapError
-    from ground_station.nav.diagnose import _dijkstra
+    from ground_station.maps import MapError, octile_distances
     from ground_station.nav.scenario import CSPACE_MARGIN_MM, RASTER_MM, _cspace
 
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
@@ -147,7 +147,7 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
         s, g = nearest_free(*here), nearest_free(gx, gy)
         if s is None or g is None:
             raise MapError(f"no free raster point near {'the robot' if s is None else 'the goal'}")
-        dist = _dijkstra(free, *g)
+        dist = octile_distances(~free, *g)  # free[y, x]: rows are raster y, columns raster x
         if not math.isfinite(dist[s[1], s[0]]):
             raise MapError(f"no path from ({here[0]:.0f}, {here[1]:.0f}) to ({gx:.0f}, {gy:.0f}) mm")
         path = [s]

@@ -5,14 +5,32 @@ planner parameters; HIL drives it through the robot's controller."""
 
 from __future__ import annotations
 
+import math
+
+from firmware_py import robot_spec
 from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.maps import load_map
 from ground_station.nav import controllers as nc
-from ground_station.nav.diagnose import blocked_segments
 from ground_station.nav.episodes import run_hil, run_twin
-from ground_station.nav.scenario import episodes
+from ground_station.nav.scenario import Episode, episodes
+
+RADIUS_MM = float(robot_spec.ROBOT_RADIUS_MM)
+
+
+def _seg_hits_disc(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, r: float) -> bool:
+    dx, dy = bx - ax, by - ay
+    l2 = dx * dx + dy * dy
+    t = 0.0 if l2 == 0 else max(0.0, min(1.0, ((cx - ax) * dx + (cy - ay) * dy) / l2))
+    return math.hypot(ax + t * dx - cx, ay + t * dy - cy) < r
+
+
+def blocked_segments(ep: Episode) -> int:
+    """Planned segments (start -> waypoints) that a disc grown by the robot's radius crosses."""
+    pts = [ep.start[:2], *ep.waypoints]
+    return sum(any(_seg_hits_disc(*a, *b, cx, cy, r + RADIUS_MM) for cx, cy, r in ep.discs)
+               for a, b in zip(pts[:-1], pts[1:], strict=True))
 
 
 def _controllers() -> tuple[nc.NavController, nc.NavController, nc.NavController]:

@@ -457,8 +457,7 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
     Bug memory is reset at the start and whenever the current waypoint
     changes (as the robot's controller does per mission item), updated from
     all eight readings every period, and the previous action's turn is
-    noted after each choice. mp of length 0: a plain sector table (the same
-    rollouts as the memoryless kernel this replaced: tests/ground_station/test_nav_diagnose.py)."""
+    noted after each choice. mp of length 0: a plain sector table."""
     use_mem = mp.shape[0] > 0
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
