@@ -85,8 +85,6 @@ NOT_RUN = {
     "qnav export RUN_DIR": "a synopsis (placeholders); its flags are checked above",
     "qnav export build/policies/sector_memory": "writes the shipped policies/sector_memory.qtab (tools/make_policy.py "
                                                  "runs it; tests/ground_station/test_policy_shipped.py checks the file)",
-    "qnav train --map paper10 --encoding sector --lr 0.1 --gamma 0.95 --reward-step 0":
-        "the obstacle experiments' 10-100 M-step trainings (hours)",
 }
 # Inline examples in prose (`qnav upload --activate`) are parsed and their flags checked, never run.
 

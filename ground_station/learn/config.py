@@ -13,7 +13,7 @@ from typing import Any
 
 ENCODINGS = ("cell", "sector", "sector-memory", "sector-memory-tick")
 # tabular learners (ground_station/learn/learners.py, the sector trainer's switch in
-# ground_station/learn/sector/kernels.py); sector-memory and obstacle training: q only
+# ground_station/learn/sector/kernels.py); sector-memory: q only
 LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
 
 
@@ -64,13 +64,6 @@ class TrainConfig:
     sector_range_noise_mm: float = _f(10.0, "sector: std (mm) of Gaussian noise on the range readings the learner sees "
                                             "(the sim's sensor noise); 0 = exact readings")
     sector_maps: str = _f("", "sector: extra comma-separated training maps (names or generator specs) besides --map")
-    sector_obstacles: int = _f(0, "sector: unmapped static discs per training episode, uniform in 0..N "
-                                  "(ground_station/nav/scenario.py); > 0 or --sector-movers trains on a scenario pool")
-    sector_movers: int = _f(0, "sector: moving discs per training episode, uniform in 0..N")
-    sector_pool: int = _f(4000, "sector: scenario episodes in the training pool (with obstacles or movers)")
-    sector_clear_reward: float = _f(0.0, "sector: cost per control period closer than --sector-clear-mm to an "
-                                         "unmapped obstacle (with obstacles or movers)")
-    sector_clear_mm: float = _f(100.0, "sector: clearance (mm, rim to an unmapped obstacle) the clearance cost keeps")
     memory_block_mm: int = _f(400, "sector-memory-tick: front range (mm) below which the way to a goal ahead counts as blocked "
                                    "(GO -> follow the wall)")
     memory_block_bearing_mrad: int = _f(785, "sector-memory-tick: the goal counts as ahead within +- this bearing (mrad)")
@@ -156,10 +149,9 @@ def validate_config(cfg: TrainConfig) -> None:
         raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got {cfg.encoding!r}")
     if cfg.learner not in LEARNERS:
         raise ValueError(f"learner must be one of {', '.join(LEARNERS)}, got {cfg.learner!r}")
-    obstacles = cfg.encoding == "sector" and (cfg.sector_obstacles > 0 or cfg.sector_movers > 0)
-    if cfg.learner != "q" and (cfg.encoding in ("sector-memory", "sector-memory-tick") or obstacles):
-        raise ValueError(f"learner {cfg.learner} is implemented for the cell and sector encodings without "
-                         "unmapped obstacles (sector-memory and obstacle training: q)")
+    if cfg.learner != "q" and cfg.encoding in ("sector-memory", "sector-memory-tick"):
+        raise ValueError(f"learner {cfg.learner} is implemented for the cell and sector encodings "
+                         "(sector-memory training: q)")
     if not 0.0 <= cfg.learner_lambda <= 1.0 or not 0.0 < cfg.trace_min < 1.0 or cfg.dyna_planning < 0:
         raise ValueError("learner_lambda must be in [0, 1], trace_min in (0, 1), dyna_planning >= 0")
     if cfg.steps < 1:
@@ -211,8 +203,6 @@ def _check_sector(cfg: TrainConfig) -> None:
     if not int_list(cfg.sector_sensors, "sector_sensors"):
         raise ValueError("sector_sensors must name at least one sensor")
     int_list(cfg.sector_range_edges, "sector_range_edges")
-    if cfg.sector_obstacles < 0 or cfg.sector_movers < 0 or cfg.sector_pool < 1:
-        raise ValueError("sector_obstacles and sector_movers must be >= 0 and sector_pool >= 1")
 
 
 def recipe_defaults(parser: argparse.ArgumentParser) -> None:

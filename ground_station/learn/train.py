@@ -270,16 +270,10 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
 
     encoder = sector_encoder(cfg)
     extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
-    if cfg.sector_obstacles > 0 or cfg.sector_movers > 0:
-        from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer
-        trainer: SectorTrainer | ObstacleSectorTrainer = ObstacleSectorTrainer([gridmap, *extra], cfg, encoder)
-    else:
-        trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
+    trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
     q = initial_table(cfg, trainer.n_states, trainer.n_actions)
     rets, succs, seconds = _run_in_chunks(trainer, q, cfg, progress, f"train sector {gridmap.name}")
-    q2 = None
-    if isinstance(trainer, SectorTrainer):
-        q, q2 = trainer.table(q), trainer.q2  # Double Q: (A + B) / 2 and B
+    q, q2 = trainer.table(q), trainer.q2  # Double Q: (A + B) / 2 and B
     return TrainResult(q, rets, succs,
                        {"encoder": encoder.to_dict(), "guidance": trainer.guidance,
                         "margin_mm": cfg.sector_margin_mm, "max_segment_mm": cfg.sector_max_segment_mm,

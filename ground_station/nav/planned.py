@@ -67,7 +67,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     guard = MotionGuard(ctrl.local)
     ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
-    rw = np.zeros(7)
+    rw = np.zeros(6)  # the reward is not needed here
     q = ctrl.q
     k, best, since, path, t, near = 0, phi, 0, 0.0, 0, 0
     outcome = TIMEOUT
@@ -83,7 +83,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         k0 = k
         x, y, th, phi, _, _, hit, success, driven, k = obs_period_step(
             occ, h, w, c, x, y, th, phi, wps, rem, len(wps), k, a, rw, which, ranges, status,
-            sectors, sensors, edges, discs, movers, 0.0)
+            sectors, sensors, edges, discs, movers)
         path += driven
         t += 1
         if hit:

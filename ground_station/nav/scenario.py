@@ -1,7 +1,7 @@
 """Navigation scenarios: a map, an episode, and obstacles the planner does not know.
 
-The one definition of a scenario episode, used by the twin's training and
-evaluation (`ground_station.learn.sector.obstacles`), the pymunk plant
+The one definition of a scenario episode, used by the twin's rollouts
+(`ground_station.learn.sector.obstacles`), the pymunk plant
 (`sim_bridge.obstacles.ObstacleLayer`), `qnav bench nav` and `qnav demo
 --obstacles/--movers`. An `Episode` is plain data (JSON round trip):
 start pose, goal, the planner's waypoints on the known map, static discs and

@@ -115,7 +115,7 @@ def test_dyna_q_plans_from_its_model():
 
 
 def test_sector_memory_refuses_other_learners():
-    with pytest.raises(ValueError, match="sector-memory and obstacle training: q"):
+    with pytest.raises(ValueError, match="sector-memory training: q"):
         validate_config(TrainConfig(encoding="sector-memory", learner="sarsa"))
     validate_config(TrainConfig(encoding="sector", learner="sarsa"))  # tests/ground_station/test_sector_learners.py
     with pytest.raises(ValueError, match="learner must be one of"):

@@ -1,6 +1,6 @@
 """The controllers of `qnav bench nav` (ground_station/nav/controllers.py),
 the bench's contract (table + JSON keys + PNG), the HIL episode loop on the
-lockstep rig with obstacles, and the obstacle trainer's determinism."""
+lockstep rig with obstacles."""
 
 from __future__ import annotations
 
@@ -132,26 +132,3 @@ def test_bench_nav_hil_part_and_bad_input(tmp_path):
     assert code == 2 and "no-such-map" in out
     code, out = _qnav("bench", "nav", "--policy", "policies:paper10_cell", "--episodes", "2")
     assert code == 2 and "sector policy" in out
-
-
-def test_obstacle_trainer_is_seeded():
-    from ground_station.learn.config import TrainConfig
-    from ground_station.learn.sector.obstacle_trainer import ObstacleSectorTrainer
-    from ground_station.learn.sector.trainer import sector_encoder
-
-    cfg = TrainConfig(map="paper10", encoding="sector", steps=40_000, sector_obstacles=2, sector_movers=1,
-                      sector_pool=30, seed=3)
-    gm = load_map("paper10")
-    enc = sector_encoder(cfg)
-    tables = []
-    for _ in range(2):
-        tr = ObstacleSectorTrainer([gm], cfg, enc)
-        q = np.zeros((enc.n_states, enc.n_actions))
-        _, succ = tr.run(q, 0, 40_000)
-        tables.append(q)
-    np.testing.assert_array_equal(tables[0], tables[1])
-    assert np.abs(tables[0]).sum() > 0 and len(succ) > 10
-    assert any(e.discs for e in tr.pool) and any(e.movers for e in tr.pool)
-    with pytest.raises(ValueError, match="guidance must be path"):
-        ObstacleSectorTrainer([gm], TrainConfig(encoding="sector", sector_obstacles=1,
-                                                sector_guidance="direct"), enc)

@@ -3,7 +3,7 @@
 per seed and independent of chunking, is not Q-learning under another name,
 learns on a small room; Double Q keeps two tables and ships their mean,
 Dyna-Q's model holds what was seen, Q(lambda)'s traces are bounded and cut;
-sector-memory and obstacle training refuse them."""
+sector-memory refuses them."""
 
 from dataclasses import replace
 
@@ -95,9 +95,7 @@ def test_q_lambda_traces_are_bounded_and_cut_on_exploration():
     assert max(lengths) > 5 and lengths.count(0) > 50
 
 
-def test_sector_memory_and_obstacle_training_refuse_other_learners():
-    with pytest.raises(ValueError, match="sector-memory and obstacle training: q"):
+def test_the_sector_encoding_takes_them_and_sector_memory_refuses_them():
+    with pytest.raises(ValueError, match="sector-memory training: q"):
         validate_config(TrainConfig(encoding="sector-memory", learner="sarsa"))
-    with pytest.raises(ValueError, match="sector-memory and obstacle training: q"):
-        validate_config(TrainConfig(encoding="sector", learner="dyna-q", sector_obstacles=2))
     validate_config(TrainConfig(encoding="sector", learner="expected-sarsa"))
