@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder, best_action
+from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
 from firmware_py.gridbug import MOVE_STEPS, GridBugEncoder
 from firmware_py.localplan import META_KEY as PLANNER_KEY
 from firmware_py.localplan import LocalPlannerConfig
@@ -71,14 +71,12 @@ KNOWN_FLAGS = FLAG_PER_STATE_SCALES  # any other bit set -> reject (see the spec
 
 KIND_CELL = 1
 KIND_SECTOR = 2
-KIND_SECTOR_MEMORY = 3  # the sector section, then the memory rules' three u16 (block mm, block mrad, leave mm)
 KIND_SECTOR_MEMORY_GRID = 4  # GridBugEncoder: u16 free_mm, leave_margin_mm, cell_mm, u8 wall_bearing, the moves
-KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY: "sector-memory-tick",
-              KIND_SECTOR_MEMORY_GRID: "sector-memory"}
+KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY_GRID: "sector-memory"}
 KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
 # Kind codes of experiments that were removed from qnav (docs/research.md): never reused, and a file of
 # one is refused by name (`removed_kind_reason`)
-REMOVED_KINDS = {5: "sector-unmapped"}
+REMOVED_KINDS = {3: "sector-memory-tick", 5: "sector-unmapped"}
 REMOVED_AT = "research-experiments"  # the git tag of the last commit that has them
 
 DTYPE_INT8 = 1
@@ -92,7 +90,6 @@ MAX_FILE_BYTES = 64 * 1024 * 1024  # far above any table the robot can hold
 MIN_FILE_BYTES = HEADER.size + CRC.size
 
 _SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
-_MEMORY = struct.Struct("<HHH")  # block_mm, block_bearing_mrad, leave_margin_mm
 _CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
 _GRID = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
 _PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
@@ -100,7 +97,7 @@ _GOAL = struct.Struct("<HH")  # goal cell (col, row)
 _ORDER_NATIVE = sys.byteorder == "little"
 
 
-AnyEncoder = CellEncoder | SectorEncoder | MemorySectorEncoder | GridBugEncoder
+AnyEncoder = CellEncoder | SectorEncoder | GridBugEncoder
 
 
 class PolicyError(Exception):
@@ -223,12 +220,11 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
                     ) -> tuple[AnyEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
     enc: AnyEncoder
-    if kind in (KIND_SECTOR, KIND_SECTOR_MEMORY):
+    if kind == KIND_SECTOR:
         if len(sec) < _SECTOR_HEAD.size:
             raise PolicyError("sector encoder section too short")
         bearing, n_sensors, n_edges = _SECTOR_HEAD.unpack_from(sec, 0)
-        extra = _MEMORY.size if kind == KIND_SECTOR_MEMORY else 0
-        need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + extra + _PAIR.size * n_actions
+        need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + _PAIR.size * n_actions
         if len(sec) != need:
             raise PolicyError(f"sector encoder section is {len(sec)} bytes, its fields need {need}")
         if bearing < 1:
@@ -246,13 +242,7 @@ def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
         if list(edges) != sorted(set(edges)) or (edges and edges[0] == 0):
             raise PolicyError("sector encoder: range edges not strictly ascending positive mm")
         try:
-            if kind == KIND_SECTOR_MEMORY:
-                block, block_mrad, leave = _MEMORY.unpack_from(sec, off)
-                off += _MEMORY.size
-                enc = MemorySectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges,
-                                          block_mm=block, block_bearing_mrad=block_mrad, leave_margin_mm=leave)
-            else:
-                enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
+            enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
         except ValueError as exc:
             raise PolicyError(f"{KIND_NAMES[kind]} encoder: {exc}") from None
         goals: tuple[tuple[int, int], ...] = ()
@@ -454,15 +444,10 @@ def _pack_encoder(encoder: AnyEncoder, goals: Sequence[tuple[int, int]],
             raise ValueError("sector-memory-grid fields must be 0..65535")
         out = _GRID.pack(encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm, int(encoder.wall_bearing))
         return out + b"".join(_PAIR.pack(*a) for a in MOVE_STEPS)
-    if isinstance(encoder, SectorEncoder | MemorySectorEncoder):
+    if isinstance(encoder, SectorEncoder):
         out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
         out += bytes(encoder.sensors)
         out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
-        if isinstance(encoder, MemorySectorEncoder):
-            if not all(0 <= v <= 0xFFFF for v in (encoder.block_mm, encoder.block_bearing_mrad,
-                                                  encoder.leave_margin_mm)):
-                raise ValueError("memory rule fields must be 0..65535")
-            out += _MEMORY.pack(encoder.block_mm, encoder.block_bearing_mrad, encoder.leave_margin_mm)
         actions = robot_spec.ACTION_WHEEL_SPEEDS_MM_S
     else:
         if len(goals) != encoder.n_goals:

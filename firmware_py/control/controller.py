@@ -38,7 +38,7 @@ from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.odometry import Odometry, wrap_mrad
 from firmware_py.control.progress import ProgressWatch
 from firmware_py.control.safety import EStopLatch, MotorWatchdog, clamp_speeds
-from firmware_py.encoders import BugMemory, CellEncoder, MemorySectorEncoder, SectorEncoder
+from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.gridbug import (
     DIR_HEADING_MRAD,
     DIR_VECTORS,
@@ -241,9 +241,9 @@ class Controller:
         self._state_index = -1
         self._action = -1
         self._q_row: tuple[int, ...] = ()
-        # sector-memory policies: the Bug memory of the current goal (reset when the goal or the drive changes)
-        self.memory = BugMemory()
-        self.grid_memory = GridBugMemory()  # sector-memory policies: the cell-stepped Bug memory
+        # sector-memory policies: the cell-stepped Bug memory of the current goal (reset when the goal or
+        # the drive changes)
+        self.grid_memory = GridBugMemory()
         self._grid_invalid_ticks = 0  # ticks waited for valid axis readings at this decision
         self._grid_invalid_at = -1
         self._memory_key: tuple[tuple[int, int], int] | None = None
@@ -819,25 +819,16 @@ class Controller:
             item = f"item {self.mission_seq}: " if self.mode == Mode.AUTO else ""
             self._event("info", item + stalled, SEV_WARNING)
         pol = self.policy
-        if isinstance(pol.encoder, SectorEncoder | MemorySectorEncoder):  # sector kinds
-            if isinstance(pol.encoder, MemorySectorEncoder):
-                key = (self.goal, self._driving_since_us)
-                if key != self._memory_key:  # a new goal (or mission item, or a new drive): forget the wall
-                    self.memory.reset()
-                    self._memory_key = key
-                s = pol.encoder.encode(self.memory, bearing, dist, inp.ranges_mm, inp.range_status)
-                a = pol.best_action(s)
-                self.memory.note_action(a)
-            else:
-                local = pol.local_planner is not None and pol.map_grid is not None
-                if local:
-                    bearing = self._local_bearing(pol, inp, now_us, bearing)
-                s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
-                a = pol.best_action(s)
-                if local and self.local is not None:
-                    x, y, _ = self.nav.pose_mm()
-                    a = self.local[2].action(now_us, x, y, a, bearing, inp.ranges_mm, inp.range_status,
-                                             self.local[1])
+        if isinstance(pol.encoder, SectorEncoder):
+            local = pol.local_planner is not None and pol.map_grid is not None
+            if local:
+                bearing = self._local_bearing(pol, inp, now_us, bearing)
+            s = pol.encoder.encode(bearing, inp.ranges_mm, inp.range_status)
+            a = pol.best_action(s)
+            if local and self.local is not None:
+                x, y, _ = self.nav.pose_mm()
+                a = self.local[2].action(now_us, x, y, a, bearing, inp.ranges_mm, inp.range_status,
+                                         self.local[1])
             left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
             self._state_index, self._action, self._q_row = s, a, tuple(pol.row(s))
         else:

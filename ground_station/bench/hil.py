@@ -291,37 +291,6 @@ def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
     return out
 
 
-def twin_outcomes_memory(gm, policy: Policy, rows: list[dict], max_periods: int = 2400) -> list[str]:
-    """`twin_outcomes` for a sector-memory-tick policy: the same episodes greedily
-    on the twin with the jitted Bug memory (`evaluate_memory`'s kernel), direct."""
-    import numpy as np
-
-    from firmware_py.encoders import MemorySectorEncoder
-    from ground_station.learn.sector.kernels import COLLISION, SUCCESS
-    from ground_station.learn.sector.memory import eval_memory_kernel
-    from ground_station.learn.sector.memory_train import memory_params
-    from ground_station.learn.sector.twin import encoder_arrays, grid_of
-    from ground_station.maps import octile_distances
-
-    enc = policy.encoder
-    assert isinstance(enc, MemorySectorEncoder)
-    q = np.array(policy.table.tolist(), dtype=np.float64).reshape(policy.n_states, policy.n_actions)
-    occ, h, w, c = grid_of(gm)
-    starts = np.array([r["start"] for r in rows], dtype=np.int64).reshape(-1, 2)
-    goals = np.array([r["goal"] for r in rows], dtype=np.int64).reshape(-1, 2)
-    dists = np.stack([octile_distances(gm.occ, int(g[0]), int(g[1])) for g in goals]) if len(rows) \
-        else np.zeros((0, h, w))
-    headings = np.array([r["heading_rad"] for r in rows], dtype=np.float64)
-    sectors, sensors, edges, which = encoder_arrays(enc.base)
-    n = len(rows)
-    outcome = np.zeros(n, dtype=np.int64)
-    eval_memory_kernel(q, occ, h, w, c, dists, starts, goals, np.arange(n, dtype=np.int64), headings,
-                       sectors, sensors, edges, np.ones_like(which), memory_params(enc), enc.base.n_states,
-                       max_periods, 0.0, 0.0, max_periods + 1, outcome, np.zeros(n), np.zeros(n, dtype=np.int64),
-                       np.zeros(n, dtype=np.int64))
-    return ["reached" if o == SUCCESS else "collision" if o == COLLISION else "timeout" for o in outcome]
-
-
 def twin_outcomes_gridbug(gm, policy: Policy, rows: list[dict]) -> list[str]:
     """`twin_outcomes` for a sector-memory policy: the same episodes
     greedily on the grid twin (`evaluate_gridbug`'s kernel; the initial
@@ -452,9 +421,9 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
             pol = load_policy(path)
         except (PolicyError, ShippedPolicyError) as exc:
             raise CliError(f"{kind} policy {spec}: {exc}") from None
-        if pol.kind != kind and not (kind == "sector" and pol.kind in ("sector-memory", "sector-memory-tick")):
+        if pol.kind != kind and not (kind == "sector" and pol.kind == "sector-memory"):
             raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
-        if pol.kind in ("sector-memory", "sector-memory-tick") and args.guidance != "direct":
+        if pol.kind == "sector-memory" and args.guidance != "direct":
             raise CliError(f"{path} is a {pol.kind} policy: it drives to the goal alone, use --guidance direct")
         if kind == "cell" and not args.no_localiser and pol.map_grid is None:
             print(f"note: {path} carries no map (qnav policy attach-map): the cell set runs on dead reckoning")
@@ -484,8 +453,6 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
         if kind == "sector" and args.compare_twin:
             if pol.kind == "sector-memory":
                 twin = twin_outcomes_gridbug(gm, pol, rows)
-            elif pol.kind == "sector-memory-tick":
-                twin = twin_outcomes_memory(gm, pol, rows)
             else:
                 twin = twin_outcomes(gm, pol, rows, guidance=args.guidance)
             for r, t in zip(rows, twin, strict=True):

@@ -3,9 +3,7 @@
 Measured in one run: the numba kernel (exact sequential Q-learning, cell
 encoding, targets A-D) against a plain-Python loop doing the same
 Q-learning over the Gymnasium `CellNavEnv` (the usual way to write it), and
-beside them the sector twin's `SectorTrainer` and the
-sector-memory-tick `MemoryTrainer` with its recipe (all eight sensors
-cast, for the leaving rule and the wall reward) and the sector-memory
+beside them the sector twin's `SectorTrainer` and the sector-memory
 `GridBugTrainer` (cell-stepped, grid twin: a step is one cell move). The sector trainer is also
 given per second of the process's CPU time (the machine is shared: other
 load stretches the wall time, much less the CPU time). Compile time is
@@ -88,23 +86,6 @@ def sector_speed(cfg, n_steps: int) -> tuple[float, float, str]:
     return n_steps / dt, n_steps / cpu, f"{n_steps:,} steps in {dt:.2f} s ({cpu:.2f} s CPU)"
 
 
-def memory_speed(n_steps: int) -> float:
-    """Steps/s of the sector-memory-tick (period-level) trainer with its recipe on paper10."""
-    import numpy as np
-
-    from ground_station.learn.config import recipe_config
-    from ground_station.learn.sector.memory_train import MemoryTrainer, memory_encoder
-    from ground_station.maps import load_map
-
-    cfg = recipe_config("sector-memory-tick", {"map": "paper10"})
-    trainer = MemoryTrainer([load_map(cfg.map)], cfg, memory_encoder(cfg))
-    q = np.zeros((trainer.n_states, trainer.n_actions))
-    trainer.run(q, 0, 1000)  # compile
-    t0 = time.perf_counter()
-    trainer.run(q, 1000, n_steps)
-    return n_steps / (time.perf_counter() - t0)
-
-
 def grid_memory_speed(n_steps: int) -> float:
     """Steps/s (moves) of the sector-memory (cell-stepped) trainer with its recipe on its training maps."""
     import numpy as np
@@ -141,7 +122,6 @@ def run(args: argparse.Namespace) -> int:
     b_steps, b_dt = python_loop(cfg, args.baseline_seconds)
     baseline = b_steps / b_dt
     sector, sector_cpu, sector_note = sector_speed(replace(cfg, encoding="sector"), args.sector_steps)
-    memory = memory_speed(args.sector_steps)
     grid_memory = grid_memory_speed(args.sector_steps)
     result = {
         "steps_per_s": steps_per_s,
@@ -150,7 +130,6 @@ def run(args: argparse.Namespace) -> int:
         "sector_steps_per_s": sector,
         "sector_cpu_steps_per_s": sector_cpu,
         "sector_note": sector_note,
-        "sector_memory_steps_per_s": memory,
         "sector_memory_grid_moves_per_s": grid_memory,
         "map": cfg.map,
         "kernel_steps": cfg.steps,
@@ -162,7 +141,6 @@ def run(args: argparse.Namespace) -> int:
         ("ratio", result["ratio"]),
         ("sector steps/s (SectorTrainer)", sector),
         ("sector steps/s of CPU time (same run)", sector_cpu),
-        ("sector-memory-tick steps/s (MemoryTrainer, recipe)", memory),
         ("sector-memory moves/s (GridBugTrainer, recipe; grid twin)", grid_memory),
     ]
     report("train", rows, result, args.json)

@@ -66,10 +66,6 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
         from ground_station.learn.sector.gridbug_train import evaluate_gridbug
 
         return evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
-    if run.encoder.kind == "sector-memory-tick":
-        from ground_station.learn.sector.memory_train import evaluate_memory
-
-        return evaluate_memory(q, gridmap, run.encoder, seed=seed, sample=sample)
     from ground_station.learn.evaluate import sector_guidance_from_meta
     from ground_station.learn.sector.evaluate import evaluate_sector
     return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample,

@@ -91,9 +91,6 @@ def _line(d: dict) -> str:
     else:
         geo = (f"{d['kind']} bearing_sectors={enc['bearing_sectors']} sensors={enc['sensors']} "
                f"edges_mm={enc['range_edges_mm']}")
-        if d["kind"] == "sector-memory-tick":
-            geo += (f" block_mm={enc['block_mm']} block_bearing_mrad={enc['block_bearing_mrad']} "
-                    f"leave_margin_mm={enc['leave_margin_mm']}")
     mg = d["map_geometry"]
     geo += f" period_us={d['control_period_us']} map={mg['width']}x{mg['height']}x{mg['cell_mm']}mm"
     grid = d.get("map_grid")

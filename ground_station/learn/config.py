@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-ENCODINGS = ("cell", "sector", "sector-memory", "sector-memory-tick")
+ENCODINGS = ("cell", "sector", "sector-memory")
 # tabular learners (ground_station/learn/learners.py, the sector trainer's switch in
 # ground_station/learn/sector/kernels.py); sector-memory: q only
 LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
@@ -64,17 +64,6 @@ class TrainConfig:
     sector_range_noise_mm: float = _f(10.0, "sector: std (mm) of Gaussian noise on the range readings the learner sees "
                                             "(the sim's sensor noise); 0 = exact readings")
     sector_maps: str = _f("", "sector: extra comma-separated training maps (names or generator specs) besides --map")
-    memory_block_mm: int = _f(400, "sector-memory-tick: front range (mm) below which the way to a goal ahead counts as blocked "
-                                   "(GO -> follow the wall)")
-    memory_block_bearing_mrad: int = _f(785, "sector-memory-tick: the goal counts as ahead within +- this bearing (mrad)")
-    memory_leave_margin_mm: int = _f(250, "sector-memory-tick: leave the wall once the goal is this much closer than where it was hit")
-    memory_wall_reward: float = _f(0.5, "sector-memory-tick: reward per cell of forward travel in a wall mode while the followed "
-                                        "side sees the wall (the wall modes' own task)")
-    memory_wall_away: float = _f(0.5, "sector-memory-tick: share of the wall reward paid for forward travel while the "
-                                      "followed side sees no wall (drive on to find one rather than turn on the spot)")
-    memory_wall_reach_mm: int = _f(400, "sector-memory-tick: the followed wall counts as seen below this side range (mm)")
-    memory_go_progress: str = _f("octile", "sector-memory-tick: progress the go mode is rewarded for: euclid = straight-line "
-                                           "distance to the goal (no map knowledge), octile = along the goal's octile field")
     grid_free_mm: int = _f(350, "sector-memory: a neighbour cell counts as free when the range sensor looking at it "
                                 "reads at least this (mm; 100 mm = the cell's own wall, >= 600 mm = the next cell free)")
     grid_leave_margin_mm: int = _f(1, "sector-memory: leave the wall once the goal is this much closer than where it was hit")
@@ -97,8 +86,6 @@ class TrainConfig:
 RECIPES: dict[str, dict[str, Any]] = {
     "cell": {},
     "sector": {"steps": 20_000_000, "lr": 0.1, "gamma": 0.95, "reward_step": 0.0, "epsilon_end": 0.05},
-    "sector-memory-tick": {"steps": 24_000_000, "lr": 0.1, "reward_step": -0.01, "epsilon_end": 0.05,
-                      "sector_guidance": "direct", "sector_sensors": "0,1,2,6,7", "sector_range_edges": "60,250"},
     # cell-stepped Bug memory (docs/training.md, "Sector state with memory"): paper10 plus generated maps of
     # seeds 0 (random) and 10 (maze, rooms, trap), never the evaluation's seeds 1 and 2; the wall-keeping cost
     "sector-memory": {"steps": 10_000_000, "lr": 0.1, "gamma": 0.95, "epsilon_end": 0.05,
@@ -149,7 +136,7 @@ def validate_config(cfg: TrainConfig) -> None:
         raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got {cfg.encoding!r}")
     if cfg.learner not in LEARNERS:
         raise ValueError(f"learner must be one of {', '.join(LEARNERS)}, got {cfg.learner!r}")
-    if cfg.learner != "q" and cfg.encoding in ("sector-memory", "sector-memory-tick"):
+    if cfg.learner != "q" and cfg.encoding == "sector-memory":
         raise ValueError(f"learner {cfg.learner} is implemented for the cell and sector encodings "
                          "(sector-memory training: q)")
     if not 0.0 <= cfg.learner_lambda <= 1.0 or not 0.0 < cfg.trace_min < 1.0 or cfg.dyna_planning < 0:
@@ -164,13 +151,8 @@ def validate_config(cfg: TrainConfig) -> None:
         v = getattr(cfg, name)
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {v}")
-    if cfg.encoding in ("sector", "sector-memory-tick"):
+    if cfg.encoding == "sector":
         _check_sector(cfg)
-    if cfg.encoding == "sector-memory-tick" and (cfg.memory_block_mm < 1 or cfg.memory_block_bearing_mrad < 0
-                                            or cfg.memory_leave_margin_mm < 0):
-        raise ValueError("memory_block_mm must be >= 1, memory_block_bearing_mrad and memory_leave_margin_mm >= 0")
-    if cfg.encoding == "sector-memory-tick" and cfg.memory_go_progress not in ("euclid", "octile"):
-        raise ValueError(f"memory_go_progress must be euclid or octile, got {cfg.memory_go_progress!r}")
     if cfg.encoding == "sector-memory":
         from firmware_py.gridbug import GridBugEncoder
 

@@ -24,8 +24,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
+from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.gridbug import GridBugEncoder
+from firmware_py.policy import REMOVED_KINDS, removed_kind_reason
 from ground_station.learn.envs.cell_env import cell_transitions, goal_distances, resolve_goals
 from ground_station.learn.jit import greedy
 from ground_station.learn.train import cell_state
@@ -153,7 +154,10 @@ def load_run(run_dir: str | Path) -> tuple[np.ndarray, dict]:
         raise ValueError(f"{d} is not a training run folder: missing {Path(exc.filename).name}") from None
     except (json.JSONDecodeError, ValueError) as exc:
         raise ValueError(f"{d}: unreadable run artifacts: {exc}") from None
-    if meta.get("encoding") not in ("cell", "sector", "sector-memory", "sector-memory-tick"):
+    removed = {name: code for code, name in REMOVED_KINDS.items()}
+    if meta.get("encoding") in removed:
+        raise ValueError(f"{d}/meta.json: {removed_kind_reason(removed[meta['encoding']])}")
+    if meta.get("encoding") not in ("cell", "sector", "sector-memory"):
         raise ValueError(f"{d}/meta.json: unknown encoding {meta.get('encoding')!r}")
     if q.ndim != 2:
         raise ValueError(f"{d}/q.npy: expected a 2-D table, got shape {q.shape}")
@@ -163,13 +167,6 @@ def load_run(run_dir: str | Path) -> tuple[np.ndarray, dict]:
 def sector_encoder_from_meta(d: dict) -> SectorEncoder:
     return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]), sensors=tuple(d["sensors"]),
                          range_edges_mm=tuple(d["range_edges_mm"]))
-
-
-def memory_encoder_from_meta(d: dict) -> MemorySectorEncoder:
-    return MemorySectorEncoder(bearing_sectors=int(d["bearing_sectors"]), sensors=tuple(d["sensors"]),
-                               range_edges_mm=tuple(d["range_edges_mm"]), block_mm=int(d["block_mm"]),
-                               block_bearing_mrad=int(d["block_bearing_mrad"]),
-                               leave_margin_mm=int(d["leave_margin_mm"]))
 
 
 def sector_guidance_from_meta(meta: dict) -> dict:
@@ -200,12 +197,6 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
         assert isinstance(enc, GridBugEncoder)
         rep = evaluate_gridbug(q, gridmap, enc, seed=seed, sample=sample)
         rep["encoding"] = "sector-memory"
-        return rep
-    if meta["encoding"] == "sector-memory-tick":
-        from ground_station.learn.sector.memory_train import evaluate_memory
-
-        rep = evaluate_memory(q, gridmap, memory_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample)
-        rep["encoding"] = "sector-memory-tick"
         return rep
     from ground_station.learn.sector.evaluate import evaluate_sector
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from firmware_py import policy as fmt
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, MemorySectorEncoder, SectorEncoder
+from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.gridbug import GridBugEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
@@ -103,15 +103,12 @@ def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
         return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
                              sensors=tuple(int(s) for s in d["sensors"]),
                              range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]))
-    if kind == "sector-memory-tick":
-        return MemorySectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
-                                   sensors=tuple(int(s) for s in d["sensors"]),
-                                   range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]),
-                                   block_mm=int(d["block_mm"]), block_bearing_mrad=int(d["block_bearing_mrad"]),
-                                   leave_margin_mm=int(d["leave_margin_mm"]))
     if kind == "sector-memory":
         return GridBugEncoder(free_mm=int(d["free_mm"]), leave_margin_mm=int(d["leave_margin_mm"]),
                               cell_mm=int(d["cell_mm"]), wall_bearing=bool(d["wall_bearing"]))
+    removed = {name: code for code, name in fmt.REMOVED_KINDS.items()}
+    if kind in removed:
+        raise ValueError(fmt.removed_kind_reason(removed[kind]))
     raise ValueError(f"unknown encoder kind {kind!r}")
 
 

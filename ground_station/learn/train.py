@@ -280,22 +280,6 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
                         "train_maps": [m.name for m in trainer.maps]}, seconds, q2)
 
 
-def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Q-learning of the period-level sector-memory-tick encoding (direct setting) on the twin,
-    through `ground_station.learn.sector.memory_train.MemoryTrainer`, on
-    `gridmap` plus the `sector_maps` extras."""
-    from ground_station.learn.sector.memory_train import MemoryTrainer, memory_encoder
-
-    encoder = memory_encoder(cfg)
-    extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
-    trainer = MemoryTrainer([gridmap, *extra], cfg, encoder)
-    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
-    rets, succs, seconds = _run_in_chunks(trainer, q, cfg, progress, f"train sector-memory-tick {gridmap.name}")
-    return TrainResult(q, rets, succs,
-                       {"encoder": encoder.to_dict(), "guidance": "direct",
-                        "train_maps": [m.name for m in trainer.maps]}, seconds)
-
-
 def train_sector_memory_grid(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
     """Q-learning of the cell-stepped sector-memory encoding (direct setting)
     on the grid twin, through `ground_station.learn.sector.gridbug_train.GridBugTrainer`,
@@ -318,8 +302,6 @@ def train(cfg: TrainConfig, gridmap: GridMap | None = None, progress: bool = Fal
     gm = gridmap if gridmap is not None else load_map(cfg.map)
     if cfg.encoding == "cell":
         return train_cell(cfg, gm, progress)
-    if cfg.encoding == "sector-memory-tick":
-        return train_sector_memory(cfg, gm, progress)
     if cfg.encoding == "sector-memory":
         return train_sector_memory_grid(cfg, gm, progress)
     return train_sector(cfg, gm, progress)

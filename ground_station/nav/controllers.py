@@ -7,10 +7,7 @@ That is exactly what the robot runs (`Controller.step`: encoder -> greedy
 row -> action), so every controller also runs in HIL as an exported
 `.qtab` (`NavController.policy()`), and the twin rolls the same table out.
 
-* `learnt`: the trained sector policy (a `.qtab`), guidance path; a
-  `sector-memory-tick` policy (`MemorySectorEncoder`: the same state plus the
-  detour memory, reset per waypoint) is accepted too, and the baselines
-  then run on its base `SectorEncoder` (the same sensing without memory);
+* `learnt`: the trained sector policy (a `.qtab`), guidance path;
 * `seek`: the hand-written seek table (`learn.sector.evaluate.seek_table`:
   forward when the target is in the sector ahead, else turn to it), path;
 * `vfh`: a Vector-Field-Histogram-style reactive controller on the same
@@ -35,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.encoders import MemorySectorEncoder, SectorEncoder
+from firmware_py.encoders import SectorEncoder
 from firmware_py.localplan import META_KEY as PLANNER_KEY
 from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.policy import Policy, load_policy
@@ -56,14 +53,14 @@ EXTRA_CONTROLLERS = ("seek_local",)  # on request (--controllers), or by default
 @dataclass
 class NavController:
     name: str
-    encoder: SectorEncoder | MemorySectorEncoder
+    encoder: SectorEncoder
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
     local: LocalPlannerConfig | None = None  # steer on the robot's local planner (firmware_py.localplan)
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
-        qt = quantise(self.q, "int8", per_state=isinstance(self.encoder, MemorySectorEncoder))
+        qt = quantise(self.q, "int8")
         meta: dict[str, object] = {"controller": self.name, "guidance": self.guidance}
         if self.local is not None:  # the planner needs the map
             meta[META_GRID] = map_grid_rows(map_name)
@@ -130,20 +127,18 @@ def policy_table(policy: Policy) -> np.ndarray:
 
 
 def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAMES) -> list[NavController]:
-    """learnt / seek / vfh / direct on the learnt policy's encoder (the
-    baselines on its base `SectorEncoder` when it carries the detour memory)."""
+    """learnt / seek / vfh / direct (and seek_local) on the learnt policy's encoder."""
     enc = policy.encoder
-    if not isinstance(enc, SectorEncoder | MemorySectorEncoder):
+    if not isinstance(enc, SectorEncoder):
         raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
     q = policy_table(policy)
-    base = enc.base if isinstance(enc, MemorySectorEncoder) else enc
     local = policy.local_planner
     make = {
         "learnt": lambda: NavController("learnt", enc, q, "path", local),
-        "seek_local": lambda: NavController("seek_local", base, seek_table(base), "path",
+        "seek_local": lambda: NavController("seek_local", enc, seek_table(enc), "path",
                                             local or LocalPlannerConfig()),
-        "seek": lambda: NavController("seek", base, seek_table(base), "path"),
-        "vfh": lambda: NavController("vfh", base, vfh_table(base), "path"),
+        "seek": lambda: NavController("seek", enc, seek_table(enc), "path"),
+        "vfh": lambda: NavController("vfh", enc, vfh_table(enc), "path"),
         "direct": lambda: NavController("direct", enc, q, "direct"),
     }
     return [make[n]() for n in names]

@@ -27,15 +27,13 @@ from collections.abc import Callable
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.encoders import MemorySectorEncoder
-from ground_station.learn.sector.memory_train import memory_params
 from ground_station.learn.sector.obstacles import (
     COLLISION,
     LOOP,
     NEAR_MISS_MM,
     SUCCESS,
     TIMEOUT,
-    nav_eval_mem_kernel,
+    nav_eval_kernel,
     obstacle_clearance_mm,
 )
 from ground_station.learn.sector.twin import encoder_arrays
@@ -72,17 +70,11 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
         outcome, path, steps, minclear, near = run_twin_planned(eps, maps, ctrl, BUDGET_BASE, BUDGET_FACTOR,
                                                                 STALL_STEPS)
         return _rows(eps, outcome, path, steps, minclear, near)
-    if isinstance(enc, MemorySectorEncoder):  # the detour memory reads every sensor
-        sectors, sensors, edges, which = encoder_arrays(enc.base)
-        which = np.ones_like(which)
-        mp, n_base = memory_params(enc), enc.base.n_states
-    else:
-        sectors, sensors, edges, which = encoder_arrays(enc)
-        mp, n_base = np.zeros(0, dtype=np.int64), enc.n_states
-    nav_eval_mem_kernel(q, a["occ"], a["dims"], a["cells"], a["map"],
-                        a["start"], a["goal"], a["wp"], a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"],
-                        a["nm"], sectors, sensors, edges, which, int(ctrl.guidance == "path"),
-                        BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, mp, n_base, outcome, path, steps, minclear, near)
+    sectors, sensors, edges, which = encoder_arrays(enc)
+    nav_eval_kernel(q, a["occ"], a["dims"], a["cells"], a["map"],
+                    a["start"], a["goal"], a["wp"], a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"],
+                    a["nm"], sectors, sensors, edges, which, int(ctrl.guidance == "path"),
+                    BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, outcome, path, steps, minclear, near)
     return _rows(eps, outcome, path, steps, minclear, near)
 
 

@@ -9,7 +9,7 @@ fed with the readings at the twin's pose, `LocalPlanner.target` for the
 current waypoint (reset per waypoint, as the controller does per mission
 item), the table's greedy action on the sector state toward that target,
 and `MotionGuard.action` on it (one guard per episode: one drive).
-Budget, loop rule, near misses and outcomes are `nav_eval_mem_kernel`'s, so
+Budget, loop rule, near misses and outcomes are `nav_eval_kernel`'s, so
 its rows sit beside the other controllers' in `qnav bench nav`.
 """
 

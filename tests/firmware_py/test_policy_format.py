@@ -316,7 +316,7 @@ def test_upgrade_refuses_what_it_cannot_know_or_trust():
     assert load_policy(upgrade_policy(old_sector, 40_000, MapGeometry(250, 20, 8))).map_geometry == (250, 20, 8)
 
 
-@pytest.mark.parametrize("code, name", [(5, "sector-unmapped")])
+@pytest.mark.parametrize("code, name", [(3, "sector-memory-tick"), (5, "sector-unmapped")])
 def test_a_removed_experiment_kind_is_refused_by_name(code, name):
     """A file of a policy kind that was an experiment and left qnav (docs/research.md): its
     header alone, with a valid CRC, gets one line naming the kind and where it still runs."""

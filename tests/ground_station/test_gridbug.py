@@ -145,6 +145,11 @@ def test_cli_train_eval_export(tmp_path):
     assert p.returncode != 0 and "free_mm" in p.stderr and "Traceback" not in p.stderr
 
 
+def test_bench_hil_refuses_waypoints_for_a_sector_memory_policy():
+    p = _qnav("bench", "hil", "--only", "sector", "--sector-policy", "policies:sector_memory", "--pairs", "1")
+    assert p.returncode != 0 and "use --guidance direct" in p.stderr
+
+
 def _drive(pol, gm, start: tuple[int, int], heading: float, goal: tuple[int, int], max_ticks: int = 6000):
     """The controller on an ideal kinematic plant, ranges from the twin at the true pose."""
     occ, h, w, c = grid_of(gm)

@@ -119,7 +119,7 @@ def test_recipes_are_the_train_defaults(tmp_path):
     assert recipe_config("sector", {}).steps == 20_000_000 and recipe_config("sector", {}).reward_step == 0.0
     assert recipe_config("cell", {}) == TrainConfig()
     assert recipe_config("sector", {"lr": 0.3}).lr == 0.3  # given flags win
-    assert set(RECIPES) == {"cell", "sector", "sector-memory", "sector-memory-tick"}
+    assert set(RECIPES) == {"cell", "sector", "sector-memory"}
     p = qnav("train", "--recipe", "shipped-cell", "--steps", "20000", "--out", str(tmp_path / "c"), "--quiet")
     assert p.returncode == 0, p.stderr
     meta = json.loads((tmp_path / "c" / "meta.json").read_text())

@@ -12,9 +12,8 @@ compiled here from the sim's own source (one definition for both).
   disc or mover) for near-miss counting.
 * `obs_period_step`: `kernels.period_step` with obstacles (same reward terms
   and waypoint advance).
-* `nav_eval_mem_kernel`: greedy rollouts of one table (plain or with the
-  detour memory) over a list of scenario episodes (the `qnav bench nav` twin
-  core).
+* `nav_eval_kernel`: greedy rollouts of one sector table over a list of
+  scenario episodes (the `qnav bench nav` twin core).
 """
 
 from __future__ import annotations
@@ -26,7 +25,6 @@ import numpy as np
 
 from ground_station.learn.jit import greedy
 from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, REVERSE
-from ground_station.learn.sector.memory import M_TURN, MEM_LEN, TURN_OF, memory_state
 from ground_station.learn.sector.reward import (
     RW_ALIGN,
     RW_COLLISION,
@@ -266,20 +264,11 @@ def stall_check(phi: float, best: float, since: int, stall_steps: int):
     return best, since + 1, since + 1 >= stall_steps
 
 
-# --- the detour memory (a `MemorySectorEncoder` with the planner's waypoints) ----------------
-
 @numba.njit(cache=True)
-def _mem_state(use_mem, mem, base_state, n_base, x, y, th, gx, gy, ranges, status, mp) -> int:
-    if not use_mem:
-        return base_state
-    return memory_state(mem, base_state, n_base, x, y, th, gx, gy, ranges, status, mp)
-
-
-@numba.njit(cache=True)
-def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem,
-                        ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
-                        budget_base, budget_factor, stall_steps, mp, n_base,
-                        out_outcome, out_path, out_steps, out_minclear, out_near):
+def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem,
+                    ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
+                    budget_base, budget_factor, stall_steps,
+                    out_outcome, out_path, out_steps, out_minclear, out_near):
     """Greedy rollouts of table q over scenario episodes e (map ep_map[e],
     start pose ep_start[e] = (x, y, th), goal point ep_goal[e], waypoints
     ep_wp[e, :ep_nwp[e]] with remaining lengths ep_rem[e], discs
@@ -288,18 +277,9 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
     Outcomes: SUCCESS, COLLISION, LOOP (no new minimum of the guide
     potential for stall_steps periods), TIMEOUT (budget_base + budget_factor
     x planned path length in forward periods). Also: driven length, steps,
-    minimum clearance, periods with clearance < NEAR_MISS_MM.
-
-    For a `MemorySectorEncoder` table (mp =
-    `memory_train.memory_params`, n_base = the base encoder's states): the
-    Bug memory is reset at the start and whenever the current waypoint
-    changes (as the robot's controller does per mission item), updated from
-    all eight readings every period, and the previous action's turn is
-    noted after each choice. mp of length 0: a plain sector table."""
-    use_mem = mp.shape[0] > 0
+    minimum clearance, periods with clearance < NEAR_MISS_MM."""
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
-    mem = np.zeros(MEM_LEN, dtype=np.int64)
     rw = np.zeros(6)
     gwp = np.zeros((1, 2))
     grem = np.zeros(1)
@@ -315,14 +295,10 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
         minclear = obstacle_clearance_mm(x, y, discs, movers)
         near = 0
         t = 0
-        mem[:] = 0
         sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
         s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
-        s = _mem_state(use_mem, mem, s, n_base, x, y, th, wps[0, 0], wps[0, 1], ranges, status, mp)
         while t < budget:
             a = greedy(q, s)
-            mem[M_TURN] = TURN_OF[a]
-            k0 = k
             x, y, th, phi, _, s, hit, success, driven, k = obs_period_step(
                 occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
                 sectors, sensors, edges, discs, movers)
@@ -332,8 +308,6 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
                 outcome = COLLISION
                 minclear = 0.0
                 break
-            if k != k0:
-                mem[:] = 0
             cl = obstacle_clearance_mm(x, y, discs, movers)
             if cl < minclear:
                 minclear = cl
@@ -342,7 +316,6 @@ def nav_eval_mem_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_w
             if success:
                 outcome = SUCCESS
                 break
-            s = _mem_state(use_mem, mem, s, n_base, x, y, th, wps[k, 0], wps[k, 1], ranges, status, mp)
             best, since, stalled = stall_check(phi, best, since, stall_steps)
             if stalled:
                 outcome = LOOP
