@@ -8,8 +8,11 @@ format; `ID#R` is a remote frame). Frames are decoded with the robot's DBC
 * rates: frames per second of log time (wall time of the recording: in a
   lockstep run the sim's ticks go as fast as the robot answers) and frames
   per SimTick (per control period, whatever the pace);
-* commands: MotorCommand count, how many are zero / non-zero, the largest
-  wheel speeds; SimTick counter gaps (lost ticks);
+* commands: MotorCommand count (one per tick answered; a second answer to the
+  same tick is counted as `repeated`), how many are zero / non-zero, the
+  largest wheel speeds; SimTick counter gaps (lost ticks) and resends (the
+  same tick sent again while the lockstep sim waited for a late answer: not a
+  new tick, so `sim_ticks` and the per-tick rates leave them out);
 * controller: the ControllerHeartbeat states in order (changes only), EStop
   frames engaged/released.
 """
@@ -48,10 +51,12 @@ def analyse_candump(path: str | Path) -> dict:
     refused = bad_lines = 0
     t_first = t_last = None
     channels: set[str] = set()
-    cmd = {"count": 0, "zero": 0, "nonzero": 0, "max_abs_mm_s": 0}
+    # count: one per controller tick; repeated: a second answer to the same tick (a resent SimTick)
+    cmd = {"count": 0, "zero": 0, "nonzero": 0, "max_abs_mm_s": 0, "repeated": 0}
+    last_cmd = None
     states: list[list] = []
     estop = {"engaged": 0, "released": 0}
-    tick_gaps = 0
+    tick_gaps = tick_resends = 0
     last_tick = None
     with open(path, encoding="ascii", errors="replace") as f:
         for line in f:
@@ -79,6 +84,10 @@ def analyse_candump(path: str | Path) -> dict:
             rel = round(t - t_first, 6)
             if name == "MotorCommand":
                 left, right = sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]
+                if sig["Cmd_Counter"] == last_cmd:
+                    cmd["repeated"] += 1
+                    continue
+                last_cmd = sig["Cmd_Counter"]
                 cmd["count"] += 1
                 cmd["zero" if left == 0 and right == 0 else "nonzero"] += 1
                 cmd["max_abs_mm_s"] = max(cmd["max_abs_mm_s"], abs(left), abs(right))
@@ -91,11 +100,14 @@ def analyse_candump(path: str | Path) -> dict:
                 estop["engaged" if sig["EStop_Engage"] else "released"] += 1
             elif name == "SimTick":
                 counter = sig["Tick_Counter"]
-                if last_tick is not None and counter != (last_tick + 1) % cp.TICK_MODULUS and counter != last_tick:
+                if counter == last_tick:  # the sim resent it (lockstep: its answer was late or lost)
+                    tick_resends += 1
+                elif last_tick is not None and counter != (last_tick + 1) % cp.TICK_MODULUS:
                     tick_gaps += 1
                 last_tick = counter
     duration = (t_last - t_first) if t_first is not None and t_last is not None else 0.0
-    ticks = names.get("SimTick", 0)
+    ticks = names.get("SimTick", 0) - tick_resends
+    per_tick = dict(names, SimTick=ticks, MotorCommand=names.get("MotorCommand", 0) - cmd["repeated"])
     total = sum(names.values()) + sum(unknown.values()) + refused
     return {
         "kind": "candump",
@@ -108,8 +120,9 @@ def analyse_candump(path: str | Path) -> dict:
         "refused": refused,
         "bad_lines": bad_lines,
         "rate_hz": {n: round(c / duration, 2) for n, c in sorted(names.items())} if duration > 0 else {},
-        "per_sim_tick": {n: round(c / ticks, 3) for n, c in sorted(names.items())} if ticks else {},
+        "per_sim_tick": {n: round(c / ticks, 3) for n, c in sorted(per_tick.items()) if c} if ticks else {},
         "sim_ticks": ticks,
+        "sim_tick_resends": tick_resends,
         "sim_tick_gaps": tick_gaps,
         "motor_commands": cmd,
         "controller_states": states,

@@ -111,3 +111,23 @@ def test_candump_copy_of_a_blf_is_read_by_cantools_and_qnav_report(tmp_path):
                          input=log.read_text(), capture_output=True, text=True, timeout=60)
     assert dec.returncode == 0, dec.stderr
     assert dec.stdout.count("SimTick(") == 5 and "Tick_Counter: 4" in dec.stdout, dec.stdout
+
+
+def test_candump_report_counts_a_resent_tick_and_its_second_answer_once(tmp_path):
+    """Lockstep under load: the sim resends a SimTick whose answer is late, and the robot may
+    answer it twice. The log then holds 3 SimTick and 3 MotorCommand frames for 2 ticks."""
+    from firmware_py import can_protocol as cp
+
+    def line(t: float, msg) -> str:
+        return f"({t:.6f}) vcan0 {msg.arbitration_id:03X}#{bytes(msg.data).hex().upper()}"
+
+    tick = [cp.encode("SimTick", {"Tick_Counter": n, "Tick_SimTimeUs": n * 50_000}) for n in (0, 0, 1)]
+    cmd = [cp.encode("MotorCommand", {"Cmd_LeftSpeed": 100, "Cmd_RightSpeed": 100, "Cmd_Counter": n})
+           for n in (0, 0, 1)]
+    log = tmp_path / "resend.log"
+    log.write_text("\n".join(line(i * 0.01, m) for i, m in enumerate(
+        [tick[0], tick[1], cmd[0], cmd[1], tick[2], cmd[2]])) + "\n")
+    s = analyse_candump(log)
+    assert s["sim_ticks"] == 2 and s["sim_tick_resends"] == 1 and s["sim_tick_gaps"] == 0
+    assert s["motor_commands"]["count"] == 2 and s["motor_commands"]["repeated"] == 1
+    assert s["per_sim_tick"]["MotorCommand"] == 1.0 and s["by_name"]["SimTick"] == 3
