@@ -26,13 +26,12 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
-from firmware_py import robot_spec
+from firmware_py import kinds, robot_spec
 from firmware_py.atomic import atomic_write
 from firmware_py.clock import SimClock, WallClock
 from firmware_py.control.controller import Controller
 from firmware_py.control.goals import GoalRunner
 from firmware_py.control.node import RobotNode
-from firmware_py.encoders import CellEncoder
 from firmware_py.helpformat import DefaultsHelpFormatter
 from firmware_py.mavlink.extension import MavlinkExtension
 from firmware_py.plugins import EXIT_FAULT, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, Extension, UsageError
@@ -111,9 +110,8 @@ def _policy_cell_mm(args: argparse.Namespace, policy: Policy | None) -> int:
     """The robot's map cell size: --cell-size, else a cell policy's, else the default."""
     if args.cell_size:
         return round(float(args.cell_size) * 1000)
-    if policy is not None and policy.kind in ("cell", "sector-memory"):  # both step on the policy's grid
-        return policy.cell_mm
-    return robot_spec.DEFAULT_CELL_SIZE_MM
+    cell_mm = kinds.of_policy(policy).robot_cell_mm(policy) if policy is not None else None
+    return robot_spec.DEFAULT_CELL_SIZE_MM if cell_mm is None else cell_mm  # a kind that steps on its grid
 
 
 def _fits(args: argparse.Namespace, policy: Policy) -> str:
@@ -121,7 +119,8 @@ def _fits(args: argparse.Namespace, policy: Policy) -> str:
     from firmware_py.policy import config_mismatch
     why = config_mismatch(policy, robot_spec.control_period_us(args.rate), _policy_cell_mm(args, policy))
     height = policy.map_geometry.height
-    if not why and args.map_height and policy.kind == "cell" and height != args.map_height:
+    fixed = kinds.of_policy(policy).fixed_geometry(policy.encoder, policy.cell_mm)  # a cell policy's own grid
+    if not why and args.map_height and fixed is not None and height != args.map_height:
         why = f"policy grid height {height} != robot --map-height {args.map_height}"
     return why
 
@@ -174,8 +173,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--rate {args.rate}: {why}")
     policy = _load_policy(args)
     cell_mm = _policy_cell_mm(args, policy)
-    height = args.map_height or (policy.encoder.height if policy is not None and isinstance(policy.encoder, CellEncoder)
-                                 else None)
+    fixed = kinds.of_policy(policy).fixed_geometry(policy.encoder, policy.cell_mm) if policy is not None else None
+    height = args.map_height or (fixed[2] if fixed is not None else None)
 
     def cell_point(text: str, what: str, with_heading: bool) -> tuple[int, int, int]:
         if height is None:

@@ -19,7 +19,8 @@ Layout (little-endian), v2.0:
                       width, height) the policy was trained for; header_size
                       may be larger in a newer minor version: the loader
                       skips the extra
-    encoder section   enc_len bytes (kind-specific, see _unpack_encoder)
+    encoder section   enc_len bytes: the kind's own fields (firmware_py/kinds/<kind>.py,
+                      `PolicyKind.unpack`), then its action set as (i16, i16) pairs
     metadata          meta_len bytes of UTF-8 JSON object
     table             n_states * n_actions * itemsize, row-major by state
     state scales      n_states float32, only with FLAG_PER_STATE_SCALES
@@ -45,9 +46,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
-from firmware_py.gridbug import MOVE_STEPS, GridBugEncoder
+from firmware_py import kinds, robot_spec
+from firmware_py.encoders import best_action
+from firmware_py.kinds.base import PAIR as _PAIR
+from firmware_py.kinds.base import Encoder, PolicyKind
 from firmware_py.localplan import META_KEY as PLANNER_KEY
 from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
@@ -69,15 +71,10 @@ CRC = struct.Struct("<I")
 FLAG_PER_STATE_SCALES = 0x1
 KNOWN_FLAGS = FLAG_PER_STATE_SCALES  # any other bit set -> reject (see the spec)
 
-KIND_CELL = 1
-KIND_SECTOR = 2
-KIND_SECTOR_MEMORY_GRID = 4  # GridBugEncoder: u16 free_mm, leave_margin_mm, cell_mm, u8 wall_bearing, the moves
-KIND_NAMES = {KIND_CELL: "cell", KIND_SECTOR: "sector", KIND_SECTOR_MEMORY_GRID: "sector-memory"}
-KIND_CODES = {v: k for k, v in KIND_NAMES.items()}
-# Kind codes of experiments that were removed from qnav (docs/research.md): never reused, and a file of
-# one is refused by name (`removed_kind_reason`)
-REMOVED_KINDS = {3: "sector-memory-tick", 5: "sector-unmapped"}
-REMOVED_AT = "research-experiments"  # the git tag of the last commit that has them
+# Kind codes and names live in the registry (firmware_py.kinds); codes of experiments removed from
+# qnav (docs/research.md) are never reused, and a file of one is refused by name (`removed_kind_reason`)
+REMOVED_KINDS = kinds.REMOVED
+REMOVED_AT = kinds.REMOVED_AT
 
 DTYPE_INT8 = 1
 DTYPE_INT16 = 2
@@ -89,15 +86,10 @@ MAX_METADATA_BYTES = 16384
 MAX_FILE_BYTES = 64 * 1024 * 1024  # far above any table the robot can hold
 MIN_FILE_BYTES = HEADER.size + CRC.size
 
-_SECTOR_HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
-_CELL_HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm
-_GRID = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
-_PAIR = struct.Struct("<hh")  # one action: (left, right) mm/s or (dcol, drow)
-_GOAL = struct.Struct("<HH")  # goal cell (col, row)
 _ORDER_NATIVE = sys.byteorder == "little"
 
 
-AnyEncoder = CellEncoder | SectorEncoder | GridBugEncoder
+AnyEncoder = Encoder  # any registered kind's encoder (firmware_py.kinds.base.Encoder)
 
 
 class PolicyError(Exception):
@@ -188,9 +180,7 @@ class Policy:
             "local_planner": self.local_planner.to_metadata() if self.local_planner is not None else None,
             "metadata": self.metadata,
         }
-        if self.kind == "cell":
-            d["goals"] = [list(g) for g in self.goals]
-            d["cell_mm"] = self.cell_mm
+        d.update(kinds.of_policy(self).header_fields(self))
         return d
 
 
@@ -210,78 +200,31 @@ def _read_bounded(path: str | os.PathLike[str]) -> bytes:
     return data
 
 
-def _expected_actions(kind: int) -> tuple[tuple[int, int], ...]:
-    if kind == KIND_SECTOR_MEMORY_GRID:
-        return MOVE_STEPS
-    return robot_spec.CELL_ACTION_DELTAS if kind == KIND_CELL else robot_spec.ACTION_WHEEL_SPEEDS_MM_S
+def _kind(code: int) -> PolicyKind:
+    """The registered kind of a file's kind code; PolicyError naming a removed or unknown one."""
+    if code in REMOVED_KINDS:
+        raise PolicyError(removed_kind_reason(code))
+    kind = kinds.of_code(code)
+    if kind is None:
+        raise PolicyError(f"unknown encoder kind {code}")
+    return kind
 
 
-def _unpack_encoder(kind: int, sec: bytes, n_actions: int, expect_sensors: int
+def _unpack_encoder(kind: PolicyKind, sec: bytes, n_actions: int, expect_sensors: int
                     ) -> tuple[AnyEncoder, tuple[tuple[int, int], ...], int]:
     """Encoder section -> (encoder, goals, cell_mm); every length checked exactly."""
-    enc: AnyEncoder
-    if kind == KIND_SECTOR:
-        if len(sec) < _SECTOR_HEAD.size:
-            raise PolicyError("sector encoder section too short")
-        bearing, n_sensors, n_edges = _SECTOR_HEAD.unpack_from(sec, 0)
-        need = _SECTOR_HEAD.size + n_sensors + 2 * n_edges + _PAIR.size * n_actions
-        if len(sec) != need:
-            raise PolicyError(f"sector encoder section is {len(sec)} bytes, its fields need {need}")
-        if bearing < 1:
-            raise PolicyError("sector encoder: bearing_sectors is 0")
-        if n_sensors < 1 or n_sensors > expect_sensors:
-            raise PolicyError(f"sector encoder uses {n_sensors} sensors, robot has {expect_sensors}")
-        off = _SECTOR_HEAD.size
-        sensors = tuple(sec[off:off + n_sensors])
-        bad = [s for s in sensors if s >= expect_sensors]
-        if bad:
-            raise PolicyError(f"sector encoder: sensor index {bad[0]} but robot has {expect_sensors} sensors")
-        off += n_sensors
-        edges = struct.unpack_from(f"<{n_edges}H", sec, off)
-        off += 2 * n_edges
-        if list(edges) != sorted(set(edges)) or (edges and edges[0] == 0):
-            raise PolicyError("sector encoder: range edges not strictly ascending positive mm")
-        try:
-            enc = SectorEncoder(bearing_sectors=bearing, sensors=sensors, range_edges_mm=edges)
-        except ValueError as exc:
-            raise PolicyError(f"{KIND_NAMES[kind]} encoder: {exc}") from None
-        goals: tuple[tuple[int, int], ...] = ()
-        cell_mm = 0
-    elif kind == KIND_SECTOR_MEMORY_GRID:
-        need = _GRID.size + _PAIR.size * n_actions
-        if len(sec) != need:
-            raise PolicyError(f"sector-memory-grid encoder section is {len(sec)} bytes, its fields need {need}")
-        free_mm, leave, cell_mm, wall_bearing = _GRID.unpack_from(sec, 0)
-        if wall_bearing > 1:
-            raise PolicyError(f"sector-memory-grid encoder: wall_bearing {wall_bearing} (0 or 1)")
-        try:
-            enc = GridBugEncoder(free_mm=free_mm, leave_margin_mm=leave, cell_mm=cell_mm, wall_bearing=bool(wall_bearing))
-        except ValueError as exc:
-            raise PolicyError(f"sector-memory-grid encoder: {exc}") from None
-        goals = ()
-        off = _GRID.size
-    else:
-        if len(sec) < _CELL_HEAD.size:
-            raise PolicyError("cell encoder section too short")
-        width, height, n_goals, cell_mm = _CELL_HEAD.unpack_from(sec, 0)
-        need = _CELL_HEAD.size + _GOAL.size * n_goals + _PAIR.size * n_actions
-        if len(sec) != need:
-            raise PolicyError(f"cell encoder section is {len(sec)} bytes, its fields need {need}")
-        if width < 1 or height < 1 or n_goals < 1:
-            raise PolicyError(f"cell encoder: grid {width}x{height} with {n_goals} goals")
-        if cell_mm < 1:
-            raise PolicyError("cell encoder: cell size is 0 mm")
-        off = _CELL_HEAD.size
-        goals = tuple(_GOAL.unpack_from(sec, off + _GOAL.size * i) for i in range(n_goals))
-        off += _GOAL.size * n_goals
-        for col, row in goals:
-            if col >= width or row >= height:
-                raise PolicyError(f"cell encoder: goal ({col},{row}) outside the {width}x{height} grid")
-        enc = CellEncoder(width=width, height=height, n_goals=n_goals)
+    try:
+        got = kind.unpack(sec, n_actions, expect_sensors)
+    except (ValueError, struct.error) as exc:
+        raise PolicyError(str(exc)) from None
+    off = got.actions_at
+    if len(sec) != off + _PAIR.size * n_actions:
+        raise PolicyError(f"{kind.name} encoder section is {len(sec)} bytes, its fields need "
+                          f"{off + _PAIR.size * n_actions}")
     actions = tuple(_PAIR.unpack_from(sec, off + _PAIR.size * i) for i in range(n_actions))
-    if actions != tuple(tuple(a) for a in _expected_actions(kind)):
-        raise PolicyError(f"{KIND_NAMES[kind]} action set {list(actions)} differs from the robot's")
-    return enc, goals, cell_mm
+    if actions != tuple(tuple(a) for a in kind.actions):
+        raise PolicyError(f"{kind.name} action set {list(actions)} differs from the robot's")
+    return got.encoder, got.goals, got.cell_mm
 
 
 def _declared_size(header_size: int, flags: int, dtype: int, n_actions: int, n_states: int,
@@ -329,16 +272,13 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         raise PolicyError(f"header_size {header_size} below the {HEADER.size}-byte v{VERSION_MAJOR} header")
     if flags & ~KNOWN_FLAGS:
         raise PolicyError(f"unknown flag bits 0x{flags & ~KNOWN_FLAGS:x}")
-    if kind in REMOVED_KINDS:
-        raise PolicyError(removed_kind_reason(kind))
-    if kind not in KIND_NAMES:
-        raise PolicyError(f"unknown encoder kind {kind}")
+    kind_ = _kind(kind)
     if dtype not in DTYPES:
         raise PolicyError(f"unknown dtype code {dtype}")
     dname, typecode, itemsize, _ = DTYPES[dtype]
-    want_actions = len(_expected_actions(kind))
+    want_actions = len(kind_.actions)
     if n_actions != want_actions:
-        raise PolicyError(f"{n_actions} actions, the robot's {KIND_NAMES[kind]} action set has {want_actions}")
+        raise PolicyError(f"{n_actions} actions, the robot's {kind_.name} action set has {want_actions}")
     if n_states < 1:
         raise PolicyError("table has no states")
     if meta_len > MAX_METADATA_BYTES:
@@ -359,12 +299,13 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         raise PolicyError(f"fields declare {expect} bytes but the file has {n}")
 
     off = header_size
-    enc, goals, cell_mm = _unpack_encoder(kind, data[off:off + enc_len], n_actions, expect_sensors)
+    enc, goals, cell_mm = _unpack_encoder(kind_, data[off:off + enc_len], n_actions, expect_sensors)
     if enc.n_states != n_states:
         raise PolicyError(f"encoder has {enc.n_states} states, table has {n_states}")
-    if isinstance(enc, CellEncoder) and geometry != (cell_mm, enc.width, enc.height):
-        raise PolicyError(f"header map geometry {geometry} differs from the cell encoder's "
-                          f"{MapGeometry(cell_mm, enc.width, enc.height)}")
+    fixed = kind_.fixed_geometry(enc, cell_mm)
+    if fixed is not None and geometry != fixed:
+        raise PolicyError(f"header map geometry {geometry} differs from the {kind_.name} encoder's "
+                          f"{MapGeometry(*fixed)}")
     off += enc_len
 
     try:
@@ -380,7 +321,7 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         raise PolicyError(str(exc)) from None
     planner = None
     if PLANNER_KEY in metadata:
-        if grid is None or type(enc) is not SectorEncoder:
+        if grid is None or not kind_.local_planner:
             raise PolicyError(f"{PLANNER_KEY} needs a plain sector policy that carries its map")
         try:
             planner = LocalPlannerConfig.from_metadata(metadata[PLANNER_KEY])
@@ -422,10 +363,9 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int) -
     """
     if policy.control_period_us != control_period_us:
         return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
-    if policy.kind == "cell" and policy.cell_mm != cell_size_mm:
-        return f"policy cell size {policy.cell_mm} mm != robot {cell_size_mm} mm"
-    if isinstance(policy.encoder, GridBugEncoder) and policy.encoder.cell_mm != cell_size_mm:
-        return f"policy cell size {policy.encoder.cell_mm} mm != robot {cell_size_mm} mm"
+    cell_mm = kinds.of_policy(policy).robot_cell_mm(policy)
+    if cell_mm is not None and cell_mm != cell_size_mm:
+        return f"policy cell size {cell_mm} mm != robot {cell_size_mm} mm"
     return ""
 
 
@@ -439,23 +379,8 @@ def content_id(encoder_section: bytes, table: bytes, scales: bytes = b"") -> int
 
 def _pack_encoder(encoder: AnyEncoder, goals: Sequence[tuple[int, int]],
                   cell_mm: int) -> bytes:
-    if isinstance(encoder, GridBugEncoder):
-        if not all(0 <= v <= 0xFFFF for v in (encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm)):
-            raise ValueError("sector-memory-grid fields must be 0..65535")
-        out = _GRID.pack(encoder.free_mm, encoder.leave_margin_mm, encoder.cell_mm, int(encoder.wall_bearing))
-        return out + b"".join(_PAIR.pack(*a) for a in MOVE_STEPS)
-    if isinstance(encoder, SectorEncoder):
-        out = _SECTOR_HEAD.pack(encoder.bearing_sectors, len(encoder.sensors), len(encoder.range_edges_mm))
-        out += bytes(encoder.sensors)
-        out += struct.pack(f"<{len(encoder.range_edges_mm)}H", *encoder.range_edges_mm)
-        actions = robot_spec.ACTION_WHEEL_SPEEDS_MM_S
-    else:
-        if len(goals) != encoder.n_goals:
-            raise ValueError(f"{len(goals)} goal cells for an encoder with {encoder.n_goals} goals")
-        out = _CELL_HEAD.pack(encoder.width, encoder.height, encoder.n_goals, cell_mm)
-        out += b"".join(_GOAL.pack(int(c), int(r)) for c, r in goals)
-        actions = robot_spec.CELL_ACTION_DELTAS
-    return out + b"".join(_PAIR.pack(*a) for a in actions)
+    kind = kinds.of_name(encoder.kind)
+    return kind.pack(encoder, tuple(goals), cell_mm) + b"".join(_PAIR.pack(*a) for a in kind.actions)
 
 
 def dump_policy(encoder: AnyEncoder, table: array[int], dtype: str, scale: float, *,
@@ -507,7 +432,7 @@ def dump_policy(encoder: AnyEncoder, table: array[int], dtype: str, scale: float
         raise ValueError(f"metadata JSON is {len(meta)} bytes, limit {MAX_METADATA_BYTES}")
     pid = content_id(enc, tbytes, sbytes) if policy_id is None else policy_id
     when = int(time.time()) if created is None else int(created)
-    head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, HEADER.size, flags, KIND_CODES[encoder.kind],
+    head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, HEADER.size, flags, kinds.of_name(encoder.kind).code,
                        code, n_actions, n_states, pid & 0xFFFFFFFF, when, float(scale), len(enc), len(meta),
                        control_period_us, *geometry)
     body = head + enc + meta + tbytes + sbytes
@@ -516,8 +441,9 @@ def dump_policy(encoder: AnyEncoder, table: array[int], dtype: str, scale: float
 
 def _geometry_for(encoder: AnyEncoder, cell_mm: int, given: MapGeometry | None) -> MapGeometry:
     """The header's map geometry: a cell policy's grid, a sector policy's training map."""
-    if isinstance(encoder, CellEncoder):
-        grid = MapGeometry(cell_mm, encoder.width, encoder.height)
+    fixed = kinds.of_name(encoder.kind).fixed_geometry(encoder, cell_mm)
+    if fixed is not None:
+        grid = MapGeometry(*fixed)
         if given is not None and MapGeometry(*given) != grid:
             raise ValueError(f"map geometry {MapGeometry(*given)} differs from the cell policy's grid {grid}")
         return grid
@@ -550,16 +476,15 @@ def upgrade_policy(data: bytes, control_period_us: int, map_geometry: MapGeometr
     (stored_crc,) = CRC.unpack_from(data, n - CRC.size)
     if zlib.crc32(memoryview(data)[:n - CRC.size]) != stored_crc:
         raise PolicyError("CRC32 mismatch: the file is damaged, re-export it instead")
-    if kind in REMOVED_KINDS:
-        raise PolicyError(removed_kind_reason(kind))
-    if header_size < HEADER_V1.size or header_size + enc_len > n - CRC.size or kind not in KIND_NAMES:
+    kind_ = _kind(kind)
+    if header_size < HEADER_V1.size or header_size + enc_len > n - CRC.size:
         raise PolicyError("version 1 header fields are inconsistent with the file")
     geometry: MapGeometry | None = map_geometry
-    if kind == KIND_CELL:
-        if enc_len < _CELL_HEAD.size:
-            raise PolicyError("cell encoder section too short")
-        width, height, _, cell_mm = _CELL_HEAD.unpack_from(data, header_size)
-        grid = MapGeometry(cell_mm, width, height)
+    enc, _, cell_mm = _unpack_encoder(kind_, data[header_size:header_size + enc_len], n_actions,
+                                      robot_spec.SENSOR_COUNT)
+    fixed = kind_.fixed_geometry(enc, cell_mm)
+    if fixed is not None:
+        grid = MapGeometry(*fixed)
         if map_geometry is not None and MapGeometry(*map_geometry) != grid:
             raise PolicyError(f"map geometry {MapGeometry(*map_geometry)} differs from the cell policy's grid {grid}")
         geometry = grid

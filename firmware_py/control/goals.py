@@ -12,7 +12,8 @@ from __future__ import annotations
 import logging
 import threading
 
-from firmware_py.control.controller import Controller, Outputs
+from firmware_py.control.controller import Controller
+from firmware_py.control.io import Outputs
 from firmware_py.vehicle import CtrlState
 
 

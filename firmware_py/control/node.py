@@ -55,7 +55,8 @@ import can
 
 from firmware_py import can_protocol as proto
 from firmware_py.clock import Clock, SimClock
-from firmware_py.control.controller import Controller, Inputs, Outputs
+from firmware_py.control.controller import Controller
+from firmware_py.control.io import Inputs, Outputs
 
 log = logging.getLogger("qnav.node")
 

@@ -61,7 +61,8 @@ def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
     import math
 
     from firmware_py import robot_spec
-    from firmware_py.control.controller import Controller, Inputs
+    from firmware_py.control.controller import Controller
+    from firmware_py.control.io import Inputs
     from firmware_py.policy import load_policy
 
     pol = load_policy(policy_path)

@@ -6,7 +6,8 @@ import math
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.control.controller import ERR_ESTOP, ERR_SENSOR_STALE, Controller
+from firmware_py.control.controller import Controller
+from firmware_py.control.io import ERR_ESTOP, ERR_SENSOR_STALE
 from firmware_py.policy import dump_policy
 from firmware_py.vehicle import CtrlState, FailsafeAction, Mode, VehicleConfig
 from tests.support.controller_rig import (

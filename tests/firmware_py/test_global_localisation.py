@@ -104,7 +104,8 @@ def test_converged_only_after_the_cluster_dominates_several_updates():
     (70, 900, (-160, 160)),  # a diagonal within 80 mm: turn in place
 ])
 def test_exploration_drives_through_corridors_and_steers_to_the_room(left, right, want):
-    from firmware_py.control.controller import Controller, Inputs
+    from firmware_py.control.controller import Controller
+    from firmware_py.control.io import Inputs
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy
     from firmware_py.vehicle import CtrlState

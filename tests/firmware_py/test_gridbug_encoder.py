@@ -10,7 +10,7 @@ from array import array
 
 import pytest
 
-from firmware_py import robot_spec
+from firmware_py import kinds, robot_spec
 from firmware_py.gridbug import (
     MODE_GO,
     MODE_WALL_LEFT,
@@ -27,7 +27,6 @@ from firmware_py.gridbug import (
     rotate_into,
 )
 from firmware_py.policy import (
-    KIND_SECTOR_MEMORY_GRID,
     MapGeometry,
     PolicyError,
     config_mismatch,
@@ -156,7 +155,7 @@ def test_qtab_round_trip_and_bad_sections():
         b[off:off + len(value)] = value
         return bytes(b) + struct.pack("<I", zlib.crc32(bytes(b)))
 
-    assert data[12] == KIND_SECTOR_MEMORY_GRID
+    assert data[12] == kinds.of_name("sector-memory").code == 4
     with pytest.raises(PolicyError, match="wall_bearing 2"):
         load_policy(patched(head + 6, b"\x02"))
     with pytest.raises(PolicyError, match="free_mm must be in"):

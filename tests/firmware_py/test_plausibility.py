@@ -72,7 +72,7 @@ def test_fast_but_possible_wheels_are_not_a_jump():
 def test_encoder_jump_limit_is_the_boundary(over):
     """A count change of exactly encoder_jump_limit(dt) is plausible; one tick more is a jump.
     The limit is ENC_JUMP_MARGIN x full wheel speed (plus the slack), worked out here in floats."""
-    from firmware_py.control.controller import (
+    from firmware_py.control.plausibility import (
         ENC_JUMP_MARGIN,
         ENC_JUMP_SLACK_TICKS,
         encoder_jump_limit,

@@ -193,7 +193,7 @@ def test_controller_drives_the_hand_table_round_a_wall_on_the_twin():
         i, j = rng.choice(len(free), 2, replace=False)
         ctrl = _drive(pol, gm, free[i], float(rng.uniform(-math.pi, math.pi)), free[j])
         assert ctrl.state == CtrlState.GOAL_REACHED, ctrl.transitions[-1].cause
-        walls += ctrl.grid_memory.side != 0
+        walls += ctrl.driver.memory.side != 0
     assert walls > 0  # at least one of them needed the wall modes
 
 
@@ -201,7 +201,7 @@ def test_controller_waits_for_valid_axis_readings_then_counts_a_dropout_as_block
     """A dropout (INVALID) on an axis sensor at a decision: the robot stands
     still and reads again; after GRID_INVALID_RETRY_TICKS it decides with the
     reading counted as blocked (never drives into what it did not see)."""
-    from firmware_py.control.controller import GRID_INVALID_RETRY_TICKS
+    from firmware_py.kinds.sector_memory import GRID_INVALID_RETRY_TICKS
 
     gm = load_map("paper10")
     enc = GridBugEncoder()
@@ -229,7 +229,7 @@ def test_controller_waits_for_valid_axis_readings_then_counts_a_dropout_as_block
         rig.tick(**readings(True))
         assert ctrl._state_index == -1 and (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == (0, 0)
     rig.tick(**readings(True))  # out of patience: decides with ahead blocked, so it does not go east
-    assert ctrl._state_index >= 0 and ctrl._action != 0 and ctrl.grid_memory.mode != 0
+    assert ctrl._state_index >= 0 and ctrl._action != 0 and ctrl.driver.memory.mode != 0
     # with valid readings from the start the same decision is forward (east, goal-ward, free)
     ctrl2 = Controller(VehicleConfig(), pol, start_pose_mm=(x0, y0, 0), localise=False)
     plant2 = Kinematic(x0, y0, 0.0)
@@ -237,4 +237,4 @@ def test_controller_waits_for_valid_axis_readings_then_counts_a_dropout_as_block
     rig2.tick(**readings(False))
     assert ctrl2.arm() == (True, "") and ctrl2.set_goal(*robot_spec.cell_center_mm(*goal, h, int(c))) == (True, "")
     rig2.tick(**readings(False))
-    assert ctrl2._action == 0 and ctrl2.grid_memory.mode == 0
+    assert ctrl2._action == 0 and ctrl2.driver.memory.mode == 0

@@ -9,7 +9,8 @@ from array import array
 from collections import deque
 
 from firmware_py import robot_spec
-from firmware_py.control.controller import Controller, Inputs
+from firmware_py.control.controller import Controller
+from firmware_py.control.io import Inputs
 from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import MapGeometry, Policy, dump_policy, load_policy
 

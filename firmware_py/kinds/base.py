@@ -1,0 +1,182 @@
+"""The contract every policy kind fulfils: `PolicyKind` (what the `.qtab` loader and
+writer need: the kind's name and file code, its action set, its encoder section)
+and `KindDriver` (what the controller calls each tick while DRIVING).
+
+The controller keeps the states, modes and safety and knows no kind: it asks the
+registry (`firmware_py.kinds`) for the policy's kind, builds that kind's driver
+when the policy is activated, and each tick hands it a `DriveTick` and takes back
+a `Decision` (wheel speeds, or a fault). A kind's memory (a Bug wall memory, a
+local planner's obstacle memory, an open cell step) lives in its driver.
+
+No import of `firmware_py.policy` (it imports the registry): kinds see a loaded policy through
+`Policy` below, and raise `ValueError` with a one-line reason, which the loader turns into a
+`PolicyError`.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from firmware_py import robot_spec
+
+PAIR = struct.Struct("<hh")  # one action in the encoder section: (left, right) mm/s or (dcol, drow)
+Geometry = tuple[int, int, int]  # (cell_mm, width, height) of a map
+Goals = tuple[tuple[int, int], ...]
+
+
+class Encoder(Protocol):
+    """What the loader needs of any kind's encoder."""
+
+    @property
+    def kind(self) -> str: ...
+
+    @property
+    def n_states(self) -> int: ...
+
+    @property
+    def n_actions(self) -> int: ...
+
+    def to_dict(self) -> dict[str, object]: ...
+
+
+class Policy(Protocol):
+    """What a kind uses of a loaded policy (firmware_py.policy.Policy has it all)."""
+
+    @property
+    def kind(self) -> str: ...
+
+    @property
+    def encoder(self) -> Any: ...
+
+    @property
+    def goals(self) -> Goals: ...
+
+    @property
+    def cell_mm(self) -> int: ...
+
+    @property
+    def map_grid(self) -> Any: ...
+
+    @property
+    def local_planner(self) -> Any: ...
+
+    def row(self, state: int) -> Any: ...
+
+    def best_action(self, state: int) -> int: ...
+
+
+@dataclass(frozen=True)
+class Unpacked:
+    """A kind's encoder section, read: the encoder, a cell policy's goal cells and cell size, and
+    where the action pairs start."""
+
+    encoder: Any
+    goals: Goals = ()
+    cell_mm: int = 0
+    actions_at: int = 0
+
+
+@dataclass(frozen=True)
+class DriveTick:
+    """What a kind sees on a tick while DRIVING (all on the controller's clock)."""
+
+    now_us: int
+    goal: tuple[int, int]
+    goal_index: int
+    # (goal, time DRIVING began): a new value is a new goal (a mission item) or a new drive
+    drive_key: tuple[tuple[int, int], int]
+    pose_mm: tuple[int, int, int]  # the pose the robot drives by (localiser, else odometry)
+    goal_dist_mm: int
+    goal_bearing_mrad: int
+    ranges_mm: tuple[int, ...] | list[int]
+    range_status: tuple[int, ...] | list[int]
+    goal_vector: Callable[[int, int], tuple[int, int]]  # (distance, bearing) from the pose to a point
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A kind's answer for one tick. `wheels` None: no command this tick (see `fault`).
+    `decided` (state, action, Q row) when a table row was read this tick, for telemetry;
+    None keeps the last one (a cell step decides once per cell)."""
+
+    wheels: tuple[int, int] | None
+    decided: tuple[int, int, tuple[int, ...]] | None = None
+    target_mm: tuple[int, int] | None = None  # what the kind steered to when not the goal itself
+    fault: str = ""
+
+
+class KindDriver:
+    """A policy kind at work on the robot: one per active policy, built by `PolicyKind.driver`."""
+
+    def __init__(self, policy: Policy) -> None:
+        self.policy = policy
+
+    def step(self, tick: DriveTick) -> Decision:
+        """The wheel command for this tick (mm/s, before the speed scale and clamp)."""
+        raise NotImplementedError
+
+    def interrupt(self) -> None:
+        """Abandon any motion in progress: the robot stopped, was given a new goal or a new pose."""
+
+    def localiser_statuses(self, pose_mm: tuple[int, int, int], ranges_mm: tuple[int, ...] | list[int],
+                           range_status: list[int]) -> list[int]:
+        """The range statuses the localiser may weigh at a tracked pose (default: all of them)."""
+        return range_status
+
+    def decided(self, state: int, action: int) -> tuple[int, int, tuple[int, ...]]:
+        return state, action, tuple(self.policy.row(state))
+
+
+def _no_geometry(_encoder: Any, _cell_mm: int) -> Geometry | None:
+    return None
+
+
+def _no_cell(_policy: Policy) -> int | None:
+    return None
+
+
+def _any_goal(_policy: Policy, _x_mm: int, _y_mm: int) -> tuple[int, str]:
+    return 0, ""
+
+
+def _no_header(_policy: Policy) -> dict[str, Any]:
+    return {}
+
+
+@dataclass(frozen=True)
+class PolicyKind:
+    """One kind of `.qtab` policy, as the registry knows it (docs/policy-format.md).
+
+    `unpack(section, n_actions, expect_sensors)` reads the encoder section up to its action pairs
+    (every length checked; ValueError with the reason); `pack(encoder, goals, cell_mm)` writes it;
+    the action pairs after them are the kind's `actions`, checked and written by the format.
+    """
+
+    name: str
+    code: int
+    actions: tuple[tuple[int, int], ...]
+    unpack: Callable[[bytes, int, int], Unpacked]
+    pack: Callable[[Any, Goals, int], bytes]
+    driver: Callable[[Policy], KindDriver]
+    # the map geometry the header must record (a cell policy's own grid), or None: the training map's
+    fixed_geometry: Callable[[Any, int], Geometry | None] = field(default=_no_geometry)
+    # the map cell size the policy drives on, which must be the robot's (None: not cell-bound)
+    robot_cell_mm: Callable[[Policy], int | None] = field(default=_no_cell)
+    # a goal's index for the table, or -1 and why it cannot be a goal of this policy
+    goal_index: Callable[[Policy, int, int], tuple[int, str]] = field(default=_any_goal)
+    header_fields: Callable[[Policy], dict[str, Any]] = field(default=_no_header)
+    local_planner: bool = False  # may carry `local_planner` metadata (firmware_py.localplan)
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.code <= 255:
+            raise ValueError(f"kind code {self.code} outside 1..255")
+        if not self.name or not self.actions:
+            raise ValueError("a kind needs a name and an action set")
+
+
+def wheel_actions() -> tuple[tuple[int, int], ...]:
+    """The action set of kinds that command wheel speeds directly (robot_spec)."""
+    return tuple(tuple(a) for a in robot_spec.ACTION_WHEEL_SPEEDS_MM_S)  # type: ignore[misc]

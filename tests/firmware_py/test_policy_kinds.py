@@ -1,0 +1,123 @@
+"""The policy-kind contract (firmware_py.kinds): a kind defined and registered by
+this test alone (its encoder, its encoder section, its decisions) is written by
+the one writer, read back by the robot's loader and driven by the controller,
+with no change to controller, loader or CLI code; and those modules name no kind.
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from firmware_py import kinds
+from firmware_py.control.controller import Controller
+from firmware_py.kinds.base import Decision, DriveTick, KindDriver, PolicyKind, Unpacked
+from firmware_py.policy import MapGeometry, PolicyError, dump_policy, load_policy
+from firmware_py.vehicle import CtrlState, VehicleConfig
+from tests.support.controller_rig import Kinematic, Rig
+
+ROOT = Path(__file__).resolve().parents[2]
+TOY_ACTIONS = ((120, 120), (-90, 90))  # forward, turn left in place (mm/s)
+
+
+@dataclass(frozen=True)
+class SpinEncoder:
+    """Two states: the way ahead is clear (0) or closer than `near_mm` (1)."""
+
+    near_mm: int = 300
+    kind: str = field(default="toy-spin", init=False)
+
+    @property
+    def n_states(self) -> int:
+        return 2
+
+    @property
+    def n_actions(self) -> int:
+        return len(TOY_ACTIONS)
+
+    def to_dict(self) -> dict[str, object]:
+        return {"near_mm": self.near_mm}
+
+
+_SECTION = struct.Struct("<H")
+
+
+def _unpack(sec: bytes, n_actions: int, _sensors: int) -> Unpacked:
+    if len(sec) != _SECTION.size + 4 * n_actions:
+        raise ValueError(f"toy-spin section is {len(sec)} bytes")
+    return Unpacked(SpinEncoder(_SECTION.unpack_from(sec, 0)[0]), actions_at=_SECTION.size)
+
+
+class SpinDriver(KindDriver):
+    def step(self, tick: DriveTick) -> Decision:
+        s = int(tick.ranges_mm[0] < self.policy.encoder.near_mm)
+        a = self.policy.best_action(s)
+        return Decision(TOY_ACTIONS[a], self.decided(s, a))
+
+
+TOY = PolicyKind(name="toy-spin", code=200, actions=TOY_ACTIONS, unpack=_unpack,
+                 pack=lambda enc, _goals, _cell: _SECTION.pack(enc.near_mm), driver=SpinDriver)
+
+
+@pytest.fixture
+def toy_kind():
+    kinds.register(TOY)
+    try:
+        yield TOY
+    finally:
+        kinds.unregister(TOY.name)
+
+
+def _toy_policy_bytes() -> bytes:
+    # state 0 (clear): forward; state 1 (near): turn
+    from array import array
+
+    return dump_policy(SpinEncoder(), array("b", [50, 0, 0, 50]), "int8", 0.01,
+                       map_geometry=MapGeometry(500, 10, 10))
+
+
+def test_a_kind_registered_by_the_test_loads_and_drives_the_controller(toy_kind):
+    pol = load_policy(_toy_policy_bytes())
+    assert pol.kind == "toy-spin" and pol.encoder == SpinEncoder()
+    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(250, 250, 0), localise=False)
+    rig = Rig(ctrl, Kinematic(250, 250, 0.0))
+    rig.tick()
+    assert ctrl.arm() == (True, "") and ctrl.set_goal(4750, 250) == (True, "")
+    rig.tick()
+    assert ctrl.state == CtrlState.DRIVING
+    assert (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == TOY_ACTIONS[0]
+    assert ctrl.status().state_index == 0 and ctrl.status().action == 0
+    rig.tick(ranges_mm=[200] * 8)  # something close ahead: the toy's table turns
+    assert (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == TOY_ACTIONS[1]
+    assert ctrl.status().state_index == 1 and ctrl.status().q_row == (0, 50)
+
+
+def test_registry_refuses_clashes_and_removed_codes_and_forgets_on_unregister(toy_kind):
+    with pytest.raises(ValueError, match="clashes"):
+        kinds.register(PolicyKind(name="toy-spin", code=201, actions=TOY_ACTIONS, unpack=_unpack,
+                                  pack=TOY.pack, driver=SpinDriver))
+    with pytest.raises(ValueError, match="sector-unmapped"):
+        kinds.register(PolicyKind(name="other", code=5, actions=TOY_ACTIONS, unpack=_unpack,
+                                  pack=TOY.pack, driver=SpinDriver))
+    data = _toy_policy_bytes()
+    kinds.unregister("toy-spin")
+    with pytest.raises(PolicyError, match="unknown encoder kind 200"):
+        load_policy(data)
+    kinds.register(TOY)  # the fixture unregisters it again
+    assert "toy-spin" in kinds.names() and kinds.of_code(200) is TOY
+
+
+@pytest.mark.parametrize("module", ["firmware_py/control/controller.py", "firmware_py/control/state.py",
+                                    "firmware_py/policy.py", "firmware_py/cli.py"])
+def test_controller_loader_and_cli_name_no_kind(module):
+    """A kind-specific branch (an encoder class, a kind's name, isinstance on an encoder) in
+    these modules would break the contract: kinds are reached through the registry only."""
+    code = "\n".join(line.split("#")[0] for line in (ROOT / module).read_text().splitlines()
+                     if not line.lstrip().startswith(("#", '"', "'")))
+    named = re.findall(r"CellEncoder|SectorEncoder|GridBugEncoder|GridBugMemory|isinstance\([^)]*\.encoder"
+                       r"|[\"'](cell|sector|sector-memory)[\"']", code)
+    assert named == [], f"{module} names a kind: {named}"
