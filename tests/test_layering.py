@@ -179,3 +179,34 @@ def test_firmware_imports_only_stdlib_and_the_robot_dependencies():
         if target.split(".")[0] not in allowed
     ]
     assert not bad, "firmware_py imports outside its allowed dependencies:\n" + "\n".join(bad)
+
+
+def _architecture_tree() -> list[str]:
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = text[text.index("## The tree"):]
+    block = block[block.index("```") + 3:]
+    return block[:block.index("```")].splitlines()
+
+
+def test_the_architecture_tree_names_what_exists():
+    """docs/architecture.md's tree: every folder and top-level module it names under a program
+    exists, and every package of the three programs is named (the docs follow the code)."""
+    top = None
+    named: set[str] = set()
+    for line in _architecture_tree():
+        if line[:1].strip():  # a program or top folder, e.g. "firmware_py/"
+            top = line.split()[0].rstrip("/")
+            continue
+        if top not in ("firmware_py", "ground_station", "sim_bridge"):
+            continue
+        first = line[2:].split("  ")[0] if line.startswith("  ") and not line.startswith("   ") else ""
+        for token in first.split():
+            if token.endswith("/"):
+                named.add(f"{top}/{token.rstrip('/')}")
+                assert (ROOT / top / token).is_dir(), f"docs/architecture.md names {top}/{token}, which is gone"
+            elif token.endswith(".py") or token.endswith(".dbc"):
+                assert (ROOT / top / token).is_file(), f"docs/architecture.md names {top}/{token}, which is gone"
+    for prog in ("firmware_py", "ground_station", "sim_bridge"):
+        for init in sorted((ROOT / prog).glob("*/__init__.py")):
+            pkg = f"{prog}/{init.parent.name}"
+            assert pkg in named, f"{pkg} is not in docs/architecture.md's tree"
