@@ -210,3 +210,17 @@ def test_the_architecture_tree_names_what_exists():
         for init in sorted((ROOT / prog).glob("*/__init__.py")):
             pkg = f"{prog}/{init.parent.name}"
             assert pkg in named, f"{pkg} is not in docs/architecture.md's tree"
+
+
+def test_product_code_never_imports_tools_or_tests():
+    bad = [(m, t, line) for m, targets in IMPORTS.items() for t, line in targets
+           if t.split(".")[0] in ("tools", "tests")]
+    assert bad == [], f"product code imports tools/ or tests/: {bad}"
+
+
+def test_learning_does_not_import_navigation():
+    """ground_station.learn (training, twins, evaluation) sits below ground_station.nav (the
+    navigation bench and the ground station's re-planner), never the other way up."""
+    bad = [(m, t, line) for m, targets in IMPORTS.items() if m.startswith("ground_station.learn")
+           for t, line in targets if t.startswith("ground_station.nav")]
+    assert bad == [], f"learn/ imports nav/: {bad}"
