@@ -23,7 +23,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.learn.config import add_config_arguments, recipe_defaults
 
     p = sub.add_parser("train", help="train a tabular Q policy (cell, sector or sector-memory encoding)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, add_help=False)
+    p.add_argument("-h", "--help", action=_HelpForEncoding, nargs=0,
+                   help="show this help (after --encoding E: only the options training E reads)")
     from ground_station.learn.config import SHIPPED_RECIPES
 
     p.add_argument("--recipe", choices=sorted(SHIPPED_RECIPES), default=None,
@@ -36,6 +38,35 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     p.set_defaults(func=run)
+
+
+class _HelpForEncoding(argparse.Action):
+    """`qnav train --encoding E --help`: the options that training E reads, not every encoding's."""
+
+    def __call__(self, parser, namespace, values, option_string=None):  # type: ignore[no-untyped-def]
+        from ground_station.learn.config import ENCODINGS, applies_to
+
+        encoding = getattr(namespace, "encoding", None)
+        if encoding in ENCODINGS:
+            for action in parser._actions:
+                if action.dest != "encoding" and encoding not in applies_to(action.dest):
+                    action.help = argparse.SUPPRESS
+            parser.description = (f"`qnav train --encoding {encoding}`: train a Q table and write the run folder "
+                                  "(the options below are those this encoding reads; `qnav train --help` lists "
+                                  "every encoding's). A flag left out takes the encoding's shipped recipe "
+                                  "(ground_station/learn/config.py RECIPES).")
+            parser.usage = f"qnav train --encoding {encoding} [--map MAP] [--steps N] [--seed N] [--out DIR] [options]"
+            parser.formatter_class = lambda prog: argparse.HelpFormatter(prog, width=110, max_help_position=32)
+            for action in parser._actions:
+                if action.option_strings and action.nargs is None and action.metavar is None \
+                        and action.choices is None and action.help != argparse.SUPPRESS:
+                    action.metavar = "N" if action.type in (int, float) or action.dest == "steps" else "X"
+            for group in parser._action_groups:
+                if all(a.help == argparse.SUPPRESS for a in group._group_actions):
+                    group.title = None
+                    group._group_actions.clear()
+        parser.print_help()
+        parser.exit()
 
 
 def default_run_dir(map_spec: str, encoding: str, seed: int) -> str:

@@ -100,15 +100,46 @@ def recipe_config(encoding: str, given: dict[str, Any]) -> TrainConfig:
     return TrainConfig(**{**RECIPES.get(encoding, {}), **given, "encoding": encoding})
 
 
+ENCODINGS = ("cell", "sector", "sector-memory")
+# sector fields the sector-memory trainer reads too (its extra maps, its learning-rate schedule, the
+# planner's waypoints it starts from)
+_SECTOR_FIELDS_OF_MEMORY = {"sector_maps", "sector_lr_end", "sector_margin_mm", "sector_max_segment_mm"}
+_LEARNER_FIELDS = {"learner_lambda", "trace_min", "dyna_planning"}  # cell and sector only (sector-memory: q)
+
+
+def applies_to(name: str) -> tuple[str, ...]:
+    """The encodings whose training reads TrainConfig field `name` (its --help section)."""
+    if name == "targets":
+        return ("cell",)
+    if name in _LEARNER_FIELDS:
+        return ("cell", "sector")
+    if name.startswith("sector_"):
+        return ("sector", "sector-memory") if name in _SECTOR_FIELDS_OF_MEMORY else ("sector",)
+    if name.startswith("grid_"):
+        return ("sector-memory",)
+    return ENCODINGS
+
+
+_GROUPS = {ENCODINGS: "training (every encoding)", ("cell",): "cell encoding",
+           ("cell", "sector"): "learners other than q (cell and sector encodings)",
+           ("sector",): "sector encoding", ("sector", "sector-memory"): "sector and sector-memory encodings",
+           ("sector-memory",): "sector-memory encoding"}
+
+
 def add_config_arguments(parser: argparse.ArgumentParser, skip: tuple[str, ...] = ()) -> None:
-    """One `--flag` per TrainConfig field, with the field's help text."""
+    """One `--flag` per TrainConfig field, with the field's help text, grouped by the encodings
+    that read it (`applies_to`)."""
+    groups: dict[tuple[str, ...], argparse._ArgumentGroup] = {}
     for f in fields(TrainConfig):
         if f.name in skip:
             continue
+        where = applies_to(f.name)
+        if where not in groups:
+            groups[where] = parser.add_argument_group(_GROUPS[where])
         flag = "--" + f.name.replace("_", "-")
         kind = type(f.default)
-        parser.add_argument(flag, type=int_arg if kind is int else kind, default=f.default, dest=f.name,
-                            help=f"{f.metadata.get('help', '')} (default: {f.default})")
+        groups[where].add_argument(flag, type=int_arg if kind is int else kind, default=f.default, dest=f.name,
+                                   help=f"{f.metadata.get('help', '')} (default: {f.default})")
 
 
 def int_arg(text: str) -> int:

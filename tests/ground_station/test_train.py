@@ -3,6 +3,7 @@ fixed point on a corridor, reproducibility, evaluation outcomes, and the
 CLI run folder contract (subprocess smoke tests)."""
 
 import json
+import re
 import subprocess
 import sys
 from dataclasses import fields, replace
@@ -209,3 +210,34 @@ def test_jitted_cell_state_equals_reference_encoder(w, h, n_goals, data):
     row = data.draw(st.integers(0, h - 1))
     g = data.draw(st.integers(0, n_goals - 1))
     assert cell_state(g, row * w + col, w * h) == CellEncoder(w, h, n_goals).encode(col, row, g)
+
+
+@pytest.mark.parametrize(("encoding", "shown", "hidden"), [
+    ("cell", ["--targets", "--learner-lambda", "--steps"], ["--sector-sensors", "--grid-free-mm", "--sector-maps"]),
+    ("sector", ["--sector-sensors", "--sector-maps", "--dyna-planning"], ["--targets", "--grid-free-mm"]),
+    ("sector-memory", ["--grid-free-mm", "--sector-maps", "--sector-lr-end"], ["--targets", "--sector-sensors",
+                                                                               "--learner-lambda"]),
+])
+def test_train_help_after_an_encoding_shows_what_that_encoding_reads(encoding, shown, hidden):
+    """`qnav train --encoding E --help` is the options training E reads (a cell user reads under
+    60 lines); `qnav train --help` still lists every encoding's, in one group per encoding."""
+    import contextlib
+    import io
+
+    from ground_station import cli
+
+    def help_text(*argv: str) -> str:
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out), pytest.raises(SystemExit) as done:
+            cli.main(["train", *argv, "--help"])
+        assert done.value.code == 0
+        return out.getvalue()
+
+    text = help_text("--encoding", encoding)
+    flags = set(re.findall(r"(--[a-z][a-z-]+)", text))
+    assert set(shown) <= flags and not set(hidden) & flags, (encoding, sorted(flags))
+    if encoding == "cell":
+        assert len(text.splitlines()) < 60
+    full = help_text()
+    assert set(shown + hidden) <= set(re.findall(r"(--[a-z][a-z-]+)", full))
+    assert "sector-memory encoding:" in full and "cell encoding:" in full
