@@ -126,6 +126,7 @@ class Controller(ControlState):
                 return True, "already disarmed"
             self.armed = False
             self.estop_latch.on_disarm()
+            self._end_exploration("disarmed")
             self._stop()
             self.goal = None
             self._transition(CtrlState.STANDBY, "disarmed")
@@ -140,6 +141,7 @@ class Controller(ControlState):
             if mode == Mode.MANUAL:
                 return False, "MANUAL unsupported: policy drives only"
             self.mode = mode
+            self._end_exploration(f"mode {mode.name}")  # any mode command, Hold above all, ends the wander
             if mode == Mode.HOLD and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 self.goal = None
                 self._transition(CtrlState.HOLD, "mode HOLD")
@@ -205,6 +207,7 @@ class Controller(ControlState):
                 return
             action = self.cfg.gcs_failsafe_action
             self._event("fault", "GCS Failsafe", SEV_CRITICAL)
+            self._end_exploration("GCS failsafe")  # whatever the action: the wander is never left running
             if not self.armed or action == FailsafeAction.NONE:
                 return
             if action == FailsafeAction.DISARM:
@@ -301,21 +304,31 @@ class Controller(ControlState):
                 self.loc.init_pose(int(x_mm), int(y_mm), int(heading_mrad))
 
     def localise_global(self, explore: bool = True) -> tuple[bool, str]:
-        """Forget the pose: particles uniform over the map (global
-        localisation). With `explore` and armed in HOLD the robot wanders
-        (forward while the front is clear, steering towards the side with
-        more room, else turning in place) until the
-        localiser has converged, the bumper is pressed, it is disarmed or
-        its time is up (control/explore.py); goals are refused until it is localised."""
+        """Forget the pose: particles uniform over the map (global localisation). With `explore`
+        and armed in HOLD the robot wanders (control/explore.py), the one motion Hold allows and
+        only on this request, until the localiser has converged, its time is up, or the bumper,
+        an e-stop, a fault, disarming, any mode command (Hold included) or a GCS failsafe ends it
+        at once. Asking again while it wanders does not extend it. Goals are refused until the
+        pose is localised."""
         with self._lock:
             if self.loc is None:
                 return False, "no map: the active policy carries none (qnav policy attach-map)"
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
+            if explore and self.exploration.running:
+                left_s = max(0, (self.exploration.until_us or 0) - self._now) / 1e6
+                return True, f"already exploring, {left_s:.0f} s left"
             self.loc.init_global()
             self.exploration.start(self._now) if explore else self.exploration.stop()
             self._event("info", "global localisation started" + (", exploring" if explore else ""))
             return True, ""
+
+    def _end_exploration(self, why: str) -> None:
+        """Stop the wander now (the next tick commands zero), if it runs."""
+        if self.exploration.running:
+            self.exploration.stop()
+            self._stop()
+            self._event("info", f"exploration stopped: {why}", SEV_WARNING)
 
     def _explore(self, inp: Inputs, now_us: int) -> None:
         """One tick of the wander that feeds global localisation (HOLD, armed)."""

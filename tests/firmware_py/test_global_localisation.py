@@ -119,3 +119,51 @@ def test_exploration_drives_through_corridors_and_steers_to_the_room(left, right
     inp.range_status = [robot_spec.RANGE_VALID] * 8
     ctrl._explore(inp, 1000)
     assert ctrl.watchdog._setpoint == want
+
+
+def _exploring_rig():
+    from firmware_py.control.controller import Controller
+    from firmware_py.policy import load_policy
+    from firmware_py.shipped_policies import shipped_policy
+    from tests.support.controller_rig import Kinematic, Rig
+
+    ctrl = Controller(policy=load_policy(shipped_policy("sector")), start_pose_mm=(1250, 1250, 0))
+    rig = Rig(ctrl, Kinematic(1250, 1250, 0.0))
+    rig.tick()
+    assert ctrl.arm() == (True, "")
+    assert ctrl.localise_global(explore=True)[0]
+    rig.tick()
+    assert ctrl.exploration.running and rig.last_motor.left_mm_s != 0  # wandering
+    return ctrl, rig
+
+
+@pytest.mark.parametrize("stop", ["mode hold", "mode guided", "failsafe none", "failsafe hold", "disarm"])
+def test_hold_failsafe_and_disarm_end_the_exploration_at_the_next_tick(stop):
+    """Hold always stops: a SET_MODE (Hold included, though the robot is already in Hold), a GCS
+    failsafe whatever its action, or disarming ends the wander; the very next tick commands zero."""
+    from firmware_py.vehicle import FailsafeAction, Mode
+
+    ctrl, rig = _exploring_rig()
+    if stop.startswith("mode"):
+        assert ctrl.set_mode(Mode.HOLD if stop == "mode hold" else Mode.GUIDED)[0]
+    elif stop.startswith("failsafe"):
+        ctrl.cfg.gcs_failsafe_action = FailsafeAction.NONE if stop == "failsafe none" else FailsafeAction.HOLD
+        ctrl.set_failsafe(True)
+    else:
+        assert ctrl.disarm() == (True, "")
+    rig.tick()
+    assert not ctrl.exploration.running
+    assert rig.commands[-1] is None or (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
+    for _ in range(5):  # and it stays stopped
+        rig.tick()
+        assert rig.commands[-1] is None or (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
+    assert any("exploration stopped" in e.text for e in ctrl.drain_events())
+
+
+def test_asking_again_does_not_extend_the_exploration():
+    ctrl, rig = _exploring_rig()
+    until = ctrl.exploration.until_us
+    for _ in range(10):
+        rig.tick()
+    ok, why = ctrl.localise_global(explore=True)
+    assert ok and why.startswith("already exploring") and ctrl.exploration.until_us == until
