@@ -57,6 +57,7 @@ from firmware_py import can_protocol as proto
 from firmware_py.clock import Clock, SimClock
 from firmware_py.control.controller import Controller
 from firmware_py.control.io import Inputs, Outputs
+from firmware_py.control.plausibility import plausible_range_status
 
 log = logging.getLogger("qnav.node")
 
@@ -91,7 +92,7 @@ class InputTracker:
             if name in _RANGE_INDEX:
                 for i, (mm, st) in proto.ranges_from(name, sig).items():
                     inp.ranges_mm[i] = mm
-                    inp.range_status[i] = st
+                    inp.range_status[i] = plausible_range_status(mm, st)
                 key = f"ranges{_RANGE_INDEX[name]}"
             elif name == "EncoderCounts":
                 inp.enc_left, inp.enc_right = sig["Enc_Left"], sig["Enc_Right"]

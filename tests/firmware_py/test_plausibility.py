@@ -152,3 +152,24 @@ def test_robot_node_drops_a_far_future_sim_tick_and_keeps_detecting_stale_sensor
         node.stop()
         node.bus.shutdown()
         sim.shutdown()
+
+
+def test_a_valid_reading_beyond_the_sensor_range_is_taken_as_invalid():
+    """RangeSectors frames decoded by the node: a VALID 4095 mm from a 2000 mm sensor (a broken or
+    forged frame) reaches the controller as INVALID; in-range readings and other statuses as sent."""
+    from firmware_py import can_protocol as cp
+    from firmware_py.control.node import InputTracker
+
+    tracker = InputTracker(defer_stamps=False)
+    sig = {"Rng0_Counter": 1}
+    readings = [(4095, robot_spec.RANGE_VALID), (robot_spec.RANGE_MAX_MM, robot_spec.RANGE_VALID),
+                (4095, robot_spec.RANGE_TOO_FAR), (150, robot_spec.RANGE_VALID)]
+    for i, (mm, st) in enumerate(readings):
+        sig[f"Range{i}"], sig[f"Range{i}Status"] = mm, st
+    msg = cp.encode("RangeSectors0", sig)
+    name, decoded = cp.decode(msg)
+    assert tracker.apply(name, decoded, 1000)
+    inp = tracker.snapshot()
+    assert inp.range_status[:4] == [robot_spec.RANGE_INVALID, robot_spec.RANGE_VALID,
+                                    robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_VALID]
+    assert inp.ranges_mm[:4] == [4095, robot_spec.RANGE_MAX_MM, 4095, 150]
