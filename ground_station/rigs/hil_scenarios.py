@@ -121,6 +121,40 @@ def _sim_summary(text: str) -> dict | None:
     return None if m is None else dict(zip(("ticks", "missed", "stale"), map(int, m.groups()), strict=True))
 
 
+def _can_receivers(channel: str) -> int:
+    """Raw CAN sockets bound on `channel` (the kernel's /proc/net/can/rcvlist_all; 0 without it)."""
+    try:
+        text = Path("/proc/net/can/rcvlist_all").read_text()
+    except OSError:
+        return 0
+    return sum(1 for line in text.splitlines() if line.split()[:1] == [channel])
+
+
+def _wait_for_receiver(channel: str, before: int, proc: subprocess.Popen, timeout_s: float = 15.0) -> None:
+    """Until `proc` (candump) has its socket bound on `channel`: one more receiver than `before`.
+    A fixed sleep lost the first SimTick's frames when user-mode Linux was slow to start it."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        if _can_receivers(channel) > before:
+            return
+        time.sleep(0.02)
+    if not Path("/proc/net/can/rcvlist_all").exists():
+        time.sleep(0.5)  # no way to see the socket here: the old allowance
+
+
+def _wait_still(path: Path, still_s: float, timeout_s: float) -> None:
+    """Until `path` has not grown for `still_s` (or `timeout_s` passed)."""
+    deadline = time.monotonic() + timeout_s
+    size, since = -1, time.monotonic()
+    while time.monotonic() < deadline:
+        now_size = path.stat().st_size if path.exists() else 0
+        if now_size != size:
+            size, since = now_size, time.monotonic()
+        elif time.monotonic() - since >= still_s:
+            return
+        time.sleep(0.1)
+
+
 def goal_reached(can: str, work: Path, *, duration_s: float = 35.0, candump: str | None = None) -> dict:
     """Lockstep drive to target B; `candump` = channel to record with `candump -L` into goal.candump."""
     stats = work / "goal_robot.json"
@@ -129,8 +163,11 @@ def goal_reached(can: str, work: Path, *, duration_s: float = 35.0, candump: str
         dump = None
         if candump:
             dump_out = open(work / "goal.candump", "wb")  # noqa: SIM115 - closed below
-            dump = subprocess.Popen(["candump", "-L", candump], stdout=dump_out, stderr=subprocess.DEVNULL)
-            time.sleep(0.3)  # its socket is bound before the first frame
+            before = _can_receivers(candump)
+            # line-buffered, so the file shows how far it has read (stopped below once it is quiet)
+            dump = subprocess.Popen(["stdbuf", "-oL", "candump", "-L", candump], stdout=dump_out,
+                                    stderr=subprocess.DEVNULL)
+            _wait_for_receiver(candump, before, dump)  # bound before the sim sends its first frame
         t0 = time.monotonic()
         sim = procs.start("goal_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
                                        "--duration", duration_s, "--start", START, "-q"])
@@ -140,7 +177,9 @@ def goal_reached(can: str, work: Path, *, duration_s: float = 35.0, candump: str
         res["sim_exit"], res["robot_exit"] = _wait(sim, 120), _wait(rob, 30)
         res["wall_s"] = round(time.monotonic() - t0, 2)
         if dump is not None:
-            time.sleep(0.2)
+            # a Ctrl-C drops what is still in its socket: stop it once its file has been still for
+            # 2 s (a loaded user-mode Linux lags behind the sim)
+            _wait_still(work / "goal.candump", still_s=2.0, timeout_s=30.0)
             stop_process(dump, timeout_s=5, sig=signal.SIGINT)
             dump_out.close()
             res["candump_lines"] = len((work / "goal.candump").read_text().splitlines())
