@@ -9,8 +9,8 @@ policy steering on the goal bearing alone is reported beside them
 (`direct_*` keys), and the baseline is a hand-written seek table on the same
 waypoints. Sector-memory runs are judged in the direct setting only (goal
 bearing and distance, no waypoints: `success_rate` is the direct figure)
-and add `wall_share`, the share of periods spent following a wall, and
-`failures`, the failed episodes by class (docs/training.md, sector-memory).
+and add `wall_share`, the share of periods spent following a wall
+(docs/training.md, sector-memory; figures in docs/results.md).
 """
 
 from __future__ import annotations
