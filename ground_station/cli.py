@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import NoReturn
 
 from ground_station import commands
 from ground_station.commands import add_module_subparsers
@@ -17,8 +18,17 @@ from ground_station.errors import CliError
 from ground_station.extras import require_station
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """Usage errors in one line, naming what is wrong and where the help is (not the usage
+    block first); subcommand parsers are of this class too (argparse builds them with the
+    parent's class)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="qnav", description="qnav ground station: train, evaluate, export, upload, command, monitor.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True

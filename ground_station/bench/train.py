@@ -21,10 +21,12 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="training steps/s: numba kernel vs plain-Python Gymnasium loop",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--json", metavar="FILE", default=None, help="write the result as JSON")
-    p.add_argument("--steps", type=int, default=30_000_000, help="kernel steps to time (default: 30M)")
+    from ground_station.learn.config import int_arg  # 2e6 as `qnav train` takes it
+
+    p.add_argument("--steps", type=int_arg, default=30_000_000, help="kernel steps to time (default: 30M)")
     p.add_argument("--baseline-seconds", type=float, default=3.0,
                    help="wall time budget of the plain-Python loop (default: 3 s)")
-    p.add_argument("--sector-steps", type=int, default=2_000_000, help="sector trainer steps to time (default: 2M)")
+    p.add_argument("--sector-steps", type=int_arg, default=2_000_000, help="sector trainer steps to time (default: 2M)")
     p.set_defaults(func=run)
 
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from ground_station.errors import CliError
 
@@ -34,7 +33,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("upload", help="upload a policy to the robot over MAVLink FTP (and activate it)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("file", type=Path, help="the .qtab policy file")
+    from firmware_py.shipped_policies import policy_file_arg
+
+    p.add_argument("file", type=policy_file_arg, help="the .qtab policy file, or policies:NAME for a shipped one")
     p.add_argument("--activate", action="store_true", help="make it the robot's active policy")
     p.add_argument("--remote", help="path on the robot (default /policies/<file name>)")
     p.add_argument("--attempts", type=int, default=8, help="whole-file put attempts (default %(default)s)")

@@ -103,6 +103,21 @@ def test_clear_errors(tmp_path):
     assert out.returncode == 2 and "signing key" in out.stderr
 
 
+def test_upload_takes_a_shipped_policy_by_name(tmp_path):
+    """`qnav upload policies:sector`, as the README shows, resolves the shipped file (it once
+    failed with "policies:sector: no such file"); an unknown name is a one-line refusal."""
+    from firmware_py.shipped_policies import shipped_policy
+
+    root = tmp_path / "root"
+    port = free_udp_port()
+    with robot_ftp_process(root, f"udpin:127.0.0.1:{port}"):
+        out = qnav_upload("policies:sector", "--mavlink", f"udpout:127.0.0.1:{port}")
+        assert out.returncode == 0, out.stdout + out.stderr
+    assert (root / "policies" / "sector.qtab").read_bytes() == shipped_policy("sector").read_bytes()
+    out = qnav_upload("policies:no_such_policy", "--mavlink", "udpout:127.0.0.1:9")
+    assert out.returncode == 2 and "no_such_policy" in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
 def test_help():
     out = subprocess.run([sys.executable, "-m", "ground_station.cli", "upload", "--help"],
                          capture_output=True, text=True, timeout=60)

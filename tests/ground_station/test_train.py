@@ -241,3 +241,18 @@ def test_train_help_after_an_encoding_shows_what_that_encoding_reads(encoding, s
     full = help_text()
     assert set(shown + hidden) <= set(re.findall(r"(--[a-z][a-z-]+)", full))
     assert "sector-memory encoding:" in full and "cell encoding:" in full
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["train", "--steps", "1e6x"], "argument --steps: expected an integer"),
+    (["mode", "autp"], "invalid choice: 'autp'"),
+    (["arm", "--timeout", "-1"], "argument --timeout: must be > 0"),
+    (["bench", "train", "--steps", "2e6x"], "argument --steps"),
+    (["no-such-command"], "invalid choice: 'no-such-command'"),
+])
+def test_usage_errors_are_one_line_with_exit_2(argv, words):
+    """A usage error is one line naming what is wrong and where the help is, not the usage block."""
+    out = subprocess.run([sys.executable, "-m", "ground_station.cli", *argv], capture_output=True, text=True,
+                         timeout=60)
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1 and words in lines[0] and "--help" in lines[0], out.stderr
