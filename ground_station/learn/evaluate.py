@@ -207,11 +207,27 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
     return rep
 
 
+def greedy_arrows(q: np.ndarray, gridmap: GridMap, goal_index: int, goal: tuple[int, int]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, u, v) of the greedy action's arrow in every free cell but the goal, in the image's
+    data coordinates: x = column, y = row, so on an image drawn with row 0 at the top (origin
+    "upper") a move to the next row (south) points down (+v). Negating v drew every north/south
+    arrow backwards."""
+    from firmware_py import robot_spec
+
+    h, w = gridmap.height, gridmap.width
+    dc = np.array([d[0] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
+    dr = np.array([d[1] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
+    free = np.argwhere(~gridmap.occ)  # (row, col)
+    acts = np.argmax(q[goal_index * h * w + free[:, 0] * w + free[:, 1]], axis=1)  # ties -> lowest, as the robot
+    keep = ~((free[:, 0] == goal[1]) & (free[:, 1] == goal[0]))
+    return free[keep, 1], free[keep, 0], dc[acts[keep]], dr[acts[keep]]
+
+
 def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int]],
                      names: list[str] | None = None) -> bytes:
     """PNG: per goal, the map with the greedy action of every free cell as an
     arrow (north up, row 0 at the top) and the goal marked."""
-    from firmware_py import robot_spec
     from ground_station.plotting import png_bytes, pyplot
 
     plt = pyplot()
@@ -223,16 +239,10 @@ def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int
     rows = (n + cols - 1) // cols
     size = max(3.0, min(6.0, 40.0 / max(h, w) * 1.0 + 2.5))
     fig, axes = plt.subplots(rows, cols, figsize=(size * cols, size * rows), dpi=100, squeeze=False)
-    dc = np.array([d[0] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
-    dr = np.array([d[1] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
-    free = np.argwhere(~gridmap.occ)  # (row, col)
     for g, (gc, gr) in enumerate(goals):
         ax = axes[g // cols][g % cols]
         ax.imshow(gridmap.occ, cmap="Greys", vmin=0, vmax=1.5, origin="upper")
-        states = g * h * w + free[:, 0] * w + free[:, 1]
-        acts = np.argmax(q[states], axis=1)  # ties -> lowest index, as on the robot
-        keep = ~((free[:, 0] == gr) & (free[:, 1] == gc))
-        ax.quiver(free[keep, 1], free[keep, 0], dc[acts[keep]], -dr[acts[keep]],
+        ax.quiver(*greedy_arrows(q, gridmap, g, (gc, gr)),
                   angles="xy", scale_units="xy", scale=1.5, pivot="middle", color="tab:blue", width=0.006)
         ax.plot([gc], [gr], marker="*", markersize=14, color="tab:red")
         ax.set_title(f"greedy policy to {names[g]} ({gc},{gr})")

@@ -256,3 +256,25 @@ def test_usage_errors_are_one_line_with_exit_2(argv, words):
                          timeout=60)
     lines = out.stderr.strip().splitlines()
     assert out.returncode == 2 and len(lines) == 1 and words in lines[0] and "--help" in lines[0], out.stderr
+
+
+def test_eval_plot_arrows_point_the_way_the_greedy_action_goes():
+    """On the image (row 0 at the top, origin "upper"), a cell whose greedy action is "south"
+    (the next row) gets an arrow pointing down (+v): the plot once drew every north/south arrow
+    backwards, so a policy with 100 % success looked broken."""
+    from firmware_py import robot_spec
+    from ground_station.learn.evaluate import greedy_arrows
+    from ground_station.maps import load_map
+
+    gm = load_map("paper10")
+    h, w = gm.height, gm.width
+    q = np.zeros((h * w, len(robot_spec.CELL_ACTION_DELTAS)))
+    south = robot_spec.CELL_ACTION_DELTAS.index((0, 1))
+    north = robot_spec.CELL_ACTION_DELTAS.index((0, -1))
+    q[:, south] = 1.0
+    q[0 * w + 0, :] = 0.0
+    q[0 * w + 0, north] = 1.0  # cell (0, 0): north
+    x, y, u, v = greedy_arrows(q, gm, 0, (w - 1, h - 1))
+    at = {(int(c), int(r)): (du, dv) for c, r, du, dv in zip(x, y, u, v, strict=True)}
+    assert all(uv == (0.0, 1.0) for cell, uv in at.items() if cell != (0, 0))  # south: down the image
+    assert at[(0, 0)] == (0.0, -1.0)  # north: up the image
