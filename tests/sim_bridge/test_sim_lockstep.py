@@ -209,19 +209,26 @@ def test_same_seed_gives_identical_trajectories_across_processes():
     assert a[0] != c[0]  # the seed matters: noise changes the reflex driver's decisions
 
 
-def test_paced_mode_applies_commands_and_reports_rtf():
+def _against_a_controller(channel: str, loop):
+    """(plant, loop(plant, bus)) with a reflex controller answering on virtual:`channel`."""
     plant = Plant(ARENA, SimConfig(), Pose(1.0, 1.0, 0.0))
-    bus = open_bus("virtual:test_paced")
+    bus = open_bus(f"virtual:{channel}")
     try:
-        with _Controller("test_paced"):
-            stats = run_paced(plant, bus, 1.0, speed=10.0)
+        with _Controller(channel):
+            return plant, loop(plant, bus)
     finally:
         bus.shutdown()
+
+
+def test_paced_mode_applies_commands_and_reports_rtf():
+    plant, stats = _against_a_controller("test_paced", lambda plant, bus: run_paced(plant, bus, 1.0, speed=10.0))
+    bus = open_bus("virtual:test_paced")
     assert stats.ticks == 20 and stats.wall_s > 0 and stats.rtf > 0
     assert plant.motors.commands >= 10
     assert plant.world.pose.x != 1.0 or plant.world.pose.heading != 0.0
     with pytest.raises(ValueError, match="speed"):
         run_paced(plant, bus, 1.0, speed=0.0)
+    bus.shutdown()
 
 
 def _qnav_sim(*args, timeout=100):
@@ -291,16 +298,11 @@ def test_pace_slips_after_a_stall_instead_of_bursting():
 
 
 def test_lockstep_with_a_max_speed_answers_every_tick_and_is_never_faster():
-    plant = Plant(ARENA, SimConfig(), Pose(1.0, 1.0, 0.0))
-    bus = open_bus("virtual:test_maxspeed")
-    try:
-        with _Controller("test_maxspeed"):
-            stats = run_lockstep(plant, bus, 1.0, max_speed=10.0)
-    finally:
-        bus.shutdown()
+    plant, stats = _against_a_controller("test_maxspeed",
+                                         lambda plant, bus: run_lockstep(plant, bus, 1.0, max_speed=10.0))
     assert stats.ticks == 20 and stats.missed_ticks == 0
     # 1 s of sim at most 10x real time: at least 0.1 s of wall after the first answer (a loaded
     # machine only makes it slower)
     assert stats.wall_s - stats.start_wait_s >= 0.095
     with pytest.raises(ValueError, match="max_speed"):
-        run_lockstep(plant, bus, 1.0, max_speed=0.0)
+        run_lockstep(plant, None, 1.0, max_speed=0.0)  # refused before the bus is used
