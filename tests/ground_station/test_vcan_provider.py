@@ -22,7 +22,11 @@ exit 0
 
 @pytest.fixture
 def no_cached_verdicts(monkeypatch):
+    """No verdict cached from another test, and none of the search's settings from the environment
+    (make test may run with QNAV_VCAN_HIDE set, to see the vcan tests skip)."""
     monkeypatch.setattr(vc, "_health", {})
+    monkeypatch.delenv("QNAV_VCAN", raising=False)
+    monkeypatch.delenv("QNAV_VCAN_HIDE", raising=False)
 
 
 def _fake_uml(tmp_path, monkeypatch, kernel_text: str):
