@@ -118,8 +118,11 @@ class CanHub:
         cmd = [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", self.channel,
                "-H", self.host, "-p", str(self.port)]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # its own session: a Ctrl-C typed in the owner's terminal goes to the terminal's whole
+        # process group and must not kill the bus before its clients have stopped (the owner
+        # stops it last, stop())
         self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.DEVNULL, env=env)
+                                      stderr=subprocess.DEVNULL, env=env, start_new_session=True)
         deadline = time.monotonic() + self.start_timeout_s
         while time.monotonic() < deadline:
             if self._proc.poll() is not None:  # port taken meanwhile, or can_remote broken

@@ -69,7 +69,10 @@ def run(args: argparse.Namespace) -> int:
     def say(line: str) -> None:
         print(f"qnav sitl: {line}", file=sys.stderr, flush=True)
 
+    stopped_by = ["Ctrl-C"]
+
     def on_term(_sig, _frame):  # a plain `kill`: the same clean stop as Ctrl-C
+        stopped_by[0] = "SIGTERM"
         raise KeyboardInterrupt
 
     sitl = Sitl(opts, say)  # validates the options
@@ -83,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
             result = sitl.wait()
             verdict, child_died = result.reason, result.child_died
         except KeyboardInterrupt:
-            verdict = "stopped (Ctrl-C)"
+            verdict = f"stopped ({stopped_by[0]})"
         finally:
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
             codes = sitl.stop()

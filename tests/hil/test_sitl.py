@@ -161,7 +161,7 @@ def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
     port = hub_port(sitl.log)
     assert port_open(port)
     code = sitl.stop(signal.SIGTERM)
-    assert code == 0 and any("every process stopped" in line for line in sitl.log), sitl.log[-10:]
+    assert code == 0 and any("stopped (SIGTERM); every process stopped" in line for line in sitl.log), sitl.log[-10:]
     assert no_children_left(sitl.out) == [] and not port_open(port)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     for args, why in ((["--speed", "0"], "--speed must be a positive"),
@@ -172,3 +172,60 @@ def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
                            capture_output=True, text=True, env=env, cwd=tmp_path, timeout=60)
         assert r.returncode == 2 and why in r.stderr, (args, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+@pytest.mark.timeout(180)
+def test_sitl_ctrl_c_in_a_terminal_stops_everything_cleanly_and_writes_every_file(tmp_path):
+    """Ctrl-C typed in the terminal: the tty sends SIGINT to its whole foreground process group.
+    The CAN hub was in that group, died first, and the sim and robot then failed on their bus
+    (tracebacks, can.blf / trajectory.csv / robot_stats.json never written) while qnav sitl still
+    said every process stopped. Here `qnav sitl` runs on a pseudo-terminal of its own."""
+    import fcntl
+    import pty
+    import select
+    import termios
+    import time
+
+    master, slave = pty.openpty()
+    out = tmp_path / "sitl"
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+               PYTHONUNBUFFERED="1")
+
+    def controlling_tty() -> None:  # the child leads a new session whose terminal is the pty
+        os.setsid()
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+    proc = subprocess.Popen([sys.executable, "-m", "ground_station.cli", "sitl", "--mavlink",
+                             f"udpin:127.0.0.1:{free_udp_port()}", "--out", str(out), "--speed", "2"],
+                            stdin=slave, stdout=slave, stderr=slave, cwd=tmp_path, env=env,
+                            preexec_fn=controlling_tty)
+    os.close(slave)
+    text = b""
+    try:
+        deadline = time.monotonic() + 90
+        while b"Ctrl-C stops every process" not in text and time.monotonic() < deadline:
+            if select.select([master], [], [], 0.5)[0]:
+                text += os.read(master, 65536)
+        assert b"Ctrl-C stops every process" in text, text.decode(errors="replace")[-2000:]
+        time.sleep(2.0)  # the sim runs a while
+        os.write(master, b"\x03")  # the terminal's interrupt character: SIGINT to the foreground group
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline:
+            if select.select([master], [], [], 0.5)[0]:
+                try:
+                    text += os.read(master, 65536)
+                except OSError:
+                    break
+        assert proc.wait(timeout=30) == 0, text.decode(errors="replace")[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    said = text.decode(errors="replace")
+    assert "stopped (Ctrl-C); every process stopped" in said, said[-1500:]
+    for name in ("can.blf", "trajectory.csv", "robot_stats.json", "sim.log", "robot.log"):
+        assert (out / name).is_file(), f"{name} not written; output:\n{said[-1500:]}"
+    for log in ("sim.log", "robot.log"):
+        body = (out / log).read_text(errors="replace")
+        assert "Traceback" not in body and "Error" not in body, f"{log}:\n{body[-1500:]}"
