@@ -126,7 +126,7 @@ class Controller(ControlState):
                 return True, "already disarmed"
             self.armed = False
             self.estop_latch.on_disarm()
-            self._end_exploration("disarmed")
+            self._end_exploration("exploration stopped: disarmed")
             self._stop()
             self.goal = None
             self._transition(CtrlState.STANDBY, "disarmed")
@@ -141,7 +141,7 @@ class Controller(ControlState):
             if mode == Mode.MANUAL:
                 return False, "MANUAL unsupported: policy drives only"
             self.mode = mode
-            self._end_exploration(f"mode {mode.name}")  # any mode command, Hold above all, ends the wander
+            self._end_exploration(f"exploration stopped: mode {mode.name}")  # any mode command, Hold above all, ends the wander
             if mode == Mode.HOLD and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 self.goal = None
                 self._transition(CtrlState.HOLD, "mode HOLD")
@@ -207,7 +207,7 @@ class Controller(ControlState):
                 return
             action = self.cfg.gcs_failsafe_action
             self._event("fault", "GCS Failsafe", SEV_CRITICAL)
-            self._end_exploration("GCS failsafe")  # whatever the action: the wander is never left running
+            self._end_exploration("exploration stopped: GCS failsafe")  # whatever the action: the wander is never left running
             if not self.armed or action == FailsafeAction.NONE:
                 return
             if action == FailsafeAction.DISARM:
@@ -323,12 +323,12 @@ class Controller(ControlState):
             self._event("info", "global localisation started" + (", exploring" if explore else ""))
             return True, ""
 
-    def _end_exploration(self, why: str) -> None:
-        """Stop the wander now (the next tick commands zero), if it runs."""
+    def _end_exploration(self, text: str, severity: int = SEV_WARNING) -> None:
+        """Stop the wander now (the next tick commands zero), if it runs, saying why."""
         if self.exploration.running:
             self.exploration.stop()
             self._stop()
-            self._event("info", f"exploration stopped: {why}", SEV_WARNING)
+            self._event("info", text, severity)
 
     def _explore(self, inp: Inputs, now_us: int) -> None:
         """One tick of the wander that feeds global localisation (HOLD, armed)."""
@@ -336,9 +336,7 @@ class Controller(ControlState):
         done = self.exploration.end_reason(localised=not self.loc.global_mode, now_us=now_us,
                                            may_move=self.armed and self.state == CtrlState.HOLD and not inp.bumper)
         if done:
-            self.exploration.stop()
-            self._stop()
-            self._event("info", done, SEV_INFO if done == "localised" else SEV_WARNING)
+            self._end_exploration(done, SEV_INFO if done == "localised" else SEV_WARNING)
             return
         self.watchdog.feed(now_us, *wander_wheels(inp.ranges_mm, inp.range_status))
 
@@ -462,7 +460,7 @@ class Controller(ControlState):
         # the kind decides (firmware_py.kinds); the controller only scales, clamps and feeds the watchdog
         d = self.driver.step(DriveTick(
             now_us=now_us, goal=self.goal, goal_index=self._goal_index, drive_key=(self.goal, self._driving_since_us),
-            pose_mm=self.nav.pose_mm(), goal_dist_mm=dist, goal_bearing_mrad=bearing, ranges_mm=inp.ranges_mm,
+            pose_mm=self.nav.pose_mm(), goal_bearing_mrad=bearing, ranges_mm=inp.ranges_mm,
             range_status=inp.range_status, goal_vector=self.nav.goal_vector))
         if d.decided is not None:
             self._state_index, self._action, self._q_row = d.decided

@@ -89,7 +89,6 @@ class DriveTick:
     # (goal, time DRIVING began): a new value is a new goal (a mission item) or a new drive
     drive_key: tuple[tuple[int, int], int]
     pose_mm: tuple[int, int, int]  # the pose the robot drives by (localiser, else odometry)
-    goal_dist_mm: int
     goal_bearing_mrad: int
     ranges_mm: tuple[int, ...] | list[int]
     range_status: tuple[int, ...] | list[int]
@@ -179,4 +178,4 @@ class PolicyKind:
 
 def wheel_actions() -> tuple[tuple[int, int], ...]:
     """The action set of kinds that command wheel speeds directly (robot_spec)."""
-    return tuple(tuple(a) for a in robot_spec.ACTION_WHEEL_SPEEDS_MM_S)  # type: ignore[misc]
+    return tuple((left, right) for left, right in robot_spec.ACTION_WHEEL_SPEEDS_MM_S)

@@ -21,7 +21,7 @@ from firmware_py.gridbug import (
     GridBugMemory,
     grid_dir_of,
 )
-from firmware_py.kinds.base import PAIR, DriveTick, Geometry, Goals, Policy, PolicyKind, Unpacked
+from firmware_py.kinds.base import PAIR, DriveTick, Goals, Policy, PolicyKind, Unpacked
 from firmware_py.kinds.stepper import ARRIVE_TOLERANCE_MM, TURN_TOLERANCE_MRAD, CellStepper, Step
 
 _HEAD = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
@@ -49,10 +49,6 @@ def pack(enc: GridBugEncoder, _goals: Goals, _cell_mm: int) -> bytes:
     if not all(0 <= v <= 0xFFFF for v in (enc.free_mm, enc.leave_margin_mm, enc.cell_mm)):
         raise ValueError("sector-memory-grid fields must be 0..65535")
     return _HEAD.pack(enc.free_mm, enc.leave_margin_mm, enc.cell_mm, int(enc.wall_bearing))
-
-
-def _no_fixed_geometry(_enc: GridBugEncoder, _cell_mm: int) -> Geometry | None:
-    return None
 
 
 class SectorMemoryDriver(CellStepper):
@@ -100,5 +96,5 @@ class SectorMemoryDriver(CellStepper):
 
 
 KIND = PolicyKind(name="sector-memory", code=4, actions=MOVE_STEPS, unpack=unpack, pack=pack,
-                  driver=SectorMemoryDriver, fixed_geometry=_no_fixed_geometry,
+                  driver=SectorMemoryDriver,
                   robot_cell_mm=lambda policy: cast(GridBugEncoder, policy.encoder).cell_mm)

@@ -48,8 +48,10 @@ class CellStepper(KindDriver):
         self.open = None
 
     def step(self, tick: DriveTick) -> Decision:
+        """Drive the open step; on arrival decide the next one and drive it (a second arrival in
+        the same tick: stand still until the next)."""
         decided: tuple[int, int, tuple[int, ...]] | None = None
-        for attempt in (0, 1):
+        for _ in (0, 1):
             if self.open is None:
                 nxt = self.next_step(tick)
                 if isinstance(nxt, str):
@@ -60,9 +62,7 @@ class CellStepper(KindDriver):
             if wheels is not None:
                 return Decision(wheels, decided)
             self.open = None  # arrived (or just past it): re-localise from the pose
-            if attempt:
-                return Decision((0, 0), decided)
-        return Decision((0, 0), decided)  # not reached: the second attempt returns
+        return Decision((0, 0), decided)
 
     def _execute(self, tick: DriveTick, prim: Step) -> tuple[int, int] | None:
         """Wheel speeds for the open step; None once it has arrived."""
