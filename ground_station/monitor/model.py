@@ -15,7 +15,8 @@ the one given) and counts frames from other systems in `foreign` without
 using them. A second process with the same system id shows as a time base
 going backwards: its timed frames are ignored and counted in
 `time_conflicts` (a reboot - the old time base silent and the new one
-steady for REBOOT_S - is accepted and continues the clock). A jump ahead
+steady for REBOOT_S, or for REBOOT_FRAMES timed frames in a row - is
+accepted and continues the clock). A jump ahead
 in the frame right after ours in sequence, at most PAUSE_MAX_SPEEDUP x the
 receive time since our last timed frame, is the same robot after a pause
 in its telemetry (a lockstep sim running on while its link thread starved)
@@ -68,6 +69,12 @@ BACKWARDS_MS = 2000  # a time_boot_ms this far behind the newest is another time
 FORWARDS_MS = 10_000  # ... or this far ahead (timed telemetry comes at >= 1 Hz of robot time)
 SEQ_WINDOW = 32  # with two time bases heard: an untimed frame is ours if its seq follows ours this closely
 REBOOT_S = 3.0  # only the other time base heard for this long (receive time): a reboot
+# ... or for this many timed frames in a row, none of ours between them: a second process
+# sharing our id interleaves its frames with ours (a tick's burst is ~10 timed frames), while
+# our own robot after frames were lost (a starved reader in a lockstep run drops 10 s of sim
+# time in a fraction of a second, then reads on) is the only voice - and a lockstep mission
+# can end within REBOOT_S of receive time, with the view's pose frozen where the loss began.
+REBOOT_FRAMES = 50
 # A jump ahead by more than FORWARDS_MS from the very process we follow (its frame's seq is
 # within this of our last one): the robot went quiet while its clock ran on (a lockstep sim
 # outruns a starved link thread by 10 s of sim time in a second of wall time), not a second process.
@@ -217,6 +224,8 @@ class VehicleView:
         self._boot_offset_s = 0.0
         self._robot_rx_t = 0.0  # receive time of the newest timed message
         self._conflict_since: float | None = None
+        self._candidate_ms: int | None = None  # newest time_boot_ms of the other time base
+        self._candidate_frames = 0  # its timed frames in a row, each consistent with the one before
         self.time_conflicts = 0  # timed frames ignored: another process with our system id
         self.reboots = 0
         self.foreign: dict[int, int] = {}  # sysid -> frames ignored from other vehicles
@@ -333,7 +342,11 @@ class VehicleView:
         if last is not None and not last - BACKWARDS_MS <= boot_ms <= last + FORWARDS_MS and not paused:
             if self._conflict_since is None:
                 self._conflict_since = t
-            if t - self._conflict_since < REBOOT_S:
+            cand = self._candidate_ms
+            steady = cand is not None and cand - BACKWARDS_MS <= boot_ms <= cand + FORWARDS_MS
+            self._candidate_frames = self._candidate_frames + 1 if steady else 1
+            self._candidate_ms = boot_ms
+            if t - self._conflict_since < REBOOT_S and self._candidate_frames < REBOOT_FRAMES:
                 self.time_conflicts += 1
                 return False
             # only the new time base for REBOOT_S: the robot rebooted (or came back after an outage)
@@ -341,6 +354,7 @@ class VehicleView:
                 self.reboots += 1
                 self._boot_offset_s += last / 1000.0
         self._conflict_since = None
+        self._candidate_ms, self._candidate_frames = None, 0
         self.boot_ms_last = boot_ms
         self.robot_s = self._boot_offset_s + boot_ms / 1000.0
         self._robot_rx_t = t

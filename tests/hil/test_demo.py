@@ -223,6 +223,7 @@ def test_demo_dashboard_path_runs_the_monitor_until_the_mission_completes(tmp_pa
         shown["mission"] = render_mission(self.view, self.grid_map).plain
         shown["log"] = render_log(self.view, lines=100).plain
         shown["pose"] = self.view.pose
+        shown["clock"] = (self.view.time_conflicts, self.view.reboots, self.view.link.lost)
         return result
 
     monkeypatch.setattr(App, "run", run_headless)
@@ -235,7 +236,8 @@ def test_demo_dashboard_path_runs_the_monitor_until_the_mission_completes(tmp_pa
     assert "reached 4" in shown["mission"], shown["mission"]
     assert "GOAL_REACHED->HOLD: mission complete" in shown["log"], shown["log"]
     d = robot_spec.cell_center_mm(*load_map("paper10").targets["D"], 10)
-    assert abs(shown["pose"][0] - d[0] / 1000) < 0.3 and abs(shown["pose"][1] - d[1] / 1000) < 0.3, shown["pose"]
+    assert abs(shown["pose"][0] - d[0] / 1000) < 0.3 and abs(shown["pose"][1] - d[1] / 1000) < 0.3, \
+        (shown["pose"], "time conflicts, reboots, lost frames:", shown["clock"])
     assert "A" in shown["map"] and "██" in shown["map"]
     assert _processes_mentioning(str(out)) == []
     _assert_hub_stopped(summary.can_hub)
