@@ -32,8 +32,8 @@ tick (the link thread then only records heartbeat times; its texts are
 queued for the link thread to send), so a stalled or flooded link cannot
 delay it.
 
-Only the operator's GCS counts: the system id in SYSID_MYGCS, or (0, the
-default) the first GCS heartbeat's system id after boot; heartbeats of other
+Only the operator's GCS counts: the system id in SYSID_MYGCS (255 by default,
+as ArduPilot), or with 0 the first GCS heartbeat's system id after boot; heartbeats of other
 system ids are counted in `foreign_gcs_heartbeats` and keep nothing alive.
 
 Per-message isolation: `handle` never raises. Every field a handler uses

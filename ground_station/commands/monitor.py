@@ -71,7 +71,8 @@ def open_source(args):
     url = args.mavlink or DEFAULT_URL
     tlog = False if args.no_tlog else args.tlog
     try:
-        source = open_live(url, tlog=tlog, signing_key=args.signing_key, target_system=args.target_system)
+        source = open_live(url, tlog=tlog, signing_key=args.signing_key, target_system=args.target_system,
+                           source=(args.source_system, args.source_component))
     except ValueError as exc:  # bad signing key file
         raise CliError(str(exc)) from exc
     except OSError as exc:

@@ -22,9 +22,10 @@ through pymavlink's parser):
 
 - `mav_failsafe_garbage`: the operator's GCS stops beating while, every
   tick, NaN/inf MISSION_ITEMs, NaN COMMAND_LONGs, out-of-range goals, random
-  bytes and a foreign GCS's heartbeats keep arriving: the failsafe trips
-  within FS_GCS_TOUT_MS + one period of the last own heartbeat, the vehicle
-  holds, no handler raised.
+  bytes and a foreign GCS's heartbeats keep arriving (the foreign one heard
+  first, as a router's own heartbeat can be: issue 29 finding 2): the
+  failsafe trips within FS_GCS_TOUT_MS + one period of the last own
+  heartbeat, the vehicle holds, no handler raised.
 - `mav_signing_bounds`: with a key, a key holder's frame stamped near 2^48
   (or far ahead) is dropped; a correct GCS's frames are answered and the
   robot's signed replies pass the GCS's own pymavlink signature and
@@ -272,13 +273,15 @@ def failsafe_garbage(count: int, seed: int = 0, progress=None) -> ScenarioResult
         with rig:
             polled = _PolledNode(rig, fs_ms)
             while rig.time_us < t_silent + fs_ms * 1000 + 4 * PERIOD_US:
-                data = b"".join(_garbage(m, rng, gcs))
-                data += bytes(foreign.heartbeat_encode(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                              .pack(foreign))
+                # the foreign heartbeat first: with "the first GCS heard owns the failsafe" it
+                # would own it and the silence of the operator's GCS would never trip it
+                data = bytes(foreign.heartbeat_encode(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                             .pack(foreign))
                 if rig.time_us < t_silent:
-                    data = bytes(gcs.heartbeat_encode(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                                 .pack(gcs)) + data  # handled at this tick's time
+                    data += bytes(gcs.heartbeat_encode(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                                  .pack(gcs))  # handled at this tick's time
                     last_hb = rig.time_us
+                data += b"".join(_garbage(m, rng, gcs))  # after the heartbeats: random bytes could swallow a frame
                 polled.inbox.put(data)
                 rig.tick()
             state = rig.ctrl.state

@@ -45,7 +45,11 @@ EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 DEFAULT_URL = "udpin:127.0.0.1:14550"
 DEFAULT_TLOG_DIR = Path("runs") / "tlogs"
 DEFAULT_TIMEOUT_S = 10.0  # heartbeat wait
-GCS_SYSID, GCS_COMPID = 255, 190  # MAV_COMP_ID_MISSIONPLANNER, as ground stations use
+# Our own MAVLink identity. System 255 is the ground station's (the robot's SYSID_MYGCS
+# default: only its heartbeats keep the GCS failsafe alive); component 25
+# (MAV_COMP_ID_USER1), not QGroundControl's 190 or MAVProxy's 230, so that with either of
+# them on the same link the robot's FTP sessions and command replies keep the two apart.
+GCS_SYSID, GCS_COMPID = 255, 25
 MAV_TYPE_GCS = 6
 MAV_STATE_UNINIT = 0
 PARAM_ASK_INTERVAL_S = 0.5  # read_params: re-ask an unanswered PARAM_REQUEST_READ after this long
@@ -138,10 +142,23 @@ def _sysid(value: str) -> int:
     return x
 
 
+def _id_arg(what: str, lo: int):
+    def parse(value: str) -> int:
+        try:
+            x = int(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {what} id {lo}-255, got {value!r}") from None
+        if not lo <= x <= 255:
+            raise argparse.ArgumentTypeError(f"{what} id must be {lo}-255, got {x}")
+        return x
+    return parse
+
+
 def add_link_args(parser: argparse.ArgumentParser, *, timeout_s: float = DEFAULT_TIMEOUT_S,
                   timeout_help: str | None = None, url_default: str | None = DEFAULT_URL) -> None:
     """The one link-argument set of every MAVLink command: --mavlink,
-    --signing-key, --tlog/--no-tlog, --timeout (> 0), --target-system.
+    --signing-key, --tlog/--no-tlog, --timeout (> 0), --target-system,
+    --source-system, --source-component.
 
     `--timeout` is the heartbeat wait unless the command gives it a wider
     meaning (`timeout_s`, `timeout_help`: `qnav upload`'s whole budget).
@@ -159,6 +176,12 @@ def add_link_args(parser: argparse.ArgumentParser, *, timeout_s: float = DEFAULT
     parser.add_argument("--target-system", type=_sysid, default=None, metavar="SYSID",
                         help="talk to this system id only (default: the first robot heard); "
                              "frames from other systems are ignored and counted")
+    parser.add_argument("--source-system", type=_id_arg("system", 1), default=GCS_SYSID, metavar="SYSID",
+                        help=f"our own system id (default {GCS_SYSID}: the robot's SYSID_MYGCS default, so our "
+                             "heartbeats keep its GCS failsafe alive)")
+    parser.add_argument("--source-component", type=_id_arg("component", 1), default=GCS_COMPID, metavar="COMPID",
+                        help=f"our own component id (default {GCS_COMPID}, MAV_COMP_ID_USER1: not QGroundControl's "
+                             "190 nor MAVProxy's 230; give two qnav stations on one robot different ones)")
 
 
 @dataclass
@@ -178,6 +201,7 @@ class Link:
         self.m = mu.mavlink
         self.conn = mu.mavlink_connection(url, source_system=source_system, source_component=source_component,
                                           dialect="common", autoreconnect=True)
+        self.source_system = source_system  # frames from this system id are ours (or another GCS's)
         self.url = url
         self.key: bytes | None = None
         if signing_key is not None:
@@ -248,20 +272,20 @@ class Link:
                 self.bad_signatures += 1
             return
         src = msg.get_srcSystem()
-        if src != GCS_SYSID and self.target is not None and src != self.target[0]:
+        if src != self.source_system and self.target is not None and src != self.target[0]:
             self.foreign_frames[src] = self.foreign_frames.get(src, 0) + 1
             return
         now = time.monotonic()
         done = self._assembler.add(msg, now) if t == "STATUSTEXT" else self._assembler.flush(now)
         for st in done:
-            if st.sysid != GCS_SYSID:
+            if st.sysid != self.source_system:
                 self.texts.append(st.text)
         if t == "STATUSTEXT":
             return
         if t == "PARAM_VALUE":
             self.params[msg.param_id] = (msg.param_value, time.monotonic())
             self.param_values_seen += 1
-        elif t == "HEARTBEAT" and src != GCS_SYSID:
+        elif t == "HEARTBEAT" and src != self.source_system:
             self.system_status = msg.system_status
 
     def connect(self, timeout_s: float = DEFAULT_TIMEOUT_S,
@@ -289,7 +313,7 @@ class Link:
             if msg is None or msg.get_type() == "BAD_DATA":
                 continue
             if msg.get_type() != "HEARTBEAT":
-                if msg.get_srcSystem() != GCS_SYSID and next_poke - time.monotonic() > 0.2:
+                if msg.get_srcSystem() != self.source_system and next_poke - time.monotonic() > 0.2:
                     next_poke = time.monotonic() + 0.2  # the robot is there: poke again soon
                 continue
             if msg.type != MAV_TYPE_GCS:
@@ -614,7 +638,9 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
         raise CliError(f"--mavlink {problem}")
     try:
         link = Link(url, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat,
-                    target_system=getattr(args, "target_system", None))
+                    target_system=getattr(args, "target_system", None),
+                    source_system=getattr(args, "source_system", GCS_SYSID),
+                    source_component=getattr(args, "source_component", GCS_COMPID))
     except ValueError as exc:  # bad key file
         from ground_station.errors import CliError
 

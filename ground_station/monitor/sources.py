@@ -100,12 +100,16 @@ class LiveSource:
         self.link.close()
 
 
-def open_live(url: str, tlog=None, signing_key: str | None = None, target_system: int | None = None) -> LiveSource:
+def open_live(url: str, tlog=None, signing_key: str | None = None, target_system: int | None = None,
+              source: tuple[int, int] | None = None) -> LiveSource:
     """Open the link to the robot on `url` (a pymavlink connection string).
-    `tlog`: a path, None for a new session log under runs/tlogs/, False for none."""
-    from ground_station.mavlink.link import Link
+    `tlog`: a path, None for a new session log under runs/tlogs/, False for none;
+    `source`: our (system, component) ids (default the link's GCS_SYSID, GCS_COMPID)."""
+    from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID, Link
 
-    return LiveSource(Link(url, signing_key=signing_key, tlog=tlog, name="monitor", target_system=target_system))
+    sysid, compid = source or (GCS_SYSID, GCS_COMPID)
+    return LiveSource(Link(url, signing_key=signing_key, tlog=tlog, name="monitor", target_system=target_system,
+                           source_system=sysid, source_component=compid))
 
 
 class ReplaySource:

@@ -19,7 +19,7 @@ from firmware_py.mavlink.signing import FUTURE_WINDOW, MAX_TIMESTAMP, wall_times
 from firmware_py.storage import Storage
 from firmware_py.vehicle import Mode
 from tests.firmware_py.test_ftp_server import Client, ack, nak, put
-from tests.firmware_py.test_mav_engines import GCS, KEY, Link, of, texts
+from tests.firmware_py.test_mav_engines import KEY, Link, of, texts
 from tests.firmware_py.test_mav_engines import ack as cmd_ack
 
 S = 1_000_000
@@ -186,24 +186,48 @@ def test_network_urls_are_told_from_serial_devices():
 
 # --- GCS identity -----------------------------------------------------------------------------
 
-def test_only_the_first_gcs_or_sysid_mygcs_keeps_the_failsafe_alive():
+def test_only_sysid_mygcs_keeps_the_failsafe_alive_a_router_heard_first_owns_nothing():
+    """Issue 29 finding 2: with the old default (the first GCS heard owns the
+    failsafe) a router's own GCS heartbeat (mavp2p: sysid 125) heard first
+    kept the failsafe quiet after the operator went silent."""
     link = Link()
+    assert link.node.params.get("SYSID_MYGCS") == 255  # ArduPilot's default
+    router = m.MAVLink(None, 125, 190)
+    router_hb = bytes(router.heartbeat_encode(*GCS_HB).pack(router))
+    link.feed(router_hb)  # heard first: owns nothing
     link.cmd(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-    link.send(link.gcs.heartbeat_encode(*GCS_HB))  # sysid 255: the first GCS seen
-    assert link.node.gcs_sysid == GCS[0]
-    spoof = m.MAVLink(None, 200, 190)
-    hb = bytes(spoof.heartbeat_encode(*GCS_HB).pack(spoof))
+    link.send(link.gcs.heartbeat_encode(*GCS_HB))  # the operator, sysid 255
     period = robot_spec.CONTROL_PERIOD_US
     t_last = link.now
     while not link.node.failsafe:
-        link.feed(hb)  # a foreign GCS beats every period: keeps nothing alive
+        link.feed(router_hb)  # the router beats every period: keeps nothing alive
         link.tick(period)
     assert link.now <= t_last + link.node.params.get("FS_GCS_TOUT_MS") * 1000 + period
     assert link.node.foreign_gcs_heartbeats > 0
-    assert not texts(link.feed(hb)) and link.node.failsafe  # and clears nothing
+    assert not texts(link.feed(router_hb)) and link.node.failsafe  # and clears nothing
+    assert "GCS failsafe cleared" in texts(link.send(link.gcs.heartbeat_encode(*GCS_HB)))
     # the operator hands the robot to system 200
+    spoof = m.MAVLink(None, 200, 190)
+    hb = bytes(spoof.heartbeat_encode(*GCS_HB).pack(spoof))
     link.send(link.gcs.param_set_encode(1, 1, b"SYSID_MYGCS", 200, 6))
+    while not link.node.failsafe:
+        link.send(link.gcs.heartbeat_encode(*GCS_HB))  # 255 no longer counts
+        link.tick(period)
     assert "GCS failsafe cleared" in texts(link.feed(hb))
+
+
+def test_sysid_mygcs_zero_follows_the_first_gcs_heard():
+    link = Link()
+    link.send(link.gcs.param_set_encode(1, 1, b"SYSID_MYGCS", 0, 6))
+    link.cmd(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    other = m.MAVLink(None, 77, 190)
+    link.feed(bytes(other.heartbeat_encode(*GCS_HB).pack(other)))
+    assert link.node.gcs_sysid == 77
+    period = robot_spec.CONTROL_PERIOD_US
+    while not link.node.failsafe:
+        link.send(link.gcs.heartbeat_encode(*GCS_HB))  # 255 came second: keeps nothing alive
+        link.tick(period)
+    assert link.node.foreign_gcs_heartbeats > 0
 
 
 # --- FTP: sessions and quotas ---------------------------------------------------------------

@@ -189,3 +189,27 @@ def test_signing_over_udp_unsigned_ignored_signed_works_replay_dropped(rig):
         # robot frames are signed
         hb = link.recv("HEARTBEAT", 2.0)
         assert hb.get_signed()
+
+
+def test_source_ids_default_apart_from_qgc_and_mavproxy_and_can_be_set(rig):
+    """Issue 29 finding 2: qnav sent as QGroundControl does (255/190), so the
+    two collided on one robot. Now 255/25 by default, settable per command."""
+    port, start, tmp = rig
+    r = start()
+
+    def sent_from(tlog: Path) -> set[tuple[int, int]]:
+        log = mavutil.mavlink_connection(str(tlog))
+        ids = set()
+        while (msg := log.recv_match(type="COMMAND_LONG")) is not None:
+            ids.add((msg.get_srcSystem(), msg.get_srcComponent()))
+        return ids
+
+    assert qnav(port, "arm", tlog=tmp / "default.tlog")[0] == 0 and r.vehicle.st.armed
+    assert sent_from(tmp / "default.tlog") == {(255, 25)}
+    code, out = qnav(port, "disarm", "--source-system", "254", "--source-component", "26", tlog=tmp / "set.tlog")
+    assert code == 0 and not r.vehicle.st.armed, out
+    assert sent_from(tmp / "set.tlog") == {(254, 26)}
+    for bad in (["--source-system", "0"], ["--source-component", "256"], ["--source-system", "x"]):
+        with pytest.raises(SystemExit) as exc:
+            qnav(port, "arm", *bad)
+        assert exc.value.code == 2
