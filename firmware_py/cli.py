@@ -122,6 +122,15 @@ def _fits(args: argparse.Namespace, policy: Policy) -> str:
     fixed = kinds.of_policy(policy).fixed_geometry(policy.encoder, policy.cell_mm)  # a cell policy's own grid
     if not why and args.map_height and fixed is not None and height != args.map_height:
         why = f"policy grid height {height} != robot --map-height {args.map_height}"
+    if not why and policy.map_grid is not None and getattr(args, "localiser", "on") == "on":
+        from firmware_py.control.localiser import LocaliserConfig, likelihood_field
+
+        cfg = LocaliserConfig()
+        try:  # built now (and cached for the controller): a map the robot cannot hold is refused, not a crash
+            likelihood_field(policy.map_grid, cfg.field_res_mm, cfg.sigma_hit_mm, cfg.z_hit, cfg.z_floor,
+                             cfg.max_field_mm)
+        except MemoryError:
+            why = "its map's localiser field does not fit in memory"
     return why
 
 

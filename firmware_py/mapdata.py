@@ -22,6 +22,12 @@ META_KEY = "map_grid"
 FREE = "."
 BLOCKED = frozenset("@TOW")
 MAX_CELLS = 128 * 128  # metadata is bounded (policy.MAX_METADATA_BYTES); so is the grid
+# ... and its extent: what the robot derives from a map (the localiser's likelihood field, the
+# planners' rasters, global localisation's seeding) scales with the area in millimetres, so a
+# legal cell count at a huge cell size must not buy unbounded work (issue 29 finding 3: 124x124
+# cells of 500 mm froze the link for 37 s; 5,000 mm cells ran out of memory)
+MIN_CELL_MM = 50  # a fifth of the robot's width; smaller cells describe nothing it can use
+MAX_SIDE_MM = 50_000  # a 50 m hall
 
 
 class MapDataError(ValueError):
@@ -73,8 +79,12 @@ def grid_from_rows(rows: list[str], cell_mm: int) -> OccupancyGrid:
                 occ.append(1)
             else:
                 raise MapDataError(f"{META_KEY} row {i}: unknown cell {ch!r} (expected '.' or one of @TOW)")
-    if cell_mm < 1:
-        raise MapDataError(f"{META_KEY}: cell size {cell_mm} mm")
+    if not MIN_CELL_MM <= cell_mm <= MAX_SIDE_MM:
+        raise MapDataError(f"{META_KEY}: cell size {cell_mm} mm (allowed {MIN_CELL_MM}..{MAX_SIDE_MM} mm)")
+    side = max(width, len(rows)) * cell_mm
+    if side > MAX_SIDE_MM:
+        raise MapDataError(f"{META_KEY} is {width * cell_mm} x {len(rows) * cell_mm} mm "
+                           f"(allowed up to {MAX_SIDE_MM} mm a side)")
     return OccupancyGrid(cell_mm, width, len(rows), bytes(occ))
 
 

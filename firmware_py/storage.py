@@ -34,6 +34,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from firmware_py.atomic import TEMP_PREFIX, fsync_dir, temp_path
 
@@ -392,33 +393,49 @@ class Storage:
 
 
 # --- policy slots ---------------------------------------------------------------
-ActivateHook = Callable[[str], tuple[bool, str]]
+# `activate(host_path)` -> (ok, reason), or a vehicle.PendingActivation when its slow part
+# runs off the caller's thread (then the caller calls `commit_promotion` once it succeeded)
+ActivateHook = Callable[[str], Any]
 
 
-def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook) -> tuple[bool, str]:
+def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook) -> Any:
     """Activate the policy file at `ftp_path` through the vehicle's hook.
 
     `activate(host_path)` must load and validate the file completely and swap
     it in (or refuse: DRIVING, bad file, wrong sensors) before returning
-    (ok, reason). Only on success are the slots moved: the old active file
-    becomes LAST_GOOD_POLICY, then `ftp_path` becomes ACTIVE_POLICY (two
-    atomic renames; a crash between them leaves LAST_GOOD, which boot loads).
-    On refusal nothing on disk changes.
+    (ok, reason). Only on success are the slots moved (`commit_promotion`).
+    On refusal nothing on disk changes. A hook that returns a pending
+    activation has it returned as is: the caller commits when it succeeds.
     """
+    src = policy_source(storage, ftp_path)
+    got = activate(str(src))
+    if not isinstance(got, tuple):
+        return got
+    ok, reason = got
+    if ok:
+        commit_promotion(storage, src)
+    return ok, reason
+
+
+def policy_source(storage: Storage, ftp_path: str) -> Path:
+    """The host path of a file about to be activated (StorageError if it is the active one)."""
     src = storage._existing_file(ftp_path)
-    active = storage.resolve(ACTIVE_POLICY)
-    if src == active:
+    if src == storage.resolve(ACTIVE_POLICY):
         raise StorageError(errno.EINVAL, "file is already the active policy")
-    ok, reason = activate(str(src))
-    if not ok:
-        return False, reason
+    return src
+
+
+def commit_promotion(storage: Storage, src: Path) -> None:
+    """After a successful activation: the old active file becomes LAST_GOOD_POLICY,
+    then `src` becomes ACTIVE_POLICY (two atomic renames; a crash between them
+    leaves LAST_GOOD, which boot loads)."""
+    active = storage.resolve(ACTIVE_POLICY)
     if active.exists():
         os.replace(active, storage.resolve(LAST_GOOD_POLICY))
     os.replace(src, active)
     fsync_dir(active.parent)
     if src.parent != active.parent:
         fsync_dir(src.parent)
-    return True, reason
 
 
 def boot_policy_candidates(storage: Storage) -> list[str]:

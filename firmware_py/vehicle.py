@@ -11,6 +11,7 @@ ground stations show the right names.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Protocol
@@ -127,6 +128,34 @@ class VehicleEvent:
     severity: int = 6  # MAV_SEVERITY_INFO
 
 
+class PendingActivation:
+    """A policy activation whose slow part (building the localiser's field for
+    a new map) runs on a worker thread: the link thread polls `result()` (None
+    until done) and answers the client then; the old policy drives meanwhile.
+    `cancel()` (the link gave up waiting) makes the worker drop its result."""
+
+    def __init__(self) -> None:
+        self._done = threading.Event()
+        self._result: tuple[bool, str] = (False, "not finished")
+        self.cancelled = False
+
+    def finish(self, ok: bool, reason: str) -> None:
+        self._result = (ok, reason)
+        self._done.set()
+
+    def result(self) -> tuple[bool, str] | None:
+        return self._result if self._done.is_set() else None
+
+    def wait(self, timeout_s: float | None = None) -> tuple[bool, str]:
+        if not self._done.wait(timeout_s):
+            self.cancel()
+            return False, f"activation not ready within {timeout_s:g} s"
+        return self._result
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
 class VehicleControl(Protocol):
     """What the MAVLink node may ask of the controller. Every command returns
     (accepted, reason); a refusal's reason becomes a STATUSTEXT."""
@@ -146,6 +175,10 @@ class VehicleControl(Protocol):
         ...
     def apply_config(self, cfg: VehicleConfig) -> None: ...
     def activate_policy(self, path: str) -> tuple[bool, str]: ...
+    def begin_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
+        """`activate_policy` that returns at once: a PendingActivation while the
+        slow part runs off the caller's thread (the FTP server's hook)."""
+        ...
     def localise_global(self, explore: bool = True) -> tuple[bool, str]:
         """Forget the pose and find it on the policy's map (exploring when
         armed in HOLD with `explore`); goals are refused until localised."""

@@ -22,6 +22,7 @@ It knows no kind: the registry builds the kind's driver when a policy is activat
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import replace
 
 from firmware_py import kinds
@@ -34,6 +35,7 @@ from firmware_py.control.io import (
     Outputs,
     error_bits,
 )
+from firmware_py.control.localiser import Localiser
 from firmware_py.control.plausibility import encoder_jump
 from firmware_py.control.route import Route
 from firmware_py.control.safety import clamp_speeds
@@ -50,6 +52,7 @@ from firmware_py.vehicle import (
     CtrlState,
     FailsafeAction,
     Mode,
+    PendingActivation,
     VehicleConfig,
     VehicleEvent,
     VehicleStatus,
@@ -257,9 +260,47 @@ class Controller(ControlState):
             return False, f"policy rejected: {exc}"
         return self.activate_loaded(new)
 
-    def activate_loaded(self, new: Policy) -> tuple[bool, str]:
-        """Swap in an already validated policy (see activate_policy)."""
-        loc = self._new_localiser(new)  # outside the lock (see _new_localiser)
+    def begin_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
+        """`activate_policy` for the link thread (the FTP server's hook): when the
+        new policy's map needs its localiser built (seconds on a large map), that
+        runs on a worker thread and a PendingActivation comes back; the running
+        policy drives meanwhile and the new one is swapped in when ready, or
+        refused with the reason (issue 29 finding 3)."""
+        with self._lock:
+            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                return False, "refused while driving: stop first"
+        try:
+            new = load_policy(path)
+        except PolicyError as exc:
+            return False, f"policy rejected: {exc}"
+        grid = new.map_grid if self.localise else None
+        if grid is None or (self.loc is not None and self.loc.grid == grid):
+            return self.activate_loaded(new)
+        pending = PendingActivation()
+
+        def build() -> None:
+            try:
+                loc = self._new_localiser(new)
+            except MemoryError:
+                pending.finish(False, "policy rejected: its map's localiser field does not fit in memory")
+                return
+            except Exception as exc:  # noqa: BLE001 - a refusal with the reason, never a dead worker
+                pending.finish(False, f"policy rejected: localiser: {type(exc).__name__}: {exc}")
+                return
+            if not pending.cancelled:
+                pending.finish(*self.activate_loaded(new, loc))
+
+        threading.Thread(target=build, name="policy-activation", daemon=True).start()
+        return pending
+
+    def activate_loaded(self, new: Policy, loc: Localiser | None = None) -> tuple[bool, str]:
+        """Swap in an already validated policy (see activate_policy); `loc`: its
+        localiser, already built."""
+        if loc is None:
+            try:
+                loc = self._new_localiser(new)  # outside the lock (see _new_localiser)
+            except MemoryError:
+                return False, "policy rejected: its map's localiser field does not fit in memory"
         with self._lock:
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"

@@ -133,6 +133,9 @@ class LocaliserConfig:
             raise ValueError("sigma_hit_mm and field_res_mm must be > 0")
 
 
+MAX_FIELD_POINTS = 300_000  # raster squares of a likelihood field (1-3 s to build in pure Python; 24x24 cells of 500 mm keep 25 mm squares)
+
+
 class LikelihoodField:
     """log(z_hit * exp(-d^2 / 2 sigma^2) + z_floor) on a `res_mm` raster of
     the map and a `max_mm` margin around it (end points of readings of the
@@ -143,13 +146,21 @@ class LikelihoodField:
     def __init__(self, grid: OccupancyGrid, res_mm: int, sigma_mm: float, z_hit: float, z_floor: float,
                  max_mm: float) -> None:
         self.grid = grid
-        self.res = res_mm
         c = grid.cell_mm
         self.width_mm = grid.width * c
         self.height_mm = grid.height * c
-        self.margin = -(-int(max_mm) // res_mm) * res_mm
-        self.nx = -(-(self.width_mm + 2 * self.margin) // res_mm)
-        self.ny = -(-(self.height_mm + 2 * self.margin) // res_mm)
+        # a coarser raster on a large map: the work (and memory) stays under MAX_FIELD_POINTS
+        # squares whatever the map's extent (paper10 and the bench maps keep 25 mm)
+        area = (self.width_mm + 2 * max_mm) * (self.height_mm + 2 * max_mm)
+        res_mm = max(res_mm, math.ceil(math.sqrt(area / MAX_FIELD_POINTS)))
+        while True:
+            self.res = res_mm
+            self.margin = -(-int(max_mm) // res_mm) * res_mm
+            self.nx = -(-(self.width_mm + 2 * self.margin) // res_mm)
+            self.ny = -(-(self.height_mm + 2 * self.margin) // res_mm)
+            if self.nx * self.ny <= MAX_FIELD_POINTS:
+                break
+            res_mm += 1
         self.floor = math.log(z_floor)
         reach = max(1, math.ceil(max_mm / c))
         table = array("f", bytes(4 * self.nx * self.ny))

@@ -68,6 +68,9 @@ class FtpLink:
             return
         dst_sys, dst_comp = msg.get_srcSystem(), msg.get_srcComponent()
         replies = self.server.handle(bytes(msg.payload), self.clock.now_us(), (dst_sys, dst_comp))
+        self._send(replies, dst_sys, dst_comp)
+
+    def _send(self, replies: list[bytes], dst_sys: int, dst_comp: int) -> None:
         for severity, text in self.server.drain_texts():
             self.send_statustext(severity, text)
         for r in replies:
@@ -101,6 +104,8 @@ class FtpLink:
                 self.handle_message(msg)
             else:
                 self.server.expire(self.clock.now_us())
+                for owner, reply in self.server.poll(self.clock.now_us()):
+                    self._send([reply], *owner)
                 if on_idle is not None:
                     on_idle()
 

@@ -43,6 +43,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Any
 
 from firmware_py.mavlink.signing import SIGNING_FILE
 from firmware_py.storage import (
@@ -52,6 +53,8 @@ from firmware_py.storage import (
     PARAMS_FILE,
     Storage,
     Upload,
+    commit_promotion,
+    policy_source,
     promote_policy,
 )
 
@@ -170,16 +173,33 @@ def _errno_nak(exc: OSError) -> bytes:
     return bytes([Nak.FAIL])
 
 
-class FtpServer:
-    """See the module docstring. `activate(host_path) -> (ok, reason)` is the
-    vehicle's `activate_policy`; None refuses every activation."""
+@dataclass
+class _PendingRename:
+    """A Rename onto the active policy whose activation runs off the link
+    thread: answered (to the newest retry) by `FtpServer.poll` when done."""
 
-    def __init__(self, storage: Storage, activate: Callable[[str], tuple[bool, str]] | None = None,
+    owner: Owner
+    req: Request
+    path: str  # the renamed file, normalised
+    src: Any  # its host path
+    activation: Any  # vehicle.PendingActivation
+    since_us: int
+
+
+class FtpServer:
+    """See the module docstring. `activate(host_path)` is the vehicle's
+    `begin_activation`: (ok, reason), or a pending activation whose reply
+    `poll` sends when it is done (a retried Rename meanwhile gets none); None
+    refuses every activation."""
+
+    def __init__(self, storage: Storage, activate: Callable[[str], Any] | None = None,
                  *, max_sessions: int = 4, session_timeout_us: int = 5_000_000,
                  burst_max_packets: int = 64, max_sessions_per_client: int = 2,
-                 evict_idle_us: int = 1_000_000) -> None:
+                 evict_idle_us: int = 1_000_000, activation_timeout_us: int = 20_000_000) -> None:
         self.storage = storage
         self.activate = activate
+        self.activation_timeout_us = activation_timeout_us
+        self._pending: _PendingRename | None = None
         self.max_sessions = max_sessions
         self.max_sessions_per_client = max_sessions_per_client
         self.session_timeout_us = session_timeout_us
@@ -233,6 +253,28 @@ class FtpServer:
         for key, (_k, _r, t) in list(self._cache.items()):
             if now_us - t > self.session_timeout_us:
                 del self._cache[key]
+
+    def poll(self, now_us: int) -> list[tuple[Owner, bytes]]:
+        """(owner, reply) of a pending activation that finished (or timed out)."""
+        p = self._pending
+        if p is None:
+            return []
+        got = p.activation.result()
+        if got is None:
+            if now_us - p.since_us <= self.activation_timeout_us:
+                return []
+            p.activation.cancel()
+            got = (False, f"activation not ready within {self.activation_timeout_us / 1e6:g} s")
+        self._pending = None
+        ok, reason = got
+        if ok:
+            try:
+                commit_promotion(self.storage, p.src)
+            except OSError as exc:  # the policy runs; its file stays under its own name
+                ok, reason = False, f"active, but its file was not kept: {exc}"
+        reply = self._finish_activation(p.req, p.path, ok, reason)
+        self._cache[(p.owner, p.req.session)] = (b"", [reply], now_us)
+        return [(p.owner, reply)]
 
     def drain_texts(self) -> list[tuple[int, str]]:
         """(severity, text) messages for STATUSTEXT since the last call."""
@@ -452,7 +494,7 @@ class FtpServer:
         self.storage.truncate(path, req.offset)
         return self._ack(req)
 
-    def _op_rename(self, req: Request, now_us: int) -> bytes:
+    def _op_rename(self, req: Request, now_us: int) -> bytes | list[bytes]:
         parts = req.data.split(b"\0")
         if len(parts) < 2 or not parts[0] or not parts[1]:
             return self._nak(req, Nak.FAIL)
@@ -460,28 +502,40 @@ class FtpServer:
         if self._protected(old):
             return self._nak(req, Nak.FILE_PROTECTED)
         if self._norm(new) == ACTIVE_POLICY:
-            return self._activate(req, old)
+            return self._activate(req, old, now_us)
         if self._protected(new):
             return self._nak(req, Nak.FILE_PROTECTED)
         self.storage.rename(old, new)
         return self._ack(req)
 
-    def _activate(self, req: Request, old: str) -> bytes:
+    def _activate(self, req: Request, old: str, now_us: int) -> bytes | list[bytes]:
+        path = self._norm(old)
+        pending = self._pending
+        if pending is not None:
+            if (pending.owner, pending.path) == (self._owner, path):
+                pending.req = req  # a retry: the reply, when it comes, answers this one
+                return []
+            return self._finish_activation(req, path, False, f"activation of {pending.path} in progress")
         if self.activate is None:
-            ok, reason = False, "no vehicle attached to activate policies"
-        else:
-            try:
-                ok, reason = promote_policy(self.storage, old, self.activate)
-            except OSError:
-                raise
-            except Exception as exc:  # a hook that raises is a refusal, never a crash of the link
-                ok, reason = False, f"{type(exc).__name__}: {exc}"
+            return self._finish_activation(req, path, False, "no vehicle attached to activate policies")
+        try:
+            got = promote_policy(self.storage, old, self.activate)
+        except OSError:
+            raise
+        except Exception as exc:  # a hook that raises is a refusal, never a crash of the link
+            got = (False, f"{type(exc).__name__}: {exc}")
+        if not isinstance(got, tuple):  # built off this thread; `poll` answers when it is done
+            self._pending = _PendingRename(self._owner, req, path, policy_source(self.storage, old), got, now_us)
+            return []
+        return self._finish_activation(req, path, *got)
+
+    def _finish_activation(self, req: Request, path: str, ok: bool, reason: str) -> bytes:
         if not ok:
             self.stats.refusals += 1
             self._texts.append((SEVERITY_WARNING, f"policy refused: {reason}"))
             return self._nak(req, Nak.FAIL)
         self.stats.activations += 1
-        self._texts.append((SEVERITY_INFO, f"policy active: {reason or old}"))
+        self._texts.append((SEVERITY_INFO, f"policy active: {reason or path}"))
         return self._ack(req)
 
     def _op_crc(self, req: Request, now_us: int) -> bytes:

@@ -106,6 +106,7 @@ class FtpService(Protocol):
 
     def handle(self, payload: bytes | bytearray, now_us: int, owner: tuple[int, int] = (0, 0)) -> list[bytes]: ...
     def expire(self, now_us: int) -> None: ...
+    def poll(self, now_us: int) -> list[tuple[tuple[int, int], bytes]]: ...
     def drain_texts(self) -> list[tuple[int, str]]: ...
 
 
@@ -391,7 +392,9 @@ class MavNode:
         if self.ftp is None:
             return []
         self.ftp.expire(now_us)
-        return self._ftp_texts()
+        done = [self.mav.file_transfer_protocol_encode(0, owner[0], owner[1], list(p.ljust(FTP_PAYLOAD_LEN, b"\0")))
+                for owner, p in self.ftp.poll(now_us)]  # an activation finished off the link thread
+        return done + self._ftp_texts()
 
     def _tick_signing(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         self.signing.tick(now_us)
@@ -606,7 +609,7 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
         from firmware_py.mavlink.ftp_server import FtpServer
         from firmware_py.storage import Storage
 
-        server = FtpServer(Storage(storage_dir), activate=vehicle.activate_policy)
+        server = FtpServer(Storage(storage_dir), activate=getattr(vehicle, "begin_activation", vehicle.activate_policy))
     node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server,
                    network_link=is_network_url(url))
     node.boot(now_us, signing_key, overrides)
