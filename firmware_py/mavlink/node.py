@@ -314,6 +314,9 @@ class MavNode:
                 return self.telemetry.statustext(reason, M.MAV_SEVERITY_WARNING)
             out = [] if ok else self.telemetry.statustext(f"param set refused: {reason}", M.MAV_SEVERITY_WARNING)
             if ok:
+                failed = self.params.pop_save_failure()  # a save in this thread (no storage worker)
+                if failed:
+                    out += self.telemetry.statustext(failed, M.MAV_SEVERITY_ERROR)
                 d = self.params.definition(name)
                 if d.reboot_required:
                     out += self.telemetry.statustext(f"{name} takes effect after reboot", M.MAV_SEVERITY_NOTICE)
@@ -371,7 +374,7 @@ class MavNode:
             text, severity = self._control_texts.popleft()
             out += self.telemetry.statustext(text, severity)
         for part in (self._tick_events, self.mission.tick, self._tick_ftp, self._tick_signing,
-                     self._tick_telemetry):
+                     self._tick_params, self._tick_telemetry):
             try:
                 out += part(now_us)
             except Exception:  # one broken part must not starve the others (or the failsafe)
@@ -381,6 +384,12 @@ class MavNode:
                 if n == 1:
                     log.exception("%s failed (counted; logged once)", kind)
         return out
+
+    def _tick_params(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+        """A parameter save that failed on the storage worker: the GCS was sent
+        the new value already, so it is told the value will not survive a reboot."""
+        failed = self.params.pop_save_failure()
+        return self.telemetry.statustext(failed, M.MAV_SEVERITY_ERROR) if failed else []
 
     def _tick_events(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         out: list[mavlink2.MAVLink_message] = []

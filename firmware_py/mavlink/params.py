@@ -15,6 +15,7 @@ degrees) travel rounded to float32; the robot stores the exact integer.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import struct
 from collections.abc import Callable
@@ -25,6 +26,8 @@ from typing import Protocol
 from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
 from firmware_py.vehicle import FailsafeAction, VehicleConfig
+
+log = logging.getLogger("qnav.params")
 
 PARAM_FILE = "params/params.json"  # storage layout: firmware_py.storage.PARAMS_FILE
 FILE_VERSION = 1
@@ -141,6 +144,8 @@ class ParamStore:
         # a storage worker (firmware_py.mavlink.link_thread.StorageWorker): saves run there,
         # coalesced, instead of in the caller's thread; load() flushes it first
         self.deferred: DeferredSaver | None = None
+        self.save_errors = 0  # saves that failed (disk full, read-only storage)
+        self._save_failure: str | None = None  # the newest failure not yet reported to the GCS
 
     # --- table ----------------------------------------------------------------
     def names(self) -> list[str]:
@@ -214,11 +219,26 @@ class ParamStore:
 
     # --- persistence ------------------------------------------------------------
     def save(self) -> None:
+        """Write the table (atomically). A failure is kept for `pop_save_failure`
+        (the node reports it to the GCS: the echoed values are not stored) and
+        never raises: the values stay in effect until a reboot."""
         if self.path is None:
             return
         values = {p.name: self._values[p.name] for p in PARAMS if not p.readonly}
         text = json.dumps({"version": FILE_VERSION, "params": values}, indent=1, sort_keys=True)
-        atomic_write(self.path, text + "\n", make_parents=True)
+        try:
+            atomic_write(self.path, text + "\n", make_parents=True)
+        except OSError as exc:
+            self.save_errors += 1
+            self._save_failure = f"params not saved ({exc.strerror or exc}): lost at reboot"
+            log.error("parameter save failed: %s", exc)
+        else:
+            self._save_failure = None
+
+    def pop_save_failure(self) -> str | None:
+        """The newest save failure since the last call (None: none, or a later save succeeded)."""
+        out, self._save_failure = self._save_failure, None
+        return out
 
     def load(self) -> list[str]:
         """Reset to defaults, then apply the stored file. Returns warnings
