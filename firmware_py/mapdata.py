@@ -15,6 +15,7 @@ Pure stdlib, no numpy.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -48,6 +49,23 @@ class OccupancyGrid:
         if not (0 <= col < self.width and 0 <= row < self.height):
             return True
         return self.occ[row * self.width + col] != 0
+
+    def clearance_mm(self, x_mm: float, y_mm: float, reach_mm: float) -> float:
+        """Distance from a world point (mm; x east, y north from the map's
+        south-west corner) to the nearest occupied cell or the map's outside,
+        looking `reach_mm` around (math.inf when none is that close)."""
+        c = self.cell_mm
+        best = math.inf
+        for col in range(math.floor((x_mm - reach_mm) / c), math.floor((x_mm + reach_mm) / c) + 1):
+            x0 = col * c
+            dx = max(x0 - x_mm, 0.0, x_mm - (x0 + c))
+            for south in range(math.floor((y_mm - reach_mm) / c), math.floor((y_mm + reach_mm) / c) + 1):
+                if not self.occupied(col, self.height - 1 - south):
+                    continue
+                y0 = south * c
+                d = math.hypot(dx, max(y0 - y_mm, 0.0, y_mm - (y0 + c)))
+                best = min(best, d)
+        return best
 
     def rows(self) -> list[str]:
         """The grid as metadata rows ('.' free, '@' occupied)."""

@@ -137,7 +137,20 @@ def _no_cell(_policy: Policy) -> int | None:
     return None
 
 
-def _any_goal(_policy: Policy, _x_mm: int, _y_mm: int) -> tuple[int, str]:
+def free_goal(policy: Policy, x_mm: int, y_mm: int) -> tuple[int, str]:
+    """Any goal the robot fits at, on the policy's map when it carries one:
+    not outside it, in a wall, or closer to either than the robot's radius
+    (issue 29 finding 7: such a goal was accepted and driven at until the bumper)."""
+    grid = policy.map_grid
+    if grid is None:
+        return 0, ""
+    if not (0 <= x_mm < grid.width * grid.cell_mm and 0 <= y_mm < grid.height * grid.cell_mm):
+        return -1, f"goal ({x_mm}, {y_mm}) mm is outside the map"
+    if grid.occupied(*robot_spec.world_to_cell(x_mm, y_mm, grid.height, grid.cell_mm)):
+        return -1, f"goal ({x_mm}, {y_mm}) mm is inside a wall"
+    clear = grid.clearance_mm(x_mm, y_mm, robot_spec.ROBOT_RADIUS_MM)
+    if clear < robot_spec.ROBOT_RADIUS_MM:
+        return -1, f"goal ({x_mm}, {y_mm}) mm is {clear:.0f} mm from a wall (robot radius {robot_spec.ROBOT_RADIUS_MM})"
     return 0, ""
 
 
@@ -165,7 +178,7 @@ class PolicyKind:
     # the map cell size the policy drives on, which must be the robot's (None: not cell-bound)
     robot_cell_mm: Callable[[Policy], int | None] = field(default=_no_cell)
     # a goal's index for the table, or -1 and why it cannot be a goal of this policy
-    goal_index: Callable[[Policy, int, int], tuple[int, str]] = field(default=_any_goal)
+    goal_index: Callable[[Policy, int, int], tuple[int, str]] = field(default=free_goal)
     header_fields: Callable[[Policy], dict[str, Any]] = field(default=_no_header)
     local_planner: bool = False  # may carry `local_planner` metadata (firmware_py.localplan)
 
