@@ -100,7 +100,9 @@ class MavlinkExtension:
         def stats() -> dict[str, Any]:
             return {**link.stats(), "gcs_last_heartbeat_us": shell.node.gcs_last_heartbeat_us,
                     "failsafe_since_us": shell.node.failsafe_since_us, "storage_saves": worker.done, "storage_coalesced": worker.coalesced,
-                    "storage_dropped": worker.dropped, "storage_errors": worker.errors}
+                    "storage_dropped": worker.dropped, "storage_errors": worker.errors,
+                    "param_save_errors": shell.node.params.save_errors,
+                    "foreign_gcs_heartbeats": shell.node.foreign_gcs_heartbeats}
 
         self._stats = stats
         log.info("MAVLink node sysid %d on %s%s", shell.node.sysid, args.mavlink,

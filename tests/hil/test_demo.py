@@ -74,6 +74,9 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
     stats = json.loads(Path(summary["robot_stats"]).read_text())
     causes = [t[3] for t in stats["transitions"]]
     assert "mission complete" in causes and not any("FAULT" in t[2] for t in stats["transitions"])
+    # every counter of refused input is in the file (issue 29 finding 8), none raised in a clean run
+    assert stats["refused_clock_jumps"] == 0 and stats["encoder_jumps"] == 0 and stats["param_save_errors"] == 0
+    assert stats["foreign_gcs_heartbeats"] == 0
     assert (out / "robot" / "policies" / "active.qtab").read_bytes() == shipped_policy("paper10_cell").read_bytes()
 
     rep = subprocess.run([*QNAV, "report", summary["tlog"], "--out", str(tmp_path / "report"), "--json"],
