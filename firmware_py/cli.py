@@ -272,7 +272,8 @@ def run(args: argparse.Namespace) -> int:
         "rss_mb": _rss_mb(), "ticks": node.ticks, "sim_ticks": node.sim_ticks,
         "overruns": node.overruns, "can_errors": node.can_errors, "send_errors": node.send_errors,
         # implausible inputs refused rather than used: sim-time jumps (HIL) and encoder jumps
-        "refused_clock_jumps": getattr(clock, "refused_jumps", 0), "encoder_jumps": ctrl.encoder_jumps,
+        "refused_clock_jumps": getattr(clock, "refused_jumps", 0), "refused_sim_ticks": node.tick_gate.refused,
+        "encoder_jumps": ctrl.encoder_jumps,
         "period_us": cfg.control_period_us, "rt_priority": args.rt_priority,
         "rt_active": node.rt_active,
         **node.latency_stats(),

@@ -19,6 +19,20 @@ paced mode). One forged far-future SimTick therefore neither stops the robot
 freezes its clock (lockstep: the clock would stick ahead and staleness
 would never be seen again). A first tick is always taken, so a robot that
 starts while the sim runs joins it.
+
+Before the clock sees a tick, `TickGate` checks it against the sim's
+protocol (issue 29 finding 6: one forged +240 ms tick every 0.5 s, under the
+jump bound, stalled a lockstep robot into a watchdog FAULT): the sim's tick
+counter and its time advance together, one control period per count (the
+period learnt from the first two consecutive ticks). A tick whose time does
+not match its counter (within a quarter period) is refused and counted. A
+tick that skips counts (gap > 1) is what a lockstep sim sends only after it
+gave up waiting for an answer, and it then resends that tick until answered:
+in lockstep it is taken once RESYNC_TICKS identical copies arrived, in paced
+mode (no resends: frames were lost) at once. At most MAX_TICK_GAP counts are
+skipped in one step. What a forger who knows all this can still do: send the
+next tick, consistent, before the sim does (the sim's own copy is then a
+repeat, answered again) - a frame on the bus is not authenticated.
 """
 
 from __future__ import annotations
@@ -51,6 +65,53 @@ class WallClock(Clock):
 
 MAX_TICK_JUMP_US = 250_000
 RESYNC_TICKS = 3
+MAX_TICK_GAP = 64  # counts skipped in one step: a lockstep sim skips one per tick timeout (1 s)
+
+
+class TickGate:
+    """Which SimTicks may move the clock (module doc). Pure: the caller gives
+    each tick's counter, its time and its counter gap from the last taken tick,
+    and calls `taken` for a tick the clock then took."""
+
+    def __init__(self, *, max_gap: int = MAX_TICK_GAP) -> None:
+        self.max_gap = max_gap
+        self.period_us: int | None = None  # the sim's time per count, learnt
+        self.refused = 0
+        self._last_us: int | None = None
+        self._resend: tuple[int, int] = (-1, -1)  # (counter, time) of a tick skipping counts
+        self._copies = 0
+
+    def admit(self, counter: int, sim_us: int, gap: int, *, resends: bool) -> bool:
+        """True if the tick may step the clock; `resends`: the sim resends an
+        unanswered tick (lockstep), so a skip must be confirmed by its copies."""
+        last = self._last_us
+        if last is None or gap == 0:
+            return True
+        dt = sim_us - last
+        if self.period_us is None:
+            if gap == 1 and 0 < dt <= MAX_TICK_JUMP_US:
+                self.period_us = dt
+                return True
+            return self._refuse()
+        if gap > self.max_gap or abs(dt - gap * self.period_us) > self.period_us // 4:
+            return self._refuse()
+        if gap > 1 and resends:
+            if self._resend == (counter, sim_us):
+                self._copies += 1
+            else:
+                self._resend, self._copies = (counter, sim_us), 1
+            if self._copies < RESYNC_TICKS:
+                return self._refuse()
+        return True
+
+    def taken(self, sim_us: int) -> None:
+        """The clock took the tick at `sim_us`: the next gap counts from it."""
+        self._last_us = sim_us
+        self._resend, self._copies = (-1, -1), 0
+
+    def _refuse(self) -> bool:
+        self.refused += 1
+        return False
 
 
 class SimClock(Clock):

@@ -54,7 +54,7 @@ from collections.abc import Callable
 import can
 
 from firmware_py import can_protocol as proto
-from firmware_py.clock import Clock, SimClock
+from firmware_py.clock import Clock, SimClock, TickGate
 from firmware_py.control.controller import Controller
 from firmware_py.control.io import Inputs, Outputs
 from firmware_py.control.plausibility import plausible_range_status
@@ -154,6 +154,7 @@ class RobotNode:
         self.send_errors = 0
         self.sim_ticks = 0
         self.late_ticks = 0  # SimTicks older than the last one seen, ignored
+        self.tick_gate = TickGate()  # SimTicks whose counter and time disagree are refused (clock.py)
         self.wall_late_ticks = 0  # ticks late by more than a quarter period in wall time
         self.wall_overruns = 0  # control periods lost in wall time (module doc)
         self.hook_errors = 0
@@ -253,8 +254,11 @@ class RobotNode:
             if gap >= proto.TICK_MODULUS // 2:
                 self.late_ticks += 1  # an older tick arriving late (reordered): already past it
                 return
+        if not self.tick_gate.admit(counter, sim_us, gap, resends=self.lockstep):
+            return  # not what the sim's protocol sends: not stepped, counted in tick_gate.refused
         if not clock.set_us(sim_us):
             return  # an implausible jump of sim time: not stepped, counted in clock.refused_jumps
+        self.tick_gate.taken(sim_us)
         if self.lockstep and gap > 1:
             self.overruns += gap - 1  # ticks we never saw: lost or late
         if self._sim_quiet:

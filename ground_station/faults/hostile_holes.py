@@ -91,8 +91,9 @@ def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             rig.run_until(t_forge + 8 * PERIOD_US)  # raises if a tick goes unanswered
             if rig.node.clock.now_us() != rig.time_us - PERIOD_US:
                 problems.append(f"clock {rig.node.clock.now_us()} us, sim {rig.time_us - PERIOD_US} us")
-            if rig.node.clock.refused_jumps != 1:
-                problems.append(f"refused_jumps {rig.node.clock.refused_jumps}, expected 1")
+            n_refused = rig.node.clock.refused_jumps + rig.node.tick_gate.refused
+            if n_refused != 1:
+                problems.append(f"refused {n_refused} ticks, expected 1")
             if _first_fault(rig, t_forge) is not None:
                 problems.append(f"FAULT after the forged tick: {rig.ctrl.fault}")
             t_cut = rig.time_us
@@ -103,7 +104,7 @@ def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                     f for f in frames if cp.frame_name(f.arbitration_id) not in SENSOR_FRAMES]
 
             rig.run_until(deadline + 3 * PERIOD_US, frames_hook=cut)
-            refused += rig.node.clock.refused_jumps
+            refused += rig.node.clock.refused_jumps + rig.node.tick_gate.refused
         fault = _first_fault(rig, t_cut)
         if fault is None or fault.t_us > deadline:
             problems.append(f"sensor cut after the forgery: no FAULT by {deadline} us ({fault})")
@@ -111,6 +112,44 @@ def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         if progress is not None:
             progress.update(1)
     res.figures["refused_jumps"] = refused
+    return res
+
+
+@register("can_forged_tick_pace", small=2, large=20, unit="episodes",
+          what="a forged next SimTick 240 ms ahead every 0.5 s for 4 s (under the jump bound): refused, "
+               "every real tick answered, clock = sim time, no FAULT")
+def forged_tick_pace(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+    """Issue 29 finding 6: before the tick gate, each forged tick moved the
+    clock 240 ms ahead; the real ticks then counted as repeats or stood still,
+    75 ticks were lost and the motor driver's watchdog tripped at 4 s."""
+    res = ScenarioResult("can_forged_tick_pace")
+    for i in range(count):
+        rng, rig = _setup(seed * 7919 + 9000 + i)
+        t0 = _fault_time(rng)
+        problems: list[str] = []
+        forged = 0
+        with rig:
+            rig.run_until(t0)
+            if rig.ctrl.state != CtrlState.DRIVING:
+                problems.append(f"setup: {rig.ctrl.state.name} at the first forgery, not DRIVING")
+            for k in range(8):
+                rig.send(cp.sim_tick(rig.plant.tick, rig.node.clock.now_us() + 240_000))  # next counter, 240 ms on
+                forged += 1
+                rig.run_until(t0 + (k + 1) * 500_000)  # raises if a tick goes unanswered
+            if rig.node.clock.now_us() != rig.time_us - PERIOD_US:
+                problems.append(f"clock {rig.node.clock.now_us()} us, sim {rig.time_us - PERIOD_US} us")
+            n_refused = rig.node.tick_gate.refused + rig.node.clock.refused_jumps
+            if n_refused != forged:
+                problems.append(f"refused {n_refused} of {forged} forged ticks")
+            if rig.node.overruns:
+                problems.append(f"{rig.node.overruns} ticks lost")
+            fault = _first_fault(rig, t0)
+            if fault is not None:
+                problems.append(f"FAULT after the forged ticks: {rig.ctrl.fault}")
+        res.figures["refused"] = res.figures.get("refused", 0) + n_refused
+        res.check(problems, f"seed {seed}/{i} forged from {t0} us")
+        if progress is not None:
+            progress.update(1)
     return res
 
 

@@ -9,7 +9,7 @@ import pytest
 from ground_station.faults import hostile_holes  # noqa: F401  (registers the scenarios)
 from ground_station.faults.common import SCENARIOS
 
-NAMES = ["can_future_tick", "can_encoder_jump", "can_frozen_sensor", "mav_failsafe_garbage",
+NAMES = ["can_future_tick", "can_forged_tick_pace", "can_encoder_jump", "can_frozen_sensor", "mav_failsafe_garbage",
          "mav_signing_bounds", "mav_signing_process", "ftp_sessions_quota"]
 
 

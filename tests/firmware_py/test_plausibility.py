@@ -137,7 +137,7 @@ def test_robot_node_drops_a_far_future_sim_tick_and_keeps_detecting_stale_sensor
         sim.send(cp.sim_tick(3, t))  # the real tick 3: answered and stepped (not taken as a resend)
         cmd = expect(sim, "MotorCommand")
         assert cmd["Cmd_Counter"] == 3 and node.clock.now_us() == t and node.ticks == 4
-        assert node.clock.refused_jumps == 1 and node.overruns == 0
+        assert node.tick_gate.refused + node.clock.refused_jumps == 1 and node.overruns == 0
         last_fresh, k = t, 3
         while True:  # sensors stop, ticks go on: stale within the timeout + one period
             k += 1
@@ -173,3 +173,38 @@ def test_a_valid_reading_beyond_the_sensor_range_is_taken_as_invalid():
     assert inp.range_status[:4] == [robot_spec.RANGE_INVALID, robot_spec.RANGE_VALID,
                                     robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_VALID]
     assert inp.ranges_mm[:4] == [4095, robot_spec.RANGE_MAX_MM, 4095, 150]
+
+
+def test_tick_gate_takes_only_ticks_whose_counter_and_time_agree():
+    """Issue 29 finding 6, the pure rule (firmware_py/clock.py)."""
+    from firmware_py.clock import MAX_TICK_GAP, TickGate
+
+    p = robot_spec.CONTROL_PERIOD_US
+
+    last: dict[int, int] = {}  # id(gate) -> counter of its last taken tick (as RobotNode keeps it)
+
+    def run(gate, ticks, resends):
+        out = []
+        for c, t in ticks:
+            gap = c - last[id(gate)] if id(gate) in last else 0
+            ok = gate.admit(c, t, gap, resends=resends)
+            if ok:
+                gate.taken(t)
+                last[id(gate)] = c
+            out.append(ok)
+        return out
+
+    g = TickGate()
+    assert run(g, [(10, 500_000), (11, 500_000 + p), (12, 500_000 + 2 * p)], True) == [True] * 3
+    assert g.period_us == p
+    # the next counter 240 ms on (under the clock's 250 ms bound): refused, the real one taken
+    assert run(g, [(13, 500_000 + 2 * p + 240_000), (13, 500_000 + 3 * p)], True) == [False, True]
+    assert g.refused == 1
+    # lockstep: a tick skipping counts is taken once the sim's resends confirmed it
+    skip = (16, 500_000 + 6 * p)
+    assert run(g, [skip] * RESYNC_TICKS, True) == [False] * (RESYNC_TICKS - 1) + [True]
+    # paced (no resends: frames lost): at once, if counter and time agree
+    paced = TickGate()
+    assert run(paced, [(0, 0), (1, p), (5, 5 * p), (7, 9 * p)], False) == [True, True, True, False]
+    # never more than MAX_TICK_GAP counts in one step
+    assert run(paced, [(5 + MAX_TICK_GAP + 1, (5 + MAX_TICK_GAP + 1) * p)] * 4, False) == [False] * 4
