@@ -103,6 +103,7 @@ class DemoSummary:
     mission_wall_seconds: float | None = None  # Auto to the last target
     telemetry_loss_pct: float | None = None  # MAVLink frames from the robot lost (sequence gaps)
     mode: str = "lockstep"
+    map: str = ""
     policy: str = ""
     policy_id: str | None = None
     upload_seconds: float | None = None
@@ -114,6 +115,7 @@ class DemoSummary:
     trajectory_png: str | None = None
     trajectory_csv: str | None = None
     robot_stats: str | None = None
+    mcap: str | None = None  # run.mcap: the whole run for Foxglove, PlotJuggler, Rerun (ground_station/logs)
     logs: dict[str, str] = field(default_factory=dict)
     exit_codes: dict[str, int | None] = field(default_factory=dict)
 
@@ -496,6 +498,23 @@ def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: ProcessGroup, 
     return app.verdict or "monitor closed by the user"
 
 
+def _write_mcap(out: Path, paths: dict[str, Path], grid_map, say: Callable[[str], None]) -> str | None:
+    """The run as one MCAP (ground_station/logs/mcap_run.py); None, said, if it cannot be written."""
+    from ground_station.logs.mcap_run import McapError, write_run_mcap
+
+    try:
+        write_run_mcap(out, paths["tlog"], can_log=paths["can_log"] if paths["can_log"].is_file() else None,
+                       trajectory=paths["trajectory_csv"] if paths["trajectory_csv"].is_file() else None,
+                       grid_map=grid_map)
+    except (McapError, OSError, ValueError) as exc:
+        say(f"run.mcap not written: {exc}")
+        return None
+    except Exception as exc:  # noqa: BLE001 - a converter bug must not cut the demo's clean-up short
+        say(f"run.mcap not written: {type(exc).__name__}: {exc}")
+        return None
+    return str(out)
+
+
 def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
              status: Callable[[str], None] | None = None) -> DemoSummary:
     """Run the whole demo; returns the summary (also written to the run folder).
@@ -549,7 +568,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     run_dir = Path(opts.out) if opts.out else default_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
     summary = DemoSummary(targets=list(opts.targets), targets_total=len(opts.targets),
-                          mode="real time" if opts.realtime else "lockstep", run_dir=str(run_dir))
+                          mode="real time" if opts.realtime else "lockstep", run_dir=str(run_dir),
+                          map=grid_map.name)
     if opts.train:
         policy = train_policy(opts, run_dir, say)
     summary.policy = str(policy)
@@ -682,6 +702,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                 summary.can_log_candump = str(candump)
         if paths["trajectory_csv"].is_file():
             summary.collisions = count_collisions(paths["trajectory_csv"])
+        if paths["tlog"].is_file():
+            summary.mcap = _write_mcap(run_dir / "run.mcap", paths, grid_map, say)
         exact = mission_sim_seconds(paths["robot_stats"])
         if exact is not None and summary.targets_reached:
             summary.sim_seconds = exact

@@ -25,6 +25,8 @@ STATION_IMPORTS: dict[str, str] = {
     "matplotlib": "matplotlib",
     "tqdm": "tqdm",
     "textual": "textual",
+    "mcap": "mcap",
+    "foxglove-sdk": "foxglove",
 }
 
 

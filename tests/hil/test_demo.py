@@ -18,6 +18,8 @@ from pathlib import Path
 import pytest
 
 from firmware_py.shipped_policies import shipped_policy
+from ground_station.maps import load_map
+from tests.support.mcap_check import check_run_mcap
 
 ROOT = Path(__file__).resolve().parents[2]
 QNAV = [sys.executable, "-c", "import sys; from ground_station.cli import main; sys.exit(main())"]
@@ -63,9 +65,13 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
     assert 20 < summary["sim_seconds"] < 300  # four legs on a 5 m map, in robot (sim) time
     assert summary["wall_seconds"] > 0
     assert summary["policy_id"] == "0xb5d6060c"  # policies/paper10_cell.json: the shipped file went up
-    for key in ("tlog", "can_log", "trajectory_png", "trajectory_csv", "robot_stats"):
+    for key in ("tlog", "can_log", "trajectory_png", "trajectory_csv", "robot_stats", "mcap"):
         assert summary[key] and Path(summary[key]).stat().st_size > 0, key
     assert json.loads((out / "summary.json").read_text()) == summary
+    # run.mcap: the whole run, read back with the mcap package's reader (tests/support/mcap_check.py)
+    topics = check_run_mcap(Path(summary["mcap"]), Path(summary["tlog"]), Path(summary["can_log"]),
+                            Path(summary["trajectory_csv"]), load_map(summary["map"]))
+    assert topics["/mission"] == 4 and topics["/log"] > 0 and topics["/location"] > 0
     # the processes were stopped by the demo (SIGINT -> 130), none is left, the hub is gone
     assert summary["exit_codes"] == {"sim": 130, "robot": 130}
     assert _processes_mentioning(str(out)) == []

@@ -1,0 +1,64 @@
+"""`qnav log mcap RUN_DIR|FILE.tlog [--can FILE] [--trajectory FILE] [--map NAME|PATH] [--out FILE.mcap]`:
+a run as one MCAP file for Foxglove, PlotJuggler (3.8+) and Rerun.
+
+A run folder (`qnav demo`, `qnav sitl`) gives its tlog, CAN log (can.blf),
+the sim's trajectory.csv and the map named in its summary.json; a tlog alone
+gives the MAVLink topics (add --can / --trajectory / --map for the rest).
+Topics, schemas and clocks: ground_station/logs/topics.py and docs/monitor.md.
+The file is written beside the target and renamed over it when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("log", help="convert a run's recordings (MCAP for Foxglove, PlotJuggler, Rerun)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    inner = p.add_subparsers(dest="log_command", metavar="ACTION", required=True)
+    m = inner.add_parser("mcap", help="one MCAP file with the whole run", description=__doc__,
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    m.add_argument("target", metavar="RUN_DIR|FILE.tlog", help="a run folder or a session tlog")
+    m.add_argument("--can", metavar="FILE", help="CAN log (.blf, .asc, candump -L .log; default: the run's can.blf)")
+    m.add_argument("--trajectory", metavar="FILE", help="the sim's trajectory.csv (default: the run's)")
+    m.add_argument("--map", metavar="NAME|PATH",
+                   help="map for the /map grid (default: the run's summary.json map; 'none' for no map)")
+    m.add_argument("--out", metavar="FILE.mcap", help="output (default: RUN_DIR/run.mcap, or FILE.mcap beside the tlog)")
+    m.set_defaults(func=run_mcap)
+
+
+def run_mcap(args: argparse.Namespace) -> int:
+    from ground_station.errors import CliError
+    from ground_station.logs.mcap_run import McapError, find_run_files, write_run_mcap
+    from ground_station.maps import MapError, load_map
+
+    target = Path(args.target)
+    try:
+        tlog, can_log, trajectory, map_name = find_run_files(target)
+    except McapError as exc:
+        raise CliError(str(exc)) from None
+    can_log = Path(args.can) if args.can else can_log
+    trajectory = Path(args.trajectory) if args.trajectory else trajectory
+    for what, path in (("--can", can_log), ("--trajectory", trajectory)):
+        if path is not None and not path.is_file():
+            raise CliError(f"{what} {path}: no such file")
+    map_name = args.map or map_name
+    grid_map = None
+    if map_name and map_name != "none":
+        try:
+            grid_map = load_map(map_name)
+        except (MapError, OSError) as exc:
+            raise CliError(f"--map {map_name}: {exc}") from None
+    out = Path(args.out) if args.out else (target / "run.mcap" if target.is_dir() else target.with_suffix(".mcap"))
+    try:
+        s = write_run_mcap(out, tlog, can_log=can_log, trajectory=trajectory, grid_map=grid_map)
+    except McapError as exc:
+        raise CliError(str(exc)) from None
+    except (OSError, ValueError) as exc:
+        raise CliError(f"{out}: {exc}") from None
+    print(f"{out}: {s.mavlink_messages} MAVLink messages, {s.can_frames} CAN frames, "
+          f"{s.truth_samples} ground-truth samples, {len(s.messages)} topics"
+          + ("" if grid_map is not None else " (no map)"))
+    return 0
