@@ -148,7 +148,7 @@ def connection_help(info: SitlInfo) -> list[str]:
         url = info.can_spec.partition(":")[2]
         lines += [f"  cantools monitor -i remote -c {url} {dbc}",
                   f"  python -m can.viewer -i remote -c {url}"]
-    lines += [f"run folder {info.run_dir} (sim.log, robot.log; can.blf and trajectory.csv when stopped)",
+    lines += [f"run folder {info.run_dir} (sim.log, robot.log; can.blf, trajectory.csv and run.mcap when stopped)",
               "Ctrl-C stops every process"]
     return lines
 
@@ -318,4 +318,23 @@ class Sitl:
         if self.hub is not None:
             self.hub.stop()
             self.hub = None
+        if self.info is not None:
+            self._write_mcap(self.info.run_dir)
         return self.exit_codes
+
+    def _write_mcap(self, run_dir: Path) -> None:
+        """run.mcap from what the sim wrote (CAN log, ground truth) and the map; the
+        GCS's own tlog is the GCS's (`qnav log mcap RUN_DIR --tlog FILE` adds it)."""
+        can_log, traj = run_dir / "can.blf", run_dir / "trajectory.csv"
+        if not can_log.is_file():
+            return
+        from ground_station.logs.mcap_run import write_run_mcap
+        from ground_station.maps import load_map
+
+        try:
+            write_run_mcap(run_dir / "run.mcap", None, can_log=can_log,
+                           trajectory=traj if traj.is_file() else None, grid_map=load_map(self.opts.map_name))
+        except Exception as exc:  # noqa: BLE001 - the bring-up's clean-up says it and goes on
+            self.say(f"run.mcap not written: {type(exc).__name__}: {exc}")
+            return
+        self.say(f"wrote {run_dir / 'run.mcap'} (CAN, ground truth, map; open it in Foxglove)")

@@ -1,9 +1,10 @@
-"""`qnav log mcap RUN_DIR|FILE.tlog [--can FILE] [--trajectory FILE] [--map NAME|PATH] [--out FILE.mcap]`:
+"""`qnav log mcap RUN_DIR|FILE.tlog [--tlog FILE] [--can FILE] [--trajectory FILE] [--map NAME|PATH] [--out FILE.mcap]`:
 a run as one MCAP file for Foxglove, PlotJuggler (3.8+) and Rerun.
 
 A run folder (`qnav demo`, `qnav sitl`) gives its tlog, CAN log (can.blf),
 the sim's trajectory.csv and the map named in its summary.json; a tlog alone
-gives the MAVLink topics (add --can / --trajectory / --map for the rest).
+gives the MAVLink topics (add --can / --trajectory / --map for the rest). A
+`qnav sitl` folder has no tlog (the GCS keeps its own): give it with --tlog.
 Topics, schemas and clocks: ground_station/logs/topics.py and docs/monitor.md.
 The file is written beside the target and renamed over it when complete.
 """
@@ -21,6 +22,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     m = inner.add_parser("mcap", help="one MCAP file with the whole run", description=__doc__,
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     m.add_argument("target", metavar="RUN_DIR|FILE.tlog", help="a run folder or a session tlog")
+    m.add_argument("--tlog", metavar="FILE", help="the session tlog (default: the run's *.tlog)")
     m.add_argument("--can", metavar="FILE", help="CAN log (.blf, .asc, candump -L .log; default: the run's can.blf)")
     m.add_argument("--trajectory", metavar="FILE", help="the sim's trajectory.csv (default: the run's)")
     m.add_argument("--map", metavar="NAME|PATH",
@@ -39,9 +41,10 @@ def run_mcap(args: argparse.Namespace) -> int:
         tlog, can_log, trajectory, map_name = find_run_files(target)
     except McapError as exc:
         raise CliError(str(exc)) from None
+    tlog = Path(args.tlog) if args.tlog else tlog
     can_log = Path(args.can) if args.can else can_log
     trajectory = Path(args.trajectory) if args.trajectory else trajectory
-    for what, path in (("--can", can_log), ("--trajectory", trajectory)):
+    for what, path in (("--tlog", tlog), ("--can", can_log), ("--trajectory", trajectory)):
         if path is not None and not path.is_file():
             raise CliError(f"{what} {path}: no such file")
     map_name = args.map or map_name

@@ -55,16 +55,16 @@ class _Sink:
             self.counts[r.topic] += 1
 
 
-def find_run_files(target: Path) -> tuple[Path, Path | None, Path | None, str | None]:
+def find_run_files(target: Path) -> tuple[Path | None, Path | None, Path | None, str | None]:
     """(tlog, CAN log, trajectory.csv, map name) of a run folder or a tlog file."""
     if target.is_file():
         return target, None, None, None
     if not target.is_dir():
         raise McapError(f"{target}: no such run folder or tlog")
     tlogs = sorted(target.glob("*.tlog"))
-    if not tlogs:
-        raise McapError(f"{target}: no .tlog in the run folder")
     can_log = next((p for p in (target / "can.blf", target / "can.log") if p.is_file()), None)
+    if not tlogs and can_log is None:
+        raise McapError(f"{target}: no .tlog and no can.blf in the run folder")
     traj = target / "trajectory.csv"
     map_name = None
     summary = target / "summary.json"
@@ -75,10 +75,10 @@ def find_run_files(target: Path) -> tuple[Path, Path | None, Path | None, str | 
             map_name = json.loads(summary.read_text()).get("map")
         except (OSError, ValueError):
             map_name = None
-    return tlogs[0], can_log, traj if traj.is_file() else None, map_name
+    return (tlogs[0] if tlogs else None), can_log, traj if traj.is_file() else None, map_name
 
 
-def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str], *,
+def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | None, *,
                    can_log: str | os.PathLike[str] | None = None,
                    trajectory: str | os.PathLike[str] | None = None, grid_map=None) -> McapSummary:
     """Convert a run (see the module docstring); returns what was written."""
@@ -95,18 +95,19 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str], *,
         writer = foxglove.open_mcap(str(tmp), allow_overwrite=True, context=ctx)
         try:
             sink.write(topics.map_grid(0))
-            log = mavutil.mavlink_connection(str(tlog), dialect="common")
-            try:
-                while True:
-                    msg = log.recv_match()
-                    if msg is None:
-                        break
-                    if msg.get_type() == "BAD_DATA":
-                        continue
-                    summary.mavlink_messages += 1
-                    sink.write(topics.mavlink(msg, float(getattr(msg, "_timestamp", 0.0))))
-            finally:
-                log.close()
+            if tlog is not None:
+                log = mavutil.mavlink_connection(str(tlog), dialect="common")
+                try:
+                    while True:
+                        msg = log.recv_match()
+                        if msg is None:
+                            break
+                        if msg.get_type() == "BAD_DATA":
+                            continue
+                        summary.mavlink_messages += 1
+                        sink.write(topics.mavlink(msg, float(getattr(msg, "_timestamp", 0.0))))
+                finally:
+                    log.close()
             if can_log is not None:
                 import can
 

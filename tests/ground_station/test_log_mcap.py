@@ -52,7 +52,7 @@ def test_bad_input_is_one_line_and_leaves_no_file(tmp_path):
     for argv, needle in ((["log", "mcap", str(tmp_path / "nope")], "no such run folder or tlog"),
                          (["log", "mcap", str(tlog), "--can", str(tmp_path / "x.blf")], "--can"),
                          (["log", "mcap", str(tlog), "--map", "nope"], "--map nope"),
-                         (["log", "mcap", str(tmp_path)], "no .tlog in the run folder")):
+                         (["log", "mcap", str(tmp_path)], "no .tlog and no can.blf in the run folder")):
         if argv[2] == str(tmp_path):
             tlog.rename(tmp_path / "moved.bin")
         code, out = qnav(*argv)

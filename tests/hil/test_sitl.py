@@ -224,8 +224,9 @@ def test_sitl_ctrl_c_in_a_terminal_stops_everything_cleanly_and_writes_every_fil
         os.close(master)
     said = text.decode(errors="replace")
     assert "stopped (Ctrl-C); every process stopped" in said, said[-1500:]
-    for name in ("can.blf", "trajectory.csv", "robot_stats.json", "sim.log", "robot.log"):
+    for name in ("can.blf", "trajectory.csv", "robot_stats.json", "sim.log", "robot.log", "run.mcap"):
         assert (out / name).is_file(), f"{name} not written; output:\n{said[-1500:]}"
+    assert f"wrote {out / 'run.mcap'}" in said
     for log in ("sim.log", "robot.log"):
         body = (out / log).read_text(errors="replace")
         assert "Traceback" not in body and "Error" not in body, f"{log}:\n{body[-1500:]}"
