@@ -3,6 +3,14 @@
     qnav monitor [--mavlink URL] [--tlog FILE] [--signing-key FILE] [--map NAME|PATH]
     qnav monitor --plain [--duration S]          one status line per second
     qnav monitor --replay FILE.tlog [--speed X]  a recording through the same view
+    qnav monitor --foxglove [--port P]           also a Foxglove WebSocket bridge on 127.0.0.1:P
+
+With --foxglove the same telemetry is published live for Foxglove (open
+ws://127.0.0.1:P in Foxglove desktop or its web app): the robot's pose on its
+map, range sectors, the mission, the log, every MAVLink message
+(ground_station/logs/topics.py); a goal published on /goal (JSON {"x": E,
+"y": N} metres) is checked as `qnav goal` checks it and sent as a Guided
+go-to. Live links only.
 
 Stamps are the robot's clock (its time_boot_ms: sim time in HIL) once it
 has sent one. The view follows one system id (the first robot heard, or
@@ -34,6 +42,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--replay", metavar="FILE.tlog", help="replay a recording instead of a live link")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="replay speed factor (default 1; 0 = as fast as possible)")
+    p.add_argument("--foxglove", action="store_true",
+                   help="also publish the telemetry on a Foxglove WebSocket server on 127.0.0.1 (live only)")
+    p.add_argument("--port", type=int, default=8765, metavar="P",
+                   help="--foxglove: the WebSocket port (default 8765, Foxglove's; 0 = any free port)")
     p.set_defaults(func=run)
 
 
@@ -90,8 +102,22 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--duration must be > 0, got {args.duration}")
     if args.cell_size <= 0:
         raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
-    grid_map = None if args.plain else _load_map(args.map, args.cell_size)
+    if args.foxglove and args.replay:
+        raise CliError("--foxglove bridges a live link; for a recording use qnav log mcap FILE.tlog")
+    if not 0 <= args.port <= 65535:
+        raise CliError(f"--port must be 0-65535, got {args.port}")
+    grid_map = None if args.plain and not args.foxglove else _load_map(args.map, args.cell_size)
     source, label = open_source(args)
+    if args.foxglove:
+        from ground_station.logs.live import BridgedSource, FoxgloveBridge
+
+        try:
+            bridge = FoxgloveBridge(args.port, grid_map)
+        except Exception as exc:  # noqa: BLE001 - a port in use: one line, the link closed
+            source.close()
+            raise CliError(f"--foxglove: cannot serve on 127.0.0.1:{args.port}: {exc}") from None
+        print(f"qnav monitor: Foxglove bridge on ws://127.0.0.1:{bridge.port}", file=sys.stderr, flush=True)
+        source = BridgedSource(source, bridge)
     view = VehicleView(sysid=args.target_system)
     try:
         if args.plain:

@@ -29,7 +29,7 @@ class McapSummary:
     truth_samples: int = 0
 
 
-class _Sink:
+class TopicSink:
     """Records -> channels of one foxglove Context (typed channels for foxglove
     messages, JSON channels with a schema from the first message otherwise)."""
 
@@ -90,7 +90,7 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
     topics = RunTopics(grid_map)
     summary = McapSummary(str(out))
     ctx = foxglove.Context()
-    sink = _Sink(ctx)
+    sink = TopicSink(ctx)
     try:
         writer = foxglove.open_mcap(str(tmp), allow_overwrite=True, context=ctx)
         try:

@@ -215,15 +215,19 @@ class RunTopics:
     def _on_obstacle_distance(self, msg, ns: int, t_wall: float) -> list[Record]:
         from foxglove import messages as fm
 
-        n = sum(1 for d in msg.distances if d != 65535)
-        if n == 0:
+        inc_deg = msg.increment_f or msg.increment
+        if not inc_deg:
             return []
-        inc = math.radians(msg.increment_f or msg.increment)
-        # MAV_FRAME_BODY_FRD: index 0 ahead, angles clockwise; LaserScan: counter-clockwise from +x
-        ranges = [(d / 100.0 if d <= msg.max_distance else math.inf) for d in msg.distances[:n]]
-        ranges = [ranges[0], *reversed(ranges[1:])]
+        n = min(len(msg.distances), max(1, round(360 / inc_deg)))
+        # MAV_FRAME_BODY_FRD bins clockwise from the nose (65535: no sensor there, > max: nothing in
+        # range); a LaserScan runs counter-clockwise from +x: bin 0, then the bins from the left round
+        rng = [math.nan if d == 65535 else math.inf if d > msg.max_distance else d / 100.0
+               for d in msg.distances[:n]]
+        ranges = [rng[0], *reversed(rng[1:])]
+        inc = math.radians(inc_deg)
+        start = -math.radians(getattr(msg, "angle_offset", 0.0) or 0.0)
         scan = fm.LaserScan(timestamp=_stamp(ns), frame_id=ROBOT_FRAME, pose=_pose(0.0, 0.0, 0.0),
-                            start_angle=0.0, end_angle=inc * (n - 1), ranges=ranges)
+                            start_angle=start, end_angle=start + inc * (n - 1), ranges=ranges)
         return [self._rec("/scan", scan, ns)]
 
     def _on_heartbeat(self, msg, ns: int, t_wall: float) -> list[Record]:
