@@ -19,7 +19,7 @@ import pytest
 
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.maps import load_map
-from tests.support.mcap_check import check_run_mcap
+from tests.support.mcap_check import check_layout_against_mcap, check_run_mcap
 
 ROOT = Path(__file__).resolve().parents[2]
 QNAV = [sys.executable, "-c", "import sys; from ground_station.cli import main; sys.exit(main())"]
@@ -72,6 +72,7 @@ def test_demo_headless_json_reaches_all_targets_and_report_reads_its_tlog(tmp_pa
     topics = check_run_mcap(Path(summary["mcap"]), Path(summary["tlog"]), Path(summary["can_log"]),
                             Path(summary["trajectory_csv"]), load_map(summary["map"]))
     assert topics["/mission"] == 4 and topics["/log"] > 0 and topics["/location"] > 0
+    check_layout_against_mcap(ROOT / "ground_station" / "logs" / "foxglove_layout.json", Path(summary["mcap"]))
     # the processes were stopped by the demo (SIGINT -> 130), none is left, the hub is gone
     assert summary["exit_codes"] == {"sim": 130, "robot": 130}
     assert _processes_mentioning(str(out)) == []

@@ -54,3 +54,31 @@ def check_run_mcap(mcap_path: Path, tlog: Path, can_log: Path, trajectory: Path,
     occupancy = b"".join(bytes(100 if grid_map.occ[h - 1 - r, c] else 0 for c in range(w)) for r in range(h))
     assert len(grid_payloads) == 1 and occupancy in grid_payloads[0]
     return dict(counts)
+
+
+def check_layout_against_mcap(layout_path: Path, mcap_path: Path) -> None:
+    """Every topic the shipped Foxglove layout shows is in the run's MCAP, and every
+    plotted JSON field is in its channel's schema."""
+    import json
+
+    from mcap.reader import make_reader
+
+    layout = json.loads(layout_path.read_text())
+    with open(mcap_path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    topics = {}
+    for ch in summary.channels.values():
+        schema = summary.schemas.get(ch.schema_id)
+        props = json.loads(schema.data).get("properties", {}) if schema and schema.encoding == "jsonschema" else None
+        topics[ch.topic] = props
+    for panel in layout["configById"].values():
+        for topic in panel.get("topics", {}):
+            assert topic in topics, topic
+        for path in panel.get("paths", []):
+            topic, _, field = path["value"].partition(".")
+            assert topic in topics, topic
+            if topics[topic] is not None:
+                assert field in topics[topic], path["value"]
+        if "topicToRender" in panel:
+            assert panel["topicToRender"] in topics
