@@ -71,6 +71,8 @@ NOT_RUN = {
     "qnav-robot --can socketcan:can0": _ROBOT,
     "qnav upload policies/paper10_cell.qtab --activate --mavlink /dev/ttyUSB0": _ROBOT,
     "qnav demo": "tests/hil/test_demo.py runs it",
+    "qnav log mcap runs/demo-<time>/": "a placeholder run folder; tests/hil/test_demo.py converts a demo's",
+    "qnav log mcap session.tlog": "placeholder files; tests/ground_station/test_log_mcap.py converts a tlog",
     "qnav sitl --can socketcan:vcan0": _VCAN + "; tests/hil/test_sitl_vcan.py runs it there",
     "qnav sitl": "stays up until Ctrl-C; tests/hil/test_sitl.py runs it on free ports and drives MAVProxy on it",
     "qnav sweep --map paper10 --encoding cell --lrs 0.1:0.9:0.1 --seeds 20":
