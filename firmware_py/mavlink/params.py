@@ -111,7 +111,11 @@ PARAMS: tuple[ParamDef, ...] = (
              "altitude AMSL of the world origin (mm)", "origin_alt_mm"),
     ParamDef("CELL_SIZE_MM", _CFG.cell_size_mm, 50, 5000, "map cell size (mm)", "cell_size_mm"),
     # --- read-only mirrors of the vehicle status ------------------------------
-    ParamDef("POLICY_ID", 0, 0, 2**32 - 1, "id of the active policy (read-only)", readonly=True),
+    ParamDef("POLICY_ID", 0, 0, 2**32 - 1,
+             "id of the active policy (read-only; float32 on the wire, exact in the two 16-bit halves below)",
+             readonly=True),
+    ParamDef("POLICY_ID_HI", 0, 0, 0xFFFF, "upper 16 bits of POLICY_ID (read-only)", readonly=True),
+    ParamDef("POLICY_ID_LO", 0, 0, 0xFFFF, "lower 16 bits of POLICY_ID (read-only)", readonly=True),
     ParamDef("POLICY_CRC", 0, 0, 2**32 - 1,
              "CRC32 of the active policy file (read-only; float32 on the wire, exact in the "
              "two 16-bit halves below)", readonly=True),
@@ -210,6 +214,8 @@ class ParamStore:
 
     def update_policy(self, policy_id: int, policy_crc: int) -> None:
         self.set_readonly("POLICY_ID", policy_id & 0xFFFFFFFF)
+        self.set_readonly("POLICY_ID_HI", (policy_id >> 16) & 0xFFFF)
+        self.set_readonly("POLICY_ID_LO", policy_id & 0xFFFF)
         self.set_readonly("POLICY_CRC", policy_crc & 0xFFFFFFFF)
         self.set_readonly("POLICY_CRC_HI", (policy_crc >> 16) & 0xFFFF)
         self.set_readonly("POLICY_CRC_LO", policy_crc & 0xFFFF)

@@ -34,6 +34,14 @@ def _fmt(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else f"{value:g}"
 
 
+def _exact(name: str, params: dict[str, float]) -> str:
+    """POLICY_ID and POLICY_CRC: float32 on the wire; their exact value from the 16-bit halves."""
+    hi, lo = params.get(name + "_HI"), params.get(name + "_LO")
+    if hi is None or lo is None:
+        return ""
+    return f"  (0x{(int(hi) << 16) | int(lo):08x}, exact: {name}_HI/_LO)"
+
+
 def run(args: argparse.Namespace) -> int:
     import json
 
@@ -56,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
                 print(json.dumps({k: int(v) if float(v).is_integer() else v for k, v in params.items()}, indent=1))
             else:
                 for k, v in params.items():
-                    print(f"{k:<16} {_fmt(v)}")
+                    print(f"{k:<16} {_fmt(v)}{_exact(k, params)}")
         elif args.verb == "get":
             print(f"{name} {_fmt(link.param_get(name))}")
         else:

@@ -21,7 +21,7 @@ from textual.timer import Timer
 from textual.widgets import Footer, Header, Static
 
 from firmware_py import robot_spec
-from ground_station.monitor.model import VehicleView
+from ground_station.monitor.model import VehicleView, policy_id_text
 from ground_station.monitor.sources import MessageSource
 
 _ARROWS = "→↗↑↖←↙↓↘"  # heading CCW from east, 45° steps
@@ -114,7 +114,7 @@ def render_vehicle(view: VehicleView) -> Text:
     t.append(f"controller {view.ctrl_name}\n", style="bold red" if view.ctrl_name == "FAULT" else "")
     if view.failsafe:
         t.append("FAILSAFE (system status CRITICAL)\n", style="bold white on red")
-    t.append(f"policy id {view.policy_id if view.policy_id is not None else '-'}\n")
+    t.append(f"policy id {policy_id_text(view.policy_id)}\n")
     pose = view.pose
     if pose is None:
         t.append("pose -")

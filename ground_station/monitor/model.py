@@ -51,6 +51,8 @@ NV_STATE_INDEX = "STATE_IDX"
 NV_ACTION = "ACTION"
 _QROW_RE = re.compile(r"^Q(\d+)$")
 POLICY_PARAM = "POLICY_ID"  # read-only parameter (firmware_py/mavlink/params.py)
+# its exact halves: a 32-bit id does not survive the float32 of PARAM_VALUE (0xb5d6060c arrived as 3050702336)
+POLICY_ID_HALVES = ("POLICY_ID_HI", "POLICY_ID_LO")
 
 MODE_NAMES = {m.value: m.name.capitalize() for m in Mode}
 CTRL_NAMES = {s.value: s.name for s in CtrlState}
@@ -80,6 +82,11 @@ REBOOT_FRAMES = 50
 # outruns a starved link thread by 10 s of sim time in a second of wall time), not a second process.
 PAUSE_SEQ_WINDOW = 4
 PAUSE_MAX_SPEEDUP = 50.0  # ... and no faster than this many robot seconds per receive second
+
+
+def policy_id_text(policy_id: int | None) -> str:
+    """A policy id as the demo, `qnav policy inspect` and the upload print it."""
+    return "-" if policy_id is None else f"0x{policy_id:08x}"
 
 
 @dataclass
@@ -535,8 +542,9 @@ class VehicleView:
     def _on_param_value(self, msg, t: float) -> None:
         pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id
         self.params[pid] = msg.param_value
-        if pid == POLICY_PARAM:
-            self.policy_id = int(round(msg.param_value))
+        hi, lo = (self.params.get(n) for n in POLICY_ID_HALVES)
+        if pid in POLICY_ID_HALVES and hi is not None and lo is not None:
+            self.policy_id = (int(hi) << 16) | int(lo)
 
     def _on_statustext(self, msg, t: float) -> None:
         # chunked texts are reassembled by id/chunk_seq (the link's assembler)
@@ -591,7 +599,7 @@ class VehicleView:
             f"armed={'yes' if self.armed else 'no'}",
             f"ctrl={self.ctrl_name}",
             f"failsafe={'yes' if self.failsafe else 'no'}",
-            f"policy={self.policy_id if self.policy_id is not None else '-'}",
+            f"policy={policy_id_text(self.policy_id)}",
             pose_s,
             self.localisation_text,
             f"goal_dist={d:.2f}" if d is not None else "goal_dist=-",

@@ -27,7 +27,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 from firmware_py.vehicle import Mode  # noqa: E402
-from ground_station.monitor.model import POLICY_PARAM, VehicleView  # noqa: E402
+from ground_station.monitor.model import POLICY_ID_HALVES, VehicleView  # noqa: E402
 
 HEARTBEAT_PERIOD_S = 1.0
 COMMANDS = ("arm", "disarm", "hold")
@@ -57,7 +57,7 @@ class LiveSource:
     """The ground-station link to the robot (`ground_station.mavlink.link.Link`,
     which owns signing and the session .tlog). Sends a GCS heartbeat each
     second so the robot's GCS failsafe stays quiet while we watch, and asks
-    for the read-only POLICY_ID parameter every few seconds (it changes when
+    for the read-only POLICY_ID_HI/LO parameters every few seconds (it changes when
     a policy is activated). Never blocks: command ACKs arrive via `poll`."""
 
     finished = False
@@ -79,8 +79,9 @@ class LiveSource:
             self.link.send_heartbeat()
             self._next_hb = now + HEARTBEAT_PERIOD_S
         if now >= self._next_param and self.conn.target_system:
-            self.conn.mav.param_request_read_send(self.conn.target_system, self.conn.target_component or 1,
-                                                  POLICY_PARAM.encode(), -1)
+            for name in POLICY_ID_HALVES:  # exact, unlike POLICY_ID's float32
+                self.conn.mav.param_request_read_send(self.conn.target_system, self.conn.target_component or 1,
+                                                      name.encode(), -1)
             self._next_param = now + self.POLICY_POLL_S
         out: list[tuple[object, float]] = []
         while len(out) < limit:

@@ -66,7 +66,7 @@ def test_live_dashboard_follows_the_rover_and_sends_commands():
             assert (col, row) == view_cell(v) and glyph == heading_arrow(v.heading)
             assert "state" in panel(app, "policy") and "Q-row [0]" in panel(app, "policy")
             assert "heartbeat age" in panel(app, "link") and "unsigned" in panel(app, "link")
-            assert "policy id 4242" in vehicle
+            assert "policy id 0x00001092" in vehicle  # 4242, exact from POLICY_ID_HI/LO
             assert "+45°" in panel(app, "sectors")
             await pilot.press("a")
             await wait_for(pilot, lambda: "ACK COMPONENT_ARM_DISARM: ACCEPTED" in panel(app, "log"))

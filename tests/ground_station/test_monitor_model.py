@@ -136,7 +136,12 @@ def test_named_values_param_and_statustext_chunks(rover):
     for name, value in (("CTRL_ST", int(CtrlState.DRIVING)), ("STATE_IDX", 117), ("ACTION", 3),
                         ("Q0", 10), ("Q1", 40), ("Q2", 40), ("Q3", -5)):
         msgs.append(mavlink.MAVLink_named_value_int_message(5, name.encode(), value))
-    msgs.append(mavlink.MAVLink_param_value_message(b"POLICY_ID", 77.0, mavlink.MAV_PARAM_TYPE_INT32, 3, 1))
+    # the shipped cell policy's id: float32 on the wire turns POLICY_ID into 3050702336 (0xb5d60600);
+    # the exact id comes from its halves (issue 30 finding 6)
+    pid = 0xB5D6060C
+    msgs.append(mavlink.MAVLink_param_value_message(b"POLICY_ID", float(pid), mavlink.MAV_PARAM_TYPE_INT32, 5, 1))
+    msgs.append(mavlink.MAVLink_param_value_message(b"POLICY_ID_HI", pid >> 16, mavlink.MAV_PARAM_TYPE_INT32, 5, 2))
+    msgs.append(mavlink.MAVLink_param_value_message(b"POLICY_ID_LO", pid & 0xFFFF, mavlink.MAV_PARAM_TYPE_INT32, 5, 3))
     long_text = "x" * 50 + "tail"
     msgs.append(mavlink.MAVLink_statustext_message(4, long_text[:50].encode(), 9, 0))
     msgs.append(mavlink.MAVLink_statustext_message(4, long_text[50:].encode(), 9, 1))
@@ -144,7 +149,7 @@ def test_named_values_param_and_statustext_chunks(rover):
     feed(view, wire(rover, *msgs), t=3.0)
     assert view.ctrl_name == "DRIVING" and view.state_index == 117 and view.action == 3
     assert view.q_row == {0: 10, 1: 40, 2: 40, 3: -5}
-    assert view.policy_id == 77
+    assert view.policy_id == pid and "policy=0xb5d6060c" in view.status_line(3.0)
     assert [(e.severity_name, e.text) for e in view.log] == [("WARN", long_text), ("INFO", "hello")]
     feed(view, wire(rover, mavlink.MAVLink_named_value_int_message(6, b"STATE_IDX", -1)))
     assert view.q_row == {} and "state=-" in view.status_line(3.0)  # no decision: no stale row

@@ -39,7 +39,7 @@ def test_plain_replay_prints_one_line_per_recorded_second(tlog):
     assert len(lines) == int(script.t_end) + 1  # one per second + the final line
     first, last = fields(lines[0]), fields(lines[-1])
     assert (first["mode"], first["armed"], first["ctrl"]) == ("Hold", "no", "STANDBY")
-    assert (last["x"], last["y"], last["reached"], last["policy"]) == ("4.75", "4.75", "2", "4242")
+    assert (last["x"], last["y"], last["reached"], last["policy"]) == ("4.75", "4.75", "2", "0x00001092")  # 4242, exact from POLICY_ID_HI/LO
     fault_second = int(script.t_fault) + 1
     assert fields(lines[fault_second - 1])["ctrl"] == "FAULT" and fields(lines[fault_second - 1])["failsafe"] == "yes"
     assert {fields(ln)["ctrl"] for ln in lines} >= {"STANDBY", "DRIVING", "FAULT", "GOAL_REACHED"}

@@ -148,7 +148,9 @@ class RoverScript:
             overruns = 0 if t < self.t_fault else 2  # the fault's tick overran twice
             out.append(mavlink.MAVLink_sys_status_message(0x2000000, 0x2000000, 0x2000000, 150, 0xFFFF, -1, -1,
                                                           25, 3, 1, overruns, 0, 0))
-            out.append(mavlink.MAVLink_param_value_message(b"POLICY_ID", 4242.0, mavlink.MAV_PARAM_TYPE_INT32, 1, 0))
+            out.append(mavlink.MAVLink_param_value_message(b"POLICY_ID", 4242.0, mavlink.MAV_PARAM_TYPE_INT32, 3, 0))
+            out.append(mavlink.MAVLink_param_value_message(b"POLICY_ID_HI", 0.0, mavlink.MAV_PARAM_TYPE_INT32, 3, 1))
+            out.append(mavlink.MAVLink_param_value_message(b"POLICY_ID_LO", 4242.0, mavlink.MAV_PARAM_TYPE_INT32, 3, 2))
         ned_yaw = math.atan2(math.cos(s.heading), math.sin(s.heading))
         out.append(mavlink.MAVLink_local_position_ned_message(
             ms, s.y, s.x, 0.0, s.speed * math.sin(s.heading), s.speed * math.cos(s.heading), 0.0))
