@@ -141,16 +141,20 @@ class Controller(ControlState):
                 mode = Mode(mode)
             except ValueError:
                 return False, f"unknown mode {mode}"
-            if mode == Mode.MANUAL:
-                return False, "MANUAL unsupported: policy drives only"
             self.mode = mode
+            self.manual.clear()  # a stick from before the mode change never drives
             self._end_exploration(f"exploration stopped: mode {mode.name}")  # any mode command, Hold above all, ends the wander
-            if mode == Mode.HOLD and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+            if mode in (Mode.HOLD, Mode.MANUAL) and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 self.goal = None
-                self._transition(CtrlState.HOLD, "mode HOLD")
+                self._transition(CtrlState.HOLD, f"mode {mode.name}")
             elif mode == Mode.AUTO and self.armed and self.route.items and self.state != CtrlState.FAULT:
                 return self._start_mission_locked()
             return True, ""
+
+    def manual_control(self, x: int, r: int, now_us: int) -> bool:
+        """A MANUAL_CONTROL sample (control/manual.py); used only armed in Manual."""
+        with self._lock:
+            return self.manual.update(x, r, now_us)
 
     def set_goal(self, x_mm: int, y_mm: int) -> tuple[bool, str]:
         with self._lock:
@@ -219,6 +223,9 @@ class Controller(ControlState):
                 self.mode = Mode.HOLD
                 self.goal = None
                 self._transition(CtrlState.HOLD, "GCS failsafe", SEV_CRITICAL)
+            elif self.mode == Mode.MANUAL:  # the sticks come over the lost link: Hold, as ArduPilot
+                self.mode = Mode.HOLD
+                self.manual.clear()
 
     def check_config(self, cfg: VehicleConfig) -> tuple[bool, str]:
         """Refuse a config the active policy does not fit (policy.config_mismatch)."""
@@ -423,6 +430,13 @@ class Controller(ControlState):
                 self._drive(inp, now_us)
             elif self.exploration.running:
                 self._explore(inp, now_us)
+            manual = self._manual_driving()
+            if manual:
+                left, right = self.manual.wheels(now_us, self.cfg.max_wheel_speed_mm_s, inp.bumper)
+                self.watchdog.feed(now_us, left, right)
+            elif self._manual_was_driving:  # Hold, disarm, failsafe, FAULT: the wheels stop this tick
+                self._stop()
+            self._manual_was_driving = manual
             if self.state != CtrlState.DRIVING:
                 # no decision in force; while DRIVING the last one holds until the next (a
                 # cell policy decides once per cell move), so telemetry always shows it
@@ -532,7 +546,7 @@ class Controller(ControlState):
         else:
             self._cmd_counter = (self._cmd_counter + 1) & 0xFFFFFF
             counter = self._cmd_counter
-        moving = self.state == CtrlState.DRIVING or self.exploration.running
+        moving = self.state == CtrlState.DRIVING or self.exploration.running or self._manual_driving()
         live = moving and not self.watchdog.expired(now_us)
         if live or self.lockstep or tick is not None:
             motor = MotorCommand(left, right, counter)

@@ -19,6 +19,7 @@ from firmware_py.control.io import (
     Transition,
 )
 from firmware_py.control.localiser import Localiser, LocaliserConfig
+from firmware_py.control.manual import ManualSticks
 from firmware_py.control.odometry import Odometry
 from firmware_py.control.plausibility import InputFreshness
 from firmware_py.control.progress import ProgressWatch
@@ -93,6 +94,8 @@ class ControlState:
         self._loc_cfg = localiser_config
         self.loc: Localiser | None = None
         self.exploration = Exploration()  # the wander for global localisation (armed, HOLD)
+        self.manual = ManualSticks()  # Manual mode's sticks and deadman (control/manual.py)
+        self._manual_was_driving = False
         self._use_localiser(policy, self._new_localiser(policy))
 
     # --- helpers ------------------------------------------------------------------
@@ -163,6 +166,10 @@ class ControlState:
         """The policy table's index of a goal (a cell policy's target; -1 and a reason if none)."""
         pol = policy or self.policy
         return (0, "") if pol is None else kinds.of_policy(pol).goal_index(pol, x_mm, y_mm)
+
+    def _manual_driving(self) -> bool:
+        """Armed in Manual, not in FAULT: the sticks drive (while fresh)."""
+        return self.armed and self.mode == Mode.MANUAL and self.state == CtrlState.HOLD
 
     def _can_drive(self) -> tuple[bool, str]:
         if not self.armed:

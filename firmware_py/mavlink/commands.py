@@ -28,7 +28,7 @@ from firmware_py.mavlink.telemetry import STREAMS, NodeStats, Telemetry
 from firmware_py.vehicle import Mode, VehicleControl
 
 M = mavlink2
-SETTABLE_MODES = {Mode.HOLD: "Hold", Mode.GUIDED: "Guided", Mode.AUTO: "Auto"}
+SETTABLE_MODES = {Mode.MANUAL: "Manual", Mode.HOLD: "Hold", Mode.GUIDED: "Guided", Mode.AUTO: "Auto"}
 INT32_MAX = 0x7FFFFFFF
 ARM_FORCE_MAGIC = 21196  # ArduPilot's "force" value in param2; we never bypass the vehicle's checks
 

@@ -237,6 +237,10 @@ class MavNode:
             return self.mission.handle(msg, now_us)
         if kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             return self._goal(msg, now_us)
+        if kind == "MANUAL_CONTROL":  # sticks for Manual mode (control/manual.py); no reply, as ArduPilot
+            if msg.target in (0, self.sysid):
+                self.vehicle.manual_control(int(msg.x), int(msg.r), now_us)
+            return []
         if self.signing.key is not None and not self.signing.last_signed and kind in SIGNED_ONLY:
             # SIGN_REQUIRE=0 relaxes commands, never key changes or file access
             self.signing.dropped_unsigned += 1

@@ -230,3 +230,58 @@ def test_sitl_ctrl_c_in_a_terminal_stops_everything_cleanly_and_writes_every_fil
     for log in ("sim.log", "robot.log"):
         body = (out / log).read_text(errors="replace")
         assert "Traceback" not in body and "Error" not in body, f"{log}:\n{body[-1500:]}"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_manual_mode_over_mavlink_drives_and_the_deadman_stops_the_robot(tmp_path):
+    """Issue 30: Manual mode on `qnav sitl` from a plain pymavlink ground station - SET_MODE
+    Manual, MANUAL_CONTROL sticks move the sim robot, and when they stop the wheels stop
+    within the 500 ms deadman (sim time, on the sim's ground truth)."""
+    import time
+
+    from pymavlink import mavutil
+
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
+    conn = None
+    try:
+        sitl.expect(r"Ctrl-C stops every process")
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{sitl.port}", source_system=255, source_component=26)
+        conn.mav.heartbeat_send(6, 8, 0, 0, 0)
+        assert conn.wait_heartbeat(timeout=30) is not None
+        conn.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm
+        ack = conn.recv_match(type="COMMAND_ACK", blocking=True, timeout=10)
+        assert ack is not None and ack.result == 0, ack
+        conn.mav.set_mode_send(1, 1, 0)  # MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom mode 0 = Manual
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            hb = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1)
+            if hb is not None and hb.get_srcSystem() == 1 and hb.custom_mode == 0:
+                break
+        else:
+            raise AssertionError("the robot never reported Manual")
+        last_robot_ms = 0
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:  # half stick forward at 20 Hz (wall)
+            conn.mav.manual_control_send(1, 500, 0, 500, 0, 0)
+            msg = conn.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=0.05)
+            if msg is not None:
+                last_robot_ms = max(last_robot_ms, msg.time_boot_ms)
+        released_ms = last_robot_ms
+        time.sleep(3.0)  # sticks released: the deadman must stop the wheels
+    finally:
+        if conn is not None:
+            conn.close()
+        sitl.stop(signal.SIGINT)
+    with open(sitl.out / "trajectory.csv", newline="") as f:
+        rows = [(float(r["t_s"]), float(r["x_m"]), float(r["y_m"]), float(r["wheel_left_mm_s"]),
+                 float(r["cmd_left_mm_s"])) for r in csv.DictReader(f)]
+    moving = [r for r in rows if r[4] > 0]
+    assert moving, "the sticks never moved the robot"
+    # the last non-zero command came no later than the deadman after the last sample the robot
+    # could have had (the newest telemetry time seen while sending, plus one telemetry period of slack)
+    last_cmd_t = moving[-1][0]
+    assert last_cmd_t <= released_ms / 1000 + 0.5 + 0.25, (last_cmd_t, released_ms)
+    start = next(r for r in rows if r[4] > 0)
+    assert math.hypot(moving[-1][1] - start[1], moving[-1][2] - start[2]) > 0.2  # it drove
+    assert rows[-1][4] == 0.0

@@ -39,6 +39,7 @@ class TestVehicle:
         self.speed = speed_mm_s
         self.config_applied = 0
         self.failsafe_calls: list[bool] = []
+        self.manual_samples: list[tuple[int, int, int]] = []
         self.refuse_arm = ""  # set to make arm() refuse with this reason
 
     # --- helpers ------------------------------------------------------------------
@@ -121,6 +122,10 @@ class TestVehicle:
             return False, "no mission"
         self.st.mission_seq = 0
         return self.set_mode(Mode.AUTO)
+
+    def manual_control(self, x: int, r: int, now_us: int) -> bool:
+        self.manual_samples.append((x, r, now_us))
+        return True
 
     def set_failsafe(self, active: bool) -> None:
         self.failsafe_calls.append(active)
