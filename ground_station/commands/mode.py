@@ -1,6 +1,6 @@
-"""`qnav mode hold|guided|auto`: MAV_CMD_DO_SET_MODE with the Rover custom mode.
+"""`qnav mode hold|guided|auto|manual`: MAV_CMD_DO_SET_MODE with the Rover custom mode.
 
-Modes are numbered as ArduPilot Rover (Hold 4, Auto 10, Guided 15), so
+Modes are numbered as ArduPilot Rover (Manual 0, Hold 4, Auto 10, Guided 15), so
 stock ground stations name them. Waits for the ACK; a refusal exits 3 with
 the robot's reason (e.g. Auto without a mission).
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-MODES = {"hold": 4, "guided": 15, "auto": 10}  # firmware_py.vehicle.Mode
+MODES = {"hold": 4, "guided": 15, "auto": 10, "manual": 0}  # firmware_py.vehicle.Mode
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -17,7 +17,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("mode", help="set the robot's mode (MAVLink)", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("mode", choices=sorted(MODES), metavar="MODE", help="hold | guided | auto")
+    p.add_argument("mode", choices=sorted(MODES), metavar="MODE", help="hold | guided | auto | manual (then qnav drive)")
     add_link_args(p)
     p.set_defaults(func=run)
 

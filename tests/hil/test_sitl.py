@@ -285,3 +285,59 @@ def test_manual_mode_over_mavlink_drives_and_the_deadman_stops_the_robot(tmp_pat
     start = next(r for r in rows if r[4] > 0)
     assert math.hypot(moving[-1][1] - start[1], moving[-1][2] - start[2]) > 0.2  # it drove
     assert rows[-1][4] == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_qnav_drive_in_a_terminal_moves_the_robot_and_q_holds(tmp_path):
+    """`qnav drive` on a pseudo-terminal of its own: two Up presses drive the armed sim
+    robot forward, q sets Hold and the wheels stop."""
+    import pty
+    import select
+    import time
+
+    from ground_station import cli
+
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
+    master = proc = None
+    try:
+        sitl.expect(r"Ctrl-C stops every process")
+        url = f"udpout:127.0.0.1:{sitl.port}"
+        assert cli.main(["arm", "--mavlink", url, "--no-tlog", "--timeout", "20"]) == 0
+        master, slave = pty.openpty()
+        env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+                   PYTHONUNBUFFERED="1")
+        proc = subprocess.Popen([sys.executable, "-m", "ground_station.cli", "drive", "--mavlink", url, "--no-tlog",
+                                 "--timeout", "20"], stdin=slave, stdout=slave, stderr=slave, cwd=tmp_path, env=env,
+                                start_new_session=True)
+        os.close(slave)
+        text = b""
+        deadline = time.monotonic() + 30
+        while b"q quits" not in text and time.monotonic() < deadline:
+            if select.select([master], [], [], 0.5)[0]:
+                text += os.read(master, 4096)
+        assert b"q quits" in text, text
+        os.write(master, b"\x1b[A\x1b[A")  # forward 40 %
+        time.sleep(3.0)
+        os.write(master, b"q")
+        assert proc.wait(timeout=30) == 0
+        while select.select([master], [], [], 0.2)[0]:
+            try:
+                text += os.read(master, 4096)
+            except OSError:
+                break
+        assert b"mode hold" in text, text
+        time.sleep(1.0)
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+        if master is not None:
+            os.close(master)
+        sitl.stop(signal.SIGINT)
+    with open(sitl.out / "trajectory.csv", newline="") as f:
+        rows = [(float(r["x_m"]), float(r["y_m"]), float(r["cmd_left_mm_s"]), float(r["cmd_right_mm_s"]))
+                for r in csv.DictReader(f)]
+    driven = [r for r in rows if r[2] > 0 and r[3] > 0]
+    assert driven and max(r[2] for r in driven) == pytest.approx(0.4 * VehicleConfig().max_wheel_speed_mm_s, abs=1)
+    assert math.hypot(driven[-1][0] - driven[0][0], driven[-1][1] - driven[0][1]) > 0.2
+    assert rows[-1][2] == rows[-1][3] == 0.0  # Hold: stopped
