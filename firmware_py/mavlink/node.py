@@ -310,7 +310,7 @@ class MavNode:
                 return self.telemetry.statustext(f"no parameter index {msg.param_index}", M.MAV_SEVERITY_WARNING)
             if msg.param_id in self.params:
                 return [self.param_value(msg.param_id)]
-            return self.telemetry.statustext(f"unknown parameter {msg.param_id}", M.MAV_SEVERITY_WARNING)
+            return self.telemetry.statustext(self.params.unknown(msg.param_id), M.MAV_SEVERITY_WARNING)
         if kind == "PARAM_SET":
             name = msg.param_id
             ok, reason = self.params.set(name, msg.param_value, check=self.vehicle.check_config, remote=True)

@@ -155,6 +155,13 @@ class ParamStore:
     def names(self) -> list[str]:
         return list(self._order)
 
+    def unknown(self, name: str) -> str:
+        """The refusal for a name not in the table, with the closest one if any is close."""
+        import difflib
+
+        near = difflib.get_close_matches(str(name).upper(), self._order, n=1, cutoff=0.75)
+        return f"unknown parameter {name}" + (f" (did you mean {near[0]}?)" if near else "")
+
     def index(self, name: str) -> int:
         return self._order.index(name)
 
@@ -180,7 +187,7 @@ class ParamStore:
         MAVLink (robot-local parameters are refused then)."""
         d = self._defs.get(name)
         if d is None:
-            return False, f"unknown parameter {name}"
+            return False, self.unknown(name)
         if d.readonly:
             return False, f"{name} is read-only"
         if remote and d.local:

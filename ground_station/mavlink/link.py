@@ -620,7 +620,7 @@ def _enum_name(m, enum: str, value: int) -> str:
 
 def default_tlog_path(name: str) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    return DEFAULT_TLOG_DIR / f"{stamp}-{name}-{os.getpid()}.tlog"
+    return DEFAULT_TLOG_DIR / f"{stamp}-{name.replace(' ', '-')}-{os.getpid()}.tlog"  # no spaces in file names
 
 
 def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
@@ -669,7 +669,9 @@ def run_on_link(args: argparse.Namespace, name: str, body: Callable[[Link], int]
             warn_foreign(link, name)
             return code
     except LinkError as exc:
-        print(f"qnav {name}: {exc}", file=sys.stderr)
+        text = str(exc)
+        text = text[len(name) + 2:] if text.startswith(f"{name}: ") else text  # not "mission upload: mission upload:"
+        print(f"qnav {name}: {text}", file=sys.stderr)
         return exc.code
 
 

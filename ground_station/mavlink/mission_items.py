@@ -70,11 +70,36 @@ def target_items(targets: str, map_name: str, cell_size_m: float | None = None) 
     return items
 
 
+def _check_wpl_lines(path: str) -> None:
+    """One line naming the first malformed line of a QGC WPL file (pymavlink's
+    loader says only e.g. "could not convert string to float: 'abc'")."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            lines = f.read().splitlines()
+    except OSError as exc:
+        raise CliError(f"cannot read waypoint file {path}: {exc.strerror or exc}") from None
+    if not lines or not lines[0].startswith("QGC WPL"):
+        raise CliError(f"{path}:1: not a QGC WPL file (first line {lines[0][:30]!r})" if lines
+                       else f"{path}: empty file")
+    for n, line in enumerate(lines[1:], 2):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 12:
+            raise CliError(f"{path}:{n}: {len(fields)} fields, a QGC WPL 110 item has 12")
+        for k, v in enumerate(fields):
+            try:
+                float(v)
+            except ValueError:
+                raise CliError(f"{path}:{n}: field {k + 1} {v!r} is not a number") from None
+
+
 def file_items(path: str) -> list[tuple[int, int, int]]:
     """NAV_WAYPOINT items of a QGC WPL file, as MISSION_ITEM_INT (frame, x, y)."""
 
     m = mavutil().mavlink  # MAVLINK20 set before mavwp pulls in pymavlink
     from pymavlink import mavwp
+    _check_wpl_lines(path)
     loader = mavwp.MAVWPLoader()
     try:
         loader.load(path)
