@@ -35,7 +35,6 @@ bouncing off walls, discs and the robot (`sim_bridge.obstacles.step_movers`).
 
 from __future__ import annotations
 
-import heapq
 import math
 from dataclasses import asdict, dataclass, field
 
@@ -43,7 +42,7 @@ import numba
 import numpy as np
 
 from firmware_py import robot_spec
-from ground_station.maps import GridMap, MapError
+from ground_station.maps import GridMap, MapError, octile_distances
 from ground_station.maps.planner import plan_waypoints
 
 LATERAL_MM = 300.0
@@ -121,39 +120,6 @@ def _cspace(occ, cell, discs, step, clear):
     return out
 
 
-@numba.njit(cache=True)
-def _geodesic(free, sx, sy, gx, gy):
-    """Shortest 8-connected raster path length (in raster steps) from (sx, sy)
-    to (gx, gy) over `free`; inf if none or an end is not free. Dijkstra."""
-    ny, nx = free.shape
-    if not free[sy, sx] or not free[gy, gx]:
-        return np.inf
-    dist = np.full((ny, nx), np.inf)
-    dist[sy, sx] = 0.0
-    heap = [(0.0, sy, sx)]
-    while heap:
-        d, y, x = heapq.heappop(heap)
-        if y == gy and x == gx:
-            return d
-        if d > dist[y, x]:
-            continue
-        for dy in range(-1, 2):
-            for dx in range(-1, 2):
-                if dy == 0 and dx == 0:
-                    continue
-                yy = y + dy
-                xx = x + dx
-                if yy < 0 or xx < 0 or yy >= ny or xx >= nx or not free[yy, xx]:
-                    continue
-                if dy != 0 and dx != 0 and (not free[y + dy, x] or not free[y, x + dx]):
-                    continue
-                nd = d + (1.4142135623730951 if dy != 0 and dx != 0 else 1.0)
-                if nd < dist[yy, xx]:
-                    dist[yy, xx] = nd
-                    heapq.heappush(heap, (nd, yy, xx))
-    return np.inf
-
-
 def _raster_index(free: np.ndarray, x: float, y: float) -> tuple[int, int]:
     """Nearest free raster point to (x, y) mm (the point itself when free)."""
     ny, nx = free.shape
@@ -178,7 +144,8 @@ def _leg_lengths(gridmap: GridMap, points: list[tuple[float, float]], discs: np.
     out = []
     for a, b in zip(points[:-1], points[1:], strict=True):
         ia, ib = _raster_index(free, *a), _raster_index(free, *b)
-        out.append(float(_geodesic(free, ia[0], ia[1], ib[0], ib[1])) * RASTER_MM)
+        # 8-connected raster path (no corner cutting), the shared shortest-path module
+        out.append(float(octile_distances(~free, ib[0], ib[1])[ia[1], ia[0]]) * RASTER_MM)
     return out
 
 

@@ -28,7 +28,6 @@ import math
 import random
 import time
 import uuid
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -68,32 +67,21 @@ def far_trip(gm, policy: Policy, rng: random.Random, min_cells: int = 6):
     """A seeded (start (x_m, y_m, heading_rad), goal_mm) at least `min_cells`
     BFS steps from one of the policy's targets, so the robot is still driving
     seconds after it starts."""
+    import numpy as np
+
+    from ground_station.maps import bfs_distances  # the station's one shortest-path module
+
     targets = list(policy.goals)
     while True:
         goal = rng.choice(targets)
-        dist = _bfs(gm.occ, goal)
-        cells = sorted(c for c, d in dist.items() if d >= min_cells)
+        dist = bfs_distances(gm.occ, *goal)  # [row, col], -1 unreachable
+        cells = sorted((int(c), int(r)) for r, c in zip(*np.nonzero(dist >= min_cells), strict=True))
         if cells:
             break
     col, row = rng.choice(cells)
     x, y = robot_spec.cell_center_mm(col, row, gm.height, policy.cell_mm)
     heading = rng.uniform(-math.pi, math.pi)
     return (x / 1000, y / 1000, heading), robot_spec.cell_center_mm(*goal, gm.height, policy.cell_mm)
-
-
-def _bfs(occ, goal: tuple[int, int]) -> dict[tuple[int, int], int]:
-    """4-connected steps from every free cell to `goal` (plain Python: no jit warm-up)."""
-    h, w = occ.shape
-    dist = {goal: 0}
-    queue = deque([goal])
-    while queue:
-        c, r = queue.popleft()
-        for dc, dr in robot_spec.CELL_ACTION_DELTAS:
-            n = (c + dc, r + dr)
-            if 0 <= n[0] < w and 0 <= n[1] < h and not occ[n[1]][n[0]] and n not in dist:
-                dist[n] = dist[(c, r)] + 1
-                queue.append(n)
-    return dist
 
 
 class _TimedController(Controller):
