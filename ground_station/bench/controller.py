@@ -15,6 +15,14 @@ Baselines measured in the same run: the control period (the deadline the
 loop must meet) and `Controller.step` alone in this process on recorded-like
 inputs (the decision's pure compute, no bus, no threads).
 
+Then the step's compute with the policy's own work in it (issue 29):
+`Controller.step` thread CPU time per tick on the in-process lockstep rig
+(pymunk plant, the robot's localiser tracking on the policy's map), for
+the cell policy on paper10 trips and for `--nav-policy` (default the shipped
+sector policy, its local planner on) on the navigation scenario with
+`--obstacles` discs and `--movers` movers, pooled over `--episodes` each:
+p50 / p99 / max side by side, and the ratio of the p99s.
+
 Then, unless `--no-load`, the link isolation (issue 13): the robot with its
 MAVLink node on UDP (`ground_station.faults.link_faults.load_run`), once
 quiet (no ground station: the baseline) and once loaded (three ground
@@ -52,8 +60,55 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="skip the quiet-vs-loaded MAVLink runs")
     p.add_argument("--gil-switch-us", type=int, default=None, metavar="US",
                    help="qnav-robot --gil-switch-us for the quiet and loaded runs (default: the robot's)")
+    p.add_argument("--nav-policy", default="policies:sector", metavar="FILE",
+                   help="the policy whose step runs with obstacles (default %(default)s)")
+    p.add_argument("--obstacles", type=int, default=3, metavar="K", help="static discs per episode (default 3)")
+    p.add_argument("--movers", type=int, default=2, metavar="M", help="moving discs per episode (default 2)")
+    p.add_argument("--episodes", type=int, default=4, metavar="N",
+                   help="lockstep episodes per policy for the step compute (default 4; 0: skip)")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
     p.set_defaults(func=run)
+
+
+def _pcts(values: list[float]) -> dict[str, float]:
+    v = sorted(values)
+    if not v:
+        return {"p50_us": 0.0, "p99_us": 0.0, "max_us": 0.0, "ticks": 0}
+    return {"p50_us": v[len(v) // 2], "p99_us": v[min(len(v) - 1, int(0.99 * len(v)))], "max_us": v[-1],
+            "ticks": len(v)}
+
+
+def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, seed: int = 0) -> dict:
+    """Controller.step CPU per tick on the lockstep rig: the cell policy on paper10
+    far trips vs `nav_policy` on scenario episodes with obstacles (module doc)."""
+    import random
+
+    from firmware_py.policy import load_policy
+    from ground_station.maps import load_map
+    from ground_station.maps.planner import guidance_from_metadata
+    from ground_station.nav.controllers import standard_controllers
+    from ground_station.nav.episodes import run_hil
+    from ground_station.nav.scenario import episodes as nav_episodes
+    from ground_station.rigs.lockstep import cell_policy, far_trip, run_episode
+
+    gm = load_map("paper10")
+    cell = cell_policy()
+    rng = random.Random(seed)
+    cell_cpu: list[float] = []
+    for i in range(episodes):
+        start, goal = far_trip(gm, cell, rng)
+        cell_cpu += run_episode(gm.occ, cell, start, [goal], max_sim_s=60.0, seed=seed + i).step_cpu_us
+    pol = load_policy(nav_policy)
+    ctrl = standard_controllers(pol, ("learnt",))[0]
+    eps = nav_episodes(gm, episodes, seed, obstacles, movers, plan_kw=guidance_from_metadata(pol.metadata))
+    rows = run_hil(eps, {gm.name: gm}, ctrl)
+    nav_cpu = [v for r in rows for v in r["step_cpu_us"]]
+    cell_p, nav_p = _pcts(cell_cpu), _pcts(nav_cpu)
+    return {"cell": {"policy": "policies:paper10_cell", **cell_p},
+            "nav": {"policy": nav_policy, "obstacles": obstacles, "movers": movers,
+                    "outcomes": [r["outcome"] for r in rows], **nav_p},
+            "episodes": episodes, "seed": seed, "map": gm.name, "localiser": "on (the policies' map)",
+            "nav_over_cell_p99": nav_p["p99_us"] / max(cell_p["p99_us"], 1e-9)}
 
 
 def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
@@ -236,6 +291,17 @@ def run(args: argparse.Namespace) -> int:
     result["gil_wait"] = gil
     rows += [(f"[GIL wait] {k}: wake-up late p50 / p99 / max us",
               f"{v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}") for k, v in gil.items()]
+    if args.episodes > 0:
+        from firmware_py.shipped_policies import resolve_policy_spec as _resolve
+
+        sc = step_compute(str(_resolve(args.nav_policy)), args.episodes, args.obstacles, args.movers)
+        result["step_compute"] = sc
+        for key, label in (("cell", "cell policy, paper10 trips"),
+                           ("nav", f"{Path(args.nav_policy).name} + {args.obstacles} discs + {args.movers} movers")):
+            v = sc[key]
+            rows.append((f"[step compute, lockstep, localiser on] {label}: p50 / p99 / max us ({v['ticks']} ticks)",
+                         f"{v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}"))
+        rows.append(("[step compute] p99 with obstacles / cell p99", round(sc["nav_over_cell_p99"], 2)))
     if args.load:
         lv = load_variants(args)
         result["load"] = lv

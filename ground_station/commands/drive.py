@@ -83,9 +83,9 @@ def run(args: argparse.Namespace) -> int:
         sticks = Sticks()
         fd = sys.stdin.fileno()
         saved = termios.tcgetattr(fd)
-        print("Manual: arrows (or w/a/s/d) move the sticks, space stops, q quits (Hold)", flush=True)
         try:
-            tty.setcbreak(fd)
+            tty.setcbreak(fd)  # before the prompt: keys typed as soon as it shows are read one by one
+            print("Manual: arrows (or w/a/s/d) move the sticks, space stops, q quits (Hold)", flush=True)
             next_send = 0.0
             while not sticks.quit:
                 if select.select([fd], [], [], 0.02)[0]:

@@ -132,6 +132,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
             result = rig.runner.result if rig.runner.done.is_set() else "timeout"
             contacts = rig.plant.world.contact_events
             sim_s = rig.plant.time_us / 1e6
+            step_cpu_us = [round(v / 1000, 1) for v in rig.ctrl.step_cpu_ns]
         reached = result == "reached"
         success = reached and contacts == 0
         outcome = "success" if success else ("collision" if contacts else ("timeout" if result == "timeout" else
@@ -139,7 +140,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
         rows.append({"outcome": outcome, "success": success, "collision": contacts > 0, "result": result,
                      "contacts": contacts, "path_ratio": driven / plan_length(ep) if success else None,
                      "time_s": sim_s, "near_miss_periods": near, "min_clearance_mm": round(minclear, 1),
-                     "discs": len(ep.discs), "movers": len(ep.movers),
+                     "discs": len(ep.discs), "movers": len(ep.movers), "step_cpu_us": step_cpu_us,
                      "wall_s": round(time.perf_counter() - t0, 3)})
         if progress is not None:
             progress()

@@ -164,8 +164,10 @@ def goal_reached(can: str, work: Path, *, duration_s: float = 35.0, candump: str
         if candump:
             dump_out = open(work / "goal.candump", "wb")  # noqa: SIM115 - closed below
             before = _can_receivers(candump)
-            # line-buffered, so the file shows how far it has read (stopped below once it is quiet)
-            dump = subprocess.Popen(["stdbuf", "-oL", "candump", "-L", candump], stdout=dump_out,
+            # line-buffered, so the file shows how far it has read (stopped below once it is quiet); a
+            # 4 MiB socket buffer (-r; root may exceed rmem_max): with the default ~200 KiB a loaded
+            # user-mode Linux dropped 5 of 700 ticks' frames before candump read them (make test, CI-like)
+            dump = subprocess.Popen(["stdbuf", "-oL", "candump", "-L", "-r", str(4 << 20), candump], stdout=dump_out,
                                     stderr=subprocess.DEVNULL)
             _wait_for_receiver(candump, before, dump)  # bound before the sim sends its first frame
         t0 = time.monotonic()
