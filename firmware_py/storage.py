@@ -44,6 +44,7 @@ ACTIVE_POLICY = "/policies/active.qtab"
 LAST_GOOD_POLICY = "/policies/last_good.qtab"
 PARAMS_DIR = "/params"
 PARAMS_FILE = "/params/params.json"
+UID_FILE = "/params/uid"  # the robot's own id (AUTOPILOT_VERSION.uid): made once, never written over FTP
 LAYOUT_DIRS = (POLICY_DIR, PARAMS_DIR)
 
 DEFAULT_QUOTA_BYTES = 8 * 1024 * 1024

@@ -51,6 +51,7 @@ from firmware_py.storage import (
     LAST_GOOD_POLICY,
     LAYOUT_DIRS,
     PARAMS_FILE,
+    UID_FILE,
     Storage,
     Upload,
     commit_promotion,
@@ -105,7 +106,7 @@ class Nak(IntEnum):
 # bypass the loader's validation. The robot's own state files and the layout
 # directories are off limits too: a directory created at params.json's name
 # made every later save raise (found by the issue 9 hostile-input suite).
-PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, PARAMS_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS})
+PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS})
 
 
 @dataclass

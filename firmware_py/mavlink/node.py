@@ -60,6 +60,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from pathlib import Path
 from typing import Protocol
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -99,6 +100,29 @@ NETWORK_PREFIXES = ("udp", "tcp", "ws")  # pymavlink connection strings that are
 def is_network_url(url: str) -> bool:
     """True unless `url` is a serial device (the robot's physical link)."""
     return url.lower().startswith(NETWORK_PREFIXES) or ":" in url.split("/")[0]
+
+
+def robot_uid(storage_dir: Path | None) -> tuple[int, str]:
+    """The robot's 64-bit id for AUTOPILOT_VERSION.uid, made once (random) and
+    kept in its storage (firmware_py.storage.UID_FILE), so a ground station
+    tells two robots apart across reboots; (0, "") without storage, (0, why)
+    when it cannot be read or made."""
+    if storage_dir is None:
+        return 0, ""
+    from firmware_py.atomic import atomic_write
+    from firmware_py.storage import UID_FILE
+
+    path = storage_dir / UID_FILE.lstrip("/")
+    try:
+        if path.is_file():
+            text = path.read_text().strip()
+            if len(text) == 16:
+                return int(text, 16), ""
+        uid = int.from_bytes(os.urandom(8), "little") or 1
+        atomic_write(path, f"{uid:016x}\n", make_parents=True)
+        return uid, ""
+    except (OSError, ValueError) as exc:
+        return 0, f"robot uid not available: {exc}"
 
 
 class FtpService(Protocol):
@@ -163,6 +187,10 @@ class MavNode:
             if not ok:
                 warnings.append(f"command line value not representable as a parameter: {why}")
         self._apply_params(reboot=True)
+        uid, why = robot_uid(self.params.path.parent.parent if self.params.path is not None else None)
+        self.telemetry.uid = uid
+        if why:
+            warnings.append(why)
         for w in warnings:
             self._pending += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
 

@@ -44,6 +44,8 @@ STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_MISSION_CURRENT: "nav",
     M.MAVLINK_MSG_ID_NAMED_VALUE_INT: "nav",
     M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: "nav",
+    # ground speed and compass heading, the HUD every ground station draws (QGC, Mission Planner, MAVProxy)
+    M.MAVLINK_MSG_ID_VFR_HUD: "nav",
     M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: "origin",
     M.MAVLINK_MSG_ID_HOME_POSITION: "origin",
     # localisation (control/localiser.py): LOCAL_POSITION_NED carries the believed pose; these add its
@@ -118,6 +120,7 @@ class Telemetry:
         self._statustext_id = 0
         self.last_reached = -1
         self.autopilot = int(AUTOPILOTS[DEFAULT_AUTOPILOT])  # HEARTBEAT.autopilot
+        self.uid = 0  # AUTOPILOT_VERSION.uid: the robot's own, kept in its storage (node.boot)
 
     # --- intervals ----------------------------------------------------------------
     def default_interval_us(self, msg_id: int) -> int:
@@ -244,7 +247,13 @@ class Telemetry:
             return [self.localisation(msg_id, now_us, st)]
         if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return [m.autopilot_version_encode(CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0,
-                                               [0] * 8, [0] * 8, [0] * 8, 0, 0, 0)]
+                                               [0] * 8, [0] * 8, [0] * 8, 0, 0, self.uid)]
+        if msg_id == M.MAVLINK_MSG_ID_VFR_HUD:
+            speed = st.speed_mm_s / 1000.0
+            compass = round(90 - math.degrees(st.heading_mrad / 1000.0)) % 360  # north 0, clockwise
+            limit = max(1, self.params.get("MAX_WHEEL_SPD"))
+            throttle = min(100, round(100 * abs(st.speed_mm_s) / limit))
+            return [m.vfr_hud_encode(speed, speed, compass, throttle, p("ORIGIN_ALT_MM") / 1000.0, 0.0)]
         return []
 
     def localisation(self, msg_id: int, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
