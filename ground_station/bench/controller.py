@@ -101,7 +101,7 @@ def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, se
     pol = load_policy(nav_policy)
     ctrl = standard_controllers(pol, ("learnt",))[0]
     eps = nav_episodes(gm, episodes, seed, obstacles, movers, plan_kw=guidance_from_metadata(pol.metadata))
-    rows = run_hil(eps, {gm.name: gm}, ctrl)
+    rows = run_hil(eps, {gm.name: gm}, ctrl, step_cpu=True)
     nav_cpu = [v for r in rows for v in r["step_cpu_us"]]
     cell_p, nav_p = _pcts(cell_cpu), _pcts(nav_cpu)
     return {"cell": {"policy": "policies:paper10_cell", **cell_p},

@@ -93,11 +93,13 @@ def _rows(eps: list[Episode], outcome: np.ndarray, path: np.ndarray, steps: np.n
 
 def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
             progress: Callable[[], None] | None = None, max_sim_s: float | None = None,
-            index_offset: int = 0) -> list[dict]:
+            index_offset: int = 0, step_cpu: bool = False) -> list[dict]:
     """Each episode on the lockstep rig with its obstacles in the pymunk world.
 
     Episode i of the list runs with plant seed `ep.seed + index_offset + i`:
-    a slice of a longer list passes its offset and gets the same rows."""
+    a slice of a longer list passes its offset and gets the same rows.
+    `step_cpu`: add each tick's Controller.step CPU time (`qnav bench
+    controller`; a timing, so never in `qnav bench nav`'s reproducible rows)."""
     from ground_station.rigs.lockstep import LockstepRig
     from sim_bridge.obstacles import ObstacleLayer
 
@@ -132,7 +134,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
             result = rig.runner.result if rig.runner.done.is_set() else "timeout"
             contacts = rig.plant.world.contact_events
             sim_s = rig.plant.time_us / 1e6
-            step_cpu_us = [round(v / 1000, 1) for v in rig.ctrl.step_cpu_ns]
+            cpu = [round(v / 1000, 1) for v in rig.ctrl.step_cpu_ns]
         reached = result == "reached"
         success = reached and contacts == 0
         outcome = "success" if success else ("collision" if contacts else ("timeout" if result == "timeout" else
@@ -140,8 +142,8 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
         rows.append({"outcome": outcome, "success": success, "collision": contacts > 0, "result": result,
                      "contacts": contacts, "path_ratio": driven / plan_length(ep) if success else None,
                      "time_s": sim_s, "near_miss_periods": near, "min_clearance_mm": round(minclear, 1),
-                     "discs": len(ep.discs), "movers": len(ep.movers), "step_cpu_us": step_cpu_us,
-                     "wall_s": round(time.perf_counter() - t0, 3)})
+                     "discs": len(ep.discs), "movers": len(ep.movers),
+                     "wall_s": round(time.perf_counter() - t0, 3), **({"step_cpu_us": cpu} if step_cpu else {})})
         if progress is not None:
             progress()
     return rows
