@@ -154,7 +154,8 @@ def test_ctrl_rate_change_that_the_active_policy_does_not_fit_is_refused(tmp_pat
     texts, value = mav_param_set(node, "CTRL_RATE_HZ", 25)
     assert value == 20 and ctrl.cfg.control_rate_hz == 20 and ctrl.policy.policy_id == 11
     assert "".join(texts) == "param set refused: CTRL_RATE_HZ=25: policy control period 50000 us != robot 40000 us"
-    assert ParamStore(tmp_path).load() == [] and not (tmp_path / "params").exists()  # nothing stored
+    # nothing stored (the params folder holds only the robot uid made at boot)
+    assert ParamStore(tmp_path).load() == [] and not (tmp_path / "params" / "params.json").exists()
     texts, value = mav_param_set(node, "CTRL_RATE_HZ", 20)  # unchanged is fine
     assert value == 20 and texts == []
     # a robot with no policy may change its rate, then takes a policy for the new period only
