@@ -502,10 +502,11 @@ def _write_mcap(out: Path, paths: dict[str, Path], grid_map, say: Callable[[str]
     """The run as one MCAP (ground_station/logs/mcap_run.py); None, said, if it cannot be written."""
     from ground_station.logs.mcap_run import McapError, write_run_mcap
 
+    robot_log = out.parent / "robot.log"
     try:
         write_run_mcap(out, paths["tlog"], can_log=paths["can_log"] if paths["can_log"].is_file() else None,
                        trajectory=paths["trajectory_csv"] if paths["trajectory_csv"].is_file() else None,
-                       grid_map=grid_map)
+                       grid_map=grid_map, robot_log=robot_log if robot_log.is_file() else None)
     except (McapError, OSError, ValueError) as exc:
         say(f"run.mcap not written: {exc}")
         return None

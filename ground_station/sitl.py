@@ -323,7 +323,7 @@ class Sitl:
         return self.exit_codes
 
     def _write_mcap(self, run_dir: Path) -> None:
-        """run.mcap from what the sim wrote (CAN log, ground truth) and the map; the
+        """run.mcap from what the sim and robot wrote (CAN log, ground truth, robot.log) and the map; the
         GCS's own tlog is the GCS's (`qnav log mcap RUN_DIR --tlog FILE` adds it)."""
         can_log, traj = run_dir / "can.blf", run_dir / "trajectory.csv"
         if not can_log.is_file():
@@ -332,8 +332,10 @@ class Sitl:
         from ground_station.maps import load_map
 
         try:
+            robot_log = run_dir / "robot.log"
             write_run_mcap(run_dir / "run.mcap", None, can_log=can_log,
-                           trajectory=traj if traj.is_file() else None, grid_map=load_map(self.opts.map_name))
+                           trajectory=traj if traj.is_file() else None, grid_map=load_map(self.opts.map_name),
+                           robot_log=robot_log if robot_log.is_file() else None)
         except Exception as exc:  # noqa: BLE001 - the bring-up's clean-up says it and goes on
             self.say(f"run.mcap not written: {type(exc).__name__}: {exc}")
             return

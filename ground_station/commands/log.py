@@ -2,7 +2,7 @@
 a run as one MCAP file for Foxglove, PlotJuggler (3.8+) and Rerun.
 
 A run folder (`qnav demo`, `qnav sitl`) gives its tlog, CAN log (can.blf),
-the sim's trajectory.csv and the map named in its summary.json; a tlog alone
+the sim's trajectory.csv, the robot's robot.log and the map named in its summary.json; a tlog alone
 gives the MAVLink topics (add --can / --trajectory / --map for the rest). A
 `qnav sitl` folder has no tlog (the GCS keeps its own): give it with --tlog.
 Topics, schemas and clocks: ground_station/logs/topics.py and docs/monitor.md.
@@ -55,8 +55,10 @@ def run_mcap(args: argparse.Namespace) -> int:
         except (MapError, OSError) as exc:
             raise CliError(f"--map {map_name}: {exc}") from None
     out = Path(args.out) if args.out else (target / "run.mcap" if target.is_dir() else target.with_suffix(".mcap"))
+    robot_log = target / "robot.log" if target.is_dir() else None
     try:
-        s = write_run_mcap(out, tlog, can_log=can_log, trajectory=trajectory, grid_map=grid_map)
+        s = write_run_mcap(out, tlog, can_log=can_log, trajectory=trajectory, grid_map=grid_map,
+                           robot_log=robot_log if robot_log is not None and robot_log.is_file() else None)
     except McapError as exc:
         raise CliError(str(exc)) from None
     except (OSError, ValueError) as exc:

@@ -27,6 +27,7 @@ class McapSummary:
     mavlink_messages: int = 0
     can_frames: int = 0
     truth_samples: int = 0
+    robot_log_lines: int = 0
 
 
 class TopicSink:
@@ -80,7 +81,8 @@ def find_run_files(target: Path) -> tuple[Path | None, Path | None, Path | None,
 
 def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | None, *,
                    can_log: str | os.PathLike[str] | None = None,
-                   trajectory: str | os.PathLike[str] | None = None, grid_map=None) -> McapSummary:
+                   trajectory: str | os.PathLike[str] | None = None, grid_map=None,
+                   robot_log: str | os.PathLike[str] | None = None) -> McapSummary:
     """Convert a run (see the module docstring); returns what was written."""
     import foxglove
     from pymavlink import mavutil
@@ -120,6 +122,12 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
                         continue
                     summary.can_frames += 1
                     sink.write(topics.can_frame(frame.arbitration_id, bytes(frame.data), frame.timestamp))
+            if robot_log is not None:
+                with open(robot_log, encoding="utf-8", errors="replace") as f:
+                    for line in f:
+                        recs = topics.robot_log_line(line)
+                        summary.robot_log_lines += len(recs)
+                        sink.write(recs)
             if trajectory is not None:
                 with open(trajectory, newline="") as f:
                     for row in csv.DictReader(f):

@@ -16,7 +16,8 @@ foxglove-sdk WebSocket server. The same topics either way:
 | `/map` | foxglove.Grid (frame `map`) | the occupancy map, once |
 | `/mission` | foxglove.SceneUpdate | MISSION_ITEM_INT (targets as spheres) |
 | `/log` | foxglove.Log | STATUSTEXT (whole texts) |
-| `/vehicle` | JSON | mode, armed, controller state, action, state index, Q row, load |
+| `/robot_log` | foxglove.Log | the robot's own log (robot.log of a run), at its `t=... us` control-clock times |
+| `/vehicle` | JSON | mode, armed, controller state, action, state index, the policy's Q row, load, tick overruns |
 | `/mavlink/<TYPE>` | JSON (one per message type) | every MAVLink message, as pymavlink decodes it |
 | `/can/<Message>` | JSON | every CAN frame the DBC knows, signals as fields |
 | `/can/raw` | JSON | every CAN frame: id, data, dlc |
@@ -242,7 +243,8 @@ class RunTopics:
              "ctrl_state": int(v.ctrl_state if v.ctrl_state is not None else -1),
              "action": int(v.action if v.action is not None else -1),
              "state_index": int(v.state_index if v.state_index is not None else -1), "load_pct": float(v.load_pct or 0.0),
-             "wall_time": t_wall}
+             "tick_overruns": int(v.link.tick_overruns or 0),
+             "q_row": [int(v.q_row[k]) for k in sorted(v.q_row)], "wall_time": t_wall}
         return [self._rec("/vehicle", d, ns)]
 
     def _on_mission_item_int(self, msg, ns: int, t_wall: float) -> list[Record]:
@@ -280,6 +282,26 @@ class RunTopics:
         if name is not None and sig is not None:
             out.append(self._rec(f"/can/{name}", {**{k: _plain(v) for k, v in sig.items()}, "wall_time": t_bus}, ns))
         return out
+
+    # --- the robot's own log ----------------------------------------------------------------
+    def robot_log_line(self, line: str) -> list[Record]:
+        """One line of qnav-robot's log ("qnav-robot LEVEL message"); its time is
+        the control clock's `t=... us` when the line carries one, else the last."""
+        import re
+
+        from foxglove import messages as fm
+
+        line = line.rstrip("\n")
+        if not line.strip():
+            return []
+        m = re.match(r"^\S+ (DEBUG|INFO|WARNING|ERROR|CRITICAL) (.*)$", line)
+        level_name, text = (m.group(1), m.group(2)) if m else ("INFO", line)
+        t = re.search(r"\bt=(\d+) us\b", text)
+        ns = int(t.group(1)) * 1000 if t else self._last_ns.get("/robot_log", 0)
+        level = {"DEBUG": fm.LogLevel.Debug, "INFO": fm.LogLevel.Info, "WARNING": fm.LogLevel.Warning,
+                 "ERROR": fm.LogLevel.Error, "CRITICAL": fm.LogLevel.Fatal}[level_name]
+        return [self._rec("/robot_log", fm.Log(timestamp=_stamp(ns), level=level, message=text,
+                                               name="qnav-robot"), ns)]
 
     # --- sim ground truth -------------------------------------------------------------
     def truth(self, t_s: float, x_m: float, y_m: float, heading_rad: float) -> list[Record]:

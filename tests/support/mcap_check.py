@@ -53,6 +53,10 @@ def check_run_mcap(mcap_path: Path, tlog: Path, can_log: Path, trajectory: Path,
     h, w = grid_map.occ.shape
     occupancy = b"".join(bytes(100 if grid_map.occ[h - 1 - r, c] else 0 for c in range(w)) for r in range(h))
     assert len(grid_payloads) == 1 and occupancy in grid_payloads[0]
+    # the robot's own log, on the same clock: its "t=... us" lines at exactly that time
+    robot_log = mcap_path.parent / "robot.log"
+    if robot_log.is_file():
+        assert counts["/robot_log"] == sum(1 for ln in robot_log.read_text().splitlines() if ln.strip())
     return dict(counts)
 
 
