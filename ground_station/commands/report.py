@@ -30,9 +30,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("tlog", metavar="FILE.tlog", help="telemetry recording (qnav monitor --tlog, qnav demo, MAVProxy) "
                    "or a candump -L log")
     p.add_argument("--out", metavar="DIR", help="output directory (default out/report-<tlog name>)")
-    p.add_argument("--map", metavar="NAME|PATH", default="paper10",
-                   help="map under the trajectory: built-in name, generator spec or .map path "
-                        "(default paper10; 'none' for no map)")
+    p.add_argument("--map", metavar="NAME|PATH", default=None,
+                   help="map under the trajectory: built-in name, generator spec or .map path; 'none' for no "
+                        "map (default: the map in summary.json beside the tlog - a qnav demo run - else paper10; "
+                        "a warning names a map the run does not fit)")
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size in metres (default 0.5)")
     p.add_argument("--json", action="store_true", help="print the summary JSON instead of a short text summary")
     p.add_argument("--target-system", type=int, default=None, metavar="SYSID",
@@ -41,6 +42,31 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="time base: robot = its time_boot_ms (sim time in HIL), wall = tlog stamps "
                         "(default auto: robot when recorded)")
     p.set_defaults(func=run)
+
+
+def _run_map(tlog: Path) -> str | None:
+    """The map a `qnav demo` run folder names in its summary.json (None: none found)."""
+    summary = tlog.parent / "summary.json"
+    try:
+        name = json.loads(summary.read_text()).get("map") if summary.is_file() else None
+    except (OSError, ValueError, AttributeError):
+        return None
+    return name if isinstance(name, str) and name else None
+
+
+def _misfit(poses, grid_map, share: float = 0.05) -> tuple[int, int] | None:
+    """(bad, total) when more than `share` of the recorded positions are off the
+    map or inside its occupied cells; None when the run fits (or there is no map)."""
+    if grid_map is None or not poses:
+        return None
+    h, w = grid_map.occ.shape
+    cs = grid_map.cell_size_m
+    bad = 0
+    for _t, x, y, *_ in poses:
+        col, row = int(x // cs), h - 1 - int(y // cs)
+        if not (0 <= col < w and 0 <= row < h) or grid_map.occ[row, col]:
+            bad += 1
+    return (bad, len(poses)) if bad > share * len(poses) else None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,10 +84,15 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.cell_size <= 0:
         raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
-    grid_map = _load_map(args.map, args.cell_size)
+    map_spec = args.map or _run_map(Path(args.tlog)) or "paper10"
+    grid_map = _load_map(map_spec, args.cell_size)
     rec = analyse(args.tlog, progress=True, sysid=args.target_system, clock=args.clock)
     if rec.messages == 0:
         raise CliError(f"{args.tlog}: no MAVLink messages from a vehicle (is it a .tlog?)")
+    misfit = _misfit(rec.pose, grid_map)
+    if misfit:
+        print(f"qnav report: warning: {misfit[0]} of {misfit[1]} positions lie outside map {grid_map.name} or in "
+              f"its walls: was the run on another map? (give --map)", file=sys.stderr)
     out = Path(args.out) if args.out else Path("out") / f"report-{Path(args.tlog).stem}"
     try:
         summary = write_report(rec, out, grid_map)

@@ -128,3 +128,34 @@ def test_report_keeps_error_texts_whose_last_chunk_was_lost(tmp_path):
             f.write(struct.pack(">Q", int((1_700_000_000.0 + t) * 1e6)) + frame(rover, msg))
     rec = analyse(tlog)
     assert [what for _, what in rec.fault_events] == [f"ERROR: {lost_mid}", f"CRIT: {lost_end}"]
+
+
+def _report_cli(*argv: str) -> tuple[int, str]:
+    import contextlib
+    import io
+
+    from ground_station import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(list(argv))
+    return code, err.getvalue()
+
+
+def test_report_names_a_map_the_run_does_not_fit_and_takes_a_demo_runs_own(full_tlog, tmp_path):
+    """Issue 30 finding 4: without --map a run on another map was drawn on paper10,
+    through walls, without a word."""
+    code, err = _report_cli("report", str(full_tlog), "--out", str(tmp_path / "a"), "--json")
+    assert code == 0 and "warning" not in err  # the scripted run is on paper10: it fits
+    code, err = _report_cli("report", str(full_tlog), "--out", str(tmp_path / "b"), "--json",
+                            "--map", "maze-16x16-s1")
+    assert code == 0
+    (line,) = [ln for ln in err.splitlines() if "positions lie outside map" in ln]
+    assert "maze-16x16-s1" in line and "give --map" in line
+    # a demo run folder names its map in summary.json: taken without --map
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "demo.tlog").write_bytes(full_tlog.read_bytes())
+    (run / "summary.json").write_text(json.dumps({"map": "maze-16x16-s1"}))
+    code, err = _report_cli("report", str(run / "demo.tlog"), "--out", str(tmp_path / "c"), "--json")
+    assert code == 0 and "outside map maze-16x16-s1" in err
