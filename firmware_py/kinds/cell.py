@@ -54,7 +54,14 @@ def fixed_geometry(enc: CellEncoder, cell_mm: int) -> Geometry:
 
 
 def goal_index(policy: Policy, x_mm: int, y_mm: int) -> tuple[int, str]:
-    """A goal must be one of the cell policy's target cells."""
+    """A goal must be one of the cell policy's target cells (a point off the map or
+    in a wall is named as such first, when the policy carries its map)."""
+    grid = policy.map_grid
+    if grid is not None:
+        if not (0 <= x_mm < grid.width * grid.cell_mm and 0 <= y_mm < grid.height * grid.cell_mm):
+            return -1, f"goal ({x_mm}, {y_mm}) mm is outside the map"
+        if grid.occupied(*robot_spec.world_to_cell(x_mm, y_mm, grid.height, grid.cell_mm)):
+            return -1, f"goal ({x_mm}, {y_mm}) mm is inside a wall"
     col, row = robot_spec.world_to_cell(x_mm, y_mm, cast(CellEncoder, policy.encoder).height, policy.cell_mm)
     if (col, row) in policy.goals:
         return policy.goals.index((col, row)), ""

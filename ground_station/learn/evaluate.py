@@ -115,7 +115,7 @@ def evaluate_cell(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int]],
                          f"with {len(goals)} goals (expected {(enc.n_states, enc.n_actions)})")
     for c, r in goals:
         if not gridmap.is_free(c, r):
-            raise MapError(f"goal ({c},{r}) is not a free cell of map {gridmap.name}")
+            raise MapError(f"goal ({c},{r}) is {gridmap.why_not_free(c, r)}")
     w = gridmap.width
     dist = goal_distances(gridmap, goals)
     pair_goal, pair_start = np.nonzero(dist > 0)  # every start that can reach the goal, goal excluded

@@ -36,7 +36,7 @@ class GridMap:
         for tname, pos in self.targets.items():
             col, row = (int(v) for v in pos)
             if not self.is_free(col, row):
-                raise MapError(f"map {self.name}: target {tname} at ({col},{row}) is not a free cell")
+                raise MapError(f"map {self.name}: target {tname} at ({col},{row}) is {self.why_not_free(col, row)}")
             clean[str(tname)] = (col, row)
         self.targets = clean
 
@@ -54,6 +54,14 @@ class GridMap:
     def is_free(self, col: int, row: int) -> bool:
         """True if (col, row) is inside the map and not an obstacle."""
         return self.in_bounds(col, row) and not bool(self.occ[row, col])
+
+    def why_not_free(self, col: int, row: int) -> str:
+        """'' for a free cell, else what it is: outside the map (its size named) or a wall."""
+        if not self.in_bounds(col, row):
+            return f"outside the {self.width}x{self.height} map {self.name}"
+        if self.occ[row, col]:
+            return f"a wall of map {self.name}"
+        return ""
 
     def free_cells(self) -> list[tuple[int, int]]:
         """All free cells as (col, row), in row-major order."""

@@ -38,3 +38,21 @@ def test_goals_outside_free_space_are_refused_with_the_reason(name):
         ok, why = ctrl.set_mission([(fx, fy), (x, y)])
         assert not ok and why.startswith("item 1: ") and needle in why, (x, y, why)
     assert ctrl.set_mission([(fx, fy)]) == (True, "")
+
+
+def test_a_cell_policy_names_a_goal_off_the_map_or_in_a_wall():
+    """Issue 30 finding 7: a goal in a wall was refused as "not a policy target"."""
+    pol = load_policy(resolve_policy_spec("policies:paper10_cell"))
+    grid = pol.map_grid
+    ctrl = Controller(VehicleConfig(), pol)
+    c, h = grid.cell_mm, grid.height
+    wall = next((col, row) for row in range(h) for col in range(grid.width) if grid.occupied(col, row))
+    wx, wy = robot_spec.cell_center_mm(*wall, h, c)
+    assert ctrl.set_mission([(wx, wy)]) == (False, f"item 0: goal ({wx}, {wy}) mm is inside a wall")
+    ok, why = ctrl.set_mission([(grid.width * c + 200, 250)])
+    assert not ok and why.endswith("is outside the map"), why
+    free_not_target = next((col, row) for row in range(h) for col in range(grid.width)
+                           if not grid.occupied(col, row) and (col, row) not in pol.goals)
+    fx, fy = robot_spec.cell_center_mm(*free_not_target, h, c)
+    ok, why = ctrl.set_mission([(fx, fy)])
+    assert not ok and why.endswith("is not a policy target"), why

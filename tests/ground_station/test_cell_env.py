@@ -92,7 +92,7 @@ def test_resolve_goals_names_and_coordinates():
     assert resolve_goals(gm, "H, 2:0") == (["H", "2:0"], [(0, 2), (2, 0)])
     with pytest.raises(MapError, match="no target 'Z'"):
         resolve_goals(gm, "Z")
-    with pytest.raises(MapError, match="not a free cell"):
+    with pytest.raises(MapError, match=r"target 1:1 at \(1,1\) is a wall of map"):
         resolve_goals(gm, "1:1")
     with pytest.raises(MapError, match="defines no targets"):
         resolve_goals(GridMap("bare", np.zeros((2, 2), bool)), None)

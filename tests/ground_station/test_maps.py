@@ -80,9 +80,11 @@ def test_write_read_round_trip_with_targets_sidecar(tmp_path):
 
 def test_target_on_obstacle_or_outside_is_rejected(tmp_path):
     occ = parse_map(GOOD).occ
-    with pytest.raises(MapError, match="target X at \\(1,1\\) is not a free cell"):
+    # issue 30 finding 7: a wall and a cell off the map are named as such
+    with pytest.raises(MapError, match="target X at \\(1,1\\) is a wall of map t"):
         GridMap("t", occ, {"X": (1, 1)})
-    with pytest.raises(MapError, match="not a free cell"):
+    h, w = occ.shape
+    with pytest.raises(MapError, match=f"target X at \\(9,0\\) is outside the {w}x{h} map t"):
         GridMap("t", occ, {"X": (9, 0)})
     (tmp_path / "m.map").write_text(GOOD)
     (tmp_path / "m.targets.json").write_text('{"A": [0]}')

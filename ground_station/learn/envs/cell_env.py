@@ -54,7 +54,7 @@ def resolve_goals(gridmap: GridMap, targets: str | list | tuple | None = None,
             known = ", ".join(gridmap.targets) or "none"
             raise MapError(f"map {gridmap.name} has no target {item!r} (targets: {known}; or give col:row)")
         if not gridmap.is_free(col, row):
-            raise MapError(f"target {name} at ({col},{row}) is not a free cell of map {gridmap.name}")
+            raise MapError(f"target {name} at ({col},{row}) is {gridmap.why_not_free(col, row)}")
         if (col, row) in goals:
             raise MapError(f"target {name} at ({col},{row}) given twice")
         names.append(name)

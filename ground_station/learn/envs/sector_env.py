@@ -119,7 +119,7 @@ class SectorNavEnv(gym.Env):
             return self.gridmap.targets[goal]
         col, row = int(goal[0]), int(goal[1])
         if not self.gridmap.is_free(col, row):
-            raise MapError(f"goal ({col},{row}) is not a free cell of map {self.gridmap.name}")
+            raise MapError(f"goal ({col},{row}) is {self.gridmap.why_not_free(col, row)}")
         return col, row
 
     def _dist(self, goal: tuple[int, int]) -> np.ndarray:
