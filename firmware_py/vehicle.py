@@ -128,6 +128,9 @@ class VehicleEvent:
     severity: int = 6  # MAV_SEVERITY_INFO
 
 
+ACTIVATION_TIMEOUT_S = 20.0  # a policy not ready by then (its localiser still building) is refused
+
+
 class PendingActivation:
     """A policy activation whose slow part (building the localiser's field for
     a new map) runs on a worker thread: the link thread polls `result()` (None

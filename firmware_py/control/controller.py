@@ -49,6 +49,7 @@ from firmware_py.control.state import (
 from firmware_py.kinds import DriveTick
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
 from firmware_py.vehicle import (
+    ACTIVATION_TIMEOUT_S,
     CtrlState,
     FailsafeAction,
     Mode,
@@ -257,15 +258,10 @@ class Controller(ControlState):
 
     def activate_policy(self, path: str) -> tuple[bool, str]:
         """Validate a policy file with the loader and swap it in between two
-        ticks; the one it replaces is kept as `last_known_good`."""
-        with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
-                return False, "refused while driving: stop first"
-        try:
-            new = load_policy(path)  # file I/O outside the lock: ticks keep running
-        except PolicyError as exc:
-            return False, f"policy rejected: {exc}"
-        return self.activate_loaded(new)
+        ticks; the one it replaces is kept as `last_known_good`. Waits for a
+        localiser being built (`begin_activation` is the form that does not)."""
+        got = self.begin_activation(path)
+        return got if isinstance(got, tuple) else got.wait(ACTIVATION_TIMEOUT_S)
 
     def begin_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
         """`activate_policy` for the link thread (the FTP server's hook): when the
@@ -277,7 +273,7 @@ class Controller(ControlState):
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
         try:
-            new = load_policy(path)
+            new = load_policy(path)  # file I/O outside the lock: ticks keep running
         except PolicyError as exc:
             return False, f"policy rejected: {exc}"
         grid = new.map_grid if self.localise else None

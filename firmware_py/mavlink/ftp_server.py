@@ -58,6 +58,7 @@ from firmware_py.storage import (
     policy_source,
     promote_policy,
 )
+from firmware_py.vehicle import ACTIVATION_TIMEOUT_S
 
 HEADER = struct.Struct("<HBBBBBBI")  # seq, session, opcode, size, req_opcode, burst_complete, pad, offset
 MAX_DATA = 239
@@ -196,7 +197,8 @@ class FtpServer:
     def __init__(self, storage: Storage, activate: Callable[[str], Any] | None = None,
                  *, max_sessions: int = 4, session_timeout_us: int = 5_000_000,
                  burst_max_packets: int = 64, max_sessions_per_client: int = 2,
-                 evict_idle_us: int = 1_000_000, activation_timeout_us: int = 20_000_000) -> None:
+                 evict_idle_us: int = 1_000_000,
+                 activation_timeout_us: int = round(ACTIVATION_TIMEOUT_S * 1_000_000)) -> None:
         self.storage = storage
         self.activate = activate
         self.activation_timeout_us = activation_timeout_us

@@ -71,11 +71,12 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def _pcts(values: list[float]) -> dict[str, float]:
+    from ground_station.bench.hil import _pct
+
     v = sorted(values)
     if not v:
         return {"p50_us": 0.0, "p99_us": 0.0, "max_us": 0.0, "ticks": 0}
-    return {"p50_us": v[len(v) // 2], "p99_us": v[min(len(v) - 1, int(0.99 * len(v)))], "max_us": v[-1],
-            "ticks": len(v)}
+    return {"p50_us": _pct(v, 0.5), "p99_us": _pct(v, 0.99), "max_us": v[-1], "ticks": len(v)}
 
 
 def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, seed: int = 0) -> dict:

@@ -10,7 +10,6 @@ import asyncio
 import base64
 import json
 import math
-import os
 import struct
 import subprocess
 import sys
@@ -18,19 +17,11 @@ import time
 
 import pytest
 
-from firmware_py.subprocs import stop_process
+from firmware_py.subprocs import free_port, stop_process
 from ground_station import cli
-from tests.hil.test_sitl import ROOT, SitlProcess, cell_world_mm
+from tests.hil.test_sitl import SitlProcess, cell_world_mm, child_env
 
 pytest.importorskip("websockets", reason="the dev extra's websockets package is the stock client here")
-
-
-def _free_tcp_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _decoder(channel: dict):
@@ -110,9 +101,8 @@ def test_foxglove_bridge_streams_pose_and_scan_and_a_published_goal_drives_the_r
     monitor = None
     try:
         sitl.expect(r"Ctrl-C stops every process")
-        ws_port = _free_tcp_port()
-        env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-                   PYTHONUNBUFFERED="1")
+        ws_port = free_port()  # TCP
+        env = child_env()
         monitor = subprocess.Popen(
             [sys.executable, "-m", "ground_station.cli", "monitor", "--plain", "--foxglove", "--port", str(ws_port),
              "--mavlink", f"udpout:127.0.0.1:{sitl.port}", "--no-tlog", "--duration", "240"],

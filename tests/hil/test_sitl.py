@@ -28,6 +28,11 @@ ROOT = Path(__file__).resolve().parents[2]
 CELL_M, ROWS = 0.5, 10  # paper10
 
 
+def child_env() -> dict[str, str]:
+    """The environment of a `python -m ground_station.cli` child: this checkout first, unbuffered output."""
+    return dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}", PYTHONUNBUFFERED="1")
+
+
 def cell_world_mm(col: int, row: int) -> tuple[int, int]:
     return round((col + 0.5) * CELL_M * 1000), round((ROWS - row - 0.5) * CELL_M * 1000)
 
@@ -40,8 +45,7 @@ class SitlProcess(ConsoleProcess):
     def __init__(self, tmp_path: Path, *args: str) -> None:
         self.port = free_udp_port()
         self.out = tmp_path / "sitl"
-        env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-                   PYTHONUNBUFFERED="1")
+        env = child_env()
         super().__init__([sys.executable, "-m", "ground_station.cli", "sitl", "--mavlink",
                           f"udpin:127.0.0.1:{self.port}", "--out", str(self.out), *args],
                          cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, new_session=True)
@@ -188,8 +192,7 @@ def test_sitl_ctrl_c_in_a_terminal_stops_everything_cleanly_and_writes_every_fil
 
     master, slave = pty.openpty()
     out = tmp_path / "sitl"
-    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-               PYTHONUNBUFFERED="1")
+    env = child_env()
 
     def controlling_tty() -> None:  # the child leads a new session whose terminal is the pty
         os.setsid()
@@ -305,8 +308,7 @@ def test_qnav_drive_in_a_terminal_moves_the_robot_and_q_holds(tmp_path):
         url = f"udpout:127.0.0.1:{sitl.port}"
         assert cli.main(["arm", "--mavlink", url, "--no-tlog", "--timeout", "20"]) == 0
         master, slave = pty.openpty()
-        env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-                   PYTHONUNBUFFERED="1")
+        env = child_env()
         proc = subprocess.Popen([sys.executable, "-m", "ground_station.cli", "drive", "--mavlink", url, "--no-tlog",
                                  "--timeout", "20"], stdin=slave, stdout=slave, stderr=slave, cwd=tmp_path, env=env,
                                 start_new_session=True)
