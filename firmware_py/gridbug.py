@@ -41,7 +41,7 @@ State = go: sector * 16 + free; wall mode m (1, 2): 128 + (m - 1) * W + w,
 with w = free (W = 16) or, with `wall_bearing`, sector * 16 + free (W = 128).
 Integers only (the goal vector in mm, isqrt for the distance), as the robot's
 control path. The ground station's twin has a jitted copy
-(`ground_station.learn.sector.gridbug`) that a test compares with this one.
+(`ground_station.learn.sector_memory.kernels`) that a test compares with this one.
 """
 
 from __future__ import annotations

@@ -298,8 +298,8 @@ def twin_outcomes_gridbug(gm, policy: Policy, rows: list[dict]) -> list[str]:
     import numpy as np
 
     from firmware_py.gridbug import GridBugEncoder, grid_dir_of
-    from ground_station.learn.sector.gridbug import COLLISION, SUCCESS, eval_kernel
-    from ground_station.learn.sector.gridbug_train import encoder_params
+    from ground_station.learn.sector_memory.kernels import COLLISION, SUCCESS, eval_kernel
+    from ground_station.learn.sector_memory.trainer import encoder_params
 
     enc = policy.encoder
     assert isinstance(enc, GridBugEncoder)

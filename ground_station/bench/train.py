@@ -93,7 +93,7 @@ def grid_memory_speed(n_steps: int) -> float:
     import numpy as np
 
     from ground_station.learn.config import recipe_config
-    from ground_station.learn.sector.gridbug_train import GridBugTrainer, gridbug_encoder
+    from ground_station.learn.sector_memory.trainer import GridBugTrainer, gridbug_encoder
     from ground_station.maps import load_map
 
     cfg = recipe_config("sector-memory", {"map": "paper10"})

@@ -63,7 +63,7 @@ def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
         return evaluate_cell(q, gridmap, run.goals, sample=sample, seed=seed,
                              target_names=run.meta.get("targets"))
     if run.encoder.kind == "sector-memory":
-        from ground_station.learn.sector.gridbug_train import evaluate_gridbug
+        from ground_station.learn.sector_memory.trainer import evaluate_gridbug
 
         return evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
     from ground_station.learn.evaluate import sector_guidance_from_meta

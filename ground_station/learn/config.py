@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 ENCODINGS = ("cell", "sector", "sector-memory")
-# tabular learners (ground_station/learn/learners.py, the sector trainer's switch in
+# tabular learners (ground_station/learn/cell/learners.py, the sector trainer's switch in
 # ground_station/learn/sector/kernels.py); sector-memory: q only
 LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")
 
@@ -30,7 +30,7 @@ class TrainConfig:
                                    "(sector x Bug-style wall-following mode, direct setting)")
     targets: str = _f("", "comma-separated target names or col:row cells (cell encoding); empty = all map targets")
     learner: str = _f("q", "tabular learner (cell, sector; sector-memory: q): q = Q-learning, sarsa, expected-sarsa, "
-                           "double-q, dyna-q, q-lambda = Watkins' Q(lambda) (ground_station/learn/learners.py)")
+                           "double-q, dyna-q, q-lambda = Watkins' Q(lambda) (ground_station/learn/cell/learners.py)")
     learner_lambda: float = _f(0.9, "q-lambda: trace decay lambda (traces decay by gamma * lambda per step)")
     trace_min: float = _f(1e-3, "q-lambda: a trace smaller than this is dropped (bounds the trace ring)")
     dyna_planning: int = _f(10, "dyna-q: simulated updates from the learnt model per real step")

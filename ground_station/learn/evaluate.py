@@ -191,7 +191,7 @@ def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = Non
                              target_names=meta.get("targets") or names)
     if meta["encoding"] == "sector-memory":
         from ground_station.learn.export import encoder_from_dict
-        from ground_station.learn.sector.gridbug_train import evaluate_gridbug
+        from ground_station.learn.sector_memory.trainer import evaluate_gridbug
 
         enc = encoder_from_dict(meta["encoder"])
         assert isinstance(enc, GridBugEncoder)

@@ -5,7 +5,7 @@ The questions (issue 19): how many training steps does Q-learning need to
 reach 95 % greedy success, as a function of the learning rate eta, with and
 without the epsilon schedule; what do the Q values do meanwhile (the
 paper's Fig. 5: mean max-Q of the visited states against episodes, per
-eta); how do the other tabular learners (`ground_station.learn.learners`)
+eta); how do the other tabular learners (`ground_station.learn.cell.learners`)
 compare; and how does the learnt policy compare with the optimum BFS gives
 directly.
 
@@ -74,8 +74,8 @@ def _ci(values: list[float]) -> dict:
 def run_job(job: dict) -> dict:
     """Train job["config"] on the cell encoding, evaluating the greedy policy
     every job["eval_every"] steps; the learning curve and steps to threshold."""
+    from ground_station.learn.cell.learners import CellLearner
     from ground_station.learn.evaluate import POLICY_Q, SUCCESS, rollouts_cell
-    from ground_station.learn.learners import CellLearner
     from ground_station.learn.train import CellProblem, initial_table
     from ground_station.maps import load_map
 

@@ -208,13 +208,13 @@ def initial_table(cfg: TrainConfig, n_states: int, n_actions: int) -> np.ndarray
 
 def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
     """Exact sequential Q-learning on the cell encoding (other learners:
-    `ground_station.learn.learners`, same problem, schedule and rewards)."""
+    `ground_station.learn.cell.learners`, same problem, schedule and rewards)."""
     prob = CellProblem.build(gridmap, cfg.targets or None)
     q = initial_table(cfg, prob.encoder.n_states, prob.encoder.n_actions)
     meta = {"encoder": prob.encoder.to_dict(), "targets": prob.target_names,
             "goals": [list(g) for g in prob.goals], "learner": cfg.learner}
     if cfg.learner != "q":
-        from ground_station.learn.learners import train_cell_learner
+        from ground_station.learn.cell.learners import train_cell_learner
 
         with _progress(cfg.steps, progress, f"train cell {cfg.learner} {gridmap.name}") as bar:
             table, q2, rets_a, succs_a, secs = train_cell_learner(cfg, prob, q, bar)
@@ -282,9 +282,9 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
 
 def train_sector_memory_grid(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
     """Q-learning of the cell-stepped sector-memory encoding (direct setting)
-    on the grid twin, through `ground_station.learn.sector.gridbug_train.GridBugTrainer`,
+    on the grid twin, through `ground_station.learn.sector_memory.trainer.GridBugTrainer`,
     on `gridmap` plus the `sector_maps` extras."""
-    from ground_station.learn.sector.gridbug_train import GridBugTrainer, gridbug_encoder
+    from ground_station.learn.sector_memory.trainer import GridBugTrainer, gridbug_encoder
 
     encoder = gridbug_encoder(cfg)
     extra = [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]

@@ -21,15 +21,15 @@ from firmware_py.policy import load_policy
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.learn.config import TrainConfig, validate_config
 from ground_station.learn.export import policy_bytes, quantise
-from ground_station.learn.sector import gridbug as gb
-from ground_station.learn.sector.gridbug_train import (
+from ground_station.learn.sector.twin import disc_hits, grid_of, sense
+from ground_station.learn.sector_memory import kernels as gb
+from ground_station.learn.sector_memory.trainer import (
     GridBugTrainer,
     encoder_params,
     evaluate_gridbug,
     gridbug_encoder,
     hand_table,
 )
-from ground_station.learn.sector.twin import disc_hits, grid_of, sense
 from ground_station.maps import load_map
 from tests.support.controller_rig import Kinematic, Rig
 

@@ -1,4 +1,4 @@
-"""Tabular learners beside Q-learning (ground_station/learn/learners.py): the
+"""Tabular learners beside Q-learning (ground_station/learn/cell/learners.py): the
 switch's q path equals the Q-learning kernel, every learner is deterministic
 per seed and reaches the goal on a small map, Double Q keeps two tables,
 Watkins' Q(lambda) cuts its traces on exploratory actions, Dyna-Q plans."""
@@ -8,9 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from ground_station.learn.cell.learners import Q_LAMBDA, CellLearner, trace_capacity
 from ground_station.learn.config import LEARNERS, TrainConfig, validate_config
 from ground_station.learn.evaluate import evaluate_cell
-from ground_station.learn.learners import Q_LAMBDA, CellLearner, trace_capacity
 from ground_station.learn.train import CellProblem, train_cell
 from ground_station.maps import GridMap, load_map, parse_map
 

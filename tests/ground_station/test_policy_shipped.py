@@ -107,7 +107,7 @@ def test_sector_memory_policy_drives_as_recorded_in_the_direct_setting():
     """The cell-stepped Bug memory table: every (start, goal, heading) of
     paper10 on the grid twin, as its .json records (the acceptance figure:
     >= 0.95, no collision), and int8 within 0.5 points of float."""
-    from ground_station.learn.sector.gridbug_train import evaluate_gridbug
+    from ground_station.learn.sector_memory.trainer import evaluate_gridbug
     from ground_station.maps import load_map
 
     path = POLICIES / "sector_memory.qtab"

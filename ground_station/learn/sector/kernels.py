@@ -314,7 +314,7 @@ def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, 
 
 
 # tabular learners of the sector trainer (the cell encoding's switch,
-# `ground_station.learn.learners`; LEARNERS order)
+# `ground_station.learn.cell.learners`; LEARNERS order)
 L_Q, L_SARSA, L_EXPECTED_SARSA, L_DOUBLE_Q, L_DYNA_Q, L_Q_LAMBDA = range(6)
 
 
@@ -368,7 +368,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
 
     learner (L_*): the update at the end of a held action (s0, a) -> s2;
     q-learning's target is R + G * max_b Q(s2, b) (terminal: R; truncation
-    bootstraps). The others, as in `ground_station.learn.learners` with the
+    bootstraps). The others, as in `ground_station.learn.cell.learners` with the
     one-step discount replaced by G (docs/training.md): sarsa and q-lambda
     draw the next decision's action a2 at the update (stored in
     ep[E_NEXT] = a2 + 1, used by the next decision); expected-sarsa takes

@@ -147,7 +147,7 @@ class SectorTrainer:
     def _learner_state(self, cfg: TrainConfig) -> None:
         """The learner's tables besides q: Double Q's second table, Dyna-Q's
         model, Q(lambda)'s trace ring (1-element dummies when unused)."""
-        from ground_station.learn.learners import trace_capacity
+        from ground_station.learn.cell.learners import trace_capacity
 
         self.learner = str(cfg.learner)
         self.code = LEARNERS.index(self.learner)

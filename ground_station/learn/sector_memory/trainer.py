@@ -1,6 +1,6 @@
 """Training and greedy evaluation of the cell-stepped `sector-memory`
 encoding (`firmware_py.gridbug.GridBugEncoder`) on the grid twin
-(`ground_station.learn.sector.gridbug`), direct setting: the goal vector
+(`ground_station.learn.sector_memory.kernels`), direct setting: the goal vector
 only, no waypoints, no map in the state.
 
 * `gridbug_encoder(cfg)`: the reference encoder a TrainConfig asks for.
@@ -37,7 +37,7 @@ from firmware_py.gridbug import (
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.evaluate import eval_episodes
-from ground_station.learn.sector.gridbug import (
+from ground_station.learn.sector_memory.kernels import (
     COLLISION,
     SUCCESS,
     TIMEOUT,
