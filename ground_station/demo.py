@@ -335,10 +335,10 @@ def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -
     from ground_station.learn.train import TrainConfig, train, validate_config, write_run
     from ground_station.maps import load_map
 
-    cfg = TrainConfig(map=opts.map_name, encoding="cell", targets=",".join(opts.targets),
+    cfg = TrainConfig.of(map=opts.map_name, encoding="cell", targets=",".join(opts.targets),
                       steps=opts.train_steps, seed=0)
     validate_config(cfg)
-    say(f"training a cell policy on {opts.map_name}, targets {cfg.targets}, {cfg.steps:,} steps")
+    say(f"training a cell policy on {opts.map_name}, targets {cfg.options.targets}, {cfg.steps:,} steps")
     res = train(cfg, load_map(cfg.map), progress=True)
     train_dir = run_dir / "train"
     write_run(train_dir, cfg, res)

@@ -42,7 +42,7 @@ POLICIES = {
     },
     "sector_memory": {
         # sector-memory (cell-stepped Bug memory), direct setting (no waypoints): the recipe is the CLI
-        # default for the encoding (ground_station/learn/config.py RECIPES); docs/training.md, sector-memory
+        # default for the encoding (its kind's recipe, ground_station/learn/kinds.py); docs/training.md, sector-memory
         "train": ["--map", "paper10", "--encoding", "sector-memory", "--seed", "0"],
         # every (start, goal, heading) of paper10 (44 400 grid rollouts take well under a second)
         "export": ["--dtype", "int8"],

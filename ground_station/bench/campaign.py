@@ -13,6 +13,9 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from typing import cast
+
+from firmware_py.encoders import SectorEncoder
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -40,16 +43,16 @@ def twin_run(job: dict) -> dict:
     """One campaign job: greedy twin rollouts of the policy on a seeded sample."""
     import numpy as np
 
-    from firmware_py.encoders import SectorEncoder
     from firmware_py.policy import load_policy
     from ground_station.learn.sector.evaluate import evaluate_sector
     from ground_station.maps import load_map
 
     pol = load_policy(job["policy"])
-    if not isinstance(pol.encoder, SectorEncoder):
+    if pol.kind != "sector":
         raise ValueError(f"{job['policy']} is not a sector policy")
     q = np.array([pol.q_values(s) for s in range(pol.n_states)], dtype=np.float64)
-    ev = evaluate_sector(q, load_map(job["map"]), pol.encoder, seed=job["seed"], sample=job["episodes"])
+    ev = evaluate_sector(q, load_map(job["map"]), cast(SectorEncoder, pol.encoder), seed=job["seed"],
+                         sample=job["episodes"])
     return {"seed": job["seed"], "episodes": ev["episodes"], "success_rate": ev["success_rate"],
             "collisions": ev["collisions"]}
 

@@ -30,6 +30,7 @@ import random
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
@@ -275,8 +276,9 @@ def twin_outcomes(gm, policy: Policy, rows: list[dict], max_periods: int = 2400,
     from ground_station.learn.envs.sector_env import SectorNavEnv
     from ground_station.maps.planner import guidance_from_metadata
 
-    assert isinstance(policy.encoder, SectorEncoder)  # only sector policies have a twin
-    env = SectorNavEnv(gm, encoder=policy.encoder, guidance=guidance, **guidance_from_metadata(policy.metadata))
+    assert policy.kind == "sector"  # only sector policies have this twin
+    env = SectorNavEnv(gm, encoder=cast(SectorEncoder, policy.encoder), guidance=guidance,
+                       **guidance_from_metadata(policy.metadata))
     out = []
     for r in rows:
         state, _ = env.reset(seed=0, options={"start": tuple(r["start"]), "goal": tuple(r["goal"]),
@@ -301,8 +303,8 @@ def twin_outcomes_gridbug(gm, policy: Policy, rows: list[dict]) -> list[str]:
     from ground_station.learn.sector_memory.kernels import COLLISION, SUCCESS, eval_kernel
     from ground_station.learn.sector_memory.trainer import encoder_params
 
-    enc = policy.encoder
-    assert isinstance(enc, GridBugEncoder)
+    assert policy.kind == "sector-memory"
+    enc = cast(GridBugEncoder, policy.encoder)
     q = np.array(policy.table.tolist(), dtype=np.float64).reshape(policy.n_states, policy.n_actions)
     n = len(rows)
     starts = np.array([r["start"] for r in rows], dtype=np.int64).reshape(-1, 2)

@@ -40,7 +40,7 @@ def python_loop(cfg, seconds: float) -> tuple[int, float]:
 
     import ground_station.learn.envs  # noqa: F401 - registers the ids
 
-    env = gym.make("qnav/CellNav-v0", gridmap=cfg.map, targets=cfg.targets,
+    env = gym.make("qnav/CellNav-v0", gridmap=cfg.map, targets=cfg.options.targets,
                    reward_goal=cfg.reward_goal, reward_step=cfg.reward_step,
                    reward_collision=cfg.reward_collision, disable_env_checker=True)
     obs_space, action_space = env.observation_space, env.action_space
@@ -97,7 +97,7 @@ def grid_memory_speed(n_steps: int) -> float:
     from ground_station.maps import load_map
 
     cfg = recipe_config("sector-memory", {"map": "paper10"})
-    maps = [load_map(cfg.map)] + [load_map(m.strip()) for m in cfg.sector_maps.split(",") if m.strip()]
+    maps = [load_map(cfg.map)] + [load_map(m.strip()) for m in cfg.options.maps.split(",") if m.strip()]
     trainer = GridBugTrainer(maps, cfg, gridbug_encoder(cfg))
     q = np.zeros((trainer.n_states, trainer.n_actions))
     trainer.run(q, 0, 1000)  # compile
@@ -110,10 +110,11 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ground_station.bench.common import report
-    from ground_station.learn.train import TrainConfig, train_cell
+    from ground_station.learn.cell.trainer import train_cell
+    from ground_station.learn.config import TrainConfig
     from ground_station.maps import load_map
 
-    cfg = TrainConfig(map="paper10", targets="A,B,C,D", steps=args.steps, chunk_steps=args.steps)
+    cfg = TrainConfig.of(map="paper10", targets="A,B,C,D", steps=args.steps, chunk_steps=args.steps)
     gm = load_map(cfg.map)
     train_cell(replace(cfg, steps=10_000), gm)  # JIT warm-up (or cache load)
     best = math.inf
@@ -123,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     steps_per_s = cfg.steps / best
     b_steps, b_dt = python_loop(cfg, args.baseline_seconds)
     baseline = b_steps / b_dt
-    sector, sector_cpu, sector_note = sector_speed(replace(cfg, encoding="sector"), args.sector_steps)
+    sector, sector_cpu, sector_note = sector_speed(cfg.with_values(encoding="sector"), args.sector_steps)
     grid_memory = grid_memory_speed(args.sector_steps)
     result = {
         "steps_per_s": steps_per_s,

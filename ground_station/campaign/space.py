@@ -29,7 +29,13 @@ class Axis:
 
 
 def _field_types() -> dict[str, Any]:
-    return {f.name: f.type for f in fields(TrainConfig)}
+    """Flat name -> type of every training option (common fields and every kind's)."""
+    from ground_station.learn import kinds
+
+    out = {f.name: f.type for f in fields(TrainConfig) if f.name != "options"}
+    for name in kinds.names():
+        out.update({flat: f.type for flat, f in kinds.of_name(name).option_fields()})
+    return out
 
 
 def _convert(name: str, text: str) -> Any:

@@ -103,10 +103,10 @@ def _plot(args: argparse.Namespace, gridmap) -> None:
 
     from firmware_py.atomic import atomic_write
     from ground_station.errors import CliError
-    from ground_station.learn.evaluate import load_run, plot_cell_policy
+    from ground_station.learn.evaluate import plot_run
 
-    q, meta = load_run(args.run_dir)
-    if meta["encoding"] != "cell":
-        raise CliError("--plot draws cell policies only (a sector policy has no per-cell action)")
-    goals = [tuple(g) for g in meta["goals"]]
-    atomic_write(Path(args.plot), plot_cell_policy(q, gridmap, goals, meta.get("targets")), make_parents=True)
+    try:
+        png = plot_run(args.run_dir, gridmap)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    atomic_write(Path(args.plot), png, make_parents=True)

@@ -52,26 +52,6 @@ def _clean(x):
     return x
 
 
-def rollouts(q, run, gridmap, sample: int | None, seed: int) -> dict:
-    """Greedy rollouts of table `q` with the run's encoder on `gridmap`."""
-    if run.encoder.kind == "cell":
-        from ground_station.learn.evaluate import evaluate_cell
-
-        if (run.encoder.width, run.encoder.height) != (gridmap.width, gridmap.height):
-            raise ValueError(f"policy is for a {run.encoder.width}x{run.encoder.height} map, "
-                             f"{gridmap.name} is {gridmap.width}x{gridmap.height}")
-        return evaluate_cell(q, gridmap, run.goals, sample=sample, seed=seed,
-                             target_names=run.meta.get("targets"))
-    if run.encoder.kind == "sector-memory":
-        from ground_station.learn.sector_memory.trainer import evaluate_gridbug
-
-        return evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
-    from ground_station.learn.evaluate import sector_guidance_from_meta
-    from ground_station.learn.sector.evaluate import evaluate_sector
-    return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample,
-                           **sector_guidance_from_meta(run.meta))
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -107,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
               "scale": qt.scale, "policy_id": f"0x{pol.policy_id:08x}", "crc32": f"0x{pol.crc:08x}",
               **export.compare(run_.q, qt)}
     if not args.no_rollouts:
+        from ground_station.learn.evaluate import evaluate_table
         from ground_station.maps import MapError, load_map
 
         int_q = np.frombuffer(pol.table, dtype=np.dtype(qt.dtype).newbyteorder("=")).reshape(
@@ -116,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"{args.run_dir}/meta.json names no map; pass --map")
         try:
             gridmap = load_map(map_name)
-            r_float = rollouts(run_.q, run_, gridmap, args.sample, args.seed)
-            r_int = rollouts(int_q, run_, gridmap, args.sample, args.seed)
+            r_float = evaluate_table(run_.q, run_, gridmap, sample=args.sample, seed=args.seed)
+            r_int = evaluate_table(int_q, run_, gridmap, sample=args.sample, seed=args.seed)
         except (MapError, ValueError) as exc:
             raise CliError(f"rollouts: {exc}") from None
         report["map"] = gridmap.name

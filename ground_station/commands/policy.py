@@ -82,15 +82,10 @@ def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
 def _line(d: dict) -> str:
     if not d["valid"]:
         return f"{d['file']}: INVALID: {d['error']}"
-    enc = d["encoder"]
-    if d["kind"] == "cell":
-        geo = f"cell {enc['width']}x{enc['height']} goals={d['goals']} cell_mm={d['cell_mm']}"
-    elif d["kind"] == "sector-memory":
-        geo = (f"sector-memory free_mm={enc['free_mm']} leave_margin_mm={enc['leave_margin_mm']} "
-               f"cell_mm={enc['cell_mm']} wall_bearing={int(enc['wall_bearing'])}")
-    else:
-        geo = (f"{d['kind']} bearing_sectors={enc['bearing_sectors']} sensors={enc['sensors']} "
-               f"edges_mm={enc['range_edges_mm']}")
+    enc = d["encoder"]  # the kind's own encoder fields, as its to_dict() names them
+    geo = " ".join([d["kind"], *(f"{k}={json.dumps(v, separators=(',', ':'))}" for k, v in enc.items() if k != "kind")])
+    if d.get("goals"):
+        geo += f" goals={json.dumps(d['goals'], separators=(',', ':'))} cell_mm={d['cell_mm']}"
     mg = d["map_geometry"]
     geo += f" period_us={d['control_period_us']} map={mg['width']}x{mg['height']}x{mg['cell_mm']}mm"
     grid = d.get("map_grid")

@@ -68,10 +68,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ground_station.campaign.engines import engine_from_args
     from ground_station.errors import CliError
+    from ground_station.learn.cell.trainer import CellProblem
     from ground_station.learn.config import LEARNERS, config_from_recipe_args, validate_config
     from ground_station.learn.study import study, tables, write_study
     from ground_station.learn.sweep import parse_lrs
-    from ground_station.learn.train import CellProblem
     from ground_station.maps import MapError, load_map
 
     cfg = config_from_recipe_args(args, "cell")  # a cell study: the cell recipe (its defaults)
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         lrs = parse_lrs(args.lrs)
         learner_lrs = parse_lrs(args.learner_lrs)
         validate_config(cfg)
-        CellProblem.build(load_map(cfg.map), cfg.targets or None)  # the goals resolve, every one reachable
+        CellProblem.build(load_map(cfg.map), cfg.options.targets or None)  # the goals resolve, every one reachable
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     t0 = time.perf_counter()

@@ -12,7 +12,7 @@ success against eta, and greedy success and the mean max-Q of the visited
 states along training per eta (the paper's Fig. 5), each with bootstrapped
 95 % CIs over the seeds (--no-curves skips this). Other training flags apply to every run; as in
 `qnav train`, a flag left out takes the encoding's recipe
-(`ground_station/learn/config.py` RECIPES), else its default.
+(its kind's `recipe`, ground_station/learn/kinds.py), else its default.
 
 The runs go to all local cores by default (--engine local), or to Ray
 (--engine ray: a private local instance, or a cluster with --ray-address;
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
 from pathlib import Path
 
 
@@ -47,7 +46,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     add_engine_arguments(p, "training runs")
     p.add_argument("--processes", type=int, default=None, dest="workers", help=argparse.SUPPRESS)
     add_config_arguments(p, skip=("lr",))
-    recipe_defaults(p)  # as qnav train: a flag left out takes the encoding's recipe (learn/config.RECIPES)
+    recipe_defaults(p)  # as qnav train: a flag left out takes the encoding's recipe (its kind's recipe, learn/kinds.py)
     p.add_argument("--epsilon", type=float, default=None,
                    help="constant exploration rate: sets both --epsilon-start and --epsilon-end")
     p.add_argument("--curves", action=argparse.BooleanOptionalAction, default=True,
@@ -62,9 +61,9 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.campaign.space import label, parse_axis
     from ground_station.campaign.space import points as space_points
     from ground_station.errors import CliError
+    from ground_station.learn.cell.trainer import CellProblem
     from ground_station.learn.config import config_from_recipe_args, validate_config
     from ground_station.learn.sweep import parse_lrs, sweep, write_sweep
-    from ground_station.learn.train import CellProblem
     from ground_station.maps import MapError, load_map
 
     cfg = config_from_recipe_args(args)
@@ -78,10 +77,10 @@ def run(args: argparse.Namespace) -> int:
         lrs = parse_lrs(args.lrs)
         points = space_points([parse_axis(a) for a in args.space], args.samples, cfg.seed)
         for point in points:
-            validate_config(replace(cfg, **point))
+            validate_config(cfg.with_values(**point))
         gridmap = load_map(cfg.map)
         if cfg.encoding == "cell":  # the goals resolve, every one reachable (else a worker's traceback)
-            CellProblem.build(gridmap, cfg.targets or None)
+            CellProblem.build(gridmap, cfg.options.targets or None)
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     t0 = time.perf_counter()

@@ -1,7 +1,7 @@
 """`qnav train`: train a Q table and write the run folder.
 
 A flag left out takes the encoding's shipped recipe
-(`ground_station/learn/config.py` RECIPES; the cell recipe is the defaults
+(its kind's `recipe` in ground_station/learn/kinds.py; the cell recipe is the defaults
 shown below), else the default shown below; so `qnav train
 --encoding sector-memory --map M --seed N --out DIR` trains the shipped
 policy's recipe, and `qnav train --recipe shipped-sector` (map paper10,
@@ -26,9 +26,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, add_help=False)
     p.add_argument("-h", "--help", action=_HelpForEncoding, nargs=0,
                    help="show this help (after --encoding E: only the options training E reads)")
-    from ground_station.learn.config import SHIPPED_RECIPES
+    from ground_station.learn.kinds import shipped_recipes
 
-    p.add_argument("--recipe", choices=sorted(SHIPPED_RECIPES), default=None,
+    p.add_argument("--recipe", choices=sorted(shipped_recipes()), default=None,
                    help="train a shipped policy's recipe (sets the encoding; other flags still win)")
     p.add_argument("--out", metavar="DIR", help="run folder to write (created if missing; default "
                    "runs/<map>-<encoding>-s<seed>-<time>)")
@@ -44,17 +44,17 @@ class _HelpForEncoding(argparse.Action):
     """`qnav train --encoding E --help`: the options that training E reads, not every encoding's."""
 
     def __call__(self, parser, namespace, values, option_string=None):  # type: ignore[no-untyped-def]
-        from ground_station.learn.config import ENCODINGS, applies_to
+        from ground_station.learn.config import applies_to, encodings
 
         encoding = getattr(namespace, "encoding", None)
-        if encoding in ENCODINGS:
+        if encoding in encodings():
             for action in parser._actions:
                 if action.dest != "encoding" and encoding not in applies_to(action.dest):
                     action.help = argparse.SUPPRESS
             parser.description = (f"`qnav train --encoding {encoding}`: train a Q table and write the run folder "
                                   "(the options below are those this encoding reads; `qnav train --help` lists "
                                   "every encoding's). A flag left out takes the encoding's shipped recipe "
-                                  "(ground_station/learn/config.py RECIPES).")
+                                  "(the kind's recipe, ground_station/learn/kinds.py).")
             parser.usage = f"qnav train --encoding {encoding} [--map MAP] [--steps N] [--seed N] [--out DIR] [options]"
             parser.formatter_class = lambda prog: argparse.HelpFormatter(prog, width=110, max_help_position=32)
             for action in parser._actions:
@@ -86,13 +86,15 @@ def default_run_dir(map_spec: str, encoding: str, seed: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
-    from ground_station.learn.config import SHIPPED_RECIPES, config_from_recipe_args
+    from ground_station.learn import kinds
+    from ground_station.learn.config import config_from_recipe_args
     from ground_station.learn.train import train, validate_config, write_run
     from ground_station.maps import MapError, load_map
 
-    encoding = args.encoding or SHIPPED_RECIPES.get(args.recipe or "", "cell")
-    if args.recipe and encoding != SHIPPED_RECIPES[args.recipe]:
-        raise CliError(f"--recipe {args.recipe} trains the {SHIPPED_RECIPES[args.recipe]} encoding, "
+    shipped = kinds.shipped_recipes()
+    encoding = args.encoding or shipped.get(args.recipe or "", kinds.DEFAULT)
+    if args.recipe and encoding != shipped[args.recipe]:
+        raise CliError(f"--recipe {args.recipe} trains the {shipped[args.recipe]} encoding, "
                        f"not --encoding {encoding}")
     cfg = config_from_recipe_args(args, encoding)
     if args.epsilon is not None:

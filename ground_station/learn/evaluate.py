@@ -1,254 +1,40 @@
-"""Greedy-policy evaluation against shortest paths, from saved artifacts only.
-
-For the `cell` encoding: one greedy rollout (ties -> lowest action index,
-as on the robot) from every free start cell to every goal (a seeded sample
-of `sample` pairs on large maps). Each rollout ends as
-
-* success: reached the goal; its path ratio = steps / BFS shortest steps,
-* collision: the chosen move enters an obstacle or leaves the map,
-* loop: the rollout revisits a cell (a deterministic policy then cycles
-  forever, so this is detected at the first revisit),
-* timeout: `max_steps` moves without any of the above.
-
-Beside it, in the same report, the greedy baseline "step to the free
-neighbour nearest (Euclidean) to the goal", judged the same way. Sector
-policies are evaluated by `ground_station.learn.sector.evaluate.evaluate_sector`;
-`evaluate_run` dispatches on meta.json's encoding.
-"""
+"""Greedy evaluation of a saved training run, whatever its kind: the run folder is read
+once (`ground_station.learn.export.load_run`) and judged by its kind's evaluation
+(`ground_station.learn.kinds`: cell in `learn/cell/evaluate.py`, sector in
+`learn/sector/evaluate.py`, sector-memory in `learn/sector_memory/trainer.py`), with the
+baselines that kind reports beside the policy (`qnav eval`)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-import numba
-import numpy as np
+from ground_station.learn import kinds
+from ground_station.learn.export import TrainingRun, load_run
+from ground_station.maps import GridMap
 
-from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.gridbug import GridBugEncoder
-from firmware_py.policy import REMOVED_KINDS, removed_kind_reason
-from ground_station.learn.envs.cell_env import cell_transitions, goal_distances, resolve_goals
-from ground_station.learn.jit import greedy
-from ground_station.learn.train import cell_state
-from ground_station.maps import GridMap, MapError
-
-SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
-POLICY_Q, POLICY_NEAREST = 0, 1
+__all__ = ["evaluate_run", "evaluate_table", "plot_run"]
 
 
-@numba.njit(cache=True)
-def rollouts_cell(q, next_cell, width, goal_cells, pair_goal, pair_start, max_steps, policy):
-    """Run one deterministic rollout per (goal index, start cell) pair.
-
-    policy POLICY_Q: greedy on q (n_goals*H*W, 4); POLICY_NEAREST: the free
-    neighbour with the smallest Euclidean distance to the goal. Returns
-    (outcome int8[n], steps int32[n])."""
-    n = pair_goal.shape[0]
-    n_cells = next_cell.shape[0]
-    n_actions = next_cell.shape[1]
-    outcome = np.empty(n, dtype=np.int8)
-    steps = np.zeros(n, dtype=np.int32)
-    stamp = np.full(n_cells, -1, dtype=np.int64)  # rollout id that last visited a cell
-    for i in range(n):
-        g = pair_goal[i]
-        goal = goal_cells[g]
-        gc = goal % width
-        gr = goal // width
-        cell = pair_start[i]
-        stamp[cell] = i
-        res = TIMEOUT
-        for t in range(max_steps):
-            if policy == POLICY_Q:
-                s = cell_state(g, cell, n_cells)
-                a = greedy(q, s)
-                nxt = next_cell[cell, a]
-            else:
-                nxt = -1
-                best_d = np.inf
-                for k in range(n_actions):
-                    c2 = next_cell[cell, k]
-                    if c2 >= 0:
-                        dc = c2 % width - gc
-                        dr = c2 // width - gr
-                        d = dc * dc + dr * dr
-                        if d < best_d:
-                            best_d = d
-                            nxt = c2
-            steps[i] = t + 1
-            if nxt < 0:
-                res = COLLISION
-                break
-            if nxt == goal:
-                res = SUCCESS
-                break
-            if stamp[nxt] == i:
-                res = LOOP
-                break
-            stamp[nxt] = i
-            cell = nxt
-        outcome[i] = res
-    return outcome, steps
-
-
-def _summary(outcome: np.ndarray, steps: np.ndarray, shortest: np.ndarray) -> dict:
-    ok = outcome == SUCCESS
-    ratio = steps[ok] / shortest[ok]
-    n = len(outcome)
-    return {
-        "success_rate": float(ok.mean()) if n else 0.0,
-        "path_ratio_mean": float(ratio.mean()) if ok.any() else None,
-        "path_ratio_max": float(ratio.max()) if ok.any() else None,
-        "timeouts": int((outcome == TIMEOUT).sum()),
-        "collisions": int((outcome == COLLISION).sum()),
-        "loops": int((outcome == LOOP).sum()),
-        "episodes": int(n),
-    }
-
-
-def evaluate_cell(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int]],
-                  sample: int | None = None, seed: int = 0, max_steps: int | None = None,
-                  target_names: list[str] | None = None) -> dict:
-    """Greedy Q policy vs the nearest-neighbour baseline over all (start, goal) pairs."""
-    enc = CellEncoder(gridmap.width, gridmap.height, len(goals))
-    if q.shape != (enc.n_states, enc.n_actions):
-        raise ValueError(f"Q table shape {q.shape} does not fit a {gridmap.width}x{gridmap.height} map "
-                         f"with {len(goals)} goals (expected {(enc.n_states, enc.n_actions)})")
-    for c, r in goals:
-        if not gridmap.is_free(c, r):
-            raise MapError(f"goal ({c},{r}) is {gridmap.why_not_free(c, r)}")
-    w = gridmap.width
-    dist = goal_distances(gridmap, goals)
-    pair_goal, pair_start = np.nonzero(dist > 0)  # every start that can reach the goal, goal excluded
-    if sample is not None and len(pair_goal) > sample:
-        pick = np.sort(np.random.default_rng(seed).choice(len(pair_goal), sample, replace=False))
-        pair_goal, pair_start = pair_goal[pick], pair_start[pick]
-    pair_goal = pair_goal.astype(np.int64)
-    pair_start = pair_start.astype(np.int64)
-    shortest = dist[pair_goal, pair_start].astype(np.float64)
-    nxt = cell_transitions(gridmap.occ)
-    goal_cells = np.array([r * w + c for c, r in goals], dtype=np.int64)
-    limit = int(max_steps or gridmap.width * gridmap.height)
-    q64 = np.ascontiguousarray(q, dtype=np.float64)
-    out, steps = rollouts_cell(q64, nxt, w, goal_cells, pair_goal, pair_start, limit, POLICY_Q)
-    b_out, b_steps = rollouts_cell(q64, nxt, w, goal_cells, pair_goal, pair_start, limit, POLICY_NEAREST)
-    rep = _summary(out, steps, shortest)
-    base = _summary(b_out, b_steps, shortest)
-    rep["baseline_success_rate"] = base["success_rate"]
-    rep["baseline"] = base
-    names = target_names or [f"{c}:{r}" for c, r in goals]
-    rep["per_target"] = {
-        name: float((out[pair_goal == g] == SUCCESS).mean()) if (pair_goal == g).any() else None
-        for g, name in enumerate(names)}
-    rep["encoding"] = "cell"
-    rep["map"] = gridmap.name
-    return rep
-
-
-def load_run(run_dir: str | Path) -> tuple[np.ndarray, dict]:
-    """q.npy and meta.json of a training run folder (ValueError if unusable)."""
-    d = Path(run_dir)
-    try:
-        meta = json.loads((d / "meta.json").read_text())
-        q = np.load(d / "q.npy", allow_pickle=False)
-    except FileNotFoundError as exc:
-        raise ValueError(f"{d} is not a training run folder: missing {Path(exc.filename).name}") from None
-    except (json.JSONDecodeError, ValueError) as exc:
-        raise ValueError(f"{d}: unreadable run artifacts: {exc}") from None
-    removed = {name: code for code, name in REMOVED_KINDS.items()}
-    if meta.get("encoding") in removed:
-        raise ValueError(f"{d}/meta.json: {removed_kind_reason(removed[meta['encoding']])}")
-    if meta.get("encoding") not in ("cell", "sector", "sector-memory"):
-        raise ValueError(f"{d}/meta.json: unknown encoding {meta.get('encoding')!r}")
-    if q.ndim != 2:
-        raise ValueError(f"{d}/q.npy: expected a 2-D table, got shape {q.shape}")
-    return q, meta
-
-
-def sector_encoder_from_meta(d: dict) -> SectorEncoder:
-    return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]), sensors=tuple(d["sensors"]),
-                         range_edges_mm=tuple(d["range_edges_mm"]))
-
-
-def sector_guidance_from_meta(meta: dict) -> dict:
-    """evaluate_sector's guidance keywords for a sector run: the run's own
-    (runs from before guidance existed trained direct but are judged guided,
-    the main figure; the direct figures are reported beside it)."""
-    from ground_station.maps.planner import guidance_from_metadata
-    return {"guidance": "path", **guidance_from_metadata(meta)}
-
-
-def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = None, seed: int = 0) -> dict:
-    """Evaluate a saved run on `gridmap`, dispatching on its encoding."""
-    q, meta = load_run(run_dir)
-    if meta["encoding"] == "cell":
-        goals = [tuple(g) for g in meta["goals"]]
-        enc = meta["encoder"]
-        if (enc["width"], enc["height"]) != (gridmap.width, gridmap.height):
-            raise ValueError(f"run was trained on a {enc['width']}x{enc['height']} map, "
-                             f"{gridmap.name} is {gridmap.width}x{gridmap.height}")
-        names, goals = resolve_goals(gridmap, [list(g) for g in goals])
-        return evaluate_cell(q, gridmap, goals, sample=sample, seed=seed,
-                             target_names=meta.get("targets") or names)
-    if meta["encoding"] == "sector-memory":
-        from ground_station.learn.export import encoder_from_dict
-        from ground_station.learn.sector_memory.trainer import evaluate_gridbug
-
-        enc = encoder_from_dict(meta["encoder"])
-        assert isinstance(enc, GridBugEncoder)
-        rep = evaluate_gridbug(q, gridmap, enc, seed=seed, sample=sample)
-        rep["encoding"] = "sector-memory"
-        return rep
-    from ground_station.learn.sector.evaluate import evaluate_sector
-
-    rep = evaluate_sector(q, gridmap, sector_encoder_from_meta(meta["encoder"]), seed=seed, sample=sample,
-                          **sector_guidance_from_meta(meta), direct=True, baseline=True)
-    rep.setdefault("encoding", "sector")
+def evaluate_table(q, run: TrainingRun, gridmap: GridMap, *, sample: int | None = None,  # type: ignore[no-untyped-def]
+                   seed: int = 0, full: bool = False) -> dict:
+    """Greedy rollouts of table `q` (the run's, or its quantised copy) with the run's encoder."""
+    kind = kinds.of_name(run.encoder.kind)
+    rep: dict = kinds.resolve(kind.evaluate)(q, run, gridmap, sample=sample, seed=seed, full=full)
+    rep.setdefault("encoding", kind.name)
     rep.setdefault("map", gridmap.name)
     return rep
 
 
-def greedy_arrows(q: np.ndarray, gridmap: GridMap, goal_index: int, goal: tuple[int, int]
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(x, y, u, v) of the greedy action's arrow in every free cell but the goal, in the image's
-    data coordinates: x = column, y = row, so on an image drawn with row 0 at the top (origin
-    "upper") a move to the next row (south) points down (+v). Negating v drew every north/south
-    arrow backwards."""
-    from firmware_py import robot_spec
-
-    h, w = gridmap.height, gridmap.width
-    dc = np.array([d[0] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
-    dr = np.array([d[1] for d in robot_spec.CELL_ACTION_DELTAS], dtype=float)
-    free = np.argwhere(~gridmap.occ)  # (row, col)
-    acts = np.argmax(q[goal_index * h * w + free[:, 0] * w + free[:, 1]], axis=1)  # ties -> lowest, as the robot
-    keep = ~((free[:, 0] == goal[1]) & (free[:, 1] == goal[0]))
-    return free[keep, 1], free[keep, 0], dc[acts[keep]], dr[acts[keep]]
+def evaluate_run(run_dir: str | Path, gridmap: GridMap, sample: int | None = None, seed: int = 0) -> dict:
+    """Evaluate a saved run on `gridmap` with its kind's evaluation and baselines."""
+    run = load_run(run_dir)
+    return evaluate_table(run.q, run, gridmap, sample=sample, seed=seed, full=True)
 
 
-def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int]],
-                     names: list[str] | None = None) -> bytes:
-    """PNG: per goal, the map with the greedy action of every free cell as an
-    arrow (north up, row 0 at the top) and the goal marked."""
-    from ground_station.plotting import png_bytes, pyplot
-
-    plt = pyplot()
-
-    h, w = gridmap.height, gridmap.width
-    names = names or [f"{c}:{r}" for c, r in goals]
-    n = len(goals)
-    cols = min(n, 4)
-    rows = (n + cols - 1) // cols
-    size = max(3.0, min(6.0, 40.0 / max(h, w) * 1.0 + 2.5))
-    fig, axes = plt.subplots(rows, cols, figsize=(size * cols, size * rows), dpi=100, squeeze=False)
-    for g, (gc, gr) in enumerate(goals):
-        ax = axes[g // cols][g % cols]
-        ax.imshow(gridmap.occ, cmap="Greys", vmin=0, vmax=1.5, origin="upper")
-        ax.quiver(*greedy_arrows(q, gridmap, g, (gc, gr)),
-                  angles="xy", scale_units="xy", scale=1.5, pivot="middle", color="tab:blue", width=0.006)
-        ax.plot([gc], [gr], marker="*", markersize=14, color="tab:red")
-        ax.set_title(f"greedy policy to {names[g]} ({gc},{gr})")
-        ax.set_xticks([])
-        ax.set_yticks([])
-    for k in range(n, rows * cols):
-        axes[k // cols][k % cols].axis("off")
-    fig.tight_layout()
-    return png_bytes(fig)
+def plot_run(run_dir: str | Path, gridmap: GridMap) -> bytes:
+    """PNG of a run's greedy policy, for the kinds that draw one (ValueError otherwise)."""
+    run = load_run(run_dir)
+    kind = kinds.of_name(run.encoder.kind)
+    if kind.plot is None:
+        raise ValueError(f"--plot draws a policy per cell; the {kind.name} kind has no such plot")
+    return bytes(kinds.resolve(kind.plot)(run.q, run, gridmap))

@@ -20,10 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_py import kinds as robot_kinds
 from firmware_py import policy as fmt
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, SectorEncoder
-from firmware_py.gridbug import GridBugEncoder
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
 
@@ -95,21 +94,20 @@ def compare(q: np.ndarray, qt: Quantised) -> dict:
 
 
 def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
-    """Rebuild a reference encoder from its `to_dict()` (as in meta.json)."""
+    """Rebuild a reference encoder from its `to_dict()` (as in meta.json), by its kind's
+    `encoder_from_dict` (ground_station.learn.kinds)."""
+    from ground_station.learn import kinds
+
     kind = d.get("kind")
-    if kind == "cell":
-        return CellEncoder(width=int(d["width"]), height=int(d["height"]), n_goals=int(d.get("n_goals", 1)))
-    if kind == "sector":
-        return SectorEncoder(bearing_sectors=int(d["bearing_sectors"]),
-                             sensors=tuple(int(s) for s in d["sensors"]),
-                             range_edges_mm=tuple(int(e) for e in d["range_edges_mm"]))
-    if kind == "sector-memory":
-        return GridBugEncoder(free_mm=int(d["free_mm"]), leave_margin_mm=int(d["leave_margin_mm"]),
-                              cell_mm=int(d["cell_mm"]), wall_bearing=bool(d["wall_bearing"]))
     removed = {name: code for code, name in fmt.REMOVED_KINDS.items()}
     if kind in removed:
         raise ValueError(fmt.removed_kind_reason(removed[kind]))
-    raise ValueError(f"unknown encoder kind {kind!r}")
+    try:
+        return kinds.of_name(str(kind)).encoder_from_dict(d)
+    except ValueError as exc:
+        if str(exc).startswith("encoding must be one of"):
+            raise ValueError(f"unknown encoder kind {kind!r}") from None
+        raise
 
 
 def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),
@@ -151,20 +149,33 @@ def load_run(run_dir: str | os.PathLike) -> TrainingRun:
     """Read DIR/q.npy and DIR/meta.json; ValueError with one line if unusable."""
     d = Path(run_dir)
     try:
-        q = np.load(d / "q.npy", allow_pickle=False)
         meta = json.loads((d / "meta.json").read_text())
+        q = np.load(d / "q.npy", allow_pickle=False)
+    except FileNotFoundError as exc:
+        raise ValueError(f"{d} is not a training run folder: missing {Path(exc.filename).name}") from None
     except (OSError, ValueError) as exc:
-        raise ValueError(f"{d}: not a training run ({exc})") from None
+        raise ValueError(f"{d}: unreadable run artifacts: {exc}") from None
+    if not isinstance(meta, dict) or q.ndim != 2:
+        raise ValueError(f"{d}: not a training run (meta.json an object, q.npy a 2-D table)")
+    try:
+        return run_of(q, meta)
+    except ValueError as exc:
+        raise ValueError(f"{d}/{exc}") from None
+
+
+def run_of(q: np.ndarray, meta: dict) -> TrainingRun:
+    """A TrainingRun of a table and its meta.json; ValueError naming the file at fault."""
     try:
         encoder = encoder_from_dict(meta["encoder"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d}/meta.json: bad encoder description ({exc})") from None
+        raise ValueError(f"meta.json: bad encoder description ({exc})") from None
     if q.shape != (encoder.n_states, encoder.n_actions):
-        raise ValueError(f"{d}/q.npy has shape {q.shape}, the encoder needs "
-                         f"({encoder.n_states}, {encoder.n_actions})")
-    goals = [(int(c), int(r)) for c, r in meta.get("goals", [])] if isinstance(encoder, CellEncoder) else []
-    if isinstance(encoder, CellEncoder) and len(goals) != encoder.n_goals:
-        raise ValueError(f"{d}/meta.json lists {len(goals)} goals for {encoder.n_goals} goal slots")
+        raise ValueError(f"q.npy has shape {q.shape}, the encoder needs ({encoder.n_states}, {encoder.n_actions})")
+    # a kind with goal slots in its table (cell) lists their cells in meta.json
+    n_goals = getattr(encoder, "n_goals", None)
+    goals = [(int(c), int(r)) for c, r in meta.get("goals", [])] if n_goals is not None else []
+    if n_goals is not None and len(goals) != n_goals:
+        raise ValueError(f"meta.json lists {len(goals)} goals for {n_goals} goal slots")
     cell_mm = meta.get("cell_mm")
     if cell_mm is None and "cell_size_m" in meta:
         cell_mm = round(float(meta["cell_size_m"]) * 1000)
@@ -179,10 +190,11 @@ def control_period_us(run: TrainingRun) -> int:
 
 
 def map_geometry(run: TrainingRun) -> fmt.MapGeometry:
-    """The training map's geometry for the file header: a cell policy's grid,
-    else the map named in meta.json (ValueError with one line if unreadable)."""
-    if isinstance(run.encoder, CellEncoder):
-        return fmt.MapGeometry(run.cell_mm, run.encoder.width, run.encoder.height)
+    """The training map's geometry for the file header: the one the kind fixes (a cell
+    policy's own grid), else the map named in meta.json (ValueError with one line if unreadable)."""
+    fixed = robot_kinds.of_name(run.encoder.kind).fixed_geometry(run.encoder, run.cell_mm)
+    if fixed is not None:
+        return fmt.MapGeometry(*fixed)
     return geometry_of_map(run.meta.get("map"), run.cell_mm)
 
 
@@ -240,8 +252,10 @@ def planner_metadata(text: str, kind: str, meta: dict) -> dict:
     not a plain sector policy or carries no map)."""
     from firmware_py.localplan import LocalPlannerConfig
 
-    if kind != "sector":
-        raise ValueError(f"--local-planner: a {kind} policy cannot steer on the local planner (sector only)")
+    if not robot_kinds.of_name(kind).local_planner:
+        able = [k for k in robot_kinds.names() if robot_kinds.of_name(k).local_planner]
+        raise ValueError(f"--local-planner: a {kind} policy cannot steer on the local planner "
+                         f"({', '.join(able)} only)")
     if META_GRID not in meta:
         raise ValueError("--local-planner: the policy carries no map (its training map could not be read)")
     try:

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -74,14 +74,15 @@ def _ci(values: list[float]) -> dict:
 def run_job(job: dict) -> dict:
     """Train job["config"] on the cell encoding, evaluating the greedy policy
     every job["eval_every"] steps; the learning curve and steps to threshold."""
+    from ground_station.learn.cell.evaluate import POLICY_Q, SUCCESS, rollouts_cell
     from ground_station.learn.cell.learners import CellLearner
-    from ground_station.learn.evaluate import POLICY_Q, SUCCESS, rollouts_cell
-    from ground_station.learn.train import CellProblem, initial_table
+    from ground_station.learn.cell.trainer import CellProblem
+    from ground_station.learn.train import initial_table
     from ground_station.maps import load_map
 
-    cfg = TrainConfig(**job["config"])
+    cfg = TrainConfig.of(**job["config"])
     gm = load_map(cfg.map)
-    prob = CellProblem.build(gm, cfg.targets or None)
+    prob = CellProblem.build(gm, cfg.options.targets or None)
     q0 = initial_table(cfg, prob.encoder.n_states, prob.encoder.n_actions)
     lrn = CellLearner(cfg, prob, q0.copy())
     pair_goal, pair_start = (a.astype(np.int64) for a in np.nonzero(prob.dist > 0))
@@ -126,7 +127,7 @@ def study_jobs(base: TrainConfig, lrs: list[float], seeds: int, constant_epsilon
     """lr x schedule x seed Q-learning runs, then learner x learner_lr x seed runs
     (seeds base.seed .. base.seed + seeds - 1)."""
     def job(group: str, schedule: str, cfg: TrainConfig) -> dict:
-        return {"group": group, "schedule": schedule, "config": asdict(cfg), "eval_every": eval_every,
+        return {"group": group, "schedule": schedule, "config": cfg.flat(), "eval_every": eval_every,
                 "threshold": threshold}
 
     q = replace(base, learner="q")
@@ -180,7 +181,7 @@ def summarise(results: list[dict], lrs: list[float], learners: list[str], learne
 
 
 def sector_base(base: TrainConfig, steps: int = SECTOR_STEPS) -> TrainConfig:
-    """The shipped sector recipe (`RECIPES["sector"]`) on base's map and seed, with `steps`."""
+    """The shipped sector recipe (`ground_station.learn.sector.KIND.recipe`) on base's map and seed, with `steps`."""
     from ground_station.learn.config import recipe_config
 
     return recipe_config("sector", {"map": base.map, "seed": base.seed, "steps": steps,
@@ -191,8 +192,8 @@ def sector_base(base: TrainConfig, steps: int = SECTOR_STEPS) -> TrainConfig:
 def sector_jobs(sbase: TrainConfig, learners: list[str], seeds: int, eval_every: int, threshold: float,
                 sample: int) -> list[dict]:
     """learner x seed runs of the sector recipe (seeds sbase.seed .. + seeds - 1)."""
-    return [{"group": "sector", "schedule": "decay", "config": asdict(replace(sbase, learner=learner,
-                                                                              seed=sbase.seed + k)),
+    return [{"group": "sector", "schedule": "decay", "config": replace(sbase, learner=learner,
+                                                                            seed=sbase.seed + k).flat(),
              "eval_every": eval_every, "threshold": threshold, "sample": sample}
             for learner in learners for k in range(seeds)]
 
@@ -219,10 +220,10 @@ class SectorEval:
         ugoals, slot = np.unique(goals, axis=0, return_inverse=True)
         self.slot = slot.reshape(-1).astype(np.int64)
         self.dists = np.stack([octile_distances(gridmap.occ, int(gc), int(gr)) for gc, gr in ugoals])
-        self.guided = check_guidance(cfg.sector_guidance)
+        self.guided = check_guidance(cfg.options.guidance)
         if self.guided:
             self.wp, self.nwp, self.rem, self.pair = plan_pairs(gridmap, starts, goals, self.dists, self.slot,
-                                                                cfg.sector_margin_mm, cfg.sector_max_segment_mm)
+                                                                cfg.options.margin_mm, cfg.options.max_segment_mm)
         else:
             self.wp, self.nwp, self.rem = np.zeros((1, 1, 2)), np.ones(1, dtype=np.int64), np.zeros((1, 1))
             self.pair = np.zeros(len(starts), dtype=np.int64)
@@ -270,7 +271,7 @@ def run_sector_job(job: dict) -> dict:
     from ground_station.learn.train import initial_table
     from ground_station.maps import load_map
 
-    cfg = TrainConfig(**job["config"])
+    cfg = TrainConfig.of(**job["config"])
     gm = load_map(cfg.map)
     trainer = SectorTrainer([gm], cfg, sector_encoder(cfg))
     ev = SectorEval(gm, cfg, int(job["sample"]))
@@ -328,15 +329,15 @@ def optimum(base: TrainConfig) -> tuple[dict, dict]:
     0.5, 3M steps) on base's map, targets and seed, against BFS on the same
     pairs: (deterministic part for study.json, timings for campaign.json;
     each time the best of 3 after a warm-up call)."""
+    from ground_station.learn.cell.evaluate import POLICY_Q, SUCCESS, rollouts_cell
+    from ground_station.learn.cell.trainer import CellProblem, train_cell
     from ground_station.learn.envs.cell_env import goal_distances
-    from ground_station.learn.evaluate import POLICY_Q, SUCCESS, rollouts_cell
-    from ground_station.learn.train import CellProblem, train_cell
     from ground_station.maps import load_map
 
     gm = load_map(base.map)
-    cfg = TrainConfig(map=base.map, targets=base.targets, seed=base.seed)
+    cfg = TrainConfig.of(map=base.map, targets=base.options.targets, seed=base.seed)
     res = min((train_cell(cfg, gm) for _ in range(3)), key=lambda r: r.seconds)
-    prob = CellProblem.build(gm, cfg.targets or None)
+    prob = CellProblem.build(gm, cfg.options.targets or None)
     free = [(c, r) for r in range(gm.height) for c in range(gm.width) if gm.is_free(c, r)]
     pair_goal, pair_start = (a.astype(np.int64) for a in np.nonzero(prob.dist > 0))
 
@@ -431,10 +432,10 @@ def study(base: TrainConfig, lrs: list[float], seeds: int, *, constant_epsilon: 
     campaign = {**stats.as_dict(), "train_seconds_total": round(sum(seconds), 3),
                 "learner_train_seconds": wall, "optimum": opt_timing}
     cell_results = [r for r in results if r["group"] != "sector"]
-    out = {"map": base.map, "encoding": "cell", "targets": base.targets, "seeds": seeds, "lrs": lrs,
+    out = {"map": base.map, "encoding": "cell", "targets": base.options.targets, "seeds": seeds, "lrs": lrs,
            "constant_epsilon": constant_epsilon, "learners": learners, "learner_lrs": learner_lrs,
            "eval_every": eval_every, "threshold": threshold, "ci": f"bootstrapped 95 % CI of the mean over seeds "
-           f"(percentile, {BOOTSTRAP} resamples)", "config": asdict(base),
+           f"(percentile, {BOOTSTRAP} resamples)", "config": base.flat(),
            **summarise(cell_results, lrs, learners, learner_lrs, base.steps), "optimum": opt}
     if sector_seeds > 0:
         campaign["sector_train_seconds"] = {
@@ -442,7 +443,7 @@ def study(base: TrainConfig, lrs: list[float], seeds: int, *, constant_epsilon: 
                           if r["group"] == "sector" and r["learner"] == learner]) for learner in sector_learners}
         out["sector"] = {"map": sbase.map, "seeds": sector_seeds, "learners": sector_learners,
                          "steps": sector_steps, "eval_every": sector_eval_every, "sample": sector_sample,
-                         "guidance": sbase.sector_guidance, "config": asdict(sbase),
+                         "guidance": sbase.options.guidance, "config": sbase.flat(),
                          "rows": summarise_sector(results, sector_learners, sector_steps)}
     out["runs"] = [{k: v for k, v in r.items() if k != "curve"} for r in results]
     out["campaign"] = campaign

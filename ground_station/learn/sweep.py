@@ -8,7 +8,6 @@ jobs are spread over processes.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,24 +36,21 @@ def parse_lrs(spec: str) -> list[float]:
 
 def run_job(cfg_dict: dict) -> dict:
     """Train one config and evaluate its greedy policy on the same map."""
-    from ground_station.learn.evaluate import evaluate_cell
+    from ground_station.learn import kinds
+    from ground_station.learn.evaluate import evaluate_table
+    from ground_station.learn.export import run_of
     from ground_station.learn.train import learning_curve, train
     from ground_station.maps import load_map
 
-    cfg = TrainConfig(**cfg_dict)
+    cfg = TrainConfig.of(**cfg_dict)
     gm = load_map(cfg.map)
     res = train(cfg, gm)
-    if cfg.encoding == "cell":
-        goals = [tuple(g) for g in res.meta["goals"]]
-        ev = evaluate_cell(res.q, gm, goals, sample=20_000, seed=cfg.seed)
-    else:
-        from ground_station.learn.evaluate import sector_encoder_from_meta
-        from ground_station.learn.sector.evaluate import evaluate_sector
-        ev = evaluate_sector(res.q, gm, sector_encoder_from_meta(res.meta["encoder"]), seed=cfg.seed)
+    ev = evaluate_table(res.q, run_of(res.q, {"encoding": cfg.encoding, **res.meta}), gm,
+                        sample=kinds.of_name(cfg.encoding).sweep_sample, seed=cfg.seed)
     curve = learning_curve(res.returns, res.successes, cfg.curve_points)
     return {"lr": cfg.lr, "seed": cfg.seed, "train_seconds": res.seconds, "episodes": int(len(res.returns)),
             "success_rate": ev["success_rate"], "path_ratio_mean": ev["path_ratio_mean"],
-            "loops": ev["loops"], "collisions": ev["collisions"], "timeouts": ev["timeouts"],
+            "loops": ev.get("loops", 0), "collisions": ev["collisions"], "timeouts": ev["timeouts"],
             "q_max_mean": float(res.q.max(axis=1).mean()), "curve": curve}
 
 
@@ -62,7 +58,7 @@ def sweep_jobs(base: TrainConfig, lrs: list[float], seeds: int,
                points: list[dict] | None = None) -> list[dict]:
     """The campaign's job list: every search point x learning rate x seed,
     each a full TrainConfig dict (seeds base.seed .. base.seed + seeds - 1)."""
-    return [asdict(replace(base, **point, lr=lr, seed=base.seed + k))
+    return [base.with_values(**point, lr=lr, seed=base.seed + k).flat()
             for point in (points or [{}]) for lr in lrs for k in range(seeds)]
 
 
@@ -110,7 +106,7 @@ def sweep(base: TrainConfig, lrs: list[float], seeds: int, engine=None, progress
     for r in results:
         del r["curve"]
     return {"map": base.map, "encoding": base.encoding, "lrs": lrs, "seeds": seeds,
-            "points": points or [{}], "config": asdict(base), "summary": summary, "runs": results,
+            "points": points or [{}], "config": base.flat(), "summary": summary, "runs": results,
             "campaign": campaign}
 
 

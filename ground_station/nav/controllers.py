@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -128,9 +129,9 @@ def policy_table(policy: Policy) -> np.ndarray:
 
 def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAMES) -> list[NavController]:
     """learnt / seek / vfh / direct (and seek_local) on the learnt policy's encoder."""
-    enc = policy.encoder
-    if not isinstance(enc, SectorEncoder):
+    if policy.kind != "sector":
         raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
+    enc = cast(SectorEncoder, policy.encoder)
     q = policy_table(policy)
     local = policy.local_planner
     make = {

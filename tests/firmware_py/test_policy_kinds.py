@@ -7,60 +7,21 @@ with no change to controller, loader or CLI code; and those modules name no kind
 from __future__ import annotations
 
 import re
-import struct
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 
 from firmware_py import kinds
 from firmware_py.control.controller import Controller
-from firmware_py.kinds.base import Decision, DriveTick, KindDriver, PolicyKind, Unpacked
+from firmware_py.kinds.base import PolicyKind
 from firmware_py.policy import MapGeometry, PolicyError, dump_policy, load_policy
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from tests.support.controller_rig import Kinematic, Rig
+from tests.support.toy_kind import ACTIONS, ROBOT_KIND, SpinDriver, SpinEncoder, _unpack
 
 ROOT = Path(__file__).resolve().parents[2]
-TOY_ACTIONS = ((120, 120), (-90, 90))  # forward, turn left in place (mm/s)
-
-
-@dataclass(frozen=True)
-class SpinEncoder:
-    """Two states: the way ahead is clear (0) or closer than `near_mm` (1)."""
-
-    near_mm: int = 300
-    kind: str = field(default="toy-spin", init=False)
-
-    @property
-    def n_states(self) -> int:
-        return 2
-
-    @property
-    def n_actions(self) -> int:
-        return len(TOY_ACTIONS)
-
-    def to_dict(self) -> dict[str, object]:
-        return {"near_mm": self.near_mm}
-
-
-_SECTION = struct.Struct("<H")
-
-
-def _unpack(sec: bytes, n_actions: int, _sensors: int) -> Unpacked:
-    if len(sec) != _SECTION.size + 4 * n_actions:
-        raise ValueError(f"toy-spin section is {len(sec)} bytes")
-    return Unpacked(SpinEncoder(_SECTION.unpack_from(sec, 0)[0]), actions_at=_SECTION.size)
-
-
-class SpinDriver(KindDriver):
-    def step(self, tick: DriveTick) -> Decision:
-        s = int(tick.ranges_mm[0] < self.policy.encoder.near_mm)
-        a = self.policy.best_action(s)
-        return Decision(TOY_ACTIONS[a], self.decided(s, a))
-
-
-TOY = PolicyKind(name="toy-spin", code=200, actions=TOY_ACTIONS, unpack=_unpack,
-                 pack=lambda enc, _goals, _cell: _SECTION.pack(enc.near_mm), driver=SpinDriver)
+TOY = ROBOT_KIND
+TOY_ACTIONS = ACTIONS
 
 
 @pytest.fixture

@@ -96,7 +96,7 @@ def test_a_move_into_a_wall_is_a_collision_in_evaluation():
 
 
 def test_trainer_deterministic_and_chunkable():
-    cfg = TrainConfig(encoding="sector-memory", steps=60_000, lr=0.1, seed=4, grid_wall_cost=0.02)
+    cfg = TrainConfig.of(encoding="sector-memory", steps=60_000, lr=0.1, seed=4, grid_wall_cost=0.02)
     enc = gridbug_encoder(cfg)
     maps = [load_map("paper10")]
     q1 = np.zeros((enc.n_states, 4))
@@ -112,11 +112,11 @@ def test_trainer_deterministic_and_chunkable():
 
 def test_config_validation():
     with pytest.raises(ValueError, match="free_mm"):
-        validate_config(TrainConfig(encoding="sector-memory", grid_free_mm=10))
+        validate_config(TrainConfig.of(encoding="sector-memory", grid_free_mm=10))
     with pytest.raises(ValueError, match="grid_wall_bearing"):
-        validate_config(TrainConfig(encoding="sector-memory", grid_wall_bearing=2))
+        validate_config(TrainConfig.of(encoding="sector-memory", grid_wall_bearing=2))
     with pytest.raises(ValueError, match="training: q"):
-        validate_config(TrainConfig(encoding="sector-memory", learner="sarsa"))
+        validate_config(TrainConfig.of(encoding="sector-memory", learner="sarsa"))
 
 
 def _qnav(*args: str) -> subprocess.CompletedProcess:

@@ -8,13 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from ground_station.learn.cell.evaluate import evaluate_cell
 from ground_station.learn.cell.learners import Q_LAMBDA, CellLearner, trace_capacity
+from ground_station.learn.cell.trainer import CellProblem, train_cell
 from ground_station.learn.config import LEARNERS, TrainConfig, validate_config
-from ground_station.learn.evaluate import evaluate_cell
-from ground_station.learn.train import CellProblem, train_cell
 from ground_station.maps import GridMap, load_map, parse_map
 
-SMALL = TrainConfig(map="paper10", encoding="cell", targets="A,B,C,D", steps=200_000, lr=0.1,
+SMALL = TrainConfig.of(map="paper10", encoding="cell", targets="A,B,C,D", steps=200_000, lr=0.1,
                     chunk_steps=70_001)
 
 
@@ -26,7 +26,7 @@ def corridor(n: int) -> GridMap:
 def test_learner_q_through_the_switch_equals_the_q_learning_kernel():
     gm = load_map("paper10")
     ref = train_cell(SMALL, gm)
-    prob = CellProblem.build(gm, SMALL.targets)
+    prob = CellProblem.build(gm, SMALL.options.targets)
     lrn = CellLearner(SMALL, prob, np.zeros((prob.encoder.n_states, 4)))
     rets = []
     while lrn.done < SMALL.steps:
@@ -67,7 +67,7 @@ def test_watkins_q_lambda_cuts_traces_on_exploratory_actions():
     # action extends the trace ring by one, an exploratory one empties it.
     occ = parse_map("type octile\nheight 3\nwidth 12\nmap\n" + "............\n" * 3).occ
     gm = GridMap("room12x3", occ, {"G": (11, 1)})
-    cfg = TrainConfig(map="room12x3", encoding="cell", steps=1, lr=1e-9, learner="q-lambda",
+    cfg = TrainConfig.of(map="room12x3", encoding="cell", steps=1, lr=1e-9, learner="q-lambda",
                       learner_lambda=0.9, trace_min=1e-9, epsilon_start=0.5, epsilon_end=0.5, seed=3,
                       max_episode_steps=1000)
     prob = CellProblem.build(gm, None)
@@ -91,7 +91,7 @@ def test_watkins_q_lambda_cuts_traces_on_exploratory_actions():
 
 
 def test_trace_capacity_follows_trace_min():
-    cfg = TrainConfig(gamma=0.95, learner_lambda=0.9, trace_min=1e-3)
+    cfg = TrainConfig.of(gamma=0.95, learner_lambda=0.9, trace_min=1e-3)
     k = trace_capacity(cfg, 10_000)
     assert (0.95 * 0.9) ** (k - 1) < 1e-3 <= (0.95 * 0.9) ** (k - 2)
     assert trace_capacity(replace(cfg, learner_lambda=1.0, gamma=1.0), 77) == 77
@@ -100,7 +100,7 @@ def test_trace_capacity_follows_trace_min():
 def test_dyna_q_plans_from_its_model():
     gm = load_map("paper10")
     cfg = replace(SMALL, learner="dyna-q", steps=3_000, dyna_planning=20)
-    prob = CellProblem.build(gm, SMALL.targets)
+    prob = CellProblem.build(gm, SMALL.options.targets)
     lrn = CellLearner(cfg, prob, np.zeros((prob.encoder.n_states, 4)))
     lrn.run(3_000)
     seen = lrn.seen[: lrn.n_seen[0]]
@@ -116,7 +116,7 @@ def test_dyna_q_plans_from_its_model():
 
 def test_sector_memory_refuses_other_learners():
     with pytest.raises(ValueError, match="sector-memory training: q"):
-        validate_config(TrainConfig(encoding="sector-memory", learner="sarsa"))
-    validate_config(TrainConfig(encoding="sector", learner="sarsa"))  # tests/ground_station/test_sector_learners.py
+        validate_config(TrainConfig.of(encoding="sector-memory", learner="sarsa"))
+    validate_config(TrainConfig.of(encoding="sector", learner="sarsa"))  # tests/ground_station/test_sector_learners.py
     with pytest.raises(ValueError, match="learner must be one of"):
-        validate_config(TrainConfig(learner="td0"))
+        validate_config(TrainConfig.of(learner="td0"))

@@ -39,7 +39,7 @@ def test_inspect_prints_one_header_line_per_file_and_exit_0(files, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2
     pol = load_policy(good)
-    assert lines[0].startswith(f"{good}: valid v2.0 cell 10x10")
+    assert lines[0].startswith(f"{good}: valid v2.0 cell width=10 height=10 n_goals=2 goals=")
     assert "period_us=50000 map=10x10x500mm" in lines[0] and "period_us=40000 map=12x8x500mm" in lines[1]
     assert f"id=0x{pol.policy_id:08x}" in lines[0] and f"policy CRC 0x{pol.crc:08x}" in lines[0]
     assert f"file CRC32 0x{ftp_crc32(good.read_bytes()):08x}" in lines[0]

@@ -39,7 +39,7 @@ def test_shipped_file_matches_its_record(path):
 
 
 def test_paper10_cell_policy_reaches_a_to_d_optimally_as_recorded():
-    from ground_station.learn.evaluate import evaluate_cell
+    from ground_station.learn.cell.evaluate import evaluate_cell
     from ground_station.maps import load_map
 
     path = POLICIES / "paper10_cell.qtab"

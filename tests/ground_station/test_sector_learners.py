@@ -14,11 +14,10 @@ from firmware_py.encoders import SectorEncoder
 from ground_station.learn.config import LEARNERS, TrainConfig, validate_config
 from ground_station.learn.sector.evaluate import evaluate_sector
 from ground_station.learn.sector.kernels import L_Q_LAMBDA
-from ground_station.learn.sector.trainer import SectorTrainer, sector_encoder
-from ground_station.learn.train import train_sector
+from ground_station.learn.sector.trainer import SectorTrainer, sector_encoder, train_sector
 from ground_station.maps import GridMap, load_map
 
-CFG = TrainConfig(encoding="sector", map="paper10", seed=3, steps=60_000, lr=0.1, gamma=0.95,
+CFG = TrainConfig.of(encoding="sector", map="paper10", seed=3, steps=60_000, lr=0.1, gamma=0.95,
                   max_episode_steps=400, dyna_planning=5)
 OPEN6 = GridMap("open6", np.zeros((6, 6), dtype=bool))
 
@@ -79,7 +78,7 @@ def test_dyna_q_model_holds_the_pairs_seen_and_planning_moves_more_of_the_table(
 
 
 def test_q_lambda_traces_are_bounded_and_cut_on_exploration():
-    cfg = replace(CFG, learner="q-lambda", epsilon_start=0.5, epsilon_end=0.5, sector_hold_max=1)
+    cfg = CFG.with_values(learner="q-lambda", epsilon_start=0.5, epsilon_end=0.5, sector_hold_max=1)
     tr = SectorTrainer([load_map("paper10")], cfg, SectorEncoder())
     assert tr.code == L_Q_LAMBDA and tr._tr_s.shape[0] > 10
     q = np.zeros((tr.n_states, tr.n_actions))
@@ -97,5 +96,5 @@ def test_q_lambda_traces_are_bounded_and_cut_on_exploration():
 
 def test_the_sector_encoding_takes_them_and_sector_memory_refuses_them():
     with pytest.raises(ValueError, match="sector-memory training: q"):
-        validate_config(TrainConfig(encoding="sector-memory", learner="sarsa"))
-    validate_config(TrainConfig(encoding="sector", learner="expected-sarsa"))
+        validate_config(TrainConfig.of(encoding="sector-memory", learner="sarsa"))
+    validate_config(TrainConfig.of(encoding="sector", learner="expected-sarsa"))

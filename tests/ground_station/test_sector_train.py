@@ -16,7 +16,7 @@ from ground_station.maps import GridMap, load_map
 def _cfg(**kw):
     base = dict(encoding="sector", seed=3, steps=60_000, lr=0.1, gamma=0.95, max_episode_steps=400)
     base.update(kw)
-    return TrainConfig(**base)
+    return TrainConfig.of(**base)
 
 
 def _train(cfg, chunks, maps=None):
@@ -59,8 +59,8 @@ def test_every_sector_hyperparameter_comes_from_the_config():
 
 
 def test_env_and_trainer_share_the_default_reward():
-    assert SectorNavEnv().reward == SectorTrainer([load_map("paper10")], TrainConfig(encoding="sector"),
-                                                  SectorEncoder()).reward == SectorReward.from_config(TrainConfig())
+    assert SectorNavEnv().reward == SectorTrainer([load_map("paper10")], TrainConfig.of(encoding="sector"),
+                                                  SectorEncoder()).reward == SectorReward.from_config(TrainConfig.of(encoding="sector"))
 
 
 def test_trainer_shape_and_bad_table():

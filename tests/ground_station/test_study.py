@@ -8,18 +8,17 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from ground_station.campaign.engines import LocalEngine
-from ground_station.learn.config import RECIPES, TrainConfig, recipe_config
+from ground_station.learn.config import TrainConfig, recipe_config, recipes
 from ground_station.learn.study import bootstrap_ci, run_any_job, run_job, study, tables
 
 ROOT = Path(__file__).resolve().parents[2]
-BASE = TrainConfig(map="paper10", targets="A,B,C,D", steps=30_000)
+BASE = TrainConfig.of(map="paper10", targets="A,B,C,D", steps=30_000)
 
 
 def qnav(*args: str) -> subprocess.CompletedProcess:
@@ -43,7 +42,7 @@ def test_bootstrap_ci_brackets_the_mean_and_narrows_with_n():
 
 
 def test_job_steps_to_threshold_is_the_first_checkpoint_at_or_above_it():
-    job = {"group": "lr", "schedule": "decay", "config": asdict(BASE), "eval_every": 1000, "threshold": 0.95}
+    job = {"group": "lr", "schedule": "decay", "config": BASE.flat(), "eval_every": 1000, "threshold": 0.95}
     r = run_job(job)
     c = r["curve"]
     assert c["steps"] == list(range(1000, 30_001, 1000))
@@ -52,8 +51,8 @@ def test_job_steps_to_threshold_is_the_first_checkpoint_at_or_above_it():
     assert r["steps_to_threshold"] == first
     assert r["final_success"] == c["success"][-1]
     assert c["qmax"][-1] > c["qmax"][0]  # values grow toward the goal reward, as in the paper's Fig. 5
-    never = run_job({**job, "threshold": 1.0, "config": asdict(
-        TrainConfig(map="paper10", targets="A,B,C,D", steps=2000))})
+    never = run_job({**job, "threshold": 1.0, "config":
+        TrainConfig.of(map="paper10", targets="A,B,C,D", steps=2000).flat()})
     assert never["steps_to_threshold"] is None
 
 
@@ -117,9 +116,9 @@ def test_cli_sweep_bad_map_targets_are_one_line(tmp_path, args, text):
 
 def test_recipes_are_the_train_defaults(tmp_path):
     assert recipe_config("sector", {}).steps == 20_000_000 and recipe_config("sector", {}).reward_step == 0.0
-    assert recipe_config("cell", {}) == TrainConfig()
+    assert recipe_config("cell", {}) == TrainConfig.of()
     assert recipe_config("sector", {"lr": 0.3}).lr == 0.3  # given flags win
-    assert set(RECIPES) == {"cell", "sector", "sector-memory"}
+    assert set(recipes()) == {"cell", "sector", "sector-memory"}
     p = qnav("train", "--recipe", "shipped-cell", "--steps", "20000", "--out", str(tmp_path / "c"), "--quiet")
     assert p.returncode == 0, p.stderr
     meta = json.loads((tmp_path / "c" / "meta.json").read_text())
@@ -130,8 +129,8 @@ def test_recipes_are_the_train_defaults(tmp_path):
         assert p.returncode == 0, p.stderr
         cfg = json.loads((tmp_path / name / "meta.json").read_text())["config"]
         assert cfg["encoding"] == "sector" and cfg["steps"] == 1000
-        assert {k: cfg[k] for k in RECIPES["sector"] if k != "steps"} == \
-            {k: v for k, v in RECIPES["sector"].items() if k != "steps"}
+        assert {k: cfg[k] for k in recipes()["sector"] if k != "steps"} == \
+            {k: v for k, v in recipes()["sector"].items() if k != "steps"}
     p = qnav("train", "--recipe", "shipped-sector", "--encoding", "cell", "--out", str(tmp_path / "x"))
     assert p.returncode == 2 and "trains the sector encoding" in p.stderr
 
@@ -143,7 +142,7 @@ def test_sector_job_checkpoints_and_path_ratios():
     from ground_station.maps import load_map
 
     sbase = sector_base(BASE, 400_000)
-    assert (sbase.encoding, sbase.steps, sbase.lr) == ("sector", 400_000, RECIPES["sector"]["lr"])
+    assert (sbase.encoding, sbase.steps, sbase.lr) == ("sector", 400_000, recipes()["sector"]["lr"])
     jobs = sector_jobs(sbase, ["q", "expected-sarsa"], 2, 200_000, 0.5, 300)
     assert [(j["config"]["learner"], j["config"]["seed"]) for j in jobs] == [
         ("q", 0), ("q", 1), ("expected-sarsa", 0), ("expected-sarsa", 1)]
@@ -155,7 +154,7 @@ def test_sector_job_checkpoints_and_path_ratios():
     # every success drives at least the disc's any-angle optimum (to within the goal tolerance)
     # and often less than the 8-connected grid path
     gm = load_map("paper10")
-    cfg = TrainConfig(**jobs[0]["config"])
+    cfg = TrainConfig.of(**jobs[0]["config"])
     tr = SectorTrainer([gm], cfg, sector_encoder(cfg))
     q = np.zeros((tr.n_states, tr.n_actions))
     tr.run(q, 0, cfg.steps)
@@ -197,12 +196,12 @@ def test_sweep_and_study_take_the_recipe_of_their_encoding_like_train(monkeypatc
         with pytest.raises(_Stop):
             cli.main([*argv, "--steps", "5000", "--epsilon-end", "0.2"])
         (recipe, given) = seen
-        want = {k: v for k, v in RECIPES["sector"].items() if k != "lr"}  # sweep sets lr per run
+        want = {k: v for k, v in recipes()["sector"].items() if k != "lr"}  # sweep sets lr per run
         assert {k: getattr(recipe, k) for k in want} == want and recipe.encoding == "sector"
-        assert (given.steps, given.epsilon_end, given.reward_step) == (5000, 0.2, RECIPES["sector"]["reward_step"])
+        assert (given.steps, given.epsilon_end, given.reward_step) == (5000, 0.2, recipes()["sector"]["reward_step"])
     else:  # a cell study: the cell recipe is the defaults, the study's own steps default stays
         with pytest.raises(_Stop):
             cli.main(["study", "--out", str(tmp_path), "--seeds", "1", "--lrs", "0.5", "--learners", "q",
                       "--workers", "1"])
         (cfg,) = seen
-        assert cfg.encoding == "cell" and cfg.steps == 100_000 and cfg.lr == TrainConfig().lr
+        assert cfg.encoding == "cell" and cfg.steps == 100_000 and cfg.lr == TrainConfig.of().lr

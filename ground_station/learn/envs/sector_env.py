@@ -84,7 +84,7 @@ class SectorNavEnv(gym.Env):
                  max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM) -> None:
         self.gridmap = load_map(gridmap) if isinstance(gridmap, str) else gridmap
         self.encoder = encoder or SectorEncoder()
-        self.reward = reward or SectorReward.from_config(TrainConfig())
+        self.reward = reward or SectorReward.from_config(TrainConfig.of(encoding="sector"))
         self._rw = self.reward.array()
         self.guidance = guidance
         self._guided = check_guidance(guidance)

@@ -27,6 +27,7 @@ from ground_station.maps.planner import (
     DEFAULT_MARGIN_MM,
     DEFAULT_MAX_SEGMENT_MM,
     clearance_mm,
+    guidance_from_metadata,
     plan_into,
     remaining_lengths,
 )
@@ -189,3 +190,18 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
     if guidance == "path":
         rep.update({"margin_mm": float(margin_mm), "max_segment_mm": float(max_segment_mm)})
     return rep
+
+
+def guidance_of(meta: dict) -> dict:
+    """evaluate_sector's guidance keywords for a sector run: the run's own
+    (runs from before guidance existed trained direct but are judged guided,
+    the main figure; the direct figures are reported beside it)."""
+    return {"guidance": "path", **guidance_from_metadata(meta)}
+
+
+def evaluate_policy(q: np.ndarray, run, gridmap: GridMap, *, sample: int | None = None,  # type: ignore[no-untyped-def]
+                    seed: int = 0, full: bool = False) -> dict:
+    """The kind's evaluation (ground_station.learn.kinds): `evaluate_sector` of a run's table,
+    guided as it trained; `full` adds the direct figures and the hand-written seek baseline."""
+    return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample, **guidance_of(run.meta),
+                           direct=full, baseline=full)

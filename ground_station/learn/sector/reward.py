@@ -50,10 +50,10 @@ class SectorReward:
 
     @classmethod
     def from_config(cls, cfg: TrainConfig) -> SectorReward:
-        """The reward a training config asks for (`TrainConfig()` = the defaults)."""
-        return cls(progress=float(cfg.sector_progress_reward), step_cost=-float(cfg.reward_step),
-                   reverse_cost=float(cfg.sector_reverse_cost), goal=float(cfg.reward_goal),
-                   collision=-float(cfg.reward_collision), align=float(cfg.sector_align_reward))
+        """The reward a training config asks for (a sector config: `TrainConfig.of(encoding="sector")` = the defaults)."""
+        return cls(progress=float(cfg.options.progress_reward), step_cost=-float(cfg.reward_step),
+                   reverse_cost=float(cfg.options.reverse_cost), goal=float(cfg.reward_goal),
+                   collision=-float(cfg.reward_collision), align=float(cfg.options.align_reward))
 
     def array(self) -> np.ndarray:
         """The `rw` vector, indexed by the `RW_*` slots."""

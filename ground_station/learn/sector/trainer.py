@@ -36,6 +36,7 @@ from ground_station.learn.sector.kernels import (
 )
 from ground_station.learn.sector.reward import SectorReward, check_guidance
 from ground_station.learn.sector.twin import bordered, encoder_arrays, grid_of
+from ground_station.learn.train import TrainResult, extra_maps, initial_table, run_in_chunks
 from ground_station.maps import GridMap, octile_distances
 from ground_station.maps.planner import clearance_mm
 
@@ -99,9 +100,9 @@ def pack_maps(maps: list[GridMap]) -> PackedMaps:
 
 def sector_encoder(cfg: TrainConfig) -> SectorEncoder:
     """The reference SectorEncoder a config trains (its sector_* fields)."""
-    return SectorEncoder(bearing_sectors=int(cfg.sector_bearing_sectors),
-                         sensors=int_list(cfg.sector_sensors, "sector_sensors"),
-                         range_edges_mm=int_list(cfg.sector_range_edges, "sector_range_edges"))
+    return SectorEncoder(bearing_sectors=int(cfg.options.bearing_sectors),
+                         sensors=int_list(cfg.options.sensors, "sector_sensors"),
+                         range_edges_mm=int_list(cfg.options.range_edges, "sector_range_edges"))
 
 
 def epsilon_schedule(cfg: TrainConfig) -> tuple[float, float, int]:
@@ -130,13 +131,13 @@ class SectorTrainer:
         # 0 = automatic: 1000 periods (50 s) on paper10, scaled with the map area
         mes = int(cfg.max_episode_steps)
         self.max_episode_steps = mes if mes > 0 else 10 * max(gm.occ.size for gm in self.maps)
-        self.hold_max = int(cfg.sector_hold_max)
-        self.lr_end = float(cfg.sector_lr_end)
-        self.noise_mm = float(cfg.sector_range_noise_mm)
-        self.guidance = str(cfg.sector_guidance)
+        self.hold_max = int(cfg.options.hold_max)
+        self.lr_end = float(cfg.options.lr_end)
+        self.noise_mm = float(cfg.options.range_noise_mm)
+        self.guidance = str(cfg.options.guidance)
         self._guided = check_guidance(self.guidance)
-        self._clear_r = clearance_mm(float(cfg.sector_margin_mm))
-        self._max_seg = float(cfg.sector_max_segment_mm)
+        self._clear_r = clearance_mm(float(cfg.options.margin_mm))
+        self._max_seg = float(cfg.options.max_segment_mm)
         cells = int(self.packed.occ.shape[1] * self.packed.occ.shape[2])
         self._path = np.zeros((cells, 2), dtype=np.int64)  # planner scratch
         self._wps = np.zeros((cells, 2))  # the open episode's waypoints (kept across chunks)
@@ -197,3 +198,18 @@ class SectorTrainer:
                          self._model_term, self._seen, self._n_seen, self._tr_s, self._tr_a, self._tr_e,
                          self._tr, int(start_step), int(n_steps), out_ret, out_succ)
         return out_ret[:n].copy(), out_succ[:n].copy()
+
+
+def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
+    """Q-learning on the sector twin, through `SectorTrainer`,
+    on `gridmap` plus the extra maps (--sector-maps)."""
+    encoder = sector_encoder(cfg)
+    extra = extra_maps(cfg.options.maps)
+    trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
+    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
+    rets, succs, seconds = run_in_chunks(trainer, q, cfg, progress, f"train sector {gridmap.name}")
+    q, q2 = trainer.table(q), trainer.q2  # Double Q: (A + B) / 2 and B
+    return TrainResult(q, rets, succs,
+                       {"encoder": encoder.to_dict(), "guidance": trainer.guidance,
+                        "margin_mm": cfg.options.margin_mm, "max_segment_mm": cfg.options.max_segment_mm,
+                        "train_maps": [m.name for m in trainer.maps]}, seconds, q2)

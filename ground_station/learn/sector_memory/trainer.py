@@ -22,7 +22,6 @@ import math
 
 import numpy as np
 
-from firmware_py import robot_spec
 from firmware_py.gridbug import (
     MODE_GO,
     MOVE_BACK,
@@ -37,6 +36,7 @@ from firmware_py.gridbug import (
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.evaluate import eval_episodes
+from ground_station.learn.sector_memory import encoder_of
 from ground_station.learn.sector_memory.kernels import (
     COLLISION,
     SUCCESS,
@@ -44,6 +44,7 @@ from ground_station.learn.sector_memory.kernels import (
     eval_kernel,
     train_kernel,
 )
+from ground_station.learn.train import TrainResult, extra_maps, initial_table, run_in_chunks
 from ground_station.maps import GridMap
 from ground_station.maps.distances import bfs_distances
 
@@ -56,8 +57,7 @@ GO_ORDER = (MOVE_FORWARD, MOVE_LEFT, MOVE_RIGHT, MOVE_BACK)
 
 def gridbug_encoder(cfg: TrainConfig) -> GridBugEncoder:
     """The reference GridBugEncoder of a config."""
-    return GridBugEncoder(free_mm=int(cfg.grid_free_mm), leave_margin_mm=int(cfg.grid_leave_margin_mm),
-                          wall_bearing=bool(cfg.grid_wall_bearing), cell_mm=robot_spec.DEFAULT_CELL_SIZE_MM)
+    return encoder_of(cfg.options)
 
 
 def encoder_params(encoder: GridBugEncoder) -> np.ndarray:
@@ -145,12 +145,26 @@ class GridBugTrainer:
         out_ret = np.empty(n_steps)
         out_succ = np.empty(n_steps, dtype=np.bool_)
         n = train_kernel(q, self._rng, p.occs, p.dims, p.free, p.nfree, p.bfs, self.params,
-                         float(cfg.lr), float(cfg.sector_lr_end), int(cfg.steps), float(cfg.gamma), *self._eps,
+                         float(cfg.lr), float(cfg.options.lr_end), int(cfg.steps), float(cfg.gamma), *self._eps,
                          float(cfg.reward_goal), float(cfg.reward_step), float(cfg.reward_collision),
-                         float(cfg.grid_wall_cost), float(cfg.grid_go_reward), self.max_episode_steps,
+                         float(cfg.options.wall_cost), float(cfg.options.go_reward), self.max_episode_steps,
                          self._ep, self._mem, self._acc, int(start_step), int(n_steps), out_ret, out_succ)
         return out_ret[:n].copy(), out_succ[:n].copy()
 
+
+
+def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
+    """Q-learning of the cell-stepped sector-memory encoding (direct setting)
+    on the grid twin, through `GridBugTrainer`,
+    on `gridmap` plus the extra maps (--sector-maps)."""
+    encoder = gridbug_encoder(cfg)
+    extra = extra_maps(cfg.options.maps)
+    trainer = GridBugTrainer([gridmap, *extra], cfg, encoder)
+    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
+    rets, succs, seconds = run_in_chunks(trainer, q, cfg, progress, f"train sector-memory {gridmap.name}")
+    return TrainResult(q, rets, succs,
+                       {"encoder": encoder.to_dict(), "guidance": "direct",
+                        "train_maps": [m.name for m in trainer.maps]}, seconds)
 
 def initial_dirs(hidx: np.ndarray, headings: int) -> np.ndarray:
     """Grid direction the robot turns to before its first decision, per heading index (as the robot:
@@ -200,3 +214,9 @@ def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: GridBugEncoder, s
         "wall_share": float(wall.sum() / max(1, moves.sum())),
         "headings": int(headings), "sample": sample, "seed": int(seed), "max_moves": budget,
     }
+
+
+def evaluate_policy(q: np.ndarray, run, gridmap: GridMap, *, sample: int | None = None,  # type: ignore[no-untyped-def]
+                    seed: int = 0, full: bool = False) -> dict:
+    """The kind's evaluation (ground_station.learn.kinds): `evaluate_gridbug` of a run's table."""
+    return evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
