@@ -62,6 +62,15 @@ def _setup(seed: int, vehicle: VehicleConfig | None = None):
     return rng, LockstepRig(gm.occ, pol, start, [goal], seed=seed, vehicle=vehicle)
 
 
+def _episodes(count: int, first_seed: int, progress=None):  # type: ignore[no-untyped-def]
+    """(i, rng, rig) of `count` seeded episodes (seeds first_seed + i), `progress` ticked after each."""
+    for i in range(count):
+        rng, rig = _setup(first_seed + i)
+        yield i, rng, rig
+        if progress is not None:
+            progress.update(1)
+
+
 def _zero_from(rig: LockstepRig, t_us: int) -> list[str]:
     late = [c for c in rig.commands if c[0] >= t_us and not _zero(c)]
     return [f"non-zero command {late[0][1:3]} at t={late[0][0]} us after the stop"] if late else []
@@ -136,8 +145,7 @@ def sensor_stop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
           what="motor driver error bits -> FAULT and zero command at that tick")
 def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_driver_fault")
-    for i in range(count):
-        rng, rig = _setup(seed * 7919 + 1000 + i)
+    for i, rng, rig in _episodes(count, seed * 7919 + 1000, progress):
         t_fault = _fault_time(rng)
         bits = rng.randint(1, 7)
 
@@ -157,8 +165,6 @@ def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             problems.append(f"FAULT transition {fault}, expected at {t_fault} us")
         problems += _zero_from(rig, t_fault)
         res.check(problems, f"seed {seed}/{i} errors 0x{bits:02x} at {t_fault} us")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -166,8 +172,7 @@ def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
           what="commands stop reaching the driver -> its watchdog trips -> controller FAULT")
 def driver_watchdog(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_driver_watchdog")
-    for i in range(count):
-        rng, rig = _setup(seed * 7919 + 2000 + i)
+    for i, rng, rig in _episodes(count, seed * 7919 + 2000, progress):
         t_cut = _fault_time(rng)
         wd_us = rig.plant.motors.p.watchdog_ms * 1000
         problems = []
@@ -187,8 +192,6 @@ def driver_watchdog(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         else:
             problems += _zero_from(rig, fault.t_us)
         res.check(problems, f"seed {seed}/{i} commands cut at {t_cut} us")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -198,8 +201,7 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_estop")
     senders = [n for n in (cp.NODE_BROADCAST, cp.NODE_MOTOR_DRIVER, cp.NODE_RANGE_BOARD,
                            cp.NODE_BUMPER_BOARD, cp.NODE_SIM) if n != cp.NODE_CONTROLLER]
-    for i in range(count):
-        rng, rig = _setup(seed * 7919 + 3000 + i)
+    for i, rng, rig in _episodes(count, seed * 7919 + 3000, progress):
         t_stop = _fault_time(rng)
         source = rng.choice(senders)
         hold_ticks = rng.randint(1, 10)
@@ -235,8 +237,6 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             problems.append(f"FAULT transition {fault}, expected e-stop at {t_stop} us")
         problems += _zero_from(rig, t_stop)
         res.check(problems, f"seed {seed}/{i} e-stop from node {source} at {t_stop} us")
-        if progress is not None:
-            progress.update(1)
     return res
 
 

@@ -55,6 +55,7 @@ from firmware_py import can_protocol as cp
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.faults.can_faults import (
     _edit_after,
+    _episodes,
     _fault_time,
     _first_fault,
     _setup,
@@ -123,8 +124,7 @@ def forged_tick_pace(count: int, seed: int = 0, progress=None) -> ScenarioResult
     clock 240 ms ahead; the real ticks then counted as repeats or stood still,
     75 ticks were lost and the motor driver's watchdog tripped at 4 s."""
     res = ScenarioResult("can_forged_tick_pace")
-    for i in range(count):
-        rng, rig = _setup(seed * 7919 + 9000 + i)
+    for i, rng, rig in _episodes(count, seed * 7919 + 9000, progress):
         t0 = _fault_time(rng)
         problems: list[str] = []
         forged = 0
@@ -148,8 +148,6 @@ def forged_tick_pace(count: int, seed: int = 0, progress=None) -> ScenarioResult
                 problems.append(f"FAULT after the forged ticks: {rig.ctrl.fault}")
         res.figures["refused"] = res.figures.get("refused", 0) + n_refused
         res.check(problems, f"seed {seed}/{i} forged from {t0} us")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -157,8 +155,7 @@ def forged_tick_pace(count: int, seed: int = 0, progress=None) -> ScenarioResult
           what="encoder counts jump -> FAULT with the reason and zero command at that tick, pose kept")
 def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_encoder_jump")
-    for i in range(count):
-        rng, rig = _setup(seed * 7919 + 6000 + i)
+    for i, rng, rig in _episodes(count, seed * 7919 + 6000, progress):
         t_jump = _fault_time(rng)
         jump = rng.choice((3000, -3000, 10**6, -(10**6), 1 << 26)) * rng.choice((1, 1, 2))
         side = rng.choice(("Enc_Left", "Enc_Right"))
@@ -183,8 +180,6 @@ def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         if moved >= 100:
             problems.append(f"pose estimate moved {moved:.0f} mm after the jump")
         res.check(problems, f"seed {seed}/{i} {side} +{jump} ticks at {t_jump} us")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -302,8 +297,7 @@ def _garbage(m, rng: random.Random, codec) -> list[bytes]:
 def failsafe_garbage(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("mav_failsafe_garbage")
     m = _dialect()
-    for i in range(count):
-        rng, rig = _setup(seed * 7919 + 8000 + i)
+    for i, rng, rig in _episodes(count, seed * 7919 + 8000, progress):
         fs_ms = rng.choice((500, 1000))
         t_silent = _fault_time(rng)
         gcs, foreign = m.MAVLink(None, *GCS), m.MAVLink(None, *FOREIGN_GCS)
@@ -348,8 +342,6 @@ def failsafe_garbage(count: int, seed: int = 0, progress=None) -> ScenarioResult
         if polled.node.foreign_gcs_heartbeats == 0:
             problems.append("the foreign GCS's heartbeats were never seen")
         res.check(problems, f"seed {seed}/{i} silent at {t_silent} us, FS_GCS_TOUT_MS {fs_ms}")
-        if progress is not None:
-            progress.update(1)
     return res
 
 

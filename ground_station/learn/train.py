@@ -83,6 +83,16 @@ def extra_maps(spec: str) -> list[GridMap]:
     return [load_map(m.strip()) for m in spec.split(",") if m.strip()]
 
 
+def run_trainer(make, cfg: TrainConfig, gridmap: GridMap, progress: bool,  # type: ignore[no-untyped-def]
+                desc: str):
+    """`make(maps)` a trainer on `gridmap` plus the extra maps of `cfg.options.maps`, start its table
+    and run it in chunks: (trainer, q, returns, successes, seconds)."""
+    trainer = make([gridmap, *extra_maps(cfg.options.maps)])
+    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
+    rets, succs, seconds = run_in_chunks(trainer, q, cfg, progress, f"{desc} {gridmap.name}")
+    return trainer, q, rets, succs, seconds
+
+
 def train(cfg: TrainConfig, gridmap: GridMap | None = None, progress: bool = False) -> TrainResult:
     """Train the configured encoding on `gridmap` (default: load `cfg.map`) with its kind's trainer."""
     validate_config(cfg)

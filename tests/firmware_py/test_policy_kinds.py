@@ -12,12 +12,9 @@ from pathlib import Path
 import pytest
 
 from firmware_py import kinds
-from firmware_py.control.controller import Controller
 from firmware_py.kinds.base import PolicyKind
 from firmware_py.policy import MapGeometry, PolicyError, dump_policy, load_policy
-from firmware_py.vehicle import CtrlState, VehicleConfig
-from tests.support.controller_rig import Kinematic, Rig
-from tests.support.toy_kind import ACTIONS, ROBOT_KIND, SpinDriver, SpinEncoder, _unpack
+from tests.support.toy_kind import ACTIONS, ROBOT_KIND, SpinDriver, SpinEncoder, _unpack, drive
 
 ROOT = Path(__file__).resolve().parents[2]
 TOY = ROBOT_KIND
@@ -44,17 +41,10 @@ def _toy_policy_bytes() -> bytes:
 def test_a_kind_registered_by_the_test_loads_and_drives_the_controller(toy_kind):
     pol = load_policy(_toy_policy_bytes())
     assert pol.kind == "toy-spin" and pol.encoder == SpinEncoder()
-    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(250, 250, 0), localise=False)
-    rig = Rig(ctrl, Kinematic(250, 250, 0.0))
-    rig.tick()
-    assert ctrl.arm() == (True, "") and ctrl.set_goal(4750, 250) == (True, "")
-    rig.tick()
-    assert ctrl.state == CtrlState.DRIVING
-    assert (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == TOY_ACTIONS[0]
-    assert ctrl.status().state_index == 0 and ctrl.status().action == 0
-    rig.tick(ranges_mm=[200] * 8)  # something close ahead: the toy's table turns
-    assert (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == TOY_ACTIONS[1]
-    assert ctrl.status().state_index == 1 and ctrl.status().q_row == (0, 50)
+    (clear, st_clear), (blocked, st_blocked) = drive(pol)
+    assert clear == TOY_ACTIONS[0] and st_clear.state_index == 0 and st_clear.action == 0
+    assert blocked == TOY_ACTIONS[1]  # something close ahead: the toy's table turns
+    assert st_blocked.state_index == 1 and st_blocked.q_row == (0, 50)
 
 
 def test_registry_refuses_clashes_and_removed_codes_and_forgets_on_unregister(toy_kind):

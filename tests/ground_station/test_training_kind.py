@@ -15,14 +15,11 @@ from pathlib import Path
 import pytest
 
 from firmware_py import kinds as robot_kinds
-from firmware_py.control.controller import Controller
 from firmware_py.policy import load_policy
-from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.cli import main
 from ground_station.learn import kinds
 from ground_station.learn.config import TrainConfig, validate_config
 from tests.support import toy_kind
-from tests.support.controller_rig import Kinematic, Rig
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -56,15 +53,8 @@ def test_a_kind_registered_by_the_test_trains_exports_and_drives_the_robot(toy, 
 
     pol = load_policy(out.read_bytes())
     assert pol.kind == "toy-spin" and pol.encoder == toy_kind.SpinEncoder(250)
-    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(250, 250, 0), localise=False)
-    rig = Rig(ctrl, Kinematic(250, 250, 0.0))
-    rig.tick()
-    assert ctrl.arm() == (True, "") and ctrl.set_goal(4750, 250) == (True, "")
-    rig.tick()
-    assert ctrl.state == CtrlState.DRIVING
-    assert (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == toy_kind.ACTIONS[0]
-    rig.tick(ranges_mm=[200] * 8)  # blocked ahead: the trained table turns
-    assert (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == toy_kind.ACTIONS[1]
+    (clear, _), (blocked, _) = toy_kind.drive(pol)
+    assert (clear, blocked) == toy_kind.ACTIONS  # the trained table drives when clear, turns when blocked
 
 
 def test_the_kinds_options_are_its_own_in_help_config_and_checks(toy, capsys):

@@ -62,6 +62,25 @@ ROBOT_KIND = PolicyKind(name=NAME, code=CODE, actions=ACTIONS, unpack=_unpack,
                         pack=lambda enc, _goals, _cell: _SECTION.pack(enc.near_mm), driver=SpinDriver)
 
 
+def drive(pol):  # type: ignore[no-untyped-def]
+    """Arm a controller running `pol`, give it a goal ahead and tick with the way clear, then
+    blocked: [(wheels, status)] after each of the two ticks."""
+    from firmware_py.control.controller import Controller
+    from firmware_py.vehicle import CtrlState, VehicleConfig
+    from tests.support.controller_rig import Kinematic, Rig
+
+    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(250, 250, 0), localise=False)
+    rig = Rig(ctrl, Kinematic(250, 250, 0.0))
+    rig.tick()
+    assert ctrl.arm() == (True, "") and ctrl.set_goal(4750, 250) == (True, "")
+    seen = []
+    for ranges in ([2000] * 8, [200] * 8):  # clear, then something close ahead
+        rig.tick(ranges_mm=ranges)
+        assert ctrl.state == CtrlState.DRIVING
+        seen.append(((rig.last_motor.left_mm_s, rig.last_motor.right_mm_s), ctrl.status()))
+    return seen
+
+
 # --- the station's half ----------------------------------------------------------------
 
 @dataclass

@@ -36,7 +36,7 @@ from ground_station.learn.sector.kernels import (
 )
 from ground_station.learn.sector.reward import SectorReward, check_guidance
 from ground_station.learn.sector.twin import bordered, encoder_arrays, grid_of
-from ground_station.learn.train import TrainResult, extra_maps, initial_table, run_in_chunks
+from ground_station.learn.train import TrainResult, run_trainer
 from ground_station.maps import GridMap, octile_distances
 from ground_station.maps.planner import clearance_mm
 
@@ -204,10 +204,8 @@ def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> 
     """Q-learning on the sector twin, through `SectorTrainer`,
     on `gridmap` plus the extra maps (--sector-maps)."""
     encoder = sector_encoder(cfg)
-    extra = extra_maps(cfg.options.maps)
-    trainer = SectorTrainer([gridmap, *extra], cfg, encoder)
-    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
-    rets, succs, seconds = run_in_chunks(trainer, q, cfg, progress, f"train sector {gridmap.name}")
+    trainer, q, rets, succs, seconds = run_trainer(lambda maps: SectorTrainer(maps, cfg, encoder), cfg, gridmap,
+                                                   progress, "train sector")
     q, q2 = trainer.table(q), trainer.q2  # Double Q: (A + B) / 2 and B
     return TrainResult(q, rets, succs,
                        {"encoder": encoder.to_dict(), "guidance": trainer.guidance,

@@ -44,7 +44,7 @@ from ground_station.learn.sector_memory.kernels import (
     eval_kernel,
     train_kernel,
 )
-from ground_station.learn.train import TrainResult, extra_maps, initial_table, run_in_chunks
+from ground_station.learn.train import TrainResult, run_trainer
 from ground_station.maps import GridMap
 from ground_station.maps.distances import bfs_distances
 
@@ -152,16 +152,13 @@ class GridBugTrainer:
         return out_ret[:n].copy(), out_succ[:n].copy()
 
 
-
 def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
     """Q-learning of the cell-stepped sector-memory encoding (direct setting)
     on the grid twin, through `GridBugTrainer`,
     on `gridmap` plus the extra maps (--sector-maps)."""
     encoder = gridbug_encoder(cfg)
-    extra = extra_maps(cfg.options.maps)
-    trainer = GridBugTrainer([gridmap, *extra], cfg, encoder)
-    q = initial_table(cfg, trainer.n_states, trainer.n_actions)
-    rets, succs, seconds = run_in_chunks(trainer, q, cfg, progress, f"train sector-memory {gridmap.name}")
+    trainer, q, rets, succs, seconds = run_trainer(lambda maps: GridBugTrainer(maps, cfg, encoder), cfg, gridmap,
+                                                   progress, "train sector-memory")
     return TrainResult(q, rets, succs,
                        {"encoder": encoder.to_dict(), "guidance": "direct",
                         "train_maps": [m.name for m in trainer.maps]}, seconds)
