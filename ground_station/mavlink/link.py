@@ -110,47 +110,36 @@ def _url_arg(value: str) -> str:
     return value
 
 
-def _positive_seconds(value: str) -> float:
+def _checked(text: str, convert, expected: str, ok, problem: str):  # type: ignore[no-untyped-def]
+    """An argparse value `convert(text)`, refused in one line as not `expected` or when not `ok`
+    (`problem` formatted with the text as given)."""
     try:
-        x = float(value)
+        x = convert(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, got {value!r}") from None
-    if not x > 0 or x != x or x == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be > 0 seconds, got {value}")
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+    if not ok(x):
+        raise argparse.ArgumentTypeError(problem.format(text))
     return x
+
+
+def _positive_seconds(value: str) -> float:
+    return float(_checked(value, float, "seconds", lambda x: 0 < x < float("inf"), "must be > 0 seconds, got {}"))
 
 
 def finite_float(value: str) -> float:
     """argparse type for a coordinate: a finite number (float() also takes
     "nan" and "inf", which nothing downstream can place)."""
-    try:
-        x = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {value}")
-    return x
+    return float(_checked(value, float, "a number", math.isfinite, "must be a finite number, got {}"))
 
 
 def _sysid(value: str) -> int:
-    try:
-        x = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a system id 1-254, got {value!r}") from None
-    if not 1 <= x <= 254:
-        raise argparse.ArgumentTypeError(f"system id must be 1-254, got {x}")
-    return x
+    return int(_checked(value, int, "a system id 1-254", lambda x: 1 <= x <= 254, "system id must be 1-254, got {}"))
 
 
-def _id_arg(what: str, lo: int):
+def _id_arg(what: str, lo: int):  # type: ignore[no-untyped-def]
     def parse(value: str) -> int:
-        try:
-            x = int(value)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a {what} id {lo}-255, got {value!r}") from None
-        if not lo <= x <= 255:
-            raise argparse.ArgumentTypeError(f"{what} id must be {lo}-255, got {x}")
-        return x
+        return int(_checked(value, int, f"a {what} id {lo}-255", lambda x: lo <= x <= 255,
+                            f"{what} id must be {lo}-255, got {{}}"))
     return parse
 
 

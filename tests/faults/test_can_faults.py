@@ -1,14 +1,21 @@
-"""CAN faults at small counts (issue 9): the scenarios of
-ground_station.faults.can_faults against the real controller, RobotNode,
-python-can virtual bus and pymunk plant. `qnav bench faults` runs the same
-with large counts."""
+"""CAN faults (issue 9) and the holes hostile testing found (issue 13), at small counts: the
+scenarios of ground_station.faults.can_faults and .hostile_holes against the real controller,
+RobotNode on a python-can virtual bus with the pymunk plant, the MAVLink node with pymavlink's
+codec and signing, and the FTP server on a real storage root. `qnav bench faults` runs the
+same with large counts."""
 
 import pytest
 
-from ground_station.faults import can_faults
+from ground_station.faults import (
+    can_faults,
+    hostile_holes,  # noqa: F401  (registers the scenarios)
+)
 from ground_station.faults.common import SCENARIOS
 
-NAMES = ["can_sensor_stop", "can_driver_fault", "can_driver_watchdog", "can_estop", "can_counters"]
+NAMES = ["can_sensor_stop", "can_driver_fault", "can_driver_watchdog", "can_estop", "can_counters",
+         # hostile holes
+         "can_future_tick", "can_forged_tick_pace", "can_encoder_jump", "can_frozen_sensor", "mav_failsafe_garbage",
+         "mav_signing_bounds", "mav_signing_process", "ftp_sessions_quota"]
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -145,16 +145,19 @@ def test_sweep_identical_on_ray_cluster_and_runs_on_both_nodes(cluster, local_sw
 
 @pytest.mark.ray
 @pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
-def test_bench_hil_identical_on_ray_cluster(cluster, tmp_path):
-    args = ["bench", "hil", "--only", "cell", "--starts", "2", "--batch", "1"]
+@pytest.mark.parametrize(("args", "part", "jobs"), [
+    (["bench", "hil", "--only", "cell", "--starts", "2", "--batch", "1"], "cell", 8),
+    (["bench", "nav", "--map", "paper10", "--episodes", "8", "--hil", "--hil-episodes", "2",
+      "--controllers", "learnt,seek", "--batch", "4"], "twin", None)], ids=["hil", "nav"])
+def test_bench_identical_on_ray_cluster(cluster, tmp_path, args, part, jobs):
     local = qnav(*args, "--json", str(tmp_path / "local.json"))
     assert local.returncode == 0, local.stderr[-2000:]
     on_ray = qnav(*args, "--json", str(tmp_path / "ray.json"), "--engine", "ray", "--ray-address", cluster.address,
                   env=cluster.env())
     assert on_ray.returncode == 0, on_ray.stderr[-2000:]
     assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
-    camp = json.loads((tmp_path / "ray.campaign.json").read_text())
-    assert camp["cell"]["jobs"] == 8 and len(camp["cell"]["nodes"]) == 2
+    camp = json.loads((tmp_path / "ray.campaign.json").read_text())[part]
+    assert camp["engine"] == "ray" and len(camp["nodes"]) == 2 and camp["jobs"] == (jobs or camp["jobs"])
 
 
 def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
@@ -167,21 +170,6 @@ def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
     assert (tmp_path / "one.json").read_bytes() == (tmp_path / "two.json").read_bytes()
     camp = json.loads((tmp_path / "two.campaign.json").read_text())
     assert camp["twin"]["jobs"] == 2 * 2 * 3 and camp["twin"]["workers"] == 2
-
-
-@pytest.mark.ray
-@pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
-def test_bench_nav_identical_on_ray_cluster(cluster, tmp_path):
-    args = ["bench", "nav", "--map", "paper10", "--episodes", "8", "--hil", "--hil-episodes", "2",
-            "--controllers", "learnt,seek", "--batch", "4"]
-    local = qnav(*args, "--json", str(tmp_path / "local.json"))
-    assert local.returncode == 0, local.stderr[-2000:]
-    on_ray = qnav(*args, "--json", str(tmp_path / "ray.json"), "--engine", "ray", "--ray-address", cluster.address,
-                  env=cluster.env())
-    assert on_ray.returncode == 0, on_ray.stderr[-2000:]
-    assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
-    camp = json.loads((tmp_path / "ray.campaign.json").read_text())
-    assert camp["twin"]["engine"] == "ray" and len(camp["twin"]["nodes"]) == 2
 
 
 @pytest.mark.ray

@@ -235,6 +235,28 @@ def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, 
     ep[E_PHI] = guide_potential(d, og, h, w, c, x, y, wps, rem, 0, guided)
 
 
+@numba.njit(cache=True, inline="always")
+def pass_waypoints(x, y, wps, nwp, k):
+    """Advance past every waypoint of wps[:nwp] from k that (x, y) is within GOAL_TOLERANCE_MM of,
+    as the controller advances a mission item: (k, reached the last one)."""
+    tol2 = GOAL_TOL_MM * GOAL_TOL_MM
+    while (x - wps[k, 0]) * (x - wps[k, 0]) + (y - wps[k, 1]) * (y - wps[k, 1]) <= tol2:
+        if k == nwp - 1:
+            return k, True
+        k += 1
+    return k, False
+
+
+@numba.njit(cache=True, inline="always")
+def progress_reward(rw, phi, phi2, c, a) -> float:
+    """One period's progress along the guide potential (phi -> phi2, in cells) less the step cost,
+    and the reverse cost when action `a` reversed."""
+    r = rw[RW_PROGRESS] * (phi - phi2) / c - rw[RW_STEP_COST]
+    if a == REVERSE:
+        r -= rw[RW_REVERSE_COST]
+    return r
+
+
 @numba.njit(cache=True)
 def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
                 sectors, sensors, edges, guided):
@@ -253,17 +275,9 @@ def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, whic
     x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
     if hit:
         return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, driven, k
-    tol2 = GOAL_TOL_MM * GOAL_TOL_MM
-    success = False
-    while (x - wps[k, 0]) * (x - wps[k, 0]) + (y - wps[k, 1]) * (y - wps[k, 1]) <= tol2:
-        if k == nwp - 1:
-            success = True
-            break
-        k += 1
+    k, success = pass_waypoints(x, y, wps, nwp, k)
     phi2 = guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided)
-    r = rw[RW_PROGRESS] * (phi - phi2) / c - rw[RW_STEP_COST]
-    if a == REVERSE:
-        r -= rw[RW_REVERSE_COST]
+    r = progress_reward(rw, phi, phi2, c, a)
     if rw[RW_ALIGN] != 0.0 and not success:  # heading shaping: turning toward the target pays
         r += rw[RW_ALIGN] * (b0 - abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))) / 3141.5927
     if success:
@@ -288,17 +302,9 @@ def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, 
     x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
     if hit:
         return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, k, b0
-    tol2 = GOAL_TOL_MM * GOAL_TOL_MM
-    success = False
-    while (x - wps[k, 0]) * (x - wps[k, 0]) + (y - wps[k, 1]) * (y - wps[k, 1]) <= tol2:
-        if k == nwp - 1:
-            success = True
-            break
-        k += 1
+    k, success = pass_waypoints(x, y, wps, nwp, k)
     phi2 = guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided)
-    r = rw[RW_PROGRESS] * (phi - phi2) / c - rw[RW_STEP_COST]
-    if a == REVERSE:
-        r -= rw[RW_REVERSE_COST]
+    r = progress_reward(rw, phi, phi2, c, a)
     if success:
         return x, y, th, phi2, r + rw[RW_GOAL], -1, False, True, k, b0
     bm = bearing_mrad(x, y, th, wps[k, 0], wps[k, 1])

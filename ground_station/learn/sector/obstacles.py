@@ -24,14 +24,11 @@ import numba
 import numpy as np
 
 from ground_station.learn.jit import greedy
-from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, REVERSE
+from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, pass_waypoints, progress_reward
 from ground_station.learn.sector.reward import (
     RW_ALIGN,
     RW_COLLISION,
     RW_GOAL,
-    RW_PROGRESS,
-    RW_REVERSE_COST,
-    RW_STEP_COST,
 )
 from ground_station.learn.sector.twin import (
     _RAY_COS,
@@ -40,7 +37,6 @@ from ground_station.learn.sector.twin import (
     _SENS_SIN,
     ACTION_V_MM_S,
     ACTION_W_RAD_S,
-    GOAL_TOL_MM,
     MOUNT_MM,
     N_SUBSTEPS,
     RADIUS_MM,
@@ -154,15 +150,7 @@ def clearance_mm(occ, h, w, cell, x, y, discs, movers) -> float:
                 d = math.sqrt((x - px) ** 2 + (y - py) ** 2)
                 if d < best:
                     best = d
-    for k in range(discs.shape[0]):
-        d = math.sqrt((x - discs[k, 0]) ** 2 + (y - discs[k, 1]) ** 2) - discs[k, 2]
-        if d < best:
-            best = d
-    for k in range(movers.shape[0]):
-        d = math.sqrt((x - movers[k, 0]) ** 2 + (y - movers[k, 1]) ** 2) - movers[k, 4]
-        if d < best:
-            best = d
-    return best - RADIUS_MM
+    return min(best - RADIUS_MM, obstacle_clearance_mm(x, y, discs, movers))
 
 
 @numba.njit(cache=True)
@@ -196,17 +184,9 @@ def obs_period_step(occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which,
     x, y, th, driven, hit = move_obs(occ, h, w, c, x, y, th, a, discs, movers)
     if hit:
         return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, driven, k
-    tol2 = GOAL_TOL_MM * GOAL_TOL_MM
-    success = False
-    while (x - wps[k, 0]) * (x - wps[k, 0]) + (y - wps[k, 1]) * (y - wps[k, 1]) <= tol2:
-        if k == nwp - 1:
-            success = True
-            break
-        k += 1
+    k, success = pass_waypoints(x, y, wps, nwp, k)
     phi2 = math.hypot(x - wps[k, 0], y - wps[k, 1]) + rem[k]
-    r = rw[RW_PROGRESS] * (phi - phi2) / c - rw[RW_STEP_COST]
-    if a == REVERSE:
-        r -= rw[RW_REVERSE_COST]
+    r = progress_reward(rw, phi, phi2, c, a)
     if rw[RW_ALIGN] != 0.0 and not success:
         r += rw[RW_ALIGN] * (b0 - abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))) / 3141.5927
     if success:
