@@ -24,14 +24,11 @@ from firmware_py.localplan import LocalPlanner, MotionGuard, ObstacleMemory
 from firmware_py.mapdata import grid_from_rows
 from ground_station.learn.sector.obstacles import (
     COLLISION,
-    LOOP,
-    NEAR_MISS_MM,
-    SUCCESS,
     TIMEOUT,
     obs_period_step,
     obstacle_clearance_mm,
+    period_end,
     sense_obs,
-    stall_check,
 )
 from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
 from ground_station.maps import GridMap
@@ -91,16 +88,10 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             break
         if k != k0:
             planner.reset()
-        cl = float(obstacle_clearance_mm(x, y, discs, movers))
-        minclear = min(minclear, cl)
-        if cl < NEAR_MISS_MM:
-            near += 1
-        if success:
-            outcome = SUCCESS
-            break
-        best, since, stalled = stall_check(phi, best, since, stall_steps)
-        if stalled:
-            outcome = LOOP
+        end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since, stall_steps,
+                                                      minclear, near)
+        if end >= 0:
+            outcome = end
             break
     return outcome, path, t, minclear, near, planner.plans
 

@@ -325,6 +325,15 @@ L_Q, L_SARSA, L_EXPECTED_SARSA, L_DOUBLE_Q, L_DYNA_Q, L_Q_LAMBDA = range(6)
 
 
 @numba.njit(cache=True, inline="always")
+def _episode_views(ep, occ, occb, dist, dims, cell):
+    """The open episode's map and goal field as views (grid, bordered grid, goal distances, H, W,
+    cell), taken once per episode: a view made in the loop costs two atomic reference-count
+    updates per step."""
+    m = int(ep[E_MAP])
+    return occ[m], occb[m], dist[m, int(ep[E_GOAL])], dims[m, 0], dims[m, 1], cell[m]
+
+
+@numba.njit(cache=True, inline="always")
 def _greedy_ab(learner, q, q2, s) -> int:
     """The behaviour's greedy action: argmax Q, or argmax (A + B) for Double Q."""
     if learner != L_DOUBLE_Q:
@@ -393,15 +402,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
     cap = tr_s.shape[0]
     n_done = 0
     b0 = 0.0
-    # the episode's map and goal field as views, taken once per episode: a view
-    # made in the loop costs two atomic reference-count updates per step
-    m = int(ep[E_MAP])
-    og = occ[m]
-    ob = occb[m]
-    d = dist[m, int(ep[E_GOAL])]
-    h = dims[m, 0]
-    w = dims[m, 1]
-    c = cell[m]
+    og, ob, d, h, w, c = _episode_views(ep, occ, occb, dist, dims, cell)
     if ep[E_ACTIVE] != 0.0:  # the open episode's |bearing| (what its state was encoded with)
         kk = int(ep[E_WP])
         b0 = float(abs(bearing_mrad(ep[E_X], ep[E_Y], ep[E_TH], wps[kk, 0], wps[kk, 1])))
@@ -414,13 +415,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
             ep[E_NEXT] = 0.0
             tr[0] = 0
             tr[1] = 0
-            m = int(ep[E_MAP])
-            og = occ[m]
-            ob = occb[m]
-            d = dist[m, int(ep[E_GOAL])]
-            h = dims[m, 0]
-            w = dims[m, 1]
-            c = cell[m]
+            og, ob, d, h, w, c = _episode_views(ep, occ, occb, dist, dims, cell)
         s = int(ep[E_S])
         if ep[E_K] == 0.0:  # a decision: start a new option in state s
             if ep[E_NEXT] > 0.0:  # drawn at the last update (sarsa, q-lambda)

@@ -245,6 +245,22 @@ def stall_check(phi: float, best: float, since: int, stall_steps: int):
 
 
 @numba.njit(cache=True)
+def period_end(x, y, discs, movers, success, phi, best, since, stall_steps, minclear, near):
+    """After a period without a collision: the clearance figures (the minimum so far, periods
+    nearer than NEAR_MISS_MM) and how the episode ends: SUCCESS, LOOP (`stall_check`), or -1 to
+    go on. Returns (end, best, since, minclear, near)."""
+    cl = obstacle_clearance_mm(x, y, discs, movers)
+    if cl < minclear:
+        minclear = cl
+    if cl < NEAR_MISS_MM:
+        near += 1
+    if success:
+        return SUCCESS, best, since, minclear, near
+    best, since, stalled = stall_check(phi, best, since, stall_steps)
+    return (LOOP if stalled else -1), best, since, minclear, near
+
+
+@numba.njit(cache=True)
 def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem,
                     ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
                     budget_base, budget_factor, stall_steps,
@@ -288,17 +304,10 @@ def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, e
                 outcome = COLLISION
                 minclear = 0.0
                 break
-            cl = obstacle_clearance_mm(x, y, discs, movers)
-            if cl < minclear:
-                minclear = cl
-            if cl < NEAR_MISS_MM:
-                near += 1
-            if success:
-                outcome = SUCCESS
-                break
-            best, since, stalled = stall_check(phi, best, since, stall_steps)
-            if stalled:
-                outcome = LOOP
+            end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since,
+                                                          stall_steps, minclear, near)
+            if end >= 0:
+                outcome = end
                 break
         out_outcome[e] = outcome
         out_path[e] = path

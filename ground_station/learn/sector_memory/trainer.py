@@ -22,17 +22,7 @@ import math
 
 import numpy as np
 
-from firmware_py.gridbug import (
-    MODE_GO,
-    MOVE_BACK,
-    MOVE_FORWARD,
-    MOVE_LEFT,
-    MOVE_RIGHT,
-    N_FREE,
-    N_SECTORS,
-    GridBugEncoder,
-    grid_dir_of,
-)
+from firmware_py import gridbug as gb
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.evaluate import eval_episodes
@@ -50,17 +40,17 @@ from ground_station.maps.distances import bfs_distances
 
 # (forward sign, left sign) of each sector (inverse of firmware_py.gridbug._SECTOR)
 SECTOR_SIGNS = ((1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1))
-WALL_ORDER = {1: (MOVE_RIGHT, MOVE_FORWARD, MOVE_LEFT, MOVE_BACK),  # wall on the right: right-hand rule
-              2: (MOVE_LEFT, MOVE_FORWARD, MOVE_RIGHT, MOVE_BACK)}
-GO_ORDER = (MOVE_FORWARD, MOVE_LEFT, MOVE_RIGHT, MOVE_BACK)
+WALL_ORDER = {1: (gb.MOVE_RIGHT, gb.MOVE_FORWARD, gb.MOVE_LEFT, gb.MOVE_BACK),  # wall on the right: right-hand rule
+              2: (gb.MOVE_LEFT, gb.MOVE_FORWARD, gb.MOVE_RIGHT, gb.MOVE_BACK)}
+GO_ORDER = (gb.MOVE_FORWARD, gb.MOVE_LEFT, gb.MOVE_RIGHT, gb.MOVE_BACK)
 
 
-def gridbug_encoder(cfg: TrainConfig) -> GridBugEncoder:
-    """The reference GridBugEncoder of a config."""
+def gridbug_encoder(cfg: TrainConfig) -> gb.GridBugEncoder:
+    """The reference gb.GridBugEncoder of a config."""
     return encoder_of(cfg.options)
 
 
-def encoder_params(encoder: GridBugEncoder) -> np.ndarray:
+def encoder_params(encoder: gb.GridBugEncoder) -> np.ndarray:
     """The kernels' `params`: cell_mm, leave_margin_mm, wall_bearing, wall_states."""
     return np.array([encoder.cell_mm, encoder.leave_margin_mm, int(encoder.wall_bearing), encoder.wall_states],
                     dtype=np.int64)
@@ -81,19 +71,20 @@ def _ranked(order: tuple[int, ...], free: int) -> np.ndarray:
     return row
 
 
-def hand_table(encoder: GridBugEncoder) -> np.ndarray:
+def hand_table(encoder: gb.GridBugEncoder) -> np.ndarray:
     """The hand-written policy in the encoder's state (module docstring)."""
     q = np.zeros((encoder.n_states, encoder.n_actions))
     for sector, (sf, sl) in enumerate(SECTOR_SIGNS):
-        goalward = [k for k, sgn in zip((MOVE_FORWARD, MOVE_LEFT, MOVE_BACK, MOVE_RIGHT), (sf, sl, -sf, -sl), strict=True)
+        goalward = [k for k, sgn in zip((gb.MOVE_FORWARD, gb.MOVE_LEFT, gb.MOVE_BACK, gb.MOVE_RIGHT),
+                                        (sf, sl, -sf, -sl), strict=True)
                     if sgn == 1]
         order = tuple(k for k in GO_ORDER if k in goalward) + tuple(k for k in GO_ORDER if k not in goalward)
-        for free in range(N_FREE):
-            q[sector * N_FREE + free] = _ranked(order, free)
-    base = N_SECTORS * N_FREE
+        for free in range(gb.N_FREE):
+            q[sector * gb.N_FREE + free] = _ranked(order, free)
+    base = gb.N_SECTORS * gb.N_FREE
     for mode in (1, 2):
         for w in range(encoder.wall_states):
-            q[base + (mode - 1) * encoder.wall_states + w] = _ranked(WALL_ORDER[mode], w % N_FREE)
+            q[base + (mode - 1) * encoder.wall_states + w] = _ranked(WALL_ORDER[mode], w % gb.N_FREE)
     return q
 
 
@@ -120,9 +111,9 @@ class PackedMaps:
 
 
 class GridBugTrainer:
-    """Exact sequential Q-learning of a GridBugEncoder table on the grid twin."""
+    """Exact sequential Q-learning of a gb.GridBugEncoder table on the grid twin."""
 
-    def __init__(self, maps: list[GridMap], cfg: TrainConfig, encoder: GridBugEncoder) -> None:
+    def __init__(self, maps: list[GridMap], cfg: TrainConfig, encoder: gb.GridBugEncoder) -> None:
         self.cfg = cfg
         self.encoder = encoder
         self.n_states = encoder.n_states
@@ -166,13 +157,13 @@ def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = Fal
 def initial_dirs(hidx: np.ndarray, headings: int) -> np.ndarray:
     """Grid direction the robot turns to before its first decision, per heading index (as the robot:
     `firmware_py.gridbug.grid_dir_of` of the heading in mrad)."""
-    return np.array([grid_dir_of(int(round(k * 2000.0 * math.pi / headings))) for k in range(headings)],
+    return np.array([gb.grid_dir_of(int(round(k * 2000.0 * math.pi / headings))) for k in range(headings)],
                     dtype=np.int64)[hidx]
 
 
-def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: GridBugEncoder, seed: int = 0,
+def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: gb.GridBugEncoder, seed: int = 0,
                      sample: int | None = None, headings: int = 8, max_steps: int | None = None) -> dict:
-    """Greedy rollouts of a GridBugEncoder table over every (start, goal,
+    """Greedy rollouts of a gb.GridBugEncoder table over every (start, goal,
     heading) of `gridmap` (or a seeded sample, as `eval_episodes`). A move
     into an obstacle is a collision and ends the episode; the budget is
     `max_steps` moves (default 10 x the free cells). The initial turn in
@@ -203,7 +194,7 @@ def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: GridBugEncoder, s
         "success_rate": float(ok.mean()) if n else 0.0,
         "collisions": int((outcome == COLLISION).sum()),
         "timeouts": int((outcome == TIMEOUT).sum()),
-        "timeouts_in_wall_mode": int((fail & (outcome == TIMEOUT) & (end_mode != MODE_GO)).sum()),
+        "timeouts_in_wall_mode": int((fail & (outcome == TIMEOUT) & (end_mode != gb.MODE_GO)).sum()),
         "path_ratio_mean": float(ratios.mean()) if ratios.size else float("nan"),
         "path_ratio_median": float(np.median(ratios)) if ratios.size else float("nan"),
         "path_ratio_max": float(ratios.max()) if ratios.size else float("nan"),
