@@ -33,6 +33,12 @@ def kinds(ctrl):
     return [(t.src.name, t.dst.name) for t in ctrl.transitions]
 
 
+def sector_rig():  # type: ignore[no-untyped-def]
+    """An armed controller with the hand-made sector policy at the origin, and the controller."""
+    rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0))
+    return rig, rig.ctrl
+
+
 def test_boot_standby_and_arm_preconditions():
     ctrl = Controller(policy=sector_seek_policy())
     assert ctrl.state == CtrlState.BOOT
@@ -61,8 +67,7 @@ def test_goal_refused_without_arm_or_policy():
 
 
 def test_sector_policy_drives_to_goal_then_holds():
-    rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0))
-    ctrl = rig.ctrl
+    rig, ctrl = sector_rig()
     assert ctrl.set_goal(1500, 1000) == (True, "")
     assert ctrl.state == CtrlState.DRIVING and ctrl.mode == Mode.GUIDED
     rig.run_until(lambda: ctrl.state == CtrlState.HOLD, 400)
@@ -138,8 +143,7 @@ def test_stale_sensors_fault_and_zero_within_one_period():
 
 
 def test_bumper_stops_and_blocks_new_goals():
-    rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0))
-    ctrl = rig.ctrl
+    rig, ctrl = sector_rig()
     ctrl.set_goal(5000, 0)
     rig.tick()
     rig.tick(bumper=True)
@@ -151,8 +155,7 @@ def test_bumper_stops_and_blocks_new_goals():
 
 
 def test_estop_latches_until_disarm_and_rearm():
-    rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0))
-    ctrl = rig.ctrl
+    rig, ctrl = sector_rig()
     ctrl.set_goal(5000, 0)
     rig.tick()
     rig.tick(estop=True)
@@ -242,8 +245,7 @@ def test_policy_hot_swap_refused_while_driving_and_keeps_last_good(tmp_path):
 
 
 def test_mission_items_reached_in_order_then_hold():
-    rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0))
-    ctrl = rig.ctrl
+    rig, ctrl = sector_rig()
     assert ctrl.set_mission([(1000, 0), (1000, 1000)]) == (True, "")
     assert ctrl.start_mission() == (True, "")
     assert ctrl.mode == Mode.AUTO

@@ -37,6 +37,19 @@ def expect(bus, name, timeout=2.0):
             return cp.decode(msg)[1]
 
 
+def warm_up(sim, ticks: int) -> int:
+    """`ticks` lockstep periods from t = 0, each with a fresh sensor sample, each answered with a
+    MotorCommand; the sim time of the next period."""
+    t = 0
+    for k in range(ticks):
+        for f in sensor_frames():
+            sim.send(f)
+        sim.send(cp.sim_tick(k, t))
+        expect(sim, "MotorCommand")
+        t += robot_spec.CONTROL_PERIOD_US
+    return t
+
+
 @pytest.fixture
 def rig(request):
     ch = f"node-{request.node.name}"
@@ -77,13 +90,7 @@ def test_lockstep_answer_retransmission_and_sim_time_stamps(rig):
 
 def test_lockstep_arm_and_drive_then_sensor_silence_faults(rig):
     sim, ctrl, node = rig
-    t = 0
-    for k in range(2):
-        for f in sensor_frames():
-            sim.send(f)
-        sim.send(cp.sim_tick(k, t))
-        expect(sim, "MotorCommand")
-        t += robot_spec.CONTROL_PERIOD_US
+    t = warm_up(sim, 2)
     assert ctrl.arm() == (True, "")
     assert ctrl.set_goal(3000, 0) == (True, "")
     k = 2

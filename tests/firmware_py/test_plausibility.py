@@ -17,7 +17,7 @@ from firmware_py.control.controller import Controller
 from firmware_py.control.node import RobotNode
 from firmware_py.vehicle import CtrlState
 from tests.firmware_py.test_controller_core import armed_rig
-from tests.firmware_py.test_controller_node import expect, sensor_frames
+from tests.firmware_py.test_controller_node import expect, sensor_frames, warm_up
 from tests.support.controller_rig import sector_seek_policy
 
 P = robot_spec.CONTROL_PERIOD_US
@@ -123,13 +123,7 @@ def test_robot_node_drops_a_far_future_sim_tick_and_keeps_detecting_stale_sensor
     node = RobotNode(can.Bus(interface="virtual", channel=ch), ctrl, SimClock(), lockstep=True)
     node.start()
     try:
-        t = 0
-        for k in range(3):
-            for f in sensor_frames():
-                sim.send(f)
-            sim.send(cp.sim_tick(k, t))
-            expect(sim, "MotorCommand")
-            t += P
+        t = warm_up(sim, 3)
         assert ctrl.arm() == (True, "") and ctrl.set_goal(3000, 0)[0]
         sim.send(cp.sim_tick(3, 10**12))  # forged: far in the future, the next counter
         for f in sensor_frames():
