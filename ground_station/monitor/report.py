@@ -292,7 +292,11 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
     plots: dict[str, str] = {}
     skipped: dict[str, str] = {}
 
-    def save(name: str, fig) -> None:
+    def save(name: str, fig, ax=None, xlabel: str = "", ylabel: str = "", title: str = "") -> None:  # type: ignore[no-untyped-def]
+        if ax is not None:  # the axes' labels and title, then the file
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(ylabel)
+            ax.set_title(title)
         path = out / f"{name}.png"
         atomic_write(path, png_bytes(fig, dpi=110, bbox_inches="tight"))
         plots[name] = str(path)
@@ -315,12 +319,10 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
         ax.plot(xs, ys, "-", color="tab:blue", lw=2, label=f"path {summary['path_length_m']:.2f} m")
         ax.plot(xs[0], ys[0], "o", color="tab:green", label="start")
         ax.plot(xs[-1], ys[-1], "X", color="tab:red", label="end")
-        ax.set_xlabel("x east [m]")
-        ax.set_ylabel("y north [m]")
         ax.set_aspect("equal")
-        ax.set_title(f"trajectory ({grid_map.name if grid_map is not None else 'no map'})")
         ax.legend(loc="best", fontsize=8)
-        save("trajectory", fig)
+        save("trajectory", fig, ax, "x east [m]", "y north [m]",
+             f"trajectory ({grid_map.name if grid_map is not None else 'no map'})")
     else:
         skipped["trajectory"] = "no LOCAL_POSITION_NED from the vehicle in the recording"
 
@@ -332,10 +334,8 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
             ax.annotate(f"item {seq}", (t, 0), rotation=90, va="bottom", fontsize=8)
         for f in summary["fault_list"]:
             ax.axvspan(f["t_s"], f["t_s"] + 0.2, color="tab:red", alpha=0.4)
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("distance to goal [m]")
-        ax.set_title("distance to goal (green: mission item reached, red: fault)")
-        save("distance_to_goal", fig)
+        save("distance_to_goal", fig, ax, "time [s]", "distance to goal [m]",
+             "distance to goal (green: mission item reached, red: fault)")
     else:
         skipped["distance_to_goal"] = "no goal known while armed (no mission, POSITION_TARGET or NAV_CONTROLLER_OUTPUT)"
 
@@ -343,28 +343,24 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
         fig, ax = plt.subplots(figsize=(5, 3.5))
         keys = sorted(set(rec.actions))
         ax.bar([str(k) for k in keys], [rec.actions.count(k) for k in keys], color="tab:purple")
-        ax.set_xlabel("action index (sector: " + ", ".join(robot_spec.ACTION_NAMES)
-                      + "; cell: " + ", ".join(robot_spec.CELL_ACTION_NAMES) + ")", fontsize=7)
-        ax.set_ylabel("telemetry samples")
-        ax.set_title("actions")
-        save("actions", fig)
+        ax.xaxis.label.set_fontsize(7)  # the long label's size (kept when save sets its text)
+        save("actions", fig, ax, "action index (sector: " + ", ".join(robot_spec.ACTION_NAMES)
+             + "; cell: " + ", ".join(robot_spec.CELL_ACTION_NAMES) + ")", "telemetry samples", "actions")
     else:
         skipped["actions"] = "no policy decision in the recording (no ACTION NAMED_VALUE_INT >= 0)"
 
     if rec.load_pct:
         fig, ax = plt.subplots(figsize=(7, 3.5))
         ax.plot([t for t, _ in rec.load_pct], [v for _, v in rec.load_pct], color="tab:blue", label="load")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("robot load [%]")
         ax.set_ylim(0, max(10.0, max(v for _, v in rec.load_pct) * 1.3))
         ax2 = ax.twinx()
         ax2.step([t for t, _ in rec.overruns], [v for _, v in rec.overruns], where="post", color="tab:red",
                  label="tick overruns")
         ax2.set_ylabel("tick overruns (cumulative)")
         ax2.set_ylim(bottom=0, top=max(1, max(v for _, v in rec.overruns)) * 1.2)
-        ax.set_title(f"control loop ({robot_spec.CONTROL_RATE_HZ} Hz): load and overruns (SYS_STATUS)")
         fig.legend(loc="upper left", bbox_to_anchor=(0.0, 1.0), bbox_transform=ax.transAxes, fontsize=8)
-        save("timing", fig)
+        save("timing", fig, ax, "time [s]", "robot load [%]",
+             f"control loop ({robot_spec.CONTROL_RATE_HZ} Hz): load and overruns (SYS_STATUS)")
     else:
         skipped["timing"] = summary["timing"]["reason"]
 

@@ -74,18 +74,18 @@ def test_watkins_q_lambda_cuts_traces_on_exploratory_actions():
     q = np.full((prob.encoder.n_states, 4), -0.5)
     q[:, 3] = 0.0
     lrn = CellLearner(cfg, prob, q)
-    assert lrn.code == Q_LAMBDA and lrn.tr_s.shape[0] > 50
+    assert lrn.code == Q_LAMBDA and lrn.mem.tr_s.shape[0] > 50
     cuts = grows = 0
     for _ in range(400):
-        before = int(lrn.tr[1]) if lrn.ep[3] == 1 else 0  # a new episode empties the ring
+        before = int(lrn.mem.tr[1]) if lrn.ep[3] == 1 else 0  # a new episode empties the ring
         lrn.run(1)
         if lrn.ep[3] == 0:
             continue  # episode over: the next one starts with empty traces
         if int(lrn.ep[4]) == 3:
-            assert lrn.tr[1] == before + 1
+            assert lrn.mem.tr[1] == before + 1
             grows += 1
         else:
-            assert lrn.tr[1] == 0
+            assert lrn.mem.tr[1] == 0
             cuts += 1
     assert cuts > 20 and grows > 20
 
@@ -103,9 +103,9 @@ def test_dyna_q_plans_from_its_model():
     prob = CellProblem.build(gm, SMALL.options.targets)
     lrn = CellLearner(cfg, prob, np.zeros((prob.encoder.n_states, 4)))
     lrn.run(3_000)
-    seen = lrn.seen[: lrn.n_seen[0]]
+    seen = lrn.mem.seen[: lrn.mem.n_seen[0]]
     assert len(seen) == len(set(seen.tolist())) > 0
-    assert np.all(lrn.model_s2[seen] >= 0)
+    assert np.all(lrn.mem.model_s2[seen] >= 0)
     # with planning, far more of the table has moved than real steps alone reach in 3k steps
     q_only = CellLearner(replace(cfg, learner="q"), prob, np.zeros((prob.encoder.n_states, 4)))
     q_only.run(3_000)

@@ -68,11 +68,12 @@ def test_double_q_trains_two_tables_and_ships_their_mean():
 
 def test_dyna_q_model_holds_the_pairs_seen_and_planning_moves_more_of_the_table():
     tr, q, _ = _train(replace(CFG, learner="dyna-q", steps=20_000), [20_000])
-    seen = tr._seen[: tr._n_seen[0]]
+    seen = tr._mem.seen[: tr._mem.n_seen[0]]
     assert len(seen) == len(set(seen.tolist())) > 10
-    assert np.all(tr._model_s2[seen] >= 0) and np.all(tr._model_g[seen] > 0) and np.all(tr._model_g[seen] <= 1)
-    unseen = np.setdiff1d(np.arange(tr._model_s2.size), seen)
-    assert np.all(tr._model_s2[unseen] == -1)
+    m = tr._mem
+    assert np.all(m.model_s2[seen] >= 0) and np.all(m.model_g[seen] > 0) and np.all(m.model_g[seen] <= 1)
+    unseen = np.setdiff1d(np.arange(tr._mem.model_s2.size), seen)
+    assert np.all(tr._mem.model_s2[unseen] == -1)
     _, q_plain, _ = _train(replace(CFG, learner="q", steps=20_000), [20_000])
     assert np.abs(q).sum() > np.abs(q_plain).sum()  # replayed updates spread the values further
 
@@ -80,13 +81,13 @@ def test_dyna_q_model_holds_the_pairs_seen_and_planning_moves_more_of_the_table(
 def test_q_lambda_traces_are_bounded_and_cut_on_exploration():
     cfg = CFG.with_values(learner="q-lambda", epsilon_start=0.5, epsilon_end=0.5, sector_hold_max=1)
     tr = SectorTrainer([load_map("paper10")], cfg, SectorEncoder())
-    assert tr.code == L_Q_LAMBDA and tr._tr_s.shape[0] > 10
+    assert tr.code == L_Q_LAMBDA and tr._mem.tr_s.shape[0] > 10
     q = np.zeros((tr.n_states, tr.n_actions))
     lengths = [0]
-    cap = tr._tr_s.shape[0]
+    cap = tr._mem.tr_s.shape[0]
     for i in range(5000):  # hold_max 1: one update per step
         tr.run(q, i, 1)
-        n = int(tr._tr[1])
+        n = int(tr._mem.tr[1])
         # a greedy next action extends the chain by one (up to the ring), an exploratory
         # one empties it, a new episode starts from an empty ring
         assert n in (lengths[-1] + 1, 0, 1) or n == lengths[-1] == cap, (lengths[-1], n)

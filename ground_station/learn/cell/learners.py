@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -236,6 +237,33 @@ def trace_capacity(cfg: TrainConfig, max_ep: int) -> int:
     return max(1, min(max_ep, math.ceil(math.log(cfg.trace_min) / math.log(gl)) + 1))
 
 
+@dataclass
+class LearnerMemory:
+    """Dyna-Q's learnt model (keys s * n_actions + a: next state, -1 unseen; reward; discount, the
+    sector's semi-Markov gamma^k; terminal; the keys seen) and Q(lambda)'s trace ring (states,
+    actions, traces; tr = [head, length]), sized for the learner that uses them (1-element
+    dummies otherwise). The cell and sector kernels take them as arrays."""
+
+    model_s2: np.ndarray
+    model_r: np.ndarray
+    model_g: np.ndarray
+    model_term: np.ndarray
+    seen: np.ndarray
+    n_seen: np.ndarray
+    tr_s: np.ndarray
+    tr_a: np.ndarray
+    tr_e: np.ndarray
+    tr: np.ndarray
+
+    @classmethod
+    def make(cls, cfg: TrainConfig, code: int, n_states: int, n_actions: int, max_ep: int) -> LearnerMemory:
+        nk = n_states * n_actions if code == DYNA_Q else 1
+        cap = trace_capacity(cfg, max_ep) if code == Q_LAMBDA else 1
+        return cls(np.full(nk, -1, dtype=np.int64), np.zeros(nk), np.zeros(nk), np.zeros(nk, dtype=np.bool_),
+                   np.zeros(nk, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(cap, dtype=np.int64),
+                   np.zeros(cap, dtype=np.int64), np.zeros(cap), np.zeros(2, dtype=np.int64))
+
+
 class CellLearner:
     """One learner's state on a `CellProblem`: the table(s), the model or traces,
     the generator and the unfinished episode; `run(n)` advances n steps."""
@@ -249,18 +277,7 @@ class CellLearner:
         # Double Q's second table starts where A starts (zeros or the same random init)
         self.q2 = q.copy() if self.code == DOUBLE_Q else np.zeros((1, n_actions))
         self.max_ep = cfg.max_episode_steps or prob.gridmap.width * prob.gridmap.height
-        dyna = self.code == DYNA_Q
-        nk = n_states * n_actions if dyna else 1
-        self.model_s2 = np.full(nk, -1, dtype=np.int64)
-        self.model_r = np.zeros(nk, dtype=np.float64)
-        self.model_term = np.zeros(nk, dtype=np.bool_)
-        self.seen = np.zeros(nk, dtype=np.int64)
-        self.n_seen = np.zeros(1, dtype=np.int64)
-        cap = trace_capacity(cfg, self.max_ep) if self.code == Q_LAMBDA else 1
-        self.tr_s = np.zeros(cap, dtype=np.int64)
-        self.tr_a = np.zeros(cap, dtype=np.int64)
-        self.tr_e = np.zeros(cap, dtype=np.float64)
-        self.tr = np.zeros(2, dtype=np.int64)
+        self.mem = LearnerMemory.make(cfg, self.code, n_states, n_actions, self.max_ep)
         self.rng = seed_state(cfg.seed)
         self.ep = np.zeros(5, dtype=np.int64)
         self.ep_ret = np.zeros(1, dtype=np.float64)
@@ -269,14 +286,14 @@ class CellLearner:
 
     def run(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Advance n steps; the returns and successes of the episodes that finished."""
-        c, p = self.cfg, self.prob
+        c, p, m = self.cfg, self.prob, self.mem
         out_ret = np.empty(n, dtype=np.float64)
         out_succ = np.empty(n, dtype=np.bool_)
         k = td_cell(self.code, self.q, self.q2, p.next_cell, p.goal_cells, p.starts_flat, p.starts_off,
                     c.lr, c.gamma, c.epsilon_start, c.epsilon_end, self.decay,
                     c.reward_goal, c.reward_step, c.reward_collision, self.max_ep, c.learner_lambda,
-                    c.dyna_planning, self.model_s2, self.model_r, self.model_term, self.seen, self.n_seen,
-                    self.tr_s, self.tr_a, self.tr_e, self.tr,
+                    c.dyna_planning, m.model_s2, m.model_r, m.model_term, m.seen, m.n_seen,
+                    m.tr_s, m.tr_a, m.tr_e, m.tr,
                     self.done, n, self.rng, self.ep, self.ep_ret, out_ret, out_succ)
         self.done += n
         return out_ret[:k].copy(), out_succ[:k].copy()

@@ -30,8 +30,6 @@ from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.kernels import (
     EP_LEN,
     L_DOUBLE_Q,
-    L_DYNA_Q,
-    L_Q_LAMBDA,
     train_kernel,
 )
 from ground_station.learn.sector.reward import SectorReward, check_guidance
@@ -148,25 +146,14 @@ class SectorTrainer:
     def _learner_state(self, cfg: TrainConfig) -> None:
         """The learner's tables besides q: Double Q's second table, Dyna-Q's
         model, Q(lambda)'s trace ring (1-element dummies when unused)."""
-        from ground_station.learn.cell.learners import trace_capacity
+        from ground_station.learn.cell.learners import LearnerMemory
 
         self.learner = str(cfg.learner)
         self.code = LEARNERS.index(self.learner)
         self._lam = float(cfg.learner_lambda)
         self._n_plan = int(cfg.dyna_planning)
         self.q2: np.ndarray | None = None  # Double Q's B, created on the first run (starts as q)
-        nk = self.n_states * self.n_actions if self.code == L_DYNA_Q else 1
-        self._model_s2 = np.full(nk, -1, dtype=np.int64)
-        self._model_r = np.zeros(nk)
-        self._model_g = np.zeros(nk)
-        self._model_term = np.zeros(nk, dtype=np.bool_)
-        self._seen = np.zeros(nk, dtype=np.int64)
-        self._n_seen = np.zeros(1, dtype=np.int64)
-        cap = trace_capacity(cfg, self.max_episode_steps) if self.code == L_Q_LAMBDA else 1
-        self._tr_s = np.zeros(cap, dtype=np.int64)
-        self._tr_a = np.zeros(cap, dtype=np.int64)
-        self._tr_e = np.zeros(cap)
-        self._tr = np.zeros(2, dtype=np.int64)
+        self._mem = LearnerMemory.make(cfg, self.code, self.n_states, self.n_actions, self.max_episode_steps)
 
     def table(self, q: np.ndarray) -> np.ndarray:
         """The run's greedy table: q, or (A + B) / 2 for Double Q (q is A)."""
@@ -179,7 +166,7 @@ class SectorTrainer:
         in place; returns (returns, successes) of the episodes that finished."""
         if q.shape != (self.n_states, self.n_actions) or q.dtype != np.float64:
             raise ValueError(f"q must be float64 {(self.n_states, self.n_actions)}, got {q.dtype} {q.shape}")
-        p = self.packed
+        p, m = self.packed, self._mem
         sectors, sensors, edges, which = self._enc
         out_ret = np.empty(n_steps)
         out_succ = np.empty(n_steps, dtype=np.bool_)
@@ -194,9 +181,9 @@ class SectorTrainer:
                          float(self.cfg.lr), self.lr_end, int(self.cfg.steps), float(self.cfg.gamma),
                          *self._eps, self._rw, self.max_episode_steps, self.hold_max, self._guided,
                          self._clear_r, self._max_seg, self._path, self._wps, self._rem, self.noise_mm,
-                         self._lam, self._n_plan, self._model_s2, self._model_r, self._model_g,
-                         self._model_term, self._seen, self._n_seen, self._tr_s, self._tr_a, self._tr_e,
-                         self._tr, int(start_step), int(n_steps), out_ret, out_succ)
+                         self._lam, self._n_plan, m.model_s2, m.model_r, m.model_g,
+                         m.model_term, m.seen, m.n_seen, m.tr_s, m.tr_a, m.tr_e,
+                         m.tr, int(start_step), int(n_steps), out_ret, out_succ)
         return out_ret[:n].copy(), out_succ[:n].copy()
 
 
