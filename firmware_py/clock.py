@@ -49,10 +49,6 @@ class Clock(ABC):
     def now_us(self) -> int:
         """Current time in microseconds (monotonic, arbitrary origin)."""
 
-    def now_s(self) -> float:
-        return self.now_us() / 1e6
-
-
 class WallClock(Clock):
     """The host's monotonic clock."""
 

@@ -171,9 +171,6 @@ class Storage:
                 raise StorageError(errno.EACCES, f"path {ftp_path!r} goes through a symlink")
         return self.root.joinpath(*parts)
 
-    def is_root(self, path: Path) -> bool:
-        return path == self.root
-
     def _existing(self, ftp_path: str) -> tuple[Path, os.stat_result]:
         path = self.resolve(ftp_path)
         try:

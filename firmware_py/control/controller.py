@@ -338,15 +338,6 @@ class Controller(ControlState):
             self._events.clear()
             return out
 
-    def set_pose(self, x_mm: int, y_mm: int, heading_mrad: int) -> None:
-        """Set the odometry pose (start pose, or a re-localisation fix)."""
-        with self._lock:
-            self.odom.reset(int(x_mm), int(y_mm), int(heading_mrad))
-            self._last_enc_us = None
-            self._interrupt_motion()
-            if self.loc is not None:
-                self.loc.init_pose(int(x_mm), int(y_mm), int(heading_mrad))
-
     def localise_global(self, explore: bool = True) -> tuple[bool, str]:
         """Forget the pose: particles uniform over the map (global localisation). With `explore`
         and armed in HOLD the robot wanders (control/explore.py), the one motion Hold allows and

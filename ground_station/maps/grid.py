@@ -67,7 +67,3 @@ class GridMap:
         """All free cells as (col, row), in row-major order."""
         rows, cols = np.nonzero(~self.occ)
         return [(int(c), int(r)) for r, c in zip(rows, cols, strict=True)]
-
-    def with_targets(self, targets: dict[str, tuple[int, int]]) -> GridMap:
-        """A copy of this map with other targets."""
-        return GridMap(self.name, self.occ.copy(), dict(targets), self.cell_size_m)

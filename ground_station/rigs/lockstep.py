@@ -203,12 +203,6 @@ class LockstepRig:
         while self.plant.time_us < t_us:
             self.tick(**kw)
 
-    def state_at(self, t_us: int) -> CtrlState | None:
-        for t, s in self.states:
-            if t == t_us:
-                return s
-        return None
-
     def first_transition_to(self, state: CtrlState, after_us: int = -1):
         for tr in self.ctrl.transitions:
             if tr.dst == state and tr.t_us >= after_us:
