@@ -80,7 +80,7 @@ ENCODER_BITS = _BY_NAME["EncoderCounts"].get_signal_by_name("Enc_Left").length  
 # one frame is told from a live one by a counter that stops advancing.
 SENSOR_COUNTER_SIGNALS: dict[str, str] = {
     "RangeSectors0": "Rng0_Counter", "RangeSectors1": "Rng1_Counter",
-    "EncoderCounts": "Enc_Counter", "Bumper": "Bump_Counter",
+    "EncoderCounts": "Enc_Counter", "Bumper": "Bump_Counter", "MotorStatus": "Mot_Counter",
 }
 SENSOR_COUNTER_MODULUS = 1 << _BY_NAME["EncoderCounts"].get_signal_by_name("Enc_Counter").length
 assert all(1 << _BY_NAME[f].get_signal_by_name(c).length == SENSOR_COUNTER_MODULUS

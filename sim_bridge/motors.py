@@ -115,8 +115,9 @@ class MotorDriver:
             else:
                 self.errors &= ~bits[i]
 
-    def status(self) -> dict[str, int]:
-        """MotorStatus signals; resets the per-period accel-limited flag."""
+    def status(self, counter: int = 0) -> dict[str, int]:
+        """MotorStatus signals with the sample's rolling `counter` (taken modulo its width); resets
+        the per-period accel-limited flag."""
         limit = self.p.speed_limit_mm_s
         signals = {
             "Mot_State": self.state,
@@ -127,6 +128,7 @@ class MotorDriver:
             "Mot_CmdCounterLsb": self.last_counter & 0xFF,
             "Mot_LeftSpeed": max(-limit, min(limit, round(self.speed[0]))),
             "Mot_RightSpeed": max(-limit, min(limit, round(self.speed[1]))),
+            "Mot_Counter": counter % cp.SENSOR_COUNTER_MODULUS,
         }
         self.accel_limited = False
         self.errors &= ~cp.MOTOR_ERR_BAD_COMMAND  # reported once

@@ -115,7 +115,7 @@ class Plant:
         frames = cp.range_frames(self.ranges.read(), self.tick)  # one new sample per tick: counter = tick
         frames.append(cp.encoder_counts(left, right, self.tick))
         frames.append(cp.encode("Bumper", bumper_signals(self.world, self.tick)))
-        frames.append(cp.encode("MotorStatus", self.motors.status()))
+        frames.append(cp.encode("MotorStatus", self.motors.status(self.tick)))
         frames.append(cp.sim_tick(self.tick, self.time_us))
         for f in frames:
             f.timestamp = t_s

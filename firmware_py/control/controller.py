@@ -449,7 +449,7 @@ class Controller(ControlState):
                 if stale:
                     self._enter_fault(f"sensor data stale: {','.join(stale)}")
                 elif silent:
-                    self._enter_fault("motor driver status stale")
+                    self._enter_fault(f"motor driver status {silent}")
                 elif inp.driver_errors:
                     self._enter_fault(f"motor driver fault 0x{inp.driver_errors:02x}")
                 elif self._driver_watchdog_tripped(inp):
@@ -458,7 +458,7 @@ class Controller(ControlState):
                 self.goal = None
                 self.mode = Mode.HOLD
                 self._transition(CtrlState.HOLD, "bumper pressed", SEV_WARNING)
-        self._errors = error_bits(inp, stale=bool(stale), driver_silent=silent, no_policy=self.policy is None,
+        self._errors = error_bits(inp, stale=bool(stale), driver_silent=bool(silent), no_policy=self.policy is None,
                                   failsafe=self.failsafe, estop_latched=self.estop_latch.latched,
                                   localisation_fault=self.fault.startswith("localisation"))
         return self._errors

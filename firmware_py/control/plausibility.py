@@ -54,7 +54,7 @@ class InputFreshness:
     def note_counters(self, inp: Inputs) -> None:
         """Remember when each sensor's rolling counter last advanced."""
         stamps = {"ranges0": inp.ranges_us[0], "ranges1": inp.ranges_us[1], "enc": inp.enc_us,
-                  "bumper": inp.bumper_us}
+                  "bumper": inp.bumper_us, "driver": inp.driver_us}
         for key, ctr in inp.counters.items():
             seen = self._counter_seen.get(key)
             if seen is None or seen[0] != ctr:

@@ -159,8 +159,14 @@ class ControlState:
     def _stale_inputs(self, inp: Inputs, now_us: int) -> list[str]:
         return self.freshness.stale(inp, now_us, self.cfg.sensor_timeout_ms * 1000)
 
-    def _driver_silent(self, inp: Inputs, now_us: int) -> bool:
-        return inp.driver_us is None or now_us - inp.driver_us > self.cfg.sensor_timeout_ms * 1000
+    def _driver_silent(self, inp: Inputs, now_us: int) -> str:
+        """"" while the motor driver's status is fresh, else why not: no status within the sensor
+        timeout ("stale"), or frames whose rolling counter stopped advancing ("frozen": a stuck
+        sender re-sending one frame)."""
+        t = self.freshness.fresh_since(inp, "driver", inp.driver_us)
+        if t is not None and now_us - t <= self.cfg.sensor_timeout_ms * 1000:
+            return ""
+        return "stale" if t == inp.driver_us else "frozen"
 
     def _goal_index_for(self, x_mm: int, y_mm: int, policy: Policy | None = None) -> tuple[int, str]:
         """The policy table's index of a goal (a cell policy's target; -1 and a reason if none)."""

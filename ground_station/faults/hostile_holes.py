@@ -187,7 +187,7 @@ def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
           what="a board re-sends one frame forever -> zero command and FAULT '... frozen' within timeout + 1 period")
 def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_frozen_sensor")
-    names = sorted(SENSOR_FRAMES)
+    names = [*sorted(SENSOR_FRAMES), "MotorStatus"]  # the driver status carries a rolling counter too
     for i in range(count):
         rng = random.Random(seed * 7919 + 7000 + i)
         timeout_ms = rng.choice((100, 250, 500))

@@ -24,7 +24,8 @@ def sensor_frames(enc=(0, 0)):
                                        "Bump_Counter": n % cp.SENSOR_COUNTER_MODULUS}))
     frames.append(cp.encode("MotorStatus", {"Mot_State": 1, "Mot_WatchdogTripped": 0, "Mot_EStop": 0,
                                             "Mot_AccelLimited": 0, "Mot_Errors": 0, "Mot_CmdCounterLsb": 0,
-                                            "Mot_LeftSpeed": 0, "Mot_RightSpeed": 0}))
+                                            "Mot_LeftSpeed": 0, "Mot_RightSpeed": 0,
+                                            "Mot_Counter": n % cp.SENSOR_COUNTER_MODULUS}))
     return frames
 
 

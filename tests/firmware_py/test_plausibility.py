@@ -93,12 +93,12 @@ def test_encoder_jump_limit_is_the_boundary(over):
         assert ctrl.fault.startswith(f"encoder jump: right {limit + 1} ticks/{P // 1000} ms (max {limit})")
 
 
-@pytest.mark.parametrize("frozen", ["enc", "ranges1", "bumper"])
+@pytest.mark.parametrize("frozen", ["enc", "ranges1", "bumper", "driver"])
 def test_a_sensor_frame_whose_counter_stops_goes_stale_within_the_timeout(frozen):
     rig = armed_rig(sector_seek_policy())
     ctrl = rig.ctrl
     assert ctrl.set_goal(3000, 250)[0]
-    counters = {"ranges0": 0, "ranges1": 0, "enc": 0, "bumper": 0}
+    counters = {"ranges0": 0, "ranges1": 0, "enc": 0, "bumper": 0, "driver": 0}  # driver: MotorStatus
     t_frozen = None
     tmo = ctrl.cfg.sensor_timeout_ms * 1000
     for k in range(40):
@@ -111,6 +111,7 @@ def test_a_sensor_frame_whose_counter_stops_goes_stale_within_the_timeout(frozen
         if ctrl.state == CtrlState.FAULT:
             break
     assert ctrl.state == CtrlState.FAULT and "frozen" in ctrl.fault, ctrl.fault
+    assert ("motor driver status" in ctrl.fault) == (frozen == "driver")
     t_fault = ctrl.transitions[-1].t_us
     assert tmo < t_fault - t_frozen <= tmo + P
     assert rig.commands[-1] is None or (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
