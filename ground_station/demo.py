@@ -484,6 +484,7 @@ def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: ProcessGroup, 
         TITLE = "qnav demo"
         BINDINGS = [*MonitorApp.BINDINGS, Binding("ctrl+c", "quit", "quit", show=False)]
         verdict = ""
+        closing_at = 0.0
 
         def pump(self) -> None:
             super().pump()
@@ -491,7 +492,17 @@ def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: ProcessGroup, 
                 self.verdict = _verdict(watch, procs, deadline)
                 if self.verdict:
                     self.sub_title = f"{self.verdict} - closing"
-                    self.set_timer(2.0, self.exit)  # leave the final picture up a moment
+                    # leave the final picture up a moment; after a completed mission until the
+                    # robot's own "mission complete" line is in the log too (its texts can trail
+                    # the MISSION_ITEM_REACHED that ended the watch on a loaded machine), 10 s at most
+                    self.closing_at = time.monotonic() + (10.0 if self.verdict == "mission complete" else 2.0)
+                    self.set_timer(2.0, self.close_when_shown)
+
+        def close_when_shown(self) -> None:
+            if time.monotonic() >= self.closing_at or any("mission complete" in e.text for e in self.view.log):
+                self.exit()
+            else:
+                self.set_timer(0.25, self.close_when_shown)
 
     app = DemoMonitor(source, grid_map=grid_map, view=view, subtitle=subtitle)
     app.run()
