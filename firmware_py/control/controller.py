@@ -81,7 +81,7 @@ class Controller(ControlState):
                 goal_mm=self.goal, distance_to_goal_mm=dist, bearing_to_goal_mrad=bearing,
                 ranges_mm=list(inp.ranges_mm), range_status=list(inp.range_status),
                 sensors_healthy=not self._stale_inputs(inp, self._now),
-                motors_healthy=not self._driver_silent(inp, self._now) and inp.driver_errors == 0,
+                motors_healthy=not self._driver_status_stale(inp, self._now) and inp.driver_errors == 0,
                 bumper=inp.bumper, estop=self.estop_latch.latched or inp.estop or inp.driver_estop,
                 state_index=self._state_index, action=self._action, q_row=self._q_row,
                 mission_seq=self.route.seq, mission_count=len(self.route),
@@ -115,7 +115,7 @@ class Controller(ControlState):
             stale = self._stale_inputs(inp, self._now)
             if stale:
                 return False, f"sensor data stale: {','.join(stale)}"
-            if self._driver_silent(inp, self._now):
+            if self._driver_status_stale(inp, self._now):
                 return False, "motor driver silent"
             if inp.driver_errors:
                 return False, f"motor driver errors 0x{inp.driver_errors:02x}"
@@ -441,15 +441,15 @@ class Controller(ControlState):
     def _safety(self, inp: Inputs, now_us: int) -> int:
         estop = inp.estop or inp.driver_estop
         stale = self._stale_inputs(inp, now_us)
-        silent = self._driver_silent(inp, now_us)
+        driver_stale = self._driver_status_stale(inp, now_us)
         if self.armed:
             if estop and self.estop_latch.trip():
                 self._enter_fault("e-stop engaged")
             if self.state != CtrlState.FAULT:
                 if stale:
                     self._enter_fault(f"sensor data stale: {','.join(stale)}")
-                elif silent:
-                    self._enter_fault(f"motor driver status {silent}")
+                elif driver_stale:
+                    self._enter_fault(f"motor driver status {driver_stale}")
                 elif inp.driver_errors:
                     self._enter_fault(f"motor driver fault 0x{inp.driver_errors:02x}")
                 elif self._driver_watchdog_tripped(inp):
@@ -458,7 +458,7 @@ class Controller(ControlState):
                 self.goal = None
                 self.mode = Mode.HOLD
                 self._transition(CtrlState.HOLD, "bumper pressed", SEV_WARNING)
-        self._errors = error_bits(inp, stale=bool(stale), driver_silent=bool(silent), no_policy=self.policy is None,
+        self._errors = error_bits(inp, stale=bool(stale), driver_silent=bool(driver_stale), no_policy=self.policy is None,
                                   failsafe=self.failsafe, estop_latched=self.estop_latch.latched,
                                   localisation_fault=self.fault.startswith("localisation"))
         return self._errors

@@ -159,7 +159,7 @@ class ControlState:
     def _stale_inputs(self, inp: Inputs, now_us: int) -> list[str]:
         return self.freshness.stale(inp, now_us, self.cfg.sensor_timeout_ms * 1000)
 
-    def _driver_silent(self, inp: Inputs, now_us: int) -> str:
+    def _driver_status_stale(self, inp: Inputs, now_us: int) -> str:
         """"" while the motor driver's status is fresh, else why not: no status within the sensor
         timeout ("stale"), or frames whose rolling counter stopped advancing ("frozen": a stuck
         sender re-sending one frame)."""

@@ -14,7 +14,7 @@ Every field has one flat name, its flag without the dashes (`lr`, `targets`,
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from ground_station.learn import kinds
@@ -38,9 +38,7 @@ class TrainConfig:
     encoding's own (None: its defaults)."""
 
     map: str = _f("paper10", "built-in map name, generator spec (e.g. trap-16x16-s0) or path to a .map file")
-    encoding: str = _f(kinds.DEFAULT, "policy kind to train (ground_station/learn/kinds.py): cell (robot cell x goal), "
-                               "sector (kinematic twin) or sector-memory (sector x Bug-style wall-following "
-                               "mode, direct setting)")
+    encoding: str = _f(kinds.DEFAULT, "policy kind to train (ground_station/learn/kinds.py)")
     learner: str = _f("q", "tabular learner (cell, sector; sector-memory: q): q = Q-learning, sarsa, expected-sarsa, "
                            "double-q, dyna-q, q-lambda = Watkins' Q(lambda) (ground_station/learn/cell/learners.py)")
     learner_lambda: float = _f(0.9, "q-lambda: trace decay lambda (traces decay by gamma * lambda per step)")
@@ -68,8 +66,6 @@ class TrainConfig:
         kind = kinds.of_name(self.encoding)
         if self.options is None:
             self.options = kind.options()
-        elif isinstance(self.options, dict):  # a nested record (asdict of a config)
-            self.options = kind.options(**self.options)
         elif not isinstance(self.options, kind.options):
             raise ValueError(f"options of a {self.encoding} config must be {kind.options.__name__}, "
                              f"got {type(self.options).__name__}")
@@ -100,9 +96,6 @@ class TrainConfig:
             return TrainConfig.of(**{**{f.name: getattr(self, f.name) for f in fields(self)
                                         if f.name != "options"}, **flat})
         return TrainConfig.of(**{**self.flat(), **flat})
-
-    def replace(self, **common: Any) -> TrainConfig:
-        return replace(self, **common)
 
 
 def encodings() -> list[str]:
@@ -163,9 +156,11 @@ def add_config_arguments(parser: argparse.ArgumentParser, skip: tuple[str, ...] 
         if where not in groups:
             groups[where] = parser.add_argument_group(_group_title(where))
         kind = type(f.default)
+        text = f.metadata.get("help", "")
+        if name == "encoding":  # the registered kinds, each with its one-line summary
+            text += ": " + "; ".join(f"{k} = {kinds.of_name(k).summary}" for k in kinds.names())
         groups[where].add_argument("--" + name.replace("_", "-"), type=int_arg if kind is int else kind,
-                                   default=f.default, dest=name,
-                                   help=f"{f.metadata.get('help', '')} (default: {f.default})")
+                                   default=f.default, dest=name, help=f"{text} (default: {f.default})")
 
 
 def int_arg(text: str) -> int:

@@ -102,12 +102,9 @@ def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
     removed = {name: code for code, name in fmt.REMOVED_KINDS.items()}
     if kind in removed:
         raise ValueError(fmt.removed_kind_reason(removed[kind]))
-    try:
-        return kinds.of_name(str(kind)).encoder_from_dict(d)
-    except ValueError as exc:
-        if str(exc).startswith("encoding must be one of"):
-            raise ValueError(f"unknown encoder kind {kind!r}") from None
-        raise
+    if kind not in kinds.names():
+        raise ValueError(f"unknown encoder kind {kind!r}")
+    return kinds.of_name(str(kind)).encoder_from_dict(d)
 
 
 def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),

@@ -62,6 +62,7 @@ def test_the_kinds_options_are_its_own_in_help_config_and_checks(toy, capsys):
         main(["train", "--encoding", "toy-spin", "--help"])
     text = capsys.readouterr().out
     assert "--toy-near-mm" in text and "--toy-turn-reward" in text
+    assert "toy-spin = clear or blocked ahead" in text  # --encoding lists every registered kind's summary
     assert "--sector-guidance" not in text and "--targets" not in text and "--learner-lambda" not in text
     cfg = TrainConfig.of(encoding="toy-spin", toy_near_mm=180)
     assert cfg.options == toy_kind.SpinOptions(near_mm=180) and cfg.flat()["toy_near_mm"] == 180
