@@ -233,6 +233,12 @@ class VehicleView:
         self._conflict_since: float | None = None
         self._candidate_ms: int | None = None  # newest time_boot_ms of the other time base
         self._candidate_frames = 0  # its timed frames in a row, each consistent with the one before
+        # the other time base's STATUSTEXTs (following its frames in sequence), logged if it turns out
+        # to be our robot after lost frames (`_robot_clock` adopts it): texts are sent once, unlike
+        # the telemetry that comes again
+        self._candidate_seq: dict[int, int] = {}
+        self._held_texts: deque = deque(maxlen=_LOG_MAX)
+        self._adopted = False
         self.time_conflicts = 0  # timed frames ignored: another process with our system id
         self.reboots = 0
         self.foreign: dict[int, int] = {}  # sysid -> frames ignored from other vehicles
@@ -316,10 +322,21 @@ class VehicleView:
         boot_ms = getattr(msg, "time_boot_ms", None)
         if boot_ms is not None:
             if not self._robot_clock(int(boot_ms), t, self._follows_own_seq(msg, PAUSE_SEQ_WINDOW)):
+                self._candidate_seq[msg.get_srcComponent()] = msg.get_seq()
                 return False
         elif self.time_conflicts and not self._follows_own_seq(msg):
             self.time_conflicts += 1  # two processes share our system id: keep to the one we follow
+            cand = self._candidate_seq.get(msg.get_srcComponent())
+            if (mtype == "STATUSTEXT" and self._conflict_since is not None and cand is not None
+                    and 0 < (msg.get_seq() - cand) % 256 <= SEQ_WINDOW):
+                self._candidate_seq[msg.get_srcComponent()] = msg.get_seq()
+                self._held_texts.append((msg, t))
             return False
+        if self._adopted:  # the other time base was our robot: its texts held meanwhile come first
+            self._adopted = False
+            for held, held_t in self._held_texts:
+                self._on_statustext(held, held_t)
+            self._held_texts.clear()
         self._link_stats(msg)
         self.t = t
         if self.t0 is None:
@@ -360,6 +377,9 @@ class VehicleView:
             if boot_ms < last:
                 self.reboots += 1
                 self._boot_offset_s += last / 1000.0
+            self._adopted = True
+        elif self._conflict_since is not None:  # our own time base again: the other one's texts stay out
+            self._held_texts.clear()
         self._conflict_since = None
         self._candidate_ms, self._candidate_frames = None, 0
         self.boot_ms_last = boot_ms

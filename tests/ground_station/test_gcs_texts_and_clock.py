@@ -218,3 +218,48 @@ def test_view_follows_its_robot_across_lost_frames_and_a_clock_jump():
     assert lossy.reboots == 0
     assert lossy.pose == pytest.approx(alone.pose, abs=1e-6)
     assert lossy.mission_reached_count == alone.mission_reached_count
+
+
+def test_texts_sent_while_the_view_weighs_a_clock_jump_are_logged_once_it_is_ours():
+    """Seen in make test: after lost frames and a clock jump the view ignores the robot until
+    REBOOT_FRAMES timed frames agree, and the STATUSTEXTs of that stretch (sent once, unlike
+    telemetry) never reached the log: the demo's dashboard missed 'mission complete'. A second
+    process with our id (its own sequence) still gets no text in."""
+
+    def feed(view, mav, msgs, t0):
+        for k, m in enumerate(msgs):
+            for msg in decode(frame(mav, m)):
+                view.update(msg, t0 + 0.05 * k)
+
+    def attitude(ms):
+        return mavlink.MAVLink_attitude_message(ms, 0, 0, 0, 0, 0, 0)
+
+    def text(s):
+        return mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, s.encode())
+
+    view, robot = VehicleView(), encoder(1, 1)
+    feed(view, robot, [mavlink.MAVLink_heartbeat_message(10, 3, 0, 0, 0, 3)] + [attitude(100 * k) for k in range(20)], 0.0)
+    for k in range(40):  # lost on the way: the robot's sequence runs on, its clock by 13 s
+        frame(robot, attitude(2000 + 100 * k))
+    after = []
+    for k in range(2 * REBOOT_FRAMES):
+        after.append(attitude(15_000 + 100 * k))
+        if k % 10 == 5:
+            after.append(text(f"robot text {k}"))
+    feed(view, robot, after, 2.0)
+    assert view.reboots == 0 and view.time_conflicts > 0
+    logged = [e.text for e in view.log]
+    assert logged == [f"robot text {k}" for k in range(5, 2 * REBOOT_FRAMES, 10)]
+
+    other = VehicleView()
+    feed(other, encoder(1, 1), [mavlink.MAVLink_heartbeat_message(10, 3, 0, 0, 0, 3)]
+         + [attitude(100 * k) for k in range(20)], 0.0)
+    twin = encoder(1, 1)  # a second process with our id: its own clock and sequence
+    for _ in range(128):
+        frame(twin, attitude(0))
+    mixed = []
+    for k in range(20):  # fewer frames and less time than REBOOT_FRAMES / REBOOT_S: never adopted
+        mixed += [attitude(500_000 + 100 * k), text(f"twin text {k}")]
+    feed(other, twin, mixed, 2.0)
+    assert other.time_conflicts >= 40 and other.reboots == 0
+    assert not any("twin" in e.text for e in other.log)
