@@ -44,12 +44,25 @@ about them before its learnt sector policy steers:
   `backoff_near_mm` backs off for `backoff_us` if the rear sensors are
   clear: a person pinned between a wall and the robot can then step aside.
 
-Everything runs inside the control tick and is bounded: the raster window is
-at most (`max_plan_mm` + 2 x `window_mm`) square (5 m: 2500 cells; farther
-waypoints are driven at without planning until they are near enough), Dijkstra runs again
-only when the remembered set or the waypoint changes, and memory holds at
-most `max_points` points (the oldest go first). Pure stdlib (the robot has
-no numpy); the twin's bench runs this same code.
+* `PlannedTarget` is the tick's side of the planner: the search does not
+  run in the control tick (issue 29 finding 4: legal metadata made one
+  tick take 1 s). Each tick it remembers what it sees, decides whether
+  anything is in the way (cheap), posts the question (pose, waypoint, a
+  copy of the memory) to `firmware_py.background`, and steers by the
+  latest answer: at full speed while that answer (or, before the first,
+  the moment the way became blocked) is at most `PLAN_SLOW_US` old on the
+  controller clock, at half speed after that, and not at all once it is
+  `PLAN_STOP_US` old. On the robot the answer comes from a worker thread; in lockstep HIL
+  and in the twin the search runs between two ticks, so the answer of tick
+  k is used from tick k+1 and runs stay reproducible.
+
+The work is bounded: the raster window is at most (`max_plan_mm` + 2 x
+`window_mm`) square and at most `MAX_WINDOW_CELLS` raster cells a side
+(farther waypoints are driven at without planning until they are near
+enough), Dijkstra runs again only when the remembered set or the waypoint
+changes, and memory holds at most `max_points` points (the oldest go
+first). Pure stdlib (the robot has no numpy); the twin's bench runs this
+same code.
 """
 
 from __future__ import annotations
@@ -60,12 +73,16 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from firmware_py import robot_spec
+from firmware_py.background import Background
 from firmware_py.mapdata import OccupancyGrid
 
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
 _KEY_MM = 50  # one remembered point per 50 mm square
 _SQRT2 = 1.4142
 _UNKNOWN = 2  # a raster cell of the map's configuration space not computed yet
+MAX_WINDOW_CELLS = 200  # raster cells a side of the search window (40,000 cells, ~0.3 s of search)
+PLAN_SLOW_US = 300_000  # an answer older than this (controller clock): half speed ...
+PLAN_STOP_US = 1_000_000  # ... and none this old (or none for this long): stop
 
 # the sensor fans of robot_spec, for `unmapped_ends` (the twin's `sense` casts the same rays)
 _N = robot_spec.SENSOR_COUNT
@@ -204,6 +221,10 @@ class LocalPlannerConfig:
                              "max_plan_mm <= 10000 and lookahead_mm <= 5000")
         if cfg.soft_mm // cfg.raster_mm > 5:  # each point grows into (2 k + 3)^2 raster cells
             raise ValueError(f"{META_KEY}: soft_mm is more than 5 raster cells ({cfg.soft_mm} / {cfg.raster_mm})")
+        side = (cfg.max_plan_mm + 2 * cfg.window_mm) // cfg.raster_mm
+        if side > MAX_WINDOW_CELLS:  # the search's size in cells, whatever the millimetres say
+            raise ValueError(f"{META_KEY}: the search window is {side} raster cells a side "
+                             f"((max_plan_mm + 2 window_mm) / raster_mm; allowed up to {MAX_WINDOW_CELLS})")
         return cfg
 
     def to_metadata(self) -> dict[str, int]:
@@ -237,6 +258,13 @@ class ObstacleMemory:
             del self.points[p]
         if old:
             self.version += 1
+
+    def snapshot(self) -> ObstacleMemory:
+        """A copy for the planner's worker (the tick goes on changing this one)."""
+        copy = ObstacleMemory(self.cfg)
+        copy.points = dict(self.points)
+        copy.version = self.version
+        return copy
 
 
 Cell = tuple[int, int]
@@ -451,6 +479,81 @@ class LocalPlanner:
             best = c
         self.detouring = True
         return best[0] * r + r / 2, best[1] * r + r / 2
+
+
+@dataclass(frozen=True)
+class PlanAnswer:
+    """The worker's answer to one question: where to steer from the pose asked about."""
+
+    generation: int  # PlannedTarget.reset() count when asked (older answers are for another waypoint)
+    waypoint: tuple[int, int]
+    asked_us: int  # the controller clock at the question
+    target: tuple[float, float]
+    detouring: bool
+
+
+class PlannedTarget:
+    """The tick's side of the local planner (module docstring): one per drive of a sector policy."""
+
+    def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background) -> None:
+        self.cfg = cfg
+        self.planner = LocalPlanner(grid, cfg)  # used by the worker only, after construction
+        self.work = work
+        self._generation = 0
+        self._worker_generation = 0
+        self._answer: PlanAnswer | None = None
+        self._active: tuple[int, int] | None = None
+        self._active_since_us = 0
+        self.detouring = False  # the last target was not the waypoint
+        self.stale_ticks = 0  # ticks steered at reduced speed or stopped for want of a recent answer
+
+    @property
+    def plans(self) -> int:
+        return self.planner.plans
+
+    def reset(self) -> None:
+        """A new waypoint (mission item): drive straight until something is in the way."""
+        self._generation += 1
+        self._answer = None
+        self._active = None
+        self.detouring = False
+
+    def target(self, now_us: int, x: float, y: float, waypoint: tuple[int, int],
+               memory: ObstacleMemory) -> tuple[float, float, int]:
+        """(x, y) mm to steer to this tick and the speed in percent (100, 50 or 0)."""
+        wx, wy = waypoint
+        if math.hypot(wx - x, wy - y) > self.cfg.max_plan_mm:
+            self.detouring = False  # far: driven at without planning (LocalPlanner.target)
+            return float(wx), float(wy), 100
+        if self._active != waypoint:
+            if not memory.points or not self.planner._in_way(x, y, wx, wy, memory):
+                self.detouring = False
+                return float(wx), float(wy), 100
+            self._active, self._active_since_us = waypoint, now_us
+        gen, snap = self._generation, memory.snapshot()
+        self.work.post(self, lambda: self._solve(gen, now_us, x, y, waypoint, snap))
+        ans = self._answer
+        if ans is None or ans.generation != gen or ans.waypoint != waypoint:
+            # nothing answered for this waypoint yet (the tick it became blocked, in lockstep and the
+            # twin): toward it, the motion guard still vetoing; how long counts from then
+            self.detouring = False
+            age, tx, ty = now_us - self._active_since_us, float(wx), float(wy)
+        else:
+            self.detouring = ans.detouring
+            age, (tx, ty) = now_us - ans.asked_us, ans.target
+        speed = 100 if age <= PLAN_SLOW_US else 50 if age <= PLAN_STOP_US else 0
+        if speed < 100:
+            self.stale_ticks += 1
+        return tx, ty, speed
+
+    def _solve(self, generation: int, asked_us: int, x: float, y: float, waypoint: tuple[int, int],
+               memory: ObstacleMemory) -> None:
+        """The worker's part: `LocalPlanner.target` for the pose asked about."""
+        if generation != self._worker_generation:
+            self.planner.reset()
+            self._worker_generation = generation
+        tx, ty = self.planner.target(x, y, waypoint, memory)
+        self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), self.planner.detouring)
 
 
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order

@@ -315,7 +315,7 @@ class Controller(ControlState):
                 return False, why
             old = self.policy
             self.policy = new
-            self.driver = kinds.of_policy(new).driver(new)
+            self.driver = kinds.of_policy(new).driver(new, self.background)
             self._use_localiser(new, loc if loc is not None else self._new_localiser(new))
             if old is not None:
                 self.last_known_good = old

@@ -36,7 +36,10 @@ otherwise):
 
 Hook for the MAVLink shell: `node.controller` is the `VehicleControl`;
 callables in `node.after_tick` run in the ticking thread after each tick with
-the tick's `Outputs`. They must not wait on anything: the MAVLink extension
+the tick's `Outputs`. In lockstep the node then runs the policy kind's
+off-tick work (`Controller.background`, the local planner's search) before
+it reads the next SimTick: answered ticks are not delayed and a question
+asked on tick k is answered on tick k+1 whatever the load. They must not wait on anything: the MAVLink extension
 only checks the GCS failsafe there and wakes its link thread
 (firmware_py.mavlink.link_thread).
 """
@@ -189,6 +192,7 @@ class RobotNode:
         for t in self._threads:
             t.join(timeout=5)
         self._threads = []
+        self.controller.background.close()
 
     @property
     def running(self) -> bool:
@@ -314,6 +318,8 @@ class RobotNode:
                 self.hook_errors += 1
                 if self.hook_errors == 1:
                     log.exception("after_tick hook failed (logged once, counted in hook_errors)")
+        if self.lockstep:  # the tick is answered and the sim waits for nothing of ours: the kind's
+            self.controller.background.run_pending()  # off-tick work, ready for the next tick
 
     def _note_wall(self, latency_ns: int, compute_ns: int, lag_ns: int | None) -> None:
         """Wall-clock lateness of the tick just run (module doc)."""

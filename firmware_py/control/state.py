@@ -12,6 +12,7 @@ import threading
 from collections import deque
 
 from firmware_py import kinds
+from firmware_py.background import Background
 from firmware_py.can_protocol import ENCODER_BITS
 from firmware_py.control.explore import Exploration
 from firmware_py.control.io import (
@@ -54,6 +55,9 @@ class ControlState:
         self.cfg = config or VehicleConfig()
         self._lock = threading.RLock()
         self.lockstep = lockstep
+        # the active kind's off-tick work (the local planner's search): stepped by the node between
+        # lockstep ticks (reproducible runs), a worker thread otherwise (firmware_py.background)
+        self.background = Background(threaded=not lockstep)
         self.policy = policy
         self.last_known_good: Policy | None = None
         self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS)
@@ -85,7 +89,7 @@ class ControlState:
         self._action = -1
         self._q_row: tuple[int, ...] = ()
         # the active policy's kind at work (firmware_py.kinds): its decisions and its memory
-        self.driver: KindDriver | None = kinds.of_policy(policy).driver(policy) if policy is not None else None
+        self.driver: KindDriver | None = kinds.of_policy(policy).driver(policy, self.background) if policy is not None else None
         self.target_mm: tuple[int, int] | None = None  # what the policy steered to (None: the goal itself)
         self.tick_overruns = 0
         self.can_errors = 0

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from firmware_py import robot_spec
+from firmware_py.background import Background
 
 PAIR = struct.Struct("<hh")  # one action in the encoder section: (left, right) mm/s or (dcol, drow)
 Geometry = tuple[int, int, int]  # (cell_mm, width, height) of a map
@@ -110,8 +111,11 @@ class Decision:
 class KindDriver:
     """A policy kind at work on the robot: one per active policy, built by `PolicyKind.driver`."""
 
-    def __init__(self, policy: Policy) -> None:
+    def __init__(self, policy: Policy, work: Background | None = None) -> None:
         self.policy = policy
+        # where the kind runs work that must not run in the tick (firmware_py.background): the
+        # controller's, stepped between ticks in lockstep HIL; a worker thread of its own otherwise
+        self.work = work if work is not None else Background()
 
     def step(self, tick: DriveTick) -> Decision:
         """The wheel command for this tick (mm/s, before the speed scale and clamp)."""
@@ -172,7 +176,7 @@ class PolicyKind:
     actions: tuple[tuple[int, int], ...]
     unpack: Callable[[bytes, int, int], Unpacked]
     pack: Callable[[Any, Goals, int], bytes]
-    driver: Callable[[Policy], KindDriver]
+    driver: Callable[[Policy, Background], KindDriver]
     # the map geometry the header must record (a cell policy's own grid), or None: the training map's
     fixed_geometry: Callable[[Any, int], Geometry | None] = field(default=_no_geometry)
     # the map cell size the policy drives on, which must be the robot's (None: not cell-bound)

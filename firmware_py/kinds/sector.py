@@ -13,6 +13,7 @@ import struct
 from typing import cast
 
 from firmware_py import robot_spec
+from firmware_py.background import Background
 from firmware_py.encoders import SectorEncoder
 from firmware_py.kinds.base import (
     PAIR,
@@ -25,7 +26,7 @@ from firmware_py.kinds.base import (
     Unpacked,
     wheel_actions,
 )
-from firmware_py.localplan import LocalPlanner, MotionGuard, ObstacleMemory, unmapped_readings
+from firmware_py.localplan import MotionGuard, ObstacleMemory, PlannedTarget, unmapped_readings
 
 _HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 
@@ -67,31 +68,33 @@ class SectorDriver(KindDriver):
     """Encode (bearing, ranges) -> greedy action -> its wheel speeds; with a local planner the
     bearing is the sub-goal's and the motion guard may turn or back off the action."""
 
-    def __init__(self, policy: Policy) -> None:
-        super().__init__(policy)
+    def __init__(self, policy: Policy, work: Background | None = None) -> None:
+        super().__init__(policy, work)
         cfg, grid = policy.local_planner, policy.map_grid
-        self.local: tuple[LocalPlanner, ObstacleMemory, MotionGuard] | None = None
+        self.local: tuple[PlannedTarget, ObstacleMemory, MotionGuard] | None = None
         if cfg is not None and grid is not None:
-            self.local = (LocalPlanner(grid, cfg), ObstacleMemory(cfg), MotionGuard(cfg))
+            self.local = (PlannedTarget(grid, cfg, self.work), ObstacleMemory(cfg), MotionGuard(cfg))
         self._key: tuple[tuple[int, int], int] | None = None
 
     def step(self, tick: DriveTick) -> Decision:
         pol = self.policy
         enc = cast(SectorEncoder, pol.encoder)
-        bearing, target = tick.goal_bearing_mrad, None
+        bearing, target, speed = tick.goal_bearing_mrad, None, 100
         if self.local is not None:
-            bearing, target = self._local_bearing(tick)
+            bearing, target, speed = self._local_bearing(tick)
         s = enc.encode(bearing, tick.ranges_mm, tick.range_status)
         a = pol.best_action(s)
         if self.local is not None:
             x, y, _ = tick.pose_mm
             a = self.local[2].action(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status,
                                      self.local[1])
-        return Decision(robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a], self.decided(s, a), target)
+        left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
+        return Decision((left * speed // 100, right * speed // 100), self.decided(s, a), target)
 
-    def _local_bearing(self, tick: DriveTick) -> tuple[int, tuple[int, int] | None]:
-        """The bearing to the local planner's target for this tick, and the target when it is not
-        the goal itself (straight at the goal until an unmapped obstacle is in the way)."""
+    def _local_bearing(self, tick: DriveTick) -> tuple[int, tuple[int, int] | None, int]:
+        """The bearing to the local planner's target for this tick, the target when it is not the
+        goal itself (straight at the goal until an unmapped obstacle is in the way), and the speed in
+        percent (reduced, then zero, while the planner's worker has no recent answer)."""
         assert self.local is not None and self.policy.map_grid is not None
         planner, memory, guard = self.local
         if tick.drive_key != self._key:  # a new goal (mission item, drive)
@@ -101,11 +104,11 @@ class SectorDriver(KindDriver):
             self._key = tick.drive_key
         x, y, heading = tick.pose_mm
         memory.observe(self.policy.map_grid, x, y, heading, tick.ranges_mm, tick.range_status, tick.now_us)
-        tx, ty = planner.target(x, y, tick.goal, memory)
+        tx, ty, speed = planner.target(tick.now_us, x, y, tick.goal, memory)
         if not planner.detouring:
-            return tick.goal_bearing_mrad, None
+            return tick.goal_bearing_mrad, None, speed
         target = (round(tx), round(ty))
-        return tick.goal_vector(*target)[1], target
+        return tick.goal_vector(*target)[1], target, speed
 
     def localiser_statuses(self, pose_mm: tuple[int, int, int], ranges_mm: tuple[int, ...] | list[int],
                            range_status: list[int]) -> list[int]:

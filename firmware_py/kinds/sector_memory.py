@@ -12,6 +12,7 @@ import struct
 from typing import cast
 
 from firmware_py import robot_spec
+from firmware_py.background import Background
 from firmware_py.control.odometry import wrap_mrad
 from firmware_py.gridbug import (
     DIR_HEADING_MRAD,
@@ -54,8 +55,8 @@ def pack(enc: GridBugEncoder, _goals: Goals, _cell_mm: int) -> bytes:
 class SectorMemoryDriver(CellStepper):
     """The Bug memory of the current goal and drive, and the cell step it decides."""
 
-    def __init__(self, policy: Policy) -> None:
-        super().__init__(policy)
+    def __init__(self, policy: Policy, work: Background | None = None) -> None:
+        super().__init__(policy, work)
         self.memory = GridBugMemory()
         self._key: tuple[tuple[int, int], int] | None = None
         self._invalid_ticks = 0  # ticks waited for valid axis readings at this decision

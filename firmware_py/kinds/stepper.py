@@ -36,8 +36,8 @@ class Step:
 class CellStepper(KindDriver):
     """A driver whose kind decides a cell step at a time (`next_step`); this class executes it."""
 
-    def __init__(self, policy) -> None:  # type: ignore[no-untyped-def]
-        super().__init__(policy)
+    def __init__(self, policy, work=None) -> None:  # type: ignore[no-untyped-def]
+        super().__init__(policy, work)
         self.open: Step | None = None
 
     def next_step(self, tick: DriveTick) -> Step | str:

@@ -5,9 +5,12 @@ controller with a `LocalPlannerConfig` (`NavController.local`): per control
 period the twin's physics, movers and sensing are the bench kernel's
 (`learn.sector.obstacles.obs_period_step`, all eight sensors read), and the
 steering is the robot's own Python: `firmware_py.localplan.ObstacleMemory`
-fed with the readings at the twin's pose, `LocalPlanner.target` for the
+fed with the readings at the twin's pose, `PlannedTarget.target` for the
 current waypoint (reset per waypoint, as the controller does per mission
-item), the table's greedy action on the sector state toward that target,
+item; its search stepped after each period, as the lockstep robot's node
+steps it after each tick, so an answer is one period old; the speed it
+asks for is not applied: the twin's kernel moves by whole actions, and
+with answers one period old it asks for full speed anyway), the table's greedy action on the sector state toward that target,
 and `MotionGuard.action` on it (one guard per episode: one drive).
 Budget, loop rule, near misses and outcomes are `nav_eval_kernel`'s, so
 its rows sit beside the other controllers' in `qnav bench nav`.
@@ -20,7 +23,8 @@ import math
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.localplan import LocalPlanner, MotionGuard, ObstacleMemory
+from firmware_py.background import Background
+from firmware_py.localplan import MotionGuard, ObstacleMemory, PlannedTarget
 from firmware_py.mapdata import grid_from_rows
 from ground_station.learn.sector.obstacles import (
     COLLISION,
@@ -60,7 +64,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
     grid = grid_of(gm)
     memory = ObstacleMemory(ctrl.local)
-    planner = LocalPlanner(grid, ctrl.local)
+    work = Background(threaded=False)  # stepped after each period, as the lockstep robot's node does
+    planner = PlannedTarget(grid, ctrl.local, work)
     guard = MotionGuard(ctrl.local)
     ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
@@ -73,7 +78,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     while t < budget:
         xm, ym, thm = round(x), round(y), round(th * 1000.0)
         memory.observe(grid, xm, ym, thm, ranges.tolist(), status.tolist(), t * PERIOD_US)
-        tx, ty = planner.target(x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
+        tx, ty, _ = planner.target(t * PERIOD_US, x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
         b = bearing_mrad(x, y, th, tx, ty)
         s = encode_fast(b, ranges, status, sectors, sensors, edges)
         a = guard.action(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, ranges.tolist(), status.tolist(), memory)
@@ -83,6 +88,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             sectors, sensors, edges, discs, movers)
         path += driven
         t += 1
+        work.run_pending()
         if hit:
             outcome, minclear = COLLISION, 0.0
             break

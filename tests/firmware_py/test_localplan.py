@@ -80,7 +80,9 @@ def test_config_round_trips_and_bad_fields_are_named():
                       ({"wall_clear_mm": 5000}, "wall_clear_mm = 5000"), ({"lookahead_mm": 9000}, "lookahead_mm <= 5000"),
                       ({"los_clear_mm": 100}, "obstacle_clear_mm <= los_clear_mm <= soft_mm"),
                       ({"max_points": 2000}, "max_points <= 1000"),
-                      ({"raster_mm": 50}, "more than 5 raster cells")):
+                      ({"raster_mm": 50}, "more than 5 raster cells"),
+                      ({"raster_mm": 50, "soft_mm": 250, "los_clear_mm": 200, "window_mm": 5000},
+                       "search window is 260 raster cells a side")):
         with pytest.raises(ValueError, match=what):
             LocalPlannerConfig.from_metadata(bad)
 
@@ -157,6 +159,49 @@ def _policy(meta: dict) -> bytes:
     return dump_policy(enc, vals, "int8", 0.01, map_geometry=SECTOR_TRAINING_MAP, metadata=meta)
 
 
+def test_the_search_runs_off_the_tick_and_the_robot_slows_then_stops_without_an_answer():
+    from firmware_py.background import Background
+    from firmware_py.localplan import PLAN_SLOW_US, PLAN_STOP_US, PlannedTarget
+    work = Background(threaded=False)
+    planned = PlannedTarget(grid_from_rows(OPEN, 500), CFG, work)
+    mem = _disc_points(2500, 2500, 150)  # across the line to the waypoint
+    assert planned.target(0, 1250, 2500, (3750, 2500), ObstacleMemory(CFG)) == (3750.0, 2500.0, 100)
+    assert work.pending() == 0  # nothing in the way: nothing asked
+    assert planned.target(0, 1250, 2500, (3750, 2500), mem) == (3750.0, 2500.0, 100)  # blocked just now
+    assert planned.plans == 0 and work.pending() == 1  # the question is queued, the tick did not search
+    speeds = [planned.target(t, 1250, 2500, (3750, 2500), mem)[2]
+              for t in (PLAN_SLOW_US, PLAN_SLOW_US + 1, PLAN_STOP_US, PLAN_STOP_US + 1)]
+    assert speeds == [100, 50, 50, 0] and planned.plans == 0  # no answer: slower, then stopped
+    assert work.run_pending() == 1 and planned.plans == 1  # latest question only
+    tx, ty, speed = planned.target(PLAN_STOP_US + 2, 1250, 2500, (3750, 2500), mem)
+    assert speed == 100 and planned.detouring and abs(ty - 2500) > 200  # answered: round the disc, full speed
+    planned.reset()  # a new waypoint: an answer for the old one is never used
+    assert planned.target(PLAN_STOP_US + 3, 1250, 2500, (3750, 2600), mem)[:2] == (3750.0, 2600.0)
+    assert not planned.detouring
+
+
+def test_background_runs_the_latest_job_per_owner_and_keeps_errors_out_of_the_caller():
+    import threading
+
+    from firmware_py.background import Background
+    stepped = Background(threaded=False)
+    ran: list[str] = []
+    owner_a, owner_b = object(), object()
+    stepped.post(owner_a, lambda: ran.append("a1"))
+    stepped.post(owner_a, lambda: ran.append("a2"))  # replaces a1, not started
+    stepped.post(owner_b, lambda: 1 / 0)
+    assert ran == [] and stepped.pending() == 2
+    assert stepped.run_pending() == 2 and ran == ["a2"] and stepped.errors == 1 and stepped.runs == 2
+    threaded = Background(threaded=True)
+    done = threading.Event()
+    threaded.post(owner_a, lambda: 1 / 0)
+    threaded.post(owner_b, lambda: done.set() if threading.current_thread().name == "qnav-background" else None)
+    assert done.wait(5.0) and threaded.errors == 1  # the worker survives a failing job
+    threaded.close()
+    threaded.post(owner_a, lambda: ran.append("after close"))
+    assert threaded.pending() == 0 and ran == ["a2"]
+
+
 def test_policy_metadata_is_checked_at_load():
     pol = load_policy(_policy({"map_grid": OPEN, META_KEY: {"memory_us": 1_000_000}}))
     assert pol.local_planner == LocalPlannerConfig(memory_us=1_000_000)
@@ -169,7 +214,8 @@ def test_policy_metadata_is_checked_at_load():
 
 def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
     pol = load_policy(_policy({"map_grid": OPEN, META_KEY: {}}))
-    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(1000, 2250, 0), localise=False)
+    # lockstep: the planner's search runs when the node calls background.run_pending() between ticks
+    ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(1000, 2250, 0), localise=False, lockstep=True)
     rig = Rig(ctrl, Kinematic(1000, 2250, 0))
     rig.tick()
     assert ctrl.arm() == (True, "")
@@ -178,6 +224,10 @@ def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
     assert ctrl.target_mm is None and rig.last_motor.left_mm_s == rig.last_motor.right_mm_s > 0  # straight on
     fr, fs = _front(400)
     rig.tick(ranges_mm=fr, range_status=fs)  # something the map does not show 400 mm ahead
+    planner = ctrl.driver.local[0]  # type: ignore[union-attr]
+    assert ctrl.target_mm is None and planner.plans == 0  # asked, not searched in the tick
+    assert ctrl.background.run_pending() == 1 and planner.plans == 1  # between ticks, as the node does
+    rig.tick(ranges_mm=fr, range_status=fs)
     assert ctrl.target_mm is not None and abs(ctrl.target_mm[1] - 2250) > 100
     assert rig.last_motor.left_mm_s != rig.last_motor.right_mm_s  # turning toward the side-step
     assert ctrl.set_goal(1000, 4250) == (True, "")
