@@ -38,6 +38,7 @@ class Background:
         self.runs = 0  # jobs run
         self.errors = 0  # jobs that raised
         self.cpu_ns = 0  # thread CPU time spent in jobs (benchmarks: the cost moved off the tick)
+        self.max_cpu_ns = 0  # the longest job
 
     def post(self, owner: object, job: Callable[[], None]) -> None:
         """Queue `job` for `owner`, replacing the owner's job not started yet."""
@@ -84,7 +85,9 @@ class Background:
             self.errors += 1
             if self.errors == 1:
                 log.exception("background job failed (logged once, counted in errors)")
-        self.cpu_ns += time.thread_time_ns() - c0
+        spent = time.thread_time_ns() - c0
+        self.cpu_ns += spent
+        self.max_cpu_ns = max(self.max_cpu_ns, spent)
         self.runs += 1
 
     def _worker(self) -> None:

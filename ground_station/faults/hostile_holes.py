@@ -251,6 +251,7 @@ class _PolledNode:
         self.inbox: queue.Queue[bytes] = queue.Queue()
         self.errors: list[str] = []
         self.failsafe_at: int | None = None
+        self.replies: list = []  # what the robot answered (COMMAND_ACKs, STATUSTEXTs, ...)
         self.clock = rig.node.clock
         rig.node.after_tick.append(self.poll)
 
@@ -265,8 +266,8 @@ class _PolledNode:
                 for b in data:
                     msg = self.parser.parse_char(bytes([b]))
                     if msg is not None:
-                        self.node.handle(msg, now)
-            self.node.tick(now)
+                        self.replies += self.node.handle(msg, now)
+            self.replies += self.node.tick(now)
         except Exception as exc:  # the point of the scenario: this must never happen
             self.errors.append(f"{type(exc).__name__}: {exc}")
         if self.node.failsafe and self.failsafe_at is None:
