@@ -120,7 +120,9 @@ def open_link(root: str, url: str, *, signing_key: bytes | None = None, quota: i
     conn = mavutil.mavlink_connection(url, source_system=sysid, source_component=compid)
     if signing_key is not None:
         conn.setup_signing(signing_key, sign_outgoing=True, allow_unsigned_callback=None, link_id=0)
-    server = FtpServer(Storage(root, quota_bytes=quota), activate=activate)
+    from firmware_py.background import Background
+
+    server = FtpServer(Storage(root, quota_bytes=quota), activate=activate, offload=Background())
     return FtpLink(conn, server, WallClock(), sysid=sysid, compid=compid)
 
 

@@ -29,6 +29,12 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
   and a crash discard them;
 - Rename onto /policies/active.qtab activates a policy through the injected
   hook; refusals are NAK Fail plus a STATUSTEXT with the reason;
+- file work whose cost the file chooses (CalcFileCRC32 reads the whole
+  file; TerminateSession's commit fsyncs it and its directory, slow on an SD
+  card) runs on the injected `offload` (firmware_py.background, a worker
+  thread in the robot's shell) when there is one: the request gets no reply
+  now, `poll` returns it when the work is done, and a retry meanwhile starts
+  nothing new and is the one answered (as for a pending activation);
 - anything malformed (short payload, size beyond the data, offsets past the
   end, unknown sessions or opcodes) gets a NAK, never an exception; lengths
   (TruncateFile, write offsets) are checked against the storage quota before
@@ -45,6 +51,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any
 
+from firmware_py.background import Background
 from firmware_py.mavlink.signing import SIGNING_FILE
 from firmware_py.storage import (
     ACTIVE_POLICY,
@@ -188,6 +195,19 @@ class _PendingRename:
     since_us: int
 
 
+@dataclass
+class _Offloaded:
+    """File work running on the offload worker; `poll` answers `req` (the newest retry) when done."""
+
+    owner: Owner
+    req: Request
+    what: tuple[int, str]  # (opcode, path): what a retry is recognised by
+    key: bytes = b""  # the request's bytes, for the retry cache once answered
+    done: bool = False
+    value: bytes = b""  # the ACK's data
+    error: BaseException | None = None
+
+
 class FtpServer:
     """See the module docstring. `activate(host_path)` is the vehicle's
     `begin_activation`: (ok, reason), or a pending activation whose reply
@@ -198,9 +218,12 @@ class FtpServer:
                  *, max_sessions: int = 4, session_timeout_us: int = 5_000_000,
                  burst_max_packets: int = 64, max_sessions_per_client: int = 2,
                  evict_idle_us: int = 1_000_000,
-                 activation_timeout_us: int = round(ACTIVATION_TIMEOUT_S * 1_000_000)) -> None:
+                 activation_timeout_us: int = round(ACTIVATION_TIMEOUT_S * 1_000_000),
+                 offload: Background | None = None) -> None:
         self.storage = storage
         self.activate = activate
+        self.offload = offload
+        self._offloaded: list[_Offloaded] = []
         self.activation_timeout_us = activation_timeout_us
         self._pending: _PendingRename | None = None
         self.max_sessions = max_sessions
@@ -212,6 +235,7 @@ class FtpServer:
         # (owner, session) -> (request, replies, t)
         self._cache: dict[tuple[Owner, int], tuple[bytes, list[bytes], int]] = {}
         self._owner: Owner = LOCAL_OWNER  # of the request being handled
+        self._request_key = b""  # and its bytes (the retry cache's key)
         self._texts: list[tuple[int, str]] = []
         self.stats = FtpStats()
 
@@ -235,6 +259,7 @@ class FtpServer:
             self.stats.retries_answered_from_cache += 1
             return list(cached[1])
         req = Request(seq, session, opcode, size, offset, payload[HEADER.size:HEADER.size + size])
+        self._request_key = key
         if size > MAX_DATA or size > len(payload) - HEADER.size:
             self.stats.malformed += 1
             replies = [self._nak(req, Nak.INVALID_DATA_SIZE)]
@@ -258,10 +283,11 @@ class FtpServer:
                 del self._cache[key]
 
     def poll(self, now_us: int) -> list[tuple[Owner, bytes]]:
-        """(owner, reply) of a pending activation that finished (or timed out)."""
+        """(owner, reply) of offloaded file work and of a pending activation that finished (or timed out)."""
+        out = self._poll_offloaded(now_us)
         p = self._pending
         if p is None:
-            return []
+            return out
         got = p.activation.result()
         if got is None:
             if now_us - p.since_us <= self.activation_timeout_us:
@@ -277,7 +303,41 @@ class FtpServer:
                 ok, reason = False, f"active, but its file was not kept: {exc}"
         reply = self._finish_activation(p.req, p.path, ok, reason)
         self._cache[(p.owner, p.req.session)] = (b"", [reply], now_us)
-        return [(p.owner, reply)]
+        return out + [(p.owner, reply)]
+
+    def _poll_offloaded(self, now_us: int) -> list[tuple[Owner, bytes]]:
+        out = []
+        for job in [j for j in self._offloaded if j.done]:
+            self._offloaded.remove(job)
+            if job.error is None:
+                reply = self._ack(job.req, job.value)
+            elif isinstance(job.error, OSError):
+                reply = self._nak_os(job.req, job.error)
+            else:
+                reply = self._nak(job.req, Nak.FAIL)
+            self._cache[(job.owner, job.req.session)] = (job.key, [reply], now_us)
+            out.append((job.owner, reply))
+        return out
+
+    def _offload(self, req: Request, what: tuple[int, str], work: Callable[[], bytes]) -> list[bytes]:
+        """Run `work` (the ACK's data; may raise) on the offload worker; `poll` answers."""
+        for job in self._offloaded:
+            if job.owner == self._owner and job.what == what and job.req.session == req.session:
+                job.req = req  # a retry: answered when the work is done
+                return []
+        job = _Offloaded(self._owner, req, what, self._request_key)
+
+        def run() -> None:
+            try:
+                job.value = work()
+            except Exception as exc:  # answered as a NAK by poll, never raised on the link thread
+                job.error = exc
+            job.done = True
+
+        self._offloaded.append(job)
+        assert self.offload is not None
+        self.offload.post(job, run)
+        return []
 
     def drain_texts(self) -> list[tuple[int, str]]:
         """(severity, text) messages for STATUSTEXT since the last call."""
@@ -368,13 +428,26 @@ class FtpServer:
             return [self._nak(req, Nak.FAIL)]
         return out if isinstance(out, list) else [out]
 
-    def _op_terminate(self, req: Request, now_us: int) -> bytes:
+    def _op_terminate(self, req: Request, now_us: int) -> bytes | list[bytes]:
         if self._key(req) not in self.sessions:
             if any(k[1] == req.session for k in self.sessions):
                 self.stats.foreign_session_requests += 1
             return self._nak(req, Nak.INVALID_SESSION)
-        self._close(self._key(req), commit=True)
-        return self._ack(req)
+        if self.offload is None:
+            self._close(self._key(req), commit=True)
+            return self._ack(req)
+        s = self.sessions.pop(self._key(req))  # the session ends now; its file is committed off this thread
+        if s.fd >= 0:
+            os.close(s.fd)
+        upload = s.upload
+        if upload is None:
+            return self._ack(req)
+        self.stats.commits += 1
+
+        def commit() -> bytes:
+            upload.commit()
+            return b""
+        return self._offload(req, (Op.TERMINATE_SESSION, str(upload.final)), commit)
 
     def _op_reset(self, req: Request, now_us: int) -> bytes:
         self.close(self._owner)
@@ -541,8 +614,11 @@ class FtpServer:
         self._texts.append((SEVERITY_INFO, f"policy active: {reason or path}"))
         return self._ack(req)
 
-    def _op_crc(self, req: Request, now_us: int) -> bytes:
-        return self._ack(req, struct.pack("<I", self.storage.crc32(self._path(req))))
+    def _op_crc(self, req: Request, now_us: int) -> bytes | list[bytes]:
+        path = self._path(req)
+        if self.offload is None:
+            return self._ack(req, struct.pack("<I", self.storage.crc32(path)))
+        return self._offload(req, (Op.CALC_FILE_CRC32, path), lambda: struct.pack("<I", self.storage.crc32(path)))
 
     _HANDLERS: dict[int, Callable[[FtpServer, Request, int], bytes | list[bytes]]] = {
         Op.TERMINATE_SESSION: _op_terminate,

@@ -647,10 +647,13 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
     FTP server on it whose policy activation is the vehicle's `activate_policy`."""
     server = None
     if ftp and storage_dir is not None:
+        from firmware_py.background import Background
         from firmware_py.mavlink.ftp_server import FtpServer
         from firmware_py.storage import Storage
 
-        server = FtpServer(Storage(storage_dir), activate=getattr(vehicle, "begin_activation", vehicle.activate_policy))
+        # whole-file work (CRC32, the commit's fsyncs) on a worker: the link thread keeps beating
+        server = FtpServer(Storage(storage_dir), activate=getattr(vehicle, "begin_activation", vehicle.activate_policy),
+                           offload=Background())
     node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server,
                    network_link=is_network_url(url))
     node.boot(now_us, signing_key, overrides)

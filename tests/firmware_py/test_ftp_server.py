@@ -316,3 +316,32 @@ def test_random_payloads_never_raise_and_replies_are_well_formed(tmp_path_factor
         assert req_opcode == payload[3] and seq == (int.from_bytes(payload[:2], "little") + 1) % 65536 or \
             req_opcode == Op.BURST_READ_FILE
     server.close()
+
+
+def test_whole_file_work_is_answered_from_the_offload_worker_and_a_retry_starts_nothing(tmp_path):
+    """Issue 29 finding 8: CalcFileCRC32 (reads the whole file) and TerminateSession's commit (fsyncs)
+    run on the offload worker; the link thread gets no reply until `poll` has it."""
+    from firmware_py.background import Background
+
+    work = Background(threaded=False)  # stepped here, so the test sees the moment in between
+    server = FtpServer(Storage(tmp_path / "root", quota_bytes=200_000), offload=work)
+    c = Client(server)
+    data = bytes(range(256)) * 300
+    assert ack(c.one(Op.CREATE_FILE, b"/policies/big.bin"))
+    assert ack(c.one(Op.WRITE_FILE, data[:200]))
+    assert c.send(Op.TERMINATE_SESSION) == [] and server.poll(c.now) == []  # committed off the link thread
+    assert not (tmp_path / "root" / "policies" / "big.bin").exists() and work.run_pending() == 1
+    (owner, reply), = server.poll(c.now)
+    assert owner == c.owner and ack(parse(reply)) and parse(reply)[0] == c.seq + 1
+    assert (tmp_path / "root" / "policies" / "big.bin").read_bytes() == data[:200]
+    assert c.send(Op.CALC_FILE_CRC32, b"/policies/big.bin") == []
+    again = server.handle(c.last, c.now, c.owner)  # the same request again (a lost reply's retry)
+    assert again == [] and work.pending() == 1  # no second job
+    work.run_pending()
+    (_, reply), = server.poll(c.now)
+    crc = server.storage.crc32("/policies/big.bin")  # the same sum the link thread computed before
+    assert ack(parse(reply)) and struct.unpack("<I", parse(reply)[7][:4])[0] == crc
+    assert [parse(r) for r in server.handle(c.last, c.now, c.owner)] == [parse(reply)]  # now from the cache
+    assert c.send(Op.CALC_FILE_CRC32, b"/policies/none.bin") == [] and work.run_pending() == 1
+    (_, reply), = server.poll(c.now)
+    assert nak(parse(reply), Nak.FILE_NOT_FOUND)  # the worker's OSError is a NAK, never raised
