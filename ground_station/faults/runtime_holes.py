@@ -233,8 +233,11 @@ def planner_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioResu
 
     res = ScenarioResult("planner_worst_case")
     gm = paper10()
-    for i, ep in enumerate(nav_episodes(gm, count, seed + 13000, 3, 2)):
-        # even episodes: the search at its largest; odd: the largest per-tick observation (a 1 m margin,
+    candidates = iter(nav_episodes(gm, 4 * count, seed + 13000, 3, 2))
+    i = 0
+    while i < count:
+        ep = next(candidates)
+        # even trials: the search at its largest; odd: the largest per-tick observation (a 1 m margin,
         # which also hides most obstacles from the planner: it may not search at all then)
         margin = 150 if i % 2 == 0 else 1000
         data = _sector_variant({**EXTREME_PLANNER, "margin_mm": margin})
@@ -249,7 +252,8 @@ def planner_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioResu
         planner = rig.ctrl.driver.local[0] if rig.ctrl.driver is not None else None  # type: ignore[attr-defined]
         plans = planner.plans if planner is not None else 0
         if plans == 0 and margin == 150:
-            problems.append("the planner never searched: the obstacles were never in the way")
+            res.figures["episodes_without_a_search"] = res.figures.get("episodes_without_a_search", 0) + 1
+            continue  # nothing was in the way on this route: not a trial of the search, take the next
         if plans and not work.runs:
             problems.append(f"{plans} searches, none on the background: they ran in the tick")
         fault = _first_fault(rig, 0)
@@ -259,6 +263,7 @@ def planner_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioResu
         res.figures["plans"] = res.figures.get("plans", 0) + plans
         res.figures["longest_search_us"] = max(res.figures.get("longest_search_us", 0), work.max_cpu_ns // 1000)
         res.check(problems, f"seed {seed}/{i} {ep.map} margin {margin} mm, {plans} searches, {rig.runner.result}")
+        i += 1
         if progress is not None:
             progress.update(1)
     return res
