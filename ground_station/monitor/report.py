@@ -72,6 +72,7 @@ class RunRecord:
     goal_state_entries: list[float] = field(default_factory=list)
     fault_events: list[tuple[float, str]] = field(default_factory=list)
     first_armed: float | None = None
+    first_driving: float | None = None  # armed and the controller DRIVING: the mission under way
     view: VehicleView = field(default_factory=VehicleView)
 
 
@@ -135,6 +136,8 @@ def _analyse(path: str, progress: bool, sysid: int | None, clock: str) -> RunRec
             mtype = msg.get_type()
             if view.armed and rec.first_armed is None:
                 rec.first_armed = t
+            if view.armed and view.ctrl_state == CtrlState.DRIVING and rec.first_driving is None:
+                rec.first_driving = t
             if mtype == "LOCAL_POSITION_NED":
                 assert view.x is not None and view.y is not None  # set by this very message
                 rec.pose.append((t, view.x, view.y, view.speed, view.yaw_rate))
@@ -245,7 +248,11 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
         "wall_duration_s": round(rec.wall_s, 3),
         "ignored": {"other_systems": {str(k): v for k, v in sorted(view.foreign.items())},
                     "clock_behind_frames": view.time_conflicts, "reboots": view.reboots},
-        "time_to_last_goal_s": (round(goal_times[-1] - (rec.first_armed or 0.0), 3) if goal_times else None),
+        # from the first move (the controller DRIVING), as `qnav demo`'s sim_seconds: from arming it
+        # would count how long the operator took to switch to Auto (in a lockstep run, seconds of sim
+        # time per few wall milliseconds); from arming only for a robot that does not report its state
+        "time_to_last_goal_s": (round(goal_times[-1] - (rec.first_driving if rec.first_driving is not None
+                                                        else rec.first_armed or 0.0), 3) if goal_times else None),
         "goals_reached": len(goal_times),
         "mission_items_reached": reached_items,
         "guided_goals_reached_s": [round(t, 3) for t in guided],
