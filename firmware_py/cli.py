@@ -274,6 +274,9 @@ def run(args: argparse.Namespace) -> int:
         # implausible inputs refused rather than used: sim-time jumps (HIL) and encoder jumps
         "refused_clock_jumps": getattr(clock, "refused_jumps", 0), "refused_sim_ticks": node.tick_gate.refused,
         "encoder_jumps": ctrl.encoder_jumps,
+        # commands the collision monitor slowed or stopped (control/collision.py)
+        "collision_slow_ticks": ctrl.collision_ticks["slow"], "collision_stop_ticks": ctrl.collision_ticks["stop"],
+        "planner_searches": ctrl.background.runs, "planner_search_cpu_s": ctrl.background.cpu_ns / 1e9,
         "period_us": cfg.control_period_us, "rt_priority": args.rt_priority,
         "rt_active": node.rt_active,
         **node.latency_stats(),

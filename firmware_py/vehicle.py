@@ -61,6 +61,11 @@ class VehicleConfig:
     origin_lon_e7: int = 85_455_940
     origin_alt_mm: int = 408_000
     cell_size_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM
+    # the collision monitor under every command (control/collision.py): no straight motion toward a
+    # read point nearer than stop, slow_pct of it nearer than slow (0: that zone off)
+    collision_stop_mm: int = 50
+    collision_slow_mm: int = 200
+    collision_slow_pct: int = 50
 
     @property
     def control_period_us(self) -> int:

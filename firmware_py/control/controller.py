@@ -27,6 +27,7 @@ from dataclasses import replace
 
 from firmware_py import kinds
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
+from firmware_py.control import collision
 from firmware_py.control.explore import wander_wheels
 from firmware_py.control.io import (
     Heartbeat,
@@ -528,6 +529,12 @@ class Controller(ControlState):
     def _outputs(self, now_us: int, tick: int | None, errors: int) -> Outputs:
         left, right = self.watchdog.output(now_us)
         left, right = clamp_speeds(left, right, self.cfg.max_wheel_speed_mm_s)
+        if left or right:  # the collision monitor has the last word on any motion (control/collision.py)
+            cfg, inp = self.cfg, self._inputs
+            left, right, limited = collision.limit(left, right, inp.ranges_mm, inp.range_status, cfg.collision_stop_mm,
+                                                   cfg.collision_slow_mm, cfg.collision_slow_pct)
+            if limited:
+                self.collision_ticks[limited] += 1
         if tick is not None:
             counter = tick & 0xFFFFFF
         else:

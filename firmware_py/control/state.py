@@ -78,6 +78,7 @@ class ControlState:
         self._inputs = Inputs()
         self._last_enc_us: int | None = None
         self.encoder_jumps = 0  # implausible encoder samples (not integrated)
+        self.collision_ticks = {"slow": 0, "stop": 0}  # commands the collision monitor limited
         self.freshness = InputFreshness()  # rolling counters: frozen senders
         self._stop_burst = 0
         self._driving_since_us = 0

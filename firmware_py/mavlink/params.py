@@ -110,6 +110,14 @@ PARAMS: tuple[ParamDef, ...] = (
     ParamDef("ORIGIN_ALT_MM", _CFG.origin_alt_mm, -1_000_000, 10_000_000,
              "altitude AMSL of the world origin (mm)", "origin_alt_mm"),
     ParamDef("CELL_SIZE_MM", _CFG.cell_size_mm, 50, 5000, "map cell size (mm)", "cell_size_mm"),
+    ParamDef("CM_STOP_MM", _CFG.collision_stop_mm, 0, 1000,
+             "collision monitor: no straight motion toward a range reading nearer than this in the "
+             "robot's path (mm; turning stays allowed; 0 = off)", "collision_stop_mm"),
+    ParamDef("CM_SLOW_MM", _CFG.collision_slow_mm, 0, 2000,
+             "collision monitor: straight motion at CM_SLOW_PCT toward a reading nearer than this (mm; 0 = off)",
+             "collision_slow_mm"),
+    ParamDef("CM_SLOW_PCT", _CFG.collision_slow_pct, 0, 100,
+             "collision monitor: speed in the slow zone (% of the command)", "collision_slow_pct"),
     # --- read-only mirrors of the vehicle status ------------------------------
     ParamDef("POLICY_ID", 0, 0, 2**32 - 1,
              "id of the active policy (read-only; float32 on the wire, exact in the two 16-bit halves below)",
