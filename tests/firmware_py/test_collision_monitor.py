@@ -1,0 +1,77 @@
+"""The collision monitor (firmware_py.control.collision): the straight part of any command toward a
+read point in the robot's path is slowed, then removed; turning is left alone; points beside the
+swept corridor (a corridor's walls) do not count; and the controller applies it to whatever it sends
+(here the exploration wander and Manual driving, besides every policy kind)."""
+
+from __future__ import annotations
+
+import pytest
+
+from firmware_py import robot_spec
+from firmware_py.control.collision import FAR_MM, limit, travel_gap_mm
+
+N = robot_spec.SENSOR_COUNT
+V, FAR, CLOSE, BAD = (robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_TOO_CLOSE,
+                      robot_spec.RANGE_INVALID)
+ANGLE = {a: i for i, a in enumerate(robot_spec.SENSOR_ANGLES_MRAD)}
+
+
+def _reading(at_mrad: int, mm: int, status: int = V) -> tuple[list[int], list[int]]:
+    ranges, st = [2000] * N, [FAR] * N
+    ranges[ANGLE[at_mrad]], st[ANGLE[at_mrad]] = mm, status
+    return ranges, st
+
+
+def test_the_gap_ahead_is_the_front_reading_and_nothing_behind_or_beside_counts():
+    assert travel_gap_mm(*_reading(0, 300), reverse=False) == 300  # sensors sit on the robot's rim
+    assert travel_gap_mm(*_reading(0, 300), reverse=True) == FAR_MM  # not in the way backwards
+    rear = robot_spec.SENSOR_ANGLES_MRAD[N // 2]
+    assert travel_gap_mm(*_reading(rear, 120), reverse=True) == 120
+    side = [a for a in robot_spec.SENSOR_ANGLES_MRAD if abs(a - 1571) < 10][0]  # +90 deg
+    assert travel_gap_mm(*_reading(side, 30), reverse=False) == FAR_MM  # beside the corridor
+    diag = [a for a in robot_spec.SENSOR_ANGLES_MRAD if abs(a - 785) < 10][0]  # +45 deg
+    assert travel_gap_mm(*_reading(diag, 400), reverse=False) == FAR_MM  # a corridor wall on the diagonal
+    near_diag = travel_gap_mm(*_reading(diag, 30), reverse=False)
+    assert 0 <= near_diag < 100  # close in on the diagonal: the rim will touch it soon
+    assert travel_gap_mm(*_reading(0, 300, BAD), reverse=False) == FAR_MM  # invalid readings say nothing
+    assert travel_gap_mm(*_reading(0, 999, CLOSE), reverse=False) == robot_spec.RANGE_MIN_MM
+
+
+@pytest.mark.parametrize("front, want, what", [(1500, (300, 300), ""), (150, (150, 150), "slow"),
+                                               (30, (0, 0), "stop")])
+def test_straight_motion_is_slowed_then_stopped(front, want, what):
+    assert limit(300, 300, *_reading(0, front), stop_mm=50, slow_mm=200, slow_pct=50) == (*want, what)
+
+
+def test_turning_in_place_is_left_alone_and_an_arc_keeps_its_turn():
+    r, s = _reading(0, 10)
+    assert limit(-200, 200, r, s, 50, 200, 50) == (-200, 200, "")  # in place: touches nothing
+    assert limit(100, 300, r, s, 50, 200, 50) == (-100, 100, "stop")  # the straight 200 goes, the turn stays
+    assert limit(-300, -300, r, s, 50, 200, 50) == (-300, -300, "")  # backing away from it
+    assert limit(300, 300, r, s, 0, 0, 50) == (300, 300, "")  # both zones off
+
+
+def test_the_controller_limits_what_it_sends_in_manual_mode():
+    from firmware_py.control.controller import Controller
+    from firmware_py.control.io import Inputs
+    from firmware_py.vehicle import Mode
+
+    ctrl = Controller()
+    t = 0
+
+    def tick(front: int):
+        nonlocal t
+        t += robot_spec.CONTROL_PERIOD_US
+        ranges, status = _reading(0, front)
+        return ctrl.step(Inputs(ranges_mm=ranges, range_status=status, ranges_us=[t, t], enc_left=0, enc_right=0,
+                                enc_us=t, bumper_us=t, driver_us=t), t)
+
+    tick(2000)
+    assert ctrl.arm() == (True, "") and ctrl.set_mode(Mode.MANUAL)[0]
+    ctrl.manual_control(1000, 0, t)  # full ahead
+    out = tick(2000)
+    assert out.motor is not None and out.motor.left_mm_s == out.motor.right_mm_s > 0
+    ctrl.manual_control(1000, 0, t)
+    out = tick(30)  # a reading 30 mm ahead
+    assert out.motor is not None and (out.motor.left_mm_s, out.motor.right_mm_s) == (0, 0)
+    assert ctrl.collision_ticks["stop"] == 1
