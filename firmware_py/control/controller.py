@@ -504,7 +504,8 @@ class Controller(ControlState):
         d = self.driver.step(DriveTick(
             now_us=now_us, goal=self.goal, goal_index=self._goal_index, drive_key=(self.goal, self._driving_since_us),
             pose_mm=self.nav.pose_mm(), goal_bearing_mrad=bearing, ranges_mm=inp.ranges_mm,
-            range_status=inp.range_status, goal_vector=self.nav.goal_vector))
+            range_status=inp.range_status, goal_vector=self.nav.goal_vector,
+            blocked_us=0 if self._cm_stop_since_us is None else now_us - self._cm_stop_since_us))
         if d.decided is not None:
             self._state_index, self._action, self._q_row = d.decided
         self.target_mm = d.target_mm
@@ -535,6 +536,13 @@ class Controller(ControlState):
                                                    cfg.collision_slow_mm, cfg.collision_slow_pct)
             if limited:
                 self.collision_ticks[limited] += 1
+            if limited == "stop":
+                if self._cm_stop_since_us is None:
+                    self._cm_stop_since_us = now_us
+            else:
+                self._cm_stop_since_us = None
+        else:
+            self._cm_stop_since_us = None
         if tick is not None:
             counter = tick & 0xFFFFFF
         else:

@@ -79,6 +79,7 @@ class ControlState:
         self._last_enc_us: int | None = None
         self.encoder_jumps = 0  # implausible encoder samples (not integrated)
         self.collision_ticks = {"slow": 0, "stop": 0}  # commands the collision monitor limited
+        self._cm_stop_since_us: int | None = None  # the monitor has removed the straight part since
         self.freshness = InputFreshness()  # rolling counters: frozen senders
         self._stop_burst = 0
         self._driving_since_us = 0

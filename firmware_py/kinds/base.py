@@ -94,6 +94,9 @@ class DriveTick:
     ranges_mm: tuple[int, ...] | list[int]
     range_status: tuple[int, ...] | list[int]
     goal_vector: Callable[[int, int], tuple[int, int]]  # (distance, bearing) from the pose to a point
+    # how long the collision monitor (control/collision.py) has kept the straight part of the command
+    # at zero, up to the last tick (0: it does not): a kind may give the move up and choose another
+    blocked_us: int = 0
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ _HEAD = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearin
 # 2 % of readings; an INVALID one counts as blocked, which sent the Bug rules the wrong way in 4 of 50 HIL
 # episodes), then decide with it counted as blocked
 GRID_INVALID_RETRY_TICKS = 10
+WALLED_US = 20_000_000  # how long a move the collision monitor held counts as walled (a mover may leave)
 
 
 def unpack(sec: bytes, n_actions: int, _expect_sensors: int) -> Unpacked:
@@ -61,6 +62,18 @@ class SectorMemoryDriver(CellStepper):
         self._key: tuple[tuple[int, int], int] | None = None
         self._invalid_ticks = 0  # ticks waited for valid axis readings at this decision
         self._invalid_at = -1
+        # (col, row, world direction) -> until when (us) a move from that cell that way counts as walled:
+        # the collision monitor held it (something the axis sensor missed, or a mover)
+        self._walled: dict[tuple[int, int, int], int] = {}
+
+    def blocked(self, tick: DriveTick, step: Step) -> Step | None:
+        """Back to the cell the held step left, that way walled for WALLED_US: the Bug decides again."""
+        c = cast(GridBugEncoder, self.policy.encoder).cell_mm
+        d = grid_dir_of(step.heading_mrad)
+        dcol, drow = DIR_VECTORS[d]
+        back = (step.target[0] - dcol * c, step.target[1] - drow * c)
+        self._walled[(back[0] // c, back[1] // c, d)] = tick.now_us + WALLED_US
+        return Step(back, DIR_HEADING_MRAD[(d + 2) % 4])
 
     def next_step(self, tick: DriveTick) -> Step | str:
         """Off the centre it first drives there, off a grid direction it first turns to the nearest
@@ -76,6 +89,7 @@ class SectorMemoryDriver(CellStepper):
         if tick.drive_key != self._key:  # a new goal (or mission item, or a new drive): forget the wall
             self.memory.reset(grid_dir_of(heading))
             self._key = tick.drive_key
+            self._walled.clear()
         if abs(centre[0] - x) + abs(centre[1] - y) > 2 * ARRIVE_TOLERANCE_MM:
             return Step(centre, wrap_mrad(heading + tick.goal_vector(*centre)[1]))
         physical = grid_dir_of(heading)
@@ -89,11 +103,26 @@ class SectorMemoryDriver(CellStepper):
             if self._invalid_ticks <= GRID_INVALID_RETRY_TICKS:
                 return Step((x, y), heading)
         self._invalid_ticks = 0
-        s = enc.encode(self.memory, gx - centre[0], gy - centre[1], physical, tick.ranges_mm, status)
+        ranges, status = self._with_walled(tick, x // c, y // c, physical)
+        s = enc.encode(self.memory, gx - centre[0], gy - centre[1], physical, ranges, status)
         a = pol.best_action(s)
         d = self.memory.note_move(a)
         dcol, drow = DIR_VECTORS[d]
         return Step((centre[0] + dcol * c, centre[1] + drow * c), DIR_HEADING_MRAD[d], self.decided(s, a))
+
+
+    def _with_walled(self, tick: DriveTick, col: int, row: int,
+                     physical: int) -> tuple[list[int] | tuple[int, ...], list[int] | tuple[int, ...]]:
+        """The readings, with the axis sensor of every walled move from this cell reading a wall."""
+        self._walled = {k: until for k, until in self._walled.items() if until > tick.now_us}
+        walled = [d for (wc, wr, d) in self._walled if (wc, wr) == (col, row)]
+        if not walled:
+            return tick.ranges_mm, tick.range_status
+        ranges, status = list(tick.ranges_mm), list(tick.range_status)
+        for d in walled:
+            i = 2 * ((d - physical) % 4)  # the sensor looking that way (45 deg apart, CCW)
+            ranges[i], status[i] = robot_spec.RANGE_MIN_MM, robot_spec.RANGE_VALID
+        return ranges, status
 
 
 KIND = PolicyKind(name="sector-memory", code=4, actions=MOVE_STEPS, unpack=unpack, pack=pack,

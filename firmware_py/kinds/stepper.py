@@ -18,6 +18,7 @@ RETURN_TO_TURN_MRAD = 600  # bearing error that aborts a straight drive back to 
 TURN_GAIN_PER_S = 4  # wheel speed = gain * error * base/2, capped by the turn action
 MIN_TURN_MM_S = 30
 MIN_DRIVE_MM_S = 80
+STEP_BLOCKED_US = 1_000_000  # a step the collision monitor held this long is offered to the kind (`blocked`)
 DRIVE_GAIN_PER_S = 3  # forward speed = gain * distance, capped by the forward action
 STEER_GAIN_PER_S = 3  # yaw rate (mrad/s) = gain * bearing (mrad)
 
@@ -47,10 +48,19 @@ class CellStepper(KindDriver):
     def interrupt(self) -> None:
         self.open = None
 
+    def blocked(self, tick: DriveTick, step: Step) -> Step | None:
+        """The collision monitor has held `step` for STEP_BLOCKED_US: a step to take instead, or
+        None to wait (a cell policy knows no other way to its cell)."""
+        return None
+
     def step(self, tick: DriveTick) -> Decision:
         """Drive the open step; on arrival decide the next one and drive it (a second arrival in
         the same tick: stand still until the next)."""
         decided: tuple[int, int, tuple[int, ...]] | None = None
+        if self.open is not None and not self.open.turning and tick.blocked_us >= STEP_BLOCKED_US:
+            instead = self.blocked(tick, self.open)
+            if instead is not None:
+                self.open = instead
         for _ in (0, 1):
             if self.open is None:
                 nxt = self.next_step(tick)

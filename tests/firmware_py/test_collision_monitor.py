@@ -75,3 +75,34 @@ def test_the_controller_limits_what_it_sends_in_manual_mode():
     out = tick(30)  # a reading 30 mm ahead
     assert out.motor is not None and (out.motor.left_mm_s, out.motor.right_mm_s) == (0, 0)
     assert ctrl.collision_ticks["stop"] == 1
+
+
+def test_a_sector_memory_step_the_monitor_holds_is_walled_and_the_robot_goes_back():
+    """The Bug kind's cell step held by the collision monitor for STEP_BLOCKED_US: back to the cell it
+    left, and that move reads as a wall there (for WALLED_US), so the Bug decides another way round."""
+    from firmware_py.gridbug import DIR_HEADING_MRAD
+    from firmware_py.kinds import sector_memory as sm
+    from firmware_py.kinds.base import DriveTick
+    from firmware_py.kinds.stepper import STEP_BLOCKED_US, Step
+    from firmware_py.policy import load_policy
+    from firmware_py.shipped_policies import shipped_policy
+
+    driver = sm.SectorMemoryDriver(load_policy(shipped_policy("sector_memory")))
+    c = driver.policy.encoder.cell_mm
+    east = 0 if DIR_HEADING_MRAD[0] == 0 else DIR_HEADING_MRAD.index(0)
+    driver.open = Step((3 * c + c // 2, 2 * c + c // 2), 0, turning=False)  # east, from cell (2, 2)
+
+    def tick(now_us: int, blocked_us: int, x: int) -> DriveTick:
+        return DriveTick(now_us=now_us, goal=(9 * c, 2 * c + c // 2), goal_index=0, drive_key=((0, 0), 0),
+                         pose_mm=(x, 2 * c + c // 2, 0), goal_bearing_mrad=0, ranges_mm=[2000] * N,
+                         range_status=[FAR] * N, goal_vector=lambda px, py: (abs(px - x), 0 if px >= x else 3142),
+                         blocked_us=blocked_us)
+
+    driver._key = ((0, 0), 0)
+    driver.step(tick(1_000_000, STEP_BLOCKED_US - 1, 2 * c + 300))
+    assert driver.open.target == (3 * c + c // 2, 2 * c + c // 2)  # not yet: still waiting
+    driver.step(tick(2_000_000, STEP_BLOCKED_US, 2 * c + 300))
+    assert driver.open.target == (2 * c + c // 2, 2 * c + c // 2) and driver.open.heading_mrad == 3142  # back west
+    ranges, status = driver._with_walled(tick(2_000_000, 0, 2 * c + c // 2), 2, 2, east)
+    assert (ranges[0], status[0]) == (robot_spec.RANGE_MIN_MM, V)  # the east move reads as a wall ...
+    assert driver._with_walled(tick(2_000_000 + sm.WALLED_US, 0, 0), 2, 2, east)[1][0] == FAR  # ... for a while
