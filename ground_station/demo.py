@@ -391,7 +391,7 @@ def mission_plan(opts: DemoOptions, grid_map, start_mm: tuple[float, float], pla
 
     if planned:
         return planned_items(target_cells(",".join(opts.targets), grid_map), start_mm, grid_map, plan_kw)
-    items = target_items(",".join(opts.targets), opts.map_name)
+    items = target_items(",".join(opts.targets), grid_map)
     return items, list(range(len(items)))
 
 

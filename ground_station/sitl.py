@@ -235,8 +235,14 @@ class Sitl:
                                 "--storage", run_dir / "robot",
                                 "--mavlink", opts.mavlink, "--mavlink-autopilot", opts.autopilot,
                                 "--stats-json", run_dir / "robot_stats.json")
-        if policy:
-            robot_argv += ["--policy", policy]
+        if policy:  # the robot boots it from its storage, as a real robot does: its FTP server then
+            # has it as /policies/active.qtab, where `qnav mission upload --targets` reads the robot's map
+            from firmware_py.atomic import atomic_write
+            from firmware_py.storage import ACTIVE_POLICY
+
+            active = run_dir / "robot" / ACTIVE_POLICY.lstrip("/")
+            active.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(active, Path(policy).read_bytes())
         self.procs.start("sim", sim_argv, logs["sim"])
         self.procs.start("robot", robot_argv, logs["robot"])
         pace_text = f"lockstep, at most x{opts.speed:g}" if opts.lockstep else f"x{opts.speed:g} real time"

@@ -78,7 +78,7 @@ def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, floa
     ax.plot(traj[:, 0], traj[:, 1], "-", color="tab:blue", lw=1.5, label="trajectory")
     ax.plot(*traj[0], "o", color="tab:green", label="start")
     pose = world.pose
-    ax.add_patch(plt.Circle((pose.x, pose.y), world.radius_m, fill=False, color="tab:blue"))
+    ax.add_patch(plt.Circle((pose.x, pose.y), world.radius_m, fill=False, color="tab:blue", label="robot (end)"))
     layer = getattr(plant, "obstacles", None)
     if layer is not None:  # unmapped obstacles: static discs (solid), movers where they are now (hatched)
         for i, (x, y, r) in enumerate(layer.discs):
@@ -89,8 +89,13 @@ def write_png(plant: Plant, path: str | Path, goals: dict[str, tuple[float, floa
                                     label="mover (end)" if i == 0 else None))
     colours = {robot_spec.RANGE_VALID: "tab:orange", robot_spec.RANGE_TOO_CLOSE: "tab:red",
                robot_spec.RANGE_TOO_FAR: "0.6", robot_spec.RANGE_INVALID: "tab:purple"}
+    names = {robot_spec.RANGE_VALID: "range ray, last tick", robot_spec.RANGE_TOO_CLOSE: "range ray: too close",
+             robot_spec.RANGE_TOO_FAR: "range ray: nothing in range", robot_spec.RANGE_INVALID: "range ray: invalid"}
+    shown: set[int] = set()
     for (x0, y0), (x1, y1), status in plant.ranges.last_rays:
-        ax.plot([x0, x1], [y0, y1], "-", color=colours[status], lw=0.8)
+        ax.plot([x0, x1], [y0, y1], "-", color=colours[status], lw=0.8,
+                label=None if status in shown else names[status])
+        shown.add(status)
     for name, (gx, gy) in (goals or {}).items():
         ax.plot(gx, gy, "*", color="tab:red", ms=14)
         ax.annotate(name, (gx, gy), textcoords="offset points", xytext=(6, 6), color="tab:red")

@@ -8,7 +8,8 @@ within the robot's local range (200 km), else exit 2 before connecting.
 
 With `--plan` (for sector policies, which steer to the bearing of the
 current target and need the planner's intermediate waypoints) the goal
-goes instead as a mission of the planner's waypoints (`--map`) from the
+goes instead as a mission of the planner's waypoints (on `--map`, by default
+the robot's own map, read from its active policy) from the
 robot's position (its LOCAL_POSITION_NED, or `--start X,Y`) to the goal's
 cell, and the robot is switched to Auto to drive it (planning:
 `mavlink.mission_items.planned_goal_items`). `--start` needs `--plan`.
@@ -28,7 +29,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("y", type=finite_float, metavar="Y", help="north, metres (world frame)")
     p.add_argument("--plan", action="store_true",
                    help="send the planner's waypoints to the goal as a mission and start it (sector policies)")
-    p.add_argument("--map", default="paper10", metavar="NAME|PATH", help="--plan: the map (default paper10)")
+    p.add_argument("--map", metavar="NAME|PATH",
+                   help="--plan: the map (default: the robot's, from its active policy; another is refused)")
     p.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
     add_link_args(p)
     p.set_defaults(func=run)
@@ -65,12 +67,15 @@ def _planned_goal(args: argparse.Namespace) -> int:
         planned_goal_items,
         robot_position_mm,
     )
+    from ground_station.mavlink.robot_map import choose_map
 
     start = parse_start(args.start) if args.start else None  # bad input is refused before connecting
-    gm = load_gridmap(args.map)
-    goal_cell(gm, args.x, args.y)
+    if args.map is not None:
+        goal_cell(load_gridmap(args.map), args.x, args.y)
 
     def body(link) -> int:
+        gm = choose_map(link, args.map)
+        goal_cell(gm, args.x, args.y)
         items = planned_goal_items(gm, args.x, args.y, start if start is not None else robot_position_mm(link))
         n = link.mission_upload(items)
         link.command(link.m.MAV_CMD_DO_SET_MODE, link.m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))

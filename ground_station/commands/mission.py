@@ -1,7 +1,8 @@
 """`qnav mission upload --targets A,B,C,D | FILE` and `qnav mission download`.
 
-Upload: waypoints from map targets (their cell centres in world metres,
-`--map`, default paper10) or from a QGC WPL 110 file (as written by
+Upload: waypoints from map targets (their cell centres in world metres, on
+`--map`, by default the robot's own map, read from its active policy over
+MAVLink FTP; a `--map` that is not the robot's is refused naming both) or from a QGC WPL 110 file (as written by
 MAVProxy, QGroundControl or `mission download --out`), sent through the
 MAVLink mission protocol; waits for MISSION_ACK and exits 3 with the robot's
 reason on refusal, 4 on timeout. Target waypoints travel in
@@ -38,7 +39,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     up = verbs.add_parser("upload", help="upload waypoints (map targets or a WPL file)")
     up.add_argument("file", nargs="?", metavar="FILE", help="QGC WPL 110 waypoint file")
     up.add_argument("--targets", metavar="A,B,...", help="map target names, in visiting order")
-    up.add_argument("--map", default="paper10", metavar="NAME|PATH", help="map of the targets (default paper10)")
+    up.add_argument("--map", metavar="NAME|PATH",
+                    help="map of the targets (default: the robot's, from its active policy)")
     up.add_argument("--cell-size", type=float, default=None, metavar="M",
                     help="cell size in metres (default: the map's, 0.5)")
     up.add_argument("--plan", action="store_true",
@@ -61,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.mission_items import (
         file_items,
+        load_gridmap,
         parse_start,
         target_items,
         write_wpl,
@@ -77,22 +80,30 @@ def run(args: argparse.Namespace) -> int:
             raise CliError("--follow needs --plan")
         if not (math.isfinite(args.follow_timeout) and args.follow_timeout > 0):
             raise CliError(f"--follow-timeout must be a positive number of seconds, got {args.follow_timeout:g}")
-        items = target_items(args.targets, args.map, args.cell_size) if args.targets else file_items(args.file)
+        items = file_items(args.file) if args.file else []
         start = parse_start(args.start) if args.start else None
+        if args.targets and args.map is not None:  # a bad name or target fails before any link
+            target_items(args.targets, load_gridmap(args.map, args.cell_size))
 
         def upload(link) -> int:
             nonlocal items
             target_seq: list[int] = []
+            gm = None
+            if args.targets:
+                from ground_station.mavlink.robot_map import choose_map
+
+                gm = choose_map(link, args.map, args.cell_size)
+                items = target_items(args.targets, gm)
             if args.plan:
-                items, target_seq = plan_mission(args, link, start)
+                items, target_seq = plan_mission(args, link, start, gm)
             n = link.mission_upload(items)
             print(f"mission of {n} waypoints accepted")
             if not args.follow:
                 return 0
-            from ground_station.mavlink.mission_items import load_gridmap, target_cells
+            from ground_station.mavlink.mission_items import target_cells
             from ground_station.nav.replan import MissionFollower, follow_mission
 
-            gm = load_gridmap(args.map, args.cell_size)
+            assert gm is not None  # --follow needs --plan, which needs --targets
             follower = MissionFollower(gm, target_cells(args.targets, gm), target_seq)
             print(f"following the mission (up to {args.follow_timeout:g} s) ...", flush=True)
             done = follow_mission(link, follower, args.follow_timeout, lambda line: print(line, flush=True))
@@ -118,16 +129,10 @@ def run(args: argparse.Namespace) -> int:
     return run_on_link(args, "mission download", download)
 
 
-def plan_mission(args: argparse.Namespace, link,
-                 start_mm: tuple[float, float] | None) -> tuple[list[tuple[int, int, int]], list[int]]:
-    from ground_station.mavlink.mission_items import (
-        load_gridmap,
-        planned_items,
-        robot_position_mm,
-        target_cells,
-    )
+def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None,
+                 gm) -> tuple[list[tuple[int, int, int]], list[int]]:
+    from ground_station.mavlink.mission_items import planned_items, robot_position_mm, target_cells
 
-    gm = load_gridmap(args.map, args.cell_size)
     start = start_mm if start_mm is not None else robot_position_mm(link)
     items, target_seq = planned_items(target_cells(args.targets, gm), start, gm)
     print(f"planned {len(items)} waypoints from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "

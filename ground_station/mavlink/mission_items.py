@@ -51,11 +51,10 @@ def planned_goal_items(gridmap, x_m: float, y_m: float, start_mm: tuple[float, f
     return items
 
 
-def target_items(targets: str, map_name: str, cell_size_m: float | None = None) -> list[tuple[int, int, int]]:
-    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * LOCAL_ITEM_SCALE) for map targets."""
+def target_items(targets: str, gm) -> list[tuple[int, int, int]]:
+    """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * LOCAL_ITEM_SCALE) for the targets of map `gm`."""
     from firmware_py import robot_spec
 
-    gm = load_gridmap(map_name, cell_size_m)
     cell_mm = round(gm.cell_size_m * 1000)
     names = [t.strip() for t in targets.split(",") if t.strip()]
     if not names:

@@ -245,7 +245,10 @@ class MonitorApp(App):
 
     def on_mount(self) -> None:
         self._panels = {w.id: w for w in self.query(Static) if w.id}
-        self._panels["map"].border_title = self.grid_map.name if self.grid_map is not None else "map"
+        title = self.grid_map.name if self.grid_map is not None else "map"
+        self._panels["map"].border_title = title
+        # the panel is as wide as the map's cells; a longer name would be cut on the border
+        self._panels["map"].styles.min_width = max(24, len(title) + 8)
         self._timer = self.set_interval(_POLL_S, self.pump)
         self.redraw()
 

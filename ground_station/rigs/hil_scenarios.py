@@ -364,7 +364,7 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
             code, out = _qnav(procs, "qnav_upload", ["upload", upload, "--activate", *link,
                                                      "--timeout", "30"], 120)
             steps["upload"] = {"exit": code, "seconds": round(time.monotonic() - t0, 2), "out": out[-600:]}
-        code, out = _qnav(procs, "qnav_mission", ["mission", "upload", "--targets", "A,B,C,D", *link,
+        code, out = _qnav(procs, "qnav_mission", ["mission", "upload", "--targets", "A,B,C,D", "--map", "paper10", *link,
                                                   "--no-tlog", "--timeout", "30"])
         steps["mission_upload"] = {"exit": code, "out": out[-600:]}
         # lockstep runs the robot's clock ~50x real time: a ground station's 1 Hz wall-clock
@@ -457,7 +457,7 @@ def replan(can: str, work: Path, *, disc: tuple[float, float, float] = REPLAN_DI
                                            "--localiser", "off"])
         code, out = _qnav(procs, "replan_param", ["param", "set", "FS_GCS_ENABLE", "0", *link, "--timeout", "30"])
         steps["param_fs_off"] = {"exit": code, "out": out[-600:]}
-        follow = procs.start("replan_follow", [BIN / "qnav", "mission", "upload", "--targets", "B", "--plan",
+        follow = procs.start("replan_follow", [BIN / "qnav", "mission", "upload", "--targets", "B", "--plan", "--map", "paper10",
                                                "--follow", "--follow-timeout", follow_timeout_s, "--mavlink", f"udpin:127.0.0.1:{port}", "--tlog", work / "follow.tlog",
                                                "--timeout", "30"])
         until = time.monotonic() + 30

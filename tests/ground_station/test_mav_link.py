@@ -99,7 +99,9 @@ def test_commands_params_and_tlog_over_udp(rig):
 def test_mission_targets_upload_download_and_auto_run(rig):
     port, start, tmp = rig
     r = start()
-    code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D")
+    code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D")  # no --map, and the robot has none
+    assert code == 2 and "the robot's active policy carries no map: give --map" in out, out
+    code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D", "--map", "paper10")
     assert code == 0 and "4 waypoints" in out, out
     # paper10 targets A (2,2) B (9,0) C (0,9) D (9,7), 0.5 m cells, 10 rows
     assert r.vehicle.mission == [robot_spec.cell_center_mm(c, row, 10) for c, row in ((2, 2), (9, 0), (0, 9), (9, 7))]
@@ -110,7 +112,7 @@ def test_mission_targets_upload_download_and_auto_run(rig):
     # the file goes back up unchanged
     code, _ = qnav(port, "mission", "upload", str(wpl))
     assert code == 0 and r.vehicle.mission[3] == robot_spec.cell_center_mm(9, 7, 10)
-    assert qnav(port, "mission", "upload", "--targets", "A,Z")[0] == 2  # no target Z: CLI error
+    assert qnav(port, "mission", "upload", "--targets", "A,Z", "--map", "paper10")[0] == 2  # no target Z
 
     with Link(f"udpin:127.0.0.1:{port}", tlog=False) as link:
         link.connect(5)
@@ -213,3 +215,26 @@ def test_source_ids_default_apart_from_qgc_and_mavproxy_and_can_be_set(rig):
         with pytest.raises(SystemExit) as exc:
             qnav(port, "arm", *bad)
         assert exc.value.code == 2
+
+
+def test_mission_targets_on_the_robots_own_map(rig):
+    """Issue 30 item 4: the robot's active policy carries its map, so `--targets` needs no `--map`,
+    and a `--map` that is not the robot's is refused in one line naming both (read over MAVLink FTP
+    with pymavlink's own client)."""
+    from firmware_py.shipped_policies import shipped_policy
+
+    port, start, tmp = rig
+    (tmp / "storage" / "policies").mkdir(parents=True)
+    (tmp / "storage" / "policies" / "active.qtab").write_bytes(shipped_policy("sector").read_bytes())
+    r = start()
+    code, out = qnav(port, "mission", "upload", "--targets", "B,C")
+    assert code == 0 and "2 waypoints" in out, out
+    assert r.vehicle.mission == [robot_spec.cell_center_mm(c, row, 10) for c, row in ((9, 0), (0, 9))]
+    code, out = qnav(port, "mission", "upload", "--targets", "A", "--map", "paper10", "--cell-size", "0.4")
+    assert code == 2 and out.count("\n") == 1, out
+    assert ("--map paper10 (10x10 cells of 0.4 m) is not the robot's map paper10 (10x10 cells of 0.5 m)" in out
+            and r.vehicle.mission[0] == robot_spec.cell_center_mm(9, 0, 10)), out  # nothing sent
+    assert qnav(port, "mission", "upload", "--targets", "A", "--map", "paper10")[0] == 0  # the same map: fine
+    r.vehicle.st.policy_id = 0x12340000  # the robot says it runs another policy than its file
+    code, out = qnav(port, "mission", "upload", "--targets", "A")
+    assert code == 2 and "the robot runs policy 0x1234" in out and "give --map" in out, out

@@ -115,3 +115,25 @@ def test_replay_through_the_same_view(tlog):
     finally:
         source.close()
     assert "ignored" in source.send_command("arm", (1, 1))
+
+
+def test_a_long_map_name_is_not_cut_on_a_small_map(tlog, tmp_path):
+    """Issue 30 item 7: the map panel is as wide as its cells, and a 5x5 map's name was cut."""
+    path = tmp_path / "the-loading-bay-of-the-east-warehouse.map"
+    path.write_text("type octile\nheight 5\nwidth 5\nmap\n" + ".....\n" * 5)
+    grid = load_map(str(path))
+    source = ReplaySource(str(tlog), speed=0)
+    app = MonitorApp(source, grid_map=grid, subtitle="replay")
+
+    async def scenario():
+        async with app.run_test(size=(130, 48)) as pilot:
+            await pilot.pause(0.3)
+            widget = app.query_one("#map")
+            assert widget.border_title == grid.name
+            assert widget.region.width >= len(grid.name) + 4  # the title and its corners fit
+            await pilot.press("q")
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        source.close()

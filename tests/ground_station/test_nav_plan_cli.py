@@ -24,7 +24,7 @@ def test_mission_upload_plan_from_the_robot_position(rig):  # noqa: F811
     port, start, _tmp = rig
     r = start()
     r.vehicle.st.x_mm, r.vehicle.st.y_mm = 2750, 2750  # cell (5, 4) of paper10
-    code, out = qnav(port, "mission", "upload", "--targets", "A,B", "--plan")
+    code, out = qnav(port, "mission", "upload", "--targets", "A,B", "--plan", "--map", "paper10")
     assert code == 0, out
     gm = load_map("paper10")
     leg1 = plan_waypoints(gm, (2750, 2750), (2, 2), start_mm=True)
@@ -43,7 +43,7 @@ def test_mission_upload_plan_from_the_robot_position(rig):  # noqa: F811
 def test_mission_upload_plan_from_start_and_bad_input(rig):  # noqa: F811
     port, start, _tmp = rig
     r = start()
-    code, out = qnav(port, "mission", "upload", "--targets", "C", "--plan", "--start", "0.25,0.25")
+    code, out = qnav(port, "mission", "upload", "--targets", "C", "--plan", "--start", "0.25,0.25", "--map", "paper10")
     assert code == 0, out
     assert r.vehicle.mission[-1] == _centre(0, 9) and len(r.vehicle.mission) == 1  # C is the start cell itself
     assert qnav(port, "mission", "upload", "--plan", "some.waypoints")[0] == 2  # --plan needs --targets
@@ -56,11 +56,11 @@ def test_goal_plan_uploads_the_planned_mission_and_starts_it(rig):  # noqa: F811
     r = start()
     r.vehicle.st.x_mm, r.vehicle.st.y_mm = 250, 250  # cell (0, 9)
     assert qnav(port, "arm")[0] == 0
-    code, out = qnav(port, "goal", "4.7", "4.8", "--plan")
+    code, out = qnav(port, "goal", "4.7", "4.8", "--plan", "--map", "paper10")
     assert code == 0, out
     assert len(r.vehicle.mission) > 2 and r.vehicle.mission[-1] == (4700, 4800)
     assert r.vehicle.st.mode == Mode.AUTO
-    code, out = qnav(port, "goal", "0.75", "4.25", "--plan")  # (1, 1) is an obstacle cell of paper10
+    code, out = qnav(port, "goal", "0.75", "4.25", "--plan", "--map", "paper10")  # (1, 1) is an obstacle cell of paper10
     assert code == 2 and "not in a free cell" in out
 
 
