@@ -14,9 +14,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-from pymavlink.dialects.v20 import common as mavlink2
-
 from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.dialect import mavlink2
 from firmware_py.mavlink.mission import (
     GLOBAL_FRAMES,
     LOCAL_FRAMES,
@@ -24,7 +23,7 @@ from firmware_py.mavlink.mission import (
     check_position,
     map_bounds_error,
 )
-from firmware_py.mavlink.telemetry import STREAMS, NodeStats, Telemetry
+from firmware_py.mavlink.telemetry import STANDARD_MODES, STREAMS, NodeStats, Telemetry
 from firmware_py.vehicle import Mode, VehicleControl
 
 M = mavlink2
@@ -89,6 +88,8 @@ class CommandHandler:
             return (ACCEPTED, "", []) if ok else (DENIED, f"{what} refused: {reason}", [])
         if cmd == M.MAV_CMD_DO_SET_MODE:
             return self._set_mode(int(p[0]), int(p[1]))
+        if cmd == M.MAV_CMD_DO_SET_STANDARD_MODE:
+            return self._set_standard_mode(p[0])
         if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
             msg_id, interval = int(p[0]), int(p[1])
             ok, reason = self.telemetry.set_interval(msg_id, interval)
@@ -98,6 +99,10 @@ class CommandHandler:
             interval = self.telemetry.interval_us(msg_id) if msg_id in STREAMS else 0
             return ACCEPTED, "", [self.mav.message_interval_encode(msg_id, interval if interval > 0 else -1)]
         if cmd == M.MAV_CMD_REQUEST_MESSAGE:
+            if int(p[0]) == M.MAVLINK_MSG_ID_AVAILABLE_MODES and p[1] >= 1:  # param2: one mode by index
+                code, why, msgs = self._request_message(int(p[0]), now_us, stats)
+                return (code, why, msgs[int(p[1]) - 1:int(p[1])]) if p[1] <= len(msgs) else \
+                    (DENIED, f"no mode with index {p[1]:g} (1..{len(msgs)})", [])
             return self._request_message(int(p[0]), now_us, stats)
         if cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return self._request_message(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, now_us, stats)
@@ -178,6 +183,18 @@ class CommandHandler:
         ok, reason = self.vehicle.set_mode(mode)
         if not ok:
             return DENIED, f"mode {SETTABLE_MODES[mode]} refused: {reason}", []
+        return ACCEPTED, "", []
+
+    def _set_standard_mode(self, standard: float) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
+        """MAV_CMD_DO_SET_STANDARD_MODE: the mode with that standard meaning (telemetry.STANDARD_MODES)."""
+        modes = [mode for mode, std, _ in STANDARD_MODES if std == standard and std != M.MAV_STANDARD_MODE_NON_STANDARD]
+        if not modes:
+            have = ", ".join(f"{std} ({SETTABLE_MODES[mode]})" for mode, std, _ in STANDARD_MODES
+                             if std != M.MAV_STANDARD_MODE_NON_STANDARD)
+            return DENIED, f"standard mode {standard:g} not available (available: {have})", []
+        ok, reason = self.vehicle.set_mode(modes[0])
+        if not ok:
+            return DENIED, f"mode {SETTABLE_MODES[modes[0]]} refused: {reason}", []
         return ACCEPTED, "", []
 
     def _request_message(self, msg_id: int, now_us: int, stats: NodeStats) -> tuple[int, str, list[mavlink2.MAVLink_message]]:

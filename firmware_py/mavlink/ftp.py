@@ -33,7 +33,8 @@ from firmware_py.storage import DEFAULT_QUOTA_BYTES, Storage
 
 if TYPE_CHECKING:  # annotations only: pymavlink is imported after MAVLINK20 is set (see above)
     from pymavlink import mavutil
-    from pymavlink.dialects.v20 import common as mavlink2
+
+    from firmware_py.mavlink.dialect import mavlink2
 
 STATUSTEXT_CHARS = 50
 MAV_TYPE_GROUND_ROVER = 10

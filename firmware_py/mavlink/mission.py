@@ -41,9 +41,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from pymavlink.dialects.v20 import common as mavlink2
-
 from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.dialect import mavlink2
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.vehicle import VehicleControl
 

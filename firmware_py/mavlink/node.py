@@ -63,11 +63,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
-from pymavlink.dialects.v20 import common as mavlink2
-
 from firmware_py.clock import Clock
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.commands import CommandHandler
+from firmware_py.mavlink.dialect import NAME as DIALECT
+from firmware_py.mavlink.dialect import mavlink2
 from firmware_py.mavlink.mission import MissionEngine, check_position, map_bounds_error
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
@@ -485,7 +485,7 @@ class MavShell:
 
         self.node = node
         self.url = url
-        self.conn = mavutil.mavlink_connection(url, baud=baud, dialect="common", source_system=node.sysid,
+        self.conn = mavutil.mavlink_connection(url, baud=baud, dialect=DIALECT, source_system=node.sysid,
                                                source_component=node.compid, autoreconnect=True)
         self._key_version = -1
         self.sent = 0

@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING
 from firmware_py.atomic import atomic_write
 
 if TYPE_CHECKING:  # only for the annotation: the filter works on any message's raw frame
-    from pymavlink.dialects.v20 import common as mavlink2
+    from firmware_py.mavlink.dialect import mavlink2
 
 SIGNING_FILE = "params/signing.json"  # under the storage root, beside params.json
 EPOCH_2015_UNIX_S = 1_420_070_400

@@ -16,10 +16,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from pymavlink.dialects.v20 import common as mavlink2
-
 from firmware_py import robot_spec
 from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.dialect import mavlink2
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.vehicle import CtrlState, Mode, VehicleEvent, VehicleStatus
 
@@ -34,6 +33,7 @@ MIN_INTERVAL_US = 10_000
 STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: "1hz",
     M.MAVLINK_MSG_ID_SYS_STATUS: "1hz",
+    M.MAVLINK_MSG_ID_CURRENT_MODE: "1hz",  # Standard Modes (below)
     # the robot's two clocks: time_boot_ms (its control clock, sim time in HIL) and its wall clock
     M.MAVLINK_MSG_ID_SYSTEM_TIME: "1hz",
     M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "pos",
@@ -58,7 +58,20 @@ STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_ODOMETRY: "1hz",
 }
 # only on request (REQUEST_MESSAGE), never streamed by default
-ON_REQUEST = frozenset({M.MAVLINK_MSG_ID_AUTOPILOT_VERSION})
+ON_REQUEST = frozenset({M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, M.MAVLINK_MSG_ID_AVAILABLE_MODES,
+                        M.MAVLINK_MSG_ID_AVAILABLE_MODES_MONITOR})
+
+# MAVLink's Standard Modes microservice (what QGroundControl asks a generic autopilot for its mode
+# menu): each mode the robot has, in HEARTBEAT custom_mode numbering, with its standard meaning where
+# MAV_STANDARD_MODE has one (Hold = POSITION_HOLD, Auto = MISSION) and its name where it has none.
+# The set never changes at run time: AVAILABLE_MODES_MONITOR's seq stays 0.
+STANDARD_MODES: tuple[tuple[Mode, int, str], ...] = (
+    (Mode.MANUAL, M.MAV_STANDARD_MODE_NON_STANDARD, "Manual"),
+    (Mode.HOLD, M.MAV_STANDARD_MODE_POSITION_HOLD, ""),
+    (Mode.AUTO, M.MAV_STANDARD_MODE_MISSION, ""),
+    (Mode.GUIDED, M.MAV_STANDARD_MODE_NON_STANDARD, "Guided"),
+)
+STANDARD_OF = {mode: std for mode, std, _ in STANDARD_MODES}
 
 CAPABILITIES = (
     M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
@@ -245,6 +258,14 @@ class Telemetry:
         if msg_id in (M.MAVLINK_MSG_ID_ESTIMATOR_STATUS, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV,
                       M.MAVLINK_MSG_ID_ODOMETRY):
             return [self.localisation(msg_id, now_us, st)]
+        if msg_id == M.MAVLINK_MSG_ID_AVAILABLE_MODES:
+            return [m.available_modes_encode(len(STANDARD_MODES), i, std, int(mode), 0, name.encode())
+                    for i, (mode, std, name) in enumerate(STANDARD_MODES, start=1)]
+        if msg_id == M.MAVLINK_MSG_ID_AVAILABLE_MODES_MONITOR:
+            return [m.available_modes_monitor_encode(0)]
+        if msg_id == M.MAVLINK_MSG_ID_CURRENT_MODE:
+            return [m.current_mode_encode(STANDARD_OF.get(st.mode, M.MAV_STANDARD_MODE_NON_STANDARD),
+                                          int(st.mode), int(st.mode))]
         if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return [m.autopilot_version_encode(CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0,
                                                [0] * 8, [0] * 8, [0] * 8, 0, 0, self.uid)]

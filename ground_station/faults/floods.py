@@ -47,6 +47,7 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
+from firmware_py.mavlink.dialect import NAME as DIALECT
 from ground_station.faults.common import ScenarioResult, register
 
 FLOOD_COUNTS = {"param_set": 600, "param_list": 300, "crc": 150}
@@ -263,7 +264,7 @@ class _Garbage(threading.Thread):
         super().__init__(name="garbage", daemon=True)
         from pymavlink import mavutil
 
-        self.conn = mavutil.mavlink_connection(url, source_system=77, source_component=190, dialect="common")
+        self.conn = mavutil.mavlink_connection(url, source_system=77, source_component=190, dialect=DIALECT)
         self.m = self.conn.mav
         self.rng = random.Random(seed)
         self.rate_hz = rate_hz

@@ -52,6 +52,7 @@ from pathlib import Path
 from typing import Any
 
 from firmware_py import can_protocol as cp
+from firmware_py.mavlink.dialect import NAME as DIALECT
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.faults.can_faults import (
     _edit_after,
@@ -584,7 +585,7 @@ def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 links.append(link)
                 link.connect(30.0)
                 rogue = mu.mavlink_connection(robot.url, source_system=rng.randint(1, 250), source_component=190,
-                                              dialect="common")
+                                              dialect=DIALECT)
                 links.append(rogue)
                 rogue.setup_signing(key, sign_outgoing=True, link_id=7,
                                     initial_timestamp=MAX_TIMESTAMP - rng.randrange(2, 30))

@@ -80,11 +80,11 @@ def _value(rng: random.Random, ftype: str, length: int):
 
 
 def _dialect():
-    """pymavlink's common dialect in MAVLink 2, as the robot's node uses it."""
+    """The robot's dialect (firmware_py.mavlink.dialect) in MAVLink 2, as its node uses it."""
     os.environ["MAVLINK20"] = "1"
-    from pymavlink.dialects.v20 import common
+    from firmware_py.mavlink.dialect import mavlink2
 
-    return common
+    return mavlink2
 
 
 class FrameMaker:

@@ -13,6 +13,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from firmware_py.mavlink.dialect import NAME as DIALECT
 from ground_station.logs.topics import Record, RunTopics, json_schema
 
 
@@ -98,7 +99,7 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
         try:
             sink.write(topics.map_grid(0))
             if tlog is not None:
-                log = mavutil.mavlink_connection(str(tlog), dialect="common")
+                log = mavutil.mavlink_connection(str(tlog), dialect=DIALECT)
                 try:
                     while True:
                         msg = log.recv_match()

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from firmware_py.mavlink.dialect import NAME as DIALECT
 from firmware_py.mavlink.params import as_float32
 from ground_station.mavlink.statustext import StatusTextAssembler
 
@@ -189,7 +190,7 @@ class Link:
         mu = mavutil()
         self.m = mu.mavlink
         self.conn = mu.mavlink_connection(url, source_system=source_system, source_component=source_component,
-                                          dialect="common", autoreconnect=True)
+                                          dialect=DIALECT, autoreconnect=True)
         self.source_system = source_system  # frames from this system id are ours (or another GCS's)
         self.url = url
         self.key: bytes | None = None

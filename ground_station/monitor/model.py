@@ -37,9 +37,8 @@ import re
 from collections import deque
 from dataclasses import dataclass, field
 
-from pymavlink.dialects.v20 import common as mavlink
-
 from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.dialect import mavlink2 as mavlink
 from firmware_py.vehicle import CtrlState, Mode
 from ground_station.mavlink.statustext import StatusText, StatusTextAssembler
 

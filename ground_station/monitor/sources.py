@@ -24,8 +24,8 @@ from typing import IO, Protocol
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: MAVLink 2 from the start
 
 from pymavlink import mavutil  # noqa: E402
-from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
+from firmware_py.mavlink.dialect import mavlink2 as mavlink  # noqa: E402
 from firmware_py.vehicle import Mode  # noqa: E402
 from ground_station.monitor.model import POLICY_ID_HALVES, VehicleView  # noqa: E402
 

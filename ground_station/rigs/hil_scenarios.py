@@ -53,6 +53,7 @@ from pathlib import Path
 from firmware_py import can_protocol as cp
 from firmware_py.canbus import open_bus
 from firmware_py.localplan import META_KEY as PLANNER_KEY
+from firmware_py.mavlink.dialect import NAME as DIALECT
 from firmware_py.policy import load_policy
 from firmware_py.subprocs import free_udp_port, stop_process
 from firmware_py.vehicle import CtrlState
@@ -500,7 +501,7 @@ def _reached_seq(tlog: Path) -> list[int]:
 
     if not tlog.exists():
         return []
-    mlog = mavutil().mavlink_connection(str(tlog), dialect="common")
+    mlog = mavutil().mavlink_connection(str(tlog), dialect=DIALECT)
     seqs = []
     try:
         while (msg := mlog.recv_match(type="MISSION_ITEM_REACHED")) is not None:

@@ -3,10 +3,9 @@ streamed (ground speed, compass heading) and an AUTOPILOT_VERSION uid that is th
 
 from __future__ import annotations
 
-from pymavlink.dialects.v20 import common as m
-
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.storage import UID_FILE
-from tests.firmware_py.test_mav_engines import Link, of
+from tests.firmware_py.test_mav_engines import Link, of, texts
 
 
 def test_vfr_hud_is_streamed_with_speed_and_compass_heading():
@@ -31,3 +30,36 @@ def test_autopilot_version_uid_is_the_robots_own_and_survives_a_reboot(tmp_path)
     assert first != 0 and (tmp_path / "a" / UID_FILE.lstrip("/")).is_file()
     assert uid(tmp_path / "a") == first  # kept across boots
     assert uid(tmp_path / "b") not in (0, first)  # another robot, another id
+
+
+def test_standard_modes_are_listed_streamed_and_set():
+    """Issue 30: MAVLink's Standard Modes, what QGroundControl builds a generic autopilot's mode menu
+    from: AVAILABLE_MODES lists the four modes (Hold = POSITION_HOLD, Auto = MISSION, Manual and Guided
+    by name), CURRENT_MODE is streamed, DO_SET_STANDARD_MODE switches to a standard mode and refuses one
+    the robot does not have with the list it has; the HEARTBEAT is unchanged (custom_mode)."""
+    from firmware_py.vehicle import Mode
+
+    link = Link()
+    modes = of(link.cmd(m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AVAILABLE_MODES), "AVAILABLE_MODES")
+    assert [(x.mode_index, x.number_modes) for x in modes] == [(1, 4), (2, 4), (3, 4), (4, 4)]
+    table = {x.custom_mode: (x.standard_mode, x.mode_name) for x in modes}
+    assert table == {int(Mode.MANUAL): (m.MAV_STANDARD_MODE_NON_STANDARD, "Manual"),
+                     int(Mode.HOLD): (m.MAV_STANDARD_MODE_POSITION_HOLD, ""),
+                     int(Mode.AUTO): (m.MAV_STANDARD_MODE_MISSION, ""),
+                     int(Mode.GUIDED): (m.MAV_STANDARD_MODE_NON_STANDARD, "Guided")}
+    (one,) = of(link.cmd(m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AVAILABLE_MODES, 3), "AVAILABLE_MODES")
+    assert one.mode_index == 3
+    assert of(link.cmd(m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AVAILABLE_MODES_MONITOR),
+              "AVAILABLE_MODES_MONITOR")[0].seq == 0
+    current = [x for _ in range(15) for x in of(link.tick(100_000), "CURRENT_MODE")]
+    assert current and (current[-1].standard_mode, current[-1].custom_mode) == (m.MAV_STANDARD_MODE_POSITION_HOLD,
+                                                                                int(Mode.HOLD))
+    link.vehicle.mission = [(1000, 1000)]  # Auto needs a mission on the test vehicle
+    replies = link.cmd(m.MAV_CMD_DO_SET_STANDARD_MODE, m.MAV_STANDARD_MODE_MISSION)
+    assert of(replies, "COMMAND_ACK")[0].result == m.MAV_RESULT_ACCEPTED and link.vehicle.st.mode == Mode.AUTO
+    replies = link.cmd(m.MAV_CMD_DO_SET_STANDARD_MODE, m.MAV_STANDARD_MODE_ORBIT)
+    assert of(replies, "COMMAND_ACK")[0].result == m.MAV_RESULT_DENIED and link.vehicle.st.mode == Mode.AUTO
+    assert "standard mode 2 not available (available: 1 (Hold), 6 (Auto))" in "".join(texts(replies))  # 2 chunks
+    (hb,) = of(link.node.telemetry.build(m.MAVLINK_MSG_ID_HEARTBEAT, link.now, link.vehicle.status(), link.node.stats),
+               "HEARTBEAT")
+    assert hb.custom_mode == int(Mode.AUTO)  # what MAVProxy reads, unchanged

@@ -9,10 +9,10 @@ import json
 import math
 
 import pytest
-from pymavlink.dialects.v20 import common as m
 
 from firmware_py import robot_spec
 from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.node import MavNode
 from firmware_py.mavlink.params import PARAMS, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing, load_key_file
