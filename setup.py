@@ -17,6 +17,7 @@ setup(
     package_dir={"qnav_policies": "policies"},
     package_data={
         "firmware_py": ["*.dbc"],
+        "firmware_py.mavlink": ["*.xml"],  # extra.xml: messages pymavlink lacks (mavlink/extra.py)
         "ground_station.logs": ["*.json"],  # the Foxglove layout (docs/monitor.md)
         "ground_station.maps_data": ["*"],
         "qnav_policies": ["*.qtab", "*.json", "README.md"],

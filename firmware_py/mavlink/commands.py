@@ -23,7 +23,13 @@ from firmware_py.mavlink.mission import (
     check_position,
     map_bounds_error,
 )
-from firmware_py.mavlink.telemetry import STANDARD_MODES, STREAMS, NodeStats, Telemetry
+from firmware_py.mavlink.telemetry import (
+    MSG_ID_PROTOCOL_VERSION,
+    STANDARD_MODES,
+    STREAMS,
+    NodeStats,
+    Telemetry,
+)
 from firmware_py.vehicle import Mode, VehicleControl
 
 M = mavlink2
@@ -104,6 +110,8 @@ class CommandHandler:
                 return (code, why, msgs[int(p[1]) - 1:int(p[1])]) if p[1] <= len(msgs) else \
                     (DENIED, f"no mode with index {p[1]:g} (1..{len(msgs)})", [])
             return self._request_message(int(p[0]), now_us, stats)
+        if cmd == M.MAV_CMD_REQUEST_PROTOCOL_VERSION:
+            return self._request_message(MSG_ID_PROTOCOL_VERSION, now_us, stats)
         if cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return self._request_message(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, now_us, stats)
         if cmd == M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:

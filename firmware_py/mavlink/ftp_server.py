@@ -52,6 +52,7 @@ from enum import IntEnum
 from typing import Any
 
 from firmware_py.background import Background
+from firmware_py.mavlink.metadata import GENERAL_FILE, METADATA_DIR, PARAMETER_FILE
 from firmware_py.mavlink.signing import SIGNING_FILE
 from firmware_py.storage import (
     ACTIVE_POLICY,
@@ -114,7 +115,8 @@ class Nak(IntEnum):
 # bypass the loader's validation. The robot's own state files and the layout
 # directories are off limits too: a directory created at params.json's name
 # made every later save raise (found by the issue 9 hostile-input suite).
-PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS})
+PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS,
+                       GENERAL_FILE, PARAMETER_FILE, METADATA_DIR})
 
 
 @dataclass

@@ -187,10 +187,17 @@ class MavNode:
             if not ok:
                 warnings.append(f"command line value not representable as a parameter: {why}")
         self._apply_params(reboot=True)
-        uid, why = robot_uid(self.params.path.parent.parent if self.params.path is not None else None)
+        storage_dir = self.params.path.parent.parent if self.params.path is not None else None
+        uid, why = robot_uid(storage_dir)
         self.telemetry.uid = uid
         if why:
             warnings.append(why)
+        if storage_dir is not None and self.ftp is not None:  # component metadata, served over FTP
+            from firmware_py.mavlink.metadata import write_metadata
+
+            self.telemetry.metadata_crc, why = write_metadata(storage_dir)
+            if why:
+                warnings.append(why)
         for w in warnings:
             self._pending += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
 

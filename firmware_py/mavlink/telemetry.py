@@ -17,8 +17,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from firmware_py import robot_spec
+from firmware_py.mavlink import extra
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.dialect import mavlink2
+from firmware_py.mavlink.metadata import GENERAL_FILE, uri
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.vehicle import CtrlState, Mode, VehicleEvent, VehicleStatus
 
@@ -58,8 +60,11 @@ STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_ODOMETRY: "1hz",
 }
 # only on request (REQUEST_MESSAGE), never streamed by default
+MSG_ID_PROTOCOL_VERSION = 300  # not in pymavlink's dialects: firmware_py/mavlink/extra.py
+MSG_ID_COMPONENT_METADATA = 397
 ON_REQUEST = frozenset({M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, M.MAVLINK_MSG_ID_AVAILABLE_MODES,
-                        M.MAVLINK_MSG_ID_AVAILABLE_MODES_MONITOR})
+                        M.MAVLINK_MSG_ID_AVAILABLE_MODES_MONITOR, MSG_ID_PROTOCOL_VERSION,
+                        MSG_ID_COMPONENT_METADATA})
 
 # MAVLink's Standard Modes microservice (what QGroundControl asks a generic autopilot for its mode
 # menu): each mode the robot has, in HEARTBEAT custom_mode numbering, with its standard meaning where
@@ -134,6 +139,7 @@ class Telemetry:
         self.last_reached = -1
         self.autopilot = int(AUTOPILOTS[DEFAULT_AUTOPILOT])  # HEARTBEAT.autopilot
         self.uid = 0  # AUTOPILOT_VERSION.uid: the robot's own, kept in its storage (node.boot)
+        self.metadata_crc = 0  # COMPONENT_METADATA: the general metadata file's CRC (0: none served)
 
     # --- intervals ----------------------------------------------------------------
     def default_interval_us(self, msg_id: int) -> int:
@@ -258,6 +264,12 @@ class Telemetry:
         if msg_id in (M.MAVLINK_MSG_ID_ESTIMATOR_STATUS, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV,
                       M.MAVLINK_MSG_ID_ODOMETRY):
             return [self.localisation(msg_id, now_us, st)]
+        if msg_id == MSG_ID_PROTOCOL_VERSION:  # MAVLink 2 only (version 2.0: 200)
+            return [extra.module().MAVLink_protocol_version_message(200, 200, 200, [0] * 8, [0] * 8)]
+        if msg_id == MSG_ID_COMPONENT_METADATA:  # none without a storage (no FTP server to serve it)
+            if not self.metadata_crc:
+                return []
+            return [extra.module().MAVLink_component_metadata_message(ms, self.metadata_crc, uri(GENERAL_FILE).encode())]
         if msg_id == M.MAVLINK_MSG_ID_AVAILABLE_MODES:
             return [m.available_modes_encode(len(STANDARD_MODES), i, std, int(mode), 0, name.encode())
                     for i, (mode, std, name) in enumerate(STANDARD_MODES, start=1)]

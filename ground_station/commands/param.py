@@ -3,7 +3,10 @@
 `set` waits for the robot's PARAM_VALUE echo and fails (exit 3) with the
 robot's reason when it kept another value (out of range, read-only,
 unknown); no answer -> exit 4. The robot stores a set value atomically and
-keeps it across reboots. See docs/mavlink.md for the table.
+keeps it across reboots. `list` prints each parameter's description, units
+and range beside its value, read from the robot's own parameter metadata
+(`/metadata/parameters.json` over MAVLink FTP, the file its COMPONENT_METADATA
+points a ground station at). See docs/mavlink.md for the table.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     verbs.required = True
     lst = verbs.add_parser("list", help="print every parameter")
     lst.add_argument("--json", action="store_true", help="print as a JSON object")
+    lst.add_argument("--no-descriptions", action="store_true",
+                     help="values only: do not read the robot's parameter metadata (one FTP read)")
     get = verbs.add_parser("get", help="print one parameter")
     get.add_argument("name", metavar="NAME")
     st = verbs.add_parser("set", help="set one parameter and verify the echo")
@@ -40,6 +45,33 @@ def _exact(name: str, params: dict[str, float]) -> str:
     if hi is None or lo is None:
         return ""
     return f"  (0x{(int(hi) << 16) | int(lo):08x}, exact: {name}_HI/_LO)"
+
+
+def _described(entry: dict | None) -> str:
+    if not entry:
+        return ""
+    units = f" {entry['units']}" if entry.get("units") else ""
+    return f"  {entry.get('shortDesc', '')} [{entry.get('min')}..{entry.get('max')}{units}]"
+
+
+def robot_parameter_metadata(link) -> dict[str, dict]:
+    """name -> the robot's metadata entry (firmware_py/mavlink/metadata.py), {} if it serves none."""
+    import json
+    import logging
+
+    from firmware_py.mavlink.metadata import PARAMETER_FILE
+    from ground_station.mavlink.ftp_upload import ftp_session
+    from ground_station.mavlink.robot_map import READ_UP_TO, _short_read_warning
+
+    root = logging.getLogger()
+    root.addFilter(_short_read_warning)
+    try:
+        data = ftp_session(link).client().read(PARAMETER_FILE, READ_UP_TO)
+        return {p["name"]: p for p in json.loads(bytes(data))["parameters"]} if data else {}
+    except (ValueError, KeyError, TypeError):  # not qnav's metadata: values only
+        return {}
+    finally:
+        root.removeFilter(_short_read_warning)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,8 +95,9 @@ def run(args: argparse.Namespace) -> int:
             if args.json:
                 print(json.dumps({k: int(v) if float(v).is_integer() else v for k, v in params.items()}, indent=1))
             else:
+                meta = {} if args.no_descriptions else robot_parameter_metadata(link)
                 for k, v in params.items():
-                    print(f"{k:<16} {_fmt(v)}{_exact(k, params)}")
+                    print(f"{k:<16} {_fmt(v):>11}{_exact(k, params)}{_described(meta.get(k))}")
         elif args.verb == "get":
             print(f"{name} {_fmt(link.param_get(name))}")
         else:

@@ -63,3 +63,52 @@ def test_standard_modes_are_listed_streamed_and_set():
     (hb,) = of(link.node.telemetry.build(m.MAVLINK_MSG_ID_HEARTBEAT, link.now, link.vehicle.status(), link.node.stats),
                "HEARTBEAT")
     assert hb.custom_mode == int(Mode.AUTO)  # what MAVProxy reads, unchanged
+
+
+def _raw_replies(link: Link, command: int, *p: float) -> list:
+    """The node's replies to a COMMAND_LONG as message objects (the Link's decoder has no 300/397)."""
+    p = tuple(p) + (0.0,) * (7 - len(p))
+    msg = m.MAVLink(None).parse_char(link.frame(link.gcs.command_long_encode(1, 1, command, 0, *p)))
+    return link.node.handle(msg, link.now)
+
+
+def test_protocol_version_and_component_metadata_with_the_parameter_json(tmp_path):
+    """Issue 30: PROTOCOL_VERSION on MAV_CMD_REQUEST_PROTOCOL_VERSION; COMPONENT_METADATA pointing at a
+    general metadata file on the robot's FTP server, which points at the parameter metadata made from
+    the parameter table (descriptions, units, ranges, defaults); both frames parse from bytes."""
+    import json
+
+    from firmware_py.mavlink import extra
+    from firmware_py.mavlink.ftp_server import PROTECTED, FtpServer
+    from firmware_py.mavlink.node import MavNode
+    from firmware_py.mavlink.params import PARAMS, ParamStore
+    from firmware_py.mavlink.signing import Signing
+    from firmware_py.storage import Storage
+    from firmware_py.vehicle import VehicleConfig
+
+    link = Link()
+    link.node = MavNode(link.vehicle, ParamStore(tmp_path), Signing(tmp_path), ftp=FtpServer(Storage(tmp_path)))
+    link.node.boot(link.now)  # as qnav-robot's shell: with storage and its FTP server
+    codec, parser = m.MAVLink(None, 1, 1), extra.module().MAVLink(None)
+    replies = _raw_replies(link, m.MAV_CMD_REQUEST_PROTOCOL_VERSION)
+    assert sorted(r.get_type() for r in replies) == ["COMMAND_ACK", "PROTOCOL_VERSION"]
+    pv = parser.parse_char(bytes(of(replies, "PROTOCOL_VERSION")[0].pack(codec)))
+    assert (pv.version, pv.min_version, pv.max_version) == (200, 200, 200)
+    replies = _raw_replies(link, m.MAV_CMD_REQUEST_MESSAGE, 397)
+    cm = parser.parse_char(bytes(of(replies, "COMPONENT_METADATA")[0].pack(codec)))
+    assert cm.get_type() == "COMPONENT_METADATA" and cm.uri == "mftp:///metadata/general.json"
+    storage = Storage(tmp_path)
+    assert cm.file_crc == storage.crc32("/metadata/general.json") != 0
+    general = json.loads((tmp_path / "metadata" / "general.json").read_text())
+    (ptype,) = general["metadataTypes"]
+    assert ptype["type"] == 1 and ptype["uri"] == "mftp:///metadata/parameters.json"
+    assert ptype["fileCrc"] == storage.crc32("/metadata/parameters.json")
+    params = {p["name"]: p for p in json.loads((tmp_path / "metadata" / "parameters.json").read_text())["parameters"]}
+    assert set(params) == {p.name for p in PARAMS}
+    tol = params["GOAL_TOL_MM"]
+    assert (tol["units"], tol["min"], tol["max"], tol["default"]) == ("mm", 20, 2000, VehicleConfig().goal_tolerance_mm)
+    assert "goal counts as reached" in tol["shortDesc"] and params["SYSID_THISMAV"]["rebootRequired"]
+    assert {"/metadata/general.json", "/metadata/parameters.json"} <= PROTECTED  # not writable over FTP
+    no_storage = Link(tmp_path / "other")  # storage, but no FTP server to serve it from
+    assert of([x for x in _raw_replies(no_storage, m.MAV_CMD_REQUEST_MESSAGE, 397)], "COMMAND_ACK")[0].result == \
+        m.MAV_RESULT_DENIED

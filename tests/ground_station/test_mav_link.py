@@ -84,7 +84,12 @@ def test_commands_params_and_tlog_over_udp(rig):
     code, out = qnav(port, "param", "set", "GOAL_TOL_MM", "99999")
     assert code == 3 and "out of range" in out
     code, out = qnav(port, "param", "list")
-    assert code == 0 and "GOAL_TOL_MM      200" in out and "SYSID_THISMAV" in out
+    assert code == 0 and "SYSID_THISMAV" in out, out
+    # the value, then the robot's own description and range from its parameter metadata over FTP
+    line = next(x for x in out.splitlines() if x.startswith("GOAL_TOL_MM "))
+    assert line.split()[1] == "200" and "goal counts as reached" in line and "[20..2000 mm]" in line, line
+    code, out = qnav(port, "param", "list", "--no-descriptions")
+    assert code == 0 and "goal counts as reached" not in out
     code, out = qnav(port, "param", "get", "NOPE")
     assert code == 3 and "unknown parameter NOPE" in out
 
