@@ -117,6 +117,10 @@ class VehicleStatus:
     localised: bool = True
     pose_std_mm: tuple[int, int] = (0, 0)  # 1-sigma of x, y
     pose_std_mrad: int = 0  # 1-sigma of the heading
+    # the power board's last BatteryStatus (battery_pct -1: none heard; MAVLink says "unknown")
+    battery_mv: int = 0
+    battery_ma: int = 0
+    battery_pct: int = -1
 
 
 @dataclass(frozen=True)

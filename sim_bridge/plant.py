@@ -24,12 +24,14 @@ import numpy as np
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
+from sim_bridge.battery import Battery
 from sim_bridge.motors import MotorDriver, MotorParams
 from sim_bridge.profiles import PlantProfile
 from sim_bridge.sensors import RangeParams, RangeSensors, WheelEncoders, bumper_signals
 from sim_bridge.world import BodyParams, Pose, World
 
 STEPS_PER_TICK = robot_spec.CONTROL_PERIOD_US // robot_spec.PHYSICS_DT_US
+BATTERY_EVERY_TICKS = robot_spec.CONTROL_RATE_HZ // 2  # BatteryStatus at 2 Hz
 TRAJECTORY_FIELDS = ("t_s", "tick", "x_m", "y_m", "heading_rad", "wheel_left_mm_s",
                      "wheel_right_mm_s", "cmd_left_mm_s", "cmd_right_mm_s", "bumper")
 
@@ -96,6 +98,7 @@ class Plant:
         self.encoders = WheelEncoders(self.world, random.Random(seeds.getrandbits(64)),
                                       config.encoder_slip_std, config.encoder_scale)
         self.motors = MotorDriver(config.motors)
+        self.battery = Battery()
         self.tick = 0
         self.time_us = 0
         self.stats = RunStats()
@@ -116,6 +119,8 @@ class Plant:
         frames.append(cp.encoder_counts(left, right, self.tick))
         frames.append(cp.encode("Bumper", bumper_signals(self.world, self.tick)))
         frames.append(cp.encode("MotorStatus", self.motors.status(self.tick)))
+        if self.tick % BATTERY_EVERY_TICKS == 0:  # the power board reports at 2 Hz
+            frames.append(cp.encode("BatteryStatus", self.battery.status(self.tick // BATTERY_EVERY_TICKS)))
         frames.append(cp.sim_tick(self.tick, self.time_us))
         for f in frames:
             f.timestamp = t_s
@@ -182,6 +187,7 @@ class Plant:
         for _ in range(STEPS_PER_TICK):
             self.time_us += dt_us
             left, right = motors.step(dt_us, self.time_us)
+            self.battery.step(dt_s, left, right)
             world.drive(left / 1000, right / 1000)
             encoders.integrate(dt_s)  # pymunk moves the body by its pre-step velocity
             world.step(dt_s)

@@ -62,6 +62,9 @@ from firmware_py.vehicle import (
 
 log = logging.getLogger("qnav.controller")
 
+BATTERY_TIMEOUT_US = 5_000_000  # the power board reports at 2 Hz
+
+
 class Controller(ControlState):
     """The control state machine; implements vehicle.VehicleControl."""
 
@@ -93,7 +96,15 @@ class Controller(ControlState):
                 odom_x_mm=self.odom.x_mm, odom_y_mm=self.odom.y_mm, odom_heading_mrad=self.odom.heading_mrad,
                 localiser=("off" if self.loc is None else "global" if self.loc.global_mode else "tracking"),
                 localised=self.loc is None or self.loc.localised,
-                pose_std_mm=(round(std[0]), round(std[1])), pose_std_mrad=round(std[2]))
+                pose_std_mm=(round(std[0]), round(std[1])), pose_std_mrad=round(std[2]),
+                **self._battery(inp))
+
+    def _battery(self, inp: Inputs) -> dict[str, int]:
+        """The last BatteryStatus, or unknown when none came within BATTERY_TIMEOUT_US (a board that fell
+        silent must not show a full battery forever)."""
+        if inp.battery_us is None or self._now - inp.battery_us > BATTERY_TIMEOUT_US:
+            return {}
+        return {"battery_mv": inp.battery_mv, "battery_ma": inp.battery_ma, "battery_pct": inp.battery_pct}
 
     def _map_mm(self) -> tuple[int, int] | None:
         """The robot's map extent in world mm (x east, y north, from 0): the

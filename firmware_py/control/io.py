@@ -44,6 +44,11 @@ class Inputs:
     driver_us: int | None = None
     estop: bool = False  # an EStop frame from another node engaged it
     estop_us: int | None = None
+    # the power board's BatteryStatus (none on a robot without one: telemetry says unknown)
+    battery_mv: int = 0
+    battery_ma: int = 0
+    battery_pct: int = -1
+    battery_us: int | None = None
     # rolling counter of the last frame per sensor input ("ranges0", "ranges1",
     # "enc", "bumper"); absent: the sender carries none (only stamps count then)
     counters: dict[str, int] = field(default_factory=dict)

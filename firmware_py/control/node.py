@@ -111,6 +111,10 @@ class InputTracker:
                 inp.driver_left_mm_s = sig["Mot_LeftSpeed"]
                 inp.driver_right_mm_s = sig["Mot_RightSpeed"]
                 key = "driver"
+            elif name == "BatteryStatus":
+                inp.battery_mv, inp.battery_ma = sig["Bat_Voltage"], sig["Bat_Current"]
+                inp.battery_pct = min(100, sig["Bat_Remaining"])
+                key = "battery"
             elif name == "EStop" and sig["EStop_Source"] != proto.NODE_CONTROLLER:
                 inp.estop = bool(sig["EStop_Engage"])
                 key = "estop"

@@ -26,6 +26,7 @@ from firmware_py.vehicle import CtrlState, Mode, VehicleEvent, VehicleStatus
 
 M = mavlink2
 UINT16_MAX = 0xFFFF
+INT16_MAX = 0x7FFF  # BATTERY_STATUS.temperature: unknown
 OBSTACLE_SECTORS = 72
 OBSTACLE_INCREMENT_DEG = 5
 STATUSTEXT_LEN = 50
@@ -36,6 +37,7 @@ STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: "1hz",
     M.MAVLINK_MSG_ID_SYS_STATUS: "1hz",
     M.MAVLINK_MSG_ID_CURRENT_MODE: "1hz",  # Standard Modes (below)
+    M.MAVLINK_MSG_ID_BATTERY_STATUS: "1hz",  # only once the power board was heard (BatteryStatus frame)
     # the robot's two clocks: time_boot_ms (its control clock, sim time in HIL) and its wall clock
     M.MAVLINK_MSG_ID_SYSTEM_TIME: "1hz",
     M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "pos",
@@ -214,9 +216,12 @@ class Telemetry:
             if st.state != CtrlState.FAULT:
                 health |= M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
             drop_rate = 0 if stats.rx_total == 0 else min(10_000, stats.rx_dropped * 10_000 // stats.rx_total)
+            known = st.battery_pct >= 0
             return [m.sys_status_encode(
                 SENSOR_PRESENT, SENSOR_PRESENT, health, min(1000, stats.load_permille),
-                UINT16_MAX, -1, -1, drop_rate, min(UINT16_MAX, stats.rx_dropped),
+                min(UINT16_MAX - 1, st.battery_mv) if known else UINT16_MAX,
+                max(-32767, min(32767, st.battery_ma // 10)) if known else -1,
+                st.battery_pct if known else -1, drop_rate, min(UINT16_MAX, stats.rx_dropped),
                 min(UINT16_MAX, st.can_errors), min(UINT16_MAX, st.tick_overruns),
                 min(UINT16_MAX, stats.signing_dropped), 0)]
         if msg_id == M.MAVLINK_MSG_ID_SYSTEM_TIME:
@@ -264,6 +269,13 @@ class Telemetry:
         if msg_id in (M.MAVLINK_MSG_ID_ESTIMATOR_STATUS, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV,
                       M.MAVLINK_MSG_ID_ODOMETRY):
             return [self.localisation(msg_id, now_us, st)]
+        if msg_id == M.MAVLINK_MSG_ID_BATTERY_STATUS:
+            if st.battery_pct < 0:
+                return []  # no power board heard: nothing to report (SYS_STATUS says unknown)
+            cells = [min(UINT16_MAX - 1, st.battery_mv)] + [UINT16_MAX] * 9  # pack voltage in cell 0
+            return [m.battery_status_encode(0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO, INT16_MAX,
+                                            cells, max(-32767, min(32767, st.battery_ma // 10)), -1, -1,
+                                            st.battery_pct)]
         if msg_id == MSG_ID_PROTOCOL_VERSION:  # MAVLink 2 only (version 2.0: 200)
             return [extra.module().MAVLink_protocol_version_message(200, 200, 200, [0] * 8, [0] * 8)]
         if msg_id == MSG_ID_COMPONENT_METADATA:  # none without a storage (no FTP server to serve it)
