@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -93,13 +94,14 @@ def _rows(eps: list[Episode], outcome: np.ndarray, path: np.ndarray, steps: np.n
 
 def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
             progress: Callable[[], None] | None = None, max_sim_s: float | None = None,
-            index_offset: int = 0, step_cpu: bool = False) -> list[dict]:
+            index_offset: int = 0, step_cpu: bool = False, vehicle: Any = None) -> list[dict]:
     """Each episode on the lockstep rig with its obstacles in the pymunk world.
 
     Episode i of the list runs with plant seed `ep.seed + index_offset + i`:
     a slice of a longer list passes its offset and gets the same rows.
     `step_cpu`: add each tick's Controller.step CPU time (`qnav bench
-    controller`; a timing, so never in `qnav bench nav`'s reproducible rows)."""
+    controller`; a timing, so never in `qnav bench nav`'s reproducible rows).
+    `vehicle`: the robot's VehicleConfig (default: its parameters' defaults)."""
     from ground_station.rigs.lockstep import LockstepRig
     from sim_bridge.obstacles import ObstacleLayer
 
@@ -117,7 +119,8 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
         near = 0
         minclear = math.inf
         driven = 0.0
-        with LockstepRig(gm.occ, policies[ep.map], start, goals, seed=ep.seed + index_offset + i) as rig:  # type: ignore[arg-type]
+        with LockstepRig(gm.occ, policies[ep.map], start, goals, seed=ep.seed + index_offset + i,  # type: ignore[arg-type]
+                         vehicle=vehicle) as rig:
             layer = ObstacleLayer(rig.plant.world, ep.discs, ep.movers)
             rig.plant.obstacles = layer  # movers move at the end of every period, as in the twin
             end_us = round(limit * 1e6)

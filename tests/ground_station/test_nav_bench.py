@@ -78,7 +78,9 @@ def test_hil_episodes_with_obstacles_on_the_lockstep_rig():
 
 def test_hil_counts_a_drive_into_a_disc_as_a_collision():
     """An episode with a disc right on the first leg and the seek table, which
-    ignores ranges: the bumper must register it."""
+    ignores ranges: the bumper must register it (with the robot's collision monitor off; on, it
+    stops short of the disc and the episode is no collision)."""
+    from firmware_py.vehicle import VehicleConfig
     from ground_station.nav.scenario import Episode
 
     gm = load_map("paper10")
@@ -87,9 +89,11 @@ def test_hil_counts_a_drive_into_a_disc_as_a_collision():
                  waypoints=[(1750.0, 4750.0)], discs=[(1000.0, 4750.0, 150.0)], movers=[])
     pol = load_policy(str(shipped_policy("sector")))
     seek = nc.standard_controllers(pol, ("seek",))[0]
-    hil = run_hil([ep], {"paper10": gm}, seek)[0]
+    hil = run_hil([ep], {"paper10": gm}, seek, vehicle=VehicleConfig(collision_stop_mm=0, collision_slow_mm=0))[0]
     twin = run_twin([ep], {"paper10": gm}, seek)[0]
     assert hil["collision"] and not hil["success"] and hil["contacts"] >= 1
+    guarded = run_hil([ep], {"paper10": gm}, seek, max_sim_s=15.0)[0]
+    assert not guarded["collision"] and guarded["contacts"] == 0
     assert twin["outcome"] == "collision"
 
 

@@ -78,10 +78,19 @@ def test_sensor_cut_zeroes_commands_within_one_period_after_timeout():
 
 
 def test_bumper_stops_the_robot():
+    from firmware_py.vehicle import VehicleConfig
+
     goal = robot_spec.cell_center_mm(9, 9, H)
-    # facing the west outer wall, 100 mm away, with a policy that only drives forward
-    ep = run_episode(PAPER10.occ, forward_only_policy(), (*centre_m(0, 9), math.pi), [goal],
-                     max_sim_s=5, stop_when_done=False)
+    # facing the west outer wall, 100 mm away, with a policy that only drives forward: the collision
+    # monitor stops it short of the wall ...
+    start = (*centre_m(0, 9), math.pi)
+    ep = run_episode(PAPER10.occ, forward_only_policy(), start, [goal], max_sim_s=5, stop_when_done=False)
+    assert ep.contacts == 0 and ep.result != "stopped: bumper pressed"
+    assert all(c[1] == 0 and c[2] == 0 for c in ep.commands[-20:])  # held, not driving on
+    # ... and with the monitor off (CM_STOP_MM = CM_SLOW_MM = 0) the bumper does it
+    off = VehicleConfig(collision_stop_mm=0, collision_slow_mm=0)
+    ep = run_episode(PAPER10.occ, forward_only_policy(), start, [goal], max_sim_s=5, stop_when_done=False,
+                     vehicle=off)
     assert ep.contacts >= 1
     hold = [t for t in ep.transitions if t[3] == "bumper pressed"]
     assert hold and hold[0][1:3] == ("DRIVING", "HOLD")
