@@ -32,8 +32,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="output directory (default out/report-<tlog name>)")
     p.add_argument("--map", metavar="NAME|PATH", default=None,
                    help="map under the trajectory: built-in name, generator spec or .map path; 'none' for no "
-                        "map (default: the map in summary.json beside the tlog - a qnav demo run - else paper10; "
-                        "a warning names a map the run does not fit)")
+                        "map (default: the map in summary.json beside the tlog - a qnav demo run - else none, "
+                        "with a note; a warning names a map the run does not fit)")
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size in metres (default 0.5)")
     p.add_argument("--json", action="store_true", help="print the summary JSON instead of a short text summary")
     p.add_argument("--target-system", type=int, default=None, metavar="SYSID",
@@ -84,7 +84,11 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.cell_size <= 0:
         raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
-    map_spec = args.map or _run_map(Path(args.tlog)) or "paper10"
+    map_spec = args.map or _run_map(Path(args.tlog))
+    if map_spec is None:  # a tlog alone does not say its map: a blank field, not a guess drawn through walls
+        print("qnav report: no map given (and no qnav demo summary.json beside the tlog): the trajectory is "
+              "drawn on a blank field; give --map NAME|PATH", file=sys.stderr)
+        map_spec = "none"
     grid_map = _load_map(map_spec, args.cell_size)
     rec = analyse(args.tlog, progress=True, sysid=args.target_system, clock=args.clock)
     if rec.messages == 0:
@@ -112,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     ttg = summary["time_to_last_goal_s"]
     print(f"{args.tlog}: system {summary['vehicle_sysid']}, {summary['duration_s']:.1f} s ({summary['clock']}"
           f"; {summary['wall_duration_s']:.1f} s wall), "
-          f"last goal at {'-' if ttg is None else f'{ttg:.1f} s'} after arming")
+          f"last goal at {'-' if ttg is None else f'{ttg:.1f} s'} after the first move")
     print(f"  goals reached {summary['goals_reached']}, "
           f"path {summary['path_length_m']:.2f} m, stops {summary['stops']}, faults {summary['faults']}, "
           f"link loss {summary['link']['loss_pct']:.1f}%")

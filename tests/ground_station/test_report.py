@@ -88,10 +88,14 @@ def _qnav(*args):
 
 
 def test_cli_writes_report_and_prints_json(full_tlog, tmp_path):
-    r = _qnav("report", str(full_tlog), "--out", str(tmp_path / "rep"), "--json")
+    r = _qnav("report", str(full_tlog), "--out", str(tmp_path / "rep"), "--json", "--map", "paper10")
     assert r.returncode == 0, r.stderr
     s = json.loads(r.stdout)
     assert s["goals_reached"] == 2 and s["map"] == "paper10"
+    # issue 30 item 4: a tlog alone does not say its map: no guess (paper10 was drawn under any run)
+    bare = _qnav("report", str(full_tlog), "--out", str(tmp_path / "bare"), "--json")
+    assert bare.returncode == 0 and json.loads(bare.stdout)["map"] is None
+    assert "no map given" in bare.stderr and "give --map" in bare.stderr
     assert sorted(p.name for p in (tmp_path / "rep").iterdir()) == [
         "actions.png", "distance_to_goal.png", "summary.json", "timing.png", "trajectory.png"]
 
