@@ -49,8 +49,22 @@ _HIL = "a hub + qnav-sim + qnav-robot bring-up on fixed ports; the same commands
 _VCAN = "needs kernel CAN (vcan0/can0); none on this host (tests/hil/test_hil_transports.py runs it in user-mode Linux)"
 _ROBOT = "a real robot on a radio or CAN bus"
 # documented lines (or their prefix) not run here, and why; they are still parsed
+_WALK = "docs/walkthrough.md's steps, run in order as a new user runs them by tests/hil/test_walkthrough.py"
 NOT_RUN = {
     "make demo": "installs into the shared venv; `qnav demo` runs in tests/hil/test_demo.py",
+    "make venv": "the venv this test runs in",
+    "qnav train --map warehouse.map": _WALK,
+    "qnav eval runs/warehouse": _WALK,
+    "qnav export runs/warehouse": _WALK,
+    "qnav sitl --map warehouse.map": _WALK,
+    "qnav upload warehouse.qtab": _WALK,
+    "qnav mission upload --targets B,C,D": _WALK,
+    "qnav arm": _WALK,
+    "qnav mode auto": _WALK,
+    "qnav mode manual": "Manual mode and `qnav drive` in tests/hil/test_sitl.py (a pty for the keys)",
+    "qnav drive": "Manual mode and `qnav drive` in tests/hil/test_sitl.py (a pty for the keys)",
+    "qnav monitor --plain --duration 30": _WALK,
+    "qnav report runs/mission.tlog": _WALK,
     "make test": "the test suite itself",
     "qnav study --map maze-15x15-s2": "the same study on a second map (~25 s); `qnav study --out out/study` "
                                       "above runs the same code",

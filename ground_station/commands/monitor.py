@@ -64,8 +64,10 @@ def _load_map(spec: str, cell_size: float):
 
 def open_source(args):
     """The message source the flags ask for (ReplaySource or LiveSource)."""
+    import argparse
+
     from ground_station.errors import CliError
-    from ground_station.mavlink.link import DEFAULT_URL
+    from ground_station.mavlink.link import _url_arg, default_url
     from ground_station.monitor.sources import ReplaySource, open_live
 
     if args.replay:
@@ -80,7 +82,10 @@ def open_source(args):
         return ReplaySource(args.replay, speed=args.speed), f"replay {os.path.basename(args.replay)} x{args.speed:g}"
     if args.tlog and args.no_tlog:
         raise CliError("--tlog and --no-tlog contradict each other")
-    url = args.mavlink or DEFAULT_URL
+    try:
+        url = args.mavlink or _url_arg(default_url())
+    except argparse.ArgumentTypeError as exc:
+        raise CliError(f"--mavlink: {exc}") from None
     tlog = False if args.no_tlog else args.tlog
     try:
         source = open_live(url, tlog=tlog, signing_key=args.signing_key, target_system=args.target_system,

@@ -76,6 +76,7 @@ def mavlink():
     return mavutil().mavlink
 
 
+ENV_URL = "QNAV_MAVLINK"  # the environment's default for --mavlink (add_link_args)
 URL_SCHEMES = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin", "mcast")
 WAIT_NOTICE_S = 1.0  # say what we wait for once a wait has lasted this long
 
@@ -104,9 +105,16 @@ def check_url(url: str) -> str | None:
             f"{'|'.join(s for s in URL_SCHEMES if s != 'mcast')}:HOST:PORT or a serial device")
 
 
+def default_url() -> str:
+    """The link a command uses without --mavlink: $QNAV_MAVLINK when set, else DEFAULT_URL."""
+    return os.environ.get(ENV_URL) or DEFAULT_URL
+
+
 def _url_arg(value: str) -> str:
     problem = check_url(value)
     if problem is not None:
+        if value == os.environ.get(ENV_URL) and value != DEFAULT_URL:
+            problem = f"{problem} (from ${ENV_URL})"
         raise argparse.ArgumentTypeError(problem)
     return value
 
@@ -152,9 +160,14 @@ def add_link_args(parser: argparse.ArgumentParser, *, timeout_s: float = DEFAULT
 
     `--timeout` is the heartbeat wait unless the command gives it a wider
     meaning (`timeout_s`, `timeout_help`: `qnav upload`'s whole budget).
-    The URL is checked when parsed (one-line error, exit 2)."""
+    The URL is checked when parsed (one-line error, exit 2). `QNAV_MAVLINK` in the environment
+    replaces the default URL (a session's robot, set once: `export QNAV_MAVLINK=udpout:127.0.0.1:14555`);
+    it is checked like the option."""
+    if url_default == DEFAULT_URL:
+        url_default = default_url()
     parser.add_argument("--mavlink", metavar="URL", default=url_default, type=_url_arg,
-                        help=f"pymavlink connection string (default {DEFAULT_URL}; udpout:, tcp:, serial also)")
+                        help=f"pymavlink connection string (default {DEFAULT_URL}, or ${ENV_URL} when set; "
+                             "udpout:, tcp:, serial also)")
     parser.add_argument("--signing-key", metavar="FILE", default=None,
                         help="MAVLink 2 signing key file (32 bytes, 64 hex chars or a passphrase)")
     tl = parser.add_mutually_exclusive_group()
