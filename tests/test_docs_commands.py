@@ -59,8 +59,6 @@ NOT_RUN = {
     "qnav sitl --map warehouse.map": _WALK,
     "qnav upload warehouse.qtab": _WALK,
     "qnav mission upload --targets B,C,D": _WALK,
-    "qnav arm": _WALK,
-    "qnav mode auto": _WALK,
     "qnav mode manual": "Manual mode and `qnav drive` in tests/hil/test_sitl.py (a pty for the keys)",
     "qnav drive": "Manual mode and `qnav drive` in tests/hil/test_sitl.py (a pty for the keys)",
     "qnav monitor --plain --duration 30": _WALK,

@@ -102,6 +102,23 @@ def is_network_url(url: str) -> bool:
     return url.lower().startswith(NETWORK_PREFIXES) or ":" in url.split("/")[0]
 
 
+RC_TRIM_US, RC_SPAN_US = 1500, 400  # ArduPilot Rover's RC defaults: 1100..1900 us, 1500 neutral
+
+
+def sticks_of_rc(steering_us: int, throttle_us: int) -> tuple[int, int] | None:
+    """(x, r) MANUAL_CONTROL sticks from RC_CHANNELS_OVERRIDE channel 1 (steering, right = clockwise)
+    and channel 3 (throttle), as ArduPilot Rover maps them; None when both are released (0) or
+    ignored (UINT16_MAX): then it is no sample, and the deadman stops the wheels."""
+    def axis(us: int) -> int | None:
+        if us in (0, 0xFFFF):
+            return None
+        return max(-1000, min(1000, (int(us) - RC_TRIM_US) * 1000 // RC_SPAN_US))
+    r, x = axis(steering_us), axis(throttle_us)
+    if r is None and x is None:
+        return None
+    return x or 0, r or 0
+
+
 def robot_uid(storage_dir: Path | None) -> tuple[int, str]:
     """The robot's 64-bit id for AUTOPILOT_VERSION.uid, made once (random) and
     kept in its storage (firmware_py.storage.UID_FILE), so a ground station
@@ -275,6 +292,11 @@ class MavNode:
         if kind == "MANUAL_CONTROL":  # sticks for Manual mode (control/manual.py); no reply, as ArduPilot
             if msg.target in (0, self.sysid):
                 self.vehicle.manual_control(int(msg.x), int(msg.r), now_us)
+            return []
+        if kind == "RC_CHANNELS_OVERRIDE":  # MAVProxy's `rc` and joystick module, as for ArduPilot Rover
+            sticks = sticks_of_rc(msg.chan1_raw, msg.chan3_raw)
+            if msg.target_system in (0, self.sysid) and sticks is not None:
+                self.vehicle.manual_control(*sticks, now_us)
             return []
         if self.signing.key is not None and not self.signing.last_signed and kind in SIGNED_ONLY:
             # SIGN_REQUIRE=0 relaxes commands, never key changes or file access

@@ -112,3 +112,20 @@ def test_protocol_version_and_component_metadata_with_the_parameter_json(tmp_pat
     no_storage = Link(tmp_path / "other")  # storage, but no FTP server to serve it from
     assert of([x for x in _raw_replies(no_storage, m.MAV_CMD_REQUEST_MESSAGE, 397)], "COMMAND_ACK")[0].result == \
         m.MAV_RESULT_DENIED
+
+
+def test_rc_channels_override_drives_manual_as_for_ardupilot_rover():
+    """MAVProxy's `rc` command and joystick module send RC_CHANNELS_OVERRIDE: channel 3 throttle,
+    channel 1 steering (1100..1900 us, 1500 neutral) become Manual's sticks; released channels are
+    no sample (the deadman stops the wheels)."""
+    from firmware_py.mavlink.node import sticks_of_rc
+
+    assert sticks_of_rc(1500, 1700) == (500, 0) and sticks_of_rc(1900, 1100) == (-1000, 1000)
+    assert sticks_of_rc(2200, 1500) == (0, 1000)  # beyond the span: clamped
+    assert sticks_of_rc(0, 0) is None and sticks_of_rc(0xFFFF, 0xFFFF) is None
+    link = Link()
+    seen = []
+    link.vehicle.manual_control = lambda x, r, now_us: seen.append((x, r)) or True  # type: ignore[method-assign]
+    link.send(link.gcs.rc_channels_override_encode(1, 1, 1500, 0, 1700, 0, 0, 0, 0, 0))
+    link.send(link.gcs.rc_channels_override_encode(7, 1, 1500, 0, 1700, 0, 0, 0, 0, 0))  # another system's
+    assert seen == [(500, 0)]

@@ -343,3 +343,84 @@ def test_qnav_drive_in_a_terminal_moves_the_robot_and_q_holds(tmp_path):
     assert driven and max(r[2] for r in driven) == pytest.approx(0.4 * VehicleConfig().max_wheel_speed_mm_s, abs=1)
     assert math.hypot(driven[-1][0] - driven[0][0], driven[-1][1] - driven[0][1]) > 0.2
     assert rows[-1][2] == rows[-1][3] == 0.0  # Hold: stopped
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_mavproxy_rc_drives_manual_and_a_pymavlink_gcs_gets_modes_and_parameter_metadata(tmp_path):
+    """Issue 30's acceptance on `qnav sitl`: MAVProxy `mode MANUAL`, `arm throttle`, then `rc 3 1700`
+    (RC_CHANNELS_OVERRIDE, MAVProxy's rc module and joystick) drives the robot in the sim and
+    `rc 3 1500` stops it; then a plain pymavlink client (development dialect) gets AVAILABLE_MODES
+    listing the four modes, switches with DO_SET_STANDARD_MODE, and downloads the general and
+    parameter metadata JSON that COMPONENT_METADATA points at over MAVLink FTP."""
+    import json
+    import time
+
+    from pymavlink import mavftp, mavutil
+
+    from firmware_py.mavlink import extra
+    from firmware_py.mavlink.dialect import NAME
+    from firmware_py.vehicle import Mode
+
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
+    mp = conn = None
+    try:
+        master = sitl.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]
+        sitl.expect(r"Ctrl-C stops every process")
+        mp = MavProxy(master, tmp_path, modules="mode,arm,rc")
+        mp.expect(r"Detected vehicle 1:1", 30)
+        mp.send("mode MANUAL")
+        mp.expect(r"MANUAL", 30)
+        mp.send("arm throttle")
+        mp.expect(r"COMPONENT_ARM_DISARM: ACCEPTED", 30)
+        mp.send("rc 3 1700")  # half throttle (1500 neutral, 1900 full)
+        time.sleep(3.0)
+        mp.send("rc 3 1500")
+        time.sleep(2.0)
+        mp.close()
+        mp = None
+        conn = mavutil.mavlink_connection(master, source_system=255, source_component=27, dialect=NAME)
+        conn.mav.heartbeat_send(6, 8, 0, 0, 0)
+        assert conn.wait_heartbeat(timeout=30) is not None
+        m = conn.mav
+        m.command_long_send(1, 1, 512, 0, 435, 0, 0, 0, 0, 0, 0)  # REQUEST_MESSAGE AVAILABLE_MODES
+        modes = {}
+        deadline = time.monotonic() + 10
+        while len(modes) < 4 and time.monotonic() < deadline:
+            msg = conn.recv_match(type="AVAILABLE_MODES", blocking=True, timeout=1)
+            if msg is not None:
+                modes[msg.custom_mode] = (msg.standard_mode, msg.mode_name, msg.number_modes)
+        assert sorted(modes) == sorted(int(x) for x in Mode), modes
+        assert modes[int(Mode.AUTO)][0] == 6 and modes[int(Mode.MANUAL)][1] == "Manual"
+        m.command_long_send(1, 1, 262, 0, 1, 0, 0, 0, 0, 0, 0)  # DO_SET_STANDARD_MODE POSITION_HOLD
+        ack = conn.recv_match(type="COMMAND_ACK", condition="COMMAND_ACK.command==262", blocking=True, timeout=10)
+        assert ack is not None and ack.result == 0, ack
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            cur = conn.recv_match(type="CURRENT_MODE", blocking=True, timeout=1)
+            if cur is not None and cur.custom_mode == int(Mode.HOLD):
+                break
+        else:
+            raise AssertionError("CURRENT_MODE never said Hold")
+        ftp = mavftp.MAVFTP(conn, 1, 1)
+        general = json.loads(bytes(ftp.read("/metadata/general.json", 1 << 20)))
+        uri = general["metadataTypes"][0]["uri"]
+        assert uri.startswith("mftp://")
+        params = json.loads(bytes(ftp.read(uri[len("mftp://"):], 1 << 20)))["parameters"]
+        tol = next(p for p in params if p["name"] == "GOAL_TOL_MM")
+        assert tol["units"] == "mm" and "goal counts as reached" in tol["shortDesc"]
+        assert extra.module() is not None  # COMPONENT_METADATA's own frame: tests/firmware_py/test_gcs_messages.py
+    finally:
+        if mp is not None:
+            mp.close()
+        if conn is not None:
+            conn.close()
+        sitl.stop(signal.SIGINT)
+    with open(sitl.out / "trajectory.csv", newline="") as f:
+        rows = [(float(r["t_s"]), float(r["x_m"]), float(r["y_m"]), float(r["cmd_left_mm_s"]))
+                for r in csv.DictReader(f)]
+    moving = [r for r in rows if r[3] > 0]
+    assert moving, "rc 3 1700 never moved the robot"
+    assert math.hypot(moving[-1][1] - moving[0][1], moving[-1][2] - moving[0][2]) > 0.2  # it drove
+    after = [r for r in rows if r[0] > moving[-1][0]]
+    assert after and all(r[3] == 0.0 for r in after)  # rc 3 1500: stopped, and stayed so
