@@ -81,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="goal in metres; repeat for a mission driven in order")
     p.add_argument("--goal-cell", action="append", default=[], metavar="COL,ROW",
                    help="goal at a map cell's centre; repeatable")
+    p.add_argument("--map", metavar="FILE.map",
+                   help="the robot's own map (MovingAI .map, --cell-size cells): a policy carrying another map "
+                        "is refused, naming both (qnav sitl passes the map it simulates)")
     p.add_argument("--map-height", type=int, metavar="H",
                    help="map rows, for --start-cell/--goal-cell with a sector policy (cell policies know it)")
     p.add_argument("--cell-size", type=float, metavar="M", help="cell size in metres (default: the policy's, else 0.5)")
@@ -117,7 +120,8 @@ def _policy_cell_mm(args: argparse.Namespace, policy: Policy | None) -> int:
 def _fits(args: argparse.Namespace, policy: Policy) -> str:
     """Why `policy` does not fit this command line's robot ('' if it does)."""
     from firmware_py.policy import config_mismatch
-    why = config_mismatch(policy, robot_spec.control_period_us(args.rate), _policy_cell_mm(args, policy))
+    why = config_mismatch(policy, robot_spec.control_period_us(args.rate), _policy_cell_mm(args, policy),
+                          getattr(args, "robot_map", None))
     height = policy.map_geometry.height
     fixed = kinds.of_policy(policy).fixed_geometry(policy.encoder, policy.cell_mm)  # a cell policy's own grid
     if not why and args.map_height and fixed is not None and height != args.map_height:
@@ -180,6 +184,15 @@ def run(args: argparse.Namespace) -> int:
     why = robot_spec.control_rate_error(args.rate)
     if why:
         raise UsageError(f"--rate {args.rate}: {why}")
+    args.robot_map = None
+    if args.map:
+        from firmware_py.mapdata import MapDataError, grid_from_map_file
+
+        map_cell_mm = round(float(args.cell_size) * 1000) if args.cell_size else robot_spec.DEFAULT_CELL_SIZE_MM
+        try:
+            args.robot_map = grid_from_map_file(args.map, map_cell_mm)
+        except MapDataError as exc:
+            raise UsageError(f"--map {exc}") from None
     policy = _load_policy(args)
     cell_mm = _policy_cell_mm(args, policy)
     fixed = kinds.of_policy(policy).fixed_geometry(policy.encoder, policy.cell_mm) if policy is not None else None
@@ -208,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
     sim = args.lockstep or args.sim_clock
     clock = SimClock() if sim else WallClock()
     ctrl = Controller(cfg, policy, start_pose_mm=start, lockstep=args.lockstep, localise=args.localiser == "on")
+    ctrl.robot_map = args.robot_map
     try:
         bus = open_bus(args.can)
     except CanSpecError as exc:

@@ -116,3 +116,46 @@ def grid_from_metadata(metadata: dict[str, Any], cell_mm: int, width: int, heigh
         raise MapDataError(f"{META_KEY} is {grid.width}x{grid.height} cells but the header's map geometry "
                            f"is {width}x{height}")
     return grid
+
+
+def grid_from_map_file(path: str, cell_mm: int) -> OccupancyGrid:
+    """The robot's own map from a MovingAI `.map` file (`type`, `height H`, `width W`, `map`, then H
+    rows; `. G S` free, `@ O T W` walls; what `qnav` trains on): `qnav-robot --map FILE`. Raises
+    MapDataError with the file and line of the first problem; the same bounds as a policy's grid."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = [ln.rstrip("\r\n") for ln in f]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MapDataError(f"{path}: cannot read: {exc}") from None
+    header: dict[str, str] = {}
+    i = 0
+    while i < len(lines) and lines[i].strip() != "map":
+        key, _, value = lines[i].strip().partition(" ")
+        header[key] = value.strip()
+        i += 1
+    try:
+        height, width = int(header["height"]), int(header["width"])
+    except (KeyError, ValueError):
+        raise MapDataError(f"{path}: no 'height H' and 'width W' lines before 'map'") from None
+    rows = lines[i + 1:i + 1 + height]
+    if i >= len(lines) or len(rows) != height:
+        raise MapDataError(f"{path}: {len(rows)} map rows after 'map', the header says {height}")
+    for n, row in enumerate(rows):
+        if len(row) != width:
+            raise MapDataError(f"{path}:{i + 2 + n}: {len(row)} cells, the header says {width}")
+        bad = next((ch for ch in row if ch not in ".GS@OTW"), None)
+        if bad is not None:
+            raise MapDataError(f"{path}:{i + 2 + n}: unknown character {bad!r} (free: . G S, wall: @ O T W)")
+    rows = ["".join(FREE if ch in ".GS" else "@" for ch in row) for row in rows]
+    try:
+        return grid_from_rows(rows, cell_mm)
+    except MapDataError as exc:
+        raise MapDataError(f"{path}: {exc}") from None
+
+
+def same_grid(a: OccupancyGrid, b: OccupancyGrid) -> bool:
+    return (a.cell_mm, a.width, a.height, a.occ) == (b.cell_mm, b.width, b.height, b.occ)
+
+
+def describe(grid: OccupancyGrid) -> str:
+    return f"{grid.width}x{grid.height} cells of {grid.cell_mm} mm"

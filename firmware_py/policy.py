@@ -52,7 +52,7 @@ from firmware_py.kinds.base import PAIR as _PAIR
 from firmware_py.kinds.base import Encoder, PolicyKind
 from firmware_py.localplan import META_KEY as PLANNER_KEY
 from firmware_py.localplan import LocalPlannerConfig
-from firmware_py.mapdata import MapDataError, OccupancyGrid, grid_from_metadata
+from firmware_py.mapdata import MapDataError, OccupancyGrid, describe, grid_from_metadata, same_grid
 
 # --- format constants ---------------------------------------------------------
 MAGIC = b"QTAB"
@@ -350,7 +350,7 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
                   map_geometry=geometry, map_grid=grid, local_planner=planner)
 
 
-def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int) -> str:
+def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, robot_map: Any = None) -> str:
     """Why `policy` must not run on a robot with this control period and map
     cell size ('' if it may), naming both values.
 
@@ -360,12 +360,18 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int) -
     the robot's (CELL_SIZE_MM / `--cell-size`). A sector policy observes
     ranges and bearings in mm and mrad, not cells: the training map's
     geometry it records is for the ground station and is not checked.
+    A robot given its own map (`qnav-robot --map FILE`, `robot_map`) refuses a
+    policy carrying another: it would localise and plan on the wrong world.
     """
     if policy.control_period_us != control_period_us:
         return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
     cell_mm = kinds.of_policy(policy).robot_cell_mm(policy)
     if cell_mm is not None and cell_mm != cell_size_mm:
         return f"policy cell size {cell_mm} mm != robot {cell_size_mm} mm"
+    if robot_map is not None and policy.map_grid is not None and not same_grid(policy.map_grid, robot_map):
+        name = policy.metadata.get("map") if isinstance(policy.metadata, dict) else None
+        return (f"policy map {name or ''} ({describe(policy.map_grid)}) is not the robot's map "
+                f"({describe(robot_map)})").replace("map  (", "map (")
     return ""
 
 

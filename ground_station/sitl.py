@@ -231,7 +231,13 @@ class Sitl:
         sim_argv = qnav_sim("--map", opts.map_name, "--can", can_spec, *pace,
                             "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
                             "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q")
+        # the robot knows the world it is in (a policy for another map is refused, naming both)
+        from ground_station.maps import load_map, write_map
+
+        world = load_map(opts.map_name)
+        write_map(run_dir / "map.map", world)
         robot_argv = qnav_robot("--can", can_spec, "--lockstep" if opts.lockstep else "--sim-clock", "--start", start,
+                                "--map", run_dir / "map.map", "--cell-size", f"{world.cell_size_m:g}",
                                 "--storage", run_dir / "robot",
                                 "--mavlink", opts.mavlink, "--mavlink-autopilot", opts.autopilot,
                                 "--stats-json", run_dir / "robot_stats.json")

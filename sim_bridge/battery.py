@@ -54,5 +54,5 @@ class Battery:
         return max(0.0, open_circuit_volts(self.soc, p.cells) - self.current_ma / 1000.0 * p.internal_ohm)
 
     def status(self, counter: int) -> dict[str, int]:
-        return {"Bat_Voltage": round(self.volts * 1000), "Bat_Current": round(self.current_ma / 10) * 10,
+        return {"Bat_Voltage": round(self.volts * 1000), "Bat_Current": max(-32768, min(32767, round(self.current_ma))),
                 "Bat_Remaining": round(self.soc * 100), "Bat_Counter": counter & 0xFF}

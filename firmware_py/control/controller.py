@@ -245,7 +245,7 @@ class Controller(ControlState):
         with self._lock:
             if self.policy is None:
                 return True, ""
-            why = config_mismatch(self.policy, cfg.control_period_us, cfg.cell_size_mm)
+            why = config_mismatch(self.policy, cfg.control_period_us, cfg.cell_size_mm, self.robot_map)
             return (False, why) if why else (True, "")
 
     def apply_config(self, cfg: VehicleConfig) -> None:
@@ -319,7 +319,7 @@ class Controller(ControlState):
         with self._lock:
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
-            why = config_mismatch(new, self.cfg.control_period_us, self.cfg.cell_size_mm)
+            why = config_mismatch(new, self.cfg.control_period_us, self.cfg.cell_size_mm, self.robot_map)
             if why:
                 return False, why
             why = Route.refusal(self.route.items, lambda x, y: self._goal_index_for(x, y, new), "mission item")

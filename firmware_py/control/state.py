@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections import deque
+from typing import Any
 
 from firmware_py import kinds
 from firmware_py.background import Background
@@ -58,6 +59,9 @@ class ControlState:
         # the active kind's off-tick work (the local planner's search): stepped by the node between
         # lockstep ticks (reproducible runs), a worker thread otherwise (firmware_py.background)
         self.background = Background(threaded=not lockstep)
+        # the robot's own map (qnav-robot --map FILE; mapdata.OccupancyGrid): a policy carrying another is
+        # refused at boot and activation (policy.config_mismatch). None: the policy's map is taken as is
+        self.robot_map: Any = None
         self.policy = policy
         self.last_known_good: Policy | None = None
         self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS)
