@@ -37,3 +37,29 @@ def test_uncreatable_folder_is_a_one_line_error_before_the_run(tmp_path):
     assert len(errors) == 1 and errors[0].startswith("qnav-sim: error: --log file/can.blf: cannot create folder file"), \
         out.stderr
     assert "ticks" not in out.stdout  # refused before any tick ran
+
+
+def test_trajectory_png_says_it_is_the_whole_run_and_names_every_mark(tmp_path, monkeypatch):
+    """Issue 30 item 7: the demo's PNG title gave the sim's whole run (189.7 s) beside the summary's
+    mission time (82.7 s) without saying so, and its ray fan and robot circle had no legend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from sim_bridge.outputs import write_png
+    from sim_bridge.plant import Plant
+
+    saved: list[Figure] = []
+    real_savefig = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (saved.append(self), real_savefig(self, *a, **k))[1])
+    plant = Plant(np.zeros((4, 4), dtype=bool))
+    for _ in range(3):
+        plant.tick_frames()
+        plant.step_period()
+    write_png(plant, tmp_path / "t.png", {"A": (0.25, 0.25)}, title="m: whole run, 0.2 s of sim time")
+    ax = saved[-1].axes[0]
+    labels = set(ax.get_legend_handles_labels()[1])
+    assert {"trajectory", "start", "robot (end)"} <= labels and any(x.startswith("range ray") for x in labels), labels
+    assert ax.get_title() == "m: whole run, 0.2 s of sim time"
