@@ -41,6 +41,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hil", action="store_true", help="also run lockstep HIL episodes (pymunk plant, robot controller)")
     p.add_argument("--hil-episodes", type=int, default=50,
                    help="HIL episodes per controller, spread over the maps (default %(default)s)")
+    p.add_argument("--profile", choices=("ideal", "realistic"), default=None,
+                   help="--hil: the plant's profile (sim_bridge/profiles.py: 'realistic' adds wheel slip, a 3 %% "
+                        "encoder scale error and range dropouts; default: the sim's default config, as before)")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
                    help="the learnt sector policy (.qtab or policies:NAME; default %(default)s)")
@@ -71,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         EXTRA_CONTROLLERS,
         standard_controllers,
     )
-    from ground_station.nav.episodes import run_job, run_twin, summarise
+    from ground_station.nav.episodes import mcnemar_exact, run_job, run_twin, summarise
     from ground_station.nav.scenario import episodes
 
     known = CONTROLLER_NAMES + EXTRA_CONTROLLERS
@@ -126,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
                 for c in ctrls for name, eps in eps_by_map.items() for i in range(0, len(eps), args.batch)]
         out, stats = engine.map(run_job, jobs, desc="twin", unit="batch")
         campaign["twin"] = stats.as_dict()
+        twin_by: dict[str, list[dict]] = {}
         for c in ctrls:
             twin_rows = []
             for name in maps:
@@ -134,15 +138,23 @@ def run(args: argparse.Namespace) -> int:
                 twin_rows += r
                 result["per_map"].setdefault(name, {})[c.name] = summarise(r)
             result[c.name] = summarise(twin_rows)
+            twin_by[c.name] = twin_rows
+        if "learnt" in twin_by:  # the learnt table against each baseline, paired on the same episodes
+            result["paired_vs_learnt"] = {
+                c.name: dict(zip(("learnt_only", "baseline_only", "p_exact"),
+                                 mcnemar_exact(twin_by["learnt"], twin_by[c.name]).values(), strict=True))
+                for c in ctrls if c.name != "learnt"}
         if args.hil:
             names_list = list(maps)
             per = [args.hil_episodes // len(names_list) + (1 if i < args.hil_episodes % len(names_list) else 0)
                    for i in range(len(names_list))]
             hil_eps = [e for name, k in zip(names_list, per, strict=True) for e in eps_by_map[name][:k]]
             result["hil"] = {"episodes_per_map": dict(zip(names_list, per, strict=True)),
-                             "plant": "sim_bridge default SimConfig (pymunk, lockstep, sensor noise as qnav-sim)"}
+                             "plant": (f"sim_bridge profile '{args.profile}' (sim_bridge/profiles.py)" if args.profile
+                                       else "sim_bridge default SimConfig (pymunk, lockstep, sensor noise as qnav-sim)")}
             hb = max(1, args.batch // 50)
-            hjobs = [{**base, "kind": "hil", "controller": c.name, "episodes": hil_eps[i:i + hb], "offset": i}
+            hjobs = [{**base, "kind": "hil", "controller": c.name, "episodes": hil_eps[i:i + hb], "offset": i,
+                      "profile": args.profile}
                      for c in ctrls for i in range(0, len(hil_eps), hb)]
             hout, hstats = engine.map(run_job, hjobs, desc="hil", unit="batch")
             campaign["hil"] = {**hstats.as_dict(), "episode_wall_s": {}}
@@ -155,6 +167,10 @@ def run(args: argparse.Namespace) -> int:
     for c in ctrls:
         s = result[c.name]
         rows.append((f"twin {c.name}", _fmt(s)))
+    for other, t in result.get("paired_vs_learnt", {}).items():
+        rows.append((f"twin learnt vs {other}, paired",
+                     f"episodes won only by learnt {t['learnt_only']}, only by {other} {t['baseline_only']}; "
+                     f"exact McNemar p = {t['p_exact']:.2g}"))
     for name in maps:
         for c in ctrls:
             rows.append((f"  {name} {c.name}", _fmt(result["per_map"][name][c.name])))
@@ -178,11 +194,12 @@ def run(args: argparse.Namespace) -> int:
 def _fmt(s: dict) -> str:
     pr = s["path_ratio_mean"]
     tt = s["time_to_goal_mean_s"]
-    return (f"n={s['episodes']:5d} success {s['success_rate']:.3f} collision {s['collision_rate']:.3f} "
-            f"path ratio {pr:.3f} " if pr is not None else
-            f"n={s['episodes']:5d} success {s['success_rate']:.3f} collision {s['collision_rate']:.3f} "
-            "path ratio   -   ") + (f"time {tt:5.1f} s " if tt is not None else "time   -   ") + \
-        f"near-miss {s['near_miss_rate']:.3f}"
+    lo, hi = s["success_ci95"]
+    clo, chi = s["collision_ci95"]
+    return (f"n={s['episodes']:5d} success {s['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] "
+            f"collision {s['collision_rate']:.3f} [{clo:.3f}, {chi:.3f}] "
+            + (f"path ratio {pr:.3f} " if pr is not None else "path ratio   -   ")
+            + (f"time {tt:5.1f} s " if tt is not None else "time   -   ") + f"near-miss {s['near_miss_rate']:.3f}")
 
 
 def plot(result: dict, names: list[str]) -> bytes:

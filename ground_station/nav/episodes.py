@@ -94,14 +94,16 @@ def _rows(eps: list[Episode], outcome: np.ndarray, path: np.ndarray, steps: np.n
 
 def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
             progress: Callable[[], None] | None = None, max_sim_s: float | None = None,
-            index_offset: int = 0, step_cpu: bool = False, vehicle: Any = None) -> list[dict]:
+            index_offset: int = 0, step_cpu: bool = False, vehicle: Any = None,
+            profile: Any = None) -> list[dict]:
     """Each episode on the lockstep rig with its obstacles in the pymunk world.
 
     Episode i of the list runs with plant seed `ep.seed + index_offset + i`:
     a slice of a longer list passes its offset and gets the same rows.
     `step_cpu`: add each tick's Controller.step CPU time (`qnav bench
     controller`; a timing, so never in `qnav bench nav`'s reproducible rows).
-    `vehicle`: the robot's VehicleConfig (default: its parameters' defaults)."""
+    `vehicle`: the robot's VehicleConfig (default: its parameters' defaults);
+    `profile`: the plant's sim_bridge.profiles.PlantProfile (default: the sim's default config)."""
     from ground_station.rigs.lockstep import LockstepRig
     from sim_bridge.obstacles import ObstacleLayer
 
@@ -120,7 +122,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
         minclear = math.inf
         driven = 0.0
         with LockstepRig(gm.occ, policies[ep.map], start, goals, seed=ep.seed + index_offset + i,  # type: ignore[arg-type]
-                         vehicle=vehicle) as rig:
+                         vehicle=vehicle, profile=profile) as rig:
             layer = ObstacleLayer(rig.plant.world, ep.discs, ep.movers)
             rig.plant.obstacles = layer  # movers move at the end of every period, as in the twin
             end_us = round(limit * 1e6)
@@ -167,19 +169,45 @@ def run_job(job: dict) -> list[dict]:
     maps = {name: load_map(spec) for name, spec in job["maps"].items()}
     if job["kind"] == "twin":
         return run_twin(job["episodes"], maps, ctrl)
-    return run_hil(job["episodes"], maps, ctrl, index_offset=job["offset"])
+    from sim_bridge.profiles import profile
+
+    plant = profile(job["profile"]) if job.get("profile") else None
+    return run_hil(job["episodes"], maps, ctrl, index_offset=job["offset"], profile=plant)
+
+
+def wilson95(k: int, n: int) -> list[float]:
+    """95 % Wilson score interval of a rate k / n (sound at 0 and n, unlike k/n +- 1.96 sigma)."""
+    if n == 0:
+        return [0.0, 1.0]
+    z, p = 1.959964, k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return [round(max(0.0, centre - half), 4), round(min(1.0, centre + half), 4)]
+
+
+def mcnemar_exact(rows_a: list[dict], rows_b: list[dict]) -> dict:
+    """Paired comparison of two controllers' successes on the same episodes (in the same order):
+    episodes only A succeeded in, only B, and the exact two-sided McNemar p (binomial on them)."""
+    a_only = sum(1 for x, y in zip(rows_a, rows_b, strict=True) if x["success"] and not y["success"])
+    b_only = sum(1 for x, y in zip(rows_a, rows_b, strict=True) if y["success"] and not x["success"])
+    n, k = a_only + b_only, min(a_only, b_only)
+    p = 1.0 if n == 0 else min(1.0, 2 * sum(math.comb(n, i) for i in range(k + 1)) / 2 ** n)
+    return {"a_only": a_only, "b_only": b_only, "p_exact": p}
 
 
 def summarise(rows: list[dict]) -> dict:
-    """success_rate, collision_rate, path_ratio_mean, time_to_goal_mean_s,
-    near_miss_rate (episodes with a near miss), episodes."""
+    """success_rate, collision_rate (each with its 95 % Wilson interval), path_ratio_mean,
+    time_to_goal_mean_s, near_miss_rate (episodes with a near miss), episodes."""
     n = len(rows)
     ok = [r for r in rows if r["success"]]
     ratios = [r["path_ratio"] for r in ok if r["path_ratio"] is not None]
+    collisions = sum(r["collision"] for r in rows)
     return {
         "episodes": n,
         "success_rate": len(ok) / n if n else 0.0,
-        "collision_rate": sum(r["collision"] for r in rows) / n if n else 0.0,
+        "success_ci95": wilson95(len(ok), n),
+        "collision_rate": collisions / n if n else 0.0,
+        "collision_ci95": wilson95(collisions, n),
         "path_ratio_mean": float(np.mean(ratios)) if ratios else None,
         "time_to_goal_mean_s": float(np.mean([r["time_s"] for r in ok])) if ok else None,
         "near_miss_rate": sum(r["near_miss_periods"] > 0 for r in rows) / n if n else 0.0,

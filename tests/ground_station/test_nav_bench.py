@@ -136,3 +136,16 @@ def test_bench_nav_hil_part_and_bad_input(tmp_path):
     assert code == 2 and "no-such-map" in out
     code, out = _qnav("bench", "nav", "--policy", "policies:paper10_cell", "--episodes", "2")
     assert code == 2 and "sector policy" in out
+
+
+def test_intervals_and_the_paired_test_are_the_textbook_ones():
+    """The 95 % Wilson interval and the exact McNemar test bench nav prints beside every rate."""
+    from ground_station.nav.episodes import mcnemar_exact, wilson95
+
+    assert wilson95(957, 1000) == [0.9426, 0.9679]  # the headline learnt rate: [0.943, 0.968]
+    assert wilson95(0, 20) == [0.0, 0.1611] and wilson95(20, 20) == [0.8389, 1.0]  # sound at the ends
+    ok, ko = {"success": True}, {"success": False}
+    paired = mcnemar_exact([ok] * 45 + [ko] * 11 + [ok] * 4, [ko] * 45 + [ok] * 11 + [ok] * 4)
+    assert paired["a_only"] == 45 and paired["b_only"] == 11
+    assert abs(paired["p_exact"] - 5.378e-6) < 0.001e-6  # issue 32's 45 vs 11 episodes: p = 5e-6
+    assert mcnemar_exact([ok, ko], [ok, ko])["p_exact"] == 1.0  # no discordant pair: no evidence
