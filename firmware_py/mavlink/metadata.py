@@ -55,17 +55,15 @@ def parameter_metadata() -> dict[str, Any]:
     return {"version": 1, "scope": "Firmware", "parameters": params}
 
 
-def general_metadata(param_crc: int) -> dict[str, Any]:
-    from firmware_py.mavlink.telemetry import FLIGHT_SW_VERSION
-
+def general_metadata(param_crc: int, sw_version: int) -> dict[str, Any]:
+    """`sw_version`: AUTOPILOT_VERSION's flight_sw_version (major, minor, patch in its top bytes)."""
     return {"version": 1, "vendorName": "qnav", "modelName": "qnav-robot (tabular Q-learning ground robot)",
-            "firmwareVersion": f"{FLIGHT_SW_VERSION >> 24}.{(FLIGHT_SW_VERSION >> 16) & 0xFF}."
-                               f"{(FLIGHT_SW_VERSION >> 8) & 0xFF}",
+            "firmwareVersion": f"{sw_version >> 24}.{(sw_version >> 16) & 0xFF}.{(sw_version >> 8) & 0xFF}",
             "metadataTypes": [{"type": COMP_METADATA_TYPE_PARAMETER, "uri": uri(PARAMETER_FILE),
                                "fileCrc": param_crc}]}
 
 
-def write_metadata(storage_dir: Path) -> tuple[int, str]:
+def write_metadata(storage_dir: Path, sw_version: int) -> tuple[int, str]:
     """Write both files under `storage_dir`; (the general file's CRC32, "") or (0, why not)."""
     from firmware_py.storage import Storage
 
@@ -74,7 +72,7 @@ def write_metadata(storage_dir: Path) -> tuple[int, str]:
         root = Path(storage_dir)
         atomic_write(root / PARAMETER_FILE.lstrip("/"), params, make_parents=True)
         storage = Storage(root)
-        general = json.dumps(general_metadata(storage.crc32(PARAMETER_FILE)), indent=1).encode()
+        general = json.dumps(general_metadata(storage.crc32(PARAMETER_FILE), sw_version), indent=1).encode()
         atomic_write(root / GENERAL_FILE.lstrip("/"), general, make_parents=True)
         return storage.crc32(GENERAL_FILE), ""
     except OSError as exc:

@@ -211,8 +211,9 @@ class MavNode:
             warnings.append(why)
         if storage_dir is not None and self.ftp is not None:  # component metadata, served over FTP
             from firmware_py.mavlink.metadata import write_metadata
+            from firmware_py.mavlink.telemetry import FLIGHT_SW_VERSION
 
-            self.telemetry.metadata_crc, why = write_metadata(storage_dir)
+            self.telemetry.metadata_crc, why = write_metadata(storage_dir, FLIGHT_SW_VERSION)
             if why:
                 warnings.append(why)
         for w in warnings:

@@ -9,9 +9,9 @@ from __future__ import annotations
 import errno
 
 import pytest
-from pymavlink.dialects.v20 import common as m
 
 from firmware_py.mavlink import params as params_module
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.link_thread import StorageWorker
 from firmware_py.mavlink.params import ParamStore
 from tests.firmware_py.test_mav_engines import Link, of, texts

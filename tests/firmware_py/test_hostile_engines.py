@@ -10,9 +10,9 @@ import math
 import os
 
 import pytest
-from pymavlink.dialects.v20 import common as m
 
 from firmware_py import robot_spec
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.ftp_server import FtpServer, Nak, Op
 from firmware_py.mavlink.node import is_network_url
 from firmware_py.mavlink.signing import FUTURE_WINDOW, MAX_TIMESTAMP, wall_timestamp

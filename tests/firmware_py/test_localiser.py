@@ -162,8 +162,7 @@ def test_goal_refused_while_not_localised_and_runs_on_odometry_without_a_map():
 # --- telemetry and the monitor -----------------------------------------------------------
 
 def test_telemetry_carries_belief_covariance_localised_flag_and_raw_odometry():
-    from pymavlink.dialects.v20 import common as m
-
+    from firmware_py.mavlink.dialect import mavlink2 as m
     from firmware_py.mavlink.params import ParamStore
     from firmware_py.mavlink.telemetry import NodeStats, Telemetry
     from firmware_py.vehicle import VehicleStatus

@@ -8,11 +8,11 @@ the decision in force."""
 from __future__ import annotations
 
 import pytest
-from pymavlink.dialects.v20 import common as m
 
 from firmware_py import robot_spec
 from firmware_py.control.controller import Controller
 from firmware_py.mavlink import frames as mav_frames
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.vehicle import CtrlState, Mode, VehicleConfig
 from tests.firmware_py.test_mav_engines import Link, ack, of, texts, upload
 from tests.support.controller_rig import Kinematic, Rig, cell_bfs_policy, sector_seek_policy

@@ -3,10 +3,9 @@ real MAVLink frames to a MavNode driving the real controller."""
 
 from __future__ import annotations
 
-from pymavlink.dialects.v20 import common as m
-
 from firmware_py.control.controller import Controller
 from firmware_py.mavlink.commands import CMD_LOCALISE_GLOBAL
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.node import MavNode
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.mavlink.signing import Signing

@@ -11,9 +11,9 @@ import time
 import tty
 
 import pytest
-from pymavlink.dialects.v20 import common as m
 
 from firmware_py.clock import SimClock
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.node import open_node
 from firmware_py.mavlink.tx_budget import TELEMETRY_SHARE, TxBudget, frame_len
 from tests.support.mav_vehicle import TestVehicle

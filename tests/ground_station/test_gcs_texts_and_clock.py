@@ -8,8 +8,8 @@ from __future__ import annotations
 import struct
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
 
+from firmware_py.mavlink.dialect import mavlink2 as mavlink
 from firmware_py.mavlink.telemetry import Telemetry
 from ground_station.mavlink.statustext import MISSING, StatusTextAssembler
 from ground_station.monitor.model import REBOOT_FRAMES, VehicleView

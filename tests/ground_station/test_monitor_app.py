@@ -7,9 +7,9 @@ import asyncio
 import time
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
 
 from firmware_py import robot_spec
+from firmware_py.mavlink.dialect import mavlink2 as mavlink
 from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor.app import MonitorApp, heading_arrow

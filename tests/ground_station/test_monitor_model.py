@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
 
+from firmware_py.mavlink.dialect import mavlink2 as mavlink
 from firmware_py.vehicle import CtrlState, Mode
 from ground_station.monitor.model import VehicleView
 from tests.support.rover_script import encoder, frame, gcs_mission_items

@@ -8,9 +8,8 @@ from __future__ import annotations
 import asyncio
 import time
 
-from pymavlink.dialects.v20 import common as mavlink
-
 from firmware_py import robot_spec
+from firmware_py.mavlink.dialect import mavlink2 as mavlink
 from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor.app import MonitorApp

@@ -9,9 +9,9 @@ import math
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import common as m
 
 from firmware_py import robot_spec
+from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.mavlink.telemetry import NodeStats, Telemetry

@@ -116,8 +116,7 @@ def test_report_keeps_error_texts_whose_last_chunk_was_lost(tmp_path):
     when other frames show its chunks stopped), one as the recording's last frame."""
     import struct
 
-    from pymavlink.dialects.v20 import common as mavlink
-
+    from firmware_py.mavlink.dialect import mavlink2 as mavlink
     from tests.support.rover_script import encoder, frame
 
     rover = encoder(1, 1)

@@ -5,8 +5,7 @@ ground station's VehicleView (monitor and report) runs its clock on it."""
 
 from __future__ import annotations
 
-from pymavlink.dialects.v20 import common as mavlink
-
+from firmware_py.mavlink.dialect import mavlink2 as mavlink
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.mavlink.telemetry import WALL_CLOCK_SET_AFTER_US, NodeStats, Telemetry
 from firmware_py.vehicle import Mode, VehicleStatus

@@ -133,7 +133,7 @@ def test_a_policy_for_another_control_period_is_refused_naming_both_and_last_goo
 
 def mav_param_set(node, name: str, value: float) -> tuple[list[str], float]:
     """PARAM_SET through real MAVLink frames; (STATUSTEXTs, the PARAM_VALUE echoed)."""
-    from pymavlink.dialects.v20 import common as m
+    from firmware_py.mavlink.dialect import mavlink2 as m
 
     gcs, robot, decoder = m.MAVLink(None, 255, 190), m.MAVLink(None, 1, 1), m.MAVLink(None)
     msg = m.MAVLink(None).parse_char(bytes(gcs.param_set_encode(1, 1, name.encode(), value, 6).pack(gcs)))

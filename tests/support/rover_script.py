@@ -17,9 +17,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from pymavlink.dialects.v20 import common as mavlink
-
 from firmware_py import robot_spec
+from firmware_py.mavlink.dialect import mavlink2 as mavlink
 from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from firmware_py.vehicle import Mode
 
