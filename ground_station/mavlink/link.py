@@ -193,6 +193,28 @@ class CommandResult:
     texts: list[str]
 
 
+RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
+
+
+def _widen_receive_buffer(conn: Any) -> None:
+    """A UDP link's kernel receive buffer to 4 MiB (Linux's default is ~200 kB): a robot on a sim
+    clock running 30x real time streams 30x its telemetry, and while a dashboard draws, a burst
+    overflowed the default and its once-sent STATUSTEXTs were lost (the demo's dashboard missed
+    'mission complete'). Best effort: SO_RCVBUFFORCE where allowed (root, CAP_NET_ADMIN), else
+    SO_RCVBUF, which the kernel caps at net.core.rmem_max; serial links have none."""
+    import contextlib
+    import socket
+
+    port = getattr(conn, "port", None)
+    if isinstance(port, socket.socket) and port.type == socket.SOCK_DGRAM:
+        for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+            if option is None:
+                continue
+            with contextlib.suppress(OSError):
+                port.setsockopt(socket.SOL_SOCKET, option, RECEIVE_BUFFER_BYTES)
+                return
+
+
 class Link:
     """A connection to one robot. Use as a context manager."""
 
@@ -204,6 +226,7 @@ class Link:
         self.m = mu.mavlink
         self.conn = mu.mavlink_connection(url, source_system=source_system, source_component=source_component,
                                           dialect=DIALECT, autoreconnect=True)
+        _widen_receive_buffer(self.conn)
         self.source_system = source_system  # frames from this system id are ours (or another GCS's)
         self.url = url
         self.key: bytes | None = None

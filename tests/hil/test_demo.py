@@ -244,7 +244,8 @@ def test_demo_dashboard_path_runs_the_monitor_until_the_mission_completes(tmp_pa
     # the dashboard saw the run: Auto, every item reached, then Hold at D, still armed; the map drawn
     assert "mode Hold" in shown["vehicle"] and "ARMED" in shown["vehicle"], shown["vehicle"]
     assert "reached 4" in shown["mission"], shown["mission"]
-    assert "GOAL_REACHED->HOLD: mission complete" in shown["log"], shown["log"]
+    assert "GOAL_REACHED->HOLD: mission complete" in shown["log"], (shown["log"], "time conflicts, reboots, lost:",
+                                                                     shown["clock"])
     d = robot_spec.cell_center_mm(*load_map("paper10").targets["D"], 10)
     assert abs(shown["pose"][0] - d[0] / 1000) < 0.3 and abs(shown["pose"][1] - d[1] / 1000) < 0.3, \
         (shown["pose"], "time conflicts, reboots, lost frames:", shown["clock"])
