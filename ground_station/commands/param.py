@@ -57,21 +57,18 @@ def _described(entry: dict | None) -> str:
 def robot_parameter_metadata(link) -> dict[str, dict]:
     """name -> the robot's metadata entry (firmware_py/mavlink/metadata.py), {} if it serves none."""
     import json
-    import logging
 
     from firmware_py.mavlink.metadata import PARAMETER_FILE
-    from ground_station.mavlink.ftp_upload import ftp_session
-    from ground_station.mavlink.robot_map import READ_UP_TO, _short_read_warning
+    from ground_station.mavlink.link import LinkError
+    from ground_station.mavlink.robot_map import read_robot_file
 
-    root = logging.getLogger()
-    root.addFilter(_short_read_warning)
     try:
-        data = ftp_session(link).client().read(PARAMETER_FILE, READ_UP_TO)
-        return {p["name"]: p for p in json.loads(bytes(data))["parameters"]} if data else {}
+        data = read_robot_file(link, PARAMETER_FILE)
+        return {p["name"]: p for p in json.loads(data)["parameters"]} if data else {}
     except (ValueError, KeyError, TypeError):  # not qnav's metadata: values only
         return {}
-    finally:
-        root.removeFilter(_short_read_warning)
+    except LinkError:  # a robot without FTP: values only
+        return {}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,6 +23,24 @@ ACTIVE_POLICY = "/policies/active.qtab"
 READ_UP_TO = 16 * 1024 * 1024  # more than the robot's storage quota: the read ends at the file's end
 
 
+def read_robot_file(link: Any, path: str) -> bytes | None:
+    """A file from the robot's FTP server (pymavlink's MAVFTP), None if it has no such file.
+    Asked for its CRC first: one round trip says whether it exists, where MAVFTP.read would wait
+    out its 5 s idle timeout after the robot's FileNotFound."""
+    from ground_station.mavlink.ftp_upload import ftp_session
+
+    session = ftp_session(link)
+    if session.remote_crc(path, wait_s=5.0) is None:
+        return None
+    root = logging.getLogger()
+    root.addFilter(_short_read_warning)
+    try:
+        data = session.client().read(path, READ_UP_TO)
+    finally:
+        root.removeFilter(_short_read_warning)
+    return bytes(data) if data else None
+
+
 def _short_read_warning(record: logging.LogRecord) -> bool:
     """MAVFTP.read warns when the file is shorter than asked for; here that is the point."""
     return not (record.pathname.endswith("mavftp.py") and str(record.msg).startswith("expected"))
@@ -40,14 +58,12 @@ def robot_policy(link: Any) -> Any | None:
     """The robot's active policy (firmware_py.policy.Policy) from its storage, None if there is none
     there; CliError when the robot runs another one (started with `qnav-robot --policy FILE`)."""
     from firmware_py.policy import PolicyError, load_policy
-    from ground_station.mavlink.ftp_upload import ftp_session
+    from ground_station.mavlink.link import LinkError
 
-    root = logging.getLogger()
-    root.addFilter(_short_read_warning)
     try:
-        data = ftp_session(link).client().read(ACTIVE_POLICY, READ_UP_TO)
-    finally:
-        root.removeFilter(_short_read_warning)
+        data = read_robot_file(link, ACTIVE_POLICY)
+    except LinkError as exc:  # no FTP server (a robot without storage, another autopilot)
+        raise CliError(f"the robot's map cannot be read ({exc}): give --map NAME|PATH") from None
     running = running_policy_id(link)
     if not data:
         if running:
