@@ -61,7 +61,7 @@ NOT_RUN = {
     "qnav mission upload --targets B,C,D": _WALK,
     "qnav mode manual": "Manual mode and `qnav drive` in tests/hil/test_sitl.py (a pty for the keys)",
     "qnav drive": "Manual mode and `qnav drive` in tests/hil/test_sitl.py (a pty for the keys)",
-    "qnav monitor --plain --duration 30": _WALK,
+    "qnav monitor --plain --until-done": _WALK,
     "qnav report runs/mission.tlog": _WALK,
     "make test": "the test suite itself",
     "qnav study --map maze-15x15-s2": "the same study on a second map (~25 s); `qnav study --out out/study` "

@@ -39,6 +39,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size in metres (default 0.5)")
     p.add_argument("--plain", action="store_true", help="no dashboard: print one status line per second")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S wall seconds (live --plain)")
+    p.add_argument("--until-done", action="store_true",
+                   help="live --plain: stop once the robot says 'mission complete' or enters FAULT "
+                        "(exit 0 / 3; --duration still bounds the wait: exit 4 if it ends first)")
     p.add_argument("--replay", metavar="FILE.tlog", help="replay a recording instead of a live link")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="replay speed factor (default 1; 0 = as fast as possible)")
@@ -60,6 +63,17 @@ def _load_map(spec: str, cell_size: float):
         return load_map(spec, cell_size_m=cell_size)
     except (MapError, OSError) as exc:
         raise CliError(f"--map {spec}: {exc}") from exc
+
+
+def _faulted(view) -> bool:
+    from firmware_py.vehicle import CtrlState
+
+    return view.ctrl_state == CtrlState.FAULT
+
+
+def _done(view) -> bool:
+    """The robot said its mission is complete (its transition text), or it is in FAULT."""
+    return _faulted(view) or any("mission complete" in line.text for line in view.log)
 
 
 def open_source(args):
@@ -103,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
     from ground_station.monitor.model import VehicleView
 
+    if args.until_done and (not args.plain or args.replay):
+        raise CliError("--until-done is for a live --plain monitor")
     if args.duration is not None and args.duration <= 0:
         raise CliError(f"--duration must be > 0, got {args.duration}")
     if args.cell_size <= 0:
@@ -132,13 +148,21 @@ def run(args: argparse.Namespace) -> int:
             run_plain(source, view, sys.stdout, duration=args.duration,
                       no_robot_s=args.timeout if live else None,
                       on_wait=(lambda line: print(f"qnav monitor: {line}", file=sys.stderr, flush=True))
-                      if live else None)
+                      if live else None, until=_done if args.until_done else None)
             if view.t is None:
                 who = f"robot {args.target_system}" if args.target_system else "a robot"
                 where = f"on {label}" if live else f"in {args.replay}"
                 waited = f" within {args.timeout:g} s" if live and args.duration is None else ""
                 print(f"qnav monitor: no HEARTBEAT from {who} {where}{waited}", file=sys.stderr)
                 return 4
+            if args.until_done:
+                if _faulted(view):
+                    print("qnav monitor: the robot entered FAULT", file=sys.stderr)
+                    return 3
+                if not _done(view):
+                    within = f"within {args.duration:g} s" if args.duration is not None else "before the link ended"
+                    print(f"qnav monitor: the mission did not complete {within}", file=sys.stderr)
+                    return 4
         else:
             from ground_station.monitor.app import MonitorApp
 

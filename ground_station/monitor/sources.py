@@ -179,12 +179,13 @@ class ReplaySource:
 
 def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: float | None = None,
               period_s: float = 1.0, wall=time.monotonic, no_robot_s: float | None = None,
-              on_wait: Callable[[str], None] | None = None) -> int:
+              on_wait: Callable[[str], None] | None = None,
+              until: Callable[[VehicleView], bool] | None = None) -> int:
     """Feed `view` from `source`, printing a status line every `period_s` of
     source time and a last one at the end. Ends at the end of a replay, after
-    `duration` wall seconds, or when no vehicle was heard within `no_robot_s`
-    wall seconds (then without a status line; the caller sees `view.sysid is
-    None`). `on_wait(line)` is told once what we wait for after 1 s without a
+    `duration` wall seconds, once `until(view)` holds (after a last line), or
+    when no vehicle was heard within `no_robot_s` wall seconds (then without a
+    status line; the caller sees `view.sysid is None`). `on_wait(line)` is told once what we wait for after 1 s without a
     vehicle. Returns the number of lines printed."""
     start = wall()
     next_line: float | None = None
@@ -209,6 +210,10 @@ def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: 
             view.update(msg, t)
         tick(source.now())
         if source.finished or (duration is not None and wall() - start >= duration):
+            break
+        if until is not None and until(view):
+            print(_stamp(view, source.now()) + view.status_line(source.now()), file=out, flush=True)
+            lines += 1
             break
         if view.sysid is None:
             waited = wall() - start

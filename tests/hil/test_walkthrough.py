@@ -18,11 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
-
 from firmware_py.subprocs import free_udp_port
-
-pytestmark = pytest.mark.wallclock
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "walkthrough.md"
@@ -62,9 +58,9 @@ def test_walkthrough_runs_from_the_map_to_the_report(tmp_path):
             done = subprocess.run(["bash", "-e", "-c", script], cwd=tmp_path, env=env, capture_output=True,
                                   text=True, timeout=240)
             assert done.returncode == 0, (script, done.stdout[-3000:], done.stderr[-3000:])
-            if "qnav monitor" in script:
+            if "qnav monitor" in script:  # --until-done: ended by the robot's "mission complete"
                 last = [x for x in done.stdout.splitlines() if x.startswith("[")][-1]
-                assert "mission=3/3 reached=3" in last and "ctrl=HOLD" in last, done.stdout[-2000:]
+                assert "mission=3/3 reached=3" in last, done.stdout[-2000:]
     finally:
         if sitl is not None and sitl.poll() is None:
             os.killpg(sitl.pid, signal.SIGINT)  # Ctrl-C in its terminal
