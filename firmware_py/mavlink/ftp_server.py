@@ -29,9 +29,9 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
   and a crash discard them;
 - Rename onto /policies/active.qtab activates a policy through the injected
   hook; refusals are NAK Fail plus a STATUSTEXT with the reason;
-- file work whose cost the file chooses (CalcFileCRC32 reads the whole
-  file; TerminateSession's commit fsyncs it and its directory, slow on an SD
-  card) runs on the injected `offload` (firmware_py.background, a worker
+- file work whose cost the file chooses (CalcFileCRC32 of a file over
+  INLINE_CRC_BYTES, 1 MiB; TerminateSession's commit, which fsyncs the file
+  and its directory, slow on an SD card) runs on the injected `offload` (firmware_py.background, a worker
   thread in the robot's shell) when there is one: the request gets no reply
   now, `poll` returns it when the work is done, and a retry meanwhile starts
   nothing new and is the one answered (as for a pending activation);
@@ -195,6 +195,11 @@ class _PendingRename:
     src: Any  # its host path
     activation: Any  # vehicle.PendingActivation
     since_us: int
+
+
+# a file up to this size is summed on the link thread (0.2 ms here: a worker's reply would wait for the
+# link thread's next slot, a control period, and an upload asks for CRCs often); larger ones off it
+INLINE_CRC_BYTES = 1 << 20
 
 
 @dataclass
@@ -618,7 +623,7 @@ class FtpServer:
 
     def _op_crc(self, req: Request, now_us: int) -> bytes | list[bytes]:
         path = self._path(req)
-        if self.offload is None:
+        if self.offload is None or self.storage.size(path) <= INLINE_CRC_BYTES:
             return self._ack(req, struct.pack("<I", self.storage.crc32(path)))
         return self._offload(req, (Op.CALC_FILE_CRC32, path), lambda: struct.pack("<I", self.storage.crc32(path)))
 

@@ -318,7 +318,7 @@ def test_random_payloads_never_raise_and_replies_are_well_formed(tmp_path_factor
     server.close()
 
 
-def test_whole_file_work_is_answered_from_the_offload_worker_and_a_retry_starts_nothing(tmp_path):
+def test_whole_file_work_is_answered_from_the_offload_worker_and_a_retry_starts_nothing(tmp_path, monkeypatch):
     """Issue 29 finding 8: CalcFileCRC32 (reads the whole file) and TerminateSession's commit (fsyncs)
     run on the offload worker; the link thread gets no reply until `poll` has it."""
     from firmware_py.background import Background
@@ -334,6 +334,9 @@ def test_whole_file_work_is_answered_from_the_offload_worker_and_a_retry_starts_
     (owner, reply), = server.poll(c.now)
     assert owner == c.owner and ack(parse(reply)) and parse(reply)[0] == c.seq + 1
     assert (tmp_path / "root" / "policies" / "big.bin").read_bytes() == data[:200]
+    (small,) = c.send(Op.CALC_FILE_CRC32, b"/policies/big.bin")  # 200 B: summed at once (INLINE_CRC_BYTES)
+    assert ack(small) and work.pending() == 0
+    monkeypatch.setattr("firmware_py.mavlink.ftp_server.INLINE_CRC_BYTES", 100)  # as if it were large
     assert c.send(Op.CALC_FILE_CRC32, b"/policies/big.bin") == []
     again = server.handle(c.last, c.now, c.owner)  # the same request again (a lost reply's retry)
     assert again == [] and work.pending() == 1  # no second job
@@ -342,6 +345,11 @@ def test_whole_file_work_is_answered_from_the_offload_worker_and_a_retry_starts_
     crc = server.storage.crc32("/policies/big.bin")  # the same sum the link thread computed before
     assert ack(parse(reply)) and struct.unpack("<I", parse(reply)[7][:4])[0] == crc
     assert [parse(r) for r in server.handle(c.last, c.now, c.owner)] == [parse(reply)]  # now from the cache
-    assert c.send(Op.CALC_FILE_CRC32, b"/policies/none.bin") == [] and work.run_pending() == 1
+    (gone,) = c.send(Op.CALC_FILE_CRC32, b"/policies/none.bin")
+    assert nak(gone, Nak.FILE_NOT_FOUND)  # no such file: said at once
+    c.seq += 5  # a new request, not a retry
+    assert c.send(Op.CALC_FILE_CRC32, b"/policies/big.bin") == []
+    (tmp_path / "root" / "policies" / "big.bin").unlink()  # removed before the worker reads it
+    assert work.run_pending() == 1
     (_, reply), = server.poll(c.now)
     assert nak(parse(reply), Nak.FILE_NOT_FOUND)  # the worker's OSError is a NAK, never raised
