@@ -10,7 +10,12 @@ the turn but limits the straight part when a range reading lies in the path:
   sensor's reading is taken on its cone's centre and edge rays (the sim's
   fan, `robot_spec`), a point beside the robot's swept corridor (farther
   than its radius to the side) is not in the way. A wall beside a corridor
-  is not; a wall ahead, a disc on the diagonal close in, are.
+  is not; a wall ahead, a disc on the diagonal close in, are. Obstacle
+  points the policy kind remembers (the sector kind's unmapped-obstacle
+  memory, `KindDriver.remembered_obstacles`) count the same way: a disc
+  that slipped into the 30-degree gap between two sensors' cones as the
+  robot passed it is still in the way (the demo with obstacles once ended
+  at the bumper on one).
 * `limit` scales the straight part by `slow_pct` when the gap is under
   `slow_mm` and removes it under `stop_mm`; turning in place is left alone
   (a round robot turning touches nothing). The bumper and stale sensors are
@@ -54,13 +59,40 @@ def travel_gap_mm(ranges_mm: Sequence[int], status: Sequence[int], reverse: bool
     return max(0, int(gap))
 
 
+def points_gap_mm(points: Sequence[tuple[float, float]], reverse: bool) -> int:
+    """As `travel_gap_mm` for points already in the robot's frame (mm ahead, mm to the left)."""
+    gap = float(FAR_MM)
+    sign = -1.0 if reverse else 1.0
+    for ahead, side in points:
+        ahead *= sign
+        if ahead <= 0.0 or abs(side) >= _R:
+            continue
+        gap = min(gap, ahead - math.sqrt(_R * _R - side * side))
+    return max(0, int(gap))
+
+
+def robot_frame(points: Sequence[tuple[int, int]], pose_mm: tuple[int, int, int],
+                within_mm: float = 1000.0) -> list[tuple[float, float]]:
+    """World points (mm) near the pose, as (ahead, left) in the robot's frame."""
+    x, y, heading = pose_mm
+    c, s = math.cos(heading / 1000.0), math.sin(heading / 1000.0)
+    out = []
+    for px, py in points:
+        dx, dy = px - x, py - y
+        if abs(dx) <= within_mm and abs(dy) <= within_mm:
+            out.append((dx * c + dy * s, -dx * s + dy * c))
+    return out
+
+
 def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int], stop_mm: int, slow_mm: int,
-          slow_pct: int) -> tuple[int, int, str]:
-    """(left, right) with the straight part limited, and "", "slow" or "stop" (what it did)."""
+          slow_pct: int, remembered: Sequence[tuple[float, float]] = ()) -> tuple[int, int, str]:
+    """(left, right) with the straight part limited, and "", "slow" or "stop" (what it did).
+    `remembered`: obstacle points the policy kind remembers, in the robot's frame (`robot_frame`):
+    a disc that slipped into the gap between two sensors' cones still counts."""
     v2, w2 = left + right, right - left  # twice the straight and the turning part
     if v2 == 0 or (stop_mm <= 0 and slow_mm <= 0):
         return left, right, ""
-    gap = travel_gap_mm(ranges_mm, status, reverse=v2 < 0)
+    gap = min(travel_gap_mm(ranges_mm, status, reverse=v2 < 0), points_gap_mm(remembered, reverse=v2 < 0))
     if gap < stop_mm:
         v2, what = 0, "stop"
     elif gap < slow_mm:

@@ -543,8 +543,10 @@ class Controller(ControlState):
         left, right = clamp_speeds(left, right, self.cfg.max_wheel_speed_mm_s)
         if left or right:  # the collision monitor has the last word on any motion (control/collision.py)
             cfg, inp = self.cfg, self._inputs
+            seen = self.driver.remembered_obstacles() if self.driver is not None else []
+            near = collision.robot_frame(seen, self.nav.pose_mm()) if seen else []
             left, right, limited = collision.limit(left, right, inp.ranges_mm, inp.range_status, cfg.collision_stop_mm,
-                                                   cfg.collision_slow_mm, cfg.collision_slow_pct)
+                                                   cfg.collision_slow_mm, cfg.collision_slow_pct, near)
             if limited:
                 self.collision_ticks[limited] += 1
             if limited == "stop":

@@ -127,6 +127,11 @@ class KindDriver:
     def interrupt(self) -> None:
         """Abandon any motion in progress: the robot stopped, was given a new goal or a new pose."""
 
+    def remembered_obstacles(self) -> list[tuple[int, int]]:
+        """World points (mm) of obstacles the kind remembers seeing (default none): the collision
+        monitor counts them too, covering the gaps between the range sensors' cones."""
+        return []
+
     def localiser_statuses(self, pose_mm: tuple[int, int, int], ranges_mm: tuple[int, ...] | list[int],
                            range_status: list[int]) -> list[int]:
         """The range statuses the localiser may weigh at a tracked pose (default: all of them)."""

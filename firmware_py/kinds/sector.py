@@ -110,6 +110,11 @@ class SectorDriver(KindDriver):
         target = (round(tx), round(ty))
         return tick.goal_vector(*target)[1], target, speed
 
+    def remembered_obstacles(self) -> list[tuple[int, int]]:
+        if self.local is None:
+            return []
+        return [(x, y) for x, y, _ in self.local[1].points.values()]
+
     def localiser_statuses(self, pose_mm: tuple[int, int, int], ranges_mm: tuple[int, ...] | list[int],
                            range_status: list[int]) -> list[int]:
         """With a local planner, readings the map does not explain at the tracked pose (unmapped

@@ -106,3 +106,20 @@ def test_a_sector_memory_step_the_monitor_holds_is_walled_and_the_robot_goes_bac
     ranges, status = driver._with_walled(tick(2_000_000, 0, 2 * c + c // 2), 2, 2, east)
     assert (ranges[0], status[0]) == (robot_spec.RANGE_MIN_MM, V)  # the east move reads as a wall ...
     assert driver._with_walled(tick(2_000_000 + sm.WALLED_US, 0, 0), 2, 2, east)[1][0] == FAR  # ... for a while
+
+
+def test_remembered_obstacle_points_cover_the_gaps_between_the_sensor_cones():
+    """A point the kind remembers, in the robot's path but seen by no sensor now (between two cones),
+    still stops the straight motion; one beside the swept corridor does not."""
+    from firmware_py.control.collision import robot_frame
+
+    nothing = ([2000] * N, [FAR] * N)
+    pose = (1000, 1000, 1571)  # facing north
+    ahead = robot_frame([(1100, 1190)], pose)  # 190 mm ahead, 100 mm to the right (within the radius)
+    assert abs(ahead[0][0] - 190) < 1 and abs(ahead[0][1] + 100) < 1
+    assert limit(300, 300, *nothing, 50, 200, 50, ahead) == (150, 150, "slow")  # rim to point 78 mm
+    close = robot_frame([(1100, 1140)], pose)  # 28 mm from the rim
+    assert limit(300, 300, *nothing, 50, 200, 50, close) == (0, 0, "stop")
+    beside = robot_frame([(1200, 1150)], pose)  # 200 mm to the right: beside the swept corridor
+    assert limit(300, 300, *nothing, 50, 200, 50, beside) == (300, 300, "")
+    assert limit(-300, -300, *nothing, 50, 200, 50, close) == (-300, -300, "")  # backing away
