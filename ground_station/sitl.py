@@ -165,16 +165,21 @@ def _mavsdk_address(gcs_url: str) -> str:
     return gcs_url
 
 
-def start_pose(map_name: str) -> tuple[str, tuple[int, int]]:
-    """The sim's default start (the free cell nearest the map centre, heading east)
-    as a --start value, given to both programs so the robot's odometry starts true."""
-    from ground_station.demo import start_cell
+def load_world(map_name: str):  # type: ignore[no-untyped-def]
+    """The map the sim runs (SitlError naming it if it cannot be loaded)."""
     from ground_station.maps import MapError, load_map
 
     try:
-        grid_map = load_map(map_name)
+        return load_map(map_name)
     except (MapError, OSError, ValueError) as exc:
         raise SitlError(f"--map {map_name}: {exc}") from None
+
+
+def start_pose(grid_map) -> tuple[str, tuple[int, int]]:  # type: ignore[no-untyped-def]
+    """The sim's default start (the free cell nearest the map centre, heading east)
+    as a --start value, given to both programs so the robot's odometry starts true."""
+    from ground_station.demo import start_cell
+
     col, row = start_cell(grid_map.occ)
     x, y = grid_map.cell_size_m * (col + 0.5), grid_map.cell_size_m * (grid_map.height - row - 0.5)
     return f"{x:g},{y:g},0", (col, row)
@@ -208,7 +213,8 @@ class Sitl:
 
     def start(self) -> SitlInfo:
         opts = self.opts
-        start, cell = start_pose(opts.map_name)
+        world = load_world(opts.map_name)
+        start, cell = start_pose(world)
         policy = resolve_policy(opts)
         run_dir = Path(opts.out) if opts.out else default_run_dir()
         try:
@@ -232,9 +238,8 @@ class Sitl:
                             "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
                             "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q")
         # the robot knows the world it is in (a policy for another map is refused, naming both)
-        from ground_station.maps import load_map, write_map
+        from ground_station.maps import write_map
 
-        world = load_map(opts.map_name)
         write_map(run_dir / "map.map", world)
         robot_argv = qnav_robot("--can", can_spec, "--lockstep" if opts.lockstep else "--sim-clock", "--start", start,
                                 "--map", run_dir / "map.map", "--cell-size", f"{world.cell_size_m:g}",

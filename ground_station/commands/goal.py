@@ -70,11 +70,12 @@ def _planned_goal(args: argparse.Namespace) -> int:
     from ground_station.mavlink.robot_map import choose_map
 
     start = parse_start(args.start) if args.start else None  # bad input is refused before connecting
-    if args.map is not None:
-        goal_cell(load_gridmap(args.map), args.x, args.y)
+    given = load_gridmap(args.map) if args.map is not None else None
+    if given is not None:  # a bad map or goal fails before any link
+        goal_cell(given, args.x, args.y)
 
     def body(link) -> int:
-        gm = choose_map(link, args.map)
+        gm = choose_map(link, given)
         goal_cell(gm, args.x, args.y)
         items = planned_goal_items(gm, args.x, args.y, start if start is not None else robot_position_mm(link))
         n = link.mission_upload(items)

@@ -82,8 +82,9 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"--follow-timeout must be a positive number of seconds, got {args.follow_timeout:g}")
         items = file_items(args.file) if args.file else []
         start = parse_start(args.start) if args.start else None
-        if args.targets and args.map is not None:  # a bad name or target fails before any link
-            target_items(args.targets, load_gridmap(args.map, args.cell_size))
+        given = load_gridmap(args.map, args.cell_size) if args.map is not None else None
+        if args.targets and given is not None:  # a bad map or target fails before any link
+            target_items(args.targets, given)
 
         def upload(link) -> int:
             nonlocal items
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
             if args.targets:
                 from ground_station.mavlink.robot_map import choose_map
 
-                gm = choose_map(link, args.map, args.cell_size)
+                gm = choose_map(link, given)
                 items = target_items(args.targets, gm)
             if args.plan:
                 items, target_seq = plan_mission(args, link, start, gm)

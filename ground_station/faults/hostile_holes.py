@@ -252,7 +252,7 @@ class _PolledNode:
         self.inbox: queue.Queue[bytes] = queue.Queue()
         self.errors: list[str] = []
         self.failsafe_at: int | None = None
-        self.replies: list = []  # what the robot answered (COMMAND_ACKs, STATUSTEXTs, ...)
+        self.texts: list[str] = []  # the robot's STATUSTEXTs (refusal reasons), in order
         self.clock = rig.node.clock
         rig.node.after_tick.append(self.poll)
 
@@ -267,12 +267,15 @@ class _PolledNode:
                 for b in data:
                     msg = self.parser.parse_char(bytes([b]))
                     if msg is not None:
-                        self.replies += self.node.handle(msg, now)
-            self.replies += self.node.tick(now)
+                        self._keep_texts(self.node.handle(msg, now))
+            self._keep_texts(self.node.tick(now))
         except Exception as exc:  # the point of the scenario: this must never happen
             self.errors.append(f"{type(exc).__name__}: {exc}")
         if self.node.failsafe and self.failsafe_at is None:
             self.failsafe_at = now
+
+    def _keep_texts(self, replies: list) -> None:
+        self.texts += [r.text for r in replies if r.get_type() == "STATUSTEXT"]
 
 
 def _garbage(m, rng: random.Random, codec) -> list[bytes]:

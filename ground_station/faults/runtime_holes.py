@@ -390,7 +390,7 @@ def goal_refusals(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 send(gcs.mission_item_int_encode(1, 1, 0, m.MAV_FRAME_LOCAL_NED, m.MAV_CMD_NAV_WAYPOINT, 0, 1,
                                                  0, 0, 0, 0, round(n_m * 1e4), round(e_m * 1e4), 0, 0))
             rig.run_until(rig.time_us + 10 * PERIOD_US)
-            texts = " | ".join(r.text for r in polled.replies if r.get_type() == "STATUSTEXT")
+            texts = " | ".join(polled.texts)
             state = rig.ctrl.state
         if state == CtrlState.DRIVING or any(c[1] or c[2] for c in rig.commands):
             problems.append(f"the robot drove toward ({x}, {y}) mm")

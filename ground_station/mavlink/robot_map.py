@@ -6,7 +6,7 @@ training map's name (`map`) and geometry. `robot_map(link)` reads it with
 pymavlink's own MAVFTP client over the link and returns it as a `GridMap`:
 the named map itself (with its targets) when a map of that name or path is
 at hand here and has exactly that grid, else the grid alone (no targets).
-`choose_map(link, given)` is what commands use: the robot's map when no
+`choose_map(link, gm)` is what commands use: the robot's map when no
 `--map` is given; the given one when it is the robot's; and one line naming
 both when they differ (a mission planned on another map sends the robot
 into walls).
@@ -112,16 +112,14 @@ def same_map(a: Any, b: Any) -> bool:
             and abs(a.cell_size_m - b.cell_size_m) < 1e-9)
 
 
-def choose_map(link: Any, given: str | None, cell_size_m: float | None = None) -> Any:
-    """The map a command works on: `given` (NAME|PATH) or the robot's; CliError naming both if they differ."""
-    from ground_station.mavlink.mission_items import load_gridmap
-
-    if given is None:
+def choose_map(link: Any, gm: Any | None) -> Any:
+    """The map a command works on: `gm` (the --map the caller loaded, checked before any link) or the
+    robot's; CliError naming both if they differ."""
+    if gm is None:
         robot = robot_map(link)
         if robot is None:
             raise CliError("the robot's active policy carries no map: give --map NAME|PATH")
         return robot
-    gm = load_gridmap(given, cell_size_m)
     try:
         robot = robot_map(link)
     except CliError:  # the robot's map cannot be read (it runs a policy not in its storage): trust --map

@@ -1,5 +1,6 @@
-"""CAN faults (issue 9) and the holes hostile testing found (issue 13), at small counts: the
-scenarios of ground_station.faults.can_faults and .hostile_holes against the real controller,
+"""CAN faults (issue 9), the holes hostile testing found (issue 13) and the robot-runtime findings
+(issue 29), at small counts: the scenarios of ground_station.faults.can_faults, .hostile_holes and
+.runtime_holes against the real controller,
 RobotNode on a python-can virtual bus with the pymunk plant, the MAVLink node with pymavlink's
 codec and signing, and the FTP server on a real storage root. `qnav bench faults` runs the
 same with large counts."""
@@ -9,13 +10,17 @@ import pytest
 from ground_station.faults import (
     can_faults,
     hostile_holes,  # noqa: F401  (registers the scenarios)
+    runtime_holes,  # noqa: F401
 )
 from ground_station.faults.common import SCENARIOS
 
 NAMES = ["can_sensor_stop", "can_driver_fault", "can_driver_watchdog", "can_estop", "can_counters",
          # hostile holes
          "can_future_tick", "can_forged_tick_pace", "can_encoder_jump", "can_frozen_sensor", "mav_failsafe_garbage",
-         "mav_signing_bounds", "mav_signing_process", "ftp_sessions_quota"]
+         "mav_signing_bounds", "mav_signing_process", "ftp_sessions_quota",
+         # issue 29's runtime findings (runtime_holes)
+         "mav_hold_ends_exploration", "activation_worst_case", "planner_worst_case", "param_save_full_disk",
+         "goal_refusals"]
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -89,7 +89,7 @@ def test_a_sector_memory_step_the_monitor_holds_is_walled_and_the_robot_goes_bac
 
     driver = sm.SectorMemoryDriver(load_policy(shipped_policy("sector_memory")))
     c = driver.policy.encoder.cell_mm
-    east = 0 if DIR_HEADING_MRAD[0] == 0 else DIR_HEADING_MRAD.index(0)
+    east = DIR_HEADING_MRAD.index(0)  # the grid direction facing east (heading 0)
     driver.open = Step((3 * c + c // 2, 2 * c + c // 2), 0, turning=False)  # east, from cell (2, 2)
 
     def tick(now_us: int, blocked_us: int, x: int) -> DriveTick:

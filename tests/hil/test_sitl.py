@@ -358,7 +358,6 @@ def test_mavproxy_rc_drives_manual_and_a_pymavlink_gcs_gets_modes_and_parameter_
 
     from pymavlink import mavftp, mavutil
 
-    from firmware_py.mavlink import extra
     from firmware_py.mavlink.dialect import NAME
     from firmware_py.vehicle import Mode
 
@@ -409,7 +408,6 @@ def test_mavproxy_rc_drives_manual_and_a_pymavlink_gcs_gets_modes_and_parameter_
         params = json.loads(bytes(ftp.read(uri[len("mftp://"):], 1 << 20)))["parameters"]
         tol = next(p for p in params if p["name"] == "GOAL_TOL_MM")
         assert tol["units"] == "mm" and "goal counts as reached" in tol["shortDesc"]
-        assert extra.module() is not None  # COMPONENT_METADATA's own frame: tests/firmware_py/test_gcs_messages.py
     finally:
         if mp is not None:
             mp.close()
