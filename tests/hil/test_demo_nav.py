@@ -21,6 +21,8 @@ def _demo(out: Path, *extra: str, timeout: float = 200) -> dict:
     proc = subprocess.run([*QNAV, "demo", "--headless", "--json", "--out", str(out), *extra], cwd=ROOT,
                           capture_output=True, text=True, timeout=timeout)
     assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    # exit 1 is also Python's for an uncaught exception: then there is no JSON, and the traceback says why
+    assert proc.stdout.strip(), proc.stderr[-3000:]
     return json.loads(proc.stdout)
 
 
