@@ -25,7 +25,7 @@ import logging
 import threading
 from dataclasses import replace
 
-from firmware_py import kinds
+from firmware_py import kinds, robot_spec
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
 from firmware_py.control import collision
 from firmware_py.control.explore import wander_wheels
@@ -538,13 +538,26 @@ class Controller(ControlState):
             return status
         return self.driver.localiser_statuses(loc.pose_mm(), inp.ranges_mm, status)
 
+    def _map_corners_near(self, pose: tuple[int, int, int]) -> list[tuple[int, int]]:
+        """The robot's map's block corners within reach of the collision monitor (none without a map)."""
+        grid = self.robot_map if self.robot_map is not None else (
+            self.policy.map_grid if self.policy is not None else None)
+        if grid is None:
+            return []
+        corners: collision.MapCorners | None = self._corners
+        if corners is None or corners.grid is not grid:
+            self._corners = corners = collision.MapCorners(grid)
+        return corners.near(pose[0], pose[1], self.cfg.collision_slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+
     def _outputs(self, now_us: int, tick: int | None, errors: int) -> Outputs:
         left, right = self.watchdog.output(now_us)
         left, right = clamp_speeds(left, right, self.cfg.max_wheel_speed_mm_s)
         if left or right:  # the collision monitor has the last word on any motion (control/collision.py)
             cfg, inp = self.cfg, self._inputs
+            pose = self.nav.pose_mm()
             seen = self.driver.remembered_obstacles() if self.driver is not None else []
-            near = collision.robot_frame(seen, self.nav.pose_mm()) if seen else []
+            seen = seen + self._map_corners_near(pose)
+            near = collision.robot_frame(seen, pose) if seen else []
             left, right, limited = collision.limit(left, right, inp.ranges_mm, inp.range_status, cfg.collision_stop_mm,
                                                    cfg.collision_slow_mm, cfg.collision_slow_pct, near)
             if limited:

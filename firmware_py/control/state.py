@@ -62,6 +62,7 @@ class ControlState:
         # the robot's own map (qnav-robot --map FILE; mapdata.OccupancyGrid): a policy carrying another is
         # refused at boot and activation (policy.config_mismatch). None: the policy's map is taken as is
         self.robot_map: Any = None
+        self._corners: Any = None  # the collision monitor's index of that map's block corners (collision.MapCorners)
         self.policy = policy
         self.last_known_good: Policy | None = None
         self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS)

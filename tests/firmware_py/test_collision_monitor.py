@@ -123,3 +123,52 @@ def test_remembered_obstacle_points_cover_the_gaps_between_the_sensor_cones():
     beside = robot_frame([(1200, 1150)], pose)  # 200 mm to the right: beside the swept corridor
     assert limit(300, 300, *nothing, 50, 200, 50, beside) == (300, 300, "")
     assert limit(-300, -300, *nothing, 50, 200, 50, close) == (-300, -300, "")  # backing away
+
+
+def test_the_gap_along_an_arc_matches_driving_the_arc_in_half_millimetre_steps():
+    """`path_gap_mm` on a turning command: the first contact of the rim with a point, checked against
+    integrating the unicycle model, for forward, backward, left and right arcs."""
+    import math
+    import random
+
+    from firmware_py.control.collision import path_gap_mm
+
+    rng = random.Random(1)
+    radius, base = robot_spec.ROBOT_RADIUS_MM, robot_spec.WHEEL_BASE_MM
+    checked = turning_hits = 0
+    while checked < 400:
+        left, right = rng.randint(-400, 400), rng.randint(-400, 400)
+        point = (rng.uniform(-500, 500), rng.uniform(-500, 500))
+        if left + right == 0 or math.hypot(*point) <= radius:
+            continue
+        x = y = th = s = 0.0
+        v, w = (left + right) / 2, (right - left) / base
+        dt, want = 0.5 / abs(v), FAR_MM
+        while s < 1000 and abs(th) <= math.pi:
+            if math.hypot(point[0] - x, point[1] - y) < radius:
+                want = int(s)
+                break
+            x, y, th, s = x + v * dt * math.cos(th), y + v * dt * math.sin(th), th + w * dt, s + abs(v) * dt
+        got = path_gap_mm([point], left, right)
+        assert abs(got - want) <= 3 or (want == FAR_MM and got >= 1000), (left, right, point, got, want)
+        checked += 1
+        turning_hits += want != FAR_MM and left != right
+    assert turning_hits > 20
+
+
+def test_a_block_corner_the_robot_arcs_into_stops_it_and_the_controller_knows_its_maps_corners():
+    """The corner of a map block between two sensors' cones: straight ahead it is beside the swept
+    corridor, but the arc the command drives runs into it."""
+    from firmware_py.control.collision import MapCorners, path_gap_mm, robot_frame
+    from firmware_py.mapdata import OccupancyGrid
+
+    corner = robot_frame([(1000, 1160)], (800, 1000, 0))  # 200 mm ahead, 160 mm left
+    assert path_gap_mm(corner, 300, 300) == FAR_MM  # straight on: it passes beside
+    assert path_gap_mm(corner, 200, 300) < 200  # curving left into it: within the slow zone
+    nothing = ([2000] * N, [FAR] * N)
+    assert limit(200, 300, *nothing, 50, 200, 50, corner)[2] in ("slow", "stop")
+    # a 3 x 3 map of 500 mm cells with its centre cell occupied: that block's four corners, no others
+    grid = OccupancyGrid(cell_mm=500, width=3, height=3, occ=bytes([0, 0, 0, 0, 1, 0, 0, 0, 0]))
+    corners = MapCorners(grid)
+    assert sorted(corners.near(750, 750, 1000)) == [(500, 500), (500, 1000), (1000, 500), (1000, 1000)]
+    assert corners.near(250, 250, 200) == []  # none within 200 mm of the south-west cell's centre
