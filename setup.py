@@ -10,14 +10,15 @@ cannot combine `packages.find` with a renamed package, hence this file.
 from setuptools import find_packages, setup
 
 PACKAGES = find_packages(include=["firmware_py*", "ground_station*", "sim_bridge*"])
-DATA_PACKAGES = ["ground_station.maps_data", "qnav_policies"]  # folders of data, named so setuptools ships them
+DATA_PACKAGES = ["ground_station.maps_data", "qnav_policies", "firmware_py.profiles"]  # folders of data, named so setuptools ships them
 
 setup(
     packages=PACKAGES + DATA_PACKAGES,
     package_dir={"qnav_policies": "policies"},
     package_data={
         "firmware_py": ["*.dbc"],
-        "firmware_py.mavlink": ["*.xml"],  # extra.xml: messages pymavlink lacks (mavlink/extra.py)
+        "firmware_py.mavlink": ["*.xml"],
+        "firmware_py.profiles": ["*.toml"],  # an example robot profile per backend (docs/robot-profile.md)  # extra.xml: messages pymavlink lacks (mavlink/extra.py)
         "ground_station.logs": ["*.json"],  # the Foxglove layout (docs/monitor.md)
         "ground_station.maps_data": ["*"],
         "qnav_policies": ["*.qtab", "*.json", "README.md"],

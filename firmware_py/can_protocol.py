@@ -6,8 +6,10 @@ counter widths below are derived from it, never retyped. Encoding is strict:
 a missing signal or a value outside its DBC range raises `ProtocolError`
 instead of being silently truncated on the wire.
 
-Layout (ODrive CANSimple shape): 11-bit id = node_id << 5 | cmd_id, 8-byte
-little-endian frames. See docs/can-protocol.md for rates, senders and the
+Layout: 11-bit id = node_id << 5 | cmd_id (the shape of ODrive's CANSimple),
+8-byte little-endian frames, on nodes 32..37 and 63: an ODrive at any node id
+0..31 (ids up to 0x3FF) and every DroneCAN node (29-bit ids) share the bus
+without a collision. See docs/can-protocol.md for rates, senders and the
 lockstep handshake.
 """
 
@@ -23,7 +25,7 @@ from cantools.database.can import Message as DbcMessage
 
 from firmware_py import robot_spec
 
-CMD_BITS = 5  # ODrive CANSimple: low 5 bits of the id are the command
+CMD_BITS = 5  # as ODrive CANSimple: the low 5 bits of the id are the command
 CMD_MASK = (1 << CMD_BITS) - 1
 
 

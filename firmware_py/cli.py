@@ -81,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="goal in metres; repeat for a mission driven in order")
     p.add_argument("--goal-cell", action="append", default=[], metavar="COL,ROW",
                    help="goal at a map cell's centre; repeatable")
+    p.add_argument("--profile", metavar="FILE.toml",
+                   help="robot profile: geometry and the drive/sensor backends (docs/robot-profile.md; "
+                        "examples in firmware_py/profiles/); default: the built-in robot on qnav's frames")
     p.add_argument("--map", metavar="FILE.map",
                    help="the robot's own map (MovingAI .map, --cell-size cells): a policy carrying another map "
                         "is refused, naming both (qnav sitl passes the map it simulates)")
@@ -121,7 +124,7 @@ def _fits(args: argparse.Namespace, policy: Policy) -> str:
     """Why `policy` does not fit this command line's robot ('' if it does)."""
     from firmware_py.policy import config_mismatch
     why = config_mismatch(policy, robot_spec.control_period_us(args.rate), _policy_cell_mm(args, policy),
-                          getattr(args, "robot_map", None))
+                          getattr(args, "robot_map", None), getattr(args, "robot_profile", None))
     height = policy.map_geometry.height
     fixed = kinds.of_policy(policy).fixed_geometry(policy.encoder, policy.cell_mm)  # a cell policy's own grid
     if not why and args.map_height and fixed is not None and height != args.map_height:
@@ -184,6 +187,14 @@ def run(args: argparse.Namespace) -> int:
     why = robot_spec.control_rate_error(args.rate)
     if why:
         raise UsageError(f"--rate {args.rate}: {why}")
+    args.robot_profile = None
+    if args.profile:
+        from firmware_py.profile import ProfileError, load_profile
+
+        try:
+            args.robot_profile = load_profile(args.profile)
+        except ProfileError as exc:
+            raise UsageError(f"--profile {exc}") from None
     args.robot_map = None
     if args.map:
         from firmware_py.mapdata import MapDataError, grid_from_map_file
@@ -216,12 +227,23 @@ def run(args: argparse.Namespace) -> int:
     goals = [(round(x * 1000), round(y * 1000)) for x, y in (_floats(g, 2, 2, "--goal") for g in args.goal)]
     goals += [cell_point(g, "--goal-cell", False)[:2] for g in args.goal_cell]
 
+    prof = args.robot_profile
     cfg = VehicleConfig(control_rate_hz=args.rate, sensor_timeout_ms=args.sensor_timeout_ms,
-                        motor_timeout_ms=args.motor_timeout_ms, cell_size_mm=cell_mm)
+                        motor_timeout_ms=args.motor_timeout_ms, cell_size_mm=cell_mm,
+                        max_wheel_speed_mm_s=prof.drive.max_speed_mm_s if prof else robot_spec.MAX_WHEEL_SPEED_MM_S)
     sim = args.lockstep or args.sim_clock
     clock = SimClock() if sim else WallClock()
-    ctrl = Controller(cfg, policy, start_pose_mm=start, lockstep=args.lockstep, localise=args.localiser == "on")
+    ctrl = Controller(cfg, policy, start_pose_mm=start, lockstep=args.lockstep, localise=args.localiser == "on",
+                      profile=prof)
     ctrl.robot_map = args.robot_map
+    drive = None
+    if prof is not None:
+        from firmware_py.drives import open_drive
+
+        try:
+            drive = open_drive(prof)
+        except ValueError as exc:
+            raise UsageError(f"--profile {prof.source}: {exc}") from None
     try:
         bus = open_bus(args.can)
     except CanSpecError as exc:
@@ -230,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--rt-priority {args.rt_priority}: expected 1..99")
     if not 0 <= args.gil_switch_us <= 100_000:
         raise UsageError(f"--gil-switch-us {args.gil_switch_us}: expected 0..100000")
-    node = RobotNode(bus, ctrl, clock, lockstep=args.lockstep, rt_priority=args.rt_priority)
+    node = RobotNode(bus, ctrl, clock, lockstep=args.lockstep, rt_priority=args.rt_priority, drive=drive)
     runner = None
     if goals:
         runner = GoalRunner(ctrl, goals)
@@ -290,6 +312,7 @@ def run(args: argparse.Namespace) -> int:
         "encoder_jumps": ctrl.encoder_jumps,
         # commands the collision monitor slowed or stopped (control/collision.py)
         "collision_slow_ticks": ctrl.collision_ticks["slow"], "collision_stop_ticks": ctrl.collision_ticks["stop"],
+        "profile": prof.source if prof else None, **node.drive.stats(),
         "planner_searches": ctrl.background.runs, "planner_search_cpu_s": ctrl.background.cpu_ns / 1e9,
         "period_us": cfg.control_period_us, "rt_priority": args.rt_priority,
         "rt_active": node.rt_active,

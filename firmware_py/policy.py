@@ -350,7 +350,8 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
                   map_geometry=geometry, map_grid=grid, local_planner=planner)
 
 
-def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, robot_map: Any = None) -> str:
+def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, robot_map: Any = None,
+                    profile: Any = None) -> str:
     """Why `policy` must not run on a robot with this control period and map
     cell size ('' if it may), naming both values.
 
@@ -362,12 +363,23 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, r
     geometry it records is for the ground station and is not checked.
     A robot given its own map (`qnav-robot --map FILE`, `robot_map`) refuses a
     policy carrying another: it would localise and plan on the wrong world.
+    A robot with a profile (`qnav-robot --profile FILE`, firmware_py.profile)
+    refuses a policy trained for another geometry (wheel base, body radius,
+    sensor angles, range); a file without a record was trained for the
+    built-in robot.
     """
     if policy.control_period_us != control_period_us:
         return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
     cell_mm = kinds.of_policy(policy).robot_cell_mm(policy)
     if cell_mm is not None and cell_mm != cell_size_mm:
         return f"policy cell size {cell_mm} mm != robot {cell_size_mm} mm"
+    if profile is not None:
+        from firmware_py.profile import geometry_mismatch
+
+        recorded = policy.metadata.get("robot_geometry") if isinstance(policy.metadata, dict) else None
+        why = geometry_mismatch(recorded if isinstance(recorded, dict) else None, profile)
+        if why:
+            return why
     if robot_map is not None and policy.map_grid is not None and not same_grid(policy.map_grid, robot_map):
         name = policy.metadata.get("map") if isinstance(policy.metadata, dict) else None
         return (f"policy map {name or ''} ({describe(policy.map_grid)}) is not the robot's map "

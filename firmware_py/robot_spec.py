@@ -73,11 +73,13 @@ SENSOR_FAN_RAYS = 3
 RANGE_MIN_MM = 20
 RANGE_MAX_MM = 2000
 
-# Reading status, as DroneCAN's range_sensor.Measurement.
-RANGE_VALID = 0
-RANGE_TOO_CLOSE = 1
-RANGE_TOO_FAR = 2
-RANGE_INVALID = 3
+# Reading status: the values of DroneCAN's uavcan.equipment.range_sensor.Measurement
+# reading_type (UNDEFINED, VALID_RANGE, TOO_CLOSE, TOO_FAR), so a DroneCAN rangefinder's
+# reading passes through unchanged; an all-zero frame reads as invalid.
+RANGE_INVALID = 0
+RANGE_VALID = 1
+RANGE_TOO_CLOSE = 2
+RANGE_TOO_FAR = 3
 
 # --- actions ----------------------------------------------------------------
 # (left, right) wheel speed in mm/s for each discrete action of the sector

@@ -57,9 +57,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of sensor noise, dropout and slip")
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="sim seconds to run")
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size (m)")
-    p.add_argument("--profile", default="ideal", metavar="NAME",
+    p.add_argument("--plant", default=None, metavar="NAME",
                    help=f"named wheel/sensor error (sim_bridge/profiles.py: {', '.join(PROFILES)}); the options "
-                        "below override its fields (default %(default)s)")
+                        "below override its fields (default ideal)")
+    p.add_argument("--profile", default=None, metavar="FILE.toml|NAME",
+                   help="the robot profile whose boards the sim plays (docs/robot-profile.md: its drive backend, "
+                        f"qnav or odrive); a plant profile name ({', '.join(PROFILES)}) is taken as --plant")
+    p.add_argument("--flip-wheel", choices=("left", "right"), default=None,
+                   help="that wheel's motor mounted the other way round (for qnav-robot --check)")
+    p.add_argument("--drive-fault", action="append", default=[], metavar="T:WHAT:SIDE",
+                   help="at sim second T, the ODrive axis on SIDE (left/right) gets an axis error "
+                        "(WHAT = error:0x40, any code) or falls silent (WHAT = silent); repeatable")
     p.add_argument("--noise-mm", type=float, default=None,
                    help=f"range noise std dev (mm; {_per_profile(lambda f: f.range_noise_mm)})")
     p.add_argument("--dropout", type=float, default=None,
@@ -151,8 +159,32 @@ def run(args: argparse.Namespace) -> int:
         gm = load_map(args.map, cell_size_m=args.cell_size)
     except (MapError, OSError, ValueError) as exc:
         raise CliError(f"--map {args.map}: {exc}") from None
+    robot, plant_name = None, args.plant or "ideal"
+    if args.profile and not (args.profile.endswith(".toml") or Path(args.profile).is_file()):
+        plant_name = args.profile  # a plant profile's name (the option's meaning before robot profiles)
+    elif args.profile:
+        from firmware_py.profile import ProfileError, load_profile
+        try:
+            robot = load_profile(args.profile)
+        except ProfileError as exc:
+            raise CliError(f"--profile {exc}") from None
+    faults = []
+    for text in args.drive_fault:
+        parts = text.split(":")
+        try:
+            t, what, side = float(parts[0]), ":".join(parts[1:-1]), parts[-1]
+            ok = side in ("left", "right") and (what == "silent" or (what.startswith("error:")
+                                                                    and int(what[6:], 0) > 0)) and t >= 0
+        except (ValueError, IndexError):
+            ok = False
+        if not ok:
+            raise CliError(f"--drive-fault {text!r}: expected T:error:CODE:SIDE or T:silent:SIDE, "
+                           "e.g. 5:error:0x40:left")
+        faults.append((t, what, side))
+    if (faults or args.flip_wheel) and (robot is None or robot.drive.backend != "odrive"):
+        raise CliError("--drive-fault and --flip-wheel need --profile FILE with an odrive drive")
     try:
-        prof = profile(args.profile)
+        prof = profile(plant_name)
         scale = (prof.encoder_scale[0] if args.enc_scale_left is None else args.enc_scale_left,
                  prof.encoder_scale[1] if args.enc_scale_right is None else args.enc_scale_right)
         prof = prof.with_(encoder_scale=scale,
@@ -162,7 +194,8 @@ def run(args: argparse.Namespace) -> int:
         config = SimConfig(seed=args.seed, cell_size_m=gm.cell_size_m,
                            ranges=RangeParams(args.fan_rays, prof.range_noise_mm, prof.range_dropout),
                            motors=MotorParams(watchdog_ms=args.watchdog_ms),
-                           encoder_slip_std=prof.slip_std, encoder_scale=prof.encoder_scale)
+                           encoder_slip_std=prof.slip_std, encoder_scale=prof.encoder_scale,
+                           robot=robot, flip_wheel=args.flip_wheel or "", drive_faults=tuple(faults))
         start = Pose(*parse_start(args.start)) if args.start else None
         plant = Plant(gm.occ, config, start)
         if args.scenario:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import random
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import can
@@ -49,6 +49,10 @@ class SimConfig:
     body: BodyParams = field(default_factory=BodyParams)
     encoder_slip_std: float = 0.0
     encoder_scale: tuple[float, float] = (1.0, 1.0)  # (left, right) measured / true travel
+    # the robot profile whose boards the sim plays (firmware_py.profile; None: qnav's own frames)
+    robot: Any = None
+    flip_wheel: str = ""  # "left" / "right": that motor mounted the other way round (bring-up checks)
+    drive_faults: tuple[tuple[float, str, str], ...] = ()  # (sim s, "error:0x800" | "silent", "left" | "right")
 
     @classmethod
     def from_profile(cls, profile: PlantProfile, **kw: Any) -> SimConfig:
@@ -97,7 +101,18 @@ class Plant:
         self.ranges = RangeSensors(self.world, config.ranges, random.Random(seeds.getrandbits(64)))
         self.encoders = WheelEncoders(self.world, random.Random(seeds.getrandbits(64)),
                                       config.encoder_slip_std, config.encoder_scale)
-        self.motors = MotorDriver(config.motors)
+        self.odrive: Any = None  # sim_bridge.odrive_axes.ODrivePair when the robot's drive is two ODrives
+        robot = config.robot
+        if robot is not None and robot.drive.backend == "odrive":
+            from sim_bridge.odrive_axes import ODrivePair
+            # the axes' own watchdog stops the wheels; the wheel model's is out of the way
+            self.motors = MotorDriver(replace(config.motors, watchdog_ms=1 << 30))
+            self.odrive = ODrivePair(robot, self.motors, robot_spec.ENCODER_TICKS_PER_REV, config.flip_wheel)
+            self.odrive.faults = [(round(t * 1e6), what, side) for t, what, side in config.drive_faults]
+        elif robot is not None and robot.drive.backend != "qnav":
+            raise ValueError(f"the sim does not play a {robot.drive.backend!r} drive")
+        else:
+            self.motors = MotorDriver(config.motors)
         self.battery = Battery()
         self.tick = 0
         self.time_us = 0
@@ -108,6 +123,8 @@ class Plant:
         self.obstacles: Any = None  # a sim_bridge.obstacles.ObstacleLayer: its movers move once per period
         self._in_step = False
         self._interrupt_pending = False
+        if self.odrive is not None:
+            self.odrive.step(0, self.encoders.counts())
         self.record()
 
     # --- frames out ----------------------------------------------------------
@@ -116,9 +133,13 @@ class Plant:
         t_s = self.time_us / 1e6
         left, right = self.encoders.counts()
         frames = cp.range_frames(self.ranges.read(), self.tick)  # one new sample per tick: counter = tick
-        frames.append(cp.encoder_counts(left, right, self.tick))
+        if self.odrive is None:
+            frames.append(cp.encoder_counts(left, right, self.tick))
         frames.append(cp.encode("Bumper", bumper_signals(self.world, self.tick)))
-        frames.append(cp.encode("MotorStatus", self.motors.status(self.tick)))
+        if self.odrive is None:
+            frames.append(cp.encode("MotorStatus", self.motors.status(self.tick)))
+        else:
+            frames += self.odrive.drain()  # heartbeats and encoder estimates due since the last tick
         if self.tick % BATTERY_EVERY_TICKS == 0:  # the power board reports at 2 Hz
             frames.append(cp.encode("BatteryStatus", self.battery.status(self.tick // BATTERY_EVERY_TICKS)))
         frames.append(cp.sim_tick(self.tick, self.time_us))
@@ -133,6 +154,9 @@ class Plant:
         Returns True when `msg` is the controller's answer to the current tick
         (a MotorCommand carrying its counter; in paced mode any MotorCommand).
         """
+        if self.odrive is not None and self.odrive.owns(msg):
+            self.odrive.handle(msg, self.time_us)
+            return False
         try:
             name, sig = cp.decode(msg)
         except cp.ProtocolError:
@@ -154,6 +178,16 @@ class Plant:
             self.motors.command(sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"], sig["Cmd_Counter"],
                                 self.time_us)
             self._last_cmd = (sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"])
+            return True
+        if name == "SimTickAck" and self.odrive is not None:  # the answer when the drive's frames carry no counter
+            if lockstep and sig["Ack_Counter"] != self.tick % cp.TICK_MODULUS:
+                if sig["Ack_Counter"] == self._answered_tick:
+                    self.stats.repeated_answers += 1
+                else:
+                    self.stats.stale_commands += 1
+                return False
+            self._answered_tick = sig["Ack_Counter"]
+            self._last_cmd = (round(self.motors.target[0]), round(self.motors.target[1]))
             return True
         if name == "EStop":
             self.motors.estop(bool(sig["EStop_Engage"]))
@@ -193,6 +227,8 @@ class Plant:
             world.step(dt_s)
             gl, gr = world.wheel_ground_speeds()
             motors.observe_ground((gl * 1000, gr * 1000), dt_us)
+            if self.odrive is not None:
+                self.odrive.step(self.time_us, encoders.counts())
         if self.obstacles is not None:
             self.obstacles.step()
         self.tick += 1

@@ -81,6 +81,9 @@ NOT_RUN = {
     "qnav-robot --can socketcan:vcan0": _VCAN,
     "qnav report run/bus.log": _VCAN + " (the log comes from candump on vcan0)",
     "qnav-robot --can socketcan:can0": _ROBOT,
+    "qnav-robot --profile firmware_py/profiles/odrive.toml --can socketcan:can0": _ROBOT,
+    "qnav-sim   --profile firmware_py/profiles/odrive.toml --map paper10 --lockstep --can ...":
+        "a placeholder bus; tests/hil/test_odrive_drive.py runs qnav-sim and qnav-robot with this profile on a hub",
     "qnav upload policies/paper10_cell.qtab --activate --mavlink /dev/ttyUSB0": _ROBOT,
     "qnav demo": "tests/hil/test_demo.py runs it",
     "qnav log mcap runs/demo-<time>/": "a placeholder run folder; tests/hil/test_demo.py converts a demo's",

@@ -130,7 +130,7 @@ class Controller(ControlState):
             if self._driver_status_stale(inp, self._now):
                 return False, "motor driver silent"
             if inp.driver_errors:
-                return False, f"motor driver errors 0x{inp.driver_errors:02x}"
+                return False, inp.driver_detail or f"motor driver errors 0x{inp.driver_errors:02x}"
             self.armed = True
             self.fault = ""
             self._transition(CtrlState.HOLD, "armed")
@@ -245,7 +245,8 @@ class Controller(ControlState):
         with self._lock:
             if self.policy is None:
                 return True, ""
-            why = config_mismatch(self.policy, cfg.control_period_us, cfg.cell_size_mm, self.robot_map)
+            why = config_mismatch(self.policy, cfg.control_period_us, cfg.cell_size_mm, self.robot_map,
+                                  self.robot_profile)
             return (False, why) if why else (True, "")
 
     def apply_config(self, cfg: VehicleConfig) -> None:
@@ -319,7 +320,8 @@ class Controller(ControlState):
         with self._lock:
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
-            why = config_mismatch(new, self.cfg.control_period_us, self.cfg.cell_size_mm, self.robot_map)
+            why = config_mismatch(new, self.cfg.control_period_us, self.cfg.cell_size_mm, self.robot_map,
+                                  self.robot_profile)
             if why:
                 return False, why
             why = Route.refusal(self.route.items, lambda x, y: self._goal_index_for(x, y, new), "mission item")
@@ -458,12 +460,13 @@ class Controller(ControlState):
             if estop and self.estop_latch.trip():
                 self._enter_fault("e-stop engaged")
             if self.state != CtrlState.FAULT:
+                detail = f": {inp.driver_detail}" if inp.driver_detail else ""
                 if stale:
-                    self._enter_fault(f"sensor data stale: {','.join(stale)}")
+                    self._enter_fault(f"sensor data stale: {','.join(stale)}" + (detail if "encoders" in stale else ""))
                 elif driver_stale:
-                    self._enter_fault(f"motor driver status {driver_stale}")
+                    self._enter_fault(f"motor driver status {driver_stale}{detail}")
                 elif inp.driver_errors:
-                    self._enter_fault(f"motor driver fault 0x{inp.driver_errors:02x}")
+                    self._enter_fault(inp.driver_detail or f"motor driver fault 0x{inp.driver_errors:02x}")
                 elif self._driver_watchdog_tripped(inp):
                     self._enter_fault("motor driver watchdog tripped while driving")
             if inp.bumper and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
@@ -587,4 +590,4 @@ class Controller(ControlState):
         hb = Heartbeat(state=int(self.state), mode=int(self.mode), armed=self.armed,
                        policy_loaded=self.policy is not None, goal_active=self.goal is not None,
                        errors=errors, counter=self._hb_counter)
-        return Outputs(motor=motor, heartbeat=hb)
+        return Outputs(motor=motor, heartbeat=hb, drive_enabled=moving and self.state != CtrlState.FAULT)

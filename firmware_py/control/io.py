@@ -42,6 +42,7 @@ class Inputs:
     driver_left_mm_s: int = 0
     driver_right_mm_s: int = 0
     driver_us: int | None = None
+    driver_detail: str = ""  # a drive backend's words for what is wrong (names the axis/ESC), '' when nothing
     estop: bool = False  # an EStop frame from another node engaged it
     estop_us: int | None = None
     # the power board's BatteryStatus (none on a robot without one: telemetry says unknown)
@@ -88,6 +89,7 @@ class Outputs:
 
     motor: MotorCommand | None
     heartbeat: Heartbeat
+    drive_enabled: bool = False  # the controller wants the wheels powered (driving, exploring, Manual)
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,9 @@ from firmware_py.clock import Clock, SimClock, TickGate
 from firmware_py.control.controller import Controller
 from firmware_py.control.io import Inputs, Outputs
 from firmware_py.control.plausibility import plausible_range_status
+from firmware_py.drives import DriveBackend, InputUpdate
+from firmware_py.drives.qnav import QnavDrive
+from firmware_py.profile import DEFAULT as DEFAULT_PROFILE
 
 log = logging.getLogger("qnav.node")
 
@@ -127,6 +130,18 @@ class InputTracker:
                 self._stamp(key, t_us)
             return True
 
+    def update(self, u: InputUpdate, t_us: int) -> None:
+        """Take a drive backend's input update; its key ('' for none) is stamped like a frame's."""
+        with self._lock:
+            for name, value in u.fields.items():
+                setattr(self._inp, name, value)
+            if not u.key:
+                return
+            if self._defer:
+                self._pending.add(u.key)
+            else:
+                self._stamp(u.key, t_us)
+
     def stamp_pending(self, t_us: int) -> None:
         with self._lock:
             for key in self._pending:
@@ -143,11 +158,12 @@ class RobotNode:
 
     def __init__(self, bus: can.BusABC, controller: Controller, clock: Clock, *,
                  lockstep: bool = False, latency_window: int = 200_000,
-                 rt_priority: int | None = None) -> None:
+                 rt_priority: int | None = None, drive: DriveBackend | None = None) -> None:
         if lockstep and not isinstance(clock, SimClock):
             raise ValueError("lockstep needs a SimClock (the sim owns time)")
         self.bus = bus
         self.controller = controller
+        self.drive = drive if drive is not None else QnavDrive(DEFAULT_PROFILE)  # wheels out, odometry in
         self.clock = clock
         self.lockstep = lockstep
         self.sim_time = isinstance(clock, SimClock)
@@ -174,7 +190,7 @@ class RobotNode:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._last_rx_ns = 0
-        self._last_answer: can.Message | None = None
+        self._last_answer: list[can.Message] = []
         self._next_us: int | None = None  # paced sim clock: next control deadline
         self._last_tick_ns = 0  # perf_counter_ns of the last SimTick (sim time: the sim is alive)
         self._sim_quiet = False  # logged that SimTicks stopped
@@ -238,6 +254,12 @@ class RobotNode:
             age_s = time.time() - msg.timestamp  # a wall-clock bus timestamp (socketcan) shows queueing
             if 0.0 < age_s < 1.0:
                 rx_ns -= int(age_s * 1e9)
+            updates = self.drive.take(msg, self.clock.now_us())
+            if updates is not None:  # a frame of the drive backend's (drives/)
+                for u in updates:
+                    self.inputs.update(u, self.clock.now_us())
+                self._last_rx_ns = rx_ns
+                continue
             try:
                 name, sig = proto.decode(msg)
             except proto.ProtocolError:
@@ -253,8 +275,9 @@ class RobotNode:
         clock = self.clock
         if not isinstance(clock, SimClock):  # i.e. not self.sim_time
             return  # a wall-clock robot ignores stray sim ticks
-        if self.lockstep and counter == self.last_tick and self._last_answer is not None:
-            self._send_frame(self._last_answer)  # a retransmitted tick: same answer, no step
+        if self.lockstep and counter == self.last_tick and self._last_answer:
+            for frame in self._last_answer:  # a retransmitted tick: same answer, no step
+                self._send_frame(frame)
             return
         gap = 0
         if self.last_tick is not None:
@@ -301,14 +324,16 @@ class RobotNode:
         """One step. `t0_ns`: the tick's input on the wall clock (perf_counter);
         `lag_ns`: how late the tick runs against its pace (None: lockstep)."""
         c0 = time.perf_counter_ns()
+        for u in self.drive.check(now_us, self.controller.cfg.sensor_timeout_ms * 1000):
+            self.inputs.update(u, now_us)
         out = self.controller.step(self.inputs.snapshot(), now_us, tick=counter)
         self.ticks += 1
         if self.lockstep:  # the motor command is the tick's answer: always the last frame
             self._send_heartbeat(out)
-            self._send_motor(out)
+            self._send_motor(out, now_us, counter)
             done = time.perf_counter_ns()
         else:  # latency counts to the command; the heartbeat can follow it
-            self._send_motor(out)
+            self._send_motor(out, now_us, counter)
             done = time.perf_counter_ns()
             self._send_heartbeat(out)
         self._note_wall(done - t0_ns, done - c0, lag_ns)
@@ -355,11 +380,15 @@ class RobotNode:
             "Ctrl_PolicyLoaded": int(hb.policy_loaded), "Ctrl_GoalActive": int(hb.goal_active),
             "Ctrl_Errors": hb.errors & 0xFFFF, "Ctrl_Counter": hb.counter}))
 
-    def _send_motor(self, out: Outputs) -> None:
-        if out.motor is not None:
-            m = out.motor
-            self._last_answer = proto.motor_command(m.left_mm_s, m.right_mm_s, m.counter)
-            self._send_frame(self._last_answer)
+    def _send_motor(self, out: Outputs, now_us: int, counter: int | None) -> None:
+        """The drive backend's frames of this tick; in lockstep they end with the tick's answer."""
+        frames = self.drive.frames(out, now_us)
+        if self.lockstep and counter is not None:
+            if not self.drive.answers_lockstep:
+                frames.append(proto.encode("SimTickAck", {"Ack_Counter": counter % proto.TICK_MODULUS}))
+            self._last_answer = frames
+        for frame in frames:
+            self._send_frame(frame)
 
     def _send_frame(self, frame: can.Message) -> None:
         try:

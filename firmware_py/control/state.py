@@ -52,7 +52,8 @@ class ControlState:
 
     def __init__(self, config: VehicleConfig | None = None, policy: Policy | None = None, *,
                  start_pose_mm: tuple[int, int, int] = (0, 0, 0), lockstep: bool = False,
-                 localise: bool = True, localiser_config: LocaliserConfig | None = None) -> None:
+                 localise: bool = True, localiser_config: LocaliserConfig | None = None,
+                 profile: Any = None) -> None:
         self.cfg = config or VehicleConfig()
         self._lock = threading.RLock()
         self.lockstep = lockstep
@@ -62,10 +63,16 @@ class ControlState:
         # the robot's own map (qnav-robot --map FILE; mapdata.OccupancyGrid): a policy carrying another is
         # refused at boot and activation (policy.config_mismatch). None: the policy's map is taken as is
         self.robot_map: Any = None
+        # qnav-robot --profile (firmware_py.profile.RobotProfile; None: the built-in robot): its geometry
+        # drives odometry, and a policy trained for another is refused (policy.config_mismatch)
+        self.robot_profile: Any = profile
         self._corners: Any = None  # the collision monitor's index of that map's block corners (collision.MapCorners)
         self.policy = policy
         self.last_known_good: Policy | None = None
-        self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS)
+        g = profile.geometry if profile is not None else None
+        self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS) if g is None else Odometry(
+            *start_pose_mm, ticks_per_rev=g.encoder_counts_per_rev, wheel_radius_mm=g.wheel_radius_mm,
+            wheel_base_mm=g.wheel_base_mm, counter_bits=ENCODER_BITS)
         self.watchdog = MotorWatchdog(self.cfg.motor_timeout_ms * 1000)
         self.estop_latch = EStopLatch()
         self.state = CtrlState.BOOT

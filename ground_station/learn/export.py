@@ -124,6 +124,11 @@ def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),
     if qt.state_scales is not None:
         scales = array("f")
         scales.frombytes(np.ascontiguousarray(qt.state_scales, dtype=np.float32).tobytes())
+    from firmware_py.profile import DEFAULT as DEFAULT_ROBOT
+
+    # the robot geometry the twin trained for (robot_spec's: the trainer has no other); a robot whose
+    # profile differs refuses the file naming both values (firmware_py.profile.geometry_mismatch)
+    metadata = {"robot_geometry": DEFAULT_ROBOT.policy_geometry(), **(metadata or {})}
     return fmt.dump_policy(encoder, flat, qt.dtype, qt.scale, state_scales=scales, goals=goals,
                            cell_mm=cell_mm, metadata=metadata, policy_id=policy_id, created=created,
                            control_period_us=control_period_us, map_geometry=map_geometry)

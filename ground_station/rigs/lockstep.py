@@ -30,6 +30,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import can
 
@@ -107,7 +108,10 @@ class LockstepRig:
     def __init__(self, occ, policy: Policy | None, start: tuple[float, float, float],
                  goals_mm: list[tuple[int, int]], *, seed: int = 0,
                  vehicle: VehicleConfig | None = None, answer_timeout_s: float = 5.0,
-                 profile: PlantProfile | None = None, localise: bool = True) -> None:
+                 profile: PlantProfile | None = None, localise: bool = True, robot: Any = None) -> None:
+        from dataclasses import replace
+
+        from firmware_py.drives import open_drive
         from sim_bridge.plant import Plant, SimConfig
         from sim_bridge.world import Pose
 
@@ -115,12 +119,17 @@ class LockstepRig:
         self.sim_bus = can.Bus(interface="virtual", channel=channel)
         self.node_bus = can.Bus(interface="virtual", channel=channel)
         config = SimConfig(seed=seed) if profile is None else SimConfig.from_profile(profile, seed=seed)
+        config = replace(config, robot=robot)  # robot: a firmware_py.profile.RobotProfile (its drive backend)
         self.plant = Plant(occ, config, Pose(*start))
         self.ctrl = _TimedController(vehicle or VehicleConfig(), policy, lockstep=True, localise=localise,
-                               localiser_config=LocaliserConfig(seed=seed),
+                               localiser_config=LocaliserConfig(seed=seed), profile=robot,
                                start_pose_mm=(round(start[0] * 1000), round(start[1] * 1000),
                                               round(start[2] * 1000)))
-        self.node = RobotNode(self.node_bus, self.ctrl, SimClock(), lockstep=True)
+        drive = open_drive(robot) if robot is not None else None
+        self.node = RobotNode(self.node_bus, self.ctrl, SimClock(), lockstep=True, drive=drive)
+        # the tick's answer: qnav's MotorCommand carries the counter, other drives end with a SimTickAck
+        self._answer = ("MotorCommand", "Cmd_Counter") if drive is None or drive.answers_lockstep else (
+            "SimTickAck", "Ack_Counter")
         self.runner = GoalRunner(self.ctrl, goals_mm)
         if goals_mm:
             self.node.after_tick.append(self.runner)
@@ -170,12 +179,12 @@ class LockstepRig:
             msg = self.sim_bus.recv(timeout=max(0.0, deadline - time.perf_counter()))
             if msg is None:
                 raise RuntimeError(f"controller did not answer SimTick {plant.tick}")
-            if msg.arbitration_id != cp.MOTOR_COMMAND_ID:
+            if msg.arbitration_id != cp.FRAME_IDS[self._answer[0]]:
                 plant.handle(msg, lockstep=True)
                 continue
             _, sig = cp.decode(msg)
-            if sig["Cmd_Counter"] != want:
-                if sig["Cmd_Counter"] == self._last_counter:
+            if sig[self._answer[1]] != want:
+                if sig[self._answer[1]] == self._last_counter:
                     self.repeated_answers += 1
                 else:
                     self.stale_answers += 1
@@ -184,19 +193,21 @@ class LockstepRig:
             answer = msg
         if before_answer is not None:
             before_answer()
-        _, sig = cp.decode(answer)
-        self.commands.append((plant.time_us, sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"], want))
         if deliver:
             plant.handle(answer, lockstep=True)
         else:
             self.answers_withheld += 1
+        _, sig = cp.decode(answer)
+        left, right = ((sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]) if "Cmd_LeftSpeed" in sig
+                       else (round(plant.motors.target[0]), round(plant.motors.target[1])))
+        self.commands.append((plant.time_us, left, right, want))
         self._last_counter = want
         self.states.append((plant.time_us, self.ctrl.state))
         st = self.ctrl.status()
         true = plant.world.pose
         self.poses.append((plant.time_us, true.x * 1000, true.y * 1000, st.x_mm, st.y_mm, st.odom_x_mm, st.odom_y_mm))
         plant.step_period()
-        return sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]
+        return left, right
 
     def run_until(self, t_us: int, **kw) -> None:
         """Tick until sim time `t_us`; `kw` as for `tick()`."""
@@ -248,7 +259,7 @@ def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
                 vehicle: VehicleConfig | None = None, frames_hook: FramesHook | None = None,
                 before_tick: Callable[[LockstepRig], None] | None = None,
                 stop_when_done: bool = True, answer_timeout_s: float = 5.0,
-                profile: PlantProfile | None = None, localise: bool = True) -> Episode:
+                profile: PlantProfile | None = None, localise: bool = True, robot: Any = None) -> Episode:
     """Drive one lockstep episode on a `LockstepRig` until the GoalRunner is done
     (unless `stop_when_done` is False) or `max_sim_s` of sim time.
 
@@ -257,7 +268,7 @@ def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
     end_us = round(max_sim_s * 1e6)
     t0 = time.perf_counter()
     with LockstepRig(occ, policy, start, goals_mm, seed=seed, vehicle=vehicle,
-                     answer_timeout_s=answer_timeout_s, profile=profile, localise=localise) as rig:
+                     answer_timeout_s=answer_timeout_s, profile=profile, localise=localise, robot=robot) as rig:
         while rig.plant.time_us < end_us:
             if stop_when_done and rig.runner.done.is_set():
                 break

@@ -49,9 +49,27 @@ def test_every_frame_has_the_odrive_shape_and_the_required_set_exists():
         assert m.frame_id == node << 5 | cmd and node < 64 and cmd < 32
         assert all(s.byte_order == "little_endian" for s in m.signals)
     assert min(ids) == cp.ESTOP_ID and max(ids) == cp.SIM_TICK_ID
-    assert cp.NODE_BROADCAST == 0
-    assert cp.split_id(cp.MOTOR_COMMAND_ID) == (cp.NODE_MOTOR_DRIVER, 0x0D)  # ODrive Set_Input_Vel
-    assert cp.split_id(cp.ENCODER_COUNTS_ID) == (cp.NODE_MOTOR_DRIVER, 0x0A)  # Get_Encoder_Count
+    assert cp.split_id(cp.MOTOR_COMMAND_ID) == (cp.NODE_MOTOR_DRIVER, 0x0D)
+    assert cp.split_id(cp.ENCODER_COUNTS_ID) == (cp.NODE_MOTOR_DRIVER, 0x0A)
+
+
+def test_qnav_ids_stay_clear_of_odrive_nodes_and_dronecan():
+    """An ODrive at node n uses ids n << 5 | cmd (cmd 0..31): qnav's frames sit above every id of ODrive
+    nodes 0..31, and none is extended (every DroneCAN frame is)."""
+    odrive_ids = {node << 5 | cmd for node in range(32) for cmd in range(32)}
+    assert not odrive_ids & {m.frame_id for m in cp.DB.messages}
+    assert min(m.frame_id for m in cp.DB.messages) > max(odrive_ids)
+    assert not any(m.is_extended_frame for m in cp.DB.messages)
+
+
+def test_range_status_values_are_dronecans_reading_types():
+    # uavcan.equipment.range_sensor.Measurement: READING_TYPE_UNDEFINED 0, VALID_RANGE 1, TOO_CLOSE 2, TOO_FAR 3
+    assert (robot_spec.RANGE_INVALID, robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE,
+            robot_spec.RANGE_TOO_FAR) == (0, 1, 2, 3)
+    choices = cp.DB.get_message_by_name("RangeSectors0").get_signal_by_name("Range0Status").choices
+    assert choices is not None and {str(v): k for k, v in choices.items()}["VALID"] == robot_spec.RANGE_VALID
+    name, sig = cp.decode(cp.range_frames([(0, 0)] * robot_spec.SENSOR_COUNT)[0])
+    assert sig["Range0Status"] == robot_spec.RANGE_INVALID  # an all-zero slot is no reading
 
 
 def test_dbc_agrees_with_the_robot_contract_and_vehicle_enums():
@@ -123,7 +141,7 @@ def test_generated_c_source_compiles(tmp_path):
     c_file = tmp_path / "qnav.c"
     assert (tmp_path / "qnav.h").exists() and c_file.exists()
     header = (tmp_path / "qnav.h").read_text()
-    assert "QNAV_MOTOR_COMMAND_FRAME_ID (0x4du)" in header
+    assert "QNAV_MOTOR_COMMAND_FRAME_ID (0x44du)" in header
     comp = subprocess.run([cc, "-std=c99", "-Wall", "-Werror", "-c", str(c_file), "-o",
                            str(tmp_path / "qnav.o")], capture_output=True, text=True, timeout=60)
     assert comp.returncode == 0, comp.stderr

@@ -1,0 +1,221 @@
+"""The robot profile: what this robot is built from, read from a TOML file.
+
+`qnav-robot --profile FILE` (and `qnav-sim --profile FILE`, which plays the
+same robot) takes the robot's geometry and the backends that talk to its
+drive and its range sensors from here; without a file the robot is the one
+`robot_spec` describes, on qnav's own CAN frames. Layout and every key:
+docs/robot-profile.md; an example per backend ships in `firmware_py/profiles/`.
+
+    [geometry]   wheel_base_mm, wheel_radius_mm, robot_radius_mm, encoder_counts_per_rev
+    [drive]      backend ("qnav" | "odrive" | "dronecan"), left_node, right_node,
+                 left_sign, right_sign, max_speed_mm_s, gear_ratio, command ("rpm" | "raw")
+    [sensors]    backend ("qnav" | "dronecan"), angles_deg, max_range_mm, sensor_ids
+    [dronecan]   node_id, node_name
+
+`load_profile` checks every key (type, range, unknown names) and raises
+`ProfileError` with one line naming the file and the key. What a policy
+depends on (`RobotProfile.policy_geometry`) is recorded in the `.qtab` by the
+exporter, and the robot refuses a policy trained for another geometry
+(`firmware_py.policy.config_mismatch`). Stdlib only (tomllib).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from firmware_py import robot_spec
+
+DRIVE_BACKENDS = ("qnav", "odrive", "dronecan")
+SENSOR_BACKENDS = ("qnav", "dronecan")
+DRONECAN_COMMANDS = ("rpm", "raw")
+
+
+class ProfileError(ValueError):
+    """A robot profile that cannot be used; the text is one line naming the file and the key."""
+
+
+@dataclass(frozen=True)
+class Geometry:
+    wheel_base_mm: int = robot_spec.WHEEL_BASE_MM
+    """distance between the wheels' contact points"""
+    wheel_radius_mm: int = robot_spec.WHEEL_RADIUS_MM
+    robot_radius_mm: int = robot_spec.ROBOT_RADIUS_MM
+    """the round body's radius (the sensors sit on its rim)"""
+    encoder_counts_per_rev: int = robot_spec.ENCODER_TICKS_PER_REV
+    """odometry counts per wheel turn (qnav backend; ODrive and DroneCAN report turns and rpm)"""
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    backend: str = "qnav"
+    left_node: int = 0
+    """ODrive CANSimple node id / DroneCAN ESC index of the left wheel"""
+    right_node: int = 1
+    left_sign: int = 1
+    """+1 or -1: which way the motor turns for the wheel to drive the robot forward"""
+    right_sign: int = 1
+    max_speed_mm_s: int = robot_spec.MAX_WHEEL_SPEED_MM_S
+    gear_ratio: float = 1.0
+    """motor turns per wheel turn"""
+    command: str = "rpm"
+    """dronecan: "rpm" (esc.RPMCommand) or "raw" (esc.RawCommand with a wheel-speed PI on esc.Status rpm)"""
+    max_rpm: int = 0
+    """dronecan raw: the motor rpm at full command (8191); 0 = from max_speed_mm_s"""
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    backend: str = "qnav"
+    angles_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0)
+    """each sector's sensor direction, counter-clockwise from the heading, in the order on the bus"""
+    max_range_mm: int = robot_spec.RANGE_MAX_MM
+    sensor_ids: tuple[int, ...] = tuple(range(robot_spec.SENSOR_COUNT))
+    """dronecan: range_sensor.Measurement sensor_id of each sector, in angles_deg order"""
+
+
+@dataclass(frozen=True)
+class DroneCanConfig:
+    node_id: int = 100
+    """the robot's static DroneCAN node id (1..125)"""
+    node_name: str = "org.qnav.robot"
+
+
+@dataclass(frozen=True)
+class RobotProfile:
+    geometry: Geometry = field(default_factory=Geometry)
+    drive: DriveConfig = field(default_factory=DriveConfig)
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    dronecan: DroneCanConfig = field(default_factory=DroneCanConfig)
+    source: str = "built-in default"
+
+    def policy_geometry(self) -> dict[str, Any]:
+        """What a policy's meaning depends on (recorded in the .qtab, compared at load)."""
+        return {"wheel_base_mm": self.geometry.wheel_base_mm, "robot_radius_mm": self.geometry.robot_radius_mm,
+                "sensor_angles_mrad": [round(a * math.pi / 180 * 1000) for a in self.sensors.angles_deg],
+                "max_range_mm": self.sensors.max_range_mm}
+
+    def wheel_circumference_mm(self) -> float:
+        return 2 * math.pi * self.geometry.wheel_radius_mm
+
+
+DEFAULT = RobotProfile()
+assert DEFAULT.policy_geometry()["sensor_angles_mrad"] == list(robot_spec.SENSOR_ANGLES_MRAD)
+DEFAULT_POLICY_GEOMETRY = DEFAULT.policy_geometry()  # what every policy without a record was trained for
+
+_SECTIONS: dict[str, type] = {"geometry": Geometry, "drive": DriveConfig, "sensors": SensorConfig,
+                              "dronecan": DroneCanConfig}
+
+
+def _check(where: str, cond: bool, why: str) -> None:
+    if not cond:
+        raise ProfileError(f"{where}: {why}")
+
+
+def _value(where: str, want: Any, default: Any, value: Any) -> Any:
+    """`value` converted to the field's type, or ProfileError."""
+    if isinstance(default, bool) or want == "bool":
+        _check(where, isinstance(value, bool), f"expected true or false, got {value!r}")
+        return value
+    if isinstance(default, int):
+        _check(where, isinstance(value, int) and not isinstance(value, bool), f"expected an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        _check(where, isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value),
+               f"expected a number, got {value!r}")
+        return float(value)
+    if isinstance(default, str):
+        _check(where, isinstance(value, str), f"expected a string, got {value!r}")
+        return value
+    if isinstance(default, tuple):
+        _check(where, isinstance(value, list) and len(value) > 0, f"expected a non-empty list, got {value!r}")
+        item = default[0]
+        return tuple(_value(f"{where}[{i}]", None, item, v) for i, v in enumerate(value))
+    raise AssertionError(f"unhandled field type at {where}")
+
+
+def profile_from_dict(data: dict[str, Any], source: str) -> RobotProfile:
+    """A checked profile from parsed TOML (`source` names the file in errors)."""
+    parts: dict[str, Any] = {}
+    for section, value in data.items():
+        where = f"{source}: [{section}]"
+        _check(where, section in _SECTIONS, f"unknown section (expected {', '.join(_SECTIONS)})")
+        _check(where, isinstance(value, dict), "expected a table")
+        cls = _SECTIONS[section]
+        defaults = cls()
+        known = {f.name for f in fields(cls)}
+        kw = {}
+        for key, v in value.items():
+            kwhere = f"{source}: {section}.{key}"
+            _check(kwhere, key in known, f"unknown key (expected one of {', '.join(sorted(known))})")
+            kw[key] = _value(kwhere, None, getattr(defaults, key), v)
+        parts[section] = cls(**kw)
+    prof = RobotProfile(**parts, source=source)
+    _validate(prof, source)
+    return prof
+
+
+def _validate(p: RobotProfile, src: str) -> None:
+    g, d, s, dc = p.geometry, p.drive, p.sensors, p.dronecan
+    for key in ("wheel_base_mm", "wheel_radius_mm", "robot_radius_mm", "encoder_counts_per_rev"):
+        v = getattr(g, key)
+        _check(f"{src}: geometry.{key}", 0 < v <= 100_000, f"expected 1..100000, got {v}")
+    _check(f"{src}: drive.backend", d.backend in DRIVE_BACKENDS,
+           f"expected one of {', '.join(DRIVE_BACKENDS)}, got {d.backend!r}")
+    _check(f"{src}: sensors.backend", s.backend in SENSOR_BACKENDS,
+           f"expected one of {', '.join(SENSOR_BACKENDS)}, got {s.backend!r}")
+    node_max = 31 if d.backend == "odrive" else 19 if d.backend == "dronecan" else 63
+    for key in ("left_node", "right_node"):
+        v = getattr(d, key)
+        _check(f"{src}: drive.{key}", 0 <= v <= node_max,
+               f"expected 0..{node_max} for the {d.backend} backend, got {v}")
+    _check(f"{src}: drive.right_node", d.left_node != d.right_node, f"the same as left_node ({d.left_node})")
+    for key in ("left_sign", "right_sign"):
+        _check(f"{src}: drive.{key}", getattr(d, key) in (1, -1), f"expected 1 or -1, got {getattr(d, key)}")
+    _check(f"{src}: drive.max_speed_mm_s", 0 < d.max_speed_mm_s <= robot_spec.MAX_WHEEL_SPEED_MM_S,
+           f"expected 1..{robot_spec.MAX_WHEEL_SPEED_MM_S}, got {d.max_speed_mm_s}")
+    _check(f"{src}: drive.gear_ratio", 0.01 <= d.gear_ratio <= 1000, f"expected 0.01..1000, got {d.gear_ratio}")
+    _check(f"{src}: drive.command", d.command in DRONECAN_COMMANDS,
+           f"expected one of {', '.join(DRONECAN_COMMANDS)}, got {d.command!r}")
+    _check(f"{src}: drive.max_rpm", 0 <= d.max_rpm <= 100_000, f"expected 0..100000, got {d.max_rpm}")
+    _check(f"{src}: sensors.angles_deg", all(-180 <= a <= 180 for a in s.angles_deg),
+           "every angle in -180..180 degrees")
+    _check(f"{src}: sensors.max_range_mm", 0 < s.max_range_mm <= 4095, f"expected 1..4095, got {s.max_range_mm}")
+    # the controller's inputs and every policy kind's encoder hold robot_spec.SENSOR_COUNT sectors
+    _check(f"{src}: sensors.angles_deg", len(s.angles_deg) == robot_spec.SENSOR_COUNT,
+           f"{len(s.angles_deg)} sensors; this build reads {robot_spec.SENSOR_COUNT} sectors")
+    _check(f"{src}: sensors.sensor_ids", len(s.sensor_ids) == len(s.angles_deg),
+           f"{len(s.sensor_ids)} ids for {len(s.angles_deg)} angles")
+    _check(f"{src}: sensors.sensor_ids", len(set(s.sensor_ids)) == len(s.sensor_ids)
+           and all(0 <= i <= 255 for i in s.sensor_ids), "expected distinct ids in 0..255")
+    _check(f"{src}: dronecan.node_id", 1 <= dc.node_id <= 125, f"expected 1..125, got {dc.node_id}")
+    _check(f"{src}: dronecan.node_name", 0 < len(dc.node_name) <= 80 and dc.node_name.isascii(),
+           "expected 1..80 ASCII characters")
+
+
+def load_profile(path: str | Path) -> RobotProfile:
+    """Read and check a profile file; ProfileError (one line, naming file and key) otherwise."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ProfileError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise ProfileError(f"{p}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileError(f"{p}: not valid TOML: {exc}") from None
+    return profile_from_dict(data, str(p))
+
+
+def geometry_mismatch(recorded: dict[str, Any] | None, profile: RobotProfile) -> str:
+    """Why a policy trained for `recorded` (None: the built-in robot) must not run on `profile`
+    ('' if it may), naming both values."""
+    want = profile.policy_geometry()
+    have = recorded if recorded is not None else DEFAULT_POLICY_GEOMETRY
+    for key, value in want.items():
+        if key in have and have[key] != value:
+            return f"policy trained for {key} {have[key]}, robot profile {profile.source} has {value}"
+    return ""
