@@ -80,6 +80,7 @@ class DemoOptions:
     obstacles: int = 0  # unmapped static discs on or beside the planned path (ground_station/nav/scenario.py)
     movers: int = 0  # moving discs
     plan: bool | None = None  # send the planner's waypoints; None: for sector policies
+    profile: Path | None = None  # a robot profile (firmware_py/profile.py): the robot and the sim use its backends
 
     def mission_timeout_s(self) -> float:
         if self.timeout_s is not None:
@@ -632,6 +633,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                             "-q")
         if scenario_file is not None:
             sim_argv += ["--scenario", str(scenario_file)]
+        if opts.profile is not None:
+            sim_argv += ["--profile", str(opts.profile)]
         if opts.realtime:
             sim_argv += ["--realtime", "--duration", f"{opts.mission_timeout_s() + 300:g}"]
         else:
@@ -642,7 +645,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                                 "--stats-json", str(paths["robot_stats"]),
                                 # the demo's plant is ideal (exact encoders): dead reckoning is exact there, and
                                 # the localiser's corridor jitter (~0.1 m) made 2 of 19 runs clip a corner
-                                "--localiser", "off")
+                                "--localiser", "off",
+                                *(["--profile", str(opts.profile)] if opts.profile is not None else []))
         procs.start("sim", sim_argv, logs["sim"])
         procs.start("robot", robot_argv, logs["robot"])
         say(f"qnav-sim ({summary.mode}) and qnav-robot started, start cell ({col}, {row}); "

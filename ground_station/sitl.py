@@ -62,6 +62,7 @@ class SitlOptions:
     duration_s: float | None = None  # wall seconds, then stop (None: until Ctrl-C)
     autopilot: str = DEFAULT_AUTOPILOT  # the robot's HEARTBEAT autopilot (--mavlink-autopilot): "ardupilot" for MAVSDK
     probe_timeout_s: float = 60.0
+    profile: Path | None = None  # a robot profile: the robot drives through its backends, the sim plays its boards
 
 
 @dataclass
@@ -119,6 +120,13 @@ def validate(opts: SitlOptions) -> None:
     problem = check_url(opts.mavlink)  # the check every MAVLink command's --mavlink gets
     if problem is not None:
         raise SitlError(f"--mavlink {opts.mavlink}: expected a MAVLink connection string ({problem})")
+    if opts.profile is not None:
+        from firmware_py.profile import ProfileError, load_profile
+
+        try:
+            load_profile(opts.profile)
+        except ProfileError as exc:
+            raise SitlError(f"--profile {exc}") from None
 
 
 def connection_help(info: SitlInfo) -> list[str]:
@@ -236,7 +244,8 @@ class Sitl:
         pace = ["--lockstep", "--max-speed", f"{opts.speed:g}"] if opts.lockstep else ["--speed", f"{opts.speed:g}"]
         sim_argv = qnav_sim("--map", opts.map_name, "--can", can_spec, *pace,
                             "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
-                            "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q")
+                            "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q",
+                            *(["--profile", str(opts.profile)] if opts.profile is not None else []))
         # the robot knows the world it is in (a policy for another map is refused, naming both)
         from ground_station.maps import write_map
 
@@ -245,7 +254,8 @@ class Sitl:
                                 "--map", run_dir / "map.map", "--cell-size", f"{world.cell_size_m:g}",
                                 "--storage", run_dir / "robot",
                                 "--mavlink", opts.mavlink, "--mavlink-autopilot", opts.autopilot,
-                                "--stats-json", run_dir / "robot_stats.json")
+                                "--stats-json", run_dir / "robot_stats.json",
+                                *(["--profile", str(opts.profile)] if opts.profile is not None else []))
         if policy:  # the robot boots it from its storage, as a real robot does: its FTP server then
             # has it as /policies/active.qtab, where `qnav mission upload --targets` reads the robot's map
             from firmware_py.atomic import atomic_write

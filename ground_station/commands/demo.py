@@ -57,6 +57,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--obstacles", type=int, default=0, metavar="K",
                    help="unmapped static discs on or beside the planned path (ground_station/nav/scenario.py)")
     p.add_argument("--movers", type=int, default=0, metavar="M", help="moving discs (pedestrian pace)")
+    p.add_argument("--profile", type=Path, metavar="FILE.toml",
+                   help="robot profile (docs/robot-profile.md): the robot drives through its backends and the sim "
+                        "plays the same boards, e.g. firmware_py/profiles/odrive.toml (default: qnav's own frames)")
     plan = p.add_mutually_exclusive_group()
     plan.add_argument("--plan", dest="plan", action="store_const", const=True, default=None,
                       help="send the planner's waypoints through the targets (default for sector policies)")
@@ -112,12 +115,20 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--obstacles and --movers must be >= 0")
     if args.train_steps < 1:
         raise CliError(f"--train-steps must be >= 1, got {args.train_steps}")
+    if args.profile is not None:  # checked here: a bad file is one line before any process starts
+        from firmware_py.profile import ProfileError, load_profile
+
+        try:
+            load_profile(args.profile)
+        except ProfileError as exc:
+            raise CliError(f"--profile {exc}") from None
     headless = args.headless or not (sys.stdout.isatty() and sys.stdin.isatty())
     if headless and not args.headless:
         print("qnav demo: no terminal, running headless", file=sys.stderr)
     opts = DemoOptions(targets=targets, policy=args.policy, train=args.train, train_steps=args.train_steps,
                        realtime=args.realtime, headless=headless, out=args.out, timeout_s=args.timeout,
-                       seed=args.seed, obstacles=args.obstacles, movers=args.movers, plan=args.plan)
+                       seed=args.seed, obstacles=args.obstacles, movers=args.movers, plan=args.plan,
+                       profile=args.profile.resolve() if args.profile is not None else None)
 
     def say(line: str) -> None:
         print(f"qnav demo: {line}", file=sys.stderr, flush=True)

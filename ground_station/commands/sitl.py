@@ -50,6 +50,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--autopilot", choices=sorted(AUTOPILOTS), default=DEFAULT_AUTOPILOT,
                    help="autopilot type the robot's HEARTBEAT gives (default %(default)s; 'ardupilot' for MAVSDK, "
                         "which decodes int parameters and names flight modes only for ArduPilot or PX4)")
+    p.add_argument("--profile", type=Path, metavar="FILE.toml",
+                   help="robot profile (docs/robot-profile.md): the robot drives through its backends and the sim "
+                        "plays the same boards (default: qnav's own frames)")
     p.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/sitl-<timestamp>/)")
     p.add_argument("--seed", type=int, default=0, help="sim noise seed (default %(default)s)")
     p.add_argument("--duration", type=float, metavar="S",
@@ -64,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = SitlOptions(map_name=args.map, policy=args.policy, can=args.can, speed=args.speed, lockstep=args.lockstep,
                        mavlink=args.mavlink, out=args.out, seed=args.seed, duration_s=args.duration,
-                       autopilot=args.autopilot)
+                       autopilot=args.autopilot, profile=args.profile.resolve() if args.profile else None)
 
     def say(line: str) -> None:
         print(f"qnav sitl: {line}", file=sys.stderr, flush=True)

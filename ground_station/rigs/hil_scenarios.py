@@ -511,7 +511,38 @@ def _reached_seq(tlog: Path) -> list[int]:
     return seqs
 
 
+ODRIVE_PROFILE = "firmware_py/profiles/odrive.toml"
+
+
+def odrive(can: str, work: Path, *, fault_at_s: float | None = None, duration_s: float = 60.0) -> dict:
+    """Lockstep drive to target B through two emulated ODrive axes (both programs with --profile
+    odrive.toml); with `fault_at_s`, the sim gives the left axis a MOTOR_FAILED error then. 60 s: the
+    profile's wheel speed limit is 400 mm/s (the cell policy's moves run at up to 600 without one)."""
+    tag = "odrive_fault" if fault_at_s is not None else "odrive_goal"
+    stats = work / f"{tag}_robot.json"
+    res: dict = {"scenario": tag, "can": can, "fault_at_s": fault_at_s}
+    fault = ["--drive-fault", f"{fault_at_s:g}:error:0x40:left"] if fault_at_s is not None else []
+    with _Procs(work) as procs:
+        sim = procs.start(f"{tag}_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
+                                         "--duration", duration_s, "--start", START, "-q", "--profile",
+                                         ODRIVE_PROFILE, *fault])
+        rob = procs.start(f"{tag}_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", CELL_POLICY,
+                                           "--start", START, "--goal-cell", "9,0", "--exit-when-done",
+                                           "--duration", duration_s - 0.05, "--stats-json", stats,
+                                           "--mavlink", "none", "--profile", ODRIVE_PROFILE])
+        res["robot_exit"] = _wait(rob, 120)
+        # lockstep: with the robot gone the sim would wait out each remaining tick; Ctrl-C it
+        res["sim_exit"] = stop_process(sim, timeout_s=10, sig=signal.SIGINT)
+        res["robot"] = _stats(stats)
+        res["sim"] = _sim_summary(procs.log(f"{tag}_sim"))
+        if res["robot_exit"] != (3 if fault else 0):
+            res["logs"] = {"sim": procs.log(f"{tag}_sim")[-1500:], "robot": procs.log(f"{tag}_robot")[-1500:]}
+    return res
+
+
 SCENARIOS: dict[str, Callable[..., dict]] = {
+    "odrive_goal": odrive,
+    "odrive_fault": lambda can, work: odrive(can, work, fault_at_s=3.0),
     "goal_reached": goal_reached,
     "estop": estop,
     "estop_cansend": lambda can, work: estop(can, work, sender="cansend"),

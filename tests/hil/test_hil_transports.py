@@ -44,7 +44,7 @@ can_utils = pytest.mark.skipif(not CAN_UTILS, reason="can-utils (candump, cansen
 ESTOP_VCAN = "estop_cansend" if CAN_UTILS else "estop"
 # the mission alone takes as long as the rest inside UML (its `qnav` commands start slowly there),
 # so UML boots twice, side by side; on a host vcan0 the batches share one bus and run in turn
-BATCHES = [["mission"], ["goal_reached", ESTOP_VCAN, "sensor_stop"]]
+BATCHES = [["mission"], ["goal_reached", ESTOP_VCAN, "sensor_stop", "odrive_goal", "odrive_fault"]]
 
 
 @pytest.fixture(scope="session")
@@ -202,3 +202,26 @@ def test_can_utils_qnav_report_reads_the_candump_log(vcan_batch, tmp_path):
     assert [st for _, st in s["controller_states"]][-3:] == ["DRIVING", "GOAL_REACHED", "HOLD"]
     code, text = _qnav("report", str(log))
     assert code == 0 and "candump log, " in text and "MotorCommand" in text
+
+
+# --- the odrive drive backend on each transport (docs/robot-profile.md) ------------------------
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_odrive_axes_drive_the_robot_to_its_goal(transport, request, tmp_path):
+    r = _result(transport, "odrive_goal", request, tmp_path)
+    assert r["robot_exit"] == 0, r.get("logs")
+    s = r["robot"]
+    assert s["result"] == "reached" and s["drive_backend"] == "odrive" and s["can_errors"] == 0
+    assert s["drive_bad_frames"] == 0 and s["profile"].endswith("odrive.toml")
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_an_odrive_axis_error_mid_drive_is_a_fault_naming_the_axis(transport, request, tmp_path):
+    r = _result(transport, "odrive_fault", request, tmp_path)
+    assert r["robot_exit"] == 3, r.get("logs")  # --exit-when-done: 3 on FAULT
+    s = r["robot"]
+    assert s["state"] == "FAULT" and s["fault"].startswith("left axis 0 (ODrive node 0): axis error 0x40"), s
+    t_fault = next(t for t, _src, dst, _cause in s["transitions"] if dst == "FAULT")
+    assert 3_000_000 <= t_fault <= 3_000_000 + s["period_us"] + 100_000  # the next heartbeat (10 Hz) says it
