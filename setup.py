@@ -10,7 +10,7 @@ cannot combine `packages.find` with a renamed package, hence this file.
 from setuptools import find_packages, setup
 
 PACKAGES = find_packages(include=["firmware_py*", "ground_station*", "sim_bridge*"])
-DATA_PACKAGES = ["ground_station.maps_data", "qnav_policies", "firmware_py.profiles"]  # folders of data, named so setuptools ships them
+DATA_PACKAGES = ["ground_station.maps_data", "qnav_policies", "firmware_py.profiles", "firmware_py.deploy"]  # folders of data, named so setuptools ships them
 
 setup(
     packages=PACKAGES + DATA_PACKAGES,
@@ -18,7 +18,8 @@ setup(
     package_data={
         "firmware_py": ["*.dbc"],
         "firmware_py.mavlink": ["*.xml"],
-        "firmware_py.profiles": ["*.toml"],  # an example robot profile per backend (docs/robot-profile.md)  # extra.xml: messages pymavlink lacks (mavlink/extra.py)
+        "firmware_py.profiles": ["*.toml"],
+        "firmware_py.deploy": ["*.service"],  # the systemd unit (docs/deploy.md)  # an example robot profile per backend (docs/robot-profile.md)  # extra.xml: messages pymavlink lacks (mavlink/extra.py)
         "ground_station.logs": ["*.json"],  # the Foxglove layout (docs/monitor.md)
         "ground_station.maps_data": ["*"],
         "qnav_policies": ["*.qtab", "*.json", "README.md"],

@@ -22,6 +22,7 @@ import argparse
 import json
 import logging
 import resource
+import signal
 import sys
 import time
 from typing import TYPE_CHECKING
@@ -94,6 +95,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a sensor input older than this is stale: the motors stop")
     p.add_argument("--motor-timeout-ms", type=int, default=VehicleConfig.motor_timeout_ms, metavar="MS",
                    help="the motor driver's command watchdog the robot configures")
+    check = p.add_argument_group("bring-up and deployment (docs/deploy.md)")
+    check.add_argument("--print-unit", action="store_true",
+                       help="print the systemd unit shipped with the package (Type=notify, watchdog, restart) and exit")
+    check.add_argument("--check", action="store_true",
+                       help="list which boards answer on --can (drive, range sensors, bumper, battery) with their "
+                            "state and errors, then exit: 0 everything needed answered, 1 not")
+    check.add_argument("--check-motors", action="store_true",
+                       help="with --check: also turn each wheel alone, slowly (the robot turns ~45 deg round the "
+                            "other wheel), and report whether it drove the way the profile's sign says")
+    check.add_argument("--check-listen", type=float, default=2.0, metavar="S",
+                       help="with --check: seconds to listen for the boards")
     p.add_argument("--exit-when-done", action="store_true",
                    help="exit 0 when the goals are reached, 3 on FAULT")
     p.add_argument("--duration", type=float, metavar="S",
@@ -181,6 +193,31 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _check(args: argparse.Namespace) -> int:
+    """qnav-robot --check: the bring-up report (firmware_py/bringup.py); exit 0 all there, 1 not."""
+    from firmware_py.bringup import run_check
+    from firmware_py.canbus import CanSpecError, open_bus
+    from firmware_py.profile import DEFAULT
+
+    if not 0.2 <= args.check_listen <= 60:
+        raise UsageError(f"--check-listen {args.check_listen:g}: expected 0.2..60 s")
+    try:
+        bus = open_bus(args.can)
+    except CanSpecError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        rep = run_check(bus, args.robot_profile or DEFAULT, listen_s=args.check_listen, spin=args.check_motors)
+    finally:
+        bus.shutdown()
+    for line in rep.lines:
+        print(line)
+    if rep.problems:
+        print(f"qnav-robot --check: {len(rep.problems)} problem(s): {rep.problems[0]}", file=sys.stderr)
+        return 1
+    print("qnav-robot --check: every board answered" + (", both wheels drive forward" if args.check_motors else ""))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from firmware_py.canbus import CanSpecError, open_bus
 
@@ -195,6 +232,15 @@ def run(args: argparse.Namespace) -> int:
             args.robot_profile = load_profile(args.profile)
         except ProfileError as exc:
             raise UsageError(f"--profile {exc}") from None
+    if args.print_unit:
+        from importlib import resources
+
+        print(resources.files("firmware_py").joinpath("deploy/qnav-robot.service").read_text(encoding="utf-8"), end="")
+        return EXIT_OK
+    if args.check_motors and not args.check:
+        raise UsageError("--check-motors goes with --check")
+    if args.check:
+        return _check(args)
     args.robot_map = None
     if args.map:
         from firmware_py.mapdata import MapDataError, grid_from_map_file
@@ -263,13 +309,36 @@ def run(args: argparse.Namespace) -> int:
         if stop is not None:
             stoppers.append(stop)
     log = logging.getLogger("qnav.robot")
+    onboard = None
+    if args.storage:  # the robot's own log under its storage root, served by its FTP server (docs/deploy.md)
+        from firmware_py.onboard_log import OnboardLog
+
+        def stats_line() -> str:
+            st = ctrl.status()
+            return (f"stats state={st.state.name} mode={ctrl.mode.name} armed={int(ctrl.armed)} ticks={node.ticks} "
+                    f"overruns={node.overruns} late={node.wall_late_ticks} can_errors={node.can_errors} "
+                    f"pose_mm={st.x_mm},{st.y_mm},{st.heading_mrad}")
+
+        try:
+            onboard = OnboardLog(args.storage, stats=stats_line).start()
+        except OSError as exc:  # a read-only or full disk: the robot runs without its log
+            log.warning("onboard log not written: %s", exc)
     log.info("policy %s, start (%d, %d) mm %d mrad, %d goal(s), %s clock",
              f"0x{policy.policy_id:08x} {policy.kind}" if policy else "none", *start, len(goals),
              "lockstep sim" if args.lockstep else "paced sim" if sim else "wall")
     wall0 = time.monotonic()
     cpu0 = time.process_time()
     code = EXIT_OK
+
+    def on_term(_sig: int, _frame: object) -> None:  # systemd's stop (or a plain kill): the Ctrl-C path
+        raise KeyboardInterrupt
+
+    previous_term = signal.signal(signal.SIGTERM, on_term)
     node.start()
+    from firmware_py.sdnotify import ServiceNotifier
+
+    service = ServiceNotifier.from_env()  # systemd (docs/deploy.md): READY, a watchdog pet while ticks advance
+    service.start(lambda: node.ticks, lambda: f"{ctrl.state.name}, {node.ticks} ticks")
     try:
         reported = False
         while True:
@@ -292,10 +361,15 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         code = 130
     finally:
+        signal.signal(signal.SIGTERM, previous_term)
+        service.stop()
         for stop in stoppers:
             stop()
         node.stop()
         bus.shutdown()
+        if onboard is not None:
+            log.info("stopped: %s", ctrl.status().state.name)
+            onboard.stop()
     wall = time.monotonic() - wall0
     cpu = time.process_time() - cpu0
     st = ctrl.status()

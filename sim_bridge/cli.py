@@ -181,8 +181,8 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"--drive-fault {text!r}: expected T:error:CODE:SIDE or T:silent:SIDE, "
                            "e.g. 5:error:0x40:left")
         faults.append((t, what, side))
-    if (faults or args.flip_wheel) and (robot is None or robot.drive.backend != "odrive"):
-        raise CliError("--drive-fault and --flip-wheel need --profile FILE with an odrive drive")
+    if faults and (robot is None or robot.drive.backend != "odrive"):
+        raise CliError("--drive-fault needs --profile FILE with an odrive drive")
     try:
         prof = profile(plant_name)
         scale = (prof.encoder_scale[0] if args.enc_scale_left is None else args.enc_scale_left,

@@ -175,8 +175,10 @@ class Plant:
                 return False
             if lockstep:
                 self._answered_tick = sig["Cmd_Counter"]
-            self.motors.command(sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"], sig["Cmd_Counter"],
-                                self.time_us)
+            left, right = sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]
+            if self.config.flip_wheel:  # a motor mounted the other way round turns its wheel backwards
+                left, right = (-left, right) if self.config.flip_wheel == "left" else (left, -right)
+            self.motors.command(left, right, sig["Cmd_Counter"], self.time_us)
             self._last_cmd = (sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"])
             return True
         if name == "SimTickAck" and self.odrive is not None:  # the answer when the drive's frames carry no counter

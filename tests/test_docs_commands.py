@@ -82,6 +82,14 @@ NOT_RUN = {
     "qnav report run/bus.log": _VCAN + " (the log comes from candump on vcan0)",
     "qnav-robot --can socketcan:can0": _ROBOT,
     "qnav-robot --profile firmware_py/profiles/odrive.toml --can socketcan:can0": _ROBOT,
+    # docs/deploy.md: a robot's bring-up, its CAN interface and systemd; the same commands against the sim in
+    # tests/hil/test_bringup_check.py (--check), tests/firmware_py/test_service_unit.py (the unit, sd_notify)
+    # and tests/hil/test_onboard_log.py (qnav log list|pull)
+    "qnav-robot --check --profile /etc/qnav/robot.toml --can socketcan:can0": _ROBOT,
+    "qnav-robot --print-unit | sudo tee": "writes /etc; tests/firmware_py/test_service_unit.py checks --print-unit",
+    "qnav upload my_policy.qtab --activate --mavlink /dev/ttyUSB0": _ROBOT,
+    "qnav log list --mavlink /dev/ttyUSB0": _ROBOT,
+    "qnav log pull --mavlink /dev/ttyUSB0": _ROBOT,
     "qnav-sim   --profile firmware_py/profiles/odrive.toml --map paper10 --lockstep --can ...":
         "a placeholder bus; tests/hil/test_odrive_drive.py runs qnav-sim and qnav-robot with this profile on a hub",
     "qnav upload policies/paper10_cell.qtab --activate --mavlink /dev/ttyUSB0": _ROBOT,

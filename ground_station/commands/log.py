@@ -1,5 +1,6 @@
 """`qnav log mcap RUN_DIR|FILE.tlog [--tlog FILE] [--can FILE] [--trajectory FILE] [--map NAME|PATH] [--out FILE.mcap]`:
 a run as one MCAP file for Foxglove, PlotJuggler (3.8+) and Rerun.
+`qnav log list|pull`: the robot's own log files (its storage's logs/, over MAVLink FTP; docs/deploy.md).
 
 A run folder (`qnav demo`, `qnav sitl`) gives its tlog, CAN log (can.blf),
 the sim's trajectory.csv, the robot's robot.log and the map named in its summary.json; a tlog alone
@@ -29,6 +30,71 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="map for the /map grid (default: the run's summary.json map; 'none' for no map)")
     m.add_argument("--out", metavar="FILE.mcap", help="output (default: RUN_DIR/run.mcap, or FILE.mcap beside the tlog)")
     m.set_defaults(func=run_mcap)
+    from ground_station.mavlink.link import add_link_args
+
+    ls = inner.add_parser("list", help="the robot's own log files (logs/ in its storage, over MAVLink FTP)",
+                          description="List the robot's onboard log files (firmware_py/onboard_log.py: "
+                                      "logs/robot.log and its rotated copies) with their sizes.")
+    add_link_args(ls)
+    ls.set_defaults(func=run_list)
+    pull = inner.add_parser("pull", help="fetch the robot's own log files over MAVLink FTP",
+                            description="Fetch the robot's onboard log files (all, or the NAMEs given) into "
+                                        "--out; each file is written beside its final name and renamed over it.")
+    add_link_args(pull)
+    pull.add_argument("names", nargs="*", metavar="NAME", help="files to fetch (default: every file in logs/)")
+    pull.add_argument("--out", type=Path, default=Path("robot-logs"), metavar="DIR",
+                      help="where to put them (default %(default)s)")
+    pull.set_defaults(func=run_pull)
+
+
+ROBOT_LOG_DIR = "/logs"  # firmware_py.onboard_log.LOG_DIR under the robot's storage root
+
+
+def _robot_logs(link) -> list[tuple[str, int]]:
+    from ground_station.errors import CliError
+    from ground_station.mavlink.ftp_upload import ftp_session
+
+    listing = ftp_session(link).list_dir(ROBOT_LOG_DIR)
+    if listing is None:
+        raise CliError(f"the robot has no {ROBOT_LOG_DIR} (started without --storage, or an older qnav-robot)")
+    return sorted((name, size) for name, size in listing if size is not None and size >= 0)
+
+
+def run_list(args: argparse.Namespace) -> int:
+    from ground_station.mavlink.link import run_on_link
+
+    def body(link) -> int:
+        files = _robot_logs(link)
+        for name, size in files:
+            print(f"{size:>10}  {ROBOT_LOG_DIR}/{name}")
+        print(f"{len(files)} file(s), {sum(s for _, s in files)} bytes")
+        return 0
+
+    return run_on_link(args, "log list", body)
+
+
+def run_pull(args: argparse.Namespace) -> int:
+    from firmware_py.atomic import atomic_write
+    from ground_station.errors import CliError
+    from ground_station.mavlink.link import run_on_link
+    from ground_station.mavlink.robot_map import read_robot_file
+
+    def body(link) -> int:
+        files = dict(_robot_logs(link))
+        names = args.names or sorted(files)
+        missing = [n for n in names if n not in files]
+        if missing:
+            raise CliError(f"no {ROBOT_LOG_DIR}/{missing[0]} on the robot (it has {', '.join(sorted(files)) or 'none'})")
+        args.out.mkdir(parents=True, exist_ok=True)
+        for name in names:
+            data = read_robot_file(link, f"{ROBOT_LOG_DIR}/{name}") if files[name] else b""
+            if data is None:
+                raise CliError(f"{ROBOT_LOG_DIR}/{name} went away while fetching (rotated?): pull again")
+            atomic_write(args.out / name, data)
+            print(f"{args.out / name}: {len(data)} bytes")
+        return 0
+
+    return run_on_link(args, "log pull", body)
 
 
 def run_mcap(args: argparse.Namespace) -> int:

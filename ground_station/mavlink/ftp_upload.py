@@ -66,6 +66,7 @@ ACTIVE_POLICY = "/policies/active.qtab"  # firmware_py.storage.ACTIVE_POLICY; im
 POLICY_PARAMS = ("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO")
 NAK_FAIL, NAK_FAIL_ERRNO, NAK_FILE_NOT_FOUND = Nak.FAIL, Nak.FAIL_ERRNO, Nak.FILE_NOT_FOUND
 ENOENT = 2
+ERR_END_OF_FILE = 6  # MAVLink FTP NAK code: a listing or read past its end
 READ_BUDGET_S = 10.0  # one round of reads (params, CRC) before the caller looks again
 
 
@@ -149,7 +150,8 @@ class FtpSession:
         padded = bytearray(payload) + bytearray(PAYLOAD_LEN - len(payload))
         self.link.conn.mav.file_transfer_protocol_send(0, self.link.sysid, self.link.compid, padded)
 
-    def ask(self, opcode: int, data: bytes, wait_s: float, what: str, session: int = 0) -> tuple[int, bytes]:
+    def ask(self, opcode: int, data: bytes, wait_s: float, what: str, session: int = 0,
+            offset: int = 0) -> tuple[int, bytes]:
         """A single-reply request that may safely run twice (CRC, RemoveFile),
         three times at first (the copies are answered from the robot's retry
         cache: a lost frame costs no timeout), then again (new seq) until the
@@ -165,7 +167,7 @@ class FtpSession:
             seq = self.take_seq()
             seqs.append(seq)
             sent_at[seq] = time.monotonic()
-            payload = ftp_put.request(seq, session, opcode, 0, data)
+            payload = ftp_put.request(seq, session, opcode, offset, data)
             self.send(payload)
             if len(seqs) == 1:  # copies at once: the robot's retry cache answers them, three chances
                 self.send(payload)  # (a copy is a few ms of air; a timeout, 0.3 s)
@@ -192,6 +194,29 @@ class FtpSession:
         if opcode == self.mavftp.OP_Ack and len(data) == 4:
             return struct.unpack("<I", data)[0]
         return None
+
+    def list_dir(self, path: str, wait_s: float = 10.0) -> list[tuple[str, int | None]] | None:
+        """ListDirectory of `path`: [(name, size; None for a directory)], None if there is no such
+        directory. Read in pages (each reply holds as many entries as fit) until the robot says EOF."""
+        out: list[tuple[str, int | None]] = []
+        while True:
+            opcode, data = self.ask(self.mavftp.OP_ListDirectory, path.encode() + b"\0", wait_s,
+                                    f"the listing of {path}", offset=len(out))
+            if opcode != self.mavftp.OP_Ack:
+                eof = data[:1] == bytes([ERR_END_OF_FILE])
+                return out if eof or out else None
+            entries = [e for e in data.split(b"\0") if e]
+            if not entries:
+                return out
+            for e in entries:
+                kind, text = e[:1], e[1:].decode(errors="replace")
+                if kind == b"F":
+                    name, _, size = text.partition("\t")
+                    out.append((name, int(size) if size.isdigit() else 0))
+                elif kind == b"D":
+                    out.append((text, None))
+                else:  # "S": skipped (an entry the server would not describe)
+                    out.append((text, -1))
 
     def put(self, data: bytes, remote: str, deadline: float,
             progress: Callable[[float | None], None] | None = None) -> FtpPut:

@@ -1,0 +1,270 @@
+"""`qnav-robot --check`: which boards answer on the bus, and (with --check-motors) whether each
+wheel turns the way the profile says.
+
+A robot builder's first question after wiring: is everything there? The check listens on the
+bus for a while and reports, per board the profile expects, whether it was heard, its state and
+errors: the drive (through the profile's drive backend: qnav's MotorStatus/EncoderCounts, or each
+ODrive axis's heartbeat and encoder estimates), the range board (one reading per sensor), the
+bumper and the battery (optional). With `spin=True` it then turns each wheel alone, slowly and
+briefly, through the same backend the controller uses, and reads odometry and the range sensors:
+a wheel that drove backwards has its sign flipped in the profile (or its motor wired the other way
+round); see `_spin` for how each backend tells.
+
+`run_check` returns the report lines and whether everything needed is there; the CLI prints them
+and exits 0 or 1. Wall clock; the robot must not be driving (it is not armed: the controller is
+not running during a check).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+
+from firmware_py import can_protocol as proto
+from firmware_py import robot_spec
+from firmware_py.control.io import Heartbeat, Inputs, MotorCommand, Outputs
+from firmware_py.control.plausibility import plausible_range_status
+from firmware_py.drives import open_drive
+from firmware_py.profile import RobotProfile
+
+SPIN_MM_S = 100  # a slow wheel speed
+SPIN_TURN_RAD = 0.785  # each wheel alone turns the robot about 45 degrees round the other wheel
+MIN_COUNTS = 20  # odometry must move at least this much for a verdict
+STATUS_NAMES = {robot_spec.RANGE_INVALID: "invalid", robot_spec.RANGE_VALID: "valid",
+                robot_spec.RANGE_TOO_CLOSE: "too close", robot_spec.RANGE_TOO_FAR: "too far"}
+
+
+@dataclass
+class CheckReport:
+    lines: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+    def ok(self, text: str) -> None:
+        self.lines.append(f"ok       {text}")
+
+    def bad(self, text: str) -> None:
+        self.lines.append(f"MISSING  {text}" if "not heard" in text else f"PROBLEM  {text}")
+        self.problems.append(text)
+
+    def note(self, text: str) -> None:
+        self.lines.append(f"info     {text}")
+
+
+class _Listener:
+    """The bus read through the profile's drive backend and qnav's decoder into one `Inputs`."""
+
+    def __init__(self, bus: can.BusABC, profile: RobotProfile, clock: Callable[[], float]) -> None:
+        self.bus, self.profile, self.clock = bus, profile, clock
+        self.drive = open_drive(profile)
+        self.inputs = Inputs()
+        self.heard: dict[str, int] = {}
+        self.unknown: dict[int, int] = {}
+        self.t0 = clock()
+
+    def now_us(self) -> int:
+        return int((self.clock() - self.t0) * 1e6)
+
+    def pump(self, seconds: float) -> None:
+        end = self.clock() + seconds
+        while (left := end - self.clock()) > 0:
+            msg = self.bus.recv(timeout=min(0.05, left))
+            if msg is not None:
+                self.take(msg)
+
+    def take(self, msg: can.Message) -> None:
+        updates = self.drive.take(msg, self.now_us())
+        if updates is not None:
+            for u in updates:
+                for name, value in u.fields.items():
+                    setattr(self.inputs, name, value)
+                if u.key:
+                    self.heard[u.key] = self.heard.get(u.key, 0) + 1
+            key = f"drive 0x{msg.arbitration_id:03x}"
+            self.heard[key] = self.heard.get(key, 0) + 1
+            return
+        try:
+            name, sig = proto.decode(msg)
+        except proto.ProtocolError:
+            self.unknown[msg.arbitration_id] = self.unknown.get(msg.arbitration_id, 0) + 1
+            return
+        self.heard[name] = self.heard.get(name, 0) + 1
+        inp = self.inputs
+        if name.startswith("RangeSectors"):
+            for i, (mm, st) in proto.ranges_from(name, sig).items():
+                inp.ranges_mm[i], inp.range_status[i] = mm, plausible_range_status(mm, st)
+        elif name == "EncoderCounts":
+            inp.enc_left, inp.enc_right = sig["Enc_Left"], sig["Enc_Right"]
+        elif name == "MotorStatus":
+            inp.driver_state, inp.driver_errors = sig["Mot_State"], sig["Mot_Errors"]
+        elif name == "Bumper":
+            inp.bumper = bool(sig["Bump_Pressed"])
+        elif name == "BatteryStatus":
+            inp.battery_mv, inp.battery_pct = sig["Bat_Voltage"], sig["Bat_Remaining"]
+
+    def send_tick(self, left: int, right: int, enabled: bool, counter: int) -> None:
+        hb = Heartbeat(state=0, mode=0, armed=enabled, policy_loaded=False, goal_active=False, errors=0,
+                       counter=counter & 0xFF)
+        out = Outputs(motor=MotorCommand(left, right, counter), heartbeat=hb, drive_enabled=enabled)
+        for frame in self.drive.frames(out, self.now_us()):
+            self.bus.send(frame)
+
+
+def _drive_lines(lis: _Listener, rep: CheckReport) -> None:
+    prof, inp = lis.profile, lis.inputs
+    if prof.drive.backend == "odrive":
+        drive = lis.drive
+        for axis in drive.axes:  # type: ignore[attr-defined]
+            what = f"drive: {axis.name()}"
+            if axis.hb_us is None:
+                rep.bad(f"{what}: not heard (no heartbeat)")
+            elif axis.error:
+                rep.bad(f"{what}: state {axis.state_name()}, axis error 0x{axis.error:x}")
+            elif axis.est_us is None:
+                rep.bad(f"{what}: heartbeat but no encoder estimates (set encoder_msg_rate_ms)")
+            else:
+                rep.ok(f"{what}: state {axis.state_name()}, no error, position {axis.pos:.3f} turns")
+        return
+    if "MotorStatus" not in lis.heard:
+        rep.bad("drive: qnav motor driver (node 34): not heard (no MotorStatus)")
+    else:
+        st = {v: k for k, v in _mot_states().items()}.get(inp.driver_state, str(inp.driver_state))
+        text = f"drive: qnav motor driver (node 34): state {st}, errors 0x{inp.driver_errors:02x}"
+        (rep.bad if inp.driver_errors else rep.ok)(text)
+    if "EncoderCounts" not in lis.heard:
+        rep.bad("drive: encoder counts (node 34): not heard")
+
+
+def _mot_states() -> dict[str, int]:
+    choices = proto.DB.get_message_by_name("MotorStatus").get_signal_by_name("Mot_State").choices
+    return {str(name): int(value) for value, name in (choices or {}).items()}
+
+
+def _sensor_lines(lis: _Listener, rep: CheckReport) -> None:
+    inp = lis.inputs
+    for f in range(len(proto.RANGE_SECTORS_IDS)):
+        name = f"RangeSectors{f}"
+        first = f * proto.SENSORS_PER_RANGE_FRAME
+        idx = range(first, first + proto.SENSORS_PER_RANGE_FRAME)
+        angles = lis.profile.sensors.angles_deg
+        if name not in lis.heard:
+            rep.bad(f"range board (node 35): sensors {first}-{idx[-1]}: not heard ({name})")
+            continue
+        for i in idx:
+            st = inp.range_status[i]
+            text = f"range sensor {i} at {angles[i]:g} deg: {inp.ranges_mm[i]} mm, {STATUS_NAMES.get(st, st)}"
+            (rep.bad if st == robot_spec.RANGE_INVALID else rep.ok)(text)
+    if "Bumper" not in lis.heard:
+        rep.bad("bumper board (node 36): not heard")
+    else:
+        (rep.bad if inp.bumper else rep.ok)(f"bumper board (node 36): {'PRESSED' if inp.bumper else 'released'}")
+    if "BatteryStatus" in lis.heard:
+        rep.ok(f"power board (node 37): {inp.battery_mv / 1000:.2f} V, {inp.battery_pct} %")
+    else:
+        rep.note("power board (node 37): not heard (optional: the battery shows as unknown)")
+
+
+def _rotation_map(angles: tuple[float, ...], shift_deg: float) -> dict[int, int]:
+    """{i: j}: sensor j looked, before a turn of `shift_deg` (CCW +), where sensor i looks after it."""
+    out = {}
+    for i, a in enumerate(angles):
+        want = (a + shift_deg + 180) % 360 - 180
+        j = min(range(len(angles)), key=lambda k: abs((angles[k] - want + 180) % 360 - 180))
+        if abs((angles[j] - want + 180) % 360 - 180) <= 10:
+            out[i] = j
+    return out
+
+
+def _turn_seen(before: list[int], after: list[int], angles: tuple[float, ...]) -> float | None:
+    """+1..-1: how much better the range readings fit a 45-degree turn to the left (CCW, +) than one to
+    the right; None when too few readings to tell (an open field, a symmetric room)."""
+    fits = []
+    for shift in (45.0, -45.0):
+        pairs = [(after[i], before[j]) for i, j in _rotation_map(angles, shift).items()]
+        if len(pairs) < 4:
+            return None
+        fits.append(sum(abs(x - y) for x, y in pairs) / len(pairs))
+    left, right = fits
+    if max(left, right) < 50:
+        return None  # nothing changed: the robot did not turn, or sees nothing
+    return (right - left) / max(left, right)
+
+
+def _readings(inp: Inputs, max_mm: int) -> list[int]:
+    return [inp.ranges_mm[i] if inp.range_status[i] == robot_spec.RANGE_VALID else max_mm
+            for i in range(len(inp.ranges_mm))]
+
+
+def _spin(lis: _Listener, rep: CheckReport, side: int) -> None:
+    """Turn one wheel forward slowly (about 45 degrees of the robot's heading, round the other wheel),
+    the other held at zero; read odometry and the range sensors.
+
+    Odometry tells a wheel encoder's sign (qnav's EncoderCounts count the wheel). An ODrive's encoder
+    sits on the motor: it counts what the motor was told whatever way the motor is mounted, so the
+    robot's turn is read from the range sensors instead (the readings rotate one sensor to the right
+    when the left wheel drives forward)."""
+    name = ("left", "right")[side]
+    max_mm = lis.profile.sensors.max_range_mm
+    before_enc = (lis.inputs.enc_left, lis.inputs.enc_right)
+    before_rng = _readings(lis.inputs, max_mm)
+    seconds = SPIN_TURN_RAD * lis.profile.geometry.wheel_base_mm / SPIN_MM_S
+    counter, end = 0, lis.clock() + seconds
+    while lis.clock() < end:
+        speeds = (SPIN_MM_S, 0) if side == 0 else (0, SPIN_MM_S)
+        lis.send_tick(*speeds, enabled=True, counter=counter)
+        counter += 1
+        lis.pump(robot_spec.CONTROL_PERIOD_US / 1e6)
+    for _ in range(6):  # stop: zero, then (odrive) IDLE; let the readings settle
+        lis.send_tick(0, 0, enabled=False, counter=counter)
+        counter += 1
+        lis.pump(robot_spec.CONTROL_PERIOD_US / 1e6)
+    after_enc = (lis.inputs.enc_left, lis.inputs.enc_right)
+    moved = [proto.wrap_counts(a - b) for a, b in zip(after_enc, before_enc, strict=True)]
+    mine, other = moved[side], moved[1 - side]
+    turn = _turn_seen(before_rng, _readings(lis.inputs, max_mm), lis.profile.sensors.angles_deg)
+    expected = -1.0 if side == 0 else 1.0  # left wheel forward: the robot turns right (clockwise)
+    motor_encoder = lis.profile.drive.backend == "odrive"
+    if lis.inputs.driver_detail:
+        rep.bad(f"{name} wheel: {lis.inputs.driver_detail}")
+        return
+    if abs(mine) < MIN_COUNTS:
+        rep.bad(f"{name} wheel: odometry moved {mine} counts for {SPIN_MM_S} mm/s over {seconds:.1f} s "
+                "(motor not turning, or no encoder)")
+        return
+    if mine < 0 and not motor_encoder:
+        rep.bad(f"{name} wheel: turned BACKWARDS ({mine} counts): flip drive.{name}_sign in the profile "
+                "(or the motor's wiring)")
+        return
+    seen = ("not told by the range sensors (too open or too symmetric around the robot)" if turn is None
+            else f"the range readings turned {'right' if turn < 0 else 'left'} (fit {abs(turn):.2f})")
+    if turn is not None and abs(turn) >= 0.2 and turn * expected < 0:
+        rep.bad(f"{name} wheel: the robot turned the WRONG way for a forward {name} wheel ({seen}): "
+                f"flip drive.{name}_sign in the profile (or the motor's wiring)")
+    elif motor_encoder and (turn is None or abs(turn) < 0.2):
+        rep.note(f"{name} wheel: motor encoder {mine} counts; direction {seen}: check by eye")
+    else:
+        rep.ok(f"{name} wheel: forward, {mine} counts (the other wheel {other}); {seen}")
+
+
+def run_check(bus: can.BusABC, profile: RobotProfile, *, listen_s: float = 2.0, spin: bool = False,
+              clock: Callable[[], float] = time.monotonic) -> CheckReport:
+    """Listen `listen_s` seconds, report every board; with `spin`, turn each wheel in turn."""
+    rep = CheckReport()
+    lis = _Listener(bus, profile, clock)
+    rep.note(f"profile {profile.source}: drive {profile.drive.backend}, sensors {profile.sensors.backend}")
+    # an odrive drive clears stale axis errors once at start (drives/odrive.py): send that tick first
+    lis.send_tick(0, 0, enabled=False, counter=0)
+    lis.pump(listen_s)
+    _drive_lines(lis, rep)
+    _sensor_lines(lis, rep)
+    for fid, n in sorted(lis.unknown.items()):
+        rep.note(f"unknown frame id 0x{fid:x} ({'extended' if fid > 0x7FF else 'standard'}): {n} frames")
+    if spin:
+        if rep.problems:
+            rep.note("wheels not spun: fix the problems above first")
+        else:
+            for side in (0, 1):
+                _spin(lis, rep, side)
+    return rep
