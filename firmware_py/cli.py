@@ -386,7 +386,8 @@ def run(args: argparse.Namespace) -> int:
         "encoder_jumps": ctrl.encoder_jumps,
         # commands the collision monitor slowed or stopped (control/collision.py)
         "collision_slow_ticks": ctrl.collision_ticks["slow"], "collision_stop_ticks": ctrl.collision_ticks["stop"],
-        "profile": prof.source if prof else None, **node.drive.stats(),
+        "profile": prof.source if prof else None, "drive_backend": prof.drive.backend if prof else "qnav",
+        "sensor_backend": prof.sensors.backend if prof else "qnav", **node.drive.stats(),
         "planner_searches": ctrl.background.runs, "planner_search_cpu_s": ctrl.background.cpu_ns / 1e9,
         "period_us": cfg.control_period_us, "rt_priority": args.rt_priority,
         "rt_active": node.rt_active,

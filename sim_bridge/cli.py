@@ -62,12 +62,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "below override its fields (default ideal)")
     p.add_argument("--profile", default=None, metavar="FILE.toml|NAME",
                    help="the robot profile whose boards the sim plays (docs/robot-profile.md: its drive backend, "
-                        f"qnav or odrive); a plant profile name ({', '.join(PROFILES)}) is taken as --plant")
+                        f"qnav, odrive or dronecan); a plant profile name ({', '.join(PROFILES)}) is taken as --plant")
     p.add_argument("--flip-wheel", choices=("left", "right"), default=None,
                    help="that wheel's motor mounted the other way round (for qnav-robot --check)")
     p.add_argument("--drive-fault", action="append", default=[], metavar="T:WHAT:SIDE",
-                   help="at sim second T, the ODrive axis on SIDE (left/right) gets an axis error "
-                        "(WHAT = error:0x40, any code) or falls silent (WHAT = silent); repeatable")
+                   help="at sim second T, the ODrive axis (or DroneCAN ESC) on SIDE (left/right) gets an axis "
+                        "error (WHAT = error:0x40, any code; an ESC reports health ERROR) or falls silent "
+                        "(WHAT = silent); repeatable")
     p.add_argument("--noise-mm", type=float, default=None,
                    help=f"range noise std dev (mm; {_per_profile(lambda f: f.range_noise_mm)})")
     p.add_argument("--dropout", type=float, default=None,
@@ -181,8 +182,8 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"--drive-fault {text!r}: expected T:error:CODE:SIDE or T:silent:SIDE, "
                            "e.g. 5:error:0x40:left")
         faults.append((t, what, side))
-    if faults and (robot is None or robot.drive.backend != "odrive"):
-        raise CliError("--drive-fault needs --profile FILE with an odrive drive")
+    if faults and (robot is None or robot.drive.backend not in ("odrive", "dronecan")):
+        raise CliError("--drive-fault needs --profile FILE with an odrive or dronecan drive")
     try:
         prof = profile(plant_name)
         scale = (prof.encoder_scale[0] if args.enc_scale_left is None else args.enc_scale_left,

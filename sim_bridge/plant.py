@@ -102,16 +102,24 @@ class Plant:
         self.encoders = WheelEncoders(self.world, random.Random(seeds.getrandbits(64)),
                                       config.encoder_slip_std, config.encoder_scale)
         self.odrive: Any = None  # sim_bridge.odrive_axes.ODrivePair when the robot's drive is two ODrives
+        self.dronecan: Any = None  # sim_bridge.dronecan_boards.DroneCanBoards: DroneCAN ESCs and/or rangefinders
         robot = config.robot
+        # the robot's tick ends with a SimTickAck unless its drive is qnav's (MotorCommand carries the counter)
+        self.answer_is_ack = robot is not None and robot.drive.backend != "qnav"
+        if robot is not None and "dronecan" in (robot.drive.backend, robot.sensors.backend):
+            from sim_bridge.dronecan_boards import DroneCanBoards
+            on_drive = robot.drive.backend == "dronecan"
+            self.motors = MotorDriver(replace(config.motors, watchdog_ms=1 << 30) if on_drive else config.motors)
+            self.dronecan = DroneCanBoards(robot, self.motors, drive=on_drive,
+                                           sensors=robot.sensors.backend == "dronecan", flip=config.flip_wheel)
+            self.dronecan.faults = [(round(t * 1e6), what, side) for t, what, side in config.drive_faults]
         if robot is not None and robot.drive.backend == "odrive":
             from sim_bridge.odrive_axes import ODrivePair
             # the axes' own watchdog stops the wheels; the wheel model's is out of the way
             self.motors = MotorDriver(replace(config.motors, watchdog_ms=1 << 30))
             self.odrive = ODrivePair(robot, self.motors, robot_spec.ENCODER_TICKS_PER_REV, config.flip_wheel)
             self.odrive.faults = [(round(t * 1e6), what, side) for t, what, side in config.drive_faults]
-        elif robot is not None and robot.drive.backend != "qnav":
-            raise ValueError(f"the sim does not play a {robot.drive.backend!r} drive")
-        else:
+        elif self.dronecan is None:
             self.motors = MotorDriver(config.motors)
         self.battery = Battery()
         self.tick = 0
@@ -132,14 +140,19 @@ class Plant:
         """All frames of the current control tick, sampled now; SimTick last."""
         t_s = self.time_us / 1e6
         left, right = self.encoders.counts()
-        frames = cp.range_frames(self.ranges.read(), self.tick)  # one new sample per tick: counter = tick
-        if self.odrive is None:
+        readings = self.ranges.read()
+        dc = self.dronecan
+        # one new sample per tick: counter = tick
+        frames = cp.range_frames(readings, self.tick) if dc is None or not dc.sensors else []
+        if self.odrive is None and (dc is None or not dc.drive):
             frames.append(cp.encoder_counts(left, right, self.tick))
         frames.append(cp.encode("Bumper", bumper_signals(self.world, self.tick)))
-        if self.odrive is None:
-            frames.append(cp.encode("MotorStatus", self.motors.status(self.tick)))
-        else:
+        if self.odrive is not None:
             frames += self.odrive.drain()  # heartbeats and encoder estimates due since the last tick
+        elif dc is None or not dc.drive:
+            frames.append(cp.encode("MotorStatus", self.motors.status(self.tick)))
+        if dc is not None:
+            frames += dc.tick_frames(readings)  # ESC Status, range Measurements, NodeStatus
         if self.tick % BATTERY_EVERY_TICKS == 0:  # the power board reports at 2 Hz
             frames.append(cp.encode("BatteryStatus", self.battery.status(self.tick // BATTERY_EVERY_TICKS)))
         frames.append(cp.sim_tick(self.tick, self.time_us))
@@ -156,6 +169,9 @@ class Plant:
         """
         if self.odrive is not None and self.odrive.owns(msg):
             self.odrive.handle(msg, self.time_us)
+            return False
+        if self.dronecan is not None and self.dronecan.owns(msg):
+            self.dronecan.handle(msg, self.time_us)
             return False
         try:
             name, sig = cp.decode(msg)
@@ -181,7 +197,7 @@ class Plant:
             self.motors.command(left, right, sig["Cmd_Counter"], self.time_us)
             self._last_cmd = (sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"])
             return True
-        if name == "SimTickAck" and self.odrive is not None:  # the answer when the drive's frames carry no counter
+        if name == "SimTickAck" and self.answer_is_ack:  # the answer when the drive's frames carry no counter
             if lockstep and sig["Ack_Counter"] != self.tick % cp.TICK_MODULUS:
                 if sig["Ack_Counter"] == self._answered_tick:
                     self.stats.repeated_answers += 1
@@ -231,6 +247,8 @@ class Plant:
             motors.observe_ground((gl * 1000, gr * 1000), dt_us)
             if self.odrive is not None:
                 self.odrive.step(self.time_us, encoders.counts())
+            elif self.dronecan is not None:
+                self.dronecan.step(self.time_us)
         if self.obstacles is not None:
             self.obstacles.step()
         self.tick += 1

@@ -240,4 +240,4 @@ class ODriveDrive(DriveBackend):
         return can.Message(arbitration_id=frame_id(a.node, cmd), data=data, is_extended_id=False)
 
     def stats(self) -> dict[str, Any]:
-        return {"drive_backend": self.name, "drive_bad_frames": self.bad_frames, "drive_frames_sent": self.frames_sent}
+        return {"drive_bad_frames": self.bad_frames, "drive_frames_sent": self.frames_sent}

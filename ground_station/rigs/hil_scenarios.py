@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import json
 import os
 import re
@@ -329,8 +330,9 @@ def _qnav(procs: _Procs, name: str, args: list, timeout_s: float = 60) -> tuple[
 
 def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavlink: str | None = None,
             robot_extra: list[str] | None = None, upload: Path | None = None, speed: float | None = None,
-            max_speed: float | None = None) -> dict:
+            max_speed: float | None = None, profile: str | None = None) -> dict:
     """Mission A-D over MAVLink, the ground side as `qnav` commands (module docstring).
+    `profile`: a robot profile both programs run with (their drive and sensor backends).
 
     Default link: robot `udpout:127.0.0.1:P`, ground station `udpin:127.0.0.1:P`; a serial radio
     passes its two ends. `upload`: a policy file `qnav upload --activate`s first. `speed`: paced
@@ -341,7 +343,8 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
     if robot_mavlink is None or gcs_mavlink is None:
         port = free_udp_port()
         robot_mavlink, gcs_mavlink = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
-    res: dict = {"scenario": "mission", "can": can, "gcs": gcs_mavlink, "steps": {}}
+    res: dict = {"scenario": "mission", "can": can, "gcs": gcs_mavlink, "steps": {}, "profile": profile}
+    prof = ["--profile", profile] if profile else []
     steps = res["steps"]
     link = ["--mavlink", gcs_mavlink]
     tlog = work / "mission.tlog"
@@ -352,14 +355,14 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
             pace += ["--max-speed", max_speed]
         sim = procs.start("mission_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, *pace,
                                           "--duration", 3000 if speed is None else 150 * speed, "--start", START,
-                                          "-q"])
+                                          "-q", *prof])
         clock = "--lockstep" if speed is None else "--sim-clock"
         rob = procs.start("mission_robot", [BIN / "qnav-robot", "--can", can, clock, "--policy", CELL_POLICY,
                                             "--start", START, "--storage", work / "storage", "--duration", 2999.95,
                                             "--mavlink", robot_mavlink, "--stats-json", stats,
                                             # the ideal plant: exact odometry; the localiser's ~0.1 m corridor
                                             # error clipped the corner by B in some runs (docs/architecture.md)
-                                            "--localiser", "off", *(robot_extra or [])])
+                                            "--localiser", "off", *prof, *(robot_extra or [])])
         t0 = time.monotonic()
         if upload is not None:
             code, out = _qnav(procs, "qnav_upload", ["upload", upload, "--activate", *link,
@@ -511,25 +514,27 @@ def _reached_seq(tlog: Path) -> list[int]:
     return seqs
 
 
-ODRIVE_PROFILE = "firmware_py/profiles/odrive.toml"
+PROFILES = {"odrive": "firmware_py/profiles/odrive.toml", "dronecan": "firmware_py/profiles/dronecan.toml"}
 
 
-def odrive(can: str, work: Path, *, fault_at_s: float | None = None, duration_s: float = 60.0) -> dict:
-    """Lockstep drive to target B through two emulated ODrive axes (both programs with --profile
-    odrive.toml); with `fault_at_s`, the sim gives the left axis a MOTOR_FAILED error then. 60 s: the
-    profile's wheel speed limit is 400 mm/s (the cell policy's moves run at up to 600 without one)."""
-    tag = "odrive_fault" if fault_at_s is not None else "odrive_goal"
+def drive(can: str, work: Path, *, backend: str, fault: str | None = None, duration_s: float = 60.0) -> dict:
+    """Lockstep drive to target B through the sim's boards for a drive backend (both programs with
+    --profile firmware_py/profiles/BACKEND.toml); `fault` ("error" or "silent") hits the left axis
+    or ESC at 3 s (an ODrive MOTOR_FAILED axis error, a DroneCAN ESC's health ERROR). 60 s: the
+    profiles limit the wheels to 400 mm/s (the cell policy's moves run at up to 600 without one)."""
+    tag = f"{backend}_{fault or 'goal'}"
     stats = work / f"{tag}_robot.json"
-    res: dict = {"scenario": tag, "can": can, "fault_at_s": fault_at_s}
-    fault = ["--drive-fault", f"{fault_at_s:g}:error:0x40:left"] if fault_at_s is not None else []
+    res: dict = {"scenario": tag, "can": can, "fault": fault, "fault_at_s": 3.0 if fault else None}
+    what = {"error": "error:0x40", "silent": "silent", None: None}[fault]
+    inject = ["--drive-fault", f"3:{what}:left"] if what else []
     with _Procs(work) as procs:
         sim = procs.start(f"{tag}_sim", [BIN / "qnav-sim", "--map", "paper10", "--can", can, "--lockstep",
                                          "--duration", duration_s, "--start", START, "-q", "--profile",
-                                         ODRIVE_PROFILE, *fault])
+                                         PROFILES[backend], *inject])
         rob = procs.start(f"{tag}_robot", [BIN / "qnav-robot", "--can", can, "--lockstep", "--policy", CELL_POLICY,
                                            "--start", START, "--goal-cell", "9,0", "--exit-when-done",
                                            "--duration", duration_s - 0.05, "--stats-json", stats,
-                                           "--mavlink", "none", "--profile", ODRIVE_PROFILE])
+                                           "--mavlink", "none", "--profile", PROFILES[backend]])
         res["robot_exit"] = _wait(rob, 120)
         # lockstep: with the robot gone the sim would wait out each remaining tick; Ctrl-C it
         res["sim_exit"] = stop_process(sim, timeout_s=10, sig=signal.SIGINT)
@@ -541,8 +546,9 @@ def odrive(can: str, work: Path, *, fault_at_s: float | None = None, duration_s:
 
 
 SCENARIOS: dict[str, Callable[..., dict]] = {
-    "odrive_goal": odrive,
-    "odrive_fault": lambda can, work: odrive(can, work, fault_at_s=3.0),
+    **{f"{b}_{f or 'goal'}": functools.partial(drive, backend=b, fault=f)
+       for b in PROFILES for f in (None, "error", "silent")},
+    **{f"mission_{b}": functools.partial(mission, profile=PROFILES[b]) for b in PROFILES},
     "goal_reached": goal_reached,
     "estop": estop,
     "estop_cansend": lambda can, work: estop(can, work, sender="cansend"),

