@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import can
 
@@ -112,11 +113,15 @@ class _Listener:
             self.bus.send(frame)
 
 
+def _part(lis: _Listener, attr: str) -> Any:
+    """The backend (of a composite, drives.Composite) that has `attr` (an ODrive's axes, DroneCAN's escs)."""
+    return next(p for p in getattr(lis.drive, "parts", [lis.drive]) if hasattr(p, attr))
+
+
 def _drive_lines(lis: _Listener, rep: CheckReport) -> None:
     prof, inp = lis.profile, lis.inputs
     if prof.drive.backend == "odrive":
-        drive = lis.drive
-        for axis in drive.axes:  # type: ignore[attr-defined]
+        for axis in _part(lis, "axes").axes:
             what = f"drive: {axis.name()}"
             if axis.hb_us is None:
                 rep.bad(f"{what}: not heard (no heartbeat)")
@@ -126,6 +131,16 @@ def _drive_lines(lis: _Listener, rep: CheckReport) -> None:
                 rep.bad(f"{what}: heartbeat but no encoder estimates (set encoder_msg_rate_ms)")
             else:
                 rep.ok(f"{what}: state {axis.state_name()}, no error, position {axis.pos:.3f} turns")
+        return
+    if prof.drive.backend == "dronecan":
+        for esc in _part(lis, "escs").escs:
+            what = f"drive: {esc.name()}"
+            if esc.t_us is None:
+                rep.bad(f"{what}: not heard (no esc.Status with esc_index {esc.index})")
+            elif esc.health >= 2:
+                rep.bad(f"{what}: health {esc.health}")
+            else:
+                rep.ok(f"{what}: esc.Status {esc.rpm:.0f} rpm, health OK")
         return
     if "MotorStatus" not in lis.heard:
         rep.bad("drive: qnav motor driver (node 34): not heard (no MotorStatus)")
@@ -149,8 +164,9 @@ def _sensor_lines(lis: _Listener, rep: CheckReport) -> None:
         first = f * proto.SENSORS_PER_RANGE_FRAME
         idx = range(first, first + proto.SENSORS_PER_RANGE_FRAME)
         angles = lis.profile.sensors.angles_deg
-        if name not in lis.heard:
-            rep.bad(f"range board (node 35): sensors {first}-{idx[-1]}: not heard ({name})")
+        if name not in lis.heard and f"ranges{f}" not in lis.heard:
+            board = ("DroneCAN rangefinders" if lis.profile.sensors.backend == "dronecan" else "range board (node 35)")
+            rep.bad(f"{board}: sensors {first}-{idx[-1]}: not heard")
             continue
         for i in idx:
             st = inp.range_status[i]
@@ -202,9 +218,9 @@ def _spin(lis: _Listener, rep: CheckReport, side: int) -> None:
     the other held at zero; read odometry and the range sensors.
 
     Odometry tells a wheel encoder's sign (qnav's EncoderCounts count the wheel). An ODrive's encoder
-    sits on the motor: it counts what the motor was told whatever way the motor is mounted, so the
-    robot's turn is read from the range sensors instead (the readings rotate one sensor to the right
-    when the left wheel drives forward)."""
+    and a DroneCAN ESC's rpm are the motor's: they count what the motor was told whatever way the
+    motor is mounted, so the robot's turn is read from the range sensors instead (the readings rotate
+    one sensor to the right when the left wheel drives forward)."""
     name = ("left", "right")[side]
     max_mm = lis.profile.sensors.max_range_mm
     before_enc = (lis.inputs.enc_left, lis.inputs.enc_right)
@@ -225,7 +241,7 @@ def _spin(lis: _Listener, rep: CheckReport, side: int) -> None:
     mine, other = moved[side], moved[1 - side]
     turn = _turn_seen(before_rng, _readings(lis.inputs, max_mm), lis.profile.sensors.angles_deg)
     expected = -1.0 if side == 0 else 1.0  # left wheel forward: the robot turns right (clockwise)
-    motor_encoder = lis.profile.drive.backend == "odrive"
+    motor_encoder = lis.profile.drive.backend in ("odrive", "dronecan")  # both count the motor
     if lis.inputs.driver_detail:
         rep.bad(f"{name} wheel: {lis.inputs.driver_detail}")
         return
@@ -259,6 +275,9 @@ def run_check(bus: can.BusABC, profile: RobotProfile, *, listen_s: float = 2.0, 
     lis.pump(listen_s)
     _drive_lines(lis, rep)
     _sensor_lines(lis, rep)
+    engines = [p.engine for p in getattr(lis.drive, "parts", [lis.drive]) if hasattr(p, "engine")]  # DroneCAN
+    for node_id, (health, mode) in sorted(engines[0].nodes_seen.items()) if engines else ():
+        rep.note(f"DroneCAN node {node_id}: health {('OK', 'WARNING', 'ERROR', 'CRITICAL')[health & 3]}, mode {mode}")
     for fid, n in sorted(lis.unknown.items()):
         rep.note(f"unknown frame id 0x{fid:x} ({'extended' if fid > 0x7FF else 'standard'}): {n} frames")
     if spin:

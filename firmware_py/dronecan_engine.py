@@ -51,6 +51,7 @@ class DroneCanEngine:
         self._software = software
         self.bad_transfers = 0
         self.answered_info = 0
+        self.nodes_seen: dict[int, tuple[int, int]] = {}  # node id -> (health, mode) of its last NodeStatus
 
     # --- in ----------------------------------------------------------------------------
     def take(self, msg: can.Message) -> Any | None:
@@ -71,6 +72,8 @@ class DroneCanEngine:
         if (tr.service_not_message and tr.request_not_response and tr.dest_node_id == self.node_id
                 and type_name(tr) == "uavcan.protocol.GetNodeInfo"):
             self._answer_node_info(tr)
+        elif not tr.service_not_message and type_name(tr) == "uavcan.protocol.NodeStatus":
+            self.nodes_seen[tr.source_node_id] = (int(tr.payload.health), int(tr.payload.mode))
         return tr
 
     def _answer_node_info(self, req: Any) -> None:

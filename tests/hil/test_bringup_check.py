@@ -38,8 +38,10 @@ def _check(sim_profile: str, robot_profile: str, *extra_sim: str, motors: bool =
     return run.returncode, run.stdout + run.stderr
 
 
-@pytest.mark.parametrize("profile", ["qnav.toml", "odrive.toml"])
+@pytest.mark.parametrize("profile", ["qnav.toml", "odrive.toml", "dronecan.toml"])
 def test_check_lists_every_board_and_both_wheels_drive_forward(profile):
+    if profile == "dronecan.toml":
+        pytest.importorskip("dronecan", reason="the dronecan extra (pip install 'qnav[dronecan]')")
     code, out = _check(profile, profile)
     assert code == 0, out
     for i in range(8):
@@ -48,6 +50,11 @@ def test_check_lists_every_board_and_both_wheels_drive_forward(profile):
     if profile == "odrive.toml":
         assert "ok       drive: left axis 0 (ODrive node 0): state IDLE, no error" in out
         assert "ok       drive: right axis 1 (ODrive node 1): state IDLE, no error" in out
+    elif profile == "dronecan.toml":
+        assert "ok       drive: left ESC 0, DroneCAN node 10: esc.Status" in out
+        assert "ok       drive: right ESC 1, DroneCAN node 11: esc.Status" in out
+        for node in (10, 11, 20):  # the ESCs and the rangefinder node, from their NodeStatus
+            assert f"info     DroneCAN node {node}: health OK" in out
     else:
         assert "ok       drive: qnav motor driver (node 34)" in out
     assert "ok       left wheel: forward" in out and "ok       right wheel: forward" in out
@@ -56,6 +63,7 @@ def test_check_lists_every_board_and_both_wheels_drive_forward(profile):
 @pytest.mark.parametrize("profile, words", [
     ("qnav.toml", "PROBLEM  left wheel: turned BACKWARDS"),  # qnav's encoders count the wheel
     ("odrive.toml", "PROBLEM  left wheel: the robot turned the WRONG way"),  # ODrive's count the motor
+    ("dronecan.toml", "PROBLEM  left wheel: the robot turned the WRONG way"),  # so does an ESC's rpm
 ])
 def test_check_motors_finds_a_wheel_mounted_the_other_way_round(profile, words):
     code, out = _check(profile, profile, "--flip-wheel", "left")
