@@ -17,6 +17,7 @@ not running during a check).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -213,9 +214,18 @@ def _readings(inp: Inputs, max_mm: int) -> list[int]:
             for i in range(len(inp.ranges_mm))]
 
 
+def _stop(lis: _Listener, counter: int) -> int:
+    """Zero, then (odrive) IDLE, and let the readings settle; the next tick counter."""
+    for _ in range(6):
+        lis.send_tick(0, 0, enabled=False, counter=counter)
+        counter += 1
+        lis.pump(robot_spec.CONTROL_PERIOD_US / 1e6)
+    return counter
+
+
 def _spin(lis: _Listener, rep: CheckReport, side: int) -> None:
     """Turn one wheel forward slowly (about 45 degrees of the robot's heading, round the other wheel),
-    the other held at zero; read odometry and the range sensors.
+    the other held at zero; read odometry and the range sensors; then back to where it started.
 
     Odometry tells a wheel encoder's sign (qnav's EncoderCounts count the wheel). An ODrive's encoder
     and a DroneCAN ESC's rpm are the motor's: they count what the motor was told whatever way the
@@ -225,21 +235,37 @@ def _spin(lis: _Listener, rep: CheckReport, side: int) -> None:
     max_mm = lis.profile.sensors.max_range_mm
     before_enc = (lis.inputs.enc_left, lis.inputs.enc_right)
     before_rng = _readings(lis.inputs, max_mm)
-    seconds = SPIN_TURN_RAD * lis.profile.geometry.wheel_base_mm / SPIN_MM_S
-    counter, end = 0, lis.clock() + seconds
+    g = lis.profile.geometry
+    seconds = SPIN_TURN_RAD * g.wheel_base_mm / SPIN_MM_S
+    # until odometry says the wheel went the 45 degrees' worth (a loaded or slow board takes longer
+    # than the nominal time), at most three times the nominal time
+    want = SPIN_TURN_RAD * g.wheel_base_mm / (2 * math.pi * g.wheel_radius_mm) * g.encoder_counts_per_rev
+    counter, end = 0, lis.clock() + 3 * seconds
     while lis.clock() < end:
         speeds = (SPIN_MM_S, 0) if side == 0 else (0, SPIN_MM_S)
         lis.send_tick(*speeds, enabled=True, counter=counter)
         counter += 1
         lis.pump(robot_spec.CONTROL_PERIOD_US / 1e6)
-    for _ in range(6):  # stop: zero, then (odrive) IDLE; let the readings settle
-        lis.send_tick(0, 0, enabled=False, counter=counter)
+        now = (lis.inputs.enc_left, lis.inputs.enc_right)[side]
+        if abs(proto.wrap_counts(now - before_enc[side])) >= want:
+            break
+    counter = _stop(lis, counter)
+    after_enc = (lis.inputs.enc_left, lis.inputs.enc_right)
+    after_rng = _readings(lis.inputs, max_mm)
+    # back the way it came, so the other wheel's test starts where this one did (and the robot ends
+    # where it was put)
+    end = lis.clock() + 3 * seconds
+    while lis.clock() < end:
+        lis.send_tick(*((-SPIN_MM_S, 0) if side == 0 else (0, -SPIN_MM_S)), enabled=True, counter=counter)
         counter += 1
         lis.pump(robot_spec.CONTROL_PERIOD_US / 1e6)
-    after_enc = (lis.inputs.enc_left, lis.inputs.enc_right)
+        now = (lis.inputs.enc_left, lis.inputs.enc_right)[side]
+        if proto.wrap_counts(now - before_enc[side]) * (1 if after_enc[side] >= before_enc[side] else -1) <= 0:
+            break
+    _stop(lis, counter)
     moved = [proto.wrap_counts(a - b) for a, b in zip(after_enc, before_enc, strict=True)]
     mine, other = moved[side], moved[1 - side]
-    turn = _turn_seen(before_rng, _readings(lis.inputs, max_mm), lis.profile.sensors.angles_deg)
+    turn = _turn_seen(before_rng, after_rng, lis.profile.sensors.angles_deg)
     expected = -1.0 if side == 0 else 1.0  # left wheel forward: the robot turns right (clockwise)
     motor_encoder = lis.profile.drive.backend in ("odrive", "dronecan")  # both count the motor
     if lis.inputs.driver_detail:

@@ -207,6 +207,8 @@ def _check(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     try:
         rep = run_check(bus, args.robot_profile or DEFAULT, listen_s=args.check_listen, spin=args.check_motors)
+    except ValueError as exc:  # a backend this install cannot run (the dronecan extra missing)
+        raise UsageError(f"--profile {args.profile}: {exc}") from None
     finally:
         bus.shutdown()
     for line in rep.lines:

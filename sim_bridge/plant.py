@@ -107,7 +107,11 @@ class Plant:
         # the robot's tick ends with a SimTickAck unless its drive is qnav's (MotorCommand carries the counter)
         self.answer_is_ack = robot is not None and robot.drive.backend != "qnav"
         if robot is not None and "dronecan" in (robot.drive.backend, robot.sensors.backend):
-            from sim_bridge.dronecan_boards import DroneCanBoards
+            try:
+                from sim_bridge.dronecan_boards import DroneCanBoards
+            except ImportError:
+                raise ValueError("the sim's DroneCAN boards need the dronecan library: "
+                                 "pip install 'qnav[dronecan]'") from None
             on_drive = robot.drive.backend == "dronecan"
             self.motors = MotorDriver(replace(config.motors, watchdog_ms=1 << 30) if on_drive else config.motors)
             self.dronecan = DroneCanBoards(robot, self.motors, drive=on_drive,

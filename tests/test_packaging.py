@@ -73,8 +73,10 @@ def test_base_dependencies_are_exactly_what_firmware_py_imports():
             else:
                 continue
             third_party |= {n.split(".")[0] for n in names} - set(sys.stdlib_module_names) - {"firmware_py"}
-    # pyserial is not imported by name: python-can's slcan bus and pymavlink's serial links use it
-    assert third_party | {"serial"} == set(ROBOT_DISTS.values())
+    # pyserial is not imported by name: python-can's slcan bus and pymavlink's serial links use it;
+    # dronecan is the optional extra of the dronecan backends (tests/test_layering.py: only they import it)
+    assert third_party | {"serial"} == set(ROBOT_DISTS.values()) | {"dronecan"}
+    assert {_dist_name(r) for r in PYPROJECT["project"]["optional-dependencies"]["dronecan"]} == {"dronecan"}
 
 
 def test_extras_split_station_hil_cluster_and_dev():
@@ -181,6 +183,20 @@ def test_fresh_venv_without_extras_is_the_robot(tmp_path):
     robot = run("qnav-robot", "--can", "virtual:pkg", "--policy", "policies:sector", "--mavlink", "none",
                 "--duration", "0.2", "-q")
     assert robot.returncode == 0, robot.stderr
+    # the robot's deployment pieces come with it: the systemd unit, the example profiles, the odrive backend
+    unit = run("qnav-robot", "--print-unit")
+    assert unit.returncode == 0 and "Type=notify" in unit.stdout
+    profiles = run("python", "-c", "from importlib import resources; "
+                                   "print(resources.files('firmware_py') / 'profiles')").stdout.strip()
+    check = run("qnav-robot", "--check", "--check-listen", "0.3", "--profile", f"{profiles}/odrive.toml",
+                "--can", "virtual:pkg")
+    assert check.returncode == 1 and "MISSING  drive: left axis 0 (ODrive node 0): not heard" in check.stdout
+    # a dronecan profile without the optional extra: one line saying what to install, exit 2
+    dc = run("qnav-robot", "--profile", f"{profiles}/dronecan.toml", "--can", "virtual:pkg", "--mavlink", "none",
+             "--duration", "0.2")
+    assert dc.returncode == 2 and dc.stderr.strip().splitlines() == [
+        f"qnav-robot: error: --profile {profiles}/dronecan.toml: the dronecan backends need the dronecan library: "
+        "pip install 'qnav[dronecan]'"], dc.stderr
     for prog in ("qnav", "qnav-sim"):
         refused = run(prog, "--help")
         assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [

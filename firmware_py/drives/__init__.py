@@ -26,11 +26,14 @@ from firmware_py.profile import RobotProfile
 
 def open_drive(profile: RobotProfile) -> DriveBackend:
     """The backends the profile names, as one (the drive's frames last: in lockstep HIL qnav's
-    MotorCommand is the tick's answer)."""
+    MotorCommand is the tick's answer). ValueError (one line) when one cannot be had here."""
     drive, sensors = profile.drive.backend, profile.sensors.backend
     parts: list[DriveBackend] = []
     if drive == "dronecan" or sensors == "dronecan":
-        from firmware_py.drives.dronecan import DroneCanBackend
+        try:
+            from firmware_py.drives.dronecan import DroneCanBackend
+        except ImportError:  # `pip install qnav` alone: the robot without the optional extra
+            raise ValueError("the dronecan backends need the dronecan library: pip install 'qnav[dronecan]'") from None
         parts.append(DroneCanBackend(profile, drive=drive == "dronecan", sensors=sensors == "dronecan"))
     if drive == "odrive":
         from firmware_py.drives.odrive import ODriveDrive
