@@ -25,7 +25,7 @@ import resource
 import signal
 import sys
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from firmware_py import kinds, robot_spec
 from firmware_py.atomic import atomic_write
@@ -221,6 +221,24 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """`_run` with the robot's own log around it (from before boot, so the boot's map and policy lines
+    go in, to after the last line, whatever ends the run)."""
+    onboard = None
+    if args.storage and not args.check and not args.print_unit:
+        from firmware_py.onboard_log import OnboardLog
+
+        try:
+            onboard = OnboardLog(args.storage).start()
+        except OSError as exc:  # a read-only or full disk: the robot runs without its log
+            logging.getLogger("qnav.robot").warning("onboard log not written: %s", exc)
+    try:
+        return _run(args, onboard)
+    finally:
+        if onboard is not None:
+            onboard.stop()
+
+
+def _run(args: argparse.Namespace, onboard: Any) -> int:
     from firmware_py.canbus import CanSpecError, open_bus
 
     why = robot_spec.control_rate_error(args.rate)
@@ -283,7 +301,22 @@ def run(args: argparse.Namespace) -> int:
     clock = SimClock() if sim else WallClock()
     ctrl = Controller(cfg, policy, start_pose_mm=start, lockstep=args.lockstep, localise=args.localiser == "on",
                       profile=prof)
-    ctrl.robot_map = args.robot_map
+    if args.robot_map is None and args.storage:  # the map the robot was last given (qnav map upload)
+        from firmware_py.mapdata import MapDataError, grid_from_map_file
+        from firmware_py.storage import Storage, boot_map_candidates
+
+        for path in boot_map_candidates(Storage(args.storage)):
+            try:
+                ok, why = ctrl.set_robot_map(grid_from_map_file(path, cfg.cell_size_mm))
+            except (MapDataError, OSError, UnicodeDecodeError) as exc:
+                ok, why = False, str(exc)
+            if ok:
+                break
+            logging.getLogger("qnav.robot").warning("boot map %s rejected: %s", path, why)
+    elif args.robot_map is not None:
+        ok, why = ctrl.set_robot_map(args.robot_map)
+        if not ok:
+            raise UsageError(f"--map {args.map}: {why}")
     drive = None
     if prof is not None:
         from firmware_py.drives import open_drive
@@ -311,20 +344,14 @@ def run(args: argparse.Namespace) -> int:
         if stop is not None:
             stoppers.append(stop)
     log = logging.getLogger("qnav.robot")
-    onboard = None
-    if args.storage:  # the robot's own log under its storage root, served by its FTP server (docs/deploy.md)
-        from firmware_py.onboard_log import OnboardLog
-
+    if onboard is not None:
         def stats_line() -> str:
             st = ctrl.status()
             return (f"stats state={st.state.name} mode={ctrl.mode.name} armed={int(ctrl.armed)} ticks={node.ticks} "
                     f"overruns={node.overruns} late={node.wall_late_ticks} can_errors={node.can_errors} "
                     f"pose_mm={st.x_mm},{st.y_mm},{st.heading_mrad}")
 
-        try:
-            onboard = OnboardLog(args.storage, stats=stats_line).start()
-        except OSError as exc:  # a read-only or full disk: the robot runs without its log
-            log.warning("onboard log not written: %s", exc)
+        onboard.start_stats(stats_line)
     log.info("policy %s, start (%d, %d) mm %d mrad, %d goal(s), %s clock",
              f"0x{policy.policy_id:08x} {policy.kind}" if policy else "none", *start, len(goals),
              "lockstep sim" if args.lockstep else "paced sim" if sim else "wall")
@@ -369,9 +396,7 @@ def run(args: argparse.Namespace) -> int:
             stop()
         node.stop()
         bus.shutdown()
-        if onboard is not None:
-            log.info("stopped: %s", ctrl.status().state.name)
-            onboard.stop()
+        log.info("stopped: %s", ctrl.status().state.name)
     wall = time.monotonic() - wall0
     cpu = time.process_time() - cpu0
     st = ctrl.status()

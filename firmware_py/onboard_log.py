@@ -54,9 +54,14 @@ class OnboardLog:
             self._logger.setLevel(logging.INFO)
         logging.getLogger("qnav.robot").info("onboard log started (%s)", self.path)
         if self.stats is not None:
-            self._thread = threading.Thread(target=self._stats_loop, name="qnav-log-stats", daemon=True)
-            self._thread.start()
+            self.start_stats(self.stats)
         return self
+
+    def start_stats(self, stats: Callable[[], str]) -> None:
+        """The per-second stats line from now on (the robot's node exists only after boot)."""
+        self.stats = stats
+        self._thread = threading.Thread(target=self._stats_loop, name="qnav-log-stats", daemon=True)
+        self._thread.start()
 
     def _stats_loop(self) -> None:
         log = logging.getLogger("qnav.stats")

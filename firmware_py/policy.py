@@ -361,8 +361,10 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, r
     the robot's (CELL_SIZE_MM / `--cell-size`). A sector policy observes
     ranges and bearings in mm and mrad, not cells: the training map's
     geometry it records is for the ground station and is not checked.
-    A robot given its own map (`qnav-robot --map FILE`, `robot_map`) refuses a
-    policy carrying another: it would localise and plan on the wrong world.
+    A robot given its own map (`qnav-robot --map FILE`, `qnav map upload`,
+    `robot_map`) refuses a map-specific policy (a cell table, indexed by its
+    map's cells) for another map, naming both; other kinds run on the robot's
+    map (`on_robot_map`).
     A robot with a profile (`qnav-robot --profile FILE`, firmware_py.profile)
     refuses a policy trained for another geometry (wheel base, body radius,
     sensor angles, range); a file without a record was trained for the
@@ -380,11 +382,25 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, r
         why = geometry_mismatch(recorded if isinstance(recorded, dict) else None, profile)
         if why:
             return why
-    if robot_map is not None and policy.map_grid is not None and not same_grid(policy.map_grid, robot_map):
+    if (robot_map is not None and policy.map_grid is not None and kinds.of_policy(policy).map_specific
+            and not same_grid(policy.map_grid, robot_map)):
         name = policy.metadata.get("map") if isinstance(policy.metadata, dict) else None
         return (f"policy map {name or ''} ({describe(policy.map_grid)}) is not the robot's map "
                 f"({describe(robot_map)})").replace("map  (", "map (")
     return ""
+
+
+def on_robot_map(policy: Policy, robot_map: Any) -> Policy:
+    """`policy` as it runs on a robot with its own map: a kind that is not map-specific localises and
+    plans on the robot's map instead of the training map the file carries (issue 32: the map is the
+    robot's, as nav2's map server is apart from its controller); a map-specific one is unchanged
+    (config_mismatch refuses it on another map)."""
+    if robot_map is None or kinds.of_policy(policy).map_specific or policy.map_grid is None:
+        return policy
+    from dataclasses import replace
+
+    return replace(policy, map_grid=robot_map,
+                   map_geometry=MapGeometry(robot_map.cell_mm, robot_map.width, robot_map.height))
 
 
 # --- writing ------------------------------------------------------------------------

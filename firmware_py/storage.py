@@ -45,7 +45,10 @@ LAST_GOOD_POLICY = "/policies/last_good.qtab"
 PARAMS_DIR = "/params"
 PARAMS_FILE = "/params/params.json"
 UID_FILE = "/params/uid"  # the robot's own id (AUTOPILOT_VERSION.uid): made once, never written over FTP
-LAYOUT_DIRS = (POLICY_DIR, PARAMS_DIR)
+MAP_DIR = "/maps"
+ACTIVE_MAP = "/maps/active.map"  # the robot's own map (MovingAI text, its cells CELL_SIZE_MM wide): `qnav map upload`
+LAST_GOOD_MAP = "/maps/last_good.map"
+LAYOUT_DIRS = (POLICY_DIR, PARAMS_DIR, MAP_DIR)
 
 DEFAULT_QUOTA_BYTES = 8 * 1024 * 1024
 DEFAULT_QUOTA_FILES = 256  # regular files under the root, temporary files included
@@ -396,7 +399,8 @@ class Storage:
 ActivateHook = Callable[[str], Any]
 
 
-def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook) -> Any:
+def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook, active: str = ACTIVE_POLICY,
+                   last_good: str = LAST_GOOD_POLICY) -> Any:
     """Activate the policy file at `ftp_path` through the vehicle's hook.
 
     `activate(host_path)` must load and validate the file completely and swap
@@ -405,35 +409,45 @@ def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook) -> A
     On refusal nothing on disk changes. A hook that returns a pending
     activation has it returned as is: the caller commits when it succeeds.
     """
-    src = policy_source(storage, ftp_path)
+    src = policy_source(storage, ftp_path, active)
     got = activate(str(src))
     if not isinstance(got, tuple):
         return got
     ok, reason = got
     if ok:
-        commit_promotion(storage, src)
+        commit_promotion(storage, src, active, last_good)
     return ok, reason
 
 
-def policy_source(storage: Storage, ftp_path: str) -> Path:
+def policy_source(storage: Storage, ftp_path: str, active: str = ACTIVE_POLICY) -> Path:
     """The host path of a file about to be activated (StorageError if it is the active one)."""
     src = storage._existing_file(ftp_path)
-    if src == storage.resolve(ACTIVE_POLICY):
-        raise StorageError(errno.EINVAL, "file is already the active policy")
+    if src == storage.resolve(active):
+        raise StorageError(errno.EINVAL, f"file is already {active}")
     return src
 
 
-def commit_promotion(storage: Storage, src: Path) -> None:
-    """After a successful activation: the old active file becomes LAST_GOOD_POLICY,
-    then `src` becomes ACTIVE_POLICY (two atomic renames; a crash between them
-    leaves LAST_GOOD, which boot loads)."""
-    active = storage.resolve(ACTIVE_POLICY)
+def commit_promotion(storage: Storage, src: Path, active_path: str = ACTIVE_POLICY,
+                     last_good: str = LAST_GOOD_POLICY) -> None:
+    """After a successful activation: the old active file becomes the last-good one,
+    then `src` becomes the active one (two atomic renames; a crash between them
+    leaves the last-good, which boot loads). For policies and for the robot's map alike."""
+    active = storage.resolve(active_path)
     if active.exists():
-        os.replace(active, storage.resolve(LAST_GOOD_POLICY))
+        os.replace(active, storage.resolve(last_good))
     os.replace(src, active)
     fsync_dir(active.parent)
     if src.parent != active.parent:
         fsync_dir(src.parent)
+
+
+def boot_map_candidates(storage: Storage) -> list[str]:
+    """The robot's map files to try at boot, newest first: active, then last-known-good."""
+    out = []
+    for ftp_path in (ACTIVE_MAP, LAST_GOOD_MAP):
+        with contextlib.suppress(StorageError):
+            out.append(str(storage._existing_file(ftp_path)))
+    return out
 
 
 def boot_policy_candidates(storage: Storage) -> list[str]:

@@ -384,6 +384,22 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
     return res.put_seconds, pid
 
 
+def _upload_map(link, grid_map, run_dir: Path, say: Callable[[str], None]) -> None:
+    """The map the sim plays becomes the robot's own (`qnav map upload`, issue 32): it localises and plans
+    on the world it is in, whatever map its policy was trained on."""
+    from ground_station.maps import write_map
+    from ground_station.mavlink.ftp_upload import upload_map
+    from ground_station.mavlink.link import LinkError
+
+    local = run_dir / "robot_map.map"
+    write_map(local, grid_map)
+    try:
+        res = upload_map(link, local, deadline_s=60.0)
+    except LinkError as exc:
+        raise DemoError(f"map upload: {exc}") from None
+    say(f"map {grid_map.name} uploaded and active on the robot ({res.size} B), confirmed by {res.confirmed_by}")
+
+
 def mission_plan(opts: DemoOptions, grid_map, start_mm: tuple[float, float], planned: bool,
                  plan_kw: dict | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
     """(mission items, item index of each target): the targets' centres, or
@@ -672,6 +688,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                 raise DemoError(f"FS_GCS_TOUT_MS: {exc}") from None
 
         summary.upload_seconds, summary.policy_id = _upload(link, policy, say, quiet=False)
+        _upload_map(link, grid_map, run_dir, say)
         _command_mission(link, opts, say, items)
         watch.started()
         _set_auto(link, say)

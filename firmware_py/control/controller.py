@@ -48,7 +48,8 @@ from firmware_py.control.state import (
     ControlState,
 )
 from firmware_py.kinds import DriveTick
-from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy
+from firmware_py.mapdata import OccupancyGrid, describe
+from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy, on_robot_map
 from firmware_py.vehicle import (
     ACTIVATION_TIMEOUT_S,
     CtrlState,
@@ -289,6 +290,7 @@ class Controller(ControlState):
             new = load_policy(path)  # file I/O outside the lock: ticks keep running
         except PolicyError as exc:
             return False, f"policy rejected: {exc}"
+        new = on_robot_map(new, self.robot_map)  # a kind that is not map-specific runs on the robot's map
         grid = new.map_grid if self.localise else None
         if grid is None or (self.loc is not None and self.loc.grid == grid):
             return self.activate_loaded(new)
@@ -338,12 +340,69 @@ class Controller(ControlState):
             self._event("info", text)
             return True, ""
 
+    # --- the robot's own map (issue 32) ----------------------------------------------------
+    def begin_map_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
+        """The FTP server's hook for a rename onto /maps/active.map: parse the MovingAI file with the
+        robot's cell size, check it against the running policy, build its localiser off the link
+        thread, and swap it in between two ticks (or refuse with the reason; the old map stays)."""
+        from firmware_py.mapdata import MapDataError, grid_from_map_file
+
+        with self._lock:
+            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                return False, "refused while driving: stop first"
+            cell_mm = self.cfg.cell_size_mm
+        try:
+            grid = grid_from_map_file(path, cell_mm)
+        except (MapDataError, OSError, UnicodeDecodeError) as exc:
+            return False, f"map rejected: {exc}"
+        pending = PendingActivation()
+
+        def build() -> None:
+            try:
+                pending.finish(*self.set_robot_map(grid))
+            except MemoryError:
+                pending.finish(False, "map rejected: its localiser field does not fit in memory")
+            except Exception as exc:  # noqa: BLE001 - a refusal with the reason, never a dead worker
+                pending.finish(False, f"map rejected: {type(exc).__name__}: {exc}")
+
+        threading.Thread(target=build, name="map-activation", daemon=True).start()
+        return pending
+
+    def set_robot_map(self, grid: OccupancyGrid) -> tuple[bool, str]:
+        """Make `grid` (mapdata.OccupancyGrid) the robot's map: a map-specific policy for another map is
+        refused naming both; any other kind localises and plans on it from the next tick (its
+        localiser built before the lock is taken: the ticks keep running)."""
+        with self._lock:
+            pol, route_items = self.policy, list(self.route.items)
+        if pol is not None:
+            why = config_mismatch(pol, self.cfg.control_period_us, self.cfg.cell_size_mm, grid, self.robot_profile)
+            if why:
+                return False, why
+        new = on_robot_map(pol, grid) if pol is not None else None
+        why = Route.refusal(route_items, lambda x, y: self._goal_index_for(x, y, new), "mission item") if new else ""
+        if why:
+            return False, why
+        loc = self._new_localiser(new)
+        with self._lock:
+            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+                return False, "refused while driving: stop first"
+            self.robot_map = grid
+            self._corners = None
+            if new is not None and new is not pol:
+                self.policy = new
+                self.driver = kinds.of_policy(new).driver(new, self.background)
+                self._use_localiser(new, loc)
+            text = f"map {describe(grid)} active"
+            log.info("t=%d us %s", self._now, text)
+            self._event("info", text)
+            return True, text
+
     def revert_policy(self) -> tuple[bool, str]:
         """Swap back to the last-known-good policy."""
         with self._lock:
             if self.last_known_good is None:
                 return False, "no last-known-good policy"
-            lkg = self.last_known_good
+            lkg = on_robot_map(self.last_known_good, self.robot_map)  # the map may have changed since
         return self.activate_loaded(lkg)
 
     def drain_events(self) -> list[VehicleEvent]:

@@ -193,6 +193,9 @@ class PolicyKind:
     goal_index: Callable[[Policy, int, int], tuple[int, str]] = field(default=free_goal)
     header_fields: Callable[[Policy], dict[str, Any]] = field(default=_no_header)
     local_planner: bool = False  # may carry `local_planner` metadata (firmware_py.localplan)
+    # the table is indexed by one map's cells (a cell policy): it runs only on the map it was trained
+    # on. Other kinds observe ranges and bearings and take the robot's own map (issue 32)
+    map_specific: bool = False
 
     def __post_init__(self) -> None:
         if not 1 <= self.code <= 255:

@@ -93,4 +93,5 @@ class CellDriver(CellStepper):
 
 KIND = PolicyKind(name="cell", code=1, actions=tuple((dc, dr) for dc, dr in robot_spec.CELL_ACTION_DELTAS),
                   unpack=unpack, pack=pack, driver=CellDriver, fixed_geometry=fixed_geometry,
-                  robot_cell_mm=lambda policy: policy.cell_mm, goal_index=goal_index, header_fields=header_fields)
+                  robot_cell_mm=lambda policy: policy.cell_mm, goal_index=goal_index, header_fields=header_fields,
+                  map_specific=True)

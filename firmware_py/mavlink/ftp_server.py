@@ -28,7 +28,9 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
   replace the real name at TerminateSession; ResetSessions, session expiry
   and a crash discard them;
 - Rename onto /policies/active.qtab activates a policy through the injected
-  hook; refusals are NAK Fail plus a STATUSTEXT with the reason;
+  hook, and onto /maps/active.map the robot's own map through the second
+  (`activate_map`); refusals are NAK Fail plus a STATUSTEXT with the reason
+  ("policy refused: ...", "map refused: ..."), the old file stays active;
 - file work whose cost the file chooses (CalcFileCRC32 of a file over
   INLINE_CRC_BYTES, 1 MiB; TerminateSession's commit, which fsyncs the file
   and its directory, slow on an SD card) runs on the injected `offload` (firmware_py.background, a worker
@@ -55,7 +57,9 @@ from firmware_py.background import Background
 from firmware_py.mavlink.metadata import GENERAL_FILE, METADATA_DIR, PARAMETER_FILE
 from firmware_py.mavlink.signing import SIGNING_FILE
 from firmware_py.storage import (
+    ACTIVE_MAP,
     ACTIVE_POLICY,
+    LAST_GOOD_MAP,
     LAST_GOOD_POLICY,
     LAYOUT_DIRS,
     PARAMS_FILE,
@@ -115,7 +119,7 @@ class Nak(IntEnum):
 # bypass the loader's validation. The robot's own state files and the layout
 # directories are off limits too: a directory created at params.json's name
 # made every later save raise (found by the issue 9 hostile-input suite).
-PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS,
+PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, ACTIVE_MAP, LAST_GOOD_MAP, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS,
                        GENERAL_FILE, PARAMETER_FILE, METADATA_DIR})
 
 
@@ -184,6 +188,19 @@ def _errno_nak(exc: OSError) -> bytes:
     return bytes([Nak.FAIL])
 
 
+@dataclass(frozen=True)
+class _Slot:
+    """What a Rename onto an active file activates: a policy or the robot's map."""
+
+    what: str  # "policy" | "map": in the STATUSTEXTs
+    active: str
+    last_good: str
+
+
+POLICY_SLOT = _Slot("policy", ACTIVE_POLICY, LAST_GOOD_POLICY)
+MAP_SLOT = _Slot("map", ACTIVE_MAP, LAST_GOOD_MAP)
+
+
 @dataclass
 class _PendingRename:
     """A Rename onto the active policy whose activation runs off the link
@@ -195,6 +212,9 @@ class _PendingRename:
     src: Any  # its host path
     activation: Any  # vehicle.PendingActivation
     since_us: int
+    slot: _Slot = POLICY_SLOT
+
+
 
 
 # a file up to this size is summed on the link thread (0.2 ms here: a worker's reply would wait for the
@@ -222,13 +242,14 @@ class FtpServer:
     refuses every activation."""
 
     def __init__(self, storage: Storage, activate: Callable[[str], Any] | None = None,
-                 *, max_sessions: int = 4, session_timeout_us: int = 5_000_000,
+                 *, activate_map: Callable[[str], Any] | None = None, max_sessions: int = 4, session_timeout_us: int = 5_000_000,
                  burst_max_packets: int = 64, max_sessions_per_client: int = 2,
                  evict_idle_us: int = 1_000_000,
                  activation_timeout_us: int = round(ACTIVATION_TIMEOUT_S * 1_000_000),
                  offload: Background | None = None) -> None:
         self.storage = storage
         self.activate = activate
+        self.activate_map = activate_map  # the vehicle's `begin_map_activation` (a rename onto /maps/active.map)
         self.offload = offload
         self._offloaded: list[_Offloaded] = []
         self.activation_timeout_us = activation_timeout_us
@@ -305,10 +326,10 @@ class FtpServer:
         ok, reason = got
         if ok:
             try:
-                commit_promotion(self.storage, p.src)
+                commit_promotion(self.storage, p.src, p.slot.active, p.slot.last_good)
             except OSError as exc:  # the policy runs; its file stays under its own name
                 ok, reason = False, f"active, but its file was not kept: {exc}"
-        reply = self._finish_activation(p.req, p.path, ok, reason)
+        reply = self._finish_activation(p.req, p.path, ok, reason, p.slot)
         self._cache[(p.owner, p.req.session)] = (b"", [reply], now_us)
         return out + [(p.owner, reply)]
 
@@ -585,40 +606,47 @@ class FtpServer:
         if self._protected(old):
             return self._nak(req, Nak.FILE_PROTECTED)
         if self._norm(new) == ACTIVE_POLICY:
-            return self._activate(req, old, now_us)
+            return self._activate(req, old, now_us, POLICY_SLOT)
+        if self._norm(new) == ACTIVE_MAP:
+            return self._activate(req, old, now_us, MAP_SLOT)
         if self._protected(new):
             return self._nak(req, Nak.FILE_PROTECTED)
         self.storage.rename(old, new)
         return self._ack(req)
 
-    def _activate(self, req: Request, old: str, now_us: int) -> bytes | list[bytes]:
+    def _activate(self, req: Request, old: str, now_us: int, slot: _Slot) -> bytes | list[bytes]:
         path = self._norm(old)
         pending = self._pending
         if pending is not None:
             if (pending.owner, pending.path) == (self._owner, path):
                 pending.req = req  # a retry: the reply, when it comes, answers this one
                 return []
-            return self._finish_activation(req, path, False, f"activation of {pending.path} in progress")
-        if self.activate is None:
-            return self._finish_activation(req, path, False, "no vehicle attached to activate policies")
+            return self._finish_activation(req, path, False, f"activation of {pending.path} in progress", slot)
+        hook = self.activate if slot is POLICY_SLOT else self.activate_map
+        if hook is None:
+            return self._finish_activation(req, path, False, f"no vehicle attached to activate a {slot.what}", slot)
         try:
-            got = promote_policy(self.storage, old, self.activate)
+            got = promote_policy(self.storage, old, hook, slot.active, slot.last_good)
         except OSError:
             raise
         except Exception as exc:  # a hook that raises is a refusal, never a crash of the link
             got = (False, f"{type(exc).__name__}: {exc}")
         if not isinstance(got, tuple):  # built off this thread; `poll` answers when it is done
-            self._pending = _PendingRename(self._owner, req, path, policy_source(self.storage, old), got, now_us)
+            self._pending = _PendingRename(self._owner, req, path, policy_source(self.storage, old, slot.active),
+                                           got, now_us, slot)
             return []
-        return self._finish_activation(req, path, *got)
+        ok, reason = got
+        return self._finish_activation(req, path, ok, reason, slot)
 
-    def _finish_activation(self, req: Request, path: str, ok: bool, reason: str) -> bytes:
+    def _finish_activation(self, req: Request, path: str, ok: bool, reason: str,
+                           slot: _Slot | None = None) -> bytes:
+        what = (slot or POLICY_SLOT).what
         if not ok:
             self.stats.refusals += 1
-            self._texts.append((SEVERITY_WARNING, f"policy refused: {reason}"))
+            self._texts.append((SEVERITY_WARNING, f"{what} refused: {reason}"))
             return self._nak(req, Nak.FAIL)
         self.stats.activations += 1
-        self._texts.append((SEVERITY_INFO, f"policy active: {reason or path}"))
+        self._texts.append((SEVERITY_INFO, f"{what} active: {reason or path}"))
         return self._ack(req)
 
     def _op_crc(self, req: Request, now_us: int) -> bytes | list[bytes]:

@@ -683,7 +683,7 @@ def open_node(vehicle: VehicleControl, storage_dir: str | os.PathLike[str] | Non
 
         # whole-file work (CRC32, the commit's fsyncs) on a worker: the link thread keeps beating
         server = FtpServer(Storage(storage_dir), activate=getattr(vehicle, "begin_activation", vehicle.activate_policy),
-                           offload=Background())
+                           activate_map=getattr(vehicle, "begin_map_activation", None), offload=Background())
     node = MavNode(vehicle, ParamStore(storage_dir), Signing(storage_dir), reboot_hook=reboot_hook, ftp=server,
                    network_link=is_network_url(url))
     node.boot(now_us, signing_key, overrides)

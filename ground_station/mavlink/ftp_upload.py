@@ -308,6 +308,46 @@ def upload_policy(link: Link, local: Path, remote: str, *, activate: bool = Fals
     return res
 
 
+ACTIVE_MAP = "/maps/active.map"  # firmware_py.storage.ACTIVE_MAP
+MAP_UPLOAD = "/maps/upload.map"
+
+
+def upload_map(link: Link, local: Path, *, deadline_s: float = 120.0, attempts: int = 8) -> UploadResult:
+    """Put a MovingAI map at /maps/upload.map, verify its CRC, then rename it onto /maps/active.map:
+    the robot parses it with its own cell size, checks it against its policy, builds its localiser
+    and answers the rename (ACK: active; NAK: refused, the reason in a STATUSTEXT, the old map kept).
+    A lost reply is settled by the CRC of /maps/active.map. Raises LinkError (exit codes 3, 4, 5)."""
+    from firmware_py.storage import ftp_crc32
+
+    data = local.read_bytes()
+    res = UploadResult(remote=MAP_UPLOAD, size=len(data), crc=ftp_crc32(data))
+    deadline = time.monotonic() + deadline_s
+    session = ftp_session(link)
+    ftp = session.client()
+    t0 = time.monotonic()
+    _put_verified(session, ftp, local, res, deadline, attempts, None)
+    res.put_seconds = time.monotonic() - t0
+    mavftp = session.mavftp
+    texts_from = len(link.texts)
+    while True:
+        if time.monotonic() > deadline:
+            raise LinkError(EXIT_TIMEOUT, f"map activation not confirmed within {deadline_s:.0f} s")
+        res.renames += 1
+        opcode, reply = session.ask(mavftp.OP_Rename, MAP_UPLOAD.encode() + b"\0" + ACTIVE_MAP.encode() + b"\0",
+                                    min(30.0, max(2.0, _left(deadline))), f"Rename {MAP_UPLOAD} -> {ACTIVE_MAP}")
+        if opcode == mavftp.OP_Ack:
+            _confirm_crc(session, res, deadline, "Rename ACK + active.map CRC32", ACTIVE_MAP)
+            res.texts = list(link.texts)
+            return res
+        if reply[:1] == bytes([NAK_FAIL]):
+            _raise_refusal(link, texts_from, what="map")
+        # no such file any more (an earlier copy was renamed and its ACK lost): the CRC settles it
+        if session.remote_crc(ACTIVE_MAP, min(10.0, max(2.0, _left(deadline)))) == res.crc:
+            res.activated, res.confirmed_by = True, "active.map CRC32 (the rename's reply was lost)"
+            res.texts = list(link.texts)
+            return res
+
+
 def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, deadline: float, attempts: int,
                   progress) -> None:
     """Put until CalcFileCRC32 of `res.remote` equals the local CRC."""
@@ -442,17 +482,18 @@ def _activate_unreadable(session: FtpSession, ftp, res: UploadResult, deadline: 
                                      f"(this ground station's loader: {res.local_error})")
 
 
-def _confirm_crc(session: FtpSession, res: UploadResult, deadline: float, how: str) -> None:
-    crc = session.remote_crc(ACTIVE_POLICY, min(20.0, max(2.0, _left(deadline))))
+def _confirm_crc(session: FtpSession, res: UploadResult, deadline: float, how: str,
+                 active: str = ACTIVE_POLICY) -> None:
+    crc = session.remote_crc(active, min(20.0, max(2.0, _left(deadline))))
     if crc != res.crc:
         shown = "missing" if crc is None else f"0x{crc:08x}"
-        raise LinkError(EXIT_MISMATCH, f"{ACTIVE_POLICY} CRC32 is {shown} after activation, "
+        raise LinkError(EXIT_MISMATCH, f"{active} CRC32 is {shown} after activation, "
                                           f"expected 0x{res.crc:08x}")
     res.activated = True
     res.confirmed_by = how
 
 
-def _raise_refusal(link: Link, texts_from: int, local_error: str = "") -> None:
+def _raise_refusal(link: Link, texts_from: int, local_error: str = "", what: str = "policy") -> None:
     end = time.monotonic() + 1.0
     while time.monotonic() < end and not any("refused" in t for t in link.texts[texts_from:]):
         link.conn.recv_match(blocking=True, timeout=0.1)
@@ -460,7 +501,7 @@ def _raise_refusal(link: Link, texts_from: int, local_error: str = "") -> None:
     if reasons:
         raise LinkError(EXIT_REFUSED, reasons[-1])
     local = f"; this ground station's loader: {local_error}" if local_error else ""
-    raise LinkError(EXIT_REFUSED, f"robot refused the policy (its reason lost{local})")
+    raise LinkError(EXIT_REFUSED, f"robot refused the {what} (its reason lost{local})")
 
 
 def _show(values: Mapping[str, float | None] | None) -> str:

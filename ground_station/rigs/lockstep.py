@@ -108,7 +108,8 @@ class LockstepRig:
     def __init__(self, occ, policy: Policy | None, start: tuple[float, float, float],
                  goals_mm: list[tuple[int, int]], *, seed: int = 0,
                  vehicle: VehicleConfig | None = None, answer_timeout_s: float = 5.0,
-                 profile: PlantProfile | None = None, localise: bool = True, robot: Any = None) -> None:
+                 profile: PlantProfile | None = None, localise: bool = True, robot: Any = None,
+                 robot_map: bool = True) -> None:
         from dataclasses import replace
 
         from firmware_py.drives import open_drive
@@ -125,6 +126,14 @@ class LockstepRig:
                                localiser_config=LocaliserConfig(seed=seed), profile=robot,
                                start_pose_mm=(round(start[0] * 1000), round(start[1] * 1000),
                                               round(start[2] * 1000)))
+        if robot_map:  # the map the plant simulates is the robot's own (issue 32), as `qnav map upload` makes it
+            from firmware_py.mapdata import OccupancyGrid
+
+            cell_mm = round(config.cell_size_m * 1000)
+            grid = OccupancyGrid(cell_mm, occ.shape[1], occ.shape[0], bytes(int(v != 0) for v in occ.flat))
+            # (ok, why): a cell policy for another map refuses it, naming both, and keeps its own
+            self.robot_map_result = self.ctrl.set_robot_map(grid) if self.ctrl.cfg.cell_size_mm == cell_mm else (
+                False, f"sim cells {cell_mm} mm, robot {self.ctrl.cfg.cell_size_mm} mm")
         drive = open_drive(robot) if robot is not None else None
         self.node = RobotNode(self.node_bus, self.ctrl, SimClock(), lockstep=True, drive=drive)
         # the tick's answer: qnav's MotorCommand carries the counter, other drives end with a SimTickAck

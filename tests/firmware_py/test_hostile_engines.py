@@ -16,7 +16,7 @@ from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.ftp_server import FtpServer, Nak, Op
 from firmware_py.mavlink.node import is_network_url
 from firmware_py.mavlink.signing import FUTURE_WINDOW, MAX_TIMESTAMP, wall_timestamp
-from firmware_py.storage import Storage
+from firmware_py.storage import LAYOUT_DIRS, Storage
 from firmware_py.vehicle import Mode
 from tests.firmware_py.test_ftp_server import Client, ack, nak, put
 from tests.firmware_py.test_mav_engines import KEY, Link, of, texts
@@ -294,7 +294,8 @@ def test_file_and_directory_quotas(server):
             assert r[7][:2] == bytes([Nak.FAIL_ERRNO, 28])
             break
         made += 1
-    assert made == 4 - 2  # the layout's two directories count
+    layout = len(LAYOUT_DIRS)
+    assert made == 4 - layout  # the layout's directories count
     files = 0
     while True:
         r = c.one(Op.CREATE_FILE, f"/f{files}".encode())
@@ -304,4 +305,4 @@ def test_file_and_directory_quotas(server):
         assert ack(c.one(Op.TERMINATE_SESSION))
         files += 1
     assert files == 12
-    assert len(os.listdir(server.storage.root)) == 2 + made + files
+    assert len(os.listdir(server.storage.root)) == layout + made + files

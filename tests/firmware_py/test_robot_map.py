@@ -1,6 +1,7 @@
-"""The robot's own map (qnav-robot --map FILE; issue 30 item 4): read from a MovingAI file with its
-errors named by line, and a policy carrying another map refused at boot and at activation, naming
-both, so a 10x10 policy on a robot in a 16x16 world is not accepted and then driven into walls."""
+"""The robot's own map (qnav-robot --map FILE, qnav map upload; issues 30 and 32): read from a MovingAI
+file with its errors named by line; a cell policy (its table indexed by one map's cells) for another
+map refused at boot and at activation, naming both, so a 10x10 table is not driven into the walls of
+a 16x16 world; a sector policy localises and plans on the robot's map whatever map its file carries."""
 
 from __future__ import annotations
 
@@ -31,20 +32,27 @@ def test_map_file_is_read_and_its_errors_are_named_by_line(tmp_path):
         grid_from_map_file(str(tmp_path / "none.map"), 500)
 
 
-def test_a_policy_for_another_map_is_refused_at_activation_naming_both(tmp_path):
+def test_a_cell_policy_for_another_map_is_refused_naming_both_and_a_sector_policy_takes_the_robots(tmp_path):
     ctrl = Controller(VehicleConfig())
-    ctrl.robot_map = grid_from_map_file(str(_write(tmp_path, ["." * 16] * 16)), 500)
-    ok, why = ctrl.activate_policy(str(shipped_policy("sector")))
-    assert not ok and why == "policy map paper10 (10x10 cells of 500 mm) is not the robot's map (16x16 cells of 500 mm)"
+    world = grid_from_map_file(str(_write(tmp_path, ["." * 16] * 16)), 500)
+    assert ctrl.set_robot_map(world) == (True, "map 16x16 cells of 500 mm active")
+    ok, why = ctrl.activate_policy(str(shipped_policy("paper10_cell")))
+    assert not ok and why.startswith("policy map paper10 (10x10 cells of 500 mm") and why.endswith(
+        "is not the robot's map (16x16 cells of 500 mm)")
     assert ctrl.policy is None
-    paper10 = load_policy(shipped_policy("sector")).map_grid
-    ctrl.robot_map = paper10  # the right world: accepted
-    assert ctrl.activate_policy(str(shipped_policy("sector"))) == (True, "")
+    assert ctrl.activate_policy(str(shipped_policy("sector"))) == (True, "")  # not map-specific
+    assert ctrl.policy is not None and ctrl.policy.map_grid == world  # it localises and plans on the robot's
+    assert load_policy(shipped_policy("sector")).map_grid != world
+    paper10 = load_policy(shipped_policy("paper10_cell")).map_grid
+    assert ctrl.set_robot_map(paper10)[0] and ctrl.policy.map_grid == paper10  # a new map: the policy follows
+    assert ctrl.activate_policy(str(shipped_policy("paper10_cell"))) == (True, "")  # its own world: accepted
+    ok, why = ctrl.set_robot_map(world)  # and now the 16x16 map is refused: the cell table is tied to paper10
+    assert not ok and "is not the robot's map (16x16 cells of 500 mm)" in why and ctrl.robot_map == paper10
 
 
 def test_qnav_robot_refuses_at_boot_in_one_line(tmp_path):
     world = _write(tmp_path, ["." * 16] * 16)
-    run = subprocess.run([sys.executable, "-m", "firmware_py.cli", "--policy", "policies:sector", "--map", str(world),
+    run = subprocess.run([sys.executable, "-m", "firmware_py.cli", "--policy", "policies:paper10_cell", "--map", str(world),
                           "--can", "virtual:robot-map-test", "--duration", "0.1", "--mavlink", "none"],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and run.stderr.strip().count("\n") == 0, run.stderr

@@ -30,7 +30,7 @@ def test_ftp_crc32_is_the_mavlink_ftp_crc_and_chains():
 
 
 def test_layout_directories_exist(store):
-    assert [e.name for e in store.listdir("/")] == ["params", "policies"]
+    assert [e.name for e in store.listdir("/")] == ["maps", "params", "policies"]
 
 
 @pytest.mark.parametrize("path", ["/policies/a.qtab", "policies/a.qtab", "//policies/./a.qtab"])

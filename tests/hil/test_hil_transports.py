@@ -44,6 +44,7 @@ can_utils = pytest.mark.skipif(not CAN_UTILS, reason="can-utils (candump, cansen
 ESTOP_VCAN = "estop_cansend" if CAN_UTILS else "estop"
 # the mission alone takes as long as the rest inside UML (its `qnav` commands start slowly there),
 # so UML boots twice, side by side; on a host vcan0 the batches share one bus and run in turn
+GOAL_TICKS = round(hs.GOAL_DURATION_S * robot_spec.CONTROL_RATE_HZ)  # the goal run's SimTicks
 BATCHES = [["mission"], ["goal_reached", ESTOP_VCAN, "sensor_stop", "odrive_error", "dronecan_error"]]
 
 
@@ -95,9 +96,9 @@ def _states(robot: dict) -> list[str]:
 def test_lockstep_goal_reached(transport, request, tmp_path):
     r = _result(transport, "goal_reached", request, tmp_path)
     assert r["sim_exit"] == 0 and r["robot_exit"] == 0, r.get("logs")
-    assert r["sim"] == {"ticks": 700, "missed": 0, "stale": 0}, r
+    assert r["sim"] == {"ticks": GOAL_TICKS, "missed": 0, "stale": 0}, r
     s = r["robot"]
-    assert s["result"] == "reached" and s["ticks"] == 700 and s["can_errors"] == 0
+    assert s["result"] == "reached" and s["ticks"] == GOAL_TICKS and s["can_errors"] == 0
     assert _states(s) == ["STANDBY", "HOLD", "DRIVING", "GOAL_REACHED", "HOLD"]
     x, y, _ = s["pose_mm"]
     assert abs(x - 4750) < 150 and abs(y - 4750) < 150  # target B's centre (odometry)
@@ -171,7 +172,7 @@ def test_can_utils_cansend_estop_stops_a_driving_robot(vcan_batch):
 def test_can_utils_candump_log_decodes_with_cantools(vcan_batch):
     log = vcan_batch / "goal_reached" / "goal.candump"
     lines = log.read_text().splitlines()
-    assert len(lines) >= 8 * 700  # 7 sim frames + 1 command per tick, plus heartbeats
+    assert len(lines) >= 8 * GOAL_TICKS  # 7 sim frames + 1 command per tick, plus heartbeats
     out = subprocess.run([str(BIN / "cantools"), "decode", str(ROOT / "firmware_py" / "qnav.dbc")],
                          input="\n".join(lines) + "\n", capture_output=True, text=True, check=True).stdout
     assert "Unknown" not in out
@@ -193,12 +194,12 @@ def test_can_utils_qnav_report_reads_the_candump_log(vcan_batch, tmp_path):
     s = json.loads(out)
     assert s["kind"] == "candump" and s["channels"] == ["vcan0"]
     assert s["frames"] == len(log.read_text().splitlines()) and s["refused"] == 0 and not s["unknown_ids"]
-    assert s["sim_ticks"] == 700 and s["sim_tick_gaps"] == 0
+    assert s["sim_ticks"] == GOAL_TICKS and s["sim_tick_gaps"] == 0
     for name in ("RangeSectors0", "RangeSectors1", "EncoderCounts", "MotorCommand"):
         assert s["per_sim_tick"][name] == 1.0  # one per control period of 1 / CONTROL_RATE_HZ
     assert robot_spec.CONTROL_RATE_HZ == 20
     c = s["motor_commands"]
-    assert c["count"] == 700 and c["nonzero"] > 300 and c["zero"] > 0
+    assert c["count"] == GOAL_TICKS and c["nonzero"] > 300 and c["zero"] > 0
     assert [st for _, st in s["controller_states"]][-3:] == ["DRIVING", "GOAL_REACHED", "HOLD"]
     code, text = _qnav("report", str(log))
     assert code == 0 and "candump log, " in text and "MotorCommand" in text

@@ -1,0 +1,64 @@
+"""`qnav map upload`: the map is the robot's (issue 32). Over MAVLink FTP to a running qnav-robot:
+a sector policy takes the robot's map (localises and plans on it), a cell policy tied to paper10
+refuses another map naming both, a malformed file is refused with the reason and the old map kept,
+and the robot boots the map it was last given."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from firmware_py.subprocs import free_udp_port, stop_process
+
+BIN = Path(sys.executable).parent
+
+
+def _robot(storage: Path, policy: str, port: int, stats: Path) -> subprocess.Popen:
+    return subprocess.Popen([BIN / "qnav-robot", "--can", f"virtual:map-{port}", "--storage", storage, "--policy",
+                             policy, "--mavlink", f"udpout:127.0.0.1:{port}", "--stats-json", stats, "-q"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def _qnav(*argv) -> subprocess.CompletedProcess:
+    return subprocess.run([BIN / "qnav", *map(str, argv)], capture_output=True, text=True, timeout=120)
+
+
+def test_a_sector_robot_takes_the_uploaded_map_and_boots_it_again(tmp_path):
+    storage, port = tmp_path / "robot", free_udp_port()
+    url = f"udpin:127.0.0.1:{port}"
+    robot = _robot(storage, "policies:sector", port, tmp_path / "stats1.json")
+    try:
+        up = _qnav("map", "upload", "rooms-16x16-s1", "--mavlink", url, "--no-tlog")
+        assert up.returncode == 0, up.stderr
+        assert "map rooms-16x16-s1 (16x16 cells) active on the robot" in up.stdout
+        active = storage / "maps" / "active.map"
+        text = active.read_text()
+        bad = tmp_path / "bad.map"
+        bad.write_text("type octile\nheight 3\nwidth 3\nmap\n...\n.x\n")  # a short row
+        refused = _qnav("map", "upload", bad, "--mavlink", url, "--no-tlog")
+        assert refused.returncode != 0 and "map" in refused.stderr
+        assert active.read_text() == text  # the old map stays
+    finally:
+        stop_process(robot)
+    log = (storage / "logs" / "robot.log").read_text()
+    assert "map 16x16 cells of 500 mm active" in log
+    # a restart boots the map it was given (its storage), not the policy's paper10
+    robot = _robot(storage, "policies:sector", port, tmp_path / "stats2.json")
+    time.sleep(2.0)
+    stop_process(robot)
+    log2 = (storage / "logs" / "robot.log").read_text()
+    assert log2.count("map 16x16 cells of 500 mm active") == 2
+
+
+def test_a_cell_policy_refuses_a_map_other_than_its_own_naming_both(tmp_path):
+    storage, port = tmp_path / "robot", free_udp_port()
+    robot = _robot(storage, "policies:paper10_cell", port, tmp_path / "stats.json")
+    try:
+        refused = _qnav("map", "upload", "rooms-16x16-s1", "--mavlink", f"udpin:127.0.0.1:{port}", "--no-tlog")
+    finally:
+        stop_process(robot)
+    assert refused.returncode == 3, refused.stderr
+    assert "map refused: policy map paper10 (10x10" in refused.stderr and "is not the robot's map (16x16" in refused.stderr
+    assert not (storage / "maps" / "active.map").exists()
