@@ -6,16 +6,20 @@ ground station's kinematic twin (`ground_station.learn.sector.obstacles`
 jit-compiles `step_movers` from this very source):
 
 * a static obstacle is a disc (x, y, r) in mm, world frame (x east, y north);
-* a mover is a disc (x, y, vx, vy, r) (mm, mm/s) walking a straight line at
-  constant speed. Once per control period it moves by v * dt, one axis at a
-  time; an axis whose move would make it touch an obstacle cell, the map
-  border, a static obstacle or the robot (plus `YIELD_MARGIN_MM`) is not
-  taken and that velocity component flips (it bounces). Movers never walk
-  into the robot (a pedestrian steps aside), so every contact is the robot's
-  own doing; they pass through each other.
+* a mover is a disc (x, y, vx, vy, r, yields) (mm, mm/s) walking a straight
+  line at constant speed. Once per control period it moves by v * dt, one
+  axis at a time; an axis whose move would make it touch an obstacle cell,
+  the map border or a static obstacle is not taken and that velocity
+  component flips (it bounces). A mover that yields (yields = 1, the default:
+  a pedestrian steps aside) also bounces off the robot plus
+  `YIELD_MARGIN_MM`, so every contact is the robot's own doing; one that does
+  not (yields = 0, `qnav bench nav --no-yield`, issue 32) walks its own line
+  through the robot's path and only stands still while it would overlap the
+  robot (it stops on contact). Movers pass through each other. Five-column
+  movers (before `yields`) yield.
 
 Arrays, not objects, so the same function runs in numba and here:
-`discs` float64 (K, 3), `movers` float64 (M, 5), `occ` the map grid (row 0 =
+`discs` float64 (K, 3), `movers` float64 (M, 6), `occ` the map grid (row 0 =
 north), `cell` mm.
 """
 
@@ -42,6 +46,7 @@ def step_movers(movers, occ, cell, discs, rx, ry, rr, dt_s):  # type: ignore[no-
     top = h * cell
     for i in range(movers.shape[0]):
         r = movers[i, 4]
+        yields = movers.shape[1] < 6 or movers[i, 5] != 0.0
         for axis in range(2):
             nx = movers[i, 0]
             ny = movers[i, 1]
@@ -69,8 +74,10 @@ def step_movers(movers, occ, cell, discs, rx, ry, rr, dt_s):  # type: ignore[no-
                     dd = r + discs[k, 2]
                     if (nx - discs[k, 0]) ** 2 + (ny - discs[k, 1]) ** 2 < dd * dd:
                         blocked = True
-                dd = r + rr + YIELD_MARGIN_MM
+                dd = r + rr + (YIELD_MARGIN_MM if yields else 0.0)
                 if (nx - rx) ** 2 + (ny - ry) ** 2 < dd * dd:
+                    if not yields:
+                        continue  # it does not step aside: it stands until the robot is out of its way
                     blocked = True
             if blocked:
                 movers[i, 2 + axis] = -movers[i, 2 + axis]
@@ -80,10 +87,19 @@ def step_movers(movers, occ, cell, discs, rx, ry, rr, dt_s):  # type: ignore[no-
 
 
 def as_arrays(discs: list | None, movers: list | None) -> tuple[np.ndarray, np.ndarray]:
-    """float64 (K, 3) and (M, 5) arrays from lists of discs / movers (mm)."""
+    """float64 (K, 3) and (M, 6) arrays from lists of discs / movers (mm; a five-value mover yields)."""
     d = np.asarray(discs or [], dtype=np.float64).reshape(-1, 3)
-    m = np.asarray(movers or [], dtype=np.float64).reshape(-1, 5)
+    m = mover_array(movers)
     return d, m
+
+
+def mover_array(movers) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """float64 (M, 6) from movers of five (x, y, vx, vy, r: they yield) or six values."""
+    rows = [tuple(m) + (1.0,) * (6 - len(m)) for m in (movers if movers is not None else [])]
+    for row in rows:
+        if len(row) != 6:
+            raise ValueError(f"a mover is x, y, vx, vy, r[, yields]: got {len(row)} values")
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 6)
 
 
 class ObstacleLayer:
@@ -103,7 +119,7 @@ class ObstacleLayer:
             self._style(shape)
             space.add(shape)
         self.bodies: list[pymunk.Body] = []
-        for x, y, _vx, _vy, r in self.movers:
+        for x, y, _vx, _vy, r, _yields in self.movers:
             body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
             body.position = (x / 1000.0, y / 1000.0)
             shape = pymunk.Circle(body, r / 1000.0)
@@ -119,7 +135,7 @@ class ObstacleLayer:
         shape.filter = pymunk.ShapeFilter(categories=WORLD_CATEGORY)
 
     def step(self, dt_s: float = robot_spec.CONTROL_PERIOD_US / 1e6) -> None:
-        """Move the movers one control period (they yield to the robot's pose now)."""
+        """Move the movers one control period (those that yield, round the robot's pose now)."""
         if not len(self.movers):
             return
         pose = self.world.pose
@@ -132,4 +148,4 @@ class ObstacleLayer:
 
     def positions_mm(self) -> list[tuple[float, float, float]]:
         """(x, y, r) of every mover now."""
-        return [(float(x), float(y), float(r)) for x, y, _vx, _vy, r in self.movers]
+        return [(float(x), float(y), float(r)) for x, y, _vx, _vy, r, _yields in self.movers]

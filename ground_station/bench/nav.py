@@ -37,6 +37,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help=f"map (repeatable; built-in, generator spec or .map file); default {', '.join(DEFAULT_MAPS)}")
     p.add_argument("--obstacles", type=int, default=3, metavar="K", help="static discs per episode (default %(default)s)")
     p.add_argument("--movers", type=int, default=2, metavar="M", help="moving discs per episode (default %(default)s)")
+    p.add_argument("--mover-speed", default=None, metavar="LO,HI",
+                   help="movers' speed range, mm/s (default 300,600: a pedestrian's pace)")
+    p.add_argument("--no-yield", action="store_true",
+                   help="movers walk their own line through the robot's path and stop only on contact, instead "
+                        "of stepping aside (sim_bridge/obstacles.py)")
     p.add_argument("--episodes", type=int, default=1000, help="twin episodes per map (default %(default)s)")
     p.add_argument("--hil", action="store_true", help="also run lockstep HIL episodes (pymunk plant, robot controller)")
     p.add_argument("--hil-episodes", type=int, default=50,
@@ -84,6 +89,18 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--controllers: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(known)}")
     if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1 or args.batch < 1:
         raise CliError("--obstacles/--movers must be >= 0, --episodes/--hil-episodes/--batch >= 1")
+    from ground_station.nav.scenario import MOVER_SPEED_MM_S, MoverStyle
+
+    speed = MOVER_SPEED_MM_S
+    if args.mover_speed is not None:
+        try:
+            lo, hi = (float(v) for v in args.mover_speed.split(","))
+        except ValueError:
+            raise CliError(f"--mover-speed {args.mover_speed!r}: expected LO,HI in mm/s, e.g. 600,1000") from None
+        if not 0 < lo <= hi <= 3000:
+            raise CliError(f"--mover-speed {args.mover_speed}: expected 0 < LO <= HI <= 3000 mm/s")
+        speed = (lo, hi)
+    style = MoverStyle(speed=speed, yields=not args.no_yield)
     try:
         path = resolve_policy_spec(args.policy)
         pol = load_policy(str(path))
@@ -109,13 +126,14 @@ def run(args: argparse.Namespace) -> int:
     with tqdm(total=len(maps), desc="scenarios", unit="map") as bar:
         for name, gm in maps.items():
             try:
-                eps_by_map[name] = episodes(gm, args.episodes, args.seed, args.obstacles, args.movers)
+                eps_by_map[name] = episodes(gm, args.episodes, args.seed, args.obstacles, args.movers, movers=style)
             except MapError as exc:
                 raise CliError(str(exc)) from None
             bar.update(1)
     all_eps = [e for eps in eps_by_map.values() for e in eps]
     result: dict = {"scenario": {
         "maps": list(maps), "obstacles": args.obstacles, "movers": args.movers, "seed": args.seed,
+        "mover_speed_mm_s": list(style.speed), "movers_yield": style.yields,
         "episodes_per_map": args.episodes,
         "discs_placed_mean": sum(len(e.discs) for e in all_eps) / len(all_eps),
         "movers_placed_mean": sum(len(e.movers) for e in all_eps) / len(all_eps),

@@ -44,6 +44,7 @@ import numpy as np
 from firmware_py import robot_spec
 from ground_station.maps import GridMap, MapError, octile_distances
 from ground_station.maps.planner import plan_waypoints
+from sim_bridge.obstacles import mover_array
 
 LATERAL_MM = 300.0
 DISC_RADIUS_MM = (100.0, 200.0)
@@ -57,6 +58,14 @@ MOVER_SPEED_MM_S = (300.0, 600.0)
 MOVER_START_MM = 1200.0
 
 
+@dataclass(frozen=True)
+class MoverStyle:
+    """How a scenario's movers walk: speed range (mm/s) and whether they step aside for the robot."""
+
+    speed: tuple[float, float] = MOVER_SPEED_MM_S
+    yields: bool = True
+
+
 @dataclass
 class Episode:
     """One scenario episode, all lengths mm, angles rad (world frame of robot_spec)."""
@@ -67,7 +76,8 @@ class Episode:
     goal_mm: tuple[float, float]
     waypoints: list[tuple[float, float]]  # the planner's, last = the goal's centre
     discs: list[tuple[float, float, float]] = field(default_factory=list)  # x, y, r
-    movers: list[tuple[float, float, float, float, float]] = field(default_factory=list)  # x, y, vx, vy, r
+    # x, y, vx, vy, r, yields (1: steps aside for the robot; 0: walks its line, stops only on contact)
+    movers: list[tuple[float, ...]] = field(default_factory=list)
     seed: int = 0
 
     def to_json(self) -> dict:
@@ -223,13 +233,15 @@ def place_discs(gridmap: GridMap, start: tuple[float, float], waypoints: list[tu
 
 
 def place_movers(gridmap: GridMap, start: tuple[float, float], discs: list[tuple[float, float, float]],
-                 m: int, rng: np.random.Generator) -> list[tuple[float, float, float, float, float]]:
-    """m movers in free space away from the start (fewer if no place is found)."""
+                 m: int, rng: np.random.Generator, speed: tuple[float, float] = MOVER_SPEED_MM_S,
+                 yields: bool = True) -> list[tuple[float, ...]]:
+    """m movers in free space away from the start (fewer if no place is found), at a speed uniform in
+    `speed` (mm/s); `yields`: whether they step aside for the robot (sim_bridge.obstacles)."""
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
     cell = gridmap.cell_size_m * 1000.0
     cells = gridmap.free_cells()
     h = gridmap.height
-    out: list[tuple[float, float, float, float, float]] = []
+    out: list[tuple[float, ...]] = []
     r = MOVER_RADIUS_MM
     for _ in range(m):
         for _try in range(TRIES):
@@ -240,15 +252,17 @@ def place_movers(gridmap: GridMap, start: tuple[float, float], discs: list[tuple
                 continue
             if any(math.hypot(x - dx, y - dy) < r + dr for dx, dy, dr in discs):
                 continue
-            v = float(rng.uniform(*MOVER_SPEED_MM_S))
+            v = float(rng.uniform(*speed))
             a = float(rng.uniform(-math.pi, math.pi))
-            out.append((round(x, 1), round(y, 1), round(v * math.cos(a), 1), round(v * math.sin(a), 1), r))
+            out.append((round(x, 1), round(y, 1), round(v * math.cos(a), 1), round(v * math.sin(a), 1), r,
+                        1.0 if yields else 0.0))
             break
     return out
 
 
 def make_episode(gridmap: GridMap, start: tuple[int, int], goal: tuple[int, int], heading: float,
-                 k: int = 0, m: int = 0, seed: int = 0, plan_kw: dict | None = None) -> Episode:
+                 k: int = 0, m: int = 0, seed: int = 0, plan_kw: dict | None = None,
+                 movers: MoverStyle | None = None) -> Episode:
     """A seeded scenario episode from start cell (its centre) to goal cell with
     up to k static discs and m movers. Raises MapError if the planner finds no path."""
     rng = np.random.default_rng(seed)
@@ -257,14 +271,15 @@ def make_episode(gridmap: GridMap, start: tuple[int, int], goal: tuple[int, int]
     sx, sy = (start[0] + 0.5) * cell, (h - start[1] - 0.5) * cell
     wps = [(float(x), float(y)) for x, y in plan_waypoints(gridmap, start, goal, **(plan_kw or {}))]
     discs = place_discs(gridmap, (sx, sy), wps, k, rng)
-    movers = place_movers(gridmap, (sx, sy), discs, m, rng)
+    style = movers or MoverStyle()
+    walkers = place_movers(gridmap, (sx, sy), discs, m, rng, style.speed, style.yields)
     gx, gy = (goal[0] + 0.5) * cell, (h - goal[1] - 0.5) * cell
     return Episode(map=gridmap.name, start=(sx, sy, float(heading)), goal=(int(goal[0]), int(goal[1])),
-                   goal_mm=(gx, gy), waypoints=wps, discs=discs, movers=movers, seed=int(seed))
+                   goal_mm=(gx, gy), waypoints=wps, discs=discs, movers=walkers, seed=int(seed))
 
 
 def episodes(gridmap: GridMap, n: int, seed: int, k: int, m: int, plan_kw: dict | None = None,
-             min_cells: float = 3.0) -> list[Episode]:
+             min_cells: float = 3.0, movers: MoverStyle | None = None) -> list[Episode]:
     """n seeded episodes on gridmap: random connected (start, goal) free cells
     at least `min_cells` cells apart (straight line), random heading; episode
     i uses seed (seed, i) for its obstacles, so a list is reproducible and
@@ -283,7 +298,8 @@ def episodes(gridmap: GridMap, n: int, seed: int, k: int, m: int, plan_kw: dict 
             continue
         heading = float(rng.uniform(-math.pi, math.pi))
         try:
-            ep = make_episode(gridmap, s, g, heading, k, m, seed=int(seed) * 1_000_003 + len(out), plan_kw=plan_kw)
+            ep = make_episode(gridmap, s, g, heading, k, m, seed=int(seed) * 1_000_003 + len(out), plan_kw=plan_kw,
+                              movers=movers)
         except MapError:
             continue
         out.append(ep)
@@ -295,7 +311,7 @@ def rollout_arrays(ep: Episode, guided: bool = True) -> tuple[np.ndarray, np.nda
     (the goal alone when not guided), remaining path after each, planned length from the start
     through the waypoints: the bench kernels' budget basis)."""
     discs = np.asarray(ep.discs, dtype=np.float64).reshape(-1, 3)
-    movers = np.asarray(ep.movers, dtype=np.float64).reshape(-1, 5).copy()
+    movers = mover_array(ep.movers)  # a copy: they move
     plan = np.asarray(ep.waypoints, dtype=np.float64)
     wps = plan if guided else np.asarray([ep.goal_mm], dtype=np.float64)
     seg = np.hypot(*np.diff(wps, axis=0).T) if len(wps) > 1 else np.zeros(0)
@@ -330,7 +346,7 @@ def episode_arrays(eps: list[Episode], maps: dict[str, GridMap]) -> dict[str, np
         "wp": np.zeros((n, kw, 2)), "nwp": np.array([len(e.waypoints) for e in eps], dtype=np.int64),
         "rem": np.zeros((n, kw)),
         "discs": np.zeros((n, kd, 3)), "nd": np.array([len(e.discs) for e in eps], dtype=np.int64),
-        "movers": np.zeros((n, km, 5)), "nm": np.array([len(e.movers) for e in eps], dtype=np.int64),
+        "movers": np.zeros((n, km, 6)), "nm": np.array([len(e.movers) for e in eps], dtype=np.int64),
     }
     for i, e in enumerate(eps):
         w = np.asarray(e.waypoints, dtype=np.float64)
@@ -340,5 +356,5 @@ def episode_arrays(eps: list[Episode], maps: dict[str, GridMap]) -> dict[str, np
         if e.discs:
             a["discs"][i, :len(e.discs)] = e.discs
         if e.movers:
-            a["movers"][i, :len(e.movers)] = e.movers
+            a["movers"][i, :len(e.movers)] = mover_array(e.movers)
     return a

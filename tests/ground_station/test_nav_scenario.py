@@ -97,6 +97,33 @@ def test_movers_bounce_and_never_walk_into_the_robot():
     assert flips >= 4  # bounced between the west wall and the robot, again and again
 
 
+def test_a_mover_that_does_not_yield_walks_its_line_and_stops_only_at_contact():
+    """`yields` = 0 (qnav bench nav --no-yield): it keeps walking at the robot, stands while it would
+    overlap it, and walks on once the robot is out of its way; the twin's compiled copy agrees."""
+    occ = np.zeros((4, 8), dtype=np.uint8)
+    movers = np.array([[500.0, 1000.0, 600.0, 0.0, 150.0, 0.0]])
+    twin = movers.copy()
+    rx, ry = 1500.0, 1000.0
+    for _ in range(40):
+        simobs.step_movers(movers, occ, 500.0, np.zeros((0, 3)), rx, ry, 150.0, 0.05)
+        tw.step_movers(twin, occ, 500.0, np.zeros((0, 3)), rx, ry, 150.0, 0.05)
+        assert math.hypot(movers[0, 0] - rx, movers[0, 1] - ry) >= 300.0 - 1e-9  # never overlapping
+    np.testing.assert_array_equal(movers, twin)
+    assert movers[0, 2] == 600.0 and abs(movers[0, 0] - (rx - 300.0)) <= 30.0  # pressed against it, not bounced
+    for _ in range(10):  # the robot moves away: it walks on along its line
+        simobs.step_movers(movers, occ, 500.0, np.zeros((0, 3)), rx, 3000.0, 150.0, 0.05)
+    assert movers[0, 0] > rx - 300.0 + 100.0
+
+
+def test_scenario_movers_carry_their_style_and_old_five_value_movers_yield(paper10):
+    style = sc.MoverStyle(speed=(800.0, 1000.0), yields=False)
+    ep = sc.episodes(paper10, 3, 1, 0, 3, movers=style)[0]
+    for _x, _y, vx, vy, _r, yields in ep.movers:
+        assert 800.0 - 0.1 <= math.hypot(vx, vy) <= 1000.0 + 0.1 and yields == 0.0
+    assert sc.Episode.from_json(json.loads(json.dumps(ep.to_json()))) == ep
+    assert simobs.mover_array([(1.0, 2.0, 3.0, 4.0, 5.0)]).tolist() == [[1.0, 2.0, 3.0, 4.0, 5.0, 1.0]]
+
+
 def test_twin_sees_and_hits_a_disc_like_the_pymunk_plant():
     from sim_bridge.plant import Plant, SimConfig
     from sim_bridge.sensors import RangeParams
