@@ -159,7 +159,7 @@ def _wait_still(path: Path, still_s: float, timeout_s: float) -> None:
 
 # the cell policy's trip to B takes ~33-35 s of sim time: 35 s left no margin once the collision monitor
 # slowed it past block corners on the arc it drives (a fresh-clone make test ended 0.4 m short)
-GOAL_DURATION_S = 45.0
+GOAL_DURATION_S = 40.0
 
 
 def goal_reached(can: str, work: Path, *, duration_s: float = GOAL_DURATION_S, candump: str | None = None) -> dict:

@@ -39,7 +39,7 @@ def _variant(drive: str, sensors: str, command: str = "rpm"):
 def test_the_robot_reaches_goals_through_each_combination_of_backends(drive, sensors, command):
     prof = _variant(drive, sensors, command)
     gm, pol = paper10(), cell_policy()
-    for seed in range(2):
+    for seed in (1,):  # one far trip each: the backends' frames every tick, there and back in the plant
         start, goal = far_trip(gm, pol, random.Random(seed))
         ep = run_episode(gm.occ, pol, start, [goal], robot=prof, max_sim_s=90, seed=seed)
         assert ep.result == "reached" and ep.contacts == 0, (seed, ep.result, ep.transitions[-3:])
