@@ -32,7 +32,7 @@ from firmware_py.control.plausibility import plausible_range_status
 from firmware_py.drives import open_drive
 from firmware_py.profile import RobotProfile
 
-SPIN_MM_S = 100  # a slow wheel speed
+SPIN_MM_S = 250  # a gentle wheel speed: the 45 degrees take 0.8 s
 SPIN_TURN_RAD = 0.785  # each wheel alone turns the robot about 45 degrees round the other wheel
 MIN_COUNTS = 20  # odometry must move at least this much for a verdict
 STATUS_NAMES = {robot_spec.RANGE_INVALID: "invalid", robot_spec.RANGE_VALID: "valid",

@@ -29,7 +29,7 @@ def _check(sim_profile: str, robot_profile: str, *extra_sim: str, motors: bool =
             assert sim.stderr is not None
             first = sim.stderr.readline()  # the sim says where it runs once its bus is open
             assert first.startswith("qnav-sim: paper10"), first
-            run = subprocess.run([BIN / "qnav-robot", "--check", *(["--check-motors"] if motors else []),
+            run = subprocess.run([BIN / "qnav-robot", "--check", "--check-listen", "1", *(["--check-motors"] if motors else []),
                                   "--profile", PROFILES / robot_profile, "--can", hub.spec],
                                  capture_output=True, text=True, timeout=60)
         finally:

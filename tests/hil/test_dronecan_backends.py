@@ -87,7 +87,7 @@ def test_dronecan_across_processes_and_the_librarys_node_monitor_sees_the_robot(
     with CanHub("dronecan") as hub:
         common = ["--can", hub.spec, "--lockstep", "--profile", DRONECAN]
         sim = subprocess.Popen([BIN / "qnav-sim", "--map", "paper10", "--duration", "60", "-q", "--start",
-                                "0.25,0.25,90", "--max-speed", "2", *common],
+                                "0.25,0.25,90", "--max-speed", "4", *common],
                                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         rob = subprocess.Popen([BIN / "qnav-robot", "--policy", "policies:paper10_cell", "--start", "0.25,0.25,90",
                                 "--goal-cell", "2,2", "--exit-when-done", "--mavlink", "none", "--localiser", "off",
