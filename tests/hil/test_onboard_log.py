@@ -41,7 +41,10 @@ def test_qnav_log_list_and_pull_fetch_the_robots_log_over_mavlink(tmp_path):
                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         url = f"udpin:127.0.0.1:{port}"
-        time.sleep(2.5)  # two stats lines
+        log = storage / "logs" / "robot.log"
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and "stats state=" not in (log.read_text() if log.exists() else ""):
+            time.sleep(0.1)  # the first stats line (1 s after boot)
         ls = subprocess.run([BIN / "qnav", "log", "list", "--mavlink", url], capture_output=True, text=True,
                             timeout=60)
         assert ls.returncode == 0, ls.stderr

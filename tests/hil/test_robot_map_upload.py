@@ -46,7 +46,10 @@ def test_a_sector_robot_takes_the_uploaded_map_and_boots_it_again(tmp_path):
     assert "map 16x16 cells of 500 mm active" in log
     # a restart boots the map it was given (its storage), not the policy's paper10
     robot = _robot(storage, "policies:sector", port, tmp_path / "stats2.json")
-    time.sleep(2.0)
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and (storage / "logs" / "robot.log").read_text().count(
+            "map 16x16 cells of 500 mm active") < 2:
+        time.sleep(0.1)
     stop_process(robot)
     log2 = (storage / "logs" / "robot.log").read_text()
     assert log2.count("map 16x16 cells of 500 mm active") == 2
