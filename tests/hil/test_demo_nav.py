@@ -48,21 +48,3 @@ def test_demo_obstacles_reach_the_sim_and_the_robot_gets_round_them(tmp_path):
     assert s["collisions"] == 0 and s["ok"]
     assert s["exit_codes"]["sim"] == 130  # the sim loaded the scenario and ran until the demo stopped it
     assert Path(s["trajectory_png"]).stat().st_size > 0
-
-
-# dronecan in make test (drive and sensors both through DroneCAN); odrive's mission A-D runs over MAVLink on
-# vcan0 in the measured matrix, and its goal, fault and external-script runs are in test_odrive_drive.py and
-# test_hil_transports.py
-@pytest.mark.parametrize("backend", ["dronecan"])
-def test_demo_through_each_drive_backend_reaches_every_target(tmp_path, backend):
-    """`qnav demo --profile firmware_py/profiles/BACKEND.toml`: the robot drives through that backend and
-    the sim plays the boards (two ODrive axes; DroneCAN ESCs and rangefinders), docs/robot-profile.md;
-    the mission A -> B -> C -> D as with qnav's own boards."""
-    if backend == "dronecan":
-        pytest.importorskip("dronecan", reason="the dronecan extra (pip install 'qnav[dronecan]')")
-    out = tmp_path / "run"
-    s = _demo(out, "--profile", str(ROOT / "firmware_py" / "profiles" / f"{backend}.toml"))
-    assert s["targets_reached"] == s["targets_total"] == 4, s["result"]
-    assert s["collisions"] == 0 and s["ok"]
-    stats = json.loads((out / "robot_stats.json").read_text())
-    assert stats["drive_backend"] == backend and stats["can_errors"] == 0
