@@ -28,7 +28,7 @@ import can
 from firmware_py import can_protocol as proto
 from firmware_py import robot_spec
 from firmware_py.control.io import Heartbeat, Inputs, MotorCommand, Outputs
-from firmware_py.control.plausibility import plausible_range_status
+from firmware_py.control.node import InputTracker
 from firmware_py.drives import open_drive
 from firmware_py.profile import RobotProfile
 
@@ -56,15 +56,20 @@ class CheckReport:
 
 
 class _Listener:
-    """The bus read through the profile's drive backend and qnav's decoder into one `Inputs`."""
+    """The bus read into one `Inputs` the way the robot reads it (the node's InputTracker, behind the
+    profile's drive backend), with a count of what was heard."""
 
     def __init__(self, bus: can.BusABC, profile: RobotProfile, clock: Callable[[], float]) -> None:
         self.bus, self.profile, self.clock = bus, profile, clock
         self.drive = open_drive(profile)
-        self.inputs = Inputs()
+        self.tracker = InputTracker(defer_stamps=False)
         self.heard: dict[str, int] = {}
         self.unknown: dict[int, int] = {}
         self.t0 = clock()
+
+    @property
+    def inputs(self) -> Inputs:
+        return self.tracker.snapshot()
 
     def now_us(self) -> int:
         return int((self.clock() - self.t0) * 1e6)
@@ -77,15 +82,13 @@ class _Listener:
                 self.take(msg)
 
     def take(self, msg: can.Message) -> None:
-        updates = self.drive.take(msg, self.now_us())
+        now = self.now_us()
+        updates = self.drive.take(msg, now)
         if updates is not None:
             for u in updates:
-                for name, value in u.fields.items():
-                    setattr(self.inputs, name, value)
+                self.tracker.update(u, now)
                 if u.key:
                     self.heard[u.key] = self.heard.get(u.key, 0) + 1
-            key = f"drive 0x{msg.arbitration_id:03x}"
-            self.heard[key] = self.heard.get(key, 0) + 1
             return
         try:
             name, sig = proto.decode(msg)
@@ -93,18 +96,7 @@ class _Listener:
             self.unknown[msg.arbitration_id] = self.unknown.get(msg.arbitration_id, 0) + 1
             return
         self.heard[name] = self.heard.get(name, 0) + 1
-        inp = self.inputs
-        if name.startswith("RangeSectors"):
-            for i, (mm, st) in proto.ranges_from(name, sig).items():
-                inp.ranges_mm[i], inp.range_status[i] = mm, plausible_range_status(mm, st)
-        elif name == "EncoderCounts":
-            inp.enc_left, inp.enc_right = sig["Enc_Left"], sig["Enc_Right"]
-        elif name == "MotorStatus":
-            inp.driver_state, inp.driver_errors = sig["Mot_State"], sig["Mot_Errors"]
-        elif name == "Bumper":
-            inp.bumper = bool(sig["Bump_Pressed"])
-        elif name == "BatteryStatus":
-            inp.battery_mv, inp.battery_pct = sig["Bat_Voltage"], sig["Bat_Remaining"]
+        self.tracker.apply(name, sig, now)
 
     def send_tick(self, left: int, right: int, enabled: bool, counter: int) -> None:
         hb = Heartbeat(state=0, mode=0, armed=enabled, policy_loaded=False, goal_active=False, errors=0,

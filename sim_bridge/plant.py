@@ -185,16 +185,8 @@ class Plant:
                 self.motors.bad_command()
             return False
         if name == "MotorCommand":
-            if lockstep and sig["Cmd_Counter"] != self.tick % cp.TICK_MODULUS:
-                # The sim resends a SimTick the controller is slow to answer, and the controller answers
-                # each copy: the second answer to a tick already answered is a repeat, not a stale command.
-                if sig["Cmd_Counter"] == self._answered_tick:
-                    self.stats.repeated_answers += 1
-                else:
-                    self.stats.stale_commands += 1
+            if not self._answers_tick(sig["Cmd_Counter"], lockstep):
                 return False
-            if lockstep:
-                self._answered_tick = sig["Cmd_Counter"]
             left, right = sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"]
             if self.config.flip_wheel:  # a motor mounted the other way round turns its wheel backwards
                 left, right = (-left, right) if self.config.flip_wheel == "left" else (left, -right)
@@ -202,18 +194,29 @@ class Plant:
             self._last_cmd = (sig["Cmd_LeftSpeed"], sig["Cmd_RightSpeed"])
             return True
         if name == "SimTickAck" and self.answer_is_ack:  # the answer when the drive's frames carry no counter
-            if lockstep and sig["Ack_Counter"] != self.tick % cp.TICK_MODULUS:
-                if sig["Ack_Counter"] == self._answered_tick:
-                    self.stats.repeated_answers += 1
-                else:
-                    self.stats.stale_commands += 1
+            if not self._answers_tick(sig["Ack_Counter"], lockstep):
                 return False
-            self._answered_tick = sig["Ack_Counter"]
             self._last_cmd = (round(self.motors.target[0]), round(self.motors.target[1]))
             return True
         if name == "EStop":
             self.motors.estop(bool(sig["EStop_Engage"]))
         return False
+
+    def _answers_tick(self, counter: int, lockstep: bool) -> bool:
+        """Whether a frame carrying `counter` answers the current tick (always, when paced); a lockstep
+        answer is remembered. The sim resends a SimTick the controller is slow to answer, and the
+        controller answers each copy: the second answer to a tick already answered is a repeat, not a
+        stale command."""
+        if not lockstep:
+            return True
+        if counter != self.tick % cp.TICK_MODULUS:
+            if counter == self._answered_tick:
+                self.stats.repeated_answers += 1
+            else:
+                self.stats.stale_commands += 1
+            return False
+        self._answered_tick = counter
+        return True
 
     # --- physics ---------------------------------------------------------------
     def step_period(self) -> None:

@@ -64,12 +64,6 @@ def travel_gap_mm(ranges_mm: Sequence[int], status: Sequence[int], reverse: bool
     return path_gap_mm(_reading_points(ranges_mm, status), s, s)
 
 
-def points_gap_mm(points: Sequence[tuple[float, float]], reverse: bool) -> int:
-    """As `travel_gap_mm` for points already in the robot's frame (mm ahead, mm to the left)."""
-    s = -1 if reverse else 1
-    return path_gap_mm(points, s, s)
-
-
 def path_gap_mm(points: Sequence[tuple[float, float]], left: int, right: int,
                 reach_mm: float = 1000.0) -> int:
     """How far (mm, along its path) the round robot driving the wheel speeds `left`, `right` goes
