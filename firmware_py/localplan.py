@@ -18,7 +18,12 @@ about them before its learnt sector policy steers:
   explain, in world millimetres, one per 50 mm square, each stamped with the
   controller clock (sim time in HIL) and forgotten `memory_us` after it was
   last seen: a person who walked on leaves no wall behind, a box in view is
-  seen again every tick.
+  seen again every tick. A reading clears the points inside its cone that
+  lie nearer than it by `clear_margin_mm` (nav2's obstacle layer clears by
+  raytracing: a cone reports its nearest echo), so a mover that stepped
+  aside is gone at once; points pinned by a global re-plan are kept
+  `route_memory_us` (a door found closed stays closed while the robot goes
+  round through another) unless a reading sees through them.
 * `LocalPlanner.target(x, y, waypoint, memory)` is the point the policy
   steers to. While no remembered point comes within `obstacle_clear_mm` of
   the straight line to the waypoint it is the waypoint itself, so on the
@@ -34,6 +39,15 @@ about them before its learnt sector policy steers:
   every point, or the waypoint itself when that line is clear. The learnt
   policy was trained to reach a point it can see with walls beside its
   line; the planner hands it such points.
+
+* When the window's search finds no way from the robot to the waypoint,
+  `PlannedTarget` runs the recoveries, in order: wait (a mover may step
+  aside), re-plan over the whole map round the pinned points (another
+  door, another aisle: followed like a local detour), and when there is
+  no route: back off, clear the obstacle layer, wait and re-plan again;
+  after `max_rounds` global searches without a route it says "no route"
+  (`PlannedTarget.no_route`), and the controller reports it (STATUSTEXT,
+  severity error) and ends the mission in HOLD.
 
 * `MotionGuard.action(...)` has the last word on the table's action (as
   nav2's collision monitor and back-up recovery do for its controllers): a
@@ -94,6 +108,7 @@ _FAN = ([(k / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (robot_spec.SENSOR_FOV_M
 _RAY_COS = [[math.cos(a + f) for f in _FAN] for a in _ANG]
 _RAY_SIN = [[math.sin(a + f) for f in _FAN] for a in _ANG]
 _MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
+_HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
 
 
 def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
@@ -192,6 +207,15 @@ class LocalPlannerConfig:
     backoff_near_mm: int = 100  # the point within robot radius + this
     rear_clear_mm: int = 250  # the rear sensor must read at least this ...
     rear_side_clear_mm: int = 120  # ... and the rear diagonals at least this
+    # a reading this much longer than the distance to a remembered point inside its cone clears the
+    # point (nav2's obstacle layer clears by raytracing: a mover that walked on leaves no wall behind)
+    clear_margin_mm: int = 150
+    # recoveries when the local route is closed (Recovery): stand still this long for a mover ...
+    wait_us: int = 2_000_000
+    # ... the points that closed it are kept this long (unless a reading sees through them) while the
+    # robot re-plans globally round them, so a detour through another door does not turn back ...
+    route_memory_us: int = 60_000_000
+    max_rounds: int = 2  # ... and after this many global re-plans without a route: "no route"
 
     @classmethod
     def from_metadata(cls, meta: Any) -> LocalPlannerConfig:
@@ -219,6 +243,8 @@ class LocalPlannerConfig:
                 or cfg.lookahead_mm > 5000):
             raise ValueError(f"{META_KEY}: max_points <= 1000, window_mm <= 5000, soft_mm <= 2000, "
                              "max_plan_mm <= 10000 and lookahead_mm <= 5000")
+        if cfg.max_rounds > 10 or cfg.clear_margin_mm > 1000 or cfg.wait_us > 30_000_000:
+            raise ValueError(f"{META_KEY}: max_rounds <= 10, clear_margin_mm <= 1000 and wait_us <= 30000000")
         if cfg.soft_mm // cfg.raster_mm > 5:  # each point grows into (2 k + 3)^2 raster cells
             raise ValueError(f"{META_KEY}: soft_mm is more than 5 raster cells ({cfg.soft_mm} / {cfg.raster_mm})")
         side = (cfg.max_plan_mm + 2 * cfg.window_mm) // cfg.raster_mm
@@ -232,32 +258,86 @@ class LocalPlannerConfig:
 
 
 class ObstacleMemory:
-    """Unmapped reading end points (world mm) with the time each was last seen."""
+    """Unmapped reading end points (world mm) with the time each was last seen, cleared by readings
+    that see through them; points pinned by a global re-plan outlive `memory_us` (module docstring)."""
 
     def __init__(self, cfg: LocalPlannerConfig) -> None:
         self.cfg = cfg
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
+        self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
         self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
 
     def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                 ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], now_us: int) -> None:
-        """Remember this tick's unmapped end points (the fan's middle ray at
-        the read distance) and forget the ones not seen for `memory_us`."""
+        """Remember this tick's unmapped end points (the fan's middle ray at the read distance), clear
+        the points a reading sees through, and forget the ones not seen for `memory_us` (pinned ones
+        when their pin runs out)."""
         cfg = self.cfg
+        seen: set[tuple[int, int]] = set()
         for _, _, ex, ey in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, cfg.margin_mm,
                                           cfg.see_mm):
             key = (ex // _KEY_MM, ey // _KEY_MM)
             if key not in self.points:
                 self.version += 1
             self.points[key] = (ex, ey, now_us)
-        old = [p for p, v in self.points.items() if now_us - v[2] > cfg.memory_us]
+            seen.add(key)
+        old = self._seen_through(x_mm, y_mm, heading_mrad, ranges_mm, status, seen)
+        old += [p for p, v in self.points.items()
+                if now_us - v[2] > cfg.memory_us and self.pinned.get(p, -1) < now_us and p not in old]
         if len(self.points) - len(old) > cfg.max_points:
-            by_age = sorted(self.points, key=lambda p: self.points[p][2])
-            old = by_age[:len(self.points) - cfg.max_points]
+            gone = set(old)
+            by_age = sorted((p for p in self.points if p not in gone), key=lambda p: self.points[p][2])
+            old += by_age[:len(self.points) - len(old) - cfg.max_points]
         for p in old:
             del self.points[p]
+            self.pinned.pop(p, None)
         if old:
             self.version += 1
+
+    def _seen_through(self, x_mm: int, y_mm: int, heading_mrad: int, ranges_mm: list[int] | tuple[int, ...],
+                      status: list[int] | tuple[int, ...], seen: set[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Points inside a sensor's cone nearer than its reading by `clear_margin_mm` (a too-far
+        reading: nearer than the range's maximum): nothing is there any more. A cone reports its
+        nearest echo, so anything in it nearer than the reading would have been read instead."""
+        cfg = self.cfg
+        reach = robot_spec.RANGE_MAX_MM + _MOUNT
+        th = heading_mrad / 1000.0
+        out: list[tuple[int, int]] = []
+        for key, (px, py, _) in self.points.items():
+            if key in seen:
+                continue
+            dx, dy = px - x_mm, py - y_mm
+            if abs(dx) > reach or abs(dy) > reach:
+                continue
+            rel = math.atan2(dy, dx) - th
+            i = min(range(_N), key=lambda j: abs((rel - _ANG[j] + math.pi) % (2 * math.pi) - math.pi))
+            st = status[i]
+            if st == robot_spec.RANGE_VALID:
+                r = ranges_mm[i]
+            elif st == robot_spec.RANGE_TOO_FAR:
+                r = robot_spec.RANGE_MAX_MM
+            else:
+                continue
+            a = th + _ANG[i]
+            sx, sy = px - (x_mm + _MOUNT * math.cos(a)), py - (y_mm + _MOUNT * math.sin(a))
+            d = math.hypot(sx, sy)
+            off = abs((math.atan2(sy, sx) - a + math.pi) % (2 * math.pi) - math.pi)
+            if off <= _HALF_FOV and d < r - cfg.clear_margin_mm:
+                out.append(key)
+        return out
+
+    def pin(self, now_us: int) -> None:
+        """Keep every point remembered now for `route_memory_us` (a global re-plan goes round them)."""
+        until = now_us + self.cfg.route_memory_us
+        for p in self.points:
+            self.pinned[p] = max(until, self.pinned.get(p, -1))
+
+    def clear(self) -> None:
+        """Forget everything (a recovery: what is really there is seen again on the next tick)."""
+        if self.points:
+            self.version += 1
+        self.points.clear()
+        self.pinned.clear()
 
     def snapshot(self) -> ObstacleMemory:
         """A copy for the planner's worker (the tick goes on changing this one)."""
@@ -303,13 +383,18 @@ class LocalPlanner:
         self._plan_key: tuple[int, int, int] | None = None
         self._window = (0, 0, -1, -1)
         self._dist: dict[Cell, float] = {}
+        self._global = False  # the last search covered the whole map
         self.detouring = False  # the last target was not the waypoint
+        self.blocked = False  # the window's search found no way from the robot to the waypoint
+        self.no_route = False  # the whole map's search found none either
+        self.route_mm = 0.0  # the length of the way from the robot to the waypoint as last planned
 
     def reset(self) -> None:
         """A new waypoint (mission item): drive straight until something is in the way."""
         self._active = None
         self._plan_key = None
-        self.detouring = False
+        self._global = False
+        self.detouring = self.blocked = self.no_route = False
 
     # --- the grown obstacles ----------------------------------------------------------------
     def _grow(self, memory: ObstacleMemory) -> None:
@@ -386,21 +471,32 @@ class LocalPlanner:
         return True
 
     # --- the plan --------------------------------------------------------------------------------
-    def _plan(self, x: float, y: float, wx: int, wy: int, version: int) -> None:
+    def _plan(self, x: float, y: float, wx: int, wy: int, version: int, whole_map: bool = False) -> None:
+        """Dijkstra from the waypoint over a window round the robot and the waypoint (`whole_map`:
+        over the whole map, a global re-plan), unless the last search still holds."""
         cfg = self.cfg
         r = cfg.raster_mm
         key = (wx, wy, version)
         ix, iy = int(x // r), int(y // r)
         x0, y0, x1, y1 = self._window
-        if key == self._plan_key and x0 <= ix <= x1 and y0 <= iy <= y1:
+        if (key == self._plan_key and whole_map == self._global and x0 <= ix <= x1 and y0 <= iy <= y1
+                and (not whole_map or (ix, iy) in self._dist)):
+            return
+        if (whole_map and self._global and self._plan_key is not None and self._plan_key[:2] == key[:2]
+                and self._path_open(ix, iy)):
+            self._plan_key = key  # the whole map is searched again only when the way ahead closed
             return
         self._plan_key = key
+        self._global = whole_map
         self.plans += 1
         w = cfg.window_mm
-        x0 = max(0, int((min(x, wx) - w) // r))
-        x1 = min(self.nx - 1, int((max(x, wx) + w) // r))
-        y0 = max(0, int((min(y, wy) - w) // r))
-        y1 = min(self.ny - 1, int((max(y, wy) + w) // r))
+        if whole_map:
+            x0, y0, x1, y1 = 0, 0, self.nx - 1, self.ny - 1
+        else:
+            x0 = max(0, int((min(x, wx) - w) // r))
+            x1 = min(self.nx - 1, int((max(x, wx) + w) // r))
+            y0 = max(0, int((min(y, wy) - w) // r))
+            y1 = min(self.ny - 1, int((max(y, wy) + w) // r))
         self._window = (x0, y0, x1, y1)
         goal = (wx // r, wy // r)
         # the waypoint's own cells stay open: the ground station's waypoints keep robot radius + 50 mm
@@ -433,14 +529,35 @@ class LocalPlanner:
                         heapq.heappush(heap, (nd, n[0], n[1]))
         self._dist = dist
 
-    def target(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory) -> tuple[float, float]:
-        """The point the policy steers to this tick (world mm)."""
+    def _path_open(self, ix: int, iy: int, cells: int = 30) -> bool:
+        """The last search's way from raster cell (ix, iy) stays open for `cells` steps (or to the
+        waypoint): remembered points seen since have not closed it."""
+        dist = self._dist
+        c = (ix, iy)
+        if c not in dist:
+            return False
+        for _ in range(cells):
+            d, nxt = min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
+                         for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+            if d >= dist[c]:
+                return True
+            if nxt in self._closed:
+                return False
+            c = nxt
+        return True
+
+    def target(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory,
+               whole_map: bool = False) -> tuple[float, float]:
+        """The point the policy steers to this tick (world mm). `whole_map`: plan over the whole
+        map (a global re-plan: `no_route` says when the waypoint cannot be reached at all)."""
         wx, wy = waypoint
-        if math.hypot(wx - x, wy - y) > self.cfg.max_plan_mm:
+        self.blocked = self.no_route = False
+        self.route_mm = math.hypot(wx - x, wy - y)
+        if not whole_map and self.route_mm > self.cfg.max_plan_mm:
             self.detouring = False  # far: the ground station's waypoints are <= 1 m apart, a far goal
             return float(wx), float(wy)  # is driven at until it is near enough to plan round things
         if self._active != waypoint:
-            if not memory.points or not self._in_way(x, y, wx, wy, memory):
+            if not whole_map and (not memory.points or not self._in_way(x, y, wx, wy, memory)):
                 self.detouring = False
                 return float(wx), float(wy)
             self._active = waypoint  # something was in the way: plan until this waypoint is reached
@@ -448,7 +565,7 @@ class LocalPlanner:
         if self._line_clear(x, y, wx, wy, memory):
             self.detouring = False
             return float(wx), float(wy)
-        self._plan(x, y, wx, wy, memory.version)
+        self._plan(x, y, wx, wy, memory.version, whole_map)
         dist = self._dist
         r = self.cfg.raster_mm
         ix, iy = int(x // r), int(y // r)
@@ -461,9 +578,14 @@ class LocalPlanner:
                     if c in dist and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
                                                    robot_spec.ROBOT_RADIUS_MM + 10)]
             if not near:
+                # no way from here: the tick's side starts the recoveries (Recovery), meanwhile
+                # toward the waypoint behind the motion guard (a mover may step aside)
                 self.detouring = False
-                return float(wx), float(wy)  # no way known: let the policy try (a mover may step aside)
+                self.blocked = True
+                self.no_route = whole_map
+                return float(wx), float(wy)
             cur = min(near)[1]
+        self.route_mm = dist[cur] * r  # inflation costs make it a little longer than the way itself
         path = [cur]
         for _ in range(self.cfg.lookahead_mm // r + 1):
             c = path[-1]
@@ -490,10 +612,32 @@ class PlanAnswer:
     asked_us: int  # the controller clock at the question
     target: tuple[float, float]
     detouring: bool
+    whole_map: bool = False  # a global re-plan's answer
+    blocked: bool = False  # no way from the pose to the waypoint (in the window searched)
+    no_route: bool = False  # none over the whole map either
+    route_mm: float = 0.0  # the planned way's length from the pose asked about
+
+
+# PlannedTarget's recovery modes, in the order they follow one another (see PlannedTarget)
+LOCAL, WAIT, GLOBAL, BACKUP, CLEAR, NO_ROUTE = "local", "wait", "global", "backup", "clear", "no route"
 
 
 class PlannedTarget:
-    """The tick's side of the local planner (module docstring): one per drive of a sector policy."""
+    """The tick's side of the local planner (module docstring): one per drive of a sector policy.
+
+    Recoveries, when the window's search finds no way to the waypoint (nav2's recovery behaviours,
+    in this order, all on the controller clock):
+
+    1. WAIT `wait_us`, stopped: a mover may step aside (a reading that sees through a remembered
+       point clears it); the window's search goes on, and a way found ends the recovery.
+    2. GLOBAL: the points remembered now are pinned (`route_memory_us`) and the search covers the
+       whole map: another door, another aisle. A route is followed to the waypoint (the search
+       runs again when the way ahead closes).
+    3. No route: BACKUP `backoff_us` (the driver reverses when the rear is clear), CLEAR the
+       obstacle layer (what is really there is seen again next tick), then 1. again.
+    4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
+       (the controller reports it and ends the mission).
+    """
 
     def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background) -> None:
         self.cfg = cfg
@@ -506,6 +650,13 @@ class PlannedTarget:
         self._active_since_us = 0
         self.detouring = False  # the last target was not the waypoint
         self.stale_ticks = 0  # ticks steered at reduced speed or stopped for want of a recent answer
+        self.mode = LOCAL
+        self._mode_since_us = 0
+        self._rounds = 0  # global searches without a route for this waypoint
+        self.reverse = False  # this tick: back off (BACKUP)
+        self.no_route = ""  # why the waypoint cannot be reached (NO_ROUTE), else ""
+        self.global_plans = 0  # global re-plans started (telemetry / benchmarks)
+        self.route_mm = 0.0  # the latest answer's planned way to the waypoint (benchmarks' progress)
 
     @property
     def plans(self) -> int:
@@ -517,23 +668,51 @@ class PlannedTarget:
         self._answer = None
         self._active = None
         self.detouring = False
+        self.mode, self._rounds, self.reverse, self.no_route = LOCAL, 0, False, ""
+
+    def _enter(self, mode: str, now_us: int) -> None:
+        self.mode, self._mode_since_us = mode, now_us
 
     def target(self, now_us: int, x: float, y: float, waypoint: tuple[int, int],
                memory: ObstacleMemory) -> tuple[float, float, int]:
         """(x, y) mm to steer to this tick and the speed in percent (100, 50 or 0)."""
         wx, wy = waypoint
-        if math.hypot(wx - x, wy - y) > self.cfg.max_plan_mm:
-            self.detouring = False  # far: driven at without planning (LocalPlanner.target)
-            return float(wx), float(wy), 100
-        if self._active != waypoint:
-            if not memory.points or not self.planner._in_way(x, y, wx, wy, memory):
-                self.detouring = False
+        self.reverse = False
+        if self.mode == NO_ROUTE:
+            return float(wx), float(wy), 0
+        if self.mode == BACKUP:
+            if now_us - self._mode_since_us < self.cfg.backoff_us:
+                self.reverse = True
+                return float(wx), float(wy), 0
+            memory.clear()  # CLEAR: no question this tick, the next one asks on what is seen again
+            self._enter(CLEAR, now_us)
+            return float(wx), float(wy), 0
+        if self.mode == CLEAR:
+            self._enter(WAIT, now_us)
+        whole_map = self.mode == GLOBAL
+        self.route_mm = math.hypot(wx - x, wy - y)
+        if self.mode == LOCAL:
+            if math.hypot(wx - x, wy - y) > self.cfg.max_plan_mm:
+                self.detouring = False  # far: driven at without planning (LocalPlanner.target)
                 return float(wx), float(wy), 100
-            self._active, self._active_since_us = waypoint, now_us
+            if self._active != waypoint:
+                if not memory.points or not self.planner._in_way(x, y, wx, wy, memory):
+                    self.detouring = False
+                    return float(wx), float(wy), 100
+                self._active, self._active_since_us = waypoint, now_us
         gen, snap = self._generation, memory.snapshot()
-        self.work.post(self, lambda: self._solve(gen, now_us, x, y, waypoint, snap))
+        self.work.post(self, lambda: self._solve(gen, now_us, x, y, waypoint, snap, whole_map))
         ans = self._answer
-        if ans is None or ans.generation != gen or ans.waypoint != waypoint:
+        if ans is not None and (ans.generation != gen or ans.waypoint != waypoint):
+            ans = None
+        if ans is not None and (ans.whole_map != whole_map or ans.asked_us < self._mode_since_us):
+            ans = None  # asked before this mode began: not an answer to its question
+        if self.mode in (WAIT, GLOBAL):
+            return self._recovering(now_us, wx, wy, ans, memory)
+        if ans is not None and ans.blocked:
+            self._enter(WAIT, now_us)
+            return float(wx), float(wy), 0
+        if ans is None:
             # nothing answered for this waypoint yet (the tick it became blocked, in lockstep and the
             # twin): toward it, the motion guard still vetoing; how long counts from then
             self.detouring = False
@@ -541,19 +720,56 @@ class PlannedTarget:
         else:
             self.detouring = ans.detouring
             age, (tx, ty) = now_us - ans.asked_us, ans.target
+            self.route_mm = ans.route_mm
         speed = 100 if age <= PLAN_SLOW_US else 50 if age <= PLAN_STOP_US else 0
         if speed < 100:
             self.stale_ticks += 1
         return tx, ty, speed
 
+    def _recovering(self, now_us: int, wx: int, wy: int, ans: PlanAnswer | None,
+                    memory: ObstacleMemory) -> tuple[float, float, int]:
+        """WAIT and GLOBAL (the class docstring's steps 1, 2 and 4)."""
+        cfg = self.cfg
+        if self.mode == WAIT:
+            if ans is not None and not ans.blocked:
+                self._enter(LOCAL, now_us)  # the way opened (a mover stepped aside)
+                self.detouring = ans.detouring
+                return ans.target[0], ans.target[1], 100
+            if now_us - self._mode_since_us >= cfg.wait_us:
+                memory.pin(now_us)
+                self.global_plans += 1
+                self._enter(GLOBAL, now_us + 1)  # the next tick asks over the whole map
+            return float(wx), float(wy), 0
+        if ans is None:  # GLOBAL, no answer yet: stand still while the whole map is searched
+            if now_us - self._mode_since_us > PLAN_STOP_US:
+                self.stale_ticks += 1
+            return float(wx), float(wy), 0
+        if ans.no_route:
+            self._rounds += 1
+            if self._rounds >= cfg.max_rounds:
+                self._enter(NO_ROUTE, now_us)
+                self.no_route = f"no route to ({wx},{wy})"  # <= 50 characters with the item
+            else:
+                self._enter(BACKUP, now_us)
+            return float(wx), float(wy), 0
+        self.detouring = ans.detouring
+        self.route_mm = ans.route_mm
+        age = now_us - ans.asked_us
+        speed = 100 if age <= PLAN_SLOW_US else 50 if age <= PLAN_STOP_US else 0
+        if speed < 100:
+            self.stale_ticks += 1
+        return ans.target[0], ans.target[1], speed
+
     def _solve(self, generation: int, asked_us: int, x: float, y: float, waypoint: tuple[int, int],
-               memory: ObstacleMemory) -> None:
+               memory: ObstacleMemory, whole_map: bool = False) -> None:
         """The worker's part: `LocalPlanner.target` for the pose asked about."""
         if generation != self._worker_generation:
             self.planner.reset()
             self._worker_generation = generation
-        tx, ty = self.planner.target(x, y, waypoint, memory)
-        self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), self.planner.detouring)
+        p = self.planner
+        tx, ty = p.target(x, y, waypoint, memory, whole_map)
+        self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), p.detouring, whole_map, p.blocked,
+                                  p.no_route, p.route_mm)
 
 
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
@@ -592,7 +808,7 @@ class MotionGuard:
             self._anchor, self._anchor_us = (x, y), now_us
         if now_us < self._backing_until_us:
             return REVERSE
-        if now_us - self._anchor_us >= cfg.stuck_us and self._rear_clear(ranges_mm, status):
+        if now_us - self._anchor_us >= cfg.stuck_us and self.rear_clear(ranges_mm, status):
             reach = robot_spec.ROBOT_RADIUS_MM + cfg.backoff_near_mm
             if any(math.hypot(px - x, py - y) < reach for px, py, _ in memory.points.values()):
                 self.backoffs += 1
@@ -604,7 +820,7 @@ class MotionGuard:
             return TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
         return action
 
-    def _rear_clear(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
+    def rear_clear(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
         cfg = self.cfg
         return (_reading(ranges_mm, status, _REAR) > cfg.rear_clear_mm
                 and all(_reading(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES))

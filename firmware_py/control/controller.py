@@ -42,6 +42,7 @@ from firmware_py.control.route import Route
 from firmware_py.control.safety import clamp_speeds
 from firmware_py.control.state import (
     SEV_CRITICAL,
+    SEV_ERROR,
     SEV_INFO,
     SEV_NOTICE,
     SEV_WARNING,
@@ -561,6 +562,16 @@ class Controller(ControlState):
         self.goal = None
         self._transition(CtrlState.HOLD, cause)
 
+    def _no_route(self, why: str) -> None:
+        """The kind's planner found no way to the goal (its recoveries ran out): report it (STATUSTEXT,
+        error) and end the mission or goal in HOLD (as ArduPilot's rover holds when its path planner
+        fails), the wheels stopped. A new goal or mission start tries again."""
+        item = f"mission item {self.route.seq}: " if self.mode == Mode.AUTO else "goal: "
+        self._event("no_route", item + why, SEV_ERROR, seq=self.route.seq if self.mode == Mode.AUTO else -1)
+        self.mode = Mode.HOLD
+        self.goal = None
+        self._transition(CtrlState.HOLD, why if why.startswith("no route") else "no route: " + why)
+
     def _drive(self, inp: Inputs, now_us: int) -> None:
         assert self.goal is not None and self.policy is not None and self.driver is not None
         dist, bearing = self.nav.goal_vector(*self.goal)
@@ -582,6 +593,9 @@ class Controller(ControlState):
         if d.decided is not None:
             self._state_index, self._action, self._q_row = d.decided
         self.target_mm = d.target_mm
+        if d.no_route:
+            self._no_route(d.no_route)
+            return
         if d.wheels is None:
             if d.fault:
                 self._enter_fault(d.fault)

@@ -109,6 +109,9 @@ class Decision:
     decided: tuple[int, int, tuple[int, ...]] | None = None
     target_mm: tuple[int, int] | None = None  # what the kind steered to when not the goal itself
     fault: str = ""
+    # the goal cannot be reached (a planner's recoveries ran out): the controller reports it and ends the
+    # mission in HOLD; `wheels` is then (0, 0)
+    no_route: str = ""
 
 
 class KindDriver:

@@ -26,7 +26,13 @@ from firmware_py.kinds.base import (
     Unpacked,
     wheel_actions,
 )
-from firmware_py.localplan import MotionGuard, ObstacleMemory, PlannedTarget, unmapped_readings
+from firmware_py.localplan import (
+    REVERSE,
+    MotionGuard,
+    ObstacleMemory,
+    PlannedTarget,
+    unmapped_readings,
+)
 
 _HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 
@@ -85,9 +91,13 @@ class SectorDriver(KindDriver):
         s = enc.encode(bearing, tick.ranges_mm, tick.range_status)
         a = pol.best_action(s)
         if self.local is not None:
+            planner, memory, guard = self.local
             x, y, _ = tick.pose_mm
-            a = self.local[2].action(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status,
-                                     self.local[1])
+            a = guard.action(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status, memory)
+            if planner.no_route:
+                return Decision((0, 0), self.decided(s, a), target, no_route=planner.no_route)
+            if planner.reverse and guard.rear_clear(tick.ranges_mm, tick.range_status):
+                a, speed = REVERSE, 100  # a recovery's back-off (PlannedTarget)
         left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
         return Decision((left * speed // 100, right * speed // 100), self.decided(s, a), target)
 

@@ -1,0 +1,176 @@
+"""The robot's re-planning when its local route is closed (`firmware_py.localplan`): the obstacle
+layer cleared by readings that see through a remembered point and pinned by a global re-plan, the
+whole map's search finding another door (or none), and `PlannedTarget`'s recoveries in their order
+(wait, global re-plan, back off, clear, "no route"), driven tick by tick on the controller clock."""
+
+from __future__ import annotations
+
+import math
+
+from firmware_py import robot_spec
+from firmware_py.background import Background
+from firmware_py.localplan import (
+    BACKUP,
+    GLOBAL,
+    LOCAL,
+    NO_ROUTE,
+    WAIT,
+    LocalPlanner,
+    LocalPlannerConfig,
+    ObstacleMemory,
+    PlannedTarget,
+)
+from firmware_py.mapdata import grid_from_rows
+
+V, FAR, INVALID = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_INVALID
+N = robot_spec.SENSOR_COUNT
+CFG = LocalPlannerConfig()
+PERIOD = robot_spec.CONTROL_PERIOD_US
+OPEN = grid_from_rows(["." * 10] * 10, 500)
+# 10 x 7 cells of 500 mm: a wall along row 3 (y 1500..2000 mm) with a door at col 2 (x 1000..1500)
+# and one at col 8 (x 4000..4500); TWO_DOORS has both, ONE_DOOR only the first
+TWO_DOORS = grid_from_rows(["." * 10] * 3 + ["@@.@@@@@.@"] + ["." * 10] * 3, 500)
+ONE_DOOR = grid_from_rows(["." * 10] * 3 + ["@@.@@@@@@@"] + ["." * 10] * 3, 500)
+BELOW, ABOVE = (1250.0, 1000.0), (1250, 2600)
+DOOR1 = [(1150, 1750), (1250, 1750), (1350, 1750)]
+DOOR2 = [(4150, 1750), (4250, 1750), (4350, 1750)]
+
+
+def _remember(memory: ObstacleMemory, points: list[tuple[int, int]], now_us: int = 0) -> None:
+    """What `observe` stores for readings ending at these points (seen now)."""
+    for x, y in points:
+        key = (x // 50, y // 50)
+        if key not in memory.points:
+            memory.version += 1
+        memory.points[key] = (x, y, now_us)
+
+
+def _front(mm: int, status: int = V) -> tuple[list[int], list[int]]:
+    return [mm] + [2000] * (N - 1), [status] + [FAR] * (N - 1)
+
+
+def test_a_reading_that_sees_through_a_remembered_point_clears_it():
+    # robot at (1000, 1000) facing east: the front sensor's mount at x 1150, the point 500 mm ahead of it
+    memory = ObstacleMemory(CFG)
+    _remember(memory, [(1650, 1000)])
+    ranges, status = _front(600)  # an echo 100 mm behind the point: within the margin, the point stays
+    memory.observe(OPEN, 1000, 1000, 0, ranges, status, 100_000)
+    assert (1650 // 50, 1000 // 50) in memory.points
+    v = memory.version
+    ranges, status = _front(1200)  # the cone reads 1.2 m: nothing at 0.5 m any more
+    memory.observe(OPEN, 1000, 1000, 0, ranges, status, 200_000)
+    assert (1650 // 50, 1000 // 50) not in memory.points and memory.version > v
+    _remember(memory, [(1650, 1000)], 200_000)
+    memory.observe(OPEN, 1000, 1000, 0, *_front(0, FAR), 300_000)  # nothing within range: cleared too
+    assert (1650 // 50, 1000 // 50) not in memory.points
+
+
+def test_a_point_outside_every_cone_or_behind_an_invalid_reading_is_not_cleared():
+    memory = ObstacleMemory(CFG)
+    # 22 deg left of the nose (cones are 15 deg wide, 45 deg apart), and one ahead under an invalid reading
+    off = (1000 + round(600 * math.cos(0.384)), 1000 + round(600 * math.sin(0.384)))
+    _remember(memory, [off, (1650, 1000)])
+    memory.observe(OPEN, 1000, 1000, 0, *_front(0, INVALID), 100_000)
+    assert set(memory.points) == {(off[0] // 50, off[1] // 50), (1650 // 50, 1000 // 50)}
+
+
+def test_pinned_points_outlive_the_memory_but_not_a_reading_that_sees_through_them():
+    memory = ObstacleMemory(CFG)
+    _remember(memory, [(1650, 1000), (3000, 3000)])
+    memory.pin(0)
+    out_of_view = [2000] * N, [INVALID] * N
+    memory.observe(OPEN, 1000, 1000, 0, *out_of_view, CFG.memory_us + 1)
+    assert len(memory.points) == 2  # not seen for longer than memory_us, but pinned
+    memory.observe(OPEN, 1000, 1000, 0, *_front(0, FAR), CFG.memory_us + 2)  # nothing ahead
+    assert set(memory.points) == {(3000 // 50, 3000 // 50)}
+    memory.observe(OPEN, 1000, 1000, 0, *out_of_view, CFG.route_memory_us + 1)
+    assert not memory.points  # the pin ran out
+
+
+def test_the_window_is_blocked_and_the_whole_map_finds_the_other_door():
+    memory = ObstacleMemory(CFG)
+    _remember(memory, DOOR1)
+    planner = LocalPlanner(TWO_DOORS, CFG)
+    tx, ty = planner.target(*BELOW, ABOVE, memory)
+    assert planner.blocked and not planner.no_route  # door 2 lies outside the window round door 1
+    assert (tx, ty) == ABOVE
+    planner.reset()
+    tx, ty = planner.target(*BELOW, ABOVE, memory, whole_map=True)
+    assert not planner.blocked and planner.detouring
+    assert tx > BELOW[0] + 200 and ty < 1500  # along the wall toward door 2, not into door 1
+    straight = math.hypot(ABOVE[0] - BELOW[0], ABOVE[1] - BELOW[1])
+    assert planner.route_mm > straight + 5000  # the way round through door 2 (3 m across and back)
+
+
+def test_no_door_left_is_no_route():
+    memory = ObstacleMemory(CFG)
+    _remember(memory, DOOR1 + DOOR2)
+    planner = LocalPlanner(TWO_DOORS, CFG)
+    planner.target(*BELOW, ABOVE, memory, whole_map=True)
+    assert planner.blocked and planner.no_route
+    memory = ObstacleMemory(CFG)
+    _remember(memory, DOOR1)
+    planner = LocalPlanner(ONE_DOOR, CFG)
+    planner.target(*BELOW, ABOVE, memory, whole_map=True)
+    assert planner.no_route
+
+
+def _drive(pt: PlannedTarget, work: Background, memory: ObstacleMemory, ticks: int, t0: int = 0,
+           seen: list[tuple[int, int]] | None = None) -> list[tuple[int, str, float, float, int, bool]]:
+    """Ticks of the tick's side standing at BELOW, the search stepped between ticks (as the lockstep
+    node does); `seen` re-remembered every tick (in view). Rows (t, mode, tx, ty, speed, reverse)."""
+    rows = []
+    for k in range(ticks):
+        now = t0 + k * PERIOD
+        if seen:
+            _remember(memory, seen, now)
+        tx, ty, speed = pt.target(now, *BELOW, ABOVE, memory)
+        rows.append((now, pt.mode, tx, ty, speed, pt.reverse))
+        work.run_pending()
+    return rows
+
+
+def test_recoveries_wait_then_re_plan_globally_and_follow_the_route():
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    _remember(memory, DOOR1)
+    pt = PlannedTarget(TWO_DOORS, CFG, work)
+    rows = _drive(pt, work, memory, 60)
+    modes = [r[1] for r in rows]
+    assert modes[0] == LOCAL and modes[1] == WAIT  # the first answer: blocked
+    waited = [r for r in rows if r[1] == WAIT]
+    assert all(r[4] == 0 for r in waited)  # standing still
+    assert waited[-1][0] - waited[0][0] >= CFG.wait_us - PERIOD
+    follow = [r for r in rows if r[1] == GLOBAL and r[4] > 0]
+    assert follow and pt.global_plans == 1 and not pt.no_route
+    assert follow[0][2] > BELOW[0] + 200 and follow[0][3] < 1500  # toward door 2
+    assert memory.pinned  # the points that closed door 1 are kept while it goes round
+    pt.reset()  # a new waypoint: local again
+    assert pt.mode == LOCAL
+
+
+def test_recoveries_back_off_clear_and_then_say_no_route():
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    pt = PlannedTarget(ONE_DOOR, CFG, work)
+    rows = _drive(pt, work, memory, 200, seen=DOOR1)
+    modes = [r[1] for r in rows]
+    first_backup = modes.index(BACKUP)
+    assert modes.index(WAIT) < modes.index(GLOBAL) < first_backup < modes.index(NO_ROUTE)
+    backing = [r for r in rows if r[1] == BACKUP]
+    assert any(r[5] for r in backing)  # the driver is told to reverse
+    assert modes[first_backup:].count(WAIT) > 0  # after clearing: wait and re-plan again
+    assert pt.no_route.startswith("no route to (1250,2600)") and len("mission item 99: " + pt.no_route) <= 50
+    assert pt.global_plans == CFG.max_rounds
+    assert all(r[4] == 0 for r in rows if r[1] == NO_ROUTE)
+
+
+def test_a_mover_that_steps_aside_while_the_robot_waits_ends_the_recovery():
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    pt = PlannedTarget(TWO_DOORS, CFG, work)
+    rows = _drive(pt, work, memory, 10, seen=DOOR1)
+    assert rows[-1][1] == WAIT
+    memory.clear()  # the readings saw through where it stood (what observe's clearing does)
+    rows = _drive(pt, work, memory, 5, t0=10 * PERIOD)
+    assert rows[-1][1] == LOCAL and rows[-1][4] == 100 and pt.global_plans == 0
