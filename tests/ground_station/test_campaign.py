@@ -105,9 +105,11 @@ def test_campaign_path():
 
 # --- the same campaigns on the local pool and on a Ray cluster ------------------------
 
-# session scope: xdist interleaves other modules' tests on the Ray group's worker, and a module-scoped
-# cluster was torn down and started again between them (~17 s each time)
-@pytest.fixture(scope="session")
+# module scope: `--dist loadgroup` sends the "ray" group to one worker as one unit, so its tests run
+# one after another and the cluster stops after the last of them (a session-scoped one idled beside the
+# rest of the run and stopped at its very end, the run's tail); Ray processes that ignore SIGTERM for
+# 3 s are killed (waiting 10 s for them was the whole of that stop)
+@pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     pytest.importorskip("ray", reason="Ray (qnav[cluster]) is not installed: the Ray engine cannot run")
     from ground_station.rigs.ray_cluster import LocalRayCluster
@@ -119,7 +121,7 @@ def cluster(tmp_path_factory):
         c.stop()
         raise
     yield c
-    c.stop()
+    c.stop(timeout_s=3.0)
     assert c.pids() == [], "Ray processes left running"
 
 
