@@ -11,10 +11,18 @@ controller, spread over the maps). Prints a table, writes JSON (`--json`)
 and a PNG comparing the controllers (`--png`, default: the JSON's name with
 .png).
 
-JSON: `scenario` (maps, obstacles, movers, seed, episodes), per controller
+`--blocked detour|none|both`: blocked-passage episodes instead
+(`scenario.blocked_episodes`): one disc closes a door, corridor or aisle on
+the planned route, and a route around it exists elsewhere (`detour`) or not
+at all (`none`: the right answer is to report "no route"); `both` alternates
+the two labels. `--obstacles` then defaults to 0 extra discs. A map without
+such an episode is named on stderr and skipped.
+
+JSON: `scenario` (maps, obstacles, movers, seed, episodes, blocked), per controller
 (`learnt`, `seek`, `vfh`, `direct`) the twin figures over all maps
 (`success_rate`, `collision_rate`, `path_ratio_mean`, `episodes`,
-`time_to_goal_mean_s`, `near_miss_rate`, `outcomes`), `per_map` the same per
+`time_to_goal_mean_s`, `near_miss_rate`, `no_route_rate`, `outcomes`, with
+`--blocked` a `blocked` object per label), `per_map` the same per
 map, and with `--hil` a `hil` object with the same per-controller keys (and
 `twin_same_episodes`: the twin on exactly the HIL episodes).
 """
@@ -22,7 +30,14 @@ map, and with `--hil` a `hil` object with the same per-controller keys (and
 from __future__ import annotations
 
 import argparse
+import sys
+from itertools import zip_longest
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ground_station.maps import GridMap
+    from ground_station.nav.scenario import Episode, MoverStyle
 
 DEFAULT_MAPS = ("paper10", "rooms-16x16-s1", "trap-16x16-s1", "random-16x16-s1", "maze-16x16-s1")
 KEYS = ("success_rate", "collision_rate", "path_ratio_mean", "time_to_goal_mean_s", "near_miss_rate")
@@ -35,7 +50,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--map", action="append", metavar="NAME|PATH",
                    help=f"map (repeatable; built-in, generator spec or .map file); default {', '.join(DEFAULT_MAPS)}")
-    p.add_argument("--obstacles", type=int, default=3, metavar="K", help="static discs per episode (default %(default)s)")
+    p.add_argument("--obstacles", type=int, default=None, metavar="K",
+                   help="static detourable discs per episode (default 3; 0 with --blocked)")
+    p.add_argument("--blocked", choices=("detour", "none", "both"), default=None,
+                   help="blocked-passage episodes: a disc closes a narrow passage on the route, with a route "
+                        "elsewhere (detour), none at all (none) or half each (both); default: off")
     p.add_argument("--movers", type=int, default=2, metavar="M", help="moving discs per episode (default %(default)s)")
     p.add_argument("--mover-speed", default=None, metavar="LO,HI",
                    help="movers' speed range, mm/s (default 300,600: a pedestrian's pace)")
@@ -87,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
     bad = [c for c in names if c not in known]
     if bad or not names:
         raise CliError(f"--controllers: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(known)}")
+    if args.obstacles is None:
+        args.obstacles = 0 if args.blocked else 3
     if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1 or args.batch < 1:
         raise CliError("--obstacles/--movers must be >= 0, --episodes/--hil-episodes/--batch >= 1")
     from ground_station.nav.scenario import MOVER_SPEED_MM_S, MoverStyle
@@ -123,13 +144,25 @@ def run(args: argparse.Namespace) -> int:
     except (MapError, OSError) as exc:
         raise CliError(str(exc)) from None
     eps_by_map = {}
+    skipped: dict[str, str] = {}
     with tqdm(total=len(maps), desc="scenarios", unit="map") as bar:
         for name, gm in maps.items():
             try:
-                eps_by_map[name] = episodes(gm, args.episodes, args.seed, args.obstacles, args.movers, movers=style)
+                if args.blocked is None:
+                    eps_by_map[name] = episodes(gm, args.episodes, args.seed, args.obstacles, args.movers,
+                                                movers=style)
+                else:
+                    eps_by_map[name] = _blocked(gm, args, style)
             except MapError as exc:
-                raise CliError(str(exc)) from None
+                if args.blocked is None:
+                    raise CliError(str(exc)) from None
+                skipped[name] = str(exc)
+                tqdm.write(f"--blocked {args.blocked}: skipping {exc}", file=sys.stderr)
             bar.update(1)
+    if not eps_by_map:
+        raise CliError(f"--blocked {args.blocked}: no map has such an episode ({', '.join(skipped)})")
+    for name in skipped:
+        del maps[name], specs[name]
     all_eps = [e for eps in eps_by_map.values() for e in eps]
     result: dict = {"scenario": {
         "maps": list(maps), "obstacles": args.obstacles, "movers": args.movers, "seed": args.seed,
@@ -137,7 +170,9 @@ def run(args: argparse.Namespace) -> int:
         "episodes_per_map": args.episodes,
         "discs_placed_mean": sum(len(e.discs) for e in all_eps) / len(all_eps),
         "movers_placed_mean": sum(len(e.movers) for e in all_eps) / len(all_eps),
-        "definition": "ground_station/nav/scenario.py (detourable discs, movers)"},
+        "blocked": args.blocked, "maps_skipped": skipped,
+        "definition": "ground_station/nav/scenario.py (detourable discs, movers"
+                      + (", blocked passages)" if args.blocked else ")")},
         "policy": str(path), "policy_id": f"0x{pol.policy_id:08x}", "per_map": {}}
     rows: list[tuple[str, object]] = []
     base = {"policy": str(path), "maps": specs}
@@ -182,20 +217,22 @@ def run(args: argparse.Namespace) -> int:
                 result["hil"][c.name] = summarise(hr)
                 result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(run_twin(hil_eps, maps, c))
                 result["hil"].setdefault("episodes_detail", {})[c.name] = hr
+    blocked = args.blocked is not None
     for c in ctrls:
         s = result[c.name]
-        rows.append((f"twin {c.name}", _fmt(s)))
+        rows.append((f"twin {c.name}", _fmt(s, blocked)))
     for other, t in result.get("paired_vs_learnt", {}).items():
         rows.append((f"twin learnt vs {other}, paired",
                      f"episodes won only by learnt {t['learnt_only']}, only by {other} {t['baseline_only']}; "
                      f"exact McNemar p = {t['p_exact']:.2g}"))
     for name in maps:
         for c in ctrls:
-            rows.append((f"  {name} {c.name}", _fmt(result["per_map"][name][c.name])))
+            rows.append((f"  {name} {c.name}", _fmt(result["per_map"][name][c.name], blocked)))
     if args.hil:
         for c in ctrls:
-            rows.append((f"hil {c.name}", _fmt(result["hil"][c.name])))
-            rows.append((f"  twin, same episodes {c.name}", _fmt(result["hil"]["twin_same_episodes"][c.name])))
+            rows.append((f"hil {c.name}", _fmt(result["hil"][c.name], blocked)))
+            rows.append((f"  twin, same episodes {c.name}",
+                         _fmt(result["hil"]["twin_same_episodes"][c.name], blocked)))
     for part, st in campaign.items():
         rows.append((f"campaign {part}", f"{st['engine']}, {st['workers']} workers on {len(st['nodes'])} node(s): "
                      f"{st['jobs']} jobs, {st['wall_s']:.1f} s wall, speedup over one core "
@@ -209,15 +246,41 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fmt(s: dict) -> str:
+def _blocked(gm: GridMap, args: argparse.Namespace, style: MoverStyle) -> list[Episode]:
+    """The map's blocked-passage episodes for --blocked (both: the two labels interleaved, so every
+    prefix is mixed). Raises MapError when the map has none with a label asked for."""
+    from ground_station.nav.scenario import blocked_episodes
+
+    kw = {"k": args.obstacles, "m": args.movers, "movers": style}
+    if args.blocked != "both":
+        return blocked_episodes(gm, args.episodes, args.seed, args.blocked == "detour", **kw)
+    yes = blocked_episodes(gm, (args.episodes + 1) // 2, args.seed, True, **kw)
+    no = blocked_episodes(gm, args.episodes // 2, args.seed, False, **kw)
+    return [e for pair in zip_longest(yes, no) for e in pair if e is not None]
+
+
+def _fmt(s: dict, blocked: bool = False) -> str:
     pr = s["path_ratio_mean"]
     tt = s["time_to_goal_mean_s"]
     lo, hi = s["success_ci95"]
     clo, chi = s["collision_ci95"]
-    return (f"n={s['episodes']:5d} success {s['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] "
+    text = (f"n={s['episodes']:5d} success {s['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] "
             f"collision {s['collision_rate']:.3f} [{clo:.3f}, {chi:.3f}] "
             + (f"path ratio {pr:.3f} " if pr is not None else "path ratio   -   ")
             + (f"time {tt:5.1f} s " if tt is not None else "time   -   ") + f"near-miss {s['near_miss_rate']:.3f}")
+    if not blocked:
+        return text
+    text += f" no-route {s['no_route_rate']:.3f}"
+    b = s.get("blocked", {})
+    if b.get("detour", {}).get("episodes"):
+        d = b["detour"]
+        text += f" | detour: n={d['episodes']} success {d['success_rate']:.3f}"
+    if b.get("none", {}).get("episodes"):
+        d = b["none"]
+        nlo, nhi = d["no_route_reported_ci95"]
+        text += (f" | none: n={d['episodes']} no-route reported {d['no_route_reported']:.3f} "
+                 f"[{nlo:.3f}, {nhi:.3f}]")
+    return text
 
 
 def plot(result: dict, names: list[str]) -> bytes:
@@ -248,7 +311,8 @@ def plot(result: dict, names: list[str]) -> bytes:
     axes[1].set_xticks(range(len(groups)))
     axes[1].set_xticklabels(groups, rotation=20, fontsize=8)
     sc = result["scenario"]
-    axes[0].set_title(f"qnav bench nav: {sc['obstacles']} static + {sc['movers']} moving obstacles, "
+    kind = f"blocked passages ({sc['blocked']}) + " if sc.get("blocked") else ""
+    axes[0].set_title(f"qnav bench nav: {kind}{sc['obstacles']} static + {sc['movers']} moving obstacles, "
                       f"seed {sc['seed']}, {sc['episodes_per_map']} twin episodes/map")
     fig.tight_layout()
     return png_bytes(fig)

@@ -12,7 +12,10 @@ and farmed out; `summarise(rows)` gives the figures of a table row.
 
 Outcome per episode: success (goal reached, no contact), collision (twin:
 the disc touched a wall, disc or mover; HIL: any bumper contact event),
-loop/timeout. Path ratio = driven length / the planned waypoint path length
+loop/timeout, no_route (the robot reported that no route to the goal exists:
+the right answer on a blocked-passage episode without a detour,
+`scenario.blocked_episodes`). Rows of blocked episodes carry
+`blocked` = {"detour": label}. Path ratio = driven length / the planned waypoint path length
 (successful episodes); time to goal in seconds of robot time; a near miss is
 a control period whose clearance to an unmapped obstacle (rim to the
 nearest disc or mover) is below `NEAR_MISS_MM` without contact.
@@ -32,6 +35,7 @@ from ground_station.learn.sector.obstacles import (
     COLLISION,
     LOOP,
     NEAR_MISS_MM,
+    NO_ROUTE,
     SUCCESS,
     TIMEOUT,
     nav_eval_kernel,
@@ -42,7 +46,7 @@ from ground_station.maps import GridMap
 from ground_station.nav.controllers import NavController
 from ground_station.nav.scenario import Episode, episode_arrays
 
-OUTCOMES = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop", TIMEOUT: "timeout"}
+OUTCOMES = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop", TIMEOUT: "timeout", NO_ROUTE: "no_route"}
 PERIOD_S = robot_spec.CONTROL_PERIOD_US / 1e6
 BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS = 400.0, 4.0, 400
 
@@ -88,8 +92,12 @@ def _rows(eps: list[Episode], outcome: np.ndarray, path: np.ndarray, steps: np.n
                      "path_ratio": float(path[i] / plan_length(ep)) if o == SUCCESS else None,
                      "time_s": float(steps[i] * PERIOD_S), "near_miss_periods": int(near[i]),
                      "min_clearance_mm": round(float(minclear[i]), 1), "discs": len(ep.discs),
-                     "movers": len(ep.movers)})
+                     "movers": len(ep.movers), **_blocked_row(ep)})
     return rows
+
+
+def _blocked_row(ep: Episode) -> dict:
+    return {"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {}
 
 
 def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
@@ -150,7 +158,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
         rows.append({"outcome": outcome, "success": success, "collision": contacts > 0, "result": result,
                      "contacts": contacts, "path_ratio": driven / plan_length(ep) if success else None,
                      "time_s": sim_s, "near_miss_periods": near, "min_clearance_mm": round(minclear, 1),
-                     "discs": len(ep.discs), "movers": len(ep.movers),
+                     "discs": len(ep.discs), "movers": len(ep.movers), **_blocked_row(ep),
                      "wall_s": round(time.perf_counter() - t0, 3), **({"step_cpu_us": cpu, **off_tick} if step_cpu else {})})
         if progress is not None:
             progress()
@@ -197,12 +205,16 @@ def mcnemar_exact(rows_a: list[dict], rows_b: list[dict]) -> dict:
 
 def summarise(rows: list[dict]) -> dict:
     """success_rate, collision_rate (each with its 95 % Wilson interval), path_ratio_mean,
-    time_to_goal_mean_s, near_miss_rate (episodes with a near miss), episodes."""
+    time_to_goal_mean_s, near_miss_rate (episodes with a near miss), no_route_rate (episodes the
+    robot ended with "no route"), episodes; when rows are of blocked-passage episodes, `blocked`:
+    per label, "detour" (episodes, success_rate and its interval, no_route_rate: wrongly given
+    up) and "none" (episodes, no_route_reported: the share rightly given up, its interval,
+    collision_rate)."""
     n = len(rows)
     ok = [r for r in rows if r["success"]]
     ratios = [r["path_ratio"] for r in ok if r["path_ratio"] is not None]
     collisions = sum(r["collision"] for r in rows)
-    return {
+    out = {
         "episodes": n,
         "success_rate": len(ok) / n if n else 0.0,
         "success_ci95": wilson95(len(ok), n),
@@ -211,5 +223,20 @@ def summarise(rows: list[dict]) -> dict:
         "path_ratio_mean": float(np.mean(ratios)) if ratios else None,
         "time_to_goal_mean_s": float(np.mean([r["time_s"] for r in ok])) if ok else None,
         "near_miss_rate": sum(r["near_miss_periods"] > 0 for r in rows) / n if n else 0.0,
+        "no_route_rate": sum(r["outcome"] == "no_route" for r in rows) / n if n else 0.0,
         "outcomes": {k: sum(r["outcome"] == k for r in rows) for k in sorted({r["outcome"] for r in rows})},
     }
+    if any(r.get("blocked") for r in rows):
+        yes = [r for r in rows if r.get("blocked") and r["blocked"]["detour"]]
+        no = [r for r in rows if r.get("blocked") and not r["blocked"]["detour"]]
+        won = sum(r["success"] for r in yes)
+        gave_up = sum(r["outcome"] == "no_route" for r in no)
+        out["blocked"] = {
+            "detour": {"episodes": len(yes), "success_rate": won / len(yes) if yes else 0.0,
+                       "success_ci95": wilson95(won, len(yes)),
+                       "no_route_rate": sum(r["outcome"] == "no_route" for r in yes) / len(yes) if yes else 0.0},
+            "none": {"episodes": len(no), "no_route_reported": gave_up / len(no) if no else 0.0,
+                     "no_route_reported_ci95": wilson95(gave_up, len(no)),
+                     "collision_rate": sum(r["collision"] for r in no) / len(no) if no else 0.0},
+        }
+    return out

@@ -199,6 +199,7 @@ def obs_period_step(occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which,
 
 # evaluation outcomes (as kernels: SUCCESS, COLLISION, LOOP, TIMEOUT)
 SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
+NO_ROUTE = 4  # the robot reported that no route to the goal exists (blocked-passage scenarios)
 
 
 @numba.njit(cache=True, inline="always")
