@@ -153,8 +153,9 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
                         "background_max_us": round(work.max_cpu_ns / 1000, 1)}
         reached = result == "reached"
         success = reached and contacts == 0
-        outcome = "success" if success else ("collision" if contacts else ("timeout" if result == "timeout" else
-                                                                            "stopped"))
+        outcome = "success" if success else ("collision" if contacts else (
+            "timeout" if result == "timeout" else
+            "no_route" if result.startswith("stopped: no route") else "stopped"))  # the robot said so (Controller._no_route)
         rows.append({"outcome": outcome, "success": success, "collision": contacts > 0, "result": result,
                      "contacts": contacts, "path_ratio": driven / plan_length(ep) if success else None,
                      "time_s": sim_s, "near_miss_periods": near, "min_clearance_mm": round(minclear, 1),

@@ -12,8 +12,15 @@ steps it after each tick, so an answer is one period old; the speed it
 asks for is not applied: the twin's kernel moves by whole actions, and
 with answers one period old it asks for full speed anyway), the table's greedy action on the sector state toward that target,
 and `MotionGuard.action` on it (one guard per episode: one drive).
-Budget, loop rule, near misses and outcomes are `nav_eval_kernel`'s, so
-its rows sit beside the other controllers' in `qnav bench nav`.
+The planner's recoveries act as on the robot: a period it asks to stand
+still (waiting for a mover, waiting for a whole-map answer) the robot does
+not move while the movers walk and the sensors read, its back-off is a
+reverse step, and its "no route" ends the episode as NO_ROUTE (the robot
+reports it and holds). Budget, loop rule, near misses and outcomes are
+`nav_eval_kernel`'s, so its rows sit beside the other controllers' in
+`qnav bench nav`, except that progress is measured along the robot's
+current plan while it follows a whole-map route (a detour through another
+door first leads away from the waypoint; a new route starts a new count).
 """
 
 from __future__ import annotations
@@ -24,15 +31,19 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
-from firmware_py.localplan import MotionGuard, ObstacleMemory, PlannedTarget
+from firmware_py.localplan import GLOBAL, REVERSE, MotionGuard, ObstacleMemory, PlannedTarget
 from firmware_py.mapdata import grid_from_rows
 from ground_station.learn.sector.obstacles import (
     COLLISION,
+    NO_ROUTE,
+    PERIOD_S,
+    RADIUS_MM,
     TIMEOUT,
     obs_period_step,
     obstacle_clearance_mm,
     period_end,
     sense_obs,
+    step_movers,
 )
 from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
 from ground_station.maps import GridMap
@@ -75,17 +86,29 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     outcome = TIMEOUT
     minclear = float(obstacle_clearance_mm(x, y, discs, movers))
     sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+    route_plans = -1  # the planner's search count when its global route was last taken as the plan
     while t < budget:
         xm, ym, thm = round(x), round(y), round(th * 1000.0)
-        memory.observe(grid, xm, ym, thm, ranges.tolist(), status.tolist(), t * PERIOD_US)
-        tx, ty, _ = planner.target(t * PERIOD_US, x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
+        rl, sl = ranges.tolist(), status.tolist()
+        memory.observe(grid, xm, ym, thm, rl, sl, t * PERIOD_US)
+        tx, ty, speed = planner.target(t * PERIOD_US, x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
+        if planner.no_route:
+            outcome = NO_ROUTE  # the robot's recoveries ran out and it reports it (the controller holds)
+            break
         b = bearing_mrad(x, y, th, tx, ty)
         s = encode_fast(b, ranges, status, sectors, sensors, edges)
-        a = guard.action(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, ranges.tolist(), status.tolist(), memory)
+        a = guard.action(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory)
         k0 = k
-        x, y, th, phi, _, _, hit, success, driven, k = obs_period_step(
-            occ, h, w, c, x, y, th, phi, wps, rem, len(wps), k, a, rw, which, ranges, status,
-            sectors, sensors, edges, discs, movers)
+        if planner.reverse and guard.rear_clear(rl, sl):
+            a, speed = REVERSE, 100  # a recovery's back-off (PlannedTarget)
+        if speed == 0:  # a recovery stands still: the movers walk on, the sensors read
+            step_movers(movers, occ, c, discs, x, y, RADIUS_MM, PERIOD_S)
+            sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+            hit, success, driven = False, False, 0.0
+        else:
+            x, y, th, phi, _, _, hit, success, driven, k = obs_period_step(
+                occ, h, w, c, x, y, th, phi, wps, rem, len(wps), k, a, rw, which, ranges, status,
+                sectors, sensors, edges, discs, movers)
         path += driven
         t += 1
         work.run_pending()
@@ -94,6 +117,14 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             break
         if k != k0:
             planner.reset()
+            route_plans = -1
+        if planner.mode == GLOBAL and not success:
+            # progress along the robot's current plan: its global route (a detour through another
+            # door first leads away from the waypoint) plus the waypoints after it; a new route is
+            # a new plan, measured from where it starts
+            phi = planner.route_mm + float(rem[k])
+            if planner.plans != route_plans:
+                route_plans, best, since = planner.plans, phi, 0
         end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since, stall_steps,
                                                       minclear, near)
         if end >= 0:
