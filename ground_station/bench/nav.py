@@ -11,6 +11,13 @@ controller, spread over the maps). Prints a table, writes JSON (`--json`)
 and a PNG comparing the controllers (`--png`, default: the JSON's name with
 .png).
 
+Every shipped navigation kind runs: a `sector` policy (`--policy
+policies:sector`, the default) with the controllers above; a `sector-memory`
+policy (`--policy policies:sector_memory`, the direct setting: the goal
+alone, the robot on its own map) as `learnt` beside `rule`, the same mode
+rules with hand-written moves, in HIL only (`--hil` required: its trainer's
+twin is a grid world without the scenario's discs and movers).
+
 `--blocked detour|none|both`: blocked-passage episodes instead
 (`scenario.blocked_episodes`): one disc closes a door, corridor or aisle on
 the planned route, and a route around it exists elsewhere (`detour`) or not
@@ -23,8 +30,9 @@ JSON: `scenario` (maps, obstacles, movers, seed, episodes, blocked), per control
 (`success_rate`, `collision_rate`, `path_ratio_mean`, `episodes`,
 `time_to_goal_mean_s`, `near_miss_rate`, `no_route_rate`, `outcomes`, with
 `--blocked` a `blocked` object per label), `per_map` the same per
-map, and with `--hil` a `hil` object with the same per-controller keys (and
-`twin_same_episodes`: the twin on exactly the HIL episodes).
+map, and with `--hil` a `hil` object with the same per-controller keys,
+`per_map`, `paired_vs_learnt` (exact McNemar on the same episodes) and
+`twin_same_episodes` (the twin on exactly the HIL episodes).
 """
 
 from __future__ import annotations
@@ -93,19 +101,13 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.campaign.engines import engine_from_args, write_campaign
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
-    from ground_station.nav.controllers import (
-        CONTROLLER_NAMES,
-        EXTRA_CONTROLLERS,
-        standard_controllers,
-    )
+    from ground_station.nav.controllers import EXTRA_CONTROLLERS, NavController, kind_controllers
     from ground_station.nav.episodes import mcnemar_exact, run_job, run_twin, summarise
     from ground_station.nav.scenario import episodes
 
-    known = CONTROLLER_NAMES + EXTRA_CONTROLLERS
-    names = tuple(c.strip() for c in (args.controllers or ",".join(CONTROLLER_NAMES)).split(",") if c.strip())
-    bad = [c for c in names if c not in known]
-    if bad or not names:
-        raise CliError(f"--controllers: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(known)}")
+    names = tuple(c.strip() for c in (args.controllers or "").split(",") if c.strip())
+    if args.controllers is not None and not names:
+        raise CliError("--controllers: none named")
     if args.obstacles is None:
         args.obstacles = 0 if args.blocked else 3
     if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1 or args.batch < 1:
@@ -127,12 +129,17 @@ def run(args: argparse.Namespace) -> int:
         pol = load_policy(str(path))
     except (PolicyError, ShippedPolicyError, OSError) as exc:
         raise CliError(f"policy {args.policy}: {exc}") from None
-    if args.controllers is None and pol.local_planner is not None:
-        names += EXTRA_CONTROLLERS  # the planner with the hand-written seek table: what the learnt table adds
     try:
-        ctrls = standard_controllers(pol, names)
+        ctrls = list(kind_controllers(pol, names or None))
+        if args.controllers is None and pol.local_planner is not None:
+            # the planner with the hand-written seek table: what the learnt table adds
+            ctrls += kind_controllers(pol, EXTRA_CONTROLLERS)
     except ValueError as exc:
-        raise CliError(str(exc)) from None
+        raise CliError(f"--controllers: {exc}") from None
+    twin_ctrls = [c for c in ctrls if isinstance(c, NavController)]
+    if not twin_ctrls and not args.hil:
+        raise CliError(f"a {pol.kind} policy has no continuous twin (its trainer's twin is a grid world without "
+                       "the scenario's discs and movers): run it with --hil")
     map_names = args.map or list(DEFAULT_MAPS)
     maps = {}
     specs: dict[str, str] = {}  # map name -> the spec that loads it (for campaign workers)
@@ -179,24 +186,25 @@ def run(args: argparse.Namespace) -> int:
     campaign: dict = {}
     with engine_from_args(args) as engine:
         jobs = [{**base, "kind": "twin", "controller": c.name, "map": name, "episodes": eps[i:i + args.batch]}
-                for c in ctrls for name, eps in eps_by_map.items() for i in range(0, len(eps), args.batch)]
-        out, stats = engine.map(run_job, jobs, desc="twin", unit="batch")
-        campaign["twin"] = stats.as_dict()
+                for c in twin_ctrls for name, eps in eps_by_map.items() for i in range(0, len(eps), args.batch)]
+        out, stats = engine.map(run_job, jobs, desc="twin", unit="batch") if jobs else ([], None)
+        if stats is not None:
+            campaign["twin"] = stats.as_dict()
         twin_by: dict[str, list[dict]] = {}
-        for c in ctrls:
+        for tc in twin_ctrls:
             twin_rows = []
             for name in maps:
                 r = [row for job, res in zip(jobs, out, strict=True)
-                     if job["controller"] == c.name and job["map"] == name for row in res]
+                     if job["controller"] == tc.name and job["map"] == name for row in res]
                 twin_rows += r
-                result["per_map"].setdefault(name, {})[c.name] = summarise(r)
-            result[c.name] = summarise(twin_rows)
-            twin_by[c.name] = twin_rows
+                result["per_map"].setdefault(name, {})[tc.name] = summarise(r)
+            result[tc.name] = summarise(twin_rows)
+            twin_by[tc.name] = twin_rows
         if "learnt" in twin_by:  # the learnt table against each baseline, paired on the same episodes
             result["paired_vs_learnt"] = {
-                c.name: dict(zip(("learnt_only", "baseline_only", "p_exact"),
-                                 mcnemar_exact(twin_by["learnt"], twin_by[c.name]).values(), strict=True))
-                for c in ctrls if c.name != "learnt"}
+                tc.name: dict(zip(("learnt_only", "baseline_only", "p_exact"),
+                                  mcnemar_exact(twin_by["learnt"], twin_by[tc.name]).values(), strict=True))
+                for tc in twin_ctrls if tc.name != "learnt"}
         if args.hil:
             names_list = list(maps)
             per = [args.hil_episodes // len(names_list) + (1 if i < args.hil_episodes % len(names_list) else 0)
@@ -211,28 +219,49 @@ def run(args: argparse.Namespace) -> int:
                      for c in ctrls for i in range(0, len(hil_eps), hb)]
             hout, hstats = engine.map(run_job, hjobs, desc="hil", unit="batch")
             campaign["hil"] = {**hstats.as_dict(), "episode_wall_s": {}}
+            hil_by: dict[str, list[dict]] = {}
             for c in ctrls:
                 hr = [row for job, res in zip(hjobs, hout, strict=True) if job["controller"] == c.name for row in res]
                 campaign["hil"]["episode_wall_s"][c.name] = [row.pop("wall_s") for row in hr]
+                hil_by[c.name] = hr
                 result["hil"][c.name] = summarise(hr)
-                result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(run_twin(hil_eps, maps, c))
+                for name in names_list:
+                    result["hil"].setdefault("per_map", {}).setdefault(name, {})[c.name] = summarise(
+                        [row for ep, row in zip(hil_eps, hr, strict=True) if ep.map == name])
+                if isinstance(c, NavController):
+                    result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(run_twin(hil_eps, maps, c))
                 result["hil"].setdefault("episodes_detail", {})[c.name] = hr
+            if "learnt" in hil_by:
+                result["hil"]["paired_vs_learnt"] = {
+                    c.name: dict(zip(("learnt_only", "baseline_only", "p_exact"),
+                                     mcnemar_exact(hil_by["learnt"], hil_by[c.name]).values(), strict=True))
+                    for c in ctrls if c.name != "learnt"}
     blocked = args.blocked is not None
     for c in ctrls:
-        s = result[c.name]
-        rows.append((f"twin {c.name}", _fmt(s, blocked)))
+        if not c.twin:
+            rows.append((f"twin {c.name}", f"none: a {pol.kind} policy runs in HIL only (no continuous twin)"))
+            continue
+        rows.append((f"twin {c.name}", _fmt(result[c.name], blocked)))
     for other, t in result.get("paired_vs_learnt", {}).items():
         rows.append((f"twin learnt vs {other}, paired",
                      f"episodes won only by learnt {t['learnt_only']}, only by {other} {t['baseline_only']}; "
                      f"exact McNemar p = {t['p_exact']:.2g}"))
     for name in maps:
-        for c in ctrls:
-            rows.append((f"  {name} {c.name}", _fmt(result["per_map"][name][c.name], blocked)))
+        for tc in twin_ctrls:
+            rows.append((f"  {name} {tc.name}", _fmt(result["per_map"][name][tc.name], blocked)))
     if args.hil:
         for c in ctrls:
             rows.append((f"hil {c.name}", _fmt(result["hil"][c.name], blocked)))
-            rows.append((f"  twin, same episodes {c.name}",
-                         _fmt(result["hil"]["twin_same_episodes"][c.name], blocked)))
+            for name, per_map in result["hil"]["per_map"].items():
+                if per_map[c.name]["episodes"]:
+                    rows.append((f"  hil {name} {c.name}", _fmt(per_map[c.name], blocked)))
+            if c.twin:
+                rows.append((f"  twin, same episodes {c.name}",
+                             _fmt(result["hil"]["twin_same_episodes"][c.name], blocked)))
+        for other, t in result["hil"].get("paired_vs_learnt", {}).items():
+            rows.append((f"hil learnt vs {other}, paired",
+                         f"episodes won only by learnt {t['learnt_only']}, only by {other} {t['baseline_only']}; "
+                         f"exact McNemar p = {t['p_exact']:.2g}"))
     for part, st in campaign.items():
         rows.append((f"campaign {part}", f"{st['engine']}, {st['workers']} workers on {len(st['nodes'])} node(s): "
                      f"{st['jobs']} jobs, {st['wall_s']:.1f} s wall, speedup over one core "
@@ -289,21 +318,25 @@ def plot(result: dict, names: list[str]) -> bytes:
     from ground_station.plotting import png_bytes, pyplot
 
     plt = pyplot()
-    groups = [*result["per_map"], "all (twin)"] + (["HIL"] if "hil" in result else [])
+    twin = any(c in result for c in names)  # a kind without a continuous twin has HIL figures only
+    groups = ([*result["per_map"], "all (twin)"] if twin else []) + (
+        [*(f"HIL {m}" for m in result["hil"].get("per_map", {})), "HIL"] if "hil" in result else [])
 
     def fig_of(g: str, c: str) -> dict:
         if g == "all (twin)":
-            return result[c]
+            return result.get(c, {})
         if g == "HIL":
             return result["hil"][c]
-        return result["per_map"][g][c]
+        if g.startswith("HIL "):
+            return result["hil"]["per_map"][g[4:]][c]
+        return result["per_map"][g].get(c, {})
 
     fig, axes = plt.subplots(2, 1, figsize=(max(7, 1.6 * len(groups)), 6), dpi=100, sharex=True)
     width = 0.8 / len(names)
     for ax, key, title in ((axes[0], "success_rate", "success"), (axes[1], "collision_rate", "collision")):
         for j, c in enumerate(names):
             xs = [i + (j - (len(names) - 1) / 2) * width for i in range(len(groups))]
-            ax.bar(xs, [fig_of(g, c)[key] for g in groups], width, label=c)
+            ax.bar(xs, [fig_of(g, c).get(key, 0.0) for g in groups], width, label=c)
         ax.set_ylabel(f"{title} rate")
         ax.set_ylim(0, 1.05)
         ax.grid(axis="y", alpha=0.3)

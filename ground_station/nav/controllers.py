@@ -28,12 +28,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import cast
+from typing import Protocol, cast
 
 import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
+from firmware_py.gridbug import GridBugEncoder
 from firmware_py.localplan import META_KEY as PLANNER_KEY
 from firmware_py.localplan import LocalPlannerConfig
 from firmware_py.policy import Policy, load_policy
@@ -58,6 +59,7 @@ class NavController:
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
     local: LocalPlannerConfig | None = None  # steer on the robot's local planner (firmware_py.localplan)
+    twin: bool = True  # rolled out on the bench's continuous twin too (episodes.run_twin)
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
@@ -127,10 +129,78 @@ def policy_table(policy: Policy) -> np.ndarray:
     return t.reshape(policy.n_states, policy.n_actions).astype(np.float64)
 
 
+class BenchController(Protocol):
+    """What `episodes.run_hil` and `qnav bench nav` need of a controller (NavController, MemoryController)."""
+
+    name: str
+    twin: bool
+
+    @property
+    def guidance(self) -> str: ...
+
+    @property
+    def local(self) -> LocalPlannerConfig | None: ...
+
+    def policy(self, map_name: str = "") -> Policy: ...
+
+
+MEMORY_CONTROLLER_NAMES = ("learnt", "rule")  # a sector-memory policy's: its table, the hand-written rule
+
+
+@dataclass
+class MemoryController:
+    """A `sector-memory` table in the direct setting (the goal alone; the robot localises and keeps
+    its wall memory on its own map): HIL only, as `NavController` for `episodes.run_hil`. Its
+    trainer's twin is a grid world without the scenario's continuous discs and movers, so the
+    bench has no twin figure for it. `rule` is the hand-written table of the same mode rules
+    (`learn.sector_memory.trainer.hand_table`): what learning the moves adds."""
+
+    name: str
+    table: Policy
+    guidance: str = "direct"
+    local: LocalPlannerConfig | None = None
+    twin: bool = False
+
+    def policy(self, map_name: str = "") -> Policy:
+        """The .qtab the robot runs (map-agnostic: the rig gives the robot the episode's map)."""
+        return self.table
+
+
+def memory_controllers(policy: Policy, names: tuple[str, ...] = MEMORY_CONTROLLER_NAMES) -> list[MemoryController]:
+    """learnt / rule for a sector-memory policy."""
+    from ground_station.learn.sector_memory.trainer import hand_table
+
+    bad = [n for n in names if n not in MEMORY_CONTROLLER_NAMES]
+    if bad:
+        raise ValueError(f"a sector-memory policy runs the controllers {', '.join(MEMORY_CONTROLLER_NAMES)}, "
+                         f"not {', '.join(bad)}")
+    out = []
+    for n in names:
+        if n == "learnt":
+            out.append(MemoryController(n, policy))
+            continue
+        qt = quantise(hand_table(cast(GridBugEncoder, policy.encoder)), "int8")
+        data = policy_bytes(qt, policy.encoder, metadata={**policy.metadata, "controller": "rule"},
+                            map_geometry=policy.map_geometry)
+        out.append(MemoryController(n, load_policy(data)))
+    return out
+
+
+def kind_controllers(policy: Policy, names: tuple[str, ...] | None = None) -> list[BenchController]:
+    """The bench's controllers for the policy's kind (names None: the kind's defaults)."""
+    if policy.kind == "sector-memory":
+        return list(memory_controllers(policy, names or MEMORY_CONTROLLER_NAMES))
+    return list(standard_controllers(policy, names or CONTROLLER_NAMES))
+
+
 def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAMES) -> list[NavController]:
     """learnt / seek / vfh / direct (and seek_local) on the learnt policy's encoder."""
     if policy.kind != "sector":
-        raise ValueError(f"bench nav needs a sector policy, got a {policy.kind} policy")
+        raise ValueError(f"bench nav needs a sector policy or a sector-memory policy, got a {policy.kind} policy")
+    known = CONTROLLER_NAMES + EXTRA_CONTROLLERS
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ValueError(f"unknown {', '.join(bad)}; a sector policy runs {', '.join(known)}")
     enc = cast(SectorEncoder, policy.encoder)
     q = policy_table(policy)
     local = policy.local_planner

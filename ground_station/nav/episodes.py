@@ -43,7 +43,7 @@ from ground_station.learn.sector.obstacles import (
 )
 from ground_station.learn.sector.twin import encoder_arrays
 from ground_station.maps import GridMap
-from ground_station.nav.controllers import NavController
+from ground_station.nav.controllers import BenchController, NavController
 from ground_station.nav.scenario import Episode, episode_arrays
 
 OUTCOMES = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop", TIMEOUT: "timeout", NO_ROUTE: "no_route"}
@@ -100,7 +100,7 @@ def _blocked_row(ep: Episode) -> dict:
     return {"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {}
 
 
-def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
+def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
             progress: Callable[[], None] | None = None, max_sim_s: float | None = None,
             index_offset: int = 0, step_cpu: bool = False, vehicle: Any = None,
             profile: Any = None) -> list[dict]:
@@ -172,11 +172,12 @@ def run_job(job: dict) -> list[dict]:
     from their specs, then `run_twin` or `run_hil` over `job["episodes"]`."""
     from firmware_py.policy import load_policy
     from ground_station.maps import load_map
-    from ground_station.nav.controllers import standard_controllers
+    from ground_station.nav.controllers import kind_controllers
 
-    ctrl = standard_controllers(load_policy(job["policy"]), (job["controller"],))[0]
+    ctrl = kind_controllers(load_policy(job["policy"]), (job["controller"],))[0]
     maps = {name: load_map(spec) for name, spec in job["maps"].items()}
     if job["kind"] == "twin":
+        assert isinstance(ctrl, NavController), f"{ctrl.name} has no continuous twin"
         return run_twin(job["episodes"], maps, ctrl)
     from sim_bridge.profiles import profile
 

@@ -149,3 +149,21 @@ def test_intervals_and_the_paired_test_are_the_textbook_ones():
     assert paired["a_only"] == 45 and paired["b_only"] == 11
     assert abs(paired["p_exact"] - 5.378e-6) < 0.001e-6  # issue 32's 45 vs 11 episodes: p = 5e-6
     assert mcnemar_exact([ok, ko], [ok, ko])["p_exact"] == 1.0  # no discordant pair: no evidence
+
+
+def test_bench_nav_runs_the_sector_memory_policy_in_hil_beside_its_hand_written_rule(tmp_path):
+    js = tmp_path / "smem.json"
+    code, out = _qnav("bench", "nav", "--policy", "policies:sector_memory", "--map", "rooms-16x16-s1",
+                      "--episodes", "1", "--hil", "--hil-episodes", "1", "--obstacles", "0", "--movers", "0",
+                      "--json", str(js))
+    assert code == 0, out
+    d = json.loads(js.read_text())
+    for c in ("learnt", "rule"):  # the shipped table and the same mode rules with hand-written moves
+        assert d["hil"][c]["episodes"] == 1 and d["hil"]["per_map"]["rooms-16x16-s1"][c]["episodes"] == 1
+        assert c not in d  # no twin figure: its trainer's twin is a grid world
+    assert "learnt_only" in d["hil"]["paired_vs_learnt"]["rule"]
+    assert "runs in HIL only" in out
+    code, out = _qnav("bench", "nav", "--policy", "policies:sector_memory", "--episodes", "1")
+    assert code == 2 and "--hil" in out and len(out.strip().splitlines()) == 1
+    code, out = _qnav("bench", "nav", "--policy", "policies:sector_memory", "--controllers", "seek", "--hil")
+    assert code == 2 and "learnt, rule" in out
