@@ -44,7 +44,7 @@ about them before its learnt sector policy steers:
   `PlannedTarget` runs the recoveries, in order: wait (a mover may step
   aside), re-plan over the whole map round the pinned points (another
   door, another aisle: followed like a local detour), and when there is
-  no route: back off, clear the obstacle layer, wait and re-plan again;
+  no route: back off, clear the obstacle layer, wait longer and re-plan again;
   after `max_rounds` global searches without a route it says "no route"
   (`PlannedTarget.no_route`), and the controller reports it (STATUSTEXT,
   severity error) and ends the mission in HOLD.
@@ -215,7 +215,9 @@ class LocalPlannerConfig:
     # ... the points that closed it are kept this long (unless a reading sees through them) while the
     # robot re-plans globally round them, so a detour through another door does not turn back ...
     route_memory_us: int = 60_000_000
-    max_rounds: int = 2  # ... and after this many global re-plans without a route: "no route"
+    # ... and after this many global re-plans without a route: "no route" (round r waits r x wait_us:
+    # a mover in the only corridor walks off in a few seconds, a box in a door stays)
+    max_rounds: int = 3
 
     @classmethod
     def from_metadata(cls, meta: Any) -> LocalPlannerConfig:
@@ -479,8 +481,8 @@ class LocalPlanner:
         key = (wx, wy, version)
         ix, iy = int(x // r), int(y // r)
         x0, y0, x1, y1 = self._window
-        if (key == self._plan_key and whole_map == self._global and x0 <= ix <= x1 and y0 <= iy <= y1
-                and (not whole_map or (ix, iy) in self._dist)):
+        if key == self._plan_key and whole_map == self._global and x0 <= ix <= x1 and y0 <= iy <= y1 and (
+                not whole_map or self._path_open(ix, iy, 0)):
             return
         if (whole_map and self._global and self._plan_key is not None and self._plan_key[:2] == key[:2]
                 and self._path_open(ix, iy)):
@@ -498,44 +500,62 @@ class LocalPlanner:
             y0 = max(0, int((min(y, wy) - w) // r))
             y1 = min(self.ny - 1, int((max(y, wy) + w) // r))
         self._window = (x0, y0, x1, y1)
-        goal = (wx // r, wy // r)
+        goal = (min(max(wx // r, x0), x1), min(max(wy // r, y0), y1))  # a waypoint on the map's far edge
         # the waypoint's own cells stay open: the ground station's waypoints keep robot radius + 50 mm
         # from any obstacle it placed, closer than the grown points may reach
         near_goal = {(goal[0] + dx, goal[1] + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
                      if math.hypot((goal[0] + dx) * r + r // 2 - wx, (goal[1] + dy) * r + r // 2 - wy) <= r * 1.1}
-        dist: dict[Cell, float] = {goal: 0.0}
-        heap: list[tuple[float, int, int]] = [(0.0, goal[0], goal[1])]
-        cost = self._cost
-
-        def passable(c: Cell) -> bool:
-            return x0 <= c[0] <= x1 and y0 <= c[1] <= y1 and (c in near_goal or self._open(c))
-
+        # the window as flat arrays with a closed border of one cell (no bounds checks in the loop):
+        # open[i] (map free and not grown over, or the waypoint's own cells) and the step weight
+        wd, ht = x1 - x0 + 3, y1 - y0 + 3
+        closed, cost = self._closed, self._cost
+        open_ = bytearray(wd * ht)
+        weight = [1.0] * (wd * ht)
+        for cy in range(y0, y1 + 1):
+            row = (cy - y0 + 1) * wd + 1 - x0
+            for cx in range(x0, x1 + 1):
+                if (cx, cy) not in closed and self._open_map((cx, cy)):
+                    open_[row + cx] = 1
+        for cx, cy in near_goal:
+            if x0 <= cx <= x1 and y0 <= cy <= y1:
+                open_[(cy - y0 + 1) * wd + cx - x0 + 1] = 1
+        for (cx, cy), c in cost.items():
+            if x0 <= cx <= x1 and y0 <= cy <= y1:
+                weight[(cy - y0 + 1) * wd + cx - x0 + 1] = 1.0 + c
+        inf = math.inf
+        dist_a = [inf] * (wd * ht)
+        g = (goal[1] - y0 + 1) * wd + goal[0] - x0 + 1
+        dist_a[g] = 0.0
+        heap: list[tuple[float, int]] = [(0.0, g)]
+        # (index offset, step length, the two orthogonal offsets a diagonal step must not cut between)
+        steps = [(1, 1.0, 0, 0), (-1, 1.0, 0, 0), (wd, 1.0, 0, 0), (-wd, 1.0, 0, 0),
+                 (wd + 1, _SQRT2, 1, wd), (wd - 1, _SQRT2, -1, wd), (1 - wd, _SQRT2, 1, -wd),
+                 (-1 - wd, _SQRT2, -1, -wd)]
+        pop, push = heapq.heappop, heapq.heappush
         while heap:
-            d, cx, cy = heapq.heappop(heap)
-            if d > dist[(cx, cy)]:
+            d, i = pop(heap)
+            if d > dist_a[i]:
                 continue
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    if not (dx or dy):
-                        continue
-                    n = (cx + dx, cy + dy)
-                    if not passable(n):
-                        continue
-                    if dx and dy and not (passable((cx + dx, cy)) and passable((cx, cy + dy))):
-                        continue  # no corner cutting
-                    nd = d + (_SQRT2 if dx and dy else 1.0) * (1.0 + cost.get(n, 0.0))
-                    if nd < dist.get(n, math.inf):
-                        dist[n] = nd
-                        heapq.heappush(heap, (nd, n[0], n[1]))
-        self._dist = dist
+            for off, step, ox, oy in steps:
+                n = i + off
+                if not open_[n] or (ox and not (open_[i + ox] and open_[i + oy])):
+                    continue  # closed, or a diagonal cutting a corner
+                nd = d + step * weight[n]
+                if nd < dist_a[n]:
+                    dist_a[n] = nd
+                    push(heap, (nd, n))
+        self._dist = {(i % wd - 1 + x0, i // wd - 1 + y0): d for i, d in enumerate(dist_a) if d < inf}
 
     def _path_open(self, ix: int, iy: int, cells: int = 30) -> bool:
-        """The last search's way from raster cell (ix, iy) stays open for `cells` steps (or to the
+        """The last search's way from raster cell (ix, iy) (or a cell next to it: the robot may stand
+        nearer a wall or a point than the raster's margins) stays open for `cells` steps (or to the
         waypoint): remembered points seen since have not closed it."""
         dist = self._dist
-        c = (ix, iy)
-        if c not in dist:
+        near = [c for c in ((ix + dx, iy + dy) for dx in (0, -1, 1, -2, 2) for dy in (0, -1, 1, -2, 2))
+                if c in dist]
+        if not near:
             return False
+        c = near[0]
         for _ in range(cells):
             d, nxt = min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
                          for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
@@ -584,7 +604,10 @@ class LocalPlanner:
                 self.blocked = True
                 self.no_route = whole_map
                 return float(wx), float(wy)
-            cur = min(near)[1]
+            if whole_map:  # the nearest such cell: one further on may lie round a corner of the map
+                cur = min((math.hypot(c[0] - ix, c[1] - iy), d, c) for d, c in near)[2]
+            else:
+                cur = min(near)[1]
         self.route_mm = dist[cur] * r  # inflation costs make it a little longer than the way itself
         path = [cur]
         for _ in range(self.cfg.lookahead_mm // r + 1):
@@ -594,8 +617,10 @@ class LocalPlanner:
             if d >= dist[c]:
                 break
             path.append(nxt)
-        best = path[1] if len(path) > 1 else path[0]
-        for c in path[2:]:
+        # the whole map's route passes doors and corners of the map: every target there is one the
+        # robot sees in a straight line (a window's detour goes round points in the open)
+        best = path[0] if whole_map or len(path) == 1 else path[1]
+        for c in path[1 if whole_map else 2:]:
             if not self._line_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory):
                 break
             best = c
@@ -628,8 +653,9 @@ class PlannedTarget:
     Recoveries, when the window's search finds no way to the waypoint (nav2's recovery behaviours,
     in this order, all on the controller clock):
 
-    1. WAIT `wait_us`, stopped: a mover may step aside (a reading that sees through a remembered
-       point clears it); the window's search goes on, and a way found ends the recovery.
+    1. WAIT `wait_us` (in round r, r x `wait_us`), stopped: a mover may step aside (a reading that
+       sees through a remembered point clears it); the window's search goes on, and a way found
+       ends the recovery.
     2. GLOBAL: the points remembered now are pinned (`route_memory_us`) and the search covers the
        whole map: another door, another aisle. A route is followed to the waypoint (the search
        runs again when the way ahead closes).
@@ -735,7 +761,7 @@ class PlannedTarget:
                 self._enter(LOCAL, now_us)  # the way opened (a mover stepped aside)
                 self.detouring = ans.detouring
                 return ans.target[0], ans.target[1], 100
-            if now_us - self._mode_since_us >= cfg.wait_us:
+            if now_us - self._mode_since_us >= cfg.wait_us * (self._rounds + 1):
                 memory.pin(now_us)
                 self.global_plans += 1
                 self._enter(GLOBAL, now_us + 1)  # the next tick asks over the whole map

@@ -111,7 +111,6 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
                 sectors, sensors, edges, discs, movers)
         path += driven
         t += 1
-        work.run_pending()
         if hit:
             outcome, minclear = COLLISION, 0.0
             break
@@ -120,11 +119,12 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             route_plans = -1
         if planner.mode == GLOBAL and not success:
             # progress along the robot's current plan: its global route (a detour through another
-            # door first leads away from the waypoint) plus the waypoints after it; a new route is
-            # a new plan, measured from where it starts
+            # door first leads away from the waypoint) plus the waypoints after it; a new route (the
+            # search count when this tick's answer was made) is a new plan, measured from where it starts
             phi = planner.route_mm + float(rem[k])
             if planner.plans != route_plans:
                 route_plans, best, since = planner.plans, phi, 0
+        work.run_pending()  # after the count above: the search it runs answers the next tick
         end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since, stall_steps,
                                                       minclear, near)
         if end >= 0:

@@ -153,7 +153,7 @@ def test_recoveries_back_off_clear_and_then_say_no_route():
     work = Background(threaded=False)
     memory = ObstacleMemory(CFG)
     pt = PlannedTarget(ONE_DOOR, CFG, work)
-    rows = _drive(pt, work, memory, 200, seen=DOOR1)
+    rows = _drive(pt, work, memory, 400, seen=DOOR1)
     modes = [r[1] for r in rows]
     first_backup = modes.index(BACKUP)
     assert modes.index(WAIT) < modes.index(GLOBAL) < first_backup < modes.index(NO_ROUTE)
@@ -163,6 +163,9 @@ def test_recoveries_back_off_clear_and_then_say_no_route():
     assert pt.no_route.startswith("no route to (1250,2600)") and len("mission item 99: " + pt.no_route) <= 50
     assert pt.global_plans == CFG.max_rounds
     assert all(r[4] == 0 for r in rows if r[1] == NO_ROUTE)
+    # round r waits r x wait_us: 2 + 4 + 6 s of waiting, two back-offs, before "no route"
+    said = rows[modes.index(NO_ROUTE)][0]
+    assert 6 * CFG.wait_us + 2 * CFG.backoff_us <= said <= 6 * CFG.wait_us + 2 * CFG.backoff_us + 20 * PERIOD
 
 
 def test_a_mover_that_steps_aside_while_the_robot_waits_ends_the_recovery():
