@@ -129,6 +129,26 @@ def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
     return False
 
 
+def _wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:
+    """Distance (mm) from the point to the nearest occupied cell (or the outside of the grid), capped
+    at m: `_wall_within`'s cells, measured."""
+    c = grid.cell_mm
+    top = grid.height * c
+    best = float(m)
+    for row in range((top - (y + m)) // c, (top - (y - m)) // c + 1):
+        ylo = top - (row + 1) * c
+        dy = ylo - y if y < ylo else (y - ylo - c if y > ylo + c else 0)
+        for col in range((x - m) // c, (x + m) // c + 1):
+            if not grid.occupied(col, row):
+                continue
+            xlo = col * c
+            dx = xlo - x if x < xlo else (x - xlo - c if x > xlo + c else 0)
+            d = math.hypot(dx, dy)
+            if d < best:
+                best = d
+    return best
+
+
 def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                   ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
                   margin_mm: int, max_mm: int = robot_spec.RANGE_MAX_MM) -> list[tuple[int, int, int, int]]:
@@ -377,6 +397,7 @@ class LocalPlanner:
         # the map's own configuration space (raster centres clear of walls by wall_clear_mm), filled in
         # cell by cell as windows need it (_UNKNOWN until then): a tick never pays for the whole map
         self._map_free = bytearray([_UNKNOWN]) * (self.nx * self.ny)
+        self._wall_cost: list[float] = [-1.0] * (self.nx * self.ny)  # inflation cost of the map's walls
         self.plans = 0  # Dijkstra runs (telemetry / benchmarks)
         self._active: tuple[int, int] | None = None
         self._grown_version = -1
@@ -428,6 +449,21 @@ class LocalPlanner:
                             cost[cell] = c
         self._closed, self._cost = closed, cost
 
+    def _wall_weight(self, ix: int, iy: int) -> float:
+        """The inflation cost of the map's walls at a raster cell (nav2's inflation layer over the
+        static map, with the points' soft_mm and weight): a route keeps to the middle of corridors
+        and doors and turns wide round a door's jamb, where the table drives as trained."""
+        i = iy * self.nx + ix
+        v = self._wall_cost[i]
+        if v < 0:
+            cfg = self.cfg
+            r = cfg.raster_mm
+            d = _wall_gap(self.grid, ix * r + r // 2, iy * r + r // 2, cfg.soft_mm)
+            span = max(1, cfg.soft_mm - cfg.wall_clear_mm)
+            v = 0.0 if d >= cfg.soft_mm else cfg.weight * min(1.0, (cfg.soft_mm - d) / span)
+            self._wall_cost[i] = v
+        return v
+
     def _open_map(self, c: Cell) -> bool:
         """The raster cell is inside the map and its centre clear of walls by wall_clear_mm."""
         ix, iy = c
@@ -463,6 +499,8 @@ class LocalPlanner:
                 continue
             if not self._open_map((int((x + f * (tx - x)) // r), int((y + f * (ty - y)) // r))):
                 return False
+        if not self._body_clear(x, y, tx, ty):
+            return False
         los = self.cfg.los_clear_mm
         dx, dy = tx - x, ty - y
         l2 = dx * dx + dy * dy
@@ -470,6 +508,23 @@ class LocalPlanner:
             d = _segment_distance(px, py, x, y, dx, dy, l2)
             if d < los and d < math.hypot(px - x, py - y) - 1.0:
                 return False
+        return True
+
+    def _body_clear(self, x: float, y: float, tx: float, ty: float) -> bool:
+        """The robot's disc (radius + 10 mm) driven straight toward (tx, ty) touches no map wall in
+        the part of the line `_line_clear`'s raster test leaves out, its first 150 mm (checked every
+        25 mm from 25 mm on: a door's jamb the line passes at 100 mm is a collision the raster's
+        margin does not see there)."""
+        length = math.hypot(tx - x, ty - y)
+        if length < 1.0:
+            return True
+        ux, uy = (tx - x) / length, (ty - y) / length
+        m = robot_spec.ROBOT_RADIUS_MM + 10
+        along = 25.0
+        while along <= min(length, 175.0):
+            if _wall_within(self.grid, round(x + along * ux), round(y + along * uy), m):
+                return False
+            along += 25.0
         return True
 
     # --- the plan --------------------------------------------------------------------------------
@@ -516,12 +571,14 @@ class LocalPlanner:
             for cx in range(x0, x1 + 1):
                 if (cx, cy) not in closed and self._open_map((cx, cy)):
                     open_[row + cx] = 1
+                    weight[row + cx] = 1.0 + self._wall_weight(cx, cy)
         for cx, cy in near_goal:
             if x0 <= cx <= x1 and y0 <= cy <= y1:
                 open_[(cy - y0 + 1) * wd + cx - x0 + 1] = 1
         for (cx, cy), c in cost.items():
             if x0 <= cx <= x1 and y0 <= cy <= y1:
-                weight[(cy - y0 + 1) * wd + cx - x0 + 1] = 1.0 + c
+                i = (cy - y0 + 1) * wd + cx - x0 + 1
+                weight[i] = max(weight[i], 1.0 + c)
         inf = math.inf
         dist_a = [inf] * (wd * ht)
         g = (goal[1] - y0 + 1) * wd + goal[0] - x0 + 1
@@ -545,6 +602,20 @@ class LocalPlanner:
                     dist_a[n] = nd
                     push(heap, (nd, n))
         self._dist = {(i % wd - 1 + x0, i // wd - 1 + y0): d for i, d in enumerate(dist_a) if d < inf}
+
+    def _route_length(self, cur: Cell, max_steps: int = 4000) -> float:
+        """Length (mm) of the last search's way from raster cell `cur` down to the waypoint (the
+        distances are costs, inflation included: the way is walked to measure it)."""
+        dist, r = self._dist, self.cfg.raster_mm
+        c, total = cur, 0.0
+        for _ in range(max_steps):
+            d, nxt = min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
+                         for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+            if d >= dist[c]:
+                break
+            total += r * (_SQRT2 if nxt[0] != c[0] and nxt[1] != c[1] else 1.0)
+            c = nxt
+        return total
 
     def _path_open(self, ix: int, iy: int, cells: int = 30) -> bool:
         """The last search's way from raster cell (ix, iy) (or a cell next to it: the robot may stand
@@ -593,10 +664,12 @@ class LocalPlanner:
         if cur not in dist:
             # inside a grown obstacle or a wall's margin: start from the best cell nearby that the robot
             # reaches in a straight line without going nearer a remembered point (not one across the obstacle)
+            # (and without its body clipping a map wall on the way: not one round a door's jamb)
             near = [(dist[c] + math.hypot(c[0] - ix, c[1] - iy), c)
                     for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
                     if c in dist and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
-                                                   robot_spec.ROBOT_RADIUS_MM + 10)]
+                                                   robot_spec.ROBOT_RADIUS_MM + 10)
+                    and self._body_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2)]
             if not near:
                 # no way from here: the tick's side starts the recoveries (Recovery), meanwhile
                 # toward the waypoint behind the motion guard (a mover may step aside)
@@ -608,7 +681,7 @@ class LocalPlanner:
                 cur = min((math.hypot(c[0] - ix, c[1] - iy), d, c) for d, c in near)[2]
             else:
                 cur = min(near)[1]
-        self.route_mm = dist[cur] * r  # inflation costs make it a little longer than the way itself
+        self.route_mm = self._route_length(cur)
         path = [cur]
         for _ in range(self.cfg.lookahead_mm // r + 1):
             c = path[-1]
@@ -619,7 +692,9 @@ class LocalPlanner:
             path.append(nxt)
         # the whole map's route passes doors and corners of the map: every target there is one the
         # robot sees in a straight line (a window's detour goes round points in the open)
-        best = path[0] if whole_map or len(path) == 1 else path[1]
+        best = path[0]
+        if not whole_map and len(path) > 1 and self._body_clear(x, y, path[1][0] * r + r / 2, path[1][1] * r + r / 2):
+            best = path[1]  # a window's detour: the next cell unless the body would clip a wall toward it
         for c in path[1 if whole_map else 2:]:
             if not self._line_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory):
                 break
@@ -726,6 +801,9 @@ class PlannedTarget:
                     self.detouring = False
                     return float(wx), float(wy), 100
                 self._active, self._active_since_us = waypoint, now_us
+            # what the robot goes round is kept while it does (unless a reading sees through it): a
+            # box forgotten once out of view sent the route back to it, and the robot turned to and fro
+            memory.pin(now_us)
         gen, snap = self._generation, memory.snapshot()
         self.work.post(self, lambda: self._solve(gen, now_us, x, y, waypoint, snap, whole_map))
         ans = self._answer
@@ -828,7 +906,10 @@ class MotionGuard:
 
     def action(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
-               memory: ObstacleMemory) -> int:
+               memory: ObstacleMemory, detouring: bool = False) -> int:
+        """The action to take (`detouring`: the planner steers to a sub-goal, not the waypoint: a
+        robot stuck on its way there backs off wherever it stands; the table turned in place for
+        seconds by a wall it had to pass close to)."""
         cfg = self.cfg
         if self._anchor is None or math.hypot(x - self._anchor[0], y - self._anchor[1]) > cfg.stuck_mm:
             self._anchor, self._anchor_us = (x, y), now_us
@@ -836,7 +917,7 @@ class MotionGuard:
             return REVERSE
         if now_us - self._anchor_us >= cfg.stuck_us and self.rear_clear(ranges_mm, status):
             reach = robot_spec.ROBOT_RADIUS_MM + cfg.backoff_near_mm
-            if any(math.hypot(px - x, py - y) < reach for px, py, _ in memory.points.values()):
+            if detouring or any(math.hypot(px - x, py - y) < reach for px, py, _ in memory.points.values()):
                 self.backoffs += 1
                 self._backing_until_us = now_us + cfg.backoff_us
                 self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
@@ -845,6 +926,11 @@ class MotionGuard:
             self.vetoes += 1
             return TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
         return action
+
+    def still(self, now_us: int) -> None:
+        """The planner holds the robot still on purpose (a recovery's wait): not stuck."""
+        if self._anchor is not None:
+            self._anchor_us = now_us
 
     def rear_clear(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
         cfg = self.cfg

@@ -93,7 +93,10 @@ class SectorDriver(KindDriver):
         if self.local is not None:
             planner, memory, guard = self.local
             x, y, _ = tick.pose_mm
-            a = guard.action(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status, memory)
+            if speed == 0:
+                guard.still(tick.now_us)
+            a = guard.action(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status, memory,
+                             planner.detouring)
             if planner.no_route:
                 return Decision((0, 0), self.decided(s, a), target, no_route=planner.no_route)
             if planner.reverse and guard.rear_clear(tick.ranges_mm, tick.range_status):

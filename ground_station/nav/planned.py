@@ -18,9 +18,10 @@ not move while the movers walk and the sensors read, its back-off is a
 reverse step, and its "no route" ends the episode as NO_ROUTE (the robot
 reports it and holds). Budget, loop rule, near misses and outcomes are
 `nav_eval_kernel`'s, so its rows sit beside the other controllers' in
-`qnav bench nav`, except that progress is measured along the robot's
-current plan while it follows a whole-map route (a detour through another
-door first leads away from the waypoint; a new route starts a new count).
+`qnav bench nav`, except that progress, and the period budget, are measured
+along the robot's current plan while it follows a whole-map route (a detour
+through another door first leads away from the waypoint; a new route starts
+a new count and a budget for its own length).
 """
 
 from __future__ import annotations
@@ -97,7 +98,9 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             break
         b = bearing_mrad(x, y, th, tx, ty)
         s = encode_fast(b, ranges, status, sectors, sensors, edges)
-        a = guard.action(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory)
+        if speed == 0:
+            guard.still(t * PERIOD_US)
+        a = guard.action(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory, planner.detouring)
         k0 = k
         if planner.reverse and guard.rear_clear(rl, sl):
             a, speed = REVERSE, 100  # a recovery's back-off (PlannedTarget)
@@ -124,6 +127,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             phi = planner.route_mm + float(rem[k])
             if planner.plans != route_plans:
                 route_plans, best, since = planner.plans, phi, 0
+                # the budget too is the current plan's: a long detour through another door is no timeout
+                budget = max(budget, t + int(budget_base + budget_factor * phi / FWD_MM_PER_PERIOD))
         work.run_pending()  # after the count above: the search it runs answers the next tick
         end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since, stall_steps,
                                                       minclear, near)
