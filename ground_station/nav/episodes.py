@@ -135,8 +135,11 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
             rig.plant.obstacles = layer  # movers move at the end of every period, as in the twin
             end_us = round(limit * 1e6)
             last = rig.plant.world.pose
+            route_plans = -1
             while rig.plant.time_us < end_us and not rig.runner.done.is_set():
                 rig.tick()
+                if max_sim_s is None:  # the budget is the current plan's, as in the twin (nav.planned)
+                    end_us, route_plans = _rebase_budget(rig, end_us, route_plans)
                 pose = rig.plant.world.pose
                 driven += math.hypot(pose.x - last.x, pose.y - last.y) * 1000.0
                 last = pose
@@ -164,6 +167,21 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
         if progress is not None:
             progress()
     return rows
+
+
+def _rebase_budget(rig: Any, end_us: int, route_plans: int) -> tuple[int, int]:
+    """When the robot's sector planner takes a new whole-map route (a detour through another door),
+    the episode's sim-time budget becomes at least that route's own (BUDGET_BASE + BUDGET_FACTOR x its
+    length in forward periods, from now). Returns (end_us, the planner's search count seen)."""
+    from firmware_py.localplan import GLOBAL
+
+    local = getattr(rig.ctrl.driver, "local", None)
+    if local is None or local[0].mode != GLOBAL or local[0].plans == route_plans:
+        return end_us, route_plans
+    planner = local[0]
+    fwd = max(v for v, _ in robot_spec.ACTION_WHEEL_SPEEDS_MM_S) * PERIOD_S
+    periods = BUDGET_BASE + BUDGET_FACTOR * planner.route_mm / fwd
+    return max(end_us, rig.plant.time_us + round(periods * PERIOD_S * 1e6)), planner.plans
 
 
 def run_job(job: dict) -> list[dict]:
