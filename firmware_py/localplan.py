@@ -18,9 +18,9 @@ about them before its learnt sector policy steers:
   explain, in world millimetres, one per 50 mm square, each stamped with the
   controller clock (sim time in HIL) and forgotten `memory_us` after it was
   last seen: a person who walked on leaves no wall behind, a box in view is
-  seen again every tick. A reading clears the points on its rays (within
-  40 mm of one of the fan's rays) that lie nearer than it by
-  `clear_margin_mm` (nav2's obstacle layer clears by raytracing), so a
+  seen again every tick. A reading clears the points inside its cone that
+  lie nearer than it by `clear_margin_mm` (nav2's obstacle layer clears by
+  raytracing: a cone reports its nearest echo), so a
   mover that stepped aside is gone at once; points the robot is going
   round, and points pinned by a global re-plan, are kept
   `route_memory_us` (a door found closed stays closed while the robot goes
@@ -109,8 +109,7 @@ _FAN = ([(k / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (robot_spec.SENSOR_FOV_M
 _RAY_COS = [[math.cos(a + f) for f in _FAN] for a in _ANG]
 _RAY_SIN = [[math.sin(a + f) for f in _FAN] for a in _ANG]
 _MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
-_SECTOR_REACH = robot_spec.SENSOR_FOV_MRAD / 2000.0 + 0.1  # rad off a sensor's axis (seen from the centre)
-_RAY_HALF_WIDTH_MM = 40  # a remembered point this near a ray the reading passed beyond is cleared
+_HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
 
 
 def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
@@ -320,10 +319,11 @@ class ObstacleMemory:
 
     def _seen_through(self, x_mm: int, y_mm: int, heading_mrad: int, ranges_mm: list[int] | tuple[int, ...],
                       status: list[int] | tuple[int, ...], seen: set[tuple[int, int]]) -> list[tuple[int, int]]:
-        """Points on a sensor's ray (within 40 mm of one of its fan's rays) nearer than its reading
-        by `clear_margin_mm` (a too-far reading: nearer than the range's maximum): nothing is there
-        any more, or the ray would have ended on it. Only near the rays: the simulated sensor casts
-        a fan of rays, and a small disc between two of them goes unseen, not away."""
+        """Points inside a sensor's cone nearer than its reading by `clear_margin_mm` (a too-far
+        reading: nearer than the range's maximum): nothing is there any more. A cone reports its
+        nearest echo, so anything in it nearer than the reading would have been read instead.
+        (Tried: clearing only along the simulated fan's 3 rays, as a small disc between two rays
+        goes unseen: 0.968 -> 0.943 on the bench, mover trails kept blocking routes.)"""
         cfg = self.cfg
         reach = robot_spec.RANGE_MAX_MM + _MOUNT
         th = heading_mrad / 1000.0
@@ -336,8 +336,6 @@ class ObstacleMemory:
                 continue
             rel = math.atan2(dy, dx) - th
             i = min(range(_N), key=lambda j: abs((rel - _ANG[j] + math.pi) % (2 * math.pi) - math.pi))
-            if abs((rel - _ANG[i] + math.pi) % (2 * math.pi) - math.pi) > _SECTOR_REACH:
-                continue  # between two sensors' fans
             st = status[i]
             if st == robot_spec.RANGE_VALID:
                 r = ranges_mm[i]
@@ -347,13 +345,10 @@ class ObstacleMemory:
                 continue
             a = th + _ANG[i]
             sx, sy = px - (x_mm + _MOUNT * math.cos(a)), py - (y_mm + _MOUNT * math.sin(a))
-            if math.hypot(sx, sy) >= r - cfg.clear_margin_mm:
-                continue
-            for f in _FAN:  # on one of the fan's rays (a cone between them may miss a small disc)
-                ux, uy = math.cos(a + f), math.sin(a + f)
-                if sx * ux + sy * uy > 0 and abs(sx * uy - sy * ux) <= _RAY_HALF_WIDTH_MM:
-                    out.append(key)
-                    break
+            d = math.hypot(sx, sy)
+            off = abs((math.atan2(sy, sx) - a + math.pi) % (2 * math.pi) - math.pi)
+            if off <= _HALF_FOV and d < r - cfg.clear_margin_mm:
+                out.append(key)
         return out
 
     def pin(self, now_us: int) -> None:

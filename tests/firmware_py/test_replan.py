@@ -178,18 +178,3 @@ def test_a_mover_that_steps_aside_while_the_robot_waits_ends_the_recovery():
     rows = _drive(pt, work, memory, 5, t0=10 * PERIOD)
     assert rows[-1][1] == LOCAL and rows[-1][4] == 100 and pt.global_plans == 0
 
-
-def test_only_points_on_a_ray_are_cleared_not_ones_between_the_fans_rays():
-    # the sensor casts a fan of rays (robot_spec.SENSOR_FAN_RAYS over SENSOR_FOV_MRAD): a small disc
-    # between two rays is not seen, which is not the same as not there
-    half = robot_spec.SENSOR_FOV_MRAD / 2000.0
-    mount = (1000 + robot_spec.SENSOR_MOUNT_RADIUS_MM, 1000)  # the front sensor, robot facing east
-
-    def at(angle: float, d: float = 1000.0) -> tuple[int, int]:
-        return round(mount[0] + d * math.cos(angle)), round(mount[1] + d * math.sin(angle))
-
-    between, on_ray = at(half / 2), at(half)
-    memory = ObstacleMemory(CFG)
-    _remember(memory, [between, on_ray])
-    memory.observe(OPEN, 1000, 1000, 0, *_front(0, FAR), 100_000)
-    assert set(memory.points) == {(between[0] // 50, between[1] // 50)}
