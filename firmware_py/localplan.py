@@ -239,6 +239,9 @@ class LocalPlannerConfig:
     # ... and after this many global re-plans without a route: "no route" (round r waits r x wait_us:
     # a mover in the only corridor walks off in a few seconds, a box in a door stays)
     max_rounds: int = 3
+    # a round whose wait saw more new points than this was a moving scene (a mover in the only way):
+    # it does not count toward "no route" (at most 3 x max_rounds rounds in all)
+    moving_points: int = 8
 
     @classmethod
     def from_metadata(cls, meta: Any) -> LocalPlannerConfig:
@@ -289,6 +292,7 @@ class ObstacleMemory:
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
         self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
         self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
+        self.added = 0  # points added (a new 50 mm square) since the memory began: how much moves
 
     def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                 ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], now_us: int) -> None:
@@ -302,6 +306,7 @@ class ObstacleMemory:
             key = (ex // _KEY_MM, ey // _KEY_MM)
             if key not in self.points:
                 self.version += 1
+                self.added += 1
             self.points[key] = (ex, ey, now_us)
             seen.add(key)
         old = self._seen_through(x_mm, y_mm, heading_mrad, ranges_mm, status, seen)
@@ -739,7 +744,9 @@ class PlannedTarget:
     3. No route: BACKUP `backoff_us` (the driver reverses when the rear is clear), CLEAR the
        obstacle layer (what is really there is seen again next tick), then 1. again.
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
-       (the controller reports it and ends the mission).
+       (the controller reports it and ends the mission). A round whose wait saw more than
+       `moving_points` new points was a moving scene (a mover walking in the only way) and does
+       not count, up to 3 x `max_rounds` rounds in all.
     """
 
     def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background) -> None:
@@ -755,7 +762,9 @@ class PlannedTarget:
         self.stale_ticks = 0  # ticks steered at reduced speed or stopped for want of a recent answer
         self.mode = LOCAL
         self._mode_since_us = 0
-        self._rounds = 0  # global searches without a route for this waypoint
+        self._rounds = 0  # global searches without a route for this waypoint (in a still scene)
+        self._all_rounds = 0  # ... and in all
+        self._added_at_wait = 0  # memory.added when the last wait began
         self.reverse = False  # this tick: back off (BACKUP)
         self.no_route = ""  # why the waypoint cannot be reached (NO_ROUTE), else ""
         self.global_plans = 0  # global re-plans started (telemetry / benchmarks)
@@ -771,7 +780,7 @@ class PlannedTarget:
         self._answer = None
         self._active = None
         self.detouring = False
-        self.mode, self._rounds, self.reverse, self.no_route = LOCAL, 0, False, ""
+        self.mode, self._rounds, self._all_rounds, self.reverse, self.no_route = LOCAL, 0, 0, False, ""
 
     def _enter(self, mode: str, now_us: int) -> None:
         self.mode, self._mode_since_us = mode, now_us
@@ -792,6 +801,7 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if self.mode == CLEAR:
             self._enter(WAIT, now_us)
+            self._added_at_wait = memory.added
         whole_map = self.mode == GLOBAL
         self.route_mm = math.hypot(wx - x, wy - y)
         if self.mode == LOCAL:
@@ -817,6 +827,7 @@ class PlannedTarget:
             return self._recovering(now_us, wx, wy, ans, memory)
         if ans is not None and ans.blocked:
             self._enter(WAIT, now_us)
+            self._added_at_wait = memory.added
             return float(wx), float(wy), 0
         if ans is None:
             # nothing answered for this waypoint yet (the tick it became blocked, in lockstep and the
@@ -841,7 +852,7 @@ class PlannedTarget:
                 self._enter(LOCAL, now_us)  # the way opened (a mover stepped aside)
                 self.detouring = ans.detouring
                 return ans.target[0], ans.target[1], 100
-            if now_us - self._mode_since_us >= cfg.wait_us * (self._rounds + 1):
+            if now_us - self._mode_since_us >= cfg.wait_us * min(self._all_rounds + 1, cfg.max_rounds):
                 memory.pin(now_us)
                 self.global_plans += 1
                 self._enter(GLOBAL, now_us + 1)  # the next tick asks over the whole map
@@ -851,8 +862,10 @@ class PlannedTarget:
                 self.stale_ticks += 1
             return float(wx), float(wy), 0
         if ans.no_route:
-            self._rounds += 1
-            if self._rounds >= cfg.max_rounds:
+            self._all_rounds += 1
+            if memory.added - self._added_at_wait <= cfg.moving_points:
+                self._rounds += 1  # a still scene: what closes the way stays
+            if self._rounds >= cfg.max_rounds or self._all_rounds >= 3 * cfg.max_rounds:
                 self._enter(NO_ROUTE, now_us)
                 self.no_route = f"no route to ({wx},{wy})"  # <= 50 characters with the item
             else:

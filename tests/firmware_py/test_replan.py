@@ -42,6 +42,7 @@ def _remember(memory: ObstacleMemory, points: list[tuple[int, int]], now_us: int
         key = (x // 50, y // 50)
         if key not in memory.points:
             memory.version += 1
+            memory.added += 1
         memory.points[key] = (x, y, now_us)
 
 
@@ -178,3 +179,24 @@ def test_a_mover_that_steps_aside_while_the_robot_waits_ends_the_recovery():
     rows = _drive(pt, work, memory, 5, t0=10 * PERIOD)
     assert rows[-1][1] == LOCAL and rows[-1][4] == 100 and pt.global_plans == 0
 
+
+
+def test_rounds_in_a_moving_scene_do_not_count_toward_no_route():
+    # the only door held by something that keeps moving (new points every tick, as a mover walking
+    # to and fro in it): the robot keeps waiting and re-planning longer than for a still box
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    pt = PlannedTarget(ONE_DOOR, CFG, work)
+    rows = []
+    for k in range(1400):
+        now = k * PERIOD
+        mover = (1100 + 50 * (k % 6), 1650)  # a new 50 mm square every tick, the last one seen through
+        memory.points.pop(((1100 + 50 * ((k - 1) % 6)) // 50, 1650 // 50), None)
+        _remember(memory, DOOR1 + [mover], now)
+        tx, ty, speed = pt.target(now, *BELOW, ABOVE, memory)
+        rows.append((now, pt.mode))
+        work.run_pending()
+    modes = [m for _, m in rows]
+    said = rows[modes.index(NO_ROUTE)][0]
+    still = 6 * CFG.wait_us + 2 * CFG.backoff_us  # when a still box is declared (test above)
+    assert said > 2 * still and pt.global_plans == 3 * CFG.max_rounds
