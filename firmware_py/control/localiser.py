@@ -7,13 +7,20 @@ goals with `Localiser.pose_mm()` / `goal_vector()`; the raw odometry stays
 beside it in telemetry.
 
 * **Sensor model: a likelihood field**, precomputed once per map
-  (`LikelihoodField`): for every `res_mm` square the distance to the nearest
-  occupied cell (the map's outside counts as wall: the world's outer walls),
-  turned into log(z_hit * N(d; 0, sigma) + z_floor). A reading r of sensor k
-  puts an end point at R + r along each ray of the sensor's cone (the sim's
-  and a real sensor's reading is the nearest hit in the cone, so the
-  best-fitting ray explains it); the particle's log weight is the sum over
-  valid readings of the best ray's field value (no ray casting). `z_floor` is the outlier floor: a reading that ends in free space
+  (`LikelihoodField`): for every `res_mm` square the signed distance to the
+  nearest wall surface (the map's outside counts as wall: the world's outer
+  walls; inside a wall, minus the distance to the nearest free cell), its
+  size d turned into log(z_hit * N(d; 0, sigma) + z_floor). A reading r of
+  sensor k puts an end point at R + r along each ray of the sensor's cone.
+  The sim's and a real sensor's reading is the nearest echo in the cone, so
+  no ray may end inside a wall (it would have read shorter) and the nearest
+  one should end on a surface: the reading's error is the smallest signed
+  distance over the cone's ray ends, taken by size (`cone_min`; the older
+  model took the best-fitting ray, under which a pose too near a wall, or a
+  heading up to a cone's width off, explained the readings as well as the
+  true one: HIL on trap-16x16-s1 drifted 150-600 mm even on exact
+  odometry). The particle's log weight is the sum over valid readings
+  (no ray casting). `z_floor` is the outlier floor: a reading that ends in free space
   (an obstacle the map does not know, a person, a box) costs a bounded
   amount instead of killing the particle, so unmapped obstacles degrade the
   estimate gracefully rather than break it. TOO_FAR and INVALID readings
@@ -110,6 +117,9 @@ class LocaliserConfig:
     z_floor: float = 0.15  # outlier share: readings the map cannot explain (unmapped obstacles)
     max_field_mm: float = 400.0  # distances beyond it are floor
     field_res_mm: int = 25
+    # sensor model: a reading's error is the signed distance of its cone's ray end nearest to (or deepest
+    # into) a wall (True: the cone reports its nearest echo), not the best-fitting ray's distance (False)
+    cone_min: bool = True
     beam_weight: float = 0.6  # log-likelihood multiplier: the 8 readings are not independent
     global_beam_weight: float = 0.35  # softer while localising globally, so no wrong mode wins early
     alpha_slow: float = 0.01
@@ -165,16 +175,28 @@ class LikelihoodField:
         reach = max(1, math.ceil(max_mm / c))
         table = array("f", bytes(4 * self.nx * self.ny))
         two_s2 = 2 * sigma_mm * sigma_mm
+        inside = bytearray(self.nx * self.ny)
+        signed = array("f", bytes(4 * self.nx * self.ny))  # mm to the nearest wall surface, < 0 inside a wall
         for iy in range(self.ny):
             py = (iy + 0.5) * res_mm - self.margin
             for ix in range(self.nx):
                 px = (ix + 0.5) * res_mm - self.margin
                 d = self.distance_mm(px, py, reach)
+                if d == 0.0:  # inside a wall: as far from its surface as from the nearest free space
+                    inside[iy * self.nx + ix] = 1
+                    d = self.depth_mm(px, py, reach)
                 d = min(d, max_mm)
                 table[iy * self.nx + ix] = math.log(z_hit * math.exp(-d * d / two_s2) + z_floor)
+                signed[iy * self.nx + ix] = -d if inside[iy * self.nx + ix] else d
         self.table = table
+        self.signed = signed.tolist()
+        # the cone model's lookup: by_mm[i] is the field's value at i + 0.5 mm, the middle of the
+        # distances that truncate to i (0 .. max_mm)
+        self.by_mm = [math.log(z_hit * math.exp(-(d + 0.5) ** 2 / two_s2) + z_floor) for d in range(int(max_mm) + 1)]
+        self.max_mm = int(max_mm)
         self.values = table.tolist()  # the same as a list: indexing it is faster in the weighing loop
-        # a square inside an occupied cell or off the map (distance 0) has the field's top value
+        # squares inside an occupied cell or off the map (negative information: a reading saw through a wall)
+        self.inside = inside
         self.wall = array("f", [math.log(z_hit + z_floor)])[0] - 1e-6
 
     def distance_mm(self, px: float, py: float, reach: int = 2) -> float:
@@ -200,6 +222,41 @@ class LikelihoodField:
                 if d < best:
                     best = d
         return best
+
+    def depth_mm(self, px: float, py: float, reach: int = 2) -> float:
+        """Distance from a world point inside an occupied cell or off the map to the nearest free
+        cell of the map, looking `reach` cells around (inf when there is none that near). A reading
+        ends on a wall's surface: an end point deep inside the wall (a pose too near the wall, or a
+        heading that looks into it) explains it as badly as one short of it."""
+        g = self.grid
+        c = g.cell_mm
+        col = math.floor(px / c)
+        row = g.height - 1 - math.floor(py / c)
+        best = math.inf
+        for r in range(max(0, row - reach), min(g.height - 1, row + reach) + 1):
+            y0 = (g.height - 1 - r) * c
+            dy = max(y0 - py, 0.0, py - (y0 + c))
+            for cc in range(max(0, col - reach), min(g.width - 1, col + reach) + 1):
+                if g.occupied(cc, r):
+                    continue
+                x0 = cc * c
+                d = math.hypot(max(x0 - px, 0.0, px - (x0 + c)), dy)
+                if d < best:
+                    best = d
+        return best
+
+    def signed_at(self, x_mm: float, y_mm: float) -> float:
+        """The signed distance (mm, < 0 inside a wall, capped at max_mm) at a world point; beyond the
+        raster: -max_mm (off the map)."""
+        fx = x_mm + self.margin
+        fy = y_mm + self.margin
+        if fx < 0 or fy < 0:
+            return -self.max_mm
+        ix = int(fx / self.res)
+        iy = int(fy / self.res)
+        if ix >= self.nx or iy >= self.ny:
+            return -self.max_mm
+        return self.signed[iy * self.nx + ix]
 
     def log_p(self, x_mm: float, y_mm: float) -> float:
         """The field at a world point; beyond the raster: the floor."""
@@ -351,7 +408,8 @@ class Localiser:
         cfg = self.cfg
         nh = cfg.seed_headings
         f = self.field
-        table, res, nx, ny, floor, wall = f.values, f.res, f.nx, f.ny, f.floor, f.wall
+        table, res, nx, ny, floor, inside = f.values, f.res, f.nx, f.ny, f.floor, f.inside
+        signed, by_mm, max_mm = f.signed, f.by_mm, f.max_mm
         cells = self._candidate_cells()
         if sd.readings is None:  # the readings every candidate is scored against
             sd.odom = self._odom_now
@@ -380,16 +438,23 @@ class Localiser:
                 # raster index of each direction's end point (-1: off the raster)
                 idx = [int((y + dy) / res) * nx + int((x + dx) / res)
                        if 0 <= x + dx < nx * res and 0 <= y + dy < ny * res else -1 for dx, dy in pts]
-                vals = [table[i] if i >= 0 else floor for i in idx]
-                if half:  # the best ray of the fan
-                    vals = [max(a, b, c) for a, b, c in zip(vals[-1:] + vals[:-1], vals, vals[1:] + vals[:1],
-                                                           strict=True)]
+                if cfg.cone_min:  # the fan's ray end nearest to (or deepest into) a wall, as _weigh_chunk
+                    sds = [signed[i] if i >= 0 else -max_mm for i in idx]
+                    if half:
+                        sds = [min(a, b, c) for a, b, c in zip(sds[-1:] + sds[:-1], sds, sds[1:] + sds[:1],
+                                                              strict=True)]
+                    vals = [by_mm[int(-m if m < 0 else m)] for m in sds]
+                else:
+                    vals = [table[i] if i >= 0 else floor for i in idx]
+                    if half:  # the best ray of the fan
+                        vals = [max(a, b, c) for a, b, c in zip(vals[-1:] + vals[:-1], vals, vals[1:] + vals[:1],
+                                                               strict=True)]
                 rot = vals[k0:] + vals[:k0]  # rot[j]: the direction sensor k looks along at heading j
                 tot = [t + v for t, v in zip(tot, rot, strict=True)]
             for k0, pts in probes_r:  # negative information: the sensor saw through a wall or off the map
                 idx = [int((y + dy) / res) * nx + int((x + dx) / res)
                        if 0 <= x + dx < nx * res and 0 <= y + dy < ny * res else -1 for dx, dy in pts]
-                pen = [floor if i < 0 or table[i] >= wall else 0.0 for i in idx]
+                pen = [floor if i < 0 or inside[i] else 0.0 for i in idx]
                 rot = pen[k0:] + pen[:k0]
                 tot = [t + v for t, v in zip(tot, rot, strict=True)]
             scores.extend(tot)
@@ -509,7 +574,8 @@ class Localiser:
         # each reading's end points in the robot frame, one per ray of its fan (d cos, d sin)
         beams = [tuple((d * ca, d * sa) for ca, sa in self._beams[int(k)]) for d, k in self._pending[1]]
         f = self.field
-        table, res, nx, ny, floor, mg, wall = f.values, f.res, f.nx, f.ny, f.floor, f.margin, f.wall
+        table, res, nx, ny, floor, mg, inside = f.values, f.res, f.nx, f.ny, f.floor, f.margin, f.inside
+        signed, by_mm, max_mm, cone_min = f.signed, f.by_mm, f.max_mm, cfg.cone_min
         bw = cfg.global_beam_weight if self.global_mode else cfg.beam_weight
         xs, ys, ths, lw = self.xs, self.ys, self.ths, self.lw
         probes = [(d * ca, d * sa) for d, (ca, sa) in self._probes]
@@ -530,21 +596,40 @@ class Localiser:
             x += mg  # raster coordinates (the field's margin)
             y += mg
             ll = 0.0
-            for fan in beams:
-                # the reading is the nearest hit in the sensor's cone: the best-fitting ray explains it
-                best = ninf
-                for dc, ds in fan:
-                    ex = x + c * dc - s * ds
-                    ey = y + s * dc + c * ds
-                    v = floor
-                    if ex >= 0 and ey >= 0:
-                        ix = int(ex / res)
-                        iy = int(ey / res)
-                        if ix < nx and iy < ny:
-                            v = table[iy * nx + ix]
-                    if v > best:
-                        best = v
-                ll += best
+            if cone_min:
+                for fan in beams:
+                    # the reading is the nearest hit in the sensor's cone: its error is the signed distance
+                    # of the ray end nearest to (or deepest into) a wall (a ray ending inside a wall would
+                    # have read shorter; one ending short of every wall, longer)
+                    m = max_mm
+                    for dc, ds in fan:
+                        ex = x + c * dc - s * ds
+                        ey = y + s * dc + c * ds
+                        v = -max_mm
+                        if ex >= 0 and ey >= 0:
+                            ix = int(ex / res)
+                            iy = int(ey / res)
+                            if ix < nx and iy < ny:
+                                v = signed[iy * nx + ix]
+                        if v < m:
+                            m = v
+                    ll += by_mm[int(-m if m < 0 else m)]
+            else:
+                for fan in beams:
+                    # the reading is the nearest hit in the sensor's cone: the best-fitting ray explains it
+                    best = ninf
+                    for dc, ds in fan:
+                        ex = x + c * dc - s * ds
+                        ey = y + s * dc + c * ds
+                        v = floor
+                        if ex >= 0 and ey >= 0:
+                            ix = int(ex / res)
+                            iy = int(ey / res)
+                            if ix < nx and iy < ny:
+                                v = table[iy * nx + ix]
+                        if v > best:
+                            best = v
+                    ll += best
             for dc, ds in probes:
                 ex = x + c * dc - s * ds
                 ey = y + s * dc + c * ds
@@ -553,7 +638,7 @@ class Localiser:
                     continue
                 ix = int(ex / res)
                 iy = int(ey / res)
-                if ix >= nx or iy >= ny or table[iy * nx + ix] >= wall:
+                if ix >= nx or iy >= ny or inside[iy * nx + ix]:
                     ll += floor  # the sensor saw through a wall or off the map
             lw[i] = bw * ll
         self._cursor = end
@@ -703,8 +788,12 @@ class Localiser:
                 d = self._mount + robot_spec.RANGE_MIN_MM
             else:
                 continue
-            total += max(self.field.log_p(x_mm + d * (c * ca - s * sa), y_mm + d * (s * ca + c * sa))
-                         for ca, sa in self._beams[k])
+            ends = [(x_mm + d * (c * ca - s * sa), y_mm + d * (s * ca + c * sa)) for ca, sa in self._beams[k]]
+            if self.cfg.cone_min:
+                m = min(self.field.signed_at(ex, ey) for ex, ey in ends)
+                total += self.field.by_mm[int(abs(m))]
+            else:
+                total += max(self.field.log_p(ex, ey) for ex, ey in ends)
         return self.cfg.beam_weight * total
 
     # --- the pose ----------------------------------------------------------------------

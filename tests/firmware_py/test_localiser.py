@@ -78,33 +78,52 @@ def test_distances_by_hand(block):
     assert block.distance_mm(750, 750) == 0.0  # inside the block
     assert block.distance_mm(-10, 750) == 0.0  # inside the outer wall
     assert block.distance_mm(250, 1400) == pytest.approx(100.0)  # 100 below the north wall
+    assert block.depth_mm(750, 760) == pytest.approx(240.0)  # inside the block: to its nearest face
+    assert block.depth_mm(-10, 750) == pytest.approx(10.0)  # 10 into the outer wall
+    assert block.depth_mm(-30, -40) == pytest.approx(50.0)  # off the map's corner
 
 
 def test_field_values_by_hand(block):
     # raster squares are 25 mm; (387.5, 787.5) is the centre of the square holding (380, 780): 112.5 mm
     assert block.log_p(380, 780) == pytest.approx(value(112.5), abs=1e-6)
-    assert block.log_p(750, 750) == pytest.approx(value(0.0), abs=1e-6)  # log(z_hit + z_floor) = 0
-    assert block.log_p(750, 750) == pytest.approx(0.0, abs=1e-6)
+    # on a wall's surface the field's top value, log(z_hit + z_floor) = 0; inside a wall it falls off with
+    # the depth as it does with the distance outside (a reading ends on the surface): the square holding
+    # (510, 750) is centred 12.5 mm inside the block, (750, 750)'s 237.5 mm; (-10, 750)'s 12.5 mm into the
+    # outer wall
+    assert block.log_p(510, 750) == pytest.approx(value(12.5), abs=1e-6)
+    assert block.log_p(750, 750) == pytest.approx(value(237.5), abs=1e-6)
+    assert block.log_p(-10, 750) == pytest.approx(value(12.5), abs=1e-6)
+    assert value(0.0) == pytest.approx(0.0, abs=1e-6)
+    assert block.signed_at(380, 780) == pytest.approx(112.5) and block.signed_at(750, 750) == pytest.approx(-237.5)
     # far from everything (capped at 400 mm) and beyond the raster: the outlier floor
     assert block.log_p(-1000, 750) == pytest.approx(math.log(Z_FLOOR))
 
 
 def test_one_reading_by_hand():
     """One 500 mm cell, robot at its centre heading east: only the front
-    sensor reads. 100 mm: the end point (150 + 100 = 250 mm) is on the east
-    wall; 50 mm: it is 50 mm short, at (450, 250): its 25 mm raster square is
-    centred on (462.5, 262.5), 37.5 mm from the east wall; the cone's side
-    rays (+-131 mrad) end in squares centred 62.5 mm from it, so the centre
-    ray explains the reading best."""
+    sensor reads. The cone reports its nearest echo, so the reading's error
+    is the signed distance of the ray end nearest to (or deepest into) a
+    wall. 100 mm: the centre ray's end point (150 + 100 = 250 mm) is on the
+    east wall, in the 25 mm raster square centred 12.5 mm inside it (the side
+    rays, +-131 mrad, end 12.5 mm short of it): 12.5 mm off. 50 mm: 50 mm
+    short, at (450, 250): its square is centred on (462.5, 262.5), 37.5 mm
+    from the east wall, the side rays' 62.5 mm: 37.5 mm off. The best-ray
+    model (cone_min=False) takes the wall's square as a hit."""
     cfg = LocaliserConfig(sigma_hit_mm=SIGMA, z_hit=Z_HIT, z_floor=Z_FLOOR, field_res_mm=25, beam_weight=0.6)
     loc = Localiser(grid_from_rows(["."], 500), cfg)
     status = [robot_spec.RANGE_INVALID] * robot_spec.SENSOR_COUNT
     ranges = [0] * robot_spec.SENSOR_COUNT
     status[0] = robot_spec.RANGE_VALID
     ranges[0] = 100
-    assert loc.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.0, abs=1e-6)
+    assert loc.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(12.5), abs=1e-6)
     ranges[0] = 50
     assert loc.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(37.5), abs=1e-6)
+    ranges[0] = 400  # 300 mm through the wall: the centre ray ends deepest, in the square 312.5 mm inside
+    assert loc.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(312.5), abs=1e-6)
+    best = Localiser(grid_from_rows(["."], 500), LocaliserConfig(sigma_hit_mm=SIGMA, z_hit=Z_HIT, z_floor=Z_FLOOR,
+                                                                 field_res_mm=25, cone_min=False))
+    ranges[0] = 50
+    assert best.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(37.5), abs=1e-6)
     # TOO_FAR and INVALID readings carry no end point
     status[0] = robot_spec.RANGE_TOO_FAR
     assert loc.log_likelihood(250, 250, 0.0, ranges, status) == 0.0
