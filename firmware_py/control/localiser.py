@@ -601,11 +601,11 @@ class Localiser:
                     # the reading is the nearest hit in the sensor's cone: its error is the signed distance
                     # of the ray end nearest to (or deepest into) a wall (a ray ending inside a wall would
                     # have read shorter; one ending short of every wall, longer)
-                    m = max_mm
+                    m = float(max_mm)
                     for dc, ds in fan:
                         ex = x + c * dc - s * ds
                         ey = y + s * dc + c * ds
-                        v = -max_mm
+                        v = float(-max_mm)
                         if ex >= 0 and ey >= 0:
                             ix = int(ex / res)
                             iy = int(ey / res)
