@@ -768,6 +768,8 @@ class PlannedTarget:
         self.reverse = False  # this tick: back off (BACKUP)
         self.no_route = ""  # why the waypoint cannot be reached (NO_ROUTE), else ""
         self.global_plans = 0  # global re-plans started (telemetry / benchmarks)
+        self.routes_taken = 0  # whole-map routes taken (the first answer of a round with a route)
+        self._round_taken = 0
         self.route_mm = 0.0  # the latest answer's planned way to the waypoint (benchmarks' progress)
 
     @property
@@ -873,6 +875,9 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         self.detouring = ans.detouring
         self.route_mm = ans.route_mm
+        if self._round_taken != self.global_plans:  # the first route of this round of recoveries
+            self._round_taken = self.global_plans
+            self.routes_taken += 1
         age = now_us - ans.asked_us
         speed = 100 if age <= PLAN_SLOW_US else 50 if age <= PLAN_STOP_US else 0
         if speed < 100:

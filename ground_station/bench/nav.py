@@ -80,8 +80,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
                    help="the learnt sector policy (.qtab or policies:NAME; default %(default)s)")
     p.add_argument("--controllers", default=None,
-                   help="comma-separated subset of learnt,seek,vfh,direct,seek_local (default: the first four, "
-                        "and seek_local when the policy steers on the robot's local planner)")
+                   help="comma-separated subset of learnt,seek,vfh,direct,seek_local,vfh_local (default: the "
+                        "first four, and seek_local and vfh_local when the policy steers on the robot's local "
+                        "planner); a sector-memory policy: learnt,rule")
     p.add_argument("--json", metavar="FILE",
                    help="write the result as JSON (depends only on the seeded episodes: the same on every engine; "
                         "timings and where the jobs ran go to FILE's sibling *.campaign.json)")

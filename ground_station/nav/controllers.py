@@ -16,7 +16,9 @@ row -> action), so every controller also runs in HIL as an exported
   goal's bearing alone (no waypoints);
 * `seek_local` (only with a learnt policy that carries local-planner
   parameters): the seek table steering on the same local planner's targets,
-  i.e. what the planner alone is worth without the learnt table.
+  i.e. what the planner alone is worth without the learnt table;
+* `vfh_local` (likewise): the VFH table on the same local planner, its
+  re-planning and motion guard: a reactive follower on the same targets.
 
 A learnt policy with `local_planner` metadata (`firmware_py.localplan`)
 steers on the robot's local planner: `NavController.local` holds its
@@ -49,7 +51,7 @@ from ground_station.learn.sector.evaluate import seek_table
 
 FORWARD, LEFT, RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
 CONTROLLER_NAMES = ("learnt", "seek", "vfh", "direct")
-EXTRA_CONTROLLERS = ("seek_local",)  # on request (--controllers), or by default with a local planner
+EXTRA_CONTROLLERS = ("seek_local", "vfh_local")  # on request (--controllers), or by default with a local planner
 
 
 @dataclass
@@ -194,7 +196,7 @@ def kind_controllers(policy: Policy, names: tuple[str, ...] | None = None) -> li
 
 
 def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAMES) -> list[NavController]:
-    """learnt / seek / vfh / direct (and seek_local) on the learnt policy's encoder."""
+    """learnt / seek / vfh / direct (and seek_local, vfh_local) on the learnt policy's encoder."""
     if policy.kind != "sector":
         raise ValueError(f"bench nav needs a sector policy or a sector-memory policy, got a {policy.kind} policy")
     known = CONTROLLER_NAMES + EXTRA_CONTROLLERS
@@ -206,6 +208,8 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
     local = policy.local_planner
     make = {
         "learnt": lambda: NavController("learnt", enc, q, "path", local),
+        "vfh_local": lambda: NavController("vfh_local", enc, vfh_table(enc), "path",
+                                           local or LocalPlannerConfig()),
         "seek_local": lambda: NavController("seek_local", enc, seek_table(enc), "path",
                                             local or LocalPlannerConfig()),
         "seek": lambda: NavController("seek", enc, seek_table(enc), "path"),

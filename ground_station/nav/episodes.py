@@ -134,12 +134,13 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
             layer = ObstacleLayer(rig.plant.world, ep.discs, ep.movers)
             rig.plant.obstacles = layer  # movers move at the end of every period, as in the twin
             end_us = round(limit * 1e6)
+            cap_us = 3 * end_us
             last = rig.plant.world.pose
-            route_plans = -1
+            route_plans = 0
             while rig.plant.time_us < end_us and not rig.runner.done.is_set():
                 rig.tick()
                 if max_sim_s is None:  # the budget is the current plan's, as in the twin (nav.planned)
-                    end_us, route_plans = _rebase_budget(rig, end_us, route_plans)
+                    end_us, route_plans = _rebase_budget(rig, end_us, route_plans, cap_us)
                 pose = rig.plant.world.pose
                 driven += math.hypot(pose.x - last.x, pose.y - last.y) * 1000.0
                 last = pose
@@ -169,19 +170,18 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
     return rows
 
 
-def _rebase_budget(rig: Any, end_us: int, route_plans: int) -> tuple[int, int]:
-    """When the robot's sector planner takes a new whole-map route (a detour through another door),
-    the episode's sim-time budget becomes at least that route's own (BUDGET_BASE + BUDGET_FACTOR x its
-    length in forward periods, from now). Returns (end_us, the planner's search count seen)."""
-    from firmware_py.localplan import GLOBAL
-
+def _rebase_budget(rig: Any, end_us: int, routes: int, cap_us: int) -> tuple[int, int]:
+    """When the robot's sector planner takes a new whole-map route (a detour through another door;
+    the first route of a round of recoveries), the episode's sim-time budget becomes at least that
+    route's own (BUDGET_BASE + BUDGET_FACTOR x its length in forward periods, from now), at most
+    `cap_us`. Returns (end_us, the planner's routes_taken seen)."""
     local = getattr(rig.ctrl.driver, "local", None)
-    if local is None or local[0].mode != GLOBAL or local[0].plans == route_plans:
-        return end_us, route_plans
+    if local is None or local[0].routes_taken == routes:
+        return end_us, routes
     planner = local[0]
     fwd = max(v for v, _ in robot_spec.ACTION_WHEEL_SPEEDS_MM_S) * PERIOD_S
     periods = BUDGET_BASE + BUDGET_FACTOR * planner.route_mm / fwd
-    return max(end_us, rig.plant.time_us + round(periods * PERIOD_S * 1e6)), planner.plans
+    return min(cap_us, max(end_us, rig.plant.time_us + round(periods * PERIOD_S * 1e6))), planner.routes_taken
 
 
 def run_job(job: dict) -> list[dict]:

@@ -20,8 +20,9 @@ reports it and holds). Budget, loop rule, near misses and outcomes are
 `nav_eval_kernel`'s, so its rows sit beside the other controllers' in
 `qnav bench nav`, except that progress, and the period budget, are measured
 along the robot's current plan while it follows a whole-map route (a detour
-through another door first leads away from the waypoint; a new route starts
-a new count and a budget for its own length).
+through another door first leads away from the waypoint; the first route of
+each round of recoveries starts a new count and a budget for its own length,
+up to three times the episode's).
 """
 
 from __future__ import annotations
@@ -87,7 +88,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     outcome = TIMEOUT
     minclear = float(obstacle_clearance_mm(x, y, discs, movers))
     sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
-    route_plans = -1  # the planner's search count when its global route was last taken as the plan
+    route_plans = 0  # PlannedTarget.routes_taken when the current plan's count began
+    budget0 = budget
     while t < budget:
         xm, ym, thm = round(x), round(y), round(th * 1000.0)
         rl, sl = ranges.tolist(), status.tolist()
@@ -119,16 +121,17 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             break
         if k != k0:
             planner.reset()
-            route_plans = -1
         if planner.mode == GLOBAL and not success:
             # progress along the robot's current plan: its global route (a detour through another
             # door first leads away from the waypoint) plus the waypoints after it; a new route (the
             # search count when this tick's answer was made) is a new plan, measured from where it starts
             phi = planner.route_mm + float(rem[k])
-            if planner.plans != route_plans:
-                route_plans, best, since = planner.plans, phi, 0
-                # the budget too is the current plan's: a long detour through another door is no timeout
-                budget = max(budget, t + int(budget_base + budget_factor * phi / FWD_MM_PER_PERIOD))
+            if planner.routes_taken != route_plans:
+                route_plans, best, since = planner.routes_taken, phi, 0
+                # the budget too is the current plan's (a long detour through another door is no
+                # timeout), at most three times the episode's own
+                budget = min(max(budget, t + int(budget_base + budget_factor * phi / FWD_MM_PER_PERIOD)),
+                             3 * budget0)
         work.run_pending()  # after the count above: the search it runs answers the next tick
         end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since, stall_steps,
                                                       minclear, near)
