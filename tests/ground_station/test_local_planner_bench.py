@@ -47,6 +47,9 @@ def test_planner_gets_round_discs_the_plain_table_stalls_at():
     assert len(eps) == 12
     plain, planned, seek_local = _controllers()
     assert seek_local.local == LocalPlannerConfig() and seek_local.encoder == plain.encoder
+    # the VFH follower on the same planner: the VFH table, the planner's parameters
+    [vfh] = nc.standard_controllers(load_policy(shipped_policy("sector")), ("vfh_local",))
+    assert vfh.local == LocalPlannerConfig() and (vfh.q == nc.vfh_table(plain.encoder)).all()
     p = sum(r["success"] for r in run_twin(eps, {"paper10": gm}, plain))
     lp = sum(r["success"] for r in run_twin(eps, {"paper10": gm}, planned))
     assert lp >= p + 4, (p, lp)

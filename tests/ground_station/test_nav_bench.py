@@ -107,7 +107,7 @@ def _qnav(*argv: str) -> tuple[int, str]:
 def test_bench_nav_contract_table_json_png(tmp_path):
     js = tmp_path / "nav.json"
     code, out = _qnav("bench", "nav", "--map", "paper10", "--map", "rooms-16x16-s1", "--episodes", "12",
-                      "--obstacles", "2", "--movers", "1", "--json", str(js))
+                      "--obstacles", "2", "--movers", "1", "--controllers", "learnt,seek,vfh,direct", "--json", str(js))
     assert code == 0, out
     assert "twin learnt" in out and "twin vfh" in out and "paper10 seek" in out
     d = json.loads(js.read_text())
