@@ -84,6 +84,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
@@ -112,42 +113,28 @@ _MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
 _HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
 
 
-def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
-    """An occupied cell (or the outside of the grid: the world's outer walls)
-    has a point within m mm of the point (x, y) mm (integers only)."""
+def _walls_near(grid: OccupancyGrid, x: int, y: int, m: int) -> Iterator[tuple[int, int]]:
+    """(dx, dy) mm from the point (x, y) to each occupied cell (or the outside of the grid: the
+    world's outer walls) whose square may lie within m mm (integers only; 0 along an axis inside)."""
     c = grid.cell_mm
     top = grid.height * c
     for row in range((top - (y + m)) // c, (top - (y - m)) // c + 1):
         ylo = top - (row + 1) * c
         dy = ylo - y if y < ylo else (y - ylo - c if y > ylo + c else 0)
         for col in range((x - m) // c, (x + m) // c + 1):
-            if not grid.occupied(col, row):
-                continue
-            xlo = col * c
-            dx = xlo - x if x < xlo else (x - xlo - c if x > xlo + c else 0)
-            if dx * dx + dy * dy <= m * m:
-                return True
-    return False
+            if grid.occupied(col, row):
+                xlo = col * c
+                yield (xlo - x if x < xlo else (x - xlo - c if x > xlo + c else 0)), dy
+
+
+def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
+    """An occupied cell (or the outside of the grid) has a point within m mm of the point (x, y) mm."""
+    return any(dx * dx + dy * dy <= m * m for dx, dy in _walls_near(grid, x, y, m))
 
 
 def _wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:
-    """Distance (mm) from the point to the nearest occupied cell (or the outside of the grid), capped
-    at m: `_wall_within`'s cells, measured."""
-    c = grid.cell_mm
-    top = grid.height * c
-    best = float(m)
-    for row in range((top - (y + m)) // c, (top - (y - m)) // c + 1):
-        ylo = top - (row + 1) * c
-        dy = ylo - y if y < ylo else (y - ylo - c if y > ylo + c else 0)
-        for col in range((x - m) // c, (x + m) // c + 1):
-            if not grid.occupied(col, row):
-                continue
-            xlo = col * c
-            dx = xlo - x if x < xlo else (x - xlo - c if x > xlo + c else 0)
-            d = math.hypot(dx, dy)
-            if d < best:
-                best = d
-    return best
+    """Distance (mm) from the point to the nearest occupied cell (or the outside of the grid), capped at m."""
+    return min([float(m), *(math.hypot(dx, dy) for dx, dy in _walls_near(grid, x, y, m))])
 
 
 def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
@@ -840,10 +827,15 @@ class PlannedTarget:
             self.detouring = ans.detouring
             age, (tx, ty) = now_us - ans.asked_us, ans.target
             self.route_mm = ans.route_mm
-        speed = 100 if age <= PLAN_SLOW_US else 50 if age <= PLAN_STOP_US else 0
+        return tx, ty, self._speed(age)
+
+    def _speed(self, age_us: int) -> int:
+        """Full speed while the answer steered by is at most PLAN_SLOW_US old, half up to PLAN_STOP_US,
+        then none (counted as stale ticks)."""
+        speed = 100 if age_us <= PLAN_SLOW_US else 50 if age_us <= PLAN_STOP_US else 0
         if speed < 100:
             self.stale_ticks += 1
-        return tx, ty, speed
+        return speed
 
     def _recovering(self, now_us: int, wx: int, wy: int, ans: PlanAnswer | None,
                     memory: ObstacleMemory) -> tuple[float, float, int]:
@@ -878,11 +870,7 @@ class PlannedTarget:
         if self._round_taken != self.global_plans:  # the first route of this round of recoveries
             self._round_taken = self.global_plans
             self.routes_taken += 1
-        age = now_us - ans.asked_us
-        speed = 100 if age <= PLAN_SLOW_US else 50 if age <= PLAN_STOP_US else 0
-        if speed < 100:
-            self.stale_ticks += 1
-        return ans.target[0], ans.target[1], speed
+        return ans.target[0], ans.target[1], self._speed(now_us - ans.asked_us)
 
     def _solve(self, generation: int, asked_us: int, x: float, y: float, waypoint: tuple[int, int],
                memory: ObstacleMemory, whole_map: bool = False) -> None:
@@ -948,6 +936,19 @@ class MotionGuard:
             self.vetoes += 1
             return TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
         return action
+
+    def step(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
+             ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+             memory: ObstacleMemory, planner: PlannedTarget, speed: int) -> tuple[int, int]:
+        """(action, speed %) after the guard and the planner's recoveries, as the robot's sector kind
+        and the twin's bench both take them: a planned stand-still is not 'stuck', and a recovery's
+        back-off reverses at full speed while the rear is clear."""
+        if speed == 0:
+            self.still(now_us)
+        action = self.action(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, planner.detouring)
+        if planner.reverse and self.rear_clear(ranges_mm, status):
+            return REVERSE, 100
+        return action, speed
 
     def still(self, now_us: int) -> None:
         """The planner holds the robot still on purpose (a recovery's wait): not stuck."""

@@ -26,13 +26,7 @@ from firmware_py.kinds.base import (
     Unpacked,
     wheel_actions,
 )
-from firmware_py.localplan import (
-    REVERSE,
-    MotionGuard,
-    ObstacleMemory,
-    PlannedTarget,
-    unmapped_readings,
-)
+from firmware_py.localplan import MotionGuard, ObstacleMemory, PlannedTarget, unmapped_readings
 
 _HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 
@@ -93,14 +87,10 @@ class SectorDriver(KindDriver):
         if self.local is not None:
             planner, memory, guard = self.local
             x, y, _ = tick.pose_mm
-            if speed == 0:
-                guard.still(tick.now_us)
-            a = guard.action(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status, memory,
-                             planner.detouring)
+            a, speed = guard.step(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status, memory,
+                                  planner, speed)
             if planner.no_route:
                 return Decision((0, 0), self.decided(s, a), target, no_route=planner.no_route)
-            if planner.reverse and guard.rear_clear(tick.ranges_mm, tick.range_status):
-                a, speed = REVERSE, 100  # a recovery's back-off (PlannedTarget)
         left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]
         return Decision((left * speed // 100, right * speed // 100), self.decided(s, a), target)
 

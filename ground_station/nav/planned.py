@@ -33,7 +33,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
-from firmware_py.localplan import GLOBAL, REVERSE, MotionGuard, ObstacleMemory, PlannedTarget
+from firmware_py.localplan import GLOBAL, MotionGuard, ObstacleMemory, PlannedTarget
 from firmware_py.mapdata import grid_from_rows
 from ground_station.learn.sector.obstacles import (
     COLLISION,
@@ -100,12 +100,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             break
         b = bearing_mrad(x, y, th, tx, ty)
         s = encode_fast(b, ranges, status, sectors, sensors, edges)
-        if speed == 0:
-            guard.still(t * PERIOD_US)
-        a = guard.action(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory, planner.detouring)
+        a, speed = guard.step(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory, planner, speed)
         k0 = k
-        if planner.reverse and guard.rear_clear(rl, sl):
-            a, speed = REVERSE, 100  # a recovery's back-off (PlannedTarget)
         if speed == 0:  # a recovery stands still: the movers walk on, the sensors read
             step_movers(movers, occ, c, discs, x, y, RADIUS_MM, PERIOD_S)
             sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)

@@ -332,6 +332,17 @@ def make_episode(gridmap: GridMap, start: tuple[int, int], goal: tuple[int, int]
                    goal_mm=(gx, gy), waypoints=wps, discs=discs, movers=walkers, seed=int(seed))
 
 
+def _draw_pair(rng: np.random.Generator, cells: list, min_cells: float
+               ) -> tuple[tuple[int, int], tuple[int, int], float] | None:
+    """One draw of (start cell, goal cell, heading) as every episode list makes it (None: the cells
+    are nearer than min_cells in a straight line; the heading is then not drawn)."""
+    a, b = rng.choice(len(cells), size=2, replace=False)
+    s, g = cells[int(a)], cells[int(b)]
+    if math.hypot(s[0] - g[0], s[1] - g[1]) < min_cells:
+        return None
+    return s, g, float(rng.uniform(-math.pi, math.pi))
+
+
 def episodes(gridmap: GridMap, n: int, seed: int, k: int, m: int, plan_kw: dict | None = None,
              min_cells: float = 3.0, movers: MoverStyle | None = None) -> list[Episode]:
     """n seeded episodes on gridmap: random connected (start, goal) free cells
@@ -346,11 +357,10 @@ def episodes(gridmap: GridMap, n: int, seed: int, k: int, m: int, plan_kw: dict 
         attempts += 1
         if attempts > 50 * n + 100:
             raise MapError(f"map {gridmap.name}: cannot draw {n} connected start/goal pairs")
-        a, b = rng.choice(len(cells), size=2, replace=False)
-        s, g = cells[int(a)], cells[int(b)]
-        if math.hypot(s[0] - g[0], s[1] - g[1]) < min_cells:
+        pair = _draw_pair(rng, cells, min_cells)
+        if pair is None:
             continue
-        heading = float(rng.uniform(-math.pi, math.pi))
+        s, g, heading = pair
         try:
             ep = make_episode(gridmap, s, g, heading, k, m, seed=int(seed) * 1_000_003 + len(out), plan_kw=plan_kw,
                               movers=movers)
@@ -515,11 +525,10 @@ def blocked_episodes(gridmap: GridMap, n: int, seed: int, want_detour: bool | No
         if attempts > limit or (not out and attempts > limit_none) or len(cells) < 2:
             raise MapError(f"map {gridmap.name}: only {len(out)} of {n} blocked-passage episodes "
                            f"{_label_name(want_detour)} in {attempts - 1} start/goal draws")
-        a, b = rng.choice(len(cells), size=2, replace=False)
-        s, g = cells[int(a)], cells[int(b)]
-        if math.hypot(s[0] - g[0], s[1] - g[1]) < min_cells:
+        pair = _draw_pair(rng, cells, min_cells)
+        if pair is None:
             continue
-        heading = float(rng.uniform(-math.pi, math.pi))
+        s, g, heading = pair
         try:
             wps = [(float(x), float(y)) for x, y in plan_waypoints(gridmap, s, g, **(plan_kw or {}))]
         except MapError:
