@@ -21,7 +21,11 @@ Then the step's compute with the policy's own work in it (issue 29):
 the cell policy on paper10 trips and for `--nav-policy` (default the shipped
 sector policy, its local planner on) on the navigation scenario with
 `--obstacles` discs and `--movers` movers, pooled over `--episodes` each:
-p50 / p99 / max side by side, and the ratio of the p99s. The local
+p50 / p99 / max side by side, and the ratio of the p99s; beside them the
+same policy with its planner off (no obstacle layer, no plan read) on the
+same number of trips without discs or movers (without its planner the robot
+stalls at a disc, and a standing robot's localiser idles): the baseline for
+what the planner costs the tick. The local
 planner's search is not in those figures: it runs between ticks
 (firmware_py.background); its CPU per tick and its longest job are
 reported beside them.
@@ -46,7 +50,13 @@ import argparse
 import json
 import tempfile
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from firmware_py.policy import Policy
+    from ground_station.nav.controllers import BenchController
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -82,6 +92,26 @@ def _pcts(values: list[float]) -> dict[str, float]:
     return {"p50_us": _pct(v, 0.5), "p99_us": _pct(v, 0.99), "max_us": v[-1], "ticks": len(v)}
 
 
+@dataclass
+class PlannerOff:
+    """A bench controller's policy with its local planner removed (map and localiser kept)."""
+
+    inner: BenchController
+    name: str = "planner off"
+    twin: bool = False
+
+    @property
+    def guidance(self) -> str:
+        return self.inner.guidance
+
+    @property
+    def local(self) -> None:
+        return None
+
+    def policy(self, map_name: str = "") -> Policy:
+        return replace(self.inner.policy(map_name), local_planner=None)
+
+
 def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, seed: int = 0) -> dict:
     """Controller.step CPU per tick on the lockstep rig: the cell policy on paper10
     far trips vs `nav_policy` on scenario episodes with obstacles (module doc)."""
@@ -107,15 +137,25 @@ def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, se
     eps = nav_episodes(gm, episodes, seed, obstacles, movers, plan_kw=guidance_from_metadata(pol.metadata))
     rows = run_hil(eps, {gm.name: gm}, ctrl, step_cpu=True)
     nav_cpu = [v for r in rows for v in r["step_cpu_us"]]
-    cell_p, nav_p = _pcts(cell_cpu), _pcts(nav_cpu)
+    # The step without the planner: the same policy, map and localiser, its local planner
+    # off (no obstacle layer, no plan to read), on the scenario's trips without discs or
+    # movers: without a planner the robot stalls at the first disc, and a standing robot's
+    # localiser has nothing to do, which would flatter the ratio.
+    bare = PlannerOff(ctrl)
+    clear = nav_episodes(gm, episodes, seed, 0, 0, plan_kw=guidance_from_metadata(pol.metadata))
+    bare_rows = run_hil(clear, {gm.name: gm}, bare, step_cpu=True)
+    bare_cpu = [v for r in bare_rows for v in r["step_cpu_us"]]
+    cell_p, nav_p, bare_p = _pcts(cell_cpu), _pcts(nav_cpu), _pcts(bare_cpu)
     off_tick = {"background_cpu_us_per_tick": sum(r["background_cpu_us"] for r in rows) / max(len(nav_cpu), 1),
                 "background_runs": sum(r["background_runs"] for r in rows),
                 "background_max_us": max((r["background_max_us"] for r in rows), default=0.0)}
     return {"cell": {"policy": "policies:paper10_cell", **cell_p},
             "nav": {"policy": nav_policy, "obstacles": obstacles, "movers": movers,
                     "outcomes": [r["outcome"] for r in rows], **nav_p, **off_tick},
+            "nav_planner_off": {"policy": nav_policy, "outcomes": [r["outcome"] for r in bare_rows], **bare_p},
             "episodes": episodes, "seed": seed, "map": gm.name, "localiser": "on (the policies' map)",
-            "nav_over_cell_p99": nav_p["p99_us"] / max(cell_p["p99_us"], 1e-9)}
+            "nav_over_cell_p99": nav_p["p99_us"] / max(cell_p["p99_us"], 1e-9),
+            "planner_on_over_off_p99": nav_p["p99_us"] / max(bare_p["p99_us"], 1e-9)}
 
 
 def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
@@ -303,12 +343,15 @@ def run(args: argparse.Namespace) -> int:
 
         sc = step_compute(str(_resolve(args.nav_policy)), args.episodes, args.obstacles, args.movers)
         result["step_compute"] = sc
-        for key, label in (("cell", "cell policy, paper10 trips"),
-                           ("nav", f"{Path(args.nav_policy).name} + {args.obstacles} discs + {args.movers} movers")):
+        scene = f"{Path(args.nav_policy).name} + {args.obstacles} discs + {args.movers} movers"
+        for key, label in (("cell", "cell policy, paper10 trips"), ("nav", scene),
+                           ("nav_planner_off", f"{Path(args.nav_policy).name}, planner off, no discs or movers")):
             v = sc[key]
             rows.append((f"[step compute, lockstep, localiser on] {label}: p50 / p99 / max us ({v['ticks']} ticks)",
                          f"{v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}"))
         rows.append(("[step compute] p99 with obstacles / cell p99", round(sc["nav_over_cell_p99"], 2)))
+        rows.append(("[step compute] p99 planner on / planner off",
+                     round(sc["planner_on_over_off_p99"], 2)))
         v = sc["nav"]
         rows.append(("[off the tick] planner search CPU per tick mean / longest job us (jobs)",
                      f"{v['background_cpu_us_per_tick']:.0f} / {v['background_max_us']:.0f} ({v['background_runs']})"))

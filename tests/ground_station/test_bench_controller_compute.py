@@ -5,16 +5,29 @@ benchmark's to report, never a test's to judge."""
 from __future__ import annotations
 
 from firmware_py.shipped_policies import resolve_policy_spec
-from ground_station.bench.controller import _pcts, step_compute
+from firmware_py.policy import load_policy
+from ground_station.bench.controller import PlannerOff, _pcts, step_compute
+from ground_station.nav.controllers import standard_controllers
 
 
 def test_step_compute_runs_the_cell_and_the_sector_policy_with_obstacles():
     r = step_compute(str(resolve_policy_spec("policies:sector")), 1, 3, 2)
     assert r["cell"]["ticks"] > 100 and r["nav"]["ticks"] > 100
     assert r["nav"]["obstacles"] == 3 and r["nav"]["movers"] == 2 and len(r["nav"]["outcomes"]) == 1
-    for side in ("cell", "nav"):
+    for side in ("cell", "nav", "nav_planner_off"):
         assert 0 < r[side]["p50_us"] <= r[side]["p99_us"] <= r[side]["max_us"]
     assert r["nav_over_cell_p99"] == r["nav"]["p99_us"] / r["cell"]["p99_us"]
+    assert r["nav_planner_off"]["ticks"] > 100 and len(r["nav_planner_off"]["outcomes"]) == 1
+    assert r["planner_on_over_off_p99"] == r["nav"]["p99_us"] / r["nav_planner_off"]["p99_us"]
+    assert r["nav"]["background_runs"] > 0  # the planner did search (between ticks)
+
+
+def test_the_planner_off_baseline_keeps_the_map_and_drops_the_planner():
+    learnt = standard_controllers(load_policy(str(resolve_policy_spec("policies:sector"))), ("learnt",))[0]
+    on, off = learnt.policy("paper10"), PlannerOff(learnt).policy("paper10")
+    assert on.local_planner is not None and off.local_planner is None
+    assert off.map_grid is not None and off.map_grid == on.map_grid  # the localiser still runs
+    assert off.table == on.table
 
 
 def test_percentiles_of_a_known_list():
