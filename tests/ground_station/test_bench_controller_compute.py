@@ -4,8 +4,8 @@ benchmark's to report, never a test's to judge."""
 
 from __future__ import annotations
 
-from firmware_py.shipped_policies import resolve_policy_spec
 from firmware_py.policy import load_policy
+from firmware_py.shipped_policies import resolve_policy_spec
 from ground_station.bench.controller import PlannerOff, _pcts, step_compute
 from ground_station.nav.controllers import standard_controllers
 
