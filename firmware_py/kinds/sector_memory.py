@@ -13,6 +13,7 @@ from typing import cast
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
+from firmware_py.cellroute import CellRoute, straight_subgoal
 from firmware_py.control.odometry import wrap_mrad
 from firmware_py.gridbug import (
     DIR_HEADING_MRAD,
@@ -31,6 +32,10 @@ _HEAD = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearin
 # episodes), then decide with it counted as blocked
 GRID_INVALID_RETRY_TICKS = 10
 WALLED_US = 20_000_000  # how long a move the collision monitor held counts as walled (a mover may leave)
+# decisions the Bug gets to reach a route sub-goal: twice the straight run plus this many (a disc the map
+# does not show costs the Bug ~6-10 moves round it); after that the Bug steers on the goal itself for the
+# rest of the drive (something the map does not show closes the route: the plain Bug is complete)
+SUBGOAL_SLACK_MOVES = 12
 
 
 def unpack(sec: bytes, n_actions: int, _expect_sensors: int) -> Unpacked:
@@ -54,11 +59,18 @@ def pack(enc: GridBugEncoder, _goals: Goals, _cell_mm: int) -> bytes:
 
 
 class SectorMemoryDriver(CellStepper):
-    """The Bug memory of the current goal and drive, and the cell step it decides."""
+    """The Bug memory of the current goal and drive, and the cell step it decides. On a robot with a
+    map (of the policy's cell size) the Bug steers on sub-goals along the map's route to the goal
+    (firmware_py.cellroute), its memory restarted at each; without one, on the goal."""
 
     def __init__(self, policy: Policy, work: Background | None = None) -> None:
         super().__init__(policy, work)
         self.memory = GridBugMemory()
+        self.route = CellRoute(self.work)
+        self.subgoal: tuple[int, int] | None = None  # map cell the Bug steers for (None: the goal)
+        self._sub_moves = 0  # decisions taken toward it
+        self._sub_budget = 0
+        self._unguided = False  # a sub-goal was not reached: the goal itself for the rest of the drive
         self._key: tuple[tuple[int, int], int] | None = None
         self._invalid_ticks = 0  # ticks waited for valid axis readings at this decision
         self._invalid_at = -1
@@ -90,6 +102,7 @@ class SectorMemoryDriver(CellStepper):
             self.memory.reset(grid_dir_of(heading))
             self._key = tick.drive_key
             self._walled.clear()
+            self.subgoal, self._unguided = None, False
         if abs(centre[0] - x) + abs(centre[1] - y) > 2 * ARRIVE_TOLERANCE_MM:
             return Step(centre, wrap_mrad(heading + tick.goal_vector(*centre)[1]))
         physical = grid_dir_of(heading)
@@ -104,12 +117,44 @@ class SectorMemoryDriver(CellStepper):
                 return Step((x, y), heading)
         self._invalid_ticks = 0
         ranges, status = self._with_walled(tick, x // c, y // c, physical)
+        gx, gy = self._steer_point(tick, centre, physical)
         s = enc.encode(self.memory, gx - centre[0], gy - centre[1], physical, ranges, status)
         a = pol.best_action(s)
         d = self.memory.note_move(a)
         dcol, drow = DIR_VECTORS[d]
         return Step((centre[0] + dcol * c, centre[1] + drow * c), DIR_HEADING_MRAD[d], self.decided(s, a))
 
+
+    def _steer_point(self, tick: DriveTick, centre: tuple[int, int], physical: int) -> tuple[int, int]:
+        """The point the Bug encodes its goal vector toward at this decision: the centre of a route
+        sub-goal on the robot's map (the end of the straight run down the route from here, kept until
+        the Bug is there or its moves run out), else the goal."""
+        grid = self.policy.map_grid
+        c = cast(GridBugEncoder, self.policy.encoder).cell_mm
+        if grid is None or grid.cell_mm != c or self._unguided:
+            return tick.goal
+        field = self.route.field(grid, robot_spec.world_to_cell(*tick.goal, grid.height, c))
+        if field is None:  # being computed off the tick: the goal this once
+            return tick.goal
+        here = robot_spec.world_to_cell(*centre, grid.height, c)
+        if self.subgoal is not None and here != self.subgoal:
+            self._sub_moves += 1
+            if self._sub_moves <= self._sub_budget:
+                return self._centre_of(self.subgoal, grid.height, c)
+            self.subgoal, self._unguided = None, True  # something the map does not show is in the way
+            self.memory.reset(physical)
+            return tick.goal
+        sub = straight_subgoal(field, grid.width, grid.height, here, prefer=physical)
+        if sub is None:  # off the route's cells (a pose in a wall cell): the goal this once
+            return tick.goal
+        self.subgoal, self._sub_moves = sub, 0
+        self._sub_budget = 2 * (abs(sub[0] - here[0]) + abs(sub[1] - here[1])) + SUBGOAL_SLACK_MOVES
+        self.memory.reset(physical)  # a new target: the Bug's hit distance and mode were the last one's
+        return self._centre_of(sub, grid.height, c)
+
+    @staticmethod
+    def _centre_of(cell: tuple[int, int], height: int, c: int) -> tuple[int, int]:
+        return cell[0] * c + c // 2, (height - 1 - cell[1]) * c + c // 2
 
     def _with_walled(self, tick: DriveTick, col: int, row: int,
                      physical: int) -> tuple[list[int] | tuple[int, ...], list[int] | tuple[int, ...]]:
