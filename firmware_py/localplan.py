@@ -58,6 +58,15 @@ about them before its learnt sector policy steers:
   `stuck_mm` for `stuck_us` with a remembered point within its radius +
   `backoff_near_mm` backs off for `backoff_us` if the rear sensors are
   clear: a person pinned between a wall and the robot can then step aside.
+  A turn in place toward a target behind the robot (more than
+  `TURN_COMMIT_MRAD` off the heading) is kept the way it began: the
+  table's bearing sectors meet behind the robot, and one turn step there
+  flips the target to the other side, so the table turned left, right,
+  left for good (squeezed between two discs and a wall: 20 s on the spot).
+  Nearer ahead, after `DITHER_REVERSALS` reversals in a row the guard
+  steps forward when the front sensors read at least twice `veto_mm` (a
+  target just off ahead, a wall close on one diagonal: the table turned
+  to and fro between two headings for good).
 
 * `PlannedTarget` is the tick's side of the planner: the search does not
   run in the control tick (issue 29 finding 4: legal metadata made one
@@ -484,6 +493,19 @@ class LocalPlanner:
         the robot may stand closer to a wall than the raster's margin, the target is a point) and goes
         no nearer than los_clear_mm to any remembered point, unless the robot is already nearer it
         and the line does not get nearer still (moving away from an obstacle is always clear)."""
+        if not self.map_sight(x, y, tx, ty):
+            return False
+        los = self.cfg.los_clear_mm
+        dx, dy = tx - x, ty - y
+        l2 = dx * dx + dy * dy
+        for px, py, _ in memory.points.values():
+            d = _segment_distance(px, py, x, y, dx, dy, l2)
+            if d < los and d < math.hypot(px - x, py - y) - 1.0:
+                return False
+        return True
+
+    def map_sight(self, x: float, y: float, tx: float, ty: float) -> bool:
+        """`_line_clear`'s part on the map alone: its walls (and margins) leave the straight line free."""
         r = self.cfg.raster_mm
         length = math.hypot(tx - x, ty - y)
         n = int(2 * length / r) + 1
@@ -494,16 +516,7 @@ class LocalPlanner:
                 continue
             if not self._open_map((int((x + f * (tx - x)) // r), int((y + f * (ty - y)) // r))):
                 return False
-        if not self._body_clear(x, y, tx, ty):
-            return False
-        los = self.cfg.los_clear_mm
-        dx, dy = tx - x, ty - y
-        l2 = dx * dx + dy * dy
-        for px, py, _ in memory.points.values():
-            d = _segment_distance(px, py, x, y, dx, dy, l2)
-            if d < los and d < math.hypot(px - x, py - y) - 1.0:
-                return False
-        return True
+        return self._body_clear(x, y, tx, ty)
 
     def _body_clear(self, x: float, y: float, tx: float, ty: float) -> bool:
         """The robot's disc (radius + 10 mm) driven straight toward (tx, ty) touches no map wall in
@@ -693,6 +706,12 @@ class LocalPlanner:
         for c in path[1 if whole_map else 2:]:  # the furthest the robot sees (not the last before one it
             if self._line_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory):  # does not: a path
                 best = c  # bending round a point hides its next cells and shows the ones after them)
+        if best == path[0] and len(path) > 1 and self._body_clear(x, y, path[1][0] * r + r / 2,
+                                                                  path[1][1] * r + r / 2):
+            # a route squeezing between a point and a wall nearer than los_clear_mm (it is open at
+            # obstacle_clear_mm): none of its cells is in plain sight, and steering to the robot's own
+            # cell held it there for good; the next cell, as a window's detour takes it
+            best = path[1]
         self.detouring = True
         return best[0] * r + r / 2, best[1] * r + r / 2
 
@@ -734,6 +753,10 @@ class PlannedTarget:
        (the controller reports it and ends the mission). A round whose wait saw more than
        `moving_points` new points was a moving scene (a mover walking in the only way) and does
        not count, up to 3 x `max_rounds` rounds in all.
+
+    A waypoint beyond `max_plan_mm` is driven at without planning while the map leaves the straight
+    line to it free (looked at off the tick); once it does not (a recovery's detour left the route
+    the waypoints follow) the tick's side goes to GLOBAL at once: the whole map's route leads back.
     """
 
     def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background) -> None:
@@ -758,6 +781,8 @@ class PlannedTarget:
         self.routes_taken = 0  # whole-map routes taken (the first answer of a round with a route)
         self._round_taken = 0
         self.route_mm = 0.0  # the latest answer's planned way to the waypoint (benchmarks' progress)
+        # (generation, waypoint, the map leaves the line to it free): a far waypoint's sight line (_look)
+        self._far_sight: tuple[int, tuple[int, int], bool] | None = None
 
     @property
     def plans(self) -> int:
@@ -795,7 +820,18 @@ class PlannedTarget:
         self.route_mm = math.hypot(wx - x, wy - y)
         if self.mode == LOCAL:
             if math.hypot(wx - x, wy - y) > self.cfg.max_plan_mm:
-                self.detouring = False  # far: driven at without planning (LocalPlanner.target)
+                self.detouring = False  # far: driven at without planning (LocalPlanner.target) ...
+                gen = self._generation
+                sight = self._far_sight
+                if sight is not None and sight[:2] == (gen, waypoint) and not sight[2]:
+                    # ... unless the map's walls stand between: a recovery's detour left the route the
+                    # waypoints follow, and a straight drive at a waypoint metres away in a maze stalls
+                    # at the first wall; the whole map's route leads back (issue 32)
+                    memory.pin(now_us)
+                    self.global_plans += 1
+                    self._enter(GLOBAL, now_us + 1)
+                    return float(wx), float(wy), 0
+                self.work.post(self, lambda: self._look(gen, x, y, waypoint))
                 return float(wx), float(wy), 100
             if self._active != waypoint:
                 if not memory.points or not self.planner._in_way(x, y, wx, wy, memory):
@@ -872,6 +908,10 @@ class PlannedTarget:
             self.routes_taken += 1
         return ans.target[0], ans.target[1], self._speed(now_us - ans.asked_us)
 
+    def _look(self, generation: int, x: float, y: float, waypoint: tuple[int, int]) -> None:
+        """The worker's part for a far waypoint: whether the map lets the robot see it."""
+        self._far_sight = (generation, waypoint, self.planner.map_sight(x, y, *waypoint))
+
     def _solve(self, generation: int, asked_us: int, x: float, y: float, waypoint: tuple[int, int],
                memory: ObstacleMemory, whole_map: bool = False) -> None:
         """The worker's part: `LocalPlanner.target` for the pose asked about."""
@@ -885,6 +925,8 @@ class PlannedTarget:
 
 
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
+TURN_COMMIT_MRAD = 1571  # a turn toward a target further round than this keeps its direction (MotionGuard)
+DITHER_REVERSALS = 3  # turn reversals in a row after which the guard steps forward if the front is open
 _FRONT = (robot_spec.SENSOR_COUNT - 1, 0, 1)  # -45, 0, +45 deg
 _REAR, _REAR_SIDES = 4, (3, 5)
 
@@ -911,6 +953,8 @@ class MotionGuard:
         self._anchor: tuple[float, float] | None = None
         self._anchor_us = 0
         self._backing_until_us = -1
+        self._last = FORWARD  # the action taken on the last tick
+        self._reversals = 0  # ticks in a row the turn reversed
 
     def action(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
@@ -918,6 +962,23 @@ class MotionGuard:
         """The action to take (`detouring`: the planner steers to a sub-goal, not the waypoint: a
         robot stuck on its way there backs off wherever it stands; the table turned in place for
         seconds by a wall it had to pass close to)."""
+        action = self._decide(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, detouring)
+        turns = (TURN_LEFT, TURN_RIGHT)
+        if action in turns and self._last in turns and action != self._last:
+            self._reversals += 1
+            if abs(bearing_mrad) > TURN_COMMIT_MRAD:
+                action = self._last  # the target is behind: finish the turn begun (module docstring)
+            elif self._reversals >= DITHER_REVERSALS and all(
+                    _reading(ranges_mm, status, i) >= 2 * self.cfg.veto_mm for i in _FRONT):
+                action, self._reversals = FORWARD, 0  # left, right, left on the spot: a step ahead breaks it
+        elif action != self._last:
+            self._reversals = 0
+        self._last = action
+        return action
+
+    def _decide(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
+                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+                memory: ObstacleMemory, detouring: bool) -> int:
         cfg = self.cfg
         if self._anchor is None or math.hypot(x - self._anchor[0], y - self._anchor[1]) > cfg.stuck_mm:
             self._anchor, self._anchor_us = (x, y), now_us

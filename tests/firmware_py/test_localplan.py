@@ -290,3 +290,41 @@ def test_guard_backs_off_when_stuck_beside_a_remembered_point_with_the_rear_clea
     assert acts[first + CFG.backoff_us // period] == TURN_LEFT
     assert REVERSE not in run(CFG.rear_clear_mm, mem)  # something behind: no back-off
     assert REVERSE not in run(2000, ObstacleMemory(CFG))  # nothing remembered near: no back-off
+
+
+def test_guard_finishes_a_turn_toward_a_target_behind():
+    """The table's bearing sectors meet behind the robot: one turn step there flips the target to
+    the other side, and the table turned left, right, left on the spot for good. The guard keeps the
+    turn's direction while the target is more than TURN_COMMIT_MRAD round; nearer ahead it lets the
+    table turn back (an overshoot corrected)."""
+    from firmware_py.localplan import TURN_COMMIT_MRAD, TURN_LEFT, TURN_RIGHT, MotionGuard
+
+    guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
+    wall = _guard_inputs(front=100, rear=100)  # squeezed: nothing to gain by the back-off
+    behind = TURN_COMMIT_MRAD + 400
+    acts = [guard.action(k * 50_000, 0, 0, a, b, *wall, mem)
+            for k, (a, b) in enumerate([(TURN_LEFT, behind), (TURN_RIGHT, -behind), (TURN_LEFT, behind),
+                                        (TURN_RIGHT, -behind)])]
+    assert acts == [TURN_LEFT] * 4
+    guard = MotionGuard(CFG)
+    ahead = TURN_COMMIT_MRAD - 600
+    assert [guard.action(k * 50_000, 0, 0, a, b, *wall, mem)
+            for k, (a, b) in enumerate([(TURN_LEFT, ahead), (TURN_RIGHT, -ahead)])] == [TURN_LEFT, TURN_RIGHT]
+
+
+def test_guard_steps_forward_out_of_turning_to_and_fro_when_the_front_is_open():
+    """Left, right, left ... between two headings with the target just off ahead: after
+    DITHER_REVERSALS reversals a forward step, if the front sensors read at least 2 x veto_mm;
+    with something nearer ahead the table's turns stand."""
+    from firmware_py.localplan import DITHER_REVERSALS, FORWARD, TURN_LEFT, TURN_RIGHT, MotionGuard
+
+    mem = ObstacleMemory(CFG)
+
+    def run(front: int) -> list[int]:
+        guard = MotionGuard(CFG)
+        return [guard.action(k * 50_000, 0, 0, (TURN_LEFT, TURN_RIGHT)[k % 2], 200, *_guard_inputs(front=front), mem)
+                for k in range(DITHER_REVERSALS + 2)]
+
+    acts = run(2 * CFG.veto_mm)
+    assert acts[DITHER_REVERSALS] == FORWARD and FORWARD not in acts[:DITHER_REVERSALS]
+    assert FORWARD not in run(2 * CFG.veto_mm - 1)

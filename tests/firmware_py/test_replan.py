@@ -200,3 +200,41 @@ def test_rounds_in_a_moving_scene_do_not_count_toward_no_route():
     said = rows[modes.index(NO_ROUTE)][0]
     still = 6 * CFG.wait_us + 2 * CFG.backoff_us  # when a still box is declared (test above)
     assert said > 2 * still and pt.global_plans == 3 * CFG.max_rounds
+
+
+def test_a_far_waypoint_behind_a_map_wall_is_reached_by_the_whole_map_route():
+    """A waypoint beyond max_plan_mm is driven at without planning while the map leaves the line to
+    it free; once a detour has taken the robot where the map's walls stand between (a maze: a straight
+    drive stalls at the first wall) the tick's side switches to the whole map's route (the sight line
+    is looked at off the tick)."""
+    far = (4750, 3000)  # 4 m from BELOW, across the wall of row 3
+    assert math.hypot(far[0] - BELOW[0], far[1] - BELOW[1]) > CFG.max_plan_mm
+    for grid, walled in ((TWO_DOORS, True), (OPEN, False)):
+        work = Background(threaded=False)
+        memory = ObstacleMemory(CFG)
+        pt = PlannedTarget(grid, CFG, work)
+        rows = []
+        for k in range(6):
+            tx, ty, speed = pt.target(k * PERIOD, *BELOW, far, memory)
+            rows.append((pt.mode, (tx, ty), speed))
+            work.run_pending()
+        assert rows[0] == (LOCAL, far, 100)  # the first tick: the sight line is being looked at
+        if walled:
+            assert rows[1][0] == GLOBAL and rows[1][2] == 0 and pt.global_plans == 1
+            follow = [r for r in rows if r[0] == GLOBAL and r[2] > 0]
+            assert follow and follow[-1][1] != far  # on the route, toward a door
+        else:
+            assert all(r == (LOCAL, far, 100) for r in rows) and pt.global_plans == 0
+
+
+def test_a_route_squeezed_between_points_leads_on_not_to_the_robots_own_cell():
+    """Remembered points either side of the way, nearer than los_clear_mm but farther than
+    obstacle_clear_mm: the route is open but none of its cells is in plain sight. The target is the
+    route's next cell (as a window's detour takes it); steering to the robot's own cell held it there."""
+    memory = ObstacleMemory(CFG)
+    off = (CFG.obstacle_clear_mm + CFG.los_clear_mm) // 2
+    _remember(memory, [(x, y) for y in range(700, 2400, 50) for x in (1025 - off, 1025 + off)])
+    planner = LocalPlanner(OPEN, CFG)
+    tx, ty = planner.target(1025, 1025, (1025, 2025), memory, whole_map=True)
+    assert not planner.blocked and planner.detouring
+    assert ty >= 1025 + CFG.raster_mm  # a cell on, up the way
