@@ -57,7 +57,9 @@ about them before its learnt sector policy steers:
   turning in place touches nothing), and a robot that has not moved
   `stuck_mm` for `stuck_us` with a remembered point within its radius +
   `backoff_near_mm` backs off for `backoff_us` if the rear sensors are
-  clear: a person pinned between a wall and the robot can then step aside.
+  clear (and the side ones read more than `veto_mm`; checked every tick of
+  the back-off): a person pinned between a wall and the robot can then
+  step aside.
   A turn in place toward a target behind the robot (more than
   `TURN_COMMIT_MRAD` off the heading) is kept the way it began: the
   table's bearing sectors meet behind the robot, and one turn step there
@@ -415,13 +417,17 @@ class LocalPlanner:
         self.blocked = False  # the window's search found no way from the robot to the waypoint
         self.no_route = False  # the whole map's search found none either
         self.route_mm = 0.0  # the length of the way from the robot to the waypoint as last planned
+        # the whole map's route is closed ahead and the robot holds for it to open (`_plan`): since when
+        self.held = False
+        self._closed_since_us: int | None = None
 
     def reset(self) -> None:
         """A new waypoint (mission item): drive straight until something is in the way."""
         self._active = None
         self._plan_key = None
         self._global = False
-        self.detouring = self.blocked = self.no_route = False
+        self.detouring = self.blocked = self.no_route = self.held = False
+        self._closed_since_us = None
 
     # --- the grown obstacles ----------------------------------------------------------------
     def _grow(self, memory: ObstacleMemory) -> None:
@@ -536,9 +542,14 @@ class LocalPlanner:
         return True
 
     # --- the plan --------------------------------------------------------------------------------
-    def _plan(self, x: float, y: float, wx: int, wy: int, version: int, whole_map: bool = False) -> None:
+    def _plan(self, x: float, y: float, wx: int, wy: int, version: int, whole_map: bool = False,
+              asked_us: int = 0) -> None:
         """Dijkstra from the waypoint over a window round the robot and the waypoint (`whole_map`:
-        over the whole map, a global re-plan), unless the last search still holds."""
+        over the whole map, a global re-plan), unless the last search still holds. A whole-map route
+        the robot is on, closed ahead by points seen since, is held to for `wait_us` (`held`: the robot
+        stands) before the search runs again: a mover walking across it closed it, the next search
+        sent the robot the other way round, the mover closed that, and the robot went to and fro
+        between two doors (issue 32: most of the twin's remaining loops)."""
         cfg = self.cfg
         r = cfg.raster_mm
         key = (wx, wy, version)
@@ -547,10 +558,19 @@ class LocalPlanner:
         if key == self._plan_key and whole_map == self._global and x0 <= ix <= x1 and y0 <= iy <= y1 and (
                 not whole_map or self._path_open(ix, iy, 0)):
             return
-        if (whole_map and self._global and self._plan_key is not None and self._plan_key[:2] == key[:2]
-                and self._path_open(ix, iy)):
-            self._plan_key = key  # the whole map is searched again only when the way ahead closed
-            return
+        if whole_map and self._global and self._plan_key is not None and self._plan_key[:2] == key[:2]:
+            if self._path_open(ix, iy):
+                self._plan_key = key  # the whole map is searched again only when the way ahead closed
+                self._closed_since_us = None
+                return
+            on_route = any((ix + dx, iy + dy) in self._dist for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+            if on_route:
+                if self._closed_since_us is None:
+                    self._closed_since_us = asked_us
+                if asked_us - self._closed_since_us < cfg.wait_us:
+                    self.held = True
+                    return
+        self._closed_since_us = None
         self._plan_key = key
         self._global = whole_map
         self.plans += 1
@@ -646,11 +666,13 @@ class LocalPlanner:
         return True
 
     def target(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory,
-               whole_map: bool = False) -> tuple[float, float]:
+               whole_map: bool = False, asked_us: int = 0) -> tuple[float, float]:
         """The point the policy steers to this tick (world mm). `whole_map`: plan over the whole
-        map (a global re-plan: `no_route` says when the waypoint cannot be reached at all)."""
+        map (a global re-plan: `no_route` says when the waypoint cannot be reached at all).
+        `held`: the whole map's route is closed ahead and held to a while (`_plan`): stand."""
         wx, wy = waypoint
-        self.blocked = self.no_route = False
+        self.blocked = self.no_route = self.held = False
+        last_route_mm = self.route_mm
         self.route_mm = math.hypot(wx - x, wy - y)
         if not whole_map and self.route_mm > self.cfg.max_plan_mm:
             self.detouring = False  # far: the ground station's waypoints are <= 1 m apart, a far goal
@@ -664,7 +686,10 @@ class LocalPlanner:
         if self._line_clear(x, y, wx, wy, memory):
             self.detouring = False
             return float(wx), float(wy)
-        self._plan(x, y, wx, wy, memory.version, whole_map)
+        self._plan(x, y, wx, wy, memory.version, whole_map, asked_us)
+        if self.held:
+            self.route_mm = last_route_mm  # the route is still the way (benchmarks measure progress on it)
+            return x, y
         dist = self._dist
         r = self.cfg.raster_mm
         ix, iy = int(x // r), int(y // r)
@@ -729,6 +754,7 @@ class PlanAnswer:
     blocked: bool = False  # no way from the pose to the waypoint (in the window searched)
     no_route: bool = False  # none over the whole map either
     route_mm: float = 0.0  # the planned way's length from the pose asked about
+    held: bool = False  # the whole map's route is closed ahead: stand while it is held to
 
 
 # PlannedTarget's recovery modes, in the order they follow one another (see PlannedTarget)
@@ -902,6 +928,8 @@ class PlannedTarget:
                 self._enter(BACKUP, now_us)
             return float(wx), float(wy), 0
         self.detouring = ans.detouring
+        if ans.held:  # the route closed ahead: stand while the planner holds to it (LocalPlanner._plan)
+            return float(wx), float(wy), 0
         self.route_mm = ans.route_mm
         if self._round_taken != self.global_plans:  # the first route of this round of recoveries
             self._round_taken = self.global_plans
@@ -919,16 +947,16 @@ class PlannedTarget:
             self.planner.reset()
             self._worker_generation = generation
         p = self.planner
-        tx, ty = p.target(x, y, waypoint, memory, whole_map)
+        tx, ty = p.target(x, y, waypoint, memory, whole_map, asked_us)
         self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), p.detouring, whole_map, p.blocked,
-                                  p.no_route, p.route_mm)
+                                  p.no_route, p.route_mm, p.held)
 
 
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
 TURN_COMMIT_MRAD = 1571  # a turn toward a target further round than this keeps its direction (MotionGuard)
 DITHER_REVERSALS = 3  # turn reversals in a row after which the guard steps forward if the front is open
 _FRONT = (robot_spec.SENSOR_COUNT - 1, 0, 1)  # -45, 0, +45 deg
-_REAR, _REAR_SIDES = 4, (3, 5)
+_REAR, _REAR_SIDES, _SIDES = 4, (3, 5), (2, 6)
 
 
 def _reading(ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], i: int) -> int:
@@ -1018,5 +1046,8 @@ class MotionGuard:
 
     def rear_clear(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
         cfg = self.cfg
+        # the sides too: a small disc between the side and rear-diagonal cones came into the side
+        # sensor's view only as the robot backed onto it (a back-off collision in the twin)
         return (_reading(ranges_mm, status, _REAR) > cfg.rear_clear_mm
-                and all(_reading(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES))
+                and all(_reading(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES)
+                and all(_reading(ranges_mm, status, i) > cfg.veto_mm for i in _SIDES))

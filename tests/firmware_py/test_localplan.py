@@ -328,3 +328,17 @@ def test_guard_steps_forward_out_of_turning_to_and_fro_when_the_front_is_open():
     acts = run(2 * CFG.veto_mm)
     assert acts[DITHER_REVERSALS] == FORWARD and FORWARD not in acts[:DITHER_REVERSALS]
     assert FORWARD not in run(2 * CFG.veto_mm - 1)
+
+
+def test_guard_backs_off_only_while_the_sides_read_more_than_veto_mm():
+    """Something between the side and rear-diagonal cones comes into the side sensor's view only as
+    the robot backs onto it: a side reading at or under veto_mm ends (or forbids) the back-off."""
+    from firmware_py.localplan import MotionGuard
+
+    guard = MotionGuard(CFG)
+    ranges, status = _guard_inputs()
+    assert guard.rear_clear(ranges, status)
+    for side in (2, 6):
+        near = list(ranges)
+        near[side] = CFG.veto_mm
+        assert not guard.rear_clear(near, [V if r < 2000 else FAR for r in near])

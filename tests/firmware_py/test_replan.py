@@ -238,3 +238,32 @@ def test_a_route_squeezed_between_points_leads_on_not_to_the_robots_own_cell():
     tx, ty = planner.target(1025, 1025, (1025, 2025), memory, whole_map=True)
     assert not planner.blocked and planner.detouring
     assert ty >= 1025 + CFG.raster_mm  # a cell on, up the way
+
+
+def test_a_route_closed_ahead_is_held_to_a_while_before_the_whole_map_is_searched_again():
+    """On the whole map's route round door 2, points across the way ahead (a mover walking over it):
+    the robot stands and the planner holds to the route for wait_us; if they clear meanwhile it drives
+    on along the same route (no new search), else the search runs again after wait_us. A mover had
+    sent the robot between two doors and back for good."""
+    across = [(2000, y) for y in range(50, 1500, 50)]  # the corridor below the wall, 750 mm east
+    for clears in (True, False):
+        work = Background(threaded=False)
+        memory = ObstacleMemory(CFG)
+        _remember(memory, DOOR1)
+        pt = PlannedTarget(TWO_DOORS, CFG, work)
+        rows = _drive(pt, work, memory, 60)
+        assert rows[-1][1] == GLOBAL and rows[-1][4] > 0  # on the route to door 2
+        plans, t0 = pt.plans, 60 * PERIOD
+        _remember(memory, across, t0)
+        hold = CFG.wait_us // PERIOD
+        rows = _drive(pt, work, memory, hold // 2, t0=t0)
+        assert all(r[4] == 0 for r in rows[1:]) and pt.plans == plans  # standing, the route kept
+        if clears:
+            for x, y in across:  # seen through: gone
+                memory.points.pop((x // 50, y // 50))
+            memory.version += 1
+            rows = _drive(pt, work, memory, 5, t0=t0 + (hold // 2) * PERIOD)
+            assert rows[-1][1] == GLOBAL and rows[-1][4] > 0 and pt.plans == plans
+        else:
+            rows = _drive(pt, work, memory, hold, t0=t0 + (hold // 2) * PERIOD)
+            assert pt.plans > plans  # searched again once the hold ran out
