@@ -759,6 +759,7 @@ class PlanAnswer:
 
 # PlannedTarget's recovery modes, in the order they follow one another (see PlannedTarget)
 LOCAL, WAIT, GLOBAL, BACKUP, CLEAR, NO_ROUTE = "local", "wait", "global", "backup", "clear", "no route"
+ROUTE_SWITCH_MM = 1000  # a whole-map answer this much longer than the route followed is another route
 
 
 class PlannedTarget:
@@ -804,7 +805,10 @@ class PlannedTarget:
         self.reverse = False  # this tick: back off (BACKUP)
         self.no_route = ""  # why the waypoint cannot be reached (NO_ROUTE), else ""
         self.global_plans = 0  # global re-plans started (telemetry / benchmarks)
-        self.routes_taken = 0  # whole-map routes taken (the first answer of a round with a route)
+        # whole-map routes taken: the first answer of a round with a route, and each switch to a way
+        # round longer by ROUTE_SWITCH_MM (the route followed closed; benchmarks count progress anew)
+        self.routes_taken = 0
+        self._followed_mm = 0.0  # the whole-map route's length at the last answer followed
         self._round_taken = 0
         self.route_mm = 0.0  # the latest answer's planned way to the waypoint (benchmarks' progress)
         # (generation, waypoint, the map leaves the line to it free): a far waypoint's sight line (_look)
@@ -843,7 +847,8 @@ class PlannedTarget:
             self._enter(WAIT, now_us)
             self._added_at_wait = memory.added
         whole_map = self.mode == GLOBAL
-        self.route_mm = math.hypot(wx - x, wy - y)
+        if not whole_map:  # in GLOBAL it stays the route's (a tick without an answer followed: the last one's)
+            self.route_mm = math.hypot(wx - x, wy - y)
         if self.mode == LOCAL:
             if math.hypot(wx - x, wy - y) > self.cfg.max_plan_mm:
                 self.detouring = False  # far: driven at without planning (LocalPlanner.target) ...
@@ -930,10 +935,12 @@ class PlannedTarget:
         self.detouring = ans.detouring
         if ans.held:  # the route closed ahead: stand while the planner holds to it (LocalPlanner._plan)
             return float(wx), float(wy), 0
-        self.route_mm = ans.route_mm
         if self._round_taken != self.global_plans:  # the first route of this round of recoveries
             self._round_taken = self.global_plans
             self.routes_taken += 1
+        elif ans.route_mm > self._followed_mm + ROUTE_SWITCH_MM:
+            self.routes_taken += 1  # the route closed and the search found another way round
+        self.route_mm = self._followed_mm = ans.route_mm
         return ans.target[0], ans.target[1], self._speed(now_us - ans.asked_us)
 
     def _look(self, generation: int, x: float, y: float, waypoint: tuple[int, int]) -> None:

@@ -253,11 +253,14 @@ def test_a_route_closed_ahead_is_held_to_a_while_before_the_whole_map_is_searche
         pt = PlannedTarget(TWO_DOORS, CFG, work)
         rows = _drive(pt, work, memory, 60)
         assert rows[-1][1] == GLOBAL and rows[-1][4] > 0  # on the route to door 2
-        plans, t0 = pt.plans, 60 * PERIOD
+        plans, t0, route = pt.plans, 60 * PERIOD, pt.route_mm
         _remember(memory, across, t0)
         hold = CFG.wait_us // PERIOD
         rows = _drive(pt, work, memory, hold // 2, t0=t0)
         assert all(r[4] == 0 for r in rows[1:]) and pt.plans == plans  # standing, the route kept
+        # ... and its length with it (benchmarks measure progress on it; the straight line to the
+        # waypoint, 1.6 m, had given a tick of false progress)
+        assert pt.route_mm == route > math.hypot(ABOVE[0] - BELOW[0], ABOVE[1] - BELOW[1]) + 1000
         if clears:
             for x, y in across:  # seen through: gone
                 memory.points.pop((x // 50, y // 50))
@@ -267,3 +270,27 @@ def test_a_route_closed_ahead_is_held_to_a_while_before_the_whole_map_is_searche
         else:
             rows = _drive(pt, work, memory, hold, t0=t0 + (hold // 2) * PERIOD)
             assert pt.plans > plans  # searched again once the hold ran out
+
+
+def test_another_way_round_after_the_route_closed_counts_as_a_new_route():
+    """Doors at columns 2, 5 and 8; door 1 closed: the route goes through door 5 (one route taken).
+    Door 5 closes too: after the hold the search finds the way through door 8, longer by more than
+    ROUTE_SWITCH_MM, and that counts as a route taken (benchmarks measure progress along it anew)."""
+    from firmware_py.localplan import ROUTE_SWITCH_MM
+
+    three = grid_from_rows(["." * 10] * 3 + ["@@.@@.@@.@"] + ["." * 10] * 3, 500)
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    _remember(memory, DOOR1)
+    pt = PlannedTarget(three, CFG, work)
+    rows = _drive(pt, work, memory, 60)
+    assert rows[-1][1] == GLOBAL and rows[-1][4] > 0 and pt.routes_taken == 1
+    before = pt.route_mm
+    _remember(memory, [(2650, 1750), (2750, 1750), (2850, 1750)], 60 * PERIOD)  # door 5
+    rows = _drive(pt, work, memory, CFG.wait_us // PERIOD + 10, t0=60 * PERIOD)
+    held = [r for r in rows if r[4] == 0]
+    assert len(held) >= CFG.wait_us // PERIOD - 2  # the hold first
+    assert rows[-1][1] == GLOBAL and rows[-1][4] > 0  # then on, the way through door 8
+    assert pt.route_mm > before + ROUTE_SWITCH_MM and pt.routes_taken == 2
+    _drive(pt, work, memory, 20, t0=(60 + len(rows)) * PERIOD)
+    assert pt.routes_taken == 2  # following it is not another route
