@@ -11,7 +11,12 @@ item; its search stepped after each period, as the lockstep robot's node
 steps it after each tick, so an answer is one period old; the speed it
 asks for is not applied: the twin's kernel moves by whole actions, and
 with answers one period old it asks for full speed anyway), the table's greedy action on the sector state toward that target,
-and `MotionGuard.action` on it (one guard per episode: one drive).
+and `MotionGuard.action` on it (one guard per episode: one drive), then the
+robot's collision monitor (`firmware_py.control.collision.limit` with the
+robot's default CM_* parameters, on the readings, the remembered points and
+the map's corners near the pose, as `Controller._outputs` applies it): a
+straight step it stops is a period standing still; its slow zone is not
+modelled (the kernel moves by whole actions at one speed).
 The planner's recoveries act as on the robot: a period it asks to stand
 still (waiting for a mover, waiting for a whole-map answer) the robot does
 not move while the movers walk and the sensors read, its back-off is a
@@ -21,8 +26,9 @@ reports it and holds). Budget, loop rule, near misses and outcomes are
 `qnav bench nav`, except that progress, and the period budget, are measured
 along the robot's current plan while it follows a whole-map route (a detour
 through another door first leads away from the waypoint; the first route of
-each round of recoveries starts a new count and a budget for its own length,
-up to three times the episode's).
+each round of recoveries, and another way round once the route followed
+closed, start a new count and a budget for its own length, up to three times
+the episode's).
 """
 
 from __future__ import annotations
@@ -33,8 +39,10 @@ import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
+from firmware_py.control import collision
 from firmware_py.localplan import GLOBAL, MotionGuard, ObstacleMemory, PlannedTarget
 from firmware_py.mapdata import grid_from_rows
+from firmware_py.vehicle import VehicleConfig
 from ground_station.learn.sector.obstacles import (
     COLLISION,
     NO_ROUTE,
@@ -80,6 +88,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     work = Background(threaded=False)  # stepped after each period, as the lockstep robot's node does
     planner = PlannedTarget(grid, ctrl.local, work)
     guard = MotionGuard(ctrl.local)
+    corners = collision.MapCorners(grid)
     ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     rw = np.zeros(6)  # the reward is not needed here
@@ -101,6 +110,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         b = bearing_mrad(x, y, th, tx, ty)
         s = encode_fast(b, ranges, status, sectors, sensors, edges)
         a, speed = guard.step(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory, planner, speed)
+        if speed and monitor_stops(a, xm, ym, thm, rl, sl, memory, corners):
+            speed = 0  # the collision monitor removed the straight part: a step into nothing but a stand
         k0 = k
         if speed == 0:  # a recovery stands still: the movers walk on, the sensors read
             step_movers(movers, occ, c, discs, x, y, RADIUS_MM, PERIOD_S)
@@ -135,6 +146,24 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             outcome = end
             break
     return outcome, path, t, minclear, near, planner.plans
+
+
+_VEHICLE = VehicleConfig()
+
+
+def monitor_stops(action: int, x_mm: int, y_mm: int, th_mrad: int, ranges: list[int], status: list[int],
+                  memory: ObstacleMemory, corners: collision.MapCorners) -> bool:
+    """Whether the robot's collision monitor removes `action`'s straight part at this pose (its
+    stop zone; `Controller._outputs` feeds it the same readings, remembered points and corners)."""
+    left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[action]
+    if left + right == 0:
+        return False  # turning in place: left alone
+    cfg = _VEHICLE
+    seen = [(px, py) for px, py, _ in memory.points.values()]
+    seen += corners.near(x_mm, y_mm, cfg.collision_slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+    near = collision.robot_frame(seen, (x_mm, y_mm, th_mrad)) if seen else []
+    return collision.limit(left, right, ranges, status, cfg.collision_stop_mm, cfg.collision_slow_mm,
+                           cfg.collision_slow_pct, near)[2] == "stop"
 
 
 def run_twin_planned(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController, budget_base: float,

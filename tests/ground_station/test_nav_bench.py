@@ -167,3 +167,27 @@ def test_bench_nav_runs_the_sector_memory_policy_in_hil_beside_its_hand_written_
     assert code == 2 and "--hil" in out and len(out.strip().splitlines()) == 1
     code, out = _qnav("bench", "nav", "--policy", "policies:sector_memory", "--controllers", "seek", "--hil")
     assert code == 2 and "learnt, rule" in out
+
+
+def test_the_twin_applies_the_robots_collision_monitor_stop_zone():
+    """`planned.monitor_stops` is the robot's collision monitor on the twin's action: a forward step
+    toward a reading inside the stop zone is stopped, a turn in place never, a clear front never;
+    a remembered point between the cones counts as on the robot (Controller._outputs)."""
+    from firmware_py.control.collision import MapCorners
+    from firmware_py.localplan import FORWARD, TURN_LEFT, LocalPlannerConfig, ObstacleMemory
+    from firmware_py.vehicle import VehicleConfig
+    from ground_station.nav.planned import grid_of, monitor_stops
+
+    n = robot_spec.SENSOR_COUNT
+    gm = load_map("paper10")
+    corners = MapCorners(grid_of(gm))
+    x, y = 2750, 2750  # a free cell's centre, facing east (0 mrad)
+    stop = VehicleConfig().collision_stop_mm
+    far = ([2000] * n, [robot_spec.RANGE_TOO_FAR] * n)
+    near = ([stop // 2] + [2000] * (n - 1), [robot_spec.RANGE_VALID] + [robot_spec.RANGE_TOO_FAR] * (n - 1))
+    memory = ObstacleMemory(LocalPlannerConfig())
+    assert not monitor_stops(FORWARD, x, y, 0, *far, memory, corners)
+    assert monitor_stops(FORWARD, x, y, 0, *near, memory, corners)
+    assert not monitor_stops(TURN_LEFT, x, y, 0, *near, memory, corners)
+    memory.points[(0, 0)] = (x + robot_spec.ROBOT_RADIUS_MM + stop // 2, y + 60, 0)  # ahead, no sensor on it
+    assert monitor_stops(FORWARD, x, y, 0, *far, memory, corners)
