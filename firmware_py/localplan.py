@@ -962,6 +962,7 @@ class PlannedTarget:
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
 TURN_COMMIT_MRAD = 1571  # a turn toward a target further round than this keeps its direction (MotionGuard)
 DITHER_REVERSALS = 3  # turn reversals in a row after which the guard steps forward if the front is open
+HELD_TURN_US = 500_000  # a forward step the collision monitor holds this long is turned (MotionGuard)
 _FRONT = (robot_spec.SENSOR_COUNT - 1, 0, 1)  # -45, 0, +45 deg
 _REAR, _REAR_SIDES, _SIDES = 4, (3, 5), (2, 6)
 
@@ -990,14 +991,18 @@ class MotionGuard:
         self._backing_until_us = -1
         self._last = FORWARD  # the action taken on the last tick
         self._reversals = 0  # ticks in a row the turn reversed
+        self._side_ref: list[int] | None = None  # the side readings when the current back-off began
 
     def action(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
-               memory: ObstacleMemory, detouring: bool = False) -> int:
+               memory: ObstacleMemory, detouring: bool = False, held_us: int = 0) -> int:
         """The action to take (`detouring`: the planner steers to a sub-goal, not the waypoint: a
         robot stuck on its way there backs off wherever it stands; the table turned in place for
-        seconds by a wall it had to pass close to)."""
-        action = self._decide(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, detouring)
+        seconds by a wall it had to pass close to). `held_us`: how long the collision monitor
+        (control/collision.py) has held the straight part: a forward step it holds HELD_TURN_US is
+        turned toward the target instead, as a veto (the table asked for it for 20 s against a
+        remembered point in the path, and the robot stood)."""
+        action = self._decide(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, detouring, held_us)
         turns = (TURN_LEFT, TURN_RIGHT)
         if action in turns and self._last in turns and action != self._last:
             self._reversals += 1
@@ -1009,40 +1014,52 @@ class MotionGuard:
         elif action != self._last:
             self._reversals = 0
         self._last = action
+        self._note_reverse(action, ranges_mm, status)
         return action
+
+    def _note_reverse(self, action: int, ranges_mm: list[int] | tuple[int, ...],
+                      status: list[int] | tuple[int, ...]) -> None:
+        """Keep the side readings of a back-off's first tick (`may_reverse` compares with them)."""
+        if action != REVERSE:
+            self._side_ref = None
+        elif self._side_ref is None:
+            self._side_ref = [_reading(ranges_mm, status, i) for i in _SIDES]
 
     def _decide(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
                 ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
-                memory: ObstacleMemory, detouring: bool) -> int:
+                memory: ObstacleMemory, detouring: bool, held_us: int = 0) -> int:
         cfg = self.cfg
         if self._anchor is None or math.hypot(x - self._anchor[0], y - self._anchor[1]) > cfg.stuck_mm:
             self._anchor, self._anchor_us = (x, y), now_us
         if now_us < self._backing_until_us:
-            if self.rear_clear(ranges_mm, status):
+            if self.may_reverse(ranges_mm, status):
                 return REVERSE
             self._backing_until_us = -1  # something came up behind: no more backing (checked every tick)
-        if now_us - self._anchor_us >= cfg.stuck_us and self.rear_clear(ranges_mm, status):
+        if now_us - self._anchor_us >= cfg.stuck_us and self.may_reverse(ranges_mm, status):
             reach = robot_spec.ROBOT_RADIUS_MM + cfg.backoff_near_mm
             if detouring or any(math.hypot(px - x, py - y) < reach for px, py, _ in memory.points.values()):
                 self.backoffs += 1
                 self._backing_until_us = now_us + cfg.backoff_us
                 self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
                 return REVERSE
-        if action == FORWARD and any(_reading(ranges_mm, status, i) < cfg.veto_mm for i in _FRONT):
+        if action == FORWARD and (held_us >= HELD_TURN_US
+                                  or any(_reading(ranges_mm, status, i) < cfg.veto_mm for i in _FRONT)):
             self.vetoes += 1
             return TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
         return action
 
     def step(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
              ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
-             memory: ObstacleMemory, planner: PlannedTarget, speed: int) -> tuple[int, int]:
+             memory: ObstacleMemory, planner: PlannedTarget, speed: int, held_us: int = 0) -> tuple[int, int]:
         """(action, speed %) after the guard and the planner's recoveries, as the robot's sector kind
         and the twin's bench both take them: a planned stand-still is not 'stuck', and a recovery's
-        back-off reverses at full speed while the rear is clear."""
+        back-off reverses at full speed while the rear is clear. `held_us`: as `action`."""
         if speed == 0:
             self.still(now_us)
-        action = self.action(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, planner.detouring)
-        if planner.reverse and self.rear_clear(ranges_mm, status):
+        action = self.action(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, planner.detouring,
+                             held_us)
+        if planner.reverse and self.may_reverse(ranges_mm, status):
+            self._note_reverse(REVERSE, ranges_mm, status)
             return REVERSE, 100
         return action, speed
 
@@ -1053,8 +1070,17 @@ class MotionGuard:
 
     def rear_clear(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
         cfg = self.cfg
-        # the sides too: a small disc between the side and rear-diagonal cones came into the side
-        # sensor's view only as the robot backed onto it (a back-off collision in the twin)
         return (_reading(ranges_mm, status, _REAR) > cfg.rear_clear_mm
-                and all(_reading(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES)
-                and all(_reading(ranges_mm, status, i) > cfg.veto_mm for i in _SIDES))
+                and all(_reading(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES))
+
+    def may_reverse(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
+        """The rear is clear, and no side reading has fallen to veto_mm or under since the back-off
+        began: a small disc between the side and rear-diagonal cones came into the side sensor's view
+        only as the robot backed onto it (a back-off collision in the twin). A wall alongside, read
+        as near all the way, does not stop it."""
+        if not self.rear_clear(ranges_mm, status):
+            return False
+        ref = self._side_ref
+        return ref is None or all(
+            _reading(ranges_mm, status, i) > self.cfg.veto_mm or _reading(ranges_mm, status, i) >= r
+            for i, r in zip(_SIDES, ref, strict=True))

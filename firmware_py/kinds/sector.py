@@ -88,7 +88,7 @@ class SectorDriver(KindDriver):
             planner, memory, guard = self.local
             x, y, _ = tick.pose_mm
             a, speed = guard.step(tick.now_us, x, y, a, bearing, tick.ranges_mm, tick.range_status, memory,
-                                  planner, speed)
+                                  planner, speed, tick.blocked_us)
             if planner.no_route:
                 return Decision((0, 0), self.decided(s, a), target, no_route=planner.no_route)
         left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[a]

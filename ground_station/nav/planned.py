@@ -89,6 +89,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     planner = PlannedTarget(grid, ctrl.local, work)
     guard = MotionGuard(ctrl.local)
     corners = collision.MapCorners(grid)
+    held = 0  # periods in a row the collision monitor has stopped the straight part
     ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
     rw = np.zeros(6)  # the reward is not needed here
@@ -109,9 +110,13 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
             break
         b = bearing_mrad(x, y, th, tx, ty)
         s = encode_fast(b, ranges, status, sectors, sensors, edges)
-        a, speed = guard.step(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory, planner, speed)
+        a, speed = guard.step(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory, planner, speed,
+                              held * PERIOD_US)
         if speed and monitor_stops(a, xm, ym, thm, rl, sl, memory, corners):
             speed = 0  # the collision monitor removed the straight part: a step into nothing but a stand
+            held += 1  # as the controller's DriveTick.blocked_us, up to the last tick
+        else:
+            held = 0
         k0 = k
         if speed == 0:  # a recovery stands still: the movers walk on, the sensors read
             step_movers(movers, occ, c, discs, x, y, RADIUS_MM, PERIOD_S)

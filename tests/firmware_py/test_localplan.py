@@ -330,15 +330,39 @@ def test_guard_steps_forward_out_of_turning_to_and_fro_when_the_front_is_open():
     assert FORWARD not in run(2 * CFG.veto_mm - 1)
 
 
-def test_guard_backs_off_only_while_the_sides_read_more_than_veto_mm():
+def test_guard_backs_off_unless_something_closes_in_on_a_side():
     """Something between the side and rear-diagonal cones comes into the side sensor's view only as
-    the robot backs onto it: a side reading at or under veto_mm ends (or forbids) the back-off."""
-    from firmware_py.localplan import MotionGuard
+    the robot backs onto it: a side reading that falls to veto_mm or under during a back-off ends it.
+    A wall alongside, read as near from the start and no nearer, does not."""
+    from firmware_py.localplan import REVERSE, TURN_LEFT, MotionGuard
 
-    guard = MotionGuard(CFG)
-    ranges, status = _guard_inputs()
-    assert guard.rear_clear(ranges, status)
-    for side in (2, 6):
-        near = list(ranges)
-        near[side] = CFG.veto_mm
-        assert not guard.rear_clear(near, [V if r < 2000 else FAR for r in near])
+    mem = ObstacleMemory(CFG)
+    mem.points[(4, 0)] = (200, 0, 0)  # within radius + backoff_near_mm: a stuck robot backs off
+    period = robot_spec.CONTROL_PERIOD_US
+    start = CFG.stuck_us // period
+
+    def run(side_mm: list[int]) -> list[int]:
+        guard = MotionGuard(CFG)
+        acts = []
+        for t in range(start + len(side_mm)):
+            ranges, status = _guard_inputs()
+            ranges[2] = side_mm[max(0, t - start)]
+            acts.append(guard.action(t * period, 0.0, 0.0, TURN_LEFT, 100, ranges,
+                                     [V if r < 2000 else FAR for r in ranges], mem))
+        return acts[start:]
+
+    closing = [80, 70, 60, 50, 40, 30]
+    assert run(closing) == [REVERSE] * 4 + [TURN_LEFT] * 2  # ends when the side reads 40 (veto_mm)
+    alongside = [34] * 6
+    assert run(alongside) == [REVERSE] * 6
+
+
+def test_guard_turns_a_forward_step_the_collision_monitor_holds():
+    """The table asked for forward against a remembered point in the path for 20 s while the
+    collision monitor held the straight part, and the robot stood: once it has held HELD_TURN_US the
+    guard turns toward the target instead."""
+    from firmware_py.localplan import FORWARD, HELD_TURN_US, TURN_RIGHT, MotionGuard
+
+    guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
+    assert guard.action(0, 0, 0, FORWARD, -300, *_guard_inputs(), mem, held_us=HELD_TURN_US - 1) == FORWARD
+    assert guard.action(50_000, 0, 0, FORWARD, -300, *_guard_inputs(), mem, held_us=HELD_TURN_US) == TURN_RIGHT
