@@ -28,7 +28,10 @@ along the robot's current plan while it follows a whole-map route (a detour
 through another door first leads away from the waypoint; the first route of
 each round of recoveries, and another way round once the route followed
 closed, start a new count and a budget for its own length, up to three times
-the episode's).
+the episode's), and periods the planner's recoveries hold the robot still or
+back it off (WAIT, BACKUP, CLEAR, a whole-map route held or not yet answered)
+do not count toward the loop rule: they are bounded by the robot's own rules
+(at most 3 x max_rounds rounds), not aimless, and the budget still bounds them.
 """
 
 from __future__ import annotations
@@ -40,11 +43,20 @@ import numpy as np
 from firmware_py import robot_spec
 from firmware_py.background import Background
 from firmware_py.control import collision
-from firmware_py.localplan import GLOBAL, MotionGuard, ObstacleMemory, PlannedTarget
+from firmware_py.localplan import (
+    BACKUP,
+    CLEAR,
+    GLOBAL,
+    WAIT,
+    MotionGuard,
+    ObstacleMemory,
+    PlannedTarget,
+)
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.vehicle import VehicleConfig
 from ground_station.learn.sector.obstacles import (
     COLLISION,
+    LOOP,
     NO_ROUTE,
     PERIOD_S,
     RADIUS_MM,
@@ -105,6 +117,9 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         rl, sl = ranges.tolist(), status.tolist()
         memory.observe(grid, xm, ym, thm, rl, sl, t * PERIOD_US)
         tx, ty, speed = planner.target(t * PERIOD_US, x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
+        # the planner's recoveries hold the robot still (or back it off) on purpose, for a bounded time:
+        # not aimless, so those periods do not count toward the loop rule (the budget still bounds them)
+        recovering = planner.mode in (WAIT, BACKUP, CLEAR) or (planner.mode == GLOBAL and speed == 0)
         if planner.no_route:
             outcome = NO_ROUTE  # the robot's recoveries ran out and it reports it (the controller holds)
             break
@@ -145,8 +160,13 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
                 budget = min(max(budget, t + int(budget_base + budget_factor * phi / FWD_MM_PER_PERIOD)),
                              3 * budget0)
         work.run_pending()  # after the count above: the search it runs answers the next tick
+        counted = since
         end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since, stall_steps,
                                                       minclear, near)
+        if recovering and since > counted:
+            since = counted
+            if end == LOOP:
+                end = -1
         if end >= 0:
             outcome = end
             break
