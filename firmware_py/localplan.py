@@ -57,9 +57,11 @@ about them before its learnt sector policy steers:
   turning in place touches nothing), and a robot that has not moved
   `stuck_mm` for `stuck_us` with a remembered point within its radius +
   `backoff_near_mm` backs off for `backoff_us` if the rear sensors are
-  clear (and the side ones read more than `veto_mm`; checked every tick of
-  the back-off): a person pinned between a wall and the robot can then
-  step aside.
+  clear (checked every tick of it, which also ends when a side reading
+  falls to `veto_mm` or under: something closing in beside the robot): a
+  person pinned between a wall and the robot can then step aside. A
+  forward step the collision monitor has held `HELD_TURN_US` is turned
+  toward the target, as a veto.
   A turn in place toward a target behind the robot (more than
   `TURN_COMMIT_MRAD` off the heading) is kept the way it began: the
   table's bearing sectors meet behind the robot, and one turn step there
@@ -1002,6 +1004,14 @@ class MotionGuard:
         (control/collision.py) has held the straight part: a forward step it holds HELD_TURN_US is
         turned toward the target instead, as a veto (the table asked for it for 20 s against a
         remembered point in the path, and the robot stood)."""
+        action = self._act(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, detouring, held_us)
+        self._note_reverse(action == REVERSE, ranges_mm, status)
+        return action
+
+    def _act(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
+             ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+             memory: ObstacleMemory, detouring: bool, held_us: int) -> int:
+        """`action` without keeping the back-off's side readings (`step` keeps them for its own)."""
         action = self._decide(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, detouring, held_us)
         turns = (TURN_LEFT, TURN_RIGHT)
         if action in turns and self._last in turns and action != self._last:
@@ -1014,13 +1024,13 @@ class MotionGuard:
         elif action != self._last:
             self._reversals = 0
         self._last = action
-        self._note_reverse(action, ranges_mm, status)
         return action
 
-    def _note_reverse(self, action: int, ranges_mm: list[int] | tuple[int, ...],
+    def _note_reverse(self, backing: bool, ranges_mm: list[int] | tuple[int, ...],
                       status: list[int] | tuple[int, ...]) -> None:
-        """Keep the side readings of a back-off's first tick (`may_reverse` compares with them)."""
-        if action != REVERSE:
+        """Keep the side readings of a back-off's first tick (`may_reverse` compares with them) while
+        a back-off goes on or is asked for (a recovery's, refused, stays refused to its end)."""
+        if not backing:
             self._side_ref = None
         elif self._side_ref is None:
             self._side_ref = [_reading(ranges_mm, status, i) for i in _SIDES]
@@ -1056,11 +1066,11 @@ class MotionGuard:
         back-off reverses at full speed while the rear is clear. `held_us`: as `action`."""
         if speed == 0:
             self.still(now_us)
-        action = self.action(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, planner.detouring,
-                             held_us)
+        action = self._act(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, planner.detouring,
+                           held_us)
         if planner.reverse and self.may_reverse(ranges_mm, status):
-            self._note_reverse(REVERSE, ranges_mm, status)
-            return REVERSE, 100
+            action, speed = REVERSE, 100
+        self._note_reverse(action == REVERSE or planner.reverse, ranges_mm, status)
         return action, speed
 
     def still(self, now_us: int) -> None:

@@ -366,3 +366,21 @@ def test_guard_turns_a_forward_step_the_collision_monitor_holds():
     guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
     assert guard.action(0, 0, 0, FORWARD, -300, *_guard_inputs(), mem, held_us=HELD_TURN_US - 1) == FORWARD
     assert guard.action(50_000, 0, 0, FORWARD, -300, *_guard_inputs(), mem, held_us=HELD_TURN_US) == TURN_RIGHT
+
+
+def test_a_recovery_back_off_also_ends_when_a_side_closes_in():
+    """The planner's BACKUP (PlannedTarget.reverse) goes through the same check as the guard's own
+    back-off: a side reading falling to veto_mm or under ends it."""
+    from types import SimpleNamespace
+
+    from firmware_py.localplan import REVERSE, TURN_LEFT, MotionGuard
+
+    guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
+    planner = SimpleNamespace(reverse=True, detouring=False)  # the two fields step() reads
+    acts = []
+    for k, side in enumerate([80, 70, 60, 50, 40, 30]):
+        ranges, _ = _guard_inputs()
+        ranges[6] = side
+        acts.append(guard.step(k * 50_000, 0.0, 0.0, TURN_LEFT, 100, ranges,
+                               [V if r < 2000 else FAR for r in ranges], mem, planner, 0)[0])  # type: ignore[arg-type]
+    assert acts[:4] == [REVERSE] * 4 and REVERSE not in acts[4:]
