@@ -186,6 +186,13 @@ def monitor_stops(action: int, x_mm: int, y_mm: int, th_mrad: int, ranges: list[
     cfg = _VEHICLE
     seen = [(px, py) for px, py, _ in memory.points.values()]
     seen += corners.near(x_mm, y_mm, cfg.collision_slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+    if left == right:  # driving straight: only what lies within stop_mm + radius of the centre can stop it
+        reach = cfg.collision_stop_mm + robot_spec.ROBOT_RADIUS_MM + 1
+        mount = robot_spec.SENSOR_MOUNT_RADIUS_MM
+        if not any(st == robot_spec.RANGE_TOO_CLOSE or (st == robot_spec.RANGE_VALID and mount + r <= reach)
+                   for r, st in zip(ranges, status, strict=True)) and not any(
+                (px - x_mm) ** 2 + (py - y_mm) ** 2 <= reach * reach for px, py in seen):
+            return False  # the same answer as limit's, without its geometry (the twin's hot loop)
     near = collision.robot_frame(seen, (x_mm, y_mm, th_mrad)) if seen else []
     return collision.limit(left, right, ranges, status, cfg.collision_stop_mm, cfg.collision_slow_mm,
                            cfg.collision_slow_pct, near)[2] == "stop"

@@ -149,8 +149,8 @@ def test_sweep_identical_on_ray_cluster_and_runs_on_both_nodes(cluster, local_sw
 @pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
 @pytest.mark.parametrize(("args", "part", "jobs"), [
     (["bench", "hil", "--only", "cell", "--starts", "2", "--batch", "1"], "cell", 8),
-    (["bench", "nav", "--map", "paper10", "--episodes", "8", "--hil", "--hil-episodes", "2",
-      "--controllers", "learnt,seek", "--batch", "4"], "twin", None)], ids=["hil", "nav"])
+    (["bench", "nav", "--map", "paper10", "--episodes", "4", "--hil", "--hil-episodes", "2",
+      "--controllers", "learnt,seek", "--batch", "2"], "twin", None)], ids=["hil", "nav"])
 def test_bench_identical_on_ray_cluster(cluster, tmp_path, args, part, jobs):
     local = qnav(*args, "--json", str(tmp_path / "local.json"))
     assert local.returncode == 0, local.stderr[-2000:]

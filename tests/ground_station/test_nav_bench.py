@@ -191,3 +191,38 @@ def test_the_twin_applies_the_robots_collision_monitor_stop_zone():
     assert not monitor_stops(TURN_LEFT, x, y, 0, *near, memory, corners)
     memory.points[(0, 0)] = (x + robot_spec.ROBOT_RADIUS_MM + stop // 2, y + 60, 0)  # ahead, no sensor on it
     assert monitor_stops(FORWARD, x, y, 0, *far, memory, corners)
+
+
+def test_the_twins_monitor_shortcut_answers_as_the_robots_monitor():
+    """`monitor_stops` skips `collision.limit` for a straight step when nothing lies within
+    stop_mm + radius of the centre: over random readings, remembered points and poses on paper10
+    its answer equals the monitor's own (limit(...) == "stop")."""
+    import random
+
+    from firmware_py.control import collision
+    from firmware_py.localplan import LocalPlannerConfig, ObstacleMemory
+    from firmware_py.vehicle import VehicleConfig
+    from ground_station.nav.planned import grid_of, monitor_stops
+
+    rng = random.Random(7)
+    n = robot_spec.SENSOR_COUNT
+    corners = collision.MapCorners(grid_of(load_map("paper10")))
+    cfg = VehicleConfig()
+    stops = 0
+    for _ in range(3000):
+        x, y, th = rng.randint(200, 4800), rng.randint(200, 4800), rng.randint(-3141, 3141)
+        status = [rng.choice((robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_TOO_CLOSE))
+                  for _ in range(n)]
+        ranges = [rng.randint(20, 400) for _ in range(n)]
+        memory = ObstacleMemory(LocalPlannerConfig())
+        for k in range(rng.randint(0, 4)):
+            memory.points[(k, 0)] = (x + rng.randint(-400, 400), y + rng.randint(-400, 400), 0)
+        for action, (left, right) in enumerate(robot_spec.ACTION_WHEEL_SPEEDS_MM_S):
+            seen = [(px, py) for px, py, _ in memory.points.values()]
+            seen += corners.near(x, y, cfg.collision_slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+            near = collision.robot_frame(seen, (x, y, th)) if seen else []
+            want = collision.limit(left, right, ranges, status, cfg.collision_stop_mm, cfg.collision_slow_mm,
+                                   cfg.collision_slow_pct, near)[2] == "stop"
+            assert monitor_stops(action, x, y, th, ranges, status, memory, corners) == want
+            stops += want
+    assert stops > 100  # the draw does reach the stop zone
