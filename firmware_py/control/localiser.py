@@ -197,7 +197,6 @@ class LikelihoodField:
         self.values = table.tolist()  # the same as a list: indexing it is faster in the weighing loop
         # squares inside an occupied cell or off the map (negative information: a reading saw through a wall)
         self.inside = inside
-        self.wall = array("f", [math.log(z_hit + z_floor)])[0] - 1e-6
 
     def distance_mm(self, px: float, py: float, reach: int = 2) -> float:
         """Distance from a world point (mm) to the nearest occupied cell or

@@ -124,7 +124,6 @@ class SectorMemoryDriver(CellStepper):
         dcol, drow = DIR_VECTORS[d]
         return Step((centre[0] + dcol * c, centre[1] + drow * c), DIR_HEADING_MRAD[d], self.decided(s, a))
 
-
     def _steer_point(self, tick: DriveTick, centre: tuple[int, int], physical: int) -> tuple[int, int]:
         """The point the Bug encodes its goal vector toward at this decision: the centre of a route
         sub-goal on the robot's map (the end of the straight run down the route from here, kept until

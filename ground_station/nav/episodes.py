@@ -44,6 +44,7 @@ from ground_station.learn.sector.obstacles import (
 from ground_station.learn.sector.twin import encoder_arrays
 from ground_station.maps import GridMap
 from ground_station.nav.controllers import BenchController, NavController
+from ground_station.nav.planned import budget_periods, run_twin_planned
 from ground_station.nav.scenario import Episode, episode_arrays
 
 OUTCOMES = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop", TIMEOUT: "timeout", NO_ROUTE: "no_route"}
@@ -70,8 +71,6 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
     near = np.zeros(n, dtype=np.int64)
     q = np.ascontiguousarray(ctrl.q, dtype=np.float64)
     if ctrl.local is not None:  # the robot's own local planner code in a Python loop (nav/planned.py)
-        from ground_station.nav.planned import run_twin_planned
-
         outcome, path, steps, minclear, near = run_twin_planned(eps, maps, ctrl, BUDGET_BASE, BUDGET_FACTOR,
                                                                 STALL_STEPS)
         return _rows(eps, outcome, path, steps, minclear, near)
@@ -122,8 +121,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
         if ep.map not in policies:
             policies[ep.map] = ctrl.policy(ep.map)
         goals = [(round(x), round(y)) for x, y in (ep.waypoints if ctrl.guidance == "path" else [ep.goal_mm])]
-        limit = max_sim_s or (BUDGET_BASE + BUDGET_FACTOR * plan_length(ep) /
-                              (max(v for v, _ in robot_spec.ACTION_WHEEL_SPEEDS_MM_S) * PERIOD_S)) * PERIOD_S
+        limit = max_sim_s or budget_periods(plan_length(ep), BUDGET_BASE, BUDGET_FACTOR) * PERIOD_S
         t0 = time.perf_counter()
         start = (ep.start[0] / 1000.0, ep.start[1] / 1000.0, ep.start[2])
         near = 0
@@ -179,8 +177,7 @@ def _rebase_budget(rig: Any, end_us: int, routes: int, cap_us: int) -> tuple[int
     if local is None or local[0].routes_taken == routes:
         return end_us, routes
     planner = local[0]
-    fwd = max(v for v, _ in robot_spec.ACTION_WHEEL_SPEEDS_MM_S) * PERIOD_S
-    periods = BUDGET_BASE + BUDGET_FACTOR * planner.route_mm / fwd
+    periods = budget_periods(planner.route_mm, BUDGET_BASE, BUDGET_FACTOR)
     return min(cap_us, max(end_us, rig.plant.time_us + round(periods * PERIOD_S * 1e6))), planner.routes_taken
 
 

@@ -54,6 +54,7 @@ from firmware_py.localplan import (
 )
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.vehicle import VehicleConfig
+from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD
 from ground_station.learn.sector.obstacles import (
     COLLISION,
     LOOP,
@@ -73,7 +74,12 @@ from ground_station.nav.controllers import NavController
 from ground_station.nav.scenario import Episode, rollout_arrays
 
 PERIOD_US = robot_spec.CONTROL_PERIOD_US
-FWD_MM_PER_PERIOD = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[0][0] * PERIOD_US / 1e6
+
+
+def budget_periods(length_mm: float, budget_base: float, budget_factor: float) -> float:
+    """An episode's (or a plan's) period budget: `budget_base` + `budget_factor` x the periods a
+    `length_mm` drive takes at full forward speed (the twin's rule; run_hil takes it in sim time)."""
+    return budget_base + budget_factor * length_mm / FWD_MM_PER_PERIOD
 
 
 def grid_of(gm: GridMap):
@@ -93,7 +99,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
     discs, movers, wps, rem, plan_len = rollout_arrays(ep, ctrl.guidance == "path")
     x, y, th = ep.start
-    budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+    budget = int(budget_periods(plan_len, budget_base, budget_factor))
     phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
     grid = grid_of(gm)
     memory = ObstacleMemory(ctrl.local)
@@ -157,7 +163,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
                 route_plans, best, since = planner.routes_taken, phi, 0
                 # the budget too is the current plan's (a long detour through another door is no
                 # timeout), at most three times the episode's own
-                budget = min(max(budget, t + int(budget_base + budget_factor * phi / FWD_MM_PER_PERIOD)),
+                budget = min(max(budget, t + int(budget_periods(phi, budget_base, budget_factor))),
                              3 * budget0)
         work.run_pending()  # after the count above: the search it runs answers the next tick
         counted = since
