@@ -71,6 +71,17 @@ about them before its learnt sector policy steers:
   steps forward when the front sensors read at least twice `veto_mm` (a
   target just off ahead, a wall close on one diagonal: the table turned
   to and fro between two headings for good).
+  A body the map does not explain (the obstacle memory holds it that
+  near) touching the flank or a front diagonal ahead of the axle (a mover
+  that walked up to the robot and stands while it would overlap it) is
+  turned away from, the same way whatever the table asks, until a step
+  ahead is clear by `collision.travel_gap_mm`, then `ESCAPE_STEPS` steps
+  are taken ahead (`MotionGuard._escape`): the table, or the front veto
+  turning toward a target on the body's side, turned into it and back on
+  the spot while the collision monitor held every step (the no-yield
+  bench's loops), or, before the monitor knew the blind gaps, stepped
+  into it (all its 14 collisions). A reverse the monitor holds
+  `HELD_TURN_US` is turned toward the target as a held forward step is.
 
 * `PlannedTarget` is the tick's side of the planner: the search does not
   run in the control tick (issue 29 finding 4: legal metadata made one
@@ -103,6 +114,7 @@ from typing import Any
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
+from firmware_py.control import collision
 from firmware_py.mapdata import OccupancyGrid
 
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
@@ -148,6 +160,9 @@ def _wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
 def _wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:
     """Distance (mm) from the point to the nearest occupied cell (or the outside of the grid), capped at m."""
     return min([float(m), *(math.hypot(dx, dy) for dx, dy in _walls_near(grid, x, y, m))])
+
+
+MAP_MARGIN_MM = 150  # a reading is explained by the map within this distance of a mapped cell
 
 
 def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
@@ -202,11 +217,21 @@ def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: i
     return out
 
 
+def mapped_readings(grid: OccupancyGrid, pose_mm: tuple[int, int, int], ranges_mm: list[int] | tuple[int, ...],
+                    status: list[int] | tuple[int, ...], margin_mm: int = MAP_MARGIN_MM) -> list[bool]:
+    """Per sensor: the map explains its reading at this pose (`unmapped_ends`); a too-far or
+    invalid reading is not a reading (False). The collision monitor's `mapped`."""
+    x, y, heading = pose_mm
+    unmapped = unmapped_readings(grid, x, y, heading, ranges_mm, status, margin_mm)
+    return [u < 0 and status[i] in (robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE)
+            for i, u in enumerate(unmapped)]
+
+
 @dataclass(frozen=True)
 class LocalPlannerConfig:
     """The planner's parameters (mm, us); `from_metadata` checks each."""
 
-    margin_mm: int = 150  # a reading is explained by the map within this distance of a mapped cell
+    margin_mm: int = MAP_MARGIN_MM
     see_mm: int = 1500  # readings farther than this are not remembered (the fan is wide out there)
     memory_us: int = 3_000_000  # a point not seen again for this long is forgotten
     max_points: int = 400
@@ -355,6 +380,10 @@ class ObstacleMemory:
             if off <= _HALF_FOV and d < r - cfg.clear_margin_mm:
                 out.append(key)
         return out
+
+    def within(self, x: float, y: float, mm: float) -> bool:
+        """A remembered point nearer than `mm` to (x, y)."""
+        return any((px - x) ** 2 + (py - y) ** 2 < mm * mm for px, py, _ in self.points.values())
 
     def pin(self, now_us: int) -> None:
         """Keep every point remembered now for `route_memory_us` (a global re-plan goes round them)."""
@@ -781,7 +810,9 @@ class PlannedTarget:
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
        (the controller reports it and ends the mission). A round whose wait saw more than
        `moving_points` new points was a moving scene (a mover walking in the only way) and does
-       not count, up to 3 x `max_rounds` rounds in all.
+       not count, up to 3 x `max_rounds` rounds in all; nor does one in which a remembered point
+       came within the robot's radius + `veto_mm` (the guard never steps that close: it came to
+       the robot, a person who will not give way standing at it in a one-cell corridor).
 
     A waypoint beyond `max_plan_mm` is driven at without planning while the map leaves the straight
     line to it free (looked at off the tick); once it does not (a recovery's detour left the route
@@ -804,6 +835,7 @@ class PlannedTarget:
         self._rounds = 0  # global searches without a route for this waypoint (in a still scene)
         self._all_rounds = 0  # ... and in all
         self._added_at_wait = 0  # memory.added when the last wait began
+        self._came_up = False  # something came up to the robot during this round (_recovering)
         self.reverse = False  # this tick: back off (BACKUP)
         self.no_route = ""  # why the waypoint cannot be reached (NO_ROUTE), else ""
         self.global_plans = 0  # global re-plans started (telemetry / benchmarks)
@@ -847,7 +879,7 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if self.mode == CLEAR:
             self._enter(WAIT, now_us)
-            self._added_at_wait = memory.added
+            self._added_at_wait, self._came_up = memory.added, False
         whole_map = self.mode == GLOBAL
         if not whole_map:  # in GLOBAL it stays the route's (a tick without an answer followed: the last one's)
             self.route_mm = math.hypot(wx - x, wy - y)
@@ -882,10 +914,12 @@ class PlannedTarget:
         if ans is not None and (ans.whole_map != whole_map or ans.asked_us < self._mode_since_us):
             ans = None  # asked before this mode began: not an answer to its question
         if self.mode in (WAIT, GLOBAL):
+            if self.mode == WAIT and not self._came_up:
+                self._came_up = memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + self.cfg.veto_mm)
             return self._recovering(now_us, wx, wy, ans, memory)
         if ans is not None and ans.blocked:
             self._enter(WAIT, now_us)
-            self._added_at_wait = memory.added
+            self._added_at_wait, self._came_up = memory.added, False
             return float(wx), float(wy), 0
         if ans is None:
             # nothing answered for this waypoint yet (the tick it became blocked, in lockstep and the
@@ -926,7 +960,7 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if ans.no_route:
             self._all_rounds += 1
-            if memory.added - self._added_at_wait <= cfg.moving_points:
+            if memory.added - self._added_at_wait <= cfg.moving_points and not self._came_up:
                 self._rounds += 1  # a still scene: what closes the way stays
             if self._rounds >= cfg.max_rounds or self._all_rounds >= 3 * cfg.max_rounds:
                 self._enter(NO_ROUTE, now_us)
@@ -964,9 +998,12 @@ class PlannedTarget:
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
 TURN_COMMIT_MRAD = 1571  # a turn toward a target further round than this keeps its direction (MotionGuard)
 DITHER_REVERSALS = 3  # turn reversals in a row after which the guard steps forward if the front is open
+ESCAPE_STEPS = 5  # steps ahead (100 mm) after turning away from a body at the flank (MotionGuard._escape)
+ESCAPE_US = 3_000_000  # at most this long turning away from it
 HELD_TURN_US = 500_000  # a forward step the collision monitor holds this long is turned (MotionGuard)
 _FRONT = (robot_spec.SENSOR_COUNT - 1, 0, 1)  # -45, 0, +45 deg
 _REAR, _REAR_SIDES, _SIDES = 4, (3, 5), (2, 6)
+_LEFT_HALF, _RIGHT_HALF = (1, 2), (6, 7)  # the diagonals and sides ahead of the axle
 
 
 def _reading(ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], i: int) -> int:
@@ -994,6 +1031,9 @@ class MotionGuard:
         self._last = FORWARD  # the action taken on the last tick
         self._reversals = 0  # ticks in a row the turn reversed
         self._side_ref: list[int] | None = None  # the side readings when the current back-off began
+        self._escape_turn: int | None = None  # turning away from a body at the flank (_escape)
+        self._escape_until_us = 0
+        self._escape_steps = 0  # steps ahead still to take after the escape turn
 
     def action(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
@@ -1020,7 +1060,9 @@ class MotionGuard:
                 action = self._last  # the target is behind: finish the turn begun (module docstring)
             elif self._reversals >= DITHER_REVERSALS and all(
                     _reading(ranges_mm, status, i) >= 2 * self.cfg.veto_mm for i in _FRONT):
-                action, self._reversals = FORWARD, 0  # left, right, left on the spot: a step ahead breaks it
+                # left, right, left on the spot: a step ahead breaks it (or, a body at the flank in
+                # the way of that step, turning away from it)
+                action, self._reversals = self._escape(now_us, x, y, FORWARD, ranges_mm, status, memory), 0
         elif action != self._last:
             self._reversals = 0
         self._last = action
@@ -1052,10 +1094,49 @@ class MotionGuard:
                 self._backing_until_us = now_us + cfg.backoff_us
                 self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
                 return REVERSE
-        if action == FORWARD and (held_us >= HELD_TURN_US
-                                  or any(_reading(ranges_mm, status, i) < cfg.veto_mm for i in _FRONT)):
+        toward = TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
+        if action in (FORWARD, REVERSE) and held_us >= HELD_TURN_US:
+            # (the table's own reverse too: held against a mover at the rear flank, it was asked for
+            # as long as nothing changed, and nothing did)
             self.vetoes += 1
-            return TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
+            return toward
+        action = self._escape(now_us, x, y, action, ranges_mm, status, memory)
+        if action == FORWARD and any(_reading(ranges_mm, status, i) < cfg.veto_mm for i in _FRONT):
+            self.vetoes += 1
+            self._escape_steps = 0
+            return toward
+        return action
+
+    def _escape(self, now_us: int, x: float, y: float, action: int, ranges_mm: list[int] | tuple[int, ...],
+                status: list[int] | tuple[int, ...], memory: ObstacleMemory) -> int:
+        """Away from a body touching the flank or a front diagonal ahead of the axle (a mover that
+        walked up to the robot and stands while it would overlap it): a step ahead rubs into it, and
+        the table's turn back toward the target (or the front veto's, toward a target on that side)
+        undoes a single turn away. So: turn away, the same way, until a step ahead
+        is clear (collision.travel_gap_mm, which counts the rim beside a near reading), then
+        ESCAPE_STEPS steps ahead; at most ESCAPE_US of turning. Only for a body the map does not
+        explain (one the obstacle memory holds that near): a block's corner beside the robot is the
+        collision monitor's, which knows the map's corners."""
+        flank = [robot_spec.RANGE_TOO_FAR if i == 0 else st for i, st in enumerate(status)]  # ahead: the veto's
+        blocked = (collision.travel_gap_mm(ranges_mm, flank, False) < self.cfg.veto_mm
+                   and memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + collision.CONTACT_MM))
+        if self._escape_turn is not None:
+            if blocked and now_us < self._escape_until_us:
+                self.vetoes += 1
+                return self._escape_turn
+            self._escape_turn, self._escape_steps = None, 0 if blocked else ESCAPE_STEPS
+        if self._escape_steps > 0:
+            self._escape_steps -= 1
+            if not blocked:
+                return FORWARD
+            self._escape_steps = 0
+        if action == FORWARD and blocked:
+            self.vetoes += 1
+            left = min(_reading(ranges_mm, status, i) for i in _LEFT_HALF)
+            right = min(_reading(ranges_mm, status, i) for i in _RIGHT_HALF)
+            self._escape_turn = TURN_RIGHT if left < right else TURN_LEFT
+            self._escape_until_us = now_us + ESCAPE_US
+            return self._escape_turn
         return action
 
     def step(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,

@@ -16,7 +16,16 @@ the turn but limits the straight part when a range reading lies in the path:
   corridor is not in the way; a wall ahead, a disc on the diagonal close in,
   a corner the robot is curving into, are. Fresh-clone runs of the demo with
   obstacles ended at the bumper on a disc in such a gap, and later on a
-  block's corner while arcing round it, before each was counted.
+  block's corner while arcing round it, before each was counted. A
+  reading under `CONTACT_MM` may be a body touching the rim in the blind
+  gap beside its cone (a mover that walked up to the robot's flank reads
+  20-40 mm along the nearer cone edge, never touching): the rim across
+  those gaps counts as read, except a gap away from a neighbour that also
+  reads under it (the body is in the gap between them). A too-close
+  reading (under the sensor's minimum) is taken as 0 mm. A reading the
+  robot's map explains (`mapped`, worked out by the caller on its map
+  and pose) is a wall or a block, whose corners the monitor has: no gap
+  is filled for it, and too close is the sensor's minimum.
 * `limit` scales the straight part by `slow_pct` when the gap is under
   `slow_mm` and removes it under `stop_mm`; turning in place is left alone
   (a round robot turning touches nothing). The bumper and stale sensors are
@@ -42,26 +51,64 @@ _MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
 _BASE = float(robot_spec.WHEEL_BASE_MM)
 _STRAIGHT_MM = 1e6  # a turning radius beyond this is driving straight
 _TWO_PI = 2.0 * math.pi
+# A body touching the rim in the blind gap between two cones (up to half the 45-degree spacing from a
+# sensor's axis) is read by that sensor, along its cone's nearer edge, at 40 mm or less for any disc of
+# radius 100 mm or more (27 for a 150-mm mover touching 22.5 degrees off): a reading under CONTACT_MM
+# may be such a body, so the rim across the gaps beside that cone counts as touched. A non-yielding
+# mover that walked up to the robot's flank, read 20-30 mm off, was hit by the next step ahead.
+CONTACT_MM = 45.0
+_GAP_OFFSETS = tuple(math.radians(o) for o in (11.25, 15.0, 18.75, 22.5))  # the cone's edge to mid-gap
+# per sensor: (the neighbour a gap leads to, the neighbour on the other side, rim points in that gap)
+_GAP_RIM = [[((i + s) % len(robot_spec.SENSOR_ANGLES_MRAD), (i - s) % len(robot_spec.SENSOR_ANGLES_MRAD),
+              [(_R * math.cos(a / 1000.0 + s * d), _R * math.sin(a / 1000.0 + s * d)) for d in _GAP_OFFSETS])
+             for s in (1, -1)]
+            for i, a in enumerate(robot_spec.SENSOR_ANGLES_MRAD)]
 
 
-def _reading_points(ranges_mm: Sequence[int], status: Sequence[int]) -> list[tuple[float, float]]:
-    """Each sensor's reading as points (mm ahead, mm left) on its cone's centre and edge rays."""
+def touching(ranges_mm: Sequence[int], status: Sequence[int]) -> bool:
+    """A reading under CONTACT_MM (callers then work out which readings their map explains)."""
+    return any(_distance(ranges_mm, status, i) < CONTACT_MM for i in range(len(_RAYS)))
+
+
+def _reading_points(ranges_mm: Sequence[int], status: Sequence[int],
+                    mapped: Sequence[bool] = ()) -> list[tuple[float, float]]:
+    """Each sensor's reading as points (mm ahead, mm left) on its cone's centre and edge rays; a
+    reading under CONTACT_MM adds points on the rim across the blind gaps beside its cone, except a
+    gap whose far neighbour reads CONTACT_MM or more while the neighbour on the other side also reads
+    under it (the body is in that other gap: a mover touching the flank behind the axle is read by
+    the side and rear-diagonal sensors, and does not stop a step ahead, away from it), and except
+    for a reading the robot's map explains (`mapped[i]`: a wall or block whose corners the monitor
+    is given as points; a block's corner beside the robot held every step past it)."""
     out: list[tuple[float, float]] = []
+    near = [_distance(ranges_mm, status, i) for i in range(len(_RAYS))]
     for i, rays in enumerate(_RAYS):
-        if status[i] == robot_spec.RANGE_TOO_CLOSE:
-            r = float(robot_spec.RANGE_MIN_MM)
-        elif status[i] == robot_spec.RANGE_VALID:
-            r = float(ranges_mm[i])
-        else:
+        r = near[i]
+        if r == math.inf:
             continue
+        if mapped and mapped[i]:
+            r = max(r, float(robot_spec.RANGE_MIN_MM))  # a wall's face: its corners are points already
         out.extend(((_MOUNT + r) * math.cos(a), (_MOUNT + r) * math.sin(a)) for a in rays)
+        if r < CONTACT_MM and not (mapped and mapped[i]):
+            for toward, other, rim in _GAP_RIM[i]:
+                if not (near[other] < CONTACT_MM <= near[toward]):
+                    out.extend(rim)
     return out
 
 
-def travel_gap_mm(ranges_mm: Sequence[int], status: Sequence[int], reverse: bool) -> int:
-    """How far (mm) the robot can drive straight ahead (`reverse`: back) before touching a read point."""
+def _distance(ranges_mm: Sequence[int], status: Sequence[int], i: int) -> float:
+    if status[i] == robot_spec.RANGE_TOO_CLOSE:
+        return 0.0  # somewhere under the sensor's minimum: take the worst
+    if status[i] == robot_spec.RANGE_VALID:
+        return float(ranges_mm[i])
+    return math.inf
+
+
+def travel_gap_mm(ranges_mm: Sequence[int], status: Sequence[int], reverse: bool,
+                  mapped: Sequence[bool] = ()) -> int:
+    """How far (mm) the robot can drive straight ahead (`reverse`: back) before touching a read point
+    (`mapped`: as `limit`'s)."""
     s = -1 if reverse else 1
-    return path_gap_mm(_reading_points(ranges_mm, status), s, s)
+    return path_gap_mm(_reading_points(ranges_mm, status, mapped), s, s)
 
 
 def path_gap_mm(points: Sequence[tuple[float, float]], left: int, right: int,
@@ -157,14 +204,17 @@ class MapCorners:
 
 
 def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int], stop_mm: int, slow_mm: int,
-          slow_pct: int, remembered: Sequence[tuple[float, float]] = ()) -> tuple[int, int, str]:
+          slow_pct: int, remembered: Sequence[tuple[float, float]] = (),
+          mapped: Sequence[bool] = ()) -> tuple[int, int, str]:
     """(left, right) with the straight part limited, and "", "slow" or "stop" (what it did).
     `remembered`: obstacle points the policy kind remembers, in the robot's frame (`robot_frame`):
-    a disc that slipped into the gap between two sensors' cones still counts."""
+    a disc that slipped into the gap between two sensors' cones still counts. `mapped`: per sensor,
+    whether the robot's map explains its reading (`firmware_py.localplan.mapped_readings`; empty:
+    none does)."""
     v2, w2 = left + right, right - left  # twice the straight and the turning part
     if v2 == 0 or (stop_mm <= 0 and slow_mm <= 0):
         return left, right, ""
-    points = _reading_points(ranges_mm, status)
+    points = _reading_points(ranges_mm, status, mapped)
     points.extend(remembered)
     gap = path_gap_mm(points, left, right)
     if gap < stop_mm:

@@ -49,6 +49,7 @@ from firmware_py.control.state import (
     ControlState,
 )
 from firmware_py.kinds import DriveTick
+from firmware_py.localplan import mapped_readings
 from firmware_py.mapdata import OccupancyGrid, describe
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy, on_robot_map
 from firmware_py.vehicle import (
@@ -614,10 +615,14 @@ class Controller(ControlState):
             return status
         return self.driver.localiser_statuses(loc.pose_mm(), inp.ranges_mm, status)
 
+    def _monitor_map(self) -> OccupancyGrid | None:
+        """The map the collision monitor knows walls and corners by: the robot's, else the policy's."""
+        return self.robot_map if self.robot_map is not None else (
+            self.policy.map_grid if self.policy is not None else None)
+
     def _map_corners_near(self, pose: tuple[int, int, int]) -> list[tuple[int, int]]:
         """The robot's map's block corners within reach of the collision monitor (none without a map)."""
-        grid = self.robot_map if self.robot_map is not None else (
-            self.policy.map_grid if self.policy is not None else None)
+        grid = self._monitor_map()
         if grid is None:
             return []
         corners: collision.MapCorners | None = self._corners
@@ -634,8 +639,11 @@ class Controller(ControlState):
             seen = self.driver.remembered_obstacles() if self.driver is not None else []
             seen = seen + self._map_corners_near(pose)
             near = collision.robot_frame(seen, pose) if seen else []
+            grid = self._monitor_map()
+            mapped = (mapped_readings(grid, pose, inp.ranges_mm, inp.range_status)
+                      if grid is not None and collision.touching(inp.ranges_mm, inp.range_status) else [])
             left, right, limited = collision.limit(left, right, inp.ranges_mm, inp.range_status, cfg.collision_stop_mm,
-                                                   cfg.collision_slow_mm, cfg.collision_slow_pct, near)
+                                                   cfg.collision_slow_mm, cfg.collision_slow_pct, near, mapped)
             if limited:
                 self.collision_ticks[limited] += 1
             if limited == "stop":

@@ -51,6 +51,7 @@ from firmware_py.localplan import (
     MotionGuard,
     ObstacleMemory,
     PlannedTarget,
+    mapped_readings,
 )
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.vehicle import VehicleConfig
@@ -200,8 +201,10 @@ def monitor_stops(action: int, x_mm: int, y_mm: int, th_mrad: int, ranges: list[
                 (px - x_mm) ** 2 + (py - y_mm) ** 2 <= reach * reach for px, py in seen):
             return False  # the same answer as limit's, without its geometry (the twin's hot loop)
     near = collision.robot_frame(seen, (x_mm, y_mm, th_mrad)) if seen else []
+    mapped = (mapped_readings(corners.grid, (x_mm, y_mm, th_mrad), ranges, status)
+              if collision.touching(ranges, status) else [])
     return collision.limit(left, right, ranges, status, cfg.collision_stop_mm, cfg.collision_slow_mm,
-                           cfg.collision_slow_pct, near)[2] == "stop"
+                           cfg.collision_slow_pct, near, mapped)[2] == "stop"
 
 
 def run_twin_planned(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController, budget_base: float,

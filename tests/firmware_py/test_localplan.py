@@ -384,3 +384,55 @@ def test_a_recovery_back_off_also_ends_when_a_side_closes_in():
         acts.append(guard.step(k * 50_000, 0.0, 0.0, TURN_LEFT, 100, ranges,
                                [V if r < 2000 else FAR for r in ranges], mem, planner, 0)[0])  # type: ignore[arg-type]
     assert acts[:4] == [REVERSE] * 4 and REVERSE not in acts[4:]
+
+
+def test_guard_turns_away_from_a_body_at_the_flank_then_steps_ahead():
+    """A mover that walked up to the robot's right flank and stands there, in the blind gap ahead of
+    the -90 degree sensor (which reads it 30 mm off; the -45 degree one does not see it, so the
+    front veto does not act): a step ahead rubs into it, and the table, its target to the right,
+    turned right and back on the spot. The guard turns left, away from it, whatever the
+    table asks, until the flank ahead of the axle is clear, then takes ESCAPE_STEPS steps ahead; a
+    body it cannot turn away from is given up after ESCAPE_US. A reading the map explains (nothing
+    remembered that near: a block's corner) is left to the collision monitor, which has the corners."""
+    from firmware_py.localplan import (
+        ESCAPE_STEPS,
+        ESCAPE_US,
+        FORWARD,
+        TURN_LEFT,
+        TURN_RIGHT,
+        MotionGuard,
+    )
+
+    mem = ObstacleMemory(CFG)
+    mem.points[(0, -4)] = (0, -180, 0)  # the body's reading end point, as observe stores it
+
+    def flank(*near: int) -> tuple[list[int], list[int]]:
+        ranges = [2000] * N
+        for i in near:
+            ranges[i] = 30
+        return ranges, [V if r < 2000 else FAR for r in ranges]
+
+    guard = MotionGuard(CFG)
+    ahead, behind = flank(6), flank(5, 6)  # the body ahead of the axle; after turning, behind it
+    acts = [guard.action(0, 0, 0, FORWARD, -300, *ahead, mem),
+            guard.action(50_000, 0, 0, TURN_RIGHT, -300, *ahead, mem)]
+    acts += [guard.action(100_000 + k * 50_000, 0, 0, TURN_RIGHT, -300, *behind, mem)
+             for k in range(ESCAPE_STEPS + 1)]
+    assert acts == [TURN_LEFT, TURN_LEFT] + [FORWARD] * ESCAPE_STEPS + [TURN_RIGHT]
+    left = MotionGuard(CFG)  # the body on the left: it turns right
+    assert left.action(0, 0, 0, FORWARD, 300, *flank(2), mem) == TURN_RIGHT
+    stuck = MotionGuard(CFG)
+    period = robot_spec.CONTROL_PERIOD_US
+    walled = flank(4, 6)  # something behind too: no back-off after stuck_us either
+    acts = [stuck.action(k * period, 0, 0, TURN_RIGHT if k else FORWARD, -300, *walled, mem)
+            for k in range(ESCAPE_US // period + 2)]
+    assert acts[:ESCAPE_US // period] == [TURN_LEFT] * (ESCAPE_US // period)
+    assert acts[-1] == TURN_RIGHT
+    assert guard.action(0, 0, 0, FORWARD, -300, *flank(5, 6), mem) == FORWARD  # behind the axle: nothing to do
+    assert MotionGuard(CFG).action(0, 0, 0, FORWARD, -300, *ahead, ObstacleMemory(CFG)) == FORWARD  # mapped
+    # on the front-right diagonal with the target to the right: the front veto alone turned right,
+    # into it, and the table back; the guard turns away from it, left, and keeps turning
+    diagonal = MotionGuard(CFG)
+    assert [diagonal.action(k * 50_000, 0, 0, a, -300, *flank(7), mem)
+            for k, a in enumerate([FORWARD, TURN_RIGHT, FORWARD])] == [TURN_LEFT] * 3
+    assert MotionGuard(CFG).action(0, 0, 0, FORWARD, -300, *flank(7), ObstacleMemory(CFG)) == TURN_RIGHT

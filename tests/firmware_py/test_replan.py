@@ -202,6 +202,34 @@ def test_rounds_in_a_moving_scene_do_not_count_toward_no_route():
     assert said > 2 * still and pt.global_plans == 3 * CFG.max_rounds
 
 
+def test_rounds_in_which_something_came_up_to_the_robot_do_not_count_toward_no_route():
+    """A person who will not give way walked up to the robot in the only door and stands there (a
+    still scene: no new points while the robot waits). The robot never drives that close itself (the
+    guard vetoes a step ahead under veto_mm), so a remembered point within its radius + veto_mm came
+    to it: a moving scene, rounds not counted (the cap of 3 x max_rounds still ends it); a box the
+    robot stopped short of is declared as before."""
+    def said(gap_mm: int) -> tuple[int, int]:
+        work = Background(threaded=False)
+        memory = ObstacleMemory(CFG)
+        pt = PlannedTarget(ONE_DOOR, CFG, work)
+        person = (int(BELOW[0]), int(BELOW[1]) + robot_spec.ROBOT_RADIUS_MM + gap_mm)
+        for k in range(2400):
+            now = k * PERIOD
+            if pt.mode != BACKUP:  # seen again after each CLEAR: it stands where it stood
+                _remember(memory, DOOR1 + [person], now)
+            pt.target(now, *BELOW, ABOVE, memory)
+            work.run_pending()
+            if pt.mode == NO_ROUTE:
+                return now, pt.global_plans
+        return -1, pt.global_plans
+
+    still = 6 * CFG.wait_us + 2 * CFG.backoff_us  # when a still box is declared (test above)
+    at_box, plans = said(CFG.veto_mm + 10)
+    assert still <= at_box <= still + 20 * PERIOD and plans == CFG.max_rounds
+    at_person, plans = said(CFG.veto_mm - 20)
+    assert at_person > 2 * still and plans == 3 * CFG.max_rounds
+
+
 def test_a_far_waypoint_behind_a_map_wall_is_reached_by_the_whole_map_route():
     """A waypoint beyond max_plan_mm is driven at without planning while the map leaves the line to
     it free; once a detour has taken the robot where the map's walls stand between (a maze: a straight

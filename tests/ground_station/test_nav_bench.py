@@ -200,7 +200,7 @@ def test_the_twins_monitor_shortcut_answers_as_the_robots_monitor():
     import random
 
     from firmware_py.control import collision
-    from firmware_py.localplan import LocalPlannerConfig, ObstacleMemory
+    from firmware_py.localplan import LocalPlannerConfig, ObstacleMemory, mapped_readings
     from firmware_py.vehicle import VehicleConfig
     from ground_station.nav.planned import grid_of, monitor_stops
 
@@ -221,8 +221,9 @@ def test_the_twins_monitor_shortcut_answers_as_the_robots_monitor():
             seen = [(px, py) for px, py, _ in memory.points.values()]
             seen += corners.near(x, y, cfg.collision_slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
             near = collision.robot_frame(seen, (x, y, th)) if seen else []
+            mapped = mapped_readings(corners.grid, (x, y, th), ranges, status)  # as the controller's
             want = collision.limit(left, right, ranges, status, cfg.collision_stop_mm, cfg.collision_slow_mm,
-                                   cfg.collision_slow_pct, near)[2] == "stop"
+                                   cfg.collision_slow_pct, near, mapped)[2] == "stop"
             assert monitor_stops(action, x, y, th, ranges, status, memory, corners) == want
             stops += want
     assert stops > 100  # the draw does reach the stop zone
