@@ -45,7 +45,9 @@ about them before its learnt sector policy steers:
   `PlannedTarget` runs the recoveries, in order: wait (a mover may step
   aside), re-plan over the whole map round the pinned points (another
   door, another aisle: followed like a local detour), and when there is
-  no route: back off, clear the obstacle layer, wait longer and re-plan again;
+  no route: back off, clear the obstacle layer round the robot (what
+  closed the route farther away is kept while pinned), wait longer and
+  re-plan again;
   after `max_rounds` global searches without a route it says "no route"
   (`PlannedTarget.no_route`), and the controller reports it (STATUSTEXT,
   severity error) and ends the mission in HOLD.
@@ -317,7 +319,9 @@ class ObstacleMemory:
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
         self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
         self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
-        self.added = 0  # points added (a new 50 mm square) since the memory began: how much moves
+        # points added (a new 50 mm square) within window_mm of the robot since the memory began: how
+        # much moves near it (a mover walking past in view across the room is not what closed the way)
+        self.added = 0
 
     def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                 ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], now_us: int) -> None:
@@ -326,12 +330,13 @@ class ObstacleMemory:
         when their pin runs out)."""
         cfg = self.cfg
         seen: set[tuple[int, int]] = set()
+        near = cfg.window_mm * cfg.window_mm
         for _, _, ex, ey in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, cfg.margin_mm,
                                           cfg.see_mm):
             key = (ex // _KEY_MM, ey // _KEY_MM)
             if key not in self.points:
                 self.version += 1
-                self.added += 1
+                self.added += (ex - x_mm) ** 2 + (ey - y_mm) ** 2 <= near
             self.points[key] = (ex, ey, now_us)
             seen.add(key)
         old = self._seen_through(x_mm, y_mm, heading_mrad, ranges_mm, status, seen)
@@ -391,12 +396,20 @@ class ObstacleMemory:
         for p in self.points:
             self.pinned[p] = max(until, self.pinned.get(p, -1))
 
-    def clear(self) -> None:
-        """Forget everything (a recovery: what is really there is seen again on the next tick)."""
-        if self.points:
+    def clear(self, now_us: int | None = None, x: float = 0.0, y: float = 0.0, around_mm: float = 0.0) -> None:
+        """Forget everything (a recovery: what is really there is seen again on the next tick); given
+        the time, a point a global re-plan pinned that is still pinned and lies `around_mm` or more
+        from (x, y) is kept (nav2's clearing around the robot): what closed the whole map's routes out
+        there (a box seen from one side, the robot gone round to find it from the other: forgetting
+        it sent the robot round again instead of saying "no route"). Readings that see through one
+        still clear it."""
+        keep = {} if now_us is None else {
+            p: v for p, v in self.points.items()
+            if self.pinned.get(p, -1) >= now_us and (v[0] - x) ** 2 + (v[1] - y) ** 2 >= around_mm ** 2}
+        if len(keep) != len(self.points):
             self.version += 1
-        self.points.clear()
-        self.pinned.clear()
+        self.points = keep
+        self.pinned = {p: self.pinned[p] for p in keep}
 
     def snapshot(self) -> ObstacleMemory:
         """A copy for the planner's worker (the tick goes on changing this one)."""
@@ -806,11 +819,14 @@ class PlannedTarget:
        whole map: another door, another aisle. A route is followed to the waypoint (the search
        runs again when the way ahead closes).
     3. No route: BACKUP `backoff_us` (the driver reverses when the rear is clear), CLEAR the
-       obstacle layer (what is really there is seen again next tick), then 1. again.
+       obstacle layer round the robot (what is really there is seen again next tick; pinned points
+       `window_mm` or more away stay while pinned: what closed the whole map's routes out there),
+       then 1. again.
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
        (the controller reports it and ends the mission). A round whose wait saw more than
-       `moving_points` new points was a moving scene (a mover walking in the only way) and does
-       not count, up to 3 x `max_rounds` rounds in all; nor does one in which a remembered point
+       `moving_points` new points within `window_mm` was a moving scene (a mover walking in the
+       only way) and does not count, up to 3 x `max_rounds` rounds in all; nor does one in which a
+       remembered point
        came within the robot's radius + `veto_mm` (the guard never steps that close: it came to
        the robot, a person who will not give way standing at it in a one-cell corridor).
 
@@ -874,7 +890,7 @@ class PlannedTarget:
             if now_us - self._mode_since_us < self.cfg.backoff_us:
                 self.reverse = True
                 return float(wx), float(wy), 0
-            memory.clear()  # CLEAR: no question this tick, the next one asks on what is seen again
+            memory.clear(now_us, x, y, self.cfg.window_mm)  # CLEAR: the next tick asks on what is seen again
             self._enter(CLEAR, now_us)
             return float(wx), float(wy), 0
         if self.mode == CLEAR:

@@ -66,6 +66,27 @@ def test_a_reading_that_sees_through_a_remembered_point_clears_it():
     assert (1650 // 50, 1000 // 50) not in memory.points
 
 
+def test_clearing_keeps_what_closed_the_route_out_there_and_counts_only_what_moves_near():
+    """CLEAR (a recovery) forgets what is near the robot, but a point a global re-plan pinned that lies
+    window_mm or more away is kept while pinned: a box seen from one side of the map, the robot gone
+    round to meet it from the other side, forgetting it sent the robot round again and again instead
+    of saying "no route" (the blocked bench's loops). `added` counts new points within window_mm of
+    the robot only: a mover crossing the room in view made every round a "moving scene"."""
+    memory = ObstacleMemory(CFG)
+    _remember(memory, [(1300, 1000), (1000 + CFG.window_mm + 200, 1000)])
+    memory.pin(0)
+    _remember(memory, [(1000, 1500 + CFG.window_mm)], 0)  # far but not pinned
+    memory.clear(100_000, 1000, 1000, CFG.window_mm)
+    assert set(memory.points) == {((1000 + CFG.window_mm + 200) // 50, 1000 // 50)}
+    memory.clear(CFG.route_memory_us + 1, 1000, 1000, CFG.window_mm)  # its pin ran out
+    assert not memory.points
+    memory = ObstacleMemory(CFG)
+    memory.observe(OPEN, 1000, 1000, 0, *_front(CFG.window_mm + 300), 0)  # 1.45 m from the centre
+    assert memory.points and memory.added == 0
+    memory.observe(OPEN, 1000, 1000, 0, *_front(500), 50_000)
+    assert memory.added == 1
+
+
 def test_a_point_outside_every_cone_or_behind_an_invalid_reading_is_not_cleared():
     memory = ObstacleMemory(CFG)
     # 22 deg left of the nose (cones are 15 deg wide, 45 deg apart), and one ahead under an invalid reading
