@@ -81,6 +81,42 @@ def test_the_controller_limits_what_it_sends_in_manual_mode():
     assert ctrl.collision_ticks["stop"] == 1
 
 
+def test_the_controller_fills_no_blind_gap_for_a_reading_its_map_explains():
+    """A reading under CONTACT_MM beside the robot holds a step ahead (a body may touch the rim in the
+    blind gap ahead of that cone: tests/ground_station/test_monitor_contact.py), unless the robot's map
+    explains it at the pose: a block's face 30 mm off the left flank, driven along in Manual."""
+    from firmware_py.control.controller import Controller
+    from firmware_py.control.io import Inputs, Outputs
+    from firmware_py.mapdata import grid_from_rows
+    from firmware_py.vehicle import Mode
+
+    def ahead_after(with_map: bool) -> tuple[int, int]:
+        ctrl = Controller()
+        if with_map:  # 500 mm cells, row 0 north: a block row at y 1000..1500, the robot below it
+            assert ctrl.set_robot_map(grid_from_rows(["." * 6] * 3 + ["@" * 6] + ["." * 6] * 2, 500))[0]
+        ctrl.nav.reset(1250, 1000 - robot_spec.ROBOT_RADIUS_MM - 30, 0)  # facing east along the face
+        left = [a for a in robot_spec.SENSOR_ANGLES_MRAD if abs(a - 1571) < 10][0]
+        ranges, status = _reading(left, 30)
+        t = 0
+
+        def tick() -> Outputs:
+            nonlocal t
+            t += robot_spec.CONTROL_PERIOD_US
+            return ctrl.step(Inputs(ranges_mm=ranges, range_status=status, ranges_us=[t, t], enc_left=0,
+                                    enc_right=0, enc_us=t, bumper_us=t, driver_us=t), t)
+
+        tick()
+        assert ctrl.arm() == (True, "") and ctrl.set_mode(Mode.MANUAL)[0]
+        ctrl.manual_control(1000, 0, t)  # full ahead
+        out = tick()
+        assert out.motor is not None
+        return out.motor.left_mm_s, out.motor.right_mm_s
+
+    assert ahead_after(with_map=False) == (0, 0)
+    moving = ahead_after(with_map=True)
+    assert moving[0] == moving[1] > 0
+
+
 def test_a_sector_memory_step_the_monitor_holds_is_walled_and_the_robot_goes_back():
     """The Bug kind's cell step held by the collision monitor for STEP_BLOCKED_US: back to the cell it
     left, and that move reads as a wall there (for WALLED_US), so the Bug decides another way round."""
