@@ -1134,7 +1134,10 @@ class MotionGuard:
         explain (one the obstacle memory holds that near): a block's corner beside the robot is the
         collision monitor's, which knows the map's corners."""
         flank = [robot_spec.RANGE_TOO_FAR if i == 0 else st for i, st in enumerate(status)]  # ahead: the veto's
-        blocked = (collision.travel_gap_mm(ranges_mm, flank, False) < self.cfg.veto_mm
+        # (no flank reading under CONTACT_MM: nothing there comes within veto_mm of a step ahead, and
+        # the tick is spared the geometry)
+        blocked = (collision.touching(ranges_mm, flank)
+                   and collision.travel_gap_mm(ranges_mm, flank, False) < self.cfg.veto_mm
                    and memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + collision.CONTACT_MM))
         if self._escape_turn is not None:
             if blocked and now_us < self._escape_until_us:

@@ -436,3 +436,18 @@ def test_guard_turns_away_from_a_body_at_the_flank_then_steps_ahead():
     assert [diagonal.action(k * 50_000, 0, 0, a, -300, *flank(7), mem)
             for k, a in enumerate([FORWARD, TURN_RIGHT, FORWARD])] == [TURN_LEFT] * 3
     assert MotionGuard(CFG).action(0, 0, 0, FORWARD, -300, *flank(7), ObstacleMemory(CFG)) == TURN_RIGHT
+
+
+def test_the_guards_flank_shortcut_never_changes_its_answer():
+    """MotionGuard._escape skips the travel-gap geometry when no reading off the nose is under
+    CONTACT_MM: over random readings, no such case has a step ahead blocked within veto_mm."""
+    import random
+
+    from firmware_py.control import collision
+
+    rng = random.Random(3)
+    for _ in range(20_000):
+        status = [FAR] + [rng.choice((V, FAR, robot_spec.RANGE_TOO_CLOSE)) for _ in range(N - 1)]
+        ranges = [rng.randint(robot_spec.RANGE_MIN_MM, 400) for _ in range(N)]
+        if not collision.touching(ranges, status):
+            assert collision.travel_gap_mm(ranges, status, False) >= CFG.veto_mm
