@@ -826,9 +826,9 @@ class PlannedTarget:
        (the controller reports it and ends the mission). A round whose wait saw more than
        `moving_points` new points within `window_mm` was a moving scene (a mover walking in the
        only way) and does not count, up to 3 x `max_rounds` rounds in all; nor does one in which a
-       remembered point
-       came within the robot's radius + `veto_mm` (the guard never steps that close: it came to
-       the robot, a person who will not give way standing at it in a one-cell corridor).
+       remembered point came within the robot's radius + `veto_mm` (the guard never steps that
+       close: it came to the robot, a person who will not give way standing at it in a one-cell
+       corridor).
 
     A waypoint beyond `max_plan_mm` is driven at without planning while the map leaves the straight
     line to it free (looked at off the tick); once it does not (a recovery's detour left the route
@@ -1128,9 +1128,9 @@ class MotionGuard:
         """Away from a body touching the flank or a front diagonal ahead of the axle (a mover that
         walked up to the robot and stands while it would overlap it): a step ahead rubs into it, and
         the table's turn back toward the target (or the front veto's, toward a target on that side)
-        undoes a single turn away. So: turn away, the same way, until a step ahead
-        is clear (collision.travel_gap_mm, which counts the rim beside a near reading), then
-        ESCAPE_STEPS steps ahead; at most ESCAPE_US of turning. Only for a body the map does not
+        undoes a single turn away. So: turn away, the same way, until a step ahead is clear
+        (collision.travel_gap_mm, which counts the rim beside a near reading), then ESCAPE_STEPS
+        steps ahead; at most ESCAPE_US of turning at a time. Only for a body the map does not
         explain (one the obstacle memory holds that near): a block's corner beside the robot is the
         collision monitor's, which knows the map's corners."""
         flank = [robot_spec.RANGE_TOO_FAR if i == 0 else st for i, st in enumerate(status)]  # ahead: the veto's
