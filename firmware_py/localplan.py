@@ -222,7 +222,11 @@ def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: i
 def mapped_readings(grid: OccupancyGrid, pose_mm: tuple[int, int, int], ranges_mm: list[int] | tuple[int, ...],
                     status: list[int] | tuple[int, ...], margin_mm: int = MAP_MARGIN_MM) -> list[bool]:
     """Per sensor: the map explains its reading at this pose (`unmapped_ends`); a too-far or
-    invalid reading is not a reading (False). The collision monitor's `mapped`."""
+    invalid reading is not a reading (False). The collision monitor's `mapped`, which it reads only
+    for a reading under CONTACT_MM: with none, [] (the map is not asked; the controller's tick and
+    the twin's hot loop are spared it)."""
+    if not collision.touching(ranges_mm, status):
+        return []
     x, y, heading = pose_mm
     unmapped = unmapped_readings(grid, x, y, heading, ranges_mm, status, margin_mm)
     return [u < 0 and status[i] in (robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE)
@@ -1103,13 +1107,12 @@ class MotionGuard:
             if self.may_reverse(ranges_mm, status):
                 return REVERSE
             self._backing_until_us = -1  # something came up behind: no more backing (checked every tick)
-        if now_us - self._anchor_us >= cfg.stuck_us and self.may_reverse(ranges_mm, status):
-            reach = robot_spec.ROBOT_RADIUS_MM + cfg.backoff_near_mm
-            if detouring or any(math.hypot(px - x, py - y) < reach for px, py, _ in memory.points.values()):
-                self.backoffs += 1
-                self._backing_until_us = now_us + cfg.backoff_us
-                self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
-                return REVERSE
+        if (now_us - self._anchor_us >= cfg.stuck_us and self.may_reverse(ranges_mm, status)
+                and (detouring or memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + cfg.backoff_near_mm))):
+            self.backoffs += 1
+            self._backing_until_us = now_us + cfg.backoff_us
+            self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
+            return REVERSE
         toward = TURN_LEFT if bearing_mrad >= 0 else TURN_RIGHT
         if action in (FORWARD, REVERSE) and held_us >= HELD_TURN_US:
             # (the table's own reverse too: held against a mover at the rear flank, it was asked for

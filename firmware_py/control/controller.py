@@ -640,8 +640,7 @@ class Controller(ControlState):
             seen = seen + self._map_corners_near(pose)
             near = collision.robot_frame(seen, pose) if seen else []
             grid = self._monitor_map()
-            mapped = (mapped_readings(grid, pose, inp.ranges_mm, inp.range_status)
-                      if grid is not None and collision.touching(inp.ranges_mm, inp.range_status) else [])
+            mapped = mapped_readings(grid, pose, inp.ranges_mm, inp.range_status) if grid is not None else []
             left, right, limited = collision.limit(left, right, inp.ranges_mm, inp.range_status, cfg.collision_stop_mm,
                                                    cfg.collision_slow_mm, cfg.collision_slow_pct, near, mapped)
             if limited:

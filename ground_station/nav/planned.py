@@ -201,8 +201,7 @@ def monitor_stops(action: int, x_mm: int, y_mm: int, th_mrad: int, ranges: list[
                 (px - x_mm) ** 2 + (py - y_mm) ** 2 <= reach * reach for px, py in seen):
             return False  # the same answer as limit's, without its geometry (the twin's hot loop)
     near = collision.robot_frame(seen, (x_mm, y_mm, th_mrad)) if seen else []
-    mapped = (mapped_readings(corners.grid, (x_mm, y_mm, th_mrad), ranges, status)
-              if collision.touching(ranges, status) else [])
+    mapped = mapped_readings(corners.grid, (x_mm, y_mm, th_mrad), ranges, status)
     return collision.limit(left, right, ranges, status, cfg.collision_stop_mm, cfg.collision_slow_mm,
                            cfg.collision_slow_pct, near, mapped)[2] == "stop"
 
