@@ -165,6 +165,11 @@ def _wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:
 
 
 MAP_MARGIN_MM = 150  # a reading is explained by the map within this distance of a mapped cell
+# giving way (LocalPlanner.refuge): the robot stands this far off the line a person walks (two radii
+# and a margin: a person walking a 500 mm corridor is up to 100 mm off its middle) ...
+REFUGE_MM = 2 * robot_spec.ROBOT_RADIUS_MM + 150
+REFUGE_SEARCH_MM = 2500  # ... at a place at most this far along the way
+REFUGE_SNAP_DEG = 45  # a line this near a grid axis is taken along it
 
 
 def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
@@ -399,6 +404,10 @@ class ObstacleMemory:
         until = now_us + self.cfg.route_memory_us
         for p in self.points:
             self.pinned[p] = max(until, self.pinned.get(p, -1))
+
+    def unpin(self) -> None:
+        """Pinned points are kept `memory_us` like the others from now (a moving scene)."""
+        self.pinned = {}
 
     def clear(self, now_us: int | None = None, x: float = 0.0, y: float = 0.0, around_mm: float = 0.0) -> None:
         """Forget everything (a recovery: what is really there is seen again on the next tick); given
@@ -789,6 +798,63 @@ class LocalPlanner:
         return best[0] * r + r / 2, best[1] * r + r / 2
 
 
+    def refuge(self, x: float, y: float, memory: ObstacleMemory) -> tuple[int, int] | None:
+        """Where to stand aside for the body nearest the robot (a person who does not give way,
+        walking at it down a one-cell corridor), or None: the raster cell nearest by way (Dijkstra
+        over the map's free space, the remembered points grown, up to `REFUGE_SEARCH_MM`) whose
+        centre lies `REFUGE_MM` or more off the line the body walks (through the robot, from the body;
+        on an occupancy grid a corridor runs along an axis, and a person walking in one is rarely
+        centred: within `REFUGE_SNAP_DEG` of an axis the line is taken along it) and `REFUGE_MM` or
+        more from the body: a side corridor or a room's corner it walks past."""
+        if not memory.points:
+            return None
+        px, py = min(((qx, qy) for qx, qy, _ in memory.points.values()),
+                     key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2)
+        ux, uy = x - px, y - py
+        n = math.hypot(ux, uy)
+        if n < 1.0:
+            return None
+        ux, uy = ux / n, uy / n
+        snap = math.cos(math.radians(REFUGE_SNAP_DEG))
+        if abs(ux) >= snap:
+            ux, uy = math.copysign(1.0, ux), 0.0
+        elif abs(uy) >= snap:
+            ux, uy = 0.0, math.copysign(1.0, uy)
+        self._grow(memory)
+        r = self.cfg.raster_mm
+        ix, iy = int(x // r), int(y // r)
+        starts = [c for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
+                  if self._open(c) and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
+                                                      robot_spec.ROBOT_RADIUS_MM + 10)
+                  and self._body_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2)]
+        dist: dict[Cell, float] = {}
+        heap: list[tuple[float, Cell]] = []
+        for c in starts:
+            d = math.hypot(c[0] * r + r / 2 - x, c[1] * r + r / 2 - y) / r
+            if d < dist.get(c, math.inf):
+                dist[c] = d
+                heapq.heappush(heap, (d, c))
+        limit = REFUGE_SEARCH_MM / r
+        while heap:
+            d, c = heapq.heappop(heap)
+            if d > dist[c] or d > limit:
+                continue
+            cx, cy = c[0] * r + r / 2, c[1] * r + r / 2
+            if (abs((cx - x) * uy - (cy - y) * ux) >= REFUGE_MM
+                    and (cx - px) ** 2 + (cy - py) ** 2 >= REFUGE_MM ** 2):
+                return round(cx), round(cy)
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    nb = (c[0] + dx, c[1] + dy)
+                    if (dx or dy) and self._open(nb) and (
+                            not (dx and dy) or (self._open((c[0] + dx, c[1])) and self._open((c[0], c[1] + dy)))):
+                        nd = d + (_SQRT2 if dx and dy else 1.0)
+                        if nd < dist.get(nb, math.inf):
+                            dist[nb] = nd
+                            heapq.heappush(heap, (nd, nb))
+        return None
+
+
 @dataclass(frozen=True)
 class PlanAnswer:
     """The worker's answer to one question: where to steer from the pose asked about."""
@@ -803,11 +869,24 @@ class PlanAnswer:
     no_route: bool = False  # none over the whole map either
     route_mm: float = 0.0  # the planned way's length from the pose asked about
     held: bool = False  # the whole map's route is closed ahead: stand while it is held to
+    refuge: tuple[int, int] | None = None  # with no_route: where to stand aside (LocalPlanner.refuge)
+
+
+@dataclass(frozen=True)
+class RefugeAnswer:
+    """The worker's answer while the robot gives way: where to steer now on the way to the refuge."""
+
+    generation: int
+    asked_us: int
+    target: tuple[float, float]
 
 
 # PlannedTarget's recovery modes, in the order they follow one another (see PlannedTarget)
-LOCAL, WAIT, GLOBAL, BACKUP, CLEAR, NO_ROUTE = "local", "wait", "global", "backup", "clear", "no route"
+LOCAL, WAIT, GLOBAL, GIVE_WAY, BACKUP, CLEAR, NO_ROUTE = (
+    "local", "wait", "global", "give way", "backup", "clear", "no route")
 ROUTE_SWITCH_MM = 1000  # a whole-map answer this much longer than the route followed is another route
+GIVE_WAY_US = 15_000_000  # at most this long driving to the place where the robot stands aside
+REFUGE_REACHED_MM = 100  # ... which it has reached this near
 
 
 class PlannedTarget:
@@ -825,7 +904,12 @@ class PlannedTarget:
     3. No route: BACKUP `backoff_us` (the driver reverses when the rear is clear), CLEAR the
        obstacle layer round the robot (what is really there is seen again next tick; pinned points
        `window_mm` or more away stay while pinned: what closed the whole map's routes out there),
-       then 1. again.
+       then 1. again. In a round where something came up to the robot or the scene moved (below),
+       GIVE_WAY first: the robot drives to the nearest place off the line the nearest body walks
+       (`LocalPlanner.refuge`: a side corridor behind it, a room's corner) and stands there
+       (1. again: the wait's search ends it once the way is open), as a person in a one-cell
+       corridor steps into a side door for someone who will not; with no such place within
+       `REFUGE_SEARCH_MM`, BACKUP as in a still scene. A drive there is at most `GIVE_WAY_US`.
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
        (the controller reports it and ends the mission). A round whose wait saw more than
        `moving_points` new points within `window_mm` was a moving scene (a mover walking in the
@@ -858,6 +942,10 @@ class PlannedTarget:
         self._came_up = False  # something came up to the robot during this round (_recovering)
         self.reverse = False  # this tick: back off (BACKUP)
         self.no_route = ""  # why the waypoint cannot be reached (NO_ROUTE), else ""
+        self._refuge: tuple[int, int] = (0, 0)  # where the robot stands aside (GIVE_WAY)
+        self._refuge_answer: RefugeAnswer | None = None  # the worker's, while giving way
+        self.give_ways = 0  # times the robot stood aside (telemetry / benchmarks)
+        self._aside = False  # it stands aside now: off the route the waypoints follow (_recovering)
         self.global_plans = 0  # global re-plans started (telemetry / benchmarks)
         # whole-map routes taken: the first answer of a round with a route, and each switch to a way
         # round longer by ROUTE_SWITCH_MM (the route followed closed; benchmarks count progress anew)
@@ -879,6 +967,7 @@ class PlannedTarget:
         self._active = None
         self.detouring = False
         self.mode, self._rounds, self._all_rounds, self.reverse, self.no_route = LOCAL, 0, 0, False, ""
+        self._aside = False
 
     def _enter(self, mode: str, now_us: int) -> None:
         self.mode, self._mode_since_us = mode, now_us
@@ -890,6 +979,8 @@ class PlannedTarget:
         self.reverse = False
         if self.mode == NO_ROUTE:
             return float(wx), float(wy), 0
+        if self.mode == GIVE_WAY:
+            return self._giving_way(now_us, x, y, waypoint, memory)
         if self.mode == BACKUP:
             if now_us - self._mode_since_us < self.cfg.backoff_us:
                 self.reverse = True
@@ -965,6 +1056,13 @@ class PlannedTarget:
         """WAIT and GLOBAL (the class docstring's steps 1, 2 and 4)."""
         cfg = self.cfg
         if self.mode == WAIT:
+            if ans is not None and not ans.blocked and self._aside:
+                # the way opened from the refuge: back to the waypoint by the whole map's route (a straight
+                # drive from a side corridor meets the wall between)
+                self._aside = False
+                self.global_plans += 1
+                self._enter(GLOBAL, now_us + 1)
+                return float(wx), float(wy), 0
             if ans is not None and not ans.blocked:
                 self._enter(LOCAL, now_us)  # the way opened (a mover stepped aside)
                 self.detouring = ans.detouring
@@ -985,6 +1083,12 @@ class PlannedTarget:
             if self._rounds >= cfg.max_rounds or self._all_rounds >= 3 * cfg.max_rounds:
                 self._enter(NO_ROUTE, now_us)
                 self.no_route = f"no route to ({wx},{wy})"  # <= 50 characters with the item
+            elif ans.refuge is not None and (self._came_up or memory.added - self._added_at_wait
+                                             > cfg.moving_points):
+                self._refuge = ans.refuge
+                self._generation += 1  # the refuge's questions are not the waypoint's
+                memory.unpin()  # what closed the way walks: seen again or forgotten, not kept a minute
+                self._enter(GIVE_WAY, now_us)
             else:
                 self._enter(BACKUP, now_us)
             return float(wx), float(wy), 0
@@ -999,6 +1103,39 @@ class PlannedTarget:
         self.route_mm = self._followed_mm = ans.route_mm
         return ans.target[0], ans.target[1], self._speed(now_us - ans.asked_us)
 
+    def _giving_way(self, now_us: int, x: float, y: float, waypoint: tuple[int, int],
+                    memory: ObstacleMemory) -> tuple[float, float, int]:
+        """GIVE_WAY (the class docstring's step 3): to the refuge, then WAIT there."""
+        wx, wy = waypoint
+        gen, snap, refuge = self._generation, memory.snapshot(), self._refuge
+        self.work.post(self, lambda: self._solve_refuge(gen, now_us, x, y, refuge, snap))
+        ans = self._refuge_answer
+        if ans is not None and (ans.generation != gen or ans.asked_us < self._mode_since_us):
+            ans = None
+        if now_us - self._mode_since_us > GIVE_WAY_US or math.hypot(refuge[0] - x, refuge[1] - y) <= REFUGE_REACHED_MM:
+            self.give_ways += 1
+            self._aside = True
+            self._generation += 1  # the waypoint's questions again, from here
+            self._enter(WAIT, now_us)
+            # a round spent standing aside for a mover is not a still scene's (the refuge may not see
+            # the way it closed)
+            self._added_at_wait, self._came_up = memory.added, True
+            return float(wx), float(wy), 0
+        if ans is None:
+            return float(wx), float(wy), 0  # the first answer comes next tick
+        self.detouring = True
+        return ans.target[0], ans.target[1], self._speed(now_us - ans.asked_us)
+
+    def _solve_refuge(self, generation: int, asked_us: int, x: float, y: float, refuge: tuple[int, int],
+                      memory: ObstacleMemory) -> None:
+        """The worker's part while giving way: the way from the pose asked about to the refuge."""
+        p = self.planner
+        if generation != self._worker_generation:
+            p.reset()
+            self._worker_generation = generation
+        target = p.target(x, y, refuge, memory, True, asked_us)
+        self._refuge_answer = RefugeAnswer(generation, asked_us, target)
+
     def _look(self, generation: int, x: float, y: float, waypoint: tuple[int, int]) -> None:
         """The worker's part for a far waypoint: whether the map lets the robot see it."""
         self._far_sight = (generation, waypoint, self.planner.map_sight(x, y, *waypoint))
@@ -1011,8 +1148,10 @@ class PlannedTarget:
             self._worker_generation = generation
         p = self.planner
         tx, ty = p.target(x, y, waypoint, memory, whole_map, asked_us)
+        # no route: where the robot might stand aside, should the tick find the scene moving (GIVE_WAY)
+        refuge = p.refuge(x, y, memory) if p.no_route else None
         self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), p.detouring, whole_map, p.blocked,
-                                  p.no_route, p.route_mm, p.held)
+                                  p.no_route, p.route_mm, p.held, refuge)
 
 
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order

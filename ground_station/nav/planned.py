@@ -46,6 +46,7 @@ from firmware_py.control import collision
 from firmware_py.localplan import (
     BACKUP,
     CLEAR,
+    GIVE_WAY,
     GLOBAL,
     WAIT,
     MotionGuard,
@@ -126,7 +127,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         tx, ty, speed = planner.target(t * PERIOD_US, x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
         # the planner's recoveries hold the robot still (or back it off) on purpose, for a bounded time:
         # not aimless, so those periods do not count toward the loop rule (the budget still bounds them)
-        recovering = planner.mode in (WAIT, BACKUP, CLEAR) or (planner.mode == GLOBAL and speed == 0)
+        recovering = planner.mode in (WAIT, GIVE_WAY, BACKUP, CLEAR) or (planner.mode == GLOBAL and speed == 0)
         if planner.no_route:
             outcome = NO_ROUTE  # the robot's recoveries ran out and it reports it (the controller holds)
             break

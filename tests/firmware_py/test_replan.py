@@ -209,7 +209,7 @@ def test_rounds_in_a_moving_scene_do_not_count_toward_no_route():
     memory = ObstacleMemory(CFG)
     pt = PlannedTarget(ONE_DOOR, CFG, work)
     rows = []
-    for k in range(1400):
+    for k in range(6000):  # the robot never moves here: each give-way ends when GIVE_WAY_US is out
         now = k * PERIOD
         mover = (1100 + 50 * (k % 6), 1650)  # a new 50 mm square every tick, the last one seen through
         memory.points.pop(((1100 + 50 * ((k - 1) % 6)) // 50, 1650 // 50), None)
@@ -234,7 +234,7 @@ def test_rounds_in_which_something_came_up_to_the_robot_do_not_count_toward_no_r
         memory = ObstacleMemory(CFG)
         pt = PlannedTarget(ONE_DOOR, CFG, work)
         person = (int(BELOW[0]), int(BELOW[1]) + robot_spec.ROBOT_RADIUS_MM + gap_mm)
-        for k in range(2400):
+        for k in range(6000):  # the robot never moves here: each give-way ends when GIVE_WAY_US is out
             now = k * PERIOD
             if pt.mode != BACKUP:  # seen again after each CLEAR: it stands where it stood
                 _remember(memory, DOOR1 + [person], now)
