@@ -45,7 +45,13 @@ about them before its learnt sector policy steers:
   `PlannedTarget` runs the recoveries, in order: wait (a mover may step
   aside), re-plan over the whole map round the pinned points (another
   door, another aisle: followed like a local detour), and when there is
-  no route: back off, clear the obstacle layer round the robot (what
+  no route: when something came up to the robot while it waited (a
+  person who will not give way, standing at it) give way first: drive to
+  the nearest place off the line that body walks (`LocalPlanner.refuge`:
+  a side corridor behind the robot, a room's corner) and stand there until
+  the way opens, then back to the waypoint by the whole map's route;
+  otherwise (or with nowhere to stand aside) back off, clear the obstacle
+  layer round the robot (what
   closed the route farther away is kept while pinned), wait longer and
   re-plan again;
   after `max_rounds` global searches without a route it says "no route"
@@ -405,9 +411,16 @@ class ObstacleMemory:
         for p in self.points:
             self.pinned[p] = max(until, self.pinned.get(p, -1))
 
-    def unpin(self) -> None:
-        """Pinned points are kept `memory_us` like the others from now (a moving scene)."""
-        self.pinned = {}
+    def unpin_near(self, x: float, y: float, mm: float) -> None:
+        """Points within `mm` of the point nearest (x, y) (the body standing there: a person) are kept
+        `memory_us` like the others from now; farther ones stay pinned (a box closing another door)."""
+        if not self.points:
+            return
+        px, py = min(((qx, qy) for qx, qy, _ in self.points.values()),
+                     key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2)
+        for key, (qx, qy, _) in self.points.items():
+            if (qx - px) ** 2 + (qy - py) ** 2 <= mm * mm:
+                self.pinned.pop(key, None)
 
     def clear(self, now_us: int | None = None, x: float = 0.0, y: float = 0.0, around_mm: float = 0.0) -> None:
         """Forget everything (a recovery: what is really there is seen again on the next tick); given
@@ -904,12 +917,13 @@ class PlannedTarget:
     3. No route: BACKUP `backoff_us` (the driver reverses when the rear is clear), CLEAR the
        obstacle layer round the robot (what is really there is seen again next tick; pinned points
        `window_mm` or more away stay while pinned: what closed the whole map's routes out there),
-       then 1. again. In a round where something came up to the robot or the scene moved (below),
-       GIVE_WAY first: the robot drives to the nearest place off the line the nearest body walks
-       (`LocalPlanner.refuge`: a side corridor behind it, a room's corner) and stands there
-       (1. again: the wait's search ends it once the way is open), as a person in a one-cell
-       corridor steps into a side door for someone who will not; with no such place within
-       `REFUGE_SEARCH_MM`, BACKUP as in a still scene. A drive there is at most `GIVE_WAY_US`.
+       then 1. again. In a round where something came up to the robot (below), GIVE_WAY first:
+       the robot drives to the nearest place off the line the nearest body walks
+       (`LocalPlanner.refuge`: a side corridor behind it, a room's corner) and stands there (1.
+       again: the wait's search ends it once the way is open, and the way back is the whole map's
+       route), as a person in a one-cell corridor steps into a side door for someone who will not;
+       with no such place within `REFUGE_SEARCH_MM`, BACKUP. A drive there is at most
+       `GIVE_WAY_US`; the round spent standing aside does not count.
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
        (the controller reports it and ends the mission). A round whose wait saw more than
        `moving_points` new points within `window_mm` was a moving scene (a mover walking in the
@@ -1027,7 +1041,7 @@ class PlannedTarget:
         if self.mode in (WAIT, GLOBAL):
             if self.mode == WAIT and not self._came_up:
                 self._came_up = memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + self.cfg.veto_mm)
-            return self._recovering(now_us, wx, wy, ans, memory)
+            return self._recovering(now_us, x, y, waypoint, ans, memory)
         if ans is not None and ans.blocked:
             self._enter(WAIT, now_us)
             self._added_at_wait, self._came_up = memory.added, False
@@ -1051,10 +1065,11 @@ class PlannedTarget:
             self.stale_ticks += 1
         return speed
 
-    def _recovering(self, now_us: int, wx: int, wy: int, ans: PlanAnswer | None,
+    def _recovering(self, now_us: int, x: float, y: float, waypoint: tuple[int, int], ans: PlanAnswer | None,
                     memory: ObstacleMemory) -> tuple[float, float, int]:
         """WAIT and GLOBAL (the class docstring's steps 1, 2 and 4)."""
         cfg = self.cfg
+        wx, wy = waypoint
         if self.mode == WAIT:
             if ans is not None and not ans.blocked and self._aside:
                 # the way opened from the refuge: back to the waypoint by the whole map's route (a straight
@@ -1083,11 +1098,12 @@ class PlannedTarget:
             if self._rounds >= cfg.max_rounds or self._all_rounds >= 3 * cfg.max_rounds:
                 self._enter(NO_ROUTE, now_us)
                 self.no_route = f"no route to ({wx},{wy})"  # <= 50 characters with the item
-            elif ans.refuge is not None and (self._came_up or memory.added - self._added_at_wait
-                                             > cfg.moving_points):
+            elif ans.refuge is not None and self._came_up:
                 self._refuge = ans.refuge
                 self._generation += 1  # the refuge's questions are not the waypoint's
-                memory.unpin()  # what closed the way walks: seen again or forgotten, not kept a minute
+                # what stands at the robot walks: seen again or forgotten, not kept a minute (a box
+                # farther off stays pinned: the blocked bench's robot went round and round once it did not)
+                memory.unpin_near(x, y, REFUGE_MM)
                 self._enter(GIVE_WAY, now_us)
             else:
                 self._enter(BACKUP, now_us)

@@ -11,8 +11,10 @@ from firmware_py import robot_spec
 from firmware_py.background import Background
 from firmware_py.localplan import (
     BACKUP,
+    GIVE_WAY,
     GLOBAL,
     LOCAL,
+    REFUGE_MM,
     NO_ROUTE,
     WAIT,
     LocalPlanner,
@@ -343,3 +345,87 @@ def test_another_way_round_after_the_route_closed_counts_as_a_new_route():
     assert pt.route_mm > before + ROUTE_SWITCH_MM and pt.routes_taken == 2
     _drive(pt, work, memory, 20, t0=(60 + len(rows)) * PERIOD)
     assert pt.routes_taken == 2  # following it is not another route
+
+
+# 10 x 5 cells of 500 mm: a one-cell corridor along row 3 (y 500..1000 mm) with a side corridor north at
+# col 4 (x 2000..2500, y 1000..2000); NO_SIDE without it
+SIDE = grid_from_rows(["@" * 10, "@@@@.@@@@@", "@@@@.@@@@@", "." * 10, "@" * 10], 500)
+NO_SIDE = grid_from_rows(["@" * 10] * 3 + ["." * 10, "@" * 10], 500)
+IN_SIDE = (2000 + 175, 2500 - 175)  # the side corridor's x range the robot's centre can take
+
+
+def _person(x: int, y: int = 750) -> list[tuple[int, int]]:
+    """What the robot remembers of a person standing with their near side at x (a 100 mm arc)."""
+    return [(x, y - 50), (x, y), (x, y + 50)]
+
+
+def test_the_refuge_is_the_side_corridor_behind_the_robot_off_the_line_the_person_walks():
+    memory = ObstacleMemory(CFG)
+    _remember(memory, _person(2780))  # east of the robot, at it
+    refuge = LocalPlanner(SIDE, CFG).refuge(2600, 750, memory)
+    assert refuge is not None and IN_SIDE[0] <= refuge[0] <= IN_SIDE[1] and refuge[1] >= 750 + REFUGE_MM
+    # a person a little off the corridor's middle (the line robot -> person 27 deg off the axis): the line
+    # is taken along the corridor, and the refuge is still the side corridor
+    memory = ObstacleMemory(CFG)
+    _remember(memory, _person(2780, 850))
+    refuge = LocalPlanner(SIDE, CFG).refuge(2600, 750, memory)
+    assert refuge is not None and IN_SIDE[0] <= refuge[0] <= IN_SIDE[1] and refuge[1] >= 750 + REFUGE_MM
+    # the person stands between the robot and the side corridor, or there is none: nowhere to stand aside
+    memory = ObstacleMemory(CFG)
+    _remember(memory, _person(2620))
+    assert LocalPlanner(SIDE, CFG).refuge(2800, 750, memory) is None
+    memory = ObstacleMemory(CFG)
+    _remember(memory, _person(2780))
+    assert LocalPlanner(NO_SIDE, CFG).refuge(2600, 750, memory) is None
+    assert LocalPlanner(SIDE, CFG).refuge(2600, 750, ObstacleMemory(CFG)) is None
+
+
+def test_a_person_who_will_not_give_way_is_stood_aside_for_and_the_waypoint_reached_after():
+    """A person walks at the robot down the one-cell corridor and stands at it (they stop only on
+    contact). The robot drives into the side corridor behind it and stands there; once the person has
+    walked past (the points gone) it goes back to the route by the whole map's search and reaches the
+    waypoint. A point robot steps 20 mm a tick toward the target it is given."""
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    pt = PlannedTarget(SIDE, CFG, work)
+    x, y = 2600.0, 750.0
+    waypoint = (4250, 750)
+    modes, deepest, gone_at = [], 0.0, None
+    for k in range(3000):
+        now = k * PERIOD
+        if gone_at is None:
+            # the person follows the robot along the corridor while it is in the corridor (y < 1000)
+            _remember(memory, _person(round(x) + robot_spec.ROBOT_RADIUS_MM + 30) if y < 1000 else [], now)
+            if y >= 1000 and pt.mode == WAIT:
+                gone_at = now  # the robot stands aside: the person walks past
+                memory.clear()
+        tx, ty, speed = pt.target(now, x, y, waypoint, memory)
+        modes.append(pt.mode)
+        if speed:
+            d = math.hypot(tx - x, ty - y)
+            step = min(20.0, d)
+            if d > 0:
+                x, y = x + step * (tx - x) / d, y + step * (ty - y) / d
+        deepest = max(deepest, y)
+        work.run_pending()
+        if math.hypot(waypoint[0] - x, waypoint[1] - y) < 100:
+            break
+    assert GIVE_WAY in modes and pt.give_ways == 1 and NO_ROUTE not in modes and BACKUP not in modes
+    assert deepest >= 750 + REFUGE_MM - 100  # it stood in the side corridor
+    assert gone_at is not None and math.hypot(waypoint[0] - x, waypoint[1] - y) < 100  # then reached it
+    assert GLOBAL in modes[modes.index(GIVE_WAY):]  # back by the whole map's route
+
+
+def test_with_nowhere_to_stand_aside_the_robot_backs_off_as_in_a_still_scene():
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    pt = PlannedTarget(NO_SIDE, CFG, work)
+    modes = []
+    for k in range(200):
+        now = k * PERIOD
+        if pt.mode != BACKUP:
+            _remember(memory, _person(2600 + robot_spec.ROBOT_RADIUS_MM + 30), now)
+        pt.target(now, 2600.0, 750.0, (4250, 750), memory)
+        modes.append(pt.mode)
+        work.run_pending()
+    assert BACKUP in modes and GIVE_WAY not in modes
