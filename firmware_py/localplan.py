@@ -175,7 +175,6 @@ MAP_MARGIN_MM = 150  # a reading is explained by the map within this distance of
 # and a margin: a person walking a 500 mm corridor is up to 100 mm off its middle) ...
 REFUGE_MM = 2 * robot_spec.ROBOT_RADIUS_MM + 150
 REFUGE_SEARCH_MM = 2500  # ... at a place at most this far along the way
-REFUGE_SNAP_DEG = 45  # a line this near a grid axis is taken along it
 
 
 def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
@@ -810,15 +809,15 @@ class LocalPlanner:
         self.detouring = True
         return best[0] * r + r / 2, best[1] * r + r / 2
 
-
     def refuge(self, x: float, y: float, memory: ObstacleMemory) -> tuple[int, int] | None:
         """Where to stand aside for the body nearest the robot (a person who does not give way,
         walking at it down a one-cell corridor), or None: the raster cell nearest by way (Dijkstra
         over the map's free space, the remembered points grown, up to `REFUGE_SEARCH_MM`) whose
-        centre lies `REFUGE_MM` or more off the line the body walks (through the robot, from the body;
-        on an occupancy grid a corridor runs along an axis, and a person walking in one is rarely
-        centred: within `REFUGE_SNAP_DEG` of an axis the line is taken along it) and `REFUGE_MM` or
-        more from the body: a side corridor or a room's corner it walks past."""
+        centre lies `REFUGE_MM` or more off the line the body walks (through the robot, along the grid
+        axis nearest the direction from the body to the robot: on an occupancy grid a corridor runs
+        along an axis, and a person walking in one is rarely in its middle, so the direction between
+        the two is up to ~20 degrees off it) and `REFUGE_MM` or more from the body: a side corridor or
+        a room's corner it walks past."""
         if not memory.points:
             return None
         px, py = min(((qx, qy) for qx, qy, _ in memory.points.values()),
@@ -827,12 +826,7 @@ class LocalPlanner:
         n = math.hypot(ux, uy)
         if n < 1.0:
             return None
-        ux, uy = ux / n, uy / n
-        snap = math.cos(math.radians(REFUGE_SNAP_DEG))
-        if abs(ux) >= snap:
-            ux, uy = math.copysign(1.0, ux), 0.0
-        elif abs(uy) >= snap:
-            ux, uy = 0.0, math.copysign(1.0, uy)
+        ux, uy = (math.copysign(1.0, ux), 0.0) if abs(ux) >= abs(uy) else (0.0, math.copysign(1.0, uy))
         self._grow(memory)
         r = self.cfg.raster_mm
         ix, iy = int(x // r), int(y // r)
@@ -1128,7 +1122,8 @@ class PlannedTarget:
         ans = self._refuge_answer
         if ans is not None and (ans.generation != gen or ans.asked_us < self._mode_since_us):
             ans = None
-        if now_us - self._mode_since_us > GIVE_WAY_US or math.hypot(refuge[0] - x, refuge[1] - y) <= REFUGE_REACHED_MM:
+        there = math.hypot(refuge[0] - x, refuge[1] - y) <= REFUGE_REACHED_MM
+        if there or now_us - self._mode_since_us > GIVE_WAY_US:
             self.give_ways += 1
             self._aside = True
             self._generation += 1  # the waypoint's questions again, from here
@@ -1164,7 +1159,7 @@ class PlannedTarget:
             self._worker_generation = generation
         p = self.planner
         tx, ty = p.target(x, y, waypoint, memory, whole_map, asked_us)
-        # no route: where the robot might stand aside, should the tick find the scene moving (GIVE_WAY)
+        # no route: where the robot might stand aside, should something have come up to it (GIVE_WAY)
         refuge = p.refuge(x, y, memory) if p.no_route else None
         self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), p.detouring, whole_map, p.blocked,
                                   p.no_route, p.route_mm, p.held, refuge)

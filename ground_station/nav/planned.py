@@ -20,16 +20,17 @@ modelled (the kernel moves by whole actions at one speed).
 The planner's recoveries act as on the robot: a period it asks to stand
 still (waiting for a mover, waiting for a whole-map answer) the robot does
 not move while the movers walk and the sensors read, its back-off is a
-reverse step, and its "no route" ends the episode as NO_ROUTE (the robot
-reports it and holds). Budget, loop rule, near misses and outcomes are
+reverse step, its give-way is driven as a detour is, and its "no route"
+ends the episode as NO_ROUTE (the robot reports it and holds). Budget, loop rule, near misses and outcomes are
 `nav_eval_kernel`'s, so its rows sit beside the other controllers' in
 `qnav bench nav`, except that progress, and the period budget, are measured
 along the robot's current plan while it follows a whole-map route (a detour
 through another door first leads away from the waypoint; the first route of
 each round of recoveries, and another way round once the route followed
 closed, start a new count and a budget for its own length, up to three times
-the episode's), and periods the planner's recoveries hold the robot still or
-back it off (WAIT, BACKUP, CLEAR, a whole-map route held or not yet answered)
+the episode's), and periods the planner's recoveries hold the robot still,
+back it off or drive it aside (WAIT, GIVE_WAY, BACKUP, CLEAR, a whole-map
+route held or not yet answered)
 do not count toward the loop rule: they are bounded by the robot's own rules
 (at most 3 x max_rounds rounds), not aimless, and the budget still bounds them.
 """
