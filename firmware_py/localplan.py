@@ -171,6 +171,10 @@ def _wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:
 
 
 MAP_MARGIN_MM = 150  # a reading is explained by the map within this distance of a mapped cell
+# ObstacleMemory.added counts new points this near the robot: a person walking to and fro a metre off
+# a disc that closes the only door made every round of recoveries a "moving scene" (at window_mm, 1 m),
+# and the robot waited until its time ran out instead of saying "no route"
+MOVING_NEAR_MM = 700
 # giving way (LocalPlanner.refuge): the robot stands this far off the line a person walks (two radii
 # and a margin: a person walking a 500 mm corridor is up to 100 mm off its middle) ...
 REFUGE_MM = 2 * robot_spec.ROBOT_RADIUS_MM + 150
@@ -333,8 +337,8 @@ class ObstacleMemory:
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
         self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
         self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
-        # points added (a new 50 mm square) within window_mm of the robot since the memory began: how
-        # much moves near it (a mover walking past in view across the room is not what closed the way)
+        # points added (a new 50 mm square) within MOVING_NEAR_MM of the robot since the memory began:
+        # how much moves near it (a mover walking past in view across the room is not what closed the way)
         self.added = 0
 
     def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
@@ -344,7 +348,7 @@ class ObstacleMemory:
         when their pin runs out)."""
         cfg = self.cfg
         seen: set[tuple[int, int]] = set()
-        near = cfg.window_mm * cfg.window_mm
+        near = MOVING_NEAR_MM * MOVING_NEAR_MM
         for _, _, ex, ey in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, cfg.margin_mm,
                                           cfg.see_mm):
             key = (ex // _KEY_MM, ey // _KEY_MM)
@@ -920,7 +924,7 @@ class PlannedTarget:
        `GIVE_WAY_US`; the round spent standing aside does not count.
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
        (the controller reports it and ends the mission). A round whose wait saw more than
-       `moving_points` new points within `window_mm` was a moving scene (a mover walking in the
+       `moving_points` new points within `MOVING_NEAR_MM` was a moving scene (a mover walking in the
        only way) and does not count, up to 3 x `max_rounds` rounds in all; nor does one in which a
        remembered point came within the robot's radius + `veto_mm` (the guard never steps that
        close: it came to the robot, a person who will not give way standing at it in a one-cell

@@ -14,6 +14,7 @@ from firmware_py.localplan import (
     GIVE_WAY,
     GLOBAL,
     LOCAL,
+    MOVING_NEAR_MM,
     NO_ROUTE,
     REFUGE_MM,
     WAIT,
@@ -72,8 +73,9 @@ def test_clearing_keeps_what_closed_the_route_out_there_and_counts_only_what_mov
     """CLEAR (a recovery) forgets what is near the robot, but a point a global re-plan pinned that lies
     window_mm or more away is kept while pinned: a box seen from one side of the map, the robot gone
     round to meet it from the other side, forgetting it sent the robot round again and again instead
-    of saying "no route" (the blocked bench's loops). `added` counts new points within window_mm of
-    the robot only: a mover crossing the room in view made every round a "moving scene"."""
+    of saying "no route" (the blocked bench's loops). `added` counts new points within MOVING_NEAR_MM
+    of the robot only: a mover crossing the room in view, or walking to and fro a metre off a closed
+    door, made every round a "moving scene"."""
     memory = ObstacleMemory(CFG)
     _remember(memory, [(1300, 1000), (1000 + CFG.window_mm + 200, 1000)])
     memory.pin(0)
@@ -85,7 +87,9 @@ def test_clearing_keeps_what_closed_the_route_out_there_and_counts_only_what_mov
     memory = ObstacleMemory(CFG)
     memory.observe(OPEN, 1000, 1000, 0, *_front(CFG.window_mm + 300), 0)  # 1.45 m from the centre
     assert memory.points and memory.added == 0
-    memory.observe(OPEN, 1000, 1000, 0, *_front(500), 50_000)
+    memory.observe(OPEN, 1000, 1000, 0, *_front(MOVING_NEAR_MM), 50_000)  # 150 mm farther than that
+    assert memory.added == 0
+    memory.observe(OPEN, 1000, 1000, 0, *_front(MOVING_NEAR_MM - 200), 100_000)
     assert memory.added == 1
 
 
