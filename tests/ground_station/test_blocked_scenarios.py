@@ -260,9 +260,9 @@ def test_bench_nav_blocked_skips_a_map_without_such_an_episode(tmp_path):
 
 
 def test_the_twin_lets_the_recoveries_run_to_no_route_without_the_loop_rule_cutting_them():
-    """trap-16x16-s1, a passage closed with no way round (seed 0, 3 discs + 2 movers, episode 7): the
-    robot's recoveries (waits of 2, 4, 6 s, back-offs, a moving-scene round that does not count) stand
-    it still for longer than the loop rule's 20 s without progress. Periods the planner holds the robot
+    """rooms-16x16-s1, a passage closed with no way round (seed 0, 3 discs + 2 movers, episode 3): the
+    robot's recoveries (waits of 2, 4, 6 s, back-offs, moving-scene rounds that do not count) stand
+    it still for longer than the loop rule's 20 s without progress (34 s). Periods the planner holds the robot
     still or backs it off on purpose are not counted toward that rule (the budget still bounds them),
     so the episode ends as the robot ends it: NO_ROUTE, not LOOP; and the robot stood for > 20 s."""
     from firmware_py.localplan import PlannedTarget
@@ -273,8 +273,8 @@ def test_the_twin_lets_the_recoveries_run_to_no_route_without_the_loop_rule_cutt
     from ground_station.nav.controllers import standard_controllers
     from ground_station.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS
 
-    gm = load_map("trap-16x16-s1")
-    ep = sc.blocked_episodes(gm, 8, 0, False, k=3, m=2)[7]
+    gm = load_map("rooms-16x16-s1")
+    ep = sc.blocked_episodes(gm, 4, 0, False, k=3, m=2)[3]
     ctrl = standard_controllers(load_policy(shipped_policy("sector")), ("learnt",))[0]
     still = []
     target = PlannedTarget.target
