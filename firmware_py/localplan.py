@@ -116,7 +116,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
@@ -414,13 +414,19 @@ class ObstacleMemory:
         for p in self.points:
             self.pinned[p] = max(until, self.pinned.get(p, -1))
 
+    def nearest(self, x: float, y: float) -> tuple[int, int] | None:
+        """The remembered point nearest (x, y), or None."""
+        if not self.points:
+            return None
+        return min(((qx, qy) for qx, qy, _ in self.points.values()), key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2)
+
     def unpin_near(self, x: float, y: float, mm: float) -> None:
         """Points within `mm` of the point nearest (x, y) (the body standing there: a person) are kept
         `memory_us` like the others from now; farther ones stay pinned (a box closing another door)."""
-        if not self.points:
+        nearest = self.nearest(x, y)
+        if nearest is None:
             return
-        px, py = min(((qx, qy) for qx, qy, _ in self.points.values()),
-                     key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2)
+        px, py = nearest
         for key, (qx, qy, _) in self.points.items():
             if (qx - px) ** 2 + (qy - py) ** 2 <= mm * mm:
                 self.pinned.pop(key, None)
@@ -768,14 +774,9 @@ class LocalPlanner:
         ix, iy = int(x // r), int(y // r)
         cur = (ix, iy)
         if cur not in dist:
-            # inside a grown obstacle or a wall's margin: start from the best cell nearby that the robot
-            # reaches in a straight line without going nearer a remembered point (not one across the obstacle)
-            # (and without its body clipping a map wall on the way: not one round a door's jamb)
+            # inside a grown obstacle or a wall's margin: start from the best cell nearby in reach
             near = [(dist[c] + math.hypot(c[0] - ix, c[1] - iy), c)
-                    for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
-                    if c in dist and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
-                                                   robot_spec.ROBOT_RADIUS_MM + 10)
-                    and self._body_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2)]
+                    for c in self._cells_in_reach(x, y, memory, lambda c: c in dist)]
             if not near:
                 # no way from here: the tick's side starts the recoveries (Recovery), meanwhile
                 # toward the waypoint behind the motion guard (a mover may step aside)
@@ -813,6 +814,19 @@ class LocalPlanner:
         self.detouring = True
         return best[0] * r + r / 2, best[1] * r + r / 2
 
+    def _cells_in_reach(self, x: float, y: float, memory: ObstacleMemory,
+                        ok: Callable[[Cell], bool]) -> list[Cell]:
+        """Raster cells within 3 of the robot's for which `ok(cell)` holds and that it reaches in a
+        straight line without going nearer a remembered point (not one across the obstacle) and
+        without its body clipping a map wall on the way (not one round a door's jamb): where a search
+        starts when the robot stands inside a grown obstacle or a wall's margin."""
+        r = self.cfg.raster_mm
+        ix, iy = int(x // r), int(y // r)
+        return [c for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
+                if ok(c) and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
+                                            robot_spec.ROBOT_RADIUS_MM + 10)
+                and self._body_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2)]
+
     def refuge(self, x: float, y: float, memory: ObstacleMemory) -> tuple[int, int] | None:
         """Where to stand aside for the body nearest the robot (a person who does not give way,
         walking at it down a one-cell corridor), or None: the raster cell nearest by way (Dijkstra
@@ -822,10 +836,10 @@ class LocalPlanner:
         along an axis, and a person walking in one is rarely in its middle, so the direction between
         the two is up to ~20 degrees off it) and `REFUGE_MM` or more from the body: a side corridor or
         a room's corner it walks past."""
-        if not memory.points:
+        nearest = memory.nearest(x, y)
+        if nearest is None:
             return None
-        px, py = min(((qx, qy) for qx, qy, _ in memory.points.values()),
-                     key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2)
+        px, py = nearest
         ux, uy = x - px, y - py
         n = math.hypot(ux, uy)
         if n < 1.0:
@@ -833,11 +847,7 @@ class LocalPlanner:
         ux, uy = (math.copysign(1.0, ux), 0.0) if abs(ux) >= abs(uy) else (0.0, math.copysign(1.0, uy))
         self._grow(memory)
         r = self.cfg.raster_mm
-        ix, iy = int(x // r), int(y // r)
-        starts = [c for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
-                  if self._open(c) and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
-                                                      robot_spec.ROBOT_RADIUS_MM + 10)
-                  and self._body_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2)]
+        starts = self._cells_in_reach(x, y, memory, self._open)
         dist: dict[Cell, float] = {}
         heap: list[tuple[float, Cell]] = []
         for c in starts:
