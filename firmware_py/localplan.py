@@ -44,19 +44,18 @@ about them before its learnt sector policy steers:
 * When the window's search finds no way from the robot to the waypoint,
   `PlannedTarget` runs the recoveries, in order: wait (a mover may step
   aside), re-plan over the whole map round the pinned points (another
-  door, another aisle: followed like a local detour), and when there is
-  no route: when something came up to the robot while it waited (a
-  person who will not give way, standing at it) give way first: drive to
-  the nearest place off the line that body walks (`LocalPlanner.refuge`:
-  a side corridor behind the robot, a room's corner) and stand there until
-  the way opens, then back to the waypoint by the whole map's route;
-  otherwise (or with nowhere to stand aside) back off, clear the obstacle
-  layer round the robot (what
-  closed the route farther away is kept while pinned), wait longer and
-  re-plan again;
-  after `max_rounds` global searches without a route it says "no route"
-  (`PlannedTarget.no_route`), and the controller reports it (STATUSTEXT,
-  severity error) and ends the mission in HOLD.
+  door, another aisle: followed like a local detour), and when there is no
+  route: when something came up to the robot while it waited (a person who
+  will not give way, standing at it) give way first: drive to the nearest
+  place off the line that body walks (`LocalPlanner.refuge`: a side
+  corridor behind the robot, a room's corner) and stand there until the
+  way opens, then back to the waypoint by the whole map's route; otherwise
+  (or with nowhere to stand aside) back off, clear the obstacle layer
+  round the robot (what closed the route farther away is kept while
+  pinned), wait longer and re-plan again; after `max_rounds` global
+  searches without a route it says "no route" (`PlannedTarget.no_route`),
+  and the controller reports it (STATUSTEXT, severity error) and ends the
+  mission in HOLD.
 
 * `MotionGuard.action(...)` has the last word on the table's action (as
   nav2's collision monitor and back-up recovery do for its controllers): a
@@ -1190,15 +1189,6 @@ _REAR, _REAR_SIDES, _SIDES = 4, (3, 5), (2, 6)
 _LEFT_HALF, _RIGHT_HALF = (1, 2), (6, 7)  # the diagonals and sides ahead of the axle
 
 
-def _reading(ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], i: int) -> int:
-    """A reading as a distance (too close: 0; nothing or invalid: beyond any range)."""
-    if status[i] == robot_spec.RANGE_TOO_CLOSE:
-        return 0
-    if status[i] != robot_spec.RANGE_VALID:
-        return robot_spec.RANGE_MAX_MM + 1
-    return ranges_mm[i]
-
-
 class MotionGuard:
     """The last word on the learnt table's action (see the module docstring); one per drive."""
 
@@ -1214,7 +1204,7 @@ class MotionGuard:
         self._backing_until_us = -1
         self._last = FORWARD  # the action taken on the last tick
         self._reversals = 0  # ticks in a row the turn reversed
-        self._side_ref: list[int] | None = None  # the side readings when the current back-off began
+        self._side_ref: list[float] | None = None  # the side readings when the current back-off began
         self._escape_turn: int | None = None  # turning away from a body at the flank (_escape)
         self._escape_until_us = 0
         self._escape_steps = 0  # steps ahead still to take after the escape turn
@@ -1243,7 +1233,7 @@ class MotionGuard:
             if abs(bearing_mrad) > TURN_COMMIT_MRAD:
                 action = self._last  # the target is behind: finish the turn begun (module docstring)
             elif self._reversals >= DITHER_REVERSALS and all(
-                    _reading(ranges_mm, status, i) >= 2 * self.cfg.veto_mm for i in _FRONT):
+                    collision.reading_mm(ranges_mm, status, i) >= 2 * self.cfg.veto_mm for i in _FRONT):
                 # left, right, left on the spot: a step ahead breaks it (or, a body at the flank in
                 # the way of that step, turning away from it)
                 action, self._reversals = self._escape(now_us, x, y, FORWARD, ranges_mm, status, memory), 0
@@ -1259,7 +1249,7 @@ class MotionGuard:
         if not backing:
             self._side_ref = None
         elif self._side_ref is None:
-            self._side_ref = [_reading(ranges_mm, status, i) for i in _SIDES]
+            self._side_ref = [collision.reading_mm(ranges_mm, status, i) for i in _SIDES]
 
     def _decide(self, now_us: int, x: float, y: float, action: int, bearing_mrad: int,
                 ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
@@ -1284,7 +1274,7 @@ class MotionGuard:
             self.vetoes += 1
             return toward
         action = self._escape(now_us, x, y, action, ranges_mm, status, memory)
-        if action == FORWARD and any(_reading(ranges_mm, status, i) < cfg.veto_mm for i in _FRONT):
+        if action == FORWARD and any(collision.reading_mm(ranges_mm, status, i) < cfg.veto_mm for i in _FRONT):
             self.vetoes += 1
             self._escape_steps = 0
             return toward
@@ -1318,8 +1308,8 @@ class MotionGuard:
             self._escape_steps = 0
         if action == FORWARD and blocked:
             self.vetoes += 1
-            left = min(_reading(ranges_mm, status, i) for i in _LEFT_HALF)
-            right = min(_reading(ranges_mm, status, i) for i in _RIGHT_HALF)
+            left = min(collision.reading_mm(ranges_mm, status, i) for i in _LEFT_HALF)
+            right = min(collision.reading_mm(ranges_mm, status, i) for i in _RIGHT_HALF)
             self._escape_turn = TURN_RIGHT if left < right else TURN_LEFT
             self._escape_until_us = now_us + ESCAPE_US
             return self._escape_turn
@@ -1347,8 +1337,8 @@ class MotionGuard:
 
     def rear_clear(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
         cfg = self.cfg
-        return (_reading(ranges_mm, status, _REAR) > cfg.rear_clear_mm
-                and all(_reading(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES))
+        return (collision.reading_mm(ranges_mm, status, _REAR) > cfg.rear_clear_mm
+                and all(collision.reading_mm(ranges_mm, status, i) > cfg.rear_side_clear_mm for i in _REAR_SIDES))
 
     def may_reverse(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
         """The rear is clear, and no side reading has fallen to veto_mm or under since the back-off
@@ -1359,5 +1349,5 @@ class MotionGuard:
             return False
         ref = self._side_ref
         return ref is None or all(
-            _reading(ranges_mm, status, i) > self.cfg.veto_mm or _reading(ranges_mm, status, i) >= r
+            collision.reading_mm(ranges_mm, status, i) > self.cfg.veto_mm or collision.reading_mm(ranges_mm, status, i) >= r
             for i, r in zip(_SIDES, ref, strict=True))

@@ -67,7 +67,7 @@ _GAP_RIM = [[((i + s) % len(robot_spec.SENSOR_ANGLES_MRAD), (i - s) % len(robot_
 
 def touching(ranges_mm: Sequence[int], status: Sequence[int]) -> bool:
     """A reading under CONTACT_MM (callers then work out which readings their map explains)."""
-    return any(_distance(ranges_mm, status, i) < CONTACT_MM for i in range(len(_RAYS)))
+    return any(reading_mm(ranges_mm, status, i) < CONTACT_MM for i in range(len(_RAYS)))
 
 
 def _reading_points(ranges_mm: Sequence[int], status: Sequence[int],
@@ -80,7 +80,7 @@ def _reading_points(ranges_mm: Sequence[int], status: Sequence[int],
     for a reading the robot's map explains (`mapped[i]`: a wall or block whose corners the monitor
     is given as points; a block's corner beside the robot held every step past it)."""
     out: list[tuple[float, float]] = []
-    near = [_distance(ranges_mm, status, i) for i in range(len(_RAYS))]
+    near = [reading_mm(ranges_mm, status, i) for i in range(len(_RAYS))]
     for i, rays in enumerate(_RAYS):
         r = near[i]
         if r == math.inf:
@@ -95,7 +95,9 @@ def _reading_points(ranges_mm: Sequence[int], status: Sequence[int],
     return out
 
 
-def _distance(ranges_mm: Sequence[int], status: Sequence[int], i: int) -> float:
+def reading_mm(ranges_mm: Sequence[int], status: Sequence[int], i: int) -> float:
+    """Sensor i's reading as a distance: too close is 0 (somewhere under the minimum), nothing or
+    invalid is infinite (the motion guard compares readings with these too)."""
     if status[i] == robot_spec.RANGE_TOO_CLOSE:
         return 0.0  # somewhere under the sensor's minimum: take the worst
     if status[i] == robot_spec.RANGE_VALID:

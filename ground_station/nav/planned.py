@@ -20,19 +20,19 @@ modelled (the kernel moves by whole actions at one speed).
 The planner's recoveries act as on the robot: a period it asks to stand
 still (waiting for a mover, waiting for a whole-map answer) the robot does
 not move while the movers walk and the sensors read, its back-off is a
-reverse step, its give-way is driven as a detour is, and its "no route"
-ends the episode as NO_ROUTE (the robot reports it and holds). Budget, loop rule, near misses and outcomes are
-`nav_eval_kernel`'s, so its rows sit beside the other controllers' in
-`qnav bench nav`, except that progress, and the period budget, are measured
-along the robot's current plan while it follows a whole-map route (a detour
-through another door first leads away from the waypoint; the first route of
-each round of recoveries, and another way round once the route followed
-closed, start a new count and a budget for its own length, up to three times
-the episode's), and periods the planner's recoveries hold the robot still,
-back it off or drive it aside (WAIT, GIVE_WAY, BACKUP, CLEAR, a whole-map
-route held or not yet answered)
-do not count toward the loop rule: they are bounded by the robot's own rules
-(at most 3 x max_rounds rounds), not aimless, and the budget still bounds them.
+reverse step, its give-way is driven as a detour is, and its "no route" ends
+the episode as NO_ROUTE (the robot reports it and holds). Budget, loop rule,
+near misses and outcomes are `nav_eval_kernel`'s, so its rows sit beside the
+other controllers' in `qnav bench nav`, except that progress, and the period
+budget, are measured along the robot's current plan while it follows a
+whole-map route (a detour through another door first leads away from the
+waypoint; the first route of each round of recoveries, and another way round
+once the route followed closed, start a new count and a budget for its own
+length, up to three times the episode's), and periods the planner's
+recoveries hold the robot still, back it off or drive it aside (WAIT,
+GIVE_WAY, BACKUP, CLEAR, a whole-map route held or not yet answered) do not
+count toward the loop rule: they are bounded by the robot's own rules (at
+most 3 x max_rounds rounds), not aimless, and the budget still bounds them.
 """
 
 from __future__ import annotations
@@ -126,8 +126,9 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         rl, sl = ranges.tolist(), status.tolist()
         memory.observe(grid, xm, ym, thm, rl, sl, t * PERIOD_US)
         tx, ty, speed = planner.target(t * PERIOD_US, x, y, (round(wps[k, 0]), round(wps[k, 1])), memory)
-        # the planner's recoveries hold the robot still (or back it off) on purpose, for a bounded time:
-        # not aimless, so those periods do not count toward the loop rule (the budget still bounds them)
+        # the planner's recoveries hold the robot still (or back it off, or drive it aside) on purpose, for a
+        # bounded time: not aimless, so those periods do not count toward the loop rule (the budget still
+        # bounds them)
         recovering = planner.mode in (WAIT, GIVE_WAY, BACKUP, CLEAR) or (planner.mode == GLOBAL and speed == 0)
         if planner.no_route:
             outcome = NO_ROUTE  # the robot's recoveries ran out and it reports it (the controller holds)
