@@ -7,7 +7,7 @@ clock reads here: time comes in as an argument, I/O lives in
 `firmware_py.control.node`. The controller also implements
 `firmware_py.vehicle.VehicleControl` for the MAVLink node; those calls may
 come from another thread, so every public method takes one lock and a policy
-swap lands between two ticks.
+swap lands between two ticks (policy and map activation: its base, control/activation.py).
 
 States (CtrlState): BOOT -> STANDBY (disarmed) -> HOLD (armed, no goal) ->
 DRIVING -> GOAL_REACHED -> next mission item or HOLD; FAULT from any armed
@@ -22,12 +22,12 @@ It knows no kind: the registry builds the kind's driver when a policy is activat
 from __future__ import annotations
 
 import logging
-import threading
 from dataclasses import replace
 
-from firmware_py import kinds, robot_spec
+from firmware_py import robot_spec
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
 from firmware_py.control import collision
+from firmware_py.control.activation import Activation
 from firmware_py.control.explore import wander_wheels
 from firmware_py.control.io import (
     Heartbeat,
@@ -36,7 +36,6 @@ from firmware_py.control.io import (
     Outputs,
     error_bits,
 )
-from firmware_py.control.localiser import Localiser
 from firmware_py.control.plausibility import encoder_jump
 from firmware_py.control.route import Route
 from firmware_py.control.safety import clamp_speeds
@@ -46,18 +45,15 @@ from firmware_py.control.state import (
     SEV_INFO,
     SEV_NOTICE,
     SEV_WARNING,
-    ControlState,
 )
 from firmware_py.kinds import DriveTick
 from firmware_py.localplan import mapped_readings
-from firmware_py.mapdata import OccupancyGrid, describe
-from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy, on_robot_map
+from firmware_py.mapdata import OccupancyGrid
+from firmware_py.policy import config_mismatch
 from firmware_py.vehicle import (
-    ACTIVATION_TIMEOUT_S,
     CtrlState,
     FailsafeAction,
     Mode,
-    PendingActivation,
     VehicleConfig,
     VehicleEvent,
     VehicleStatus,
@@ -68,7 +64,7 @@ log = logging.getLogger("qnav.controller")
 BATTERY_TIMEOUT_US = 5_000_000  # the power board reports at 2 Hz
 
 
-class Controller(ControlState):
+class Controller(Activation):
     """The control state machine; implements vehicle.VehicleControl."""
 
     # --- VehicleControl ---------------------------------------------------------------
@@ -271,141 +267,6 @@ class Controller(ControlState):
                     self._stop()
                     self._transition(CtrlState.HOLD, "policy unloaded", SEV_WARNING)
                 self.policy = self.driver = None
-
-    def activate_policy(self, path: str) -> tuple[bool, str]:
-        """Validate a policy file with the loader and swap it in between two
-        ticks; the one it replaces is kept as `last_known_good`. Waits for a
-        localiser being built (`begin_activation` is the form that does not)."""
-        got = self.begin_activation(path)
-        return got if isinstance(got, tuple) else got.wait(ACTIVATION_TIMEOUT_S)
-
-    def begin_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
-        """`activate_policy` for the link thread (the FTP server's hook): when the
-        new policy's map needs its localiser built (seconds on a large map), that
-        runs on a worker thread and a PendingActivation comes back; the running
-        policy drives meanwhile and the new one is swapped in when ready, or
-        refused with the reason (issue 29 finding 3)."""
-        with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
-                return False, "refused while driving: stop first"
-        try:
-            new = load_policy(path)  # file I/O outside the lock: ticks keep running
-        except PolicyError as exc:
-            return False, f"policy rejected: {exc}"
-        new = on_robot_map(new, self.robot_map)  # a kind that is not map-specific runs on the robot's map
-        grid = new.map_grid if self.localise else None
-        if grid is None or (self.loc is not None and self.loc.grid == grid):
-            return self.activate_loaded(new)
-        pending = PendingActivation()
-
-        def build() -> None:
-            try:
-                loc = self._new_localiser(new)
-            except MemoryError:
-                pending.finish(False, "policy rejected: its map's localiser field does not fit in memory")
-                return
-            except Exception as exc:  # noqa: BLE001 - a refusal with the reason, never a dead worker
-                pending.finish(False, f"policy rejected: localiser: {type(exc).__name__}: {exc}")
-                return
-            if not pending.cancelled:
-                pending.finish(*self.activate_loaded(new, loc))
-
-        threading.Thread(target=build, name="policy-activation", daemon=True).start()
-        return pending
-
-    def activate_loaded(self, new: Policy, loc: Localiser | None = None) -> tuple[bool, str]:
-        """Swap in an already validated policy (see activate_policy); `loc`: its
-        localiser, already built."""
-        if loc is None:
-            try:
-                loc = self._new_localiser(new)  # outside the lock (see _new_localiser)
-            except MemoryError:
-                return False, "policy rejected: its map's localiser field does not fit in memory"
-        with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
-                return False, "refused while driving: stop first"
-            why = config_mismatch(new, self.cfg.control_period_us, self.cfg.cell_size_mm, self.robot_map,
-                                  self.robot_profile)
-            if why:
-                return False, why
-            why = Route.refusal(self.route.items, lambda x, y: self._goal_index_for(x, y, new), "mission item")
-            if why:
-                return False, why
-            old = self.policy
-            self.policy = new
-            self.driver = kinds.of_policy(new).driver(new, self.background)
-            self._use_localiser(new, loc if loc is not None else self._new_localiser(new))
-            if old is not None:
-                self.last_known_good = old
-            text = f"policy 0x{new.policy_id:08x} {new.kind} active"
-            log.info("t=%d us %s", self._now, text)
-            self._event("info", text)
-            return True, ""
-
-    # --- the robot's own map (issue 32) ----------------------------------------------------
-    def begin_map_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
-        """The FTP server's hook for a rename onto /maps/active.map: parse the MovingAI file with the
-        robot's cell size, check it against the running policy, build its localiser off the link
-        thread, and swap it in between two ticks (or refuse with the reason; the old map stays)."""
-        from firmware_py.mapdata import MapDataError, grid_from_map_file
-
-        with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
-                return False, "refused while driving: stop first"
-            cell_mm = self.cfg.cell_size_mm
-        try:
-            grid = grid_from_map_file(path, cell_mm)
-        except (MapDataError, OSError, UnicodeDecodeError) as exc:
-            return False, f"map rejected: {exc}"
-        pending = PendingActivation()
-
-        def build() -> None:
-            try:
-                pending.finish(*self.set_robot_map(grid))
-            except MemoryError:
-                pending.finish(False, "map rejected: its localiser field does not fit in memory")
-            except Exception as exc:  # noqa: BLE001 - a refusal with the reason, never a dead worker
-                pending.finish(False, f"map rejected: {type(exc).__name__}: {exc}")
-
-        threading.Thread(target=build, name="map-activation", daemon=True).start()
-        return pending
-
-    def set_robot_map(self, grid: OccupancyGrid) -> tuple[bool, str]:
-        """Make `grid` (mapdata.OccupancyGrid) the robot's map: a map-specific policy for another map is
-        refused naming both; any other kind localises and plans on it from the next tick (its
-        localiser built before the lock is taken: the ticks keep running)."""
-        with self._lock:
-            pol, route_items = self.policy, list(self.route.items)
-        if pol is not None:
-            why = config_mismatch(pol, self.cfg.control_period_us, self.cfg.cell_size_mm, grid, self.robot_profile)
-            if why:
-                return False, why
-        new = on_robot_map(pol, grid) if pol is not None else None
-        why = Route.refusal(route_items, lambda x, y: self._goal_index_for(x, y, new), "mission item") if new else ""
-        if why:
-            return False, why
-        loc = self._new_localiser(new)
-        with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
-                return False, "refused while driving: stop first"
-            self.robot_map = grid
-            self._corners = None
-            if new is not None and new is not pol:
-                self.policy = new
-                self.driver = kinds.of_policy(new).driver(new, self.background)
-                self._use_localiser(new, loc)
-            text = f"map {describe(grid)} active"
-            log.info("t=%d us %s", self._now, text)
-            self._event("info", text)
-            return True, text
-
-    def revert_policy(self) -> tuple[bool, str]:
-        """Swap back to the last-known-good policy."""
-        with self._lock:
-            if self.last_known_good is None:
-                return False, "no last-known-good policy"
-            lkg = on_robot_map(self.last_known_good, self.robot_map)  # the map may have changed since
-        return self.activate_loaded(lkg)
 
     def drain_events(self) -> list[VehicleEvent]:
         with self._lock:
