@@ -174,6 +174,9 @@ MAP_MARGIN_MM = 150  # a reading is explained by the map within this distance of
 # a disc that closes the only door made every round of recoveries a "moving scene" (at window_mm, 1 m),
 # and the robot waited until its time ran out instead of saying "no route"
 MOVING_NEAR_MM = 700
+# a moving scene's new points belong to a body that moved: remembered points this near one of them are
+# that body's (a person is about the robot's width; ObstacleMemory.standing_by)
+BODY_MM = 2 * robot_spec.ROBOT_RADIUS_MM
 # giving way (LocalPlanner.refuge): the robot stands this far off the line a person walks (two radii
 # and a margin: a person walking a 500 mm corridor is up to 100 mm off its middle) ...
 REFUGE_MM = 2 * robot_spec.ROBOT_RADIUS_MM + 150
@@ -335,6 +338,7 @@ class ObstacleMemory:
         self.cfg = cfg
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
         self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
+        self.born: dict[tuple[int, int], int] = {}  # key -> when first seen (controller clock)
         self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
         # points added (a new 50 mm square) within MOVING_NEAR_MM of the robot since the memory began:
         # how much moves near it (a mover walking past in view across the room is not what closed the way)
@@ -354,6 +358,7 @@ class ObstacleMemory:
             if key not in self.points:
                 self.version += 1
                 self.added += (ex - x_mm) ** 2 + (ey - y_mm) ** 2 <= near
+                self.born[key] = now_us
             self.points[key] = (ex, ey, now_us)
             seen.add(key)
         old = self._seen_through(x_mm, y_mm, heading_mrad, ranges_mm, status, seen)
@@ -366,6 +371,7 @@ class ObstacleMemory:
         for p in old:
             del self.points[p]
             self.pinned.pop(p, None)
+            self.born.pop(p, None)
         if old:
             self.version += 1
 
@@ -444,11 +450,30 @@ class ObstacleMemory:
             self.version += 1
         self.points = keep
         self.pinned = {p: self.pinned[p] for p in keep}
+        self.born = {p: t for p, t in self.born.items() if p in keep}
 
     def snapshot(self) -> ObstacleMemory:
         """A copy for the planner's worker (the tick goes on changing this one)."""
         copy = ObstacleMemory(self.cfg)
         copy.points = dict(self.points)
+        copy.born = dict(self.born)
+        copy.version = self.version
+        return copy
+
+    def standing_by(self, since_us: int) -> ObstacleMemory:
+        """A copy holding only what stood still since `since_us`: the points first seen by then, less
+        those within `BODY_MM` of a point first seen later (a body that showed new points moved: a mover
+        shifting on the spot, not a box)."""
+        new = [v for p, v in self.points.items() if self.born.get(p, since_us) > since_us]
+        moved: set[tuple[int, int]] = set()
+        k = BODY_MM // _KEY_MM + 1
+        for nx, ny, _ in new:
+            cx, cy = nx // _KEY_MM, ny // _KEY_MM
+            moved.update((cx + dx, cy + dy) for dx in range(-k, k + 1) for dy in range(-k, k + 1))
+        copy = ObstacleMemory(self.cfg)
+        copy.points = {p: v for p, v in self.points.items() if self.born.get(p, since_us) <= since_us and not (
+            p in moved and any((v[0] - nx) ** 2 + (v[1] - ny) ** 2 <= BODY_MM * BODY_MM for nx, ny, _ in new))}
+        copy.born = {p: self.born[p] for p in copy.points if p in self.born}
         copy.version = self.version
         return copy
 
@@ -498,6 +523,14 @@ class LocalPlanner:
         # the whole map's route is closed ahead and the robot holds for it to open (`_plan`): since when
         self.held = False
         self._closed_since_us: int | None = None
+
+    def sharing_map(self) -> LocalPlanner:
+        """A second planner on this map sharing its configuration-space caches (filled lazily by both;
+        the worker's own, used on its thread only): a second question must not disturb the first's
+        held route and grown points."""
+        other = LocalPlanner(self.grid, self.cfg)
+        other._map_free, other._wall_cost = self._map_free, self._wall_cost
+        return other
 
     def reset(self) -> None:
         """A new waypoint (mission item): drive straight until something is in the way."""
@@ -890,6 +923,9 @@ class PlanAnswer:
     route_mm: float = 0.0  # the planned way's length from the pose asked about
     held: bool = False  # the whole map's route is closed ahead: stand while it is held to
     refuge: tuple[int, int] | None = None  # with no_route: where to stand aside (LocalPlanner.refuge)
+    # with no_route: none either over what stood still through the round's wait (ObstacleMemory.standing_by):
+    # what moved did not close the way
+    still_closed: bool = False
 
 
 @dataclass(frozen=True)
@@ -933,11 +969,13 @@ class PlannedTarget:
        `GIVE_WAY_US`; the round spent standing aside does not count.
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
        (the controller reports it and ends the mission). A round whose wait saw more than
-       `moving_points` new points within `MOVING_NEAR_MM` was a moving scene (a mover walking in the
-       only way) and does not count, up to 3 x `max_rounds` rounds in all; nor does one in which a
-       remembered point came within the robot's radius + `veto_mm` (the guard never steps that
-       close: it came to the robot, a person who will not give way standing at it in a one-cell
-       corridor).
+       `moving_points` new points within `MOVING_NEAR_MM`, and whose whole map would be open without
+       what moved since its wait began (the points first seen since, and older ones of the same
+       bodies: `ObstacleMemory.standing_by`), was a moving scene (a mover walking in the only way,
+       not one walking past a box that closes it) and does not count, up to 3 x `max_rounds` rounds
+       in all; nor does one in which a remembered point came within the robot's radius + `veto_mm`
+       (the guard never steps that close: it came to the robot, a person who will not give way
+       standing at it in a one-cell corridor).
 
     A waypoint beyond `max_plan_mm` is driven at without planning while the map leaves the straight
     line to it free (looked at off the tick); once it does not (a recovery's detour left the route
@@ -959,7 +997,9 @@ class PlannedTarget:
         self._mode_since_us = 0
         self._rounds = 0  # global searches without a route for this waypoint (in a still scene)
         self._all_rounds = 0  # ... and in all
-        self._added_at_wait = 0  # memory.added when the last wait began
+        self._added_at_wait = 0  # memory.added when the last wait began ...
+        self._round_since_us = 0  # ... and when (the points first seen since moved in during the round)
+        self._still_planner: LocalPlanner | None = None  # the worker's, for PlanAnswer.still_closed
         self._came_up = False  # something came up to the robot during this round (_recovering)
         self.reverse = False  # this tick: back off (BACKUP)
         self.no_route = ""  # why the waypoint cannot be reached (NO_ROUTE), else ""
@@ -979,7 +1019,7 @@ class PlannedTarget:
 
     @property
     def plans(self) -> int:
-        return self.planner.plans
+        return self.planner.plans + (self._still_planner.plans if self._still_planner is not None else 0)
 
     def reset(self) -> None:
         """A new waypoint (mission item): drive straight until something is in the way."""
@@ -992,6 +1032,10 @@ class PlannedTarget:
 
     def _enter(self, mode: str, now_us: int) -> None:
         self.mode, self._mode_since_us = mode, now_us
+
+    def _begin_round(self, now_us: int, memory: ObstacleMemory, came_up: bool) -> None:
+        """A round of recoveries begins with its wait: what is added from now tells a moving scene."""
+        self._added_at_wait, self._round_since_us, self._came_up = memory.added, now_us, came_up
 
     def target(self, now_us: int, x: float, y: float, waypoint: tuple[int, int],
                memory: ObstacleMemory) -> tuple[float, float, int]:
@@ -1011,7 +1055,7 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if self.mode == CLEAR:
             self._enter(WAIT, now_us)
-            self._added_at_wait, self._came_up = memory.added, False
+            self._begin_round(now_us, memory, False)
         whole_map = self.mode == GLOBAL
         if not whole_map:  # in GLOBAL it stays the route's (a tick without an answer followed: the last one's)
             self.route_mm = math.hypot(wx - x, wy - y)
@@ -1038,8 +1082,8 @@ class PlannedTarget:
             # what the robot goes round is kept while it does (unless a reading sees through it): a
             # box forgotten once out of view sent the route back to it, and the robot turned to and fro
             memory.pin(now_us)
-        gen, snap = self._generation, memory.snapshot()
-        self.work.post(self, lambda: self._solve(gen, now_us, x, y, waypoint, snap, whole_map))
+        gen, snap, since = self._generation, memory.snapshot(), self._round_since_us
+        self.work.post(self, lambda: self._solve(gen, now_us, x, y, waypoint, snap, whole_map, since))
         ans = self._answer
         if ans is not None and (ans.generation != gen or ans.waypoint != waypoint):
             ans = None
@@ -1051,7 +1095,7 @@ class PlannedTarget:
             return self._recovering(now_us, x, y, waypoint, ans, memory)
         if ans is not None and ans.blocked:
             self._enter(WAIT, now_us)
-            self._added_at_wait, self._came_up = memory.added, False
+            self._begin_round(now_us, memory, False)
             return float(wx), float(wy), 0
         if ans is None:
             # nothing answered for this waypoint yet (the tick it became blocked, in lockstep and the
@@ -1100,7 +1144,10 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if ans.no_route:
             self._all_rounds += 1
-            if memory.added - self._added_at_wait <= cfg.moving_points and not self._came_up:
+            # a moving scene: new points came near while the robot waited, and without what moved the
+            # way would be open (a mover walking past the robot while a box closes the door: still)
+            moving = memory.added - self._added_at_wait > cfg.moving_points and not ans.still_closed
+            if not moving and not self._came_up:
                 self._rounds += 1  # a still scene: what closes the way stays
             if self._rounds >= cfg.max_rounds or self._all_rounds >= 3 * cfg.max_rounds:
                 self._enter(NO_ROUTE, now_us)
@@ -1143,7 +1190,7 @@ class PlannedTarget:
             self._enter(WAIT, now_us)
             # a round spent standing aside for a mover is not a still scene's (the refuge may not see
             # the way it closed)
-            self._added_at_wait, self._came_up = memory.added, True
+            self._begin_round(now_us, memory, True)
             return float(wx), float(wy), 0
         if ans is None:
             return float(wx), float(wy), 0  # the first answer comes next tick
@@ -1165,8 +1212,9 @@ class PlannedTarget:
         self._far_sight = (generation, waypoint, self.planner.map_sight(x, y, *waypoint))
 
     def _solve(self, generation: int, asked_us: int, x: float, y: float, waypoint: tuple[int, int],
-               memory: ObstacleMemory, whole_map: bool = False) -> None:
-        """The worker's part: `LocalPlanner.target` for the pose asked about."""
+               memory: ObstacleMemory, whole_map: bool = False, round_since_us: int = 0) -> None:
+        """The worker's part: `LocalPlanner.target` for the pose asked about (with no route: where to
+        stand aside, and whether what stood still through the round's wait closes the way)."""
         if generation != self._worker_generation:
             self.planner.reset()
             self._worker_generation = generation
@@ -1174,8 +1222,24 @@ class PlannedTarget:
         tx, ty = p.target(x, y, waypoint, memory, whole_map, asked_us)
         # no route: where the robot might stand aside, should something have come up to it (GIVE_WAY)
         refuge = p.refuge(x, y, memory) if p.no_route else None
+        still_closed = p.no_route and self._closed_before(x, y, waypoint, memory, round_since_us, asked_us)
         self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), p.detouring, whole_map, p.blocked,
-                                  p.no_route, p.route_mm, p.held, refuge)
+                                  p.no_route, p.route_mm, p.held, refuge, still_closed)
+
+    def _closed_before(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory,
+                       since_us: int, asked_us: int) -> bool:
+        """The whole map has no route over what stood still since `since_us` either (the worker's,
+        after a whole-map search said no route)."""
+        before = memory.standing_by(since_us)
+        if len(before.points) == len(memory.points):
+            return True
+        q = self._still_planner
+        if q is None:
+            q = self._still_planner = self.planner.sharing_map()
+        q.reset()
+        q._grown_version = -1  # its points differ from the last question's at the same version
+        q.target(x, y, waypoint, before, True, asked_us)
+        return q.no_route
 
 
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order

@@ -46,6 +46,7 @@ def _remember(memory: ObstacleMemory, points: list[tuple[int, int]], now_us: int
         if key not in memory.points:
             memory.version += 1
             memory.added += 1
+            memory.born[key] = now_us
         memory.points[key] = (x, y, now_us)
 
 
@@ -208,25 +209,56 @@ def test_a_mover_that_steps_aside_while_the_robot_waits_ends_the_recovery():
 
 
 
-def test_rounds_in_a_moving_scene_do_not_count_toward_no_route():
-    # the only door held by something that keeps moving (new points every tick, as a mover walking
-    # to and fro in it): the robot keeps waiting and re-planning longer than for a still box
+def _no_route_with(moving: callable, static: list[tuple[int, int]]) -> tuple[int, int]:  # type: ignore[valid-type]
+    """When a robot standing at BELOW says "no route" (and after how many global searches) with the
+    `static` points in view every tick and `moving(k)` the points a mover shows at tick k (the ones it
+    showed the tick before are seen through: a new 50 mm square every tick)."""
     work = Background(threaded=False)
     memory = ObstacleMemory(CFG)
     pt = PlannedTarget(ONE_DOOR, CFG, work)
-    rows = []
     for k in range(6000):  # the robot never moves here: each give-way ends when GIVE_WAY_US is out
         now = k * PERIOD
-        mover = (1100 + 50 * (k % 6), 1650)  # a new 50 mm square every tick, the last one seen through
-        memory.points.pop(((1100 + 50 * ((k - 1) % 6)) // 50, 1650 // 50), None)
-        _remember(memory, DOOR1 + [mover], now)
-        tx, ty, speed = pt.target(now, *BELOW, ABOVE, memory)
-        rows.append((now, pt.mode))
+        for x, y in moving(k - 1):
+            memory.points.pop((x // 50, y // 50), None)
+        _remember(memory, static + moving(k), now)
+        pt.target(now, *BELOW, ABOVE, memory)
         work.run_pending()
-    modes = [m for _, m in rows]
-    said = rows[modes.index(NO_ROUTE)][0]
+        if pt.mode == NO_ROUTE:
+            return now, pt.global_plans
+    return -1, pt.global_plans
+
+
+def test_rounds_in_a_moving_scene_do_not_count_toward_no_route():
+    # the only door held by a mover stepping to and fro in it (its body 50 mm further on or back
+    # each tick): the robot keeps waiting and re-planning longer than for a still box
+    said, plans = _no_route_with(lambda k: [(x, y + 50 * (k % 2)) for x, y in DOOR1], [])
     still = 6 * CFG.wait_us + 2 * CFG.backoff_us  # when a still box is declared (test above)
-    assert said > 2 * still and pt.global_plans == 3 * CFG.max_rounds
+    assert said > 2 * still and plans == 3 * CFG.max_rounds
+
+
+def test_a_person_shifting_on_the_spot_in_the_door_is_a_moving_scene():
+    # the standard bench's movers stop for the robot: one standing in the only door since before the
+    # wait, shifting 50 mm now and then, shows a few new points beside its old ones; the old ones are
+    # the same body (within BODY_MM of a new one), so the way is not closed by what stands still
+    def shifting(k: int) -> list[tuple[int, int]]:
+        return [(x, y + 50 * ((k // 10) % 2)) for x, y in DOOR1[:1]]
+
+    said, plans = _no_route_with(shifting, DOOR1[1:])
+    still = 6 * CFG.wait_us + 2 * CFG.backoff_us  # when a still box is declared (test above)
+    assert said > 2 * still and plans == 3 * CFG.max_rounds
+
+
+def test_a_mover_walking_past_near_the_robot_does_not_hold_open_a_door_a_box_closes():
+    """The blocked bench's last loop (trap, seed 0): a box closes the only door and a mover walks to
+    and fro 0.3-0.5 m beside the waiting robot. New points near it made every round a moving scene
+    and the robot searched on; what moved did not close the way, so the rounds count."""
+    def beside(k: int) -> list[tuple[int, int]]:
+        return [(int(BELOW[0]) - 450 + 50 * (k % 8), int(BELOW[1]) - 300)]
+
+    assert all(math.hypot(x - BELOW[0], y - BELOW[1]) < MOVING_NEAR_MM for k in range(8) for x, y in beside(k))
+    said, plans = _no_route_with(beside, DOOR1)
+    still = 6 * CFG.wait_us + 2 * CFG.backoff_us  # when a still box is declared (test above)
+    assert still <= said <= still + 20 * PERIOD and plans == CFG.max_rounds
 
 
 def test_rounds_in_which_something_came_up_to_the_robot_do_not_count_toward_no_route():
