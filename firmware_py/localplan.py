@@ -452,11 +452,13 @@ class ObstacleMemory:
         self.pinned = {p: self.pinned[p] for p in keep}
         self.born = {p: t for p, t in self.born.items() if p in keep}
 
-    def snapshot(self) -> ObstacleMemory:
-        """A copy for the planner's worker (the tick goes on changing this one)."""
+    def snapshot(self, born: bool = False) -> ObstacleMemory:
+        """A copy for the planner's worker (the tick goes on changing this one); `born`: with when each
+        point was first seen (for `standing_by`: a whole-map search's question only, a copy less a tick)."""
         copy = ObstacleMemory(self.cfg)
         copy.points = dict(self.points)
-        copy.born = dict(self.born)
+        if born:
+            copy.born = dict(self.born)
         copy.version = self.version
         return copy
 
@@ -1082,7 +1084,7 @@ class PlannedTarget:
             # what the robot goes round is kept while it does (unless a reading sees through it): a
             # box forgotten once out of view sent the route back to it, and the robot turned to and fro
             memory.pin(now_us)
-        gen, snap, since = self._generation, memory.snapshot(), self._round_since_us
+        gen, snap, since = self._generation, memory.snapshot(born=whole_map), self._round_since_us
         self.work.post(self, lambda: self._solve(gen, now_us, x, y, waypoint, snap, whole_map, since))
         ans = self._answer
         if ans is not None and (ans.generation != gen or ans.waypoint != waypoint):
