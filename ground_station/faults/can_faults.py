@@ -35,12 +35,13 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
+from typing import Any
 
 import can
 
 from firmware_py import can_protocol as cp
 from firmware_py.vehicle import CtrlState, VehicleConfig
-from ground_station.faults.common import ScenarioResult, register
+from ground_station.faults.common import ScenarioResult, register, trials
 from ground_station.rigs.lockstep import PERIOD_US, LockstepRig, cell_policy, far_trip, paper10
 
 INPUT_FRAMES = ("RangeSectors0", "RangeSectors1", "EncoderCounts", "Bumper", "MotorStatus")
@@ -64,11 +65,9 @@ def _setup(seed: int, vehicle: VehicleConfig | None = None):
 
 def _episodes(count: int, first_seed: int, progress=None):  # type: ignore[no-untyped-def]
     """(i, rng, rig) of `count` seeded episodes (seeds first_seed + i), `progress` ticked after each."""
-    for i in range(count):
+    for i in trials(count, progress):
         rng, rig = _setup(first_seed + i)
         yield i, rng, rig
-        if progress is not None:
-            progress.update(1)
 
 
 def _zero_from(rig: LockstepRig, t_us: int) -> list[str]:
@@ -87,6 +86,22 @@ def _stopped_by(rig: LockstepRig, t_us: int, deadline_us: int) -> list[str]:
 
 def _first_fault(rig: LockstepRig, after_us: int):
     return rig.first_transition_to(CtrlState.FAULT, after_us)
+
+
+def _drive_to(rig: LockstepRig, t_us: int, when: str, problems: list[str], **kw: Any) -> None:
+    """Run `rig` to `t_us` (`kw` as for `LockstepRig.tick`), where a scenario injects its fault;
+    a setup problem, said `when`, unless the robot is DRIVING then: a fault injected into a
+    robot that stands still proves nothing about stopping it."""
+    rig.run_until(t_us, **kw)
+    if rig.ctrl.state != CtrlState.DRIVING:
+        problems.append(f"setup: {rig.ctrl.state.name} {when}, not DRIVING")
+
+
+def _stale_deadline(t_us: int, timeout_us: int) -> int:
+    """When the controller must have stopped for inputs that stop being new at tick `t_us`: the
+    last new sample came one period before, goes stale `timeout_us` later, and the next control
+    tick sees it within one more period."""
+    return t_us - PERIOD_US + timeout_us + PERIOD_US
 
 
 def _edit_after(t_from_us: int, message: str, edit: Callable[[dict], None]):
@@ -113,7 +128,7 @@ def _edit_after(t_from_us: int, message: str, edit: Callable[[dict], None]):
           what="input frames stop -> zero command within staleness timeout + 1 period, FAULT")
 def sensor_stop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_sensor_stop")
-    for i in range(count):
+    for i in trials(count, progress):
         rng = random.Random(seed * 7919 + i)
         timeout_ms = rng.choice((100, 250, 500))
         cut = set(rng.sample(INPUT_FRAMES, rng.randint(1, len(INPUT_FRAMES))))
@@ -124,20 +139,16 @@ def sensor_stop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         def hook(_tick, t_us, frames, ids=ids, t_cut=t_cut):
             return frames if t_us < t_cut else [f for f in frames if f.arbitration_id not in ids]
 
-        problems = []
+        problems: list[str] = []
         with rig:
-            rig.run_until(t_cut, frames_hook=hook)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} at the cut, not DRIVING")
-            deadline = t_cut - PERIOD_US + timeout_ms * 1000 + PERIOD_US
+            _drive_to(rig, t_cut, "at the cut", problems, frames_hook=hook)
+            deadline = _stale_deadline(t_cut, timeout_ms * 1000)
             rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
         problems += _stopped_by(rig, t_cut, deadline)
         fault = _first_fault(rig, t_cut)
         if fault is None or fault.t_us > deadline:
             problems.append(f"no FAULT by {deadline} us ({fault})")
         res.check(problems, f"seed {seed}/{i} cut {sorted(cut)} at {t_cut} us, timeout {timeout_ms} ms")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -154,11 +165,9 @@ def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
 
         hook = _edit_after(t_fault, "MotorStatus", set_errors)
 
-        problems = []
+        problems: list[str] = []
         with rig:
-            rig.run_until(t_fault, frames_hook=hook)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} at the fault, not DRIVING")
+            _drive_to(rig, t_fault, "at the fault", problems, frames_hook=hook)
             rig.run_until(t_fault + 6 * PERIOD_US, frames_hook=hook)
         fault = _first_fault(rig, t_fault)
         if fault is None or fault.t_us != t_fault:
@@ -175,11 +184,9 @@ def driver_watchdog(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     for i, rng, rig in _episodes(count, seed * 7919 + 2000, progress):
         t_cut = _fault_time(rng)
         wd_us = rig.plant.motors.p.watchdog_ms * 1000
-        problems = []
+        problems: list[str] = []
         with rig:
-            rig.run_until(t_cut)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} at the cut, not DRIVING")
+            _drive_to(rig, t_cut, "at the cut", problems)
             last_cmd = t_cut - PERIOD_US  # the last answer the driver received
             deadline = last_cmd + wd_us + 2 * PERIOD_US
             rig.run_until(deadline + 4 * PERIOD_US, deliver=False)
@@ -205,16 +212,14 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         t_stop = _fault_time(rng)
         source = rng.choice(senders)
         hold_ticks = rng.randint(1, 10)
-        problems = []
+        problems: list[str] = []
 
         def frame(engage: int, source=source, rng=rng):
             return cp.encode("EStop", {"EStop_Engage": engage, "EStop_Source": source,
                                        "EStop_Reason": rng.randrange(256)})
 
         with rig:
-            rig.run_until(t_stop)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} before the e-stop, not DRIVING")
+            _drive_to(rig, t_stop, "before the e-stop", problems)
             rig.send(frame(1))
             for _ in range(hold_ticks):
                 rig.tick()
@@ -245,7 +250,7 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
 def counters(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_counters")
     injected = {"dup_sensor": 0, "dup_tick": 0, "old_tick": 0, "stale_cmd": 0}
-    for i in range(count):
+    for i in trials(count, progress):
         rng, rig = _setup(seed * 7919 + 4000 + i)
         history: list[can.Message] = []  # earlier SimTicks, for replays
 
@@ -295,8 +300,6 @@ def counters(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         if overruns:
             problems.append(f"{overruns} overruns counted (no tick was lost)")
         res.check(problems, f"seed {seed}/{i}")
-        if progress is not None:
-            progress.update(1)
     res.figures.update(injected)
     return res
 
@@ -410,10 +413,10 @@ def garbage(count: int, seed: int = 0, progress=None, duration_s: float | None =
     if duration_s is None:
         duration_s = 4.0 if count <= 1 else 20.0
     runs = []
-    for i in range(count):
+    for i in trials(count, progress):
         fig = garbage_run(duration_s, seed * 7919 + 5000 + i)
         runs.append({k: v for k, v in fig.items() if k != "transitions"})
-        problems = []
+        problems: list[str] = []
         if fig["overruns"]:
             problems.append(f"{fig['overruns']} control ticks missed")
         if fig["ticks"] != fig["sim_ticks"]:
@@ -423,8 +426,6 @@ def garbage(count: int, seed: int = 0, progress=None, duration_s: float | None =
         if fig["state"] == "FAULT" or not any(t[2] == "DRIVING" for t in fig["transitions"]):
             problems.append(f"state {fig['state']} {fig['fault']}")
         res.check(problems, f"seed {seed}/{i}")
-        if progress is not None:
-            progress.update(1)
     res.figures["runs"] = runs
     res.figures["garbage_frames"] = sum(r["garbage_sent"] for r in runs)
     res.figures["min_rate_hz"] = min((r["garbage_rate_hz"] for r in runs), default=0.0)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,6 +48,15 @@ class ScenarioResult:
 
 
 Runner = Callable[..., ScenarioResult]
+
+
+def trials(count: int, progress: Any = None) -> Iterator[int]:
+    """0 .. count - 1, one a trial, ticking `progress` (a bar with `update`, or None) after each
+    trial's body: the scenarios' loops, so that none repeats the tick."""
+    for i in range(count):
+        yield i
+        if progress is not None:
+            progress.update(1)
 
 
 @dataclass(frozen=True)

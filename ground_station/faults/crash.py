@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from firmware_py.mavlink.params import as_float32
-from ground_station.faults.common import ScenarioResult, register
+from ground_station.faults.common import ScenarioResult, register, trials
 
 if TYPE_CHECKING:
     from ground_station.rigs.processes import RobotProcess
@@ -247,7 +247,7 @@ def crash_kill9(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             windows = {"upload": (0.0, cal["put_s"]), "activate": (cal["put_s"], cal["total_s"]),
                        "params": (0.0, pcal["total_s"])}
             res.figures["windows_s"] = {k: [round(a, 3), round(b, 3)] for k, (a, b) in windows.items()}
-            for i in range(count):
+            for i in trials(count, progress):
                 action = ("upload", "activate", "params")[i % 3]
                 actions[action] += 1
                 lo, hi = windows[action]
@@ -276,8 +276,6 @@ def crash_kill9(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 if finished:  # still a valid crash (after the action), but not inside it
                     res.figures["ended_before_kill"] = res.figures.get("ended_before_kill", 0) + 1
                 res.check(problems, f"kill {i} during {action} at {delay:.3f} s ({err or 'no error'})")
-                if progress is not None:
-                    progress.update(1)
         finally:
             c.stop_robot()
     res.figures["actions"] = actions

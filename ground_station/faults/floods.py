@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from firmware_py.mavlink.dialect import NAME as DIALECT
-from ground_station.faults.common import ScenarioResult, register
+from ground_station.faults.common import ScenarioResult, register, trials
 
 FLOOD_COUNTS = {"param_set": 600, "param_list": 300, "crc": 150}
 FLOOD_KINDS = tuple(FLOOD_COUNTS)
@@ -320,7 +320,7 @@ def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
 
     res = ScenarioResult("failsafe_garbage")
     runs = []
-    for i in range(count):
+    for i in trials(count, progress):
         s = seed * 1000 + i
         problems: list[str] = []
         row: dict[str, Any] = {"seed": s}
@@ -366,8 +366,6 @@ def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
         row["problems"] = problems
         runs.append(row)
         res.check(problems, f"run {i} seed {s}")
-        if progress is not None:
-            progress.update(1)
     res.figures["runs"] = runs
     return res
 

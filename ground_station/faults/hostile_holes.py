@@ -55,15 +55,17 @@ from firmware_py import can_protocol as cp
 from firmware_py.mavlink.dialect import NAME as DIALECT
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.faults.can_faults import (
+    _drive_to,
     _edit_after,
     _episodes,
     _fault_time,
     _first_fault,
     _setup,
+    _stale_deadline,
     _stopped_by,
     _zero_from,
 )
-from ground_station.faults.common import ScenarioResult, register
+from ground_station.faults.common import ScenarioResult, register, trials
 from ground_station.faults.hostile_mav import _dialect
 from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
 from ground_station.rigs.lockstep import PERIOD_US, SENSOR_FRAMES
@@ -79,16 +81,14 @@ FOREIGN_GCS = (77, GCS_COMPID)
 def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_future_tick")
     refused = 0
-    for i in range(count):
+    for i in trials(count, progress):
         rng, rig = _setup(seed * 7919 + 5000 + i)
         t_forge = _fault_time(rng)
         forged_us = rng.choice((10**9, 10**12, (1 << 40) - 1)) - rng.randrange(1000)
         timeout_us = rig.ctrl.cfg.sensor_timeout_ms * 1000
         problems: list[str] = []
         with rig:
-            rig.run_until(t_forge)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} at the forgery, not DRIVING")
+            _drive_to(rig, t_forge, "at the forgery", problems)
             rig.send(cp.sim_tick(rig.plant.tick, forged_us))  # the next counter, far ahead
             rig.run_until(t_forge + 8 * PERIOD_US)  # raises if a tick goes unanswered
             if rig.node.clock.now_us() != rig.time_us - PERIOD_US:
@@ -99,7 +99,7 @@ def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if _first_fault(rig, t_forge) is not None:
                 problems.append(f"FAULT after the forged tick: {rig.ctrl.fault}")
             t_cut = rig.time_us
-            deadline = t_cut - PERIOD_US + timeout_us + PERIOD_US
+            deadline = _stale_deadline(t_cut, timeout_us)
 
             def cut(_tick, t_us, frames, t_cut=t_cut):
                 return frames if t_us < t_cut else [
@@ -111,8 +111,6 @@ def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         if fault is None or fault.t_us > deadline:
             problems.append(f"sensor cut after the forgery: no FAULT by {deadline} us ({fault})")
         res.check(problems, f"seed {seed}/{i} forged {forged_us} us at {t_forge} us")
-        if progress is not None:
-            progress.update(1)
     res.figures["refused_jumps"] = refused
     return res
 
@@ -130,9 +128,7 @@ def forged_tick_pace(count: int, seed: int = 0, progress=None) -> ScenarioResult
         problems: list[str] = []
         forged = 0
         with rig:
-            rig.run_until(t0)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} at the first forgery, not DRIVING")
+            _drive_to(rig, t0, "at the first forgery", problems)
             for k in range(8):
                 rig.send(cp.sim_tick(rig.plant.tick, rig.node.clock.now_us() + 240_000))  # next counter, 240 ms on
                 forged += 1
@@ -168,9 +164,7 @@ def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
 
         problems: list[str] = []
         with rig:
-            rig.run_until(t_jump, frames_hook=hook)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} at the jump, not DRIVING")
+            _drive_to(rig, t_jump, "at the jump", problems, frames_hook=hook)
             pose = rig.ctrl.odom.pose_mm()
             rig.run_until(t_jump + 6 * PERIOD_US, frames_hook=hook)
             moved = math.hypot(rig.ctrl.odom.x_mm - pose[0], rig.ctrl.odom.y_mm - pose[1])
@@ -189,7 +183,7 @@ def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
 def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("can_frozen_sensor")
     names = [*sorted(SENSOR_FRAMES), "MotorStatus"]  # the driver status carries a rolling counter too
-    for i in range(count):
+    for i in trials(count, progress):
         rng = random.Random(seed * 7919 + 7000 + i)
         timeout_ms = rng.choice((100, 250, 500))
         name = rng.choice(names)
@@ -211,10 +205,8 @@ def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
 
         problems: list[str] = []
         with rig:
-            rig.run_until(t_freeze, frames_hook=hook)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} at the freeze, not DRIVING")
-            deadline = t_freeze - PERIOD_US + timeout_ms * 1000 + PERIOD_US
+            _drive_to(rig, t_freeze, "at the freeze", problems, frames_hook=hook)
+            deadline = _stale_deadline(t_freeze, timeout_ms * 1000)
             rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
         problems += _stopped_by(rig, t_freeze, deadline)
         fault = _first_fault(rig, t_freeze)
@@ -224,8 +216,6 @@ def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             late = fault.t_us - (t_freeze - PERIOD_US) - timeout_ms * 1000
             res.figures["max_us_after_timeout"] = max(res.figures.get("max_us_after_timeout", 0), late)
         res.check(problems, f"seed {seed}/{i} {name} frozen at {t_freeze} us, timeout {timeout_ms} ms")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -405,7 +395,7 @@ def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("mav_signing_bounds")
     m = _dialect()
     rng = random.Random(seed)
-    for i in range(count):
+    for i in trials(count, progress):
         problems: list[str] = []
         with tempfile.TemporaryDirectory(prefix="qnav-signing-") as tmp:
             root = Path(tmp)
@@ -455,8 +445,6 @@ def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if allowed.signing.key is None:
                 problems.append("SETUP_SIGNING refused although SIGN_NET_SETUP=1 on the robot")
         res.check(problems, f"seed {seed}/{i}")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -491,7 +479,7 @@ def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResu
     res = ScenarioResult("ftp_sessions_quota")
     rng = random.Random(seed)
     slowest_truncate = 0.0
-    for i in range(count):
+    for i in trials(count, progress):
         problems: list[str] = []
         with tempfile.TemporaryDirectory(prefix="qnav-ftp-") as tmp:
             quota = 1 << 20
@@ -556,8 +544,6 @@ def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResu
                 problems.append(f"file quota of 24 not enforced: {made} created, {files} files")
             server.close()
         res.check(problems, f"seed {seed}/{i} thief {thief} session {sid}")
-        if progress is not None:
-            progress.update(1)
     res.figures["slowest_huge_truncate_ms"] = round(slowest_truncate * 1000, 3)
     return res
 
@@ -579,7 +565,7 @@ def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("mav_signing_process")
     rng = random.Random(seed)
     mu = mavutil()
-    for i in range(count):
+    for i in trials(count, progress):
         problems: list[str] = []
         with tempfile.TemporaryDirectory(prefix="qnav-signproc-") as tmp:
             root = Path(tmp)
@@ -627,8 +613,6 @@ def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                         c.close()
                 robot.stop()
         res.check(problems, f"seed {seed}/{i}")
-        if progress is not None:
-            progress.update(1)
     return res
 
 

@@ -38,7 +38,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from ground_station.faults.common import ScenarioResult, register
+from ground_station.faults.common import ScenarioResult, register, trials
 from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
 
 GCS = (GCS_SYSID, GCS_COMPID)
@@ -402,7 +402,7 @@ def hostile_core(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         maker = FrameMaker(random.Random(seed), rig.key, rig.good)
         sig = rig.node.signing
         block_bad: list[str] = []
-        for i in range(count):
+        for i in trials(count, progress):
             kind, data, msg = maker.next()
             kinds[kind] = kinds.get(kind, 0) + 1
             problems: list[str] = []
@@ -435,8 +435,6 @@ def hostile_core(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                     block_bad.append(why)
                 problems += block_bad
             res.check(problems, f"frame {i} ({kind})")
-            if progress is not None:
-                progress.update(1)
         st, fs = rig.node.stats, rig.ftp.stats
         res.figures.update({
             "frames_by_kind": kinds, "rx_messages": st.rx_total, "rx_dropped": st.rx_dropped,
@@ -482,14 +480,12 @@ def hostile_udp(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             try:
                 link.connect(20.0)
                 t0 = time.monotonic()
-                for i in range(count):
+                for i in trials(count, progress):
                     link.conn.write(maker.next()[1])
                     if i % 50 == 49:
                         time.sleep(0.02)  # ~2500 frames/s: what one control tick's poll takes in
                         while link.conn.recv_match(blocking=False) is not None:
                             pass
-                    if progress is not None:
-                        progress.update(1)
                 res.figures["send_seconds"] = time.monotonic() - t0
                 time.sleep(0.5)
                 if not robot.alive:

@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ground_station.faults.common import ScenarioResult, register
+from ground_station.faults.common import ScenarioResult, register, trials
 
 LOSS_LEVELS = (0.0, 0.05, 0.2, 0.4)
 
@@ -73,12 +73,13 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     from firmware_py.mavlink.params import ParamStore
     from firmware_py.mavlink.signing import Signing
     from firmware_py.vehicle import CtrlState
+    from ground_station.faults.can_faults import _drive_to
     from ground_station.rigs.lockstep import PERIOD_US, LockstepRig, cell_policy, far_trip, paper10
 
     res = ScenarioResult("link_loss")
     hb = _gcs_heartbeat()
     gm, pol = paper10(), cell_policy()
-    for i in range(count):
+    for i in trials(count, progress):
         rng = random.Random(seed * 7919 + 6000 + i)
         timeout_ms = rng.randrange(500, 3001, 10)
         action = 1 + i % 2  # Hold, disarm in turn
@@ -107,9 +108,7 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         rig.node.after_tick.append(poll)
         problems: list[str] = []
         with rig:
-            rig.run_until(t_stop)
-            if rig.ctrl.state != CtrlState.DRIVING:
-                problems.append(f"setup: {rig.ctrl.state.name} when heartbeats stop, not DRIVING")
+            _drive_to(rig, t_stop, "when heartbeats stop", problems)
             last_hb = state["last_hb"]
             deadline = last_hb + timeout_ms * 1000 + PERIOD_US
             rig.run_until(deadline + 4 * PERIOD_US)
@@ -126,8 +125,6 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if not any("GCS failsafe" in text for t, text in state["texts"] if t >= tr.t_us):
                 problems.append("no STATUSTEXT 'GCS failsafe'")
         res.check(problems, f"seed {seed}/{i} timeout {timeout_ms} ms action {want.name}")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -504,12 +501,10 @@ def load(count: int, seed: int = 0, progress=None, duration_s: float | None = No
         if baseline:
             base = load_run(duration_s, seed * 1000 + 999, Path(tmp), clients_on=False)
             res.figures["baseline"] = {k: v for k, v in base.items() if k != "transitions"}
-        for i in range(count):
+        for i in trials(count, progress):
             run = load_run(duration_s, seed * 1000 + i, Path(tmp), floods=floods, wall_strict=baseline)
             runs.append({k: v for k, v in run.items() if k != "transitions"})
             res.check(run["problems"], f"run {i}")
-            if progress is not None:
-                progress.update(1)
     res.figures["runs"] = runs
     p99 = [r["tick_p99_us"] for r in runs if "tick_p99_us" in r]
     if p99:

@@ -48,8 +48,8 @@ from firmware_py import robot_spec
 from firmware_py.mapdata import MAX_SIDE_MM
 from firmware_py.shipped_policies import resolve_policy_spec
 from firmware_py.vehicle import CtrlState, Mode
-from ground_station.faults.can_faults import _fault_time, _first_fault, _stopped_by
-from ground_station.faults.common import ScenarioResult, register
+from ground_station.faults.can_faults import _drive_to, _fault_time, _first_fault, _stopped_by
+from ground_station.faults.common import ScenarioResult, register, trials
 from ground_station.faults.hostile_holes import GCS, _PolledNode
 from ground_station.rigs.lockstep import PERIOD_US, LockstepRig, paper10
 
@@ -119,7 +119,7 @@ def _max_step_problem(rig: LockstepRig, res: ScenarioResult) -> list[str]:
 def hold_ends_exploration(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("mav_hold_ends_exploration")
     stops = ("set_mode hold", "gcs failsafe", "disarm")
-    for i in range(count):
+    for i in trials(count, progress):
         rng, rig = _sector_rig(seed * 7919 + 11000 + i, with_goal=False)
         stop = stops[(seed + i) % len(stops)]
         problems: list[str] = []
@@ -165,8 +165,6 @@ def hold_ends_exploration(count: int, seed: int = 0, progress=None) -> ScenarioR
             problems.append("still exploring")
         problems += [f"poll raised: {e}" for e in polled.errors]
         res.check(problems, f"seed {seed}/{i} {stop} at {handled} us")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -182,13 +180,11 @@ def activation_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioR
     with tempfile.TemporaryDirectory(prefix="qnav-worst-") as tmp:
         path = Path(tmp) / "worst.qtab"
         path.write_bytes(data)
-        for i in range(count):
+        for i in trials(count, progress):
             rng, rig = _sector_rig(seed * 7919 + 12000 + i)
             problems: list[str] = []
             with rig:
-                rig.run_until(_fault_time(rng))
-                if rig.ctrl.state != CtrlState.DRIVING:
-                    problems.append(f"setup: {rig.ctrl.state.name} at the activation, not DRIVING")
+                _drive_to(rig, _fault_time(rng), "at the activation", problems)
                 old_id = _policy_id(rig)
                 early = rig.ctrl.begin_activation(str(path))  # while driving: refused now, with the reason
                 if not (isinstance(early, tuple) and not early[0] and early[1]) or _policy_id(rig) != old_id:
@@ -219,8 +215,6 @@ def activation_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioR
                 problems += _max_step_problem(rig, res)
             res.figures["ticks_driven_while_building"] = max(res.figures.get("ticks_driven_while_building", 0), ticks)
             res.check(problems, f"seed {seed}/{i} activation at {t0} us -> {result}")
-            if progress is not None:
-                progress.update(1)
     return res
 
 
@@ -289,7 +283,7 @@ def param_save_full_disk(count: int, seed: int = 0, progress=None) -> ScenarioRe
     def full(*_a, **_k):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    for i in range(count):
+    for i in trials(count, progress):
         name, value = rng.choice(((b"GOAL_TOL_MM", rng.randrange(100, 900)), (b"SPEED_SCALE", rng.randrange(20, 100))))
         problems: list[str] = []
         with tempfile.TemporaryDirectory(prefix="qnav-params-") as tmp:
@@ -323,8 +317,6 @@ def param_save_full_disk(count: int, seed: int = 0, progress=None) -> ScenarioRe
             if node.handler_errors:
                 problems.append(f"handler exceptions: {node.handler_errors}")
         res.check(problems, f"seed {seed}/{i} {name.decode()}={value}")
-        if progress is not None:
-            progress.update(1)
     return res
 
 
@@ -359,7 +351,7 @@ def goal_refusals(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     res = ScenarioResult("goal_refusals")
     rng = random.Random(seed * 7919 + 15000)
     gm = paper10()
-    for i in range(count):
+    for i in trials(count, progress):
         x, y, word = _bad_goal(rng, gm)
         # a VALID reading beyond the sensor's maximum is not a reading (finding 7's second half)
         beyond = robot_spec.RANGE_MAX_MM + rng.randrange(1, 2096)
@@ -400,6 +392,4 @@ def goal_refusals(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             problems.append(f"the reason does not say '{word}': {texts}")
         problems += [f"poll raised: {e}" for e in polled.errors]
         res.check(problems, f"seed {seed}/{i} {way} ({x}, {y}) mm")
-        if progress is not None:
-            progress.update(1)
     return res
