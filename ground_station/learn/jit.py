@@ -7,10 +7,13 @@ kernels draw the same kind of numbers and break ties the same way:
   splitmix64 in `seed_state`), so a run split into chunks draws exactly the
   numbers of one call: same seed -> same table;
 * `greedy`: argmax of a Q row, ties to the lowest index, as the robot's
-  `firmware_py.encoders.best_action`;
+  `firmware_py.encoders.best_action` (`greedy_sum`: of two tables' sum);
 * `cell_step`: the grid world's reward and termination, so Q-learning and
   the other tabular learners score a move identically;
-* `epsilon_at`: the linear exploration schedule every trainer follows.
+* `epsilon_at`: the linear exploration schedule every trainer follows;
+* `double_q_update`, `q_lambda_update`, `expected_value`: the learners'
+  updates the cell and the sector kernels make alike (the sector kernel's
+  discount is gamma^k for an action held k periods, the cell kernel's gamma).
 """
 
 from __future__ import annotations
@@ -66,6 +69,19 @@ def greedy(q, s: int) -> int:
 
 
 @numba.njit(cache=True, inline="always")
+def greedy_sum(qa, qb, s: int) -> int:
+    """argmax of qa[s] + qb[s], ties to the lowest index: Double Q's behaviour acts on both tables."""
+    best = 0
+    bv = qa[s, 0] + qb[s, 0]
+    for a in range(1, qa.shape[1]):
+        v = qa[s, a] + qb[s, a]
+        if v > bv:
+            bv = v
+            best = a
+    return best
+
+
+@numba.njit(cache=True, inline="always")
 def cell_step(cell, c2, goal_cell, r_goal, r_step, r_coll):
     """The grid world's reward and termination for a move from `cell` whose
     transition table entry is `c2` (-1: into a wall or off the map): (next
@@ -98,3 +114,60 @@ def draw_episode_start(rng, n_goals, starts_flat, starts_off):
     lo = starts_off[g]
     return g, starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
 
+
+
+@numba.njit(cache=True, inline="always")
+def double_q_update(rng, qa, qb, s: int, a: int, r: float, s2: int, terminal: bool, discount: float,
+                    lr: float) -> None:
+    """Double Q-learning's update of (s, a) -> s2: a coin picks the table that
+    learns; the other one values the learning table's greedy next action."""
+    if rand01(rng) < 0.5:
+        learn, other = qa, qb
+    else:
+        learn, other = qb, qa
+    target = r
+    if not terminal:
+        target += discount * other[s2, greedy(learn, s2)]
+    learn[s, a] += lr * (target - learn[s, a])
+
+
+@numba.njit(cache=True, inline="always")
+def q_lambda_update(q, s: int, a: int, r: float, s2: int, a2: int, terminal: bool, goes_on: bool,
+                    discount: float, lr: float, lam: float, tr_s, tr_a, tr_e, tr) -> None:
+    """Watkins's Q(lambda) update of (s, a) -> s2 over the trace ring
+    tr_s/tr_a/tr_e (tr = [head, length]); a2 is the behaviour's next action,
+    which cuts the traces when the episode `goes_on` with an exploratory one."""
+    cap = tr_s.shape[0]
+    a_star = greedy(q, s2)
+    target = r
+    if not terminal:
+        target += discount * q[s2, a_star]
+    delta = target - q[s, a]
+    k = (tr[0] + tr[1]) % cap  # push (s, a) with e = 1 (accumulating: a revisit is a second entry)
+    if tr[1] == cap:
+        tr[0] = (tr[0] + 1) % cap  # the oldest entry's e < trace_min: dropped
+    else:
+        tr[1] += 1
+    tr_s[k] = s
+    tr_a[k] = a
+    tr_e[k] = 1.0
+    exploratory = goes_on and q[s2, a2] < q[s2, a_star]  # before the traces change q
+    decay = discount * lam
+    for j in range(tr[1]):
+        m = (tr[0] + j) % cap
+        q[tr_s[m], tr_a[m]] += lr * delta * tr_e[m]
+        tr_e[m] *= decay
+    if exploratory:  # the greedy chain is broken, cut the traces
+        tr[0] = 0
+        tr[1] = 0
+
+
+@numba.njit(cache=True, inline="always")
+def expected_value(q, s: int, eps: float) -> float:
+    """Expected SARSA's value of state s under the epsilon-greedy policy on q."""
+    n = q.shape[1]
+    b = greedy(q, s)
+    v = 0.0
+    for k in range(n):
+        v += q[s, k]
+    return (eps / n) * v + (1.0 - eps) * q[s, b]

@@ -53,9 +53,13 @@ import numpy as np
 from ground_station.learn.config import LEARNERS, TrainConfig
 from ground_station.learn.jit import (
     cell_step,
+    double_q_update,
     draw_episode_start,
     epsilon_at,
+    expected_value,
     greedy,
+    greedy_sum,
+    q_lambda_update,
     rand01,
     randint,
     seed_state,
@@ -66,25 +70,12 @@ assert LEARNERS == ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lam
 
 
 @numba.njit(cache=True, inline="always")
-def _greedy_sum(qa, qb, s):
-    """argmax of qa[s] + qb[s], ties to the lowest index (Double Q's behaviour)."""
-    best = 0
-    bv = qa[s, 0] + qb[s, 0]
-    for a in range(1, qa.shape[1]):
-        v = qa[s, a] + qb[s, a]
-        if v > bv:
-            bv = v
-            best = a
-    return best
-
-
-@numba.njit(cache=True, inline="always")
 def _act(learner, qa, qb, s, eps, rng):
     """Epsilon-greedy behaviour action (Double Q: greedy on A + B)."""
     if rand01(rng) < eps:
         return int(rand01(rng) * qa.shape[1])
     if learner == DOUBLE_Q:
-        return _greedy_sum(qa, qb, s)
+        return greedy_sum(qa, qb, s)
     return greedy(qa, s)
 
 
@@ -115,7 +106,6 @@ def td_cell(learner, qa, qb, next_cell, goal_cells, starts_flat, starts_off,
     n_goals = goal_cells.shape[0]
     n_cells = next_cell.shape[0]
     n_actions = qa.shape[1]
-    cap = tr_s.shape[0]
     cell = ep[0]
     g = ep[1]
     t_ep = ep[2]
@@ -148,48 +138,17 @@ def td_cell(learner, qa, qb, next_cell, goal_cells, starts_flat, starts_off,
             a2 = _act(learner, qa, qb, s2, eps2, rng)
 
         if learner == DOUBLE_Q:
-            if rand01(rng) < 0.5:
-                learn, other = qa, qb
-            else:
-                learn, other = qb, qa
-            target = r
-            if not done:
-                target += gamma * other[s2, greedy(learn, s2)]
-            learn[s, a] += lr * (target - learn[s, a])
+            double_q_update(rng, qa, qb, s, a, r, s2, done, gamma, lr)
         elif learner == Q_LAMBDA:
-            a_star = greedy(qa, s2)
-            target = r
-            if not done:
-                target += gamma * qa[s2, a_star]
-            delta = target - qa[s, a]
-            # push (s, a) with e = 1 (accumulating: a revisit is a second entry)
-            k = (tr[0] + tr[1]) % cap
-            if tr[1] == cap:
-                tr[0] = (tr[0] + 1) % cap  # the oldest entry's e < trace_min: dropped
-            else:
-                tr[1] += 1
-            tr_s[k] = s
-            tr_a[k] = a
-            tr_e[k] = 1.0
-            exploratory = not done and not truncated and qa[s2, a2] < qa[s2, a_star]
-            for j in range(tr[1]):
-                m = (tr[0] + j) % cap
-                qa[tr_s[m], tr_a[m]] += lr * delta * tr_e[m]
-                tr_e[m] *= gamma * lam
-            if exploratory:  # Watkins: the greedy chain is broken, cut the traces
-                tr[0] = 0
-                tr[1] = 0
+            q_lambda_update(qa, s, a, r, s2, a2, done, not done and not truncated, gamma, lr, lam,
+                            tr_s, tr_a, tr_e, tr)
         else:
             target = r
             if not done:
                 if learner == SARSA:
                     target += gamma * qa[s2, a2]
                 elif learner == EXPECTED_SARSA:
-                    b = greedy(qa, s2)
-                    v = 0.0
-                    for k2 in range(n_actions):
-                        v += qa[s2, k2]
-                    target += gamma * ((eps / n_actions) * v + (1.0 - eps) * qa[s2, b])
+                    target += gamma * expected_value(qa, s2, eps)
                 else:  # q, dyna-q
                     target += gamma * _max(qa, s2)
             qa[s, a] += lr * (target - qa[s, a])

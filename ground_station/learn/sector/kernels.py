@@ -35,7 +35,16 @@ import numba
 import numpy as np
 
 from firmware_py import robot_spec
-from ground_station.learn.jit import epsilon_at, greedy, rand01, randint
+from ground_station.learn.jit import (
+    double_q_update,
+    epsilon_at,
+    expected_value,
+    greedy,
+    greedy_sum,
+    q_lambda_update,
+    rand01,
+    randint,
+)
 from ground_station.learn.sector.reward import (
     RW_ALIGN,
     RW_COLLISION,
@@ -338,14 +347,7 @@ def _greedy_ab(learner, q, q2, s) -> int:
     """The behaviour's greedy action: argmax Q, or argmax (A + B) for Double Q."""
     if learner != L_DOUBLE_Q:
         return greedy(q, s)
-    best = 0
-    bv = q[s, 0] + q2[s, 0]
-    for b in range(1, q.shape[1]):
-        v = q[s, b] + q2[s, b]
-        if v > bv:
-            bv = v
-            best = b
-    return best
+    return greedy_sum(q, q2, s)
 
 
 @numba.njit(cache=True, inline="always")
@@ -399,7 +401,6 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
     status = np.zeros(which.shape[0], dtype=np.int64)
     noisy = np.zeros(which.shape[0], dtype=np.int64)
     nstatus = np.zeros(which.shape[0], dtype=np.int64)
-    cap = tr_s.shape[0]
     n_done = 0
     b0 = 0.0
     og, ob, d, h, w, c = _episode_views(ep, occ, occb, dist, dims, cell)
@@ -464,7 +465,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
             else:
                 _other_update(learner, q, q2, rng, ep, s0, a, s2, big_r, big_g, terminal, end, alpha,
                               epsilon_at(t_glob + 1, eps_start, eps_end, eps_decay_steps), lam, n_plan,
-                              model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr, cap)
+                              model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr)
             ep[E_K] = 0.0
         if end:
             out_ret[n_done] = ep[E_RET]
@@ -476,7 +477,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
 
 @numba.njit(cache=True)
 def _other_update(learner, q, q2, rng, ep, s0, a, s2, big_r, big_g, terminal, end, alpha, eps_next, lam,
-                  n_plan, model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr, cap):
+                  n_plan, model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr):
     """The update of a held action (s0, a) -> s2 for the learners other than q
     (see `train_kernel`); eps_next: epsilon of the next decision."""
     a2 = 0
@@ -486,48 +487,16 @@ def _other_update(learner, q, q2, rng, ep, s0, a, s2, big_r, big_g, terminal, en
         if not end:
             ep[E_NEXT] = a2 + 1.0
     if learner == L_DOUBLE_Q:
-        if rand01(rng) < 0.5:
-            learn, other = q, q2
-        else:
-            learn, other = q2, q
-        target = big_r
-        if not terminal:
-            target += big_g * other[s2, greedy(learn, s2)]
-        learn[s0, a] += alpha * (target - learn[s0, a])
+        double_q_update(rng, q, q2, s0, a, big_r, s2, terminal, big_g, alpha)
     elif learner == L_Q_LAMBDA:
-        a_star = greedy(q, s2)
-        target = big_r
-        if not terminal:
-            target += big_g * q[s2, a_star]
-        delta = target - q[s0, a]
-        j = (tr[0] + tr[1]) % cap  # push (s0, a) with e = 1 (accumulating: a revisit is a second entry)
-        if tr[1] == cap:
-            tr[0] = (tr[0] + 1) % cap  # the oldest entry's e < trace_min: dropped
-        else:
-            tr[1] += 1
-        tr_s[j] = s0
-        tr_a[j] = a
-        tr_e[j] = 1.0
-        exploratory = not end and q[s2, a2] < q[s2, a_star]
-        decay = big_g * lam
-        for n in range(tr[1]):
-            e = (tr[0] + n) % cap
-            q[tr_s[e], tr_a[e]] += alpha * delta * tr_e[e]
-            tr_e[e] *= decay
-        if exploratory:  # Watkins: the greedy chain is broken, cut the traces
-            tr[0] = 0
-            tr[1] = 0
+        q_lambda_update(q, s0, a, big_r, s2, a2, terminal, not end, big_g, alpha, lam, tr_s, tr_a, tr_e, tr)
     else:
         target = big_r
         if not terminal:
             if learner == L_SARSA:
                 target += big_g * q[s2, a2]
             elif learner == L_EXPECTED_SARSA:
-                b = greedy(q, s2)
-                v = 0.0
-                for k2 in range(q.shape[1]):
-                    v += q[s2, k2]
-                target += big_g * ((eps_next / q.shape[1]) * v + (1.0 - eps_next) * q[s2, b])
+                target += big_g * expected_value(q, s2, eps_next)
             else:  # dyna-q
                 target += big_g * q[s2, greedy(q, s2)]
         q[s0, a] += alpha * (target - q[s0, a])
