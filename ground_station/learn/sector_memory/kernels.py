@@ -31,6 +31,7 @@ import math
 import numba
 import numpy as np
 
+from firmware_py import gridbug
 from ground_station.learn.jit import epsilon_at, greedy, rand01, randint
 
 MODE_GO = 0
@@ -44,15 +45,8 @@ DROW = np.array([0, -1, 0, 1], dtype=np.int64)  # rows grow southwards
 SECTOR_OF = np.array([5, 4, 3, 6, 0, 2, 7, 0, 1], dtype=np.int64)
 
 
-@numba.njit(cache=True, inline="always")
-def rotate_into(dx: int, dy: int, d: int):
-    if d == 0:
-        return dx, dy
-    if d == 1:
-        return dy, -dx
-    if d == 2:
-        return -dx, -dy
-    return -dy, dx
+# the reference encoder's own frame rotation, jitted: one definition for the robot and the twin
+rotate_into = numba.njit(cache=True, inline="always")(gridbug.rotate_into)
 
 
 @numba.njit(cache=True, inline="always")
