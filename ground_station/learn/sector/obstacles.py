@@ -32,21 +32,17 @@ from ground_station.learn.sector.reward import (
 )
 from ground_station.learn.sector.twin import (
     _RAY_COS,
-    _RAY_SIN,
-    _SENS_COS,
-    _SENS_SIN,
     ACTION_V_MM_S,
     ACTION_W_RAD_S,
-    MOUNT_MM,
     N_SUBSTEPS,
     RADIUS_MM,
-    RANGE_MAX,
     SUB_DT_S,
     _reading,
     bearing_mrad,
     disc_hits,
     encode_fast,
-    ray_cast_dir,
+    fan_distance,
+    fan_ray,
     wrap_angle,
 )
 from sim_bridge import obstacles as sim_obstacles
@@ -110,25 +106,21 @@ def _ray_circle(ox, oy, cx, cy, px, py, rad, best):
 
 @numba.njit(cache=True)
 def sense_obs(occ, h, w, cell, x, y, th, which, ranges, status, discs, movers) -> None:
-    """`twin.sense` with the discs and movers in the rays' way."""
+    """`twin.sense` with the discs and movers in the rays' way: the fan's
+    nearest cell hit, then each ray's nearest disc or mover if nearer (the
+    minimum over rays and obstacles, the same number in either order)."""
     ct = math.cos(th)
     st = math.sin(th)
     for i in range(ranges.shape[0]):
         if not which[i]:
             continue
-        ox = x + MOUNT_MM * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
-        oy = y + MOUNT_MM * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
-        d = np.inf
+        d = fan_distance(occ, h, w, cell, x, y, ct, st, i)
         for k in range(_RAY_COS.shape[1]):
-            cx = ct * _RAY_COS[i, k] - st * _RAY_SIN[i, k]
-            cy = st * _RAY_COS[i, k] + ct * _RAY_SIN[i, k]
-            t = ray_cast_dir(occ, h, w, cell, ox, oy, cx, cy, RANGE_MAX + 1.0)
+            ox, oy, cx, cy = fan_ray(x, y, ct, st, i, k)
             for j in range(discs.shape[0]):
-                t = _ray_circle(ox, oy, cx, cy, discs[j, 0], discs[j, 1], discs[j, 2], t)
+                d = _ray_circle(ox, oy, cx, cy, discs[j, 0], discs[j, 1], discs[j, 2], d)
             for j in range(movers.shape[0]):
-                t = _ray_circle(ox, oy, cx, cy, movers[j, 0], movers[j, 1], movers[j, 4], t)
-            if t < d:
-                d = t
+                d = _ray_circle(ox, oy, cx, cy, movers[j, 0], movers[j, 1], movers[j, 4], d)
         ranges[i], status[i] = _reading(d)
 
 

@@ -241,6 +241,30 @@ def sense_one(occ, h: int, w: int, cell: float, x: float, y: float, th: float, i
     return _reading(d)
 
 
+@numba.njit(cache=True, inline="always")
+def fan_ray(x: float, y: float, ct: float, st: float, i: int, k: int) -> tuple[float, float, float, float]:
+    """Origin (ox, oy) and unit direction (cx, cy) of ray k of sensor i's fan, the robot at
+    (x, y) with heading cos/sin (ct, st): the fixed angles' trigonometry is precomputed."""
+    ox = x + MOUNT_MM * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
+    oy = y + MOUNT_MM * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
+    cx = ct * _RAY_COS[i, k] - st * _RAY_SIN[i, k]
+    cy = st * _RAY_COS[i, k] + ct * _RAY_SIN[i, k]
+    return ox, oy, cx, cy
+
+
+@numba.njit(cache=True, inline="always")
+def fan_distance(occ, h: int, w: int, cell: float, x: float, y: float, ct: float, st: float, i: int) -> float:
+    """Sensor i's distance to the map's cells (its fan's nearest hit, at most RANGE_MAX + 1),
+    before `_reading` turns it into a range and status; see `sense` for the cast lengths."""
+    d = RANGE_MAX + 1.0
+    for k in range(_RAY_COS.shape[1]):
+        ox, oy, cx, cy = fan_ray(x, y, ct, st, i, k)
+        t = ray_cast_dir(occ, h, w, cell, ox, oy, cx, cy, d)
+        if t < d:
+            d = t
+    return d
+
+
 @numba.njit(cache=True)
 def sense(occ, h: int, w: int, cell: float, x: float, y: float, th: float, which, ranges, status) -> None:
     """Fill ranges/status (int64, length SENSOR_COUNT) for the sensors whose
@@ -254,18 +278,8 @@ def sense(occ, h: int, w: int, cell: float, x: float, y: float, th: float, which
     ct = math.cos(th)
     st = math.sin(th)
     for i in range(ranges.shape[0]):
-        if not which[i]:
-            continue
-        ox = x + MOUNT_MM * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
-        oy = y + MOUNT_MM * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
-        d = RANGE_MAX + 1.0
-        for k in range(_RAY_COS.shape[1]):
-            cx = ct * _RAY_COS[i, k] - st * _RAY_SIN[i, k]
-            cy = st * _RAY_COS[i, k] + ct * _RAY_SIN[i, k]
-            t = ray_cast_dir(occ, h, w, cell, ox, oy, cx, cy, d)
-            if t < d:
-                d = t
-        ranges[i], status[i] = _reading(d)
+        if which[i]:
+            ranges[i], status[i] = _reading(fan_distance(occ, h, w, cell, x, y, ct, st, i))
 
 
 def bordered(occ: np.ndarray, h: int, w: int) -> np.ndarray:
