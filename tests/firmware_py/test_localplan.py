@@ -28,17 +28,10 @@ from firmware_py.mapdata import grid_from_rows
 from firmware_py.policy import PolicyError, dump_policy, load_policy
 from firmware_py.vehicle import VehicleConfig
 from tests.support.controller_rig import SECTOR_TRAINING_MAP, Kinematic, Rig
+from tests.support.localplan_rig import CFG, CLOSE, FAR, N, V, front
 
-V, FAR, CLOSE = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_TOO_CLOSE
-N = robot_spec.SENSOR_COUNT
 OPEN = ["." * 10] * 10
 WALL = ["." * 3 + "@" + "." * 6] * 10  # column 3: x 1500..2000 mm
-CFG = LocalPlannerConfig()
-
-
-def _front(mm: int) -> tuple[list[int], list[int]]:
-    return [mm] + [2000] * (N - 1), [V] + [FAR] * (N - 1)
-
 
 # 6 x 5 cells of 500 mm, a wall column at col 4 (x 2000..2500 mm) with the map's border around
 GRID = grid_from_rows(["......", "....@.", "....@.", "....@.", "......"], 500)
@@ -89,21 +82,21 @@ def test_config_round_trips_and_bad_fields_are_named():
 
 def test_memory_keeps_unmapped_end_points_and_forgets_them_on_the_clock():
     mem = ObstacleMemory(CFG)
-    ranges, status = _front(300)  # front sensor at x 1150 + 300: x 1450 in the open
+    ranges, status = front(300)  # front sensor at x 1150 + 300: x 1450 in the open
     mem.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, ranges, status, 0)
     assert len(mem.points) == 1 and mem.version == 1
     (x, y, t), = mem.points.values()
     assert (x, y, t) == (1450, 2250, 0)
     mem.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, ranges, status, 2_000_000)  # seen again: no new version
     assert mem.version == 1 and next(iter(mem.points.values()))[2] == 2_000_000
-    far, fstat = _front(2000)
+    far, fstat = front(2000)
     mem.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, far, [FAR] * N, 2_000_000 + CFG.memory_us + 1)
     assert not mem.points and mem.version == 2  # forgotten
     walled = ObstacleMemory(CFG)
-    walled.observe(grid_from_rows(WALL, 500), 1000, 2250, 0, *_front(350), 0)  # ends on the wall's face
+    walled.observe(grid_from_rows(WALL, 500), 1000, 2250, 0, *front(350), 0)  # ends on the wall's face
     assert not walled.points
     beyond = ObstacleMemory(CFG)
-    beyond.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, *_front(CFG.see_mm + 1), 0)
+    beyond.observe(grid_from_rows(OPEN, 500), 1000, 2250, 0, *front(CFG.see_mm + 1), 0)
     assert not beyond.points
 
 
@@ -222,7 +215,7 @@ def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
     assert ctrl.set_goal(3750, 2250) == (True, "")
     rig.tick(ranges_mm=[2000] * N, range_status=[FAR] * N)
     assert ctrl.target_mm is None and rig.last_motor.left_mm_s == rig.last_motor.right_mm_s > 0  # straight on
-    fr, fs = _front(400)
+    fr, fs = front(400)
     rig.tick(ranges_mm=fr, range_status=fs)  # something the map does not show 400 mm ahead
     planner = ctrl.driver.local[0]  # type: ignore[union-attr]
     assert ctrl.target_mm is None and planner.plans == 0  # asked, not searched in the tick
@@ -243,11 +236,11 @@ def test_localiser_does_not_weigh_readings_of_unmapped_obstacles():
     rig = Rig(ctrl, Kinematic(1000, 2250, 0))
     out = rig.tick()
     assert out is not None
-    fr, fs = _front(150)  # ends at x 1300, 200 mm short of the wall: nothing on the map there
+    fr, fs = front(150)  # ends at x 1300, 200 mm short of the wall: nothing on the map there
     inp = rig.inp
     inp.ranges_mm, inp.range_status = fr, fs
     assert ctrl._statuses_for_localiser(inp)[0] == robot_spec.RANGE_INVALID
-    inp.ranges_mm, inp.range_status = _front(350)  # ends on the wall's face
+    inp.ranges_mm, inp.range_status = front(350)  # ends on the wall's face
     assert ctrl._statuses_for_localiser(inp)[0] == V
     plain = Controller(VehicleConfig(), load_policy(_policy({"map_grid": rows})), start_pose_mm=(1000, 2250, 0))
     inp.ranges_mm, inp.range_status = fr, fs

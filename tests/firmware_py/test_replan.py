@@ -19,15 +19,12 @@ from firmware_py.localplan import (
     REFUGE_MM,
     WAIT,
     LocalPlanner,
-    LocalPlannerConfig,
     ObstacleMemory,
     PlannedTarget,
 )
 from firmware_py.mapdata import grid_from_rows
+from tests.support.localplan_rig import CFG, FAR, INVALID, N, front
 
-V, FAR, INVALID = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_INVALID
-N = robot_spec.SENSOR_COUNT
-CFG = LocalPlannerConfig()
 PERIOD = robot_spec.CONTROL_PERIOD_US
 OPEN = grid_from_rows(["." * 10] * 10, 500)
 # 10 x 7 cells of 500 mm: a wall along row 3 (y 1500..2000 mm) with a door at col 2 (x 1000..1500)
@@ -50,23 +47,19 @@ def _remember(memory: ObstacleMemory, points: list[tuple[int, int]], now_us: int
         memory.points[key] = (x, y, now_us)
 
 
-def _front(mm: int, status: int = V) -> tuple[list[int], list[int]]:
-    return [mm] + [2000] * (N - 1), [status] + [FAR] * (N - 1)
-
-
 def test_a_reading_that_sees_through_a_remembered_point_clears_it():
     # robot at (1000, 1000) facing east: the front sensor's mount at x 1150, the point 500 mm ahead of it
     memory = ObstacleMemory(CFG)
     _remember(memory, [(1650, 1000)])
-    ranges, status = _front(600)  # an echo 100 mm behind the point: within the margin, the point stays
+    ranges, status = front(600)  # an echo 100 mm behind the point: within the margin, the point stays
     memory.observe(OPEN, 1000, 1000, 0, ranges, status, 100_000)
     assert (1650 // 50, 1000 // 50) in memory.points
     v = memory.version
-    ranges, status = _front(1200)  # the cone reads 1.2 m: nothing at 0.5 m any more
+    ranges, status = front(1200)  # the cone reads 1.2 m: nothing at 0.5 m any more
     memory.observe(OPEN, 1000, 1000, 0, ranges, status, 200_000)
     assert (1650 // 50, 1000 // 50) not in memory.points and memory.version > v
     _remember(memory, [(1650, 1000)], 200_000)
-    memory.observe(OPEN, 1000, 1000, 0, *_front(0, FAR), 300_000)  # nothing within range: cleared too
+    memory.observe(OPEN, 1000, 1000, 0, *front(0, FAR), 300_000)  # nothing within range: cleared too
     assert (1650 // 50, 1000 // 50) not in memory.points
 
 
@@ -86,11 +79,11 @@ def test_clearing_keeps_what_closed_the_route_out_there_and_counts_only_what_mov
     memory.clear(CFG.route_memory_us + 1, 1000, 1000, CFG.window_mm)  # its pin ran out
     assert not memory.points
     memory = ObstacleMemory(CFG)
-    memory.observe(OPEN, 1000, 1000, 0, *_front(CFG.window_mm + 300), 0)  # 1.45 m from the centre
+    memory.observe(OPEN, 1000, 1000, 0, *front(CFG.window_mm + 300), 0)  # 1.45 m from the centre
     assert memory.points and memory.added == 0
-    memory.observe(OPEN, 1000, 1000, 0, *_front(MOVING_NEAR_MM), 50_000)  # 150 mm farther than that
+    memory.observe(OPEN, 1000, 1000, 0, *front(MOVING_NEAR_MM), 50_000)  # 150 mm farther than that
     assert memory.added == 0
-    memory.observe(OPEN, 1000, 1000, 0, *_front(MOVING_NEAR_MM - 200), 100_000)
+    memory.observe(OPEN, 1000, 1000, 0, *front(MOVING_NEAR_MM - 200), 100_000)
     assert memory.added == 1
 
 
@@ -99,7 +92,7 @@ def test_a_point_outside_every_cone_or_behind_an_invalid_reading_is_not_cleared(
     # 22 deg left of the nose (cones are 15 deg wide, 45 deg apart), and one ahead under an invalid reading
     off = (1000 + round(600 * math.cos(0.384)), 1000 + round(600 * math.sin(0.384)))
     _remember(memory, [off, (1650, 1000)])
-    memory.observe(OPEN, 1000, 1000, 0, *_front(0, INVALID), 100_000)
+    memory.observe(OPEN, 1000, 1000, 0, *front(0, INVALID), 100_000)
     assert set(memory.points) == {(off[0] // 50, off[1] // 50), (1650 // 50, 1000 // 50)}
 
 
@@ -110,7 +103,7 @@ def test_pinned_points_outlive_the_memory_but_not_a_reading_that_sees_through_th
     out_of_view = [2000] * N, [INVALID] * N
     memory.observe(OPEN, 1000, 1000, 0, *out_of_view, CFG.memory_us + 1)
     assert len(memory.points) == 2  # not seen for longer than memory_us, but pinned
-    memory.observe(OPEN, 1000, 1000, 0, *_front(0, FAR), CFG.memory_us + 2)  # nothing ahead
+    memory.observe(OPEN, 1000, 1000, 0, *front(0, FAR), CFG.memory_us + 2)  # nothing ahead
     assert set(memory.points) == {(3000 // 50, 3000 // 50)}
     memory.observe(OPEN, 1000, 1000, 0, *out_of_view, CFG.route_memory_us + 1)
     assert not memory.points  # the pin ran out
