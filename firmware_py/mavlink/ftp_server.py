@@ -570,33 +570,26 @@ class FtpServer:
         s.upload.write(req.offset, req.data)
         return self._ack(req)
 
-    def _op_remove(self, req: Request, now_us: int) -> bytes:
+    def _change(self, req: Request, change: Callable[[str], object]) -> bytes:
+        """Apply `change` to the request's path: NAK FileProtected on the robot's active
+        files, else ACK once it is done (an OSError NAKs in `_dispatch`)."""
         path = self._path(req)
         if self._protected(path):
             return self._nak(req, Nak.FILE_PROTECTED)
-        self.storage.remove(path)
+        change(path)
         return self._ack(req)
+
+    def _op_remove(self, req: Request, now_us: int) -> bytes:
+        return self._change(req, self.storage.remove)
 
     def _op_mkdir(self, req: Request, now_us: int) -> bytes:
-        path = self._path(req)
-        if self._protected(path):
-            return self._nak(req, Nak.FILE_PROTECTED)
-        self.storage.mkdir(path)
-        return self._ack(req)
+        return self._change(req, self.storage.mkdir)
 
     def _op_rmdir(self, req: Request, now_us: int) -> bytes:
-        path = self._path(req)
-        if self._protected(path):
-            return self._nak(req, Nak.FILE_PROTECTED)
-        self.storage.rmdir(path)
-        return self._ack(req)
+        return self._change(req, self.storage.rmdir)
 
     def _op_truncate(self, req: Request, now_us: int) -> bytes:
-        path = self._path(req)
-        if self._protected(path):
-            return self._nak(req, Nak.FILE_PROTECTED)
-        self.storage.truncate(path, req.offset)
-        return self._ack(req)
+        return self._change(req, lambda path: self.storage.truncate(path, req.offset))
 
     def _op_rename(self, req: Request, now_us: int) -> bytes | list[bytes]:
         parts = req.data.split(b"\0")
