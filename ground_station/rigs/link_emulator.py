@@ -39,6 +39,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Self
 
 HOST = "127.0.0.1"
 UP, DOWN = 0, 1  # UP: ground station -> robot, DOWN: robot -> ground station
@@ -89,16 +90,107 @@ class LinkStats:
     up: DirectionStats = field(default_factory=DirectionStats)
     down: DirectionStats = field(default_factory=DirectionStats)
 
+    def of(self, direction: int) -> DirectionStats:
+        return self.up if direction == UP else self.down
 
-class LinkEmulator:
+
+class RadioRelay:
+    """What a radio between the ground station and the robot keeps, whatever carries
+    its bytes (`LinkEmulator`: UDP, `SerialRadio`: ptys): a seeded RNG and a radio queue
+    per direction, the heap of frames in the air, the stats, and the relay thread
+    (`_run`): it waits on the two sides (`_sides`, index 0 ground station, 1 robot)
+    and `_wake_r`, reads a side that has bytes (`_read_side`) and sends what is due
+    (`_send_due`, which says how long the thread may sleep); `stop` wakes it through
+    `_wake`. A context manager: `start` on entry, `stop` on exit."""
+
+    THREAD_NAME = "radio-relay"
+    _sides: list[Any]  # file objects or descriptors a selector waits on
+    _wake_r: Any
+
+    def __init__(self, config: LinkConfig) -> None:
+        config.validate()
+        self.config = config
+        self._rng = [random.Random(config.seed * 2 + 1), random.Random(config.seed * 2 + 2)]
+        self._free_at = [0.0, 0.0]
+        self._heap: list[tuple[float, int, int, bytes]] = []
+        self._counter = 0
+        self.stats = LinkStats()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def link_time(self, nbytes: int) -> float:
+        """Seconds `nbytes` occupy one direction of the link."""
+        return nbytes / self.config.bytes_per_s
+
+    def start(self) -> Self:
+        self._thread = threading.Thread(target=self._run, name=self.THREAD_NAME, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            self._wake()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        self._close()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _take_air(self, direction: int, nbytes: int, now: float) -> float | None:
+        """Count a frame of `nbytes` into its direction's radio queue: when its air time
+        starts (the queue's end moves past it), or None if the radio's buffer overflows (counted)."""
+        cfg = self.config
+        st = self.stats.of(direction)
+        st.frames_in += 1
+        st.bytes_in += nbytes
+        start = max(now, self._free_at[direction])
+        if cfg.queue_bytes and (start - now) * cfg.bytes_per_s + nbytes > cfg.queue_bytes:
+            st.overflowed += 1
+            return None
+        self._free_at[direction] = start + nbytes / cfg.bytes_per_s
+        return start
+
+    def _run(self) -> None:
+        sel = selectors.DefaultSelector()
+        sel.register(self._sides[0], selectors.EVENT_READ, 0)
+        sel.register(self._sides[1], selectors.EVENT_READ, 1)
+        sel.register(self._wake_r, selectors.EVENT_READ, -1)
+        timeout: float | None = None
+        while not self._stop.is_set():
+            for key, _ev in sel.select(timeout):
+                if key.data >= 0:
+                    self._read_side(key.data)
+            timeout = self._send_due(time.monotonic())
+        sel.close()
+
+    def _read_side(self, side: int) -> None:
+        raise NotImplementedError
+
+    def _send_due(self, now: float) -> float | None:
+        raise NotImplementedError
+
+    def _wake(self) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        raise NotImplementedError
+
+
+class LinkEmulator(RadioRelay):
     """See the module docstring. Ports 0 pick free ports (read them back)."""
+
+    THREAD_NAME = "link-emulator"
 
     def __init__(self, config: LinkConfig | None = None, *, gcs_port: int = 0, robot_port: int = 0,
                  gcs_peer: tuple[str, int] | None = None, robot_peer: tuple[str, int] | None = None,
                  drop: Callable[[int, bytes], bool] | None = None) -> None:
-        self.config = config or LinkConfig()
+        super().__init__(config or LinkConfig())
         self.drop = drop
-        self.config.validate()
         self._socks: list[socket.socket] = []
         for port in (gcs_port, robot_port):
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -106,62 +198,32 @@ class LinkEmulator:
             s.bind((HOST, port))
             s.setblocking(False)
             self._socks.append(s)
+        self._sides = self._socks
         self.gcs_port = self._socks[0].getsockname()[1]
         self.robot_port = self._socks[1].getsockname()[1]
         self._peers: list[tuple[str, int] | None] = [gcs_peer, robot_peer]  # index: side 0 gcs, 1 robot
         self._fixed = [gcs_peer is not None, robot_peer is not None]
-        self._rng = [random.Random(self.config.seed * 2 + 1), random.Random(self.config.seed * 2 + 2)]
-        self._free_at = [0.0, 0.0]
-        self._heap: list[tuple[float, int, int, bytes]] = []
-        self._counter = 0
-        self.stats = LinkStats()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         # a socketpair wakes the loop when stop() is called
         self._wake_r, self._wake_w = socket.socketpair()
 
     # --- lifecycle ---------------------------------------------------------------
-    def start(self) -> LinkEmulator:
-        self._thread = threading.Thread(target=self._run, name="link-emulator", daemon=True)
-        self._thread.start()
-        return self
+    def _wake(self) -> None:
+        self._wake_w.send(b"x")
 
-    def stop(self) -> None:
-        self._stop.set()
-        with contextlib.suppress(OSError):
-            self._wake_w.send(b"x")
-        if self._thread is not None:
-            self._thread.join(timeout=5)
+    def _close(self) -> None:
         for s in (*self._socks, self._wake_r, self._wake_w):
             s.close()
 
-    def __enter__(self) -> LinkEmulator:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def link_time(self, nbytes: int) -> float:
-        """Seconds `nbytes` occupy one direction of the link."""
-        return nbytes / self.config.bytes_per_s
-
     # --- the relay ---------------------------------------------------------------
-    def _stats(self, direction: int) -> DirectionStats:
-        return self.stats.up if direction == UP else self.stats.down
-
     def _schedule(self, direction: int, data: bytes, now: float) -> None:
         cfg = self.config
-        st = self._stats(direction)
-        st.frames_in += 1
-        st.bytes_in += len(data)
+        st = self.stats.of(direction)
         rng = self._rng[direction]
         r_loss, r_dup, r_reorder = rng.random(), rng.random(), rng.random()
         airtime = len(data) / cfg.bytes_per_s
-        start = max(now, self._free_at[direction])
-        if cfg.queue_bytes and (start - now) * cfg.bytes_per_s + len(data) > cfg.queue_bytes:
-            st.overflowed += 1
+        start = self._take_air(direction, len(data), now)
+        if start is None:
             return
-        self._free_at[direction] = start + airtime
         copies = 2 if r_dup < cfg.duplicate else 1
         if copies == 2:
             st.duplicated += 1
@@ -180,43 +242,31 @@ class LinkEmulator:
             self._counter += 1
             heapq.heappush(self._heap, (arrive + i * airtime, self._counter, direction, data))
 
-    def _deliver_due(self, now: float) -> float | None:
+    def _send_due(self, now: float) -> float | None:
         while self._heap and self._heap[0][0] <= now:
             _t, _n, direction, data = heapq.heappop(self._heap)
             out_side = 1 if direction == UP else 0
             peer = self._peers[out_side]
             if peer is None:
-                self._stats(direction).no_peer += 1
+                self.stats.of(direction).no_peer += 1
                 continue
-            self._stats(direction).delivered += 1
+            self.stats.of(direction).delivered += 1
             # a peer that is not listening (ECONNREFUSED etc.): the radio cannot tell either
             with contextlib.suppress(OSError):
                 self._socks[out_side].sendto(data, peer)
         return self._heap[0][0] - now if self._heap else None
 
-    def _run(self) -> None:
-        sel = selectors.DefaultSelector()
-        sel.register(self._socks[0], selectors.EVENT_READ, 0)
-        sel.register(self._socks[1], selectors.EVENT_READ, 1)
-        sel.register(self._wake_r, selectors.EVENT_READ, -1)
-        timeout: float | None = None
-        while not self._stop.is_set():
-            for key, _ev in sel.select(timeout):
-                side = key.data
-                if side < 0:
-                    continue
-                while True:
-                    try:
-                        data, addr = self._socks[side].recvfrom(65535)  # the socket key.fileobj is
-                    except (BlockingIOError, InterruptedError):
-                        break
-                    except OSError:
-                        break  # ICMP port unreachable from a departed peer
-                    if not self._fixed[side]:
-                        self._peers[side] = addr
-                    self._schedule(UP if side == 0 else DOWN, data, time.monotonic())
-            timeout = self._deliver_due(time.monotonic())
-        sel.close()
+    def _read_side(self, side: int) -> None:
+        while True:
+            try:
+                data, addr = self._socks[side].recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                break  # ICMP port unreachable from a departed peer
+            if not self._fixed[side]:
+                self._peers[side] = addr
+            self._schedule(UP if side == 0 else DOWN, data, time.monotonic())
 
 
 def _hostport(text: str) -> tuple[str, int]:

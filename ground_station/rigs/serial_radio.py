@@ -31,14 +31,11 @@ import contextlib
 import errno
 import heapq
 import os
-import random
-import selectors
-import threading
 import time
 import tty
 from dataclasses import dataclass
 
-from ground_station.rigs.link_emulator import DOWN, UP, DirectionStats, LinkConfig, LinkStats
+from ground_station.rigs.link_emulator import DOWN, UP, LinkConfig, RadioRelay
 
 PARTIAL_FLUSH_S = 0.02
 
@@ -82,15 +79,17 @@ def split_frames(buf: bytearray) -> tuple[list[bytes], int]:
     return out, i
 
 
-class SerialRadio:
+class SerialRadio(RadioRelay):
     """See the module docstring. Use as a context manager."""
+
+    THREAD_NAME = "serial-radio"
+    config: RadioConfig
 
     def __init__(self, config: RadioConfig | LinkConfig | None = None) -> None:
         cfg = config or RadioConfig()
         if not isinstance(cfg, RadioConfig):
             cfg = RadioConfig(**vars(cfg))
-        cfg.validate()
-        self.config = cfg
+        super().__init__(cfg)
         self._masters: list[int] = []
         self._slaves: list[int] = []
         self.devices: list[str] = []
@@ -101,17 +100,11 @@ class SerialRadio:
             self._masters.append(master)
             self._slaves.append(slave)
             self.devices.append(os.ttyname(slave))
-        self._rng = [random.Random(cfg.seed * 2 + 1), random.Random(cfg.seed * 2 + 2)]
-        self._free_at = [0.0, 0.0]
         self._rx = [bytearray(), bytearray()]
         self._rx_since = [0.0, 0.0]
-        self._heap: list[tuple[float, int, int, bytes]] = []
-        self._counter = 0
-        self.stats = LinkStats()
         self.bytes_lost = [0, 0]
-        self._stop = threading.Event()
+        self._sides = self._masters
         self._wake_r, self._wake_w = os.pipe()
-        self._thread: threading.Thread | None = None
 
     @property
     def gcs_device(self) -> str:
@@ -121,46 +114,23 @@ class SerialRadio:
     def robot_device(self) -> str:
         return self.devices[1]
 
-    def link_time(self, nbytes: int) -> float:
-        return nbytes / self.config.bytes_per_s
+    def _wake(self) -> None:
+        os.write(self._wake_w, b"x")
 
-    def start(self) -> SerialRadio:
-        self._thread = threading.Thread(target=self._run, name="serial-radio", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        with contextlib.suppress(OSError):
-            os.write(self._wake_w, b"x")
-        if self._thread is not None:
-            self._thread.join(timeout=5)
+    def _close(self) -> None:
         for fd in (*self._masters, *self._slaves, self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
 
-    def __enter__(self) -> SerialRadio:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _st(self, direction: int) -> DirectionStats:
-        return self.stats.up if direction == UP else self.stats.down
-
     def _schedule(self, direction: int, packet: bytes, now: float) -> None:
         cfg = self.config
-        st = self._st(direction)
-        st.frames_in += 1
-        st.bytes_in += len(packet)
+        st = self.stats.of(direction)
         rng = self._rng[direction]
         r_loss = rng.random()
         airtime = len(packet) / cfg.bytes_per_s
-        start = max(now, self._free_at[direction])
-        if cfg.queue_bytes and (start - now) * cfg.bytes_per_s + len(packet) > cfg.queue_bytes:
-            st.overflowed += 1
+        start = self._take_air(direction, len(packet), now)
+        if start is None:
             return
-        self._free_at[direction] = start + airtime
         if r_loss < cfg.loss:
             st.lost += 1
             return
@@ -171,7 +141,8 @@ class SerialRadio:
         self._counter += 1
         heapq.heappush(self._heap, (start + airtime + cfg.latency_s, self._counter, direction, packet))
 
-    def _read_side(self, side: int, now: float) -> None:
+    def _read_side(self, side: int) -> None:
+        now = time.monotonic()
         direction = UP if side == 0 else DOWN
         while True:
             try:
@@ -200,11 +171,12 @@ class SerialRadio:
                 self._schedule(UP if side == 0 else DOWN, bytes(self._rx[side]), now)
                 self._rx[side].clear()
 
-    def _deliver_due(self, now: float) -> float | None:
+    def _send_due(self, now: float) -> float | None:
+        self._flush_partial(now)
         while self._heap and self._heap[0][0] <= now:
             _t, _n, direction, packet = heapq.heappop(self._heap)
             out = self._masters[1 if direction == UP else 0]
-            st = self._st(direction)
+            st = self.stats.of(direction)
             try:
                 written = os.write(out, packet)
             except BlockingIOError:
@@ -218,18 +190,3 @@ class SerialRadio:
         waits = [self._heap[0][0] - now] if self._heap else []
         waits += [PARTIAL_FLUSH_S for side in (0, 1) if self._rx[side]]
         return max(0.0, min(waits)) if waits else None
-
-    def _run(self) -> None:
-        sel = selectors.DefaultSelector()
-        sel.register(self._masters[0], selectors.EVENT_READ, 0)
-        sel.register(self._masters[1], selectors.EVENT_READ, 1)
-        sel.register(self._wake_r, selectors.EVENT_READ, -1)
-        timeout: float | None = None
-        while not self._stop.is_set():
-            for key, _ev in sel.select(timeout):
-                if key.data >= 0:
-                    self._read_side(key.data, time.monotonic())
-            now = time.monotonic()
-            self._flush_partial(now)
-            timeout = self._deliver_due(now)
-        sel.close()
