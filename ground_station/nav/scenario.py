@@ -76,6 +76,7 @@ import numba
 import numpy as np
 
 from firmware_py import robot_spec
+from ground_station.learn.sector.twin import disc_hits
 from ground_station.maps import GridMap, MapError, bfs_distances, octile_distances
 from ground_station.maps.planner import plan_waypoints
 from sim_bridge.obstacles import mover_array
@@ -144,30 +145,17 @@ def _blocked_json(b: dict | None) -> dict | None:
 @numba.njit(cache=True)
 def _cspace(occ, cell, discs, step, clear):
     """bool raster (ny, nx) of points (ix+0.5, iy+0.5)*step where a disc of
-    radius `clear` touches no obstacle cell, border or disc. Row 0 = south."""
+    radius `clear` touches no obstacle cell, border (the twin's `disc_hits`) or
+    disc. Row 0 = south."""
     h, w = occ.shape
     nx = int(w * cell / step)
     ny = int(h * cell / step)
     out = np.zeros((ny, nx), dtype=np.bool_)
-    top = h * cell
     for iy in range(ny):
         y = (iy + 0.5) * step
         for ix in range(nx):
             x = (ix + 0.5) * step
-            ok = x >= clear and y >= clear and x <= w * cell - clear and y <= top - clear
-            if ok:
-                c0 = max(0, int(math.floor((x - clear) / cell)))
-                c1 = min(w - 1, int(math.floor((x + clear) / cell)))
-                r0 = max(0, int(math.floor((top - (y + clear)) / cell)))
-                r1 = min(h - 1, int(math.floor((top - (y - clear)) / cell)))
-                for row in range(r0, r1 + 1):
-                    ylo = top - (row + 1) * cell
-                    for col in range(c0, c1 + 1):
-                        if occ[row, col]:
-                            px = min(max(x, col * cell), (col + 1) * cell)
-                            py = min(max(y, ylo), ylo + cell)
-                            if (x - px) ** 2 + (y - py) ** 2 < clear * clear:
-                                ok = False
+            ok = not disc_hits(occ, h, w, cell, x, y, clear)
             if ok:
                 for k in range(discs.shape[0]):
                     d = clear + discs[k, 2]
