@@ -15,6 +15,8 @@ standalone FTP shell and the reflex controller as children:
   a directory the caller owns; `robot_ftp_process`: the FTP shell alone.
 - `ProcessGroup`: several children, each in its own session (a Ctrl-C in the
   terminal reaches only the parent, which stops them in order).
+- `other_processes`: every other live process and its command line, to find
+  what a run left behind.
 
 Free ports and the stop sequence itself come from `firmware_py.subprocs`.
 """
@@ -37,6 +39,20 @@ ROBOT_MAIN = "firmware_py.cli"  # the console scripts' entry points (pyproject.t
 SIM_MAIN = "sim_bridge.cli"
 FTP_SHELL_MAIN = "firmware_py.mavlink.ftp"
 REFLEX_MAIN = "sim_bridge.reflex"
+
+
+def other_processes() -> Iterator[tuple[int, str]]:
+    """(pid, command line, its NULs as spaces) of every live process but this one (Linux
+    /proc); a process that ends while it is read is passed over."""
+    me = os.getpid()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit() or int(entry) == me:
+            continue
+        try:
+            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        yield int(entry), cmd
 
 
 def program_argv(module: str, name: str) -> list[str]:

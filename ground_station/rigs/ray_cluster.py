@@ -23,6 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ground_station.rigs.processes import other_processes
+
 
 def _free_tcp_port() -> int:
     with socket.socket() as s:
@@ -88,17 +90,7 @@ class LocalRayCluster:
     def pids(self) -> list[int]:
         """Processes of this cluster: their command line names its temp dir or GCS port."""
         marks = (str(self.temp_dir), f":{self.port}")
-        out = []
-        for entry in os.listdir("/proc"):
-            if not entry.isdigit() or int(entry) == os.getpid():
-                continue
-            try:
-                cmd = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            except OSError:
-                continue
-            if any(m in cmd for m in marks):
-                out.append(int(entry))
-        return out
+        return [pid for pid, cmd in other_processes() if any(m in cmd for m in marks)]
 
     def stop(self, timeout_s: float = 10.0) -> None:
         for sig in (signal.SIGTERM, signal.SIGKILL):

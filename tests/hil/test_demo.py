@@ -19,6 +19,7 @@ import pytest
 
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.maps import load_map
+from ground_station.rigs.processes import other_processes
 from tests.support.mcap_check import check_layout_against_mcap, check_run_mcap
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,16 +29,15 @@ QNAV = [sys.executable, "-c", "import sys; from ground_station.cli import main; 
 def _processes_mentioning(text: str) -> list[str]:
     """Command lines of live processes that mention `text` (our run folder)."""
     found = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit() or int(pid) == os.getpid():
+    for pid, cmd in other_processes():
+        if text not in cmd:
             continue
         try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
             state = next((ln.split()[1] for ln in Path(f"/proc/{pid}/status").read_text().splitlines()
                           if ln.startswith("State:")), "")
         except OSError:
             continue
-        if text in cmd and state != "Z":
+        if state != "Z":
             found.append(f"{pid}: {cmd}")
     return found
 

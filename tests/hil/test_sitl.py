@@ -22,6 +22,7 @@ from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.subprocs import free_udp_port
 from firmware_py.vehicle import VehicleConfig
+from ground_station.rigs.processes import other_processes
 from tests.support.consoles import ConsoleProcess, MavProxy
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -77,17 +78,7 @@ def port_open(port: int) -> bool:
 
 def no_children_left(out: Path) -> list[str]:
     """Processes still running from this run (their command line names its folder)."""
-    left = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit():
-            continue
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        if str(out) in cmd and int(pid) != os.getpid():
-            left.append(cmd[:120])
-    return left
+    return [cmd[:120] for _pid, cmd in other_processes() if str(out) in cmd]
 
 
 @pytest.mark.slow
