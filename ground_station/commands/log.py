@@ -15,11 +15,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ground_station.commands import add_actions
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("log", help="convert a run's recordings (MCAP for Foxglove, PlotJuggler, Rerun)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    inner = p.add_subparsers(dest="log_command", metavar="ACTION", required=True)
+    inner = add_actions(sub, "log", "convert a run's recordings (MCAP for Foxglove, PlotJuggler, Rerun)", __doc__,
+                        "log_command")
     m = inner.add_parser("mcap", help="one MCAP file with the whole run", description=__doc__,
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     m.add_argument("target", metavar="RUN_DIR|FILE.tlog", help="a run folder or a session tlog")

@@ -16,13 +16,13 @@ import argparse
 import tempfile
 from pathlib import Path
 
+from ground_station.commands import add_actions
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.mavlink.link import add_link_args
 
-    p = sub.add_parser("map", help="the robot's own map (MAVLink FTP): upload", description=__doc__,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    inner = p.add_subparsers(dest="map_command", metavar="ACTION", required=True)
+    inner = add_actions(sub, "map", "the robot's own map (MAVLink FTP): upload", __doc__, "map_command")
     up = inner.add_parser("upload", help="put a map on the robot and make it the one it drives on",
                           description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     up.add_argument("map", metavar="NAME|FILE.map", help="a built-in map, a generator spec or a MovingAI .map file")

@@ -28,14 +28,13 @@ from __future__ import annotations
 import argparse
 import math
 
+from ground_station.commands import add_actions
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.mavlink.link import add_link_args
 
-    p = sub.add_parser("mission", help="upload or download the robot's mission (MAVLink)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    verbs = p.add_subparsers(dest="verb", metavar="VERB")
-    verbs.required = True
+    verbs = add_actions(sub, "mission", "upload or download the robot's mission (MAVLink)", __doc__, "verb", "VERB")
     up = verbs.add_parser("upload", help="upload waypoints (map targets or a WPL file)")
     up.add_argument("file", nargs="?", metavar="FILE", help="QGC WPL 110 waypoint file")
     up.add_argument("--targets", metavar="A,B,...", help="map target names, in visiting order")

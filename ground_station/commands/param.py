@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import argparse
 
+from ground_station.commands import add_actions
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.mavlink.link import add_link_args
 
-    p = sub.add_parser("param", help="list, read or set robot parameters (MAVLink)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    verbs = p.add_subparsers(dest="verb", metavar="VERB")
-    verbs.required = True
+    verbs = add_actions(sub, "param", "list, read or set robot parameters (MAVLink)", __doc__, "verb", "VERB")
     lst = verbs.add_parser("list", help="print every parameter")
     lst.add_argument("--json", action="store_true", help="print as a JSON object")
     lst.add_argument("--no-descriptions", action="store_true",

@@ -31,13 +31,11 @@ import json
 import struct
 
 from firmware_py import robot_spec
+from ground_station.commands import add_actions
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("policy", help="inspect .qtab policy files", description=__doc__,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    inner = p.add_subparsers(dest="policy_command", metavar="ACTION")
-    inner.required = True
+    inner = add_actions(sub, "policy", "inspect .qtab policy files", __doc__, "policy_command")
     ins = inner.add_parser("inspect", help="validate policy files and print their headers",
                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ins.add_argument("files", nargs="+", metavar="FILE", help=".qtab file(s), or policies:NAME (shipped)")
