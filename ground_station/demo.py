@@ -22,10 +22,11 @@ piece, used the way an operator would use it:
    trajectory, PNG and CAN log; then SIGTERM, SIGKILL), whatever happened.
 
 The sim runs faster than real time in lockstep (tens of times), while the
-robot measures its GCS failsafe on sim time: the ground station therefore
-sends its heartbeat every 50 ms of wall time there and raises
-FS_GCS_TOUT_MS to its maximum, so a scheduling hiccup on a busy machine
-does not trip the failsafe mid-mission.
+robot measures its GCS failsafe and its mission transfer timeouts on sim
+time: the ground station therefore sends its heartbeat every 50 ms of wall
+time there and raises FS_GCS_TOUT_MS, MIS_TIMEOUT_MS and MIS_RETRIES to
+their maxima, so a scheduling hiccup on a busy machine does not trip the
+failsafe mid-mission or cancel the mission upload.
 """
 
 from __future__ import annotations
@@ -57,7 +58,11 @@ ACTIVE_REMOTE_DIR = "/policies"
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 LOCKSTEP_HEARTBEAT_S = 0.05  # wall; ~1-2 s of robot time at the lockstep's 20-35x
 REALTIME_HEARTBEAT_S = 1.0
-LOCKSTEP_GCS_TIMEOUT_MS = next(p.max for p in PARAMS if p.name == "FS_GCS_TOUT_MS")  # the robot's own bound
+# robot-clock timeouts raised to the robot's own bounds in lockstep (module docstring): the GCS failsafe,
+# and the mission transfer's re-requests (1.5 s x 4 of sim time is ~0.1 s of wall time at 30x: a
+# fresh-clone make test's demo lost its mission upload to one scheduling hiccup)
+LOCKSTEP_PARAMS = {name: next(p.max for p in PARAMS if p.name == name)
+                   for name in ("FS_GCS_TOUT_MS", "MIS_TIMEOUT_MS", "MIS_RETRIES")}
 MAV_MISSION_STATE_COMPLETE = 5
 
 
@@ -682,10 +687,11 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         if not opts.realtime:
             from ground_station.mavlink.link import LinkError
 
-            try:
-                link.param_set("FS_GCS_TOUT_MS", LOCKSTEP_GCS_TIMEOUT_MS)
-            except LinkError as exc:
-                raise DemoError(f"FS_GCS_TOUT_MS: {exc}") from None
+            for name, value in LOCKSTEP_PARAMS.items():
+                try:
+                    link.param_set(name, value)
+                except LinkError as exc:
+                    raise DemoError(f"{name}: {exc}") from None
 
         summary.upload_seconds, summary.policy_id = _upload(link, policy, say, quiet=False)
         _upload_map(link, grid_map, run_dir, say)
