@@ -14,9 +14,11 @@ Nothing here drives the robot: MAVProxy, QGroundControl, MAVSDK or `qnav`
 connect with the strings `connection_help()` prints. Before reporting "up"
 the robot's HEARTBEAT is awaited through a short-lived probe that announces
 itself as an onboard controller (not a GCS), so the robot's GCS failsafe is
-not armed by it. At `speed` > 1 the probe raises FS_GCS_TOUT_MS: the robot
-measures the GCS failsafe on sim time, and a ground station's 1 Hz
-heartbeat would otherwise look late.
+not armed by it. At `speed` > 1 the probe raises FS_GCS_TOUT_MS and
+MIS_TIMEOUT_MS by the speed (within their bounds): the robot measures the GCS
+failsafe and the mission transfer on sim time, and a ground station's 1 Hz
+heartbeat would otherwise look late and its mission upload be re-requested
+and cancelled.
 """
 
 from __future__ import annotations
@@ -40,9 +42,9 @@ DEFAULT_MAVLINK = "udpin:127.0.0.1:14555"  # the robot listens; GCSs connect to 
 SHIPPED_FOR_MAP = {"paper10": "policies:paper10_cell"}
 FALLBACK_POLICY = "policies:sector"  # observes ranges and bearings: runs on any map
 SIM_DURATION_S = 30 * 24 * 3600  # the sim's own end: far away, the wait ends it
-_FS_GCS_TOUT = next(p for p in PARAMS if p.name == "FS_GCS_TOUT_MS")  # the robot's own parameter
-GCS_TIMEOUT_MAX_MS = _FS_GCS_TOUT.max
-GCS_TIMEOUT_DEFAULT_MS = _FS_GCS_TOUT.default  # VehicleConfig.gcs_timeout_ms, at real time
+# the robot's timeouts on its own clock (sim time) that a ground station's wall-clock pace must meet:
+# scaled by the speed at start, within the robot's own bounds (module docstring)
+SPEED_SCALED_PARAMS = tuple(p for p in PARAMS if p.name in ("FS_GCS_TOUT_MS", "MIS_TIMEOUT_MS"))
 
 
 class SitlError(CliError):
@@ -302,7 +304,9 @@ class Sitl:
                     continue
                 sysid = msg.get_srcSystem()
                 if self.opts.speed > 1:
-                    self._raise_gcs_timeout(conn, sysid, msg.get_srcComponent())
+                    for param in SPEED_SCALED_PARAMS:
+                        self._scale_timeout(conn, sysid, msg.get_srcComponent(), param.name,
+                                            min(param.max, math.ceil(param.default * self.opts.speed)))
                 return int(sysid)
             raise SitlError(f"no HEARTBEAT from the robot on {info.mavlink} within "
                             f"{self.opts.probe_timeout_s:g} s (see {info.logs['robot']})")
@@ -310,15 +314,14 @@ class Sitl:
             if conn is not None:
                 conn.close()
 
-    def _raise_gcs_timeout(self, conn, sysid: int, compid: int) -> None:
-        value = min(GCS_TIMEOUT_MAX_MS, math.ceil(GCS_TIMEOUT_DEFAULT_MS * self.opts.speed))
+    def _scale_timeout(self, conn, sysid: int, compid: int, name: str, value: int) -> None:
         for _attempt in range(5):
-            conn.mav.param_set_send(sysid, compid, b"FS_GCS_TOUT_MS", float(value), 6)  # MAV_PARAM_TYPE_INT32
+            conn.mav.param_set_send(sysid, compid, name.encode(), float(value), 6)  # MAV_PARAM_TYPE_INT32
             msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
-            if msg is not None and msg.param_id == "FS_GCS_TOUT_MS":
-                self.say(f"FS_GCS_TOUT_MS set to {round(msg.param_value)} ms (robot time runs x{self.opts.speed:g})")
+            if msg is not None and msg.param_id == name:
+                self.say(f"{name} set to {round(msg.param_value)} ms (robot time runs x{self.opts.speed:g})")
                 return
-        self.say("warning: could not raise FS_GCS_TOUT_MS; the GCS failsafe may trip at this speed")
+        self.say(f"warning: could not raise {name}; a ground station may time out at this speed")
 
     def _check_children(self) -> None:
         dead = self.procs.dead()

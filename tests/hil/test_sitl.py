@@ -153,6 +153,7 @@ def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
         conn.close()
     assert value == 20000
     assert any("FS_GCS_TOUT_MS set to 20000 ms" in line for line in sitl.log), sitl.log
+    assert any("MIS_TIMEOUT_MS set to 6000 ms" in line for line in sitl.log), sitl.log  # 1.5 s x 4
     port = hub_port(sitl.log)
     assert port_open(port)
     code = sitl.stop(signal.SIGTERM)
