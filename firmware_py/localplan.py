@@ -475,7 +475,6 @@ class ObstacleMemory:
         copy = ObstacleMemory(self.cfg)
         copy.points = {p: v for p, v in self.points.items() if self.born.get(p, since_us) <= since_us and not (
             p in moved and any((v[0] - nx) ** 2 + (v[1] - ny) ** 2 <= BODY_MM * BODY_MM for nx, ny, _ in new))}
-        copy.born = {p: self.born[p] for p in copy.points if p in self.born}
         copy.version = self.version
         return copy
 
@@ -534,8 +533,12 @@ class LocalPlanner:
         other._map_free, other._wall_cost = self._map_free, self._wall_cost
         return other
 
-    def reset(self) -> None:
-        """A new waypoint (mission item): drive straight until something is in the way."""
+    def reset(self, points: bool = False) -> None:
+        """A new waypoint (mission item): drive straight until something is in the way. `points`: the
+        next question's points are another set at the same version (`PlannedTarget._closed_before`),
+        grow them anew."""
+        if points:
+            self._grown_version = -1
         self._active = None
         self._plan_key = None
         self._global = False
@@ -1238,8 +1241,7 @@ class PlannedTarget:
         q = self._still_planner
         if q is None:
             q = self._still_planner = self.planner.sharing_map()
-        q.reset()
-        q._grown_version = -1  # its points differ from the last question's at the same version
+        q.reset(points=True)
         q.target(x, y, waypoint, before, True, asked_us)
         return q.no_route
 
@@ -1414,6 +1416,7 @@ class MotionGuard:
         if not self.rear_clear(ranges_mm, status):
             return False
         ref = self._side_ref
-        return ref is None or all(
-            collision.reading_mm(ranges_mm, status, i) > self.cfg.veto_mm or collision.reading_mm(ranges_mm, status, i) >= r
-            for i, r in zip(_SIDES, ref, strict=True))
+        if ref is None:
+            return True
+        now = [collision.reading_mm(ranges_mm, status, i) for i in _SIDES]
+        return all(d > self.cfg.veto_mm or d >= r for d, r in zip(now, ref, strict=True))

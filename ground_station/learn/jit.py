@@ -115,7 +115,6 @@ def draw_episode_start(rng, n_goals, starts_flat, starts_off):
     return g, starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
 
 
-
 @numba.njit(cache=True, inline="always")
 def double_q_update(rng, qa, qb, s: int, a: int, r: float, s2: int, terminal: bool, discount: float,
                     lr: float) -> None:

@@ -6,6 +6,7 @@ whole map's search finding another door (or none), and `PlannedTarget`'s recover
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
@@ -202,7 +203,7 @@ def test_a_mover_that_steps_aside_while_the_robot_waits_ends_the_recovery():
 
 
 
-def _no_route_with(moving: callable, static: list[tuple[int, int]]) -> tuple[int, int]:  # type: ignore[valid-type]
+def _no_route_with(moving: Callable[[int], list[tuple[int, int]]], static: list[tuple[int, int]]) -> tuple[int, int]:
     """When a robot standing at BELOW says "no route" (and after how many global searches) with the
     `static` points in view every tick and `moving(k)` the points a mover shows at tick k (the ones it
     showed the tick before are seen through: a new 50 mm square every tick)."""
