@@ -36,6 +36,14 @@ Only the operator's GCS counts: the system id in SYSID_MYGCS (255 by default,
 as ArduPilot), or with 0 the first GCS heartbeat's system id after boot; heartbeats of other
 system ids are counted in `foreign_gcs_heartbeats` and keep nothing alive.
 
+Only the operator's GCS steers (authority.py): MANUAL_CONTROL, RC overrides,
+mode changes, arming and other commands, goals, mission writes and PARAM_SET
+are taken from SYSID_MYGCS only (0: any system) and never when broadcast
+(target system 0); refusals are counted and summarised in one STATUSTEXT a
+second at most. PARAM_REQUEST_LIST is answered as a rate-bounded background
+stream per requester (param_stream.py), so a flood of list requests cannot
+bury the operator's commands under their answers.
+
 Per-message isolation: `handle` never raises. Every field a handler uses
 is validated (finite, in range) and refused with DENIED / MAV_MISSION_INVALID_*
 / a STATUSTEXT; an unexpected exception in a handler is counted per message
@@ -64,11 +72,13 @@ from pathlib import Path
 from typing import Protocol
 
 from firmware_py.clock import Clock
+from firmware_py.mavlink import authority
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.commands import CommandHandler
 from firmware_py.mavlink.dialect import NAME as DIALECT
 from firmware_py.mavlink.dialect import mavlink2
 from firmware_py.mavlink.mission import MissionEngine, check_position, map_bounds_error
+from firmware_py.mavlink.param_stream import RATE_HZ, SERIAL_RATE_HZ, ParamStream
 from firmware_py.mavlink.params import MAV_PARAM_TYPE_INT32, ParamStore, as_float32
 from firmware_py.mavlink.signing import Signing
 from firmware_py.mavlink.telemetry import (
@@ -181,6 +191,9 @@ class MavNode:
         self.gcs_last_heartbeat_us: int | None = None
         self.gcs_sysid: int | None = None  # the GCS that keeps the failsafe alive (SYSID_MYGCS)
         self.foreign_gcs_heartbeats = 0
+        self.gate = authority.ControlGate()  # who may steer (SYSID_MYGCS)
+        # PARAM_REQUEST_LIST answers, sent in the background at a rate the link carries
+        self.param_stream = ParamStream(RATE_HZ if network_link else SERIAL_RATE_HZ)
         self.handler_errors: dict[str, int] = {}  # message kind -> unexpected exceptions
         self.refused_setup_signing = 0
         self.failsafe = False
@@ -274,7 +287,7 @@ class MavNode:
             return []
         if (msg.get_srcSystem(), msg.get_srcComponent()) == (self.sysid, self.compid):
             return []  # our own frame looped back
-        target = getattr(msg, "target_system", None)
+        target = authority.target_of(msg)  # MANUAL_CONTROL names it `target`
         if target not in (None, 0, self.sysid):
             return []
         target_comp = getattr(msg, "target_component", None)
@@ -282,6 +295,9 @@ class MavNode:
             return []
         if kind == "HEARTBEAT":
             return self._heartbeat(msg, now_us)
+        refused = self.gate.refuse(msg, kind, self.params.get("SYSID_MYGCS"), now_us)
+        if refused is not None:
+            return self._refuse_control(msg, kind, refused)
         if kind.startswith("PARAM_"):
             return self._param(msg)
         if kind in ("COMMAND_LONG", "COMMAND_INT", "SET_MODE"):
@@ -291,12 +307,11 @@ class MavNode:
         if kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             return self._goal(msg, now_us)
         if kind == "MANUAL_CONTROL":  # sticks for Manual mode (control/manual.py); no reply, as ArduPilot
-            if msg.target in (0, self.sysid):
-                self.vehicle.manual_control(int(msg.x), int(msg.r), now_us)
+            self.vehicle.manual_control(int(msg.x), int(msg.r), now_us)
             return []
         if kind == "RC_CHANNELS_OVERRIDE":  # MAVProxy's `rc` and joystick module, as for ArduPilot Rover
             sticks = sticks_of_rc(msg.chan1_raw, msg.chan3_raw)
-            if msg.target_system in (0, self.sysid) and sticks is not None:
+            if sticks is not None:
                 self.vehicle.manual_control(*sticks, now_us)
             return []
         if self.signing.key is not None and not self.signing.last_signed and kind in SIGNED_ONLY:
@@ -322,6 +337,25 @@ class MavNode:
             return [self.mav.file_transfer_protocol_encode(0, src[0], src[1], list(p.ljust(FTP_PAYLOAD_LEN, b"\0")))
                     for p in replies] + self._ftp_texts()
         return []
+
+    def _refuse_control(self, msg: mavlink2.MAVLink_message, kind: str, why: str) -> list[mavlink2.MAVLink_message]:
+        """A control input from a system that may not steer (authority.py): dropped and counted; a
+        command addressed to us is answered DENIED so that its sender stops retrying."""
+        self.stats.rx_dropped += 1
+        if authority.target_of(msg) == 0:
+            return []  # a broadcast: no answer (a flood of them must not make one each)
+        if kind in authority.COMMAND_MSGS or kind == "SET_MODE":
+            command = M.MAV_CMD_DO_SET_MODE if kind == "SET_MODE" else int(msg.command)
+            return [self.mav.command_ack_encode(command, M.MAV_RESULT_DENIED, 0, 0, msg.get_srcSystem(),
+                                                msg.get_srcComponent())]
+        return []
+
+    def _tick_refusals(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+        text = self.gate.summary(now_us, self.params.get("SYSID_MYGCS"))
+        if text is None:
+            return []
+        log.warning("%s", text)
+        return self.telemetry.statustext(text, M.MAV_SEVERITY_WARNING)
 
     def _ftp_texts(self) -> list[mavlink2.MAVLink_message]:
         out: list[mavlink2.MAVLink_message] = []
@@ -358,8 +392,9 @@ class MavNode:
     def _param(self, msg: mavlink2.MAVLink_message) -> list[mavlink2.MAVLink_message]:
         kind = msg.get_type()
         self._refresh_readonly()
-        if kind == "PARAM_REQUEST_LIST":
-            return [self.param_value(n) for n in self.params.names()]
+        if kind == "PARAM_REQUEST_LIST":  # streamed (param_stream.py): a request costs no burst of answers
+            self.param_stream.request((msg.get_srcSystem(), msg.get_srcComponent()))
+            return self._param_stream_due(self._now_us)
         if kind == "PARAM_REQUEST_READ":
             if msg.param_index >= 0:
                 names = self.params.names()
@@ -386,6 +421,10 @@ class MavNode:
                     self._apply_params(reboot=False)
             return out + [self.param_value(name)]
         return []
+
+    def _param_stream_due(self, now_us: int) -> list[mavlink2.MAVLink_message]:
+        names = self.params.names()
+        return [self.param_value(names[index]) for _, index in self.param_stream.due(now_us, len(names))]
 
     def _refresh_readonly(self) -> None:
         st = self.vehicle.status()
@@ -436,7 +475,7 @@ class MavNode:
             text, severity = self._control_texts.popleft()
             out += self.telemetry.statustext(text, severity)
         for part in (self._tick_events, self.mission.tick, self._tick_ftp, self._tick_signing,
-                     self._tick_params, self._tick_telemetry):
+                     self._tick_params, self._tick_refusals, self._tick_telemetry):
             try:
                 out += part(now_us)
             except Exception:  # one broken part must not starve the others (or the failsafe)
@@ -451,7 +490,11 @@ class MavNode:
         """A parameter save that failed on the storage worker: the GCS was sent
         the new value already, so it is told the value will not survive a reboot."""
         failed = self.params.pop_save_failure()
-        return self.telemetry.statustext(failed, M.MAV_SEVERITY_ERROR) if failed else []
+        out = self.telemetry.statustext(failed, M.MAV_SEVERITY_ERROR) if failed else []
+        if self.param_stream.active:
+            self._refresh_readonly()
+            out += self._param_stream_due(now_us)
+        return out
 
     def _tick_events(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         out: list[mavlink2.MAVLink_message] = []

@@ -73,9 +73,10 @@ PARAMS: tuple[ParamDef, ...] = (
              "1: accept an unsigned SETUP_SIGNING over a network link while no key is set; 0: only "
              "over a serial link or with --signing-key (set on the robot only: params.json)", local=True),
     ParamDef("SYSID_MYGCS", 255, 0, 255,
-             "system id of the GCS whose heartbeats keep the GCS failsafe alive, as ArduPilot's (255: "
-             "QGroundControl, Mission Planner, MAVProxy and qnav; 0: the first GCS heard after boot, "
-             "which a router's own heartbeat can be)"),
+             "system id of the GCS that may control the robot (sticks, RC override, modes, arming, goals, "
+             "missions, PARAM_SET) and whose heartbeats keep the GCS failsafe alive, as ArduPilot's (255: "
+             "QGroundControl, Mission Planner, MAVProxy and qnav; 0: any system may control, and the "
+             "failsafe follows the first GCS heard after boot, which a router's own heartbeat can be)"),
     ParamDef("TELEM_POS_HZ", 5, 0, 50,
              "default rate of LOCAL_POSITION_NED, ATTITUDE, GLOBAL_POSITION_INT (0 = off)"),
     ParamDef("TELEM_NAV_HZ", 2, 0, 50,

@@ -85,7 +85,22 @@ def _summary(name: str, fig: dict) -> str:
             out.append(f"telemetry {hz:.1f} Hz, uploads {sum(r.get('uploads', 0) for r in runs)}, "
                        f"param lists {sum(r.get('param_lists', 0) for r in runs)}")
         return "; ".join(out)
-    return ""
+    return _scalars(fig)
+
+
+def _scalars(fig: dict, depth: int = 0) -> str:
+    """A scenario with no summary of its own: its scalar figures, and those of each run, `name value`."""
+    parts = []
+    for key, value in fig.items():
+        if isinstance(value, bool | int | float | str) or value is None:
+            parts.append(f"{key.replace('_', ' ')} {value}")
+        elif isinstance(value, dict) and depth == 0:
+            inner = _scalars(value, 1)
+            if inner:
+                parts.append(f"{key.replace('_', ' ')}: {inner}")
+        elif isinstance(value, list) and depth == 0 and value and all(isinstance(v, dict) for v in value):
+            parts += [f"[{_scalars({k: v for k, v in run.items() if k != 'problems'}, 1)}]" for run in value[:5]]
+    return ", ".join(parts)
 
 
 def run(args: argparse.Namespace) -> int:

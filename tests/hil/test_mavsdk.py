@@ -61,7 +61,7 @@ def stop_mavsdk_servers():
 
 
 async def connected(mavsdk, url: str):
-    drone = mavsdk.System(port=free_port())
+    drone = mavsdk.System(port=free_port(), sysid=255)  # the robot takes control from SYSID_MYGCS only
     DRONES.append(drone)
     await drone.connect(system_address=url)
     async for state in drone.core.connection_state():
