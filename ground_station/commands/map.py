@@ -33,8 +33,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run_upload(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map, write_map
-    from ground_station.mavlink.ftp_upload import upload_map
+    from ground_station.mavlink.ftp_upload import put_plain_file, upload_map
     from ground_station.mavlink.link import run_on_link
+    from ground_station.mavlink.robot_map import MAP_TARGETS, targets_file
 
     try:
         gm = load_map(args.map)
@@ -48,6 +49,13 @@ def run_upload(args: argparse.Namespace) -> int:
             res = upload_map(link, local, deadline_s=max(args.timeout, 10.0))
             print(f"map {gm.name} ({gm.width}x{gm.height} cells) active on the robot: {res.size} B, "
                   f"CRC32 0x{res.crc:08x}, confirmed by {res.confirmed_by}")
+            # its targets beside it (tied to the map's CRC32), so that missions and goals by target name
+            # read them from the robot (mavlink/robot_map.py); the robot itself does not use them
+            sidecar = Path(tmp) / "targets.json"
+            sidecar.write_bytes(targets_file(local.read_bytes(), gm.name, gm.targets))
+            put_plain_file(link, sidecar, MAP_TARGETS, deadline_s=max(args.timeout, 10.0))
+            if gm.targets:
+                print(f"targets {', '.join(gm.targets)} kept beside it ({MAP_TARGETS})")
             return 0
 
         return run_on_link(args, "map upload", body)

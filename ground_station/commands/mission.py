@@ -1,8 +1,9 @@
 """`qnav mission upload --targets A,B,C,D | FILE` and `qnav mission download`.
 
 Upload: waypoints from map targets (their cell centres in world metres, on
-`--map`, by default the robot's own map, read from its active policy over
-MAVLink FTP; a `--map` that is not the robot's is refused naming both) or from a QGC WPL 110 file (as written by
+`--map`, by default the robot's own map, read from the robot over MAVLink FTP:
+/maps/active.map with the targets `qnav map upload` left beside it, else the map its
+active policy carries; a `--map` that is not the robot's is refused naming both) or from a QGC WPL 110 file (as written by
 MAVProxy, QGroundControl or `mission download --out`), sent through the
 MAVLink mission protocol; waits for MISSION_ACK and exits 3 with the robot's
 reason on refusal, 4 on timeout. Target waypoints travel in
@@ -39,7 +40,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     up.add_argument("file", nargs="?", metavar="FILE", help="QGC WPL 110 waypoint file")
     up.add_argument("--targets", metavar="A,B,...", help="map target names, in visiting order")
     up.add_argument("--map", metavar="NAME|PATH",
-                    help="map of the targets (default: the robot's, from its active policy)")
+                    help="map of the targets (default: the robot's own /maps/active.map, else its policy's map)")
     up.add_argument("--cell-size", type=float, default=None, metavar="M",
                     help="cell size in metres (default: the map's, 0.5)")
     up.add_argument("--plan", action="store_true",

@@ -348,6 +348,17 @@ def upload_map(link: Link, local: Path, *, deadline_s: float = 120.0, attempts: 
             return res
 
 
+def put_plain_file(link: Link, local: Path, remote: str, *, deadline_s: float = 60.0, attempts: int = 4) -> UploadResult:
+    """Put a plain file (no activation: the targets beside the robot's map), verified by its CRC32."""
+    from firmware_py.storage import ftp_crc32
+
+    data = local.read_bytes()
+    res = UploadResult(remote=remote, size=len(data), crc=ftp_crc32(data))
+    session = ftp_session(link)
+    _put_verified(session, session.client(), local, res, time.monotonic() + deadline_s, attempts, None)
+    return res
+
+
 def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, deadline: float, attempts: int,
                   progress) -> None:
     """Put until CalcFileCRC32 of `res.remote` equals the local CRC."""

@@ -1,11 +1,15 @@
-"""The map the robot drives on, asked from the robot instead of repeated by hand (issue 30 item 4).
+"""The map the robot drives on, asked from the robot instead of repeated by hand (issues 30, 45).
 
-The robot's active policy (`/policies/active.qtab` on its FTP server) carries
-the map it localises and plans on: its occupancy grid (`map_grid`), the
-training map's name (`map`) and geometry. `robot_map(link)` reads it with
-pymavlink's own MAVFTP client over the link and returns it as a `GridMap`:
-the named map itself (with its targets) when a map of that name or path is
-at hand here and has exactly that grid, else the grid alone (no targets).
+The robot plans and localises on its own map, `/maps/active.map` on its FTP
+server (MovingAI text, cells CELL_SIZE_MM wide), which `qnav map upload`
+puts there; a robot that was never given one uses the map its active
+policy carries (`/policies/active.qtab`: `map_grid`, the training map's
+name). `robot_map(link)` reads the former when the robot has it, else the
+latter, with pymavlink's own MAVFTP client, and returns a `GridMap`: with
+the targets `qnav map upload` left beside it (`/maps/active.targets.json`,
+used only while it names the map's CRC32), or those of the named map here
+with exactly that grid, else the grid alone (no targets). When the robot's
+map and its policy's map differ, one line says which is used.
 `choose_map(link, gm)` is what commands use: the robot's map when no
 `--map` is given; the given one when it is the robot's; and one line naming
 both when they differ (a mission planned on another map sends the robot
@@ -14,12 +18,16 @@ into walls).
 
 from __future__ import annotations
 
+import json
 import logging
+import sys
 from typing import Any
 
 from ground_station.errors import CliError
 
 ACTIVE_POLICY = "/policies/active.qtab"
+ACTIVE_MAP = "/maps/active.map"  # firmware_py.storage.ACTIVE_MAP
+MAP_TARGETS = "/maps/active.targets.json"  # {"map_crc32": .., "name": .., "targets": {"A": [col, row]}}
 READ_UP_TO = 16 * 1024 * 1024  # more than the robot's storage quota: the read ends at the file's end
 
 
@@ -84,8 +92,80 @@ def _describe(gm: Any) -> str:
     return f"{gm.name} ({gm.width}x{gm.height} cells of {gm.cell_size_m:g} m)"
 
 
+def targets_file(map_text: bytes, name: str, targets: dict[str, tuple[int, int]]) -> bytes:
+    """The sidecar `qnav map upload` leaves beside the robot's map: its targets, tied to the map's CRC32."""
+    import zlib
+
+    return json.dumps({"map_crc32": zlib.crc32(map_text), "name": name,
+                       "targets": {k: list(v) for k, v in targets.items()}}, indent=1).encode()
+
+
+def _sidecar_targets(link: Any, map_text: bytes) -> tuple[str, dict[str, tuple[int, int]]]:
+    """(name, targets) from MAP_TARGETS when it belongs to `map_text`; ("", {}) otherwise."""
+    import zlib
+
+    try:
+        raw = read_robot_file(link, MAP_TARGETS)
+        doc = json.loads(raw) if raw else None
+        if not isinstance(doc, dict) or doc.get("map_crc32") != zlib.crc32(map_text):
+            return "", {}
+        targets = {str(k): (int(v[0]), int(v[1])) for k, v in dict(doc.get("targets") or {}).items()}
+        return str(doc.get("name") or ""), targets
+    except Exception:  # a stale, foreign or broken sidecar: the map without targets
+        return "", {}
+
+
+def uploaded_map(link: Any) -> Any | None:
+    """The robot's own /maps/active.map as a GridMap (None if it has none), with its targets when the
+    sidecar of `qnav map upload` belongs to it."""
+    from ground_station.maps import MapError
+    from ground_station.maps.movingai import parse_map
+    from ground_station.mavlink.link import LinkError
+
+    try:
+        data = read_robot_file(link, ACTIVE_MAP)
+    except LinkError:
+        return None
+    if not data:
+        return None
+    try:
+        cell_mm = int(link.param_get("CELL_SIZE_MM"))
+    except Exception:
+        cell_mm = 500
+    try:
+        gm = parse_map(data.decode("utf-8", "replace"), f"the robot's {ACTIVE_MAP}", cell_mm / 1000.0)
+    except MapError as exc:
+        raise CliError(f"the robot's {ACTIVE_MAP} does not load here: {exc}") from None
+    name, targets = _sidecar_targets(link, data)
+    free = {k: v for k, v in targets.items()
+            if 0 <= v[0] < gm.width and 0 <= v[1] < gm.height and not gm.occ[v[1], v[0]]}
+    gm.targets = free
+    gm.name = f"{name or 'map'} ({ACTIVE_MAP} on the robot)"
+    return gm
+
+
 def robot_map(link: Any) -> Any | None:
-    """The robot's map as a GridMap (see the module docstring); None if its policy carries none."""
+    """The robot's map as a GridMap (see the module docstring); None if it has none."""
+    own = uploaded_map(link)
+    try:
+        carried = policy_map(link)
+    except CliError:
+        if own is None:
+            raise
+        carried = None
+    if own is None:
+        return carried
+    if carried is not None and not same_map(own, carried):
+        print(f"note: the robot drives on {_describe(own)}, not its policy's map {_describe(carried)}: "
+              f"using the robot's", file=sys.stderr)
+    elif carried is not None and not own.targets:
+        carried.name = f"{carried.name} ({ACTIVE_MAP} on the robot)"
+        return carried  # the same grid: the named map's targets
+    return own
+
+
+def policy_map(link: Any) -> Any | None:
+    """The map the robot's active policy carries, as a GridMap; None if it carries none."""
     import numpy as np
 
     from ground_station.maps import GridMap, MapError, load_map
@@ -118,7 +198,8 @@ def choose_map(link: Any, gm: Any | None) -> Any:
     if gm is None:
         robot = robot_map(link)
         if robot is None:
-            raise CliError("the robot's active policy carries no map: give --map NAME|PATH")
+            raise CliError(f"the robot has no {ACTIVE_MAP} and its active policy carries no map: "
+                           "give --map NAME|PATH (or qnav map upload one)")
         return robot
     try:
         robot = robot_map(link)
@@ -126,5 +207,5 @@ def choose_map(link: Any, gm: Any | None) -> Any:
         return gm
     if robot is not None and not same_map(gm, robot):
         raise CliError(f"--map {_describe(gm)} is not the robot's map {_describe(robot)} "
-                       f"(from its active policy; leave out --map to use it)")
+                       f"(leave out --map to use it)")
     return gm

@@ -65,3 +65,42 @@ def test_a_cell_policy_refuses_a_map_other_than_its_own_naming_both(tmp_path):
     assert refused.returncode == 3, refused.stderr
     assert "map refused: policy map paper10 (10x10" in refused.stderr and "is not the robot's map (16x16" in refused.stderr
     assert not (storage / "maps" / "active.map").exists()
+
+
+def test_missions_by_target_name_use_the_map_the_robot_was_given_not_its_policys(tmp_path):
+    """Issue 45: after `qnav map upload`, `qnav mission upload --targets` without --map places the
+    targets of the uploaded map (its targets sidecar on the robot), not those of the map the
+    active policy carries (paper10, whose A and B lie elsewhere)."""
+    import numpy as np
+
+    from firmware_py import robot_spec
+    from firmware_py.shipped_policies import resolve_policy_spec
+    from ground_station.maps import GridMap, write_map
+
+    occ = np.zeros((8, 12), dtype=bool)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = True
+    occ[4, 3:9] = True
+    shop = GridMap("shop", occ, targets={"A": (1, 1), "B": (10, 6)})
+    write_map(tmp_path / "shop.map", shop)
+    storage, port = tmp_path / "robot", free_udp_port()
+    (storage / "policies").mkdir(parents=True)
+    (storage / "policies" / "active.qtab").write_bytes(Path(resolve_policy_spec("policies:sector")).read_bytes())
+    url = f"udpin:127.0.0.1:{port}"
+    robot = subprocess.Popen([BIN / "qnav-robot", "--can", f"virtual:map-{port}", "--storage", storage,
+                              "--mavlink", f"udpout:127.0.0.1:{port}", "-q"],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        up = _qnav("map", "upload", tmp_path / "shop.map", "--mavlink", url, "--no-tlog")
+        assert up.returncode == 0, up.stderr
+        assert "targets A, B kept beside it" in up.stdout
+        mission = _qnav("mission", "upload", "--targets", "A,B", "--mavlink", url, "--no-tlog")
+        assert mission.returncode == 0, mission.stderr
+        down = _qnav("mission", "download", "--mavlink", url, "--no-tlog")
+        assert down.returncode == 0, down.stderr
+    finally:
+        stop_process(robot)
+    lines = [ln for ln in down.stdout.splitlines() if " local " in ln]
+    got = [(float(ln.split("x=")[1].split()[0]), float(ln.split("y=")[1].split()[0])) for ln in lines]
+    want = [tuple(v / 1000 for v in robot_spec.cell_center_mm(c, r, 8)) for c, r in ((1, 1), (10, 6))]
+    assert len(got) == 2 and all(abs(g[0] - w[0]) < 0.01 and abs(g[1] - w[1]) < 0.01 for g, w in zip(got, want, strict=True)), \
+        (down.stdout, want)
