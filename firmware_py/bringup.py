@@ -296,6 +296,10 @@ def run_check(bus: can.BusABC, profile: RobotProfile, *, listen_s: float = 2.0, 
     engines = [p.engine for p in getattr(lis.drive, "parts", [lis.drive]) if hasattr(p, "engine")]  # DroneCAN
     for node_id, (health, mode) in sorted(engines[0].nodes_seen.items()) if engines else ():
         rep.note(f"DroneCAN node {node_id}: health {('OK', 'WARNING', 'ERROR', 'CRITICAL')[health & 3]}, mode {mode}")
+    for engine in engines:  # another node with the robot's node id, at any time during the check
+        if engine.collision_frames:
+            rep.bad(f"{engine.collision(lis.now_us() / 1e6, hold_s=float('inf'))} "
+                    f"({engine.collision_frames} frames); the robot refuses to arm while it is seen")
     for fid, n in sorted(lis.unknown.items()):
         rep.note(f"unknown frame id 0x{fid:x} ({'extended' if fid > 0x7FF else 'standard'}): {n} frames")
     if spin:

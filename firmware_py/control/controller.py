@@ -130,6 +130,8 @@ class Controller(Activation):
                 return False, "motor driver silent"
             if inp.driver_errors:
                 return False, inp.driver_detail or f"motor driver errors 0x{inp.driver_errors:02x}"
+            if inp.arm_block:
+                return False, inp.arm_block
             self.armed = True
             self.fault = ""
             self._transition(CtrlState.HOLD, "armed")

@@ -43,6 +43,7 @@ class Inputs:
     driver_right_mm_s: int = 0
     driver_us: int | None = None
     driver_detail: str = ""  # a drive backend's words for what is wrong (names the axis/ESC), '' when nothing
+    arm_block: str = ""  # a backend's words for why the robot must not arm (a DroneCAN node-id collision), ''
     estop: bool = False  # an EStop frame from another node engaged it
     estop_us: int | None = None
     # the power board's BatteryStatus (none on a robot without one: telemetry says unknown)

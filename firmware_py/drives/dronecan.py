@@ -17,11 +17,17 @@ NodeStatus at 1 Hz, GetNodeInfo answered with the profile's node name). What it 
   `sensor_id` mapped to a sector by `sensor_ids`, its `reading_type` (qnav's range status codes are
   DroneCAN's) honoured; a sector frame half counts as fresh once all its sensors have reported.
 
+Either way the node answers GetNodeInfo behind the tick's wheel command, one answer a tick at most
+(dronecan_engine.py bounds reassembly and answers), and another node using the robot's node id
+(a node-id collision) is reported by `check` as `arm_block`: the controller refuses to arm while
+one is seen (the text becomes the refusal's STATUSTEXT), and `qnav-robot --check` lists it.
+
 The bumper and the battery stay on qnav's frames. Needs the `dronecan` extra.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from typing import Any
@@ -40,6 +46,8 @@ from firmware_py.profile import RobotProfile
 STOP_TICKS = 5  # zero commands sent after the wheels should stop
 RAW_MAX = 8191
 HEALTH_NAMES = {0: "OK", 1: "WARNING", 2: "ERROR", 3: "CRITICAL"}
+
+log = logging.getLogger(__name__)
 
 
 class _Esc:
@@ -82,6 +90,7 @@ class DroneCanBackend(DriveBackend):
         self._fresh = [False] * n
         self.bad_frames = 0
         self.frames_sent = 0
+        self._collision_said = ""
         self._lock = threading.Lock()
 
     # --- in ----------------------------------------------------------------------------
@@ -89,7 +98,7 @@ class DroneCanBackend(DriveBackend):
         if not msg.is_extended_id:
             return None  # every DroneCAN frame is extended; standard ids are qnav's (or an ODrive's)
         with self._lock:
-            tr = self.engine.take(msg)
+            tr = self.engine.take(msg, now_us / 1e6)
             if tr is None or tr.service_not_message:
                 return []
             name = type_name(tr)
@@ -160,9 +169,19 @@ class DroneCanBackend(DriveBackend):
                                                       "range_status": list(self.status)}))
         return out
 
+    def collision(self, now_us: int) -> str:
+        """Another node using our node id (the engine's words), '' when none is seen."""
+        with self._lock:
+            text = self.engine.collision(now_us / 1e6)
+        if text and not self._collision_said:
+            log.warning("%s", text)
+        self._collision_said = text
+        return text
+
     def check(self, now_us: int, timeout_us: int) -> list[InputUpdate]:
+        block = InputUpdate("", {"arm_block": self.collision(now_us)})
         if not self.drive_on:
-            return []
+            return [block]
         with self._lock:
             fields = self._driver_fields()
             if not fields["driver_detail"]:
@@ -172,12 +191,12 @@ class DroneCanBackend(DriveBackend):
                         fields["driver_detail"] = f"{e.name()}: esc.Status {since}"
                         break
             return [InputUpdate("", {"driver_errors": fields["driver_errors"],
-                                     "driver_detail": fields["driver_detail"]})]
+                                     "driver_detail": fields["driver_detail"]}), block]
 
     # --- out ---------------------------------------------------------------------------
     def frames(self, out: Outputs, now_us: int) -> list[can.Message]:
         with self._lock:
-            msgs = self.engine.outgoing() + self.engine.periodic()
+            msgs: list[can.Message] = []  # the wheel command first, then NodeStatus, then answers (rate-limited)
             if self.drive_on:
                 want = out.drive_enabled and out.motor is not None
                 if want:
@@ -190,6 +209,8 @@ class DroneCanBackend(DriveBackend):
                     for e in self.escs:
                         e.integral = 0.0
                     msgs += self._command((0, 0))
+            msgs += self.engine.periodic()
+            msgs += self.engine.outgoing(now_us / 1e6)
             self.frames_sent += len(msgs)
             return msgs
 
@@ -216,5 +237,9 @@ class DroneCanBackend(DriveBackend):
         return self.engine.broadcast(dronecan.uavcan.equipment.esc.RawCommand(cmd=raw), PRIORITY_HIGH)
 
     def stats(self) -> dict[str, Any]:
-        return {"dronecan_node_id": self.engine.node_id, "dronecan_bad_transfers": self.engine.bad_transfers,
-                "dronecan_node_info_answers": self.engine.answered_info, "drive_frames_sent": self.frames_sent}
+        e = self.engine
+        return {"dronecan_node_id": e.node_id, "dronecan_bad_transfers": e.bad_transfers,
+                "dronecan_dropped_transfers": e.rx.dropped, "dronecan_timed_out_transfers": e.rx.timed_out,
+                "dronecan_ignored_frames": e.rx.ignored, "dronecan_node_info_answers": e.answered_info,
+                "dronecan_node_info_dropped": e.answers.dropped, "dronecan_collision_frames": e.collision_frames,
+                "drive_frames_sent": self.frames_sent}
