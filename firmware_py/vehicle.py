@@ -37,6 +37,7 @@ class CtrlState(IntEnum):
     DRIVING = 3
     GOAL_REACHED = 4
     FAULT = 5
+    MANUAL = 6  # reported only (status, telemetry CTRL_ST): armed in Manual, the sticks drive; the machine is in HOLD
 
 
 class FailsafeAction(IntEnum):

@@ -23,6 +23,7 @@ and cancelled.
 
 from __future__ import annotations
 
+import errno
 import math
 import time
 from collections.abc import Callable
@@ -80,6 +81,8 @@ class SitlInfo:
     start: str
     sysid: int | None = None
     logs: dict[str, Path] = field(default_factory=dict)
+    drive_backend: str = "qnav"  # the robot profile's backends (docs/robot-profile.md): what the bus carries
+    sensor_backend: str = "qnav"
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,49 @@ def validate(opts: SitlOptions) -> None:
             raise SitlError(f"--profile {exc}") from None
 
 
+def port_in_use(url: str) -> str | None:
+    """None when the port a listening robot (udpin:/tcpin:HOST:PORT) would bind is free, else the one-line
+    reason. pymavlink binds with SO_REUSEADDR, so a second robot on the port would start anyway and two
+    robots would share it (each ground-station frame reaching one of them); a probe bind without it fails
+    while anything holds the port. A sending robot (udpout:, tcp:) or a serial device binds nothing."""
+    import socket
+
+    scheme, _, rest = url.partition(":")
+    if scheme not in ("udpin", "tcpin"):
+        return None
+    host, _, port = rest.rpartition(":")
+    kind, name = (socket.SOCK_DGRAM, "UDP") if scheme == "udpin" else (socket.SOCK_STREAM, "TCP")
+    try:
+        with socket.socket(socket.AF_INET, kind) as probe:
+            if kind == socket.SOCK_STREAM:  # a TIME_WAIT left by an earlier run is not a listener
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind((host, int(port)))
+    except OSError as exc:
+        why = "in use (another qnav sitl or robot?)" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
+        return f"{name} port {port} on {host}: {why}; give another port, e.g. --mavlink {scheme}:{host}:{int(port) + 1}"
+    return None
+
+
+def describe_exits(codes: dict[str, int | None]) -> str:
+    """The children's ends for the last line: "sim 0, robot interrupted (SIGINT)". A negative
+    Popen status is the signal that ended the child (an early Ctrl-C stops it before it set up its
+    own handler), not an exit code to show as -2."""
+    import signal
+
+    def one(code: int | None) -> str:
+        if code is None:
+            return "not started"
+        if code >= 0:
+            return f"exit {code}"
+        try:
+            sig = signal.Signals(-code).name
+        except ValueError:
+            sig = f"signal {-code}"
+        return f"interrupted ({sig})" if sig in ("SIGINT", "SIGTERM") else f"killed ({sig})"
+
+    return ", ".join(f"{name} {one(code)}" for name, code in codes.items()) or "none started"
+
+
 def connection_help(info: SitlInfo) -> list[str]:
     """The lines `qnav sitl` prints once the robot is up."""
     gcs = info.gcs_url
@@ -150,14 +196,24 @@ def connection_help(info: SitlInfo) -> list[str]:
     lines += [f"  MAVSDK          System().connect(system_address=\"{_mavsdk_address(gcs)}\")",
               f"  qnav            qnav monitor --mavlink {gcs}   (also qnav upload/mission/arm/mode/goal)",
               f"CAN bus: {info.can_spec}" + (" (python-can-remote hub)" if info.hub else "")]
+    # qnav.dbc decodes qnav's own frames only: with an ODrive (CANSimple) or DroneCAN backend the bus
+    # carries frames it does not describe, and a decoder over qnav.dbc would show them as unknown
+    protocols = {"odrive": "ODrive CANSimple", "dronecan": "DroneCAN"}
+    foreign = [f"{what} ({protocols.get(backend, backend)})" for what, backend
+               in (("drive", info.drive_backend), ("sensors", info.sensor_backend)) if backend != "qnav"]
     if info.can_spec.startswith("socketcan:"):
         channel = info.can_spec.partition(":")[2]
-        lines += [f"  candump -L {channel}      cansniffer -c {channel}",
-                  f"  cantools monitor -i socketcan -c {channel} {dbc}"]
+        lines.append(f"  candump -L {channel}      cansniffer -c {channel}")
+        if not foreign:
+            lines.append(f"  cantools monitor -i socketcan -c {channel} {dbc}")
     elif info.can_spec.startswith("remote:"):
         url = info.can_spec.partition(":")[2]
-        lines += [f"  cantools monitor -i remote -c {url} {dbc}",
-                  f"  python -m can.viewer -i remote -c {url}"]
+        if not foreign:
+            lines.append(f"  cantools monitor -i remote -c {url} {dbc}")
+        lines.append(f"  python -m can.viewer -i remote -c {url}")
+    if foreign:
+        lines.append(f"  the profile's {' and '.join(foreign)} frames are not in qnav.dbc: no cantools decoder "
+                     "here; the tools above show every frame raw")
     lines += [f"run folder {info.run_dir} (sim.log, robot.log; can.blf, trajectory.csv and run.mcap when stopped)",
               "Ctrl-C stops every process"]
     return lines
@@ -226,6 +282,9 @@ class Sitl:
         world = load_world(opts.map_name)
         start, cell = start_pose(world)
         policy = resolve_policy(opts)
+        busy = port_in_use(opts.mavlink)  # before anything starts (no hub, no run folder): one robot per port
+        if busy is not None:
+            raise SitlError(f"--mavlink {opts.mavlink}: {busy}")
         run_dir = Path(opts.out) if opts.out else default_run_dir()
         try:
             (run_dir / "robot").mkdir(parents=True, exist_ok=True)
@@ -242,6 +301,11 @@ class Sitl:
         logs = {"sim": run_dir / "sim.log", "robot": run_dir / "robot.log"}
         info = SitlInfo(run_dir=run_dir, mavlink=opts.mavlink, gcs_url=gcs_side(opts.mavlink), can_spec=can_spec,
                         hub=self.hub is not None, policy=policy or "none", start=start, logs=logs)
+        if opts.profile is not None:
+            from firmware_py.profile import load_profile
+
+            profile = load_profile(opts.profile)  # validate() has checked it
+            info.drive_backend, info.sensor_backend = profile.drive.backend, profile.sensors.backend
         self.info = info
         pace = ["--lockstep", "--max-speed", f"{opts.speed:g}"] if opts.lockstep else ["--speed", f"{opts.speed:g}"]
         sim_argv = qnav_sim("--map", opts.map_name, "--can", can_spec, *pace,

@@ -77,7 +77,8 @@ class Controller(Activation):
             x_mm, y_mm, heading_mrad = self.nav.pose_mm()
             std = self.loc.std() if self.loc is not None else (0.0, 0.0, 0.0)
             return VehicleStatus(
-                time_us=self._now, state=self.state, mode=self.mode, armed=self.armed,
+                time_us=self._now, state=CtrlState.MANUAL if self._manual_driving() else self.state,
+                mode=self.mode, armed=self.armed,
                 failsafe=self.failsafe, fault=self.fault,
                 x_mm=x_mm, y_mm=y_mm, heading_mrad=heading_mrad,
                 speed_mm_s=self.odom.speed_mm_s, yaw_rate_mrad_s=self.odom.yaw_rate_mrad_s,

@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.sample is not None and args.sample < 1:
         raise CliError(f"--sample must be >= 1, got {args.sample}")
+    _check_run_dir(args.run_dir)
     if args.map is None:
         args.map = _run_map(args.run_dir)
     try:
@@ -78,6 +79,21 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         print(f"wrote {args.plot}")
     return 0
+
+
+def _check_run_dir(run_dir: str) -> None:
+    """A one-line error unless `run_dir` is a folder (a policy file or a map is named as such)."""
+    from pathlib import Path
+
+    from ground_station.errors import CliError
+
+    path = Path(run_dir)
+    if path.is_dir() or not path.exists():
+        return  # a missing folder: _run_map / evaluate_run name what is missing
+    what = {".qtab": "a policy file", ".map": "a map", ".tlog": "a telemetry log"}.get(path.suffix.lower(), "a file")
+    hint = (f"; `qnav policy inspect {run_dir}` checks a policy, `qnav export DIR` makes one from a run"
+            if path.suffix.lower() == ".qtab" else "")
+    raise CliError(f"{run_dir} is {what}: qnav eval takes a training run folder (qnav train --out DIR){hint}")
 
 
 def _run_map(run_dir: str) -> str:

@@ -2,7 +2,8 @@
 
 Modes are numbered as ArduPilot Rover (Manual 0, Hold 4, Auto 10, Guided 15), so
 stock ground stations name them. Waits for the ACK; a refusal exits 3 with
-the robot's reason (e.g. Auto without a mission).
+the robot's reason (e.g. Auto without a mission). Mode names take any case
+(`qnav mode MANUAL`, as MAVProxy's `mode MANUAL`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("mode", help="set the robot's mode (MAVLink)", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("mode", choices=sorted(MODES), metavar="MODE", help="hold | guided | auto | manual (then qnav drive)")
+    p.add_argument("mode", type=str.lower, choices=sorted(MODES), metavar="MODE",
+                   help="hold | guided | auto | manual (then qnav drive); any case, HOLD as MAVProxy names it")
     add_link_args(p)
     p.set_defaults(func=run)
 

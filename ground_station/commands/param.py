@@ -6,7 +6,10 @@ unknown); no answer -> exit 4. The robot stores a set value atomically and
 keeps it across reboots. `list` prints each parameter's description, units
 and range beside its value, read from the robot's own parameter metadata
 (`/metadata/parameters.json` over MAVLink FTP, the file its COMPONENT_METADATA
-points a ground station at). See docs/mavlink.md for the table.
+points a ground station at). POLICY_ID and POLICY_CRC are 32-bit ids that
+float32 on the wire rounds: `get` and `list` print them exact, in hex, from
+their _HI/_LO halves (as `qnav export` and the monitor do). See
+docs/mavlink.md for the table.
 """
 
 from __future__ import annotations
@@ -38,12 +41,23 @@ def _fmt(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else f"{value:g}"
 
 
-def _exact(name: str, params: dict[str, float]) -> str:
-    """POLICY_ID and POLICY_CRC: float32 on the wire; their exact value from the 16-bit halves."""
+EXACT_IDS = ("POLICY_ID", "POLICY_CRC")  # 32-bit ids: float32 on the wire rounds them; exact from _HI/_LO
+
+
+def _exact(name: str, params: dict[str, float | None]) -> int | None:
+    """POLICY_ID and POLICY_CRC: float32 on the wire; their exact value from the 16-bit halves
+    (None for another parameter, or a robot that sends no halves)."""
     hi, lo = params.get(name + "_HI"), params.get(name + "_LO")
-    if hi is None or lo is None:
-        return ""
-    return f"  (0x{(int(hi) << 16) | int(lo):08x}, exact: {name}_HI/_LO)"
+    if name not in EXACT_IDS or hi is None or lo is None:
+        return None
+    return (int(hi) << 16) | int(lo)
+
+
+def _shown(name: str, value: float, params: dict[str, float | None]) -> str:
+    """A value as `param get` and `param list` both print it: an id exact, in hex, as qnav export,
+    qnav upload and the monitor print it; anything else as a number."""
+    exact = _exact(name, params)
+    return f"0x{exact:08x}" if exact is not None else _fmt(value)
 
 
 def _described(entry: dict | None) -> str:
@@ -88,14 +102,21 @@ def run(args: argparse.Namespace) -> int:
     def body(link) -> int:
         if args.verb == "list":
             params = link.param_list()
-            if args.json:
-                print(json.dumps({k: int(v) if float(v).is_integer() else v for k, v in params.items()}, indent=1))
+            values: dict[str, float | None] = dict(params)
+            if args.json:  # numbers, the ids exact
+                print(json.dumps({k: _exact(k, values) if _exact(k, values) is not None
+                                  else int(v) if float(v).is_integer() else v for k, v in params.items()}, indent=1))
             else:
                 meta = {} if args.no_descriptions else robot_parameter_metadata(link)
                 for k, v in params.items():
-                    print(f"{k:<16} {_fmt(v):>11}{_exact(k, params)}{_described(meta.get(k))}")
+                    print(f"{k:<16} {_shown(k, v, values):>11}{_described(meta.get(k))}")
         elif args.verb == "get":
-            print(f"{name} {_fmt(link.param_get(name))}")
+            assert name is not None
+            got = link.param_get(name)
+            halves: dict[str, float | None] = {}
+            if name in EXACT_IDS:
+                halves = link.read_params([name + "_HI", name + "_LO"], budget_s=min(args.timeout, 3.0))
+            print(f"{name} {_shown(name, got, halves)}")
         else:
             print(f"{name} {_fmt(link.param_set(name, value))}")
         return 0

@@ -85,14 +85,13 @@ def run(args: argparse.Namespace) -> int:
     if args.cell_size <= 0:
         raise CliError(f"--cell-size must be > 0, got {args.cell_size}")
     map_spec = args.map or _run_map(Path(args.tlog))
+    grid_map = _load_map(map_spec or "none", args.cell_size)  # a bad --map is refused before the long read
+    rec = analyse(args.tlog, progress=True, sysid=args.target_system, clock=args.clock)
+    if rec.messages == 0:  # the real error first, and alone: no note about a map for a file that is no tlog
+        raise CliError(f"{args.tlog}: no MAVLink messages from a vehicle (is it a .tlog?)")
     if map_spec is None:  # a tlog alone does not say its map: a blank field, not a guess drawn through walls
         print("qnav report: no map given (and no qnav demo summary.json beside the tlog): the trajectory is "
               "drawn on a blank field; give --map NAME|PATH", file=sys.stderr)
-        map_spec = "none"
-    grid_map = _load_map(map_spec, args.cell_size)
-    rec = analyse(args.tlog, progress=True, sysid=args.target_system, clock=args.clock)
-    if rec.messages == 0:
-        raise CliError(f"{args.tlog}: no MAVLink messages from a vehicle (is it a .tlog?)")
     misfit = _misfit(rec.pose, grid_map)
     if misfit:
         print(f"qnav report: warning: {misfit[0]} of {misfit[1]} positions lie outside map {grid_map.name} or in "

@@ -63,7 +63,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import signal
 
-    from ground_station.sitl import Sitl, SitlOptions, connection_help
+    from ground_station.sitl import Sitl, SitlOptions, connection_help, describe_exits
 
     opts = SitlOptions(map_name=args.map, policy=args.policy, can=args.can, speed=args.speed, lockstep=args.lockstep,
                        mavlink=args.mavlink, out=args.out, seed=args.seed, duration_s=args.duration,
@@ -96,5 +96,5 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGINT, signal.default_int_handler)
     finally:
         signal.signal(signal.SIGTERM, previous)
-    say(f"{verdict}; every process stopped ({', '.join(f'{k} {v}' for k, v in codes.items()) or 'none started'})")
+    say(f"{verdict}; every process stopped ({describe_exits(codes)})")
     return 1 if child_died else 0

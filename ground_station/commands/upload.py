@@ -13,6 +13,11 @@ file, compared with the robot's copy) and the "policy CRC" (the .qtab
 header's own, what the robot reports as POLICY_CRC_HI/LO); `qnav policy
 inspect` prints both.
 
+The file is checked with the robot's own policy loader before anything is
+sent: what it refuses (a map, a truncated or corrupt .qtab) is refused here
+in one line, exit 2 (a MovingAI map is pointed at `qnav map upload`);
+`--force` sends it anyway, to see the robot's own refusal.
+
 Exit status: 0 done, 2 bad arguments, 3 refused by the robot (its reason
 printed), 4 timeout, no robot or no FTP answer, 5 CRC or policy-id mismatch.
 """
@@ -21,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from ground_station.errors import CliError
 
@@ -39,10 +45,37 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--activate", action="store_true", help="make it the robot's active policy")
     p.add_argument("--remote", help="path on the robot (default /policies/<file name>)")
     p.add_argument("--attempts", type=int, default=8, help="whole-file put attempts (default %(default)s)")
+    p.add_argument("--force", action="store_true",
+                   help="send a file the robot's policy loader refuses here (to try the robot's own refusal); "
+                        "without it such a file is refused before anything is sent")
     add_link_args(p, timeout_s=DEFAULT_DEADLINE_S,
                   timeout_help=f"give up after this many seconds (default {DEFAULT_DEADLINE_S:g}; "
                                f"of them at most {HEARTBEAT_WAIT_S:g} s waiting for the robot's heartbeat)")
     p.set_defaults(func=run)
+
+
+def check_policy(path: Path) -> None:
+    """CliError, one line, unless `path` is a policy the robot's own loader (firmware_py/policy.py)
+    accepts; a MovingAI map is pointed at `qnav map upload`."""
+    from firmware_py.policy import PolicyError, load_policy
+
+    try:
+        load_policy(path)
+    except PolicyError as exc:
+        if _looks_like_map(path):
+            raise CliError(f"{path}: a MovingAI map, not a policy: `qnav map upload {path}` gives the robot "
+                           "its map") from None
+        raise CliError(f"{path}: not a policy the robot can load: {exc} (--force sends it anyway)") from None
+
+
+def _looks_like_map(path: Path) -> bool:
+    if path.suffix == ".map":
+        return True
+    try:
+        with open(path, "rb") as f:
+            return f.read(5) == b"type "  # a MovingAI header: type octile / height / width / map
+    except OSError:
+        return False
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.file.is_file():
         raise CliError(f"{args.file}: no such file")
+    if not args.force:
+        check_policy(args.file)
     remote = args.remote or default_remote(args.file)
     size = args.file.stat().st_size
     try:

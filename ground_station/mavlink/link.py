@@ -77,6 +77,7 @@ def mavlink():
 
 
 ENV_URL = "QNAV_MAVLINK"  # the environment's default for --mavlink (add_link_args)
+SITL_GCS_URL = "udpout:127.0.0.1:14555"  # how a GCS reaches `qnav sitl`'s robot by default (ground_station/sitl.py)
 URL_SCHEMES = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin", "mcast")
 WAIT_NOTICE_S = 1.0  # say what we wait for once a wait has lasted this long
 
@@ -108,6 +109,16 @@ def check_url(url: str) -> str | None:
 def default_url() -> str:
     """The link a command uses without --mavlink: $QNAV_MAVLINK when set, else DEFAULT_URL."""
     return os.environ.get(ENV_URL) or DEFAULT_URL
+
+
+def where_url_came_from(url: str) -> str:
+    """For a "waiting for a robot on URL" line: where `url` came from and how to give another."""
+    if url == os.environ.get(ENV_URL):
+        return f"from ${ENV_URL}; --mavlink URL overrides it"
+    if url == DEFAULT_URL:
+        return (f"the default URL: give --mavlink URL or export {ENV_URL}=URL, e.g. {SITL_GCS_URL} for "
+                "`qnav sitl`'s robot, which prints its URL")
+    return f"from --mavlink; export {ENV_URL}=URL sets it once per shell"
 
 
 def _url_arg(value: str) -> str:
@@ -315,10 +326,10 @@ class Link:
             self.system_status = msg.system_status
 
     def connect(self, timeout_s: float = DEFAULT_TIMEOUT_S,
-                on_wait: Callable[[str], None] | None = None) -> tuple[int, int]:
+                on_wait: Callable[[str], None] | None = None, url_note: str = "") -> tuple[int, int]:
         """Wait for the robot's HEARTBEAT (of `target_system` if given); returns
         (sysid, compid). `on_wait(line)` is told what we wait for once the wait
-        has lasted WAIT_NOTICE_S."""
+        has lasted WAIT_NOTICE_S (with `url_note`: where the URL came from, how to change it)."""
         start = time.monotonic()
         deadline = start + timeout_s
         next_poke = 0.0
@@ -327,7 +338,8 @@ class Link:
         while time.monotonic() < deadline:
             if not told and time.monotonic() - start >= WAIT_NOTICE_S:
                 assert on_wait is not None
-                on_wait(f"waiting for a HEARTBEAT from {who} on {self.url} (up to {timeout_s:g} s) ...")
+                on_wait(f"waiting for a HEARTBEAT from {who} on {self.url} (up to {timeout_s:g} s"
+                        f"{'; ' + url_note if url_note else ''}) ...")
                 told = True
             if time.monotonic() >= next_poke:
                 # ask for a heartbeat now rather than waiting up to 1 s for the next one
@@ -678,7 +690,8 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
     try:
         link.connect(connect_timeout_s if connect_timeout_s is not None
                      else getattr(args, "timeout", DEFAULT_TIMEOUT_S),
-                     on_wait=lambda line: print(f"qnav {name}: {line}", file=sys.stderr, flush=True))
+                     on_wait=lambda line: print(f"qnav {name}: {line}", file=sys.stderr, flush=True),
+                     url_note=where_url_came_from(url))
     except BaseException:
         link.close()
         raise

@@ -65,7 +65,10 @@ def test_upload_activate_keeps_last_good_and_refuses_corrupt_files(lossy_robot, 
     bad[200] ^= 0xFF  # inside the table: the file CRC no longer matches
     corrupt = tmp_path / "corrupt.qtab"
     corrupt.write_bytes(bytes(bad))
-    out = qnav_upload(corrupt, "--activate", "--mavlink", url)
+    out = qnav_upload(corrupt, "--activate", "--mavlink", url)  # refused here, before anything is sent (issue 46)
+    assert out.returncode == 2 and "CRC32 mismatch" in out.stderr, out.stdout + out.stderr
+    assert not (root / "policies" / "corrupt.qtab").exists()
+    out = qnav_upload(corrupt, "--activate", "--force", "--mavlink", url)  # the robot's own refusal
     assert out.returncode == 3, out.stdout + out.stderr
     assert "refused" in out.stderr and "crc" in out.stderr.lower() and "refused" not in out.stdout
     assert (root / "policies" / "active.qtab").read_bytes() == second.read_bytes()

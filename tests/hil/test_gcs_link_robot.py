@@ -73,7 +73,9 @@ def test_upload_policy_rejection_reason_arrives_whole(robot, tmp_path):
     bad.write_bytes((ROOT / "policies" / "paper10_cell.qtab").read_bytes()[:1000])
     with pytest.raises(PolicyError) as why:
         load_policy(bad.read_bytes())
-    code, out, err = qnav("upload", str(bad), "--activate", "--mavlink", robot, "--no-tlog", "--timeout", "60")
+    # --force: qnav upload refuses it itself otherwise (issue 46); here the robot's own refusal is the point
+    code, out, err = qnav("upload", str(bad), "--activate", "--force", "--mavlink", robot, "--no-tlog",
+                          "--timeout", "60")
     assert code == 3, out + err
     assert len(str(why.value)) > 40  # with its prefix, more than one STATUSTEXT chunk
     assert str(why.value) in err and "error" not in out, out + err  # on stderr, like every other command
