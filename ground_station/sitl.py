@@ -353,7 +353,9 @@ class Sitl:
         try:
             while conn is None:
                 try:
-                    conn = mavutil.mavlink_connection(info.gcs_url, source_system=254, source_component=191)
+                    # as the operator's system (SYSID_MYGCS, 255): the robot takes PARAM_SET from it only; another
+                    # component id, and an onboard-controller heartbeat, so it is no GCS for the failsafe
+                    conn = mavutil.mavlink_connection(info.gcs_url, source_system=255, source_component=191)
                 except OSError:  # tcpin not listening yet
                     self._check_children()
                     if time.monotonic() > deadline:
@@ -364,7 +366,7 @@ class Sitl:
                 self._check_children()
                 conn.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
                 msg = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
-                if msg is None or msg.get_srcSystem() == 254:
+                if msg is None or msg.get_srcSystem() == 255:
                     continue
                 sysid = msg.get_srcSystem()
                 if self.opts.speed > 1:

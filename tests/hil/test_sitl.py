@@ -140,22 +140,26 @@ def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
     os.environ["MAVLINK20"] = "1"
     from pymavlink import mavutil
 
-    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{sitl.port}", source_system=250)
     try:
-        value = None
-        for _ in range(20):
-            conn.mav.param_request_read_send(1, 1, b"FS_GCS_TOUT_MS", -1)
-            msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1)
-            if msg is not None and msg.param_id == "FS_GCS_TOUT_MS":
-                value = msg.param_value
-                break
-    finally:
-        conn.close()
-    assert value == 20000
-    assert any("FS_GCS_TOUT_MS set to 20000 ms" in line for line in sitl.log), sitl.log
-    assert any("MIS_TIMEOUT_MS set to 6000 ms" in line for line in sitl.log), sitl.log  # 1.5 s x 4
-    port = hub_port(sitl.log)
-    assert port_open(port)
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{sitl.port}", source_system=250)
+        try:
+            value = None
+            for _ in range(20):
+                conn.mav.param_request_read_send(1, 1, b"FS_GCS_TOUT_MS", -1)
+                msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1)
+                if msg is not None and msg.param_id == "FS_GCS_TOUT_MS":
+                    value = msg.param_value
+                    break
+        finally:
+            conn.close()
+        assert value == 20000
+        assert any("FS_GCS_TOUT_MS set to 20000 ms" in line for line in sitl.log), sitl.log
+        assert any("MIS_TIMEOUT_MS set to 6000 ms" in line for line in sitl.log), sitl.log  # 1.5 s x 4
+        port = hub_port(sitl.log)
+        assert port_open(port)
+    except BaseException:
+        sitl.stop(signal.SIGTERM)  # a failed check must not leave the sitl's processes running
+        raise
     code = sitl.stop(signal.SIGTERM)
     assert code == 0 and any("stopped (SIGTERM); every process stopped" in line for line in sitl.log), sitl.log[-10:]
     assert no_children_left(sitl.out) == [] and not port_open(port)
