@@ -193,7 +193,7 @@ def connection_help(info: SitlInfo) -> list[str]:
         lines.append("  QGroundControl  connects by itself (it listens on UDP 14550)")
     elif scheme == "tcp":
         lines.append(f"  QGroundControl  Comm Links > Add > TCP, {rest}")
-    lines += [f"  MAVSDK          System().connect(system_address=\"{_mavsdk_address(gcs)}\")",
+    lines += [f"  MAVSDK          System(sysid=255).connect(system_address=\"{_mavsdk_address(gcs)}\")",
               f"  qnav            qnav monitor --mavlink {gcs}   (also qnav upload/mission/arm/mode/goal)",
               f"CAN bus: {info.can_spec}" + (" (python-can-remote hub)" if info.hub else "")]
     # qnav.dbc decodes qnav's own frames only: with an ODrive (CANSimple) or DroneCAN backend the bus
