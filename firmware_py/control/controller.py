@@ -172,10 +172,25 @@ class Controller(Activation):
             return self.manual.update(x, r, now_us)
 
     def set_goal(self, x_mm: int, y_mm: int) -> tuple[bool, str]:
+        """A goal from the link (SET_POSITION_TARGET_*, a guided-mode waypoint,
+        DO_REPOSITION): taken only in Guided, as ArduPilot Rover takes position
+        targets; it never switches another mode (Hold above all) to Guided.
+        DO_REPOSITION with its CHANGE_MODE flag sets Guided itself first."""
+        return self._goal(x_mm, y_mm, switch=False)
+
+    def go_to(self, x_mm: int, y_mm: int) -> tuple[bool, str]:
+        """Mode Guided and the goal in one step, for whoever owns the robot
+        locally (`qnav-robot --goal`, the rigs and benches): what an operator
+        does with `mode guided` then a goal."""
+        return self._goal(x_mm, y_mm, switch=True)
+
+    def _goal(self, x_mm: int, y_mm: int, switch: bool) -> tuple[bool, str]:
         with self._lock:
             ok, why = self._can_drive()
             if not ok:
                 return False, why
+            if not switch and self.mode != Mode.GUIDED:
+                return False, f"mode {self.mode.name.title()}, not Guided"  # one STATUSTEXT chunk
             gi, why = self._goal_index_for(int(x_mm), int(y_mm))
             if gi < 0:
                 return False, why

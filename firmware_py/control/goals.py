@@ -42,7 +42,7 @@ class GoalRunner:
             if c.state != CtrlState.HOLD:
                 return
             if len(self.goals) == 1:
-                ok, why = c.set_goal(*self.goals[0])
+                ok, why = c.go_to(*self.goals[0])
             else:
                 ok, why = c.set_mission(self.goals)
                 if ok:

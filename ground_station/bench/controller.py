@@ -184,7 +184,7 @@ def core_step_baseline(policy_path: str, n: int = 2000) -> dict:
         times.append(time.perf_counter_ns() - t0)
         if k == 1:
             ctrl.arm()
-            ctrl.set_goal(gx, gy)
+            ctrl.go_to(gx, gy)
         if out.motor is not None:  # ideal wheels: enough to keep the decision path busy
             left += out.motor.left_mm_s * robot_spec.CONTROL_PERIOD_US / 1e6
             right += out.motor.right_mm_s * robot_spec.CONTROL_PERIOD_US / 1e6

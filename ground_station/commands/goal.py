@@ -1,6 +1,10 @@
 """`qnav goal X Y`: send a goal in world metres (x east, y north) in Guided mode.
 
-Sent as SET_POSITION_TARGET_LOCAL_NED (north = Y, east = X). The robot
+Sets mode Guided first (MAV_CMD_DO_SET_MODE, as a MAVProxy user types
+`mode guided` before a goal: the robot, like ArduPilot Rover, takes a
+position target in Guided only and never switches to Guided for one; a
+refused mode exits 3 with the robot's reason), then sends the goal as
+SET_POSITION_TARGET_LOCAL_NED (north = Y, east = X). The robot
 answers an accepted goal with POSITION_TARGET_LOCAL_NED and a refused one
 with a STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4 (the
 exchange is `mavlink.link.Link.set_goal`). X and Y must be finite numbers
@@ -49,8 +53,11 @@ def run(args: argparse.Namespace) -> int:
         return _planned_goal(args)
 
     def body(link) -> int:
+        from firmware_py.vehicle import Mode
+
+        link.command(link.m.MAV_CMD_DO_SET_MODE, link.m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.GUIDED))
         link.set_goal(args.x, args.y)
-        print(f"goal x={args.x:g} y={args.y:g} m accepted")
+        print(f"goal x={args.x:g} y={args.y:g} m accepted (mode Guided)")
         return 0
 
     return run_on_link(args, "goal", body)

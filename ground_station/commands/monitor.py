@@ -4,13 +4,26 @@
     qnav monitor --plain [--duration S]          one status line per second
     qnav monitor --replay FILE.tlog [--speed X]  a recording through the same view
     qnav monitor --foxglove [--port P]           also a Foxglove WebSocket bridge on 127.0.0.1:P
+        [--foxglove-origin URL ...] [--foxglove-token T] [--foxglove-goals]
 
 With --foxglove the same telemetry is published live for Foxglove (open
 ws://127.0.0.1:P in Foxglove desktop or its web app): the robot's pose on its
 map, range sectors, the mission, the log, every MAVLink message
-(ground_station/logs/topics.py); a goal published on /goal (JSON {"x": E,
-"y": N} metres) is checked as `qnav goal` checks it and sent as a Guided
-go-to. Live links only.
+(ground_station/logs/topics.py). Live links only.
+
+Who may connect: a client without an Origin header (not a web page), or a
+browser page from an allowed origin (default https://app.foxglove.dev;
+--foxglove-origin replaces the list, repeatable); any other page is refused
+(HTTP 403), since any page in the operator's browser can reach 127.0.0.1.
+With --foxglove-token T a client must also give T: ws://127.0.0.1:P/?token=T
+or the header "Authorization: Bearer T" (else HTTP 401).
+
+Read-only by default. With --foxglove-goals a goal published on /goal
+(JSON {"x": E, "y": N} metres) is checked as `qnav goal` checks it and sent
+as SET_POSITION_TARGET_LOCAL_NED only while the robot's HEARTBEAT says
+Guided (the operator sets Guided: `qnav mode guided`); otherwise it is
+dropped, with a line on stderr and on /log. The robot refuses a position
+target outside Guided itself too.
 
 Stamps are the robot's clock (its time_boot_ms: sim time in HIL) once it
 has sent one. The view follows one system id (the first robot heard, or
@@ -49,7 +62,34 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="also publish the telemetry on a Foxglove WebSocket server on 127.0.0.1 (live only)")
     p.add_argument("--port", type=int, default=8765, metavar="P",
                    help="--foxglove: the WebSocket port (default 8765, Foxglove's; 0 = any free port)")
+    p.add_argument("--foxglove-origin", action="append", metavar="URL",
+                   help="--foxglove: a browser origin allowed to connect (repeatable; replaces the default "
+                        "https://app.foxglove.dev; clients sending no Origin are always allowed)")
+    p.add_argument("--foxglove-token", metavar="TOKEN",
+                   help="--foxglove: clients must give TOKEN (ws://127.0.0.1:P/?token=TOKEN or "
+                        "'Authorization: Bearer TOKEN')")
+    p.add_argument("--foxglove-goals", action="store_true",
+                   help="--foxglove: let clients publish /goal (sent only while the robot is in Guided); "
+                        "default read-only")
     p.set_defaults(func=run)
+
+
+def _foxglove_origins(given: list[str]) -> list[str]:
+    """--foxglove-origin values: scheme://host[:port] each ('none': no browser origin at all)."""
+    from urllib.parse import urlsplit
+
+    from ground_station.errors import CliError
+
+    out = []
+    for origin in given:
+        if origin.strip().lower() == "none":
+            continue
+        parts = urlsplit(origin.strip())
+        if parts.scheme not in ("http", "https", "file", "app") or (parts.scheme in ("http", "https") and not parts.netloc) \
+                or parts.path not in ("", "/") or parts.query or parts.fragment:
+            raise CliError(f"--foxglove-origin must be an origin such as https://app.foxglove.dev, got {origin!r}")
+        out.append(origin)
+    return out
 
 
 def _load_map(spec: str, cell_size: float):
@@ -127,17 +167,27 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--foxglove bridges a live link; for a recording use qnav log mcap FILE.tlog")
     if not 0 <= args.port <= 65535:
         raise CliError(f"--port must be 0-65535, got {args.port}")
+    origins = _foxglove_origins(args.foxglove_origin) if args.foxglove_origin else None
+    if not args.foxglove and (args.foxglove_origin or args.foxglove_token is not None or args.foxglove_goals):
+        raise CliError("--foxglove-origin, --foxglove-token and --foxglove-goals need --foxglove")
+    if args.foxglove_token is not None and not args.foxglove_token.strip():
+        raise CliError("--foxglove-token must not be empty")
     grid_map = None if args.plain and not args.foxglove else _load_map(args.map, args.cell_size)
     source, label = open_source(args)
     if args.foxglove:
-        from ground_station.logs.live import BridgedSource, FoxgloveBridge
+        from ground_station.logs.live import DEFAULT_ORIGINS, BridgedSource, FoxgloveBridge
 
         try:
-            bridge = FoxgloveBridge(args.port, grid_map)
+            bridge = FoxgloveBridge(args.port, grid_map, goals=args.foxglove_goals,
+                                    origins=origins if origins is not None else DEFAULT_ORIGINS,
+                                    token=args.foxglove_token)
         except Exception as exc:  # noqa: BLE001 - a port in use: one line, the link closed
             source.close()
             raise CliError(f"--foxglove: cannot serve on 127.0.0.1:{args.port}: {exc}") from None
-        print(f"qnav monitor: Foxglove bridge on ws://127.0.0.1:{bridge.port}", file=sys.stderr, flush=True)
+        allowed = ", ".join(sorted(bridge.gate.origins)) or "none"
+        print(f"qnav monitor: Foxglove bridge on ws://127.0.0.1:{bridge.port} "
+              f"({'goals on /goal in Guided' if args.foxglove_goals else 'read-only'}; browser origins: {allowed}"
+              f"{'; token required' if args.foxglove_token is not None else ''})", file=sys.stderr, flush=True)
         source = BridgedSource(source, bridge)
     view = VehicleView(sysid=args.target_system)
     try:

@@ -227,7 +227,7 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             rig.tick()
             rig.tick()
             ok, why = rig.ctrl.arm()  # already armed (FAULT keeps armed) -> must not clear
-            ok_goal, _ = rig.ctrl.set_goal(*rig.runner.goals[0])
+            ok_goal, _ = rig.ctrl.go_to(*rig.runner.goals[0])
             if ok_goal:
                 problems.append("a goal was accepted while the e-stop was latched")
             rig.tick()

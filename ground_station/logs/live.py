@@ -3,23 +3,52 @@
 foxglove-sdk's WebSocket server (127.0.0.1 only), so Foxglove (desktop, or
 its web app pointed at ws://127.0.0.1:PORT) shows the robot on its map.
 
-A client may publish a goal on `/goal` (JSON `{"x": E, "y": N}` in map metres,
-or a foxglove PoseInFrame / PoseStamped-like JSON with `pose.position`): it
-is checked as `qnav goal` checks it (finite, inside the robot's local range)
-and queued; the monitor's loop sends it (`take_goals`) as the same
-SET_POSITION_TARGET_LOCAL_NED, so the link is only ever used from one
-thread. The robot's answer comes back as telemetry (POSITION_TARGET_LOCAL_NED,
-or a "goal refused: ..." line on /log); a refused publish is counted and
-logged here.
+Who may connect (issue 43, finding 2: any web page open in the operator's
+browser can open a WebSocket to 127.0.0.1, and the bridge sends on the
+monitor's link, with its signing key). foxglove-sdk 0.30's server shows a
+listener nothing of the handshake (a client is an id), so `HandshakeGate`
+stands in front of it: it owns the public port, reads the HTTP upgrade
+request and relays the connection, byte for byte, to the SDK's server on a
+random loopback address (127.x.y.z: a page cannot find it by scanning
+127.0.0.1) only when
+
+- the request has no Origin header (a non-browser client: it is not a web
+  page), or its Origin is one of the allowed ones (`DEFAULT_ORIGINS`, or
+  exactly the `--foxglove-origin` list); else HTTP 403;
+- with a token (`--foxglove-token`), the request carries it: the query
+  parameter `?token=...` of the URL (`ws://127.0.0.1:8765/?token=...`, what
+  Foxglove's Open connection dialog takes) or a header
+  `Authorization: Bearer ...`; else HTTP 401.
+
+Read-only unless goals are enabled (`--foxglove-goals`): only then does the
+server offer client publishing. A client may then publish a goal on `/goal`
+(JSON `{"x": E, "y": N}` in map metres, or a foxglove PoseInFrame /
+PoseStamped-like JSON with `pose.position`): it is checked as `qnav goal`
+checks it (finite, inside the robot's local range) and queued; the monitor's
+loop sends it (`take_goals`) as SET_POSITION_TARGET_LOCAL_NED, so the link
+is only ever used from one thread, and only while the robot's latest
+HEARTBEAT (at most `GOAL_HEARTBEAT_AGE_S` old) says Guided: otherwise the
+goal is dropped with a line on stderr and on `/log`. The bridge never
+switches the mode: the operator puts the robot in Guided (and the robot
+itself refuses a position target in any other mode). The robot's answer
+comes back as telemetry (POSITION_TARGET_LOCAL_NED, or a "goal refused: ..."
+line on /log); a refused publish is counted and logged here.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hmac
 import json
 import logging
 import math
 import queue
+import random
+import socket
+import threading
+from collections.abc import Callable, Iterable
 from typing import Any
+from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
 from ground_station.logs.mcap_run import TopicSink
 from ground_station.logs.topics import RunTopics
@@ -27,6 +56,13 @@ from ground_station.logs.topics import RunTopics
 log = logging.getLogger("qnav.foxglove")
 GOAL_TOPIC = "/goal"
 DEFAULT_PORT = 8765  # Foxglove's own default
+# Origins a browser client may come from without --foxglove-origin: Foxglove's web app
+# (https://app.foxglove.dev, pointed at ws://127.0.0.1:PORT). Any other page is refused.
+DEFAULT_ORIGINS = ("https://app.foxglove.dev",)
+GUIDED = 15  # HEARTBEAT custom_mode of Guided (ArduPilot Rover numbering, firmware_py.vehicle.Mode)
+GOAL_HEARTBEAT_AGE_S = 3.0  # a goal needs a HEARTBEAT saying Guided at most this old
+HEAD_LIMIT = 16384  # bytes of an HTTP upgrade request
+HEAD_TIMEOUT_S = 5.0
 
 
 def parse_goal(data: bytes) -> tuple[float, float]:
@@ -52,18 +88,190 @@ def parse_goal(data: bytes) -> tuple[float, float]:
     return x, y
 
 
-class FoxgloveBridge:
-    """See the module docstring. `feed(msg, t)` for every received message."""
+def normalise_origin(origin: str) -> str:
+    """An origin as browsers send it: scheme://host[:port], lower case, no trailing slash."""
+    return origin.strip().rstrip("/").lower()
 
-    def __init__(self, port: int = DEFAULT_PORT, grid_map=None) -> None:
+
+class HandshakeGate:
+    """A TCP front for the SDK's WebSocket server (see the module docstring):
+    `check(head)` says why a handshake is refused ("" = relay it). Listens on
+    (host, port) at once (an error raises here); `close()` stops it and
+    every relayed connection."""
+
+    def __init__(self, upstream: tuple[str, int], host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
+                 origins: Iterable[str] = DEFAULT_ORIGINS, token: str | None = None,
+                 on_refuse: Callable[[str], None] | None = None) -> None:
+        self.upstream = upstream
+        self.origins = frozenset(normalise_origin(o) for o in origins)
+        self.token = token or None
+        self.on_refuse = on_refuse
+        self.refused = 0
+        self.relayed = 0
+        self._listener = socket.create_server((host, port))
+        self.port = self._listener.getsockname()[1]
+        self._socks: set[socket.socket] = set()
+        self._lock = threading.Lock()
+        self._closed = False
+        threading.Thread(target=self._accept, name="foxglove-gate", daemon=True).start()
+
+    def check(self, head: bytes) -> tuple[int, str, bytes]:
+        """(HTTP status, reason, head to relay) of one upgrade request; status 0 = relay."""
+        try:
+            text = head.decode("latin-1")
+            request_line, *lines = text.split("\r\n")
+            method, target, _version = request_line.split(" ", 2)
+        except ValueError:
+            return 400, "not an HTTP request", b""
+        headers: dict[str, list[str]] = {}
+        for line in lines:
+            if ":" in line:
+                name, value = line.split(":", 1)
+                headers.setdefault(name.strip().lower(), []).append(value.strip())
+        origins = headers.get("origin", [])
+        if len(origins) > 1:
+            return 403, "more than one Origin header", b""
+        if origins and normalise_origin(origins[0]) not in self.origins:
+            return 403, f"Origin {origins[0]!r} not allowed (add it with --foxglove-origin)", b""
+        parts = urlsplit(target)
+        query = parse_qsl(parts.query, keep_blank_values=True)
+        if self.token is not None:
+            given = [v for k, v in query if k == "token"]
+            given += [v[7:].strip() for v in headers.get("authorization", []) if v[:7].lower() == "bearer "]
+            if not any(hmac.compare_digest(g.encode(), self.token.encode()) for g in given):
+                return 401, "no valid token (?token=... in the URL or Authorization: Bearer ...)", b""
+        # the token goes no further than here
+        relayed_target = urlunsplit(("", "", parts.path or "/", urlencode([(k, v) for k, v in query if k != "token"]), ""))
+        if method != "GET":
+            return 400, f"{method} is not a WebSocket upgrade", b""
+        return 0, "", (" ".join((method, relayed_target, _version)) + "\r\n" + "\r\n".join(lines)).encode("latin-1")
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _addr = self._listener.accept()
+            except OSError:  # closed
+                return
+            threading.Thread(target=self._serve, args=(client,), name="foxglove-gate-conn", daemon=True).start()
+
+    def _track(self, sock: socket.socket) -> bool:
+        with self._lock:
+            if self._closed:
+                return False
+            self._socks.add(sock)
+            return True
+
+    def _forget(self, *socks: socket.socket) -> None:
+        with self._lock:
+            for sock in socks:
+                self._socks.discard(sock)
+        for sock in socks:
+            with contextlib.suppress(OSError):
+                sock.close()
+
+    def _serve(self, client: socket.socket) -> None:
+        if not self._track(client):
+            client.close()
+            return
+        upstream = None
+        try:
+            client.settimeout(HEAD_TIMEOUT_S)
+            buf = b""
+            while b"\r\n\r\n" not in buf:
+                chunk = client.recv(4096)
+                if not chunk or len(buf) + len(chunk) > HEAD_LIMIT:
+                    return
+                buf += chunk
+            head, rest = buf.split(b"\r\n\r\n", 1)
+            status, why, relay_head = self.check(head)
+            if status:
+                self.refused += 1
+                phrase = {400: "Bad Request", 401: "Unauthorized", 403: "Forbidden"}.get(status, "Forbidden")
+                body = f"qnav monitor: {why}\n".encode()
+                client.sendall(f"HTTP/1.1 {status} {phrase}\r\nContent-Type: text/plain\r\n"
+                               f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n".encode() + body)
+                if self.on_refuse is not None:
+                    self.on_refuse(why)
+                return
+            upstream = socket.create_connection(self.upstream, timeout=HEAD_TIMEOUT_S)
+            if not self._track(upstream):
+                return
+            client.settimeout(None)
+            upstream.settimeout(None)
+            upstream.sendall(relay_head + b"\r\n\r\n" + rest)
+            self.relayed += 1
+            back = threading.Thread(target=self._pump, args=(upstream, client), name="foxglove-gate-down",
+                                    daemon=True)
+            back.start()
+            self._pump(client, upstream)
+            back.join()
+        except OSError:
+            pass
+        finally:
+            self._forget(client, *((upstream,) if upstream is not None else ()))
+
+    @staticmethod
+    def _pump(src: socket.socket, dst: socket.socket) -> None:
+        try:
+            while True:
+                data = src.recv(65536)
+                if not data:
+                    break
+                dst.sendall(data)
+        except OSError:
+            pass
+        finally:  # one side ended: end both directions
+            for sock in (src, dst):
+                with contextlib.suppress(OSError):
+                    sock.shutdown(socket.SHUT_RDWR)
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            socks = list(self._socks)
+        with contextlib.suppress(OSError):
+            self._listener.close()
+        for sock in socks:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+
+
+def _hidden_loopback_server(start: Callable[[str], Any]) -> tuple[Any, str]:
+    """`start(host)` on a random 127.x.y.z address (Linux routes all of 127/8 to
+    the loopback), so that only the gate knows where the SDK's server is; where
+    the system has 127.0.0.1 only, there (with a warning: a page that finds its
+    port passes no gate)."""
+    rng = random.SystemRandom()
+    for _ in range(3):
+        host = f"127.{rng.randrange(1, 255)}.{rng.randrange(0, 256)}.{rng.randrange(1, 255)}"
+        try:
+            return start(host), host
+        except Exception as exc:  # noqa: BLE001 - foxglove raises its own error type for a bind failure
+            last = exc
+    log.warning("Foxglove bridge: cannot bind a random loopback address (%s); the server behind the "
+                "origin check listens on 127.0.0.1", last)
+    return start("127.0.0.1"), "127.0.0.1"
+
+
+class FoxgloveBridge:
+    """See the module docstring. `feed(msg, t)` for every received message.
+    `goals`: clients may publish /goal (else the server is read-only);
+    `origins`, `token`: what `HandshakeGate` lets in."""
+
+    def __init__(self, port: int = DEFAULT_PORT, grid_map=None, *, goals: bool = False,
+                 origins: Iterable[str] = DEFAULT_ORIGINS, token: str | None = None) -> None:
         import foxglove
 
         self.topics = RunTopics(grid_map)
         self.context = foxglove.Context()
         self.sink = TopicSink(self.context)
+        self.goals_enabled = goals
         self.goals: queue.SimpleQueue[tuple[float, float]] = queue.SimpleQueue()
         self.refused_goals = 0
+        self.dropped_goals = 0  # parsed, but the robot was not in Guided
         self._client_topics: dict[tuple[int, int], str] = {}
+        self._said: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()  # lines for /log, from any thread
+        self._log_ns = 0
         bridge = self
 
         class Listener(foxglove.ServerListener):
@@ -76,20 +284,71 @@ class FoxgloveBridge:
             def on_message_data(self, client: Any, client_channel_id: int, data: bytes) -> None:
                 bridge._on_client_message(bridge._client_topics.get((client.id, client_channel_id), ""), data)
 
-        self.server = foxglove.start_server(name="qnav", host="127.0.0.1", port=port, context=self.context,
-                                            capabilities=[foxglove.Capability.ClientPublish],
-                                            supported_encodings=["json"], server_listener=Listener())
-        self.port = self.server.port
+        def start(host: str) -> Any:
+            return foxglove.start_server(name="qnav", host=host, port=0, context=self.context,
+                                         capabilities=[foxglove.Capability.ClientPublish] if goals else [],
+                                         supported_encodings=["json"], server_listener=Listener())
+
+        self.server, self.server_host = _hidden_loopback_server(start)
+        try:
+            self.gate = HandshakeGate((self.server_host, self.server.port), port=port, origins=origins,
+                                      token=token, on_refuse=self._on_refused)
+        except BaseException:
+            self.server.stop()
+            raise
+        self.port = self.gate.port
         self.sink.write(self.topics.map_grid(0))
+
+    def _on_refused(self, why: str) -> None:
+        self.say(f"refused a WebSocket client: {why}", warning=True)
+
+    def say(self, text: str, warning: bool = False) -> None:
+        """A line from the bridge: stderr (logging) now, `/log` on the monitor's next poll."""
+        (log.warning if warning else log.info)("Foxglove bridge: %s", text)
+        self._said.put((text, warning))
+
+    def flush_log(self, t_wall: float) -> None:
+        """The lines `say` queued, onto /log (called from the monitor's thread)."""
+        from foxglove import messages as fm
+
+        from ground_station.logs.topics import Record
+
+        while True:
+            try:
+                text, warning = self._said.get_nowait()
+            except queue.Empty:
+                return
+            ns = max(self.topics.robot_ns(t_wall) or 0, self._log_ns)
+            self._log_ns = ns
+            self.sink.write([Record("/log", fm.Log(timestamp=fm.Timestamp(ns // 1_000_000_000, ns % 1_000_000_000),
+                                                   level=fm.LogLevel.Warning if warning else fm.LogLevel.Info,
+                                                   message=text, name="qnav monitor"), ns)])
 
     def _on_client_message(self, topic: str, data: bytes) -> None:
         if topic != GOAL_TOPIC:
+            return
+        if not self.goals_enabled:  # the server offers no publishing then; never act on it regardless
+            self.refused_goals += 1
+            self.say("goal from Foxglove refused: the bridge is read-only (qnav monitor --foxglove-goals)",
+                     warning=True)
             return
         try:
             self.goals.put(parse_goal(bytes(data)))
         except ValueError as exc:  # never raised into the server's thread
             self.refused_goals += 1
-            log.warning("goal from Foxglove refused: %s", exc)
+            self.say(f"goal from Foxglove refused: {exc}", warning=True)
+
+    def guided_now(self, t_wall: float) -> tuple[bool, str]:
+        """Whether the followed robot's latest HEARTBEAT (at most GOAL_HEARTBEAT_AGE_S old) says Guided."""
+        view = self.topics.view
+        age = view.heartbeat_age(t_wall)
+        if view.mode is None or age is None:
+            return False, "no HEARTBEAT from the robot yet"
+        if age > GOAL_HEARTBEAT_AGE_S:
+            return False, f"the robot's last HEARTBEAT is {age:.1f} s old"
+        if view.mode != GUIDED:
+            return False, f"the robot is in {view.mode_name}, not Guided (set mode Guided first)"
+        return True, ""
 
     def feed(self, msg, t_wall: float) -> None:
         self.sink.write(self.topics.mavlink(msg, t_wall))
@@ -103,7 +362,10 @@ class FoxgloveBridge:
                 return out
 
     def close(self) -> None:
-        self.server.stop()
+        try:
+            self.gate.close()
+        finally:
+            self.server.stop()
 
 
 class BridgedSource:
@@ -123,16 +385,23 @@ class BridgedSource:
         batch = self.source.poll(limit)
         for msg, t in batch:
             self.bridge.feed(msg, t)
+        now = self.now()
         for x, y in self.bridge.take_goals():
-            self.send_goal(x, y)
+            ok, why = self.bridge.guided_now(now)
+            if ok:
+                self.send_goal(x, y)
+            else:
+                self.bridge.dropped_goals += 1
+                self.bridge.say(f"goal from Foxglove x={x:.2f} y={y:.2f} m dropped: {why}", warning=True)
+        self.bridge.flush_log(now)
         return batch
 
     def send_goal(self, x: float, y: float) -> None:
-        """What `qnav goal X Y` sends (the robot switches to Guided and echoes or refuses)."""
+        """What `qnav goal X Y` sends once the robot is in Guided (the robot echoes or refuses it)."""
         conn = self.source.conn
         conn.mav.set_position_target_local_ned_send(0, conn.target_system or 1, conn.target_component or 1,
                                                     1, 0xFFF8, y, x, 0, 0, 0, 0, 0, 0, 0, 0, 0)  # MAV_FRAME_LOCAL_NED
-        log.info("goal from Foxglove sent: x=%.2f y=%.2f m", x, y)
+        self.bridge.say(f"goal from Foxglove sent: x={x:.2f} y={y:.2f} m")
 
     def now(self) -> float:
         return float(self.source.now())

@@ -61,14 +61,14 @@ def test_goal_refused_without_arm_or_policy():
     ctrl = Controller(policy=None)
     rig = Rig(ctrl, Kinematic(0, 0, 0))
     rig.tick()
-    assert ctrl.set_goal(1000, 0) == (False, "disarmed: arm first")
+    assert ctrl.go_to(1000, 0) == (False, "disarmed: arm first")
     ctrl.arm()
-    assert ctrl.set_goal(1000, 0) == (False, "no policy loaded")
+    assert ctrl.go_to(1000, 0) == (False, "no policy loaded")
 
 
 def test_sector_policy_drives_to_goal_then_holds():
     rig, ctrl = sector_rig()
-    assert ctrl.set_goal(1500, 1000) == (True, "")
+    assert ctrl.go_to(1500, 1000) == (True, "")
     assert ctrl.state == CtrlState.DRIVING and ctrl.mode == Mode.GUIDED
     rig.run_until(lambda: ctrl.state == CtrlState.HOLD, 400)
     assert math.hypot(rig.plant.x - 1500, rig.plant.y - 1000) <= robot_spec.GOAL_TOLERANCE_MM + 25
@@ -90,7 +90,7 @@ def test_cell_policy_drives_cell_by_cell_to_the_target():
     rig = armed_rig(pol, pose=(*start, -1571))  # facing south
     ctrl = rig.ctrl
     goal = robot_spec.cell_center_mm(0, 3, 4)
-    assert ctrl.set_goal(*goal) == (True, "")
+    assert ctrl.go_to(*goal) == (True, "")
     visited = []
 
     def track():
@@ -104,14 +104,14 @@ def test_cell_policy_drives_cell_by_cell_to_the_target():
     assert math.hypot(rig.plant.x - goal[0], rig.plant.y - goal[1]) <= robot_spec.GOAL_TOLERANCE_MM
     # the other target of the same table
     goal2 = robot_spec.cell_center_mm(3, 0, 4)
-    assert ctrl.set_goal(*goal2) == (True, "")
+    assert ctrl.go_to(*goal2) == (True, "")
     rig.run_until(lambda: ctrl.state == CtrlState.HOLD, 1200)
     assert math.hypot(rig.plant.x - goal2[0], rig.plant.y - goal2[1]) <= robot_spec.GOAL_TOLERANCE_MM
 
 
 def test_cell_goal_must_be_a_policy_target():
     rig = armed_rig(cell_bfs_policy(OPEN4, [(3, 3)]))
-    ok, why = rig.ctrl.set_goal(*robot_spec.cell_center_mm(2, 2, 4))
+    ok, why = rig.ctrl.go_to(*robot_spec.cell_center_mm(2, 2, 4))
     assert not ok and "(2,2) is not a policy target" in why
 
 
@@ -119,7 +119,7 @@ def test_stale_sensors_fault_and_zero_within_one_period():
     cfg = VehicleConfig(sensor_timeout_ms=250)
     rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0), cfg=cfg)
     ctrl = rig.ctrl
-    ctrl.set_goal(5000, 0)
+    ctrl.go_to(5000, 0)
     for _ in range(5):
         rig.tick()
     assert rig.commands[-1].left_mm_s == 400
@@ -134,7 +134,7 @@ def test_stale_sensors_fault_and_zero_within_one_period():
     assert (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
     assert rig.ctrl.status().state == CtrlState.FAULT
     # recovery only through disarm, and arm needs fresh data
-    assert ctrl.set_goal(1000, 0)[0] is False
+    assert ctrl.go_to(1000, 0)[0] is False
     ctrl.disarm()
     assert ctrl.state == CtrlState.STANDBY
     rig.tick()
@@ -144,19 +144,19 @@ def test_stale_sensors_fault_and_zero_within_one_period():
 
 def test_bumper_stops_and_blocks_new_goals():
     rig, ctrl = sector_rig()
-    ctrl.set_goal(5000, 0)
+    ctrl.go_to(5000, 0)
     rig.tick()
     rig.tick(bumper=True)
     assert ctrl.state == CtrlState.HOLD and ctrl.transitions[-1].cause == "bumper pressed"
     assert (rig.commands[-1].left_mm_s, rig.commands[-1].right_mm_s) == (0, 0)
-    assert ctrl.set_goal(5000, 0) == (False, "bumper pressed")
+    assert ctrl.go_to(5000, 0) == (False, "bumper pressed")
     rig.tick()
-    assert ctrl.set_goal(5000, 0) == (True, "")
+    assert ctrl.go_to(5000, 0) == (True, "")
 
 
 def test_estop_latches_until_disarm_and_rearm():
     rig, ctrl = sector_rig()
-    ctrl.set_goal(5000, 0)
+    ctrl.go_to(5000, 0)
     rig.tick()
     rig.tick(estop=True)
     assert ctrl.state == CtrlState.FAULT and ctrl.fault == "e-stop engaged"
@@ -165,13 +165,13 @@ def test_estop_latches_until_disarm_and_rearm():
     rig.tick()  # e-stop released: still latched
     assert ctrl.state == CtrlState.FAULT
     assert ctrl._errors & ERR_ESTOP
-    assert ctrl.set_goal(5000, 0)[0] is False
+    assert ctrl.go_to(5000, 0)[0] is False
     ctrl.disarm()
     rig.tick(estop=True)
     assert ctrl.arm() == (False, "e-stop is active")
     rig.tick()
     assert ctrl.arm() == (True, "")
-    assert ctrl.set_goal(5000, 0) == (True, "")
+    assert ctrl.go_to(5000, 0) == (True, "")
 
 
 def test_driver_estop_flag_and_driver_fault():
@@ -190,7 +190,7 @@ def test_driver_estop_flag_and_driver_fault():
 def test_wheel_speeds_clamped_to_configured_limit():
     cfg = VehicleConfig(max_wheel_speed_mm_s=300, speed_scale_pct=250)
     rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0), cfg=cfg)
-    rig.ctrl.set_goal(5000, 3000)
+    rig.ctrl.go_to(5000, 3000)
     for _ in range(30):
         rig.tick()
     sent = [c for c in rig.commands if c is not None]
@@ -210,7 +210,7 @@ def test_lockstep_answers_every_tick_with_its_counter_and_zero_when_idle():
 def test_watchdog_zeroes_a_stalled_decision_path():
     rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0), cfg=VehicleConfig(motor_timeout_ms=200))
     ctrl = rig.ctrl
-    ctrl.set_goal(5000, 0)
+    ctrl.go_to(5000, 0)
     rig.tick()
     assert ctrl.watchdog.output(rig.t) == (400, 400)
     assert ctrl.watchdog.output(rig.t + 150_000) == (400, 400)
@@ -225,7 +225,7 @@ def test_policy_hot_swap_refused_while_driving_and_keeps_last_good(tmp_path):
     p = tmp_path / "new.qtab"
     enc = first.encoder
     p.write_bytes(dump_policy(enc, first.table.tolist(), "int8", 0.5, policy_id=22, map_geometry=first.map_geometry))
-    ctrl.set_goal(5000, 0)
+    ctrl.go_to(5000, 0)
     rig.tick()
     assert ctrl.activate_policy(str(p)) == (False, "refused while driving: stop first")
     assert ctrl.policy.policy_id == 11
@@ -264,7 +264,7 @@ def test_mission_items_reached_in_order_then_hold():
 def test_gcs_failsafe_holds():
     rig = armed_rig(sector_seek_policy(), pose=(0, 0, 0),
                     cfg=VehicleConfig(gcs_failsafe_action=FailsafeAction.HOLD))
-    rig.ctrl.set_goal(5000, 0)
+    rig.ctrl.go_to(5000, 0)
     rig.tick()
     rig.ctrl.set_failsafe(True)
     assert rig.ctrl.state == CtrlState.HOLD and rig.ctrl.status().failsafe
@@ -285,6 +285,6 @@ def test_cell_primitive_turns_to_grid_heading_from_any_start_heading(heading):
     pol = cell_bfs_policy(OPEN4, [(3, 1)])
     start = robot_spec.cell_center_mm(1, 1, 4)
     rig = armed_rig(pol, pose=(*start, heading))
-    rig.ctrl.set_goal(*robot_spec.cell_center_mm(3, 1, 4))
+    rig.ctrl.go_to(*robot_spec.cell_center_mm(3, 1, 4))
     rig.run_until(lambda: rig.ctrl.state == CtrlState.HOLD, 400)
     assert abs(rig.plant.y - start[1]) < 40  # drove along the row, not diagonally

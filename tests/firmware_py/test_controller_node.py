@@ -93,7 +93,7 @@ def test_lockstep_arm_and_drive_then_sensor_silence_faults(rig):
     sim, ctrl, node = rig
     t = warm_up(sim, 2)
     assert ctrl.arm() == (True, "")
-    assert ctrl.set_goal(3000, 0) == (True, "")
+    assert ctrl.go_to(3000, 0) == (True, "")
     k = 2
     for f in sensor_frames():
         sim.send(f)

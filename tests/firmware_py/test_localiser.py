@@ -171,7 +171,7 @@ def test_goal_refused_while_not_localised_and_runs_on_odometry_without_a_map():
     ok, why = ctrl.localise_global(explore=False)
     assert ok, why
     ctrl.armed = True  # the rest of _can_drive is covered by the controller tests
-    ok, why = ctrl.set_goal(4250, 4250)
+    ok, why = ctrl.go_to(4250, 4250)
     assert not ok and why.startswith("not localised")
     assert not ctrl.status().localised and ctrl.status().localiser == "global"
     off = Controller(policy=pol, localise=False)

@@ -212,7 +212,7 @@ def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
     rig = Rig(ctrl, Kinematic(1000, 2250, 0))
     rig.tick()
     assert ctrl.arm() == (True, "")
-    assert ctrl.set_goal(3750, 2250) == (True, "")
+    assert ctrl.go_to(3750, 2250) == (True, "")
     rig.tick(ranges_mm=[2000] * N, range_status=[FAR] * N)
     assert ctrl.target_mm is None and rig.last_motor.left_mm_s == rig.last_motor.right_mm_s > 0  # straight on
     fr, fs = front(400)
@@ -223,7 +223,7 @@ def test_controller_steers_on_the_sub_goal_and_resets_per_goal():
     rig.tick(ranges_mm=fr, range_status=fs)
     assert ctrl.target_mm is not None and abs(ctrl.target_mm[1] - 2250) > 100
     assert rig.last_motor.left_mm_s != rig.last_motor.right_mm_s  # turning toward the side-step
-    assert ctrl.set_goal(1000, 4250) == (True, "")
+    assert ctrl.go_to(1000, 4250) == (True, "")
     rig.tick(ranges_mm=[2000] * N, range_status=[FAR] * N)
     assert ctrl.target_mm is None  # a new goal with a clear way: the goal itself
 

@@ -169,7 +169,7 @@ def test_policy_telemetry_holds_the_decision_in_force_while_driving(kind):
     rig.tick()
     assert ctrl.arm() == (True, "")
     assert ctrl.status().action == -1  # armed, no goal: nothing in force
-    assert ctrl.set_goal(*goal) == (True, "")
+    assert ctrl.go_to(*goal) == (True, "")
     samples = []
 
     def sample():

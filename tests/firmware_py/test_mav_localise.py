@@ -34,7 +34,7 @@ def test_command_starts_global_localisation_and_goals_wait_for_it(tmp_path):
     assert result == m.MAV_RESULT_ACCEPTED
     assert ctrl.status().localiser == "global" and not ctrl.status().localised
     ctrl.armed = True  # the rest of _can_drive is covered by the controller tests
-    ok, why = ctrl.set_goal(4250, 4250)
+    ok, why = ctrl.go_to(4250, 4250)
     assert not ok and why.startswith("not localised")
 
 

@@ -40,7 +40,7 @@ def test_sim_clock_refuses_a_far_jump_and_keeps_following_real_ticks():
 def test_encoder_jump_is_a_fault_with_the_reason_and_does_not_move_the_pose():
     rig = armed_rig(sector_seek_policy())
     ctrl = rig.ctrl
-    assert ctrl.set_goal(3000, 250)[0]
+    assert ctrl.go_to(3000, 250)[0]
     for _ in range(5):
         rig.tick()
     assert ctrl.state == CtrlState.DRIVING
@@ -97,7 +97,7 @@ def test_encoder_jump_limit_is_the_boundary(over):
 def test_a_sensor_frame_whose_counter_stops_goes_stale_within_the_timeout(frozen):
     rig = armed_rig(sector_seek_policy())
     ctrl = rig.ctrl
-    assert ctrl.set_goal(3000, 250)[0]
+    assert ctrl.go_to(3000, 250)[0]
     counters = {"ranges0": 0, "ranges1": 0, "enc": 0, "bumper": 0, "driver": 0}  # driver: MotorStatus
     t_frozen = None
     tmo = ctrl.cfg.sensor_timeout_ms * 1000
@@ -125,7 +125,7 @@ def test_robot_node_drops_a_far_future_sim_tick_and_keeps_detecting_stale_sensor
     node.start()
     try:
         t = warm_up(sim, 3)
-        assert ctrl.arm() == (True, "") and ctrl.set_goal(3000, 0)[0]
+        assert ctrl.arm() == (True, "") and ctrl.go_to(3000, 0)[0]
         sim.send(cp.sim_tick(3, 10**12))  # forged: far in the future, the next counter
         for f in sensor_frames():
             sim.send(f)

@@ -50,7 +50,7 @@ def test_controller_warns_when_the_policy_stalls_and_not_when_it_drives():
         rig = Rig(ctrl, Kinematic(250, 250, 0))
         rig.tick()
         assert ctrl.arm() == (True, "")
-        assert ctrl.set_goal(5000, 250) == (True, "")
+        assert ctrl.go_to(5000, 250) == (True, "")
         ctrl.drain_events()
         period = VehicleConfig().control_period_us
         texts = []

@@ -168,7 +168,7 @@ def _drive(pol, gm, start: tuple[int, int], heading: float, goal: tuple[int, int
 
     rig.tick(**readings())
     assert ctrl.arm() == (True, "")
-    assert ctrl.set_goal(gx, gy) == (True, "")
+    assert ctrl.go_to(gx, gy) == (True, "")
     for _ in range(max_ticks):
         rig.tick(**readings())
         assert not disc_hits(occ, h, w, c, plant.x, plant.y, float(robot_spec.ROBOT_RADIUS_MM)), "wall contact"
@@ -224,7 +224,7 @@ def test_controller_waits_for_valid_axis_readings_then_counts_a_dropout_as_block
         return {"ranges_mm": [int(v) for v in ranges], "range_status": st}
 
     rig.tick(**readings(False))
-    assert ctrl.arm() == (True, "") and ctrl.set_goal(*robot_spec.cell_center_mm(*goal, h, int(c))) == (True, "")
+    assert ctrl.arm() == (True, "") and ctrl.go_to(*robot_spec.cell_center_mm(*goal, h, int(c))) == (True, "")
     for _ in range(GRID_INVALID_RETRY_TICKS):
         rig.tick(**readings(True))
         assert ctrl._state_index == -1 and (rig.last_motor.left_mm_s, rig.last_motor.right_mm_s) == (0, 0)
@@ -235,6 +235,6 @@ def test_controller_waits_for_valid_axis_readings_then_counts_a_dropout_as_block
     plant2 = Kinematic(x0, y0, 0.0)
     rig2 = Rig(ctrl2, plant2)
     rig2.tick(**readings(False))
-    assert ctrl2.arm() == (True, "") and ctrl2.set_goal(*robot_spec.cell_center_mm(*goal, h, int(c))) == (True, "")
+    assert ctrl2.arm() == (True, "") and ctrl2.go_to(*robot_spec.cell_center_mm(*goal, h, int(c))) == (True, "")
     rig2.tick(**readings(False))
     assert ctrl2._action == 0 and ctrl2.driver.memory.mode == 0

@@ -2,7 +2,8 @@
 Foxglove's WebSocket protocol (the `websockets` package speaking
 foxglove.sdk.v1, the subprotocol foxglove-sdk 0.30 serves; protobuf decoded from the advertised schema): the pose
 and scan topics arrive decodable at the telemetry rate, and a goal published
-on /goal drives the sim robot to a target (issue 31)."""
+on /goal (`--foxglove-goals`, the robot set to Guided by the operator: issue
+43) drives the sim robot to a target (issue 31)."""
 
 from __future__ import annotations
 
@@ -77,10 +78,13 @@ async def _session(ws_port: int, sitl_port: int, goal_m: tuple[float, float]) ->
 
         await read_for(3.0)
         got["poses_in_3s"] = len(got["pose"])
-        # arm from another ground station (as an operator's QGC would), then the goal through the bridge
-        code = await asyncio.to_thread(cli.main, ["arm", "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--no-tlog",
-                                                  "--source-component", "26", "--timeout", "20"])
-        assert code == 0
+        # arm and set Guided from another ground station (as an operator's QGC would), then the goal
+        # through the bridge (it forwards goals only while the robot is in Guided, issue 43)
+        for argv in (["arm"], ["mode", "guided"]):
+            code = await asyncio.to_thread(cli.main, [*argv, "--mavlink", f"udpout:127.0.0.1:{sitl_port}",
+                                                      "--no-tlog", "--source-component", "26", "--timeout", "20"])
+            assert code == 0, argv
+        await read_for(2.0)  # the bridge's view hears the Guided HEARTBEAT
         await ws.send(json.dumps({"op": "advertise", "channels": [
             {"id": 7, "topic": "/goal", "encoding": "json", "schemaName": "qnav.Goal"}]}))
         await asyncio.sleep(0.5)
@@ -105,7 +109,7 @@ def test_foxglove_bridge_streams_pose_and_scan_and_a_published_goal_drives_the_r
         env = child_env()
         monitor = subprocess.Popen(
             [sys.executable, "-m", "ground_station.cli", "monitor", "--plain", "--foxglove", "--port", str(ws_port),
-             "--mavlink", f"udpout:127.0.0.1:{sitl.port}", "--no-tlog", "--duration", "240"],
+             "--mavlink", f"udpout:127.0.0.1:{sitl.port}", "--no-tlog", "--duration", "240", "--foxglove-goals"],
             cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
             text=True)
         line = ""

@@ -48,7 +48,7 @@ def test_refused_while_driving_and_when_corrupt_then_activated_with_last_good(tm
     c = FtpClient(server)
 
     c.put("/policies/new.qtab", policy_bytes(22))
-    assert ctrl.set_goal(5000, 0) == (True, "")
+    assert ctrl.go_to(5000, 0) == (True, "")
     rig.tick()
     assert ctrl.state == CtrlState.DRIVING
     r = c.activate("/policies/new.qtab")

@@ -72,7 +72,7 @@ def drive(pol):  # type: ignore[no-untyped-def]
     ctrl = Controller(VehicleConfig(), pol, start_pose_mm=(250, 250, 0), localise=False)
     rig = Rig(ctrl, Kinematic(250, 250, 0.0))
     rig.tick()
-    assert ctrl.arm() == (True, "") and ctrl.set_goal(4750, 250) == (True, "")
+    assert ctrl.arm() == (True, "") and ctrl.go_to(4750, 250) == (True, "")
     seen = []
     for ranges in ([2000] * 8, [200] * 8):  # clear, then something close ahead
         rig.tick(ranges_mm=ranges)
