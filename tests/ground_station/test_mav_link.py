@@ -105,7 +105,7 @@ def test_mission_targets_upload_download_and_auto_run(rig):
     port, start, tmp = rig
     r = start()
     code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D")  # no --map, and the robot has none
-    assert code == 2 and "the robot's active policy carries no map: give --map" in out, out
+    assert code == 2 and "the robot has no /maps/active.map and its active policy carries no map: give --map" in out, out
     code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D", "--map", "paper10")
     assert code == 0 and "4 waypoints" in out, out
     # paper10 targets A (2,2) B (9,0) C (0,9) D (9,7), 0.5 m cells, 10 rows
@@ -213,9 +213,13 @@ def test_source_ids_default_apart_from_qgc_and_mavproxy_and_can_be_set(rig):
 
     assert qnav(port, "arm", tlog=tmp / "default.tlog")[0] == 0 and r.vehicle.st.armed
     assert sent_from(tmp / "default.tlog") == {(255, 25)}
+    # another system id is used as given; the robot takes control from SYSID_MYGCS (255) only (issue 43)
     code, out = qnav(port, "disarm", "--source-system", "254", "--source-component", "26", tlog=tmp / "set.tlog")
-    assert code == 0 and not r.vehicle.st.armed, out
+    assert code == 3 and "DENIED" in out and "SYSID_MYGCS" in out and r.vehicle.st.armed, out
     assert sent_from(tmp / "set.tlog") == {(254, 26)}
+    code, out = qnav(port, "disarm", "--source-component", "26", tlog=tmp / "own.tlog")
+    assert code == 0 and not r.vehicle.st.armed, out
+    assert sent_from(tmp / "own.tlog") == {(255, 26)}
     for bad in (["--source-system", "0"], ["--source-component", "256"], ["--source-system", "x"]):
         with pytest.raises(SystemExit) as exc:
             qnav(port, "arm", *bad)
