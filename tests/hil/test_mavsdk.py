@@ -90,7 +90,7 @@ async def mode_becomes(drone, name: str, timeout_s: float = 20.0) -> bool:
 
 
 def mavsdk_url(sitl: SitlProcess) -> str:
-    line = sitl.expect(r'MAVSDK\s+System\(\)\.connect\(system_address="(\S+)"\)')
+    line = sitl.expect(r'MAVSDK\s+System\(sysid=255\)\.connect\(system_address="(\S+)"\)')
     return line.split('system_address="')[1].split('"')[0]
 
 
