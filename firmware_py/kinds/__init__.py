@@ -9,7 +9,7 @@ firmware_py.kinds.sector_memory). The loader (`firmware_py.policy`), the writer
 and the controller find a kind only through `of_code`, `of_name` and
 `of_policy`; a new kind is a module with a `PolicyKind` passed to `register`.
 
-Kind codes of experiments removed from qnav (docs/research.md) are reserved in
+Kind codes of experiments removed from qnav (docs/research.md; commit e026a1b has them) are reserved in
 `REMOVED`: never reused, and a file of one is refused by name.
 """
 
@@ -21,7 +21,7 @@ __all__ = ["Decision", "DriveTick", "KindDriver", "PolicyKind", "Unpacked", "REM
            "register", "unregister", "of_code", "of_name", "of_policy", "names"]
 
 REMOVED = {3: "sector-memory-tick", 5: "sector-unmapped"}
-REMOVED_AT = "research-experiments"  # the git tag of the last commit that has them
+REMOVED_AT = "e026a1b"  # the last commit that has them (docs/research.md)
 
 _BY_NAME: dict[str, PolicyKind] = {}
 _BY_CODE: dict[int, PolicyKind] = {}

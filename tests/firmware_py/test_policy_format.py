@@ -322,7 +322,7 @@ def test_a_removed_experiment_kind_is_refused_by_name(code, name):
     header alone, with a valid CRC, gets one line naming the kind and where it still runs."""
     head = HEADER.pack(MAGIC, 2, 0, HEADER.size, 0, code, 1, 4, 405, 0x1234, 1_700_000_000, 0.5, 0, 0,
                        robot_spec.CONTROL_PERIOD_US, 500, 10, 10)
-    want = f"policy kind {name} was an experiment, removed from qnav; git checkout research-experiments to run it"
+    want = f"policy kind {name} was an experiment, removed from qnav; git checkout e026a1b to run it"
     with pytest.raises(PolicyError) as err:
         load_policy(head + CRC.pack(zlib.crc32(head)))
     assert str(err.value) == want
