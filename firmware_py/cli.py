@@ -413,6 +413,7 @@ def _run(args: argparse.Namespace, onboard: Any) -> int:
         "encoder_jumps": ctrl.encoder_jumps,
         # commands the collision monitor slowed or stopped (control/collision.py)
         "collision_slow_ticks": ctrl.collision_ticks["slow"], "collision_stop_ticks": ctrl.collision_ticks["stop"],
+        "stalls": ctrl.stall.count,  # drives held for getting nowhere for NAV_STALL_S (control/progress.py)
         "profile": prof.source if prof else None, "drive_backend": prof.drive.backend if prof else "qnav",
         "sensor_backend": prof.sensors.backend if prof else "qnav", **node.drive.stats(),
         "planner_searches": ctrl.background.runs, "planner_search_cpu_s": ctrl.background.cpu_ns / 1e9,

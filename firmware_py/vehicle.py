@@ -67,6 +67,9 @@ class VehicleConfig:
     collision_stop_mm: int = 50
     collision_slow_mm: int = 200
     collision_slow_pct: int = 50
+    # a drive that neither gets closer to its goal nor moves for this long (robot clock) is reported
+    # and held (control/progress.StallWatch; 0: off)
+    nav_stall_s: int = 20
 
     @property
     def control_period_us(self) -> int:

@@ -452,6 +452,17 @@ class Controller(Activation):
         self.goal = None
         self._transition(CtrlState.HOLD, why if why.startswith("no route") else "no route: " + why)
 
+    def _stalled(self, why: str, dist: int) -> None:
+        """The drive got nowhere for NAV_STALL_S (control/progress.StallWatch): say why (STATUSTEXT,
+        warning) and hold, as ArduPilot's rover holds on a failsafe and nav2's progress checker
+        aborts the goal; the mission item stays current, so mode Auto tries it again."""
+        item = f"item {self.route.seq}: " if self.mode == Mode.AUTO else ""
+        self._event("stall", f"{item}stalled: {why}, {dist} mm to go", SEV_WARNING,
+                    seq=self.route.seq if self.mode == Mode.AUTO else -1)
+        self.mode = Mode.HOLD
+        self.goal = None
+        self._transition(CtrlState.HOLD, f"stalled: {why}", SEV_WARNING)
+
     def _drive(self, inp: Inputs, now_us: int) -> None:
         assert self.goal is not None and self.policy is not None and self.driver is not None
         dist, bearing = self.nav.goal_vector(*self.goal)
@@ -464,6 +475,12 @@ class Controller(Activation):
         if stalled:
             item = f"item {self.route.seq}: " if self.mode == Mode.AUTO else ""
             self._event("info", item + stalled, SEV_WARNING)
+        x_mm, y_mm, _ = self.nav.pose_mm()
+        why = self.stall.update(now_us, (self.goal, self._driving_since_us), dist, x_mm, y_mm,
+                                self.cfg.nav_stall_s * 1_000_000)
+        if why:
+            self._stalled(why, dist)
+            return
         # the kind decides (firmware_py.kinds); the controller only scales, clamps and feeds the watchdog
         d = self.driver.step(DriveTick(
             now_us=now_us, goal=self.goal, goal_index=self._goal_index, drive_key=(self.goal, self._driving_since_us),
@@ -531,6 +548,12 @@ class Controller(Activation):
                 self._cm_stop_since_us = None
         else:
             self._cm_stop_since_us = None
+        if self.state == CtrlState.DRIVING:  # what the stall watch tells the reason by
+            inp = self._inputs
+            shut = self._cm_stop_since_us is not None or (not (left or right) and collision.travel_gap_mm(
+                inp.ranges_mm, inp.range_status, False) < self.cfg.collision_slow_mm)
+            self.stall.note(bool(left or right), shut,
+                            None if inp.enc_us is None else (inp.enc_left, inp.enc_right))
         if tick is not None:
             counter = tick & 0xFFFFFF
         else:

@@ -24,7 +24,7 @@ from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.manual import ManualSticks
 from firmware_py.control.odometry import Odometry
 from firmware_py.control.plausibility import InputFreshness
-from firmware_py.control.progress import ProgressWatch
+from firmware_py.control.progress import ProgressWatch, StallWatch
 from firmware_py.control.route import Route
 from firmware_py.control.safety import EStopLatch, MotorWatchdog
 from firmware_py.kinds import KindDriver
@@ -85,6 +85,7 @@ class ControlState:
         self.route = Route()  # the mission and its item in force
         self._events: deque[VehicleEvent] = deque(maxlen=256)
         self.progress = ProgressWatch()  # STATUSTEXT when the way is blocked
+        self.stall = StallWatch()  # a drive getting nowhere for NAV_STALL_S: reported and held
         self.transitions: deque[Transition] = deque(maxlen=1024)
         self._now = 0
         self._inputs = Inputs()

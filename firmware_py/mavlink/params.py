@@ -119,6 +119,9 @@ PARAMS: tuple[ParamDef, ...] = (
              "collision_slow_mm"),
     ParamDef("CM_SLOW_PCT", _CFG.collision_slow_pct, 0, 100,
              "collision monitor: speed in the slow zone (% of the command)", "collision_slow_pct"),
+    ParamDef("NAV_STALL_S", _CFG.nav_stall_s, 0, 600,
+             "a drive that neither gets closer to its goal nor moves for this long (s, robot clock) is "
+             "reported (STATUSTEXT with the reason) and held (0 = off)", "nav_stall_s"),
     # --- read-only mirrors of the vehicle status ------------------------------
     ParamDef("POLICY_ID", 0, 0, 2**32 - 1,
              "id of the active policy (read-only; float32 on the wire, exact in the two 16-bit halves below)",

@@ -49,6 +49,8 @@ NV_CTRL_STATE = "CTRL_ST"
 NV_STATE_INDEX = "STATE_IDX"
 NV_ACTION = "ACTION"
 _QROW_RE = re.compile(r"^Q(\d+)$")
+# the robot's stall report (firmware_py.control.controller.Controller._stalled): "[item N: ]stalled: WHY, D mm to go"
+_STALL_RE = re.compile(r"^(item \d+: )?stalled: ")
 POLICY_PARAM = "POLICY_ID"  # read-only parameter (firmware_py/mavlink/params.py)
 # its exact halves: a 32-bit id does not survive the float32 of PARAM_VALUE (0xb5d6060c arrived as 3050702336)
 POLICY_ID_HALVES = ("POLICY_ID_HI", "POLICY_ID_LO")
@@ -220,6 +222,7 @@ class VehicleView:
         self.mission = Mission()
         self.log: deque[LogLine] = deque(maxlen=_LOG_MAX)
         self.log_total = 0  # lines ever appended (the deque keeps the last _LOG_MAX)
+        self.stalls = 0  # the robot's stall reports heard (drives it held for getting nowhere, NAV_STALL_S)
         self._texts = StatusTextAssembler()
         self.last_ack: tuple[int, int] | None = None  # (command, result)
         self.counts: dict[str, int] = {}
@@ -572,6 +575,7 @@ class VehicleView:
     def _log_texts(self, texts: list[StatusText]) -> None:
         for st in texts:
             self._append_log(LogLine(st.t, st.severity, st.text, self.robot_clock()))
+            self.stalls += bool(_STALL_RE.match(st.text))
 
     def _append_log(self, line: LogLine) -> None:
         self.log.append(line)
@@ -626,5 +630,6 @@ class VehicleView:
             f"action={self.action if self.action is not None and self.action >= 0 else '-'}",
             f"q=[{q}]",
             f"mission={self.mission_progress} reached={self.mission_reached_count}",
+            f"stalls={self.stalls}",
         ]
         return " ".join(parts)
