@@ -11,7 +11,14 @@ every child is stopped on the way out (SIGINT so the sim writes its CAN log
 and trajectory, then SIGTERM, SIGKILL) and the hub last.
 
 Nothing here drives the robot: MAVProxy, QGroundControl, MAVSDK or `qnav`
-connect with the strings `connection_help()` prints. Before reporting "up"
+connect with the strings `connection_help()` prints. On UDP (`udpin:`, the
+default, or `udpout:`) the robot sits behind a relay
+(`ground_station.mavlink.tlog_relay.TlogRelay`) that owns that connection
+string and records every frame both ways into the run folder's
+`mavlink.tlog`, whatever ground station connects, or none; on stop,
+`run.mcap` is built from it, the CAN log, the ground truth, robot.log and
+the map (what `qnav log mcap` builds, the same topics as `qnav demo`'s),
+with a progress line each second. Before reporting "up"
 the robot's HEARTBEAT is awaited through a short-lived probe that announces
 itself as an onboard controller (not a GCS), so the robot's GCS failsafe is
 not armed by it. At `speed` > 1 the probe raises FS_GCS_TOUT_MS and
@@ -36,12 +43,14 @@ from firmware_py.mavlink.telemetry import DEFAULT_AUTOPILOT
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from ground_station.errors import CliError
 from ground_station.mavlink.link import check_url
+from ground_station.mavlink.tlog_relay import TlogRelay, relayable
 from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
 
 DEFAULT_MAP = "paper10"
 DEFAULT_MAVLINK = "udpin:127.0.0.1:14555"  # the robot listens; GCSs connect to it (14550 stays free for QGC)
 SHIPPED_FOR_MAP = {"paper10": "policies:paper10_cell"}
 FALLBACK_POLICY = "policies:sector"  # observes ranges and bearings: runs on any map
+PROGRESS_PERIOD_S = 1.0  # run.mcap progress lines on stop
 SIM_DURATION_S = 30 * 24 * 3600  # the sim's own end: far away, the wait ends it
 # the robot's timeouts on its own clock (sim time) that a ground station's wall-clock pace must meet:
 # scaled by the speed at start, within the robot's own bounds (module docstring)
@@ -214,7 +223,8 @@ def connection_help(info: SitlInfo) -> list[str]:
     if foreign:
         lines.append(f"  the profile's {' and '.join(foreign)} frames are not in qnav.dbc: no cantools decoder "
                      "here; the tools above show every frame raw")
-    lines += [f"run folder {info.run_dir} (sim.log, robot.log; can.blf, trajectory.csv and run.mcap when stopped)",
+    lines += [f"run folder {info.run_dir} (sim.log, robot.log"
+              + (", mavlink.tlog" if "tlog" in info.logs else "") + "; can.blf, trajectory.csv and run.mcap when stopped)",
               "Ctrl-C stops every process"]
     return lines
 
@@ -274,6 +284,7 @@ class Sitl:
         self.say = say or (lambda _line: None)
         self.procs = ProcessGroup()
         self.hub: CanHub | None = None
+        self.relay: TlogRelay | None = None
         self.info: SitlInfo | None = None
         self.exit_codes: dict[str, int | None] = {}
 
@@ -299,6 +310,14 @@ class Sitl:
                 raise SitlError(f"CAN hub: {exc}") from None
             can_spec = hub.spec
         logs = {"sim": run_dir / "sim.log", "robot": run_dir / "robot.log"}
+        robot_mavlink = opts.mavlink
+        if relayable(opts.mavlink):  # the run's own telemetry record (module docstring)
+            try:
+                self.relay = TlogRelay(opts.mavlink, run_dir / "mavlink.tlog")
+            except OSError as exc:
+                raise SitlError(f"--mavlink {opts.mavlink}: {exc.strerror or exc}") from None
+            robot_mavlink = self.relay.robot_url()
+            logs["tlog"] = self.relay.tlog_path
         info = SitlInfo(run_dir=run_dir, mavlink=opts.mavlink, gcs_url=gcs_side(opts.mavlink), can_spec=can_spec,
                         hub=self.hub is not None, policy=policy or "none", start=start, logs=logs)
         if opts.profile is not None:
@@ -312,14 +331,24 @@ class Sitl:
                             "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
                             "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q",
                             *(["--profile", str(opts.profile)] if opts.profile is not None else []))
-        # the robot knows the world it is in (a policy for another map is refused, naming both)
+        # the robot knows the world it is in (a policy for another map is refused, naming both): the map is
+        # in its storage as the one `qnav map upload` leaves (/maps/active.map, its targets beside it), which
+        # it serves to ground stations over MAVLink FTP, as a real robot's
+        from firmware_py.atomic import atomic_write
+        from firmware_py.storage import ACTIVE_MAP
         from ground_station.maps import write_map
+        from ground_station.mavlink.robot_map import MAP_TARGETS, targets_file
 
         write_map(run_dir / "map.map", world)
+        map_text = (run_dir / "map.map").read_bytes()
+        atomic_write(run_dir / "robot" / ACTIVE_MAP.lstrip("/"), map_text, make_parents=True)
+        name = Path(opts.map_name).stem if opts.map_name.endswith(".map") else opts.map_name
+        atomic_write(run_dir / "robot" / MAP_TARGETS.lstrip("/"), targets_file(map_text, name, world.targets))
         robot_argv = qnav_robot("--can", can_spec, "--lockstep" if opts.lockstep else "--sim-clock", "--start", start,
-                                "--map", run_dir / "map.map", "--cell-size", f"{world.cell_size_m:g}",
+                                "--map", run_dir / "robot" / ACTIVE_MAP.lstrip("/"),  # a refusal ends it loudly
+                                "--cell-size", f"{world.cell_size_m:g}",
                                 "--storage", run_dir / "robot",
-                                "--mavlink", opts.mavlink, "--mavlink-autopilot", opts.autopilot,
+                                "--mavlink", robot_mavlink, "--mavlink-autopilot", opts.autopilot,
                                 "--stats-json", run_dir / "robot_stats.json",
                                 *(["--profile", str(opts.profile)] if opts.profile is not None else []))
         if policy:  # the robot boots it from its storage, as a real robot does: its FTP server then
@@ -410,29 +439,53 @@ class Sitl:
             time.sleep(poll_s)
 
     def stop(self) -> dict[str, int | None]:
-        self.exit_codes = self.procs.stop_all()
-        if self.hub is not None:
-            self.hub.stop()
-            self.hub = None
+        if self.procs.children:
+            self.say("stopping the sim and the robot" + (", then writing run.mcap" if self.info is not None else ""))
+        try:
+            self.exit_codes = self.procs.stop_all()
+        finally:
+            if self.relay is not None:  # after the robot: its last frames are in the tlog
+                self.relay.close()
+                self.relay = None
+            if self.hub is not None:
+                self.hub.stop()
+                self.hub = None
         if self.info is not None:
             self._write_mcap(self.info.run_dir)
         return self.exit_codes
 
     def _write_mcap(self, run_dir: Path) -> None:
-        """run.mcap from what the sim and robot wrote (CAN log, ground truth, robot.log) and the map; the
-        GCS's own tlog is the GCS's (`qnav log mcap RUN_DIR --tlog FILE` adds it)."""
-        can_log, traj = run_dir / "can.blf", run_dir / "trajectory.csv"
-        if not can_log.is_file():
+        """run.mcap from the relay's mavlink.tlog, what the sim and robot wrote (CAN log, ground truth,
+        robot.log) and the map: the whole run, as `qnav log mcap RUN_DIR` makes it; a progress line
+        each second while it is written."""
+        can_log, traj, tlog = run_dir / "can.blf", run_dir / "trajectory.csv", run_dir / "mavlink.tlog"
+        tlog_ok = tlog.is_file() and tlog.stat().st_size > 0
+        if not can_log.is_file() and not tlog_ok:
             return
         from ground_station.logs.mcap_run import write_run_mcap
         from ground_station.maps import load_map
 
+        robot_log = run_dir / "robot.log"
+        inputs = [p for p in (tlog if tlog_ok else None, can_log, traj, robot_log) if p is not None and p.is_file()]
+        size_mb = sum(p.stat().st_size for p in inputs) / 1e6
+        self.say(f"writing {run_dir / 'run.mcap'} from {', '.join(p.name for p in inputs)} ({size_mb:.1f} MB): 0%")
+        last = [time.monotonic()]
+
+        def progress(frac: float) -> None:
+            now = time.monotonic()
+            if now - last[0] >= PROGRESS_PERIOD_S and frac < 1.0:
+                last[0] = now
+                self.say(f"writing run.mcap: {frac:.0%}")
+
+        started = time.monotonic()
         try:
-            robot_log = run_dir / "robot.log"
-            write_run_mcap(run_dir / "run.mcap", None, can_log=can_log,
-                           trajectory=traj if traj.is_file() else None, grid_map=load_map(self.opts.map_name),
-                           robot_log=robot_log if robot_log.is_file() else None)
+            s = write_run_mcap(run_dir / "run.mcap", tlog if tlog_ok else None,
+                               can_log=can_log if can_log.is_file() else None,
+                               trajectory=traj if traj.is_file() else None, grid_map=load_map(self.opts.map_name),
+                               robot_log=robot_log if robot_log.is_file() else None, progress=progress)
         except Exception as exc:  # noqa: BLE001 - the bring-up's clean-up says it and goes on
             self.say(f"run.mcap not written: {type(exc).__name__}: {exc}")
             return
-        self.say(f"wrote {run_dir / 'run.mcap'} (CAN, ground truth, map; open it in Foxglove)")
+        what = ("telemetry (mavlink.tlog), " if tlog_ok else "no telemetry (the robot's MAVLink is not UDP), ")
+        self.say(f"wrote {run_dir / 'run.mcap'} in {time.monotonic() - started:.1f} s: {what}CAN, ground truth, "
+                 f"map, robot log; {len(s.messages)} topics (open it in Foxglove)")

@@ -9,7 +9,14 @@
 With --foxglove the same telemetry is published live for Foxglove (open
 ws://127.0.0.1:P in Foxglove desktop or its web app): the robot's pose on its
 map, range sectors, the mission, the log, every MAVLink message
-(ground_station/logs/topics.py). Live links only.
+(ground_station/logs/topics.py). Live links only. Clients offering either
+subprotocol, foxglove.sdk.v1 (Foxglove) or foxglove.websocket.v1
+(Lichtblick, older Foxglove Studio), are served.
+
+The map (dashboard and /map) is the robot's own, read over MAVLink FTP as
+`qnav mission upload` reads it (its /maps/active.map, else its policy's
+map) once it is heard, and read again when its CRC changes (checked every
+5 s); /map is re-sent to every new subscriber. --map overrides it.
 
 Who may connect: a client without an Origin header (not a web page), or a
 browser page from an allowed origin (default https://app.foxglove.dev;
@@ -46,12 +53,14 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
     add_link_args(p, url_default=None,
                   timeout_help="live --plain: exit 4 if no robot is heard within S seconds (> 0, default 10)")
-    p.add_argument("--map", metavar="NAME|PATH", default="paper10",
-                   help="map drawn under the robot: built-in name, generator spec or .map path "
-                        "(default paper10; 'none' for a blank field)")
+    p.add_argument("--map", metavar="NAME|PATH",
+                   help="map drawn under the robot: built-in name, generator spec or .map path; 'none' for a "
+                        "blank field (default: the robot's own map, read over MAVLink FTP; paper10 in a --replay)")
     p.add_argument("--cell-size", type=float, default=0.5, metavar="M", help="map cell size in metres (default 0.5)")
     p.add_argument("--plain", action="store_true", help="no dashboard: print one status line per second")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S wall seconds (live --plain)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="live --plain: stop after S wall-clock seconds; line stamps are the robot's clock (sim "
+                        "time in HIL: at `qnav sitl --speed 4` it runs 4x wall time)")
     p.add_argument("--until-done", action="store_true",
                    help="live --plain: stop once the robot says 'mission complete' or enters FAULT "
                         "(exit 0 / 3; --duration still bounds the wait: exit 4 if it ends first)")
@@ -172,8 +181,21 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--foxglove-origin, --foxglove-token and --foxglove-goals need --foxglove")
     if args.foxglove_token is not None and not args.foxglove_token.strip():
         raise CliError("--foxglove-token must not be empty")
-    grid_map = None if args.plain and not args.foxglove else _load_map(args.map, args.cell_size)
+    wants_map = not args.plain or args.foxglove
+    map_spec = args.map if args.map is not None else ("paper10" if args.replay else None)
+    grid_map = _load_map(map_spec, args.cell_size) if wants_map and map_spec is not None else None
     source, label = open_source(args)
+    said: list = []  # where the robot-map lines go besides stderr (the bridge's /log)
+
+    def say(line: str) -> None:
+        print(f"qnav monitor: {line}", file=sys.stderr, flush=True)
+        for also in said:
+            also(line)
+
+    if wants_map and map_spec is None:  # the robot's own map (issue 46)
+        from ground_station.monitor.robot_map_source import RobotMapSource
+
+        source = RobotMapSource(source, say, target_system=args.target_system)
     if args.foxglove:
         from ground_station.logs.live import DEFAULT_ORIGINS, BridgedSource, FoxgloveBridge
 
@@ -189,13 +211,17 @@ def run(args: argparse.Namespace) -> int:
               f"({'goals on /goal in Guided' if args.foxglove_goals else 'read-only'}; browser origins: {allowed}"
               f"{'; token required' if args.foxglove_token is not None else ''})", file=sys.stderr, flush=True)
         source = BridgedSource(source, bridge)
+        said.append(bridge.say)
     view = VehicleView(sysid=args.target_system)
     try:
         if args.plain:
             from ground_station.monitor.sources import run_plain
 
             live = not args.replay
+            from ground_station.mavlink.link import where_url_came_from
+
             run_plain(source, view, sys.stdout, duration=args.duration,
+                      where=f" on {label}" if live else "", where_note=where_url_came_from(label) if live else "",
                       no_robot_s=args.timeout if live else None,
                       on_wait=(lambda line: print(f"qnav monitor: {line}", file=sys.stderr, flush=True))
                       if live else None, until=_done if args.until_done else None)

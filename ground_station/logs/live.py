@@ -20,6 +20,23 @@ random loopback address (127.x.y.z: a page cannot find it by scanning
   Foxglove's Open connection dialog takes) or a header
   `Authorization: Bearer ...`; else HTTP 401.
 
+Both subprotocol names are served (issue 46, item 2): foxglove-sdk 0.30's
+server accepts only `foxglove.sdk.v1` (HTTP 400 otherwise), the name the
+Foxglove SDK gave the protocol of the ws-protocol spec, whose subprotocol
+is `foxglove.websocket.v1` (what Lichtblick, Foxglove Studio before the
+SDK, PlotJuggler's and roslibjs-foxglove's clients offer). The messages
+are the spec's v1 set under either name (foxglove-sdk's own
+`websocket::ws_protocol` is the v1 message set; Foxglove's stance, quoted
+in Lichtblick PR #819, is that the two are identical for now). So for a
+client that offers `foxglove.websocket.v1` and not `foxglove.sdk.v1` the
+gate offers the SDK `foxglove.sdk.v1` in its place and gives the client
+back `foxglove.websocket.v1` in the 101 answer; the frames after it are
+relayed untouched.
+
+The map (`/map`) is latched: the bridge sends it again whenever a client
+subscribes to it (the SDK's `on_subscribe`, acted on by the monitor's next
+poll) and when `set_map` gives a new one (the robot's map changed).
+
 Read-only unless goals are enabled (`--foxglove-goals`): only then does the
 server offer client publishing. A client may then publish a goal on `/goal`
 (JSON `{"x": E, "y": N}` in map metres, or a foxglove PoseInFrame /
@@ -61,7 +78,9 @@ DEFAULT_PORT = 8765  # Foxglove's own default
 DEFAULT_ORIGINS = ("https://app.foxglove.dev",)
 GUIDED = 15  # HEARTBEAT custom_mode of Guided (ArduPilot Rover numbering, firmware_py.vehicle.Mode)
 GOAL_HEARTBEAT_AGE_S = 3.0  # a goal needs a HEARTBEAT saying Guided at most this old
-HEAD_LIMIT = 16384  # bytes of an HTTP upgrade request
+HEAD_LIMIT = 16384  # bytes of an HTTP upgrade request (and of the SDK's 101 answer)
+SDK_SUBPROTOCOL = "foxglove.sdk.v1"  # the only name foxglove-sdk 0.30's server accepts
+LEGACY_SUBPROTOCOL = "foxglove.websocket.v1"  # the ws-protocol spec's name of the same protocol
 HEAD_TIMEOUT_S = 5.0
 
 
@@ -93,6 +112,37 @@ def normalise_origin(origin: str) -> str:
     return origin.strip().rstrip("/").lower()
 
 
+def offered_subprotocols(head: bytes) -> list[str]:
+    """The subprotocols an upgrade request offers, in order."""
+    out = []
+    for line in head.decode("latin-1").split("\r\n")[1:]:
+        name, sep, value = line.partition(":")
+        if sep and name.strip().lower() == "sec-websocket-protocol":
+            out += [v.strip() for v in value.split(",") if v.strip()]
+    return out
+
+
+def as_sdk_request(head: bytes) -> tuple[bytes, bool]:
+    """(head to relay, legacy): a request offering `foxglove.websocket.v1` but not `foxglove.sdk.v1`
+    offers the SDK `foxglove.sdk.v1` instead (legacy True); any other request unchanged."""
+    offered = offered_subprotocols(head)
+    if SDK_SUBPROTOCOL in offered or LEGACY_SUBPROTOCOL not in offered:
+        return head, False
+    lines = head.decode("latin-1").split("\r\n")
+    kept = [lines[0]] + [ln for ln in lines[1:] if ln.partition(":")[0].strip().lower() != "sec-websocket-protocol"]
+    return "\r\n".join([*kept, f"Sec-WebSocket-Protocol: {SDK_SUBPROTOCOL}"]).encode("latin-1"), True
+
+
+def as_legacy_answer(head: bytes) -> bytes:
+    """The SDK's answer to a legacy client: its `Sec-WebSocket-Protocol: foxglove.sdk.v1` says
+    `foxglove.websocket.v1` (the subprotocol the client offered)."""
+    lines = head.decode("latin-1").split("\r\n")
+    out = [f"{ln.partition(':')[0]}: {LEGACY_SUBPROTOCOL}"
+           if ln.partition(":")[0].strip().lower() == "sec-websocket-protocol"
+           and ln.partition(":")[2].strip() == SDK_SUBPROTOCOL else ln for ln in lines]
+    return "\r\n".join(out).encode("latin-1")
+
+
 class HandshakeGate:
     """A TCP front for the SDK's WebSocket server (see the module docstring):
     `check(head)` says why a handshake is refused ("" = relay it). Listens on
@@ -108,6 +158,7 @@ class HandshakeGate:
         self.on_refuse = on_refuse
         self.refused = 0
         self.relayed = 0
+        self.legacy = 0  # clients let in with foxglove.websocket.v1
         self._listener = socket.create_server((host, port))
         self.port = self._listener.getsockname()[1]
         self._socks: set[socket.socket] = set()
@@ -193,12 +244,23 @@ class HandshakeGate:
                 if self.on_refuse is not None:
                     self.on_refuse(why)
                 return
+            relay_head, legacy = as_sdk_request(relay_head)
             upstream = socket.create_connection(self.upstream, timeout=HEAD_TIMEOUT_S)
             if not self._track(upstream):
                 return
+            upstream.sendall(relay_head + b"\r\n\r\n" + rest)
+            if legacy:  # the SDK's 101 answer, its subprotocol put back to the one offered
+                answer = b""
+                while b"\r\n\r\n" not in answer:
+                    chunk = upstream.recv(4096)
+                    if not chunk or len(answer) + len(chunk) > HEAD_LIMIT:
+                        return
+                    answer += chunk
+                answer_head, after = answer.split(b"\r\n\r\n", 1)
+                client.sendall(as_legacy_answer(answer_head) + b"\r\n\r\n" + after)
+                self.legacy += 1
             client.settimeout(None)
             upstream.settimeout(None)
-            upstream.sendall(relay_head + b"\r\n\r\n" + rest)
             self.relayed += 1
             back = threading.Thread(target=self._pump, args=(upstream, client), name="foxglove-gate-down",
                                     daemon=True)
@@ -271,10 +333,16 @@ class FoxgloveBridge:
         self.dropped_goals = 0  # parsed, but the robot was not in Guided
         self._client_topics: dict[tuple[int, int], str] = {}
         self._said: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()  # lines for /log, from any thread
+        self._map_wanted = threading.Event()  # a client subscribed to /map: send it again (latched)
+        self.map_sends = 0
         self._log_ns = 0
         bridge = self
 
         class Listener(foxglove.ServerListener):
+            def on_subscribe(self, client: Any, channel: Any) -> None:
+                if channel.topic == "/map":  # the monitor's thread sends it (never from the server's)
+                    bridge._map_wanted.set()
+
             def on_client_advertise(self, client: Any, channel: Any) -> None:
                 bridge._client_topics[(client.id, channel.id)] = channel.topic
 
@@ -297,7 +365,25 @@ class FoxgloveBridge:
             self.server.stop()
             raise
         self.port = self.gate.port
-        self.sink.write(self.topics.map_grid(0))
+        self._write_map(0)
+
+    def _write_map(self, ns: int) -> None:
+        records = self.topics.map_grid(ns, again=True)
+        self.sink.write(records)
+        self.map_sends += len(records)
+
+    def set_map(self, grid_map, t_wall: float) -> None:
+        """A new map (the robot's, read or changed): sent now to every subscriber of /map."""
+        self.topics.grid_map = grid_map
+        self._map_wanted.clear()
+        self._write_map(self.topics.robot_ns(t_wall) or 0)
+
+    def flush_map(self, t_wall: float) -> None:
+        """The map again if a client subscribed to /map since the last call (called from the monitor's
+        thread)."""
+        if self._map_wanted.is_set():
+            self._map_wanted.clear()
+            self._write_map(self.topics.robot_ns(t_wall) or 0)
 
     def _on_refused(self, why: str) -> None:
         self.say(f"refused a WebSocket client: {why}", warning=True)
@@ -376,6 +462,16 @@ class BridgedSource:
         self.source = source
         self.bridge = bridge
         self.link = getattr(source, "link", None)
+        self._map_version = getattr(source, "map_version", 0)
+
+    @property
+    def grid_map(self):
+        """The robot's map, when the wrapped source reads it (`RobotMapSource`)."""
+        return getattr(self.source, "grid_map", None)
+
+    @property
+    def map_version(self) -> int:
+        return int(getattr(self.source, "map_version", 0))
 
     @property
     def finished(self) -> bool:
@@ -386,6 +482,10 @@ class BridgedSource:
         for msg, t in batch:
             self.bridge.feed(msg, t)
         now = self.now()
+        if self.map_version != self._map_version:  # the robot's map, read or changed
+            self._map_version = self.map_version
+            self.bridge.set_map(self.grid_map, now)
+        self.bridge.flush_map(now)
         for x, y in self.bridge.take_goals():
             ok, why = self.bridge.guided_now(now)
             if ok:

@@ -7,14 +7,26 @@ and renamed over it when complete."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from firmware_py.mavlink.dialect import NAME as DIALECT
 from ground_station.logs.topics import Record, RunTopics, json_schema
+
+PROGRESS_EVERY = 2000  # records between two progress calls
+
+
+def _tell(reader) -> int:
+    """Bytes of a python-can reader's file read so far (0 if it does not say)."""
+    try:
+        return int(reader.file.tell())
+    except (AttributeError, OSError, ValueError):
+        return 0
 
 
 class McapError(Exception):
@@ -68,23 +80,24 @@ def find_run_files(target: Path) -> tuple[Path | None, Path | None, Path | None,
     if not tlogs and can_log is None:
         raise McapError(f"{target}: no .tlog and no can.blf in the run folder")
     traj = target / "trajectory.csv"
-    map_name = None
+    map_name = str(target / "map.map") if (target / "map.map").is_file() else None  # a qnav sitl folder
     summary = target / "summary.json"
     if summary.is_file():
         import json
 
-        try:
-            map_name = json.loads(summary.read_text()).get("map")
-        except (OSError, ValueError):
-            map_name = None
+        with contextlib.suppress(OSError, ValueError):
+            map_name = json.loads(summary.read_text()).get("map") or map_name
     return (tlogs[0] if tlogs else None), can_log, traj if traj.is_file() else None, map_name
 
 
 def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | None, *,
                    can_log: str | os.PathLike[str] | None = None,
                    trajectory: str | os.PathLike[str] | None = None, grid_map=None,
-                   robot_log: str | os.PathLike[str] | None = None) -> McapSummary:
-    """Convert a run (see the module docstring); returns what was written."""
+                   robot_log: str | os.PathLike[str] | None = None,
+                   progress: Callable[[float], None] | None = None) -> McapSummary:
+    """Convert a run (see the module docstring); returns what was written. `progress(fraction)` is
+    called every PROGRESS_EVERY records read (the share of the input files' bytes read so far; 1.0 at
+    the end)."""
     import foxglove
     from pymavlink import mavutil
 
@@ -94,6 +107,17 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
     summary = McapSummary(str(out))
     ctx = foxglove.Context()
     sink = TopicSink(ctx)
+    inputs = [p for p in (tlog, can_log, robot_log, trajectory) if p is not None]
+    total = max(1, sum(os.path.getsize(p) for p in inputs if os.path.isfile(p)))
+    done = 0  # bytes of the files already read whole
+    count = 0
+
+    def tick(pos: int) -> None:
+        nonlocal count
+        count += 1
+        if progress is not None and count % PROGRESS_EVERY == 0:
+            progress(min(1.0, (done + pos) / total))
+
     try:
         writer = foxglove.open_mcap(str(tmp), allow_overwrite=True, context=ctx)
         try:
@@ -109,8 +133,10 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
                             continue
                         summary.mavlink_messages += 1
                         sink.write(topics.mavlink(msg, float(getattr(msg, "_timestamp", 0.0))))
+                        tick(log.f.tell())
                 finally:
                     log.close()
+                done += os.path.getsize(tlog)
             if can_log is not None:
                 import can
 
@@ -123,21 +149,33 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
                         continue
                     summary.can_frames += 1
                     sink.write(topics.can_frame(frame.arbitration_id, bytes(frame.data), frame.timestamp))
+                    tick(_tell(reader))
+                done += os.path.getsize(can_log)
             if robot_log is not None:
                 with open(robot_log, encoding="utf-8", errors="replace") as f:
+                    pos = 0
                     for line in f:
                         recs = topics.robot_log_line(line)
                         summary.robot_log_lines += len(recs)
                         sink.write(recs)
+                        pos += len(line)
+                        tick(pos)
+                done += os.path.getsize(robot_log)
             if trajectory is not None:
                 with open(trajectory, newline="") as f:
+                    pos = 0
                     for row in csv.DictReader(f):
                         summary.truth_samples += 1
                         sink.write(topics.truth(float(row["t_s"]), float(row["x_m"]), float(row["y_m"]),
                                                 float(row["heading_rad"])))
+                        pos += sum(len(v or "") + 1 for v in row.values())  # about the row's bytes
+                        tick(pos)
+                done = total
         finally:
             writer.close()
         os.replace(tmp, out)
+        if progress is not None:
+            progress(1.0)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -13,7 +13,7 @@ foxglove-sdk WebSocket server. The same topics either way:
 | `/odom` | foxglove.PoseInFrame | ODOMETRY (raw dead reckoning), when the robot sends it |
 | `/location` | foxglove.LocationFix | GLOBAL_POSITION_INT (the map panel) |
 | `/scan` | foxglove.LaserScan (frame `base_link`) | OBSTACLE_DISTANCE (the range sectors) |
-| `/map` | foxglove.Grid (frame `map`) | the occupancy map, once |
+| `/map` | foxglove.Grid (frame `map`) | the occupancy map: once in a file; live, again for every new subscriber and when the robot's map changes |
 | `/mission` | foxglove.SceneUpdate | MISSION_ITEM_INT (targets as spheres) |
 | `/log` | foxglove.Log | STATUSTEXT (whole texts) |
 | `/robot_log` | foxglove.Log | the robot's own log (robot.log of a run), at its `t=... us` control-clock times |
@@ -132,10 +132,11 @@ class RunTopics:
             return None
         return int(round((self.view.robot_s0 + rel) * 1e9))
 
-    def map_grid(self, ns: int = 0) -> list[Record]:
-        """The occupancy map as a foxglove Grid (row 0 of the data is the map's south edge)."""
+    def map_grid(self, ns: int = 0, again: bool = False) -> list[Record]:
+        """The occupancy map as a foxglove Grid (row 0 of the data is the map's south edge): once, or
+        `again` (the live bridge latches it: re-sent for a new subscriber and when the map changes)."""
         gm = self.grid_map
-        if gm is None or self._map_sent:
+        if gm is None or (self._map_sent and not again):
             return []
         from foxglove import messages as fm
 

@@ -226,6 +226,7 @@ class MonitorApp(App):
         self._drawn_second = -1
         self._panels: dict[str, Static] = {}
         self._timer: Timer | None = None
+        self._map_version = 0
         self.sub_title = subtitle
 
     def compose(self) -> ComposeResult:
@@ -245,17 +246,27 @@ class MonitorApp(App):
 
     def on_mount(self) -> None:
         self._panels = {w.id: w for w in self.query(Static) if w.id}
+        self._map_version = getattr(self.source, "map_version", 0)
+        self._title_map()
+        self._timer = self.set_interval(_POLL_S, self.pump)
+        self.redraw()
+
+    def _title_map(self) -> None:
         title = self.grid_map.name if self.grid_map is not None else "map"
         self._panels["map"].border_title = title
         # the panel is as wide as the map's cells; a longer name would be cut on the border
         self._panels["map"].styles.min_width = max(24, len(title) + 8)
-        self._timer = self.set_interval(_POLL_S, self.pump)
-        self.redraw()
 
     def pump(self) -> None:
         """Drain the source into the view; redraw if anything changed."""
         for msg, t in self.source.poll():
             self.view.update(msg, t)
+        version = getattr(self.source, "map_version", 0)
+        if version != self._map_version:  # the robot's own map, read or changed (RobotMapSource)
+            self._map_version = version
+            self.grid_map = getattr(self.source, "grid_map", None)
+            self._title_map()
+            self.redraw()
         second = int(self.source.now())
         if self.view.version != self._drawn_version or second != self._drawn_second:
             self.redraw()

@@ -180,13 +180,14 @@ class ReplaySource:
 def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: float | None = None,
               period_s: float = 1.0, wall=time.monotonic, no_robot_s: float | None = None,
               on_wait: Callable[[str], None] | None = None,
-              until: Callable[[VehicleView], bool] | None = None) -> int:
+              until: Callable[[VehicleView], bool] | None = None, where: str = "",
+              where_note: str = "") -> int:
     """Feed `view` from `source`, printing a status line every `period_s` of
     source time and a last one at the end. Ends at the end of a replay, after
     `duration` wall seconds, once `until(view)` holds (after a last line), or
     when no vehicle was heard within `no_robot_s` wall seconds (then without a
     status line; the caller sees `view.sysid is None`). `on_wait(line)` is told once what we wait for after 1 s without a
-    vehicle. Returns the number of lines printed."""
+    vehicle (`where`: " on URL", `where_note`: where the URL came from). Returns the number of lines printed."""
     start = wall()
     next_line: float | None = None
     lines = 0
@@ -219,8 +220,9 @@ def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: 
             waited = wall() - start
             if not told and waited >= 1.0:
                 assert on_wait is not None
-                on_wait("waiting for a HEARTBEAT from a robot"
-                        + (f" (up to {no_robot_s:g} s)" if no_robot_s is not None else "") + " ...")
+                detail = "; ".join(x for x in (f"up to {no_robot_s:g} s" if no_robot_s is not None else "",
+                                               where_note) if x)
+                on_wait(f"waiting for a HEARTBEAT from a robot{where}" + (f" ({detail})" if detail else "") + " ...")
                 told = True
             if no_robot_s is not None and waited >= no_robot_s:
                 return lines
@@ -232,9 +234,11 @@ def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: 
 
 
 def _stamp(view: VehicleView, now: float) -> str:
-    """The robot's clock (sim time in HIL) when it sends one, else receive time since the first message."""
+    """The clock, named: `[robot 155.7s]` the robot's (sim time in HIL, which need not be wall time:
+    `qnav sitl --speed 4` runs it at 4x) once it sends one, else `[recv 1.0s]`, the receive time since the
+    first message."""
     robot = view.robot_clock(now)
     if robot is not None:
-        return f"[{robot:8.1f}s] "
+        return f"[robot {robot:8.1f}s] "
     rel = now - view.t0 if view.t0 is not None else 0.0
-    return f"[{rel:8.1f}s] "
+    return f"[recv  {rel:8.1f}s] "
