@@ -1,5 +1,5 @@
 #!/bin/sh
-# What the vcan HIL tests need (docs/hil.md, "vcan0"), set up idempotently:
+# What the vcan HIL tests need (docs/hil.md, "vcan0"), and systemd-analyze for the deploy test, set up idempotently:
 #
 # 1. Debian packages:
 #      user-mode-linux  a Linux kernel as an ordinary process, with the CAN modules
@@ -7,6 +7,8 @@
 #      kmod             insmod, to load those modules inside user-mode Linux
 #      can-utils        candump, cansend, cangen (the interoperability tests)
 #      patchelf         to point a newer UML at its own C library (step 3)
+#      systemd          for systemd-analyze: tests/firmware_py/test_deploy_doc.py runs `systemd-analyze
+#                       verify` on the shipped units (works without systemd as PID 1)
 #    As root on a Debian-like machine the missing ones are installed with
 #    apt-get (non-interactive); otherwise the script says what is missing.
 # 2. Which way to a kernel vcan0 works here: `python -m ground_station.rigs.vcan`
@@ -27,7 +29,7 @@ cd "$(dirname "$0")/.." || exit 0
 say() { echo "install_test_deps: $*"; }
 
 missing=""
-for pkg in user-mode-linux kmod can-utils patchelf; do
+for pkg in user-mode-linux kmod can-utils patchelf systemd; do
     if ! dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed"; then
         missing="$missing $pkg"
     fi
@@ -38,7 +40,7 @@ if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && command -v dpkg-q
     root_apt=yes
 fi
 if [ -z "$missing" ]; then
-    say "user-mode-linux, kmod, can-utils, patchelf already installed"
+    say "user-mode-linux, kmod, can-utils, patchelf, systemd already installed"
 elif [ "$root_apt" = yes ]; then
     say "installing $missing with apt-get (as root, non-interactive)"
     export DEBIAN_FRONTEND=noninteractive

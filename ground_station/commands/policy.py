@@ -3,6 +3,8 @@
 migrate a version 1.x file to the current format.
 `qnav policy attach-map FILE --map NAME [--out NEW.qtab]`: put the training
 map's cells into the file (metadata `map_grid`) for the robot's localiser.
+`qnav policy revert [--mavlink URL]`: make the robot's last good policy its
+active one again, over MAVLink FTP (docs/deploy.md, "Update a policy").
 
 inspect: one line per file (a JSON object per line with `--json`: `file`,
 `valid`, `error` and the header fields, among them `control_period_us` and
@@ -22,6 +24,18 @@ everything else byte for byte, so the table, policy id and creation time are
 unchanged. A cell policy's geometry is its grid; a sector policy's is the
 training map's: --map, else the map named in the file's metadata. Every
 policy trained so far ran the twin at robot_spec.CONTROL_PERIOD_US (50000 us).
+
+revert: the robot keeps the policy it ran before the last activation in
+/policies/last_good.qtab (read-only over FTP). revert reads it, puts it back
+as /policies/revert.qtab and renames that onto /policies/active.qtab, so the
+robot validates and activates it as any `qnav upload --activate` (and refuses
+it the same way, e.g. while driving); the policy it ran becomes the last good
+one, so a second revert goes forward again. It prints the policy ids before
+and after; the verdict is the robot's POLICY_ID/POLICY_CRC parameters and the
+CRC32 of its active.qtab (ground_station/mavlink/policy_revert.py). Exit
+status as `qnav upload`: 0 done, 2 bad arguments, 3 refused (no last good
+policy, already running it, or the robot's refusal, printed), 4 timeout or no
+robot, 5 CRC or policy-id mismatch.
 """
 
 from __future__ import annotations
@@ -33,9 +47,13 @@ import struct
 from firmware_py import robot_spec
 from ground_station.commands import add_actions
 
+REVERT_DEADLINE_S = 300.0  # as `qnav upload`
+REVERT_HEARTBEAT_WAIT_S = 10.0
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    inner = add_actions(sub, "policy", "inspect .qtab policy files", __doc__, "policy_command")
+    inner = add_actions(sub, "policy", "inspect, upgrade and map .qtab policy files; revert the robot's",
+                        __doc__, "policy_command")
     ins = inner.add_parser("inspect", help="validate policy files and print their headers",
                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ins.add_argument("files", nargs="+", metavar="FILE", help=".qtab file(s), or policies:NAME (shipped)")
@@ -59,6 +77,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     help="the training map (default: the map named in the file's metadata)")
     am.add_argument("--out", metavar="NEW.qtab", help="where to write (default: replace FILE atomically)")
     am.set_defaults(func=run_attach_map)
+    from ground_station.mavlink.link import add_link_args
+
+    rv = inner.add_parser("revert", help="make the robot's last good policy active again (MAVLink FTP)",
+                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    rv.add_argument("--attempts", type=int, default=8, help="whole-file put attempts (default %(default)s)")
+    add_link_args(rv, timeout_s=REVERT_DEADLINE_S,
+                  timeout_help=f"give up after this many seconds (default {REVERT_DEADLINE_S:g}; of them at most "
+                               f"{REVERT_HEARTBEAT_WAIT_S:g} s waiting for the robot's heartbeat)")
+    rv.set_defaults(func=run_revert)
 
 
 def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
@@ -168,6 +195,38 @@ def run_attach_map(args: argparse.Namespace) -> int:
         raise CliError(f"{args.file}: {exc}") from None
     out = _replace(args.out or args.file, new)
     print(_line(describe(out)))
+    return 0
+
+
+def run_revert(args: argparse.Namespace) -> int:
+    """`qnav policy revert`: one line before, one after; a LinkError is one line and its exit code."""
+    import sys
+
+    from ground_station.mavlink.link import LinkError, open_link, warn_foreign
+    from ground_station.mavlink.policy_revert import LAST_GOOD_POLICY, revert_policy
+
+    def hexid(v: int | None) -> str:
+        return "unknown" if v is None else f"0x{v:08x}"
+
+    try:
+        link = open_link(args, "policy revert", connect_timeout_s=min(REVERT_HEARTBEAT_WAIT_S, args.timeout))
+    except LinkError as exc:
+        print(f"qnav policy revert: error: {exc}", file=sys.stderr, flush=True)
+        return exc.code
+    def show(before: int | None, last_good: int | None) -> None:
+        running = "none" if before == 0 else hexid(before)
+        print(f"before: the robot runs policy {running}; {LAST_GOOD_POLICY} holds {hexid(last_good)}", flush=True)
+
+    try:
+        with link:
+            res = revert_policy(link, deadline_s=args.timeout, attempts=args.attempts, on_read=show)
+    except LinkError as exc:
+        print(f"qnav policy revert: error: {exc}", file=sys.stderr, flush=True)
+        return exc.code
+    warn_foreign(link, "policy revert")
+    up = res.upload
+    print(f"after: the robot runs policy {hexid(up.policy_id)} (policy CRC {hexid(up.policy_crc)}), "
+          f"confirmed by {up.confirmed_by}")
     return 0
 
 
