@@ -51,6 +51,7 @@ _ROBOT = "a real robot on a radio or CAN bus"
 # documented lines (or their prefix) not run here, and why; they are still parsed
 _WALK = "docs/walkthrough.md's steps, run in order as a new user runs them by tests/hil/test_walkthrough.py"
 NOT_RUN = {
+    "qnav policy revert --mavlink /dev/ttyUSB0": _ROBOT + "; tests/hil/test_policy_revert.py runs it against qnav-robot",
     "make demo": "installs into the shared venv; `qnav demo` runs in tests/hil/test_demo.py",
     "make venv": "the venv this test runs in",
     "qnav train --map warehouse.map": _WALK,

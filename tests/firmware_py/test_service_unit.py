@@ -74,5 +74,5 @@ def test_the_shipped_unit_is_what_print_unit_prints():
     assert run.returncode == 0
     unit = run.stdout
     for line in ("Type=notify", "WatchdogSec=", "Restart=on-failure", "AmbientCapabilities=CAP_SYS_NICE",
-                 "KillSignal=SIGINT", "ExecStart=/usr/bin/env qnav-robot --profile /etc/qnav/robot.toml"):
+                 "KillSignal=SIGINT", "ExecStart=/opt/qnav/bin/qnav-robot --profile /etc/qnav/robot.toml"):
         assert line in unit
