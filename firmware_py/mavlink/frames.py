@@ -56,6 +56,15 @@ def global_to_world(lat_e7: int, lon_e7: int, origin_lat_e7: int, origin_lon_e7:
     return ned_m_to_world(north_m, east_m)
 
 
+def local_item_to_global(x: int, y: int, origin_lat_e7: int, origin_lon_e7: int) -> tuple[int, int]:
+    """A MISSION_ITEM_INT position in MAV_FRAME_LOCAL_NED (x north, y east, metres *
+    LOCAL_ITEM_SCALE) -> (lat_e7, lon_e7) around the origin: what a ground station
+    sends so that maps place the item, and what `global_to_world` brings back to the
+    same world point within 1e-7 deg / 2 (<= 5.6 mm north, <= 5.6 mm * cos(lat0) east)."""
+    x_mm, y_mm = ned_m_to_world(x / LOCAL_ITEM_SCALE, y / LOCAL_ITEM_SCALE)
+    return world_to_global(x_mm, y_mm, origin_lat_e7, origin_lon_e7)
+
+
 def offset_to_world(x_mm: int, y_mm: int, heading_mrad: int, frame_body: bool,
                     x_m: float, y_m: float) -> tuple[int, int]:
     """A position target relative to the robot -> world mm, as ArduPilot Rover

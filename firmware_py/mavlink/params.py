@@ -104,12 +104,14 @@ PARAMS: tuple[ParamDef, ...] = (
              "no GCS heartbeat for this long -> GCS failsafe (robot clock, ms)", "gcs_timeout_ms"),
     ParamDef("FS_GCS_ACTION", int(_CFG.gcs_failsafe_action), 0, 2,
              "GCS failsafe action: 0 none (report only), 1 Hold, 2 disarm", "gcs_failsafe_action"),
+    # the geodetic origin = home: the world's (0, 0) on the Earth, sent as GPS_GLOBAL_ORIGIN and
+    # HOME_POSITION; global mission items and goals are converted around it (docs/mavlink.md, Frames)
     ParamDef("ORIGIN_LAT", _CFG.origin_lat_e7, -900_000_000, 900_000_000,
-             "latitude of the world origin (1e-7 deg)", "origin_lat_e7"),
+             "latitude of the world origin and home (1e-7 deg)", "origin_lat_e7"),
     ParamDef("ORIGIN_LON", _CFG.origin_lon_e7, -1_800_000_000, 1_800_000_000,
-             "longitude of the world origin (1e-7 deg)", "origin_lon_e7"),
+             "longitude of the world origin and home (1e-7 deg)", "origin_lon_e7"),
     ParamDef("ORIGIN_ALT_MM", _CFG.origin_alt_mm, -1_000_000, 10_000_000,
-             "altitude AMSL of the world origin (mm)", "origin_alt_mm"),
+             "altitude AMSL of the world origin and home (mm)", "origin_alt_mm"),
     ParamDef("CELL_SIZE_MM", _CFG.cell_size_mm, 50, 5000, "map cell size (mm)", "cell_size_mm"),
     ParamDef("CM_STOP_MM", _CFG.collision_stop_mm, 0, 1000,
              "collision monitor: no straight motion toward a range reading nearer than this in the "

@@ -31,6 +31,12 @@ OBSTACLE_SECTORS = 72
 OBSTACLE_INCREMENT_DEG = 5
 STATUSTEXT_LEN = 50
 MIN_INTERVAL_US = 10_000
+ORIGIN_INTERVAL_US = 5_000_000  # GPS_GLOBAL_ORIGIN, HOME_POSITION between the prompt sends below
+# A frame heard after this long without any (or the first since boot) means a ground station
+# (re)appeared: it gets GPS_GLOBAL_ORIGIN and HOME_POSITION at once, not up to 5 s later, so a
+# map places the robot and its mission as soon as it connects (robot clock).
+LINK_QUIET_US = 2_000_000
+ORIGIN_PARAMS = ("ORIGIN_LAT", "ORIGIN_LON", "ORIGIN_ALT_MM")
 
 # message id -> stream group; the group's rate comes from params or is fixed
 STREAMS: dict[int, str] = {
@@ -50,6 +56,8 @@ STREAMS: dict[int, str] = {
     M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: "nav",
     # ground speed and compass heading, the HUD every ground station draws (QGC, Mission Planner, MAVProxy)
     M.MAVLINK_MSG_ID_VFR_HUD: "nav",
+    # the geodetic origin (ORIGIN_LAT/LON/ALT_MM; home = origin) every ORIGIN_INTERVAL_US, and at
+    # once when the link comes alive (a GCS appears) or the origin changes: see `due`
     M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: "origin",
     M.MAVLINK_MSG_ID_HOME_POSITION: "origin",
     # localisation (control/localiser.py): LOCAL_POSITION_NED carries the believed pose; these add its
@@ -142,6 +150,10 @@ class Telemetry:
         self.autopilot = int(AUTOPILOTS[DEFAULT_AUTOPILOT])  # HEARTBEAT.autopilot
         self.uid = 0  # AUTOPILOT_VERSION.uid: the robot's own, kept in its storage (node.boot)
         self.metadata_crc = 0  # COMPONENT_METADATA: the general metadata file's CRC (0: none served)
+        # origin announcements (`due`): the receive count last seen, when it last grew, the origin last sent
+        self._rx_seen = 0
+        self._rx_heard_us: int | None = None
+        self._origin_sent: tuple[int, ...] | None = None
 
     # --- intervals ----------------------------------------------------------------
     def default_interval_us(self, msg_id: int) -> int:
@@ -150,7 +162,7 @@ class Telemetry:
         if group == "1hz":
             return 1_000_000
         if group == "origin":
-            return 5_000_000
+            return ORIGIN_INTERVAL_US
         if group in ("pos", "nav"):
             hz = self.params.get("TELEM_POS_HZ" if group == "pos" else "TELEM_NAV_HZ")
             return 1_000_000 // hz if hz > 0 else 0
@@ -182,8 +194,26 @@ class Telemetry:
         self._override.clear()
         self._next_due.clear()
 
+    def announce_origin_if_new(self, now_us: int, stats: NodeStats) -> None:
+        """Make GPS_GLOBAL_ORIGIN and HOME_POSITION due now (if streamed) when a
+        ground station appears (the first frame received after boot or after
+        LINK_QUIET_US of silence) or the origin parameters changed, as ArduPilot
+        sends home when it is set: a GCS that connects places the robot and its
+        mission on its map at once instead of near 0 N 0 E until the next
+        periodic send."""
+        origin = tuple(self.params.get(name) for name in ORIGIN_PARAMS)
+        appeared = False
+        if stats.rx_total != self._rx_seen:
+            appeared = self._rx_heard_us is None or now_us - self._rx_heard_us >= LINK_QUIET_US
+            self._rx_seen, self._rx_heard_us = stats.rx_total, now_us
+        if appeared or origin != self._origin_sent:
+            for msg_id in (M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, M.MAVLINK_MSG_ID_HOME_POSITION):
+                self._next_due.pop(msg_id, None)  # due now; the interval restarts from here
+        self._origin_sent = origin
+
     def due(self, now_us: int, status: VehicleStatus, stats: NodeStats) -> list[mavlink2.MAVLink_message]:
         """Messages whose interval has elapsed (catch-up skips, no bursts)."""
+        self.announce_origin_if_new(now_us, stats)
         out: list[mavlink2.MAVLink_message] = []
         for msg_id in STREAMS:
             interval = self.interval_us(msg_id)

@@ -6,8 +6,14 @@ Upload: waypoints from map targets (their cell centres in world metres, on
 active policy carries; a `--map` that is not the robot's is refused naming both) or from a QGC WPL 110 file (as written by
 MAVProxy, QGroundControl or `mission download --out`), sent through the
 MAVLink mission protocol; waits for MISSION_ACK and exits 3 with the robot's
-reason on refusal, 4 on timeout. Target waypoints travel in
-MAV_FRAME_LOCAL_NED (x north, y east) so they are exact. With `--plan` the
+reason on refusal, 4 on timeout. Target and planned waypoints travel as
+MISSION_ITEM_INT in MAV_FRAME_GLOBAL_RELATIVE_ALT, latitude/longitude around
+the robot's geodetic origin (its GPS_GLOBAL_ORIGIN, = ORIGIN_LAT/LON), so
+MAVProxy's `wp list`, its map and QGroundControl's plan view show them where
+the robot is; the robot converts them back to within 6 mm (1e-7 deg steps).
+`--frame local` sends them in MAV_FRAME_LOCAL_NED (x north, y east, exact to
+0.1 mm; stock maps cannot place those). A FILE's items go in the frames it
+gives (`--frame global` converts its local ones). With `--plan` the
 ground station's planner (`ground_station.maps.planner`, what the sector
 policy is trained to follow) fills in the waypoints from the robot's
 position (its LOCAL_POSITION_NED, or `--start X,Y` in metres) through the
@@ -20,7 +26,8 @@ again and uploaded (`ground_station.nav.replan`); exits 0 when every target
 is reached, 3 when it gives up (no new blocked cell, no path left), 4 after
 `--follow-timeout`.
 
-Download: prints the robot's mission (world metres, x east / y north) and
+Download: prints the robot's mission in the frames it was uploaded in (world
+metres, x east / y north, beside the latitude/longitude of global items) and
 with `--out FILE` writes it as QGC WPL 110.
 """
 
@@ -50,6 +57,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     help="--plan: watch the mission and re-plan around cells the robot finds blocked")
     up.add_argument("--follow-timeout", type=float, default=600.0, metavar="S",
                     help="--follow: give up after this many seconds (default 600)")
+    up.add_argument("--frame", choices=("global", "local"), default=None,
+                    help="frame of the waypoints sent: global (lat/lon around the robot's origin, what maps "
+                         "show; default for --targets) or local (LOCAL_NED metres; default: a FILE's own frames)")
     down = verbs.add_parser("download", help="print the robot's mission")
     down.add_argument("--out", metavar="FILE", help="also write it as a QGC WPL 110 file")
     for v in (up, down):
@@ -89,6 +99,13 @@ def run(args: argparse.Namespace) -> int:
         def upload(link) -> int:
             nonlocal items
             target_seq: list[int] = []
+            if (args.frame or ("global" if args.targets else "local")) == "global":
+                from ground_station.mavlink.link import LinkError
+
+                try:
+                    link.use_global_frame()  # LOCAL_NED items (targets, plans, re-plans) go around the origin
+                except LinkError as exc:
+                    raise LinkError(exc.code, f"{exc}; --frame local sends the waypoints in metres") from None
             gm = None
             if args.targets:
                 from ground_station.mavlink.robot_map import choose_map
@@ -114,15 +131,21 @@ def run(args: argparse.Namespace) -> int:
         return run_on_link(args, "mission upload", upload)
 
     def download(link) -> int:
+        from firmware_py.mavlink.frames import global_to_world
+
         items = link.mission_download()
         m = link.m
+        origin = link.origin() if any(it.frame != m.MAV_FRAME_LOCAL_NED for it in items) else None
         print(f"{len(items)} items")
         for it in items:
             if it.frame == m.MAV_FRAME_LOCAL_NED:
                 print(f"{it.seq:3d} local  x={it.y / LOCAL_ITEM_SCALE:.3f} m east  "
                       f"y={it.x / LOCAL_ITEM_SCALE:.3f} m north")
             else:
-                print(f"{it.seq:3d} global lat={it.x / 1e7:.7f} lon={it.y / 1e7:.7f} (frame {it.frame})")
+                assert origin is not None
+                x_mm, y_mm = global_to_world(it.x, it.y, origin[0], origin[1])
+                print(f"{it.seq:3d} global lat={it.x / 1e7:.7f} lon={it.y / 1e7:.7f} (frame {it.frame})  "
+                      f"x={x_mm / 1000:.3f} m east  y={y_mm / 1000:.3f} m north")
         if args.out:
             write_wpl(args.out, items)
         return 0

@@ -265,6 +265,9 @@ class Link:
         self.system_status: int | None = None  # the robot's HEARTBEAT system_status
         self.conn.message_hooks.append(self._collect)
         self.target: tuple[int, int] | None = None
+        # mission_upload: None sends items in the frame given; (lat_e7, lon_e7), the robot's origin
+        # (`origin()`), sends LOCAL_NED items in MAV_FRAME_GLOBAL_RELATIVE_ALT around it (use_global_frame)
+        self.mission_origin: tuple[int, int] | None = None
         # ground_station.mavlink.ftp_upload.FtpSession, made on the first FTP
         # request: one MAVFTP client per link, so its request seq never restarts
         self.ftp_session: Any = None
@@ -594,9 +597,40 @@ class Link:
         return self.param_values_seen > 0 or self.system_status not in (None, MAV_STATE_UNINIT)
 
     # --- missions --------------------------------------------------------------------------
-    def mission_upload(self, items: list[tuple[int, int, int]], timeout_s: float = 2.0, retries: int = 3) -> int:
-        """Upload NAV_WAYPOINT items (frame, x, y as MISSION_ITEM_INT); returns the count."""
+    def origin(self, timeout_s: float = 1.0, retries: int = 3) -> tuple[int, int, int]:
+        """The robot's geodetic origin (lat, lon in 1e-7 deg, altitude AMSL in mm) from its
+        GPS_GLOBAL_ORIGIN, asked for with MAV_CMD_REQUEST_MESSAGE: exact, unlike its
+        ORIGIN_* parameters, whose PARAM_VALUEs carry a float32 (steps of up to 18 cm)."""
         m = self.m
+        for _ in range(retries + 1):
+            self.conn.mav.command_long_send(self.sysid, self.compid, m.MAV_CMD_REQUEST_MESSAGE, 0,
+                                            m.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, 0, 0, 0, 0, 0, 0)
+            msg = self.recv("GPS_GLOBAL_ORIGIN", timeout_s)
+            if msg is not None:
+                return int(msg.latitude), int(msg.longitude), int(msg.altitude)
+        raise self.no_answer(f"no GPS_GLOBAL_ORIGIN from the robot after {retries + 1} requests "
+                             "(its geodetic origin, which global mission items are placed around)")
+
+    def use_global_frame(self) -> tuple[int, int, int]:
+        """From now on `mission_upload` sends LOCAL_NED items as MISSION_ITEM_INT in
+        MAV_FRAME_GLOBAL_RELATIVE_ALT around the robot's origin (what ArduPilot and
+        QGroundControl use), so every ground station's map shows them where they are;
+        the robot converts them back with the same flat-earth formulas (within 6 mm).
+        Returns the origin."""
+        origin = self.origin()
+        self.mission_origin = origin[0], origin[1]
+        return origin
+
+    def mission_upload(self, items: list[tuple[int, int, int]], timeout_s: float = 2.0, retries: int = 3) -> int:
+        """Upload NAV_WAYPOINT items (frame, x, y as MISSION_ITEM_INT); returns the count.
+        With `mission_origin` set, LOCAL_NED items go in MAV_FRAME_GLOBAL_RELATIVE_ALT."""
+        m = self.m
+        if self.mission_origin is not None:
+            from firmware_py.mavlink.frames import local_item_to_global
+
+            lat0, lon0 = self.mission_origin
+            items = [(m.MAV_FRAME_GLOBAL_RELATIVE_ALT, *local_item_to_global(x, y, lat0, lon0))
+                     if frame == m.MAV_FRAME_LOCAL_NED else (frame, x, y) for frame, x, y in items]
         since = len(self.texts)
         sent_count = 0
         for _ in range(retries + 1):

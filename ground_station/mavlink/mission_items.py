@@ -1,6 +1,8 @@
 """Mission items for `Link.mission_upload` and from `Link.mission_download`:
-waypoints from map targets (their cell centres, LOCAL_NED, exact) or from a
-QGC WPL 110 file, and a downloaded mission written back as QGC WPL 110.
+waypoints from map targets (their cell centres, made in LOCAL_NED, exact;
+`Link.use_global_frame` has the link send them as lat/lon around the robot's
+origin) or from a QGC WPL 110 file, and a downloaded mission written back as
+QGC WPL 110.
 Bad input raises `CliError` with one line naming what is wrong."""
 
 from __future__ import annotations

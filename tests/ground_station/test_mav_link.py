@@ -6,6 +6,7 @@ with the controller and the pymunk sim is in the integration tests."""
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import subprocess
 import sys
@@ -108,15 +109,23 @@ def test_mission_targets_upload_download_and_auto_run(rig):
     assert code == 2 and "the robot has no /maps/active.map and its active policy carries no map: give --map" in out, out
     code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D", "--map", "paper10")
     assert code == 0 and "4 waypoints" in out, out
-    # paper10 targets A (2,2) B (9,0) C (0,9) D (9,7), 0.5 m cells, 10 rows
-    assert r.vehicle.mission == [robot_spec.cell_center_mm(c, row, 10) for c, row in ((2, 2), (9, 0), (0, 9), (9, 7))]
+    # paper10 targets A (2,2) B (9,0) C (0,9) D (9,7), 0.5 m cells, 10 rows; sent as lat/lon around the
+    # robot's origin (1e-7 deg steps: back within 6 mm)
+    want = [robot_spec.cell_center_mm(c, row, 10) for c, row in ((2, 2), (9, 0), (0, 9), (9, 7))]
+    assert len(r.vehicle.mission) == 4
+    assert all(math.dist(got, w) < 7 for got, w in zip(r.vehicle.mission, want, strict=True)), r.vehicle.mission
     wpl = tmp / "down.waypoints"
     code, out = qnav(port, "mission", "download", "--out", str(wpl))
-    assert code == 0 and "x=1.250 m east  y=3.750 m north" in out
+    assert code == 0 and "  0 global lat=" in out and "(frame 3)  x=1.25" in out and "m east  y=3.75" in out, out
     assert wpl.read_text().startswith("QGC WPL 110")
     # the file goes back up unchanged
     code, _ = qnav(port, "mission", "upload", str(wpl))
-    assert code == 0 and r.vehicle.mission[3] == robot_spec.cell_center_mm(9, 7, 10)
+    assert code == 0 and math.dist(r.vehicle.mission[3], robot_spec.cell_center_mm(9, 7, 10)) < 7
+    # --frame local: LOCAL_NED, exact
+    code, out = qnav(port, "mission", "upload", "--targets", "A,B,C,D", "--map", "paper10", "--frame", "local")
+    assert code == 0 and r.vehicle.mission == want, out
+    code, out = qnav(port, "mission", "download")
+    assert code == 0 and "x=1.250 m east  y=3.750 m north" in out and " global " not in out, out
     assert qnav(port, "mission", "upload", "--targets", "A,Z", "--map", "paper10")[0] == 2  # no target Z
 
     with Link(f"udpin:127.0.0.1:{port}", tlog=False) as link:
@@ -238,11 +247,13 @@ def test_mission_targets_on_the_robots_own_map(rig):
     r = start()
     code, out = qnav(port, "mission", "upload", "--targets", "B,C")
     assert code == 0 and "2 waypoints" in out, out
-    assert r.vehicle.mission == [robot_spec.cell_center_mm(c, row, 10) for c, row in ((9, 0), (0, 9))]
+    stored = list(r.vehicle.mission)  # lat/lon around the robot's origin: back within 6 mm
+    want = [robot_spec.cell_center_mm(c, row, 10) for c, row in ((9, 0), (0, 9))]
+    assert len(stored) == 2 and all(math.dist(a, b) < 7 for a, b in zip(stored, want, strict=True)), stored
     code, out = qnav(port, "mission", "upload", "--targets", "A", "--map", "paper10", "--cell-size", "0.4")
     assert code == 2 and out.count("\n") == 1, out
     assert ("--map paper10 (10x10 cells of 0.4 m) is not the robot's map paper10 (10x10 cells of 0.5 m)" in out
-            and r.vehicle.mission[0] == robot_spec.cell_center_mm(9, 0, 10)), out  # nothing sent
+            and r.vehicle.mission == stored), out  # nothing sent
     assert qnav(port, "mission", "upload", "--targets", "A", "--map", "paper10")[0] == 0  # the same map: fine
     r.vehicle.st.policy_id = 0x12340000  # the robot says it runs another policy than its file
     code, out = qnav(port, "mission", "upload", "--targets", "A")

@@ -99,7 +99,7 @@ def test_missions_by_target_name_use_the_map_the_robot_was_given_not_its_policys
         assert down.returncode == 0, down.stderr
     finally:
         stop_process(robot)
-    lines = [ln for ln in down.stdout.splitlines() if " local " in ln]
+    lines = [ln for ln in down.stdout.splitlines() if " m east " in ln]  # global items (lat/lon) with their metres
     got = [(float(ln.split("x=")[1].split()[0]), float(ln.split("y=")[1].split()[0])) for ln in lines]
     want = [tuple(v / 1000 for v in robot_spec.cell_center_mm(c, r, 8)) for c, r in ((1, 1), (10, 6))]
     assert len(got) == 2 and all(abs(g[0] - w[0]) < 0.01 and abs(g[1] - w[1]) < 0.01 for g, w in zip(got, want, strict=True)), \
