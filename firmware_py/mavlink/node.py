@@ -191,6 +191,7 @@ class MavNode:
         self.gcs_last_heartbeat_us: int | None = None
         self.gcs_sysid: int | None = None  # the GCS that keeps the failsafe alive (SYSID_MYGCS)
         self.foreign_gcs_heartbeats = 0
+        self._gcs_seen: set[int] = set()  # GCS system ids heard (bounded): a new one is sent the origin at once
         self.gate = authority.ControlGate()  # who may steer (SYSID_MYGCS)
         # PARAM_REQUEST_LIST answers, sent in the background at a rate the link carries
         self.param_stream = ParamStream(RATE_HZ if network_link else SERIAL_RATE_HZ)
@@ -369,6 +370,9 @@ class MavNode:
         if msg.type != M.MAV_TYPE_GCS:
             return []
         src = msg.get_srcSystem()
+        if src not in self._gcs_seen and len(self._gcs_seen) < 16:
+            self._gcs_seen.add(src)  # a ground station joins: it gets home and origin at once
+            self.telemetry.announce_origin()
         mine = self.params.get("SYSID_MYGCS") or self.gcs_sysid
         if mine is None:
             self.gcs_sysid = mine = src  # SYSID_MYGCS=0: the first GCS seen after boot

@@ -194,6 +194,11 @@ class Telemetry:
         self._override.clear()
         self._next_due.clear()
 
+    def announce_origin(self) -> None:
+        """GPS_GLOBAL_ORIGIN and HOME_POSITION due now (a new ground station was heard)."""
+        for msg_id in (M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, M.MAVLINK_MSG_ID_HOME_POSITION):
+            self._next_due.pop(msg_id, None)
+
     def announce_origin_if_new(self, now_us: int, stats: NodeStats) -> None:
         """Make GPS_GLOBAL_ORIGIN and HOME_POSITION due now (if streamed) when a
         ground station appears (the first frame received after boot or after
@@ -207,8 +212,7 @@ class Telemetry:
             appeared = self._rx_heard_us is None or now_us - self._rx_heard_us >= LINK_QUIET_US
             self._rx_seen, self._rx_heard_us = stats.rx_total, now_us
         if appeared or origin != self._origin_sent:
-            for msg_id in (M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, M.MAVLINK_MSG_ID_HOME_POSITION):
-                self._next_due.pop(msg_id, None)  # due now; the interval restarts from here
+            self.announce_origin()  # due now; the interval restarts from here
         self._origin_sent = origin
 
     def due(self, now_us: int, status: VehicleStatus, stats: NodeStats) -> list[mavlink2.MAVLink_message]:

@@ -80,3 +80,30 @@ def test_a_local_item_sent_as_lat_lon_comes_back_within_a_centimetre(origin):
             back = frames.global_to_world(lat, lon, lat0, lon0)
             worst = max(worst, math.dist(back, (x_mm, y_mm)))
     assert worst < 10.0, worst  # 1e-7 deg of latitude is 11.1 mm: half a step each way
+
+
+def test_a_second_gcs_joining_a_talking_link_gets_the_origin_at_once(tmp_path):
+    """The link is not quiet (a first GCS keeps talking), so only the new GCS's heartbeat can tell."""
+    from firmware_py.mavlink.dialect import mavlink2 as m2
+    from firmware_py.mavlink.node import MavNode
+    from firmware_py.mavlink.params import ParamStore
+    from firmware_py.mavlink.signing import Signing
+    from tests.support.mav_vehicle import TestVehicle
+
+    node = MavNode(TestVehicle(), ParamStore(None), Signing(None))
+    node.boot(0)
+    first, second = m2.MAVLink(None, 255, 190), m2.MAVLink(None, 250, 190)
+
+    def beat(codec, now):
+        msg = codec.heartbeat_encode(m2.MAV_TYPE_GCS, m2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        msg.pack(codec)
+        node.handle(msg, now)
+
+    def origins(now):
+        return [x for x in node.tick(now) if x.get_type() in ("GPS_GLOBAL_ORIGIN", "HOME_POSITION")]
+
+    for t in range(0, 3_000_000, 100_000):
+        beat(first, t)
+        node.tick(t)
+    beat(second, 3_000_000)
+    assert len(origins(3_000_000)) == 2
