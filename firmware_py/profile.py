@@ -207,6 +207,8 @@ def load_profile(path: str | Path) -> RobotProfile:
         raise ProfileError(f"{p}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
         raise ProfileError(f"{p}: not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib recurses once a nesting level (issue 43 finding 8: a traceback, exit 1)
+        raise ProfileError(f"{p}: arrays or inline tables nested too deeply") from None
     return profile_from_dict(data, str(p))
 
 

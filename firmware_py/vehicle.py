@@ -145,15 +145,21 @@ ACTIVATION_TIMEOUT_S = 20.0  # a policy not ready by then (its localiser still b
 
 
 class PendingActivation:
-    """A policy activation whose slow part (building the localiser's field for
-    a new map) runs on a worker thread: the link thread polls `result()` (None
-    until done) and answers the client then; the old policy drives meanwhile.
-    `cancel()` (the link gave up waiting) makes the worker drop its result."""
+    """A policy or map activation whose slow part (building the localiser's field
+    for a new map) runs on a worker thread: the link thread polls `result()` (None
+    until done) and answers the client then; the old policy and map drive meanwhile.
+    `cancel()` (the link gave up waiting) and the worker's `claim()` (taken under the
+    controller's lock, just before the swap) exclude each other: once cancelled, the
+    worker swaps nothing in; once claimed, `cancel()` returns False and the result,
+    due in a moment, stands (issue 43 finding 5: a map answered "refused" was swapped
+    in seconds later)."""
 
     def __init__(self) -> None:
         self._done = threading.Event()
         self._result: tuple[bool, str] = (False, "not finished")
+        self._lock = threading.Lock()
         self.cancelled = False
+        self._claimed = False
 
     def finish(self, ok: bool, reason: str) -> None:
         self._result = (ok, reason)
@@ -164,12 +170,26 @@ class PendingActivation:
 
     def wait(self, timeout_s: float | None = None) -> tuple[bool, str]:
         if not self._done.wait(timeout_s):
-            self.cancel()
-            return False, f"activation not ready within {timeout_s:g} s"
+            if self.cancel():
+                return False, f"activation not ready within {timeout_s:g} s"
+            self._done.wait()  # claimed: the swap is under way, its result a moment off
         return self._result
 
-    def cancel(self) -> None:
-        self.cancelled = True
+    def cancel(self) -> bool:
+        """Drop the activation unless the worker already claimed it: True when it will swap nothing in."""
+        with self._lock:
+            if self._claimed:
+                return False
+            self.cancelled = True
+            return True
+
+    def claim(self) -> bool:
+        """The worker's last step before its swap: False when the activation was cancelled."""
+        with self._lock:
+            if self.cancelled:
+                return False
+            self._claimed = True
+            return True
 
 
 class VehicleControl(Protocol):

@@ -21,6 +21,8 @@ from firmware_py.vehicle import ACTIVATION_TIMEOUT_S, CtrlState, PendingActivati
 
 log = logging.getLogger("qnav.controller")
 
+CANCELLED = "cancelled: the link stopped waiting for it (activation timeout)"
+
 
 class Activation(ControlState):
     """Policy and map activation (module docstring); the Controller's base."""
@@ -60,15 +62,16 @@ class Activation(ControlState):
             except Exception as exc:  # noqa: BLE001 - a refusal with the reason, never a dead worker
                 pending.finish(False, f"policy rejected: localiser: {type(exc).__name__}: {exc}")
                 return
-            if not pending.cancelled:
-                pending.finish(*self.activate_loaded(new, loc))
+            pending.finish(*self.activate_loaded(new, loc, claim=pending))
 
         threading.Thread(target=build, name="policy-activation", daemon=True).start()
         return pending
 
-    def activate_loaded(self, new: Policy, loc: Localiser | None = None) -> tuple[bool, str]:
+    def activate_loaded(self, new: Policy, loc: Localiser | None = None,
+                        claim: PendingActivation | None = None) -> tuple[bool, str]:
         """Swap in an already validated policy (see activate_policy); `loc`: its
-        localiser, already built."""
+        localiser, already built; `claim`: the worker's pending activation, claimed under
+        the lock just before the swap (a cancelled one swaps nothing in)."""
         if loc is None:
             try:
                 loc = self._new_localiser(new)  # outside the lock (see _new_localiser)
@@ -84,6 +87,8 @@ class Activation(ControlState):
             why = Route.refusal(self.route.items, lambda x, y: self._goal_index_for(x, y, new), "mission item")
             if why:
                 return False, why
+            if claim is not None and not claim.claim():
+                return False, CANCELLED
             old = self.policy
             self.policy = new
             self.driver = kinds.of_policy(new).driver(new, self.background)
@@ -113,7 +118,7 @@ class Activation(ControlState):
 
         def build() -> None:
             try:
-                pending.finish(*self.set_robot_map(grid))
+                pending.finish(*self.set_robot_map(grid, claim=pending))
             except MemoryError:
                 pending.finish(False, "map rejected: its localiser field does not fit in memory")
             except Exception as exc:  # noqa: BLE001 - a refusal with the reason, never a dead worker
@@ -122,10 +127,12 @@ class Activation(ControlState):
         threading.Thread(target=build, name="map-activation", daemon=True).start()
         return pending
 
-    def set_robot_map(self, grid: OccupancyGrid) -> tuple[bool, str]:
+    def set_robot_map(self, grid: OccupancyGrid, claim: PendingActivation | None = None) -> tuple[bool, str]:
         """Make `grid` (mapdata.OccupancyGrid) the robot's map: a map-specific policy for another map is
         refused naming both; any other kind localises and plans on it from the next tick (its
-        localiser built before the lock is taken: the ticks keep running)."""
+        localiser built before the lock is taken: the ticks keep running). `claim`: the map worker's
+        pending activation, claimed under the lock just before the swap as the policy worker's is
+        (a map the link gave up on, answered "map refused", is never swapped in: issue 43 finding 5)."""
         with self._lock:
             pol, route_items = self.policy, list(self.route.items)
         if pol is not None:
@@ -140,6 +147,8 @@ class Activation(ControlState):
         with self._lock:
             if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 return False, "refused while driving: stop first"
+            if claim is not None and not claim.claim():
+                return False, CANCELLED
             self.robot_map = grid
             self._corners = None
             if new is not None and new is not pol:

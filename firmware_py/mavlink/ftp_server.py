@@ -24,6 +24,10 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
 - a retried request (byte-identical to the last one on that session, within
   the session timeout) gets the cached reply again instead of being re-run, so
   a lost ACK never makes a Rename or a CreateFile happen twice;
+- the robot's active files and state files (PROTECTED) and everything in the
+  onboard log's folder (READ_ONLY_DIRS: /logs) are read-only: CreateFile,
+  OpenFileWO, RemoveFile, TruncateFile, Create/RemoveDirectory and a Rename
+  into or out of them get NAK FileProtected; reading and listing are allowed;
 - files written via CreateFile/OpenFileWO go to a temporary name and only
   replace the real name at TerminateSession; ResetSessions, session expiry
   and a crash discard them;
@@ -31,6 +35,9 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
   hook, and onto /maps/active.map the robot's own map through the second
   (`activate_map`); refusals are NAK Fail plus a STATUSTEXT with the reason
   ("policy refused: ...", "map refused: ..."), the old file stays active;
+  one whose worker is not done within `activation_timeout_us` (20 s) is refused
+  so and cancelled: the worker swaps nothing in afterwards (policy and map
+  alike; one already swapping it in at that moment is answered with its result);
 - file work whose cost the file chooses (CalcFileCRC32 of a file over
   INLINE_CRC_BYTES, 1 MiB; TerminateSession's commit, which fsyncs the file
   and its directory, slow on an SD card) runs on the injected `offload` (firmware_py.background, a worker
@@ -56,6 +63,7 @@ from typing import Any
 from firmware_py.background import Background
 from firmware_py.mavlink.metadata import GENERAL_FILE, METADATA_DIR, PARAMETER_FILE
 from firmware_py.mavlink.signing import SIGNING_FILE
+from firmware_py.onboard_log import LOG_DIR
 from firmware_py.storage import (
     ACTIVE_MAP,
     ACTIVE_POLICY,
@@ -121,6 +129,10 @@ class Nak(IntEnum):
 # made every later save raise (found by the issue 9 hostile-input suite).
 PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, ACTIVE_MAP, LAST_GOOD_MAP, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS,
                        GENERAL_FILE, PARAMETER_FILE, METADATA_DIR})
+# Folders read-only over FTP, everything in them too: the robot's own log (firmware_py.onboard_log) is
+# written through an open file handle, so a RemoveFile, TruncateFile, CreateFile or Rename there lost
+# every record after it until the next rotation (issue 43 finding 6). Reading and listing stay allowed.
+READ_ONLY_DIRS = ("/" + LOG_DIR,)
 
 
 @dataclass
@@ -319,8 +331,9 @@ class FtpServer:
         got = p.activation.result()
         if got is None:
             if now_us - p.since_us <= self.activation_timeout_us:
-                return []
-            p.activation.cancel()
+                return out
+            if p.activation.cancel() is False:  # the worker is swapping it in right now: its result stands
+                return out
             got = (False, f"activation not ready within {self.activation_timeout_us / 1e6:g} s")
         self._pending = None
         ok, reason = got
@@ -441,7 +454,8 @@ class FtpServer:
         return s
 
     def _protected(self, path: str) -> bool:
-        return self._norm(path) in PROTECTED
+        norm = self._norm(path)
+        return norm in PROTECTED or any(norm == d or norm.startswith(d + "/") for d in READ_ONLY_DIRS)
 
     # --- dispatch ------------------------------------------------------------------
     def _dispatch(self, req: Request, now_us: int) -> list[bytes]:

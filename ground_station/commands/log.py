@@ -51,6 +51,20 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 ROBOT_LOG_DIR = "/logs"  # firmware_py.onboard_log.LOG_DIR under the robot's storage root
 
 
+def plain_name_problem(name: str) -> str | None:
+    """Why `name` (a log file's name, from the robot's listing or the command line) is not a plain file
+    name to write inside --out, or None: not empty, not '.' or '..', no separator, no NUL (issue 43 finding
+    7: a listing with '../x' or an absolute name made `qnav log pull` write outside --out)."""
+    import os
+
+    if name in ("", ".", ".."):
+        return "not a file name"
+    seps = {"/", "\\", os.sep, os.altsep or "/"}
+    if any(c in name for c in seps) or "\0" in name:
+        return "has a path separator or NUL: only a plain file name is written into --out"
+    return None
+
+
 def _robot_logs(link) -> list[tuple[str, int]]:
     from ground_station.errors import CliError
     from ground_station.mavlink.ftp_upload import ftp_session
@@ -83,6 +97,11 @@ def run_pull(args: argparse.Namespace) -> int:
     def body(link) -> int:
         files = dict(_robot_logs(link))
         names = args.names or sorted(files)
+        for name in names:  # every name checked before anything is written
+            why = plain_name_problem(name)
+            if why:
+                where = "given" if args.names else f"in the robot's {ROBOT_LOG_DIR} listing"
+                raise CliError(f"log name {name!r} ({where}) refused: {why}")
         missing = [n for n in names if n not in files]
         if missing:
             raise CliError(f"no {ROBOT_LOG_DIR}/{missing[0]} on the robot (it has {', '.join(sorted(files)) or 'none'})")
