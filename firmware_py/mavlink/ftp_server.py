@@ -25,7 +25,7 @@ Protocol rules followed (docs/mavlink.md, "FTP server"):
   the session timeout) gets the cached reply again instead of being re-run, so
   a lost ACK never makes a Rename or a CreateFile happen twice;
 - the robot's active files and state files (PROTECTED) and everything in the
-  onboard log's folder (READ_ONLY_DIRS: /logs) are read-only: CreateFile,
+  onboard log's and the metadata folders (READ_ONLY_DIRS: /logs, /metadata) are read-only: CreateFile,
   OpenFileWO, RemoveFile, TruncateFile, Create/RemoveDirectory and a Rename
   into or out of them get NAK FileProtected; reading and listing are allowed;
 - files written via CreateFile/OpenFileWO go to a temporary name and only
@@ -131,8 +131,9 @@ PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, ACTIVE_MAP, LAST_GOOD_MA
                        GENERAL_FILE, PARAMETER_FILE, METADATA_DIR})
 # Folders read-only over FTP, everything in them too: the robot's own log (firmware_py.onboard_log) is
 # written through an open file handle, so a RemoveFile, TruncateFile, CreateFile or Rename there lost
-# every record after it until the next rotation (issue 43 finding 6). Reading and listing stay allowed.
-READ_ONLY_DIRS = ("/" + LOG_DIR,)
+# every record after it until the next rotation (issue 43 finding 6). The component metadata folder the
+# robot writes at boot likewise (a CreateFile /metadata/x was accepted). Reading and listing stay allowed.
+READ_ONLY_DIRS = ("/" + LOG_DIR, METADATA_DIR)
 
 
 @dataclass

@@ -18,7 +18,7 @@ from ground_station.faults.common import SCENARIOS, Scenario, ScenarioResult, re
 __all__ = ["SCENARIOS", "Scenario", "ScenarioResult", "load_all", "register"]
 
 MODULES = ("can_faults", "hostile_mav", "crash", "link_faults", "hostile_holes", "runtime_holes", "floods",
-           "control_holes", "dronecan_holes", "bridge_holes")
+           "control_holes", "dronecan_holes", "bridge_holes", "storage_holes")
 
 
 def load_all() -> dict[str, Scenario]:

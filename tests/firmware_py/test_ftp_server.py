@@ -287,6 +287,10 @@ def test_rename_onto_active_activates_through_the_hook(tmp_path):
                      (Op.RENAME, b"/policies/bad.qtab\0/policies/last_good.qtab")):
         assert nak(c.one(op, data), Nak.FILE_PROTECTED), (op, data)
     assert store.read_bytes(ACTIVE_POLICY) == b"GOOD two"
+    # the robot's own folders: nothing new can be made in them either (issue 43)
+    for op, data in ((Op.CREATE_FILE, b"/metadata/x.json"), (Op.CREATE_DIRECTORY, b"/metadata/sub"),
+                     (Op.CREATE_FILE, b"/logs/robot.log"), (Op.RENAME, b"/policies/bad.qtab\0/metadata/y")):
+        assert nak(c.one(op, data), Nak.FILE_PROTECTED), (op, data)
 
 
 def test_hook_that_raises_is_a_refusal(tmp_path):
