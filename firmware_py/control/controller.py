@@ -364,6 +364,9 @@ class Controller(Activation):
                 if self.loc.localised != was:
                     self._event("info", "localised" if self.loc.localised else "localisation lost",
                                 SEV_INFO if self.loc.localised else SEV_WARNING)
+            if bool(inp.arm_block) != bool(self._arm_block) and inp.arm_block:
+                self._event("warning", inp.arm_block, SEV_WARNING)  # a backend's arming block (DroneCAN
+            self._arm_block = inp.arm_block  # node-id collision), said once when it begins (its text ages)
             errors = self._safety(inp, now_us)
             if self.state == CtrlState.GOAL_REACHED:
                 self._after_goal()

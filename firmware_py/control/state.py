@@ -115,6 +115,7 @@ class ControlState:
         self.exploration = Exploration()  # the wander for global localisation (armed, HOLD)
         self.manual = ManualSticks()  # Manual mode's sticks and deadman (control/manual.py)
         self._manual_was_driving = False
+        self._arm_block = ""  # the last backend arming block reported (controller.step says a new one once)
         self._use_localiser(policy, self._new_localiser(policy))
 
     # --- helpers ------------------------------------------------------------------

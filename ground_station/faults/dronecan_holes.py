@@ -332,6 +332,9 @@ def node_id_collision(count: int, seed: int = 0, progress: Any = None) -> Scenar
             for k in range(3):  # 1 Hz, as a node's NodeStatus
                 rig.send(node_status_frame(node_id, 100 + k, k))
                 rig.run_until(rig.time_us + 1_000_000)
+            said_events = [e.text for e in rig.ctrl.drain_events() if f"node id {node_id}" in e.text]
+            if len(said_events) != 1:  # the STATUSTEXT the link sends: once, when it began
+                problems.append(f"{len(said_events)} events naming the collision (one expected)")
             ok, why = rig.ctrl.arm()
             detail = str(rig.node.inputs.snapshot().__dict__.get("arm_block", ""))
             if ok:
