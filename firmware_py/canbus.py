@@ -1,4 +1,4 @@
-"""Opening the robot's CAN bus from one `--can` spec, and a hub for multi-process runs.
+"""Opening the robot's CAN bus from one `--can` spec.
 
 `open_bus(spec)` is the one place a `--can` value becomes a python-can bus:
 
@@ -10,26 +10,17 @@
     None or ""                    python-can's own configuration (CAN_INTERFACE,
                                   CAN_CHANNEL, ~/.canrc), resolved by python-can
 
-`CanHub` starts a python-can-remote hub on 127.0.0.1 on a free port, waits
-until it accepts connections and stops it on exit. python-can's `virtual`
-bus only reaches buses of the same process, so separate processes (sim and
-controller) meet on such a hub. Stdlib and python-can only.
+The hub that separate processes of a HIL run meet on (`CanHub`) is the
+ground station's (ground_station/canhub.py): the robot only connects to one.
+Stdlib and python-can only.
 """
 
 from __future__ import annotations
 
 import importlib.util
-import os
-import socket
-import subprocess
-import sys
-import time
-from types import TracebackType
 from typing import Any
 
 import can
-
-from firmware_py.subprocs import free_port, stop_process
 
 SPEC_FORMS = ("virtual:NAME", "remote:ws://127.0.0.1:PORT/", "socketcan:CHANNEL", "slcan:DEVICE")
 
@@ -79,75 +70,3 @@ def open_bus(spec: str | None, **kwargs: Any) -> can.BusABC:
         where = spec or "python-can default configuration"
         detail = " ".join(str(exc).split()) or type(exc).__name__
         raise CanSpecError(f"cannot open CAN bus {where!r}: {detail}") from None
-
-
-class CanHub:
-    """A python-can-remote hub on 127.0.0.1 for one run (a context manager).
-
-    >>> with CanHub("qnav") as hub:
-    ...     bus = open_bus(hub.spec)
-    """
-
-    def __init__(self, channel: str = "qnav", port: int | None = None,
-                 start_timeout_s: float = 15.0) -> None:
-        self.channel = channel
-        self.host = "127.0.0.1"
-        self.port = port
-        self.start_timeout_s = start_timeout_s
-        self._proc: subprocess.Popen[bytes] | None = None
-
-    @property
-    def url(self) -> str:
-        return f"ws://{self.host}:{self.port}/"
-
-    @property
-    def spec(self) -> str:
-        """The `--can` value that reaches this hub."""
-        return f"remote:{self.url}"
-
-    def start(self) -> CanHub:
-        fixed = self.port is not None
-        for _attempt in range(1 if fixed else 3):
-            if not fixed:
-                self.port = free_port(host=self.host)
-            if self._launch():
-                return self
-        raise RuntimeError(f"python-can-remote hub did not start on {self.host}:{self.port}")
-
-    def _launch(self) -> bool:
-        cmd = [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", self.channel,
-               "-H", self.host, "-p", str(self.port)]
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        # its own session: a Ctrl-C typed in the owner's terminal goes to the terminal's whole
-        # process group and must not kill the bus before its clients have stopped (the owner
-        # stops it last, stop())
-        self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.DEVNULL, env=env, start_new_session=True)
-        deadline = time.monotonic() + self.start_timeout_s
-        while time.monotonic() < deadline:
-            if self._proc.poll() is not None:  # port taken meanwhile, or can_remote broken
-                self._proc = None
-                return False
-            try:
-                with socket.create_connection((self.host, self.port), timeout=0.2):
-                    return True
-            except OSError:
-                time.sleep(0.05)
-        self.stop()
-        return False
-
-    def stop(self) -> None:
-        proc, self._proc = self._proc, None
-        if proc is not None:
-            stop_process(proc)
-
-    @property
-    def running(self) -> bool:
-        return self._proc is not None and self._proc.poll() is None
-
-    def __enter__(self) -> CanHub:
-        return self.start()
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.stop()

@@ -3,11 +3,11 @@
 This module owns only the orchestration; every step is the project's own
 piece, used the way an operator would use it:
 
-1. a python-can-remote hub on 127.0.0.1 (`firmware_py.canbus.CanHub`);
+1. a python-can-remote hub on 127.0.0.1 (`ground_station.canhub.CanHub`);
 2. `qnav-sim` (pymunk plant, lockstep by default, paced at real time with
    `realtime=True`) and `qnav-robot` (controller + MAVLink node, its file
    store in the run folder) as separate processes, each in its own process
-   group (`ground_station.rigs.processes.ProcessGroup`), talking CAN through
+   group (`ground_station.processes.ProcessGroup`), talking CAN through
    the hub;
 3. one ground-station MAVLink link (`ground_station.mavlink.link.Link`, its .tlog in
    the run folder) over UDP loopback;
@@ -46,9 +46,9 @@ from pathlib import Path
 from firmware_py.atomic import atomic_write
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
-from firmware_py.subprocs import free_udp_port
 from ground_station.mavlink.statustext import StatusTextAssembler
-from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
+from ground_station.processes import ProcessGroup, qnav_robot, qnav_sim
+from ground_station.subprocs import free_udp_port
 
 SHIPPED_POLICY = "policies:paper10_cell"  # firmware_py.shipped_policies spec
 DEFAULT_TARGETS = ("A", "B", "C", "D")
@@ -561,7 +561,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     """
     say = say or (lambda _line: None)
     t0 = time.monotonic()
-    from firmware_py.canbus import CanHub
+    from ground_station.canhub import CanHub
     from ground_station.errors import CliError
     from ground_station.maps import MapError, load_map
     from ground_station.mavlink.link import Link

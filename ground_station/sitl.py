@@ -37,14 +37,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from firmware_py.canbus import CanHub
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.mavlink.telemetry import DEFAULT_AUTOPILOT
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
+from ground_station.canhub import CanHub
 from ground_station.errors import CliError
 from ground_station.mavlink.link import check_url
 from ground_station.mavlink.tlog_relay import TlogRelay, relayable
-from ground_station.rigs.processes import ProcessGroup, qnav_robot, qnav_sim
+from ground_station.processes import ProcessGroup, qnav_robot, qnav_sim
 
 DEFAULT_MAP = "paper10"
 DEFAULT_MAVLINK = "udpin:127.0.0.1:14555"  # the robot listens; GCSs connect to it (14550 stays free for QGC)

@@ -11,6 +11,8 @@ sim_bridge counts, wherever it sits (module level, inside a function, under
 * `firmware_py.control` and `firmware_py.mavlink` never import each other:
   they meet only through the vehicle seam (`firmware_py.vehicle`,
   `firmware_py.plugins`);
+* nothing outside `ground_station.lab` imports it but the `qnav bench`, `study`
+  and `sweep` subcommands;
 * firmware_py imports only the stdlib, python-can, cantools, pymavlink and
   pyserial (it runs on the robot), and the optional extra dronecan (only in the
   dronecan backends: firmware_py/dronecan_engine.py, firmware_py/drives/dronecan.py). `test_firmware_isolation.py` checks the
@@ -171,6 +173,24 @@ def test_control_and_mavlink_meet_only_through_the_vehicle_seam():
                 if target == other or target.startswith(other + ".")
             )
     assert not bad, "control and mavlink import each other:\n" + "\n".join(bad)
+
+
+LAB = "ground_station.lab"
+LAB_ENTRY_POINTS = frozenset({"ground_station.commands.bench", "ground_station.commands.study",
+                              "ground_station.commands.sweep"})  # the thin subcommands that start it
+
+
+def test_nothing_outside_the_lab_imports_it():
+    """Benches, fault suites, rigs and research live beside the product (ground_station/lab): the
+    robot, the sim and the rest of the station run without them."""
+    bad = [
+        f"{_where(module, line)} imports {target}"
+        for module, targets in IMPORTS.items()
+        if not (module == LAB or module.startswith(LAB + ".")) and module not in LAB_ENTRY_POINTS
+        for target, line in targets
+        if target == LAB or target.startswith(LAB + ".")
+    ]
+    assert not bad, "the product imports the lab:\n" + "\n".join(bad)
 
 
 def test_firmware_imports_only_stdlib_and_the_robot_dependencies():

@@ -28,8 +28,8 @@ from firmware_py.shipped_policies import (
     shipped_policy,
     shipped_policy_names,
 )
-from firmware_py.subprocs import free_udp_port
 from ground_station.extras import INSTALL_HINT, STATION_IMPORTS
+from ground_station.subprocs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -87,7 +87,7 @@ def test_extras_split_station_hil_cluster_and_dev():
     assert not (extras["station"] | extras["hil"]) & set(ROBOT_DISTS)
     assert PYPROJECT["project"]["license"] == "MIT"  # SPDX string: no setuptools deprecation banner
     assert "setuptools>=77" in PYPROJECT["build-system"]["requires"]
-    assert extras["cluster"] == {"ray"}  # Ray only for campaigns, imported lazily by ground_station.campaign
+    assert extras["cluster"] == {"ray"}  # Ray only for campaigns, imported lazily by ground_station.lab.campaign
     assert "[station,dev,cluster]" in (ROOT / "Makefile").read_text()
 
 

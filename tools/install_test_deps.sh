@@ -11,7 +11,7 @@
 #                       verify` on the shipped units (works without systemd as PID 1)
 #    As root on a Debian-like machine the missing ones are installed with
 #    apt-get (non-interactive); otherwise the script says what is missing.
-# 2. Which way to a kernel vcan0 works here: `python -m ground_station.rigs.vcan`
+# 2. Which way to a kernel vcan0 works here: `python -m ground_station.lab.rigs.vcan`
 #    boots each provider once (host kernel, the installed UML, the cached UML).
 # 3. If none works (bookworm's UML 6.1 and trixie's 6.12 panic at boot on CPUs
 #    with AVX-512/AMX: "ptrace set fp regs failed"), Debian testing's
@@ -58,7 +58,7 @@ fi
 
 PY="${PYTHON:-.venv/bin/python}"
 [ -x "$PY" ] || PY=python3
-providers() { "$PY" -m ground_station.rigs.vcan | sed 's/^/  /'; }
+providers() { "$PY" -m ground_station.lab.rigs.vcan | sed 's/^/  /'; }
 
 verdict=$(providers)
 if [ "${QNAV_UML_FETCH:-0}" != 1 ] && echo "$verdict" | grep -q "^  chosen:"; then

@@ -19,8 +19,8 @@ import time
 from firmware_py import robot_spec
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
+from ground_station.lab.rigs.lockstep import LockstepRig
 from ground_station.maps import bfs_distances, load_map
-from ground_station.rigs.lockstep import LockstepRig
 from sim_bridge.profiles import profile
 
 

@@ -1,6 +1,6 @@
 """The drive-backend HIL matrix on a kernel SocketCAN vcan0 (the host's, or user-mode Linux), for the record.
 
-Runs ground_station.rigs.hil_scenarios' odrive_{goal,error,silent}, mission_odrive and the same for
+Runs ground_station.lab.rigs.hil_scenarios' odrive_{goal,error,silent}, mission_odrive and the same for
 dronecan in two batches side by side, then prints one line per scenario (exit codes, the robot's
 result and FAULT text, the mission items reached). make test runs only the two error scenarios on vcan0
 (its 8 minutes); this is the whole matrix (about 100 s in user-mode Linux).
@@ -14,7 +14,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from ground_station.rigs.vcan import find_vcan
+from ground_station.lab.rigs.vcan import find_vcan
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -30,7 +30,7 @@ t0 = time.monotonic()
 
 def run(i_names):
     i, names = i_names
-    return vcan.run(f"{sys.executable} -m ground_station.rigs.hil_scenarios --can {vcan.can_spec} --out {out} {' '.join(names)}",
+    return vcan.run(f"{sys.executable} -m ground_station.lab.rigs.hil_scenarios --can {vcan.can_spec} --out {out} {' '.join(names)}",
                     out / f"run{i}", cwd=ROOT, env=env, timeout_s=900)
 with ThreadPoolExecutor(2) as pool:
     runs = list(pool.map(run, enumerate(BATCHES)))

@@ -3,7 +3,7 @@
 `FtpServer.handle(payload, now_us) -> list[bytes]` takes the 251-byte FTP
 payload of one request and returns the FTP payloads to send back (none, one,
 or a burst). No sockets, no threads, no wall clock: the shell
-(`firmware_py.mavlink.ftp` or the MAVLink node) wraps replies in
+(`ground_station.lab.rigs.ftp_shell` or the MAVLink node) wraps replies in
 FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()`
 into STATUSTEXT.
 

@@ -1,4 +1,4 @@
-"""`qnav bench NAME`: benchmarks, one module each in `ground_station.bench`.
+"""`qnav bench NAME`: benchmarks, one module each in `ground_station.lab.bench`.
 
 A benchmark prints a table and writes JSON; every speed figure comes with a
 baseline measured in the same run and their ratio.
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from ground_station import bench
 from ground_station.commands import add_module_subparsers
+from ground_station.lab import bench
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:

@@ -33,9 +33,9 @@ import time
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.campaign.engines import add_engine_arguments
+    from ground_station.lab.campaign.engines import add_engine_arguments
+    from ground_station.lab.study_defaults import SECTOR_EVAL_EVERY, SECTOR_SAMPLE, SECTOR_STEPS
     from ground_station.learn.config import LEARNERS, add_config_arguments, int_arg
-    from ground_station.learn.study_defaults import SECTOR_EVAL_EVERY, SECTOR_SAMPLE, SECTOR_STEPS
 
     p = sub.add_parser("study", help="learning-rate and learner study with bootstrapped 95%% CIs (cell encoding)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -66,12 +66,12 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.campaign.engines import engine_from_args
     from ground_station.errors import CliError
+    from ground_station.lab.campaign.engines import engine_from_args
+    from ground_station.lab.study import study, tables, write_study
+    from ground_station.lab.sweep import parse_lrs
     from ground_station.learn.cell.trainer import CellProblem
     from ground_station.learn.config import LEARNERS, config_from_recipe_args, validate_config
-    from ground_station.learn.study import study, tables, write_study
-    from ground_station.learn.sweep import parse_lrs
     from ground_station.maps import MapError, load_map
 
     cfg = config_from_recipe_args(args, "cell")  # a cell study: the cell recipe (its defaults)

@@ -6,7 +6,7 @@ and writes DIR/sweep.json, DIR/sweep.png (learning curves per eta; greedy
 success and final average return against eta) and DIR/campaign.json (engine,
 workers, nodes, wall time). For the cell encoding it also runs the same
 learning rates and seeds with greedy checkpoints along training, with and
-without the epsilon schedule (`ground_station.learn.study`), and writes
+without the epsilon schedule (`ground_station.lab.study`), and writes
 DIR/curves.png and DIR/curves.json: training steps to --threshold greedy
 success against eta, and greedy success and the mean max-Q of the visited
 states along training per eta (the paper's Fig. 5), each with bootstrapped
@@ -28,7 +28,7 @@ from pathlib import Path
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.campaign.engines import add_engine_arguments
+    from ground_station.lab.campaign.engines import add_engine_arguments
     from ground_station.learn.config import add_config_arguments, recipe_defaults
 
     p = sub.add_parser("sweep", help="learning-rate study over several seeds (figure + JSON)",
@@ -57,13 +57,13 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.campaign.engines import engine_from_args
-    from ground_station.campaign.space import label, parse_axis
-    from ground_station.campaign.space import points as space_points
     from ground_station.errors import CliError
+    from ground_station.lab.campaign.engines import engine_from_args
+    from ground_station.lab.campaign.space import label, parse_axis
+    from ground_station.lab.campaign.space import points as space_points
+    from ground_station.lab.sweep import parse_lrs, sweep, write_sweep
     from ground_station.learn.cell.trainer import CellProblem
     from ground_station.learn.config import config_from_recipe_args, validate_config
-    from ground_station.learn.sweep import parse_lrs, sweep, write_sweep
     from ground_station.maps import MapError, load_map
 
     cfg = config_from_recipe_args(args)
@@ -112,8 +112,8 @@ def _curves(args: argparse.Namespace, cfg, lrs: list[float]) -> None:  # noqa: A
     import json
 
     from firmware_py.atomic import atomic_write
-    from ground_station.campaign.engines import engine_from_args
-    from ground_station.learn.study import fmt_ci, plot_curves, study
+    from ground_station.lab.campaign.engines import engine_from_args
+    from ground_station.lab.study import fmt_ci, plot_curves, study
 
     t0 = time.perf_counter()
     eval_every = max(100, cfg.steps // 100)

@@ -8,7 +8,7 @@ positive control, a goal published in Guided, drives the robot."""
 
 import pytest
 
-from ground_station.faults import bridge_holes
+from ground_station.lab.faults import bridge_holes
 
 pytestmark = pytest.mark.wallclock  # paced HIL (qnav-sim --realtime), watched on the wall clock
 

@@ -1,5 +1,5 @@
 """CAN faults (issue 9), the holes hostile testing found (issue 13) and the robot-runtime findings
-(issue 29), at small counts: the scenarios of ground_station.faults.can_faults, .hostile_holes and
+(issue 29), at small counts: the scenarios of ground_station.lab.faults.can_faults, .hostile_holes and
 .runtime_holes against the real controller,
 RobotNode on a python-can virtual bus with the pymunk plant, the MAVLink node with pymavlink's
 codec and signing, and the FTP server on a real storage root. `qnav bench faults` runs the
@@ -7,12 +7,12 @@ same with large counts."""
 
 import pytest
 
-from ground_station.faults import (
+from ground_station.lab.faults import (
     can_faults,
     hostile_holes,  # noqa: F401  (registers the scenarios)
     runtime_holes,  # noqa: F401
 )
-from ground_station.faults.common import SCENARIOS
+from ground_station.lab.faults.common import SCENARIOS
 
 NAMES = ["can_sensor_stop", "can_driver_fault", "can_driver_watchdog", "can_estop", "can_counters",
          # hostile holes

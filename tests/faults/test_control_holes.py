@@ -1,4 +1,4 @@
-"""Issue 43 findings 1 and 3 at small counts (ground_station.faults.control_holes): another
+"""Issue 43 findings 1 and 3 at small counts (ground_station.lab.faults.control_holes): another
 system's sticks, RC overrides, mode + goal and PARAM_SET, and broadcast sticks, move no wheel
 while the operator's own sticks do; a 1,500/s PARAM_REQUEST_LIST flood cannot delay Hold or
 stretch the deadman, and the robot's PARAM_VALUEs stay within the stream's rate (the code
@@ -7,7 +7,7 @@ before answered 31 a request). `qnav bench faults` runs the same at large counts
 import pytest
 
 from firmware_py.mavlink.param_stream import RATE_HZ
-from ground_station.faults import control_holes
+from ground_station.lab.faults import control_holes
 
 
 def test_only_the_operators_gcs_steers():

@@ -3,7 +3,7 @@ during an upload, an activation and a stream of parameter saves; after each
 the storage holds complete versions only and the restarted robot reports the
 policy it should boot. `qnav bench faults` kills it 50 times."""
 
-from ground_station.faults import crash
+from ground_station.lab.faults import crash
 
 
 def test_kill9_during_upload_activation_and_param_saves():

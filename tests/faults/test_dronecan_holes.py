@@ -1,4 +1,4 @@
-"""Issue 43 finding 4: the DroneCAN backend fed until it stalls (ground_station/faults/dronecan_holes.py),
+"""Issue 43 finding 4: the DroneCAN backend fed until it stalls (ground_station/lab/faults/dronecan_holes.py),
 on the real backend in the lockstep rig. Figures are reported by `qnav bench faults`; the invariants
 (memory, the end frame's tick, answers behind the wheel command, collision refused) asserted here."""
 
@@ -6,7 +6,7 @@ import pytest
 
 pytest.importorskip("dronecan", reason="the dronecan extra (pip install 'qnav[dronecan]')")
 
-from ground_station.faults import dronecan_holes  # noqa: E402
+from ground_station.lab.faults import dronecan_holes  # noqa: E402
 
 
 def test_an_endless_transfer_is_neither_kept_nor_stalls_the_tick():

@@ -8,7 +8,7 @@ arriving. Times are reported by `qnav bench faults`, never asserted here."""
 
 import pytest
 
-from ground_station.faults import floods
+from ground_station.lab.faults import floods
 
 pytestmark = pytest.mark.wallclock  # paced HIL: a starved robot process trips the 200 ms motor watchdog
 

@@ -3,7 +3,7 @@ badly signed and replayed frames, hostile FTP payloads and out-of-range params
 into the robot's MAVLink node core with signing on, then once over UDP into a
 running `qnav-robot`. `qnav bench faults` runs 100 000 frames into the core."""
 
-from ground_station.faults import hostile_mav
+from ground_station.lab.faults import hostile_mav
 
 
 def test_hostile_frames_into_the_node_core():

@@ -6,7 +6,7 @@ Times are measured and reported by `qnav bench faults`, never asserted here."""
 
 import pytest
 
-from ground_station.faults import link_faults
+from ground_station.lab.faults import link_faults
 
 
 def test_gcs_link_loss_failsafe_within_timeout_plus_one_period():

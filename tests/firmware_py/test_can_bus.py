@@ -9,8 +9,8 @@ import sys
 import pytest
 
 from firmware_py import can_protocol as cp
-from firmware_py.canbus import CanHub, CanSpecError, open_bus, parse_spec
-from firmware_py.subprocs import free_port
+from ground_station.canhub import CanHub, CanSpecError, open_bus, parse_spec
+from ground_station.subprocs import free_port
 
 
 def test_parse_spec_maps_every_documented_form():

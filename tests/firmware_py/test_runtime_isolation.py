@@ -22,7 +22,7 @@ from firmware_py.control.node import RobotNode
 from firmware_py.mavlink.link_thread import LinkThread, StorageWorker
 from firmware_py.mavlink.node import open_node
 from firmware_py.mavlink.params import ParamStore
-from firmware_py.subprocs import free_udp_port
+from ground_station.subprocs import free_udp_port
 from tests.support.controller_rig import sector_seek_policy
 from tests.support.mav_vehicle import TestVehicle
 

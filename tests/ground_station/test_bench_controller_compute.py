@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import resolve_policy_spec
-from ground_station.bench.controller import PlannerOff, _pcts, step_compute
-from ground_station.nav.controllers import standard_controllers
+from ground_station.lab.bench.controller import PlannerOff, _pcts, step_compute
+from ground_station.lab.nav.controllers import standard_controllers
 
 
 def test_step_compute_runs_the_cell_and_the_sector_policy_with_obstacles():

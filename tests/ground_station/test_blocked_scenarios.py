@@ -18,10 +18,10 @@ import pytest
 
 from firmware_py import robot_spec
 from ground_station import cli
+from ground_station.lab.nav.episodes import summarise
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
 from ground_station.maps.planner import plan_waypoints
 from ground_station.nav import scenario as sc
-from ground_station.nav.episodes import summarise
 
 STEP = 50.0  # raster step, mm
 R = robot_spec.ROBOT_RADIUS_MM
@@ -268,10 +268,10 @@ def test_the_twin_lets_the_recoveries_run_to_no_route_without_the_loop_rule_cutt
     from firmware_py.localplan import PlannedTarget
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy
+    from ground_station.lab.nav import planned
+    from ground_station.lab.nav.controllers import standard_controllers
+    from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS
     from ground_station.learn.sector.obstacles import NO_ROUTE
-    from ground_station.nav import planned
-    from ground_station.nav.controllers import standard_controllers
-    from ground_station.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS
 
     gm = load_map("rooms-16x16-s1")
     ep = sc.blocked_episodes(gm, 4, 0, False, k=3, m=2)[3]

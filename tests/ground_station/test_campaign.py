@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from ground_station.campaign import engines, space
 from ground_station.errors import CliError
+from ground_station.lab.campaign import engines, space
 
 ROOT = Path(__file__).resolve().parents[2]
 SWEEP = ["sweep", "--map", "paper10", "--encoding", "cell", "--lrs", "0.2,0.6", "--seeds", "2",
@@ -112,7 +112,7 @@ def test_campaign_path():
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     pytest.importorskip("ray", reason="Ray (qnav[cluster]) is not installed: the Ray engine cannot run")
-    from ground_station.rigs.ray_cluster import LocalRayCluster
+    from ground_station.lab.rigs.ray_cluster import LocalRayCluster
 
     c = LocalRayCluster(tmp_path_factory.mktemp("raycluster"), workers=1)
     try:
@@ -209,8 +209,8 @@ def test_tune_sweep_resumes_after_interruption(cluster, local_sweep, tmp_path):
 
 def test_ray_is_imported_only_when_asked_for():
     code = ("import sys; from ground_station.cli import build_parser; build_parser(); "
-            "from ground_station.campaign import engines, space; from ground_station.learn import sweep; "
-            "from ground_station.bench import hil, campaign; print('ray' in sys.modules)")
+            "from ground_station.lab.campaign import engines, space; from ground_station.lab import sweep; "
+            "from ground_station.lab.bench import hil, campaign; print('ray' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60, check=False)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"

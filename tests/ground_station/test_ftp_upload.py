@@ -11,9 +11,9 @@ import pytest
 
 from firmware_py.encoders import CellEncoder
 from firmware_py.policy import dump_policy, load_policy
-from firmware_py.subprocs import free_udp_port
-from ground_station.rigs import link_emulator as emu
-from ground_station.rigs.processes import robot_ftp_process
+from ground_station.lab.rigs import link_emulator as emu
+from ground_station.processes import robot_ftp_process
+from ground_station.subprocs import free_udp_port
 
 pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")

@@ -169,8 +169,8 @@ def test_shipped_sector_policy_leaves_a_paper10_pocket_in_hil_only_with_waypoint
     # real pieces: pymunk plant + RobotNode/Controller on a virtual CAN bus, lockstep
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy
+    from ground_station.lab.rigs.lockstep import run_episode
     from ground_station.maps.planner import guidance_from_metadata
-    from ground_station.rigs.lockstep import run_episode
 
     gm = load_map("paper10")
     pol = load_policy(shipped_policy("sector"))

@@ -1,4 +1,4 @@
-"""ground_station/rigs/link_emulator.py: the scheduling rules (pure) and the relay over UDP."""
+"""ground_station/lab/rigs/link_emulator.py: the scheduling rules (pure) and the relay over UDP."""
 
 import socket
 import subprocess
@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from ground_station.rigs import link_emulator as emu
+from ground_station.lab.rigs import link_emulator as emu
 
 
 def scheduled(link):
@@ -125,6 +125,6 @@ def test_duplicating_link_over_udp():
 
 
 def test_cli_help():
-    out = subprocess.run([sys.executable, "-m", "ground_station.rigs.link_emulator", "--help"],
+    out = subprocess.run([sys.executable, "-m", "ground_station.lab.rigs.link_emulator", "--help"],
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 0 and "--loss" in out.stdout and "--seed" in out.stdout

@@ -21,9 +21,9 @@ os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
 
 from firmware_py import robot_spec  # noqa: E402
-from firmware_py.subprocs import free_udp_port  # noqa: E402
 from ground_station import cli  # noqa: E402
 from ground_station.mavlink.link import Link  # noqa: E402
+from ground_station.subprocs import free_udp_port  # noqa: E402
 
 m = mavutil.mavlink
 VENV_BIN = Path(sys.executable).parent

@@ -10,10 +10,10 @@ import pytest
 
 from firmware_py import robot_spec
 from firmware_py.mavlink.dialect import mavlink2 as mavlink
-from firmware_py.subprocs import free_udp_port
 from ground_station.maps import load_map
 from ground_station.monitor.app import MonitorApp, heading_arrow
 from ground_station.monitor.sources import ReplaySource, open_live
+from ground_station.subprocs import free_udp_port
 from tests.support.rover_script import CELL_M, MAP_H, RoverScript, UdpRover, write_tlog
 
 ARROWS = set("→↗↑↖←↙↓↘")

@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from firmware_py.subprocs import free_udp_port
+from ground_station.subprocs import free_udp_port
 from tests.support.rover_script import UdpRover
 
 QNAV = str(Path(sys.executable).parent / "qnav")

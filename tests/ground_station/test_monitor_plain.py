@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_py.subprocs import free_udp_port
+from ground_station.subprocs import free_udp_port
 from tests.support.rover_script import RoverScript, UdpRover, write_tlog
 
 QNAV = str(Path(sys.executable).parent / "qnav")

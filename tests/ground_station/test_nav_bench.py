@@ -1,4 +1,4 @@
-"""The controllers of `qnav bench nav` (ground_station/nav/controllers.py),
+"""The controllers of `qnav bench nav` (ground_station/lab/nav/controllers.py),
 the bench's contract (table + JSON keys + PNG), the HIL episode loop on the
 lockstep rig with obstacles."""
 
@@ -16,10 +16,10 @@ from firmware_py.encoders import SectorEncoder, best_action
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station import cli
+from ground_station.lab.nav import controllers as nc
+from ground_station.lab.nav.episodes import run_hil, run_twin, summarise
 from ground_station.learn.sector.evaluate import seek_table
 from ground_station.maps import load_map
-from ground_station.nav import controllers as nc
-from ground_station.nav.episodes import run_hil, run_twin, summarise
 from ground_station.nav.scenario import episodes
 
 ENC = SectorEncoder(15, (0, 1, 7), (100, 400))
@@ -140,7 +140,7 @@ def test_bench_nav_hil_part_and_bad_input(tmp_path):
 
 def test_intervals_and_the_paired_test_are_the_textbook_ones():
     """The 95 % Wilson interval and the exact McNemar test bench nav prints beside every rate."""
-    from ground_station.nav.episodes import mcnemar_exact, wilson95
+    from ground_station.lab.nav.episodes import mcnemar_exact, wilson95
 
     assert wilson95(957, 1000) == [0.9426, 0.9679]  # the headline learnt rate: [0.943, 0.968]
     assert wilson95(0, 20) == [0.0, 0.1611] and wilson95(20, 20) == [0.8389, 1.0]  # sound at the ends
@@ -176,7 +176,7 @@ def test_the_twin_applies_the_robots_collision_monitor_stop_zone():
     from firmware_py.control.collision import MapCorners
     from firmware_py.localplan import FORWARD, TURN_LEFT, LocalPlannerConfig, ObstacleMemory
     from firmware_py.vehicle import VehicleConfig
-    from ground_station.nav.planned import grid_of, monitor_stops
+    from ground_station.lab.nav.planned import grid_of, monitor_stops
 
     n = robot_spec.SENSOR_COUNT
     gm = load_map("paper10")
@@ -202,7 +202,7 @@ def test_the_twins_monitor_shortcut_answers_as_the_robots_monitor():
     from firmware_py.control import collision
     from firmware_py.localplan import LocalPlannerConfig, ObstacleMemory, mapped_readings
     from firmware_py.vehicle import VehicleConfig
-    from ground_station.nav.planned import grid_of, monitor_stops
+    from ground_station.lab.nav.planned import grid_of, monitor_stops
 
     rng = random.Random(7)
     n = robot_spec.SENSOR_COUNT

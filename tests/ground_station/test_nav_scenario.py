@@ -168,8 +168,8 @@ def test_episode_arrays_pack_waypoints_and_remaining_lengths(paper10):
 
 def test_twin_rollouts_depend_only_on_their_episodes(paper10):
     from firmware_py.policy import load_policy
-    from ground_station.nav.controllers import standard_controllers
-    from ground_station.nav.episodes import run_twin
+    from ground_station.lab.nav.controllers import standard_controllers
+    from ground_station.lab.nav.episodes import run_twin
 
     pol = load_policy(str(robot_spec_policy()))
     learnt = standard_controllers(pol, ("learnt",))[0]

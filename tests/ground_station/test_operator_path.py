@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from firmware_py.subprocs import free_udp_port
 from ground_station import cli
+from ground_station.subprocs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[2]
 SHOP_MAP = "type octile\nheight 3\nwidth 4\nmap\n....\n.@@.\n....\n"

@@ -1,4 +1,4 @@
-"""`qnav study` (ground_station/learn/study.py): bootstrapped CIs, steps to
+"""`qnav study` (ground_station/lab/study.py): bootstrapped CIs, steps to
 threshold from the greedy checkpoints, study.json identical on one worker and
 on the two-process pool (timings only in campaign.json), the CLI run and its
 errors, and `qnav train --recipe`."""
@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ground_station.campaign.engines import LocalEngine
+from ground_station.lab.campaign.engines import LocalEngine
+from ground_station.lab.study import bootstrap_ci, run_any_job, run_job, study, tables
 from ground_station.learn.config import TrainConfig, recipe_config, recipes
-from ground_station.learn.study import bootstrap_ci, run_any_job, run_job, study, tables
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE = TrainConfig.of(map="paper10", targets="A,B,C,D", steps=30_000)
@@ -136,9 +136,9 @@ def test_recipes_are_the_train_defaults(tmp_path):
 
 
 def test_sector_job_checkpoints_and_path_ratios():
+    from ground_station.lab.study import SectorEval, sector_base, sector_jobs
     from ground_station.learn.sector.kernels import SUCCESS
     from ground_station.learn.sector.trainer import SectorTrainer, sector_encoder
-    from ground_station.learn.study import SectorEval, sector_base, sector_jobs
     from ground_station.maps import load_map
 
     sbase = sector_base(BASE, 400_000)
@@ -170,8 +170,8 @@ class _Stop(Exception):
     """Raised by the stand-in campaign runner once the command has built its config."""
 
 
-@pytest.mark.parametrize("command, module, runner", [("sweep", "ground_station.learn.sweep", "sweep"),
-                                                      ("study", "ground_station.learn.study", "study")])
+@pytest.mark.parametrize("command, module, runner", [("sweep", "ground_station.lab.sweep", "sweep"),
+                                                      ("study", "ground_station.lab.study", "study")])
 def test_sweep_and_study_take_the_recipe_of_their_encoding_like_train(monkeypatch, tmp_path, command, module, runner):
     """`qnav sweep --encoding sector` used to train with the cell defaults (3M steps,
     reward_step -0.01, epsilon_end 0.1) where `qnav train --encoding sector` takes

@@ -82,7 +82,7 @@ def test_an_unregistered_kind_is_refused_by_name(toy, tmp_path):
 
 
 GENERIC = ["ground_station/learn/train.py", "ground_station/learn/evaluate.py", "ground_station/learn/export.py",
-           "ground_station/learn/config.py", "ground_station/learn/sweep.py",
+           "ground_station/learn/config.py", "ground_station/lab/sweep.py",
            "ground_station/commands/train.py", "ground_station/commands/eval.py",
            "ground_station/commands/export.py", "ground_station/commands/policy.py"]
 

@@ -1,4 +1,4 @@
-"""ground_station/rigs/vcan.py: the provider chain (host, installed UML, cached
+"""ground_station/lab/rigs/vcan.py: the provider chain (host, installed UML, cached
 UML, none), each UML provider's boot health check and the reasons it gives,
 the work's exit status carried back explicitly, and its timeout (the HIL
 scenarios on it: tests/hil/test_hil_transports.py)."""
@@ -9,7 +9,7 @@ import os
 
 import pytest
 
-from ground_station.rigs import vcan as vc
+from ground_station.lab.rigs import vcan as vc
 from tests.support.vcan import kernel_vcan
 
 PANICKING_KERNEL = """#!/bin/sh

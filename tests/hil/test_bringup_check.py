@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_py.canbus import CanHub
+from ground_station.canhub import CanHub
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent

@@ -18,7 +18,13 @@ import pytest
 
 from firmware_py.profile import load_profile
 from firmware_py.vehicle import CtrlState
-from ground_station.rigs.lockstep import LockstepRig, cell_policy, far_trip, paper10, run_episode
+from ground_station.lab.rigs.lockstep import (
+    LockstepRig,
+    cell_policy,
+    far_trip,
+    paper10,
+    run_episode,
+)
 
 dronecan = pytest.importorskip("dronecan", reason="the dronecan extra (pip install 'qnav[dronecan]')")
 
@@ -81,7 +87,8 @@ def test_range_measurements_fill_the_sectors_by_sensor_id_and_reading_type():
 def test_dronecan_across_processes_and_the_librarys_node_monitor_sees_the_robot(tmp_path):
     from dronecan.app.node_monitor import NodeMonitor
 
-    from firmware_py.canbus import CanHub, open_bus
+    from firmware_py.canbus import open_bus
+    from ground_station.canhub import CanHub
     from tests.support.dronecan_bus import PythonCanBusDriver
 
     with CanHub("dronecan") as hub:

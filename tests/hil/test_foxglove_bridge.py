@@ -18,8 +18,8 @@ import time
 
 import pytest
 
-from firmware_py.subprocs import free_port, stop_process
 from ground_station import cli
+from ground_station.subprocs import free_port, stop_process
 from tests.hil.test_sitl import SitlProcess, cell_world_mm, child_env
 
 pytest.importorskip("websockets", reason="the dev extra's websockets package is the stock client here")

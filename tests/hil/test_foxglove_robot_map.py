@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from firmware_py.subprocs import free_port, stop_process
+from ground_station.subprocs import free_port, stop_process
 from tests.hil.test_foxglove_bridge import _decoder
 from tests.hil.test_sitl import SitlProcess, child_env
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from firmware_py.storage import ACTIVE_POLICY, Storage, boot_policy_candidates, ftp_crc32
-from firmware_py.subprocs import free_udp_port, stop_process
-from ground_station.rigs import link_emulator
-from ground_station.rigs.processes import robot_ftp_process
+from ground_station.lab.rigs import link_emulator
+from ground_station.processes import robot_ftp_process
+from ground_station.subprocs import free_udp_port, stop_process
 
 pytestmark = pytest.mark.slow
 ENV = dict(os.environ, MAVLINK20="1")

@@ -17,9 +17,9 @@ import can
 import pytest
 
 from firmware_py import cli as robot_cli
-from firmware_py.canbus import CanHub
-from firmware_py.subprocs import stop_process
+from ground_station.canhub import CanHub
 from ground_station.monitor.canlog import analyse_candump, write_candump
+from ground_station.subprocs import stop_process
 from sim_bridge import cli as sim_cli
 
 ROOT = Path(__file__).resolve().parents[2]

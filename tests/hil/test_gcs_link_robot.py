@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 
 from firmware_py.policy import PolicyError, load_policy
-from firmware_py.subprocs import free_udp_port, stop_process
 from ground_station import cli
+from ground_station.subprocs import free_udp_port, stop_process
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent

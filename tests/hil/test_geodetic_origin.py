@@ -27,7 +27,7 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import as_float32
-from firmware_py.subprocs import free_udp_port, stop_process
+from ground_station.subprocs import free_udp_port, stop_process
 from tests.hil.test_sitl import SitlProcess, child_env
 from tests.support.consoles import MavProxy
 

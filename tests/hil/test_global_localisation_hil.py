@@ -11,7 +11,7 @@ def test_global_localisation_converges_in_hil_at_the_realistic_profile():
     pytest.importorskip("pymunk")
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy
-    from ground_station.bench.hil import run_global_set
+    from ground_station.lab.bench.hil import run_global_set
     from ground_station.maps import load_map
     from sim_bridge.profiles import profile
 

@@ -12,8 +12,8 @@ from firmware_py import robot_spec
 from firmware_py.encoders import SectorEncoder
 from firmware_py.policy import MapGeometry, dump_policy, load_policy
 from firmware_py.shipped_policies import shipped_policy
+from ground_station.lab.rigs.lockstep import cut_sensors_after, run_episode
 from ground_station.maps import load_map
-from ground_station.rigs.lockstep import cut_sensors_after, run_episode
 from tests.support.controller_rig import sector_seek_policy
 
 PAPER10 = load_map("paper10")

@@ -8,8 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from firmware_py.canbus import CanHub
 from firmware_py.policy import dump_policy
+from ground_station.canhub import CanHub
 from tests.support.controller_rig import sector_seek_policy
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,9 +1,9 @@
 """The HIL scenarios across processes, parametrised by CAN transport.
 
 `hub`: a python-can-remote hub on 127.0.0.1, each scenario run here.
-`vcan`: a real kernel `socketcan:vcan0` from ground_station/rigs/vcan.py:
+`vcan`: a real kernel `socketcan:vcan0` from ground_station/lab/rigs/vcan.py:
 this kernel's own vcan0 where it has one, else user-mode Linux, booted twice
-side by side for all scenarios (ground_station/rigs/hil_scenarios.py inside,
+side by side for all scenarios (ground_station/lab/rigs/hil_scenarios.py inside,
 results back as JSON files on the shared filesystem). Where neither exists the vcan
 tests skip with the reason. The same assertions judge both transports.
 
@@ -28,8 +28,8 @@ from pathlib import Path
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.canbus import CanHub
-from ground_station.rigs import hil_scenarios as hs
+from ground_station.canhub import CanHub
+from ground_station.lab.rigs import hil_scenarios as hs
 from tests.support.vcan import kernel_vcan
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -61,7 +61,7 @@ def vcan_batch(tmp_path_factory):
 
     def run(i_names):
         i, names = i_names
-        return vcan.run(f"{sys.executable} -m ground_station.rigs.hil_scenarios --can {vcan.can_spec} "
+        return vcan.run(f"{sys.executable} -m ground_station.lab.rigs.hil_scenarios --can {vcan.can_spec} "
                         f"--out {out} {candump}{' '.join(names)}", out / f"run{i}", cwd=ROOT, env=env,
                         timeout_s=240)
 

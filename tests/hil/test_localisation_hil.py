@@ -10,14 +10,14 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
-from ground_station.bench.hil import (
+from ground_station.lab.bench.hil import (
     cell_episodes,
     random_pairs,
     run_batch,
     run_global_set,
     sector_episodes,
 )
-from ground_station.rigs.lockstep import CELL_POLICY, cell_policy, paper10, run_episode
+from ground_station.lab.rigs.lockstep import CELL_POLICY, cell_policy, paper10, run_episode
 from sim_bridge.profiles import PROFILES, profile
 
 REALISTIC = PROFILES["realistic"]

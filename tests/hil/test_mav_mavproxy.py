@@ -12,7 +12,7 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import PARAMS
-from firmware_py.subprocs import free_udp_port
+from ground_station.subprocs import free_udp_port
 from tests.support.consoles import MavProxy
 from tests.support.mav_vehicle import Robot
 

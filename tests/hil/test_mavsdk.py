@@ -27,7 +27,7 @@ from firmware_py import robot_spec
 from firmware_py.mavlink import frames
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import resolve_policy_spec
-from firmware_py.subprocs import free_port
+from ground_station.subprocs import free_port
 from tests.hil.test_sitl import SitlProcess, cell_world_mm
 
 pytestmark = pytest.mark.slow

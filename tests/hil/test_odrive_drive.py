@@ -16,7 +16,13 @@ import pytest
 
 from firmware_py.profile import load_profile
 from firmware_py.vehicle import CtrlState
-from ground_station.rigs.lockstep import LockstepRig, cell_policy, far_trip, paper10, run_episode
+from ground_station.lab.rigs.lockstep import (
+    LockstepRig,
+    cell_policy,
+    far_trip,
+    paper10,
+    run_episode,
+)
 from sim_bridge.odrive_axes import CLOSED_LOOP, IDLE
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -77,7 +83,7 @@ def test_an_axis_error_or_a_silent_axis_mid_drive_is_a_fault_naming_the_axis_and
 
 
 def test_odrive_across_processes_on_the_hub(tmp_path):
-    from firmware_py.canbus import CanHub
+    from ground_station.canhub import CanHub
 
     with CanHub("odrive") as hub:
         common = ["--can", hub.spec, "--lockstep", "--profile", ODRIVE]
@@ -111,7 +117,7 @@ def test_a_script_playing_two_odrives_from_the_protocol_alone_is_driven_to_a_goa
     neither the robot's backend nor the sim) in an empty field, wall clock, on a hub."""
     import json
 
-    from firmware_py.canbus import CanHub
+    from ground_station.canhub import CanHub
 
     assert "firmware_py.drives" not in (ROOT / "tools" / "odrive_pair.py").read_text()
     with CanHub("odpair") as hub:

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from firmware_py.onboard_log import OnboardLog
-from firmware_py.subprocs import free_udp_port, stop_process
+from ground_station.subprocs import free_udp_port, stop_process
 
 BIN = Path(sys.executable).parent
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from firmware_py.policy import load_policy
-from firmware_py.subprocs import free_udp_port, stop_process
+from ground_station.subprocs import free_udp_port, stop_process
 from tests.hil.test_gcs_link_robot import qnav, start_robot
 
 ROOT = Path(__file__).resolve().parents[2]

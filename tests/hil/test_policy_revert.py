@@ -12,7 +12,7 @@ from pathlib import Path
 
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import resolve_policy_spec
-from firmware_py.subprocs import free_udp_port, stop_process
+from ground_station.subprocs import free_udp_port, stop_process
 
 BIN = Path(sys.executable).parent
 

@@ -1,4 +1,4 @@
-"""`qnav mission upload --plan --follow` across processes (ground_station/rigs/hil_scenarios.py
+"""`qnav mission upload --plan --follow` across processes (ground_station/lab/rigs/hil_scenarios.py
 `replan`): lockstep pymunk sim with an unmapped disc across the planned way from A to B on paper10,
 the robot on the shipped sector policy over a python-can-remote hub, MAVLink on UDP loopback, the
 ground station as the `qnav` commands an operator types. The policy stalls at the disc (that is
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_py.canbus import CanHub
-from ground_station.rigs import hil_scenarios as hs
+from ground_station.canhub import CanHub
+from ground_station.lab.rigs import hil_scenarios as hs
 
 
 @pytest.mark.timeout(240)

@@ -1,4 +1,4 @@
-"""MAVLink over an emulated serial radio (ground_station/rigs/serial_radio.py):
+"""MAVLink over an emulated serial radio (ground_station/lab/rigs/serial_radio.py):
 two pseudo-terminals joined at 57600 baud, SiK-like packet loss; then the
 real programs over it: `qnav-robot --mavlink /dev/pts/N --mavlink-baud 57600`
 and `qnav upload/mission/param/arm/mode/monitor --mavlink /dev/pts/M,57600`."""
@@ -11,9 +11,9 @@ import time
 
 import pytest
 
-from firmware_py.canbus import CanHub
-from ground_station.rigs import hil_scenarios as hs
-from ground_station.rigs.serial_radio import RadioConfig, SerialRadio, split_frames
+from ground_station.canhub import CanHub
+from ground_station.lab.rigs import hil_scenarios as hs
+from ground_station.lab.rigs.serial_radio import RadioConfig, SerialRadio, split_frames
 
 V2 = bytes([0xFD, 3, 0, 0, 7, 1, 1, 0, 0, 0]) + b"abc" + b"\x01\x02"  # unsigned, 3-byte payload
 V2_SIGNED = bytes([0xFD, 1, 1, 0, 8, 1, 1, 0, 0, 0]) + b"z" + b"\x01\x02" + bytes(13)

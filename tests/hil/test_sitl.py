@@ -20,9 +20,9 @@ import pytest
 
 from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import PARAMS
-from firmware_py.subprocs import free_udp_port
 from firmware_py.vehicle import VehicleConfig
-from ground_station.rigs.processes import other_processes
+from ground_station.processes import other_processes
+from ground_station.subprocs import free_udp_port
 from tests.support.consoles import ConsoleProcess, MavProxy
 
 ROOT = Path(__file__).resolve().parents[2]

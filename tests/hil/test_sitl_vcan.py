@@ -1,5 +1,5 @@
 """`qnav sitl --can socketcan:vcan0` on a kernel vcan0 (this kernel's, else
-user-mode Linux via ground_station/rigs/vcan.py; skipped with the reason
+user-mode Linux via ground_station/lab/rigs/vcan.py; skipped with the reason
 where neither exists): the bring-up comes up, a separate pymavlink client
 sees the robot's HEARTBEAT, `candump -L vcan0` records the sim's and the
 robot's frames (decoded with cantools and firmware_py/qnav.dbc), and the run
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_py.subprocs import free_udp_port
+from ground_station.subprocs import free_udp_port
 from tests.support.vcan import kernel_vcan
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -17,9 +17,9 @@ from firmware_py.mavlink.dialect import mavlink2
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
 from firmware_py.vehicle import CtrlState, Mode
+from ground_station.lab.rigs.lockstep import LockstepRig
 from ground_station.maps import load_map
 from ground_station.monitor.model import VehicleView
-from ground_station.rigs.lockstep import LockstepRig
 from sim_bridge.obstacles import ObstacleLayer
 
 PERIOD_US = robot_spec.CONTROL_PERIOD_US

@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from firmware_py.subprocs import free_udp_port
+from ground_station.subprocs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "walkthrough.md"

@@ -16,8 +16,9 @@ import pytest
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
-from firmware_py.canbus import CanHub, open_bus
-from firmware_py.subprocs import stop_process
+from firmware_py.canbus import open_bus
+from ground_station.canhub import CanHub
+from ground_station.subprocs import stop_process
 from sim_bridge import reflex
 from sim_bridge.plant import LockstepError, Plant, SimConfig, run_lockstep, run_paced
 from sim_bridge.world import Pose

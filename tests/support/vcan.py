@@ -1,12 +1,12 @@
 """The one way tests get a kernel vcan0: the provider chain of
-ground_station/rigs/vcan.py, or a skip whose reason names each provider tried
+ground_station/lab/rigs/vcan.py, or a skip whose reason names each provider tried
 and why it failed (printed, and in pytest's -ra summary)."""
 
 from __future__ import annotations
 
 import pytest
 
-from ground_station.rigs.vcan import Vcan, VcanUnavailable, find_vcan
+from ground_station.lab.rigs.vcan import Vcan, VcanUnavailable, find_vcan
 
 
 def kernel_vcan() -> Vcan:

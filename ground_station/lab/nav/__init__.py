@@ -1,0 +1,1 @@
+"""The twin navigation bench: controllers on the planned stack, episodes (lab)."""

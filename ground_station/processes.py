@@ -1,0 +1,226 @@
+"""Our programs as child processes, for the rigs, benches, fault scenarios and the demo.
+
+The one place that starts and stops `qnav-robot`, `qnav-sim`, the robot's
+standalone FTP shell and the reflex controller as children:
+
+- `program_argv` runs a program's `main()` with this interpreter (so the
+  child runs the same code as the parent, installed or from the checkout),
+  with SIGINT restored: a parent started in the background (nohup, `&`)
+  passes SIGINT ignored on to its children, and they would then never end
+  cleanly on `stop()`. `qnav_robot`, `qnav_sim` build on it.
+- `ChildProcess`: one child, its output in a log file (a pipe nobody reads
+  could fill up and stall it), stopped for sure: SIGINT (so it writes its
+  outputs), then `ground_station.subprocs.stop_process` (SIGTERM, SIGKILL).
+- `RobotProcess`: `qnav-robot` on `udpin:127.0.0.1:PORT` with its storage in
+  a directory the caller owns; `robot_ftp_process`: the FTP shell alone.
+- `ProcessGroup`: several children, each in its own session (a Ctrl-C in the
+  terminal reaches only the parent, which stops them in order).
+- `other_processes`: every other live process and its command line, to find
+  what a run left behind.
+
+Free ports and the stop sequence itself come from `ground_station.subprocs`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+from ground_station.subprocs import free_udp_port, signal_process, stop_process
+
+ROBOT_MAIN = "firmware_py.cli"  # the console scripts' entry points (pyproject.toml [project.scripts])
+SIM_MAIN = "sim_bridge.cli"
+FTP_SHELL_MAIN = "ground_station.lab.rigs.ftp_shell"
+REFLEX_MAIN = "sim_bridge.reflex"
+
+
+def other_processes() -> Iterator[tuple[int, str]]:
+    """(pid, command line, its NULs as spaces) of every live process but this one (Linux
+    /proc); a process that ends while it is read is passed over."""
+    me = os.getpid()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit() or int(entry) == me:
+            continue
+        try:
+            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        yield int(entry), cmd
+
+
+def program_argv(module: str, name: str) -> list[str]:
+    """argv prefix running `module.main()` as program `name` (its argv[0], so its
+    usage and error lines read as usual), with SIGINT restored."""
+    return [sys.executable, "-c",
+            "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            f"sys.argv[0] = {name!r}; from {module} import main; sys.exit(main())"]
+
+
+def qnav_robot(*args: str | Path) -> list[str]:
+    return [*program_argv(ROBOT_MAIN, "qnav-robot"), *map(str, args)]
+
+
+def qnav_sim(*args: str | Path) -> list[str]:
+    return [*program_argv(SIM_MAIN, "qnav-sim"), *map(str, args)]
+
+
+class ChildProcess:
+    """One child process; see the module docstring. Use as a context manager or
+    call `start()` and `stop()`."""
+
+    def __init__(self, argv: list[str], log: Path | None, *, own_group: bool = False,
+                 append_log: bool = False) -> None:
+        self.argv = [str(a) for a in argv]
+        self.log = Path(log) if log is not None else None
+        self.own_group = own_group
+        self.append_log = append_log
+        self.proc: subprocess.Popen | None = None
+
+    def start(self) -> ChildProcess:
+        env = dict(os.environ, MAVLINK20="1", PYTHONUNBUFFERED="1")
+        if self.log is None:
+            self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                         stderr=subprocess.DEVNULL, env=env, start_new_session=self.own_group)
+            return self
+        self.log.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log, "ab" if self.append_log else "wb") as out:  # the child keeps its own copy
+            self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=out,
+                                         stderr=subprocess.STDOUT, env=env, start_new_session=self.own_group)
+        return self
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    @property
+    def returncode(self) -> int | None:
+        return None if self.proc is None else self.proc.poll()
+
+    def wait(self, timeout_s: float | None = None) -> int:
+        """Its exit code; raises subprocess.TimeoutExpired if it still runs after timeout_s."""
+        assert self.proc is not None, "not started"
+        return self.proc.wait(timeout=timeout_s)
+
+    def kill9(self) -> None:
+        """The crash: SIGKILL, no clean-up in the child."""
+        proc = self.proc
+        if proc is not None and proc.poll() is None:
+            signal_process(proc, signal.SIGKILL, group=self.own_group)
+            proc.wait(timeout=10)
+
+    def stop(self, grace_s: float = 20.0) -> int | None:
+        """SIGINT (a clean exit: outputs and stats written), then SIGTERM and SIGKILL if it
+        hangs; the exit code (None if never started)."""
+        proc = self.proc
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            signal_process(proc, signal.SIGINT, group=self.own_group)
+            try:
+                proc.wait(timeout=grace_s)
+            except subprocess.TimeoutExpired:
+                stop_process(proc, 5.0, signal.SIGTERM, group=self.own_group)
+        return proc.returncode
+
+    def log_text(self) -> str:
+        try:
+            return self.log.read_text(errors="replace") if self.log is not None else ""
+        except OSError:
+            return ""
+
+    def log_tail(self, n: int = 5) -> str:
+        return " | ".join(self.log_text().splitlines()[-n:])
+
+    def __enter__(self) -> ChildProcess:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class RobotProcess(ChildProcess):
+    """`qnav-robot` listening for MAVLink on `udpin:127.0.0.1:PORT` (ground
+    stations and the link emulator send to it), its storage in `storage`.
+
+    Without `can` it gets a private in-process `virtual` bus: no sensors, so it
+    stays disarmed in STANDBY, which is all uploads, activations and parameter
+    saves need. Its log is appended to, so a restarted robot adds to it.
+    `kill9()` is the crash; `stop()` the clean end (its shutdown joins two
+    threads with 5 s timeouts, hence the 20 s grace)."""
+
+    def __init__(self, storage: Path, *, port: int | None = None, key_file: Path | None = None,
+                 can: str | None = None, extra: list[str] | None = None, log: Path | None = None) -> None:
+        self.storage = Path(storage)
+        self.port = port or free_udp_port()
+        args = ["--can", can or f"virtual:rig-{uuid.uuid4().hex}", "--storage", str(self.storage),
+                "--mavlink", f"udpin:127.0.0.1:{self.port}"]
+        if key_file is not None:
+            args += ["--signing-key", str(key_file)]
+        super().__init__(qnav_robot(*args, *(extra or [])),
+                         log or self.storage.parent / f"robot-{self.port}.log", append_log=True)
+
+    @property
+    def url(self) -> str:
+        """What a ground station connects to (directly, without the emulator)."""
+        return f"udpout:127.0.0.1:{self.port}"
+
+    def start(self) -> RobotProcess:
+        self.storage.mkdir(parents=True, exist_ok=True)
+        super().start()
+        return self
+
+    def __enter__(self) -> RobotProcess:
+        return self.start()
+
+
+@contextlib.contextmanager
+def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None,
+                      log: Path | None = None) -> Iterator[subprocess.Popen]:
+    """The robot's standalone FTP shell (`python -m ground_station.lab.rigs.ftp_shell`) in a
+    child process, once it serves; always stopped on exit.
+
+    Its output goes to `log` (default: root/../<root name>.log)."""
+    args = ["--root", str(root), "--mavlink", url]
+    if key_file is not None:
+        args += ["--signing-key", str(key_file)]
+    child = ChildProcess([*program_argv(FTP_SHELL_MAIN, "qnav-ftp-shell"), *args, *(extra or [])],
+                         log or root.parent / f"{root.name}.log")
+    proc = child.start().proc
+    assert proc is not None
+    try:
+        deadline = time.monotonic() + 20
+        while "serving" not in child.log_text():  # printed once the socket is up
+            if not child.alive or time.monotonic() > deadline:
+                raise RuntimeError(f"robot FTP shell did not start: {child.log_text().strip()}")
+            time.sleep(0.05)
+        yield proc
+    finally:
+        child.stop(grace_s=5.0)
+
+
+class ProcessGroup:
+    """Named children, each in its own session/process group, stopped in the
+    order they were started."""
+
+    def __init__(self) -> None:
+        self.children: list[tuple[str, ChildProcess]] = []
+
+    def start(self, name: str, argv: list[str], log: Path) -> ChildProcess:
+        child = ChildProcess(argv, log, own_group=True).start()
+        self.children.append((name, child))
+        return child
+
+    def dead(self) -> list[tuple[str, int]]:
+        """(name, exit code) of the children that have ended."""
+        return [(name, c.returncode) for name, c in self.children if c.returncode is not None]
+
+    def stop_all(self, grace_s: float = 15.0) -> dict[str, int | None]:
+        """Stop each (SIGINT, grace_s, then SIGTERM, SIGKILL); their exit codes by name."""
+        return {name: child.stop(grace_s) for name, child in self.children}
