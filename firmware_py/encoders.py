@@ -13,7 +13,7 @@ here is integer arithmetic so the robot's control path stays int-only.
   of `range_edges_mm` at or below sensor i's range.
 
 The cell-stepped Bug memory encoder of `sector-memory` policies lives in
-`firmware_py.gridbug`.
+`firmware_py.kinds.sector_memory.gridbug`.
 """
 
 from __future__ import annotations

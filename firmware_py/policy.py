@@ -50,8 +50,8 @@ from firmware_py import kinds, robot_spec
 from firmware_py.encoders import best_action
 from firmware_py.kinds.base import PAIR as _PAIR
 from firmware_py.kinds.base import Encoder, PolicyKind
-from firmware_py.localplan import META_KEY as PLANNER_KEY
-from firmware_py.localplan import LocalPlannerConfig
+from firmware_py.kinds.sector.localplan import META_KEY as PLANNER_KEY
+from firmware_py.kinds.sector.localplan import LocalPlannerConfig
 from firmware_py.mapdata import MapDataError, OccupancyGrid, describe, grid_from_metadata, same_grid
 
 # --- format constants ---------------------------------------------------------
@@ -135,7 +135,7 @@ class Policy:
     control_period_us: int = 0  # the period the actions were trained for (load_policy sets it)
     map_geometry: MapGeometry = MapGeometry(0, 0, 0)  # the training map (load_policy sets it)
     map_grid: OccupancyGrid | None = None  # the training map's cells, if the file carries them (mapdata)
-    # sector policies with a map: re-plan round unmapped obstacles on the robot (firmware_py.localplan)
+    # sector policies with a map: re-plan round unmapped obstacles on the robot (firmware_py.kinds.sector.localplan)
     local_planner: LocalPlannerConfig | None = None
 
     @property

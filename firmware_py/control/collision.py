@@ -211,7 +211,7 @@ def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int]
     """(left, right) with the straight part limited, and "", "slow" or "stop" (what it did).
     `remembered`: obstacle points the policy kind remembers, in the robot's frame (`robot_frame`):
     a disc that slipped into the gap between two sensors' cones still counts. `mapped`: per sensor,
-    whether the robot's map explains its reading (`firmware_py.localplan.mapped_readings`; empty:
+    whether the robot's map explains its reading (`firmware_py.kinds.sector.localplan.mapped_readings`; empty:
     none does)."""
     v2, w2 = left + right, right - left  # twice the straight and the turning part
     if v2 == 0 or (stop_mm <= 0 and slow_mm <= 0):

@@ -47,7 +47,7 @@ from firmware_py.control.state import (
     SEV_WARNING,
 )
 from firmware_py.kinds import DriveTick
-from firmware_py.localplan import mapped_readings
+from firmware_py.kinds.sector.localplan import mapped_readings
 from firmware_py.mapdata import OccupancyGrid
 from firmware_py.policy import config_mismatch
 from firmware_py.vehicle import (

@@ -195,7 +195,7 @@ class PolicyKind:
     # a goal's index for the table, or -1 and why it cannot be a goal of this policy
     goal_index: Callable[[Policy, int, int], tuple[int, str]] = field(default=free_goal)
     header_fields: Callable[[Policy], dict[str, Any]] = field(default=_no_header)
-    local_planner: bool = False  # may carry `local_planner` metadata (firmware_py.localplan)
+    local_planner: bool = False  # may carry `local_planner` metadata (firmware_py.kinds.sector.localplan)
     # the table is indexed by one map's cells (a cell policy): it runs only on the map it was trained
     # on. Other kinds observe ranges and bearings and take the robot's own map (issue 32)
     map_specific: bool = False

@@ -245,14 +245,14 @@ def file_metadata(run: TrainingRun, qt: Quantised) -> dict:
 
 
 META_GRID = "map_grid"  # firmware_py.mapdata.META_KEY
-META_PLANNER = "local_planner"  # firmware_py.localplan.META_KEY
+META_PLANNER = "local_planner"  # firmware_py.kinds.sector.localplan.META_KEY
 
 
 def planner_metadata(text: str, kind: str, meta: dict) -> dict:
     """The `local_planner` metadata value from a JSON object of parameters
     (ValueError, one line, for bad JSON, a bad parameter, a policy that is
     not a plain sector policy or carries no map)."""
-    from firmware_py.localplan import LocalPlannerConfig
+    from firmware_py.kinds.sector.localplan import LocalPlannerConfig
 
     if not robot_kinds.of_name(kind).local_planner:
         able = [k for k in robot_kinds.names() if robot_kinds.of_name(k).local_planner]

@@ -1,4 +1,4 @@
-"""The sector-memory kind's route on the robot's map (firmware_py.cellroute): the distance field,
+"""The sector-memory kind's route on the robot's map (firmware_py.kinds.sector_memory.cellroute): the distance field,
 the straight sub-goal, the field built off the tick, and the Bug steering on sub-goals (and back
 on the goal when one cannot be reached)."""
 
@@ -6,9 +6,14 @@ from __future__ import annotations
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
-from firmware_py.cellroute import UNREACHABLE, CellRoute, distance_field, straight_subgoal
 from firmware_py.kinds.base import DriveTick
 from firmware_py.kinds.sector_memory import SUBGOAL_SLACK_MOVES, SectorMemoryDriver
+from firmware_py.kinds.sector_memory.cellroute import (
+    UNREACHABLE,
+    CellRoute,
+    distance_field,
+    straight_subgoal,
+)
 from firmware_py.mapdata import OccupancyGrid
 from firmware_py.policy import load_policy, on_robot_map
 from firmware_py.shipped_policies import shipped_policy

@@ -120,9 +120,9 @@ def test_the_controller_fills_no_blind_gap_for_a_reading_its_map_explains():
 def test_a_sector_memory_step_the_monitor_holds_is_walled_and_the_robot_goes_back():
     """The Bug kind's cell step held by the collision monitor for STEP_BLOCKED_US: back to the cell it
     left, and that move reads as a wall there (for WALLED_US), so the Bug decides another way round."""
-    from firmware_py.gridbug import DIR_HEADING_MRAD
     from firmware_py.kinds import sector_memory as sm
     from firmware_py.kinds.base import DriveTick
+    from firmware_py.kinds.sector_memory.gridbug import DIR_HEADING_MRAD
     from firmware_py.kinds.stepper import STEP_BLOCKED_US, Step
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy

@@ -1,4 +1,4 @@
-"""The cell-stepped Bug memory encoder (`firmware_py.gridbug`): the mode rules,
+"""The cell-stepped Bug memory encoder (`firmware_py.kinds.sector_memory.gridbug`): the mode rules,
 the state layout, the neighbour flags from the sensors, and its .qtab kind
 (round trip, damaged sections refused with one line)."""
 
@@ -11,7 +11,7 @@ from array import array
 import pytest
 
 from firmware_py import kinds, robot_spec
-from firmware_py.gridbug import (
+from firmware_py.kinds.sector_memory.gridbug import (
     MODE_GO,
     MODE_WALL_LEFT,
     MODE_WALL_RIGHT,

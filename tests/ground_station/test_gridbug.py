@@ -16,7 +16,7 @@ import pytest
 
 from firmware_py import robot_spec
 from firmware_py.control.controller import Controller
-from firmware_py.gridbug import GridBugEncoder, GridBugMemory
+from firmware_py.kinds.sector_memory.gridbug import GridBugEncoder, GridBugMemory
 from firmware_py.policy import load_policy
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.learn.config import TrainConfig, validate_config

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 from firmware_py import robot_spec
-from firmware_py.localplan import LocalPlannerConfig
+from firmware_py.kinds.sector.localplan import LocalPlannerConfig
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.lab.nav import controllers as nc

@@ -174,7 +174,12 @@ def test_the_twin_applies_the_robots_collision_monitor_stop_zone():
     toward a reading inside the stop zone is stopped, a turn in place never, a clear front never;
     a remembered point between the cones counts as on the robot (Controller._outputs)."""
     from firmware_py.control.collision import MapCorners
-    from firmware_py.localplan import FORWARD, TURN_LEFT, LocalPlannerConfig, ObstacleMemory
+    from firmware_py.kinds.sector.localplan import (
+        FORWARD,
+        TURN_LEFT,
+        LocalPlannerConfig,
+        ObstacleMemory,
+    )
     from firmware_py.vehicle import VehicleConfig
     from ground_station.lab.nav.planned import grid_of, monitor_stops
 
@@ -200,7 +205,11 @@ def test_the_twins_monitor_shortcut_answers_as_the_robots_monitor():
     import random
 
     from firmware_py.control import collision
-    from firmware_py.localplan import LocalPlannerConfig, ObstacleMemory, mapped_readings
+    from firmware_py.kinds.sector.localplan import (
+        LocalPlannerConfig,
+        ObstacleMemory,
+        mapped_readings,
+    )
     from firmware_py.vehicle import VehicleConfig
     from ground_station.lab.nav.planned import grid_of, monitor_stops
 

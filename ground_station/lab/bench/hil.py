@@ -299,7 +299,7 @@ def twin_outcomes_gridbug(gm, policy: Policy, rows: list[dict]) -> list[str]:
     heading turned to the nearest grid direction, as the robot does)."""
     import numpy as np
 
-    from firmware_py.gridbug import GridBugEncoder, grid_dir_of
+    from firmware_py.kinds.sector_memory.gridbug import GridBugEncoder, grid_dir_of
     from ground_station.learn.sector_memory.kernels import COLLISION, SUCCESS, eval_kernel
     from ground_station.learn.sector_memory.trainer import encoder_params
 

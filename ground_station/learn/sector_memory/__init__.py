@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from firmware_py import robot_spec
-from firmware_py.gridbug import GridBugEncoder
+from firmware_py.kinds.sector_memory.gridbug import GridBugEncoder
 from ground_station.learn.kinds import TrainingKind, option
 
 

@@ -1,5 +1,5 @@
 """The cell-stepped `sector-memory` encoding on a grid twin (numba): the
-jitted copy of `firmware_py.gridbug.GridBugEncoder` (a test compares them on
+jitted copy of `firmware_py.kinds.sector_memory.gridbug.GridBugEncoder` (a test compares them on
 many inputs), its Q-learning kernel and greedy rollouts.
 
 The twin moves the robot cell to cell: a relative move turns the reference
@@ -31,7 +31,7 @@ import math
 import numba
 import numpy as np
 
-from firmware_py import gridbug
+from firmware_py.kinds.sector_memory import gridbug
 from ground_station.learn.jit import epsilon_at, greedy, rand01, randint
 
 MODE_GO = 0
@@ -41,7 +41,7 @@ N_FREE = 16
 N_SECTORS = 8
 DCOL = np.array([1, 0, -1, 0], dtype=np.int64)  # world direction -> column step (east, north, west, south)
 DROW = np.array([0, -1, 0, 1], dtype=np.int64)  # rows grow southwards
-# (forward sign + 1) * 3 + (left sign + 1) -> sector (as firmware_py.gridbug._SECTOR)
+# (forward sign + 1) * 3 + (left sign + 1) -> sector (as firmware_py.kinds.sector_memory.gridbug._SECTOR)
 SECTOR_OF = np.array([5, 4, 3, 6, 0, 2, 7, 0, 1], dtype=np.int64)
 
 

@@ -1,5 +1,5 @@
 """Training and greedy evaluation of the cell-stepped `sector-memory`
-encoding (`firmware_py.gridbug.GridBugEncoder`) on the grid twin
+encoding (`firmware_py.kinds.sector_memory.gridbug.GridBugEncoder`) on the grid twin
 (`ground_station.learn.sector_memory.kernels`), direct setting: the goal vector
 only, no waypoints, no map in the state.
 
@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from firmware_py import gridbug as gb
+from firmware_py.kinds.sector_memory import gridbug as gb
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.evaluate import eval_episodes
@@ -38,7 +38,7 @@ from ground_station.learn.train import TrainResult, run_trainer
 from ground_station.maps import GridMap
 from ground_station.maps.distances import bfs_distances
 
-# (forward sign, left sign) of each sector (inverse of firmware_py.gridbug._SECTOR)
+# (forward sign, left sign) of each sector (inverse of firmware_py.kinds.sector_memory.gridbug._SECTOR)
 SECTOR_SIGNS = ((1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1))
 WALL_ORDER = {1: (gb.MOVE_RIGHT, gb.MOVE_FORWARD, gb.MOVE_LEFT, gb.MOVE_BACK),  # wall on the right: right-hand rule
               2: (gb.MOVE_LEFT, gb.MOVE_FORWARD, gb.MOVE_RIGHT, gb.MOVE_BACK)}
@@ -156,7 +156,7 @@ def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = Fal
 
 def initial_dirs(hidx: np.ndarray, headings: int) -> np.ndarray:
     """Grid direction the robot turns to before its first decision, per heading index (as the robot:
-    `firmware_py.gridbug.grid_dir_of` of the heading in mrad)."""
+    `firmware_py.kinds.sector_memory.gridbug.grid_dir_of` of the heading in mrad)."""
     return np.array([gb.grid_dir_of(int(round(k * 2000.0 * math.pi / headings))) for k in range(headings)],
                     dtype=np.int64)[hidx]
 

@@ -1,4 +1,4 @@
-"""The `sector-memory` kind: the cell-stepped Bug memory (firmware_py.gridbug). At
+"""The `sector-memory` kind: the cell-stepped Bug memory (firmware_py.kinds.sector_memory.gridbug). At
 the centre of its cell and facing a grid direction, the robot encodes (Bug
 memory, goal vector from the cell centre, the four neighbours' sensors), takes
 the greedy relative move, and the cell stepper drives it there. Encoder section:
@@ -13,9 +13,10 @@ from typing import cast
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
-from firmware_py.cellroute import CellRoute, straight_subgoal
 from firmware_py.control.odometry import wrap_mrad
-from firmware_py.gridbug import (
+from firmware_py.kinds.base import PAIR, DriveTick, Goals, Policy, PolicyKind, Unpacked
+from firmware_py.kinds.sector_memory.cellroute import CellRoute, straight_subgoal
+from firmware_py.kinds.sector_memory.gridbug import (
     DIR_HEADING_MRAD,
     DIR_VECTORS,
     MOVE_STEPS,
@@ -23,7 +24,6 @@ from firmware_py.gridbug import (
     GridBugMemory,
     grid_dir_of,
 )
-from firmware_py.kinds.base import PAIR, DriveTick, Goals, Policy, PolicyKind, Unpacked
 from firmware_py.kinds.stepper import ARRIVE_TOLERANCE_MM, TURN_TOLERANCE_MRAD, CellStepper, Step
 
 _HEAD = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
@@ -61,7 +61,7 @@ def pack(enc: GridBugEncoder, _goals: Goals, _cell_mm: int) -> bytes:
 class SectorMemoryDriver(CellStepper):
     """The Bug memory of the current goal and drive, and the cell step it decides. On a robot with a
     map (of the policy's cell size) the Bug steers on sub-goals along the map's route to the goal
-    (firmware_py.cellroute), its memory restarted at each; without one, on the goal."""
+    (firmware_py.kinds.sector_memory.cellroute), its memory restarted at each; without one, on the goal."""
 
     def __init__(self, policy: Policy, work: Background | None = None) -> None:
         super().__init__(policy, work)

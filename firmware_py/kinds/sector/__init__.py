@@ -2,7 +2,7 @@
 of chosen sensors), one table decision every control period, its action a wheel
 speed pair. With its map and `local_planner` metadata the policy steers on the
 local planner's sub-goals round obstacles the map does not show, behind the
-motion guard (firmware_py.localplan). Encoder section: u16 bearing_sectors, u8
+motion guard (firmware_py.kinds.sector.localplan). Encoder section: u16 bearing_sectors, u8
 n_sensors, u8 n_edges, the sensor indices (u8), the range edges (u16 mm); then the
 action pairs (left, right) mm/s.
 """
@@ -26,7 +26,12 @@ from firmware_py.kinds.base import (
     Unpacked,
     wheel_actions,
 )
-from firmware_py.localplan import MotionGuard, ObstacleMemory, PlannedTarget, unmapped_readings
+from firmware_py.kinds.sector.localplan import (
+    MotionGuard,
+    ObstacleMemory,
+    PlannedTarget,
+    unmapped_readings,
+)
 
 _HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 
