@@ -140,7 +140,7 @@ class ObstacleLayer:
             return
         pose = self.world.pose
         step_movers(self.movers, self._occ, self._cell_mm, self.discs, pose.x * 1000.0, pose.y * 1000.0,
-                    float(robot_spec.ROBOT_RADIUS_MM), dt_s)
+                    float(self.world.geometry.robot_radius_mm), dt_s)  # the profile's body
         for body, (x, y, *_rest) in zip(self.bodies, self.movers, strict=True):
             body.position = (x / 1000.0, y / 1000.0)
         for body in self.bodies:

@@ -17,8 +17,11 @@ imported, so the robot's backend is tested against an independent reading):
 
 The wheels follow the axes through the plant's `MotorDriver` model (first-order
 response, acceleration limit): an axis in closed loop commands its wheel, an idle
-axis commands zero. Faults to inject: an axis error at a sim time, an axis that
-falls silent, and a motor mounted the other way round (`flip`, for bring-up checks).
+axis commands zero. Motor turns are the profile's: wheel turns (of its
+`wheel_radius_mm`) times `gear_ratio`, with the profile's drive signs; the position
+estimate is the wheel encoders' measured turns, the velocity the wheel's speed.
+Faults to inject: an axis error at a sim time, an axis that falls silent, and a
+motor mounted the other way round (`flip`, for bring-up checks).
 """
 
 from __future__ import annotations
@@ -88,8 +91,7 @@ class EmulatedAxis:
 class ODrivePair:
     """The left and right axes of a robot profile, on the plant's wheels."""
 
-    def __init__(self, profile: RobotProfile, motors: MotorDriver, counts_per_rev: int,
-                 flip: str = "") -> None:
+    def __init__(self, profile: RobotProfile, motors: MotorDriver, flip: str = "") -> None:
         d = profile.drive
         self.axes = [EmulatedAxis(d.left_node, d.left_sign * (-1 if flip == "left" else 1)),
                      EmulatedAxis(d.right_node, d.right_sign * (-1 if flip == "right" else 1))]
@@ -97,7 +99,6 @@ class ODrivePair:
         self.motors = motors
         self.gear = d.gear_ratio
         self.mm_per_wheel_turn = profile.wheel_circumference_mm()
-        self.counts_per_rev = counts_per_rev
         self.out: list[can.Message] = []
         self.faults: list[tuple[int, str, str]] = []  # (sim us, "error:CODE" | "silent", side)
 
@@ -114,8 +115,9 @@ class ODrivePair:
         speeds = [a.mount_sign * a.motor_turns_s() / self.gear * self.mm_per_wheel_turn for a in self.axes]
         self.motors.command(round(speeds[0]), round(speeds[1]), 0, now_us)
 
-    def step(self, now_us: int, wheel_counts: tuple[int, int]) -> None:
-        """After a physics step at sim time `now_us`: faults due, watchdogs, and the frames due now."""
+    def step(self, now_us: int, wheel_turns: tuple[float, float]) -> None:
+        """After a physics step at sim time `now_us`: faults due, watchdogs, and the frames due now
+        (`wheel_turns`: each wheel's measured turns, `WheelEncoders.wheel_turns`)."""
         for t, what, side in list(self.faults):
             if now_us >= t:
                 self.faults.remove((t, what, side))
@@ -127,11 +129,11 @@ class ODrivePair:
         for a in self.axes:
             a.check_watchdog(now_us)
         self._command_wheels(now_us)
-        for a, counts, speed in zip(self.axes, wheel_counts, self.motors.speed, strict=True):
+        for a, turns, speed in zip(self.axes, wheel_turns, self.motors.speed, strict=True):
             if a.silent:
                 continue
             if now_us % ESTIMATES_US == 0:
-                pos = a.mount_sign * counts / self.counts_per_rev * self.gear
+                pos = a.mount_sign * turns * self.gear
                 vel = a.mount_sign * speed / self.mm_per_wheel_turn * self.gear
                 self.out.append(can.Message(arbitration_id=a.node << 5 | 0x09, is_extended_id=False,
                                             data=struct.pack("<ff", pos, vel)))

@@ -7,6 +7,12 @@ one control period in fixed `robot_spec.PHYSICS_DT_US` steps. `run_lockstep` and
 `run_paced` are the thin shells that move frames over a python-can bus; the
 lockstep handshake is specified in docs/can-protocol.md.
 
+The robot it plays is one robot profile (`SimConfig.robot`, a
+`firmware_py.profile.RobotProfile`; None is the built-in robot, `profile.DEFAULT`):
+the world's body radius and wheel base, the encoders' wheel and counts per
+turn, the boards' gear ratio and signs, and the range sensors' angles, order,
+count and range all come from it (docs/robot-profile.md, "The sim plays the profile").
+
 Outputs: CAN log through python-can's `can.Logger` (sim-time stamps), the
 ground-truth trajectory CSV and a PNG (see `sim_bridge.outputs`).
 """
@@ -24,6 +30,7 @@ import numpy as np
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
+from firmware_py.profile import DEFAULT as DEFAULT_ROBOT
 from sim_bridge.battery import Battery
 from sim_bridge.motors import MotorDriver, MotorParams
 from sim_bridge.profiles import PlantProfile
@@ -49,7 +56,8 @@ class SimConfig:
     body: BodyParams = field(default_factory=BodyParams)
     encoder_slip_std: float = 0.0
     encoder_scale: tuple[float, float] = (1.0, 1.0)  # (left, right) measured / true travel
-    # the robot profile whose boards the sim plays (firmware_py.profile; None: qnav's own frames)
+    # the robot profile the sim plays: its geometry, sensors and boards (firmware_py.profile;
+    # None: the built-in robot on qnav's own frames)
     robot: Any = None
     flip_wheel: str = ""  # "left" / "right": that motor mounted the other way round (bring-up checks)
     drive_faults: tuple[tuple[float, str, str], ...] = ()  # (sim s, "error:0x800" | "silent", "left" | "right")
@@ -95,15 +103,20 @@ class Plant:
                  start: Pose | None = None) -> None:
         config = config if config is not None else SimConfig()
         self.config = config
-        self.world = World(occ, config.cell_size_m, start, config.body)
+        robot = config.robot
+        self.profile = robot if robot is not None else DEFAULT_ROBOT  # the one robot every part below plays
+        sensors = self.profile.sensors
+        if sensors.backend == "qnav" and len(sensors.angles_deg) != robot_spec.SENSOR_COUNT:
+            raise ValueError(f"{len(sensors.angles_deg)} range sensors: qnav's RangeSectors frames carry "
+                             f"{robot_spec.SENSOR_COUNT}; another count needs the dronecan sensor backend")
+        self.world = World(occ, config.cell_size_m, start, config.body, self.profile.geometry)
         # one seeded stream per noise source, so changing one model leaves the others alone
         seeds = random.Random(config.seed)
-        self.ranges = RangeSensors(self.world, config.ranges, random.Random(seeds.getrandbits(64)))
+        self.ranges = RangeSensors(self.world, config.ranges, random.Random(seeds.getrandbits(64)), sensors)
         self.encoders = WheelEncoders(self.world, random.Random(seeds.getrandbits(64)),
                                       config.encoder_slip_std, config.encoder_scale)
         self.odrive: Any = None  # sim_bridge.odrive_axes.ODrivePair when the robot's drive is two ODrives
         self.dronecan: Any = None  # sim_bridge.dronecan_boards.DroneCanBoards: DroneCAN ESCs and/or rangefinders
-        robot = config.robot
         # the robot's tick ends with a SimTickAck unless its drive is qnav's (MotorCommand carries the counter)
         self.answer_is_ack = robot is not None and robot.drive.backend != "qnav"
         if robot is not None and "dronecan" in (robot.drive.backend, robot.sensors.backend):
@@ -121,7 +134,7 @@ class Plant:
             from sim_bridge.odrive_axes import ODrivePair
             # the axes' own watchdog stops the wheels; the wheel model's is out of the way
             self.motors = MotorDriver(replace(config.motors, watchdog_ms=1 << 30))
-            self.odrive = ODrivePair(robot, self.motors, robot_spec.ENCODER_TICKS_PER_REV, config.flip_wheel)
+            self.odrive = ODrivePair(robot, self.motors, config.flip_wheel)
             self.odrive.faults = [(round(t * 1e6), what, side) for t, what, side in config.drive_faults]
         elif self.dronecan is None:
             self.motors = MotorDriver(config.motors)
@@ -136,7 +149,7 @@ class Plant:
         self._in_step = False
         self._interrupt_pending = False
         if self.odrive is not None:
-            self.odrive.step(0, self.encoders.counts())
+            self.odrive.step(0, self.encoders.wheel_turns())
         self.record()
 
     # --- frames out ----------------------------------------------------------
@@ -253,7 +266,7 @@ class Plant:
             gl, gr = world.wheel_ground_speeds()
             motors.observe_ground((gl * 1000, gr * 1000), dt_us)
             if self.odrive is not None:
-                self.odrive.step(self.time_us, encoders.counts())
+                self.odrive.step(self.time_us, encoders.wheel_turns())
             elif self.dronecan is not None:
                 self.dronecan.step(self.time_us)
         if self.obstacles is not None:

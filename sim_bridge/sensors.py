@@ -1,17 +1,24 @@
 """Simulated range sensors, wheel encoders and bumper ring.
 
-Range sensors: one sensor per sector at robot_spec.SENSOR_ANGLES_MRAD, each a fan
-of rays spread over robot_spec.SENSOR_FOV_MRAD, cast with pymunk's
-`segment_query_first` and a ShapeFilter that excludes the robot. Rays start at
-the robot's centre (never inside a wall, unlike the rim when touching one) and
-the reading is the nearest hit minus the robot radius: the distance from the
-sensor face on the rim. Seeded Gaussian noise and dropout; readings below
-RANGE_MIN_MM or beyond RANGE_MAX_MM are flagged as DroneCAN does.
+Everything a robot profile says about them is the profile's
+(`firmware_py.profile`; the default is the built-in robot of `robot_spec`):
+
+Range sensors: one per entry of the profile's `sensors.angles_deg`, in that
+(bus) order and count, each a fan of rays spread over
+robot_spec.SENSOR_FOV_MRAD (no profile key: every sensor has that cone), cast
+with pymunk's `segment_query_first` and a ShapeFilter that excludes the
+robot. Rays start at the robot's centre (never inside a wall, unlike the rim
+when touching one) and the reading is the nearest hit minus the body radius:
+the distance from the sensor face on the rim. Seeded Gaussian noise and
+dropout; readings below RANGE_MIN_MM or beyond the profile's
+`sensors.max_range_mm` are flagged as DroneCAN does. Angles are taken in
+whole milliradians, as the robot records them (`RobotProfile.policy_geometry`).
 
 Encoders integrate each wheel's ground speed (from the body's motion) into
-ticks at robot_spec.ENCODER_TICKS_PER_REV, with an optional per-wheel scale
-error (measured / true travel) and seeded slip (each wheel's travel in each
-physics step times 1 + N(0, slip)). Named combinations: sim_bridge/profiles.py. The bumper
+ticks at the profile's `encoder_counts_per_rev` of a wheel of its
+`wheel_radius_mm`, with an optional per-wheel scale error (measured / true
+travel) and seeded slip (each wheel's travel in each physics step times
+1 + N(0, slip)). Named combinations: sim_bridge/profiles.py. The bumper
 reads the contacts kept by the world's collision handlers.
 
 Every random draw comes from one seeded `random.Random` in a fixed order, so
@@ -28,6 +35,8 @@ import pymunk
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
+from firmware_py.profile import DEFAULT as DEFAULT_ROBOT
+from firmware_py.profile import SensorConfig
 from sim_bridge.world import ROBOT_CATEGORY, World
 
 
@@ -46,10 +55,17 @@ class RangeParams:
             raise ValueError(f"noise must be >= 0, got {self.noise_std_mm}")
 
 
-class RangeSensors:
-    """Eight range sensors on the robot's rim."""
+def sensor_angles_mrad(sensors: SensorConfig) -> list[int]:
+    """The profile's sensor directions in whole milliradians, in bus order (the built-in
+    robot's are robot_spec.SENSOR_ANGLES_MRAD)."""
+    return [round(math.radians(a) * 1000) for a in sensors.angles_deg]
 
-    def __init__(self, world: World, params: RangeParams, rng: random.Random) -> None:
+
+class RangeSensors:
+    """The profile's range sensors on the robot's rim (the built-in robot's eight by default)."""
+
+    def __init__(self, world: World, params: RangeParams, rng: random.Random,
+                 sensors: SensorConfig = DEFAULT_ROBOT.sensors) -> None:
         self.world = world
         self.p = params
         self.rng = rng
@@ -57,8 +73,10 @@ class RangeSensors:
         fov = robot_spec.SENSOR_FOV_MRAD / 1000
         n = params.fan_rays
         offsets = [0.0] if n == 1 else [-fov / 2 + fov * j / (n - 1) for j in range(n)]
-        self.directions = [[a / 1000 + o for o in offsets] for a in robot_spec.SENSOR_ANGLES_MRAD]
-        self.reach_m = world.radius_m + robot_spec.RANGE_MAX_MM / 1000 + 0.05
+        self.angles_mrad = sensor_angles_mrad(sensors)
+        self.directions = [[a / 1000 + o for o in offsets] for a in self.angles_mrad]
+        self.max_range_mm = sensors.max_range_mm
+        self.reach_m = world.radius_m + self.max_range_mm / 1000 + 0.05
         self.last_rays: list[tuple[tuple[float, float], tuple[float, float], int]] = []
         self._geometry: list[tuple[tuple[float, float], tuple[float, float]]] = []
 
@@ -100,8 +118,8 @@ class RangeSensors:
             noise = self.rng.gauss(0.0, self.p.noise_std_mm) if self.p.noise_std_mm > 0 else 0.0
             if drop:
                 reading = (0, robot_spec.RANGE_INVALID)
-            elif dist is None or dist + noise > robot_spec.RANGE_MAX_MM:
-                reading = (robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)
+            elif dist is None or dist + noise > self.max_range_mm:
+                reading = (self.max_range_mm, robot_spec.RANGE_TOO_FAR)
             elif dist + noise < robot_spec.RANGE_MIN_MM:
                 reading = (robot_spec.RANGE_MIN_MM, robot_spec.RANGE_TOO_CLOSE)
             else:
@@ -113,7 +131,7 @@ class RangeSensors:
 
 
 class WheelEncoders:
-    """Cumulative tick counts of both wheels."""
+    """Cumulative tick counts of both wheels (the profile's wheel and counts per turn: the world's geometry)."""
 
     def __init__(self, world: World, rng: random.Random, slip_std: float = 0.0,
                  scale: tuple[float, float] = (1.0, 1.0)) -> None:
@@ -125,7 +143,9 @@ class WheelEncoders:
         self.rng = rng
         self.slip_std = slip_std
         self.scale = scale  # (left, right): measured / true travel (a worn or different wheel)
-        self.ticks_per_m = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM / 1000)
+        g = world.geometry
+        self.counts_per_rev = g.encoder_counts_per_rev
+        self.ticks_per_m = g.encoder_counts_per_rev / (2 * math.pi * g.wheel_radius_mm / 1000)
         self.ticks = [0.0, 0.0]
 
     def integrate(self, dt_s: float) -> None:
@@ -135,6 +155,11 @@ class WheelEncoders:
             right *= 1.0 + self.rng.gauss(0.0, self.slip_std)
         self.ticks[0] += left * dt_s * self.ticks_per_m * self.scale[0]
         self.ticks[1] += right * dt_s * self.ticks_per_m * self.scale[1]
+
+    def wheel_turns(self) -> tuple[float, float]:
+        """Each wheel's measured turns since the start (unwrapped, fractional): what an ODrive's
+        encoder estimate is made of."""
+        return self.ticks[0] / self.counts_per_rev, self.ticks[1] / self.counts_per_rev
 
     def counts(self) -> tuple[int, int]:
         """Counts as on the bus (two's complement of the frame's width, wrapping)."""

@@ -8,6 +8,9 @@ finite max_force) plus a `GearJoint` pull the robot after it. The solver then
 stops the robot at walls at any commanded speed; setting the body's velocity
 directly would tunnel through them.
 
+The body's radius and wheel base are the robot profile's (`firmware_py.profile.Geometry`;
+the default is the built-in robot of `robot_spec`).
+
 Units are SI (metres, seconds, radians); the world frame is robot_spec.py's:
 x east along columns, y north, map row 0 is the northernmost row.
 """
@@ -21,6 +24,8 @@ import numpy as np
 import pymunk
 
 from firmware_py import robot_spec
+from firmware_py.profile import DEFAULT as DEFAULT_ROBOT
+from firmware_py.profile import Geometry
 
 ROBOT_TYPE = 1  # collision types
 WALL_TYPE = 2
@@ -46,7 +51,8 @@ class World:
     """pymunk space with the map's obstacles and one differential-drive robot."""
 
     def __init__(self, occ: np.ndarray, cell_size_m: float = robot_spec.DEFAULT_CELL_SIZE_MM / 1000,
-                 start: Pose | None = None, body: BodyParams = BodyParams()) -> None:
+                 start: Pose | None = None, body: BodyParams = BodyParams(),
+                 geometry: Geometry = DEFAULT_ROBOT.geometry) -> None:
         occ = np.asarray(occ, dtype=bool)
         if occ.ndim != 2 or occ.size == 0:
             raise ValueError(f"occupancy grid must be a non-empty 2-D array, got shape {occ.shape}")
@@ -56,8 +62,9 @@ class World:
         self.cell_size_m = float(cell_size_m)
         self.height, self.width = occ.shape
         self.size_m = (self.width * self.cell_size_m, self.height * self.cell_size_m)
-        self.radius_m = robot_spec.ROBOT_RADIUS_MM / 1000
-        self.half_base_m = robot_spec.WHEEL_BASE_MM / 2000
+        self.geometry = geometry  # the profile's: body radius (the pymunk circle), wheel base (kinematics)
+        self.radius_m = geometry.robot_radius_mm / 1000
+        self.half_base_m = geometry.wheel_base_mm / 2000
 
         space = pymunk.Space()
         space.gravity = (0.0, 0.0)
