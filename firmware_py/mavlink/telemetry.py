@@ -293,10 +293,12 @@ class Telemetry:
             return [m.mission_current_encode(min(st.mission_seq, UINT16_MAX), st.mission_count,
                                              self.mission_state(st), 0)]
         if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_INT:
-            # Q0..Qn: the current state's int Q-row, for the monitor's policy panel
+            # Q0..Qn: the current state's int Q-row, for the monitor's policy panel; Q_N (its length) first,
+            # so a reader knows when the group is whole and never shows a half-updated row
             return [m.named_value_int_encode(ms, b"STATE_IDX", st.state_index),
                     m.named_value_int_encode(ms, b"ACTION", st.action),
-                    m.named_value_int_encode(ms, b"CTRL_ST", int(st.state))] + [
+                    m.named_value_int_encode(ms, b"CTRL_ST", int(st.state)),
+                    m.named_value_int_encode(ms, b"Q_N", len(st.q_row))] + [
                 m.named_value_int_encode(ms, f"Q{i}".encode(), int(q)) for i, q in enumerate(st.q_row)]
         if msg_id == M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
             return [] if st.goal_mm is None else [self.position_target(ms, *st.goal_mm)]

@@ -236,7 +236,8 @@ class RunTopics:
         return self._vehicle(ns, t_wall)
 
     def _on_named_value_int(self, msg, ns: int, t_wall: float) -> list[Record]:
-        return self._vehicle(ns, t_wall)
+        # published once a group's Q row is whole (Q_N), never half-updated between its values
+        return self._vehicle(ns, t_wall) if self.view.q_row_ready else []
 
     def _vehicle(self, ns: int, t_wall: float) -> list[Record]:
         v = self.view

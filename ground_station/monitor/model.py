@@ -48,6 +48,7 @@ from ground_station.mavlink.statustext import StatusText, StatusTextAssembler
 NV_CTRL_STATE = "CTRL_ST"
 NV_STATE_INDEX = "STATE_IDX"
 NV_ACTION = "ACTION"
+NV_QROW_LEN = "Q_N"  # the row's length, sent before Q0..Qn: the row is taken whole, never half-updated
 _QROW_RE = re.compile(r"^Q(\d+)$")
 # the robot's stall report (firmware_py.control.controller.Controller._stalled): "[item N: ]stalled: WHY, D mm to go"
 _STALL_RE = re.compile(r"^(item \d+: )?stalled: ")
@@ -216,6 +217,9 @@ class VehicleView:
         self.state_index: int | None = None
         self.action: int | None = None
         self.q_row: dict[int, int] = {}
+        self._q_pending: dict[int, int] = {}  # the Q row being received (NAMED_VALUE_INT group)
+        self._q_expected: int | None = None  # its length (Q_N), when the robot sends it
+        self.q_row_ready = False  # the last NAMED_VALUE_INT completed a row
         self.named: dict[str, int] = {}
         self.params: dict[str, float] = {}
         self.policy_id: int | None = None
@@ -548,7 +552,9 @@ class VehicleView:
     def _on_named_value_int(self, msg, t: float) -> None:
         name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
         self.named[name] = msg.value
-        if name == NV_STATE_INDEX:
+        self.q_row_ready = False
+        if name == NV_STATE_INDEX:  # a new group
+            self._q_pending, self._q_expected = {}, None
             self.state_index = msg.value
             if msg.value < 0:  # no policy decision: no row (the robot stops sending Qn)
                 self.q_row = {}
@@ -556,10 +562,23 @@ class VehicleView:
             self.action = msg.value
         elif name == NV_CTRL_STATE:
             self.ctrl_state = msg.value
+        elif name == NV_QROW_LEN:
+            self._q_expected = msg.value
+            if msg.value <= 0:
+                self._commit_q_row()
         else:
             m = _QROW_RE.match(name)
-            if m:
+            if m and self._q_expected is None:  # a robot without Q_N: value by value, as it comes
                 self.q_row[int(m.group(1))] = msg.value
+                self.q_row_ready = True
+            elif m:
+                self._q_pending[int(m.group(1))] = msg.value
+                if len(self._q_pending) >= self._q_expected:
+                    self._commit_q_row()
+
+    def _commit_q_row(self) -> None:
+        self.q_row, self._q_pending = self._q_pending, {}
+        self.q_row_ready = True
 
     def _on_param_value(self, msg, t: float) -> None:
         pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id

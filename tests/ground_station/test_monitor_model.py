@@ -251,3 +251,22 @@ def test_a_chunked_text_whose_last_chunk_is_lost_is_logged_once_chunks_stop(rove
     assert len(view.log) == 1
     view.flush_texts()
     assert [e.text for e in view.log] == [first, second] and view.log_total == 2
+
+
+def test_the_q_row_is_taken_whole_never_half_updated(rover):
+    """Issue 46: /vehicle was published after every NAMED_VALUE_INT, so a row showed Q0 of the new
+    state beside Q1..Q3 of the old one. The robot sends Q_N before the row; the row changes whole."""
+    from ground_station.logs.topics import RunTopics
+
+    topics = RunTopics()
+    for msg in decode(wire(rover, heartbeat())):
+        topics.mavlink(msg, 0.5)
+    rows = []
+    for state, values in ((7, (1, 2, 3, 4)), (8, (50, 60, 70, 80))):
+        group = [("STATE_IDX", state), ("ACTION", 0), ("CTRL_ST", int(CtrlState.DRIVING)), ("Q_N", len(values))]
+        group += [(f"Q{i}", v) for i, v in enumerate(values)]
+        for name, value in group:
+            (msg,) = decode(wire(rover, mavlink.MAVLink_named_value_int_message(state, name.encode(), value)))
+            rows += [r.message["q_row"] for r in topics.mavlink(msg, 1.0) if r.topic == "/vehicle"]
+            assert topics.view.q_row in ({}, {0: 1, 1: 2, 2: 3, 3: 4}, {0: 50, 1: 60, 2: 70, 3: 80})
+    assert rows == [[1, 2, 3, 4], [50, 60, 70, 80]]
