@@ -1,4 +1,6 @@
-"""The occupancy grid a policy carries to the robot (for the localiser).
+"""The occupancy grid a policy carries to the robot (for the localiser), and
+which range readings it explains (`unmapped_ends`, below: the collision monitor
+and the kinds that remember what the map does not show ask it).
 
 The map travels inside the `.qtab` file, in its metadata JSON under the key
 `map_grid`: a list of `height` strings of `width` characters each, row 0 the
@@ -16,8 +18,11 @@ Pure stdlib, no numpy.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
+
+from firmware_py import robot_spec
 
 META_KEY = "map_grid"
 FREE = "."
@@ -159,3 +164,103 @@ def same_grid(a: OccupancyGrid, b: OccupancyGrid) -> bool:
 
 def describe(grid: OccupancyGrid) -> str:
     return f"{grid.width}x{grid.height} cells of {grid.cell_mm} mm"
+
+
+# --- which readings the map explains ---------------------------------------------------------------
+# `unmapped_ends` / `unmapped_readings` tell which range readings the map does not explain: on no ray
+# of the sensor's fan (the sensor geometry of `robot_spec`, as the twin's `sense` casts it) does the
+# point at the read distance lie within `margin_mm` of an occupied cell or the map's edge. A disc, a
+# box or a person in the open is unmapped; a map wall never is, also from a pose a little off (the
+# margin absorbs the localiser's ~0.1 m corridor error) and also where a fan ray grazes a corner. The
+# ray end points are computed in floats and rounded to whole mm; the wall test is integers. Any kind
+# and the controller use them: the collision monitor (`control.collision.mapped_readings`), the sector
+# kind's obstacle memory and the readings it withholds from the localiser.
+
+MAP_MARGIN_MM = 150  # a reading is explained by the map within this distance of a mapped cell
+
+# the sensor fans of robot_spec, for `unmapped_ends` (the twin's `sense` casts the same rays)
+_N = robot_spec.SENSOR_COUNT
+_ANG = [a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD]
+_SENS_COS = [math.cos(a) for a in _ANG]
+_SENS_SIN = [math.sin(a) for a in _ANG]
+_FAN = ([(k / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (robot_spec.SENSOR_FOV_MRAD / 1000.0)
+         for k in range(robot_spec.SENSOR_FAN_RAYS)] if robot_spec.SENSOR_FAN_RAYS > 1 else [0.0])
+_RAY_COS = [[math.cos(a + f) for f in _FAN] for a in _ANG]
+_RAY_SIN = [[math.sin(a + f) for f in _FAN] for a in _ANG]
+_MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
+
+
+def walls_near(grid: OccupancyGrid, x: int, y: int, m: int) -> Iterator[tuple[int, int]]:
+    """(dx, dy) mm from the point (x, y) to each occupied cell (or the outside of the grid: the
+    world's outer walls) whose square may lie within m mm (integers only; 0 along an axis inside)."""
+    c = grid.cell_mm
+    top = grid.height * c
+    for row in range((top - (y + m)) // c, (top - (y - m)) // c + 1):
+        ylo = top - (row + 1) * c
+        dy = ylo - y if y < ylo else (y - ylo - c if y > ylo + c else 0)
+        for col in range((x - m) // c, (x + m) // c + 1):
+            if grid.occupied(col, row):
+                xlo = col * c
+                yield (xlo - x if x < xlo else (x - xlo - c if x > xlo + c else 0)), dy
+
+
+def wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
+    """An occupied cell (or the outside of the grid) has a point within m mm of the point (x, y) mm."""
+    return any(dx * dx + dy * dy <= m * m for dx, dy in walls_near(grid, x, y, m))
+
+
+def wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:
+    """Distance (mm) from the point to the nearest occupied cell (or the outside of the grid), capped at m."""
+    return min([float(m), *(math.hypot(dx, dy) for dx, dy in walls_near(grid, x, y, m))])
+
+
+def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                  ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+                  margin_mm: int, max_mm: int = robot_spec.RANGE_MAX_MM) -> list[tuple[int, int, int, int]]:
+    """(sensor, distance mm, x, y) per reading the map does not explain, the
+    point being the end of the fan's middle ray. A reading is explained when,
+    on any ray of the sensor's fan, the point at the read distance (rounded
+    to whole mm) lies within margin_mm of an occupied cell or the map's edge;
+    too far and invalid readings, and readings beyond max_mm, never count
+    (nothing seen); a too-close reading is taken at the range's minimum."""
+    out: list[tuple[int, int, int, int]] = []
+    th = heading_mrad / 1000.0
+    ct = math.cos(th)
+    st = math.sin(th)
+    mid = len(_FAN) // 2
+    for i in range(_N):
+        if status[i] == robot_spec.RANGE_TOO_CLOSE:
+            r = robot_spec.RANGE_MIN_MM
+        elif status[i] == robot_spec.RANGE_VALID:
+            r = ranges_mm[i]
+        else:
+            continue
+        if r > max_mm:
+            continue
+        ox = x_mm + _MOUNT * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
+        oy = y_mm + _MOUNT * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
+        explained = False
+        end = (0, 0)
+        for k in range(len(_FAN)):
+            cx = ct * _RAY_COS[i][k] - st * _RAY_SIN[i][k]
+            cy = st * _RAY_COS[i][k] + ct * _RAY_SIN[i][k]
+            ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
+            if wall_within(grid, ex, ey, margin_mm):
+                explained = True
+                break
+            if k == mid:
+                end = (ex, ey)
+        if not explained:
+            out.append((i, r, end[0], end[1]))
+    return out
+
+
+def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                      ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
+                      margin_mm: int) -> list[int]:
+    """Per sensor: its distance (mm) when the map does not explain the
+    reading (`unmapped_ends`; too close: 0), else -1."""
+    out = [-1] * _N
+    for i, r, _, _ in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, margin_mm):
+        out[i] = 0 if status[i] == robot_spec.RANGE_TOO_CLOSE else r
+    return out

@@ -19,7 +19,7 @@ Layout (little-endian), v2.0:
                       width, height) the policy was trained for; header_size
                       may be larger in a newer minor version: the loader
                       skips the extra
-    encoder section   enc_len bytes: the kind's own fields (firmware_py/kinds/<kind>.py,
+    encoder section   enc_len bytes: the kind's own fields (firmware_py/kinds/<kind>/,
                       `PolicyKind.unpack`), then its action set as (i16, i16) pairs
     metadata          meta_len bytes of UTF-8 JSON object
     table             n_states * n_actions * itemsize, row-major by state
@@ -43,15 +43,12 @@ import time
 import zlib
 from array import array
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 from firmware_py import kinds, robot_spec
-from firmware_py.encoders import best_action
 from firmware_py.kinds.base import PAIR as _PAIR
-from firmware_py.kinds.base import Encoder, PolicyKind
-from firmware_py.kinds.sector.localplan import META_KEY as PLANNER_KEY
-from firmware_py.kinds.sector.localplan import LocalPlannerConfig
+from firmware_py.kinds.base import Encoder, PolicyKind, best_action
 from firmware_py.mapdata import MapDataError, OccupancyGrid, describe, grid_from_metadata, same_grid
 
 # --- format constants ---------------------------------------------------------
@@ -135,8 +132,9 @@ class Policy:
     control_period_us: int = 0  # the period the actions were trained for (load_policy sets it)
     map_geometry: MapGeometry = MapGeometry(0, 0, 0)  # the training map (load_policy sets it)
     map_grid: OccupancyGrid | None = None  # the training map's cells, if the file carries them (mapdata)
-    # sector policies with a map: re-plan round unmapped obstacles on the robot (firmware_py.kinds.sector.localplan)
-    local_planner: LocalPlannerConfig | None = None
+    # what the policy's kind read from the metadata (`PolicyKind.parse_metadata`; the sector kind's
+    # local planner parameters), or None
+    kind_config: Any = None
 
     @property
     def kind(self) -> str:
@@ -150,7 +148,7 @@ class Policy:
         return self.table[state * a:(state + 1) * a]
 
     def best_action(self, state: int) -> int:
-        """Greedy action; ties break to the lowest index (encoders.best_action)."""
+        """Greedy action; ties break to the lowest index (kinds.base.best_action)."""
         return best_action(self.row(state))
 
     def q_values(self, state: int) -> list[float]:
@@ -177,7 +175,6 @@ class Policy:
             "control_period_us": self.control_period_us,
             "map_geometry": self.map_geometry._asdict(),
             "map_grid": self.map_grid.summary() if self.map_grid is not None else None,
-            "local_planner": self.local_planner.to_metadata() if self.local_planner is not None else None,
             "metadata": self.metadata,
         }
         d.update(kinds.of_policy(self).header_fields(self))
@@ -319,14 +316,6 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
         grid = grid_from_metadata(metadata, *geometry)
     except MapDataError as exc:
         raise PolicyError(str(exc)) from None
-    planner = None
-    if PLANNER_KEY in metadata:
-        if grid is None or not kind_.local_planner:
-            raise PolicyError(f"{PLANNER_KEY} needs a plain sector policy that carries its map")
-        try:
-            planner = LocalPlannerConfig.from_metadata(metadata[PLANNER_KEY])
-        except ValueError as exc:
-            raise PolicyError(str(exc)) from None
 
     table = array(typecode)
     table.frombytes(data[off:off + table_bytes])
@@ -343,11 +332,19 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
             if not (math.isfinite(s) and s > 0):
                 raise PolicyError(f"state scale {s!r} is not a positive finite number")
         state_scales = memoryview(arr).toreadonly()
-    return Policy(encoder=enc, dtype=dname, n_states=n_states, n_actions=n_actions, scale=scale,
-                  policy_id=policy_id, crc=stored_crc, created=created, metadata=metadata,
-                  table=memoryview(table).toreadonly(), state_scales=state_scales, goals=goals,
-                  cell_mm=cell_mm, version=(major, minor), size=n, control_period_us=period_us,
-                  map_geometry=geometry, map_grid=grid, local_planner=planner)
+    policy = Policy(encoder=enc, dtype=dname, n_states=n_states, n_actions=n_actions, scale=scale,
+                    policy_id=policy_id, crc=stored_crc, created=created, metadata=metadata,
+                    table=memoryview(table).toreadonly(), state_scales=state_scales, goals=goals,
+                    cell_mm=cell_mm, version=(major, minor), size=n, control_period_us=period_us,
+                    map_geometry=geometry, map_grid=grid)
+    for key, owner in kinds.METADATA_KEYS.items():
+        if key in metadata and owner != kind_.name:
+            raise PolicyError(f"{key} is {owner} policy metadata, not for a {kind_.name} policy")
+    try:
+        kind_config = kind_.parse_metadata(policy)
+    except ValueError as exc:
+        raise PolicyError(str(exc)) from None
+    return policy if kind_config is None else replace(policy, kind_config=kind_config)
 
 
 def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, robot_map: Any = None,
@@ -397,8 +394,6 @@ def on_robot_map(policy: Policy, robot_map: Any) -> Policy:
     (config_mismatch refuses it on another map)."""
     if robot_map is None or kinds.of_policy(policy).map_specific or policy.map_grid is None:
         return policy
-    from dataclasses import replace
-
     return replace(policy, map_grid=robot_map,
                    map_geometry=MapGeometry(robot_map.cell_mm, robot_map.width, robot_map.height))
 

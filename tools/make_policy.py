@@ -37,7 +37,7 @@ POLICIES = {
         "train": ["--map", "paper10", "--encoding", "sector", "--steps", "20000000", "--lr", "0.1",
                   "--gamma", "0.95", "--reward-step", "0", "--epsilon-end", "0.05", "--seed", "0"],
         # all 44 400 (start, goal, heading) rollouts take ~30 s per table: a seeded sample; the robot
-        # re-plans round obstacles its map does not show (firmware_py/kinds/sector/localplan.py, default parameters)
+        # re-plans round obstacles its map does not show (firmware_py/kinds/sector/, default parameters)
         "export": ["--dtype", "int8", "--sample", "8000", "--seed", "0", "--local-planner"],
     },
     "sector_memory": {

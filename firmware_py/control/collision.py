@@ -24,7 +24,7 @@ the turn but limits the straight part when a range reading lies in the path:
   reads under it (the body is in the gap between them). A too-close
   reading (under the sensor's minimum) is taken as 0 mm. A reading the
   robot's map explains (`mapped`, worked out by the caller on its map
-  and pose) is a wall or a block, whose corners the monitor has: no gap
+  and pose: `mapped_readings`, below) is a wall or a block, whose corners the monitor has: no gap
   is filled for it, and too close is the sensor's minimum.
 * `limit` scales the straight part by `slow_pct` when the gap is under
   `slow_mm` and removes it under `stop_mm`; turning in place is left alone
@@ -41,7 +41,7 @@ import math
 from collections.abc import Sequence
 
 from firmware_py import robot_spec
-from firmware_py.mapdata import OccupancyGrid
+from firmware_py.mapdata import MAP_MARGIN_MM, OccupancyGrid, unmapped_readings
 
 FAR_MM = 1 << 20  # nothing in the way
 _HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
@@ -211,7 +211,7 @@ def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int]
     """(left, right) with the straight part limited, and "", "slow" or "stop" (what it did).
     `remembered`: obstacle points the policy kind remembers, in the robot's frame (`robot_frame`):
     a disc that slipped into the gap between two sensors' cones still counts. `mapped`: per sensor,
-    whether the robot's map explains its reading (`firmware_py.kinds.sector.localplan.mapped_readings`; empty:
+    whether the robot's map explains its reading (`mapped_readings`; empty:
     none does)."""
     v2, w2 = left + right, right - left  # twice the straight and the turning part
     if v2 == 0 or (stop_mm <= 0 and slow_mm <= 0):
@@ -227,3 +227,17 @@ def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int]
         return left, right, ""
     # back to wheels: left = (v2 - w2) / 2, right = (v2 + w2) / 2, rounded toward zero alike
     return int((v2 - w2) / 2), int((v2 + w2) / 2), what
+
+
+def mapped_readings(grid: OccupancyGrid, pose_mm: tuple[int, int, int], ranges_mm: list[int] | tuple[int, ...],
+                    status: list[int] | tuple[int, ...], margin_mm: int = MAP_MARGIN_MM) -> list[bool]:
+    """Per sensor: the map explains its reading at this pose (`unmapped_ends`); a too-far or
+    invalid reading is not a reading (False). The collision monitor's `mapped`, which it reads only
+    for a reading under CONTACT_MM: with none, [] (the map is not asked; the controller's tick and
+    the twin's hot loop are spared it)."""
+    if not touching(ranges_mm, status):
+        return []
+    x, y, heading = pose_mm
+    unmapped = unmapped_readings(grid, x, y, heading, ranges_mm, status, margin_mm)
+    return [u < 0 and status[i] in (robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE)
+            for i, u in enumerate(unmapped)]

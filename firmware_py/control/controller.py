@@ -28,6 +28,7 @@ from firmware_py import robot_spec
 from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
 from firmware_py.control import collision
 from firmware_py.control.activation import Activation
+from firmware_py.control.collision import mapped_readings
 from firmware_py.control.explore import wander_wheels
 from firmware_py.control.io import (
     Heartbeat,
@@ -47,7 +48,6 @@ from firmware_py.control.state import (
     SEV_WARNING,
 )
 from firmware_py.kinds import DriveTick
-from firmware_py.kinds.sector.localplan import mapped_readings
 from firmware_py.mapdata import OccupancyGrid
 from firmware_py.policy import config_mismatch
 from firmware_py.vehicle import (

@@ -1,13 +1,17 @@
-"""Policy kinds: one module per kind of `.qtab` policy the robot runs, and the one
+"""Policy kinds: one package per kind of `.qtab` policy the robot runs, and the one
 registry that maps a kind's name and file code to it (as python-can maps an
-interface name to its bus class).
+interface name to its bus class: a table of names and modules, each imported
+when first asked for).
 
-Shipped: `cell` (the paper's grid state; firmware_py.kinds.cell), `sector`
-(bearing sector x range bins, steering on the local planner's sub-goals;
+Shipped (`SHIPPED`): `cell` (the paper's grid state; firmware_py.kinds.cell),
+`sector` (bearing sector x range bins, steering on the local planner's sub-goals;
 firmware_py.kinds.sector) and `sector-memory` (the cell-stepped Bug memory;
 firmware_py.kinds.sector_memory). The loader (`firmware_py.policy`), the writer
 and the controller find a kind only through `of_code`, `of_name` and
-`of_policy`; a new kind is a module with a `PolicyKind` passed to `register`.
+`of_policy`, which import a shipped kind's package the first time a policy of it
+is loaded or written: a robot running a cell policy never imports the sector
+planner or the Bug memory. `names()` lists every kind, imported or not. A new kind
+is a module with a `PolicyKind` passed to `register` (or a line in `SHIPPED`).
 
 Kind codes of experiments removed from qnav (docs/research.md; commit e026a1b has them) are reserved in
 `REMOVED`: never reused, and a file of one is refused by name.
@@ -15,16 +19,31 @@ Kind codes of experiments removed from qnav (docs/research.md; commit e026a1b ha
 
 from __future__ import annotations
 
+import importlib
+import threading
+
 from firmware_py.kinds.base import Decision, DriveTick, KindDriver, Policy, PolicyKind, Unpacked
 
-__all__ = ["Decision", "DriveTick", "KindDriver", "PolicyKind", "Unpacked", "REMOVED", "REMOVED_AT",
-           "register", "unregister", "of_code", "of_name", "of_policy", "names"]
+__all__ = ["Decision", "DriveTick", "KindDriver", "PolicyKind", "Unpacked", "REMOVED", "REMOVED_AT", "SHIPPED",
+           "METADATA_KEYS", "register", "unregister", "of_code", "of_name", "of_policy", "names"]
 
 REMOVED = {3: "sector-memory-tick", 5: "sector-unmapped"}
 REMOVED_AT = "e026a1b"  # the last commit that has them (docs/research.md)
 
+# name -> (file code, the package whose KIND it is): imported on first use
+SHIPPED: dict[str, tuple[int, str]] = {
+    "cell": (1, "firmware_py.kinds.cell"),
+    "sector": (2, "firmware_py.kinds.sector"),
+    "sector-memory": (4, "firmware_py.kinds.sector_memory"),
+}
+
+# metadata keys a shipped kind reads (its PolicyKind.parse_metadata) -> that kind: the loader refuses a
+# file of another kind that carries one (it would be ignored), without importing the owner
+METADATA_KEYS: dict[str, str] = {"local_planner": "sector"}
+
 _BY_NAME: dict[str, PolicyKind] = {}
 _BY_CODE: dict[int, PolicyKind] = {}
+_LOADING = threading.RLock()  # the activation worker and the CLI may ask at once
 
 
 def register(kind: PolicyKind) -> PolicyKind:
@@ -34,28 +53,52 @@ def register(kind: PolicyKind) -> PolicyKind:
     for other in (_BY_NAME.get(kind.name), _BY_CODE.get(kind.code)):
         if other is not None and other is not kind:
             raise ValueError(f"kind {kind.name!r} (code {kind.code}) clashes with {other.name!r} (code {other.code})")
+    for name, (code, _module) in SHIPPED.items():  # a shipped kind not imported yet keeps its name and code
+        if (name == kind.name) != (code == kind.code) and name not in _BY_NAME:
+            raise ValueError(f"kind {kind.name!r} (code {kind.code}) clashes with {name!r} (code {code})")
     _BY_NAME[kind.name] = kind
     _BY_CODE[kind.code] = kind
     return kind
 
 
 def unregister(name: str) -> None:
-    """Forget a kind (tests that register a toy kind clean up with this)."""
+    """Forget a kind (tests that register a toy kind clean up with this); a shipped one is imported
+    again when next asked for."""
     kind = _BY_NAME.pop(name, None)
     if kind is not None:
         _BY_CODE.pop(kind.code, None)
 
 
+def _shipped(name: str) -> PolicyKind | None:
+    """The shipped kind `name`, its package imported and registered now (None: not a shipped kind)."""
+    entry = SHIPPED.get(name)
+    if entry is None:
+        return None
+    code, module = entry
+    with _LOADING:
+        kind = _BY_NAME.get(name)
+        if kind is None:
+            kind = importlib.import_module(module).KIND
+            if not isinstance(kind, PolicyKind) or (kind.name, kind.code) != (name, code):
+                raise ImportError(f"{module}.KIND is not the {name!r} kind (code {code})")
+            register(kind)
+    return kind
+
+
 def of_code(code: int) -> PolicyKind | None:
-    return _BY_CODE.get(code)
+    kind = _BY_CODE.get(code)
+    if kind is not None:
+        return kind
+    name = next((n for n, (c, _m) in SHIPPED.items() if c == code), None)
+    return _shipped(name) if name is not None else None
 
 
 def of_name(name: str) -> PolicyKind:
     """The kind called `name`; KeyError naming the known ones if there is none."""
-    try:
-        return _BY_NAME[name]
-    except KeyError:
-        raise KeyError(f"unknown policy kind {name!r} (known: {', '.join(names())})") from None
+    kind = _BY_NAME.get(name) or _shipped(name)
+    if kind is None:
+        raise KeyError(f"unknown policy kind {name!r} (known: {', '.join(names())})")
+    return kind
 
 
 def of_policy(policy: Policy) -> PolicyKind:
@@ -63,14 +106,5 @@ def of_policy(policy: Policy) -> PolicyKind:
 
 
 def names() -> list[str]:
-    return sorted(_BY_NAME)
-
-
-def _register_shipped() -> None:
-    from firmware_py.kinds import cell, sector, sector_memory
-
-    for module in (cell, sector, sector_memory):
-        register(module.KIND)
-
-
-_register_shipped()
+    """Every kind's name: the shipped ones (imported or not) and those registered."""
+    return sorted(set(_BY_NAME) | set(SHIPPED))

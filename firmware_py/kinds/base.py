@@ -62,7 +62,10 @@ class Policy(Protocol):
     def map_grid(self) -> Any: ...
 
     @property
-    def local_planner(self) -> Any: ...
+    def metadata(self) -> dict[str, Any]: ...
+
+    @property
+    def kind_config(self) -> Any: ...
 
     def row(self, state: int) -> Any: ...
 
@@ -173,6 +176,10 @@ def _no_header(_policy: Policy) -> dict[str, Any]:
     return {}
 
 
+def _no_config(_policy: Policy) -> Any:
+    return None
+
+
 @dataclass(frozen=True)
 class PolicyKind:
     """One kind of `.qtab` policy, as the registry knows it (docs/policy-format.md).
@@ -195,7 +202,9 @@ class PolicyKind:
     # a goal's index for the table, or -1 and why it cannot be a goal of this policy
     goal_index: Callable[[Policy, int, int], tuple[int, str]] = field(default=free_goal)
     header_fields: Callable[[Policy], dict[str, Any]] = field(default=_no_header)
-    local_planner: bool = False  # may carry `local_planner` metadata (firmware_py.kinds.sector.localplan)
+    # what the kind reads from the file's metadata (the loader keeps it as `policy.kind_config`; the
+    # sector kind's local planner parameters), from the loaded policy; ValueError with the reason
+    parse_metadata: Callable[[Policy], Any] = field(default=_no_config)
     # the table is indexed by one map's cells (a cell policy): it runs only on the map it was trained
     # on. Other kinds observe ranges and bearings and take the robot's own map (issue 32)
     map_specific: bool = False
@@ -210,3 +219,14 @@ class PolicyKind:
 def wheel_actions() -> tuple[tuple[int, int], ...]:
     """The action set of kinds that command wheel speeds directly (robot_spec)."""
     return tuple((left, right) for left, right in robot_spec.ACTION_WHEEL_SPEEDS_MM_S)
+
+
+def best_action(row: list[int] | tuple[int, ...] | memoryview) -> int:
+    """Greedy action of one Q-table row; ties break to the lowest index."""
+    best = 0
+    best_v = row[0]
+    for i in range(1, len(row)):
+        if row[i] > best_v:
+            best_v = row[i]
+            best = i
+    return best

@@ -37,7 +37,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-rollouts", action="store_true", help="skip the rollout comparison")
     p.add_argument("--local-planner", nargs="?", const="{}", default=None, metavar="JSON",
                    help="sector policies: the robot re-plans round obstacles its map does not show "
-                        "(firmware_py.kinds.sector.localplan); optional JSON object of planner parameters, default the defaults")
+                        "(firmware_py.kinds.sector); optional JSON object of planner parameters, default the defaults")
     p.set_defaults(func=run)
 
 

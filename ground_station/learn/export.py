@@ -83,7 +83,7 @@ def tie_rate(table: np.ndarray) -> float:
 
 def compare(q: np.ndarray, qt: Quantised) -> dict:
     """How rounding changed the greedy choice (np.argmax ties -> lowest index,
-    the same rule as firmware_py.encoders.best_action)."""
+    the same rule as firmware_py.kinds.base.best_action)."""
     agree = np.argmax(q, axis=1) == np.argmax(qt.table, axis=1)
     return {
         "argmax_agreement": float(np.mean(agree)),
@@ -245,19 +245,18 @@ def file_metadata(run: TrainingRun, qt: Quantised) -> dict:
 
 
 META_GRID = "map_grid"  # firmware_py.mapdata.META_KEY
-META_PLANNER = "local_planner"  # firmware_py.kinds.sector.localplan.META_KEY
+META_PLANNER = "local_planner"  # firmware_py.kinds.sector.config.META_KEY
 
 
 def planner_metadata(text: str, kind: str, meta: dict) -> dict:
     """The `local_planner` metadata value from a JSON object of parameters
     (ValueError, one line, for bad JSON, a bad parameter, a policy that is
     not a plain sector policy or carries no map)."""
-    from firmware_py.kinds.sector.localplan import LocalPlannerConfig
+    from firmware_py.kinds.sector.config import LocalPlannerConfig
 
-    if not robot_kinds.of_name(kind).local_planner:
-        able = [k for k in robot_kinds.names() if robot_kinds.of_name(k).local_planner]
-        raise ValueError(f"--local-planner: a {kind} policy cannot steer on the local planner "
-                         f"({', '.join(able)} only)")
+    owner = robot_kinds.METADATA_KEYS[META_PLANNER]  # the kind that reads it (its parse_metadata)
+    if kind != owner:
+        raise ValueError(f"--local-planner: a {kind} policy cannot steer on the local planner ({owner} only)")
     if META_GRID not in meta:
         raise ValueError("--local-planner: the policy carries no map (its training map could not be read)")
     try:

@@ -7,7 +7,7 @@ kernels draw the same kind of numbers and break ties the same way:
   splitmix64 in `seed_state`), so a run split into chunks draws exactly the
   numbers of one call: same seed -> same table;
 * `greedy`: argmax of a Q row, ties to the lowest index, as the robot's
-  `firmware_py.encoders.best_action` (`greedy_sum`: of two tables' sum);
+  `firmware_py.kinds.base.best_action` (`greedy_sum`: of two tables' sum);
 * `cell_step`: the grid world's reward and termination, so Q-learning and
   the other tabular learners score a move identically;
 * `epsilon_at`: the linear exploration schedule every trainer follows;

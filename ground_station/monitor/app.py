@@ -138,7 +138,7 @@ def render_policy(view: VehicleView) -> Text:
         t.append("Q-row -")
         return t
     idx = sorted(view.q_row)
-    best = max(idx, key=lambda i: (view.q_row[i], -i))  # ties -> lowest index, as encoders.best_action
+    best = max(idx, key=lambda i: (view.q_row[i], -i))  # ties -> lowest index, as kinds.base.best_action
     t.append("Q-row ")
     for i in idx:
         t.append(f"[{i}]{view.q_row[i]} ", style="bold green" if i == best else "")

@@ -3,7 +3,9 @@
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, SectorEncoder, bearing_sector, best_action
+from firmware_py.kinds.base import best_action
+from firmware_py.kinds.cell.encoder import CellEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder, bearing_sector
 
 
 def test_bearing_sector_is_centred_straight_ahead_and_counts_ccw():

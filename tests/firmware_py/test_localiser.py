@@ -8,7 +8,7 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.control.controller import Controller
 from firmware_py.control.localiser import LikelihoodField, Localiser, LocaliserConfig
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.mapdata import MapDataError, grid_from_metadata, grid_from_rows
 from firmware_py.policy import MapGeometry, PolicyError, load_policy
 from firmware_py.shipped_policies import shipped_policy

@@ -1,4 +1,4 @@
-"""The robot's local planner (`firmware_py.kinds.sector.localplan`): which readings the
+"""The robot's local planner (`firmware_py.kinds.sector`): which readings the
 map explains (a map wall, also from a pose a little off, the border and a
 grazed corner) and which it does not (a disc in the open), its parameters as
 policy metadata (checked at load), the obstacle memory (unmapped end points
@@ -16,15 +16,11 @@ import pytest
 
 from firmware_py import robot_spec
 from firmware_py.control.controller import Controller
-from firmware_py.encoders import SectorEncoder
-from firmware_py.kinds.sector.localplan import (
-    META_KEY,
-    LocalPlanner,
-    LocalPlannerConfig,
-    ObstacleMemory,
-    unmapped_readings,
-)
-from firmware_py.mapdata import grid_from_rows
+from firmware_py.kinds.sector.config import META_KEY, LocalPlannerConfig
+from firmware_py.kinds.sector.encoder import SectorEncoder
+from firmware_py.kinds.sector.memory import ObstacleMemory
+from firmware_py.kinds.sector.planner import LocalPlanner
+from firmware_py.mapdata import grid_from_rows, unmapped_readings
 from firmware_py.policy import PolicyError, dump_policy, load_policy
 from firmware_py.vehicle import VehicleConfig
 from tests.support.controller_rig import SECTOR_TRAINING_MAP, Kinematic, Rig
@@ -154,7 +150,7 @@ def _policy(meta: dict) -> bytes:
 
 def test_the_search_runs_off_the_tick_and_the_robot_slows_then_stops_without_an_answer():
     from firmware_py.background import Background
-    from firmware_py.kinds.sector.localplan import PLAN_SLOW_US, PLAN_STOP_US, PlannedTarget
+    from firmware_py.kinds.sector.recoveries import PLAN_SLOW_US, PLAN_STOP_US, PlannedTarget
     work = Background(threaded=False)
     planned = PlannedTarget(grid_from_rows(OPEN, 500), CFG, work)
     mem = _disc_points(2500, 2500, 150)  # across the line to the waypoint
@@ -197,8 +193,8 @@ def test_background_runs_the_latest_job_per_owner_and_keeps_errors_out_of_the_ca
 
 def test_policy_metadata_is_checked_at_load():
     pol = load_policy(_policy({"map_grid": OPEN, META_KEY: {"memory_us": 1_000_000}}))
-    assert pol.local_planner == LocalPlannerConfig(memory_us=1_000_000)
-    assert load_policy(_policy({"map_grid": OPEN})).local_planner is None
+    assert pol.kind_config == LocalPlannerConfig(memory_us=1_000_000)
+    assert load_policy(_policy({"map_grid": OPEN})).kind_config is None
     with pytest.raises(PolicyError, match="needs a plain sector policy that carries its map"):
         load_policy(_policy({META_KEY: {}}))
     with pytest.raises(PolicyError, match="local_planner.weight = -1"):
@@ -254,7 +250,7 @@ def _guard_inputs(front: int = 2000, rear: int = 2000, rear_sides: int = 2000) -
 
 
 def test_guard_vetoes_a_forward_step_into_a_near_reading():
-    from firmware_py.kinds.sector.localplan import FORWARD, TURN_LEFT, TURN_RIGHT, MotionGuard
+    from firmware_py.kinds.sector.guard import FORWARD, TURN_LEFT, TURN_RIGHT, MotionGuard
 
     guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
     assert guard.action(0, 0, 0, FORWARD, 300, *_guard_inputs(front=CFG.veto_mm + 1), mem) == FORWARD
@@ -265,7 +261,7 @@ def test_guard_vetoes_a_forward_step_into_a_near_reading():
 
 
 def test_guard_backs_off_when_stuck_beside_a_remembered_point_with_the_rear_clear():
-    from firmware_py.kinds.sector.localplan import REVERSE, TURN_LEFT, MotionGuard
+    from firmware_py.kinds.sector.guard import REVERSE, TURN_LEFT, MotionGuard
 
     mem = ObstacleMemory(CFG)
     mem.points[(4, 0)] = (200, 0, 0)  # 200 mm from the robot's centre: within radius + backoff_near_mm
@@ -290,12 +286,7 @@ def test_guard_finishes_a_turn_toward_a_target_behind():
     the other side, and the table turned left, right, left on the spot for good. The guard keeps the
     turn's direction while the target is more than TURN_COMMIT_MRAD round; nearer ahead it lets the
     table turn back (an overshoot corrected)."""
-    from firmware_py.kinds.sector.localplan import (
-        TURN_COMMIT_MRAD,
-        TURN_LEFT,
-        TURN_RIGHT,
-        MotionGuard,
-    )
+    from firmware_py.kinds.sector.guard import TURN_COMMIT_MRAD, TURN_LEFT, TURN_RIGHT, MotionGuard
 
     guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
     wall = _guard_inputs(front=100, rear=100)  # squeezed: nothing to gain by the back-off
@@ -314,7 +305,7 @@ def test_guard_steps_forward_out_of_turning_to_and_fro_when_the_front_is_open():
     """Left, right, left ... between two headings with the target just off ahead: after
     DITHER_REVERSALS reversals a forward step, if the front sensors read at least 2 x veto_mm;
     with something nearer ahead the table's turns stand."""
-    from firmware_py.kinds.sector.localplan import (
+    from firmware_py.kinds.sector.guard import (
         DITHER_REVERSALS,
         FORWARD,
         TURN_LEFT,
@@ -338,7 +329,7 @@ def test_guard_backs_off_unless_something_closes_in_on_a_side():
     """Something between the side and rear-diagonal cones comes into the side sensor's view only as
     the robot backs onto it: a side reading that falls to veto_mm or under during a back-off ends it.
     A wall alongside, read as near from the start and no nearer, does not."""
-    from firmware_py.kinds.sector.localplan import REVERSE, TURN_LEFT, MotionGuard
+    from firmware_py.kinds.sector.guard import REVERSE, TURN_LEFT, MotionGuard
 
     mem = ObstacleMemory(CFG)
     mem.points[(4, 0)] = (200, 0, 0)  # within radius + backoff_near_mm: a stuck robot backs off
@@ -365,7 +356,7 @@ def test_guard_turns_a_forward_step_the_collision_monitor_holds():
     """The table asked for forward against a remembered point in the path for 20 s while the
     collision monitor held the straight part, and the robot stood: once it has held HELD_TURN_US the
     guard turns toward the target instead."""
-    from firmware_py.kinds.sector.localplan import FORWARD, HELD_TURN_US, TURN_RIGHT, MotionGuard
+    from firmware_py.kinds.sector.guard import FORWARD, HELD_TURN_US, TURN_RIGHT, MotionGuard
 
     guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
     assert guard.action(0, 0, 0, FORWARD, -300, *_guard_inputs(), mem, held_us=HELD_TURN_US - 1) == FORWARD
@@ -377,7 +368,7 @@ def test_a_recovery_back_off_also_ends_when_a_side_closes_in():
     back-off: a side reading falling to veto_mm or under ends it."""
     from types import SimpleNamespace
 
-    from firmware_py.kinds.sector.localplan import REVERSE, TURN_LEFT, MotionGuard
+    from firmware_py.kinds.sector.guard import REVERSE, TURN_LEFT, MotionGuard
 
     guard, mem = MotionGuard(CFG), ObstacleMemory(CFG)
     planner = SimpleNamespace(reverse=True, detouring=False)  # the two fields step() reads
@@ -398,7 +389,7 @@ def test_guard_turns_away_from_a_body_at_the_flank_then_steps_ahead():
     table asks, until the flank ahead of the axle is clear, then takes ESCAPE_STEPS steps ahead; a
     body it cannot turn away from is given up after ESCAPE_US. A reading the map explains (nothing
     remembered that near: a block's corner) is left to the collision monitor, which has the corners."""
-    from firmware_py.kinds.sector.localplan import (
+    from firmware_py.kinds.sector.guard import (
         ESCAPE_STEPS,
         ESCAPE_US,
         FORWARD,

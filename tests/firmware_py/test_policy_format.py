@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, SectorEncoder, best_action
+from firmware_py.kinds.base import best_action
+from firmware_py.kinds.cell.encoder import CellEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import (
     CRC,
     HEADER,

@@ -19,7 +19,8 @@ import zlib
 
 import pytest
 
-from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import (
     CRC,
     HEADER,

@@ -8,7 +8,7 @@ from array import array
 
 from firmware_py.control.controller import Controller
 from firmware_py.control.progress import MIN_GAIN_MM, NO_PROGRESS_US, ProgressWatch
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import dump_policy, load_policy
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from tests.support.controller_rig import (

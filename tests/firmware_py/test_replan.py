@@ -1,4 +1,4 @@
-"""The robot's re-planning when its local route is closed (`firmware_py.kinds.sector.localplan`): the obstacle
+"""The robot's re-planning when its local route is closed (`firmware_py.kinds.sector`): the obstacle
 layer cleared by readings that see through a remembered point and pinned by a global re-plan, the
 whole map's search finding another door (or none), and `PlannedTarget`'s recoveries in their order
 (wait, global re-plan, back off, clear, "no route"), driven tick by tick on the controller clock."""
@@ -10,17 +10,15 @@ from collections.abc import Callable
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
-from firmware_py.kinds.sector.localplan import (
+from firmware_py.kinds.sector.memory import MOVING_NEAR_MM, ObstacleMemory
+from firmware_py.kinds.sector.planner import REFUGE_MM, LocalPlanner
+from firmware_py.kinds.sector.recoveries import (
     BACKUP,
     GIVE_WAY,
     GLOBAL,
     LOCAL,
-    MOVING_NEAR_MM,
     NO_ROUTE,
-    REFUGE_MM,
     WAIT,
-    LocalPlanner,
-    ObstacleMemory,
     PlannedTarget,
 )
 from firmware_py.mapdata import grid_from_rows
@@ -357,7 +355,7 @@ def test_another_way_round_after_the_route_closed_counts_as_a_new_route():
     """Doors at columns 2, 5 and 8; door 1 closed: the route goes through door 5 (one route taken).
     Door 5 closes too: after the hold the search finds the way through door 8, longer by more than
     ROUTE_SWITCH_MM, and that counts as a route taken (benchmarks measure progress along it anew)."""
-    from firmware_py.kinds.sector.localplan import ROUTE_SWITCH_MM
+    from firmware_py.kinds.sector.recoveries import ROUTE_SWITCH_MM
 
     three = grid_from_rows(["." * 10] * 3 + ["@@.@@.@@.@"] + ["." * 10] * 3, 500)
     work = Background(threaded=False)

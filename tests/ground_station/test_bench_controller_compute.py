@@ -25,7 +25,7 @@ def test_step_compute_runs_the_cell_and_the_sector_policy_with_obstacles():
 def test_the_planner_off_baseline_keeps_the_map_and_drops_the_planner():
     learnt = standard_controllers(load_policy(str(resolve_policy_spec("policies:sector"))), ("learnt",))[0]
     on, off = learnt.policy("paper10"), PlannerOff(learnt).policy("paper10")
-    assert on.local_planner is not None and off.local_planner is None
+    assert on.kind_config is not None and off.kind_config is None
     assert off.map_grid is not None and off.map_grid == on.map_grid  # the localiser still runs
     assert off.table == on.table
 

@@ -265,7 +265,7 @@ def test_the_twin_lets_the_recoveries_run_to_no_route_without_the_loop_rule_cutt
     it still for longer than the loop rule's 20 s without progress (34 s). Periods the planner holds the robot
     still or backs it off on purpose are not counted toward that rule (the budget still bounds them),
     so the episode ends as the robot ends it: NO_ROUTE, not LOOP; and the robot stood for > 20 s."""
-    from firmware_py.kinds.sector.localplan import PlannedTarget
+    from firmware_py.kinds.sector.recoveries import PlannedTarget
     from firmware_py.policy import load_policy
     from firmware_py.shipped_policies import shipped_policy
     from ground_station.lab.nav import planned

@@ -8,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 import ground_station.learn.envs  # noqa: F401 - registers the ids
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
 from ground_station.learn.envs.cell_env import CellNavEnv, cell_transitions, resolve_goals
 from ground_station.maps import GridMap, MapError, load_map, parse_map
 

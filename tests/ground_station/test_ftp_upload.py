@@ -9,7 +9,7 @@ from array import array
 
 import pytest
 
-from firmware_py.encoders import CellEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
 from firmware_py.policy import dump_policy, load_policy
 from ground_station.lab.rigs import link_emulator as emu
 from ground_station.processes import robot_ftp_process

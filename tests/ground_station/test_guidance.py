@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.sector.evaluate import evaluate_sector, seek_table
 from ground_station.learn.sector.twin import disc_hits, grid_of
 from ground_station.maps import GridMap, MapError, load_map, octile_distances

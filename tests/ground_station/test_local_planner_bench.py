@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 from firmware_py import robot_spec
-from firmware_py.kinds.sector.localplan import LocalPlannerConfig
+from firmware_py.kinds.sector.config import LocalPlannerConfig
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.lab.nav import controllers as nc
@@ -35,7 +35,7 @@ def blocked_segments(ep: Episode) -> int:
 
 def _controllers() -> tuple[nc.NavController, nc.NavController, nc.NavController]:
     pol = load_policy(str(shipped_policy("sector")))
-    assert pol.local_planner == LocalPlannerConfig()  # the shipped sector policy steers on the planner
+    assert pol.kind_config == LocalPlannerConfig()  # the shipped sector policy steers on the planner
     planned, seek_local = nc.standard_controllers(pol, ("learnt", "seek_local"))
     plain = nc.NavController("learnt", planned.encoder, planned.q, "path")  # the same table without it
     return plain, planned, seek_local
@@ -59,7 +59,7 @@ def test_exported_policy_carries_map_and_planner_and_runs_in_hil():
     gm = load_map("paper10")
     _, planned, _ = _controllers()
     pol = planned.policy("paper10")
-    assert pol.kind == "sector" and pol.local_planner == LocalPlannerConfig()
+    assert pol.kind == "sector" and pol.kind_config == LocalPlannerConfig()
     assert pol.map_grid is not None and (pol.map_grid.width, pol.map_grid.height) == (10, 10)
     again = nc.standard_controllers(pol, ("learnt",))[0]
     assert again.local == LocalPlannerConfig()

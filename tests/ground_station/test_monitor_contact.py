@@ -17,10 +17,10 @@ from firmware_py.control.collision import (
     FAR_MM,
     MapCorners,
     limit,
+    mapped_readings,
     robot_frame,
     travel_gap_mm,
 )
-from firmware_py.kinds.sector.localplan import mapped_readings
 from firmware_py.mapdata import grid_from_rows
 from ground_station.learn.sector.obstacles import sense_obs
 

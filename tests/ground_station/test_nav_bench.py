@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder, best_action
+from firmware_py.kinds.base import best_action
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station import cli
@@ -174,12 +175,9 @@ def test_the_twin_applies_the_robots_collision_monitor_stop_zone():
     toward a reading inside the stop zone is stopped, a turn in place never, a clear front never;
     a remembered point between the cones counts as on the robot (Controller._outputs)."""
     from firmware_py.control.collision import MapCorners
-    from firmware_py.kinds.sector.localplan import (
-        FORWARD,
-        TURN_LEFT,
-        LocalPlannerConfig,
-        ObstacleMemory,
-    )
+    from firmware_py.kinds.sector.config import LocalPlannerConfig
+    from firmware_py.kinds.sector.guard import FORWARD, TURN_LEFT
+    from firmware_py.kinds.sector.memory import ObstacleMemory
     from firmware_py.vehicle import VehicleConfig
     from ground_station.lab.nav.planned import grid_of, monitor_stops
 
@@ -205,11 +203,9 @@ def test_the_twins_monitor_shortcut_answers_as_the_robots_monitor():
     import random
 
     from firmware_py.control import collision
-    from firmware_py.kinds.sector.localplan import (
-        LocalPlannerConfig,
-        ObstacleMemory,
-        mapped_readings,
-    )
+    from firmware_py.control.collision import mapped_readings
+    from firmware_py.kinds.sector.config import LocalPlannerConfig
+    from firmware_py.kinds.sector.memory import ObstacleMemory
     from firmware_py.vehicle import VehicleConfig
     from ground_station.lab.nav.planned import grid_of, monitor_stops
 

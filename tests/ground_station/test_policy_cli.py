@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import HEADER, HEADER_V1, MapGeometry, load_policy
 from firmware_py.storage import ftp_crc32
 from ground_station.cli import main

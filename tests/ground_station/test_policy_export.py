@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from firmware_py.atomic import atomic_write
-from firmware_py.encoders import CellEncoder, SectorEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import MapGeometry, load_policy
 from ground_station.learn.export import (
     compare,

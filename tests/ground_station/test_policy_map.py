@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import MapGeometry, load_policy
 from ground_station.cli import main
 from ground_station.learn.export import policy_bytes, quantise

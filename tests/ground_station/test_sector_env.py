@@ -8,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 import ground_station.learn.envs  # noqa: F401  (registers the ids)
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.envs.sector_env import SectorNavEnv
 from ground_station.maps import load_map
 

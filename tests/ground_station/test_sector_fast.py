@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.config import recipe_config
 from ground_station.learn.jit import greedy, rand01, randint, seed_state
 from ground_station.learn.sector import kernels as K

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.config import LEARNERS, TrainConfig, validate_config
 from ground_station.learn.sector.evaluate import evaluate_sector
 from ground_station.learn.sector.kernels import L_Q_LAMBDA

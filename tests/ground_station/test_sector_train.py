@@ -4,7 +4,7 @@ hyperparameter taken from the TrainConfig."""
 import numpy as np
 import pytest
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.envs.sector_env import SectorNavEnv
 from ground_station.learn.sector.evaluate import eval_episodes, evaluate_sector
 from ground_station.learn.sector.reward import SectorReward

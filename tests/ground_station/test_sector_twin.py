@@ -1,5 +1,5 @@
 """Kinematic twin: geometry against hand-computed values, and the jitted
-encoder against the reference `firmware_py.encoders.SectorEncoder`."""
+encoder against the reference `firmware_py.kinds.sector.encoder.SectorEncoder`."""
 
 import math
 
@@ -7,8 +7,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_py import encoders, robot_spec
-from firmware_py.encoders import SectorEncoder, bearing_sector
+from firmware_py import robot_spec
+from firmware_py.kinds.sector import encoder as sector_encoder
+from firmware_py.kinds.sector.encoder import SectorEncoder, bearing_sector
 from ground_station.learn.sector import twin as T
 
 CELL = 500.0
@@ -51,7 +52,7 @@ def test_fast_bearing_sector_equals_reference(bearing, sectors):
 
 
 def test_constants_follow_the_contract():
-    assert T.TWO_PI_MRAD == encoders.TWO_PI_MRAD
+    assert T.TWO_PI_MRAD == sector_encoder.TWO_PI_MRAD
     from ground_station.learn.sector import kernels as K
     assert robot_spec.ACTION_NAMES[K.REVERSE] == "reverse"
     assert T.N_SUBSTEPS * robot_spec.PHYSICS_DT_US == robot_spec.CONTROL_PERIOD_US

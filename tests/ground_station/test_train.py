@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_py.encoders import CellEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
 from ground_station.learn.cell.evaluate import (
     COLLISION,
     LOOP,

@@ -1,7 +1,7 @@
 """A door closed by something the map does not show, in lockstep HIL (pymunk plant, the robot's own
 controller and sector policy on its own map, `qnav bench nav`'s episode code): with another door the
 robot re-plans over the whole map and gets there through it; with none it says "no route" (STATUSTEXT,
-mission ended in HOLD) without touching anything (`firmware_py.kinds.sector.localplan.PlannedTarget`'s recoveries)."""
+mission ended in HOLD) without touching anything (`firmware_py.kinds.sector.recoveries.PlannedTarget`'s recoveries)."""
 
 from __future__ import annotations
 

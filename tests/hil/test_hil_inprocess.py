@@ -9,7 +9,7 @@ import pytest
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import MapGeometry, dump_policy, load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.lab.rigs.lockstep import cut_sensors_after, run_episode

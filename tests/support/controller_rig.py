@@ -11,7 +11,6 @@ from collections import deque
 from firmware_py import robot_spec
 from firmware_py.control.controller import Controller
 from firmware_py.control.io import Inputs
-from firmware_py.encoders import CellEncoder, SectorEncoder
 from firmware_py.policy import MapGeometry, Policy, dump_policy, load_policy
 
 TICKS_PER_MM = robot_spec.ENCODER_TICKS_PER_REV / (2 * math.pi * robot_spec.WHEEL_RADIUS_MM)
@@ -23,6 +22,10 @@ SECTOR_TRAINING_MAP = MapGeometry(500, 10, 10)  # what the hand-made sector poli
 def sector_seek_policy(policy_id: int = 1) -> Policy:
     """A hand-made sector policy: go forward when the goal is ahead, else turn
     towards it (no obstacle avoidance)."""
+    from firmware_py.kinds.sector.encoder import (
+        SectorEncoder,  # a kind's package only when asked for
+    )
+
     enc = SectorEncoder()
     per_bearing = enc.nbins ** len(enc.sensors)
     vals = array("b")
@@ -51,6 +54,8 @@ def bfs(lines: list[str], goal: tuple[int, int]) -> dict[tuple[int, int], int]:
 def cell_bfs_policy(lines: list[str], goals: list[tuple[int, int]], cell_mm: int = 500,
                     policy_id: int = 2) -> Policy:
     """An optimal cell policy from BFS: Q = -(steps to the goal after the move)."""
+    from firmware_py.kinds.cell.encoder import CellEncoder  # a kind's package only when asked for
+
     h, w = len(lines), len(lines[0])
     enc = CellEncoder(w, h, len(goals))
     vals = array("b", [-127] * (enc.n_states * enc.n_actions))

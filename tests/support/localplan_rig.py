@@ -5,7 +5,7 @@ planner configuration and a reading from the front sensor alone."""
 from __future__ import annotations
 
 from firmware_py import robot_spec
-from firmware_py.kinds.sector.localplan import LocalPlannerConfig
+from firmware_py.kinds.sector.config import LocalPlannerConfig
 
 V, FAR, CLOSE, INVALID = (robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_TOO_CLOSE,
                           robot_spec.RANGE_INVALID)

@@ -11,8 +11,8 @@ from typing import Any, cast
 
 from firmware_py import robot_spec
 from firmware_py.control.odometry import wrap_mrad
-from firmware_py.encoders import CellEncoder
 from firmware_py.kinds.base import DriveTick, Geometry, Goals, Policy, PolicyKind, Unpacked
+from firmware_py.kinds.cell.encoder import CellEncoder
 from firmware_py.kinds.stepper import CellStepper, Step
 
 _HEAD = struct.Struct("<HHHH")  # width, height, n_goals, cell_mm

@@ -1,20 +1,38 @@
 """The `sector` kind: the paper's sector state (goal-bearing sector x binned ranges
 of chosen sensors), one table decision every control period, its action a wheel
-speed pair. With its map and `local_planner` metadata the policy steers on the
-local planner's sub-goals round obstacles the map does not show, behind the
-motion guard (firmware_py.kinds.sector.localplan). Encoder section: u16 bearing_sectors, u8
-n_sensors, u8 n_edges, the sensor indices (u8), the range edges (u16 mm); then the
-action pairs (left, right) mm/s.
+speed pair. Encoder section: u16 bearing_sectors, u8 n_sensors, u8 n_edges, the
+sensor indices (u8), the range edges (u16 mm); then the action pairs (left,
+right) mm/s.
+
+With its map and `local_planner` metadata (`parse_metadata`: a `LocalPlannerConfig`,
+kept as `policy.kind_config`) the policy steers round obstacles the map does not
+show. The ground station plans waypoints on the known map; a box in a corridor or
+a person walking past is not on it. What the robot does about them before the
+learnt table steers is this package's, one module per concern:
+
+* `encoder`: the reference state encoder (`SectorEncoder`);
+* `config`: the planner's parameters and their bounds (`LocalPlannerConfig`);
+* `memory`: the obstacle memory (`ObstacleMemory`: unmapped reading end points,
+  forgotten when not seen, cleared by readings that see through them);
+* `planner`: Dijkstra sub-goals round remembered points on the map (`LocalPlanner`);
+* `recoveries`: the tick's side, searching off the tick, and the recoveries when
+  the way is closed (wait, whole-map re-plan, give way, back off, clear, "no
+  route": `PlannedTarget`);
+* `guard`: the motion guard, the last word on the table's action (`MotionGuard`).
+
+Which readings the map explains is generic map code (`firmware_py.mapdata`), as
+the collision monitor asks it for every kind. A robot whose policy is of another
+kind never imports this package (`firmware_py.kinds` imports a kind when a policy
+of it is loaded).
 """
 
 from __future__ import annotations
 
 import struct
-from typing import cast
+from typing import Any, cast
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
-from firmware_py.encoders import SectorEncoder
 from firmware_py.kinds.base import (
     PAIR,
     Decision,
@@ -26,13 +44,14 @@ from firmware_py.kinds.base import (
     Unpacked,
     wheel_actions,
 )
-from firmware_py.kinds.sector.localplan import (
-    MotionGuard,
-    ObstacleMemory,
-    PlannedTarget,
-    unmapped_readings,
-)
+from firmware_py.kinds.sector.config import META_KEY, LocalPlannerConfig
+from firmware_py.kinds.sector.encoder import SectorEncoder
+from firmware_py.kinds.sector.guard import MotionGuard
+from firmware_py.kinds.sector.memory import ObstacleMemory
+from firmware_py.kinds.sector.recoveries import PlannedTarget
+from firmware_py.mapdata import unmapped_readings
 
+KIND_NAME = "sector"
 _HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
 
 
@@ -69,13 +88,36 @@ def pack(enc: SectorEncoder, _goals: Goals, _cell_mm: int) -> bytes:
             + struct.pack(f"<{len(enc.range_edges_mm)}H", *enc.range_edges_mm))
 
 
+def parse_metadata(policy: Policy) -> LocalPlannerConfig | None:
+    """The local planner's parameters from the policy's `local_planner` metadata (None: it has
+    none, the table steers at the goal); ValueError with one line when they are bad or the file
+    carries no map to plan on."""
+    if META_KEY not in policy.metadata:
+        return None
+    if policy.map_grid is None:
+        raise ValueError(f"{META_KEY} needs a plain sector policy that carries its map")
+    return LocalPlannerConfig.from_metadata(policy.metadata[META_KEY])
+
+
+def planner_config(policy: Policy) -> LocalPlannerConfig | None:
+    """A loaded policy's local planner parameters: a sector policy's `kind_config` (None for a
+    policy of another kind, or one without `local_planner` metadata)."""
+    cfg = policy.kind_config if policy.kind == KIND_NAME else None
+    return cfg if isinstance(cfg, LocalPlannerConfig) else None
+
+
+def header_fields(policy: Policy) -> dict[str, Any]:
+    cfg = planner_config(policy)
+    return {"local_planner": cfg.to_metadata() if cfg is not None else None}
+
+
 class SectorDriver(KindDriver):
     """Encode (bearing, ranges) -> greedy action -> its wheel speeds; with a local planner the
     bearing is the sub-goal's and the motion guard may turn or back off the action."""
 
     def __init__(self, policy: Policy, work: Background | None = None) -> None:
         super().__init__(policy, work)
-        cfg, grid = policy.local_planner, policy.map_grid
+        cfg, grid = planner_config(policy), policy.map_grid
         self.local: tuple[PlannedTarget, ObstacleMemory, MotionGuard] | None = None
         if cfg is not None and grid is not None:
             self.local = (PlannedTarget(grid, cfg, self.work), ObstacleMemory(cfg), MotionGuard(cfg))
@@ -129,12 +171,12 @@ class SectorDriver(KindDriver):
         obstacles) are withheld as invalid: each lowers every particle's weight, and a few together
         started augmented MCL's random-particle recovery, which in a map of look-alike places jumped
         the estimate (HIL, 3 discs + 2 movers: 0.80 success against 0.94 on odometry)."""
-        pol = self.policy
-        if pol.local_planner is None or pol.map_grid is None:
+        cfg, grid = planner_config(self.policy), self.policy.map_grid
+        if cfg is None or grid is None:
             return range_status
-        um = unmapped_readings(pol.map_grid, *pose_mm, ranges_mm, range_status, pol.local_planner.margin_mm)
+        um = unmapped_readings(grid, *pose_mm, ranges_mm, range_status, cfg.margin_mm)
         return [robot_spec.RANGE_INVALID if u >= 0 else st for u, st in zip(um, range_status, strict=True)]
 
 
-KIND = PolicyKind(name="sector", code=2, actions=wheel_actions(), unpack=unpack, pack=pack, driver=SectorDriver,
-                  local_planner=True)
+KIND = PolicyKind(name=KIND_NAME, code=2, actions=wheel_actions(), unpack=unpack, pack=pack, driver=SectorDriver,
+                  header_fields=header_fields, parse_metadata=parse_metadata)

@@ -15,7 +15,7 @@ import json
 import time
 from typing import cast
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:

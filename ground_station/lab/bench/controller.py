@@ -109,7 +109,7 @@ class PlannerOff:
         return None
 
     def policy(self, map_name: str = "") -> Policy:
-        return replace(self.inner.policy(map_name), local_planner=None)
+        return replace(self.inner.policy(map_name), kind_config=None)
 
 
 def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, seed: int = 0) -> dict:

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import cast
 
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import Policy
 from firmware_py.vehicle import VehicleConfig
 from ground_station.lab.rigs.lockstep import run_episode

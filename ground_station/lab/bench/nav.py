@@ -96,6 +96,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from firmware_py.kinds.sector import planner_config
     from firmware_py.policy import PolicyError, load_policy
     from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
     from ground_station.errors import CliError
@@ -136,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"policy {args.policy}: {exc}") from None
     try:
         ctrls = list(kind_controllers(pol, names or None))
-        if args.controllers is None and pol.local_planner is not None:
+        if args.controllers is None and planner_config(pol) is not None:
             # the planner with the hand-written seek table: what the learnt table adds
             ctrls += kind_controllers(pol, EXTRA_CONTROLLERS)
     except ValueError as exc:

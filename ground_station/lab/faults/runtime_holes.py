@@ -53,8 +53,8 @@ from ground_station.lab.faults.common import ScenarioResult, register, trials
 from ground_station.lab.faults.hostile_holes import GCS, _PolledNode
 from ground_station.lab.rigs.lockstep import PERIOD_US, LockstepRig, paper10
 
-# the planner's extreme legal metadata (firmware_py.kinds.sector.localplan.LocalPlannerConfig.from_metadata's bounds)
-# (the window: (3000 + 2 x 3500) / 50 = 200 raster cells a side, localplan.MAX_WINDOW_CELLS)
+# the planner's extreme legal metadata (firmware_py.kinds.sector.config.LocalPlannerConfig.from_metadata's bounds)
+# (the window: (3000 + 2 x 3500) / 50 = 200 raster cells a side, config.MAX_WINDOW_CELLS)
 EXTREME_PLANNER = {"raster_mm": 50, "window_mm": 3500, "max_plan_mm": 3000, "max_points": 1000,
                    "lookahead_mm": 5000, "soft_mm": 250, "los_clear_mm": 250, "obstacle_clear_mm": 200,
                    "margin_mm": 1000, "see_mm": 2000, "memory_us": 100_000_000}

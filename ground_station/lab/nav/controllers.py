@@ -20,7 +20,7 @@ row -> action), so every controller also runs in HIL as an exported
 * `vfh_local` (likewise): the VFH table on the same local planner, its
   re-planning and motion guard: a reactive follower on the same targets.
 
-A learnt policy with `local_planner` metadata (`firmware_py.kinds.sector.localplan`)
+A learnt policy with `local_planner` metadata (`firmware_py.kinds.sector`)
 steers on the robot's local planner: `NavController.local` holds its
 parameters, the twin rolls it out with the robot's own planner code
 (`nav.planned`), and its `.qtab` carries the episode's map.
@@ -35,9 +35,10 @@ from typing import Protocol, cast
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
-from firmware_py.kinds.sector.localplan import META_KEY as PLANNER_KEY
-from firmware_py.kinds.sector.localplan import LocalPlannerConfig
+from firmware_py.kinds.sector import planner_config
+from firmware_py.kinds.sector.config import META_KEY as PLANNER_KEY
+from firmware_py.kinds.sector.config import LocalPlannerConfig
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.kinds.sector_memory.gridbug import GridBugEncoder
 from firmware_py.policy import Policy, load_policy
 from ground_station.learn.export import (
@@ -60,7 +61,7 @@ class NavController:
     encoder: SectorEncoder
     q: np.ndarray  # float64 (n_states, n_actions); greedy, ties to the lowest index
     guidance: str  # "path" | "direct"
-    local: LocalPlannerConfig | None = None  # steer on the robot's local planner (firmware_py.kinds.sector.localplan)
+    local: LocalPlannerConfig | None = None  # steer on the robot's local planner (firmware_py.kinds.sector)
     twin: bool = True  # rolled out on the bench's continuous twin too (episodes.run_twin)
 
     def policy(self, map_name: str = "paper10") -> Policy:
@@ -205,7 +206,7 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
         raise ValueError(f"unknown {', '.join(bad)}; a sector policy runs {', '.join(known)}")
     enc = cast(SectorEncoder, policy.encoder)
     q = policy_table(policy)
-    local = policy.local_planner
+    local = planner_config(policy)
     make = {
         "learnt": lambda: NavController("learnt", enc, q, "path", local),
         "vfh_local": lambda: NavController("vfh_local", enc, vfh_table(enc), "path",

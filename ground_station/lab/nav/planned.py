@@ -4,7 +4,7 @@
 controller with a `LocalPlannerConfig` (`NavController.local`): per control
 period the twin's physics, movers and sensing are the bench kernel's
 (`learn.sector.obstacles.obs_period_step`, all eight sensors read), and the
-steering is the robot's own Python: `firmware_py.kinds.sector.localplan.ObstacleMemory`
+steering is the robot's own Python: `firmware_py.kinds.sector.memory.ObstacleMemory`
 fed with the readings at the twin's pose, `PlannedTarget.target` for the
 current waypoint (reset per waypoint, as the controller does per mission
 item; its search stepped after each period, as the lockstep robot's node
@@ -44,17 +44,10 @@ import numpy as np
 from firmware_py import robot_spec
 from firmware_py.background import Background
 from firmware_py.control import collision
-from firmware_py.kinds.sector.localplan import (
-    BACKUP,
-    CLEAR,
-    GIVE_WAY,
-    GLOBAL,
-    WAIT,
-    MotionGuard,
-    ObstacleMemory,
-    PlannedTarget,
-    mapped_readings,
-)
+from firmware_py.control.collision import mapped_readings
+from firmware_py.kinds.sector.guard import MotionGuard
+from firmware_py.kinds.sector.memory import ObstacleMemory
+from firmware_py.kinds.sector.recoveries import BACKUP, CLEAR, GIVE_WAY, GLOBAL, WAIT, PlannedTarget
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.vehicle import VehicleConfig
 from ground_station.lab.nav.controllers import NavController

@@ -53,7 +53,7 @@ from pathlib import Path
 
 from firmware_py import can_protocol as cp
 from firmware_py.canbus import open_bus
-from firmware_py.kinds.sector.localplan import META_KEY as PLANNER_KEY
+from firmware_py.kinds.sector.config import META_KEY as PLANNER_KEY
 from firmware_py.mavlink.dialect import NAME as DIALECT
 from firmware_py.policy import load_policy
 from firmware_py.vehicle import CtrlState

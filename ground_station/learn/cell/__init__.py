@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from firmware_py.encoders import CellEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
 from ground_station.learn.kinds import TrainingKind, option
 
 LEARNERS = ("q", "sarsa", "expected-sarsa", "double-q", "dyna-q", "q-lambda")

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from firmware_py.encoders import CellEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
 from ground_station.learn.cell.trainer import cell_state
 from ground_station.learn.envs.cell_env import cell_transitions, goal_distances, resolve_goals
 from ground_station.learn.jit import greedy

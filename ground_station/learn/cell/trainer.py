@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from firmware_py.encoders import CellEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.envs.cell_env import (
     cell_transitions,

@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.encoders import CellEncoder
+from firmware_py.kinds.cell.encoder import CellEncoder
 from ground_station.maps import GridMap, MapError, bfs_distances, load_map
 
 N_ACTIONS = len(robot_spec.CELL_ACTION_DELTAS)
@@ -92,7 +92,7 @@ class CellNavEnv(gym.Env):
     """Grid navigation to one of several targets (the paper's Figs. 2-4).
 
     Observation: `Discrete(W*H*n_goals)`, the state index of
-    `firmware_py.encoders.CellEncoder` = goal_index*W*H + row*W + col.
+    `firmware_py.kinds.cell.encoder.CellEncoder` = goal_index*W*H + row*W + col.
     Actions: `Discrete(4)`, `robot_spec.CELL_ACTION_NAMES` up, down, left, right
     (one cell each, deltas `robot_spec.CELL_ACTION_DELTAS`; up = north = row - 1).
     Rewards: `reward_goal` on entering the goal cell, `reward_collision` on

@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 
 from firmware_py import robot_spec
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.sector.kernels import guide_potential, period_step, start_guidance
 from ground_station.learn.sector.reward import SectorReward, check_guidance

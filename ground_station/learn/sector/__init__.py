@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.cell import LEARNERS
 from ground_station.learn.kinds import TrainingKind, option
 

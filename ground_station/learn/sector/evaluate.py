@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.sector.kernels import COLLISION, LOOP, SUCCESS, TIMEOUT, eval_kernel
 from ground_station.learn.sector.reward import check_guidance
 from ground_station.learn.sector.twin import encoder_arrays, grid_of

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_py.encoders import SectorEncoder
+from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.config import LEARNERS, TrainConfig, int_list
 from ground_station.learn.jit import seed_state
 from ground_station.learn.sector.kernels import (

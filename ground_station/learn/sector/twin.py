@@ -4,7 +4,7 @@ Owns the continuous-pose physics the `sector` encoding trains on: a disc of
 `robot_spec.ROBOT_RADIUS_MM` driven by the action -> wheel-speed table for one
 control period, exact collision against obstacle cells and the map border,
 range sensors cast on the grid, and a jitted copy of the reference
-`firmware_py.encoders.SectorEncoder.encode` (tests prove it equals the
+`firmware_py.kinds.sector.encoder.SectorEncoder.encode` (tests prove it equals the
 reference).
 
 Conventions (all from `firmware_py.robot_spec`): world x east along columns, y
@@ -380,7 +380,7 @@ def potential(dist, occ, h: int, w: int, cell: float, x: float, y: float) -> flo
     return best
 
 
-# --- fast encoder (copy of firmware_py.encoders.SectorEncoder.encode) -------
+# --- fast encoder (copy of firmware_py.kinds.sector.encoder.SectorEncoder.encode) -------
 
 @numba.njit(cache=True, inline="always")
 def bearing_sector_fast(bearing_mrad: int, sectors: int) -> int:

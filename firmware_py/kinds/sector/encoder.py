@@ -1,19 +1,14 @@
-"""Reference state encoders: the one definition of how observations become a
-Q-table row index.
+"""The sector kind's reference state encoder: the one definition of how a goal
+bearing and range readings become a Q-table row index.
 
-Training (ground_station) uses a jitted copy of `SectorEncoder.encode`; a
-test proves the copy equals this reference on many random inputs. Everything
-here is integer arithmetic so the robot's control path stays int-only.
-
-* `CellEncoder`: state = goal_index * (W * H) + row * W + col (the paper's grid).
-* `SectorEncoder`: state = bearing_sector * nbins**k + sum(bin_i * nbins**i)
-  over the k sensors it uses, where bearing_sector is the goal bearing
-  relative to the heading quantised into `bearing_sectors` sectors (sector 0
-  centred straight ahead, counting counter-clockwise) and bin_i is the number
-  of `range_edges_mm` at or below sensor i's range.
-
-The cell-stepped Bug memory encoder of `sector-memory` policies lives in
-`firmware_py.kinds.sector_memory.gridbug`.
+state = bearing_sector * nbins**k + sum(bin_i * nbins**i) over the k sensors it
+uses, where bearing_sector is the goal bearing relative to the heading quantised
+into `bearing_sectors` sectors (sector 0 centred straight ahead, counting
+counter-clockwise) and bin_i is the number of `range_edges_mm` at or below
+sensor i's range. Integer arithmetic only, so the robot's control path stays
+int-only. Training (ground_station.learn.sector.twin) uses a jitted copy of
+`SectorEncoder.encode`; a test proves the copy equals this reference on many
+random inputs.
 """
 
 from __future__ import annotations
@@ -90,44 +85,3 @@ class SectorEncoder:
         d["sensors"] = list(self.sensors)
         d["range_edges_mm"] = list(self.range_edges_mm)
         return d
-
-
-@dataclass(frozen=True)
-class CellEncoder:
-    """Robot cell on a W x H grid, times the goal index when there are several."""
-
-    width: int
-    height: int
-    n_goals: int = 1
-    kind: str = field(default="cell", init=False)
-
-    def __post_init__(self) -> None:
-        if self.width < 1 or self.height < 1 or self.n_goals < 1:
-            raise ValueError("width, height and n_goals must be >= 1")
-
-    @property
-    def n_states(self) -> int:
-        return self.width * self.height * self.n_goals
-
-    @property
-    def n_actions(self) -> int:
-        return len(robot_spec.CELL_ACTION_DELTAS)
-
-    def encode(self, col: int, row: int, goal_index: int = 0) -> int:
-        if not (0 <= col < self.width and 0 <= row < self.height and 0 <= goal_index < self.n_goals):
-            raise ValueError(f"cell ({col},{row}) goal {goal_index} outside the {self.width}x{self.height}x{self.n_goals} grid")
-        return (goal_index * self.height + row) * self.width + col
-
-    def to_dict(self) -> dict[str, object]:
-        return asdict(self)
-
-
-def best_action(row: list[int] | tuple[int, ...] | memoryview) -> int:
-    """Greedy action of one Q-table row; ties break to the lowest index."""
-    best = 0
-    best_v = row[0]
-    for i in range(1, len(row)):
-        if row[i] > best_v:
-            best_v = row[i]
-            best = i
-    return best

@@ -1,0 +1,186 @@
+"""The sector kind's obstacle memory (`ObstacleMemory`): what the robot has seen
+that its map does not show.
+
+It keeps the end points of range readings the map does not explain
+(`firmware_py.mapdata.unmapped_ends`), in world millimetres, one per 50 mm
+square, each stamped with the controller clock (sim time in HIL) and forgotten
+`memory_us` after it was last seen: a person who walked on leaves no wall
+behind, a box in view is seen again every tick. A reading clears the points
+inside its cone that lie nearer than it by `clear_margin_mm` (nav2's obstacle
+layer clears by raytracing: a cone reports its nearest echo), so a mover that
+stepped aside is gone at once; points the robot is going round, and points
+pinned by a global re-plan, are kept `route_memory_us` (a door found closed
+stays closed while the robot goes round through another) unless a reading sees
+through them. At most `max_points` points (the oldest go first).
+"""
+
+from __future__ import annotations
+
+import math
+
+from firmware_py import robot_spec
+from firmware_py.kinds.sector.config import LocalPlannerConfig
+from firmware_py.mapdata import OccupancyGrid, unmapped_ends
+
+_KEY_MM = 50  # one remembered point per 50 mm square
+# the sensor cones of robot_spec (the rays of `unmapped_ends`' fans share them)
+_N = robot_spec.SENSOR_COUNT
+_ANG = [a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD]
+_MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
+_HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
+# ObstacleMemory.added counts new points this near the robot: a person walking to and fro a metre off
+# a disc that closes the only door made every round of recoveries a "moving scene" (at window_mm, 1 m),
+# and the robot waited until its time ran out instead of saying "no route"
+MOVING_NEAR_MM = 700
+# a moving scene's new points belong to a body that moved: remembered points this near one of them are
+# that body's (a person is about the robot's width; ObstacleMemory.standing_by)
+BODY_MM = 2 * robot_spec.ROBOT_RADIUS_MM
+
+
+class ObstacleMemory:
+    """Unmapped reading end points (world mm) with the time each was last seen, cleared by readings
+    that see through them; points pinned by a global re-plan outlive `memory_us` (module docstring)."""
+
+    def __init__(self, cfg: LocalPlannerConfig) -> None:
+        self.cfg = cfg
+        self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
+        self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
+        self.born: dict[tuple[int, int], int] = {}  # key -> when first seen (controller clock)
+        self.version = 0  # bumped when a point is added or forgotten (not when one is seen again)
+        # points added (a new 50 mm square) within MOVING_NEAR_MM of the robot since the memory began:
+        # how much moves near it (a mover walking past in view across the room is not what closed the way)
+        self.added = 0
+
+    def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
+                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], now_us: int) -> None:
+        """Remember this tick's unmapped end points (the fan's middle ray at the read distance), clear
+        the points a reading sees through, and forget the ones not seen for `memory_us` (pinned ones
+        when their pin runs out)."""
+        cfg = self.cfg
+        seen: set[tuple[int, int]] = set()
+        near = MOVING_NEAR_MM * MOVING_NEAR_MM
+        for _, _, ex, ey in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, cfg.margin_mm,
+                                          cfg.see_mm):
+            key = (ex // _KEY_MM, ey // _KEY_MM)
+            if key not in self.points:
+                self.version += 1
+                self.added += (ex - x_mm) ** 2 + (ey - y_mm) ** 2 <= near
+                self.born[key] = now_us
+            self.points[key] = (ex, ey, now_us)
+            seen.add(key)
+        old = self._seen_through(x_mm, y_mm, heading_mrad, ranges_mm, status, seen)
+        old += [p for p, v in self.points.items()
+                if now_us - v[2] > cfg.memory_us and self.pinned.get(p, -1) < now_us and p not in old]
+        if len(self.points) - len(old) > cfg.max_points:
+            gone = set(old)
+            by_age = sorted((p for p in self.points if p not in gone), key=lambda p: self.points[p][2])
+            old += by_age[:len(self.points) - len(old) - cfg.max_points]
+        for p in old:
+            del self.points[p]
+            self.pinned.pop(p, None)
+            self.born.pop(p, None)
+        if old:
+            self.version += 1
+
+    def _seen_through(self, x_mm: int, y_mm: int, heading_mrad: int, ranges_mm: list[int] | tuple[int, ...],
+                      status: list[int] | tuple[int, ...], seen: set[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Points inside a sensor's cone nearer than its reading by `clear_margin_mm` (a too-far
+        reading: nearer than the range's maximum): nothing is there any more. A cone reports its
+        nearest echo, so anything in it nearer than the reading would have been read instead.
+        (Tried: clearing only along the simulated fan's 3 rays, as a small disc between two rays
+        goes unseen: 0.968 -> 0.943 on the bench, mover trails kept blocking routes.)"""
+        cfg = self.cfg
+        reach = robot_spec.RANGE_MAX_MM + _MOUNT
+        th = heading_mrad / 1000.0
+        out: list[tuple[int, int]] = []
+        for key, (px, py, _) in self.points.items():
+            if key in seen:
+                continue
+            dx, dy = px - x_mm, py - y_mm
+            if abs(dx) > reach or abs(dy) > reach:
+                continue
+            rel = math.atan2(dy, dx) - th
+            i = min(range(_N), key=lambda j: abs((rel - _ANG[j] + math.pi) % (2 * math.pi) - math.pi))
+            st = status[i]
+            if st == robot_spec.RANGE_VALID:
+                r = ranges_mm[i]
+            elif st == robot_spec.RANGE_TOO_FAR:
+                r = robot_spec.RANGE_MAX_MM
+            else:
+                continue
+            a = th + _ANG[i]
+            sx, sy = px - (x_mm + _MOUNT * math.cos(a)), py - (y_mm + _MOUNT * math.sin(a))
+            d = math.hypot(sx, sy)
+            off = abs((math.atan2(sy, sx) - a + math.pi) % (2 * math.pi) - math.pi)
+            if off <= _HALF_FOV and d < r - cfg.clear_margin_mm:
+                out.append(key)
+        return out
+
+    def within(self, x: float, y: float, mm: float) -> bool:
+        """A remembered point nearer than `mm` to (x, y)."""
+        return any((px - x) ** 2 + (py - y) ** 2 < mm * mm for px, py, _ in self.points.values())
+
+    def pin(self, now_us: int) -> None:
+        """Keep every point remembered now for `route_memory_us` (a global re-plan goes round them)."""
+        until = now_us + self.cfg.route_memory_us
+        for p in self.points:
+            self.pinned[p] = max(until, self.pinned.get(p, -1))
+
+    def nearest(self, x: float, y: float) -> tuple[int, int] | None:
+        """The remembered point nearest (x, y), or None."""
+        if not self.points:
+            return None
+        return min(((qx, qy) for qx, qy, _ in self.points.values()), key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2)
+
+    def unpin_near(self, x: float, y: float, mm: float) -> None:
+        """Points within `mm` of the point nearest (x, y) (the body standing there: a person) are kept
+        `memory_us` like the others from now; farther ones stay pinned (a box closing another door)."""
+        nearest = self.nearest(x, y)
+        if nearest is None:
+            return
+        px, py = nearest
+        for key, (qx, qy, _) in self.points.items():
+            if (qx - px) ** 2 + (qy - py) ** 2 <= mm * mm:
+                self.pinned.pop(key, None)
+
+    def clear(self, now_us: int | None = None, x: float = 0.0, y: float = 0.0, around_mm: float = 0.0) -> None:
+        """Forget everything (a recovery: what is really there is seen again on the next tick); given
+        the time, a point a global re-plan pinned that is still pinned and lies `around_mm` or more
+        from (x, y) is kept (nav2's clearing around the robot): what closed the whole map's routes out
+        there (a box seen from one side, the robot gone round to find it from the other: forgetting
+        it sent the robot round again instead of saying "no route"). Readings that see through one
+        still clear it."""
+        keep = {} if now_us is None else {
+            p: v for p, v in self.points.items()
+            if self.pinned.get(p, -1) >= now_us and (v[0] - x) ** 2 + (v[1] - y) ** 2 >= around_mm ** 2}
+        if len(keep) != len(self.points):
+            self.version += 1
+        self.points = keep
+        self.pinned = {p: self.pinned[p] for p in keep}
+        self.born = {p: t for p, t in self.born.items() if p in keep}
+
+    def snapshot(self, born: bool = False) -> ObstacleMemory:
+        """A copy for the planner's worker (the tick goes on changing this one); `born`: with when each
+        point was first seen (for `standing_by`: a whole-map search's question only, a copy less a tick)."""
+        copy = ObstacleMemory(self.cfg)
+        copy.points = dict(self.points)
+        if born:
+            copy.born = dict(self.born)
+        copy.version = self.version
+        return copy
+
+    def standing_by(self, since_us: int) -> ObstacleMemory:
+        """A copy holding only what stood still since `since_us`: the points first seen by then, less
+        those within `BODY_MM` of a point first seen later (a body that showed new points moved: a mover
+        shifting on the spot, not a box)."""
+        new = [v for p, v in self.points.items() if self.born.get(p, since_us) > since_us]
+        moved: set[tuple[int, int]] = set()
+        k = BODY_MM // _KEY_MM + 1
+        for nx, ny, _ in new:
+            cx, cy = nx // _KEY_MM, ny // _KEY_MM
+            moved.update((cx + dx, cy + dy) for dx in range(-k, k + 1) for dy in range(-k, k + 1))
+        copy = ObstacleMemory(self.cfg)
+        copy.points = {p: v for p, v in self.points.items() if self.born.get(p, since_us) <= since_us and not (
+            p in moved and any((v[0] - nx) ** 2 + (v[1] - ny) ** 2 <= BODY_MM * BODY_MM for nx, ny, _ in new))}
+        copy.version = self.version
+        return copy
