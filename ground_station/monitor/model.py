@@ -568,12 +568,13 @@ class VehicleView:
                 self._commit_q_row()
         else:
             m = _QROW_RE.match(name)
-            if m and self._q_expected is None:  # a robot without Q_N: value by value, as it comes
+            expected = self._q_expected
+            if m and expected is None:  # a robot without Q_N: value by value, as it comes
                 self.q_row[int(m.group(1))] = msg.value
                 self.q_row_ready = True
             elif m:
                 self._q_pending[int(m.group(1))] = msg.value
-                if len(self._q_pending) >= self._q_expected:
+                if expected is not None and len(self._q_pending) >= expected:
                     self._commit_q_row()
 
     def _commit_q_row(self) -> None:

@@ -9,7 +9,8 @@ import sys
 import pytest
 
 from firmware_py import can_protocol as cp
-from ground_station.canhub import CanHub, CanSpecError, open_bus, parse_spec
+from firmware_py.canbus import CanSpecError, open_bus, parse_spec
+from ground_station.canhub import CanHub
 from ground_station.subprocs import free_port
 
 
