@@ -425,7 +425,7 @@ def demo_scenario(opts: DemoOptions, grid_map, start_mm: tuple[float, float],
     import numpy as np
 
     from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
-    from ground_station.nav.scenario import place_discs, place_movers
+    from ground_station.lab.nav.scenario import place_discs, place_movers
 
     rng = np.random.default_rng(opts.seed)
     per_mm = LOCAL_ITEM_SCALE / 1000  # LOCAL_NED item units per world mm

@@ -112,8 +112,8 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
                 goals_mm: list[tuple[float, float]], max_segment_mm: float = 1000.0) -> list[list[tuple[float, float]]]:
     """Per goal, the waypoints (mm) from the previous one (first: start_mm) round
     the points, on the scenario raster; MapError when a leg has no path."""
+    from ground_station.lab.nav.scenario import CSPACE_MARGIN_MM, RASTER_MM, _cspace
     from ground_station.maps import MapError, octile_distances
-    from ground_station.nav.scenario import CSPACE_MARGIN_MM, RASTER_MM, _cspace
 
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
     cell = gridmap.cell_size_m * 1000.0

@@ -18,10 +18,10 @@ import pytest
 
 from firmware_py import robot_spec
 from ground_station import cli
+from ground_station.lab.nav import scenario as sc
 from ground_station.lab.nav.episodes import summarise
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
 from ground_station.maps.planner import plan_waypoints
-from ground_station.nav import scenario as sc
 
 STEP = 50.0  # raster step, mm
 R = robot_spec.ROBOT_RADIUS_MM

@@ -13,8 +13,8 @@ from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.lab.nav import controllers as nc
 from ground_station.lab.nav.episodes import run_hil, run_twin
+from ground_station.lab.nav.scenario import Episode, episodes
 from ground_station.maps import load_map
-from ground_station.nav.scenario import Episode, episodes
 
 RADIUS_MM = float(robot_spec.ROBOT_RADIUS_MM)
 

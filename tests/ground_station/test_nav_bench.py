@@ -19,9 +19,9 @@ from firmware_py.shipped_policies import shipped_policy
 from ground_station import cli
 from ground_station.lab.nav import controllers as nc
 from ground_station.lab.nav.episodes import run_hil, run_twin, summarise
+from ground_station.lab.nav.scenario import episodes
 from ground_station.learn.sector.evaluate import seek_table
 from ground_station.maps import load_map
-from ground_station.nav.scenario import episodes
 
 ENC = SectorEncoder(15, (0, 1, 7), (100, 400))
 
@@ -82,7 +82,7 @@ def test_hil_counts_a_drive_into_a_disc_as_a_collision():
     ignores ranges: the bumper must register it (with the robot's collision monitor off; on, it
     stops short of the disc and the episode is no collision)."""
     from firmware_py.vehicle import VehicleConfig
-    from ground_station.nav.scenario import Episode
+    from ground_station.lab.nav.scenario import Episode
 
     gm = load_map("paper10")
     # row 0 (north corridor) is free end to end: start (0,0) -> goal (3,0), a disc at (1.0 m, 4.75 m)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
+from ground_station.lab.nav import scenario as sc
 from ground_station.learn.sector import obstacles as tw
 from ground_station.learn.sector.twin import sense
 from ground_station.maps import GridMap, load_map
-from ground_station.nav import scenario as sc
 from sim_bridge import obstacles as simobs
 
 

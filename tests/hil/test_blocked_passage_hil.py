@@ -14,8 +14,8 @@ from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import resolve_policy_spec
 from ground_station.lab.nav.controllers import standard_controllers
 from ground_station.lab.nav.episodes import run_hil
+from ground_station.lab.nav.scenario import WAYPOINT_CLEAR_MM, make_episode
 from ground_station.maps import load_map
-from ground_station.nav.scenario import WAYPOINT_CLEAR_MM, make_episode
 
 # 10 x 7 cells of 500 mm; a wall along row 3 with a door at col 2 and (TWO_DOORS) one at col 8
 ROWS = {"two_doors": ["." * 10] * 3 + ["@@.@@@@@.@"] + ["." * 10] * 3,

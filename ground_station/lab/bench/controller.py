@@ -120,10 +120,10 @@ def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, se
     from firmware_py.policy import load_policy
     from ground_station.lab.nav.controllers import standard_controllers
     from ground_station.lab.nav.episodes import run_hil
+    from ground_station.lab.nav.scenario import episodes as nav_episodes
     from ground_station.lab.rigs.lockstep import cell_policy, far_trip, run_episode
     from ground_station.maps import load_map
     from ground_station.maps.planner import guidance_from_metadata
-    from ground_station.nav.scenario import episodes as nav_episodes
 
     gm = load_map("paper10")
     cell = cell_policy()

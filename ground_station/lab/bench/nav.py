@@ -44,8 +44,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from ground_station.lab.nav.scenario import Episode, MoverStyle
     from ground_station.maps import GridMap
-    from ground_station.nav.scenario import Episode, MoverStyle
 
 DEFAULT_MAPS = ("paper10", "rooms-16x16-s1", "trap-16x16-s1", "random-16x16-s1", "maze-16x16-s1")
 KEYS = ("success_rate", "collision_rate", "path_ratio_mean", "time_to_goal_mean_s", "near_miss_rate")
@@ -108,8 +108,8 @@ def run(args: argparse.Namespace) -> int:
         kind_controllers,
     )
     from ground_station.lab.nav.episodes import mcnemar_exact, run_job, run_twin, summarise
+    from ground_station.lab.nav.scenario import episodes
     from ground_station.maps import MapError, load_map
-    from ground_station.nav.scenario import episodes
 
     names = tuple(c.strip() for c in (args.controllers or "").split(",") if c.strip())
     if args.controllers is not None and not names:
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         args.obstacles = 0 if args.blocked else 3
     if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.hil_episodes < 1 or args.batch < 1:
         raise CliError("--obstacles/--movers must be >= 0, --episodes/--hil-episodes/--batch >= 1")
-    from ground_station.nav.scenario import MOVER_SPEED_MM_S, MoverStyle
+    from ground_station.lab.nav.scenario import MOVER_SPEED_MM_S, MoverStyle
 
     speed = MOVER_SPEED_MM_S
     if args.mover_speed is not None:
@@ -284,7 +284,7 @@ def run(args: argparse.Namespace) -> int:
 def _blocked(gm: GridMap, args: argparse.Namespace, style: MoverStyle) -> list[Episode]:
     """The map's blocked-passage episodes for --blocked (both: the two labels interleaved, so every
     prefix is mixed). Raises MapError when the map has none with a label asked for."""
-    from ground_station.nav.scenario import blocked_episodes
+    from ground_station.lab.nav.scenario import blocked_episodes
 
     kw = {"k": args.obstacles, "m": args.movers, "movers": style}
     if args.blocked != "both":

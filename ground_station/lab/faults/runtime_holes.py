@@ -222,7 +222,7 @@ def activation_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioR
           what="extreme legal planner metadata, 3 discs + 2 movers: search off the tick, no step over the period, "
                "no FAULT")
 def planner_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    from ground_station.nav.scenario import episodes as nav_episodes
+    from ground_station.lab.nav.scenario import episodes as nav_episodes
     from sim_bridge.obstacles import ObstacleLayer
 
     res = ScenarioResult("planner_worst_case")

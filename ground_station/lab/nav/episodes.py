@@ -33,6 +33,7 @@ import numpy as np
 from firmware_py import robot_spec
 from ground_station.lab.nav.controllers import BenchController, NavController
 from ground_station.lab.nav.planned import budget_periods, run_twin_planned
+from ground_station.lab.nav.scenario import Episode, episode_arrays
 from ground_station.learn.sector.obstacles import (
     COLLISION,
     LOOP,
@@ -45,7 +46,6 @@ from ground_station.learn.sector.obstacles import (
 )
 from ground_station.learn.sector.twin import encoder_arrays
 from ground_station.maps import GridMap
-from ground_station.nav.scenario import Episode, episode_arrays
 
 OUTCOMES = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop", TIMEOUT: "timeout", NO_ROUTE: "no_route"}
 PERIOD_S = robot_spec.CONTROL_PERIOD_US / 1e6

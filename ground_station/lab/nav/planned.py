@@ -51,6 +51,7 @@ from firmware_py.kinds.sector.recoveries import BACKUP, CLEAR, GIVE_WAY, GLOBAL,
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.vehicle import VehicleConfig
 from ground_station.lab.nav.controllers import NavController
+from ground_station.lab.nav.scenario import Episode, rollout_arrays
 from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD
 from ground_station.learn.sector.obstacles import (
     COLLISION,
@@ -67,7 +68,6 @@ from ground_station.learn.sector.obstacles import (
 )
 from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
 from ground_station.maps import GridMap
-from ground_station.nav.scenario import Episode, rollout_arrays
 
 PERIOD_US = robot_spec.CONTROL_PERIOD_US
 
