@@ -82,7 +82,7 @@ class DemoOptions:
     out: Path | None = None  # None: runs/demo-<timestamp>/
     timeout_s: float | None = None  # wall seconds for the mission; None: 120 lockstep, 400 real time
     seed: int = 0  # the sim's noise seed (and the obstacles' placement)
-    obstacles: int = 0  # unmapped static discs on or beside the planned path (ground_station/nav/scenario.py)
+    obstacles: int = 0  # unmapped static discs on or beside the planned path (ground_station/nav/obstacles.py)
     movers: int = 0  # moving discs
     plan: bool | None = None  # send the planner's waypoints; None: for sector policies
     profile: Path | None = None  # a robot profile (firmware_py/profile.py): the robot and the sim use its backends
@@ -421,11 +421,11 @@ def demo_scenario(opts: DemoOptions, grid_map, start_mm: tuple[float, float],
                   items: list[tuple[int, int, int]]) -> dict:
     """Seeded unmapped obstacles for the demo: up to `obstacles` detourable
     discs along the whole mission path and `movers` movers
-    (`ground_station.nav.scenario`, the definition the benchmark uses)."""
+    (`ground_station.nav.obstacles`, the definition the benchmark uses)."""
     import numpy as np
 
     from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
-    from ground_station.lab.nav.scenario import place_discs, place_movers
+    from ground_station.nav.obstacles import place_discs, place_movers
 
     rng = np.random.default_rng(opts.seed)
     per_mm = LOCAL_ITEM_SCALE / 1000  # LOCAL_NED item units per world mm
@@ -433,7 +433,7 @@ def demo_scenario(opts: DemoOptions, grid_map, start_mm: tuple[float, float],
     discs = place_discs(grid_map, start_mm, wps, opts.obstacles, rng)
     movers = place_movers(grid_map, start_mm, discs, opts.movers, rng)
     return {"map": grid_map.name, "seed": opts.seed, "discs": discs, "movers": movers,
-            "definition": "ground_station/nav/scenario.py"}
+            "definition": "ground_station/nav/obstacles.py"}
 
 
 def _command_mission(link, opts: DemoOptions, say: Callable[[str], None],

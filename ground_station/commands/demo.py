@@ -55,7 +55,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="wall seconds to wait for the mission (default 120; 400 with --realtime)")
     p.add_argument("--seed", type=int, default=0, help="sim noise and obstacle placement seed (default %(default)s)")
     p.add_argument("--obstacles", type=int, default=0, metavar="K",
-                   help="unmapped static discs on or beside the planned path (ground_station/nav/scenario.py)")
+                   help="unmapped static discs on or beside the planned path (ground_station/nav/obstacles.py)")
     p.add_argument("--movers", type=int, default=0, metavar="M", help="moving discs (pedestrian pace)")
     p.add_argument("--profile", type=Path, metavar="FILE.toml",
                    help="robot profile (docs/robot-profile.md): the robot drives through its backends and the sim "

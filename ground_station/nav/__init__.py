@@ -1,3 +1,4 @@
-"""Navigation with unmapped obstacles: scenarios (`scenario`), the controllers
-compared on them (`controllers`) and the episode loop of `qnav bench nav`
-(`episodes`: twin and HIL)."""
+"""Navigation with unmapped obstacles: their definition (`obstacles`: detourable
+discs and movers, the configuration-space raster) and the re-planner round what
+the robot sees (`replan`); the benchmark's scenario episodes, controllers and
+episode loop are in `ground_station.lab.nav`."""

@@ -17,7 +17,7 @@ with that, as nav2 re-plans on an updated costmap:
   beyond `max_range_mm` (a cone's nearest hit lies off its axis by up to
   r sin(7.5 deg)). Points older than `window_us` of robot time are
   forgotten (a mover walks on).
-* `raster_plan` plans on the scenario raster (`nav.scenario`: 50 mm points
+* `raster_plan` plans on the scenario raster (`nav.obstacles`: 50 mm points
   where the robot's disc grown by 75 mm touches neither a map cell nor one of
   the points), shortest 8-connected path (`maps.octile_distances` on the
   raster: diagonal steps sqrt 2, no corner cutting, then steepest descent),
@@ -112,13 +112,13 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
                 goals_mm: list[tuple[float, float]], max_segment_mm: float = 1000.0) -> list[list[tuple[float, float]]]:
     """Per goal, the waypoints (mm) from the previous one (first: start_mm) round
     the points, on the scenario raster; MapError when a leg has no path."""
-    from ground_station.lab.nav.scenario import CSPACE_MARGIN_MM, RASTER_MM, _cspace
     from ground_station.maps import MapError, octile_distances
+    from ground_station.nav.obstacles import CSPACE_MARGIN_MM, RASTER_MM, cspace
 
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
     cell = gridmap.cell_size_m * 1000.0
     discs = np.array([(x, y, POINT_RADIUS_MM) for x, y in points], dtype=np.float64).reshape(-1, 3)
-    free = _cspace(occ, cell, discs, RASTER_MM, robot_spec.ROBOT_RADIUS_MM + CSPACE_MARGIN_MM)
+    free = cspace(occ, cell, discs, RASTER_MM, robot_spec.ROBOT_RADIUS_MM + CSPACE_MARGIN_MM)
     ny, nx = free.shape
 
     def nearest_free(x: float, y: float) -> tuple[int, int] | None:

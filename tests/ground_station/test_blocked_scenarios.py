@@ -1,4 +1,4 @@
-"""Blocked-passage scenarios (ground_station/nav/scenario.py `blocked_episodes`,
+"""Blocked-passage scenarios (ground_station/lab/nav/scenario.py `blocked_episodes`,
 `qnav bench nav --blocked`): the blocking disc meets the documented
 conditions a-e, checked here on a configuration-space raster computed in this
 file (numpy, not the module's kernel) with `octile_distances`; the label is
@@ -22,6 +22,7 @@ from ground_station.lab.nav import scenario as sc
 from ground_station.lab.nav.episodes import summarise
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
 from ground_station.maps.planner import plan_waypoints
+from ground_station.nav import obstacles as ob
 
 STEP = 50.0  # raster step, mm
 R = robot_spec.ROBOT_RADIUS_MM
@@ -89,11 +90,11 @@ def _check_blocking(gm: GridMap, ep: sc.Episode) -> bool:
     points = [start, *ep.waypoints]
     assert _disc_in_free_space(gm, x, y, r)  # a.
     for px, py in points:  # b.
-        assert math.hypot(px - x, py - y) >= r + R + sc.WAYPOINT_CLEAR_MM
-    assert all(_legs_connected(gm, points, [], sc.CSPACE_MARGIN_MM))  # the route is passable without it
-    assert sc.detourable(gm, start, ep.waypoints, [])
-    assert not sc.detourable(gm, start, ep.waypoints, [disc])  # c. it blocks the route locally
-    with_margin = _legs_connected(gm, points, [disc], sc.CSPACE_MARGIN_MM)
+        assert math.hypot(px - x, py - y) >= r + R + ob.WAYPOINT_CLEAR_MM
+    assert all(_legs_connected(gm, points, [], ob.CSPACE_MARGIN_MM))  # the route is passable without it
+    assert ob.detourable(gm, start, ep.waypoints, [])
+    assert not ob.detourable(gm, start, ep.waypoints, [disc])  # c. it blocks the route locally
+    with_margin = _legs_connected(gm, points, [disc], ob.CSPACE_MARGIN_MM)
     bare = _legs_connected(gm, points, [disc], 0.0)
     if ep.blocked["detour"]:  # d. connected elsewhere with margin
         assert all(with_margin)
@@ -175,10 +176,10 @@ def test_extra_discs_stay_detourable_and_keep_the_label():
     for e in eps:
         block, extras = e.discs[0], e.discs[1:]
         points = [e.start[:2], *e.waypoints]
-        assert sc.detourable(gm, e.start[:2], e.waypoints, extras)  # ...against the map alone
+        assert ob.detourable(gm, e.start[:2], e.waypoints, extras)  # ...against the map alone
         for x, y, r in extras:
             assert math.hypot(x - block[0], y - block[1]) >= r + block[2]  # not overlapping the block
-        assert all(_legs_connected(gm, points, e.discs, sc.CSPACE_MARGIN_MM))  # and a route stays open
+        assert all(_legs_connected(gm, points, e.discs, ob.CSPACE_MARGIN_MM))  # and a route stays open
 
 
 def test_extra_discs_that_overlap_the_block_or_close_the_detour_are_dropped(monkeypatch):
@@ -202,7 +203,7 @@ def test_extra_discs_that_overlap_the_block_or_close_the_detour_are_dropped(monk
     for e in sc.blocked_episodes(TWO_CORRIDORS, 3, 0, True, k=3):
         assert e.blocked is not None and e.blocked["detour"]
         assert e.discs == [tuple(e.blocked["disc"]), (700.0, 2200.0, 120.0)]
-        assert all(_legs_connected(TWO_CORRIDORS, [e.start[:2], *e.waypoints], e.discs, sc.CSPACE_MARGIN_MM))
+        assert all(_legs_connected(TWO_CORRIDORS, [e.start[:2], *e.waypoints], e.discs, ob.CSPACE_MARGIN_MM))
 
 def test_summarise_counts_no_route_apart():
     def row(outcome: str, detour: bool | None) -> dict:

@@ -1,4 +1,4 @@
-"""Navigation scenarios (ground_station/nav/scenario.py) and the twin with
+"""Navigation scenarios (ground_station/lab/nav/scenario.py, ground_station/nav/obstacles.py) and the twin with
 obstacles (ground_station/learn/sector/obstacles.py): seeded and
 reproducible, every placed disc meets the documented "detourable"
 definition, the twin's movers are the sim's own function, and the twin's
@@ -17,6 +17,7 @@ from ground_station.lab.nav import scenario as sc
 from ground_station.learn.sector import obstacles as tw
 from ground_station.learn.sector.twin import sense
 from ground_station.maps import GridMap, load_map
+from ground_station.nav import obstacles as ob
 from sim_bridge import obstacles as simobs
 
 
@@ -42,10 +43,10 @@ def test_every_placed_disc_is_detourable(paper10):
     for gm in (paper10, rooms):
         for e in sc.episodes(gm, 15, 1, 3, 0):
             start = e.start[:2]
-            assert sc.detourable(gm, start, e.waypoints, e.discs)
-            keep = robot_spec.ROBOT_RADIUS_MM + sc.WAYPOINT_CLEAR_MM
+            assert ob.detourable(gm, start, e.waypoints, e.discs)
+            keep = robot_spec.ROBOT_RADIUS_MM + ob.WAYPOINT_CLEAR_MM
             for x, y, r in e.discs:
-                assert sc.DISC_RADIUS_MM[0] <= r <= sc.DISC_RADIUS_MM[1]
+                assert ob.DISC_RADIUS_MM[0] <= r <= ob.DISC_RADIUS_MM[1]
                 for px, py in [start, *e.waypoints]:
                     assert math.hypot(px - x, py - y) >= r + keep - 1e-6
 
@@ -55,15 +56,15 @@ def test_a_disc_in_a_one_cell_corridor_is_not_detourable():
     occ[1, :] = False  # one corridor, 500 mm wide
     gm = GridMap(name="corridor", occ=occ)
     start, wps = (250.0, 750.0), [(1250.0, 750.0), (2250.0, 750.0), (3750.0, 750.0)]
-    assert sc.detourable(gm, start, wps, [])
-    assert not sc.detourable(gm, start, wps, [(3000.0, 750.0, 120.0)])  # blocks the corridor
+    assert ob.detourable(gm, start, wps, [])
+    assert not ob.detourable(gm, start, wps, [(3000.0, 750.0, 120.0)])  # blocks the corridor
     occ2 = np.ones((5, 8), dtype=bool)
     occ2[1:4, :] = False  # three cells wide: room to pass
     gm2 = GridMap(name="hall", occ=occ2)
     mid = 1250.0
-    assert sc.detourable(gm2, (250.0, mid), [(1250.0, mid), (2250.0, mid), (3750.0, mid)],
+    assert ob.detourable(gm2, (250.0, mid), [(1250.0, mid), (2250.0, mid), (3750.0, mid)],
                          [(3000.0, mid, 120.0)])
-    assert not sc.detourable(gm2, (250.0, mid), [(1250.0, mid), (2250.0, mid), (3750.0, mid)],
+    assert not ob.detourable(gm2, (250.0, mid), [(1250.0, mid), (2250.0, mid), (3750.0, mid)],
                              [(2250.0, mid + 100.0, 120.0)])  # sits on a waypoint
 
 

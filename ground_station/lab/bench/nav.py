@@ -3,7 +3,7 @@
 Every controller (`learnt` sector policy, `seek` table, `vfh` reactive
 baseline, `direct` = the learnt table without waypoints; see
 `ground_station.lab.nav.controllers`) drives the same seeded scenario episodes
-(`ground_station.nav.scenario`: start, goal, the planner's waypoints on the
+(`ground_station.lab.nav.scenario`: start, goal, the planner's waypoints on the
 known map, up to K detourable static discs, M movers) on each map: on the
 kinematic twin (`--episodes` per map) and, with `--hil`, on the lockstep
 pymunk rig with the robot's own controller (`--hil-episodes` per
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
         "discs_placed_mean": sum(len(e.discs) for e in all_eps) / len(all_eps),
         "movers_placed_mean": sum(len(e.movers) for e in all_eps) / len(all_eps),
         "blocked": args.blocked, "maps_skipped": skipped,
-        "definition": "ground_station/nav/scenario.py (detourable discs, movers"
+        "definition": "ground_station/lab/nav/scenario.py (detourable discs, movers"
                       + (", blocked passages)" if args.blocked else ")")},
         "policy": str(path), "policy_id": f"0x{pol.policy_id:08x}", "per_map": {}}
     rows: list[tuple[str, object]] = []

@@ -2,30 +2,15 @@
 
 The one definition of a scenario episode, used by the twin's rollouts
 (`ground_station.learn.sector.obstacles`), the pymunk plant
-(`sim_bridge.obstacles.ObstacleLayer`), `qnav bench nav` and `qnav demo
---obstacles/--movers`. An `Episode` is plain data (JSON round trip):
-start pose, goal, the planner's waypoints on the known map, static discs and
-movers; `make_episode(gridmap, start, goal, heading, k, m, rng)` builds one
+(`sim_bridge.obstacles.ObstacleLayer`) and `qnav bench nav`. An `Episode`
+is plain data (JSON round trip): start pose, goal, the planner's waypoints on
+the known map, static discs and movers; `make_episode(gridmap, start, goal, heading, k, m, rng)` builds one
 from a seeded `numpy.random.Generator`.
 
-**Static obstacles** are discs of radius 100-200 mm placed on or beside the
-planned path: the centre at a uniform point of the waypoint polyline between
-15 % and 85 % of its length, moved sideways by up to `LATERAL_MM`. One is
-kept only if the set stays **detourable**:
-
-1. every disc lies in free space (overlaps no obstacle cell or the border);
-2. the start pose and every waypoint keep >= robot radius + `WAYPOINT_CLEAR_MM`
-   from every disc surface (the robot can still stand on each waypoint, as
-   the controller needs to pass within `GOAL_TOLERANCE_MM` of it);
-3. on a `RASTER_MM` raster of the configuration space (points where the
-   robot's disc grown by `CSPACE_MARGIN_MM` touches no obstacle cell,
-   border or disc), consecutive waypoints (from the start) stay connected
-   (8-connected), and the shortest raster path between them is at most
-   `DETOUR_MAX_MM` longer than the same path without the discs: a local
-   detour exists. Corridors one cell (500 mm) wide never pass this with a
-   disc in them (500 - 200 < 300 + 2 x 25 mm), so obstacles land in rooms and
-   open stretches; where no position passes after `TRIES` draws, fewer than
-   k discs are placed (`Episode.discs` says how many).
+The static discs and movers in an episode are those of
+`ground_station.nav.obstacles` (`place_discs`, `place_movers`: conditions 1.-3.
+of a **detourable** set, in that module's docstring); `Episode.discs` says how
+many were placed.
 
 **Blocked passages** (`blocked_episodes`, `qnav bench nav --blocked`): every
 episode has one disc that closes a narrow passage (a door, a one-cell
@@ -60,11 +45,6 @@ label: none with a route around it (one door between two rooms, a
 tree-shaped maze) or none without (paper10: every passage on a route has a
 way round, no dead end behind it); `blocked_episodes` then raises MapError
 naming the map and the label.
-
-**Movers** are discs of `MOVER_RADIUS_MM` walking straight lines at a
-pedestrian's slow pace (`MOVER_SPEED_MM_S`, uniform in that range, random
-direction), starting in free space at least `MOVER_START_MM` from the robot,
-bouncing off walls, discs and the robot (`sim_bridge.obstacles.step_movers`).
 """
 
 from __future__ import annotations
@@ -72,25 +52,26 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-import numba
 import numpy as np
 
 from firmware_py import robot_spec
-from ground_station.learn.sector.twin import disc_hits
 from ground_station.maps import GridMap, MapError, bfs_distances, octile_distances
 from ground_station.maps.planner import plan_waypoints
+from ground_station.nav.obstacles import (
+    CSPACE_MARGIN_MM,
+    DETOUR_MAX_MM,
+    MOVER_SPEED_MM_S,
+    RASTER_MM,
+    WAYPOINT_CLEAR_MM,
+    cspace,
+    disc_blocked,
+    place_discs,
+    place_movers,
+    point_along,
+    raster_index,
+)
 from sim_bridge.obstacles import mover_array
 
-LATERAL_MM = 300.0
-DISC_RADIUS_MM = (100.0, 200.0)
-WAYPOINT_CLEAR_MM = 50.0
-RASTER_MM = 50.0
-CSPACE_MARGIN_MM = 75.0
-DETOUR_MAX_MM = 1500.0
-TRIES = 40
-MOVER_RADIUS_MM = 150.0
-MOVER_SPEED_MM_S = (300.0, 600.0)
-MOVER_START_MM = 1200.0
 BLOCK_SPAN = (0.10, 0.90)  # share of the planned route where a blocking disc's centre is drawn
 BLOCK_LATERAL_MM = 100.0
 BLOCK_RADIUS_MM = (150.0, 260.0)
@@ -138,168 +119,6 @@ def _blocked_json(b: dict | None) -> dict | None:
     if b is None:
         return None
     return {"disc": [float(v) for v in b["disc"]], "detour": bool(b["detour"])}
-
-
-# --- configuration space ---------------------------------------------------------
-
-@numba.njit(cache=True)
-def _cspace(occ, cell, discs, step, clear):
-    """bool raster (ny, nx) of points (ix+0.5, iy+0.5)*step where a disc of
-    radius `clear` touches no obstacle cell, border (the twin's `disc_hits`) or
-    disc. Row 0 = south."""
-    h, w = occ.shape
-    nx = int(w * cell / step)
-    ny = int(h * cell / step)
-    out = np.zeros((ny, nx), dtype=np.bool_)
-    for iy in range(ny):
-        y = (iy + 0.5) * step
-        for ix in range(nx):
-            x = (ix + 0.5) * step
-            ok = not disc_hits(occ, h, w, cell, x, y, clear)
-            if ok:
-                for k in range(discs.shape[0]):
-                    d = clear + discs[k, 2]
-                    if (x - discs[k, 0]) ** 2 + (y - discs[k, 1]) ** 2 < d * d:
-                        ok = False
-                        break
-            out[iy, ix] = ok
-    return out
-
-
-def _raster_index(free: np.ndarray, x: float, y: float) -> tuple[int, int]:
-    """Nearest free raster point to (x, y) mm (the point itself when free)."""
-    ny, nx = free.shape
-    ix = min(nx - 1, max(0, int(x // RASTER_MM)))
-    iy = min(ny - 1, max(0, int(y // RASTER_MM)))
-    if free[iy, ix]:
-        return ix, iy
-    best, pick = math.inf, (ix, iy)
-    for yy in range(max(0, iy - 3), min(ny, iy + 4)):
-        for xx in range(max(0, ix - 3), min(nx, ix + 4)):
-            if free[yy, xx]:
-                d = (xx - ix) ** 2 + (yy - iy) ** 2
-                if d < best:
-                    best, pick = d, (xx, yy)
-    return pick
-
-
-def _leg_lengths(gridmap: GridMap, points: list[tuple[float, float]], discs: np.ndarray,
-                 margin: float = CSPACE_MARGIN_MM) -> list[float]:
-    occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
-    cell = gridmap.cell_size_m * 1000.0
-    free = _cspace(occ, cell, discs.reshape(-1, 3), RASTER_MM, robot_spec.ROBOT_RADIUS_MM + margin)
-    return _raster_legs(free, points)
-
-
-def _raster_legs(free: np.ndarray, points: list[tuple[float, float]]) -> list[float]:
-    """Shortest 8-connected raster path (mm) of each leg points[i] -> points[i+1] on `free`."""
-    out = []
-    for a, b in zip(points[:-1], points[1:], strict=True):
-        ia, ib = _raster_index(free, *a), _raster_index(free, *b)
-        # 8-connected raster path (no corner cutting), the shared shortest-path module
-        out.append(float(octile_distances(~free, ib[0], ib[1])[ia[1], ia[0]]) * RASTER_MM)
-    return out
-
-
-def detourable(gridmap: GridMap, start: tuple[float, float], waypoints: list[tuple[float, float]],
-               discs: list[tuple[float, float, float]], base: list[float] | None = None) -> bool:
-    """The definition in the module docstring: discs in free space, start and
-    waypoints clear of them, and every leg connected with a detour of at most
-    DETOUR_MAX_MM over the leg without discs (`base`, computed if not given)."""
-    occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
-    cell = gridmap.cell_size_m * 1000.0
-    arr = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
-    for x, y, r in arr:  # 1. in free space (a point-sized robot: the disc itself)
-        if _disc_blocked(occ, cell, x, y, r):
-            return False
-    keep = robot_spec.ROBOT_RADIUS_MM + WAYPOINT_CLEAR_MM
-    for px, py in [start, *waypoints]:  # 2. start and waypoints clear
-        for x, y, r in arr:
-            if math.hypot(px - x, py - y) < r + keep:
-                return False
-    points = [start, *waypoints]
-    if base is None:
-        base = _leg_lengths(gridmap, points, np.zeros((0, 3)))
-    legs = _leg_lengths(gridmap, points, arr)  # 3. connected, local detour
-    return all(math.isfinite(a) and a <= b + DETOUR_MAX_MM for a, b in zip(legs, base, strict=True))
-
-
-def _disc_blocked(occ: np.ndarray, cell: float, x: float, y: float, r: float) -> bool:
-    h, w = occ.shape
-    if x < r or y < r or x > w * cell - r or y > h * cell - r:
-        return True
-    top = h * cell
-    for row in range(max(0, int((top - y - r) // cell)), min(h, int((top - y + r) // cell) + 1)):
-        ylo = top - (row + 1) * cell
-        for col in range(max(0, int((x - r) // cell)), min(w, int((x + r) // cell) + 1)):
-            if occ[row, col]:
-                px = min(max(x, col * cell), (col + 1) * cell)
-                py = min(max(y, ylo), ylo + cell)
-                if (x - px) ** 2 + (y - py) ** 2 < r * r:
-                    return True
-    return False
-
-
-def _point_along(points: list[tuple[float, float]], s: float) -> tuple[float, float, float]:
-    """Point at arc length s along the polyline and the segment's direction (rad)."""
-    for (ax, ay), (bx, by) in zip(points[:-1], points[1:], strict=True):
-        seg = math.hypot(bx - ax, by - ay)
-        if s <= seg or (bx, by) == points[-1]:
-            t = min(1.0, s / seg) if seg > 0 else 0.0
-            return ax + t * (bx - ax), ay + t * (by - ay), math.atan2(by - ay, bx - ax)
-        s -= seg
-    x, y = points[-1]
-    return x, y, 0.0
-
-
-def place_discs(gridmap: GridMap, start: tuple[float, float], waypoints: list[tuple[float, float]],
-                k: int, rng: np.random.Generator) -> list[tuple[float, float, float]]:
-    """Up to k detourable discs on or beside the path start -> waypoints."""
-    points = [start, *waypoints]
-    total = sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(points[:-1], points[1:], strict=True))
-    discs: list[tuple[float, float, float]] = []
-    if k <= 0 or total <= 0:
-        return discs
-    base = _leg_lengths(gridmap, points, np.zeros((0, 3)))
-    for _ in range(k):
-        for _try in range(TRIES):
-            x, y, ang = _point_along(points, float(rng.uniform(0.15, 0.85)) * total)
-            off = float(rng.uniform(-LATERAL_MM, LATERAL_MM))
-            x, y = x - off * math.sin(ang), y + off * math.cos(ang)
-            r = float(rng.uniform(*DISC_RADIUS_MM))
-            cand = (round(x, 1), round(y, 1), round(r, 1))
-            if detourable(gridmap, start, waypoints, [*discs, cand], base):
-                discs.append(cand)
-                break
-    return discs
-
-
-def place_movers(gridmap: GridMap, start: tuple[float, float], discs: list[tuple[float, float, float]],
-                 m: int, rng: np.random.Generator, speed: tuple[float, float] = MOVER_SPEED_MM_S,
-                 yields: bool = True) -> list[tuple[float, ...]]:
-    """m movers in free space away from the start (fewer if no place is found), at a speed uniform in
-    `speed` (mm/s); `yields`: whether they step aside for the robot (sim_bridge.obstacles)."""
-    occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
-    cell = gridmap.cell_size_m * 1000.0
-    cells = gridmap.free_cells()
-    h = gridmap.height
-    out: list[tuple[float, ...]] = []
-    r = MOVER_RADIUS_MM
-    for _ in range(m):
-        for _try in range(TRIES):
-            col, row = cells[int(rng.integers(len(cells)))]
-            x = (col + 0.5) * cell + float(rng.uniform(-0.3, 0.3)) * cell
-            y = (h - row - 0.5) * cell + float(rng.uniform(-0.3, 0.3)) * cell
-            if math.hypot(x - start[0], y - start[1]) < MOVER_START_MM or _disc_blocked(occ, cell, x, y, r):
-                continue
-            if any(math.hypot(x - dx, y - dy) < r + dr for dx, dy, dr in discs):
-                continue
-            v = float(rng.uniform(*speed))
-            a = float(rng.uniform(-math.pi, math.pi))
-            out.append((round(x, 1), round(y, 1), round(v * math.cos(a), 1), round(v * math.sin(a), 1), r,
-                        1.0 if yields else 0.0))
-            break
-    return out
 
 
 def make_episode(gridmap: GridMap, start: tuple[int, int], goal: tuple[int, int], heading: float,
@@ -371,7 +190,7 @@ def _free_raster(gridmap: GridMap, margin: float) -> np.ndarray:
         if len(_FREE_CACHE) >= 32:
             _FREE_CACHE.clear()
         occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
-        free = _cspace(occ, gridmap.cell_size_m * 1000.0, np.zeros((0, 3)), RASTER_MM,
+        free = cspace(occ, gridmap.cell_size_m * 1000.0, np.zeros((0, 3)), RASTER_MM,
                        robot_spec.ROBOT_RADIUS_MM + margin)
         _FREE_CACHE[key] = free
     return free
@@ -379,7 +198,7 @@ def _free_raster(gridmap: GridMap, margin: float) -> np.ndarray:
 
 def _close_disc(free: np.ndarray, disc: tuple[float, float, float], clear: float) -> np.ndarray:
     """`free` with the raster points a disc closes for a robot disc of radius `clear` removed:
-    the same test as `_cspace`'s disc loop, so the result equals `_cspace` with the disc."""
+    the same test as `cspace`'s disc loop, so the result equals `cspace` with the disc."""
     x, y, r = disc
     d = clear + r
     ny, nx = free.shape
@@ -396,9 +215,9 @@ def _close_disc(free: np.ndarray, disc: tuple[float, float, float], clear: float
 
 
 def _all_connected(free: np.ndarray, points: list[tuple[float, float]]) -> bool:
-    """Every leg points[i] -> points[i+1] connected on `free` (as `_raster_legs` finite): all points
+    """Every leg points[i] -> points[i+1] connected on `free` (as `nav.obstacles._raster_legs` finite): all points
     in the first one's component. 4-connected reachability equals 8-connected without corner cutting."""
-    idx = [_raster_index(free, *p) for p in points]
+    idx = [raster_index(free, *p) for p in points]
     dist = bfs_distances(~free, idx[0][0], idx[0][1])
     return all(dist[iy, ix] >= 0 for ix, iy in idx)
 
@@ -411,7 +230,7 @@ class _Route:
         self.gridmap = gridmap
         self.points = points
         self.free = _free_raster(gridmap, CSPACE_MARGIN_MM)
-        self.idx = [_raster_index(self.free, *p) for p in points]
+        self.idx = [raster_index(self.free, *p) for p in points]
         self._fields: list[np.ndarray] | None = None
 
     def fields(self) -> list[np.ndarray]:
@@ -421,7 +240,7 @@ class _Route:
         return self._fields
 
     def base(self) -> list[float]:
-        """Leg lengths (mm) without discs: `_leg_lengths` of the route with no discs."""
+        """Leg lengths (mm) without discs: `nav.obstacles._leg_lengths` of the route with no discs."""
         f = self.fields()
         return [float(f[i + 1][iy, ix]) * RASTER_MM for i, (ix, iy) in enumerate(self.idx[:-1])]
 
@@ -433,12 +252,12 @@ class _Route:
         if _all_connected(free, self.points):
             if want is False:
                 return None  # connected with margin: a detour or no block, never "no detour"
-            # the legs' lengths with the disc (as `detourable`), recomputed only where a shortest
+            # the legs' lengths with the disc (as `nav.obstacles.detourable`), recomputed only where a shortest
             # path without the disc ran through a raster point the disc closes
             f = self.fields()
             base = self.base()
             closed = self.free & ~free
-            idx = [_raster_index(free, *p) for p in self.points]
+            idx = [raster_index(free, *p) for p in self.points]
             for i in range(len(self.points) - 1):
                 if idx[i] == self.idx[i] and idx[i + 1] == self.idx[i + 1]:
                     through = float(np.min((f[i] + f[i + 1])[closed])) if closed.any() else math.inf
@@ -473,12 +292,12 @@ def place_blocking_disc(gridmap: GridMap, start: tuple[float, float], waypoints:
     cell = gridmap.cell_size_m * 1000.0
     keep = robot_spec.ROBOT_RADIUS_MM + WAYPOINT_CLEAR_MM
     for _ in range(BLOCK_TRIES):
-        x, y, ang = _point_along(points, float(rng.uniform(*BLOCK_SPAN)) * total)
+        x, y, ang = point_along(points, float(rng.uniform(*BLOCK_SPAN)) * total)
         off = float(rng.uniform(-BLOCK_LATERAL_MM, BLOCK_LATERAL_MM))
         x, y = x - off * math.sin(ang), y + off * math.cos(ang)
         r = float(rng.uniform(*BLOCK_RADIUS_MM))
         cand = (round(x, 1), round(y, 1), round(r, 1))
-        if _disc_blocked(occ, cell, *cand):  # a. in free space
+        if disc_blocked(occ, cell, *cand):  # a. in free space
             continue
         if any(math.hypot(px - cand[0], py - cand[1]) < cand[2] + keep for px, py in points):  # b.
             continue
