@@ -272,7 +272,7 @@ def test_the_twin_lets_the_recoveries_run_to_no_route_without_the_loop_rule_cutt
     from ground_station.lab.nav import planned
     from ground_station.lab.nav.controllers import standard_controllers
     from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS
-    from ground_station.learn.sector.obstacles import NO_ROUTE
+    from ground_station.lab.nav.obstacle_twin import NO_ROUTE
 
     gm = load_map("rooms-16x16-s1")
     ep = sc.blocked_episodes(gm, 4, 0, False, k=3, m=2)[3]

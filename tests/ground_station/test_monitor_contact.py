@@ -22,7 +22,7 @@ from firmware_py.control.collision import (
     travel_gap_mm,
 )
 from firmware_py.mapdata import grid_from_rows
-from ground_station.learn.sector.obstacles import sense_obs
+from ground_station.lab.nav.obstacle_twin import sense_obs
 
 R = robot_spec.ROBOT_RADIUS_MM
 N = robot_spec.SENSOR_COUNT

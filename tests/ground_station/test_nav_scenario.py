@@ -1,5 +1,5 @@
 """Navigation scenarios (ground_station/lab/nav/scenario.py, ground_station/nav/obstacles.py) and the twin with
-obstacles (ground_station/learn/sector/obstacles.py): seeded and
+obstacles (ground_station/lab/nav/obstacle_twin.py): seeded and
 reproducible, every placed disc meets the documented "detourable"
 definition, the twin's movers are the sim's own function, and the twin's
 sensing/collision see discs where the pymunk plant does."""
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
+from ground_station.lab.nav import obstacle_twin as tw
 from ground_station.lab.nav import scenario as sc
-from ground_station.learn.sector import obstacles as tw
 from ground_station.learn.sector.twin import sense
 from ground_station.maps import GridMap, load_map
 from ground_station.nav import obstacles as ob

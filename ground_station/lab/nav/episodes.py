@@ -32,9 +32,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from ground_station.lab.nav.controllers import BenchController, NavController
-from ground_station.lab.nav.planned import budget_periods, run_twin_planned
-from ground_station.lab.nav.scenario import Episode, episode_arrays
-from ground_station.learn.sector.obstacles import (
+from ground_station.lab.nav.obstacle_twin import (
     COLLISION,
     LOOP,
     NEAR_MISS_MM,
@@ -44,6 +42,8 @@ from ground_station.learn.sector.obstacles import (
     nav_eval_kernel,
     obstacle_clearance_mm,
 )
+from ground_station.lab.nav.planned import budget_periods, run_twin_planned
+from ground_station.lab.nav.scenario import Episode, episode_arrays
 from ground_station.learn.sector.twin import encoder_arrays
 from ground_station.maps import GridMap
 

@@ -3,7 +3,7 @@
 `run_twin_planned(episodes, maps, controller)` is `episodes.run_twin` for a
 controller with a `LocalPlannerConfig` (`NavController.local`): per control
 period the twin's physics, movers and sensing are the bench kernel's
-(`learn.sector.obstacles.obs_period_step`, all eight sensors read), and the
+(`lab.nav.obstacle_twin.obs_period_step`, all eight sensors read), and the
 steering is the robot's own Python: `firmware_py.kinds.sector.memory.ObstacleMemory`
 fed with the readings at the twin's pose, `PlannedTarget.target` for the
 current waypoint (reset per waypoint, as the controller does per mission
@@ -51,9 +51,7 @@ from firmware_py.kinds.sector.recoveries import BACKUP, CLEAR, GIVE_WAY, GLOBAL,
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.vehicle import VehicleConfig
 from ground_station.lab.nav.controllers import NavController
-from ground_station.lab.nav.scenario import Episode, rollout_arrays
-from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD
-from ground_station.learn.sector.obstacles import (
+from ground_station.lab.nav.obstacle_twin import (
     COLLISION,
     LOOP,
     NO_ROUTE,
@@ -66,6 +64,8 @@ from ground_station.learn.sector.obstacles import (
     sense_obs,
     step_movers,
 )
+from ground_station.lab.nav.scenario import Episode, rollout_arrays
+from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD
 from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
 from ground_station.maps import GridMap
 

@@ -1,7 +1,7 @@
 """Navigation scenarios: a map, an episode, and obstacles the planner does not know.
 
 The one definition of a scenario episode, used by the twin's rollouts
-(`ground_station.learn.sector.obstacles`), the pymunk plant
+(`ground_station.lab.nav.obstacle_twin`), the pymunk plant
 (`sim_bridge.obstacles.ObstacleLayer`) and `qnav bench nav`. An `Episode`
 is plain data (JSON round trip): start pose, goal, the planner's waypoints on
 the known map, static discs and movers; `make_episode(gridmap, start, goal, heading, k, m, rng)` builds one
