@@ -18,7 +18,7 @@ learning-rate schedules scale with the steps), greedy checkpoints every
 --sector-eval-every steps on --sector-sample fixed (start, goal, heading)
 episodes of the twin; final success, steps to threshold, training time and
 the path ratio against the octile grid path and against the any-angle
-optimum of the disc robot (ground_station/maps/anyangle.py).
+optimum of the disc robot (ground_station/lab/anyangle.py).
 
 Writes DIR/study.json (depends only on the seeded runs: the same command
 gives the same file on every engine), DIR/campaign.json (engine, wall and

@@ -22,7 +22,7 @@ learner trains the shipped sector recipe (`sector_base`, fewer steps) on
 the twin, and every eval_every steps its greedy table is rolled out on a
 fixed episode sample (`SectorEval`: success, and over the successes the
 driven length against the octile grid path and against the disc robot's
-any-angle optimum, `ground_station.maps.anyangle`).
+any-angle optimum, `ground_station.lab.anyangle`).
 
 Statistics: every figure is a mean over seeds with a bootstrapped 95 %
 confidence interval of that mean (percentile bootstrap, `BOOTSTRAP`
@@ -202,17 +202,17 @@ class SectorEval:
     """The fixed greedy evaluation of a sector study run: `sample` episodes
     (`sector.evaluate.eval_episodes`, seed 0) on the recipe's guidance
     (waypoints planned once), and each episode's any-angle optimum for the
-    disc robot (`ground_station.maps.anyangle`)."""
+    disc robot (`ground_station.lab.anyangle`)."""
 
     def __init__(self, gridmap: Any, cfg: TrainConfig, sample: int) -> None:
         import math
 
         from firmware_py import robot_spec
+        from ground_station.lab.anyangle import anyangle_distances
         from ground_station.learn.sector.evaluate import eval_episodes, plan_pairs
         from ground_station.learn.sector.reward import check_guidance
         from ground_station.learn.sector.twin import grid_of
         from ground_station.maps import octile_distances
-        from ground_station.maps.anyangle import anyangle_distances
 
         self.headings = 8
         starts, goals, hidx = eval_episodes(gridmap, seed=0, sample=sample, headings=self.headings)

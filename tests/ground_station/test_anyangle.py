@@ -1,4 +1,4 @@
-"""Any-angle shortest paths of the disc robot (ground_station/maps/anyangle.py):
+"""Any-angle shortest paths of the disc robot (ground_station/lab/anyangle.py):
 an analytic detour around one obstacle cell, the open room (straight lines),
 and the bounds on a real map: straight line <= any-angle <= 8-connected grid path."""
 
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from ground_station.lab.anyangle import anyangle_distances, corner_vertices
 from ground_station.maps import GridMap, load_map, octile_distances
-from ground_station.maps.anyangle import anyangle_distances, corner_vertices
 
 R = 150.0
 
