@@ -67,8 +67,9 @@ _STATUS = re.compile(r"mode=(\S+) armed=(\S+) ctrl=(\S+).* x=(\S+) y=(\S+)")
 
 
 @contextmanager
-def _robot(tmp: Path, seed: int) -> Iterator[Any]:
-    """Hub + qnav-sim --realtime + qnav-robot --sim-clock on paper10, no goals: the RobotProcess."""
+def _robot(tmp: Path, seed: int, duration_s: float) -> Iterator[Any]:
+    """Hub + qnav-sim --realtime + qnav-robot --sim-clock on paper10, no goals: the RobotProcess. The
+    sim runs `duration_s` of sim time (its default, 60 s, ended the robot after 7 bench trials)."""
     from firmware_py import robot_spec as rb
     from firmware_py.storage import ACTIVE_POLICY, Storage
     from ground_station.canhub import CanHub
@@ -80,7 +81,7 @@ def _robot(tmp: Path, seed: int) -> Iterator[Any]:
     Storage(storage_dir).write_atomic(ACTIVE_POLICY, CELL_POLICY.read_bytes())
     x, y = rb.cell_center_mm(0, 9, gm.height)
     with CanHub(f"bridge{seed}") as hub:
-        sim = ChildProcess(qnav_sim("--map", "paper10", "--can", hub.spec, "--realtime", "--start",
+        sim = ChildProcess(qnav_sim("--map", "paper10", "--can", hub.spec, "--realtime", "--duration", f"{duration_s:g}", "--start",
                                     f"{x / 1000},{y / 1000},90", "-q"), tmp / f"sim-{seed}.log")
         robot = RobotProcess(storage_dir, can=hub.spec, extra=["--sim-clock", "--start-cell", "0,9,90", "-q"],
                              log=tmp / f"robot-{seed}.log")
@@ -326,7 +327,8 @@ def _trial(case: str, robot_port: int, op: _Operator, tmp: Path, figures: dict[s
                "and refused by the robot: Hold stays Hold, no motion; a goal in Guided drives")
 def bridge_holes(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
     res = ScenarioResult("bridge_holes")
-    with tempfile.TemporaryDirectory() as tmpdir, _robot(Path(tmpdir), seed) as robot:
+    # each trial: a monitor's start, WATCH_S of watching and the operator's mode changes, ~8-12 s
+    with tempfile.TemporaryDirectory() as tmpdir, _robot(Path(tmpdir), seed, 60 + 20 * count) as robot:
         tmp = Path(tmpdir)
         op = _Operator(robot.url)
         try:
