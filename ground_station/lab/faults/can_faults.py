@@ -88,6 +88,22 @@ def _first_fault(rig: LockstepRig, after_us: int):
     return rig.first_transition_to(CtrlState.FAULT, after_us)
 
 
+def _fault_at(rig: LockstepRig, t_us: int, cause: str = "") -> list[str]:
+    """Problems unless the controller went to FAULT at tick `t_us` itself (its cause containing
+    `cause`) and every command from that tick on is zero: the stop at the very tick the fault shows."""
+    fault = _first_fault(rig, t_us)
+    problems = _zero_from(rig, t_us)
+    if fault is None or fault.t_us != t_us or cause not in fault.cause:
+        problems.insert(0, f"FAULT transition {fault}, expected {cause or 'one'} at {t_us} us")
+    return problems
+
+
+def _fault_by(rig: LockstepRig, t_us: int, deadline_us: int) -> list[str]:
+    """Problems unless the controller went to FAULT between `t_us` and `deadline_us`."""
+    fault = _first_fault(rig, t_us)
+    return [f"no FAULT by {deadline_us} us ({fault})"] if fault is None or fault.t_us > deadline_us else []
+
+
 def _drive_to(rig: LockstepRig, t_us: int, when: str, problems: list[str], **kw: Any) -> None:
     """Run `rig` to `t_us` (`kw` as for `LockstepRig.tick`), where a scenario injects its fault;
     a setup problem, said `when`, unless the robot is DRIVING then: a fault injected into a
@@ -144,10 +160,7 @@ def sensor_stop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             _drive_to(rig, t_cut, "at the cut", problems, frames_hook=hook)
             deadline = _stale_deadline(t_cut, timeout_ms * 1000)
             rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
-        problems += _stopped_by(rig, t_cut, deadline)
-        fault = _first_fault(rig, t_cut)
-        if fault is None or fault.t_us > deadline:
-            problems.append(f"no FAULT by {deadline} us ({fault})")
+        problems += _stopped_by(rig, t_cut, deadline) + _fault_by(rig, t_cut, deadline)
         res.check(problems, f"seed {seed}/{i} cut {sorted(cut)} at {t_cut} us, timeout {timeout_ms} ms")
     return res
 
@@ -169,10 +182,7 @@ def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         with rig:
             _drive_to(rig, t_fault, "at the fault", problems, frames_hook=hook)
             rig.run_until(t_fault + 6 * PERIOD_US, frames_hook=hook)
-        fault = _first_fault(rig, t_fault)
-        if fault is None or fault.t_us != t_fault:
-            problems.append(f"FAULT transition {fault}, expected at {t_fault} us")
-        problems += _zero_from(rig, t_fault)
+        problems += _fault_at(rig, t_fault)
         res.check(problems, f"seed {seed}/{i} errors 0x{bits:02x} at {t_fault} us")
     return res
 
@@ -237,10 +247,7 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if not ok:
                 problems.append(f"arm after release + disarm refused: {why}")
             rig.tick()
-        fault = _first_fault(rig, t_stop)
-        if fault is None or fault.t_us != t_stop or "e-stop" not in fault.cause:
-            problems.append(f"FAULT transition {fault}, expected e-stop at {t_stop} us")
-        problems += _zero_from(rig, t_stop)
+        problems += _fault_at(rig, t_stop, "e-stop")
         res.check(problems, f"seed {seed}/{i} e-stop from node {source} at {t_stop} us")
     return res
 
