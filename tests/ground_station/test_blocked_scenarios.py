@@ -8,8 +8,6 @@ an episode."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import math
 
@@ -17,12 +15,12 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
-from ground_station import cli
 from ground_station.lab.nav import scenario as sc
 from ground_station.lab.nav.episodes import summarise
 from ground_station.maps import GridMap, MapError, load_map, octile_distances
 from ground_station.maps.planner import plan_waypoints
 from ground_station.nav import obstacles as ob
+from tests.support.cli import run_qnav as _qnav
 
 STEP = 50.0  # raster step, mm
 R = robot_spec.ROBOT_RADIUS_MM
@@ -222,13 +220,6 @@ def test_summarise_counts_no_route_apart():
     assert n["no_route_reported_ci95"][0] < 0.75 < n["no_route_reported_ci95"][1]
     plain = summarise([row("success", None), row("timeout", None)])
     assert "blocked" not in plain and plain["no_route_rate"] == 0.0
-
-
-def _qnav(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli.main(list(argv))
-    return code, out.getvalue(), err.getvalue()
 
 
 def test_bench_nav_blocked_end_to_end(tmp_path):

@@ -5,24 +5,17 @@ bad input is a one-line error with exit 2 and no file left behind."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 from collections import Counter
 
 from mcap.reader import make_reader
 
-from ground_station import cli
+from tests.support.cli import run_qnav
 from tests.support.rover_script import RoverScript, write_tlog
 
 
 def qnav(*argv: str) -> tuple[int, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = cli.main(list(argv))
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-    return code, err.getvalue() + out.getvalue()
+    code, out, err = run_qnav(*argv)
+    return code, err + out
 
 
 def test_a_tlog_becomes_an_mcap_on_the_robot_clock(tmp_path):

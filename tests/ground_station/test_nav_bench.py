@@ -4,8 +4,6 @@ lockstep rig with obstacles."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 
 import numpy as np
@@ -16,12 +14,12 @@ from firmware_py.kinds.base import best_action
 from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.policy import load_policy
 from firmware_py.shipped_policies import shipped_policy
-from ground_station import cli
 from ground_station.lab.nav import controllers as nc
 from ground_station.lab.nav.episodes import run_hil, run_twin, summarise
 from ground_station.lab.nav.scenario import episodes
 from ground_station.learn.sector.evaluate import seek_table
 from ground_station.maps import load_map
+from tests.support.cli import run_qnav
 
 ENC = SectorEncoder(15, (0, 1, 7), (100, 400))
 
@@ -99,10 +97,8 @@ def test_hil_counts_a_drive_into_a_disc_as_a_collision():
 
 
 def _qnav(*argv: str) -> tuple[int, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli.main(list(argv))
-    return code, out.getvalue() + err.getvalue()
+    code, out, err = run_qnav(*argv)
+    return code, out + err
 
 
 def test_bench_nav_contract_table_json_png(tmp_path):

@@ -10,8 +10,6 @@ Links are MAVLink over UDP loopback on free ports; no process is left running.""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import socket
 from pathlib import Path
 
@@ -19,19 +17,10 @@ import pytest
 
 from ground_station import cli
 from ground_station.subprocs import free_udp_port
+from tests.support.cli import run_qnav as qnav
 
 ROOT = Path(__file__).resolve().parents[2]
 SHOP_MAP = "type octile\nheight 3\nwidth 4\nmap\n....\n.@@.\n....\n"
-
-
-def qnav(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = cli.main(list(argv))
-        except SystemExit as exc:  # argparse errors
-            code = int(exc.code or 0)
-    return code, out.getvalue(), err.getvalue()
 
 
 # --- item 5: one robot per port ----------------------------------------------------------

@@ -104,7 +104,7 @@ def test_foxglove_bridge_streams_pose_and_scan_and_a_published_goal_drives_the_r
     sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
     monitor = None
     try:
-        sitl.expect(r"Ctrl-C stops every process")
+        sitl.wait_up()
         ws_port = free_port()  # TCP
         env = child_env()
         monitor = subprocess.Popen(

@@ -60,7 +60,7 @@ def test_a_client_10_s_late_gets_the_robots_own_map_and_pose_over_either_subprot
     sitl = SitlProcess(tmp_path, "--map", "room-32-32-4", "--speed", "2")
     monitor = None
     try:
-        sitl.expect(r"Ctrl-C stops every process")
+        sitl.wait_up()
         ws_port = free_port()
         monitor = subprocess.Popen(
             [sys.executable, "-m", "ground_station.cli", "monitor", "--plain", "--foxglove", "--port", str(ws_port),

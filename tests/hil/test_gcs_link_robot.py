@@ -10,9 +10,6 @@ MAVLink over UDP loopback on a free port."""
 
 from __future__ import annotations
 
-import contextlib
-import io
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -20,38 +17,18 @@ from pathlib import Path
 import pytest
 
 from firmware_py.policy import PolicyError, load_policy
-from ground_station import cli
 from ground_station.subprocs import free_udp_port, stop_process
+from tests.support.cli import idle_robot, start_robot
+from tests.support.cli import run_qnav as qnav
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 
 
-def qnav(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = cli.main(list(argv))
-        except SystemExit as exc:  # argparse errors
-            code = int(exc.code or 0)
-    return code, out.getvalue(), err.getvalue()
-
-
-def start_robot(tmp: Path, port: int, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [BIN / "qnav-robot", "--can", f"virtual:gcs-{port}", "--policy", "policies:paper10_cell",
-         "--storage", tmp / f"storage-{port}", "--mavlink", f"udpout:127.0.0.1:{port}", "-q", *extra],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-
-
 @pytest.fixture(scope="module")
 def robot(tmp_path_factory):
-    port = free_udp_port()
-    proc = start_robot(tmp_path_factory.mktemp("robot"), port)
-    try:
-        yield f"udpin:127.0.0.1:{port}"
-    finally:
-        stop_process(proc, timeout_s=10)
+    with idle_robot(tmp_path_factory.mktemp("robot")) as url:
+        yield url
 
 
 def test_arm_refusal_reason_arrives_whole(robot):

@@ -146,8 +146,8 @@ def test_sitl_missions_in_global_coordinates_for_mavproxy_and_from_qnav(tmp_path
     sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
     mp = None
     try:
-        master = sitl.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]
-        sitl.expect(r"Ctrl-C stops every process")
+        master = sitl.mavproxy_master()
+        sitl.wait_up()
         url = ["--mavlink", master, "--no-tlog"]
 
         def qnav(*argv: str) -> str:

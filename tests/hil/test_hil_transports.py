@@ -14,8 +14,6 @@ checked by the `test_can_utils_*` tests (cantools decode, qnav report).
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import os
 import shutil
@@ -30,6 +28,7 @@ import pytest
 from firmware_py import robot_spec
 from ground_station.canhub import CanHub
 from ground_station.lab.rigs import hil_scenarios as hs
+from tests.support.cli import run_qnav
 from tests.support.vcan import kernel_vcan
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -143,12 +142,8 @@ def test_mission_a_b_c_d_over_mavlink(transport, request, tmp_path):
 
 
 def _qnav(*argv: str) -> tuple[int, str]:
-    from ground_station import cli
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli.main(list(argv))
-    return code, err.getvalue() + out.getvalue()
+    code, out, err = run_qnav(*argv)
+    return code, err + out
 
 
 # --- can-utils interoperability (kernel SocketCAN only) ----------------------------------------

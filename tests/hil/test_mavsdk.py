@@ -110,7 +110,7 @@ def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
 
     async def scenario() -> None:
         drone = await connected(mavsdk, mavsdk_url(sitl))
-        sitl.expect(r"Ctrl-C stops every process")
+        sitl.wait_up()
         # int parameters with their true values, and a set that lands as the number given
         assert await drone.param.get_param_int("GOAL_TOL_MM") == robot_spec.GOAL_TOLERANCE_MM
         assert await drone.param.get_param_int("CTRL_RATE_HZ") == robot_spec.CONTROL_RATE_HZ

@@ -11,20 +11,16 @@ from pathlib import Path
 import pytest
 
 from firmware_py.policy import load_policy
-from ground_station.subprocs import free_udp_port, stop_process
-from tests.hil.test_gcs_link_robot import qnav, start_robot
+from tests.support.cli import idle_robot
+from tests.support.cli import run_qnav as qnav
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def robot(tmp_path_factory):
-    port = free_udp_port()
-    proc = start_robot(tmp_path_factory.mktemp("robot"), port)
-    try:
-        yield f"udpin:127.0.0.1:{port}"
-    finally:
-        stop_process(proc, timeout_s=10)
+    with idle_robot(tmp_path_factory.mktemp("robot")) as url:
+        yield url
 
 
 def test_policy_id_is_exact_and_the_same_in_get_and_list(robot):

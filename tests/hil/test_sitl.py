@@ -54,6 +54,14 @@ class SitlProcess(ConsoleProcess):
     def expect(self, pattern: str, timeout_s: float = 60.0) -> str:
         return super().expect(pattern, timeout_s)
 
+    def mavproxy_master(self) -> str:
+        """The `--master=` connection string the bring-up prints for MAVProxy."""
+        return self.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]
+
+    def wait_up(self) -> None:
+        """Until the connection help's last line: every process is up."""
+        self.expect(r"Ctrl-C stops every process")
+
     def stop(self, sig: int = signal.SIGINT) -> int:
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, sig) if sig == signal.SIGTERM else self.proc.send_signal(sig)
@@ -90,10 +98,10 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
     sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
     mp = None
     try:
-        master = sitl.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]
+        master = sitl.mavproxy_master()
         assert master == f"udpout:127.0.0.1:{sitl.port}"
         sitl.expect(r"CAN bus: remote:ws://127\.0\.0\.1:\d+/")
-        sitl.expect(r"Ctrl-C stops every process")
+        sitl.wait_up()
         mp = MavProxy(master, tmp_path, modules="param,wp,mode,arm,cmdlong,fence")
         mp.expect(r"Detected vehicle 1:1", 30)
         mp.expect(rf"Received {len(PARAMS)} parameters", 60)
@@ -135,7 +143,7 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
 @pytest.mark.timeout(300)
 def test_sitl_sigterm_stops_every_process_and_bad_options_say_why(tmp_path):
     sitl = SitlProcess(tmp_path, "--speed", "4")
-    sitl.expect(r"Ctrl-C stops every process")
+    sitl.wait_up()
     # at x4 sim time the GCS failsafe timeout was raised to match (5 s x 4)
     os.environ["MAVLINK20"] = "1"
     from pymavlink import mavutil
@@ -244,7 +252,7 @@ def test_manual_mode_over_mavlink_drives_and_the_deadman_stops_the_robot(tmp_pat
     sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
     conn = None
     try:
-        sitl.expect(r"Ctrl-C stops every process")
+        sitl.wait_up()
         conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{sitl.port}", source_system=255, source_component=26)
         conn.mav.heartbeat_send(6, 8, 0, 0, 0)
         assert conn.wait_heartbeat(timeout=30) is not None
@@ -300,7 +308,7 @@ def test_qnav_drive_in_a_terminal_moves_the_robot_and_q_holds(tmp_path):
     sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
     master = proc = None
     try:
-        sitl.expect(r"Ctrl-C stops every process")
+        sitl.wait_up()
         url = f"udpout:127.0.0.1:{sitl.port}"
         assert cli.main(["arm", "--mavlink", url, "--no-tlog", "--timeout", "20"]) == 0
         master, slave = pty.openpty()
@@ -360,8 +368,8 @@ def test_mavproxy_rc_drives_manual_and_a_pymavlink_gcs_gets_modes_and_parameter_
     sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
     mp = conn = None
     try:
-        master = sitl.expect(r"MAVProxy\s+mavproxy\.py --master=(\S+)").split("--master=")[1].split()[0]
-        sitl.expect(r"Ctrl-C stops every process")
+        master = sitl.mavproxy_master()
+        sitl.wait_up()
         mp = MavProxy(master, tmp_path, modules="mode,arm,rc")
         mp.expect(r"Detected vehicle 1:1", 30)
         mp.send("mode MANUAL")

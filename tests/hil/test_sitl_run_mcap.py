@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_sitl_run_mcap_holds_every_layout_topic_and_ctrl_c_says_so_at_once(tmp_path):
     sitl = SitlProcess(tmp_path, "--speed", "2")
     try:
-        sitl.expect(r"Ctrl-C stops every process")
+        sitl.wait_up()
         gcs = ["--mavlink", f"udpout:127.0.0.1:{sitl.port}", "--no-tlog", "--timeout", "20"]
         for argv in (["mission", "upload", "--targets", "A,B"], ["arm"], ["mode", "auto"]):
             assert cli.main([*argv, *gcs]) == 0, argv
