@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint venv clean
+.PHONY: demo test check lint venv clean
 
 $(STAMP): pyproject.toml setup.py
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -35,6 +35,14 @@ test: $(STAMP)
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py
 	$(BIN)/python -m pytest -q --durations=15 -m wallclock tests/hil tests/faults
+
+# The inner loop (under a minute): lint, types and the robot's and the sim's in-process tests
+# (pure cores, the controller and MAVLink engines on python-can's virtual bus; no HIL processes,
+# no wall-clock judgement). `make test` stays the whole suite and the CI command.
+check: $(STAMP)
+	$(BIN)/ruff check . && $(BIN)/mypy
+	$(BIN)/python -m pytest -q -n 2 -p no:cacheprovider -m "not slow and not wallclock and not ray and not vcan" \
+		tests/firmware_py tests/sim_bridge tests/test_layering.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
