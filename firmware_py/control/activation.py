@@ -2,30 +2,60 @@
 MovingAI map), each validated off the control tick and swapped in between two ticks, or refused with
 the reason while the running one stays (the last good policy kept for `revert_policy`).
 
-`Activation` is the part of the controller (firmware_py.control.controller.Controller) that owns this;
-it changes only the state ControlState holds (policy, driver, robot map, localiser) under its lock.
+`Activation` is the part of the controller (firmware_py.control.controller.Controller) that owns this.
+It swaps, under the controller's lock, only what the decision part (`KindPart`: policy, driver, robot map)
+and the estimation part (`PoseEstimate`: the localiser) hold, and asks the controller (`ActivationHost`)
+only whether it drives, its config, its mission, and to say what became active.
 """
 
 from __future__ import annotations
 
-import logging
 import threading
+from typing import Any, Protocol
 
-from firmware_py import kinds
+from firmware_py.control.collision import CollisionMonitor
+from firmware_py.control.decision import KindPart
+from firmware_py.control.estimate import PoseEstimate
 from firmware_py.control.localiser import Localiser
 from firmware_py.control.route import Route
-from firmware_py.control.state import ControlState
 from firmware_py.mapdata import OccupancyGrid, describe
 from firmware_py.policy import Policy, PolicyError, config_mismatch, load_policy, on_robot_map
-from firmware_py.vehicle import ACTIVATION_TIMEOUT_S, CtrlState, PendingActivation
-
-log = logging.getLogger("qnav.controller")
+from firmware_py.vehicle import ACTIVATION_TIMEOUT_S, PendingActivation, VehicleConfig
 
 CANCELLED = "cancelled: the link stopped waiting for it (activation timeout)"
 
 
-class Activation(ControlState):
-    """Policy and map activation (module docstring); the Controller's base."""
+class ActivationHost(Protocol):
+    """What activation asks of the controller."""
+
+    cfg: VehicleConfig
+    robot_profile: Any
+
+    def busy(self) -> bool:
+        """Driving (or a goal just reached): no swap now."""
+        ...
+
+    def route_items(self) -> list[tuple[int, int]]: ...
+
+    def _new_localiser(self, pol: Policy | None) -> Localiser | None:
+        """The localiser a policy's map needs (built off the lock; the hook tests hold)."""
+        ...
+
+    def _note(self, text: str) -> None:
+        """Log and report (STATUSTEXT) what became active."""
+        ...
+
+
+class Activation:
+    """Policy and map activation (module docstring)."""
+
+    def __init__(self, lock: threading.RLock, kind: KindPart, pose: PoseEstimate, monitor: CollisionMonitor,
+                 host: ActivationHost) -> None:
+        self._lock = lock
+        self.kind = kind
+        self.pose = pose
+        self.monitor = monitor
+        self.host = host
 
     def activate_policy(self, path: str) -> tuple[bool, str]:
         """Validate a policy file with the loader and swap it in between two
@@ -41,21 +71,21 @@ class Activation(ControlState):
         policy drives meanwhile and the new one is swapped in when ready, or
         refused with the reason (issue 29 finding 3)."""
         with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+            if self.host.busy():
                 return False, "refused while driving: stop first"
         try:
             new = load_policy(path)  # file I/O outside the lock: ticks keep running
         except PolicyError as exc:
             return False, f"policy rejected: {exc}"
-        new = on_robot_map(new, self.robot_map)  # a kind that is not map-specific runs on the robot's map
-        grid = new.map_grid if self.localise else None
-        if grid is None or (self.loc is not None and self.loc.grid == grid):
+        new = on_robot_map(new, self.kind.robot_map)  # a kind that is not map-specific runs on the robot's map
+        grid = new.map_grid if self.pose.localise else None
+        if grid is None or (self.pose.loc is not None and self.pose.loc.grid == grid):
             return self.activate_loaded(new)
         pending = PendingActivation()
 
         def build() -> None:
             try:
-                loc = self._new_localiser(new)
+                loc = self.host._new_localiser(new)
             except MemoryError:
                 pending.finish(False, "policy rejected: its map's localiser field does not fit in memory")
                 return
@@ -74,30 +104,25 @@ class Activation(ControlState):
         the lock just before the swap (a cancelled one swaps nothing in)."""
         if loc is None:
             try:
-                loc = self._new_localiser(new)  # outside the lock (see _new_localiser)
+                loc = self.host._new_localiser(new)  # outside the lock (see _new_localiser)
             except MemoryError:
                 return False, "policy rejected: its map's localiser field does not fit in memory"
         with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+            if self.host.busy():
                 return False, "refused while driving: stop first"
-            why = config_mismatch(new, self.cfg.control_period_us, self.cfg.cell_size_mm, self.robot_map,
-                                  self.robot_profile)
+            cfg = self.host.cfg
+            why = config_mismatch(new, cfg.control_period_us, cfg.cell_size_mm, self.kind.robot_map,
+                                  self.host.robot_profile)
             if why:
                 return False, why
-            why = Route.refusal(self.route.items, lambda x, y: self._goal_index_for(x, y, new), "mission item")
+            why = Route.refusal(self.host.route_items(), lambda x, y: self.kind.goal_index(x, y, new), "mission item")
             if why:
                 return False, why
             if claim is not None and not claim.claim():
                 return False, CANCELLED
-            old = self.policy
-            self.policy = new
-            self.driver = kinds.of_policy(new).driver(new, self.background)
-            self._use_localiser(new, loc if loc is not None else self._new_localiser(new))
-            if old is not None:
-                self.last_known_good = old
-            text = f"policy 0x{new.policy_id:08x} {new.kind} active"
-            log.info("t=%d us %s", self._now, text)
-            self._event("info", text)
+            self.kind.install(new)
+            self.pose.use(new.map_grid, loc if loc is not None else self.host._new_localiser(new))
+            self.host._note(f"policy 0x{new.policy_id:08x} {new.kind} active")
             return True, ""
 
     def begin_map_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
@@ -107,9 +132,9 @@ class Activation(ControlState):
         from firmware_py.mapdata import MapDataError, grid_from_map_file
 
         with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+            if self.host.busy():
                 return False, "refused while driving: stop first"
-            cell_mm = self.cfg.cell_size_mm
+            cell_mm = self.host.cfg.cell_size_mm
         try:
             grid = grid_from_map_file(path, cell_mm)
         except (MapDataError, OSError, UnicodeDecodeError) as exc:
@@ -134,37 +159,35 @@ class Activation(ControlState):
         pending activation, claimed under the lock just before the swap as the policy worker's is
         (a map the link gave up on, answered "map refused", is never swapped in: issue 43 finding 5)."""
         with self._lock:
-            pol, route_items = self.policy, list(self.route.items)
+            pol, route_items, cfg = self.kind.policy, list(self.host.route_items()), self.host.cfg
         if pol is not None:
-            why = config_mismatch(pol, self.cfg.control_period_us, self.cfg.cell_size_mm, grid, self.robot_profile)
+            why = config_mismatch(pol, cfg.control_period_us, cfg.cell_size_mm, grid, self.host.robot_profile)
             if why:
                 return False, why
         new = on_robot_map(pol, grid) if pol is not None else None
-        why = Route.refusal(route_items, lambda x, y: self._goal_index_for(x, y, new), "mission item") if new else ""
+        why = Route.refusal(route_items, lambda x, y: self.kind.goal_index(x, y, new), "mission item") if new else ""
         if why:
             return False, why
-        loc = self._new_localiser(new)
+        loc = self.host._new_localiser(new)
         with self._lock:
-            if self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
+            if self.host.busy():
                 return False, "refused while driving: stop first"
             if claim is not None and not claim.claim():
                 return False, CANCELLED
-            self.robot_map = grid
-            self._corners = None
+            self.kind.robot_map = grid
+            self.monitor.forget_map()
             if new is not None and new is not pol:
-                self.policy = new
-                self.driver = kinds.of_policy(new).driver(new, self.background)
-                self._use_localiser(new, loc)
+                self.kind.install(new, keep_last=False)
+                self.pose.use(new.map_grid, loc)
             text = f"map {describe(grid)} active"
-            log.info("t=%d us %s", self._now, text)
-            self._event("info", text)
+            self.host._note(text)
             return True, text
 
     def revert_policy(self) -> tuple[bool, str]:
         """Swap back to the last-known-good policy."""
         with self._lock:
-            if self.last_known_good is None:
+            if self.kind.last_known_good is None:
                 return False, "no last-known-good policy"
-            lkg = on_robot_map(self.last_known_good, self.robot_map)  # the map may have changed since
+            lkg = on_robot_map(self.kind.last_known_good, self.kind.robot_map)  # the map may have changed since
         return self.activate_loaded(lkg)
 

@@ -241,3 +241,57 @@ def mapped_readings(grid: OccupancyGrid, pose_mm: tuple[int, int, int], ranges_m
     unmapped = unmapped_readings(grid, x, y, heading, ranges_mm, status, margin_mm)
     return [u < 0 and status[i] in (robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE)
             for i, u in enumerate(unmapped)]
+
+
+class CollisionMonitor:
+    """The collision monitor as a part of the controller, downstream of whatever made the command (a
+    policy kind, the wander, Manual): the command in, the command out (`limit_command`). Its inputs:
+    the command, the readings, the pose the robot drives by, the obstacle points the kind remembers,
+    the map, the monitor's zones. What it tells back is how long it has held the straight part
+    (`held_us`: the kind's `DriveTick.blocked_us`) and what it counted (`ticks`)."""
+
+    def __init__(self) -> None:
+        self.ticks = {"slow": 0, "stop": 0}  # commands it limited
+        self.stop_since_us: int | None = None  # it has removed the straight part since
+        self._corners: MapCorners | None = None  # the block corners of the map it was last given
+
+    def held_us(self, now_us: int) -> int:
+        """How long the straight part has been held at zero, up to the last command (0: it is not)."""
+        return 0 if self.stop_since_us is None else now_us - self.stop_since_us
+
+    def forget_map(self) -> None:
+        self._corners = None
+
+    def _corners_near(self, grid: OccupancyGrid | None, pose: tuple[int, int, int],
+                      within_mm: int) -> list[tuple[int, int]]:
+        """The map's block corners within reach of the monitor (none without a map)."""
+        if grid is None:
+            return []
+        corners = self._corners
+        if corners is None or corners.grid is not grid:
+            self._corners = corners = MapCorners(grid)
+        return corners.near(pose[0], pose[1], within_mm)
+
+    def limit_command(self, now_us: int, left: int, right: int, ranges_mm: list[int] | tuple[int, ...],
+                      status: list[int] | tuple[int, ...],
+                      pose: tuple[int, int, int], remembered: Sequence[tuple[int, int]], grid: OccupancyGrid | None,
+                      stop_mm: int, slow_mm: int, slow_pct: int) -> tuple[int, int]:
+        """The command as it may be sent (module docstring; `remembered`: world points). The caller
+        sets `stop_since_us` to None for a zero command (nothing to hold)."""
+        seen = list(remembered) + self._corners_near(grid, pose, slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+        near = robot_frame(seen, pose) if seen else []
+        mapped = mapped_readings(grid, pose, ranges_mm, status) if grid is not None else []
+        left, right, limited = limit(left, right, ranges_mm, status, stop_mm, slow_mm, slow_pct, near, mapped)
+        if limited:
+            self.ticks[limited] += 1
+        if limited != "stop":
+            self.stop_since_us = None
+        elif self.stop_since_us is None:
+            self.stop_since_us = now_us
+        return left, right
+
+    def shut(self, left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int], slow_mm: int) -> bool:
+        """The way ahead counts as shut for the stall watch: the monitor holds the straight part, or
+        nothing was sent with a reading in the path within `slow_mm`."""
+        return self.stop_since_us is not None or (
+            not (left or right) and travel_gap_mm(ranges_mm, status, False) < slow_mm)

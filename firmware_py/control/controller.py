@@ -1,59 +1,58 @@
 """The robot's control core: a pure state machine, one `step` per control tick.
 
-`Controller.step(inputs, now_us) -> Outputs` reads the latest CAN inputs
-(each with the clock time it arrived), runs safety, odometry and the policy,
-and returns the motor command and heartbeat to send. No threads, sockets or
-clock reads here: time comes in as an argument, I/O lives in
-`firmware_py.control.node`. The controller also implements
-`firmware_py.vehicle.VehicleControl` for the MAVLink node; those calls may
-come from another thread, so every public method takes one lock and a policy
-swap lands between two ticks (policy and map activation: its base, control/activation.py).
+`Controller.step(inputs, now_us) -> Outputs` reads the latest CAN inputs (each with the clock time it
+arrived) and returns the motor command and heartbeat to send; no threads, sockets or clock reads (I/O
+lives in `firmware_py.control.node`). It implements `firmware_py.vehicle.VehicleControl` for the
+MAVLink node, whose calls come from another thread: every public method takes one lock, so a policy
+swap lands between two ticks. States (CtrlState): BOOT -> STANDBY (disarmed) -> HOLD (armed) ->
+DRIVING -> GOAL_REACHED -> next mission item or HOLD; FAULT from any armed state, left only by
+disarming; every transition logged with its cause and queued as a VehicleEvent.
 
-States (CtrlState): BOOT -> STANDBY (disarmed) -> HOLD (armed, no goal) ->
-DRIVING -> GOAL_REACHED -> next mission item or HOLD; FAULT from any armed
-state, left only by disarming. Every transition is logged with its cause and
-queued as a VehicleEvent. See docs/architecture.md.
-
-Decision: the active policy's kind (firmware_py.kinds: cell, sector, sector-memory) turns each
-DRIVING tick into a wheel command; the controller only scales and clamps it and feeds the watchdog.
-It knows no kind: the registry builds the kind's driver when a policy is activated.
+The controller is the state machine (states, modes, goal, mission, events) and holds its parts, each
+with its own inputs (docs/architecture.md): `pose` (control/estimate.py: odometry from plausible
+encoder samples, the localiser), `safety` (control/safety.py: freshness, the driver's health, the
+e-stop latch), `kind` (control/decision.py: the active policy's kind driver; it knows no kind),
+`monitor` (control/collision.py: the collision monitor, downstream of every command; the kind learns
+from it only how long its command was held, `DriveTick.blocked_us`), `out` (control/outputs.py: the
+motor watchdog, the tick's frames) and `activation` (control/activation.py: policy and map swaps).
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import replace
+from typing import Any
 
-from firmware_py import robot_spec
-from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
-from firmware_py.control import collision
 from firmware_py.control.activation import Activation
-from firmware_py.control.collision import mapped_readings
-from firmware_py.control.explore import wander_wheels
-from firmware_py.control.io import (
-    Heartbeat,
-    Inputs,
-    MotorCommand,
-    Outputs,
-    error_bits,
-)
-from firmware_py.control.plausibility import encoder_jump
+from firmware_py.control.collision import CollisionMonitor
+from firmware_py.control.decision import KindPart
+from firmware_py.control.estimate import PoseEstimate
+from firmware_py.control.explore import Exploration, wander_wheels
+from firmware_py.control.io import Inputs, Outputs, battery_fields, error_bits
+from firmware_py.control.localiser import Localiser, LocaliserConfig
+from firmware_py.control.manual import ManualSticks
+from firmware_py.control.odometry import Odometry
+from firmware_py.control.outputs import OutputStage
+from firmware_py.control.progress import ProgressWatch, StallWatch
 from firmware_py.control.route import Route
-from firmware_py.control.safety import clamp_speeds
+from firmware_py.control.safety import MotorWatchdog, SafetyChecks, clamp_speeds
 from firmware_py.control.state import (
     SEV_CRITICAL,
     SEV_ERROR,
     SEV_INFO,
     SEV_NOTICE,
     SEV_WARNING,
+    StateLog,
 )
-from firmware_py.kinds import DriveTick
+from firmware_py.kinds import DriveTick, KindDriver
 from firmware_py.mapdata import OccupancyGrid
-from firmware_py.policy import config_mismatch
+from firmware_py.policy import Policy, config_mismatch
 from firmware_py.vehicle import (
     CtrlState,
     FailsafeAction,
     Mode,
+    PendingActivation,
     VehicleConfig,
     VehicleEvent,
     VehicleStatus,
@@ -61,58 +60,192 @@ from firmware_py.vehicle import (
 
 log = logging.getLogger("qnav.controller")
 
-BATTERY_TIMEOUT_US = 5_000_000  # the power board reports at 2 Hz
 
+class Controller:
+    """The control state machine holding its parts; implements vehicle.VehicleControl."""
 
-class Controller(Activation):
-    """The control state machine; implements vehicle.VehicleControl."""
+    def __init__(self, config: VehicleConfig | None = None, policy: Policy | None = None, *,
+                 start_pose_mm: tuple[int, int, int] = (0, 0, 0), lockstep: bool = False,
+                 localise: bool = True, localiser_config: LocaliserConfig | None = None,
+                 profile: Any = None) -> None:
+        self.cfg = config or VehicleConfig()
+        self._lock = threading.RLock()
+        self.lockstep = lockstep
+        # qnav-robot --profile (firmware_py.profile.RobotProfile; None: the built-in robot): its geometry
+        # drives odometry, and a policy trained for another is refused (policy.config_mismatch)
+        self.robot_profile: Any = profile
+        # the parts (module docstring)
+        self.pose = PoseEstimate(start_pose_mm, localise=localise, localiser_config=localiser_config,
+                                 profile=profile)
+        self.safety = SafetyChecks()
+        self.kind = KindPart(policy, lockstep=lockstep)
+        self.monitor = CollisionMonitor()
+        self.out = OutputStage(self.cfg.motor_timeout_ms * 1000, lockstep)
+        self.activation = Activation(self._lock, self.kind, self.pose, self.monitor, self)
+        self.state = CtrlState.BOOT
+        self.mode = Mode.HOLD
+        self.armed = False
+        self.failsafe = False
+        self.fault = ""
+        self.goal: tuple[int, int] | None = None
+        self._goal_index = 0
+        self.route = Route()  # the mission and its item in force
+        self.progress = ProgressWatch()  # STATUSTEXT when the way is blocked
+        self.stall = StallWatch()  # a drive getting nowhere for NAV_STALL_S: reported and held
+        self.record = StateLog()  # transitions and events (control/state.py)
+        self.transitions = self.record.transitions
+        self._now = 0
+        self._inputs = Inputs()
+        self._driving_since_us = 0
+        self._ticks = 0
+        self._errors = 0
+        self.tick_overruns = 0
+        self.can_errors = 0
+        self.exploration = Exploration()  # the wander for global localisation (armed, HOLD)
+        self.manual = ManualSticks()  # Manual mode's sticks and deadman (control/manual.py)
+        self._manual_was_driving = False
+        self._arm_block = ""  # the last backend arming block reported (step says a new one once)
+        self.pose.use(policy.map_grid if policy is not None else None, self._new_localiser(policy))
+
+    # --- what the parts hold, as the rigs, tests and telemetry read it -----------------------
+    policy = property(lambda self: self.kind.policy)
+    driver: KindDriver | None = property(lambda self: self.kind.driver)  # type: ignore[assignment]
+    last_known_good = property(lambda self: self.kind.last_known_good)
+    background = property(lambda self: self.kind.background)
+    target_mm = property(lambda self: self.kind.target_mm)
+    robot_map = property(lambda self: self.kind.robot_map)
+    odom: Odometry = property(lambda self: self.pose.odom)  # type: ignore[assignment]
+    loc: Localiser | None = property(lambda self: self.pose.loc)  # type: ignore[assignment]
+    nav: Localiser | Odometry = property(lambda self: self.pose.nav)  # type: ignore[assignment]
+    localise = property(lambda self: self.pose.localise)
+    encoder_jumps = property(lambda self: self.pose.encoder_jumps)
+    collision_ticks = property(lambda self: self.monitor.ticks)
+    watchdog: MotorWatchdog = property(lambda self: self.out.watchdog)  # type: ignore[assignment]
+    estop_latch = property(lambda self: self.safety.estop_latch)
+    _state_index = property(lambda self: self.kind.decided[0])
+    _action = property(lambda self: self.kind.decided[1])
+
+    # --- the state machine's primitives ------------------------------------------------------
+    def _new_localiser(self, pol: Policy | None) -> Localiser | None:
+        """A localiser for `pol`'s map (PoseEstimate.new_localiser; outside the lock)."""
+        return self.pose.new_localiser(pol.map_grid if pol is not None else None)
+
+    def busy(self) -> bool:
+        return self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED)
+
+    def route_items(self) -> list[tuple[int, int]]:
+        return self.route.items
+
+    def _note(self, text: str) -> None:
+        log.info("t=%d us %s", self._now, text)
+        self._event("info", text)
+
+    def _event(self, kind: str, text: str, severity: int = SEV_INFO, seq: int = -1) -> None:
+        self.record.event(kind, text, severity, seq)
+
+    def _transition(self, dst: CtrlState, cause: str, severity: int = SEV_INFO) -> None:
+        src = self.state
+        if src == dst:
+            return
+        self.state = dst
+        self.record.transition(self._now, src, dst, cause, severity)
+        if src == CtrlState.DRIVING and dst != CtrlState.DRIVING:
+            self._stop()
+        if dst == CtrlState.DRIVING:
+            self._driving_since_us = self._now
+
+    def _stop(self) -> None:
+        self.out.stop()
+        self.kind.interrupt()
+
+    def _enter_fault(self, cause: str) -> None:
+        self.fault = cause
+        self._transition(CtrlState.FAULT, cause, SEV_CRITICAL)
+        self._event("fault", cause, SEV_CRITICAL)
+
+    def _manual_driving(self) -> bool:
+        """Armed in Manual, not in FAULT: the sticks drive (while fresh)."""
+        return self.armed and self.mode == Mode.MANUAL and self.state == CtrlState.HOLD
+
+    def _can_drive(self) -> tuple[bool, str]:
+        if not self.armed:
+            return False, "disarmed: arm first"
+        if self.state == CtrlState.FAULT:
+            return False, f"in FAULT ({self.fault}): disarm first"
+        if self.policy is None:
+            return False, "no policy loaded"
+        if self._inputs.bumper:
+            return False, "bumper pressed"
+        loc = self.loc
+        if loc is not None and not loc.localised:
+            sx, sy, sa = loc.std()
+            return False, f"not localised (std {max(sx, sy):.0f} mm {sa:.0f} mrad)"
+        return True, ""
+
+    def _start_driving(self, goal: tuple[int, int], goal_index: int, cause: str) -> None:
+        self.goal = goal
+        self._goal_index = goal_index
+        self.kind.interrupt()
+        self.progress.restart()
+        if self.state == CtrlState.DRIVING:
+            log.info("t=%d us retarget: %s", self._now, cause)
+            self._event("info", f"retarget: {cause}")
+        else:
+            self._transition(CtrlState.DRIVING, cause)
+
+    # --- policy and map activation (control/activation.py) ------------------------------------
+    def activate_policy(self, path: str) -> tuple[bool, str]:
+        return self.activation.activate_policy(path)
+
+    def begin_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
+        return self.activation.begin_activation(path)
+
+    def activate_loaded(self, new: Policy, loc: Localiser | None = None,
+                        claim: PendingActivation | None = None) -> tuple[bool, str]:
+        return self.activation.activate_loaded(new, loc, claim)
+
+    def begin_map_activation(self, path: str) -> tuple[bool, str] | PendingActivation:
+        return self.activation.begin_map_activation(path)
+
+    def set_robot_map(self, grid: OccupancyGrid, claim: PendingActivation | None = None) -> tuple[bool, str]:
+        return self.activation.set_robot_map(grid, claim)
+
+    def revert_policy(self) -> tuple[bool, str]:
+        return self.activation.revert_policy()
 
     # --- VehicleControl ---------------------------------------------------------------
     def status(self) -> VehicleStatus:
         with self._lock:
             inp = self._inputs
             dist = bearing = 0
+            nav, loc, odom, kind = self.nav, self.loc, self.odom, self.kind
             if self.goal is not None:
-                dist, bearing = self.nav.goal_vector(*self.goal)
-            x_mm, y_mm, heading_mrad = self.nav.pose_mm()
-            std = self.loc.std() if self.loc is not None else (0.0, 0.0, 0.0)
+                dist, bearing = nav.goal_vector(*self.goal)
+            x_mm, y_mm, heading_mrad = nav.pose_mm()
+            std = loc.std() if loc is not None else (0.0, 0.0, 0.0)
+            timeout_us = self.cfg.sensor_timeout_ms * 1000
             return VehicleStatus(
                 time_us=self._now, state=CtrlState.MANUAL if self._manual_driving() else self.state,
                 mode=self.mode, armed=self.armed,
                 failsafe=self.failsafe, fault=self.fault,
                 x_mm=x_mm, y_mm=y_mm, heading_mrad=heading_mrad,
-                speed_mm_s=self.odom.speed_mm_s, yaw_rate_mrad_s=self.odom.yaw_rate_mrad_s,
+                speed_mm_s=odom.speed_mm_s, yaw_rate_mrad_s=odom.yaw_rate_mrad_s,
                 goal_mm=self.goal, distance_to_goal_mm=dist, bearing_to_goal_mrad=bearing,
                 ranges_mm=list(inp.ranges_mm), range_status=list(inp.range_status),
-                sensors_healthy=not self._stale_inputs(inp, self._now),
-                motors_healthy=not self._driver_status_stale(inp, self._now) and inp.driver_errors == 0,
-                bumper=inp.bumper, estop=self.estop_latch.latched or inp.estop or inp.driver_estop,
-                state_index=self._state_index, action=self._action, q_row=self._q_row,
+                sensors_healthy=not self.safety.stale(inp, self._now, timeout_us),
+                motors_healthy=not self.safety.driver_stale(inp, self._now, timeout_us) and inp.driver_errors == 0,
+                bumper=inp.bumper, estop=self.safety.estop_latch.latched or inp.estop or inp.driver_estop,
+                state_index=kind.decided[0], action=kind.decided[1], q_row=kind.decided[2],
                 mission_seq=self.route.seq, mission_count=len(self.route),
                 policy_id=self.policy.policy_id if self.policy else 0,
                 policy_crc=self.policy.crc if self.policy else 0,
-                map_mm=self._map_mm(),
+                map_mm=kind.map_mm(),
                 ticks=self._ticks, tick_overruns=self.tick_overruns, can_errors=self.can_errors,
-                odom_x_mm=self.odom.x_mm, odom_y_mm=self.odom.y_mm, odom_heading_mrad=self.odom.heading_mrad,
-                localiser=("off" if self.loc is None else "global" if self.loc.global_mode else "tracking"),
-                localised=self.loc is None or self.loc.localised,
+                odom_x_mm=odom.x_mm, odom_y_mm=odom.y_mm, odom_heading_mrad=odom.heading_mrad,
+                localiser=("off" if loc is None else "global" if loc.global_mode else "tracking"),
+                localised=loc is None or loc.localised,
                 pose_std_mm=(round(std[0]), round(std[1])), pose_std_mrad=round(std[2]),
-                **self._battery(inp))
-
-    def _battery(self, inp: Inputs) -> dict[str, int]:
-        """The last BatteryStatus, or unknown when none came within BATTERY_TIMEOUT_US (a board that fell
-        silent must not show a full battery forever)."""
-        if inp.battery_us is None or self._now - inp.battery_us > BATTERY_TIMEOUT_US:
-            return {}
-        return {"battery_mv": inp.battery_mv, "battery_ma": inp.battery_ma, "battery_pct": inp.battery_pct}
-
-    def _map_mm(self) -> tuple[int, int] | None:
-        """The robot's map extent in world mm (x east, y north, from 0): the
-        active policy's recorded map geometry; None without one."""
-        geo = self.policy.map_geometry if self.policy is not None else None
-        if geo is None or geo.cell_mm <= 0 or geo.width <= 0 or geo.height <= 0:
-            return None
-        return geo.width * geo.cell_mm, geo.height * geo.cell_mm
+                **battery_fields(inp, self._now))
 
     def arm(self) -> tuple[bool, str]:
         with self._lock:
@@ -120,19 +253,9 @@ class Controller(Activation):
                 return True, "already armed"
             if self.state == CtrlState.BOOT:
                 return False, "still booting"
-            inp = self._inputs
-            ok, why = self.estop_latch.may_arm(inp.estop or inp.driver_estop)
-            if not ok:
+            why = self.safety.arm_refusal(self._inputs, self._now, self.cfg.sensor_timeout_ms * 1000)
+            if why:
                 return False, why
-            stale = self._stale_inputs(inp, self._now)
-            if stale:
-                return False, f"sensor data stale: {','.join(stale)}"
-            if self._driver_status_stale(inp, self._now):
-                return False, "motor driver silent"
-            if inp.driver_errors:
-                return False, inp.driver_detail or f"motor driver errors 0x{inp.driver_errors:02x}"
-            if inp.arm_block:
-                return False, inp.arm_block
             self.armed = True
             self.fault = ""
             self._transition(CtrlState.HOLD, "armed")
@@ -143,7 +266,7 @@ class Controller(Activation):
             if not self.armed:
                 return True, "already disarmed"
             self.armed = False
-            self.estop_latch.on_disarm()
+            self.safety.estop_latch.on_disarm()
             self._end_exploration("exploration stopped: disarmed")
             self._stop()
             self.goal = None
@@ -191,7 +314,7 @@ class Controller(Activation):
                 return False, why
             if not switch and self.mode != Mode.GUIDED:
                 return False, f"mode {self.mode.name.title()}, not Guided"  # one STATUSTEXT chunk
-            gi, why = self._goal_index_for(int(x_mm), int(y_mm))
+            gi, why = self.kind.goal_index(int(x_mm), int(y_mm))
             if gi < 0:
                 return False, why
             self.mode = Mode.GUIDED
@@ -201,7 +324,7 @@ class Controller(Activation):
     def set_mission(self, waypoints_mm: list[tuple[int, int]]) -> tuple[bool, str]:
         with self._lock:
             wps = [(int(x), int(y)) for x, y in waypoints_mm]
-            why = Route.refusal(wps, self._goal_index_for) if self.policy is not None else ""
+            why = Route.refusal(wps, self.kind.goal_index) if self.policy is not None else ""
             if why:
                 return False, why
             self.route.replace(wps)
@@ -215,7 +338,7 @@ class Controller(Activation):
             why = self.route.select(seq)
             if not why and self.mode == Mode.AUTO and self.state == CtrlState.DRIVING:
                 x, y = self.route.current()
-                self._start_driving((x, y), self._goal_index_for(x, y)[0], f"mission item {seq}")
+                self._start_driving((x, y), self.kind.goal_index(x, y)[0], f"mission item {seq}")
             return (False, why) if why else (True, "")
 
     def _start_mission_locked(self) -> tuple[bool, str]:
@@ -223,7 +346,7 @@ class Controller(Activation):
         if not ok or not self.route.items:
             return False, why or "no mission loaded"
         x, y = self.route.current()
-        gi, why = self._goal_index_for(x, y)
+        gi, why = self.kind.goal_index(x, y)
         if gi < 0:
             return False, f"item {self.route.seq}: {why}"
         self.mode = Mode.AUTO
@@ -275,7 +398,7 @@ class Controller(Activation):
         activated."""
         with self._lock:
             self.cfg = replace(cfg)
-            self.watchdog.timeout_us = max(1, cfg.motor_timeout_ms) * 1000
+            self.out.watchdog.timeout_us = max(1, cfg.motor_timeout_ms) * 1000
             ok, why = self.check_config(cfg)
             if not ok and self.policy is not None:
                 log.warning("t=%d us policy 0x%08x unloaded: %s", self._now, self.policy.policy_id, why)
@@ -284,13 +407,11 @@ class Controller(Activation):
                     self.goal = None
                     self._stop()
                     self._transition(CtrlState.HOLD, "policy unloaded", SEV_WARNING)
-                self.policy = self.driver = None
+                self.kind.install(None)
 
     def drain_events(self) -> list[VehicleEvent]:
         with self._lock:
-            out = list(self._events)
-            self._events.clear()
-            return out
+            return self.record.drain()
 
     def localise_global(self, explore: bool = True) -> tuple[bool, str]:
         """Forget the pose: particles uniform over the map (global localisation). With `explore`
@@ -327,7 +448,7 @@ class Controller(Activation):
         if done:
             self._end_exploration(done, SEV_INFO if done == "localised" else SEV_WARNING)
             return
-        self.watchdog.feed(now_us, *wander_wheels(inp.ranges_mm, inp.range_status))
+        self.out.feed(now_us, *wander_wheels(inp.ranges_mm, inp.range_status))
 
     def note_loop_stats(self, overruns: int, can_errors: int) -> None:
         with self._lock:
@@ -340,30 +461,18 @@ class Controller(Activation):
         counter being answered in lockstep (the motor command carries it)."""
         with self._lock:
             self._now = now_us
-            self._inputs = inputs
+            self._inputs = inp = inputs
             self._ticks += 1
-            inp = inputs
             if self.state == CtrlState.BOOT:
                 what = f"policy 0x{self.policy.policy_id:08x}" if self.policy else "no policy"
                 self._transition(CtrlState.STANDBY, f"boot complete, {what}")
-            self.freshness.note_counters(inp)
-            enc_jump = ""
-            if inp.enc_us is not None and inp.enc_us != self._last_enc_us:
-                enc_jump = self._encoder_jump(inp)
-                if enc_jump:
-                    self.encoder_jumps += 1
-                    self.odom.rebase(inp.enc_left, inp.enc_right, inp.enc_us)  # the pose stays put
-                else:
-                    self.odom.update(inp.enc_left, inp.enc_right, inp.enc_us)
-                self._last_enc_us = inp.enc_us
+            self.safety.freshness.note_counters(inp)
+            enc_jump = self.pose.encoders(inp)
             if enc_jump and self.armed and self.state != CtrlState.FAULT:
                 self._enter_fault(enc_jump)
-            if self.loc is not None:
-                was = self.loc.localised
-                self.loc.tick(self.odom.pose_mm(), inp.ranges_mm, self._statuses_for_localiser(inp))
-                if self.loc.localised != was:
-                    self._event("info", "localised" if self.loc.localised else "localisation lost",
-                                SEV_INFO if self.loc.localised else SEV_WARNING)
+            said = self.pose.localise_tick(inp, self.kind.localiser_margin_mm)
+            if said:
+                self._event("info", said, SEV_INFO if said == "localised" else SEV_WARNING)
             if bool(inp.arm_block) != bool(self._arm_block) and inp.arm_block:
                 self._event("warning", inp.arm_block, SEV_WARNING)  # a backend's arming block (DroneCAN
             self._arm_block = inp.arm_block  # node-id collision), said once when it begins (its text ages)
@@ -376,66 +485,42 @@ class Controller(Activation):
                 self._explore(inp, now_us)
             manual = self._manual_driving()
             if manual:
-                left, right = self.manual.wheels(now_us, self.cfg.max_wheel_speed_mm_s, inp.bumper)
-                self.watchdog.feed(now_us, left, right)
+                self.out.feed(now_us, *self.manual.wheels(now_us, self.cfg.max_wheel_speed_mm_s, inp.bumper))
             elif self._manual_was_driving:  # Hold, disarm, failsafe, FAULT: the wheels stop this tick
                 self._stop()
             self._manual_was_driving = manual
             if self.state != CtrlState.DRIVING:
                 # no decision in force; while DRIVING the last one holds until the next (a
                 # cell policy decides once per cell move), so telemetry always shows it
-                self._state_index = self._action = -1
-                self._q_row = ()
+                self.kind.decided = (-1, -1, ())
             return self._outputs(now_us, tick, errors)
 
-    def _encoder_jump(self, inp: Inputs) -> str:
-        """Why the new encoder sample is implausible ("" if it is not)."""
-        d = self.odom.deltas(inp.enc_left, inp.enc_right)
-        if d is None or self._last_enc_us is None or inp.enc_us is None:
-            return ""
-        return encoder_jump(d, max(0, inp.enc_us - self._last_enc_us))
-
     def _safety(self, inp: Inputs, now_us: int) -> int:
-        estop = inp.estop or inp.driver_estop
-        stale = self._stale_inputs(inp, now_us)
-        driver_stale = self._driver_status_stale(inp, now_us)
+        v = self.safety.check(inp, now_us, self.cfg.sensor_timeout_ms * 1000, armed=self.armed,
+                              driving_since_us=self._driving_since_us if self.state == CtrlState.DRIVING else None,
+                              grace_us=2 * self.cfg.control_period_us)
         if self.armed:
-            if estop and self.estop_latch.trip():
+            if v.estop_tripped:
                 self._enter_fault("e-stop engaged")
-            if self.state != CtrlState.FAULT:
-                detail = f": {inp.driver_detail}" if inp.driver_detail else ""
-                if stale:
-                    self._enter_fault(f"sensor data stale: {','.join(stale)}" + (detail if "encoders" in stale else ""))
-                elif driver_stale:
-                    self._enter_fault(f"motor driver status {driver_stale}{detail}")
-                elif inp.driver_errors:
-                    self._enter_fault(inp.driver_detail or f"motor driver fault 0x{inp.driver_errors:02x}")
-                elif self._driver_watchdog_tripped(inp):
-                    self._enter_fault("motor driver watchdog tripped while driving")
+            if self.state != CtrlState.FAULT and v.fault:
+                self._enter_fault(v.fault)
             if inp.bumper and self.state in (CtrlState.DRIVING, CtrlState.GOAL_REACHED):
                 self.goal = None
                 self.mode = Mode.HOLD
                 self._transition(CtrlState.HOLD, "bumper pressed", SEV_WARNING)
-        self._errors = error_bits(inp, stale=bool(stale), driver_silent=bool(driver_stale), no_policy=self.policy is None,
-                                  failsafe=self.failsafe, estop_latched=self.estop_latch.latched,
+        self._errors = error_bits(inp, stale=bool(v.stale), driver_silent=bool(v.driver_stale),
+                                  no_policy=self.policy is None, failsafe=self.failsafe,
+                                  estop_latched=self.safety.estop_latch.latched,
                                   localisation_fault=self.fault.startswith("localisation"))
         return self._errors
-
-    def _driver_watchdog_tripped(self, inp: Inputs) -> bool:
-        """The driver stopped the wheels for want of commands although we are
-        DRIVING (commands lost on the way). Its status may still show the
-        HOLD-time watchdog stop for a tick or two after DRIVING starts."""
-        grace_us = 2 * self.cfg.control_period_us
-        return (self.state == CtrlState.DRIVING and inp.driver_state == MOTOR_WATCHDOG_STOP
-                and inp.driver_us is not None and inp.driver_us - self._driving_since_us > grace_us)
 
     def _after_goal(self) -> None:
         nxt = self.route.advance() if self.mode == Mode.AUTO else None
         if nxt is not None:
-            gi, why = self._goal_index_for(*nxt)
+            gi, why = self.kind.goal_index(*nxt)
             if gi >= 0:
                 self.goal, self._goal_index = nxt, gi
-                self._interrupt_motion()
+                self.kind.interrupt()
                 self._transition(CtrlState.DRIVING, f"next mission item {self.route.seq}")
                 return
             self._event("refusal", f"item {self.route.seq}: {why}", SEV_WARNING)
@@ -445,56 +530,47 @@ class Controller(Activation):
         self.goal = None
         self._transition(CtrlState.HOLD, cause)
 
-    def _no_route(self, why: str) -> None:
-        """The kind's planner found no way to the goal (its recoveries ran out): report it (STATUSTEXT,
-        error) and end the mission or goal in HOLD (as ArduPilot's rover holds when its path planner
-        fails), the wheels stopped. A new goal or mission start tries again."""
-        item = f"mission item {self.route.seq}: " if self.mode == Mode.AUTO else "goal: "
-        self._event("no_route", item + why, SEV_ERROR, seq=self.route.seq if self.mode == Mode.AUTO else -1)
+    def _end_drive(self, kind: str, text: str, severity: int, cause: str) -> None:
+        """The drive ends without its goal: say why (STATUSTEXT) and hold (mode Hold)."""
+        self._event(kind, text, severity, seq=self.route.seq if self.mode == Mode.AUTO else -1)
         self.mode = Mode.HOLD
         self.goal = None
-        self._transition(CtrlState.HOLD, why if why.startswith("no route") else "no route: " + why)
-
-    def _stalled(self, why: str, dist: int) -> None:
-        """The drive got nowhere for NAV_STALL_S (control/progress.StallWatch): say why (STATUSTEXT,
-        warning) and hold, as ArduPilot's rover holds on a failsafe and nav2's progress checker
-        aborts the goal; the mission item stays current, so mode Auto tries it again."""
-        item = f"item {self.route.seq}: " if self.mode == Mode.AUTO else ""
-        self._event("stall", f"{item}stalled: {why}, {dist} mm to go", SEV_WARNING,
-                    seq=self.route.seq if self.mode == Mode.AUTO else -1)
-        self.mode = Mode.HOLD
-        self.goal = None
-        self._transition(CtrlState.HOLD, f"stalled: {why}", SEV_WARNING)
+        self._transition(CtrlState.HOLD, cause, SEV_WARNING if kind == "stall" else SEV_INFO)
 
     def _drive(self, inp: Inputs, now_us: int) -> None:
         assert self.goal is not None and self.policy is not None and self.driver is not None
-        dist, bearing = self.nav.goal_vector(*self.goal)
+        nav = self.nav
+        dist, bearing = nav.goal_vector(*self.goal)
+        auto = self.mode == Mode.AUTO
         if dist <= self.cfg.goal_tolerance_mm:
             self._transition(CtrlState.GOAL_REACHED, f"goal reached, {dist} mm off")
-            if self.mode == Mode.AUTO:
+            if auto:
                 self._event("mission_item_reached", f"reached item {self.route.seq}", seq=self.route.seq)
             return
         stalled = self.progress.update(now_us, self.goal, dist)
         if stalled:
-            item = f"item {self.route.seq}: " if self.mode == Mode.AUTO else ""
-            self._event("info", item + stalled, SEV_WARNING)
-        x_mm, y_mm, _ = self.nav.pose_mm()
+            self._event("info", (f"item {self.route.seq}: " if auto else "") + stalled, SEV_WARNING)
+        x_mm, y_mm, _ = nav.pose_mm()
         why = self.stall.update(now_us, (self.goal, self._driving_since_us), dist, x_mm, y_mm,
                                 self.cfg.nav_stall_s * 1_000_000)
         if why:
-            self._stalled(why, dist)
+            # nowhere for NAV_STALL_S (control/progress.StallWatch): hold, as ArduPilot's rover holds on a
+            # failsafe and nav2's progress checker aborts the goal; the item stays current (Auto retries)
+            item = f"item {self.route.seq}: " if auto else ""
+            self._end_drive("stall", f"{item}stalled: {why}, {dist} mm to go", SEV_WARNING, f"stalled: {why}")
             return
         # the kind decides (firmware_py.kinds); the controller only scales, clamps and feeds the watchdog
-        d = self.driver.step(DriveTick(
+        d = self.kind.step(DriveTick(
             now_us=now_us, goal=self.goal, goal_index=self._goal_index, drive_key=(self.goal, self._driving_since_us),
-            pose_mm=self.nav.pose_mm(), goal_bearing_mrad=bearing, ranges_mm=inp.ranges_mm,
-            range_status=inp.range_status, goal_vector=self.nav.goal_vector,
-            blocked_us=0 if self._cm_stop_since_us is None else now_us - self._cm_stop_since_us))
-        if d.decided is not None:
-            self._state_index, self._action, self._q_row = d.decided
-        self.target_mm = d.target_mm
+            pose_mm=nav.pose_mm(), goal_bearing_mrad=bearing, ranges_mm=inp.ranges_mm,
+            range_status=inp.range_status, goal_vector=nav.goal_vector,
+            blocked_us=self.monitor.held_us(now_us)))
         if d.no_route:
-            self._no_route(d.no_route)
+            # the kind's planner found no way (its recoveries ran out): report it (error) and end the
+            # mission or goal in HOLD, as ArduPilot's rover holds when its path planner fails
+            item = f"mission item {self.route.seq}: " if auto else "goal: "
+            self._end_drive("no_route", item + d.no_route, SEV_ERROR,
+                            d.no_route if d.no_route.startswith("no route") else "no route: " + d.no_route)
             return
         if d.wheels is None:
             if d.fault:
@@ -502,77 +578,22 @@ class Controller(Activation):
             return
         left, right = d.wheels
         pct = self.cfg.speed_scale_pct
-        left, right = clamp_speeds(left * pct // 100, right * pct // 100, self.cfg.max_wheel_speed_mm_s)
-        self.watchdog.feed(now_us, left, right)
-
-    def _statuses_for_localiser(self, inp: Inputs) -> list[int]:
-        """The range statuses the localiser weighs: the kind may withhold readings it knows the map
-        does not explain at the tracked pose (the sector kind's unmapped obstacles)."""
-        status = list(inp.range_status)
-        loc = self.loc
-        if self.driver is None or loc is None or not loc.localised:
-            return status
-        return self.driver.localiser_statuses(loc.pose_mm(), inp.ranges_mm, status)
-
-    def _monitor_map(self) -> OccupancyGrid | None:
-        """The map the collision monitor knows walls and corners by: the robot's, else the policy's."""
-        return self.robot_map if self.robot_map is not None else (
-            self.policy.map_grid if self.policy is not None else None)
-
-    def _map_corners_near(self, pose: tuple[int, int, int]) -> list[tuple[int, int]]:
-        """The robot's map's block corners within reach of the collision monitor (none without a map)."""
-        grid = self._monitor_map()
-        if grid is None:
-            return []
-        corners: collision.MapCorners | None = self._corners
-        if corners is None or corners.grid is not grid:
-            self._corners = corners = collision.MapCorners(grid)
-        return corners.near(pose[0], pose[1], self.cfg.collision_slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+        self.out.feed(now_us, *clamp_speeds(left * pct // 100, right * pct // 100, self.cfg.max_wheel_speed_mm_s))
 
     def _outputs(self, now_us: int, tick: int | None, errors: int) -> Outputs:
-        left, right = self.watchdog.output(now_us)
-        left, right = clamp_speeds(left, right, self.cfg.max_wheel_speed_mm_s)
+        cfg, inp = self.cfg, self._inputs
+        left, right = self.out.setpoint(now_us, cfg.max_wheel_speed_mm_s)
         if left or right:  # the collision monitor has the last word on any motion (control/collision.py)
-            cfg, inp = self.cfg, self._inputs
-            pose = self.nav.pose_mm()
-            seen = self.driver.remembered_obstacles() if self.driver is not None else []
-            seen = seen + self._map_corners_near(pose)
-            near = collision.robot_frame(seen, pose) if seen else []
-            grid = self._monitor_map()
-            mapped = mapped_readings(grid, pose, inp.ranges_mm, inp.range_status) if grid is not None else []
-            left, right, limited = collision.limit(left, right, inp.ranges_mm, inp.range_status, cfg.collision_stop_mm,
-                                                   cfg.collision_slow_mm, cfg.collision_slow_pct, near, mapped)
-            if limited:
-                self.collision_ticks[limited] += 1
-            if limited == "stop":
-                if self._cm_stop_since_us is None:
-                    self._cm_stop_since_us = now_us
-            else:
-                self._cm_stop_since_us = None
+            left, right = self.monitor.limit_command(
+                now_us, left, right, inp.ranges_mm, inp.range_status, self.nav.pose_mm(), self.kind.remembered(),
+                self.kind.monitor_map(), cfg.collision_stop_mm, cfg.collision_slow_mm, cfg.collision_slow_pct)
         else:
-            self._cm_stop_since_us = None
+            self.monitor.stop_since_us = None
         if self.state == CtrlState.DRIVING:  # what the stall watch tells the reason by
-            inp = self._inputs
-            shut = self._cm_stop_since_us is not None or (not (left or right) and collision.travel_gap_mm(
-                inp.ranges_mm, inp.range_status, False) < self.cfg.collision_slow_mm)
-            self.stall.note(bool(left or right), shut,
-                            None if inp.enc_us is None else (inp.enc_left, inp.enc_right))
-        if tick is not None:
-            counter = tick & 0xFFFFFF
-        else:
-            self._cmd_counter = (self._cmd_counter + 1) & 0xFFFFFF
-            counter = self._cmd_counter
+            shut = self.monitor.shut(left, right, inp.ranges_mm, inp.range_status, cfg.collision_slow_mm)
+            self.stall.note(bool(left or right), shut, None if inp.enc_us is None else (inp.enc_left, inp.enc_right))
         moving = self.state == CtrlState.DRIVING or self.exploration.running or self._manual_driving()
-        live = moving and not self.watchdog.expired(now_us)
-        if live or self.lockstep or tick is not None:
-            motor = MotorCommand(left, right, counter)
-        elif self._stop_burst > 0:
-            self._stop_burst -= 1
-            motor = MotorCommand(0, 0, counter)
-        else:
-            motor = None
-        self._hb_counter = (self._hb_counter + 1) & 0xFF
-        hb = Heartbeat(state=int(self.state), mode=int(self.mode), armed=self.armed,
-                       policy_loaded=self.policy is not None, goal_active=self.goal is not None,
-                       errors=errors, counter=self._hb_counter)
-        return Outputs(motor=motor, heartbeat=hb, drive_enabled=moving and self.state != CtrlState.FAULT)
+        return self.out.frames(now_us, tick, left, right, moving=moving, state=int(self.state), mode=int(self.mode),
+                               armed=self.armed, policy_loaded=self.policy is not None,
+                               goal_active=self.goal is not None, errors=errors,
+                               drive_enabled=moving and self.state != CtrlState.FAULT)

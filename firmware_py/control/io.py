@@ -65,6 +65,17 @@ class Inputs:
                        ranges_us=list(self.ranges_us), counters=dict(self.counters))
 
 
+BATTERY_TIMEOUT_US = 5_000_000  # the power board reports at 2 Hz
+
+
+def battery_fields(inp: Inputs, now_us: int) -> dict[str, int]:
+    """The last BatteryStatus, or unknown ({}) when none came within BATTERY_TIMEOUT_US (a board that
+    fell silent must not show a full battery forever)."""
+    if inp.battery_us is None or now_us - inp.battery_us > BATTERY_TIMEOUT_US:
+        return {}
+    return {"battery_mv": inp.battery_mv, "battery_ma": inp.battery_ma, "battery_pct": inp.battery_pct}
+
+
 @dataclass(frozen=True)
 class MotorCommand:
     left_mm_s: int

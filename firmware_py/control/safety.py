@@ -2,12 +2,19 @@
 the e-stop latch and wheel-speed clamping.
 
 Pure logic on integer microseconds from the injected clock; the controller
-(`firmware_py.control.controller`) composes them and decides the state transitions.
+(`firmware_py.control.controller`) holds a `SafetyChecks` (the input checks: freshness, frozen
+senders, the motor driver's health, the e-stop latch) and decides the state transitions from its
+verdicts.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from firmware_py import robot_spec
+from firmware_py.can_protocol import MOTOR_WATCHDOG_STOP
+from firmware_py.control.io import Inputs
+from firmware_py.control.plausibility import InputFreshness
 
 
 def clamp_speeds(left_mm_s: int, right_mm_s: int, limit_mm_s: int) -> tuple[int, int]:
@@ -86,3 +93,70 @@ class EStopLatch:
         self.latched = False
         self._disarmed_since_trip = False
         return True, ""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What the safety checks found on one tick (see `SafetyChecks.check`)."""
+
+    estop_tripped: bool  # the e-stop latched on this tick (armed)
+    fault: str  # the first input fault while armed ("" none)
+    stale: list[str]  # sensor inputs past the timeout
+    driver_stale: str  # "", "stale" or "frozen"
+
+
+class SafetyChecks:
+    """The safety part: whether the inputs may be believed and the robot may move. Inputs: the
+    input snapshot, the clock, the sensor timeout, and whether the robot is armed and since when it
+    drives; out: a `Verdict`, or why it may not arm. The e-stop latch is its state."""
+
+    def __init__(self) -> None:
+        self.freshness = InputFreshness()  # rolling counters: frozen senders
+        self.estop_latch = EStopLatch()
+
+    def stale(self, inp: Inputs, now_us: int, timeout_us: int) -> list[str]:
+        return self.freshness.stale(inp, now_us, timeout_us)
+
+    def driver_stale(self, inp: Inputs, now_us: int, timeout_us: int) -> str:
+        """"" while the motor driver's status is fresh, else why not: no status within the sensor
+        timeout ("stale"), or frames whose rolling counter stopped advancing ("frozen": a stuck
+        sender re-sending one frame)."""
+        t = self.freshness.fresh_since(inp, "driver", inp.driver_us)
+        if t is not None and now_us - t <= timeout_us:
+            return ""
+        return "stale" if t == inp.driver_us else "frozen"
+
+    def arm_refusal(self, inp: Inputs, now_us: int, timeout_us: int) -> str:
+        """Why the robot must not arm now ("" it may; the e-stop latch is cleared when it may)."""
+        ok, why = self.estop_latch.may_arm(inp.estop or inp.driver_estop)
+        if not ok:
+            return why
+        stale = self.stale(inp, now_us, timeout_us)
+        if stale:
+            return f"sensor data stale: {','.join(stale)}"
+        if self.driver_stale(inp, now_us, timeout_us):
+            return "motor driver silent"
+        if inp.driver_errors:
+            return inp.driver_detail or f"motor driver errors 0x{inp.driver_errors:02x}"
+        return inp.arm_block
+
+    def check(self, inp: Inputs, now_us: int, timeout_us: int, *, armed: bool,
+              driving_since_us: int | None, grace_us: int) -> Verdict:
+        """This tick's verdict. `driving_since_us`: when DRIVING began (None: not driving); the motor
+        driver's own watchdog stop while driving, after `grace_us`, is a fault (commands lost)."""
+        stale = self.stale(inp, now_us, timeout_us)
+        driver_stale = self.driver_stale(inp, now_us, timeout_us)
+        tripped, fault = False, ""
+        if armed:
+            tripped = (inp.estop or inp.driver_estop) and self.estop_latch.trip()
+            detail = f": {inp.driver_detail}" if inp.driver_detail else ""
+            if stale:
+                fault = f"sensor data stale: {','.join(stale)}" + (detail if "encoders" in stale else "")
+            elif driver_stale:
+                fault = f"motor driver status {driver_stale}{detail}"
+            elif inp.driver_errors:
+                fault = inp.driver_detail or f"motor driver fault 0x{inp.driver_errors:02x}"
+            elif (driving_since_us is not None and inp.driver_state == MOTOR_WATCHDOG_STOP
+                  and inp.driver_us is not None and inp.driver_us - driving_since_us > grace_us):
+                fault = "motor driver watchdog tripped while driving"
+        return Verdict(tripped, fault, stale, driver_stale)

@@ -97,8 +97,9 @@ class DriveTick:
     ranges_mm: tuple[int, ...] | list[int]
     range_status: tuple[int, ...] | list[int]
     goal_vector: Callable[[int, int], tuple[int, int]]  # (distance, bearing) from the pose to a point
-    # how long the collision monitor (control/collision.py) has kept the straight part of the command
-    # at zero, up to the last tick (0: it does not): a kind may give the move up and choose another
+    # how long the collision monitor (control/collision.py), downstream of the kind's command, has
+    # kept the straight part of it at zero, up to the last tick (0: it does not): a kind may give the
+    # move up and choose another. The one thing the kind learns of what happened to its command
     blocked_us: int = 0
 
 
@@ -138,11 +139,6 @@ class KindDriver:
         monitor counts them too, covering the gaps between the range sensors' cones."""
         return []
 
-    def localiser_statuses(self, pose_mm: tuple[int, int, int], ranges_mm: tuple[int, ...] | list[int],
-                           range_status: list[int]) -> list[int]:
-        """The range statuses the localiser may weigh at a tracked pose (default: all of them)."""
-        return range_status
-
     def decided(self, state: int, action: int) -> tuple[int, int, tuple[int, ...]]:
         return state, action, tuple(self.policy.row(state))
 
@@ -170,6 +166,10 @@ def free_goal(policy: Policy, x_mm: int, y_mm: int) -> tuple[int, str]:
     if clear < robot_spec.ROBOT_RADIUS_MM:
         return -1, f"goal ({x_mm}, {y_mm}) mm is {clear:.0f} mm from a wall (robot radius {robot_spec.ROBOT_RADIUS_MM})"
     return 0, ""
+
+
+def _no_margin(_policy: Policy) -> int | None:
+    return None
 
 
 def _no_header(_policy: Policy) -> dict[str, Any]:
@@ -208,6 +208,10 @@ class PolicyKind:
     # the table is indexed by one map's cells (a cell policy): it runs only on the map it was trained
     # on. Other kinds observe ranges and bearings and take the robot's own map (issue 32)
     map_specific: bool = False
+    # readings the policy's map does not explain at the tracked pose (beyond this margin, mm) are
+    # withheld from the localiser while the policy drives (None: it weighs them all). A setting of the
+    # policy, read once when it is activated: the kind sends the localiser nothing at run time
+    localiser_margin_mm: Callable[[Policy], int | None] = field(default=_no_margin)
 
     def __post_init__(self) -> None:
         if not 1 <= self.code <= 255:

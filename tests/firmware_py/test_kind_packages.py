@@ -23,7 +23,7 @@ SCRIPT = r"""
 import json, sys
 from firmware_py import cli, robot_spec
 from firmware_py.control.controller import Controller
-from firmware_py.control.state import CtrlState
+from firmware_py.vehicle import CtrlState
 from firmware_py.vehicle import VehicleConfig
 from tests.support.controller_rig import Kinematic, Rig
 

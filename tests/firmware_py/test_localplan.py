@@ -235,12 +235,12 @@ def test_localiser_does_not_weigh_readings_of_unmapped_obstacles():
     fr, fs = front(150)  # ends at x 1300, 200 mm short of the wall: nothing on the map there
     inp = rig.inp
     inp.ranges_mm, inp.range_status = fr, fs
-    assert ctrl._statuses_for_localiser(inp)[0] == robot_spec.RANGE_INVALID
+    assert ctrl.pose.statuses(inp, ctrl.kind.localiser_margin_mm)[0] == robot_spec.RANGE_INVALID
     inp.ranges_mm, inp.range_status = front(350)  # ends on the wall's face
-    assert ctrl._statuses_for_localiser(inp)[0] == V
+    assert ctrl.pose.statuses(inp, ctrl.kind.localiser_margin_mm)[0] == V
     plain = Controller(VehicleConfig(), load_policy(_policy({"map_grid": rows})), start_pose_mm=(1000, 2250, 0))
     inp.ranges_mm, inp.range_status = fr, fs
-    assert plain._statuses_for_localiser(inp)[0] == V  # without a planner the localiser sees everything
+    assert plain.pose.statuses(inp, plain.kind.localiser_margin_mm)[0] == V  # without a planner the localiser sees everything
 
 
 def _guard_inputs(front: int = 2000, rear: int = 2000, rear_sides: int = 2000) -> tuple[list[int], list[int]]:

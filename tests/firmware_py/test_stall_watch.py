@@ -1,6 +1,6 @@
 """No silent stall (issue 44 item 5): a drive that neither gets closer to its goal nor moves for
 NAV_STALL_S is reported (STATUSTEXT with the reason) and held (firmware_py/control/progress.py
-StallWatch, Controller._stalled). The pure watch, then the controller on a kinematic plant; the
+StallWatch, Controller._drive ending the drive). The pure watch, then the controller on a kinematic plant; the
 lockstep reproduction with the MAVLink node is tests/hil/test_stall_hil.py."""
 
 from __future__ import annotations

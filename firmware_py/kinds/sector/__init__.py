@@ -49,7 +49,6 @@ from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.kinds.sector.guard import MotionGuard
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.recoveries import PlannedTarget
-from firmware_py.mapdata import unmapped_readings
 
 KIND_NAME = "sector"
 _HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
@@ -104,6 +103,17 @@ def planner_config(policy: Policy) -> LocalPlannerConfig | None:
     policy of another kind, or one without `local_planner` metadata)."""
     cfg = policy.kind_config if policy.kind == KIND_NAME else None
     return cfg if isinstance(cfg, LocalPlannerConfig) else None
+
+
+def localiser_margin_mm(policy: Policy) -> int | None:
+    """With a local planner, readings the map does not explain at the tracked pose (unmapped
+    obstacles, beyond the planner's margin) are withheld from the localiser: each lowers every
+    particle's weight, and a few together started augmented MCL's random-particle recovery, which in
+    a map of look-alike places jumped the estimate (HIL, 3 discs + 2 movers: 0.80 success against
+    0.94 on odometry). The controller's estimation part does the withholding
+    (control/estimate.PoseEstimate.statuses)."""
+    cfg = planner_config(policy)
+    return cfg.margin_mm if cfg is not None and policy.map_grid is not None else None
 
 
 def header_fields(policy: Policy) -> dict[str, Any]:
@@ -165,18 +175,5 @@ class SectorDriver(KindDriver):
             return []
         return [(x, y) for x, y, _ in self.local[1].points.values()]
 
-    def localiser_statuses(self, pose_mm: tuple[int, int, int], ranges_mm: tuple[int, ...] | list[int],
-                           range_status: list[int]) -> list[int]:
-        """With a local planner, readings the map does not explain at the tracked pose (unmapped
-        obstacles) are withheld as invalid: each lowers every particle's weight, and a few together
-        started augmented MCL's random-particle recovery, which in a map of look-alike places jumped
-        the estimate (HIL, 3 discs + 2 movers: 0.80 success against 0.94 on odometry)."""
-        cfg, grid = planner_config(self.policy), self.policy.map_grid
-        if cfg is None or grid is None:
-            return range_status
-        um = unmapped_readings(grid, *pose_mm, ranges_mm, range_status, cfg.margin_mm)
-        return [robot_spec.RANGE_INVALID if u >= 0 else st for u, st in zip(um, range_status, strict=True)]
-
-
 KIND = PolicyKind(name=KIND_NAME, code=2, actions=wheel_actions(), unpack=unpack, pack=pack, driver=SectorDriver,
-                  header_fields=header_fields, parse_metadata=parse_metadata)
+                  header_fields=header_fields, parse_metadata=parse_metadata, localiser_margin_mm=localiser_margin_mm)
