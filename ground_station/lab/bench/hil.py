@@ -39,7 +39,7 @@ from firmware_py.vehicle import VehicleConfig
 from ground_station.lab.rigs.lockstep import run_episode
 from sim_bridge.profiles import PlantProfile
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 # --- acceptance sets ----------------------------------------------------------------

@@ -44,7 +44,7 @@ from firmware_py.profile import load_profile
 from firmware_py.vehicle import CtrlState
 from ground_station.lab.faults.common import ScenarioResult, register, trials
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 PROFILE = ROOT / "firmware_py" / "profiles" / "dronecan.toml"
 PERIOD_MS = 50.0
 FLOOD_FRAMES = 100_000

@@ -60,7 +60,7 @@ from firmware_py.vehicle import CtrlState
 from ground_station.learn.export import with_metadata
 from ground_station.subprocs import free_udp_port, stop_process
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 BIN = Path(sys.executable).parent
 CELL_POLICY = "policies/paper10_cell.qtab"
 START = "0.25,0.25,0"

@@ -64,7 +64,7 @@ CHANNEL = "vcan0"
 UML_KERNEL = "linux.uml"
 UML_MODULES = Path("/usr/lib/uml/modules")
 # the newer UML that tools/install_test_deps.sh unpacks where the installed one does not boot
-UML_CACHE = Path(__file__).resolve().parents[2] / ".cache" / "uml"
+UML_CACHE = Path(__file__).resolve().parents[3] / ".cache" / "uml"
 # load order matters: vcan needs can-dev's symbols, can-raw needs can's
 UML_CAN_MODULES = ("net/can/can.ko", "net/can/can-raw.ko", "drivers/net/can/dev/can-dev.ko",
                    "drivers/net/can/vcan.ko")
