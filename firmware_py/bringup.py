@@ -152,25 +152,39 @@ def _mot_states() -> dict[str, int]:
 
 def _sensor_lines(lis: _Listener, rep: CheckReport) -> None:
     inp = lis.inputs
+    prof = lis.profile
+    angles = prof.sensors.angles_deg
+    n = len(angles)
+    per = (n + 1) // 2  # the readings come in two halves (qnav's RangeSectors0/1; DroneCAN's as the backend groups them)
     for f in range(len(proto.RANGE_SECTORS_IDS)):
         name = f"RangeSectors{f}"
-        first = f * proto.SENSORS_PER_RANGE_FRAME
-        idx = range(first, first + proto.SENSORS_PER_RANGE_FRAME)
-        angles = lis.profile.sensors.angles_deg
+        idx = range(f * per, min(n, (f + 1) * per))
+        if not idx:
+            continue
         if name not in lis.heard and f"ranges{f}" not in lis.heard:
-            board = ("DroneCAN rangefinders" if lis.profile.sensors.backend == "dronecan" else "range board (node 35)")
-            rep.bad(f"{board}: sensors {first}-{idx[-1]}: not heard")
+            board = ("DroneCAN rangefinders" if prof.sensors.backend == "dronecan" else "range board (node 35)")
+            rep.bad(f"{board}: sensors {idx[0]}-{idx[-1]}: not heard")
             continue
         for i in idx:
-            st = inp.range_status[i]
-            text = f"range sensor {i} at {angles[i]:g} deg: {inp.ranges_mm[i]} mm, {STATUS_NAMES.get(st, st)}"
+            st = inp.range_status[i] if i < len(inp.range_status) else robot_spec.RANGE_INVALID
+            mm = inp.ranges_mm[i] if i < len(inp.ranges_mm) else 0
+            text = f"range sensor {i} at {angles[i]:g} deg: {mm} mm, {STATUS_NAMES.get(st, st)}"
             (rep.bad if st == robot_spec.RANGE_INVALID else rep.ok)(text)
-    if "Bumper" not in lis.heard:
+    uncovered = prof.layout().uncovered()
+    if uncovered:  # read as unknown (INVALID), never free
+        dirs = ", ".join(f"{robot_spec.SENSOR_ANGLES_MRAD[k] * 180 / math.pi / 1000:.0f}" for k in uncovered)
+        rep.note(f"{n} sensors: no sensor looks along policy sector(s) {dirs} deg (read as unknown)")
+    if not prof.boards.bumper:
+        rep.note("bumper board (node 36): none in the profile (boards.bumper = false)"
+                 + ("; but one is heard" if "Bumper" in lis.heard else ""))
+    elif "Bumper" not in lis.heard:
         rep.bad("bumper board (node 36): not heard")
     else:
         (rep.bad if inp.bumper else rep.ok)(f"bumper board (node 36): {'PRESSED' if inp.bumper else 'released'}")
     if "BatteryStatus" in lis.heard:
         rep.ok(f"power board (node 37): {inp.battery_mv / 1000:.2f} V, {inp.battery_pct} %")
+    elif prof.boards.power:
+        rep.bad("power board (node 37): not heard (boards.power = true)")
     else:
         rep.note("power board (node 37): not heard (optional: the battery shows as unknown)")
 

@@ -17,6 +17,7 @@ Pure stdlib, no numpy.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -190,6 +191,21 @@ _RAY_SIN = [[math.sin(a + f) for f in _FAN] for a in _ANG]
 _MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
 
 
+@functools.lru_cache(maxsize=16)
+def _fans(angles_mrad: tuple[int, ...], fov_mrad: int, mount_mm: int
+          ) -> tuple[list[float], list[float], list[list[float]], list[list[float]], float]:
+    """The sensor fans of a layout (firmware_py.layout.Layout): cos, sin per sensor and per ray, and
+    the mount radius; the built-in layout's are the module's."""
+    if angles_mrad == robot_spec.SENSOR_ANGLES_MRAD and fov_mrad == robot_spec.SENSOR_FOV_MRAD \
+            and mount_mm == robot_spec.SENSOR_MOUNT_RADIUS_MM:
+        return _SENS_COS, _SENS_SIN, _RAY_COS, _RAY_SIN, _MOUNT
+    ang = [a / 1000.0 for a in angles_mrad]
+    nr = robot_spec.SENSOR_FAN_RAYS
+    fan = [(k / (nr - 1) - 0.5) * (fov_mrad / 1000.0) for k in range(nr)] if nr > 1 else [0.0]
+    return ([math.cos(a) for a in ang], [math.sin(a) for a in ang], [[math.cos(a + f) for f in fan] for a in ang],
+            [[math.sin(a + f) for f in fan] for a in ang], float(mount_mm))
+
+
 def walls_near(grid: OccupancyGrid, x: int, y: int, m: int) -> Iterator[tuple[int, int]]:
     """(dx, dy) mm from the point (x, y) to each occupied cell (or the outside of the grid: the
     world's outer walls) whose square may lie within m mm (integers only; 0 along an axis inside)."""
@@ -216,34 +232,42 @@ def wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:
 
 def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                   ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
-                  margin_mm: int, max_mm: int = robot_spec.RANGE_MAX_MM) -> list[tuple[int, int, int, int]]:
+                  margin_mm: int, max_mm: int = robot_spec.RANGE_MAX_MM,
+                  layout: Any = None) -> list[tuple[int, int, int, int]]:
     """(sensor, distance mm, x, y) per reading the map does not explain, the
     point being the end of the fan's middle ray. A reading is explained when,
     on any ray of the sensor's fan, the point at the read distance (rounded
     to whole mm) lies within margin_mm of an occupied cell or the map's edge;
     too far and invalid readings, and readings beyond max_mm, never count
-    (nothing seen); a too-close reading is taken at the range's minimum."""
+    (nothing seen); a too-close reading is taken at the range's minimum. `layout`
+    (firmware_py.layout.Layout; None: the built-in robot): where the sensors look."""
+    if layout is None:
+        sens_cos, sens_sin, ray_cos, ray_sin, mount, rmin = _SENS_COS, _SENS_SIN, _RAY_COS, _RAY_SIN, _MOUNT, \
+            robot_spec.RANGE_MIN_MM
+    else:
+        sens_cos, sens_sin, ray_cos, ray_sin, mount = _fans(layout.angles_mrad, layout.fov_mrad, layout.mount_mm)
+        rmin = layout.range_min_mm
     out: list[tuple[int, int, int, int]] = []
     th = heading_mrad / 1000.0
     ct = math.cos(th)
     st = math.sin(th)
     mid = len(_FAN) // 2
-    for i in range(_N):
+    for i in range(len(sens_cos)):
         if status[i] == robot_spec.RANGE_TOO_CLOSE:
-            r = robot_spec.RANGE_MIN_MM
+            r = rmin
         elif status[i] == robot_spec.RANGE_VALID:
             r = ranges_mm[i]
         else:
             continue
         if r > max_mm:
             continue
-        ox = x_mm + _MOUNT * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
-        oy = y_mm + _MOUNT * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
+        ox = x_mm + mount * (ct * sens_cos[i] - st * sens_sin[i])
+        oy = y_mm + mount * (st * sens_cos[i] + ct * sens_sin[i])
         explained = False
         end = (0, 0)
         for k in range(len(_FAN)):
-            cx = ct * _RAY_COS[i][k] - st * _RAY_SIN[i][k]
-            cy = st * _RAY_COS[i][k] + ct * _RAY_SIN[i][k]
+            cx = ct * ray_cos[i][k] - st * ray_sin[i][k]
+            cy = st * ray_cos[i][k] + ct * ray_sin[i][k]
             ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
             if wall_within(grid, ex, ey, margin_mm):
                 explained = True
@@ -257,10 +281,11 @@ def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
 
 def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                       ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
-                      margin_mm: int) -> list[int]:
+                      margin_mm: int, layout: Any = None) -> list[int]:
     """Per sensor: its distance (mm) when the map does not explain the
     reading (`unmapped_ends`; too close: 0), else -1."""
-    out = [-1] * _N
-    for i, r, _, _ in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, margin_mm):
+    out = [-1] * (_N if layout is None else layout.count)
+    max_mm = robot_spec.RANGE_MAX_MM if layout is None else layout.max_range_mm
+    for i, r, _, _ in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, margin_mm, max_mm, layout):
         out[i] = 0 if status[i] == robot_spec.RANGE_TOO_CLOSE else r
     return out

@@ -9,7 +9,8 @@ docs/robot-profile.md; an example per backend ships in `firmware_py/profiles/`.
     [geometry]   wheel_base_mm, wheel_radius_mm, robot_radius_mm, encoder_counts_per_rev
     [drive]      backend ("qnav" | "odrive" | "dronecan"), left_node, right_node,
                  left_sign, right_sign, max_speed_mm_s, gear_ratio, command ("rpm" | "raw")
-    [sensors]    backend ("qnav" | "dronecan"), angles_deg, max_range_mm, sensor_ids
+    [sensors]    backend ("qnav" | "dronecan"), angles_deg, max_range_mm, max_ranges_mm, sensor_ids
+    [boards]     bumper, power (which of qnav's own boards the robot has)
     [dronecan]   node_id, node_name
 
 `load_profile` checks every key (type, range, unknown names) and raises
@@ -28,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from firmware_py import robot_spec
+from firmware_py.layout import MAX_SENSORS, MIN_SENSORS, Layout
 
 DRIVE_BACKENDS = ("qnav", "odrive", "dronecan")
 SENSOR_BACKENDS = ("qnav", "dronecan")
@@ -71,10 +73,26 @@ class DriveConfig:
 class SensorConfig:
     backend: str = "qnav"
     angles_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0)
-    """each sector's sensor direction, counter-clockwise from the heading, in the order on the bus"""
+    """each sensor's direction, counter-clockwise from the heading, in the order on the bus (3..16 sensors;
+    qnav's RangeSectors frames carry exactly 8)"""
     max_range_mm: int = robot_spec.RANGE_MAX_MM
+    max_ranges_mm: tuple[int, ...] = ()
+    """each sensor's own range, in angles_deg order (empty: max_range_mm for every sensor)"""
     sensor_ids: tuple[int, ...] = tuple(range(robot_spec.SENSOR_COUNT))
-    """dronecan: range_sensor.Measurement sensor_id of each sector, in angles_deg order"""
+    """dronecan: range_sensor.Measurement sensor_id of each sensor, in angles_deg order (default 0..n-1)"""
+
+    def ranges_mm(self) -> tuple[int, ...]:
+        """Each sensor's maximum range."""
+        return self.max_ranges_mm or (self.max_range_mm,) * len(self.angles_deg)
+
+
+@dataclass(frozen=True)
+class BoardsConfig:
+    bumper: bool = True
+    """qnav's bumper board (node 36): its Bumper frame must be fresh to arm and drive"""
+    power: bool = False
+    """qnav's power board (node 37, BatteryStatus): true makes `--check` require it (otherwise the
+    battery shows as unknown without it)"""
 
 
 @dataclass(frozen=True)
@@ -89,6 +107,7 @@ class RobotProfile:
     geometry: Geometry = field(default_factory=Geometry)
     drive: DriveConfig = field(default_factory=DriveConfig)
     sensors: SensorConfig = field(default_factory=SensorConfig)
+    boards: BoardsConfig = field(default_factory=BoardsConfig)
     dronecan: DroneCanConfig = field(default_factory=DroneCanConfig)
     source: str = "built-in default"
 
@@ -101,13 +120,23 @@ class RobotProfile:
     def wheel_circumference_mm(self) -> float:
         return 2 * math.pi * self.geometry.wheel_radius_mm
 
+    def layout(self) -> Layout:
+        """The geometry and sensor layout the controller's parts take (firmware_py.layout)."""
+        g = self.geometry
+        return Layout(robot_radius_mm=g.robot_radius_mm, wheel_base_mm=g.wheel_base_mm,
+                      wheel_radius_mm=g.wheel_radius_mm, counts_per_rev=g.encoder_counts_per_rev,
+                      max_wheel_speed_mm_s=self.drive.max_speed_mm_s,
+                      angles_mrad=tuple(round(a * math.pi / 180 * 1000) for a in self.sensors.angles_deg),
+                      max_ranges_mm=self.sensors.ranges_mm(), bumper=self.boards.bumper)
+
 
 DEFAULT = RobotProfile()
 assert DEFAULT.policy_geometry()["sensor_angles_mrad"] == list(robot_spec.SENSOR_ANGLES_MRAD)
+assert DEFAULT.layout() == Layout()  # the built-in robot is the default profile
 DEFAULT_POLICY_GEOMETRY = DEFAULT.policy_geometry()  # what every policy without a record was trained for
 
 _SECTIONS: dict[str, type] = {"geometry": Geometry, "drive": DriveConfig, "sensors": SensorConfig,
-                              "dronecan": DroneCanConfig}
+                              "boards": BoardsConfig, "dronecan": DroneCanConfig}
 
 
 def _check(where: str, cond: bool, why: str) -> None:
@@ -132,7 +161,7 @@ def _value(where: str, want: Any, default: Any, value: Any) -> Any:
         return value
     if isinstance(default, tuple):
         _check(where, isinstance(value, list) and len(value) > 0, f"expected a non-empty list, got {value!r}")
-        item = default[0]
+        item = default[0] if default else 0
         return tuple(_value(f"{where}[{i}]", None, item, v) for i, v in enumerate(value))
     raise AssertionError(f"unhandled field type at {where}")
 
@@ -152,6 +181,8 @@ def profile_from_dict(data: dict[str, Any], source: str) -> RobotProfile:
             kwhere = f"{source}: {section}.{key}"
             _check(kwhere, key in known, f"unknown key (expected one of {', '.join(sorted(known))})")
             kw[key] = _value(kwhere, None, getattr(defaults, key), v)
+        if section == "sensors" and "angles_deg" in kw and "sensor_ids" not in kw:
+            kw["sensor_ids"] = tuple(range(len(kw["angles_deg"])))  # one id per sensor, in order
         parts[section] = cls(**kw)
     prof = RobotProfile(**parts, source=source)
     _validate(prof, source)
@@ -184,9 +215,16 @@ def _validate(p: RobotProfile, src: str) -> None:
     _check(f"{src}: sensors.angles_deg", all(-180 <= a <= 180 for a in s.angles_deg),
            "every angle in -180..180 degrees")
     _check(f"{src}: sensors.max_range_mm", 0 < s.max_range_mm <= 4095, f"expected 1..4095, got {s.max_range_mm}")
-    # the controller's inputs and every policy kind's encoder hold robot_spec.SENSOR_COUNT sectors
-    _check(f"{src}: sensors.angles_deg", len(s.angles_deg) == robot_spec.SENSOR_COUNT,
-           f"{len(s.angles_deg)} sensors; this build reads {robot_spec.SENSOR_COUNT} sectors")
+    n = len(s.angles_deg)
+    _check(f"{src}: sensors.angles_deg", MIN_SENSORS <= n <= MAX_SENSORS,
+           f"{n} sensors; expected {MIN_SENSORS}..{MAX_SENSORS}")
+    # qnav's own RangeSectors0/1 frames carry exactly 8 sectors (qnav.dbc); DroneCAN Measurements any count
+    _check(f"{src}: sensors.angles_deg", s.backend != "qnav" or n == robot_spec.SENSOR_COUNT,
+           f"{n} sensors; qnav's RangeSectors frames carry exactly {robot_spec.SENSOR_COUNT} "
+           "(another count needs sensors.backend = \"dronecan\")")
+    _check(f"{src}: sensors.max_ranges_mm", not s.max_ranges_mm or len(s.max_ranges_mm) == n,
+           f"{len(s.max_ranges_mm)} ranges for {n} sensors")
+    _check(f"{src}: sensors.max_ranges_mm", all(0 < r <= 4095 for r in s.max_ranges_mm), "every range in 1..4095 mm")
     _check(f"{src}: sensors.sensor_ids", len(s.sensor_ids) == len(s.angles_deg),
            f"{len(s.sensor_ids)} ids for {len(s.angles_deg)} angles")
     _check(f"{src}: sensors.sensor_ids", len(set(s.sensor_ids)) == len(s.sensor_ids)

@@ -97,6 +97,9 @@ class VehicleStatus:
     bearing_to_goal_mrad: int = 0  # relative to the heading, CCW positive
     ranges_mm: list[int] = field(default_factory=lambda: [0] * robot_spec.SENSOR_COUNT)
     range_status: list[int] = field(default_factory=lambda: [robot_spec.RANGE_INVALID] * robot_spec.SENSOR_COUNT)
+    # where each reading looks (CCW from the heading, the robot profile's order) and the sensors' reach
+    range_angles_mrad: tuple[int, ...] = robot_spec.SENSOR_ANGLES_MRAD
+    range_max_mm: int = robot_spec.RANGE_MAX_MM
     sensors_healthy: bool = False
     motors_healthy: bool = False
     bumper: bool = False

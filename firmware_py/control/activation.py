@@ -168,7 +168,8 @@ class Activation:
         why = Route.refusal(route_items, lambda x, y: self.kind.goal_index(x, y, new), "mission item") if new else ""
         if why:
             return False, why
-        loc = self.host._new_localiser(new)
+        # without a policy the robot localises on its own map (its odometry checked against it)
+        loc = self.host._new_localiser(new) if new is not None else self.pose.new_localiser(grid)
         with self._lock:
             if self.host.busy():
                 return False, "refused while driving: stop first"
@@ -179,6 +180,8 @@ class Activation:
             if new is not None and new is not pol:
                 self.kind.install(new, keep_last=False)
                 self.pose.use(new.map_grid, loc)
+            elif new is None:
+                self.pose.use(grid, loc)
             text = f"map {describe(grid)} active"
             self.host._note(text)
             return True, text

@@ -41,14 +41,11 @@ import math
 from collections.abc import Sequence
 
 from firmware_py import robot_spec
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 from firmware_py.mapdata import MAP_MARGIN_MM, OccupancyGrid, unmapped_readings
 
 FAR_MM = 1 << 20  # nothing in the way
-_HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
-_RAYS = [[a / 1000.0 + d for d in (-_HALF_FOV, 0.0, _HALF_FOV)] for a in robot_spec.SENSOR_ANGLES_MRAD]
-_R = float(robot_spec.ROBOT_RADIUS_MM)
-_MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
-_BASE = float(robot_spec.WHEEL_BASE_MM)
 _STRAIGHT_MM = 1e6  # a turning radius beyond this is driving straight
 _TWO_PI = 2.0 * math.pi
 # A body touching the rim in the blind gap between two cones (up to half the 45-degree spacing from a
@@ -58,20 +55,44 @@ _TWO_PI = 2.0 * math.pi
 # mover that walked up to the robot's flank, read 20-30 mm off, was hit by the next step ahead.
 CONTACT_MM = 45.0
 _GAP_OFFSETS = tuple(math.radians(o) for o in (11.25, 15.0, 18.75, 22.5))  # the cone's edge to mid-gap
-# per sensor: (the neighbour a gap leads to, the neighbour on the other side, rim points in that gap)
-_GAP_RIM = [[((i + s) % len(robot_spec.SENSOR_ANGLES_MRAD), (i - s) % len(robot_spec.SENSOR_ANGLES_MRAD),
-              [(_R * math.cos(a / 1000.0 + s * d), _R * math.sin(a / 1000.0 + s * d)) for d in _GAP_OFFSETS])
-             for s in (1, -1)]
-            for i, a in enumerate(robot_spec.SENSOR_ANGLES_MRAD)]
 
 
-def touching(ranges_mm: Sequence[int], status: Sequence[int]) -> bool:
+class Fan:
+    """The monitor's geometry of one layout (firmware_py.layout.Layout): each sensor's centre and cone-edge
+    rays, the body's radius and wheel base, and per sensor the rim points in the blind gaps beside its
+    cone. Neighbours are by angle (the layout may list its sensors in any order)."""
+
+    def __init__(self, layout: Layout = DEFAULT_LAYOUT) -> None:
+        self.layout = layout
+        half_fov = layout.fov_mrad / 2000.0
+        angles = layout.angles_mrad
+        self.rays = [[a / 1000.0 + d for d in (-half_fov, 0.0, half_fov)] for a in angles]
+        self.r = float(layout.robot_radius_mm)
+        self.mount = float(layout.mount_mm)
+        self.base = float(layout.wheel_base_mm)
+        self.range_min = float(layout.range_min_mm)
+        n = len(angles)
+        ccw = sorted(range(n), key=lambda i: (angles[i] % 6283, i))  # sensors round the body, CCW
+        nxt = {ccw[k]: ccw[(k + 1) % n] for k in range(n)}
+        prv = {ccw[k]: ccw[(k - 1) % n] for k in range(n)}
+        r = self.r
+        # per sensor: (the neighbour a gap leads to, the neighbour on the other side, rim points in that gap)
+        self.gap_rim = [[((nxt if s == 1 else prv)[i], (prv if s == 1 else nxt)[i],
+                          [(r * math.cos(a / 1000.0 + s * d), r * math.sin(a / 1000.0 + s * d)) for d in _GAP_OFFSETS])
+                         for s in (1, -1)]
+                        for i, a in enumerate(angles)]
+
+
+DEFAULT_FAN = Fan()
+
+
+def touching(ranges_mm: Sequence[int], status: Sequence[int], fan: Fan = DEFAULT_FAN) -> bool:
     """A reading under CONTACT_MM (callers then work out which readings their map explains)."""
-    return any(reading_mm(ranges_mm, status, i) < CONTACT_MM for i in range(len(_RAYS)))
+    return any(reading_mm(ranges_mm, status, i) < CONTACT_MM for i in range(len(fan.rays)))
 
 
 def _reading_points(ranges_mm: Sequence[int], status: Sequence[int],
-                    mapped: Sequence[bool] = ()) -> list[tuple[float, float]]:
+                    mapped: Sequence[bool] = (), fan: Fan = DEFAULT_FAN) -> list[tuple[float, float]]:
     """Each sensor's reading as points (mm ahead, mm left) on its cone's centre and edge rays; a
     reading under CONTACT_MM adds points on the rim across the blind gaps beside its cone, except a
     gap whose far neighbour reads CONTACT_MM or more while the neighbour on the other side also reads
@@ -80,16 +101,17 @@ def _reading_points(ranges_mm: Sequence[int], status: Sequence[int],
     for a reading the robot's map explains (`mapped[i]`: a wall or block whose corners the monitor
     is given as points; a block's corner beside the robot held every step past it)."""
     out: list[tuple[float, float]] = []
-    near = [reading_mm(ranges_mm, status, i) for i in range(len(_RAYS))]
-    for i, rays in enumerate(_RAYS):
+    near = [reading_mm(ranges_mm, status, i) for i in range(len(fan.rays))]
+    mount = fan.mount
+    for i, rays in enumerate(fan.rays):
         r = near[i]
         if r == math.inf:
             continue
         if mapped and mapped[i]:
-            r = max(r, float(robot_spec.RANGE_MIN_MM))  # a wall's face: its corners are points already
-        out.extend(((_MOUNT + r) * math.cos(a), (_MOUNT + r) * math.sin(a)) for a in rays)
+            r = max(r, fan.range_min)  # a wall's face: its corners are points already
+        out.extend(((mount + r) * math.cos(a), (mount + r) * math.sin(a)) for a in rays)
         if r < CONTACT_MM and not (mapped and mapped[i]):
-            for toward, other, rim in _GAP_RIM[i]:
+            for toward, other, rim in fan.gap_rim[i]:
                 if not (near[other] < CONTACT_MM <= near[toward]):
                     out.extend(rim)
     return out
@@ -106,15 +128,15 @@ def reading_mm(ranges_mm: Sequence[int], status: Sequence[int], i: int) -> float
 
 
 def travel_gap_mm(ranges_mm: Sequence[int], status: Sequence[int], reverse: bool,
-                  mapped: Sequence[bool] = ()) -> int:
+                  mapped: Sequence[bool] = (), fan: Fan = DEFAULT_FAN) -> int:
     """How far (mm) the robot can drive straight ahead (`reverse`: back) before touching a read point
     (`mapped`: as `limit`'s)."""
     s = -1 if reverse else 1
-    return path_gap_mm(_reading_points(ranges_mm, status, mapped), s, s)
+    return path_gap_mm(_reading_points(ranges_mm, status, mapped, fan), s, s, fan=fan)
 
 
 def path_gap_mm(points: Sequence[tuple[float, float]], left: int, right: int,
-                reach_mm: float = 1000.0) -> int:
+                reach_mm: float = 1000.0, fan: Fan = DEFAULT_FAN) -> int:
     """How far (mm, along its path) the round robot driving the wheel speeds `left`, `right` goes
     before its rim touches one of `points` (robot frame: mm ahead, mm left); FAR_MM when none
     within `reach_mm` of travel. The path is the command's arc (nav2's "approach" model: a corner
@@ -126,10 +148,11 @@ def path_gap_mm(points: Sequence[tuple[float, float]], left: int, right: int,
     fwd = 1.0 if v2 > 0 else -1.0
     # mirror into the frame where the robot drives forward: backing reverses "ahead" and the turn sense
     w = w2 * fwd
-    r_turn = _BASE * abs(v2) / (2.0 * w) if w else math.inf  # signed turning radius, + to the left
+    rr = fan.r
+    r_turn = fan.base * abs(v2) / (2.0 * w) if w else math.inf  # signed turning radius, + to the left
     side_sign = 1.0 if r_turn >= 0 else -1.0  # mirror left/right so the turn is to the left
     rc = abs(r_turn)
-    lim = _R + reach_mm
+    lim = rr + reach_mm
     gap = float(FAR_MM)
     for px, py in points:
         px *= fwd
@@ -137,16 +160,16 @@ def path_gap_mm(points: Sequence[tuple[float, float]], left: int, right: int,
         if abs(px) > lim or abs(py) > lim:
             continue
         if rc > _STRAIGHT_MM:
-            if px <= 0.0 or abs(py) >= _R:
+            if px <= 0.0 or abs(py) >= rr:
                 continue
-            gap = min(gap, max(0.0, px - math.sqrt(_R * _R - py * py)))
+            gap = min(gap, max(0.0, px - math.sqrt(rr * rr - py * py)))
             continue
         # centre of the turn at (0, rc); the robot's centre after turning theta is rc*(sin, -cos) from it
         qx, qy = px, py - rc
         q = math.hypot(qx, qy)
         if q == 0.0:
             continue
-        k = (rc * rc + q * q - _R * _R) / (2.0 * rc * q)  # touching while sin(theta - phi) > k
+        k = (rc * rc + q * q - rr * rr) / (2.0 * rc * q)  # touching while sin(theta - phi) > k
         if k >= 1.0:
             continue
         phi = math.atan2(qy, qx)
@@ -207,7 +230,7 @@ class MapCorners:
 
 def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int], stop_mm: int, slow_mm: int,
           slow_pct: int, remembered: Sequence[tuple[float, float]] = (),
-          mapped: Sequence[bool] = ()) -> tuple[int, int, str]:
+          mapped: Sequence[bool] = (), fan: Fan = DEFAULT_FAN) -> tuple[int, int, str]:
     """(left, right) with the straight part limited, and "", "slow" or "stop" (what it did).
     `remembered`: obstacle points the policy kind remembers, in the robot's frame (`robot_frame`):
     a disc that slipped into the gap between two sensors' cones still counts. `mapped`: per sensor,
@@ -216,9 +239,9 @@ def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int]
     v2, w2 = left + right, right - left  # twice the straight and the turning part
     if v2 == 0 or (stop_mm <= 0 and slow_mm <= 0):
         return left, right, ""
-    points = _reading_points(ranges_mm, status, mapped)
+    points = _reading_points(ranges_mm, status, mapped, fan)
     points.extend(remembered)
-    gap = path_gap_mm(points, left, right)
+    gap = path_gap_mm(points, left, right, fan=fan)
     if gap < stop_mm:
         v2, what = 0, "stop"
     elif gap < slow_mm:
@@ -230,15 +253,17 @@ def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int]
 
 
 def mapped_readings(grid: OccupancyGrid, pose_mm: tuple[int, int, int], ranges_mm: list[int] | tuple[int, ...],
-                    status: list[int] | tuple[int, ...], margin_mm: int = MAP_MARGIN_MM) -> list[bool]:
+                    status: list[int] | tuple[int, ...], margin_mm: int = MAP_MARGIN_MM,
+                    fan: Fan = DEFAULT_FAN) -> list[bool]:
     """Per sensor: the map explains its reading at this pose (`unmapped_ends`); a too-far or
     invalid reading is not a reading (False). The collision monitor's `mapped`, which it reads only
     for a reading under CONTACT_MM: with none, [] (the map is not asked; the controller's tick and
     the twin's hot loop are spared it)."""
-    if not touching(ranges_mm, status):
+    if not touching(ranges_mm, status, fan):
         return []
     x, y, heading = pose_mm
-    unmapped = unmapped_readings(grid, x, y, heading, ranges_mm, status, margin_mm)
+    layout = None if fan is DEFAULT_FAN else fan.layout
+    unmapped = unmapped_readings(grid, x, y, heading, ranges_mm, status, margin_mm, layout)
     return [u < 0 and status[i] in (robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE)
             for i, u in enumerate(unmapped)]
 
@@ -250,7 +275,8 @@ class CollisionMonitor:
     the map, the monitor's zones. What it tells back is how long it has held the straight part
     (`held_us`: the kind's `DriveTick.blocked_us`) and what it counted (`ticks`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, layout: Layout = DEFAULT_LAYOUT) -> None:
+        self.fan = DEFAULT_FAN if layout == DEFAULT_LAYOUT else Fan(layout)  # where the sensors look
         self.ticks = {"slow": 0, "stop": 0}  # commands it limited
         self.stop_since_us: int | None = None  # it has removed the straight part since
         self._corners: MapCorners | None = None  # the block corners of the map it was last given
@@ -278,10 +304,11 @@ class CollisionMonitor:
                       stop_mm: int, slow_mm: int, slow_pct: int) -> tuple[int, int]:
         """The command as it may be sent (module docstring; `remembered`: world points). The caller
         sets `stop_since_us` to None for a zero command (nothing to hold)."""
-        seen = list(remembered) + self._corners_near(grid, pose, slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+        fan = self.fan
+        seen = list(remembered) + self._corners_near(grid, pose, slow_mm + 2 * fan.layout.robot_radius_mm)
         near = robot_frame(seen, pose) if seen else []
-        mapped = mapped_readings(grid, pose, ranges_mm, status) if grid is not None else []
-        left, right, limited = limit(left, right, ranges_mm, status, stop_mm, slow_mm, slow_pct, near, mapped)
+        mapped = mapped_readings(grid, pose, ranges_mm, status, fan=fan) if grid is not None else []
+        left, right, limited = limit(left, right, ranges_mm, status, stop_mm, slow_mm, slow_pct, near, mapped, fan)
         if limited:
             self.ticks[limited] += 1
         if limited != "stop":
@@ -294,4 +321,4 @@ class CollisionMonitor:
         """The way ahead counts as shut for the stall watch: the monitor holds the straight part, or
         nothing was sent with a reading in the path within `slow_mm`."""
         return self.stop_since_us is not None or (
-            not (left or right) and travel_gap_mm(ranges_mm, status, False) < slow_mm)
+            not (left or right) and travel_gap_mm(ranges_mm, status, False, fan=self.fan) < slow_mm)

@@ -29,7 +29,7 @@ from firmware_py.control.collision import CollisionMonitor
 from firmware_py.control.decision import KindPart
 from firmware_py.control.estimate import PoseEstimate
 from firmware_py.control.explore import Exploration, wander_wheels
-from firmware_py.control.io import Inputs, Outputs, battery_fields, error_bits
+from firmware_py.control.io import Inputs, Outputs, battery_fields, error_bits, sensor_view
 from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.manual import ManualSticks
 from firmware_py.control.odometry import Odometry
@@ -46,6 +46,7 @@ from firmware_py.control.state import (
     StateLog,
 )
 from firmware_py.kinds import DriveTick, KindDriver
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
 from firmware_py.mapdata import OccupancyGrid
 from firmware_py.policy import Policy, config_mismatch
 from firmware_py.vehicle import (
@@ -74,12 +75,13 @@ class Controller:
         # qnav-robot --profile (firmware_py.profile.RobotProfile; None: the built-in robot): its geometry
         # drives odometry, and a policy trained for another is refused (policy.config_mismatch)
         self.robot_profile: Any = profile
-        # the parts (module docstring)
-        self.pose = PoseEstimate(start_pose_mm, localise=localise, localiser_config=localiser_config,
-                                 profile=profile)
-        self.safety = SafetyChecks()
-        self.kind = KindPart(policy, lockstep=lockstep)
-        self.monitor = CollisionMonitor()
+        # its body, wheels and sensors (firmware_py.layout), handed to each part; the kind reads the
+        # policy's sectors, each from the sensor that looks that way (an uncovered one INVALID)
+        self.layout = lay = profile.layout() if profile is not None else DEFAULT_LAYOUT
+        self.pose = PoseEstimate(start_pose_mm, localise=localise, localiser_config=localiser_config, layout=lay)
+        self.safety = SafetyChecks(bumper=lay.bumper)
+        self.kind = KindPart(policy, lockstep=lockstep, layout=lay.sector_layout())
+        self.monitor = CollisionMonitor(lay)
         self.out = OutputStage(self.cfg.motor_timeout_ms * 1000, lockstep)
         self.activation = Activation(self._lock, self.kind, self.pose, self.monitor, self)
         self.state = CtrlState.BOOT
@@ -117,11 +119,9 @@ class Controller:
     odom: Odometry = property(lambda self: self.pose.odom)  # type: ignore[assignment]
     loc: Localiser | None = property(lambda self: self.pose.loc)  # type: ignore[assignment]
     nav: Localiser | Odometry = property(lambda self: self.pose.nav)  # type: ignore[assignment]
-    localise = property(lambda self: self.pose.localise)
     encoder_jumps = property(lambda self: self.pose.encoder_jumps)
     collision_ticks = property(lambda self: self.monitor.ticks)
     watchdog: MotorWatchdog = property(lambda self: self.out.watchdog)  # type: ignore[assignment]
-    estop_latch = property(lambda self: self.safety.estop_latch)
     _state_index = property(lambda self: self.kind.decided[0])
     _action = property(lambda self: self.kind.decided[1])
 
@@ -162,6 +162,13 @@ class Controller:
         self.fault = cause
         self._transition(CtrlState.FAULT, cause, SEV_CRITICAL)
         self._event("fault", cause, SEV_CRITICAL)
+
+    def _sectors(self, inp: Inputs) -> dict[str, list[int]]:
+        """The readings as the policy's sectors (firmware_py.layout.Layout.to_sectors)."""
+        if self.layout.identity():
+            return {"ranges_mm": inp.ranges_mm, "range_status": inp.range_status}
+        rs, ss = self.layout.to_sectors(inp.ranges_mm, inp.range_status)
+        return {"ranges_mm": rs, "range_status": ss}
 
     def _manual_driving(self) -> bool:
         """Armed in Manual, not in FAULT: the sticks drive (while fresh)."""
@@ -232,6 +239,7 @@ class Controller:
                 speed_mm_s=odom.speed_mm_s, yaw_rate_mrad_s=odom.yaw_rate_mrad_s,
                 goal_mm=self.goal, distance_to_goal_mm=dist, bearing_to_goal_mrad=bearing,
                 ranges_mm=list(inp.ranges_mm), range_status=list(inp.range_status),
+                range_angles_mrad=self.layout.angles_mrad, range_max_mm=self.layout.max_range_mm,
                 sensors_healthy=not self.safety.stale(inp, self._now, timeout_us),
                 motors_healthy=not self.safety.driver_stale(inp, self._now, timeout_us) and inp.driver_errors == 0,
                 bumper=inp.bumper, estop=self.safety.estop_latch.latched or inp.estop or inp.driver_estop,
@@ -295,16 +303,13 @@ class Controller:
             return self.manual.update(x, r, now_us)
 
     def set_goal(self, x_mm: int, y_mm: int) -> tuple[bool, str]:
-        """A goal from the link (SET_POSITION_TARGET_*, a guided-mode waypoint,
-        DO_REPOSITION): taken only in Guided, as ArduPilot Rover takes position
-        targets; it never switches another mode (Hold above all) to Guided.
-        DO_REPOSITION with its CHANGE_MODE flag sets Guided itself first."""
+        """A goal from the link (SET_POSITION_TARGET_*, a guided waypoint, DO_REPOSITION): taken only in
+        Guided, as ArduPilot Rover does; it never switches another mode (Hold above all) to Guided."""
         return self._goal(x_mm, y_mm, switch=False)
 
     def go_to(self, x_mm: int, y_mm: int) -> tuple[bool, str]:
-        """Mode Guided and the goal in one step, for whoever owns the robot
-        locally (`qnav-robot --goal`, the rigs and benches): what an operator
-        does with `mode guided` then a goal."""
+        """Mode Guided and the goal in one step, for whoever owns the robot locally (`qnav-robot
+        --goal`, the rigs and benches): an operator's `mode guided` then a goal."""
         return self._goal(x_mm, y_mm, switch=True)
 
     def _goal(self, x_mm: int, y_mm: int, switch: bool) -> tuple[bool, str]:
@@ -390,12 +395,9 @@ class Controller:
             return (False, why) if why else (True, "")
 
     def apply_config(self, cfg: VehicleConfig) -> None:
-        """Take a new config. Parameter changes were checked (check_config); a
-        config that does not fit the active policy arrives only from stored
-        parameters at boot or reboot, and then the policy is unloaded (with
-        the reason as a warning) rather than run at a period it was not
-        trained for: the robot stays in STANDBY until a matching one is
-        activated."""
+        """Take a new config (checked: check_config). One the active policy does not fit comes only from
+        stored parameters at boot: the policy is unloaded (a warning says why), not run at a period it
+        was not trained for; the robot stays in STANDBY until a matching one is activated."""
         with self._lock:
             self.cfg = replace(cfg)
             self.out.watchdog.timeout_us = max(1, cfg.motor_timeout_ms) * 1000
@@ -414,12 +416,10 @@ class Controller:
             return self.record.drain()
 
     def localise_global(self, explore: bool = True) -> tuple[bool, str]:
-        """Forget the pose: particles uniform over the map (global localisation). With `explore`
-        and armed in HOLD the robot wanders (control/explore.py), the one motion Hold allows and
-        only on this request, until the localiser has converged, its time is up, or the bumper,
-        an e-stop, a fault, disarming, any mode command (Hold included) or a GCS failsafe ends it
-        at once. Asking again while it wanders does not extend it. Goals are refused until the
-        pose is localised."""
+        """Forget the pose (global localisation). With `explore` and armed in HOLD the robot wanders
+        (control/explore.py; the one motion Hold allows) until converged, timed out, or the bumper, an
+        e-stop, a fault, disarming, any mode command or a GCS failsafe; asking again does not extend
+        it. Goals are refused until localised."""
         with self._lock:
             if self.loc is None:
                 return False, "no map: the active policy carries none (qnav policy attach-map)"
@@ -448,7 +448,7 @@ class Controller:
         if done:
             self._end_exploration(done, SEV_INFO if done == "localised" else SEV_WARNING)
             return
-        self.out.feed(now_us, *wander_wheels(inp.ranges_mm, inp.range_status))
+        self.out.feed(now_us, *wander_wheels(**self._sectors(inp)))
 
     def note_loop_stats(self, overruns: int, can_errors: int) -> None:
         with self._lock:
@@ -461,7 +461,7 @@ class Controller:
         counter being answered in lockstep (the motor command carries it)."""
         with self._lock:
             self._now = now_us
-            self._inputs = inp = inputs
+            self._inputs = inp = sensor_view(inputs, self.layout)
             self._ticks += 1
             if self.state == CtrlState.BOOT:
                 what = f"policy 0x{self.policy.policy_id:08x}" if self.policy else "no policy"
@@ -562,8 +562,7 @@ class Controller:
         # the kind decides (firmware_py.kinds); the controller only scales, clamps and feeds the watchdog
         d = self.kind.step(DriveTick(
             now_us=now_us, goal=self.goal, goal_index=self._goal_index, drive_key=(self.goal, self._driving_since_us),
-            pose_mm=nav.pose_mm(), goal_bearing_mrad=bearing, ranges_mm=inp.ranges_mm,
-            range_status=inp.range_status, goal_vector=nav.goal_vector,
+            pose_mm=nav.pose_mm(), goal_bearing_mrad=bearing, **self._sectors(inp), goal_vector=nav.goal_vector,
             blocked_us=self.monitor.held_us(now_us)))
         if d.no_route:
             # the kind's planner found no way (its recoveries ran out): report it (error) and end the

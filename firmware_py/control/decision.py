@@ -14,6 +14,8 @@ from typing import Any
 from firmware_py import kinds
 from firmware_py.background import Background
 from firmware_py.kinds import Decision, DriveTick, KindDriver
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 from firmware_py.mapdata import OccupancyGrid
 from firmware_py.policy import Policy
 
@@ -21,7 +23,10 @@ from firmware_py.policy import Policy
 class KindPart:
     """The active policy and its kind at work (module docstring)."""
 
-    def __init__(self, policy: Policy | None, *, lockstep: bool) -> None:
+    def __init__(self, policy: Policy | None, *, lockstep: bool, layout: Layout = DEFAULT_LAYOUT) -> None:
+        # the geometry of the readings the kind gets: the policy's sectors, each at the angle of the sensor
+        # behind it (firmware_py.layout.Layout.sector_layout), the profile's body and wheels
+        self.layout = layout
         # the kind's off-tick work (the local planner's search): stepped by the node between lockstep
         # ticks (reproducible runs), a worker thread otherwise (firmware_py.background)
         self.background = Background(threaded=not lockstep)
@@ -43,7 +48,7 @@ class KindPart:
         old = self.policy
         self.policy = new
         kind = kinds.of_policy(new) if new is not None else None
-        self.driver = kind.driver(new, self.background) if kind is not None and new is not None else None
+        self.driver = kind.driver(new, self.background, self.layout) if kind is not None and new is not None else None
         self.localiser_margin_mm = kind.localiser_margin_mm(new) if kind is not None and new is not None else None
         if keep_last and old is not None and new is not None:
             self.last_known_good = old

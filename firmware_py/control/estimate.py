@@ -11,14 +11,14 @@ map does not explain at the tracked pose are withheld). It decides nothing: the 
 
 from __future__ import annotations
 
-from typing import Any
-
 from firmware_py import robot_spec
 from firmware_py.can_protocol import ENCODER_BITS
 from firmware_py.control.io import Inputs
 from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.control.odometry import Odometry
 from firmware_py.control.plausibility import encoder_jump
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 from firmware_py.mapdata import OccupancyGrid, unmapped_readings
 
 
@@ -26,11 +26,10 @@ class PoseEstimate:
     """Odometry, the encoder plausibility check and the localiser (module docstring)."""
 
     def __init__(self, start_pose_mm: tuple[int, int, int] = (0, 0, 0), *, localise: bool = True,
-                 localiser_config: LocaliserConfig | None = None, profile: Any = None) -> None:
-        g = profile.geometry if profile is not None else None
-        self.odom = Odometry(*start_pose_mm, counter_bits=ENCODER_BITS) if g is None else Odometry(
-            *start_pose_mm, ticks_per_rev=g.encoder_counts_per_rev, wheel_radius_mm=g.wheel_radius_mm,
-            wheel_base_mm=g.wheel_base_mm, counter_bits=ENCODER_BITS)
+                 localiser_config: LocaliserConfig | None = None, layout: Layout = DEFAULT_LAYOUT) -> None:
+        self.layout = layout  # the wheels, counts and sensors (firmware_py.layout, from the robot profile)
+        self.odom = Odometry(*start_pose_mm, ticks_per_rev=layout.counts_per_rev, wheel_radius_mm=layout.wheel_radius_mm,
+                             wheel_base_mm=layout.wheel_base_mm, counter_bits=ENCODER_BITS)
         self.localise = localise  # False: dead reckoning alone (qnav-robot --localiser off)
         self.loc_cfg = localiser_config
         self.loc: Localiser | None = None
@@ -51,7 +50,7 @@ class PoseEstimate:
         cur = self.loc
         if grid is None or (cur is not None and cur.grid == grid):
             return None
-        return Localiser(grid, self.loc_cfg)
+        return Localiser(grid, self.loc_cfg, layout=self.layout)
 
     def use(self, grid: OccupancyGrid | None, new: Localiser | None) -> None:
         """Under the lock: switch to `new` (started at the odometry pose), keep the running one for
@@ -71,7 +70,7 @@ class PoseEstimate:
         why = ""
         d = self.odom.deltas(inp.enc_left, inp.enc_right)
         if d is not None and self._last_enc_us is not None:
-            why = encoder_jump(d, max(0, inp.enc_us - self._last_enc_us))
+            why = encoder_jump(d, max(0, inp.enc_us - self._last_enc_us), self.layout)
         if why:
             self.encoder_jumps += 1
             self.odom.rebase(inp.enc_left, inp.enc_right, inp.enc_us)  # the pose stays put
@@ -90,7 +89,8 @@ class PoseEstimate:
         loc = self.loc
         if withhold_mm is None or loc is None or not loc.localised:
             return status
-        um = unmapped_readings(loc.grid, *loc.pose_mm(), inp.ranges_mm, status, withhold_mm)
+        um = unmapped_readings(loc.grid, *loc.pose_mm(), inp.ranges_mm, status, withhold_mm,
+                               None if self.layout == DEFAULT_LAYOUT else self.layout)
         return [robot_spec.RANGE_INVALID if u >= 0 else st for u, st in zip(um, status, strict=True)]
 
     def localise_tick(self, inp: Inputs, withhold_mm: int | None) -> str:

@@ -48,7 +48,7 @@ class Exploration:
 
 
 def wander_wheels(ranges_mm: list[int] | tuple[int, ...], range_status: list[int] | tuple[int, ...]) -> tuple[int, int]:
-    """Wheel speeds (mm/s) of one tick of the wander."""
+    """Wheel speeds (mm/s) of one tick of the wander (the readings as the policy's eight sectors)."""
 
     def rng(k: int) -> int:
         st = range_status[k]

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from firmware_py import robot_spec
+from firmware_py.layout import Layout
 from firmware_py.vehicle import CtrlState
 
 # Ctrl_Errors bit field of the controller heartbeat (docs/can-protocol.md).
@@ -63,6 +64,18 @@ class Inputs:
     def copy(self) -> Inputs:
         return replace(self, ranges_mm=list(self.ranges_mm), range_status=list(self.range_status),
                        ranges_us=list(self.ranges_us), counters=dict(self.counters))
+
+
+def sensor_view(inp: Inputs, layout: Layout) -> Inputs:
+    """The snapshot as the controller's parts read it: one reading per sensor of the layout (the robot
+    profile's, in its order; a sensor not heard yet INVALID), a VALID reading beyond its sensor's
+    maximum range INVALID (a broken or forged frame). The snapshot itself when nothing changes."""
+    st = layout.plausible(inp.ranges_mm, inp.range_status)
+    n = layout.count
+    if st == inp.range_status and len(inp.ranges_mm) == n:
+        return inp
+    rs = list(inp.ranges_mm[:n]) + [0] * (n - len(inp.ranges_mm))
+    return replace(inp, ranges_mm=rs, range_status=st)
 
 
 BATTERY_TIMEOUT_US = 5_000_000  # the power board reports at 2 Hz

@@ -61,6 +61,8 @@ from dataclasses import field as dc_field
 
 from firmware_py import robot_spec
 from firmware_py.control.likelihood import MAX_FIELD_POINTS, LikelihoodField, likelihood_field
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 from firmware_py.mapdata import OccupancyGrid
 
 TWO_PI = 2 * math.pi
@@ -161,19 +163,25 @@ class Localiser:
     called from the controller's tick (under its lock)."""
 
     def __init__(self, grid: OccupancyGrid, config: LocaliserConfig | None = None,
-                 field: LikelihoodField | None = None) -> None:
+                 field: LikelihoodField | None = None, layout: Layout = DEFAULT_LAYOUT) -> None:
         self.cfg = cfg = config or LocaliserConfig()
         self.grid = grid
         self.field = field or likelihood_field(grid, cfg.field_res_mm, cfg.sigma_hit_mm, cfg.z_hit, cfg.z_floor,
                                                cfg.max_field_mm)
         self.rng = random.Random(cfg.seed)
-        mount = robot_spec.SENSOR_MOUNT_RADIUS_MM
+        # the robot's sensors (firmware_py.layout: the profile's angles, in its order, and ranges)
+        self.layout = layout
+        mount = layout.mount_mm
+        self._fit_mm = layout.robot_radius_mm * 0.9  # a pose where the body (nearly) fits
+        self._min_mm = float(layout.range_min_mm)
+        # TOO_FAR: the space 1/2 and 19/20 of the way to the sensor's reach must be free
+        self._far = [(r * 0.5, r * 0.95) for r in layout.max_ranges_mm]
         # each sensor's fan of rays (the reading is the nearest hit in its cone): (cos, sin) per ray
-        fov = robot_spec.SENSOR_FOV_MRAD / 1000
+        fov = layout.fov_mrad / 1000
         nr = max(1, cfg.fan_rays)
         offs = [0.0] if nr == 1 else [-fov / 2 + fov * j / (nr - 1) for j in range(nr)]
         self._beams = [tuple((math.cos(a / 1000 + o), math.sin(a / 1000 + o)) for o in offs)
-                       for a in robot_spec.SENSOR_ANGLES_MRAD]
+                       for a in layout.angles_mrad]
         self._mount = float(mount)
         self.xs: list[float] = []
         self.ys: list[float] = []
@@ -251,7 +259,7 @@ class Localiser:
             self._seed_cells = [(x + f.margin, y + f.margin)
                                 for y in range(step // 2, int(f.height_mm), step)
                                 for x in range(step // 2, int(f.width_mm), step)
-                                if f.free(x, y, robot_spec.ROBOT_RADIUS_MM * 0.9)]
+                                if f.free(x, y, self._fit_mm)]
         return self._seed_cells
 
     def _seed_tick(self, ranges_mm: list[int], status: list[int]) -> None:
@@ -274,13 +282,13 @@ class Localiser:
             probes: list[tuple[int, float]] = []
             for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
                 if st == robot_spec.RANGE_VALID or st == robot_spec.RANGE_TOO_CLOSE:
-                    d = float(r if st == robot_spec.RANGE_VALID else robot_spec.RANGE_MIN_MM)
+                    d = float(r if st == robot_spec.RANGE_VALID else self._min_mm)
                     beams.append((k, self._mount + d))
                     if d > 100:
                         probes.append((k, self._mount + 0.75 * d))
                 elif st == robot_spec.RANGE_TOO_FAR:
-                    probes += [(k, self._mount + 1000.0), (k, self._mount + 1900.0)]
-            angles = [(round(robot_spec.SENSOR_ANGLES_MRAD[k] / 1000 / (TWO_PI / nh))) for k in range(8)]
+                    probes += [(k, self._mount + self._far[k][0]), (k, self._mount + self._far[k][1])]
+            angles = [round(a / 1000 / (TWO_PI / nh)) for a in self.layout.angles_mrad]
             dirs = [(math.cos(m * TWO_PI / nh), math.sin(m * TWO_PI / nh)) for m in range(nh)]
             half = 1 if cfg.fan_rays > 1 else 0  # the fan's edge rays: the neighbouring heading indices
             sd.readings = ([(angles[k] % nh, [(d * c, d * s) for c, s in dirs]) for k, d in beams],
@@ -363,7 +371,7 @@ class Localiser:
         rnd = self.rng.random
         for _ in range(1000):
             x, y = rnd() * f.width_mm, rnd() * f.height_mm
-            if f.free(x, y, robot_spec.ROBOT_RADIUS_MM * 0.9):
+            if f.free(x, y, self._fit_mm):
                 return x, y, (rnd() * 2 - 1) * math.pi
         return f.width_mm / 2, f.height_mm / 2, 0.0  # a map with no room for the robot: anything
 
@@ -391,14 +399,14 @@ class Localiser:
                 if st == robot_spec.RANGE_VALID:
                     beams.append((k, float(r)))
                 elif st == robot_spec.RANGE_TOO_CLOSE:
-                    beams.append((k, float(robot_spec.RANGE_MIN_MM)))
+                    beams.append((k, self._min_mm))
             self._pending = (self._odom_now, [(self._mount + r, float(k)) for k, r in beams])
             # negative information, while localising globally: space a reading looked through is free
             # (3/4 of a valid reading; 1 and 1.9 m along a TOO_FAR one), checked against the grid's cells
             probes = [(self._mount + 0.75 * r, k) for k, r in beams if r > 100]
             for k, st in enumerate(status):
                 if st == robot_spec.RANGE_TOO_FAR:
-                    probes += [(self._mount + 1000.0, k), (self._mount + 1900.0, k)]
+                    probes += [(self._mount + self._far[k][0], k), (self._mount + self._far[k][1], k)]
             mid = len(self._beams[0]) // 2
             self._probes = [(d, self._beams[k][mid]) for d, k in probes] if self.global_mode else []
             self._motion = self._motion_delta(self._est_odom, self._odom_now)
@@ -642,7 +650,7 @@ class Localiser:
             if st == robot_spec.RANGE_VALID:
                 d = self._mount + r
             elif st == robot_spec.RANGE_TOO_CLOSE:
-                d = self._mount + robot_spec.RANGE_MIN_MM
+                d = self._mount + self._min_mm
             else:
                 continue
             ends = [(x_mm + d * (c * ca - s * sa), y_mm + d * (s * ca + c * sa)) for ca, sa in self._beams[k]]

@@ -60,7 +60,6 @@ from firmware_py import can_protocol as proto
 from firmware_py.clock import Clock, SimClock, TickGate
 from firmware_py.control.controller import Controller
 from firmware_py.control.io import Inputs, Outputs
-from firmware_py.control.plausibility import plausible_range_status
 from firmware_py.drives import DriveBackend, InputUpdate
 from firmware_py.drives.qnav import QnavDrive
 from firmware_py.profile import DEFAULT as DEFAULT_PROFILE
@@ -98,7 +97,7 @@ class InputTracker:
             if name in _RANGE_INDEX:
                 for i, (mm, st) in proto.ranges_from(name, sig).items():
                     inp.ranges_mm[i] = mm
-                    inp.range_status[i] = plausible_range_status(mm, st)
+                    inp.range_status[i] = st  # the controller checks it against its sensor's range (io.sensor_view)
                 key = f"ranges{_RANGE_INDEX[name]}"
             elif name == "EncoderCounts":
                 inp.enc_left, inp.enc_right = sig["Enc_Left"], sig["Enc_Right"]

@@ -110,12 +110,13 @@ class SafetyChecks:
     input snapshot, the clock, the sensor timeout, and whether the robot is armed and since when it
     drives; out: a `Verdict`, or why it may not arm. The e-stop latch is its state."""
 
-    def __init__(self) -> None:
+    def __init__(self, bumper: bool = True) -> None:
+        self.bumper = bumper  # the robot has a bumper board (the profile's boards.bumper): its input must be fresh
         self.freshness = InputFreshness()  # rolling counters: frozen senders
         self.estop_latch = EStopLatch()
 
     def stale(self, inp: Inputs, now_us: int, timeout_us: int) -> list[str]:
-        return self.freshness.stale(inp, now_us, timeout_us)
+        return self.freshness.stale(inp, now_us, timeout_us, self.bumper)
 
     def driver_stale(self, inp: Inputs, now_us: int, timeout_us: int) -> str:
         """"" while the motor driver's status is fresh, else why not: no status within the sensor

@@ -38,7 +38,6 @@ import dronecan
 from firmware_py import can_protocol as proto
 from firmware_py import robot_spec
 from firmware_py.control.io import Outputs
-from firmware_py.control.plausibility import plausible_range_status
 from firmware_py.drives.base import DriveBackend, InputUpdate
 from firmware_py.dronecan_engine import PRIORITY_HIGH, DroneCanEngine, type_name
 from firmware_py.profile import RobotProfile
@@ -83,7 +82,8 @@ class DroneCanBackend(DriveBackend):
         self.max_rpm = d.max_rpm or math.ceil(d.max_speed_mm_s * self.motor_rpm_per_mm_s)
         self.enabled = False
         self._stop_left = 0
-        n = robot_spec.SENSOR_COUNT
+        n = len(profile.sensors.sensor_ids)  # one reading per sensor, any count (the profile's)
+        self.max_ranges = profile.sensors.ranges_mm()
         self.sector_of = {sid: i for i, sid in enumerate(profile.sensors.sensor_ids)}
         self.ranges = [0] * n
         self.status = [robot_spec.RANGE_INVALID] * n
@@ -149,19 +149,20 @@ class DroneCanBackend(DriveBackend):
         kind = int(p.reading_type)
         rng = float(p.range)
         if kind == robot_spec.RANGE_TOO_FAR:
-            mm = robot_spec.RANGE_MAX_MM
+            mm = self.max_ranges[i]
         elif kind == robot_spec.RANGE_TOO_CLOSE:
             mm = robot_spec.RANGE_MIN_MM
         elif kind == robot_spec.RANGE_VALID and math.isfinite(rng) and rng >= 0:
             mm = min(4095, round(rng * 1000))
         else:
             kind, mm = robot_spec.RANGE_INVALID, 0
-        self.ranges[i], self.status[i] = mm, plausible_range_status(mm, kind)
+        self.ranges[i], self.status[i] = mm, kind  # checked against the sensor's range by the controller
         self._fresh[i] = True
-        per = proto.SENSORS_PER_RANGE_FRAME
+        n = len(self.ranges)
+        per = (n + 1) // 2  # two halves, as qnav's two RangeSectors frames (4 + 4 of 8)
         out = []
         for f in range(len(proto.RANGE_SECTORS_IDS)):
-            half = range(f * per, (f + 1) * per)
+            half = range(f * per, min(n, (f + 1) * per))
             if i in half and all(self._fresh[k] for k in half):
                 for k in half:
                     self._fresh[k] = False

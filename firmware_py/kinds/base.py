@@ -22,6 +22,8 @@ from typing import Any, Protocol
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 
 PAIR = struct.Struct("<hh")  # one action in the encoder section: (left, right) mm/s or (dcol, drow)
 Geometry = tuple[int, int, int]  # (cell_mm, width, height) of a map
@@ -121,8 +123,11 @@ class Decision:
 class KindDriver:
     """A policy kind at work on the robot: one per active policy, built by `PolicyKind.driver`."""
 
-    def __init__(self, policy: Policy, work: Background | None = None) -> None:
+    def __init__(self, policy: Policy, work: Background | None = None, layout: Layout = DEFAULT_LAYOUT) -> None:
         self.policy = policy
+        # the geometry of the readings a DriveTick carries (the policy's sectors, each at the angle of
+        # the robot's sensor behind it; the body, the wheels: firmware_py.layout.Layout.sector_layout)
+        self.layout = layout
         # where the kind runs work that must not run in the tick (firmware_py.background): the
         # controller's, stepped between ticks in lockstep HIL; a worker thread of its own otherwise
         self.work = work if work is not None else Background()
@@ -194,7 +199,7 @@ class PolicyKind:
     actions: tuple[tuple[int, int], ...]
     unpack: Callable[[bytes, int, int], Unpacked]
     pack: Callable[[Any, Goals, int], bytes]
-    driver: Callable[[Policy, Background], KindDriver]
+    driver: Callable[[Policy, Background, Layout], KindDriver]
     # the map geometry the header must record (a cell policy's own grid), or None: the training map's
     fixed_geometry: Callable[[Any, int], Geometry | None] = field(default=_no_geometry)
     # the map cell size the policy drives on, which must be the robot's (None: not cell-bound)

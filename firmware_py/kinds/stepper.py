@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from firmware_py import robot_spec
 from firmware_py.control.odometry import wrap_mrad
 from firmware_py.kinds.base import Decision, DriveTick, KindDriver
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
 
 TURN_TOLERANCE_MRAD = 35  # heading error at which a turn counts as done
 ARRIVE_TOLERANCE_MM = 30  # distance to a cell centre at which a step is done
@@ -37,8 +38,8 @@ class Step:
 class CellStepper(KindDriver):
     """A driver whose kind decides a cell step at a time (`next_step`); this class executes it."""
 
-    def __init__(self, policy, work=None) -> None:  # type: ignore[no-untyped-def]
-        super().__init__(policy, work)
+    def __init__(self, policy, work=None, layout=DEFAULT_LAYOUT) -> None:  # type: ignore[no-untyped-def]
+        super().__init__(policy, work, layout)
         self.open: Step | None = None
 
     def next_step(self, tick: DriveTick) -> Step | str:
@@ -77,7 +78,7 @@ class CellStepper(KindDriver):
     def _execute(self, tick: DriveTick, prim: Step) -> tuple[int, int] | None:
         """Wheel speeds for the open step; None once it has arrived."""
         _, _, heading = tick.pose_mm
-        half_base = robot_spec.WHEEL_BASE_MM // 2
+        half_base = self.layout.wheel_base_mm // 2
         turn_cap = abs(robot_spec.ACTION_WHEEL_SPEEDS_MM_S[1][1])
         if prim.turning:
             err = wrap_mrad(prim.heading_mrad - heading)

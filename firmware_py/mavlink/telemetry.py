@@ -391,11 +391,12 @@ class Telemetry:
 
     def obstacle_distance(self, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
         """Sector ranges in BODY_FRD: 72 bins of 5 deg clockwise from the nose;
-        each sensor fills the bins inside its field of view."""
-        min_cm, max_cm = robot_spec.RANGE_MIN_MM // 10, robot_spec.RANGE_MAX_MM // 10
+        each sensor fills the bins inside its field of view, at its angle (the robot profile's:
+        `VehicleStatus.range_angles_mrad`, in the readings' order)."""
+        min_cm, max_cm = robot_spec.RANGE_MIN_MM // 10, st.range_max_mm // 10
         bins = [UINT16_MAX] * OBSTACLE_SECTORS
         half_fov = math.degrees(robot_spec.SENSOR_FOV_MRAD / 1000.0) / 2
-        for angle_mrad, rng, status in zip(robot_spec.SENSOR_ANGLES_MRAD, st.ranges_mm, st.range_status, strict=False):
+        for angle_mrad, rng, status in zip(st.range_angles_mrad, st.ranges_mm, st.range_status, strict=False):
             if status == robot_spec.RANGE_VALID:
                 value = max(min_cm, min(max_cm, rng // 10))
             elif status == robot_spec.RANGE_TOO_FAR:

@@ -94,7 +94,10 @@ def test_the_controller_fills_no_blind_gap_for_a_reading_its_map_explains():
         ctrl = Controller()
         if with_map:  # 500 mm cells, row 0 north: a block row at y 1000..1500, the robot below it
             assert ctrl.set_robot_map(grid_from_rows(["." * 6] * 3 + ["@" * 6] + ["." * 6] * 2, 500))[0]
-        ctrl.nav.reset(1250, 1000 - robot_spec.ROBOT_RADIUS_MM - 30, 0)  # facing east along the face
+        pose = (1250, 1000 - robot_spec.ROBOT_RADIUS_MM - 30, 0)  # facing east along the face
+        ctrl.odom.reset(*pose)
+        if ctrl.loc is not None:  # with its map (and no policy) the robot localises on it
+            ctrl.loc.init_pose(*pose)
         left = [a for a in robot_spec.SENSOR_ANGLES_MRAD if abs(a - 1571) < 10][0]
         ranges, status = _reading(left, 30)
         t = 0

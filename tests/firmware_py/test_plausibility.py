@@ -164,10 +164,16 @@ def test_a_valid_reading_beyond_the_sensor_range_is_taken_as_invalid():
     msg = cp.encode("RangeSectors0", sig)
     name, decoded = cp.decode(msg)
     assert tracker.apply(name, decoded, 1000)
-    inp = tracker.snapshot()
+    from firmware_py.control.io import sensor_view
+    from firmware_py.layout import DEFAULT, Layout
+
+    inp = sensor_view(tracker.snapshot(), DEFAULT)  # as the controller reads it
     assert inp.range_status[:4] == [robot_spec.RANGE_INVALID, robot_spec.RANGE_VALID,
                                     robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_VALID]
     assert inp.ranges_mm[:4] == [4095, robot_spec.RANGE_MAX_MM, 4095, 150]
+    # the limit is each sensor's own range, from the robot profile (issue 44): a 4095 mm sensor keeps it
+    far = sensor_view(tracker.snapshot(), Layout(max_ranges_mm=(4095,) + (2000,) * 7))
+    assert far.range_status[:2] == [robot_spec.RANGE_VALID, robot_spec.RANGE_VALID]
 
 
 def test_tick_gate_takes_only_ticks_whose_counter_and_time_agree():

@@ -38,7 +38,12 @@ def test_every_shipped_profile_loads_and_the_default_is_the_built_in_robot():
     ("[geometry]\nwheel_base_mm = 'wide'\n", "geometry.wheel_base_mm", "expected an integer"),
     ("[geometry]\nwheelbase = 260\n", "geometry.wheelbase", "unknown key"),
     ("[motors]\n", "[motors]", "unknown section"),
-    ("[sensors]\nangles_deg = [0, 90]\n", "sensors.angles_deg", "this build reads 8 sectors"),
+    ("[sensors]\nangles_deg = [0, 90]\n", "sensors.angles_deg", "2 sensors; expected 3..16"),
+    ("[sensors]\nangles_deg = [0, 60, 120, 180, -120, -60]\n", "sensors.angles_deg",
+     "qnav's RangeSectors frames carry exactly 8"),
+    ("[sensors]\nbackend = \"dronecan\"\nangles_deg = [0, 90, 180]\nmax_ranges_mm = [1000, 2000]\n",
+     "sensors.max_ranges_mm", "2 ranges for 3 sensors"),
+    ("[boards]\nbumper = 1\n", "boards.bumper", "expected true or false"),
     ("[sensors]\nmax_range_mm = nan\n", "sensors.max_range_mm", "expected an integer"),
     ("[drive\n", "not valid TOML", ""),
 ])

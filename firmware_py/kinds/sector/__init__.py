@@ -49,6 +49,8 @@ from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.kinds.sector.guard import MotionGuard
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.recoveries import PlannedTarget
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 
 KIND_NAME = "sector"
 _HEAD = struct.Struct("<HBB")  # bearing_sectors, n_sensors, n_edges
@@ -125,12 +127,13 @@ class SectorDriver(KindDriver):
     """Encode (bearing, ranges) -> greedy action -> its wheel speeds; with a local planner the
     bearing is the sub-goal's and the motion guard may turn or back off the action."""
 
-    def __init__(self, policy: Policy, work: Background | None = None) -> None:
-        super().__init__(policy, work)
+    def __init__(self, policy: Policy, work: Background | None = None, layout: Layout = DEFAULT_LAYOUT) -> None:
+        super().__init__(policy, work, layout)
         cfg, grid = planner_config(policy), policy.map_grid
         self.local: tuple[PlannedTarget, ObstacleMemory, MotionGuard] | None = None
         if cfg is not None and grid is not None:
-            self.local = (PlannedTarget(grid, cfg, self.work), ObstacleMemory(cfg), MotionGuard(cfg))
+            self.local = (PlannedTarget(grid, cfg, self.work, layout.robot_radius_mm), ObstacleMemory(cfg, layout),
+                          MotionGuard(cfg, layout))
         self._key: tuple[tuple[int, int], int] | None = None
 
     def step(self, tick: DriveTick) -> Decision:

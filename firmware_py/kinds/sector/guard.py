@@ -45,6 +45,8 @@ from firmware_py.control import collision
 from firmware_py.kinds.sector.config import LocalPlannerConfig
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.recoveries import PlannedTarget
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 
 FORWARD, TURN_LEFT, TURN_RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
 TURN_COMMIT_MRAD = 1571  # a turn toward a target further round than this keeps its direction (MotionGuard)
@@ -60,7 +62,10 @@ _LEFT_HALF, _RIGHT_HALF = (1, 2), (6, 7)  # the diagonals and sides ahead of the
 class MotionGuard:
     """The last word on the learnt table's action (see the module docstring); one per drive."""
 
-    def __init__(self, cfg: LocalPlannerConfig) -> None:
+    def __init__(self, cfg: LocalPlannerConfig, layout: Layout = DEFAULT_LAYOUT) -> None:
+        # the sector readings' geometry (firmware_py.layout): the body's radius, the collision fan
+        self.radius_mm = layout.robot_radius_mm
+        self._fan = collision.DEFAULT_FAN if layout == DEFAULT_LAYOUT else collision.Fan(layout)
         self.cfg = cfg
         self.vetoes = 0  # forward steps replaced by a turn (telemetry / benchmarks)
         self.backoffs = 0  # back-offs started
@@ -130,7 +135,7 @@ class MotionGuard:
                 return REVERSE
             self._backing_until_us = -1  # something came up behind: no more backing (checked every tick)
         if (now_us - self._anchor_us >= cfg.stuck_us and self.may_reverse(ranges_mm, status)
-                and (detouring or memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + cfg.backoff_near_mm))):
+                and (detouring or memory.within(x, y, self.radius_mm + cfg.backoff_near_mm))):
             self.backoffs += 1
             self._backing_until_us = now_us + cfg.backoff_us
             self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
@@ -161,9 +166,9 @@ class MotionGuard:
         flank = [robot_spec.RANGE_TOO_FAR if i == 0 else st for i, st in enumerate(status)]  # ahead: the veto's
         # (no flank reading under CONTACT_MM: nothing there comes within veto_mm of a step ahead, and
         # the tick is spared the geometry)
-        blocked = (collision.touching(ranges_mm, flank)
-                   and collision.travel_gap_mm(ranges_mm, flank, False) < self.cfg.veto_mm
-                   and memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + collision.CONTACT_MM))
+        blocked = (collision.touching(ranges_mm, flank, self._fan)
+                   and collision.travel_gap_mm(ranges_mm, flank, False, fan=self._fan) < self.cfg.veto_mm
+                   and memory.within(x, y, self.radius_mm + collision.CONTACT_MM))
         if self._escape_turn is not None:
             if blocked and now_us < self._escape_until_us:
                 self.vetoes += 1

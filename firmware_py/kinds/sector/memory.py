@@ -20,6 +20,8 @@ import math
 
 from firmware_py import robot_spec
 from firmware_py.kinds.sector.config import LocalPlannerConfig
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 from firmware_py.mapdata import OccupancyGrid, unmapped_ends
 
 _KEY_MM = 50  # one remembered point per 50 mm square
@@ -41,8 +43,15 @@ class ObstacleMemory:
     """Unmapped reading end points (world mm) with the time each was last seen, cleared by readings
     that see through them; points pinned by a global re-plan outlive `memory_us` (module docstring)."""
 
-    def __init__(self, cfg: LocalPlannerConfig) -> None:
+    def __init__(self, cfg: LocalPlannerConfig, layout: Layout = DEFAULT_LAYOUT) -> None:
         self.cfg = cfg
+        # the sector readings' geometry (firmware_py.layout: the profile's, as the policy's sectors see it)
+        self.layout = layout
+        self._layout_arg = None if layout == DEFAULT_LAYOUT else layout  # unmapped_ends' (None: built-in)
+        self._ang = _ANG if self._layout_arg is None else [a / 1000.0 for a in layout.angles_mrad]
+        self._mount = float(layout.mount_mm)
+        self._half_fov = layout.fov_mrad / 2000.0
+        self.body_mm = 2 * layout.robot_radius_mm
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
         self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
         self.born: dict[tuple[int, int], int] = {}  # key -> when first seen (controller clock)
@@ -60,7 +69,7 @@ class ObstacleMemory:
         seen: set[tuple[int, int]] = set()
         near = MOVING_NEAR_MM * MOVING_NEAR_MM
         for _, _, ex, ey in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, cfg.margin_mm,
-                                          cfg.see_mm):
+                                          cfg.see_mm, self._layout_arg):
             key = (ex // _KEY_MM, ey // _KEY_MM)
             if key not in self.points:
                 self.version += 1
@@ -90,7 +99,8 @@ class ObstacleMemory:
         (Tried: clearing only along the simulated fan's 3 rays, as a small disc between two rays
         goes unseen: 0.968 -> 0.943 on the bench, mover trails kept blocking routes.)"""
         cfg = self.cfg
-        reach = robot_spec.RANGE_MAX_MM + _MOUNT
+        lay, ang, mount = self.layout, self._ang, self._mount
+        reach = lay.max_range_mm + mount
         th = heading_mrad / 1000.0
         out: list[tuple[int, int]] = []
         for key, (px, py, _) in self.points.items():
@@ -100,19 +110,19 @@ class ObstacleMemory:
             if abs(dx) > reach or abs(dy) > reach:
                 continue
             rel = math.atan2(dy, dx) - th
-            i = min(range(_N), key=lambda j: abs((rel - _ANG[j] + math.pi) % (2 * math.pi) - math.pi))
+            i = min(range(len(ang)), key=lambda j: abs((rel - ang[j] + math.pi) % (2 * math.pi) - math.pi))
             st = status[i]
             if st == robot_spec.RANGE_VALID:
                 r = ranges_mm[i]
             elif st == robot_spec.RANGE_TOO_FAR:
-                r = robot_spec.RANGE_MAX_MM
+                r = lay.max_ranges_mm[i]
             else:
                 continue
-            a = th + _ANG[i]
-            sx, sy = px - (x_mm + _MOUNT * math.cos(a)), py - (y_mm + _MOUNT * math.sin(a))
+            a = th + ang[i]
+            sx, sy = px - (x_mm + mount * math.cos(a)), py - (y_mm + mount * math.sin(a))
             d = math.hypot(sx, sy)
             off = abs((math.atan2(sy, sx) - a + math.pi) % (2 * math.pi) - math.pi)
-            if off <= _HALF_FOV and d < r - cfg.clear_margin_mm:
+            if off <= self._half_fov and d < r - cfg.clear_margin_mm:
                 out.append(key)
         return out
 
@@ -162,7 +172,7 @@ class ObstacleMemory:
     def snapshot(self, born: bool = False) -> ObstacleMemory:
         """A copy for the planner's worker (the tick goes on changing this one); `born`: with when each
         point was first seen (for `standing_by`: a whole-map search's question only, a copy less a tick)."""
-        copy = ObstacleMemory(self.cfg)
+        copy = ObstacleMemory(self.cfg, self.layout)
         copy.points = dict(self.points)
         if born:
             copy.born = dict(self.born)
@@ -175,12 +185,13 @@ class ObstacleMemory:
         shifting on the spot, not a box)."""
         new = [v for p, v in self.points.items() if self.born.get(p, since_us) > since_us]
         moved: set[tuple[int, int]] = set()
-        k = BODY_MM // _KEY_MM + 1
+        body = self.body_mm
+        k = body // _KEY_MM + 1
         for nx, ny, _ in new:
             cx, cy = nx // _KEY_MM, ny // _KEY_MM
             moved.update((cx + dx, cy + dy) for dx in range(-k, k + 1) for dy in range(-k, k + 1))
-        copy = ObstacleMemory(self.cfg)
+        copy = ObstacleMemory(self.cfg, self.layout)
         copy.points = {p: v for p, v in self.points.items() if self.born.get(p, since_us) <= since_us and not (
-            p in moved and any((v[0] - nx) ** 2 + (v[1] - ny) ** 2 <= BODY_MM * BODY_MM for nx, ny, _ in new))}
+            p in moved and any((v[0] - nx) ** 2 + (v[1] - ny) ** 2 <= body * body for nx, ny, _ in new))}
         copy.version = self.version
         return copy

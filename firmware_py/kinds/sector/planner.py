@@ -65,9 +65,11 @@ def _segment_keeps(x: float, y: float, tx: float, ty: float, memory: ObstacleMem
 class LocalPlanner:
     """Sub-goals round remembered obstacles on the policy's map (see the module docstring)."""
 
-    def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig) -> None:
+    def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig,
+                 radius_mm: int = robot_spec.ROBOT_RADIUS_MM) -> None:
         self.grid = grid
         self.cfg = cfg
+        self.radius_mm = radius_mm  # the body's (firmware_py.layout)
         r = cfg.raster_mm
         self.nx = grid.width * grid.cell_mm // r
         self.ny = grid.height * grid.cell_mm // r
@@ -96,7 +98,7 @@ class LocalPlanner:
         """A second planner on this map sharing its configuration-space caches (filled lazily by both;
         the worker's own, used on its thread only): a second question must not disturb the first's
         held route and grown points."""
-        other = LocalPlanner(self.grid, self.cfg)
+        other = LocalPlanner(self.grid, self.cfg, self.radius_mm)
         other._map_free, other._wall_cost = self._map_free, self._wall_cost
         return other
 
@@ -216,7 +218,7 @@ class LocalPlanner:
         if length < 1.0:
             return True
         ux, uy = (tx - x) / length, (ty - y) / length
-        m = robot_spec.ROBOT_RADIUS_MM + 10
+        m = self.radius_mm + 10
         along = 25.0
         while along <= min(length, 175.0):
             if wall_within(self.grid, round(x + along * ux), round(y + along * uy), m):
@@ -428,7 +430,7 @@ class LocalPlanner:
         ix, iy = int(x // r), int(y // r)
         return [c for c in ((ix + dx, iy + dy) for dx in range(-3, 4) for dy in range(-3, 4))
                 if ok(c) and _segment_keeps(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory,
-                                            robot_spec.ROBOT_RADIUS_MM + 10)
+                                            self.radius_mm + 10)
                 and self._body_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2)]
 
     def refuge(self, x: float, y: float, memory: ObstacleMemory) -> tuple[int, int] | None:

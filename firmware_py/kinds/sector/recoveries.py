@@ -119,9 +119,11 @@ class PlannedTarget:
     the waypoints follow) the tick's side goes to GLOBAL at once: the whole map's route leads back.
     """
 
-    def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background) -> None:
+    def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background,
+                 radius_mm: int = robot_spec.ROBOT_RADIUS_MM) -> None:
         self.cfg = cfg
-        self.planner = LocalPlanner(grid, cfg)  # used by the worker only, after construction
+        self.radius_mm = radius_mm  # the body's (firmware_py.layout)
+        self.planner = LocalPlanner(grid, cfg, radius_mm)  # used by the worker only, after construction
         self.work = work
         self._generation = 0
         self._worker_generation = 0
@@ -228,7 +230,7 @@ class PlannedTarget:
             ans = None  # asked before this mode began: not an answer to its question
         if self.mode in (WAIT, GLOBAL):
             if self.mode == WAIT and not self._came_up:
-                self._came_up = memory.within(x, y, robot_spec.ROBOT_RADIUS_MM + self.cfg.veto_mm)
+                self._came_up = memory.within(x, y, self.radius_mm + self.cfg.veto_mm)
             return self._recovering(now_us, x, y, waypoint, ans, memory)
         if ans is not None and ans.blocked:
             self._enter(WAIT, now_us)

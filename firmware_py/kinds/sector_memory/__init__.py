@@ -25,6 +25,8 @@ from firmware_py.kinds.sector_memory.gridbug import (
     grid_dir_of,
 )
 from firmware_py.kinds.stepper import ARRIVE_TOLERANCE_MM, TURN_TOLERANCE_MRAD, CellStepper, Step
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 
 _HEAD = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
 # decisions wait for a valid reading of the four axis sensors this many ticks (the realistic plant drops
@@ -63,8 +65,8 @@ class SectorMemoryDriver(CellStepper):
     map (of the policy's cell size) the Bug steers on sub-goals along the map's route to the goal
     (firmware_py.kinds.sector_memory.cellroute), its memory restarted at each; without one, on the goal."""
 
-    def __init__(self, policy: Policy, work: Background | None = None) -> None:
-        super().__init__(policy, work)
+    def __init__(self, policy: Policy, work: Background | None = None, layout: Layout = DEFAULT_LAYOUT) -> None:
+        super().__init__(policy, work, layout)
         self.memory = GridBugMemory()
         self.route = CellRoute(self.work)
         self.subgoal: tuple[int, int] | None = None  # map cell the Bug steers for (None: the goal)
