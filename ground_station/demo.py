@@ -130,13 +130,14 @@ class DemoSummary:
 
 
 # --- small helpers ---------------------------------------------------------------
-def default_run_dir(base: Path = Path("runs")) -> Path:
+def default_run_dir(prefix: str = "demo", base: Path = Path("runs")) -> Path:
+    """runs/PREFIX-<timestamp>/ (then -2, -3, ... beside one that exists): the run folder of
+    `qnav demo` and, with prefix "sitl", of `qnav sitl`."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    path = base / f"demo-{stamp}"
-    n = 1
+    path, n = base / f"{prefix}-{stamp}", 1
     while path.exists():
         n += 1
-        path = base / f"demo-{stamp}-{n}"
+        path = base / f"{prefix}-{stamp}-{n}"
     return path
 
 

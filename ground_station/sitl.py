@@ -41,6 +41,7 @@ from firmware_py.mavlink.params import PARAMS
 from firmware_py.mavlink.telemetry import DEFAULT_AUTOPILOT
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
 from ground_station.canhub import CanHub
+from ground_station.demo import default_run_dir, start_cell
 from ground_station.errors import CliError
 from ground_station.mavlink.link import check_url
 from ground_station.mavlink.tlog_relay import TlogRelay, relayable
@@ -101,15 +102,6 @@ class WaitResult:
 
     reason: str
     child_died: bool
-
-
-def default_run_dir(base: Path = Path("runs")) -> Path:
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    path, n = base / f"sitl-{stamp}", 1
-    while path.exists():
-        n += 1
-        path = base / f"sitl-{stamp}-{n}"
-    return path
 
 
 def gcs_side(robot_url: str) -> str:
@@ -254,8 +246,6 @@ def load_world(map_name: str):  # type: ignore[no-untyped-def]
 def start_pose(grid_map) -> tuple[str, tuple[int, int]]:  # type: ignore[no-untyped-def]
     """The sim's default start (the free cell nearest the map centre, heading east)
     as a --start value, given to both programs so the robot's odometry starts true."""
-    from ground_station.demo import start_cell
-
     col, row = start_cell(grid_map.occ)
     x, y = grid_map.cell_size_m * (col + 0.5), grid_map.cell_size_m * (grid_map.height - row - 0.5)
     return f"{x:g},{y:g},0", (col, row)
@@ -296,7 +286,7 @@ class Sitl:
         busy = port_in_use(opts.mavlink)  # before anything starts (no hub, no run folder): one robot per port
         if busy is not None:
             raise SitlError(f"--mavlink {opts.mavlink}: {busy}")
-        run_dir = Path(opts.out) if opts.out else default_run_dir()
+        run_dir = Path(opts.out) if opts.out else default_run_dir("sitl")
         try:
             (run_dir / "robot").mkdir(parents=True, exist_ok=True)
         except OSError as exc:
