@@ -94,10 +94,14 @@ def run(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             verdict = f"stopped ({stopped_by[0]})"
         finally:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
+            # a second Ctrl-C must not cut the clean-up short, nor turn the finished stop into a
+            # KeyboardInterrupt exit: SIGINT stays ignored until the last line is out
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
             codes = sitl.stop()
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+        say(f"{verdict}; every process stopped ({describe_exits(codes)})")
     finally:
         signal.signal(signal.SIGTERM, previous)
-    say(f"{verdict}; every process stopped ({describe_exits(codes)})")
+    # not the previous handler: a Ctrl-C while the interpreter shuts down (joining threads, freeing
+    # modules) would end a finished, clean stop as "killed by SIGINT"; stopping is done, so it is a no-op
+    signal.signal(signal.SIGINT, lambda _sig, _frame: None)
     return 1 if child_died else 0

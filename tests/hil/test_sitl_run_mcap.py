@@ -35,6 +35,7 @@ def test_sitl_run_mcap_holds_every_layout_topic_and_ctrl_c_says_so_at_once(tmp_p
         first = time.monotonic() - t0
         sitl.expect(r"qnav sitl: writing .*run\.mcap from mavlink\.tlog, can\.blf.*: 0%", timeout_s=60)
         sitl.expect(r"qnav sitl: wrote .*run\.mcap in [0-9.]+ s: telemetry", timeout_s=120)
+        sitl.proc.wait(timeout=30)  # one Ctrl-C is enough: it ends by itself
     finally:
         code = sitl.stop()
     assert code == 0, "\n".join(sitl.log[-30:])
