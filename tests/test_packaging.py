@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import ast
 import json
-import os
-import shutil
 import subprocess
 import sys
 import tomllib
@@ -30,10 +28,10 @@ from firmware_py.shipped_policies import (
 )
 from ground_station.extras import INSTALL_HINT, STATION_IMPORTS
 from ground_station.subprocs import free_udp_port
+from tests.support.robot_venv import ROBOT_DISTS
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
-ROBOT_DISTS = {"python-can": "can", "cantools": "cantools", "pymavlink": "pymavlink", "pyserial": "serial"}
 STATION_ONLY = ("numpy", "numba", "pymunk", "textual", "matplotlib", "gymnasium", "tqdm")
 
 BLOCKER = """
@@ -148,60 +146,10 @@ def test_shipped_policies_resolve_by_name():
             shipped_policy(bad)
 
 
-def _copy_tree(dst: Path) -> Path:
-    # pip builds in the source folder (build/, *.egg-info): build from a copy, not the checkout
-    ignore = shutil.ignore_patterns(".venv", ".git", "build", "runs", "out", "__pycache__", "*.egg-info",
-                                    ".pytest_cache", ".ruff_cache", ".hypothesis")
-    return Path(shutil.copytree(ROOT, dst, ignore=ignore))
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(300)
-def test_fresh_venv_without_extras_is_the_robot(tmp_path):
-    src = _copy_tree(tmp_path / "src")
-    venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
-    bindir = venv / "bin"
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    pip = subprocess.run([str(bindir / "python"), "-m", "pip", "install", "-q", str(src)],
-                         capture_output=True, text=True, timeout=240, env=env)
-    assert pip.returncode == 0, pip.stderr[-2000:]
-    listed = subprocess.run([str(bindir / "python"), "-m", "pip", "list", "--format", "json"],
-                            capture_output=True, text=True, timeout=60, env=env, check=True)
-    installed = {d["name"].lower() for d in json.loads(listed.stdout)}
-    assert set(ROBOT_DISTS) <= installed and "qnav" in installed
-    assert not installed & {"numpy", "numba", "pymunk", "textual", "matplotlib", "gymnasium", "python-can-remote"}
-
-    def run(*argv: str) -> subprocess.CompletedProcess:
-        return subprocess.run([str(bindir / argv[0]), *argv[1:]], capture_output=True, text=True,
-                              timeout=60, env=env, cwd=tmp_path)
-
-    assert run("qnav-robot", "--help").returncode == 0
-    # the shipped policy comes from site-packages (qnav_policies), not from a checkout
-    where = run("python", "-c", "from firmware_py.shipped_policies import shipped_policy; print(shipped_policy('sector'))")
-    assert where.returncode == 0 and "site-packages/qnav_policies/sector.qtab" in where.stdout, where.stderr
-    robot = run("qnav-robot", "--can", "virtual:pkg", "--policy", "policies:sector", "--mavlink", "none",
-                "--duration", "0.2", "-q")
-    assert robot.returncode == 0, robot.stderr
-    # the robot's deployment pieces come with it: the systemd unit, the example profiles, the odrive backend
-    unit = run("qnav-robot", "--print-unit")
-    assert unit.returncode == 0 and "Type=notify" in unit.stdout
-    profiles = run("python", "-c", "from importlib import resources; "
-                                   "print(resources.files('firmware_py') / 'profiles')").stdout.strip()
-    check = run("qnav-robot", "--check", "--check-listen", "0.3", "--profile", f"{profiles}/odrive.toml",
-                "--can", "virtual:pkg")
-    assert check.returncode == 1 and "MISSING  drive: left axis 0 (ODrive node 0): not heard" in check.stdout
-    # a dronecan profile without the optional extra: one line saying what to install, exit 2
-    dc = run("qnav-robot", "--profile", f"{profiles}/dronecan.toml", "--can", "virtual:pkg", "--mavlink", "none",
-             "--duration", "0.2")
-    assert dc.returncode == 2 and dc.stderr.strip().splitlines() == [
-        f"qnav-robot: error: --profile {profiles}/dronecan.toml: the dronecan backends need the dronecan library: "
-        "pip install 'qnav[dronecan]'"], dc.stderr
-    for prog in ("qnav", "qnav-sim"):
-        refused = run(prog, "--help")
-        assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [
-            f"{prog}: error: needs the ground station packages (missing: "
-            f"{', '.join(STATION_IMPORTS)}): {INSTALL_HINT}"], refused.stderr
+# The fresh venv without extras (pip install of the wheel, no station packages): checked by
+# tests/support/robot_venv.py on the venv docs/deploy.md makes, in
+# tests/firmware_py/test_deploy_doc.py::test_tested_blocks_run_here (one install, not two: each cost
+# the suite ~60 s).
 
 
 def test_make_test_runs_every_test_folder_and_file():
