@@ -147,21 +147,22 @@ def test_sweep_identical_on_ray_cluster_and_runs_on_both_nodes(cluster, local_sw
 
 @pytest.mark.ray
 @pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
-@pytest.mark.parametrize(("args", "part", "jobs"), [
-    (["bench", "hil", "--only", "cell", "--starts", "2", "--batch", "1"], "cell", 8),
-    # the twin part only: the HIL episodes' way through Ray is the `hil` case's (bench hil), and each
-    # HIL episode on the Ray workers cost ~7 s of a busy 2-core machine
-    (["bench", "nav", "--map", "paper10", "--episodes", "4", "--controllers", "learnt,seek", "--batch", "2"],
-     "twin", None)], ids=["hil", "nav"])
-def test_bench_identical_on_ray_cluster(cluster, tmp_path, args, part, jobs):
+def test_bench_identical_on_ray_cluster(cluster, tmp_path):
+    # one bench with both kinds of job: the twin's episodes (pure compute) and HIL episodes (each starts
+    # a hub, qnav-sim and qnav-robot on the Ray worker that runs it); a separate `bench hil` on Ray cost
+    # the suite another 45 s for the same engine path
+    args = ["bench", "nav", "--map", "paper10", "--episodes", "4", "--controllers", "learnt,seek", "--batch", "2",
+            "--hil", "--hil-episodes", "1"]
     local = qnav(*args, "--json", str(tmp_path / "local.json"))
     assert local.returncode == 0, local.stderr[-2000:]
     on_ray = qnav(*args, "--json", str(tmp_path / "ray.json"), "--engine", "ray", "--ray-address", cluster.address,
                   env=cluster.env())
     assert on_ray.returncode == 0, on_ray.stderr[-2000:]
     assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
-    camp = json.loads((tmp_path / "ray.campaign.json").read_text())[part]
-    assert camp["engine"] == "ray" and len(camp["nodes"]) == 2 and camp["jobs"] == (jobs or camp["jobs"])
+    camp = json.loads((tmp_path / "ray.campaign.json").read_text())
+    assert camp["twin"]["engine"] == "ray" and len(camp["twin"]["nodes"]) == 2, camp
+    assert camp["hil"]["engine"] == "ray" and camp["hil"]["jobs"] >= 1, camp
+    assert json.loads((tmp_path / "ray.json").read_text())["hil"]  # HIL outcomes are in the result compared above
 
 
 def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
