@@ -301,7 +301,7 @@ def param_list_flood_hil(count: int, seed: int = 0, progress: Any = None, rate_h
         problems: list[str] = []
         row: dict[str, Any] = {"seed": s}
         with tempfile.TemporaryDirectory(prefix="qnav-listflood-") as tmp, \
-                driving_robot(Path(tmp), s, 14.0) as ctx:
+                driving_robot(Path(tmp), s, 60.0) as ctx:
             link = Link(ctx["robot"].url, tlog=False)
             beats: _Heartbeats | None = None
             flood: _ListFlood | None = None
