@@ -362,23 +362,23 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, r
     `robot_map`) refuses a map-specific policy (a cell table, indexed by its
     map's cells) for another map, naming both; other kinds run on the robot's
     map (`on_robot_map`).
-    A robot with a profile (`qnav-robot --profile FILE`, firmware_py.profile)
-    refuses a policy trained for another geometry (wheel base, body radius,
-    sensor angles, range); a file without a record was trained for the
-    built-in robot.
+    The robot (`profile`, a firmware_py.profile.RobotProfile; None: the
+    built-in robot) refuses a policy whose needs it does not meet
+    (firmware_py.needs: the wheel speed; for the kinds that read range
+    sectors, those sectors from its sensors and the body and wheel base the
+    twin assumed), naming both values; a file without a `robot_needs` record
+    was trained for the built-in robot.
     """
     if policy.control_period_us != control_period_us:
         return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
     cell_mm = kinds.of_policy(policy).robot_cell_mm(policy)
     if cell_mm is not None and cell_mm != cell_size_mm:
         return f"policy cell size {cell_mm} mm != robot {cell_size_mm} mm"
-    if profile is not None:
-        from firmware_py.profile import geometry_mismatch
+    from firmware_py.needs import needs_mismatch, needs_of
 
-        recorded = policy.metadata.get("robot_geometry") if isinstance(policy.metadata, dict) else None
-        why = geometry_mismatch(recorded if isinstance(recorded, dict) else None, profile)
-        if why:
-            return why
+    why = needs_mismatch(needs_of(policy), profile)
+    if why:
+        return why
     if (robot_map is not None and policy.map_grid is not None and kinds.of_policy(policy).map_specific
             and not same_grid(policy.map_grid, robot_map)):
         name = policy.metadata.get("map") if isinstance(policy.metadata, dict) else None

@@ -15,9 +15,10 @@ docs/robot-profile.md; an example per backend ships in `firmware_py/profiles/`.
 
 `load_profile` checks every key (type, range, unknown names) and raises
 `ProfileError` with one line naming the file and the key. What a policy
-depends on (`RobotProfile.policy_geometry`) is recorded in the `.qtab` by the
-exporter, and the robot refuses a policy trained for another geometry
-(`firmware_py.policy.config_mismatch`). Stdlib only (tomllib).
+needs of the robot is recorded in the `.qtab` by the exporter (`qnav train
+--profile` trains for a profile) and checked against the profile by the robot
+(`firmware_py.needs`, through `firmware_py.policy.config_mismatch`). Stdlib
+only (tomllib).
 """
 
 from __future__ import annotations
@@ -111,12 +112,6 @@ class RobotProfile:
     dronecan: DroneCanConfig = field(default_factory=DroneCanConfig)
     source: str = "built-in default"
 
-    def policy_geometry(self) -> dict[str, Any]:
-        """What a policy's meaning depends on (recorded in the .qtab, compared at load)."""
-        return {"wheel_base_mm": self.geometry.wheel_base_mm, "robot_radius_mm": self.geometry.robot_radius_mm,
-                "sensor_angles_mrad": [round(a * math.pi / 180 * 1000) for a in self.sensors.angles_deg],
-                "max_range_mm": self.sensors.max_range_mm}
-
     def wheel_circumference_mm(self) -> float:
         return 2 * math.pi * self.geometry.wheel_radius_mm
 
@@ -131,9 +126,7 @@ class RobotProfile:
 
 
 DEFAULT = RobotProfile()
-assert DEFAULT.policy_geometry()["sensor_angles_mrad"] == list(robot_spec.SENSOR_ANGLES_MRAD)
 assert DEFAULT.layout() == Layout()  # the built-in robot is the default profile
-DEFAULT_POLICY_GEOMETRY = DEFAULT.policy_geometry()  # what every policy without a record was trained for
 
 _SECTIONS: dict[str, type] = {"geometry": Geometry, "drive": DriveConfig, "sensors": SensorConfig,
                               "boards": BoardsConfig, "dronecan": DroneCanConfig}
@@ -248,14 +241,3 @@ def load_profile(path: str | Path) -> RobotProfile:
     except RecursionError:  # tomllib recurses once a nesting level (issue 43 finding 8: a traceback, exit 1)
         raise ProfileError(f"{p}: arrays or inline tables nested too deeply") from None
     return profile_from_dict(data, str(p))
-
-
-def geometry_mismatch(recorded: dict[str, Any] | None, profile: RobotProfile) -> str:
-    """Why a policy trained for `recorded` (None: the built-in robot) must not run on `profile`
-    ('' if it may), naming both values."""
-    want = profile.policy_geometry()
-    have = recorded if recorded is not None else DEFAULT_POLICY_GEOMETRY
-    for key, value in want.items():
-        if key in have and have[key] != value:
-            return f"policy trained for {key} {have[key]}, robot profile {profile.source} has {value}"
-    return ""

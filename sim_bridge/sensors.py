@@ -12,7 +12,7 @@ when touching one) and the reading is the nearest hit minus the body radius:
 the distance from the sensor face on the rim. Seeded Gaussian noise and
 dropout; readings below RANGE_MIN_MM or beyond the profile's
 `sensors.max_range_mm` are flagged as DroneCAN does. Angles are taken in
-whole milliradians, as the robot records them (`RobotProfile.policy_geometry`).
+whole milliradians, as the robot records them (`RobotProfile.layout`).
 
 Encoders integrate each wheel's ground speed (from the body's motion) into
 ticks at the profile's `encoder_counts_per_rev` of a wheel of its

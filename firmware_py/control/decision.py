@@ -56,7 +56,7 @@ class KindPart:
     def goal_index(self, x_mm: int, y_mm: int, policy: Policy | None = None) -> tuple[int, str]:
         """The policy table's index of a goal (a cell policy's target; -1 and a reason if none)."""
         pol = policy or self.policy
-        return (0, "") if pol is None else kinds.of_policy(pol).goal_index(pol, x_mm, y_mm)
+        return (0, "") if pol is None else kinds.of_policy(pol).goal_index(pol, x_mm, y_mm, self.layout.robot_radius_mm)
 
     def monitor_map(self) -> OccupancyGrid | None:
         """The map the collision monitor knows walls and corners by: the robot's, else the policy's."""

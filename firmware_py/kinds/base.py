@@ -156,10 +156,11 @@ def _no_cell(_policy: Policy) -> int | None:
     return None
 
 
-def free_goal(policy: Policy, x_mm: int, y_mm: int) -> tuple[int, str]:
+def free_goal(policy: Policy, x_mm: int, y_mm: int, radius_mm: int = robot_spec.ROBOT_RADIUS_MM) -> tuple[int, str]:
     """Any goal the robot fits at, on the policy's map when it carries one:
     not outside it, in a wall, or closer to either than the robot's radius
-    (issue 29 finding 7: such a goal was accepted and driven at until the bumper)."""
+    (`radius_mm`, the profile's body: firmware_py.layout; issue 29 finding 7: such a goal was
+    accepted and driven at until the bumper)."""
     grid = policy.map_grid
     if grid is None:
         return 0, ""
@@ -167,9 +168,9 @@ def free_goal(policy: Policy, x_mm: int, y_mm: int) -> tuple[int, str]:
         return -1, f"goal ({x_mm}, {y_mm}) mm is outside the map"
     if grid.occupied(*robot_spec.world_to_cell(x_mm, y_mm, grid.height, grid.cell_mm)):
         return -1, f"goal ({x_mm}, {y_mm}) mm is inside a wall"
-    clear = grid.clearance_mm(x_mm, y_mm, robot_spec.ROBOT_RADIUS_MM)
-    if clear < robot_spec.ROBOT_RADIUS_MM:
-        return -1, f"goal ({x_mm}, {y_mm}) mm is {clear:.0f} mm from a wall (robot radius {robot_spec.ROBOT_RADIUS_MM})"
+    clear = grid.clearance_mm(x_mm, y_mm, radius_mm)
+    if clear < radius_mm:
+        return -1, f"goal ({x_mm}, {y_mm}) mm is {clear:.0f} mm from a wall (robot radius {radius_mm})"
     return 0, ""
 
 
@@ -183,6 +184,10 @@ def _no_header(_policy: Policy) -> dict[str, Any]:
 
 def _no_config(_policy: Policy) -> Any:
     return None
+
+
+def _no_needs(_encoder: Any, _trained: Any) -> dict[str, Any]:
+    return {}
 
 
 @dataclass(frozen=True)
@@ -204,8 +209,9 @@ class PolicyKind:
     fixed_geometry: Callable[[Any, int], Geometry | None] = field(default=_no_geometry)
     # the map cell size the policy drives on, which must be the robot's (None: not cell-bound)
     robot_cell_mm: Callable[[Policy], int | None] = field(default=_no_cell)
-    # a goal's index for the table, or -1 and why it cannot be a goal of this policy
-    goal_index: Callable[[Policy, int, int], tuple[int, str]] = field(default=free_goal)
+    # a goal's index for the table, or -1 and why it cannot be a goal of this policy; the last argument
+    # is the robot's body radius (firmware_py.layout)
+    goal_index: Callable[[Policy, int, int, int], tuple[int, str]] = field(default=free_goal)
     header_fields: Callable[[Policy], dict[str, Any]] = field(default=_no_header)
     # what the kind reads from the file's metadata (the loader keeps it as `policy.kind_config`; the
     # sector kind's local planner parameters), from the loaded policy; ValueError with the reason
@@ -217,6 +223,10 @@ class PolicyKind:
     # withheld from the localiser while the policy drives (None: it weighs them all). A setting of the
     # policy, read once when it is activated: the kind sends the localiser nothing at run time
     localiser_margin_mm: Callable[[Policy], int | None] = field(default=_no_margin)
+    # what a policy of this kind needs of the robot beyond the control period and the wheel speed
+    # (firmware_py.needs: the sectors it reads, the body and wheel base its twin assumed), from its
+    # encoder and the robot it was trained for (a firmware_py.needs.TrainedFor); {}: nothing more
+    needs: Callable[[Any, Any], dict[str, Any]] = field(default=_no_needs)
 
     def __post_init__(self) -> None:
         if not 1 <= self.code <= 255:

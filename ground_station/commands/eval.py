@@ -29,6 +29,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sample", type=int, default=None, metavar="N",
                    help="evaluate a seeded sample of N (start, goal) pairs instead of all")
     p.add_argument("--seed", type=int, default=0, help="seed of the sample (default: 0)")
+    p.add_argument("--profile", metavar="FILE.toml", default=None,
+                   help="robot profile the twin plays (docs/robot-profile.md; default: the robot the run was "
+                        "trained for, meta.json `robot`, the built-in robot for runs without one)")
     p.add_argument("--plot", metavar="FILE", default=None,
                    help="cell runs: write a PNG of the greedy policy (an arrow per cell, one panel per goal)")
     p.set_defaults(func=run)
@@ -52,7 +55,12 @@ def run(args: argparse.Namespace) -> int:
         args.map = _run_map(args.run_dir)
     try:
         gridmap = load_map(args.map)
-        rep = evaluate_run(args.run_dir, gridmap, sample=args.sample, seed=args.seed)
+        profile = None
+        if args.profile is not None:
+            from firmware_py.profile import load_profile
+
+            profile = load_profile(args.profile)
+        rep = evaluate_run(args.run_dir, gridmap, sample=args.sample, seed=args.seed, profile=profile)
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     if args.plot:

@@ -35,6 +35,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="evaluate a seeded sample of N episodes instead of all")
     p.add_argument("--seed", type=int, default=0, help="seed for --sample (default %(default)s)")
     p.add_argument("--no-rollouts", action="store_true", help="skip the rollout comparison")
+    p.add_argument("--profile", metavar="FILE.toml", default=None,
+                   help="the robot the file is for (docs/robot-profile.md): refused, naming both values, if it "
+                        "cannot run the policy (firmware_py.needs); the rollouts play it")
     p.add_argument("--local-planner", nargs="?", const="{}", default=None, metavar="JSON",
                    help="sector policies: the robot re-plans round obstacles its map does not show "
                         "(firmware_py.kinds.sector); optional JSON object of planner parameters, default the defaults")
@@ -62,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         run_ = export.load_run(args.run_dir)
+        trained = export.trained_for(run_)
         qt = export.quantise(run_.q, args.dtype, per_state=args.per_state_scale)
         meta = export.file_metadata(run_, qt)
         if args.local_planner is not None:
@@ -70,13 +74,26 @@ def run(args: argparse.Namespace) -> int:
                                    metadata=meta, policy_id=args.policy_id,
                                    created=export.created_time(run_.meta),
                                    control_period_us=export.control_period_us(run_),
-                                   map_geometry=export.map_geometry(run_))
+                                   map_geometry=export.map_geometry(run_), trained=trained)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     try:
         pol = load_policy(data)  # the robot's loader is the judge of what we ship
     except PolicyError as exc:
         raise CliError(f"exported file fails the robot's loader: {exc}") from None
+    if args.profile is not None:  # the robot's own check, before anything is written
+        from firmware_py.needs import needs_mismatch, needs_of
+        from firmware_py.profile import load_profile
+        from ground_station.learn.evaluate import on_robot
+
+        try:
+            profile = load_profile(args.profile)
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+        why = needs_mismatch(needs_of(pol), profile)
+        if why:
+            raise CliError(f"--profile {args.profile}: {why}")
+        run_ = on_robot(run_, profile)
     try:
         atomic_write(args.out, data)
     except OSError as exc:

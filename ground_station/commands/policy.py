@@ -101,7 +101,12 @@ def describe(path: str, expect_sensors: int = robot_spec.SENSOR_COUNT) -> dict:
             file_crc = ftp_crc32(f.read())
     except (PolicyError, ShippedPolicyError) as exc:
         return {"file": path, "valid": False, "error": str(exc)}
-    return {"file": path, "valid": True, "error": None, **pol.header(), "file_crc32": f"0x{file_crc:08x}"}
+    from firmware_py.needs import NEEDS_KEY, needs_of
+
+    # what the policy needs of the robot (firmware_py.needs): its record, else the built-in robot's
+    recorded = isinstance(pol.metadata, dict) and NEEDS_KEY in pol.metadata
+    return {"file": path, "valid": True, "error": None, **pol.header(), "file_crc32": f"0x{file_crc:08x}",
+            "robot_needs": needs_of(pol), "robot_needs_recorded": recorded}
 
 
 def _line(d: dict) -> str:
@@ -122,7 +127,17 @@ def _line(d: dict) -> str:
     return (f"{d['file']}: valid v{d['format_version']} {geo} {d['dtype']} "
             f"{d['n_states']}x{d['n_actions']} scale={scale} id={d['policy_id']} "
             f"policy CRC {d['crc32']} file CRC32 {d['file_crc32']} "
-            f"created={d['created_utc']} bytes={d['bytes']}" + (f" {extra}" if extra else ""))
+            f"created={d['created_utc']} bytes={d['bytes']}" + (f" {extra}" if extra else "") + _needs(d))
+
+
+def _needs(d: dict) -> str:
+    """The robot_needs record as the line's last part (firmware_py.needs.describe)."""
+    from firmware_py.needs import describe as describe_needs
+
+    if "robot_needs" not in d:
+        return ""
+    where = "" if d.get("robot_needs_recorded") else " (no record: the built-in robot)"
+    return f" robot_needs{where}: " + "; ".join(describe_needs(d["robot_needs"]))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -251,7 +251,7 @@ class SectorEval:
     def rollouts(self, q: np.ndarray, encoder: Any) -> tuple[np.ndarray, np.ndarray]:
         """(outcome, driven mm) of every episode (`sector.kernels.eval_kernel`)."""
         from ground_station.learn.sector.kernels import eval_kernel
-        from ground_station.learn.sector.twin import encoder_arrays
+        from ground_station.learn.sector.twin import DEFAULT_TW, encoder_arrays
 
         n = len(self.starts)
         sectors, sensors, edges, which = encoder_arrays(encoder)
@@ -260,7 +260,7 @@ class SectorEval:
         steps = np.zeros(n, dtype=np.int64)
         eval_kernel(np.ascontiguousarray(q, dtype=np.float64), self.occ, self.h, self.w, self.c, self.dists,
                     self.starts, self.goals, self.slot, self.th, sectors, sensors, edges, which, 0, 400.0, 4.0,
-                    400, self.guided, self.wp, self.nwp, self.rem, self.pair, outcome, path, steps)
+                    400, self.guided, self.wp, self.nwp, self.rem, self.pair, outcome, path, steps, DEFAULT_TW)
         return outcome, path
 
 

@@ -39,6 +39,9 @@ class TrainConfig:
 
     map: str = _f("paper10", "built-in map name, generator spec (e.g. trap-16x16-s0) or path to a .map file")
     encoding: str = _f(kinds.DEFAULT, "policy kind to train (ground_station/learn/kinds.py)")
+    profile: str = _f("", "robot profile FILE.toml (firmware_py/profile.py, docs/robot-profile.md) the twin plays "
+                          "and the policy is trained for: body radius, wheel base, wheel speed limit, sensor angles "
+                          "and ranges; empty = the built-in robot")
     learner: str = _f("q", "tabular learner (cell, sector; sector-memory: q): q = Q-learning, sarsa, expected-sarsa, "
                            "double-q, dyna-q, q-lambda = Watkins' Q(lambda) (ground_station/learn/cell/learners.py)")
     learner_lambda: float = _f(0.9, "q-lambda: trace decay lambda (traces decay by gamma * lambda per step)")
@@ -200,6 +203,9 @@ def validate_config(cfg: TrainConfig) -> None:
             raise ValueError(f"{name} must be in [0, 1], got {v}")
     if cfg.max_episode_steps < 0 or cfg.curve_points < 1 or cfg.chunk_steps < 1:
         raise ValueError("max_episode_steps must be >= 0, curve_points and chunk_steps >= 1")
+    from ground_station.learn.robot import training_profile
+
+    training_profile(cfg)  # a bad profile: one line naming the file and the key
     if kind.validate is not None:
         kind.validate(cfg)
 

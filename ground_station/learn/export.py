@@ -23,6 +23,8 @@ import numpy as np
 from firmware_py import kinds as robot_kinds
 from firmware_py import policy as fmt
 from firmware_py import robot_spec
+from firmware_py.needs import DEFAULT as DEFAULT_TRAINED
+from firmware_py.needs import NEEDS_KEY, TrainedFor, policy_needs
 
 NP_DTYPES = {"int8": np.int8, "int16": np.int16}
 
@@ -111,9 +113,11 @@ def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),
                  cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM, metadata: dict | None = None,
                  policy_id: int | None = None, created: int | None = None,
                  control_period_us: int = robot_spec.CONTROL_PERIOD_US,
-                 map_geometry: fmt.MapGeometry | None = None) -> bytes:
+                 map_geometry: fmt.MapGeometry | None = None, trained: TrainedFor | None = None) -> bytes:
     """`.qtab` bytes for a quantised table (layout from firmware_py.policy);
-    `control_period_us` and `map_geometry` as `firmware_py.policy.dump_policy`."""
+    `control_period_us` and `map_geometry` as `firmware_py.policy.dump_policy`; `trained`: the robot
+    the table was trained for (`firmware_py.needs.TrainedFor`, a run's meta.json `robot`; default the
+    built-in robot), whose needs the file records (`robot_needs`)."""
     if qt.table.shape != (encoder.n_states, encoder.n_actions):
         raise ValueError(f"table shape {qt.table.shape} does not match the encoder's "
                          f"({encoder.n_states}, {encoder.n_actions})")
@@ -124,11 +128,10 @@ def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),
     if qt.state_scales is not None:
         scales = array("f")
         scales.frombytes(np.ascontiguousarray(qt.state_scales, dtype=np.float32).tobytes())
-    from firmware_py.profile import DEFAULT as DEFAULT_ROBOT
-
-    # the robot geometry the twin trained for (robot_spec's: the trainer has no other); a robot whose
-    # profile differs refuses the file naming both values (firmware_py.profile.geometry_mismatch)
-    metadata = {"robot_geometry": DEFAULT_ROBOT.policy_geometry(), **(metadata or {})}
+    # what the policy needs of the robot it runs on (firmware_py.needs: the period, the wheel speed, the
+    # sectors it reads, the body and wheel base its twin assumed); the robot checks exactly that
+    need = policy_needs(robot_kinds.of_name(encoder.kind), encoder, trained or DEFAULT_TRAINED, control_period_us)
+    metadata = {NEEDS_KEY: need, **(metadata or {})}
     return fmt.dump_policy(encoder, flat, qt.dtype, qt.scale, state_scales=scales, goals=goals,
                            cell_mm=cell_mm, metadata=metadata, policy_id=policy_id, created=created,
                            control_period_us=control_period_us, map_geometry=map_geometry)
@@ -183,6 +186,13 @@ def run_of(q: np.ndarray, meta: dict) -> TrainingRun:
         cell_mm = round(float(meta["cell_size_m"]) * 1000)
     return TrainingRun(q=q, meta=meta, encoder=encoder, goals=goals,
                        cell_mm=int(cell_mm or robot_spec.DEFAULT_CELL_SIZE_MM))
+
+
+def trained_for(run: TrainingRun) -> TrainedFor:
+    """The robot a run was trained for (meta.json `robot`; a run without one: the built-in robot);
+    ValueError (one line) if the record is malformed."""
+    rec = run.meta.get("robot")
+    return DEFAULT_TRAINED if rec is None else TrainedFor.from_dict(rec)
 
 
 def control_period_us(run: TrainingRun) -> int:

@@ -158,9 +158,12 @@ def write_run(out: str | Path, cfg: TrainConfig, res: TrainResult) -> dict:
     if rows:
         atomic_write(out / "learning_curve.png", plot_curve(rows, title))
     created = datetime.now(UTC)
+    from ground_station.learn.robot import trained_for
+
     meta = {
         "encoding": cfg.encoding,
         **res.meta,
+        "robot": trained_for(cfg).to_dict(),  # the robot the twin played (qnav export records its needs)
         "map": cfg.map,
         "config": cfg.flat(),
         "steps": cfg.steps,

@@ -227,8 +227,10 @@ def remaining_lengths(wps, n: int, rem) -> None:
         rem[k] = rem[k + 1] + math.hypot(wps[k + 1, 0] - wps[k, 0], wps[k + 1, 1] - wps[k, 1])
 
 
-def clearance_mm(margin_mm: float) -> float:
-    return float(robot_spec.ROBOT_RADIUS_MM) + float(margin_mm)
+def clearance_mm(margin_mm: float, radius_mm: float = robot_spec.ROBOT_RADIUS_MM) -> float:
+    """The clearance a pruned segment keeps: the robot's body radius (a profile's; the built-in
+    robot's by default) plus the margin."""
+    return float(radius_mm) + float(margin_mm)
 
 
 def guidance_from_metadata(meta: dict) -> dict:

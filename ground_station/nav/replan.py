@@ -86,14 +86,14 @@ class UnmappedPoints:
                 readings_mm: list[int | None]) -> int:
         """Add the unexplained readings of one scan taken at pose (x, y, heading
         CCW from east); returns how many were added."""
-        from ground_station.learn.sector.twin import sense_one
+        from ground_station.learn.sector.twin import DEFAULT_TW, sense_one
 
         h, w = self.occ.shape
         n = 0
         for i, d in enumerate(readings_mm):
             if d is None or d > self.max_range_mm:
                 continue
-            expected, status = sense_one(self.occ, h, w, self.cell_mm, x_mm, y_mm, heading_rad, i)
+            expected, status = sense_one(self.occ, h, w, self.cell_mm, x_mm, y_mm, heading_rad, i, DEFAULT_TW)
             if status == robot_spec.RANGE_VALID and d > expected - self.margin_mm:
                 continue  # the map's own wall
             a = heading_rad + robot_spec.SENSOR_ANGLES_MRAD[i] / 1000.0

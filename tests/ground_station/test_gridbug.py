@@ -21,7 +21,7 @@ from firmware_py.policy import load_policy
 from firmware_py.vehicle import CtrlState, VehicleConfig
 from ground_station.learn.config import TrainConfig, validate_config
 from ground_station.learn.export import policy_bytes, quantise
-from ground_station.learn.sector.twin import disc_hits, grid_of, sense
+from ground_station.learn.sector.twin import DEFAULT_TW, disc_hits, grid_of, sense
 from ground_station.learn.sector_memory import kernels as gb
 from ground_station.learn.sector_memory.trainer import (
     GridBugTrainer,
@@ -71,7 +71,7 @@ def test_occupancy_flags_are_what_the_sensors_read(name):
         x, y = (col + 0.5) * c, (h - row - 0.5) * c
         want = gb.free_world(occ, h, w, col, row)
         for d in range(4):
-            sense(occ, h, w, c, x, y, d * math.pi / 2, which, ranges, status)
+            sense(occ, h, w, c, x, y, d * math.pi / 2, which, ranges, status, DEFAULT_TW)
             r, st = [int(v) for v in ranges], [int(v) for v in status]
             assert enc.free_mask(d, 0, r, st) == want, (name, col, row, d)
             valid = st[0] == robot_spec.RANGE_VALID
@@ -163,7 +163,7 @@ def _drive(pol, gm, start: tuple[int, int], heading: float, goal: tuple[int, int
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
 
     def readings() -> dict:
-        sense(occ, h, w, c, plant.x, plant.y, plant.th, which, ranges, status)
+        sense(occ, h, w, c, plant.x, plant.y, plant.th, which, ranges, status, DEFAULT_TW)
         return {"ranges_mm": [int(v) for v in ranges], "range_status": [int(v) for v in status]}
 
     rig.tick(**readings())
@@ -217,7 +217,7 @@ def test_controller_waits_for_valid_axis_readings_then_counts_a_dropout_as_block
     status = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
 
     def readings(dropout: bool) -> dict:
-        sense(occ, h, w, c, plant.x, plant.y, plant.th, which, ranges, status)
+        sense(occ, h, w, c, plant.x, plant.y, plant.th, which, ranges, status, DEFAULT_TW)
         st = [int(v) for v in status]
         if dropout:
             st[0] = robot_spec.RANGE_INVALID  # ahead (east): the way to the goal

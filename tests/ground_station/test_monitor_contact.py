@@ -23,6 +23,7 @@ from firmware_py.control.collision import (
 )
 from firmware_py.mapdata import grid_from_rows
 from ground_station.lab.nav.obstacle_twin import sense_obs
+from ground_station.learn.sector.twin import DEFAULT_TW
 
 R = robot_spec.ROBOT_RADIUS_MM
 N = robot_spec.SENSOR_COUNT
@@ -36,7 +37,7 @@ def _sense(bodies: list[tuple[float, float, float]], occ: np.ndarray | None = No
     ranges, status = np.zeros(N, dtype=np.int64), np.zeros(N, dtype=np.int64)
     discs = np.array(bodies, dtype=np.float64).reshape(-1, 3)
     sense_obs(grid, grid.shape[0], grid.shape[1], CELL, at[0], at[1], 0.0, np.ones(N, dtype=np.bool_),
-              ranges, status, discs, np.zeros((0, 6)))
+              ranges, status, discs, np.zeros((0, 6)), DEFAULT_TW)
     return ranges.tolist(), status.tolist()
 
 

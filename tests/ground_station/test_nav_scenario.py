@@ -15,7 +15,7 @@ import pytest
 from firmware_py import robot_spec
 from ground_station.lab.nav import obstacle_twin as tw
 from ground_station.lab.nav import scenario as sc
-from ground_station.learn.sector.twin import sense
+from ground_station.learn.sector.twin import DEFAULT_TW, sense
 from ground_station.maps import GridMap, load_map
 from ground_station.nav import obstacles as ob
 from sim_bridge import obstacles as simobs
@@ -140,16 +140,16 @@ def test_twin_sees_and_hits_a_disc_like_the_pymunk_plant():
     status = np.zeros_like(ranges)
     which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
     tw.sense_obs(o, 8, 8, 500.0, 2000.0, 2000.0, 0.0, which, ranges, status,
-                 np.array([disc]), np.zeros((0, 5)))
+                 np.array([disc]), np.zeros((0, 5)), DEFAULT_TW)
     assert sim_front is not None and abs(ranges[0] - sim_front) <= 2.0  # 600 - 150 - 150 = 300 mm
     assert abs(ranges[0] - 300) <= 3
     bare = np.zeros_like(ranges)
-    sense(o, 8, 8, 500.0, 2000.0, 2000.0, 0.0, which, bare, np.zeros_like(status))
+    sense(o, 8, 8, 500.0, 2000.0, 2000.0, 0.0, which, bare, np.zeros_like(status), DEFAULT_TW)
     assert bare[0] > ranges[0]  # the grid alone does not see it
     x, y = 2000.0, 2000.0
     hit = False
     for _ in range(40):
-        x, y, _th, _d, hit = tw.move_obs(o, 8, 8, 500.0, x, y, 0.0, 0, np.array([disc]), np.zeros((0, 5)))
+        x, y, _th, _d, hit = tw.move_obs(o, 8, 8, 500.0, x, y, 0.0, 0, np.array([disc]), np.zeros((0, 5)), DEFAULT_TW)
         if hit:
             break
     assert hit and x == pytest.approx(2600.0 - 300.0, abs=25.0)

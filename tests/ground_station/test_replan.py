@@ -16,7 +16,7 @@ from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.mavlink.telemetry import NodeStats, Telemetry
 from firmware_py.vehicle import VehicleStatus
-from ground_station.learn.sector.twin import sense_one
+from ground_station.learn.sector.twin import DEFAULT_TW, sense_one
 from ground_station.maps import MapError, load_map
 from ground_station.nav.replan import Finished, MissionFollower, Replan, UnmappedPoints, raster_plan
 from tests.ground_station.test_nav_plan_cli import _run
@@ -28,7 +28,7 @@ TEL = Telemetry(MAV, ParamStore())
 
 
 def _map_ranges(x: float, y: float, heading: float) -> tuple[list[int], list[int]]:
-    out = [sense_one(OCC, 10, 10, 500.0, x, y, heading, i) for i in range(robot_spec.SENSOR_COUNT)]
+    out = [sense_one(OCC, 10, 10, 500.0, x, y, heading, i, DEFAULT_TW) for i in range(robot_spec.SENSOR_COUNT)]
     return [int(r) for r, _ in out], [int(s) for _, s in out]
 
 

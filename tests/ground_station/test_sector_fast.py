@@ -19,6 +19,7 @@ from ground_station.learn.sector import twin as T
 from ground_station.learn.sector.trainer import SectorTrainer, pack_maps, sector_encoder
 from ground_station.maps import load_map
 
+TW = T.DEFAULT_TW  # the built-in robot
 MAPS = ["paper10", "trap-12x12-s1", "rooms-16x16-s2"]
 
 
@@ -42,11 +43,11 @@ def test_bordered_sensors_read_what_the_plain_sensors_read(name):
     r1, s1, r2, s2 = (np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64) for _ in range(4))
     kinds = set()
     for x, y, th in _free_poses(occ, h, w, c, 3000, i):
-        T.sense(occ, h, w, c, x, y, th, which, r1, s1)
-        T.sense_bordered(occb, h, w, c, x, y, th, which, r2, s2)
+        T.sense(occ, h, w, c, x, y, th, which, r1, s1, TW)
+        T.sense_bordered(occb, h, w, c, x, y, th, which, r2, s2, TW)
         assert np.array_equal(r1, r2) and np.array_equal(s1, s2), (x, y, th)
         for k in range(robot_spec.SENSOR_COUNT):  # and the fan's early stop: each ray cast to full range
-            assert (r1[k], s1[k]) == T.sense_one(occ, h, w, c, x, y, th, k)
+            assert (r1[k], s1[k]) == T.sense_one(occ, h, w, c, x, y, th, k, TW)
         kinds.update(int(v) for v in s1)
     assert {robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_FAR} <= kinds
 
@@ -87,7 +88,7 @@ def test_move_equals_the_plain_substep_loop():
     hits = 0
     for x, y, th in _free_poses(occ, h, w, c, 4000, 3):
         for a in range(T.N_ACTIONS):
-            got, ref = T.move(occ, h, w, c, x, y, th, a), _move_ref(occ, h, w, c, x, y, th, a)
+            got, ref = T.move(occ, h, w, c, x, y, th, a, TW), _move_ref(occ, h, w, c, x, y, th, a)
             assert got == ref, (x, y, th, a)
             hits += got[4]
     assert hits > 0
@@ -126,8 +127,8 @@ def test_noisy_state_without_needless_gaussians_is_the_same_state_and_stream(noi
                             robot_spec.SENSOR_COUNT).astype(np.int64)
         bearing = int(rng.integers(-3142, 3143))
         buf = [np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64) for _ in range(3)]
-        a = K.noisy_encode(g1, noise_mm, bearing, ranges, status, buf[0], buf[1], sectors, sensors, edges)
-        b = K.noisy_encode_fast(g2, noise_mm, bearing, ranges, status, buf[2], sectors, sensors, edges)
+        a = K.noisy_encode(g1, noise_mm, bearing, ranges, status, buf[0], buf[1], sectors, sensors, edges, TW)
+        b = K.noisy_encode_fast(g2, noise_mm, bearing, ranges, status, buf[2], sectors, sensors, edges, TW)
         assert a == b and g1[0] == g2[0]
         skipped_some |= bool(np.any((status[sensors] == robot_spec.RANGE_VALID) & (ranges[sensors] > 600)))
     assert skipped_some
@@ -159,13 +160,13 @@ def test_fused_train_period_equals_period_step_then_noisy_state(guided, noise_mm
         for _ in range(400):
             a = int(rng.integers(4))
             ref = K.period_step(occ, h, w, c, d, x, y, th, phi, wps, rem, nwp, k, a, rw, which, bufs[0], bufs[1],
-                                sectors, sensors, edges, guided)
+                                sectors, sensors, edges, guided, TW)
             s_ref = ref[5]
             if noise_mm > 0 and not (ref[6] or ref[7]):
                 s_ref = K.noisy_state(ga, noise_mm, ref[0], ref[1], ref[2], wps[ref[9], 0], wps[ref[9], 1],
-                                      bufs[0], bufs[1], bufs[2], bufs[3], sectors, sensors, edges)
+                                      bufs[0], bufs[1], bufs[2], bufs[3], sectors, sensors, edges, TW)
             got = K.train_period(occ, occb, h, w, c, d, x, y, th, phi, b0, wps, rem, nwp, k, a, rw, which,
-                                 bufs[4], bufs[5], sectors, sensors, edges, guided, gb, noise_mm, bufs[2], bufs[3])
+                                 bufs[4], bufs[5], sectors, sensors, edges, guided, gb, noise_mm, bufs[2], bufs[3], TW)
             assert got[:5] == ref[:5] and got[5] == s_ref and got[6:9] == (ref[6], ref[7], ref[9])
             assert ga[0] == gb[0]
             if ref[6] or ref[7]:
@@ -183,7 +184,7 @@ def reference_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
                  sectors, sensors, edges, which,
                  lr, lr_end, total_steps, gamma, eps_start, eps_end, eps_decay_steps, rw,
                  max_episode_steps, hold_max, guided, clear_r, max_seg, path, wps, rem, noise_mm,
-                 start_step, n_steps, out_ret, out_succ):
+                 start_step, n_steps, out_ret, out_succ, tw):
     """Advance exact sequential Q-learning by n_steps env steps (control periods).
 
     Epsilon at global step t: linear from eps_start to eps_end over
@@ -209,7 +210,7 @@ def reference_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
     for i in range(n_steps):
         if ep[K.E_ACTIVE] == 0.0:
             K._new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
-                         ranges, status, guided, clear_r, max_seg, path, wps, rem)
+                         ranges, status, guided, clear_r, max_seg, path, wps, rem, tw)
         s = int(ep[K.E_S])
         if ep[K.E_K] == 0.0:  # a decision: start a new option in state s
             t_glob = start_step + i
@@ -234,10 +235,10 @@ def reference_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
         d = dist[m, int(ep[K.E_GOAL])]
         x, y, th, phi2, r, s2, hit, success, _, k = K.period_step(
             og, h, w, c, d, ep[K.E_X], ep[K.E_Y], ep[K.E_TH], ep[K.E_PHI], wps, rem, int(ep[K.E_NWP]),
-            int(ep[K.E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided)
+            int(ep[K.E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided, tw)
         if noise_mm > 0.0 and not (hit or success):
             s2 = K.noisy_state(rng, noise_mm, x, y, th, wps[k, 0], wps[k, 1], ranges, status, noisy, nstatus,
-                             sectors, sensors, edges)
+                             sectors, sensors, edges, tw)
         ep[K.E_T] += 1.0
         ep[K.E_K] += 1.0
         terminal = hit or success
@@ -294,6 +295,6 @@ def test_trained_tables_equal_the_reference_kernel_bit_for_bit(overrides):
                          sectors, sensors, edges, which, float(cfg.lr), ref.lr_end, int(cfg.steps),
                          float(cfg.gamma), *ref._eps, ref._rw, ref.max_episode_steps, ref.hold_max, ref._guided,
                          ref._clear_r, ref._max_seg, ref._path, ref._wps, ref._rem, ref.noise_mm, 0, cfg.steps,
-                         out_ret, out_succ)
+                         out_ret, out_succ, TW)
     assert np.array_equal(q, q_ref) and np.any(q != 0)
     assert np.array_equal(np.concatenate(rets), out_ret[:n]) and np.array_equal(np.concatenate(succ), out_succ[:n])

@@ -92,7 +92,7 @@ def test_motion_matches_the_wheel_speed_table():
     period = robot_spec.CONTROL_PERIOD_US / 1e6
     for a, (vl, vr) in enumerate(robot_spec.ACTION_WHEEL_SPEEDS_MM_S):
         th0 = 0.3
-        x, y, th, driven, hit = T.move(occ, h, w, CELL, 1000.0, 1000.0, th0, a)
+        x, y, th, driven, hit = T.move(occ, h, w, CELL, 1000.0, 1000.0, th0, a, T.DEFAULT_TW)
         v = (vl + vr) / 2
         om = (vr - vl) / robot_spec.WHEEL_BASE_MM
         assert not hit
@@ -114,7 +114,7 @@ def test_driving_into_a_wall_is_a_collision_at_contact():
     x, y, th = 1250.0, 750.0, 0.0  # cell (2, 1), facing the obstacle at (3, 1)
     hit = False
     for _ in range(100):
-        x, y, th, _, hit = T.move(occ, h, w, CELL, x, y, th, 0)
+        x, y, th, _, hit = T.move(occ, h, w, CELL, x, y, th, 0, T.DEFAULT_TW)
         if hit:
             break
     assert hit
@@ -139,20 +139,20 @@ def test_range_rays_match_hand_geometry():
     assert T.ray_cast(occ, h, w, CELL, x, y, 0.0, 1000.0) == 1000.0
     # sensor 0 (front) facing east: rim at x = 900; fan of rays +-FOV/2 -> the
     # nearest of the centre ray (1600) and the edge rays (border / wall)
-    rng, status = T.sense_one(occ, h, w, CELL, x, y, 0.0, 0)
+    rng, status = T.sense_one(occ, h, w, CELL, x, y, 0.0, 0, T.DEFAULT_TW)
     half = robot_spec.SENSOR_FOV_MRAD / 2000
     ox = x + robot_spec.SENSOR_MOUNT_RADIUS_MM
     edge_south = 750.0 / math.sin(half)  # to the border y = 0
     expect = min(2500 - ox, edge_south) if robot_spec.SENSOR_FAN_RAYS > 1 else 2500 - ox
     assert status == robot_spec.RANGE_VALID and rng == round(expect)
     # back sensor (index 4) facing west: rim at x = 600, border at 0 -> 600
-    rng, status = T.sense_one(occ, h, w, CELL, x, y, 0.0, 4)
+    rng, status = T.sense_one(occ, h, w, CELL, x, y, 0.0, 4, T.DEFAULT_TW)
     assert (rng, status) == (600, robot_spec.RANGE_VALID)
     # close to the border: too close; open view: too far
-    rng, status = T.sense_one(occ, h, w, CELL, 160.0, 750.0, math.pi, 0)
+    rng, status = T.sense_one(occ, h, w, CELL, 160.0, 750.0, math.pi, 0, T.DEFAULT_TW)
     assert (rng, status) == (robot_spec.RANGE_MIN_MM, robot_spec.RANGE_TOO_CLOSE)
     big = np.zeros((20, 20), dtype=np.uint8)
-    rng, status = T.sense_one(big, 20, 20, CELL, 5000.0, 5000.0, 0.0, 0)
+    rng, status = T.sense_one(big, 20, 20, CELL, 5000.0, 5000.0, 0.0, 0, T.DEFAULT_TW)
     assert (rng, status) == (robot_spec.RANGE_MAX_MM, robot_spec.RANGE_TOO_FAR)
 
 
@@ -169,9 +169,9 @@ def test_sense_equals_sense_one_everywhere():
         if T.disc_hits(occ, h, w, CELL, x, y, float(robot_spec.ROBOT_RADIUS_MM)):
             continue
         th = rng.uniform(-math.pi, math.pi)
-        T.sense(occ, h, w, CELL, x, y, th, which, ranges, status)
+        T.sense(occ, h, w, CELL, x, y, th, which, ranges, status, T.DEFAULT_TW)
         for i in range(robot_spec.SENSOR_COUNT):
-            r1, s1 = T.sense_one(occ, h, w, CELL, x, y, th, i)
+            r1, s1 = T.sense_one(occ, h, w, CELL, x, y, th, i, T.DEFAULT_TW)
             assert abs(r1 - ranges[i]) <= 1 and s1 == status[i]
         n += 1
 

@@ -53,7 +53,7 @@ def fixed_geometry(enc: CellEncoder, cell_mm: int) -> Geometry:
     return (cell_mm, enc.width, enc.height)
 
 
-def goal_index(policy: Policy, x_mm: int, y_mm: int) -> tuple[int, str]:
+def goal_index(policy: Policy, x_mm: int, y_mm: int, _radius_mm: int = robot_spec.ROBOT_RADIUS_MM) -> tuple[int, str]:
     """A goal must be one of the cell policy's target cells (a point off the map or
     in a wall is named as such first, when the policy carries its map)."""
     grid = policy.map_grid

@@ -132,6 +132,7 @@ class SectorDriver(KindDriver):
         cfg, grid = planner_config(policy), policy.map_grid
         self.local: tuple[PlannedTarget, ObstacleMemory, MotionGuard] | None = None
         if cfg is not None and grid is not None:
+            cfg = cfg.for_body(layout.robot_radius_mm)  # the clearances round this robot's body
             self.local = (PlannedTarget(grid, cfg, self.work, layout.robot_radius_mm), ObstacleMemory(cfg, layout),
                           MotionGuard(cfg, layout))
         self._key: tuple[tuple[int, int], int] | None = None
@@ -178,5 +179,18 @@ class SectorDriver(KindDriver):
             return []
         return [(x, y) for x, y, _ in self.local[1].points.values()]
 
+
+def needs(enc: SectorEncoder, trained: Any) -> dict[str, Any]:
+    """What a sector policy needs of the robot (firmware_py.needs): the sectors its encoder reads, to
+    its top range edge, at the angles its twin read them; no larger a body than the twin's (its
+    ranges are from that rim, its clearances learnt for it); a wheel base within 10 % of the twin's
+    (its turn actions' rate)."""
+    from firmware_py.needs import base_window, sector_needs
+
+    return {"sectors": sector_needs(trained, tuple(enc.sensors), max(enc.range_edges_mm, default=0)),
+            "robot_radius_mm_max": trained.robot_radius_mm, "wheel_base_mm": base_window(trained.wheel_base_mm)}
+
+
 KIND = PolicyKind(name=KIND_NAME, code=2, actions=wheel_actions(), unpack=unpack, pack=pack, driver=SectorDriver,
-                  header_fields=header_fields, parse_metadata=parse_metadata, localiser_margin_mm=localiser_margin_mm)
+                  header_fields=header_fields, parse_metadata=parse_metadata, localiser_margin_mm=localiser_margin_mm,
+                  needs=needs)

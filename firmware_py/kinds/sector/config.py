@@ -3,11 +3,17 @@
 naming the field), and the bound on the search (`MAX_WINDOW_CELLS`). The kind
 reads it from a policy's metadata (`firmware_py.kinds.sector.parse_metadata`,
 stored as `policy.kind_config`); the exporter writes `to_metadata()`.
+
+The body clearances (`BODY_FIELDS`: wall_clear_mm, obstacle_clear_mm, soft_mm,
+los_clear_mm) are stated for the built-in robot's body (`robot_spec.ROBOT_RADIUS_MM`
+plus a margin, as every file records them); a robot of another body
+(`firmware_py.layout.Layout.robot_radius_mm`, from its profile) keeps the same
+margins round its own: `for_body(radius_mm)`, which the sector kind applies.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 from firmware_py import robot_spec
@@ -15,6 +21,7 @@ from firmware_py.mapdata import MAP_MARGIN_MM
 
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
 MAX_WINDOW_CELLS = 200  # raster cells a side of the search window (40,000 cells, ~0.3 s of search)
+BODY_FIELDS = ("wall_clear_mm", "obstacle_clear_mm", "soft_mm", "los_clear_mm")  # the body's radius + a margin
 
 
 @dataclass(frozen=True)
@@ -93,6 +100,14 @@ class LocalPlannerConfig:
             raise ValueError(f"{META_KEY}: the search window is {side} raster cells a side "
                              f"((max_plan_mm + 2 window_mm) / raster_mm; allowed up to {MAX_WINDOW_CELLS})")
         return cfg
+
+    def for_body(self, radius_mm: int) -> LocalPlannerConfig:
+        """The config for a body of `radius_mm` (the robot's profile): the body clearances keep their
+        margins beyond it (the recorded values are the built-in body's plus the margin)."""
+        shift = radius_mm - robot_spec.ROBOT_RADIUS_MM
+        if shift == 0:
+            return self
+        return replace(self, **{name: max(1, getattr(self, name) + shift) for name in BODY_FIELDS})
 
     def to_metadata(self) -> dict[str, int]:
         return asdict(self)

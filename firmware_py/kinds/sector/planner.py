@@ -42,7 +42,12 @@ _SQRT2 = 1.4142
 _UNKNOWN = 2  # a raster cell of the map's configuration space not computed yet
 # giving way (LocalPlanner.refuge): the robot stands this far off the line a person walks (two radii
 # and a margin: a person walking a 500 mm corridor is up to 100 mm off its middle) ...
-REFUGE_MM = 2 * robot_spec.ROBOT_RADIUS_MM + 150
+def refuge_mm(radius_mm: int) -> int:
+    """How far off a person's line a body of `radius_mm` gives way (the profile's body: firmware_py.layout)."""
+    return 2 * radius_mm + 150
+
+
+REFUGE_MM = refuge_mm(robot_spec.ROBOT_RADIUS_MM)  # the built-in robot's
 REFUGE_SEARCH_MM = 2500  # ... at a place at most this far along the way
 
 
@@ -437,10 +442,10 @@ class LocalPlanner:
         """Where to stand aside for the body nearest the robot (a person who does not give way,
         walking at it down a one-cell corridor), or None: the raster cell nearest by way (Dijkstra
         over the map's free space, the remembered points grown, up to `REFUGE_SEARCH_MM`) whose
-        centre lies `REFUGE_MM` or more off the line the body walks (through the robot, along the grid
+        centre lies `refuge_mm` of the robot's body or more off the line the body walks (through the robot, along the grid
         axis nearest the direction from the body to the robot: on an occupancy grid a corridor runs
         along an axis, and a person walking in one is rarely in its middle, so the direction between
-        the two is up to ~20 degrees off it) and `REFUGE_MM` or more from the body: a side corridor or
+        the two is up to ~20 degrees off it) and as far or more from the body: a side corridor or
         a room's corner it walks past."""
         nearest = memory.nearest(x, y)
         if nearest is None:
@@ -462,13 +467,14 @@ class LocalPlanner:
                 dist[c] = d
                 heapq.heappush(heap, (d, c))
         limit = REFUGE_SEARCH_MM / r
+        refuge = refuge_mm(self.radius_mm)
         while heap:
             d, c = heapq.heappop(heap)
             if d > dist[c] or d > limit:
                 continue
             cx, cy = c[0] * r + r / 2, c[1] * r + r / 2
-            if (abs((cx - x) * uy - (cy - y) * ux) >= REFUGE_MM
-                    and (cx - px) ** 2 + (cy - py) ** 2 >= REFUGE_MM ** 2):
+            if (abs((cx - x) * uy - (cy - y) * ux) >= refuge
+                    and (cx - px) ** 2 + (cy - py) ** 2 >= refuge ** 2):
                 return round(cx), round(cy)
             for dx in (-1, 0, 1):
                 for dy in (-1, 0, 1):

@@ -38,7 +38,7 @@ from firmware_py import robot_spec
 from firmware_py.background import Background
 from firmware_py.kinds.sector.config import LocalPlannerConfig
 from firmware_py.kinds.sector.memory import ObstacleMemory
-from firmware_py.kinds.sector.planner import REFUGE_MM, LocalPlanner
+from firmware_py.kinds.sector.planner import LocalPlanner, refuge_mm
 from firmware_py.mapdata import OccupancyGrid
 
 PLAN_SLOW_US = 300_000  # an answer older than this (controller clock): half speed ...
@@ -296,7 +296,7 @@ class PlannedTarget:
                 self._generation += 1  # the refuge's questions are not the waypoint's
                 # what stands at the robot walks: seen again or forgotten, not kept a minute (a box
                 # farther off stays pinned: the blocked bench's robot went round and round once it did not)
-                memory.unpin_near(x, y, REFUGE_MM)
+                memory.unpin_near(x, y, refuge_mm(self.radius_mm))
                 self._enter(GIVE_WAY, now_us)
             else:
                 self._enter(BACKUP, now_us)

@@ -9,7 +9,7 @@ left) in cells.
 from __future__ import annotations
 
 import struct
-from typing import cast
+from typing import Any, cast
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
@@ -171,6 +171,22 @@ class SectorMemoryDriver(CellStepper):
         return ranges, status
 
 
+
+def max_radius_mm(enc: GridBugEncoder) -> int:
+    """The largest body the encoder's free test works for at a cell centre: its own cell's wall reads
+    cell/2 - radius (below free_mm for any body), a free neighbour's far wall 3 cell/2 - radius (at least
+    free_mm), and the body fits its cell."""
+    return min(3 * enc.cell_mm // 2 - enc.free_mm, enc.cell_mm // 2 - 1)
+
+
+def needs(enc: GridBugEncoder, trained: Any) -> dict[str, Any]:
+    """What a sector-memory policy needs of the robot (firmware_py.needs): the four axis sectors its
+    free test reads (ahead, left, behind, right), to free_mm; a body its free test works for."""
+    from firmware_py.needs import sector_needs
+
+    return {"sectors": sector_needs(trained, (0, 2, 4, 6), enc.free_mm), "robot_radius_mm_max": max_radius_mm(enc)}
+
+
 KIND = PolicyKind(name="sector-memory", code=4, actions=MOVE_STEPS, unpack=unpack, pack=pack,
                   driver=SectorMemoryDriver,
-                  robot_cell_mm=lambda policy: cast(GridBugEncoder, policy.encoder).cell_mm)
+                  robot_cell_mm=lambda policy: cast(GridBugEncoder, policy.encoder).cell_mm, needs=needs)

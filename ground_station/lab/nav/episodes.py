@@ -44,7 +44,7 @@ from ground_station.lab.nav.obstacle_twin import (
 )
 from ground_station.lab.nav.planned import budget_periods, run_twin_planned
 from ground_station.lab.nav.scenario import Episode, episode_arrays
-from ground_station.learn.sector.twin import encoder_arrays
+from ground_station.learn.sector.twin import TwinRobot, encoder_arrays
 from ground_station.maps import GridMap
 
 OUTCOMES = {SUCCESS: "success", COLLISION: "collision", LOOP: "loop", TIMEOUT: "timeout", NO_ROUTE: "no_route"}
@@ -57,8 +57,11 @@ def plan_length(ep: Episode) -> float:
     return float(sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(pts[:-1], pts[1:], strict=True)))
 
 
-def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
-    """Greedy rollouts of `ctrl` on the twin over `eps` (obstacles included)."""
+def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController,
+             robot: TwinRobot | None = None) -> list[dict]:
+    """Greedy rollouts of `ctrl` on the twin over `eps` (obstacles included), the twin playing `robot`
+    (`twin.TwinRobot` of a profile; default the built-in robot)."""
+    robot = robot or TwinRobot()
     if not eps:
         return []
     a = episode_arrays(eps, maps)
@@ -72,13 +75,13 @@ def run_twin(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) 
     q = np.ascontiguousarray(ctrl.q, dtype=np.float64)
     if ctrl.local is not None:  # the robot's own local planner code in a Python loop (nav/planned.py)
         outcome, path, steps, minclear, near = run_twin_planned(eps, maps, ctrl, BUDGET_BASE, BUDGET_FACTOR,
-                                                                STALL_STEPS)
+                                                                STALL_STEPS, robot)
         return _rows(eps, outcome, path, steps, minclear, near)
     sectors, sensors, edges, which = encoder_arrays(enc)
     nav_eval_kernel(q, a["occ"], a["dims"], a["cells"], a["map"],
                     a["start"], a["goal"], a["wp"], a["nwp"], a["rem"], a["discs"], a["nd"], a["movers"],
                     a["nm"], sectors, sensors, edges, which, int(ctrl.guidance == "path"),
-                    BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, outcome, path, steps, minclear, near)
+                    BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS, outcome, path, steps, minclear, near, robot.arrays())
     return _rows(eps, outcome, path, steps, minclear, near)
 
 
@@ -142,7 +145,8 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
                 pose = rig.plant.world.pose
                 driven += math.hypot(pose.x - last.x, pose.y - last.y) * 1000.0
                 last = pose
-                cl = float(obstacle_clearance_mm(pose.x * 1000.0, pose.y * 1000.0, layer.discs, layer.movers))
+                cl = float(obstacle_clearance_mm(pose.x * 1000.0, pose.y * 1000.0, layer.discs, layer.movers,
+                                                 float(rig.plant.world.geometry.robot_radius_mm)))
                 minclear = min(minclear, cl)
                 if 0.0 < cl < NEAR_MISS_MM:
                     near += 1

@@ -24,19 +24,22 @@ import numba
 import numpy as np
 
 from ground_station.learn.jit import greedy
-from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, pass_waypoints, progress_reward
+from ground_station.learn.sector.kernels import pass_waypoints, progress_reward
 from ground_station.learn.sector.reward import (
     RW_ALIGN,
     RW_COLLISION,
     RW_GOAL,
 )
 from ground_station.learn.sector.twin import (
-    _RAY_COS,
-    ACTION_V_MM_S,
-    ACTION_W_RAD_S,
+    G_FWD,
+    G_RADIUS,
     N_SUBSTEPS,
-    RADIUS_MM,
     SUB_DT_S,
+    TW_GEO,
+    TW_RCOS,
+    TW_RMAX,
+    TW_V,
+    TW_W,
     _reading,
     bearing_mrad,
     disc_hits,
@@ -66,10 +69,11 @@ def hits_discs(x: float, y: float, r: float, discs, movers) -> bool:
 
 
 @numba.njit(cache=True)
-def move_obs(occ, h, w, cell, x, y, th, action, discs, movers):
-    """`twin.move` with discs and movers (frozen for the period) as obstacles."""
-    v = ACTION_V_MM_S[action]
-    om = ACTION_W_RAD_S[action]
+def move_obs(occ, h, w, cell, x, y, th, action, discs, movers, tw):
+    """`twin.move` with discs and movers (frozen for the period) as obstacles (the robot `tw`)."""
+    v = tw[TW_V][action]
+    om = tw[TW_W][action]
+    radius = tw[TW_GEO][G_RADIUS]
     driven = 0.0
     for _ in range(N_SUBSTEPS):
         if om == 0.0:
@@ -82,7 +86,7 @@ def move_obs(occ, h, w, cell, x, y, th, action, discs, movers):
             y -= v / om * (math.cos(th2) - math.cos(th))
         th = th2
         driven += abs(v) * SUB_DT_S
-        if v != 0.0 and (disc_hits(occ, h, w, cell, x, y, RADIUS_MM) or hits_discs(x, y, RADIUS_MM, discs, movers)):
+        if v != 0.0 and (disc_hits(occ, h, w, cell, x, y, radius) or hits_discs(x, y, radius, discs, movers)):
             return x, y, wrap_angle(th), driven, True
     return x, y, wrap_angle(th), driven, False
 
@@ -105,7 +109,7 @@ def _ray_circle(ox, oy, cx, cy, px, py, rad, best):
 
 
 @numba.njit(cache=True)
-def sense_obs(occ, h, w, cell, x, y, th, which, ranges, status, discs, movers) -> None:
+def sense_obs(occ, h, w, cell, x, y, th, which, ranges, status, discs, movers, tw) -> None:
     """`twin.sense` with the discs and movers in the rays' way: the fan's
     nearest cell hit, then each ray's nearest disc or mover if nearer (the
     minimum over rays and obstacles, the same number in either order)."""
@@ -114,18 +118,18 @@ def sense_obs(occ, h, w, cell, x, y, th, which, ranges, status, discs, movers) -
     for i in range(ranges.shape[0]):
         if not which[i]:
             continue
-        d = fan_distance(occ, h, w, cell, x, y, ct, st, i)
-        for k in range(_RAY_COS.shape[1]):
-            ox, oy, cx, cy = fan_ray(x, y, ct, st, i, k)
+        d = fan_distance(occ, h, w, cell, x, y, ct, st, i, tw)
+        for k in range(tw[TW_RCOS].shape[1]):
+            ox, oy, cx, cy = fan_ray(x, y, ct, st, i, k, tw)
             for j in range(discs.shape[0]):
                 d = _ray_circle(ox, oy, cx, cy, discs[j, 0], discs[j, 1], discs[j, 2], d)
             for j in range(movers.shape[0]):
                 d = _ray_circle(ox, oy, cx, cy, movers[j, 0], movers[j, 1], movers[j, 4], d)
-        ranges[i], status[i] = _reading(d)
+        ranges[i], status[i] = _reading(d, tw[TW_RMAX][i])
 
 
 @numba.njit(cache=True)
-def clearance_mm(occ, h, w, cell, x, y, discs, movers) -> float:
+def clearance_mm(occ, h, w, cell, x, y, discs, movers, radius) -> float:
     """Distance from the robot's rim to the nearest obstacle cell, border,
     disc or mover (<= 0: contact); cells farther than 2 cells are not looked at."""
     best = min(x, y, w * cell - x, h * cell - y)
@@ -142,11 +146,11 @@ def clearance_mm(occ, h, w, cell, x, y, discs, movers) -> float:
                 d = math.sqrt((x - px) ** 2 + (y - py) ** 2)
                 if d < best:
                     best = d
-    return min(best - RADIUS_MM, obstacle_clearance_mm(x, y, discs, movers))
+    return min(best - radius, obstacle_clearance_mm(x, y, discs, movers, radius))
 
 
 @numba.njit(cache=True)
-def obstacle_clearance_mm(x, y, discs, movers) -> float:
+def obstacle_clearance_mm(x, y, discs, movers, radius) -> float:
     """Distance from the robot's rim to the nearest unmapped obstacle (disc or
     mover); inf without any. The near-miss figure counts these only: the
     map's own walls are the planner's business (a one-cell corridor leaves
@@ -160,12 +164,12 @@ def obstacle_clearance_mm(x, y, discs, movers) -> float:
         d = math.sqrt((x - movers[k, 0]) ** 2 + (y - movers[k, 1]) ** 2) - movers[k, 4]
         if d < best:
             best = d
-    return best - RADIUS_MM
+    return best - radius
 
 
 @numba.njit(cache=True)
 def obs_period_step(occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
-                    sectors, sensors, edges, discs, movers):
+                    sectors, sensors, edges, discs, movers, tw):
     """One control period with obstacles: robot moves (movers frozen), then
     the movers move (yielding to the robot's new pose), then the sensors
     read. Guide potential = straight distance to waypoint k + the waypoint
@@ -173,7 +177,7 @@ def obs_period_step(occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which,
     `kernels.period_step` (rw indexed by the `RW_*` slots; the bench passes
     zeros). Returns (x, y, th, phi, reward, state, hit, success, driven, k)."""
     b0 = abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))
-    x, y, th, driven, hit = move_obs(occ, h, w, c, x, y, th, a, discs, movers)
+    x, y, th, driven, hit = move_obs(occ, h, w, c, x, y, th, a, discs, movers, tw)
     if hit:
         return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, driven, k
     k, success = pass_waypoints(x, y, wps, nwp, k)
@@ -183,8 +187,8 @@ def obs_period_step(occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which,
         r += rw[RW_ALIGN] * (b0 - abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))) / 3141.5927
     if success:
         return x, y, th, phi2, r + rw[RW_GOAL], -1, False, True, driven, k
-    step_movers(movers, occ, c, discs, x, y, RADIUS_MM, PERIOD_S)
-    sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+    step_movers(movers, occ, c, discs, x, y, tw[TW_GEO][G_RADIUS], PERIOD_S)
+    sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers, tw)
     s2 = encode_fast(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]), ranges, status, sectors, sensors, edges)
     return x, y, th, phi2, r, s2, False, False, driven, k
 
@@ -196,7 +200,7 @@ NO_ROUTE = 4  # the robot reported that no route to the goal exists (blocked-pas
 
 @numba.njit(cache=True, inline="always")
 def open_bench_episode(e, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem, ep_discs,
-                       ep_nd, ep_movers, ep_nm, guided, gwp, grem, budget_base, budget_factor):
+                       ep_nd, ep_movers, ep_nm, guided, gwp, grem, budget_base, budget_factor, tw):
     """Scenario episode e as every bench kernel rolls it out: its map, discs,
     movers (copied: they move), the waypoints (guided) or the goal alone (in
     gwp, grem), the start pose, the period budget (budget_base +
@@ -223,7 +227,7 @@ def open_bench_episode(e, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp
     y = ep_start[e, 1]
     th = ep_start[e, 2]
     plan_len = ep_rem[e, 0] + math.hypot(x - ep_wp[e, 0, 0], y - ep_wp[e, 0, 1])
-    budget = int(budget_base + budget_factor * plan_len / FWD_MM_PER_PERIOD)
+    budget = int(budget_base + budget_factor * plan_len / tw[TW_GEO][G_FWD])
     phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
     return h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, budget, phi
 
@@ -238,11 +242,11 @@ def stall_check(phi: float, best: float, since: int, stall_steps: int):
 
 
 @numba.njit(cache=True)
-def period_end(x, y, discs, movers, success, phi, best, since, stall_steps, minclear, near):
+def period_end(x, y, discs, movers, success, phi, best, since, stall_steps, minclear, near, radius):
     """After a period without a collision: the clearance figures (the minimum so far, periods
     nearer than NEAR_MISS_MM) and how the episode ends: SUCCESS, LOOP (`stall_check`), or -1 to
     go on. Returns (end, best, since, minclear, near)."""
-    cl = obstacle_clearance_mm(x, y, discs, movers)
+    cl = obstacle_clearance_mm(x, y, discs, movers, radius)
     if cl < minclear:
         minclear = cl
     if cl < NEAR_MISS_MM:
@@ -257,7 +261,7 @@ def period_end(x, y, discs, movers, success, phi, best, since, stall_steps, minc
 def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem,
                     ep_discs, ep_nd, ep_movers, ep_nm, sectors, sensors, edges, which, guided,
                     budget_base, budget_factor, stall_steps,
-                    out_outcome, out_path, out_steps, out_minclear, out_near):
+                    out_outcome, out_path, out_steps, out_minclear, out_near, tw):
     """Greedy rollouts of table q over scenario episodes e (map ep_map[e],
     start pose ep_start[e] = (x, y, th), goal point ep_goal[e], waypoints
     ep_wp[e, :ep_nwp[e]] with remaining lengths ep_rem[e], discs
@@ -275,22 +279,23 @@ def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, e
     for e in range(ep_map.shape[0]):
         h, w, c, occ, discs, movers, wps, rem, nwp, x, y, th, budget, phi = open_bench_episode(
             e, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, ep_nwp, ep_rem, ep_discs, ep_nd, ep_movers,
-            ep_nm, guided, gwp, grem, budget_base, budget_factor)
+            ep_nm, guided, gwp, grem, budget_base, budget_factor, tw)
+        radius = tw[TW_GEO][G_RADIUS]
         k = 0
         best = phi
         since = 0
         path = 0.0
         outcome = TIMEOUT
-        minclear = obstacle_clearance_mm(x, y, discs, movers)
+        minclear = obstacle_clearance_mm(x, y, discs, movers, radius)
         near = 0
         t = 0
-        sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+        sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers, tw)
         s = encode_fast(bearing_mrad(x, y, th, wps[0, 0], wps[0, 1]), ranges, status, sectors, sensors, edges)
         while t < budget:
             a = greedy(q, s)
             x, y, th, phi, _, s, hit, success, driven, k = obs_period_step(
                 occ, h, w, c, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
-                sectors, sensors, edges, discs, movers)
+                sectors, sensors, edges, discs, movers, tw)
             path += driven
             t += 1
             if hit:
@@ -298,7 +303,7 @@ def nav_eval_kernel(q, occ_all, dims, cells, ep_map, ep_start, ep_goal, ep_wp, e
                 minclear = 0.0
                 break
             end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since,
-                                                          stall_steps, minclear, near)
+                                                          stall_steps, minclear, near, radius)
             if end >= 0:
                 outcome = end
                 break

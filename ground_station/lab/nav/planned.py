@@ -48,6 +48,8 @@ from firmware_py.control.collision import mapped_readings
 from firmware_py.kinds.sector.guard import MotionGuard
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.recoveries import BACKUP, CLEAR, GIVE_WAY, GLOBAL, WAIT, PlannedTarget
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 from firmware_py.mapdata import grid_from_rows
 from firmware_py.vehicle import VehicleConfig
 from ground_station.lab.nav.controllers import NavController
@@ -56,7 +58,6 @@ from ground_station.lab.nav.obstacle_twin import (
     LOOP,
     NO_ROUTE,
     PERIOD_S,
-    RADIUS_MM,
     TIMEOUT,
     obs_period_step,
     obstacle_clearance_mm,
@@ -66,16 +67,24 @@ from ground_station.lab.nav.obstacle_twin import (
 )
 from ground_station.lab.nav.scenario import Episode, rollout_arrays
 from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD
-from ground_station.learn.sector.twin import bearing_mrad, encode_fast, encoder_arrays
+from ground_station.learn.sector.twin import (
+    G_FWD,
+    TW_GEO,
+    TwinRobot,
+    bearing_mrad,
+    encode_fast,
+    encoder_arrays,
+)
 from ground_station.maps import GridMap
 
 PERIOD_US = robot_spec.CONTROL_PERIOD_US
 
 
-def budget_periods(length_mm: float, budget_base: float, budget_factor: float) -> float:
+def budget_periods(length_mm: float, budget_base: float, budget_factor: float,
+                   fwd_mm_per_period: float = FWD_MM_PER_PERIOD) -> float:
     """An episode's (or a plan's) period budget: `budget_base` + `budget_factor` x the periods a
     `length_mm` drive takes at full forward speed (the twin's rule; run_hil takes it in sim time)."""
-    return budget_base + budget_factor * length_mm / FWD_MM_PER_PERIOD
+    return budget_base + budget_factor * length_mm / fwd_mm_per_period
 
 
 def grid_of(gm: GridMap):
@@ -85,9 +94,15 @@ def grid_of(gm: GridMap):
 
 
 def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, budget_factor: float,
-            stall_steps: int) -> tuple[int, float, int, float, int, int]:
-    """One greedy episode; returns (outcome, driven mm, periods, min clearance, near-miss periods, plans)."""
+            stall_steps: int, robot: TwinRobot | None = None) -> tuple[int, float, int, float, int, int]:
+    """One greedy episode of the twin playing `robot` (default the built-in one); returns (outcome,
+    driven mm, periods, min clearance, near-miss periods, plans)."""
     assert ctrl.local is not None
+    robot = robot or TwinRobot()
+    tw = robot.arrays()
+    radius = float(robot.radius_mm)
+    fwd = float(tw[TW_GEO][G_FWD])
+    layout = robot.layout()
     occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
     h, w = occ.shape
     c = gm.cell_size_m * 1000.0
@@ -95,13 +110,14 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     which = np.ones(robot_spec.SENSOR_COUNT, dtype=np.bool_)
     discs, movers, wps, rem, plan_len = rollout_arrays(ep, ctrl.guidance == "path")
     x, y, th = ep.start
-    budget = int(budget_periods(plan_len, budget_base, budget_factor))
+    budget = int(budget_periods(plan_len, budget_base, budget_factor, fwd))
     phi = math.hypot(x - wps[0, 0], y - wps[0, 1]) + rem[0]
     grid = grid_of(gm)
-    memory = ObstacleMemory(ctrl.local)
+    cfg = ctrl.local.for_body(robot.radius_mm)  # the clearances round the robot's body, as the kind does
+    memory = ObstacleMemory(cfg, layout)
     work = Background(threaded=False)  # stepped after each period, as the lockstep robot's node does
-    planner = PlannedTarget(grid, ctrl.local, work)
-    guard = MotionGuard(ctrl.local)
+    planner = PlannedTarget(grid, cfg, work, robot.radius_mm)
+    guard = MotionGuard(cfg, layout)
     corners = collision.MapCorners(grid)
     held = 0  # periods in a row the collision monitor has stopped the straight part
     ranges = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64)
@@ -110,8 +126,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     q = ctrl.q
     k, best, since, path, t, near = 0, phi, 0, 0.0, 0, 0
     outcome = TIMEOUT
-    minclear = float(obstacle_clearance_mm(x, y, discs, movers))
-    sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+    minclear = float(obstacle_clearance_mm(x, y, discs, movers, radius))
+    sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers, tw)
     route_plans = 0  # PlannedTarget.routes_taken when the current plan's count began
     budget0 = budget
     while t < budget:
@@ -130,20 +146,20 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
         s = encode_fast(b, ranges, status, sectors, sensors, edges)
         a, speed = guard.step(t * PERIOD_US, x, y, int(np.argmax(q[s])), b, rl, sl, memory, planner, speed,
                               held * PERIOD_US)
-        if speed and monitor_stops(a, xm, ym, thm, rl, sl, memory, corners):
+        if speed and monitor_stops(a, xm, ym, thm, rl, sl, memory, corners, layout):
             speed = 0  # the collision monitor removed the straight part: a step into nothing but a stand
             held += 1  # as the controller's DriveTick.blocked_us, up to the last tick
         else:
             held = 0
         k0 = k
         if speed == 0:  # a recovery stands still: the movers walk on, the sensors read
-            step_movers(movers, occ, c, discs, x, y, RADIUS_MM, PERIOD_S)
-            sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers)
+            step_movers(movers, occ, c, discs, x, y, radius, PERIOD_S)
+            sense_obs(occ, h, w, c, x, y, th, which, ranges, status, discs, movers, tw)
             hit, success, driven = False, False, 0.0
         else:
             x, y, th, phi, _, _, hit, success, driven, k = obs_period_step(
                 occ, h, w, c, x, y, th, phi, wps, rem, len(wps), k, a, rw, which, ranges, status,
-                sectors, sensors, edges, discs, movers)
+                sectors, sensors, edges, discs, movers, tw)
         path += driven
         t += 1
         if hit:
@@ -160,12 +176,12 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
                 route_plans, best, since = planner.routes_taken, phi, 0
                 # the budget too is the current plan's (a long detour through another door is no
                 # timeout), at most three times the episode's own
-                budget = min(max(budget, t + int(budget_periods(phi, budget_base, budget_factor))),
+                budget = min(max(budget, t + int(budget_periods(phi, budget_base, budget_factor, fwd))),
                              3 * budget0)
         work.run_pending()  # after the count above: the search it runs answers the next tick
         counted = since
         end, best, since, minclear, near = period_end(x, y, discs, movers, success, phi, best, since, stall_steps,
-                                                      minclear, near)
+                                                      minclear, near, radius)
         if recovering and since > counted:
             since = counted
             if end == LOOP:
@@ -180,30 +196,35 @@ _VEHICLE = VehicleConfig()
 
 
 def monitor_stops(action: int, x_mm: int, y_mm: int, th_mrad: int, ranges: list[int], status: list[int],
-                  memory: ObstacleMemory, corners: collision.MapCorners) -> bool:
+                  memory: ObstacleMemory, corners: collision.MapCorners, layout: Layout = DEFAULT_LAYOUT) -> bool:
     """Whether the robot's collision monitor removes `action`'s straight part at this pose (its
-    stop zone; `Controller._outputs` feeds it the same readings, remembered points and corners)."""
+    stop zone; `Controller._outputs` feeds it the same readings, remembered points and corners), the
+    sector readings at `layout`'s angles (the twin's robot; default the built-in one)."""
     left, right = robot_spec.ACTION_WHEEL_SPEEDS_MM_S[action]
     if left + right == 0:
         return False  # turning in place: left alone
+    lim = layout.max_wheel_speed_mm_s
+    left, right = max(-lim, min(lim, left)), max(-lim, min(lim, right))
+    fan = collision.DEFAULT_FAN if layout == DEFAULT_LAYOUT else collision.Fan(layout)
     cfg = _VEHICLE
+    radius = layout.robot_radius_mm
     seen = [(px, py) for px, py, _ in memory.points.values()]
-    seen += corners.near(x_mm, y_mm, cfg.collision_slow_mm + 2 * robot_spec.ROBOT_RADIUS_MM)
+    seen += corners.near(x_mm, y_mm, cfg.collision_slow_mm + 2 * radius)
     if left == right:  # driving straight: only what lies within stop_mm + radius of the centre can stop it
-        reach = cfg.collision_stop_mm + robot_spec.ROBOT_RADIUS_MM + 1
-        mount = robot_spec.SENSOR_MOUNT_RADIUS_MM
+        reach = cfg.collision_stop_mm + radius + 1
+        mount = layout.mount_mm
         if not any(st == robot_spec.RANGE_TOO_CLOSE or (st == robot_spec.RANGE_VALID and mount + r <= reach)
                    for r, st in zip(ranges, status, strict=True)) and not any(
                 (px - x_mm) ** 2 + (py - y_mm) ** 2 <= reach * reach for px, py in seen):
             return False  # the same answer as limit's, without its geometry (the twin's hot loop)
     near = collision.robot_frame(seen, (x_mm, y_mm, th_mrad)) if seen else []
-    mapped = mapped_readings(corners.grid, (x_mm, y_mm, th_mrad), ranges, status)
+    mapped = mapped_readings(corners.grid, (x_mm, y_mm, th_mrad), ranges, status, fan=fan)
     return collision.limit(left, right, ranges, status, cfg.collision_stop_mm, cfg.collision_slow_mm,
-                           cfg.collision_slow_pct, near, mapped)[2] == "stop"
+                           cfg.collision_slow_pct, near, mapped, fan)[2] == "stop"
 
 
 def run_twin_planned(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController, budget_base: float,
-                     budget_factor: float, stall_steps: int) -> tuple[np.ndarray, ...]:
+                     budget_factor: float, stall_steps: int, robot: TwinRobot | None = None) -> tuple[np.ndarray, ...]:
     """All episodes; arrays (outcome, path, steps, minclear, near) as the bench kernels fill them."""
     n = len(eps)
     outcome = np.zeros(n, dtype=np.int64)
@@ -211,6 +232,6 @@ def run_twin_planned(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavCont
     steps, near = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     for i, ep in enumerate(eps):
         outcome[i], path[i], steps[i], minclear[i], near[i], _ = rollout(
-            ep, maps[ep.map], ctrl, budget_base, budget_factor, stall_steps)
+            ep, maps[ep.map], ctrl, budget_base, budget_factor, stall_steps, robot)
     return outcome, path, steps, minclear, near
 

@@ -20,7 +20,7 @@ from ground_station.learn.config import TrainConfig
 from ground_station.learn.sector.kernels import guide_potential, period_step, start_guidance
 from ground_station.learn.sector.reward import SectorReward, check_guidance
 from ground_station.learn.sector.twin import (
-    RADIUS_MM,
+    TwinRobot,
     bearing_mrad,
     cell_centre,
     encode_fast,
@@ -35,7 +35,8 @@ from ground_station.maps.planner import DEFAULT_MARGIN_MM, DEFAULT_MAX_SEGMENT_M
 class SectorNavEnv(gym.Env):
     """Drive the robot's kinematic twin to a goal cell on a grid map.
 
-    The robot is a disc of `robot_spec.ROBOT_RADIUS_MM` with continuous pose
+    The robot (`robot`, a `TwinRobot` of a profile; default the built-in one) is a disc of its body
+    radius with continuous pose
     (x, y mm; heading rad, CCW from east) on `gridmap` (cell size from the
     map); the map border is a wall.
 
@@ -81,14 +82,16 @@ class SectorNavEnv(gym.Env):
     def __init__(self, gridmap: GridMap | str = "paper10", encoder: SectorEncoder | None = None,
                  goal: str | tuple[int, int] | None = None, reward: SectorReward | None = None,
                  guidance: str = "path", margin_mm: float = DEFAULT_MARGIN_MM,
-                 max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM) -> None:
+                 max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM, robot: TwinRobot | None = None) -> None:
+        self.robot = robot or TwinRobot()  # the robot profile's twin (default the built-in robot)
+        self._tw = self.robot.arrays()
         self.gridmap = load_map(gridmap) if isinstance(gridmap, str) else gridmap
         self.encoder = encoder or SectorEncoder()
         self.reward = reward or SectorReward.from_config(TrainConfig.of(encoding="sector"))
         self._rw = self.reward.array()
         self.guidance = guidance
         self._guided = check_guidance(guidance)
-        self._clear_r = clearance_mm(margin_mm)
+        self._clear_r = clearance_mm(margin_mm, self.robot.radius_mm)
         self._max_seg = float(max_segment_mm)
         self._occ, self._h, self._w, self._c = grid_of(self.gridmap)
         self._enc = encoder_arrays(self.encoder)
@@ -133,7 +136,7 @@ class SectorNavEnv(gym.Env):
     def _observe(self) -> int:
         x, y, th = self._pose
         sectors, sensors, edges, which = self._enc
-        sense(self._occ, self._h, self._w, self._c, x, y, th, which, self._ranges, self._status)
+        sense(self._occ, self._h, self._w, self._c, x, y, th, which, self._ranges, self._status, self._tw)
         tx, ty = self._wps[self._k]
         return int(encode_fast(bearing_mrad(x, y, th, tx, ty), self._ranges, self._status,
                                sectors, sensors, edges))
@@ -168,7 +171,7 @@ class SectorNavEnv(gym.Env):
                 raise MapError(f"goal {self._goal} of map {self.gridmap.name} has no connected start cell")
             scol, srow = starts[int(rng.integers(len(starts)))]
             cx, cy = cell_centre(scol, srow, self._h, self._c)
-            half = 0.5 * self._c - RADIUS_MM - 1.0
+            half = 0.5 * self._c - self.robot.radius_mm - 1.0
             x = cx + float(rng.uniform(-half, half))
             y = cy + float(rng.uniform(-half, half))
         th = float(options["heading"]) if "heading" in options else float(rng.uniform(-math.pi, math.pi))
@@ -192,7 +195,7 @@ class SectorNavEnv(gym.Env):
         x, y, th, phi, r, s2, hit, success, driven, k = period_step(
             self._occ, self._h, self._w, self._c, self._dist(self._goal), x, y, th, self._phi,
             self._wps, self._rem, self._nwp, self._k, a, self._rw, which, self._ranges, self._status,
-            sectors, sensors, edges, self._guided)
+            sectors, sensors, edges, self._guided, self._tw)
         self._pose = (float(x), float(y), float(th))
         self._phi = float(phi)
         self._k = int(k)

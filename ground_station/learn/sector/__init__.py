@@ -63,6 +63,11 @@ def validate(cfg) -> None:  # type: ignore[no-untyped-def]
     if not int_list(o.sensors, "sector_sensors"):
         raise ValueError("sector_sensors must name at least one sensor")
     int_list(o.range_edges, "sector_range_edges")
+    from ground_station.learn.robot import check_profile_fits
+
+    check_profile_fits(cfg, SectorEncoder(bearing_sectors=int(o.bearing_sectors),
+                                          sensors=int_list(o.sensors, "sector_sensors"),
+                                          range_edges_mm=int_list(o.range_edges, "sector_range_edges")))
 
 
 def encoder_from_dict(d: dict) -> SectorEncoder:

@@ -21,7 +21,7 @@ import numpy as np
 from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.sector.kernels import COLLISION, LOOP, SUCCESS, TIMEOUT, eval_kernel
 from ground_station.learn.sector.reward import check_guidance
-from ground_station.learn.sector.twin import encoder_arrays, grid_of
+from ground_station.learn.sector.twin import TwinRobot, encoder_arrays, grid_of
 from ground_station.maps import GridMap, octile_distances
 from ground_station.maps.planner import (
     DEFAULT_MARGIN_MM,
@@ -86,7 +86,7 @@ def seek_table(encoder: SectorEncoder) -> np.ndarray:
 
 def plan_pairs(gridmap: GridMap, starts: np.ndarray, goals: np.ndarray, dists: np.ndarray,
                slot: np.ndarray, margin_mm: float = DEFAULT_MARGIN_MM,
-               max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM):
+               max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM, radius_mm: float = TwinRobot().radius_mm):
     """Waypoints for every distinct (start cell, goal cell) of an episode
     list, planned from the start cell's centre: (wp_all (P, K, 2), nwp (P,),
     rem (P, K), pair index per episode)."""
@@ -100,7 +100,7 @@ def plan_pairs(gridmap: GridMap, starts: np.ndarray, goals: np.ndarray, dists: n
     rem_all = np.zeros((max(p, 1), kmax))
     nwp = np.zeros(max(p, 1), dtype=np.int64)
     scratch = np.zeros((kmax, 2), dtype=np.int64)
-    r = clearance_mm(margin_mm)
+    r = clearance_mm(margin_mm, radius_mm)
     for j in range(p):
         e = first[j]
         sx, sy = (starts[e, 0] + 0.5) * c, (h - starts[e, 1] - 0.5) * c
@@ -110,7 +110,7 @@ def plan_pairs(gridmap: GridMap, starts: np.ndarray, goals: np.ndarray, dists: n
 
 
 def _rollouts(q, gridmap, encoder, starts, goals, hidx, headings, guidance, max_steps, stall_steps,
-              margin_mm, max_segment_mm) -> dict:
+              margin_mm, max_segment_mm, robot) -> dict:
     n = len(starts)
     occ, h, w, c = grid_of(gridmap)
     ugoals, slot = np.unique(goals, axis=0, return_inverse=True)
@@ -119,7 +119,8 @@ def _rollouts(q, gridmap, encoder, starts, goals, hidx, headings, guidance, max_
         if n else np.zeros((0, h, w))
     guided = check_guidance(guidance)
     if guided and n:
-        wp_all, nwp, rem_all, pair = plan_pairs(gridmap, starts, goals, dists, slot, margin_mm, max_segment_mm)
+        wp_all, nwp, rem_all, pair = plan_pairs(gridmap, starts, goals, dists, slot, margin_mm, max_segment_mm,
+                                                robot.radius_mm)
     else:
         wp_all, nwp, rem_all = np.zeros((1, 1, 2)), np.ones(1, dtype=np.int64), np.zeros((1, 1))
         pair = np.zeros(n, dtype=np.int64)
@@ -131,7 +132,7 @@ def _rollouts(q, gridmap, encoder, starts, goals, hidx, headings, guidance, max_
     th = (th + math.pi) % (2.0 * math.pi) - math.pi
     eval_kernel(np.ascontiguousarray(q, dtype=np.float64), occ, h, w, c, dists, starts, goals, slot,
                 th, sectors, sensors, edges, which, int(max_steps or 0), 400.0, 4.0,
-                int(stall_steps), guided, wp_all, nwp, rem_all, pair, outcome, path, steps)
+                int(stall_steps), guided, wp_all, nwp, rem_all, pair, outcome, path, steps, robot.arrays())
     shortest = dists[slot, starts[:, 1], starts[:, 0]] * c
     ok = outcome == SUCCESS
     ratios = path[ok] / shortest[ok]
@@ -151,7 +152,7 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
                     sample: int | None = None, max_steps: int | None = None, headings: int = 8,
                     stall_steps: int = 400, guidance: str = "path", direct: bool = False,
                     baseline: bool = False, margin_mm: float = DEFAULT_MARGIN_MM,
-                    max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM) -> dict:
+                    max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM, robot: TwinRobot | None = None) -> dict:
     """Greedy rollouts of q over (start, goal, heading) on gridmap.
 
     Starts at cell centres with headings k*2pi/headings; goals at cell
@@ -165,6 +166,8 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
     between the cell centres, over successful episodes. A loop is an episode
     whose guide potential found no new minimum for `stall_steps` periods.
 
+    `robot`: the robot the twin plays (`twin.TwinRobot`; default the built-in one).
+
     The main keys are the `guidance` figures; `direct=True` adds the same
     figures without guidance as `direct_<key>` (and as a dict under
     "direct"); `baseline=True` adds the hand-written `seek_table` under the
@@ -175,7 +178,7 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
     check_guidance(guidance)
     starts, goals, hidx = eval_episodes(gridmap, seed=seed, sample=sample, headings=headings)
     args = (starts, goals, hidx, headings)
-    extra = (max_steps, stall_steps, margin_mm, max_segment_mm)
+    extra = (max_steps, stall_steps, margin_mm, max_segment_mm, robot or TwinRobot())
     rep = {"map": gridmap.name, "episodes": int(len(starts)), "guidance": guidance,
            **_rollouts(q, gridmap, encoder, *args, guidance, *extra)}
     if direct:
@@ -204,4 +207,4 @@ def evaluate_policy(q: np.ndarray, run, gridmap: GridMap, *, sample: int | None 
     """The kind's evaluation (ground_station.learn.kinds): `evaluate_sector` of a run's table,
     guided as it trained; `full` adds the direct figures and the hand-written seek baseline."""
     return evaluate_sector(q, gridmap, run.encoder, seed=seed, sample=sample, **guidance_of(run.meta),
-                           direct=full, baseline=full)
+                           direct=full, baseline=full, robot=TwinRobot.of_meta(run.meta))

@@ -54,12 +54,13 @@ from ground_station.learn.sector.reward import (
     RW_STEP_COST,
 )
 from ground_station.learn.sector.twin import (
-    ACTION_V_MM_S,
+    DEFAULT_TW,
+    G_FWD,
+    G_RADIUS,
     GOAL_TOL_MM,
     N_ACTIONS,
-    N_SUBSTEPS,
-    RADIUS_MM,
-    SUB_DT_S,
+    TW_GEO,
+    TW_RMAX,
     bearing_mrad,
     bearing_sector_fast,
     cell_centre,
@@ -71,12 +72,13 @@ from ground_station.learn.sector.twin import (
 )
 from ground_station.maps.planner import plan_into, remaining_lengths
 
-# fastest forward travel in one control period (the step budget's unit)
-FWD_MM_PER_PERIOD = float(np.max(ACTION_V_MM_S)) * N_SUBSTEPS * SUB_DT_S
+# fastest forward travel in one control period (the step budget's unit), of the built-in robot
+# (a profile's: tw[TW_GEO][G_FWD])
+FWD_MM_PER_PERIOD = float(DEFAULT_TW[TW_GEO][G_FWD])
 
 REVERSE = 3  # index of `reverse` in robot_spec.ACTION_NAMES (asserted in tests)
 RANGE_VALID_, RANGE_TOO_CLOSE_, RANGE_TOO_FAR_ = robot_spec.RANGE_VALID, robot_spec.RANGE_TOO_CLOSE, robot_spec.RANGE_TOO_FAR
-RANGE_MIN_, RANGE_MAX_ = robot_spec.RANGE_MIN_MM, robot_spec.RANGE_MAX_MM
+RANGE_MIN_ = robot_spec.RANGE_MIN_MM
 
 # episode-state slots (float64 array carried between chunks)
 (E_ACTIVE, E_MAP, E_X, E_Y, E_TH, E_GOAL, E_GX, E_GY, E_T, E_RET, E_S, E_PHI,
@@ -93,16 +95,17 @@ def gauss(rng) -> float:
 
 
 @numba.njit(cache=True)
-def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus, sectors, sensors, edges) -> int:
+def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus, sectors, sensors, edges,
+                tw) -> int:
     """State index from the encoder's sensors' readings with Gaussian noise
     (std noise_mm, whole mm) added to the valid ones, re-classified as too
     close / too far past the sensor limits, as the sim's noisy sensors report."""
     return noisy_encode(rng, noise_mm, bearing_mrad(x, y, th, tx, ty), ranges, status, noisy, nstatus,
-                        sectors, sensors, edges)
+                        sectors, sensors, edges, tw)
 
 
 @numba.njit(cache=True, inline="always")
-def noisy_encode(rng, noise_mm, bearing, ranges, status, noisy, nstatus, sectors, sensors, edges) -> int:
+def noisy_encode(rng, noise_mm, bearing, ranges, status, noisy, nstatus, sectors, sensors, edges, tw) -> int:
     """`noisy_state` with the target's bearing (int mrad) already known."""
     for j in range(sensors.shape[0]):
         i = sensors[j]
@@ -113,8 +116,8 @@ def noisy_encode(rng, noise_mm, bearing, ranges, status, noisy, nstatus, sectors
             if r < RANGE_MIN_:
                 noisy[i] = RANGE_MIN_
                 nstatus[i] = RANGE_TOO_CLOSE_
-            elif r > RANGE_MAX_:
-                noisy[i] = RANGE_MAX_
+            elif r > tw[TW_RMAX][i]:
+                noisy[i] = int(tw[TW_RMAX][i])
                 nstatus[i] = RANGE_TOO_FAR_
             else:
                 noisy[i] = r
@@ -126,12 +129,12 @@ GAUSS_MAX = 8.6
 
 
 @numba.njit(cache=True, inline="always")
-def _noisy_bin(r, edges) -> int:
+def _noisy_bin(r, edges, rmax) -> int:
     """Range bin of `encode_fast` for a noisy reading r (mm) before the sensor
-    limits are applied (too close -> bin 0, too far -> the top bin)."""
+    limits are applied (too close -> bin 0, too far (beyond rmax) -> the top bin)."""
     if r < RANGE_MIN_:
         return 0
-    if r > RANGE_MAX_:
+    if r > rmax:
         return edges.shape[0]
     b = 0
     for e in range(edges.shape[0]):
@@ -141,7 +144,7 @@ def _noisy_bin(r, edges) -> int:
 
 
 @numba.njit(cache=True, inline="always")
-def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, sensors, edges) -> int:
+def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, sensors, edges, tw) -> int:
     """The index `noisy_encode` returns, with the same generator draws, but
     the Gaussian itself (a log and a cos) computed only where it can change
     the index: the bin is monotone in the noisy reading, and a draw moves
@@ -158,13 +161,14 @@ def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, 
         st = status[i]
         if st == RANGE_VALID_:
             r0 = ranges[i]
-            lo = _noisy_bin(r0 - bound, edges)
-            if lo == _noisy_bin(r0 + bound, edges):
+            rmax = tw[TW_RMAX][i]
+            lo = _noisy_bin(r0 - bound, edges, rmax)
+            if lo == _noisy_bin(r0 + bound, edges, rmax):
                 rand01(rng)
                 rand01(rng)
                 b = lo
             else:
-                b = _noisy_bin(r0 + int(math.floor(noise_mm * gauss(rng) + 0.5)), edges)
+                b = _noisy_bin(r0 + int(math.floor(noise_mm * gauss(rng) + 0.5)), edges, rmax)
         elif st == RANGE_TOO_CLOSE_:
             b = 0
         else:
@@ -202,7 +206,7 @@ def start_guidance(occ, h, w, c, dist, x, y, gx, gy, guided, clear_r, max_seg, p
 
 @numba.njit(cache=True)
 def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
-                 ranges, status, guided, clear_r, max_seg, path, wps, rem):
+                 ranges, status, guided, clear_r, max_seg, path, wps, rem, tw):
     m = randint(rng, occ.shape[0])
     h = dims[m, 0]
     w = dims[m, 1]
@@ -218,7 +222,7 @@ def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, 
         srow = free[m, k, 1]
         if k != g and d[srow, scol] < np.inf:
             break
-    half = 0.5 * c - RADIUS_MM - 1.0  # stays inside the start cell: no contact
+    half = 0.5 * c - tw[TW_GEO][G_RADIUS] - 1.0  # stays inside the start cell: no contact
     cx, cy = cell_centre(scol, srow, h, c)
     x = cx + (2.0 * rand01(rng) - 1.0) * half
     y = cy + (2.0 * rand01(rng) - 1.0) * half
@@ -226,7 +230,7 @@ def _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, 
     gx, gy = cell_centre(gcol, grow, h, c)
     og = occ[m]
     nwp = start_guidance(og, h, w, c, d, x, y, gx, gy, guided, clear_r, max_seg, path, wps, rem)
-    sense(og, h, w, c, x, y, th, which, ranges, status)
+    sense(og, h, w, c, x, y, th, which, ranges, status, tw)
     ep[E_ACTIVE] = 1.0
     ep[E_MAP] = m
     ep[E_X] = x
@@ -268,7 +272,7 @@ def progress_reward(rw, phi, phi2, c, a) -> float:
 
 @numba.njit(cache=True)
 def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
-                sectors, sensors, edges, guided):
+                sectors, sensors, edges, guided, tw):
     """One control period of the sector task from pose (x, y, th) with
     potential phi, heading for waypoint k of wps[:nwp] (the last one is the
     goal; direct: nwp = 1, the goal alone; `dist` is the goal's octile
@@ -281,7 +285,7 @@ def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, whic
     Returns (x, y, th, phi, reward, state, hit, success, driven_mm, k); after
     a hit or success the state is -1 and ranges/status are not refreshed."""
     b0 = abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))
-    x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
+    x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a, tw)
     if hit:
         return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, driven, k
     k, success = pass_waypoints(x, y, wps, nwp, k)
@@ -291,14 +295,14 @@ def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, whic
         r += rw[RW_ALIGN] * (b0 - abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))) / 3141.5927
     if success:
         return x, y, th, phi2, r + rw[RW_GOAL], -1, False, True, driven, k
-    sense(occ, h, w, c, x, y, th, which, ranges, status)
+    sense(occ, h, w, c, x, y, th, which, ranges, status, tw)
     s2 = encode_fast(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]), ranges, status, sectors, sensors, edges)
     return x, y, th, phi2, r, s2, False, False, driven, k
 
 
 @numba.njit(cache=True, inline="always")
 def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, a, rw, which, ranges, status,
-                 sectors, sensors, edges, guided, rng, noise_mm, noisy, nstatus):
+                 sectors, sensors, edges, guided, rng, noise_mm, noisy, nstatus, tw):
     """`period_step` for the trainer's hot loop, the same numbers bit for bit
     (a test compares whole trained tables): b0 = |bearing| to waypoint k at
     the start pose is carried from the previous period (it is the bearing
@@ -308,7 +312,7 @@ def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, 
     state comes straight from the noisy readings (`noisy_encode`, the same
     draws as `period_step` then `noisy_state`).
     Returns (x, y, th, phi, reward, state, hit, success, k, |bearing|)."""
-    x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a)
+    x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a, tw)
     if hit:
         return x, y, th, phi, -rw[RW_COLLISION], -1, True, False, k, b0
     k, success = pass_waypoints(x, y, wps, nwp, k)
@@ -320,9 +324,9 @@ def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, 
     b1 = float(abs(bm))
     if rw[RW_ALIGN] != 0.0:  # heading shaping: turning toward the target pays
         r += rw[RW_ALIGN] * (b0 - b1) / 3141.5927
-    sense_bordered(occb, h, w, c, x, y, th, which, ranges, status)
+    sense_bordered(occb, h, w, c, x, y, th, which, ranges, status, tw)
     if noise_mm > 0.0:
-        s2 = noisy_encode_fast(rng, noise_mm, bm, ranges, status, nstatus, sectors, sensors, edges)
+        s2 = noisy_encode_fast(rng, noise_mm, bm, ranges, status, nstatus, sectors, sensors, edges, tw)
     else:
         s2 = encode_fast(bm, ranges, status, sectors, sensors, edges)
     return x, y, th, phi2, r, s2, False, False, k, b1
@@ -364,8 +368,9 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
                  lr, lr_end, total_steps, gamma, eps_start, eps_end, eps_decay_steps, rw,
                  max_episode_steps, hold_max, guided, clear_r, max_seg, path, wps, rem, noise_mm,
                  lam, n_plan, model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr,
-                 start_step, n_steps, out_ret, out_succ):
-    """Advance exact sequential training by n_steps env steps (control periods).
+                 start_step, n_steps, out_ret, out_succ, tw):
+    """Advance exact sequential training by n_steps env steps (control periods) of the robot `tw`
+    (`twin.TwinRobot.arrays`).
 
     Epsilon at global step t: linear from eps_start to eps_end over
     eps_decay_steps, then eps_end. Learning rate: linear from lr at step 0
@@ -411,7 +416,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
         t_glob = start_step + i
         if ep[E_ACTIVE] == 0.0:
             _new_episode(ep, rng, occ, dims, cell, free, nfree, dist, sectors, sensors, edges, which,
-                         ranges, status, guided, clear_r, max_seg, path, wps, rem)
+                         ranges, status, guided, clear_r, max_seg, path, wps, rem, tw)
             b0 = float(abs(bearing_mrad(ep[E_X], ep[E_Y], ep[E_TH], wps[0, 0], wps[0, 1])))
             ep[E_NEXT] = 0.0
             tr[0] = 0
@@ -432,7 +437,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
         x, y, th, phi2, r, s2, hit, success, k, b1 = train_period(
             og, ob, h, w, c, d, ep[E_X], ep[E_Y], ep[E_TH], ep[E_PHI], b0, wps, rem, int(ep[E_NWP]),
             int(ep[E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided, rng, noise_mm,
-            noisy, nstatus)
+            noisy, nstatus, tw)
         ep[E_T] += 1.0
         ep[E_K] += 1.0
         terminal = hit or success
@@ -527,8 +532,8 @@ SUCCESS, COLLISION, LOOP, TIMEOUT = 0, 1, 2, 3
 def eval_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sectors, sensors, edges,
                 which, max_steps, budget_base, budget_factor, stall_steps,
                 guided, wp_all, nwp_all, rem_all, pair,
-                out_outcome, out_path, out_steps):
-    """Greedy rollouts of episodes i = (starts[i], goals[i], headings[i]) from
+                out_outcome, out_path, out_steps, tw):
+    """Greedy rollouts (the robot `tw`) of episodes i = (starts[i], goals[i], headings[i]) from
     the start cell's centre; dists[goal_slot[i]] is the goal's octile field.
     Guided: episode i follows waypoints wp_all[pair[i], :nwp_all[pair[i]]]
     (remaining lengths rem_all), planned from the start cell's centre.
@@ -560,7 +565,7 @@ def eval_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sect
         if max_steps > 0:
             budget = max_steps
         else:
-            budget = int(budget_base + budget_factor * d[starts[i, 1], starts[i, 0]] * c / FWD_MM_PER_PERIOD)
+            budget = int(budget_base + budget_factor * d[starts[i, 1], starts[i, 0]] * c / tw[TW_GEO][G_FWD])
         k = 0
         phi = guide_potential(d, occ, h, w, c, x, y, wps, rem, k, guided)
         best = phi
@@ -568,13 +573,13 @@ def eval_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sect
         path = 0.0
         outcome = TIMEOUT
         t = 0
-        sense(occ, h, w, c, x, y, th, which, ranges, status)
+        sense(occ, h, w, c, x, y, th, which, ranges, status, tw)
         s = encode_fast(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]), ranges, status, sectors, sensors, edges)
         while t < budget:
             a = greedy(q, s)
             x, y, th, phi, _, s, hit, success, driven, k = period_step(
                 occ, h, w, c, d, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
-                sectors, sensors, edges, guided)
+                sectors, sensors, edges, guided, tw)
             path += driven
             t += 1
             if hit:

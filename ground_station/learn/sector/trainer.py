@@ -27,13 +27,14 @@ import numpy as np
 from firmware_py.kinds.sector.encoder import SectorEncoder
 from ground_station.learn.config import LEARNERS, TrainConfig, int_list
 from ground_station.learn.jit import seed_state
+from ground_station.learn.robot import training_profile
 from ground_station.learn.sector.kernels import (
     EP_LEN,
     L_DOUBLE_Q,
     train_kernel,
 )
 from ground_station.learn.sector.reward import SectorReward, check_guidance
-from ground_station.learn.sector.twin import bordered, encoder_arrays, grid_of
+from ground_station.learn.sector.twin import TwinRobot, bordered, encoder_arrays, grid_of
 from ground_station.learn.train import TrainResult, run_trainer
 from ground_station.maps import GridMap, octile_distances
 from ground_station.maps.planner import clearance_mm
@@ -113,8 +114,11 @@ class SectorTrainer:
     """Exact sequential Q-learning of a SectorEncoder policy on the twin."""
 
     def __init__(self, maps: list[GridMap], cfg: TrainConfig, encoder: SectorEncoder,
-                 reward: SectorReward | None = None) -> None:
+                 reward: SectorReward | None = None, robot: TwinRobot | None = None) -> None:
         self.maps = list(maps)
+        # the robot the twin plays: the config's profile (--profile), else the built-in robot
+        self.robot = robot if robot is not None else TwinRobot.of_profile(training_profile(cfg))
+        self._tw = self.robot.arrays()
         self.cfg = cfg
         self.encoder = encoder
         self.reward = reward or SectorReward.from_config(cfg)
@@ -134,7 +138,7 @@ class SectorTrainer:
         self.noise_mm = float(cfg.options.range_noise_mm)
         self.guidance = str(cfg.options.guidance)
         self._guided = check_guidance(self.guidance)
-        self._clear_r = clearance_mm(float(cfg.options.margin_mm))
+        self._clear_r = clearance_mm(float(cfg.options.margin_mm), self.robot.radius_mm)
         self._max_seg = float(cfg.options.max_segment_mm)
         cells = int(self.packed.occ.shape[1] * self.packed.occ.shape[2])
         self._path = np.zeros((cells, 2), dtype=np.int64)  # planner scratch
@@ -183,7 +187,7 @@ class SectorTrainer:
                          self._clear_r, self._max_seg, self._path, self._wps, self._rem, self.noise_mm,
                          self._lam, self._n_plan, m.model_s2, m.model_r, m.model_g,
                          m.model_term, m.seen, m.n_seen, m.tr_s, m.tr_a, m.tr_e,
-                         m.tr, int(start_step), int(n_steps), out_ret, out_succ)
+                         m.tr, int(start_step), int(n_steps), out_ret, out_succ, self._tw)
         return out_ret[:n].copy(), out_succ[:n].copy()
 
 

@@ -1,11 +1,17 @@
 """Kinematic twin of the robot on an occupancy grid, jitted (numba).
 
 Owns the continuous-pose physics the `sector` encoding trains on: a disc of
-`robot_spec.ROBOT_RADIUS_MM` driven by the action -> wheel-speed table for one
+the robot's body radius driven by the action -> wheel-speed table for one
 control period, exact collision against obstacle cells and the map border,
 range sensors cast on the grid, and a jitted copy of the reference
 `firmware_py.kinds.sector.encoder.SectorEncoder.encode` (tests prove it equals the
 reference).
+
+The robot is a robot profile's (`TwinRobot.of_profile`; the built-in robot,
+`robot_spec`'s values, is the default): every kernel takes it as one tuple of
+arrays `tw` (`TwinRobot.arrays`: radius, each action's speed and turn rate,
+each sector's angle, fan and reach), never as module globals, so one compiled
+kernel trains any robot.
 
 Conventions (all from `firmware_py.robot_spec`): world x east along columns, y
 north, map row 0 is the northernmost row; heading counter-clockwise from +x.
@@ -17,12 +23,14 @@ Lengths are float millimetres, angles radians, except the encoder inputs
   is checked for overlap with an obstacle cell or the border after each one
   (skipped when the start-of-period clearance already rules a hit out). A hit
   ends the motion at that substep and is reported; the episode ends there.
-* Sensors: sensor i sits on the rim (`SENSOR_MOUNT_RADIUS_MM`) at angle
-  `SENSOR_ANGLES_MRAD[i]`; its reading is the nearest hit of
+* Sensors: the policy's sector i is read by the sensor on the rim (the body's
+  radius) at the angle the robot reads it from (`TwinRobot.angles_mrad`; the
+  built-in robot: `SENSOR_ANGLES_MRAD[i]`); its reading is the nearest hit of
   `SENSOR_FAN_RAYS` rays spread over `SENSOR_FOV_MRAD`, each cast exactly with
   a grid DDA (Amanatides-Woo). Status as the sim reports it: below
-  `RANGE_MIN_MM` -> too close (range = min), beyond `RANGE_MAX_MM` -> too far
-  (range = max), else valid with the distance rounded to whole mm.
+  `RANGE_MIN_MM` -> too close (range = min), beyond the sensor's reach -> too far
+  (range = reach), else valid with the distance rounded to whole mm; a sector
+  no sensor of the profile covers reads INVALID (as the robot reads it).
 * Progress potential: an estimate of the remaining shortest (octile) path
   length from a continuous position, used for shaped rewards, loop detection
   and evaluation.
@@ -31,35 +39,111 @@ Lengths are float millimetres, angles radians, except the encoder inputs
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 
 from firmware_py import robot_spec
+from firmware_py.layout import Layout
+from firmware_py.needs import DEFAULT as DEFAULT_TRAINED
+from firmware_py.needs import TrainedFor
 
 N_ACTIONS = len(robot_spec.ACTION_WHEEL_SPEEDS_MM_S)
-ACTION_V_MM_S = np.array([(lw + rw) / 2.0 for lw, rw in robot_spec.ACTION_WHEEL_SPEEDS_MM_S])
-ACTION_W_RAD_S = np.array([(rw - lw) / robot_spec.WHEEL_BASE_MM for lw, rw in robot_spec.ACTION_WHEEL_SPEEDS_MM_S])
 N_SUBSTEPS = robot_spec.CONTROL_PERIOD_US // robot_spec.PHYSICS_DT_US
 SUB_DT_S = robot_spec.PHYSICS_DT_US / 1e6
-RADIUS_MM = float(robot_spec.ROBOT_RADIUS_MM)
-MOUNT_MM = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
-SENSOR_ANGLES_RAD = np.array(robot_spec.SENSOR_ANGLES_MRAD, dtype=np.float64) / 1000.0
 if robot_spec.SENSOR_FAN_RAYS > 1:
     FAN_OFFSETS_RAD = (np.arange(robot_spec.SENSOR_FAN_RAYS) / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (
         robot_spec.SENSOR_FOV_MRAD / 1000.0)
 else:
     FAN_OFFSETS_RAD = np.zeros(1)
-_SENS_COS = np.cos(SENSOR_ANGLES_RAD)
-_SENS_SIN = np.sin(SENSOR_ANGLES_RAD)
-_RAY_COS = np.cos(SENSOR_ANGLES_RAD[:, None] + FAN_OFFSETS_RAD[None, :])
-_RAY_SIN = np.sin(SENSOR_ANGLES_RAD[:, None] + FAN_OFFSETS_RAD[None, :])
 RANGE_MIN = robot_spec.RANGE_MIN_MM
-RANGE_MAX = robot_spec.RANGE_MAX_MM
 GOAL_TOL_MM = float(robot_spec.GOAL_TOLERANCE_MM)
 TWO_PI_MRAD = 6283  # the reference encoder's 2*pi; asserted equal in the tests
-# Largest distance the disc centre can travel in one control period (any action).
-MAX_MOVE_MM = float(np.max(np.abs(ACTION_V_MM_S))) * N_SUBSTEPS * SUB_DT_S + 1e-6
+
+
+# --- the robot the twin plays (a robot profile) --------------------------------
+
+@dataclass(frozen=True)
+class TwinRobot:
+    """The robot the twin plays, from a robot profile (`firmware_py.profile`; the built-in robot is
+    the default profile): the body's radius (the disc, the sensors' rim), the wheel base (each
+    action's turn rate), the wheel speed limit (each action's wheel speeds clamped to it, as the
+    controller clamps), and the policy's eight sectors as the robot reads them
+    (`firmware_py.layout.Layout.sector_layout`: each at the angle and range of the sensor behind it;
+    a sector no sensor covers reads INVALID, `range_mm` 0). The wheel radius and encoder counts do
+    not enter the kinematic twin (it moves in mm/s)."""
+
+    radius_mm: int = robot_spec.ROBOT_RADIUS_MM
+    wheel_base_mm: int = robot_spec.WHEEL_BASE_MM
+    max_speed_mm_s: int = robot_spec.MAX_WHEEL_SPEED_MM_S
+    angles_mrad: tuple[int, ...] = robot_spec.SENSOR_ANGLES_MRAD
+    ranges_mm: tuple[int, ...] = (robot_spec.RANGE_MAX_MM,) * robot_spec.SENSOR_COUNT
+    source: str = "built-in default"
+
+    @classmethod
+    def of_profile(cls, profile=None) -> TwinRobot:  # type: ignore[no-untyped-def]
+        """The twin of a `firmware_py.profile.RobotProfile` (None: the built-in robot)."""
+        if profile is None:
+            return cls()
+        return cls.of_trained(TrainedFor.of_profile(profile))
+
+    @classmethod
+    def of_trained(cls, t: TrainedFor) -> TwinRobot:
+        """The twin of the robot a policy was trained for (`firmware_py.needs.TrainedFor`, a run's
+        meta.json `robot`): a sector no sensor covers at its built-in angle, reach 0 (INVALID)."""
+        if t == DEFAULT_TRAINED:
+            return cls()
+        angles = tuple(robot_spec.SENSOR_ANGLES_MRAD[k] if a is None else a for k, a in enumerate(t.sector_angles_mrad))
+        ranges = tuple(0 if a is None else r for a, r in zip(t.sector_angles_mrad, t.sector_ranges_mm, strict=True))
+        return cls(radius_mm=t.robot_radius_mm, wheel_base_mm=t.wheel_base_mm, max_speed_mm_s=t.wheel_speed_mm_s,
+                   angles_mrad=angles, ranges_mm=ranges, source=t.source)
+
+    @classmethod
+    def of_meta(cls, meta: dict) -> TwinRobot:
+        """The robot a training run's meta.json records (`robot`; a run without one: the built-in
+        robot); ValueError (one line) if the record is malformed."""
+        rec = meta.get("robot")
+        return cls() if rec is None else cls.of_trained(TrainedFor.from_dict(rec))
+
+    def layout(self) -> Layout:
+        """The robot's kind's view of it (`firmware_py.layout.Layout.sector_layout`): the eight sector
+        readings at the twin's angles (an uncovered one at the farthest reach; it reads INVALID)."""
+        reach = max(self.ranges_mm)
+        return Layout(robot_radius_mm=self.radius_mm, wheel_base_mm=self.wheel_base_mm,
+                      max_wheel_speed_mm_s=self.max_speed_mm_s, angles_mrad=tuple(self.angles_mrad),
+                      max_ranges_mm=tuple(r or reach for r in self.ranges_mm))
+
+    def wheel_speeds(self) -> tuple[tuple[int, int], ...]:
+        """Each action's (left, right) wheel speeds as the robot drives them (clamped to its limit)."""
+        lim = self.max_speed_mm_s
+        return tuple((max(-lim, min(lim, lw)), max(-lim, min(lim, rw))) for lw, rw in robot_spec.ACTION_WHEEL_SPEEDS_MM_S)
+
+    def arrays(self) -> tuple:
+        """The tuple `tw` every kernel takes (slots TW_*): what `move` and the sensors read of the robot."""
+        speeds = self.wheel_speeds()
+        act_v = np.array([(lw + rw) / 2.0 for lw, rw in speeds])
+        act_w = np.array([(rw - lw) / self.wheel_base_mm for lw, rw in speeds])
+        ang = np.array(self.angles_mrad, dtype=np.float64) / 1000.0
+        max_move = float(np.max(np.abs(act_v))) * N_SUBSTEPS * SUB_DT_S + 1e-6
+        fwd = float(np.max(act_v)) * N_SUBSTEPS * SUB_DT_S
+        geo = np.array([float(self.radius_mm), float(self.radius_mm), max_move, fwd])
+        return (geo, act_v, act_w, ang, np.cos(ang), np.sin(ang), np.cos(ang[:, None] + FAN_OFFSETS_RAD[None, :]),
+                np.sin(ang[:, None] + FAN_OFFSETS_RAD[None, :]), np.array(self.ranges_mm, dtype=np.float64))
+
+
+# slots of the `tw` tuple (TwinRobot.arrays) and of its first array (G_*)
+TW_GEO, TW_V, TW_W, TW_ANG, TW_SCOS, TW_SSIN, TW_RCOS, TW_RSIN, TW_RMAX = range(9)
+G_RADIUS, G_MOUNT, G_MAX_MOVE, G_FWD = range(4)
+
+DEFAULT_ROBOT = TwinRobot()
+DEFAULT_TW = DEFAULT_ROBOT.arrays()  # the built-in robot's
+# the built-in robot's figures (tests, and the callers that have no profile)
+ACTION_V_MM_S = DEFAULT_TW[TW_V]
+ACTION_W_RAD_S = DEFAULT_TW[TW_W]
+RADIUS_MM = float(robot_spec.ROBOT_RADIUS_MM)
+MAX_MOVE_MM = float(DEFAULT_TW[TW_GEO][G_MAX_MOVE])
+RANGE_MAX = robot_spec.RANGE_MAX_MM
 
 
 # --- geometry ----------------------------------------------------------------
@@ -103,14 +187,15 @@ def disc_hits(occ, h: int, w: int, cell: float, x: float, y: float, r: float) ->
 
 
 @numba.njit(cache=True, inline="always")
-def move(occ, h: int, w: int, cell: float, x: float, y: float, th: float, action: int):
-    """Hold `action` for one control period from pose (x, y, th).
+def move(occ, h: int, w: int, cell: float, x: float, y: float, th: float, action: int, tw):
+    """Hold `action` for one control period from pose (x, y, th), the robot `tw`.
 
     Returns (x, y, th, driven_mm, hit). On a hit the pose is the first
     substep pose that overlaps an obstacle."""
-    v = ACTION_V_MM_S[action]
-    om = ACTION_W_RAD_S[action]
-    check = v != 0.0 and disc_hits(occ, h, w, cell, x, y, RADIUS_MM + MAX_MOVE_MM)
+    v = tw[TW_V][action]
+    om = tw[TW_W][action]
+    radius = tw[TW_GEO][G_RADIUS]
+    check = v != 0.0 and disc_hits(occ, h, w, cell, x, y, radius + tw[TW_GEO][G_MAX_MOVE])
     if not check:  # no contact possible this period: the exact arc in one go
         t = N_SUBSTEPS * SUB_DT_S
         if om == 0.0:
@@ -138,7 +223,7 @@ def move(occ, h: int, w: int, cell: float, x: float, y: float, th: float, action
             c0 = c1
         th = th2
         driven += abs(v) * SUB_DT_S
-        if disc_hits(occ, h, w, cell, x, y, RADIUS_MM):
+        if disc_hits(occ, h, w, cell, x, y, radius):
             return x, y, wrap_angle(th), driven, True
     return x, y, wrap_angle(th), driven, False
 
@@ -219,46 +304,56 @@ def ray_cast_dir(occ, h: int, w: int, cell: float, ox: float, oy: float, cx: flo
 
 
 @numba.njit(cache=True, inline="always")
-def _reading(d: float):
+def _reading(d: float, rmax: float):
+    """(range, status) of a fan's nearest hit d for a sensor of reach rmax (0: no sensor, INVALID)."""
+    if rmax <= 0.0:
+        return 0, robot_spec.RANGE_INVALID
     if d < RANGE_MIN:
         return RANGE_MIN, robot_spec.RANGE_TOO_CLOSE
-    if d > RANGE_MAX:
-        return RANGE_MAX, robot_spec.RANGE_TOO_FAR
+    if d > rmax:
+        return int(rmax), robot_spec.RANGE_TOO_FAR
     return int(math.floor(d + 0.5)), robot_spec.RANGE_VALID
 
 
 @numba.njit(cache=True)
-def sense_one(occ, h: int, w: int, cell: float, x: float, y: float, th: float, i: int):
-    """(range_mm, status) of sensor i at pose (x, y, th), as the sim reports it."""
-    a = th + SENSOR_ANGLES_RAD[i]
-    ox = x + MOUNT_MM * math.cos(a)
-    oy = y + MOUNT_MM * math.sin(a)
+def sense_one(occ, h: int, w: int, cell: float, x: float, y: float, th: float, i: int, tw):
+    """(range_mm, status) of sensor i of the robot `tw` at pose (x, y, th), as the sim reports it."""
+    a = th + tw[TW_ANG][i]
+    mount = tw[TW_GEO][G_MOUNT]
+    ox = x + mount * math.cos(a)
+    oy = y + mount * math.sin(a)
     d = np.inf
     for k in range(FAN_OFFSETS_RAD.shape[0]):
-        t = ray_cast(occ, h, w, cell, ox, oy, a + FAN_OFFSETS_RAD[k], RANGE_MAX + 1.0)
+        t = ray_cast(occ, h, w, cell, ox, oy, a + FAN_OFFSETS_RAD[k], tw[TW_RMAX][i] + 1.0)
         if t < d:
             d = t
-    return _reading(d)
+    return _reading(d, tw[TW_RMAX][i])
 
 
 @numba.njit(cache=True, inline="always")
-def fan_ray(x: float, y: float, ct: float, st: float, i: int, k: int) -> tuple[float, float, float, float]:
-    """Origin (ox, oy) and unit direction (cx, cy) of ray k of sensor i's fan, the robot at
+def fan_ray(x: float, y: float, ct: float, st: float, i: int, k: int, tw) -> tuple[float, float, float, float]:
+    """Origin (ox, oy) and unit direction (cx, cy) of ray k of sensor i's fan, the robot `tw` at
     (x, y) with heading cos/sin (ct, st): the fixed angles' trigonometry is precomputed."""
-    ox = x + MOUNT_MM * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
-    oy = y + MOUNT_MM * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
-    cx = ct * _RAY_COS[i, k] - st * _RAY_SIN[i, k]
-    cy = st * _RAY_COS[i, k] + ct * _RAY_SIN[i, k]
+    mount = tw[TW_GEO][G_MOUNT]
+    sc = tw[TW_SCOS][i]
+    ss = tw[TW_SSIN][i]
+    rc = tw[TW_RCOS][i, k]
+    rs = tw[TW_RSIN][i, k]
+    ox = x + mount * (ct * sc - st * ss)
+    oy = y + mount * (st * sc + ct * ss)
+    cx = ct * rc - st * rs
+    cy = st * rc + ct * rs
     return ox, oy, cx, cy
 
 
 @numba.njit(cache=True, inline="always")
-def fan_distance(occ, h: int, w: int, cell: float, x: float, y: float, ct: float, st: float, i: int) -> float:
-    """Sensor i's distance to the map's cells (its fan's nearest hit, at most RANGE_MAX + 1),
+def fan_distance(occ, h: int, w: int, cell: float, x: float, y: float, ct: float, st: float, i: int,
+                 tw) -> float:
+    """Sensor i's distance to the map's cells (its fan's nearest hit, at most its reach + 1),
     before `_reading` turns it into a range and status; see `sense` for the cast lengths."""
-    d = RANGE_MAX + 1.0
-    for k in range(_RAY_COS.shape[1]):
-        ox, oy, cx, cy = fan_ray(x, y, ct, st, i, k)
+    d = tw[TW_RMAX][i] + 1.0
+    for k in range(tw[TW_RCOS].shape[1]):
+        ox, oy, cx, cy = fan_ray(x, y, ct, st, i, k, tw)
         t = ray_cast_dir(occ, h, w, cell, ox, oy, cx, cy, d)
         if t < d:
             d = t
@@ -266,8 +361,8 @@ def fan_distance(occ, h: int, w: int, cell: float, x: float, y: float, ct: float
 
 
 @numba.njit(cache=True)
-def sense(occ, h: int, w: int, cell: float, x: float, y: float, th: float, which, ranges, status) -> None:
-    """Fill ranges/status (int64, length SENSOR_COUNT) for the sensors whose
+def sense(occ, h: int, w: int, cell: float, x: float, y: float, th: float, which, ranges, status, tw) -> None:
+    """Fill ranges/status (int64, length SENSOR_COUNT) for the sensors of the robot `tw` whose
     `which` flag is set; the others are left untouched. Same readings as
     `sense_one`, with the trigonometry of the fixed angles precomputed.
 
@@ -279,7 +374,7 @@ def sense(occ, h: int, w: int, cell: float, x: float, y: float, th: float, which
     st = math.sin(th)
     for i in range(ranges.shape[0]):
         if which[i]:
-            ranges[i], status[i] = _reading(fan_distance(occ, h, w, cell, x, y, ct, st, i))
+            ranges[i], status[i] = _reading(fan_distance(occ, h, w, cell, x, y, ct, st, i, tw), tw[TW_RMAX][i])
 
 
 def bordered(occ: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -317,33 +412,38 @@ def _cast_bordered(occb, u: float, vv: float, col: int, row: int, du: float, dv:
 
 @numba.njit(cache=True, inline="always")
 def sense_bordered(occb, h: int, w: int, cell: float, x: float, y: float, th: float, which, ranges,
-                   status) -> None:
+                   status, tw) -> None:
     """`sense` on a `bordered` occupancy grid: the same readings bit for bit
     (tests compare them), faster (the fan's rays share their origin cell, no
     bound checks in the DDA). The trainer's hot loop uses it."""
     ct = math.cos(th)
     st = math.sin(th)
     top = h * cell
+    mount = tw[TW_GEO][G_MOUNT]
+    scos, ssin, rcos, rsin, rmax = tw[TW_SCOS], tw[TW_SSIN], tw[TW_RCOS], tw[TW_RSIN], tw[TW_RMAX]
     for i in range(ranges.shape[0]):
         if not which[i]:
             continue
-        ox = x + MOUNT_MM * (ct * _SENS_COS[i] - st * _SENS_SIN[i])
-        oy = y + MOUNT_MM * (st * _SENS_COS[i] + ct * _SENS_SIN[i])
+        if rmax[i] <= 0.0:
+            ranges[i], status[i] = _reading(0.0, rmax[i])
+            continue
+        ox = x + mount * (ct * scos[i] - st * ssin[i])
+        oy = y + mount * (st * scos[i] + ct * ssin[i])
         u = ox / cell
         vv = (top - oy) / cell
         col = int(math.floor(u))
         row = int(math.floor(vv))
         if col < 0 or row < 0 or col >= w or row >= h or occb[row + 1, col + 1]:
-            ranges[i], status[i] = _reading(0.0)
+            ranges[i], status[i] = _reading(0.0, rmax[i])
             continue
-        d = RANGE_MAX + 1.0
-        for k in range(_RAY_COS.shape[1]):
-            cx = ct * _RAY_COS[i, k] - st * _RAY_SIN[i, k]
-            cy = st * _RAY_COS[i, k] + ct * _RAY_SIN[i, k]
+        d = rmax[i] + 1.0
+        for k in range(rcos.shape[1]):
+            cx = ct * rcos[i, k] - st * rsin[i, k]
+            cy = st * rcos[i, k] + ct * rsin[i, k]
             t = _cast_bordered(occb, u, vv, col, row, cx, -cy, cell, d)
             if t < d:
                 d = t
-        ranges[i], status[i] = _reading(d)
+        ranges[i], status[i] = _reading(d, rmax[i])
 
 
 @numba.njit(cache=True, inline="always")

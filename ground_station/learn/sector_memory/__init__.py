@@ -43,7 +43,9 @@ def validate(cfg) -> None:  # type: ignore[no-untyped-def]
         raise ValueError(f"grid_wall_bearing must be 0 or 1, got {o.wall_bearing}")
     if not 0.0 <= o.lr_end <= 1.0:
         raise ValueError(f"sector_lr_end must be in [0, 1], got {o.lr_end}")
-    encoder_of(o)
+    from ground_station.learn.robot import check_profile_fits
+
+    check_profile_fits(cfg, encoder_of(o))
 
 
 def encoder_from_dict(d: dict) -> GridBugEncoder:
