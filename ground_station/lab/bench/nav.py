@@ -73,9 +73,12 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hil", action="store_true", help="also run lockstep HIL episodes (pymunk plant, robot controller)")
     p.add_argument("--hil-episodes", type=int, default=50,
                    help="HIL episodes per controller, spread over the maps (default %(default)s)")
-    p.add_argument("--profile", choices=("ideal", "realistic"), default=None,
-                   help="--hil: the plant's profile (sim_bridge/profiles.py: 'realistic' adds wheel slip, a 3 %% "
-                        "encoder scale error and range dropouts; default: the sim's default config, as before)")
+    p.add_argument("--profile", action="append", default=None, metavar="ideal|realistic|FILE.toml",
+                   help="a robot profile FILE.toml (docs/robot-profile.md): the twin and the HIL sim and robot play "
+                        "that robot (the policy must be one it runs: firmware_py.needs; the episodes are the same "
+                        "seeded ones as for the built-in robot); ideal|realistic: --hil's plant error "
+                        "(sim_bridge/profiles.py: 'realistic' adds wheel slip, a 3 %% encoder scale error and range "
+                        "dropouts; default: the sim's default config). Repeatable: one of each")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
                    help="the learnt sector policy (.qtab or policies:NAME; default %(default)s)")
@@ -107,7 +110,13 @@ def run(args: argparse.Namespace) -> int:
         NavController,
         kind_controllers,
     )
-    from ground_station.lab.nav.episodes import mcnemar_exact, run_job, run_twin, summarise
+    from ground_station.lab.nav.episodes import (
+        mcnemar_exact,
+        run_job,
+        run_twin,
+        summarise,
+        twin_robot,
+    )
     from ground_station.lab.nav.scenario import episodes
     from ground_station.maps import MapError, load_map
 
@@ -130,11 +139,24 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"--mover-speed {args.mover_speed}: expected 0 < LO <= HI <= 3000 mm/s")
         speed = (lo, hi)
     style = MoverStyle(speed=speed, yields=not args.no_yield)
+    plant, robot_file = _profiles(args.profile)
+    args.profile = plant
     try:
         path = resolve_policy_spec(args.policy)
         pol = load_policy(str(path))
     except (PolicyError, ShippedPolicyError, OSError) as exc:
         raise CliError(f"policy {args.policy}: {exc}") from None
+    if robot_file is not None:  # the robot's own check: a policy it would refuse is not benched on it
+        from firmware_py.needs import needs_mismatch, needs_of
+        from firmware_py.profile import load_profile
+
+        try:
+            robot = load_profile(robot_file)
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+        why = needs_mismatch(needs_of(pol), robot)
+        if why:
+            raise CliError(f"policy {args.policy} on --profile {robot_file}: {why}")
     try:
         ctrls = list(kind_controllers(pol, names or None))
         if args.controllers is None and planner_config(pol) is not None:
@@ -187,8 +209,10 @@ def run(args: argparse.Namespace) -> int:
         "definition": "ground_station/lab/nav/scenario.py (detourable discs, movers"
                       + (", blocked passages)" if args.blocked else ")")},
         "policy": str(path), "policy_id": f"0x{pol.policy_id:08x}", "per_map": {}}
+    if robot_file is not None:
+        result["scenario"]["robot"] = robot_file
     rows: list[tuple[str, object]] = []
-    base = {"policy": str(path), "maps": specs}
+    base = {"policy": str(path), "maps": specs, **({"robot": robot_file} if robot_file is not None else {})}
     campaign: dict = {}
     with engine_from_args(args) as engine:
         jobs = [{**base, "kind": "twin", "controller": c.name, "map": name, "episodes": eps[i:i + args.batch]}
@@ -235,7 +259,8 @@ def run(args: argparse.Namespace) -> int:
                     result["hil"].setdefault("per_map", {}).setdefault(name, {})[c.name] = summarise(
                         [row for ep, row in zip(hil_eps, hr, strict=True) if ep.map == name])
                 if isinstance(c, NavController):
-                    result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(run_twin(hil_eps, maps, c))
+                    result["hil"].setdefault("twin_same_episodes", {})[c.name] = summarise(
+                        run_twin(hil_eps, maps, c, twin_robot(robot_file)))
                 result["hil"].setdefault("episodes_detail", {})[c.name] = hr
             if "learnt" in hil_by:
                 result["hil"]["paired_vs_learnt"] = {
@@ -279,6 +304,26 @@ def run(args: argparse.Namespace) -> int:
         Path(png).write_bytes(plot(result, [c.name for c in ctrls]))
         print(f"wrote {png}")
     return 0
+
+
+def _profiles(given: list[str] | None) -> tuple[str | None, str | None]:
+    """(plant profile name, robot profile file) of the --profile values (one line, exit 2, otherwise)."""
+    from ground_station.errors import CliError
+
+    plant: str | None = None
+    robot: str | None = None
+    for value in given or []:
+        if value in ("ideal", "realistic"):
+            if plant is not None:
+                raise CliError(f"--profile {value}: a plant profile is given already ({plant})")
+            plant = value
+        elif value.endswith(".toml") or Path(value).is_file():
+            if robot is not None:
+                raise CliError(f"--profile {value}: a robot profile is given already ({robot})")
+            robot = value
+        else:
+            raise CliError(f"--profile {value!r}: expected ideal, realistic or a robot profile FILE.toml")
+    return plant, robot
 
 
 def _blocked(gm: GridMap, args: argparse.Namespace, style: MoverStyle) -> list[Episode]:

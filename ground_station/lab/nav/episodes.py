@@ -105,7 +105,7 @@ def _blocked_row(ep: Episode) -> dict:
 def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
             progress: Callable[[], None] | None = None, max_sim_s: float | None = None,
             index_offset: int = 0, step_cpu: bool = False, vehicle: Any = None,
-            profile: Any = None) -> list[dict]:
+            profile: Any = None, robot: Any = None) -> list[dict]:
     """Each episode on the lockstep rig with its obstacles in the pymunk world.
 
     Episode i of the list runs with plant seed `ep.seed + index_offset + i`:
@@ -113,7 +113,9 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
     `step_cpu`: add each tick's Controller.step CPU time (`qnav bench
     controller`; a timing, so never in `qnav bench nav`'s reproducible rows).
     `vehicle`: the robot's VehicleConfig (default: its parameters' defaults);
-    `profile`: the plant's sim_bridge.profiles.PlantProfile (default: the sim's default config)."""
+    `profile`: the plant's sim_bridge.profiles.PlantProfile (default: the sim's default config);
+    `robot`: the robot profile (firmware_py.profile.RobotProfile) the sim and the robot play (default the
+    built-in robot)."""
     from ground_station.lab.rigs.lockstep import LockstepRig
     from sim_bridge.obstacles import ObstacleLayer
 
@@ -131,7 +133,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
         minclear = math.inf
         driven = 0.0
         with LockstepRig(gm.occ, policies[ep.map], start, goals, seed=ep.seed + index_offset + i,  # type: ignore[arg-type]
-                         vehicle=vehicle, profile=profile) as rig:
+                         vehicle=vehicle, profile=profile, robot=robot) as rig:
             layer = ObstacleLayer(rig.plant.world, ep.discs, ep.movers)
             rig.plant.obstacles = layer  # movers move at the end of every period, as in the twin
             end_us = round(limit * 1e6)
@@ -197,11 +199,22 @@ def run_job(job: dict) -> list[dict]:
     maps = {name: load_map(spec) for name, spec in job["maps"].items()}
     if job["kind"] == "twin":
         assert isinstance(ctrl, NavController), f"{ctrl.name} has no continuous twin"
-        return run_twin(job["episodes"], maps, ctrl)
+        return run_twin(job["episodes"], maps, ctrl, twin_robot(job.get("robot")))
+    from firmware_py.profile import load_profile
     from sim_bridge.profiles import profile
 
     plant = profile(job["profile"]) if job.get("profile") else None
-    return run_hil(job["episodes"], maps, ctrl, index_offset=job["offset"], profile=plant)
+    robot = load_profile(job["robot"]) if job.get("robot") else None
+    return run_hil(job["episodes"], maps, ctrl, index_offset=job["offset"], profile=plant, robot=robot)
+
+
+def twin_robot(robot_file: str | None) -> TwinRobot:
+    """The twin of a robot profile file (None: the built-in robot)."""
+    if robot_file is None:
+        return TwinRobot()
+    from firmware_py.profile import load_profile
+
+    return TwinRobot.of_profile(load_profile(robot_file))
 
 
 def wilson95(k: int, n: int) -> list[float]:
