@@ -8,8 +8,12 @@ STAMP := $(VENV)/.installed
 
 $(STAMP): pyproject.toml setup.py
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[station,dev,cluster]'
+	# uv installs the same packages as pip (same resolution from pyproject.toml: compared with
+	# `pip freeze`) in a third of the time (fresh venv: 66 s -> 17 s here); pip if uv cannot be had
+	$(BIN)/python -m pip install --quiet uv && \
+	  $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[station,dev,cluster]' || { \
+	  $(BIN)/python -m pip install --quiet --upgrade pip && \
+	  $(BIN)/python -m pip install --quiet -e '.[station,dev,cluster]'; }
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -21,9 +25,11 @@ test: $(STAMP)
 	# numba's cache filled once (tools/warm_numba.py) in the background, beside the
 	# Debian test packages and UML check, ruff and mypy: otherwise every xdist worker
 	# and every `qnav` process a test starts compiles the same kernels.
+	# The Debian packages (apt, downloads: mostly waiting) beside ruff and mypy (38 s of CPU).
 	$(BIN)/python tools/warm_numba.py --quiet & warm=$$!; \
-	sh tools/install_test_deps.sh && $(BIN)/ruff check . && $(BIN)/mypy; status=$$?; \
-	wait $$warm || status=1; exit $$status
+	sh tools/install_test_deps.sh & deps=$$!; \
+	$(BIN)/ruff check . && $(BIN)/mypy; status=$$?; \
+	wait $$deps || status=1; wait $$warm || status=1; exit $$status
 	# Everything but the wall-clock tests on four pytest-xdist workers (at two,
 	# the 2 cores were busy 58 % of the run: many tests wait on processes and
 	# sockets; three -> four: 6:07 -> 5:32 on a fresh clone, 169 % CPU), grouped
