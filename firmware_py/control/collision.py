@@ -5,34 +5,19 @@ policy kind, the exploration wander and Manual driving: the controller hands
 it the command it is about to send, on the control schedule, and it keeps
 the turn but limits the straight part when a range reading lies in the path:
 
-* `path_gap_mm` is how far the round robot can drive along the arc the
-  command describes (nav2's "approach" model) before its rim touches a
-  point: each sensor's reading taken on its cone's centre and edge rays (the
-  sim's fan, `robot_spec`), the obstacle points the policy kind remembers
-  (`KindDriver.remembered_obstacles`: a disc that slipped into the 30-degree
-  gap between two cones as the robot passed it), and the corners of the
-  robot's map's blocks near the pose (`MapCorners`: a sensor sees a wall's
-  face but can miss a corner between two cones). A wall beside a straight
-  corridor is not in the way; a wall ahead, a disc on the diagonal close in,
-  a corner the robot is curving into, are. Fresh-clone runs of the demo with
-  obstacles ended at the bumper on a disc in such a gap, and later on a
-  block's corner while arcing round it, before each was counted. A
-  reading under `CONTACT_MM` may be a body touching the rim in the blind
-  gap beside its cone (a mover that walked up to the robot's flank reads
-  20-40 mm along the nearer cone edge, never touching): the rim across
-  those gaps counts as read, except a gap away from a neighbour that also
-  reads under it (the body is in the gap between them). A too-close
-  reading (under the sensor's minimum) is taken as 0 mm. A reading the
-  robot's map explains (`mapped`, worked out by the caller on its map
-  and pose: `mapped_readings`, below) is a wall or a block, whose corners the monitor has: no gap
-  is filled for it, and too close is the sensor's minimum.
-* `limit` scales the straight part by `slow_pct` when the gap is under
-  `slow_mm` and removes it under `stop_mm`; turning in place is left alone
-  (a round robot turning touches nothing). The bumper and stale sensors are
-  the controller's own stops (FAULT/Hold); this acts before contact.
+* `path_gap_mm`: how far the round robot can drive along the command's arc
+  before its rim touches a point: the readings on each cone's centre and
+  edge rays, the obstacle points the kind remembers, the corners of the
+  map's blocks near the pose (`MapCorners`), and the rim across a blind gap
+  beside a cone reading under `CONTACT_MM` (`_reading_points`);
+* `limit` scales the straight part by `slow_pct` under `slow_mm` and removes
+  it under `stop_mm`; turning in place is left alone. The bumper and stale
+  sensors are the controller's own stops (FAULT/Hold); this acts before contact.
 
-Pure integer/float stdlib; parameters CM_STOP_MM, CM_SLOW_MM, CM_SLOW_PCT
-(firmware_py.mavlink.params; 0 mm switches a zone off).
+Why each kind of point counts (discs in the gap between two cones, block
+corners, movers at the flank) and the measured effect: docs/architecture.md,
+"Collision monitor". Pure integer/float stdlib; parameters CM_STOP_MM,
+CM_SLOW_MM, CM_SLOW_PCT (firmware_py.mavlink.params; 0 mm switches a zone off).
 """
 
 from __future__ import annotations

@@ -6,50 +6,14 @@ and the range readings every tick and drives, encodes states and checks
 goals with `Localiser.pose_mm()` / `goal_vector()`; the raw odometry stays
 beside it in telemetry.
 
-* **Sensor model: a likelihood field**, precomputed once per map
-  (`LikelihoodField`): for every `res_mm` square the signed distance to the
-  nearest wall surface (the map's outside counts as wall: the world's outer
-  walls; inside a wall, minus the distance to the nearest free cell), its
-  size d turned into log(z_hit * N(d; 0, sigma) + z_floor). A reading r of
-  sensor k puts an end point at R + r along each ray of the sensor's cone.
-  The sim's and a real sensor's reading is the nearest echo in the cone, so
-  no ray may end inside a wall (it would have read shorter) and the nearest
-  one should end on a surface: the reading's error is the smallest signed
-  distance over the cone's ray ends, taken by size (`cone_min`; the older
-  model took the best-fitting ray, under which a pose too near a wall, or a
-  heading up to a cone's width off, explained the readings as well as the
-  true one: HIL on trap-16x16-s1 drifted 150-600 mm even on exact
-  odometry). The particle's log weight is the sum over valid readings
-  (no ray casting). `z_floor` is the outlier floor: a reading that ends in free space
-  (an obstacle the map does not know, a person, a box) costs a bounded
-  amount instead of killing the particle, so unmapped obstacles degrade the
-  estimate gracefully rather than break it. TOO_FAR and INVALID readings
-  carry no end point and are skipped (as AMCL's likelihood field does).
-* **Motion model**: the odometry motion model (rot1, trans, rot2 between two
-  odometry poses) with noise alpha1..alpha4 (`LocaliserConfig`), so
-  systematic encoder scale error and slip are covered by the spread.
-* **Resampling**: fixed size, low-variance; with augmented MCL's short/long
-  averages of the mean weight (`alpha_fast`, `alpha_slow`) a share of the
-  new particles is drawn uniformly over free space when the sensors disagree
-  with the particles (recovery from a wrong or kidnapped pose).
-* **Global localisation**: `init_global()` scores the next readings at
-  every pose of a grid over free space (`seed_step_mm` x `seed_headings`, a
-  share per tick) and draws `global_particles` from those scores, so the
-  true pose has particles from the start; then global-mode updates
-  (negative information, roughening). Converged when the best particle's
-  cluster dominates and is tight `converge_updates` updates in a row, moving
-  as the odometry says; then only that cluster is tracked, with `particles`.
-* **Schedule**: an update is due when the odometry moved `update_mm` or
-  turned `update_mrad` since the last one; its particles are weighed in
-  chunks of `chunk` per control tick and the resample happens on a tick of
-  its own, so one tick never carries a whole update (the control tick keeps
-  its budget; the filter runs at ~20 Hz / (N / chunk + 1)). Between updates
-  the believed pose is the last estimate composed with the odometry's motion
-  since the readings it used. Deterministic for a given seed (lockstep runs
-  repeat exactly).
-
-Floats throughout (the robot's Python has them; the control path's integers
-come back at the API: mm and mrad).
+A likelihood-field sensor model (`LikelihoodField`, the cone's nearest echo:
+`cone_min`), the odometry motion model (alpha1..4), low-variance resampling
+with augmented MCL's recovery draws, global localisation (`init_global`) and
+an update schedule spread over control ticks (`chunk` particles a tick, so
+no tick carries a whole update): docs/architecture.md, "Localisation", has
+the model, its parameters and why. Deterministic for a given seed (lockstep
+runs repeat exactly). Floats throughout; the control path's integers come
+back at the API (mm and mrad).
 """
 
 from __future__ import annotations

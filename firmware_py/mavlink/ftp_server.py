@@ -7,47 +7,16 @@ or a burst). No sockets, no threads, no wall clock: the shell
 FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()`
 into STATUSTEXT.
 
-Protocol rules followed (docs/mavlink.md, "FTP server"):
-- reply seq = request seq + 1 (a burst counts up from there), req_opcode =
-  request opcode, the request's session and offset echoed;
-- sessions are numbered by the client (MAVProxy picks its own ids, pymavlink
-  counts from 0) and belong to the (sysid, compid) that opened them: the
-  session table is keyed by (owner, N), so another system id cannot read,
-  write, terminate (commit) or reset a session it did not open (it gets
-  NAK InvalidSession), and two clients may both use session 0. Opening a
-  file on session N creates the owner's session N, replacing a stale one;
-  at most `max_sessions` at once and `max_sessions_per_client` per owner;
-  idle sessions expire after `session_timeout_us` (5 s), and when the table
-  is full a new open evicts the least recently used session idle for more
-  than `evict_idle_us` (1 s), so idle sessions cannot lock other clients out;
-- ResetSessions resets the caller's sessions only;
-- a retried request (byte-identical to the last one on that session, within
-  the session timeout) gets the cached reply again instead of being re-run, so
-  a lost ACK never makes a Rename or a CreateFile happen twice;
-- the robot's active files and state files (PROTECTED) and everything in the
-  onboard log's and the metadata folders (READ_ONLY_DIRS: /logs, /metadata) are read-only: CreateFile,
-  OpenFileWO, RemoveFile, TruncateFile, Create/RemoveDirectory and a Rename
-  into or out of them get NAK FileProtected; reading and listing are allowed;
-- files written via CreateFile/OpenFileWO go to a temporary name and only
-  replace the real name at TerminateSession; ResetSessions, session expiry
-  and a crash discard them;
-- Rename onto /policies/active.qtab activates a policy through the injected
-  hook, and onto /maps/active.map the robot's own map through the second
-  (`activate_map`); refusals are NAK Fail plus a STATUSTEXT with the reason
-  ("policy refused: ...", "map refused: ..."), the old file stays active;
-  one whose worker is not done within `activation_timeout_us` (20 s) is refused
-  so and cancelled: the worker swaps nothing in afterwards (policy and map
-  alike; one already swapping it in at that moment is answered with its result);
-- file work whose cost the file chooses (CalcFileCRC32 of a file over
-  INLINE_CRC_BYTES, 1 MiB; TerminateSession's commit, which fsyncs the file
-  and its directory, slow on an SD card) runs on the injected `offload` (firmware_py.background, a worker
-  thread in the robot's shell) when there is one: the request gets no reply
-  now, `poll` returns it when the work is done, and a retry meanwhile starts
-  nothing new and is the one answered (as for a pending activation);
-- anything malformed (short payload, size beyond the data, offsets past the
-  end, unknown sessions or opcodes) gets a NAK, never an exception; lengths
-  (TruncateFile, write offsets) are checked against the storage quota before
-  anything is allocated (firmware_py.storage).
+The protocol rules it follows are in docs/mavlink.md, "FTP server" and
+"Policy activation": sessions owned by the (sysid, compid) that opened them,
+bounded, expiring and evicted when idle; retried requests answered from the
+reply cache (a lost ACK never renames or creates twice); PROTECTED files and
+READ_ONLY_DIRS read-only; writes committed at TerminateSession only; Rename
+onto /policies/active.qtab or /maps/active.map activating through the
+injected hooks (refused with NAK Fail + STATUSTEXT, cancelled after
+`activation_timeout_us`); costly file work (a large CRC, the commit's fsync)
+on the injected `offload`, its reply returned by `poll`; anything malformed
+NAKed, never raised, lengths checked against the storage quota first.
 """
 
 from __future__ import annotations

@@ -1,35 +1,18 @@
 """The MAVLink side's threads in `qnav-robot`: the link thread and the storage worker.
 
-ArduPilot's scheduler runs the fast loop first and gives the GCS and storage
-tasks what is left of each period, each with a time budget. This module does
-the same with Python threads:
-
-* The control loop (firmware_py.control.node, the ticking thread) never
-  touches the link. After each tick its only MAVLink work is
-  `LinkThread.on_tick`: the GCS failsafe check (`MavNode.check_failsafe`,
-  a few comparisons) and setting an event that opens the link thread's slot.
-* `LinkThread` waits for that event, then runs one `MavShell.poll` with a
-  time budget of `budget_fraction` of the control period (frames beyond it
-  wait in the socket's bounded receive buffer for the next slot; a UDP flood
-  beyond that buffer is dropped by the kernel, as a radio drops it). So the
-  link's Python work happens right after a tick, while the next tick is
-  farthest away. With no control tick for two periods (no CAN, a stopped
-  sim) it polls on its own, so the link stays alive.
-* `StorageWorker` runs the parameter saves (two fsyncs each) off both
-  threads: bounded queue, and a save already queued absorbs later ones (600
-  PARAM_SETs cost a handful of writes; the table in memory is always the
-  newest, and `ParamStore.load` flushes the worker first).
-
-The GIL: a tick that wakes while the link thread runs Python code waits for
-the interpreter lock until the link thread is forced to drop it, up to
-`sys.getswitchinterval()` (CPython's default 5 ms). `LinkThread.start` sets
-it to `switch_interval_s` (0.5 ms by default; `qnav-robot --gil-switch-us`),
-so a tick waits at most that long even when one handler is long. The slot
-schedule keeps that case rare, and the poll sleeps 0.2 ms after every 1 ms
-of work (`yield_every_s`): the ticking thread's frame-by-frame I/O needs
-the lock once per read and send, and beside a busy thread each of those
-would wait a switch interval (the convoy effect). docs/reliability.md has
-the measurements, and why they point to a process for the link.
+As ArduPilot's scheduler gives the GCS and storage tasks what is left of
+each period after the fast loop, the control loop here never touches the
+link: after each tick it only runs `LinkThread.on_tick` (the GCS failsafe
+check, a few comparisons, and an event that opens the link thread's slot).
+`LinkThread` then runs one `MavShell.poll` with a budget of
+`budget_fraction` of the control period, while the next tick is farthest
+away; with no tick for two periods it polls on its own. `StorageWorker`
+runs the parameter saves off both threads (a save already queued absorbs
+later ones). `LinkThread.start` lowers CPython's switch interval to
+`switch_interval_s` and the poll yields the GIL briefly every
+`yield_every_s` of work, so a tick never waits long for the interpreter
+lock. docs/mavlink.md, "Node structure", has the schedule;
+docs/reliability.md the measurements.
 """
 
 from __future__ import annotations

@@ -1,38 +1,19 @@
 """Mission protocol engine (MAVLink mission microservice, robot side).
 
 Owns the stored mission (the items exactly as uploaded, so a download
-returns what was sent) and the transfer state machines:
+returns what was sent) and the transfer state machines: upload (a missing
+item re-requested every MIS_TIMEOUT_MS on the robot clock, MIS_RETRIES
+times, then cancelled, the old mission kept), download, MISSION_CLEAR_ALL,
+MISSION_SET_CURRENT and the "guided mode" item (current=2). Pure engine:
+`handle(msg, now_us)` and `tick(now_us)` return replies.
 
-- upload: MISSION_COUNT -> MISSION_REQUEST_INT(seq) ... MISSION_ITEM_INT /
-  MISSION_ITEM -> MISSION_ACK; a missing item is re-requested every
-  MIS_TIMEOUT_MS on the robot clock, MIS_RETRIES times, then the upload is
-  cancelled (old mission kept);
-- download: MISSION_REQUEST_LIST -> MISSION_COUNT, MISSION_REQUEST_INT /
-  MISSION_REQUEST -> item, ended by the GCS's MISSION_ACK or a timeout;
-- MISSION_CLEAR_ALL, MISSION_SET_CURRENT (-> MISSION_CURRENT);
-- a "guided mode" item (current=2 outside an upload, as ArduPilot takes
-  it): a goal, acknowledged with MISSION_ACK.
-
-Every waypoint must lie on the robot's map (`VehicleStatus.map_mm`, from the
-active policy's recorded map geometry): an item off it ends the upload with
-MAV_MISSION_INVALID_PARAM5_X (north/south) or _PARAM6_Y (east/west) and a
-STATUSTEXT naming the point and the map; the previous mission is kept.
-
-Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED (x north, y east:
-metres, or metres * frames.LOCAL_ITEM_SCALE in MISSION_ITEM_INT) or a global frame (converted
-around the configured origin). Waypoints go to the vehicle in world
-millimetres (x east, y north). Only mission_type MISSION; fence and rally
-are answered MAV_MISSION_UNSUPPORTED. Pure engine: `handle(msg, now_us)`
-and `tick(now_us)` return replies.
-
-Every item (uploaded or a guided waypoint) is validated before anything is
-computed from it (`check_item`, on `check_position`, which DO_REPOSITION and
-the position targets use too):
-x / y must be finite and inside the frame's range (local: |x|, |y| <= 200 km;
-global: |lat| <= 90 deg, |lon| <= 180 deg), else the upload ends with
-MAV_MISSION_INVALID_PARAM5_X / _PARAM6_Y and the old mission stays; z must
-be finite (MAV_MISSION_INVALID_PARAM7) and param1-4 not infinite
-(MAV_MISSION_INVALID_PARAM1..4; NaN is MAVLink's "unused").
+Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED or a global frame
+(converted around the configured origin); waypoints go to the vehicle in
+world millimetres (x east, y north). Every item (uploaded or a guided
+waypoint) is validated before anything is computed from it (`check_item`,
+on `check_position`, which DO_REPOSITION and the position targets use too)
+and must lie on the robot's map (`VehicleStatus.map_mm`). The rules and the
+MAV_MISSION_* answers: docs/mavlink.md, "Missions".
 """
 
 from __future__ import annotations

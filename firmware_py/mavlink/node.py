@@ -4,58 +4,18 @@
 filter, target check, parameters, commands, missions, goals, SETUP_SIGNING,
 FTP - plus the GCS failsafe and the telemetry schedule: `handle(msg,
 now_us)` and `tick(now_us)` return the messages to send, nothing else
-happens; time is the robot clock's.
+happens; time is the robot clock's. `handle` never raises: a handler's
+exception is counted per message kind (`handler_errors`), logged once per
+kind and answered with a STATUSTEXT.
 
-`MavShell` is the I/O around it on any pymavlink connection string
-(`udpout:127.0.0.1:14550` by default, `udpin:`, `tcp:`, `tcpin:`, a serial
-device). `poll(now_us, budget_s)` is non-blocking: it handles what has
-arrived until the time budget is spent, then runs `tick`. In `qnav-robot`
-it runs in the link thread (firmware_py.mavlink.link_thread), never in the
-control loop; `serve(stop)` runs it in a loop for a standalone node. No
-frame can raise out of the shell: an exception in a handler is caught per
-message, counted per kind (`handler_errors`) and logged once per kind, and
-the poll goes on. On UDP the parser is reset after a datagram that ends
-inside a frame (`partial_dropped`): pymavlink parses all senders as one byte
-stream, so one truncated frame from anyone would otherwise swallow the next
-frame that arrives, whoever sent it (a GCS heartbeat among garbage).
-On a serial device the shell sends within the line's byte rate
-(`tx_budget.TxBudget`, wall time): replies always go, telemetry stream
-messages are skipped while the share is spent (`link_telemetry_thinned`).
+`MavShell` is the I/O around it on any pymavlink connection string:
+`poll(now_us, budget_s)` is non-blocking, handles what has arrived until the
+budget is spent, then runs `tick`; `serve(stop)` loops it standalone.
 
-GCS failsafe (as ArduPilot Rover): armed only after a GCS heartbeat
-(HEARTBEAT with type MAV_TYPE_GCS) has been seen; no GCS heartbeat for
-FS_GCS_TOUT_MS -> `vehicle.set_failsafe(True)` (the vehicle applies
-FS_GCS_ACTION) + STATUSTEXT "GCS failsafe"; the next GCS heartbeat clears it.
-The check is `check_failsafe(now_us)`: `tick` runs it, unless
-`failsafe_on_control` is set, when the control loop calls it after every
-tick (the link thread then only records heartbeat times; its texts are
-queued for the link thread to send), so a stalled or flooded link cannot
-delay it.
-
-Only the operator's GCS counts: the system id in SYSID_MYGCS (255 by default,
-as ArduPilot), or with 0 the first GCS heartbeat's system id after boot; heartbeats of other
-system ids are counted in `foreign_gcs_heartbeats` and keep nothing alive.
-
-Only the operator's GCS steers (authority.py): MANUAL_CONTROL, RC overrides,
-mode changes, arming and other commands, goals, mission writes and PARAM_SET
-are taken from SYSID_MYGCS only (0: any system) and never when broadcast
-(target system 0); refusals are counted and summarised in one STATUSTEXT a
-second at most. PARAM_REQUEST_LIST is answered as a rate-bounded background
-stream per requester (param_stream.py), so a flood of list requests cannot
-bury the operator's commands under their answers.
-
-Per-message isolation: `handle` never raises. Every field a handler uses
-is validated (finite, in range) and refused with DENIED / MAV_MISSION_INVALID_*
-/ a STATUSTEXT; an unexpected exception in a handler is counted per message
-kind in `handler_errors`, logged once per kind and answered with a
-STATUSTEXT, and the node carries on (so `tick`, with the failsafe, runs).
-
-SETUP_SIGNING while no key is set arrives unsigned: over a network link it
-is refused unless the operator set SIGN_NET_SETUP=1 on the robot (a robot
-parameter that PARAM_SET cannot change); over a serial link (physical
-access) it is accepted. Recovery when no ground station holds the key:
-`qnav-robot --signing-key FILE` (the file wins over the stored key), or
-SIGN_NET_SETUP=1 in `<storage>/params/params.json` and a restart.
+docs/mavlink.md has the rest: "Node structure" (the link thread, the UDP
+parser reset, the serial send budget), "GCS failsafe" (`check_failsafe`,
+`failsafe_on_control`), "Who may steer: SYSID_MYGCS" and "Signing"
+(SETUP_SIGNING over network and serial links, SIGN_NET_SETUP).
 """
 
 from __future__ import annotations

@@ -4,36 +4,16 @@ Owns the signing key (provisioned by SETUP_SIGNING or a key file), the
 decision whether an incoming frame is accepted, the drop counters, and the
 persisted signing state (`<storage>/signing.json`: key set by SETUP_SIGNING,
 last timestamp, per-stream timestamps) so replays are refused across
-reboots too.
+reboots too. The file is under the FTP root, but FTP is refused unsigned
+whenever a key is set, so only a key holder can read it.
 
-The file is under the FTP root, but FTP (and SETUP_SIGNING) is refused
-unsigned whenever a key is set, even with SIGN_REQUIRE=0, so only a key
-holder can read it.
-
-Rules (as ArduPilot): with no key every frame is accepted. With a key, a
-frame must carry a valid signature whose 48-bit timestamp (10 us units since
-2015-01-01) is strictly greater than the last one seen on its stream
-(link id, sysid, compid); a new stream may be at most one minute behind the
-robot's timestamp. Unsigned frames are dropped except RADIO_STATUS (radios
-cannot sign), unless SIGN_REQUIRE=0. Badly signed frames are always dropped.
-A stream's timestamp only advances after the signature verified, so a forged
-frame cannot block a stream.
-
-Bounds (hostile testing, issue 13): a timestamp more than FUTURE_WINDOW
-(60 s) ahead of the robot's own is dropped (`dropped_future`), and incoming
-timestamps never move the robot's own clock, so no frame, however signed,
-can push the robot's outgoing timestamps towards 2^48 (they would wrap and
-lock every ground station out). Nothing beyond MAX_TIMESTAMP (2^48 - 1) is
-ever sent or stored; a stored state beyond it (or beyond the window) is
-reset at boot with a warning. After a boot no frame older than the boot's
-timestamp is accepted on any stream (`replay_floor`), so a frame captured
-before a crash (kill -9, power cut) is refused after it even if the last
-periodic save of the stream timestamps was lost; this needs the robot's
-wall clock to be set (NTP/RTC), else only the last save (every 10 s) holds.
-
-The verification is done here rather than by pymavlink's parser so the
-counters and the new-stream and persistence rules are ours; pymavlink still
-signs outgoing frames (the shell copies `key`/`timestamp` to it).
+The rules (as ArduPilot's, plus the bounds of issue 13: FUTURE_WINDOW,
+MAX_TIMESTAMP, `replay_floor` after a boot) are in docs/mavlink.md,
+"Signing". The verification is done here rather than by pymavlink's parser
+so the counters and the new-stream and persistence rules are ours; a
+stream's timestamp only advances after its signature verified, so a forged
+frame cannot block it. pymavlink still signs outgoing frames (the shell
+copies `key`/`timestamp` to it).
 """
 
 from __future__ import annotations

@@ -3,53 +3,16 @@
 foxglove-sdk's WebSocket server (127.0.0.1 only), so Foxglove (desktop, or
 its web app pointed at ws://127.0.0.1:PORT) shows the robot on its map.
 
-Who may connect (issue 43, finding 2: any web page open in the operator's
-browser can open a WebSocket to 127.0.0.1, and the bridge sends on the
-monitor's link, with its signing key). foxglove-sdk 0.30's server shows a
-listener nothing of the handshake (a client is an id), so `HandshakeGate`
-stands in front of it: it owns the public port, reads the HTTP upgrade
-request and relays the connection, byte for byte, to the SDK's server on a
-random loopback address (127.x.y.z: a page cannot find it by scanning
-127.0.0.1) only when
-
-- the request has no Origin header (a non-browser client: it is not a web
-  page), or its Origin is one of the allowed ones (`DEFAULT_ORIGINS`, or
-  exactly the `--foxglove-origin` list); else HTTP 403;
-- with a token (`--foxglove-token`), the request carries it: the query
-  parameter `?token=...` of the URL (`ws://127.0.0.1:8765/?token=...`, what
-  Foxglove's Open connection dialog takes) or a header
-  `Authorization: Bearer ...`; else HTTP 401.
-
-Both subprotocol names are served (issue 46, item 2): foxglove-sdk 0.30's
-server accepts only `foxglove.sdk.v1` (HTTP 400 otherwise), the name the
-Foxglove SDK gave the protocol of the ws-protocol spec, whose subprotocol
-is `foxglove.websocket.v1` (what Lichtblick, Foxglove Studio before the
-SDK, PlotJuggler's and roslibjs-foxglove's clients offer). The messages
-are the spec's v1 set under either name (foxglove-sdk's own
-`websocket::ws_protocol` is the v1 message set; Foxglove's stance, quoted
-in Lichtblick PR #819, is that the two are identical for now). So for a
-client that offers `foxglove.websocket.v1` and not `foxglove.sdk.v1` the
-gate offers the SDK `foxglove.sdk.v1` in its place and gives the client
-back `foxglove.websocket.v1` in the 101 answer; the frames after it are
-relayed untouched.
-
-The map (`/map`) is latched: the bridge sends it again whenever a client
-subscribes to it (the SDK's `on_subscribe`, acted on by the monitor's next
-poll) and when `set_map` gives a new one (the robot's map changed).
-
-Read-only unless goals are enabled (`--foxglove-goals`): only then does the
-server offer client publishing. A client may then publish a goal on `/goal`
-(JSON `{"x": E, "y": N}` in map metres, or a foxglove PoseInFrame /
-PoseStamped-like JSON with `pose.position`): it is checked as `qnav goal`
-checks it (finite, inside the robot's local range) and queued; the monitor's
-loop sends it (`take_goals`) as SET_POSITION_TARGET_LOCAL_NED, so the link
-is only ever used from one thread, and only while the robot's latest
-HEARTBEAT (at most `GOAL_HEARTBEAT_AGE_S` old) says Guided: otherwise the
-goal is dropped with a line on stderr and on `/log`. The bridge never
-switches the mode: the operator puts the robot in Guided (and the robot
-itself refuses a position target in any other mode). The robot's answer
-comes back as telemetry (POSITION_TARGET_LOCAL_NED, or a "goal refused: ..."
-line on /log); a refused publish is counted and logged here.
+`HandshakeGate` owns the public port and relays a connection, byte for byte,
+to the SDK's server on a random loopback address only when its Origin is
+allowed (or absent) and it carries the token, if one is set (issue 43); it
+serves both subprotocol names, `foxglove.sdk.v1` and `foxglove.websocket.v1`
+(issue 46). `/map` is latched (sent again to a new subscriber and on
+`set_map`). Read-only unless `--foxglove-goals`: then a `/goal` a client
+publishes is checked as `qnav goal` checks it and queued, and the monitor's
+loop sends it (`take_goals`, one thread on the link) only while the robot's
+latest HEARTBEAT says Guided. Who may connect, the subprotocols and the goal
+rules: docs/monitor.md, "A run in Foxglove, PlotJuggler and Rerun".
 """
 
 from __future__ import annotations

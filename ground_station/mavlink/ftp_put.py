@@ -1,63 +1,14 @@
-"""The put of a policy upload as a pure state machine: rounds of CreateFile /
-OpenFileWO, 239-byte WriteFiles in a window, TerminateSession and
-CalcFileCRC32, whose answer tells which unanswered writes were lost.
-Standard MAVLink FTP opcodes only; no socket, no clock: `poll(now)` returns
-the request payloads to send, `on_reply(payload, now)` takes every FTP reply
-(`ground_station.mavlink.ftp_upload` is the shell on a `Link`).
+"""The put of a policy upload as a pure state machine, standard MAVLink FTP opcodes only.
 
-Why our own and not pymavlink's `MAVFTP.cmd_put` (still what stock tools
-use against the robot): MAVFTP writes 80-byte blocks (27 bytes of framing
-per 80, 34 %; 239-byte blocks: 11 %), re-sends only on timers (0.2-1 s)
-and counts every block index skipped between two ACKs as lost, so under
-loss it either idles or floods the radio with copies (docs/mavlink.md).
-
-How the put finds out what was lost, cheaply (standard opcodes only):
-* the put runs in rounds: CreateFile (later OpenFileWO, which keeps the
-  contents), each of the round's blocks written ONCE, TerminateSession
-  (commits, sent twice) and CalcFileCRC32 sent right behind it (twice
-  when the put waits for it, once mid-put), and the next round's
-  OpenFileWO right behind those (the link is FIFO and the robot serves in
-  order: it opens the committed file). That round writes once the
-  commit's ACK is in; if that ACK answered a later copy (the first two,
-  or their ACKs, lost) or the open was refused, the open may have run
-  before the commit, so the same session is opened again (no write went
-  to it yet); when the last CRC shows the file complete, the session
-  opened ahead is closed uncommitted (ResetSessions, not waited for);
-* every copy of a write carries its own seq, so each ACK names the copy it
-  answers: exact round-trip samples (SRTT/RTTVAR as RFC 6298); the window
-  (6 writes, a little over the radio's bandwidth-delay product) is freed by
-  ACKs, by a later write's ACK (the link is FIFO: RACK, RFC 8985) and by the
-  retransmit timeout (SRTT + 4 RTTVAR, at least 2 x SRTT);
-* a write whose ACK never came is *unknown*: lost, or only its ACK lost.
-  The robot's CRC32 of the committed file decides: MAVLink FTP's CRC32
-  (initial 0, no final xor) is linear over GF(2), so CRC(file) xor
-  CRC(answered blocks only, holes as zeros) is the XOR of the CRCs of the
-  unknown blocks that arrived, each alone in a zero file of the same length:
-  32 equations, solved by elimination when the candidates are independent
-  (rounds are sized for ~20 unknowns, at most 28 accepted); the file length
-  (its highest block may be unknown) is tried from the top down and two
-  fitting lengths count as "cannot tell". Only blocks found missing are
-  written again; when it cannot tell, every unknown block is;
-* the last 1-3 blocks are written twice in one round (a frame of air is
-  cheaper than another round); a round with new blocks starts before the
-  CRC is back (the missing ones go first when it comes).
-So a block costs about 1 / (1 - p) frames at loss p per direction instead of
-1 / (1 - p)^2 (resending whatever was not ACKed), plus four or five small control
-frames and about one round trip plus the robot's commit and open per round. The caller still checks the
-CRC32 of the whole file before it reports success (a wrong solution only
-costs a put).
-
-239-byte writes "hung" an earlier client through the link emulator; the
-first version of this engine reproduced it and showed why: a window of
-266-byte frames queues 46 ms each in a 57600-baud radio, so a retransmit
-timeout taken from the small CreateFile's round trip fired before every
-write's ACK, and the late ACKs of superseded copies were thrown away - no
-RTT sample ever grew the timeout. The emulator, server and framing were
-fine (239-byte writes sent one by one were all answered). Here an ACK of
-any copy counts and the timeout comes from the writes' own round trips.
-
-CreateFile and TerminateSession are re-sent with the same seq and bytes, so
-the robot's retry cache answers a copy instead of running it twice.
+Rounds of CreateFile / OpenFileWO, 239-byte WriteFiles in a window,
+TerminateSession and CalcFileCRC32, whose answer (MAVLink FTP's CRC32 is
+linear over GF(2)) tells which unanswered writes were lost, so a lost ACK
+costs no copy of its block. No socket, no clock: `poll(now)` returns the
+request payloads to send, `on_reply(payload, now)` takes every FTP reply
+(`ground_station.mavlink.ftp_upload` is the shell on a `Link`). The method,
+why not pymavlink's `MAVFTP.cmd_put`, and the figures: docs/mavlink.md,
+"The put". CreateFile and TerminateSession are re-sent with the same seq and
+bytes, so the robot's retry cache answers a copy instead of running it twice.
 """
 
 from __future__ import annotations

@@ -2,42 +2,14 @@
 prove it arrived byte-exact, and optionally activate it. `qnav upload`, the
 demo, the upload bench and the fault scenarios all run `upload_policy`.
 
-Steps (docs/mavlink.md, "Uploading a policy"):
-1. RemoveFile of the remote name (a stale file there could pass step 2);
-   then the put: `ftp_put.FtpPut` (standard opcodes only: CreateFile /
-   OpenFileWO, WriteFile in 239-byte blocks, TerminateSession,
-   CalcFileCRC32), in rounds whose unanswered writes the robot's CRC32 of
-   the committed file resolves, so a lost ACK costs no copy of the block
-   (ftp_put's docstring has the method, docs/mavlink.md the figures);
-2. `CalcFileCRC32` on the robot == FTP CRC32 of the local file (the put's
-   own last request, asked after its last commit; asked again if the put
-   ended otherwise), else the whole put is repeated (up to `attempts`);
-3. with --activate: FTP Rename onto /policies/active.qtab; the robot
-   validates the file and refuses with NAK + STATUSTEXT reason (exit 3);
-4. the verdict comes from the robot's state, never from one reply: done only
-   when the robot reports the file's POLICY_ID and POLICY_CRC_HI/LO
-   parameters AND CalcFileCRC32 of active.qtab equals the local CRC. A lost
-   reply or read is asked again within the time budget; while the uploaded
-   file is still under its own name the rename did not happen and is sent
-   again. (The whole-file CRC alone cannot tell two policies apart: every
-   valid .qtab of one size has the same one, the file ending in its own
-   CRC32.) A robot that serves no parameters (the standalone FTP shell: its
-   HEARTBEAT reports no system state) is confirmed by the rename's ACK or the
-   file having left its name, plus the CRC of active.qtab, and says so.
-
-Single requests (RemoveFile, CRC) are sent again after 3 x the put's
-smoothed round trip (0.3 s before any put), not after pymavlink's quiet
-wait; the Rename still goes through pymavlink's MAVFTP client, whose seq
-counter is the link's one counter for every FTP request.
-
-Every FTP reply is matched by the request's own seq. One MAVFTP client (its
-`FtpSession`) serves a `Link` for the link's whole life, so seq never
-restarts and a late reply to an earlier request (a lossy radio queues seconds
-of them) cannot answer a later one.
-
-Failures raise `LinkError` with the link's exit codes: EXIT_REFUSED (3)
-refused by the robot, EXIT_TIMEOUT (4) timeout or no FTP answer,
-EXIT_MISMATCH (5) CRC or policy-id mismatch.
+The steps (RemoveFile, the put of `ftp_put.FtpPut`, CalcFileCRC32, the
+Rename onto /policies/active.qtab) and why the verdict comes from the
+robot's state (POLICY_ID, POLICY_CRC_HI/LO and the CRC of active.qtab), never
+from one reply: docs/mavlink.md, "Uploading a policy". Every FTP reply is
+matched by its request's seq, from the link's one MAVFTP client
+(`FtpSession`), so a late reply to an earlier request cannot answer a later
+one. Failures raise `LinkError` with the link's exit codes: EXIT_REFUSED (3),
+EXIT_TIMEOUT (4), EXIT_MISMATCH (5).
 """
 
 from __future__ import annotations
@@ -408,7 +380,7 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
 
 def _activate(session: FtpSession, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
     """Rename the verified file onto active.qtab until the robot's state shows
-    it active (see the module docstring, step 4). Replies only steer: a NAK
+    it active (docs/mavlink.md, "Uploading a policy", step 5). Replies only steer: a NAK
     Fail is the robot's refusal; an ACK or a lost reply is checked against
     what the robot reports."""
     link, mavftp = session.link, session.mavftp
