@@ -243,8 +243,9 @@ class MissionWatch:
                 done = msg.total if msg.mission_state == MAV_MISSION_STATE_COMPLETE else msg.seq
                 self.reached.update(range(min(done, self.total)))
         elif kind == "NAMED_VALUE_INT":
-            name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
-            if name == "CTRL_ST":
+            from ground_station.monitor.model import NV_CTRL_STATE, field_text
+
+            if field_text(msg.name) == NV_CTRL_STATE:
                 from firmware_py.vehicle import CtrlState
 
                 if msg.value == CtrlState.FAULT and not self.fault:

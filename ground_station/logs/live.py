@@ -190,13 +190,10 @@ class HandshakeGate:
         upstream = None
         try:
             client.settimeout(HEAD_TIMEOUT_S)
-            buf = b""
-            while b"\r\n\r\n" not in buf:
-                chunk = client.recv(4096)
-                if not chunk or len(buf) + len(chunk) > HEAD_LIMIT:
-                    return
-                buf += chunk
-            head, rest = buf.split(b"\r\n\r\n", 1)
+            read = _read_head(client)
+            if read is None:
+                return
+            head, rest = read
             status, why, relay_head = self.check(head)
             if status:
                 self.refused += 1
@@ -213,13 +210,10 @@ class HandshakeGate:
                 return
             upstream.sendall(relay_head + b"\r\n\r\n" + rest)
             if legacy:  # the SDK's 101 answer, its subprotocol put back to the one offered
-                answer = b""
-                while b"\r\n\r\n" not in answer:
-                    chunk = upstream.recv(4096)
-                    if not chunk or len(answer) + len(chunk) > HEAD_LIMIT:
-                        return
-                    answer += chunk
-                answer_head, after = answer.split(b"\r\n\r\n", 1)
+                answer = _read_head(upstream)
+                if answer is None:
+                    return
+                answer_head, after = answer
                 client.sendall(as_legacy_answer(answer_head) + b"\r\n\r\n" + after)
                 self.legacy += 1
             client.settimeout(None)
@@ -259,6 +253,19 @@ class HandshakeGate:
         for sock in socks:
             with contextlib.suppress(OSError):
                 sock.shutdown(socket.SHUT_RDWR)
+
+
+def _read_head(sock: socket.socket) -> tuple[bytes, bytes] | None:
+    """An HTTP head from `sock` and the bytes after it; None if the peer closed first or it is over
+    HEAD_LIMIT."""
+    buf = b""
+    while b"\r\n\r\n" not in buf:
+        chunk = sock.recv(4096)
+        if not chunk or len(buf) + len(chunk) > HEAD_LIMIT:
+            return None
+        buf += chunk
+    head, rest = buf.split(b"\r\n\r\n", 1)
+    return head, rest
 
 
 def _hidden_loopback_server(start: Callable[[str], Any]) -> tuple[Any, str]:

@@ -43,7 +43,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from ground_station.monitor.model import VehicleView
+from ground_station.monitor.model import VehicleView, obstacle_increment_deg
 
 MAP_FRAME, ROBOT_FRAME, TRUTH_FRAME = "map", "base_link", "truth"
 
@@ -217,8 +217,8 @@ class RunTopics:
     def _on_obstacle_distance(self, msg, ns: int, t_wall: float) -> list[Record]:
         from foxglove import messages as fm
 
-        inc_deg = msg.increment_f or msg.increment
-        if not inc_deg:
+        inc_deg = obstacle_increment_deg(msg)
+        if inc_deg <= 0:
             return []
         n = min(len(msg.distances), max(1, round(360 / inc_deg)))
         # MAV_FRAME_BODY_FRD bins clockwise from the nose (65535: no sensor there, > max: nothing in

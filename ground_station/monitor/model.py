@@ -86,6 +86,17 @@ PAUSE_SEQ_WINDOW = 4
 PAUSE_MAX_SPEEDUP = 50.0  # ... and no faster than this many robot seconds per receive second
 
 
+def field_text(value: bytes | str) -> str:
+    """A MAVLink char[] field (NAMED_VALUE_INT name, PARAM_VALUE param_id) as text, whichever
+    pymavlink returned."""
+    return value.decode() if isinstance(value, bytes) else value
+
+
+def obstacle_increment_deg(msg) -> float:
+    """OBSTACLE_DISTANCE's bin width in degrees: increment_f when set, else the integer increment."""
+    return msg.increment_f if msg.increment_f > 0 else float(msg.increment)
+
+
 def policy_id_text(policy_id: int | None) -> str:
     """A policy id as the demo, `qnav policy inspect` and the upload print it."""
     return "-" if policy_id is None else f"0x{policy_id:08x}"
@@ -506,7 +517,7 @@ class VehicleView:
         self.target_bearing_deg = float(msg.target_bearing)
 
     def _on_obstacle_distance(self, msg, t: float) -> None:
-        inc = msg.increment_f if msg.increment_f > 0 else float(msg.increment)
+        inc = obstacle_increment_deg(msg)
         if inc <= 0:
             return
         n = min(len(msg.distances), int(round(360.0 / inc)))
@@ -550,7 +561,7 @@ class VehicleView:
         return None
 
     def _on_named_value_int(self, msg, t: float) -> None:
-        name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
+        name = field_text(msg.name)
         self.named[name] = msg.value
         self.q_row_ready = False
         if name == NV_STATE_INDEX:  # a new group
@@ -582,7 +593,7 @@ class VehicleView:
         self.q_row_ready = True
 
     def _on_param_value(self, msg, t: float) -> None:
-        pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else msg.param_id
+        pid = field_text(msg.param_id)
         self.params[pid] = msg.param_value
         hi, lo = (self.params.get(n) for n in POLICY_ID_HALVES)
         if pid in POLICY_ID_HALVES and hi is not None and lo is not None:

@@ -43,7 +43,7 @@ from pathlib import Path
 from firmware_py import robot_spec
 from firmware_py.atomic import atomic_write
 from firmware_py.vehicle import CtrlState, Mode
-from ground_station.monitor.model import NV_ACTION, VehicleView
+from ground_station.monitor.model import NV_ACTION, VehicleView, field_text
 
 STOP_SPEED_M_S = 0.02
 STOP_YAW_RATE = 0.05
@@ -147,8 +147,7 @@ def _analyse(path: str, progress: bool, sysid: int | None, clock: str) -> RunRec
                 if d is not None and view.armed:
                     rec.distance.append((t, d))
             elif mtype == "NAMED_VALUE_INT":
-                name = msg.name.decode() if isinstance(msg.name, bytes) else msg.name
-                if name == NV_ACTION and msg.value >= 0:
+                if field_text(msg.name) == NV_ACTION and msg.value >= 0:
                     rec.actions.append(msg.value)
             elif mtype == "SYS_STATUS":
                 assert view.load_pct is not None  # set by this very message

@@ -41,6 +41,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from ground_station.maps import GridMap
+from ground_station.monitor.model import obstacle_increment_deg
 
 MARGIN_MM = 150.0  # a reading this much shorter than the map's is something the map does not show
 MAX_RANGE_MM = 1000.0
@@ -241,9 +242,8 @@ class MissionFollower:
                 self._flush()
         elif kind == "OBSTACLE_DISTANCE":
             if msg.frame == 12:  # MAV_FRAME_BODY_FRD: what the robot sends
-                inc = msg.increment_f if msg.increment_f > 0 else float(msg.increment)
                 self._scans = [*self._scans[-20:], (msg.time_usec, sensor_readings(
-                    msg.distances, inc, msg.angle_offset, msg.min_distance, msg.max_distance))]
+                    msg.distances, obstacle_increment_deg(msg), msg.angle_offset, msg.min_distance, msg.max_distance))]
                 self._flush()
         elif kind == "MISSION_ITEM_REACHED":
             left = self.target_seq[self.reached:]
