@@ -178,32 +178,6 @@ def mission_sim_seconds(robot_stats: Path) -> float | None:
     return (end - start) / 1e6
 
 
-class Heartbeat:
-    """The ground station's HEARTBEAT at a fixed wall period, in its own thread."""
-
-    def __init__(self, link, period_s: float) -> None:
-        self.link = link
-        self.period_s = period_s
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="demo-gcs-heartbeat", daemon=True)
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.period_s):
-            with contextlib.suppress(OSError):
-                self.link.send_heartbeat()
-
-    def start(self) -> Heartbeat:
-        with contextlib.suppress(OSError):
-            self.link.send_heartbeat()
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2)
-
-
 class MissionWatch:
     """Follows the mission from every frame the link parses (a pymavlink
     message hook, so frames consumed by another reader count too): targets
@@ -638,7 +612,6 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
     procs = ProcessGroup()
     hub = CanHub(channel="qnav-demo")
     link = None
-    heartbeat = None
     verdict = ""
     try:
         try:
@@ -684,7 +657,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         watch = MissionWatch(len(items), target_seqs)
         watch.sysid = link.sysid
         link.conn.message_hooks.append(watch.hook)
-        heartbeat = Heartbeat(link, REALTIME_HEARTBEAT_S if opts.realtime else LOCKSTEP_HEARTBEAT_S).start()
+        link.start_heartbeat(REALTIME_HEARTBEAT_S if opts.realtime else LOCKSTEP_HEARTBEAT_S)
         say(f"robot sysid {link.sysid} found")
         if not opts.realtime:
             from ground_station.mavlink.link import LinkError
@@ -726,8 +699,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         in_main = threading.current_thread() is threading.main_thread()
         previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
         summary.result = verdict
-        if heartbeat is not None:
-            heartbeat.stop()
+        if link is not None:
+            link.stop_heartbeat()
         summary.exit_codes = procs.stop_all()
         if link is not None:
             link.close()

@@ -28,6 +28,7 @@ A long-running tool (`qnav monitor`, MAVProxy) passes `heartbeat=True`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import struct
@@ -213,7 +214,6 @@ def _widen_receive_buffer(conn: Any) -> None:
     overflowed the default and its once-sent STATUSTEXTs were lost (the demo's dashboard missed
     'mission complete'). Best effort: SO_RCVBUFFORCE where allowed (root, CAP_NET_ADMIN), else
     SO_RCVBUF, which the kernel caps at net.core.rmem_max; serial links have none."""
-    import contextlib
     import socket
 
     port = getattr(conn, "port", None)
@@ -283,9 +283,7 @@ class Link:
         self.close()
 
     def close(self) -> None:
-        self._hb_stop.set()
-        if self._hb_thread is not None:
-            self._hb_thread.join(timeout=2)
+        self.stop_heartbeat()
         self.conn.close()
         with self._tlog_lock:
             if self._tlog is not None:
@@ -365,7 +363,7 @@ class Link:
                 self.target = (msg.get_srcSystem(), msg.get_srcComponent())
                 self.conn.target_system, self.conn.target_component = self.target
                 if self._heartbeat:
-                    self._start_heartbeat()
+                    self.start_heartbeat()
                 return self.target
         raise LinkError(EXIT_TIMEOUT, f"no HEARTBEAT from {who} on {self.url} within {timeout_s:g} s"
                                       f"{self._no_heartbeat_hint()}")
@@ -386,13 +384,22 @@ class Link:
         at signing when its heartbeats arrive but our requests are ignored."""
         return LinkError(EXIT_TIMEOUT, f"{what}{self._signing_hint()}")
 
-    def _start_heartbeat(self) -> None:
+    def start_heartbeat(self, period_s: float = 1.0) -> None:
+        """Our GCS HEARTBEAT now and every `period_s` wall seconds from a thread of its own, until
+        `stop_heartbeat` or `close` (a send that fails is tried again on the next beat)."""
         def beat() -> None:
-            while not self._hb_stop.wait(1.0):
-                self.send_heartbeat()
-        self.send_heartbeat()
+            while not self._hb_stop.wait(period_s):
+                with contextlib.suppress(OSError):
+                    self.send_heartbeat()
+        with contextlib.suppress(OSError):
+            self.send_heartbeat()
         self._hb_thread = threading.Thread(target=beat, name="gcs-heartbeat", daemon=True)
         self._hb_thread.start()
+
+    def stop_heartbeat(self) -> None:
+        self._hb_stop.set()
+        if self._hb_thread is not None:
+            self._hb_thread.join(timeout=2)
 
     def send_heartbeat(self) -> None:
         self.conn.mav.heartbeat_send(MAV_TYPE_GCS, self.m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
