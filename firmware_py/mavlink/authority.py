@@ -1,24 +1,14 @@
 """Who may steer the robot over MAVLink: the operator's GCS only (ArduPilot's SYSID_MYGCS).
 
-ArduPilot takes MANUAL_CONTROL and RC overrides only from the system id in
-SYSID_MYGCS; a second ground station (or anyone on the network) may watch,
-read parameters and fetch files, but not drive. `ControlGate` applies that
-to every input that moves the robot or changes what it will do:
-
-* control messages: MANUAL_CONTROL, RC_CHANNELS_OVERRIDE, SET_MODE, goals
-  (SET_POSITION_TARGET_*), mission writes (MISSION_COUNT, items,
-  CLEAR_ALL, SET_CURRENT), PARAM_SET (otherwise a foreign system could set
-  SYSID_MYGCS to its own id first);
-* COMMAND_LONG / COMMAND_INT, except the read-only requests in
-  `OPEN_COMMANDS` (message intervals and requests, capabilities).
-
-Accepted from the system id SYSID_MYGCS (0: from any system), and only when
-addressed to the robot: a control input with target system 0 (broadcast) is
-ignored whoever sends it, since a broadcast stick or mode change is never
-meant for one vehicle. Refusals are counted per (system, message kind) and
-summarised at most once a second (`summary`), never per frame, so a flood
-costs a dictionary update each. A refused command is answered DENIED (its
-sender would otherwise retry); the other refusals are silent, as ArduPilot's.
+`ControlGate` takes every input that moves the robot or changes what it will
+do (control messages, mission writes, PARAM_SET, and COMMAND_LONG / _INT but
+the read-only `OPEN_COMMANDS`) only from the system id SYSID_MYGCS (0: any)
+and only when addressed to the robot (a broadcast is ignored whoever sends
+it); anyone may still watch. Refusals are counted per (system, message kind)
+and summarised at most once a second (`summary`), so a flood costs a
+dictionary update each; a refused command is answered DENIED, the other
+refusals are silent, as ArduPilot's. The full list and why: docs/mavlink.md,
+"Who may steer: SYSID_MYGCS".
 """
 
 from __future__ import annotations

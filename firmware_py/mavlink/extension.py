@@ -2,17 +2,13 @@
 
 Owns the `--mavlink`/`--signing-key` options of `qnav-robot` and attaching
 the node to a running `RobotNode`: the node runs in its own link thread
-(firmware_py.mavlink.link_thread), one budgeted poll per control tick, so
-MAVLink timeouts resolve within one control period of robot time and every
-vehicle call lands between two ticks (the controller's lock); the ticking
-thread only runs the GCS failsafe check and opens the link thread's slot
-(`node.after_tick`). Parameter saves go to a storage worker thread. The
-command line's controller settings win over stored parameters
-for this run and are written into the parameter table before the vehicle is
-configured, so the ground station sees what is in effect: the control rate
-and the cell size always (the command line checked its policy against
-them), other settings where they differ from the defaults.
-A reboot command reloads the params and the active policy from `--storage`.
+(firmware_py.mavlink.link_thread), the ticking thread only runs the GCS
+failsafe check and opens the link thread's slot (`node.after_tick`), and
+parameter saves go to a storage worker thread. The command line's controller
+settings are written into the parameter table before the vehicle is
+configured, so the ground station sees what is in effect; a reboot command
+reloads the params and the active policy from `--storage`. Details:
+docs/mavlink.md, "Node structure".
 """
 
 from __future__ import annotations

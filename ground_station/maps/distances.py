@@ -13,6 +13,7 @@ Both return arrays indexed [row, col] and accept a goal on an obstacle
 from __future__ import annotations
 
 import heapq
+import math
 
 import numba
 import numpy as np
@@ -50,13 +51,27 @@ def _bfs(occ, gc, gr, dc, dr):
 
 
 @numba.njit(cache=True)
+def octile_step(occ, h: int, w: int, r: int, c: int, dr: int, dc: int) -> float:
+    """The cost of the 8-connected move from (r, c) by (dr, dc): 1, sqrt(2) diagonally; inf off the
+    map, onto an obstacle or cutting its corner."""
+    nr = r + dr
+    nc = c + dc
+    if not (0 <= nr < h and 0 <= nc < w) or occ[nr, nc]:
+        return np.inf
+    if dr != 0 and dc != 0:
+        if occ[r + dr, c] or occ[r, c + dc]:  # no corner cutting
+            return np.inf
+        return math.sqrt(2.0)
+    return 1.0
+
+
+@numba.njit(cache=True)
 def _octile(occ, gc, gr):
     h, w = occ.shape
     dist = np.full((h, w), np.inf)
     if occ[gr, gc]:
         return dist
     done = np.zeros((h, w), dtype=np.bool_)
-    sq2 = np.sqrt(2.0)
     dist[gr, gc] = 0.0
     heap = [(0.0, gr * w + gc)]
     while len(heap) > 0:
@@ -70,16 +85,12 @@ def _octile(occ, gc, gr):
             for dc in range(-1, 2):
                 if dr == 0 and dc == 0:
                     continue
+                step = octile_step(occ, h, w, r, c, dr, dc)
+                if step == np.inf:
+                    continue
+                nd = d + step
                 nr = r + dr
                 nc = c + dc
-                if not (0 <= nr < h and 0 <= nc < w) or occ[nr, nc]:
-                    continue
-                if dr != 0 and dc != 0:
-                    if occ[r + dr, c] or occ[r, c + dc]:  # no corner cutting
-                        continue
-                    nd = d + sq2
-                else:
-                    nd = d + 1.0
                 if nd < dist[nr, nc]:
                     dist[nr, nc] = nd
                     heapq.heappush(heap, (nd, nr * w + nc))

@@ -35,6 +35,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from ground_station.maps import GridMap, MapError, octile_distances
+from ground_station.maps.distances import octile_step
 
 DEFAULT_MARGIN_MM = 75  # extra clearance of a pruned segment beyond the robot's radius
 # Longest segment: the sector state knows the bearing only to within half a
@@ -144,7 +145,6 @@ def cell_path(dist, occ, h: int, w: int, scol: int, srow: int, out) -> int:
             if dist[r, c] == 0.0:
                 gcol = c
                 grow = r
-    sq2 = math.sqrt(2.0)
     while True:
         out[n, 0] = col
         out[n, 1] = row
@@ -158,16 +158,11 @@ def cell_path(dist, occ, h: int, w: int, scol: int, srow: int, out) -> int:
             for dc in range(-1, 2):
                 if dr == 0 and dc == 0:
                     continue
+                step = octile_step(occ, h, w, row, col, dr, dc)
+                if step == np.inf:
+                    continue
                 r = row + dr
                 c = col + dc
-                if r < 0 or c < 0 or r >= h or c >= w or occ[r, c]:
-                    continue
-                if dr != 0 and dc != 0:
-                    if occ[row + dr, col] or occ[row, col + dc]:
-                        continue
-                    step = sq2
-                else:
-                    step = 1.0
                 if dist[r, c] + step > dist[row, col] + _TIE:
                     continue  # not on a shortest path
                 e = (c - gcol) * (c - gcol) + (r - grow) * (r - grow)

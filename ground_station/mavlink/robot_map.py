@@ -1,19 +1,14 @@
 """The map the robot drives on, asked from the robot instead of repeated by hand (issues 30, 45).
 
-The robot plans and localises on its own map, `/maps/active.map` on its FTP
-server (MovingAI text, cells CELL_SIZE_MM wide), which `qnav map upload`
-puts there; a robot that was never given one uses the map its active
-policy carries (`/policies/active.qtab`: `map_grid`, the training map's
-name). `robot_map(link)` reads the former when the robot has it, else the
-latter, with pymavlink's own MAVFTP client, and returns a `GridMap`: with
-the targets `qnav map upload` left beside it (`/maps/active.targets.json`,
-used only while it names the map's CRC32), or those of the named map here
-with exactly that grid, else the grid alone (no targets). When the robot's
-map and its policy's map differ, one line says which is used.
-`choose_map(link, gm)` is what commands use: the robot's map when no
-`--map` is given; the given one when it is the robot's; and one line naming
-both when they differ (a mission planned on another map sends the robot
-into walls).
+`robot_map(link)` reads, with pymavlink's MAVFTP client, the robot's own
+`/maps/active.map` (what `qnav map upload` leaves, its targets in
+`/maps/active.targets.json` while that names the map's CRC32), else the map
+its active policy carries, and returns a `GridMap` (with targets where they
+are known); when the two maps differ, one line says which is used.
+`choose_map(link, gm)` is what commands use: the robot's map when no `--map`
+is given, the given one when it is the robot's, and one line naming both
+when they differ (a mission planned on another map sends the robot into
+walls). The rules: docs/mavlink.md, `qnav mission upload`.
 """
 
 from __future__ import annotations

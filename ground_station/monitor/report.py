@@ -2,33 +2,13 @@
 
 `analyse(path)` replays the recording through the same `VehicleView` the
 monitor uses and samples it into a `RunRecord`; `write_report(record, out,
-grid_map)` writes `summary.json` and the plots:
-
-* trajectory.png      trajectory over the map, targets, mission items
-* distance_to_goal.png distance to the current goal over time, goal events
-* actions.png         histogram of the ACTION telemetry samples
-* timing.png          control-loop timing as the robot reports it: its CPU
-                      load and its tick-overrun counter (SYS_STATUS load and
-                      errors_count2; the robot does not send per-tick times)
-
-A plot whose data the recording does not hold is not drawn; the JSON says
-which and why under `plots_skipped` (nothing is faked).
-
-Clock: the robot's own time base (`time_boot_ms`, sim time in HIL) when the
-recording has it from the vehicle, else the tlog's receive stamps (wall
-clock); `summary.json` names the one used under `clock`. One vehicle: the
-first robot heard (or `sysid`); frames from other systems and from a second
-process with the same id (its clock behind) are ignored and counted under
-`ignored`.
-
-Definitions (also in docs/monitor.md):
-* goals reached: MISSION_ITEM_REACHED messages, plus entries into the
-  controller's GOAL_REACHED state more than 1 s from any of them (Guided goals);
-* stops: the robot standing still (speed < 2 cm/s, yaw rate < 0.05 rad/s) for
-  at least 1 s while armed, in Auto/Guided, its controller DRIVING;
-* faults: STATUSTEXT of severity ERROR or worse, entries into the FAULT
-  state, entries into failsafe (HEARTBEAT system_status CRITICAL); events
-  less than 1 s apart form one episode.
+grid_map)` writes `summary.json` and the plots (trajectory, distance to
+goal, actions, timing). A plot whose data the recording does not hold is not
+drawn; the JSON says which and why under `plots_skipped` (nothing is faked).
+Times are on the robot's own clock when the recording has it, else on the
+tlog's receive stamps (`clock` in the JSON); one vehicle is followed, what
+was ignored is counted under `ignored`. The plots, the clock and the
+definitions of goals reached, stops and faults: docs/monitor.md, `qnav report`.
 """
 
 from __future__ import annotations
