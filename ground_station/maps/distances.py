@@ -51,18 +51,25 @@ def _bfs(occ, gc, gr, dc, dr):
 
 
 @numba.njit(cache=True)
-def octile_step(occ, h: int, w: int, r: int, c: int, dr: int, dc: int) -> float:
-    """The cost of the 8-connected move from (r, c) by (dr, dc): 1, sqrt(2) diagonally; inf off the
-    map, onto an obstacle or cutting its corner."""
-    nr = r + dr
-    nc = c + dc
-    if not (0 <= nr < h and 0 <= nc < w) or occ[nr, nc]:
-        return np.inf
-    if dr != 0 and dc != 0:
-        if occ[r + dr, c] or occ[r, c + dc]:  # no corner cutting
-            return np.inf
-        return math.sqrt(2.0)
-    return 1.0
+def octile_moves(occ, h: int, w: int, r: int, c: int, out) -> int:
+    """The 8-connected moves from (r, c) onto free cells, as (row, col, cost) rows written into `out`
+    (8, 3) in a fixed order; returns their count. Cost 1, sqrt(2) diagonally; no corner cutting (a
+    diagonal move needs both orthogonal neighbours free)."""
+    n = 0
+    for dr in range(-1, 2):
+        for dc in range(-1, 2):
+            nr = r + dr
+            nc = c + dc
+            if (dr == 0 and dc == 0) or not (0 <= nr < h and 0 <= nc < w) or occ[nr, nc]:
+                continue
+            diagonal = dr != 0 and dc != 0
+            if diagonal and (occ[r + dr, c] or occ[r, c + dc]):
+                continue
+            out[n, 0] = nr
+            out[n, 1] = nc
+            out[n, 2] = math.sqrt(2.0) if diagonal else 1.0
+            n += 1
+    return n
 
 
 @numba.njit(cache=True)
@@ -72,6 +79,7 @@ def _octile(occ, gc, gr):
     if occ[gr, gc]:
         return dist
     done = np.zeros((h, w), dtype=np.bool_)
+    moves = np.empty((8, 3))
     dist[gr, gc] = 0.0
     heap = [(0.0, gr * w + gc)]
     while len(heap) > 0:
@@ -81,19 +89,13 @@ def _octile(occ, gc, gr):
         if done[r, c]:
             continue
         done[r, c] = True
-        for dr in range(-1, 2):
-            for dc in range(-1, 2):
-                if dr == 0 and dc == 0:
-                    continue
-                step = octile_step(occ, h, w, r, c, dr, dc)
-                if step == np.inf:
-                    continue
-                nd = d + step
-                nr = r + dr
-                nc = c + dc
-                if nd < dist[nr, nc]:
-                    dist[nr, nc] = nd
-                    heapq.heappush(heap, (nd, nr * w + nc))
+        for k in range(octile_moves(occ, h, w, r, c, moves)):
+            nr = int(moves[k, 0])
+            nc = int(moves[k, 1])
+            nd = d + moves[k, 2]
+            if nd < dist[nr, nc]:
+                dist[nr, nc] = nd
+                heapq.heappush(heap, (nd, nr * w + nc))
     return dist
 
 

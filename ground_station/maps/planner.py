@@ -35,7 +35,7 @@ import numpy as np
 
 from firmware_py import robot_spec
 from ground_station.maps import GridMap, MapError, octile_distances
-from ground_station.maps.distances import octile_step
+from ground_station.maps.distances import octile_moves
 
 DEFAULT_MARGIN_MM = 75  # extra clearance of a pruned segment beyond the robot's radius
 # Longest segment: the sector state knows the bearing only to within half a
@@ -145,6 +145,7 @@ def cell_path(dist, occ, h: int, w: int, scol: int, srow: int, out) -> int:
             if dist[r, c] == 0.0:
                 gcol = c
                 grow = r
+    moves = np.empty((8, 3))
     while True:
         out[n, 0] = col
         out[n, 1] = row
@@ -154,22 +155,16 @@ def cell_path(dist, occ, h: int, w: int, scol: int, srow: int, out) -> int:
         best_c = -1
         best_r = -1
         best_e = np.inf
-        for dr in range(-1, 2):
-            for dc in range(-1, 2):
-                if dr == 0 and dc == 0:
-                    continue
-                step = octile_step(occ, h, w, row, col, dr, dc)
-                if step == np.inf:
-                    continue
-                r = row + dr
-                c = col + dc
-                if dist[r, c] + step > dist[row, col] + _TIE:
-                    continue  # not on a shortest path
-                e = (c - gcol) * (c - gcol) + (r - grow) * (r - grow)
-                if e < best_e:
-                    best_e = e
-                    best_c = c
-                    best_r = r
+        for k in range(octile_moves(occ, h, w, row, col, moves)):
+            r = int(moves[k, 0])
+            c = int(moves[k, 1])
+            if dist[r, c] + moves[k, 2] > dist[row, col] + _TIE:
+                continue  # not on a shortest path
+            e = (c - gcol) * (c - gcol) + (r - grow) * (r - grow)
+            if e < best_e:
+                best_e = e
+                best_c = c
+                best_r = r
         if best_c < 0:  # cannot happen on a consistent field
             return 0
         col = best_c

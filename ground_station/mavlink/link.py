@@ -282,6 +282,11 @@ class Link:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def stop_heartbeat(self) -> None:
+        self._hb_stop.set()
+        if self._hb_thread is not None:
+            self._hb_thread.join(timeout=2)
+
     def close(self) -> None:
         self.stop_heartbeat()
         self.conn.close()
@@ -395,11 +400,6 @@ class Link:
             self.send_heartbeat()
         self._hb_thread = threading.Thread(target=beat, name="gcs-heartbeat", daemon=True)
         self._hb_thread.start()
-
-    def stop_heartbeat(self) -> None:
-        self._hb_stop.set()
-        if self._hb_thread is not None:
-            self._hb_thread.join(timeout=2)
 
     def send_heartbeat(self) -> None:
         self.conn.mav.heartbeat_send(MAV_TYPE_GCS, self.m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
