@@ -1,25 +1,13 @@
 """The one-command demo (`qnav demo`): the whole system on one machine.
 
-This module owns only the orchestration; every step is the project's own
-piece, used the way an operator would use it:
-
-1. a python-can-remote hub on 127.0.0.1 (`ground_station.canhub.CanHub`);
-2. `qnav-sim` (pymunk plant, lockstep by default, paced at real time with
-   `realtime=True`) and `qnav-robot` (controller + MAVLink node, its file
-   store in the run folder) as separate processes, each in its own process
-   group (`ground_station.processes.ProcessGroup`), talking CAN through
-   the hub;
-3. one ground-station MAVLink link (`ground_station.mavlink.link.Link`, its .tlog in
-   the run folder) over UDP loopback;
-4. the policy uploaded and activated over MAVLink FTP with pymavlink's
-   client on the same link (`ground_station.mavlink.ftp_upload.upload_policy`);
-5. the mission from map targets (`mavlink.mission_items.target_items` +
-   `Link.mission_upload`), arm and Auto (`Link.command`);
-6. the monitor (`MonitorApp` on a `LiveSource`) or, headless, the same
-   `VehicleView` fed in a loop, until the mission completes, the vehicle
-   faults, a process dies or the timeout passes;
-7. every process stopped (SIGINT to its group, so the sim writes its
-   trajectory, PNG and CAN log; then SIGTERM, SIGKILL), whatever happened.
+This module owns only the orchestration (`run_demo`); every step is the
+project's own piece, used the way an operator would use it: a CAN hub,
+`qnav-sim` and `qnav-robot` as separate processes (`ProcessGroup`), one
+ground-station `Link` (its .tlog in the run folder), the policy and the map
+uploaded over MAVLink FTP, the mission from map targets, arm and Auto, the
+monitor (or, headless, the same `VehicleView` in a loop) until the mission
+completes, the vehicle faults, a process dies or the timeout passes; then
+every process stopped, whatever happened, and the run's files summarised.
 
 The sim runs faster than real time in lockstep (tens of times), while the
 robot measures its GCS failsafe and its mission transfer timeouts on sim

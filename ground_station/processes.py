@@ -2,23 +2,13 @@
 
 The one place that starts and stops `qnav-robot`, `qnav-sim`, the robot's
 standalone FTP shell and the reflex controller as children:
-
-- `program_argv` runs a program's `main()` with this interpreter (so the
-  child runs the same code as the parent, installed or from the checkout),
-  with SIGINT restored: a parent started in the background (nohup, `&`)
-  passes SIGINT ignored on to its children, and they would then never end
-  cleanly on `stop()`. `qnav_robot`, `qnav_sim` build on it.
-- `ChildProcess`: one child, its output in a log file (a pipe nobody reads
-  could fill up and stall it), stopped for sure: SIGINT (so it writes its
-  outputs), then `ground_station.subprocs.stop_process` (SIGTERM, SIGKILL).
-- `RobotProcess`: `qnav-robot` on `udpin:127.0.0.1:PORT` with its storage in
-  a directory the caller owns; `robot_ftp_process`: the FTP shell alone.
-- `ProcessGroup`: several children, each in its own session (a Ctrl-C in the
-  terminal reaches only the parent, which stops them in order).
-- `other_processes`: every other live process and its command line, to find
-  what a run left behind.
-
-Free ports and the stop sequence itself come from `ground_station.subprocs`.
+`program_argv` runs a program's `main()` with this interpreter and SIGINT
+restored (a parent started in the background passes SIGINT ignored on to its
+children, which would then never end cleanly); `ChildProcess` is one child,
+its output in a log file, stopped for sure (SIGINT so it writes its outputs,
+then SIGTERM, SIGKILL); `RobotProcess` and `robot_ftp_process` are the robot
+and its FTP shell alone; `ProcessGroup` several children, each in its own
+session, stopped in order; `other_processes` finds what a run left behind.
 """
 
 from __future__ import annotations

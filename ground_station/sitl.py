@@ -1,31 +1,18 @@
 """`qnav sitl`: a simulated robot that stays up, as ArduPilot's sim_vehicle.py does.
 
 Owns the bring-up of one vehicle for stock ground stations: a CAN bus (a
-python-can-remote hub on 127.0.0.1, or the `--can` spec given, e.g.
-`socketcan:vcan0`), `qnav-sim` paced at `speed` times real time and
-`qnav-robot` on the sim's clock with its MAVLink node on one connection
-string, each a child in its own process group (`rigs/processes.ProcessGroup`).
-It then waits: until Ctrl-C / SIGTERM (the caller turns SIGTERM into
-KeyboardInterrupt), the optional wall-clock `duration_s`, or a child's death;
-every child is stopped on the way out (SIGINT so the sim writes its CAN log
-and trajectory, then SIGTERM, SIGKILL) and the hub last.
-
-Nothing here drives the robot: MAVProxy, QGroundControl, MAVSDK or `qnav`
-connect with the strings `connection_help()` prints. On UDP (`udpin:`, the
-default, or `udpout:`) the robot sits behind a relay
-(`ground_station.mavlink.tlog_relay.TlogRelay`) that owns that connection
-string and records every frame both ways into the run folder's
-`mavlink.tlog`, whatever ground station connects, or none; on stop,
-`run.mcap` is built from it, the CAN log, the ground truth, robot.log and
-the map (what `qnav log mcap` builds, the same topics as `qnav demo`'s),
-with a progress line each second. Before reporting "up"
-the robot's HEARTBEAT is awaited through a short-lived probe that announces
-itself as an onboard controller (not a GCS), so the robot's GCS failsafe is
-not armed by it. At `speed` > 1 the probe raises FS_GCS_TOUT_MS and
-MIS_TIMEOUT_MS by the speed (within their bounds): the robot measures the GCS
-failsafe and the mission transfer on sim time, and a ground station's 1 Hz
-heartbeat would otherwise look late and its mission upload be re-requested
-and cancelled.
+python-can-remote hub on 127.0.0.1, or the `--can` spec given), `qnav-sim`
+paced at `speed` times real time and `qnav-robot` on the sim's clock, each a
+child in its own process group (`ProcessGroup`); then it waits for Ctrl-C /
+SIGTERM, the optional wall-clock `duration_s`, or a child's death, and stops
+every child (the hub last). Nothing here drives the robot: ground stations
+connect with the strings `connection_help()` prints. On UDP the robot sits
+behind a `TlogRelay` recording every frame into the run folder's
+`mavlink.tlog`, from which `run.mcap` is built on stop (docs/monitor.md).
+The robot's HEARTBEAT is awaited through a probe that announces itself as an
+onboard controller (not a GCS, so the GCS failsafe is not armed by it); at
+`speed` > 1 it raises FS_GCS_TOUT_MS and MIS_TIMEOUT_MS by the speed, since
+the robot measures them on sim time. docs/hil.md, "SITL", has the rest.
 """
 
 from __future__ import annotations

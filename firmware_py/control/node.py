@@ -13,35 +13,18 @@
   the tick that reaches the next control deadline runs a step in the
   receive thread (no hand-off to another thread); the sim does not wait.
 
-Loop statistics, all on the WALL clock whatever clock the controller runs on
-(a tick late in wall time is late for the motors even when sim time says
-otherwise):
+Loop statistics (`latency_ns`, `compute_ns`, `lag_ns`, `wall_late_ticks`,
+`wall_overruns`) are all on the WALL clock whatever clock the controller
+runs on: a tick late in wall time is late for the motors even when sim time
+says otherwise (their definitions: docs/reliability.md). `overruns` keeps
+its meaning on the controller's own clock, `late_ticks` counts reordered
+SimTicks.
 
-* `latency_ns`: per tick, from the tick's input (the SimTick frame's arrival:
-  the bus timestamp when it is a wall time, as on socketcan, else the moment
-  `recv` returned it; in wall mode the scheduled deadline, so oversleeping
-  counts) to the motor command handed to the bus. `compute_ns`: the same
-  tick from the step's start to the command (the controller's own cost).
-* `lag_ns`: how much later than its pace a tick ran: wall mode, the wake-up
-  after the deadline; paced HIL, the wall gap since the previous step minus
-  the sim gap scaled by the run's measured wall/sim ratio (so a receive
-  thread held up for 30 ms shows as 30 ms even though the SimTicks it then
-  drains carry on-time sim stamps); lockstep, the latency (the sim waits for
-  us, so only our own time can be late).
-* `wall_late_ticks`: ticks with lag or latency above a quarter period;
-  `wall_overruns`: whole control periods lost in wall time (lag of at least a
-  period, or a latency beyond the period). `overruns` keeps its meaning in
-  the controller's own clock (deadlines missed on the wall clock, sim ticks
-  skipped in lockstep or paced HIL), `late_ticks` counts reordered SimTicks.
-
-Hook for the MAVLink shell: `node.controller` is the `VehicleControl`;
-callables in `node.after_tick` run in the ticking thread after each tick with
-the tick's `Outputs`. In lockstep the node then runs the policy kind's
-off-tick work (`Controller.background`, the local planner's search) before
-it reads the next SimTick: answered ticks are not delayed and a question
-asked on tick k is answered on tick k+1 whatever the load. They must not wait on anything: the MAVLink extension
-only checks the GCS failsafe there and wakes its link thread
-(firmware_py.mavlink.link_thread).
+Hook for the MAVLink shell: callables in `node.after_tick` run in the
+ticking thread after each tick with the tick's `Outputs` and must not wait
+on anything. In lockstep the node then runs the policy kind's off-tick work
+(`Controller.background`) before it reads the next SimTick, so a question
+asked on tick k is answered on tick k+1 whatever the load.
 """
 
 from __future__ import annotations
