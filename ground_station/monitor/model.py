@@ -3,27 +3,18 @@
 `VehicleView` is a pure model: feed it every received message with
 `update(msg, t)` (a decoded pymavlink message and the receive time in
 seconds, wall clock live or the tlog stamp in a replay) and read its fields.
-
-Clocks: `t` is the receive time; the robot's own time base is
-`robot_s` (its `time_boot_ms`, from every message that carries one:
-LOCAL_POSITION_NED, ATTITUDE, NAMED_VALUE_INT, SYSTEM_TIME, ...). In HIL the
-robot runs on the sim's clock, so `robot_s` is sim time; the monitor's stamps
-and `qnav report` use it whenever the robot sends it.
-
-One vehicle: the view locks onto one system id (the first rover heard, or
-the one given) and counts frames from other systems in `foreign` without
-using them. A second process with the same system id shows as a time base
-going backwards: its timed frames are ignored and counted in
-`time_conflicts` (a reboot - the old time base silent and the new one
-steady for REBOOT_S, or for REBOOT_FRAMES timed frames in a row - is
-accepted and continues the clock). A jump ahead
-in the frame right after ours in sequence, at most PAUSE_MAX_SPEEDUP x the
-receive time since our last timed frame, is the same robot after a pause
-in its telemetry (a lockstep sim running on while its link thread starved)
-and is followed at once.
 No I/O, no threads, no terminal: the textual dashboard, the `--plain` status
 line and `qnav report` all read the same view, and tests drive it with
 pymavlink-encoded messages.
+
+Clocks: `t` is the receive time; the robot's own time base is `robot_s` (its
+`time_boot_ms`, from every message that carries one; sim time in HIL), which
+the monitor's stamps and `qnav report` use whenever the robot sends it. One
+vehicle: the view locks onto one system id and counts frames from other
+systems in `foreign`; a second process with the same id shows as another
+time base and is ignored (`time_conflicts`), a reboot or a pause in the
+telemetry is followed (REBOOT_S, REBOOT_FRAMES, PAUSE_*): the rules are in
+docs/monitor.md, `qnav monitor`.
 
 Frames: MAVLink LOCAL_POSITION_NED has x north, y east; the view stores
 positions in the project's world frame (`firmware_py.robot_spec`: x east, y north,
