@@ -82,9 +82,11 @@ def test_a_late_foxglove_sdk_v1_subscriber_gets_the_map():
 
 def test_a_client_offering_another_subprotocol_is_still_refused():
     import websockets
+    from websockets.exceptions import InvalidStatus  # a submodule: `websockets.exceptions` is only an
+    # attribute once something imported it (what made this test fail when it ran first on a worker)
 
     async def body(port: int) -> None:
-        with pytest.raises(websockets.exceptions.InvalidStatus) as err:
+        with pytest.raises(InvalidStatus) as err:
             async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v2"]):
                 pass
         assert err.value.response.status_code == 400
