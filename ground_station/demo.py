@@ -562,6 +562,13 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
             planned = pol.kind == "sector"
         if pol is not None and pol.kind == "sector":
             plan_kw = guidance_from_metadata(pol.metadata)
+    if opts.profile is not None:  # the planner keeps the profile's body clear, as its trainer did
+        from ground_station.maps.planner import profile_radius_mm
+
+        try:
+            plan_kw["radius_mm"] = profile_radius_mm(opts.profile)
+        except ValueError as exc:
+            raise DemoError(f"--profile {exc}") from None
 
     run_dir = Path(opts.out) if opts.out else default_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,9 @@ gives (`--frame global` converts its local ones). With `--plan` the
 ground station's planner (`ground_station.maps.planner`, what the sector
 policy is trained to follow) fills in the waypoints from the robot's
 position (its LOCAL_POSITION_NED, or `--start X,Y` in metres) through the
-targets on the map; the planned legs are printed. `--plan --follow` then
+targets on the map (`--profile FILE.toml`: segments that keep the profile's
+body clear, as `qnav train --profile` trained a sector policy with; default
+the built-in robot's); the planned legs are printed. `--plan --follow` then
 stays on the link while the robot drives (start it with `qnav arm` and
 `qnav mode auto`): when it reports that it stopped progressing, the cells
 its range readings (OBSTACLE_DISTANCE) found blocked are marked on the
@@ -53,6 +55,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--plan", action="store_true",
                     help="send the planner's waypoints through the targets (what a sector policy needs)")
     up.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
+    up.add_argument("--profile", metavar="FILE.toml",
+                    help="--plan: the robot's profile (docs/robot-profile.md): segments keep its body radius "
+                         "clear (default: the built-in robot's 150 mm)")
     up.add_argument("--follow", action="store_true",
                     help="--plan: watch the mission and re-plan around cells the robot finds blocked")
     up.add_argument("--follow-timeout", type=float, default=600.0, metavar="S",
@@ -88,6 +93,16 @@ def run(args: argparse.Namespace) -> int:
             raise CliError("--start needs --plan")
         if args.follow and not args.plan:
             raise CliError("--follow needs --plan")
+        if args.profile and not args.plan:
+            raise CliError("--profile needs --plan")
+        radius_mm = None
+        if args.profile:  # a bad profile fails before any link
+            from ground_station.maps.planner import profile_radius_mm
+
+            try:
+                radius_mm = profile_radius_mm(args.profile)
+            except ValueError as exc:
+                raise CliError(f"--profile {exc}") from None
         if not (math.isfinite(args.follow_timeout) and args.follow_timeout > 0):
             raise CliError(f"--follow-timeout must be a positive number of seconds, got {args.follow_timeout:g}")
         items = file_items(args.file) if args.file else []
@@ -113,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
                 gm = choose_map(link, given)
                 items = target_items(args.targets, gm)
             if args.plan:
-                items, target_seq = plan_mission(args, link, start, gm)
+                items, target_seq = plan_mission(args, link, start, gm, radius_mm)
             n = link.mission_upload(items)
             print(f"mission of {n} waypoints accepted")
             if not args.follow:
@@ -154,11 +169,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None,
-                 gm) -> tuple[list[tuple[int, int, int]], list[int]]:
+                 gm, radius_mm: float | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
     from ground_station.mavlink.mission_items import planned_items, robot_position_mm, target_cells
 
     start = start_mm if start_mm is not None else robot_position_mm(link)
-    items, target_seq = planned_items(target_cells(args.targets, gm), start, gm)
-    print(f"planned {len(items)} waypoints from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "
+    items, target_seq = planned_items(target_cells(args.targets, gm), start, gm,
+                                      None if radius_mm is None else {"radius_mm": radius_mm})
+    body = "" if radius_mm is None else f" for a {radius_mm:g} mm body"
+    print(f"planned {len(items)} waypoints{body} from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "
           f"targets at items {', '.join(str(i) for i in target_seq)}")
     return items, target_seq

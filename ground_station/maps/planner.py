@@ -21,9 +21,14 @@ farthest path vertex whose straight segment keeps the robot's disc grown by
 `margin_mm` clear of every obstacle cell and the map border (exact
 segment-to-square distances), optionally at most `max_segment_mm` long.
 When no farther vertex is clear the next path cell is taken: moves between
-neighbouring free cell centres are always clear for the bare disc (radius
-150 mm < half a 500 mm cell, and diagonal moves need both orthogonal
-neighbours free). Waypoints are cell centres; the last is the goal's.
+neighbouring free cell centres are always clear for the bare disc (a body
+radius below half the cell: the built-in 150 mm or a profile's 180 mm in a
+500 mm cell, and diagonal moves need both orthogonal neighbours free).
+Waypoints are cell centres; the last is the goal's. The disc is the robot's:
+`radius_mm` is its profile's body radius (`geometry.robot_radius_mm`;
+`qnav mission upload --plan --profile FILE.toml`, `qnav demo --profile`),
+the built-in robot's by default, so a wider robot gets the segments its
+policy was trained on (the trainer plans with its profile's radius too).
 """
 
 from __future__ import annotations
@@ -223,6 +228,16 @@ def clearance_mm(margin_mm: float, radius_mm: float = robot_spec.ROBOT_RADIUS_MM
     return float(radius_mm) + float(margin_mm)
 
 
+def profile_radius_mm(profile_file) -> float:
+    """The body radius (mm) of a robot profile FILE.toml (None: the built-in robot's);
+    ValueError (ProfileError) naming the file and key if it does not load."""
+    if profile_file is None:
+        return float(robot_spec.ROBOT_RADIUS_MM)
+    from firmware_py.profile import load_profile
+
+    return float(load_profile(profile_file).geometry.robot_radius_mm)
+
+
 def guidance_from_metadata(meta: dict) -> dict:
     """plan_waypoints keywords (margin_mm, max_segment_mm) a sector policy was
     trained with, from its training config (a `.qtab`'s metadata or a run's
@@ -235,8 +250,11 @@ def guidance_from_metadata(meta: dict) -> dict:
 
 def plan_waypoints(gridmap: GridMap, start, goal: tuple[int, int], *, start_mm: bool = False,
                    margin_mm: float = DEFAULT_MARGIN_MM,
-                   max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM) -> list[tuple[int, int]]:
-    """Mission waypoints [(x_mm, y_mm), ...] from `start` to the goal cell.
+                   max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM,
+                   radius_mm: float = robot_spec.ROBOT_RADIUS_MM) -> list[tuple[int, int]]:
+    """Mission waypoints [(x_mm, y_mm), ...] from `start` to the goal cell,
+    for a robot of body radius `radius_mm` (its profile's; the built-in
+    robot's by default).
 
     `start` is a (col, row) cell (planned from its centre) or, with
     `start_mm=True`, a world point (x_mm, y_mm). The last waypoint is the
@@ -261,7 +279,7 @@ def plan_waypoints(gridmap: GridMap, start, goal: tuple[int, int], *, start_mm: 
     dist = octile_distances(gridmap.occ, gcol, grow)
     path = np.zeros((h * w, 2), dtype=np.int64)
     out = np.zeros((h * w, 2))
-    n = plan_into(occ, h, w, cell, dist, sx, sy, clearance_mm(margin_mm), float(max_segment_mm), path, out)
+    n = plan_into(occ, h, w, cell, dist, sx, sy, clearance_mm(margin_mm, radius_mm), float(max_segment_mm), path, out)
     if n == 0:
         raise MapError(f"goal ({gcol},{grow}) cannot be reached from ({scol},{srow}) on map {gridmap.name}")
     return [(int(round(x)), int(round(y))) for x, y in out[:n]]

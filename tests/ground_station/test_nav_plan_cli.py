@@ -94,3 +94,40 @@ def test_non_finite_goal_and_start_are_refused_with_one_line(argv, says):
     code, err = _run(*argv)
     assert code == 2 and says in err, err
     assert "Traceback" not in err and err.strip().splitlines()[-1].count("error") == 1
+
+
+def test_mission_upload_plan_keeps_the_profiles_body_clear(rig, tmp_path):  # noqa: F811
+    """--profile FILE.toml: the planner's segments keep the profile's body (wide_six: 180 mm) clear, as
+    `qnav train --profile` trained its sector policy with, instead of the built-in 150 mm."""
+    import numpy as np
+
+    from ground_station.maps.planner import DEFAULT_MARGIN_MM, segment_clear
+
+    wide = str(robot_spec.__file__).replace("robot_spec.py", "profiles/wide_six.toml")
+    port, start, _tmp = rig
+    r = start()
+    r.vehicle.st.x_mm, r.vehicle.st.y_mm = 2750, 2750  # cell (5, 4) of paper10
+    code, out = qnav(port, "mission", "upload", "--targets", "A,B", "--plan", "--map", "paper10", "--profile", wide)
+    assert code == 0, out
+    gm = load_map("paper10")
+    leg1 = plan_waypoints(gm, (2750, 2750), (2, 2), start_mm=True, radius_mm=180)
+    want = leg1 + plan_waypoints(gm, (2, 2), (9, 0), radius_mm=180)
+    assert want != plan_waypoints(gm, (2750, 2750), (2, 2), start_mm=True) + plan_waypoints(gm, (2, 2), (9, 0))
+    got = r.vehicle.mission
+    assert len(got) == len(want) and all(math.dist(a, b) <= 7 for a, b in zip(got, want, strict=True))
+    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
+
+    def long_segments_clear(wps: list, r: float) -> bool:  # a step to a neighbouring cell is the fallback
+        return all(segment_clear(occ, gm.height, gm.width, 500.0, *a, *b, r + DEFAULT_MARGIN_MM)
+                   for a, b in zip(wps, wps[1:], strict=False) if math.dist(a, b) > 710)
+
+    leg2 = want[len(leg1) - 1:]  # from A's centre
+    assert long_segments_clear(leg2, 180) and long_segments_clear(plan_waypoints(gm, (2, 2), (9, 0)), 150)
+    assert not long_segments_clear(plan_waypoints(gm, (2, 2), (9, 0)), 180)  # the built-in plan: too close
+    assert f"planned {len(want)} waypoints for a 180 mm body" in out
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[geometry]\nrobot_radius_mm = 'wide'\n")
+    code, err = _run("mission", "upload", "--targets", "A", "--plan", "--profile", str(bad))
+    assert code == 2 and "robot_radius_mm" in err and "Traceback" not in err, err
+    code, err = _run("mission", "upload", "--targets", "A", "--profile", wide)
+    assert code == 2 and "--profile needs --plan" in err, err
