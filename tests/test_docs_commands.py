@@ -15,6 +15,7 @@ test, so new docs get a decision.
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import os
 import re
@@ -174,7 +175,9 @@ def _concrete(line: str) -> list[str] | None:
     return argv
 
 
+@functools.cache
 def _parser(program: str):
+    """The program's parser, built once per process (qnav's takes ~50 ms to build; parsing leaves it as it was)."""
     if program == "qnav":
         from ground_station.cli import build_parser
     elif program == "qnav-sim":
