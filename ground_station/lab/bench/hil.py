@@ -12,7 +12,15 @@ contact), contacts, and sim time against wall time.
 
 `--profile ideal|realistic` names the plant's wheel and sensor error
 (`sim_bridge/profiles.py`; realistic: one encoder 3 % long, 10 % slip, 10 mm
-range noise, 2 % dropout). The robot localises on the map its policy
+range noise, 2 % dropout); `--profile FILE.toml` (repeatable with one of
+those) a robot profile (docs/robot-profile.md): the sim and the robot play
+that robot (body, wheels, sensors, boards), the planned waypoints keep its
+body clear, and the policies must be ones it runs (`firmware_py.needs`; one
+line, exit 2, otherwise). The episodes are the same seeded ones whatever the
+robot. `--baselines seek,vfh,direct` runs the bench nav controllers
+(`ground_station.lab.nav.controllers`: hand-written tables on the sector
+policy's encoder, and the policy on the goal bearing) on the same sector
+episodes, each a row group of its own. The robot localises on the map its policy
 carries (`firmware_py/control/localiser.py`); `--compare-odometry` runs the
 same episodes again with the localiser off (dead reckoning only, as before)
 as the baseline. Ground truth against belief: the distance from the true
@@ -80,9 +88,10 @@ def _row(ep) -> dict:
             "_cpu": ep.step_cpu_us}
 
 
-def clearance_mm(gm, poses: Sequence[tuple]) -> float:
-    """Smallest distance (mm) between the robot's true outline and a wall
-    over an episode (`Episode.poses`; negative: overlap, i.e. contact)."""
+def clearance_mm(gm, poses: Sequence[tuple], radius_mm: float = robot_spec.ROBOT_RADIUS_MM) -> float:
+    """Smallest distance (mm) between the robot's true outline (a disc of
+    `radius_mm`) and a wall over an episode (`Episode.poses`; negative:
+    overlap, i.e. contact)."""
     from firmware_py.control.localiser import LikelihoodField
     from firmware_py.mapdata import grid_from_rows
 
@@ -91,7 +100,7 @@ def clearance_mm(gm, poses: Sequence[tuple]) -> float:
     field = LikelihoodField(grid_from_rows(rows, cell_mm), cell_mm, 1.0, 1.0, 1.0, 1.0)  # distances only
     step = max(1, len(poses) // 2000)
     d = min((field.distance_mm(p[1], p[2], 2) for p in poses[::step]), default=math.inf)
-    return d - robot_spec.ROBOT_RADIUS_MM
+    return d - radius_mm
 
 
 def write_belief_png(gm, ep, goals_mm: list[tuple[int, int]], path: str, title: str = "") -> None:
@@ -159,13 +168,20 @@ def cell_episodes(gm, policy: Policy, starts: int, seed: int) -> list[dict]:
 
 def run_episodes(gm, policy: Policy, kind: str, specs: list[dict], max_sim_s: float, guidance: str = "path",
                  profile: PlantProfile | None = None, localise: bool = True, png_dir: str | None = None,
-                 vehicle: VehicleConfig | None = None, progress=None) -> list[dict]:
+                 vehicle: VehicleConfig | None = None, progress=None, robot=None,
+                 plan_meta: dict | None = None) -> list[dict]:
     """Run the episodes `specs` (from `sector_episodes`/`cell_episodes`); one
     row each. Every episode is seeded by its own spec, so a row does not
-    depend on what ran before it or where."""
+    depend on what ran before it or where. `robot`: the robot profile
+    (firmware_py.profile.RobotProfile) the sim and the robot play (None: the
+    built-in robot); `plan_meta`: the metadata whose planner settings the
+    waypoints use (default the policy's)."""
     from ground_station.maps.planner import guidance_from_metadata, plan_waypoints
 
-    plan_kw = guidance_from_metadata(policy.metadata)  # the planner settings the policy trained with
+    # the planner settings the policy trained with, around the robot's own body
+    plan_kw = guidance_from_metadata(policy.metadata if plan_meta is None else plan_meta)
+    radius = robot.geometry.robot_radius_mm if robot is not None else robot_spec.ROBOT_RADIUS_MM
+    plan_kw["radius_mm"] = radius
     cell_mm = round(gm.cell_size_m * 1000) if kind == "sector" else policy.cell_mm
     rows = []
     for spec in specs:
@@ -175,13 +191,13 @@ def run_episodes(gm, policy: Policy, kind: str, specs: list[dict], max_sim_s: fl
         goal = robot_spec.cell_center_mm(*g, gm.height, cell_mm)
         goals = plan_waypoints(gm, s, g, **plan_kw) if kind == "sector" and guidance == "path" else [goal]
         ep = run_episode(gm.occ, policy, (sx, sy, spec["heading_rad"]), goals, max_sim_s=max_sim_s,
-                         seed=spec["seed"], profile=profile, localise=localise, vehicle=vehicle)
+                         seed=spec["seed"], profile=profile, localise=localise, vehicle=vehicle, robot=robot)
         row: dict = {"start": list(s), "heading_rad": round(spec["heading_rad"], 3)}
         if kind == "sector":
             row.update(goal=list(g), waypoints=len(goals))
         else:
             row.update(target=spec["target"], goal=list(g))
-        row.update(**_row(ep), clearance_mm=round(clearance_mm(gm, ep.poses), 1))
+        row.update(**_row(ep), clearance_mm=round(clearance_mm(gm, ep.poses, radius), 1))
         rows.append(row)
         if png_dir:
             name = (f"sector_{spec['index']:03d}.png" if kind == "sector"
@@ -197,13 +213,24 @@ def run_batch(job: dict) -> list[dict]:
     """One campaign job: a batch of episode specs with everything needed to
     run them in a fresh worker (map, policy file, profile name, settings)."""
     from firmware_py.policy import load_policy
+    from firmware_py.profile import load_profile
     from ground_station.maps import load_map
     from sim_bridge.profiles import profile
 
     vehicle = VehicleConfig(goal_tolerance_mm=job["goal_tolerance_mm"]) if job["goal_tolerance_mm"] else None
-    return run_episodes(load_map(job["map"]), load_policy(job["policy"]), job["kind"], job["episodes"],
-                        job["max_sim_s"], job["guidance"], profile(job["profile"]), job["localise"],
-                        job["png_dir"], vehicle)
+    robot = load_profile(job["robot"]) if job.get("robot") else None
+    pol = load_policy(job["policy"])
+    plan_meta = None
+    guidance = job["guidance"]
+    if job.get("controller"):  # a baseline on the policy's encoder, waypoints planned as for the policy
+        from ground_station.lab.nav.controllers import standard_controllers
+
+        ctrl = standard_controllers(pol, (job["controller"],))[0]
+        plan_meta, guidance = pol.metadata, ctrl.guidance
+        pol = ctrl.policy(job["map"])
+    return run_episodes(load_map(job["map"]), pol, job["kind"], job["episodes"],
+                        job["max_sim_s"], guidance, profile(job["profile"]), job["localise"],
+                        job["png_dir"], vehicle, robot=robot, plan_meta=plan_meta)
 
 
 # Per-episode and summary figures that are measurements of this machine (CPU,
@@ -225,7 +252,7 @@ def run_set(kind: str, job: dict, episodes: list[dict], engine, batch: int, tag:
 
 
 def run_global_set(gm, policy: Policy, n: int, seed: int, limit_s: float = 10.0, progress=None,
-                   profile: PlantProfile | None = None, converged_mm: float = 150.0) -> list[dict]:
+                   profile: PlantProfile | None = None, converged_mm: float = 150.0, robot=None) -> list[dict]:
     """Global localisation from unknown seeded starts: the robot is armed,
     told its pose is unknown (`Controller.localise_global`, exploring), and
     the episode runs `limit_s` sim seconds. Converged: the localiser reports
@@ -237,7 +264,8 @@ def run_global_set(gm, policy: Policy, n: int, seed: int, limit_s: float = 10.0,
     for i, (s, heading, _) in enumerate(random_pairs(gm.occ, n, seed)):
         sx, sy = _centre_m(*s, gm.height, round(gm.cell_size_m * 1000))
         t_wall = time.perf_counter()
-        with LockstepRig(gm.occ, policy, (sx, sy, heading), [], seed=seed + i, profile=profile) as rig:
+        with LockstepRig(gm.occ, policy, (sx, sy, heading), [], seed=seed + i, profile=profile,
+                         robot=robot) as rig:
             for _ in range(3):  # every input fresh before arming
                 rig.tick()
             ok, why = rig.ctrl.arm()
@@ -384,8 +412,13 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compare-twin", action="store_true",
                    help="sector: also roll the same episodes out on the training twin and report agreement")
     p.add_argument("--max-sim-s", type=float, default=120.0, help="episode limit in sim seconds")
-    p.add_argument("--profile", default="ideal", metavar="NAME",
-                   help="plant wheel/sensor error: ideal or realistic (sim_bridge/profiles.py; default %(default)s)")
+    p.add_argument("--profile", action="append", default=None, metavar="ideal|realistic|FILE.toml",
+                   help="plant wheel/sensor error: ideal or realistic (sim_bridge/profiles.py; default ideal); "
+                        "or a robot profile FILE.toml the sim and the robot play (docs/robot-profile.md; the "
+                        "policies must be ones it runs). Repeatable: one of each")
+    p.add_argument("--baselines", metavar="NAMES", default="",
+                   help="sector: also run these bench nav controllers on the same episodes (comma-separated: "
+                        "seek, vfh, direct, seek_local, vfh_local)")
     p.add_argument("--no-localiser", action="store_true",
                    help="drive on dead reckoning only (the localiser off, as before the map travelled)")
     p.add_argument("--goal-tolerance-mm", type=int, metavar="MM",
@@ -427,6 +460,12 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
             raise CliError(f"{path} is a {pol.kind} policy, expected {kind}")
         if pol.kind == "sector-memory" and args.guidance != "direct":
             raise CliError(f"{path} is a {pol.kind} policy: it drives to the goal alone, use --guidance direct")
+        if args.robot is not None:  # the robot's own check: a policy it would refuse is not benched on it
+            from firmware_py.needs import needs_mismatch, needs_of
+
+            why = needs_mismatch(needs_of(pol), args.robot)
+            if why:
+                raise CliError(f"{kind} policy {spec} on --profile {args.robot.source}: {why}")
         if kind == "cell" and not args.no_localiser and pol.map_grid is None:
             print(f"note: {path} carries no map (qnav policy attach-map): the cell set runs on dead reckoning")
         main_rows: list[dict] = []
@@ -465,28 +504,57 @@ def _run_sets(args: argparse.Namespace, gm, pol_sets: list[str], job: dict, engi
         if "twin_success" in s:
             rows_out += [("sector: twin success (same episodes)", f"{s['twin_success']}/{len(rows)}"),
                          ("sector: HIL/twin success agreement", f"{s['twin_agreement']}/{len(rows)}")]
+        for name in args.baseline_names if kind == "sector" else ():
+            brows, stats = run_set(kind, {**job, "policy": path, "localise": not args.no_localiser,
+                                          "png_dir": None, "controller": name},
+                                   episodes, engine, args.batch, f" ({name})")
+            bs = _summary(brows)
+            timing = split_timing(bs)
+            campaign[f"{kind}_{name}"] = {**stats, "summary": timing, "episodes": [split_timing(r) for r in brows]}
+            result.setdefault("baselines", {})[name] = {**bs, "episodes_detail": brows}
+            rows_out += _baseline_rows(name, bs)
     return rows_out
+
+
+def _baseline_rows(name: str, s: dict) -> list[tuple[str, object]]:
+    return [(f"{name} (baseline): success (reached, no contact)", f"{s['success']}/{s['episodes']}"),
+            (f"{name} (baseline): reached", s["reached"]),
+            (f"{name} (baseline): episodes with wall contact", s["with_contact"]),
+            (f"{name} (baseline): smallest true clearance to a wall (mm)", f"{s['clearance_min_mm']:.0f}")]
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from firmware_py.policy import PolicyError, load_policy
+    from firmware_py.profile import load_profile
     from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
     from ground_station.errors import CliError
     from ground_station.lab.bench.common import report
+    from ground_station.lab.bench.nav import _profiles
     from ground_station.lab.campaign.engines import engine_from_args, write_campaign
+    from ground_station.lab.nav.controllers import CONTROLLER_NAMES, EXTRA_CONTROLLERS
     from ground_station.maps import MapError, load_map
     from sim_bridge.profiles import profile
 
+    plant, robot_file = _profiles(args.profile)
+    args.profile = plant or "ideal"
+    args.baseline_names = [n.strip() for n in args.baselines.split(",") if n.strip()]
+    bad = [n for n in args.baseline_names if n not in CONTROLLER_NAMES + EXTRA_CONTROLLERS or n == "learnt"]
+    if bad:
+        raise CliError(f"--baselines {','.join(bad)}: expected some of "
+                       f"{', '.join(n for n in CONTROLLER_NAMES + EXTRA_CONTROLLERS if n != 'learnt')}")
     try:
         gm = load_map(args.map)
         prof = profile(args.profile)
+        args.robot = load_profile(robot_file) if robot_file is not None else None
     except (MapError, ValueError) as exc:
         raise CliError(str(exc)) from None
     sets = [args.only] if args.only else ["sector", "cell"]
     result: dict = {"map": args.map, "seed": args.seed, "max_sim_s": args.max_sim_s, "guidance": args.guidance,
                     "profile": prof.to_dict(), "localiser": not args.no_localiser}
+    if robot_file is not None:
+        result["robot"] = robot_file
     if args.png_dir:
         Path(args.png_dir).mkdir(parents=True, exist_ok=True)
     if args.goal_tolerance_mm is not None and not 1 <= args.goal_tolerance_mm <= 10_000:
@@ -496,7 +564,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--batch must be >= 1, got {args.batch}")
     rows_out: list[tuple[str, object]] = []
     job = {"map": args.map, "guidance": args.guidance, "max_sim_s": args.max_sim_s, "profile": args.profile,
-           "goal_tolerance_mm": args.goal_tolerance_mm}
+           "goal_tolerance_mm": args.goal_tolerance_mm, "robot": robot_file}
     campaign: dict = {}
     with engine_from_args(args) as engine:
         rows_out += _run_sets(args, gm, pol_sets=sets, job=job, engine=engine, result=result, campaign=campaign)
@@ -508,7 +576,8 @@ def run(args: argparse.Namespace) -> int:
         if pol.map_grid is None:
             raise CliError(f"{args.sector_policy} carries no map: global localisation needs one (qnav policy attach-map)")
         with tqdm(total=args.global_starts, desc="global localisation", unit="ep") as bar:
-            grows = run_global_set(gm, pol, args.global_starts, args.seed, args.global_limit_s, bar, prof)
+            grows = run_global_set(gm, pol, args.global_starts, args.seed, args.global_limit_s, bar, prof,
+                                   robot=args.robot)
         conv = sum(r["success"] for r in grows)
         times = sorted(r["localised_after_s"] for r in grows if r["localised_after_s"] is not None)
         cpu = sorted(r["step_cpu_p99_us"] for r in grows)

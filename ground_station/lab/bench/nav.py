@@ -196,6 +196,14 @@ def run(args: argparse.Namespace) -> int:
             bar.update(1)
     if not eps_by_map:
         raise CliError(f"--blocked {args.blocked}: no map has such an episode ({', '.join(skipped)})")
+    if robot_file is not None:  # the same starts, goals and obstacles; waypoints planned around its body
+        from ground_station.lab.nav.scenario import for_body
+
+        try:
+            eps_by_map = {name: [for_body(maps[name], e, robot.geometry.robot_radius_mm) for e in eps]
+                          for name, eps in eps_by_map.items()}
+        except MapError as exc:
+            raise CliError(f"--profile {robot_file}: {exc}") from None
     for name in skipped:
         del maps[name], specs[name]
     all_eps = [e for eps in eps_by_map.values() for e in eps]
@@ -211,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
         "policy": str(path), "policy_id": f"0x{pol.policy_id:08x}", "per_map": {}}
     if robot_file is not None:
         result["scenario"]["robot"] = robot_file
+        result["scenario"]["waypoints_radius_mm"] = robot.geometry.robot_radius_mm
     rows: list[tuple[str, object]] = []
     base = {"policy": str(path), "maps": specs, **({"robot": robot_file} if robot_file is not None else {})}
     campaign: dict = {}

@@ -50,7 +50,7 @@ naming the map and the label.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -148,6 +148,16 @@ def _draw_pair(rng: np.random.Generator, cells: list, min_cells: float
     if math.hypot(s[0] - g[0], s[1] - g[1]) < min_cells:
         return None
     return s, g, float(rng.uniform(-math.pi, math.pi))
+
+
+def for_body(gridmap: GridMap, ep: Episode, radius_mm: float, plan_kw: dict | None = None) -> Episode:
+    """The same episode (start, goal, discs, movers, seed) with the planner's waypoints for a robot
+    of body radius `radius_mm` (a profile's): what `qnav mission upload --plan --profile` sends it.
+    Raises MapError if its planner finds no path."""
+    cell = gridmap.cell_size_m * 1000.0
+    start = (int(ep.start[0] // cell), gridmap.height - 1 - int(ep.start[1] // cell))
+    wps = plan_waypoints(gridmap, start, ep.goal, **{**(plan_kw or {}), "radius_mm": radius_mm})
+    return replace(ep, waypoints=[(float(x), float(y)) for x, y in wps])
 
 
 def episodes(gridmap: GridMap, n: int, seed: int, k: int, m: int, plan_kw: dict | None = None,
