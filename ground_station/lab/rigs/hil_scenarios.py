@@ -26,7 +26,7 @@ same for every transport. Logs go to files in the scenario's work directory
   caller may `qnav report` it). One command at a time, as a serial radio allows. The
   sim is paused (SIGSTOP: the world's clock stops, and with it the robot's)
   from the moment `qnav mode auto` answers until the monitor listens, so no
-  MISSION_ITEM_REACHED passes unheard.
+  MISSION_ITEM_REACHED passes unheard. `mission_ab`: the same with targets A,B.
 
 Batch CLI (used inside user-mode Linux by tests/test_hil_transports.py):
     python -m ground_station.lab.rigs.hil_scenarios --can socketcan:vcan0 --out DIR \\
@@ -335,9 +335,10 @@ def _qnav(procs: _Procs, name: str, args: list, timeout_s: float = 60) -> tuple[
 
 def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavlink: str | None = None,
             robot_extra: list[str] | None = None, upload: Path | None = None, speed: float | None = None,
-            max_speed: float | None = None, profile: str | None = None) -> dict:
+            max_speed: float | None = None, profile: str | None = None, targets: str = "A,B,C,D") -> dict:
     """Mission A-D over MAVLink, the ground side as `qnav` commands (module docstring).
     `profile`: a robot profile both programs run with (their drive and sensor backends).
+    `targets`: the paper10 targets `qnav mission upload --targets` sends (A,B,C,D unless given).
 
     Default link: robot `udpout:127.0.0.1:P`, ground station `udpin:127.0.0.1:P`; a serial radio
     passes its two ends. `upload`: a policy file `qnav upload --activate`s first. `speed`: paced
@@ -349,6 +350,7 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
         port = free_udp_port()
         robot_mavlink, gcs_mavlink = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
     res: dict = {"scenario": "mission", "can": can, "gcs": gcs_mavlink, "steps": {}, "profile": profile}
+    n_targets = len(targets.split(","))
     prof = ["--profile", profile] if profile else []
     steps = res["steps"]
     link = ["--mavlink", gcs_mavlink]
@@ -373,7 +375,7 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
             code, out = _qnav(procs, "qnav_upload", ["upload", upload, "--activate", *link,
                                                      "--timeout", "30"], 120)
             steps["upload"] = {"exit": code, "seconds": round(time.monotonic() - t0, 2), "out": out[-600:]}
-        code, out = _qnav(procs, "qnav_mission", ["mission", "upload", "--targets", "A,B,C,D", "--map", "paper10", *link,
+        code, out = _qnav(procs, "qnav_mission", ["mission", "upload", "--targets", targets, "--map", "paper10", *link,
                                                   "--no-tlog", "--timeout", "30"])
         steps["mission_upload"] = {"exit": code, "out": out[-600:]}
         # lockstep runs the robot's clock ~50x real time: a ground station's 1 Hz wall-clock
@@ -408,14 +410,15 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
         finally:
             sim.send_signal(signal.SIGCONT)
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and procs.log("mission_robot").count("-> GOAL_REACHED") < 4:
+        while time.monotonic() < deadline and procs.log("mission_robot").count("-> GOAL_REACHED") < n_targets:
             if rob.poll() is not None or sim.poll() is not None:
                 break
             time.sleep(0.2)
         # the last MISSION_ITEM_REACHED on its way: over a 57600-baud radio at 3x sim pacing the
         # telemetry queues for seconds behind the robot, so wait for the monitor to have it
         until = time.monotonic() + 30
-        while time.monotonic() < until and "reached=4" not in procs.log("qnav_monitor") and mon.poll() is None:
+        while time.monotonic() < until and f"reached={n_targets}" not in procs.log("qnav_monitor") \
+                and mon.poll() is None:
             time.sleep(0.2)
         time.sleep(0.5)
         stop_process(mon, timeout_s=10, sig=signal.SIGINT)
@@ -426,7 +429,7 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
         res["reached_seq"] = _reached_seq(tlog)
     res["robot"] = _stats(stats)
     res["robot_goal_reached_lines"] = procs.log("mission_robot").count("-> GOAL_REACHED")
-    if res["reached_seq"] != [0, 1, 2, 3]:
+    if res["reached_seq"] != list(range(n_targets)):
         res["logs"] = {"robot": procs.log("mission_robot")[-2000:], "sim": procs.log("mission_sim")[-800:]}
     return res
 
@@ -559,6 +562,7 @@ SCENARIOS: dict[str, Callable[..., dict]] = {
     "estop_cansend": lambda can, work: estop(can, work, sender="cansend"),
     "sensor_stop": sensor_stop,
     "mission": mission,
+    "mission_ab": functools.partial(mission, targets="A,B"),  # the same sequence, two targets: half the drive
     "replan": replan,
 }
 
