@@ -143,7 +143,8 @@ def _wp_list(mp: MavProxy, count: int) -> list[tuple[int, int, float, float]]:
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_sitl_missions_in_global_coordinates_for_mavproxy_and_from_qnav(tmp_path):
-    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
+    # lockstep at most x4 (docs/walkthrough.md's pace): load only slows the run (tests/hil/test_sitl.py)
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "4")
     mp = None
     try:
         master = sitl.mavproxy_master()

@@ -92,10 +92,11 @@ def no_children_left(out: Path) -> list[str]:
 @pytest.mark.slow
 @pytest.mark.timeout(400)
 def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
-    # lockstep at most twice real time: paced, the sim's 200 ms motor watchdog is sim time, so a
-    # wall-clock stall of 200/X ms of the robot process stopped the wheels on a loaded machine (FAULT
-    # "motor driver watchdog tripped"); in lockstep every tick is answered and load only slows the run
-    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
+    # lockstep at most four times real time (docs/walkthrough.md's pace): paced, the sim's 200 ms motor
+    # watchdog is sim time, so a wall-clock stall of 200/X ms of the robot process stopped the wheels on a
+    # loaded machine (FAULT "motor driver watchdog tripped"); in lockstep every tick is answered and load
+    # only slows the run
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "4")
     mp = None
     try:
         master = sitl.mavproxy_master()
@@ -105,8 +106,8 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
         mp = MavProxy(master, tmp_path, modules="param,wp,mode,arm,cmdlong,fence")
         mp.expect(r"Detected vehicle 1:1", 30)
         mp.expect(rf"Received {len(PARAMS)} parameters", 60)
-        mp.send("param show FS_GCS_TOUT_MS")  # 5 s of wall time at --speed 2
-        mp.expect(r"FS_GCS_TOUT_MS\s+10000")
+        mp.send("param show FS_GCS_TOUT_MS")  # 5 s of wall time at --speed 4
+        mp.expect(r"FS_GCS_TOUT_MS\s+20000")
         cfg = VehicleConfig()
         lat0, lon0 = cfg.origin_lat_e7, cfg.origin_lon_e7
         a_mm, d_mm = cell_world_mm(2, 2), cell_world_mm(9, 7)  # paper10 targets A and D
@@ -267,15 +268,23 @@ def test_manual_mode_over_mavlink_drives_and_the_deadman_stops_the_robot(tmp_pat
                 break
         else:
             raise AssertionError("the robot never reported Manual")
-        last_robot_ms = 0
-        end = time.monotonic() + 3.0
-        while time.monotonic() < end:  # half stick forward at 20 Hz (wall)
+        last_robot_ms, start_ne, driven_m = 0, None, 0.0
+        end = time.monotonic() + 20.0
+        # half stick forward at 20 Hz (wall) until the robot's own position says it drove 0.4 m
+        while time.monotonic() < end and driven_m < 0.4:
             conn.mav.manual_control_send(1, 500, 0, 500, 0, 0)
             msg = conn.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=0.05)
             if msg is not None:
                 last_robot_ms = max(last_robot_ms, msg.time_boot_ms)
+                start_ne = start_ne or (msg.x, msg.y)
+                driven_m = math.hypot(msg.x - start_ne[0], msg.y - start_ne[1])
         released_ms = last_robot_ms
-        time.sleep(3.0)  # sticks released: the deadman must stop the wheels
+        # sticks released: the deadman (500 ms) must stop the wheels; watch 2 s of robot time go by
+        end = time.monotonic() + 20.0
+        while time.monotonic() < end:
+            msg = conn.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=0.5)
+            if msg is not None and msg.time_boot_ms >= released_ms + 2000:
+                break
     finally:
         if conn is not None:
             conn.close()
@@ -305,7 +314,7 @@ def test_qnav_drive_in_a_terminal_moves_the_robot_and_q_holds(tmp_path):
 
     from ground_station import cli
 
-    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "4")
     master = proc = None
     try:
         sitl.wait_up()
@@ -324,7 +333,7 @@ def test_qnav_drive_in_a_terminal_moves_the_robot_and_q_holds(tmp_path):
                 text += os.read(master, 4096)
         assert b"q quits" in text, text
         os.write(master, b"\x1b[A\x1b[A")  # forward 40 %
-        time.sleep(3.0)
+        time.sleep(1.5)  # up to 6 s of robot time at x4
         os.write(master, b"q")
         assert proc.wait(timeout=30) == 0
         while select.select([master], [], [], 0.2)[0]:
@@ -333,7 +342,7 @@ def test_qnav_drive_in_a_terminal_moves_the_robot_and_q_holds(tmp_path):
             except OSError:
                 break
         assert b"mode hold" in text, text
-        time.sleep(1.0)
+        time.sleep(0.5)
     finally:
         if proc is not None and proc.poll() is None:
             proc.kill()
@@ -365,7 +374,7 @@ def test_mavproxy_rc_drives_manual_and_a_pymavlink_gcs_gets_modes_and_parameter_
     from firmware_py.mavlink.dialect import NAME
     from firmware_py.vehicle import Mode
 
-    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
+    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "4")
     mp = conn = None
     try:
         master = sitl.mavproxy_master()
@@ -377,9 +386,9 @@ def test_mavproxy_rc_drives_manual_and_a_pymavlink_gcs_gets_modes_and_parameter_
         mp.send("arm throttle")
         mp.expect(r"COMPONENT_ARM_DISARM: ACCEPTED", 30)
         mp.send("rc 3 1700")  # half throttle (1500 neutral, 1900 full)
-        time.sleep(3.0)
+        time.sleep(1.5)  # up to 6 s of robot time at x4
         mp.send("rc 3 1500")
-        time.sleep(2.0)
+        time.sleep(1.0)
         mp.close()
         mp = None
         conn = mavutil.mavlink_connection(master, source_system=255, source_component=27, dialect=NAME)
