@@ -10,11 +10,18 @@ from ground_station.lab.faults import storage_holes  # noqa: F401  (registers th
 from ground_station.lab.faults.common import SCENARIOS
 
 NAMES = ["map_refused_stays_refused", "log_readonly_over_ftp", "log_pull_plain_names", "profile_deep_nesting"]
+# fewer trials than the scenario's small count where the first ones already cover every case: the map
+# activations' first three trials are one of each timing (late, early, race), the late one is the one
+# the bug answered wrongly; the seeded trials after them (~1.5 s each) are the bench's
+COUNTS = {"map_refused_stays_refused": 3}
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_storage_hole(name):
     sc = SCENARIOS[name]
-    res = sc.run(sc.small, seed=1)
-    assert res.tried >= sc.small
+    count = COUNTS.get(name, sc.small)
+    res = sc.run(count, seed=1)
+    assert res.tried >= count
     assert res.lost == 0, (res.failures, res.figures)
+    if name == "map_refused_stays_refused":  # each timing was tried
+        assert sorted(k for k, n in res.figures["timings"].items() if n) == ["early", "late", "race"], res.figures
