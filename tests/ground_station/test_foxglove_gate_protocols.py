@@ -81,9 +81,10 @@ def test_a_late_foxglove_sdk_v1_subscriber_gets_the_map():
 
 
 def test_a_client_offering_another_subprotocol_is_still_refused():
+    # websockets.exceptions is a submodule, an attribute only once something imported it (this test
+    # failed so when it ran first on a worker): imported by name
     import websockets
-    from websockets.exceptions import InvalidStatus  # a submodule: `websockets.exceptions` is only an
-    # attribute once something imported it (what made this test fail when it ran first on a worker)
+    from websockets.exceptions import InvalidStatus
 
     async def body(port: int) -> None:
         with pytest.raises(InvalidStatus) as err:
