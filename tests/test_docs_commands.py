@@ -51,6 +51,8 @@ _VCAN = "needs kernel CAN (vcan0/can0); none on this host (tests/hil/test_hil_tr
 _ROBOT = "a real robot on a radio or CAN bus"
 # documented lines (or their prefix) not run here, and why; they are still parsed
 _WALK = "docs/walkthrough.md's steps, run in order as a new user runs them by tests/hil/test_walkthrough.py"
+_YOURS = "docs/your-robot.md's steps, run in order by tests/hil/test_your_robot_e2e.py (two robot profiles)"
+_WIDE = "results.md's wide-robot policies (full recipes); tests/ground_station/test_bench_profile.py trains them small"
 NOT_RUN = {
     "qnav policy revert --mavlink /dev/ttyUSB0": _ROBOT + "; tests/hil/test_policy_revert.py runs it against qnav-robot",
     "make demo": "installs into the shared venv; `qnav demo` runs in tests/hil/test_demo.py",
@@ -65,6 +67,27 @@ NOT_RUN = {
     "qnav drive": "Manual mode and `qnav drive` in tests/hil/test_sitl.py (a pty for the keys)",
     "qnav monitor --plain --until-done": _WALK,
     "qnav report runs/mission.tlog": _WALK,
+    # docs/your-robot.md: run block by block by tests/hil/test_your_robot_e2e.py
+    "qnav train --map workshop.map": _YOURS,
+    "qnav train --recipe shipped-sector --map workshop.map": _YOURS,
+    "qnav eval runs/cell --profile": _YOURS,
+    "qnav eval runs/sector --profile": _YOURS,
+    "qnav export runs/cell --profile": _YOURS,
+    "qnav export runs/sector --profile": _YOURS,
+    "qnav policy inspect cell.qtab sector.qtab": _YOURS,
+    "qnav sitl --profile my_robot.toml": _YOURS,
+    "qnav map upload workshop.map": _YOURS,
+    "qnav disarm": _YOURS,
+    "qnav upload cell.qtab": _YOURS,
+    "qnav upload sector.qtab": _YOURS,
+    "qnav mission upload --targets B,C,D,A": _YOURS,
+    "qnav monitor --plain --until-done --duration 240": _YOURS,
+    "qnav report runs/sector.tlog": "the walkthrough's report step (tests/hil/test_walkthrough.py runs it)",
+    # docs/results.md §10: the wide robot's policies, trained in ~15 s each (tests/ground_station/
+    # test_bench_profile.py and test_train_profile.py train and export them at a small scale)
+    "qnav train --recipe shipped-sector --profile": _WIDE,
+    "qnav train --recipe shipped-cell --profile": _WIDE,
+    "qnav export wide_": _WIDE,
     "make test": "the test suite itself",
     "qnav study --map maze-15x15-s2": "the same study on a second map (~25 s); `qnav study --out out/study` "
                                       "above runs the same code",
@@ -108,6 +131,8 @@ NOT_RUN = {
     "qnav bench hil": "a benchmark (minutes of HIL episodes); tests check a benchmark's code, never a time",
     "qnav bench campaign": "a benchmark (200 twin runs per engine); tests check a benchmark's code, never a time",
     "qnav bench nav": "a benchmark (1000 twin / 50 HIL episodes); tests check a benchmark's code, never a time",
+    "qnav bench decisions": "a benchmark (hundreds of traced twin episodes); tests/ground_station/"
+                            "test_recovery_learning.py checks its classification",
     "qnav policy upgrade OLD.qtab": "a synopsis (placeholders); its flags are checked above",
     "qnav export RUN_DIR": "a synopsis (placeholders); its flags are checked above",
     "qnav export build/policies/sector_memory": "writes the shipped policies/sector_memory.qtab (tools/make_policy.py "
