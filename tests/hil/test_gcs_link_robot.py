@@ -122,8 +122,8 @@ def test_wrong_signing_key_gets_a_signing_hint(tmp_path):
     proc = start_robot(tmp_path, port, "--signing-key", str(robot_key))
     try:
         code, out, err = qnav("upload", str(ROOT / "policies" / "sector.qtab"), "--mavlink",
-                              f"udpin:127.0.0.1:{port}", "--signing-key", str(our_key), "--no-tlog", "--timeout", "4")
-        assert code == 4, out + err
+                              f"udpin:127.0.0.1:{port}", "--signing-key", str(our_key), "--no-tlog", "--timeout", "15")
+        assert code == 4, out + err  # 15 s: at load 11 the robot sent no HEARTBEAT within 4 s of its start
         assert "signature does not verify with --signing-key" in err, out + err  # stderr, like every error
     finally:
         stop_process(proc, timeout_s=10)
