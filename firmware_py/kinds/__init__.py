@@ -39,7 +39,7 @@ SHIPPED: dict[str, tuple[int, str]] = {
 
 # metadata keys a shipped kind reads (its PolicyKind.parse_metadata) -> that kind: the loader refuses a
 # file of another kind that carries one (it would be ignored), without importing the owner
-METADATA_KEYS: dict[str, str] = {"local_planner": "sector"}
+METADATA_KEYS: dict[str, str] = {"local_planner": "sector", "recovery_table": "sector"}
 
 _BY_NAME: dict[str, PolicyKind] = {}
 _BY_CODE: dict[int, PolicyKind] = {}

@@ -18,6 +18,8 @@ learnt table steers is this package's, one module per concern:
 * `recoveries`: the tick's side, searching off the tick, and the recoveries when
   the way is closed (wait, whole-map re-plan, give way, back off, clear, "no
   route": `PlannedTarget`);
+* `decide`: the recovery decisions as a learnt int8 table (`recovery_table`
+  metadata, `RecoveryTable`) instead of the hand-written rules;
 * `guard`: the motion guard, the last word on the table's action (`MotionGuard`).
 
 Which readings the map explains is generic map code (`firmware_py.mapdata`), as
@@ -45,6 +47,8 @@ from firmware_py.kinds.base import (
     wheel_actions,
 )
 from firmware_py.kinds.sector.config import META_KEY, LocalPlannerConfig
+from firmware_py.kinds.sector.decide import META_KEY as RECOVERY_KEY
+from firmware_py.kinds.sector.decide import recovery_table
 from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.kinds.sector.guard import MotionGuard
 from firmware_py.kinds.sector.memory import ObstacleMemory
@@ -94,9 +98,12 @@ def parse_metadata(policy: Policy) -> LocalPlannerConfig | None:
     none, the table steers at the goal); ValueError with one line when they are bad or the file
     carries no map to plan on."""
     if META_KEY not in policy.metadata:
+        if RECOVERY_KEY in policy.metadata:
+            raise ValueError(f"{RECOVERY_KEY} needs the {META_KEY} metadata (its decisions are the planner's)")
         return None
     if policy.map_grid is None:
         raise ValueError(f"{META_KEY} needs a plain sector policy that carries its map")
+    recovery_table(policy.metadata)  # checked at load: a bad table is refused with the file
     return LocalPlannerConfig.from_metadata(policy.metadata[META_KEY])
 
 
@@ -133,7 +140,8 @@ class SectorDriver(KindDriver):
         self.local: tuple[PlannedTarget, ObstacleMemory, MotionGuard] | None = None
         if cfg is not None and grid is not None:
             cfg = cfg.for_body(layout.robot_radius_mm)  # the clearances round this robot's body
-            self.local = (PlannedTarget(grid, cfg, self.work, layout.robot_radius_mm), ObstacleMemory(cfg, layout),
+            self.local = (PlannedTarget(grid, cfg, self.work, layout.robot_radius_mm, recovery_table(policy.metadata)),
+                          ObstacleMemory(cfg, layout),
                           MotionGuard(cfg, layout))
         self._key: tuple[tuple[int, int], int] | None = None
 

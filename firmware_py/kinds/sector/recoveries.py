@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
+from firmware_py.kinds.sector import decide
 from firmware_py.kinds.sector.config import LocalPlannerConfig
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.planner import LocalPlanner, refuge_mm
@@ -114,14 +115,22 @@ class PlannedTarget:
        (the guard never steps that close: it came to the robot, a person who will not give way
        standing at it in a one-cell corridor).
 
+    With a recovery table (`decisions`: `decide.RecoveryTable`, a policy's `recovery_table`) the
+    table decides, every `decide.DECIDE_US` of a wait, whether to wait on or re-plan over the whole
+    map (instead of 1.'s r x `wait_us`), and, when a round's search found no route, whether to try
+    another round, give way or say "no route" (instead of 3.'s choice and 4.'s counting); 4.'s bound
+    of 3 x `max_rounds` rounds stays.
+
     A waypoint beyond `max_plan_mm` is driven at without planning while the map leaves the straight
     line to it free (looked at off the tick); once it does not (a recovery's detour left the route
     the waypoints follow) the tick's side goes to GLOBAL at once: the whole map's route leads back.
     """
 
     def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background,
-                 radius_mm: int = robot_spec.ROBOT_RADIUS_MM) -> None:
+                 radius_mm: int = robot_spec.ROBOT_RADIUS_MM, decisions: decide.RecoveryTable | None = None) -> None:
         self.cfg = cfg
+        self.decisions = decisions  # the learnt recovery decisions (decide), or None: the hand-written rules
+        self._decided_us = 0  # the last waiting decision (decide.EV_WAIT)
         self.radius_mm = radius_mm  # the body's (firmware_py.layout)
         self.planner = LocalPlanner(grid, cfg, radius_mm)  # used by the worker only, after construction
         self.work = work
@@ -175,6 +184,28 @@ class PlannedTarget:
     def _begin_round(self, now_us: int, memory: ObstacleMemory, came_up: bool) -> None:
         """A round of recoveries begins with its wait: what is added from now tells a moving scene."""
         self._added_at_wait, self._round_since_us, self._came_up = memory.added, now_us, came_up
+        self._decided_us = now_us
+
+    def _choose(self, state: int) -> int:
+        """The recovery table's action in `state` (a trainer overrides this to explore)."""
+        assert self.decisions is not None
+        return self.decisions.choose(state)
+
+    def _wait_over(self, now_us: int, x: float, y: float, memory: ObstacleMemory) -> bool:
+        """Whether this WAIT ends in a whole-map search now."""
+        cfg = self.cfg
+        waited = now_us - self._mode_since_us
+        if self.decisions is None:  # the hand-written rule: r x wait_us in round r
+            return waited >= cfg.wait_us * min(self._all_rounds + 1, cfg.max_rounds)
+        if waited >= 3 * cfg.max_rounds * cfg.wait_us:
+            return True  # the bound: no table holds the robot for ever
+        if now_us - self._decided_us < decide.DECIDE_US:
+            return False
+        self._decided_us = now_us
+        near = 0 if memory.within(x, y, self.radius_mm + cfg.veto_mm) else (
+            1 if memory.within(x, y, decide.MOVING_NEAR_MM) else 2)
+        moving = memory.added - self._added_at_wait > cfg.moving_points
+        return self._choose(decide.wait_state(waited, self._all_rounds, near, moving)) == decide.REPLAN
 
     def target(self, now_us: int, x: float, y: float, waypoint: tuple[int, int],
                memory: ObstacleMemory) -> tuple[float, float, int]:
@@ -272,7 +303,7 @@ class PlannedTarget:
                 self._enter(LOCAL, now_us)  # the way opened (a mover stepped aside)
                 self.detouring = ans.detouring
                 return ans.target[0], ans.target[1], 100
-            if now_us - self._mode_since_us >= cfg.wait_us * min(self._all_rounds + 1, cfg.max_rounds):
+            if self._wait_over(now_us, x, y, memory):
                 memory.pin(now_us)
                 self.global_plans += 1
                 self._enter(GLOBAL, now_us + 1)  # the next tick asks over the whole map
@@ -286,12 +317,22 @@ class PlannedTarget:
             # a moving scene: new points came near while the robot waited, and without what moved the
             # way would be open (a mover walking past the robot while a box closes the door: still)
             moving = memory.added - self._added_at_wait > cfg.moving_points and not ans.still_closed
-            if not moving and not self._came_up:
-                self._rounds += 1  # a still scene: what closes the way stays
-            if self._rounds >= cfg.max_rounds or self._all_rounds >= 3 * cfg.max_rounds:
+            if self.decisions is not None:
+                act = self._choose(decide.round_state(self._rounds, self._all_rounds, self._came_up, moving,
+                                                      ans.refuge is not None))
+                if not moving and not self._came_up:
+                    self._rounds += 1
+                say_no = act == decide.NO_ROUTE or self._all_rounds >= 3 * cfg.max_rounds
+                give_way = act == decide.GIVE_WAY
+            else:
+                if not moving and not self._came_up:
+                    self._rounds += 1  # a still scene: what closes the way stays
+                say_no = self._rounds >= cfg.max_rounds or self._all_rounds >= 3 * cfg.max_rounds
+                give_way = self._came_up
+            if say_no:
                 self._enter(NO_ROUTE, now_us)
                 self.no_route = f"no route to ({wx},{wy})"  # <= 50 characters with the item
-            elif ans.refuge is not None and self._came_up:
+            elif ans.refuge is not None and give_way:
                 self._refuge = ans.refuge
                 self._generation += 1  # the refuge's questions are not the waypoint's
                 # what stands at the robot walks: seen again or forgotten, not kept a minute (a box

@@ -30,7 +30,9 @@ JSON: `scenario` (maps, obstacles, movers, seed, episodes, blocked), per control
 (`success_rate`, `collision_rate`, `path_ratio_mean`, `episodes`,
 `time_to_goal_mean_s`, `near_miss_rate`, `no_route_rate`, `outcomes`, with
 `--blocked` a `blocked` object per label), `per_map` the same per
-map, and with `--hil` a `hil` object with the same per-controller keys,
+map, `paired_vs_learnt` (exact McNemar on the same twin episodes) and
+`paired_time_vs_learnt` (time to goal where both succeeded: who was sooner,
+the median difference, a sign test), and with `--hil` a `hil` object with the same per-controller keys,
 `per_map`, `paired_vs_learnt` (exact McNemar on the same episodes) and
 `twin_same_episodes` (the twin on exactly the HIL episodes).
 """
@@ -83,9 +85,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
                    help="the learnt sector policy (.qtab or policies:NAME; default %(default)s)")
     p.add_argument("--controllers", default=None,
-                   help="comma-separated subset of learnt,seek,vfh,direct,seek_local,vfh_local (default: the "
-                        "first four, and seek_local and vfh_local when the policy steers on the robot's local "
-                        "planner); a sector-memory policy: learnt,rule")
+                   help="comma-separated subset of learnt,seek,vfh,direct,seek_local,vfh_local,learnt_rules "
+                        "(default: the first four, and seek_local and vfh_local when the policy steers on the "
+                        "robot's local planner, and learnt_rules, its table with the hand-written recovery rules, "
+                        "when it carries a learnt recovery table); a sector-memory policy: learnt,rule")
     p.add_argument("--json", metavar="FILE",
                    help="write the result as JSON (depends only on the seeded episodes: the same on every engine; "
                         "timings and where the jobs ran go to FILE's sibling *.campaign.json)")
@@ -112,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from ground_station.lab.nav.episodes import (
         mcnemar_exact,
+        paired_time,
         run_job,
         run_twin,
         summarise,
@@ -161,7 +165,10 @@ def run(args: argparse.Namespace) -> int:
         ctrls = list(kind_controllers(pol, names or None))
         if args.controllers is None and planner_config(pol) is not None:
             # the planner with the hand-written seek table: what the learnt table adds
-            ctrls += kind_controllers(pol, EXTRA_CONTROLLERS)
+            from firmware_py.kinds.sector.decide import META_KEY as RECOVERY_KEY
+
+            extra = EXTRA_CONTROLLERS if RECOVERY_KEY in pol.metadata else ("seek_local", "vfh_local")
+            ctrls += kind_controllers(pol, extra)
     except ValueError as exc:
         raise CliError(f"--controllers: {exc}") from None
     twin_ctrls = [c for c in ctrls if isinstance(c, NavController)]
@@ -244,6 +251,8 @@ def run(args: argparse.Namespace) -> int:
                 tc.name: dict(zip(("learnt_only", "baseline_only", "p_exact"),
                                   mcnemar_exact(twin_by["learnt"], twin_by[tc.name]).values(), strict=True))
                 for tc in twin_ctrls if tc.name != "learnt"}
+            result["paired_time_vs_learnt"] = {tc.name: paired_time(twin_by["learnt"], twin_by[tc.name])
+                                               for tc in twin_ctrls if tc.name != "learnt"}
         if args.hil:
             names_list = list(maps)
             per = [args.hil_episodes // len(names_list) + (1 if i < args.hil_episodes % len(names_list) else 0)
@@ -286,6 +295,12 @@ def run(args: argparse.Namespace) -> int:
         rows.append((f"twin learnt vs {other}, paired",
                      f"episodes won only by learnt {t['learnt_only']}, only by {other} {t['baseline_only']}; "
                      f"exact McNemar p = {t['p_exact']:.2g}"))
+    for other, t in result.get("paired_time_vs_learnt", {}).items():
+        if t["both"]:
+            rows.append((f"twin learnt vs {other}, time",
+                         f"both reached the goal in {t['both']}: learnt sooner in {t['a_faster']}, {other} in "
+                         f"{t['b_faster']}, median learnt - {other} {t['median_diff_s']:+.2f} s; "
+                         f"sign test p = {t['p_sign']:.2g}"))
     for name in maps:
         for tc in twin_ctrls:
             rows.append((f"  {name} {tc.name}", _fmt(result["per_map"][name][tc.name], blocked)))

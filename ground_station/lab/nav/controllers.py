@@ -18,7 +18,12 @@ row -> action), so every controller also runs in HIL as an exported
   parameters): the seek table steering on the same local planner's targets,
   i.e. what the planner alone is worth without the learnt table;
 * `vfh_local` (likewise): the VFH table on the same local planner, its
-  re-planning and motion guard: a reactive follower on the same targets.
+  re-planning and motion guard: a reactive follower on the same targets;
+* `learnt_rules` (likewise): the learnt table with the hand-written recovery
+  rules, when the policy carries a learnt recovery table (`recovery_table`
+  metadata, `firmware_py.kinds.sector.decide`): what the learnt recovery
+  decisions add. `learnt` uses the file's recovery table when it has one;
+  `seek_local` and `vfh_local` always run the hand-written rules.
 
 A learnt policy with `local_planner` metadata (`firmware_py.kinds.sector`)
 steers on the robot's local planner: `NavController.local` holds its
@@ -35,11 +40,16 @@ from typing import Protocol, cast
 import numpy as np
 
 from firmware_py import robot_spec
+from firmware_py.background import Background
 from firmware_py.kinds.sector import planner_config
 from firmware_py.kinds.sector.config import META_KEY as PLANNER_KEY
 from firmware_py.kinds.sector.config import LocalPlannerConfig
+from firmware_py.kinds.sector.decide import META_KEY as RECOVERY_KEY
+from firmware_py.kinds.sector.decide import RecoveryTable, recovery_table
 from firmware_py.kinds.sector.encoder import SectorEncoder
+from firmware_py.kinds.sector.recoveries import PlannedTarget
 from firmware_py.kinds.sector_memory.gridbug import GridBugEncoder
+from firmware_py.mapdata import OccupancyGrid
 from firmware_py.policy import Policy, load_policy
 from ground_station.learn.export import (
     META_GRID,
@@ -52,7 +62,7 @@ from ground_station.learn.sector.evaluate import seek_table
 
 FORWARD, LEFT, RIGHT, REVERSE = range(4)  # robot_spec.ACTION_NAMES order
 CONTROLLER_NAMES = ("learnt", "seek", "vfh", "direct")
-EXTRA_CONTROLLERS = ("seek_local", "vfh_local")  # on request (--controllers), or by default with a local planner
+EXTRA_CONTROLLERS = ("seek_local", "vfh_local", "learnt_rules")  # on request (--controllers), or by default with a local planner
 
 
 @dataclass
@@ -63,6 +73,12 @@ class NavController:
     guidance: str  # "path" | "direct"
     local: LocalPlannerConfig | None = None  # steer on the robot's local planner (firmware_py.kinds.sector)
     twin: bool = True  # rolled out on the bench's continuous twin too (episodes.run_twin)
+    recovery: RecoveryTable | None = None  # learnt recovery decisions (None: the hand-written rules)
+
+    def planner(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background,
+                radius_mm: int) -> PlannedTarget:
+        """The tick's side of the local planner this controller drives with (the twin's, nav.planned)."""
+        return PlannedTarget(grid, cfg, work, radius_mm, self.recovery)
 
     def policy(self, map_name: str = "paper10") -> Policy:
         """The table as the robot loads it (int8 .qtab, via the exporter)."""
@@ -72,6 +88,8 @@ class NavController:
             meta[META_GRID] = map_grid_rows(map_name)
         if self.local is not None:
             meta[PLANNER_KEY] = self.local.to_metadata()
+        if self.recovery is not None:
+            meta[RECOVERY_KEY] = self.recovery.to_metadata()
         data = policy_bytes(qt, self.encoder, metadata=meta, map_geometry=geometry_of_map(map_name))
         return load_policy(data)
 
@@ -207,8 +225,10 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
     enc = cast(SectorEncoder, policy.encoder)
     q = policy_table(policy)
     local = planner_config(policy)
+    rec = recovery_table(policy.metadata)
     make = {
-        "learnt": lambda: NavController("learnt", enc, q, "path", local),
+        "learnt": lambda: NavController("learnt", enc, q, "path", local, recovery=rec),
+        "learnt_rules": lambda: NavController("learnt_rules", enc, q, "path", local or LocalPlannerConfig()),
         "vfh_local": lambda: NavController("vfh_local", enc, vfh_table(enc), "path",
                                            local or LocalPlannerConfig()),
         "seek_local": lambda: NavController("seek_local", enc, seek_table(enc), "path",
@@ -218,3 +238,18 @@ def standard_controllers(policy: Policy, names: tuple[str, ...] = CONTROLLER_NAM
         "direct": lambda: NavController("direct", enc, q, "direct"),
     }
     return [make[n]() for n in names]
+
+
+def with_recovery_table(policy: str, table: RecoveryTable, record: dict | None = None) -> bytes:
+    """The sector policy file `policy` (a path or policies:NAME) with `table` as its recovery
+    decisions (`recovery_table` metadata) and the training record (`recovery_training`)."""
+    from firmware_py.shipped_policies import resolve_policy_spec
+    from ground_station.learn.export import with_metadata
+
+    pol = load_policy(str(resolve_policy_spec(policy)))
+    if planner_config(pol) is None:
+        raise ValueError(f"{policy}: a recovery table needs a sector policy with a local planner")
+    meta = {**pol.metadata, RECOVERY_KEY: table.to_metadata()}
+    if record is not None:
+        meta["recovery_training"] = record
+    return with_metadata(pol, meta)

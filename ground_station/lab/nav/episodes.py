@@ -237,6 +237,18 @@ def mcnemar_exact(rows_a: list[dict], rows_b: list[dict]) -> dict:
     return {"a_only": a_only, "b_only": b_only, "p_exact": p}
 
 
+def paired_time(rows_a: list[dict], rows_b: list[dict]) -> dict:
+    """Time to goal on the episodes both controllers succeeded in (same episodes, same order): how
+    many A finished sooner, B sooner, the median of A's time minus B's (s), and the exact two-sided
+    sign test p on the untied ones."""
+    d = [x["time_s"] - y["time_s"] for x, y in zip(rows_a, rows_b, strict=True) if x["success"] and y["success"]]
+    a_f, b_f = sum(v < 0 for v in d), sum(v > 0 for v in d)
+    n, k = a_f + b_f, min(a_f, b_f)
+    p = 1.0 if n == 0 else min(1.0, 2 * sum(math.comb(n, i) for i in range(k + 1)) / 2 ** n)
+    return {"both": len(d), "a_faster": a_f, "b_faster": b_f,
+            "median_diff_s": round(float(np.median(d)), 2) if d else None, "p_sign": p}
+
+
 def summarise(rows: list[dict]) -> dict:
     """success_rate, collision_rate (each with its 95 % Wilson interval), path_ratio_mean,
     time_to_goal_mean_s, near_miss_rate (episodes with a near miss), no_route_rate (episodes the

@@ -38,6 +38,7 @@ most 3 x max_rounds rounds), not aimless, and the budget still bounds them.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -94,9 +95,12 @@ def grid_of(gm: GridMap):
 
 
 def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, budget_factor: float,
-            stall_steps: int, robot: TwinRobot | None = None) -> tuple[int, float, int, float, int, int]:
+            stall_steps: int, robot: TwinRobot | None = None,
+            make_planner: Callable[..., PlannedTarget] | None = None) -> tuple[int, float, int, float, int, int]:
     """One greedy episode of the twin playing `robot` (default the built-in one); returns (outcome,
-    driven mm, periods, min clearance, near-miss periods, plans)."""
+    driven mm, periods, min clearance, near-miss periods, plans). `make_planner(grid, cfg, work,
+    radius_mm)`: the tick's side of the planner (default `PlannedTarget`, or the controller's own:
+    `NavController.planner`; a tracing subclass in `nav.decisions`)."""
     assert ctrl.local is not None
     robot = robot or TwinRobot()
     tw = robot.arrays()
@@ -116,7 +120,7 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
     cfg = ctrl.local.for_body(robot.radius_mm)  # the clearances round the robot's body, as the kind does
     memory = ObstacleMemory(cfg, layout)
     work = Background(threaded=False)  # stepped after each period, as the lockstep robot's node does
-    planner = PlannedTarget(grid, cfg, work, robot.radius_mm)
+    planner = (make_planner or ctrl.planner)(grid, cfg, work, robot.radius_mm)
     guard = MotionGuard(cfg, layout)
     corners = collision.MapCorners(grid)
     held = 0  # periods in a row the collision monitor has stopped the straight part

@@ -1,0 +1,122 @@
+"""Which decision of the sector kind's recoveries ends each failed episode (issue 47, step 1).
+
+`trace(episodes, maps, controller)` rolls each episode out on the twin (`nav.planned.rollout`)
+with a `TracingTarget`: the controller's own `PlannedTarget` (hand-written recoveries or the
+learnt recovery table) that also counts, per control period, the recovery mode it was in and
+whether it asked to stand still, and logs every mode change with the round counts. A failed
+episode is given the decision that ended it (`classify`):
+
+* `no_route`: the robot said "no route" (`declared:still` = `max_rounds` still rounds,
+  `declared:cap` = 3 x `max_rounds` rounds in all; `+gave_way` when it stood aside first);
+* a timeout or loop, by where the last `TAIL_PERIODS` periods went: `waiting` (WAIT, a whole-map
+  route held or not yet answered), `giving_way`, `backing_off` (BACKUP, CLEAR), `detour` (driving a
+  whole-map route), `local` (driving on the window's sub-goals or straight at the waypoint:
+  the table, guard and monitor);
+* `collision`, by the mode it happened in.
+
+`qnav bench decisions` prints the counts (ground_station/lab/bench/decisions.py).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+from firmware_py.kinds.sector.memory import ObstacleMemory
+from firmware_py.kinds.sector.recoveries import (
+    BACKUP,
+    CLEAR,
+    GIVE_WAY,
+    GLOBAL,
+    LOCAL,
+    WAIT,
+    PlannedTarget,
+)
+from ground_station.lab.nav.controllers import NavController
+from ground_station.lab.nav.scenario import Episode
+from ground_station.maps import GridMap
+
+TAIL_PERIODS = 400  # the loop rule's window (episodes.STALL_STEPS): where a timeout's last stretch went
+
+
+@dataclass
+class Trace:
+    """Per-period mode counts of one episode (mode, or 'stand' for a mode asking speed 0) and the
+    mode changes (period, mode, still rounds, all rounds, came_up)."""
+
+    modes: list[str] = field(default_factory=list)
+    changes: list[tuple[int, str, int, int, bool]] = field(default_factory=list)
+
+
+class TracingTarget(PlannedTarget):
+    """A mixin over the controller's `PlannedTarget` (`traced`) that records a `Trace`."""
+
+    trace: Trace
+
+    def _enter(self, mode: str, now_us: int) -> None:
+        super()._enter(mode, now_us)
+        self.trace.changes.append((len(self.trace.modes), mode, self._rounds, self._all_rounds, self._came_up))
+
+    def target(self, now_us: int, x: float, y: float, waypoint: tuple[int, int],
+               memory: ObstacleMemory) -> tuple[float, float, int]:
+        tx, ty, speed = super().target(now_us, x, y, waypoint, memory)
+        mode = self.mode
+        if mode in (LOCAL, GLOBAL) and speed == 0:
+            mode = "stand"
+        self.trace.modes.append(mode)
+        return tx, ty, speed
+
+
+def traced(p: PlannedTarget) -> TracingTarget:
+    """`p` (a `PlannedTarget` or a subclass) recording a `Trace` from now on."""
+    p.__class__ = type("Traced" + type(p).__name__, (TracingTarget, type(p)), {})
+    t = p if isinstance(p, TracingTarget) else None
+    assert t is not None
+    t.trace = Trace()
+    return t
+
+
+def classify(outcome: str, tr: Trace, give_ways: int) -> str:
+    """The decision that ended a failed episode (module docstring)."""
+    if outcome == "no_route":
+        last = tr.changes[-1] if tr.changes else (0, "", 0, 0, False)
+        why = "declared:cap" if last[2] < 3 and last[3] >= 9 else "declared:still"
+        return why + ("+gave_way" if give_ways else "")
+    tail = tr.modes[-TAIL_PERIODS:]
+    if outcome == "collision":
+        return "collision:" + (tail[-1] if tail else "?")
+    groups = Counter({"waiting": sum(m in (WAIT, "stand") for m in tail),
+                      "giving_way": sum(m == GIVE_WAY for m in tail),
+                      "backing_off": sum(m in (BACKUP, CLEAR) for m in tail),
+                      "detour": sum(m == GLOBAL for m in tail),
+                      "local": sum(m == LOCAL for m in tail)})
+    return f"{outcome}:{groups.most_common(1)[0][0]}"
+
+
+def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
+    """One row per episode: outcome, the decision that ended a failure (`classify`), the periods in
+    each mode, the rounds of recoveries and give-ways."""
+    from ground_station.lab.nav import planned
+    from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, OUTCOMES, STALL_STEPS
+
+    rows = []
+    holder: list[TracingTarget] = []
+
+    def make(*args: Any) -> PlannedTarget:
+        holder.append(traced(ctrl.planner(*args)))
+        return holder[-1]
+
+    for ep in eps:
+        holder.clear()
+        o, _, steps, _, _, _ = planned.rollout(ep, maps[ep.map], ctrl, BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS,
+                                               make_planner=make)
+        p = holder[0]
+        tr = p.trace
+        outcome = OUTCOMES[o]
+        rows.append({"map": ep.map, "outcome": outcome, "success": outcome == "success",
+                     "decision": None if outcome == "success" else classify(outcome, tr, p.give_ways),
+                     "periods": steps, "modes": dict(Counter(tr.modes)), "rounds": p._all_rounds,
+                     "give_ways": p.give_ways, "global_plans": p.global_plans,
+                     **({"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {})})
+    return rows

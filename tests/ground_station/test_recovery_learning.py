@@ -1,0 +1,77 @@
+"""Q-learning of the recovery decisions (`ground_station.lab.recovery`, issue 47): transitions and
+their rewards, the tabular update, the hand-written rules as a table (the baseline) doing what the
+rules do, the int8 export, and the failure classification of `qnav bench decisions`."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_py.background import Background
+from firmware_py.kinds.sector import decide
+from firmware_py.kinds.sector.memory import ObstacleMemory
+from firmware_py.kinds.sector.recoveries import NO_ROUTE, PlannedTarget
+from ground_station.lab.nav.decisions import Trace, classify
+from ground_station.lab.recovery.config import RecoveryConfig
+from ground_station.lab.recovery.qlearn import (
+    PERIOD_S,
+    int8_table,
+    sweep,
+    terminal_reward,
+    transitions,
+    valid_mask,
+)
+from ground_station.lab.recovery.rule import rule_table
+from tests.firmware_py.test_replan import DOOR1, ONE_DOOR, _drive
+from tests.support.localplan_rig import CFG
+
+RC = RecoveryConfig()
+
+
+def test_transitions_cost_the_time_between_decisions_and_end_with_the_outcome():
+    ep = {"decisions": [(10, 3, 0), (30, 200, 3)], "periods": 35, "outcome": "no_route", "detour": False}
+    (s1, a1, r1, n1), (s2, a2, r2, n2) = transitions(ep, RC)
+    assert (s1, a1, n1) == (3, 0, 200) and np.isclose(r1, -RC.cost_per_s * 20 * PERIOD_S)
+    assert (s2, a2, n2) == (200, 3, -1) and np.isclose(r2, -RC.cost_per_s * 5 * PERIOD_S + RC.reward_success)
+    assert terminal_reward("no_route", True, RC) == RC.reward_wrong_no_route  # a detour existed
+    assert terminal_reward("no_route", None, RC) == RC.reward_wrong_no_route  # not blocked: a route exists
+    assert terminal_reward("timeout", False, RC) == RC.reward_fail
+
+
+def test_q_learning_prefers_the_action_whose_episodes_end_well():
+    valid = valid_mask()
+    q = np.where(valid, 0.0, -1.0)
+    s = decide.round_state(0, 1, True, False, True)
+    good = [(s, decide.GIVE_WAY, 1.0, -1)] * 5
+    bad = [(s, decide.NO_ROUTE, -1.0, -1)] * 5
+    for _ in range(20):
+        sweep(q, good + bad, 0.1, valid)
+    assert q[s].argmax() == decide.GIVE_WAY and q[s, decide.NO_ROUTE] < -0.5
+    w = decide.wait_state(0, 0, 0, False)  # bootstraps through the next state's best valid value
+    sweep(q, [(w, decide.REPLAN, 0.0, s)] * 50, 0.5, valid)
+    assert np.isclose(q[w, decide.REPLAN], q[s].max(), atol=1e-3)
+
+
+def test_the_rule_table_says_no_route_after_three_still_rounds_as_the_rules_do():
+    for decisions in (None, int8_table(rule_table())):
+        work = Background(threaded=False)
+        pt = PlannedTarget(ONE_DOOR, CFG, work, decisions=decisions)
+        rows = _drive(pt, work, ObstacleMemory(CFG), 400, seen=DOOR1)
+        assert NO_ROUTE in [r[1] for r in rows] and pt.global_plans == CFG.max_rounds
+
+
+def test_the_int8_table_keeps_the_greedy_valid_action_and_never_picks_an_invalid_one():
+    rng = np.random.default_rng(0)
+    q = np.where(valid_mask(), rng.normal(0, 1, (decide.N_STATES, decide.N_ACTIONS)), 5.0)  # invalid large
+    t = int8_table(q)
+    for s in range(decide.N_STATES):
+        valid = decide.VALID[decide.event_of(s)]
+        assert t.choose(s) == max(valid, key=lambda a: q[s, a])
+
+
+def test_a_failure_is_put_down_to_the_decision_that_ended_it():
+    tr = Trace(modes=["local"] * 100 + ["wait"] * 500, changes=[(100, "wait", 0, 0, False)])
+    assert classify("timeout", tr, 0) == "timeout:waiting"
+    tr = Trace(modes=["local"] * 10, changes=[(9, "no route", 1, 9, True)])
+    assert classify("no_route", tr, 2) == "declared:cap+gave_way"
+    tr = Trace(modes=["local"] * 10, changes=[(9, "no route", 3, 3, False)])
+    assert classify("no_route", tr, 0) == "declared:still"
