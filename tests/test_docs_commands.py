@@ -131,6 +131,8 @@ NOT_RUN = {
     "qnav bench hil": "a benchmark (minutes of HIL episodes); tests check a benchmark's code, never a time",
     "qnav bench campaign": "a benchmark (200 twin runs per engine); tests check a benchmark's code, never a time",
     "qnav bench nav": "a benchmark (1000 twin / 50 HIL episodes); tests check a benchmark's code, never a time",
+    "qnav bench decisions": "a benchmark (hundreds of traced twin episodes); tests/ground_station/"
+                            "test_recovery_learning.py checks its classification",
     "qnav policy upgrade OLD.qtab": "a synopsis (placeholders); its flags are checked above",
     "qnav export RUN_DIR": "a synopsis (placeholders); its flags are checked above",
     "qnav export build/policies/sector_memory": "writes the shipped policies/sector_memory.qtab (tools/make_policy.py "
