@@ -75,3 +75,34 @@ def test_a_failure_is_put_down_to_the_decision_that_ended_it():
     assert classify("no_route", tr, 2) == "declared:cap+gave_way"
     tr = Trace(modes=["local"] * 10, changes=[(9, "no route", 3, 3, False)])
     assert classify("no_route", tr, 0) == "declared:still"
+
+
+def test_paired_time_counts_who_was_sooner_where_both_succeeded():
+    from ground_station.lab.nav.episodes import paired_time
+
+    a = [{"success": True, "time_s": t} for t in (10.0, 20.0, 30.0)] + [{"success": False, "time_s": 5.0}]
+    b = [{"success": True, "time_s": t} for t in (12.0, 20.0, 25.0)] + [{"success": True, "time_s": 1.0}]
+    got = paired_time(a, b)
+    assert got == {"both": 3, "a_faster": 1, "b_faster": 1, "median_diff_s": 0.0, "p_sign": 1.0}
+
+
+def test_bench_nav_runs_the_learnt_decisions_beside_the_rules_and_exports_the_table(tmp_path):
+    import json
+
+    from firmware_py.policy import load_policy
+    from ground_station.cli import main
+    from ground_station.lab.nav.controllers import standard_controllers, with_recovery_table
+
+    qtab = tmp_path / "rec.qtab"
+    qtab.write_bytes(with_recovery_table("policies:sector", int8_table(rule_table())))
+    learnt, rules = standard_controllers(load_policy(str(qtab)), ("learnt", "learnt_rules"))
+    assert learnt.recovery is not None and rules.recovery is None
+    assert decide.META_KEY in learnt.policy("paper10").metadata  # what the robot runs in HIL
+    assert decide.META_KEY not in rules.policy("paper10").metadata
+    out = tmp_path / "nav.json"
+    assert main(["bench", "nav", "--map", "paper10", "--episodes", "2", "--seed", "0", "--policy", str(qtab),
+                 "--json", str(out), "--workers", "1"]) == 0
+    res = json.loads(out.read_text())
+    assert {"learnt", "learnt_rules", "seek_local", "vfh_local"} <= set(res)  # learnt_rules by default
+    assert set(res["paired_time_vs_learnt"]["learnt_rules"]) == {"both", "a_faster", "b_faster", "median_diff_s",
+                                                                 "p_sign"}
