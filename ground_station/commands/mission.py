@@ -28,6 +28,17 @@ again and uploaded (`ground_station.nav.replan`); exits 0 when every target
 is reached, 3 when it gives up (no new blocked cell, no path left), 4 after
 `--follow-timeout`.
 
+Without `--plan`, targets sent to a robot whose active policy is a sector
+policy that steers to the planner's waypoints (trained with
+`--sector-guidance path`, the shipped recipe's) are planned all the same, with
+the margins and body radius that policy was trained with (read from its file
+on the robot, as the map is): the table only ever learnt to reach the next of
+those waypoints, a few cells off with the map leaving the straight line
+clear. Sent the targets alone it steered straight at a target metres away
+with walls between, as its twin's `direct` column says it fails (issue 47: a
+policy at 0.989 in the twin on its own 12x10 map, 0.455 direct, stalled at
+the end of a wall on its first leg). `--no-plan` sends the targets alone.
+
 Download: prints the robot's mission in the frames it was uploaded in (world
 metres, x east / y north, beside the latitude/longitude of global items) and
 with `--out FILE` writes it as QGC WPL 110.
@@ -54,6 +65,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     help="cell size in metres (default: the map's, 0.5)")
     up.add_argument("--plan", action="store_true",
                     help="send the planner's waypoints through the targets (what a sector policy needs)")
+    up.add_argument("--no-plan", action="store_true",
+                    help="send the targets alone, also to a robot whose sector policy steers to the planner's "
+                         "waypoints (planned for it by default)")
     up.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
     up.add_argument("--profile", metavar="FILE.toml",
                     help="--plan: the robot's profile (docs/robot-profile.md): segments keep its body radius "
@@ -89,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
             raise CliError("give either --targets A,B,... or a waypoint FILE")
         if args.plan and not args.targets:
             raise CliError("--plan needs --targets A,B,...")
+        if args.plan and args.no_plan:
+            raise CliError("give --plan or --no-plan, not both")
         if args.start and not args.plan:
             raise CliError("--start needs --plan")
         if args.follow and not args.plan:
@@ -129,6 +145,13 @@ def run(args: argparse.Namespace) -> int:
                 items = target_items(args.targets, gm)
             if args.plan:
                 items, target_seq = plan_mission(args, link, start, gm, radius_mm)
+            elif args.targets and not args.no_plan:
+                follows = waypoint_policy(link)
+                if follows is not None:  # its table steers to the planner's waypoints: send it those
+                    policy_id, plan_kw = follows
+                    print(f"the robot's policy 0x{policy_id:08x} is a sector policy that steers to the planner's "
+                          "waypoints: planning them (--no-plan sends the targets alone)")
+                    items, target_seq = plan_mission(args, link, None, gm, plan_kw=plan_kw)
             n = link.mission_upload(items)
             print(f"mission of {n} waypoints accepted")
             if not args.follow:
@@ -168,13 +191,41 @@ def run(args: argparse.Namespace) -> int:
     return run_on_link(args, "mission download", download)
 
 
+def waypoint_policy(link) -> tuple[int, dict] | None:
+    """(policy id, `plan_waypoints` keywords) when the robot's active policy (its file on the robot) is
+    a sector policy trained to steer to the planner's waypoints: the margin, longest segment and body
+    radius it was trained with. None for any other policy, none, or one that cannot be read."""
+    from ground_station.errors import CliError
+    from ground_station.maps.planner import guidance_from_metadata
+    from ground_station.mavlink.robot_map import robot_policy
+
+    try:
+        pol = robot_policy(link)
+    except CliError:  # not in its storage, or no FTP server: the targets as given
+        return None
+    meta = pol.metadata if pol is not None and isinstance(pol.metadata, dict) else None
+    if pol is None or pol.kind != "sector" or meta is None:
+        return None
+    if (meta.get("config") or {}).get("sector_guidance", "path") != "path":
+        return None  # trained on the goal's bearing alone (direct)
+    kw = guidance_from_metadata(meta)
+    radius = (meta.get("robot_needs") or {}).get("robot_radius_mm_max")
+    if radius:
+        kw["radius_mm"] = float(radius)
+    return pol.policy_id, kw
+
+
 def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None,
-                 gm, radius_mm: float | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
+                 gm, radius_mm: float | None = None,
+                 plan_kw: dict | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
     from ground_station.mavlink.mission_items import planned_items, robot_position_mm, target_cells
 
     start = start_mm if start_mm is not None else robot_position_mm(link)
-    items, target_seq = planned_items(target_cells(args.targets, gm), start, gm,
-                                      None if radius_mm is None else {"radius_mm": radius_mm})
+    kw = dict(plan_kw or {})
+    if radius_mm is not None:
+        kw["radius_mm"] = radius_mm
+    items, target_seq = planned_items(target_cells(args.targets, gm), start, gm, kw or None)
+    radius_mm = kw.get("radius_mm")
     body = "" if radius_mm is None else f" for a {radius_mm:g} mm body"
     print(f"planned {len(items)} waypoints{body} from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "
           f"targets at items {', '.join(str(i) for i in target_seq)}")

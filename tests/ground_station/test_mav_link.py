@@ -245,7 +245,7 @@ def test_mission_targets_on_the_robots_own_map(rig):
     (tmp / "storage" / "policies").mkdir(parents=True)
     (tmp / "storage" / "policies" / "active.qtab").write_bytes(shipped_policy("sector").read_bytes())
     r = start()
-    code, out = qnav(port, "mission", "upload", "--targets", "B,C")
+    code, out = qnav(port, "mission", "upload", "--targets", "B,C", "--no-plan")
     assert code == 0 and "2 waypoints" in out, out
     stored = list(r.vehicle.mission)  # lat/lon around the robot's origin: back within 6 mm
     want = [robot_spec.cell_center_mm(c, row, 10) for c, row in ((9, 0), (0, 9))]
@@ -254,7 +254,7 @@ def test_mission_targets_on_the_robots_own_map(rig):
     assert code == 2 and out.count("\n") == 1, out
     assert ("--map paper10 (10x10 cells of 0.4 m) is not the robot's map paper10 (10x10 cells of 0.5 m)" in out
             and r.vehicle.mission == stored), out  # nothing sent
-    assert qnav(port, "mission", "upload", "--targets", "A", "--map", "paper10")[0] == 0  # the same map: fine
+    assert qnav(port, "mission", "upload", "--targets", "A", "--map", "paper10", "--no-plan")[0] == 0  # the same map: fine
     r.vehicle.st.policy_id = 0x12340000  # the robot says it runs another policy than its file
     code, out = qnav(port, "mission", "upload", "--targets", "A")
     assert code == 2 and "the robot runs policy 0x1234" in out and "give --map" in out, out
