@@ -179,7 +179,7 @@ class MissionWatch:
         self.boot_ms: int | None = None  # latest robot time seen (LOCAL_POSITION_NED)
         self.mission_state = 0
         self.fault = ""
-        self.stopped = ""  # the robot stopped driving for good (bumper -> HOLD)
+        self.stopped = ""  # the robot stopped driving for good (bumper or stall -> HOLD)
         self.texts: list[str] = []
         self._assembler = StatusTextAssembler()
         self.start_ms: int | None = None
@@ -215,8 +215,11 @@ class MissionWatch:
         elif kind == "STATUSTEXT":  # whole texts, as every other reader sees them
             for st in self._assembler.add(msg, time.monotonic()):
                 self.texts.append(st.text)
-                if self.start_wall is not None and "bumper pressed" in st.text and not self.stopped:
-                    self.stopped = f"stopped: {st.text}"  # the controller holds; waiting out the timeout tells nothing
+                # the controller holds for good (bumper, or NAV_STALL_S without progress: "item N: stalled:
+                # ..."); waiting out the timeout tells nothing (and in lockstep fills the logs ~20x real time)
+                if self.start_wall is not None and not self.stopped \
+                        and ("bumper pressed" in st.text or "stalled: " in st.text):
+                    self.stopped = f"stopped: {st.text}"
         if self.complete and self.done_wall is None:
             self.done_wall = time.monotonic()
             self.done_ms = self.boot_ms

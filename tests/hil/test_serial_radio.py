@@ -102,10 +102,14 @@ def test_policy_upload_and_mission_a_b_over_the_57600_baud_radio(tmp_path):
     assert steps == {"upload": 0, "mission_upload": 0, "param_fs_off": 0, "arm": 0, "mode_auto": 0}, r["steps"]
     assert (tmp_path / "storage").is_dir()
     assert r["reached_seq"] == [0, 1], r.get("logs")
+    assert r["robot"], r.get("logs")  # its --stats-json, written as it stops
     assert r["robot"]["transitions"][-1][3] == "mission complete"
     assert r["steps"]["monitor"]["lines"] >= 2  # `qnav monitor --plain` printed status lines over the radio
     assert radio.stats.down.bytes_in > 5000 and radio.stats.up.bytes_in > policy.stat().st_size
-    assert radio.stats.down.overflowed == 0 and radio.stats.up.overflowed == 0
+    # the robot read every byte the ground station sent; the other way, telemetry sent while no ground
+    # station has the pty open (between two commands' processes) piles up in it and overflows it once
+    # the gap is long enough, as with a radio left powered: how long depends on the machine's load
+    assert radio.stats.up.overflowed == 0 and radio.stats.up.lost == 0 and radio.stats.down.lost == 0
 
 
 def test_bench_upload_serial_is_byte_exact_and_reports_the_link_ratio(tmp_path):

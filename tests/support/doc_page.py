@@ -62,10 +62,11 @@ class PageRun:
             return None
         if self.sitl.poll() is None:
             os.killpg(self.sitl.pid, signal.SIGINT)
-            try:
-                self.sitl.wait(timeout=60)
+            try:  # it writes run.mcap from the whole run (CAN log, tlog) before it exits
+                self.sitl.wait(timeout=240)
             except subprocess.TimeoutExpired:
                 os.killpg(self.sitl.pid, signal.SIGKILL)
                 self.sitl.wait(timeout=10)
-                raise
+                raise AssertionError("qnav sitl still running 240 s after Ctrl-C: "
+                                     + self.sitl_out.read_text()[-3000:]) from None
         return self.sitl.returncode

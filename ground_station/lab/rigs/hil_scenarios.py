@@ -101,7 +101,9 @@ class _Procs:
         for p in reversed(self.procs):
             with contextlib.suppress(ProcessLookupError):
                 p.send_signal(signal.SIGCONT)  # a paused sim must be able to die
-            stop_process(p, timeout_s=10, sig=p.stop_signal)  # type: ignore[attr-defined]
+            # 30 s: a robot writes its --stats-json as it stops, which a CI run at 2 busy cores did not
+            # reach within 10 s; a process that stops at once does not wait for it
+            stop_process(p, timeout_s=30, sig=p.stop_signal)  # type: ignore[attr-defined]
 
 
 def _wait(p: subprocess.Popen, timeout_s: float) -> int | None:
