@@ -62,8 +62,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="live --plain: stop after S wall-clock seconds; line stamps are the robot's clock (sim "
                         "time in HIL: at `qnav sitl --speed 4` it runs 4x wall time)")
     p.add_argument("--until-done", action="store_true",
-                   help="live --plain: stop once the robot says 'mission complete' or enters FAULT "
-                        "(exit 0 / 3; --duration still bounds the wait: exit 4 if it ends first)")
+                   help="live --plain: stop once the robot says 'mission complete' (exit 0), enters FAULT or holds "
+                        "after a stall or its bumper (exit 3); --duration still bounds the wait: exit 4 if it "
+                        "ends first")
     p.add_argument("--replay", metavar="FILE.tlog", help="replay a recording instead of a live link")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="replay speed factor (default 1; 0 = as fast as possible)")
@@ -120,9 +121,18 @@ def _faulted(view) -> bool:
     return view.ctrl_state == CtrlState.FAULT
 
 
+def _stopped(view) -> str | None:
+    """The robot's words when it holds for good mid-mission: a stall (NAV_STALL_S without progress) or
+    the bumper; it waits in Hold for the operator, so waiting out --duration tells nothing more."""
+    for line in view.log:
+        if "stalled: " in line.text or "bumper pressed" in line.text:
+            return line.text
+    return None
+
+
 def _done(view) -> bool:
-    """The robot said its mission is complete (its transition text), or it is in FAULT."""
-    return _faulted(view) or any("mission complete" in line.text for line in view.log)
+    """The robot said its mission is complete (its transition text), is in FAULT, or holds for good."""
+    return _faulted(view) or any("mission complete" in line.text for line in view.log) or _stopped(view) is not None
 
 
 def open_source(args):
@@ -234,6 +244,9 @@ def run(args: argparse.Namespace) -> int:
             if args.until_done:
                 if _faulted(view):
                     print("qnav monitor: the robot entered FAULT", file=sys.stderr)
+                    return 3
+                if not any("mission complete" in line.text for line in view.log) and _stopped(view):
+                    print(f"qnav monitor: the robot stopped: {_stopped(view)}", file=sys.stderr)
                     return 3
                 if not _done(view):
                     within = f"within {args.duration:g} s" if args.duration is not None else "before the link ended"

@@ -91,3 +91,43 @@ def test_bad_signing_key_file(tmp_path):
     r = qnav("monitor", "--plain", "--duration", "1", "--no-tlog", "--signing-key", str(key),
              "--mavlink", f"udpin:127.0.0.1:{free_udp_port()}")
     assert r.returncode == 2 and "empty" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_until_done_ends_when_the_robot_holds_after_a_stall(tmp_path):
+    # a pymavlink vehicle on UDP loopback: armed in Auto, then the controller's stall text and Hold; the
+    # monitor ends with the robot's words (exit 3) instead of waiting out --duration
+    import threading
+    import time
+
+    from pymavlink import mavutil
+
+    port = free_udp_port()
+    stop = threading.Event()
+
+    def vehicle() -> None:
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
+        t0 = time.monotonic()
+        try:
+            while not stop.wait(0.2):
+                held = time.monotonic() - t0 > 1.5
+                armed = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED | mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GROUND_ROVER, mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                        armed, 4 if held else 10, mavutil.mavlink.MAV_STATE_ACTIVE)
+                if held:
+                    conn.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_WARNING,
+                                             b"item 2: stalled: blocked ahead, 412 mm to go")
+        finally:
+            conn.close()
+
+    th = threading.Thread(target=vehicle, daemon=True)
+    th.start()
+    t0 = time.monotonic()
+    try:
+        r = qnav("monitor", "--mavlink", f"udpin:127.0.0.1:{port}", "--plain", "--until-done", "--duration", "30",
+                 "--no-tlog", "--map", "none")
+    finally:
+        stop.set()
+        th.join(5)
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    assert "the robot stopped: item 2: stalled: blocked ahead, 412 mm to go" in r.stderr
+    assert time.monotonic() - t0 < 25  # not the --duration
