@@ -130,8 +130,8 @@ def test_a_sector_policy_trained_on_a_new_map_completes_the_walkthrough_mission(
     finally:
         if sitl.poll() is None:
             os.killpg(sitl.pid, signal.SIGINT)  # Ctrl-C in its terminal
-            try:
-                sitl.wait(timeout=60)
+            try:  # it writes run.mcap from the whole run first
+                sitl.wait(timeout=240)
             except subprocess.TimeoutExpired:
                 os.killpg(sitl.pid, signal.SIGKILL)
                 sitl.wait(timeout=10)

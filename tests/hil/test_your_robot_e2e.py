@@ -10,7 +10,7 @@ of the sim's ground truth (runs/sitl/trajectory.csv).
 Run for wide_six.toml (the page as written: its profile block is that file) and for the DroneCAN
 example profile (the page's profile block replaced by firmware_py/profiles/dronecan.toml). Visible
 substitutions: the robot's port (a free one, never 14555/14550), and the sector training's `--steps
-2e7` -> SECTOR_STEPS."""
+2e7` -> SECTOR_STEPS, and the sector eval's pairs -> a seeded sample of EVAL_SAMPLE."""
 
 from __future__ import annotations
 
@@ -32,6 +32,9 @@ PROFILES = ROOT / "firmware_py" / "profiles"
 # pair; lockstep missions through all four targets from each target at four headings): wide_six 1e6
 # 0.959 16/16, 2e6 0.967 16/16, 5e6 0.841 16/16, 2e7 0.942; dronecan 1e6 0.965 16/16, 2e6 0.990 16/16.
 SECTOR_STEPS = "1e6"  # the page says 2e7; 1e6: twin 0.959 (wide_six) / 0.965 (dronecan), 16/16 lockstep tours each
+# the sector eval over every (start, goal) pair of the page's map took 16 s of CPU a profile: a seeded
+# sample of them runs the same command (`qnav eval --sample`)
+SECTOR_EVAL, EVAL_SAMPLE = "qnav eval runs/sector --profile my_robot.toml", 300
 PROFILE_BLOCK = re.compile(r"cat > my_robot.toml <<'EOF'\n(.*?)EOF\n", re.S)
 POSE = re.compile(r" x=(-?[\d.]+) y=(-?[\d.]+) hdg=")
 
@@ -41,7 +44,7 @@ def test_the_page_has_the_steps_this_test_relies_on(tmp_path):
     assert found[0].startswith("# setup") and sum(b.startswith("# terminal 2") for b in found) == 1
     text = "".join(found)
     assert "14555" in text and text.count("--steps 2e7") == 1 and text.count("qnav monitor") == 2
-    assert text.count("--until-done") == 2
+    assert text.count("--until-done") == 2 and text.count(SECTOR_EVAL + "\n") == 1
     (profile,) = PROFILE_BLOCK.findall(text)
     (tmp_path / "p.toml").write_text(profile)  # the page's profile is wide_six.toml's
     got, want = load_profile(tmp_path / "p.toml"), load_profile(PROFILES / "wide_six.toml")
@@ -78,6 +81,7 @@ def test_your_robot_page_runs_to_two_missions_on_the_profiles_robot(tmp_path, pr
 
     def edit(block: str) -> str:
         block = block.replace("14555", str(port)).replace("--steps 2e7", f"--steps {SECTOR_STEPS}")
+        block = block.replace(SECTOR_EVAL + "\n", f"{SECTOR_EVAL} --sample {EVAL_SAMPLE}\n")
         if profile != "wide_six":
             block = PROFILE_BLOCK.sub(lambda _m: f"cat > my_robot.toml <<'EOF'\n{own}EOF\n", block)
         return block

@@ -65,6 +65,8 @@ class PageRun:
             try:  # it writes run.mcap from the whole run (CAN log, tlog) before it exits
                 self.sitl.wait(timeout=240)
             except subprocess.TimeoutExpired:
+                os.killpg(self.sitl.pid, signal.SIGUSR1)  # qnav sitl prints its threads' stacks
+                time.sleep(2)
                 os.killpg(self.sitl.pid, signal.SIGKILL)
                 self.sitl.wait(timeout=10)
                 raise AssertionError("qnav sitl still running 240 s after Ctrl-C: "
