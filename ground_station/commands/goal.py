@@ -16,7 +16,10 @@ goes instead as a mission of the planner's waypoints (on `--map`, by default
 the robot's own map, read from its active policy) from the
 robot's position (its LOCAL_POSITION_NED, or `--start X,Y`) to the goal's
 cell, and the robot is switched to Auto to drive it (planning:
-`mavlink.mission_items.planned_goal_items`). `--start` needs `--plan`.
+`mavlink.mission_items.planned_goal_items`). `--profile FILE.toml`: segments
+that keep the profile's body clear, as `qnav mission upload --plan --profile`
+plans them (default the built-in robot's). `--start` and `--profile` need
+`--plan`.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import argparse
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.mavlink.link import add_link_args, finite_float
+    from ground_station.mavlink.mission_items import add_profile_arg
 
     p = sub.add_parser("goal", help="send a goal position (Guided mode, MAVLink)", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -36,6 +40,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", metavar="NAME|PATH",
                    help="--plan: the map (default: the robot's, from its active policy; another is refused)")
     p.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
+    add_profile_arg(p)
     add_link_args(p)
     p.set_defaults(func=run)
 
@@ -44,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from firmware_py.mavlink.mission import LOCAL_LIMIT_M
     from ground_station.errors import CliError
     from ground_station.mavlink.link import run_on_link
+    from ground_station.mavlink.mission_items import profile_radius_arg
 
     if max(abs(args.x), abs(args.y)) > LOCAL_LIMIT_M:  # the robot's local-frame range (float32 on the wire)
         raise CliError(f"goal ({args.x:g}, {args.y:g}) m is out of range (|X|, |Y| <= {LOCAL_LIMIT_M:g} m)")
@@ -51,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--start needs --plan")
     if args.plan:
         return _planned_goal(args)
+    profile_radius_arg(args)  # --profile without --plan: refused
 
     def body(link) -> int:
         from firmware_py.vehicle import Mode
@@ -68,15 +75,18 @@ def _planned_goal(args: argparse.Namespace) -> int:
     from firmware_py.vehicle import Mode
     from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.mission_items import (
+        body_text,
         goal_cell,
         load_gridmap,
         parse_start,
         planned_goal_items,
+        profile_radius_arg,
         robot_position_mm,
     )
     from ground_station.mavlink.robot_map import choose_map
 
     start = parse_start(args.start) if args.start else None  # bad input is refused before connecting
+    radius_mm = profile_radius_arg(args)
     given = load_gridmap(args.map) if args.map is not None else None
     if given is not None:  # a bad map or goal fails before any link
         goal_cell(given, args.x, args.y)
@@ -84,10 +94,12 @@ def _planned_goal(args: argparse.Namespace) -> int:
     def body(link) -> int:
         gm = choose_map(link, given)
         goal_cell(gm, args.x, args.y)
-        items = planned_goal_items(gm, args.x, args.y, start if start is not None else robot_position_mm(link))
+        items = planned_goal_items(gm, args.x, args.y, start if start is not None else robot_position_mm(link),
+                                   radius_mm)
         n = link.mission_upload(items)
         link.command(link.m.MAV_CMD_DO_SET_MODE, link.m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))
-        print(f"goal x={args.x:g} y={args.y:g} m: mission of {n} planned waypoints accepted, mode Auto")
+        print(f"goal x={args.x:g} y={args.y:g} m: mission of {n} planned waypoints{body_text(radius_mm)} accepted, "
+              "mode Auto")
         return 0
 
     return run_on_link(args, "goal", body)

@@ -24,7 +24,8 @@ stays on the link while the robot drives (start it with `qnav arm` and
 `qnav mode auto`): when it reports that it stopped progressing, the cells
 its range readings (OBSTACLE_DISTANCE) found blocked are marked on the
 ground station's copy of the map and the rest of the mission is planned
-again and uploaded (`ground_station.nav.replan`); exits 0 when every target
+again, round the same body (`--profile`'s), and uploaded
+(`ground_station.nav.replan`); exits 0 when every target
 is reached, 3 when it gives up (no new blocked cell, no path left), 4 after
 `--follow-timeout`.
 
@@ -54,6 +55,7 @@ from ground_station.commands import add_actions
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.mavlink.link import add_link_args
+    from ground_station.mavlink.mission_items import add_profile_arg
 
     verbs = add_actions(sub, "mission", "upload or download the robot's mission (MAVLink)", __doc__, "verb", "VERB")
     up = verbs.add_parser("upload", help="upload waypoints (map targets or a WPL file)")
@@ -69,9 +71,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     help="send the targets alone, also to a robot whose sector policy steers to the planner's "
                          "waypoints (planned for it by default)")
     up.add_argument("--start", metavar="X,Y", help="--plan: start position in metres (default: the robot's)")
-    up.add_argument("--profile", metavar="FILE.toml",
-                    help="--plan: the robot's profile (docs/robot-profile.md): segments keep its body radius "
-                         "clear (default: the built-in robot's 150 mm)")
+    add_profile_arg(up)
     up.add_argument("--follow", action="store_true",
                     help="--plan: watch the mission and re-plan around cells the robot finds blocked")
     up.add_argument("--follow-timeout", type=float, default=600.0, metavar="S",
@@ -94,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         file_items,
         load_gridmap,
         parse_start,
+        profile_radius_arg,
         target_items,
         write_wpl,
     )
@@ -109,16 +110,7 @@ def run(args: argparse.Namespace) -> int:
             raise CliError("--start needs --plan")
         if args.follow and not args.plan:
             raise CliError("--follow needs --plan")
-        if args.profile and not args.plan:
-            raise CliError("--profile needs --plan")
-        radius_mm = None
-        if args.profile:  # a bad profile fails before any link
-            from ground_station.maps.planner import profile_radius_mm
-
-            try:
-                radius_mm = profile_radius_mm(args.profile)
-            except ValueError as exc:
-                raise CliError(f"--profile {exc}") from None
+        radius_mm = profile_radius_arg(args)  # a bad profile fails before any link
         if not (math.isfinite(args.follow_timeout) and args.follow_timeout > 0):
             raise CliError(f"--follow-timeout must be a positive number of seconds, got {args.follow_timeout:g}")
         items = file_items(args.file) if args.file else []
@@ -156,11 +148,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"mission of {n} waypoints accepted")
             if not args.follow:
                 return 0
+            from firmware_py import robot_spec
             from ground_station.mavlink.mission_items import target_cells
             from ground_station.nav.replan import MissionFollower, follow_mission
 
             assert gm is not None  # --follow needs --plan, which needs --targets
-            follower = MissionFollower(gm, target_cells(args.targets, gm), target_seq)
+            follower = MissionFollower(gm, target_cells(args.targets, gm), target_seq,
+                                       radius_mm=robot_spec.ROBOT_RADIUS_MM if radius_mm is None else radius_mm)
             print(f"following the mission (up to {args.follow_timeout:g} s) ...", flush=True)
             done = follow_mission(link, follower, args.follow_timeout, lambda line: print(line, flush=True))
             print(done.text)
@@ -218,15 +212,18 @@ def waypoint_policy(link) -> tuple[int, dict] | None:
 def plan_mission(args: argparse.Namespace, link, start_mm: tuple[float, float] | None,
                  gm, radius_mm: float | None = None,
                  plan_kw: dict | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
-    from ground_station.mavlink.mission_items import planned_items, robot_position_mm, target_cells
+    from ground_station.mavlink.mission_items import (
+        body_text,
+        planned_items,
+        robot_position_mm,
+        target_cells,
+    )
 
     start = start_mm if start_mm is not None else robot_position_mm(link)
     kw = dict(plan_kw or {})
     if radius_mm is not None:
         kw["radius_mm"] = radius_mm
     items, target_seq = planned_items(target_cells(args.targets, gm), start, gm, kw or None)
-    radius_mm = kw.get("radius_mm")
-    body = "" if radius_mm is None else f" for a {radius_mm:g} mm body"
-    print(f"planned {len(items)} waypoints{body} from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "
+    print(f"planned {len(items)} waypoints{body_text(kw.get('radius_mm'))} from ({start[0] / 1000:.2f}, {start[1] / 1000:.2f}) m; "
           f"targets at items {', '.join(str(i) for i in target_seq)}")
     return items, target_seq

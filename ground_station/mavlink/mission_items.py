@@ -45,10 +45,42 @@ def goal_cell(gridmap, x_m: float, y_m: float) -> tuple[int, int]:
     return col, row
 
 
-def planned_goal_items(gridmap, x_m: float, y_m: float, start_mm: tuple[float, float]) -> list[tuple[int, int, int]]:
+PROFILE_HELP = ("--plan: the robot's profile (docs/robot-profile.md): segments keep its body radius "
+                "clear (default: the built-in robot's 150 mm)")
+
+
+def add_profile_arg(parser: argparse.ArgumentParser) -> None:
+    """`--profile FILE.toml` of the commands that plan (`qnav mission upload --plan`, `qnav goal --plan`)."""
+    parser.add_argument("--profile", metavar="FILE.toml", help=PROFILE_HELP)
+
+
+def profile_radius_arg(args: argparse.Namespace) -> float | None:
+    """The body radius (mm) of `--profile FILE.toml` (None without one), read before any link;
+    CliError in one line if it is given without --plan or does not load."""
+    if not args.profile:
+        return None
+    if not args.plan:
+        raise CliError("--profile needs --plan")
+    from ground_station.maps.planner import profile_radius_mm
+
+    try:
+        return profile_radius_mm(args.profile)
+    except ValueError as exc:
+        raise CliError(f"--profile {exc}") from None
+
+
+def body_text(radius_mm: float | None) -> str:
+    """" for a 180 mm body" (empty for the planner's default body)."""
+    return "" if radius_mm is None else f" for a {radius_mm:g} mm body"
+
+
+def planned_goal_items(gridmap, x_m: float, y_m: float, start_mm: tuple[float, float],
+                       radius_mm: float | None = None) -> list[tuple[int, int, int]]:
     """`qnav goal --plan`: the planner's waypoints from `start_mm` to the goal's cell
-    (`planned_items`), the last one moved from the cell's centre to the goal itself."""
-    items, _ = planned_items([goal_cell(gridmap, x_m, y_m)], start_mm, gridmap)
+    (`planned_items`) for a body of `radius_mm` (None: the built-in robot's), the last
+    one moved from the cell's centre to the goal itself."""
+    kw = None if radius_mm is None else {"radius_mm": radius_mm}
+    items, _ = planned_items([goal_cell(gridmap, x_m, y_m)], start_mm, gridmap, kw)
     items[-1] = (mavlink().MAV_FRAME_LOCAL_NED, round(y_m * LOCAL_ITEM_SCALE), round(x_m * LOCAL_ITEM_SCALE))
     return items
 

@@ -18,8 +18,10 @@ with that, as nav2 re-plans on an updated costmap:
   r sin(7.5 deg)). Points older than `window_us` of robot time are
   forgotten (a mover walks on).
 * `raster_plan` plans on the scenario raster (`nav.obstacles`: 50 mm points
-  where the robot's disc grown by 75 mm touches neither a map cell nor one of
-  the points), shortest 8-connected path (`maps.octile_distances` on the
+  where the robot's disc, its profile's body radius (`--profile`; the
+  built-in 150 mm by default) grown by 75 mm, touches none of the points,
+  and grown by as much, down to what a one-cell corridor leaves, no map
+  cell), shortest 8-connected path (`maps.octile_distances` on the
   raster: diagonal steps sqrt 2, no corner cutting, then steepest descent),
   pruned to line-of-sight segments of at most 1 m: the waypoints a sector policy follows round the obstacle.
 * `MissionFollower` is the pure core of the follow loop (messages and
@@ -110,17 +112,31 @@ class UnmappedPoints:
 
 
 def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: tuple[float, float],
-                goals_mm: list[tuple[float, float]], max_segment_mm: float = 1000.0) -> list[list[tuple[float, float]]]:
+                goals_mm: list[tuple[float, float]], max_segment_mm: float = 1000.0,
+                radius_mm: float = robot_spec.ROBOT_RADIUS_MM) -> list[list[tuple[float, float]]]:
     """Per goal, the waypoints (mm) from the previous one (first: start_mm) round
-    the points, on the scenario raster; MapError when a leg has no path."""
+    the points, on the scenario raster for a body of `radius_mm` (a profile's; the
+    built-in robot's by default) grown by the raster's margin; MapError when a leg
+    has no path."""
     from ground_station.maps import MapError, octile_distances
     from ground_station.nav.obstacles import CSPACE_MARGIN_MM, RASTER_MM, cspace
 
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
     cell = gridmap.cell_size_m * 1000.0
-    discs = np.array([(x, y, POINT_RADIUS_MM) for x, y in points], dtype=np.float64).reshape(-1, 3)
-    free = cspace(occ, cell, discs, RASTER_MM, robot_spec.ROBOT_RADIUS_MM + CSPACE_MARGIN_MM)
+    body_mm = float(radius_mm) + CSPACE_MARGIN_MM  # round the unmapped points
+    # round the map's walls the same, down to what a one-cell corridor leaves on the raster (its
+    # middle points, half a raster step off centre: 225 mm on 500 mm cells, the built-in 150 + 75): the
+    # route planned for the robot goes through such corridors, and a wider body kept 75 mm off
+    # both walls would have none left (wide_six on paper10: 11 of 296 target legs planned)
+    wall_clear = max(float(radius_mm), min(body_mm, 0.5 * cell - 0.5 * RASTER_MM))
+    free = cspace(occ, cell, np.zeros((0, 3)), RASTER_MM, wall_clear)
     ny, nx = free.shape
+    if points:  # cspace's disc test, at the body's full clearance
+        px = (np.arange(nx) + 0.5) * RASTER_MM
+        py = (np.arange(ny) + 0.5) * RASTER_MM
+        for x, y in points:
+            d = body_mm + POINT_RADIUS_MM
+            free &= ((px[None, :] - x) ** 2 + (py[:, None] - y) ** 2) >= d * d
 
     def nearest_free(x: float, y: float) -> tuple[int, int] | None:
         ix, iy = min(nx - 1, max(0, int(x // RASTER_MM))), min(ny - 1, max(0, int(y // RASTER_MM)))
@@ -205,6 +221,7 @@ class MissionFollower:
     gridmap: GridMap
     targets: list[tuple[int, int]]  # cells, in visiting order
     target_seq: list[int]  # the current mission's item index of each target (reached ones: -1)
+    radius_mm: float = robot_spec.ROBOT_RADIUS_MM  # the robot's body (its profile's): what re-plans keep clear
     max_replans: int = MAX_REPLANS
     reached: int = 0  # targets reached so far
     replans: int = 0
@@ -289,7 +306,7 @@ class MissionFollower:
         goals = [((col + 0.5) * c, (self.gridmap.height - row - 0.5) * c) for col, row in left]
         here = self._poses[-1][1:3]
         try:
-            legs = raster_plan(self.gridmap, points, here, goals)
+            legs = raster_plan(self.gridmap, points, here, goals, radius_mm=self.radius_mm)
         except MapError as exc:
             return Finished(False, f"no path round the {len(points)} unmapped points: {exc}")
         frame = mavlink().MAV_FRAME_LOCAL_NED

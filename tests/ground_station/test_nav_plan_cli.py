@@ -131,3 +131,56 @@ def test_mission_upload_plan_keeps_the_profiles_body_clear(rig, tmp_path):  # no
     assert code == 2 and "robot_radius_mm" in err and "Traceback" not in err, err
     code, err = _run("mission", "upload", "--targets", "A", "--profile", wide)
     assert code == 2 and "--profile needs --plan" in err, err
+
+
+def test_goal_plan_keeps_the_profiles_body_clear(rig, tmp_path):  # noqa: F811
+    """`qnav goal X Y --plan --profile FILE.toml` plans the mission for the profile's body (wide_six:
+    180 mm), as `qnav mission upload --plan --profile` does, instead of the built-in 150 mm; the same
+    flag, help and one-line refusals."""
+    from ground_station.mavlink.mission_items import planned_goal_items
+
+    wide = str(robot_spec.__file__).replace("robot_spec.py", "profiles/wide_six.toml")
+    port, start, _tmp = rig
+    r = start()
+    r.vehicle.st.x_mm, r.vehicle.st.y_mm = 2750, 2750  # cell (5, 4) of paper10
+    assert qnav(port, "arm")[0] == 0
+    code, out = qnav(port, "goal", "4.7", "4.8", "--plan", "--map", "paper10", "--profile", wide)
+    assert code == 0, out
+    gm = load_map("paper10")
+    want = [(it[2] / 10, it[1] / 10) for it in planned_goal_items(gm, 4.7, 4.8, (2750, 2750), 180)]  # 0.1 mm
+    built_in = [(it[2] / 10, it[1] / 10) for it in planned_goal_items(gm, 4.7, 4.8, (2750, 2750))]
+    assert len(want) != len(built_in)  # measured: 8 waypoints for the 180 mm body, 5 for the built-in
+    got = r.vehicle.mission
+    assert len(got) == len(want) and all(math.dist(a, b) <= 7 for a, b in zip(got, want, strict=True)), (got, want)
+    assert f"mission of {len(want)} planned waypoints for a 180 mm body accepted, mode Auto" in out
+    assert r.vehicle.st.mode == Mode.AUTO
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[geometry]\nrobot_radius_mm = 'wide'\n")
+    code, err = _run("goal", "4.7", "4.8", "--plan", "--profile", str(bad))
+    assert code == 2 and "--profile" in err and "robot_radius_mm" in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    code, err = _run("goal", "4.7", "4.8", "--profile", wide)
+    assert code == 2 and "--profile needs --plan" in err, err
+
+
+def test_mission_follow_replans_for_the_profiles_body(rig, monkeypatch):  # noqa: F811
+    """`qnav mission upload --plan --follow --profile FILE.toml`: the follower re-plans for the profile's
+    body (its radius reaches `MissionFollower`), the built-in 150 mm without --profile."""
+    import ground_station.nav.replan as replan
+
+    wide = str(robot_spec.__file__).replace("robot_spec.py", "profiles/wide_six.toml")
+    seen: list[float] = []
+
+    def follow(link, follower, timeout_s, say):  # noqa: ANN001
+        seen.append(follower.radius_mm)
+        return replan.Finished(True, "stub")
+
+    monkeypatch.setattr(replan, "follow_mission", follow)
+    port, start, _tmp = rig
+    r = start()
+    r.vehicle.st.x_mm, r.vehicle.st.y_mm = 2750, 2750
+    for extra in (["--profile", wide], []):
+        code, out = qnav(port, "mission", "upload", "--targets", "A", "--plan", "--follow", "--map", "paper10",
+                         *extra)
+        assert code == 0, out
+    assert seen == [180.0, robot_spec.ROBOT_RADIUS_MM]

@@ -114,6 +114,57 @@ def test_a_stall_replans_round_the_obstacle_and_the_last_target_finishes():
     assert isinstance(done, Finished) and done.ok and "1 re-plan" in done.text
 
 
+def _replan_clearance(radius_mm: float | None) -> tuple[float, list[tuple[float, float]]]:
+    """The smallest distance (mm) from the legs of the re-plan round the disc (after the first
+    step out of the margin) to the points the follower saw, and the re-plan's path."""
+    disc = (3100.0, 4300.0, 150.0)
+    kw = {} if radius_mm is None else {"radius_mm": radius_mm}
+    f = MissionFollower(GM, [GM.targets["A"], GM.targets["B"]], [2, 6], **kw)
+    _feed(f, [m.MAVLink_mission_item_reached_message(2)])
+    _stalled_before_a_disc(f, disc)
+    assert f.seen is not None
+    pts = np.array(f.seen.recent(3_000_000))
+    out = f.text("item 2: no progress for 10 s, 724 mm to go")
+    assert isinstance(out, Replan), out
+    path = [(2759.0, 4218.0)] + [_item_mm(it) for it in out.items]
+    t = np.linspace(0.0, 1.0, 200)[:, None]
+    gap = min(float(np.hypot(ax + t * (qx - ax) - pts[None, :, 0], ay + t * (qy - ay) - pts[None, :, 1]).min())
+              for (ax, ay), (qx, qy) in zip(path[1:], path[2:], strict=False))
+    return gap, path
+
+
+def test_a_replan_keeps_the_profiles_body_clear_of_what_was_seen():
+    """`MissionFollower(radius_mm=)` (`qnav mission upload --plan --follow --profile`): the re-plan keeps
+    the profile's body + 75 mm off the unmapped points (each a 25 mm disc), where the built-in robot's
+    re-plan keeps its own 150 mm body clear and passes too close for a 180 mm one."""
+    need = 75.0 + 25.0 - 5.0  # the raster's margin + the point's disc, less the 50 mm raster's slack
+    built_in, built_in_path = _replan_clearance(None)
+    wide, wide_path = _replan_clearance(180.0)
+    # measured: 249 mm for the built-in (150 + 100 needed), 290 mm for the 180 mm body
+    assert built_in >= robot_spec.ROBOT_RADIUS_MM + need and built_in < 180.0 + need
+    assert wide >= 180.0 + need and wide_path != built_in_path
+    assert _replan_clearance(float(robot_spec.ROBOT_RADIUS_MM)) == (built_in, built_in_path)
+
+
+def test_a_wider_body_still_replans_through_one_cell_corridors():
+    """The map's walls keep the body + 75 mm clear only down to what a 500 mm corridor leaves on the
+    raster: a 180 or 200 mm body (70 or 50 mm each side there) is still planned through paper10's
+    one-cell corridors, which its planned route takes (without that: 11 of these 296 legs planned)."""
+    c = 500.0
+    free = [(col, row) for row in range(10) for col in range(10) if not GM.occ[row][col]]
+    for radius in (150.0, 180.0, 200.0):
+        n = 0
+        for target in GM.targets.values():
+            for s in free:
+                if s != target:
+                    raster_plan(GM, [], ((s[0] + 0.5) * c, (9.5 - s[1]) * c),
+                                [((target[0] + 0.5) * c, (9.5 - target[1]) * c)], radius_mm=radius)
+                    n += 1
+        assert n == 296
+    with pytest.raises(MapError, match="no path"):  # a body wider than the corridor is not
+        raster_plan(GM, [], (250.0, 4750.0), [(250.0, 250.0)], radius_mm=260.0)
+
+
 def test_a_stall_with_nothing_unmapped_in_view_gives_up_with_a_reason():
     f = MissionFollower(GM, [GM.targets["B"]], [3])
     assert isinstance(f.text("no progress for 10 s"), Finished)  # no pose yet
