@@ -12,6 +12,18 @@ stepped aside is gone at once; points the robot is going round, and points
 pinned by a global re-plan, are kept `route_memory_us` (a door found closed
 stays closed while the robot goes round through another) unless a reading sees
 through them. At most `max_points` points (the oldest go first).
+
+A point in the blind gap between two cones is not in any reading's cone, so no
+reading sees through it; pinned, it stayed for good. But a point stands for a
+body, and a body the robot must see (`MIN_BODY_RADIUS_MM`, what the collision
+monitor's blind-gap rule assumes too) near the rim does not fit in a gap: the
+readings rule it out where every disc of that radius through the point would
+cross a cone nearer than its reading (`_no_room`). A mover seen a metre off, its
+end point placed on the cone's middle ray, was kept 8 degrees outside the front
+cone while the robot drove up to it; 180 mm short of a corridor's exit the
+collision monitor held every step into the remembered point, pinned while the
+robot went round it, and the robot stalled there with nothing in its way (the
+demo, 1 run in 8: tests/hil/test_phantom_point_hil.py).
 """
 
 from __future__ import annotations
@@ -37,6 +49,21 @@ MOVING_NEAR_MM = 700
 # a moving scene's new points belong to a body that moved: remembered points this near one of them are
 # that body's (a person is about the robot's width; ObstacleMemory.standing_by)
 BODY_MM = 2 * robot_spec.ROBOT_RADIUS_MM
+# the smallest body the robot is built to see (the scenarios' discs are 100-200 mm, movers 150; the
+# collision monitor's CONTACT_MM rests on the same size): a remembered point no disc of this radius
+# through it could stand at unseen is cleared (ObstacleMemory._no_room)
+MIN_BODY_RADIUS_MM = 100
+_BODY_SLACK_MM = 30  # a ray must pass this far inside such a disc to rule it out (a box's corner, noise)
+_BODY_STEPS = 24  # the discs through a point tried, by the direction of their centres
+_BODY_DIRS = [(math.cos(2 * math.pi * k / _BODY_STEPS), math.sin(2 * math.pi * k / _BODY_STEPS))
+              for k in range(_BODY_STEPS)]
+
+
+def _dist2(px: float, py: float, seg: tuple[float, float, float, float, float]) -> float:
+    """Squared distance from (px, py) to a segment (start x, y, unit x, y, length)."""
+    sx, sy, ux, uy, length = seg
+    t = min(max((px - sx) * ux + (py - sy) * uy, 0.0), length)
+    return (px - sx - t * ux) ** 2 + (py - sy - t * uy) ** 2
 
 
 class ObstacleMemory:
@@ -78,6 +105,7 @@ class ObstacleMemory:
             self.points[key] = (ex, ey, now_us)
             seen.add(key)
         old = self._seen_through(x_mm, y_mm, heading_mrad, ranges_mm, status, seen)
+        old += self._no_room(x_mm, y_mm, heading_mrad, ranges_mm, status, seen.union(old))
         old += [p for p, v in self.points.items()
                 if now_us - v[2] > cfg.memory_us and self.pinned.get(p, -1) < now_us and p not in old]
         if len(self.points) - len(old) > cfg.max_points:
@@ -123,6 +151,58 @@ class ObstacleMemory:
             d = math.hypot(sx, sy)
             off = abs((math.atan2(sy, sx) - a + math.pi) % (2 * math.pi) - math.pi)
             if off <= self._half_fov and d < r - cfg.clear_margin_mm:
+                out.append(key)
+        return out
+
+    def _no_room(self, x_mm: int, y_mm: int, heading_mrad: int, ranges_mm: list[int] | tuple[int, ...],
+                 status: list[int] | tuple[int, ...], skip: set[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Points near the rim where no body of `MIN_BODY_RADIUS_MM` could stand unseen (module
+        docstring): every disc of that radius with the point on its edge either overlaps the robot or
+        is crossed, `_BODY_SLACK_MM` deep, by a sensor's ray nearer than its reading by
+        `clear_margin_mm` (the rays as the collision monitor's: each cone's middle and edges from the
+        rim). A real body of that size or more keeps its points: the disc inside it through the
+        point is crossed by no ray short of the body. Only points within 3 radii of the rim are
+        looked at (farther out a disc fits in the gap between two cones of the built-in robot)."""
+        lay, cfg = self.layout, self.cfg
+        rim = float(lay.robot_radius_mm)
+        rho = float(MIN_BODY_RADIUS_MM)
+        reach = rim + 3 * rho
+        pts = [(key, px - x_mm, py - y_mm) for key, (px, py, _) in self.points.items()
+               if key not in skip and abs(px - x_mm) <= reach and abs(py - y_mm) <= reach]
+        if not pts:
+            return []
+        th = heading_mrad / 1000.0
+        segs: list[tuple[float, float, float, float, float]] = []  # (start x, y, unit x, y, free length)
+        for i, a in enumerate(self._ang):
+            if status[i] == robot_spec.RANGE_VALID:
+                free = ranges_mm[i] - cfg.clear_margin_mm
+            elif status[i] == robot_spec.RANGE_TOO_FAR:
+                free = lay.max_ranges_mm[i] - cfg.clear_margin_mm
+            else:
+                continue
+            if free <= 0:
+                continue
+            for d in (-self._half_fov, 0.0, self._half_fov):
+                c, s = math.cos(th + a + d), math.sin(th + a + d)
+                segs.append((rim * c, rim * s, c, s, float(free)))
+        if not segs:
+            return []
+        clear2 = (rho - _BODY_SLACK_MM) ** 2
+        inside2 = (rim + rho) ** 2  # a disc centre nearer the robot's than rim + rho overlaps its body
+        out: list[tuple[int, int]] = []
+        for key, px, py in pts:
+            d = math.hypot(px, py)
+            if d > reach or d == 0.0:
+                continue
+            near = [g for g in segs if _dist2(px, py, g) < 4 * rho * rho]  # rays that can reach a disc on it
+            if not near:
+                continue
+            # the disc beyond the point first (a body the robot reads lies there): most kept points stop at it
+            for ux, uy in [(px / d, py / d), *_BODY_DIRS]:
+                cx, cy = px + rho * ux, py + rho * uy
+                if cx * cx + cy * cy >= inside2 and all(_dist2(cx, cy, g) >= clear2 for g in near):
+                    break  # room for a body here
+            else:
                 out.append(key)
         return out
 
