@@ -22,7 +22,8 @@ body clear, as `qnav train --profile` trained a sector policy with; default
 the built-in robot's); the planned legs are printed. `--plan --follow` then
 stays on the link while the robot drives (start it with `qnav arm` and
 `qnav mode auto`): when it reports that it stopped progressing, the cells
-its range readings (OBSTACLE_DISTANCE) found blocked are marked on the
+its range readings (OBSTACLE_DISTANCE, each at the angle of the
+`--profile`'s sensor that read it) found blocked are marked on the
 ground station's copy of the map and the rest of the mission is planned
 again, round the same body (`--profile`'s), and uploaded
 (`ground_station.nav.replan`); exits 0 when every target
@@ -149,12 +150,17 @@ def run(args: argparse.Namespace) -> int:
             if not args.follow:
                 return 0
             from firmware_py import robot_spec
+            from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+            from firmware_py.profile import load_profile
             from ground_station.mavlink.mission_items import target_cells
             from ground_station.nav.replan import MissionFollower, follow_mission
 
             assert gm is not None  # --follow needs --plan, which needs --targets
+            # the profile's sensors place each range reading (it loaded above, before any link)
+            layout = load_profile(args.profile).layout() if args.profile else DEFAULT_LAYOUT
             follower = MissionFollower(gm, target_cells(args.targets, gm), target_seq,
-                                       radius_mm=robot_spec.ROBOT_RADIUS_MM if radius_mm is None else radius_mm)
+                                       radius_mm=robot_spec.ROBOT_RADIUS_MM if radius_mm is None else radius_mm,
+                                       layout=layout)
             print(f"following the mission (up to {args.follow_timeout:g} s) ...", flush=True)
             done = follow_mission(link, follower, args.follow_timeout, lambda line: print(line, flush=True))
             print(done.text)

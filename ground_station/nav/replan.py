@@ -8,15 +8,20 @@ while it streams its range readings (OBSTACLE_DISTANCE, BODY_FRD) and pose
 with that, as nav2 re-plans on an updated costmap:
 
 * `UnmappedPoints` turns each OBSTACLE_DISTANCE into world points: per
-  range sensor, the bin on its axis, placed with the robot's pose
-  interpolated to the reading's time (poses and ranges stream at different
-  rates). A reading counts only when it is at least `margin_mm` shorter than
-  what the same sensor would read on the known map from that pose (the
-  twin's exact sensor model, `learn.sector.twin.sense_one`: fan of rays over
-  its cone), so map walls, seen at any angle, never count; nor do readings
-  beyond `max_range_mm` (a cone's nearest hit lies off its axis by up to
-  r sin(7.5 deg)). Points older than `window_us` of robot time are
-  forgotten (a mover walks on).
+  range sensor of the robot's `Layout` (its profile's, `--profile`; the
+  built-in robot's by default), the bin on that sensor's axis (the robot
+  fills the bins of each sensor's cone with its reading; the bin carries the
+  angle only to 5 deg, not which sensor, so the layout says where each
+  sensor looks), placed at the sensor's own angle on the body's rim with
+  the robot's pose interpolated to the reading's time (poses and ranges
+  stream at different rates). A reading counts only when it is at least
+  `margin_mm` shorter than what the same sensor would read on the known map
+  from that pose (the twin's exact sensor model, `learn.sector.twin.sense_one`
+  for that layout: fan of rays over its cone, its own reach), so map walls,
+  seen at any angle, never count; nor do readings beyond `max_range_mm` (a
+  cone's nearest hit lies off its axis by up to r sin(7.5 deg)), at or
+  beyond the sensor's own reach, or no echo. Points older than `window_us`
+  of robot time are forgotten (a mover walks on).
 * `raster_plan` plans on the scenario raster (`nav.obstacles`: 50 mm points
   where the robot's disc, its profile's body radius (`--profile`; the
   built-in 150 mm by default) grown by 75 mm, touches none of the points,
@@ -36,12 +41,15 @@ with that, as nav2 re-plans on an updated costmap:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from firmware_py import robot_spec
+from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
+from firmware_py.layout import Layout
 from ground_station.maps import GridMap
 from ground_station.monitor.model import obstacle_increment_deg
 
@@ -54,20 +62,41 @@ MAX_REPLANS = 5
 START_SEARCH_STEPS = 8  # raster steps searched for a free start point (the robot stalls close to the obstacle)
 
 
-def sensor_readings(distances_cm, increment_deg: float, angle_offset_deg: float, min_cm: int,
-                    max_cm: int) -> list[int | None]:
-    """Per range sensor (robot_spec order) the reading in mm of an OBSTACLE_DISTANCE
-    message in MAV_FRAME_BODY_FRD (bins clockwise from the nose), from the bin on
-    the sensor's axis; None where it holds no reading (UINT16_MAX unknown, or
-    max_cm + 1 = nothing within range)."""
+@functools.lru_cache(maxsize=8)
+def _axis_bins(layout: Layout, increment_deg: float, angle_offset_deg: float) -> tuple[int | None, ...]:
+    """Per sensor of `layout`, the OBSTACLE_DISTANCE bin holding its reading: of the bins the robot
+    fills from its cone (`firmware_py.mavlink.telemetry.Telemetry.obstacle_distance`: centre within
+    max(half the field of view, half a bin) of its axis), the one nearest its axis that no other
+    sensor's cone fills; the bin nearest its axis when every one is shared."""
+    if increment_deg <= 0:
+        return (None,) * layout.count
+    n = max(1, round(360.0 / increment_deg))
+    reach = max(math.degrees(layout.fov_mrad / 1000.0) / 2, increment_deg / 2)
+    axes = [(-math.degrees(a / 1000.0)) % 360.0 for a in layout.angles_mrad]  # CCW from nose -> clockwise
+
+    def off(k: int, frd: float) -> float:
+        return abs((angle_offset_deg + k * increment_deg - frd + 180.0) % 360.0 - 180.0)
+
     out: list[int | None] = []
-    for angle_mrad in robot_spec.SENSOR_ANGLES_MRAD:
+    for j, frd in enumerate(axes):
+        nearest = round(((frd - angle_offset_deg) % 360.0) / increment_deg) % n
+        own = [k for k in range(n) if off(k, frd) <= reach
+               and not any(off(k, other) <= reach for i, other in enumerate(axes) if i != j)]
+        out.append(min(own, key=lambda k: (off(k, frd), k)) if own else nearest)
+    return tuple(out)
+
+
+def sensor_readings(distances_cm, increment_deg: float, angle_offset_deg: float, min_cm: int,
+                    max_cm: int, layout: Layout = DEFAULT_LAYOUT) -> list[int | None]:
+    """Per range sensor of `layout` (the robot profile's, in its order; the built-in robot's
+    by default) the reading in mm of an OBSTACLE_DISTANCE message in MAV_FRAME_BODY_FRD (bins
+    clockwise from the nose), from the bin on the sensor's axis (`_axis_bins`); None where it
+    holds no reading (UINT16_MAX unknown, or max_cm + 1 = nothing within range)."""
+    out: list[int | None] = []
+    for i in _axis_bins(layout, increment_deg, angle_offset_deg):
         d = None
-        if increment_deg > 0:
-            frd_deg = (-math.degrees(angle_mrad / 1000.0)) % 360.0
-            i = round(((frd_deg - angle_offset_deg) % 360.0) / increment_deg) % max(1, round(360.0 / increment_deg))
-            if i < len(distances_cm) and min_cm <= distances_cm[i] <= max_cm:
-                d = 10 * int(distances_cm[i])
+        if i is not None and i < len(distances_cm) and min_cm <= distances_cm[i] <= max_cm:
+            d = 10 * int(distances_cm[i])
         out.append(d)
     return out
 
@@ -76,8 +105,10 @@ class UnmappedPoints:
     """Points the robot's range sensors saw that the known map does not explain."""
 
     def __init__(self, gridmap: GridMap, margin_mm: float = MARGIN_MM, max_range_mm: float = MAX_RANGE_MM,
-                 window_us: int = WINDOW_US) -> None:
+                 window_us: int = WINDOW_US, layout: Layout = DEFAULT_LAYOUT) -> None:
         self.known = gridmap
+        self.layout = layout  # the robot's sensors (readings in its order) and body
+        self._tw: tuple | None = None
         self.occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
         self.cell_mm = gridmap.cell_size_m * 1000.0
         self.margin_mm = margin_mm
@@ -87,20 +118,25 @@ class UnmappedPoints:
 
     def observe(self, t_us: int, x_mm: float, y_mm: float, heading_rad: float,
                 readings_mm: list[int | None]) -> int:
-        """Add the unexplained readings of one scan taken at pose (x, y, heading
-        CCW from east); returns how many were added."""
-        from ground_station.learn.sector.twin import DEFAULT_TW, sense_one
+        """Add the unexplained readings of one scan (one per sensor of the layout, in its order)
+        taken at pose (x, y, heading CCW from east); returns how many were added."""
+        from ground_station.learn.sector.twin import DEFAULT_TW, TwinRobot, sense_one
 
+        lay = self.layout
+        if self._tw is None:  # the twin of these sensors (the built-in robot's: the twin's own)
+            self._tw = DEFAULT_TW if lay == DEFAULT_LAYOUT else TwinRobot(
+                radius_mm=lay.robot_radius_mm, angles_mrad=lay.angles_mrad, ranges_mm=lay.max_ranges_mm).arrays()
+        tw = self._tw
         h, w = self.occ.shape
         n = 0
-        for i, d in enumerate(readings_mm):
-            if d is None or d > self.max_range_mm:
-                continue
-            expected, status = sense_one(self.occ, h, w, self.cell_mm, x_mm, y_mm, heading_rad, i, DEFAULT_TW)
+        for i, d in enumerate(readings_mm[:lay.count]):
+            if d is None or d > self.max_range_mm or d >= lay.max_ranges_mm[i]:
+                continue  # nothing seen, too far to place, or at the sensor's reach (no echo)
+            expected, status = sense_one(self.occ, h, w, self.cell_mm, x_mm, y_mm, heading_rad, i, tw)
             if status == robot_spec.RANGE_VALID and d > expected - self.margin_mm:
                 continue  # the map's own wall
-            a = heading_rad + robot_spec.SENSOR_ANGLES_MRAD[i] / 1000.0
-            r = robot_spec.SENSOR_MOUNT_RADIUS_MM + d
+            a = heading_rad + lay.angles_mrad[i] / 1000.0
+            r = lay.mount_mm + d
             self.points.append((t_us, x_mm + r * math.cos(a), y_mm + r * math.sin(a)))
             n += 1
         return n
@@ -222,6 +258,7 @@ class MissionFollower:
     targets: list[tuple[int, int]]  # cells, in visiting order
     target_seq: list[int]  # the current mission's item index of each target (reached ones: -1)
     radius_mm: float = robot_spec.ROBOT_RADIUS_MM  # the robot's body (its profile's): what re-plans keep clear
+    layout: Layout = DEFAULT_LAYOUT  # the robot's range sensors (its profile's): where each reading is placed
     max_replans: int = MAX_REPLANS
     reached: int = 0  # targets reached so far
     replans: int = 0
@@ -232,7 +269,7 @@ class MissionFollower:
 
     def __post_init__(self) -> None:
         if self.seen is None:
-            self.seen = UnmappedPoints(self.gridmap)
+            self.seen = UnmappedPoints(self.gridmap, layout=self.layout)
 
     @property
     def pose_mm(self) -> tuple[float, float] | None:
@@ -260,7 +297,8 @@ class MissionFollower:
         elif kind == "OBSTACLE_DISTANCE":
             if msg.frame == 12:  # MAV_FRAME_BODY_FRD: what the robot sends
                 self._scans = [*self._scans[-20:], (msg.time_usec, sensor_readings(
-                    msg.distances, obstacle_increment_deg(msg), msg.angle_offset, msg.min_distance, msg.max_distance))]
+                    msg.distances, obstacle_increment_deg(msg), msg.angle_offset, msg.min_distance, msg.max_distance,
+                    self.layout))]
                 self._flush()
         elif kind == "MISSION_ITEM_REACHED":
             left = self.target_seq[self.reached:]

@@ -165,14 +165,18 @@ def test_goal_plan_keeps_the_profiles_body_clear(rig, tmp_path):  # noqa: F811
 
 def test_mission_follow_replans_for_the_profiles_body(rig, monkeypatch):  # noqa: F811
     """`qnav mission upload --plan --follow --profile FILE.toml`: the follower re-plans for the profile's
-    body (its radius reaches `MissionFollower`), the built-in 150 mm without --profile."""
+    body (its radius reaches `MissionFollower`) and places the readings at its sensors' angles, the
+    built-in 150 mm and eight sensors without --profile."""
     import ground_station.nav.replan as replan
 
     wide = str(robot_spec.__file__).replace("robot_spec.py", "profiles/wide_six.toml")
     seen: list[float] = []
+    sensors: list[tuple[int, ...]] = []
 
     def follow(link, follower, timeout_s, say):  # noqa: ANN001
         seen.append(follower.radius_mm)
+        assert follower.seen is not None and follower.seen.layout == follower.layout
+        sensors.append(follower.layout.angles_mrad)
         return replan.Finished(True, "stub")
 
     monkeypatch.setattr(replan, "follow_mission", follow)
@@ -184,3 +188,4 @@ def test_mission_follow_replans_for_the_profiles_body(rig, monkeypatch):  # noqa
                          *extra)
         assert code == 0, out
     assert seen == [180.0, robot_spec.ROBOT_RADIUS_MM]
+    assert sensors == [(0, 698, -873, 1658, -1484, 3142), robot_spec.SENSOR_ANGLES_MRAD]  # wide_six's 0/40/-50/95/-85/180

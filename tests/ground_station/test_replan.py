@@ -11,14 +11,23 @@ import numpy as np
 import pytest
 
 from firmware_py import robot_spec
+from firmware_py.layout import Layout
 from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from firmware_py.mavlink.params import ParamStore
 from firmware_py.mavlink.telemetry import NodeStats, Telemetry
+from firmware_py.profile import load_profile
 from firmware_py.vehicle import VehicleStatus
 from ground_station.learn.sector.twin import DEFAULT_TW, sense_one
-from ground_station.maps import MapError, load_map
-from ground_station.nav.replan import Finished, MissionFollower, Replan, UnmappedPoints, raster_plan
+from ground_station.maps import GridMap, MapError, load_map
+from ground_station.nav.replan import (
+    Finished,
+    MissionFollower,
+    Replan,
+    UnmappedPoints,
+    raster_plan,
+    sensor_readings,
+)
 from tests.ground_station.test_nav_plan_cli import _run
 
 GM = load_map("paper10")
@@ -32,10 +41,13 @@ def _map_ranges(x: float, y: float, heading: float) -> tuple[list[int], list[int
     return [int(r) for r, _ in out], [int(s) for _, s in out]
 
 
-def _telemetry(t_ms: int, x: float, y: float, heading: float, ranges: list[int], status: list[int]) -> list:
-    """LOCAL_POSITION_NED, ATTITUDE and OBSTACLE_DISTANCE of one robot tick, over the wire and back."""
+def _telemetry(t_ms: int, x: float, y: float, heading: float, ranges: list[int], status: list[int],
+               layout: Layout | None = None) -> list:
+    """LOCAL_POSITION_NED, ATTITUDE and OBSTACLE_DISTANCE of one robot tick, over the wire and back
+    (the sensors of `layout`, a robot profile's, as its controller reports them; default the built-in)."""
+    sensors = {} if layout is None else {"range_angles_mrad": layout.angles_mrad, "range_max_mm": layout.max_range_mm}
     st = VehicleStatus(x_mm=round(x), y_mm=round(y), heading_mrad=round(heading * 1000), ranges_mm=ranges,
-                       range_status=status)
+                       range_status=status, **sensors)
     out = []
     for msg_id in (m.MAVLINK_MSG_ID_OBSTACLE_DISTANCE, m.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
                    m.MAVLINK_MSG_ID_ATTITUDE):
@@ -69,6 +81,71 @@ def test_a_reading_shorter_than_the_map_is_placed_where_it_was_seen():
     assert len(pts) == 2
     for px, py in pts:
         assert px == pytest.approx(x + robot_spec.SENSOR_MOUNT_RADIUS_MM + 300, abs=10) and py == pytest.approx(y, abs=1)
+
+
+WIDE_SIX = load_profile(robot_spec.__file__.replace("robot_spec.py", "profiles/wide_six.toml")).layout()
+OPEN = GridMap("open", np.zeros((10, 10), dtype=bool), {"B": (9, 0)})  # nothing within any sensor's reach of its middle
+
+
+def _bearings(pts, x: float, y: float) -> list[tuple[float, float]]:
+    """(bearing deg CCW from east in (-180, 180], distance mm) of each point from (x, y), sorted by bearing."""
+    return sorted((180.0 - (180.0 - round(math.degrees(math.atan2(py - y, px - x)), 1)) % 360.0 + 0.0,
+                   round(math.hypot(px - x, py - y))) for px, py in pts)
+
+
+def test_each_reading_is_placed_at_the_profiles_sensor_angle():
+    """`MissionFollower(layout=)` (`qnav mission upload --plan --follow --profile`): a wide_six robot's
+    OBSTACLE_DISTANCE (its controller fills each sensor's cone at that sensor's angle) is read per
+    wide_six sensor and placed at that sensor's angle on its 180 mm rim: the 40-deg sensor's reading at
+    40 deg (the built-in layout reads the same bin as its 45-deg sensor, 5 deg off, on a 150 mm rim),
+    and nothing where wide_six has no sensor (135 / -135 deg)."""
+    x, y = 2500.0, 2500.0
+    far, valid = robot_spec.RANGE_TOO_FAR, robot_spec.RANGE_VALID
+    ranges, status = [1500] * 6, [far] * 6
+    ranges[1], status[1] = 300, valid  # the 40-deg sensor sees something 300 mm off its rim
+    msgs = _telemetry(100, x, y, 0.0, ranges, status, WIDE_SIX)
+    f = MissionFollower(OPEN, [OPEN.targets["B"]], [0], radius_mm=180.0, layout=WIDE_SIX)
+    _feed(f, msgs)
+    assert f.seen is not None and _bearings(f.seen.recent(100_000), x, y) == [(40.0, 480)]
+    old = MissionFollower(OPEN, [OPEN.targets["B"]], [0])  # the built-in layout: what the follower did for any robot
+    _feed(old, msgs)
+    assert old.seen is not None and _bearings(old.seen.recent(100_000), x, y) == [(45.0, 450)]
+
+    f = MissionFollower(OPEN, [OPEN.targets["B"]], [0], radius_mm=180.0, layout=WIDE_SIX)
+    _feed(f, _telemetry(200, x, y, 0.0, [300] * 6, [valid] * 6, WIDE_SIX))  # every sensor sees something
+    assert f.seen is not None
+    got = _bearings(f.seen.recent(200_000), x, y)
+    assert got == [(-85.0, 480), (-50.0, 480), (0.0, 480), (40.0, 480), (95.0, 480), (180.0, 480)], got
+    assert not any(abs(abs(b) - 135.0) < 22.5 for b, _ in got)
+    bins = list(range(100, 172))  # each bin's own value: the bin on each wide_six sensor's axis
+    assert sensor_readings(bins, 5.0, 0.0, 2, 200, WIDE_SIX) == [1000, 1640, 1100, 1530, 1170, 1360]
+
+
+def test_the_built_in_layout_places_its_eight_readings_as_before():
+    """Without a profile the follower reads and places the built-in robot's eight sensors as it did."""
+    x, y = 2500.0, 2500.0
+    f = MissionFollower(OPEN, [OPEN.targets["B"]], [0])
+    _feed(f, _telemetry(100, x, y, 0.0, [300] * 8, [robot_spec.RANGE_VALID] * 8))
+    assert f.seen is not None
+    assert _bearings(f.seen.recent(100_000), x, y) == [(-135.0, 450), (-90.0, 450), (-45.0, 450), (0.0, 450),
+                                                       (45.0, 450), (90.0, 450), (135.0, 450), (180.0, 450)]
+    bins = list(range(100, 172))  # each bin's own value: which bin each sensor is read from
+    assert sensor_readings(bins, 5.0, 0.0, 2, 200) == [1000, 1630, 1540, 1450, 1360, 1270, 1180, 1090]
+
+
+def test_a_reading_at_its_sensors_own_reach_is_no_point():
+    """A sensor of shorter reach than the others (`sensors.max_ranges_mm`): its reading at that reach
+    (no echo; OBSTACLE_DISTANCE's max_distance is the farthest sensor's) is no obstacle."""
+    from dataclasses import replace
+
+    lay = replace(WIDE_SIX, max_ranges_mm=(1500, 400, 1500, 1500, 1500, 1500))
+    x, y = 2500.0, 2500.0
+    for d, n in ((400, 0), (390, 1)):
+        ranges, status = [1500] * 6, [robot_spec.RANGE_TOO_FAR] * 6
+        ranges[1], status[1] = d, robot_spec.RANGE_VALID
+        f = MissionFollower(OPEN, [OPEN.targets["B"]], [0], radius_mm=180.0, layout=lay)
+        _feed(f, _telemetry(100, x, y, 0.0, ranges, status, lay))
+        assert f.seen is not None and len(f.seen.recent(100_000)) == n, d
 
 
 def _stalled_before_a_disc(f: MissionFollower, disc=(3100.0, 4300.0, 150.0), pose=(2759.0, 4218.0, 1.07)) -> None:
