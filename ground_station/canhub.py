@@ -15,7 +15,7 @@ import sys
 import time
 from types import TracebackType
 
-from ground_station.subprocs import free_port, stop_process
+from ground_station.subprocs import die_with_parent_code, free_port, stop_process
 
 
 class CanHub:
@@ -52,8 +52,10 @@ class CanHub:
         raise RuntimeError(f"python-can-remote hub did not start on {self.host}:{self.port}")
 
     def _launch(self) -> bool:
-        cmd = [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", self.channel,
-               "-H", self.host, "-p", str(self.port)]
+        args = ["-i", "virtual", "-c", self.channel, "-H", self.host, "-p", str(self.port)]
+        # `python -m can_remote ARGS`, gone with its owner (subprocs.die_with_parent_code)
+        cmd = [sys.executable, "-c", die_with_parent_code() + "import runpy, sys\n"
+               "runpy.run_module('can_remote', run_name='__main__', alter_sys=True)\n", *args]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         # its own session: a Ctrl-C typed in the owner's terminal goes to the terminal's whole
         # process group and must not kill the bus before its clients have stopped (the owner

@@ -624,7 +624,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         sim_argv = qnav_sim("--map", opts.map_name, "--can", hub.spec,
                             "--start", start, "--seed", str(opts.seed), "--log", str(paths["can_log"]),
                             "--trajectory", str(paths["trajectory_csv"]), "--png", str(paths["trajectory_png"]),
-                            "-q")
+                            "-q", die_with_parent=True)
         if scenario_file is not None:
             sim_argv += ["--scenario", str(scenario_file)]
         if opts.profile is not None:
@@ -640,7 +640,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                                 # the demo's plant is ideal (exact encoders): dead reckoning is exact there, and
                                 # the localiser's corridor jitter (~0.1 m) made 2 of 19 runs clip a corner
                                 "--localiser", "off",
-                                *(["--profile", str(opts.profile)] if opts.profile is not None else []))
+                                *(["--profile", str(opts.profile)] if opts.profile is not None else []),
+                                die_with_parent=True)
         procs.start("sim", sim_argv, logs["sim"])
         procs.start("robot", robot_argv, logs["robot"])
         say(f"qnav-sim ({summary.mode}) and qnav-robot started, start cell ({col}, {row}); "

@@ -23,7 +23,12 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
-from ground_station.subprocs import free_udp_port, signal_process, stop_process
+from ground_station.subprocs import (
+    die_with_parent_code,
+    free_udp_port,
+    signal_process,
+    stop_process,
+)
 
 ROBOT_MAIN = "firmware_py.cli"  # the console scripts' entry points (pyproject.toml [project.scripts])
 SIM_MAIN = "sim_bridge.cli"
@@ -45,20 +50,22 @@ def other_processes() -> Iterator[tuple[int, str]]:
         yield int(entry), cmd
 
 
-def program_argv(module: str, name: str) -> list[str]:
+def program_argv(module: str, name: str, *, die_with_parent: bool = False) -> list[str]:
     """argv prefix running `module.main()` as program `name` (its argv[0], so its
-    usage and error lines read as usual), with SIGINT restored."""
+    usage and error lines read as usual), with SIGINT restored; `die_with_parent`:
+    SIGTERM when this process dies (subprocs.die_with_parent_code)."""
     return [sys.executable, "-c",
-            "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            (die_with_parent_code() if die_with_parent else "")
+            + "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
             f"sys.argv[0] = {name!r}; from {module} import main; sys.exit(main())"]
 
 
-def qnav_robot(*args: str | Path) -> list[str]:
-    return [*program_argv(ROBOT_MAIN, "qnav-robot"), *map(str, args)]
+def qnav_robot(*args: str | Path, die_with_parent: bool = False) -> list[str]:
+    return [*program_argv(ROBOT_MAIN, "qnav-robot", die_with_parent=die_with_parent), *map(str, args)]
 
 
-def qnav_sim(*args: str | Path) -> list[str]:
-    return [*program_argv(SIM_MAIN, "qnav-sim"), *map(str, args)]
+def qnav_sim(*args: str | Path, die_with_parent: bool = False) -> list[str]:
+    return [*program_argv(SIM_MAIN, "qnav-sim", die_with_parent=die_with_parent), *map(str, args)]
 
 
 class ChildProcess:

@@ -307,7 +307,8 @@ class Sitl:
         sim_argv = qnav_sim("--map", opts.map_name, "--can", can_spec, *pace,
                             "--start", start, "--seed", str(opts.seed), "--duration", str(SIM_DURATION_S),
                             "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q",
-                            *(["--profile", str(opts.profile)] if opts.profile is not None else []))
+                            *(["--profile", str(opts.profile)] if opts.profile is not None else []),
+                            die_with_parent=True)
         # the robot knows the world it is in (a policy for another map is refused, naming both): the map is
         # in its storage as the one `qnav map upload` leaves (/maps/active.map, its targets beside it), which
         # it serves to ground stations over MAVLink FTP, as a real robot's
@@ -327,7 +328,8 @@ class Sitl:
                                 "--storage", run_dir / "robot",
                                 "--mavlink", robot_mavlink, "--mavlink-autopilot", opts.autopilot,
                                 "--stats-json", run_dir / "robot_stats.json",
-                                *(["--profile", str(opts.profile)] if opts.profile is not None else []))
+                                *(["--profile", str(opts.profile)] if opts.profile is not None else []),
+                                die_with_parent=True)
         if policy:  # the robot boots it from its storage, as a real robot does: its FTP server then
             # has it as /policies/active.qtab, where `qnav mission upload --targets` reads the robot's map
             from firmware_py.atomic import atomic_write

@@ -1,8 +1,9 @@
 """Child processes and loopback ports, for whatever starts other programs.
 
-Owns the two helpers every launcher needs (the CAN hub, the benches, the
-demo, the tests): a port on 127.0.0.1 that was free a moment ago, and
-stopping a child for sure (a signal, a grace period, then SIGKILL).
+Owns the helpers every launcher needs (the CAN hub, the benches, the
+demo, the tests): a port on 127.0.0.1 that was free a moment ago,
+stopping a child for sure (a signal, a grace period, then SIGKILL), and a
+child that does not outlive its starter (`die_with_parent_code`).
 
 Stdlib only: firmware_py uses it, and ground_station, sim_bridge and the
 tests import it from here.
@@ -15,6 +16,7 @@ import os
 import signal
 import socket
 import subprocess
+import threading
 
 
 def free_port(kind: socket.SocketKind = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
@@ -56,3 +58,19 @@ def signal_process(proc: Process, sig: int, *, group: bool = False) -> None:
         return
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.killpg(proc.pid, sig)
+
+
+def die_with_parent_code() -> str:
+    """Python source for the start of a child's `-c`: the child gets SIGTERM when the process
+    starting it dies (Linux prctl PR_SET_PDEATHSIG), and exits at once if that is already gone.
+
+    Children in their own session (so a Ctrl-C typed at the starter does not hit them before it
+    stops them in order) are otherwise orphaned when the starter is killed (SIGKILL, a crash): a
+    `qnav sitl` killed that way left its lockstep sim, robot and hub running on at full speed. ""
+    when called off the main thread: the signal follows the starting *thread*, and a pool thread
+    ends while its children should run on."""
+    if threading.current_thread() is not threading.main_thread():
+        return ""
+    return ("import ctypes, os, signal\n"
+            "try:\n    ctypes.CDLL(None).prctl(1, signal.SIGTERM)\nexcept (OSError, AttributeError):\n    pass\n"
+            f"if os.getppid() != {os.getpid()}:\n    os._exit(1)\n")
