@@ -66,8 +66,17 @@ class LocalRayCluster:
         self.root.mkdir(parents=True, exist_ok=True)
         self.token_path.write_text(secrets.token_hex(32))
         os.chmod(self.token_path, 0o600)
-        self._ray("--head", "--port", str(self.port), "--include-dashboard=false", "--temp-dir",
-                  str(self.temp_dir))
+        # Ray waits a fixed 30 s for a node's raylet to register (ray/_private/node.py); beside other work
+        # on 2 cores the head missed it ("timed out during startup"): its processes stopped, it starts again
+        for attempt in range(3):
+            try:
+                self._ray("--head", "--port", str(self.port), "--include-dashboard=false", "--temp-dir",
+                          str(self.temp_dir))
+                break
+            except RuntimeError as exc:
+                if "timed out during startup" not in str(exc) or attempt == 2:
+                    raise
+                self.stop()
         for _ in range(self.workers):
             self._ray("--address", self.address)
         self.wait_nodes(1 + self.workers)
