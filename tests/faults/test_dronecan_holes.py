@@ -9,6 +9,8 @@ pytest.importorskip("dronecan", reason="the dronecan extra (pip install 'qnav[dr
 from ground_station.lab.faults import dronecan_holes  # noqa: E402
 
 
+@pytest.mark.wallclock  # the end frame's tick is judged on the wall clock: 71 ms once in a quiet fresh-clone
+# make test beside three other workers, with its handling 0 ms (the bench's own run: 8 ms max)
 def test_an_endless_transfer_is_neither_kept_nor_stalls_the_tick():
     # 20,000 frames, not the bench's 100,000 (73 s of a busy suite): 328bab9 kept every frame (18 MB for
     # 100,000, ~180 B each: ~3.6 MB here) and reassembled them all at the end frame (1.8-2.9 s for
