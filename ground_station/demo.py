@@ -34,7 +34,7 @@ from pathlib import Path
 from firmware_py.atomic import atomic_write
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.shipped_policies import ShippedPolicyError, resolve_policy_spec
-from ground_station.mavlink.statustext import StatusTextAssembler
+from ground_station.mavlink.statustext import StatusTextAssembler, holds_for_good
 from ground_station.processes import ProcessGroup, qnav_robot, qnav_sim
 from ground_station.subprocs import free_udp_port
 
@@ -217,8 +217,7 @@ class MissionWatch:
                 self.texts.append(st.text)
                 # the controller holds for good (bumper, or NAV_STALL_S without progress: "item N: stalled:
                 # ..."); waiting out the timeout tells nothing (and in lockstep fills the logs ~20x real time)
-                if self.start_wall is not None and not self.stopped \
-                        and ("bumper pressed" in st.text or "stalled: " in st.text):
+                if self.start_wall is not None and not self.stopped and holds_for_good(st.text):
                     self.stopped = f"stopped: {st.text}"
         if self.complete and self.done_wall is None:
             self.done_wall = time.monotonic()

@@ -122,12 +122,11 @@ def _faulted(view) -> bool:
 
 
 def _stopped(view) -> str | None:
-    """The robot's words when it holds for good mid-mission: a stall (NAV_STALL_S without progress) or
-    the bumper; it waits in Hold for the operator, so waiting out --duration tells nothing more."""
-    for line in view.log:
-        if "stalled: " in line.text or "bumper pressed" in line.text:
-            return line.text
-    return None
+    """The robot's words when it holds for good mid-mission (statustext.holds_for_good): it waits in
+    Hold for the operator, so waiting out --duration tells nothing more."""
+    from ground_station.mavlink.statustext import holds_for_good
+
+    return next((line.text for line in view.log if holds_for_good(line.text)), None)
 
 
 def _done(view) -> bool:
@@ -245,8 +244,9 @@ def run(args: argparse.Namespace) -> int:
                 if _faulted(view):
                     print("qnav monitor: the robot entered FAULT", file=sys.stderr)
                     return 3
-                if not any("mission complete" in line.text for line in view.log) and _stopped(view):
-                    print(f"qnav monitor: the robot stopped: {_stopped(view)}", file=sys.stderr)
+                stopped = _stopped(view)
+                if stopped and not any("mission complete" in line.text for line in view.log):
+                    print(f"qnav monitor: the robot stopped: {stopped}", file=sys.stderr)
                     return 3
                 if not _done(view):
                     within = f"within {args.duration:g} s" if args.duration is not None else "before the link ended"

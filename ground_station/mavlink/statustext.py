@@ -102,3 +102,9 @@ class StatusTextAssembler:
     def _finish(self, key: tuple[int, int, int], part: _Partial) -> StatusText:
         del self._partial[key]
         return StatusText(part.text(), part.severity, key[0], key[1], part.t)
+
+
+def holds_for_good(text: str) -> bool:
+    """The robot's text when its controller holds mid-mission until the operator acts: a stall
+    (NAV_STALL_S without progress, "item N: stalled: ...") or the bumper ("bumper pressed")."""
+    return "stalled: " in text or "bumper pressed" in text
