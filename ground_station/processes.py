@@ -33,7 +33,7 @@ from ground_station.subprocs import (
 ROBOT_MAIN = "firmware_py.cli"  # the console scripts' entry points (pyproject.toml [project.scripts])
 SIM_MAIN = "sim_bridge.cli"
 FTP_SHELL_MAIN = "ground_station.lab.rigs.ftp_shell"
-REFLEX_MAIN = "sim_bridge.reflex"
+REFLEX_MAIN = "ground_station.lab.rigs.reflex"
 
 
 def other_processes() -> Iterator[tuple[int, str]]:

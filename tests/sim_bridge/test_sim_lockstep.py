@@ -18,8 +18,8 @@ from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
 from firmware_py.canbus import open_bus
 from ground_station.canhub import CanHub
+from ground_station.lab.rigs import reflex
 from ground_station.subprocs import stop_process
-from sim_bridge import reflex
 from sim_bridge.plant import LockstepError, Plant, SimConfig, run_lockstep, run_paced
 from sim_bridge.world import Pose
 
@@ -178,7 +178,7 @@ DETERMINISM = """
 import hashlib, sys, threading
 import numpy as np
 from firmware_py.canbus import open_bus
-from sim_bridge import reflex
+from ground_station.lab.rigs import reflex
 from sim_bridge.outputs import trajectory_csv
 from sim_bridge.plant import Plant, SimConfig, run_lockstep
 from sim_bridge.sensors import RangeParams
@@ -258,7 +258,7 @@ def test_cli_help_and_one_line_errors(tmp_path):
 
 def test_cli_lockstep_across_processes_via_hub_writes_all_outputs(tmp_path):
     with CanHub("test_cli") as hub:
-        ctl = subprocess.Popen([sys.executable, "-m", "sim_bridge.reflex", "--can", hub.spec],
+        ctl = subprocess.Popen([sys.executable, "-m", "ground_station.lab.rigs.reflex", "--can", hub.spec],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             out = _qnav_sim("--map", "paper10", "--can", hub.spec, "--lockstep", "--duration", "5",

@@ -7,7 +7,7 @@
 * `lockstep_ticks_per_s_inprocess`: the full lockstep handshake on a python-can
   `virtual` bus, plant in the main thread, reflex controller in a thread.
 * `lockstep_ticks_per_s_remote`: the same across processes — the plant here,
-  the reflex controller in its own process (`sim_bridge.reflex`),
+  the reflex controller in its own process (`ground_station.lab.rigs.reflex`),
   both on a python-can-remote hub on 127.0.0.1 (a third process).
 
 Tick rates are compared with the real-time control rate (20 ticks/s) and the
@@ -44,7 +44,7 @@ def _plant(occ, cell_size_m: float):
 
 
 def measure_rtf(occ, cell_size_m: float, sim_seconds: float) -> dict:
-    from sim_bridge.reflex import ReflexDriver
+    from ground_station.lab.rigs.reflex import ReflexDriver
 
     plant = _plant(occ, cell_size_m)
     driver = ReflexDriver()
@@ -64,7 +64,7 @@ def measure_rtf(occ, cell_size_m: float, sim_seconds: float) -> dict:
 def measure_inprocess(occ, cell_size_m: float, ticks: int) -> dict:
     from firmware_py.canbus import open_bus
     from sim_bridge.plant import run_lockstep
-    from sim_bridge.reflex import ReflexDriver, serve
+    from ground_station.lab.rigs.reflex import ReflexDriver, serve
 
     channel = f"bench-sim-{uuid.uuid4().hex}"
     plant = _plant(occ, cell_size_m)

@@ -5,7 +5,7 @@ a front sensor sees something within `stop_mm`, then turns left, and answers
 every SimTick with a MotorCommand carrying the tick's counter, exactly as
 docs/can-protocol.md asks of a controller (a repeated tick gets the same
 answer again). `ReflexDriver.handle(msg)` is the pure core; `serve()` is the
-bus shell; `python -m sim_bridge.reflex --can SPEC` runs it as a process.
+bus shell; `python -m ground_station.lab.rigs.reflex --can SPEC` runs it as a process.
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def serve(bus: can.BusABC, driver: ReflexDriver, stop: threading.Event,
 def main(argv: list[str] | None = None) -> int:
     from firmware_py.canbus import CanSpecError, open_bus
 
-    ap = argparse.ArgumentParser(prog="python -m sim_bridge.reflex", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m ground_station.lab.rigs.reflex", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--can", default=None, help="bus spec, e.g. remote:ws://127.0.0.1:PORT/")
     ap.add_argument("--ticks", type=int, default=None, help="exit after answering this many ticks")
