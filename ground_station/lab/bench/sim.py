@@ -63,8 +63,8 @@ def measure_rtf(occ, cell_size_m: float, sim_seconds: float) -> dict:
 
 def measure_inprocess(occ, cell_size_m: float, ticks: int) -> dict:
     from firmware_py.canbus import open_bus
-    from sim_bridge.plant import run_lockstep
     from ground_station.lab.rigs.reflex import ReflexDriver, serve
+    from sim_bridge.plant import run_lockstep
 
     channel = f"bench-sim-{uuid.uuid4().hex}"
     plant = _plant(occ, cell_size_m)
