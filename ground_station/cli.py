@@ -27,18 +27,22 @@ class OneLineErrorParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The `qnav` parser; given the command about to run, only its subparser is built (see
+    `add_module_subparsers`), which keeps `qnav arm` from importing the benchmarks."""
     parser = OneLineErrorParser(
         prog="qnav", description="qnav ground station: train, evaluate, export, upload, command, monitor.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    add_module_subparsers(sub, commands)
+    add_module_subparsers(sub, commands, only=command)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     require_station("qnav")  # before the commands import numpy & co.: one line, not a traceback
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    # the first word not an option is the command (qnav has no options of its own but -h)
+    args = build_parser(next((a for a in argv if not a.startswith("-")), None)).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except CliError as exc:

@@ -8,12 +8,19 @@ import pkgutil
 from types import ModuleType
 
 
-def add_module_subparsers(sub: argparse._SubParsersAction, package: ModuleType) -> None:
-    """Every module of `package` exposing `add_subparser(sub)` becomes a subcommand, in name order."""
-    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"{package.__name__}.{info.name}")
-        if hasattr(module, "add_subparser"):
-            module.add_subparser(sub)
+def add_module_subparsers(sub: argparse._SubParsersAction, package: ModuleType, only: str | None = None) -> None:
+    """Every module of `package` exposing `add_subparser(sub)` becomes a subcommand, in name order.
+
+    With `only` naming one of them (a module's `COMMANDS`, else its name), that one alone: a
+    subparser's options may import much (`qnav bench` loads every benchmark), and one command
+    needs only its own parser. A name no module has builds them all, so argparse lists the
+    choices in its error."""
+    modules = [importlib.import_module(f"{package.__name__}.{info.name}")
+               for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name)]
+    modules = [m for m in modules if hasattr(m, "add_subparser")]
+    chosen = [m for m in modules if only in getattr(m, "COMMANDS", (m.__name__.rpartition(".")[2],))]
+    for module in chosen or modules:
+        module.add_subparser(sub)
 
 
 def add_actions(sub: argparse._SubParsersAction, name: str, help: str, description: str | None, dest: str,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 
+COMMANDS = ("arm", "disarm")  # the subcommands this module adds (ground_station.commands.add_module_subparsers)
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from ground_station.mavlink.link import add_link_args
