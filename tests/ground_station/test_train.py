@@ -164,6 +164,7 @@ def test_cli_errors_are_one_line_exit_2(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_cli_sweep_smoke(tmp_path):
     qnav("sweep", "--map", "paper10", "--encoding", "cell", "--lrs", "0.2:0.6:0.4", "--seeds", "2",
          "--steps", "20000", "--out", str(tmp_path))

@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from ground_station.subprocs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,6 +37,7 @@ def test_the_page_has_the_steps_this_test_relies_on():
     assert "14555" in "".join(found)
 
 
+@pytest.mark.slow
 def test_walkthrough_runs_from_the_map_to_the_report(tmp_path):
     port = free_udp_port()
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
