@@ -285,24 +285,23 @@ def test_sparse_write_and_huge_truncate_cannot_fill_the_quota(server):
     assert server.storage.read_bytes("/policies/small") == b"abc" + bytes(7)
 
 
+def _create_until_enospc(c: Client, op: Op, path: str) -> int:
+    """Create path.format(0), path.format(1), ... until the server NAKs (it must be ENOSPC); how many it made.
+    A created file's session is terminated before the next."""
+    made = 0
+    while (r := c.one(op, path.format(made).encode()))[2] != Op.NAK:
+        if op == Op.CREATE_FILE:
+            assert ack(c.one(Op.TERMINATE_SESSION))
+        made += 1
+    assert r[7][:2] == bytes([Nak.FAIL_ERRNO, 28])
+    return made
+
+
 def test_file_and_directory_quotas(server):
     c = Client(server)
-    made = 0
-    while True:
-        r = c.one(Op.CREATE_DIRECTORY, f"/d{made}".encode())
-        if r[2] == Op.NAK:
-            assert r[7][:2] == bytes([Nak.FAIL_ERRNO, 28])
-            break
-        made += 1
+    made = _create_until_enospc(c, Op.CREATE_DIRECTORY, "/d{}")
     layout = len(LAYOUT_DIRS)
     assert made == 4 - layout  # the layout's directories count
-    files = 0
-    while True:
-        r = c.one(Op.CREATE_FILE, f"/f{files}".encode())
-        if r[2] == Op.NAK:
-            assert r[7][:2] == bytes([Nak.FAIL_ERRNO, 28])
-            break
-        assert ack(c.one(Op.TERMINATE_SESSION))
-        files += 1
+    files = _create_until_enospc(c, Op.CREATE_FILE, "/f{}")
     assert files == 12
     assert len(os.listdir(server.storage.root)) == layout + made + files

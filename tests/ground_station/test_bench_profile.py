@@ -18,6 +18,17 @@ ROOT = Path(__file__).resolve().parents[2]
 WIDE = str(ROOT / "firmware_py" / "profiles" / "wide_six.toml")
 
 
+def _wide_policy(tmp_path, capsys):
+    """Train (briefly) and export a sector policy for the wide profile; returns its .qtab path."""
+    run = tmp_path / "run"
+    assert main(["train", "--recipe", "shipped-sector", "--profile", WIDE, "--steps", "30000", "--out", str(run),
+                 "--quiet"]) == 0
+    pol = tmp_path / "wide.qtab"
+    assert main(["export", str(run), "--out", str(pol), "--no-rollouts"]) == 0
+    capsys.readouterr()
+    return pol
+
+
 def test_the_twin_plays_the_profiles_robot_on_the_same_episodes():
     gm = load_map("paper10")
     eps = episodes(gm, 12, 0, 2, 1)
@@ -43,12 +54,7 @@ def test_the_same_episodes_get_waypoints_planned_around_the_wider_body():
 
 
 def test_bench_nav_on_a_profile_reports_the_controllers_and_refuses_a_policy_it_cannot_run(tmp_path, capsys):
-    run = tmp_path / "run"
-    assert main(["train", "--recipe", "shipped-sector", "--profile", WIDE, "--steps", "30000", "--out", str(run),
-                 "--quiet"]) == 0
-    pol = tmp_path / "wide.qtab"
-    assert main(["export", str(run), "--out", str(pol), "--no-rollouts"]) == 0
-    capsys.readouterr()
+    pol = _wide_policy(tmp_path, capsys)
     out = tmp_path / "nav.json"
     assert main(["bench", "nav", "--map", "paper10", "--episodes", "6", "--obstacles", "1", "--movers", "1",
                  "--policy", str(pol), "--profile", WIDE, "--json", str(out), "--png", str(tmp_path / "n.png")]) == 0
@@ -69,12 +75,7 @@ def test_bench_nav_on_a_profile_reports_the_controllers_and_refuses_a_policy_it_
 def test_bench_hil_on_a_profile_plays_its_robot_beside_the_baselines(tmp_path, capsys):
     """`qnav bench hil --profile FILE.toml`: the lockstep sim and robot play the profile's robot on the
     same seeded episodes, the waypoints keep its body clear, and the baselines run the same episodes."""
-    run = tmp_path / "run"
-    assert main(["train", "--recipe", "shipped-sector", "--profile", WIDE, "--steps", "30000", "--out", str(run),
-                 "--quiet"]) == 0
-    pol = tmp_path / "wide.qtab"
-    assert main(["export", str(run), "--out", str(pol), "--no-rollouts"]) == 0
-    capsys.readouterr()
+    pol = _wide_policy(tmp_path, capsys)
     out = tmp_path / "hil.json"
     assert main(["bench", "hil", "--only", "sector", "--pairs", "2", "--sector-policy", str(pol), "--profile", WIDE,
                  "--profile", "ideal", "--baselines", "seek,vfh", "--max-sim-s", "30", "--json", str(out),

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import struct
 import threading
 import time
 
 import pytest
 
 from ground_station.maps import load_map
+from tests.support.foxglove_ws import frames
 
 pytest.importorskip("websockets")
 pytest.importorskip("foxglove")
@@ -46,26 +46,14 @@ async def _map_messages(port: int, subprotocol: str, wait_s: float) -> tuple[str
 
     await asyncio.sleep(wait_s)  # the client comes late
     async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[subprotocol], max_size=None) as ws:
-        chosen = ws.subprotocol
-        map_id = None
         got: list[bytes] = []
-        end = time.monotonic() + 5
-        while time.monotonic() < end and not got:
-            try:
-                raw = await asyncio.wait_for(ws.recv(), 0.5)
-            except TimeoutError:
-                continue
-            if isinstance(raw, str):
-                doc = json.loads(raw)
-                if doc.get("op") == "advertise":
-                    for ch in doc["channels"]:
-                        if ch["topic"] == "/map":
-                            map_id = ch["id"]
-                            await ws.send(json.dumps({"op": "subscribe",
-                                                      "subscriptions": [{"id": 5, "channelId": map_id}]}))
-            elif raw[0] == 0x01 and struct.unpack_from("<I", raw, 1)[0] == 5:
-                got.append(raw[13:])
-        return chosen, got
+        async for channels, sub, payload in frames(ws, 5, 0.5, lambda: got):
+            for ch in channels:
+                if ch["topic"] == "/map":
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 5, "channelId": ch["id"]}]}))
+            if sub == 5:
+                got.append(payload)
+        return ws.subprotocol, got
 
 
 def test_a_client_offering_foxglove_websocket_v1_is_served_and_gets_the_latched_map():

@@ -185,23 +185,8 @@ def reference_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
                  lr, lr_end, total_steps, gamma, eps_start, eps_end, eps_decay_steps, rw,
                  max_episode_steps, hold_max, guided, clear_r, max_seg, path, wps, rem, noise_mm,
                  start_step, n_steps, out_ret, out_succ, tw):
-    """Advance exact sequential Q-learning by n_steps env steps (control periods).
-
-    Epsilon at global step t: linear from eps_start to eps_end over
-    eps_decay_steps, then eps_end. Learning rate: linear from lr at step 0
-    to lr_end at total_steps (averages out the update noise that otherwise
-    flips the greedy action of rarely visited, aliased states). A chosen action is held while the state
-    index stays the same, up to hold_max periods, and learnt as one
-    semi-Markov transition (discount gamma^k, rewards summed with discount):
-    the greedy policy holds it anyway (same state -> same action), so this is
-    what the robot executes. hold_max = 1 is the plain one-step update.
-    guided: each episode follows the planner's waypoints from its start pose
-    (`start_guidance`; wps/rem/path are the caller's buffers and carry the
-    open episode across chunks). noise_mm > 0: the state the learner sees
-    comes from readings with Gaussian noise of that std (`noisy_state`), so
-    the policy does not rely on a reading being exactly on one side of a
-    range edge (the sim's sensors are noisy too). Writes one entry per
-    finished episode to out_ret/out_succ and returns how many."""
+    """The Q-learning kernel before the fast paths (plain sensors, one view per step, no fused
+    period); the semantics are those of `K.train_kernel` with learner q. Returns the episodes done."""
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
     noisy = np.zeros(which.shape[0], dtype=np.int64)

@@ -6,6 +6,7 @@ errors, and `qnav train --recipe`."""
 from __future__ import annotations
 
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -91,17 +92,17 @@ def test_cli_study_writes_json_png_and_campaign(tmp_path):
 
 
 @pytest.mark.parametrize("args,text", [
-    (["--learners", "q,td0"], "unknown learner"),
-    (["--sector-learners", "sarsa,td1"], "--sector-learners: unknown learner"),
-    (["--sector-seeds", "-1"], "--sector-seeds"),
-    (["--seeds", "0"], "--seeds"),
-    (["--lrs", "0"], "learning rates"),
-    (["--map", "nosuchmap"], "nosuchmap"),
-    (["--map", "maze-15x15-s2", "--targets", ""], "defines no targets"),
-    (["--targets", "A,Z"], "Z"),
+    ("--learners q,td0", "unknown learner"),
+    ("--sector-learners sarsa,td1", "--sector-learners: unknown learner"),
+    ("--sector-seeds -1", "--sector-seeds"),
+    ("--seeds 0", "--seeds"),
+    ("--lrs 0", "learning rates"),
+    ("--map nosuchmap", "nosuchmap"),
+    ("--map maze-15x15-s2 --targets ''", "defines no targets"),
+    ("--targets A,Z", "Z"),
 ])
 def test_cli_study_bad_input_is_one_line(tmp_path, args, text):
-    p = qnav("study", "--out", str(tmp_path), *args)
+    p = qnav("study", "--out", str(tmp_path), *shlex.split(args))  # the shell's words: '' is an empty argument
     assert p.returncode == 2 and text in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
 
 

@@ -101,9 +101,7 @@ async def _session(ws_port: int, sitl_port: int, goal_m: tuple[float, float]) ->
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_foxglove_bridge_streams_pose_and_scan_and_a_published_goal_drives_the_robot(tmp_path):
-    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "2")
-    monitor = None
-    try:
+    with SitlProcess(tmp_path, "--lockstep", "--speed", "2") as sitl:
         sitl.wait_up()
         ws_port = free_port()  # TCP
         env = child_env()
@@ -112,6 +110,7 @@ def test_foxglove_bridge_streams_pose_and_scan_and_a_published_goal_drives_the_r
              "--mavlink", f"udpout:127.0.0.1:{sitl.port}", "--no-tlog", "--duration", "240", "--foxglove-goals"],
             cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
             text=True)
+        sitl.closing(lambda: stop_process(monitor, timeout_s=20))
         line = ""
         deadline = time.monotonic() + 60
         while "Foxglove bridge on ws://" not in line and time.monotonic() < deadline:
@@ -119,10 +118,6 @@ def test_foxglove_bridge_streams_pose_and_scan_and_a_published_goal_drives_the_r
             assert line or monitor.poll() is None, "qnav monitor exited"
         a_mm = cell_world_mm(2, 2)  # paper10 target A: a goal of the shipped cell policy
         got = asyncio.run(_session(ws_port, sitl.port, (a_mm[0] / 1000, a_mm[1] / 1000)))
-    finally:
-        if monitor is not None:
-            stop_process(monitor, timeout_s=20)
-        sitl.stop()
     # LOCAL_POSITION_NED at TELEM_POS_HZ (5 Hz of sim time) and lockstep at up to 2x: >= 5 Hz of wall time
     # would be 15 in 3 s; a loaded machine slows the sim, so ask for a third of it
     assert got["poses_in_3s"] >= 5 and got["scan"] >= 2, got

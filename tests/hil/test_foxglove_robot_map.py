@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import struct
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ import pytest
 from ground_station.subprocs import free_port, stop_process
 from tests.hil.test_foxglove_bridge import _decoder
 from tests.hil.test_sitl import SitlProcess, child_env
+from tests.support.foxglove_ws import frames
 
 pytest.importorskip("websockets")
 
@@ -29,28 +29,19 @@ async def _late_client(ws_port: int, subprotocol: str) -> dict:
     async with websockets.connect(f"ws://127.0.0.1:{ws_port}", subprotocols=[subprotocol], max_size=None) as ws:
         got["subprotocol"] = ws.subprotocol
         channels: dict[int, dict] = {}
-        end = time.monotonic() + 15
-        while time.monotonic() < end and not (got["map"] and got["pose"] >= 3):
-            try:
-                raw = await asyncio.wait_for(ws.recv(), 1)
-            except TimeoutError:
+        async for advertised, sub, payload in frames(ws, 15, 1, lambda: got["map"] and got["pose"] >= 3):
+            new = {c["id"]: c for c in advertised if c["topic"] in ("/map", "/pose")}
+            channels.update(new)
+            if new:
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": cid, "channelId": cid} for cid in new]}))
+            if sub is None:
                 continue
-            if isinstance(raw, str):
-                doc = json.loads(raw)
-                if doc.get("op") == "advertise":
-                    new = {c["id"]: c for c in doc["channels"] if c["topic"] in ("/map", "/pose")}
-                    channels.update(new)
-                    if new:
-                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                            {"id": cid, "channelId": cid} for cid in new]}))
-            elif raw[0] == 0x01:
-                sub = struct.unpack_from("<I", raw, 1)[0]
-                ch = channels[sub]
-                if ch["topic"] == "/map":
-                    grid = _decoder(ch).FromString(raw[13:])
-                    got["map"].append((grid.column_count, len(grid.data) // max(1, grid.row_stride)))
-                else:
-                    got["pose"] += 1
+            if channels[sub]["topic"] == "/map":
+                grid = _decoder(channels[sub]).FromString(payload)
+                got["map"].append((grid.column_count, len(grid.data) // max(1, grid.row_stride)))
+            else:
+                got["pose"] += 1
     return got
 
 

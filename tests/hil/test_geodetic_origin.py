@@ -16,7 +16,6 @@ import json
 import math
 import os
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -144,11 +143,8 @@ def _wp_list(mp: MavProxy, count: int) -> list[tuple[int, int, float, float]]:
 @pytest.mark.timeout(300)
 def test_sitl_missions_in_global_coordinates_for_mavproxy_and_from_qnav(tmp_path):
     # lockstep at most x4 (docs/walkthrough.md's pace): load only slows the run (tests/hil/test_sitl.py)
-    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "4")
-    mp = None
-    try:
-        master = sitl.mavproxy_master()
-        sitl.wait_up()
+    with SitlProcess(tmp_path, "--lockstep", "--speed", "4") as sitl:
+        master = sitl.up()
         url = ["--mavlink", master, "--no-tlog"]
 
         def qnav(*argv: str) -> str:
@@ -165,6 +161,7 @@ def test_sitl_missions_in_global_coordinates_for_mavproxy_and_from_qnav(tmp_path
         targets = [robot_spec.cell_center_mm(2, 2, 10), robot_spec.cell_center_mm(9, 7, 10)]
         assert "mission of 2 waypoints accepted" in qnav("mission", "upload", "--targets", "A,D")
         mp = MavProxy(master, tmp_path, modules="param,wp,mode,arm,cmdlong")
+        sitl.closing(mp.close)
         mp.expect(r"Detected vehicle 1:1", 30)
         rows = _wp_list(mp, 2)
         for (cmd, frame, lat, lon), want in zip(rows, targets, strict=True):
@@ -187,13 +184,9 @@ def test_sitl_missions_in_global_coordinates_for_mavproxy_and_from_qnav(tmp_path
         mp.expect(r"COMPONENT_ARM_DISARM: ACCEPTED", 30)
         mp.send("mode AUTO")
         mp.expect(r"mission complete", 120)
-    finally:
-        if mp is not None:
-            mp.close()
-        code = sitl.stop(signal.SIGINT)
-    assert code == 0, "\n".join(sitl.log[-20:])
+    assert sitl.code == 0, "\n".join(sitl.log[-20:])
     with open(sitl.out / "trajectory.csv", newline="") as f:
         rows_csv = list(csv.DictReader(f))
     x, y = float(rows_csv[-1]["x_m"]), float(rows_csv[-1]["y_m"])
     assert math.hypot(x - targets[0][0] / 1000, y - targets[0][1] / 1000) < 0.2, (x, y)  # ground truth: at A
-    assert not re.search(r"fence breach", "\n".join(mp.log if mp else []))
+    assert not re.search(r"fence breach", "\n".join(mp.log))

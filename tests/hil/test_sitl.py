@@ -14,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -46,6 +47,7 @@ class SitlProcess(ConsoleProcess):
     def __init__(self, tmp_path: Path, *args: str) -> None:
         self.port = free_udp_port()
         self.out = tmp_path / "sitl"
+        self.closers: list[Callable[[], object]] = []
         env = child_env()
         super().__init__([sys.executable, "-m", "ground_station.cli", "sitl", "--mavlink",
                           f"udpin:127.0.0.1:{self.port}", "--out", str(self.out), *args],
@@ -61,6 +63,29 @@ class SitlProcess(ConsoleProcess):
     def wait_up(self) -> None:
         """Until the connection help's last line: every process is up."""
         self.expect(r"Ctrl-C stops every process")
+
+    def up(self, *between: str) -> str:
+        """The MAVProxy connection string, then each line of `between` in order, then every process up."""
+        master = self.mavproxy_master()
+        for pattern in between:
+            self.expect(pattern)
+        self.wait_up()
+        return master
+
+    def closing(self, close: Callable[[], object]) -> None:
+        """Run `close` (a client of the test's) when the `with` block ends, before the sitl stops."""
+        self.closers.append(close)
+
+    def __enter__(self) -> SitlProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Close the test's clients (last first), then stop with SIGINT; its exit status in `code`."""
+        try:
+            for close in reversed(self.closers):
+                close()
+        finally:
+            self.code = self.stop(signal.SIGINT)
 
     def stop(self, sig: int = signal.SIGINT) -> int:
         if self.proc.poll() is None:
@@ -96,14 +121,11 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
     # watchdog is sim time, so a wall-clock stall of 200/X ms of the robot process stopped the wheels on a
     # loaded machine (FAULT "motor driver watchdog tripped"); in lockstep every tick is answered and load
     # only slows the run
-    sitl = SitlProcess(tmp_path, "--lockstep", "--speed", "4")
-    mp = None
-    try:
-        master = sitl.mavproxy_master()
+    with SitlProcess(tmp_path, "--lockstep", "--speed", "4") as sitl:
+        master = sitl.up(r"CAN bus: remote:ws://127\.0\.0\.1:\d+/")
         assert master == f"udpout:127.0.0.1:{sitl.port}"
-        sitl.expect(r"CAN bus: remote:ws://127\.0\.0\.1:\d+/")
-        sitl.wait_up()
         mp = MavProxy(master, tmp_path, modules="param,wp,mode,arm,cmdlong,fence")
+        sitl.closing(mp.close)
         mp.expect(r"Detected vehicle 1:1", 30)
         mp.expect(rf"Received {len(PARAMS)} parameters", 60)
         mp.send("param show FS_GCS_TOUT_MS")  # 5 s of wall time at --speed 4
@@ -126,11 +148,7 @@ def test_sitl_mavproxy_params_waypoints_arm_auto_then_guided_goto(tmp_path):
         mp.expect(r"GUIDED", 10)
         mp.expect(r"goal reached", 180)
         assert not [line for line in mp.log if "fence breach" in line], "MAVProxy announced a fence breach"
-    finally:
-        if mp is not None:
-            mp.close()
-        code = sitl.stop(signal.SIGINT)
-    assert code == 0, "\n".join(sitl.log[-20:])
+    assert sitl.code == 0, "\n".join(sitl.log[-20:])
     assert any("every process stopped" in line for line in sitl.log)
     assert no_children_left(sitl.out) == []
     assert not port_open(hub_port(sitl.log))  # the hub stopped too
