@@ -30,13 +30,20 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+# the summaries that only name counters, each filled in from the scenario's figures
+_COUNTS = {
+    "mav_hostile_core": "dropped unsigned {dropped_unsigned}, bad signature {dropped_badsig}, replay "
+                        "{dropped_replay}; parser errors {parser_errors}; FTP requests {ftp_requests}, NAKs "
+                        "{ftp_naks}, activations refused {ftp_refusals}, accepted {ftp_activations}; reboots {reboots}",
+    "can_counters": "injected: duplicated sensor frames {dup_sensor}, duplicated ticks {dup_tick}, replayed old "
+                    "ticks {old_tick}, stale commands {stale_cmd}",
+}
+
+
 def _summary(name: str, fig: dict) -> str:
     """The figures worth a table column, per scenario."""
-    if name == "mav_hostile_core":
-        return (f"dropped unsigned {fig['dropped_unsigned']}, bad signature {fig['dropped_badsig']}, "
-                f"replay {fig['dropped_replay']}; parser errors {fig['parser_errors']}; FTP requests "
-                f"{fig['ftp_requests']}, NAKs {fig['ftp_naks']}, activations refused {fig['ftp_refusals']}, "
-                f"accepted {fig['ftp_activations']}; reboots {fig['reboots']}")
+    if name in _COUNTS:
+        return _COUNTS[name].format_map(fig)
     if name == "mav_hostile_udp":
         return (f"robot SYS_STATUS: rx dropped {fig.get('robot_rx_dropped')}, "
                 f"signing dropped {fig.get('robot_signing_dropped')}")
@@ -46,9 +53,6 @@ def _summary(name: str, fig: dict) -> str:
                 f"CAN errors counted {sum(r['can_errors'] for r in runs)}, control ticks "
                 f"{sum(r['ticks'] for r in runs)} of {sum(r['sim_ticks'] for r in runs)}, "
                 f"overruns {sum(r['overruns'] for r in runs)}")
-    if name == "can_counters":
-        return (f"injected: duplicated sensor frames {fig['dup_sensor']}, duplicated ticks {fig['dup_tick']}, "
-                f"replayed old ticks {fig['old_tick']}, stale commands {fig['stale_cmd']}")
     if name == "crash_kill9":
         return (f"actions {fig.get('actions')}, killed mid-activation {fig.get('killed_mid_activation', 0)}, "
                 f"windows (s) {fig.get('windows_s')}")

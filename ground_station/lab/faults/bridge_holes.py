@@ -325,8 +325,7 @@ def _trial(case: str, robot_port: int, op: _Operator, tmp: Path, figures: dict[s
 @register("bridge_holes", small=7, large=21, unit="bridge clients",
           what="Foxglove bridge: a page's Origin (403), no token (401), read-only default, goals in Hold dropped "
                "and refused by the robot: Hold stays Hold, no motion; a goal in Guided drives")
-def bridge_holes(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
-    res = ScenarioResult("bridge_holes")
+def bridge_holes(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     # each trial: a monitor's start, WATCH_S of watching and the operator's mode changes, ~8-12 s
     with tempfile.TemporaryDirectory() as tmpdir, _robot(Path(tmpdir), seed, 60 + 20 * count) as robot:
         tmp = Path(tmpdir)
@@ -342,7 +341,6 @@ def bridge_holes(count: int, seed: int = 0, progress: Any = None) -> ScenarioRes
                 res.check(problems, f"{case} #{i}")
         finally:
             op.close()
-    return res
 
 
 if __name__ == "__main__":  # a quick look: python -m ground_station.lab.faults.bridge_holes [COUNT]

@@ -34,7 +34,7 @@ import random
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import can
@@ -63,11 +63,24 @@ def _setup(seed: int, vehicle: VehicleConfig | None = None):
     return rng, LockstepRig(gm.occ, pol, start, [goal], seed=seed, vehicle=vehicle)
 
 
-def _episodes(count: int, first_seed: int, progress=None):  # type: ignore[no-untyped-def]
-    """(i, rng, rig) of `count` seeded episodes (seeds first_seed + i), `progress` ticked after each."""
+def _episodes(count: int, first_seed: int, progress: Any = None) -> Iterator[tuple[int, random.Random, Any, int]]:
+    """(i, rng, rig, t_fault) of `count` seeded episodes (seeds first_seed + i), `progress` ticked
+    after each; t_fault, the episode's first draw, is when its fault comes (`_fault_time`)."""
     for i in trials(count, progress):
         rng, rig = _setup(first_seed + i)
-        yield i, rng, rig
+        yield i, rng, rig, _fault_time(rng)
+
+
+def _stale_episodes(count: int, first_seed: int,
+                    progress: Any = None) -> Iterator[tuple[int, random.Random, Any, int, int]]:
+    """As `_episodes`, for faults judged by the staleness timeout: (i, pick, rig, t_fault, timeout_ms),
+    the controller's timeout (100/250/500 ms) the first draw of `pick`, the seeded source the
+    scenario then draws the rest of its fault from."""
+    for i in trials(count, progress):
+        pick = random.Random(first_seed + i)
+        timeout_ms = pick.choice((100, 250, 500))
+        rng, rig = _setup(first_seed + i, VehicleConfig(sensor_timeout_ms=timeout_ms))
+        yield i, pick, rig, _fault_time(rng), timeout_ms
 
 
 def _zero_from(rig: LockstepRig, t_us: int) -> list[str]:
@@ -120,6 +133,18 @@ def _stale_deadline(t_us: int, timeout_us: int) -> int:
     return t_us - PERIOD_US + timeout_us + PERIOD_US
 
 
+def _drive_stale(rig: LockstepRig, t_us: int, timeout_ms: int, when: str, hook: Callable) -> tuple[list[str], int]:
+    """Run `rig` with `hook` on its frames to `t_us`, where inputs stop being new (`_drive_to`, said
+    `when`), and on past the staleness deadline: (problems unless the commands stopped by the
+    deadline and stayed zero, the deadline)."""
+    problems: list[str] = []
+    with rig:
+        _drive_to(rig, t_us, when, problems, frames_hook=hook)
+        deadline = _stale_deadline(t_us, timeout_ms * 1000)
+        rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
+    return problems + _stopped_by(rig, t_us, deadline), deadline
+
+
 def _edit_after(t_from_us: int, message: str, edit: Callable[[dict], None]):
     """A frames hook that decodes every `message` frame from `t_from_us` on,
     lets `edit` change its signals in place and re-encodes it (a board that
@@ -142,35 +167,23 @@ def _edit_after(t_from_us: int, message: str, edit: Callable[[dict], None]):
 
 @register("can_sensor_stop", small=4, large=100, unit="episodes",
           what="input frames stop -> zero command within staleness timeout + 1 period, FAULT")
-def sensor_stop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_sensor_stop")
-    for i in trials(count, progress):
-        rng = random.Random(seed * 7919 + i)
-        timeout_ms = rng.choice((100, 250, 500))
-        cut = set(rng.sample(INPUT_FRAMES, rng.randint(1, len(INPUT_FRAMES))))
-        rng, rig = _setup(seed * 7919 + i, VehicleConfig(sensor_timeout_ms=timeout_ms))
-        t_cut = _fault_time(rng)
+def sensor_stop(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
+    for i, pick, rig, t_cut, timeout_ms in _stale_episodes(count, seed * 7919, progress):
+        cut = set(pick.sample(INPUT_FRAMES, pick.randint(1, len(INPUT_FRAMES))))
         ids = {cp.FRAME_IDS[n] for n in cut}
 
         def hook(_tick, t_us, frames, ids=ids, t_cut=t_cut):
             return frames if t_us < t_cut else [f for f in frames if f.arbitration_id not in ids]
 
-        problems: list[str] = []
-        with rig:
-            _drive_to(rig, t_cut, "at the cut", problems, frames_hook=hook)
-            deadline = _stale_deadline(t_cut, timeout_ms * 1000)
-            rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
-        problems += _stopped_by(rig, t_cut, deadline) + _fault_by(rig, t_cut, deadline)
+        problems, deadline = _drive_stale(rig, t_cut, timeout_ms, "at the cut", hook)
+        problems += _fault_by(rig, t_cut, deadline)
         res.check(problems, f"seed {seed}/{i} cut {sorted(cut)} at {t_cut} us, timeout {timeout_ms} ms")
-    return res
 
 
 @register("can_driver_fault", small=3, large=60, unit="episodes",
           what="motor driver error bits -> FAULT and zero command at that tick")
-def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_driver_fault")
-    for i, rng, rig in _episodes(count, seed * 7919 + 1000, progress):
-        t_fault = _fault_time(rng)
+def driver_fault(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
+    for i, rng, rig, t_fault in _episodes(count, seed * 7919 + 1000, progress):
         bits = rng.randint(1, 7)
 
         def set_errors(sig: dict, bits: int = bits) -> None:
@@ -184,15 +197,12 @@ def driver_fault(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             rig.run_until(t_fault + 6 * PERIOD_US, frames_hook=hook)
         problems += _fault_at(rig, t_fault)
         res.check(problems, f"seed {seed}/{i} errors 0x{bits:02x} at {t_fault} us")
-    return res
 
 
 @register("can_driver_watchdog", small=3, large=60, unit="episodes",
           what="commands stop reaching the driver -> its watchdog trips -> controller FAULT")
-def driver_watchdog(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_driver_watchdog")
-    for i, rng, rig in _episodes(count, seed * 7919 + 2000, progress):
-        t_cut = _fault_time(rng)
+def driver_watchdog(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
+    for i, _, rig, t_cut in _episodes(count, seed * 7919 + 2000, progress):
         wd_us = rig.plant.motors.p.watchdog_ms * 1000
         problems: list[str] = []
         with rig:
@@ -209,17 +219,14 @@ def driver_watchdog(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         else:
             problems += _zero_from(rig, fault.t_us)
         res.check(problems, f"seed {seed}/{i} commands cut at {t_cut} us")
-    return res
 
 
 @register("can_estop", small=3, large=60, unit="episodes",
           what="EStop from another node -> FAULT + zero at that tick; latched until disarm")
-def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_estop")
+def estop(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     senders = [n for n in (cp.NODE_BROADCAST, cp.NODE_MOTOR_DRIVER, cp.NODE_RANGE_BOARD,
                            cp.NODE_BUMPER_BOARD, cp.NODE_SIM) if n != cp.NODE_CONTROLLER]
-    for i, rng, rig in _episodes(count, seed * 7919 + 3000, progress):
-        t_stop = _fault_time(rng)
+    for i, rng, rig, t_stop in _episodes(count, seed * 7919 + 3000, progress):
         source = rng.choice(senders)
         hold_ticks = rng.randint(1, 10)
         problems: list[str] = []
@@ -249,13 +256,11 @@ def estop(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             rig.tick()
         problems += _fault_at(rig, t_stop, "e-stop")
         res.check(problems, f"seed {seed}/{i} e-stop from node {source} at {t_stop} us")
-    return res
 
 
 @register("can_counters", small=2, large=30, unit="episodes",
           what="duplicated/out-of-order frames and counters: goal reached, each tick stepped once")
-def counters(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_counters")
+def counters(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     injected = {"dup_sensor": 0, "dup_tick": 0, "old_tick": 0, "stale_cmd": 0}
     for i in trials(count, progress):
         rng, rig = _setup(seed * 7919 + 4000 + i)
@@ -308,7 +313,6 @@ def counters(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             problems.append(f"{overruns} overruns counted (no tick was lost)")
         res.check(problems, f"seed {seed}/{i}")
     res.figures.update(injected)
-    return res
 
 
 # --- garbage at 5 kHz, paced in real time --------------------------------------------------
@@ -415,8 +419,7 @@ def garbage_run(duration_s: float, seed: int, rate_hz: float = 5000.0) -> dict:
 
 @register("can_garbage", small=1, large=5, unit="runs of 4 s (test) / 20 s (bench) at 5 kHz",
           what="garbage frames at 5 kHz: every tick runs, every garbage frame counted, no fault")
-def garbage(count: int, seed: int = 0, progress=None, duration_s: float | None = None) -> ScenarioResult:
-    res = ScenarioResult("can_garbage")
+def garbage(res: ScenarioResult, count: int, seed: int, progress: Any, duration_s: float | None = None) -> None:
     if duration_s is None:
         duration_s = 4.0 if count <= 1 else 20.0
     runs = []
@@ -436,4 +439,3 @@ def garbage(count: int, seed: int = 0, progress=None, duration_s: float | None =
     res.figures["runs"] = runs
     res.figures["garbage_frames"] = sum(r["garbage_sent"] for r in runs)
     res.figures["min_rate_hz"] = min((r["garbage_rate_hz"] for r in runs), default=0.0)
-    return res

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,6 +49,7 @@ class ScenarioResult:
 
 
 Runner = Callable[..., ScenarioResult]
+Body = Callable[..., None]  # a scenario as written: fills in the result it is handed
 
 
 def trials(count: int, progress: Any = None) -> Iterator[int]:
@@ -72,8 +74,16 @@ class Scenario:
 SCENARIOS: dict[str, Scenario] = {}
 
 
-def register(name: str, small: int, large: int, unit: str, what: str) -> Callable[[Runner], Runner]:
-    def deco(fn: Runner) -> Runner:
-        SCENARIOS[name] = Scenario(name, fn, small, large, unit, what)
-        return fn
+def register(name: str, small: int, large: int, unit: str, what: str) -> Callable[[Body], Runner]:
+    """Register the scenario `name` given as its body, `body(res, count, seed, progress, **options)`,
+    which fills in `res`; the runner it becomes, `run(count, seed=0, progress=None, **options)`,
+    makes that result under the registered name and returns it, so no scenario repeats either."""
+    def deco(body: Body) -> Runner:
+        @functools.wraps(body)
+        def run(count: int, seed: int = 0, progress: Any = None, **options: Any) -> ScenarioResult:
+            res = ScenarioResult(name)
+            body(res, count, seed, progress, **options)
+            return res
+        SCENARIOS[name] = Scenario(name, run, small, large, unit, what)
+        return run
     return deco

@@ -103,8 +103,7 @@ def _attack_frames(attack: str, op: _Operator, foreign: _Operator, gm_goal: tupl
 @register("mav_foreign_control", small=6, large=60, unit="attacks (3 s each)",
           what="another system's sticks / RC override / mode+goal / PARAM_SET, or broadcast sticks, while the "
                "operator has the robot armed in Manual -> 0 non-zero wheel commands; the operator still steers")
-def foreign_control(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("mav_foreign_control")
+def foreign_control(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     moving_by_attack: dict[str, int] = {}
     refusal_texts = 0
     for i in trials(count, progress):
@@ -149,14 +148,12 @@ def foreign_control(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         res.check(problems, f"seed {seed}/{i} {attack}")
     res.figures["non_zero_commands_by_attack"] = moving_by_attack
     res.figures["refusal_statustexts"] = refusal_texts
-    return res
 
 
 @register("mav_param_list_flood", small=2, large=20, unit="episodes",
           what="1,500 PARAM_REQUEST_LIST/s from another system while the operator drives in Manual: Hold ACKed "
                "at once and the next command zero / deadman within 0.5 s; PARAM_VALUEs within the stream rate")
-def param_list_flood(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("mav_param_list_flood")
+def param_list_flood(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     worst_rate = 0.0
     values_per_request: list[float] = []
     worst_deadman_us = 0
@@ -241,7 +238,6 @@ def param_list_flood(count: int, seed: int = 0, progress=None) -> ScenarioResult
     res.figures["param_values_per_s_max"] = round(worst_rate, 1)
     res.figures["param_values_per_request"] = round(max(values_per_request, default=0.0), 3)
     res.figures["deadman_stop_ms_max"] = worst_deadman_us / 1000
-    return res
 
 
 def _record(out: list, now_us: int, values: list[tuple[int, int]], acks: list[tuple[int, int, int]]) -> None:
@@ -287,14 +283,38 @@ class _ListFlood(threading.Thread):
         self.conn.close()
 
 
+def _hold_in_list_flood(link: Any, _beats: Any, url: str, rate_hz: float, seed: int, row: dict[str, Any],
+                        problems: list[str]) -> None:
+    """One run of `param_list_flood_hil` on the armed robot: the flood for 1-2 s, then the
+    operator's SET_MODE Hold; what came back goes into `row`, what went wrong into `problems`."""
+    flood = _ListFlood(url, rate_hz)
+    flood.start()
+    try:
+        time.sleep(1.0 + random.Random(seed).random())
+        stamp = None
+        while (msg := link.conn.recv_match(blocking=False)) is not None:
+            stamp = getattr(msg, "time_boot_ms", None) or stamp
+        m = link.m
+        t_send = time.monotonic()
+        link.conn.mav.set_mode_send(link.sysid, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.HOLD))
+        ack = link.recv("COMMAND_ACK", 1.0, cond=lambda a, c=m.MAV_CMD_DO_SET_MODE: a.command == c)
+        row["ack_after_ms"] = None if ack is None else round((time.monotonic() - t_send) * 1000, 1)
+        row["robot_ms_before_send"] = stamp
+        if ack is None or ack.result != m.MAV_RESULT_ACCEPTED:
+            problems.append(f"first SET_MODE Hold not ACKed within 1 s ({ack})")
+        time.sleep(1.0)
+    finally:
+        flood.stop.set()
+        flood.join(2)
+        row.update(flood_sent=flood.sent, flood_answers=flood.answers)
+
+
 @register("param_list_flood_hil", small=1, large=5, unit="runs",
           what="paced HIL, 1,500 PARAM_REQUEST_LIST/s from another system: the operator's first SET_MODE Hold "
                "ACKed and HOLD within 0.5 s of robot time")
-def param_list_flood_hil(count: int, seed: int = 0, progress: Any = None, rate_hz: float = 1500.0) -> ScenarioResult:
-    from ground_station.lab.faults.floods import _Heartbeats, _wait_armed, driving_robot
-    from ground_station.mavlink.link import Link, LinkError
+def param_list_flood_hil(res: ScenarioResult, count: int, seed: int, progress: Any, rate_hz: float = 1500.0) -> None:
+    from ground_station.lab.faults.floods import _as_operator, driving_robot
 
-    res = ScenarioResult("param_list_flood_hil")
     runs = []
     for i in trials(count, progress):
         s = seed * 1000 + 4300 + i
@@ -302,41 +322,7 @@ def param_list_flood_hil(count: int, seed: int = 0, progress: Any = None, rate_h
         row: dict[str, Any] = {"seed": s}
         with tempfile.TemporaryDirectory(prefix="qnav-listflood-") as tmp, \
                 driving_robot(Path(tmp), s, 60.0) as ctx:
-            link = Link(ctx["robot"].url, tlog=False)
-            beats: _Heartbeats | None = None
-            flood: _ListFlood | None = None
-            try:
-                link.connect(30.0)
-                beats = _Heartbeats(link)
-                beats.start()
-                if not _wait_armed(link, 20.0, beats.stop):
-                    problems.append("setup: the robot did not arm")
-                flood = _ListFlood(ctx["robot"].url, rate_hz)
-                flood.start()
-                time.sleep(1.0 + random.Random(s).random())
-                stamp = None
-                while (msg := link.conn.recv_match(blocking=False)) is not None:
-                    stamp = getattr(msg, "time_boot_ms", None) or stamp
-                m = link.m
-                t_send = time.monotonic()
-                link.conn.mav.set_mode_send(link.sysid, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.HOLD))
-                ack = link.recv("COMMAND_ACK", 1.0, cond=lambda a, c=m.MAV_CMD_DO_SET_MODE: a.command == c)
-                row["ack_after_ms"] = None if ack is None else round((time.monotonic() - t_send) * 1000, 1)
-                row["robot_ms_before_send"] = stamp
-                if ack is None or ack.result != m.MAV_RESULT_ACCEPTED:
-                    problems.append(f"first SET_MODE Hold not ACKed within 1 s ({ack})")
-                time.sleep(1.0)
-            except LinkError as exc:
-                problems.append(f"setup: {exc}")
-            finally:
-                if flood is not None:
-                    flood.stop.set()
-                    flood.join(2)
-                    row.update(flood_sent=flood.sent, flood_answers=flood.answers)
-                if beats is not None:
-                    beats.stop.set()
-                    beats.join(2)
-                link.close()
+            _as_operator(ctx["robot"].url, problems, _hold_in_list_flood, ctx["robot"].url, rate_hz, s, row, problems)
         problems += ctx["problems"]
         st = ctx.get("stats")
         if st and row.get("robot_ms_before_send") is not None:
@@ -356,4 +342,3 @@ def param_list_flood_hil(count: int, seed: int = 0, progress: Any = None, rate_h
         runs.append(row)
         res.check(problems, f"run {i} seed {s}")
     res.figures["runs"] = runs
-    return res

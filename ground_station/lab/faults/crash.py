@@ -232,8 +232,7 @@ def _run_killed(target, delay_s: float, crasher: Crasher) -> tuple[bool, str]:
 
 @register("crash_kill9", small=3, large=50, unit="kill -9 of qnav-robot",
           what="kill -9 during upload/activation/param saves: restart boots a complete last-good version")
-def crash_kill9(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("crash_kill9")
+def crash_kill9(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     actions = {"upload": 0, "activate": 0, "params": 0}
     with tempfile.TemporaryDirectory(prefix="qnav-crash-") as tmp:
         c = Crasher(Path(tmp), seed)
@@ -279,4 +278,3 @@ def crash_kill9(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         finally:
             c.stop_robot()
     res.figures["actions"] = actions
-    return res

@@ -35,6 +35,7 @@ import random
 import threading
 import time
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +64,19 @@ def _rig(seed: int, goals: bool, answer_timeout_s: float = 60.0) -> Any:
     start, goal = far_trip(gm, pol, random.Random(seed))
     return LockstepRig(gm.occ, pol, start, [goal] if goals else [], robot=load_profile(PROFILE), seed=seed,
                        answer_timeout_s=answer_timeout_s)
+
+
+def _runs(res: ScenarioResult, count: int, seed: int, progress: Any, first_seed: int, goals: bool,
+          run: Callable[[Any, int, list[str]], dict[str, Any]]) -> list[dict[str, Any]]:
+    """`count` trials `run(rig, i, problems)`, each on a fresh `_rig` (seed first_seed + i) that it
+    enters, checked as `seed {seed}/{i}`; the figures it returns are res.figures["runs"] (returned)."""
+    runs = []
+    for i in trials(count, progress):
+        problems: list[str] = []
+        runs.append(run(_rig(first_seed + i, goals=goals), i, problems))
+        res.check(problems, f"seed {seed}/{i}")
+    res.figures["runs"] = runs
+    return runs
 
 
 def _backend(rig: Any) -> Any:
@@ -128,8 +142,7 @@ def flood_frames(kind: str, n: int) -> tuple[can.Message, list[can.Message], can
 @register("dronecan_reassembly_flood", small=1, large=4, unit="floods of 100,000 frames",
           what="an unfinished DroneCAN transfer fed 100,000 continuation frames: < 1 MB kept, "
                "its end frame's tick and every frame's handling < 50 ms, every tick answered, no FAULT")
-def reassembly_flood(count: int, seed: int = 0, progress: Any = None, frames: int = FLOOD_FRAMES) -> ScenarioResult:
-    res = ScenarioResult("dronecan_reassembly_flood")
+def reassembly_flood(res: ScenarioResult, count: int, seed: int, progress: Any, frames: int = FLOOD_FRAMES) -> None:
     runs = []
     for i in trials(count, progress):
         kind = FLOOD_KINDS[i % len(FLOOD_KINDS)]
@@ -180,7 +193,6 @@ def reassembly_flood(count: int, seed: int = 0, progress: Any = None, frames: in
     res.figures["held_bytes_max"] = max((r["held_bytes"] for r in runs), default=0)
     res.figures["end_tick_ms_max"] = max((r["end_tick_ms"] for r in runs), default=0.0)
     res.figures["end_take_ms_max"] = max((r["end_take_ms"] for r in runs), default=0.0)
-    return res
 
 
 # --- service flood ------------------------------------------------------------------------------
@@ -215,53 +227,50 @@ def _is_command(f: can.Message, node_id: int) -> bool:
 @register("dronecan_service_flood", small=2, large=20, unit="ticks with 50 GetNodeInfo requests",
           what="50 GetNodeInfo requests in one tick while driving: no answer frame ahead of the wheel "
                "command, at most one answer a tick, every requester answered later")
-def service_flood(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
-    res = ScenarioResult("dronecan_service_flood")
-    runs = []
-    for i in trials(count, progress):
-        problems: list[str] = []
-        with _rig(seed * 7919 + 43_500 + i, goals=True) as rig:
-            node_id = _backend(rig).engine.node_id
-            rig.run_until(1_500_000 + 50_000 * i)
-            listener = can.Bus(interface="virtual", channel=rig.node_bus.channel_id)
-            try:
-                for f in node_info_requests(node_id, REQUESTS):
-                    rig.send(f)
-                rig.tick()
-                tick1 = _drain(listener)
-                rest = []
-                per_tick = []
-                for _ in range(200):  # 10 s of ticks: the rest of the answers at the backend's rate
-                    rig.tick()
-                    got = _drain(listener)
-                    per_tick.append(sum(_is_answer(f, node_id) for f in got))
-                    rest += got
-            finally:
-                listener.shutdown()
-            fault = rig.first_transition_to(CtrlState.FAULT)
-        robot = [f for f in tick1 if f.is_extended_id and f.arbitration_id & 0x7F == node_id]
-        cmd_at = next((k for k, f in enumerate(robot) if _is_command(f, node_id)), None)
-        ahead = [f for f in robot[:cmd_at] if _is_answer(f, node_id)] if cmd_at is not None else []
-        after = [f for f in robot[(cmd_at or 0):] if _is_answer(f, node_id)]
-        answered = _answered(tick1 + rest, node_id)
-        run = {"answer_frames_ahead": len(ahead), "bus_ms_ahead": round(bus_us(ahead) / 1e3, 2),
-               "answer_frames_after": len(after), "max_answer_frames_later_tick": max(per_tick, default=0),
-               "requesters_answered_10s": len(answered)}
-        runs.append(run)
-        if cmd_at is None:
-            problems.append("no esc.RPMCommand in the tick with the requests")
-        if ahead:
-            problems.append(f"{len(ahead)} answer frames ({bus_us(ahead) / 1e3:.1f} ms of the bus) ahead of the command")
-        if len(after) > 9 or max(per_tick, default=0) > 9:
-            problems.append(f"{max([len(after), *per_tick])} answer frames in one tick")
-        if len(answered) < 10:
-            problems.append(f"only {len(answered)} of {REQUESTS} requesters answered in 10 s")
-        if fault is not None:
-            problems.append(f"FAULT: {fault.cause}")
-        res.check(problems, f"seed {seed}/{i}")
-    res.figures["runs"] = runs
+def service_flood(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
+    runs = _runs(res, count, seed, progress, seed * 7919 + 43_500, True, _service_flood_run)
     res.figures["answer_frames_ahead_max"] = max((r["answer_frames_ahead"] for r in runs), default=0)
-    return res
+
+
+def _service_flood_run(rig: Any, i: int, problems: list[str]) -> dict[str, Any]:
+    with rig:
+        node_id = _backend(rig).engine.node_id
+        rig.run_until(1_500_000 + 50_000 * i)
+        listener = can.Bus(interface="virtual", channel=rig.node_bus.channel_id)
+        try:
+            for f in node_info_requests(node_id, REQUESTS):
+                rig.send(f)
+            rig.tick()
+            tick1 = _drain(listener)
+            rest = []
+            per_tick = []
+            for _ in range(200):  # 10 s of ticks: the rest of the answers at the backend's rate
+                rig.tick()
+                got = _drain(listener)
+                per_tick.append(sum(_is_answer(f, node_id) for f in got))
+                rest += got
+        finally:
+            listener.shutdown()
+        fault = rig.first_transition_to(CtrlState.FAULT)
+    robot = [f for f in tick1 if f.is_extended_id and f.arbitration_id & 0x7F == node_id]
+    cmd_at = next((k for k, f in enumerate(robot) if _is_command(f, node_id)), None)
+    ahead = [f for f in robot[:cmd_at] if _is_answer(f, node_id)] if cmd_at is not None else []
+    after = [f for f in robot[(cmd_at or 0):] if _is_answer(f, node_id)]
+    answered = _answered(tick1 + rest, node_id)
+    run = {"answer_frames_ahead": len(ahead), "bus_ms_ahead": round(bus_us(ahead) / 1e3, 2),
+           "answer_frames_after": len(after), "max_answer_frames_later_tick": max(per_tick, default=0),
+           "requesters_answered_10s": len(answered)}
+    if cmd_at is None:
+        problems.append("no esc.RPMCommand in the tick with the requests")
+    if ahead:
+        problems.append(f"{len(ahead)} answer frames ({bus_us(ahead) / 1e3:.1f} ms of the bus) ahead of the command")
+    if len(after) > 9 or max(per_tick, default=0) > 9:
+        problems.append(f"{max([len(after), *per_tick])} answer frames in one tick")
+    if len(answered) < 10:
+        problems.append(f"only {len(answered)} of {REQUESTS} requesters answered in 10 s")
+    if fault is not None:
+        problems.append(f"FAULT: {fault.cause}")
+    return run
 
 
 def _drain(bus: can.BusABC) -> list[can.Message]:
@@ -320,42 +329,39 @@ def check_lines(node_id: int, listen_s: float = 0.6) -> list[str]:
 @register("dronecan_node_id_collision", small=1, large=5, unit="collisions",
           what="another node sending NodeStatus with the robot's DroneCAN node id: arming refused naming it, "
                "--check reports it; armed again once it is quiet 3 s")
-def node_id_collision(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
-    res = ScenarioResult("dronecan_node_id_collision")
-    runs = []
-    for i in trials(count, progress):
-        problems: list[str] = []
-        with _rig(seed * 7919 + 44_000 + i, goals=False) as rig:
-            backend = _backend(rig)
-            node_id = backend.engine.node_id
-            rig.run_until(1_000_000)
-            for k in range(3):  # 1 Hz, as a node's NodeStatus
-                rig.send(node_status_frame(node_id, 100 + k, k))
-                rig.run_until(rig.time_us + 1_000_000)
-            said_events = [e.text for e in rig.ctrl.drain_events() if f"node id {node_id}" in e.text]
-            if len(said_events) != 1:  # the STATUSTEXT the link sends: once, when it began
-                problems.append(f"{len(said_events)} events naming the collision (one expected)")
-            ok, why = rig.ctrl.arm()
-            detail = str(rig.node.inputs.snapshot().__dict__.get("arm_block", ""))
-            if ok:
-                problems.append("armed while another node uses the robot's node id")
-                rig.ctrl.disarm()
-            elif f"node id {node_id}" not in why:
-                problems.append(f"refused, but not naming the collision: {why!r}")
-            rig.run_until(rig.time_us + int((HOLD_S + 0.5) * 1e6))  # the other node quiet
-            ok_after, why_after = rig.ctrl.arm()
-            if not ok_after:
-                problems.append(f"still refused {HOLD_S + 0.5:.1f} s after the last colliding frame: {why_after}")
-            stats = rig.node.drive.stats()
-        lines = check_lines(node_id)
-        said = [ln for ln in lines if ln.startswith("PROBLEM") and f"node id {node_id}" in ln]
-        if not said:
-            problems.append("qnav-robot --check did not report the collision")
-        runs.append({"refused": not ok, "why": why, "detail": detail, "armed_after": ok_after,
-                     "check_line": said[0] if said else "", "collision_frames": stats.get("dronecan_collision_frames")})
-        res.check(problems, f"seed {seed}/{i}")
-    res.figures["runs"] = runs
-    return res
+def node_id_collision(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
+    _runs(res, count, seed, progress, seed * 7919 + 44_000, False, _collision_run)
+
+
+def _collision_run(rig: Any, _i: int, problems: list[str]) -> dict[str, Any]:
+    with rig:
+        backend = _backend(rig)
+        node_id = backend.engine.node_id
+        rig.run_until(1_000_000)
+        for k in range(3):  # 1 Hz, as a node's NodeStatus
+            rig.send(node_status_frame(node_id, 100 + k, k))
+            rig.run_until(rig.time_us + 1_000_000)
+        said_events = [e.text for e in rig.ctrl.drain_events() if f"node id {node_id}" in e.text]
+        if len(said_events) != 1:  # the STATUSTEXT the link sends: once, when it began
+            problems.append(f"{len(said_events)} events naming the collision (one expected)")
+        ok, why = rig.ctrl.arm()
+        detail = str(rig.node.inputs.snapshot().__dict__.get("arm_block", ""))
+        if ok:
+            problems.append("armed while another node uses the robot's node id")
+            rig.ctrl.disarm()
+        elif f"node id {node_id}" not in why:
+            problems.append(f"refused, but not naming the collision: {why!r}")
+        rig.run_until(rig.time_us + int((HOLD_S + 0.5) * 1e6))  # the other node quiet
+        ok_after, why_after = rig.ctrl.arm()
+        if not ok_after:
+            problems.append(f"still refused {HOLD_S + 0.5:.1f} s after the last colliding frame: {why_after}")
+        stats = rig.node.drive.stats()
+    lines = check_lines(node_id)
+    said = [ln for ln in lines if ln.startswith("PROBLEM") and f"node id {node_id}" in ln]
+    if not said:
+        problems.append("qnav-robot --check did not report the collision")
+    return {"refused": not ok, "why": why, "detail": detail, "armed_after": ok_after,
+            "check_line": said[0] if said else "", "collision_frames": stats.get("dronecan_collision_frames")}
 
 
 def summary(res: ScenarioResult) -> str:

@@ -41,7 +41,7 @@ import struct
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
@@ -136,6 +136,34 @@ def _wait_armed(link: Any, timeout_s: float, beat: threading.Event) -> bool:
     return False
 
 
+def _as_operator(url: str, problems: list[str], body: Callable[..., None], *args: Any,
+                 params: tuple[tuple[str, int], ...] = ()) -> None:
+    """`body(link, beats, *args)` with the operator's `Link` to the robot at `url` connected,
+    beating (`beats`, a `_Heartbeats` the body may stop), `params` set and the robot armed, else a
+    setup problem in `problems`, as is a LinkError out of the body; the heartbeats stop and the
+    link closes after."""
+    from ground_station.mavlink.link import Link, LinkError
+
+    link = Link(url, tlog=False)
+    beats: _Heartbeats | None = None
+    try:
+        link.connect(30.0)
+        beats = _Heartbeats(link)  # first: a short failsafe timeout must not run out during the setup
+        beats.start()
+        for name, value in params:
+            link.param_set(name, value)
+        if not _wait_armed(link, 20.0, beats.stop):
+            problems.append("setup: the robot did not arm")
+        body(link, beats, *args)
+    except LinkError as exc:
+        problems.append(f"setup: {exc}")
+    finally:
+        if beats is not None:
+            beats.stop.set()
+            beats.join(2)
+        link.close()
+
+
 class _Heartbeats(threading.Thread):
     """A ground station's heartbeats at 4 Hz until `stop` is set."""
 
@@ -196,67 +224,54 @@ def _sys_status(link: Any) -> Any:
 
 @register("floods", small=3, large=9, unit="floods (600 PARAM_SET / 300 PARAM_REQUEST_LIST / 150 CRC32 of 6 MB)",
           what="MAVLink floods while driving in paced HIL: no FAULT, no missed tick, robot answers")
-def floods(count: int, seed: int = 0, progress: Any = None, duration_s: float | None = None,
-           counts: dict[str, int] | None = None, wall_strict: bool = False) -> ScenarioResult:
+def floods(res: ScenarioResult, count: int, seed: int, progress: Any, duration_s: float | None = None,
+           counts: dict[str, int] | None = None, wall_strict: bool = False) -> None:
     """Flood i is FLOOD_KINDS[i % 3]; all of them in one robot run, plus one
     end-of-run trial on the robot's stats."""
-    from ground_station.mavlink.link import Link, LinkError
+    from ground_station.mavlink.link import LinkError
 
     counts = counts or FLOOD_COUNTS
-    res = ScenarioResult("floods")
     kinds = [FLOOD_KINDS[i % len(FLOOD_KINDS)] for i in range(count)]
     if duration_s is None:  # a cap (the run ends with the floods): 4-5 s a flood on a busy machine
         duration_s = 60.0 + 15.0 * count
     rows: list[dict[str, Any]] = []
+
+    def each_flood(link: Any, _beats: _Heartbeats) -> None:
+        for kind in kinds:
+            st0 = _sys_status(link)
+            row = flood(link, kind, counts[kind])
+            problems = []
+            hb = link.recv("HEARTBEAT", 2.0)
+            if hb is None:
+                problems.append("no HEARTBEAT after the flood")
+            elif hb.system_status in (MAV_STATE_CRITICAL, MAV_STATE_EMERGENCY):
+                problems.append(f"robot HEARTBEAT system_status {hb.system_status} (FAULT)")
+            try:
+                link.param_get("SYSID_THISMAV", timeout_s=1.0, retries=5)
+            except LinkError as exc:
+                problems.append(f"no PARAM_VALUE after the flood: {exc}")
+            st1 = _sys_status(link)
+            if st0 is None or st1 is None:
+                problems.append("no SYS_STATUS around the flood")
+            else:
+                row["wall_overruns_during"] = st1.errors_count2 - st0.errors_count2
+                if wall_strict and st1.errors_count2 > st0.errors_count2:
+                    problems.append(f"{row['wall_overruns_during']} control periods lost during the flood")
+            row["problems"] = problems
+            rows.append(row)
+            res.check(problems, f"flood {kind}")
+            if progress is not None:
+                progress.update(1)
+
     with tempfile.TemporaryDirectory(prefix="qnav-floods-") as tmp, \
             driving_robot(Path(tmp), seed, duration_s, big_file=True) as ctx:
-        link = Link(ctx["robot"].url, tlog=False)
-        beats: _Heartbeats | None = None
-        try:
-            link.connect(30.0)
-            beats = _Heartbeats(link)
-            beats.start()
-            if not _wait_armed(link, 20.0, beats.stop):
-                ctx["problems"].append("setup: the robot did not arm")
-            for kind in kinds:
-                st0 = _sys_status(link)
-                row = flood(link, kind, counts[kind])
-                problems = []
-                hb = link.recv("HEARTBEAT", 2.0)
-                if hb is None:
-                    problems.append("no HEARTBEAT after the flood")
-                elif hb.system_status in (MAV_STATE_CRITICAL, MAV_STATE_EMERGENCY):
-                    problems.append(f"robot HEARTBEAT system_status {hb.system_status} (FAULT)")
-                try:
-                    link.param_get("SYSID_THISMAV", timeout_s=1.0, retries=5)
-                except LinkError as exc:
-                    problems.append(f"no PARAM_VALUE after the flood: {exc}")
-                st1 = _sys_status(link)
-                if st0 is None or st1 is None:
-                    problems.append("no SYS_STATUS around the flood")
-                else:
-                    row["wall_overruns_during"] = st1.errors_count2 - st0.errors_count2
-                    if wall_strict and st1.errors_count2 > st0.errors_count2:
-                        problems.append(f"{row['wall_overruns_during']} control periods lost during the flood")
-                row["problems"] = problems
-                rows.append(row)
-                res.check(problems, f"flood {kind}")
-                if progress is not None:
-                    progress.update(1)
-        except LinkError as exc:
-            ctx["problems"].append(f"setup: {exc}")
-        finally:
-            if beats is not None:
-                beats.stop.set()
-                beats.join(2)
-            link.close()
+        _as_operator(ctx["robot"].url, ctx["problems"], each_flood)
     st = ctx.get("stats")
     end = list(ctx["problems"]) + (run_problems(st, wall_strict) if st else [])
     res.check(end, "end of run")
     res.figures["floods"] = rows
     if st:
         res.figures["robot"] = {k: v for k, v in st.items() if k != "transitions"}
-    return res
 
 
 # --- GCS failsafe under garbage -------------------------------------------------------------
@@ -316,13 +331,26 @@ class _Garbage(threading.Thread):
         self.conn.close()
 
 
+def _silent_in_garbage(link: Any, beats: _Heartbeats, url: str, seed: int, row: dict[str, Any]) -> None:
+    """One run of `failsafe_garbage` on the armed robot: garbage with the heartbeats, then the
+    heartbeats stop and the garbage goes on through the failsafe timeout."""
+    garbage = _Garbage(url, seed)
+    garbage.start()
+    try:
+        time.sleep(1.0 + random.Random(seed).random())  # garbage and heartbeats together
+        beats.stop.set()
+        beats.join(2)
+        time.sleep(FS_TIMEOUT_MS / 1000 + 1.5)  # garbage goes on through the timeout
+    finally:
+        garbage.stop.set()
+        garbage.join(2)
+        row["garbage_sent"] = garbage.sent
+
+
 @register("failsafe_garbage", small=1, large=5, unit="runs",
           what="GCS heartbeats stop while malformed frames flood in: Hold within timeout + 1 period")
-def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
-                     duration_s: float = 60.0, wall_strict: bool = False) -> ScenarioResult:
-    from ground_station.mavlink.link import Link, LinkError
-
-    res = ScenarioResult("failsafe_garbage")
+def failsafe_garbage(res: ScenarioResult, count: int, seed: int, progress: Any,
+                     duration_s: float = 60.0, wall_strict: bool = False) -> None:
     runs = []
     for i in trials(count, progress):
         s = seed * 1000 + i
@@ -330,33 +358,8 @@ def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
         row: dict[str, Any] = {"seed": s}
         with tempfile.TemporaryDirectory(prefix="qnav-fsgarbage-") as tmp, \
                 driving_robot(Path(tmp), s, duration_s) as ctx:
-            link = Link(ctx["robot"].url, tlog=False)
-            beats: _Heartbeats | None = None
-            garbage: _Garbage | None = None
-            try:
-                link.connect(30.0)
-                beats = _Heartbeats(link)  # first: a 1 s timeout must not run out during the setup
-                beats.start()
-                for name, value in (("FS_GCS_TOUT_MS", FS_TIMEOUT_MS), ("FS_GCS_ACTION", 1)):
-                    link.param_set(name, value)
-                if not _wait_armed(link, 20.0, beats.stop):
-                    problems.append("setup: the robot did not arm")
-                garbage = _Garbage(ctx["robot"].url, s)
-                garbage.start()
-                time.sleep(1.0 + random.Random(s).random())  # garbage and heartbeats together
-                beats.stop.set()
-                beats.join(2)
-                time.sleep(FS_TIMEOUT_MS / 1000 + 1.5)  # garbage goes on through the timeout
-            except LinkError as exc:
-                problems.append(f"setup: {exc}")
-            finally:
-                if garbage is not None:
-                    garbage.stop.set()
-                    garbage.join(2)
-                    row["garbage_sent"] = garbage.sent
-                if beats is not None:
-                    beats.stop.set()
-                link.close()
+            _as_operator(ctx["robot"].url, problems, _silent_in_garbage, ctx["robot"].url, s, row,
+                         params=(("FS_GCS_TOUT_MS", FS_TIMEOUT_MS), ("FS_GCS_ACTION", 1)))
         problems += ctx["problems"]
         st = ctx.get("stats")
         if st:
@@ -371,7 +374,6 @@ def failsafe_garbage(count: int, seed: int = 0, progress: Any = None,
         runs.append(row)
         res.check(problems, f"run {i} seed {s}")
     res.figures["runs"] = runs
-    return res
 
 
 def _failsafe_transition(st: dict[str, Any]) -> list[Any] | None:

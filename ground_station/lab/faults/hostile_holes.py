@@ -53,8 +53,9 @@ from typing import Any
 
 from firmware_py import can_protocol as cp
 from firmware_py.mavlink.dialect import NAME as DIALECT
-from firmware_py.vehicle import CtrlState, VehicleConfig
+from firmware_py.vehicle import CtrlState
 from ground_station.lab.faults.can_faults import (
+    _drive_stale,
     _drive_to,
     _edit_after,
     _episodes,
@@ -64,7 +65,7 @@ from ground_station.lab.faults.can_faults import (
     _first_fault,
     _setup,
     _stale_deadline,
-    _stopped_by,
+    _stale_episodes,
 )
 from ground_station.lab.faults.common import ScenarioResult, register, trials
 from ground_station.lab.faults.hostile_mav import _dialect
@@ -79,8 +80,7 @@ FOREIGN_GCS = (77, GCS_COMPID)
 
 @register("can_future_tick", small=2, large=40, unit="episodes",
           what="forged far-future SimTick dropped: every tick answered, no FAULT; later sensor cut still detected")
-def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_future_tick")
+def future_tick(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     refused = 0
     for i in trials(count, progress):
         rng, rig = _setup(seed * 7919 + 5000 + i)
@@ -111,19 +111,16 @@ def future_tick(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         problems += [f"sensor cut after the forgery: {p}" for p in _fault_by(rig, t_cut, deadline)]
         res.check(problems, f"seed {seed}/{i} forged {forged_us} us at {t_forge} us")
     res.figures["refused_jumps"] = refused
-    return res
 
 
 @register("can_forged_tick_pace", small=2, large=20, unit="episodes",
           what="a forged next SimTick 240 ms ahead every 0.5 s for 4 s (under the jump bound): refused, "
                "every real tick answered, clock = sim time, no FAULT")
-def forged_tick_pace(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def forged_tick_pace(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     """Issue 29 finding 6: before the tick gate, each forged tick moved the
     clock 240 ms ahead; the real ticks then counted as repeats or stood still,
     75 ticks were lost and the motor driver's watchdog tripped at 4 s."""
-    res = ScenarioResult("can_forged_tick_pace")
-    for i, rng, rig in _episodes(count, seed * 7919 + 9000, progress):
-        t0 = _fault_time(rng)
+    for i, _, rig, t0 in _episodes(count, seed * 7919 + 9000, progress):
         problems: list[str] = []
         forged = 0
         with rig:
@@ -144,15 +141,12 @@ def forged_tick_pace(count: int, seed: int = 0, progress=None) -> ScenarioResult
                 problems.append(f"FAULT after the forged ticks: {rig.ctrl.fault}")
         res.figures["refused"] = res.figures.get("refused", 0) + n_refused
         res.check(problems, f"seed {seed}/{i} forged from {t0} us")
-    return res
 
 
 @register("can_encoder_jump", small=2, large=40, unit="episodes",
           what="encoder counts jump -> FAULT with the reason and zero command at that tick, pose kept")
-def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_encoder_jump")
-    for i, rng, rig in _episodes(count, seed * 7919 + 6000, progress):
-        t_jump = _fault_time(rng)
+def encoder_jump(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
+    for i, rng, rig, t_jump in _episodes(count, seed * 7919 + 6000, progress):
         jump = rng.choice((3000, -3000, 10**6, -(10**6), 1 << 26)) * rng.choice((1, 1, 2))
         side = rng.choice(("Enc_Left", "Enc_Right"))
 
@@ -171,20 +165,14 @@ def encoder_jump(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         if moved >= 100:
             problems.append(f"pose estimate moved {moved:.0f} mm after the jump")
         res.check(problems, f"seed {seed}/{i} {side} +{jump} ticks at {t_jump} us")
-    return res
 
 
 @register("can_frozen_sensor", small=3, large=60, unit="episodes",
           what="a board re-sends one frame forever -> zero command and FAULT '... frozen' within timeout + 1 period")
-def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("can_frozen_sensor")
+def frozen_sensor(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     names = [*sorted(SENSOR_FRAMES), "MotorStatus"]  # the driver status carries a rolling counter too
-    for i in trials(count, progress):
-        rng = random.Random(seed * 7919 + 7000 + i)
-        timeout_ms = rng.choice((100, 250, 500))
-        name = rng.choice(names)
-        rng, rig = _setup(seed * 7919 + 7000 + i, VehicleConfig(sensor_timeout_ms=timeout_ms))
-        t_freeze = _fault_time(rng)
+    for i, pick, rig, t_freeze, timeout_ms in _stale_episodes(count, seed * 7919 + 7000, progress):
+        name = pick.choice(names)
         fid = cp.FRAME_IDS[name]
         last: list = []
 
@@ -199,12 +187,7 @@ def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                 out.append(f)
             return out
 
-        problems: list[str] = []
-        with rig:
-            _drive_to(rig, t_freeze, "at the freeze", problems, frames_hook=hook)
-            deadline = _stale_deadline(t_freeze, timeout_ms * 1000)
-            rig.run_until(deadline + 4 * PERIOD_US, frames_hook=hook)
-        problems += _stopped_by(rig, t_freeze, deadline)
+        problems, deadline = _drive_stale(rig, t_freeze, timeout_ms, "at the freeze", hook)
         fault = _first_fault(rig, t_freeze)
         if fault is None or fault.t_us > deadline or "frozen" not in fault.cause:
             problems.append(f"no FAULT '... frozen' by {deadline} us ({fault})")
@@ -212,7 +195,6 @@ def frozen_sensor(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             late = fault.t_us - (t_freeze - PERIOD_US) - timeout_ms * 1000
             res.figures["max_us_after_timeout"] = max(res.figures.get("max_us_after_timeout", 0), late)
         res.check(problems, f"seed {seed}/{i} {name} frozen at {t_freeze} us, timeout {timeout_ms} ms")
-    return res
 
 
 # --- MAVLink ---------------------------------------------------------------------------------------
@@ -285,10 +267,10 @@ def _garbage(m, rng: random.Random, codec) -> list[bytes]:
 
 @register("mav_failsafe_garbage", small=2, large=20, unit="episodes",
           what="own GCS silent, malformed frames + foreign GCS heartbeats every tick -> failsafe in timeout + 1 period")
-def failsafe_garbage(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("mav_failsafe_garbage")
+def failsafe_garbage(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     m = _dialect()
-    for i, rng, rig in _episodes(count, seed * 7919 + 8000, progress):
+    for i in trials(count, progress):  # the failsafe timeout is drawn before the fault time
+        rng, rig = _setup(seed * 7919 + 8000 + i)
         fs_ms = rng.choice((500, 1000))
         t_silent = _fault_time(rng)
         gcs, foreign = m.MAVLink(None, *GCS), m.MAVLink(None, *FOREIGN_GCS)
@@ -333,7 +315,6 @@ def failsafe_garbage(count: int, seed: int = 0, progress=None) -> ScenarioResult
         if polled.node.foreign_gcs_heartbeats == 0:
             problems.append("the foreign GCS's heartbeats were never seen")
         res.check(problems, f"seed {seed}/{i} silent at {t_silent} us, FS_GCS_TOUT_MS {fs_ms}")
-    return res
 
 
 def _signing_node(root: Path, key_file: Path | None, network: bool = True):
@@ -383,12 +364,11 @@ def _ask(m, c) -> bytes:
 
 @register("mav_signing_bounds", small=2, large=20, unit="restarts",
           what="signed frame near 2^48 dropped; a correct GCS reaches the robot before and after a restart")
-def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def signing_bounds(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     import json
 
     from firmware_py.mavlink.signing import FUTURE_WINDOW, MAX_TIMESTAMP, wall_timestamp
 
-    res = ScenarioResult("mav_signing_bounds")
     m = _dialect()
     rng = random.Random(seed)
     for i in trials(count, progress):
@@ -441,7 +421,6 @@ def signing_bounds(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if allowed.signing.key is None:
                 problems.append("SETUP_SIGNING refused although SIGN_NET_SETUP=1 on the robot")
         res.check(problems, f"seed {seed}/{i}")
-    return res
 
 
 class _Ftp:
@@ -468,11 +447,10 @@ class _Ftp:
 
 @register("ftp_sessions_quota", small=3, large=50, unit="rounds",
           what="foreign sysid cannot touch a session; idle sessions yield; sparse write / huge truncate refused")
-def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def ftp_sessions_quota(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from firmware_py.mavlink.ftp_server import FtpServer, Nak, Op
     from firmware_py.storage import Storage
 
-    res = ScenarioResult("ftp_sessions_quota")
     rng = random.Random(seed)
     slowest_truncate = 0.0
     for i in trials(count, progress):
@@ -541,13 +519,12 @@ def ftp_sessions_quota(count: int, seed: int = 0, progress=None) -> ScenarioResu
             server.close()
         res.check(problems, f"seed {seed}/{i} thief {thief} session {sid}")
     res.figures["slowest_huge_truncate_ms"] = round(slowest_truncate * 1000, 3)
-    return res
 
 
 @register("mav_signing_process", small=1, large=5, unit="kill -9 + restart of qnav-robot",
           what="signed frames stamped near 2^48 at a running qnav-robot: a correct GCS still reaches it, "
                "also after kill -9 and a restart")
-def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def signing_process(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     """The whole robot (`qnav-robot --signing-key`, UDP, its own storage): a key
     holder with a clock near 2^48 sends signed frames; the operator's `Link`
     (pymavlink, checking the robot's signatures and timestamps) must still
@@ -558,7 +535,6 @@ def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     from ground_station.mavlink.link import Link, mavutil
     from ground_station.processes import RobotProcess
 
-    res = ScenarioResult("mav_signing_process")
     rng = random.Random(seed)
     mu = mavutil()
     for i in trials(count, progress):
@@ -609,6 +585,5 @@ def signing_process(count: int, seed: int = 0, progress=None) -> ScenarioResult:
                         c.close()
                 robot.stop()
         res.check(problems, f"seed {seed}/{i}")
-    return res
 
 

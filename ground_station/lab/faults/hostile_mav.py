@@ -391,10 +391,9 @@ def _expected_drop(rig: HostileRig, kind: str, msg) -> str | None:
 
 @register("mav_hostile_core", small=3000, large=100_000, unit="frames",
           what="random/mutated/unsigned/replayed frames into the node core: no crash, nothing outside the root")
-def hostile_core(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def hostile_core(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from firmware_py.mavlink.params import PARAMS
 
-    res = ScenarioResult("mav_hostile_core")
     kinds: dict[str, int] = {}
     ranges = {d.name: (d.min, d.max) for d in PARAMS}
     with tempfile.TemporaryDirectory(prefix="qnav-hostile-") as tmp:
@@ -443,7 +442,6 @@ def hostile_core(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             "ftp_requests": fs.requests, "ftp_naks": fs.naks, "ftp_malformed": fs.malformed,
             "ftp_activations": fs.activations, "ftp_refusals": fs.refusals,
             "reboots": rig.node.reboots})
-    return res
 
 
 def _answers_param(link, name: str, tries: int = 5) -> bool:
@@ -457,7 +455,7 @@ def _answers_param(link, name: str, tries: int = 5) -> bool:
 
 @register("mav_hostile_udp", small=1500, large=20_000, unit="frames over UDP to qnav-robot",
           what="the same frames to a running qnav-robot: it keeps answering, counts drops, root kept")
-def hostile_udp(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def hostile_udp(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     """The real transport once: a `qnav-robot` process (signing on) gets the
     frames on its UDP port from a signed ground-station link; afterwards it
     must still be running and answering, report drops in SYS_STATUS, and have
@@ -468,7 +466,6 @@ def hostile_udp(count: int, seed: int = 0, progress=None) -> ScenarioResult:
     from ground_station.mavlink.link import Link, LinkError
     from ground_station.processes import RobotProcess
 
-    res = ScenarioResult("mav_hostile_udp")
     with tempfile.TemporaryDirectory(prefix="qnav-hostile-udp-") as tmp:
         sandbox = Path(tmp) / "sandbox"
         rig = HostileRig(sandbox, seed)  # builds the sandbox, root, symlinks, key and policy
@@ -514,4 +511,3 @@ def hostile_udp(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         res.tried = count
         res.survived = count if not problems else 0
         res.failures = problems[:20]
-    return res

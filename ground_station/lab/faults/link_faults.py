@@ -68,7 +68,7 @@ def _param_set(name: str, value: int):
 
 @register("link_loss", small=4, large=20, unit="episodes",
           what="GCS heartbeats stop -> failsafe action within timeout + 1 control period (sim clock)")
-def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def link_loss(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from firmware_py.mavlink.node import MavNode
     from firmware_py.mavlink.params import ParamStore
     from firmware_py.mavlink.signing import Signing
@@ -82,7 +82,6 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
         paper10,
     )
 
-    res = ScenarioResult("link_loss")
     hb = _gcs_heartbeat()
     gm, pol = paper10(), cell_policy()
     for i in trials(count, progress):
@@ -131,7 +130,6 @@ def link_loss(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             if not any("GCS failsafe" in text for t, text in state["texts"] if t >= tr.t_us):
                 problems.append("no STATUSTEXT 'GCS failsafe'")
         res.check(problems, f"seed {seed}/{i} timeout {timeout_ms} ms action {want.name}")
-    return res
 
 
 # --- lossy radio: uploads and commands through the link emulator -------------------------
@@ -269,14 +267,13 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
 
 @register("lossy_link", small=2, large=12, unit="uploads+commands sessions (0/5/20/40 % loss)",
           what="lossy radio: upload byte-exact+activated or clear error; commands ACKed or timed out")
-def lossy_link(count: int, seed: int = 0, progress=None, deadline_s: float = 120.0,
-               levels: tuple[float, ...] = LOSS_LEVELS, commands: int = 4, workers: int = 1) -> ScenarioResult:
+def lossy_link(res: ScenarioResult, count: int, seed: int, progress: Any, deadline_s: float = 120.0,
+               levels: tuple[float, ...] = LOSS_LEVELS, commands: int = 4, workers: int = 1) -> None:
     """Trial i runs at loss levels[i % len(levels)] with seed seed * 1000 + i (robot key,
     link RNGs, policy version). `workers` > 1 runs trials side by side: each has its own
     robot process, emulator, storage and sockets, and mostly waits on its 57600 link."""
     from concurrent.futures import ThreadPoolExecutor
 
-    res = ScenarioResult("lossy_link")
     _emulator()  # loaded once here, not by two trials at the same moment
     with tempfile.TemporaryDirectory(prefix="qnav-lossy-") as tmp:
         def trial(i: int) -> dict:
@@ -303,7 +300,6 @@ def lossy_link(count: int, seed: int = 0, progress=None, deadline_s: float = 120
                 "unconfirmed_but_active": sum(r.get("unconfirmed_but_active", False) for r in rs),
                 "max_upload_s": max((r.get("upload_s", 0.0) for r in rs), default=0.0)}
     res.figures.update({"per_loss": per_loss, "sessions": rows})
-    return res
 
 
 # --- load: three ground stations, 10 Hz telemetry, an upload, while driving ---------------
@@ -493,13 +489,12 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True, f
 
 @register("load", small=1, large=3, unit="runs of 8 s (test) / 30 s (bench) sim time at real time",
           what="3 GCS clients + 10 Hz telemetry + uploads (+ floods in the bench) while driving: no missed tick")
-def load(count: int, seed: int = 0, progress=None, duration_s: float | None = None,
-         baseline: bool = False, floods: bool | None = None) -> ScenarioResult:
+def load(res: ScenarioResult, count: int, seed: int, progress: Any, duration_s: float | None = None,
+         baseline: bool = False, floods: bool | None = None) -> None:
     """`baseline`: first one run without clients, reported beside (the bench's ratio).
     `floods` (default: with the baseline, i.e. in the bench) adds the flood client."""
     if floods is None:
         floods = baseline
-    res = ScenarioResult("load")
     if duration_s is None:
         duration_s = 8.0 if count <= 1 else 30.0
     runs = []
@@ -517,4 +512,3 @@ def load(count: int, seed: int = 0, progress=None, duration_s: float | None = No
         res.figures["tick_p99_us_max"] = max(p99)
         res.figures["tick_max_us_max"] = max(r["tick_max_us"] for r in runs if "tick_max_us" in r)
         res.figures["compute_p99_us_max"] = max(r.get("compute_p99_us", 0.0) for r in runs)
-    return res

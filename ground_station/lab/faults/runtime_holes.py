@@ -41,6 +41,7 @@ import random
 import tempfile
 from array import array
 from pathlib import Path
+from typing import Any
 from unittest import mock
 
 from firmware_py import policy as fmt
@@ -116,8 +117,7 @@ def _max_step_problem(rig: LockstepRig, res: ScenarioResult) -> list[str]:
 
 @register("mav_hold_ends_exploration", small=3, large=30, unit="episodes",
           what="exploring (USER_1) then SET_MODE Hold / GCS failsafe / disarm -> zero command at the next tick")
-def hold_ends_exploration(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("mav_hold_ends_exploration")
+def hold_ends_exploration(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     stops = ("set_mode hold", "gcs failsafe", "disarm")
     for i in trials(count, progress):
         rng, rig = _sector_rig(seed * 7919 + 11000 + i, with_goal=False)
@@ -165,7 +165,6 @@ def hold_ends_exploration(count: int, seed: int = 0, progress=None) -> ScenarioR
             problems.append("still exploring")
         problems += [f"poll raised: {e}" for e in polled.errors]
         res.check(problems, f"seed {seed}/{i} {stop} at {handled} us")
-    return res
 
 
 # --- findings 3 and 4 ----------------------------------------------------------------------------
@@ -173,8 +172,7 @@ def hold_ends_exploration(count: int, seed: int = 0, progress=None) -> ScenarioR
 @register("activation_worst_case", small=1, large=5, unit="episodes",
           what="largest legal map + extreme planner metadata activated while driving: old policy drives until "
                "ready, every tick answered, no step over the period, no FAULT")
-def activation_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioResult:
-    res = ScenarioResult("activation_worst_case")
+def activation_worst_case(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     data = largest_legal_map_policy()
     new_id = fmt.load_policy(data).policy_id
     with tempfile.TemporaryDirectory(prefix="qnav-worst-") as tmp:
@@ -215,17 +213,15 @@ def activation_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioR
                 problems += _max_step_problem(rig, res)
             res.figures["ticks_driven_while_building"] = max(res.figures.get("ticks_driven_while_building", 0), ticks)
             res.check(problems, f"seed {seed}/{i} activation at {t0} us -> {result}")
-    return res
 
 
 @register("planner_worst_case", small=1, large=10, unit="episodes",
           what="extreme legal planner metadata, 3 discs + 2 movers: search off the tick, no step over the period, "
                "no FAULT")
-def planner_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def planner_worst_case(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from ground_station.lab.nav.scenario import episodes as nav_episodes
     from sim_bridge.obstacles import ObstacleLayer
 
-    res = ScenarioResult("planner_worst_case")
     gm = paper10()
     candidates = iter(nav_episodes(gm, 4 * count, seed + 13000, 3, 2))
     i = 0
@@ -260,14 +256,13 @@ def planner_worst_case(count: int, seed: int = 0, progress=None) -> ScenarioResu
         i += 1
         if progress is not None:
             progress.update(1)
-    return res
 
 
 # --- finding 5 -----------------------------------------------------------------------------------
 
 @register("param_save_full_disk", small=2, large=20, unit="trials",
           what="PARAM_SET on a full disk: echoed, ERROR STATUSTEXT 'lost at reboot', not in a reload; next save sticks")
-def param_save_full_disk(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def param_save_full_disk(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from firmware_py.control.controller import Controller
     from firmware_py.mavlink import params as params_module
     from firmware_py.mavlink.node import MavNode
@@ -275,7 +270,6 @@ def param_save_full_disk(count: int, seed: int = 0, progress=None) -> ScenarioRe
     from firmware_py.mavlink.signing import Signing
     from ground_station.lab.faults.hostile_holes import _dialect
 
-    res = ScenarioResult("param_save_full_disk")
     m = _dialect()
     rng = random.Random(seed * 7919 + 14000)
     real_write = params_module.atomic_write  # type: ignore[attr-defined]
@@ -317,7 +311,6 @@ def param_save_full_disk(count: int, seed: int = 0, progress=None) -> ScenarioRe
             if node.handler_errors:
                 problems.append(f"handler exceptions: {node.handler_errors}")
         res.check(problems, f"seed {seed}/{i} {name.decode()}={value}")
-    return res
 
 
 # --- finding 7 -----------------------------------------------------------------------------------
@@ -345,10 +338,9 @@ def _bad_goal(rng: random.Random, gm) -> tuple[int, int, str]:
 @register("goal_refusals", small=6, large=60, unit="goals",
           what="goals outside the map / in a wall / nearer a wall than the robot radius refused with the reason "
                "(3 MAVLink ways); VALID readings above the maximum not used")
-def goal_refusals(count: int, seed: int = 0, progress=None) -> ScenarioResult:
+def goal_refusals(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from firmware_py.control.plausibility import plausible_range_status
 
-    res = ScenarioResult("goal_refusals")
     rng = random.Random(seed * 7919 + 15000)
     gm = paper10()
     for i in trials(count, progress):
@@ -392,4 +384,3 @@ def goal_refusals(count: int, seed: int = 0, progress=None) -> ScenarioResult:
             problems.append(f"the reason does not say '{word}': {texts}")
         problems += [f"poll raised: {e}" for e in polled.errors]
         res.check(problems, f"seed {seed}/{i} {way} ({x}, {y}) mm")
-    return res

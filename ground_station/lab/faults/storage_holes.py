@@ -62,7 +62,7 @@ def _put(ftp: _Ftp, owner: tuple[int, int], path: str, data: bytes) -> bool:
 
 @register("map_refused_stays_refused", small=6, large=200, unit="map activations (FTP Rename onto /maps/active.map)",
           what="a map activation answered 'map refused' (activation timeout) never becomes active; an ACKed one is")
-def map_refused_stays_refused(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
+def map_refused_stays_refused(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from firmware_py import policy as fmt
     from firmware_py.control.controller import Controller
     from firmware_py.mapdata import describe, grid_from_map_file
@@ -71,7 +71,6 @@ def map_refused_stays_refused(count: int, seed: int = 0, progress: Any = None) -
     from firmware_py.storage import ACTIVE_MAP, Storage
     from firmware_py.vehicle import VehicleConfig
 
-    res = ScenarioResult("map_refused_stays_refused")
     rng = random.Random(seed)
     sector = fmt.load_policy(resolve_policy_spec("policies:sector"))
     counts = {"late": 0, "early": 0, "race": 0}
@@ -181,7 +180,6 @@ def map_refused_stays_refused(count: int, seed: int = 0, progress: Any = None) -
         res.check(problems, f"seed {seed}/{i} {mode} timeout {timeout_us / 1e6:g} s")
     res.figures.update({"timings": counts, "verdicts": verdicts, "race_verdicts": race,
                         "refused_then_worker_finished": late_finishes})
-    return res
 
 
 # --- finding 6: the onboard log is read-only over FTP --------------------------------------------------
@@ -195,14 +193,13 @@ def _spell(rng: random.Random, path: str) -> str:
 @register("log_readonly_over_ftp", small=60, large=3000, unit="hostile FTP requests on /logs",
           what="every write, remove, truncate, rename or mkdir in /logs from any system id is NAK FileProtected; "
                "robot.log keeps every record; reading and listing /logs still work")
-def log_readonly_over_ftp(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
+def log_readonly_over_ftp(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     import logging
 
     from firmware_py.mavlink.ftp_server import FtpServer, Op
     from firmware_py.onboard_log import OnboardLog
     from firmware_py.storage import Storage
 
-    res = ScenarioResult("log_readonly_over_ftp")
     rng = random.Random(seed)
     kinds: dict[str, int] = {}
     reads = 0
@@ -297,7 +294,6 @@ def log_readonly_over_ftp(count: int, seed: int = 0, progress: Any = None) -> Sc
         records = [int(line.rsplit(" ", 1)[1]) for line in text.splitlines() if " record " in line]
         res.figures.update({"requests": kinds, "reads_and_listings": reads, "records_written": written,
                             "records_in_log": len(records), "log_bytes": len(text.encode())})
-    return res
 
 
 def _wait_for(cond: Any, timeout_s: float = 10.0) -> bool:
@@ -377,13 +373,25 @@ def _tree(top: Path) -> dict[str, int]:
     return out
 
 
+def _refusal(argv: list[Any], cwd: Path, problems: list[str]) -> tuple[int, str]:
+    """Run `argv` in `cwd`, 90 s at most (exit -9 then), which must refuse its input: a problem
+    unless it exits 2. (Its exit status, its stderr.)"""
+    try:
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=90, cwd=cwd, stdin=subprocess.DEVNULL)
+        rc, err = proc.returncode, proc.stderr
+    except subprocess.TimeoutExpired:
+        rc, err = -9, "timed out after 90 s"
+    if rc != 2:
+        problems.append(f"exit {rc}, not 2")
+    return rc, err
+
+
 @register("log_pull_plain_names", small=3, large=30, unit="`qnav log pull` runs against a hostile listing",
           what="a log name with a separator, '..', '.', or empty is refused in one line, exit 2; nothing written")
-def log_pull_plain_names(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
+def log_pull_plain_names(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from ground_station.processes import program_argv
     from ground_station.subprocs import free_udp_port
 
-    res = ScenarioResult("log_pull_plain_names")
     rng = random.Random(seed)
     outcomes: dict[str, int] = {}
     for i in trials(count, progress):
@@ -405,20 +413,13 @@ def log_pull_plain_names(count: int, seed: int = 0, progress: Any = None) -> Sce
                     f"udpout:127.0.0.1:{port}", "--no-tlog", "--timeout", "15", "--out", str(out),
                     *([bad] if on_cli else [])]
             with _HostileRobot(port, listing, content, tmp):
-                try:
-                    proc = subprocess.run(argv, capture_output=True, text=True, timeout=90, cwd=tmp,
-                                          stdin=subprocess.DEVNULL)
-                    rc, err = proc.returncode, proc.stderr
-                except subprocess.TimeoutExpired:
-                    rc, err = -9, "timed out after 90 s"
+                rc, err = _refusal(argv, tmp, problems)
             after = _tree(tmp)
             new = sorted(set(after) - set(before) - {"served.log", "robot-root", "robot-root/policies",
                                                      "robot-root/params", "robot-root/maps"})
             outside = [p for p in new if not p.startswith("a/b/out")]
             lines = err.strip().splitlines()
             outcomes[f"exit {rc}"] = outcomes.get(f"exit {rc}", 0) + 1
-            if rc != 2:
-                problems.append(f"exit {rc}, not 2")
             if len(lines) != 1:
                 problems.append(f"stderr has {len(lines)} lines: {err.strip()[-200:]!r}")
             elif repr(bad) not in lines[0]:
@@ -430,7 +431,6 @@ def log_pull_plain_names(count: int, seed: int = 0, progress: Any = None) -> Sce
                 problems.append(f"written inside --out although refused: {inside}")
         res.check(problems, f"seed {seed}/{i} name {bad!r}{' (on the command line)' if on_cli else ''}")
     res.figures["exit_codes"] = outcomes
-    return res
 
 
 # --- finding 8: a deeply nested profile is refused in one line -----------------------------------------
@@ -449,10 +449,9 @@ def _nested_profile(rng: random.Random, depth: int) -> tuple[str, str]:
 
 @register("profile_deep_nesting", small=4, large=40, unit="qnav-robot / qnav-sim runs with a nested --profile",
           what="a profile nested 300..20000 deep (arrays or inline tables): one stderr line naming it, exit 2")
-def profile_deep_nesting(count: int, seed: int = 0, progress: Any = None) -> ScenarioResult:
+def profile_deep_nesting(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     from ground_station.processes import qnav_robot, qnav_sim
 
-    res = ScenarioResult("profile_deep_nesting")
     rng = random.Random(seed)
     outcomes: dict[str, int] = {}
     with tempfile.TemporaryDirectory(prefix="qnav-deepprof-") as tmp_s:
@@ -466,21 +465,13 @@ def profile_deep_nesting(count: int, seed: int = 0, progress: Any = None) -> Sce
             argv = (qnav_robot("--profile", prof, "--can", "virtual:deep-profile", "-q") if program == "qnav-robot"
                     else qnav_sim("--map", "paper10", "--profile", prof))
             problems: list[str] = []
-            try:
-                proc = subprocess.run(argv, capture_output=True, text=True, timeout=90, cwd=tmp,
-                                      stdin=subprocess.DEVNULL)
-                rc, err = proc.returncode, proc.stderr
-            except subprocess.TimeoutExpired:
-                rc, err = -9, "timed out after 90 s"
+            rc, err = _refusal(argv, tmp, problems)
             lines = err.strip().splitlines()
             key = f"{program} exit {rc}"
             outcomes[key] = outcomes.get(key, 0) + 1
-            if rc != 2:
-                problems.append(f"exit {rc}, not 2")
             if len(lines) != 1:
                 problems.append(f"stderr has {len(lines)} lines (last: {lines[-1][:120] if lines else ''!r})")
             elif str(prof) not in lines[0]:
                 problems.append(f"stderr does not name the file: {lines[0][:200]!r}")
             res.check(problems, f"seed {seed}/{i} {program} depth {depth} {shape}")
     res.figures["outcomes"] = outcomes
-    return res
