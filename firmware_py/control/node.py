@@ -16,7 +16,11 @@
 Loop statistics (`latency_ns`, `compute_ns`, `lag_ns`, `wall_late_ticks`,
 `wall_overruns`) are all on the WALL clock whatever clock the controller
 runs on: a tick late in wall time is late for the motors even when sim time
-says otherwise (their definitions: docs/reliability.md). `overruns` keeps
+says otherwise (their definitions: docs/reliability.md). On sim time they
+start with the first frame sent after the receive loop began listening: the
+frames the bus queued while the robot was starting up are its backlog, not
+the latency of a running loop (without this the first ticks of every run
+counted 60-200 ms "late", the only periods the load bench lost). `overruns` keeps
 its meaning on the controller's own clock, `late_ticks` counts reordered
 SimTicks.
 
@@ -170,6 +174,7 @@ class RobotNode:
         self.lag_ns: deque[int] = deque(maxlen=latency_window)
         self._pace0: tuple[int, int] | None = None  # (wall ns, sim us) of the first paced step
         self._prev_step: tuple[int, int] | None = None  # (wall ns, sim us) of the previous step
+        self._live = False  # a frame sent after the receive loop began listening has arrived (module doc)
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._last_rx_ns = 0
@@ -222,6 +227,7 @@ class RobotNode:
     # --- receive side ---------------------------------------------------------------
     def _rx_loop(self) -> None:
         self._enter_rt()
+        listening = time.time()
         while not self._stop.is_set():
             try:
                 msg = self.bus.recv(timeout=0.05)
@@ -237,6 +243,8 @@ class RobotNode:
             age_s = time.time() - msg.timestamp  # a wall-clock bus timestamp (socketcan) shows queueing
             if 0.0 < age_s < 1.0:
                 rx_ns -= int(age_s * 1e9)
+            if not self._live and not 0.0 < listening - msg.timestamp < 60.0:
+                self._live = True  # sent after we listened (or not a wall-clock timestamp): no backlog
             updates = self.drive.take(msg, self.clock.now_us())
             if updates is not None:  # a frame of the drive backend's (drives/)
                 for u in updates:
@@ -333,6 +341,8 @@ class RobotNode:
 
     def _note_wall(self, latency_ns: int, compute_ns: int, lag_ns: int | None) -> None:
         """Wall-clock lateness of the tick just run (module doc)."""
+        if self.sim_time and not self._live:
+            return  # the start-up backlog
         period_ns = self._period_us() * 1000
         self.latency_ns.append(latency_ns)
         self.compute_ns.append(compute_ns)
@@ -344,7 +354,10 @@ class RobotNode:
 
     def _paced_lag_ns(self, now_us: int) -> int:
         """Paced HIL: wall gap since the previous step minus the sim gap at the
-        run's wall/sim ratio (0 for the first two steps)."""
+        run's wall/sim ratio (0 for the first two live steps: the start-up backlog
+        sets no pace)."""
+        if not self._live:
+            return 0
         wall = time.perf_counter_ns()
         prev, self._prev_step = self._prev_step, (wall, now_us)
         if self._pace0 is None:

@@ -60,6 +60,32 @@ def test_paced_node_counts_a_stalled_tick_on_the_wall_clock():
     assert st["compute_max_us"] < st["tick_max_us"]  # the step itself was not slow: the wait was
 
 
+def test_paced_node_does_not_count_the_frames_queued_before_it_listened():
+    """The bus queues what the sim sends while the robot starts up: those ticks are its backlog,
+    not late ticks of a running loop (they were the only periods the load bench lost, 1-4 a
+    run); a stall after it listens still counts (the test above)."""
+    ch = "rt-backlog"
+    sim = can.Bus(interface="virtual", channel=ch)
+    node = RobotNode(can.Bus(interface="virtual", channel=ch), Controller(policy=sector_seek_policy()), SimClock())
+    for k in range(5):  # sent 0.25-0.15 s before the node starts reading
+        sim.send(cp.sim_tick(k, k * PERIOD))
+        time.sleep(0.025)
+    time.sleep(0.15)
+    with node:
+        for k in range(5, 30):
+            sim.send(cp.sim_tick(k, k * PERIOD))
+            time.sleep(0.01)
+        deadline = time.monotonic() + 5
+        while node.ticks < 30 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    sim.shutdown()
+    node.bus.shutdown()
+    assert node.ticks == 30 and node.sim_ticks == 30  # the backlog is stepped all the same
+    st = node.latency_stats()
+    assert st["wall_overruns"] == 0 and st["wall_late_ticks"] == 0, st
+    assert st["samples"] == 25 and st["tick_max_us"] < 50_000, st
+
+
 class RaisingVehicle(TestVehicle):
     """A vehicle whose goal handling has a bug: every SET_POSITION_TARGET raises."""
 
