@@ -30,7 +30,6 @@ import numpy as np
 
 from firmware_py import can_protocol as cp
 from firmware_py import robot_spec
-from firmware_py.canbus import send_all
 from firmware_py.profile import DEFAULT as DEFAULT_ROBOT
 from sim_bridge.battery import Battery
 from sim_bridge.motors import MotorDriver, MotorParams
@@ -292,9 +291,9 @@ class _Io:
         self.plant, self.bus, self.logger = plant, bus, logger
 
     def send(self, frames: list[can.Message]) -> None:
-        send_all(self.bus, frames)  # one write on a hub
-        if self.logger is not None:
-            for f in frames:
+        for f in frames:
+            self.bus.send(f)
+            if self.logger is not None:
                 self.logger.on_message_received(f)
         self.plant.stats.frames_sent += len(frames)
 

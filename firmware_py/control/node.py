@@ -44,7 +44,6 @@ from collections.abc import Callable
 import can
 
 from firmware_py import can_protocol as proto
-from firmware_py.canbus import send_all
 from firmware_py.clock import Clock, SimClock, TickGate
 from firmware_py.control.controller import Controller
 from firmware_py.control.io import Inputs, Outputs
@@ -267,7 +266,8 @@ class RobotNode:
         if not isinstance(clock, SimClock):  # i.e. not self.sim_time
             return  # a wall-clock robot ignores stray sim ticks
         if self.lockstep and counter == self.last_tick and self._last_answer:
-            self._send_frames(self._last_answer)  # a retransmitted tick: same answer, no step
+            for frame in self._last_answer:  # a retransmitted tick: same answer, no step
+                self._send_frame(frame)
             return
         gap = 0
         if self.last_tick is not None:
@@ -318,13 +318,14 @@ class RobotNode:
             self.inputs.update(u, now_us)
         out = self.controller.step(self.inputs.snapshot(), now_us, tick=counter)
         self.ticks += 1
-        if self.lockstep:  # the motor command is the tick's answer: always the last frame, in one write
-            self._send_frames([self._heartbeat_frame(out), *self._motor_frames(out, now_us, counter)])
+        if self.lockstep:  # the motor command is the tick's answer: always the last frame
+            self._send_heartbeat(out)
+            self._send_motor(out, now_us, counter)
             done = time.perf_counter_ns()
         else:  # latency counts to the command; the heartbeat can follow it
-            self._send_frames(self._motor_frames(out, now_us, counter))
+            self._send_motor(out, now_us, counter)
             done = time.perf_counter_ns()
-            self._send_frame(self._heartbeat_frame(out))
+            self._send_heartbeat(out)
         self._note_wall(done - t0_ns, done - c0, lag_ns)
         # SYS_STATUS errors_count2: periods lost on the wall clock (in wall mode `overruns` are those)
         self.controller.note_loop_stats(self.overruns + self.wall_overruns if self.sim_time else self.overruns,
@@ -367,36 +368,28 @@ class RobotNode:
         ratio = (wall - self._pace0[0]) / ((now_us - self._pace0[1]) * 1000)  # wall ns per sim ns
         return int((wall - prev[0]) - (now_us - prev[1]) * 1000 * ratio)
 
-    @staticmethod
-    def _heartbeat_frame(out: Outputs) -> can.Message:
+    def _send_heartbeat(self, out: Outputs) -> None:
         hb = out.heartbeat
-        return proto.encode("ControllerHeartbeat", {
+        self._send_frame(proto.encode("ControllerHeartbeat", {
             "Ctrl_State": hb.state, "Ctrl_Mode": hb.mode, "Ctrl_Armed": int(hb.armed),
             "Ctrl_PolicyLoaded": int(hb.policy_loaded), "Ctrl_GoalActive": int(hb.goal_active),
-            "Ctrl_Errors": hb.errors & 0xFFFF, "Ctrl_Counter": hb.counter})
+            "Ctrl_Errors": hb.errors & 0xFFFF, "Ctrl_Counter": hb.counter}))
 
-    def _motor_frames(self, out: Outputs, now_us: int, counter: int | None) -> list[can.Message]:
+    def _send_motor(self, out: Outputs, now_us: int, counter: int | None) -> None:
         """The drive backend's frames of this tick; in lockstep they end with the tick's answer."""
         frames = self.drive.frames(out, now_us)
         if self.lockstep and counter is not None:
             if not self.drive.answers_lockstep:
                 frames.append(proto.encode("SimTickAck", {"Ack_Counter": counter % proto.TICK_MODULUS}))
             self._last_answer = frames
-        return frames
+        for frame in frames:
+            self._send_frame(frame)
 
     def _send_frame(self, frame: can.Message) -> None:
         try:
             self.bus.send(frame)
         except (can.CanError, OSError) as exc:
             self.send_errors += 1
-            log.warning("CAN send failed: %s", exc)
-
-    def _send_frames(self, frames: list[can.Message]) -> None:
-        """`frames` in order, in one write on a hub (canbus.send_all); a failed write counts every frame."""
-        try:
-            send_all(self.bus, frames)
-        except (can.CanError, OSError) as exc:
-            self.send_errors += len(frames)
             log.warning("CAN send failed: %s", exc)
 
     def _period_us(self) -> int:

@@ -100,27 +100,3 @@ def test_hub_carries_frames_across_processes_and_stops():
     with pytest.raises(OSError):
         socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
 
-
-
-def test_hub_send_all_writes_a_ticks_frames_in_order_and_reads_them_back():
-    """canbus.send_all on a hub: one write per tick, the same frames in the same order as
-    one RemoteBus.send each; the buffered reader hands them out one by one."""
-    from firmware_py.canbus import send_all
-
-    frames = [*cp.range_frames([(100 * i, 1) for i in range(cp.robot_spec.SENSOR_COUNT)], 3),
-              cp.encoder_counts(-5, 70_000, 3), cp.sim_tick(3, 150_000)]
-    with CanHub("test_hub_send_all") as hub:
-        a, b = open_bus(hub.spec), open_bus(hub.spec)
-        try:
-            for _ in range(3):
-                send_all(a, frames)
-                for sent in frames:
-                    got = b.recv(5.0)
-                    assert got is not None and sent.equals(got, timestamp_delta=None)
-                for sent in frames:  # and the single-frame path still interleaves correctly
-                    a.send(sent)
-                assert [cp.decode(b.recv(5.0)) for _ in frames] == [cp.decode(f) for f in frames]
-            assert b.recv(0.05) is None
-        finally:
-            a.shutdown()
-            b.shutdown()
