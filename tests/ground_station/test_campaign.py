@@ -18,7 +18,7 @@ from ground_station.errors import CliError
 from ground_station.lab.campaign import engines, space
 
 ROOT = Path(__file__).resolve().parents[2]
-SWEEP = ["sweep", "--map", "paper10", "--encoding", "cell", "--lrs", "0.2,0.6", "--seeds", "2",
+SWEEP = ["sweep", "--map", "paper10", "--encoding", "cell", "--lrs", "0.2,0.4,0.6", "--seeds", "1",
          "--steps", "20000", "--curve-points", "20", "--no-curves"]  # the curves are study jobs: test_train
 
 
@@ -140,7 +140,7 @@ def test_bench_identical_on_ray_cluster(cluster, tmp_path):
     # one bench with both kinds of job: the twin's episodes (pure compute) and HIL episodes (each starts
     # a hub, qnav-sim and qnav-robot on the Ray worker that runs it); a separate `bench hil` on Ray cost
     # the suite another 45 s for the same engine path
-    args = ["bench", "nav", "--map", "paper10", "--episodes", "4", "--controllers", "learnt,seek", "--batch", "2",
+    args = ["bench", "nav", "--map", "paper10", "--episodes", "4", "--controllers", "learnt", "--batch", "2",
             "--hil", "--hil-episodes", "1"]
     local = qnav(*args, "--json", str(tmp_path / "local.json"))
     assert local.returncode == 0, local.stderr[-2000:]
