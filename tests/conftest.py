@@ -21,18 +21,14 @@ def pytest_configure(config) -> None:
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    """The longest tests first: the UML vcan batch (`xdist_group`, a chain on one worker) and the
-    `slow` integration runs, the slow ones by their timeout, the longest allowed first; then the
-    rest in their order; the Ray cluster's chain (`ray`) last. pytest-xdist hands out work in
-    collection order, and a long test that starts last is the run's tail on its own (docs/commands
-    and faults come last alphabetically). The Ray chain is the exception: a cluster of a dozen
-    processes starved beside the page runs (both Ray tests hit their 300 s timeout when it ran
-    first beside two busy processes); at the end it has the cores the other workers give up. A
-    stable sort, so tests keep their relative order within each class."""
+    """The longest tests first: the grouped ones (`xdist_group`: the Ray cluster's and the UML vcan
+    batch's, each a chain on one worker) and the `slow` integration runs, then the rest in their
+    order; the slow ones by their timeout, the longest allowed first. pytest-xdist hands out
+    work in collection order, and a long test that starts last is the run's tail on its own
+    (docs/commands and faults come last alphabetically); a stable sort, so tests keep their
+    relative order within each class."""
 
     def rank(item) -> tuple[int, float]:
-        if item.get_closest_marker("ray") is not None:
-            return 3, 0.0
         if item.get_closest_marker("xdist_group") is not None:
             return 0, 0.0
         if item.get_closest_marker("slow") is None:
