@@ -15,7 +15,6 @@ lockstep handshake.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from importlib import resources
 
@@ -102,29 +101,6 @@ MOTOR_ERR_STALL_LEFT = 2
 MOTOR_ERR_STALL_RIGHT = 4
 
 
-# Each frame's signal names and DBC ranges, for encode's fast path: a frame whose signals are
-# exactly these, each an int inside its range, passes cantools' strict check, so encode skips
-# that check (a quarter of the cost of encoding, and the sim encodes ~7 frames per tick); any
-# other input takes the strict path and fails there with cantools' own words.
-_PLAIN: dict[str, tuple[frozenset[str], tuple[tuple[str, float, float], ...]]] = {
-    m.name: (frozenset(s.name for s in m.signals),
-             tuple((s.name, -math.inf if s.minimum is None else s.minimum,
-                    math.inf if s.maximum is None else s.maximum) for s in m.signals))
-    for m in DB.messages if not m.is_multiplexed() and not m.is_container}
-
-
-def _plainly_encodable(name: str, data: dict[str, int]) -> bool:
-    """True when `data` is exactly frame `name`'s signals, each an int (not a bool) inside its range."""
-    plain = _PLAIN.get(name)
-    if plain is None or data.keys() != plain[0]:
-        return False
-    for signal, lo, hi in plain[1]:
-        value = data[signal]
-        if type(value) is not int or not lo <= value <= hi:
-            return False
-    return True
-
-
 def encode(name: str, signals: Mapping[str, int], timestamp: float = 0.0) -> can.Message:
     """Encode frame `name` strictly (all signals present, each inside its range)."""
     try:
@@ -132,8 +108,7 @@ def encode(name: str, signals: Mapping[str, int], timestamp: float = 0.0) -> can
     except KeyError:
         raise ProtocolError(f"unknown CAN frame {name!r}") from None
     try:
-        values = dict(signals)
-        data = spec.encode(values, scaling=True, padding=False, strict=not _plainly_encodable(name, values))
+        data = spec.encode(dict(signals), scaling=True, padding=False, strict=True)
     except (cantools.database.EncodeError, KeyError, ValueError) as exc:
         raise ProtocolError(f"cannot encode {name}: {exc}") from None
     return can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False,
