@@ -136,6 +136,9 @@ def test_cli_train_eval_export(tmp_path):
     assert p.returncode == 0, p.stderr
     rep = json.loads(p.stdout)
     assert rep["encoding"] == "sector-memory" and rep["episodes"] == 200 and 0 <= rep["success_rate"] <= 1
+    # the hand-written Bug rule in the same state, on the same 200 episodes, beside it
+    base = rep["baseline"]
+    assert base["episodes"] == 200 and base["success_rate"] == 1.0 and base["collisions"] == 0
     p = _qnav("export", str(run), "--out", str(tmp_path / "p.qtab"), "--sample", "200")
     assert p.returncode == 0, p.stderr
     exp = json.loads(p.stdout)

@@ -206,5 +206,9 @@ def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: gb.GridBugEncoder
 
 def evaluate_policy(q: np.ndarray, run, gridmap: GridMap, *, sample: int | None = None,  # type: ignore[no-untyped-def]
                     seed: int = 0, full: bool = False) -> dict:
-    """The kind's evaluation (ground_station.learn.kinds): `evaluate_gridbug` of a run's table."""
-    return evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
+    """The kind's evaluation (ground_station.learn.kinds): `evaluate_gridbug` of a run's table;
+    `full` adds the hand-written Bug rule in the same state on the same episodes as `baseline`."""
+    rep = evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
+    if full:
+        rep["baseline"] = evaluate_gridbug(hand_table(run.encoder), gridmap, run.encoder, seed=seed, sample=sample)
+    return rep
