@@ -38,7 +38,6 @@ RUN = [
     "qnav train --map paper10 --encoding cell --targets A,B,C,D --out out/demo",
     "qnav eval out/demo [--json] [--plot out/demo/policy.png]",
     "qnav sweep --map paper10 --encoding cell --lrs 0.1:0.9:0.1 --seeds 20 --steps 10000 --out out/sweep",
-    "qnav study --out out/study",
     # docs/training.md, sector-memory: the shipped recipe trains in seconds (grid twin)
     "qnav train --encoding sector-memory --map paper10 --seed 0 --out build/policies/sector_memory",
     "qnav eval build/policies/sector_memory --map paper10 --json",
@@ -89,8 +88,10 @@ NOT_RUN = {
     "qnav train --recipe shipped-cell --profile": _WIDE,
     "qnav export wide_": _WIDE,
     "make test": "the test suite itself",
-    "qnav study --map maze-15x15-s2": "the same study on a second map (~25 s); `qnav study --out out/study` "
-                                      "above runs the same code",
+    "qnav study --map maze-15x15-s2": "the same study on a second map (~25 s); tests/ground_station/test_study.py "
+                                      "runs its code at a small scale",
+    "qnav study --out out/study": "the learner study of results.md §1-2 (600 runs, 15 s of CPU); tests/ground_station/"
+                                  "test_study.py runs the same command at a small scale",
     "qnav bench train": "a benchmark (about a minute); tests check a benchmark's code, never a time",
     "qnav study --out out/study-sector": "the sector learner study (~2 min on two idle cores); "
                                          "tests/ground_station/test_study.py runs its code at a small scale",
