@@ -26,7 +26,7 @@ COMMAND_MSGS = frozenset({"COMMAND_LONG", "COMMAND_INT"})
 # commands that only ask for data: any system may send them (a second monitor, a log tool)
 OPEN_COMMANDS = frozenset({
     M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAV_CMD_GET_MESSAGE_INTERVAL, M.MAV_CMD_REQUEST_MESSAGE,
-    M.MAV_CMD_REQUEST_PROTOCOL_VERSION, M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+    M.MAV_CMD_REQUEST_PROTOCOL_VERSION, M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, M.MAV_CMD_GET_HOME_POSITION,
 })
 SUMMARY_PERIOD_US = 1_000_000
 MAX_KEYS = 64  # distinct (system, kind) counters kept between summaries; more are counted in `other`

@@ -114,6 +114,8 @@ class CommandHandler:
             return self._request_message(MSG_ID_PROTOCOL_VERSION, now_us, stats)
         if cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return self._request_message(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, now_us, stats)
+        if cmd == M.MAV_CMD_GET_HOME_POSITION:  # deprecated for REQUEST_MESSAGE; MAVProxy still sends it
+            return self._request_message(M.MAVLINK_MSG_ID_HOME_POSITION, now_us, stats)
         if cmd == M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
             action = int(p[0])
             if action == 0:

@@ -129,3 +129,17 @@ def test_rc_channels_override_drives_manual_as_for_ardupilot_rover():
     link.send(link.gcs.rc_channels_override_encode(1, 1, 1500, 0, 1700, 0, 0, 0, 0, 0))
     link.send(link.gcs.rc_channels_override_encode(7, 1, 1500, 0, 1700, 0, 0, 0, 0, 0))  # another system's
     assert seen == [(500, 0)]
+
+
+def test_get_home_position_answers_home_position_as_request_message_does():
+    """MAV_CMD_GET_HOME_POSITION (deprecated, still sent by MAVProxy and older ground stations) is
+    answered like REQUEST_MESSAGE(HOME_POSITION): ACCEPTED and the origin, from any system (it only
+    asks for data, like the other read-only commands)."""
+    from tests.firmware_py.test_mav_engines import ack
+
+    link = Link()
+    got = link.cmd(m.MAV_CMD_GET_HOME_POSITION)
+    assert ack(got) == m.MAV_RESULT_ACCEPTED
+    (home,) = of(got, "HOME_POSITION")
+    (asked,) = of(link.cmd(m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_HOME_POSITION), "HOME_POSITION")
+    assert (home.latitude, home.longitude, home.altitude) == (asked.latitude, asked.longitude, asked.altitude)
