@@ -25,7 +25,6 @@ import math
 import os
 import random
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -34,6 +33,7 @@ from pathlib import Path
 import pytest
 
 from ground_station.subprocs import free_udp_port
+from tests.support.doc_page import interrupt
 
 BIN = Path(sys.executable).parent
 W, H, CELL_M = 12, 10, 0.5
@@ -128,15 +128,8 @@ def test_a_sector_policy_trained_on_a_new_map_completes_the_walkthrough_mission(
         qnav("mode", "auto")
         mon = qnav("monitor", "--plain", "--until-done", "--duration", "120", "--no-tlog", timeout=200)
     finally:
-        if sitl.poll() is None:
-            os.killpg(sitl.pid, signal.SIGINT)  # Ctrl-C in its terminal
-            try:  # it writes run.mcap from the whole run first
-                sitl.wait(timeout=240)
-            except subprocess.TimeoutExpired:
-                os.killpg(sitl.pid, signal.SIGKILL)
-                sitl.wait(timeout=10)
-                raise
-    assert sitl.returncode == 0, out.read_text()[-3000:]
+        code = interrupt(sitl, out)  # Ctrl-C in its terminal
+    assert code == 0, out.read_text()[-3000:]
     last = [x for x in mon.splitlines() if x.startswith("[")][-1]
     m = re.search(r"mission=(\d+)/(\d+) reached=(\d+)", last)
     assert m and m[1] == m[2] == m[3] and "stalls=0" in last, mon[-3000:]

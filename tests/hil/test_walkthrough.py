@@ -10,25 +10,21 @@ cleanly with its run folder complete."""
 from __future__ import annotations
 
 import json
-import os
-import re
-import signal
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from ground_station.subprocs import free_udp_port
+from tests.support.doc_page import PageRun
+from tests.support.doc_page import blocks as page_blocks
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "walkthrough.md"
-BLOCK = re.compile(r"```sh\n(.*?)```", re.S)
 
 
 def blocks() -> list[str]:
-    return BLOCK.findall(PAGE.read_text())
+    return page_blocks(PAGE)
 
 
 def test_the_page_has_the_steps_this_test_relies_on():
@@ -40,39 +36,19 @@ def test_the_page_has_the_steps_this_test_relies_on():
 @pytest.mark.slow
 def test_walkthrough_runs_from_the_map_to_the_report(tmp_path):
     port = free_udp_port()
-    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
-    env.pop("QNAV_MAVLINK", None)
-    sitl: subprocess.Popen | None = None
-    sitl_out = tmp_path / "sitl.out"
+
+    def after(script: str, done: subprocess.CompletedProcess) -> None:
+        if "qnav monitor" in script:  # --until-done: ended by the robot's "mission complete"
+            last = [x for x in done.stdout.splitlines() if x.startswith("[")][-1]
+            assert "mission=3/3 reached=3" in last, done.stdout[-2000:]
+
+    page = PageRun(PAGE, tmp_path, lambda block: block.replace("14555", str(port)))
     try:
-        for block in blocks():
-            script = block.replace("14555", str(port))
-            if script.startswith("# setup"):
-                continue
-            if script.startswith("# terminal 2"):
-                sitl = subprocess.Popen(["bash", "-c", script], cwd=tmp_path, env=env, start_new_session=True,
-                                        stdout=sitl_out.open("w"), stderr=subprocess.STDOUT)
-                deadline = time.monotonic() + 90
-                while "Ctrl-C stops every process" not in sitl_out.read_text():
-                    assert sitl.poll() is None and time.monotonic() < deadline, sitl_out.read_text()[-3000:]
-                    time.sleep(0.2)
-                continue
-            # the commands of one block run in one shell, as typed in one terminal
-            done = subprocess.run(["bash", "-e", "-c", script], cwd=tmp_path, env=env, capture_output=True,
-                                  text=True, timeout=240)
-            assert done.returncode == 0, (script, done.stdout[-3000:], done.stderr[-3000:])
-            if "qnav monitor" in script:  # --until-done: ended by the robot's "mission complete"
-                last = [x for x in done.stdout.splitlines() if x.startswith("[")][-1]
-                assert "mission=3/3 reached=3" in last, done.stdout[-2000:]
+        page.run(after)
     finally:
-        if sitl is not None and sitl.poll() is None:
-            os.killpg(sitl.pid, signal.SIGINT)  # Ctrl-C in its terminal
-            try:
-                sitl.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                os.killpg(sitl.pid, signal.SIGKILL)
-                raise
-    assert sitl is not None and sitl.returncode == 0, sitl_out.read_text()[-3000:]
+        code = page.stop()
+    sitl_out = page.sitl_out
+    assert code == 0, sitl_out.read_text()[-3000:]
     summary = json.loads((tmp_path / "runs" / "report" / "summary.json").read_text())
     assert summary["goals_reached"] == 3 and summary["map"] == "warehouse.map"
     for png in ("runs/warehouse/policy.png", "runs/report/trajectory.png"):

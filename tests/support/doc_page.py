@@ -1,9 +1,9 @@
-"""Run a docs page's ```sh blocks in order as a user would, the conventions of
-tests/hil/test_walkthrough.py (docs/walkthrough.md): bash in a scratch folder with the venv's
+"""Run a docs page's ```sh blocks in order as a user would: bash in a scratch folder with the venv's
 programs on the PATH; the `# setup` block is this test's own environment and is skipped; the one
 `# terminal 2` block (a `qnav sitl`) runs in the background until `stop()`, which sends it Ctrl-C
 (SIGINT to its process group); every other block runs with `bash -e` and must exit 0. Used by
-tests/hil/test_your_robot_e2e.py for docs/your-robot.md."""
+tests/hil/test_walkthrough.py (docs/walkthrough.md) and tests/hil/test_your_robot_e2e.py
+(docs/your-robot.md); `interrupt` is the Ctrl-C of any background `qnav sitl`."""
 
 from __future__ import annotations
 
@@ -58,17 +58,22 @@ class PageRun:
 
     def stop(self) -> int | None:
         """Ctrl-C the background block (as its terminal would); its exit status (None: none ran)."""
-        if self.sitl is None:
-            return None
-        if self.sitl.poll() is None:
-            os.killpg(self.sitl.pid, signal.SIGINT)
-            try:  # it writes run.mcap from the whole run (CAN log, tlog) before it exits
-                self.sitl.wait(timeout=240)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.sitl.pid, signal.SIGUSR1)  # qnav sitl prints its threads' stacks
-                time.sleep(2)
-                os.killpg(self.sitl.pid, signal.SIGKILL)
-                self.sitl.wait(timeout=10)
-                raise AssertionError("qnav sitl still running 240 s after Ctrl-C: "
-                                     + self.sitl_out.read_text()[-3000:]) from None
-        return self.sitl.returncode
+        return None if self.sitl is None else interrupt(self.sitl, self.sitl_out)
+
+
+def interrupt(sitl: subprocess.Popen, out: Path, timeout_s: float = 240.0) -> int:
+    """Ctrl-C a `qnav sitl` started in its own session (SIGINT to its process group) and its exit
+    status; it writes run.mcap from the whole run before it exits. Still running after `timeout_s`:
+    its threads' stacks (SIGUSR1), then SIGKILL and an AssertionError with its output's tail."""
+    if sitl.poll() is None:
+        os.killpg(sitl.pid, signal.SIGINT)
+        try:
+            sitl.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(sitl.pid, signal.SIGUSR1)  # qnav sitl prints its threads' stacks
+            time.sleep(2)
+            os.killpg(sitl.pid, signal.SIGKILL)
+            sitl.wait(timeout=10)
+            raise AssertionError(f"qnav sitl still running {timeout_s:.0f} s after Ctrl-C: "
+                                 + out.read_text()[-3000:]) from None
+    return sitl.returncode
