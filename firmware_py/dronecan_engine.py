@@ -234,10 +234,10 @@ class DroneCanEngine:
         self.node_id = node_id
         self.name = name
         self.clock = clock
-        self.t0 = clock()
+        self.t0: float | None = None  # the first periodic() call's time: uptime counts from it
         self.health = 0  # HEALTH_OK
         self.mode = 0  # MODE_OPERATIONAL
-        self._next_status = self.t0
+        self._next_status = 0.0  # set with t0
         self._transfer_ids: dict[int, int] = {}
         self.rx = Reassembler(dsdl_max_bytes)
         self.answers = AnswerQueue()
@@ -297,9 +297,9 @@ class DroneCanEngine:
         return (f"DroneCAN node id {self.node_id} used by another node ({what} from it "
                 f"{max(0.0, t - when):.1f} s ago): give one of them another id")
 
-    def _answer_node_info(self, req: Any) -> list[can.Message]:
+    def _answer_node_info(self, req: Any, now: float) -> list[can.Message]:
         resp = dronecan.uavcan.protocol.GetNodeInfo.Response()
-        self._fill_status(resp.status)
+        self._fill_status(resp.status, now)
         resp.software_version.major, resp.software_version.minor = self._software
         resp.name = self.name
         out = transport.Transfer(payload=resp, source_node_id=self.node_id, dest_node_id=req.source_node_id,
@@ -318,23 +318,26 @@ class DroneCanEngine:
         return [self._msg(f) for f in tr.to_frames()]
 
     def periodic(self, now: float | None = None) -> list[can.Message]:
-        """NodeStatus when it is due (1 Hz), else nothing."""
+        """NodeStatus when it is due (1 Hz on `now`, the robot's clock: sim time in HIL, as every
+        other period and timeout), else nothing."""
         now = self.clock() if now is None else now
+        if self.t0 is None:
+            self.t0 = self._next_status = now
         if now < self._next_status:
             return []
         self._next_status = max(self._next_status + NODE_STATUS_PERIOD_S, now)
         status = dronecan.uavcan.protocol.NodeStatus()
-        self._fill_status(status)
+        self._fill_status(status, now)
         return self.broadcast(status, PRIORITY_LOW)
 
     def outgoing(self, now: float | None = None) -> list[can.Message]:
         """The answers due now: at most ANSWERS_PER_TICK a call, ANSWERS_PER_S a second. Send them
         after the tick's wheel command."""
         t = self.clock() if now is None else now
-        return [m for req in self.answers.due(t) for m in self._answer_node_info(req)]
+        return [m for req in self.answers.due(t) for m in self._answer_node_info(req, t)]
 
-    def _fill_status(self, status: Any) -> None:
-        status.uptime_sec = int(self.clock() - self.t0)
+    def _fill_status(self, status: Any, now: float) -> None:
+        status.uptime_sec = int(now - (now if self.t0 is None else self.t0))
         status.health = self.health
         status.mode = self.mode
 

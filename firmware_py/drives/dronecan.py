@@ -210,7 +210,7 @@ class DroneCanBackend(DriveBackend):
                     for e in self.escs:
                         e.integral = 0.0
                     msgs += self._command((0, 0))
-            msgs += self.engine.periodic()
+            msgs += self.engine.periodic(now_us / 1e6)
             msgs += self.engine.outgoing(now_us / 1e6)
             self.frames_sent += len(msgs)
             return msgs

@@ -205,3 +205,29 @@ def test_the_backend_sends_the_wheel_command_before_nodestatus_and_answers():
     sensors_only = DroneCanBackend(prof, drive=False, sensors=True)
     sensors_only.take(frames_of(dronecan.uavcan.protocol.NodeStatus(), source=ME)[0], 0)
     assert f"node id {ME}" in sensors_only.check(0, 500_000)[0].fields["arm_block"]
+
+
+def test_nodestatus_is_due_and_counts_uptime_on_the_robots_clock():
+    """In HIL the robot's clock is sim time: NodeStatus goes out once a second of it and its uptime
+    counts it, whatever the wall clock (here the engine's own clock stands still)."""
+    from pathlib import Path
+
+    from firmware_py.control.io import Heartbeat, Outputs
+    from firmware_py.drives.dronecan import DroneCanBackend
+    from firmware_py.profile import load_profile
+
+    prof = load_profile(Path(__file__).resolve().parents[2] / "firmware_py" / "profiles" / "dronecan.toml")
+    be = DroneCanBackend(prof, drive=True, sensors=True, clock=lambda: 0.0)
+    hb = Heartbeat(state=0, mode=0, armed=False, policy_loaded=True, goal_active=False, errors=0, counter=0)
+    status_id = dronecan.uavcan.protocol.NodeStatus.default_dtid
+    sent = []  # (robot time s, uptime s) of each NodeStatus
+    for tick in range(200):  # 10 s at 20 Hz, from t = 100 s
+        now_us = 100_000_000 + tick * 50_000
+        for m in be.frames(Outputs(motor=None, heartbeat=hb, drive_enabled=False), now_us):
+            if FrameHeader.parse(m.arbitration_id, bytes(m.data)).data_type_id == status_id:
+                tr = transport.Transfer()
+                tr.from_frames([transport.Frame(m.arbitration_id, bytes(m.data))])
+                sent.append((now_us / 1e6, tr.payload.uptime_sec))
+    assert len(sent) == 10, sent
+    assert [round(t - 100) for t, _ in sent] == list(range(10))
+    assert [u for _, u in sent] == list(range(10))
