@@ -309,4 +309,4 @@ def test_runnable_documented_commands_run(tmp_path):
         assert proc.returncode == 0, f"`{line}` exit {proc.returncode}: {proc.stderr[-2000:]}"
     assert (tmp_path / "out" / "demo" / "policy.png").is_file()
     assert (tmp_path / "out" / "sweep" / "sweep.json").is_file()
-    assert (tmp_path / "out" / "study" / "study.json").is_file()
+    assert (tmp_path / "build" / "policies" / "sector_memory" / "meta.json").is_file()
