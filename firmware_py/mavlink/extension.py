@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import logging
 from collections.abc import Callable
 from dataclasses import fields
@@ -82,6 +83,10 @@ class MavlinkExtension:
                               autopilot=getattr(args, "mavlink_autopilot", DEFAULT_AUTOPILOT))
         except ValueError as exc:  # unreadable key file
             raise UsageError(str(exc)) from None
+        except OSError as exc:  # the port taken, no such serial device, no permission
+            why = exc.strerror or str(exc)
+            hint = " (another program listens there: another qnav-robot?)" if exc.errno == errno.EADDRINUSE else ""
+            raise UsageError(f"--mavlink {args.mavlink}: {why}{hint}") from None
 
         from firmware_py.mavlink.link_thread import LinkThread, StorageWorker
 

@@ -70,3 +70,21 @@ def test_boot_from_storage_skips_a_policy_for_another_period(tmp_path, caplog):
     assert any("rejected: policy control period 50000 us != robot 40000 us" in r.getMessage() for r in caplog.records)
     s = json.loads(stats.read_text())
     assert s["period_us"] == 40_000 and s["state"] == "STANDBY"
+
+
+def test_a_mavlink_port_in_use_or_a_missing_serial_device_is_one_line_and_exit_2(tmp_path, capsys):
+    """Another program on the --mavlink port (or two robots started on one) and a serial device
+    that is not there: one line naming the link and why, exit 2 (it was a traceback, exit 1)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        port = taken.getsockname()[1]
+        url = f"udpin:127.0.0.1:{port}"
+        assert cli.main(["--can", "virtual:cli-port", "--storage", str(tmp_path), "--mavlink", url, "-q"]) == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("qnav-robot: error: ")]
+    assert len(err) == 1 and f"--mavlink {url}: Address already in use" in err[0], err
+    missing = str(tmp_path / "ttyNONE0")
+    assert cli.main(["--can", "virtual:cli-tty", "--storage", str(tmp_path), "--mavlink", missing, "-q"]) == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("qnav-robot: error: ")]
+    assert len(err) == 1 and f"--mavlink {missing}: " in err[0], err
