@@ -234,10 +234,10 @@ class DroneCanEngine:
         self.node_id = node_id
         self.name = name
         self.clock = clock
-        self.t0: float | None = None  # the first periodic() call's time: uptime counts from it
+        self.t0: float | None = None  # the robot's clock when the node first spoke: uptime counts from it
         self.health = 0  # HEALTH_OK
         self.mode = 0  # MODE_OPERATIONAL
-        self._next_status = 0.0  # set with t0
+        self._next_status: float | None = None  # the first periodic() call sends at once
         self._transfer_ids: dict[int, int] = {}
         self.rx = Reassembler(dsdl_max_bytes)
         self.answers = AnswerQueue()
@@ -321,11 +321,9 @@ class DroneCanEngine:
         """NodeStatus when it is due (1 Hz on `now`, the robot's clock: sim time in HIL, as every
         other period and timeout), else nothing."""
         now = self.clock() if now is None else now
-        if self.t0 is None:
-            self.t0 = self._next_status = now
-        if now < self._next_status:
+        if self._next_status is not None and now < self._next_status:
             return []
-        self._next_status = max(self._next_status + NODE_STATUS_PERIOD_S, now)
+        self._next_status = max((now if self._next_status is None else self._next_status) + NODE_STATUS_PERIOD_S, now)
         status = dronecan.uavcan.protocol.NodeStatus()
         self._fill_status(status, now)
         return self.broadcast(status, PRIORITY_LOW)
@@ -337,7 +335,9 @@ class DroneCanEngine:
         return [m for req in self.answers.due(t) for m in self._answer_node_info(req, t)]
 
     def _fill_status(self, status: Any, now: float) -> None:
-        status.uptime_sec = int(now - (now if self.t0 is None else self.t0))
+        if self.t0 is None:
+            self.t0 = now
+        status.uptime_sec = int(now - self.t0)
         status.health = self.health
         status.mode = self.mode
 

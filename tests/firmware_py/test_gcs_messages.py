@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from firmware_py.mavlink.dialect import mavlink2 as m
 from firmware_py.storage import UID_FILE
-from tests.firmware_py.test_mav_engines import Link, of, texts
+from tests.firmware_py.test_mav_engines import Link, ack, of, texts
 
 
 def test_vfr_hud_is_streamed_with_speed_and_compass_heading():
@@ -135,8 +135,6 @@ def test_get_home_position_answers_home_position_as_request_message_does():
     """MAV_CMD_GET_HOME_POSITION (deprecated, still sent by MAVProxy and older ground stations) is
     answered like REQUEST_MESSAGE(HOME_POSITION): ACCEPTED and the origin, from any system (it only
     asks for data, like the other read-only commands)."""
-    from tests.firmware_py.test_mav_engines import ack
-
     link = Link()
     got = link.cmd(m.MAV_CMD_GET_HOME_POSITION)
     assert ack(got) == m.MAV_RESULT_ACCEPTED

@@ -12,8 +12,9 @@ example profile (the page's profile block replaced by firmware_py/profiles/drone
 the page up to and with the cell policy's mission: what differs on that robot is its drive and
 sensor boards on DroneCAN, which the cell mission drives through all four targets; the sector steps
 are the built-in geometry's, which tests/hil/test_new_map_mission.py and test_walkthrough.py run
-(the whole page for it cost the suite another ~35 s of CPU). Visible substitutions: the robot's port (a free one, never 14555/14550), and the sector training's `--steps
-2e7` -> SECTOR_STEPS, and the sector eval's pairs -> a seeded sample of EVAL_SAMPLE."""
+(the whole page for it cost the suite another ~35 s of CPU). Visible substitutions: the robot's
+port (a free one, never 14555/14550), the sector training's `--steps 2e7` -> SECTOR_STEPS, and
+the sector eval's pairs -> a seeded sample of EVAL_SAMPLE."""
 
 from __future__ import annotations
 

@@ -119,18 +119,13 @@ class Crasher:
         from ground_station.mavlink.link import Link, LinkError
         from ground_station.processes import RobotProcess
 
-        for attempt in range(3):
-            robot = self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
-            self.link = Link(robot.url, tlog=False)
-            try:
-                self.link.connect(30.0)
-                return
-            except LinkError:
-                self.close_link()
-                # its free port taken before it bound it (another test's link): again on another port
-                if robot.alive or "Address already in use" not in robot.log_tail(3) or attempt == 2:
-                    raise LinkError(4, f"robot silent for 30 s (exit {robot.returncode}): "
-                                       f"{robot.log_tail(5)}") from None
+        robot = self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
+        self.link = Link(robot.url, tlog=False)
+        try:
+            self.link.connect(30.0)
+        except LinkError:
+            self.close_link()  # why it was silent: whether it exited, and its last words
+            raise LinkError(4, f"robot silent for 30 s (exit {robot.returncode}): {robot.log_tail(5)}") from None
 
     def reported_policy(self) -> tuple[float, float, float] | None:
         got = self.link.read_params(("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO"), budget_s=5.0)
