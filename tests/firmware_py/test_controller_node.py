@@ -131,3 +131,45 @@ def test_paced_sim_clock_steps_once_per_period_without_answer_counters():
         node.stop()
         node.bus.shutdown()
         sim.shutdown()
+
+
+def test_the_localiser_weighs_after_the_ticks_command_is_on_the_bus(request):
+    """The localiser's share of a tick (its chunk of particle weighing, the largest part of the
+    tick's compute) runs once the tick's command is on the bus (Controller.after_command), not
+    between the SimTick and the command: each of its ticks finds that tick's MotorCommand sent."""
+    import time
+
+    from firmware_py.mapdata import grid_from_rows
+
+    ch = f"node-{request.node.name}"
+    sim, spy = can.Bus(interface="virtual", channel=ch), can.Bus(interface="virtual", channel=ch)
+    ctrl = Controller(policy=sector_seek_policy(), lockstep=True)
+    grid = grid_from_rows(["....", "....", "....", "...."], 500)
+    ctrl.pose.use(grid, ctrl.pose.new_localiser(grid))
+    loc = ctrl.pose.loc
+    assert loc is not None
+    sent: list[int] = []
+    seen: list[int | None] = []  # per localiser tick: the last command counter on the bus then
+    weigh = loc.tick
+
+    def tick(*args):
+        while (msg := spy.recv(0)) is not None:
+            if cp.frame_name(msg.arbitration_id) == "MotorCommand":
+                sent.append(cp.decode(msg)[1]["Cmd_Counter"])
+        seen.append(sent[-1] if sent else None)
+        weigh(*args)
+
+    loc.tick = tick  # type: ignore[method-assign]
+    node = RobotNode(can.Bus(interface="virtual", channel=ch), ctrl, SimClock(), lockstep=True)
+    node.start()
+    try:
+        warm_up(sim, 4)
+        deadline = time.monotonic() + 2.0
+        while len(seen) < 4 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        node.stop()
+        node.bus.shutdown()
+        sim.shutdown()
+        spy.shutdown()
+    assert seen == [0, 1, 2, 3]
