@@ -410,6 +410,7 @@ class Localiser:
         probes = [(d * ca, d * sa) for d, (ca, sa) in self._probes]
         cos, sin = math.cos, math.sin
         ninf = -math.inf
+        far, off_map = float(max_mm), float(-max_mm)  # once, not per ray: the loop below is the tick's hot spot
         start = self._cursor
         end = min(len(xs), start + (cfg.global_chunk if self.global_mode else cfg.chunk))
         for i in range(start, end):
@@ -430,11 +431,11 @@ class Localiser:
                     # the reading is the nearest hit in the sensor's cone: its error is the signed distance
                     # of the ray end nearest to (or deepest into) a wall (a ray ending inside a wall would
                     # have read shorter; one ending short of every wall, longer)
-                    m = float(max_mm)
+                    m = far
                     for dc, ds in fan:
                         ex = x + c * dc - s * ds
                         ey = y + s * dc + c * ds
-                        v = float(-max_mm)
+                        v = off_map
                         if ex >= 0 and ey >= 0:
                             ix = int(ex / res)
                             iy = int(ey / res)
