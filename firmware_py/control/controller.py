@@ -107,7 +107,6 @@ class Controller:
         self.manual = ManualSticks()  # Manual mode's sticks and deadman (control/manual.py)
         self._manual_was_driving = False
         self._arm_block = ""  # the last backend arming block reported (step says a new one once)
-        self._estimate_due: tuple[Inputs, Localiser | None] | None = None  # after_command's work
         self.pose.use(policy.map_grid if policy is not None else None, self._new_localiser(policy))
 
     # --- what the parts hold, as the rigs, tests and telemetry read it -----------------------
@@ -457,20 +456,6 @@ class Controller:
             self.can_errors = can_errors
 
     # --- the tick -------------------------------------------------------------------------
-    def after_command(self) -> None:
-        """The tick's estimation, once its command is on the bus (RobotNode calls it then; a caller
-        that does not gets it at the start of the next `step`, the same order of work): the
-        localiser's chunk of particle weighing, the largest part of the tick's compute, delays
-        neither the safety checks nor the command. Its correction reaches the decision one tick
-        later; odometry is integrated before every decision."""
-        with self._lock:
-            due, self._estimate_due = self._estimate_due, None
-            if due is None or due[1] is not self.pose.loc:  # nothing due, or the map changed since
-                return
-            said = self.pose.localise_tick(due[0], self.kind.localiser_margin_mm)
-            if said:
-                self._event("info", said, SEV_INFO if said == "localised" else SEV_WARNING)
-
     def step(self, inputs: Inputs, now_us: int, tick: int | None = None) -> Outputs:
         """One control tick at clock time `now_us`. `tick` is the SimTick
         counter being answered in lockstep (the motor command carries it)."""
@@ -482,11 +467,12 @@ class Controller:
                 what = f"policy 0x{self.policy.policy_id:08x}" if self.policy else "no policy"
                 self._transition(CtrlState.STANDBY, f"boot complete, {what}")
             self.safety.freshness.note_counters(inp)
-            self.after_command()  # the last tick's estimation, when the caller did not run it
             enc_jump = self.pose.encoders(inp)
             if enc_jump and self.armed and self.state != CtrlState.FAULT:
                 self._enter_fault(enc_jump)
-            self._estimate_due = (inp, self.pose.loc)
+            said = self.pose.localise_tick(inp, self.kind.localiser_margin_mm)
+            if said:
+                self._event("info", said, SEV_INFO if said == "localised" else SEV_WARNING)
             if bool(inp.arm_block) != bool(self._arm_block) and inp.arm_block:
                 self._event("warning", inp.arm_block, SEV_WARNING)  # a backend's arming block (DroneCAN
             self._arm_block = inp.arm_block  # node-id collision), said once when it begins (its text ages)

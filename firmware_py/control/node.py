@@ -327,7 +327,6 @@ class RobotNode:
             done = time.perf_counter_ns()
             self._send_heartbeat(out)
         self._note_wall(done - t0_ns, done - c0, lag_ns)
-        self.controller.after_command()  # estimation, off the command's path (Controller.after_command)
         # SYS_STATUS errors_count2: periods lost on the wall clock (in wall mode `overruns` are those)
         self.controller.note_loop_stats(self.overruns + self.wall_overruns if self.sim_time else self.overruns,
                                         self.can_errors)

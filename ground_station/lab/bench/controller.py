@@ -15,10 +15,8 @@ Baselines measured in the same run: the control period (the deadline the
 loop must meet) and `Controller.step` alone in this process on recorded-like
 inputs (the decision's pure compute, no bus, no threads).
 
-Then the step's compute with the policy's own work in it (issue 29): the
-controller's thread CPU time per tick (`Controller.step` and the estimation
-the node runs after the command; the part before the command beside it)
-on the in-process lockstep rig
+Then the step's compute with the policy's own work in it (issue 29):
+`Controller.step` thread CPU time per tick on the in-process lockstep rig
 (pymunk plant, the robot's localiser tracking on the policy's map), for
 the cell policy on paper10 trips and for `--nav-policy` (default the shipped
 sector policy, its local planner on) on the navigation scenario with
@@ -131,18 +129,14 @@ def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, se
     cell = cell_policy()
     rng = random.Random(seed)
     cell_cpu: list[float] = []
-    cell_cmd: list[float] = []
     for i in range(episodes):
         start, goal = far_trip(gm, cell, rng)
-        ep = run_episode(gm.occ, cell, start, [goal], max_sim_s=60.0, seed=seed + i)
-        cell_cpu += ep.step_cpu_us
-        cell_cmd += ep.command_cpu_us
+        cell_cpu += run_episode(gm.occ, cell, start, [goal], max_sim_s=60.0, seed=seed + i).step_cpu_us
     pol = load_policy(nav_policy)
     ctrl = standard_controllers(pol, ("learnt",))[0]
     eps = nav_episodes(gm, episodes, seed, obstacles, movers, plan_kw=guidance_from_metadata(pol.metadata))
     rows = run_hil(eps, {gm.name: gm}, ctrl, step_cpu=True)
     nav_cpu = [v for r in rows for v in r["step_cpu_us"]]
-    nav_cmd = [v for r in rows for v in r["command_cpu_us"]]
     # The step without the planner: the same policy, map and localiser, its local planner
     # off (no obstacle layer, no plan to read), on the scenario's trips without discs or
     # movers: without a planner the robot stalls at the first disc, and a standing robot's
@@ -155,11 +149,9 @@ def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, se
     off_tick = {"background_cpu_us_per_tick": sum(r["background_cpu_us"] for r in rows) / max(len(nav_cpu), 1),
                 "background_runs": sum(r["background_runs"] for r in rows),
                 "background_max_us": max((r["background_max_us"] for r in rows), default=0.0)}
-    to_command = {"cell": _pcts(cell_cmd), "nav": _pcts(nav_cmd)}  # step alone: before the command
-    return {"cell": {"policy": "policies:paper10_cell", **cell_p, "to_command": to_command["cell"]},
+    return {"cell": {"policy": "policies:paper10_cell", **cell_p},
             "nav": {"policy": nav_policy, "obstacles": obstacles, "movers": movers,
-                    "outcomes": [r["outcome"] for r in rows], **nav_p, **off_tick,
-                    "to_command": to_command["nav"]},
+                    "outcomes": [r["outcome"] for r in rows], **nav_p, **off_tick},
             "nav_planner_off": {"policy": nav_policy, "outcomes": [r["outcome"] for r in bare_rows], **bare_p},
             "episodes": episodes, "seed": seed, "map": gm.name, "localiser": "on (the policies' map)",
             "nav_over_cell_p99": nav_p["p99_us"] / max(cell_p["p99_us"], 1e-9),
@@ -356,10 +348,6 @@ def run(args: argparse.Namespace) -> int:
                            ("nav_planner_off", f"{Path(args.nav_policy).name}, planner off, no discs or movers")):
             v = sc[key]
             rows.append((f"[step compute, lockstep, localiser on] {label}: p50 / p99 / max us ({v['ticks']} ticks)",
-                         f"{v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}"))
-        for key, label in (("cell", "cell policy"), ("nav", Path(args.nav_policy).name)):
-            v = sc[key]["to_command"]
-            rows.append((f"[step compute, of it before the command] {label}: p50 / p99 / max us",
                          f"{v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}"))
         rows.append(("[step compute] p99 with obstacles / cell p99", round(sc["nav_over_cell_p99"], 2)))
         rows.append(("[step compute] p99 planner on / planner off",

@@ -6,9 +6,7 @@ Per scenario: trials tried, survived (the invariant held), lost, and the
 figures it measured. The load scenario also runs a baseline without any
 ground station in the same invocation, so its tick latency is reported as a
 ratio against that baseline and against the control period, beside the
-absolute p99s (the acceptance bound: compute p99 < 1000 us on a quiet machine;
-the tick's p99 counts from the SimTick's bus timestamp, so it holds the
-hub's websocket hop as well). Exit status 1 if
+absolute p99 (the acceptance bound is tick_p99_us < 1000). Exit status 1 if
 any trial was lost. docs/reliability.md records a run.
 """
 
@@ -154,7 +152,6 @@ def run(args: argparse.Namespace) -> int:
             cp99 = res.figures.get("compute_p99_us_max")
             cbase = res.figures.get("baseline", {}).get("compute_p99_us")
             d["compute_p99_ratio_to_baseline"] = cp99 / cbase if cp99 and cbase else None
-            d["compute_p99_under_1000us"] = cp99 is not None and cp99 < 1000
         results[name] = d
         rows.append((name, f"tried {res.tried}, survived {res.survived}, lost {res.lost}  "
                            f"[{sc.unit}; {wall:.0f} s]"))
@@ -163,8 +160,7 @@ def run(args: argparse.Namespace) -> int:
         for why in res.failures[:3]:
             rows.append(("  lost", why))
         if name == "load":
-            rows.append(("", f"compute_p99_us < 1000: {d['compute_p99_under_1000us']}, "
-                             f"tick_p99_us < 1000: {d['tick_p99_under_1000us']}, ratio to baseline "
+            rows.append(("", f"tick_p99_us < 1000: {d['tick_p99_under_1000us']}, ratio to baseline "
                              f"{d['tick_p99_ratio_to_baseline'] or float('nan'):.2f} (target <= 1.2), compute_p99 "
                              f"ratio {d['compute_p99_ratio_to_baseline'] or float('nan'):.2f}, tick p99 to the 50 ms "
                              f"period {d['tick_p99_ratio_to_period'] or float('nan'):.4f}"))

@@ -156,7 +156,6 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
             contacts = rig.plant.world.contact_events
             sim_s = rig.plant.time_us / 1e6
             cpu = [round(v / 1000, 1) for v in rig.ctrl.step_cpu_ns]
-            cmd_cpu = [round(v / 1000, 1) for v in rig.ctrl.command_cpu_ns]
             work = rig.ctrl.background  # the planner's search, stepped between ticks (off the tick)
             off_tick = {"background_cpu_us": round(work.cpu_ns / 1000, 1), "background_runs": work.runs,
                         "background_max_us": round(work.max_cpu_ns / 1000, 1)}
@@ -169,7 +168,7 @@ def run_hil(eps: list[Episode], maps: dict[str, GridMap], ctrl: BenchController,
                      "contacts": contacts, "path_ratio": driven / plan_length(ep) if success else None,
                      "time_s": sim_s, "near_miss_periods": near, "min_clearance_mm": round(minclear, 1),
                      "discs": len(ep.discs), "movers": len(ep.movers), **_blocked_row(ep),
-                     "wall_s": round(time.perf_counter() - t0, 3), **({"step_cpu_us": cpu, "command_cpu_us": cmd_cpu, **off_tick} if step_cpu else {})})
+                     "wall_s": round(time.perf_counter() - t0, 3), **({"step_cpu_us": cpu, **off_tick} if step_cpu else {})})
         if progress is not None:
             progress()
     return rows

@@ -86,28 +86,18 @@ def far_trip(gm, policy: Policy, rng: random.Random, min_cells: int = 6):
 
 
 class _TimedController(Controller):
-    """The controller, with the CPU time of every tick recorded (thread CPU
-    time: what the tick costs, not what the shared machine's scheduler adds):
-    `step_cpu_ns` its whole work (`step` and the estimation the node runs after
-    the command), `command_cpu_ns` the part before the command (`step`)."""
+    """The controller, with the CPU time of every `step` recorded (thread CPU
+    time: what the tick costs, not what the shared machine's scheduler adds)."""
 
     def __init__(self, *args, **kw) -> None:
         super().__init__(*args, **kw)
         self.step_cpu_ns: list[int] = []
-        self.command_cpu_ns: list[int] = []
 
     def step(self, inputs, now_us, tick=None):  # type: ignore[no-untyped-def]
         t0 = time.thread_time_ns()
         out = super().step(inputs, now_us, tick)
-        self.command_cpu_ns.append(time.thread_time_ns() - t0)
-        self.step_cpu_ns.append(self.command_cpu_ns[-1])
+        self.step_cpu_ns.append(time.thread_time_ns() - t0)
         return out
-
-    def after_command(self) -> None:
-        t0 = time.thread_time_ns()
-        super().after_command()
-        if self.step_cpu_ns:
-            self.step_cpu_ns[-1] += time.thread_time_ns() - t0
 
 
 class LockstepRig:
@@ -253,8 +243,7 @@ class Episode:
     commands: list[tuple[int, int, int, int]] = field(default_factory=list)  # (t_us, left, right, counter)
     transitions: list[tuple[int, str, str, str]] = field(default_factory=list)
     latency_us: list[float] = field(default_factory=list)
-    step_cpu_us: list[float] = field(default_factory=list)  # the controller's thread CPU time per tick
-    command_cpu_us: list[float] = field(default_factory=list)  # ... of it before the command (step)
+    step_cpu_us: list[float] = field(default_factory=list)  # Controller.step thread CPU time per tick
     belief_error_mm: float = 0.0  # |true - believed position| at the end
     odom_error_mm: float = 0.0  # |true - dead-reckoning position| at the end
     belief_error_max_mm: float = 0.0  # largest |true - believed| while driving
@@ -308,7 +297,6 @@ def run_episode(occ, policy: Policy | None, start: tuple[float, float, float],
     return Episode(belief_error_mm=errs[-1], odom_error_mm=math.hypot(last[1] - last[5], last[2] - last[6]),
                    belief_error_max_mm=max(errs), poses=rig.poses,
                    step_cpu_us=[v / 1000 for v in rig.ctrl.step_cpu_ns],
-                   command_cpu_us=[v / 1000 for v in rig.ctrl.command_cpu_ns],
                    result=result, contacts=plant.world.contact_events, sim_s=plant.time_us / 1e6,
                    wall_s=wall, ticks=plant.tick, final_error_mm=err, commands=rig.commands,
                    transitions=[(t.t_us, t.src.name, t.dst.name, t.cause) for t in rig.ctrl.transitions],
