@@ -321,9 +321,10 @@ class DroneCanEngine:
         """NodeStatus when it is due (1 Hz on `now`, the robot's clock: sim time in HIL, as every
         other period and timeout), else nothing."""
         now = self.clock() if now is None else now
-        if self._next_status is not None and now < self._next_status:
+        due = self._next_status
+        if due is not None and now < due:
             return []
-        self._next_status = max((now if self._next_status is None else self._next_status) + NODE_STATUS_PERIOD_S, now)
+        self._next_status = now + NODE_STATUS_PERIOD_S if due is None else max(due + NODE_STATUS_PERIOD_S, now)
         status = dronecan.uavcan.protocol.NodeStatus()
         self._fill_status(status, now)
         return self.broadcast(status, PRIORITY_LOW)
