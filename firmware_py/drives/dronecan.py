@@ -9,8 +9,7 @@ NodeStatus at 1 Hz, GetNodeInfo answered with the profile's node name). What it 
   reported rpm (feed-forward at `max_rpm`); zeros for a few ticks when the wheels should stop, then
   nothing (a DroneCAN ESC stops on its command timeout). Odometry integrates each ESC's
   `esc.Status` rpm (the wheel's, unless `gear_ratio` says otherwise), taken as the mean since that
-  ESC's previous Status (ESCs report a filtered rpm; integrating it as an instantaneous sample with
-  the trapezoid rule was 2-3x further off in the sim's 15 s trips); an ESC whose node reports
+  ESC's previous Status (ESCs report a filtered rpm, not an instantaneous sample); an ESC whose node reports
   health ERROR/CRITICAL in its NodeStatus is a fault naming it, one silent for the sensor timeout
   is stale.
 * sensors (`[sensors] backend = "dronecan"`): `uavcan.equipment.range_sensor.Measurement`, its
@@ -59,7 +58,6 @@ class _Esc:
         self.node: int | None = None
         self.health = 0
         self.integral = 0.0
-        self.target_rpm = 0.0  # the motor rpm last commanded (signed as on the wire)
 
     def name(self) -> str:
         node = f", DroneCAN node {self.node}" if self.node is not None else ""
@@ -88,7 +86,6 @@ class DroneCanBackend(DriveBackend):
         self.ranges = [0] * n
         self.status = [robot_spec.RANGE_INVALID] * n
         self._fresh = [False] * n
-        self.bad_frames = 0
         self.frames_sent = 0
         self._collision_said = ""
         self._lock = threading.Lock()
@@ -218,8 +215,6 @@ class DroneCanBackend(DriveBackend):
     def _command(self, wheel_mm_s: tuple[int, int]) -> list[can.Message]:
         n = max(e.index for e in self.escs) + 1
         target = [e.sign * wheel_mm_s[k] * self.motor_rpm_per_mm_s for k, e in enumerate(self.escs)]
-        for e, t in zip(self.escs, target, strict=True):
-            e.target_rpm = t
         if self.profile.drive.command == "rpm":
             rpm = [0] * n
             for e, t in zip(self.escs, target, strict=True):

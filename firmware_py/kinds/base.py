@@ -159,8 +159,7 @@ def _no_cell(_policy: Policy) -> int | None:
 def free_goal(policy: Policy, x_mm: int, y_mm: int, radius_mm: int = robot_spec.ROBOT_RADIUS_MM) -> tuple[int, str]:
     """Any goal the robot fits at, on the policy's map when it carries one:
     not outside it, in a wall, or closer to either than the robot's radius
-    (`radius_mm`, the profile's body: firmware_py.layout; issue 29 finding 7: such a goal was
-    accepted and driven at until the bumper)."""
+    (`radius_mm`, the profile's body: firmware_py.layout)."""
     grid = policy.map_grid
     if grid is None:
         return 0, ""
@@ -217,7 +216,7 @@ class PolicyKind:
     # sector kind's local planner parameters), from the loaded policy; ValueError with the reason
     parse_metadata: Callable[[Policy], Any] = field(default=_no_config)
     # the table is indexed by one map's cells (a cell policy): it runs only on the map it was trained
-    # on. Other kinds observe ranges and bearings and take the robot's own map (issue 32)
+    # on. Other kinds observe ranges and bearings and take the robot's own map
     map_specific: bool = False
     # readings the policy's map does not explain at the tracked pose (beyond this margin, mm) are
     # withheld from the localiser while the policy drives (None: it weighs them all). A setting of the
@@ -242,10 +241,4 @@ def wheel_actions() -> tuple[tuple[int, int], ...]:
 
 def best_action(row: list[int] | tuple[int, ...] | memoryview) -> int:
     """Greedy action of one Q-table row; ties break to the lowest index."""
-    best = 0
-    best_v = row[0]
-    for i in range(1, len(row)):
-        if row[i] > best_v:
-            best_v = row[i]
-            best = i
-    return best
+    return max(range(len(row)), key=row.__getitem__)

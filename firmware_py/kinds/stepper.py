@@ -27,7 +27,7 @@ STEER_GAIN_PER_S = 3  # yaw rate (mrad/s) = gain * bearing (mrad)
 @dataclass
 class Step:
     """One cell step: turn to `heading_mrad`, then drive to `target`. `decided`: the table
-    row read to choose it (telemetry), `fault`: no step (the kind's reason)."""
+    row read to choose it (telemetry)."""
 
     target: tuple[int, int]
     heading_mrad: int

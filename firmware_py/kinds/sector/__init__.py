@@ -8,19 +8,10 @@ With its map and `local_planner` metadata (`parse_metadata`: a `LocalPlannerConf
 kept as `policy.kind_config`) the policy steers round obstacles the map does not
 show. The ground station plans waypoints on the known map; a box in a corridor or
 a person walking past is not on it. What the robot does about them before the
-learnt table steers is this package's, one module per concern:
-
-* `encoder`: the reference state encoder (`SectorEncoder`);
-* `config`: the planner's parameters and their bounds (`LocalPlannerConfig`);
-* `memory`: the obstacle memory (`ObstacleMemory`: unmapped reading end points,
-  forgotten when not seen, cleared by readings that see through them);
-* `planner`: Dijkstra sub-goals round remembered points on the map (`LocalPlanner`);
-* `recoveries`: the tick's side, searching off the tick, and the recoveries when
-  the way is closed (wait, whole-map re-plan, give way, back off, clear, "no
-  route": `PlannedTarget`);
-* `decide`: the recovery decisions as a learnt int8 table (`recovery_table`
-  metadata, `RecoveryTable`) instead of the hand-written rules;
-* `guard`: the motion guard, the last word on the table's action (`MotionGuard`).
+learnt table steers is this package's, one module per concern: `encoder`,
+`config` (the planner's parameters), `memory` (the obstacle memory), `planner`
+(Dijkstra sub-goals), `recoveries` (the tick's side and the recoveries), `decide`
+(the recovery decisions as a learnt table) and `guard` (the motion guard).
 
 Which readings the map explains is generic map code (`firmware_py.mapdata`), as
 the collision monitor asks it for every kind. A robot whose policy is of another
@@ -116,11 +107,9 @@ def planner_config(policy: Policy) -> LocalPlannerConfig | None:
 
 def localiser_margin_mm(policy: Policy) -> int | None:
     """With a local planner, readings the map does not explain at the tracked pose (unmapped
-    obstacles, beyond the planner's margin) are withheld from the localiser: each lowers every
-    particle's weight, and a few together started augmented MCL's random-particle recovery, which in
-    a map of look-alike places jumped the estimate (HIL, 3 discs + 2 movers: 0.80 success against
-    0.94 on odometry). The controller's estimation part does the withholding
-    (control/estimate.PoseEstimate.statuses)."""
+    obstacles, beyond the planner's margin) are withheld from the localiser: a few together start
+    augmented MCL's random-particle recovery, which in a map of look-alike places jumps the
+    estimate. control/estimate.PoseEstimate.statuses does the withholding."""
     cfg = planner_config(policy)
     return cfg.margin_mm if cfg is not None and policy.map_grid is not None else None
 

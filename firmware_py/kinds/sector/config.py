@@ -20,7 +20,7 @@ from firmware_py import robot_spec
 from firmware_py.mapdata import MAP_MARGIN_MM
 
 META_KEY = "local_planner"  # policy metadata: the planner's parameters (an object; {} = the defaults)
-MAX_WINDOW_CELLS = 200  # raster cells a side of the search window (40,000 cells, ~0.3 s of search)
+MAX_WINDOW_CELLS = 200  # raster cells a side of the search window
 BODY_FIELDS = ("wall_clear_mm", "obstacle_clear_mm", "soft_mm", "los_clear_mm")  # the body's radius + a margin
 
 

@@ -1,4 +1,4 @@
-"""The recovery decisions as a table (issue 47): what the robot does when its local route is
+"""The recovery decisions as a table: what the robot does when its local route is
 closed, read from an int8 Q-table a policy carries (`recovery_table` metadata) instead of the
 hand-written rules of `recoveries.PlannedTarget`.
 

@@ -13,6 +13,7 @@ random inputs.
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from dataclasses import asdict, dataclass, field
 
 from firmware_py import robot_spec
@@ -62,11 +63,7 @@ class SectorEncoder:
             return 0
         if status != robot_spec.RANGE_VALID:  # too far or invalid: nothing seen
             return self.nbins - 1
-        b = 0
-        for edge in self.range_edges_mm:
-            if range_mm >= edge:
-                b += 1
-        return b
+        return bisect_right(self.range_edges_mm, range_mm)  # the edges at or below the range
 
     def encode(self, bearing_mrad: int, ranges_mm: list[int] | tuple[int, ...],
                status: list[int] | tuple[int, ...] | None = None) -> int:

@@ -16,12 +16,9 @@ toward the target, as a veto.
 A turn in place toward a target behind the robot (more than
 `TURN_COMMIT_MRAD` off the heading) is kept the way it began: the
 table's bearing sectors meet behind the robot, and one turn step there
-flips the target to the other side, so the table turned left, right,
-left for good (squeezed between two discs and a wall: 20 s on the spot).
+flips the target to the other side (left, right, left for good).
 Nearer ahead, after `DITHER_REVERSALS` reversals in a row the guard
-steps forward when the front sensors read at least twice `veto_mm` (a
-target just off ahead, a wall close on one diagonal: the table turned
-to and fro between two headings for good).
+steps forward when the front sensors read at least twice `veto_mm`.
 
 A body the map does not explain (the obstacle memory holds it that
 near) touching the flank or a front diagonal ahead of the axle (a mover
@@ -29,11 +26,10 @@ that walked up to the robot and stands while it would overlap it) is
 turned away from, the same way whatever the table asks, until a step
 ahead is clear by `collision.travel_gap_mm`, then `ESCAPE_STEPS` steps
 are taken ahead (`MotionGuard._escape`): the table, or the front veto
-turning toward a target on the body's side, turned into it and back on
-the spot while the collision monitor held every step (the no-yield
-bench's loops), or, before the monitor knew the blind gaps, stepped
-into it (all its 14 collisions). A reverse the monitor holds
-`HELD_TURN_US` is turned toward the target as a held forward step is.
+turning toward a target on the body's side, would turn into it and back
+on the spot while the collision monitor held every step. A reverse the
+monitor holds `HELD_TURN_US` is turned toward the target as a held
+forward step is.
 """
 
 from __future__ import annotations
@@ -68,7 +64,6 @@ class MotionGuard:
         self._fan = collision.DEFAULT_FAN if layout == DEFAULT_LAYOUT else collision.Fan(layout)
         self.cfg = cfg
         self.vetoes = 0  # forward steps replaced by a turn (telemetry / benchmarks)
-        self.backoffs = 0  # back-offs started
         self.reset()
 
     def reset(self) -> None:
@@ -86,11 +81,9 @@ class MotionGuard:
                ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
                memory: ObstacleMemory, detouring: bool = False, held_us: int = 0) -> int:
         """The action to take (`detouring`: the planner steers to a sub-goal, not the waypoint: a
-        robot stuck on its way there backs off wherever it stands; the table turned in place for
-        seconds by a wall it had to pass close to). `held_us`: how long the collision monitor
-        (control/collision.py) has held the straight part: a forward step it holds HELD_TURN_US is
-        turned toward the target instead, as a veto (the table asked for it for 20 s against a
-        remembered point in the path, and the robot stood)."""
+        robot stuck on its way there backs off wherever it stands). `held_us`: how long the
+        collision monitor (control/collision.py) has held the straight part: a forward step it holds
+        HELD_TURN_US is turned toward the target instead, as a veto."""
         action = self._act(now_us, x, y, action, bearing_mrad, ranges_mm, status, memory, detouring, held_us)
         self._note_reverse(action == REVERSE, ranges_mm, status)
         return action
@@ -136,7 +129,6 @@ class MotionGuard:
             self._backing_until_us = -1  # something came up behind: no more backing (checked every tick)
         if (now_us - self._anchor_us >= cfg.stuck_us and self.may_reverse(ranges_mm, status)
                 and (detouring or memory.within(x, y, self.radius_mm + cfg.backoff_near_mm))):
-            self.backoffs += 1
             self._backing_until_us = now_us + cfg.backoff_us
             self._anchor, self._anchor_us = (x, y), now_us + cfg.backoff_us
             return REVERSE
@@ -155,14 +147,11 @@ class MotionGuard:
 
     def _escape(self, now_us: int, x: float, y: float, action: int, ranges_mm: list[int] | tuple[int, ...],
                 status: list[int] | tuple[int, ...], memory: ObstacleMemory) -> int:
-        """Away from a body touching the flank or a front diagonal ahead of the axle (a mover that
-        walked up to the robot and stands while it would overlap it): a step ahead rubs into it, and
-        the table's turn back toward the target (or the front veto's, toward a target on that side)
-        undoes a single turn away. So: turn away, the same way, until a step ahead is clear
-        (collision.travel_gap_mm, which counts the rim beside a near reading), then ESCAPE_STEPS
-        steps ahead; at most ESCAPE_US of turning at a time. Only for a body the map does not
-        explain (one the obstacle memory holds that near): a block's corner beside the robot is the
-        collision monitor's, which knows the map's corners."""
+        """Away from a body touching the flank or a front diagonal ahead of the axle (module
+        docstring): a step ahead rubs into it, and a turn back toward the target undoes a single turn
+        away. So: turn away, the same way, until a step ahead is clear (collision.travel_gap_mm), then
+        ESCAPE_STEPS steps ahead; at most ESCAPE_US of turning at a time. Only for a body the obstacle
+        memory holds that near: a map corner beside the robot is the collision monitor's."""
         flank = [robot_spec.RANGE_TOO_FAR if i == 0 else st for i, st in enumerate(status)]  # ahead: the veto's
         # (no flank reading under CONTACT_MM: nothing there comes within veto_mm of a step ahead, and
         # the tick is spared the geometry)
@@ -215,9 +204,8 @@ class MotionGuard:
 
     def may_reverse(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]) -> bool:
         """The rear is clear, and no side reading has fallen to veto_mm or under since the back-off
-        began: a small disc between the side and rear-diagonal cones came into the side sensor's view
-        only as the robot backed onto it (a back-off collision in the twin). A wall alongside, read
-        as near all the way, does not stop it."""
+        began (a small disc between the side and rear-diagonal cones comes into the side sensor's view
+        only as the robot backs onto it). A wall alongside, read as near all the way, does not stop it."""
         if not self.rear_clear(ranges_mm, status):
             return False
         ref = self._side_ref

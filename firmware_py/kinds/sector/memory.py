@@ -14,16 +14,12 @@ stays closed while the robot goes round through another) unless a reading sees
 through them. At most `max_points` points (the oldest go first).
 
 A point in the blind gap between two cones is not in any reading's cone, so no
-reading sees through it; pinned, it stayed for good. But a point stands for a
-body, and a body the robot must see (`MIN_BODY_RADIUS_MM`, what the collision
-monitor's blind-gap rule assumes too) near the rim does not fit in a gap: the
-readings rule it out where every disc of that radius through the point would
-cross a cone nearer than its reading (`_no_room`). A mover seen a metre off, its
-end point placed on the cone's middle ray, was kept 8 degrees outside the front
-cone while the robot drove up to it; 180 mm short of a corridor's exit the
-collision monitor held every step into the remembered point, pinned while the
-robot went round it, and the robot stalled there with nothing in its way (the
-demo, 1 run in 8: tests/hil/test_phantom_point_hil.py).
+reading sees through it; pinned, it would stay for good (and the collision
+monitor hold every step into it). But a point stands for a body, and a body the
+robot must see (`MIN_BODY_RADIUS_MM`, what the collision monitor's blind-gap
+rule assumes too) near the rim does not fit in a gap: the readings rule it out
+where every disc of that radius through the point would cross a cone nearer
+than its reading (`_no_room`).
 """
 
 from __future__ import annotations
@@ -42,13 +38,9 @@ _N = robot_spec.SENSOR_COUNT
 _ANG = [a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD]
 _MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
 _HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
-# ObstacleMemory.added counts new points this near the robot: a person walking to and fro a metre off
-# a disc that closes the only door made every round of recoveries a "moving scene" (at window_mm, 1 m),
-# and the robot waited until its time ran out instead of saying "no route"
+# ObstacleMemory.added counts new points this near the robot (at window_mm, 1 m, a person walking to
+# and fro beside a disc that closes the only door made every round a "moving scene": no "no route")
 MOVING_NEAR_MM = 700
-# a moving scene's new points belong to a body that moved: remembered points this near one of them are
-# that body's (a person is about the robot's width; ObstacleMemory.standing_by)
-BODY_MM = 2 * robot_spec.ROBOT_RADIUS_MM
 # the smallest body the robot is built to see (the scenarios' discs are 100-200 mm, movers 150; the
 # collision monitor's CONTACT_MM rests on the same size): a remembered point no disc of this radius
 # through it could stand at unseen is cleared (ObstacleMemory._no_room)
@@ -78,6 +70,8 @@ class ObstacleMemory:
         self._ang = _ANG if self._layout_arg is None else [a / 1000.0 for a in layout.angles_mrad]
         self._mount = float(layout.mount_mm)
         self._half_fov = layout.fov_mrad / 2000.0
+        # a moving scene's new points belong to a body that moved: remembered points this near one of them
+        # are that body's (a person is about the robot's width; standing_by)
         self.body_mm = 2 * layout.robot_radius_mm
         self.points: dict[tuple[int, int], tuple[int, int, int]] = {}
         self.pinned: dict[tuple[int, int], int] = {}  # key -> kept until (controller clock)
@@ -123,9 +117,7 @@ class ObstacleMemory:
                       status: list[int] | tuple[int, ...], seen: set[tuple[int, int]]) -> list[tuple[int, int]]:
         """Points inside a sensor's cone nearer than its reading by `clear_margin_mm` (a too-far
         reading: nearer than the range's maximum): nothing is there any more. A cone reports its
-        nearest echo, so anything in it nearer than the reading would have been read instead.
-        (Tried: clearing only along the simulated fan's 3 rays, as a small disc between two rays
-        goes unseen: 0.968 -> 0.943 on the bench, mover trails kept blocking routes.)"""
+        nearest echo, so anything in it nearer than the reading would have been read instead."""
         cfg = self.cfg
         lay, ang, mount = self.layout, self._ang, self._mount
         reach = lay.max_range_mm + mount
@@ -237,9 +229,8 @@ class ObstacleMemory:
         """Forget everything (a recovery: what is really there is seen again on the next tick); given
         the time, a point a global re-plan pinned that is still pinned and lies `around_mm` or more
         from (x, y) is kept (nav2's clearing around the robot): what closed the whole map's routes out
-        there (a box seen from one side, the robot gone round to find it from the other: forgetting
-        it sent the robot round again instead of saying "no route"). Readings that see through one
-        still clear it."""
+        there, or the robot goes round again instead of saying "no route". Readings that see through
+        one still clear it."""
         keep = {} if now_us is None else {
             p: v for p, v in self.points.items()
             if self.pinned.get(p, -1) >= now_us and (v[0] - x) ** 2 + (v[1] - y) ** 2 >= around_mm ** 2}
@@ -261,7 +252,7 @@ class ObstacleMemory:
 
     def standing_by(self, since_us: int) -> ObstacleMemory:
         """A copy holding only what stood still since `since_us`: the points first seen by then, less
-        those within `BODY_MM` of a point first seen later (a body that showed new points moved: a mover
+        those within `body_mm` of a point first seen later (a body that showed new points moved: a mover
         shifting on the spot, not a box)."""
         new = [v for p, v in self.points.items() if self.born.get(p, since_us) > since_us]
         moved: set[tuple[int, int]] = set()

@@ -237,9 +237,8 @@ class LocalPlanner:
         """Dijkstra from the waypoint over a window round the robot and the waypoint (`whole_map`:
         over the whole map, a global re-plan), unless the last search still holds. A whole-map route
         the robot is on, closed ahead by points seen since, is held to for `wait_us` (`held`: the robot
-        stands) before the search runs again: a mover walking across it closed it, the next search
-        sent the robot the other way round, the mover closed that, and the robot went to and fro
-        between two doors (issue 32: most of the twin's remaining loops)."""
+        stands) before the search runs again, so a mover walking across it does not send the robot
+        to and fro between two doors."""
         cfg = self.cfg
         r = cfg.raster_mm
         key = (wx, wy, version)
@@ -321,14 +320,19 @@ class LocalPlanner:
                     push(heap, (nd, n))
         self._dist = {(i % wd - 1 + x0, i // wd - 1 + y0): d for i, d in enumerate(dist_a) if d < inf}
 
+    def _downhill(self, c: Cell) -> tuple[float, Cell]:
+        """The last search's neighbour of raster cell `c` nearest the waypoint, and its distance."""
+        dist = self._dist
+        return min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
+                   for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+
     def _route_length(self, cur: Cell, max_steps: int = 4000) -> float:
         """Length (mm) of the last search's way from raster cell `cur` down to the waypoint (the
         distances are costs, inflation included: the way is walked to measure it)."""
         dist, r = self._dist, self.cfg.raster_mm
         c, total = cur, 0.0
         for _ in range(max_steps):
-            d, nxt = min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
-                         for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+            d, nxt = self._downhill(c)
             if d >= dist[c]:
                 break
             total += r * (_SQRT2 if nxt[0] != c[0] and nxt[1] != c[1] else 1.0)
@@ -346,8 +350,7 @@ class LocalPlanner:
             return False
         c = near[0]
         for _ in range(cells):
-            d, nxt = min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
-                         for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+            d, nxt = self._downhill(c)
             if d >= dist[c]:
                 return True
             if nxt in self._closed:
@@ -403,8 +406,7 @@ class LocalPlanner:
         path = [cur]
         for _ in range(self.cfg.lookahead_mm // r + 1):
             c = path[-1]
-            d, nxt = min((dist.get((c[0] + dx, c[1] + dy), math.inf), (c[0] + dx, c[1] + dy))
-                         for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+            d, nxt = self._downhill(c)
             if d >= dist[c]:
                 break
             path.append(nxt)
@@ -439,14 +441,12 @@ class LocalPlanner:
                 and self._body_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2)]
 
     def refuge(self, x: float, y: float, memory: ObstacleMemory) -> tuple[int, int] | None:
-        """Where to stand aside for the body nearest the robot (a person who does not give way,
-        walking at it down a one-cell corridor), or None: the raster cell nearest by way (Dijkstra
-        over the map's free space, the remembered points grown, up to `REFUGE_SEARCH_MM`) whose
-        centre lies `refuge_mm` of the robot's body or more off the line the body walks (through the robot, along the grid
-        axis nearest the direction from the body to the robot: on an occupancy grid a corridor runs
-        along an axis, and a person walking in one is rarely in its middle, so the direction between
-        the two is up to ~20 degrees off it) and as far or more from the body: a side corridor or
-        a room's corner it walks past."""
+        """Where to stand aside for the body nearest the robot (a person who does not give way), or
+        None: the raster cell nearest by way (Dijkstra over the map's free space, the remembered points
+        grown, up to `REFUGE_SEARCH_MM`) whose centre lies `refuge_mm` or more off the line the body
+        walks and as far or more from the body: a side corridor or a room's corner. That line runs
+        through the robot along the grid axis nearest the body-to-robot direction (a corridor runs
+        along an axis, and a person walking in one is rarely in its middle)."""
         nearest = memory.nearest(x, y)
         if nearest is None:
             return None

@@ -1,32 +1,18 @@
 """The tick's side of the sector kind's local planner (`PlannedTarget`): the
 search does not run in the control tick, and when it finds no way the
-recoveries run.
+recoveries run (`PlannedTarget`'s docstring lists them in order).
 
-The search does not run in the tick (issue 29 finding 4: legal metadata made
-one tick take 1 s). Each tick `PlannedTarget` remembers what it sees, decides
-whether anything is in the way (cheap), posts the question (pose, waypoint, a
-copy of the memory) to `firmware_py.background`, and steers by the latest
-answer: at full speed while that answer (or, before the first, the moment the
-way became blocked) is at most `PLAN_SLOW_US` old on the controller clock, at
-half speed after that, and not at all once it is `PLAN_STOP_US` old. On the
-robot the answer comes from a worker thread; in lockstep HIL and in the twin
-the search runs between two ticks, so the answer of tick k is used from tick
-k+1 and runs stay reproducible.
-
-When the window's search finds no way from the robot to the waypoint,
-`PlannedTarget` runs the recoveries, in order: wait (a mover may step aside),
-re-plan over the whole map round the pinned points (another door, another
-aisle: followed like a local detour), and when there is no route: when
-something came up to the robot while it waited (a person who will not give
-way, standing at it) give way first: drive to the nearest place off the line
-that body walks (`LocalPlanner.refuge`: a side corridor behind the robot, a
-room's corner) and stand there until the way opens, then back to the waypoint
-by the whole map's route; otherwise (or with nowhere to stand aside) back off,
-clear the obstacle layer round the robot (what closed the route farther away is
-kept while pinned), wait longer and re-plan again; after `max_rounds` global
-searches without a route it says "no route" (`PlannedTarget.no_route`), and the
-controller reports it (STATUSTEXT, severity error) and ends the mission in
-HOLD.
+Each tick `PlannedTarget` remembers what it sees, decides whether anything is
+in the way (cheap), posts the question (pose, waypoint, a copy of the memory)
+to `firmware_py.background`, and steers by the latest answer: at full speed
+while that answer (or, before the first, the moment the way became blocked) is
+at most `PLAN_SLOW_US` old on the controller clock, at half speed after that,
+and not at all once it is `PLAN_STOP_US` old. On the robot the answer comes
+from a worker thread; in lockstep HIL and in the twin the search runs between
+two ticks, so the answer of tick k is used from tick k+1 and runs stay
+reproducible. After `max_rounds` global searches without a route it says "no
+route" (`PlannedTarget.no_route`), and the controller reports it (STATUSTEXT,
+severity error) and ends the mission in HOLD.
 """
 
 from __future__ import annotations
@@ -89,31 +75,23 @@ class PlannedTarget:
     Recoveries, when the window's search finds no way to the waypoint (nav2's recovery behaviours,
     in this order, all on the controller clock):
 
-    1. WAIT `wait_us` (in round r, r x `wait_us`), stopped: a mover may step aside (a reading that
-       sees through a remembered point clears it); the window's search goes on, and a way found
-       ends the recovery.
+    1. WAIT `wait_us` (in round r, r x `wait_us`), stopped: a mover may step aside; the window's
+       search goes on, and a way found ends the recovery.
     2. GLOBAL: the points remembered now are pinned (`route_memory_us`) and the search covers the
-       whole map: another door, another aisle. A route is followed to the waypoint (the search
-       runs again when the way ahead closes).
+       whole map (another door, another aisle); a route is followed to the waypoint.
     3. No route: BACKUP `backoff_us` (the driver reverses when the rear is clear), CLEAR the
-       obstacle layer round the robot (what is really there is seen again next tick; pinned points
-       `window_mm` or more away stay while pinned: what closed the whole map's routes out there),
-       then 1. again. In a round where something came up to the robot (below), GIVE_WAY first:
-       the robot drives to the nearest place off the line the nearest body walks
-       (`LocalPlanner.refuge`: a side corridor behind it, a room's corner) and stands there (1.
-       again: the wait's search ends it once the way is open, and the way back is the whole map's
-       route), as a person in a one-cell corridor steps into a side door for someone who will not;
-       with no such place within `REFUGE_SEARCH_MM`, BACKUP. A drive there is at most
-       `GIVE_WAY_US`; the round spent standing aside does not count.
+       obstacle layer round the robot (pinned points `window_mm` or more away stay: what closed the
+       whole map's routes out there), then 1. again. In a round where something came up to the
+       robot, GIVE_WAY first: drive (at most `GIVE_WAY_US`) to the nearest place off the line the
+       nearest body walks (`LocalPlanner.refuge`: a side corridor, a room's corner) and stand there
+       (1. again; the way back is the whole map's route); with no such place within
+       `REFUGE_SEARCH_MM`, BACKUP. The round spent standing aside does not count.
     4. After `max_rounds` global searches without a route: NO_ROUTE, stopped, `no_route` says why
-       (the controller reports it and ends the mission). A round whose wait saw more than
-       `moving_points` new points within `MOVING_NEAR_MM`, and whose whole map would be open without
-       what moved since its wait began (the points first seen since, and older ones of the same
-       bodies: `ObstacleMemory.standing_by`), was a moving scene (a mover walking in the only way,
-       not one walking past a box that closes it) and does not count, up to 3 x `max_rounds` rounds
-       in all; nor does one in which a remembered point came within the robot's radius + `veto_mm`
-       (the guard never steps that close: it came to the robot, a person who will not give way
-       standing at it in a one-cell corridor).
+       (the controller reports it and ends the mission). A round does not count (up to 3 x
+       `max_rounds` rounds in all) when it was a moving scene (its wait saw more than
+       `moving_points` new points within `MOVING_NEAR_MM`, and the whole map would be open without
+       what moved since: `ObstacleMemory.standing_by`), or when a remembered point came within the
+       robot's radius + `veto_mm` (the guard never steps that close: it came to the robot).
 
     With a recovery table (`decisions`: `decide.RecoveryTable`, a policy's `recovery_table`) the
     table decides, every `decide.DECIDE_US` of a wait, whether to wait on or re-plan over the whole
@@ -122,8 +100,8 @@ class PlannedTarget:
     of 3 x `max_rounds` rounds stays.
 
     A waypoint beyond `max_plan_mm` is driven at without planning while the map leaves the straight
-    line to it free (looked at off the tick); once it does not (a recovery's detour left the route
-    the waypoints follow) the tick's side goes to GLOBAL at once: the whole map's route leads back.
+    line to it free (looked at off the tick); once it does not, the tick's side goes to GLOBAL at
+    once: the whole map's route leads back.
     """
 
     def __init__(self, grid: OccupancyGrid, cfg: LocalPlannerConfig, work: Background,
@@ -140,7 +118,6 @@ class PlannedTarget:
         self._active: tuple[int, int] | None = None
         self._active_since_us = 0
         self.detouring = False  # the last target was not the waypoint
-        self.stale_ticks = 0  # ticks steered at reduced speed or stopped for want of a recent answer
         self.mode = LOCAL
         self._mode_since_us = 0
         self._rounds = 0  # global searches without a route for this waypoint (in a still scene)
@@ -235,9 +212,8 @@ class PlannedTarget:
                 gen = self._generation
                 sight = self._far_sight
                 if sight is not None and sight[:2] == (gen, waypoint) and not sight[2]:
-                    # ... unless the map's walls stand between: a recovery's detour left the route the
-                    # waypoints follow, and a straight drive at a waypoint metres away in a maze stalls
-                    # at the first wall; the whole map's route leads back (issue 32)
+                    # ... unless the map's walls stand between: a straight drive at a waypoint metres
+                    # away in a maze stalls at the first wall; the whole map's route leads back
                     memory.pin(now_us)
                     self.global_plans += 1
                     self._enter(GLOBAL, now_us + 1)
@@ -282,8 +258,6 @@ class PlannedTarget:
         """Full speed while the answer steered by is at most PLAN_SLOW_US old, half up to PLAN_STOP_US,
         then none (counted as stale ticks)."""
         speed = 100 if age_us <= PLAN_SLOW_US else 50 if age_us <= PLAN_STOP_US else 0
-        if speed < 100:
-            self.stale_ticks += 1
         return speed
 
     def _recovering(self, now_us: int, x: float, y: float, waypoint: tuple[int, int], ans: PlanAnswer | None,
@@ -309,8 +283,6 @@ class PlannedTarget:
                 self._enter(GLOBAL, now_us + 1)  # the next tick asks over the whole map
             return float(wx), float(wy), 0
         if ans is None:  # GLOBAL, no answer yet: stand still while the whole map is searched
-            if now_us - self._mode_since_us > PLAN_STOP_US:
-                self.stale_ticks += 1
             return float(wx), float(wy), 0
         if ans.no_route:
             self._all_rounds += 1
@@ -336,7 +308,7 @@ class PlannedTarget:
                 self._refuge = ans.refuge
                 self._generation += 1  # the refuge's questions are not the waypoint's
                 # what stands at the robot walks: seen again or forgotten, not kept a minute (a box
-                # farther off stays pinned: the blocked bench's robot went round and round once it did not)
+                # farther off stays pinned, or the robot goes round and round)
                 memory.unpin_near(x, y, refuge_mm(self.radius_mm))
                 self._enter(GIVE_WAY, now_us)
             else:

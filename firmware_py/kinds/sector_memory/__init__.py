@@ -29,9 +29,8 @@ from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
 from firmware_py.layout import Layout
 
 _HEAD = struct.Struct("<HHHB")  # free_mm, leave_margin_mm, cell_mm, wall_bearing
-# decisions wait for a valid reading of the four axis sensors this many ticks (the realistic plant drops
-# 2 % of readings; an INVALID one counts as blocked, which sent the Bug rules the wrong way in 4 of 50 HIL
-# episodes), then decide with it counted as blocked
+# decisions wait for a valid reading of the four axis sensors this many ticks (an INVALID one counts as
+# blocked, which can send the Bug rules the wrong way on a dropped reading), then decide with it blocked
 GRID_INVALID_RETRY_TICKS = 10
 WALLED_US = 20_000_000  # how long a move the collision monitor held counts as walled (a mover may leave)
 # decisions the Bug gets to reach a route sub-goal: twice the straight run plus this many (a disc the map
@@ -169,7 +168,6 @@ class SectorMemoryDriver(CellStepper):
             i = 2 * ((d - physical) % 4)  # the sensor looking that way (45 deg apart, CCW)
             ranges[i], status[i] = robot_spec.RANGE_MIN_MM, robot_spec.RANGE_VALID
         return ranges, status
-
 
 
 def max_radius_mm(enc: GridBugEncoder) -> int:

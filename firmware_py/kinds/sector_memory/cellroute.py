@@ -2,16 +2,15 @@
 
 The Bug memory is complete but blind: with only the goal's bearing it follows
 walls it could have known about, and on a maze or a house of rooms its path
-is several times the shortest (a 16x16 maze, realistic plant: path ratio up to
-10, issue 32). The robot has its map (`qnav map upload`) and a localised pose,
-so, as nav2's global planner feeds its controller, it gives the Bug sub-goals
+is several times the shortest. The robot has its map (`qnav map upload`) and a
+localised pose, so, as nav2's global planner feeds its controller, it gives the Bug sub-goals
 along the map's shortest route and lets the learnt table and its memory deal
 with what the map does not show (discs, movers, a door left shut).
 
 * `CellRoute` holds the distance-to-goal field over the map's free cells
   (breadth-first, 4-connected, as the Bug moves), computed off the tick on
-  the kind's `Background` (a 116 x 116 map is ~13k cells of pure Python)
-  and read on a later tick; until it is there the Bug steers on the goal.
+  the kind's `Background` and read on a later tick; until it is there the Bug
+  steers on the goal.
 * `straight_subgoal` picks, from a cell, the end of the longest straight
   run down the field: the Bug then sees its sub-goal dead ahead, and turns
   only where the route turns.

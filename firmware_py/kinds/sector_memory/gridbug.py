@@ -57,7 +57,6 @@ DIR_VECTORS: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))
 DIR_HEADING_MRAD: tuple[int, ...] = (0, 1571, 3142, -1571)
 # Relative moves (the table's actions): new direction = (reference heading + move) % 4.
 MOVE_FORWARD, MOVE_LEFT, MOVE_BACK, MOVE_RIGHT = 0, 1, 2, 3
-MOVE_NAMES: tuple[str, ...] = ("forward", "left", "back", "right")
 N_MOVES = 4
 # Each move's one-cell step as (forward, left) in the reference frame: the .qtab action set of this kind.
 MOVE_STEPS: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))
@@ -184,11 +183,8 @@ class GridBugEncoder:
                 memory.side = MODE_WALL_RIGHT if left >= 0 else MODE_WALL_LEFT
             memory.mode = memory.side
             memory.hit_mm = dist
-            g = 0  # the first goal-ward direction, counting CCW from the reference heading
-            for k in range(N_DIRS):
-                if gw >> ((memory.heading + k) % N_DIRS) & 1:
-                    g = (memory.heading + k) % N_DIRS
-                    break
+            # the first goal-ward direction, counting CCW from the reference heading
+            g = next(d for d in ((memory.heading + k) % N_DIRS for k in range(N_DIRS)) if gw >> d & 1)
             memory.heading = (g + 1) % N_DIRS if memory.side == MODE_WALL_RIGHT else (g + 3) % N_DIRS
         return memory.mode
 
