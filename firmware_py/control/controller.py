@@ -72,11 +72,10 @@ class Controller:
         self.cfg = config or VehicleConfig()
         self._lock = threading.RLock()
         self.lockstep = lockstep
-        # qnav-robot --profile (firmware_py.profile.RobotProfile; None: the built-in robot): its geometry
-        # drives odometry, and a policy trained for another is refused (policy.config_mismatch)
+        # qnav-robot --profile (firmware_py.profile.RobotProfile; None: the built-in robot): a policy
+        # trained for another is refused (policy.config_mismatch)
         self.robot_profile: Any = profile
-        # its body, wheels and sensors (firmware_py.layout), handed to each part; the kind reads the
-        # policy's sectors, each from the sensor that looks that way (an uncovered one INVALID)
+        # its body, wheels and sensors (firmware_py.layout), handed to each part
         self.layout = lay = profile.layout() if profile is not None else DEFAULT_LAYOUT
         self.pose = PoseEstimate(start_pose_mm, localise=localise, localiser_config=localiser_config, layout=lay)
         self.safety = SafetyChecks(bumper=lay.bumper)

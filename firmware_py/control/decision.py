@@ -24,11 +24,9 @@ class KindPart:
     """The active policy and its kind at work (module docstring)."""
 
     def __init__(self, policy: Policy | None, *, lockstep: bool, layout: Layout = DEFAULT_LAYOUT) -> None:
-        # the geometry of the readings the kind gets: the policy's sectors, each at the angle of the sensor
-        # behind it (firmware_py.layout.Layout.sector_layout), the profile's body and wheels
-        self.layout = layout
-        # the kind's off-tick work (the local planner's search): stepped by the node between lockstep
-        # ticks (reproducible runs), a worker thread otherwise (firmware_py.background)
+        self.layout = layout  # the readings' geometry the kind gets (Layout.sector_layout)
+        # the kind's off-tick work: stepped by the node between lockstep ticks (reproducible runs), a
+        # worker thread otherwise (firmware_py.background)
         self.background = Background(threaded=not lockstep)
         # the robot's own map (qnav-robot --map FILE; mapdata.OccupancyGrid): a policy carrying another is
         # refused at boot and activation (policy.config_mismatch). None: the policy's map is taken as is

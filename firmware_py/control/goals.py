@@ -18,8 +18,7 @@ from firmware_py.vehicle import CtrlState
 
 
 class GoalRunner:
-    """Arms and starts the command-line goals from the control thread (so a
-    lockstep run is deterministic), and notices when they are done."""
+    """Arms and starts the command-line goals, and notices when they are done (module docstring)."""
 
     def __init__(self, ctrl: Controller, goals: list[tuple[int, int]]) -> None:
         self.ctrl = ctrl
