@@ -3,15 +3,11 @@ registry that maps a kind's name and file code to it (as python-can maps an
 interface name to its bus class: a table of names and modules, each imported
 when first asked for).
 
-Shipped (`SHIPPED`): `cell` (the paper's grid state; firmware_py.kinds.cell),
-`sector` (bearing sector x range bins, steering on the local planner's sub-goals;
-firmware_py.kinds.sector) and `sector-memory` (the cell-stepped Bug memory;
-firmware_py.kinds.sector_memory). The loader (`firmware_py.policy`), the writer
-and the controller find a kind only through `of_code`, `of_name` and
-`of_policy`, which import a shipped kind's package the first time a policy of it
-is loaded or written: a robot running a cell policy never imports the sector
-planner or the Bug memory. `names()` lists every kind, imported or not. A new kind
-is a module with a `PolicyKind` passed to `register` (or a line in `SHIPPED`).
+The loader (`firmware_py.policy`), the writer and the controller find a kind only
+through `of_code`, `of_name` and `of_policy`, which import a shipped kind's
+package (`SHIPPED`) the first time a policy of it is loaded or written: a robot
+running a cell policy never imports the sector planner or the Bug memory. A new
+kind is a module with a `PolicyKind` passed to `register` (or a line in `SHIPPED`).
 
 Kind codes of experiments removed from qnav (docs/research.md; commit e026a1b has them) are reserved in
 `REMOVED`: never reused, and a file of one is refused by name.

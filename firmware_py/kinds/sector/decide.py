@@ -5,19 +5,16 @@ hand-written rules of `recoveries.PlannedTarget`.
 Two decision events, each a row of one table (`N_STATES` rows x `N_ACTIONS` columns):
 
 * **waiting** (`EV_WAIT`): every `DECIDE_US` of a WAIT (stopped, the route closed by something
-  seen): `WAIT` (stand another `DECIDE_US`) or `REPLAN` (search the whole map now). The rule it
-  replaces: wait r x `wait_us` in round r (at most `max_rounds` x), then re-plan.
-  State: time waited (`WAITED_S` bins), rounds so far (0, 1, 2, 3+), the nearest remembered
-  point (at the robot: within radius + `veto_mm`; within `MOVING_NEAR_MM`; farther or none), and
-  whether the scene moved while it waited (more than `moving_points` new points near the robot).
+  seen): `WAIT` (stand another `DECIDE_US`) or `REPLAN` (search the whole map now). State: time
+  waited (`WAITED_S` bins), rounds so far (0, 1, 2, 3+), the nearest remembered point (at the
+  robot: within radius + `veto_mm`; within `MOVING_NEAR_MM`; farther or none), and whether the
+  scene moved while it waited (more than `moving_points` new points near the robot).
 * **no route this round** (`EV_ROUND`): the whole map's search found no route: `WAIT` (back off,
   clear the layer round the robot, wait: another round), `GIVE_WAY` (stand aside at the refuge the
-  search found; without one, as `WAIT`) or `NO_ROUTE` (say so and hold). The rules it replaces:
-  count a round as "still" unless the scene moved or something came up to the robot, say "no route"
-  after `max_rounds` still rounds, give way when something came up and a refuge exists, else back
-  off. State: still rounds so far (0, 1, 2+), rounds in all (1, 2, 3-5, 6+), whether something
-  came up to the robot, whether it was a moving scene (what moved closed the way: the map is open
-  without it), whether a refuge exists.
+  search found; without one, as `WAIT`) or `NO_ROUTE` (say so and hold). State: still rounds so
+  far (0, 1, 2+), rounds in all (1, 2, 3-5, 6+), whether something came up to the robot, whether
+  it was a moving scene (what moved closed the way: the map is open without it), whether a refuge
+  exists.
 
 A bound stays hand-written: at most 3 x `max_rounds` rounds (then "no route"), and a wait of at
 most 3 x `max_rounds` x `wait_us` (then a whole-map search), so no table can hold the robot for

@@ -12,18 +12,14 @@ cell primitive turns in place to that direction and drives one cell
   move along it brings the robot closer to the goal (component > half a
   cell: + ; < -half a cell: - ; else 0), i.e. ahead, ahead-left, left,
   back-left, back, back-right, right, ahead-right (CCW from ahead; 0/0, in
-  the goal cell, encodes as ahead). It is a bearing sector whose lines are
-  exactly "a move this way is goal-ward", the one fact the mode rules and
-  the go mode need.
+  the goal cell, encodes as ahead): exactly "a move this way is goal-ward".
 * free (4 bits): neighbour k (0 front, 1 left, 2 back, 3 right) is free when
   the range sensor looking that way (index 2k relative to the robot's
   physical grid heading) reads at least `free_mm`. At a cell centre of a
-  `cell_mm` = 500 grid with the sensors on a 150 mm radius, a blocked
-  neighbour's face is 250 - 150 = 100 mm away and a free neighbour leaves at
-  least 750 - 150 = 600 mm (the cell beyond blocked, or the border); the
-  default threshold 350 mm is the middle, so 250 mm of misalignment or
-  noise either way keeps the flag right. Too close -> blocked, too far ->
-  free, invalid -> blocked (never drive into what was not seen).
+  500 mm grid with the sensors on a 150 mm radius, a blocked neighbour's face
+  is 100 mm away and a free neighbour leaves at least 600 mm: the default
+  350 mm is the middle. Too close -> blocked, too far -> free, invalid ->
+  blocked (never drive into what was not seen).
 * mode (3): go / follow the wall on the right / on the left, fixed rules
   (`update`), the Bug family's:
   - go -> wall mode when no free neighbour is goal-ward. The side is chosen
@@ -31,8 +27,7 @@ cell primitive turns in place to that direction and drives one cell
     wall on the right) and kept for the goal; the goal distance there is the
     hit distance; the reference heading turns so that a blocked goal-ward
     cell is on the followed side (wall on the right: heading = that
-    direction + 90 deg), so a wall-following rule starts with the wall where
-    it belongs.
+    direction + 90 deg).
   - wall mode -> go when the goal distance is at least `leave_margin_mm`
     below the hit distance and a goal-ward neighbour is free (each new hit
     is closer than the last, so the robot cannot circle for ever).
