@@ -69,7 +69,7 @@ class Activation:
         new policy's map needs its localiser built (seconds on a large map), that
         runs on a worker thread and a PendingActivation comes back; the running
         policy drives meanwhile and the new one is swapped in when ready, or
-        refused with the reason (issue 29 finding 3)."""
+        refused with the reason."""
         with self._lock:
             if self.host.busy():
                 return False, "refused while driving: stop first"
@@ -157,7 +157,7 @@ class Activation:
         refused naming both; any other kind localises and plans on it from the next tick (its
         localiser built before the lock is taken: the ticks keep running). `claim`: the map worker's
         pending activation, claimed under the lock just before the swap as the policy worker's is
-        (a map the link gave up on, answered "map refused", is never swapped in: issue 43 finding 5)."""
+        (a map the link gave up on, answered "map refused", is never swapped in)."""
         with self._lock:
             pol, route_items, cfg = self.kind.policy, list(self.host.route_items()), self.host.cfg
         if pol is not None:

@@ -1,4 +1,4 @@
-"""The collision monitor: the last word on every wheel command (issue 32).
+"""The collision monitor: the last word on every wheel command.
 
 As nav2's collision monitor sits under any controller, this sits under every
 policy kind, the exploration wander and Manual driving: the controller hands
@@ -36,8 +36,7 @@ _TWO_PI = 2.0 * math.pi
 # A body touching the rim in the blind gap between two cones (up to half the 45-degree spacing from a
 # sensor's axis) is read by that sensor, along its cone's nearer edge, at 40 mm or less for any disc of
 # radius 100 mm or more (27 for a 150-mm mover touching 22.5 degrees off): a reading under CONTACT_MM
-# may be such a body, so the rim across the gaps beside that cone counts as touched. A non-yielding
-# mover that walked up to the robot's flank, read 20-30 mm off, was hit by the next step ahead.
+# may be such a body, so the rim across the gaps beside that cone counts as touched.
 CONTACT_MM = 45.0
 _GAP_OFFSETS = tuple(math.radians(o) for o in (11.25, 15.0, 18.75, 22.5))  # the cone's edge to mid-gap
 
@@ -187,8 +186,7 @@ def robot_frame(points: Sequence[tuple[int, int]], pose_mm: tuple[int, int, int]
 class MapCorners:
     """The corners of a map's occupied cells that stick out into free space (world mm), bucketed by
     cell for a quick look round the pose. Range sensors see a wall's face but can miss a block's
-    corner between two cones; the robot knows where the map's corners are (the demo with obstacles
-    once ended at the bumper on one, arcing round a block)."""
+    corner between two cones; the robot knows where the map's corners are."""
 
     def __init__(self, grid: OccupancyGrid) -> None:
         self.grid = grid
@@ -219,8 +217,7 @@ def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int]
     """(left, right) with the straight part limited, and "", "slow" or "stop" (what it did).
     `remembered`: obstacle points the policy kind remembers, in the robot's frame (`robot_frame`):
     a disc that slipped into the gap between two sensors' cones still counts. `mapped`: per sensor,
-    whether the robot's map explains its reading (`mapped_readings`; empty:
-    none does)."""
+    whether the robot's map explains its reading (`mapped_readings`; empty: none does)."""
     v2, w2 = left + right, right - left  # twice the straight and the turning part
     if v2 == 0 or (stop_mm <= 0 and slow_mm <= 0):
         return left, right, ""

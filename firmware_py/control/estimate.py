@@ -44,8 +44,8 @@ class PoseEstimate:
     # --- the map ------------------------------------------------------------------------------
     def new_localiser(self, grid: OccupancyGrid | None) -> Localiser | None:
         """A localiser for `grid` when the running one is for another map (None: keep the running
-        one, or there is no map). Building one precomputes its likelihood field (~0.1-0.5 s for
-        paper10), so callers run it outside the controller's lock: the ticks keep going."""
+        one, or there is no map). Building one precomputes its likelihood field, so callers run it
+        outside the controller's lock: the ticks keep going."""
         grid = grid if self.localise else None
         cur = self.loc
         if grid is None or (cur is not None and cur.grid == grid):
@@ -82,9 +82,8 @@ class PoseEstimate:
     def statuses(self, inp: Inputs, withhold_mm: int | None) -> list[int]:
         """The range statuses the localiser weighs: with `withhold_mm` (the active policy's margin,
         None: weigh all), readings its map does not explain at the tracked pose (unmapped obstacles)
-        are withheld as invalid: each lowers every particle's weight, and a few together started
-        augmented MCL's random-particle recovery, which in a map of look-alike places jumped the
-        estimate (HIL, 3 discs + 2 movers: 0.80 success against 0.94 on odometry)."""
+        are withheld as invalid: each lowers every particle's weight, and a few together would start
+        augmented MCL's random-particle recovery, which in a map of look-alike places jumps the estimate."""
         status = list(inp.range_status)
         loc = self.loc
         if withhold_mm is None or loc is None or not loc.localised:

@@ -14,8 +14,6 @@ EXPLORE_CLEAR_FRONT_MM = 450
 EXPLORE_CLEAR_DIAGONAL_MM = 80  # a 500 mm corridor leaves ~200 mm; 80 mm on a diagonal is ~160 mm beside the path
 EXPLORE_STEER_GAIN = 0.3  # (mm/s) / mm of left-right diagonal difference
 EXPLORE_STEER_MM_S = 80
-
-
 EXPLORE_TIMEOUT_US = 30_000_000
 
 

@@ -13,7 +13,7 @@ from array import array
 
 from firmware_py.mapdata import OccupancyGrid
 
-MAX_FIELD_POINTS = 300_000  # raster squares of a likelihood field (1-3 s to build in pure Python; 24x24 cells of 500 mm keep 25 mm squares)
+MAX_FIELD_POINTS = 300_000  # raster squares of a likelihood field (bounds its build time and memory)
 
 
 class LikelihoodField:
@@ -30,7 +30,7 @@ class LikelihoodField:
         self.width_mm = grid.width * c
         self.height_mm = grid.height * c
         # a coarser raster on a large map: the work (and memory) stays under MAX_FIELD_POINTS
-        # squares whatever the map's extent (paper10 and the bench maps keep 25 mm)
+        # squares whatever the map's extent
         area = (self.width_mm + 2 * max_mm) * (self.height_mm + 2 * max_mm)
         res_mm = max(res_mm, math.ceil(math.sqrt(area / MAX_FIELD_POINTS)))
         while True:
@@ -114,30 +114,26 @@ class LikelihoodField:
                     best = d
         return best
 
+    def _index(self, x_mm: float, y_mm: float) -> int:
+        """The raster index of a world point (-1 beyond the raster)."""
+        fx = x_mm + self.margin
+        fy = y_mm + self.margin
+        if fx < 0 or fy < 0:
+            return -1
+        ix = int(fx / self.res)
+        iy = int(fy / self.res)
+        return -1 if ix >= self.nx or iy >= self.ny else iy * self.nx + ix
+
     def signed_at(self, x_mm: float, y_mm: float) -> float:
         """The signed distance (mm, < 0 inside a wall, capped at max_mm) at a world point; beyond the
         raster: -max_mm (off the map)."""
-        fx = x_mm + self.margin
-        fy = y_mm + self.margin
-        if fx < 0 or fy < 0:
-            return -self.max_mm
-        ix = int(fx / self.res)
-        iy = int(fy / self.res)
-        if ix >= self.nx or iy >= self.ny:
-            return -self.max_mm
-        return self.signed[iy * self.nx + ix]
+        i = self._index(x_mm, y_mm)
+        return self.signed[i] if i >= 0 else -self.max_mm
 
     def log_p(self, x_mm: float, y_mm: float) -> float:
         """The field at a world point; beyond the raster: the floor."""
-        fx = x_mm + self.margin
-        fy = y_mm + self.margin
-        if fx < 0 or fy < 0:
-            return self.floor
-        ix = int(fx / self.res)
-        iy = int(fy / self.res)
-        if ix >= self.nx or iy >= self.ny:
-            return self.floor
-        return self.table[iy * self.nx + ix]
+        i = self._index(x_mm, y_mm)
+        return self.table[i] if i >= 0 else self.floor
 
     def free(self, x_mm: float, y_mm: float, clearance_mm: float) -> bool:
         """A robot centred here would not overlap a wall (for uniform draws)."""

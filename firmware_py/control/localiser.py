@@ -133,9 +133,7 @@ class Localiser:
         self.field = field or likelihood_field(grid, cfg.field_res_mm, cfg.sigma_hit_mm, cfg.z_hit, cfg.z_floor,
                                                cfg.max_field_mm)
         self.rng = random.Random(cfg.seed)
-        # the robot's sensors (firmware_py.layout: the profile's angles, in its order, and ranges)
         self.layout = layout
-        mount = layout.mount_mm
         self._fit_mm = layout.robot_radius_mm * 0.9  # a pose where the body (nearly) fits
         self._min_mm = float(layout.range_min_mm)
         # TOO_FAR: the space 1/2 and 19/20 of the way to the sensor's reach must be free
@@ -146,7 +144,7 @@ class Localiser:
         offs = [0.0] if nr == 1 else [-fov / 2 + fov * j / (nr - 1) for j in range(nr)]
         self._beams = [tuple((math.cos(a / 1000 + o), math.sin(a / 1000 + o)) for o in offs)
                        for a in layout.angles_mrad]
-        self._mount = float(mount)
+        self._mount = float(layout.mount_mm)
         self.xs: list[float] = []
         self.ys: list[float] = []
         self.ths: list[float] = []
@@ -168,11 +166,7 @@ class Localiser:
         self._seed: _Seeding | None = None  # global mode's grid-scored first update, in progress
         self._seed_cells: list[tuple[float, float]] | None = None  # its candidate positions (per map, lazily)
         self._streak = 0  # global mode: updates in a row the same cluster dominated
-        self._prev_cluster: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
-        self.last_fit = 0.0  # global mode: the cluster's mean per-beam log-likelihood at the last update
-        self.last_share = 1.0  # global mode: weight share of the best cluster at the last update
         self._force_update = False
-        self.random_drawn = 0  # particles drawn uniformly at the last resample (recovery)
         self.localised = False
         self.init_pose(0, 0, 0)
 
@@ -213,8 +207,13 @@ class Localiser:
         self._force_update = False
         self._seed = _Seeding()
         self._streak = 0
-        self._prev_cluster = None
         self.localised = False
+
+    def _readings(self, ranges_mm: list[int], status: list[int]) -> list[tuple[int, float]]:
+        """(sensor, mm) of each reading that measured a distance (too close: the sensor's minimum)."""
+        return [(k, float(r) if st == robot_spec.RANGE_VALID else self._min_mm)
+                for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False))
+                if st == robot_spec.RANGE_VALID or st == robot_spec.RANGE_TOO_CLOSE]
 
     def _candidate_cells(self) -> list[tuple[float, float]]:
         """Grid positions (raster coordinates: world + margin) where the robot fits."""
@@ -242,15 +241,11 @@ class Localiser:
         cells = self._candidate_cells()
         if sd.readings is None:  # the readings every candidate is scored against
             sd.odom = self._odom_now
-            beams: list[tuple[int, float]] = []
-            probes: list[tuple[int, float]] = []
-            for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
-                if st == robot_spec.RANGE_VALID or st == robot_spec.RANGE_TOO_CLOSE:
-                    d = float(r if st == robot_spec.RANGE_VALID else self._min_mm)
-                    beams.append((k, self._mount + d))
-                    if d > 100:
-                        probes.append((k, self._mount + 0.75 * d))
-                elif st == robot_spec.RANGE_TOO_FAR:
+            readings = self._readings(ranges_mm, status)
+            beams = [(k, self._mount + d) for k, d in readings]
+            probes = [(k, self._mount + 0.75 * d) for k, d in readings if d > 100]
+            for k, st in enumerate(status):
+                if st == robot_spec.RANGE_TOO_FAR:
                     probes += [(k, self._mount + self._far[k][0]), (k, self._mount + self._far[k][1])]
             angles = [round(a / 1000 / (TWO_PI / nh)) for a in self.layout.angles_mrad]
             dirs = [(math.cos(m * TWO_PI / nh), math.sin(m * TWO_PI / nh)) for m in range(nh)]
@@ -358,12 +353,7 @@ class Localiser:
             if not (moved or turned or self._force_update):
                 return
             self._force_update = False
-            beams = []
-            for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
-                if st == robot_spec.RANGE_VALID:
-                    beams.append((k, float(r)))
-                elif st == robot_spec.RANGE_TOO_CLOSE:
-                    beams.append((k, self._min_mm))
+            beams = self._readings(ranges_mm, status)
             self._pending = (self._odom_now, [(self._mount + r, float(k)) for k, r in beams])
             # negative information, while localising globally: space a reading looked through is free
             # (3/4 of a valid reading; 1 and 1.9 m along a TOO_FAR one), checked against the grid's cells
@@ -499,16 +489,10 @@ class Localiser:
         if self.global_mode:
             # the estimate is the best particle's cluster; it must hold most of the weight
             b = max(range(n), key=ws.__getitem__)
-            bx, by, bt = self.xs[b], self.ys[b], self.ths[b]
-            r2 = cfg.cluster_mm ** 2
-            ca = cfg.cluster_mrad / 1000
-            cw = [w if (x - bx) ** 2 + (y - by) ** 2 <= r2 and abs(_wrap(t - bt)) <= ca else 0.0
-                  for w, x, y, t in zip(ws, self.xs, self.ys, self.ths, strict=True)]
+            cw = self._cluster(ws, (self.xs[b], self.ys[b], self.ths[b]))
             share = sum(cw)
             cw = [w / share for w in cw]
             est, cov = self._mean_cov(cw)
-            # how well the cluster explains the readings: weighted mean per-beam log-likelihood
-            self.last_fit = sum(w * v for w, v in zip(cw, lw, strict=True)) / (bw * nb)
         else:
             est, cov = self._tracking_estimate(ws)
         # the previous estimate carried to these readings by the odometry (global mode's consistency test)
@@ -521,7 +505,6 @@ class Localiser:
         sd = math.sqrt(max(cov[0], cov[1]))
         sa = math.sqrt(cov[2]) * 1000
         tight = sd <= cfg.localised_std_mm and sa <= cfg.localised_std_mrad and share >= cfg.cluster_share
-        self.last_share = share
         if self.global_mode:
             # converged only when the same cluster dominated `converge_updates` updates in a row (a
             # look-alike place often wins one update, rarely several while the robot moves)
@@ -546,23 +529,24 @@ class Localiser:
     def _tracking_estimate(self, ws: list[float]
                            ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """While tracking: the weighted mean of the particles near the pose the
-        last estimate predicts (cluster_mm / cluster_mrad around it), so the few
-        particles drawn uniformly for recovery, or a look-alike place (a second
-        corridor), cannot pull the estimate away: a plain weighted mean over all
-        particles moved it by up to 0.3 m in a demo run on exact odometry. When
-        that cluster holds under half of the weight the prediction is stale
-        (the robot is lost or was moved): all particles count, as before."""
-        cfg = self.cfg
+        last estimate predicts (cluster_mm / cluster_mrad around it), so recovery
+        draws or a look-alike place cannot pull the estimate away. When that
+        cluster holds under half of the weight the prediction is stale (the
+        robot is lost or was moved): all particles count."""
         assert self._pending is not None
-        px, py, pth = _compose(self.est, self._est_odom, self._pending[0])
-        r2 = cfg.cluster_mm ** 2
-        ca = cfg.cluster_mrad / 1000
-        cw = [w if (x - px) ** 2 + (y - py) ** 2 <= r2 and abs(_wrap(t - pth)) <= ca else 0.0
-              for w, x, y, t in zip(ws, self.xs, self.ys, self.ths, strict=True)]
+        cw = self._cluster(ws, _compose(self.est, self._est_odom, self._pending[0]))
         share = sum(cw)
         if self.updates == 0 or share < 0.5:
             return self._mean_cov(ws)
         return self._mean_cov([w / share for w in cw])
+
+    def _cluster(self, ws: list[float], at: tuple[float, float, float]) -> list[float]:
+        """The weights of the particles within cluster_mm / cluster_mrad of the pose `at` (others: 0)."""
+        cx, cy, cth = at
+        r2 = self.cfg.cluster_mm ** 2
+        ca = self.cfg.cluster_mrad / 1000
+        return [w if (x - cx) ** 2 + (y - cy) ** 2 <= r2 and abs(_wrap(t - cth)) <= ca else 0.0
+                for w, x, y, t in zip(ws, self.xs, self.ys, self.ths, strict=True)]
 
     def _mean_cov(self, ws: list[float] | None = None
                   ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
@@ -603,7 +587,6 @@ class Localiser:
             ny.append(y)
             nt.append(th)
         self.xs, self.ys, self.ths = nx, ny, nt
-        self.random_drawn = n_rand
 
     def log_likelihood(self, x_mm: float, y_mm: float, heading_rad: float, ranges_mm: list[int],
                        status: list[int]) -> float:
@@ -611,13 +594,8 @@ class Localiser:
         by, written plainly: the reference the tests check by hand)."""
         total = 0.0
         c, s = math.cos(heading_rad), math.sin(heading_rad)
-        for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False)):
-            if st == robot_spec.RANGE_VALID:
-                d = self._mount + r
-            elif st == robot_spec.RANGE_TOO_CLOSE:
-                d = self._mount + self._min_mm
-            else:
-                continue
+        for k, r in self._readings(ranges_mm, status):
+            d = self._mount + r
             ends = [(x_mm + d * (c * ca - s * sa), y_mm + d * (s * ca + c * sa)) for ca, sa in self._beams[k]]
             if self.cfg.cone_min:
                 m = min(self.field.signed_at(ex, ey) for ex, ey in ends)

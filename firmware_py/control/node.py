@@ -19,10 +19,8 @@ runs on: a tick late in wall time is late for the motors even when sim time
 says otherwise (their definitions: docs/reliability.md). On sim time they
 start with the first frame sent after the receive loop began listening: the
 frames the bus queued while the robot was starting up are its backlog, not
-the latency of a running loop (without this the first ticks of every run
-counted 60-200 ms "late", the only periods the load bench lost). `overruns` keeps
-its meaning on the controller's own clock, `late_ticks` counts reordered
-SimTicks.
+the latency of a running loop. `overruns` keeps its meaning on the
+controller's own clock.
 
 Hook for the MAVLink shell: callables in `node.after_tick` run in the
 ticking thread after each tick with the tick's `Outputs` and must not wait
@@ -162,7 +160,6 @@ class RobotNode:
         self.can_errors = 0
         self.send_errors = 0
         self.sim_ticks = 0
-        self.late_ticks = 0  # SimTicks older than the last one seen, ignored
         self.tick_gate = TickGate()  # SimTicks whose counter and time disagree are refused (clock.py)
         self.wall_late_ticks = 0  # ticks late by more than a quarter period in wall time
         self.wall_overruns = 0  # control periods lost in wall time (module doc)
@@ -176,7 +173,6 @@ class RobotNode:
         self._live = False  # a frame sent after the receive loop began listening has arrived (module doc)
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._last_rx_ns = 0
         self._last_answer: list[can.Message] = []
         self._next_us: int | None = None  # paced sim clock: next control deadline
         self._last_tick_ns = 0  # perf_counter_ns of the last SimTick (sim time: the sim is alive)
@@ -248,7 +244,6 @@ class RobotNode:
             if updates is not None:  # a frame of the drive backend's (drives/)
                 for u in updates:
                     self.inputs.update(u, self.clock.now_us())
-                self._last_rx_ns = rx_ns
                 continue
             try:
                 name, sig = proto.decode(msg)
@@ -259,7 +254,6 @@ class RobotNode:
                 self._on_tick(sig["Tick_Counter"], sig["Tick_SimTimeUs"], rx_ns)
                 continue
             self.inputs.apply(name, sig, self.clock.now_us())
-            self._last_rx_ns = rx_ns
 
     def _on_tick(self, counter: int, sim_us: int, rx_ns: int) -> None:
         clock = self.clock
@@ -273,8 +267,7 @@ class RobotNode:
         if self.last_tick is not None:
             gap = (counter - self.last_tick) % proto.TICK_MODULUS
             if gap >= proto.TICK_MODULUS // 2:
-                self.late_ticks += 1  # an older tick arriving late (reordered): already past it
-                return
+                return  # an older tick arriving late (reordered): already past it
         if not self.tick_gate.admit(counter, sim_us, gap, resends=self.lockstep):
             return  # not what the sim's protocol sends: not stepped, counted in tick_gate.refused
         if not clock.set_us(sim_us):
@@ -291,7 +284,6 @@ class RobotNode:
         self.sim_ticks += 1
         now = clock.now_us()
         self.inputs.stamp_pending(now)
-        self._last_rx_ns = rx_ns
         if self.lockstep:
             self._tick(now, counter, rx_ns)
         elif self._next_us is None or now >= self._next_us:

@@ -143,12 +143,11 @@ class Odometry:
 
     def update(self, left_ticks: int, right_ticks: int, t_us: int | None = None) -> None:
         """Integrate new cumulative counts (and estimate speed if `t_us` given)."""
-        if self._last is None:
-            self._last = (left_ticks, right_ticks)
-            self._last_t_us = t_us
+        d = self.deltas(left_ticks, right_ticks)
+        if d is None:
+            self.rebase(left_ticks, right_ticks, t_us)
             return
-        dl_t = (left_ticks - self._last[0] + self._half) % self._mod - self._half
-        dr_t = (right_ticks - self._last[1] + self._half) % self._mod - self._half
+        dl_t, dr_t = d
         self._last = (left_ticks, right_ticks)
         dl = self._ticks_to_nm(0, dl_t)
         dr = self._ticks_to_nm(1, dr_t)

@@ -1,16 +1,13 @@
 """Progress watch: notice when the robot stops getting closer to its goal.
 
 A sensor-based local policy can stall in front of an obstacle the map does
-not show (it keeps turning, or waits for a mover) without any safety check
-firing. `ProgressWatch.update(now_us, goal, dist_mm)` runs every DRIVING
-tick; when the distance to the current goal has found no new minimum (by
-`MIN_GAIN_MM`) for `timeout_us`, it returns a message once for that goal,
-which the controller sends as a STATUSTEXT warning, so the operator (and
-MAVProxy/QGC, beside the OBSTACLE_DISTANCE the robot streams) sees that
-the way is blocked. A new goal re-arms it, and so does `restart()`, which
-the controller calls whenever it starts driving to a goal: a mission
-re-planned around the obstacle may begin with the very waypoint the robot
-stalled at, and a second stall there must be reported again.
+not show without any safety check firing. `ProgressWatch.update` runs every
+DRIVING tick; when the distance to the current goal has found no new minimum
+(by `MIN_GAIN_MM`) for `timeout_us`, it returns a message once for that goal,
+which the controller sends as a STATUSTEXT warning. A new goal re-arms it, and
+so does `restart()`, called whenever a drive to a goal starts: a re-planned
+mission may begin with the very waypoint the robot stalled at, and a second
+stall there must be reported again.
 
 `StallWatch` (below) is the action beside this warning: a drive that neither
 gets closer nor moves for NAV_STALL_S is reported with its reason and held.
@@ -56,12 +53,10 @@ STALL_MOVE_MM = 250  # moving this far from where the window began counts as pro
 
 
 class StallWatch:
-    """Notice a robot commanded to drive that gets nowhere, and say why (issue 44 item 5).
+    """Notice a robot commanded to drive that gets nowhere, and say why.
 
-    `ProgressWatch` only warns, once per goal, and re-arms on a new minimum of the distance: a robot
-    that drove a detour (warned while still moving) and then stood still farther out stayed in
-    DRIVING silently for good, and one that stood still was warned once and left there. This one
-    is the action, as nav2's progress checker aborts a goal and ArduPilot holds: `update` returns
+    Where `ProgressWatch` only warns, this is the action, as nav2's progress checker aborts a goal
+    and ArduPilot holds: `update` returns
     a reason once the robot has neither got `MIN_GAIN_MM` closer to its goal than ever on this
     drive nor moved `STALL_MOVE_MM` from where the window began for `timeout_us` (a detour away
     from the goal is progress while the robot moves), and the controller reports it and holds.
