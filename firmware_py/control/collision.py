@@ -202,13 +202,10 @@ class MapCorners:
     def near(self, x_mm: int, y_mm: int, within_mm: int) -> list[tuple[int, int]]:
         """The corners within `within_mm` (a square) of a world point."""
         c = self.cell_mm
-        out: list[tuple[int, int]] = []
-        for i in range((x_mm - within_mm) // c, (x_mm + within_mm) // c + 2):
-            for j in range((y_mm - within_mm) // c, (y_mm + within_mm) // c + 2):
-                for px, py in self.buckets.get((i, j), ()):
-                    if abs(px - x_mm) <= within_mm and abs(py - y_mm) <= within_mm:
-                        out.append((px, py))
-        return out
+        return [(px, py) for i in range((x_mm - within_mm) // c, (x_mm + within_mm) // c + 2)
+                for j in range((y_mm - within_mm) // c, (y_mm + within_mm) // c + 2)
+                for px, py in self.buckets.get((i, j), ())
+                if abs(px - x_mm) <= within_mm and abs(py - y_mm) <= within_mm]
 
 
 def limit(left: int, right: int, ranges_mm: Sequence[int], status: Sequence[int], stop_mm: int, slow_mm: int,
