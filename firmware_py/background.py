@@ -1,7 +1,7 @@
 """Work a policy kind does off the control tick (the local planner's search).
 
 The tick must not wait on a search whose size a policy file or the obstacles
-choose (issue 29 finding 4, issue 32). A kind *posts* a job here and reads
+choose. A kind *posts* a job here and reads
 the job's last result on a later tick; a newer job from the same owner
 replaces one not started yet (only the latest question matters). Two shells
 run the jobs, chosen by how the robot keeps time:

@@ -1,8 +1,7 @@
 """`qnav-robot --check`: which boards answer on the bus, and (with --check-motors) whether each
 wheel turns the way the profile says.
 
-A robot builder's first question after wiring: is everything there? The check listens on the
-bus for a while and reports, per board the profile expects, whether it was heard, its state and
+The check listens on the bus for a while and reports, per board the profile expects, whether it was heard, its state and
 errors: the drive (through the profile's drive backend: qnav's MotorStatus/EncoderCounts, or each
 ODrive axis's heartbeat and encoder estimates), the range board (one reading per sensor), the
 bumper and the battery (optional). With `spin=True` it then turns each wheel alone, slowly and

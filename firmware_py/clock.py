@@ -8,31 +8,19 @@ timeouts are measured in sim time, never wall time.
 
 All values are integer microseconds.
 
-Sim time is input from the bus, so it is checked (hostile testing, issue
-13): once a `SimClock` has taken its first tick, a tick more than
-`max_jump_us` (MAX_TICK_JUMP_US, 250 ms: the default sensor staleness
-timeout) ahead of the clock is refused and counted in `refused_jumps`,
-unless RESYNC_TICKS consecutive ticks agree on the new time (each ahead of
-the previous by at most the bound: the sim really jumped, e.g. ticks lost in
-paced mode). One forged far-future SimTick therefore neither stops the robot
-(paced mode would wait for a control deadline in the far future) nor
-freezes its clock (lockstep: the clock would stick ahead and staleness
-would never be seen again). A first tick is always taken, so a robot that
-starts while the sim runs joins it.
+Sim time is input from the bus, so it is checked. Once a `SimClock` has
+taken its first tick (a first tick is always taken, so a robot joins a
+running sim), a tick more than `max_jump_us` ahead is refused and counted in
+`refused_jumps` unless RESYNC_TICKS consecutive ticks agree on the new time:
+one forged far-future SimTick neither stalls the robot nor freezes its clock.
 
-Before the clock sees a tick, `TickGate` checks it against the sim's
-protocol (issue 29 finding 6: one forged +240 ms tick every 0.5 s, under the
-jump bound, stalled a lockstep robot into a watchdog FAULT): the sim's tick
-counter and its time advance together, one control period per count (the
-period learnt from the first two consecutive ticks). A tick whose time does
-not match its counter (within a quarter period) is refused and counted. A
-tick that skips counts (gap > 1) is what a lockstep sim sends only after it
-gave up waiting for an answer, and it then resends that tick until answered:
-in lockstep it is taken once RESYNC_TICKS identical copies arrived, in paced
-mode (no resends: frames were lost) at once. At most MAX_TICK_GAP counts are
-skipped in one step. What a forger who knows all this can still do: send the
-next tick, consistent, before the sim does (the sim's own copy is then a
-repeat, answered again) - a frame on the bus is not authenticated.
+Before that, `TickGate` checks the sim's protocol: counter and time advance
+together, one control period per count (learnt from the first two
+consecutive ticks), within a quarter period. A tick that skips counts is what
+a lockstep sim sends after giving up on an answer, resent until answered: it
+is taken after RESYNC_TICKS identical copies in lockstep, at once when paced;
+at most MAX_TICK_GAP counts per step. A frame on the bus is not
+authenticated, so a forger can still send the next consistent tick first.
 """
 
 from __future__ import annotations

@@ -1,15 +1,14 @@
 """The robot as a DroneCAN node: a pure engine on the `dronecan` library's DSDL and framing.
 
 The `dronecan` library (the optional extra `qnav[dronecan]`) serialises DSDL types and decodes a
-transfer from its frames (`dronecan.transport.Transfer`). Its `Node` owns a driver and a thread of
-its own; here the robot's node owns the bus, and the control tick must send its wheel command in
-order with the tick's other frames (in lockstep HIL, before the tick's answer). So this engine does
+transfer from its frames. Its `Node` owns a driver and a thread; here the robot's node owns the
+bus and the tick must send its wheel command in order with its other frames, so this engine does
 no I/O: `take(msg, now)` reassembles a received 29-bit frame into a transfer (and notes a
 GetNodeInfo request addressed to us), `broadcast(payload)` returns the frames of a message,
 `periodic(now)` the NodeStatus due at 1 Hz, and `outgoing(now)` the answers due; the backends
 (drives/dronecan.py, sensors) and the node's shell move the frames, the wheel command first.
 
-What another node can make it hold or do is bounded (issue 43 finding 4):
+What another node can make it hold or do is bounded:
 
 * reassembly (`Reassembler`, no dronecan import): one transfer in progress per (data type, kind,
   source, destination) as libcanard keeps them, at most MAX_TRANSFERS at once; a transfer must end

@@ -31,8 +31,7 @@ BLOCKED = frozenset("@TOW")
 MAX_CELLS = 128 * 128  # metadata is bounded (policy.MAX_METADATA_BYTES); so is the grid
 # ... and its extent: what the robot derives from a map (the localiser's likelihood field, the
 # planners' rasters, global localisation's seeding) scales with the area in millimetres, so a
-# legal cell count at a huge cell size must not buy unbounded work (issue 29 finding 3: 124x124
-# cells of 500 mm froze the link for 37 s; 5,000 mm cells ran out of memory)
+# legal cell count at a huge cell size must not buy unbounded work
 MIN_CELL_MM = 50  # a fifth of the robot's width; smaller cells describe nothing it can use
 MAX_SIDE_MM = 50_000  # a 50 m hall
 
@@ -172,33 +171,19 @@ def describe(grid: OccupancyGrid) -> str:
 # of the sensor's fan (the sensor geometry of `robot_spec`, as the twin's `sense` casts it) does the
 # point at the read distance lie within `margin_mm` of an occupied cell or the map's edge. A disc, a
 # box or a person in the open is unmapped; a map wall never is, also from a pose a little off (the
-# margin absorbs the localiser's ~0.1 m corridor error) and also where a fan ray grazes a corner. The
+# margin absorbs the localiser's error) and also where a fan ray grazes a corner. The
 # ray end points are computed in floats and rounded to whole mm; the wall test is integers. Any kind
 # and the controller use them: the collision monitor (`control.collision.mapped_readings`), the sector
 # kind's obstacle memory and the readings it withholds from the localiser.
 
 MAP_MARGIN_MM = 150  # a reading is explained by the map within this distance of a mapped cell
 
-# the sensor fans of robot_spec, for `unmapped_ends` (the twin's `sense` casts the same rays)
-_N = robot_spec.SENSOR_COUNT
-_ANG = [a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD]
-_SENS_COS = [math.cos(a) for a in _ANG]
-_SENS_SIN = [math.sin(a) for a in _ANG]
-_FAN = ([(k / (robot_spec.SENSOR_FAN_RAYS - 1) - 0.5) * (robot_spec.SENSOR_FOV_MRAD / 1000.0)
-         for k in range(robot_spec.SENSOR_FAN_RAYS)] if robot_spec.SENSOR_FAN_RAYS > 1 else [0.0])
-_RAY_COS = [[math.cos(a + f) for f in _FAN] for a in _ANG]
-_RAY_SIN = [[math.sin(a + f) for f in _FAN] for a in _ANG]
-_MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
-
 
 @functools.lru_cache(maxsize=16)
 def _fans(angles_mrad: tuple[int, ...], fov_mrad: int, mount_mm: int
           ) -> tuple[list[float], list[float], list[list[float]], list[list[float]], float]:
-    """The sensor fans of a layout (firmware_py.layout.Layout): cos, sin per sensor and per ray, and
-    the mount radius; the built-in layout's are the module's."""
-    if angles_mrad == robot_spec.SENSOR_ANGLES_MRAD and fov_mrad == robot_spec.SENSOR_FOV_MRAD \
-            and mount_mm == robot_spec.SENSOR_MOUNT_RADIUS_MM:
-        return _SENS_COS, _SENS_SIN, _RAY_COS, _RAY_SIN, _MOUNT
+    """The sensor fans of a layout (the twin's `sense` casts the same rays): cos, sin per sensor and
+    per ray, and the mount radius."""
     ang = [a / 1000.0 for a in angles_mrad]
     nr = robot_spec.SENSOR_FAN_RAYS
     fan = [(k / (nr - 1) - 0.5) * (fov_mrad / 1000.0) for k in range(nr)] if nr > 1 else [0.0]
@@ -234,24 +219,23 @@ def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                   ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...],
                   margin_mm: int, max_mm: int = robot_spec.RANGE_MAX_MM,
                   layout: Any = None) -> list[tuple[int, int, int, int]]:
-    """(sensor, distance mm, x, y) per reading the map does not explain, the
-    point being the end of the fan's middle ray. A reading is explained when,
-    on any ray of the sensor's fan, the point at the read distance (rounded
-    to whole mm) lies within margin_mm of an occupied cell or the map's edge;
-    too far and invalid readings, and readings beyond max_mm, never count
-    (nothing seen); a too-close reading is taken at the range's minimum. `layout`
+    """(sensor, distance mm, x, y) per reading the map does not explain (section comment above), the
+    point being the end of the fan's middle ray. Too far and invalid readings, and readings beyond
+    max_mm, never count; a too-close reading is taken at the range's minimum. `layout`
     (firmware_py.layout.Layout; None: the built-in robot): where the sensors look."""
     if layout is None:
-        sens_cos, sens_sin, ray_cos, ray_sin, mount, rmin = _SENS_COS, _SENS_SIN, _RAY_COS, _RAY_SIN, _MOUNT, \
-            robot_spec.RANGE_MIN_MM
+        fans = _fans(robot_spec.SENSOR_ANGLES_MRAD, robot_spec.SENSOR_FOV_MRAD, robot_spec.SENSOR_MOUNT_RADIUS_MM)
+        rmin = robot_spec.RANGE_MIN_MM
     else:
-        sens_cos, sens_sin, ray_cos, ray_sin, mount = _fans(layout.angles_mrad, layout.fov_mrad, layout.mount_mm)
+        fans = _fans(layout.angles_mrad, layout.fov_mrad, layout.mount_mm)
         rmin = layout.range_min_mm
+    sens_cos, sens_sin, ray_cos, ray_sin, mount = fans
     out: list[tuple[int, int, int, int]] = []
     th = heading_mrad / 1000.0
     ct = math.cos(th)
     st = math.sin(th)
-    mid = len(_FAN) // 2
+    n_rays = robot_spec.SENSOR_FAN_RAYS
+    mid = n_rays // 2
     for i in range(len(sens_cos)):
         if status[i] == robot_spec.RANGE_TOO_CLOSE:
             r = rmin
@@ -265,7 +249,7 @@ def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
         oy = y_mm + mount * (st * sens_cos[i] + ct * sens_sin[i])
         explained = False
         end = (0, 0)
-        for k in range(len(_FAN)):
+        for k in range(n_rays):
             cx = ct * ray_cos[i][k] - st * ray_sin[i][k]
             cy = st * ray_cos[i][k] + ct * ray_sin[i][k]
             ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
@@ -284,7 +268,7 @@ def unmapped_readings(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: i
                       margin_mm: int, layout: Any = None) -> list[int]:
     """Per sensor: its distance (mm) when the map does not explain the
     reading (`unmapped_ends`; too close: 0), else -1."""
-    out = [-1] * (_N if layout is None else layout.count)
+    out = [-1] * (robot_spec.SENSOR_COUNT if layout is None else layout.count)
     max_mm = robot_spec.RANGE_MAX_MM if layout is None else layout.max_range_mm
     for i, r, _, _ in unmapped_ends(grid, x_mm, y_mm, heading_mrad, ranges_mm, status, margin_mm, max_mm, layout):
         out[i] = 0 if status[i] == robot_spec.RANGE_TOO_CLOSE else r

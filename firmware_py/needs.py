@@ -1,30 +1,18 @@
 """What a policy needs of the robot: recorded in its `.qtab` by the exporter (`robot_needs` metadata),
-checked by the robot against its profile at boot and on upload, printed by `qnav policy inspect`
-(issue 44). Stdlib only.
+checked by the robot against its profile at boot and on upload, printed by `qnav policy inspect`.
+Stdlib only.
 
 A policy is trained for one robot (`TrainedFor`: a robot profile as the trainer's twin played it,
 `qnav train --profile`; the built-in robot without one). What of that robot its behaviour depends
-on is per kind (`PolicyKind.needs`), and that is all the robot checks:
+on is per kind (`PolicyKind.needs`; the table per kind: docs/robot-profile.md), and that is all
+the robot checks: every policy's control period and wheel speed (the fastest action wheel speed,
+clamped to the profile's `drive.max_speed_mm_s` as the controller clamps it); for a kind that
+reads range sectors, each sector computable from the robot's sensors (`Layout.sector_of`),
+looking within ANGLE_TOL_MRAD of where the twin read it and reaching the range the encoder tells
+apart; the body no larger than `robot_radius_mm_max`; for `sector`, a wheel base within BASE_TOL.
 
-* every policy: the control period (the file header, `policy.config_mismatch`) and the wheel
-  speed it drives at (the fastest action wheel speed, clamped to the profile's
-  `drive.max_speed_mm_s` as the controller clamps it): the robot's must be the same;
-* a kind that reads range sectors (`sector`, `sector-memory`): each sector its encoder reads must
-  be computable from the robot's sensors (a sensor within 22.5 degrees of it,
-  `firmware_py.layout.Layout.sector_of`), looking within `ANGLE_TOL_MRAD` (10 degrees) of the
-  angle the twin read it at, and reaching at least the range the encoder tells apart (its top
-  range edge; sector-memory's `free_mm`);
-* what the twin assumed of the body: a body no larger than `robot_radius_mm_max` (sector: the
-  trained body, whose rim its ranges are measured from and whose clearance it learnt;
-  sector-memory: the largest body whose own cell's walls still read below `free_mm` and whose
-  neighbour cell, when free, reads above it), and for a kind whose actions are wheel speeds held
-  for a period (`sector`) a wheel base within `BASE_TOL` (10 %) of the trained one (the turn
-  actions' rate is 320 mm/s / wheel base).
-
-A cell policy needs only the period and the wheel speed (it makes grid moves with the cell
-stepper, which closes the loop on the pose). A file without a record was trained for the built-in
-robot; a file with the older `robot_geometry` record (wheel base, body radius, sensor angles, max
-range) was trained for that geometry.
+A file without a record was trained for the built-in robot; a file with the older
+`robot_geometry` record was trained for that geometry.
 """
 
 from __future__ import annotations

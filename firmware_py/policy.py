@@ -1,30 +1,16 @@
 """The `.qtab` int policy file: format constants, the robot's loader and the
 one byte-level writer.
 
-This module is the single definition of the byte layout (spec:
-docs/policy-format.md). The robot loads files with `load_policy`; the ground
-station's exporter (ground_station/learn/export.py) quantises a float table and
-hands the ints to `dump_policy` so the layout is never written twice.
+This module is the single definition of the byte layout (spec, with the
+field table: docs/policy-format.md). The robot loads files with `load_policy`;
+the ground station's exporter quantises a float table and hands the ints to
+`dump_policy` so the layout is never written twice.
 
 Pure Python, no numpy: the table lives in an `array` ('b' int8 or 'h' int16)
 exposed as a read-only memoryview. The loader checks every field against the
-file size and the robot's configuration before it allocates anything, checks
-the CRC32, and either returns a complete `Policy` or raises `PolicyError`
-with a one-line reason -- never a partial table.
-
-Layout (little-endian), v2.0:
-
-    fixed header      58 bytes (HEADER, see below): v1.0's 48 bytes, then the
-                      control period (us) and the map geometry (cell mm,
-                      width, height) the policy was trained for; header_size
-                      may be larger in a newer minor version: the loader
-                      skips the extra
-    encoder section   enc_len bytes: the kind's own fields (firmware_py/kinds/<kind>/,
-                      `PolicyKind.unpack`), then its action set as (i16, i16) pairs
-    metadata          meta_len bytes of UTF-8 JSON object
-    table             n_states * n_actions * itemsize, row-major by state
-    state scales      n_states float32, only with FLAG_PER_STATE_SCALES
-    crc32             u32, zlib.crc32 of every byte before it
+file size and the robot's configuration before it allocates anything, and
+either returns a complete `Policy` or raises `PolicyError` with a one-line
+reason -- never a partial table.
 
 Version 1.x files (no control period, no geometry) are refused with the
 command that migrates them (`qnav policy upgrade`, built on `upgrade_policy`).
@@ -132,9 +118,7 @@ class Policy:
     control_period_us: int = 0  # the period the actions were trained for (load_policy sets it)
     map_geometry: MapGeometry = MapGeometry(0, 0, 0)  # the training map (load_policy sets it)
     map_grid: OccupancyGrid | None = None  # the training map's cells, if the file carries them (mapdata)
-    # what the policy's kind read from the metadata (`PolicyKind.parse_metadata`; the sector kind's
-    # local planner parameters), or None
-    kind_config: Any = None
+    kind_config: Any = None  # what the kind read from the metadata (`PolicyKind.parse_metadata`), or None
 
     @property
     def kind(self) -> str:
@@ -349,24 +333,14 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
 
 def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, robot_map: Any = None,
                     profile: Any = None) -> str:
-    """Why `policy` must not run on a robot with this control period and map
-    cell size ('' if it may), naming both values.
+    """Why `policy` must not run on this robot ('' if it may), naming both values.
 
-    Every policy must match the control period: an action is held for one
-    period, so another period changes what the trained action means. A cell
-    policy's grid is the map the robot drives on, so its cell size must equal
-    the robot's (CELL_SIZE_MM / `--cell-size`). A sector policy observes
-    ranges and bearings in mm and mrad, not cells: the training map's
-    geometry it records is for the ground station and is not checked.
-    A robot given its own map (`qnav-robot --map FILE`, `qnav map upload`,
-    `robot_map`) refuses a map-specific policy (a cell table, indexed by its
-    map's cells) for another map, naming both; other kinds run on the robot's
-    map (`on_robot_map`).
-    The robot (`profile`, a firmware_py.profile.RobotProfile; None: the
-    built-in robot) refuses a policy whose needs it does not meet
-    (firmware_py.needs: the wheel speed; for the kinds that read range
-    sectors, those sectors from its sensors and the body and wheel base the
-    twin assumed), naming both values; a file without a `robot_needs` record
+    An action is held for one control period, so the periods must match. A
+    cell policy's cell size must equal the robot's; a sector policy observes
+    mm and mrad, so its recorded training geometry is not checked. A robot
+    with its own map (`robot_map`) refuses a map-specific policy for another
+    map. `profile` (a RobotProfile; None: the built-in robot) must meet the
+    policy's needs (firmware_py.needs); a file without a `robot_needs` record
     was trained for the built-in robot.
     """
     if policy.control_period_us != control_period_us:
@@ -389,9 +363,7 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, r
 
 def on_robot_map(policy: Policy, robot_map: Any) -> Policy:
     """`policy` as it runs on a robot with its own map: a kind that is not map-specific localises and
-    plans on the robot's map instead of the training map the file carries (issue 32: the map is the
-    robot's, as nav2's map server is apart from its controller); a map-specific one is unchanged
-    (config_mismatch refuses it on another map)."""
+    plans on the robot's map instead of the file's training map; a map-specific one is unchanged."""
     if robot_map is None or kinds.of_policy(policy).map_specific or policy.map_grid is None:
         return policy
     return replace(policy, map_grid=robot_map,
@@ -421,11 +393,8 @@ def dump_policy(encoder: AnyEncoder, table: array[int], dtype: str, scale: float
     """Serialise an int table (flat `array`, row-major by state) to `.qtab` bytes.
 
     `policy_id` defaults to `content_id(...)`; `created` to now (unix s).
-    `control_period_us` is the period the table was trained for (the twin and
-    the sim run at robot_spec.CONTROL_PERIOD_US). `map_geometry` is the
-    training map's; a cell policy's is its grid (derived when omitted, and
-    must agree when given), a sector policy must name it.
-    Raises ValueError on inconsistent arguments.
+    `map_geometry`: a cell policy's is its grid (derived when omitted, must
+    agree when given); a sector policy must name it. ValueError on bad arguments.
     """
     code = DTYPE_CODES.get(dtype)
     if code is None:
@@ -486,14 +455,11 @@ def _geometry_for(encoder: AnyEncoder, cell_mm: int, given: MapGeometry | None) 
 
 def upgrade_policy(data: bytes, control_period_us: int, map_geometry: MapGeometry | None = None) -> bytes:
     """A version 1.x file rewritten as the current version with the control
-    period and map geometry it was trained for.
+    period and map geometry it was trained for (geometry as in `dump_policy`).
 
-    Everything after the old header (encoder section, metadata, table, state
-    scales) is copied byte for byte, so the policy id, creation time and
-    table stay as they were; only the header grows and the CRC is new. A
-    cell policy's geometry comes from its grid (`map_geometry`, if given,
-    must agree); a sector policy needs `map_geometry`. The result is checked
-    by `load_policy`. Raises PolicyError with a one-line reason.
+    Everything after the old header is copied byte for byte, so the policy
+    id, creation time and table stay; only the header and the CRC change.
+    Raises PolicyError with a one-line reason.
     """
     n = len(data)
     if n < HEADER_V1.size + CRC.size or data[:4] != MAGIC:

@@ -6,19 +6,10 @@ drive and its range sensors from here; without a file the robot is the one
 `robot_spec` describes, on qnav's own CAN frames. Layout and every key:
 docs/robot-profile.md; an example per backend ships in `firmware_py/profiles/`.
 
-    [geometry]   wheel_base_mm, wheel_radius_mm, robot_radius_mm, encoder_counts_per_rev
-    [drive]      backend ("qnav" | "odrive" | "dronecan"), left_node, right_node,
-                 left_sign, right_sign, max_speed_mm_s, gear_ratio, command ("rpm" | "raw")
-    [sensors]    backend ("qnav" | "dronecan"), angles_deg, max_range_mm, max_ranges_mm, sensor_ids
-    [boards]     bumper, power (which of qnav's own boards the robot has)
-    [dronecan]   node_id, node_name
-
 `load_profile` checks every key (type, range, unknown names) and raises
 `ProfileError` with one line naming the file and the key. What a policy
-needs of the robot is recorded in the `.qtab` by the exporter (`qnav train
---profile` trains for a profile) and checked against the profile by the robot
-(`firmware_py.needs`, through `firmware_py.policy.config_mismatch`). Stdlib
-only (tomllib).
+needs of the robot is checked against the profile in `firmware_py.needs`.
+Stdlib only (tomllib).
 """
 
 from __future__ import annotations
@@ -238,6 +229,6 @@ def load_profile(path: str | Path) -> RobotProfile:
         raise ProfileError(f"{p}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
         raise ProfileError(f"{p}: not valid TOML: {exc}") from None
-    except RecursionError:  # tomllib recurses once a nesting level (issue 43 finding 8: a traceback, exit 1)
+    except RecursionError:  # tomllib recurses once a nesting level
         raise ProfileError(f"{p}: arrays or inline tables nested too deeply") from None
     return profile_from_dict(data, str(p))

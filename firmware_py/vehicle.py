@@ -154,8 +154,7 @@ class PendingActivation:
     `cancel()` (the link gave up waiting) and the worker's `claim()` (taken under the
     controller's lock, just before the swap) exclude each other: once cancelled, the
     worker swaps nothing in; once claimed, `cancel()` returns False and the result,
-    due in a moment, stands (issue 43 finding 5: a map answered "refused" was swapped
-    in seconds later)."""
+    due in a moment, stands."""
 
     def __init__(self) -> None:
         self._done = threading.Event()

@@ -1,4 +1,4 @@
-"""The robot's battery as the power board would report it (issue 30: BATTERY_STATUS in a GCS).
+"""The robot's battery as the power board would report it (BATTERY_STATUS in a GCS).
 
 A 3-cell LiPo pack: the open-circuit voltage follows the state of charge
 (a typical LiPo discharge curve, piecewise linear between measured points),

@@ -13,7 +13,7 @@ jit-compiles `step_movers` from this very source):
   component flips (it bounces). A mover that yields (yields = 1, the default:
   a pedestrian steps aside) also bounces off the robot plus
   `YIELD_MARGIN_MM`, so every contact is the robot's own doing; one that does
-  not (yields = 0, `qnav bench nav --no-yield`, issue 32) walks its own line
+  not (yields = 0, `qnav bench nav --no-yield`) walks its own line
   through the robot's path and only stands still while it would overlap the
   robot (it stops on contact). Movers pass through each other. Five-column
   movers (before `yields`) yield.

@@ -17,8 +17,8 @@ whole milliradians, as the robot records them (`RobotProfile.layout`).
 Encoders integrate each wheel's ground speed (from the body's motion) into
 ticks at the profile's `encoder_counts_per_rev` of a wheel of its
 `wheel_radius_mm`, with an optional per-wheel scale error (measured / true
-travel) and seeded slip (each wheel's travel in each physics step times
-1 + N(0, slip)). Named combinations: sim_bridge/profiles.py. The bumper
+travel) and seeded slip (each physics step's travel times 1 + N(0, slip)).
+Named combinations: sim_bridge/profiles.py. The bumper
 reads the contacts kept by the world's collision handlers.
 
 Every random draw comes from one seeded `random.Random` in a fixed order, so

@@ -8,15 +8,12 @@ FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()`
 into STATUSTEXT.
 
 The protocol rules it follows are in docs/mavlink.md, "FTP server" and
-"Policy activation": sessions owned by the (sysid, compid) that opened them,
-bounded, expiring and evicted when idle; retried requests answered from the
-reply cache (a lost ACK never renames or creates twice); PROTECTED files and
-READ_ONLY_DIRS read-only; writes committed at TerminateSession only; Rename
-onto /policies/active.qtab or /maps/active.map activating through the
-injected hooks (refused with NAK Fail + STATUSTEXT, cancelled after
-`activation_timeout_us`); costly file work (a large CRC, the commit's fsync)
-on the injected `offload`, its reply returned by `poll`; anything malformed
-NAKed, never raised, lengths checked against the storage quota first.
+"Policy activation". In short: sessions are owned by their opener, bounded
+and expiring; retried requests are answered from the reply cache (a lost ACK
+never renames or creates twice); writes commit at TerminateSession only; a
+Rename onto the active policy or map activates through the injected hooks;
+costly file work runs on the injected `offload` (reply from `poll`); anything
+malformed is NAKed, never raised.
 """
 
 from __future__ import annotations
@@ -94,14 +91,13 @@ class Nak(IntEnum):
 
 # Files only activation may write: a direct CreateFile/Remove/Truncate would
 # bypass the loader's validation. The robot's own state files and the layout
-# directories are off limits too: a directory created at params.json's name
-# made every later save raise (found by the issue 9 hostile-input suite).
+# directories are off limits too (a directory created at params.json's name
+# would make every later save raise).
 PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, ACTIVE_MAP, LAST_GOOD_MAP, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS,
                        GENERAL_FILE, PARAMETER_FILE, METADATA_DIR})
-# Folders read-only over FTP, everything in them too: the robot's own log (firmware_py.onboard_log) is
-# written through an open file handle, so a RemoveFile, TruncateFile, CreateFile or Rename there lost
-# every record after it until the next rotation (issue 43 finding 6). The component metadata folder the
-# robot writes at boot likewise (a CreateFile /metadata/x was accepted). Reading and listing stay allowed.
+# Folders read-only over FTP, everything in them too: the robot's own log is written through an open
+# file handle (a change there would lose records until the next rotation), and the component metadata
+# folder is the robot's own. Reading and listing stay allowed.
 READ_ONLY_DIRS = ("/" + LOG_DIR, METADATA_DIR)
 
 
@@ -199,8 +195,8 @@ class _PendingRename:
 
 
 
-# a file up to this size is summed on the link thread (0.2 ms here: a worker's reply would wait for the
-# link thread's next slot, a control period, and an upload asks for CRCs often); larger ones off it
+# a file up to this size is summed on the link thread (a worker's reply would wait for the link
+# thread's next slot, a control period, and an upload asks for CRCs often); larger ones off it
 INLINE_CRC_BYTES = 1 << 20
 
 

@@ -11,8 +11,7 @@ runs the parameter saves off both threads (a save already queued absorbs
 later ones). `LinkThread.start` lowers CPython's switch interval to
 `switch_interval_s` and the poll yields the GIL briefly every
 `yield_every_s` of work, so a tick never waits long for the interpreter
-lock. docs/mavlink.md, "Node structure", has the schedule;
-docs/reliability.md the measurements.
+lock. docs/mavlink.md, "Node structure", has the schedule.
 """
 
 from __future__ import annotations

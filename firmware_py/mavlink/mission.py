@@ -58,12 +58,10 @@ class Item:
 
 
 def check_position(local: bool, x: float, y: float) -> tuple[int, str] | None:
-    """Whether a position is finite and inside its frame's range (`local`: x north,
-    y east in metres, |x|, |y| <= LOCAL_LIMIT_M; global: latitude x, longitude y in
-    degrees, within LAT_LIMIT_E7 / LON_LIMIT_E7): None if so, else the
+    """None if a position is finite and inside its frame's range (`local`: x north,
+    y east in metres; global: latitude x, longitude y in degrees), else the
     MAV_MISSION_RESULT naming the field (INVALID_PARAM5_X / _PARAM6_Y) and the reason.
-    The one range check for mission items, guided waypoints, DO_REPOSITION and
-    position targets, so that nothing downstream sees a NaN or a huge coordinate."""
+    The one range check for every position a GCS sends."""
     for which, value, code in (("x", x, M.MAV_MISSION_INVALID_PARAM5_X),
                                ("y", y, M.MAV_MISSION_INVALID_PARAM6_Y)):
         if not math.isfinite(value):

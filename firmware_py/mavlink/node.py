@@ -124,11 +124,9 @@ class FtpService(Protocol):
 class MavNode:
     """MAVLink node core: a pure state machine over pymavlink message objects.
 
-    `ftp` is the `firmware_py.mavlink.ftp_server.FtpServer` (or anything with its
-    `handle(payload, now_us) -> list[bytes]`, `expire(now_us)` and
-    `drain_texts()`); its replies go back in FILE_TRANSFER_PROTOCOL frames to
-    the requester, its texts as STATUSTEXT. `reboot_hook` reloads the policy from storage on a
-    PREFLIGHT_REBOOT_SHUTDOWN (after the node reloaded its params).
+    `ftp` (an `FtpService`) replies go back in FILE_TRANSFER_PROTOCOL frames to
+    the requester, its texts as STATUSTEXT. `reboot_hook` reloads the policy from
+    storage on a PREFLIGHT_REBOOT_SHUTDOWN (after the node reloaded its params).
     """
 
     def __init__(self, vehicle: VehicleControl, params: ParamStore, signing: Signing | None = None, *,
@@ -191,7 +189,7 @@ class MavNode:
             if why:
                 warnings.append(why)
         for w in warnings:
-            self._pending += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
+            self._pending += self._warn(w)
 
     def _apply_params(self, reboot: bool) -> None:
         self.vehicle.apply_config(self.params.vehicle_config())
@@ -206,7 +204,7 @@ class MavNode:
         self.reboots += 1
         out: list[mavlink2.MAVLink_message] = []
         for w in self.params.load():
-            out += self.telemetry.statustext(w, M.MAV_SEVERITY_WARNING)
+            out += self._warn(w)
         self._apply_params(reboot=True)
         self.signing.persist(self._now_us)
         if self.reboot_hook is not None:
@@ -283,13 +281,10 @@ class MavNode:
         if kind == "SETUP_SIGNING":
             if (self.signing.key is None and self.network_link and not self.params.get("SIGN_NET_SETUP")):
                 self.refused_setup_signing += 1
-                return self.telemetry.statustext(
-                    "unsigned SETUP_SIGNING refused: SIGN_NET_SETUP=0",
-                    M.MAV_SEVERITY_WARNING)
+                return self._warn("unsigned SETUP_SIGNING refused: SIGN_NET_SETUP=0")
             key = bytes(msg.secret_key)
             if len(key) != 32:
-                return self.telemetry.statustext("SETUP_SIGNING refused: key is not 32 bytes",
-                                                 M.MAV_SEVERITY_WARNING)
+                return self._warn("SETUP_SIGNING refused: key is not 32 bytes")
             text = self.signing.setup(key, int(msg.initial_timestamp))
             return self.telemetry.statustext(text, M.MAV_SEVERITY_NOTICE)
         if kind == "FILE_TRANSFER_PROTOCOL" and self.ftp is not None:
@@ -298,6 +293,9 @@ class MavNode:
             return [self.mav.file_transfer_protocol_encode(0, src[0], src[1], list(p.ljust(FTP_PAYLOAD_LEN, b"\0")))
                     for p in replies] + self._ftp_texts()
         return []
+
+    def _warn(self, text: str) -> list[mavlink2.MAVLink_message]:
+        return self.telemetry.statustext(text, M.MAV_SEVERITY_WARNING)
 
     def _refuse_control(self, msg: mavlink2.MAVLink_message, kind: str, why: str) -> list[mavlink2.MAVLink_message]:
         """A control input from a system that may not steer (authority.py): dropped and counted; a
@@ -316,7 +314,7 @@ class MavNode:
         if text is None:
             return []
         log.warning("%s", text)
-        return self.telemetry.statustext(text, M.MAV_SEVERITY_WARNING)
+        return self._warn(text)
 
     def _ftp_texts(self) -> list[mavlink2.MAVLink_message]:
         out: list[mavlink2.MAVLink_message] = []
@@ -364,16 +362,16 @@ class MavNode:
                 names = self.params.names()
                 if msg.param_index < len(names):
                     return [self.param_value(names[msg.param_index])]
-                return self.telemetry.statustext(f"no parameter index {msg.param_index}", M.MAV_SEVERITY_WARNING)
+                return self._warn(f"no parameter index {msg.param_index}")
             if msg.param_id in self.params:
                 return [self.param_value(msg.param_id)]
-            return self.telemetry.statustext(self.params.unknown(msg.param_id), M.MAV_SEVERITY_WARNING)
+            return self._warn(self.params.unknown(msg.param_id))
         if kind == "PARAM_SET":
             name = msg.param_id
             ok, reason = self.params.set(name, msg.param_value, check=self.vehicle.check_config, remote=True)
             if name not in self.params:
-                return self.telemetry.statustext(reason, M.MAV_SEVERITY_WARNING)
-            out = [] if ok else self.telemetry.statustext(f"param set refused: {reason}", M.MAV_SEVERITY_WARNING)
+                return self._warn(reason)
+            out = [] if ok else self._warn(f"param set refused: {reason}")
             if ok:
                 failed = self.params.pop_save_failure()  # a save in this thread (no storage worker)
                 if failed:
@@ -397,18 +395,16 @@ class MavNode:
     # --- goals ----------------------------------------------------------------------------
     def _goal(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         if msg.type_mask & POSITION_MASK_XY:
-            return self.telemetry.statustext("goal refused: position ignored in type_mask", M.MAV_SEVERITY_WARNING)
+            return self._warn("goal refused: position ignored in type_mask")
         if msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
             if msg.coordinate_frame not in LOCAL_TARGET_FRAMES:
-                return self.telemetry.statustext(
-                    f"goal refused: frame {msg.coordinate_frame} unsupported "
-                    "(LOCAL_NED, LOCAL_OFFSET_NED, BODY_NED, BODY_OFFSET_NED)", M.MAV_SEVERITY_WARNING)
+                return self._warn(f"goal refused: frame {msg.coordinate_frame} unsupported "
+                                  "(LOCAL_NED, LOCAL_OFFSET_NED, BODY_NED, BODY_OFFSET_NED)")
             if not (math.isfinite(msg.x) and math.isfinite(msg.y)):  # round(NaN) would raise
-                return self.telemetry.statustext("goal refused: position is not a finite number",
-                                                 M.MAV_SEVERITY_WARNING)
+                return self._warn("goal refused: position is not a finite number")
             bad = check_position(True, msg.x, msg.y)  # offsets too: metres from the robot
             if bad is not None:
-                return self.telemetry.statustext(f"goal refused: {bad[1]}", M.MAV_SEVERITY_WARNING)
+                return self._warn(f"goal refused: {bad[1]}")
             if msg.coordinate_frame == M.MAV_FRAME_LOCAL_NED:
                 x_mm, y_mm = mav_frames.ned_m_to_world(msg.x, msg.y)
             else:  # relative to where the robot is now (its believed pose), as ArduPilot Rover reads them
@@ -418,14 +414,13 @@ class MavNode:
                                                         msg.x, msg.y)
         else:
             if check_position(False, msg.lat_int / 1e7, msg.lon_int / 1e7) is not None:
-                return self.telemetry.statustext("goal refused: latitude/longitude out of range",
-                                                 M.MAV_SEVERITY_WARNING)
+                return self._warn("goal refused: latitude/longitude out of range")
             x_mm, y_mm = mav_frames.global_to_world(msg.lat_int, msg.lon_int, self.params.get("ORIGIN_LAT"),
                                                     self.params.get("ORIGIN_LON"))
         _, off_map = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
         ok, reason = (False, off_map) if off_map else self.vehicle.set_goal(x_mm, y_mm)
         if not ok:
-            return self.telemetry.statustext(f"goal refused: {reason}", M.MAV_SEVERITY_WARNING)
+            return self._warn(f"goal refused: {reason}")
         return [self.telemetry.position_target((now_us // 1000) & 0xFFFFFFFF, x_mm, y_mm)]
 
     # --- time -------------------------------------------------------------------------------
@@ -545,7 +540,7 @@ class MavShell:
             s.link_id = 0
         if sig.key is not None:
             # pymavlink's parser moves its timestamp up to any validly signed input
-            # (2^48 wrap, issue 13): the robot's own Signing decides what we send with.
+            # (2^48 wrap): the robot's own Signing decides what we send with.
             s.timestamp = sig.current_timestamp(now_us)
             s.stream_timestamps.clear()  # the node's Signing keeps the streams (bounded)
 
@@ -570,15 +565,12 @@ class MavShell:
 
     def poll(self, now_us: int, budget_s: float = 0.02, max_msgs: int = 200,
              yield_every_s: float = 0.0, yield_s: float = 0.0002) -> int:
-        """Handle what has arrived (at most `max_msgs` frames, stopping once
-        `budget_s` of wall time is spent; the rest waits in the socket's
-        bounded buffer for the next poll), then tick. Never blocks, never
+        """Handle what has arrived (at most `max_msgs` frames or `budget_s` of wall
+        time; the rest waits in the socket buffer), then tick. Never blocks, never
         raises for a frame. Returns the number of frames handled.
 
-        `yield_every_s` > 0: after that much work, sleep `yield_s` (the link
-        thread in qnav-robot): the interpreter lock is then free for the
-        ticking thread, whose frame-by-frame I/O would otherwise wait a
-        switch interval for every reacquisition (the convoy effect)."""
+        `yield_every_s` > 0: after that much work, sleep `yield_s`, freeing the
+        interpreter lock for the ticking thread (avoids the GIL convoy effect)."""
         self._sync_signing(now_us)
         t_end = time.perf_counter() + budget_s
         t_yield = time.perf_counter() + yield_every_s

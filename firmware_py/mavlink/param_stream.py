@@ -1,9 +1,7 @@
 """PARAM_REQUEST_LIST answered in the background, at a bounded rate (as ArduPilot streams it).
 
-Answering a list request at once with every PARAM_VALUE is an amplifier: a
-1,500/s flood of 20-byte requests became ~46,000 PARAM_VALUEs a second in
-the link thread, and the operator's SET_MODE Hold waited seconds behind
-them (issue 43). Here a request only (re)starts its requester's stream at
+Answering a list request at once with every PARAM_VALUE is an amplifier that
+delays the operator's commands behind it. Here a request only (re)starts its requester's stream at
 index 0; `due(now_us)` hands out the next indices while a token bucket
 allows (RATE_HZ a second over a network link, SERIAL_RATE_HZ over a radio,
 at most BURST at once), round-robin over at most MAX_STREAMS requesters

@@ -7,13 +7,11 @@ last timestamp, per-stream timestamps) so replays are refused across
 reboots too. The file is under the FTP root, but FTP is refused unsigned
 whenever a key is set, so only a key holder can read it.
 
-The rules (as ArduPilot's, plus the bounds of issue 13: FUTURE_WINDOW,
+The rules (as ArduPilot's, plus the bounds FUTURE_WINDOW,
 MAX_TIMESTAMP, `replay_floor` after a boot) are in docs/mavlink.md,
 "Signing". The verification is done here rather than by pymavlink's parser
-so the counters and the new-stream and persistence rules are ours; a
-stream's timestamp only advances after its signature verified, so a forged
-frame cannot block it. pymavlink still signs outgoing frames (the shell
-copies `key`/`timestamp` to it).
+so the counters and the new-stream and persistence rules are ours.
+pymavlink still signs outgoing frames (the shell copies `key`/`timestamp`).
 """
 
 from __future__ import annotations

@@ -32,10 +32,7 @@ OBSTACLE_INCREMENT_DEG = 5
 STATUSTEXT_LEN = 50
 MIN_INTERVAL_US = 10_000
 ORIGIN_INTERVAL_US = 5_000_000  # GPS_GLOBAL_ORIGIN, HOME_POSITION between the prompt sends below
-# A frame heard after this long without any (or the first since boot) means a ground station
-# (re)appeared: it gets GPS_GLOBAL_ORIGIN and HOME_POSITION at once, not up to 5 s later, so a
-# map places the robot and its mission as soon as it connects (robot clock).
-LINK_QUIET_US = 2_000_000
+LINK_QUIET_US = 2_000_000  # a frame after this much silence: a ground station (re)appeared (robot clock)
 ORIGIN_PARAMS = ("ORIGIN_LAT", "ORIGIN_LON", "ORIGIN_ALT_MM")
 
 # message id -> stream group; the group's rate comes from params or is fixed
@@ -60,11 +57,8 @@ STREAMS: dict[int, str] = {
     # once when the link comes alive (a GCS appears) or the origin changes: see `due`
     M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: "origin",
     M.MAVLINK_MSG_ID_HOME_POSITION: "origin",
-    # localisation (control/localiser.py): LOCAL_POSITION_NED carries the believed pose; these add its
-    # covariance, the "localised" flag (ESTIMATOR_POS_HORIZ_ABS) and the raw dead-reckoning pose (ODOMETRY).
-    # At 1 Hz: COV and ODOMETRY are ~230-byte frames; at TELEM_POS_HZ they took 40 % of a 57600-baud
-    # radio and, at 3x sim pacing, saturated it (every reply queued behind telemetry). A ground station
-    # that wants them faster asks with SET_MESSAGE_INTERVAL.
+    # localisation (`localisation` below), at 1 Hz: COV and ODOMETRY are large frames that would crowd
+    # a radio link at TELEM_POS_HZ; a ground station that wants them faster asks with SET_MESSAGE_INTERVAL.
     M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: "1hz",
     M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV: "1hz",
     M.MAVLINK_MSG_ID_ODOMETRY: "1hz",
@@ -201,11 +195,9 @@ class Telemetry:
 
     def announce_origin_if_new(self, now_us: int, stats: NodeStats) -> None:
         """Make GPS_GLOBAL_ORIGIN and HOME_POSITION due now (if streamed) when a
-        ground station appears (the first frame received after boot or after
-        LINK_QUIET_US of silence) or the origin parameters changed, as ArduPilot
-        sends home when it is set: a GCS that connects places the robot and its
-        mission on its map at once instead of near 0 N 0 E until the next
-        periodic send."""
+        ground station appears (the first frame after boot or after LINK_QUIET_US
+        of silence) or the origin changed, as ArduPilot sends home when it is set:
+        a GCS that connects places the robot on its map at once."""
         origin = tuple(self.params.get(name) for name in ORIGIN_PARAMS)
         appeared = False
         if stats.rx_total != self._rx_seen:
