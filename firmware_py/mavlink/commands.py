@@ -35,7 +35,6 @@ from firmware_py.vehicle import Mode, VehicleControl
 M = mavlink2
 SETTABLE_MODES = {Mode.MANUAL: "Manual", Mode.HOLD: "Hold", Mode.GUIDED: "Guided", Mode.AUTO: "Auto"}
 INT32_MAX = 0x7FFFFFFF
-ARM_FORCE_MAGIC = 21196  # ArduPilot's "force" value in param2; we never bypass the vehicle's checks
 
 ACCEPTED = M.MAV_RESULT_ACCEPTED
 DENIED = M.MAV_RESULT_DENIED
@@ -86,7 +85,7 @@ class CommandHandler:
         return out + after
 
     def _execute(self, cmd: int, p: tuple[float, ...], now_us: int, stats: NodeStats) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
-        if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
+        if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:  # param2 (ArduPilot's force, 21196) ignored: no bypass
             if p[0] not in (0.0, 1.0):
                 return DENIED, f"arm/disarm: param1 must be 0 or 1, got {p[0]:g}", []
             ok, reason = self.vehicle.arm() if p[0] == 1.0 else self.vehicle.disarm()

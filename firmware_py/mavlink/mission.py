@@ -38,8 +38,6 @@ GLOBAL_FRAMES = frozenset({
 LOCAL_LIMIT_M = 200_000.0  # |x|, |y| of a local item: x * LOCAL_ITEM_SCALE stays inside int32
 LAT_LIMIT_E7 = 900_000_000
 LON_LIMIT_E7 = 1_800_000_000
-INT_SCALED_GLOBAL = frozenset({M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                               M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT})
 
 
 @dataclass(frozen=True)
