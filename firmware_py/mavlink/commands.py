@@ -1,12 +1,10 @@
 """MAVLink commands (COMMAND_LONG / COMMAND_INT, SET_MODE) -> COMMAND_ACK.
 
-Owns which MAV_CMDs the robot supports and the MAV_RESULT each outcome maps
-to: ACCEPTED; DENIED when the vehicle (or a bad argument) refuses, with the
-reason as a STATUSTEXT sent just before the ACK; TEMPORARILY_REJECTED when
-the same command would succeed later (reboot while armed, mission upload in
-progress); UNSUPPORTED for anything else. DO_REPOSITION (the guided go-to) sets a goal
-on the robot's map. A pure engine: `handle(msg,
-now_us, stats)` returns the replies.
+Owns which MAV_CMDs the robot supports and the MAV_RESULT each outcome maps to: ACCEPTED; DENIED
+when the vehicle (or a bad argument) refuses, with the reason as a STATUSTEXT sent just before the
+ACK; TEMPORARILY_REJECTED when the same command would succeed later (reboot while armed, mission
+upload in progress); UNSUPPORTED for anything else. DO_REPOSITION (the guided go-to) sets a goal on
+the robot's map. A pure engine: `handle(msg, now_us, stats)` returns the replies.
 """
 
 from __future__ import annotations

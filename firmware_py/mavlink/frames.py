@@ -1,10 +1,9 @@
 """Coordinate conversions between the robot's world frame and MAVLink frames.
 
-World (firmware_py.robot_spec): x east, y north, millimetres; heading CCW from
-east. MAVLink LOCAL_NED: x north, y east, z down, metres; yaw clockwise from
-north. Global: latitude/longitude in 1e-7 degrees around the configured
-origin (the world's (0, 0)), with ArduPilot's flat-earth scaling, accurate
-to millimetres over an arena.
+World (firmware_py.robot_spec): x east, y north, millimetres; heading CCW from east. MAVLink
+LOCAL_NED: x north, y east, z down, metres; yaw clockwise from north. Global: latitude/longitude in
+1e-7 degrees around the configured origin (the world's (0, 0)), with ArduPilot's flat-earth scaling,
+accurate to millimetres over an arena.
 
 Not in the control path: float maths is fine here.
 """
@@ -67,10 +66,9 @@ def local_item_to_global(x: int, y: int, origin_lat_e7: int, origin_lon_e7: int)
 
 def offset_to_world(x_mm: int, y_mm: int, heading_mrad: int, frame_body: bool,
                     x_m: float, y_m: float) -> tuple[int, int]:
-    """A position target relative to the robot -> world mm, as ArduPilot Rover
-    reads them: LOCAL_OFFSET_NED (`frame_body` False: x north, y east metres
-    from the robot) or BODY_NED / BODY_OFFSET_NED (True: x forward, y right
-    metres from the robot, rotated by its heading)."""
+    """A position target relative to the robot -> world mm, as ArduPilot Rover reads them:
+    LOCAL_OFFSET_NED (`frame_body` False: x north, y east metres from the robot) or BODY_NED /
+    BODY_OFFSET_NED (True: x forward, y right metres from the robot, rotated by its heading)."""
     if not frame_body:
         dx, dy = ned_m_to_world(x_m, y_m)
         return x_mm + dx, y_mm + dy

@@ -1,19 +1,15 @@
 """MAVLink FTP server (FILE_TRANSFER_PROTOCOL, msg 110) as a pure state machine.
 
-`FtpServer.handle(payload, now_us) -> list[bytes]` takes the 251-byte FTP
-payload of one request and returns the FTP payloads to send back (none, one,
-or a burst). No sockets, no threads, no wall clock: the shell
-(`ground_station.lab.rigs.ftp_shell` or the MAVLink node) wraps replies in
-FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()`
-into STATUSTEXT.
+`FtpServer.handle(payload, now_us) -> list[bytes]` takes the 251-byte FTP payload of one request and
+returns the FTP payloads to send back (none, one, or a burst). No sockets, no threads, no wall
+clock: the shell (`ground_station.lab.rigs.ftp_shell` or the MAVLink node) wraps replies in
+FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()` into STATUSTEXT.
 
-The protocol rules it follows are in docs/mavlink.md, "FTP server" and
-"Policy activation". In short: sessions are owned by their opener, bounded
-and expiring; retried requests are answered from the reply cache (a lost ACK
-never renames or creates twice); writes commit at TerminateSession only; a
-Rename onto the active policy or map activates through the injected hooks;
-costly file work runs on the injected `offload` (reply from `poll`); anything
-malformed is NAKed, never raised.
+The protocol rules it follows are in docs/mavlink.md, "FTP server" and "Policy activation". In
+short: sessions are owned by their opener, bounded and expiring; retried requests are answered from
+the reply cache (a lost ACK never renames or creates twice); writes commit at TerminateSession only;
+a Rename onto the active policy or map activates through the injected hooks; costly file work runs
+on the injected `offload` (reply from `poll`); anything malformed is NAKed, never raised.
 """
 
 from __future__ import annotations
@@ -89,10 +85,9 @@ class Nak(IntEnum):
     FILE_NOT_FOUND = 10
 
 
-# Files only activation may write: a direct CreateFile/Remove/Truncate would
-# bypass the loader's validation. The robot's own state files and the layout
-# directories are off limits too (a directory created at params.json's name
-# would make every later save raise).
+# Files only activation may write: a direct CreateFile/Remove/Truncate would bypass the loader's
+# validation. The robot's own state files and the layout directories are off limits too (a directory
+# created at params.json's name would make every later save raise).
 PROTECTED = frozenset({ACTIVE_POLICY, LAST_GOOD_POLICY, ACTIVE_MAP, LAST_GOOD_MAP, PARAMS_FILE, UID_FILE, "/" + SIGNING_FILE, *LAYOUT_DIRS,
                        GENERAL_FILE, PARAMETER_FILE, METADATA_DIR})
 # Folders read-only over FTP, everything in them too: the robot's own log is written through an open
@@ -193,8 +188,6 @@ class _PendingRename:
     slot: _Slot = POLICY_SLOT
 
 
-
-
 # a file up to this size is summed on the link thread (a worker's reply would wait for the link
 # thread's next slot, a control period, and an upload asks for CRCs often); larger ones off it
 INLINE_CRC_BYTES = 1 << 20
@@ -214,10 +207,9 @@ class _Offloaded:
 
 
 class FtpServer:
-    """See the module docstring. `activate(host_path)` is the vehicle's
-    `begin_activation`: (ok, reason), or a pending activation whose reply
-    `poll` sends when it is done (a retried Rename meanwhile gets none); None
-    refuses every activation."""
+    """See the module docstring. `activate(host_path)` is the vehicle's `begin_activation`: (ok,
+    reason), or a pending activation whose reply `poll` sends when it is done (a retried Rename
+    meanwhile gets none); None refuses every activation."""
 
     def __init__(self, storage: Storage, activate: Callable[[str], Any] | None = None,
                  *, activate_map: Callable[[str], Any] | None = None, max_sessions: int = 4, session_timeout_us: int = 5_000_000,

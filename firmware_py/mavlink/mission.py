@@ -1,19 +1,16 @@
 """Mission protocol engine (MAVLink mission microservice, robot side).
 
-Owns the stored mission (the items exactly as uploaded, so a download
-returns what was sent) and the transfer state machines: upload (a missing
-item re-requested every MIS_TIMEOUT_MS on the robot clock, MIS_RETRIES
-times, then cancelled, the old mission kept), download, MISSION_CLEAR_ALL,
-MISSION_SET_CURRENT and the "guided mode" item (current=2). Pure engine:
-`handle(msg, now_us)` and `tick(now_us)` return replies.
+Owns the stored mission (the items exactly as uploaded, so a download returns what was sent) and the
+transfer state machines: upload (a missing item re-requested every MIS_TIMEOUT_MS on the robot
+clock, MIS_RETRIES times, then cancelled, the old mission kept), download, MISSION_CLEAR_ALL,
+MISSION_SET_CURRENT and the "guided mode" item (current=2). Pure engine: `handle(msg, now_us)` and
+`tick(now_us)` return replies.
 
-Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED or a global frame
-(converted around the configured origin); waypoints go to the vehicle in
-world millimetres (x east, y north). Every item (uploaded or a guided
-waypoint) is validated before anything is computed from it (`check_item`,
-on `check_position`, which DO_REPOSITION and the position targets use too)
-and must lie on the robot's map (`VehicleStatus.map_mm`). The rules and the
-MAV_MISSION_* answers: docs/mavlink.md, "Missions".
+Items: MAV_CMD_NAV_WAYPOINT only, in MAV_FRAME_LOCAL_NED or a global frame (converted around the
+configured origin); waypoints go to the vehicle in world millimetres (x east, y north). Every item
+(uploaded or a guided waypoint) is validated before anything is computed from it (`check_item`, on
+`check_position`, which DO_REPOSITION and the position targets use too) and must lie on the robot's
+map (`VehicleStatus.map_mm`). The rules and the MAV_MISSION_* answers: docs/mavlink.md, "Missions".
 """
 
 from __future__ import annotations

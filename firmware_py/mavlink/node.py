@@ -1,21 +1,18 @@
 """The robot's MAVLink 2 node: core engine plus a thin transport shell.
 
-`MavNode` (the core) owns the routing of every incoming message - signing
-filter, target check, parameters, commands, missions, goals, SETUP_SIGNING,
-FTP - plus the GCS failsafe and the telemetry schedule: `handle(msg,
-now_us)` and `tick(now_us)` return the messages to send, nothing else
-happens; time is the robot clock's. `handle` never raises: a handler's
-exception is counted per message kind (`handler_errors`), logged once per
-kind and answered with a STATUSTEXT.
+`MavNode` (the core) owns the routing of every incoming message - signing filter, target check,
+parameters, commands, missions, goals, SETUP_SIGNING, FTP - plus the GCS failsafe and the telemetry
+schedule: `handle(msg, now_us)` and `tick(now_us)` return the messages to send, nothing else
+happens; time is the robot clock's. `handle` never raises: a handler's exception is counted per
+message kind (`handler_errors`), logged once per kind and answered with a STATUSTEXT.
 
-`MavShell` is the I/O around it on any pymavlink connection string:
-`poll(now_us, budget_s)` is non-blocking, handles what has arrived until the
-budget is spent, then runs `tick`; `serve(stop)` loops it standalone.
+`MavShell` is the I/O around it on any pymavlink connection string: `poll(now_us, budget_s)` is
+non-blocking, handles what has arrived until the budget is spent, then runs `tick`; `serve(stop)`
+loops it standalone.
 
-docs/mavlink.md has the rest: "Node structure" (the link thread, the UDP
-parser reset, the serial send budget), "GCS failsafe" (`check_failsafe`,
-`failsafe_on_control`), "Who may steer: SYSID_MYGCS" and "Signing"
-(SETUP_SIGNING over network and serial links, SIGN_NET_SETUP).
+docs/mavlink.md has the rest: "Node structure" (the link thread, the UDP parser reset, the serial
+send budget), "GCS failsafe" (`check_failsafe`, `failsafe_on_control`), "Who may steer: SYSID_MYGCS"
+and "Signing" (SETUP_SIGNING over network and serial links, SIGN_NET_SETUP).
 """
 
 from __future__ import annotations
@@ -90,10 +87,9 @@ def sticks_of_rc(steering_us: int, throttle_us: int) -> tuple[int, int] | None:
 
 
 def robot_uid(storage_dir: Path | None) -> tuple[int, str]:
-    """The robot's 64-bit id for AUTOPILOT_VERSION.uid, made once (random) and
-    kept in its storage (firmware_py.storage.UID_FILE), so a ground station
-    tells two robots apart across reboots; (0, "") without storage, (0, why)
-    when it cannot be read or made."""
+    """The robot's 64-bit id for AUTOPILOT_VERSION.uid, made once (random) and kept in its storage
+    (firmware_py.storage.UID_FILE), so a ground station tells two robots apart across reboots; (0,
+    "") without storage, (0, why) when it cannot be read or made."""
     if storage_dir is None:
         return 0, ""
     from firmware_py.atomic import atomic_write
@@ -166,10 +162,9 @@ class MavNode:
     # --- boot ---------------------------------------------------------------------
     def boot(self, now_us: int, key_file: str | os.PathLike[str] | None = None,
              overrides: dict[str, int] | None = None) -> None:
-        """Load params and signing state from storage, set `overrides` (the
-        command line's settings, which win for this run and are stored), then
-        configure the vehicle once. Warnings (corrupt files, an override out
-        of range) are sent as STATUSTEXT on the first tick."""
+        """Load params and signing state from storage, set `overrides` (the command line's settings,
+        which win for this run and are stored), then configure the vehicle once. Warnings (corrupt
+        files, an override out of range) are sent as STATUSTEXT on the first tick."""
         warnings = self.params.load() + self.signing.load(now_us, key_file)
         for name, value in (overrides or {}).items():
             ok, why = self.params.set(name, value)

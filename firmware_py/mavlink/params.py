@@ -1,15 +1,14 @@
 """The robot's MAVLink parameter table and its persistence.
 
-Owns the list of parameters (name <= 16 chars, type, default, range,
-description), which `VehicleConfig` field or node setting each one drives,
-range enforcement, and the JSON file in the storage directory that keeps
-them across reboots. The file is replaced atomically (temp + fsync +
-os.replace) so a power cut leaves either the old or the new table; a
-corrupt or unreadable file means defaults plus a warning, never a crash.
+Owns the list of parameters (name <= 16 chars, type, default, range, description), which
+`VehicleConfig` field or node setting each one drives, range enforcement, and the JSON file in the
+storage directory that keeps them across reboots. The file is replaced atomically (temp + fsync +
+os.replace) so a power cut leaves either the old or the new table; a corrupt or unreadable file
+means defaults plus a warning, never a crash.
 
-All tunables are integers (MAVLink INT32 params). MAVLink carries every
-param value as a float32, so integers above 2**24 (the origin in 1e-7
-degrees) travel rounded to float32; the robot stores the exact integer.
+All tunables are integers (MAVLink INT32 params). MAVLink carries every param value as a float32, so
+integers above 2**24 (the origin in 1e-7 degrees) travel rounded to float32; the robot stores the
+exact integer.
 """
 
 from __future__ import annotations
@@ -194,10 +193,9 @@ class ParamStore:
     def set(self, name: str, value: float,
             check: Callable[[VehicleConfig], tuple[bool, str]] | None = None, *,
             remote: bool = False) -> tuple[bool, str]:
-        """Set from a MAVLink PARAM_SET value. On refusal the stored value is
-        unchanged and the reason says why. Persists on success. `check` (the
-        vehicle's `check_config`) judges the config a controller parameter
-        would make before anything is stored. `remote`: the value came over
+        """Set from a MAVLink PARAM_SET value. On refusal the stored value is unchanged and the
+        reason says why. Persists on success. `check` (the vehicle's `check_config`) judges the config a
+        controller parameter would make before anything is stored. `remote`: the value came over
         MAVLink (robot-local parameters are refused then)."""
         d = self._defs.get(name)
         if d is None:
@@ -206,9 +204,8 @@ class ParamStore:
             return False, f"{name} is read-only"
         if remote and d.local:
             return False, f"{name} can only be set on the robot (params.json)"
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            return False, f"{name}: not a number"
-        if value != value or value in (float("inf"), float("-inf")):
+        if (not isinstance(value, (int, float)) or isinstance(value, bool) or value != value
+                or value in (float("inf"), float("-inf"))):
             return False, f"{name}: not a number"
         ivalue = round(value)
         # float32 cannot hold every int > 2**24 exactly: accept the float32 image of an int
@@ -234,12 +231,10 @@ class ParamStore:
         self._values[name] = int(value)
 
     def update_policy(self, policy_id: int, policy_crc: int) -> None:
-        self.set_readonly("POLICY_ID", policy_id & 0xFFFFFFFF)
-        self.set_readonly("POLICY_ID_HI", (policy_id >> 16) & 0xFFFF)
-        self.set_readonly("POLICY_ID_LO", policy_id & 0xFFFF)
-        self.set_readonly("POLICY_CRC", policy_crc & 0xFFFFFFFF)
-        self.set_readonly("POLICY_CRC_HI", (policy_crc >> 16) & 0xFFFF)
-        self.set_readonly("POLICY_CRC_LO", policy_crc & 0xFFFF)
+        for name, value in (("POLICY_ID", policy_id), ("POLICY_CRC", policy_crc)):
+            self.set_readonly(name, value & 0xFFFFFFFF)
+            self.set_readonly(name + "_HI", (value >> 16) & 0xFFFF)
+            self.set_readonly(name + "_LO", value & 0xFFFF)
 
     def vehicle_config(self) -> VehicleConfig:
         return VehicleConfig(**{p.field: self._values[p.name] for p in PARAMS if p.field})

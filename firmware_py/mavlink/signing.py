@@ -1,17 +1,15 @@
 """MAVLink 2 message signing on the robot: key, input filter, timestamps.
 
-Owns the signing key (provisioned by SETUP_SIGNING or a key file), the
-decision whether an incoming frame is accepted, the drop counters, and the
-persisted signing state (`<storage>/signing.json`: key set by SETUP_SIGNING,
-last timestamp, per-stream timestamps) so replays are refused across
-reboots too. The file is under the FTP root, but FTP is refused unsigned
-whenever a key is set, so only a key holder can read it.
+Owns the signing key (provisioned by SETUP_SIGNING or a key file), the decision whether an incoming
+frame is accepted, the drop counters, and the persisted signing state (`<storage>/signing.json`: key
+set by SETUP_SIGNING, last timestamp, per-stream timestamps) so replays are refused across reboots
+too. The file is under the FTP root, but FTP is refused unsigned whenever a key is set, so only a
+key holder can read it.
 
-The rules (as ArduPilot's, plus the bounds FUTURE_WINDOW,
-MAX_TIMESTAMP, `replay_floor` after a boot) are in docs/mavlink.md,
-"Signing". The verification is done here rather than by pymavlink's parser
-so the counters and the new-stream and persistence rules are ours.
-pymavlink still signs outgoing frames (the shell copies `key`/`timestamp`).
+The rules (as ArduPilot's, plus the bounds FUTURE_WINDOW, MAX_TIMESTAMP, `replay_floor` after a
+boot) are in docs/mavlink.md, "Signing". The verification is done here rather than by pymavlink's
+parser so the counters and the new-stream and persistence rules are ours. pymavlink still signs
+outgoing frames (the shell copies `key`/`timestamp`).
 """
 
 from __future__ import annotations

@@ -1,12 +1,10 @@
 """Telemetry: what the robot streams, how often, and how each message is built.
 
-Owns the per-message interval table (defaults from params, changed by
-MAV_CMD_SET_MESSAGE_INTERVAL, one-shot by MAV_CMD_REQUEST_MESSAGE), the
-builders that turn a `VehicleStatus` into MAVLink messages in the frames
-stock ground stations expect (LOCAL_NED, global around the configured
-origin, BODY_FRD obstacle sectors), and the translation of vehicle events
-into STATUSTEXT / MISSION_ITEM_REACHED. A pure engine: `due(now_us, ...)`
-returns the messages to send; the node shell sends them.
+Owns the per-message interval table (defaults from params, changed by MAV_CMD_SET_MESSAGE_INTERVAL,
+one-shot by MAV_CMD_REQUEST_MESSAGE), the builders that turn a `VehicleStatus` into MAVLink messages
+in the frames stock ground stations expect (LOCAL_NED, global around the configured origin, BODY_FRD
+obstacle sectors), and the translation of vehicle events into STATUSTEXT / MISSION_ITEM_REACHED. A
+pure engine: `due(now_us, ...)` returns the messages to send; the node shell sends them.
 """
 
 from __future__ import annotations
@@ -88,13 +86,12 @@ CAPABILITIES = (
     | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | M.MAV_PROTOCOL_CAPABILITY_FTP
     | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )
-# What the HEARTBEAT says the autopilot is. Stock clients pick the PARAM_VALUE
-# encoding from it, not from AUTOPILOT_VERSION's capability bits: MAVSDK reads
-# C-cast values only from ArduPilot (bytewise from anything else) and names
-# flight modes only for PX4 and ArduPilot; MAVProxy reads bytewise only from PX4.
-# The robot always sends C-cast values (advertised as PARAM_ENCODE_C_CAST), so
-# "generic" suits MAVProxy, QGroundControl's generic plugin and qnav, and
-# "ardupilot" (Rover's mode numbers, as the robot uses) adds MAVSDK.
+# What the HEARTBEAT says the autopilot is. Stock clients pick the PARAM_VALUE encoding from it, not
+# from AUTOPILOT_VERSION's capability bits: MAVSDK reads C-cast values only from ArduPilot (bytewise
+# from anything else) and names flight modes only for PX4 and ArduPilot; MAVProxy reads bytewise
+# only from PX4. The robot always sends C-cast values (advertised as PARAM_ENCODE_C_CAST), so
+# "generic" suits MAVProxy, QGroundControl's generic plugin and qnav, and "ardupilot" (Rover's mode
+# numbers, as the robot uses) adds MAVSDK.
 AUTOPILOTS = {"generic": M.MAV_AUTOPILOT_GENERIC, "ardupilot": M.MAV_AUTOPILOT_ARDUPILOTMEGA}
 DEFAULT_AUTOPILOT = "generic"
 FLIGHT_SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # 0.1.0 official
@@ -330,11 +327,10 @@ class Telemetry:
         return []
 
     def localisation(self, msg_id: int, now_us: int, st: VehicleStatus) -> mavlink2.MAVLink_message:
-        """ESTIMATOR_STATUS (flags: ESTIMATOR_POS_HORIZ_ABS while localised on
-        the map; pos_horiz_accuracy: 1-sigma in m), LOCAL_POSITION_NED_COV
-        (the believed pose and its north/east variances; the message has no
-        heading slot; NaN first element: no localiser) or ODOMETRY (the raw
-        dead-reckoning pose)."""
+        """ESTIMATOR_STATUS (flags: ESTIMATOR_POS_HORIZ_ABS while localised on the map;
+        pos_horiz_accuracy: 1-sigma in m), LOCAL_POSITION_NED_COV (the believed pose and its
+        north/east variances; the message has no heading slot; NaN first element: no localiser) or
+        ODOMETRY (the raw dead-reckoning pose)."""
         m = self.mav
         std_n, std_e = st.pose_std_mm[1] / 1000.0, st.pose_std_mm[0] / 1000.0  # y north, x east
         if msg_id == M.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
