@@ -1,13 +1,11 @@
 """Atomic file replacement, the one way every qnav program writes a file.
 
-`atomic_write` writes a temporary file beside the target, fsyncs it,
-`os.replace`s it over the real name and fsyncs the directory, so a reader, a
-crash or a power cut sees the old file or the new one, never a torn one.
-Temporary names start with `TEMP_PREFIX`; the robot's storage hides such
-names from FTP listings and deletes leftovers at boot.
+`atomic_write` writes a temporary file beside the target, fsyncs it, `os.replace`s it over the real
+name and fsyncs the directory, so a reader, a crash or a power cut sees the old file or the new one,
+never a torn one. Temporary names start with `TEMP_PREFIX`; the robot's storage hides such names
+from FTP listings and deletes leftovers at boot.
 
-Stdlib only: firmware_py uses it, and ground_station and sim_bridge import it
-from here.
+Stdlib only: firmware_py uses it, and ground_station and sim_bridge import it from here.
 """
 
 from __future__ import annotations
@@ -37,10 +35,9 @@ def atomic_write(path: str | os.PathLike[str], data: bytes | str, *, make_parent
                  mode: int = 0o666) -> None:
     """Replace `path` with `data` (str is written as UTF-8): temp + fsync + os.replace.
 
-    mode: the new file's permissions, less the umask (the default is what
-    any new file gets; 0o600 keeps a secret private from the first byte).
-    make_parents: create missing parent directories first; otherwise a
-    missing directory raises FileNotFoundError.
+    mode: the new file's permissions, less the umask (the default is what any new file gets; 0o600
+    keeps a secret private from the first byte). make_parents: create missing parent directories
+    first; otherwise a missing directory raises FileNotFoundError.
     """
     final = Path(path)
     if isinstance(data, str):

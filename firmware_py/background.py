@@ -1,17 +1,15 @@
 """Work a policy kind does off the control tick (the local planner's search).
 
-The tick must not wait on a search whose size a policy file or the obstacles
-choose. A kind *posts* a job here and reads
-the job's last result on a later tick; a newer job from the same owner
-replaces one not started yet (only the latest question matters). Two shells
-run the jobs, chosen by how the robot keeps time:
+The tick must not wait on a search whose size a policy file or the obstacles choose. A kind *posts*
+a job here and reads the job's last result on a later tick; a newer job from the same owner replaces
+one not started yet (only the latest question matters). Two shells run the jobs, chosen by how the
+robot keeps time:
 
-* threaded (wall clock, paced HIL): one daemon worker thread, started on
-  the first post; the tick never blocks on it.
-* stepped (lockstep HIL, the twin's bench): `run_pending()` is called by
-  whoever owns the schedule between two ticks (the node after it answered a
-  SimTick, the twin after each period), so a job posted on tick k has its
-  result on tick k+1 whatever the machine's load: runs stay reproducible.
+* threaded (wall clock, paced HIL): one daemon worker thread, started on the first post; the tick
+  never blocks on it.
+* stepped (lockstep HIL, the twin's bench): `run_pending()` is called by whoever owns the schedule
+  between two ticks (the node after it answered a SimTick, the twin after each period), so a job
+  posted on tick k has its result on tick k+1 whatever the machine's load: runs stay reproducible.
 
 A job that raises is logged once and counted; it never reaches the tick.
 """

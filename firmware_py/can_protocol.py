@@ -1,16 +1,14 @@
 """The robot's CAN protocol, read from `qnav.dbc` (the single source of truth).
 
-This module owns encoding and decoding of every frame on the robot's bus.
-The DBC is loaded once from the package data; frame ids, node ids and
-counter widths below are derived from it, never retyped. Encoding is strict:
-a missing signal or a value outside its DBC range raises `ProtocolError`
-instead of being silently truncated on the wire.
+This module owns encoding and decoding of every frame on the robot's bus. The DBC is loaded once
+from the package data; frame ids, node ids and counter widths below are derived from it, never
+retyped. Encoding is strict: a missing signal or a value outside its DBC range raises
+`ProtocolError` instead of being silently truncated on the wire.
 
-Layout: 11-bit id = node_id << 5 | cmd_id (the shape of ODrive's CANSimple),
-8-byte little-endian frames, on nodes 32..37 and 63: an ODrive at any node id
-0..31 (ids up to 0x3FF) and every DroneCAN node (29-bit ids) share the bus
-without a collision. See docs/can-protocol.md for rates, senders and the
-lockstep handshake.
+Layout: 11-bit id = node_id << 5 | cmd_id (the shape of ODrive's CANSimple), 8-byte little-endian
+frames, on nodes 32..37 and 63: an ODrive at any node id 0..31 (ids up to 0x3FF) and every DroneCAN
+node (29-bit ids) share the bus without a collision. See docs/can-protocol.md for rates, senders and
+the lockstep handshake.
 """
 
 from __future__ import annotations

@@ -10,9 +10,8 @@
     None or ""                    python-can's own configuration (CAN_INTERFACE,
                                   CAN_CHANNEL, ~/.canrc), resolved by python-can
 
-The hub that separate processes of a HIL run meet on (`CanHub`) is the
-ground station's (ground_station/canhub.py): the robot only connects to one.
-Stdlib and python-can only.
+The hub that separate processes of a HIL run meet on (`CanHub`) is the ground station's
+(ground_station/canhub.py): the robot only connects to one. Stdlib and python-can only.
 """
 
 from __future__ import annotations

@@ -1,26 +1,23 @@
 """The robot's one clock.
 
-Every timeout on the robot (sensor staleness, motor watchdog feed, GCS
-heartbeat, FTP session expiry) reads the same `Clock`. On a real robot that
-is the monotonic wall clock; in hardware-in-the-loop runs the sim owns time
-and the controller advances a `SimClock` from the sim's tick frames, so
-timeouts are measured in sim time, never wall time.
+Every timeout on the robot (sensor staleness, motor watchdog feed, GCS heartbeat, FTP session
+expiry) reads the same `Clock`. On a real robot that is the monotonic wall clock; in
+hardware-in-the-loop runs the sim owns time and the controller advances a `SimClock` from the sim's
+tick frames, so timeouts are measured in sim time, never wall time.
 
 All values are integer microseconds.
 
-Sim time is input from the bus, so it is checked. Once a `SimClock` has
-taken its first tick (a first tick is always taken, so a robot joins a
-running sim), a tick more than `max_jump_us` ahead is refused and counted in
-`refused_jumps` unless RESYNC_TICKS consecutive ticks agree on the new time:
+Sim time is input from the bus, so it is checked. Once a `SimClock` has taken its first tick (a
+first tick is always taken, so a robot joins a running sim), a tick more than `max_jump_us` ahead is
+refused and counted in `refused_jumps` unless RESYNC_TICKS consecutive ticks agree on the new time:
 one forged far-future SimTick neither stalls the robot nor freezes its clock.
 
-Before that, `TickGate` checks the sim's protocol: counter and time advance
-together, one control period per count (learnt from the first two
-consecutive ticks), within a quarter period. A tick that skips counts is what
-a lockstep sim sends after giving up on an answer, resent until answered: it
-is taken after RESYNC_TICKS identical copies in lockstep, at once when paced;
-at most MAX_TICK_GAP counts per step. A frame on the bus is not
-authenticated, so a forger can still send the next consistent tick first.
+Before that, `TickGate` checks the sim's protocol: counter and time advance together, one control
+period per count (learnt from the first two consecutive ticks), within a quarter period. A tick that
+skips counts is what a lockstep sim sends after giving up on an answer, resent until answered: it is
+taken after RESYNC_TICKS identical copies in lockstep, at once when paced; at most MAX_TICK_GAP
+counts per step. A frame on the bus is not authenticated, so a forger can still send the next
+consistent tick first.
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """`--help` that shows every default: the formatter of qnav-robot and qnav-sim.
 
-argparse's ArgumentDefaultsHelpFormatter also prints "(default: None)" and
-repeats defaults a help text already states; this one appends
-"(default: X)" only when there is a real default the text does not mention,
-and keeps descriptions and epilogs as written (RawDescription).
+argparse's ArgumentDefaultsHelpFormatter also prints "(default: None)" and repeats defaults a help
+text already states; this one appends "(default: X)" only when there is a real default the text does
+not mention, and keeps descriptions and epilogs as written (RawDescription).
 """
 
 from __future__ import annotations

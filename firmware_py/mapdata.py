@@ -1,18 +1,16 @@
-"""The occupancy grid a policy carries to the robot (for the localiser), and
-which range readings it explains (`unmapped_ends`, below: the collision monitor
-and the kinds that remember what the map does not show ask it).
+"""The occupancy grid a policy carries to the robot (for the localiser), and which range readings it
+explains (`unmapped_ends`, below: the collision monitor and the kinds that remember what the map
+does not show ask it).
 
-The map travels inside the `.qtab` file, in its metadata JSON under the key
-`map_grid`: a list of `height` strings of `width` characters each, row 0 the
-northernmost row (as in a MovingAI file and `robot_spec`'s world frame),
-`.` a free cell and any of `@ T O W` an occupied one. Being part of the
-policy file it is covered by the file's CRC32, uploaded, activated and kept
-as last-known-good with the policy, and shown by `qnav policy inspect`.
+The map travels inside the `.qtab` file, in its metadata JSON under the key `map_grid`: a list of
+`height` strings of `width` characters each, row 0 the northernmost row (as in a MovingAI file and
+`robot_spec`'s world frame), `.` a free cell and any of `@ T O W` an occupied one. Being part of the
+policy file it is covered by the file's CRC32, uploaded, activated and kept as last-known-good with
+the policy, and shown by `qnav policy inspect`.
 
-`grid_from_metadata` is the one parser: `firmware_py.policy.load_policy`
-calls it so a file whose grid does not match the header's map geometry (or
-is malformed) is refused with a one-line reason before it can be activated.
-Pure stdlib, no numpy.
+`grid_from_metadata` is the one parser: `firmware_py.policy.load_policy` calls it so a file whose
+grid does not match the header's map geometry (or is malformed) is refused with a one-line reason
+before it can be activated. Pure stdlib, no numpy.
 """
 
 from __future__ import annotations
@@ -247,18 +245,16 @@ def unmapped_ends(grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
             continue
         ox = x_mm + mount * (ct * sens_cos[i] - st * sens_sin[i])
         oy = y_mm + mount * (st * sens_cos[i] + ct * sens_sin[i])
-        explained = False
         end = (0, 0)
         for k in range(n_rays):
             cx = ct * ray_cos[i][k] - st * ray_sin[i][k]
             cy = st * ray_cos[i][k] + ct * ray_sin[i][k]
             ex, ey = math.floor(ox + r * cx + 0.5), math.floor(oy + r * cy + 0.5)
             if wall_within(grid, ex, ey, margin_mm):
-                explained = True
-                break
+                break  # explained by the map
             if k == mid:
                 end = (ex, ey)
-        if not explained:
+        else:
             out.append((i, r, end[0], end[1]))
     return out
 

@@ -1,11 +1,10 @@
 """The extension seam of `qnav-robot`: what an add-on (the MAVLink shell) sees.
 
-`qnav-robot` (firmware_py.cli) builds the control node and hands it to each
-extension as a `ControlNode`: the vehicle seam (`controller`), the node's
-clock and the list of per-tick callbacks. Extensions never import the control
-package, so `firmware_py.control` and `firmware_py.mavlink` meet only through
-`firmware_py.vehicle`. Also owns the robot program's exit codes and its
-one-line usage error.
+`qnav-robot` (firmware_py.cli) builds the control node and hands it to each extension as a
+`ControlNode`: the vehicle seam (`controller`), the node's clock and the list of per-tick callbacks.
+Extensions never import the control package, so `firmware_py.control` and `firmware_py.mavlink` meet
+only through `firmware_py.vehicle`. Also owns the robot program's exit codes and its one-line usage
+error.
 """
 
 from __future__ import annotations

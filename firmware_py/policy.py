@@ -1,21 +1,17 @@
-"""The `.qtab` int policy file: format constants, the robot's loader and the
-one byte-level writer.
+"""The `.qtab` int policy file: format constants, the robot's loader and the one byte-level writer.
 
-This module is the single definition of the byte layout (spec, with the
-field table: docs/policy-format.md). The robot loads files with `load_policy`;
-the ground station's exporter quantises a float table and hands the ints to
-`dump_policy` so the layout is never written twice.
+This module is the single definition of the byte layout (spec, with the field table:
+docs/policy-format.md). The robot loads files with `load_policy`; the ground station's exporter
+quantises a float table and hands the ints to `dump_policy` so the layout is never written twice.
 
-Pure Python, no numpy: the table lives in an `array` ('b' int8 or 'h' int16)
-exposed as a read-only memoryview. The loader checks every field against the
-file size and the robot's configuration before it allocates anything, and
-either returns a complete `Policy` or raises `PolicyError` with a one-line
-reason -- never a partial table.
+Pure Python, no numpy: the table lives in an `array` ('b' int8 or 'h' int16) exposed as a read-only
+memoryview. The loader checks every field against the file size and the robot's configuration before
+it allocates anything, and either returns a complete `Policy` or raises `PolicyError` with a
+one-line reason -- never a partial table.
 
-Version 1.x files (no control period, no geometry) are refused with the
-command that migrates them (`qnav policy upgrade`, built on `upgrade_policy`).
-`config_mismatch` is the one rule for whether a policy fits a robot's
-configuration.
+Version 1.x files (no control period, no geometry) are refused with the command that migrates them
+(`qnav policy upgrade`, built on `upgrade_policy`). `config_mismatch` is the one rule for whether a
+policy fits a robot's configuration.
 """
 
 from __future__ import annotations
@@ -42,9 +38,8 @@ MAGIC = b"QTAB"
 VERSION_MAJOR = 2
 VERSION_MINOR = 0
 
-# magic, major, minor, header_size, flags, kind, dtype, n_actions, n_states,
-# policy_id, created (unix s), scale, enc_len, meta_len,
-# control_period_us, map_cell_mm, map_width, map_height
+# magic, major, minor, header_size, flags, kind, dtype, n_actions, n_states, policy_id, created
+# (unix s), scale, enc_len, meta_len, control_period_us, map_cell_mm, map_width, map_height
 HEADER = struct.Struct("<4sBBHIBBHIIqdIIIHHH")
 assert HEADER.size == 58
 HEADER_V1 = struct.Struct("<4sBBHIBBHIIqdII")  # what a 1.x file starts with; read only by upgrade_policy
@@ -335,13 +330,11 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, r
                     profile: Any = None) -> str:
     """Why `policy` must not run on this robot ('' if it may), naming both values.
 
-    An action is held for one control period, so the periods must match. A
-    cell policy's cell size must equal the robot's; a sector policy observes
-    mm and mrad, so its recorded training geometry is not checked. A robot
-    with its own map (`robot_map`) refuses a map-specific policy for another
-    map. `profile` (a RobotProfile; None: the built-in robot) must meet the
-    policy's needs (firmware_py.needs); a file without a `robot_needs` record
-    was trained for the built-in robot.
+    An action is held for one control period, so the periods must match. A cell policy's cell size
+    must equal the robot's; a sector policy observes mm and mrad, so its recorded training geometry
+    is not checked. A robot with its own map (`robot_map`) refuses a map-specific policy for another
+    map. `profile` (a RobotProfile; None: the built-in robot) must meet the policy's needs
+    (firmware_py.needs); a file without a `robot_needs` record was trained for the built-in robot.
     """
     if policy.control_period_us != control_period_us:
         return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
@@ -454,12 +447,11 @@ def _geometry_for(encoder: AnyEncoder, cell_mm: int, given: MapGeometry | None) 
 
 
 def upgrade_policy(data: bytes, control_period_us: int, map_geometry: MapGeometry | None = None) -> bytes:
-    """A version 1.x file rewritten as the current version with the control
-    period and map geometry it was trained for (geometry as in `dump_policy`).
+    """A version 1.x file rewritten as the current version with the control period and map
+    geometry it was trained for (geometry as in `dump_policy`).
 
-    Everything after the old header is copied byte for byte, so the policy
-    id, creation time and table stay; only the header and the CRC change.
-    Raises PolicyError with a one-line reason.
+    Everything after the old header is copied byte for byte, so the policy id, creation time and
+    table stay; only the header and the CRC change. Raises PolicyError with a one-line reason.
     """
     n = len(data)
     if n < HEADER_V1.size + CRC.size or data[:4] != MAGIC:

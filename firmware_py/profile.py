@@ -1,15 +1,13 @@
 """The robot profile: what this robot is built from, read from a TOML file.
 
-`qnav-robot --profile FILE` (and `qnav-sim --profile FILE`, which plays the
-same robot) takes the robot's geometry and the backends that talk to its
-drive and its range sensors from here; without a file the robot is the one
-`robot_spec` describes, on qnav's own CAN frames. Layout and every key:
+`qnav-robot --profile FILE` (and `qnav-sim --profile FILE`, which plays the same robot) takes the
+robot's geometry and the backends that talk to its drive and its range sensors from here; without a
+file the robot is the one `robot_spec` describes, on qnav's own CAN frames. Layout and every key:
 docs/robot-profile.md; an example per backend ships in `firmware_py/profiles/`.
 
-`load_profile` checks every key (type, range, unknown names) and raises
-`ProfileError` with one line naming the file and the key. What a policy
-needs of the robot is checked against the profile in `firmware_py.needs`.
-Stdlib only (tomllib).
+`load_profile` checks every key (type, range, unknown names) and raises `ProfileError` with one line
+naming the file and the key. What a policy needs of the robot is checked against the profile in
+`firmware_py.needs`. Stdlib only (tomllib).
 """
 
 from __future__ import annotations

@@ -1,18 +1,16 @@
 """The robot's physical contract, defined once.
 
-Geometry, sensor layout, control period and the action -> wheel-speed table.
-The training twin (ground_station), the pymunk plant (sim_bridge) and the
-controller (firmware_py) all import these numbers; nothing redefines them.
+Geometry, sensor layout, control period and the action -> wheel-speed table. The training twin
+(ground_station), the pymunk plant (sim_bridge) and the controller (firmware_py) all import these
+numbers; nothing redefines them.
 
-Units are integers in the control path: millimetres, mm/s, milliradians,
-microseconds. Float views (metres, radians) are derived helpers for the
-ground station and sim.
+Units are integers in the control path: millimetres, mm/s, milliradians, microseconds. Float views
+(metres, radians) are derived helpers for the ground station and sim.
 
-World frame (shared by maps, sim, odometry and MAVLink conversion): x to the
-east along map columns, y to the north, so map row 0 (the first text row of a
-MovingAI file) is the northernmost row. Heading is measured counter-clockwise
-from +x (east). A cell (col, row) of an H-row map with cell size c has its
-centre at x = (col + 0.5) * c, y = (H - row - 0.5) * c.
+World frame (shared by maps, sim, odometry and MAVLink conversion): x to the east along map columns,
+y to the north, so map row 0 (the first text row of a MovingAI file) is the northernmost row.
+Heading is measured counter-clockwise from +x (east). A cell (col, row) of an H-row map with cell
+size c has its centre at x = (col + 0.5) * c, y = (H - row - 0.5) * c.
 """
 
 from __future__ import annotations
@@ -27,10 +25,9 @@ ENCODER_TICKS_PER_REV = 2048
 MAX_WHEEL_SPEED_MM_S = 600  # hard limit, commands are clamped to it
 
 # --- timing -----------------------------------------------------------------
-# The control rate is the one owner of the control period: its default and
-# allowed range are defined here, and `VehicleConfig.control_rate_hz`, the
-# CTRL_RATE_HZ parameter and `qnav-robot --rate` all take them from here. A
-# policy file records the period it was trained for and the robot refuses a
+# The control rate is the one owner of the control period: its default and allowed range are defined
+# here, and `VehicleConfig.control_rate_hz`, the CTRL_RATE_HZ parameter and `qnav-robot --rate` all
+# take them from here. A policy file records the period it was trained for and the robot refuses a
 # policy whose period differs from `control_period_us(its rate)`.
 CONTROL_RATE_HZ = 20  # default
 CONTROL_RATE_MIN_HZ = 1

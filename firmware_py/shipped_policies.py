@@ -1,16 +1,14 @@
 """The policies shipped with qnav, found by name.
 
-`shipped_policy("sector")` is the path of `sector.qtab`; `resolve_policy_spec`
-turns a `policies:NAME` spec into that path and leaves any other value as a
-file path, so every option that takes a policy file also takes a shipped
-policy by name (`qnav-robot --policy policies:sector`, `qnav policy inspect
-policies:paper10_cell`).
+`shipped_policy("sector")` is the path of `sector.qtab`; `resolve_policy_spec` turns a
+`policies:NAME` spec into that path and leaves any other value as a file path, so every option that
+takes a policy file also takes a shipped policy by name (`qnav-robot --policy policies:sector`,
+`qnav policy inspect policies:paper10_cell`).
 
-The source of truth is the checkout's top-level `policies/` folder. The
-wheel ships that folder as the package `qnav_policies` (setup.py), so an
-installed qnav finds the policies without a checkout; run from a checkout
-(PYTHONPATH or an editable install) the folder beside this package is used,
-so a worktree sees its own files. Stdlib only.
+The source of truth is the checkout's top-level `policies/` folder. The wheel ships that folder as
+the package `qnav_policies` (setup.py), so an installed qnav finds the policies without a checkout;
+run from a checkout (PYTHONPATH or an editable install) the folder beside this package is used, so a
+worktree sees its own files. Stdlib only.
 """
 
 from __future__ import annotations

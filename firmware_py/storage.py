@@ -1,27 +1,23 @@
-"""The robot's file store: one directory tree that the FTP server and the
-policy/param code may touch, and nothing outside it.
+"""The robot's file store: one directory tree that the FTP server and the policy/param code may
+touch, and nothing outside it.
 
 Owns
-- path resolution: an FTP path ("/policies/x.qtab", "policies/x.qtab") is
-  always relative to the root ("/" is the root, like an autopilot's SD card).
-  `..` components, symlinks anywhere in the path (checked with lstat on every
-  component, files opened with O_NOFOLLOW), NUL/control characters and names
-  of in-flight temporary files are refused with EACCES;
-- a quota over everything under the root, temporary files included: bytes
-  (apparent size, so a sparse file counts in full), files and directories;
-  a write may not leave a hole of more than MAX_HOLE_BYTES past the end of
-  the file (clients write in order, with a few blocks in flight), and every
-  length is checked against the quota before anything is allocated;
-- crash-safe writes: data goes to a hidden temporary name in the target's
-  directory, is fsynced, then `os.replace`d over the real name and the
-  directory fsynced, so a reader (or a reboot) sees the old file or the new
-  one, never a mix. Temporary files left by a crash are deleted at start-up;
-- the robot layout (`ACTIVE_POLICY`, `LAST_GOOD_POLICY`, `PARAMS_FILE`) and
-  the policy slot swap used by activation (`promote_policy`) and by boot
-  (`boot_policy_candidates`).
+- path resolution: an FTP path ("/policies/x.qtab", "policies/x.qtab") is always relative to the
+  root ("/" is the root, like an autopilot's SD card). `..` components, symlinks anywhere in the
+  path (checked with lstat on every component, files opened with O_NOFOLLOW), NUL/control characters
+  and names of in-flight temporary files are refused with EACCES;
+- a quota over everything under the root, temporary files included: bytes (apparent size, so a
+  sparse file counts in full), files and directories; a write may not leave a hole of more than
+  MAX_HOLE_BYTES past the end of the file (clients write in order, with a few blocks in flight), and
+  every length is checked against the quota before anything is allocated;
+- crash-safe writes: data goes to a hidden temporary name in the target's directory, is fsynced,
+  then `os.replace`d over the real name and the directory fsynced, so a reader (or a reboot) sees
+  the old file or the new one, never a mix. Temporary files left by a crash are deleted at start-up;
+- the robot layout (`ACTIVE_POLICY`, `LAST_GOOD_POLICY`, `PARAMS_FILE`) and the policy slot swap
+  used by activation (`promote_policy`) and by boot (`boot_policy_candidates`).
 
-Errors are `StorageError` (an OSError with an errno and a one-line message);
-the FTP server maps the errno onto its NAK codes.
+Errors are `StorageError` (an OSError with an errno and a one-line message); the FTP server maps the
+errno onto its NAK codes.
 """
 
 from __future__ import annotations
@@ -59,9 +55,6 @@ MAX_PATH_CHARS = 200  # fits one FTP payload with room for "old\0new"
 
 class StorageError(OSError):
     """A refused or failed storage operation: errno + one-line reason."""
-
-    def __init__(self, code: int, message: str) -> None:
-        super().__init__(code, message)
 
 
 @dataclass(frozen=True)
@@ -293,11 +286,8 @@ class Storage:
 
     # --- writing ---------------------------------------------------------------
     def begin_write(self, ftp_path: str, keep_contents: bool = False) -> Upload:
-        """Start writing `ftp_path` under a temporary name.
-
-        keep_contents: start from the existing file's bytes (OpenFileWO) rather
-        than empty (CreateFile).
-        """
+        """Start writing `ftp_path` under a temporary name, from the existing file's
+        bytes if `keep_contents` (OpenFileWO), else empty (CreateFile)."""
         final = self._new_file_path(ftp_path)
         existing = b""
         if keep_contents and final.exists():
@@ -403,11 +393,10 @@ def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook, acti
                    last_good: str = LAST_GOOD_POLICY) -> Any:
     """Activate the policy file at `ftp_path` through the vehicle's hook.
 
-    `activate(host_path)` must load and validate the file completely and swap
-    it in (or refuse: DRIVING, bad file, wrong sensors) before returning
-    (ok, reason). Only on success are the slots moved (`commit_promotion`).
-    On refusal nothing on disk changes. A hook that returns a pending
-    activation has it returned as is: the caller commits when it succeeds.
+    `activate(host_path)` must load, validate and swap in the file (or refuse:
+    DRIVING, bad file, wrong sensors) before returning (ok, reason); only on
+    success are the slots moved, on refusal nothing on disk changes. A pending
+    activation is returned as is: the caller commits when it succeeds.
     """
     src = policy_source(storage, ftp_path, active)
     got = activate(str(src))
@@ -441,22 +430,20 @@ def commit_promotion(storage: Storage, src: Path, active_path: str = ACTIVE_POLI
         fsync_dir(src.parent)
 
 
-def boot_map_candidates(storage: Storage) -> list[str]:
-    """The robot's map files to try at boot, newest first: active, then last-known-good."""
+def _existing_files(storage: Storage, *ftp_paths: str) -> list[str]:
     out = []
-    for ftp_path in (ACTIVE_MAP, LAST_GOOD_MAP):
+    for ftp_path in ftp_paths:
         with contextlib.suppress(StorageError):
             out.append(str(storage._existing_file(ftp_path)))
     return out
+
+
+def boot_map_candidates(storage: Storage) -> list[str]:
+    """The robot's map files to try at boot, newest first: active, then last-known-good."""
+    return _existing_files(storage, ACTIVE_MAP, LAST_GOOD_MAP)
 
 
 def boot_policy_candidates(storage: Storage) -> list[str]:
-    """Host paths to try at boot, newest first: active, then last-known-good.
-
-    The caller loads each with the policy loader and runs the first valid one.
-    """
-    out = []
-    for ftp_path in (ACTIVE_POLICY, LAST_GOOD_POLICY):
-        with contextlib.suppress(StorageError):
-            out.append(str(storage._existing_file(ftp_path)))
-    return out
+    """Host paths to try at boot, newest first: active, then last-known-good (the caller
+    runs the first one the policy loader accepts)."""
+    return _existing_files(storage, ACTIVE_POLICY, LAST_GOOD_POLICY)

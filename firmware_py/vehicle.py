@@ -1,12 +1,11 @@
 """The seam between the controller and the robot's MAVLink node.
 
-The controller (`firmware_py.control.controller`) implements `VehicleControl`; the
-MAVLink node (params, commands, missions, telemetry, FTP activation) only
-talks to the vehicle through it. Both sides share `VehicleConfig` (the
-tunables the parameter table maps onto) and the enums below.
+The controller (`firmware_py.control.controller`) implements `VehicleControl`; the MAVLink node
+(params, commands, missions, telemetry, FTP activation) only talks to the vehicle through it. Both
+sides share `VehicleConfig` (the tunables the parameter table maps onto) and the enums below.
 
-Modes are numbered as ArduPilot Rover numbers its custom_mode so stock
-ground stations show the right names.
+Modes are numbered as ArduPilot Rover numbers its custom_mode so stock ground stations show the
+right names.
 """
 
 from __future__ import annotations
@@ -148,13 +147,12 @@ ACTIVATION_TIMEOUT_S = 20.0  # a policy not ready by then (its localiser still b
 
 
 class PendingActivation:
-    """A policy or map activation whose slow part (building the localiser's field
-    for a new map) runs on a worker thread: the link thread polls `result()` (None
-    until done) and answers the client then; the old policy and map drive meanwhile.
-    `cancel()` (the link gave up waiting) and the worker's `claim()` (taken under the
-    controller's lock, just before the swap) exclude each other: once cancelled, the
-    worker swaps nothing in; once claimed, `cancel()` returns False and the result,
-    due in a moment, stands."""
+    """A policy or map activation whose slow part (building the localiser's field for a new map)
+    runs on a worker thread: the link thread polls `result()` (None until done) and answers the client
+    then; the old policy and map drive meanwhile. `cancel()` (the link gave up waiting) and the
+    worker's `claim()` (taken under the controller's lock, just before the swap) exclude each other:
+    once cancelled, the worker swaps nothing in; once claimed, `cancel()` returns False and the
+    result, due in a moment, stands."""
 
     def __init__(self) -> None:
         self._done = threading.Event()

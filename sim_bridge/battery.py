@@ -1,12 +1,11 @@
 """The robot's battery as the power board would report it (BATTERY_STATUS in a GCS).
 
-A 3-cell LiPo pack: the open-circuit voltage follows the state of charge
-(a typical LiPo discharge curve, piecewise linear between measured points),
-the terminal voltage sags by the pack's internal resistance times the
-current, and the current is the electronics' idle draw plus what the two
-wheel motors take for their speed (a ground robot's load is mostly its
-wheels). Charge is counted in sim time. `status(counter)` is the
-BatteryStatus frame's signals (firmware_py/qnav.dbc), sent twice a second.
+A 3-cell LiPo pack: the open-circuit voltage follows the state of charge (a typical LiPo discharge
+curve, piecewise linear between measured points), the terminal voltage sags by the pack's internal
+resistance times the current, and the current is the electronics' idle draw plus what the two wheel
+motors take for their speed (a ground robot's load is mostly its wheels). Charge is counted in sim
+time. `status(counter)` is the BatteryStatus frame's signals (firmware_py/qnav.dbc), sent twice a
+second.
 """
 
 from __future__ import annotations

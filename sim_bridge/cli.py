@@ -123,16 +123,14 @@ def _make_output_folders(args: argparse.Namespace) -> None:
 def load_obstacles(plant, path: str):  # type: ignore[no-untyped-def]
     """The ObstacleLayer of a scenario JSON file; ValueError with one line if it is unusable."""
     import json
-    from pathlib import Path
 
     from sim_bridge.obstacles import ObstacleLayer
 
     try:
         d = json.loads(Path(path).read_text())
-        layer = ObstacleLayer(plant.world, d.get("discs", []), d.get("movers", []))
+        return ObstacleLayer(plant.world, d.get("discs", []), d.get("movers", []))
     except (OSError, ValueError, TypeError, AttributeError) as exc:
         raise ValueError(f"--scenario {path}: {exc}") from None
-    return layer
 
 
 def run(args: argparse.Namespace) -> int:
@@ -233,9 +231,7 @@ def run(args: argparse.Namespace) -> int:
                 interrupted, stats = True, plant.stats
             finally:
                 signal.signal(signal.SIGINT, previous_sigint)
-    except LockstepError as exc:
-        raise CliError(str(exc)) from None
-    except ValueError as exc:
+    except (LockstepError, ValueError) as exc:
         raise CliError(str(exc)) from None
     finally:
         bus.shutdown()

@@ -1,12 +1,11 @@
 """The motor driver model: two wheels, a watchdog and an e-stop latch.
 
-Owns what the MotorDriver node does with `MotorCommand` and `EStop` frames
-and what it reports in `MotorStatus`. Per wheel: first-order response to the
-setpoint, acceleration limit, speed limit. Every command feeds a watchdog
-measured in SIM time (integer µs); when it expires the setpoints go to zero
-and the status says so until the next command, as ODrive/VESC/DroneCAN ESCs
-do (zeroed at once, a brake, not a ramp). Stall detection compares each
-wheel's speed with the ground speed the world reports.
+Owns what the MotorDriver node does with `MotorCommand` and `EStop` frames and what it reports in
+`MotorStatus`. Per wheel: first-order response to the setpoint, acceleration limit, speed limit.
+Every command feeds a watchdog measured in SIM time (integer µs); when it expires the setpoints go
+to zero and the status says so until the next command, as ODrive/VESC/DroneCAN ESCs do (zeroed at
+once, a brake, not a ramp). Stall detection compares each wheel's speed with the ground speed the
+world reports.
 """
 
 from __future__ import annotations

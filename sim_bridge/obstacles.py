@@ -1,26 +1,21 @@
 """Unmapped obstacles: static discs and moving discs the map does not show.
 
-Owns the one definition of how a scenario's obstacles behave, shared by the
-pymunk plant (`ObstacleLayer`, bodies its range rays and bumper see) and the
-ground station's kinematic twin (`ground_station.learn.sector.obstacles`
-jit-compiles `step_movers` from this very source):
+Owns the one definition of how a scenario's obstacles behave, shared by the pymunk plant
+(`ObstacleLayer`, bodies its range rays and bumper see) and the ground station's kinematic twin
+(`ground_station.learn.sector.obstacles` jit-compiles `step_movers` from this very source):
 
 * a static obstacle is a disc (x, y, r) in mm, world frame (x east, y north);
-* a mover is a disc (x, y, vx, vy, r, yields) (mm, mm/s) walking a straight
-  line at constant speed. Once per control period it moves by v * dt, one
-  axis at a time; an axis whose move would make it touch an obstacle cell,
-  the map border or a static obstacle is not taken and that velocity
-  component flips (it bounces). A mover that yields (yields = 1, the default:
-  a pedestrian steps aside) also bounces off the robot plus
-  `YIELD_MARGIN_MM`, so every contact is the robot's own doing; one that does
-  not (yields = 0, `qnav bench nav --no-yield`) walks its own line
-  through the robot's path and only stands still while it would overlap the
-  robot (it stops on contact). Movers pass through each other. Five-column
-  movers (before `yields`) yield.
+* a mover is a disc (x, y, vx, vy, r, yields) (mm, mm/s) walking a straight line at constant speed.
+  Once per control period it moves by v * dt, one axis at a time; an axis whose move would make it
+  touch an obstacle cell, the map border or a static obstacle is not taken and that velocity
+  component flips (it bounces). A mover that yields (yields = 1, the default: a pedestrian steps
+  aside) also bounces off the robot plus `YIELD_MARGIN_MM`, so every contact is the robot's own
+  doing; one that does not (yields = 0, `qnav bench nav --no-yield`) walks its own line through the
+  robot's path and only stands still while it would overlap the robot (it stops on contact). Movers
+  pass through each other. Five-column movers (before `yields`) yield.
 
-Arrays, not objects, so the same function runs in numba and here:
-`discs` float64 (K, 3), `movers` float64 (M, 6), `occ` the map grid (row 0 =
-north), `cell` mm.
+Arrays, not objects, so the same function runs in numba and here: `discs` float64 (K, 3), `movers`
+float64 (M, 6), `occ` the map grid (row 0 = north), `cell` mm.
 """
 
 from __future__ import annotations
@@ -103,10 +98,9 @@ def mover_array(movers) -> np.ndarray:  # type: ignore[no-untyped-def]
 
 
 class ObstacleLayer:
-    """A scenario's obstacles in a pymunk `World`: static discs and kinematic
-    mover discs, with the walls' collision type and category so the range
-    rays hit them and a touch counts as bumper contact. `step()` once per
-    control period moves the movers by `step_movers`."""
+    """A scenario's obstacles in a pymunk `World`: static discs and kinematic mover discs, with the
+    walls' collision type and category so the range rays hit them and a touch counts as bumper
+    contact. `step()` once per control period moves the movers by `step_movers`."""
 
     def __init__(self, world: World, discs: list | None = None, movers: list | None = None) -> None:
         self.world = world

@@ -1,27 +1,24 @@
 """Two emulated ODrive axes (CANSimple) driving the plant's wheels.
 
-What an ODrive does on the bus, from its published CANSimple protocol (the same
-facts as firmware_py/drives/odrive.py, written again here from the protocol, not
-imported, so the robot's backend is tested against an independent reading):
+What an ODrive does on the bus, from its published CANSimple protocol (the same facts as
+firmware_py/drives/odrive.py, written again here from the protocol, not imported, so the robot's
+backend is tested against an independent reading):
 
-* each axis answers to `node_id << 5 | cmd`: Set_Axis_State (0x07; IDLE 1,
-  CLOSED_LOOP_CONTROL 8, refused while an error is set), Set_Controller_Mode
-  (0x0B), Set_Input_Vel (0x0D, turns/s of the motor), Clear_Errors (0x18),
-  Estop (0x02);
-* it sends a Heartbeat (0x01: Axis_Error u32, Axis_State u8, Procedure_Result u8,
-  Trajectory_Done u8) every 100 ms and Get_Encoder_Estimates (0x09: position
-  turns, velocity turns/s, float32) every 10 ms;
-* its watchdog (0.5 s, the expectation ODrive's docs give for CAN control): no
-  Set_Input_Vel for that long in closed loop is AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
-  (0x800) and the axis goes IDLE.
+* each axis answers to `node_id << 5 | cmd`: Set_Axis_State (0x07; IDLE 1, CLOSED_LOOP_CONTROL 8,
+  refused while an error is set), Set_Controller_Mode (0x0B), Set_Input_Vel (0x0D, turns/s of the
+  motor), Clear_Errors (0x18), Estop (0x02);
+* it sends a Heartbeat (0x01: Axis_Error u32, Axis_State u8, Procedure_Result u8, Trajectory_Done
+  u8) every 100 ms and Get_Encoder_Estimates (0x09: position turns, velocity turns/s, float32) every
+  10 ms;
+* its watchdog (0.5 s, the expectation ODrive's docs give for CAN control): no Set_Input_Vel for
+  that long in closed loop is AXIS_ERROR_WATCHDOG_TIMER_EXPIRED (0x800) and the axis goes IDLE.
 
-The wheels follow the axes through the plant's `MotorDriver` model (first-order
-response, acceleration limit): an axis in closed loop commands its wheel, an idle
-axis commands zero. Motor turns are the profile's: wheel turns (of its
-`wheel_radius_mm`) times `gear_ratio`, with the profile's drive signs; the position
-estimate is the wheel encoders' measured turns, the velocity the wheel's speed.
-Faults to inject: an axis error at a sim time, an axis that falls silent, and a
-motor mounted the other way round (`flip`, for bring-up checks).
+The wheels follow the axes through the plant's `MotorDriver` model (first-order response,
+acceleration limit): an axis in closed loop commands its wheel, an idle axis commands zero. Motor
+turns are the profile's: wheel turns (of its `wheel_radius_mm`) times `gear_ratio`, with the
+profile's drive signs; the position estimate is the wheel encoders' measured turns, the velocity the
+wheel's speed. Faults to inject: an axis error at a sim time, an axis that falls silent, and a motor
+mounted the other way round (`flip`, for bring-up checks).
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """What a sim run leaves behind: CAN log, trajectory CSV, PNG plot.
 
-Every file is written atomically (temporary file in the same directory,
-fsync, os.replace), so an interrupted run never leaves a half file under the
-final name. The CAN log goes through python-can's `can.Logger`, which picks
-the format (.blf, .asc, .csv, .log, ...) from the suffix.
+Every file is written atomically (temporary file in the same directory, fsync, os.replace), so an
+interrupted run never leaves a half file under the final name. The CAN log goes through python-can's
+`can.Logger`, which picks the format (.blf, .asc, .csv, .log, ...) from the suffix.
 """
 
 from __future__ import annotations

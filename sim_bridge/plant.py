@@ -1,20 +1,19 @@
 """The CAN-facing plant: the robot's boards and the sim clock on one bus.
 
-`Plant` is the core, free of I/O: `tick_frames()` samples every sensor at the
-current sim time and returns the frames of one control tick (SimTick last),
-`handle(msg)` applies a received frame, `step_period()` advances physics by
-one control period in fixed `robot_spec.PHYSICS_DT_US` steps. `run_lockstep` and
-`run_paced` are the thin shells that move frames over a python-can bus; the
+`Plant` is the core, free of I/O: `tick_frames()` samples every sensor at the current sim time and
+returns the frames of one control tick (SimTick last), `handle(msg)` applies a received frame,
+`step_period()` advances physics by one control period in fixed `robot_spec.PHYSICS_DT_US` steps.
+`run_lockstep` and `run_paced` are the thin shells that move frames over a python-can bus; the
 lockstep handshake is specified in docs/can-protocol.md.
 
-The robot it plays is one robot profile (`SimConfig.robot`, a
-`firmware_py.profile.RobotProfile`; None is the built-in robot, `profile.DEFAULT`):
-the world's body radius and wheel base, the encoders' wheel and counts per
-turn, the boards' gear ratio and signs, and the range sensors' angles, order,
-count and range all come from it (docs/robot-profile.md, "The sim plays the profile").
+The robot it plays is one robot profile (`SimConfig.robot`, a `firmware_py.profile.RobotProfile`;
+None is the built-in robot, `profile.DEFAULT`): the world's body radius and wheel base, the
+encoders' wheel and counts per turn, the boards' gear ratio and signs, and the range sensors'
+angles, order, count and range all come from it (docs/robot-profile.md, "The sim plays the
+profile").
 
-Outputs: CAN log through python-can's `can.Logger` (sim-time stamps), the
-ground-truth trajectory CSV and a PNG (see `sim_bridge.outputs`).
+Outputs: CAN log through python-can's `can.Logger` (sim-time stamps), the ground-truth trajectory
+CSV and a PNG (see `sim_bridge.outputs`).
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
 """Named plant profiles: the wheel and sensor error a HIL run is judged under.
 
-`ideal` is the plant as it always ran in the benchmarks (perfect encoders,
-10 mm range noise, no dropout). `realistic` is what a small real robot
-shows every day, and the one the localisation acceptance uses: one wheel's
-encoder reads 3 % long (a worn or slightly different wheel), 10 % random
-slip on both wheels, 10 mm range noise and 2 % dropout. `qnav-sim
---profile`, `qnav bench hil --profile` (and `qnav bench nav --profile`) take
-these names; every field is also a separate `qnav-sim` option.
+`ideal` is the plant as it always ran in the benchmarks (perfect encoders, 10 mm range noise, no
+dropout). `realistic` is what a small real robot shows every day, and the one the localisation
+acceptance uses: one wheel's encoder reads 3 % long (a worn or slightly different wheel), 10 %
+random slip on both wheels, 10 mm range noise and 2 % dropout. `qnav-sim --profile`, `qnav bench hil
+--profile` (and `qnav bench nav --profile`) take these names; every field is also a separate
+`qnav-sim` option.
 """
 
 from __future__ import annotations

@@ -1,28 +1,25 @@
 """Simulated range sensors, wheel encoders and bumper ring.
 
-Everything a robot profile says about them is the profile's
-(`firmware_py.profile`; the default is the built-in robot of `robot_spec`):
+Everything a robot profile says about them is the profile's (`firmware_py.profile`; the default is
+the built-in robot of `robot_spec`):
 
-Range sensors: one per entry of the profile's `sensors.angles_deg`, in that
-(bus) order and count, each a fan of rays spread over
-robot_spec.SENSOR_FOV_MRAD (no profile key: every sensor has that cone), cast
-with pymunk's `segment_query_first` and a ShapeFilter that excludes the
-robot. Rays start at the robot's centre (never inside a wall, unlike the rim
-when touching one) and the reading is the nearest hit minus the body radius:
-the distance from the sensor face on the rim. Seeded Gaussian noise and
-dropout; readings below RANGE_MIN_MM or beyond the profile's
-`sensors.max_range_mm` are flagged as DroneCAN does. Angles are taken in
-whole milliradians, as the robot records them (`RobotProfile.layout`).
+Range sensors: one per entry of the profile's `sensors.angles_deg`, in that (bus) order and count,
+each a fan of rays spread over robot_spec.SENSOR_FOV_MRAD (no profile key: every sensor has that
+cone), cast with pymunk's `segment_query_first` and a ShapeFilter that excludes the robot. Rays
+start at the robot's centre (never inside a wall, unlike the rim when touching one) and the reading
+is the nearest hit minus the body radius: the distance from the sensor face on the rim. Seeded
+Gaussian noise and dropout; readings below RANGE_MIN_MM or beyond the profile's
+`sensors.max_range_mm` are flagged as DroneCAN does. Angles are taken in whole milliradians, as the
+robot records them (`RobotProfile.layout`).
 
-Encoders integrate each wheel's ground speed (from the body's motion) into
-ticks at the profile's `encoder_counts_per_rev` of a wheel of its
-`wheel_radius_mm`, with an optional per-wheel scale error (measured / true
-travel) and seeded slip (each physics step's travel times 1 + N(0, slip)).
-Named combinations: sim_bridge/profiles.py. The bumper
-reads the contacts kept by the world's collision handlers.
+Encoders integrate each wheel's ground speed (from the body's motion) into ticks at the profile's
+`encoder_counts_per_rev` of a wheel of its `wheel_radius_mm`, with an optional per-wheel scale error
+(measured / true travel) and seeded slip (each physics step's travel times 1 + N(0, slip)). Named
+combinations: sim_bridge/profiles.py. The bumper reads the contacts kept by the world's collision
+handlers.
 
-Every random draw comes from one seeded `random.Random` in a fixed order, so
-a run is reproducible from its seed.
+Every random draw comes from one seeded `random.Random` in a fixed order, so a run is reproducible
+from its seed.
 """
 
 from __future__ import annotations

@@ -1,18 +1,17 @@
 """The pymunk arena and the robot body.
 
-Owns the physical world: static boxes for obstacle cells (each row's runs of
-obstacle cells merged into one box), four outer walls, and the robot as a
-circle driven the way pymunk's tank example drives its tank — a kinematic
-control body carries the wanted velocity and a `PivotJoint` (max_bias=0,
-finite max_force) plus a `GearJoint` pull the robot after it. The solver then
-stops the robot at walls at any commanded speed; setting the body's velocity
-directly would tunnel through them.
+Owns the physical world: static boxes for obstacle cells (each row's runs of obstacle cells merged
+into one box), four outer walls, and the robot as a circle driven the way pymunk's tank example
+drives its tank — a kinematic control body carries the wanted velocity and a `PivotJoint`
+(max_bias=0, finite max_force) plus a `GearJoint` pull the robot after it. The solver then stops the
+robot at walls at any commanded speed; setting the body's velocity directly would tunnel through
+them.
 
-The body's radius and wheel base are the robot profile's (`firmware_py.profile.Geometry`;
-the default is the built-in robot of `robot_spec`).
+The body's radius and wheel base are the robot profile's (`firmware_py.profile.Geometry`; the
+default is the built-in robot of `robot_spec`).
 
-Units are SI (metres, seconds, radians); the world frame is robot_spec.py's:
-x east along columns, y north, map row 0 is the northernmost row.
+Units are SI (metres, seconds, radians); the world frame is robot_spec.py's: x east along columns, y
+north, map row 0 is the northernmost row.
 """
 
 from __future__ import annotations
