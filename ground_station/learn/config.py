@@ -1,9 +1,6 @@
 """Training configuration: the common hyperparameters in one dataclass, each kind's
-own in a dataclass nested in it (`TrainConfig.options`, the kind's `options` type in
-`ground_station.learn.kinds`).
-
-Kept apart from `ground_station.learn.train` (which re-exports it) so that building
-the `qnav` argument parser does not import numba: the field help texts become
+own nested in it (`TrainConfig.options`). Kept apart from `ground_station.learn.train`
+so that building the `qnav` parser does not import numba: the field help texts become
 `qnav train --help`, grouped by the kinds that read them.
 
 Every field has one flat name, its flag without the dashes (`lr`, `targets`,
@@ -107,12 +104,9 @@ def encodings() -> list[str]:
 
 def recipes() -> dict[str, dict[str, Any]]:
     """The shipped recipe of each encoding: flat names that differ from the defaults.
-    `qnav train --encoding E` starts from it; flags given on the command line override
-    it; `qnav train --recipe NAME` names one (`kinds.shipped_recipes()`: the policies/ files, with
-    map paper10 and seed 0 as the defaults; docs/training.md)."""
+    `qnav train --encoding E` starts from it, command-line flags override it; `--recipe NAME`
+    names one (`kinds.shipped_recipes()`, docs/training.md)."""
     return {name: dict(kinds.of_name(name).recipe) for name in kinds.names()}
-
-
 
 
 def recipe_config(encoding: str, given: dict[str, Any]) -> TrainConfig:
@@ -211,17 +205,15 @@ def validate_config(cfg: TrainConfig) -> None:
 
 
 def recipe_defaults(parser: argparse.ArgumentParser) -> None:
-    """Leave the recipe fields (and --encoding) unset on a parser built with
-    `add_config_arguments`, so that `config_from_recipe_args` can tell a flag
-    left out (it takes the encoding's recipe) from one given."""
+    """Leave the recipe fields (and --encoding) unset, so `config_from_recipe_args` can tell a
+    flag left out (it takes the encoding's recipe) from one given."""
     parser.set_defaults(encoding=None, **{k: None for r in recipes().values() for k in r})
 
 
 def config_from_recipe_args(args: argparse.Namespace, encoding: str | None = None) -> TrainConfig:
-    """TrainConfig from parsed flags, recipe-aware (`qnav train`, `sweep`, `study`):
-    the encoding (`encoding`, else --encoding, else cell) picks its recipe; a flag
-    given (not None) and read by that encoding wins over it, a flag left out takes
-    it, else the default."""
+    """TrainConfig from parsed flags, recipe-aware (`qnav train`, `sweep`, `study`): the encoding
+    (`encoding`, else --encoding, else cell) picks its recipe; a flag given and read by that
+    encoding wins over it, a flag left out takes it."""
     encoding = encoding or getattr(args, "encoding", None) or kinds.DEFAULT
     reads = {name for name, _ in _flag_fields() if encoding in applies_to(name)}
     given = {name: getattr(args, name) for name in reads

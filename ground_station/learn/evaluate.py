@@ -1,7 +1,5 @@
 """Greedy evaluation of a saved training run, whatever its kind: the run folder is read
-once (`ground_station.learn.export.load_run`) and judged by its kind's evaluation
-(`ground_station.learn.kinds`: cell in `learn/cell/evaluate.py`, sector in
-`learn/sector/evaluate.py`, sector-memory in `learn/sector_memory/trainer.py`), with the
+once and judged by its kind's evaluation (`ground_station.learn.kinds`), with the
 baselines that kind reports beside the policy (`qnav eval`)."""
 
 from __future__ import annotations

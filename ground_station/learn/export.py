@@ -1,11 +1,7 @@
-"""Float Q-table -> int `.qtab` policy: symmetric quantisation, the
-float-vs-int comparison and the atomic file write.
-
-The byte layout belongs to `firmware_py.policy` (`dump_policy`); this module
-owns only the numbers: how a float table becomes int8/int16 plus scale(s),
-and how much the rounding changed (argmax agreement, ties). Whether the int
-table still drives as well is judged by rollouts (see `rollout_compare`),
-because rounding creates argmax ties that rarely change path optimality.
+"""Float Q-table -> int `.qtab` policy: symmetric quantisation, the float-vs-int
+comparison and the file's metadata. The byte layout belongs to `firmware_py.policy`;
+whether the int table still drives as well is judged by rollouts, because rounding
+creates argmax ties that rarely change path optimality.
 """
 
 from __future__ import annotations
@@ -45,12 +41,9 @@ class Quantised:
 
 
 def quantise(q: np.ndarray, dtype: str = "int8", per_state: bool = False) -> Quantised:
-    """Symmetric quantisation: scale = max|q| / qmax, ints = round(q / scale).
-
-    One scale per table by default; `per_state=True` gives each row its own
-    scale (stored as float32), which keeps small-valued rows from collapsing
-    to ties. Rounding is half-to-even; exact halves are counted and reported.
-    """
+    """Symmetric quantisation: scale = max|q| / qmax, ints = round(q / scale), half-to-even (exact
+    halves counted). `per_state=True` gives each row its own float32 scale, which keeps
+    small-valued rows from collapsing to ties."""
     if dtype not in NP_DTYPES:
         raise ValueError(f"dtype must be int8 or int16, not {dtype!r}")
     q = np.asarray(q, dtype=np.float64)
@@ -84,8 +77,7 @@ def tie_rate(table: np.ndarray) -> float:
 
 
 def compare(q: np.ndarray, qt: Quantised) -> dict:
-    """How rounding changed the greedy choice (np.argmax ties -> lowest index,
-    the same rule as firmware_py.kinds.base.best_action)."""
+    """How rounding changed the greedy choice (ties -> lowest index, as the robot's best_action)."""
     agree = np.argmax(q, axis=1) == np.argmax(qt.table, axis=1)
     return {
         "argmax_agreement": float(np.mean(agree)),
@@ -96,8 +88,7 @@ def compare(q: np.ndarray, qt: Quantised) -> dict:
 
 
 def encoder_from_dict(d: dict) -> fmt.AnyEncoder:
-    """Rebuild a reference encoder from its `to_dict()` (as in meta.json), by its kind's
-    `encoder_from_dict` (ground_station.learn.kinds)."""
+    """Rebuild a reference encoder from its `to_dict()` (as in meta.json), by its kind's."""
     from ground_station.learn import kinds
 
     kind = d.get("kind")
@@ -114,10 +105,8 @@ def policy_bytes(qt: Quantised, encoder: fmt.AnyEncoder, *, goals=(),
                  policy_id: int | None = None, created: int | None = None,
                  control_period_us: int = robot_spec.CONTROL_PERIOD_US,
                  map_geometry: fmt.MapGeometry | None = None, trained: TrainedFor | None = None) -> bytes:
-    """`.qtab` bytes for a quantised table (layout from firmware_py.policy);
-    `control_period_us` and `map_geometry` as `firmware_py.policy.dump_policy`; `trained`: the robot
-    the table was trained for (`firmware_py.needs.TrainedFor`, a run's meta.json `robot`; default the
-    built-in robot), whose needs the file records (`robot_needs`)."""
+    """`.qtab` bytes for a quantised table (`firmware_py.policy.dump_policy`); `trained`: the robot
+    the table was trained for (default the built-in robot), whose needs the file records."""
     if qt.table.shape != (encoder.n_states, encoder.n_actions):
         raise ValueError(f"table shape {qt.table.shape} does not match the encoder's "
                          f"({encoder.n_states}, {encoder.n_actions})")
@@ -196,8 +185,7 @@ def trained_for(run: TrainingRun) -> TrainedFor:
 
 
 def control_period_us(run: TrainingRun) -> int:
-    """The control period the run trained for: the twin steps one
-    robot_spec.CONTROL_PERIOD_US per action (a run may record its own)."""
+    """The control period the run trained for (a run may record its own)."""
     return int(run.meta.get("control_period_us", robot_spec.CONTROL_PERIOD_US))
 
 
@@ -224,8 +212,7 @@ def geometry_of_map(name: str | None, cell_mm: int = robot_spec.DEFAULT_CELL_SIZ
 
 
 def created_time(meta: dict) -> int:
-    """Creation time for the header: SOURCE_DATE_EPOCH (reproducible builds),
-    else the training run's own time, else now."""
+    """Creation time: SOURCE_DATE_EPOCH (reproducible builds), else the run's own time, else now."""
     if os.environ.get("SOURCE_DATE_EPOCH", "").isdigit():
         return int(os.environ["SOURCE_DATE_EPOCH"])
     c = meta.get("created")
@@ -259,9 +246,8 @@ META_PLANNER = "local_planner"  # firmware_py.kinds.sector.config.META_KEY
 
 
 def planner_metadata(text: str, kind: str, meta: dict) -> dict:
-    """The `local_planner` metadata value from a JSON object of parameters
-    (ValueError, one line, for bad JSON, a bad parameter, a policy that is
-    not a plain sector policy or carries no map)."""
+    """The `local_planner` metadata value from a JSON object of parameters (ValueError, one line,
+    for bad JSON, a bad parameter, a policy that is not a plain sector policy or carries no map)."""
     from firmware_py.kinds.sector.config import LocalPlannerConfig
 
     owner = robot_kinds.METADATA_KEYS[META_PLANNER]  # the kind that reads it (its parse_metadata)
@@ -277,8 +263,7 @@ def planner_metadata(text: str, kind: str, meta: dict) -> dict:
 
 
 def map_grid_rows(name: str, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> list[str]:
-    """A map's cells as `map_grid` metadata rows ('.' free, '@' occupied;
-    ValueError with one line if the map cannot be read)."""
+    """A map's cells as `map_grid` rows ('.' free, '@' occupied); ValueError if it cannot be read."""
     from ground_station.maps import MapError, load_map
 
     if not name:
@@ -291,10 +276,8 @@ def map_grid_rows(name: str, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> 
 
 
 def attach_map(data: bytes, map_name: str) -> bytes:
-    """A `.qtab` with the named map's cells in its metadata (`map_grid`),
-    everything else (table, policy id, creation time, geometry) unchanged.
-    Raises ValueError (one line) if the file or map is unusable or the map's
-    size differs from the file's map geometry."""
+    """A `.qtab` with the named map's cells in its metadata (`map_grid`), all else unchanged;
+    ValueError (one line) if the file or map is unusable or the map's size differs from the file's."""
     try:
         pol = fmt.load_policy(data)
     except fmt.PolicyError as exc:

@@ -1,19 +1,15 @@
 """Jitted helpers every training and evaluation kernel shares (numba).
 
-Owns the random generator and the greedy choice, so the cell and sector
-kernels draw the same kind of numbers and break ties the same way:
-
 * xorshift64* whose state is a caller-owned uint64[1] array (seeded by
   splitmix64 in `seed_state`), so a run split into chunks draws exactly the
   numbers of one call: same seed -> same table;
 * `greedy`: argmax of a Q row, ties to the lowest index, as the robot's
-  `firmware_py.kinds.base.best_action` (`greedy_sum`: of two tables' sum);
-* `cell_step`: the grid world's reward and termination, so Q-learning and
-  the other tabular learners score a move identically;
-* `epsilon_at`: the linear exploration schedule every trainer follows;
-* `double_q_update`, `q_lambda_update`, `expected_value`: the learners'
-  updates the cell and the sector kernels make alike (the sector kernel's
-  discount is gamma^k for an action held k periods, the cell kernel's gamma).
+  `best_action` (`greedy_sum`: of two tables' sum);
+* `cell_step`, `epsilon_at`: the grid world's reward and termination, the
+  linear exploration schedule;
+* `double_q_update`, `q_lambda_update`, `dyna_q_update`, `expected_value`: the
+  learners' updates (the sector kernel's discount is gamma^k for an action held
+  k periods, the cell kernel's gamma).
 """
 
 from __future__ import annotations
@@ -83,11 +79,9 @@ def greedy_sum(qa, qb, s: int) -> int:
 
 @numba.njit(cache=True, inline="always")
 def cell_step(cell, c2, goal_cell, r_goal, r_step, r_coll):
-    """The grid world's reward and termination for a move from `cell` whose
-    transition table entry is `c2` (-1: into a wall or off the map): (next
-    cell, reward, terminal, success). A collision is terminal and the robot
-    stays; reaching the goal is terminal; otherwise the episode goes on
-    (truncation by the step limit bootstraps: time limits are not terminal)."""
+    """The grid world's (next cell, reward, terminal, success) for a move from `cell` to
+    transition table entry `c2` (-1: a collision, the robot stays). Goal and collision are
+    terminal; the step limit is not (truncation bootstraps)."""
     if c2 < 0:
         return cell, r_coll, True, False
     if c2 == goal_cell:
@@ -106,10 +100,8 @@ def epsilon_at(t, eps_start, eps_end, eps_decay_steps) -> float:
 
 @numba.njit(cache=True, inline="always")
 def draw_episode_start(rng, n_goals, starts_flat, starts_off):
-    """A cell-encoding episode's start: a uniform goal g, then a uniform cell of
-    its start list starts_flat[starts_off[g]:starts_off[g + 1]]; returns
-    (goal, start cell). Two uniform draws in that order, so every kernel that
-    calls it replays the same episodes from the same seed."""
+    """A cell-encoding episode's (goal, start cell): a uniform goal g, then a uniform cell of
+    starts_flat[starts_off[g]:starts_off[g + 1]], so every kernel replays the same episodes."""
     g = int(rand01(rng) * n_goals)
     lo = starts_off[g]
     return g, starts_flat[lo + int(rand01(rng) * (starts_off[g + 1] - lo))]
@@ -128,6 +120,34 @@ def double_q_update(rng, qa, qb, s: int, a: int, r: float, s2: int, terminal: bo
     if not terminal:
         target += discount * other[s2, greedy(learn, s2)]
     learn[s, a] += lr * (target - learn[s, a])
+
+
+@numba.njit(cache=True, inline="always")
+def dyna_q_update(rng, q, s: int, a: int, r: float, s2: int, terminal: bool, discount: float, lr: float,
+                  n_plan: int, model_s2, model_r, model_g, model_term, seen, n_seen) -> None:
+    """Dyna-Q's Q-learning update of (s, a) -> s2, recorded in the model (keys s * n_actions + a:
+    the last s2, reward, discount, terminal; seen[:n_seen[0]] the keys seen), then n_plan updates
+    of uniformly drawn seen pairs."""
+    target = r
+    if not terminal:
+        target += discount * q[s2, greedy(q, s2)]
+    q[s, a] += lr * (target - q[s, a])
+    key = s * q.shape[1] + a
+    if model_s2[key] < 0:
+        seen[n_seen[0]] = key
+        n_seen[0] += 1
+    model_s2[key] = s2
+    model_r[key] = r
+    model_g[key] = discount
+    model_term[key] = terminal
+    for _ in range(n_plan):
+        key = seen[randint(rng, n_seen[0])]
+        ps = key // q.shape[1]
+        pa = key % q.shape[1]
+        pt = model_r[key]
+        if not model_term[key]:
+            pt += model_g[key] * q[model_s2[key], greedy(q, model_s2[key])]
+        q[ps, pa] += lr * (pt - q[ps, pa])
 
 
 @numba.njit(cache=True, inline="always")

@@ -1,22 +1,13 @@
 """Training kinds: what the ground station knows of each policy kind, and the one
 registry of them (the station's half of `firmware_py.kinds`, keyed by the same name).
 
-A `TrainingKind` names its robot kind and holds what training, evaluating and exporting
-that kind needs: its own hyperparameters (a dataclass, nested in
-`TrainConfig.options`), its recipe, the learners its trainer implements, its trainer
-and its greedy evaluation (as "module:function" references, imported when used, so
-that the `qnav` parser and the config never import numba), and how its encoder is
+A `TrainingKind` holds what training, evaluating and exporting a kind needs: its
+hyperparameters (a dataclass, nested in `TrainConfig.options`), recipe, learners,
+trainer and greedy evaluation (as "module:function" references imported when used,
+so the `qnav` parser and the config never import numba), and how its encoder is
 rebuilt from a run's meta.json. `qnav train`, `eval`, `export`, `sweep` and `study`
 reach a kind only through `of_name` and `names`; a new kind is a package with a
-`KIND` passed to `register` (tests/ground_station/test_training_kind.py registers
-one from the test alone).
-
-Shipped: `cell` (ground_station.learn.cell), `sector` (ground_station.learn.sector),
-`sector-memory` (ground_station.learn.sector_memory).
-
-The flat record: every field, common or a kind's, has one flat name, its `qnav
-train` flag without the dashes (`lr`, `targets`, `sector_guidance`, `grid_wall_cost`);
-recipes, `--space` axes, sweep and study jobs and meta.json's `config` use it.
+`KIND` passed to `register`. Option names: `ground_station.learn.config`.
 """
 
 from __future__ import annotations
@@ -39,13 +30,10 @@ def option(default: Any, help: str, *, flag: str | None = None) -> Any:
 
 @dataclass(frozen=True)
 class TrainingKind:
-    """One policy kind as the station trains it.
-
-    `train(cfg, gridmap, progress) -> TrainResult` and `evaluate(q, run, gridmap, *, sample,
-    seed, full) -> dict` (run: `ground_station.learn.export.TrainingRun`; `full` adds the
-    baselines `qnav eval` prints beside the policy) are "module:function" references or
-    callables. `validate(cfg)` raises ValueError (one line) on options that cannot train.
-    """
+    """One policy kind as the station trains it. `train(cfg, gridmap, progress) -> TrainResult` and
+    `evaluate(q, run: TrainingRun, gridmap, *, sample, seed, full) -> dict` (`full`: with the
+    baselines `qnav eval` prints) are "module:function" references or callables; `validate(cfg)`
+    raises ValueError (one line) on options that cannot train."""
 
     name: str  # the firmware_py.kinds name (the .qtab kind)
     summary: str  # one line for --help
@@ -68,8 +56,7 @@ class TrainingKind:
         return [(self.flat_name(f), f) for f in fields(self.options)]
 
 
-# the shipped kinds' packages, each with a `KIND` (by name, as python-can lists its interfaces:
-# imported on first use)
+# the shipped kinds' packages, each with a `KIND` (imported on first use)
 SHIPPED = ("ground_station.learn.cell", "ground_station.learn.sector", "ground_station.learn.sector_memory")
 DEFAULT = "cell"  # what `qnav train` trains unless told: the paper's state
 _BY_NAME: dict[str, TrainingKind] = {}

@@ -1,8 +1,7 @@
-"""The robot a training run is for: `qnav train --profile FILE.toml` (`TrainConfig.profile`) read
-as a `firmware_py.profile.RobotProfile` (none: the built-in robot), what the run records of it
-(`firmware_py.needs.TrainedFor`, meta.json `robot`) and the check that the profile's robot can run
-what the encoding reads (the robot's own rule, `firmware_py.needs`). Kept apart from
-`ground_station.learn.config` so that the kinds' option checks can use it without an import cycle."""
+"""The robot a training run is for (`qnav train --profile FILE.toml`), what the run records of it
+(meta.json `robot`) and the check that it can run what the encoding reads (`firmware_py.needs`).
+Kept apart from `ground_station.learn.config` so the kinds' option checks can use it without an
+import cycle."""
 
 from __future__ import annotations
 

@@ -3,11 +3,8 @@
 1. `TrainConfig`: the common hyperparameters and the kind's own nested in it
    (defined in `ground_station.learn.config` so the CLI parser needs no numba;
    re-exported here); its field help texts become `qnav train --help`.
-2. `train(cfg)`: the kind's trainer from the registry (`ground_station.learn.kinds`):
-   `cell` in `ground_station.learn.cell.trainer` (the paper's exact sequential
-   Q-learning), `sector` in `ground_station.learn.sector.trainer`, `sector-memory`
-   in `ground_station.learn.sector_memory.trainer`; what they share is here
-   (`TrainResult`, `initial_table`, `run_in_chunks` under a tqdm progress bar).
+2. `train(cfg)`: the kind's trainer from the registry (`ground_station.learn.kinds`);
+   what the trainers share is here (`TrainResult`, `initial_table`, `run_trainer`).
 3. `learning_curve`, `write_run`: the run folder contract
    (`q.npy`, `meta.json`, `metrics.csv`, `learning_curve.png`), written
    atomically.
@@ -35,9 +32,7 @@ from ground_station.learn.config import (  # noqa: F401 - re-exported
 from ground_station.maps import GridMap, load_map
 
 
-# --------------------------------------------------------------------------
-# 2. training, by kind
-# --------------------------------------------------------------------------
+# --- 2. training, by kind ----------------------------------------------------
 @dataclass
 class TrainResult:
     q: np.ndarray
@@ -60,17 +55,17 @@ def initial_table(cfg: TrainConfig, n_states: int, n_actions: int) -> np.ndarray
     return np.zeros((n_states, n_actions), dtype=np.float64)
 
 
-def run_in_chunks(trainer, q: np.ndarray, cfg: TrainConfig, progress: bool,
-                   desc: str) -> tuple[np.ndarray, np.ndarray, float]:
-    """`trainer.run(q, done, n)` in chunks of `cfg.chunk_steps` (the progress
-    bar's granularity) until `cfg.steps`: episode returns, successes, seconds."""
+def run_in_chunks(run, q: np.ndarray, cfg: TrainConfig, progress: bool,  # type: ignore[no-untyped-def]
+                  desc: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """`run(q, done, n)` in chunks of `cfg.chunk_steps` (the progress bar's granularity) until
+    `cfg.steps`: episode returns, successes, seconds."""
     rets, succs = [], []
     t0 = time.perf_counter()
     done = 0
     with progress_bar(cfg.steps, progress, desc) as bar:
         while done < cfg.steps:
             n = min(cfg.chunk_steps, cfg.steps - done)
-            r, s = trainer.run(q, done, n)
+            r, s = run(q, done, n)
             rets.append(np.asarray(r, dtype=np.float64))
             succs.append(np.asarray(s, dtype=bool))
             done += n
@@ -89,7 +84,7 @@ def run_trainer(make, cfg: TrainConfig, gridmap: GridMap, progress: bool,  # typ
     and run it in chunks: (trainer, q, returns, successes, seconds)."""
     trainer = make([gridmap, *extra_maps(cfg.options.maps)])
     q = initial_table(cfg, trainer.n_states, trainer.n_actions)
-    rets, succs, seconds = run_in_chunks(trainer, q, cfg, progress, f"{desc} {gridmap.name}")
+    rets, succs, seconds = run_in_chunks(trainer.run, q, cfg, progress, f"{desc} {gridmap.name}")
     return trainer, q, rets, succs, seconds
 
 
@@ -101,9 +96,7 @@ def train(cfg: TrainConfig, gridmap: GridMap | None = None, progress: bool = Fal
     return result
 
 
-# --------------------------------------------------------------------------
-# 3. learning curve and the run folder
-# --------------------------------------------------------------------------
+# --- 3. learning curve and the run folder -------------------------------------
 def learning_curve(returns: np.ndarray, successes: np.ndarray, points: int = 200) -> list[dict]:
     """Average return and success rate per window of consecutive episodes."""
     n = len(returns)

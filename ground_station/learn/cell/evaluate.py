@@ -1,19 +1,14 @@
 """The `cell` kind's greedy-policy evaluation against shortest paths, from saved artifacts only.
 
- one greedy rollout (ties -> lowest action index,
-as on the robot) from every free start cell to every goal (a seeded sample
+One greedy rollout from every free start cell to every goal (a seeded sample
 of `sample` pairs on large maps). Each rollout ends as
 
 * success: reached the goal; its path ratio = steps / BFS shortest steps,
 * collision: the chosen move enters an obstacle or leaves the map,
-* loop: the rollout revisits a cell (a deterministic policy then cycles
-  forever, so this is detected at the first revisit),
+* loop: the rollout revisits a cell (a deterministic policy then cycles forever),
 * timeout: `max_steps` moves without any of the above.
 
-Beside it, in the same report, the greedy baseline "step to the free
-neighbour nearest (Euclidean) to the goal", judged the same way. `evaluate_policy` is the kind's entry for the registry
-(`ground_station.learn.kinds`; `qnav eval`, `qnav export`), `plot_policy` its
-`qnav eval --plot`.
+Beside it, the baseline "step to the free neighbour nearest (Euclidean) to the goal".
 """
 
 from __future__ import annotations
@@ -33,11 +28,8 @@ POLICY_Q, POLICY_NEAREST = 0, 1
 
 @numba.njit(cache=True)
 def rollouts_cell(q, next_cell, width, goal_cells, pair_goal, pair_start, max_steps, policy):
-    """Run one deterministic rollout per (goal index, start cell) pair.
-
-    policy POLICY_Q: greedy on q (n_goals*H*W, 4); POLICY_NEAREST: the free
-    neighbour with the smallest Euclidean distance to the goal. Returns
-    (outcome int8[n], steps int32[n])."""
+    """One deterministic rollout per (goal index, start cell) pair, greedy on q (POLICY_Q) or
+    the nearest-neighbour baseline (POLICY_NEAREST): (outcome int8[n], steps int32[n])."""
     n = pair_goal.shape[0]
     n_cells = next_cell.shape[0]
     n_actions = next_cell.shape[1]
@@ -141,9 +133,8 @@ def evaluate_cell(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int]],
 
 def evaluate_policy(q: np.ndarray, run, gridmap: GridMap, *, sample: int | None = None,  # type: ignore[no-untyped-def]
                     seed: int = 0, full: bool = False) -> dict:
-    """The kind's evaluation (ground_station.learn.kinds): `evaluate_cell` of a run's table on
-    `gridmap`, which must be the size the table was trained for (the nearest-neighbour baseline
-    is always beside it)."""
+    """The kind's evaluation (`qnav eval`, `qnav export`): `evaluate_cell` of a run's table on
+    `gridmap`, which must be the size the table was trained for."""
     enc = run.encoder
     if (enc.width, enc.height) != (gridmap.width, gridmap.height):
         raise ValueError(f"run was trained on a {enc.width}x{enc.height} map, "
@@ -161,9 +152,8 @@ def plot_policy(q: np.ndarray, run, gridmap: GridMap) -> bytes:  # type: ignore[
 def greedy_arrows(q: np.ndarray, gridmap: GridMap, goal_index: int, goal: tuple[int, int]
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(x, y, u, v) of the greedy action's arrow in every free cell but the goal, in the image's
-    data coordinates: x = column, y = row, so on an image drawn with row 0 at the top (origin
-    "upper") a move to the next row (south) points down (+v). Negating v drew every north/south
-    arrow backwards."""
+    data coordinates: x = column, y = row, so with row 0 at the top (origin "upper") a move to
+    the next row (south) points down (+v)."""
     from firmware_py import robot_spec
 
     h, w = gridmap.height, gridmap.width
@@ -182,7 +172,6 @@ def plot_cell_policy(q: np.ndarray, gridmap: GridMap, goals: list[tuple[int, int
     from ground_station.plotting import png_bytes, pyplot
 
     plt = pyplot()
-
     h, w = gridmap.height, gridmap.width
     names = names or [f"{c}:{r}" for c, r in goals]
     n = len(goals)

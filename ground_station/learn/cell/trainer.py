@@ -5,23 +5,16 @@
 
        Q(s, a) <- Q(s, a) + eta * (r + gamma * max_a' Q(s', a') - Q(s, a))
 
-   with no bootstrap on termination (goal or collision) and bootstrap on
-   truncation (episode step limit), epsilon-greedy actions (greedy ties
-   -> lowest action index, as on the robot), a linear epsilon schedule, and a
-   random goal and start at every episode (the paper's training protocol).
-   Its random numbers come from its own xorshift64* state, so a seed fixes
-   the table regardless of chunking or process.
+   with no bootstrap on termination (goal or collision), bootstrap on
+   truncation, epsilon-greedy actions and a random goal and start every
+   episode (the paper's protocol).
 2. `CellProblem`: what the kernel needs, derived from a map and its goals.
 3. `train_cell`: the kernel in chunks under a progress bar (the other learners:
-   `ground_station.learn.cell.learners`, same problem, schedule and rewards).
-
-The kernel's transitions come from `ground_station.learn.envs.cell_env`, the
-same tables the Gymnasium `CellNavEnv` steps through.
+   `learners`, same problem, schedule and rewards).
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numba
@@ -43,31 +36,23 @@ from ground_station.learn.jit import (
     rand01,
     seed_state,
 )
-from ground_station.learn.train import TrainResult, initial_table, progress_bar
+from ground_station.learn.train import TrainResult, initial_table, run_in_chunks
 from ground_station.maps import GridMap, MapError
 
 
-# --------------------------------------------------------------------------
-# 1. the numba kernel
-# --------------------------------------------------------------------------
+# --- 1. the numba kernel ---------------------------------------------------
 @numba.njit(cache=True, inline="always")
 def cell_state(goal_index, cell, n_cells):
-    """Jitted copy of `CellEncoder.encode` (cell = row * W + col); a test
-    checks it against the reference on random inputs."""
+    """Jitted copy of `CellEncoder.encode` (cell = row * W + col; a test compares them)."""
     return goal_index * n_cells + cell
 
 
 @numba.njit(cache=True, inline="always")
 def q_update(q, s, a, r, s2, terminal, lr, gamma):
-    """The paper's update: Q(s,a) += lr * (r + gamma * max Q(s2, .) - Q(s,a));
-    no bootstrap when `terminal` (goal or collision)."""
+    """The update above; no bootstrap when `terminal` (goal or collision)."""
     target = r
     if not terminal:
-        m = q[s2, 0]
-        for k in range(1, q.shape[1]):
-            if q[s2, k] > m:
-                m = q[s2, k]
-        target += gamma * m
+        target += gamma * q[s2, greedy(q, s2)]
     q[s, a] += lr * (target - q[s, a])
 
 
@@ -76,14 +61,11 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
                     lr, gamma, eps_start, eps_end, eps_decay_steps,
                     r_goal, r_step, r_coll, max_ep_steps,
                     start_step, n_steps, rng, ep, ep_ret, out_ret, out_succ):
-    """Advance training by `n_steps` steps from global step `start_step`.
-
-    q: float64 (n_goals*H*W, 4), updated in place. next_cell: (H*W, 4) from
-    `cell_transitions`. starts_flat[starts_off[g]:starts_off[g+1]] are goal
-    g's start cells. ep = [cell, goal, steps in episode, active] and
-    ep_ret = [return so far] carry an unfinished episode across calls.
-    Finished episodes' returns/successes go to out_ret/out_succ; returns
-    how many finished."""
+    """Advance training by `n_steps` steps from global step `start_step`. q: float64
+    (n_goals*H*W, 4), updated in place. next_cell: (H*W, 4) from `cell_transitions`.
+    starts_flat[starts_off[g]:starts_off[g+1]]: goal g's start cells. ep = [cell, goal, steps in
+    episode, active] and ep_ret = [return] carry an unfinished episode across calls. Returns how
+    many episodes finished (their returns/successes in out_ret/out_succ)."""
     n_goals = goal_cells.shape[0]
     n_cells = next_cell.shape[0]
     n_actions = q.shape[1]
@@ -125,9 +107,7 @@ def q_learning_cell(q, next_cell, goal_cells, starts_flat, starts_off,
     return n_done
 
 
-# --------------------------------------------------------------------------
-# 2. the problem, 3. the training loop
-# --------------------------------------------------------------------------
+# --- 2. the problem, 3. the training loop -----------------------------------
 @dataclass
 class CellProblem:
     """Everything the cell kernel needs, derived from a map and its goals."""
@@ -160,39 +140,32 @@ class CellProblem:
 
 
 def train_cell(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Exact sequential Q-learning on the cell encoding (other learners:
-    `ground_station.learn.cell.learners`, same problem, schedule and rewards)."""
+    """Exact sequential Q-learning on the cell encoding (or `cfg.learner`'s, see 3. above)."""
     prob = CellProblem.build(gridmap, cfg.options.targets or None)
     q = initial_table(cfg, prob.encoder.n_states, prob.encoder.n_actions)
     meta = {"encoder": prob.encoder.to_dict(), "targets": prob.target_names,
             "goals": [list(g) for g in prob.goals], "learner": cfg.learner}
     if cfg.learner != "q":
-        from ground_station.learn.cell.learners import train_cell_learner
+        from ground_station.learn.cell.learners import DOUBLE_Q, CellLearner
 
-        with progress_bar(cfg.steps, progress, f"train cell {cfg.learner} {gridmap.name}") as bar:
-            table, q2, rets_a, succs_a, secs = train_cell_learner(cfg, prob, q, bar)
-        return TrainResult(table, rets_a, succs_a, meta, secs, q2)
+        lrn = CellLearner(cfg, prob, q)
+        rets, succs, secs = run_in_chunks(lambda _q, _done, n: lrn.run(n), q, cfg, progress,
+                                          f"train cell {cfg.learner} {gridmap.name}")
+        return TrainResult(lrn.table(), rets, succs, meta, secs, lrn.q2 if lrn.code == DOUBLE_Q else None)
     max_ep = cfg.max_episode_steps or gridmap.width * gridmap.height
     rng = seed_state(cfg.seed)
     ep = np.zeros(4, dtype=np.int64)
     ep_ret = np.zeros(1, dtype=np.float64)
     decay = int(cfg.epsilon_decay * cfg.steps)
-    chunk = min(cfg.chunk_steps, cfg.steps)
-    out_ret = np.empty(chunk, dtype=np.float64)
-    out_succ = np.empty(chunk, dtype=np.bool_)
-    rets, succs = [], []
-    t0 = time.perf_counter()
-    done = 0
-    with progress_bar(cfg.steps, progress, f"train cell {gridmap.name}") as bar:
-        while done < cfg.steps:
-            n = min(chunk, cfg.steps - done)
-            k = q_learning_cell(q, prob.next_cell, prob.goal_cells, prob.starts_flat, prob.starts_off,
-                                cfg.lr, cfg.gamma, cfg.epsilon_start, cfg.epsilon_end, decay,
-                                cfg.reward_goal, cfg.reward_step, cfg.reward_collision, max_ep,
-                                done, n, rng, ep, ep_ret, out_ret, out_succ)
-            rets.append(out_ret[:k].copy())
-            succs.append(out_succ[:k].copy())
-            done += n
-            bar.update(n)
-    seconds = time.perf_counter() - t0
-    return TrainResult(q, np.concatenate(rets), np.concatenate(succs), meta, seconds)
+
+    def run(q: np.ndarray, done: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        out_ret = np.empty(n, dtype=np.float64)
+        out_succ = np.empty(n, dtype=np.bool_)
+        k = q_learning_cell(q, prob.next_cell, prob.goal_cells, prob.starts_flat, prob.starts_off,
+                            cfg.lr, cfg.gamma, cfg.epsilon_start, cfg.epsilon_end, decay,
+                            cfg.reward_goal, cfg.reward_step, cfg.reward_collision, max_ep,
+                            done, n, rng, ep, ep_ret, out_ret, out_succ)
+        return out_ret[:k], out_succ[:k]
+
+    rets, succs, seconds = run_in_chunks(run, q, cfg, progress, f"train cell {gridmap.name}")
+    return TrainResult(q, rets, succs, meta, seconds)

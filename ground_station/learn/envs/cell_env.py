@@ -1,9 +1,7 @@
 """The `cell` encoding as a Gymnasium environment (the paper's grid world).
 
-Also owns the tables the fast trainer and the evaluator share with it, so
-the three cannot drift apart: `resolve_goals` (target names/coordinates ->
-goal list), `cell_transitions` (successor of every cell under every action)
-and `reachable_starts`.
+Also owns the tables the fast trainer and the evaluator share with it, so the
+three cannot drift apart: `resolve_goals`, `cell_transitions`, `reachable_starts`.
 """
 
 from __future__ import annotations
@@ -22,11 +20,8 @@ N_ACTIONS = len(robot_spec.CELL_ACTION_DELTAS)
 
 def resolve_goals(gridmap: GridMap, targets: str | list | tuple | None = None,
                   ) -> tuple[list[str], list[tuple[int, int]]]:
-    """Goal names and (col, row) cells, in goal-index order.
-
-    `targets` is None/"" (all of the map's targets), a comma-separated string
-    or a list of target names or `col:row` coordinates / (col, row) tuples.
-    Raises MapError on an unknown name or a blocked cell."""
+    """Goal names and (col, row) cells, in goal-index order, of `targets`: None/"" (all the map's),
+    a comma-separated string or a list of names, `col:row` or (col, row). MapError if unusable."""
     if targets is None or targets == "" or targets == []:
         if not gridmap.targets:
             raise MapError(f"map {gridmap.name} defines no targets; pass targets as names or col:row")
@@ -65,8 +60,7 @@ def resolve_goals(gridmap: GridMap, targets: str | list | tuple | None = None,
 
 
 def cell_transitions(occ: np.ndarray) -> np.ndarray:
-    """int64 (H*W, 4): next cell index (row*W + col) per action, -1 if the
-    move leaves the map or enters an obstacle (a collision)."""
+    """int64 (H*W, 4): next cell index (row*W + col) per action, -1 for a collision."""
     h, w = occ.shape
     nxt = np.full((h * w, N_ACTIONS), -1, dtype=np.int64)
     for a, (dc, dr) in enumerate(robot_spec.CELL_ACTION_DELTAS):
@@ -91,18 +85,13 @@ def reachable_starts(dist: np.ndarray) -> list[np.ndarray]:
 class CellNavEnv(gym.Env):
     """Grid navigation to one of several targets (the paper's Figs. 2-4).
 
-    Observation: `Discrete(W*H*n_goals)`, the state index of
-    `firmware_py.kinds.cell.encoder.CellEncoder` = goal_index*W*H + row*W + col.
-    Actions: `Discrete(4)`, `robot_spec.CELL_ACTION_NAMES` up, down, left, right
-    (one cell each, deltas `robot_spec.CELL_ACTION_DELTAS`; up = north = row - 1).
-    Rewards: `reward_goal` on entering the goal cell, `reward_collision` on
-    moving into an obstacle or off the map (the robot stays), otherwise
-    `reward_step`. Episode end: terminated on goal or collision (the paper's
-    "reached the target or strikes the limits of its environment");
-    truncation is left to a `TimeLimit` wrapper (the registered ids add one).
-    Reset: goal uniform over the targets, start uniform over the free cells
-    that can reach it (not the goal); `options={"goal": i, "start": (col,
-    row)}` fixes either. Randomness comes only from `reset(seed=...)`.
+    Observation: `Discrete(W*H*n_goals)`, the `CellEncoder` state goal_index*W*H + row*W + col.
+    Actions: `Discrete(4)`, `robot_spec.CELL_ACTION_NAMES` up, down, left, right (up = row - 1).
+    Rewards: `reward_goal` on entering the goal cell, `reward_collision` on moving into an
+    obstacle or off the map (the robot stays), otherwise `reward_step`; both end the episode
+    (truncation is a `TimeLimit` wrapper's). Reset: goal uniform over the targets, start uniform
+    over the free cells that can reach it; `options={"goal": i, "start": (col, row)}` fixes
+    either. Randomness only from `reset(seed=...)`.
     info: `goal_index`, `cell` (col, row), `success`, `collision`.
     """
 

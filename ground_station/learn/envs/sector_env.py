@@ -35,45 +35,24 @@ from ground_station.maps.planner import DEFAULT_MARGIN_MM, DEFAULT_MAX_SEGMENT_M
 class SectorNavEnv(gym.Env):
     """Drive the robot's kinematic twin to a goal cell on a grid map.
 
-    The robot (`robot`, a `TwinRobot` of a profile; default the built-in one) is a disc of its body
-    radius with continuous pose
-    (x, y mm; heading rad, CCW from east) on `gridmap` (cell size from the
-    map); the map border is a wall.
+    The robot (`robot`, a `TwinRobot`; default the built-in one) is a disc of its body radius
+    with continuous pose (x, y mm; heading rad, CCW from east); the map border is a wall.
 
-    * Action space: `Discrete(4)` = `robot_spec.ACTION_NAMES` (forward, turn_left,
-      turn_right, reverse), each the wheel speeds of
-      `robot_spec.ACTION_WHEEL_SPEEDS_MM_S` held for one control period
-      (`robot_spec.CONTROL_PERIOD_US`).
-    * Guidance (`guidance`): "path" (default) = the robot follows the ground
-      station's planned waypoints (`ground_station.maps.planner`, planned at
-      reset from the start pose; the last is the goal), each passed within
-      `robot_spec.GOAL_TOLERANCE_MM` as the controller runs a mission; "direct" =
-      the goal alone.
-    * Observation space: `Discrete(encoder.n_states)`, the state index of the
-      reference `SectorEncoder` (bearing sector of the current waypoint
-      relative to the heading x binned ranges of the encoder's sensors),
-      computed from the simulated range readings (fan of rays from the rim,
-      too close / too far status) exactly as the robot computes it from its
-      CAN frames.
-    * Reward per period (`SectorReward`, default: the `TrainConfig` defaults): `progress` x the decrease of the
-      remaining path estimate in cells (guided: distance to the current
-      waypoint + the waypoint path after it; direct: octile distance field of
-      the goal, continuous between cell centres), minus `step_cost`, minus
-      `reverse_cost` when reversing, plus `align` x the turn of the target's
-      bearing toward straight ahead (per pi rad); plus `goal` on reaching the
-      goal, or exactly `-collision` on a collision.
-    * Episode end: terminated when the robot's centre is within
-      `robot_spec.GOAL_TOLERANCE_MM` of the goal cell's centre (success) or the
-      disc touches an obstacle or the border (collision). Truncation is the
-      TimeLimit wrapper's job (registered with 1000 periods = 50 s).
-    * Reset: goal = `goal` if given (target name or (col, row)), else a
-      random free cell; start = a random other free cell connected to the
-      goal, position uniform within +-(cell/2 - radius) of its centre (no
-      contact), heading uniform. `options` may fix `start` (col, row; placed
-      at the centre), `heading` (rad) and `goal`. Randomness only from
-      `self.np_random`, seeded through `reset(seed=...)`.
-    * Info: pose, goal, `waypoints` (list of (x, y) mm) and `waypoint`
-      (current index), ranges/status of all sensors the encoder uses,
+    * Action space: `Discrete(4)` = `robot_spec.ACTION_NAMES`, each action's wheel speeds held
+      for one control period.
+    * Guidance (`guidance`): "path" (default) = the planner's waypoints from the start pose,
+      each passed within `robot_spec.GOAL_TOLERANCE_MM` as the controller runs a mission;
+      "direct" = the goal alone.
+    * Observation space: `Discrete(encoder.n_states)`, the reference `SectorEncoder`'s state
+      of the simulated range readings, exactly as the robot computes it from its CAN frames.
+    * Reward per period: `SectorReward`'s (default: the `TrainConfig` defaults), as defined
+      in `ground_station.learn.sector.kernels`.
+    * Episode end: terminated on reaching the goal cell's centre (within
+      GOAL_TOLERANCE_MM) or a collision; truncation is the TimeLimit wrapper's.
+    * Reset: goal = `goal` (target name or (col, row)), else a random free cell; start = a
+      random other connected free cell, uniform within +-(cell/2 - radius) of its centre,
+      heading uniform; `options` may fix `start` (col, row; at the centre), `heading`, `goal`.
+    * Info: pose, goal, `waypoints`, `waypoint`, the encoder's sensors' ranges/status,
       `success`, `collision`, `driven_mm`.
     """
 

@@ -1,7 +1,6 @@
 """The `sector` kind's training: the kinematic twin (`twin`), its shaped reward
-(`reward`), the jitted training and rollout kernels (`kernels`; `obstacles` for the
-navigation bench's discs and movers), the trainer (`trainer`) and greedy evaluation
-(`evaluate`).
+(`reward`), the jitted training and rollout kernels (`kernels`), the trainer
+(`trainer`) and greedy evaluation (`evaluate`).
 
 This module is the kind's front door for the registry (`ground_station.learn.kinds`):
 its options, their checks and `KIND`, without numba."""

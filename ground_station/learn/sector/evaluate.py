@@ -1,15 +1,9 @@
 """Greedy evaluation of a sector table on the kinematic twin.
 
-`evaluate_sector(q, gridmap, encoder, ..., guidance="path"|"direct")`:
-greedy rollouts (the `eval_kernel` of `ground_station.learn.sector.kernels`)
-from every (start cell centre, goal cell, heading) of a map, or a seeded
-sample of them; success, path length / octile shortest, collisions, loops,
-timeouts. Guidance "path" follows the ground station's planned waypoints
-(`ground_station.maps.planner`, what the robot gets as a mission); "direct"
-steers on the goal's bearing alone (pure reactive). `direct=True` adds the
-direct figures beside the guided ones, and `baseline=True` the hand-written
-`seek_table` judged the same way. It reads only a table and a map, so it
-judges saved runs and exported policies alike (`qnav eval`, `qnav export`).
+`evaluate_sector`: greedy rollouts (the kernels' `eval_kernel`) from every
+(start cell centre, goal cell, heading) of a map, or a seeded sample. It reads
+only a table and a map, so it judges saved runs and exported policies alike
+(`qnav eval`, `qnav export`).
 """
 
 from __future__ import annotations
@@ -35,9 +29,8 @@ from ground_station.maps.planner import (
 
 def eval_episodes(gridmap: GridMap, seed: int = 0, sample: int | None = None,
                   headings: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(starts, goals, heading indices) of the evaluation set: every ordered
-    pair of distinct connected free cells x `headings` headings, or a seeded
-    sample of `sample` of them."""
+    """(starts, goals, heading indices): every ordered pair of distinct connected free cells x
+    `headings` headings, or a seeded sample of `sample` of them."""
     cells = np.array(gridmap.free_cells(), dtype=np.int64)
     n = len(cells)
     grid_s, grid_g = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
@@ -73,8 +66,7 @@ def _components(gridmap: GridMap, cells: np.ndarray) -> np.ndarray:
 
 
 def seek_table(encoder: SectorEncoder) -> np.ndarray:
-    """The hand-written baseline as a Q table: forward when the target is in
-    the bearing sector straight ahead, else turn toward it (ranges ignored)."""
+    """The hand-written baseline: forward when the target is straight ahead, else turn toward it."""
     q = np.zeros((encoder.n_states, encoder.n_actions))
     per = encoder.nbins ** len(encoder.sensors)
     n = encoder.bearing_sectors
@@ -87,9 +79,8 @@ def seek_table(encoder: SectorEncoder) -> np.ndarray:
 def plan_pairs(gridmap: GridMap, starts: np.ndarray, goals: np.ndarray, dists: np.ndarray,
                slot: np.ndarray, margin_mm: float = DEFAULT_MARGIN_MM,
                max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM, radius_mm: float = TwinRobot().radius_mm):
-    """Waypoints for every distinct (start cell, goal cell) of an episode
-    list, planned from the start cell's centre: (wp_all (P, K, 2), nwp (P,),
-    rem (P, K), pair index per episode)."""
+    """Waypoints of every distinct (start cell, goal cell), planned from the start cell's centre:
+    (wp_all (P, K, 2), nwp (P,), rem (P, K), pair index per episode)."""
     occ, h, w, c = grid_of(gridmap)
     key = np.concatenate([starts, goals], axis=1)
     ukey, first, pair = np.unique(key, axis=0, return_index=True, return_inverse=True)
@@ -153,25 +144,16 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
                     stall_steps: int = 400, guidance: str = "path", direct: bool = False,
                     baseline: bool = False, margin_mm: float = DEFAULT_MARGIN_MM,
                     max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM, robot: TwinRobot | None = None) -> dict:
-    """Greedy rollouts of q over (start, goal, heading) on gridmap.
+    """Greedy rollouts of q over (start, goal, heading) on gridmap for the twin of `robot`.
 
-    Starts at cell centres with headings k*2pi/headings; goals at cell
-    centres (reached within robot.GOAL_TOLERANCE_MM). guidance "path": the
-    robot follows the planner's waypoints from the start cell's centre
-    (`ground_station.maps.planner.plan_waypoints` with margin_mm /
-    max_segment_mm), each passed within GOAL_TOLERANCE_MM as the controller
-    does; "direct": the bearing is the goal's. Step budget per episode:
-    max_steps if given, else 400 + 4 x the octile shortest path in forward
-    control periods. Path ratio = driven length / octile shortest length
-    between the cell centres, over successful episodes. A loop is an episode
-    whose guide potential found no new minimum for `stall_steps` periods.
+    Starts at cell centres with headings k*2pi/headings; guidance "path" follows the planner's
+    waypoints as a mission, "direct" the goal's bearing. Step budget: max_steps, else 400 + 4 x
+    the shortest path in forward control periods (`eval_kernel`). Path ratio = driven / octile
+    shortest length, over successful episodes.
 
-    `robot`: the robot the twin plays (`twin.TwinRobot`; default the built-in one).
-
-    The main keys are the `guidance` figures; `direct=True` adds the same
-    figures without guidance as `direct_<key>` (and as a dict under
-    "direct"); `baseline=True` adds the hand-written `seek_table` under the
-    main guidance as `baseline_<key>` (and under "baseline")."""
+    The main keys are the `guidance` figures; `direct=True` adds them without guidance as
+    `direct_<key>` (and under "direct"), `baseline=True` those of `seek_table` as
+    `baseline_<key>` (and under "baseline")."""
     if q.shape != (encoder.n_states, encoder.n_actions):
         raise ValueError(f"q shape {q.shape} does not match the encoder's "
                          f"({encoder.n_states}, {encoder.n_actions})")
@@ -196,9 +178,7 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
 
 
 def guidance_of(meta: dict) -> dict:
-    """evaluate_sector's guidance keywords for a sector run: the run's own
-    (runs from before guidance existed trained direct but are judged guided,
-    the main figure; the direct figures are reported beside it)."""
+    """evaluate_sector's guidance keywords for a sector run: guided, with the run's own planner."""
     return {"guidance": "path", **guidance_from_metadata(meta)}
 
 

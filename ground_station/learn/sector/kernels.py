@@ -1,6 +1,5 @@
-"""Jitted kernels of the sector encoding: the exact sequential Q-learning
-loop and greedy evaluation rollouts, both on the kinematic twin
-(`ground_station.learn.sector.twin`).
+"""Jitted kernels of the sector encoding: the exact sequential Q-learning loop and
+greedy evaluation rollouts, both on the kinematic twin (`sector.twin`).
 
 Maps are packed for numba: `occ` uint8 (M, Hmax, Wmax) padded with
 obstacles, `dims` int64 (M, 2) = (H, W), `cell` float64 (M,) mm, free cells
@@ -10,11 +9,10 @@ octile distance field (cells) to every free cell `dist` float32
 state lives in a caller-owned array, so a run split into chunks draws exactly
 the same numbers as one call (same seed -> same table).
 
-Guidance (`ground_station.maps.planner`): with `guided` set, every episode
-follows the planner's waypoints (cell centres, last = the goal), the state's
-bearing is to the current waypoint and the waypoint advances inside
-GOAL_TOLERANCE_MM, exactly as the robot runs a mission; without it the
-bearing is to the goal (pure reactive).
+Guidance: with `guided` set, every episode follows the planner's waypoints
+(last = the goal), the state's bearing is to the current waypoint and the
+waypoint advances inside GOAL_TOLERANCE_MM, exactly as the robot runs a
+mission; without it the bearing is to the goal (pure reactive).
 
 Reward of one control period (weights `rw` = `SectorReward.array()`, slots
 `RW_*` of `ground_station.learn.sector.reward`):
@@ -22,9 +20,7 @@ Reward of one control period (weights `rw` = `SectorReward.array()`, slots
   - reverse_cost extra if the action is `reverse`
   + align x (turn of the target's bearing toward straight ahead, per pi rad);
   on reaching the goal + goal; on a collision -collision (and nothing else).
-The guide potential is the remaining waypoint path (distance to the current
-waypoint + the path after it) when guided, else the continuous octile
-potential of the goal (`ground_station.learn.sector.twin.potential`).
+The guide potential is `guide_potential`'s.
 """
 
 from __future__ import annotations
@@ -37,6 +33,7 @@ import numpy as np
 from firmware_py import robot_spec
 from ground_station.learn.jit import (
     double_q_update,
+    dyna_q_update,
     epsilon_at,
     expected_value,
     greedy,
@@ -97,9 +94,8 @@ def gauss(rng) -> float:
 @numba.njit(cache=True)
 def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus, sectors, sensors, edges,
                 tw) -> int:
-    """State index from the encoder's sensors' readings with Gaussian noise
-    (std noise_mm, whole mm) added to the valid ones, re-classified as too
-    close / too far past the sensor limits, as the sim's noisy sensors report."""
+    """State index from the readings with Gaussian noise (std noise_mm, whole mm) added to the
+    valid ones, re-classified past the sensor limits, as the sim's noisy sensors report."""
     return noisy_encode(rng, noise_mm, bearing_mrad(x, y, th, tx, ty), ranges, status, noisy, nstatus,
                         sectors, sensors, edges, tw)
 
@@ -130,8 +126,7 @@ GAUSS_MAX = 8.6
 
 @numba.njit(cache=True, inline="always")
 def _noisy_bin(r, edges, rmax) -> int:
-    """Range bin of `encode_fast` for a noisy reading r (mm) before the sensor
-    limits are applied (too close -> bin 0, too far (beyond rmax) -> the top bin)."""
+    """`encode_fast`'s range bin of a noisy reading r (mm) before the sensor limits apply."""
     if r < RANGE_MIN_:
         return 0
     if r > rmax:
@@ -145,13 +140,9 @@ def _noisy_bin(r, edges, rmax) -> int:
 
 @numba.njit(cache=True, inline="always")
 def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, sensors, edges, tw) -> int:
-    """The index `noisy_encode` returns, with the same generator draws, but
-    the Gaussian itself (a log and a cos) computed only where it can change
-    the index: the bin is monotone in the noisy reading, and a draw moves
-    the reading by at most `noise_bound` mm, so if both ends of that
-    interval fall into one bin, every draw does and the two uniforms are
-    drawn and dropped. (The noisy readings themselves are not produced;
-    noisy_state / noisy_encode do.)"""
+    """`noisy_encode`'s index with the same draws, the Gaussian computed only where it can change
+    the index: the bin is monotone in the reading and a draw moves it by at most `bound` mm, so
+    when both ends fall into one bin the two uniforms are drawn and dropped. No readings out."""
     bound = int(math.ceil(noise_mm * GAUSS_MAX)) + 1
     state = 0
     mult = 1
@@ -180,9 +171,8 @@ def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, 
 
 @numba.njit(cache=True, inline="always")
 def guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided) -> float:
-    """Remaining-path estimate (mm) the reward and the loop detector use.
-    Guided: straight distance to waypoint k plus the waypoint path after it.
-    Direct: the continuous octile potential of the goal (`potential`)."""
+    """Remaining-path estimate (mm) of the reward and the loop detector: guided, the distance to
+    waypoint k plus the path after it; direct, the goal's `potential`."""
     if guided:
         return math.hypot(x - wps[k, 0], y - wps[k, 1]) + rem[k]
     return potential(dist, occ, h, w, c, x, y)
@@ -190,8 +180,7 @@ def guide_potential(dist, occ, h, w, c, x, y, wps, rem, k, guided) -> float:
 
 @numba.njit(cache=True)
 def start_guidance(occ, h, w, c, dist, x, y, gx, gy, guided, clear_r, max_seg, path, wps, rem) -> int:
-    """Fill wps/rem for an episode from (x, y) to the goal (gx, gy): the
-    planner's waypoints (`ground_station.maps.planner.plan_into`) when guided,
+    """Fill wps/rem from (x, y) to the goal: the planner's waypoints (`plan_into`) when guided,
     else the goal alone. Returns the waypoint count."""
     n = 0
     if guided:
@@ -273,17 +262,10 @@ def progress_reward(rw, phi, phi2, c, a) -> float:
 @numba.njit(cache=True)
 def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, which, ranges, status,
                 sectors, sensors, edges, guided, tw):
-    """One control period of the sector task from pose (x, y, th) with
-    potential phi, heading for waypoint k of wps[:nwp] (the last one is the
-    goal; direct: nwp = 1, the goal alone; `dist` is the goal's octile
-    field): the one definition of the reward and of waypoint advance, shared
-    by the trainer, the evaluation and the Gymnasium env.
-
-    A waypoint before the last is passed when the centre comes within
-    GOAL_TOLERANCE_MM of it (as the controller advances a mission item); the
-    state's bearing is to the current waypoint.
-    Returns (x, y, th, phi, reward, state, hit, success, driven_mm, k); after
-    a hit or success the state is -1 and ranges/status are not refreshed."""
+    """One control period from pose (x, y, th) with potential phi, heading for waypoint k of
+    wps[:nwp]: the one definition of reward and waypoint advance (trainer, evaluation, Gymnasium
+    env). Returns (x, y, th, phi, reward, state, hit, success, driven_mm, k); after a hit or
+    success the state is -1 and ranges/status are not refreshed."""
     b0 = abs(bearing_mrad(x, y, th, wps[k, 0], wps[k, 1]))
     x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a, tw)
     if hit:
@@ -303,14 +285,10 @@ def period_step(occ, h, w, c, dist, x, y, th, phi, wps, rem, nwp, k, a, rw, whic
 @numba.njit(cache=True, inline="always")
 def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, a, rw, which, ranges, status,
                  sectors, sensors, edges, guided, rng, noise_mm, noisy, nstatus, tw):
-    """`period_step` for the trainer's hot loop, the same numbers bit for bit
-    (a test compares whole trained tables): b0 = |bearing| to waypoint k at
-    the start pose is carried from the previous period (it is the bearing
-    the previous state was encoded with) instead of recomputed, the end
-    pose's bearing is computed once for the align term and the state, the
-    sensors are cast on the `bordered` grid occb, and with noise_mm > 0 the
-    state comes straight from the noisy readings (`noisy_encode`, the same
-    draws as `period_step` then `noisy_state`).
+    """`period_step` for the trainer's hot loop, bit for bit (a test compares trained tables):
+    b0 = |bearing| to waypoint k is carried from the previous period, the end bearing computed
+    once, the sensors cast on the `bordered` grid occb, and with noise_mm > 0 the state comes
+    from the noisy readings (the draws of `period_step` then `noisy_state`).
     Returns (x, y, th, phi, reward, state, hit, success, k, |bearing|)."""
     x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a, tw)
     if hit:
@@ -332,16 +310,14 @@ def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, 
     return x, y, th, phi2, r, s2, False, False, k, b1
 
 
-# tabular learners of the sector trainer (the cell encoding's switch,
-# `ground_station.learn.cell.learners`; LEARNERS order)
+# tabular learners of the sector trainer (`ground_station.learn.cell.learners`' switch, LEARNERS order)
 L_Q, L_SARSA, L_EXPECTED_SARSA, L_DOUBLE_Q, L_DYNA_Q, L_Q_LAMBDA = range(6)
 
 
 @numba.njit(cache=True, inline="always")
 def _episode_views(ep, occ, occb, dist, dims, cell):
-    """The open episode's map and goal field as views (grid, bordered grid, goal distances, H, W,
-    cell), taken once per episode: a view made in the loop costs two atomic reference-count
-    updates per step."""
+    """The open episode's (grid, bordered grid, goal distances, H, W, cell), taken once per
+    episode: a view made in the loop costs two atomic reference-count updates per step."""
     m = int(ep[E_MAP])
     return occ[m], occb[m], dist[m, int(ep[E_GOAL])], dims[m, 0], dims[m, 1], cell[m]
 
@@ -369,39 +345,23 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
                  max_episode_steps, hold_max, guided, clear_r, max_seg, path, wps, rem, noise_mm,
                  lam, n_plan, model_s2, model_r, model_g, model_term, seen, n_seen, tr_s, tr_a, tr_e, tr,
                  start_step, n_steps, out_ret, out_succ, tw):
-    """Advance exact sequential training by n_steps env steps (control periods) of the robot `tw`
-    (`twin.TwinRobot.arrays`).
+    """Advance exact sequential training by n_steps control periods of the robot `tw`.
 
-    Epsilon at global step t: linear from eps_start to eps_end over
-    eps_decay_steps, then eps_end. Learning rate: linear from lr at step 0
-    to lr_end at total_steps (averages out the update noise that otherwise
-    flips the greedy action of rarely visited, aliased states). A chosen action is held while the state
-    index stays the same, up to hold_max periods, and learnt as one
-    semi-Markov transition (discount G = gamma^k, rewards R summed with discount):
-    the greedy policy holds it anyway (same state -> same action), so this is
-    what the robot executes. hold_max = 1 is the plain one-step update.
-    guided: each episode follows the planner's waypoints from its start pose
-    (`start_guidance`; wps/rem/path are the caller's buffers and carry the
-    open episode across chunks). noise_mm > 0: the state the learner sees
-    comes from readings with Gaussian noise of that std (`noisy_state`), so
-    the policy does not rely on a reading being exactly on one side of a
-    range edge (the sim's sensors are noisy too). occb: `bordered` copies of
-    the maps (M, Hmax + 2, Wmax + 2) for the sensors.
+    Epsilon follows `epsilon_at`; the learning rate falls linearly from lr to lr_end at
+    total_steps (averaging out the noise that flips rarely visited, aliased states' actions). A chosen action is held while the state
+    index stays the same, up to hold_max periods, and learnt as one semi-Markov transition
+    (discount G = gamma^k, R the discounted sum): the greedy policy holds it anyway, so this is
+    what the robot executes; hold_max = 1 is the plain one-step update.
+    guided: episodes follow the planner's waypoints (`start_guidance`; wps/rem/path are the
+    caller's buffers and carry the open episode across chunks). noise_mm > 0: the learner sees
+    noisy readings (`noisy_state`), so the policy does not rely on a reading being exactly on one
+    side of a range edge. occb: `bordered` copies of the maps (M, Hmax + 2, Wmax + 2).
 
-    learner (L_*): the update at the end of a held action (s0, a) -> s2;
-    q-learning's target is R + G * max_b Q(s2, b) (terminal: R; truncation
-    bootstraps). The others, as in `ground_station.learn.cell.learners` with the
-    one-step discount replaced by G (docs/training.md): sarsa and q-lambda
-    draw the next decision's action a2 at the update (stored in
-    ep[E_NEXT] = a2 + 1, used by the next decision); expected-sarsa takes
-    the epsilon-greedy expectation at the next decision's epsilon; double-q
-    updates q or q2 (a coin) and acts on q + q2; dyna-q stores the last seen
-    (s2, R, G, terminal) of each (s0, a) in model_* and replays n_plan
-    uniformly drawn seen pairs after every real update; q-lambda keeps
-    accumulating traces in the ring tr_s/tr_a/tr_e (tr = [head, length]),
-    decayed by G * lam per update and cut when a2 is exploratory.
-    Learner q draws exactly the numbers the Q-learning kernel always drew.
-    Writes one entry per finished episode to out_ret/out_succ and returns how many."""
+    learner (L_*): the update at the end of a held action (s0, a) -> s2; q-learning's target is
+    R + G * max_b Q(s2, b) (terminal: R; truncation bootstraps). The others are those of
+    `ground_station.learn.cell.learners` with the discount G (`learn.jit`); sarsa and q-lambda
+    draw the next action a2 at the update (ep[E_NEXT] = a2 + 1), expected-sarsa takes the next
+    decision's epsilon. Writes one entry per finished episode to out_ret/out_succ; returns how many."""
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
     noisy = np.zeros(which.shape[0], dtype=np.int64)
@@ -495,33 +455,17 @@ def _other_update(learner, q, q2, rng, ep, s0, a, s2, big_r, big_g, terminal, en
         double_q_update(rng, q, q2, s0, a, big_r, s2, terminal, big_g, alpha)
     elif learner == L_Q_LAMBDA:
         q_lambda_update(q, s0, a, big_r, s2, a2, terminal, not end, big_g, alpha, lam, tr_s, tr_a, tr_e, tr)
+    elif learner == L_DYNA_Q:
+        dyna_q_update(rng, q, s0, a, big_r, s2, terminal, big_g, alpha, n_plan, model_s2, model_r, model_g,
+                      model_term, seen, n_seen)
     else:
         target = big_r
         if not terminal:
             if learner == L_SARSA:
                 target += big_g * q[s2, a2]
-            elif learner == L_EXPECTED_SARSA:
+            else:  # expected-sarsa
                 target += big_g * expected_value(q, s2, eps_next)
-            else:  # dyna-q
-                target += big_g * q[s2, greedy(q, s2)]
         q[s0, a] += alpha * (target - q[s0, a])
-        if learner == L_DYNA_Q:
-            key = s0 * q.shape[1] + a
-            if model_s2[key] < 0:
-                seen[n_seen[0]] = key
-                n_seen[0] += 1
-            model_s2[key] = s2
-            model_r[key] = big_r
-            model_g[key] = big_g
-            model_term[key] = terminal
-            for _ in range(n_plan):
-                key = seen[randint(rng, n_seen[0])]
-                ps = key // q.shape[1]
-                pa = key % q.shape[1]
-                pt = model_r[key]
-                if not model_term[key]:
-                    pt += model_g[key] * q[model_s2[key], greedy(q, model_s2[key])]
-                q[ps, pa] += alpha * (pt - q[ps, pa])
 
 
 # evaluation outcomes
@@ -533,15 +477,11 @@ def eval_kernel(q, occ, h, w, c, dists, starts, goals, goal_slot, headings, sect
                 which, max_steps, budget_base, budget_factor, stall_steps,
                 guided, wp_all, nwp_all, rem_all, pair,
                 out_outcome, out_path, out_steps, tw):
-    """Greedy rollouts (the robot `tw`) of episodes i = (starts[i], goals[i], headings[i]) from
-    the start cell's centre; dists[goal_slot[i]] is the goal's octile field.
-    Guided: episode i follows waypoints wp_all[pair[i], :nwp_all[pair[i]]]
-    (remaining lengths rem_all), planned from the start cell's centre.
-
-    An episode ends on success, collision, loop (the guide potential has not
-    reached a new minimum for stall_steps periods: the policy cycles or is
-    stuck) or timeout (step budget: max_steps if > 0, else budget_base +
-    budget_factor x the shortest path length in forward control periods)."""
+    """Greedy rollouts of episodes i = (starts[i], goals[i], headings[i]) from the start cell's
+    centre (goal field dists[goal_slot[i]]; guided: waypoints wp_all[pair[i], :nwp_all[pair[i]]]).
+    An episode ends on success, collision, loop (no new minimum of the guide potential for
+    stall_steps periods) or timeout (max_steps if > 0, else budget_base + budget_factor x the
+    shortest path in forward control periods)."""
     ranges = np.zeros(which.shape[0], dtype=np.int64)
     status = np.zeros(which.shape[0], dtype=np.int64)
     gwp = np.zeros((1, 2))

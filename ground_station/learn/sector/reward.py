@@ -1,16 +1,10 @@
 """The shaped reward of the sector task: its terms, and the guidance they follow.
 
-`SectorReward` holds the weights of one control period's reward; its
-`array()` is the `rw` vector the jitted `period_step`
-(`ground_station.learn.sector.kernels`) reads through the `RW_*` indices
-below. The trainer (`ground_station.learn.sector.trainer`) builds it from a
-`TrainConfig` with `SectorReward.from_config`; the Gymnasium env
-(`ground_station.learn.envs.sector_env`) takes one (default: the
-`TrainConfig` defaults), so the env and the trainer reward the same thing.
-
-The progress term is measured along the guide potential, which depends on
-the guidance: "path" follows the ground station's planned waypoints
-(`ground_station.maps.planner`), "direct" the goal's octile field alone.
+`SectorReward` holds the weights of one control period's reward; its `array()`
+is the `rw` vector the jitted `period_step` reads through the `RW_*` indices
+below. The trainer and the Gymnasium env both build it from a `TrainConfig`,
+so they reward the same thing. The progress term follows the guidance: "path"
+the planned waypoints, "direct" the goal's octile field alone.
 """
 
 from __future__ import annotations
@@ -58,10 +52,6 @@ class SectorReward:
     def array(self) -> np.ndarray:
         """The `rw` vector, indexed by the `RW_*` slots."""
         rw = np.zeros(6)
-        rw[RW_PROGRESS] = self.progress
-        rw[RW_STEP_COST] = self.step_cost
-        rw[RW_REVERSE_COST] = self.reverse_cost
-        rw[RW_GOAL] = self.goal
-        rw[RW_COLLISION] = self.collision
-        rw[RW_ALIGN] = self.align
+        rw[[RW_PROGRESS, RW_STEP_COST, RW_REVERSE_COST, RW_GOAL, RW_COLLISION, RW_ALIGN]] = (
+            self.progress, self.step_cost, self.reverse_cost, self.goal, self.collision, self.align)
         return rw

@@ -1,21 +1,12 @@
 """Sector-encoding Q-learning on the kinematic twin; read it top to bottom.
 
-1. `pack_maps`: the training maps padded and stacked into the arrays the
-   numba kernel takes, with the octile distance field to every free cell.
-2. `sector_encoder`, `epsilon_schedule`: the encoder and the linear
-   epsilon schedule (in steps) a TrainConfig asks for.
+1. `pack_maps`: the training maps as the kernel takes them, with the octile
+   distance field to every free cell.
+2. `sector_encoder`, `epsilon_schedule`: what a TrainConfig asks for.
 3. `SectorTrainer(maps, cfg, encoder)`: exact sequential Q-learning (the
-   `train_kernel` of `ground_station.learn.sector.kernels`), epsilon-greedy
-   on the global step, a random map, goal cell, start pose (inside a random
-   free cell) and heading each episode, the shaped reward of
-   `ground_station.learn.sector.reward`. Every hyperparameter comes from the
-   `TrainConfig` (`ground_station.learn.config`). `run(q, start_step,
-   n_steps)` advances n_steps env steps and returns the returns and
-   successes of the episodes that finished; chunked runs equal one long run
-   (the RNG and the open episode live in the trainer).
-
-`ground_station.learn.train.train_sector` drives it in chunks and writes the
-run folder; greedy evaluation is `ground_station.learn.sector.evaluate`.
+   kernels' `train_kernel`) with a random map, goal cell, start pose and
+   heading each episode; chunked runs equal one long run.
+4. `train_sector` drives it in chunks; greedy evaluation is `sector.evaluate`.
 """
 
 from __future__ import annotations
@@ -54,8 +45,7 @@ class PackedMaps:
     dist: np.ndarray
 
     def bordered(self) -> np.ndarray:
-        """Each map's occupancy in a one-cell obstacle frame (`twin.bordered`),
-        stacked (M, Hmax + 2, Wmax + 2): what the trainer's sensors read."""
+        """Each map in a one-cell obstacle frame (`twin.bordered`), stacked (M, Hmax + 2, Wmax + 2)."""
         m, hmax, wmax = self.occ.shape
         out = np.ones((m, hmax + 2, wmax + 2), dtype=np.uint8)
         for i in range(m):
@@ -105,8 +95,7 @@ def sector_encoder(cfg: TrainConfig) -> SectorEncoder:
 
 
 def epsilon_schedule(cfg: TrainConfig) -> tuple[float, float, int]:
-    """(start, end, decay steps) of the linear epsilon schedule
-    (epsilon_decay is a fraction of `steps`)."""
+    """(start, end, decay steps) of the linear epsilon schedule (epsilon_decay: a fraction of `steps`)."""
     return float(cfg.epsilon_start), float(cfg.epsilon_end), int(round(cfg.epsilon_decay * cfg.steps))
 
 
@@ -148,8 +137,7 @@ class SectorTrainer:
         self._learner_state(cfg)
 
     def _learner_state(self, cfg: TrainConfig) -> None:
-        """The learner's tables besides q: Double Q's second table, Dyna-Q's
-        model, Q(lambda)'s trace ring (1-element dummies when unused)."""
+        """The learner's tables besides q (Double Q's B, `LearnerMemory`)."""
         from ground_station.learn.cell.learners import LearnerMemory
 
         self.learner = str(cfg.learner)
@@ -166,8 +154,7 @@ class SectorTrainer:
         return q
 
     def run(self, q: np.ndarray, start_step: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
-        """Advance n_steps env steps, updating q (float64 (n_states, n_actions))
-        in place; returns (returns, successes) of the episodes that finished."""
+        """Advance n_steps, updating q (float64) in place: (returns, successes) of finished episodes."""
         if q.shape != (self.n_states, self.n_actions) or q.dtype != np.float64:
             raise ValueError(f"q must be float64 {(self.n_states, self.n_actions)}, got {q.dtype} {q.shape}")
         p, m = self.packed, self._mem
@@ -192,8 +179,7 @@ class SectorTrainer:
 
 
 def train_sector(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Q-learning on the sector twin, through `SectorTrainer`,
-    on `gridmap` plus the extra maps (--sector-maps)."""
+    """Train on the sector twin on `gridmap` plus the extra maps (--sector-maps)."""
     encoder = sector_encoder(cfg)
     trainer, q, rets, succs, seconds = run_trainer(lambda maps: SectorTrainer(maps, cfg, encoder), cfg, gridmap,
                                                    progress, "train sector")

@@ -1,39 +1,27 @@
 """Kinematic twin of the robot on an occupancy grid, jitted (numba).
 
-Owns the continuous-pose physics the `sector` encoding trains on: a disc of
-the robot's body radius driven by the action -> wheel-speed table for one
-control period, exact collision against obstacle cells and the map border,
-range sensors cast on the grid, and a jitted copy of the reference
-`firmware_py.kinds.sector.encoder.SectorEncoder.encode` (tests prove it equals the
-reference).
+Owns the continuous-pose physics the `sector` encoding trains on: a disc of the
+robot's body radius driven by each action's wheel speeds for one control period,
+exact collision against obstacle cells and the map border, range sensors cast on
+the grid, and a jitted copy of `SectorEncoder.encode` (tests prove them equal).
+Every kernel takes the robot as one tuple of arrays `tw` (`TwinRobot.arrays`),
+never as module globals, so one compiled kernel trains any robot.
 
-The robot is a robot profile's (`TwinRobot.of_profile`; the built-in robot,
-`robot_spec`'s values, is the default): every kernel takes it as one tuple of
-arrays `tw` (`TwinRobot.arrays`: radius, each action's speed and turn rate,
-each sector's angle, fan and reach), never as module globals, so one compiled
-kernel trains any robot.
+Conventions (`firmware_py.robot_spec`): x east along columns, y north, map row 0
+northernmost, heading counter-clockwise from +x; float mm and radians, except
+the encoder inputs (int mm, int mrad), which are what the robot sees.
 
-Conventions (all from `firmware_py.robot_spec`): world x east along columns, y
-north, map row 0 is the northernmost row; heading counter-clockwise from +x.
-Lengths are float millimetres, angles radians, except the encoder inputs
-(int mm, int mrad) which are what the robot sees.
-
-* Motion: constant wheel speeds over the control period give an exact arc;
-  the pose is advanced in `PHYSICS_DT_US` substeps (the sim's dt) and the disc
-  is checked for overlap with an obstacle cell or the border after each one
-  (skipped when the start-of-period clearance already rules a hit out). A hit
-  ends the motion at that substep and is reported; the episode ends there.
-* Sensors: the policy's sector i is read by the sensor on the rim (the body's
-  radius) at the angle the robot reads it from (`TwinRobot.angles_mrad`; the
-  built-in robot: `SENSOR_ANGLES_MRAD[i]`); its reading is the nearest hit of
-  `SENSOR_FAN_RAYS` rays spread over `SENSOR_FOV_MRAD`, each cast exactly with
-  a grid DDA (Amanatides-Woo). Status as the sim reports it: below
-  `RANGE_MIN_MM` -> too close (range = min), beyond the sensor's reach -> too far
-  (range = reach), else valid with the distance rounded to whole mm; a sector
-  no sensor of the profile covers reads INVALID (as the robot reads it).
-* Progress potential: an estimate of the remaining shortest (octile) path
-  length from a continuous position, used for shaped rewards, loop detection
-  and evaluation.
+* Motion: constant wheel speeds over the control period give an exact arc,
+  advanced in `PHYSICS_DT_US` substeps (the sim's dt) with an overlap check
+  after each (skipped when the start-of-period clearance rules a hit out); a
+  hit ends the motion at that substep, and the episode.
+* Sensors: sector i is read by the sensor on the rim at `TwinRobot.angles_mrad[i]`:
+  the nearest hit of `SENSOR_FAN_RAYS` rays over `SENSOR_FOV_MRAD`, each cast
+  with an exact grid DDA (Amanatides-Woo). Status as the sim reports it: below
+  `RANGE_MIN_MM` too close (range = min), beyond the reach too far (range =
+  reach), else valid in whole mm; a sector no sensor covers reads INVALID.
+* Progress potential: the remaining shortest (octile) path length from a
+  continuous position (shaped rewards, loop detection, evaluation).
 """
 
 from __future__ import annotations
@@ -66,13 +54,10 @@ TWO_PI_MRAD = 6283  # the reference encoder's 2*pi; asserted equal in the tests
 
 @dataclass(frozen=True)
 class TwinRobot:
-    """The robot the twin plays, from a robot profile (`firmware_py.profile`; the built-in robot is
-    the default profile): the body's radius (the disc, the sensors' rim), the wheel base (each
-    action's turn rate), the wheel speed limit (each action's wheel speeds clamped to it, as the
-    controller clamps), and the policy's eight sectors as the robot reads them
-    (`firmware_py.layout.Layout.sector_layout`: each at the angle and range of the sensor behind it;
-    a sector no sensor covers reads INVALID, `range_mm` 0). The wheel radius and encoder counts do
-    not enter the kinematic twin (it moves in mm/s)."""
+    """The robot the twin plays, from a robot profile (default: the built-in robot): body radius
+    (the disc, the sensors' rim), wheel base, wheel speed limit (clamped as the controller
+    clamps), and the eight sectors as the robot reads them (`Layout.sector_layout`; a sector no
+    sensor covers reads INVALID, range 0). Wheel radius and encoder counts do not enter (mm/s)."""
 
     radius_mm: int = robot_spec.ROBOT_RADIUS_MM
     wheel_base_mm: int = robot_spec.WHEEL_BASE_MM
@@ -90,8 +75,8 @@ class TwinRobot:
 
     @classmethod
     def of_trained(cls, t: TrainedFor) -> TwinRobot:
-        """The twin of the robot a policy was trained for (`firmware_py.needs.TrainedFor`, a run's
-        meta.json `robot`): a sector no sensor covers at its built-in angle, reach 0 (INVALID)."""
+        """The twin of the robot a policy was trained for (a run's meta.json `robot`): a sector no
+        sensor covers at its built-in angle, reach 0 (INVALID)."""
         if t == DEFAULT_TRAINED:
             return cls()
         angles = tuple(robot_spec.SENSOR_ANGLES_MRAD[k] if a is None else a for k, a in enumerate(t.sector_angles_mrad))
@@ -107,8 +92,8 @@ class TwinRobot:
         return cls() if rec is None else cls.of_trained(TrainedFor.from_dict(rec))
 
     def layout(self) -> Layout:
-        """The robot's kind's view of it (`firmware_py.layout.Layout.sector_layout`): the eight sector
-        readings at the twin's angles (an uncovered one at the farthest reach; it reads INVALID)."""
+        """The robot's `Layout`: the eight sectors at the twin's angles (an uncovered one at the
+        farthest reach; it reads INVALID)."""
         reach = max(self.ranges_mm)
         return Layout(robot_radius_mm=self.radius_mm, wheel_base_mm=self.wheel_base_mm,
                       max_wheel_speed_mm_s=self.max_speed_mm_s, angles_mrad=tuple(self.angles_mrad),
@@ -136,14 +121,12 @@ class TwinRobot:
 TW_GEO, TW_V, TW_W, TW_ANG, TW_SCOS, TW_SSIN, TW_RCOS, TW_RSIN, TW_RMAX = range(9)
 G_RADIUS, G_MOUNT, G_MAX_MOVE, G_FWD = range(4)
 
-DEFAULT_ROBOT = TwinRobot()
-DEFAULT_TW = DEFAULT_ROBOT.arrays()  # the built-in robot's
+DEFAULT_TW = TwinRobot().arrays()  # the built-in robot's
 # the built-in robot's figures (tests, and the callers that have no profile)
 ACTION_V_MM_S = DEFAULT_TW[TW_V]
 ACTION_W_RAD_S = DEFAULT_TW[TW_W]
 RADIUS_MM = float(robot_spec.ROBOT_RADIUS_MM)
 MAX_MOVE_MM = float(DEFAULT_TW[TW_GEO][G_MAX_MOVE])
-RANGE_MAX = robot_spec.RANGE_MAX_MM
 
 
 # --- geometry ----------------------------------------------------------------
@@ -188,10 +171,8 @@ def disc_hits(occ, h: int, w: int, cell: float, x: float, y: float, r: float) ->
 
 @numba.njit(cache=True, inline="always")
 def move(occ, h: int, w: int, cell: float, x: float, y: float, th: float, action: int, tw):
-    """Hold `action` for one control period from pose (x, y, th), the robot `tw`.
-
-    Returns (x, y, th, driven_mm, hit). On a hit the pose is the first
-    substep pose that overlaps an obstacle."""
+    """Hold `action` for one control period from pose (x, y, th): (x, y, th, driven_mm, hit);
+    on a hit the pose is the first substep pose that overlaps an obstacle."""
     v = tw[TW_V][action]
     om = tw[TW_W][action]
     radius = tw[TW_GEO][G_RADIUS]
@@ -230,12 +211,8 @@ def move(occ, h: int, w: int, cell: float, x: float, y: float, th: float, action
 
 @numba.njit(cache=True, inline="always")
 def wrap_angle(a: float) -> float:
-    """Angle in [-pi, pi): (a + pi) % 2pi - pi with Python's float modulo.
-
-    The usual cases skip the modulo's library call with the very number it
-    returns: for 0 <= x < 2pi it is x; for 2pi <= x < 4pi, fmod's exact
-    x - 2pi (Sterbenz: the subtraction is exact); for -2pi <= x < 0, fmod
-    gives x and Python adds 2pi (the same rounded sum)."""
+    """Angle in [-pi, pi): (a + pi) % 2pi - pi with Python's float modulo, the usual cases
+    without the library call but with the very number it returns (x - 2pi is exact, Sterbenz)."""
     x = a + math.pi
     b = 2.0 * math.pi
     if x >= 0.0:
@@ -254,16 +231,14 @@ def wrap_angle(a: float) -> float:
 
 @numba.njit(cache=True)
 def ray_cast(occ, h: int, w: int, cell: float, ox: float, oy: float, ang: float, maxd: float) -> float:
-    """Distance (mm) from (ox, oy) along `ang` to the first obstacle cell or
-    the map border; `maxd` if nothing is hit within maxd. Exact grid DDA."""
+    """Distance (mm) from (ox, oy) along `ang` to the first obstacle cell or the border (at most maxd)."""
     return ray_cast_dir(occ, h, w, cell, ox, oy, math.cos(ang), math.sin(ang), maxd)
 
 
 @numba.njit(cache=True, inline="always")
 def _dda_axis(d: float, pos: float, idx: int, cell: float):
-    """One axis of the grid DDA: (cell step, ray length per cell, ray length to
-    the first cell boundary) for direction component d at grid position pos
-    inside cell idx."""
+    """One axis of the grid DDA for direction component d at grid position pos in cell idx:
+    (cell step, ray length per cell, ray length to the first cell boundary)."""
     if d > 0.0:
         t_delta = cell / d
         return 1, t_delta, (idx + 1 - pos) * t_delta
@@ -332,8 +307,8 @@ def sense_one(occ, h: int, w: int, cell: float, x: float, y: float, th: float, i
 
 @numba.njit(cache=True, inline="always")
 def fan_ray(x: float, y: float, ct: float, st: float, i: int, k: int, tw) -> tuple[float, float, float, float]:
-    """Origin (ox, oy) and unit direction (cx, cy) of ray k of sensor i's fan, the robot `tw` at
-    (x, y) with heading cos/sin (ct, st): the fixed angles' trigonometry is precomputed."""
+    """Origin (ox, oy) and unit direction (cx, cy) of ray k of sensor i's fan at (x, y), heading
+    cos/sin (ct, st)."""
     mount = tw[TW_GEO][G_MOUNT]
     sc = tw[TW_SCOS][i]
     ss = tw[TW_SSIN][i]
@@ -349,8 +324,7 @@ def fan_ray(x: float, y: float, ct: float, st: float, i: int, k: int, tw) -> tup
 @numba.njit(cache=True, inline="always")
 def fan_distance(occ, h: int, w: int, cell: float, x: float, y: float, ct: float, st: float, i: int,
                  tw) -> float:
-    """Sensor i's distance to the map's cells (its fan's nearest hit, at most its reach + 1),
-    before `_reading` turns it into a range and status; see `sense` for the cast lengths."""
+    """Sensor i's fan's nearest hit (at most its reach + 1), before `_reading`; cast lengths: `sense`."""
     d = tw[TW_RMAX][i] + 1.0
     for k in range(tw[TW_RCOS].shape[1]):
         ox, oy, cx, cy = fan_ray(x, y, ct, st, i, k, tw)
@@ -362,14 +336,10 @@ def fan_distance(occ, h: int, w: int, cell: float, x: float, y: float, ct: float
 
 @numba.njit(cache=True)
 def sense(occ, h: int, w: int, cell: float, x: float, y: float, th: float, which, ranges, status, tw) -> None:
-    """Fill ranges/status (int64, length SENSOR_COUNT) for the sensors of the robot `tw` whose
-    `which` flag is set; the others are left untouched. Same readings as
-    `sense_one`, with the trigonometry of the fixed angles precomputed.
-
-    A fan's later rays are cast only as far as the nearest hit so far: a
-    cast to maxd returns min(hit distance, maxd) with the hit distance
-    computed the same way whatever maxd is, so the fan's minimum is the
-    same number (bit for bit) as casting every ray to the full range."""
+    """Fill ranges/status (int64, SENSOR_COUNT) of the sensors whose `which` flag is set (others
+    untouched): `sense_one`'s readings, the fixed angles' trigonometry precomputed. A fan's later
+    rays are cast only as far as the nearest hit so far: the hit distance does not depend on maxd,
+    so the minimum is bit for bit that of casting every ray to the full range."""
     ct = math.cos(th)
     st = math.sin(th)
     for i in range(ranges.shape[0]):
@@ -378,9 +348,8 @@ def sense(occ, h: int, w: int, cell: float, x: float, y: float, th: float, which
 
 
 def bordered(occ: np.ndarray, h: int, w: int) -> np.ndarray:
-    """occ[:h, :w] (uint8) inside a one-cell frame of obstacles, shape (h + 2, w + 2):
-    cell (row, col) of the map is [row + 1, col + 1]; everything off the map
-    reads as an obstacle. `sense_bordered` takes it."""
+    """occ[:h, :w] (uint8) in a one-cell frame of obstacles (h + 2, w + 2) for `sense_bordered`:
+    map cell (row, col) is [row + 1, col + 1]."""
     out = np.ones((h + 2, w + 2), dtype=np.uint8)
     out[1:h + 1, 1:w + 1] = occ[:h, :w]
     return out
@@ -389,10 +358,8 @@ def bordered(occ: np.ndarray, h: int, w: int) -> np.ndarray:
 @numba.njit(cache=True, inline="always")
 def _cast_bordered(occb, u: float, vv: float, col: int, row: int, du: float, dv: float, cell: float,
                    maxd: float) -> float:
-    """The DDA of `ray_cast_dir` on a bordered grid from a free origin cell:
-    the same sums in the same order (the same distance bit for bit), with
-    the map border read from the frame instead of four bound checks per cell
-    (the ray enters a frame cell before it could leave the frame)."""
+    """`ray_cast_dir`'s DDA (same sums, same order: bit for bit) on a bordered grid from a free
+    origin cell, the map border read from the frame instead of four bound checks per cell."""
     sc, tdu, tmu = _dda_axis(du, u, col, cell)
     sr, tdv, tmv = _dda_axis(dv, vv, row, cell)
     while True:
@@ -413,9 +380,7 @@ def _cast_bordered(occb, u: float, vv: float, col: int, row: int, du: float, dv:
 @numba.njit(cache=True, inline="always")
 def sense_bordered(occb, h: int, w: int, cell: float, x: float, y: float, th: float, which, ranges,
                    status, tw) -> None:
-    """`sense` on a `bordered` occupancy grid: the same readings bit for bit
-    (tests compare them), faster (the fan's rays share their origin cell, no
-    bound checks in the DDA). The trainer's hot loop uses it."""
+    """`sense` on a `bordered` grid, the same readings bit for bit, faster (the trainer's hot loop)."""
     ct = math.cos(th)
     st = math.sin(th)
     top = h * cell
@@ -455,11 +420,10 @@ def bearing_mrad(x: float, y: float, th: float, gx: float, gy: float) -> int:
 
 @numba.njit(cache=True)
 def potential(dist, occ, h: int, w: int, cell: float, x: float, y: float) -> float:
-    """Remaining path length estimate (mm) from (x, y) to the goal whose
-    octile distance field (cells) is `dist`: the best of the free 8-neighbour
-    cell centres reachable without corner cutting (and the own cell) of
-    distance-to-centre + the centre's octile distance. Continuous up to small
-    jumps at cell borders; exactly the Euclidean distance next to the goal."""
+    """Remaining path length estimate (mm) to the goal of octile field `dist` (cells): the least
+    distance-to-centre + the centre's octile distance over the own cell and the free 8-neighbours
+    reachable without corner cutting. Continuous up to small jumps at cell borders; Euclidean next
+    to the goal."""
     col, row = cell_of(x, y, h, cell)
     best = np.inf
     for dr in range(-1, 2):
@@ -512,8 +476,7 @@ def encode_fast(bearing_mrad: int, ranges, status, sectors: int, sensors, edges)
 
 
 def encoder_arrays(encoder) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-    """(bearing_sectors, sensors, range_edges, sensor-needed flags) as the
-    kernels take them, from a `SectorEncoder`."""
+    """(bearing_sectors, sensors, range_edges, sensor-needed flags) of a `SectorEncoder`."""
     sensors = np.asarray(encoder.sensors, dtype=np.int64)
     edges = np.asarray(encoder.range_edges_mm, dtype=np.int64)
     which = np.zeros(robot_spec.SENSOR_COUNT, dtype=np.bool_)

@@ -1,14 +1,11 @@
-"""The cell-stepped `sector-memory` encoding on a grid twin (numba): the
-jitted copy of `firmware_py.kinds.sector_memory.gridbug.GridBugEncoder` (a test compares them on
-many inputs), its Q-learning kernel and greedy rollouts.
+"""The cell-stepped `sector-memory` encoding on a grid twin (numba): the jitted copy of
+`GridBugEncoder` (a test compares them), its Q-learning kernel and greedy rollouts.
 
 The twin moves the robot cell to cell: a relative move turns the reference
-heading and drives one cell; a move into an obstacle cell or off the map is
-a collision (it ends the episode: the bumper would stop the robot). The free
-neighbours come from the occupancy grid (`free_world`); a test proves they
-are the flags the reference encoder reads from the twin's range sensors
-(`ground_station.learn.sector.twin.sense`) at every free cell centre and
-grid heading of the bench maps.
+heading and drives one cell; a move into an obstacle cell or off the map is a
+collision (it ends the episode: the bumper would stop the robot). The free
+neighbours come from the occupancy grid (`free_world`); a test proves they are
+the flags the reference encoder reads from the twin's range sensors.
 
 `mem` = int64[4]: mode, side, hit distance (mm), reference heading, as
 `GridBugMemory`. `params` = int64[4]: cell_mm, leave_margin_mm,
@@ -19,9 +16,8 @@ Reward (training): `r_goal` on reaching the goal cell, `r_step` per move,
 shaping cost in a wall mode when, after the move, the neighbour on the
 followed side is free (the wall lost). A cost, not a bonus for keeping the
 wall: a bonus above the step cost made circling a pillar for ever worth
-more than the goal (values 0.01 / (1 - gamma) = 0.2 measured); with `go_rw` > 0 a
-shaping term in the go mode: `go_rw` per cell the straight-line goal
-distance falls (what the robot knows: no map).
+more than the goal; with `go_rw` > 0 a shaping term in the go mode: `go_rw`
+per cell the straight-line goal distance falls (what the robot knows: no map).
 """
 
 from __future__ import annotations
@@ -145,13 +141,11 @@ def train_kernel(q, rng, occs, dims, free_cells, nfree, bfs, params, lr, lr_end,
                  ep, mem, acc, start_step, n_steps, out_ret, out_succ):
     """Q-learning on the grid twin, `n_steps` moves from global step `start_step`.
 
-    occs (M, Hmax, Wmax) uint8; dims (M, 2) = (h, w); free_cells (M, Fmax, 2)
-    (col, row); nfree (M,); bfs (M, Fmax, Hmax, Wmax) int32 4-connected steps
-    to each free cell as a goal (-1 unreachable). ep = int64[7]: active, map,
-    col, row, goal index, steps, (unused); mem as `gb_state`; acc float64[1]
-    the open episode's return. Returns the
-    number of finished episodes, their returns and successes in out_*.
-    Chunked calls equal one long call (the open episode lives in ep/mem)."""
+    occs, dims, free_cells, nfree: maps packed as in `sector.kernels`; bfs (M, Fmax, Hmax, Wmax)
+    int32 steps to each free cell (-1 unreachable).
+    ep = int64[7]: active, map, col, row, goal index, steps, (unused); acc float64[1] the open
+    episode's return (chunked calls equal one long call). Returns the number of finished
+    episodes, their returns and successes in out_*."""
     n_done = 0
     m2 = np.empty(4, dtype=np.int64)
     for t in range(start_step, start_step + n_steps):
@@ -221,11 +215,7 @@ def train_kernel(q, rng, occs, dims, free_cells, nfree, bfs, params, lr, lr_end,
                 m2[:] = mem
                 dx2, dy2 = goal_vector(nc, nr, gc, gr, params[0])
                 s2 = gb_state(m2, dx2, dy2, free_world(occ, h, w, nc, nr), params)
-                best = q[s2, 0]
-                for k in range(1, 4):
-                    if q[s2, k] > best:
-                        best = q[s2, k]
-                q[s, a] += alpha * (r + gamma * best - q[s, a])
+                q[s, a] += alpha * (r + gamma * q[s2, greedy(q, s2)] - q[s, a])
                 if ep[5] >= max_episode_steps:
                     done = True
         acc[0] += r
@@ -239,10 +229,8 @@ def train_kernel(q, rng, occs, dims, free_cells, nfree, bfs, params, lr, lr_end,
 
 @numba.njit(cache=True)
 def eval_kernel(q, occ, h, w, params, starts, goals, dirs, max_steps, outcome, moves, wall_moves, end_mode):
-    """Greedy rollouts from (start cell, goal cell, initial grid direction);
-    outcome SUCCESS / COLLISION / TIMEOUT, moves made, moves in a wall mode,
-    the mode at the end. The initial turn to the nearest grid direction is
-    not a move (the robot turns in place before the first decision)."""
+    """Greedy rollouts from (start cell, goal cell, initial grid direction): outcome, moves,
+    moves in a wall mode, the mode at the end. The initial turn in place is not a move."""
     mem = np.zeros(4, dtype=np.int64)
     cell = params[0]
     for i in range(starts.shape[0]):

@@ -1,19 +1,14 @@
-"""Training and greedy evaluation of the cell-stepped `sector-memory`
-encoding (`firmware_py.kinds.sector_memory.gridbug.GridBugEncoder`) on the grid twin
-(`ground_station.learn.sector_memory.kernels`), direct setting: the goal vector
+"""Training and greedy evaluation of the cell-stepped `sector-memory` encoding
+(`GridBugEncoder`) on the grid twin (`kernels`), direct setting: the goal vector
 only, no waypoints, no map in the state.
 
-* `gridbug_encoder(cfg)`: the reference encoder a TrainConfig asks for.
-* `hand_table(encoder)`: the hand-written table in the same state (go: the
-  free goal-ward move, forward first; wall on the right: right, forward,
-  left, back, the right-hand rule; on the left its mirror): the
-  feasibility baseline of the mode rules.
-* `GridBugTrainer`: exact sequential Q-learning; chunked runs equal one long
-  run (the RNG, the open episode and its memory live here).
-* `evaluate_gridbug(q, gridmap, encoder, ...)`: greedy rollouts over every
-  (start cell, goal cell, heading) of a map (or a seeded sample): success,
-  collisions (a move into an obstacle), timeouts, path ratio against the
-  4-connected BFS optimum, the share of moves in a wall mode.
+* `hand_table(encoder)`: the hand-written table in the same state (go: the free
+  goal-ward move, forward first; wall on the right: the right-hand rule, right,
+  forward, left, back; on the left its mirror): the mode rules' baseline.
+* `GridBugTrainer`: exact sequential Q-learning; chunked runs equal one long run.
+* `evaluate_gridbug`: greedy rollouts over every (start cell, goal cell,
+  heading) of a map (or a seeded sample), path ratio against the 4-connected
+  BFS optimum, the share of moves in a wall mode.
 """
 
 from __future__ import annotations
@@ -46,7 +41,6 @@ GO_ORDER = (gb.MOVE_FORWARD, gb.MOVE_LEFT, gb.MOVE_RIGHT, gb.MOVE_BACK)
 
 
 def gridbug_encoder(cfg: TrainConfig) -> gb.GridBugEncoder:
-    """The reference gb.GridBugEncoder of a config."""
     return encoder_of(cfg.options)
 
 
@@ -144,9 +138,7 @@ class GridBugTrainer:
 
 
 def train_sector_memory(cfg: TrainConfig, gridmap: GridMap, progress: bool = False) -> TrainResult:
-    """Q-learning of the cell-stepped sector-memory encoding (direct setting)
-    on the grid twin, through `GridBugTrainer`,
-    on `gridmap` plus the extra maps (--sector-maps)."""
+    """Q-learning on the grid twin on `gridmap` plus the extra maps (--sector-maps)."""
     encoder = gridbug_encoder(cfg)
     trainer, q, rets, succs, seconds = run_trainer(lambda maps: GridBugTrainer(maps, cfg, encoder), cfg, gridmap,
                                                    progress, "train sector-memory")
@@ -163,11 +155,9 @@ def initial_dirs(hidx: np.ndarray, headings: int) -> np.ndarray:
 
 def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: gb.GridBugEncoder, seed: int = 0,
                      sample: int | None = None, headings: int = 8, max_steps: int | None = None) -> dict:
-    """Greedy rollouts of a gb.GridBugEncoder table over every (start, goal,
-    heading) of `gridmap` (or a seeded sample, as `eval_episodes`). A move
-    into an obstacle is a collision and ends the episode; the budget is
-    `max_steps` moves (default 10 x the free cells). The initial turn in
-    place to the nearest grid direction is not counted as a move."""
+    """Greedy rollouts of a table over every (start, goal, heading) of `gridmap` (or a seeded
+    sample, as `eval_episodes`). A move into an obstacle is a collision and ends the episode;
+    the budget is `max_steps` moves (default 10 x the free cells)."""
     if q.shape != (encoder.n_states, encoder.n_actions):
         raise ValueError(f"q shape {q.shape} does not match the encoder's ({encoder.n_states}, {encoder.n_actions})")
     starts, goals, hidx = eval_episodes(gridmap, seed=seed, sample=sample, headings=headings)
@@ -206,8 +196,8 @@ def evaluate_gridbug(q: np.ndarray, gridmap: GridMap, encoder: gb.GridBugEncoder
 
 def evaluate_policy(q: np.ndarray, run, gridmap: GridMap, *, sample: int | None = None,  # type: ignore[no-untyped-def]
                     seed: int = 0, full: bool = False) -> dict:
-    """The kind's evaluation (ground_station.learn.kinds): `evaluate_gridbug` of a run's table;
-    `full` adds the hand-written Bug rule in the same state on the same episodes as `baseline`."""
+    """The kind's evaluation: `evaluate_gridbug` of a run's table; `full` adds the hand-written
+    Bug rule on the same episodes as `baseline`."""
     rep = evaluate_gridbug(q, gridmap, run.encoder, seed=seed, sample=sample)
     if full:
         rep["baseline"] = evaluate_gridbug(hand_table(run.encoder), gridmap, run.encoder, seed=seed, sample=sample)
