@@ -1,10 +1,9 @@
 """Shortest distances to one goal cell, jitted.
 
-* `bfs_distances`: 4-connected steps (the cell encoding's moves), int32,
-  -1 where unreachable.
+* `bfs_distances`: 4-connected steps (the cell encoding's moves).
 * `octile_distances`: 8-connected, diagonal cost sqrt(2), no corner cutting
-  (a diagonal move needs both orthogonal neighbours free), float64, inf where
-  unreachable. The reference for the sector encoding's path lengths.
+  (a diagonal move needs both orthogonal neighbours free): the reference for
+  the sector encoding's path lengths.
 
 Both return arrays indexed [row, col] and accept a goal on an obstacle
 (everything is then unreachable).
@@ -52,9 +51,8 @@ def _bfs(occ, gc, gr, dc, dr):
 
 @numba.njit(cache=True)
 def octile_moves(occ, h: int, w: int, r: int, c: int, out) -> int:
-    """The 8-connected moves from (r, c) onto free cells, as (row, col, cost) rows written into `out`
-    (8, 3) in a fixed order; returns their count. Cost 1, sqrt(2) diagonally; no corner cutting (a
-    diagonal move needs both orthogonal neighbours free)."""
+    """The 8-connected moves from (r, c) onto free cells as (row, col, cost) rows into `out` (8, 3),
+    in a fixed order; returns their count."""
     n = 0
     for dr in range(-1, 2):
         for dc in range(-1, 2):

@@ -163,7 +163,6 @@ def parse_scen(text: str, name: str = "<scen>") -> list[Scenario]:
 
 
 def read_scen(path: str | Path) -> list[Scenario]:
-    """Read a MovingAI `.scen` file."""
     p = Path(path)
     try:
         text = p.read_text()

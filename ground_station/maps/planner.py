@@ -1,34 +1,21 @@
 """Global guidance for the sector policy: the ground station's path planner.
 
-The standard split of mobile robotics (a global planner on the known map, a
-local controller that follows it, as nav2 does): the ground station plans
-the shortest path on the occupancy grid and hands the robot a mission of
-intermediate waypoints; the learnt sector policy only has to drive to the
-current waypoint and avoid what its range sensors see. A memoryless
-straight-line-bearing policy cannot leave a U-shaped pocket whose exit lies
-behind it; with waypoints around the pocket it never has to.
+A global planner on the known map and a local controller that follows it, as nav2
+splits them: the robot gets a mission of intermediate waypoints and the learnt
+sector policy only drives to the current one (a memoryless bearing policy cannot
+leave a U-shaped pocket whose exit lies behind it). The training twin and the
+evaluation use the same planner and acceptance radius (`GOAL_TOLERANCE_MM`).
 
-On the robot this is an ordinary mission (the controller already runs
-mission items in order and advances within `GOAL_TOL_MM`), so the firmware
-does not change. The training twin and the evaluation use the same planner
-and the same acceptance radius (`robot_spec.GOAL_TOLERANCE_MM`) for every item.
-
-Plan: descend the octile distance field of the goal
-(`ground_station.maps.octile_distances`, 8-connected, no corner cutting)
-from the start cell to a shortest cell path (ties -> the neighbour nearest
-the goal, so the path hugs the straight line), then prune it greedily to the
-farthest path vertex whose straight segment keeps the robot's disc grown by
-`margin_mm` clear of every obstacle cell and the map border (exact
-segment-to-square distances), optionally at most `max_segment_mm` long.
-When no farther vertex is clear the next path cell is taken: moves between
-neighbouring free cell centres are always clear for the bare disc (a body
-radius below half the cell: the built-in 150 mm or a profile's 180 mm in a
-500 mm cell, and diagonal moves need both orthogonal neighbours free).
-Waypoints are cell centres; the last is the goal's. The disc is the robot's:
-`radius_mm` is its profile's body radius (`geometry.robot_radius_mm`;
-`qnav mission upload --plan --profile FILE.toml`, `qnav demo --profile`),
-the built-in robot's by default, so a wider robot gets the segments its
-policy was trained on (the trainer plans with its profile's radius too).
+Plan: descend the goal's octile distance field from the start cell to a
+shortest cell path (ties -> the neighbour nearest the goal, so the path hugs
+the straight line), then prune it greedily to the farthest path vertex whose
+straight segment keeps the robot's disc grown by `margin_mm` clear of every
+obstacle cell and the map border (exact segment-to-square distances), at most
+`max_segment_mm` long. When no farther vertex is clear the next path cell is
+taken: moves between neighbouring free cell centres are always clear for a
+bare disc below half the cell.
+Waypoints are cell centres; the last is the goal's. `radius_mm` is the
+robot profile's body radius (`--profile`; the trainer plans with it too).
 """
 
 from __future__ import annotations
@@ -48,7 +35,6 @@ DEFAULT_MARGIN_MM = 75  # extra clearance of a pruned segment beyond the robot's
 # and drift sideways ~7 % of a segment's length; 1 m keeps that well inside
 # the 100 mm a one-cell corridor leaves beside the disc. 0 = no limit.
 DEFAULT_MAX_SEGMENT_MM = 1000
-ACCEPT_RADIUS_MM = robot_spec.GOAL_TOLERANCE_MM  # the controller advances a mission item inside this
 _TIE = 1e-3  # distance fields are float32 in the trainer: equal within this
 
 
@@ -134,9 +120,8 @@ def segment_clear(occ, h: int, w: int, cell: float, ax: float, ay: float, bx: fl
 
 @numba.njit(cache=True)
 def cell_path(dist, occ, h: int, w: int, scol: int, srow: int, out) -> int:
-    """Shortest 8-connected cell path from (scol, srow) down the goal's
-    octile field `dist` (cells); writes (col, row) rows into out, start and
-    goal included, and returns their count (0 if the start cannot reach it)."""
+    """Shortest 8-connected cell path from (scol, srow) down the goal's octile field `dist` into
+    out ((col, row) rows, start and goal included); their count (0 if unreachable)."""
     if not dist[srow, scol] < np.inf:
         return 0
     col = scol
@@ -179,9 +164,8 @@ def cell_path(dist, occ, h: int, w: int, scol: int, srow: int, out) -> int:
 @numba.njit(cache=True)
 def plan_into(occ, h: int, w: int, cell: float, dist, sx: float, sy: float, clear_r: float,
               max_seg: float, path, out) -> int:
-    """Waypoints (world mm, cell centres, last = the goal's) from the point
-    (sx, sy) to the goal of octile field `dist`, written into out (K, 2);
-    returns their count, 0 if unreachable. `path` is scratch (>= H*W, 2)."""
+    """Waypoints (world mm) from (sx, sy) to the goal of octile field `dist` into out (K, 2);
+    their count, 0 if unreachable. `path` is scratch (>= H*W, 2)."""
     col = int(math.floor(sx / cell))
     row = h - 1 - int(math.floor(sy / cell))
     if col < 0 or row < 0 or col >= w or row >= h:
@@ -223,8 +207,7 @@ def remaining_lengths(wps, n: int, rem) -> None:
 
 
 def clearance_mm(margin_mm: float, radius_mm: float = robot_spec.ROBOT_RADIUS_MM) -> float:
-    """The clearance a pruned segment keeps: the robot's body radius (a profile's; the built-in
-    robot's by default) plus the margin."""
+    """The clearance a pruned segment keeps: the robot's body radius plus the margin."""
     return float(radius_mm) + float(margin_mm)
 
 
@@ -239,9 +222,8 @@ def profile_radius_mm(profile_file) -> float:
 
 
 def guidance_from_metadata(meta: dict) -> dict:
-    """plan_waypoints keywords (margin_mm, max_segment_mm) a sector policy was
-    trained with, from its training config (a `.qtab`'s metadata or a run's
-    meta.json); module defaults where absent."""
+    """plan_waypoints keywords (margin_mm, max_segment_mm) a sector policy was trained with, from
+    a `.qtab`'s metadata or a run's meta.json; module defaults where absent."""
     cfg = meta.get("config") or {}
     return {"margin_mm": float(cfg.get("sector_margin_mm", meta.get("margin_mm", DEFAULT_MARGIN_MM))),
             "max_segment_mm": float(cfg.get("sector_max_segment_mm",
@@ -252,14 +234,9 @@ def plan_waypoints(gridmap: GridMap, start, goal: tuple[int, int], *, start_mm: 
                    margin_mm: float = DEFAULT_MARGIN_MM,
                    max_segment_mm: float = DEFAULT_MAX_SEGMENT_MM,
                    radius_mm: float = robot_spec.ROBOT_RADIUS_MM) -> list[tuple[int, int]]:
-    """Mission waypoints [(x_mm, y_mm), ...] from `start` to the goal cell,
-    for a robot of body radius `radius_mm` (its profile's; the built-in
-    robot's by default).
-
-    `start` is a (col, row) cell (planned from its centre) or, with
-    `start_mm=True`, a world point (x_mm, y_mm). The last waypoint is the
-    goal cell's centre. Raises MapError if the start or goal is blocked,
-    off the map, or they are not connected."""
+    """Mission waypoints [(x_mm, y_mm), ...] from `start` (a (col, row) cell, or with
+    `start_mm=True` a world point) to the goal cell's centre for a body of `radius_mm`.
+    MapError if the start or goal is blocked, off the map, or they are not connected."""
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
     h, w = occ.shape
     cell = float(gridmap.cell_size_m) * 1000.0

@@ -1,10 +1,8 @@
 """Unmapped obstacles: discs and movers the planner does not know, placed so a detour exists.
 
-The one definition of the static discs and movers that `qnav demo
---obstacles/--movers` sends to the sim (`sim_bridge.obstacles.ObstacleLayer`)
-and that the benchmark's scenario episodes (`ground_station.lab.nav.scenario`,
-`qnav bench nav`) are made of; the configuration-space raster here is also
-the one `nav.replan` plans on.
+The one definition of the discs and movers `qnav demo --obstacles/--movers`
+sends to the sim and the benchmark's scenario episodes are made of; its
+configuration-space raster is also the one `nav.replan` plans on.
 
 **Static obstacles** are discs of radius 100-200 mm placed on or beside the
 planned path: the centre at a uniform point of the waypoint polyline between
@@ -20,10 +18,8 @@ kept only if the set stays **detourable**:
    border or disc), consecutive waypoints (from the start) stay connected
    (8-connected), and the shortest raster path between them is at most
    `DETOUR_MAX_MM` longer than the same path without the discs: a local
-   detour exists. Corridors one cell (500 mm) wide never pass this with a
-   disc in them (500 - 200 < 300 + 2 x 25 mm), so obstacles land in rooms and
-   open stretches; where no position passes after `TRIES` draws, fewer than
-   k discs are placed.
+   detour exists (so never in a one-cell corridor). Where no position passes
+   after `TRIES` draws, fewer than k discs are placed.
 
 **Movers** are discs of `MOVER_RADIUS_MM` walking straight lines at a
 pedestrian's slow pace (`MOVER_SPEED_MM_S`, uniform in that range, random
@@ -80,21 +76,28 @@ def cspace(occ, cell, discs, step, clear):
     return out
 
 
-def raster_index(free: np.ndarray, x: float, y: float) -> tuple[int, int]:
-    """Nearest free raster point to (x, y) mm (the point itself when free)."""
+def _raster_point(free: np.ndarray, x: float, y: float) -> tuple[int, int]:
     ny, nx = free.shape
-    ix = min(nx - 1, max(0, int(x // RASTER_MM)))
-    iy = min(ny - 1, max(0, int(y // RASTER_MM)))
-    if free[iy, ix]:
-        return ix, iy
-    best, pick = math.inf, (ix, iy)
-    for yy in range(max(0, iy - 3), min(ny, iy + 4)):
-        for xx in range(max(0, ix - 3), min(nx, ix + 4)):
+    return min(nx - 1, max(0, int(x // RASTER_MM))), min(ny - 1, max(0, int(y // RASTER_MM)))
+
+
+def raster_nearest(free: np.ndarray, x: float, y: float, reach: int = 3) -> tuple[int, int] | None:
+    """Nearest free raster point to (x, y) mm within `reach` raster steps (None if there is none)."""
+    ny, nx = free.shape
+    ix, iy = _raster_point(free, x, y)
+    best, pick = math.inf, None
+    for yy in range(max(0, iy - reach), min(ny, iy + reach + 1)):
+        for xx in range(max(0, ix - reach), min(nx, ix + reach + 1)):
             if free[yy, xx]:
                 d = (xx - ix) ** 2 + (yy - iy) ** 2
                 if d < best:
                     best, pick = d, (xx, yy)
     return pick
+
+
+def raster_index(free: np.ndarray, x: float, y: float) -> tuple[int, int]:
+    """Nearest free raster point to (x, y) mm (the point itself when free, or when none is near)."""
+    return raster_nearest(free, x, y) or _raster_point(free, x, y)
 
 
 def _leg_lengths(gridmap: GridMap, points: list[tuple[float, float]], discs: np.ndarray,
@@ -110,7 +113,6 @@ def _raster_legs(free: np.ndarray, points: list[tuple[float, float]]) -> list[fl
     out = []
     for a, b in zip(points[:-1], points[1:], strict=True):
         ia, ib = raster_index(free, *a), raster_index(free, *b)
-        # 8-connected raster path (no corner cutting), the shared shortest-path module
         out.append(float(octile_distances(~free, ib[0], ib[1])[ia[1], ia[0]]) * RASTER_MM)
     return out
 

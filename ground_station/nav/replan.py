@@ -1,42 +1,26 @@
 """Re-planning around what the robot's range sensors find (`qnav mission upload --plan --follow`).
 
-A sector policy follows the ground station's planned waypoints; when an
-obstacle the map does not show stands across them, the robot may stall in
-front of it. Its `ProgressWatch` then says so (STATUSTEXT "no progress ...")
-while it streams its range readings (OBSTACLE_DISTANCE, BODY_FRD) and pose
-(LOCAL_POSITION_NED, ATTITUDE). This module is what the ground station does
-with that, as nav2 re-plans on an updated costmap:
+When an obstacle the map does not show stands across the planned waypoints, the
+robot may stall (STATUSTEXT "no progress ...") while it streams its range readings
+(OBSTACLE_DISTANCE, BODY_FRD) and pose; the ground station re-plans, as nav2 does:
 
-* `UnmappedPoints` turns each OBSTACLE_DISTANCE into world points: per
-  range sensor of the robot's `Layout` (its profile's, `--profile`; the
-  built-in robot's by default), the bin on that sensor's axis (the robot
-  fills the bins of each sensor's cone with its reading; the bin carries the
-  angle only to 5 deg, not which sensor, so the layout says where each
-  sensor looks), placed at the sensor's own angle on the body's rim with
-  the robot's pose interpolated to the reading's time (poses and ranges
-  stream at different rates). A reading counts only when it is at least
-  `margin_mm` shorter than what the same sensor would read on the known map
-  from that pose (the twin's exact sensor model, `learn.sector.twin.sense_one`
-  for that layout: fan of rays over its cone, its own reach), so map walls,
-  seen at any angle, never count; nor do readings beyond `max_range_mm` (a
-  cone's nearest hit lies off its axis by up to r sin(7.5 deg)), at or
-  beyond the sensor's own reach, or no echo. Points older than `window_us`
-  of robot time are forgotten (a mover walks on).
-* `raster_plan` plans on the scenario raster (`nav.obstacles`: 50 mm points
-  where the robot's disc, its profile's body radius (`--profile`; the
-  built-in 150 mm by default) grown by 75 mm, touches none of the points,
-  and grown by as much, down to what a one-cell corridor leaves, no map
-  cell), shortest 8-connected path (`maps.octile_distances` on the
-  raster: diagonal steps sqrt 2, no corner cutting, then steepest descent),
-  pruned to line-of-sight segments of at most 1 m: the waypoints a sector policy follows round the obstacle.
-* `MissionFollower` is the pure core of the follow loop (messages and
-  texts in, actions out; `follow_mission` is the thin shell on a `Link`): it
-  tracks which targets the robot has reached (MISSION_ITEM_REACHED of each
-  target's item), and on a "no progress" STATUSTEXT plans again from the
-  robot's position through the targets not yet reached around the points
-  seen, giving the new mission to upload (the robot then holds, "mission
-  replaced", and the shell restarts Auto). It gives up with a reason when
-  nothing unmapped was seen, when no path is left, or after `max_replans`.
+* `UnmappedPoints` turns each OBSTACLE_DISTANCE into world points: per range
+  sensor of the robot's `Layout` (its profile's), the bin on that sensor's axis
+  (a bin carries the angle only to 5 deg, not which sensor), placed at the
+  sensor's angle on the body's rim with the pose interpolated to the reading's
+  time (poses and ranges stream at different rates). A reading counts only when
+  at least `margin_mm` shorter than the same sensor would read on the known map
+  (the twin's sensor model, `sense_one`), so map walls never count; nor do
+  readings beyond `max_range_mm` (a cone's nearest hit lies off its axis by up
+  to r sin(7.5 deg)), at the sensor's reach, or no echo. Points older than
+  `window_us` of robot time are forgotten (a mover walks on).
+* `raster_plan` plans on the scenario raster (`nav.obstacles`) for the body
+  grown by 75 mm, shortest 8-connected path (`maps.octile_distances`, then
+  steepest descent) pruned to line-of-sight segments of at most 1 m.
+* `MissionFollower`, the follow loop's pure core (`follow_mission` its shell):
+  on "no progress" it plans from the robot's position through the targets left
+  (the robot holds on the new mission, the shell restarts Auto); it gives up
+  when nothing unmapped was seen, no path is left, or after `max_replans`.
 """
 
 from __future__ import annotations
@@ -65,9 +49,9 @@ START_SEARCH_STEPS = 8  # raster steps searched for a free start point (the robo
 @functools.lru_cache(maxsize=8)
 def _axis_bins(layout: Layout, increment_deg: float, angle_offset_deg: float) -> tuple[int | None, ...]:
     """Per sensor of `layout`, the OBSTACLE_DISTANCE bin holding its reading: of the bins the robot
-    fills from its cone (`firmware_py.mavlink.telemetry.Telemetry.obstacle_distance`: centre within
-    max(half the field of view, half a bin) of its axis), the one nearest its axis that no other
-    sensor's cone fills; the bin nearest its axis when every one is shared."""
+    fills from its cone (`Telemetry.obstacle_distance`: centre within max(half the field of view,
+    half a bin) of its axis), the one nearest its axis that no other sensor's cone fills, else
+    the bin nearest its axis."""
     if increment_deg <= 0:
         return (None,) * layout.count
     n = max(1, round(360.0 / increment_deg))
@@ -88,10 +72,9 @@ def _axis_bins(layout: Layout, increment_deg: float, angle_offset_deg: float) ->
 
 def sensor_readings(distances_cm, increment_deg: float, angle_offset_deg: float, min_cm: int,
                     max_cm: int, layout: Layout = DEFAULT_LAYOUT) -> list[int | None]:
-    """Per range sensor of `layout` (the robot profile's, in its order; the built-in robot's
-    by default) the reading in mm of an OBSTACLE_DISTANCE message in MAV_FRAME_BODY_FRD (bins
-    clockwise from the nose), from the bin on the sensor's axis (`_axis_bins`); None where it
-    holds no reading (UINT16_MAX unknown, or max_cm + 1 = nothing within range)."""
+    """Per range sensor of `layout`, in its order, the reading (mm) of an OBSTACLE_DISTANCE in
+    MAV_FRAME_BODY_FRD (bins clockwise from the nose) from the bin on its axis (`_axis_bins`);
+    None where it holds none (UINT16_MAX unknown, or max_cm + 1 = nothing within range)."""
     out: list[int | None] = []
     for i in _axis_bins(layout, increment_deg, angle_offset_deg):
         d = None
@@ -118,8 +101,8 @@ class UnmappedPoints:
 
     def observe(self, t_us: int, x_mm: float, y_mm: float, heading_rad: float,
                 readings_mm: list[int | None]) -> int:
-        """Add the unexplained readings of one scan (one per sensor of the layout, in its order)
-        taken at pose (x, y, heading CCW from east); returns how many were added."""
+        """Add the unexplained readings of one scan (per sensor of the layout) taken at pose (x, y,
+        heading CCW from east); returns how many."""
         from ground_station.learn.sector.twin import DEFAULT_TW, TwinRobot, sense_one
 
         lay = self.layout
@@ -150,20 +133,17 @@ class UnmappedPoints:
 def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: tuple[float, float],
                 goals_mm: list[tuple[float, float]], max_segment_mm: float = 1000.0,
                 radius_mm: float = robot_spec.ROBOT_RADIUS_MM) -> list[list[tuple[float, float]]]:
-    """Per goal, the waypoints (mm) from the previous one (first: start_mm) round
-    the points, on the scenario raster for a body of `radius_mm` (a profile's; the
-    built-in robot's by default) grown by the raster's margin; MapError when a leg
-    has no path."""
+    """Per goal, the waypoints (mm) from the previous one (first: start_mm) round the points, on
+    the scenario raster for a body of `radius_mm` grown by the margin; MapError when a leg has no path."""
     from ground_station.maps import MapError, octile_distances
-    from ground_station.nav.obstacles import CSPACE_MARGIN_MM, RASTER_MM, cspace
+    from ground_station.nav.obstacles import CSPACE_MARGIN_MM, RASTER_MM, cspace, raster_nearest
 
     occ = np.ascontiguousarray(gridmap.occ, dtype=np.uint8)
     cell = gridmap.cell_size_m * 1000.0
     body_mm = float(radius_mm) + CSPACE_MARGIN_MM  # round the unmapped points
     # round the map's walls the same, down to what a one-cell corridor leaves on the raster (its
-    # middle points, half a raster step off centre: 225 mm on 500 mm cells, the built-in 150 + 75): the
-    # route planned for the robot goes through such corridors, and a wider body kept 75 mm off
-    # both walls would have none left (wide_six on paper10: 11 of 296 target legs planned)
+    # middle points, half a raster step off centre): the robot's route goes through such corridors,
+    # and a wider body kept 75 mm off both walls would have none left
     wall_clear = max(float(radius_mm), min(body_mm, 0.5 * cell - 0.5 * RASTER_MM))
     free = cspace(occ, cell, np.zeros((0, 3)), RASTER_MM, wall_clear)
     ny, nx = free.shape
@@ -173,18 +153,6 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
         for x, y in points:
             d = body_mm + POINT_RADIUS_MM
             free &= ((px[None, :] - x) ** 2 + (py[:, None] - y) ** 2) >= d * d
-
-    def nearest_free(x: float, y: float) -> tuple[int, int] | None:
-        ix, iy = min(nx - 1, max(0, int(x // RASTER_MM))), min(ny - 1, max(0, int(y // RASTER_MM)))
-        best = None
-        k = START_SEARCH_STEPS
-        for yy in range(max(0, iy - k), min(ny, iy + k + 1)):
-            for xx in range(max(0, ix - k), min(nx, ix + k + 1)):
-                if free[yy, xx]:
-                    d = (xx - ix) ** 2 + (yy - iy) ** 2
-                    if best is None or d < best[0]:
-                        best = (d, xx, yy)
-        return None if best is None else (best[1], best[2])
 
     def clear(a: tuple[int, int], b: tuple[int, int]) -> bool:
         n = max(abs(b[0] - a[0]), abs(b[1] - a[1])) * 2 + 1
@@ -197,7 +165,7 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
     legs = []
     here = start_mm
     for gx, gy in goals_mm:
-        s, g = nearest_free(*here), nearest_free(gx, gy)
+        s, g = raster_nearest(free, *here, START_SEARCH_STEPS), raster_nearest(free, gx, gy, START_SEARCH_STEPS)
         if s is None or g is None:
             raise MapError(f"no free raster point near {'the robot' if s is None else 'the goal'}")
         dist = octile_distances(~free, *g)  # free[y, x]: rows are raster y, columns raster x
@@ -211,7 +179,7 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
         steps = max_segment_mm / RASTER_MM
         wps = []
         a = path[0]
-        if a != nearest_free(*here) or math.hypot(here[0] - (a[0] + 0.5) * RASTER_MM,
+        if a != raster_nearest(free, *here, START_SEARCH_STEPS) or math.hypot(here[0] - (a[0] + 0.5) * RASTER_MM,
                                                    here[1] - (a[1] + 0.5) * RASTER_MM) > RASTER_MM:
             wps.append(a)  # first step out of the obstacle's margin
         i = 0
@@ -250,9 +218,8 @@ def _wrap(a: float) -> float:
 
 @dataclass
 class MissionFollower:
-    """The follow loop's core: `handle(msg)` for the robot's LOCAL_POSITION_NED,
-    ATTITUDE, OBSTACLE_DISTANCE and MISSION_ITEM_REACHED, `text(line)` for its
-    STATUSTEXTs; each returns a `Replan` to upload, a `Finished`, or None."""
+    """The follow loop's core: `handle(msg)` for the robot's FOLLOW_TYPES messages, `text(line)`
+    for its STATUSTEXTs; each returns a `Replan` to upload, a `Finished`, or None."""
 
     gridmap: GridMap
     targets: list[tuple[int, int]]  # cells, in visiting order
@@ -270,10 +237,6 @@ class MissionFollower:
     def __post_init__(self) -> None:
         if self.seen is None:
             self.seen = UnmappedPoints(self.gridmap, layout=self.layout)
-
-    @property
-    def pose_mm(self) -> tuple[float, float] | None:
-        return None if not self._poses else self._poses[-1][1:3]
 
     def _pose_at(self, t_ms: float) -> tuple[float, float, float] | None:
         """The pose at robot time t_ms, interpolated between the poses around it."""
@@ -363,9 +326,8 @@ FOLLOW_TYPES = ["LOCAL_POSITION_NED", "ATTITUDE", "OBSTACLE_DISTANCE", "MISSION_
 
 
 def follow_mission(link, follower: MissionFollower, timeout_s: float, say) -> Finished:  # noqa: ANN001
-    """Run `follower` on `link` (a `ground_station.mavlink.link.Link`) until it
-    finishes or `timeout_s` (wall) pass: each `Replan` is uploaded and the
-    robot put back in Auto (a new mission holds it). `say(line)` reports."""
+    """Run `follower` on a `Link` until it finishes or `timeout_s` (wall) pass: each `Replan` is
+    uploaded and the robot put back in Auto (a new mission holds it). `say(line)` reports."""
     import time
 
     from firmware_py.vehicle import Mode
