@@ -19,11 +19,7 @@ from ground_station.subprocs import die_with_parent_code, free_port, stop_proces
 
 
 class CanHub:
-    """A python-can-remote hub on 127.0.0.1 for one run (a context manager).
-
-    >>> with CanHub("qnav") as hub:
-    ...     bus = open_bus(hub.spec)
-    """
+    """A python-can-remote hub on 127.0.0.1 for one run (a context manager)."""
 
     def __init__(self, channel: str = "qnav", port: int | None = None,
                  start_timeout_s: float = 15.0) -> None:
@@ -57,9 +53,8 @@ class CanHub:
         cmd = [sys.executable, "-c", die_with_parent_code() + "import runpy, sys\n"
                "runpy.run_module('can_remote', run_name='__main__', alter_sys=True)\n", *args]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        # its own session: a Ctrl-C typed in the owner's terminal goes to the terminal's whole
-        # process group and must not kill the bus before its clients have stopped (the owner
-        # stops it last, stop())
+        # its own session: a Ctrl-C typed in the owner's terminal must not kill the bus before its
+        # clients have stopped (the owner stops it last)
         self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL, env=env, start_new_session=True)
         deadline = time.monotonic() + self.start_timeout_s

@@ -1,13 +1,11 @@
 """The one-command demo (`qnav demo`): the whole system on one machine.
 
-This module owns only the orchestration (`run_demo`); every step is the
-project's own piece, used the way an operator would use it: a CAN hub,
-`qnav-sim` and `qnav-robot` as separate processes (`ProcessGroup`), one
-ground-station `Link` (its .tlog in the run folder), the policy and the map
-uploaded over MAVLink FTP, the mission from map targets, arm and Auto, the
-monitor (or, headless, the same `VehicleView` in a loop) until the mission
-completes, the vehicle faults, a process dies or the timeout passes; then
-every process stopped, whatever happened, and the run's files summarised.
+This module owns only the orchestration (`run_demo`), every step the
+project's own piece used as an operator would: a CAN hub, `qnav-sim` and
+`qnav-robot` as processes, one ground-station `Link`, policy and map uploaded
+over MAVLink FTP, the mission, arm and Auto, the monitor (or headless its
+`VehicleView`) until the mission ends, faults, a process dies or the timeout
+passes; then every process stopped, whatever happened, and the files summarised.
 
 The sim runs faster than real time in lockstep (tens of times), while the
 robot measures its GCS failsafe and its mission transfer timeouts on sim
@@ -46,9 +44,7 @@ ACTIVE_REMOTE_DIR = "/policies"
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 LOCKSTEP_HEARTBEAT_S = 0.05  # wall; ~1-2 s of robot time at the lockstep's 20-35x
 REALTIME_HEARTBEAT_S = 1.0
-# robot-clock timeouts raised to the robot's own bounds in lockstep (module docstring): the GCS failsafe,
-# and the mission transfer's re-requests (1.5 s x 4 of sim time is ~0.1 s of wall time at 30x: a
-# fresh-clone make test's demo lost its mission upload to one scheduling hiccup)
+# robot-clock timeouts raised to the robot's own bounds in lockstep (module docstring)
 LOCKSTEP_PARAMS = {name: next(p.max for p in PARAMS if p.name == name)
                    for name in ("FS_GCS_TOUT_MS", "MIS_TIMEOUT_MS", "MIS_RETRIES")}
 MAV_MISSION_STATE_COMPLETE = 5
@@ -167,10 +163,8 @@ def mission_sim_seconds(robot_stats: Path) -> float | None:
 
 
 class MissionWatch:
-    """Follows the mission from every frame the link parses (a pymavlink
-    message hook, so frames consumed by another reader count too): targets
-    reached from MISSION_ITEM_REACHED and the periodic MISSION_CURRENT,
-    robot time from LOCAL_POSITION_NED, a controller FAULT from CTRL_ST."""
+    """Follows the mission from every frame the link parses (a pymavlink message hook, so frames
+    another reader consumes count too): targets reached, robot time, a controller FAULT."""
 
     def __init__(self, total: int, target_seqs: list[int] | None = None) -> None:
         self.total = total  # mission items
@@ -215,8 +209,8 @@ class MissionWatch:
         elif kind == "STATUSTEXT":  # whole texts, as every other reader sees them
             for st in self._assembler.add(msg, time.monotonic()):
                 self.texts.append(st.text)
-                # the controller holds for good (bumper, or NAV_STALL_S without progress: "item N: stalled:
-                # ..."); waiting out the timeout tells nothing (and in lockstep fills the logs ~20x real time)
+                # the controller holds for good (bumper, or NAV_STALL_S without progress): waiting out
+                # the timeout tells nothing
                 if self.start_wall is not None and not self.stopped and holds_for_good(st.text):
                     self.stopped = f"stopped: {st.text}"
         if self.complete and self.done_wall is None:
@@ -238,24 +232,17 @@ class MissionWatch:
 
     @property
     def sim_seconds(self) -> float | None:
-        if self.done_ms is None or self.start_ms is None:
-            return None
-        return (self.done_ms - self.start_ms) / 1000
+        return None if self.done_ms is None or self.start_ms is None else (self.done_ms - self.start_ms) / 1000
 
     @property
     def mission_wall_seconds(self) -> float | None:
-        if self.done_wall is None or self.start_wall is None:
-            return None
-        return self.done_wall - self.start_wall
+        return None if self.done_wall is None or self.start_wall is None else self.done_wall - self.start_wall
 
 
 class ThreadedSource:
-    """A `LiveSource` whose frames a background thread reads as they arrive.
-
-    In lockstep the robot's telemetry comes tens of times faster than real
-    time; a dashboard that reads the socket only between redraws lets the
-    kernel's UDP buffer overflow. The LiveSource keeps its other duties
-    (GCS heartbeat, POLICY_ID requests), called from `poll`."""
+    """A `LiveSource` whose frames a background thread reads as they arrive: in lockstep a
+    dashboard reading the socket only between redraws lets the kernel's UDP buffer overflow.
+    The LiveSource keeps its other duties (GCS heartbeat, POLICY_ID requests), run from `poll`."""
 
     finished = False
 
@@ -356,7 +343,7 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
 
 
 def _upload_map(link, grid_map, run_dir: Path, say: Callable[[str], None]) -> None:
-    """The map the sim plays becomes the robot's own (`qnav map upload`, issue 32): it localises and plans
+    """The map the sim plays becomes the robot's own (`qnav map upload`): it localises and plans
     on the world it is in, whatever map its policy was trained on."""
     from ground_station.maps import write_map
     from ground_station.mavlink.ftp_upload import upload_map
@@ -373,8 +360,7 @@ def _upload_map(link, grid_map, run_dir: Path, say: Callable[[str], None]) -> No
 
 def mission_plan(opts: DemoOptions, grid_map, start_mm: tuple[float, float], planned: bool,
                  plan_kw: dict | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
-    """(mission items, item index of each target): the targets' centres, or
-    with `planned` the ground station's waypoints through them."""
+    """(mission items, item index of each target): the targets' centres, or planned waypoints."""
     from ground_station.mavlink.mission_items import planned_items, target_cells, target_items
 
     if planned:
@@ -385,9 +371,8 @@ def mission_plan(opts: DemoOptions, grid_map, start_mm: tuple[float, float], pla
 
 def demo_scenario(opts: DemoOptions, grid_map, start_mm: tuple[float, float],
                   items: list[tuple[int, int, int]]) -> dict:
-    """Seeded unmapped obstacles for the demo: up to `obstacles` detourable
-    discs along the whole mission path and `movers` movers
-    (`ground_station.nav.obstacles`, the definition the benchmark uses)."""
+    """Seeded unmapped obstacles: up to `obstacles` detourable discs along the mission path and
+    `movers` movers (`ground_station.nav.obstacles`, as the benchmark places them)."""
     import numpy as np
 
     from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
@@ -480,9 +465,8 @@ def _wait_tui(source, view, grid_map, watch: MissionWatch, procs: ProcessGroup, 
                 self.verdict = _verdict(watch, procs, deadline)
                 if self.verdict:
                     self.sub_title = f"{self.verdict} - closing"
-                    # leave the final picture up a moment; after a completed mission until the
-                    # robot's own "mission complete" line is in the log too (its texts can trail
-                    # the MISSION_ITEM_REACHED that ended the watch on a loaded machine), 10 s at most
+                    # leave the final picture up a moment; after a completed mission until the robot's
+                    # own "mission complete" line (it can trail MISSION_ITEM_REACHED), 10 s at most
                     self.closing_at = time.monotonic() + (10.0 if self.verdict == "mission complete" else 2.0)
                     self.set_timer(2.0, self.close_when_shown)
 
@@ -517,14 +501,10 @@ def _write_mcap(out: Path, paths: dict[str, Path], grid_map, say: Callable[[str]
 
 def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
              status: Callable[[str], None] | None = None) -> DemoSummary:
-    """Run the whole demo; returns the summary (also written to the run folder).
-
-    `say` gets one line per step; `status` (headless only) a monitor status
-    line per second. Bad options (map, targets, policy file) raise
-    DemoError before anything starts; a step that fails later ends the run
-    with `result` "error: ..." and `ok` False, Ctrl-C with "interrupted",
-    after the same clean-up.
-    """
+    """Run the whole demo; the summary (also written to the run folder). `say` gets one line per
+    step, `status` (headless) a monitor status line per second. Bad options raise DemoError
+    before anything starts; a later failed step ends the run with `result` "error: ...", Ctrl-C
+    with "interrupted", after the same clean-up."""
     say = say or (lambda _line: None)
     t0 = time.monotonic()
     from ground_station.canhub import CanHub
@@ -559,8 +539,7 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
             pol = load_policy(str(policy))
         except PolicyError:
             pol = None  # the robot's loader judges it on upload and gives the reason
-        if pol is not None and opts.plan is None:
-            # a sector policy steers to the planner's waypoints
+        if pol is not None and opts.plan is None:  # a sector policy steers to the planner's waypoints
             planned = pol.kind == "sector"
         if pol is not None and pol.kind == "sector":
             plan_kw = guidance_from_metadata(pol.metadata)
@@ -636,8 +615,8 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
                                 "--lockstep" if not opts.realtime else "--sim-clock", "--start", start,
                                 "--storage", str(storage), "--mavlink", f"udpout:127.0.0.1:{port}",
                                 "--stats-json", str(paths["robot_stats"]),
-                                # the demo's plant is ideal (exact encoders): dead reckoning is exact there, and
-                                # the localiser's corridor jitter (~0.1 m) made 2 of 19 runs clip a corner
+                                # the demo's plant is ideal (exact encoders): dead reckoning is exact, and
+                                # the localiser's corridor jitter (~0.1 m) could clip a corner
                                 "--localiser", "off",
                                 *(["--profile", str(opts.profile)] if opts.profile is not None else []),
                                 die_with_parent=True)

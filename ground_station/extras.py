@@ -1,11 +1,10 @@
 """The `qnav[station]` extra: which imports the ground station and the sim need beyond the robot's.
 
-`pip install qnav` is the robot (python-can, cantools, pymavlink, pyserial).
-`qnav` and `qnav-sim` also need the packages of the `station` extra; their
-entry points call `require_station(prog)` first, which refuses with one line
-naming what is missing and the install command instead of a traceback from
-deep inside a command. Looks the modules up without importing them (numba
-alone takes a second to import). Stdlib only: it runs before anything heavy.
+`pip install qnav` is the robot; `qnav` and `qnav-sim` also need the `station`
+extra. Their entry points call `require_station(prog)` first, which refuses with
+one line naming what is missing instead of a traceback from deep inside a
+command. It looks the modules up without importing them (numba alone takes a
+second). Stdlib only: it runs before anything heavy.
 """
 
 from __future__ import annotations

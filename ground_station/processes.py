@@ -1,14 +1,11 @@
 """Our programs as child processes, for the rigs, benches, fault scenarios and the demo.
 
-The one place that starts and stops `qnav-robot`, `qnav-sim`, the robot's
-standalone FTP shell and the reflex controller as children:
 `program_argv` runs a program's `main()` with this interpreter and SIGINT
 restored (a parent started in the background passes SIGINT ignored on to its
 children, which would then never end cleanly); `ChildProcess` is one child,
 its output in a log file, stopped for sure (SIGINT so it writes its outputs,
-then SIGTERM, SIGKILL); `RobotProcess` and `robot_ftp_process` are the robot
-and its FTP shell alone; `ProcessGroup` several children, each in its own
-session, stopped in order; `other_processes` finds what a run left behind.
+then SIGTERM, SIGKILL); `ProcessGroup` several, each in its own session,
+stopped in order; `other_processes` finds what a run left behind.
 """
 
 from __future__ import annotations
@@ -69,8 +66,7 @@ def qnav_sim(*args: str | Path, die_with_parent: bool = False) -> list[str]:
 
 
 class ChildProcess:
-    """One child process; see the module docstring. Use as a context manager or
-    call `start()` and `stop()`."""
+    """One child process (module docstring): a context manager, or `start()` and `stop()`."""
 
     def __init__(self, argv: list[str], log: Path | None, *, own_group: bool = False,
                  append_log: bool = False) -> None:
@@ -143,14 +139,10 @@ class ChildProcess:
 
 
 class RobotProcess(ChildProcess):
-    """`qnav-robot` listening for MAVLink on `udpin:127.0.0.1:PORT` (ground
-    stations and the link emulator send to it), its storage in `storage`.
-
-    Without `can` it gets a private in-process `virtual` bus: no sensors, so it
-    stays disarmed in STANDBY, which is all uploads, activations and parameter
-    saves need. Its log is appended to, so a restarted robot adds to it.
-    `kill9()` is the crash; `stop()` the clean end (its shutdown joins two
-    threads with 5 s timeouts, hence the 20 s grace)."""
+    """`qnav-robot` listening for MAVLink on `udpin:127.0.0.1:PORT`, its storage in `storage`.
+    Without `can` it gets a private in-process `virtual` bus: no sensors, so it stays disarmed in
+    STANDBY, all that uploads, activations and parameter saves need. Its log is appended to (a
+    restarted robot adds to it). `stop()`'s 20 s grace: its shutdown joins two 5 s threads."""
 
     def __init__(self, storage: Path, *, port: int | None = None, key_file: Path | None = None,
                  can: str | None = None, extra: list[str] | None = None, log: Path | None = None) -> None:
@@ -180,10 +172,8 @@ class RobotProcess(ChildProcess):
 @contextlib.contextmanager
 def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None,
                       log: Path | None = None) -> Iterator[subprocess.Popen]:
-    """The robot's standalone FTP shell (`python -m ground_station.lab.rigs.ftp_shell`) in a
-    child process, once it serves; always stopped on exit.
-
-    Its output goes to `log` (default: root/../<root name>.log)."""
+    """The robot's standalone FTP shell in a child process, once it serves; always stopped on
+    exit. Its output goes to `log` (default: root/../<root name>.log)."""
     args = ["--root", str(root), "--mavlink", url]
     if key_file is not None:
         args += ["--signing-key", str(key_file)]
@@ -203,8 +193,7 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
 
 
 class ProcessGroup:
-    """Named children, each in its own session/process group, stopped in the
-    order they were started."""
+    """Named children, each in its own session/process group, stopped in the order started."""
 
     def __init__(self) -> None:
         self.children: list[tuple[str, ChildProcess]] = []

@@ -1,18 +1,14 @@
 """`qnav sitl`: a simulated robot that stays up, as ArduPilot's sim_vehicle.py does.
 
 Owns the bring-up of one vehicle for stock ground stations: a CAN bus (a
-python-can-remote hub on 127.0.0.1, or the `--can` spec given), `qnav-sim`
-paced at `speed` times real time and `qnav-robot` on the sim's clock, each a
-child in its own process group (`ProcessGroup`); then it waits for Ctrl-C /
-SIGTERM, the optional wall-clock `duration_s`, or a child's death, and stops
-every child (the hub last). Nothing here drives the robot: ground stations
-connect with the strings `connection_help()` prints. On UDP the robot sits
-behind a `TlogRelay` recording every frame into the run folder's
-`mavlink.tlog`, from which `run.mcap` is built on stop (docs/monitor.md).
-The robot's HEARTBEAT is awaited through a probe that announces itself as an
-onboard controller (not a GCS, so the GCS failsafe is not armed by it); at
-`speed` > 1 it raises FS_GCS_TOUT_MS and MIS_TIMEOUT_MS by the speed, since
-the robot measures them on sim time. docs/hil.md, "SITL", has the rest.
+python-can-remote hub, or `--can`), `qnav-sim` paced at `speed` times real time
+and `qnav-robot` on the sim's clock (`ProcessGroup`); then it waits for Ctrl-C,
+`duration_s` or a child's death and stops every child (the hub last). Ground
+stations connect with the strings `connection_help()` prints. On UDP a
+`TlogRelay` records every frame into `mavlink.tlog` (run.mcap on stop). The
+HEARTBEAT probe announces itself as an onboard controller (no GCS, so it arms
+no failsafe); at `speed` > 1 it raises FS_GCS_TOUT_MS and MIS_TIMEOUT_MS by the
+speed, since the robot measures them on sim time. docs/hil.md, "SITL".
 """
 
 from __future__ import annotations
@@ -84,8 +80,7 @@ class SitlInfo:
 
 @dataclass(frozen=True)
 class WaitResult:
-    """Why `Sitl.wait` returned: `reason` to print; `child_died` (a process
-    ended by itself, exit status 1) or not (--duration reached)."""
+    """Why `Sitl.wait` returned: `reason` to print; `child_died` (exit status 1) or --duration."""
 
     reason: str
     child_died: bool
@@ -123,10 +118,9 @@ def validate(opts: SitlOptions) -> None:
 
 
 def port_in_use(url: str) -> str | None:
-    """None when the port a listening robot (udpin:/tcpin:HOST:PORT) would bind is free, else the one-line
-    reason. pymavlink binds with SO_REUSEADDR, so a second robot on the port would start anyway and two
-    robots would share it (each ground-station frame reaching one of them); a probe bind without it fails
-    while anything holds the port. A sending robot (udpout:, tcp:) or a serial device binds nothing."""
+    """None when the port a listening robot (udpin:/tcpin:HOST:PORT) would bind is free, else the
+    one-line reason. pymavlink binds with SO_REUSEADDR, so two robots could share a port (each GCS
+    frame reaching one of them); a probe bind without it fails while anything holds the port."""
     import socket
 
     scheme, _, rest = url.partition(":")
@@ -146,9 +140,8 @@ def port_in_use(url: str) -> str | None:
 
 
 def describe_exits(codes: dict[str, int | None]) -> str:
-    """The children's ends for the last line: "sim 0, robot interrupted (SIGINT)". A negative
-    Popen status is the signal that ended the child (an early Ctrl-C stops it before it set up its
-    own handler), not an exit code to show as -2."""
+    """The children's ends for the last line: "sim exit 0, robot interrupted (SIGINT)". A negative
+    Popen status is the signal that ended the child (an early Ctrl-C, before its own handler)."""
     import signal
 
     def one(code: int | None) -> str:
@@ -211,13 +204,8 @@ def connection_help(info: SitlInfo) -> list[str]:
 def _mavsdk_address(gcs_url: str) -> str:
     scheme, _, rest = gcs_url.partition(":")
     host, _, port = rest.rpartition(":")
-    if scheme == "udpout":
-        return f"udpout://{host}:{port}"
-    if scheme == "udpin":
-        return f"udpin://{host}:{port}"
-    if scheme == "tcp":
-        return f"tcpout://{host}:{port}"
-    return gcs_url
+    mavsdk = {"udpout": "udpout", "udpin": "udpin", "tcp": "tcpout"}.get(scheme)
+    return f"{mavsdk}://{host}:{port}" if mavsdk else gcs_url
 
 
 def load_world(map_name: str):  # type: ignore[no-untyped-def]
@@ -309,9 +297,8 @@ class Sitl:
                             "--log", run_dir / "can.blf", "--trajectory", run_dir / "trajectory.csv", "-q",
                             *(["--profile", str(opts.profile)] if opts.profile is not None else []),
                             die_with_parent=True)
-        # the robot knows the world it is in (a policy for another map is refused, naming both): the map is
-        # in its storage as the one `qnav map upload` leaves (/maps/active.map, its targets beside it), which
-        # it serves to ground stations over MAVLink FTP, as a real robot's
+        # the robot knows the world it is in (a policy for another map is refused): the map is in its
+        # storage as `qnav map upload` leaves it, served to ground stations over MAVLink FTP
         from firmware_py.atomic import atomic_write
         from firmware_py.storage import ACTIVE_MAP
         from ground_station.maps import write_map
@@ -332,7 +319,6 @@ class Sitl:
                                 die_with_parent=True)
         if policy:  # the robot boots it from its storage, as a real robot does: its FTP server then
             # has it as /policies/active.qtab, where `qnav mission upload --targets` reads the robot's map
-            from firmware_py.atomic import atomic_write
             from firmware_py.storage import ACTIVE_POLICY
 
             active = run_dir / "robot" / ACTIVE_POLICY.lstrip("/")
@@ -434,9 +420,8 @@ class Sitl:
         return self.exit_codes
 
     def _write_mcap(self, run_dir: Path) -> None:
-        """run.mcap from the relay's mavlink.tlog, what the sim and robot wrote (CAN log, ground truth,
-        robot.log) and the map: the whole run, as `qnav log mcap RUN_DIR` makes it; a progress line
-        each second while it is written."""
+        """run.mcap of the whole run (tlog, CAN log, ground truth, robot.log, map), as `qnav log mcap
+        RUN_DIR` makes it; a progress line each second while it is written."""
         can_log, traj, tlog = run_dir / "can.blf", run_dir / "trajectory.csv", run_dir / "mavlink.tlog"
         tlog_ok = tlog.is_file() and tlog.stat().st_size > 0
         if not can_log.is_file() and not tlog_ok:

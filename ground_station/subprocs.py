@@ -1,12 +1,9 @@
 """Child processes and loopback ports, for whatever starts other programs.
 
-Owns the helpers every launcher needs (the CAN hub, the benches, the
-demo, the tests): a port on 127.0.0.1 that was free a moment ago,
-stopping a child for sure (a signal, a grace period, then SIGKILL), and a
-child that does not outlive its starter (`die_with_parent_code`).
-
-Stdlib only: firmware_py uses it, and ground_station, sim_bridge and the
-tests import it from here.
+Owns the helpers every launcher needs: a port on 127.0.0.1 that was free a
+moment ago, stopping a child for sure (a signal, a grace period, then SIGKILL),
+and a child that does not outlive its starter (`die_with_parent_code`).
+Stdlib only: the tests of every package import it.
 """
 
 from __future__ import annotations
@@ -38,9 +35,7 @@ Process = subprocess.Popen[bytes] | subprocess.Popen[str]
 def stop_process(proc: Process, timeout_s: float = 5.0, sig: int = signal.SIGTERM, *,
                  group: bool = False) -> int:
     """Send `sig` if `proc` still runs, wait up to timeout_s, then SIGKILL; the exit code.
-
-    `group`: signal the child's whole process group (a child started with
-    start_new_session=True leads its own group, pgid == pid)."""
+    `group`: signal the process group of a child started with start_new_session=True."""
     if proc.poll() is None:
         signal_process(proc, sig, group=group)
         try:
@@ -63,12 +58,9 @@ def signal_process(proc: Process, sig: int, *, group: bool = False) -> None:
 def die_with_parent_code() -> str:
     """Python source for the start of a child's `-c`: the child gets SIGTERM when the process
     starting it dies (Linux prctl PR_SET_PDEATHSIG), and exits at once if that is already gone.
-
-    Children in their own session (so a Ctrl-C typed at the starter does not hit them before it
-    stops them in order) are otherwise orphaned when the starter is killed (SIGKILL, a crash): a
-    `qnav sitl` killed that way left its lockstep sim, robot and hub running on at full speed. ""
-    when called off the main thread: the signal follows the starting *thread*, and a pool thread
-    ends while its children should run on."""
+    Children in their own session are otherwise orphaned when the starter is killed. "" off the
+    main thread: the signal follows the starting *thread*, and a pool thread ends while its
+    children should run on."""
     if threading.current_thread() is not threading.main_thread():
         return ""
     return ("import ctypes, os, signal\n"
