@@ -1,7 +1,5 @@
 """Seeded map generators: random density, rooms with doors, U-shaped traps,
-mazes/corridors.
-
-Every generator takes an explicit `seed`, returns a `GridMap` without
+mazes/corridors. Every generator takes an explicit `seed`, returns a `GridMap` without
 targets, and keeps only the largest 4-connected free region (other free
 pockets become obstacles), so every free cell can reach every other one.
 Same arguments -> same map.
@@ -61,14 +59,10 @@ def rooms_map(width: int, height: int, room: int = 4, seed: int = 0, name: str |
     # doors: in each horizontal wall row, one gap per room column span; same for vertical
     for wr in range(room, height, step):
         for c0 in range(0, width, step):
-            span = [c for c in range(c0, min(c0 + room, width))]
-            if span:
-                occ[wr, int(rng.choice(span))] = False
+            occ[wr, int(rng.choice(range(c0, min(c0 + room, width))))] = False
     for wc in range(room, width, step):
         for r0 in range(0, height, step):
-            span = [r for r in range(r0, min(r0 + room, height))]
-            if span:
-                occ[int(rng.choice(span)), wc] = False
+            occ[int(rng.choice(range(r0, min(r0 + room, height)))), wc] = False
     return GridMap(name or f"rooms-{width}x{height}-r{room}-s{seed}", _keep_largest_region(occ))
 
 
