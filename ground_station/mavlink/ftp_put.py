@@ -471,7 +471,7 @@ class FtpPut:
                 return None
             known = [b for b in acked if b <= top] + ([top] if top in pending else [])
             base = self._content(length, known)
-            found = solve_gf2([self._content_crc(length, [u]) for u in below], remote ^ ftp_crc32(base))
+            found = solve_gf2([ftp_crc32(self._content(length, [u])) for u in below], remote ^ ftp_crc32(base))
             if found is not None:
                 answers.append([below[i] for i in found] + ([top] if top in pending else []))
             if top not in pending:
@@ -484,9 +484,6 @@ class FtpPut:
             off = b * self.block
             buf[off:off + self.block] = self.data[off:min(off + self.block, length)]
         return buf
-
-    def _content_crc(self, length: int, blocks: list[int]) -> int:
-        return ftp_crc32(self._content(length, blocks))
 
     def _fail(self, what: str, data: bytes, text: str = "") -> None:
         self.state, self.nak = "failed", data

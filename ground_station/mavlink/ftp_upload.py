@@ -96,13 +96,8 @@ class FtpSession:
                 self.listener(payload)
 
     def client(self):
-        """The link's one pymavlink MAVFTP client, made on first use.
-
-        Its request seq counts on for the link's whole life (the put and the
-        single requests take theirs from it too), so a late or duplicated
-        reply to an earlier request can never be matched to a later one. Its
-        ResetSessions (sent when it is made) is not waited for: the first real
-        request, asked until answered, tells whether the robot serves FTP."""
+        """The link's one pymavlink MAVFTP client, made on first use. Its ResetSessions is not
+        waited for: the first real request, asked until answered, tells whether the robot serves FTP."""
         if self._ftp is None:
             settings = self.mavftp.MAVFTPSettings(
                 [(name, type(value), value) for name, value in DEFAULT_FTP_SETTINGS.items()])
@@ -124,12 +119,10 @@ class FtpSession:
 
     def ask(self, opcode: int, data: bytes, wait_s: float, what: str, session: int = 0,
             offset: int = 0) -> tuple[int, bytes]:
-        """A single-reply request that may safely run twice (CRC, RemoveFile),
-        three times at first (the copies are answered from the robot's retry
-        cache: a lost frame costs no timeout), then again (new seq) until the
-        robot answers, for at most `wait_s`; three copies at first, then one after 3 x the
-        put's smoothed RTT (0.3 s before any put), doubling up to 1 s. Returns (opcode, data) of the first answered copy;
-        a late reply to an earlier copy counts too (they all ask the same)."""
+        """A single-reply request that may safely run twice (CRC, RemoveFile): three copies at first
+        (the robot's retry cache answers them), then again with a new seq after 3 x the put's
+        smoothed RTT (0.3 s before any put), doubling up to 1 s, for at most `wait_s`. Returns
+        (opcode, data) of the first answered copy, a late reply to an earlier one included."""
         deadline = time.monotonic() + wait_s
         seqs: list[int] = []
         rto = max(0.1, 3 * self.srtt) if self.srtt is not None else 0.3
@@ -141,8 +134,8 @@ class FtpSession:
             sent_at[seq] = time.monotonic()
             payload = ftp_put.request(seq, session, opcode, offset, data)
             self.send(payload)
-            if len(seqs) == 1:  # copies at once: the robot's retry cache answers them, three chances
-                self.send(payload)  # (a copy is a few ms of air; a timeout, 0.3 s)
+            if len(seqs) == 1:  # a copy is a few ms of air; a timeout, 0.3 s
+                self.send(payload)
                 self.send(payload)
             until = min(deadline, time.monotonic() + rto)
             while True:
@@ -237,11 +230,9 @@ DEFAULT_FTP_SETTINGS = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_bac
 
 
 def quick(settings) -> None:
-    """Single-reply operations (CRC, Rename, RemoveFile, TerminateSession)
-    have no completion signal in MAVFTP: it waits `idle_detection_time` of
-    silence after the reply. A 57600 link answers a short request in tens of ms, so wait 0.4 s
-    instead of 3.7 s; a reply later than that counts as lost, the caller asks
-    again and still accepts the late reply."""
+    """MAVFTP ends a single-reply operation (CRC, Rename, RemoveFile) after `idle_detection_time`
+    of silence: 0.4 s instead of 3.7 s (a 57600 link answers in tens of ms); a later reply counts
+    as lost, the caller asks again and still accepts it."""
     settings.read_retry_time = 0.3
     settings.idle_detection_time = 0.4
 
@@ -253,11 +244,8 @@ def _left(deadline: float) -> float:
 def upload_policy(link: Link, local: Path, remote: str, *, activate: bool = False,
                   deadline_s: float = 300.0, attempts: int = 8,
                   progress: Callable[[float | None], None] | None = None) -> UploadResult:
-    """Put `local` at `remote` on the robot over the connected `link`, verify
-    its CRC, optionally activate.
-
-    Raises LinkError (exit codes 3, 4, 5). `progress(fraction)` is called during the put.
-    """
+    """Put `local` at `remote` over the connected `link`, verify its CRC, optionally activate.
+    Raises LinkError (exit codes 3, 4, 5); `progress(fraction)` is called during the put."""
     from firmware_py.policy import PolicyError, load_policy
     from firmware_py.storage import ftp_crc32
 
@@ -418,15 +406,13 @@ def _activate(session: FtpSession, ftp, res: UploadResult, deadline: float, dead
             return
         if refused:
             _raise_refusal(link, texts_from, res.local_error)
-        # Not (yet) the new policy. Still under its own name: the rename did not
-        # happen (request or reply lost) -> send it again.
+        # Still under its own name: the rename did not happen (request or reply lost): again.
         remote_crc = session.remote_crc(res.remote, max(2.0, wait))
         if remote_crc == res.crc:
             status = f"{res.remote} still in place after {res.renames} rename(s)"
             send_rename = True
             continue
-        # The file left its name: the robot renamed it. Its POLICY_* mirror
-        # follows within a control tick.
+        # The file left its name: renamed. Its POLICY_* mirror follows within a control tick.
         if not params:
             _confirm_crc(session, res, deadline, "file moved + active.qtab CRC32 (robot serves no parameters)")
             return
@@ -441,12 +427,9 @@ def _activate(session: FtpSession, ftp, res: UploadResult, deadline: float, dead
 
 
 def _activate_unreadable(session: FtpSession, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
-    """Activation of a file our policy loader refuses (`res.local_error`): the
-    robot still judges it - it runs the same loader, so its refusal (NAK Fail
-    + STATUSTEXT reason, exit 3) is the expected end. Should it take the file
-    anyway, its POLICY_* cannot be checked against a file we cannot read:
-    exit 5. A lost reply is resolved as in `_activate`: while the file is
-    still under its own name, the rename is sent again."""
+    """Activation of a file our policy loader refuses (`res.local_error`): the robot runs the same
+    loader, so its refusal (exit 3) is the expected end; should it take the file, its POLICY_*
+    cannot be checked (exit 5). While the file is still under its own name, the rename is re-sent."""
     link, mavftp = session.link, session.mavftp
     rename_seqs: list[int] = []
     texts_from = len(link.texts)

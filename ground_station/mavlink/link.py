@@ -32,6 +32,7 @@ import contextlib
 import math
 import os
 import struct
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -47,10 +48,8 @@ EXIT_REFUSED, EXIT_TIMEOUT, EXIT_MISMATCH = 3, 4, 5
 DEFAULT_URL = "udpin:127.0.0.1:14550"
 DEFAULT_TLOG_DIR = Path("runs") / "tlogs"
 DEFAULT_TIMEOUT_S = 10.0  # heartbeat wait
-# Our own MAVLink identity. System 255 is the ground station's (the robot's SYSID_MYGCS
-# default: only its heartbeats keep the GCS failsafe alive); component 25
-# (MAV_COMP_ID_USER1), not QGroundControl's 190 or MAVProxy's 230, so that with either of
-# them on the same link the robot's FTP sessions and command replies keep the two apart.
+# Our own MAVLink identity: system 255, the robot's SYSID_MYGCS default; component 25
+# (MAV_COMP_ID_USER1), so replies to QGroundControl (190) or MAVProxy (230) on the same link stay apart.
 GCS_SYSID, GCS_COMPID = 255, 25
 MAV_TYPE_GCS = 6
 MAV_STATE_UNINIT = 0
@@ -166,15 +165,9 @@ def _id_arg(what: str, lo: int):  # type: ignore[no-untyped-def]
 
 def add_link_args(parser: argparse.ArgumentParser, *, timeout_s: float = DEFAULT_TIMEOUT_S,
                   timeout_help: str | None = None, url_default: str | None = DEFAULT_URL) -> None:
-    """The one link-argument set of every MAVLink command: --mavlink,
-    --signing-key, --tlog/--no-tlog, --timeout (> 0), --target-system,
-    --source-system, --source-component.
-
-    `--timeout` is the heartbeat wait unless the command gives it a wider
-    meaning (`timeout_s`, `timeout_help`: `qnav upload`'s whole budget).
-    The URL is checked when parsed (one-line error, exit 2). `QNAV_MAVLINK` in the environment
-    replaces the default URL (a session's robot, set once: `export QNAV_MAVLINK=udpout:127.0.0.1:14555`);
-    it is checked like the option."""
+    """The link options of every MAVLink command. `--timeout` is the heartbeat wait unless the
+    command gives it a wider meaning (`timeout_s`, `timeout_help`: `qnav upload`'s whole budget).
+    The URL, or `QNAV_MAVLINK` replacing the default, is checked when parsed (exit 2)."""
     if url_default == DEFAULT_URL:
         url_default = default_url()
     parser.add_argument("--mavlink", metavar="URL", default=url_default, type=_url_arg,
@@ -209,11 +202,9 @@ RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
 
 
 def _widen_receive_buffer(conn: Any) -> None:
-    """A UDP link's kernel receive buffer to 4 MiB (Linux's default is ~200 kB): a robot on a sim
-    clock running 30x real time streams 30x its telemetry, and while a dashboard draws, a burst
-    overflowed the default and its once-sent STATUSTEXTs were lost (the demo's dashboard missed
-    'mission complete'). Best effort: SO_RCVBUFFORCE where allowed (root, CAP_NET_ADMIN), else
-    SO_RCVBUF, which the kernel caps at net.core.rmem_max; serial links have none."""
+    """A UDP link's kernel receive buffer to 4 MiB: a robot on a fast sim clock streams its telemetry
+    faster, and a burst overflowing Linux's default loses once-sent STATUSTEXTs. Best effort:
+    SO_RCVBUFFORCE where allowed, else SO_RCVBUF (capped at net.core.rmem_max); serial has none."""
     import socket
 
     port = getattr(conn, "port", None)
@@ -567,12 +558,9 @@ class Link:
 
     def read_params(self, names: Iterable[str], budget_s: float = 10.0,
                     want: dict[str, float] | None = None) -> dict[str, float | None]:
-        """Values of `names` the robot sent after this call began (None: not
-        answered within `budget_s`). A name is asked again every
-        PARAM_ASK_INTERVAL_S until answered - a lost PARAM_VALUE is only a
-        retry - and, with `want`, until it equals its wanted value (the robot
-        updates its read-only POLICY_* mirror on the next control tick).
-        Returns as soon as every name is answered (and matches `want`)."""
+        """Values of `names` the robot sent after this call began (None: not answered within
+        `budget_s`). A name is asked again every PARAM_ASK_INTERVAL_S until answered and, with
+        `want`, until it equals its wanted value (the POLICY_* mirror follows on the next tick)."""
         names = list(names)
         t0 = time.monotonic()
         end = t0 + budget_s
@@ -619,11 +607,9 @@ class Link:
                              "(its geodetic origin, which global mission items are placed around)")
 
     def use_global_frame(self) -> tuple[int, int, int]:
-        """From now on `mission_upload` sends LOCAL_NED items as MISSION_ITEM_INT in
-        MAV_FRAME_GLOBAL_RELATIVE_ALT around the robot's origin (what ArduPilot and
-        QGroundControl use), so every ground station's map shows them where they are;
-        the robot converts them back with the same flat-earth formulas (within 6 mm).
-        Returns the origin."""
+        """From now on `mission_upload` sends LOCAL_NED items in MAV_FRAME_GLOBAL_RELATIVE_ALT around
+        the robot's origin (as ArduPilot and QGroundControl do), so every ground station's map shows
+        them where they are. Returns the origin."""
         origin = self.origin()
         self.mission_origin = origin[0], origin[1]
         return origin
@@ -706,14 +692,12 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
               connect_timeout_s: float | None = None) -> Link:
     """Open and connect a `Link` from the common command-line options (the
     heartbeat wait is `--timeout` unless `connect_timeout_s` is given)."""
-    import sys
-
     tlog: str | Literal[False] | None = False if getattr(args, "no_tlog", False) else getattr(args, "tlog", None)
     url = args.mavlink or DEFAULT_URL
+    from ground_station.errors import CliError
+
     problem = check_url(url)
     if problem is not None:
-        from ground_station.errors import CliError
-
         raise CliError(f"--mavlink {problem}")
     try:
         link = Link(url, signing_key=args.signing_key, tlog=tlog, name=name, heartbeat=heartbeat,
@@ -721,12 +705,8 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
                     source_system=getattr(args, "source_system", GCS_SYSID),
                     source_component=getattr(args, "source_component", GCS_COMPID))
     except ValueError as exc:  # bad key file
-        from ground_station.errors import CliError
-
         raise CliError(str(exc)) from exc
     except OSError as exc:
-        from ground_station.errors import CliError
-
         raise CliError(f"cannot open {url}: {exc}") from exc
     try:
         link.connect(connect_timeout_s if connect_timeout_s is not None
@@ -741,8 +721,6 @@ def open_link(args: argparse.Namespace, name: str, heartbeat: bool = False,
 
 def run_on_link(args: argparse.Namespace, name: str, body: Callable[[Link], int]) -> int:
     """Open the link, run `body`, print a LinkError as one line with its exit code."""
-    import sys
-
     try:
         with open_link(args, name) as link:
             code = body(link)
@@ -757,8 +735,6 @@ def run_on_link(args: argparse.Namespace, name: str, body: Callable[[Link], int]
 
 def warn_foreign(link: Link, name: str) -> None:
     """One stderr line when frames from systems other than our robot were ignored."""
-    import sys
-
     if link.foreign_frames:
         counts = ", ".join(f"system {s}: {n}" for s, n in sorted(link.foreign_frames.items()))
         print(f"qnav {name}: warning: ignored frames from other systems ({counts}); "

@@ -90,14 +90,8 @@ def target_items(targets: str, gm) -> list[tuple[int, int, int]]:
     from firmware_py import robot_spec
 
     cell_mm = round(gm.cell_size_m * 1000)
-    names = [t.strip() for t in targets.split(",") if t.strip()]
-    if not names:
-        raise CliError("--targets is empty")
     items = []
-    for name in names:
-        if name not in gm.targets:
-            raise CliError(f"map {gm.name} has no target {name!r} (has {', '.join(sorted(gm.targets))})")
-        col, row = gm.targets[name]
+    for col, row in target_cells(targets, gm):
         x_mm, y_mm = robot_spec.cell_center_mm(col, row, gm.height, cell_mm)
         items.append((mavlink().MAV_FRAME_LOCAL_NED, y_mm * LOCAL_ITEM_SCALE // 1000, x_mm * LOCAL_ITEM_SCALE // 1000))  # north, east
     return items
@@ -129,7 +123,6 @@ def _check_wpl_lines(path: str) -> None:
 
 def file_items(path: str) -> list[tuple[int, int, int]]:
     """NAV_WAYPOINT items of a QGC WPL file, as MISSION_ITEM_INT (frame, x, y)."""
-
     m = mavutil().mavlink  # MAVLINK20 set before mavwp pulls in pymavlink
     from pymavlink import mavwp
     _check_wpl_lines(path)

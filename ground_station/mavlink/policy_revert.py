@@ -5,17 +5,13 @@ runs and boots, and `/policies/last_good.qtab`, the one it ran before the last a
 falls back to it). Both are read-only over FTP (the server's PROTECTED set): only an activation
 moves them. So a revert, on a connected `Link`:
 
-1. reads what the robot runs (its POLICY_ID_HI/LO parameters) and `/policies/last_good.qtab`
-   (pymavlink's MAVFTP), the copy checked against the robot's CalcFileCRC32 of the file;
-2. puts those bytes back as `/policies/revert.qtab` and renames that onto `/policies/active.qtab`:
-   `ftp_upload.upload_policy`, so the robot validates and activates it as any upload (and refuses
-   it as any upload, e.g. while it drives), and the verdict comes from the robot's POLICY_* and the
-   CRC32 of its active.qtab. The activation moves the policy it ran into last_good.qtab, so a
-   second revert goes forward again.
+1. reads what the robot runs (POLICY_ID_HI/LO) and `/policies/last_good.qtab`, the copy checked
+   against the robot's CalcFileCRC32 of the file;
+2. puts those bytes back as `/policies/revert.qtab` and activates it with
+   `ftp_upload.upload_policy`, so the robot validates, activates or refuses it as any upload; the
+   policy it ran moves into last_good.qtab, so a second revert goes forward again.
 
-Raises `LinkError` with the upload's exit codes: 3 refused (the robot has no last good policy, it
-already runs that one, or it refused the activation: its reason), 4 no answer in time, 5 what the
-robot reports is not what was sent (the copy's CRC32, the policy after the rename).
+Raises `LinkError` with the upload's exit codes (3 refused, 4 no answer in time, 5 mismatch).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The map the robot drives on, asked from the robot instead of repeated by hand (issues 30, 45).
+"""The map the robot drives on, asked from the robot instead of repeated by hand.
 
 `robot_map(link)` reads, with pymavlink's MAVFTP client, the robot's own
 `/maps/active.map` (what `qnav map upload` leaves, its targets in

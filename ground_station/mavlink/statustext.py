@@ -10,10 +10,8 @@ is a text in one frame.
 `add(msg, now)` returns the whole texts the message completes, `flush(now)`
 returns texts whose chunks stopped arriving (`STALE_S` after the last one:
 an omitted terminator or a lost chunk still yields the text, with `[...]`
-where a chunk is missing). The link (`ground_station.mavlink.link.Link`,
-used by every MAVLink command) and the monitor's `VehicleView` (the
-dashboard, `--plain` and `qnav report`) both use it, so a reason reads the
-same everywhere and as MAVProxy shows it.
+where a chunk is missing). `Link` and the monitor's `VehicleView` both use
+it, so a reason reads the same everywhere and as MAVProxy shows it.
 """
 
 from __future__ import annotations

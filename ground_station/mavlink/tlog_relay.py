@@ -1,4 +1,4 @@
-"""A UDP relay in front of a robot's MAVLink that records the session as a .tlog (issue 46, item 3).
+"""A UDP relay in front of a robot's MAVLink that records the session as a .tlog.
 
 `qnav sitl` puts the robot behind it so that the run's own telemetry is
 recorded whatever ground station connects (or none): the robot sends to
