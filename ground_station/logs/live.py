@@ -5,9 +5,8 @@ its web app pointed at ws://127.0.0.1:PORT) shows the robot on its map.
 
 `HandshakeGate` owns the public port and relays a connection, byte for byte,
 to the SDK's server on a random loopback address only when its Origin is
-allowed (or absent) and it carries the token, if one is set (issue 43); it
-serves both subprotocol names, `foxglove.sdk.v1` and `foxglove.websocket.v1`
-(issue 46). `/map` is latched (sent again to a new subscriber and on
+allowed (or absent) and it carries the token, if one is set; it serves both
+subprotocol names, `foxglove.sdk.v1` and `foxglove.websocket.v1`. `/map` is latched (sent again to a new subscriber and on
 `set_map`). Read-only unless `--foxglove-goals`: then a `/goal` a client
 publishes is checked as `qnav goal` checks it and queued, and the monitor's
 loop sends it (`take_goals`, one thread on the link) only while the robot's
@@ -119,9 +118,6 @@ class HandshakeGate:
         self.origins = frozenset(normalise_origin(o) for o in origins)
         self.token = token or None
         self.on_refuse = on_refuse
-        self.refused = 0
-        self.relayed = 0
-        self.legacy = 0  # clients let in with foxglove.websocket.v1
         self._listener = socket.create_server((host, port))
         self.port = self._listener.getsockname()[1]
         self._socks: set[socket.socket] = set()
@@ -196,7 +192,6 @@ class HandshakeGate:
             head, rest = read
             status, why, relay_head = self.check(head)
             if status:
-                self.refused += 1
                 phrase = {400: "Bad Request", 401: "Unauthorized", 403: "Forbidden"}.get(status, "Forbidden")
                 body = f"qnav monitor: {why}\n".encode()
                 client.sendall(f"HTTP/1.1 {status} {phrase}\r\nContent-Type: text/plain\r\n"
@@ -215,10 +210,8 @@ class HandshakeGate:
                     return
                 answer_head, after = answer
                 client.sendall(as_legacy_answer(answer_head) + b"\r\n\r\n" + after)
-                self.legacy += 1
             client.settimeout(None)
             upstream.settimeout(None)
-            self.relayed += 1
             back = threading.Thread(target=self._pump, args=(upstream, client), name="foxglove-gate-down",
                                     daemon=True)
             back.start()
@@ -256,8 +249,7 @@ class HandshakeGate:
 
 
 def _read_head(sock: socket.socket) -> tuple[bytes, bytes] | None:
-    """An HTTP head from `sock` and the bytes after it; None if the peer closed first or it is over
-    HEAD_LIMIT."""
+    """An HTTP head from `sock` and the bytes after it; None if the peer closed first or it is too long."""
     buf = b""
     while b"\r\n\r\n" not in buf:
         chunk = sock.recv(4096)
@@ -299,12 +291,9 @@ class FoxgloveBridge:
         self.sink = TopicSink(self.context)
         self.goals_enabled = goals
         self.goals: queue.SimpleQueue[tuple[float, float]] = queue.SimpleQueue()
-        self.refused_goals = 0
-        self.dropped_goals = 0  # parsed, but the robot was not in Guided
         self._client_topics: dict[tuple[int, int], str] = {}
         self._said: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()  # lines for /log, from any thread
         self._map_wanted = threading.Event()  # a client subscribed to /map: send it again (latched)
-        self.map_sends = 0
         self._log_ns = 0
         bridge = self
 
@@ -338,9 +327,7 @@ class FoxgloveBridge:
         self._write_map(0)
 
     def _write_map(self, ns: int) -> None:
-        records = self.topics.map_grid(ns, again=True)
-        self.sink.write(records)
-        self.map_sends += len(records)
+        self.sink.write(self.topics.map_grid(ns, again=True))
 
     def set_map(self, grid_map, t_wall: float) -> None:
         """A new map (the robot's, read or changed): sent now to every subscriber of /map."""
@@ -349,8 +336,7 @@ class FoxgloveBridge:
         self._write_map(self.topics.robot_ns(t_wall) or 0)
 
     def flush_map(self, t_wall: float) -> None:
-        """The map again if a client subscribed to /map since the last call (called from the monitor's
-        thread)."""
+        """The map again if a client subscribed to /map since the last call (monitor's thread)."""
         if self._map_wanted.is_set():
             self._map_wanted.clear()
             self._write_map(self.topics.robot_ns(t_wall) or 0)
@@ -384,14 +370,12 @@ class FoxgloveBridge:
         if topic != GOAL_TOPIC:
             return
         if not self.goals_enabled:  # the server offers no publishing then; never act on it regardless
-            self.refused_goals += 1
             self.say("goal from Foxglove refused: the bridge is read-only (qnav monitor --foxglove-goals)",
                      warning=True)
             return
         try:
             self.goals.put(parse_goal(bytes(data)))
         except ValueError as exc:  # never raised into the server's thread
-            self.refused_goals += 1
             self.say(f"goal from Foxglove refused: {exc}", warning=True)
 
     def guided_now(self, t_wall: float) -> tuple[bool, str]:
@@ -461,7 +445,6 @@ class BridgedSource:
             if ok:
                 self.send_goal(x, y)
             else:
-                self.bridge.dropped_goals += 1
                 self.bridge.say(f"goal from Foxglove x={x:.2f} y={y:.2f} m dropped: {why}", warning=True)
         self.bridge.flush_log(now)
         return batch

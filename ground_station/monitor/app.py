@@ -53,9 +53,6 @@ def render_map(view: VehicleView, grid_map=None) -> Text:
         width = max(10, int(math.ceil(max(xs, default=0) / cell_m)) + 1)
         height = max(10, int(math.ceil(max(ys, default=0) / cell_m)) + 1)
 
-    def inside(c: tuple[int, int]) -> bool:
-        return 0 <= c[0] < width and 0 <= c[1] < height
-
     trail = {_cell_of(x, y, height, cell_m) for x, y in view.trail}
     mission = {_cell_of(x, y, height, cell_m) for x, y in view.mission.items.values()}
     goal = view.goal_estimate()
@@ -82,7 +79,7 @@ def render_map(view: VehicleView, grid_map=None) -> Text:
             else:
                 out.append("· ", style="grey35")
         out.append("\n")
-    if robot_cell is not None and not inside(robot_cell):
+    if robot_cell is not None and not (0 <= robot_cell[0] < width and 0 <= robot_cell[1] < height):
         out.append(f"robot off the map at x={view.x:.2f} y={view.y:.2f} m\n", style="bold red")
     return out
 

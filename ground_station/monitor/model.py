@@ -8,13 +8,10 @@ line and `qnav report` all read the same view, and tests drive it with
 pymavlink-encoded messages.
 
 Clocks: `t` is the receive time; the robot's own time base is `robot_s` (its
-`time_boot_ms`, from every message that carries one; sim time in HIL), which
-the monitor's stamps and `qnav report` use whenever the robot sends it. One
-vehicle: the view locks onto one system id and counts frames from other
-systems in `foreign`; a second process with the same id shows as another
-time base and is ignored (`time_conflicts`), a reboot or a pause in the
-telemetry is followed (REBOOT_S, REBOOT_FRAMES, PAUSE_*): the rules are in
-docs/monitor.md, `qnav monitor`.
+`time_boot_ms`; sim time in HIL). One vehicle: the view locks onto one system
+id and counts frames from other systems in `foreign`; a second process with
+the same id is ignored (`time_conflicts`), a reboot or a pause is followed:
+the rules are in docs/monitor.md, `qnav monitor`.
 
 Frames: MAVLink LOCAL_POSITION_NED has x north, y east; the view stores
 positions in the project's world frame (`firmware_py.robot_spec`: x east, y north,
@@ -43,8 +40,7 @@ NV_QROW_LEN = "Q_N"  # the row's length, sent before Q0..Qn: the row is taken wh
 _QROW_RE = re.compile(r"^Q(\d+)$")
 # the robot's stall report (firmware_py.control.controller.Controller._stalled): "[item N: ]stalled: WHY, D mm to go"
 _STALL_RE = re.compile(r"^(item \d+: )?stalled: ")
-POLICY_PARAM = "POLICY_ID"  # read-only parameter (firmware_py/mavlink/params.py)
-# its exact halves: a 32-bit id does not survive the float32 of PARAM_VALUE (0xb5d6060c arrived as 3050702336)
+# POLICY_ID's exact halves: a 32-bit id does not survive the float32 of PARAM_VALUE
 POLICY_ID_HALVES = ("POLICY_ID_HI", "POLICY_ID_LO")
 
 MODE_NAMES = {m.value: m.name.capitalize() for m in Mode}
@@ -65,14 +61,11 @@ FORWARDS_MS = 10_000  # ... or this far ahead (timed telemetry comes at >= 1 Hz 
 SEQ_WINDOW = 32  # with two time bases heard: an untimed frame is ours if its seq follows ours this closely
 REBOOT_S = 3.0  # only the other time base heard for this long (receive time): a reboot
 # ... or for this many timed frames in a row, none of ours between them: a second process
-# sharing our id interleaves its frames with ours (a tick's burst is ~10 timed frames), while
-# our own robot after frames were lost (a starved reader in a lockstep run drops 10 s of sim
-# time in a fraction of a second, then reads on) is the only voice - and a lockstep mission
-# can end within REBOOT_S of receive time, with the view's pose frozen where the loss began.
+# sharing our id interleaves its frames with ours, while our own robot after lost frames
+# (a starved reader in a lockstep run) is the only voice, and may finish within REBOOT_S.
 REBOOT_FRAMES = 50
 # A jump ahead by more than FORWARDS_MS from the very process we follow (its frame's seq is
-# within this of our last one): the robot went quiet while its clock ran on (a lockstep sim
-# outruns a starved link thread by 10 s of sim time in a second of wall time), not a second process.
+# within this of our last one): the robot went quiet while its clock ran on, not a second process.
 PAUSE_SEQ_WINDOW = 4
 PAUSE_MAX_SPEEDUP = 50.0  # ... and no faster than this many robot seconds per receive second
 
@@ -167,11 +160,8 @@ def _runs(bins: list[int]) -> list[tuple[int, int]]:
 
 
 class VehicleView:
-    """Latest known state of one vehicle (by default the first rover heard).
-
-    Messages from other systems (the GCS itself, a radio) are ignored, except
-    mission items addressed to the vehicle, which tell us the mission targets.
-    """
+    """Latest known state of one vehicle (by default the first rover heard). Messages from other
+    systems are ignored, except mission items addressed to it, which tell us the mission targets."""
 
     def __init__(self, sysid: int | None = None, trail_max: int = _TRAIL_MAX) -> None:
         self.sysid = sysid
@@ -181,14 +171,10 @@ class VehicleView:
         self.link = LinkHealth()
         self._last_seq: dict[int, int] = {}  # compid -> seq
         # HEARTBEAT
-        self.mav_type: int | None = None
         self.mode: int | None = None
         self.armed = False
         self.system_status: int | None = None
-        # SYS_STATUS
-        self.sensors_present = 0
-        self.sensors_health = 0
-        self.load_pct: float | None = None
+        self.load_pct: float | None = None  # SYS_STATUS
         # pose (world frame: x east, y north, metres; heading CCW from east)
         self.boot_ms: int | None = None  # time_boot_ms of the last LOCAL_POSITION_NED
         self.boot_ms_last: int | None = None  # newest time_boot_ms of any message
@@ -230,7 +216,6 @@ class VehicleView:
         self.log_total = 0  # lines ever appended (the deque keeps the last _LOG_MAX)
         self.stalls = 0  # the robot's stall reports heard (drives it held for getting nowhere, NAV_STALL_S)
         self._texts = StatusTextAssembler()
-        self.last_ack: tuple[int, int] | None = None  # (command, result)
         self.counts: dict[str, int] = {}
         self.version = 0  # bumped on every accepted message (redraw-if-changed)
         # the robot's time base (see the module docstring)
@@ -241,9 +226,8 @@ class VehicleView:
         self._conflict_since: float | None = None
         self._candidate_ms: int | None = None  # newest time_boot_ms of the other time base
         self._candidate_frames = 0  # its timed frames in a row, each consistent with the one before
-        # the other time base's STATUSTEXTs (following its frames in sequence), logged if it turns out
-        # to be our robot after lost frames (`_robot_clock` adopts it): texts are sent once, unlike
-        # the telemetry that comes again
+        # the other time base's STATUSTEXTs, logged if it turns out to be our robot after lost
+        # frames (`_robot_clock` adopts it): texts are sent once, unlike telemetry
         self._candidate_seq: dict[int, int] = {}
         self._held_texts: deque = deque(maxlen=_LOG_MAX)
         self._adopted = False
@@ -359,8 +343,7 @@ class VehicleView:
         return True
 
     def flush_texts(self) -> None:
-        """Log every chunked STATUSTEXT still waiting for a chunk (as far as it
-        goes): at the end of a recording nothing more will come."""
+        """Log every chunked STATUSTEXT still waiting for a chunk: at the end of a recording."""
         if self._texts.pending():
             self._log_texts(self._texts.flush(None))
             self.version += 1
@@ -402,9 +385,8 @@ class VehicleView:
         return last is None or 0 < (msg.get_seq() - last) % 256 <= window
 
     def robot_clock(self, t: float | None = None) -> float | None:
-        """Seconds of robot time since the first timed message (sim time in HIL).
-        With a receive time `t`: the newest robot time plus the receive time
-        since it arrived (for messages that carry no time of their own)."""
+        """Seconds of robot time since the first timed message; with a receive time `t`, plus the
+        receive time since the newest one arrived (for messages that carry no time of their own)."""
         if self.robot_s is None or self.robot_s0 is None:
             return None
         ahead = 0.0 if t is None else max(0.0, t - self._robot_rx_t)
@@ -453,7 +435,6 @@ class VehicleView:
     def _on_heartbeat(self, msg, t: float) -> None:
         self.link.last_heartbeat_t = t
         self.compid = msg.get_srcComponent()
-        self.mav_type = msg.type
         self.mode = msg.custom_mode
         self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         self.system_status = msg.system_status
@@ -462,8 +443,6 @@ class VehicleView:
         self.robot_unix_us = int(msg.time_unix_usec)
 
     def _on_sys_status(self, msg, t: float) -> None:
-        self.sensors_present = msg.onboard_control_sensors_present
-        self.sensors_health = msg.onboard_control_sensors_health
         self.load_pct = msg.load / 10.0
         self.link.drop_rate_comm_pct = msg.drop_rate_comm / 100.0
         self.link.rx_dropped = msg.errors_comm
@@ -591,7 +570,6 @@ class VehicleView:
             self.policy_id = (int(hi) << 16) | int(lo)
 
     def _on_statustext(self, msg, t: float) -> None:
-        # chunked texts are reassembled by id/chunk_seq (the link's assembler)
         self._log_texts(self._texts.add(msg, t))
 
     def _log_texts(self, texts: list[StatusText]) -> None:
@@ -604,7 +582,6 @@ class VehicleView:
         self.log_total += 1
 
     def _on_command_ack(self, msg, t: float) -> None:
-        self.last_ack = (msg.command, msg.result)
         try:
             cmd = mavlink.enums["MAV_CMD"][msg.command].name.removeprefix("MAV_CMD_")
             res = mavlink.enums["MAV_RESULT"][msg.result].name.removeprefix("MAV_RESULT_")

@@ -215,7 +215,7 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
                 item["target"] = name
         reached_items.append(item)
     faults = _episodes(rec.fault_events)
-    summary = {
+    return {
         "tlog": rec.path,
         "messages": rec.messages,
         "vehicle_sysid": view.sysid,
@@ -227,9 +227,8 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
         "wall_duration_s": round(rec.wall_s, 3),
         "ignored": {"other_systems": {str(k): v for k, v in sorted(view.foreign.items())},
                     "clock_behind_frames": view.time_conflicts, "reboots": view.reboots},
-        # from the first move (the controller DRIVING), as `qnav demo`'s sim_seconds: from arming it
-        # would count how long the operator took to switch to Auto (in a lockstep run, seconds of sim
-        # time per few wall milliseconds); from arming only for a robot that does not report its state
+        # from the first move (the controller DRIVING), as `qnav demo`'s sim_seconds, not from arming
+        # (the operator's delay); from arming only for a robot that does not report its state
         "time_to_last_goal_s": (round(goal_times[-1] - (rec.first_driving if rec.first_driving is not None
                                                         else rec.first_armed or 0.0), 3) if goal_times else None),
         "goals_reached": len(goal_times),
@@ -249,7 +248,6 @@ def summarise(rec: RunRecord, grid_map=None) -> dict:
         "actions_source": "NAMED_VALUE_INT ACTION samples (telemetry rate, not every control tick)",
         "timing": _timing(rec),
     }
-    return summary
 
 
 def _timing(rec: RunRecord) -> dict:

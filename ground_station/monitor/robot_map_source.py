@@ -1,4 +1,4 @@
-"""The robot's own map for the monitor's dashboard and its Foxglove bridge (issue 46, item 1).
+"""The robot's own map for the monitor's dashboard and its Foxglove bridge.
 
 `RobotMapSource` wraps a `LiveSource`: once a robot is heard it reads the
 map the robot drives on over the monitor's own link, as `qnav mission
@@ -44,7 +44,6 @@ class RobotMapSource:
         self.want_sysid = target_system
         self.grid_map: Any = None
         self.map_version = 0
-        self.reads = 0  # robot_map() calls (the first, then one per change seen)
         self._key: tuple[int | None, int | None] | None = None  # (map CRC, policy CRC) of the map read
         self._target: tuple[int, int] | None = None
         self._held: list[tuple[object, float]] = []
@@ -100,7 +99,6 @@ class RobotMapSource:
             if key == self._key:
                 return
             self._key = key
-            self.reads += 1
             gm = robot_map(link)
         except LinkError as exc:
             self._gave_up = True

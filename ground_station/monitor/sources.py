@@ -128,10 +128,8 @@ class ReplaySource:
         self._t0_log: float | None = None
         self._t0_wall: float | None = None
         self._t_log = 0.0
-        self.finished = False
         self._read_next()
-        if self._pending is None:
-            self.finished = True
+        self.finished = self._pending is None
 
     def _read_next(self) -> None:
         while True:
@@ -182,12 +180,11 @@ def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: 
               on_wait: Callable[[str], None] | None = None,
               until: Callable[[VehicleView], bool] | None = None, where: str = "",
               where_note: str = "") -> int:
-    """Feed `view` from `source`, printing a status line every `period_s` of
-    source time and a last one at the end. Ends at the end of a replay, after
-    `duration` wall seconds, once `until(view)` holds (after a last line), or
-    when no vehicle was heard within `no_robot_s` wall seconds (then without a
-    status line; the caller sees `view.sysid is None`). `on_wait(line)` is told once what we wait for after 1 s without a
-    vehicle (`where`: " on URL", `where_note`: where the URL came from). Returns the number of lines printed."""
+    """Feed `view` from `source`, printing a status line every `period_s` of source time and a last
+    one at the end. Ends at the end of a replay, after `duration` wall seconds, once `until(view)`
+    holds, or when no vehicle was heard within `no_robot_s` (no last line; `view.sysid` is None).
+    `on_wait(line)` is told after 1 s without a vehicle what we wait for (`where`: " on URL",
+    `where_note`: where the URL came from). Returns the number of lines printed."""
     start = wall()
     next_line: float | None = None
     lines = 0
@@ -234,9 +231,8 @@ def run_plain(source: MessageSource, view: VehicleView, out: IO[str], duration: 
 
 
 def _stamp(view: VehicleView, now: float) -> str:
-    """The clock, named: `[robot 155.7s]` the robot's (sim time in HIL, which need not be wall time:
-    `qnav sitl --speed 4` runs it at 4x) once it sends one, else `[recv 1.0s]`, the receive time since the
-    first message."""
+    """The clock, named: `[robot 155.7s]` the robot's (sim time in HIL, not necessarily wall time) once
+    it sends one, else `[recv 1.0s]`, the receive time since the first message."""
     robot = view.robot_clock(now)
     if robot is not None:
         return f"[robot {robot:8.1f}s] "
