@@ -52,9 +52,8 @@ ROBOT_LOG_DIR = "/logs"  # firmware_py.onboard_log.LOG_DIR under the robot's sto
 
 
 def plain_name_problem(name: str) -> str | None:
-    """Why `name` (a log file's name, from the robot's listing or the command line) is not a plain file
-    name to write inside --out, or None: not empty, not '.' or '..', no separator, no NUL (issue 43 finding
-    7: a listing with '../x' or an absolute name made `qnav log pull` write outside --out)."""
+    """Why `name` (from the robot's listing or the command line) is not a plain file name to write
+    inside --out (no '../x' or absolute name escapes it), or None."""
     import os
 
     if name in ("", ".", ".."):

@@ -36,10 +36,9 @@ policy that steers to the planner's waypoints (trained with
 the margins and body radius that policy was trained with (read from its file
 on the robot, as the map is): the table only ever learnt to reach the next of
 those waypoints, a few cells off with the map leaving the straight line
-clear. Sent the targets alone it steered straight at a target metres away
-with walls between, as its twin's `direct` column says it fails (issue 47: a
-policy at 0.989 in the twin on its own 12x10 map, 0.455 direct, stalled at
-the end of a wall on its first leg). `--no-plan` sends the targets alone.
+clear; sent the targets alone it steers straight at targets metres away with
+walls between, where its twin's `direct` column says it fails. `--no-plan`
+sends the targets alone.
 
 Download: prints the robot's mission in the frames it was uploaded in (world
 metres, x east / y north, beside the latitude/longitude of global items) and

@@ -201,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
         for also in said:
             also(line)
 
-    if wants_map and map_spec is None:  # the robot's own map (issue 46)
+    if wants_map and map_spec is None:  # the robot's own map
         from ground_station.monitor.robot_map_source import RobotMapSource
 
         source = RobotMapSource(source, say, target_system=args.target_system)

@@ -78,9 +78,7 @@ def robot_parameter_metadata(link) -> dict[str, dict]:
     try:
         data = read_robot_file(link, PARAMETER_FILE)
         return {p["name"]: p for p in json.loads(data)["parameters"]} if data else {}
-    except (ValueError, KeyError, TypeError):  # not qnav's metadata: values only
-        return {}
-    except LinkError:  # a robot without FTP: values only
+    except (ValueError, KeyError, TypeError, LinkError):  # not qnav's metadata, or no FTP: values only
         return {}
 
 

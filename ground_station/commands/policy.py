@@ -147,6 +147,16 @@ def run(args: argparse.Namespace) -> int:
     return 0 if all(d["valid"] for d in results) else 2
 
 
+def _read(path: str) -> bytes:
+    from ground_station.errors import CliError
+
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError as exc:
+        raise CliError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
 def _replace(out: str, data: bytes) -> str:
     """Write `data` to `out` atomically (a crash leaves the old file); returns `out`."""
     from firmware_py.atomic import atomic_write
@@ -164,11 +174,7 @@ def run_upgrade(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
     from ground_station.learn.export import geometry_of_map
 
-    try:
-        with open(args.file, "rb") as f:
-            data = f.read()
-    except OSError as exc:
-        raise CliError(f"cannot read {args.file}: {exc.strerror or exc}") from None
+    data = _read(args.file)
     geometry: MapGeometry | None = None
     # a sector 1.x file needs its training map; anything else goes straight to upgrade_policy's checks
     is_old_sector = len(data) >= HEADER_V1.size and data[4] == 1 and data[12] == 2  # major, kind bytes
@@ -194,12 +200,9 @@ def run_attach_map(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
     from ground_station.learn.export import attach_map
 
+    data = _read(args.file)
     try:
-        with open(args.file, "rb") as f:
-            data = f.read()
         name = args.map or load_policy(data).metadata.get("map")
-    except OSError as exc:
-        raise CliError(f"cannot read {args.file}: {exc.strerror or exc}") from None
     except PolicyError as exc:
         raise CliError(f"{args.file}: {exc}") from None
     if not isinstance(name, str) or not name:
