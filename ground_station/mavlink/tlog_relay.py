@@ -83,8 +83,6 @@ class TlogRelay:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
         self._robot_addr: tuple[str, int] | None = None
-        self.frames = {"robot": 0, "gcs": 0}
-        self.dropped = 0  # datagrams with nowhere to go yet (no GCS has sent; the robot not heard)
         self._file = open(self.tlog_path, "wb")  # noqa: SIM115 - closed in close()
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -95,15 +93,12 @@ class TlogRelay:
         """What the robot is given as its --mavlink: it sends to the relay from its first frame."""
         return f"udpout:127.0.0.1:{self.robot_sock.getsockname()[1]}"
 
-    def _record(self, data: bytes, side: str) -> None:
-        usec = int(time.time() * 1e6) & ~3
-        stamp = struct.pack(">Q", usec)
-        frames = split_frames(data)
-        self.frames[side] += len(frames)
+    def _record(self, data: bytes) -> None:
+        stamp = struct.pack(">Q", int(time.time() * 1e6) & ~3)
         with self._lock:
             if self._file.closed:
                 return
-            self._file.write(b"".join(stamp + f for f in frames))
+            self._file.write(b"".join(stamp + f for f in split_frames(data)))
 
     def _run(self) -> None:
         next_flush = time.monotonic() + FLUSH_S
@@ -118,17 +113,15 @@ class TlogRelay:
                     data, addr = sock.recvfrom(65536)
                 except OSError:
                     continue
+                self._record(data)
                 if sock is self.robot_sock:
                     self._robot_addr = addr
-                    self._record(data, "robot")
                     dest, out = self._gcs_addr, self.gcs_sock
                 else:
                     if not self._gcs_fixed:
                         self._gcs_addr = addr
-                    self._record(data, "gcs")
                     dest, out = self._robot_addr, self.robot_sock
-                if dest is None:
-                    self.dropped += 1
+                if dest is None:  # nowhere to go yet (no GCS has sent; the robot not heard)
                     continue
                 with contextlib.suppress(OSError):  # nobody listening there (yet): as a UDP link is
                     out.sendto(data, dest)
