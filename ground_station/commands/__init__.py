@@ -10,11 +10,8 @@ from types import ModuleType
 
 def add_module_subparsers(sub: argparse._SubParsersAction, package: ModuleType, only: str | None = None) -> None:
     """Every module of `package` exposing `add_subparser(sub)` becomes a subcommand, in name order.
-
-    With `only` naming one of them (a module's `COMMANDS`, else its name), that one alone: a
-    subparser's options may import much (`qnav bench` loads every benchmark), and one command
-    needs only its own parser. A name no module has builds them all, so argparse lists the
-    choices in its error."""
+    With `only` naming one of them (a module's `COMMANDS`, else its name), that one alone (a parser
+    may import much); a name no module has builds them all, so argparse lists the choices."""
     modules = [importlib.import_module(f"{package.__name__}.{info.name}")
                for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name)]
     modules = [m for m in modules if hasattr(m, "add_subparser")]

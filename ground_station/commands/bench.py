@@ -15,6 +15,4 @@ from ground_station.lab import bench
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="run a benchmark (prints a table, writes JSON)",
                        description=__doc__)
-    inner = p.add_subparsers(dest="bench", metavar="NAME")
-    inner.required = True
-    add_module_subparsers(inner, bench)
+    add_module_subparsers(p.add_subparsers(dest="bench", metavar="NAME", required=True), bench)

@@ -6,20 +6,18 @@ position target in Guided only and never switches to Guided for one; a
 refused mode exits 3 with the robot's reason), then sends the goal as
 SET_POSITION_TARGET_LOCAL_NED (north = Y, east = X). The robot
 answers an accepted goal with POSITION_TARGET_LOCAL_NED and a refused one
-with a STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4 (the
-exchange is `mavlink.link.Link.set_goal`). X and Y must be finite numbers
-within the robot's local range (200 km), else exit 2 before connecting.
+with a STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4. X and Y
+must be finite numbers within the robot's local range (200 km), else exit 2
+before connecting.
 
 With `--plan` (for sector policies, which steer to the bearing of the
 current target and need the planner's intermediate waypoints) the goal
 goes instead as a mission of the planner's waypoints (on `--map`, by default
-the robot's own map, read from its active policy) from the
-robot's position (its LOCAL_POSITION_NED, or `--start X,Y`) to the goal's
-cell, and the robot is switched to Auto to drive it (planning:
-`mavlink.mission_items.planned_goal_items`). `--profile FILE.toml`: segments
-that keep the profile's body clear, as `qnav mission upload --plan --profile`
-plans them (default the built-in robot's). `--start` and `--profile` need
-`--plan`.
+the robot's own map, read from its active policy) from the robot's position
+(its LOCAL_POSITION_NED, or `--start X,Y`) to the goal's cell, and the robot
+is switched to Auto to drive it. `--profile FILE.toml`: segments that keep the
+profile's body clear, as `qnav mission upload --plan --profile` plans them
+(default the built-in robot's). `--start` and `--profile` need `--plan`.
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
-"""`qnav upload FILE [--activate]`: put a policy on the robot over MAVLink FTP
-(the put engine in ground_station/mavlink/ftp_put.py; pymavlink for the rest), prove it arrived byte-exact, and optionally
-activate it; the verdict comes from the robot's state (its POLICY_ID and
-POLICY_CRC_HI/LO parameters plus the CRC32 of active.qtab), never from one
-reply. Steps and retries: docs/mavlink.md, "Uploading a policy"
-(`ground_station.mavlink.ftp_upload`).
+"""`qnav upload FILE [--activate]`: put a policy on the robot over MAVLink FTP,
+prove it arrived byte-exact, and optionally activate it; the verdict comes
+from the robot's state (its POLICY_ID and POLICY_CRC_HI/LO parameters plus
+the CRC32 of active.qtab), never from one reply. Steps and retries:
+docs/mavlink.md, "Uploading a policy".
 
 `--timeout` is the whole upload's budget; of it at most 10 s go to waiting
 for the robot's heartbeat.

@@ -458,10 +458,8 @@ class Link:
         raise self.no_answer(f"{name}: no COMMAND_ACK after {retries + 1} tries")
 
     def set_goal(self, x_m: float, y_m: float, timeout_s: float = 1.5, retries: int = 3) -> None:
-        """Guided goal at world (x east, y north) metres: SET_POSITION_TARGET_LOCAL_NED
-        (north = y, east = x, position only), re-sent until the robot echoes it in
-        POSITION_TARGET_LOCAL_NED; raises with its "goal refused: ..." STATUSTEXT
-        (however many chunks it took) or on silence."""
+        """Guided goal at world (x east, y north) metres, re-sent until the robot echoes it in
+        POSITION_TARGET_LOCAL_NED; raises with its "goal refused: ..." STATUSTEXT or on silence."""
         since = len(self.texts)
         mask = 0xFFF8  # position only
         for _ in range(retries):
