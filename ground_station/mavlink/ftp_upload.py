@@ -1,6 +1,5 @@
 """Policy upload over MAVLink FTP on a `Link`: put a policy on the robot,
-prove it arrived byte-exact, and optionally activate it. `qnav upload`, the
-demo, the upload bench and the fault scenarios all run `upload_policy`.
+prove it arrived byte-exact, and optionally activate it (`upload_policy`).
 
 The steps (RemoveFile, the put of `ftp_put.FtpPut`, CalcFileCRC32, the
 Rename onto /policies/active.qtab) and why the verdict comes from the
@@ -67,10 +66,8 @@ class UploadResult:
 
 
 class FtpSession:
-    """A link's one pymavlink MAVFTP client (its seq counter is the link's),
-    the shell that runs `ftp_put.FtpPut` and quick single requests, and every
-    FTP reply overheard, by (request opcode, reply seq). Made by
-    `ftp_session(link)` on the first FTP request; the link must be connected."""
+    """A link's one MAVFTP client, the shell that runs `ftp_put.FtpPut` and quick single requests,
+    and every FTP reply overheard. Made by `ftp_session(link)`; the link must be connected."""
 
     def __init__(self, link: Link) -> None:
         mavutil()  # MAVLINK20 before pymavlink is imported
@@ -492,8 +489,7 @@ SIGNATURE = 13
 
 
 def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0, block: int = WRITE_BLOCK) -> float:
-    """Link time of the WriteFile frames alone (design.md section 3), in
-    `block`-byte writes: 80 (pymavlink's, the issue's yardstick) or 239 (the
-    largest: the least time any MAVLink FTP client can take)."""
+    """Link time of the WriteFile frames alone (design.md section 3), in `block`-byte writes:
+    80 (pymavlink's) or 239 (the largest: the least time any MAVLink FTP client can take)."""
     blocks = -(-size // block)
     return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s
