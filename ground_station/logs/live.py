@@ -1,17 +1,15 @@
-"""The live Foxglove bridge (`qnav monitor --foxglove`): the topics of
-`ground_station.logs.topics`, published from the MAVLink link as it runs on
-foxglove-sdk's WebSocket server (127.0.0.1 only), so Foxglove (desktop, or
-its web app pointed at ws://127.0.0.1:PORT) shows the robot on its map.
+"""The live Foxglove bridge (`qnav monitor --foxglove`): the topics of `ground_station.logs.topics`,
+published from the MAVLink link as it runs on foxglove-sdk's WebSocket server (127.0.0.1 only),
+so Foxglove (desktop, or its web app pointed at ws://127.0.0.1:PORT) shows the robot on its map.
 
-`HandshakeGate` owns the public port and relays a connection, byte for byte,
-to the SDK's server on a random loopback address only when its Origin is
-allowed (or absent) and it carries the token, if one is set; it serves both
-subprotocol names, `foxglove.sdk.v1` and `foxglove.websocket.v1`. `/map` is latched (sent again to a new subscriber and on
-`set_map`). Read-only unless `--foxglove-goals`: then a `/goal` a client
-publishes is checked as `qnav goal` checks it and queued, and the monitor's
-loop sends it (`take_goals`, one thread on the link) only while the robot's
-latest HEARTBEAT says Guided. Who may connect, the subprotocols and the goal
-rules: docs/monitor.md, "A run in Foxglove, PlotJuggler and Rerun".
+`HandshakeGate` owns the public port and relays a connection, byte for byte, to the SDK's server on
+a random loopback address only when its Origin is allowed (or absent) and it carries the token, if
+one is set; it serves both subprotocol names, `foxglove.sdk.v1` and `foxglove.websocket.v1`. `/map`
+is latched (sent again to a new subscriber and on `set_map`). Read-only unless `--foxglove-goals`:
+then a `/goal` a client publishes is checked as `qnav goal` checks it and queued, and the monitor's
+loop sends it (`take_goals`, one thread on the link) only while the robot's latest HEARTBEAT says
+Guided. Who may connect, the subprotocols and the goal rules: docs/monitor.md, "A run in Foxglove,
+PlotJuggler and Rerun".
 """
 
 from __future__ import annotations
@@ -106,10 +104,9 @@ def as_legacy_answer(head: bytes) -> bytes:
 
 
 class HandshakeGate:
-    """A TCP front for the SDK's WebSocket server (see the module docstring):
-    `check(head)` says why a handshake is refused ("" = relay it). Listens on
-    (host, port) at once (an error raises here); `close()` stops it and
-    every relayed connection."""
+    """A TCP front for the SDK's WebSocket server (see the module docstring): `check(head)` says why
+    a handshake is refused ("" = relay it). Listens on (host, port) at once (an error raises
+    here); `close()` stops it and every relayed connection."""
 
     def __init__(self, upstream: tuple[str, int], host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
                  origins: Iterable[str] = DEFAULT_ORIGINS, token: str | None = None,
@@ -261,10 +258,9 @@ def _read_head(sock: socket.socket) -> tuple[bytes, bytes] | None:
 
 
 def _hidden_loopback_server(start: Callable[[str], Any]) -> tuple[Any, str]:
-    """`start(host)` on a random 127.x.y.z address (Linux routes all of 127/8 to
-    the loopback), so that only the gate knows where the SDK's server is; where
-    the system has 127.0.0.1 only, there (with a warning: a page that finds its
-    port passes no gate)."""
+    """`start(host)` on a random 127.x.y.z address (Linux routes all of 127/8 to the loopback), so
+    that only the gate knows where the SDK's server is; where the system has 127.0.0.1 only,
+    there (with a warning: a page that finds its port passes no gate)."""
     rng = random.SystemRandom()
     for _ in range(3):
         host = f"127.{rng.randrange(1, 255)}.{rng.randrange(0, 256)}.{rng.randrange(1, 255)}"

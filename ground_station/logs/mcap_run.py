@@ -1,9 +1,8 @@
-"""One MCAP per run: the session tlog (MAVLink both ways), the CAN log
-(.blf, .asc, candump -L ... whatever python-can reads), the sim's
-trajectory.csv and the map, on the topics of `ground_station.logs.topics`,
-written with foxglove-sdk's MCAP writer (protobuf for Foxglove's schemas,
-JSON with a schema for the rest). The file is written beside the target
-and renamed over it when complete."""
+"""One MCAP per run: the session tlog (MAVLink both ways), the CAN log (.blf, .asc, candump -L ...
+whatever python-can reads), the sim's trajectory.csv and the map, on the topics of
+`ground_station.logs.topics`, written with foxglove-sdk's MCAP writer (protobuf for Foxglove's
+schemas, JSON with a schema for the rest). The file is written beside the target and renamed over
+it when complete."""
 
 from __future__ import annotations
 
@@ -40,7 +39,6 @@ class McapSummary:
     mavlink_messages: int = 0
     can_frames: int = 0
     truth_samples: int = 0
-    robot_log_lines: int = 0
 
 
 class TopicSink:
@@ -155,9 +153,7 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
                 with open(robot_log, encoding="utf-8", errors="replace") as f:
                     pos = 0
                     for line in f:
-                        recs = topics.robot_log_line(line)
-                        summary.robot_log_lines += len(recs)
-                        sink.write(recs)
+                        sink.write(topics.robot_log_line(line))
                         pos += len(line)
                         tick(pos)
                 done += os.path.getsize(robot_log)

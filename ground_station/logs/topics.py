@@ -1,10 +1,9 @@
 """What a run looks like to Foxglove, PlotJuggler and Rerun: MAVLink, CAN and
 the sim's ground truth turned into topics (pure: records in, records out).
 
-`RunTopics` takes the run's inputs in any order per source and returns
-`Record`s (topic, message, log time); `ground_station.logs.mcap_run` writes
-them to one MCAP file, `ground_station.logs.live` publishes them on a
-foxglove-sdk WebSocket server. The same topics either way:
+`RunTopics` takes the run's inputs in any order per source and returns `Record`s (topic, message,
+log time); `ground_station.logs.mcap_run` writes them to one MCAP file, `ground_station.logs.live`
+publishes them on a foxglove-sdk WebSocket server. The same topics either way:
 
 | topic | message | from |
 | --- | --- | --- |
@@ -24,17 +23,15 @@ foxglove-sdk WebSocket server. The same topics either way:
 | `/truth` | foxglove.PoseInFrame (frame `map`) | the sim's ground truth (trajectory.csv) |
 | `/tf_truth` | foxglove.FrameTransform `map` -> `truth` | the same |
 
-Times: the robot's clock (its `time_boot_ms`; sim time in HIL), as
-`VehicleView` follows it; a message without its own time gets the newest
-robot time plus the receive time since. CAN frames take the sim time of the
-newest SimTick plus the bus time since; the truth its own sim time. The
-receive (wall) time is kept as the `wall_time` field of the JSON topics.
-Log times are kept monotonic per topic (a late frame gets its topic's last time).
+Times: the robot's clock (its `time_boot_ms`; sim time in HIL), as `VehicleView` follows it; a
+message without its own time gets the newest robot time plus the receive time since. CAN frames take
+the sim time of the newest SimTick plus the bus time since; the truth its own sim time. The receive
+(wall) time is kept as the `wall_time` field of the JSON topics. Log times are kept monotonic per
+topic (a late frame gets its topic's last time).
 
-Foxglove's well-known schemas go as protobuf (foxglove-sdk's typed
-channels: what Foxglove, PlotJuggler and Rerun decode without help); the
-rest as JSON with a JSON schema derived from the first message, so every
-field is plottable by name.
+Foxglove's well-known schemas go as protobuf (foxglove-sdk's typed channels: what Foxglove,
+PlotJuggler and Rerun decode without help); the rest as JSON with a JSON schema derived from the
+first message, so every field is plottable by name.
 """
 
 from __future__ import annotations

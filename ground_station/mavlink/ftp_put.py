@@ -1,14 +1,13 @@
 """The put of a policy upload as a pure state machine, standard MAVLink FTP opcodes only.
 
-Rounds of CreateFile / OpenFileWO, 239-byte WriteFiles in a window,
-TerminateSession and CalcFileCRC32, whose answer (MAVLink FTP's CRC32 is
-linear over GF(2)) tells which unanswered writes were lost, so a lost ACK
-costs no copy of its block. No socket, no clock: `poll(now)` returns the
+Rounds of CreateFile / OpenFileWO, 239-byte WriteFiles in a window, TerminateSession and
+CalcFileCRC32, whose answer (MAVLink FTP's CRC32 is linear over GF(2)) tells which unanswered writes
+were lost, so a lost ACK costs no copy of its block. No socket, no clock: `poll(now)` returns the
 request payloads to send, `on_reply(payload, now)` takes every FTP reply
-(`ground_station.mavlink.ftp_upload` is the shell on a `Link`). The method,
-why not pymavlink's `MAVFTP.cmd_put`, and the figures: docs/mavlink.md,
-"The put". CreateFile and TerminateSession are re-sent with the same seq and
-bytes, so the robot's retry cache answers a copy instead of running it twice.
+(`ground_station.mavlink.ftp_upload` is the shell on a `Link`). The method, why not pymavlink's
+`MAVFTP.cmd_put`, and the figures: docs/mavlink.md, "The put". CreateFile and TerminateSession are
+re-sent with the same seq and bytes, so the robot's retry cache answers a copy instead of running it
+twice.
 """
 
 from __future__ import annotations
@@ -69,7 +68,6 @@ class PutStats:
     unsolved: int = 0  # unknowns the CRC could not resolve (sent again)
     cut: int = 0  # rounds ended early (CUT_UNKNOWNS)
     reopened: int = 0  # sessions opened again: the open sent ahead may have preceded the commit
-    control_sent: int = 0  # CreateFile / OpenFileWO / TerminateSession / CalcFileCRC32 frames
     blocks: int = 0
     rtt_min: float | None = None
     srtt: float | None = None
@@ -224,20 +222,18 @@ class FtpPut:
         self._control(OP_OPEN_WO if self.opened else OP_CREATE, self.path.encode() + b"\0", now)
 
     def _open_next(self, now: float, behind_writes: bool) -> None:
-        """The next round's OpenFileWO, sent right behind this round's
-        TerminateSession and CalcFileCRC32 (pipelined: the link is FIFO and
-        the robot serves requests in order, so it opens the committed file).
-        Its writes wait for the commit's ACK: only an ACK of the commit's
-        first copies proves the commit ran before this open (`_reopen`)."""
+        """The next round's OpenFileWO, sent right behind this round's TerminateSession and
+        CalcFileCRC32 (pipelined: the link is FIFO and the robot serves requests in order, so it
+        opens the committed file). Its writes wait for the commit's ACK: only an ACK of the
+        commit's first copies proves the commit ran before this open (`_reopen`)."""
         self.opens += 1
         self.sid = (self.session + self.opens % 2) & 0xFF
         self.open_ready = self.open_refused = False
         self.next_open = self._control(OP_OPEN_WO, self.path.encode() + b"\0", now, behind_writes=behind_writes)
 
     def _reopen(self, now: float) -> None:
-        """The pipelined open may have run before the commit (or was refused
-        for it): open the same session again (the robot replaces it; no write
-        went to it yet)."""
+        """The pipelined open may have run before the commit (or was refused for it): open the same
+        session again (the robot replaces it; no write went to it yet)."""
         self.ctrls = [c for c in self.ctrls if c is not self.next_open]
         self.stats.reopened += 1
         self.open_ready = self.open_refused = False
@@ -260,13 +256,11 @@ class FtpPut:
                 c.sent_at, c.order = now, self.order
                 self.order += 1
                 c.copies += 1
-                self.stats.control_sent += 1
                 out.append(c.payload)
                 if c.kind == OP_TERMINATE or c.kind == OP_CRC and self.next_new >= self.n_blocks:
                     # harmless twice (retry cache): two chances. The CRC only when the put waits
                     # for it; mid-put its answer only reorders the next round's queue
                     out.append(c.payload)
-                    self.stats.control_sent += 1
         if self.state != "write":
             return out
         rto = self.rto()
@@ -449,19 +443,16 @@ class FtpPut:
                 self._start_round()
 
     def _solve(self, remote: int, acked: set[int], unknown: list[int]) -> list[int] | None:
-        """The unanswered blocks that are on the robot, if its CRC32 tells
-        them apart; else None.
+        """The unanswered blocks that are on the robot, if its CRC32 tells them apart; else None.
 
-        CRC32 as MAVLink FTP computes it (initial 0, no final xor) is linear
-        over GF(2): for a file of fixed length, CRC(a xor b) = CRC(a) xor
-        CRC(b). The robot's file is the blocks it received, holes reading as
-        zeros, as long as the highest one it received. For each hypothesis
-        on that highest block (an unanswered block from the top down, until
-        an answered one), CRC(robot) xor CRC(answered blocks only) is the XOR
-        of CRC(block alone in a zero file) over the unanswered blocks that
-        arrived: 32 equations over GF(2), solved when the candidates are
-        independent (UNKNOWNS_PER_ROUND keeps them well under 32), then
-        checked by computing the whole file's CRC once more."""
+        CRC32 as MAVLink FTP computes it (initial 0, no final xor) is linear over GF(2): for a file
+        of fixed length, CRC(a xor b) = CRC(a) xor CRC(b). The robot's file is the blocks it
+        received, holes reading as zeros, as long as the highest one it received. For each
+        hypothesis on that highest block (an unanswered block from the top down, until an answered
+        one), CRC(robot) xor CRC(answered blocks only) is the XOR of CRC(block alone in a zero file)
+        over the unanswered blocks that arrived: 32 equations over GF(2), solved when the candidates
+        are independent (UNKNOWNS_PER_ROUND keeps them well under 32), then checked by computing the
+        whole file's CRC once more."""
         pending = set(unknown)
         answers: list[list[int]] = []
         for top in sorted(acked | pending, reverse=True):

@@ -1,14 +1,12 @@
 """Policy upload over MAVLink FTP on a `Link`: put a policy on the robot,
 prove it arrived byte-exact, and optionally activate it (`upload_policy`).
 
-The steps (RemoveFile, the put of `ftp_put.FtpPut`, CalcFileCRC32, the
-Rename onto /policies/active.qtab) and why the verdict comes from the
-robot's state (POLICY_ID, POLICY_CRC_HI/LO and the CRC of active.qtab), never
-from one reply: docs/mavlink.md, "Uploading a policy". Every FTP reply is
-matched by its request's seq, from the link's one MAVFTP client
-(`FtpSession`), so a late reply to an earlier request cannot answer a later
-one. Failures raise `LinkError` with the link's exit codes: EXIT_REFUSED (3),
-EXIT_TIMEOUT (4), EXIT_MISMATCH (5).
+The steps (RemoveFile, the put of `ftp_put.FtpPut`, CalcFileCRC32, the Rename onto
+/policies/active.qtab) and why the verdict comes from the robot's state (POLICY_ID, POLICY_CRC_HI/LO
+and the CRC of active.qtab), never from one reply: docs/mavlink.md, "Uploading a policy". Every FTP
+reply is matched by its request's seq, from the link's one MAVFTP client (`FtpSession`), so a late
+reply to an earlier request cannot answer a later one. Failures raise `LinkError` with the link's
+exit codes: EXIT_REFUSED (3), EXIT_TIMEOUT (4), EXIT_MISMATCH (5).
 """
 
 from __future__ import annotations
@@ -364,10 +362,9 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
 
 
 def _activate(session: FtpSession, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
-    """Rename the verified file onto active.qtab until the robot's state shows
-    it active (docs/mavlink.md, "Uploading a policy", step 5). Replies only steer: a NAK
-    Fail is the robot's refusal; an ACK or a lost reply is checked against
-    what the robot reports."""
+    """Rename the verified file onto active.qtab until the robot's state shows it active
+    (docs/mavlink.md, "Uploading a policy", step 5). Replies only steer: a NAK Fail is the
+    robot's refusal; an ACK or a lost reply is checked against what the robot reports."""
     link, mavftp = session.link, session.mavftp
     want = res.want_params()
     params = link.serves_params

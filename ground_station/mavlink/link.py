@@ -1,12 +1,10 @@
 """The ground station's MAVLink link to the robot, shared by every command.
 
-Owns: opening a pymavlink connection in MAVLink 2 (MAVLINK20=1 before
-pymavlink is imported, so a signing setup survives), the signing key file,
-a `.tlog` of every session in both directions (by default under
-`runs/tlogs/`; 8-byte big-endian µs timestamp + raw frame, what
-`mavlogdump.py` reads), finding the robot by its HEARTBEAT, and the
-request/answer patterns with timeouts and retries: COMMAND_LONG ->
-COMMAND_ACK, PARAM_* -> PARAM_VALUE, the mission upload/download exchange.
+Owns: opening a pymavlink connection in MAVLink 2 (MAVLINK20=1 before pymavlink is imported, so a
+signing setup survives), the signing key file, a `.tlog` of every session in both directions (by
+default under `runs/tlogs/`; 8-byte big-endian µs timestamp + raw frame, what `mavlogdump.py`
+reads), finding the robot by its HEARTBEAT, and the request/answer patterns with timeouts and
+retries: COMMAND_LONG -> COMMAND_ACK, PARAM_* -> PARAM_VALUE, the mission upload/download exchange.
 
 It also overhears what every command may need later: STATUSTEXTs
 (reassembled from their MAVLink 2 chunks by `statustext.StatusTextAssembler`,
@@ -14,10 +12,9 @@ so `texts` holds whole texts only, as MAVProxy shows them), the newest PARAM_VAL
 waits for wanted values), the robot's HEARTBEAT system state. FTP upload
 (`ground_station.mavlink.ftp_upload`) runs on the same connection.
 
-Refusals, timeouts and mismatches raise `LinkError(code, one line)`; the
-line carries the robot's reason (the STATUSTEXT it sent with the refusal).
-`code` is the exit status of every MAVLink command: EXIT_REFUSED 3,
-EXIT_TIMEOUT 4 (timeout, no robot, no answer), EXIT_MISMATCH 5 (what the
+Refusals, timeouts and mismatches raise `LinkError(code, one line)`; the line carries the robot's
+reason (the STATUSTEXT it sent with the refusal). `code` is the exit status of every MAVLink
+command: EXIT_REFUSED 3, EXIT_TIMEOUT 4 (timeout, no robot, no answer), EXIT_MISMATCH 5 (what the
 robot reports is not what was sent). 2 (bad arguments) is `CliError`'s.
 
 One-shot commands send no HEARTBEAT: the robot's GCS failsafe watches
@@ -584,9 +581,8 @@ class Link:
 
     @property
     def serves_params(self) -> bool:
-        """The robot's node reports a system state in its HEARTBEAT and serves
-        parameters (POLICY_* among them); the bare FTP shell reports
-        MAV_STATE_UNINIT and serves none."""
+        """The robot's node reports a system state in its HEARTBEAT and serves parameters (POLICY_*
+        among them); the bare FTP shell reports MAV_STATE_UNINIT and serves none."""
         return self.param_values_seen > 0 or self.system_status not in (None, MAV_STATE_UNINIT)
 
     # --- missions --------------------------------------------------------------------------

@@ -1,9 +1,7 @@
-"""Mission items for `Link.mission_upload` and from `Link.mission_download`:
-waypoints from map targets (their cell centres, made in LOCAL_NED, exact;
-`Link.use_global_frame` has the link send them as lat/lon around the robot's
-origin) or from a QGC WPL 110 file, and a downloaded mission written back as
-QGC WPL 110.
-Bad input raises `CliError` with one line naming what is wrong."""
+"""Mission items for `Link.mission_upload` and from `Link.mission_download`: waypoints from map
+targets (their cell centres, made in LOCAL_NED, exact; `Link.use_global_frame` has the link send
+them as lat/lon around the robot's origin) or from a QGC WPL 110 file, and a downloaded mission
+written back as QGC WPL 110. Bad input raises `CliError` with one line naming what is wrong."""
 
 from __future__ import annotations
 
@@ -160,12 +158,11 @@ def write_wpl(path: str, items: list) -> None:
 
 def planned_items(targets: list[tuple[int, int]], start_mm: tuple[float, float], gridmap,
                   plan_kw: dict | None = None) -> tuple[list[tuple[int, int, int]], list[int]]:
-    """The ground station's planned waypoints (`ground_station.maps.planner`)
-    from `start_mm` through the target cells in order, as LOCAL_NED mission
-    items, and the item index of each target (the last waypoint of its leg).
-    A sector policy steers to the current item's bearing, so it needs these
-    intermediate waypoints; a cell policy does not. CliError if a leg
-    cannot be planned."""
+    """The ground station's planned waypoints (`ground_station.maps.planner`) from `start_mm`
+    through the target cells in order, as LOCAL_NED mission items, and the item index of each
+    target (the last waypoint of its leg). A sector policy steers to the current item's bearing,
+    so it needs these intermediate waypoints; a cell policy does not. CliError if a leg cannot be
+    planned."""
     from ground_station.maps import MapError
     from ground_station.maps.planner import plan_waypoints
 

@@ -1,14 +1,12 @@
 """The map the robot drives on, asked from the robot instead of repeated by hand.
 
-`robot_map(link)` reads, with pymavlink's MAVFTP client, the robot's own
-`/maps/active.map` (what `qnav map upload` leaves, its targets in
-`/maps/active.targets.json` while that names the map's CRC32), else the map
-its active policy carries, and returns a `GridMap` (with targets where they
-are known); when the two maps differ, one line says which is used.
-`choose_map(link, gm)` is what commands use: the robot's map when no `--map`
-is given, the given one when it is the robot's, and one line naming both
-when they differ (a mission planned on another map sends the robot into
-walls). The rules: docs/mavlink.md, `qnav mission upload`.
+`robot_map(link)` reads, with pymavlink's MAVFTP client, the robot's own `/maps/active.map` (what
+`qnav map upload` leaves, its targets in `/maps/active.targets.json` while that names the map's
+CRC32), else the map its active policy carries, and returns a `GridMap` (with targets where they are
+known); when the two maps differ, one line says which is used. `choose_map(link, gm)` is what
+commands use: the robot's map when no `--map` is given, the given one when it is the robot's, and
+one line naming both when they differ (a mission planned on another map sends the robot into walls).
+The rules: docs/mavlink.md, `qnav mission upload`.
 """
 
 from __future__ import annotations

@@ -1,17 +1,15 @@
 """Whole STATUSTEXT messages from MAVLink 2 chunks: the one reassembler of the ground station.
 
-A STATUSTEXT carries at most 50 characters. MAVLink 2 sends a longer text as
-chunks sharing a non-zero `id`, numbered by `chunk_seq` from 0; the last
-chunk is the first one shorter than 50 characters (a text whose length is a
-multiple of 50 ends with an empty chunk, which some senders omit). `id == 0`
-is a text in one frame.
+A STATUSTEXT carries at most 50 characters. MAVLink 2 sends a longer text as chunks sharing a
+non-zero `id`, numbered by `chunk_seq` from 0; the last chunk is the first one shorter than 50
+characters (a text whose length is a multiple of 50 ends with an empty chunk, which some senders
+omit). `id == 0` is a text in one frame.
 
-`StatusTextAssembler` is a pure state machine (no clock of its own, no I/O):
-`add(msg, now)` returns the whole texts the message completes, `flush(now)`
-returns texts whose chunks stopped arriving (`STALE_S` after the last one:
-an omitted terminator or a lost chunk still yields the text, with `[...]`
-where a chunk is missing). `Link` and the monitor's `VehicleView` both use
-it, so a reason reads the same everywhere and as MAVProxy shows it.
+`StatusTextAssembler` is a pure state machine (no clock of its own, no I/O): `add(msg, now)` returns
+the whole texts the message completes, `flush(now)` returns texts whose chunks stopped arriving
+(`STALE_S` after the last one: an omitted terminator or a lost chunk still yields the text, with
+`[...]` where a chunk is missing). `Link` and the monitor's `VehicleView` both use it, so a reason
+reads the same everywhere and as MAVProxy shows it.
 """
 
 from __future__ import annotations

@@ -1,10 +1,9 @@
 """A UDP relay in front of a robot's MAVLink that records the session as a .tlog.
 
-`qnav sitl` puts the robot behind it so that the run's own telemetry is
-recorded whatever ground station connects (or none): the robot sends to
-the relay (`robot_url()`: `udpout:127.0.0.1:PORT`, from the robot's very
-first frame), and the relay owns the public connection string ground
-stations use, with pymavlink's meaning:
+`qnav sitl` puts the robot behind it so that the run's own telemetry is recorded whatever ground
+station connects (or none): the robot sends to the relay (`robot_url()`: `udpout:127.0.0.1:PORT`,
+from the robot's very first frame), and the relay owns the public connection string ground stations
+use, with pymavlink's meaning:
 
 * `udpin:HOST:PORT` (the robot listens): ground stations send to
   HOST:PORT; the robot's frames go to the last address that sent, as
@@ -12,11 +11,10 @@ stations use, with pymavlink's meaning:
 * `udpout:HOST:PORT` (the robot sends, e.g. to QGroundControl's 14550):
   the robot's frames go there, replies come back to the relay's socket.
 
-Every MAVLink frame, both ways, goes into the tlog as the tlog format has it
-(8-byte big-endian µs wall time, then the frame as sent; a datagram holding
-several frames gives several records); a frame whose header does not parse
-is relayed but not recorded. Frames are relayed byte for byte (signatures
-untouched). `close()` stops the thread and closes the file.
+Every MAVLink frame, both ways, goes into the tlog as the tlog format has it (8-byte big-endian µs
+wall time, then the frame as sent; a datagram holding several frames gives several records); a frame
+whose header does not parse is relayed but not recorded. Frames are relayed byte for byte
+(signatures untouched). `close()` stops the thread and closes the file.
 """
 
 from __future__ import annotations

@@ -1,10 +1,9 @@
 """The textual dashboard of `qnav monitor`.
 
-Shape (as cantools' monitor): a timer polls the message source without
-blocking -> `VehicleView.update` -> panels are redrawn only when the view
-changed (or once a second, for the heartbeat age). Everything shown is a
-pure function of the view (`render_*` below), so tests can check the text
-without a terminal and textual's pilot can check the live widgets.
+Shape (as cantools' monitor): a timer polls the message source without blocking ->
+`VehicleView.update` -> panels are redrawn only when the view changed (or once a second, for the
+heartbeat age). Everything shown is a pure function of the view (`render_*` below), so tests can
+check the text without a terminal and textual's pilot can check the live widgets.
 
 Keys: a arm, d disarm, h hold (COMMAND_LONG to the robot), q quit.
 """
@@ -38,9 +37,8 @@ def _cell_of(x: float, y: float, height: int, cell_m: float) -> tuple[int, int]:
 
 
 def render_map(view: VehicleView, grid_map=None) -> Text:
-    """The map, north up, two characters per cell: obstacles, trail, targets
-    (letters), the current goal (◎, or its letter highlighted) and the robot
-    (an arrow along its heading)."""
+    """The map, north up, two characters per cell: obstacles, trail, targets (letters), the current
+    goal (◎, or its letter highlighted) and the robot (an arrow along its heading)."""
     if grid_map is not None:
         occ = grid_map.occ
         height, width = occ.shape

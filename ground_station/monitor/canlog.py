@@ -146,10 +146,9 @@ def text_summary(s: dict) -> list[str]:
 
 
 def write_candump(src: str | Path, dst: str | Path, channel: str = "can0") -> int:
-    """Copy a python-can log (`.blf`, `.asc`, ...) to a `candump -L` file
-    (`(SECONDS) CHANNEL ID#HEXDATA`, what `cantools decode`, `canplayer` and
-    `qnav report` read), written to a temporary name and moved into place.
-    Returns the frame count."""
+    """Copy a python-can log (`.blf`, `.asc`, ...) to a `candump -L` file (`(SECONDS) CHANNEL
+    ID#HEXDATA`, what `cantools decode`, `canplayer` and `qnav report` read), written to a
+    temporary name and moved into place. Returns the frame count."""
     import os
 
     import can

@@ -1,17 +1,14 @@
 """What the ground station knows about the robot, built from MAVLink alone.
 
-`VehicleView` is a pure model: feed it every received message with
-`update(msg, t)` (a decoded pymavlink message and the receive time in
-seconds, wall clock live or the tlog stamp in a replay) and read its fields.
-No I/O, no threads, no terminal: the textual dashboard, the `--plain` status
-line and `qnav report` all read the same view, and tests drive it with
-pymavlink-encoded messages.
+`VehicleView` is a pure model: feed it every received message with `update(msg, t)` (a decoded
+pymavlink message and the receive time in seconds, wall clock live or the tlog stamp in a replay)
+and read its fields. No I/O, no threads, no terminal: the textual dashboard, the `--plain` status
+line and `qnav report` all read the same view, and tests drive it with pymavlink-encoded messages.
 
-Clocks: `t` is the receive time; the robot's own time base is `robot_s` (its
-`time_boot_ms`; sim time in HIL). One vehicle: the view locks onto one system
-id and counts frames from other systems in `foreign`; a second process with
-the same id is ignored (`time_conflicts`), a reboot or a pause is followed:
-the rules are in docs/monitor.md, `qnav monitor`.
+Clocks: `t` is the receive time; the robot's own time base is `robot_s` (its `time_boot_ms`; sim
+time in HIL). One vehicle: the view locks onto one system id and counts frames from other systems in
+`foreign`; a second process with the same id is ignored (`time_conflicts`), a reboot or a pause is
+followed: the rules are in docs/monitor.md, `qnav monitor`.
 
 Frames: MAVLink LOCAL_POSITION_NED has x north, y east; the view stores
 positions in the project's world frame (`firmware_py.robot_spec`: x east, y north,
@@ -137,8 +134,7 @@ class LogLine:
 
 
 def _runs(bins: list[int]) -> list[tuple[int, int]]:
-    """(start, length) of runs of equal known values (not UINT16_MAX) in a
-    circular list of bins."""
+    """(start, length) of runs of equal known values (not UINT16_MAX) in a circular list of bins."""
     n = len(bins)
     known = [b != 65535 for b in bins]
     if not any(known):
@@ -394,10 +390,9 @@ class VehicleView:
 
     @property
     def mission_reached_count(self) -> int:
-        """Items reached: those we saw reported, or what the robot's reports
-        imply for a monitor attached mid-mission (items are driven in order:
-        reaching item k means 0..k are done; MISSION_CURRENT: every item before
-        the current one, all of them once complete)."""
+        """Items reached: those we saw reported, or what the robot's reports imply for a monitor
+        attached mid-mission (items are driven in order: reaching item k means 0..k are done;
+        MISSION_CURRENT: every item before the current one, all of them once complete)."""
         implied = max(self.mission.reached) + 1 if self.mission.reached else 0
         if self.mission.state == mavlink.MISSION_STATE_COMPLETE:
             implied = self.mission.total

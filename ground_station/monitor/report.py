@@ -1,14 +1,12 @@
 """Post-run report from a .tlog: summary JSON and PNG plots.
 
-`analyse(path)` replays the recording through the same `VehicleView` the
-monitor uses and samples it into a `RunRecord`; `write_report(record, out,
-grid_map)` writes `summary.json` and the plots (trajectory, distance to
-goal, actions, timing). A plot whose data the recording does not hold is not
-drawn; the JSON says which and why under `plots_skipped` (nothing is faked).
-Times are on the robot's own clock when the recording has it, else on the
-tlog's receive stamps (`clock` in the JSON); one vehicle is followed, what
-was ignored is counted under `ignored`. The plots, the clock and the
-definitions of goals reached, stops and faults: docs/monitor.md, `qnav report`.
+`analyse(path)` replays the recording through the same `VehicleView` the monitor uses and samples it
+into a `RunRecord`; `write_report(record, out, grid_map)` writes `summary.json` and the plots
+(trajectory, distance to goal, actions, timing). A plot whose data the recording does not hold is
+not drawn; the JSON says which and why under `plots_skipped` (nothing is faked). Times are on the
+robot's own clock when the recording has it, else on the tlog's receive stamps (`clock` in the
+JSON); one vehicle is followed, what was ignored is counted under `ignored`. The plots, the clock
+and the definitions of goals reached, stops and faults: docs/monitor.md, `qnav report`.
 """
 
 from __future__ import annotations
@@ -276,11 +274,10 @@ def write_report(rec: RunRecord, out_dir: str | os.PathLike[str], grid_map=None)
     plots: dict[str, str] = {}
     skipped: dict[str, str] = {}
 
-    def save(name: str, fig, ax=None, xlabel: str = "", ylabel: str = "", title: str = "") -> None:  # type: ignore[no-untyped-def]
-        if ax is not None:  # the axes' labels and title, then the file
-            ax.set_xlabel(xlabel)
-            ax.set_ylabel(ylabel)
-            ax.set_title(title)
+    def save(name: str, fig, ax, xlabel: str, ylabel: str, title: str) -> None:  # type: ignore[no-untyped-def]
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_title(title)
         path = out / f"{name}.png"
         atomic_write(path, png_bytes(fig, dpi=110, bbox_inches="tight"))
         plots[name] = str(path)

@@ -1,20 +1,17 @@
 """The robot's own map for the monitor's dashboard and its Foxglove bridge.
 
-`RobotMapSource` wraps a `LiveSource`: once a robot is heard it reads the
-map the robot drives on over the monitor's own link, as `qnav mission
-upload` does (`ground_station.mavlink.robot_map.robot_map`: its
-/maps/active.map with the targets sidecar, else its active policy's map),
-and then asks every `CHECK_S` seconds for the CRC32 of /maps/active.map and
-of /policies/active.qtab (MAVFTP CalcFileCRC32, one round trip each): when
-either changed (a `qnav map upload`, a new policy activated) the map is
-read again. `grid_map` is the newest map (None until read, or when the
-robot has none); `map_version` counts the changes, for the dashboard and
-the bridge to follow.
+`RobotMapSource` wraps a `LiveSource`: once a robot is heard it reads the map the robot drives on
+over the monitor's own link, as `qnav mission upload` does
+(`ground_station.mavlink.robot_map.robot_map`: its /maps/active.map with the targets sidecar, else
+its active policy's map), and then asks every `CHECK_S` seconds for the CRC32 of /maps/active.map
+and of /policies/active.qtab (MAVFTP CalcFileCRC32, one round trip each): when either changed (a
+`qnav map upload`, a new policy activated) the map is read again. `grid_map` is the newest map (None
+until read, or when the robot has none); `map_version` counts the changes, for the dashboard and the
+bridge to follow.
 
-The reads run on the monitor's thread, between two polls, so the link is
-used from one thread only; the frames that arrive meanwhile (FTP requests
-consume the link) are caught by a pymavlink message hook and handed out by
-the next `poll`, none lost. A robot that does not answer FTP (no storage,
+The reads run on the monitor's thread, between two polls, so the link is used from one thread only;
+the frames that arrive meanwhile (FTP requests consume the link) are caught by a pymavlink message
+hook and handed out by the next `poll`, none lost. A robot that does not answer FTP (no storage,
 another autopilot) is asked once: the line says so and names `--map`.
 """
 

@@ -44,21 +44,18 @@ class MessageSource(Protocol):
 
 def command_long_args(kind: str) -> tuple[int, list[float]]:
     """(MAV_CMD, params 1-7) for a dashboard key."""
-    if kind == "arm":
-        return mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0, 0, 0, 0, 0, 0]
-    if kind == "disarm":
-        return mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [0, 0, 0, 0, 0, 0, 0]
+    if kind in ("arm", "disarm"):
+        return mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [int(kind == "arm"), 0, 0, 0, 0, 0, 0]
     if kind == "hold":
         return mavlink.MAV_CMD_DO_SET_MODE, [mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, Mode.HOLD, 0, 0, 0, 0, 0]
     raise ValueError(f"unknown command {kind!r}; expected one of {', '.join(COMMANDS)}")
 
 
 class LiveSource:
-    """The ground-station link to the robot (`ground_station.mavlink.link.Link`,
-    which owns signing and the session .tlog). Sends a GCS heartbeat each
-    second so the robot's GCS failsafe stays quiet while we watch, and asks
-    for the read-only POLICY_ID_HI/LO parameters every few seconds (it changes when
-    a policy is activated). Never blocks: command ACKs arrive via `poll`."""
+    """The ground-station link to the robot (`ground_station.mavlink.link.Link`, which owns signing
+    and the session .tlog). Sends a GCS heartbeat each second so the robot's GCS failsafe stays
+    quiet while we watch, and asks for the read-only POLICY_ID_HI/LO parameters every few seconds
+    (it changes when a policy is activated). Never blocks: command ACKs arrive via `poll`."""
 
     finished = False
     POLICY_POLL_S = 5.0
@@ -132,14 +129,10 @@ class ReplaySource:
         self.finished = self._pending is None
 
     def _read_next(self) -> None:
-        while True:
+        msg = self._log.recv_msg()
+        while msg is not None and msg.get_type() == "BAD_DATA":
             msg = self._log.recv_msg()
-            if msg is None:
-                self._pending = None
-                return
-            if msg.get_type() != "BAD_DATA":
-                self._pending = msg
-                return
+        self._pending = msg
 
     def now(self) -> float:
         if self._t0_log is None:
