@@ -172,7 +172,6 @@ class VehicleView:
         self.system_status: int | None = None
         self.load_pct: float | None = None  # SYS_STATUS
         # pose (world frame: x east, y north, metres; heading CCW from east)
-        self.boot_ms: int | None = None  # time_boot_ms of the last LOCAL_POSITION_NED
         self.boot_ms_last: int | None = None  # newest time_boot_ms of any message
         # SYSTEM_TIME: the robot's wall clock (us since 1970; 0: the robot's clock is not set), None: not sent
         self.robot_unix_us: int | None = None
@@ -204,7 +203,6 @@ class VehicleView:
         self._q_pending: dict[int, int] = {}  # the Q row being received (NAMED_VALUE_INT group)
         self._q_expected: int | None = None  # its length (Q_N), when the robot sends it
         self.q_row_ready = False  # the last NAMED_VALUE_INT completed a row
-        self.named: dict[str, int] = {}
         self.params: dict[str, float] = {}
         self.policy_id: int | None = None
         self.mission = Mission()
@@ -212,7 +210,6 @@ class VehicleView:
         self.log_total = 0  # lines ever appended (the deque keeps the last _LOG_MAX)
         self.stalls = 0  # the robot's stall reports heard (drives it held for getting nowhere, NAV_STALL_S)
         self._texts = StatusTextAssembler()
-        self.counts: dict[str, int] = {}
         self.version = 0  # bumped on every accepted message (redraw-if-changed)
         # the robot's time base (see the module docstring)
         self.robot_s: float | None = None  # robot clock, seconds (continues across a reboot)
@@ -329,7 +326,6 @@ class VehicleView:
         self.t = t
         if self.t0 is None:
             self.t0 = t
-        self.counts[mtype] = self.counts.get(mtype, 0) + 1
         if mtype != "STATUSTEXT":  # as Link._collect: a text whose last chunk was lost ends when chunks stop
             self._log_texts(self._texts.flush(t))
         handler = getattr(self, "_on_" + mtype.lower(), None)
@@ -446,7 +442,6 @@ class VehicleView:
         self.link.signing_dropped = msg.errors_count3
 
     def _on_local_position_ned(self, msg, t: float) -> None:
-        self.boot_ms = msg.time_boot_ms
         self.x, self.y = float(msg.y), float(msg.x)  # NED -> east/north
         self.vx, self.vy = float(msg.vy), float(msg.vx)
         if not self.trail or math.hypot(self.trail[-1][0] - self.x, self.trail[-1][1] - self.y) >= _TRAIL_STEP_M:
@@ -513,21 +508,14 @@ class VehicleView:
         self.mission.total = msg.count
 
     def _mission_item(self, msg) -> None:
-        xy = self._item_world(msg.frame, msg.x, msg.y)
-        if xy is not None:
-            self.mission.items[msg.seq] = xy
-
-    def _item_world(self, frame: int, x: int, y: int) -> tuple[float, float] | None:
-        if frame == mavlink.MAV_FRAME_LOCAL_NED:
-            return (y / mav_frames.LOCAL_ITEM_SCALE, x / mav_frames.LOCAL_ITEM_SCALE)
-        if frame in _GLOBAL_FRAMES and self.origin_e7 is not None:
-            x_mm, y_mm = mav_frames.global_to_world(x, y, *self.origin_e7)
-            return (x_mm / 1000, y_mm / 1000)
-        return None
+        if msg.frame == mavlink.MAV_FRAME_LOCAL_NED:
+            self.mission.items[msg.seq] = (msg.y / mav_frames.LOCAL_ITEM_SCALE, msg.x / mav_frames.LOCAL_ITEM_SCALE)
+        elif msg.frame in _GLOBAL_FRAMES and self.origin_e7 is not None:
+            x_mm, y_mm = mav_frames.global_to_world(msg.x, msg.y, *self.origin_e7)
+            self.mission.items[msg.seq] = (x_mm / 1000, y_mm / 1000)
 
     def _on_named_value_int(self, msg, t: float) -> None:
         name = field_text(msg.name)
-        self.named[name] = msg.value
         self.q_row_ready = False
         if name == NV_STATE_INDEX:  # a new group
             self._q_pending, self._q_expected = {}, None
