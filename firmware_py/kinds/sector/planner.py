@@ -40,15 +40,16 @@ from firmware_py.mapdata import OccupancyGrid, wall_gap, wall_within
 
 _SQRT2 = 1.4142
 _UNKNOWN = 2  # a raster cell of the map's configuration space not computed yet
-# giving way (LocalPlanner.refuge): the robot stands this far off the line a person walks (two radii
-# and a margin: a person walking a 500 mm corridor is up to 100 mm off its middle) ...
+
+
 def refuge_mm(radius_mm: int) -> int:
-    """How far off a person's line a body of `radius_mm` gives way (the profile's body: firmware_py.layout)."""
+    """How far off a person's line a body of `radius_mm` gives way (LocalPlanner.refuge): two radii
+    and a margin (a person walking a 500 mm corridor is up to 100 mm off its middle)."""
     return 2 * radius_mm + 150
 
 
 REFUGE_MM = refuge_mm(robot_spec.ROBOT_RADIUS_MM)  # the built-in robot's
-REFUGE_SEARCH_MM = 2500  # ... at a place at most this far along the way
+REFUGE_SEARCH_MM = 2500  # giving way: at a place at most this far along the way
 
 
 Cell = tuple[int, int]
