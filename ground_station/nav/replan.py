@@ -179,8 +179,7 @@ def raster_plan(gridmap: GridMap, points: list[tuple[float, float]], start_mm: t
         steps = max_segment_mm / RASTER_MM
         wps = []
         a = path[0]
-        if a != raster_nearest(free, *here, START_SEARCH_STEPS) or math.hypot(here[0] - (a[0] + 0.5) * RASTER_MM,
-                                                   here[1] - (a[1] + 0.5) * RASTER_MM) > RASTER_MM:
+        if math.hypot(here[0] - (a[0] + 0.5) * RASTER_MM, here[1] - (a[1] + 0.5) * RASTER_MM) > RASTER_MM:
             wps.append(a)  # first step out of the obstacle's margin
         i = 0
         while i < len(path) - 1:
