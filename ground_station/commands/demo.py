@@ -1,24 +1,29 @@
 """`qnav demo`: the whole system on one machine, with embedded defaults.
 
-Starts a python-can-remote hub on 127.0.0.1, `qnav-sim` (lockstep: fast and deterministic;
---realtime: paced at real time, to watch) and `qnav-robot` as separate processes; uploads the
-shipped paper10 policy (or, with --train, one trained and exported first) over MAVLink FTP; sends
-the mission A -> B -> C -> D (a sector policy gets the planner's waypoints through them, `--plan`),
-arms, sets Auto; with --obstacles K / --movers M the sim adds unmapped discs on the path and moving
-discs (scenario.json, drawn in trajectory.png); shows the monitor until the mission completes (or a
-fault, or the timeout); prints a summary: targets reached, time, collisions, and where the
-trajectory PNG, the .tlog and the CAN log are. Every process it started is stopped on exit, error or
-Ctrl-C.
+Starts a python-can-remote hub on 127.0.0.1, `qnav-sim` (lockstep: fast and
+deterministic; --realtime: paced at real time, to watch) and `qnav-robot` as
+separate processes; uploads the shipped paper10 policy (or, with --train,
+one trained and exported first) over MAVLink FTP; sends the mission A -> B
+-> C -> D (a sector policy gets the planner's waypoints through them,
+`--plan`), arms, sets Auto; with --obstacles K / --movers M the sim adds
+unmapped discs on the path and moving discs (scenario.json, drawn in
+trajectory.png); shows the monitor until the mission completes (or a fault,
+or the timeout); prints a summary: targets reached, time, collisions, and
+where the trajectory PNG, the .tlog and the CAN log are. Every process it
+started is stopped on exit, error or Ctrl-C.
 
-Outputs go to runs/demo-<timestamp>/ (or --out DIR): demo.tlog (MAVLink, both directions), can.blf
-(every CAN frame, sim-time stamps), can.log (the same frames in candump -L format: `cantools decode
-firmware_py/qnav.dbc < can.log`), trajectory.csv / trajectory.png (the sim's ground truth), robot/
-(the robot's file store), robot_stats.json, sim.log, robot.log, summary.json. `qnav report
-runs/demo-.../demo.tlog` plots the run from the telemetry.
+Outputs go to runs/demo-<timestamp>/ (or --out DIR): demo.tlog (MAVLink,
+both directions), can.blf (every CAN frame, sim-time stamps), can.log (the
+same frames in candump -L format: `cantools decode firmware_py/qnav.dbc <
+can.log`), trajectory.csv / trajectory.png (the sim's ground truth), robot/
+(the robot's file store), robot_stats.json, sim.log, robot.log,
+summary.json. `qnav report runs/demo-.../demo.tlog` plots the run from the
+telemetry.
 
-Exit status: 0 all targets reached without a collision, 1 not, 2 bad arguments, 130 interrupted.
---headless --json prints only the summary JSON on stdout (targets_reached, targets_total,
-collisions, sim_seconds, wall_seconds, ...); progress goes to stderr.
+Exit status: 0 all targets reached without a collision, 1 not, 2 bad
+arguments, 130 interrupted. --headless --json prints only the summary JSON
+on stdout (targets_reached, targets_total, collisions, sim_seconds,
+wall_seconds, ...); progress goes to stderr.
 """
 
 from __future__ import annotations

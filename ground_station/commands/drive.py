@@ -1,10 +1,11 @@
 """`qnav drive`: drive the robot by hand from the terminal (Manual mode).
 
-Arms nothing by itself: arm first (`qnav arm`). Switches the robot to Manual, then sends
-MANUAL_CONTROL at 10 Hz from the keys: Up/Down (or w/s) step the forward stick by 20 %, Left/Right
-(or a/d) the turn stick, space stops (both sticks 0), q or Ctrl-C sets Hold and quits. The robot's
-own deadman stops the wheels 500 ms after the last MANUAL_CONTROL, so a killed terminal never leaves
-it driving. Needs a terminal (stdin a tty).
+Arms nothing by itself: arm first (`qnav arm`). Switches the robot to
+Manual, then sends MANUAL_CONTROL at 10 Hz from the keys: Up/Down (or w/s)
+step the forward stick by 20 %, Left/Right (or a/d) the turn stick, space
+stops (both sticks 0), q or Ctrl-C sets Hold and quits. The robot's own
+deadman stops the wheels 500 ms after the last MANUAL_CONTROL, so a killed
+terminal never leaves it driving. Needs a terminal (stdin a tty).
 """
 
 from __future__ import annotations

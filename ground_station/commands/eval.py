@@ -1,14 +1,16 @@
 """`qnav eval`: greedy rollouts of a trained run against shortest paths.
 
-Every (start, goal) pair of the map (a seeded sample of --sample pairs on large maps): success rate,
-path length / shortest (mean, max), timeouts, collisions, loops, beside the greedy
-nearest-free-neighbour baseline. Sector runs: the main figures follow the ground station's planned
-waypoints (`ground_station.maps.planner`, what the robot gets as a mission); the same policy
-steering on the goal bearing alone is reported beside them (`direct_*` keys), and the baseline is a
-hand-written seek table on the same waypoints. Sector-memory runs are judged in the direct setting
-only (goal bearing and distance, no waypoints: `success_rate` is the direct figure) and add
-`wall_share`, the share of periods spent following a wall (docs/training.md, sector-memory; figures
-in docs/results.md).
+Every (start, goal) pair of the map (a seeded sample of --sample pairs on
+large maps): success rate, path length / shortest (mean, max), timeouts,
+collisions, loops, beside the greedy nearest-free-neighbour baseline. Sector
+runs: the main figures follow the ground station's planned waypoints
+(`ground_station.maps.planner`, what the robot gets as a mission); the same
+policy steering on the goal bearing alone is reported beside them
+(`direct_*` keys), and the baseline is a hand-written seek table on the same
+waypoints. Sector-memory runs are judged in the direct setting only (goal
+bearing and distance, no waypoints: `success_rate` is the direct figure) and
+add `wall_share`, the share of periods spent following a wall
+(docs/training.md, sector-memory; figures in docs/results.md).
 """
 
 from __future__ import annotations

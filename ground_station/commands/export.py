@@ -1,13 +1,15 @@
 """`qnav export DIR --dtype int8|int16 --out FILE.qtab`: quantise a trained
 float Q-table into the robot's int policy file and judge what it cost.
 
-Reads DIR/q.npy and DIR/meta.json (written by `qnav train`), quantises symmetrically (one scale per
-table, or per state with --per-state-scale), validates the bytes with the robot's own loader, writes
-FILE atomically and prints one JSON object: `bytes`, `dtype`, `argmax_agreement`, `tie_rate` (beside
-`float_tie_rate`, `rounding_ties`), and greedy-rollout `success_rate` / `path_ratio_mean` for the
-float table and for the int table side by side (`{"float": ..., "int": ...}`), on the training map
-unless --map says otherwise. The int rollouts use the table exactly as the robot loaded it (argmax,
-ties to the lowest index).
+Reads DIR/q.npy and DIR/meta.json (written by `qnav train`), quantises
+symmetrically (one scale per table, or per state with --per-state-scale),
+validates the bytes with the robot's own loader, writes FILE atomically and
+prints one JSON object: `bytes`, `dtype`, `argmax_agreement`, `tie_rate`
+(beside `float_tie_rate`, `rounding_ties`), and greedy-rollout
+`success_rate` / `path_ratio_mean` for the float table and for the int table
+side by side (`{"float": ..., "int": ...}`), on the training map unless
+--map says otherwise. The int rollouts use the table exactly as the robot
+loaded it (argmax, ties to the lowest index).
 """
 
 from __future__ import annotations

@@ -1,20 +1,23 @@
 """`qnav goal X Y`: send a goal in world metres (x east, y north) in Guided mode.
 
-Sets mode Guided first (MAV_CMD_DO_SET_MODE, as a MAVProxy user types `mode guided` before a goal:
-the robot, like ArduPilot Rover, takes a position target in Guided only and never switches to Guided
-for one; a refused mode exits 3 with the robot's reason), then sends the goal as
-SET_POSITION_TARGET_LOCAL_NED (north = Y, east = X). The robot answers an accepted goal with
-POSITION_TARGET_LOCAL_NED and a refused one with a STATUSTEXT "goal refused: ..." (exit 3); silence
--> exit 4. X and Y must be finite numbers within the robot's local range (200 km), else exit 2
-before connecting.
+Sets mode Guided first (MAV_CMD_DO_SET_MODE, as a MAVProxy user types `mode
+guided` before a goal: the robot, like ArduPilot Rover, takes a position
+target in Guided only and never switches to Guided for one; a refused mode
+exits 3 with the robot's reason), then sends the goal as
+SET_POSITION_TARGET_LOCAL_NED (north = Y, east = X). The robot answers an
+accepted goal with POSITION_TARGET_LOCAL_NED and a refused one with a
+STATUSTEXT "goal refused: ..." (exit 3); silence -> exit 4. X and Y must be
+finite numbers within the robot's local range (200 km), else exit 2 before
+connecting.
 
-With `--plan` (for sector policies, which steer to the bearing of the current target and need the
-planner's intermediate waypoints) the goal goes instead as a mission of the planner's waypoints (on
-`--map`, by default the robot's own map, read from its active policy) from the robot's position (its
-LOCAL_POSITION_NED, or `--start X,Y`) to the goal's cell, and the robot is switched to Auto to drive
-it. `--profile FILE.toml`: segments that keep the profile's body clear, as `qnav mission upload
---plan --profile` plans them (default the built-in robot's). `--start` and `--profile` need
-`--plan`.
+With `--plan` (for sector policies, which steer to the bearing of the
+current target and need the planner's intermediate waypoints) the goal goes
+instead as a mission of the planner's waypoints (on `--map`, by default the
+robot's own map, read from its active policy) from the robot's position (its
+LOCAL_POSITION_NED, or `--start X,Y`) to the goal's cell, and the robot is
+switched to Auto to drive it. `--profile FILE.toml`: segments that keep the
+profile's body clear, as `qnav mission upload --plan --profile` plans them
+(default the built-in robot's). `--start` and `--profile` need `--plan`.
 """
 
 from __future__ import annotations

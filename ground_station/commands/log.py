@@ -1,12 +1,15 @@
-"""`qnav log mcap RUN_DIR|FILE.tlog [--tlog FILE] [--can FILE] [--trajectory FILE] [--map NAME|PATH] [--out FILE.mcap]`:
-a run as one MCAP file for Foxglove, PlotJuggler (3.8+) and Rerun.
-`qnav log list|pull`: the robot's own log files (its storage's logs/, over MAVLink FTP; docs/deploy.md).
+"""`qnav log mcap RUN_DIR|FILE.tlog [--tlog FILE] [--can FILE] [--trajectory
+FILE] [--map NAME|PATH] [--out FILE.mcap]`: a run as one MCAP file for
+Foxglove, PlotJuggler (3.8+) and Rerun. `qnav log list|pull`: the robot's
+own log files (its storage's logs/, over MAVLink FTP; docs/deploy.md).
 
-A run folder (`qnav demo`, `qnav sitl`) gives its tlog, CAN log (can.blf), the sim's trajectory.csv,
-the robot's robot.log and the map named in its summary.json; a tlog alone gives the MAVLink topics
-(add --can / --trajectory / --map for the rest). A `qnav sitl` folder has no tlog (the GCS keeps its
-own): give it with --tlog. Topics, schemas and clocks: ground_station/logs/topics.py and
-docs/monitor.md. The file is written beside the target and renamed over it when complete.
+A run folder (`qnav demo`, `qnav sitl`) gives its tlog, CAN log (can.blf),
+the sim's trajectory.csv, the robot's robot.log and the map named in its
+summary.json; a tlog alone gives the MAVLink topics (add --can /
+--trajectory / --map for the rest). A `qnav sitl` folder has no tlog (the
+GCS keeps its own): give it with --tlog. Topics, schemas and clocks:
+ground_station/logs/topics.py and docs/monitor.md. The file is written
+beside the target and renamed over it when complete.
 """
 
 from __future__ import annotations

@@ -1,13 +1,15 @@
 """`qnav map upload NAME|FILE.map`: give the robot its own map over MAVLink FTP.
 
-The map is the robot's, apart from its policy (as nav2's map server is apart from its controller):
-the robot localises and plans on the map it was given, and keeps it across reboots
-(/maps/active.map in its storage; the one before it is /maps/last_good.map). The file goes up as
-MovingAI text, is verified by CRC and renamed onto /maps/active.map; the robot parses it with its
-own cell size (CELL_SIZE_MM), refuses it when its policy is tied to another map (a cell table,
-naming both) or it is driving, builds the map's localiser off its control tick and swaps it in.
-A refusal exits 3 with the robot's reason; the old map stays. A sector or sector-memory policy runs
-on whichever map the robot has.
+The map is the robot's, apart from its policy (as nav2's map server is apart
+from its controller): the robot localises and plans on the map it was given,
+and keeps it across reboots (/maps/active.map in its storage; the one before
+it is /maps/last_good.map). The file goes up as MovingAI text, is verified
+by CRC and renamed onto /maps/active.map; the robot parses it with its own
+cell size (CELL_SIZE_MM), refuses it when its policy is tied to another map
+(a cell table, naming both) or it is driving, builds the map's localiser off
+its control tick and swaps it in. A refusal exits 3 with the robot's reason;
+the old map stays. A sector or sector-memory policy runs on whichever map
+the robot has.
 """
 
 from __future__ import annotations

@@ -1,35 +1,44 @@
 """`qnav mission upload --targets A,B,C,D | FILE` and `qnav mission download`.
 
-Upload: waypoints from map targets (their cell centres in world metres, on `--map`, by default the
-robot's own map, read from the robot over MAVLink FTP: /maps/active.map with the targets `qnav map
-upload` left beside it, else the map its active policy carries; a `--map` that is not the robot's is
-refused naming both) or from a QGC WPL 110 file (as written by MAVProxy, QGroundControl or `mission
-download --out`), sent through the MAVLink mission protocol; waits for MISSION_ACK and exits 3 with
-the robot's reason on refusal, 4 on timeout. Target and planned waypoints travel as MISSION_ITEM_INT
-in MAV_FRAME_GLOBAL_RELATIVE_ALT, latitude/longitude around the robot's geodetic origin (its
-GPS_GLOBAL_ORIGIN, = ORIGIN_LAT/LON), so MAVProxy's `wp list`, its map and QGroundControl's plan
-view show them where the robot is; the robot converts them back to within 6 mm (1e-7 deg steps).
-`--frame local` sends them in MAV_FRAME_LOCAL_NED (x north, y east, exact to 0.1 mm; stock maps
-cannot place those). A FILE's items go in the frames it gives (`--frame global` converts its local
-ones). With `--plan` the ground station's planner (`ground_station.maps.planner`, what the sector
-policy is trained to follow) fills in the waypoints from the robot's position (its
-LOCAL_POSITION_NED, or `--start X,Y` in metres) through the targets on the map (`--profile
-FILE.toml`: segments that keep the profile's body clear, as `qnav train --profile` trained a sector
-policy with; default the built-in robot's); the planned legs are printed. `--plan --follow` then
-stays on the link while the robot drives (start it with `qnav arm` and `qnav mode auto`): when it
-reports that it stopped progressing, the cells its range readings (OBSTACLE_DISTANCE, each at the
-angle of the `--profile`'s sensor that read it) found blocked are marked on the ground station's
-copy of the map and the rest of the mission is planned again, round the same body (`--profile`'s),
-and uploaded (`ground_station.nav.replan`); exits 0 when every target is reached, 3 when it gives up
-(no new blocked cell, no path left), 4 after `--follow-timeout`.
+Upload: waypoints from map targets (their cell centres in world metres, on
+`--map`, by default the robot's own map, read from the robot over MAVLink
+FTP: /maps/active.map with the targets `qnav map upload` left beside it,
+else the map its active policy carries; a `--map` that is not the robot's is
+refused naming both) or from a QGC WPL 110 file (as written by MAVProxy,
+QGroundControl or `mission download --out`), sent through the MAVLink
+mission protocol; waits for MISSION_ACK and exits 3 with the robot's reason
+on refusal, 4 on timeout. Target and planned waypoints travel as
+MISSION_ITEM_INT in MAV_FRAME_GLOBAL_RELATIVE_ALT, latitude/longitude around
+the robot's geodetic origin (its GPS_GLOBAL_ORIGIN, = ORIGIN_LAT/LON), so
+MAVProxy's `wp list`, its map and QGroundControl's plan view show them where
+the robot is; the robot converts them back to within 6 mm (1e-7 deg steps).
+`--frame local` sends them in MAV_FRAME_LOCAL_NED (x north, y east, exact to
+0.1 mm; stock maps cannot place those). A FILE's items go in the frames it
+gives (`--frame global` converts its local ones). With `--plan` the ground
+station's planner (`ground_station.maps.planner`, what the sector policy is
+trained to follow) fills in the waypoints from the robot's position (its
+LOCAL_POSITION_NED, or `--start X,Y` in metres) through the targets on the
+map (`--profile FILE.toml`: segments that keep the profile's body clear, as
+`qnav train --profile` trained a sector policy with; default the built-in
+robot's); the planned legs are printed. `--plan --follow` then stays on the
+link while the robot drives (start it with `qnav arm` and `qnav mode auto`):
+when it reports that it stopped progressing, the cells its range readings
+(OBSTACLE_DISTANCE, each at the angle of the `--profile`'s sensor that read
+it) found blocked are marked on the ground station's copy of the map and the
+rest of the mission is planned again, round the same body (`--profile`'s),
+and uploaded (`ground_station.nav.replan`); exits 0 when every target is
+reached, 3 when it gives up (no new blocked cell, no path left), 4 after
+`--follow-timeout`.
 
-Without `--plan`, targets sent to a robot whose active policy is a sector policy that steers to the
-planner's waypoints (trained with `--sector-guidance path`, the shipped recipe's) are planned all
-the same, with the margins and body radius that policy was trained with (read from its file on the
-robot, as the map is): the table only ever learnt to reach the next of those waypoints, a few cells
-off with the map leaving the straight line clear; sent the targets alone it steers straight at
-targets metres away with walls between, where its twin's `direct` column says it fails. `--no-plan`
-sends the targets alone.
+Without `--plan`, targets sent to a robot whose active policy is a sector
+policy that steers to the planner's waypoints (trained with
+`--sector-guidance path`, the shipped recipe's) are planned all the same,
+with the margins and body radius that policy was trained with (read from its
+file on the robot, as the map is): the table only ever learnt to reach the
+next of those waypoints, a few cells off with the map leaving the straight
+line clear; sent the targets alone it steers straight at targets metres away
+with walls between, where its twin's `direct` column says it fails.
+`--no-plan` sends the targets alone.
 
 Download: prints the robot's mission in the frames it was uploaded in (world
 metres, x east / y north, beside the latitude/longitude of global items) and

@@ -1,8 +1,10 @@
-"""`qnav mode hold|guided|auto|manual`: MAV_CMD_DO_SET_MODE with the Rover custom mode.
+"""`qnav mode hold|guided|auto|manual`: MAV_CMD_DO_SET_MODE with the Rover
+custom mode.
 
-Modes are numbered as ArduPilot Rover (Manual 0, Hold 4, Auto 10, Guided 15), so stock ground
-stations name them. Waits for the ACK; a refusal exits 3 with the robot's reason (e.g. Auto without
-a mission). Mode names take any case (`qnav mode MANUAL`, as MAVProxy's `mode MANUAL`).
+Modes are numbered as ArduPilot Rover (Manual 0, Hold 4, Auto 10, Guided
+15), so stock ground stations name them. Waits for the ACK; a refusal exits
+3 with the robot's reason (e.g. Auto without a mission). Mode names take any
+case (`qnav mode MANUAL`, as MAVProxy's `mode MANUAL`).
 """
 
 from __future__ import annotations

@@ -1,36 +1,43 @@
 """`qnav monitor`: live telemetry dashboard, plain status lines, or a replay.
 
-    qnav monitor [--mavlink URL] [--tlog FILE] [--signing-key FILE] [--map NAME|PATH]
-    qnav monitor --plain [--duration S]          one status line per second
-    qnav monitor --replay FILE.tlog [--speed X]  a recording through the same view
-    qnav monitor --foxglove [--port P]           also a Foxglove WebSocket bridge on 127.0.0.1:P
-        [--foxglove-origin URL ...] [--foxglove-token T] [--foxglove-goals]
+qnav monitor [--mavlink URL] [--tlog FILE] [--signing-key FILE] [--map
+  NAME|PATH] qnav monitor --plain [--duration S]          one status line
+  per second qnav monitor --replay FILE.tlog [--speed X]  a recording
+  through the same view qnav monitor --foxglove [--port P]           also a
+  Foxglove WebSocket bridge on 127.0.0.1:P [--foxglove-origin URL ...]
+  [--foxglove-token T] [--foxglove-goals]
 
-With --foxglove the same telemetry is published live for Foxglove (open ws://127.0.0.1:P in Foxglove
-desktop or its web app): the robot's pose on its map, range sectors, the mission, the log, every
-MAVLink message (ground_station/logs/topics.py). Live links only. Clients offering either
-subprotocol, foxglove.sdk.v1 (Foxglove) or foxglove.websocket.v1 (Lichtblick, older Foxglove
-Studio), are served.
+With --foxglove the same telemetry is published live for Foxglove (open
+ws://127.0.0.1:P in Foxglove desktop or its web app): the robot's pose on
+its map, range sectors, the mission, the log, every MAVLink message
+(ground_station/logs/topics.py). Live links only. Clients offering either
+subprotocol, foxglove.sdk.v1 (Foxglove) or foxglove.websocket.v1
+(Lichtblick, older Foxglove Studio), are served.
 
-The map (dashboard and /map) is the robot's own, read over MAVLink FTP as `qnav mission upload`
-reads it (its /maps/active.map, else its policy's map) once it is heard, and read again when its CRC
-changes (checked every 5 s); /map is re-sent to every new subscriber. --map overrides it.
+The map (dashboard and /map) is the robot's own, read over MAVLink FTP as
+`qnav mission upload` reads it (its /maps/active.map, else its policy's map)
+once it is heard, and read again when its CRC changes (checked every 5 s);
+/map is re-sent to every new subscriber. --map overrides it.
 
-Who may connect: a client without an Origin header (not a web page), or a browser page from an
-allowed origin (default https://app.foxglove.dev; --foxglove-origin replaces the list, repeatable);
-any other page is refused (HTTP 403), since any page in the operator's browser can reach 127.0.0.1.
-With --foxglove-token T a client must also give T: ws://127.0.0.1:P/?token=T or the header
-"Authorization: Bearer T" (else HTTP 401).
+Who may connect: a client without an Origin header (not a web page), or a
+browser page from an allowed origin (default https://app.foxglove.dev;
+--foxglove-origin replaces the list, repeatable); any other page is refused
+(HTTP 403), since any page in the operator's browser can reach 127.0.0.1.
+With --foxglove-token T a client must also give T: ws://127.0.0.1:P/?token=T
+or the header "Authorization: Bearer T" (else HTTP 401).
 
-Read-only by default. With --foxglove-goals a goal published on /goal (JSON {"x": E, "y": N} metres)
-is checked as `qnav goal` checks it and sent as SET_POSITION_TARGET_LOCAL_NED only while the robot's
-HEARTBEAT says Guided (the operator sets Guided: `qnav mode guided`); otherwise it is dropped, with
-a line on stderr and on /log. The robot refuses a position target outside Guided itself too.
+Read-only by default. With --foxglove-goals a goal published on /goal (JSON
+{"x": E, "y": N} metres) is checked as `qnav goal` checks it and sent as
+SET_POSITION_TARGET_LOCAL_NED only while the robot's HEARTBEAT says Guided
+(the operator sets Guided: `qnav mode guided`); otherwise it is dropped,
+with a line on stderr and on /log. The robot refuses a position target
+outside Guided itself too.
 
-Stamps are the robot's clock (its time_boot_ms: sim time in HIL) once it has sent one. The view
-follows one system id (the first robot heard, or --target-system); frames from other systems, or
-from a second process using the same id (its clock runs behind), are ignored and counted on exit.
-Live --plain exits 4 when no robot was heard within --timeout.
+Stamps are the robot's clock (its time_boot_ms: sim time in HIL) once it has
+sent one. The view follows one system id (the first robot heard, or
+--target-system); frames from other systems, or from a second process using
+the same id (its clock runs behind), are ignored and counted on exit. Live
+--plain exits 4 when no robot was heard within --timeout.
 """
 
 from __future__ import annotations

@@ -1,12 +1,15 @@
 """`qnav param list|get NAME|set NAME VALUE`: the robot's parameters over MAVLink.
 
-`set` waits for the robot's PARAM_VALUE echo and fails (exit 3) with the robot's reason when it kept
-another value (out of range, read-only, unknown); no answer -> exit 4. The robot stores a set value
-atomically and keeps it across reboots. `list` prints each parameter's description, units and range
-beside its value, read from the robot's own parameter metadata (`/metadata/parameters.json` over
-MAVLink FTP, the file its COMPONENT_METADATA points a ground station at). POLICY_ID and POLICY_CRC
-are 32-bit ids that float32 on the wire rounds: `get` and `list` print them exact, in hex, from
-their _HI/_LO halves (as `qnav export` and the monitor do). See docs/mavlink.md for the table.
+`set` waits for the robot's PARAM_VALUE echo and fails (exit 3) with the
+robot's reason when it kept another value (out of range, read-only,
+unknown); no answer -> exit 4. The robot stores a set value atomically and
+keeps it across reboots. `list` prints each parameter's description, units
+and range beside its value, read from the robot's own parameter metadata
+(`/metadata/parameters.json` over MAVLink FTP, the file its
+COMPONENT_METADATA points a ground station at). POLICY_ID and POLICY_CRC are
+32-bit ids that float32 on the wire rounds: `get` and `list` print them
+exact, in hex, from their _HI/_LO halves (as `qnav export` and the monitor
+do). See docs/mavlink.md for the table.
 """
 
 from __future__ import annotations

@@ -1,35 +1,43 @@
-"""`qnav policy inspect FILE...`: validate `.qtab` files and print their headers. `qnav policy
-upgrade OLD.qtab [--out NEW.qtab] --control-period-us US [--map NAME]`: migrate a version 1.x
-file to the current format. `qnav policy attach-map FILE --map NAME [--out NEW.qtab]`: put the
-training map's cells into the file (metadata `map_grid`) for the robot's localiser. `qnav policy
-revert [--mavlink URL]`: make the robot's last good policy its active one again, over MAVLink FTP
-(docs/deploy.md, "Update a policy").
+"""`qnav policy inspect FILE...`: validate `.qtab` files and print their
+headers. `qnav policy upgrade OLD.qtab [--out NEW.qtab] --control-period-us
+US [--map NAME]`: migrate a version 1.x file to the current format. `qnav
+policy attach-map FILE --map NAME [--out NEW.qtab]`: put the training map's
+cells into the file (metadata `map_grid`) for the robot's localiser. `qnav
+policy revert [--mavlink URL]`: make the robot's last good policy its active
+one again, over MAVLink FTP (docs/deploy.md, "Update a policy").
 
-inspect: one line per file (a JSON object per line with `--json`: `file`, `valid`, `error` and the
-header fields, among them `control_period_us` and `map_geometry`). Exit status 0 only when every
-file is valid, 2 otherwise. Validation is the robot's own loader (firmware_py.policy).
+inspect: one line per file (a JSON object per line with `--json`: `file`,
+`valid`, `error` and the header fields, among them `control_period_us` and
+`map_geometry`). Exit status 0 only when every file is valid, 2 otherwise.
+Validation is the robot's own loader (firmware_py.policy).
 
-Two CRCs, named alike in `qnav upload`: the "policy CRC" is the .qtab's own header field (what the
-robot reports as POLICY_CRC_HI/LO); the "file CRC32" is MAVLink FTP's CRC32 of the whole file
-(CalcFileCRC32: zlib's polynomial, no final xor, so it differs from `zlib.crc32`/`crc32(1)` of the
-same bytes), what the upload compares with the robot's copy.
+Two CRCs, named alike in `qnav upload`: the "policy CRC" is the .qtab's own
+header field (what the robot reports as POLICY_CRC_HI/LO); the "file CRC32"
+is MAVLink FTP's CRC32 of the whole file (CalcFileCRC32: zlib's polynomial,
+no final xor, so it differs from `zlib.crc32`/`crc32(1)` of the same bytes),
+what the upload compares with the robot's copy.
 
-upgrade: version 1.x files record neither the control period nor the map geometry they were trained
-for, and the robot refuses them. `upgrade` writes them into the header (atomically, over OLD unless
---out is given) and copies everything else byte for byte, so the table, policy id and creation time
-are unchanged. A cell policy's geometry is its grid; a sector policy's is the training map's: --map,
-else the map named in the file's metadata. Every policy trained so far ran the twin at
-robot_spec.CONTROL_PERIOD_US (50000 us).
+upgrade: version 1.x files record neither the control period nor the map
+geometry they were trained for, and the robot refuses them. `upgrade` writes
+them into the header (atomically, over OLD unless --out is given) and copies
+everything else byte for byte, so the table, policy id and creation time are
+unchanged. A cell policy's geometry is its grid; a sector policy's is the
+training map's: --map, else the map named in the file's metadata. Every
+policy trained so far ran the twin at robot_spec.CONTROL_PERIOD_US (50000
+us).
 
-revert: the robot keeps the policy it ran before the last activation in /policies/last_good.qtab
-(read-only over FTP). revert reads it, puts it back as /policies/revert.qtab and renames that onto
-/policies/active.qtab, so the robot validates and activates it as any `qnav upload --activate` (and
-refuses it the same way, e.g. while driving); the policy it ran becomes the last good one, so a
-second revert goes forward again. It prints the policy ids before and after; the verdict is the
-robot's POLICY_ID/POLICY_CRC parameters and the CRC32 of its active.qtab
-(ground_station/mavlink/policy_revert.py). Exit status as `qnav upload`: 0 done, 2 bad arguments, 3
-refused (no last good policy, already running it, or the robot's refusal, printed), 4 timeout or no
-robot, 5 CRC or policy-id mismatch.
+revert: the robot keeps the policy it ran before the last activation in
+/policies/last_good.qtab (read-only over FTP). revert reads it, puts it back
+as /policies/revert.qtab and renames that onto /policies/active.qtab, so the
+robot validates and activates it as any `qnav upload --activate` (and
+refuses it the same way, e.g. while driving); the policy it ran becomes the
+last good one, so a second revert goes forward again. It prints the policy
+ids before and after; the verdict is the robot's POLICY_ID/POLICY_CRC
+parameters and the CRC32 of its active.qtab
+(ground_station/mavlink/policy_revert.py). Exit status as `qnav upload`: 0
+done, 2 bad arguments, 3 refused (no last good policy, already running it,
+or the robot's refusal, printed), 4 timeout or no robot, 5 CRC or policy-id
+mismatch.
 """
 
 from __future__ import annotations

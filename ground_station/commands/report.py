@@ -8,10 +8,11 @@ Writes into --out (default `out/report-<tlog name>/`): summary.json,
 trajectory.png, distance_to_goal.png, actions.png, timing.png (a plot whose
 data is not in the recording is skipped and listed under plots_skipped).
 
-Times are the robot's clock (its time_boot_ms: sim time in HIL) when the recording carries it, else
-the tlog's receive stamps; the summary names the clock. One vehicle per report: the first robot
-heard or --target-system; frames of other systems, or of a second process with the same system id,
-are ignored and counted (a warning line).
+Times are the robot's clock (its time_boot_ms: sim time in HIL) when the
+recording carries it, else the tlog's receive stamps; the summary names the
+clock. One vehicle per report: the first robot heard or --target-system;
+frames of other systems, or of a second process with the same system id, are
+ignored and counted (a warning line).
 """
 
 from __future__ import annotations

@@ -1,17 +1,21 @@
-"""`qnav sitl`: a simulated robot that stays up for MAVProxy, QGroundControl, MAVSDK, qnav.
+"""`qnav sitl`: a simulated robot that stays up for MAVProxy, QGroundControl,
+MAVSDK, qnav.
 
-Starts a CAN bus (a python-can-remote hub on 127.0.0.1 unless --can names one, e.g.
-socketcan:vcan0), `qnav-sim` paced at --speed times real time and `qnav-robot` on the sim's clock
-with a policy loaded, waits for the robot's HEARTBEAT, prints the MAVLink connection strings and the
-CAN spec, and keeps everything running until Ctrl-C (or SIGTERM, or --duration). Every process it
-started is stopped on the way out; the run folder keeps sim.log, robot.log, the robot's file store,
-can.blf, trajectory.csv, mavlink.tlog (on UDP the robot sits behind a relay that records its MAVLink
-both ways, whichever ground station connects) and run.mcap, the whole run for Foxglove, written on
-the way out with a progress line each second.
+Starts a CAN bus (a python-can-remote hub on 127.0.0.1 unless --can names
+one, e.g. socketcan:vcan0), `qnav-sim` paced at --speed times real time and
+`qnav-robot` on the sim's clock with a policy loaded, waits for the robot's
+HEARTBEAT, prints the MAVLink connection strings and the CAN spec, and keeps
+everything running until Ctrl-C (or SIGTERM, or --duration). Every process
+it started is stopped on the way out; the run folder keeps sim.log,
+robot.log, the robot's file store, can.blf, trajectory.csv, mavlink.tlog (on
+UDP the robot sits behind a relay that records its MAVLink both ways,
+whichever ground station connects) and run.mcap, the whole run for Foxglove,
+written on the way out with a progress line each second.
 
-    qnav sitl                                   # paper10, its shipped cell policy, real time
-    mavproxy.py --master=udpout:127.0.0.1:14555 # in another terminal
-    qnav sitl --can socketcan:vcan0 --speed 2   # a kernel vcan0: candump -L vcan0 watches
+qnav sitl                                   # paper10, its shipped cell
+  policy, real time mavproxy.py --master=udpout:127.0.0.1:14555 # in another
+  terminal qnav sitl --can socketcan:vcan0 --speed 2   # a kernel vcan0:
+  candump -L vcan0 watches
 
 Exit status: 0 stopped by Ctrl-C/SIGTERM/--duration, 1 a process died,
 2 bad arguments or a failed bring-up.

@@ -1,4 +1,5 @@
-"""`qnav study`: research beside the product; its options and run are `ground_station.lab.cli.study`."""
+"""`qnav study`: research beside the product; its options and run are
+`ground_station.lab.cli.study`."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""`qnav sweep`: research beside the product; its options and run are `ground_station.lab.cli.sweep`."""
+"""`qnav sweep`: research beside the product; its options and run are
+`ground_station.lab.cli.sweep`."""
 
 from __future__ import annotations
 

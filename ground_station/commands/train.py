@@ -1,10 +1,11 @@
 """`qnav train`: train a Q table and write the run folder.
 
 A flag left out takes the encoding's shipped recipe (its kind's `recipe` in
-ground_station/learn/kinds.py; the cell recipe is the defaults shown below), else the default shown
-below; so `qnav train --encoding sector-memory --map M --seed N --out DIR` trains the shipped
-policy's recipe, and `qnav train --recipe shipped-sector` (map paper10, seed 0 unless given) the
-shipped policies/sector.qtab's table.
+ground_station/learn/kinds.py; the cell recipe is the defaults shown below),
+else the default shown below; so `qnav train --encoding sector-memory --map
+M --seed N --out DIR` trains the shipped policy's recipe, and `qnav train
+--recipe shipped-sector` (map paper10, seed 0 unless given) the shipped
+policies/sector.qtab's table.
 
 Writes DIR/q.npy (float64, n_states x n_actions), DIR/meta.json,
 DIR/metrics.csv and DIR/learning_curve.png (see `ground_station.learn.train`).

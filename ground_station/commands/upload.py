@@ -1,18 +1,21 @@
-"""`qnav upload FILE [--activate]`: put a policy on the robot over MAVLink FTP, prove it arrived
-byte-exact, and optionally activate it; the verdict comes from the robot's state (its POLICY_ID
-and POLICY_CRC_HI/LO parameters plus the CRC32 of active.qtab), never from one reply. Steps and
-retries: docs/mavlink.md, "Uploading a policy".
+"""`qnav upload FILE [--activate]`: put a policy on the robot over MAVLink FTP,
+prove it arrived byte-exact, and optionally activate it; the verdict comes
+from the robot's state (its POLICY_ID and POLICY_CRC_HI/LO parameters plus
+the CRC32 of active.qtab), never from one reply. Steps and retries:
+docs/mavlink.md, "Uploading a policy".
 
 `--timeout` is the whole upload's budget; of it at most 10 s go to waiting
 for the robot's heartbeat.
 
-Two CRCs are named: the "file CRC32" (MAVLink FTP's CRC32 of the whole file, compared with the
-robot's copy) and the "policy CRC" (the .qtab header's own, what the robot reports as
-POLICY_CRC_HI/LO); `qnav policy inspect` prints both.
+Two CRCs are named: the "file CRC32" (MAVLink FTP's CRC32 of the whole file,
+compared with the robot's copy) and the "policy CRC" (the .qtab header's
+own, what the robot reports as POLICY_CRC_HI/LO); `qnav policy inspect`
+prints both.
 
-The file is checked with the robot's own policy loader before anything is sent: what it refuses (a
-map, a truncated or corrupt .qtab) is refused here in one line, exit 2 (a MovingAI map is pointed at
-`qnav map upload`); `--force` sends it anyway, to see the robot's own refusal.
+The file is checked with the robot's own policy loader before anything is
+sent: what it refuses (a map, a truncated or corrupt .qtab) is refused here
+in one line, exit 2 (a MovingAI map is pointed at `qnav map upload`);
+`--force` sends it anyway, to see the robot's own refusal.
 
 Exit status: 0 done, 2 bad arguments, 3 refused by the robot (its reason
 printed), 4 timeout, no robot or no FTP answer, 5 CRC or policy-id mismatch.

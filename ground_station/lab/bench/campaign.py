@@ -2,10 +2,11 @@
 
 The campaign is `--runs` seeded twin runs: each evaluates a sector policy
 greedily on `--episodes` seeded (start, goal, heading) episodes of the
-kinematic twin (the job a navigation benchmark farms out). It runs once with one worker (the baseline) and once with
-`--workers` workers on the same engine, and reports the wall times, the
-speedup and whether both runs gave the same result (they must: every job is
-seeded, results come back in job order).
+kinematic twin (the job a navigation benchmark farms out). It runs once with
+one worker (the baseline) and once with `--workers` workers on the same
+engine, and reports the wall times, the speedup and whether both runs gave
+the same result (they must: every job is seeded, results come back in job
+order).
 """
 
 from __future__ import annotations

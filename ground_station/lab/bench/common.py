@@ -1,4 +1,5 @@
-"""Shared by benchmarks: a plain table on stdout and a JSON file; one timed upload."""
+"""Shared by benchmarks: a plain table on stdout and a JSON file; one timed
+upload."""
 
 from __future__ import annotations
 

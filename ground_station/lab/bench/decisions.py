@@ -1,12 +1,15 @@
-"""`qnav bench decisions`: which recovery decision ends each failed twin episode (issue 47).
+"""`qnav bench decisions`: which recovery decision ends each failed twin
+episode (issue 47).
 
-The episodes are `qnav bench nav`'s (the same seeded scenario for the same options); each
-controller on the robot's local planner drives them on the twin with its tick side traced
-(`ground_station.lab.nav.decisions`): every failure is counted under the decision that ended it:
-`declared:still` / `declared:cap` ("no route" after max_rounds still rounds / after the rounds'
-cap; `+gave_way` when it stood aside first), or a timeout, loop or collision with where its last
-400 periods went (`waiting`, `giving_way`, `backing_off`, `detour`: a whole-map route, `local`:
-the table, guard and monitor on the window's sub-goals). With `--blocked`, a "no route" on an
+The episodes are `qnav bench nav`'s (the same seeded scenario for the same
+options); each controller on the robot's local planner drives them on the
+twin with its tick side traced (`ground_station.lab.nav.decisions`): every
+failure is counted under the decision that ended it: `declared:still` /
+`declared:cap` ("no route" after max_rounds still rounds / after the rounds'
+cap; `+gave_way` when it stood aside first), or a timeout, loop or collision
+with where its last 400 periods went (`waiting`, `giving_way`,
+`backing_off`, `detour`: a whole-map route, `local`: the table, guard and
+monitor on the window's sub-goals). With `--blocked`, a "no route" on an
 episode without a detour is the right answer and is not a failure.
 """
 

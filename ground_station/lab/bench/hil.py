@@ -6,9 +6,9 @@ robot's `RobotNode` + `Controller` on a python-can `virtual` bus.
 
 The benchmark runs the acceptance sets on `paper10`: the sector policy on
 seeded random (start, goal) pairs (driving the ground station's planned
-waypoints as a mission, `--guidance path`, the default) and the cell policy on targets A-D from
-seeded random starts, and reports success (goal reached with no wall
-contact), contacts, and sim time against wall time.
+waypoints as a mission, `--guidance path`, the default) and the cell policy
+on targets A-D from seeded random starts, and reports success (goal reached
+with no wall contact), contacts, and sim time against wall time.
 
 `--profile ideal|realistic` names the plant's wheel and sensor error
 (`sim_bridge/profiles.py`; realistic: one encoder 3 % long, 10 % slip, 10 mm
@@ -20,11 +20,11 @@ line, exit 2, otherwise). The episodes are the same seeded ones whatever the
 robot. `--baselines seek,vfh,direct` runs the bench nav controllers
 (`ground_station.lab.nav.controllers`: hand-written tables on the sector
 policy's encoder, and the policy on the goal bearing) on the same sector
-episodes, each a row group of its own. The robot localises on the map its policy
-carries (`firmware_py/control/localiser.py`); `--compare-odometry` runs the
-same episodes again with the localiser off (dead reckoning only, as before)
-as the baseline. Ground truth against belief: the distance from the true
-position to the goal at the end (`final_error_mm`, bounded below by the
+episodes, each a row group of its own. The robot localises on the map its
+policy carries (`firmware_py/control/localiser.py`); `--compare-odometry`
+runs the same episodes again with the localiser off (dead reckoning only, as
+before) as the baseline. Ground truth against belief: the distance from the
+true position to the goal at the end (`final_error_mm`, bounded below by the
 goal tolerance), the localisation error |true - believed| at the end and its
 maximum while driving, and the dead-reckoning error. `step_cpu_us` is the
 thread CPU time of `Controller.step` per tick (localiser included).

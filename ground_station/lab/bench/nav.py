@@ -25,16 +25,17 @@ at all (`none`: the right answer is to report "no route"); `both` alternates
 the two labels. `--obstacles` then defaults to 0 extra discs. A map without
 such an episode is named on stderr and skipped.
 
-JSON: `scenario` (maps, obstacles, movers, seed, episodes, blocked), per controller
-(`learnt`, `seek`, `vfh`, `direct`) the twin figures over all maps
-(`success_rate`, `collision_rate`, `path_ratio_mean`, `episodes`,
+JSON: `scenario` (maps, obstacles, movers, seed, episodes, blocked), per
+controller (`learnt`, `seek`, `vfh`, `direct`) the twin figures over all
+maps (`success_rate`, `collision_rate`, `path_ratio_mean`, `episodes`,
 `time_to_goal_mean_s`, `near_miss_rate`, `no_route_rate`, `outcomes`, with
-`--blocked` a `blocked` object per label), `per_map` the same per
-map, `paired_vs_learnt` (exact McNemar on the same twin episodes) and
+`--blocked` a `blocked` object per label), `per_map` the same per map,
+`paired_vs_learnt` (exact McNemar on the same twin episodes) and
 `paired_time_vs_learnt` (time to goal where both succeeded: who was sooner,
-the median difference, a sign test), and with `--hil` a `hil` object with the same per-controller keys,
-`per_map`, `paired_vs_learnt` (exact McNemar on the same episodes) and
-`twin_same_episodes` (the twin on exactly the HIL episodes).
+the median difference, a sign test), and with `--hil` a `hil` object with
+the same per-controller keys, `per_map`, `paired_vs_learnt` (exact McNemar
+on the same episodes) and `twin_same_episodes` (the twin on exactly the HIL
+episodes).
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """`qnav bench train`: Q-learning training speed on `paper10`.
 
 Measured in one run: the numba kernel (exact sequential Q-learning, cell
-encoding, targets A-D) against a plain-Python loop doing the same
-Q-learning over the Gymnasium `CellNavEnv` (the usual way to write it), and
-beside them the sector twin's `SectorTrainer` and the sector-memory
-`GridBugTrainer` (cell-stepped, grid twin: a step is one cell move). The sector trainer is also
-given per second of the process's CPU time (the machine is shared: other
-load stretches the wall time, much less the CPU time). Compile time is
+encoding, targets A-D) against a plain-Python loop doing the same Q-learning
+over the Gymnasium `CellNavEnv` (the usual way to write it), and beside them
+the sector twin's `SectorTrainer` and the sector-memory `GridBugTrainer`
+(cell-stepped, grid twin: a step is one cell move). The sector trainer is
+also given per second of the process's CPU time (the machine is shared:
+other load stretches the wall time, much less the CPU time). Compile time is
 excluded (one warm-up call first).
 """
 

@@ -1,13 +1,14 @@
 """`qnav bench upload --serial`: the policy upload over the emulated serial radio.
 
-The same measurement as `qnav bench upload` (ground_station/lab/bench/upload.py),
-with the link a pair of pseudo-terminals joined by the SiK-like radio
-emulator (ground_station/lab/rigs/serial_radio.py, 57600 baud, 10 bits per
-byte): the robot's FTP shell opens one end as a serial device, `qnav
-upload`'s code the other as `/dev/pts/M,57600`. Per case: seconds from the
-first FTP request to the robot's CRC32 verified, the link's time for the
-WriteFile frames in 80-byte (t80) and 239-byte (t239) writes and the ratios,
-the packets the radio lost each way; success = byte-identical on the robot.
+The same measurement as `qnav bench upload`
+(ground_station/lab/bench/upload.py), with the link a pair of
+pseudo-terminals joined by the SiK-like radio emulator
+(ground_station/lab/rigs/serial_radio.py, 57600 baud, 10 bits per byte): the
+robot's FTP shell opens one end as a serial device, `qnav upload`'s code the
+other as `/dev/pts/M,57600`. Per case: seconds from the first FTP request to
+the robot's CRC32 verified, the link's time for the WriteFile frames in
+80-byte (t80) and 239-byte (t239) writes and the ratios, the packets the
+radio lost each way; success = byte-identical on the robot.
 """
 
 from __future__ import annotations
