@@ -410,6 +410,7 @@ def _run(args: argparse.Namespace, onboard: Any) -> int:
         "overruns": node.overruns, "can_errors": node.can_errors, "send_errors": node.send_errors,
         # implausible inputs refused rather than used: sim-time jumps (HIL) and encoder jumps
         "refused_clock_jumps": getattr(clock, "refused_jumps", 0), "refused_sim_ticks": node.tick_gate.refused,
+        "late_sim_ticks": node.late_ticks,
         "encoder_jumps": ctrl.encoder_jumps,
         # commands the collision monitor slowed or stopped (control/collision.py)
         "collision_slow_ticks": ctrl.collision_ticks["slow"], "collision_stop_ticks": ctrl.collision_ticks["stop"],

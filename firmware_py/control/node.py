@@ -160,6 +160,7 @@ class RobotNode:
         self.can_errors = 0
         self.send_errors = 0
         self.sim_ticks = 0
+        self.late_ticks = 0  # SimTicks older than the last one seen, ignored
         self.tick_gate = TickGate()  # SimTicks whose counter and time disagree are refused (clock.py)
         self.wall_late_ticks = 0  # ticks late by more than a quarter period in wall time
         self.wall_overruns = 0  # control periods lost in wall time (module doc)
@@ -267,7 +268,8 @@ class RobotNode:
         if self.last_tick is not None:
             gap = (counter - self.last_tick) % proto.TICK_MODULUS
             if gap >= proto.TICK_MODULUS // 2:
-                return  # an older tick arriving late (reordered): already past it
+                self.late_ticks += 1  # an older tick arriving late (reordered): already past it
+                return
         if not self.tick_gate.admit(counter, sim_us, gap, resends=self.lockstep):
             return  # not what the sim's protocol sends: not stepped, counted in tick_gate.refused
         if not clock.set_us(sim_us):

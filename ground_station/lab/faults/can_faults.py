@@ -265,13 +265,16 @@ def counters(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
     for i in trials(count, progress):
         rng, rig = _setup(seed * 7919 + 4000 + i)
         history: list[can.Message] = []  # earlier SimTicks, for replays
+        late = [0]  # replays older than the last tick: the robot must count each in late_ticks
 
-        def hook(tick, _t, frames, rng=rng, history=history):
+        def hook(tick, _t, frames, rng=rng, history=history, late=late):
             sim_tick = frames[-1]
             out = []
             if history and rng.random() < 0.2:  # an older tick arrives late, before this one
-                out.append(rng.choice(history[-4:]))
+                old = rng.choice(history[-4:])
+                out.append(old)
                 injected["old_tick"] += 1
+                late[0] += old is not history[-1]  # the last tick again is a resend, not a late tick
             for f in frames[:-1]:
                 out.append(f)
                 if rng.random() < 0.3:
@@ -303,6 +306,9 @@ def counters(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
                 rig.tick(frames_hook=hook, before_answer=stale_command)
             st = rig.ctrl.status()
             overruns = rig.node.overruns
+            late_counted = rig.node.late_ticks
+        if late_counted != late[0]:
+            problems.append(f"{late[0]} late (older) ticks replayed, {late_counted} counted in late_ticks")
         if rig.runner.result != "reached":
             problems.append(f"episode ended {rig.runner.result or 'in timeout'}")
         if st.ticks != rig.plant.tick:
