@@ -85,6 +85,8 @@ def raster_nearest(free: np.ndarray, x: float, y: float, reach: int = 3) -> tupl
     """Nearest free raster point to (x, y) mm within `reach` raster steps (None if there is none)."""
     ny, nx = free.shape
     ix, iy = _raster_point(free, x, y)
+    if free[iy, ix]:
+        return ix, iy
     best, pick = math.inf, None
     for yy in range(max(0, iy - reach), min(ny, iy + reach + 1)):
         for xx in range(max(0, ix - reach), min(nx, ix + reach + 1)):
