@@ -255,7 +255,15 @@ class MavNode:
         if kind.startswith("PARAM_"):
             return self._param(msg)
         if kind in ("COMMAND_LONG", "COMMAND_INT", "SET_MODE"):
-            return self.commands.handle(msg, now_us, self.stats)
+            replies = self.commands.handle(msg, now_us, self.stats)
+            if (self.gcs_last_heartbeat_us is not None and not self.failsafe
+                    and msg.get_srcSystem() == (self.params.get("SYSID_MYGCS") or self.gcs_sysid)
+                    and any(r.get_type() == "COMMAND_ACK" and r.result == M.MAV_RESULT_ACCEPTED for r in replies)):
+                # a command the failsafe's GCS got accepted proves it alive as its heartbeat would
+                # (ArduPilot counts MANUAL_CONTROL so): `qnav arm`, `qnav mode auto` typed between two
+                # monitors keep the watch; they never start it, nor clear a failsafe
+                self.gcs_last_heartbeat_us = now_us
+            return replies
         if kind in MISSION_MSGS:
             return self.mission.handle(msg, now_us)
         if kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):

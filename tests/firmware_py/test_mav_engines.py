@@ -266,6 +266,36 @@ def test_failsafe_events_and_heartbeat_state():
     assert link.node.failsafe
 
 
+def test_control_inputs_from_the_failsafes_gcs_keep_it_alive_once_it_watches():
+    """A command from SYSID_MYGCS that the robot accepts (arm, mode) between two monitors counts as that
+    GCS's heartbeat; before any GCS heartbeat it starts no watch, another system's commands and refused
+    ones feed nothing, and it does not clear a failsafe (a heartbeat does)."""
+    link = Link()
+    period = robot_spec.CONTROL_PERIOD_US
+    link.cmd(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    link.tick(10_000_000)
+    assert link.node.gcs_last_heartbeat_us is None and not link.node.failsafe  # no watch from commands
+    link.send(link.gcs.heartbeat_encode(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+    for _ in range(3):  # 3 x 4 s, commands only: never 5 s without the GCS
+        link.tick(4_000_000)
+        assert ack(link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.GUIDED)) == m.MAV_RESULT_ACCEPTED
+        assert not link.node.failsafe
+    link.node.params.set("SYSID_MYGCS", 255)
+    other = m.MAVLink(None, 77, 190)  # SYSID_MYGCS refuses it: its commands keep nothing alive
+    t_last = link.now
+    while not link.node.failsafe:
+        link.feed(bytes(other.command_long_encode(1, 1, m.MAV_CMD_DO_SET_MODE, 0, 1, Mode.GUIDED, 0, 0, 0, 0, 0)
+                        .pack(other)))
+        link.tick(period)
+    assert t_last + 5_000_000 < link.now <= t_last + 5_000_000 + period
+    assert ack(link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.GUIDED)) == m.MAV_RESULT_DENIED  # held by the failsafe
+    assert link.node.failsafe
+    link.cmd(m.MAV_CMD_DO_SET_MODE, 1, Mode.HOLD)
+    assert link.node.failsafe
+    replies = link.send(link.gcs.heartbeat_encode(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+    assert "GCS failsafe cleared" in texts(replies)
+
+
 # --- missions --------------------------------------------------------------------------------------
 
 def upload(link, items, *, as_int=True, drop_first=False):
