@@ -33,11 +33,8 @@ from firmware_py.layout import Layout
 from firmware_py.mapdata import OccupancyGrid, unmapped_ends
 
 _KEY_MM = 50  # one remembered point per 50 mm square
-# the sensor cones of robot_spec (the rays of `unmapped_ends`' fans share them)
-_N = robot_spec.SENSOR_COUNT
+# the sensor directions of robot_spec (the rays of `unmapped_ends`' fans share them)
 _ANG = [a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD]
-_MOUNT = float(robot_spec.SENSOR_MOUNT_RADIUS_MM)
-_HALF_FOV = robot_spec.SENSOR_FOV_MRAD / 2000.0
 # ObstacleMemory.added counts new points this near the robot (at window_mm, 1 m, a person walking to
 # and fro beside a disc that closes the only door made every round a "moving scene": no "no route")
 MOVING_NEAR_MM = 700
