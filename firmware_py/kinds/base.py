@@ -148,12 +148,14 @@ class KindDriver:
         return state, action, tuple(self.policy.row(state))
 
 
-def _no_geometry(_encoder: Any, _cell_mm: int) -> Geometry | None:
+def _none(*_args: Any) -> None:
+    """A `PolicyKind` hook's default: none (no fixed geometry, cell size, config or margin)."""
     return None
 
 
-def _no_cell(_policy: Policy) -> int | None:
-    return None
+def _empty(*_args: Any) -> dict[str, Any]:
+    """A `PolicyKind` hook's default: no header fields, no needs."""
+    return {}
 
 
 def free_goal(policy: Policy, x_mm: int, y_mm: int, radius_mm: int = robot_spec.ROBOT_RADIUS_MM) -> tuple[int, str]:
@@ -173,22 +175,6 @@ def free_goal(policy: Policy, x_mm: int, y_mm: int, radius_mm: int = robot_spec.
     return 0, ""
 
 
-def _no_margin(_policy: Policy) -> int | None:
-    return None
-
-
-def _no_header(_policy: Policy) -> dict[str, Any]:
-    return {}
-
-
-def _no_config(_policy: Policy) -> Any:
-    return None
-
-
-def _no_needs(_encoder: Any, _trained: Any) -> dict[str, Any]:
-    return {}
-
-
 @dataclass(frozen=True)
 class PolicyKind:
     """One kind of `.qtab` policy, as the registry knows it (docs/policy-format.md).
@@ -205,27 +191,27 @@ class PolicyKind:
     pack: Callable[[Any, Goals, int], bytes]
     driver: Callable[[Policy, Background, Layout], KindDriver]
     # the map geometry the header must record (a cell policy's own grid), or None: the training map's
-    fixed_geometry: Callable[[Any, int], Geometry | None] = field(default=_no_geometry)
+    fixed_geometry: Callable[[Any, int], Geometry | None] = field(default=_none)
     # the map cell size the policy drives on, which must be the robot's (None: not cell-bound)
-    robot_cell_mm: Callable[[Policy], int | None] = field(default=_no_cell)
+    robot_cell_mm: Callable[[Policy], int | None] = field(default=_none)
     # a goal's index for the table, or -1 and why it cannot be a goal of this policy; the last argument
     # is the robot's body radius (firmware_py.layout)
     goal_index: Callable[[Policy, int, int, int], tuple[int, str]] = field(default=free_goal)
-    header_fields: Callable[[Policy], dict[str, Any]] = field(default=_no_header)
+    header_fields: Callable[[Policy], dict[str, Any]] = field(default=_empty)
     # what the kind reads from the file's metadata (the loader keeps it as `policy.kind_config`; the
     # sector kind's local planner parameters), from the loaded policy; ValueError with the reason
-    parse_metadata: Callable[[Policy], Any] = field(default=_no_config)
+    parse_metadata: Callable[[Policy], Any] = field(default=_none)
     # the table is indexed by one map's cells (a cell policy): it runs only on the map it was trained
     # on. Other kinds observe ranges and bearings and take the robot's own map
     map_specific: bool = False
     # readings the policy's map does not explain at the tracked pose (beyond this margin, mm) are
     # withheld from the localiser while the policy drives (None: it weighs them all). A setting of the
     # policy, read once when it is activated: the kind sends the localiser nothing at run time
-    localiser_margin_mm: Callable[[Policy], int | None] = field(default=_no_margin)
+    localiser_margin_mm: Callable[[Policy], int | None] = field(default=_none)
     # what a policy of this kind needs of the robot beyond the control period and the wheel speed
     # (firmware_py.needs: the sectors it reads, the body and wheel base its twin assumed), from its
     # encoder and the robot it was trained for (a firmware_py.needs.TrainedFor); {}: nothing more
-    needs: Callable[[Any, Any], dict[str, Any]] = field(default=_no_needs)
+    needs: Callable[[Any, Any], dict[str, Any]] = field(default=_empty)
 
     def __post_init__(self) -> None:
         if not 1 <= self.code <= 255:
