@@ -14,6 +14,7 @@ import math
 import signal
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from firmware_py.helpformat import DefaultsHelpFormatter
@@ -186,10 +187,10 @@ def run(args: argparse.Namespace) -> int:
         prof = profile(plant_name)
         scale = (prof.encoder_scale[0] if args.enc_scale_left is None else args.enc_scale_left,
                  prof.encoder_scale[1] if args.enc_scale_right is None else args.enc_scale_right)
-        prof = prof.with_(encoder_scale=scale,
-                          slip_std=prof.slip_std if args.slip is None else args.slip,
-                          range_noise_mm=prof.range_noise_mm if args.noise_mm is None else args.noise_mm,
-                          range_dropout=prof.range_dropout if args.dropout is None else args.dropout)
+        prof = replace(prof, encoder_scale=scale,
+                       slip_std=prof.slip_std if args.slip is None else args.slip,
+                       range_noise_mm=prof.range_noise_mm if args.noise_mm is None else args.noise_mm,
+                       range_dropout=prof.range_dropout if args.dropout is None else args.dropout)
         config = SimConfig(seed=args.seed, cell_size_m=gm.cell_size_m,
                            ranges=RangeParams(args.fan_rays, prof.range_noise_mm, prof.range_dropout),
                            motors=MotorParams(watchdog_ms=args.watchdog_ms),

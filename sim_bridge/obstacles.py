@@ -26,7 +26,7 @@ import numpy as np
 import pymunk
 
 from firmware_py import robot_spec
-from sim_bridge.world import WALL_TYPE, WORLD_CATEGORY, World
+from sim_bridge.world import World, as_wall
 
 YIELD_MARGIN_MM = 60.0  # a mover keeps this much more than contact distance from the robot
 
@@ -81,13 +81,6 @@ def step_movers(movers, occ, cell, discs, rx, ry, rr, dt_s):  # type: ignore[no-
                 movers[i, 1] = ny
 
 
-def as_arrays(discs: list | None, movers: list | None) -> tuple[np.ndarray, np.ndarray]:
-    """float64 (K, 3) and (M, 6) arrays from lists of discs / movers (mm; a five-value mover yields)."""
-    d = np.asarray(discs or [], dtype=np.float64).reshape(-1, 3)
-    m = mover_array(movers)
-    return d, m
-
-
 def mover_array(movers) -> np.ndarray:  # type: ignore[no-untyped-def]
     """float64 (M, 6) from movers of five (x, y, vx, vy, r: they yield) or six values."""
     rows = [tuple(m) + (1.0,) * (6 - len(m)) for m in (movers if movers is not None else [])]
@@ -104,29 +97,19 @@ class ObstacleLayer:
 
     def __init__(self, world: World, discs: list | None = None, movers: list | None = None) -> None:
         self.world = world
-        self.discs, self.movers = as_arrays(discs, movers)
+        self.discs = np.asarray(discs or [], dtype=np.float64).reshape(-1, 3)  # (K, 3)
+        self.movers = mover_array(movers)
         self._occ = np.ascontiguousarray(world.occ, dtype=np.uint8)
         self._cell_mm = world.cell_size_m * 1000.0
         space = world.space
         for x, y, r in self.discs:
-            shape = pymunk.Circle(space.static_body, r / 1000.0, (x / 1000.0, y / 1000.0))
-            self._style(shape)
-            space.add(shape)
+            space.add(as_wall(pymunk.Circle(space.static_body, r / 1000.0, (x / 1000.0, y / 1000.0))))
         self.bodies: list[pymunk.Body] = []
         for x, y, _vx, _vy, r, _yields in self.movers:
             body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
             body.position = (x / 1000.0, y / 1000.0)
-            shape = pymunk.Circle(body, r / 1000.0)
-            self._style(shape)
-            space.add(body, shape)
+            space.add(body, as_wall(pymunk.Circle(body, r / 1000.0)))
             self.bodies.append(body)
-
-    @staticmethod
-    def _style(shape: pymunk.Circle) -> None:
-        shape.friction = 0.0
-        shape.elasticity = 0.0
-        shape.collision_type = WALL_TYPE
-        shape.filter = pymunk.ShapeFilter(categories=WORLD_CATEGORY)
 
     def step(self, dt_s: float = robot_spec.CONTROL_PERIOD_US / 1e6) -> None:
         """Move the movers one control period (those that yield, round the robot's pose now)."""

@@ -10,7 +10,7 @@ random slip on both wheels, 10 mm range noise and 2 % dropout. `qnav-sim --profi
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Any
 
 
@@ -30,9 +30,6 @@ class PlantProfile:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
-
-    def with_(self, **kw: Any) -> PlantProfile:
-        return replace(self, **kw)
 
 
 PROFILES: dict[str, PlantProfile] = {

@@ -32,6 +32,16 @@ ROBOT_CATEGORY = 0b1  # shape filter category of the robot: rays exclude it
 WORLD_CATEGORY = 0b10
 
 
+def as_wall(shape: pymunk.Shape) -> pymunk.Shape:
+    """`shape` made a wall of the arena: frictionless, inelastic, hit by the range rays (not the
+    robot's category), a bumper contact on touch (the walls' collision type)."""
+    shape.friction = 0.0
+    shape.elasticity = 0.0
+    shape.collision_type = WALL_TYPE
+    shape.filter = pymunk.ShapeFilter(categories=WORLD_CATEGORY)
+    return shape
+
+
 @dataclass(frozen=True)
 class Pose:
     x: float
@@ -104,12 +114,8 @@ class World:
 
     # --- construction ------------------------------------------------------
     def _add_box(self, x0: float, y0: float, x1: float, y1: float) -> None:
-        shape = pymunk.Poly(self.space.static_body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
-        shape.friction = 0.0
-        shape.elasticity = 0.0
-        shape.collision_type = WALL_TYPE
-        shape.filter = pymunk.ShapeFilter(categories=WORLD_CATEGORY)
-        self.space.add(shape)
+        corners = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+        self.space.add(as_wall(pymunk.Poly(self.space.static_body, corners)))
 
     def _add_obstacles(self) -> None:
         c, h = self.cell_size_m, self.height
@@ -164,12 +170,8 @@ class World:
         return math.atan2(py - by, px - bx)
 
     def _begin(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: object) -> None:
-        wall = arbiter.shapes[1]
-        angle = self._contact_angle(arbiter)
         self.contact_events += 1
-        if angle is not None:
-            self.contacts[id(wall)] = angle
-            self.last_contact_angle = angle
+        self._touching(arbiter, space, data)
 
     def _touching(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: object) -> None:
         angle = self._contact_angle(arbiter)
