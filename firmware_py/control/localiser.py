@@ -195,13 +195,8 @@ class Localiser:
         `seed_headings`, a share of them per tick, `_seed_tick`), and the
         particles drawn from those scores; then ordinary (global mode)
         updates follow. Until then the particles are uniform over free space."""
-        n = self.cfg.global_particles
-        self.xs, self.ys, self.ths = [], [], []
-        for _ in range(n):
-            x, y, th = self._random_pose()
-            self.xs.append(x)
-            self.ys.append(y)
-            self.ths.append(th)
+        poses = [self._random_pose() for _ in range(self.cfg.global_particles)]
+        self.xs, self.ys, self.ths = [p[0] for p in poses], [p[1] for p in poses], [p[2] for p in poses]
         self.global_mode = True
         self._reset_estimate(*self._mean_cov())
         self._force_update = False
@@ -214,6 +209,15 @@ class Localiser:
         return [(k, float(r) if st == robot_spec.RANGE_VALID else self._min_mm)
                 for k, (r, st) in enumerate(zip(ranges_mm, status, strict=False))
                 if st == robot_spec.RANGE_VALID or st == robot_spec.RANGE_TOO_CLOSE]
+
+    def _looked_through(self, readings: list[tuple[int, float]], status: list[int]) -> list[tuple[int, float]]:
+        """Negative information: (sensor, mm from the centre) of points the readings looked through,
+        free space (3/4 of a valid reading; 1/2 and 19/20 of the way to a TOO_FAR sensor's reach)."""
+        probes = [(k, self._mount + 0.75 * d) for k, d in readings if d > 100]
+        for k, st in enumerate(status):
+            if st == robot_spec.RANGE_TOO_FAR:
+                probes += [(k, self._mount + self._far[k][0]), (k, self._mount + self._far[k][1])]
+        return probes
 
     def _candidate_cells(self) -> list[tuple[float, float]]:
         """Grid positions (raster coordinates: world + margin) where the robot fits."""
@@ -243,10 +247,7 @@ class Localiser:
             sd.odom = self._odom_now
             readings = self._readings(ranges_mm, status)
             beams = [(k, self._mount + d) for k, d in readings]
-            probes = [(k, self._mount + 0.75 * d) for k, d in readings if d > 100]
-            for k, st in enumerate(status):
-                if st == robot_spec.RANGE_TOO_FAR:
-                    probes += [(k, self._mount + self._far[k][0]), (k, self._mount + self._far[k][1])]
+            probes = self._looked_through(readings, status)
             angles = [round(a / 1000 / (TWO_PI / nh)) for a in self.layout.angles_mrad]
             dirs = [(math.cos(m * TWO_PI / nh), math.sin(m * TWO_PI / nh)) for m in range(nh)]
             half = 1 if cfg.fan_rays > 1 else 0  # the fan's edge rays: the neighbouring heading indices
@@ -355,14 +356,10 @@ class Localiser:
             self._force_update = False
             beams = self._readings(ranges_mm, status)
             self._pending = (self._odom_now, [(self._mount + r, float(k)) for k, r in beams])
-            # negative information, while localising globally: space a reading looked through is free
-            # (3/4 of a valid reading; 1 and 1.9 m along a TOO_FAR one), checked against the grid's cells
-            probes = [(self._mount + 0.75 * r, k) for k, r in beams if r > 100]
-            for k, st in enumerate(status):
-                if st == robot_spec.RANGE_TOO_FAR:
-                    probes += [(self._mount + self._far[k][0], k), (self._mount + self._far[k][1], k)]
+            # negative information, while localising globally: checked against the grid's cells
             mid = len(self._beams[0]) // 2
-            self._probes = [(d, self._beams[k][mid]) for d, k in probes] if self.global_mode else []
+            self._probes = ([(d, self._beams[k][mid]) for k, d in self._looked_through(beams, status)]
+                            if self.global_mode else [])
             self._motion = self._motion_delta(self._est_odom, self._odom_now)
             self._cursor = 0
             self.lw = [0.0] * len(self.xs)
