@@ -2,10 +2,8 @@
 MovingAI map), each validated off the control tick and swapped in between two ticks, or refused with
 the reason while the running one stays (the last good policy kept for `revert_policy`).
 
-`Activation` is the part of the controller (firmware_py.control.controller.Controller) that owns this.
-It swaps, under the controller's lock, only what the decision part (`KindPart`: policy, driver, robot map)
-and the estimation part (`PoseEstimate`: the localiser) hold, and asks the controller (`ActivationHost`)
-only whether it drives, its config, its mission, and to say what became active.
+`Activation` is the part of the controller that owns this: under the controller's lock it swaps only
+what `KindPart` and `PoseEstimate` hold, and asks the controller only what `ActivationHost` lists.
 """
 
 from __future__ import annotations

@@ -9,12 +9,8 @@ DRIVING -> GOAL_REACHED -> next mission item or HOLD; FAULT from any armed state
 disarming; every transition logged with its cause and queued as a VehicleEvent.
 
 The controller is the state machine (states, modes, goal, mission, events) and holds its parts, each
-with its own inputs (docs/architecture.md): `pose` (control/estimate.py: odometry from plausible
-encoder samples, the localiser), `safety` (control/safety.py: freshness, the driver's health, the
-e-stop latch), `kind` (control/decision.py: the active policy's kind driver; it knows no kind),
-`monitor` (control/collision.py: the collision monitor, downstream of every command; the kind learns
-from it only how long its command was held, `DriveTick.blocked_us`), `out` (control/outputs.py: the
-motor watchdog, the tick's frames) and `activation` (control/activation.py: policy and map swaps).
+fed its own inputs: `pose`, `safety`, `kind`, `monitor`, `out` and `activation` (what each takes and
+gives back: docs/architecture.md, "The robot controller").
 """
 
 from __future__ import annotations
@@ -194,8 +190,7 @@ class Controller:
         self.kind.interrupt()
         self.progress.restart()
         if self.state == CtrlState.DRIVING:
-            log.info("t=%d us retarget: %s", self._now, cause)
-            self._event("info", f"retarget: {cause}")
+            self._note(f"retarget: {cause}")
         else:
             self._transition(CtrlState.DRIVING, cause)
 

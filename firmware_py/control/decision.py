@@ -1,10 +1,6 @@
 """Decision, one part of the controller: the active policy, its kind's driver (firmware_py.kinds) and
-the kind's off-tick work, on the robot's own map.
-
-Its inputs: a policy and a map to hold (`install`, `robot_map`, from activation), and per DRIVING tick
-the `DriveTick` (the pose the robot drives by, the goal, the readings, and `blocked_us`: how long the
-collision monitor downstream held its command, the one thing it learns back); its output is the
-kind's `Decision`. Between drives: `interrupt`. It knows no kind: the registry builds the driver.
+the kind's off-tick work, on the robot's own map. Its inputs and outputs: docs/architecture.md, "The
+robot controller". It knows no kind: the registry builds the driver.
 """
 
 from __future__ import annotations

@@ -2,11 +2,9 @@
 the plausibility check lets through) and, on a map, the Monte Carlo localiser's pose
 (control/localiser.py) the robot drives by.
 
-Its inputs, and nothing else: each tick's encoder sample and range readings (`encoders`,
-`localise`), the map to localise on (`new_localiser` off the lock, then `use`), a pose to start from,
-and one setting of the active policy (`withhold_mm`, passed with each tick's readings: readings its
-map does not explain at the tracked pose are withheld). It decides nothing: the controller reads
-`nav` and the verdicts it returns.
+Its inputs, and nothing else (docs/architecture.md, "The robot controller"): `encoders` and
+`localise_tick` per tick, the map via `new_localiser` (off the lock) then `use`. It decides nothing:
+the controller reads `nav` and the verdicts it returns.
 """
 
 from __future__ import annotations

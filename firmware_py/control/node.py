@@ -16,11 +16,9 @@
 Loop statistics (`latency_ns`, `compute_ns`, `lag_ns`, `wall_late_ticks`,
 `wall_overruns`) are all on the WALL clock whatever clock the controller
 runs on: a tick late in wall time is late for the motors even when sim time
-says otherwise (their definitions: docs/reliability.md). On sim time they
-start with the first frame sent after the receive loop began listening: the
-frames the bus queued while the robot was starting up are its backlog, not
-the latency of a running loop. `overruns` keeps its meaning on the
-controller's own clock.
+says otherwise (definitions, and the start-up backlog left out on sim time:
+docs/reliability.md, "The wall-clock counters"). `overruns` keeps its
+meaning on the controller's own clock.
 
 Hook for the MAVLink shell: callables in `node.after_tick` run in the
 ticking thread after each tick with the tick's `Outputs` and must not wait
