@@ -585,22 +585,6 @@ class Localiser:
             nt.append(th)
         self.xs, self.ys, self.ths = nx, ny, nt
 
-    def log_likelihood(self, x_mm: float, y_mm: float, heading_rad: float, ranges_mm: list[int],
-                       status: list[int]) -> float:
-        """The sensor model for one pose (what an update weighs each particle
-        by, written plainly: the reference the tests check by hand)."""
-        total = 0.0
-        c, s = math.cos(heading_rad), math.sin(heading_rad)
-        for k, r in self._readings(ranges_mm, status):
-            d = self._mount + r
-            ends = [(x_mm + d * (c * ca - s * sa), y_mm + d * (s * ca + c * sa)) for ca, sa in self._beams[k]]
-            if self.cfg.cone_min:
-                m = min(self.field.signed_at(ex, ey) for ex, ey in ends)
-                total += self.field.by_mm[int(abs(m))]
-            else:
-                total += max(self.field.log_p(ex, ey) for ex, ey in ends)
-        return self.cfg.beam_weight * total
-
     # --- the pose ----------------------------------------------------------------------
     def pose_f(self) -> tuple[float, float, float]:
         """The believed pose now (mm, mm, rad): the last estimate composed

@@ -9,6 +9,7 @@ import pytest
 from firmware_py import robot_spec
 from firmware_py.control.localiser import Localiser, LocaliserConfig
 from firmware_py.mapdata import grid_from_rows
+from tests.support.localiser_ref import log_likelihood
 
 ROWS = ["......", ".@@...", "...@..", "......"]
 
@@ -40,7 +41,7 @@ def test_seed_scores_are_the_sensor_model_at_each_grid_pose():
     diffs = []
     for ci, (x, y) in enumerate(cells):
         for j in range(nh):
-            want = loc.log_likelihood(x - mg, y - mg, j * 2 * math.pi / nh, ranges, status) / cfg.beam_weight
+            want = log_likelihood(loc, x - mg, y - mg, j * 2 * math.pi / nh, ranges, status) / cfg.beam_weight
             diffs.append(abs(seeding.scores[ci * nh + j] - want))
     exact = sum(d < 1e-6 for d in diffs)
     assert exact >= 0.75 * len(diffs)

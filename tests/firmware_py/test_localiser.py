@@ -13,6 +13,7 @@ from firmware_py.mapdata import MapDataError, grid_from_metadata, grid_from_rows
 from firmware_py.policy import MapGeometry, PolicyError, load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.learn.export import policy_bytes, quantise
+from tests.support.localiser_ref import log_likelihood
 
 SIGMA, Z_HIT, Z_FLOOR = 50.0, 0.85, 0.15
 
@@ -115,18 +116,18 @@ def test_one_reading_by_hand():
     ranges = [0] * robot_spec.SENSOR_COUNT
     status[0] = robot_spec.RANGE_VALID
     ranges[0] = 100
-    assert loc.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(12.5), abs=1e-6)
+    assert log_likelihood(loc, 250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(12.5), abs=1e-6)
     ranges[0] = 50
-    assert loc.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(37.5), abs=1e-6)
+    assert log_likelihood(loc, 250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(37.5), abs=1e-6)
     ranges[0] = 400  # 300 mm through the wall: the centre ray ends deepest, in the square 312.5 mm inside
-    assert loc.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(312.5), abs=1e-6)
+    assert log_likelihood(loc, 250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(312.5), abs=1e-6)
     best = Localiser(grid_from_rows(["."], 500), LocaliserConfig(sigma_hit_mm=SIGMA, z_hit=Z_HIT, z_floor=Z_FLOOR,
                                                                  field_res_mm=25, cone_min=False))
     ranges[0] = 50
-    assert best.log_likelihood(250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(37.5), abs=1e-6)
+    assert log_likelihood(best, 250, 250, 0.0, ranges, status) == pytest.approx(0.6 * value(37.5), abs=1e-6)
     # TOO_FAR and INVALID readings carry no end point
     status[0] = robot_spec.RANGE_TOO_FAR
-    assert loc.log_likelihood(250, 250, 0.0, ranges, status) == 0.0
+    assert log_likelihood(loc, 250, 250, 0.0, ranges, status) == 0.0
 
 
 def test_update_weighs_each_particle_as_the_reference_does():
@@ -147,7 +148,7 @@ def test_update_weighs_each_particle_as_the_reference_does():
         loc.tick((1250, 750, 300), ranges, status)
         ticks += 1
     assert ticks == math.ceil(30 / 7)  # one chunk per tick
-    want = [loc.log_likelihood(x, y, t, ranges, status) for x, y, t in zip(xs, ys, ths, strict=True)]
+    want = [log_likelihood(loc, x, y, t, ranges, status) for x, y, t in zip(xs, ys, ths, strict=True)]
     assert loc.lw == pytest.approx(want, abs=1e-9)
     loc.tick((1250, 750, 300), ranges, status)  # the resample tick
     assert loc.updates == 1 and len(loc.xs) == cfg.particles
