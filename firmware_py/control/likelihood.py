@@ -114,27 +114,6 @@ class LikelihoodField:
                     best = d
         return best
 
-    def _index(self, x_mm: float, y_mm: float) -> int:
-        """The raster index of a world point (-1 beyond the raster)."""
-        fx = x_mm + self.margin
-        fy = y_mm + self.margin
-        if fx < 0 or fy < 0:
-            return -1
-        ix = int(fx / self.res)
-        iy = int(fy / self.res)
-        return -1 if ix >= self.nx or iy >= self.ny else iy * self.nx + ix
-
-    def signed_at(self, x_mm: float, y_mm: float) -> float:
-        """The signed distance (mm, < 0 inside a wall, capped at max_mm) at a world point; beyond the
-        raster: -max_mm (off the map)."""
-        i = self._index(x_mm, y_mm)
-        return self.signed[i] if i >= 0 else -self.max_mm
-
-    def log_p(self, x_mm: float, y_mm: float) -> float:
-        """The field at a world point; beyond the raster: the floor."""
-        i = self._index(x_mm, y_mm)
-        return self.table[i] if i >= 0 else self.floor
-
     def free(self, x_mm: float, y_mm: float, clearance_mm: float) -> bool:
         """A robot centred here would not overlap a wall (for uniform draws)."""
         if not (0 <= x_mm < self.width_mm and 0 <= y_mm < self.height_mm):

@@ -13,7 +13,7 @@ from firmware_py.mapdata import MapDataError, grid_from_metadata, grid_from_rows
 from firmware_py.policy import MapGeometry, PolicyError, load_policy
 from firmware_py.shipped_policies import shipped_policy
 from ground_station.learn.export import policy_bytes, quantise
-from tests.support.localiser_ref import log_likelihood
+from tests.support.localiser_ref import log_likelihood, log_p, signed_at
 
 SIGMA, Z_HIT, Z_FLOOR = 50.0, 0.85, 0.15
 
@@ -86,18 +86,18 @@ def test_distances_by_hand(block):
 
 def test_field_values_by_hand(block):
     # raster squares are 25 mm; (387.5, 787.5) is the centre of the square holding (380, 780): 112.5 mm
-    assert block.log_p(380, 780) == pytest.approx(value(112.5), abs=1e-6)
+    assert log_p(block, 380, 780) == pytest.approx(value(112.5), abs=1e-6)
     # on a wall's surface the field's top value, log(z_hit + z_floor) = 0; inside a wall it falls off with
     # the depth as it does with the distance outside (a reading ends on the surface): the square holding
     # (510, 750) is centred 12.5 mm inside the block, (750, 750)'s 237.5 mm; (-10, 750)'s 12.5 mm into the
     # outer wall
-    assert block.log_p(510, 750) == pytest.approx(value(12.5), abs=1e-6)
-    assert block.log_p(750, 750) == pytest.approx(value(237.5), abs=1e-6)
-    assert block.log_p(-10, 750) == pytest.approx(value(12.5), abs=1e-6)
+    assert log_p(block, 510, 750) == pytest.approx(value(12.5), abs=1e-6)
+    assert log_p(block, 750, 750) == pytest.approx(value(237.5), abs=1e-6)
+    assert log_p(block, -10, 750) == pytest.approx(value(12.5), abs=1e-6)
     assert value(0.0) == pytest.approx(0.0, abs=1e-6)
-    assert block.signed_at(380, 780) == pytest.approx(112.5) and block.signed_at(750, 750) == pytest.approx(-237.5)
+    assert signed_at(block, 380, 780) == pytest.approx(112.5) and signed_at(block, 750, 750) == pytest.approx(-237.5)
     # far from everything (capped at 400 mm) and beyond the raster: the outlier floor
-    assert block.log_p(-1000, 750) == pytest.approx(math.log(Z_FLOOR))
+    assert log_p(block, -1000, 750) == pytest.approx(math.log(Z_FLOOR))
 
 
 def test_one_reading_by_hand():
