@@ -426,10 +426,7 @@ class RobotNode:
         out: dict[str, float] = {"samples": len(self.latency_ns), "wall_late_ticks": self.wall_late_ticks,
                                  "wall_overruns": self.wall_overruns, "hook_errors": self.hook_errors}
         for name, values in (("tick", self.latency_ns), ("compute", self.compute_ns), ("lag", self.lag_ns)):
-            lat = sorted(values)
-            if not lat:
-                out.update({f"{name}_p50_us": 0.0, f"{name}_p99_us": 0.0, f"{name}_max_us": 0.0})
-                continue
+            lat = sorted(values) or [0]  # no samples: 0.0 each
             n = len(lat) - 1
             out.update({f"{name}_p50_us": lat[int(0.50 * n + 0.5)] / 1000,
                         f"{name}_p99_us": lat[int(0.99 * n + 0.5)] / 1000, f"{name}_max_us": lat[-1] / 1000})

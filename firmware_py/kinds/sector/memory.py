@@ -13,13 +13,10 @@ pinned by a global re-plan, are kept `route_memory_us` (a door found closed
 stays closed while the robot goes round through another) unless a reading sees
 through them. At most `max_points` points (the oldest go first).
 
-A point in the blind gap between two cones is not in any reading's cone, so no
+A point in the blind gap between two cones is in no reading's cone, so no
 reading sees through it; pinned, it would stay for good (and the collision
-monitor hold every step into it). But a point stands for a body, and a body the
-robot must see (`MIN_BODY_RADIUS_MM`, what the collision monitor's blind-gap
-rule assumes too) near the rim does not fit in a gap: the readings rule it out
-where every disc of that radius through the point would cross a cone nearer
-than its reading (`_no_room`).
+monitor hold every step into it). But a point stands for a body, and one the
+robot must see does not fit in a gap: `_no_room` clears such points.
 """
 
 from __future__ import annotations

@@ -257,8 +257,7 @@ class PlannedTarget:
     def _speed(self, age_us: int) -> int:
         """Full speed while the answer steered by is at most PLAN_SLOW_US old, half up to PLAN_STOP_US,
         then none (counted as stale ticks)."""
-        speed = 100 if age_us <= PLAN_SLOW_US else 50 if age_us <= PLAN_STOP_US else 0
-        return speed
+        return 100 if age_us <= PLAN_SLOW_US else 50 if age_us <= PLAN_STOP_US else 0
 
     def _recovering(self, now_us: int, x: float, y: float, waypoint: tuple[int, int], ans: PlanAnswer | None,
                     memory: ObstacleMemory) -> tuple[float, float, int]:
