@@ -414,16 +414,15 @@ class LocalPlanner:
         # the whole map's route passes doors and corners of the map: every target there is one the
         # robot sees in a straight line (a window's detour goes round points in the open)
         best = path[0]
-        if not whole_map and len(path) > 1 and self._body_clear(x, y, path[1][0] * r + r / 2, path[1][1] * r + r / 2):
-            best = path[1]  # a window's detour: the next cell unless the body would clip a wall toward it
         for c in path[1 if whole_map else 2:]:  # the furthest the robot sees (not the last before one it
             if self._line_clear(x, y, c[0] * r + r / 2, c[1] * r + r / 2, memory):  # does not: a path
                 best = c  # bending round a point hides its next cells and shows the ones after them)
         if best == path[0] and len(path) > 1 and self._body_clear(x, y, path[1][0] * r + r / 2,
                                                                   path[1][1] * r + r / 2):
-            # a route squeezing between a point and a wall nearer than los_clear_mm (it is open at
-            # obstacle_clear_mm): none of its cells is in plain sight, and steering to the robot's own
-            # cell held it there for good; the next cell, as a window's detour takes it
+            # none further in sight: the next cell unless the body would clip a wall toward it (a window's
+            # detour; a route squeezing between a point and a wall nearer than los_clear_mm, open at
+            # obstacle_clear_mm, has none of its cells in plain sight, and steering to the robot's own
+            # cell held it there for good)
             best = path[1]
         self.detouring = True
         return best[0] * r + r / 2, best[1] * r + r / 2
