@@ -288,7 +288,7 @@ class Controller:
                 self.goal = None
                 self._transition(CtrlState.HOLD, f"mode {mode.name}")
             elif mode == Mode.AUTO and self.armed and self.route.items and self.state != CtrlState.FAULT:
-                return self._start_mission_locked()
+                return self.start_mission()  # the lock is reentrant
             return True, ""
 
     def manual_control(self, x: int, r: int, now_us: int) -> bool:
@@ -340,21 +340,18 @@ class Controller:
                 self._start_driving((x, y), self.kind.goal_index(x, y)[0], f"mission item {seq}")
             return (False, why) if why else (True, "")
 
-    def _start_mission_locked(self) -> tuple[bool, str]:
-        ok, why = self._can_drive()
-        if not ok or not self.route.items:
-            return False, why or "no mission loaded"
-        x, y = self.route.current()
-        gi, why = self.kind.goal_index(x, y)
-        if gi < 0:
-            return False, f"item {self.route.seq}: {why}"
-        self.mode = Mode.AUTO
-        self._start_driving((x, y), gi, f"mission item {self.route.seq}")
-        return True, ""
-
     def start_mission(self) -> tuple[bool, str]:
         with self._lock:
-            return self._start_mission_locked()
+            ok, why = self._can_drive()
+            if not ok or not self.route.items:
+                return False, why or "no mission loaded"
+            x, y = self.route.current()
+            gi, why = self.kind.goal_index(x, y)
+            if gi < 0:
+                return False, f"item {self.route.seq}: {why}"
+            self.mode = Mode.AUTO
+            self._start_driving((x, y), gi, f"mission item {self.route.seq}")
+            return True, ""
 
     def set_failsafe(self, active: bool) -> None:
         with self._lock:
