@@ -242,23 +242,16 @@ def upload_policy(link: Link, local: Path, remote: str, *, activate: bool = Fals
     """Put `local` at `remote` over the connected `link`, verify its CRC, optionally activate.
     Raises LinkError (exit codes 3, 4, 5); `progress(fraction)` is called during the put."""
     from firmware_py.policy import PolicyError, load_policy
-    from firmware_py.storage import ftp_crc32
 
-    data = local.read_bytes()
-    res = UploadResult(remote=remote, size=len(data), crc=ftp_crc32(data))
+    deadline = time.monotonic() + deadline_s
+    res = _put_file(link, local, remote, deadline, attempts, progress)
     try:
-        pol = load_policy(data)
+        pol = load_policy(local.read_bytes())
         res.policy_id, res.policy_crc = pol.policy_id, pol.crc
     except PolicyError as exc:
         res.local_error = str(exc)  # not a policy this build can load: the robot will judge it
-    deadline = time.monotonic() + deadline_s
-    t0 = time.monotonic()
-    session = ftp_session(link)
-    ftp = session.client()
-    _put_verified(session, ftp, local, res, deadline, attempts, progress)
-    res.put_seconds = time.monotonic() - t0
     if activate:
-        _activate(session, ftp, res, deadline, deadline_s)
+        _activate(ftp_session(link), res, deadline, deadline_s)
         res.texts = list(link.texts)
     return res
 
@@ -272,16 +265,9 @@ def upload_map(link: Link, local: Path, *, deadline_s: float = 120.0, attempts: 
     the robot parses it with its own cell size, checks it against its policy, builds its localiser
     and answers the rename (ACK: active; NAK: refused, the reason in a STATUSTEXT, the old map kept).
     A lost reply is settled by the CRC of /maps/active.map. Raises LinkError (exit codes 3, 4, 5)."""
-    from firmware_py.storage import ftp_crc32
-
-    data = local.read_bytes()
-    res = UploadResult(remote=MAP_UPLOAD, size=len(data), crc=ftp_crc32(data))
     deadline = time.monotonic() + deadline_s
+    res = _put_file(link, local, MAP_UPLOAD, deadline, attempts)
     session = ftp_session(link)
-    ftp = session.client()
-    t0 = time.monotonic()
-    _put_verified(session, ftp, local, res, deadline, attempts, None)
-    res.put_seconds = time.monotonic() - t0
     mavftp = session.mavftp
     texts_from = len(link.texts)
     while True:
@@ -305,16 +291,23 @@ def upload_map(link: Link, local: Path, *, deadline_s: float = 120.0, attempts: 
 
 def put_plain_file(link: Link, local: Path, remote: str, *, deadline_s: float = 60.0, attempts: int = 4) -> UploadResult:
     """Put a plain file (no activation: the targets beside the robot's map), verified by its CRC32."""
+    return _put_file(link, local, remote, time.monotonic() + deadline_s, attempts)
+
+
+def _put_file(link: Link, local: Path, remote: str, deadline: float, attempts: int,
+              progress: Callable[[float | None], None] | None = None) -> UploadResult:
+    """`local` put at `remote` and verified (`_put_verified`), its time in `put_seconds`."""
     from firmware_py.storage import ftp_crc32
 
     data = local.read_bytes()
     res = UploadResult(remote=remote, size=len(data), crc=ftp_crc32(data))
-    session = ftp_session(link)
-    _put_verified(session, session.client(), local, res, time.monotonic() + deadline_s, attempts, None)
+    t0 = time.monotonic()
+    _put_verified(ftp_session(link), local, res, deadline, attempts, progress)
+    res.put_seconds = time.monotonic() - t0
     return res
 
 
-def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, deadline: float, attempts: int,
+def _put_verified(session: FtpSession, local: Path, res: UploadResult, deadline: float, attempts: int,
                   progress) -> None:
     """Put until CalcFileCRC32 of `res.remote` equals the local CRC."""
     mavftp = session.mavftp
@@ -361,15 +354,15 @@ def _put_verified(session: FtpSession, ftp, local: Path, res: UploadResult, dead
     raise LinkError(code, f"{remote} not verified after {attempts} puts ({problem})")
 
 
-def _activate(session: FtpSession, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
+def _activate(session: FtpSession, res: UploadResult, deadline: float, deadline_s: float) -> None:
     """Rename the verified file onto active.qtab until the robot's state shows it active
     (docs/mavlink.md, "Uploading a policy", step 5). Replies only steer: a NAK Fail is the
     robot's refusal; an ACK or a lost reply is checked against what the robot reports."""
-    link, mavftp = session.link, session.mavftp
+    link, mavftp, ftp = session.link, session.mavftp, session.client()
     want = res.want_params()
     params = link.serves_params
     if params and want is None:
-        _activate_unreadable(session, ftp, res, deadline, deadline_s)  # always raises
+        _activate_unreadable(session, res, deadline, deadline_s)  # always raises
     rename_seqs: list[int] = []
     texts_from = len(link.texts)
     status = "no reply yet"
@@ -420,11 +413,11 @@ def _activate(session: FtpSession, ftp, res: UploadResult, deadline: float, dead
         status = f"{res.remote} renamed, robot's policy parameters unanswered"
 
 
-def _activate_unreadable(session: FtpSession, ftp, res: UploadResult, deadline: float, deadline_s: float) -> None:
+def _activate_unreadable(session: FtpSession, res: UploadResult, deadline: float, deadline_s: float) -> None:
     """Activation of a file our policy loader refuses (`res.local_error`): the robot runs the same
     loader, so its refusal (exit 3) is the expected end; should it take the file, its POLICY_*
     cannot be checked (exit 5). While the file is still under its own name, the rename is re-sent."""
-    link, mavftp = session.link, session.mavftp
+    link, mavftp, ftp = session.link, session.mavftp, session.client()
     rename_seqs: list[int] = []
     texts_from = len(link.texts)
     while time.monotonic() < deadline:
