@@ -25,7 +25,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -287,6 +287,17 @@ class ThreadedSource:
 
 
 # --- the steps ---------------------------------------------------------------------
+@contextlib.contextmanager
+def _link_step(what: str = "") -> Iterator[None]:
+    """A LinkError in the block ends the demo as a DemoError: `what`, then the link's one line."""
+    from ground_station.mavlink.link import LinkError
+
+    try:
+        yield
+    except LinkError as exc:
+        raise DemoError(f"{what}{exc}") from None
+
+
 def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -> Path:
     """Train (progress bar) and export an int8 cell policy into the run folder."""
     from firmware_py.policy import PolicyError, load_policy
@@ -320,7 +331,6 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
     from tqdm import tqdm
 
     from ground_station.mavlink.ftp_upload import upload_policy
-    from ground_station.mavlink.link import LinkError
 
     size = policy.stat().st_size
     remote = f"{ACTIVE_REMOTE_DIR}/upload-{policy.name}"
@@ -331,10 +341,8 @@ def _upload(link, policy: Path, say: Callable[[str], None], quiet: bool) -> tupl
                 bar.n = int(frac * size)
                 bar.refresh()
 
-        try:
+        with _link_step("policy upload: "):
             res = upload_policy(link, policy, remote, activate=True, deadline_s=120.0, progress=progress)
-        except LinkError as exc:
-            raise DemoError(f"policy upload: {exc}") from None
         bar.n = size
     pid = f"0x{res.policy_id:08x}" if res.policy_id is not None else None
     say(f"uploaded {policy.name} ({res.size} B, CRC 0x{res.crc:08x}) in {res.put_seconds:.1f} s, "
@@ -347,14 +355,11 @@ def _upload_map(link, grid_map, run_dir: Path, say: Callable[[str], None]) -> No
     on the world it is in, whatever map its policy was trained on."""
     from ground_station.maps import write_map
     from ground_station.mavlink.ftp_upload import upload_map
-    from ground_station.mavlink.link import LinkError
 
     local = run_dir / "robot_map.map"
     write_map(local, grid_map)
-    try:
+    with _link_step("map upload: "):
         res = upload_map(link, local, deadline_s=60.0)
-    except LinkError as exc:
-        raise DemoError(f"map upload: {exc}") from None
     say(f"map {grid_map.name} uploaded and active on the robot ({res.size} B), confirmed by {res.confirmed_by}")
 
 
@@ -389,27 +394,19 @@ def demo_scenario(opts: DemoOptions, grid_map, start_mm: tuple[float, float],
 
 def _command_mission(link, opts: DemoOptions, say: Callable[[str], None],
                      items: list[tuple[int, int, int]]) -> None:
-    from ground_station.mavlink.link import LinkError
-
-    m = link.m
-    try:
+    with _link_step():
         n = link.mission_upload(items)
         say(f"mission {' -> '.join(opts.targets)} accepted ({n} waypoints)")
-        link.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        link.command(link.m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         say("armed")
-    except LinkError as exc:
-        raise DemoError(str(exc)) from None
 
 
 def _set_auto(link, say: Callable[[str], None]) -> None:
     from firmware_py.vehicle import Mode
-    from ground_station.mavlink.link import LinkError
 
     m = link.m
-    try:
+    with _link_step():
         link.command(m.MAV_CMD_DO_SET_MODE, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.AUTO))
-    except LinkError as exc:
-        raise DemoError(str(exc)) from None
     say("mode Auto: driving the mission")
 
 
@@ -637,13 +634,9 @@ def run_demo(opts: DemoOptions, say: Callable[[str], None] | None = None,
         link.start_heartbeat(REALTIME_HEARTBEAT_S if opts.realtime else LOCKSTEP_HEARTBEAT_S)
         say(f"robot sysid {link.sysid} found")
         if not opts.realtime:
-            from ground_station.mavlink.link import LinkError
-
             for name, value in LOCKSTEP_PARAMS.items():
-                try:
+                with _link_step(f"{name}: "):
                     link.param_set(name, value)
-                except LinkError as exc:
-                    raise DemoError(f"{name}: {exc}") from None
 
         summary.upload_seconds, summary.policy_id = _upload(link, policy, say, quiet=False)
         _upload_map(link, grid_map, run_dir, say)
