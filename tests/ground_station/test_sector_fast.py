@@ -18,6 +18,7 @@ from ground_station.learn.sector import kernels as K
 from ground_station.learn.sector import twin as T
 from ground_station.learn.sector.trainer import SectorTrainer, pack_maps, sector_encoder
 from ground_station.maps import load_map
+from tests.support.sector_noise import noisy_encode, noisy_state
 
 TW = T.DEFAULT_TW  # the built-in robot
 MAPS = ["paper10", "trap-12x12-s1", "rooms-16x16-s2"]
@@ -127,7 +128,7 @@ def test_noisy_state_without_needless_gaussians_is_the_same_state_and_stream(noi
                             robot_spec.SENSOR_COUNT).astype(np.int64)
         bearing = int(rng.integers(-3142, 3143))
         buf = [np.zeros(robot_spec.SENSOR_COUNT, dtype=np.int64) for _ in range(3)]
-        a = K.noisy_encode(g1, noise_mm, bearing, ranges, status, buf[0], buf[1], sectors, sensors, edges, TW)
+        a = noisy_encode(g1, noise_mm, bearing, ranges, status, buf[0], buf[1], sectors, sensors, edges, TW)
         b = K.noisy_encode_fast(g2, noise_mm, bearing, ranges, status, buf[2], sectors, sensors, edges, TW)
         assert a == b and g1[0] == g2[0]
         skipped_some |= bool(np.any((status[sensors] == robot_spec.RANGE_VALID) & (ranges[sensors] > 600)))
@@ -163,8 +164,8 @@ def test_fused_train_period_equals_period_step_then_noisy_state(guided, noise_mm
                                 sectors, sensors, edges, guided, TW)
             s_ref = ref[5]
             if noise_mm > 0 and not (ref[6] or ref[7]):
-                s_ref = K.noisy_state(ga, noise_mm, ref[0], ref[1], ref[2], wps[ref[9], 0], wps[ref[9], 1],
-                                      bufs[0], bufs[1], bufs[2], bufs[3], sectors, sensors, edges, TW)
+                s_ref = noisy_state(ga, noise_mm, ref[0], ref[1], ref[2], wps[ref[9], 0], wps[ref[9], 1],
+                                    bufs[0], bufs[1], bufs[2], bufs[3], sectors, sensors, edges, TW)
             got = K.train_period(occ, occb, h, w, c, d, x, y, th, phi, b0, wps, rem, nwp, k, a, rw, which,
                                  bufs[4], bufs[5], sectors, sensors, edges, guided, gb, noise_mm, bufs[2], bufs[3], TW)
             assert got[:5] == ref[:5] and got[5] == s_ref and got[6:9] == (ref[6], ref[7], ref[9])
@@ -222,8 +223,8 @@ def reference_kernel(q, rng, ep, occ, dims, cell, free, nfree, dist,
             og, h, w, c, d, ep[K.E_X], ep[K.E_Y], ep[K.E_TH], ep[K.E_PHI], wps, rem, int(ep[K.E_NWP]),
             int(ep[K.E_WP]), a, rw, which, ranges, status, sectors, sensors, edges, guided, tw)
         if noise_mm > 0.0 and not (hit or success):
-            s2 = K.noisy_state(rng, noise_mm, x, y, th, wps[k, 0], wps[k, 1], ranges, status, noisy, nstatus,
-                             sectors, sensors, edges, tw)
+            s2 = noisy_state(rng, noise_mm, x, y, th, wps[k, 0], wps[k, 1], ranges, status, noisy, nstatus,
+                           sectors, sensors, edges, tw)
         ep[K.E_T] += 1.0
         ep[K.E_K] += 1.0
         terminal = hit or success

@@ -91,35 +91,6 @@ def gauss(rng) -> float:
     return math.sqrt(-2.0 * math.log(1.0 - u)) * math.cos(2.0 * math.pi * v)
 
 
-@numba.njit(cache=True)
-def noisy_state(rng, noise_mm, x, y, th, tx, ty, ranges, status, noisy, nstatus, sectors, sensors, edges,
-                tw) -> int:
-    """State index from the readings with Gaussian noise (std noise_mm, whole mm) added to the
-    valid ones, re-classified past the sensor limits, as the sim's noisy sensors report."""
-    return noisy_encode(rng, noise_mm, bearing_mrad(x, y, th, tx, ty), ranges, status, noisy, nstatus,
-                        sectors, sensors, edges, tw)
-
-
-@numba.njit(cache=True, inline="always")
-def noisy_encode(rng, noise_mm, bearing, ranges, status, noisy, nstatus, sectors, sensors, edges, tw) -> int:
-    """`noisy_state` with the target's bearing (int mrad) already known."""
-    for j in range(sensors.shape[0]):
-        i = sensors[j]
-        noisy[i] = ranges[i]
-        nstatus[i] = status[i]
-        if status[i] == RANGE_VALID_:
-            r = ranges[i] + int(math.floor(noise_mm * gauss(rng) + 0.5))
-            if r < RANGE_MIN_:
-                noisy[i] = RANGE_MIN_
-                nstatus[i] = RANGE_TOO_CLOSE_
-            elif r > tw[TW_RMAX][i]:
-                noisy[i] = int(tw[TW_RMAX][i])
-                nstatus[i] = RANGE_TOO_FAR_
-            else:
-                noisy[i] = r
-    return encode_fast(bearing, noisy, nstatus, sectors, sensors, edges)
-
-
 # |Box-Muller draw| <= sqrt(-2 ln 2^-53) = 8.5717 (rand01 <= 1 - 2^-53, so 1 - u >= 2^-53)
 GAUSS_MAX = 8.6
 
@@ -140,9 +111,12 @@ def _noisy_bin(r, edges, rmax) -> int:
 
 @numba.njit(cache=True, inline="always")
 def noisy_encode_fast(rng, noise_mm, bearing, ranges, status, nstatus, sectors, sensors, edges, tw) -> int:
-    """`noisy_encode`'s index with the same draws, the Gaussian computed only where it can change
-    the index: the bin is monotone in the reading and a draw moves it by at most `bound` mm, so
-    when both ends fall into one bin the two uniforms are drawn and dropped. No readings out."""
+    """The state index of the readings with Gaussian noise (std noise_mm, whole mm) added to the
+    valid ones, re-classified past the sensor limits, as the sim's noisy sensors report: the index
+    of the reference `noisy_state` (tests/support/sector_noise.py) with the same draws, the
+    Gaussian computed only where it can change the index: the bin is monotone in the reading and a
+    draw moves it by at most `bound` mm, so when both ends fall into one bin the two uniforms are
+    drawn and dropped. No readings out."""
     bound = int(math.ceil(noise_mm * GAUSS_MAX)) + 1
     state = 0
     mult = 1
@@ -288,7 +262,7 @@ def train_period(occ, occb, h, w, c, dist, x, y, th, phi, b0, wps, rem, nwp, k, 
     """`period_step` for the trainer's hot loop, bit for bit (a test compares trained tables):
     b0 = |bearing| to waypoint k is carried from the previous period, the end bearing computed
     once, the sensors cast on the `bordered` grid occb, and with noise_mm > 0 the state comes
-    from the noisy readings (the draws of `period_step` then `noisy_state`).
+    from the noisy readings (the draws of `period_step` then tests/support's `noisy_state`).
     Returns (x, y, th, phi, reward, state, hit, success, k, |bearing|)."""
     x, y, th, driven, hit = move(occ, h, w, c, x, y, th, a, tw)
     if hit:
@@ -354,7 +328,7 @@ def train_kernel(learner, q, q2, rng, ep, occ, occb, dims, cell, free, nfree, di
     what the robot executes; hold_max = 1 is the plain one-step update.
     guided: episodes follow the planner's waypoints (`start_guidance`; wps/rem/path are the
     caller's buffers and carry the open episode across chunks). noise_mm > 0: the learner sees
-    noisy readings (`noisy_state`), so the policy does not rely on a reading being exactly on one
+    noisy readings (`noisy_encode_fast`), so the policy does not rely on a reading being exactly on one
     side of a range edge. occb: `bordered` copies of the maps (M, Hmax + 2, Wmax + 2).
 
     learner (L_*): the update at the end of a held action (s0, a) -> s2; q-learning's target is
