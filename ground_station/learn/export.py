@@ -198,16 +198,21 @@ def map_geometry(run: TrainingRun) -> fmt.MapGeometry:
     return geometry_of_map(run.meta.get("map"), run.cell_mm)
 
 
-def geometry_of_map(name: str | None, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> fmt.MapGeometry:
-    """Geometry of a built-in map or map file (ValueError with one line if it cannot be read)."""
+def _load_map(name: str | None, cell_mm: int, what: str, unnamed: str):  # type: ignore[no-untyped-def]
+    """A built-in map or map file at `cell_mm`; ValueError, one line: `unnamed`, or `what` NAME: why."""
     from ground_station.maps import MapError, load_map
 
     if not name:
-        raise ValueError("no training map named: cannot record its geometry")
+        raise ValueError(unnamed)
     try:
-        gm = load_map(str(name), cell_size_m=cell_mm / 1000)
+        return load_map(str(name), cell_size_m=cell_mm / 1000)
     except (MapError, OSError) as exc:
-        raise ValueError(f"training map {name}: {exc}") from None
+        raise ValueError(f"{what} {name}: {exc}") from None
+
+
+def geometry_of_map(name: str | None, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> fmt.MapGeometry:
+    """Geometry of a built-in map or map file (ValueError with one line if it cannot be read)."""
+    gm = _load_map(name, cell_mm, "training map", "no training map named: cannot record its geometry")
     return fmt.MapGeometry(round(gm.cell_size_m * 1000), gm.width, gm.height)
 
 
@@ -264,14 +269,7 @@ def planner_metadata(text: str, kind: str, meta: dict) -> dict:
 
 def map_grid_rows(name: str, cell_mm: int = robot_spec.DEFAULT_CELL_SIZE_MM) -> list[str]:
     """A map's cells as `map_grid` rows ('.' free, '@' occupied); ValueError if it cannot be read."""
-    from ground_station.maps import MapError, load_map
-
-    if not name:
-        raise ValueError("no map named")
-    try:
-        gm = load_map(name, cell_size_m=cell_mm / 1000)
-    except (MapError, OSError) as exc:
-        raise ValueError(f"map {name}: {exc}") from None
+    gm = _load_map(name, cell_mm, "map", "no map named")
     return ["".join("@" if v else "." for v in row) for row in gm.occ.tolist()]
 
 

@@ -134,13 +134,12 @@ def write_run(out: str | Path, cfg: TrainConfig, res: TrainResult) -> dict:
     """Write q.npy, meta.json, metrics.csv, learning_curve.png into `out`."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    np.save(buf, np.ascontiguousarray(res.q, dtype=np.float64))
-    atomic_write(out / "q.npy", buf.getvalue())
-    if res.q2 is not None:  # Double Q: q.npy = (A + B) / 2, q_b.npy = B (A = 2 q - B)
-        buf = io.BytesIO()
-        np.save(buf, np.ascontiguousarray(res.q2, dtype=np.float64))
-        atomic_write(out / "q_b.npy", buf.getvalue())
+    # Double Q: q.npy = (A + B) / 2, q_b.npy = B (A = 2 q - B)
+    for name, table in (("q.npy", res.q), ("q_b.npy", res.q2)):
+        if table is not None:
+            buf = io.BytesIO()
+            np.save(buf, np.ascontiguousarray(table, dtype=np.float64))
+            atomic_write(out / name, buf.getvalue())
     rows = learning_curve(res.returns, res.successes, cfg.curve_points)
     sio = io.StringIO()
     w = csv.DictWriter(sio, fieldnames=["episode", "avg_return", "success_rate"], lineterminator="\n")
