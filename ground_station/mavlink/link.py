@@ -241,8 +241,8 @@ class Link:
             self.tlog_path = Path(tlog) if tlog else default_tlog_path(name)
             self.tlog_path.parent.mkdir(parents=True, exist_ok=True)
             self._tlog = open(self.tlog_path, "wb")  # noqa: SIM115 - closed in close()
-            self.conn.message_hooks.append(self._log_received)
-            self.conn.mav.set_send_callback(self._log_sent)
+            self.conn.message_hooks.append(lambda _conn, msg: self._write_tlog(msg))  # received
+            self.conn.mav.set_send_callback(lambda msg, *_a, **_k: self._write_tlog(msg))  # sent
         self.texts: list[str] = []  # whole STATUSTEXTs from the robot, in arrival order
         self._assembler = StatusTextAssembler()
         self.want_sysid = target_system  # --target-system: None = the first robot heard
@@ -289,12 +289,6 @@ class Link:
                 usec = int(time.time() * 1e6) & ~3
                 self._tlog.write(struct.pack(">Q", usec) + bytes(msg.get_msgbuf()))
                 self._tlog.flush()
-
-    def _log_received(self, _conn, msg) -> None:
-        self._write_tlog(msg)
-
-    def _log_sent(self, msg, *_a, **_k) -> None:
-        self._write_tlog(msg)
 
     def _collect(self, _conn, msg) -> None:
         t = msg.get_type()
