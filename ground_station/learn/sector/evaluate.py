@@ -163,14 +163,11 @@ def evaluate_sector(q: np.ndarray, gridmap: GridMap, encoder: SectorEncoder, see
     extra = (max_steps, stall_steps, margin_mm, max_segment_mm, robot or TwinRobot())
     rep = {"map": gridmap.name, "episodes": int(len(starts)), "guidance": guidance,
            **_rollouts(q, gridmap, encoder, *args, guidance, *extra)}
-    if direct:
-        d = _rollouts(q, gridmap, encoder, *args, "direct", *extra)
-        rep.update({f"direct_{k}": v for k, v in d.items()})
-        rep["direct"] = {**d, "episodes": rep["episodes"]}
-    if baseline:
-        b = _rollouts(seek_table(encoder), gridmap, encoder, *args, guidance, *extra)
-        rep.update({f"baseline_{k}": v for k, v in b.items()})
-        rep["baseline"] = {**b, "episodes": rep["episodes"]}
+    for key, wanted, guide in (("direct", direct, "direct"), ("baseline", baseline, guidance)):
+        if wanted:  # the policy without guidance; the seek table guided as the policy
+            r = _rollouts(q if key == "direct" else seek_table(encoder), gridmap, encoder, *args, guide, *extra)
+            rep.update({f"{key}_{k}": v for k, v in r.items()})
+            rep[key] = {**r, "episodes": rep["episodes"]}
     rep.update({"headings": int(headings), "sample": sample, "seed": int(seed)})
     if guidance == "path":
         rep.update({"margin_mm": float(margin_mm), "max_segment_mm": float(max_segment_mm)})
