@@ -15,6 +15,7 @@ on the injected `offload` (reply from `poll`); anything malformed is NAKed, neve
 from __future__ import annotations
 
 import errno
+import functools
 import os
 import struct
 from collections.abc import Callable
@@ -147,18 +148,18 @@ def parse(payload: bytes) -> tuple[int, int, int, int, int, int, int, bytes]:
     return seq, session, opcode, size, req_opcode, burst, offset, bytes(payload[HEADER.size:HEADER.size + size])
 
 
-def _errno_nak(exc: OSError) -> bytes:
-    """NAK data for a storage error."""
+_ERRNO_NAKS = {errno.ENOENT: Nak.FILE_NOT_FOUND, errno.ENOTDIR: Nak.FILE_NOT_FOUND, errno.EEXIST: Nak.FILE_EXISTS,
+               errno.EACCES: Nak.FILE_PROTECTED, errno.EPERM: Nak.FILE_PROTECTED, errno.ELOOP: Nak.FILE_PROTECTED}
+
+
+def _errno_nak(exc: OSError) -> tuple[Nak, bytes]:
+    """NAK code and extra data for a storage error."""
     code = exc.errno or 0
-    if code in (errno.ENOENT, errno.ENOTDIR):
-        return bytes([Nak.FILE_NOT_FOUND])
-    if code == errno.EEXIST:
-        return bytes([Nak.FILE_EXISTS])
-    if code in (errno.EACCES, errno.EPERM, errno.ELOOP):
-        return bytes([Nak.FILE_PROTECTED])
+    if code in _ERRNO_NAKS:
+        return _ERRNO_NAKS[code], b""
     if 0 < code < 256:
-        return bytes([Nak.FAIL_ERRNO, code])
-    return bytes([Nak.FAIL])
+        return Nak.FAIL_ERRNO, bytes([code])
+    return Nak.FAIL, b""
 
 
 @dataclass(frozen=True)
@@ -359,8 +360,7 @@ class FtpServer:
         return pack(req.seq + 1, req.session, Op.NAK, req.opcode, req.offset, bytes([code]) + extra)
 
     def _nak_os(self, req: Request, exc: OSError) -> bytes:
-        self.stats.naks += 1
-        return pack(req.seq + 1, req.session, Op.NAK, req.opcode, req.offset, _errno_nak(exc))
+        return self._nak(req, *_errno_nak(exc))
 
     @staticmethod
     def _path(req: Request) -> str:
@@ -496,12 +496,6 @@ class FtpServer:
             return self._ack(req, struct.pack("<I", s.upload.size & 0xFFFFFFFF))
         return self._ack(req)
 
-    def _op_create(self, req: Request, now_us: int) -> bytes:
-        return self._open_write(req, now_us, keep=False)
-
-    def _op_open_wo(self, req: Request, now_us: int) -> bytes:
-        return self._open_write(req, now_us, keep=True)
-
     def _read_chunk(self, s: _Session, offset: int, size: int) -> bytes:
         n = MAX_DATA if size == 0 or size > MAX_DATA else size
         return os.pread(s.fd, n, offset)
@@ -551,15 +545,6 @@ class FtpServer:
         change(path)
         return self._ack(req)
 
-    def _op_remove(self, req: Request, now_us: int) -> bytes:
-        return self._change(req, self.storage.remove)
-
-    def _op_mkdir(self, req: Request, now_us: int) -> bytes:
-        return self._change(req, self.storage.mkdir)
-
-    def _op_rmdir(self, req: Request, now_us: int) -> bytes:
-        return self._change(req, self.storage.rmdir)
-
     def _op_truncate(self, req: Request, now_us: int) -> bytes:
         return self._change(req, lambda path: self.storage.truncate(path, req.offset))
 
@@ -603,15 +588,13 @@ class FtpServer:
         ok, reason = got
         return self._finish_activation(req, path, ok, reason, slot)
 
-    def _finish_activation(self, req: Request, path: str, ok: bool, reason: str,
-                           slot: _Slot | None = None) -> bytes:
-        what = (slot or POLICY_SLOT).what
+    def _finish_activation(self, req: Request, path: str, ok: bool, reason: str, slot: _Slot) -> bytes:
         if not ok:
             self.stats.refusals += 1
-            self._texts.append((SEVERITY_WARNING, f"{what} refused: {reason}"))
+            self._texts.append((SEVERITY_WARNING, f"{slot.what} refused: {reason}"))
             return self._nak(req, Nak.FAIL)
         self.stats.activations += 1
-        self._texts.append((SEVERITY_INFO, f"{what} active: {reason or path}"))
+        self._texts.append((SEVERITY_INFO, f"{slot.what} active: {reason or path}"))
         return self._ack(req)
 
     def _op_crc(self, req: Request, now_us: int) -> bytes | list[bytes]:
@@ -626,12 +609,12 @@ class FtpServer:
         Op.LIST_DIRECTORY: _op_list,
         Op.OPEN_FILE_RO: _op_open_ro,
         Op.READ_FILE: _op_read,
-        Op.CREATE_FILE: _op_create,
+        Op.CREATE_FILE: functools.partial(_open_write, keep=False),
         Op.WRITE_FILE: _op_write,
-        Op.REMOVE_FILE: _op_remove,
-        Op.CREATE_DIRECTORY: _op_mkdir,
-        Op.REMOVE_DIRECTORY: _op_rmdir,
-        Op.OPEN_FILE_WO: _op_open_wo,
+        Op.REMOVE_FILE: lambda self, req, _now: self._change(req, self.storage.remove),
+        Op.CREATE_DIRECTORY: lambda self, req, _now: self._change(req, self.storage.mkdir),
+        Op.REMOVE_DIRECTORY: lambda self, req, _now: self._change(req, self.storage.rmdir),
+        Op.OPEN_FILE_WO: functools.partial(_open_write, keep=True),
         Op.TRUNCATE_FILE: _op_truncate,
         Op.RENAME: _op_rename,
         Op.CALC_FILE_CRC32: _op_crc,
