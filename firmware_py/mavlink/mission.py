@@ -90,12 +90,10 @@ def item_from_msg(msg: mavlink2.MAVLink_message) -> Item:
     params = (msg.param1, msg.param2, msg.param3, msg.param4)
     if msg.get_type() == "MISSION_ITEM_INT":
         x, y = msg.x, msg.y
-        frame = msg.frame
     else:  # float item: scale like MISSION_ITEM_INT, keeping the frame's meaning
         scale = mav_frames.LOCAL_ITEM_SCALE if msg.frame in LOCAL_FRAMES else 1e7
         x, y = round(msg.x * scale), round(msg.y * scale)
-        frame = msg.frame
-    return Item(msg.seq, frame, msg.command, msg.autocontinue, params, x, y, msg.z)
+    return Item(msg.seq, msg.frame, msg.command, msg.autocontinue, params, x, y, msg.z)
 
 
 def item_to_world(item: Item, origin_lat_e7: int, origin_lon_e7: int) -> tuple[int, int]:
@@ -149,6 +147,11 @@ class MissionEngine:
     def _ack(self, partner: tuple[int, int], result: int) -> mavlink2.MAVLink_message:
         return self.mav.mission_ack_encode(partner[0], partner[1], result, M.MAV_MISSION_TYPE_MISSION)
 
+    def _told(self, partner: tuple[int, int], result: int, text: str,
+              severity: int = M.MAV_SEVERITY_WARNING) -> list[mavlink2.MAVLink_message]:
+        """`text` as a STATUSTEXT, then the MISSION_ACK with `result`."""
+        return self._statustext(text, severity) + [self._ack(partner, result)]
+
     def _timeout_us(self) -> int:
         return self.params.get("MIS_TIMEOUT_MS") * 1000
 
@@ -184,12 +187,10 @@ class MissionEngine:
             return []
         if kind == "MISSION_CLEAR_ALL":
             if self.uploading:
-                return self._statustext("mission clear refused: upload in progress", M.MAV_SEVERITY_WARNING) + \
-                    [self._ack(partner, M.MAV_MISSION_DENIED)]
+                return self._told(partner, M.MAV_MISSION_DENIED, "mission clear refused: upload in progress")
             ok, reason = self.vehicle.set_mission([])
             if not ok:
-                return self._statustext(f"mission clear refused: {reason}", M.MAV_SEVERITY_WARNING) + \
-                    [self._ack(partner, M.MAV_MISSION_DENIED)]
+                return self._told(partner, M.MAV_MISSION_DENIED, f"mission clear refused: {reason}")
             self.items = []
             self._changed()
             return [self._ack(partner, M.MAV_MISSION_ACCEPTED)]
@@ -214,8 +215,7 @@ class MissionEngine:
             return [self._ack(partner, M.MAV_MISSION_DENIED)]
         count = msg.count
         if count > MAX_ITEMS:
-            return self._statustext(f"mission of {count} items exceeds {MAX_ITEMS}", M.MAV_SEVERITY_WARNING) + \
-                [self._ack(partner, M.MAV_MISSION_NO_SPACE)]
+            return self._told(partner, M.MAV_MISSION_NO_SPACE, f"mission of {count} items exceeds {MAX_ITEMS}")
         if count == 0:
             self._up_partner = None
             return self._commit([], partner)
@@ -232,24 +232,22 @@ class MissionEngine:
         expected = len(self._up_items)
         if msg.seq != expected:  # duplicate or out of order: ask again for the one we need
             return [self._request(expected)]
-        error = check_item(msg)
+        error = check_item(msg)  # before item_from_msg: a NaN float x/y cannot be rounded
+        if error is None:
+            item = item_from_msg(msg)
+            if item.command != M.MAV_CMD_NAV_WAYPOINT:
+                error = (M.MAV_MISSION_UNSUPPORTED, f"mission item {item.seq}: command {item.command} unsupported "
+                         "(NAV_WAYPOINT only)")
+            elif item.frame not in LOCAL_FRAMES and item.frame not in GLOBAL_FRAMES:
+                error = (M.MAV_MISSION_UNSUPPORTED_FRAME, f"mission item {item.seq}: frame {item.frame} unsupported")
+            else:
+                x_mm, y_mm = item_to_world(item, self.params.get("ORIGIN_LAT"), self.params.get("ORIGIN_LON"))
+                code, why = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
+                if code:
+                    error = (code, f"mission item {item.seq} refused: {why}")
         if error is not None:
             self._up_partner = None
-            return self._statustext(error[1], M.MAV_SEVERITY_WARNING) + [self._ack(partner, error[0])]
-        item = item_from_msg(msg)
-        if item.command != M.MAV_CMD_NAV_WAYPOINT:
-            error = (M.MAV_MISSION_UNSUPPORTED, f"mission item {item.seq}: command {item.command} unsupported "
-                     "(NAV_WAYPOINT only)")
-        elif item.frame not in LOCAL_FRAMES and item.frame not in GLOBAL_FRAMES:
-            error = (M.MAV_MISSION_UNSUPPORTED_FRAME, f"mission item {item.seq}: frame {item.frame} unsupported")
-        else:
-            x_mm, y_mm = item_to_world(item, self.params.get("ORIGIN_LAT"), self.params.get("ORIGIN_LON"))
-            code, why = map_bounds_error(self.vehicle.status().map_mm, x_mm, y_mm)
-            if code:
-                error = (code, f"mission item {item.seq} refused: {why}")
-        if error is not None:
-            self._up_partner = None
-            return self._statustext(error[1], M.MAV_SEVERITY_WARNING) + [self._ack(partner, error[0])]
+            return self._told(partner, error[0], error[1])
         self._up_items.append(item)
         self._up_retries = 0
         self._up_deadline = now_us + self._timeout_us()
@@ -264,8 +262,7 @@ class MissionEngine:
         like an uploaded item first (a NaN or huge x/y is refused with its code)."""
         error = check_item(msg)
         if error is not None:
-            return self._statustext(f"guided goal refused: {error[1]}", M.MAV_SEVERITY_WARNING) + \
-                [self._ack(partner, error[0])]
+            return self._told(partner, error[0], f"guided goal refused: {error[1]}")
         item = item_from_msg(msg)
         result, reason = int(M.MAV_MISSION_ACCEPTED), ""
         if item.command != M.MAV_CMD_NAV_WAYPOINT:
@@ -286,12 +283,11 @@ class MissionEngine:
         waypoints = [item_to_world(it, lat0, lon0) for it in items]
         ok, reason = self.vehicle.set_mission(waypoints)
         if not ok:
-            return self._statustext(f"mission refused: {reason}", M.MAV_SEVERITY_WARNING) + \
-                [self._ack(partner, M.MAV_MISSION_DENIED)]
+            return self._told(partner, M.MAV_MISSION_DENIED, f"mission refused: {reason}")
         self.items = list(items)
         self._changed()
-        return self._statustext(f"mission of {len(items)} items stored", M.MAV_SEVERITY_INFO) + \
-            [self._ack(partner, M.MAV_MISSION_ACCEPTED)]
+        return self._told(partner, M.MAV_MISSION_ACCEPTED, f"mission of {len(items)} items stored",
+                          M.MAV_SEVERITY_INFO)
 
     def _changed(self) -> None:
         if self.on_mission_changed is not None:
@@ -321,8 +317,8 @@ class MissionEngine:
                 partner = self._up_partner
                 assert partner is not None  # uploading
                 self._up_partner = None
-                out += self._statustext("mission upload timed out; previous mission kept", M.MAV_SEVERITY_WARNING)
-                out.append(self._ack(partner, M.MAV_MISSION_OPERATION_CANCELLED))
+                out += self._told(partner, M.MAV_MISSION_OPERATION_CANCELLED,
+                                  "mission upload timed out; previous mission kept")
             else:
                 self._up_retries += 1
                 self._up_deadline = now_us + self._timeout_us()
