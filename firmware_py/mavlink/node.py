@@ -23,7 +23,7 @@ import math
 import os
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
@@ -320,12 +320,9 @@ class MavNode:
         return self._warn(text)
 
     def _ftp_texts(self) -> list[mavlink2.MAVLink_message]:
-        out: list[mavlink2.MAVLink_message] = []
         if self.ftp is None:
-            return out
-        for severity, text in self.ftp.drain_texts():
-            out += self.telemetry.statustext(text, severity)
-        return out
+            return []
+        return [m for severity, text in self.ftp.drain_texts() for m in self.telemetry.statustext(text, severity)]
 
     def _heartbeat(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         if msg.type != M.MAV_TYPE_GCS:
@@ -459,10 +456,7 @@ class MavNode:
         return out
 
     def _tick_events(self, now_us: int) -> list[mavlink2.MAVLink_message]:
-        out: list[mavlink2.MAVLink_message] = []
-        for ev in self.vehicle.drain_events():
-            out += self.telemetry.event(ev)
-        return out
+        return [m for ev in self.vehicle.drain_events() for m in self.telemetry.event(ev)]
 
     def _tick_ftp(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         if self.ftp is None:
@@ -631,10 +625,7 @@ class MavShell:
     def all_handler_errors(self) -> dict[str, int]:
         """Exceptions caught per kind, by the node's own per-message catch and
         by this shell's (parser, socket, anything the node let through)."""
-        merged = dict(self.node.handler_errors)
-        for kind, n in self.handler_errors.items():
-            merged[kind] = merged.get(kind, 0) + n
-        return merged
+        return dict(Counter(self.node.handler_errors) + Counter(self.handler_errors))
 
     def _handler_error(self, kind: str, exc: BaseException) -> None:
         """Count an exception out of a handler; log the first one of each kind."""
