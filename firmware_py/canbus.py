@@ -35,16 +35,10 @@ def parse_spec(spec: str | None) -> dict[str, Any]:
     interface, sep, channel = spec.partition(":")
     if not sep or not channel:
         raise CanSpecError(f"bad --can {spec!r}: expected one of {', '.join(SPEC_FORMS)}")
-    if interface == "virtual":
-        return {"interface": "virtual", "channel": channel}
-    if interface == "remote":
-        if not channel.startswith(("ws://", "wss://")):
-            raise CanSpecError(f"bad --can {spec!r}: remote needs a ws:// URL, e.g. remote:ws://127.0.0.1:54701/")
-        return {"interface": "remote", "channel": channel}
-    if interface == "socketcan":
-        return {"interface": "socketcan", "channel": channel}
-    if interface == "slcan":
-        return {"interface": "slcan", "channel": channel}
+    if interface == "remote" and not channel.startswith(("ws://", "wss://")):
+        raise CanSpecError(f"bad --can {spec!r}: remote needs a ws:// URL, e.g. remote:ws://127.0.0.1:54701/")
+    if interface in ("virtual", "remote", "socketcan", "slcan"):
+        return {"interface": interface, "channel": channel}
     raise CanSpecError(f"bad --can {spec!r}: unknown interface {interface!r} "
                        f"(expected virtual, remote, socketcan or slcan)")
 
