@@ -27,6 +27,7 @@ Standard ids only ever come from qnav's own frames and ODrives; every DroneCAN f
 
 from __future__ import annotations
 
+import functools
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
@@ -187,12 +188,10 @@ class AnswerQueue:
         return len(self._pending)
 
     def add(self, requester: int, request: Any) -> None:
-        if requester in self._pending:
-            self._pending[requester] = request  # the newest request of that node (its transfer id)
-        elif len(self._pending) >= self.max_pending:
+        if requester not in self._pending and len(self._pending) >= self.max_pending:
             self.dropped += 1
         else:
-            self._pending[requester] = request
+            self._pending[requester] = request  # a node's newest request replaces its older one (transfer id)
 
     def due(self, now: float) -> list[Any]:
         if self._t is not None:
@@ -205,22 +204,16 @@ class AnswerQueue:
         return out
 
 
-_MAX_BYTES: dict[tuple[int, bool, bool], int | None] = {}
-
-
+@functools.cache
 def dsdl_max_bytes(data_type_id: int, service: bool, request: bool) -> int | None:
     """The largest encoding of a DSDL type in bytes (the dronecan library's max bit length), None if unknown."""
-    key = (data_type_id, service, request)
-    if key not in _MAX_BYTES:
-        kind = 0 if service else 1  # dsdl.CompoundType.KIND_SERVICE, KIND_MESSAGE
-        t = dronecan.DATATYPES.get((data_type_id, kind))
-        if t is None:
-            _MAX_BYTES[key] = None
-        else:
-            bits = (t.get_max_bitlen_request() if request else t.get_max_bitlen_response()) if service \
-                else t.get_max_bitlen()
-            _MAX_BYTES[key] = (int(bits) + 7) // 8
-    return _MAX_BYTES[key]
+    kind = 0 if service else 1  # dsdl.CompoundType.KIND_SERVICE, KIND_MESSAGE
+    t = dronecan.DATATYPES.get((data_type_id, kind))
+    if t is None:
+        return None
+    bits = (t.get_max_bitlen_request() if request else t.get_max_bitlen_response()) if service \
+        else t.get_max_bitlen()
+    return (int(bits) + 7) // 8
 
 
 class DroneCanEngine:
