@@ -1,20 +1,12 @@
 """The robot's file store: one directory tree that the FTP server and the policy/param code may
 touch, and nothing outside it.
 
-Owns
-- path resolution: an FTP path ("/policies/x.qtab", "policies/x.qtab") is always relative to the
-  root ("/" is the root, like an autopilot's SD card). `..` components, symlinks anywhere in the
-  path (checked with lstat on every component, files opened with O_NOFOLLOW), NUL/control characters
-  and names of in-flight temporary files are refused with EACCES;
-- a quota over everything under the root, temporary files included: bytes (apparent size, so a
-  sparse file counts in full), files and directories; a write may not leave a hole of more than
-  MAX_HOLE_BYTES past the end of the file (clients write in order, with a few blocks in flight), and
-  every length is checked against the quota before anything is allocated;
-- crash-safe writes: data goes to a hidden temporary name in the target's directory, is fsynced,
-  then `os.replace`d over the real name and the directory fsynced, so a reader (or a reboot) sees
-  the old file or the new one, never a mix. Temporary files left by a crash are deleted at start-up;
-- the robot layout (`ACTIVE_POLICY`, `LAST_GOOD_POLICY`, `PARAMS_FILE`) and the policy slot swap
-  used by activation (`promote_policy`) and by boot (`boot_policy_candidates`).
+Owns path resolution (an FTP path is relative to the root, "/" the root as an autopilot's SD card;
+`..`, symlinks anywhere in the path, control characters and temporary names are refused with
+EACCES), the quota (bytes, files, directories; at most MAX_HOLE_BYTES past a file's end), crash-safe
+writes (a hidden temporary name, fsync, `os.replace`, the directory fsynced; leftovers deleted at
+start-up), the robot layout (`ACTIVE_POLICY`, `LAST_GOOD_POLICY`, `PARAMS_FILE`) and the policy slot
+swap (`promote_policy`, `boot_policy_candidates`). The rules in full: docs/mavlink.md, "FTP paths".
 
 Errors are `StorageError` (an OSError with an errno and a one-line message); the FTP server maps the
 errno onto its NAK codes.

@@ -1,20 +1,10 @@
 """The `dronecan` backends: DroneCAN ESCs for the wheels and DroneCAN rangefinders for the sectors.
 
-The robot is one DroneCAN node (firmware_py/dronecan_engine.py: static node id from the profile,
-NodeStatus at 1 Hz, GetNodeInfo answered with the profile's node name). What it says and hears:
-
-* drive (`[drive] backend = "dronecan"`): `uavcan.equipment.esc.RPMCommand` every control tick
-  with each wheel's motor rpm at its ESC index (`left_node`/`right_node`, the profile's signs and
-  gear ratio), or with `command = "raw"` an `esc.RawCommand` from a wheel-speed PI on the ESCs'
-  reported rpm (feed-forward at `max_rpm`); zeros for a few ticks when the wheels should stop, then
-  nothing (a DroneCAN ESC stops on its command timeout). Odometry integrates each ESC's
-  `esc.Status` rpm (the wheel's, unless `gear_ratio` says otherwise), taken as the mean since that
-  ESC's previous Status (ESCs report a filtered rpm, not an instantaneous sample); an ESC whose node reports
-  health ERROR/CRITICAL in its NodeStatus is a fault naming it, one silent for the sensor timeout
-  is stale.
-* sensors (`[sensors] backend = "dronecan"`): `uavcan.equipment.range_sensor.Measurement`, its
-  `sensor_id` mapped to a sector by `sensor_ids`, its `reading_type` (qnav's range status codes are
-  DroneCAN's) honoured; a sector frame half counts as fresh once all its sensors have reported.
+The robot is one DroneCAN node (firmware_py/dronecan_engine.py). What it sends and hears for the
+drive (`[drive] backend = "dronecan"`: esc.RPMCommand or, with `command = "raw"`, esc.RawCommand
+from a wheel-speed PI; odometry and health from esc.Status and the ESC nodes' NodeStatus) and for
+the sensors (`[sensors] backend = "dronecan"`: range_sensor.Measurement, `sensor_id` mapped by
+`sensor_ids`): docs/robot-profile.md, "The `dronecan` backends".
 
 Either way the node answers GetNodeInfo behind the tick's wheel command, one answer a tick at most
 (dronecan_engine.py bounds reassembly and answers), and another node using the robot's node id

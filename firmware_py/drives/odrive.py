@@ -10,21 +10,10 @@ Facts from ODrive's published CANSimple protocol (odrive-cansimple.dbc): frame i
     0x0D Set_Input_Vel          us -> axis   Input_Vel f32 turns/s, Input_Torque_FF f32 Nm
     0x18 Clear_Errors           us -> axis
 
-What the robot does with them:
-
-* When the controller wants the wheels powered (`Outputs.drive_enabled`: driving,
-  exploring or Manual): Clear_Errors, velocity control with passthrough input,
-  CLOSED_LOOP_CONTROL, re-requested every 200 ms until each axis's heartbeat
-  confirms it; FAULT naming the axis when one has not within CONFIRM_US.
-* Every control tick while enabled: Set_Input_Vel per axis, the wheel speed in
-  motor turns/s with the profile's sign and gear ratio (zero until confirmed).
-  This also feeds ODrive's own watchdog.
-* When it no longer wants them (Hold, disarm, FAULT, e-stop): zero velocity, then IDLE.
-* Odometry: the encoder estimates (motor turns) as wheel encoder counts of the
-  profile's `encoder_counts_per_rev`, emitted when both axes have reported.
-* Health: an axis error, an axis that leaves closed loop while enabled, or one
-  whose heartbeat is older than the sensor timeout is a motor driver fault or
-  stale status whose text names the side, the node and the error.
+What the robot does with them (closed loop while the controller wants the wheels powered,
+Set_Input_Vel every tick, zero then IDLE when it stops, Clear_Errors at start and on disarm,
+odometry from the encoder estimates, health from the heartbeats): docs/robot-profile.md,
+"The `odrive` drive backend".
 
 Pure stdlib + python-can Message; no thread of its own.
 """
