@@ -47,8 +47,6 @@ class ControlGate:
     """Decides, counts and summarises; pure (no I/O, the caller's clock)."""
 
     def __init__(self) -> None:
-        self.refused_total = 0
-        self.refused_broadcast = 0
         self._since: dict[tuple[int, str], int] = {}  # refusals since the last summary
         self._other = 0
         self._next_summary_us: int | None = None
@@ -60,12 +58,10 @@ class ControlGate:
         src = msg.get_srcSystem()
         if target_of(msg) == 0:
             why = "addressed to every system (target 0)"
-            self.refused_broadcast += 1
         elif my_gcs != 0 and src != my_gcs:
             why = f"system {src} is not SYSID_MYGCS {my_gcs}"
         else:
             return None
-        self.refused_total += 1
         key = (src, kind)
         if key in self._since or len(self._since) < MAX_KEYS:
             self._since[key] = self._since.get(key, 0) + 1

@@ -76,7 +76,6 @@ class Signing:
         self.require = True
         self.timestamp = 0  # highest timestamp sent or accepted
         self.streams: dict[tuple[int, int, int], int] = {}
-        self.accepted_signed = 0
         self.accepted_unsigned = 0
         self.dropped_unsigned = 0
         self.dropped_badsig = 0
@@ -185,7 +184,6 @@ class Signing:
             del self.streams[min(self.streams, key=self.streams.__getitem__)]
         # the robot's own timestamp is NOT advanced from input: a key holder's
         # bad clock must not ratchet it forwards (see the module doc)
-        self.accepted_signed += 1
         self.last_signed = True
         self._dirty = True
         return True

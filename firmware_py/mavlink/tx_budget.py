@@ -33,7 +33,6 @@ class TxBudget:
         self.tokens = self.cap
         self._t = clock()
         self.dropped = 0  # stream messages skipped
-        self.spent = 0  # bytes sent
 
     @classmethod
     def for_baud(cls, baud: int, share: float = TELEMETRY_SHARE, **kw: object) -> TxBudget:
@@ -54,7 +53,6 @@ class TxBudget:
             self.dropped += 1
             return False
         self.tokens -= nbytes
-        self.spent += nbytes
         return True
 
 
