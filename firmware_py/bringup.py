@@ -137,16 +137,11 @@ def _drive_lines(lis: _Listener, rep: CheckReport) -> None:
     if "MotorStatus" not in lis.heard:
         rep.bad("drive: qnav motor driver (node 34): not heard (no MotorStatus)")
     else:
-        st = {v: k for k, v in _mot_states().items()}.get(inp.driver_state, str(inp.driver_state))
+        st = proto.MOTOR_STATE_NAMES.get(inp.driver_state, str(inp.driver_state))
         text = f"drive: qnav motor driver (node 34): state {st}, errors 0x{inp.driver_errors:02x}"
         (rep.bad if inp.driver_errors else rep.ok)(text)
     if "EncoderCounts" not in lis.heard:
         rep.bad("drive: encoder counts (node 34): not heard")
-
-
-def _mot_states() -> dict[str, int]:
-    choices = proto.DB.get_message_by_name("MotorStatus").get_signal_by_name("Mot_State").choices
-    return {str(name): int(value) for value, name in (choices or {}).items()}
 
 
 def _sensor_lines(lis: _Listener, rep: CheckReport) -> None:

@@ -78,16 +78,9 @@ class Layout:
     def to_sectors(self, ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...]
                    ) -> tuple[list[int], list[int]]:
         """One tick's readings (sensor order) as the policy's eight sectors; uncovered: INVALID."""
-        rs: list[int] = []
-        ss: list[int] = []
-        for j in self.sector_of:
-            if j is None or j >= len(ranges_mm):
-                rs.append(0)
-                ss.append(robot_spec.RANGE_INVALID)
-            else:
-                rs.append(ranges_mm[j])
-                ss.append(status[j])
-        return rs, ss
+        read = [None if j is None or j >= len(ranges_mm) else j for j in self.sector_of]
+        return ([0 if j is None else ranges_mm[j] for j in read],
+                [robot_spec.RANGE_INVALID if j is None else status[j] for j in read])
 
     def sector_layout(self) -> Layout:
         """The layout of the eight sector readings `to_sectors` gives: each at its sensor's angle and

@@ -93,13 +93,10 @@ def grid_from_rows(rows: list[str], cell_mm: int) -> OccupancyGrid:
     for i, r in enumerate(rows):
         if len(r) != width:
             raise MapDataError(f"{META_KEY} row {i} has {len(r)} cells, row 0 has {width}")
-        for ch in r:
-            if ch == FREE:
-                occ.append(0)
-            elif ch in BLOCKED:
-                occ.append(1)
-            else:
-                raise MapDataError(f"{META_KEY} row {i}: unknown cell {ch!r} (expected '.' or one of @TOW)")
+        bad = next((ch for ch in r if ch != FREE and ch not in BLOCKED), None)
+        if bad is not None:
+            raise MapDataError(f"{META_KEY} row {i}: unknown cell {bad!r} (expected '.' or one of @TOW)")
+        occ += bytes(ch in BLOCKED for ch in r)
     if not MIN_CELL_MM <= cell_mm <= MAX_SIDE_MM:
         raise MapDataError(f"{META_KEY}: cell size {cell_mm} mm (allowed {MIN_CELL_MM}..{MAX_SIDE_MM} mm)")
     side = max(width, len(rows)) * cell_mm
@@ -154,10 +151,6 @@ def grid_from_map_file(path: str, cell_mm: int) -> OccupancyGrid:
         return grid_from_rows(rows, cell_mm)
     except MapDataError as exc:
         raise MapDataError(f"{path}: {exc}") from None
-
-
-def same_grid(a: OccupancyGrid, b: OccupancyGrid) -> bool:
-    return (a.cell_mm, a.width, a.height, a.occ) == (b.cell_mm, b.width, b.height, b.occ)
 
 
 def describe(grid: OccupancyGrid) -> str:

@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 from firmware_py import kinds, robot_spec
 from firmware_py.kinds.base import PAIR as _PAIR
 from firmware_py.kinds.base import Encoder, PolicyKind, best_action
-from firmware_py.mapdata import MapDataError, OccupancyGrid, describe, grid_from_metadata, same_grid
+from firmware_py.mapdata import MapDataError, OccupancyGrid, describe, grid_from_metadata
 
 # --- format constants ---------------------------------------------------------
 MAGIC = b"QTAB"
@@ -347,7 +347,7 @@ def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, r
     if why:
         return why
     if (robot_map is not None and policy.map_grid is not None and kinds.of_policy(policy).map_specific
-            and not same_grid(policy.map_grid, robot_map)):
+            and policy.map_grid != robot_map):  # OccupancyGrid is a dataclass: == compares the cells
         name = policy.metadata.get("map") if isinstance(policy.metadata, dict) else None
         return (f"policy map {name or ''} ({describe(policy.map_grid)}) is not the robot's map "
                 f"({describe(robot_map)})").replace("map  (", "map (")

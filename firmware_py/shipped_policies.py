@@ -55,14 +55,10 @@ def shipped_policy(name: str) -> Path:
     return path
 
 
-def is_shipped_spec(spec: str | Path) -> bool:
-    return isinstance(spec, str) and spec.startswith(SPEC_PREFIX)
-
-
 def resolve_policy_spec(spec: str | Path) -> Path:
     """`policies:NAME` -> the shipped file; anything else is a file path, returned as a Path."""
-    if is_shipped_spec(spec):
-        return shipped_policy(str(spec)[len(SPEC_PREFIX):])
+    if isinstance(spec, str) and spec.startswith(SPEC_PREFIX):
+        return shipped_policy(spec[len(SPEC_PREFIX):])
     return Path(spec)
 
 
