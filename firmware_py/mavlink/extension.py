@@ -1,12 +1,7 @@
-"""The MAVLink shell as a `qnav-robot` extension (firmware_py.plugins.Extension).
-
-Owns the `--mavlink`/`--signing-key` options of `qnav-robot` and attaching the node to a running
-`RobotNode`: the node runs in its own link thread (firmware_py.mavlink.link_thread), the ticking
-thread only runs the GCS failsafe check and opens the link thread's slot (`node.after_tick`), and
-parameter saves go to a storage worker thread. The command line's controller settings are written
-into the parameter table before the vehicle is configured, so the ground station sees what is in
-effect; a reboot command reloads the params and the active policy from `--storage`. Details:
-docs/mavlink.md, "Node structure".
+"""The MAVLink shell as a `qnav-robot` extension (firmware_py.plugins.Extension): the `--mavlink`
+and `--signing-key` options, and attaching the node to a running `RobotNode` (its own link thread,
+a storage worker for the parameter saves, the command line's controller settings written into the
+parameter table before the vehicle is configured). Details: docs/mavlink.md, "Node structure".
 """
 
 from __future__ import annotations

@@ -1,14 +1,10 @@
 """The MAVLink side's threads in `qnav-robot`: the link thread and the storage worker.
 
-As ArduPilot's scheduler gives the GCS and storage tasks what is left of each period after the fast
-loop, the control loop here never touches the link: after each tick it only runs
-`LinkThread.on_tick` (the GCS failsafe check, a few comparisons, and an event that opens the link
-thread's slot). `LinkThread` then runs one `MavShell.poll` with a budget of `budget_fraction` of the
-control period, while the next tick is farthest away; with no tick for two periods it polls on its
-own. `StorageWorker` runs the parameter saves off both threads (a save already queued absorbs later
-ones). `LinkThread.start` lowers CPython's switch interval to `switch_interval_s` and the poll
-yields the GIL briefly every `yield_every_s` of work, so a tick never waits long for the interpreter
-lock. docs/mavlink.md, "Node structure", has the schedule.
+The control loop never touches the link: after each tick it only runs `LinkThread.on_tick` (the
+GCS failsafe check and an event that opens the link thread's slot); `LinkThread` then runs one
+`MavShell.poll` budgeted to `budget_fraction` of the control period, and `StorageWorker` runs the
+parameter saves off both threads. The schedule (as ArduPilot's scheduler), the switch interval and
+the poll's GIL yields: docs/mavlink.md, "Node structure".
 """
 
 from __future__ import annotations

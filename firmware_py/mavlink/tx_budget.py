@@ -1,14 +1,11 @@
 """What a serial link may carry: the robot's transmit budget per link.
 
-A 57600-baud radio moves 5760 bytes/s. The telemetry streams' rates are the robot's (and a ground
-station may raise any of them with SET_MESSAGE_INTERVAL), and in HIL the robot's clock can run
-faster than the wall's, so the streams can ask for more than the radio carries; the radio's buffer
-then queues every reply (COMMAND_ACK, PARAM_VALUE, FTP) behind seconds of stale telemetry. ArduPilot
-checks the port's free transmit space before each stream message and skips it when there is none;
-`TxBudget` does the same for the robot: a token bucket of `share` x baud / 10 bytes per second of
-**wall** time (the radio is physical), at most `burst_s` of it saved up. Every frame spends its
-bytes; a stream message is sent only when the bucket is not in debt, so replies, heartbeats and
-STATUSTEXTs always go and telemetry thins out to what is left. Network links have no budget.
+`TxBudget` is a token bucket of `share` x baud / 10 bytes per second of **wall** time (the radio is
+physical), at most `burst_s` of it saved up: every frame spends its bytes, and a stream message is
+sent only when the bucket is not in debt, so replies, heartbeats and STATUSTEXTs always go and the
+telemetry thins out to what is left, as ArduPilot skips a stream message when the port has no
+transmit space. Why (a radio's buffer queues every reply behind stale telemetry) and what it
+measured: docs/mavlink.md, "Messages sent". Network links have no budget.
 """
 
 from __future__ import annotations
