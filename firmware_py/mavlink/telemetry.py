@@ -68,10 +68,8 @@ ON_REQUEST = frozenset({M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, M.MAVLINK_MSG_ID_AVA
                         M.MAVLINK_MSG_ID_AVAILABLE_MODES_MONITOR, MSG_ID_PROTOCOL_VERSION,
                         MSG_ID_COMPONENT_METADATA})
 
-# MAVLink's Standard Modes microservice (what QGroundControl asks a generic autopilot for its mode
-# menu): each mode the robot has, in HEARTBEAT custom_mode numbering, with its standard meaning where
-# MAV_STANDARD_MODE has one (Hold = POSITION_HOLD, Auto = MISSION) and its name where it has none.
-# The set never changes at run time: AVAILABLE_MODES_MONITOR's seq stays 0.
+# MAVLink's Standard Modes (QGroundControl's mode menu for a generic autopilot): each mode in HEARTBEAT
+# custom_mode numbering, its MAV_STANDARD_MODE or its name (docs/mavlink.md, "Messages sent")
 STANDARD_MODES: tuple[tuple[Mode, int, str], ...] = (
     (Mode.MANUAL, M.MAV_STANDARD_MODE_NON_STANDARD, "Manual"),
     (Mode.HOLD, M.MAV_STANDARD_MODE_POSITION_HOLD, ""),
@@ -86,12 +84,8 @@ CAPABILITIES = (
     | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | M.MAV_PROTOCOL_CAPABILITY_FTP
     | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )
-# What the HEARTBEAT says the autopilot is. Stock clients pick the PARAM_VALUE encoding from it, not
-# from AUTOPILOT_VERSION's capability bits: MAVSDK reads C-cast values only from ArduPilot (bytewise
-# from anything else) and names flight modes only for PX4 and ArduPilot; MAVProxy reads bytewise
-# only from PX4. The robot always sends C-cast values (advertised as PARAM_ENCODE_C_CAST), so
-# "generic" suits MAVProxy, QGroundControl's generic plugin and qnav, and "ardupilot" (Rover's mode
-# numbers, as the robot uses) adds MAVSDK.
+# What the HEARTBEAT says the autopilot is: stock clients pick the PARAM_VALUE encoding and the mode
+# names from it, so "ardupilot" adds MAVSDK (why: docs/mavlink.md, "Stock clients")
 AUTOPILOTS = {"generic": M.MAV_AUTOPILOT_GENERIC, "ardupilot": M.MAV_AUTOPILOT_ARDUPILOTMEGA}
 DEFAULT_AUTOPILOT = "generic"
 FLIGHT_SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # 0.1.0 official
@@ -284,11 +278,9 @@ class Telemetry:
         if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_INT:
             # Q0..Qn: the current state's int Q-row, for the monitor's policy panel; Q_N (its length) first,
             # so a reader knows when the group is whole and never shows a half-updated row
-            return [m.named_value_int_encode(ms, b"STATE_IDX", st.state_index),
-                    m.named_value_int_encode(ms, b"ACTION", st.action),
-                    m.named_value_int_encode(ms, b"CTRL_ST", int(st.state)),
-                    m.named_value_int_encode(ms, b"Q_N", len(st.q_row))] + [
-                m.named_value_int_encode(ms, f"Q{i}".encode(), int(q)) for i, q in enumerate(st.q_row)]
+            named = [(b"STATE_IDX", st.state_index), (b"ACTION", st.action), (b"CTRL_ST", int(st.state)),
+                     (b"Q_N", len(st.q_row))] + [(f"Q{i}".encode(), int(q)) for i, q in enumerate(st.q_row)]
+            return [m.named_value_int_encode(ms, name, value) for name, value in named]
         if msg_id == M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
             return [] if st.goal_mm is None else [self.position_target(ms, *st.goal_mm)]
         if msg_id in (M.MAVLINK_MSG_ID_ESTIMATOR_STATUS, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED_COV,
