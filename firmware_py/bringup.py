@@ -1,14 +1,8 @@
 """`qnav-robot --check`: which boards answer on the bus, and (with --check-motors) whether each
-wheel turns the way the profile says.
+wheel turns the way the profile says. What it reports, and how a wheel's direction is told when its
+encoder counts the motor: docs/deploy.md, "5. Describe the robot, then check it".
 
-The check listens on the bus for a while and reports, per board the profile expects, whether it was heard, its state and
-errors: the drive (through the profile's drive backend: qnav's MotorStatus/EncoderCounts, or each
-ODrive axis's heartbeat and encoder estimates), the range board (one reading per sensor), the
-bumper and the battery (optional). With `spin=True` it then turns each wheel alone, slowly and
-briefly, through the same backend the controller uses, and reads odometry and the range sensors:
-a wheel that drove backwards has its sign flipped in the profile (or its motor wired the other way
-round); see `_spin` for how each backend tells.
-
+The bus is read, and the wheels spun, through the profile's drive backend as the controller does.
 `run_check` returns the report lines and whether everything needed is there; the CLI prints them
 and exits 0 or 1. Wall clock; the robot must not be driving (it is not armed: the controller is
 not running during a check).

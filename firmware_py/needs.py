@@ -3,16 +3,9 @@ checked by the robot against its profile at boot and on upload, printed by `qnav
 Stdlib only.
 
 A policy is trained for one robot (`TrainedFor`: a robot profile as the trainer's twin played it,
-`qnav train --profile`; the built-in robot without one). What of that robot its behaviour depends
-on is per kind (`PolicyKind.needs`; the table per kind: docs/robot-profile.md), and that is all
-the robot checks: every policy's control period and wheel speed (the fastest action wheel speed,
-clamped to the profile's `drive.max_speed_mm_s` as the controller clamps it); for a kind that
-reads range sectors, each sector computable from the robot's sensors (`Layout.sector_of`),
-looking within ANGLE_TOL_MRAD of where the twin read it and reaching the range the encoder tells
-apart; the body no larger than `robot_radius_mm_max`; for `sector`, a wheel base within BASE_TOL.
-
-A file without a record was trained for the built-in robot; a file with the older
-`robot_geometry` record was trained for that geometry.
+`qnav train --profile`; the built-in robot without one); what of it the policy's behaviour depends
+on is per kind (`PolicyKind.needs`), and that is all the robot checks. The table per kind, and how
+a file without a record (or with the older `robot_geometry` one) is read: docs/robot-profile.md.
 """
 
 from __future__ import annotations
