@@ -183,8 +183,7 @@ class MavNode:
             self.telemetry.metadata_crc, why = write_metadata(storage_dir, FLIGHT_SW_VERSION)
             if why:
                 warnings.append(why)
-        for w in warnings:
-            self._pending += self._warn(w)
+        self._pending += [m for w in warnings for m in self._warn(w)]
 
     def _apply_params(self, reboot: bool) -> None:
         self.vehicle.apply_config(self.params.vehicle_config())
@@ -197,9 +196,7 @@ class MavNode:
 
     def _reboot(self) -> list[mavlink2.MAVLink_message]:
         self.reboots += 1
-        out: list[mavlink2.MAVLink_message] = []
-        for w in self.params.load():
-            out += self._warn(w)
+        out = [m for w in self.params.load() for m in self._warn(w)]
         self._apply_params(reboot=True)
         self.signing.persist(self._now_us)
         if self.reboot_hook is not None:
