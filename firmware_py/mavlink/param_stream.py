@@ -1,11 +1,9 @@
 """PARAM_REQUEST_LIST answered in the background, at a bounded rate (as ArduPilot streams it).
 
-Answering a list request at once with every PARAM_VALUE is an amplifier that delays the operator's
-commands behind it. Here a request only (re)starts its requester's stream at index 0; `due(now_us)`
-hands out the next indices while a token bucket allows (RATE_HZ a second over a network link,
-SERIAL_RATE_HZ over a radio, at most BURST at once), round-robin over at most MAX_STREAMS requesters
-(a new one beyond that replaces the longest-waiting). A flood of requests then costs a dictionary
-update each and the answers stay within the rate, whoever asks. Pure: the caller's clock, no I/O.
+A request only (re)starts its requester's stream at index 0; `due(now_us)` hands out the next
+indices under one token bucket, round-robin over at most MAX_STREAMS requesters (a new one beyond
+that replaces the longest-waiting). Why (a list answered at once is an amplifier): docs/mavlink.md,
+"Parameters". Pure: the caller's clock, no I/O.
 """
 
 from __future__ import annotations

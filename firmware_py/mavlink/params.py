@@ -2,13 +2,9 @@
 
 Owns the list of parameters (name <= 16 chars, type, default, range, description), which
 `VehicleConfig` field or node setting each one drives, range enforcement, and the JSON file in the
-storage directory that keeps them across reboots. The file is replaced atomically (temp + fsync +
-os.replace) so a power cut leaves either the old or the new table; a corrupt or unreadable file
-means defaults plus a warning, never a crash.
-
-All tunables are integers (MAVLink INT32 params). MAVLink carries every param value as a float32, so
-integers above 2**24 (the origin in 1e-7 degrees) travel rounded to float32; the robot stores the
-exact integer.
+storage directory that keeps them across reboots (replaced atomically; a corrupt or unreadable file
+means defaults plus a warning, never a crash). Every parameter is an INT32 carried as a float32, the
+robot storing the exact integer: docs/mavlink.md, "Parameters".
 """
 
 from __future__ import annotations
