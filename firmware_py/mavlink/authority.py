@@ -1,12 +1,9 @@
 """Who may steer the robot over MAVLink: the operator's GCS only (ArduPilot's SYSID_MYGCS).
 
-`ControlGate` takes every input that moves the robot or changes what it will do (control messages,
-mission writes, PARAM_SET, and COMMAND_LONG / _INT but the read-only `OPEN_COMMANDS`) only from the
-system id SYSID_MYGCS (0: any) and only when addressed to the robot (a broadcast is ignored whoever
-sends it); anyone may still watch. Refusals are counted per (system, message kind) and summarised at
-most once a second (`summary`), so a flood costs a dictionary update each; a refused command is
-answered DENIED, the other refusals are silent, as ArduPilot's. The full list and why:
-docs/mavlink.md, "Who may steer: SYSID_MYGCS".
+`ControlGate` takes every input that moves the robot or changes what it will do only from the system
+id SYSID_MYGCS (0: any) and only when addressed to the robot; it counts the refusals per (system,
+message kind) and summarises them at most once a second (`summary`), so a flood costs a dictionary
+update each. Which inputs, and why: docs/mavlink.md, "Who may steer: SYSID_MYGCS".
 """
 
 from __future__ import annotations

@@ -52,10 +52,8 @@ class MavlinkExtension:
         if cli_cfg is not None:
             defaults = VehicleConfig()
             by_field = {p.field: p.name for p in PARAMS if p.field}
-            for f in fields(VehicleConfig):
-                value = getattr(cli_cfg, f.name)
-                if value != getattr(defaults, f.name) or f.name in ALWAYS_FROM_COMMAND_LINE:
-                    overrides[by_field[f.name]] = value
+            overrides = {by_field[f.name]: getattr(cli_cfg, f.name) for f in fields(VehicleConfig)
+                         if getattr(cli_cfg, f.name) != getattr(defaults, f.name) or f.name in ALWAYS_FROM_COMMAND_LINE}
 
         def reboot_hook() -> tuple[bool, str]:
             if not args.storage:
