@@ -30,46 +30,35 @@ class ProfileError(ValueError):
     """A robot profile that cannot be used; the text is one line naming the file and the key."""
 
 
+# The file's sections and keys; what each key means: the table in docs/robot-profile.md
 @dataclass(frozen=True)
 class Geometry:
     wheel_base_mm: int = robot_spec.WHEEL_BASE_MM
-    """distance between the wheels' contact points"""
     wheel_radius_mm: int = robot_spec.WHEEL_RADIUS_MM
     robot_radius_mm: int = robot_spec.ROBOT_RADIUS_MM
-    """the round body's radius (the sensors sit on its rim)"""
     encoder_counts_per_rev: int = robot_spec.ENCODER_TICKS_PER_REV
-    """odometry counts per wheel turn (qnav backend; ODrive and DroneCAN report turns and rpm)"""
 
 
 @dataclass(frozen=True)
 class DriveConfig:
     backend: str = "qnav"
     left_node: int = 0
-    """ODrive CANSimple node id / DroneCAN ESC index of the left wheel"""
     right_node: int = 1
     left_sign: int = 1
-    """+1 or -1: which way the motor turns for the wheel to drive the robot forward"""
     right_sign: int = 1
     max_speed_mm_s: int = robot_spec.MAX_WHEEL_SPEED_MM_S
     gear_ratio: float = 1.0
-    """motor turns per wheel turn"""
     command: str = "rpm"
-    """dronecan: "rpm" (esc.RPMCommand) or "raw" (esc.RawCommand with a wheel-speed PI on esc.Status rpm)"""
     max_rpm: int = 0
-    """dronecan raw: the motor rpm at full command (8191); 0 = from max_speed_mm_s"""
 
 
 @dataclass(frozen=True)
 class SensorConfig:
     backend: str = "qnav"
     angles_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0)
-    """each sensor's direction, counter-clockwise from the heading, in the order on the bus (3..16 sensors;
-    qnav's RangeSectors frames carry exactly 8)"""
     max_range_mm: int = robot_spec.RANGE_MAX_MM
     max_ranges_mm: tuple[int, ...] = ()
-    """each sensor's own range, in angles_deg order (empty: max_range_mm for every sensor)"""
     sensor_ids: tuple[int, ...] = tuple(range(robot_spec.SENSOR_COUNT))
-    """dronecan: range_sensor.Measurement sensor_id of each sensor, in angles_deg order (default 0..n-1)"""
 
     def ranges_mm(self) -> tuple[int, ...]:
         """Each sensor's maximum range."""
@@ -79,16 +68,12 @@ class SensorConfig:
 @dataclass(frozen=True)
 class BoardsConfig:
     bumper: bool = True
-    """qnav's bumper board (node 36): its Bumper frame must be fresh to arm and drive"""
     power: bool = False
-    """qnav's power board (node 37, BatteryStatus): true makes `--check` require it (otherwise the
-    battery shows as unknown without it)"""
 
 
 @dataclass(frozen=True)
 class DroneCanConfig:
     node_id: int = 100
-    """the robot's static DroneCAN node id (1..125)"""
     node_name: str = "org.qnav.robot"
 
 
