@@ -265,9 +265,8 @@ def _run(args: argparse.Namespace, onboard: Any) -> int:
     if args.map:
         from firmware_py.mapdata import MapDataError, grid_from_map_file
 
-        map_cell_mm = round(float(args.cell_size) * 1000) if args.cell_size else robot_spec.DEFAULT_CELL_SIZE_MM
         try:
-            args.robot_map = grid_from_map_file(args.map, map_cell_mm)
+            args.robot_map = grid_from_map_file(args.map, _policy_cell_mm(args, None))  # --cell-size or the default
         except MapDataError as exc:
             raise UsageError(f"--map {exc}") from None
     policy = _load_policy(args)
