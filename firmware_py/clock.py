@@ -7,10 +7,8 @@ tick frames, so timeouts are measured in sim time, never wall time.
 
 All values are integer microseconds.
 
-Sim time is input from the bus, so it is checked. Once a `SimClock` has taken its first tick (a
-first tick is always taken, so a robot joins a running sim), a tick more than `max_jump_us` ahead is
-refused and counted in `refused_jumps` unless RESYNC_TICKS consecutive ticks agree on the new time:
-one forged far-future SimTick neither stalls the robot nor freezes its clock.
+Sim time is input from the bus, so it is checked: `SimClock` refuses a jump ahead (its first tick is
+always taken, so a robot joins a running sim): docs/can-protocol.md, "Time and the lockstep handshake".
 
 Before that, `TickGate` checks the sim's protocol: counter and time advance together, one control
 period per count (learnt from the first two consecutive ticks), within a quarter period. A tick that

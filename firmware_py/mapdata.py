@@ -2,14 +2,10 @@
 explains (`unmapped_ends`, below: the collision monitor and the kinds that remember what the map
 does not show ask it).
 
-The map travels inside the `.qtab` file, in its metadata JSON under the key `map_grid`: a list of
-`height` strings of `width` characters each, row 0 the northernmost row (as in a MovingAI file and
-`robot_spec`'s world frame), `.` a free cell and any of `@ T O W` an occupied one. Being part of the
-policy file it is covered by the file's CRC32, uploaded, activated and kept as last-known-good with
-the policy, and shown by `qnav policy inspect`.
-
+The map travels inside the `.qtab` file's metadata under `map_grid` (row strings, row 0 the
+northernmost, `.` free and any of `@ T O W` occupied: docs/policy-format.md, "Metadata").
 `grid_from_metadata` is the one parser: `firmware_py.policy.load_policy` calls it so a file whose
-grid does not match the header's map geometry (or is malformed) is refused with a one-line reason
+grid is malformed or does not match the header's map geometry is refused with a one-line reason
 before it can be activated. Pure stdlib, no numpy.
 """
 
