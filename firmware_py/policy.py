@@ -328,14 +328,10 @@ def load_policy(source: bytes | bytearray | memoryview | str | os.PathLike[str],
 
 def config_mismatch(policy: Policy, control_period_us: int, cell_size_mm: int, robot_map: Any = None,
                     profile: Any = None) -> str:
-    """Why `policy` must not run on this robot ('' if it may), naming both values.
-
-    An action is held for one control period, so the periods must match. A cell policy's cell size
-    must equal the robot's; a sector policy observes mm and mrad, so its recorded training geometry
-    is not checked. A robot with its own map (`robot_map`) refuses a map-specific policy for another
-    map. `profile` (a RobotProfile; None: the built-in robot) must meet the policy's needs
-    (firmware_py.needs); a file without a `robot_needs` record was trained for the built-in robot.
-    """
+    """Why `policy` must not run on this robot ('' if it may), naming both values: the control period
+    and the cell size (docs/policy-format.md, "What the robot checks against its configuration"), a
+    map-specific policy for another map than the robot's own (`robot_map`), and the policy's needs
+    of `profile` (a RobotProfile; None: the built-in robot; firmware_py.needs)."""
     if policy.control_period_us != control_period_us:
         return f"policy control period {policy.control_period_us} us != robot {control_period_us} us"
     cell_mm = kinds.of_policy(policy).robot_cell_mm(policy)
