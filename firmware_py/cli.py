@@ -337,11 +337,8 @@ def _run(args: argparse.Namespace, onboard: Any) -> int:
     if goals:
         runner = GoalRunner(ctrl, goals)
         node.after_tick.append(runner)
-    stoppers = []
-    for ext in EXTENSIONS:  # the MAVLink shell attaches here
-        stop = ext.attach(node, args)
-        if stop is not None:
-            stoppers.append(stop)
+    attached = [ext.attach(node, args) for ext in EXTENSIONS]  # the MAVLink shell attaches here
+    stoppers = [stop for stop in attached if stop is not None]
     log = logging.getLogger("qnav.robot")
     if onboard is not None:
         def stats_line() -> str:
