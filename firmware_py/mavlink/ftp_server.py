@@ -5,11 +5,9 @@ returns the FTP payloads to send back (none, one, or a burst). No sockets, no th
 clock: the shell (`ground_station.lab.rigs.ftp_shell` or the MAVLink node) wraps replies in
 FILE_TRANSFER_PROTOCOL addressed to the requester and drains `drain_texts()` into STATUSTEXT.
 
-The protocol rules it follows are in docs/mavlink.md, "FTP server" and "Policy activation". In
-short: sessions are owned by their opener, bounded and expiring; retried requests are answered from
-the reply cache (a lost ACK never renames or creates twice); writes commit at TerminateSession only;
-a Rename onto the active policy or map activates through the injected hooks; costly file work runs
-on the injected `offload` (reply from `poll`); anything malformed is NAKed, never raised.
+The protocol rules it follows (sessions, the retry cache, commits, activation by Rename, malformed
+input): docs/mavlink.md, "FTP server" and "Policy activation". Costly file work runs on the
+injected `offload`, its reply coming from `poll`.
 """
 
 from __future__ import annotations
