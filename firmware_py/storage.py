@@ -383,13 +383,9 @@ ActivateHook = Callable[[str], Any]
 
 def promote_policy(storage: Storage, ftp_path: str, activate: ActivateHook, active: str = ACTIVE_POLICY,
                    last_good: str = LAST_GOOD_POLICY) -> Any:
-    """Activate the policy file at `ftp_path` through the vehicle's hook.
-
-    `activate(host_path)` must load, validate and swap in the file (or refuse:
-    DRIVING, bad file, wrong sensors) before returning (ok, reason); only on
-    success are the slots moved, on refusal nothing on disk changes. A pending
-    activation is returned as is: the caller commits when it succeeds.
-    """
+    """Activate the policy file at `ftp_path` through the vehicle's hook (`ActivateHook`, above),
+    which loads, validates and swaps in the file or refuses it (DRIVING, bad file, wrong sensors):
+    only on success are the slots moved; on refusal nothing on disk changes."""
     src = policy_source(storage, ftp_path, active)
     got = activate(str(src))
     if not isinstance(got, tuple):

@@ -6,9 +6,8 @@ schedule: `handle(msg, now_us)` and `tick(now_us)` return the messages to send, 
 happens; time is the robot clock's. `handle` never raises: a handler's exception is counted per
 message kind (`handler_errors`), logged once per kind and answered with a STATUSTEXT.
 
-`MavShell` is the I/O around it on any pymavlink connection string: `poll(now_us, budget_s)` is
-non-blocking, handles what has arrived until the budget is spent, then runs `tick`; `serve(stop)`
-loops it standalone.
+`MavShell` is the I/O around it on any pymavlink connection string (`poll`, never blocking, or
+`serve`, its own loop).
 
 docs/mavlink.md has the rest: "Node structure" (the link thread, the UDP parser reset, the serial
 send budget), "GCS failsafe" (`check_failsafe`, `failsafe_on_control`), "Who may steer: SYSID_MYGCS"
