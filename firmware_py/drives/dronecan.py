@@ -194,9 +194,7 @@ class DroneCanBackend(DriveBackend):
                 elif self._stop_left > 0:
                     self.enabled = False
                     self._stop_left -= 1
-                    for e in self.escs:
-                        e.integral = 0.0
-                    msgs += self._command((0, 0))
+                    msgs += self._command((0, 0))  # a zero target also resets each ESC's PI integral
             msgs += self.engine.periodic(now_us / 1e6)
             msgs += self.engine.outgoing(now_us / 1e6)
             self.frames_sent += len(msgs)
