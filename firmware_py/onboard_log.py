@@ -12,6 +12,7 @@ BACKUPS old files, robot.log.1 ... robot.log.N) happens there too. Stdlib only.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import logging.handlers
 import queue
@@ -80,20 +81,10 @@ class OnboardLog:
         self._listener.stop()  # writes what is queued
         self._file.close()
 
-    @property
-    def dropped(self) -> int:
-        return self._handler.dropped
-
 
 class _DroppingQueueHandler(logging.handlers.QueueHandler):
-    """Never blocks the caller: a full queue (the disk stalled) drops the record and counts it."""
-
-    def __init__(self, q: queue.Queue[logging.LogRecord]) -> None:
-        super().__init__(q)
-        self.dropped = 0
+    """Never blocks the caller: a full queue (the disk stalled) drops the record."""
 
     def enqueue(self, record: logging.LogRecord) -> None:
-        try:
+        with contextlib.suppress(queue.Full):
             self.queue.put_nowait(record)
-        except queue.Full:
-            self.dropped += 1
