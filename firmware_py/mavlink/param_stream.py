@@ -41,10 +41,8 @@ class ParamStream:
         """(Re)start `requester`'s stream at index 0."""
         self.requests += 1
         if requester in self._next:
-            self.restarted += 1
-            self._next[requester] = 0
-            return
-        if len(self._next) >= self.max_streams:
+            self.restarted += 1  # back to index 0, keeping its place in the round
+        elif len(self._next) >= self.max_streams:
             self._next.popitem(last=False)
             self.evicted += 1
         self._next[requester] = 0
