@@ -14,6 +14,7 @@ outgoing frames (the shell copies `key`/`timestamp`).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -60,10 +61,8 @@ def load_key_file(path: str | os.PathLike[str]) -> bytes:
     except UnicodeDecodeError as exc:
         raise ValueError(f"signing key file {path}: not 32 raw bytes, hex or a text passphrase") from exc
     if len(decoded) == 64:
-        try:
+        with contextlib.suppress(ValueError):  # 64 characters but not hex: a passphrase
             return bytes.fromhex(decoded)
-        except ValueError:
-            pass
     return hashlib.sha256(decoded.encode()).digest()
 
 
