@@ -101,9 +101,8 @@ WALL_CLOCK_SET_AFTER_US = 1_577_836_800_000_000
 
 
 def wall_clock_us() -> int:
-    """The host's wall clock in us since 1970, 0 when it was evidently never set."""
-    now = int(time.time() * 1_000_000)
-    return now if now >= WALL_CLOCK_SET_AFTER_US else 0
+    """The host's wall clock in us since 1970 (SYSTEM_TIME sends 0 for one never set: `build`)."""
+    return int(time.time() * 1_000_000)
 
 
 @dataclass
