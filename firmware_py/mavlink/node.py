@@ -17,6 +17,7 @@ and "Signing" (SETUP_SIGNING over network and serial links, SIGN_NET_SETUP).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
@@ -509,11 +510,9 @@ class MavShell:
         from pymavlink import mavutil
 
         self.node = node
-        self.url = url
         self.conn = mavutil.mavlink_connection(url, baud=baud, dialect=DIALECT, source_system=node.sysid,
                                                source_component=node.compid, autoreconnect=True)
         self._key_version = -1
-        self.sent = 0
         self._datagrams = isinstance(self.conn, mavutil.mavudp)
         self.partial_dropped = 0  # UDP datagrams that ended inside a frame (see poll)
         self.budget_exhausted = 0  # polls that stopped on their time budget with input left
@@ -548,11 +547,9 @@ class MavShell:
             if budget is not None and not budget.allow(
                     frame_len(m, signed), m.get_msgId() in STREAMS and m.get_msgId() != M.MAVLINK_MSG_ID_HEARTBEAT):
                 continue  # this period's share of the radio is spent: the stream sends again next time it is due
-            try:
+            # an OSError: no peer yet (udpin before the first frame) or link down; telemetry is periodic
+            with contextlib.suppress(OSError):
                 mav.send(m)
-                self.sent += 1
-            except OSError:
-                pass  # no peer yet (udpin before the first frame) or link down: telemetry is periodic
         if self.node.signing.key is not None:
             self.node.signing.note_sent(mav.signing.timestamp)
 

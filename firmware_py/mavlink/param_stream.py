@@ -31,7 +31,6 @@ class ParamStream:
         self.requests = 0
         self.restarted = 0  # requests that restarted a stream still running
         self.evicted = 0  # streams dropped for a new requester (MAX_STREAMS)
-        self.sent = 0
 
     @property
     def active(self) -> int:
@@ -67,5 +66,4 @@ class ParamStream:
                     del self._next[requester]
                 else:
                     self._next[requester] = index + 1
-        self.sent += len(out)
         return out
