@@ -133,38 +133,44 @@ def local_sweep(tmp_path_factory):
     return out
 
 
+# one bench with both kinds of job: the twin's episodes (pure compute) and HIL episodes (each starts a
+# hub, qnav-sim and qnav-robot in the pool's worker or on the Ray worker that runs it); its local run at
+# one worker is the reference both tests below compare with (same worker: the "ray" group), so the
+# suite runs it once; 2 controllers x ceil(5 / 3) twin jobs spread over both of the cluster's nodes
+BENCH = ["bench", "nav", "--map", "maze-16x16-s1", "--episodes", "5", "--hil", "--hil-episodes", "1",
+         "--controllers", "learnt,vfh"]
+
+
+@pytest.fixture(scope="module")
+def local_bench(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench_local") / "one.json"
+    one = qnav(*BENCH, "--workers", "1", "--batch", "7", "--json", str(out))
+    assert one.returncode == 0, one.stderr[-2000:]
+    return out
+
+
+@pytest.mark.xdist_group("ray")  # beside the Ray tests: they share its local reference
+def test_bench_nav_result_independent_of_workers_and_batches(local_bench, tmp_path):
+    two = qnav(*BENCH, "--workers", "2", "--batch", "3", "--json", str(tmp_path / "two.json"))
+    assert two.returncode == 0, two.stderr[-2000:]
+    assert (tmp_path / "two.json").read_bytes() == local_bench.read_bytes()
+    camp = json.loads((tmp_path / "two.campaign.json").read_text())
+    assert camp["twin"]["jobs"] == 2 * 2 and camp["twin"]["workers"] == 2  # 2 controllers x ceil(5 / 3)
+    assert "hil" in camp  # the HIL episodes went through the pool too
+
+
 @pytest.mark.ray
 @pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
 @pytest.mark.timeout(300)  # with the cluster's start: 21 s alone, 92 s beside a busy suite
-def test_bench_identical_on_ray_cluster(cluster, tmp_path):
-    # one bench with both kinds of job: the twin's episodes (pure compute) and HIL episodes (each starts
-    # a hub, qnav-sim and qnav-robot on the Ray worker that runs it); a separate `bench hil` on Ray cost
-    # the suite another 45 s for the same engine path
-    args = ["bench", "nav", "--map", "paper10", "--episodes", "4", "--controllers", "learnt", "--batch", "2",
-            "--hil", "--hil-episodes", "1"]
-    local = qnav(*args, "--json", str(tmp_path / "local.json"))
-    assert local.returncode == 0, local.stderr[-2000:]
-    on_ray = qnav(*args, "--json", str(tmp_path / "ray.json"), "--engine", "ray", "--ray-address", cluster.address,
-                  env=cluster.env())
+def test_bench_identical_on_ray_cluster(cluster, local_bench, tmp_path):
+    on_ray = qnav(*BENCH, "--batch", "3", "--json", str(tmp_path / "ray.json"), "--engine", "ray",
+                  "--ray-address", cluster.address, env=cluster.env())
     assert on_ray.returncode == 0, on_ray.stderr[-2000:]
-    assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
+    assert (tmp_path / "ray.json").read_bytes() == local_bench.read_bytes()
     camp = json.loads((tmp_path / "ray.campaign.json").read_text())
     assert camp["twin"]["engine"] == "ray" and len(camp["twin"]["nodes"]) == 2, camp
     assert camp["hil"]["engine"] == "ray" and camp["hil"]["jobs"] >= 1, camp
     assert json.loads((tmp_path / "ray.json").read_text())["hil"]  # HIL outcomes are in the result compared above
-
-
-def test_bench_nav_result_independent_of_workers_and_batches(tmp_path):
-    args = ["bench", "nav", "--map", "maze-16x16-s1", "--episodes", "5", "--hil", "--hil-episodes", "1",
-            "--controllers", "learnt,vfh"]
-    one = qnav(*args, "--workers", "1", "--batch", "7", "--json", str(tmp_path / "one.json"))
-    assert one.returncode == 0, one.stderr[-2000:]
-    two = qnav(*args, "--workers", "2", "--batch", "3", "--json", str(tmp_path / "two.json"))
-    assert two.returncode == 0, two.stderr[-2000:]
-    assert (tmp_path / "one.json").read_bytes() == (tmp_path / "two.json").read_bytes()
-    camp = json.loads((tmp_path / "two.campaign.json").read_text())
-    assert camp["twin"]["jobs"] == 2 * 2 and camp["twin"]["workers"] == 2  # 2 controllers x ceil(5 / 3)
-    assert "hil" in camp  # the HIL episodes went through the pool too
 
 
 @pytest.mark.ray
