@@ -128,15 +128,3 @@ class SimClock(Clock):
                 self._now = t_us
                 self._changed.notify_all()
             return True
-
-    def advance_us(self, dt_us: int) -> None:
-        """Advance by `dt_us` (a local, trusted step: no jump check)."""
-        with self._changed:
-            if dt_us > 0:
-                self._now += dt_us
-                self._changed.notify_all()
-
-    def wait_until(self, t_us: int, timeout_s: float | None = None) -> bool:
-        """Block until sim time reaches `t_us` (wall `timeout_s` as a guard)."""
-        with self._changed:
-            return self._changed.wait_for(lambda: self._now >= t_us, timeout_s)

@@ -125,9 +125,6 @@ class Reassembler:
     def __len__(self) -> int:
         return len(self._rx)
 
-    def buffered_bytes(self) -> int:
-        return sum(len(b) for p in self._rx.values() for b in p.frames)
-
     def push(self, can_id: int, data: bytes, now: float, head: FrameHeader | None = None) -> list[bytes] | None:
         """The frames' data of a transfer once its last frame is in (one frame: a single-frame transfer)."""
         h = head or FrameHeader.parse(can_id, data)

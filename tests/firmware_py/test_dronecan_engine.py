@@ -24,6 +24,7 @@ from firmware_py.dronecan_engine import (  # noqa: E402
     Reassembler,
     dsdl_max_bytes,
 )
+from tests.support.dronecan_bus import buffered_bytes  # noqa: E402
 
 ME = 100
 
@@ -99,7 +100,7 @@ def test_an_unknown_type_is_dropped_at_its_first_frame():
     first = can.Message(arbitration_id=arb, data=first.data, is_extended_id=True)
     eng = DroneCanEngine(ME, "robot", clock=lambda: 0.0)
     eng.take(first, 0.0)
-    assert len(eng.rx) == 0 and eng.rx.buffered_bytes() == 0 and eng.rx.dropped == 1
+    assert len(eng.rx) == 0 and buffered_bytes(eng.rx) == 0 and eng.rx.dropped == 1
 
 
 def test_a_transfer_times_out_two_seconds_after_its_first_frame_on_the_callers_clock():

@@ -48,12 +48,13 @@ def test_best_action_breaks_ties_low():
 
 def test_sim_clock_is_monotonic():
     from firmware_py.clock import SimClock
+    from tests.support.sim_time import advance_us, wait_until
 
     c = SimClock()
     c.set_us(500)
     c.set_us(100)
     assert c.now_us() == 500
-    c.advance_us(50)
+    advance_us(c, 50)
     assert c.now_us() == 550
-    assert c.wait_until(550, timeout_s=0.01)
-    assert not c.wait_until(10_000, timeout_s=0.01)
+    assert wait_until(c, 550, timeout_s=0.01)
+    assert not wait_until(c, 10_000, timeout_s=0.01)

@@ -25,6 +25,7 @@ from firmware_py.mavlink.params import ParamStore
 from ground_station.subprocs import free_udp_port
 from tests.support.controller_rig import sector_seek_policy
 from tests.support.mav_vehicle import TestVehicle
+from tests.support.sim_time import advance_us
 
 PERIOD = robot_spec.CONTROL_PERIOD_US
 
@@ -114,7 +115,7 @@ def test_link_thread_survives_raising_handlers_and_failsafe_runs_on_the_control_
     try:
         def control_ticks(n):  # what RobotNode's after_tick does once per control period
             for _ in range(n):
-                clock.advance_us(PERIOD)
+                advance_us(clock, PERIOD)
                 link.on_tick()
                 time.sleep(0.01)
 
@@ -141,7 +142,7 @@ def test_link_thread_survives_raising_handlers_and_failsafe_runs_on_the_control_
         # GCS heartbeats stop: the link thread's own tick does not trip the failsafe ...
         shell.node.gcs_last_heartbeat_us = clock.now_us()
         timeout_us = shell.node.params.get("FS_GCS_TOUT_MS") * 1000
-        clock.advance_us(timeout_us + PERIOD)
+        advance_us(clock, timeout_us + PERIOD)
         shell.poll(clock.now_us())
         assert vehicle.failsafe_calls == [] and not shell.node.failsafe
         # ... the control schedule's check does, and its STATUSTEXT goes out over the link

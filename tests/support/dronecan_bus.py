@@ -8,6 +8,13 @@ from __future__ import annotations
 import can
 from dronecan.driver.common import AbstractDriver, CANFrame
 
+from firmware_py.dronecan_engine import Reassembler
+
+
+def buffered_bytes(rx: Reassembler) -> int:
+    """The frame bytes `rx` holds for its unfinished transfers."""
+    return sum(len(b) for p in rx._rx.values() for b in p.frames)
+
 
 class PythonCanBusDriver(AbstractDriver):
     def __init__(self, bus: can.BusABC) -> None:

@@ -26,6 +26,7 @@ from firmware_py.vehicle import (
     VehicleEvent,
     VehicleStatus,
 )
+from tests.support.sim_time import advance_us
 
 
 class TestVehicle:
@@ -205,7 +206,7 @@ class Robot:
         next_t = time.monotonic()
         while not self._stop.is_set():
             with self._lock:
-                self.clock.advance_us(period)
+                advance_us(self.clock, period)
                 self.vehicle.step(period)
                 self.shell.poll(self.clock.now_us())
             next_t += period / 1e6
