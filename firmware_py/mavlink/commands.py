@@ -41,6 +41,13 @@ UNSUPPORTED = M.MAV_RESULT_UNSUPPORTED
 # qnav's own command (MAVLink reserves MAV_CMD_USER_1..5 for the vehicle's use): forget the pose and
 # localise globally on the policy's map; param1 1 = explore (armed in HOLD), 0 = stay put
 CMD_LOCALISE_GLOBAL = M.MAV_CMD_USER_1
+Reply = tuple[int, str, list[mavlink2.MAVLink_message]]  # (MAV_RESULT, STATUSTEXT reason, after the ACK)
+
+
+def _verdict(outcome: tuple[bool, str], refused: str) -> Reply:
+    """ACCEPTED, or DENIED with "<refused>: <the vehicle's reason>"."""
+    ok, reason = outcome
+    return (ACCEPTED, "", []) if ok else (DENIED, f"{refused}: {reason}", [])
 
 
 class CommandHandler:
@@ -82,21 +89,19 @@ class CommandHandler:
         out.append(self.mav.command_ack_encode(command, result, 0, 0, src[0], src[1]))
         return out + after
 
-    def _execute(self, cmd: int, p: tuple[float, ...], now_us: int, stats: NodeStats) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
+    def _execute(self, cmd: int, p: tuple[float, ...], now_us: int, stats: NodeStats) -> Reply:
         if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:  # param2 (ArduPilot's force, 21196) ignored: no bypass
             if p[0] not in (0.0, 1.0):
                 return DENIED, f"arm/disarm: param1 must be 0 or 1, got {p[0]:g}", []
-            ok, reason = self.vehicle.arm() if p[0] == 1.0 else self.vehicle.disarm()
-            what = "arm" if p[0] == 1.0 else "disarm"
-            return (ACCEPTED, "", []) if ok else (DENIED, f"{what} refused: {reason}", [])
+            if p[0] == 1.0:
+                return _verdict(self.vehicle.arm(), "arm refused")
+            return _verdict(self.vehicle.disarm(), "disarm refused")
         if cmd == M.MAV_CMD_DO_SET_MODE:
             return self._set_mode(int(p[0]), int(p[1]))
         if cmd == M.MAV_CMD_DO_SET_STANDARD_MODE:
             return self._set_standard_mode(p[0])
         if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
-            msg_id, interval = int(p[0]), int(p[1])
-            ok, reason = self.telemetry.set_interval(msg_id, interval)
-            return (ACCEPTED, "", []) if ok else (DENIED, f"message interval refused: {reason}", [])
+            return _verdict(self.telemetry.set_interval(int(p[0]), int(p[1])), "message interval refused")
         if cmd == M.MAV_CMD_GET_MESSAGE_INTERVAL:
             msg_id = int(p[0])
             interval = self.telemetry.interval_us(msg_id) if msg_id in STREAMS else 0
@@ -125,22 +130,19 @@ class CommandHandler:
         if cmd == M.MAV_CMD_MISSION_START:
             if self.mission.uploading:
                 return TEMP_REJECTED, "mission start refused: upload in progress", []
-            ok, reason = self.vehicle.start_mission()
-            return (ACCEPTED, "", []) if ok else (DENIED, f"mission start refused: {reason}", [])
+            return _verdict(self.vehicle.start_mission(), "mission start refused")
         if cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:
             seq = int(p[0])
             if not 0 <= seq < len(self.mission.items):
                 return DENIED, f"set mission current refused: no item {seq}", []
-            ok, reason = self.vehicle.set_mission_current(seq)
-            return (ACCEPTED, "", []) if ok else (DENIED, f"set mission current refused: {reason}", [])
+            return _verdict(self.vehicle.set_mission_current(seq), "set mission current refused")
         if cmd == CMD_LOCALISE_GLOBAL:
             if p[0] not in (0.0, 1.0):
                 return DENIED, f"global localisation: param1 must be 0 (stay put) or 1 (explore), got {p[0]:g}", []
-            ok, reason = self.vehicle.localise_global(explore=p[0] == 1.0)
-            return (ACCEPTED, "", []) if ok else (DENIED, f"global localisation refused: {reason}", [])
+            return _verdict(self.vehicle.localise_global(explore=p[0] == 1.0), "global localisation refused")
         return UNSUPPORTED, "", []
 
-    def _reposition(self, msg: mavlink2.MAVLink_message, now_us: int) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
+    def _reposition(self, msg: mavlink2.MAVLink_message, now_us: int) -> Reply:
         """MAV_CMD_DO_REPOSITION, the guided go-to (MAVProxy `guided LAT LON ALT`,
         QGroundControl "go to location"): the point becomes the goal in Guided.
         COMMAND_INT: x/y in the command's frame (global: 1e-7 deg around the
@@ -178,7 +180,7 @@ class CommandHandler:
             return DENIED, f"reposition refused: {reason}", []
         return ACCEPTED, "", [self.telemetry.position_target((now_us // 1000) & 0xFFFFFFFF, x_mm, y_mm)]
 
-    def _set_mode(self, base_mode: int, custom_mode: int) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
+    def _set_mode(self, base_mode: int, custom_mode: int) -> Reply:
         if not base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             return DENIED, "mode refused: custom mode flag not set", []
         try:
@@ -187,24 +189,18 @@ class CommandHandler:
             return DENIED, f"mode refused: unknown mode {custom_mode}", []
         if mode not in SETTABLE_MODES:
             return DENIED, f"mode refused: {mode.name.title()} not supported", []
-        ok, reason = self.vehicle.set_mode(mode)
-        if not ok:
-            return DENIED, f"mode {SETTABLE_MODES[mode]} refused: {reason}", []
-        return ACCEPTED, "", []
+        return _verdict(self.vehicle.set_mode(mode), f"mode {SETTABLE_MODES[mode]} refused")
 
-    def _set_standard_mode(self, standard: float) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
+    def _set_standard_mode(self, standard: float) -> Reply:
         """MAV_CMD_DO_SET_STANDARD_MODE: the mode with that standard meaning (telemetry.STANDARD_MODES)."""
         modes = [mode for mode, std, _ in STANDARD_MODES if std == standard and std != M.MAV_STANDARD_MODE_NON_STANDARD]
         if not modes:
             have = ", ".join(f"{std} ({SETTABLE_MODES[mode]})" for mode, std, _ in STANDARD_MODES
                              if std != M.MAV_STANDARD_MODE_NON_STANDARD)
             return DENIED, f"standard mode {standard:g} not available (available: {have})", []
-        ok, reason = self.vehicle.set_mode(modes[0])
-        if not ok:
-            return DENIED, f"mode {SETTABLE_MODES[modes[0]]} refused: {reason}", []
-        return ACCEPTED, "", []
+        return _verdict(self.vehicle.set_mode(modes[0]), f"mode {SETTABLE_MODES[modes[0]]} refused")
 
-    def _request_message(self, msg_id: int, now_us: int, stats: NodeStats) -> tuple[int, str, list[mavlink2.MAVLink_message]]:
+    def _request_message(self, msg_id: int, now_us: int, stats: NodeStats) -> Reply:
         if not self.telemetry.can_build(msg_id):
             return DENIED, f"message {msg_id} not available", []
         msgs = self.telemetry.build(msg_id, now_us, self.vehicle.status(), stats)
