@@ -50,10 +50,6 @@ class Background:
                     self._thread.start()
                 self._cv.notify()
 
-    def pending(self) -> int:
-        with self._cv:
-            return len(self._jobs)
-
     def run_pending(self) -> int:
         """Stepped shell: run every queued job in the calling thread; how many ran."""
         n = 0

@@ -17,6 +17,7 @@ from firmware_py.kinds.sector_memory.cellroute import (
 from firmware_py.mapdata import OccupancyGrid
 from firmware_py.policy import load_policy, on_robot_map
 from firmware_py.shipped_policies import shipped_policy
+from tests.support.background import pending
 
 C = 500
 # row 0 is north; a wall down column 3 from row 1: from (2, 4) to (4, 4) the way is round its top
@@ -54,11 +55,11 @@ def test_straight_subgoal_is_the_end_of_the_straight_run_down_the_field():
 def test_the_field_is_built_off_the_tick_and_rebuilt_for_a_new_goal():
     work = Background(threaded=False)
     route = CellRoute(work)
-    assert route.field(GRID, (4, 4)) is None and work.pending() == 1  # asked, not computed in the call
-    assert route.field(GRID, (4, 4)) is None and work.pending() == 1  # asked once
+    assert route.field(GRID, (4, 4)) is None and pending(work) == 1  # asked, not computed in the call
+    assert route.field(GRID, (4, 4)) is None and pending(work) == 1  # asked once
     assert work.run_pending() == 1
     assert route.field(GRID, (4, 4)) == distance_field(GRID, (4, 4))
-    assert route.field(GRID, (0, 0)) is None and work.pending() == 1  # another goal: another field
+    assert route.field(GRID, (0, 0)) is None and pending(work) == 1  # another goal: another field
     work.run_pending()
     assert route.field(GRID, (0, 0)) == distance_field(GRID, (0, 0)) and route.builds == 2
 
@@ -116,4 +117,4 @@ def test_without_a_map_the_bug_steers_on_the_goal():
     driver = SectorMemoryDriver(replace(pol, map_grid=None), work)
     goal = (4 * C + C // 2, C // 2)
     tick = _tick(2 * C + C // 2, C // 2, 1571, goal)
-    assert driver._steer_point(tick, (tick.pose_mm[0], tick.pose_mm[1]), 1) == goal and work.pending() == 0
+    assert driver._steer_point(tick, (tick.pose_mm[0], tick.pose_mm[1]), 1) == goal and pending(work) == 0

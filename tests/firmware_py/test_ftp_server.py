@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from firmware_py.mavlink.ftp_server import HEADER, MAX_DATA, PAYLOAD_LEN, FtpServer, Nak, Op, parse
 from firmware_py.storage import ACTIVE_POLICY, LAST_GOOD_POLICY, Storage
+from tests.support.background import pending
 
 S = 1_000_000  # µs per second
 
@@ -339,11 +340,11 @@ def test_whole_file_work_is_answered_from_the_offload_worker_and_a_retry_starts_
     assert owner == c.owner and ack(parse(reply)) and parse(reply)[0] == c.seq + 1
     assert (tmp_path / "root" / "policies" / "big.bin").read_bytes() == data[:200]
     (small,) = c.send(Op.CALC_FILE_CRC32, b"/policies/big.bin")  # 200 B: summed at once (INLINE_CRC_BYTES)
-    assert ack(small) and work.pending() == 0
+    assert ack(small) and pending(work) == 0
     monkeypatch.setattr("firmware_py.mavlink.ftp_server.INLINE_CRC_BYTES", 100)  # as if it were large
     assert c.send(Op.CALC_FILE_CRC32, b"/policies/big.bin") == []
     again = server.handle(c.last, c.now, c.owner)  # the same request again (a lost reply's retry)
-    assert again == [] and work.pending() == 1  # no second job
+    assert again == [] and pending(work) == 1  # no second job
     work.run_pending()
     (_, reply), = server.poll(c.now)
     crc = server.storage.crc32("/policies/big.bin")  # the same sum the link thread computed before

@@ -23,6 +23,7 @@ from firmware_py.kinds.sector.planner import LocalPlanner
 from firmware_py.mapdata import grid_from_rows, unmapped_readings
 from firmware_py.policy import PolicyError, dump_policy, load_policy
 from firmware_py.vehicle import VehicleConfig
+from tests.support.background import pending
 from tests.support.controller_rig import SECTOR_TRAINING_MAP, Kinematic, Rig
 from tests.support.localplan_rig import CFG, CLOSE, FAR, N, V, front
 
@@ -155,9 +156,9 @@ def test_the_search_runs_off_the_tick_and_the_robot_slows_then_stops_without_an_
     planned = PlannedTarget(grid_from_rows(OPEN, 500), CFG, work)
     mem = _disc_points(2500, 2500, 150)  # across the line to the waypoint
     assert planned.target(0, 1250, 2500, (3750, 2500), ObstacleMemory(CFG)) == (3750.0, 2500.0, 100)
-    assert work.pending() == 0  # nothing in the way: nothing asked
+    assert pending(work) == 0  # nothing in the way: nothing asked
     assert planned.target(0, 1250, 2500, (3750, 2500), mem) == (3750.0, 2500.0, 100)  # blocked just now
-    assert planned.plans == 0 and work.pending() == 1  # the question is queued, the tick did not search
+    assert planned.plans == 0 and pending(work) == 1  # the question is queued, the tick did not search
     speeds = [planned.target(t, 1250, 2500, (3750, 2500), mem)[2]
               for t in (PLAN_SLOW_US, PLAN_SLOW_US + 1, PLAN_STOP_US, PLAN_STOP_US + 1)]
     assert speeds == [100, 50, 50, 0] and planned.plans == 0  # no answer: slower, then stopped
@@ -179,7 +180,7 @@ def test_background_runs_the_latest_job_per_owner_and_keeps_errors_out_of_the_ca
     stepped.post(owner_a, lambda: ran.append("a1"))
     stepped.post(owner_a, lambda: ran.append("a2"))  # replaces a1, not started
     stepped.post(owner_b, lambda: 1 / 0)
-    assert ran == [] and stepped.pending() == 2
+    assert ran == [] and pending(stepped) == 2
     assert stepped.run_pending() == 2 and ran == ["a2"] and stepped.errors == 1 and stepped.runs == 2
     threaded = Background(threaded=True)
     done = threading.Event()
@@ -188,7 +189,7 @@ def test_background_runs_the_latest_job_per_owner_and_keeps_errors_out_of_the_ca
     assert done.wait(5.0) and threaded.errors == 1  # the worker survives a failing job
     threaded.close()
     threaded.post(owner_a, lambda: ran.append("after close"))
-    assert threaded.pending() == 0 and ran == ["a2"]
+    assert pending(threaded) == 0 and ran == ["a2"]
 
 
 def test_policy_metadata_is_checked_at_load():
