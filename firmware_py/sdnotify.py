@@ -21,7 +21,6 @@ class ServiceNotifier:
     def __init__(self, address: str | None, watchdog_us: int | None) -> None:
         self.address = address
         self.watchdog_us = watchdog_us
-        self.sent: list[str] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._sock: socket.socket | None = None
@@ -47,7 +46,6 @@ class ServiceNotifier:
             self._sock.sendto(state.encode(), self.address)
         except OSError:
             return False  # systemd gone or busy: never an error for the robot
-        self.sent.append(state)
         return True
 
     def start(self, ticks: Callable[[], int], status: Callable[[], str] | None = None) -> None:
