@@ -111,9 +111,9 @@ def _check(where: str, cond: bool, why: str) -> None:
         raise ProfileError(f"{where}: {why}")
 
 
-def _value(where: str, want: Any, default: Any, value: Any) -> Any:
+def _value(where: str, default: Any, value: Any) -> Any:
     """`value` converted to the field's type, or ProfileError."""
-    if isinstance(default, bool) or want == "bool":
+    if isinstance(default, bool):
         _check(where, isinstance(value, bool), f"expected true or false, got {value!r}")
         return value
     if isinstance(default, int):
@@ -129,7 +129,7 @@ def _value(where: str, want: Any, default: Any, value: Any) -> Any:
     if isinstance(default, tuple):
         _check(where, isinstance(value, list) and len(value) > 0, f"expected a non-empty list, got {value!r}")
         item = default[0] if default else 0
-        return tuple(_value(f"{where}[{i}]", None, item, v) for i, v in enumerate(value))
+        return tuple(_value(f"{where}[{i}]", item, v) for i, v in enumerate(value))
     raise AssertionError(f"unhandled field type at {where}")
 
 
@@ -147,7 +147,7 @@ def profile_from_dict(data: dict[str, Any], source: str) -> RobotProfile:
         for key, v in value.items():
             kwhere = f"{source}: {section}.{key}"
             _check(kwhere, key in known, f"unknown key (expected one of {', '.join(sorted(known))})")
-            kw[key] = _value(kwhere, None, getattr(defaults, key), v)
+            kw[key] = _value(kwhere, getattr(defaults, key), v)
         if section == "sensors" and "angles_deg" in kw and "sensor_ids" not in kw:
             kw["sensor_ids"] = tuple(range(len(kw["angles_deg"])))  # one id per sensor, in order
         parts[section] = cls(**kw)
