@@ -21,7 +21,7 @@ import threading
 from firmware_py.kinds.base import Decision, DriveTick, KindDriver, Policy, PolicyKind, Unpacked
 
 __all__ = ["Decision", "DriveTick", "KindDriver", "PolicyKind", "Unpacked", "REMOVED", "REMOVED_AT", "SHIPPED",
-           "METADATA_KEYS", "register", "unregister", "of_code", "of_name", "of_policy", "names"]
+           "METADATA_KEYS", "register", "of_code", "of_name", "of_policy", "names"]
 
 REMOVED = {3: "sector-memory-tick", 5: "sector-unmapped"}
 REMOVED_AT = "e026a1b"  # the last commit that has them (docs/research.md)
@@ -55,14 +55,6 @@ def register(kind: PolicyKind) -> PolicyKind:
     _BY_NAME[kind.name] = kind
     _BY_CODE[kind.code] = kind
     return kind
-
-
-def unregister(name: str) -> None:
-    """Forget a kind (tests that register a toy kind clean up with this); a shipped one is imported
-    again when next asked for."""
-    kind = _BY_NAME.pop(name, None)
-    if kind is not None:
-        _BY_CODE.pop(kind.code, None)
 
 
 def _shipped(name: str) -> PolicyKind | None:

@@ -14,7 +14,15 @@ import pytest
 from firmware_py import kinds
 from firmware_py.kinds.base import PolicyKind
 from firmware_py.policy import MapGeometry, PolicyError, dump_policy, load_policy
-from tests.support.toy_kind import ACTIONS, ROBOT_KIND, SpinDriver, SpinEncoder, _unpack, drive
+from tests.support.toy_kind import (
+    ACTIONS,
+    ROBOT_KIND,
+    SpinDriver,
+    SpinEncoder,
+    _unpack,
+    drive,
+    unregister_robot_kind,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 TOY = ROBOT_KIND
@@ -27,7 +35,7 @@ def toy_kind():
     try:
         yield TOY
     finally:
-        kinds.unregister(TOY.name)
+        unregister_robot_kind(TOY.name)
 
 
 def _toy_policy_bytes() -> bytes:
@@ -55,7 +63,7 @@ def test_registry_refuses_clashes_and_removed_codes_and_forgets_on_unregister(to
         kinds.register(PolicyKind(name="other", code=5, actions=TOY_ACTIONS, unpack=_unpack,
                                   pack=TOY.pack, driver=SpinDriver))
     data = _toy_policy_bytes()
-    kinds.unregister("toy-spin")
+    unregister_robot_kind("toy-spin")
     with pytest.raises(PolicyError, match="unknown encoder kind 200"):
         load_policy(data)
     kinds.register(TOY)  # the fixture unregisters it again

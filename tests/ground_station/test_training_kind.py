@@ -32,7 +32,7 @@ def toy():
         yield
     finally:
         kinds.unregister(toy_kind.NAME)
-        robot_kinds.unregister(toy_kind.NAME)
+        toy_kind.unregister_robot_kind(toy_kind.NAME)
 
 
 def test_a_kind_registered_by_the_test_trains_exports_and_drives_the_robot(toy, tmp_path, capsys):

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from firmware_py import kinds as robot_kinds
 from firmware_py.kinds.base import Decision, DriveTick, KindDriver, PolicyKind, Unpacked
 from ground_station.learn.kinds import TrainingKind, option
 
@@ -118,3 +119,11 @@ def evaluate(q, run, gridmap, *, sample=None, seed: int = 0, full: bool = False)
 STATION_KIND = TrainingKind(
     name=NAME, summary="clear or blocked ahead (a test's toy)", options=SpinOptions, prefix="toy_",
     train=train, evaluate=evaluate, encoder_from_dict=lambda d: SpinEncoder(int(d["near_mm"])))
+
+
+def unregister_robot_kind(name: str) -> None:
+    """Forget a kind the test registered with the robot's registry (firmware_py.kinds); a shipped
+    one is imported again when next asked for."""
+    kind = robot_kinds._BY_NAME.pop(name, None)
+    if kind is not None:
+        robot_kinds._BY_CODE.pop(kind.code, None)
