@@ -13,10 +13,8 @@ pinned by a global re-plan, are kept `route_memory_us` (a door found closed
 stays closed while the robot goes round through another) unless a reading sees
 through them. At most `max_points` points (the oldest go first).
 
-A point in the blind gap between two cones is in no reading's cone, so no
-reading sees through it; pinned, it would stay for good (and the collision
-monitor hold every step into it). But a point stands for a body, and one the
-robot must see does not fit in a gap: `_no_room` clears such points.
+A point in the blind gap between two cones where no body could stand unseen is
+cleared (`_no_room`; why: docs/architecture.md, "Local re-planning on the robot").
 """
 
 from __future__ import annotations

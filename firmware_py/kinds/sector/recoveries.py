@@ -1,18 +1,10 @@
-"""The tick's side of the sector kind's local planner (`PlannedTarget`): the
-search does not run in the control tick, and when it finds no way the
-recoveries run (`PlannedTarget`'s docstring lists them in order).
-
-Each tick `PlannedTarget` remembers what it sees, decides whether anything is
-in the way (cheap), posts the question (pose, waypoint, a copy of the memory)
-to `firmware_py.background`, and steers by the latest answer: at full speed
-while that answer (or, before the first, the moment the way became blocked) is
-at most `PLAN_SLOW_US` old on the controller clock, at half speed after that,
-and not at all once it is `PLAN_STOP_US` old. On the robot the answer comes
-from a worker thread; in lockstep HIL and in the twin the search runs between
-two ticks, so the answer of tick k is used from tick k+1 and runs stay
-reproducible. After `max_rounds` global searches without a route it says "no
-route" (`PlannedTarget.no_route`), and the controller reports it (STATUSTEXT,
-severity error) and ends the mission in HOLD.
+"""The tick's side of the sector kind's local planner (`PlannedTarget`): each tick it decides
+whether anything is in the way (cheap), posts the question (pose, waypoint, a copy of the memory)
+to `firmware_py.background` and steers by the latest answer, at half speed once that (or, before
+the first, the moment the way became blocked) is `PLAN_SLOW_US` old, stopped at `PLAN_STOP_US`;
+when the search finds no way the recoveries run (`PlannedTarget`'s docstring lists them in order).
+The schedule (the answer of tick k steers tick k+1 in lockstep HIL and the twin) and the
+controller's part in "no route": docs/architecture.md, "Local re-planning on the robot".
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """Cell-stepped Bug memory encoder (`GridBugEncoder` + `GridBugMemory`): the
-sector state with memory at the grid level the paper's robot moves on.
-
-The robot stands at a cell centre facing one of the 4 grid directions (its
-*reference heading*, kept in the memory: the direction of its last move, or
-the frame the mode rules set at a wall hit); the learnt table picks a
-relative cell move (forward / left / back / right), and the controller's
-cell primitive turns in place to that direction and drives one cell
-(`firmware_py.control.controller`). No position and no map enter the state:
+sector state with memory at the grid level the paper's robot moves on (how the
+robot steps from cell to cell on the table's relative moves: docs/training.md,
+"Sector state with memory"). Its *reference heading*, kept in the memory, is the
+direction of its last move, or the frame the mode rules set at a wall hit. No
+position and no map enter the state:
 
 * goal sector (8): for each axis of the reference frame, whether one cell
   move along it brings the robot closer to the goal (component > half a
@@ -15,10 +12,8 @@ cell primitive turns in place to that direction and drives one cell
   the goal cell, encodes as ahead): exactly "a move this way is goal-ward".
 * free (4 bits): neighbour k (0 front, 1 left, 2 back, 3 right) is free when
   the range sensor looking that way (index 2k relative to the robot's
-  physical grid heading) reads at least `free_mm`. At a cell centre of a
-  500 mm grid with the sensors on a 150 mm radius, a blocked neighbour's face
-  is 100 mm away and a free neighbour leaves at least 600 mm: the default
-  350 mm is the middle. Too close -> blocked, too far -> free, invalid ->
+  physical grid heading) reads at least `free_mm` (the default and why: the
+  doc section above). Too close -> blocked, too far -> free, invalid ->
   blocked (never drive into what was not seen).
 * mode (3): go / follow the wall on the right / on the left, fixed rules
   (`update`), the Bug family's:
