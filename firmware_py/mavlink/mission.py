@@ -301,14 +301,12 @@ class MissionEngine:
             self._down_deadline = now_us + self._timeout_us() * (self.params.get("MIS_RETRIES") + 1)
         it = self.items[msg.seq]
         current = 1 if msg.seq == self.vehicle.status().mission_seq else 0
-        if as_int:
-            return [self.mav.mission_item_int_encode(
-                partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
-                *it.params, it.x, it.y, it.z, M.MAV_MISSION_TYPE_MISSION)]
         scale = mav_frames.LOCAL_ITEM_SCALE if it.frame in LOCAL_FRAMES else 1e7
-        return [self.mav.mission_item_encode(
-            partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
-            *it.params, it.x / scale, it.y / scale, it.z, M.MAV_MISSION_TYPE_MISSION)]
+        # MISSION_ITEM_INT carries the stored integers; MISSION_ITEM their float meaning
+        encode, x, y = ((self.mav.mission_item_int_encode, it.x, it.y) if as_int
+                        else (self.mav.mission_item_encode, it.x / scale, it.y / scale))
+        return [encode(partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
+                       *it.params, x, y, it.z, M.MAV_MISSION_TYPE_MISSION)]
 
     def tick(self, now_us: int) -> list[mavlink2.MAVLink_message]:
         out: list[mavlink2.MAVLink_message] = []
