@@ -122,9 +122,6 @@ class Reassembler:
         self.timed_out = 0
         self.ignored = 0
 
-    def __len__(self) -> int:
-        return len(self._rx)
-
     def push(self, can_id: int, data: bytes, now: float, head: FrameHeader | None = None) -> list[bytes] | None:
         """The frames' data of a transfer once its last frame is in (one frame: a single-frame transfer)."""
         h = head or FrameHeader.parse(can_id, data)
@@ -180,9 +177,6 @@ class AnswerQueue:
         self._tokens = float(per_call)
         self._t: float | None = None
         self.dropped = 0
-
-    def __len__(self) -> int:
-        return len(self._pending)
 
     def add(self, requester: int, request: Any) -> None:
         if requester not in self._pending and len(self._pending) >= self.max_pending:

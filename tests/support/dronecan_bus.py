@@ -8,12 +8,22 @@ from __future__ import annotations
 import can
 from dronecan.driver.common import AbstractDriver, CANFrame
 
-from firmware_py.dronecan_engine import Reassembler
+from firmware_py.dronecan_engine import AnswerQueue, Reassembler
+
+
+def in_progress(rx: Reassembler) -> int:
+    """How many multi-frame transfers `rx` is reassembling."""
+    return len(rx._rx)
 
 
 def buffered_bytes(rx: Reassembler) -> int:
     """The frame bytes `rx` holds for its unfinished transfers."""
     return sum(len(b) for p in rx._rx.values() for b in p.frames)
+
+
+def waiting(q: AnswerQueue) -> int:
+    """How many requesting nodes wait for an answer."""
+    return len(q._pending)
 
 
 class PythonCanBusDriver(AbstractDriver):
