@@ -196,10 +196,6 @@ class RobotNode:
         self._threads = []
         self.controller.background.close()
 
-    @property
-    def running(self) -> bool:
-        return any(t.is_alive() for t in self._threads)
-
     def __enter__(self) -> RobotNode:
         return self.start()
 
