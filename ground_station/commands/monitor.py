@@ -1,11 +1,13 @@
 """`qnav monitor`: live telemetry dashboard, plain status lines, or a replay.
 
-qnav monitor [--mavlink URL] [--tlog FILE] [--signing-key FILE] [--map
-  NAME|PATH] qnav monitor --plain [--duration S]          one status line
-  per second qnav monitor --replay FILE.tlog [--speed X]  a recording
-  through the same view qnav monitor --foxglove [--port P]           also a
-  Foxglove WebSocket bridge on 127.0.0.1:P [--foxglove-origin URL ...]
-  [--foxglove-token T] [--foxglove-goals]
+    qnav monitor [--mavlink URL] [--tlog FILE] [--signing-key FILE]
+        [--map NAME|PATH]
+    qnav monitor --plain [--duration S]          one status line per second
+    qnav monitor --replay FILE.tlog [--speed X]  a recording through the
+                                                 same view
+    qnav monitor --foxglove [--port P]           also a Foxglove WebSocket
+                                                 bridge on 127.0.0.1:P
+        [--foxglove-origin URL ...] [--foxglove-token T] [--foxglove-goals]
 
 With --foxglove the same telemetry is published live for Foxglove (open
 ws://127.0.0.1:P in Foxglove desktop or its web app): the robot's pose on
