@@ -12,10 +12,11 @@ UDP the robot sits behind a relay that records its MAVLink both ways,
 whichever ground station connects) and run.mcap, the whole run for Foxglove,
 written on the way out with a progress line each second.
 
-qnav sitl                                   # paper10, its shipped cell
-  policy, real time mavproxy.py --master=udpout:127.0.0.1:14555 # in another
-  terminal qnav sitl --can socketcan:vcan0 --speed 2   # a kernel vcan0:
-  candump -L vcan0 watches
+    qnav sitl                                   # paper10, its shipped cell
+                                                # policy, real time
+    mavproxy.py --master=udpout:127.0.0.1:14555 # in another terminal
+    qnav sitl --can socketcan:vcan0 --speed 2   # a kernel vcan0:
+                                                # candump -L vcan0 watches
 
 Exit status: 0 stopped by Ctrl-C/SIGTERM/--duration, 1 a process died,
 2 bad arguments or a failed bring-up.
