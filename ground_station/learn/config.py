@@ -22,8 +22,7 @@ __all__ = ["TrainConfig", "LEARNERS", "encodings", "recipes", "add_config_argume
            "recipe_config", "validate_config", "int_arg", "int_list", "applies_to"]
 
 
-def _f(default, help: str):
-    return field(default=default, metadata={"help": help})
+_f = kinds.option  # a common field; its help text is its `qnav train --help` line
 
 
 _LEARNER_FIELDS = {"learner_lambda", "trace_min", "dyna_planning"}

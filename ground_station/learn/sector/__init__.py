@@ -64,9 +64,14 @@ def validate(cfg) -> None:  # type: ignore[no-untyped-def]
     int_list(o.range_edges, "sector_range_edges")
     from ground_station.learn.robot import check_profile_fits
 
-    check_profile_fits(cfg, SectorEncoder(bearing_sectors=int(o.bearing_sectors),
-                                          sensors=int_list(o.sensors, "sector_sensors"),
-                                          range_edges_mm=int_list(o.range_edges, "sector_range_edges")))
+    check_profile_fits(cfg, sector_encoder(cfg))
+
+
+def sector_encoder(cfg) -> SectorEncoder:  # type: ignore[no-untyped-def]
+    """The reference SectorEncoder a config trains (its sector_* fields)."""
+    return SectorEncoder(bearing_sectors=int(cfg.options.bearing_sectors),
+                         sensors=int_list(cfg.options.sensors, "sector_sensors"),
+                         range_edges_mm=int_list(cfg.options.range_edges, "sector_range_edges"))
 
 
 def encoder_from_dict(d: dict) -> SectorEncoder:

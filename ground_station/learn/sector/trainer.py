@@ -2,7 +2,7 @@
 
 1. `pack_maps`: the training maps as the kernel takes them, with the octile
    distance field to every free cell.
-2. `sector_encoder`, `epsilon_schedule`: what a TrainConfig asks for.
+2. `epsilon_schedule` (and the package's `sector_encoder`): what a TrainConfig asks for.
 3. `SectorTrainer(maps, cfg, encoder)`: exact sequential Q-learning (the
    kernels' `train_kernel`) with a random map, goal cell, start pose and
    heading each episode; chunked runs equal one long run.
@@ -16,9 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.kinds.sector.encoder import SectorEncoder
-from ground_station.learn.config import LEARNERS, TrainConfig, int_list
+from ground_station.learn.config import LEARNERS, TrainConfig
 from ground_station.learn.jit import seed_state
 from ground_station.learn.robot import training_profile
+from ground_station.learn.sector import sector_encoder
 from ground_station.learn.sector.kernels import (
     EP_LEN,
     L_DOUBLE_Q,
@@ -85,13 +86,6 @@ def pack_maps(maps: list[GridMap]) -> PackedMaps:
             free[i, k] = (col, row)
             dist[i, k, :h, :w] = octile_distances(gm.occ, col, row)
     return PackedMaps(occ, dims, cell, free, nfree, dist)
-
-
-def sector_encoder(cfg: TrainConfig) -> SectorEncoder:
-    """The reference SectorEncoder a config trains (its sector_* fields)."""
-    return SectorEncoder(bearing_sectors=int(cfg.options.bearing_sectors),
-                         sensors=int_list(cfg.options.sensors, "sector_sensors"),
-                         range_edges_mm=int_list(cfg.options.range_edges, "sector_range_edges"))
 
 
 def epsilon_schedule(cfg: TrainConfig) -> tuple[float, float, int]:
