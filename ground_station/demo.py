@@ -116,7 +116,7 @@ class DemoSummary:
 # --- small helpers ---------------------------------------------------------------
 def default_run_dir(prefix: str = "demo", base: Path = Path("runs")) -> Path:
     """runs/PREFIX-<timestamp>/ (then -2, -3, ... beside one that exists): the run folder of
-    `qnav demo` and, with prefix "sitl", of `qnav sitl`."""
+    `qnav demo` and, with prefix "sitl" or a run's name, of `qnav sitl` and `qnav train`."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
     path, n = base / f"{prefix}-{stamp}", 1
     while path.exists():

@@ -74,14 +74,11 @@ def default_run_dir(map_spec: str, encoding: str, seed: int) -> str:
     import re
     from pathlib import Path
 
+    from ground_station.demo import default_run_dir as stamped_run_dir
+
     name = Path(map_spec).stem if map_spec.endswith(".map") else map_spec
     name = re.sub(r"[^A-Za-z0-9_.]+", "_", name).strip("_") or "map"
-    base = Path("runs") / f"{name}-{encoding}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-    path, n = base, 1
-    while path.exists():  # two runs in the same second
-        n += 1
-        path = base.with_name(f"{base.name}-{n}")
-    return str(path)
+    return str(stamped_run_dir(f"{name}-{encoding}-s{seed}"))
 
 
 def run(args: argparse.Namespace) -> int:
