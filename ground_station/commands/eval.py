@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
+
+from ground_station.errors import CliError
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -44,7 +47,6 @@ def _fmt(v) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.errors import CliError
     from ground_station.learn.evaluate import evaluate_run
     from ground_station.maps import MapError, load_map
 
@@ -91,10 +93,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_run_dir(run_dir: str) -> None:
     """A one-line error unless `run_dir` is a folder (a policy file or a map is named as such)."""
-    from pathlib import Path
-
-    from ground_station.errors import CliError
-
     path = Path(run_dir)
     if path.is_dir() or not path.exists():
         return  # a missing folder: _run_map / evaluate_run name what is missing
@@ -106,10 +104,6 @@ def _check_run_dir(run_dir: str) -> None:
 
 def _run_map(run_dir: str) -> str:
     """The map a run was trained on (meta.json `map`), or a one-line error."""
-    from pathlib import Path
-
-    from ground_station.errors import CliError
-
     meta_path = Path(run_dir) / "meta.json"
     try:
         meta = json.loads(meta_path.read_text())
@@ -123,10 +117,7 @@ def _run_map(run_dir: str) -> str:
 
 
 def _plot(args: argparse.Namespace, gridmap) -> None:
-    from pathlib import Path
-
     from firmware_py.atomic import atomic_write
-    from ground_station.errors import CliError
     from ground_station.learn.evaluate import plot_run
 
     try:

@@ -18,6 +18,7 @@ import argparse
 from pathlib import Path
 
 from ground_station.commands import add_actions
+from ground_station.errors import CliError
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -67,7 +68,6 @@ def plain_name_problem(name: str) -> str | None:
 
 
 def _robot_logs(link) -> list[tuple[str, int]]:
-    from ground_station.errors import CliError
     from ground_station.mavlink.ftp_upload import ftp_session
 
     listing = ftp_session(link).list_dir(ROBOT_LOG_DIR)
@@ -91,7 +91,6 @@ def run_list(args: argparse.Namespace) -> int:
 
 def run_pull(args: argparse.Namespace) -> int:
     from firmware_py.atomic import atomic_write
-    from ground_station.errors import CliError
     from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.robot_map import read_robot_file
 
@@ -119,7 +118,6 @@ def run_pull(args: argparse.Namespace) -> int:
 
 
 def run_mcap(args: argparse.Namespace) -> int:
-    from ground_station.errors import CliError
     from ground_station.logs.mcap_run import McapError, find_run_files, write_run_mcap
     from ground_station.maps import MapError, load_map
 

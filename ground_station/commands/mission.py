@@ -51,6 +51,7 @@ import argparse
 import math
 
 from ground_station.commands import add_actions
+from ground_station.errors import CliError
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -88,7 +89,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
-    from ground_station.errors import CliError
     from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.mission_items import (
         file_items,
@@ -194,7 +194,6 @@ def waypoint_policy(link) -> tuple[int, dict] | None:
     """(policy id, `plan_waypoints` keywords) when the robot's active policy (its file on the robot) is
     a sector policy trained to steer to the planner's waypoints: the margin, longest segment and body
     radius it was trained with. None for any other policy, none, or one that cannot be read."""
-    from ground_station.errors import CliError
     from ground_station.maps.planner import guidance_from_metadata
     from ground_station.mavlink.robot_map import robot_policy
 

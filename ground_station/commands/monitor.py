@@ -48,6 +48,8 @@ import argparse
 import os
 import sys
 
+from ground_station.errors import CliError
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("monitor", help="telemetry dashboard (live, --plain, or --replay a .tlog)",
@@ -91,8 +93,6 @@ def _foxglove_origins(given: list[str]) -> list[str]:
     """--foxglove-origin values: scheme://host[:port] each ('none': no browser origin at all)."""
     from urllib.parse import urlsplit
 
-    from ground_station.errors import CliError
-
     out = []
     for origin in given:
         if origin.strip().lower() == "none":
@@ -106,8 +106,6 @@ def _foxglove_origins(given: list[str]) -> list[str]:
 
 
 def _load_map(spec: str, cell_size: float):
-    from ground_station.errors import CliError
-
     if spec.lower() == "none":
         return None
     from ground_station.maps import MapError, load_map
@@ -139,9 +137,6 @@ def _done(view) -> bool:
 
 def open_source(args):
     """The message source the flags ask for (ReplaySource or LiveSource)."""
-    import argparse
-
-    from ground_station.errors import CliError
     from ground_station.mavlink.link import _url_arg, default_url
     from ground_station.monitor.sources import ReplaySource, open_live
 
@@ -175,7 +170,6 @@ def open_source(args):
 
 
 def run(args: argparse.Namespace) -> int:
-    from ground_station.errors import CliError
     from ground_station.monitor.model import VehicleView
 
     if args.until_done and (not args.plain or args.replay):

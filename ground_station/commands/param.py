@@ -15,6 +15,7 @@ do). See docs/mavlink.md for the table.
 from __future__ import annotations
 
 import argparse
+import json
 
 from ground_station.commands import add_actions
 
@@ -69,8 +70,6 @@ def _described(entry: dict | None) -> str:
 
 def robot_parameter_metadata(link) -> dict[str, dict]:
     """name -> the robot's metadata entry (firmware_py/mavlink/metadata.py), {} if it serves none."""
-    import json
-
     from firmware_py.mavlink.metadata import PARAMETER_FILE
     from ground_station.mavlink.link import LinkError
     from ground_station.mavlink.robot_map import read_robot_file
@@ -83,8 +82,6 @@ def robot_parameter_metadata(link) -> dict[str, dict]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     from ground_station.errors import CliError
     from ground_station.mavlink.link import run_on_link
 

@@ -48,6 +48,7 @@ import struct
 
 from firmware_py import robot_spec
 from ground_station.commands import add_actions
+from ground_station.errors import CliError
 
 REVERT_DEADLINE_S = 300.0  # as `qnav upload`
 REVERT_HEARTBEAT_WAIT_S = 10.0
@@ -150,8 +151,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _read(path: str) -> bytes:
-    from ground_station.errors import CliError
-
     try:
         with open(path, "rb") as f:
             return f.read()
@@ -162,7 +161,6 @@ def _read(path: str) -> bytes:
 def _replace(out: str, data: bytes) -> str:
     """Write `data` to `out` atomically (a crash leaves the old file); returns `out`."""
     from firmware_py.atomic import atomic_write
-    from ground_station.errors import CliError
 
     try:
         atomic_write(out, data)
@@ -173,7 +171,6 @@ def _replace(out: str, data: bytes) -> str:
 
 def run_upgrade(args: argparse.Namespace) -> int:
     from firmware_py.policy import HEADER_V1, MapGeometry, PolicyError, upgrade_policy
-    from ground_station.errors import CliError
     from ground_station.learn.export import geometry_of_map
 
     data = _read(args.file)
@@ -199,7 +196,6 @@ def run_upgrade(args: argparse.Namespace) -> int:
 
 def run_attach_map(args: argparse.Namespace) -> int:
     from firmware_py.policy import PolicyError, load_policy
-    from ground_station.errors import CliError
     from ground_station.learn.export import attach_map
 
     data = _read(args.file)
