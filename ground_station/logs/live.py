@@ -27,8 +27,11 @@ from collections.abc import Callable, Iterable
 from typing import Any
 from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
+import foxglove
+from foxglove import messages as fm
+
 from ground_station.logs.mcap_run import TopicSink
-from ground_station.logs.topics import RunTopics
+from ground_station.logs.topics import Record, RunTopics
 
 log = logging.getLogger("qnav.foxglove")
 GOAL_TOPIC = "/goal"
@@ -280,8 +283,6 @@ class FoxgloveBridge:
 
     def __init__(self, port: int = DEFAULT_PORT, grid_map=None, *, goals: bool = False,
                  origins: Iterable[str] = DEFAULT_ORIGINS, token: str | None = None) -> None:
-        import foxglove
-
         self.topics = RunTopics(grid_map)
         self.context = foxglove.Context()
         self.sink = TopicSink(self.context)
@@ -347,10 +348,6 @@ class FoxgloveBridge:
 
     def flush_log(self, t_wall: float) -> None:
         """The lines `say` queued, onto /log (called from the monitor's thread)."""
-        from foxglove import messages as fm
-
-        from ground_station.logs.topics import Record
-
         while True:
             try:
                 text, warning = self._said.get_nowait()

@@ -14,6 +14,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import foxglove
+from foxglove import channels as fc
+
 from firmware_py.mavlink.dialect import NAME as DIALECT
 from ground_station.logs.topics import Record, RunTopics, json_schema
 
@@ -51,9 +54,6 @@ class TopicSink:
         self.counts: Counter[str] = Counter()
 
     def write(self, records: list[Record]) -> None:
-        import foxglove
-        from foxglove import channels as fc
-
         for r in records:
             ch = self.channels.get(r.topic)
             if ch is None:
@@ -96,7 +96,6 @@ def write_run_mcap(out: str | os.PathLike[str], tlog: str | os.PathLike[str] | N
     """Convert a run (see the module docstring); returns what was written. `progress(fraction)` is
     called every PROGRESS_EVERY records read (the share of the input files' bytes read so far; 1.0 at
     the end)."""
-    import foxglove
     from pymavlink import mavutil
 
     out = Path(out)

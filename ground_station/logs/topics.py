@@ -40,6 +40,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from foxglove import messages as fm
+
 from ground_station.monitor.model import VehicleView, obstacle_increment_deg
 
 MAP_FRAME, ROBOT_FRAME, TRUTH_FRAME = "map", "base_link", "truth"
@@ -53,28 +55,20 @@ class Record:
 
 
 def _stamp(ns: int):
-    from foxglove import messages as fm
-
     return fm.Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
 
 def _xyz_q(x: float, y: float, yaw: float):
-    from foxglove import messages as fm
-
     return (fm.Vector3(x=x, y=y, z=0.0),
             fm.Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)))
 
 
 def _pose(x: float, y: float, yaw: float):
-    from foxglove import messages as fm
-
     position, orientation = _xyz_q(x, y, yaw)
     return fm.Pose(position=position, orientation=orientation)
 
 
 def _transform(ns: int, child: str, x: float, y: float, yaw: float):
-    from foxglove import messages as fm
-
     translation, rotation = _xyz_q(x, y, yaw)
     return fm.FrameTransform(timestamp=_stamp(ns), parent_frame_id=MAP_FRAME, child_frame_id=child,
                              translation=translation, rotation=rotation)
@@ -135,8 +129,6 @@ class RunTopics:
         gm = self.grid_map
         if gm is None or (self._map_sent and not again):
             return []
-        from foxglove import messages as fm
-
         self._map_sent = True
         h, w = gm.occ.shape
         rows = [bytes(100 if gm.occ[h - 1 - r, c] else 0 for c in range(w)) for r in range(h)]
@@ -173,8 +165,6 @@ class RunTopics:
         self._logged = v.log_total
         if new <= 0:
             return []
-        from foxglove import messages as fm
-
         out = []
         for line in list(v.log)[-new:]:
             level = (fm.LogLevel.Error if line.severity <= 3 else
@@ -187,8 +177,6 @@ class RunTopics:
         v = self.view
         if v.pose is None:
             return []
-        from foxglove import messages as fm
-
         x, y, yaw = v.pose
         pose = fm.PoseInFrame(timestamp=_stamp(ns), frame_id=MAP_FRAME, pose=_pose(x, y, yaw))
         return [self._rec("/pose", pose, ns), self._rec("/tf", _transform(ns, ROBOT_FRAME, x, y, yaw), ns)]
@@ -197,23 +185,17 @@ class RunTopics:
         return self._pose_records(ns)
 
     def _on_odometry(self, msg, ns: int, t_wall: float) -> list[Record]:
-        from foxglove import messages as fm
-
         q = msg.q  # NED (w, x, y, z); yaw clockwise from north -> ours counter-clockwise from east
         yaw_ned = math.atan2(2 * (q[0] * q[3] + q[1] * q[2]), 1 - 2 * (q[2] ** 2 + q[3] ** 2))
         pose = _pose(float(msg.y), float(msg.x), math.pi / 2 - yaw_ned)
         return [self._rec("/odom", fm.PoseInFrame(timestamp=_stamp(ns), frame_id=MAP_FRAME, pose=pose), ns)]
 
     def _on_global_position_int(self, msg, ns: int, t_wall: float) -> list[Record]:
-        from foxglove import messages as fm
-
         fix = fm.LocationFix(timestamp=_stamp(ns), frame_id=MAP_FRAME, latitude=msg.lat / 1e7,
                              longitude=msg.lon / 1e7, altitude=msg.alt / 1000)
         return [self._rec("/location", fix, ns)]
 
     def _on_obstacle_distance(self, msg, ns: int, t_wall: float) -> list[Record]:
-        from foxglove import messages as fm
-
         inc_deg = obstacle_increment_deg(msg)
         if inc_deg <= 0:
             return []
@@ -247,8 +229,6 @@ class RunTopics:
         return [self._rec("/vehicle", d, ns)]
 
     def _on_mission_item_int(self, msg, ns: int, t_wall: float) -> list[Record]:
-        from foxglove import messages as fm
-
         items = sorted(self.view.mission.items.items())
         spheres = [fm.SpherePrimitive(pose=_pose(x, y, 0.0), size=fm.Vector3(x=0.2, y=0.2, z=0.2),
                                       color=fm.Color(r=0.1, g=0.6, b=1.0, a=0.8)) for _seq, (x, y) in items]
@@ -288,8 +268,6 @@ class RunTopics:
         the control clock's `t=... us` when the line carries one, else the last."""
         import re
 
-        from foxglove import messages as fm
-
         line = line.rstrip("\n")
         if not line.strip():
             return []
@@ -304,8 +282,6 @@ class RunTopics:
 
     # --- sim ground truth -------------------------------------------------------------
     def truth(self, t_s: float, x_m: float, y_m: float, heading_rad: float) -> list[Record]:
-        from foxglove import messages as fm
-
         ns = int(round(t_s * 1e9))
         pose = fm.PoseInFrame(timestamp=_stamp(ns), frame_id=MAP_FRAME, pose=_pose(x_m, y_m, heading_rad))
         return [self._rec("/truth", pose, ns),
