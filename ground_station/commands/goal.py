@@ -24,9 +24,10 @@ from __future__ import annotations
 
 import argparse
 
+from ground_station.mavlink.link import add_link_args, finite_float, run_on_link
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from ground_station.mavlink.link import add_link_args, finite_float
     from ground_station.mavlink.mission_items import add_profile_arg
 
     p = sub.add_parser("goal", help="send a goal position (Guided mode, MAVLink)", description=__doc__,
@@ -46,7 +47,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from firmware_py.mavlink.mission import LOCAL_LIMIT_M
     from ground_station.errors import CliError
-    from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.mission_items import profile_radius_arg
 
     if max(abs(args.x), abs(args.y)) > LOCAL_LIMIT_M:  # the robot's local-frame range (float32 on the wire)
@@ -71,7 +71,6 @@ def run(args: argparse.Namespace) -> int:
 def _planned_goal(args: argparse.Namespace) -> int:
     """Upload the planned waypoints to (X, Y) as a mission and set mode Auto."""
     from firmware_py.vehicle import Mode
-    from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.mission_items import (
         body_text,
         goal_cell,

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 
+from firmware_py import robot_spec
 from firmware_py.mavlink.frames import LOCAL_ITEM_SCALE
 from ground_station.errors import CliError
 from ground_station.mavlink.link import finite_float, mavlink, mavutil
@@ -34,8 +35,6 @@ def load_gridmap(map_name: str, cell_size_m: float | None = None):
 
 def goal_cell(gridmap, x_m: float, y_m: float) -> tuple[int, int]:
     """The map cell of world point (x_m, y_m); CliError unless it is a free cell."""
-    from firmware_py import robot_spec
-
     cell_mm = round(gridmap.cell_size_m * 1000)
     col, row = robot_spec.world_to_cell(round(x_m * 1000), round(y_m * 1000), gridmap.height, cell_mm)
     if not gridmap.in_bounds(col, row) or not gridmap.is_free(col, row):
@@ -85,8 +84,6 @@ def planned_goal_items(gridmap, x_m: float, y_m: float, start_mm: tuple[float, f
 
 def target_items(targets: str, gm) -> list[tuple[int, int, int]]:
     """(frame, x, y) MISSION_ITEM_INT items (LOCAL_NED, metres * LOCAL_ITEM_SCALE) for the targets of map `gm`."""
-    from firmware_py import robot_spec
-
     cell_mm = round(gm.cell_size_m * 1000)
     items = []
     for col, row in target_cells(targets, gm):

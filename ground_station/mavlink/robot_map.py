@@ -14,9 +14,11 @@ from __future__ import annotations
 import json
 import logging
 import sys
+import zlib
 from typing import Any
 
 from ground_station.errors import CliError
+from ground_station.mavlink.link import LinkError
 
 ACTIVE_POLICY = "/policies/active.qtab"
 ACTIVE_MAP = "/maps/active.map"  # firmware_py.storage.ACTIVE_MAP
@@ -59,7 +61,6 @@ def robot_policy(link: Any) -> Any | None:
     """The robot's active policy (firmware_py.policy.Policy) from its storage, None if there is none
     there; CliError when the robot runs another one (started with `qnav-robot --policy FILE`)."""
     from firmware_py.policy import PolicyError, load_policy
-    from ground_station.mavlink.link import LinkError
 
     try:
         data = read_robot_file(link, ACTIVE_POLICY)
@@ -87,16 +88,12 @@ def _describe(gm: Any) -> str:
 
 def targets_file(map_text: bytes, name: str, targets: dict[str, tuple[int, int]]) -> bytes:
     """The sidecar `qnav map upload` leaves beside the robot's map: its targets, tied to the map's CRC32."""
-    import zlib
-
     return json.dumps({"map_crc32": zlib.crc32(map_text), "name": name,
                        "targets": {k: list(v) for k, v in targets.items()}}, indent=1).encode()
 
 
 def _sidecar_targets(link: Any, map_text: bytes) -> tuple[str, dict[str, tuple[int, int]]]:
     """(name, targets) from MAP_TARGETS when it belongs to `map_text`; ("", {}) otherwise."""
-    import zlib
-
     try:
         raw = read_robot_file(link, MAP_TARGETS)
         doc = json.loads(raw) if raw else None
@@ -113,7 +110,6 @@ def uploaded_map(link: Any) -> Any | None:
     sidecar of `qnav map upload` belongs to it."""
     from ground_station.maps import MapError
     from ground_station.maps.movingai import parse_map
-    from ground_station.mavlink.link import LinkError
 
     try:
         data = read_robot_file(link, ACTIVE_MAP)
