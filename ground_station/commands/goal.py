@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 
+from firmware_py.vehicle import Mode
 from ground_station.mavlink.link import add_link_args, finite_float, run_on_link
 
 
@@ -58,8 +59,6 @@ def run(args: argparse.Namespace) -> int:
     profile_radius_arg(args)  # --profile without --plan: refused
 
     def body(link) -> int:
-        from firmware_py.vehicle import Mode
-
         link.command(link.m.MAV_CMD_DO_SET_MODE, link.m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(Mode.GUIDED))
         link.set_goal(args.x, args.y)
         print(f"goal x={args.x:g} y={args.y:g} m accepted (mode Guided)")
@@ -70,7 +69,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _planned_goal(args: argparse.Namespace) -> int:
     """Upload the planned waypoints to (X, Y) as a mission and set mode Auto."""
-    from firmware_py.vehicle import Mode
     from ground_station.mavlink.mission_items import (
         body_text,
         goal_cell,

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from ground_station.commands import add_actions
 from ground_station.errors import CliError
+from ground_station.mavlink.link import add_link_args, run_on_link
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -34,8 +35,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="map for the /map grid (default: the run's summary.json map; 'none' for no map)")
     m.add_argument("--out", metavar="FILE.mcap", help="output (default: RUN_DIR/run.mcap, or FILE.mcap beside the tlog)")
     m.set_defaults(func=run_mcap)
-    from ground_station.mavlink.link import add_link_args
-
     ls = inner.add_parser("list", help="the robot's own log files (logs/ in its storage, over MAVLink FTP)",
                           description="List the robot's onboard log files (firmware_py/onboard_log.py: "
                                       "logs/robot.log and its rotated copies) with their sizes.")
@@ -77,8 +76,6 @@ def _robot_logs(link) -> list[tuple[str, int]]:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    from ground_station.mavlink.link import run_on_link
-
     def body(link) -> int:
         files = _robot_logs(link)
         for name, size in files:
@@ -91,7 +88,6 @@ def run_list(args: argparse.Namespace) -> int:
 
 def run_pull(args: argparse.Namespace) -> int:
     from firmware_py.atomic import atomic_write
-    from ground_station.mavlink.link import run_on_link
     from ground_station.mavlink.robot_map import read_robot_file
 
     def body(link) -> int:
