@@ -41,7 +41,8 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q --durations=15 -n 4 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py
-	$(BIN)/python -m pytest -q --durations=15 -n 2 -m wallclock tests/hil tests/faults
+	$(BIN)/python -m pytest -q --durations=15 -n 2 -m wallclock tests/hil tests/faults \
+		tests/firmware_py/test_runtime_isolation.py
 
 # The inner loop (under a minute): lint, types and the robot's and the sim's in-process tests
 # (pure cores, the controller and MAVLink engines on python-can's virtual bus; no HIL processes,
