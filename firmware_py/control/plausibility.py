@@ -31,14 +31,6 @@ def encoder_jump_limit(dt_us: int, layout: Layout = DEFAULT_LAYOUT) -> int:
             // circ + ENC_JUMP_SLACK_TICKS)
 
 
-def plausible_range_status(range_mm: int, status: int) -> int:
-    """A reading's status as the controller may use it: a VALID reading beyond the sensor's
-    maximum range (a broken or forged frame: 4095 mm from a 2000 mm sensor) is INVALID."""
-    if status == robot_spec.RANGE_VALID and range_mm > robot_spec.RANGE_MAX_MM:
-        return robot_spec.RANGE_INVALID
-    return status
-
-
 def encoder_jump(deltas: tuple[int, int], dt_us: int, layout: Layout = DEFAULT_LAYOUT) -> str:
     """Why an encoder sample whose counts moved by `deltas` (left, right) in `dt_us` is implausible
     ("" if it is not)."""

@@ -339,7 +339,8 @@ def _bad_goal(rng: random.Random, gm) -> tuple[int, int, str]:
           what="goals outside the map / in a wall / nearer a wall than the robot radius refused with the reason "
                "(3 MAVLink ways); VALID readings above the maximum not used")
 def goal_refusals(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
-    from firmware_py.control.plausibility import plausible_range_status
+    # the rule the controller applies to readings (control/io.py)
+    from firmware_py.layout import DEFAULT as LAYOUT
 
     rng = random.Random(seed * 7919 + 15000)
     gm = paper10()
@@ -347,7 +348,8 @@ def goal_refusals(res: ScenarioResult, count: int, seed: int, progress: Any) -> 
         x, y, word = _bad_goal(rng, gm)
         # a VALID reading beyond the sensor's maximum is not a reading (finding 7's second half)
         beyond = robot_spec.RANGE_MAX_MM + rng.randrange(1, 2096)
-        valid_beyond = plausible_range_status(beyond, robot_spec.RANGE_VALID) == robot_spec.RANGE_VALID
+        n = len(LAYOUT.max_ranges_mm)
+        valid_beyond = LAYOUT.plausible([beyond] * n, [robot_spec.RANGE_VALID] * n) != [robot_spec.RANGE_INVALID] * n
         way = ("SET_POSITION_TARGET_LOCAL_NED", "DO_REPOSITION", "MISSION_ITEM_INT")[i % 3]
         problems = [f"a VALID {beyond} mm reading kept as VALID"] if valid_beyond else []
         _, rig = _sector_rig(seed * 7919 + 15000 + i, with_goal=False)
