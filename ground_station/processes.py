@@ -10,12 +10,10 @@ stopped in order; `other_processes` finds what a run left behind.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import subprocess
 import sys
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -29,8 +27,6 @@ from ground_station.subprocs import (
 
 ROBOT_MAIN = "firmware_py.cli"  # the console scripts' entry points (pyproject.toml [project.scripts])
 SIM_MAIN = "sim_bridge.cli"
-FTP_SHELL_MAIN = "ground_station.lab.rigs.ftp_shell"
-REFLEX_MAIN = "ground_station.lab.rigs.reflex"
 
 
 def other_processes() -> Iterator[tuple[int, str]]:
@@ -167,29 +163,6 @@ class RobotProcess(ChildProcess):
 
     def __enter__(self) -> RobotProcess:
         return self.start()
-
-
-@contextlib.contextmanager
-def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None,
-                      log: Path | None = None) -> Iterator[subprocess.Popen]:
-    """The robot's standalone FTP shell in a child process, once it serves; always stopped on
-    exit. Its output goes to `log` (default: root/../<root name>.log)."""
-    args = ["--root", str(root), "--mavlink", url]
-    if key_file is not None:
-        args += ["--signing-key", str(key_file)]
-    child = ChildProcess([*program_argv(FTP_SHELL_MAIN, "qnav-ftp-shell"), *args, *(extra or [])],
-                         log or root.parent / f"{root.name}.log")
-    proc = child.start().proc
-    assert proc is not None
-    try:
-        deadline = time.monotonic() + 20
-        while "serving" not in child.log_text():  # printed once the socket is up
-            if not child.alive or time.monotonic() > deadline:
-                raise RuntimeError(f"robot FTP shell did not start: {child.log_text().strip()}")
-            time.sleep(0.05)
-        yield proc
-    finally:
-        child.stop(grace_s=5.0)
 
 
 class ProcessGroup:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from firmware_py.mavlink.ftp_server import MAX_DATA, PAYLOAD_LEN, Nak
+from firmware_py.mavlink.ftp_server import PAYLOAD_LEN, Nak
 from firmware_py.mavlink.params import as_float32
 from ground_station.mavlink import ftp_put
 from ground_station.mavlink.ftp_put import FtpPut, PutStats
@@ -469,17 +469,3 @@ def default_remote(local: Path) -> str:
     if f"/policies/{name}" in (ACTIVE_POLICY, "/policies/last_good.qtab"):
         name = f"upload-{name}"
     return f"/policies/{name}"
-
-
-# Link budget of an upload (design.md section 3), for benchmarks and estimates.
-WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size (bytes of file data per WriteFile)
-FLOOR_BLOCK = MAX_DATA  # the largest WriteFile (what ftp_put writes)
-FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
-SIGNATURE = 13
-
-
-def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0, block: int = WRITE_BLOCK) -> float:
-    """Link time of the WriteFile frames alone (design.md section 3), in `block`-byte writes:
-    80 (pymavlink's) or 239 (the largest: the least time any MAVLink FTP client can take)."""
-    blocks = -(-size // block)
-    return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s

@@ -12,7 +12,7 @@ import pytest
 from firmware_py.kinds.cell.encoder import CellEncoder
 from firmware_py.policy import dump_policy, load_policy
 from ground_station.lab.rigs import link_emulator as emu
-from ground_station.processes import robot_ftp_process
+from ground_station.lab.rigs.ftp_shell import robot_ftp_process
 from ground_station.subprocs import free_udp_port
 
 pytestmark = pytest.mark.slow

@@ -14,7 +14,7 @@ import pytest
 
 from firmware_py.storage import ACTIVE_POLICY, Storage, boot_policy_candidates, ftp_crc32
 from ground_station.lab.rigs import link_emulator
-from ground_station.processes import robot_ftp_process
+from ground_station.lab.rigs.ftp_shell import robot_ftp_process
 from ground_station.subprocs import free_udp_port, stop_process
 
 pytestmark = pytest.mark.slow

@@ -9,6 +9,22 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from firmware_py.mavlink.ftp_server import MAX_DATA
+
+# Link budget of an upload (design.md section 3), for the benchmarks and their estimates.
+WRITE_BLOCK = 80  # pymavlink MAVFTP default write_size (bytes of file data per WriteFile)
+FLOOR_BLOCK = MAX_DATA  # the largest WriteFile (what ftp_put writes)
+FRAME_OVERHEAD = 27  # MAVLink 2 header + FTP header + CRC around the data
+SIGNATURE = 13
+
+
+def theoretical_seconds(size: int, signed: bool, bytes_per_s: float = 5760.0, block: int = WRITE_BLOCK) -> float:
+    """Link time of the WriteFile frames alone (design.md section 3), in `block`-byte writes:
+    80 (pymavlink's) or 239 (the largest: the least time any MAVLink FTP client can take)."""
+    blocks = -(-size // block)
+    return (size + blocks * (FRAME_OVERHEAD + (SIGNATURE if signed else 0))) / bytes_per_s
+
+
 
 def report(name: str, rows: Sequence[tuple[str, object]], result: dict, json_path: str | None) -> None:
     """Print `rows` as a two-column table and write `result` as JSON if asked."""

@@ -85,12 +85,12 @@ def measure_inprocess(occ, cell_size_m: float, ticks: int) -> dict:
 def measure_remote(occ, cell_size_m: float, ticks: int) -> dict:
     from firmware_py.canbus import open_bus
     from ground_station.canhub import CanHub
-    from ground_station.processes import REFLEX_MAIN, ChildProcess, program_argv
+    from ground_station.processes import ChildProcess, program_argv
     from sim_bridge.plant import run_lockstep
 
     plant = _plant(occ, cell_size_m)
     with CanHub("bench-sim") as hub:
-        ctl = ChildProcess([*program_argv(REFLEX_MAIN, "reflex"), "--can", hub.spec], None).start()
+        ctl = ChildProcess([*program_argv("ground_station.lab.rigs.reflex", "reflex"), "--can", hub.spec], None).start()
         bus = open_bus(hub.spec)
         try:
             stats = run_lockstep(plant, bus, ticks * robot_spec.CONTROL_PERIOD_US / 1e6,

@@ -7,7 +7,7 @@ upload`'s code (`ftp_upload.upload_policy`, the `ftp_put` engine) -> link
 emulator (ground_station/lab/rigs/link_emulator.py, 5760 B/s each way, 8N1) ->
 the robot's FTP shell in its own process (`python -m
 ground_station.lab.rigs.ftp_shell`, started by
-`ground_station.processes.robot_ftp_process`).
+`ground_station.lab.rigs.ftp_shell.robot_ftp_process`).
 
 Per case: seconds from the first FTP request to the robot's CRC32 verified,
 two yardsticks - t80, the WriteFile frames in pymavlink's 80-byte writes
@@ -26,8 +26,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from ground_station.mavlink.ftp_upload import FLOOR_BLOCK, theoretical_seconds
-from ground_station.processes import robot_ftp_process
+from ground_station.lab.bench.common import FLOOR_BLOCK, theoretical_seconds
+from ground_station.lab.rigs.ftp_shell import robot_ftp_process
 from ground_station.subprocs import free_udp_port
 
 

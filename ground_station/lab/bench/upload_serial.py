@@ -19,8 +19,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from ground_station.mavlink.ftp_upload import FLOOR_BLOCK, theoretical_seconds
-from ground_station.processes import robot_ftp_process
+from ground_station.lab.bench.common import FLOOR_BLOCK, theoretical_seconds
+from ground_station.lab.rigs.ftp_shell import robot_ftp_process
 
 
 def run_case(radio: Any, size: int, loss: float, signed: bool, key_file: Path | None, root: Path,

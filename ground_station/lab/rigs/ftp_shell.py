@@ -5,7 +5,8 @@ The MAVLink node (`firmware_py.mavlink.node`) hands every FILE_TRANSFER_PROTOCOL
 message to `FtpLink.handle_message`. Standalone (`python -m
 ground_station.lab.rigs.ftp_shell --root DIR --mavlink udpin:127.0.0.1:PORT`) it also
 sends a 1 Hz HEARTBEAT so stock clients (`python -m pymavlink.mavftp`,
-MAVProxy) find the robot; tests and `qnav bench upload` use that mode. The
+MAVProxy) find the robot; tests and `qnav bench upload` use that mode, started as a child process by
+`robot_ftp_process`. The
 standalone activation hook only validates the file with the policy loader
 (there is no vehicle); the real robot passes `VehicleControl.activate_policy`.
 
@@ -19,17 +20,21 @@ MAVLink 2 throws the signing setup away (design.md section 3).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from firmware_py.clock import Clock, WallClock
 from firmware_py.mavlink.ftp_server import PAYLOAD_LEN, FtpServer
 from firmware_py.mavlink.signing import load_key_file
 from firmware_py.storage import DEFAULT_QUOTA_BYTES, Storage
+from ground_station.processes import ChildProcess, program_argv
 
 if TYPE_CHECKING:  # annotations only: pymavlink is imported after MAVLINK20 is set (see above)
     from pymavlink import mavutil
@@ -160,6 +165,29 @@ def main(argv: list[str] | None = None) -> int:
         link.conn.close()
     return 0
 
+
+
+@contextlib.contextmanager
+def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra: list[str] | None = None,
+                      log: Path | None = None) -> Iterator[subprocess.Popen]:
+    """The robot's standalone FTP shell in a child process, once it serves; always stopped on
+    exit. Its output goes to `log` (default: root/../<root name>.log)."""
+    args = ["--root", str(root), "--mavlink", url]
+    if key_file is not None:
+        args += ["--signing-key", str(key_file)]
+    child = ChildProcess([*program_argv("ground_station.lab.rigs.ftp_shell", "qnav-ftp-shell"), *args, *(extra or [])],
+                         log or root.parent / f"{root.name}.log")
+    proc = child.start().proc
+    assert proc is not None
+    try:
+        deadline = time.monotonic() + 20
+        while "serving" not in child.log_text():  # printed once the socket is up
+            if not child.alive or time.monotonic() > deadline:
+                raise RuntimeError(f"robot FTP shell did not start: {child.log_text().strip()}")
+            time.sleep(0.05)
+        yield proc
+    finally:
+        child.stop(grace_s=5.0)
 
 if __name__ == "__main__":
     sys.exit(main())
