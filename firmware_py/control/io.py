@@ -35,13 +35,10 @@ class Inputs:
     enc_right: int = 0
     enc_us: int | None = None
     bumper: bool = False
-    bumper_events: int = 0
     bumper_us: int | None = None
     driver_state: int = 0
     driver_errors: int = 0
     driver_estop: bool = False
-    driver_left_mm_s: int = 0
-    driver_right_mm_s: int = 0
     driver_us: int | None = None
     driver_detail: str = ""  # a drive backend's words for what is wrong (names the axis/ESC), '' when nothing
     arm_block: str = ""  # a backend's words for why the robot must not arm (a DroneCAN node-id collision), ''

@@ -87,14 +87,11 @@ class InputTracker:
                 key = "enc"
             elif name == "Bumper":
                 inp.bumper = bool(sig["Bump_Pressed"])
-                inp.bumper_events = sig["Bump_Events"]
                 key = "bumper"
             elif name == "MotorStatus":
                 inp.driver_state = sig["Mot_State"]
                 inp.driver_errors = sig["Mot_Errors"]
                 inp.driver_estop = bool(sig["Mot_EStop"]) or sig["Mot_State"] == proto.MOTOR_ESTOP
-                inp.driver_left_mm_s = sig["Mot_LeftSpeed"]
-                inp.driver_right_mm_s = sig["Mot_RightSpeed"]
                 key = "driver"
             elif name == "BatteryStatus":
                 inp.battery_mv, inp.battery_ma = sig["Bat_Voltage"], sig["Bat_Current"]

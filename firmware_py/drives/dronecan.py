@@ -118,16 +118,12 @@ class DroneCanBackend(DriveBackend):
         return [InputUpdate("enc", {"enc_left": left, "enc_right": right}),
                 InputUpdate("driver", self._driver_fields())]
 
-    def _wheel_mm_s(self, esc: _Esc) -> int:
-        return round(esc.sign * esc.rpm / self.motor_rpm_per_mm_s)
-
     def _driver_fields(self) -> dict[str, Any]:
         bad = [e for e in self.escs if e.health >= 2]
         detail = f"{bad[0].name()}: health {HEALTH_NAMES.get(bad[0].health, bad[0].health)}" if bad else ""
         return {"driver_state": proto.MOTOR_RUNNING if self.enabled else proto.MOTOR_IDLE,
                 "driver_errors": sum(1 << i for i, e in enumerate(self.escs) if e.health >= 2),
-                "driver_detail": detail, "driver_estop": False,
-                "driver_left_mm_s": self._wheel_mm_s(self.escs[0]), "driver_right_mm_s": self._wheel_mm_s(self.escs[1])}
+                "driver_detail": detail, "driver_estop": False}
 
     def _range(self, p: Any) -> list[InputUpdate]:
         i = self.sector_of.get(int(p.sensor_id))

@@ -78,7 +78,6 @@ class _Axis:
         self.hb_us: int | None = None
         self.hb_new = False
         self.pos: float | None = None
-        self.vel = 0.0
         self.est_us: int | None = None
         self.est_new = False
         self.confirmed = False  # closed loop seen in a heartbeat since it was last requested
@@ -139,7 +138,7 @@ class ODriveDrive(DriveBackend):
             if not (math.isfinite(pos) and math.isfinite(vel)) or abs(pos) > 1e9:
                 self.bad_frames += 1
                 return []
-            axis.pos, axis.vel, axis.est_new, axis.est_us = pos, vel, True, now_us
+            axis.pos, axis.est_new, axis.est_us = pos, True, now_us  # vel: checked, not used
             if not all(a.est_new for a in self.axes):
                 return []
             for a in self.axes:
@@ -149,9 +148,6 @@ class ODriveDrive(DriveBackend):
 
     def _counts(self, a: _Axis) -> int:
         return proto.wrap_counts(round(a.sign * (a.pos or 0.0) * self.counts_per_motor_turn))
-
-    def _mm_s(self, a: _Axis) -> int:
-        return round(a.sign * a.vel / self.motor_turns_per_mm)
 
     def _trouble(self, now_us: int) -> str:
         """What is wrong with the axes now ('' when nothing): errors, closed loop lost or never reached."""
@@ -172,8 +168,7 @@ class ODriveDrive(DriveBackend):
         running = all(a.state == AXIS_CLOSED_LOOP for a in self.axes)
         return {"driver_state": proto.MOTOR_RUNNING if running else proto.MOTOR_IDLE,
                 "driver_errors": sum(1 << a.index for a in self.axes if a.error) or (4 if trouble else 0),
-                "driver_detail": trouble, "driver_estop": False,
-                "driver_left_mm_s": self._mm_s(self.axes[0]), "driver_right_mm_s": self._mm_s(self.axes[1])}
+                "driver_detail": trouble, "driver_estop": False}
 
     def check(self, now_us: int, timeout_us: int) -> list[InputUpdate]:
         with self._lock:
