@@ -139,8 +139,12 @@ def hold_ends_exploration(res: ScenarioResult, count: int, seed: int, progress: 
             rig.tick()
             send(gcs.command_long_encode(1, 1, m.MAV_CMD_USER_1, 0, 1, 0, 0, 0, 0, 0, 0))
             rig.tick()
+            # the poll that handles it runs after that tick's answer, in the robot's thread: the
+            # next tick's answer comes after it (read at once, a loaded machine lost the race)
+            rig.tick()
             if not rig.ctrl.exploration.running:
-                problems.append(f"setup: not exploring (armed {rig.ctrl.armed}, state {rig.ctrl.state.name})")
+                problems.append(f"setup: not exploring (armed {rig.ctrl.armed}, state {rig.ctrl.state.name}, "
+                                f"robot said {polled.texts[-3:]})")
             t_stop = rig.time_us + _fault_time(rng) // 2  # 0.5 .. 1.5 s of wandering
             while rig.time_us < t_stop:
                 send(beat())
