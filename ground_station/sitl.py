@@ -333,8 +333,9 @@ class Sitl:
         return info
 
     def _probe(self, info: SitlInfo) -> int | None:
-        """Wait for the robot's HEARTBEAT (only when it listens: a robot sending to a
-        fixed address is heard by the GCS there, not by us)."""
+        """Wait for the robot's HEARTBEAT past BOOT (its first control tick: before it an arm is
+        refused "still booting"), only when it listens: a robot sending to a fixed address is
+        heard by the GCS there, not by us."""
         if not info.mavlink.startswith(("udpin:", "tcpin:")):
             return None
         import os
@@ -356,11 +357,15 @@ class Sitl:
                         raise SitlError(f"robot's {info.mavlink} never accepted a connection") from None
                     time.sleep(0.2)
             M = mavutil.mavlink
+            booting = False
             while time.monotonic() < deadline:
                 self._check_children()
                 conn.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
                 msg = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
                 if msg is None or msg.get_srcSystem() == 255:
+                    continue
+                if msg.system_status == M.MAV_STATE_BOOT:
+                    booting = True  # up before its first control tick: it would refuse to arm yet
                     continue
                 sysid = msg.get_srcSystem()
                 if self.opts.speed > 1:
@@ -368,6 +373,9 @@ class Sitl:
                         self._scale_timeout(conn, sysid, msg.get_srcComponent(), param.name,
                                             min(param.max, math.ceil(param.default * self.opts.speed)))
                 return int(sysid)
+            if booting:
+                raise SitlError(f"the robot on {info.mavlink} was still booting (no control tick) after "
+                                f"{self.opts.probe_timeout_s:g} s (see {info.logs['robot']}, {info.logs['sim']})")
             raise SitlError(f"no HEARTBEAT from the robot on {info.mavlink} within "
                             f"{self.opts.probe_timeout_s:g} s (see {info.logs['robot']})")
         finally:

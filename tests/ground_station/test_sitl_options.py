@@ -78,3 +78,50 @@ def test_wait_says_whether_a_child_died_or_the_duration_ran_out(tmp_path):
         assert result.child_died and result.reason.startswith("robot exited with status 3")
     finally:
         sitl.stop()
+
+
+def test_the_robot_is_up_once_it_leaves_boot(tmp_path):
+    """`qnav sitl` says the robot is up (and a GCS may arm it) only once its HEARTBEAT is past BOOT,
+    i.e. after its first control tick: a robot heard still booting refuses to arm ("still booting",
+    seen beside a busy suite). A pymavlink vehicle on UDP loopback plays the robot."""
+    import os
+    import threading
+    import time
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    from ground_station.sitl import Sitl
+    from ground_station.subprocs import free_udp_port
+
+    port = free_udp_port()
+    robot = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
+    M = mavutil.mavlink
+    boot_until = time.monotonic() + 1.5
+    stop = threading.Event()
+
+    def vehicle() -> None:
+        while not stop.is_set():
+            state = M.MAV_STATE_BOOT if time.monotonic() < boot_until else M.MAV_STATE_STANDBY
+            robot.mav.heartbeat_send(M.MAV_TYPE_GROUND_ROVER, M.MAV_AUTOPILOT_GENERIC, 0, 0, state)
+            robot.recv_match(blocking=True, timeout=0.1)  # learns the prober's address
+            time.sleep(0.1)
+
+    thread = threading.Thread(target=vehicle, daemon=True)
+    thread.start()
+    sitl = Sitl(SitlOptions())
+    info = SitlInfo(tmp_path, f"udpin:127.0.0.1:{port}", f"udpout:127.0.0.1:{port}", "virtual:x", False, "none",
+                    "0,0,0", logs={"robot": tmp_path / "robot.log", "sim": tmp_path / "sim.log"})
+    try:
+        t0 = time.monotonic()
+        assert sitl._probe(info) == 1
+        assert time.monotonic() >= boot_until - 0.05, f"up after {time.monotonic() - t0:.2f} s, still booting"
+        boot_until = time.monotonic() + 1e9  # booting for good from here: the probe gives up, saying so
+        sitl.opts.probe_timeout_s = 1.5
+        with pytest.raises(SitlError, match="still booting"):
+            sitl._probe(info)
+    finally:
+        stop.set()
+        thread.join(timeout=2)
+        robot.close()
+        sitl.stop()
