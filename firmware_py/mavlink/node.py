@@ -254,7 +254,7 @@ class MavNode:
         if kind in ("COMMAND_LONG", "COMMAND_INT", "SET_MODE"):
             replies = self.commands.handle(msg, now_us, self.stats)
             if (self.gcs_last_heartbeat_us is not None and not self.failsafe
-                    and msg.get_srcSystem() == (self.params.get("SYSID_MYGCS") or self.gcs_sysid)
+                    and msg.get_srcSystem() == self._failsafe_gcs()
                     and any(r.get_type() == "COMMAND_ACK" and r.result == M.MAV_RESULT_ACCEPTED for r in replies)):
                 # a command the failsafe's GCS got accepted proves it alive as its heartbeat would
                 # (ArduPilot counts MANUAL_CONTROL so): `qnav arm`, `qnav mode auto` typed between two
@@ -321,6 +321,11 @@ class MavNode:
             return []
         return [m for severity, text in self.ftp.drain_texts() for m in self.telemetry.statustext(text, severity)]
 
+    def _failsafe_gcs(self) -> int | None:
+        """The system id whose heartbeats keep the GCS failsafe alive: SYSID_MYGCS, or with 0 the
+        first GCS heard after boot (None until then)."""
+        return self.params.get("SYSID_MYGCS") or self.gcs_sysid
+
     def _heartbeat(self, msg: mavlink2.MAVLink_message, now_us: int) -> list[mavlink2.MAVLink_message]:
         if msg.type != M.MAV_TYPE_GCS:
             return []
@@ -328,7 +333,7 @@ class MavNode:
         if src not in self._gcs_seen and len(self._gcs_seen) < 16:
             self._gcs_seen.add(src)  # a ground station joins: it gets home and origin at once
             self.telemetry.announce_origin()
-        mine = self.params.get("SYSID_MYGCS") or self.gcs_sysid
+        mine = self._failsafe_gcs()
         if mine is None:
             self.gcs_sysid = mine = src  # SYSID_MYGCS=0: the first GCS seen after boot
             log.info("GCS failsafe follows system id %d (first GCS heartbeat)", src)
