@@ -14,13 +14,11 @@ import os
 import signal
 import subprocess
 import sys
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 from ground_station.subprocs import (
     die_with_parent_code,
-    free_udp_port,
     signal_process,
     stop_process,
 )
@@ -97,13 +95,6 @@ class ChildProcess:
         assert self.proc is not None, "not started"
         return self.proc.wait(timeout=timeout_s)
 
-    def kill9(self) -> None:
-        """The crash: SIGKILL, no clean-up in the child."""
-        proc = self.proc
-        if proc is not None and proc.poll() is None:
-            signal_process(proc, signal.SIGKILL, group=self.own_group)
-            proc.wait(timeout=10)
-
     def stop(self, grace_s: float = 20.0) -> int | None:
         """SIGINT (a clean exit: outputs and stats written), then SIGTERM and SIGKILL if it
         hangs; the exit code (None if never started)."""
@@ -132,37 +123,6 @@ class ChildProcess:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
-
-
-class RobotProcess(ChildProcess):
-    """`qnav-robot` listening for MAVLink on `udpin:127.0.0.1:PORT`, its storage in `storage`.
-    Without `can` it gets a private in-process `virtual` bus: no sensors, so it stays disarmed in
-    STANDBY, all that uploads, activations and parameter saves need. Its log is appended to (a
-    restarted robot adds to it). `stop()`'s 20 s grace: its shutdown joins two 5 s threads."""
-
-    def __init__(self, storage: Path, *, port: int | None = None, key_file: Path | None = None,
-                 can: str | None = None, extra: list[str] | None = None, log: Path | None = None) -> None:
-        self.storage = Path(storage)
-        self.port = port or free_udp_port()
-        args = ["--can", can or f"virtual:rig-{uuid.uuid4().hex}", "--storage", str(self.storage),
-                "--mavlink", f"udpin:127.0.0.1:{self.port}"]
-        if key_file is not None:
-            args += ["--signing-key", str(key_file)]
-        super().__init__(qnav_robot(*args, *(extra or [])),
-                         log or self.storage.parent / f"robot-{self.port}.log", append_log=True)
-
-    @property
-    def url(self) -> str:
-        """What a ground station connects to (directly, without the emulator)."""
-        return f"udpout:127.0.0.1:{self.port}"
-
-    def start(self) -> RobotProcess:
-        self.storage.mkdir(parents=True, exist_ok=True)
-        super().start()
-        return self
-
-    def __enter__(self) -> RobotProcess:
-        return self.start()
 
 
 class ProcessGroup:

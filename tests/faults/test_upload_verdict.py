@@ -13,12 +13,12 @@ import pytest
 
 from firmware_py.policy import load_policy
 from firmware_py.storage import ACTIVE_POLICY, Storage, ftp_crc32
+from ground_station.lab.faults.common import RobotProcess
 from ground_station.lab.faults.crash import policy_version
 from ground_station.lab.rigs import link_emulator
 from ground_station.lab.rigs.lockstep import CELL_POLICY
 from ground_station.mavlink.ftp_upload import upload_policy
 from ground_station.mavlink.link import Link, LinkError
-from ground_station.processes import RobotProcess
 
 UP, DOWN = 0, 1
 MSG_PARAM_VALUE, MSG_FTP = 22, 110

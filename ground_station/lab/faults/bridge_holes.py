@@ -52,7 +52,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from ground_station.lab.faults.common import ScenarioResult, register, trials
+from ground_station.lab.faults.common import RobotProcess, ScenarioResult, register, trials
 
 CASES = ("evil_origin_hold", "evil_origin_guided", "read_only_guided", "no_token_guided", "goal_in_hold",
          "target_in_hold", "guided_goal")
@@ -74,7 +74,7 @@ def _robot(tmp: Path, seed: int, duration_s: float) -> Iterator[Any]:
     from firmware_py.storage import ACTIVE_POLICY, Storage
     from ground_station.canhub import CanHub
     from ground_station.lab.rigs.lockstep import CELL_POLICY, paper10
-    from ground_station.processes import ChildProcess, RobotProcess, qnav_sim
+    from ground_station.processes import ChildProcess, qnav_sim
 
     gm = paper10()
     storage_dir = tmp / f"robot-{seed}"

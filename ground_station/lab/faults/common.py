@@ -1,11 +1,17 @@
-"""Result type and registry shared by the fault scenarios."""
+"""Result type and registry shared by the fault scenarios, and the robot process they run."""
 
 from __future__ import annotations
 
 import functools
+import signal
+import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
+
+from ground_station.processes import ChildProcess, qnav_robot
+from ground_station.subprocs import free_udp_port, signal_process
 
 MAX_FAILURES_KEPT = 20
 
@@ -87,3 +93,41 @@ def register(name: str, small: int, large: int, unit: str, what: str) -> Callabl
         SCENARIOS[name] = Scenario(name, run, small, large, unit, what)
         return run
     return deco
+
+
+class RobotProcess(ChildProcess):
+    """`qnav-robot` listening for MAVLink on `udpin:127.0.0.1:PORT`, its storage in `storage`.
+    Without `can` it gets a private in-process `virtual` bus: no sensors, so it stays disarmed in
+    STANDBY, all that uploads, activations and parameter saves need. Its log is appended to (a
+    restarted robot adds to it). `stop()`'s 20 s grace: its shutdown joins two 5 s threads."""
+
+    def __init__(self, storage: Path, *, port: int | None = None, key_file: Path | None = None,
+                 can: str | None = None, extra: list[str] | None = None, log: Path | None = None) -> None:
+        self.storage = Path(storage)
+        self.port = port or free_udp_port()
+        args = ["--can", can or f"virtual:rig-{uuid.uuid4().hex}", "--storage", str(self.storage),
+                "--mavlink", f"udpin:127.0.0.1:{self.port}"]
+        if key_file is not None:
+            args += ["--signing-key", str(key_file)]
+        super().__init__(qnav_robot(*args, *(extra or [])),
+                         log or self.storage.parent / f"robot-{self.port}.log", append_log=True)
+
+    @property
+    def url(self) -> str:
+        """What a ground station connects to (directly, without the emulator)."""
+        return f"udpout:127.0.0.1:{self.port}"
+
+    def start(self) -> RobotProcess:
+        self.storage.mkdir(parents=True, exist_ok=True)
+        super().start()
+        return self
+
+    def __enter__(self) -> RobotProcess:
+        return self.start()
+
+    def kill9(self) -> None:
+        """The crash: SIGKILL, no clean-up in the child."""
+        proc = self.proc
+        if proc is not None and proc.poll() is None:
+            signal_process(proc, signal.SIGKILL, group=self.own_group)
+            proc.wait(timeout=10)

@@ -34,13 +34,10 @@ import threading
 import time
 from array import array
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from firmware_py.mavlink.params import as_float32
-from ground_station.lab.faults.common import ScenarioResult, register, trials
-
-if TYPE_CHECKING:
-    from ground_station.processes import RobotProcess
+from ground_station.lab.faults.common import RobotProcess, ScenarioResult, register, trials
 
 PARAM_POOL = ("TELEM_POS_HZ", "TELEM_NAV_HZ", "GOAL_TOL_MM", "SPEED_SCALE", "MIS_TIMEOUT_MS", "MIS_RETRIES")
 
@@ -117,7 +114,6 @@ class Crasher:
     # --- robot ------------------------------------------------------------------------
     def start_robot(self) -> None:
         from ground_station.mavlink.link import Link, LinkError
-        from ground_station.processes import RobotProcess
 
         robot = self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
         self.link = Link(robot.url, tlog=False)

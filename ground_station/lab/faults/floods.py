@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from firmware_py.mavlink.dialect import NAME as DIALECT
-from ground_station.lab.faults.common import ScenarioResult, register, trials
+from ground_station.lab.faults.common import RobotProcess, ScenarioResult, register, trials
 
 FLOOD_COUNTS = {"param_set": 600, "param_list": 300, "crc": 150}
 FLOOD_KINDS = tuple(FLOOD_COUNTS)
@@ -69,7 +69,7 @@ def driving_robot(tmp: Path, seed: int, duration_s: float, *, big_file: bool = F
     from firmware_py.storage import ACTIVE_POLICY, Storage
     from ground_station.canhub import CanHub
     from ground_station.lab.rigs.lockstep import CELL_POLICY, paper10
-    from ground_station.processes import ChildProcess, RobotProcess, qnav_sim
+    from ground_station.processes import ChildProcess, qnav_sim
 
     gm = paper10()
     storage_dir = tmp / f"robot-{seed}"

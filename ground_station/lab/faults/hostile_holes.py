@@ -67,7 +67,7 @@ from ground_station.lab.faults.can_faults import (
     _stale_deadline,
     _stale_episodes,
 )
-from ground_station.lab.faults.common import ScenarioResult, register, trials
+from ground_station.lab.faults.common import RobotProcess, ScenarioResult, register, trials
 from ground_station.lab.faults.hostile_mav import _dialect
 from ground_station.lab.rigs.lockstep import PERIOD_US, SENSOR_FRAMES
 from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
@@ -533,7 +533,6 @@ def signing_process(res: ScenarioResult, count: int, seed: int, progress: Any) -
 
     from firmware_py.mavlink.signing import MAX_TIMESTAMP, load_key_file
     from ground_station.mavlink.link import Link, mavutil
-    from ground_station.processes import RobotProcess
 
     rng = random.Random(seed)
     mu = mavutil()

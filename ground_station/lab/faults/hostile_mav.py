@@ -38,7 +38,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from ground_station.lab.faults.common import ScenarioResult, register, trials
+from ground_station.lab.faults.common import RobotProcess, ScenarioResult, register, trials
 from ground_station.mavlink.link import GCS_COMPID, GCS_SYSID
 
 GCS = (GCS_SYSID, GCS_COMPID)
@@ -464,7 +464,6 @@ def hostile_udp(res: ScenarioResult, count: int, seed: int, progress: Any) -> No
     import time
 
     from ground_station.mavlink.link import Link, LinkError
-    from ground_station.processes import RobotProcess
 
     with tempfile.TemporaryDirectory(prefix="qnav-hostile-udp-") as tmp:
         sandbox = Path(tmp) / "sandbox"

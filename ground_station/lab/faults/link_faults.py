@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ground_station.lab.faults.common import ScenarioResult, register, trials
+from ground_station.lab.faults.common import RobotProcess, ScenarioResult, register, trials
 
 LOSS_LEVELS = (0.0, 0.05, 0.2, 0.4)
 
@@ -163,7 +163,6 @@ def lossy_trial(loss: float, seed: int, tmp: Path, *, deadline_s: float, command
     from ground_station.lab.rigs.lockstep import CELL_POLICY
     from ground_station.mavlink.ftp_upload import ftp_session, upload_policy
     from ground_station.mavlink.link import Link, LinkError, mavlink
-    from ground_station.processes import RobotProcess
 
     emu = _emulator()
     rng = random.Random(seed)
@@ -350,7 +349,7 @@ def load_run(duration_s: float, seed: int, tmp: Path, clients_on: bool = True, f
     from ground_station.lab.rigs.lockstep import CELL_POLICY, paper10
     from ground_station.mavlink.ftp_upload import upload_policy
     from ground_station.mavlink.link import Link
-    from ground_station.processes import ChildProcess, RobotProcess, qnav_sim
+    from ground_station.processes import ChildProcess, qnav_sim
 
     gm = paper10()
     storage_dir = tmp / f"robot-{seed}"
