@@ -8,7 +8,9 @@ jobs are spread over processes.
 from __future__ import annotations
 
 import json
+from dataclasses import fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,11 +56,19 @@ def run_job(cfg_dict: dict) -> dict:
             "q_max_mean": float(res.q.max(axis=1).mean()), "curve": curve}
 
 
+def with_values(cfg: TrainConfig, **flat: Any) -> TrainConfig:
+    """A copy of `cfg` with some flat-named values changed (an encoding change starts from its defaults)."""
+    if "encoding" in flat and flat["encoding"] != cfg.encoding:
+        return TrainConfig.of(**{**{f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name != "options"},
+                                 **flat})
+    return TrainConfig.of(**{**cfg.flat(), **flat})
+
+
 def sweep_jobs(base: TrainConfig, lrs: list[float], seeds: int,
                points: list[dict] | None = None) -> list[dict]:
     """The campaign's job list: every search point x learning rate x seed,
     each a full TrainConfig dict (seeds base.seed .. base.seed + seeds - 1)."""
-    return [base.with_values(**point, lr=lr, seed=base.seed + k).flat()
+    return [with_values(base, **point, lr=lr, seed=base.seed + k).flat()
             for point in (points or [{}]) for lr in lrs for k in range(seeds)]
 
 

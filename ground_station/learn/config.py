@@ -89,13 +89,6 @@ class TrainConfig:
         out.update({name: getattr(self.options, f.name) for name, f in kinds.of_name(self.encoding).option_fields()})
         return out
 
-    def with_values(self, **flat: Any) -> TrainConfig:
-        """A copy with some flat-named values changed (an encoding change starts from its defaults)."""
-        if "encoding" in flat and flat["encoding"] != self.encoding:
-            return TrainConfig.of(**{**{f.name: getattr(self, f.name) for f in fields(self)
-                                        if f.name != "options"}, **flat})
-        return TrainConfig.of(**{**self.flat(), **flat})
-
 
 def encodings() -> list[str]:
     return kinds.names()

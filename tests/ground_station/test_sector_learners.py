@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from firmware_py.kinds.sector.encoder import SectorEncoder
+from ground_station.lab.sweep import with_values
 from ground_station.learn.config import LEARNERS, TrainConfig, validate_config
 from ground_station.learn.sector.evaluate import evaluate_sector
 from ground_station.learn.sector.kernels import L_Q_LAMBDA
@@ -79,7 +80,7 @@ def test_dyna_q_model_holds_the_pairs_seen_and_planning_moves_more_of_the_table(
 
 
 def test_q_lambda_traces_are_bounded_and_cut_on_exploration():
-    cfg = CFG.with_values(learner="q-lambda", epsilon_start=0.5, epsilon_end=0.5, sector_hold_max=1)
+    cfg = with_values(CFG, learner="q-lambda", epsilon_start=0.5, epsilon_end=0.5, sector_hold_max=1)
     tr = SectorTrainer([load_map("paper10")], cfg, SectorEncoder())
     assert tr.code == L_Q_LAMBDA and tr._mem.tr_s.shape[0] > 10
     q = np.zeros((tr.n_states, tr.n_actions))

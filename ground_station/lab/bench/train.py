@@ -110,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ground_station.lab.bench.common import report
+    from ground_station.lab.sweep import with_values
     from ground_station.learn.cell.trainer import train_cell
     from ground_station.learn.config import TrainConfig
     from ground_station.maps import load_map
@@ -124,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     steps_per_s = cfg.steps / best
     b_steps, b_dt = python_loop(cfg, args.baseline_seconds)
     baseline = b_steps / b_dt
-    sector, sector_cpu, sector_note = sector_speed(cfg.with_values(encoding="sector"), args.sector_steps)
+    sector, sector_cpu, sector_note = sector_speed(with_values(cfg, encoding="sector"), args.sector_steps)
     grid_memory = grid_memory_speed(args.sector_steps)
     result = {
         "steps_per_s": steps_per_s,

@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.lab.campaign.engines import engine_from_args
     from ground_station.lab.campaign.space import label, parse_axis
     from ground_station.lab.campaign.space import points as space_points
-    from ground_station.lab.sweep import parse_lrs, sweep, write_sweep
+    from ground_station.lab.sweep import parse_lrs, sweep, with_values, write_sweep
     from ground_station.learn.cell.trainer import CellProblem
     from ground_station.learn.config import config_from_recipe_args, validate_config
     from ground_station.maps import MapError, load_map
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         lrs = parse_lrs(args.lrs)
         points = space_points([parse_axis(a) for a in args.space], args.samples, cfg.seed)
         for point in points:
-            validate_config(cfg.with_values(**point))
+            validate_config(with_values(cfg, **point))
         gridmap = load_map(cfg.map)
         if cfg.encoding == "cell":  # the goals resolve, every one reachable (else a worker's traceback)
             CellProblem.build(gridmap, cfg.options.targets or None)
