@@ -130,11 +130,6 @@ class Policy:
         """Greedy action; ties break to the lowest index (kinds.base.best_action)."""
         return best_action(self.row(state))
 
-    def q_values(self, state: int) -> list[float]:
-        """Dequantised row, for display on the ground; the robot never needs it."""
-        s = self.scale if self.state_scales is None else float(self.state_scales[state])
-        return [v * s for v in self.row(state)]
-
     def header(self) -> dict[str, Any]:
         """JSON-able header fields (what `qnav policy inspect` prints)."""
         d = {

@@ -35,10 +35,6 @@ class Quantised:
     state_scales: np.ndarray | None  # float32 (n_states,) or None
     rounding_ties: int  # values exactly halfway between two ints before rounding
 
-    def dequantise(self) -> np.ndarray:
-        s = self.state_scales[:, None].astype(np.float64) if self.state_scales is not None else self.scale
-        return self.table.astype(np.float64) * s
-
 
 def quantise(q: np.ndarray, dtype: str = "int8", per_state: bool = False) -> Quantised:
     """Symmetric quantisation: scale = max|q| / qmax, ints = round(q / scale), half-to-even (exact

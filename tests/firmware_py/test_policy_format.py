@@ -28,6 +28,7 @@ from firmware_py.policy import (
     load_policy,
     upgrade_policy,
 )
+from ground_station.lab.bench.campaign import float_table
 from ground_station.learn.export import compare, policy_bytes, quantise
 
 GOALS = [(1, 1), (8, 2), (3, 7), (9, 9)]
@@ -143,13 +144,12 @@ def test_policy_id_defaults_to_content_and_ignores_metadata_and_time():
     assert load_policy(cell_file(policy_id=7)).policy_id == 7
 
 
-def test_per_state_scales_round_trip_and_q_values():
+def test_per_state_scales_round_trip_and_float_table():
     enc = CellEncoder(2, 1, 1)
     b = dump_policy(enc, [1, 2, 3, 4, -4, 0, 0, 0], "int8", 2.0, state_scales=[0.5, 2.0], goals=[(0, 0)])
     p = load_policy(b)
     assert p.header()["per_state_scales"] is True
-    assert p.q_values(0) == [0.5, 1.0, 1.5, 2.0]
-    assert p.q_values(1) == [-8.0, 0.0, 0.0, 0.0]
+    assert float_table(p).tolist() == [[0.5, 1.0, 1.5, 2.0], [-8.0, 0.0, 0.0, 0.0]]
 
 
 @pytest.mark.parametrize("index,value,reason", [

@@ -14,9 +14,14 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 from firmware_py.kinds.sector.encoder import SectorEncoder
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from firmware_py.policy import Policy
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -40,10 +45,17 @@ def campaign_jobs(runs: int, episodes: int, map_name: str, policy: str, seed: in
     return [{"map": map_name, "policy": policy, "episodes": episodes, "seed": seed + k} for k in range(runs)]
 
 
-def twin_run(job: dict) -> dict:
-    """One campaign job: greedy twin rollouts of the policy on a seeded sample."""
+def float_table(pol: Policy) -> np.ndarray:
+    """A loaded policy's Q-table as the floats its ints stand for (each row times its scale); the
+    robot never needs it, it only compares ints."""
     import numpy as np
 
+    return np.array([[v * (pol.scale if pol.state_scales is None else float(pol.state_scales[s])) for v in pol.row(s)]
+                     for s in range(pol.n_states)], dtype=np.float64)
+
+
+def twin_run(job: dict) -> dict:
+    """One campaign job: greedy twin rollouts of the policy on a seeded sample."""
     from firmware_py.policy import load_policy
     from ground_station.learn.sector.evaluate import evaluate_sector
     from ground_station.maps import load_map
@@ -51,7 +63,7 @@ def twin_run(job: dict) -> dict:
     pol = load_policy(job["policy"])
     if pol.kind != "sector":
         raise ValueError(f"{job['policy']} is not a sector policy")
-    q = np.array([pol.q_values(s) for s in range(pol.n_states)], dtype=np.float64)
+    q = float_table(pol)
     ev = evaluate_sector(q, load_map(job["map"]), cast(SectorEncoder, pol.encoder), seed=job["seed"],
                          sample=job["episodes"])
     return {"seed": job["seed"], "episodes": ev["episodes"], "success_rate": ev["success_rate"],
