@@ -85,10 +85,6 @@ class RunStats:
     slipped_s: float = 0.0
 
     @property
-    def rtf(self) -> float:
-        return self.sim_s / self.wall_s if self.wall_s > 0 else float("inf")
-
-    @property
     def ticks_per_s(self) -> float:
         """Control ticks per wall second once the controller is up."""
         busy = self.wall_s - self.start_wait_s

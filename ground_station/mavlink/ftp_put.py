@@ -72,10 +72,6 @@ class PutStats:
     rtt_min: float | None = None
     srtt: float | None = None
 
-    @property
-    def frames_per_block(self) -> float:
-        return self.writes_sent / self.blocks if self.blocks else 0.0
-
 
 @dataclass
 class _Tx:
