@@ -5,7 +5,7 @@ restored (a parent started in the background passes SIGINT ignored on to its
 children, which would then never end cleanly); `ChildProcess` is one child,
 its output in a log file, stopped for sure (SIGINT so it writes its outputs,
 then SIGTERM, SIGKILL); `ProcessGroup` several, each in its own session,
-stopped in order; `other_processes` finds what a run left behind.
+stopped in order.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 from ground_station.subprocs import (
@@ -25,20 +24,6 @@ from ground_station.subprocs import (
 
 ROBOT_MAIN = "firmware_py.cli"  # the console scripts' entry points (pyproject.toml [project.scripts])
 SIM_MAIN = "sim_bridge.cli"
-
-
-def other_processes() -> Iterator[tuple[int, str]]:
-    """(pid, command line, its NULs as spaces) of every live process but this one (Linux
-    /proc); a process that ends while it is read is passed over."""
-    me = os.getpid()
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit() or int(entry) == me:
-            continue
-        try:
-            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        yield int(entry), cmd
 
 
 def program_argv(module: str, name: str, *, die_with_parent: bool = False) -> list[str]:

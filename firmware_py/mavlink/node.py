@@ -21,14 +21,12 @@ import contextlib
 import logging
 import math
 import os
-import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
-from firmware_py.clock import Clock
 from firmware_py.mavlink import authority
 from firmware_py.mavlink import frames as mav_frames
 from firmware_py.mavlink.commands import CommandHandler
@@ -631,15 +629,6 @@ class MavShell:
         if self.handler_errors[kind] == 1:
             log.error("MAVLink %s handler raised %s: %s (dropped; further %s errors only counted)",
                       kind, type(exc).__name__, exc, kind)
-
-    def serve(self, clock: Clock, stop: threading.Event, idle_s: float = 0.005) -> None:
-        """Standalone loop: poll, then wait for input up to `idle_s`."""
-        while not stop.is_set():
-            self.poll(clock.now_us())
-            try:
-                self.conn.select(idle_s)
-            except (OSError, ValueError):
-                time.sleep(idle_s)
 
     def close(self) -> None:
         self.node.signing.persist()

@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from firmware_py.shipped_policies import shipped_policy
+from ground_station.lab.rigs import other_processes
 from ground_station.maps import load_map
-from ground_station.processes import other_processes
 from tests.support.mcap_check import check_layout_against_mcap, check_run_mcap
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -22,7 +22,7 @@ import pytest
 from firmware_py.mavlink import frames
 from firmware_py.mavlink.params import PARAMS
 from firmware_py.vehicle import VehicleConfig
-from ground_station.processes import other_processes
+from ground_station.lab.rigs import other_processes
 from ground_station.subprocs import free_udp_port
 from tests.support.consoles import ConsoleProcess, MavProxy
 

@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ground_station.processes import other_processes
+from ground_station.lab.rigs import other_processes
 
 
 def _free_tcp_port() -> int:
