@@ -15,6 +15,7 @@ pytestmark = pytest.mark.wallclock  # paced HIL (qnav-sim --realtime), watched o
 pytest.importorskip("websockets", reason="the dev extra's websockets package is the stock client here")
 
 
+@pytest.mark.slow  # the wall-clock pass's longest (~40 s): first, beside the others
 @pytest.mark.timeout(420)
 def test_a_page_cannot_drive_the_robot_through_the_bridge_and_a_guided_goal_still_does():
     res = bridge_holes.bridge_holes(len(bridge_holes.CASES), seed=0)

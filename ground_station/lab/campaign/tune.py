@@ -68,7 +68,9 @@ def run_on_tune(fn: Callable[[Any], Any], jobs: list[Any], tune_dir: Path, engin
             tuner = tune.Tuner(
                 trainable,
                 param_space=space,
-                tune_config=tune.TuneConfig(max_concurrent_trials=engine.workers,
+                # a campaign's trials are short jobs: the next one reuses a finished trial's actor
+                # instead of starting a Ray worker process (Ray, Tune and the job's imports) per trial
+                tune_config=tune.TuneConfig(max_concurrent_trials=engine.workers, reuse_actors=True,
                                             trial_dirname_creator=_trial_dirname),
                 run_config=tune.RunConfig(name=EXPERIMENT, storage_path=str(tune_dir),
                                           verbose=1 if progress else 0))
