@@ -9,7 +9,7 @@ that monitors may come and go between trials). Each trial starts a real
 Guided from the operator's link, and lets a stock WebSocket client (the
 `websockets` package speaking foxglove.sdk.v1) try to publish a goal on
 `/goal`; what the monitor's own status lines say (mode, controller state,
-pose) for the next seconds is the verdict. Trial i is CASES[i % 7]:
+pose) for the next seconds is the verdict. Trial i is CASES[(first + i) % 7]:
 
 - `evil_origin_hold`: `--foxglove-goals`, the client sends
   `Origin: http://evil.example` (what any web page in the operator's browser
@@ -327,15 +327,16 @@ def _trial(case: str, robot_port: int, op: _Operator, tmp: Path, figures: dict[s
 @register("bridge_holes", small=7, large=21, unit="bridge clients",
           what="Foxglove bridge: a page's Origin (403), no token (401), read-only default, goals in Hold dropped "
                "and refused by the robot: Hold stays Hold, no motion; a goal in Guided drives")
-def bridge_holes(res: ScenarioResult, count: int, seed: int, progress: Any) -> None:
-    # each trial: a monitor's start, WATCH_S of watching and the operator's mode changes, ~8-12 s
+def bridge_holes(res: ScenarioResult, count: int, seed: int, progress: Any, first: int = 0) -> None:
+    # each trial: a monitor's start, WATCH_S of watching and the operator's mode changes, ~6 s; trial i
+    # is CASES[(first + i) % 7], so that cases can be split over robots run side by side
     with tempfile.TemporaryDirectory() as tmpdir, _robot(Path(tmpdir), seed, 60 + 20 * count) as robot:
         tmp = Path(tmpdir)
         op = _Operator(robot.url)
         try:
             op.setup()
             for i in trials(count, progress):
-                case = CASES[i % len(CASES)]
+                case = CASES[(first + i) % len(CASES)]
                 try:
                     problems = _trial(case, robot.port, op, tmp, res.figures)
                 except Exception as exc:  # noqa: BLE001 - a broken trial is a lost trial, with its reason
