@@ -296,7 +296,20 @@ def test_manual_mode_over_mavlink_drives_and_the_deadman_stops_the_robot(tmp_pat
                 last_robot_ms = max(last_robot_ms, msg.time_boot_ms)
                 start_ne = start_ne or (msg.x, msg.y)
                 driven_m = math.hypot(msg.x - start_ne[0], msg.y - start_ne[1])
-        released_ms = last_robot_ms
+        # when did the robot handle the last stick? The telemetry read while sending may lag the robot
+        # (its socket backlog on a loaded machine): ask for SYSTEM_TIME. Its answer, right behind the
+        # COMMAND_ACK, is built when the robot handles the request, after the last stick (one socket, in
+        # order): its time_boot_ms bounds that handling from above.
+        conn.mav.command_long_send(1, 1, 512, 0, 2, 0, 0, 0, 0, 0, 0)  # REQUEST_MESSAGE SYSTEM_TIME
+        released_ms, acked, end = None, False, time.monotonic() + 10.0
+        while released_ms is None and time.monotonic() < end:
+            msg = conn.recv_match(type=["COMMAND_ACK", "SYSTEM_TIME"], blocking=True, timeout=0.5)
+            if msg is not None and msg.get_type() == "COMMAND_ACK" and msg.command == 512:
+                assert msg.result == 0, msg
+                acked = True
+            elif msg is not None and msg.get_type() == "SYSTEM_TIME" and acked:
+                released_ms = msg.time_boot_ms
+        assert released_ms is not None and released_ms >= last_robot_ms, (released_ms, last_robot_ms)
         # sticks released: the deadman (500 ms) must stop the wheels; watch 2 s of robot time go by
         end = time.monotonic() + 20.0
         while time.monotonic() < end:
@@ -312,8 +325,8 @@ def test_manual_mode_over_mavlink_drives_and_the_deadman_stops_the_robot(tmp_pat
                  float(r["cmd_left_mm_s"])) for r in csv.DictReader(f)]
     moving = [r for r in rows if r[4] > 0]
     assert moving, "the sticks never moved the robot"
-    # the last non-zero command came no later than the deadman after the last sample the robot
-    # could have had (the newest telemetry time seen while sending, plus one telemetry period of slack)
+    # the last non-zero command came no later than the deadman after the robot handled the last stick
+    # (at or before released_ms), plus one telemetry period of slack
     last_cmd_t = moving[-1][0]
     assert last_cmd_t <= released_ms / 1000 + 0.5 + 0.25, (last_cmd_t, released_ms)
     start = next(r for r in rows if r[4] > 0)
