@@ -161,7 +161,7 @@ def test_bench_nav_result_independent_of_workers_and_batches(local_bench, tmp_pa
 
 @pytest.mark.ray
 @pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
-@pytest.mark.timeout(300)  # 28 s (+ 68 s cluster start) in a quiet fresh-clone make test, 70 + 70 s beside two busy loops
+@pytest.mark.timeout(300)  # 22 s (+ 33 s cluster start) in a quiet fresh-clone make test, 92 s (+ 33 s) beside two busy loops
 def test_bench_identical_on_ray_cluster(cluster, local_bench, tmp_path):
     on_ray = qnav(*BENCH, "--batch", "3", "--json", str(tmp_path / "ray.json"), "--engine", "ray",
                   "--ray-address", cluster.address, env=cluster.env())
@@ -175,7 +175,7 @@ def test_bench_identical_on_ray_cluster(cluster, local_bench, tmp_path):
 
 @pytest.mark.ray
 @pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
-@pytest.mark.timeout(300)  # two Tune runs: 61 s in a quiet fresh-clone make test, over 300 s beside two busy loops
+@pytest.mark.timeout(300)  # two Tune runs: 31 s in a quiet fresh-clone make test, 227 s beside two busy loops
 def test_tune_sweep_resumes_after_interruption(cluster, local_sweep, tmp_path):
     """Interrupt a Tune sweep once its first trial has finished, run the same
     command again: it restores the experiment and the result equals the local
