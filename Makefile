@@ -42,8 +42,8 @@ test: $(STAMP)
 	# UML vcan batch); then the tests judged on the wall clock (marker `wallclock`:
 	# real-time sims under MAVSDK, floods and link timing against the control tick),
 	# three at a time: paced sims mostly wait (the pass keeps half a core busy), and they
-	# must hold beside other work anyway (7 passed in 73 s beside four other jobs; one at a
-	# time: 128 s).
+	# must hold beside other work anyway (12 passed in 46 s at three, 55 s at two; green
+	# beside two busy loops).
 	$(BIN)/python -m pytest -q --durations=15 -n 4 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py

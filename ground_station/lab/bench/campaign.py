@@ -50,8 +50,9 @@ def float_table(pol: Policy) -> np.ndarray:
     robot never needs it, it only compares ints."""
     import numpy as np
 
-    return np.array([[v * (pol.scale if pol.state_scales is None else float(pol.state_scales[s])) for v in pol.row(s)]
-                     for s in range(pol.n_states)], dtype=np.float64)
+    ints = np.array([pol.row(s) for s in range(pol.n_states)], dtype=np.float64)
+    scales = np.full(pol.n_states, pol.scale) if pol.state_scales is None else np.asarray(pol.state_scales, np.float64)
+    return ints * scales[:, None]
 
 
 def twin_run(job: dict) -> dict:
