@@ -84,9 +84,12 @@ def test_waypoints_lead_out_of_a_u_pocket():
     assert len(wps) >= 3
     rows = [robot_spec.world_to_cell(x, y, 9)[1] for x, y in wps]
     assert max(rows) >= 7  # goes out of the pocket's open side first
-    # the same policy table (hand seek) succeeds with guidance, a direct seek is trapped
+    # the same policy table (hand seek) succeeds with guidance, a direct seek is trapped; on a
+    # seeded sample of the 38 640 (start, goal, heading) episodes (all of them: 1.000 vs 0.355,
+    # 8.9 s of CPU; this sample 1.000 vs 0.36)
     enc = SectorEncoder(bearing_sectors=15, sensors=(0,), range_edges_mm=(150,))
-    rep = evaluate_sector(seek_table(enc), gm, enc, direct=True)
+    rep = evaluate_sector(seek_table(enc), gm, enc, direct=True, sample=3000)
+    assert rep["episodes"] == 3000
     assert rep["success_rate"] > rep["direct_success_rate"] + 0.1
 
 

@@ -174,9 +174,9 @@ def test_twin_rollouts_depend_only_on_their_episodes(paper10):
 
     pol = load_policy(str(robot_spec_policy()))
     learnt = standard_controllers(pol, ("learnt",))[0]
-    eps = sc.episodes(paper10, 20, 2, 3, 2)
+    eps = sc.episodes(paper10, 10, 2, 3, 2)
     whole = run_twin(eps, {"paper10": paper10}, learnt)
-    halves = run_twin(eps[:10], {"paper10": paper10}, learnt) + run_twin(eps[10:], {"paper10": paper10}, learnt)
+    halves = run_twin(eps[:5], {"paper10": paper10}, learnt) + run_twin(eps[5:], {"paper10": paper10}, learnt)
     assert whole == halves
 
 
