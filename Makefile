@@ -41,13 +41,13 @@ test: $(STAMP)
 	# tests on one worker each (xdist_group: the Ray cluster, the
 	# UML vcan batch); then the tests judged on the wall clock (marker `wallclock`:
 	# real-time sims under MAVSDK, floods and link timing against the control tick),
-	# three at a time: paced sims mostly wait (the pass keeps half a core busy), and they
-	# must hold beside other work anyway (12 passed in 46 s at three, 55 s at two; green
-	# beside two busy loops).
+	# four at a time, one test handed out at a time (longest first: conftest.py): paced sims
+	# mostly wait (the pass keeps under a core busy), and they must hold beside other work
+	# anyway (13 passed in XX s; 46 s at three, in batches; green beside two busy loops).
 	$(BIN)/python -m pytest -q --durations=15 -n 4 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py
-	$(BIN)/python -m pytest -q --durations=15 -n 3 -m wallclock tests/hil tests/faults \
+	$(BIN)/python -m pytest -q --durations=15 -n 4 --maxschedchunk 1 -m wallclock tests/hil tests/faults \
 		tests/firmware_py/test_runtime_isolation.py
 
 # The inner loop (under a minute): lint, types and the robot's and the sim's in-process tests

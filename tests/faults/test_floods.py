@@ -13,6 +13,7 @@ from ground_station.lab.faults import floods
 pytestmark = pytest.mark.wallclock  # paced HIL: a starved robot process trips the 200 ms motor watchdog
 
 
+@pytest.mark.slow  # 13 s: started among the wall-clock pass's first
 def test_each_flood_while_driving_no_fault_no_missed_tick():
     res = floods.floods(3, seed=2)
     assert [f["kind"] for f in res.figures["floods"]] == list(floods.FLOOD_KINDS)

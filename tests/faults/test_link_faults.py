@@ -34,6 +34,7 @@ def test_lossy_link_uploads_exact_or_clear_error_and_commands_acked_or_timed_out
         assert s["link_up"]["lost"] > 0 and s["link_down"]["lost"] > 0  # the link did lose frames
 
 
+@pytest.mark.slow  # 12 s: started among the wall-clock pass's first
 @pytest.mark.wallclock  # counts control periods lost on the wall clock
 def test_three_clients_telemetry_and_upload_miss_no_control_tick():
     res = link_faults.load(1, seed=5, duration_s=8.0)

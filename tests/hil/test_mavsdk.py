@@ -94,6 +94,7 @@ def mavsdk_url(sitl: SitlProcess) -> str:
     return line.split('system_address="')[1].split('"')[0]
 
 
+@pytest.mark.slow  # 10 s: started among the wall-clock pass's first
 @pytest.mark.timeout(300)
 @pytest.mark.wallclock  # `qnav sitl` in real time and MAVSDK's own FTP/command timeouts
 def test_mavsdk_params_ftp_upload_arm_and_flight_mode(tmp_path):
