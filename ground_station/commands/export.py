@@ -5,7 +5,7 @@ Reads DIR/q.npy and DIR/meta.json (written by `qnav train`), quantises
 symmetrically (one scale per table, or per state with --per-state-scale),
 validates the bytes with the robot's own loader, writes FILE atomically and
 prints one JSON object: `bytes`, `dtype`, `argmax_agreement`, `tie_rate`
-(beside `float_tie_rate`, `rounding_ties`), and greedy-rollout
+(beside `float_tie_rate`, `rounding_ties`, `argmax_fixes`), and greedy-rollout
 `success_rate` / `path_ratio_mean` for the float table and for the int table
 side by side (`{"float": ..., "int": ...}`), on the training map unless
 --map says otherwise. The int rollouts use the table exactly as the robot
@@ -27,6 +27,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="FILE.qtab", help="policy file to write (atomically)")
     p.add_argument("--per-state-scale", action="store_true",
                    help="one scale per state instead of one per table")
+    p.add_argument("--preserve-argmax", action="store_true",
+                   help="where rounding ties a row's unique float argmax, put the tied competitors 1 LSB below "
+                        "it, so the robot's greedy choice (ties to the lowest index) is the float table's")
     p.add_argument("--policy-id", type=lambda s: int(s, 0), default=None,
                    help="policy id (u32, e.g. 0x1234); default: CRC32 of encoder + table")
     p.add_argument("--map", default=None, metavar="NAME|PATH",
@@ -66,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         run_ = export.load_run(args.run_dir)
         trained = export.trained_for(run_)
-        qt = export.quantise(run_.q, args.dtype, per_state=args.per_state_scale)
+        qt = export.quantise(run_.q, args.dtype, per_state=args.per_state_scale,
+                             preserve_argmax=args.preserve_argmax)
         meta = export.file_metadata(run_, qt)
         if args.local_planner is not None:
             meta[export.META_PLANNER] = export.planner_metadata(args.local_planner, run_.encoder.kind, meta)

@@ -34,12 +34,17 @@ class Quantised:
     scale: float  # the table's scale (with per-state scales: their maximum)
     state_scales: np.ndarray | None  # float32 (n_states,) or None
     rounding_ties: int  # values exactly halfway between two ints before rounding
+    argmax_fixes: int = 0  # rows whose rounding tied a unique float argmax, untied (preserve_argmax)
 
 
-def quantise(q: np.ndarray, dtype: str = "int8", per_state: bool = False) -> Quantised:
+def quantise(q: np.ndarray, dtype: str = "int8", per_state: bool = False,
+             preserve_argmax: bool = False) -> Quantised:
     """Symmetric quantisation: scale = max|q| / qmax, ints = round(q / scale), half-to-even (exact
     halves counted). `per_state=True` gives each row its own float32 scale, which keeps
-    small-valued rows from collapsing to ties."""
+    small-valued rows from collapsing to ties. `preserve_argmax=True`: where a row's float argmax
+    is unique but rounding tied it (rounding is monotonic, so it can only tie, never reorder), the
+    tied competitors go 1 LSB below it (`untie_argmax`): the robot's greedy choice (ties to the
+    lowest index) is then the float table's in every row whose float argmax is unique."""
     if dtype not in NP_DTYPES:
         raise ValueError(f"dtype must be int8 or int16, not {dtype!r}")
     q = np.asarray(q, dtype=np.float64)
@@ -63,7 +68,32 @@ def quantise(q: np.ndarray, dtype: str = "int8", per_state: bool = False) -> Qua
     frac = np.abs(x - np.trunc(x))
     ties = int(np.count_nonzero(frac == 0.5))
     ints = np.clip(np.rint(x), -qmax, qmax).astype(NP_DTYPES[dtype])
-    return Quantised(table=ints, dtype=dtype, scale=scale, state_scales=scales, rounding_ties=ties)
+    fixes = 0
+    if preserve_argmax:
+        ints, fixes = untie_argmax(q, ints, qmax)
+    return Quantised(table=ints, dtype=dtype, scale=scale, state_scales=scales, rounding_ties=ties,
+                     argmax_fixes=fixes)
+
+
+def untie_argmax(q: np.ndarray, ints: np.ndarray, qmax: int) -> tuple[np.ndarray, int]:
+    """`ints` with every row whose float argmax is unique but tied after rounding untied: the
+    competitors at the best's int value go 1 LSB below it (or, the best at -qmax, the best 1 LSB
+    up). The other values and the order among the competitors stay as rounded. Returns the new
+    table and the number of rows changed."""
+    out = ints.astype(np.int64)
+    fixes = 0
+    for s, row in enumerate(q):
+        b = int(np.argmax(row))
+        tied = out[s] >= out[s, b]
+        tied[b] = False
+        if np.count_nonzero(row == row[b]) > 1 or not tied.any():
+            continue  # a tie in the float table stays one; or nothing to untie
+        if out[s, b] > -qmax:
+            out[s, tied] = out[s, b] - 1
+        else:  # the best at the floor: lift it instead
+            out[s, b] += 1
+        fixes += 1
+    return out.astype(ints.dtype), fixes
 
 
 def tie_rate(table: np.ndarray) -> float:
@@ -80,6 +110,7 @@ def compare(q: np.ndarray, qt: Quantised) -> dict:
         "tie_rate": tie_rate(qt.table),
         "float_tie_rate": tie_rate(q),
         "rounding_ties": qt.rounding_ties,
+        "argmax_fixes": qt.argmax_fixes,
     }
 
 
@@ -233,6 +264,8 @@ def file_metadata(run: TrainingRun, qt: Quantised) -> dict:
     keep = {k: run.meta[k] for k in ("encoding", "map", "targets", "config", "steps", "train_seconds",
                                      "created", "seed") if k in run.meta}
     keep["quantisation"] = {"dtype": qt.dtype, "per_state_scales": qt.state_scales is not None}
+    if qt.argmax_fixes:
+        keep["quantisation"]["argmax_fixes"] = qt.argmax_fixes
     # the robot's localiser needs the training map's cells (firmware_py.mapdata); an unnamed or
     # unreadable map: the file carries no grid and the robot runs on odometry
     with contextlib.suppress(ValueError):

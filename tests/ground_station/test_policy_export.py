@@ -48,6 +48,27 @@ def test_rounding_ties_are_counted_and_round_half_to_even():
     assert qt.rounding_ties == 3
 
 
+def test_preserve_argmax_unties_only_rows_whose_float_argmax_is_unique():
+    # scale 1: row 0's float argmax (left, 83.4) ties forward (82.6) after rounding, and the robot's
+    # lowest-index tie-break would drive forward; row 1 ties in the float table too (left alone);
+    # row 2 needs nothing; row 3 ties at the floor (the best goes up 1 LSB instead)
+    q = np.array([[82.6, 83.4, 56.0, 59.0], [10.0, 10.0, 3.0, 0.0], [127.0, 0.0, 1.0, 2.0],
+                  [-126.8, -127.0, -127.0, -127.0]])
+    plain = quantise(q, "int8")
+    assert plain.table[0].tolist() == [83, 83, 56, 59] and compare(q, plain)["argmax_agreement"] == 0.75  # row 3: the tie-break happens to agree
+    qt = quantise(q, "int8", preserve_argmax=True)
+    assert qt.table[0].tolist() == [82, 83, 56, 59]
+    assert qt.table[1].tolist() == [10, 10, 3, 0]
+    assert qt.table[2].tolist() == [127, 0, 1, 2]
+    assert qt.table[3].tolist() == [-126, -127, -127, -127]
+    assert qt.argmax_fixes == 2 and qt.table.dtype == np.int8
+    c = compare(q, qt)
+    assert c["argmax_agreement"] == 1.0 and c["argmax_fixes"] == 2 and c["tie_rate"] == c["float_tie_rate"] == 0.25
+    assert np.max(np.abs(dequantise(qt) - q)) <= 1.5 * qt.scale  # at most one LSB beyond rounding's half
+    per = quantise(q * 0.01, "int8", per_state=True, preserve_argmax=True)
+    assert compare(q * 0.01, per)["argmax_agreement"] == 1.0
+
+
 def test_per_state_scales_keep_small_rows_apart():
     q = np.array([[100.0, 0.0, 0.0, 0.0], [0.010, 0.011, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
     one = quantise(q, "int8")
