@@ -43,7 +43,7 @@ test: $(STAMP)
 	# real-time sims under MAVSDK, floods and link timing against the control tick),
 	# four at a time, one test handed out at a time (longest first: conftest.py): paced sims
 	# mostly wait (the pass keeps under a core busy), and they must hold beside other work
-	# anyway (13 passed in XX s; 46 s at three, in batches; green beside two busy loops).
+	# anyway (13 passed in 38 s; 46 s at three, in batches; 50 s beside two busy loops).
 	$(BIN)/python -m pytest -q --durations=15 -n 4 --dist loadgroup -m "not wallclock" tests/firmware_py tests/sim_bridge \
 		tests/ground_station tests/hil tests/faults tests/test_layering.py tests/test_packaging.py \
 		tests/test_docs_commands.py
