@@ -120,12 +120,17 @@ def train(cfg: RecoveryConfig, policy: str = "policies:sector", log=print,
 
 
 def int8_table(q: np.ndarray) -> decide.RecoveryTable:
-    """The float table as the robot's int8 one (symmetric, one scale; invalid actions -127)."""
+    """The float table as the robot's int8 one (symmetric, one scale; invalid actions -127), rows
+    whose valid maximum is unique in float untied after rounding (`learn.export.untie_argmax`: the
+    robot breaks ties to the lowest index, which is not the learnt choice)."""
     from array import array
+
+    from ground_station.learn.export import untie_argmax
 
     valid = valid_mask()
     scale = float(np.abs(q[valid]).max()) / 127 or 1.0
     t = np.where(valid, np.clip(np.round(q / scale), -127, 127), -127).astype(np.int8)
+    t, _ = untie_argmax(np.where(valid, q, -np.inf), t, 127)
     return decide.RecoveryTable(array("b", t.tobytes()), scale)
 
 
