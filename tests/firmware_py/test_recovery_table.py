@@ -34,9 +34,9 @@ def test_the_table_round_trips_and_bad_ones_are_refused():
     back = decide.RecoveryTable.from_metadata(t.to_metadata())
     assert back.table == t.table and back.scale == t.scale
     assert back.choose(decide.wait_state(0, 0, 2, False)) == decide.REPLAN
-    assert back.choose(decide.round_state(0, 1, False, False, False, False, False)) == decide.NO_ROUTE
+    assert back.choose(decide.round_state(0, 1, False, False, False)) == decide.NO_ROUTE
     meta = t.to_metadata()
-    for bad, why in (({**meta, "table": meta["table"][:-4]}, "bytes, need"), ({**meta, "version": 1}, "version"),
+    for bad, why in (({**meta, "table": meta["table"][:-4]}, "bytes, need"), ({**meta, "version": 2}, "version"),
                      ({**meta, "scale": -1}, "scale"), ({**meta, "table": "!!"}, "base64"),
                      ({"table": meta["table"]}, "object of")):
         with pytest.raises(ValueError, match=why):
@@ -60,7 +60,7 @@ def test_old_files_load_with_the_rules_and_a_file_with_a_table_runs_it():
     data = with_recovery_table("policies:sector", _table(decide.WAIT, decide.GIVE_WAY), {"note": "test"})
     new = load_policy(data)
     got = SectorDriver(new, Background(threaded=False)).local[0].decisions  # type: ignore[index]
-    assert got is not None and got.choose(decide.round_state(0, 1, True, False, False, False, True)) == decide.GIVE_WAY
+    assert got is not None and got.choose(decide.round_state(0, 1, True, False, True)) == decide.GIVE_WAY
     broken = {**new.metadata, decide.META_KEY: {**new.metadata[decide.META_KEY], "table": "AAAA"}}
     with pytest.raises(PolicyError, match="recovery_table.table is 3 bytes"):
         load_policy(with_metadata(new, broken))

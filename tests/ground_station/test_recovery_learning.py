@@ -40,7 +40,7 @@ def test_transitions_cost_the_time_between_decisions_and_end_with_the_outcome():
 def test_q_learning_prefers_the_action_whose_episodes_end_well():
     valid = valid_mask()
     q = np.where(valid, 0.0, -1.0)
-    s = decide.round_state(0, 1, True, False, False, False, True)
+    s = decide.round_state(0, 1, True, False, True)
     good = [(s, decide.GIVE_WAY, 1.0, -1)] * 5
     bad = [(s, decide.NO_ROUTE, -1.0, -1)] * 5
     for _ in range(20):

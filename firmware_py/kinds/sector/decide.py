@@ -12,12 +12,9 @@ Two decision events, each a row of one table (`N_STATES` rows x `N_ACTIONS` colu
 * **no route this round** (`EV_ROUND`): the whole map's search found no route: `WAIT` (back off,
   clear the layer round the robot, wait: another round), `GIVE_WAY` (stand aside at the refuge the
   search found; without one, as `WAIT`) or `NO_ROUTE` (say so and hold). State: still rounds so
-  far (0, 1, 2+), rounds in all (1, 2, 3-5, 6+), whether something came up to the robot, what the
-  round's wait saw move (more than `moving_points` new points within `MOVING_NEAR_MM`; more than
-  that anywhere in view), whether the whole map is open over what stood still through the wait
-  (`ObstacleMemory.standing_by`: what moved closed the way), whether a refuge exists. The rules
-  read the three scene bits as one ("a moving scene": moved near and open without it); a mover
-  pacing in the only corridor beyond `MOVING_NEAR_MM` is a still scene to them.
+  far (0, 1, 2+), rounds in all (1, 2, 3-5, 6+), whether something came up to the robot, whether
+  it was a moving scene (what moved closed the way: the map is open without it), whether a refuge
+  exists.
 
 A bound stays hand-written: at most 3 x `max_rounds` rounds (then "no route"), and a wait of at
 most 3 x `max_rounds` x `wait_us` (then a whole-map search), so no table can hold the robot for
@@ -32,8 +29,8 @@ from array import array
 from dataclasses import dataclass
 from typing import Any
 
-META_KEY = "recovery_table"  # policy metadata: {"version": 2, "scale": float, "table": base64 int8 rows}
-VERSION = 2  # 1: the round's scene as one bit (96 no-route rows)
+META_KEY = "recovery_table"  # policy metadata: {"version": 1, "scale": float, "table": base64 int8 rows}
+VERSION = 1
 WAIT, REPLAN, GIVE_WAY, NO_ROUTE = range(4)
 ACTION_NAMES = ("wait", "replan", "give_way", "no_route")
 N_ACTIONS = 4
@@ -43,7 +40,7 @@ DECIDE_US = 1_000_000  # a waiting robot decides once a second
 WAITED_S = (1, 2, 4, 6)  # waited-time bin edges, s (5 bins)
 MOVING_NEAR_MM = 700  # memory.MOVING_NEAR_MM: "near the robot"
 N_WAIT = (len(WAITED_S) + 1) * 4 * 3 * 2  # 120
-N_ROUND = 3 * 4 * 2 * 2 * 2 * 2 * 2  # 384
+N_ROUND = 3 * 4 * 2 * 2 * 2  # 96
 N_STATES = N_WAIT + N_ROUND
 
 
@@ -53,14 +50,10 @@ def wait_state(waited_us: int, all_rounds: int, near: int, moving: bool) -> int:
     return ((w * 4 + min(all_rounds, 3)) * 3 + near) * 2 + int(moving)
 
 
-def round_state(still_rounds: int, all_rounds: int, came_up: bool, moved_near: bool, moved_far: bool,
-                still_open: bool, refuge: bool) -> int:
+def round_state(still_rounds: int, all_rounds: int, came_up: bool, moving: bool, refuge: bool) -> int:
     """The no-route event's row (`all_rounds` counts this one: >= 1)."""
     r = 0 if all_rounds <= 1 else 1 if all_rounds == 2 else 2 if all_rounds <= 5 else 3
-    row = (min(still_rounds, 2) * 4 + r) * 2 + int(came_up)
-    for bit in (moved_near, moved_far, still_open, refuge):
-        row = row * 2 + int(bit)
-    return N_WAIT + row
+    return N_WAIT + (((min(still_rounds, 2) * 4 + r) * 2 + int(came_up)) * 2 + int(moving)) * 2 + int(refuge)
 
 
 def event_of(state: int) -> int:

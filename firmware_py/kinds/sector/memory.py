@@ -72,7 +72,6 @@ class ObstacleMemory:
         # points added (a new 50 mm square) within MOVING_NEAR_MM of the robot since the memory began:
         # how much moves near it (a mover walking past in view across the room is not what closed the way)
         self.added = 0
-        self.added_all = 0  # ... and anywhere (within see_mm: a mover pacing in a corridor farther off)
 
     def observe(self, grid: OccupancyGrid, x_mm: int, y_mm: int, heading_mrad: int,
                 ranges_mm: list[int] | tuple[int, ...], status: list[int] | tuple[int, ...], now_us: int) -> None:
@@ -88,7 +87,6 @@ class ObstacleMemory:
             if key not in self.points:
                 self.version += 1
                 self.added += (ex - x_mm) ** 2 + (ey - y_mm) ** 2 <= near
-                self.added_all += 1
                 self.born[key] = now_us
             self.points[key] = (ex, ey, now_us)
             seen.add(key)

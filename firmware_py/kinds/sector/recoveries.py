@@ -115,7 +115,6 @@ class PlannedTarget:
         self._rounds = 0  # global searches without a route for this waypoint (in a still scene)
         self._all_rounds = 0  # ... and in all
         self._added_at_wait = 0  # memory.added when the last wait began ...
-        self._added_all_at_wait = 0  # ... memory.added_all then ...
         self._round_since_us = 0  # ... and when (the points first seen since moved in during the round)
         self._still_planner: LocalPlanner | None = None  # the worker's, for PlanAnswer.still_closed
         self._came_up = False  # something came up to the robot during this round (_recovering)
@@ -154,7 +153,6 @@ class PlannedTarget:
     def _begin_round(self, now_us: int, memory: ObstacleMemory, came_up: bool) -> None:
         """A round of recoveries begins with its wait: what is added from now tells a moving scene."""
         self._added_at_wait, self._round_since_us, self._came_up = memory.added, now_us, came_up
-        self._added_all_at_wait = memory.added_all
         self._decided_us = now_us
 
     def _choose(self, state: int) -> int:
@@ -281,12 +279,10 @@ class PlannedTarget:
             self._all_rounds += 1
             # a moving scene: new points came near while the robot waited, and without what moved the
             # way would be open (a mover walking past the robot while a box closes the door: still)
-            moved_near = memory.added - self._added_at_wait > cfg.moving_points
-            moving = moved_near and not ans.still_closed
+            moving = memory.added - self._added_at_wait > cfg.moving_points and not ans.still_closed
             if self.decisions is not None:
-                moved_far = memory.added_all - self._added_all_at_wait > cfg.moving_points
-                act = self._choose(decide.round_state(self._rounds, self._all_rounds, self._came_up, moved_near,
-                                                      moved_far, not ans.still_closed, ans.refuge is not None))
+                act = self._choose(decide.round_state(self._rounds, self._all_rounds, self._came_up, moving,
+                                                      ans.refuge is not None))
                 if not moving and not self._came_up:
                     self._rounds += 1
                 say_no = act == decide.NO_ROUTE or self._all_rounds >= 3 * cfg.max_rounds

@@ -5,12 +5,9 @@ Waiting: re-plan once the wait reaches r x 2 s in round r (wait_us = 2 s, at mos
 on the waited-time bins (1, 2, 4, 6 s) that is bin >= 2, 3, 4 for rounds 0, 1, 2+. No route this
 round: "no route" when this round makes the third still round (a still round: not moving, nothing
 came up) or in the 6+ rounds bin (the rule's cap is 9 rounds: the table's bins say 6+); give way
-when something came up to the robot; else another round. A moving scene: new points near the robot
-and the map open over what stood still (the table's far-moved bit is not read)."""
+when something came up to the robot; else another round."""
 
 from __future__ import annotations
-
-import itertools
 
 import numpy as np
 
@@ -30,17 +27,18 @@ def rule_table() -> np.ndarray:
                 for moving in range(2):
                     s = ((w * 4 + r) * 3 + near) * 2 + moving
                     q[s, decide.REPLAN if w >= 2 + min(r, 2) else decide.WAIT] = 1.0
-    bits = (False, True)
-    for still, (rb, rounds), came_up, near, far, still_open, refuge in itertools.product(
-            range(3), enumerate((1, 2, 3, 6)), bits, bits, bits, bits, bits):
-        s = decide.round_state(still, rounds, came_up, near, far, still_open, refuge)
-        moving = near and still_open  # the rules' "moving scene" (moved near; open without what moved)
-        after = still + (not moving and not came_up)
-        if after >= 3 or rb == 3:
-            a = decide.NO_ROUTE
-        elif came_up:
-            a = decide.GIVE_WAY
-        else:
-            a = decide.WAIT
-        q[s, a] = 1.0
+    for still in range(3):
+        for rb, rounds in enumerate((1, 2, 3, 6)):
+            for came_up in (False, True):
+                for moving in (False, True):
+                    for refuge in (False, True):
+                        s = decide.round_state(still, rounds, came_up, moving, refuge)
+                        after = still + (not moving and not came_up)
+                        if after >= 3 or rb == 3:
+                            a = decide.NO_ROUTE
+                        elif came_up:
+                            a = decide.GIVE_WAY
+                        else:
+                            a = decide.WAIT
+                        q[s, a] = 1.0
     return q
