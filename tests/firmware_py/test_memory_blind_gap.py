@@ -74,3 +74,24 @@ def test_a_point_in_the_gap_farther_out_stays_pinned():
     mem = _pinned(far)
     mem.observe(GRID, X, Y, 0, *_readings(None), 100_000)
     assert (far[0] // 50, far[1] // 50) in mem.points
+
+
+def test_the_nearest_sensor_lookup_answers_as_a_scan_of_every_direction():
+    """`_seen_through` finds each point's cone by the sorted directions' two neighbours (a scan of
+    every direction per point was a third of the tick's memory update): the same index for every
+    angle, ties to the lowest index, on the built-in eight and on uneven layouts."""
+    import random
+
+    from firmware_py.kinds.sector.memory import _circular_order, _nearest_sensor
+
+    rng = random.Random(0)
+    layouts = [[a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD], [-1.2, 0.0, 1.2, 3.1416, -0.4, 0.4],
+               [0.0, math.pi / 2, math.pi, -math.pi / 2], [2.5, -2.5, 0.0]]
+    for ang in layouts:
+        order = _circular_order(ang)
+        probes = [rng.uniform(-4 * math.pi, 4 * math.pi) for _ in range(3000)]
+        probes += [a + d for a in ang for d in (0.0, 1e-9, -1e-9, math.pi, 2 * math.pi)]
+        probes += [(ang[i] + ang[j]) / 2 for i in range(len(ang)) for j in range(len(ang))]  # midpoints: ties
+        for rel in probes:
+            scan = min(range(len(ang)), key=lambda j: abs((rel - ang[j] + math.pi) % (2 * math.pi) - math.pi))
+            assert _nearest_sensor(rel, ang, order) == scan, (ang, rel)

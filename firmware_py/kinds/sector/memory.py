@@ -19,6 +19,7 @@ cleared (`_no_room`; why: docs/architecture.md, "Local re-planning on the robot"
 
 from __future__ import annotations
 
+import bisect
 import math
 
 from firmware_py import robot_spec
@@ -43,6 +44,25 @@ _BODY_DIRS = [(math.cos(2 * math.pi * k / _BODY_STEPS), math.sin(2 * math.pi * k
               for k in range(_BODY_STEPS)]
 
 
+def _circular_order(angles: list[float]) -> tuple[list[float], list[int]]:
+    """The sensor directions wrapped to [-pi, pi) and sorted, with their indices (`_nearest_sensor`)."""
+    pairs = sorted(((a + math.pi) % (2 * math.pi) - math.pi, i) for i, a in enumerate(angles))
+    return [a for a, _ in pairs], [i for _, i in pairs]
+
+
+def _nearest_sensor(rel: float, angles: list[float], order: tuple[list[float], list[int]]) -> int:
+    """The index of the sensor direction nearest `rel` (radians, any turn), ties to the lowest index:
+    the same answer as a scan over every direction, from the two neighbours of `rel` on the circle
+    (the tick ran that scan for every remembered point: a third of its memory update)."""
+    wrapped, index = order
+    n = len(index)
+    k = bisect.bisect_left(wrapped, (rel + math.pi) % (2 * math.pi) - math.pi)
+    a, b = index[k % n], index[k - 1]
+    da = abs((rel - angles[a] + math.pi) % (2 * math.pi) - math.pi)
+    db = abs((rel - angles[b] + math.pi) % (2 * math.pi) - math.pi)
+    return a if (da, a) < (db, b) else b
+
+
 def _dist2(px: float, py: float, seg: tuple[float, float, float, float, float]) -> float:
     """Squared distance from (px, py) to a segment (start x, y, unit x, y, length)."""
     sx, sy, ux, uy, length = seg
@@ -60,6 +80,7 @@ class ObstacleMemory:
         self.layout = layout
         self._layout_arg = None if layout == DEFAULT_LAYOUT else layout  # unmapped_ends' (None: built-in)
         self._ang = _ANG if self._layout_arg is None else [a / 1000.0 for a in layout.angles_mrad]
+        self._order = _circular_order(self._ang)
         self._mount = float(layout.mount_mm)
         self._half_fov = layout.fov_mrad / 2000.0
         # a moving scene's new points belong to a body that moved: remembered points this near one of them
@@ -111,7 +132,7 @@ class ObstacleMemory:
         reading: nearer than the range's maximum): nothing is there any more. A cone reports its
         nearest echo, so anything in it nearer than the reading would have been read instead."""
         cfg = self.cfg
-        lay, ang, mount = self.layout, self._ang, self._mount
+        lay, ang, mount, order = self.layout, self._ang, self._mount, self._order
         reach = lay.max_range_mm + mount
         th = heading_mrad / 1000.0
         out: list[tuple[int, int]] = []
@@ -122,7 +143,7 @@ class ObstacleMemory:
             if abs(dx) > reach or abs(dy) > reach:
                 continue
             rel = math.atan2(dy, dx) - th
-            i = min(range(len(ang)), key=lambda j: abs((rel - ang[j] + math.pi) % (2 * math.pi) - math.pi))
+            i = _nearest_sensor(rel, ang, order)
             st = status[i]
             if st == robot_spec.RANGE_VALID:
                 r = ranges_mm[i]
