@@ -195,11 +195,17 @@ class ObstacleMemory:
         clear2 = (rho - _BODY_SLACK_MM) ** 2
         inside2 = (rim + rho) ** 2  # a disc centre nearer the robot's than rim + rho overlaps its body
         out: list[tuple[int, int]] = []
+        lim = 4 * rho * rho
         for key, px, py in pts:
             d = math.hypot(px, py)
             if d > reach or d == 0.0:
                 continue
-            near = [g for g in segs if _dist2(px, py, g) < 4 * rho * rho]  # rays that can reach a disc on it
+            near = []  # rays that can reach a disc on it (_dist2 written out: 24 calls a point, every tick)
+            for g in segs:
+                sx, sy, vx, vy, length = g
+                t = min(max((px - sx) * vx + (py - sy) * vy, 0.0), length)
+                if (px - sx - t * vx) ** 2 + (py - sy - t * vy) ** 2 < lim:
+                    near.append(g)
             if not near:
                 continue
             # the disc beyond the point first (a body the robot reads lies there): most kept points stop at it
