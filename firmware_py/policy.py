@@ -430,7 +430,7 @@ def _geometry_for(encoder: AnyEncoder, cell_mm: int, given: MapGeometry | None) 
             raise ValueError(f"map geometry {MapGeometry(*given)} differs from the cell policy's grid {grid}")
         return grid
     if given is None:
-        raise ValueError("a sector policy needs the training map's geometry (map_geometry)")
+        raise ValueError("a sector policy records its training map's geometry: name the map (map_geometry)")
     geometry = MapGeometry(*(int(v) for v in given))
     if not all(1 <= v <= 0xFFFF for v in geometry):
         raise ValueError(f"map geometry {geometry}: every field must be 1..65535")
@@ -457,21 +457,14 @@ def upgrade_policy(data: bytes, control_period_us: int, map_geometry: MapGeometr
     kind_ = _kind(kind)
     if header_size < HEADER_V1.size or header_size + enc_len > n - CRC.size:
         raise PolicyError("version 1 header fields are inconsistent with the file")
-    geometry: MapGeometry | None = map_geometry
     enc, _, cell_mm = _unpack_encoder(kind_, data[header_size:header_size + enc_len], n_actions,
                                       robot_spec.SENSOR_COUNT)
-    fixed = kind_.fixed_geometry(enc, cell_mm)
-    if fixed is not None:
-        grid = MapGeometry(*fixed)
-        if map_geometry is not None and MapGeometry(*map_geometry) != grid:
-            raise PolicyError(f"map geometry {MapGeometry(*map_geometry)} differs from the cell policy's grid {grid}")
-        geometry = grid
-    elif geometry is None:
-        raise PolicyError("a sector policy records its training map's geometry: name the map")
+    try:
+        geometry = _geometry_for(enc, cell_mm, map_geometry)
+    except ValueError as e:
+        raise PolicyError(str(e)) from None
     if not 1 <= control_period_us <= 0xFFFFFFFF:
         raise PolicyError(f"control period {control_period_us} us outside 1..{0xFFFFFFFF}")
-    if not all(1 <= v <= 0xFFFF for v in geometry):
-        raise PolicyError(f"map geometry {geometry}: every field must be 1..65535")
     head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, HEADER.size, flags, kind, dtype, n_actions, n_states,
                        policy_id, created, scale, enc_len, meta_len, control_period_us, *geometry)
     body = head + data[header_size:n - CRC.size]
