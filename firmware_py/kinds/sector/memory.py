@@ -51,15 +51,11 @@ def _circular_order(angles: list[float]) -> tuple[list[float], list[int]]:
 
 
 def _nearest_sensor(rel: float, angles: list[float], order: tuple[list[float], list[int]]) -> int:
-    """The index of the sensor direction nearest `rel` (radians, any turn), ties to the lowest index:
-    the same answer as a scan over every direction, from the two neighbours of `rel` on the circle
-    (the tick ran that scan for every remembered point: a third of its memory update)."""
-    wrapped, index = order
-    n = len(index)
-    k = bisect.bisect_left(wrapped, (rel + math.pi) % (2 * math.pi) - math.pi)
-    a, b = index[k % n], index[k - 1]
-    da = abs((rel - angles[a] + math.pi) % (2 * math.pi) - math.pi)
-    db = abs((rel - angles[b] + math.pi) % (2 * math.pi) - math.pi)
+    """The direction nearest `rel` (radians), ties to the lowest index: a scan's answer from `rel`'s two
+    neighbours on the circle (a scan for every remembered point was a third of the tick's memory update)."""
+    k = bisect.bisect_left(order[0], (rel + math.pi) % (2 * math.pi) - math.pi)
+    a, b = order[1][k % len(angles)], order[1][k - 1]
+    da, db = (abs((rel - angles[j] + math.pi) % (2 * math.pi) - math.pi) for j in (a, b))
     return a if (da, a) < (db, b) else b
 
 
@@ -195,17 +191,11 @@ class ObstacleMemory:
         clear2 = (rho - _BODY_SLACK_MM) ** 2
         inside2 = (rim + rho) ** 2  # a disc centre nearer the robot's than rim + rho overlaps its body
         out: list[tuple[int, int]] = []
-        lim = 4 * rho * rho
         for key, px, py in pts:
             d = math.hypot(px, py)
             if d > reach or d == 0.0:
                 continue
-            near = []  # rays that can reach a disc on it (_dist2 written out: 24 calls a point, every tick)
-            for g in segs:
-                sx, sy, vx, vy, length = g
-                t = min(max((px - sx) * vx + (py - sy) * vy, 0.0), length)
-                if (px - sx - t * vx) ** 2 + (py - sy - t * vy) ** 2 < lim:
-                    near.append(g)
+            near = [g for g in segs if _dist2(px, py, g) < 4 * rho * rho]  # rays that can reach a disc on it
             if not near:
                 continue
             # the disc beyond the point first (a body the robot reads lies there): most kept points stop at it
@@ -229,9 +219,8 @@ class ObstacleMemory:
 
     def nearest(self, x: float, y: float) -> tuple[int, int] | None:
         """The remembered point nearest (x, y), or None."""
-        if not self.points:
-            return None
-        return min(((qx, qy) for qx, qy, _ in self.points.values()), key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2)
+        return min(((qx, qy) for qx, qy, _ in self.points.values()), key=lambda q: (q[0] - x) ** 2 + (q[1] - y) ** 2,
+                   default=None)
 
     def unpin_near(self, x: float, y: float, mm: float) -> None:
         """Points within `mm` of the point nearest (x, y) (the body standing there: a person) are kept
@@ -263,9 +252,7 @@ class ObstacleMemory:
         """A copy for the planner's worker (the tick goes on changing this one); `born`: with when each
         point was first seen (for `standing_by`: a whole-map search's question only, a copy less a tick)."""
         copy = ObstacleMemory(self.cfg, self.layout)
-        copy.points = dict(self.points)
-        if born:
-            copy.born = dict(self.born)
+        copy.points, copy.born = dict(self.points), (dict(self.born) if born else {})
         copy.version = self.version
         return copy
 
