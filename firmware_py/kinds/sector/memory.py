@@ -28,9 +28,17 @@ from firmware_py.layout import DEFAULT as DEFAULT_LAYOUT
 from firmware_py.layout import Layout
 from firmware_py.mapdata import OccupancyGrid, unmapped_ends
 
+
+def _circular_order(angles: list[float]) -> tuple[list[float], list[int]]:
+    """The sensor directions wrapped to [-pi, pi) and sorted, with their indices (`_nearest_sensor`)."""
+    pairs = sorted(((a + math.pi) % (2 * math.pi) - math.pi, i) for i, a in enumerate(angles))
+    return [a for a, _ in pairs], [i for _, i in pairs]
+
+
 _KEY_MM = 50  # one remembered point per 50 mm square
 # the sensor directions of robot_spec (the rays of `unmapped_ends`' fans share them)
 _ANG = [a / 1000.0 for a in robot_spec.SENSOR_ANGLES_MRAD]
+_ORDER = _circular_order(_ANG)  # the built-in robot's, once (a memory is built for every snapshot)
 # ObstacleMemory.added counts new points this near the robot (at window_mm, 1 m, a person walking to
 # and fro beside a disc that closes the only door made every round a "moving scene": no "no route")
 MOVING_NEAR_MM = 700
@@ -44,15 +52,8 @@ _BODY_DIRS = [(math.cos(2 * math.pi * k / _BODY_STEPS), math.sin(2 * math.pi * k
               for k in range(_BODY_STEPS)]
 
 
-def _circular_order(angles: list[float]) -> tuple[list[float], list[int]]:
-    """The sensor directions wrapped to [-pi, pi) and sorted, with their indices (`_nearest_sensor`)."""
-    pairs = sorted(((a + math.pi) % (2 * math.pi) - math.pi, i) for i, a in enumerate(angles))
-    return [a for a, _ in pairs], [i for _, i in pairs]
-
-
 def _nearest_sensor(rel: float, angles: list[float], order: tuple[list[float], list[int]]) -> int:
-    """The direction nearest `rel` (radians), ties to the lowest index: a scan's answer from `rel`'s two
-    neighbours on the circle (a scan for every remembered point was a third of the tick's memory update)."""
+    """The direction nearest `rel` (radians), ties to the lowest: a scan's answer, from its 2 neighbours."""
     k = bisect.bisect_left(order[0], (rel + math.pi) % (2 * math.pi) - math.pi)
     a, b = order[1][k % len(angles)], order[1][k - 1]
     da, db = (abs((rel - angles[j] + math.pi) % (2 * math.pi) - math.pi) for j in (a, b))
@@ -76,7 +77,7 @@ class ObstacleMemory:
         self.layout = layout
         self._layout_arg = None if layout == DEFAULT_LAYOUT else layout  # unmapped_ends' (None: built-in)
         self._ang = _ANG if self._layout_arg is None else [a / 1000.0 for a in layout.angles_mrad]
-        self._order = _circular_order(self._ang)
+        self._order = _ORDER if self._layout_arg is None else _circular_order(self._ang)
         self._mount = float(layout.mount_mm)
         self._half_fov = layout.fov_mrad / 2000.0
         # a moving scene's new points belong to a body that moved: remembered points this near one of them
@@ -119,8 +120,7 @@ class ObstacleMemory:
             del self.points[p]
             self.pinned.pop(p, None)
             self.born.pop(p, None)
-        if old:
-            self.version += 1
+        self.version += bool(old)
 
     def _seen_through(self, x_mm: int, y_mm: int, heading_mrad: int, ranges_mm: list[int] | tuple[int, ...],
                       status: list[int] | tuple[int, ...], seen: set[tuple[int, int]]) -> list[tuple[int, int]]:
