@@ -53,10 +53,11 @@ class ChildProcess:
         self.log = Path(log) if log is not None else None
         self.own_group = own_group
         self.append_log = append_log
+        self.env: dict[str, str] = {}  # added to the child's environment
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> ChildProcess:
-        env = dict(os.environ, MAVLINK20="1", PYTHONUNBUFFERED="1")
+        env = dict(os.environ, MAVLINK20="1", PYTHONUNBUFFERED="1", **self.env)
         if self.log is None:
             self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                          stderr=subprocess.DEVNULL, env=env, start_new_session=self.own_group)

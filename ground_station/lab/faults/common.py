@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import functools
 import signal
+import socket
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -99,18 +101,29 @@ class RobotProcess(ChildProcess):
     """`qnav-robot` listening for MAVLink on `udpin:127.0.0.1:PORT`, its storage in `storage`.
     Without `can` it gets a private in-process `virtual` bus: no sensors, so it stays disarmed in
     STANDBY, all that uploads, activations and parameter saves need. Its log is appended to (a
-    restarted robot adds to it). `stop()`'s 20 s grace: its shutdown joins two 5 s threads."""
+    restarted robot adds to it). `stop()`'s 20 s grace: its shutdown joins two 5 s threads.
+
+    `start()` returns once the robot said READY (sd_notify, as under systemd: its MAVLink port is
+    bound and its control loop runs) or exited. A port this class picked itself can be taken by a
+    process beside it between the pick and the robot's bind; then the robot exits 2 with "Address
+    already in use", and `start()` picks another port and starts it again (BIND_TRIES in all)."""
+
+    BIND_TRIES = 3
+    READY_WAIT_S = 30.0
 
     def __init__(self, storage: Path, *, port: int | None = None, key_file: Path | None = None,
                  can: str | None = None, extra: list[str] | None = None, log: Path | None = None) -> None:
         self.storage = Path(storage)
+        self.own_port = port is None
         self.port = port or free_udp_port()
-        args = ["--can", can or f"virtual:rig-{uuid.uuid4().hex}", "--storage", str(self.storage),
-                "--mavlink", f"udpin:127.0.0.1:{self.port}"]
+        self._args = ["--can", can or f"virtual:rig-{uuid.uuid4().hex}", "--storage", str(self.storage)]
         if key_file is not None:
-            args += ["--signing-key", str(key_file)]
-        super().__init__(qnav_robot(*args, *(extra or [])),
-                         log or self.storage.parent / f"robot-{self.port}.log", append_log=True)
+            self._args += ["--signing-key", str(key_file)]
+        self._args += extra or []
+        super().__init__(self._argv(), log or self.storage.parent / f"robot-{self.port}.log", append_log=True)
+
+    def _argv(self) -> list[str]:
+        return qnav_robot(*self._args, "--mavlink", f"udpin:127.0.0.1:{self.port}")
 
     @property
     def url(self) -> str:
@@ -119,8 +132,30 @@ class RobotProcess(ChildProcess):
 
     def start(self) -> RobotProcess:
         self.storage.mkdir(parents=True, exist_ok=True)
-        super().start()
+        for attempt in range(self.BIND_TRIES):
+            log_size = self.log.stat().st_size if self.log is not None and self.log.exists() else 0
+            with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as ready:
+                name = f"qnav-rig-ready-{uuid.uuid4().hex}"
+                ready.bind("\0" + name)  # an abstract socket: nothing to clean up
+                self.env["NOTIFY_SOCKET"] = "@" + name
+                super().start()
+                self._wait_ready(ready)
+            if not (self.own_port and attempt + 1 < self.BIND_TRIES and self.returncode == 2
+                    and "Address already in use" in self.log_text()[log_size:]):
+                return self
+            self.port = free_udp_port()
+            self.argv = self._argv()
         return self
+
+    def _wait_ready(self, ready: socket.socket) -> None:
+        deadline = time.monotonic() + self.READY_WAIT_S
+        ready.settimeout(0.1)
+        while self.alive and time.monotonic() < deadline:
+            try:
+                if b"READY=1" in ready.recv(4096).split(b"\n"):
+                    return
+            except TimeoutError:
+                continue
 
     def __enter__(self) -> RobotProcess:
         return self.start()

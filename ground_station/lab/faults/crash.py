@@ -115,20 +115,13 @@ class Crasher:
     def start_robot(self) -> None:
         from ground_station.mavlink.link import Link, LinkError
 
-        for attempt in range(3):
-            robot = self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
-            self.link = Link(robot.url, tlog=False)
-            try:
-                self.link.connect(30.0)
-                return
-            except LinkError:
-                self.close_link()  # why it was silent: whether it exited, and its last words
-                tail = robot.log_tail(5)
-                if attempt < 2 and robot.returncode == 2 and "Address already in use" in tail:
-                    # the free port was taken between its pick and the robot's bind (a test beside this
-                    # one: a fresh-clone make test lost a trial so); another port, the same restart
-                    continue
-                raise LinkError(4, f"robot silent for 30 s (exit {robot.returncode}): {tail}") from None
+        robot = self.robot = RobotProcess(self.storage_dir, log=self.tmp / "robot.log").start()
+        self.link = Link(robot.url, tlog=False)
+        try:
+            self.link.connect(30.0)
+        except LinkError:
+            self.close_link()  # why it was silent: whether it exited, and its last words
+            raise LinkError(4, f"robot silent for 30 s (exit {robot.returncode}): {robot.log_tail(5)}") from None
 
     def reported_policy(self) -> tuple[float, float, float] | None:
         got = self.link.read_params(("POLICY_ID", "POLICY_CRC_HI", "POLICY_CRC_LO"), budget_s=5.0)
