@@ -313,7 +313,7 @@ def train_policy(opts: DemoOptions, run_dir: Path, say: Callable[[str], None]) -
     train_dir = run_dir / "train"
     write_run(train_dir, cfg, res)
     run = export.load_run(train_dir)
-    qt = export.quantise(run.q, "int8")
+    qt = export.quantise(run.q, "int8", preserve_argmax=True)  # the float table's greedy choice (qnav export)
     data = export.policy_bytes(qt, run.encoder, goals=run.goals, cell_mm=run.cell_mm,
                                metadata=export.file_metadata(run, qt), created=export.created_time(run.meta),
                                control_period_us=export.control_period_us(run), map_geometry=export.map_geometry(run))

@@ -138,7 +138,7 @@ NOT_RUN = {
     "qnav export RUN_DIR": "a synopsis (placeholders); its flags are checked above",
     "qnav train --recipe shipped-sector --out build/sector": "the shipped sector recipe (2e7 steps, ~15 s of CPU); "
                                                             "tests/hil/test_new_map_mission.py trains it on a new map",
-    "qnav export build/sector --dtype int8 --local-planner --preserve-argmax": "needs that run; tests/ground_station/"
+    "qnav export build/sector --dtype int8 --local-planner --no-preserve-argmax": "needs that run; tests/ground_station/"
                                                                               "test_policy_export.py checks the option",
     "qnav export build/policies/sector_memory": "writes the shipped policies/sector_memory.qtab (tools/make_policy.py "
                                                  "runs it; tests/ground_station/test_policy_shipped.py checks the file)",

@@ -3,7 +3,8 @@ float Q-table into the robot's int policy file and judge what it cost.
 
 Reads DIR/q.npy and DIR/meta.json (written by `qnav train`), quantises
 symmetrically (one scale per table, or per state with --per-state-scale),
-validates the bytes with the robot's own loader, writes FILE atomically and
+keeps the float table's greedy choice where rounding tied a unique maximum
+(--no-preserve-argmax: plain rounding), validates the bytes with the robot's own loader, writes FILE atomically and
 prints one JSON object: `bytes`, `dtype`, `argmax_agreement`, `tie_rate`
 (beside `float_tie_rate`, `rounding_ties`, `argmax_fixes`), and greedy-rollout
 `success_rate` / `path_ratio_mean` for the float table and for the int table
@@ -27,9 +28,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="FILE.qtab", help="policy file to write (atomically)")
     p.add_argument("--per-state-scale", action="store_true",
                    help="one scale per state instead of one per table")
-    p.add_argument("--preserve-argmax", action="store_true",
+    p.add_argument("--preserve-argmax", action=argparse.BooleanOptionalAction, default=True,
                    help="where rounding ties a row's unique float argmax, put the tied competitors 1 LSB below "
-                        "it, so the robot's greedy choice (ties to the lowest index) is the float table's")
+                        "it, so the robot's greedy choice (ties to the lowest index) is the float table's "
+                        "(default on; --no-preserve-argmax: plain rounding, ties broken to the lowest index)")
     p.add_argument("--policy-id", type=lambda s: int(s, 0), default=None,
                    help="policy id (u32, e.g. 0x1234); default: CRC32 of encoder + table")
     p.add_argument("--map", default=None, metavar="NAME|PATH",

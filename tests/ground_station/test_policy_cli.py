@@ -97,6 +97,23 @@ def test_export_trained_cell_run_int8_drives_like_float(tmp_path, capsys):
         np.argmax(quantise(q, "int8").table, axis=1).tolist()
 
 
+def test_export_keeps_the_float_argmax_by_default_and_rounds_only_when_told(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["train", "--map", "paper10", "--encoding", "cell", "--targets", "A", "--steps", "20000",
+                 "--seed", "0", "--out", str(run), "--quiet"]) == 0
+    q = np.load(run / "q.npy")
+    lsb = np.abs(q).max() / 127
+    q[0] = [10.0 * lsb, 10.3 * lsb, 0.0, 0.0]  # a unique float best (1) that rounding ties with forward (0)
+    np.save(run / "q.npy", q)
+    capsys.readouterr()
+    untied, rounded = tmp_path / "untied.qtab", tmp_path / "rounded.qtab"
+    assert main(["export", str(run), "--no-rollouts", "--out", str(untied)]) == 0
+    assert json.loads(capsys.readouterr().out)["argmax_fixes"] >= 1
+    assert main(["export", str(run), "--no-rollouts", "--no-preserve-argmax", "--out", str(rounded)]) == 0
+    assert json.loads(capsys.readouterr().out)["argmax_fixes"] == 0
+    assert load_policy(untied).best_action(0) == 1 and load_policy(rounded).best_action(0) == 0
+
+
 def test_export_errors_are_one_line_and_leave_no_file(tmp_path, capsys):
     out = tmp_path / "x.qtab"
     assert main(["export", str(tmp_path), "--out", str(out)]) == 2
