@@ -69,8 +69,9 @@ def step_movers(movers, occ, cell, discs, rx, ry, rr, dt_s):  # type: ignore[no-
                     dd = r + discs[k, 2]
                     if (nx - discs[k, 0]) ** 2 + (ny - discs[k, 1]) ** 2 < dd * dd:
                         blocked = True
-                dd = r + rr + (YIELD_MARGIN_MM if yields else 0.0)
-                if (nx - rx) ** 2 + (ny - ry) ** 2 < dd * dd:
+                dd = r + rr + (YIELD_MARGIN_MM if yields else 0.0)  # refused only a step nearer: one the robot
+                d2 = (nx - rx) ** 2 + (ny - ry) ** 2  # came up to within dd steps away (it froze, issue 47)
+                if d2 < dd * dd and d2 < (movers[i, 0] - rx) ** 2 + (movers[i, 1] - ry) ** 2:
                     if not yields:
                         continue  # it does not step aside: it stands until the robot is out of its way
                     blocked = True

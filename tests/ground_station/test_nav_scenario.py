@@ -98,6 +98,23 @@ def test_movers_bounce_and_never_walk_into_the_robot():
     assert flips >= 4  # bounced between the west wall and the robot, again and again
 
 
+def test_a_mover_the_robot_came_up_to_steps_away_instead_of_freezing():
+    """A yielding mover inside the robot's yield margin (the robot drove up to it) walks away: it froze
+    before (every step, away too, ended inside the margin and was refused), and in a maze corridor a
+    robot waiting for it said "no route" where a route exists (issue 47); the twin's copy agrees."""
+    occ = np.zeros((4, 4), dtype=np.uint8)
+    movers = np.array([[1170.0, 1000.0, 400.0, 0.0, 150.0]])  # 330 mm from the robot: inside 300 + 60
+    twin = movers.copy()
+    rx, ry = 1500.0, 1000.0
+    for _ in range(10):
+        d0 = math.hypot(movers[0, 0] - rx, movers[0, 1] - ry)
+        simobs.step_movers(movers, occ, 500.0, np.zeros((0, 3)), rx, ry, 150.0, 0.05)
+        tw.step_movers(twin, occ, 500.0, np.zeros((0, 3)), rx, ry, 150.0, 0.05)
+        assert math.hypot(movers[0, 0] - rx, movers[0, 1] - ry) >= d0  # never nearer
+    np.testing.assert_array_equal(movers, twin)
+    assert movers[0, 0] < 1170.0 - 100.0  # it stepped back, out of the margin
+
+
 def test_a_mover_that_does_not_yield_walks_its_line_and_stops_only_at_contact():
     """`yields` = 0 (qnav bench nav --no-yield): it keeps walking at the robot, stands while it would
     overlap it, and walks on once the robot is out of its way; the twin's compiled copy agrees."""
