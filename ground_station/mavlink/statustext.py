@@ -102,5 +102,8 @@ class StatusTextAssembler:
 
 def holds_for_good(text: str) -> bool:
     """The robot's text when its controller holds mid-mission until the operator acts: a stall
-    (NAV_STALL_S without progress, "item N: stalled: ...") or the bumper ("bumper pressed")."""
-    return "stalled: " in text or "bumper pressed" in text
+    (NAV_STALL_S without progress, "item N: stalled: ..."), the bumper ("bumper pressed"), or the GCS
+    failsafe with FS_GCS_ACTION Hold or disarm ("GCS failsafe: no GCS heartbeat for N ms, Hold"; the
+    mission is dropped, and a GCS heard again clears the failsafe, not the Hold)."""
+    return "stalled: " in text or "bumper pressed" in text or (
+        text.startswith("GCS failsafe: ") and text.endswith((", Hold", ", disarm")))

@@ -93,9 +93,12 @@ def test_bad_signing_key_file(tmp_path):
     assert r.returncode == 2 and "empty" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
-def test_until_done_ends_when_the_robot_holds_after_a_stall(tmp_path):
-    # a pymavlink vehicle on UDP loopback: armed in Auto, then the controller's stall text and Hold; the
-    # monitor ends with the robot's words (exit 3) instead of waiting out --duration
+@pytest.mark.parametrize("words", ["item 2: stalled: blocked ahead, 412 mm to go",
+                                   "GCS failsafe: no GCS heartbeat for 5000 ms, Hold"])
+def test_until_done_ends_when_the_robot_holds_for_good(tmp_path, words):
+    # a pymavlink vehicle on UDP loopback: armed in Auto, then the robot's words (a stall, or the GCS
+    # failsafe's Hold: firmware_py/mavlink/node.py check_failsafe) and Hold; the monitor ends with them
+    # (exit 3) instead of waiting out --duration
     import threading
     import time
 
@@ -114,8 +117,7 @@ def test_until_done_ends_when_the_robot_holds_after_a_stall(tmp_path):
                 conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GROUND_ROVER, mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
                                         armed, 4 if held else 10, mavutil.mavlink.MAV_STATE_ACTIVE)
                 if held:
-                    conn.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_WARNING,
-                                             b"item 2: stalled: blocked ahead, 412 mm to go")
+                    conn.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_WARNING, words.encode())
         finally:
             conn.close()
 
@@ -129,5 +131,13 @@ def test_until_done_ends_when_the_robot_holds_after_a_stall(tmp_path):
         stop.set()
         th.join(5)
     assert r.returncode == 3, (r.stdout, r.stderr)
-    assert "the robot stopped: item 2: stalled: blocked ahead, 412 mm to go" in r.stderr
+    assert f"the robot stopped: {words}" in r.stderr
     assert time.monotonic() - t0 < 25  # not the --duration
+
+
+def test_a_failsafe_that_only_reports_is_not_a_hold():
+    from ground_station.mavlink.statustext import holds_for_good
+
+    assert holds_for_good("GCS failsafe: no GCS heartbeat for 5000 ms, disarm")
+    assert not holds_for_good("GCS failsafe: no GCS heartbeat for 5000 ms, none")  # FS_GCS_ACTION 0: it drives on
+    assert not holds_for_good("GCS failsafe cleared")
