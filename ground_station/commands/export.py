@@ -4,8 +4,8 @@ float Q-table into the robot's int policy file and judge what it cost.
 Reads DIR/q.npy and DIR/meta.json (written by `qnav train`), quantises
 symmetrically (one scale per table, or per state with --per-state-scale),
 keeps the float table's greedy choice where rounding tied a unique maximum
-(--no-preserve-argmax: plain rounding), validates the bytes with the robot's own loader, writes FILE atomically and
-prints one JSON object: `bytes`, `dtype`, `argmax_agreement`, `tie_rate`
+(--no-preserve-argmax: plain rounding), validates the bytes with the robot's
+own loader, writes FILE atomically and prints one JSON object: `bytes`, `dtype`, `argmax_agreement`, `tie_rate`
 (beside `float_tie_rate`, `rounding_ties`, `argmax_fixes`), and greedy-rollout
 `success_rate` / `path_ratio_mean` for the float table and for the int table
 side by side (`{"float": ..., "int": ...}`), on the training map unless

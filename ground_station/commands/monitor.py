@@ -68,8 +68,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                         "time in HIL: at `qnav sitl --speed 4` it runs 4x wall time)")
     p.add_argument("--until-done", action="store_true",
                    help="live --plain: stop once the robot says 'mission complete' (exit 0), enters FAULT or holds "
-                        "after a stall, its bumper or a GCS failsafe (exit 3); --duration still bounds the wait: exit 4 if it "
-                        "ends first")
+                        "after a stall, its bumper or a GCS failsafe (exit 3); --duration still bounds the wait: "
+                        "exit 4 if it ends first")
     p.add_argument("--replay", metavar="FILE.tlog", help="replay a recording instead of a live link")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="replay speed factor (default 1; 0 = as fast as possible)")
