@@ -1,16 +1,14 @@
-"""`qnav export DIR --dtype int8|int16 --out FILE.qtab`: quantise a trained
-float Q-table into the robot's int policy file and judge what it cost.
+"""`qnav export DIR --dtype int8|int16 --out FILE.qtab`: quantise a trained float Q-table into the
+robot's int policy file and judge what it cost.
 
-Reads DIR/q.npy and DIR/meta.json (written by `qnav train`), quantises
-symmetrically (one scale per table, or per state with --per-state-scale),
-keeps the float table's greedy choice where rounding tied a unique maximum
-(--no-preserve-argmax: plain rounding), validates the bytes with the robot's
-own loader, writes FILE atomically and prints one JSON object: `bytes`, `dtype`, `argmax_agreement`, `tie_rate`
-(beside `float_tie_rate`, `rounding_ties`, `argmax_fixes`), and greedy-rollout
-`success_rate` / `path_ratio_mean` for the float table and for the int table
-side by side (`{"float": ..., "int": ...}`), on the training map unless
---map says otherwise. The int rollouts use the table exactly as the robot
-loaded it (argmax, ties to the lowest index).
+Reads DIR/q.npy and DIR/meta.json (written by `qnav train`), quantises symmetrically (one scale per
+table, or per state with --per-state-scale), keeps the float table's greedy choice where rounding tied
+a unique maximum (--no-preserve-argmax: plain rounding), validates the bytes with the robot's own
+loader, writes FILE atomically and prints one JSON object: `bytes`, `dtype`, `argmax_agreement`,
+`tie_rate` (beside `float_tie_rate`, `rounding_ties`, `argmax_fixes`), and greedy-rollout
+`success_rate` / `path_ratio_mean` for the float and the int table side by side (`{"float": ...,
+"int": ...}`), on the training map unless --map says otherwise. The int rollouts use the table
+exactly as the robot loaded it (argmax, ties to the lowest index).
 """
 
 from __future__ import annotations
@@ -29,9 +27,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--per-state-scale", action="store_true",
                    help="one scale per state instead of one per table")
     p.add_argument("--preserve-argmax", action=argparse.BooleanOptionalAction, default=True,
-                   help="where rounding ties a row's unique float argmax, put the tied competitors 1 LSB below "
-                        "it, so the robot's greedy choice (ties to the lowest index) is the float table's "
-                        "(default on; --no-preserve-argmax: plain rounding, ties broken to the lowest index)")
+                   help="where rounding ties a row's unique float argmax, put the tied competitors 1 LSB below it, "
+                        "so the robot's greedy choice is the float table's (default on; off: plain rounding)")
     p.add_argument("--policy-id", type=lambda s: int(s, 0), default=None,
                    help="policy id (u32, e.g. 0x1234); default: CRC32 of encoder + table")
     p.add_argument("--map", default=None, metavar="NAME|PATH",

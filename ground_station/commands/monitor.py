@@ -118,15 +118,13 @@ def _load_map(spec: str, cell_size: float):
 
 def _faulted(view) -> bool:
     from firmware_py.vehicle import CtrlState
-
     return view.ctrl_state == CtrlState.FAULT
 
 
 def _stopped(view) -> str | None:
-    """The robot's words when it holds for good mid-mission (statustext.holds_for_good): it waits in
-    Hold for the operator, so waiting out --duration tells nothing more."""
+    """The robot's words when it holds for good mid-mission (statustext.holds_for_good): waiting out
+    --duration tells nothing more."""
     from ground_station.mavlink.statustext import holds_for_good
-
     return next((line.text for line in view.log if holds_for_good(line.text)), None)
 
 

@@ -101,9 +101,7 @@ class StatusTextAssembler:
 
 
 def holds_for_good(text: str) -> bool:
-    """The robot's text when its controller holds mid-mission until the operator acts: a stall
-    (NAV_STALL_S without progress, "item N: stalled: ..."), the bumper ("bumper pressed"), or the GCS
-    failsafe with FS_GCS_ACTION Hold or disarm ("GCS failsafe: no GCS heartbeat for N ms, Hold"; the
-    mission is dropped, and a GCS heard again clears the failsafe, not the Hold)."""
+    """The robot's text when it holds mid-mission until the operator acts: a stall ("item N: stalled:
+    ..."), the bumper, or the GCS failsafe's Hold or disarm (a GCS heard again clears it, not the Hold)."""
     return "stalled: " in text or "bumper pressed" in text or (
         text.startswith("GCS failsafe: ") and text.endswith((", Hold", ", disarm")))
