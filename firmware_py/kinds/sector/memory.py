@@ -188,14 +188,14 @@ class ObstacleMemory:
                 segs.append((rim * c, rim * s, c, s, float(free)))
         if not segs:
             return []
-        clear2 = (rho - _BODY_SLACK_MM) ** 2
+        clear2, near2 = (rho - _BODY_SLACK_MM) ** 2, 4 * rho * rho  # near2: a ray within 2 rho reaches a disc
         inside2 = (rim + rho) ** 2  # a disc centre nearer the robot's than rim + rho overlaps its body
         out: list[tuple[int, int]] = []
         for key, px, py in pts:
             d = math.hypot(px, py)
             if d > reach or d == 0.0:
                 continue
-            near = [g for g in segs if _dist2(px, py, g) < 4 * rho * rho]  # rays that can reach a disc on it
+            near = [g for g in segs if _dist2(px, py, g) < near2]  # rays that can reach a disc on it
             if not near:
                 continue
             # the disc beyond the point first (a body the robot reads lies there): most kept points stop at it
