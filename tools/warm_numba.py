@@ -55,6 +55,33 @@ def commands(out: Path) -> list[list[str]]:
     ]
 
 
+def warm_python_callers() -> None:
+    """Kernels the station calls from Python, not from another kernel (a kernel called inside one is
+    compiled into it, not cached on its own), so no command above compiles them: the Gymnasium env's
+    steps, the re-planner's expected readings, the planner's and the any-angle optimum's segment tests
+    (measured: without this a fresh clone's suite compiled some 25 of them, several tests at once)."""
+    import numpy as np
+
+    from firmware_py import robot_spec
+    from ground_station.lab.anyangle import anyangle_distances
+    from ground_station.learn.envs.sector_env import SectorNavEnv
+    from ground_station.maps import load_map
+    from ground_station.maps.planner import plan_waypoints
+    from ground_station.nav.replan import UnmappedPoints
+
+    gm = load_map("paper10")
+    for guidance in ("path", "direct"):
+        env = SectorNavEnv(gm, goal="A", guidance=guidance)
+        env.reset(seed=0)
+        rng = np.random.default_rng(0)
+        for _ in range(20):
+            env.step(int(rng.integers(4)))
+    UnmappedPoints(gm).observe(0, 1250.0, 1250.0, 0.0, [300] * robot_spec.SENSOR_COUNT)
+    anyangle_distances(gm, float(robot_spec.ROBOT_RADIUS_MM))
+    for radius in (robot_spec.ROBOT_RADIUS_MM, float(robot_spec.ROBOT_RADIUS_MM)):  # a profile's int, the default
+        plan_waypoints(gm, gm.targets["A"], gm.targets["D"], radius_mm=radius)
+
+
 def _run(argvs: list[list[str]], out: Path, quiet: bool) -> int:
     """Run `qnav` argv lists in order in this process; 1 (naming the command) on the first failure."""
     from ground_station import cli
@@ -76,6 +103,16 @@ def _run(argvs: list[list[str]], out: Path, quiet: bool) -> int:
     return 0
 
 
+def _run_side(argvs: list[list[str]], out: Path, quiet: bool) -> int:
+    """The second process's share: its commands, then the kernels called from Python."""
+    code = _run(argvs, out, quiet)
+    t0 = time.monotonic()
+    warm_python_callers()
+    if not quiet:
+        print(f"warm_numba: kernels called from Python: {time.monotonic() - t0:.1f} s", flush=True)
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quiet", action="store_true", help="print only failures")
@@ -93,7 +130,9 @@ def main(argv: list[str] | None = None) -> int:
         main_line = [a for a in argvs if a not in side]
         ctx = multiprocessing.get_context("fork")
         with ctx.Pool(2) as pool:
-            codes = pool.starmap(_run, [(main_line, Path(tmp), args.quiet), (side, Path(tmp), args.quiet)])
+            main_run = pool.apply_async(_run, (main_line, Path(tmp), args.quiet))
+            side_run = pool.apply_async(_run_side, (side, Path(tmp), args.quiet))
+            codes = [main_run.get(), side_run.get()]
     if not args.quiet:
         print(f"warm_numba: numba cache filled in {time.monotonic() - t_all:.1f} s")
     return max(codes)
