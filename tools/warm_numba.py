@@ -59,7 +59,8 @@ def warm_python_callers() -> None:
     """Kernels the station calls from Python, not from another kernel (a kernel called inside one is
     compiled into it, not cached on its own), so no command above compiles them: the Gymnasium env's
     steps, the re-planner's expected readings, the planner's and the any-angle optimum's segment tests
-    (measured: without this a fresh clone's suite compiled some 25 of them, several tests at once)."""
+    (measured: a fresh clone's suite compiled ~25 kernels warm_numba had not, these among them, often
+    in several pytest-xdist workers at once; the rest are kernels tests call directly)."""
     import numpy as np
 
     from firmware_py import robot_spec
@@ -107,7 +108,11 @@ def _run_side(argvs: list[list[str]], out: Path, quiet: bool) -> int:
     """The second process's share: its commands, then the kernels called from Python."""
     code = _run(argvs, out, quiet)
     t0 = time.monotonic()
-    warm_python_callers()
+    try:
+        warm_python_callers()
+    except Exception as exc:  # noqa: BLE001 - named on one line like a failing command
+        print(f"warm_numba: kernels called from Python failed: {exc!r}", file=sys.stderr)
+        return 1
     if not quiet:
         print(f"warm_numba: kernels called from Python: {time.monotonic() - t0:.1f} s", flush=True)
     return code
