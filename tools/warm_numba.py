@@ -76,7 +76,8 @@ def warm_python_callers() -> None:
         env.reset(seed=0)
         rng = np.random.default_rng(0)
         for _ in range(20):
-            env.step(int(rng.integers(4)))
+            if env.step(int(rng.integers(4)))[2]:  # terminated: a new episode, as Gymnasium asks
+                env.reset()
     UnmappedPoints(gm).observe(0, 1250.0, 1250.0, 0.0, [300] * robot_spec.SENSOR_COUNT)
     anyangle_distances(gm, float(robot_spec.ROBOT_RADIUS_MM))
     for radius in (robot_spec.ROBOT_RADIUS_MM, float(robot_spec.ROBOT_RADIUS_MM)):  # a profile's int, the default
