@@ -170,7 +170,9 @@ def test_demo_refused_policy_fails_with_the_robots_reason_and_cleans_up(tmp_path
 
 def test_demo_ctrl_c_stops_every_process(tmp_path):
     out = tmp_path / "run"
-    proc = subprocess.Popen([*QNAV, "demo", "--headless", "--json", "--out", str(out)], cwd=ROOT,
+    # paced at real time (83 s of mission): Ctrl-C lands mid-mission. In lockstep the whole mission takes
+    # ~6 s of wall time, and on a loaded machine it once ended before the signal (exit 0, "mission complete")
+    proc = subprocess.Popen([*QNAV, "demo", "--headless", "--json", "--realtime", "--out", str(out)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60
