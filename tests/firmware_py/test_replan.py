@@ -189,6 +189,26 @@ def test_recoveries_back_off_clear_and_then_say_no_route():
     assert 6 * CFG.wait_us + 2 * CFG.backoff_us <= said <= 6 * CFG.wait_us + 2 * CFG.backoff_us + 20 * PERIOD
 
 
+def test_a_far_waypoint_behind_a_closed_door_waits_out_its_rounds_before_no_route():
+    """A waypoint beyond max_plan_mm gets no window search: its answer is not the way opening, so
+    each round after the first waits (r x wait_us) before the whole map is searched again. The wait
+    ended at once: three rounds in about 2 s, and a mover in a maze corridor was "no route" (issue 47)."""
+    far = (4750, 3250)  # across the wall of row 3, door 1 closed: no route
+    assert math.hypot(far[0] - BELOW[0], far[1] - BELOW[1]) > CFG.max_plan_mm
+    work = Background(threaded=False)
+    memory = ObstacleMemory(CFG)
+    pt = PlannedTarget(ONE_DOOR, CFG, work)
+    modes = []
+    for k in range(400):
+        _remember(memory, DOOR1, k * PERIOD)
+        pt.target(k * PERIOD, *BELOW, far, memory)
+        modes.append(pt.mode)
+        work.run_pending()
+    said = modes.index(NO_ROUTE) * PERIOD
+    # round 1 searches at once (a far waypoint behind a map wall); rounds 2 and 3 wait 4 + 6 s
+    assert said >= 10 * CFG.wait_us // 2 + 2 * CFG.backoff_us and pt.global_plans == CFG.max_rounds
+
+
 def test_a_mover_that_steps_aside_while_the_robot_waits_ends_the_recovery():
     work = Background(threaded=False)
     memory = ObstacleMemory(CFG)

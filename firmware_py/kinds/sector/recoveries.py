@@ -256,15 +256,17 @@ class PlannedTarget:
         """WAIT and GLOBAL (the class docstring's steps 1, 2 and 4)."""
         cfg = self.cfg
         wx, wy = waypoint
-        if self.mode == WAIT:
-            if ans is not None and not ans.blocked and self._aside:
+        if self.mode == WAIT:  # a waypoint beyond max_plan_mm has no window search (LocalPlanner.target): its
+            # answer is no opening, the wait runs its course (it ended at once: 3 rounds in 2 s, "no route")
+            near = math.hypot(wx - x, wy - y) <= cfg.max_plan_mm
+            if ans is not None and not ans.blocked and near and self._aside:
                 # the way opened from the refuge: back to the waypoint by the whole map's route (a straight
                 # drive from a side corridor meets the wall between)
                 self._aside = False
                 self.global_plans += 1
                 self._enter(GLOBAL, now_us + 1)
                 return float(wx), float(wy), 0
-            if ans is not None and not ans.blocked:
+            if ans is not None and not ans.blocked and near:
                 self._enter(LOCAL, now_us)  # the way opened (a mover stepped aside)
                 self.detouring = ans.detouring
                 return ans.target[0], ans.target[1], 100
