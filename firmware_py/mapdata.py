@@ -193,8 +193,24 @@ def walls_near(grid: OccupancyGrid, x: int, y: int, m: int) -> Iterator[tuple[in
 
 
 def wall_within(grid: OccupancyGrid, x: int, y: int, m: int) -> bool:
-    """An occupied cell (or the outside of the grid) has a point within m mm of the point (x, y) mm."""
-    return any(dx * dx + dy * dy <= m * m for dx, dy in walls_near(grid, x, y, m))
+    """An occupied cell (or the outside of the grid) has a point within m mm of the point (x, y) mm.
+    `walls_near`'s cells, unrolled: every reading of every tick asks this (three rays a sensor)."""
+    c = grid.cell_mm
+    top = grid.height * c
+    mm = m * m
+    for row in range((top - (y + m)) // c, (top - (y - m)) // c + 1):
+        ylo = top - (row + 1) * c
+        dy = ylo - y if y < ylo else (y - ylo - c if y > ylo + c else 0)
+        dy2 = dy * dy
+        if dy2 > mm:
+            continue
+        for col in range((x - m) // c, (x + m) // c + 1):
+            if grid.occupied(col, row):
+                xlo = col * c
+                dx = xlo - x if x < xlo else (x - xlo - c if x > xlo + c else 0)
+                if dx * dx + dy2 <= mm:
+                    return True
+    return False
 
 
 def wall_gap(grid: OccupancyGrid, x: int, y: int, m: int) -> float:

@@ -10,6 +10,7 @@ steering a sector policy on them."""
 from __future__ import annotations
 
 import math
+import random
 from array import array
 
 import pytest
@@ -20,7 +21,7 @@ from firmware_py.kinds.sector.config import META_KEY, LocalPlannerConfig
 from firmware_py.kinds.sector.encoder import SectorEncoder
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.planner import LocalPlanner
-from firmware_py.mapdata import grid_from_rows, unmapped_readings
+from firmware_py.mapdata import grid_from_rows, unmapped_readings, wall_within
 from firmware_py.policy import PolicyError, dump_policy, load_policy
 from firmware_py.vehicle import VehicleConfig
 from tests.support.background import pending
@@ -49,6 +50,33 @@ def test_a_map_wall_is_explained_a_disc_in_the_open_is_not():
     # too far never counts; too close in the open is an unmapped contact (distance 0)
     assert unmapped_readings(GRID, 1500, 1250, 0, [20] + [2000] * 7, [CLOSE] + [FAR] * 7, 150)[0] == 0
     assert all(d == -1 for d in unmapped_readings(GRID, 1500, 1250, 0, [2000] * 8, [FAR] * 8, 150))
+
+
+def test_wall_within_is_the_distance_to_the_nearest_wall_square():
+    """`wall_within` (every reading's three rays ask it each tick) against the distance to each
+    occupied cell's square and to the world outside the grid, brute force, at points in, on the
+    edge of and outside the grid, for margins from 1 mm to two cells."""
+    rng = random.Random(7)
+    rows = ["".join("@" if rng.random() < 0.25 else "." for _ in range(7)) for _ in range(6)]
+    grid = grid_from_rows(rows, 500)
+    width, height = 7 * 500, 6 * 500
+
+    def gap(x: int, y: int) -> float:
+        if not (0 < x < width and 0 < y < height):
+            return 0.0
+        best = float(min(x, y, width - x, height - y))  # the outside is wall
+        for row, line in enumerate(rows):
+            for col, ch in enumerate(line):
+                if ch == "@":
+                    xlo, ylo = col * 500, height - (row + 1) * 500
+                    best = min(best, math.hypot(max(xlo - x, 0, x - xlo - 500), max(ylo - y, 0, y - ylo - 500)))
+        return best
+
+    points = [(rng.randrange(-300, width + 300), rng.randrange(-300, height + 300)) for _ in range(400)]
+    points += [(500, 1000), (1000, 1000), (width, 250), (0, 0)]  # on cell corners and the border
+    for m in (1, 150, 499, 500, 1000):
+        for x, y in points:
+            assert wall_within(grid, x, y, m) == (gap(x, y) <= m), (x, y, m, gap(x, y))
 
 
 def test_the_outer_border_and_a_grazed_corner_are_explained():
