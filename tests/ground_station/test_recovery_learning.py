@@ -1,6 +1,7 @@
 """Q-learning of the recovery decisions (`ground_station.lab.recovery`, issue 47): transitions and
 their rewards, the tabular update, the hand-written rules as a table (the baseline) doing what the
-rules do, the int8 export, and the failure classification of `qnav bench decisions`."""
+rules do, the int8 export, and the failure classification of `qnav bench decisions` (with its
+stand-offs)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from firmware_py.background import Background
 from firmware_py.kinds.sector import decide
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.recoveries import NO_ROUTE, PlannedTarget
-from ground_station.lab.nav.decisions import Trace, classify
+from ground_station.lab.nav.decisions import STANDOFF_PERIODS, Trace, classify, standoff, trace
 from ground_station.lab.recovery.config import RecoveryConfig
 from ground_station.lab.recovery.qlearn import (
     PERIOD_S,
@@ -75,6 +76,34 @@ def test_a_failure_is_put_down_to_the_decision_that_ended_it():
     assert classify("no_route", tr, 2) == "declared:cap+gave_way"
     tr = Trace(modes=["local"] * 10, changes=[(9, "no route", 3, 3, False)])
     assert classify("no_route", tr, 0) == "declared:still"
+
+
+def test_an_episode_that_ends_with_a_mover_at_the_robot_is_a_stand_off():
+    near, far = [10.0] * STANDOFF_PERIODS, [500.0] * STANDOFF_PERIODS
+    assert standoff([500.0] * 50 + near)
+    assert not standoff(far + near[:STANDOFF_PERIODS // 2])  # the last 5 s only
+    assert not standoff(near[1:])  # shorter than the window: not judged
+    assert standoff(near[:180] + far[:20]) and not standoff(near[:179] + far[:21])  # 90 % of it
+
+
+def test_the_trace_watches_every_period_of_the_twin_for_the_movers():
+    from firmware_py.policy import load_policy
+    from ground_station.lab.nav import planned
+    from ground_station.lab.nav.controllers import standard_controllers
+    from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS
+    from ground_station.lab.nav.scenario import MoverStyle, episodes
+    from ground_station.maps import load_map
+
+    gm = load_map("paper10")
+    (ep,) = episodes(gm, 1, 0, 2, 3, movers=MoverStyle(yields=False))
+    ctrl = standard_controllers(load_policy("policies/sector.qtab"), ("learnt",))[0]
+    seen: list[tuple[float, float, tuple]] = []
+    _, _, periods, _, _, _ = planned.rollout(ep, gm, ctrl, BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS,
+                                             watch=lambda x, y, m: seen.append((x, y, m.shape)))
+    assert len(seen) == periods and all(shape == (3, 6) for _, _, shape in seen)
+    assert seen[0][:2] != seen[-1][:2]  # the robot's position as it drives
+    (row,) = trace([ep], {gm.name: gm}, ctrl)
+    assert row["periods"] == periods and row["standoff"] is False  # reached: no mover stood at it
 
 
 def test_paired_time_counts_who_was_sooner_where_both_succeeded():

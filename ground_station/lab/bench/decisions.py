@@ -10,7 +10,10 @@ cap; `+gave_way` when it stood aside first), or a timeout, loop or collision
 with where its last 400 periods went (`waiting`, `giving_way`,
 `backing_off`, `detour`: a whole-map route, `local`: the table, guard and
 monitor on the window's sub-goals). With `--blocked`, a "no route" on an
-episode without a detour is the right answer and is not a failure.
+episode without a detour is the right answer and is not a failure. Failures
+that end in a stand-off are counted too: a mover's body within 60 mm of
+the robot's for 90 % of the last 10 s (a mover that does not give way
+stands while a step would overlap the robot).
 """
 
 from __future__ import annotations
@@ -83,8 +86,10 @@ def run(args: argparse.Namespace) -> int:
                  for r in rows]
         fails = Counter(r["decision"] + (":no_detour" if r.get("blocked", {}).get("detour") is False else "")
                         for r, ok in zip(rows, right, strict=True) if not ok)
+        stands = sum(r["standoff"] for r, ok in zip(rows, right, strict=True) if not ok)
         print(f"{c.name:13s} n={len(rows)} right {sum(right)} ({sum(right) / max(1, len(rows)):.3f}); failures "
-              f"{sum(fails.values())}: " + ", ".join(f"{k} {v}" for k, v in fails.most_common()))
+              f"{sum(fails.values())}: " + ", ".join(f"{k} {v}" for k, v in fails.most_common())
+              + f"; {stands} of them end in a stand-off")
         out[c.name] = {"episodes": len(rows), "right": sum(right), "failures": dict(fails), "rows": rows}
     if args.json:
         with open(args.json, "w") as f:

@@ -14,15 +14,24 @@ episode is given the decision that ended it (`classify`):
   the table, guard and monitor);
 * `collision`, by the mode it happened in.
 
+Each row also says whether the episode ended in a **stand-off** (`standoff`): a mover's body within
+`STANDOFF_GAP_MM` of the robot's for at least 90 % of the last `STANDOFF_PERIODS` periods (a mover
+that does not give way stands while a step would overlap the robot: in a one-cell corridor or a
+dead end neither moves again).
+
 `qnav bench decisions` prints the counts (ground_station/lab/bench/decisions.py).
 """
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
+from firmware_py import robot_spec
 from firmware_py.kinds.sector.memory import ObstacleMemory
 from firmware_py.kinds.sector.recoveries import (
     BACKUP,
@@ -38,6 +47,8 @@ from ground_station.lab.nav.scenario import Episode
 from ground_station.maps import GridMap
 
 TAIL_PERIODS = 400  # the loop rule's window (episodes.STALL_STEPS): where a timeout's last stretch went
+STANDOFF_PERIODS = 200  # 10 s: an episode's end looked at for a stand-off
+STANDOFF_GAP_MM = 60.0  # a mover's body this near the robot's (the movers' yield margin)
 
 
 @dataclass
@@ -94,9 +105,15 @@ def classify(outcome: str, tr: Trace, give_ways: int) -> str:
     return f"{outcome}:{groups.most_common(1)[0][0]}"
 
 
+def standoff(gaps: list[float]) -> bool:
+    """A stand-off at the end (module docstring): `gaps` the robot's body to the nearest mover's, per period."""
+    tail = gaps[-STANDOFF_PERIODS:]
+    return len(tail) == STANDOFF_PERIODS and sum(g <= STANDOFF_GAP_MM for g in tail) >= 0.9 * STANDOFF_PERIODS
+
+
 def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
     """One row per episode: outcome, the decision that ended a failure (`classify`), the periods in
-    each mode, the rounds of recoveries and give-ways."""
+    each mode, the rounds of recoveries and give-ways, whether it ended in a stand-off."""
     from ground_station.lab.nav import planned
     from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, OUTCOMES, STALL_STEPS
 
@@ -107,16 +124,23 @@ def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> 
         holder.append(traced(ctrl.planner(*args)))
         return holder[-1]
 
+    gaps: list[float] = []
+
+    def watch(x: float, y: float, movers: np.ndarray) -> None:
+        gaps.append(min((math.hypot(mx - x, my - y) - r - robot_spec.ROBOT_RADIUS_MM
+                         for mx, my, _, _, r, _ in movers.tolist()), default=math.inf))
+
     for ep in eps:
         holder.clear()
+        gaps.clear()
         o, _, steps, _, _, _ = planned.rollout(ep, maps[ep.map], ctrl, BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS,
-                                               make_planner=make)
+                                               make_planner=make, watch=watch)
         p = holder[0]
         tr = p.trace
         outcome = OUTCOMES[o]
         rows.append({"map": ep.map, "outcome": outcome, "success": outcome == "success",
                      "decision": None if outcome == "success" else classify(outcome, tr, p.give_ways),
                      "periods": steps, "modes": dict(Counter(tr.modes)), "rounds": p._all_rounds,
-                     "give_ways": p.give_ways, "global_plans": p.global_plans,
+                     "give_ways": p.give_ways, "global_plans": p.global_plans, "standoff": standoff(gaps),
                      **({"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {})})
     return rows

@@ -96,11 +96,13 @@ def grid_of(gm: GridMap):
 
 def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, budget_factor: float,
             stall_steps: int, robot: TwinRobot | None = None,
-            make_planner: Callable[..., PlannedTarget] | None = None) -> tuple[int, float, int, float, int, int]:
+            make_planner: Callable[..., PlannedTarget] | None = None,
+            watch: Callable[[float, float, np.ndarray], None] | None = None) -> tuple[int, float, int, float, int, int]:
     """One greedy episode of the twin playing `robot` (default the built-in one); returns (outcome,
     driven mm, periods, min clearance, near-miss periods, plans). `make_planner(grid, cfg, work,
     radius_mm)`: the tick's side of the planner (default `PlannedTarget`, or the controller's own:
-    `NavController.planner`; a tracing subclass in `nav.decisions`)."""
+    `NavController.planner`; a tracing subclass in `nav.decisions`). `watch(x, y, movers)`: called
+    after every period with the robot's position (mm) and the movers (x, y, vx, vy, r, yields rows)."""
     assert ctrl.local is not None
     robot = robot or TwinRobot()
     tw = robot.arrays()
@@ -166,6 +168,8 @@ def rollout(ep: Episode, gm: GridMap, ctrl: NavController, budget_base: float, b
                 sectors, sensors, edges, discs, movers, tw)
         path += driven
         t += 1
+        if watch is not None:
+            watch(x, y, movers)
         if hit:
             outcome, minclear = COLLISION, 0.0
             break
