@@ -11,7 +11,7 @@ with where its last 400 periods went (`waiting`, `giving_way`,
 `backing_off`, `detour`: a whole-map route, `local`: the table, guard and
 monitor on the window's sub-goals). With `--blocked`, a "no route" on an
 episode without a detour is the right answer and is not a failure. Failures
-that end in a stand-off are counted too: a mover's body within 60 mm of
+that end in a stand-off are counted too: a mover's body nearer than 60 mm to
 the robot's for 90 % of the last 10 s (a mover that does not give way
 stands while a step would overlap the robot).
 """

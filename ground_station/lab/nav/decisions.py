@@ -14,8 +14,8 @@ episode is given the decision that ended it (`classify`):
   the table, guard and monitor);
 * `collision`, by the mode it happened in.
 
-Each row also says whether the episode ended in a **stand-off** (`standoff`): a mover's body within
-`STANDOFF_GAP_MM` of the robot's for at least 90 % of the last `STANDOFF_PERIODS` periods (a mover
+Each row also says whether the episode ended in a **stand-off** (`standoff`): a mover's body nearer than
+`STANDOFF_GAP_MM` to the robot's for at least 90 % of the last `STANDOFF_PERIODS` periods (a mover
 that does not give way stands while a step would overlap the robot: in a one-cell corridor or a
 dead end neither moves again).
 
@@ -45,10 +45,11 @@ from firmware_py.kinds.sector.recoveries import (
 from ground_station.lab.nav.controllers import NavController
 from ground_station.lab.nav.scenario import Episode
 from ground_station.maps import GridMap
+from sim_bridge.obstacles import YIELD_MARGIN_MM
 
 TAIL_PERIODS = 400  # the loop rule's window (episodes.STALL_STEPS): where a timeout's last stretch went
 STANDOFF_PERIODS = 200  # 10 s: an episode's end looked at for a stand-off
-STANDOFF_GAP_MM = 60.0  # a mover's body this near the robot's (the movers' yield margin)
+STANDOFF_GAP_MM = YIELD_MARGIN_MM  # a mover's body nearer the robot's than this: nearer than a yielding one comes
 
 
 @dataclass
@@ -108,7 +109,7 @@ def classify(outcome: str, tr: Trace, give_ways: int) -> str:
 def standoff(gaps: list[float]) -> bool:
     """A stand-off at the end (module docstring): `gaps` the robot's body to the nearest mover's, per period."""
     tail = gaps[-STANDOFF_PERIODS:]
-    return len(tail) == STANDOFF_PERIODS and sum(g <= STANDOFF_GAP_MM for g in tail) >= 0.9 * STANDOFF_PERIODS
+    return len(tail) == STANDOFF_PERIODS and sum(g < STANDOFF_GAP_MM for g in tail) >= 0.9 * STANDOFF_PERIODS
 
 
 def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
