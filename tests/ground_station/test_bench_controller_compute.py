@@ -12,12 +12,15 @@ from ground_station.lab.nav.controllers import standard_controllers
 
 def test_step_compute_runs_the_cell_and_the_sector_policy_with_obstacles():
     r = step_compute(str(resolve_policy_spec("policies:sector")), 1, 3, 2)
-    assert r["cell"]["ticks"] > 100 and r["nav"]["ticks"] > 100
+    assert r["nav"]["ticks"] > 100
     assert r["nav"]["obstacles"] == 3 and r["nav"]["movers"] == 2 and len(r["nav"]["outcomes"]) == 1
+    # the baselines take trips until they have as many ticks as the sector side (at most 10 for 1 episode)
+    assert r["cell"]["trips"] >= 1 and (r["cell"]["ticks"] >= r["nav"]["ticks"] or r["cell"]["trips"] == 10)
+    off = r["nav_planner_off"]
+    assert len(off["outcomes"]) >= 1 and (off["ticks"] >= r["nav"]["ticks"] or len(off["outcomes"]) == 10)
     for side in ("cell", "nav", "nav_planner_off"):
         assert 0 < r[side]["p50_us"] <= r[side]["p99_us"] <= r[side]["max_us"]
     assert r["nav_over_cell_p99"] == r["nav"]["p99_us"] / r["cell"]["p99_us"]
-    assert r["nav_planner_off"]["ticks"] > 100 and len(r["nav_planner_off"]["outcomes"]) == 1
     assert r["planner_on_over_off_p99"] == r["nav"]["p99_us"] / r["nav_planner_off"]["p99_us"]
     assert r["nav"]["background_runs"] > 0  # the planner did search (between ticks)
 

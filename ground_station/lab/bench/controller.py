@@ -20,12 +20,14 @@ Then the step's compute with the policy's own work in it (issue 29):
 (pymunk plant, the robot's localiser tracking on the policy's map), for
 the cell policy on paper10 trips and for `--nav-policy` (default the shipped
 sector policy, its local planner on) on the navigation scenario with
-`--obstacles` discs and `--movers` movers, pooled over `--episodes` each:
-p50 / p99 / max side by side, and the ratio of the p99s; beside them the
-same policy with its planner off (no obstacle layer, no plan read) on the
-same number of trips without discs or movers (without its planner the robot
-stalls at a disc, and a standing robot's localiser idles): the baseline for
-what the planner costs the tick. The local
+`--obstacles` discs and `--movers` movers over `--episodes` episodes, the
+cell policy over as many trips or more, until it has as many ticks (p99s
+from samples of one size): p50 / p99 / max side by side, and the ratio of
+the p99s; beside them the same policy with its planner off (no obstacle
+layer, no plan read) on the scenario's trips without discs or movers, as
+many ticks again (without its planner the robot stalls at a disc, and a
+standing robot's localiser idles): the baseline for what the planner costs
+the tick. The local
 planner's search is not in those figures: it runs between ticks
 (firmware_py.background); its CPU per tick and its longest job are
 reported beside them.
@@ -112,6 +114,9 @@ class PlannerOff:
         return replace(self.inner.policy(map_name), kind_config=None)
 
 
+BASELINE_TRIPS = 10  # the baselines' trips are at most this many times the sector side's episodes
+
+
 def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, seed: int = 0) -> dict:
     """Controller.step CPU per tick on the lockstep rig: the cell policy on paper10
     far trips vs `nav_policy` on scenario episodes with obstacles (module doc)."""
@@ -126,30 +131,41 @@ def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, se
     from ground_station.maps.planner import guidance_from_metadata
 
     gm = load_map("paper10")
-    cell = cell_policy()
-    rng = random.Random(seed)
-    cell_cpu: list[float] = []
-    for i in range(episodes):
-        start, goal = far_trip(gm, cell, rng)
-        cell_cpu += run_episode(gm.occ, cell, start, [goal], max_sim_s=60.0, seed=seed + i).step_cpu_us
     pol = load_policy(nav_policy)
     ctrl = standard_controllers(pol, ("learnt",))[0]
     eps = nav_episodes(gm, episodes, seed, obstacles, movers, plan_kw=guidance_from_metadata(pol.metadata))
     rows = run_hil(eps, {gm.name: gm}, ctrl, step_cpu=True)
     nav_cpu = [v for r in rows for v in r["step_cpu_us"]]
+    # The baselines run trips until they have as many ticks as the sector side (at most
+    # BASELINE_TRIPS x `episodes`): p99s from samples of one size (4 cell trips gave ~1,800
+    # ticks to the sector side's ~4,800, and the ratio of the p99s swung with the smaller one).
+    cap = BASELINE_TRIPS * max(episodes, 1)
+    cell = cell_policy()
+    rng = random.Random(seed)
+    cell_cpu: list[float] = []
+    cell_trips = 0
+    while cell_trips < episodes or (len(cell_cpu) < len(nav_cpu) and cell_trips < cap):
+        start, goal = far_trip(gm, cell, rng)
+        cell_cpu += run_episode(gm.occ, cell, start, [goal], max_sim_s=60.0, seed=seed + cell_trips).step_cpu_us
+        cell_trips += 1
     # The step without the planner: the same policy, map and localiser, its local planner
     # off (no obstacle layer, no plan to read), on the scenario's trips without discs or
     # movers: without a planner the robot stalls at the first disc, and a standing robot's
     # localiser has nothing to do, which would flatter the ratio.
     bare = PlannerOff(ctrl)
-    clear = nav_episodes(gm, episodes, seed, 0, 0, plan_kw=guidance_from_metadata(pol.metadata))
-    bare_rows = run_hil(clear, {gm.name: gm}, bare, step_cpu=True)
-    bare_cpu = [v for r in bare_rows for v in r["step_cpu_us"]]
+    clear = nav_episodes(gm, cap, seed, 0, 0, plan_kw=guidance_from_metadata(pol.metadata))  # prefixes agree
+    bare_rows: list[dict] = []
+    bare_cpu: list[float] = []
+    for ep in clear:
+        if len(bare_rows) >= episodes and len(bare_cpu) >= len(nav_cpu):
+            break
+        bare_rows += run_hil([ep], {gm.name: gm}, bare, step_cpu=True)
+        bare_cpu += bare_rows[-1]["step_cpu_us"]
     cell_p, nav_p, bare_p = _pcts(cell_cpu), _pcts(nav_cpu), _pcts(bare_cpu)
     off_tick = {"background_cpu_us_per_tick": sum(r["background_cpu_us"] for r in rows) / max(len(nav_cpu), 1),
                 "background_runs": sum(r["background_runs"] for r in rows),
                 "background_max_us": max((r["background_max_us"] for r in rows), default=0.0)}
-    return {"cell": {"policy": "policies:paper10_cell", **cell_p},
+    return {"cell": {"policy": "policies:paper10_cell", "trips": cell_trips, **cell_p},
             "nav": {"policy": nav_policy, "obstacles": obstacles, "movers": movers,
                     "outcomes": [r["outcome"] for r in rows], **nav_p, **off_tick},
             "nav_planner_off": {"policy": nav_policy, "outcomes": [r["outcome"] for r in bare_rows], **bare_p},
