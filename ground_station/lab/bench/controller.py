@@ -52,9 +52,10 @@ import argparse
 import json
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from firmware_py.policy import Policy
@@ -117,6 +118,19 @@ class PlannerOff:
 BASELINE_TRIPS = 10  # the baselines' trips are at most this many times the sector side's episodes
 
 
+def _trips_until(want_ticks: int, least: int, most: int,
+                 trip: Callable[[int], tuple[list[float], Any]]) -> tuple[list[float], list[Any]]:
+    """`trip(i)` -> (its per-tick CPU, its result) for i = 0, 1, ...: at least `least` trips, then on
+    until the ticks number `want_ticks`, at most `most` trips. (pooled CPU, the results)"""
+    cpu: list[float] = []
+    results: list[Any] = []
+    while len(results) < least or (len(cpu) < want_ticks and len(results) < most):
+        ticks, result = trip(len(results))
+        cpu += ticks
+        results.append(result)
+    return cpu, results
+
+
 def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, seed: int = 0) -> dict:
     """Controller.step CPU per tick on the lockstep rig: the cell policy on paper10
     far trips vs `nav_policy` on scenario episodes with obstacles (module doc)."""
@@ -142,30 +156,29 @@ def step_compute(nav_policy: str, episodes: int, obstacles: int, movers: int, se
     cap = BASELINE_TRIPS * max(episodes, 1)
     cell = cell_policy()
     rng = random.Random(seed)
-    cell_cpu: list[float] = []
-    cell_trips = 0
-    while cell_trips < episodes or (len(cell_cpu) < len(nav_cpu) and cell_trips < cap):
+
+    def cell_trip(i: int) -> tuple[list[float], None]:
         start, goal = far_trip(gm, cell, rng)
-        cell_cpu += run_episode(gm.occ, cell, start, [goal], max_sim_s=60.0, seed=seed + cell_trips).step_cpu_us
-        cell_trips += 1
+        return run_episode(gm.occ, cell, start, [goal], max_sim_s=60.0, seed=seed + i).step_cpu_us, None
+
+    cell_cpu, cell_runs = _trips_until(len(nav_cpu), episodes, cap, cell_trip)
     # The step without the planner: the same policy, map and localiser, its local planner
     # off (no obstacle layer, no plan to read), on the scenario's trips without discs or
     # movers: without a planner the robot stalls at the first disc, and a standing robot's
     # localiser has nothing to do, which would flatter the ratio.
     bare = PlannerOff(ctrl)
     clear = nav_episodes(gm, cap, seed, 0, 0, plan_kw=guidance_from_metadata(pol.metadata))  # prefixes agree
-    bare_rows: list[dict] = []
-    bare_cpu: list[float] = []
-    for ep in clear:
-        if len(bare_rows) >= episodes and len(bare_cpu) >= len(nav_cpu):
-            break
-        bare_rows += run_hil([ep], {gm.name: gm}, bare, step_cpu=True)
-        bare_cpu += bare_rows[-1]["step_cpu_us"]
+
+    def bare_trip(i: int) -> tuple[list[float], dict]:
+        (row,) = run_hil([clear[i]], {gm.name: gm}, bare, step_cpu=True)
+        return row["step_cpu_us"], row
+
+    bare_cpu, bare_rows = _trips_until(len(nav_cpu), episodes, cap, bare_trip)
     cell_p, nav_p, bare_p = _pcts(cell_cpu), _pcts(nav_cpu), _pcts(bare_cpu)
     off_tick = {"background_cpu_us_per_tick": sum(r["background_cpu_us"] for r in rows) / max(len(nav_cpu), 1),
                 "background_runs": sum(r["background_runs"] for r in rows),
                 "background_max_us": max((r["background_max_us"] for r in rows), default=0.0)}
-    return {"cell": {"policy": "policies:paper10_cell", "trips": cell_trips, **cell_p},
+    return {"cell": {"policy": "policies:paper10_cell", "trips": len(cell_runs), **cell_p},
             "nav": {"policy": nav_policy, "obstacles": obstacles, "movers": movers,
                     "outcomes": [r["outcome"] for r in rows], **nav_p, **off_tick},
             "nav_planner_off": {"policy": nav_policy, "outcomes": [r["outcome"] for r in bare_rows], **bare_p},
