@@ -13,7 +13,6 @@ import re
 from importlib import resources
 from pathlib import Path
 
-from ground_station.maps.generate import GENERATORS
 from ground_station.maps.grid import GridMap, MapError
 from ground_station.maps.movingai import parse_map, parse_targets, read_map
 
@@ -49,6 +48,9 @@ def load_map(name_or_path: str, cell_size_m: float = 0.5) -> GridMap:
     s = str(name_or_path)
     m = _SPEC.match(s)
     if m:
+        # numba's generators only here: reading a map file needs none (ground_station.maps)
+        from ground_station.maps.generate import GENERATORS
+
         kind, w, h, seed = m.group(1), int(m.group(2)), int(m.group(3)), int(m.group(4))
         gm = GENERATORS[kind](w, h, seed=seed, name=s)
         gm.cell_size_m = cell_size_m

@@ -201,3 +201,20 @@ def test_read_scen(tmp_path):
     p.write_text("version 1\n0\tx.map\t4\n")
     with pytest.raises(MapError, match="expected 9 fields"):
         read_scen(p)
+
+
+def test_reading_a_map_file_does_not_import_numba(tmp_path):
+    """The sim and `qnav map upload` read map files: numba (its kernels compute distances and generate
+    maps) is imported only when one of those is asked for (ground_station/maps/__init__.py)."""
+    import subprocess
+    import sys
+
+    write_map(tmp_path / "m.map", parse_map(GOOD, name="m"))
+    code = ("import sys; from ground_station.maps import load_map; load_map(sys.argv[1]); load_map('paper10'); "
+            "a = 'numba' in sys.modules; import ground_station.maps as m; m.octile_distances; "
+            "b = 'numba' in sys.modules; load_map('trap-8x8-s1'); print(a, b)\n"
+            "try:\n    m.no_such_name\nexcept AttributeError as e:\n    print(e)")
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "m.map")], capture_output=True, text=True,
+                       timeout=60, check=False)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == ["False True", "module 'ground_station.maps' has no attribute 'no_such_name'"]
