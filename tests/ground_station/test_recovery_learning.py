@@ -135,3 +135,19 @@ def test_bench_nav_runs_the_learnt_decisions_beside_the_rules_and_exports_the_ta
     assert {"learnt", "learnt_rules", "seek_local", "vfh_local"} <= set(res)  # learnt_rules by default
     assert set(res["paired_time_vs_learnt"]["learnt_rules"]) == {"both", "a_faster", "b_faster", "median_diff_s",
                                                                  "p_sign"}
+
+
+def test_a_no_route_is_traced_with_whether_a_later_waypoint_was_reachable():
+    from ground_station.lab.nav.decisions import traced
+    from tests.firmware_py.test_replan import ABOVE
+
+    # ONE_DOOR's only door closed (DOOR1): ABOVE, the waypoint, has no route; (4250, 1000) below the wall has
+    for later, want in (([ABOVE, (4250, 1000)], True), ([ABOVE, (4250, 2750)], False), ([ABOVE], False),
+                        ([(4250, 1000)], False)):  # the waypoint last (the goal) or not an episode's: no later one
+        work = Background(threaded=False)
+        pt = traced(PlannedTarget(ONE_DOOR, CFG, work))
+        pt.later = later
+        rows = _drive(pt, work, ObstacleMemory(CFG), 400, seen=DOOR1)
+        assert NO_ROUTE in [r[1] for r in rows], later
+        assert pt.trace.later_open is want, later
+        assert pt.global_plans == CFG.max_rounds  # the trace's own searches leave the robot's recoveries as they were

@@ -19,6 +19,11 @@ Each row also says whether the episode ended in a **stand-off** (`standoff`): a 
 that does not give way stands while a step would overlap the robot: in a one-cell corridor or a
 dead end neither moves again).
 
+And whether, at the last whole-map "no route" of the episode, a **later waypoint was reachable**
+(`later_reachable`): the same search over the same memory towards the next two waypoints of the
+episode and its goal, the way a skip of the unreachable waypoint would go (a mover parked on the
+waypoint in a dead end closes that waypoint, not the way on).
+
 `qnav bench decisions` prints the counts (ground_station/lab/bench/decisions.py).
 """
 
@@ -40,10 +45,11 @@ from firmware_py.kinds.sector.recoveries import (
     GLOBAL,
     LOCAL,
     WAIT,
+    PlanAnswer,
     PlannedTarget,
 )
 from ground_station.lab.nav.controllers import NavController
-from ground_station.lab.nav.scenario import Episode
+from ground_station.lab.nav.scenario import Episode, rollout_arrays
 from ground_station.maps import GridMap
 from sim_bridge.obstacles import YIELD_MARGIN_MM
 
@@ -59,12 +65,14 @@ class Trace:
 
     modes: list[str] = field(default_factory=list)
     changes: list[tuple[int, str, int, int, bool]] = field(default_factory=list)
+    later_open: bool | None = None  # at the last whole-map "no route": a later waypoint reachable (None: none said)
 
 
 class TracingTarget(PlannedTarget):
     """A mixin over the controller's `PlannedTarget` (`traced`) that records a `Trace`."""
 
     trace: Trace
+    later: list[tuple[int, int]]  # the episode's waypoints, the goal last (`later_open`)
 
     def _enter(self, mode: str, now_us: int) -> None:
         super()._enter(mode, now_us)
@@ -79,6 +87,28 @@ class TracingTarget(PlannedTarget):
         self.trace.modes.append(mode)
         return tx, ty, speed
 
+    def _recovering(self, now_us: int, x: float, y: float, waypoint: tuple[int, int], ans: PlanAnswer | None,
+                    memory: ObstacleMemory) -> tuple[float, float, int]:
+        if ans is not None and ans.no_route and self.mode == GLOBAL:
+            self.trace.later_open = self.later_open(now_us, x, y, waypoint, memory)
+        return super()._recovering(now_us, x, y, waypoint, ans, memory)
+
+    def later_open(self, now_us: int, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory) -> bool:
+        """Whether the whole map has a route from (x, y) over `memory` to one of the next two waypoints
+        after `waypoint` or the goal (a planner of its own on the same map: the robot's is untouched)."""
+        if waypoint not in self.later:
+            return False
+        k = self.later.index(waypoint)
+        q = self.planner.sharing_map()
+        for w in dict.fromkeys(self.later[k + 1:k + 3] + self.later[-1:]):
+            if w == waypoint:
+                continue
+            q.reset(points=True)
+            q.target(x, y, w, memory, True, now_us)
+            if not q.no_route:
+                return True
+        return False
+
 
 def traced(p: PlannedTarget) -> TracingTarget:
     """`p` (a `PlannedTarget` or a subclass) recording a `Trace` from now on."""
@@ -86,6 +116,7 @@ def traced(p: PlannedTarget) -> TracingTarget:
     t = p if isinstance(p, TracingTarget) else None
     assert t is not None
     t.trace = Trace()
+    t.later = []
     return t
 
 
@@ -114,15 +145,18 @@ def standoff(gaps: list[float]) -> bool:
 
 def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
     """One row per episode: outcome, the decision that ended a failure (`classify`), the periods in
-    each mode, the rounds of recoveries and give-ways, whether it ended in a stand-off."""
+    each mode, the rounds of recoveries and give-ways, whether it ended in a stand-off, whether a later
+    waypoint was reachable at its last "no route" (module docstring)."""
     from ground_station.lab.nav import planned
     from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, OUTCOMES, STALL_STEPS
 
     rows = []
     holder: list[TracingTarget] = []
+    later: list[tuple[int, int]] = []
 
     def make(*args: Any) -> PlannedTarget:
         holder.append(traced(ctrl.planner(*args)))
+        holder[-1].later = list(later)
         return holder[-1]
 
     gaps: list[float] = []
@@ -134,6 +168,8 @@ def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> 
     for ep in eps:
         holder.clear()
         gaps.clear()
+        wps = rollout_arrays(ep, ctrl.guidance == "path")[2]  # the waypoints the rollout drives to
+        later[:] = [(round(wx), round(wy)) for wx, wy in wps.tolist()]
         o, _, steps, _, _, _ = planned.rollout(ep, maps[ep.map], ctrl, BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS,
                                                make_planner=make, watch=watch)
         p = holder[0]
@@ -143,5 +179,6 @@ def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> 
                      "decision": None if outcome == "success" else classify(outcome, tr, p.give_ways),
                      "periods": steps, "modes": dict(Counter(tr.modes)), "rounds": p._all_rounds,
                      "give_ways": p.give_ways, "global_plans": p.global_plans, "standoff": standoff(gaps),
+                     "later_reachable": tr.later_open,
                      **({"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {})})
     return rows
