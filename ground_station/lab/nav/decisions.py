@@ -100,9 +100,7 @@ class TracingTarget(PlannedTarget):
             return False
         k = self.later.index(waypoint)
         q = self.planner.sharing_map()
-        for w in dict.fromkeys(self.later[k + 1:k + 3] + self.later[-1:]):
-            if w == waypoint:
-                continue
+        for w in self.later[k + 1:k + 3] + self.later[k + 3:][-1:]:  # the goal unless among the two
             q.reset(points=True)
             q.target(x, y, w, memory, True, now_us)
             if not q.no_route:
