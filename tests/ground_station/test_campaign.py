@@ -161,16 +161,27 @@ def test_bench_nav_result_independent_of_workers_and_batches(local_bench, tmp_pa
 
 @pytest.mark.ray
 @pytest.mark.xdist_group("ray")  # one worker owns the module's cluster
-@pytest.mark.timeout(300)  # 22 s (+ 33 s cluster start) in a quiet fresh-clone make test, 92 s (+ 33 s) beside two busy loops
+@pytest.mark.timeout(420)  # a run: 22 s (+ 33 s cluster start) in a quiet fresh-clone make test, 92 s (+ 33 s) beside two busy loops; up to three
 def test_bench_identical_on_ray_cluster(cluster, local_bench, tmp_path):
-    on_ray = qnav(*BENCH, "--batch", "3", "--json", str(tmp_path / "ray.json"), "--engine", "ray",
-                  "--ray-address", cluster.address, env=cluster.env())
-    assert on_ray.returncode == 0, on_ray.stderr[-2000:]
-    assert (tmp_path / "ray.json").read_bytes() == local_bench.read_bytes()
-    camp = json.loads((tmp_path / "ray.campaign.json").read_text())
-    assert camp["twin"]["engine"] == "ray" and len(camp["twin"]["nodes"]) == 2, camp
-    assert camp["hil"]["engine"] == "ray" and camp["hil"]["jobs"] >= 1, camp
-    assert json.loads((tmp_path / "ray.json").read_text())["hil"]  # HIL outcomes are in the result compared above
+    # Ray hands a task queue on to the worker it already leased (the owner reuses the lease while
+    # tasks of the same kind wait), so the twin's four short jobs went 3 + 1 over the two nodes in 8
+    # of 8 runs here, and once in a loaded make test all four ran on one (the second node's lease
+    # came after the first had drained the queue). Every run must equal the local one; the second
+    # node must have run jobs in one of up to three.
+    runs = []
+    for attempt in range(3):
+        out = tmp_path / f"ray{attempt}.json"
+        on_ray = qnav(*BENCH, "--batch", "3", "--json", str(out), "--engine", "ray",
+                      "--ray-address", cluster.address, env=cluster.env())
+        assert on_ray.returncode == 0, on_ray.stderr[-2000:]
+        assert out.read_bytes() == local_bench.read_bytes()
+        camp = json.loads((tmp_path / f"ray{attempt}.campaign.json").read_text())
+        assert camp["twin"]["engine"] == "ray" and camp["hil"]["engine"] == "ray" and camp["hil"]["jobs"] >= 1, camp
+        assert json.loads(out.read_text())["hil"]  # HIL outcomes are in the result compared above
+        runs.append(camp["twin"]["nodes"])
+        if len(camp["twin"]["nodes"]) == 2:
+            break
+    assert len(runs[-1]) == 2, runs
 
 
 @pytest.mark.ray
