@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 from firmware_py import robot_spec
 from firmware_py.background import Background
+from firmware_py.kinds.sector.config import LocalPlannerConfig
 from firmware_py.kinds.sector.memory import MOVING_NEAR_MM, ObstacleMemory
 from firmware_py.kinds.sector.planner import REFUGE_MM, LocalPlanner
 from firmware_py.kinds.sector.recoveries import (
@@ -299,6 +301,45 @@ def test_rounds_in_which_something_came_up_to_the_robot_do_not_count_toward_no_r
     assert still <= at_box <= still + 20 * PERIOD and plans == CFG.max_rounds
     at_person, plans = said(CFG.veto_mm - 20)
     assert at_person > 2 * still and plans == 3 * CFG.max_rounds
+
+
+def test_what_walked_into_the_only_other_door_is_approached_before_the_round_counts():
+    """A box closes door 1 from the start; a person walks into door 2 during the round's wait and
+    stands there (a few new points: not a moving scene by their count). The whole map has no route,
+    but it has one without what came in during the wait: the robot drives it toward door 2 for
+    approach_us from the search (the person walks on or steps aside as it comes; readings see through
+    where it stood), then, the way still closed, goes on with the round (backs off). It backs off at
+    once where door 2 was closed before the wait, where only a box's readings jitter, and where a
+    person walks up beside the box that closes door 2 (what closes the way was there before)."""
+    def rows_with(cfg: LocalPlannerConfig, before: list[tuple[int, int]],
+                  late: list[tuple[int, int]]) -> list[tuple[int, str, float, float, int]]:
+        work = Background(threaded=False)
+        memory = ObstacleMemory(cfg)
+        pt = PlannedTarget(TWO_DOORS, cfg, work)
+        rows = []
+        for k in range(400):
+            now = k * PERIOD
+            _remember(memory, DOOR1 + before + (late if k >= 5 else []), now)  # the wait began at tick 1
+            tx, ty, speed = pt.target(now, *BELOW, ABOVE, memory)
+            rows.append((now, pt.mode, tx, ty, speed))
+            work.run_pending()
+            if pt.mode == BACKUP:
+                break
+        return rows
+
+    rows = rows_with(CFG, [], DOOR2)
+    searched = next(r[0] for r in rows if r[1] == GLOBAL)
+    driving = [r for r in rows if r[1] == GLOBAL and r[4] > 0]
+    assert driving and all(r[2] > BELOW[0] + 200 and r[3] < 1750 for r in driving)  # toward door 2
+    backed = next(r[0] for r in rows if r[1] == BACKUP)
+    assert CFG.approach_us <= backed - searched <= CFG.approach_us + 3 * PERIOD
+    jitter = [(x + 25, y + 50) for x, y in DOOR2]  # new 50 mm squares beside the box's
+    walk_up = [(4250, 2350), (4250, 2150), (4250, 1950)]  # a person from 600 mm above door 2 to its edge
+    for cfg, before, late in ((replace(CFG, approach_us=1), [], DOOR2), (CFG, DOOR2, []), (CFG, DOOR2, jitter),
+                              (CFG, DOOR2, walk_up)):
+        rows = rows_with(cfg, before, late)
+        assert rows[-1][1] == BACKUP and not [r for r in rows if r[1] == GLOBAL and r[4] > 0], (before, late)
+        assert rows[-1][0] - next(r[0] for r in rows if r[1] == GLOBAL) <= 3 * PERIOD
 
 
 def test_a_far_waypoint_behind_a_map_wall_is_reached_by_the_whole_map_route():

@@ -64,6 +64,9 @@ class LocalPlannerConfig:
     # a round whose wait saw more new points than this was a moving scene (a mover in the only way):
     # it does not count toward "no route" (at most 3 x max_rounds rounds in all)
     moving_points: int = 8
+    # a whole-map search without a route that the points of what moved during the round close (a person
+    # in the only corridor): the route round what stood still is driven this long first (recoveries)
+    approach_us: int = 10_000_000
 
     @classmethod
     def from_metadata(cls, meta: Any) -> LocalPlannerConfig:
@@ -91,8 +94,10 @@ class LocalPlannerConfig:
                 or cfg.lookahead_mm > 5000):
             raise ValueError(f"{META_KEY}: max_points <= 1000, window_mm <= 5000, soft_mm <= 2000, "
                              "max_plan_mm <= 10000 and lookahead_mm <= 5000")
-        if cfg.max_rounds > 10 or cfg.clear_margin_mm > 1000 or cfg.wait_us > 30_000_000:
-            raise ValueError(f"{META_KEY}: max_rounds <= 10, clear_margin_mm <= 1000 and wait_us <= 30000000")
+        if (cfg.max_rounds > 10 or cfg.clear_margin_mm > 1000 or cfg.wait_us > 30_000_000
+                or cfg.approach_us > 60_000_000):
+            raise ValueError(f"{META_KEY}: max_rounds <= 10, clear_margin_mm <= 1000, wait_us <= 30000000 and "
+                             "approach_us <= 60000000")
         if cfg.soft_mm // cfg.raster_mm > 5:  # each point grows into (2 k + 3)^2 raster cells
             raise ValueError(f"{META_KEY}: soft_mm is more than 5 raster cells ({cfg.soft_mm} / {cfg.raster_mm})")
         side = (cfg.max_plan_mm + 2 * cfg.window_mm) // cfg.raster_mm

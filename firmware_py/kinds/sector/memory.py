@@ -270,6 +270,13 @@ class ObstacleMemory:
         copy.version = self.version
         return copy
 
+    def seen_by(self, since_us: int) -> ObstacleMemory:
+        """A copy holding only the points first seen by `since_us` (what came in since left out)."""
+        copy = ObstacleMemory(self.cfg, self.layout)
+        copy.points = {p: v for p, v in self.points.items() if self.born.get(p, since_us) <= since_us}
+        copy.version = self.version
+        return copy
+
     def standing_by(self, since_us: int) -> ObstacleMemory:
         """A copy holding only what stood still since `since_us`: the points first seen by then, less
         those within `body_mm` of a point first seen later (a body that showed new points moved: a mover

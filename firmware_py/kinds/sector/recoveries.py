@@ -42,6 +42,8 @@ class PlanAnswer:
     # with no_route: none either over what stood still through the round's wait (ObstacleMemory.standing_by):
     # what moved did not close the way
     still_closed: bool = False
+    # with no_route and not still_closed: where to steer now on the route over what stood still (APPROACH)
+    still_target: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,13 @@ class PlannedTarget:
     1. WAIT `wait_us` (in round r, r x `wait_us`), stopped: a mover may step aside; the window's
        search goes on, and a way found ends the recovery.
     2. GLOBAL: the points remembered now are pinned (`route_memory_us`) and the search covers the
-       whole map (another door, another aisle); a route is followed to the waypoint.
+       whole map (another door, another aisle); a route is followed to the waypoint. With none, but
+       one without what came in during the round's wait (`ObstacleMemory.seen_by`: a person walked into
+       the only corridor) and one over what stood still (`still_closed` below), APPROACH: that route
+       is driven for up to `approach_us` from the search (the person walks on ahead of the robot or
+       steps aside where there is room, and readings see through where it stood); then 3. The blocked
+       bench's wrong "no route" were people in a maze's corridor seen from afar (docs/results.md
+       section 6).
     3. No route: BACKUP `backoff_us` (the driver reverses when the rear is clear), CLEAR the
        obstacle layer round the robot (pinned points `window_mm` or more away stay: what closed the
        whole map's routes out there), then 1. again. In a round where something came up to the
@@ -277,6 +285,9 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if ans is None:  # GLOBAL, no answer yet: stand still while the whole map is searched
             return float(wx), float(wy), 0
+        if ans.no_route and ans.still_target is not None and now_us - self._mode_since_us < cfg.approach_us:
+            self.detouring = True  # APPROACH (step 2): toward what moved, on the route round what stood still
+            return ans.still_target[0], ans.still_target[1], self._speed(now_us - ans.asked_us)
         if ans.no_route:
             self._all_rounds += 1
             # a moving scene: new points came near while the robot waited, and without what moved the
@@ -367,20 +378,30 @@ class PlannedTarget:
         tx, ty = p.target(x, y, waypoint, memory, whole_map, asked_us)
         # no route: where the robot might stand aside, should something have come up to it (GIVE_WAY)
         refuge = p.refuge(x, y, memory) if p.no_route else None
-        still_closed = p.no_route and self._closed_before(x, y, waypoint, memory, round_since_us, asked_us)
+        still_closed, still_target = (self._closed_before(x, y, waypoint, memory, round_since_us, asked_us)
+                                      if p.no_route else (False, None))
         self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), p.detouring, whole_map, p.blocked,
-                                  p.no_route, p.route_mm, p.held, refuge, still_closed)
+                                  p.no_route, p.route_mm, p.held, refuge, still_closed, still_target)
 
     def _closed_before(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory,
-                       since_us: int, asked_us: int) -> bool:
-        """The whole map has no route over what stood still since `since_us` either (the worker's,
-        after a whole-map search said no route)."""
+                       since_us: int, asked_us: int) -> tuple[bool, tuple[float, float] | None]:
+        """Whether the whole map has no route over what stood still since `since_us` either (the
+        worker's, after a whole-map search said no route); if it has one, and one over everything seen
+        by then (what came in since left out), where to steer on the latter (APPROACH)."""
         before = memory.standing_by(since_us)
         if len(before.points) == len(memory.points):
-            return True
+            return True, None
         q = self._still_planner
         if q is None:
             q = self._still_planner = self.planner.sharing_map()
         q.reset(points=True)
         q.target(x, y, waypoint, before, True, asked_us)
-        return q.no_route
+        if q.no_route:
+            return True, None
+        # approached only where what came in during the wait closes the way: what was there before stays
+        # (standing_by leaves out a box's points near a person walking beside it, or near new squares of
+        # its own readings' jitter; driving at such a box held the robot in HIL until the stall watch
+        # ended the mission instead of "no route")
+        q.reset(points=True)
+        target = q.target(x, y, waypoint, memory.seen_by(since_us), True, asked_us)
+        return False, None if q.no_route else target
