@@ -312,20 +312,14 @@ def test_what_walked_into_the_only_other_door_is_approached_before_the_round_cou
     once where door 2 was closed before the wait, where only a box's readings jitter, and where a
     person walks up beside the box that closes door 2 (what closes the way was there before)."""
     def rows_with(cfg: LocalPlannerConfig, before: list[tuple[int, int]],
-                  late: list[tuple[int, int]]) -> list[tuple[int, str, float, float, int]]:
+                  late: list[tuple[int, int]]) -> list[tuple[int, str, float, float, int, bool]]:
+        """The ticks up to the first BACKUP; `late` in view from tick 5 (the wait began at tick 1)."""
         work = Background(threaded=False)
         memory = ObstacleMemory(cfg)
         pt = PlannedTarget(TWO_DOORS, cfg, work)
-        rows = []
-        for k in range(400):
-            now = k * PERIOD
-            _remember(memory, DOOR1 + before + (late if k >= 5 else []), now)  # the wait began at tick 1
-            tx, ty, speed = pt.target(now, *BELOW, ABOVE, memory)
-            rows.append((now, pt.mode, tx, ty, speed))
-            work.run_pending()
-            if pt.mode == BACKUP:
-                break
-        return rows
+        rows = _drive(pt, work, memory, 5, seen=DOOR1 + before)
+        rows += _drive(pt, work, memory, 395, t0=5 * PERIOD, seen=DOOR1 + before + late)
+        return rows[:next(i for i, r in enumerate(rows) if r[1] == BACKUP) + 1]
 
     rows = rows_with(CFG, [], DOOR2)
     searched = next(r[0] for r in rows if r[1] == GLOBAL)

@@ -64,8 +64,8 @@ class LocalPlannerConfig:
     # a round whose wait saw more new points than this was a moving scene (a mover in the only way):
     # it does not count toward "no route" (at most 3 x max_rounds rounds in all)
     moving_points: int = 8
-    # a whole-map search without a route that the points of what moved during the round close (a person
-    # in the only corridor): the route round what stood still is driven this long first (recoveries)
+    # a whole-map search without a route that only what came in during the round's wait closes (a person
+    # who walked into the only corridor): the route without it is driven this long first (recoveries)
     approach_us: int = 10_000_000
 
     @classmethod

@@ -42,7 +42,8 @@ class PlanAnswer:
     # with no_route: none either over what stood still through the round's wait (ObstacleMemory.standing_by):
     # what moved did not close the way
     still_closed: bool = False
-    # with no_route and not still_closed: where to steer now on the route over what stood still (APPROACH)
+    # with no_route and not still_closed: where to steer now on the route without what came in during the
+    # round's wait (APPROACH), if it has one
     still_target: tuple[float, float] | None = None
 
 
@@ -286,7 +287,7 @@ class PlannedTarget:
         if ans is None:  # GLOBAL, no answer yet: stand still while the whole map is searched
             return float(wx), float(wy), 0
         if ans.no_route and ans.still_target is not None and now_us - self._mode_since_us < cfg.approach_us:
-            self.detouring = True  # APPROACH (step 2): toward what moved, on the route round what stood still
+            self.detouring = True  # APPROACH (step 2): toward what came in, on the route without it
             return ans.still_target[0], ans.still_target[1], self._speed(now_us - ans.asked_us)
         if ans.no_route:
             self._all_rounds += 1
