@@ -288,8 +288,7 @@ class ObstacleMemory:
         for nx, ny, _ in new:
             cx, cy = nx // _KEY_MM, ny // _KEY_MM
             moved.update((cx + dx, cy + dy) for dx in range(-k, k + 1) for dy in range(-k, k + 1))
-        copy = ObstacleMemory(self.cfg, self.layout)
-        copy.points = {p: v for p, v in self.points.items() if self.born.get(p, since_us) <= since_us and not (
+        copy = self.seen_by(since_us)
+        copy.points = {p: v for p, v in copy.points.items() if not (
             p in moved and any((v[0] - nx) ** 2 + (v[1] - ny) ** 2 <= body * body for nx, ny, _ in new))}
-        copy.version = self.version
         return copy

@@ -44,7 +44,7 @@ class PlanAnswer:
     still_closed: bool = False
     # with no_route and not still_closed: where to steer now on the route without what came in during the
     # round's wait (APPROACH), if it has one
-    still_target: tuple[float, float] | None = None
+    approach_target: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -286,9 +286,9 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if ans is None:  # GLOBAL, no answer yet: stand still while the whole map is searched
             return float(wx), float(wy), 0
-        if ans.no_route and ans.still_target is not None and now_us - self._mode_since_us < cfg.approach_us:
+        if ans.no_route and ans.approach_target is not None and now_us - self._mode_since_us < cfg.approach_us:
             self.detouring = True  # APPROACH (step 2): toward what came in, on the route without it
-            return ans.still_target[0], ans.still_target[1], self._speed(now_us - ans.asked_us)
+            return ans.approach_target[0], ans.approach_target[1], self._speed(now_us - ans.asked_us)
         if ans.no_route:
             self._all_rounds += 1
             # a moving scene: new points came near while the robot waited, and without what moved the
@@ -379,30 +379,30 @@ class PlannedTarget:
         tx, ty = p.target(x, y, waypoint, memory, whole_map, asked_us)
         # no route: where the robot might stand aside, should something have come up to it (GIVE_WAY)
         refuge = p.refuge(x, y, memory) if p.no_route else None
-        still_closed, still_target = (self._closed_before(x, y, waypoint, memory, round_since_us, asked_us)
+        still_closed, approach_target = (self._closed_before(x, y, waypoint, memory, round_since_us, asked_us)
                                       if p.no_route else (False, None))
         self._answer = PlanAnswer(generation, waypoint, asked_us, (tx, ty), p.detouring, whole_map, p.blocked,
-                                  p.no_route, p.route_mm, p.held, refuge, still_closed, still_target)
+                                  p.no_route, p.route_mm, p.held, refuge, still_closed, approach_target)
 
     def _closed_before(self, x: float, y: float, waypoint: tuple[int, int], memory: ObstacleMemory,
                        since_us: int, asked_us: int) -> tuple[bool, tuple[float, float] | None]:
         """Whether the whole map has no route over what stood still since `since_us` either (the
-        worker's, after a whole-map search said no route); if it has one, and one over everything seen
-        by then (what came in since left out), where to steer on the latter (APPROACH)."""
-        before = memory.standing_by(since_us)
-        if len(before.points) == len(memory.points):
-            return True, None
+        worker's, after a whole-map search said no route), and where to steer on the route over
+        everything seen by then (what came in since left out: APPROACH), if it has one."""
+        seen = memory.seen_by(since_us)
+        if len(seen.points) == len(memory.points):
+            return True, None  # nothing came in: the search just made was over the same points
         q = self._still_planner
         if q is None:
             q = self._still_planner = self.planner.sharing_map()
-        q.reset(points=True)
-        q.target(x, y, waypoint, before, True, asked_us)
-        if q.no_route:
-            return True, None
         # approached only where what came in during the wait closes the way: what was there before stays
         # (standing_by leaves out a box's points near a person walking beside it, or near new squares of
         # its own readings' jitter; driving at such a box held the robot in HIL until the stall watch
         # ended the mission instead of "no route")
         q.reset(points=True)
-        target = q.target(x, y, waypoint, memory.seen_by(since_us), True, asked_us)
-        return False, None if q.no_route else target
+        target = q.target(x, y, waypoint, seen, True, asked_us)
+        if not q.no_route:
+            return False, target  # standing_by holds fewer of the same points: open there too
+        q.reset(points=True)
+        q.target(x, y, waypoint, memory.standing_by(since_us), True, asked_us)
+        return q.no_route, None
