@@ -13,6 +13,8 @@ sim_bridge counts, wherever it sits (module level, inside a function, under
   `firmware_py.plugins`);
 * nothing outside `ground_station.lab` imports it but the `qnav bench`, `study`
   and `sweep` subcommands;
+* only `ground_station.jitcache` imports numba (in the packages, tests/ and tools/): a kernel
+  cached by numba must be defined after it chose the cache folder for these sources;
 * firmware_py imports only the stdlib, python-can, cantools, pymavlink and
   pyserial (it runs on the robot), and the optional extra dronecan (only in the
   dronecan backends: firmware_py/dronecan_engine.py, firmware_py/drives/dronecan.py). `test_firmware_isolation.py` checks the
@@ -204,6 +206,20 @@ def test_firmware_imports_only_stdlib_and_the_robot_dependencies():
         and module not in FIRMWARE_OPTIONAL.get(target.split(".")[0], ())
     ]
     assert not bad, "firmware_py imports outside its allowed dependencies:\n" + "\n".join(bad)
+
+
+def test_only_jitcache_imports_numba():
+    """numba keys a cached kernel on its own file's timestamp, not its callees' (ground_station/jitcache.py):
+    a module importing numba itself would compile into the old shared cache."""
+    paths = list(MODULES.values()) + sorted((ROOT / "tests").rglob("*.py")) + sorted((ROOT / "tools").rglob("*.py"))
+    bad = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            bad += [f"{path.relative_to(ROOT)}:{node.lineno} imports {n}" for n in names if n.split(".")[0] == "numba"]
+    assert [b for b in bad if not b.startswith("ground_station/jitcache.py:")] == [], bad
+    assert any(b.startswith("ground_station/jitcache.py:") for b in bad)  # the scan sees imports
 
 
 def _architecture_tree() -> list[str]:

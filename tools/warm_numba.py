@@ -1,4 +1,4 @@
-"""Fill numba's on-disk cache (`cache=True` kernels, `__pycache__/*.nbi|*.nbc`) once,
+"""Fill numba's on-disk cache (`cache=True` kernels, in `ground_station.jitcache`'s folder) once,
 before the test suite runs.
 
 Why: on a fresh clone nothing is compiled, and the suite's pytest-xdist workers

@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from ground_station.jitcache import numba
 from ground_station.maps import GridMap
 from ground_station.maps.planner import segment_clear
 

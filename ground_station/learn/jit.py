@@ -14,8 +14,9 @@
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from ground_station.jitcache import numba
 
 _M12 = np.uint64(12)
 _M25 = np.uint64(25)

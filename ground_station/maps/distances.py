@@ -14,8 +14,9 @@ from __future__ import annotations
 import heapq
 import math
 
-import numba
 import numpy as np
+
+from ground_station.jitcache import numba
 
 _DC4 = np.array([0, 0, -1, 1], dtype=np.int64)
 _DR4 = np.array([-1, 1, 0, 0], dtype=np.int64)

@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from firmware_py import robot_spec
+from ground_station.jitcache import numba
 from ground_station.maps import GridMap, MapError, octile_distances
 from ground_station.maps.distances import octile_moves
 

@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from firmware_py import robot_spec
+from ground_station.jitcache import numba
 from ground_station.learn.sector.twin import disc_hits
 from ground_station.maps import GridMap, octile_distances
 

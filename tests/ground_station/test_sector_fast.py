@@ -6,12 +6,12 @@ pre-optimisation Q-learning kernel kept below as the reference."""
 
 import math
 
-import numba
 import numpy as np
 import pytest
 
 from firmware_py import robot_spec
 from firmware_py.kinds.sector.encoder import SectorEncoder
+from ground_station.jitcache import numba
 from ground_station.learn.config import recipe_config
 from ground_station.learn.jit import greedy, rand01, randint, seed_state
 from ground_station.learn.sector import kernels as K

@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import math
 
-import numba
-
+from ground_station.jitcache import numba
 from ground_station.learn.sector.kernels import (
     RANGE_MIN_,
     RANGE_TOO_CLOSE_,

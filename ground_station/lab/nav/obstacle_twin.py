@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from ground_station.jitcache import numba
 from ground_station.learn.jit import greedy
 from ground_station.learn.sector.kernels import pass_waypoints, progress_reward
 from ground_station.learn.sector.reward import (

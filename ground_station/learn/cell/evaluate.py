@@ -13,10 +13,10 @@ Beside it, the baseline "step to the free neighbour nearest (Euclidean) to the g
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from firmware_py.kinds.cell.encoder import CellEncoder
+from ground_station.jitcache import numba
 from ground_station.learn.cell.trainer import cell_state
 from ground_station.learn.envs.cell_env import cell_transitions, goal_distances, resolve_goals
 from ground_station.learn.jit import greedy

@@ -36,9 +36,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from ground_station.jitcache import numba
 from ground_station.learn.config import LEARNERS, TrainConfig
 from ground_station.learn.jit import (
     cell_step,

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from firmware_py.kinds.cell.encoder import CellEncoder
+from ground_station.jitcache import numba
 from ground_station.learn.config import TrainConfig
 from ground_station.learn.envs.cell_env import (
     cell_transitions,

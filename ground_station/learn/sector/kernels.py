@@ -27,10 +27,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from firmware_py import robot_spec
+from ground_station.jitcache import numba
 from ground_station.learn.jit import (
     double_q_update,
     dyna_q_update,

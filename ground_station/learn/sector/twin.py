@@ -29,13 +29,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from firmware_py import robot_spec
 from firmware_py.layout import Layout
 from firmware_py.needs import DEFAULT as DEFAULT_TRAINED
 from firmware_py.needs import TrainedFor
+from ground_station.jitcache import numba
 
 N_ACTIONS = len(robot_spec.ACTION_WHEEL_SPEEDS_MM_S)
 N_SUBSTEPS = robot_spec.CONTROL_PERIOD_US // robot_spec.PHYSICS_DT_US

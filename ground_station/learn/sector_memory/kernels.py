@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from firmware_py.kinds.sector_memory import gridbug
+from ground_station.jitcache import numba
 from ground_station.learn.jit import epsilon_at, greedy, rand01, randint
 
 MODE_GO = 0
