@@ -210,7 +210,7 @@ def test_firmware_imports_only_stdlib_and_the_robot_dependencies():
 
 def test_only_jitcache_imports_numba():
     """numba keys a cached kernel on its own file's timestamp, not its callees' (ground_station/jitcache.py):
-    a module importing numba itself would compile into the old shared cache."""
+    a module importing numba itself would cache its kernels beside its file, stale once a callee changes."""
     paths = list(MODULES.values()) + sorted((ROOT / "tests").rglob("*.py")) + sorted((ROOT / "tools").rglob("*.py"))
     bad = []
     for path in paths:
