@@ -286,7 +286,7 @@ class PlannedTarget:
             return float(wx), float(wy), 0
         if ans is None:  # GLOBAL, no answer yet: stand still while the whole map is searched
             return float(wx), float(wy), 0
-        if ans.no_route and ans.approach_target is not None and now_us - self._mode_since_us < cfg.approach_us:
+        if ans.approach_target is not None and now_us - self._mode_since_us < cfg.approach_us:  # (no_route)
             self.detouring = True  # APPROACH (step 2): toward what came in, on the route without it
             return ans.approach_target[0], ans.approach_target[1], self._speed(now_us - ans.asked_us)
         if ans.no_route:
