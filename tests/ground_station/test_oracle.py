@@ -10,9 +10,18 @@ import sys
 import numpy as np
 
 from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, PERIOD_S
-from ground_station.lab.nav.oracle import mover_tracks, solve
-from ground_station.lab.nav.scenario import Episode
-from ground_station.maps import GridMap
+from ground_station.lab.nav.oracle import mover_tracks, solve, solve_path
+from ground_station.lab.nav.scenario import (
+    MOVER_SPEED_MM_S,
+    Episode,
+    MoverStyle,
+    episodes,
+    rollout_arrays,
+)
+from ground_station.learn.sector.kernels import GOAL_TOL_MM
+from ground_station.learn.sector.twin import disc_hits
+from ground_station.maps import GridMap, load_map
+from sim_bridge.obstacles import step_movers
 
 CELL = 500.0
 
@@ -88,6 +97,45 @@ def test_the_walkers_track_is_the_movers_own_model() -> None:
     # to and fro between the corridor's end walls: it turns back within a step of touching one
     lo, hi = xs.min(), xs.max()
     assert CELL + 150 <= lo < CELL + 150 + 30 and 11 * CELL - 150 - 30 < hi <= 11 * CELL - 150
+
+
+def replay(ep: Episode, gm: GridMap, period: int, way: list[tuple[int, float, float]]) -> None:
+    """Drive the oracle's way period by period with the movers' own model stepped with the robot where it
+    is (as the twin steps them): no contact, no mover turned or stood for it, the waypoints in order."""
+    discs, movers, wps, _, _ = rollout_arrays(ep, True)
+    free_walk = mover_tracks(movers, gm.occ.astype(np.uint8), CELL, discs, period, PERIOD_S)
+    occ = gm.occ.astype(np.uint8)
+    h, w = occ.shape
+    assert way[0][1:] == ep.start[:2] and way[-1][0] == period
+    k, reached = 0, False
+    for (t0, x0, y0), (t1, x1, y1) in zip(way[:-1], way[1:], strict=True):
+        assert abs(x1 - x0) + abs(y1 - y0) <= 100.0 + 1e-6  # one lattice step or none per unit
+        for t in range(t0 + 1, t1 + 1):
+            f = (t - t0) / (t1 - t0)
+            x, y = x0 + f * (x1 - x0), y0 + f * (y1 - y0)
+            assert not disc_hits(occ, h, w, CELL, x, y, 150.0)
+            assert all(np.hypot(x - dx, y - dy) >= 150 + r for dx, dy, r in discs)
+            assert all(np.hypot(x - m[0], y - m[1]) >= 150 + m[4] for m in movers)  # before their step ...
+            step_movers(movers, occ, CELL, discs, x, y, 150.0, PERIOD_S)
+            assert all(np.hypot(x - m[0], y - m[1]) >= 150 + m[4] for m in movers)  # ... and after it
+            assert np.allclose(movers[:, :2], free_walk[t, :, :2])  # none stood or turned for the robot
+            while np.hypot(x - wps[k, 0], y - wps[k, 1]) <= GOAL_TOL_MM and not reached:
+                reached = k == len(wps) - 1
+                k += 0 if reached else 1
+    assert reached and np.hypot(way[-1][1] - wps[-1, 0], way[-1][2] - wps[-1, 1]) <= GOAL_TOL_MM
+
+
+def test_the_way_found_drives_clear_of_everything_and_no_mover_reacts_to_it() -> None:
+    gm = load_map("maze-12x12-s306")
+    found = 0
+    for yields in (False, True):
+        for ep in episodes(gm, 6, 0, 6, 3, movers=MoverStyle(speed=MOVER_SPEED_MM_S, yields=yields)):
+            period, way = solve_path(ep, gm, 150, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S)
+            assert period == oracle(ep, gm)
+            if period >= 0:
+                found += 1
+                replay(ep, gm, period, way)
+    assert found >= 8
 
 
 def test_bench_ceiling_reports_the_oracle_beside_the_controllers(tmp_path) -> None:

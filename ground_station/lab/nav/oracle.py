@@ -14,21 +14,22 @@ The search (`_search`, numba): the robot's centre on a lattice of
 `LATTICE_MM` through its start, time in units of `UNIT_PERIODS` control
 periods; per unit it stays, or moves one lattice step along an axis (100 mm in
 five 50 ms periods: the twin's full forward speed, 20 mm a period; a
-diagonal takes two units, slower than the robot). Every period of a step keeps
+diagonal is two such steps, slower than the robot). Every period of a step keeps
 the robot's disc clear of the map's cells (`twin.disc_hits`) and the discs, and
-at least `MOVER_MARGIN_MM` clear of every mover before and after the movers'
-step (while it moves, 40 mm more: it is counted at the lattice point it is
-nearer). The margin exceeds a step of the fastest mover, so a mover never
-comes within a step of the robot and none ever stands for it: their walks do
-not depend on the robot, are computed once (`mover_tracks`), and the search over
-(lattice point, time) is exact for them.
+clear of every mover before and after the movers' step by `keep_clear_mm`
+(while it moves, 40 mm more: it is counted at the lattice point it is
+nearer): more than the mover's step in a period, and for a mover that gives
+way, more than the margin it keeps from the robot. So no mover ever stands or
+turns for the robot: their walks do not depend on it, are computed once
+(`mover_tracks`), and the search over (lattice point, time) is exact for them.
 
 Relaxations and restrictions, so read a figure as what they allow: the
 oracle turns on the spot in no time and drives sideways (a differential-drive
 robot cannot); it never uses a mover's standing for it (a non-yielding mover
 stands while a step would overlap the robot: blocking one on purpose is not
-searched), keeps `MOVER_MARGIN_MM` from movers, moves only on the lattice and
-counts a waypoint only at lattice points. So an episode it does not solve may
+searched; nor making one that gives way step aside), keeps `keep_clear_mm`
+from movers, moves only on the lattice and counts a waypoint only at lattice
+points. So an episode it does not solve may
 still be solvable; one it solves needs a robot as quick to turn.
 """
 
@@ -45,29 +46,41 @@ from ground_station.lab.nav.scenario import Episode, rollout_arrays
 from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, GOAL_TOL_MM
 from ground_station.learn.sector.twin import disc_hits
 from ground_station.maps import GridMap
+from sim_bridge.obstacles import YIELD_MARGIN_MM
 
 LATTICE_MM = 100.0
 UNIT_PERIODS = 5  # one lattice step along an axis at full forward speed (FWD_MM_PER_PERIOD a period)
 assert LATTICE_MM == UNIT_PERIODS * FWD_MM_PER_PERIOD
-MOVER_MARGIN_MM = 35.0  # more than the fastest mover's step in one period (600 mm/s x 50 ms)
+STEP_SLACK_MM = 5.0  # kept from a mover beyond its step in one period (keep_clear_mm)
 FAR_MM = -1.0e9  # where the robot is for the movers' walk: nowhere near (none stands for it)
+
+def keep_clear_mm(mover: np.ndarray, period_s: float) -> float:
+    """How far the oracle keeps from a mover (x, y, vx, vy, r, yields) beyond contact: more than its
+    step in one period, and for one that gives way, more than the margin it keeps from the robot
+    (`sim_bridge.obstacles.YIELD_MARGIN_MM`): so it never stands or turns for the robot."""
+    yields = mover.shape[0] < 6 or mover[5] != 0.0
+    return math.hypot(mover[2], mover[3]) * period_s + STEP_SLACK_MM + (YIELD_MARGIN_MM if yields else 0.0)
+
 
 def mover_tracks(movers: np.ndarray, occ: np.ndarray, cell_mm: float, discs: np.ndarray, periods: int,
                  period_s: float) -> np.ndarray:
-    """(periods + 1, M, 3) float64: each mover's (x, y, r) after 0 .. periods steps of the movers'
-    model with the robot nowhere near (the walk every mover takes while the robot keeps clear)."""
+    """(periods + 1, M, 3) float64: each mover's (x, y) after 0 .. periods steps of the movers' model
+    with the robot nowhere near (the walk every mover takes while the robot keeps clear), and the
+    distance the robot's disc keeps from its centre (its radius + `keep_clear_mm`)."""
     m = movers.copy()
     out = np.zeros((periods + 1, m.shape[0], 3))
-    out[0] = m[:, [0, 1, 4]]
+    out[:, :, 2] = [m[k, 4] + keep_clear_mm(m[k], period_s) for k in range(m.shape[0])]
+    out[0, :, :2] = m[:, :2]
     for t in range(1, periods + 1):
         step_movers(m, occ, cell_mm, discs, FAR_MM, FAR_MM, 0.0, period_s)
-        out[t] = m[:, [0, 1, 4]]
+        out[t, :, :2] = m[:, :2]
     return out
 
 
 @numba.njit(cache=True)
 def _clear(x, y, clearance, tracks, t0, t1) -> bool:
-    """Whether (x, y) stays `clearance` + each mover's radius from every mover at periods t0 .. t1."""
+    """Whether (x, y) stays `clearance` + each mover's keep-clear radius from every mover at periods
+    t0 .. t1."""
     for t in range(t0, t1 + 1):
         for k in range(tracks.shape[1]):
             d = clearance + tracks[t, k, 2]
@@ -76,33 +89,39 @@ def _clear(x, y, clearance, tracks, t0, t1) -> bool:
     return True
 
 
+def _lattice(x0: float, y0: float, gm_shape: tuple[int, int], cell: float) -> tuple[float, float, int, int]:
+    """The lattice through (x0, y0): (x, y) of point (0, 0), points along x and y."""
+    h, w = gm_shape
+    ox = x0 - math.floor(x0 / LATTICE_MM) * LATTICE_MM
+    oy = y0 - math.floor(y0 / LATTICE_MM) * LATTICE_MM
+    return ox, oy, int((w * cell - ox) / LATTICE_MM) + 1, int((h * cell - oy) / LATTICE_MM) + 1
+
+
 @numba.njit(cache=True)
-def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, margin):
-    """Earliest period the goal (the last of wps) is reached, or -1 (module docstring).
+def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, ox, oy, free, step_ok, stay,
+            depart, arrive, reach, nxt, legs, goal):
+    """Earliest period the goal (the last of wps) is reached, or -1 (module docstring); the caller
+    sizes the arrays (`_lattice`: ny x nx points, units + 1 time units) and gets them filled.
 
     A step from A to B in time unit t: the robot is within lattice / 2 - step of A in its first
-    half and of B in its second, so A clear of the movers (by margin + that) over the first half's
+    half and of B in its second, so A clear of the movers (by that more) over the first half's
     periods and B over the second's make every period of the step clear (`depart`, `arrive`); a stay
     is checked at the point itself (`stay`). One leg per waypoint: reach[t, j, i] marks lattice point
     (i, j) reachable at time unit t on the current leg; a point within tol of the leg's waypoint ends
-    the leg there and then (pass_waypoints advances at once) and starts the next."""
+    the leg there and then (pass_waypoints advances at once) and starts the next. With `legs` of one
+    slice per waypoint, each leg's reach is kept there and `goal` gets the goal's (t, j, i)."""
     h, w = occ.shape
+    ny, nx = free.shape
+    units = stay.shape[0]
     nodisc = np.zeros((0, 5))
-    ox = x0 - math.floor(x0 / lattice) * lattice
-    oy = y0 - math.floor(y0 / lattice) * lattice
-    nx = int((w * cell - ox) / lattice) + 1
-    ny = int((h * cell - oy) / lattice) + 1
-    units = (tracks.shape[0] - 1) // unit
     half = unit // 2  # periods 1 .. half near A, half + 1 .. unit near B
     slack = lattice * half / unit  # the farthest the robot is from the point it is counted at
-    free = np.zeros((ny, nx), dtype=np.bool_)
     for j in range(ny):
         for i in range(nx):
             x = ox + i * lattice
             y = oy + j * lattice
             free[j, i] = not disc_hits(occ, h, w, cell, x, y, radius) and not hits_discs(x, y, radius, discs, nodisc)
     # axis steps clear of the map and the discs at each period on the way: +x, +y (the reverse is the same)
-    step_ok = np.zeros((ny, nx, 2), dtype=np.bool_)
     for j in range(ny):
         for i in range(nx):
             for m in range(2):
@@ -117,9 +136,6 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, m
                         good = False
                         break
                 step_ok[j, i, m] = good
-    stay = np.zeros((units, ny, nx), dtype=np.bool_)
-    depart = np.zeros((units, ny, nx), dtype=np.bool_)
-    arrive = np.zeros((units, ny, nx), dtype=np.bool_)
     for t in range(units):
         a = t * unit
         for j in range(ny):
@@ -128,17 +144,16 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, m
                     continue
                 x = ox + i * lattice
                 y = oy + j * lattice
-                stay[t, j, i] = _clear(x, y, radius + margin, tracks, a, a + unit)
-                depart[t, j, i] = _clear(x, y, radius + margin + slack, tracks, a, a + half)
-                arrive[t, j, i] = _clear(x, y, radius + margin + slack, tracks, a + half, a + unit)
+                stay[t, j, i] = _clear(x, y, radius, tracks, a, a + unit)
+                depart[t, j, i] = _clear(x, y, radius + slack, tracks, a, a + half)
+                arrive[t, j, i] = _clear(x, y, radius + slack, tracks, a + half, a + unit)
     i0 = int(round((x0 - ox) / lattice))
     j0 = int(round((y0 - oy) / lattice))
-    if not free[j0, i0] or not _clear(x0, y0, radius + margin, tracks, 0, 0):
+    if not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
         return -1
-    reach = np.zeros((units + 1, ny, nx), dtype=np.bool_)
-    nxt = np.zeros((units + 1, ny, nx), dtype=np.bool_)
     reach[0, j0, i0] = True
     nwp = wps.shape[0]
+    keep = legs.shape[0] == nwp
     for k in range(nwp):
         wx, wy = wps[k, 0], wps[k, 1]
         nxt[:] = False
@@ -152,6 +167,9 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, m
                     y = oy + j * lattice
                     if (x - wx) ** 2 + (y - wy) ** 2 <= tol * tol:
                         if k == nwp - 1:
+                            if keep:
+                                legs[k] = reach
+                                goal[0], goal[1], goal[2] = t, j, i
                             return t * unit
                         nxt[t, j, i] = True  # the next leg starts here, now
                         found = True
@@ -172,6 +190,8 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, m
                         reach[t + 1, j - 1, i] = True
         if not found:
             return -1
+        if keep:
+            legs[k] = reach
         reach[:] = nxt
     return -1
 
@@ -180,11 +200,58 @@ def solve(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget
           period_s: float) -> int:
     """The earliest period the oracle reaches `ep`'s goal through its waypoints within the episode's
     budget, or -1 if its search finds no way (module docstring)."""
+    return solve_path(ep, gm, radius_mm, budget_base, budget_factor, period_s, path=False)[0]
+
+
+def solve_path(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
+               period_s: float, path: bool = True) -> tuple[int, list[tuple[int, float, float]]]:
+    """`solve`, and with `path` the way found: (period, x, y) at every time unit from the start
+    (the robot moves straight between them at an even speed), [] when none."""
     discs, movers, wps, _, plan_len = rollout_arrays(ep, True)
     occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
     cell = gm.cell_size_m * 1000.0
     budget = int(budget_periods(plan_len, budget_base, budget_factor))
     tracks = mover_tracks(movers, occ, cell, discs, budget, period_s)
     x0, y0, _ = ep.start
-    return int(_search(occ, cell, float(radius_mm), discs, tracks, float(x0), float(y0), LATTICE_MM, UNIT_PERIODS,
-                       np.ascontiguousarray(wps), float(GOAL_TOL_MM), MOVER_MARGIN_MM))
+    ox, oy, nx, ny = _lattice(float(x0), float(y0), occ.shape, cell)
+    units = budget // UNIT_PERIODS
+    free = np.zeros((ny, nx), dtype=np.bool_)
+    step_ok = np.zeros((ny, nx, 2), dtype=np.bool_)
+    stay, depart, arrive = (np.zeros((units, ny, nx), dtype=np.bool_) for _ in range(3))
+    reach, nxt = (np.zeros((units + 1, ny, nx), dtype=np.bool_) for _ in range(2))
+    nwp = len(wps)
+    legs = np.zeros((nwp if path else 0, units + 1, ny, nx), dtype=np.bool_)
+    goal = np.zeros(3, dtype=np.int64)
+    wps = np.ascontiguousarray(wps)
+    period = int(_search(occ, cell, float(radius_mm), discs, tracks, float(x0), float(y0), LATTICE_MM, UNIT_PERIODS,
+                         wps, float(GOAL_TOL_MM), ox, oy, free, step_ok, stay, depart, arrive, reach, nxt, legs,
+                         goal))
+    if period < 0 or not path:
+        return period, []
+
+    def near(k: int, j: int, i: int) -> bool:
+        return bool((ox + i * LATTICE_MM - wps[k, 0]) ** 2 + (oy + j * LATTICE_MM - wps[k, 1]) ** 2
+                    <= GOAL_TOL_MM ** 2)
+
+    k, (t, j, i) = nwp - 1, (int(v) for v in goal)
+    back = [(t, j, i)]
+    while k > 0 or t > 0:
+        if k > 0 and legs[k - 1, t, j, i] and near(k - 1, j, i):
+            k -= 1  # where the previous leg ended: its waypoint passed here, then
+            continue
+        for dj, di in ((0, 0), (0, 1), (0, -1), (1, 0), (-1, 0)):
+            pj, pi = j - dj, i - di
+            if not (0 <= pj < ny and 0 <= pi < nx) or not legs[k, t - 1, pj, pi] or near(k, pj, pi):
+                continue
+            if (dj, di) == (0, 0):
+                moved = bool(stay[t - 1, pj, pi])
+            else:
+                moved = bool(depart[t - 1, pj, pi] and arrive[t - 1, j, i]
+                             and step_ok[min(j, pj), min(i, pi), 0 if dj == 0 else 1])
+            if moved:
+                t, j, i = t - 1, pj, pi
+                back.append((t, j, i))
+                break
+        else:
+            raise AssertionError(f"no way back from leg {k} at unit {t}")
+    return period, [(t * UNIT_PERIODS, ox + i * LATTICE_MM, oy + j * LATTICE_MM) for t, j, i in reversed(back)]
