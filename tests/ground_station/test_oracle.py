@@ -155,3 +155,26 @@ def test_bench_ceiling_reports_the_oracle_beside_the_controllers(tmp_path) -> No
     s = res["seek_local"]
     assert round(s["success_rate"] * 4) == won
     assert s["failed_oracle_solved"] + s["failed_oracle_not"] == 4 - won
+
+
+def test_on_blocked_passages_the_oracle_finds_no_way_where_the_label_says_none(tmp_path) -> None:
+    # the label "no detour" is the scenario's own search (a disc the robot's bare disc cannot pass, on the
+    # known map); the oracle searches with the discs and the movers and three times the budget: it must
+    # agree, and pass where a detour exists
+    out = tmp_path / "b.json"
+    r = subprocess.run([sys.executable, "-m", "ground_station", "bench", "ceiling", "--blocked", "both", "--map",
+                        "maze-12x12-s306", "--episodes", "6", "--controllers", "", "--budget-scale", "3",
+                        "--workers", "1", "--json", str(out)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    rows = res["episodes"]
+    assert [row["detour"] for row in rows] == [True, False] * 3
+    assert all(row["oracle_s"] is None for row in rows if not row["detour"])
+    assert res["oracle"]["found_without_detour"] == 0
+    assert res["oracle"]["solved"] == sum(row["oracle_s"] is not None for row in rows) >= 1
+
+
+def test_bench_ceiling_names_a_bad_budget_scale() -> None:
+    r = subprocess.run([sys.executable, "-m", "ground_station", "bench", "ceiling", "--map", "paper10",
+                        "--budget-scale", "0"], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "--budget-scale 0" in r.stderr and "Traceback" not in r.stderr

@@ -12,15 +12,24 @@ the scenario allows (it may miss a way: its docstring says where), so a
 controller's success is measured against it: its failures the oracle
 solved (the controller's to win) and those it did not (maybe none can).
 
+With `--blocked both` (the blocked-passage episodes of `qnav bench decisions
+--blocked both`) "right" is a success, or a "no route" on an episode labelled
+without a detour; there the oracle must find no way (a check of the label and
+the oracle alike), and a controller's wrong "no route" the oracle solved is
+counted. `--budget-scale 3` gives the oracle the most time a controller's
+re-routes can reach (a longer detour is in the budget).
+
 Prints a table and writes JSON (`--json`): `scenario`, `oracle` and each
-controller's summary (as `qnav bench nav`'s), `per_map` (episodes, oracle
-solved, each controller's successes), and `episodes`: one row per episode
-(map, index on it, the oracle's period or null, each controller's outcome).
+controller's summary (as `qnav bench nav`'s, with `right` and the failures
+the oracle solved), `per_map` (episodes, right for the oracle and each
+controller), and `episodes`: one row per episode (map, index on it, the
+oracle's time in s or null, the label, each controller's outcome).
 """
 
 from __future__ import annotations
 
 import argparse
+from itertools import zip_longest
 from typing import Any
 
 DEFAULT_CONTROLLERS = "learnt,seek_local,vfh_local"
@@ -33,9 +42,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                                        "controllers", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--map", action="append", metavar="NAME|PATH", required=True, help="map (repeatable)")
-    p.add_argument("--obstacles", type=int, default=3, metavar="K", help="static discs (default %(default)s)")
+    p.add_argument("--obstacles", type=int, default=None, metavar="K", help="static discs (default 3; 0 with --blocked)")
     p.add_argument("--movers", type=int, default=2, metavar="M", help="movers (default %(default)s)")
     p.add_argument("--no-yield", action="store_true", help="movers do not give way (as bench nav)")
+    p.add_argument("--blocked", choices=("both",), default=None,
+                   help="blocked-passage episodes, both labels, as bench decisions (--obstacles then defaults to 0); "
+                        "on one without a detour the right answer is \"no route\" and the oracle must find no way")
+    p.add_argument("--budget-scale", type=float, default=1.0, metavar="S",
+                   help="the oracle's budget: S x the episode's (default %(default)s: the budget every controller "
+                        "starts with; 3: the most a controller's re-routes extend it to)")
     p.add_argument("--episodes", type=int, default=40, help="episodes per map (default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
@@ -60,8 +75,8 @@ def ceiling_job(job: dict) -> list[Any]:
     from ground_station.maps import load_map
 
     maps = {name: load_map(spec) for name, spec in job["maps"].items()}
-    return [solve(ep, maps[ep.map], robot_spec.ROBOT_RADIUS_MM, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S)
-            for ep in job["episodes"]]
+    return [solve(ep, maps[ep.map], robot_spec.ROBOT_RADIUS_MM, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S,
+                  job["budget_scale"]) for ep in job["episodes"]]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,11 +87,20 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.lab.campaign.engines import engine_from_args, write_campaign
     from ground_station.lab.nav.controllers import standard_controllers
     from ground_station.lab.nav.episodes import PERIOD_S, summarise, wilson95
-    from ground_station.lab.nav.scenario import MOVER_SPEED_MM_S, MoverStyle, episodes
+    from ground_station.lab.nav.scenario import (
+        MOVER_SPEED_MM_S,
+        MoverStyle,
+        blocked_episodes,
+        episodes,
+    )
     from ground_station.maps import MapError, load_map
 
+    if args.obstacles is None:
+        args.obstacles = 0 if args.blocked else 3
     if args.obstacles < 0 or args.movers < 0 or args.episodes < 1 or args.batch < 1:
         raise CliError("--obstacles/--movers must be >= 0, --episodes/--batch >= 1")
+    if not 0 < args.budget_scale <= 10:
+        raise CliError(f"--budget-scale {args.budget_scale}: expected 0 < S <= 10")
     names = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
     try:
         path = resolve_policy_spec(args.policy)
@@ -89,16 +113,28 @@ def run(args: argparse.Namespace) -> int:
     style = MoverStyle(speed=MOVER_SPEED_MM_S, yields=not args.no_yield)
     specs: dict[str, str] = {}
     eps = []
-    try:
-        for spec in args.map:
+    for spec in args.map:
+        try:
             gm = load_map(spec)
-            specs[gm.name] = spec
-            eps += episodes(gm, args.episodes, args.seed, args.obstacles, args.movers, movers=style)
-    except (MapError, OSError) as exc:
-        raise CliError(str(exc)) from None
+            if args.blocked is None:
+                eps += episodes(gm, args.episodes, args.seed, args.obstacles, args.movers, movers=style)
+            else:  # as bench decisions draws them: the labels alternate
+                kw = {"k": args.obstacles, "m": args.movers, "movers": style}
+                yes = blocked_episodes(gm, (args.episodes + 1) // 2, args.seed, True, **kw)
+                no = blocked_episodes(gm, args.episodes // 2, args.seed, False, **kw)
+                eps += [e for pair in zip_longest(yes, no) for e in pair if e is not None]
+        except (MapError, OSError) as exc:
+            if args.blocked is None or not isinstance(exc, MapError):
+                raise CliError(str(exc)) from None
+            print(f"--blocked both: skipping {exc}")
+            continue
+        specs[gm.name] = spec
+    if not eps:
+        raise CliError("no map has such an episode")
     base = {"policy": str(path), "maps": specs}
     chunks = [eps[i:i + args.batch] for i in range(0, len(eps), args.batch)]
-    jobs: list[dict[str, Any]] = [{**base, "kind": "oracle", "controller": "oracle", "episodes": c} for c in chunks]
+    jobs: list[dict[str, Any]] = [{**base, "kind": "oracle", "controller": "oracle", "episodes": c,
+                                   "budget_scale": args.budget_scale} for c in chunks]
     jobs += [{**base, "kind": "twin", "controller": c.name, "episodes": ch} for c in ctrls for ch in chunks]
     with engine_from_args(args) as engine:
         out, stats = engine.map(ceiling_job, jobs, desc="episodes", unit="batch")
@@ -106,52 +142,71 @@ def run(args: argparse.Namespace) -> int:
     for job, res in zip(jobs, out, strict=True):
         by.setdefault(job["controller"], []).extend(res)
     periods = by["oracle"]
+    none_label = [ep.blocked is not None and not ep.blocked["detour"] for ep in eps]  # "no route" is right
     solved = [p >= 0 for p in periods]
+    # the oracle is right where it found a way, and on an episode labelled without a detour where it found none
+    oracle_right = [s != nl for s, nl in zip(solved, none_label, strict=True)]
+
+    def right(row: dict, nl: bool) -> bool:
+        return bool(row["success"] or (nl and row["outcome"] == "no_route"))
+
     index: dict[str, int] = {}
     rows: list[dict[str, Any]] = []
     for ep, p in zip(eps, periods, strict=True):
         i = index[ep.map] = index.get(ep.map, -1) + 1
         rows.append({"map": ep.map, "index": i, "oracle_s": round(p * PERIOD_S, 2) if p >= 0 else None,
+                     **({"detour": bool(ep.blocked["detour"])} if ep.blocked else {}),
                      **{c.name: by[c.name][len(rows)]["outcome"] for c in ctrls}})
     n = len(eps)
-    k = sum(solved)
+    k = sum(oracle_right)
+    ci = wilson95(k, n)
     result: dict = {
         "scenario": {"maps": list(specs), "obstacles": args.obstacles, "movers": args.movers,
                      "movers_yield": style.yields, "seed": args.seed, "episodes_per_map": args.episodes,
+                     "blocked": args.blocked, "oracle_budget_scale": args.budget_scale,
                      "definition": "ground_station/lab/nav/scenario.py; oracle: ground_station/lab/nav/oracle.py"},
         "policy": str(path), "policy_id": f"0x{pol.policy_id:08x}",
-        "oracle": {"episodes": n, "solved": k, "solved_rate": k / n, "solved_ci95": wilson95(k, n)},
+        "oracle": {"episodes": n, "right": k, "right_rate": k / n, "right_ci95": ci, "solved": sum(solved),
+                   "found_without_detour": sum(s and nl for s, nl in zip(solved, none_label, strict=True))},
     }
     table: list[tuple[str, object]] = [
         ("scenario", f"{len(specs)} maps x {args.episodes}, {args.obstacles} discs + {args.movers} movers"
-                     f"{' (not giving way)' if not style.yields else ''}, seed {args.seed}"),
-        ("oracle (privileged)", f"n={n} solved {k} ({k / n:.3f}) [{wilson95(k, n)[0]:.3f}, {wilson95(k, n)[1]:.3f}]: "
-                                "a lower bound on what the scenario allows"),
+                     f"{' (not giving way)' if not style.yields else ''}"
+                     f"{', blocked passages (both labels)' if args.blocked else ''}, seed {args.seed}; "
+                     f"oracle budget x {args.budget_scale:g}"),
+        ("oracle (privileged)", f"n={n} right {k} ({k / n:.3f}) [{ci[0]:.3f}, {ci[1]:.3f}]: a lower bound on "
+                                "what the scenario allows"),
     ]
+    if any(none_label):
+        table.append(("  without a detour", f"the oracle found a way in {result['oracle']['found_without_detour']} "
+                                            f"of {sum(none_label)} (the label says none: 0 expected)"))
     for c in ctrls:
         r = by[c.name]
         s = summarise(r)
-        won = [row["success"] for row in r]
-        lost_solvable = sum(1 for w, o in zip(won, solved, strict=True) if not w and o)
-        lost_other = sum(1 for w, o in zip(won, solved, strict=True) if not w and not o)
-        beyond = sum(1 for w, o in zip(won, solved, strict=True) if w and not o)
-        result[c.name] = {**s, "failed_oracle_solved": lost_solvable, "failed_oracle_not": lost_other,
-                          "won_oracle_not": beyond}
-        lo, hi = s["success_ci95"]
-        table.append((c.name, f"success {sum(won)} ({s['success_rate']:.3f}) [{lo:.3f}, {hi:.3f}], collisions "
+        won = [right(row, nl) for row, nl in zip(r, none_label, strict=True)]
+        lost_solvable = sum(1 for w, o in zip(won, oracle_right, strict=True) if not w and o)
+        wrong_no_route = sum(1 for w, o, row in zip(won, oracle_right, r, strict=True)
+                             if not w and o and row["outcome"] == "no_route")
+        beyond = sum(1 for w, o in zip(won, oracle_right, strict=True) if w and not o)
+        result[c.name] = {**s, "right": sum(won), "failed_oracle_solved": lost_solvable,
+                          "failed_oracle_not": n - sum(won) - lost_solvable,
+                          "no_route_oracle_solved": wrong_no_route, "won_oracle_not": beyond}
+        lo, hi = wilson95(sum(won), n)
+        table.append((c.name, f"right {sum(won)} ({sum(won) / n:.3f}) [{lo:.3f}, {hi:.3f}], collisions "
                               f"{s['outcomes'].get('collision', 0)}; of its {n - sum(won)} failures the oracle "
-                              f"solved {lost_solvable}; it won {beyond} the oracle did not"))
+                              f"solved {lost_solvable} ({wrong_no_route} a \"no route\"); it won {beyond} the "
+                              "oracle did not"))
     if ctrls:
-        any_won = [any(by[c.name][i]["success"] for c in ctrls) for i in range(n)]
-        none = sum(1 for w, o in zip(any_won, solved, strict=True) if not w and not o)
-        result["any_controller"] = {"success": sum(any_won), "neither_nor_oracle": none}
-        table.append(("any controller", f"{sum(any_won)} ({sum(any_won) / n:.3f}); {none} episodes neither "
-                                        "a controller nor the oracle finished"))
+        any_won = [any(right(by[c.name][i], none_label[i]) for c in ctrls) for i in range(n)]
+        neither = sum(1 for w, o in zip(any_won, oracle_right, strict=True) if not w and not o)
+        result["any_controller"] = {"right": sum(any_won), "neither_nor_oracle": neither}
+        table.append(("any controller", f"{sum(any_won)} ({sum(any_won) / n:.3f}); {neither} episodes neither "
+                                        "a controller nor the oracle got right"))
     result["per_map"] = {}
     for name in specs:
         idx = [i for i, ep in enumerate(eps) if ep.map == name]
-        pm = {"episodes": len(idx), "oracle": sum(solved[i] for i in idx),
-              **{c.name: sum(by[c.name][i]["success"] for i in idx) for c in ctrls}}
+        pm = {"episodes": len(idx), "oracle": sum(oracle_right[i] for i in idx),
+              **{c.name: sum(right(by[c.name][i], none_label[i]) for i in idx) for c in ctrls}}
         result["per_map"][name] = pm
         table.append((f"  {name}", ", ".join(f"{key} {v}" for key, v in pm.items())))
     result["episodes"] = rows

@@ -197,20 +197,21 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
 
 
 def solve(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
-          period_s: float) -> int:
+          period_s: float, budget_scale: float = 1.0) -> int:
     """The earliest period the oracle reaches `ep`'s goal through its waypoints within the episode's
-    budget, or -1 if its search finds no way (module docstring)."""
-    return solve_path(ep, gm, radius_mm, budget_base, budget_factor, period_s, path=False)[0]
+    budget (times `budget_scale`), or -1 if its search finds no way (module docstring)."""
+    return solve_path(ep, gm, radius_mm, budget_base, budget_factor, period_s, budget_scale, path=False)[0]
 
 
 def solve_path(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
-               period_s: float, path: bool = True) -> tuple[int, list[tuple[int, float, float]]]:
+               period_s: float, budget_scale: float = 1.0,
+               path: bool = True) -> tuple[int, list[tuple[int, float, float]]]:
     """`solve`, and with `path` the way found: (period, x, y) at every time unit from the start
     (the robot moves straight between them at an even speed), [] when none."""
     discs, movers, wps, _, plan_len = rollout_arrays(ep, True)
     occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
     cell = gm.cell_size_m * 1000.0
-    budget = int(budget_periods(plan_len, budget_base, budget_factor))
+    budget = int(budget_scale * budget_periods(plan_len, budget_base, budget_factor))
     tracks = mover_tracks(movers, occ, cell, discs, budget, period_s)
     x0, y0, _ = ep.start
     ox, oy, nx, ny = _lattice(float(x0), float(y0), occ.shape, cell)
