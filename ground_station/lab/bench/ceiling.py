@@ -59,6 +59,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated, as bench nav's; '' for the oracle alone (default %(default)s)")
     p.add_argument("--batch", type=int, default=20, metavar="N", help="episodes per job (default %(default)s)")
     p.add_argument("--json", metavar="FILE", help="write the result (with per-episode rows) as JSON")
+    p.add_argument("--draw", metavar="DIR",
+                   help="for each episode the first controller got wrong and the oracle right: DIR/MAP-INDEX.png, "
+                        "its drive beside the oracle's way, the movers' walks coloured by time")
     add_engine_arguments(p, "episode batches")
     p.set_defaults(func=run)
 
@@ -212,6 +215,77 @@ def run(args: argparse.Namespace) -> int:
     result["episodes"] = rows
     table.append(("campaign", f"{stats.engine}, {stats.workers} workers: {len(jobs)} jobs, "
                               f"{stats.as_dict()['wall_s']:.1f} s wall"))
+    if args.draw and ctrls:
+        _draw_all(args.draw, eps, rows, {name: load_map(spec) for name, spec in specs.items()}, ctrls[0],
+                  [right(r, nl) for r, nl in zip(by[ctrls[0].name], none_label, strict=True)], oracle_right)
     report("ceiling", table, result, args.json)
     write_campaign(args.json, {"episodes": stats.as_dict()})
     return 0
+
+
+def _draw_all(folder: str, eps: list, rows: list[dict], maps: dict, ctrl: Any, won: list[bool],
+              oracle_right: list[bool]) -> None:
+    """--draw: one PNG per episode `ctrl` got wrong and the oracle right (module docstring)."""
+    from pathlib import Path
+
+    from firmware_py.atomic import atomic_write
+
+    todo = [i for i in range(len(eps)) if not won[i] and oracle_right[i]]
+    for i in todo:
+        out = Path(folder) / f"{rows[i]['map']}-{rows[i]['index']}.png"
+        atomic_write(out, draw(eps[i], maps[eps[i].map], ctrl, rows[i]), make_parents=True)
+    print(f"drew {len(todo)} episodes in {folder}")
+
+
+def draw(ep: Any, gm: Any, ctrl: Any, row: dict) -> bytes:
+    """PNG: `ctrl`'s drive of `ep` on the twin (left) beside the oracle's way (right), over the map, the
+    discs, the waypoints and the movers' walks (coloured by time: what the oracle plans against)."""
+    import numpy as np
+
+    from firmware_py import robot_spec
+    from ground_station.lab.nav import planned
+    from ground_station.lab.nav.episodes import (
+        BUDGET_BASE,
+        BUDGET_FACTOR,
+        OUTCOMES,
+        PERIOD_S,
+        STALL_STEPS,
+    )
+    from ground_station.lab.nav.oracle import mover_tracks, solve_path
+    from ground_station.lab.nav.scenario import rollout_arrays
+    from ground_station.plotting import png_bytes, pyplot
+
+    drive: list[tuple[float, float]] = []
+    outcome, *_ = planned.rollout(ep, gm, ctrl, BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS,
+                                  watch=lambda x, y, _m: drive.append((x, y)))
+    period, way = solve_path(ep, gm, robot_spec.ROBOT_RADIUS_MM, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S)
+    discs, movers, wps, _, _ = rollout_arrays(ep, True)
+    cell = gm.cell_size_m * 1000.0
+    span = max(len(drive), period, 1)
+    walks = mover_tracks(movers, np.ascontiguousarray(gm.occ, dtype=np.uint8), cell, discs, span, PERIOD_S)
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.5))
+    h, w = gm.occ.shape
+    titles = (f"{ctrl.name}: {OUTCOMES[outcome]} after {len(drive) * PERIOD_S:.0f} s",
+              f"oracle: the goal at {period * PERIOD_S:.0f} s")
+    for ax, title in zip(axes, titles, strict=True):
+        ax.imshow(gm.occ, cmap="Greys", extent=(0, w * cell, 0, h * cell), origin="upper")
+        for dx, dy, r in discs:
+            ax.add_patch(plt.Circle((dx, dy), r, color="saddlebrown"))
+        for k in range(walks.shape[1]):
+            ax.scatter(walks[:span:10, k, 0], walks[:span:10, k, 1], c=np.arange(0, span, 10) * PERIOD_S,
+                       cmap="autumn", s=3, vmin=0, vmax=span * PERIOD_S)
+        ax.plot(wps[:, 0], wps[:, 1], "g+--", ms=9, lw=0.8)
+        ax.plot(ep.start[0], ep.start[1], "go", ms=7)
+        ax.set_title(title)
+        ax.set_aspect("equal")
+    if drive:
+        d = np.asarray(drive)
+        axes[0].scatter(d[:, 0], d[:, 1], c=np.arange(len(d)) * PERIOD_S, cmap="winter", s=2, vmin=0,
+                        vmax=span * PERIOD_S)
+    if way:
+        o = np.asarray(way)
+        axes[1].scatter(o[:, 1], o[:, 2], c=o[:, 0] * PERIOD_S, cmap="winter", s=4, vmin=0, vmax=span * PERIOD_S)
+    fig.suptitle(f"{row['map']} episode {row['index']}: the robot (blue) and the movers (red to yellow), "
+                 "colour = time")
+    return png_bytes(fig, dpi=70)
