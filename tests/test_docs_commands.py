@@ -134,6 +134,8 @@ NOT_RUN = {
     "qnav bench nav": "a benchmark (1000 twin / 50 HIL episodes); tests check a benchmark's code, never a time",
     "qnav bench decisions": "a benchmark (hundreds of traced twin episodes); tests/ground_station/"
                             "test_recovery_learning.py checks its classification",
+    "qnav bench ceiling": "a benchmark (hundreds of twin episodes and their space-time searches); "
+                          "tests/ground_station/test_oracle.py runs it on two episodes and checks the oracle",
     "qnav policy upgrade OLD.qtab": "a synopsis (placeholders); its flags are checked above",
     "qnav export RUN_DIR": "a synopsis (placeholders); its flags are checked above",
     "qnav train --recipe shipped-sector --out build/sector": "the shipped sector recipe (2e7 steps, ~15 s of CPU); "
