@@ -463,6 +463,23 @@ def test_the_refuge_is_the_side_corridor_behind_the_robot_off_the_line_the_perso
     assert LocalPlanner(SIDE, CFG).refuge(2600, 750, ObstacleMemory(CFG)) is None
 
 
+# SIDE's corridor 20 cells long: the side corridor at col 4, 4 m behind a robot at x 6600
+FAR_SIDE = grid_from_rows(["@" * 20, "@@@@.@@@@@@@@@@@@@@@", "@@@@.@@@@@@@@@@@@@@@", "." * 20, "@" * 20], 500)
+
+
+def test_a_side_corridor_metres_back_is_a_refuge():
+    # in a maze a person walking the one-cell corridor the robot is in is met metres from the junction it
+    # came through; backing off there and standing aside lets the person pass (the oracle of `qnav bench
+    # ceiling` waits off the line at such junctions: docs/results.md 6.1)
+    memory = ObstacleMemory(CFG)
+    _remember(memory, _person(6780))
+    refuge = LocalPlanner(FAR_SIDE, CFG).refuge(6600, 750, memory)
+    assert refuge is not None and IN_SIDE[0] <= refuge[0] <= IN_SIDE[1] and refuge[1] >= 750 + REFUGE_MM
+    memory = ObstacleMemory(CFG)
+    _remember(memory, _person(7980))
+    assert LocalPlanner(FAR_SIDE, CFG).refuge(7800, 750, memory) is None  # 5.5 m back: beyond REFUGE_SEARCH_MM
+
+
 def test_a_person_who_will_not_give_way_is_stood_aside_for_and_the_waypoint_reached_after():
     """A person walks at the robot down the one-cell corridor and stands at it (they stop only on
     contact). The robot drives into the side corridor behind it and stands there; once the person has

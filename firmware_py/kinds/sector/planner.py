@@ -49,7 +49,7 @@ def refuge_mm(radius_mm: int) -> int:
 
 
 REFUGE_MM = refuge_mm(robot_spec.ROBOT_RADIUS_MM)  # the built-in robot's
-REFUGE_SEARCH_MM = 2500  # giving way: at a place at most this far along the way
+REFUGE_SEARCH_MM = 5000  # giving way: at a place at most this far along the way (a maze junction metres back)
 
 
 Cell = tuple[int, int]
