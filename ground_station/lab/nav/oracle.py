@@ -54,6 +54,7 @@ assert LATTICE_MM == UNIT_PERIODS * FWD_MM_PER_PERIOD
 STEP_SLACK_MM = 5.0  # kept from a mover beyond its step in one period (keep_clear_mm)
 FAR_MM = -1.0e9  # where the robot is for the movers' walk: nowhere near (none stands for it)
 
+
 def keep_clear_mm(mover: np.ndarray, period_s: float) -> float:
     """How far the oracle keeps from a mover (x, y, vx, vy, r, yields) beyond contact: more than its
     step in one period, and for one that gives way, more than the margin it keeps from the robot
@@ -103,10 +104,10 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
     """Earliest period the goal (the last of wps) is reached, or -1 (module docstring); the caller
     sizes the arrays (`_lattice`: ny x nx points, units + 1 time units) and gets them filled.
 
-    A step from A to B in time unit t: the robot is within lattice / 2 - step of A in its first
-    half and of B in its second, so A clear of the movers (by that more) over the first half's
-    periods and B over the second's make every period of the step clear (`depart`, `arrive`); a stay
-    is checked at the point itself (`stay`). One leg per waypoint: reach[t, j, i] marks lattice point
+    A step from A to B in time unit t: the robot is within lattice x half / unit (40 mm) of A in
+    its first `half` periods and of B in the rest, so A clear of the movers by that more over the
+    first half's periods and B over the rest make every period of the step clear (`depart`,
+    `arrive`); a stay is checked at the point itself (`stay`). One leg per waypoint: reach[t, j, i] marks lattice point
     (i, j) reachable at time unit t on the current leg; a point within tol of the leg's waypoint ends
     the leg there and then (pass_waypoints advances at once) and starts the next. With `legs` of one
     slice per waypoint, each leg's reach is kept there and `goal` gets the goal's (t, j, i)."""
