@@ -29,7 +29,6 @@ oracle's time in s or null, the label, each controller's outcome).
 from __future__ import annotations
 
 import argparse
-from itertools import zip_longest
 from typing import Any
 
 DEFAULT_CONTROLLERS = "learnt,seek_local,vfh_local"
@@ -89,11 +88,11 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.lab.bench.common import report
     from ground_station.lab.campaign.engines import engine_from_args, write_campaign
     from ground_station.lab.nav.controllers import standard_controllers
-    from ground_station.lab.nav.episodes import PERIOD_S, summarise, wilson95
+    from ground_station.lab.nav.episodes import PERIOD_S, answered_right, summarise, wilson95
     from ground_station.lab.nav.scenario import (
         MOVER_SPEED_MM_S,
         MoverStyle,
-        blocked_episodes,
+        blocked_both,
         episodes,
     )
     from ground_station.maps import MapError, load_map
@@ -115,23 +114,22 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--controllers: {exc}") from None
     style = MoverStyle(speed=MOVER_SPEED_MM_S, yields=not args.no_yield)
     specs: dict[str, str] = {}
+    maps = {}
     eps = []
     for spec in args.map:
         try:
             gm = load_map(spec)
             if args.blocked is None:
                 eps += episodes(gm, args.episodes, args.seed, args.obstacles, args.movers, movers=style)
-            else:  # as bench decisions draws them: the labels alternate
-                kw = {"k": args.obstacles, "m": args.movers, "movers": style}
-                yes = blocked_episodes(gm, (args.episodes + 1) // 2, args.seed, True, **kw)
-                no = blocked_episodes(gm, args.episodes // 2, args.seed, False, **kw)
-                eps += [e for pair in zip_longest(yes, no) for e in pair if e is not None]
+            else:
+                eps += blocked_both(gm, args.episodes, args.seed, args.obstacles, args.movers, style)
         except (MapError, OSError) as exc:
             if args.blocked is None or not isinstance(exc, MapError):
                 raise CliError(str(exc)) from None
             print(f"--blocked both: skipping {exc}")
             continue
         specs[gm.name] = spec
+        maps[gm.name] = gm
     if not eps:
         raise CliError("no map has such an episode")
     base = {"policy": str(path), "maps": specs}
@@ -150,9 +148,7 @@ def run(args: argparse.Namespace) -> int:
     # the oracle is right where it found a way, and on an episode labelled without a detour where it found none
     oracle_right = [s != nl for s, nl in zip(solved, none_label, strict=True)]
 
-    def right(row: dict, nl: bool) -> bool:
-        return bool(row["success"] or (nl and row["outcome"] == "no_route"))
-
+    won_by = {c.name: [answered_right(row) for row in by[c.name]] for c in ctrls}
     index: dict[str, int] = {}
     rows: list[dict[str, Any]] = []
     for ep, p in zip(eps, periods, strict=True):
@@ -186,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     for c in ctrls:
         r = by[c.name]
         s = summarise(r)
-        won = [right(row, nl) for row, nl in zip(r, none_label, strict=True)]
+        won = won_by[c.name]
         lost_solvable = sum(1 for w, o in zip(won, oracle_right, strict=True) if not w and o)
         wrong_no_route = sum(1 for w, o, row in zip(won, oracle_right, r, strict=True)
                              if not w and o and row["outcome"] == "no_route")
@@ -200,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
                               f"solved {lost_solvable} ({wrong_no_route} a \"no route\"); it won {beyond} the "
                               "oracle did not"))
     if ctrls:
-        any_won = [any(right(by[c.name][i], none_label[i]) for c in ctrls) for i in range(n)]
+        any_won = [any(won_by[c.name][i] for c in ctrls) for i in range(n)]
         neither = sum(1 for w, o in zip(any_won, oracle_right, strict=True) if not w and not o)
         result["any_controller"] = {"right": sum(any_won), "neither_nor_oracle": neither}
         table.append(("any controller", f"{sum(any_won)} ({sum(any_won) / n:.3f}); {neither} episodes neither "
@@ -209,15 +205,14 @@ def run(args: argparse.Namespace) -> int:
     for name in specs:
         idx = [i for i, ep in enumerate(eps) if ep.map == name]
         pm = {"episodes": len(idx), "oracle": sum(oracle_right[i] for i in idx),
-              **{c.name: sum(right(by[c.name][i], none_label[i]) for i in idx) for c in ctrls}}
+              **{c.name: sum(won_by[c.name][i] for i in idx) for c in ctrls}}
         result["per_map"][name] = pm
         table.append((f"  {name}", ", ".join(f"{key} {v}" for key, v in pm.items())))
     result["episodes"] = rows
     table.append(("campaign", f"{stats.engine}, {stats.workers} workers: {len(jobs)} jobs, "
                               f"{stats.as_dict()['wall_s']:.1f} s wall"))
     if args.draw and ctrls:
-        _draw_all(args.draw, eps, rows, {name: load_map(spec) for name, spec in specs.items()}, ctrls[0],
-                  [right(r, nl) for r, nl in zip(by[ctrls[0].name], none_label, strict=True)], oracle_right)
+        _draw_all(args.draw, eps, rows, maps, ctrls[0], won_by[ctrls[0].name], oracle_right)
     report("ceiling", table, result, args.json)
     write_campaign(args.json, {"episodes": stats.as_dict()})
     return 0

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 from collections import Counter
-from itertools import zip_longest
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -49,10 +48,11 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.errors import CliError
     from ground_station.lab.nav.controllers import standard_controllers
     from ground_station.lab.nav.decisions import trace
+    from ground_station.lab.nav.episodes import answered_right
     from ground_station.lab.nav.scenario import (
         MOVER_SPEED_MM_S,
         MoverStyle,
-        blocked_episodes,
+        blocked_both,
         episodes,
     )
     from ground_station.maps import MapError, load_map
@@ -74,19 +74,14 @@ def run(args: argparse.Namespace) -> int:
         if args.blocked is None:
             eps += episodes(gm, args.episodes, args.seed, k, args.movers, movers=style)
             continue
-        kw = {"k": k, "m": args.movers, "movers": style}
         try:
-            yes = blocked_episodes(gm, (args.episodes + 1) // 2, args.seed, True, **kw)
-            no = blocked_episodes(gm, args.episodes // 2, args.seed, False, **kw)
+            eps += blocked_both(gm, args.episodes, args.seed, k, args.movers, style)
         except MapError as exc:
             print(f"--blocked both: skipping {exc}")
-            continue
-        eps += [e for pair in zip_longest(yes, no) for e in pair if e is not None]
     out = {}
     for c in ctrls:
         rows = trace(eps, maps, c)
-        right = [r["success"] or (r["outcome"] == "no_route" and r.get("blocked", {}).get("detour") is False)
-                 for r in rows]
+        right = [answered_right(r) for r in rows]
         fails = Counter(r["decision"] + (":no_detour" if r.get("blocked", {}).get("detour") is False else "")
                         for r, ok in zip(rows, right, strict=True) if not ok)
         stands = sum(r["standoff"] for r, ok in zip(rows, right, strict=True) if not ok)

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from itertools import zip_longest
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -354,14 +353,12 @@ def _profiles(given: list[str] | None) -> tuple[str | None, str | None]:
 def _blocked(gm: GridMap, args: argparse.Namespace, style: MoverStyle) -> list[Episode]:
     """The map's blocked-passage episodes for --blocked (both: the two labels interleaved, so every
     prefix is mixed). Raises MapError when the map has none with a label asked for."""
-    from ground_station.lab.nav.scenario import blocked_episodes
+    from ground_station.lab.nav.scenario import blocked_both, blocked_episodes
 
     kw = {"k": args.obstacles, "m": args.movers, "movers": style}
     if args.blocked != "both":
         return blocked_episodes(gm, args.episodes, args.seed, args.blocked == "detour", **kw)
-    yes = blocked_episodes(gm, (args.episodes + 1) // 2, args.seed, True, **kw)
-    no = blocked_episodes(gm, args.episodes // 2, args.seed, False, **kw)
-    return [e for pair in zip_longest(yes, no) for e in pair if e is not None]
+    return blocked_both(gm, args.episodes, args.seed, **kw)
 
 
 def _fmt(s: dict, blocked: bool = False) -> str:

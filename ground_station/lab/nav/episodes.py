@@ -98,6 +98,12 @@ def _rows(eps: list[Episode], outcome: np.ndarray, path: np.ndarray, steps: np.n
     return rows
 
 
+def answered_right(row: dict) -> bool:
+    """An episode row's answer was right: the goal reached, or "no route" on a blocked-passage
+    episode without a detour (`scenario.blocked_episodes`: there it is the right answer)."""
+    return bool(row["success"] or (row["outcome"] == "no_route" and row.get("blocked", {}).get("detour") is False))
+
+
 def _blocked_row(ep: Episode) -> dict:
     return {"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {}
 

@@ -53,6 +53,10 @@ UNIT_PERIODS = 5  # one lattice step along an axis at full forward speed (FWD_MM
 assert LATTICE_MM == UNIT_PERIODS * FWD_MM_PER_PERIOD
 STEP_SLACK_MM = 5.0  # kept from a mover beyond its step in one period (keep_clear_mm)
 FAR_MM = -1.0e9  # where the robot is for the movers' walk: nowhere near (none stands for it)
+# how the search first reached a (leg, time, point) (`solve_path`'s `came`): a stay, a step from the
+# point at -x, +x, -y, +y, or the leg's start (the start, or where the previous leg's waypoint was passed)
+_STAYED, _FROM_W, _FROM_E, _FROM_S, _FROM_N, _LEG_START = 1, 2, 3, 4, 5, 6
+_BACK = {_STAYED: (0, 0), _FROM_W: (0, -1), _FROM_E: (0, 1), _FROM_S: (-1, 0), _FROM_N: (1, 0)}  # (dj, di) back
 
 
 def keep_clear_mm(mover: np.ndarray, period_s: float) -> float:
@@ -100,7 +104,7 @@ def _lattice(x0: float, y0: float, gm_shape: tuple[int, int], cell: float) -> tu
 
 @numba.njit(cache=True)
 def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, ox, oy, free, step_ok, stay,
-            depart, arrive, reach, nxt, legs, goal):
+            depart, arrive, reach, nxt, came, goal):
     """Earliest period the goal (the last of wps) is reached, or -1 (module docstring); the caller
     sizes the arrays (`_lattice`: ny x nx points, units + 1 time units) and gets them filled.
 
@@ -109,8 +113,9 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
     first half's periods and B over the rest make every period of the step clear (`depart`,
     `arrive`); a stay is checked at the point itself (`stay`). One leg per waypoint: reach[t, j, i] marks lattice point
     (i, j) reachable at time unit t on the current leg; a point within tol of the leg's waypoint ends
-    the leg there and then (pass_waypoints advances at once) and starts the next. With `legs` of one
-    slice per waypoint, each leg's reach is kept there and `goal` gets the goal's (t, j, i)."""
+    the leg there and then (pass_waypoints advances at once) and starts the next. With `came` of one
+    slice per waypoint, how each state was first reached is kept there (the module's _STAYED ..
+    _LEG_START) and `goal` gets the goal's (t, j, i)."""
     h, w = occ.shape
     ny, nx = free.shape
     units = stay.shape[0]
@@ -152,9 +157,9 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
     j0 = int(round((y0 - oy) / lattice))
     if not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
         return -1
-    reach[0, j0, i0] = True
     nwp = wps.shape[0]
-    keep = legs.shape[0] == nwp
+    keep = came.shape[0] == nwp
+    _mark(reach, came, keep, 0, 0, j0, i0, _LEG_START)
     for k in range(nwp):
         wx, wy = wps[k, 0], wps[k, 1]
         nxt[:] = False
@@ -168,33 +173,38 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
                     y = oy + j * lattice
                     if (x - wx) ** 2 + (y - wy) ** 2 <= tol * tol:
                         if k == nwp - 1:
-                            if keep:
-                                legs[k] = reach
-                                goal[0], goal[1], goal[2] = t, j, i
+                            goal[0], goal[1], goal[2] = t, j, i
                             return t * unit
-                        nxt[t, j, i] = True  # the next leg starts here, now
+                        _mark(nxt, came, keep, k + 1, t, j, i, _LEG_START)  # the next leg starts here, now
                         found = True
                         continue
                     if t == units:
                         continue
                     if stay[t, j, i]:
-                        reach[t + 1, j, i] = True
+                        _mark(reach, came, keep, k, t + 1, j, i, _STAYED)
                     if not depart[t, j, i]:
                         continue
                     if i + 1 < nx and step_ok[j, i, 0] and arrive[t, j, i + 1]:
-                        reach[t + 1, j, i + 1] = True
+                        _mark(reach, came, keep, k, t + 1, j, i + 1, _FROM_W)
                     if i > 0 and step_ok[j, i - 1, 0] and arrive[t, j, i - 1]:
-                        reach[t + 1, j, i - 1] = True
+                        _mark(reach, came, keep, k, t + 1, j, i - 1, _FROM_E)
                     if j + 1 < ny and step_ok[j, i, 1] and arrive[t, j + 1, i]:
-                        reach[t + 1, j + 1, i] = True
+                        _mark(reach, came, keep, k, t + 1, j + 1, i, _FROM_S)
                     if j > 0 and step_ok[j - 1, i, 1] and arrive[t, j - 1, i]:
-                        reach[t + 1, j - 1, i] = True
+                        _mark(reach, came, keep, k, t + 1, j - 1, i, _FROM_N)
         if not found:
             return -1
-        if keep:
-            legs[k] = reach
         reach[:] = nxt
     return -1
+
+
+@numba.njit(cache=True, inline="always")
+def _mark(reach, came, keep, k, t, j, i, code) -> None:
+    """(t, j, i) reached on leg k; with `keep`, how, the first time (`_search`)."""
+    if not reach[t, j, i]:
+        reach[t, j, i] = True
+        if keep:
+            came[k, t, j, i] = code
 
 
 def solve(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
@@ -222,38 +232,25 @@ def solve_path(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
     stay, depart, arrive = (np.zeros((units, ny, nx), dtype=np.bool_) for _ in range(3))
     reach, nxt = (np.zeros((units + 1, ny, nx), dtype=np.bool_) for _ in range(2))
     nwp = len(wps)
-    legs = np.zeros((nwp if path else 0, units + 1, ny, nx), dtype=np.bool_)
+    came = np.zeros((nwp if path else 0, units + 1, ny, nx), dtype=np.int8)
     goal = np.zeros(3, dtype=np.int64)
     wps = np.ascontiguousarray(wps)
     period = int(_search(occ, cell, float(radius_mm), discs, tracks, float(x0), float(y0), LATTICE_MM, UNIT_PERIODS,
-                         wps, float(GOAL_TOL_MM), ox, oy, free, step_ok, stay, depart, arrive, reach, nxt, legs,
+                         wps, float(GOAL_TOL_MM), ox, oy, free, step_ok, stay, depart, arrive, reach, nxt, came,
                          goal))
     if period < 0 or not path:
         return period, []
 
-    def near(k: int, j: int, i: int) -> bool:
-        return bool((ox + i * LATTICE_MM - wps[k, 0]) ** 2 + (oy + j * LATTICE_MM - wps[k, 1]) ** 2
-                    <= GOAL_TOL_MM ** 2)
-
     k, (t, j, i) = nwp - 1, (int(v) for v in goal)
     back = [(t, j, i)]
-    while k > 0 or t > 0:
-        if k > 0 and legs[k - 1, t, j, i] and near(k - 1, j, i):
-            k -= 1  # where the previous leg ended: its waypoint passed here, then
+    while True:
+        how = int(came[k, t, j, i])
+        if how == _LEG_START:
+            if k == 0:
+                break  # the start
+            k -= 1  # the previous leg ended here, then: its waypoint passed
             continue
-        for dj, di in ((0, 0), (0, 1), (0, -1), (1, 0), (-1, 0)):
-            pj, pi = j - dj, i - di
-            if not (0 <= pj < ny and 0 <= pi < nx) or not legs[k, t - 1, pj, pi] or near(k, pj, pi):
-                continue
-            if (dj, di) == (0, 0):
-                moved = bool(stay[t - 1, pj, pi])
-            else:
-                moved = bool(depart[t - 1, pj, pi] and arrive[t - 1, j, i]
-                             and step_ok[min(j, pj), min(i, pi), 0 if dj == 0 else 1])
-            if moved:
-                t, j, i = t - 1, pj, pi
-                back.append((t, j, i))
-                break
-        else:
-            raise AssertionError(f"no way back from leg {k} at unit {t}")
+        dj, di = _BACK[how]
+        t, j, i = t - 1, j + dj, i + di
+        back.append((t, j, i))
     return period, [(t * UNIT_PERIODS, ox + i * LATTICE_MM, oy + j * LATTICE_MM) for t, j, i in reversed(back)]

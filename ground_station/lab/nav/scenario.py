@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field, replace
+from itertools import zip_longest
 
 import numpy as np
 
@@ -375,6 +376,15 @@ def blocked_episodes(gridmap: GridMap, n: int, seed: int, want_detour: bool | No
                            goal_mm=(gx, gy), waypoints=wps, discs=discs, movers=walkers, seed=ep_seed,
                            blocked={"disc": list(disc), "detour": bool(detour)}))
     return out
+
+
+def blocked_both(gridmap: GridMap, n: int, seed: int, k: int = 0, m: int = 0,
+                 movers: MoverStyle | None = None) -> list[Episode]:
+    """The benches' `--blocked both`: (n + 1) // 2 episodes with a detour and n // 2 without, the two
+    labels interleaved so every prefix is mixed. Raises MapError as `blocked_episodes`."""
+    yes = blocked_episodes(gridmap, (n + 1) // 2, seed, True, k=k, m=m, movers=movers)
+    no = blocked_episodes(gridmap, n // 2, seed, False, k=k, m=m, movers=movers)
+    return [e for pair in zip_longest(yes, no) for e in pair if e is not None]
 
 
 def rollout_arrays(ep: Episode, guided: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
