@@ -1,7 +1,7 @@
 """Q-learning of the recovery decisions (`ground_station.lab.recovery`, issue 47): transitions and
 their rewards, the tabular update, the hand-written rules as a table (the baseline) doing what the
 rules do, the int8 export, and the failure classification of `qnav bench decisions` (with its
-stand-offs)."""
+stand-offs and sandwiches)."""
 
 from __future__ import annotations
 
@@ -104,6 +104,32 @@ def test_the_trace_watches_every_period_of_the_twin_for_the_movers():
     assert seen[0][:2] != seen[-1][:2]  # the robot's position as it drives
     (row,) = trace([ep], {gm.name: gm}, ctrl)
     assert row["periods"] == periods and row["standoff"] is False  # reached: no mover stood at it
+
+
+def _corridor_trace(movers: list[tuple[float, ...]]) -> dict:
+    """The learnt stack's trace on a one-cell corridor (row 1, closed at both ends) with the robot in
+    its middle driving west and `movers` (not giving way)."""
+    from firmware_py.policy import load_policy
+    from ground_station.lab.nav.controllers import standard_controllers
+    from ground_station.lab.nav.scenario import Episode
+    from ground_station.maps import GridMap
+
+    rows = ["@@@@@@@@@@@@", "@..........@", "@@@@@@@@@@@@"]
+    gm = GridMap("corridor", np.array([[ch == "@" for ch in r] for r in rows]), cell_size_m=0.5)
+    ep = Episode(map=gm.name, start=(3000.0, 750.0, np.pi), goal=(1, 1), goal_mm=(750.0, 750.0),
+                 waypoints=[(750.0, 750.0)], movers=movers)
+    ctrl = standard_controllers(load_policy("policies/sector.qtab"), ("learnt",))[0]
+    (row,) = trace([ep], {gm.name: gm}, ctrl)
+    return row
+
+
+def test_a_robot_pinned_between_two_movers_is_a_sandwich_and_one_mover_a_plain_stand_off():
+    # both walk at the robot along the corridor and stand at its body for ever (they do not give way)
+    west, east = (1750.0, 750.0, 300.0, 0.0, 150.0, 0.0), (4250.0, 750.0, -300.0, 0.0, 150.0, 0.0)
+    both = _corridor_trace([west, east])
+    assert not both["success"] and both["standoff"] and both["sandwich"], both
+    one = _corridor_trace([west])  # the robot backs away east from it: nothing pins it from behind
+    assert not one["success"] and one["standoff"] and not one["sandwich"], one
 
 
 def test_paired_time_counts_who_was_sooner_where_both_succeeded():

@@ -13,7 +13,8 @@ monitor on the window's sub-goals). With `--blocked`, a "no route" on an
 episode without a detour is the right answer and is not a failure. Failures
 that end in a stand-off are counted too: a mover's body nearer than 60 mm to
 the robot's for 90 % of the last 10 s (a mover that does not give way
-stands while a step would overlap the robot). So are the wrong "no route"
+stands while a step would overlap the robot), and how many of those had two
+movers that near, the robot pinned between them. So are the wrong "no route"
 whose last whole-map search would have found a route to a later waypoint
 (the next two or the goal) over the same memory: what a skip of the
 unreachable waypoint would reach.
@@ -85,10 +86,11 @@ def run(args: argparse.Namespace) -> int:
         fails = Counter(r["decision"] + (":no_detour" if r.get("blocked", {}).get("detour") is False else "")
                         for r, ok in zip(rows, right, strict=True) if not ok)
         stands = sum(r["standoff"] for r, ok in zip(rows, right, strict=True) if not ok)
+        pinned = sum(r["sandwich"] for r, ok in zip(rows, right, strict=True) if not ok)
         wrong = [r for r, ok in zip(rows, right, strict=True) if not ok and r["outcome"] == "no_route"]
         print(f"{c.name:13s} n={len(rows)} right {sum(right)} ({sum(right) / max(1, len(rows)):.3f}); failures "
               f"{sum(fails.values())}: " + ", ".join(f"{k} {v}" for k, v in fails.most_common())
-              + f"; {stands} of them end in a stand-off; {sum(bool(r['later_reachable']) for r in wrong)} of "
+              + f"; {stands} of them end in a stand-off ({pinned} between two movers); {sum(bool(r['later_reachable']) for r in wrong)} of "
               f"{len(wrong)} wrong 'no route' with a later waypoint reachable")
         out[c.name] = {"episodes": len(rows), "right": sum(right), "failures": dict(fails), "rows": rows}
     if args.json:

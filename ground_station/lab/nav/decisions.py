@@ -17,7 +17,9 @@ episode is given the decision that ended it (`classify`):
 Each row also says whether the episode ended in a **stand-off** (`standoff`): a mover's body nearer than
 `STANDOFF_GAP_MM` to the robot's for at least 90 % of the last `STANDOFF_PERIODS` periods (a mover
 that does not give way stands while a step would overlap the robot: in a one-cell corridor or a
-dead end neither moves again).
+dead end neither moves again); and whether it was a **sandwich** (`sandwich`): two movers' bodies
+that near for as long, the robot pinned between them (no decision of the robot's ends it: two that
+do not give way stand for each other's side of it for ever, so only not being there helps).
 
 And whether, at the last whole-map "no route" of the episode, a **later waypoint was reachable**
 (`later_reachable`): the same search over the same memory towards the next two waypoints of the
@@ -141,10 +143,17 @@ def standoff(gaps: list[float]) -> bool:
     return len(tail) == STANDOFF_PERIODS and sum(g < STANDOFF_GAP_MM for g in tail) >= 0.9 * STANDOFF_PERIODS
 
 
+def sandwich(second_gaps: list[float]) -> bool:
+    """A stand-off between two movers at the end (module docstring): `second_gaps` the robot's body to
+    the second nearest mover's, per period (the same rule as `standoff` on it)."""
+    return standoff(second_gaps)
+
+
 def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
     """One row per episode: outcome, the decision that ended a failure (`classify`), the periods in
     each mode, the rounds of recoveries and give-ways, whether it ended in a stand-off, whether a later
-    waypoint was reachable at its last "no route" (module docstring)."""
+    waypoint was reachable at its last "no route", whether it ended pinned between two movers (module
+    docstring)."""
     from ground_station.lab.nav import planned
     from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, OUTCOMES, STALL_STEPS
 
@@ -158,14 +167,18 @@ def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> 
         return holder[-1]
 
     gaps: list[float] = []
+    seconds: list[float] = []  # to the second nearest mover (`sandwich`)
 
     def watch(x: float, y: float, movers: np.ndarray) -> None:
-        gaps.append(min((math.hypot(mx - x, my - y) - r - robot_spec.ROBOT_RADIUS_MM
-                         for mx, my, _, _, r, _ in movers.tolist()), default=math.inf))
+        near = sorted(math.hypot(mx - x, my - y) - r - robot_spec.ROBOT_RADIUS_MM
+                      for mx, my, _, _, r, _ in movers.tolist()) + [math.inf, math.inf]
+        gaps.append(near[0])
+        seconds.append(near[1])
 
     for ep in eps:
         holder.clear()
         gaps.clear()
+        seconds.clear()
         wps = rollout_arrays(ep, ctrl.guidance == "path")[2]  # the waypoints the rollout drives to
         later[:] = [(round(wx), round(wy)) for wx, wy in wps.tolist()]
         o, _, steps, _, _, _ = planned.rollout(ep, maps[ep.map], ctrl, BUDGET_BASE, BUDGET_FACTOR, STALL_STEPS,
@@ -177,6 +190,7 @@ def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> 
                      "decision": None if outcome == "success" else classify(outcome, tr, p.give_ways),
                      "periods": steps, "modes": dict(Counter(tr.modes)), "rounds": p._all_rounds,
                      "give_ways": p.give_ways, "global_plans": p.global_plans, "standoff": standoff(gaps),
+                     "sandwich": sandwich(seconds),
                      "later_reachable": tr.later_open,
                      **({"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {})})
     return rows
