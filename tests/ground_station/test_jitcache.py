@@ -86,7 +86,7 @@ def test_the_hash_follows_the_sources_and_the_parent_the_place(tmp_path):
     assert str(jitcache.CACHE_FOLDER) == jitcache.numba.config.CACHE_DIR
 
 
-def test_other_versions_untouched_for_days_are_pruned_when_a_new_one_is_made(tmp_path):
+def test_other_versions_untouched_for_days_are_pruned_when_a_new_one_is_made(tmp_path, monkeypatch):
     parent = tmp_path / ".numba_cache"
     old, recent = parent / ("0" * 16), parent / ("1" * 16)
     old.mkdir(parents=True)
@@ -96,7 +96,9 @@ def test_other_versions_untouched_for_days_are_pruned_when_a_new_one_is_made(tmp
     _tree(tmp_path, 1)
     (tmp_path / "pyproject.toml").write_text("")
     try:
-        folder = jitcache.configure(tmp_path, ("pkg_a", "pkg_b"))
+        with monkeypatch.context() as env:  # the checkout's folder, not one a NUMBA_CACHE_DIR set here names
+            env.delenv("NUMBA_CACHE_DIR", raising=False)
+            folder = jitcache.configure(tmp_path, ("pkg_a", "pkg_b"))
     finally:
         jitcache.configure()  # this process's kernels stay in the suite's folder
     assert folder.is_dir() and recent.is_dir() and not old.exists()
