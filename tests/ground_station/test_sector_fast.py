@@ -21,6 +21,10 @@ from ground_station.maps import load_map
 from tests.support.sector_noise import noisy_encode, noisy_state
 
 TW = T.DEFAULT_TW  # the built-in robot
+# on one xdist worker, one test after another: they compile the same reference and kernel signatures
+# (numba's cache holds them only once one process has written them), and side by side on a fresh clone
+# every worker compiled its own copy (the fused test's two cases 24 s and 22 s, warm 1.8 s each)
+pytestmark = pytest.mark.xdist_group("sector_fast")
 MAPS = ["paper10", "trap-12x12-s1", "rooms-16x16-s2"]
 
 
