@@ -128,7 +128,7 @@ def test_a_robot_pinned_between_two_movers_is_a_sandwich_and_one_mover_a_plain_s
     west, east = (1750.0, 750.0, 300.0, 0.0, 150.0, 0.0), (4250.0, 750.0, -300.0, 0.0, 150.0, 0.0)
     both = _corridor_trace([west, east])
     assert not both["success"] and both["standoff"] and both["sandwich"], both
-    one = _corridor_trace([west])  # the robot backs away east from it: nothing pins it from behind
+    one = _corridor_trace([west])  # the same stand-off with nothing behind the robot
     assert not one["success"] and one["standoff"] and not one["sandwich"], one
 
 
