@@ -90,8 +90,9 @@ def run(args: argparse.Namespace) -> int:
         wrong = [r for r, ok in zip(rows, right, strict=True) if not ok and r["outcome"] == "no_route"]
         print(f"{c.name:13s} n={len(rows)} right {sum(right)} ({sum(right) / max(1, len(rows)):.3f}); failures "
               f"{sum(fails.values())}: " + ", ".join(f"{k} {v}" for k, v in fails.most_common())
-              + f"; {stands} of them end in a stand-off ({pinned} between two movers); {sum(bool(r['later_reachable']) for r in wrong)} of "
-              f"{len(wrong)} wrong 'no route' with a later waypoint reachable")
+              + f"; {stands} of them end in a stand-off ({pinned} between two movers); "
+              f"{sum(bool(r['later_reachable']) for r in wrong)} of {len(wrong)} wrong 'no route' with a later "
+              "waypoint reachable")
         out[c.name] = {"episodes": len(rows), "right": sum(right), "failures": dict(fails), "rows": rows}
     if args.json:
         with open(args.json, "w") as f:

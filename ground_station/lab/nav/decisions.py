@@ -143,12 +143,6 @@ def standoff(gaps: list[float]) -> bool:
     return len(tail) == STANDOFF_PERIODS and sum(g < STANDOFF_GAP_MM for g in tail) >= 0.9 * STANDOFF_PERIODS
 
 
-def sandwich(second_gaps: list[float]) -> bool:
-    """A stand-off between two movers at the end (module docstring): `second_gaps` the robot's body to
-    the second nearest mover's, per period (the same rule as `standoff` on it)."""
-    return standoff(second_gaps)
-
-
 def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> list[dict]:
     """One row per episode: outcome, the decision that ended a failure (`classify`), the periods in
     each mode, the rounds of recoveries and give-ways, whether it ended in a stand-off, whether a later
@@ -167,7 +161,7 @@ def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> 
         return holder[-1]
 
     gaps: list[float] = []
-    seconds: list[float] = []  # to the second nearest mover (`sandwich`)
+    seconds: list[float] = []  # to the second nearest mover: a sandwich is `standoff` on these
 
     def watch(x: float, y: float, movers: np.ndarray) -> None:
         near = sorted(math.hypot(mx - x, my - y) - r - robot_spec.ROBOT_RADIUS_MM
@@ -190,7 +184,7 @@ def trace(eps: list[Episode], maps: dict[str, GridMap], ctrl: NavController) -> 
                      "decision": None if outcome == "success" else classify(outcome, tr, p.give_ways),
                      "periods": steps, "modes": dict(Counter(tr.modes)), "rounds": p._all_rounds,
                      "give_ways": p.give_ways, "global_plans": p.global_plans, "standoff": standoff(gaps),
-                     "sandwich": sandwich(seconds),
+                     "sandwich": standoff(seconds),
                      "later_reachable": tr.later_open,
                      **({"blocked": {"detour": bool(ep.blocked["detour"])}} if ep.blocked else {})})
     return rows
