@@ -1,5 +1,6 @@
-"""The privileged planner of `qnav bench ceiling` (ground_station/lab/nav/oracle.py): what it finds
-on worlds where the answer is known by hand, and the bench's own figures on a real scenario."""
+"""The privileged planner of `qnav bench ceiling` (ground_station/lab/nav/oracle.py) and the same
+planner limited to the movers the robot has seen (ground_station/lab/nav/foresight.py): what they
+find on worlds where the answer is known by hand, and the bench's own figures on a real scenario."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import sys
 import numpy as np
 
 from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, PERIOD_S
+from ground_station.lab.nav.foresight import sees, solve_seen
 from ground_station.lab.nav.oracle import mover_tracks, solve, solve_path
 from ground_station.lab.nav.scenario import (
     MOVER_SPEED_MM_S,
@@ -143,10 +145,10 @@ def test_bench_ceiling_reports_the_oracle_beside_the_controllers(tmp_path) -> No
     out = tmp_path / "c.json"
     r = subprocess.run([sys.executable, "-m", "ground_station", "bench", "ceiling", "--map", "maze-12x12-s306",
                         "--obstacles", "6", "--movers", "3", "--no-yield", "--episodes", "2", "--controllers",
-                        "seek_local", "--workers", "1", "--json", str(out), "--draw", str(tmp_path / "d")],
-                       capture_output=True, text=True, timeout=600)
+                        "seek_local", "--foresight", "2000", "--workers", "1", "--json", str(out), "--draw",
+                        str(tmp_path / "d")], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    assert "oracle (privileged)" in r.stdout and "seek_local" in r.stdout
+    assert "oracle (privileged)" in r.stdout and "oracle seeing 2000 mm" in r.stdout and "seek_local" in r.stdout
     res = json.loads(out.read_text())
     rows = res["episodes"]
     assert [row["index"] for row in rows] == [0, 1]
@@ -156,6 +158,11 @@ def test_bench_ceiling_reports_the_oracle_beside_the_controllers(tmp_path) -> No
     s = res["seek_local"]
     assert round(s["success_rate"] * 2) == won
     assert s["failed_oracle_solved"] + s["failed_oracle_not"] == 2 - won
+    # --foresight: the limited oracle's outcome and time per episode, its count per map and overall
+    seen = [row["seen"] for row in rows]
+    assert res["seen"]["right"] == seen.count("success") == res["per_map"]["maze-12x12-s306"]["seen"]
+    assert all((row["seen_s"] is not None) == (row["seen"] == "success") for row in rows)
+    assert s["failed_seen_solved"] == sum(row["seek_local"] != "success" and row["seen"] == "success" for row in rows)
     # --draw: one PNG per episode seek_local got wrong and the oracle right (none, maybe: the drawing
     # itself is checked below)
     folder = tmp_path / "d"
@@ -199,3 +206,59 @@ def test_bench_ceiling_names_a_bad_budget_scale() -> None:
     r = subprocess.run([sys.executable, "-m", "ground_station", "bench", "ceiling", "--map", "paper10",
                         "--budget-scale", "0"], capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "--budget-scale 0" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_bench_ceiling_names_a_bad_foresight() -> None:
+    r = subprocess.run([sys.executable, "-m", "ground_station", "bench", "ceiling", "--map", "paper10",
+                        "--foresight", "-5"], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "--foresight -5" in r.stderr and "Traceback" not in r.stderr
+
+
+# --- the oracle limited to what the robot has seen ----------------------------------------------
+
+def seen(ep: Episode, gm: GridMap, see_mm: float) -> tuple[str, int]:
+    return solve_seen(ep, gm, 150, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S, see_mm)
+
+
+def test_the_robot_sees_a_mover_in_reach_and_not_through_a_wall_or_a_disc() -> None:
+    gm = CORRIDOR
+    occ = gm.occ.astype(np.uint8)
+    none = np.zeros((0, 3))
+    rx, ry = centre(gm, 9, 1)  # at the door
+    assert sees(occ, CELL, none, rx, ry, *centre(gm, 5, 1), 2500.0)  # along the corridor, 2 m off
+    assert not sees(occ, CELL, none, rx, ry, *centre(gm, 5, 1), 1900.0)  # beyond its reach
+    assert not sees(occ, CELL, none, *centre(gm, 9, 3), *centre(gm, 5, 1), 5000.0)  # the shaft's wall between
+    disc = np.array([[centre(gm, 7, 1)[0], centre(gm, 7, 1)[1], 100.0]])
+    assert not sees(occ, CELL, disc, rx, ry, *centre(gm, 5, 1), 2500.0)  # a disc on the line
+
+
+# an open room; the robot crosses it along row 4 while two movers that do not give way cross its way
+OPEN = grid(["@" * 14] + ["@" + "." * 12 + "@"] * 8 + ["@" * 14])
+
+
+def crossing_episode() -> Episode:
+    (ax, ay), (bx, by) = centre(OPEN, 6, 1), centre(OPEN, 9, 8)
+    return episode(OPEN, centre(OPEN, 1, 4), [centre(OPEN, 12, 4)],
+                   ((ax, ay, 0.0, -400.0, 150.0, 0.0), (bx, by, 0.0, 500.0, 150.0, 0.0)))
+
+
+def test_seeing_every_mover_the_limited_oracle_drives_the_oracles_time() -> None:
+    # nothing to see: the same search, the same time
+    x, y = centre(ROOM, 1, 2)
+    for wps in ([(x + 1000, y)], [(x, y + 400), (x + 1000, y)]):
+        assert seen(episode(ROOM, (x, y), wps), ROOM, 2000.0) == ("success", oracle(episode(ROOM, (x, y), wps), ROOM))
+    # both movers in sight from the start (an open room, 2 m or all of it): each tracked from its sightings,
+    # re-planned each second as it drives, it arrives when the oracle that knew their walks does
+    ep = crossing_episode()
+    best = oracle(ep, OPEN)
+    assert best > 0
+    assert seen(ep, OPEN, 100_000.0) == ("success", best)
+    assert seen(ep, OPEN, 2000.0) == ("success", best)
+
+
+def test_a_robot_that_sees_a_mover_too_late_does_not_make_the_oracles_time() -> None:
+    # seeing 300 mm beyond the bodies, a mover is on it before a way round can be planned: it is held up
+    # (a mover that does not give way stands in front of it) or touched, never as quick as the oracle
+    ep = crossing_episode()
+    outcome, period = seen(ep, OPEN, 300.0)
+    assert outcome != "success" or period > oracle(ep, OPEN), (outcome, period)

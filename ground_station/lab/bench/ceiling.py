@@ -19,11 +19,21 @@ the oracle alike), and a controller's wrong "no route" the oracle solved is
 counted. `--budget-scale 3` gives the oracle the most time a controller's
 re-routes can reach (a longer detour is in the budget).
 
+`--foresight MM` runs a second oracle beside it, limited to what the robot
+could see (`ground_station.lab.nav.foresight`): the same search re-planned as
+it drives, knowing only the movers that have come within MM of it in line of
+sight (2000: the range sensors' reach), each tracked perfectly from then on.
+The gap between the two is what knowing the movers beyond the sensors is worth;
+a controller's failures that one solved are the ones a robot could win from its
+own sightings.
+
 Prints a table and writes JSON (`--json`): `scenario`, `oracle` and each
 controller's summary (as `qnav bench nav`'s, with `right` and the failures
 the oracle solved), `per_map` (episodes, right for the oracle and each
 controller), and `episodes`: one row per episode (map, index on it, the
-oracle's time in s or null, the label, each controller's outcome).
+oracle's time in s or null, the label, each controller's outcome; with
+`--foresight`, `seen` (the limited oracle's summary) and per row `seen` and
+`seen_s`: its outcome and time).
 """
 
 from __future__ import annotations
@@ -50,6 +60,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--budget-scale", type=float, default=1.0, metavar="S",
                    help="the oracle's budget: S x the episode's (default %(default)s: the budget every controller "
                         "starts with; 3: the most a controller's re-routes extend it to)")
+    p.add_argument("--foresight", type=float, default=None, metavar="MM",
+                   help="also the oracle limited to the movers the robot has seen within MM in line of sight, "
+                        "re-planned as it drives (2000: the range sensors' reach)")
     p.add_argument("--episodes", type=int, default=40, help="episodes per map (default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
@@ -66,19 +79,25 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def ceiling_job(job: dict) -> list[Any]:
-    """One job: the oracle's periods (-1: no way found) or a controller's rows (`episodes.run_job`)."""
+    """One job: the oracle's periods (-1: no way found), the limited oracle's (outcome, period) or a
+    controller's rows (`episodes.run_job`)."""
     from ground_station.lab.nav.episodes import run_job
 
-    if job["kind"] != "oracle":
+    if job["kind"] not in ("oracle", "seen"):
         return run_job(job)
     from firmware_py import robot_spec
     from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, PERIOD_S
+    from ground_station.lab.nav.foresight import solve_seen
     from ground_station.lab.nav.oracle import solve
     from ground_station.maps import load_map
 
     maps = {name: load_map(spec) for name, spec in job["maps"].items()}
-    return [solve(ep, maps[ep.map], robot_spec.ROBOT_RADIUS_MM, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S,
-                  job["budget_scale"]) for ep in job["episodes"]]
+    r = robot_spec.ROBOT_RADIUS_MM
+    if job["kind"] == "seen":
+        return [list(solve_seen(ep, maps[ep.map], r, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S, job["see_mm"],
+                                job["budget_scale"])) for ep in job["episodes"]]
+    return [solve(ep, maps[ep.map], r, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S, job["budget_scale"])
+            for ep in job["episodes"]]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -103,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--obstacles/--movers must be >= 0, --episodes/--batch >= 1")
     if not 0 < args.budget_scale <= 10:
         raise CliError(f"--budget-scale {args.budget_scale}: expected 0 < S <= 10")
+    if args.foresight is not None and not 0 < args.foresight <= 100_000:
+        raise CliError(f"--foresight {args.foresight:g}: expected 0 < MM <= 100000")
     names = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
     try:
         path = resolve_policy_spec(args.policy)
@@ -136,6 +157,9 @@ def run(args: argparse.Namespace) -> int:
     chunks = [eps[i:i + args.batch] for i in range(0, len(eps), args.batch)]
     jobs: list[dict[str, Any]] = [{**base, "kind": "oracle", "controller": "oracle", "episodes": c,
                                    "budget_scale": args.budget_scale} for c in chunks]
+    if args.foresight is not None:
+        jobs += [{**base, "kind": "seen", "controller": "seen", "episodes": c, "see_mm": args.foresight,
+                  "budget_scale": args.budget_scale} for c in chunks]
     jobs += [{**base, "kind": "twin", "controller": c.name, "episodes": ch} for c in ctrls for ch in chunks]
     with engine_from_args(args) as engine:
         out, stats = engine.map(ceiling_job, jobs, desc="episodes", unit="batch")
@@ -147,6 +171,8 @@ def run(args: argparse.Namespace) -> int:
     solved = [p >= 0 for p in periods]
     # the oracle is right where it found a way, and on an episode labelled without a detour where it found none
     oracle_right = [s != nl for s, nl in zip(solved, none_label, strict=True)]
+    seen = by.get("seen")  # --foresight: (outcome, period) each
+    seen_right = [(o == "success") != nl for (o, _p), nl in zip(seen, none_label, strict=True)] if seen else None
 
     won_by = {c.name: [answered_right(row) for row in by[c.name]] for c in ctrls}
     index: dict[str, int] = {}
@@ -155,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         i = index[ep.map] = index.get(ep.map, -1) + 1
         rows.append({"map": ep.map, "index": i, "oracle_s": round(p * PERIOD_S, 2) if p >= 0 else None,
                      **({"detour": bool(ep.blocked["detour"])} if ep.blocked else {}),
+                     **({"seen": seen[len(rows)][0], "seen_s": round(seen[len(rows)][1] * PERIOD_S, 2)
+                         if seen[len(rows)][0] == "success" else None} if seen else {}),
                      **{c.name: by[c.name][len(rows)]["outcome"] for c in ctrls}})
     n = len(eps)
     k = sum(oracle_right)
@@ -176,6 +204,16 @@ def run(args: argparse.Namespace) -> int:
         ("oracle (privileged)", f"n={n} right {k} ({k / n:.3f}) [{ci[0]:.3f}, {ci[1]:.3f}]: a lower bound on "
                                 "what the scenario allows"),
     ]
+    if seen and seen_right is not None:
+        ks = sum(seen_right)
+        outs = {o: sum(1 for s_, _p in seen if s_ == o) for o in ("success", "collision", "timeout")}
+        result["seen"] = {"see_mm": args.foresight, "episodes": n, "right": ks, "right_rate": ks / n,
+                          "right_ci95": wilson95(ks, n), "outcomes": outs,
+                          "won_oracle_not": sum(1 for a, b in zip(seen_right, oracle_right, strict=True) if a and not b)}
+        lo, hi = wilson95(ks, n)
+        table.append((f"oracle seeing {args.foresight:g} mm", f"n={n} right {ks} ({ks / n:.3f}) [{lo:.3f}, {hi:.3f}], "
+                      f"collisions {outs['collision']}, timeouts {outs['timeout']}: knowing only the movers "
+                      "it has seen"))
     if any(none_label):
         table.append(("  without a detour", f"the oracle found a way in {result['oracle']['found_without_detour']} "
                                             f"of {sum(none_label)} (the label says none: 0 expected)"))
@@ -190,11 +228,16 @@ def run(args: argparse.Namespace) -> int:
         result[c.name] = {**s, "right": sum(won), "failed_oracle_solved": lost_solvable,
                           "failed_oracle_not": n - sum(won) - lost_solvable,
                           "no_route_oracle_solved": wrong_no_route, "won_oracle_not": beyond}
+        by_seen = ""
+        if seen_right is not None:
+            lost_seen = sum(1 for w, o in zip(won, seen_right, strict=True) if not w and o)
+            result[c.name]["failed_seen_solved"] = lost_seen
+            by_seen = f", the oracle seeing {args.foresight:g} mm {lost_seen}"
         lo, hi = wilson95(sum(won), n)
         table.append((c.name, f"right {sum(won)} ({sum(won) / n:.3f}) [{lo:.3f}, {hi:.3f}], collisions "
                               f"{s['outcomes'].get('collision', 0)}; of its {n - sum(won)} failures the oracle "
-                              f"solved {lost_solvable} ({wrong_no_route} a \"no route\"); it won {beyond} the "
-                              "oracle did not"))
+                              f"solved {lost_solvable} ({wrong_no_route} a \"no route\"){by_seen}; it won {beyond} "
+                              "the oracle did not"))
     if ctrls:
         any_won = [any(won_by[c.name][i] for c in ctrls) for i in range(n)]
         neither = sum(1 for w, o in zip(any_won, oracle_right, strict=True) if not w and not o)
@@ -205,6 +248,7 @@ def run(args: argparse.Namespace) -> int:
     for name in specs:
         idx = [i for i, ep in enumerate(eps) if ep.map == name]
         pm = {"episodes": len(idx), "oracle": sum(oracle_right[i] for i in idx),
+              **({"seen": sum(seen_right[i] for i in idx)} if seen_right is not None else {}),
               **{c.name: sum(won_by[c.name][i] for i in idx) for c in ctrls}}
         result["per_map"][name] = pm
         table.append((f"  {name}", ", ".join(f"{key} {v}" for key, v in pm.items())))

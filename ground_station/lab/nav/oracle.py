@@ -94,7 +94,7 @@ def _clear(x, y, clearance, tracks, t0, t1) -> bool:
     return True
 
 
-def _lattice(x0: float, y0: float, gm_shape: tuple[int, int], cell: float) -> tuple[float, float, int, int]:
+def lattice_of(x0: float, y0: float, gm_shape: tuple[int, int], cell: float) -> tuple[float, float, int, int]:
     """The lattice through (x0, y0): (x, y) of point (0, 0), points along x and y."""
     h, w = gm_shape
     ox = x0 - math.floor(x0 / LATTICE_MM) * LATTICE_MM
@@ -104,9 +104,9 @@ def _lattice(x0: float, y0: float, gm_shape: tuple[int, int], cell: float) -> tu
 
 @numba.njit(cache=True)
 def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, ox, oy, free, step_ok, stay,
-            depart, arrive, reach, nxt, came, goal):
+            depart, arrive, done, reach, nxt, came, goal, leg_slack):
     """Earliest period the goal (the last of wps) is reached, or -1 (module docstring); the caller
-    sizes the arrays (`_lattice`: ny x nx points, units + 1 time units) and gets them filled.
+    sizes the arrays (`lattice_of`: ny x nx points, units + 1 time units) and gets them filled.
 
     A step from A to B in time unit t: the robot is within lattice x half / unit (40 mm) of A in
     its first `half` periods and of B in the rest, so A clear of the movers by that more over the
@@ -115,7 +115,10 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
     (i, j) reachable at time unit t on the current leg; a point within tol of the leg's waypoint ends
     the leg there and then (pass_waypoints advances at once) and starts the next. With `came` of one
     slice per waypoint, how each state was first reached is kept there (the module's _STAYED ..
-    _LEG_START) and `goal` gets the goal's (t, j, i)."""
+    _LEG_START) and `goal` gets the goal's (t, j, i). A time unit's stay/depart/arrive are computed
+    when the search first reaches it (`done`). A leg is searched until `leg_slack` units after its
+    waypoint was first reached (later arrivals there are not continued from: a re-planning caller's
+    bound on the work; `solve_path` without one searches them all)."""
     h, w = occ.shape
     ny, nx = free.shape
     units = stay.shape[0]
@@ -142,17 +145,6 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
                         good = False
                         break
                 step_ok[j, i, m] = good
-    for t in range(units):
-        a = t * unit
-        for j in range(ny):
-            for i in range(nx):
-                if not free[j, i]:
-                    continue
-                x = ox + i * lattice
-                y = oy + j * lattice
-                stay[t, j, i] = _clear(x, y, radius, tracks, a, a + unit)
-                depart[t, j, i] = _clear(x, y, radius + slack, tracks, a, a + half)
-                arrive[t, j, i] = _clear(x, y, radius + slack, tracks, a + half, a + unit)
     i0 = int(round((x0 - ox) / lattice))
     j0 = int(round((y0 - oy) / lattice))
     if not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
@@ -163,8 +155,10 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
     for k in range(nwp):
         wx, wy = wps[k, 0], wps[k, 1]
         nxt[:] = False
-        found = False
+        first = -1
         for t in range(units + 1):
+            if first >= 0 and t > first + leg_slack:
+                break
             for j in range(ny):
                 for i in range(nx):
                     if not reach[t, j, i]:
@@ -176,10 +170,14 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
                             goal[0], goal[1], goal[2] = t, j, i
                             return t * unit
                         _mark(nxt, came, keep, k + 1, t, j, i, _LEG_START)  # the next leg starts here, now
-                        found = True
+                        if first < 0:
+                            first = t
                         continue
                     if t == units:
                         continue
+                    if not done[t]:
+                        _rows(t, radius, tracks, ox, oy, lattice, unit, slack, half, free, stay, depart, arrive)
+                        done[t] = True
                     if stay[t, j, i]:
                         _mark(reach, came, keep, k, t + 1, j, i, _STAYED)
                     if not depart[t, j, i]:
@@ -192,10 +190,26 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
                         _mark(reach, came, keep, k, t + 1, j + 1, i, _FROM_S)
                     if j > 0 and step_ok[j - 1, i, 1] and arrive[t, j - 1, i]:
                         _mark(reach, came, keep, k, t + 1, j - 1, i, _FROM_N)
-        if not found:
+        if first < 0:
             return -1
         reach[:] = nxt
     return -1
+
+
+@numba.njit(cache=True)
+def _rows(t, radius, tracks, ox, oy, lattice, unit, slack, half, free, stay, depart, arrive) -> None:
+    """Time unit t's stay, depart and arrive for every free lattice point (`_search`)."""
+    ny, nx = free.shape
+    a = t * unit
+    for j in range(ny):
+        for i in range(nx):
+            if not free[j, i]:
+                continue
+            x = ox + i * lattice
+            y = oy + j * lattice
+            stay[t, j, i] = _clear(x, y, radius, tracks, a, a + unit)
+            depart[t, j, i] = _clear(x, y, radius + slack, tracks, a, a + half)
+            arrive[t, j, i] = _clear(x, y, radius + slack, tracks, a + half, a + unit)
 
 
 @numba.njit(cache=True, inline="always")
@@ -225,19 +239,30 @@ def solve_path(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
     budget = int(budget_scale * budget_periods(plan_len, budget_base, budget_factor))
     tracks = mover_tracks(movers, occ, cell, discs, budget, period_s)
     x0, y0, _ = ep.start
-    ox, oy, nx, ny = _lattice(float(x0), float(y0), occ.shape, cell)
-    units = budget // UNIT_PERIODS
+    return search_from(occ, cell, radius_mm, discs, tracks, float(x0), float(y0), wps, budget // UNIT_PERIODS,
+                       lattice_of(float(x0), float(y0), occ.shape, cell), path)
+
+
+def search_from(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, tracks: np.ndarray, x0: float,
+                y0: float, wps: np.ndarray, units: int, lattice: tuple[float, float, int, int], path: bool = True,
+                leg_slack: int | None = None) -> tuple[int, list[tuple[int, float, float]]]:
+    """The search (`_search`) from lattice point (x0, y0) at period 0 of `tracks` (the movers' walks from
+    then on, `mover_tracks`) through `wps` in order within `units` time units: (the earliest period the
+    last is reached or -1, with `path` the way as `solve_path`'s). `lattice`: `lattice_of`'s (ox, oy, nx,
+    ny) of the episode's start; `leg_slack`: `_search`'s (None: every arrival at a waypoint)."""
+    ox, oy, nx, ny = lattice
     free = np.zeros((ny, nx), dtype=np.bool_)
     step_ok = np.zeros((ny, nx, 2), dtype=np.bool_)
     stay, depart, arrive = (np.zeros((units, ny, nx), dtype=np.bool_) for _ in range(3))
+    done = np.zeros(units, dtype=np.bool_)
     reach, nxt = (np.zeros((units + 1, ny, nx), dtype=np.bool_) for _ in range(2))
     nwp = len(wps)
     came = np.zeros((nwp if path else 0, units + 1, ny, nx), dtype=np.int8)
     goal = np.zeros(3, dtype=np.int64)
-    wps = np.ascontiguousarray(wps)
-    period = int(_search(occ, cell, float(radius_mm), discs, tracks, float(x0), float(y0), LATTICE_MM, UNIT_PERIODS,
-                         wps, float(GOAL_TOL_MM), ox, oy, free, step_ok, stay, depart, arrive, reach, nxt, came,
-                         goal))
+    wps = np.ascontiguousarray(wps, dtype=np.float64)
+    period = int(_search(occ, cell, float(radius_mm), discs, tracks, x0, y0, LATTICE_MM, UNIT_PERIODS, wps,
+                         float(GOAL_TOL_MM), ox, oy, free, step_ok, stay, depart, arrive, done, reach, nxt, came,
+                         goal, units + 1 if leg_slack is None else int(leg_slack)))
     if period < 0 or not path:
         return period, []
 

@@ -1,0 +1,127 @@
+"""The oracle limited to what the robot could see: which episodes a planner that knew only the movers
+in its sensors' reach could finish (issue 47).
+
+`oracle.solve` knows every mover's whole walk from the start. Here the same space-time search
+(`oracle.search_from`) is re-planned as the robot goes, from what it has seen by then: a mover is
+seen while its centre is within `see_mm` (+ its radius) of the robot's, with a clear line of sight
+(no map cell or disc on the segment between the centres); once seen it is known for ever after,
+predicted from its last sighting with the movers' own model (`sim_bridge.obstacles.step_movers`, the
+robot far away). So this is a tracker that never loses a mover and knows each one's speed and
+bounces exactly; what it lacks is the movers it has not seen yet: one coming round a corner or out
+of a side corridor is planned with from the moment it shows.
+
+The robot drives the plan one lattice step (a time unit, `oracle.UNIT_PERIODS` periods) at a time
+against the true movers, stepped with the robot where it is (as the twin steps them: one that does
+not give way stands while a step would overlap the robot); it re-plans every `REPLAN_UNITS` units,
+at once when a mover it had not seen shows, and after the plan runs out. Where the search finds no
+way with what it knows it stays `REPLAN_UNITS` units and searches again. A robot's disc touching a
+mover's is a collision and ends the episode; the goal within the budget a success; else a timeout.
+
+It keeps the oracle's relaxations (turns in no time, drives sideways, on the lattice) and its
+keep-clear margins, and bounds the search's work: each search looks at most twice the route left
+(at full speed) + 30 s ahead, and continues from arrivals at a waypoint within `LEG_SLACK_UNITS` of
+the first (`oracle._search`). So a figure here is what such a planner allows; a robot that turns
+and sees less does worse, not better.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ground_station.jitcache import numba
+from ground_station.lab.nav import oracle
+from ground_station.lab.nav.obstacle_twin import step_movers
+from ground_station.lab.nav.planned import budget_periods
+from ground_station.lab.nav.scenario import Episode, rollout_arrays
+from ground_station.learn.sector.kernels import GOAL_TOL_MM
+from ground_station.maps import GridMap
+
+REPLAN_UNITS = 4  # 1 s at 50 ms periods: the robot's planner worker re-plans about as often
+LEG_SLACK_UNITS = 40  # 10 s: later arrivals at a waypoint are not searched on from
+HORIZON_SLACK_UNITS = 120  # 30 s beyond twice the route left at full speed
+SIGHT_STEP_MM = 20.0  # the line of sight is sampled this often (under half the thinnest wall cell)
+
+
+@numba.njit(cache=True)
+def sees(occ, cell, discs, rx, ry, mx, my, reach_mm) -> bool:
+    """Whether a robot at (rx, ry) sees a mover centred at (mx, my): within `reach_mm` and no map
+    cell or disc on the segment between the centres (sampled every SIGHT_STEP_MM)."""
+    d = math.hypot(mx - rx, my - ry)
+    if d > reach_mm:
+        return False
+    h, w = occ.shape
+    top = h * cell
+    n = int(d / SIGHT_STEP_MM) + 1
+    for s in range(1, n):
+        x = rx + (mx - rx) * s / n
+        y = ry + (my - ry) * s / n
+        c = int(math.floor(x / cell))
+        r = int(math.floor((top - y) / cell))
+        if 0 <= r < h and 0 <= c < w and occ[r, c]:
+            return False
+        for k in range(discs.shape[0]):
+            if (x - discs[k, 0]) ** 2 + (y - discs[k, 1]) ** 2 < discs[k, 2] ** 2:
+                return False
+    return True
+
+
+def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
+               period_s: float, see_mm: float, budget_scale: float = 1.0) -> tuple[str, int]:
+    """Drive `ep` re-planning from what the robot has seen (module docstring): ("success", the period
+    the goal was reached), ("collision", the period of contact) or ("timeout", the budget)."""
+    discs, movers, wps, remaining, plan_len = rollout_arrays(ep, True)
+    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
+    cell = gm.cell_size_m * 1000.0
+    budget = int(budget_scale * budget_periods(plan_len, budget_base, budget_factor))
+    unit = oracle.UNIT_PERIODS
+    x0, y0, _ = ep.start
+    lattice = oracle.lattice_of(float(x0), float(y0), occ.shape, cell)
+    x, y = float(x0), float(y0)  # a lattice point (the lattice runs through the start)
+    k = t = since = 0  # the waypoint next, the period, units since the last search
+    seen: dict[int, tuple[int, np.ndarray]] = {}  # mover -> (period of its last sighting, its state then)
+    plan: list[tuple[float, float]] = []
+    while t + unit <= budget:
+        new = False
+        for m in range(movers.shape[0]):
+            if sees(occ, cell, discs, x, y, movers[m, 0], movers[m, 1], see_mm + movers[m, 4]):
+                new = new or m not in seen
+                seen[m] = (t, movers[m].copy())
+        if new or since >= REPLAN_UNITS or not plan:
+            plan = _plan(occ, cell, radius_mm, discs, seen, t, x, y, wps[k:], remaining[k], budget, lattice,
+                         period_s)
+            since = 0
+        nx, ny = plan.pop(0)
+        for p in range(1, unit + 1):
+            rx, ry = x + (nx - x) * p / unit, y + (ny - y) * p / unit
+            step_movers(movers, occ, cell, discs, rx, ry, float(radius_mm), period_s)
+            for m in range(movers.shape[0]):
+                if (rx - movers[m, 0]) ** 2 + (ry - movers[m, 1]) ** 2 < (radius_mm + movers[m, 4]) ** 2:
+                    return "collision", t + p
+        t, since, x, y = t + unit, since + 1, nx, ny
+        while k < len(wps) and (x - wps[k, 0]) ** 2 + (y - wps[k, 1]) ** 2 <= GOAL_TOL_MM ** 2:
+            k += 1  # as the search counts them: at lattice points, at once
+        if k == len(wps):
+            return "success", t
+    return "timeout", t
+
+
+def _plan(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, seen: dict, t: int, x: float,
+          y: float, wps: np.ndarray, after_mm: float, budget: int, lattice: tuple, period_s: float) -> list:
+    """The next lattice points, one per time unit: the search's way from (x, y) at period t with the
+    movers seen so far, or staying REPLAN_UNITS units where it finds none."""
+    known = np.zeros((len(seen), 6))
+    for n, (when, state) in enumerate(seen.values()):
+        s = state[None, :].copy()
+        for _ in range(t - when):  # on from its last sighting, as it walks with the robot far away
+            step_movers(s, occ, cell, discs, oracle.FAR_MM, oracle.FAR_MM, 0.0, period_s)
+        known[n] = s[0]
+    to_go = math.hypot(wps[0, 0] - x, wps[0, 1] - y) + after_mm
+    units = min((budget - t) // oracle.UNIT_PERIODS, int(2 * to_go / oracle.LATTICE_MM) + HORIZON_SLACK_UNITS)
+    tracks = oracle.mover_tracks(known, occ, cell, discs, units * oracle.UNIT_PERIODS, period_s)
+    period, way = oracle.search_from(occ, cell, radius_mm, discs, tracks, x, y, wps, units, lattice,
+                                     leg_slack=LEG_SLACK_UNITS)
+    if period < 0 or len(way) < 2:
+        return [(x, y)] * REPLAN_UNITS
+    return [(wx, wy) for _p, wx, wy in way[1:]]
