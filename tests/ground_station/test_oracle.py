@@ -257,8 +257,23 @@ def test_seeing_every_mover_the_limited_oracle_drives_the_oracles_time() -> None
 
 
 def test_a_robot_that_sees_a_mover_too_late_does_not_make_the_oracles_time() -> None:
-    # seeing 300 mm beyond the bodies, a mover is on it before a way round can be planned: it is held up
-    # (a mover that does not give way stands in front of it) or touched, never as quick as the oracle
+    # seeing 300 mm beyond the bodies, a mover is on it before a way round can be planned: the mover (it
+    # does not give way) stands at the robot's body, which then has no way that keeps clear of it: a
+    # stand-off to the end of the budget, where the oracle that knew the walks arrives
     ep = crossing_episode()
-    outcome, period = seen(ep, OPEN, 300.0)
-    assert outcome != "success" or period > oracle(ep, OPEN), (outcome, period)
+    assert oracle(ep, OPEN) > 0
+    assert seen(ep, OPEN, 300.0) == ("stand-off", budget_of(ep))
+    # no way at all and no mover near: a plain timeout
+    walled = grid(["@@@@@@@", "@..@..@", "@..@..@", "@@@@@@@"])
+    shut = episode(walled, centre(walled, 1, 1), [centre(walled, 5, 2)])
+    assert oracle(shut, walled) == -1
+    assert seen(shut, walled, 2000.0) == ("timeout", budget_of(shut))
+
+
+def budget_of(ep: Episode) -> int:
+    """The episode's period budget, rounded down to whole time units (where `solve_seen` stops)."""
+    from ground_station.lab.nav.oracle import UNIT_PERIODS
+    from ground_station.lab.nav.planned import budget_periods
+
+    *_, plan_len = rollout_arrays(ep, True)
+    return int(budget_periods(plan_len, BUDGET_BASE, BUDGET_FACTOR)) // UNIT_PERIODS * UNIT_PERIODS

@@ -206,14 +206,14 @@ def run(args: argparse.Namespace) -> int:
     ]
     if seen and seen_right is not None:
         ks = sum(seen_right)
-        outs = {o: sum(1 for s_, _p in seen if s_ == o) for o in ("success", "collision", "timeout")}
+        outs = {o: sum(1 for s_, _p in seen if s_ == o) for o in ("success", "collision", "stand-off", "timeout")}
         result["seen"] = {"see_mm": args.foresight, "episodes": n, "right": ks, "right_rate": ks / n,
                           "right_ci95": wilson95(ks, n), "outcomes": outs,
                           "won_oracle_not": sum(1 for a, b in zip(seen_right, oracle_right, strict=True) if a and not b)}
         lo, hi = wilson95(ks, n)
         table.append((f"oracle seeing {args.foresight:g} mm", f"n={n} right {ks} ({ks / n:.3f}) [{lo:.3f}, {hi:.3f}], "
-                      f"collisions {outs['collision']}, timeouts {outs['timeout']}: knowing only the movers "
-                      "it has seen"))
+                      f"collisions {outs['collision']}, stand-offs {outs['stand-off']}, timeouts "
+                      f"{outs['timeout']}: knowing only the movers it has seen"))
     if any(none_label):
         table.append(("  without a detour", f"the oracle found a way in {result['oracle']['found_without_detour']} "
                                             f"of {sum(none_label)} (the label says none: 0 expected)"))

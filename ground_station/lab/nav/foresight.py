@@ -15,7 +15,11 @@ against the true movers, stepped with the robot where it is (as the twin steps t
 not give way stands while a step would overlap the robot); it re-plans every `REPLAN_UNITS` units,
 at once when a mover it had not seen shows, and after the plan runs out. Where the search finds no
 way with what it knows it stays `REPLAN_UNITS` units and searches again. A robot's disc touching a
-mover's is a collision and ends the episode; the goal within the budget a success; else a timeout.
+mover's is a collision and ends the episode; the goal within the budget a success; else a timeout,
+or a stand-off where a mover's body stands within `STANDOFF_GAP_MM` of the robot's at the end: the
+search keeps clear of every mover, so one that already stands at the robot (a mover that does not
+give way stands while its step would overlap the robot) leaves it no way, where a robot would back
+away. So a stand-off is a limit of this planner, not of what the robot sees.
 
 It keeps the oracle's relaxations (turns in no time, drives sideways, on the lattice) and its
 keep-clear margins, and bounds the search's work: each search looks at most twice the route left
@@ -41,6 +45,7 @@ from ground_station.maps import GridMap
 REPLAN_UNITS = 4  # 1 s at 50 ms periods: the robot's planner worker re-plans about as often
 LEG_SLACK_UNITS = 40  # 10 s: later arrivals at a waypoint are not searched on from
 HORIZON_SLACK_UNITS = 120  # 30 s beyond twice the route left at full speed
+STANDOFF_GAP_MM = 60.0  # as `qnav bench decisions` counts a mover at the robot's body
 SIGHT_STEP_MM = 20.0  # the line of sight is sampled this often (under half the thinnest wall cell)
 
 
@@ -70,7 +75,8 @@ def sees(occ, cell, discs, rx, ry, mx, my, reach_mm) -> bool:
 def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
                period_s: float, see_mm: float, budget_scale: float = 1.0) -> tuple[str, int]:
     """Drive `ep` re-planning from what the robot has seen (module docstring): ("success", the period
-    the goal was reached), ("collision", the period of contact) or ("timeout", the budget)."""
+    the goal was reached), ("collision", the period of contact), or ("stand-off" or "timeout", the
+    budget)."""
     discs, movers, wps, remaining, plan_len = rollout_arrays(ep, True)
     occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
     cell = gm.cell_size_m * 1000.0
@@ -104,7 +110,8 @@ def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
             k += 1  # as the search counts them: at lattice points, at once
         if k == len(wps):
             return "success", t
-    return "timeout", t
+    gap = min((math.hypot(x - m[0], y - m[1]) - m[4] - radius_mm for m in movers), default=math.inf)
+    return ("stand-off" if gap <= STANDOFF_GAP_MM else "timeout"), t
 
 
 def _plan(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, seen: dict, t: int, x: float,
