@@ -24,8 +24,9 @@ away. So a stand-off is a limit of this planner, not of what the robot sees.
 It keeps the oracle's relaxations (turns in no time, drives sideways, on the lattice) and its
 keep-clear margins, and bounds the search's work: each search looks at most twice the route left
 (at full speed) + 30 s ahead, and continues from arrivals at a waypoint within `LEG_SLACK_UNITS` of
-the first (`oracle._search`). So a figure here is what such a planner allows; a robot that turns
-and sees less does worse, not better.
+the first (`oracle._search`). So a figure here is what such a planner allows, not a bound on a
+controller: one that backs away from a stand-off can do better (the bench's controllers win some
+episodes it does not), one that turns and sees less does worse.
 """
 
 from __future__ import annotations
