@@ -163,6 +163,11 @@ def test_bench_ceiling_reports_the_oracle_beside_the_controllers(tmp_path) -> No
     assert res["seen"]["right"] == seen.count("success") == res["per_map"]["maze-12x12-s306"]["seen"]
     assert all((row["seen_s"] is not None) == (row["seen"] == "success") for row in rows)
     assert s["failed_seen_solved"] == sum(row["seek_local"] != "success" and row["seen"] == "success" for row in rows)
+    assert s["paired_with_seen"]["a_only"] == sum(row["seek_local"] == "success" and row["seen"] != "success"
+                                                  for row in rows)
+    both = [row for row in rows if row["seen_s"] is not None and row["oracle_s"] is not None]
+    assert res["seen"]["both_finished"] == len(both)
+    assert res["seen"]["as_quick_as_oracle"] == sum(row["seen_s"] == row["oracle_s"] for row in both)
     # --draw: one PNG per episode seek_local got wrong and the oracle right (none, maybe: the drawing
     # itself is checked below)
     folder = tmp_path / "d"

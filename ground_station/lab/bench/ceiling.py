@@ -107,7 +107,13 @@ def run(args: argparse.Namespace) -> int:
     from ground_station.lab.bench.common import report
     from ground_station.lab.campaign.engines import engine_from_args, write_campaign
     from ground_station.lab.nav.controllers import standard_controllers
-    from ground_station.lab.nav.episodes import PERIOD_S, answered_right, summarise, wilson95
+    from ground_station.lab.nav.episodes import (
+        PERIOD_S,
+        answered_right,
+        mcnemar_exact,
+        summarise,
+        wilson95,
+    )
     from ground_station.lab.nav.scenario import (
         MOVER_SPEED_MM_S,
         MoverStyle,
@@ -207,13 +213,16 @@ def run(args: argparse.Namespace) -> int:
     if seen and seen_right is not None:
         ks = sum(seen_right)
         outs = {o: sum(1 for s_, _p in seen if s_ == o) for o in ("success", "collision", "stand-off", "timeout")}
+        both = [(o_p, s_p) for o_p, (o, s_p) in zip(periods, seen, strict=True) if o_p >= 0 and o == "success"]
         result["seen"] = {"see_mm": args.foresight, "episodes": n, "right": ks, "right_rate": ks / n,
                           "right_ci95": wilson95(ks, n), "outcomes": outs,
-                          "won_oracle_not": sum(1 for a, b in zip(seen_right, oracle_right, strict=True) if a and not b)}
+                          "won_oracle_not": sum(1 for a, b in zip(seen_right, oracle_right, strict=True) if a and not b),
+                          "both_finished": len(both), "as_quick_as_oracle": sum(s_p == o_p for o_p, s_p in both)}
         lo, hi = wilson95(ks, n)
         table.append((f"oracle seeing {args.foresight:g} mm", f"n={n} right {ks} ({ks / n:.3f}) [{lo:.3f}, {hi:.3f}], "
                       f"collisions {outs['collision']}, stand-offs {outs['stand-off']}, timeouts "
-                      f"{outs['timeout']}: knowing only the movers it has seen"))
+                      f"{outs['timeout']}: knowing only the movers it has seen; as quick as the oracle in "
+                      f"{result['seen']['as_quick_as_oracle']} of the {len(both)} both finished"))
     if any(none_label):
         table.append(("  without a detour", f"the oracle found a way in {result['oracle']['found_without_detour']} "
                                             f"of {sum(none_label)} (the label says none: 0 expected)"))
@@ -230,9 +239,11 @@ def run(args: argparse.Namespace) -> int:
                           "no_route_oracle_solved": wrong_no_route, "won_oracle_not": beyond}
         by_seen = ""
         if seen_right is not None:
-            lost_seen = sum(1 for w, o in zip(won, seen_right, strict=True) if not w and o)
-            result[c.name]["failed_seen_solved"] = lost_seen
-            by_seen = f", the oracle seeing {args.foresight:g} mm {lost_seen}"
+            paired = mcnemar_exact([{"success": w} for w in won], [{"success": o} for o in seen_right])
+            result[c.name]["failed_seen_solved"] = paired["b_only"]
+            result[c.name]["paired_with_seen"] = paired
+            by_seen = (f", the oracle seeing {args.foresight:g} mm {paired['b_only']} (paired: {paired['a_only']} vs "
+                       f"{paired['b_only']}, p = {paired['p_exact']:.2g})")
         lo, hi = wilson95(sum(won), n)
         table.append((c.name, f"right {sum(won)} ({sum(won) / n:.3f}) [{lo:.3f}, {hi:.3f}], collisions "
                               f"{s['outcomes'].get('collision', 0)}; of its {n - sum(won)} failures the oracle "

@@ -16,7 +16,7 @@ not give way stands while a step would overlap the robot); it re-plans every `RE
 at once when a mover it had not seen shows, and after the plan runs out. Where the search finds no
 way with what it knows it stays `REPLAN_UNITS` units and searches again. A robot's disc touching a
 mover's is a collision and ends the episode; the goal within the budget a success; else a timeout,
-or a stand-off where a mover's body stands within `STANDOFF_GAP_MM` of the robot's at the end: the
+or a stand-off where a mover's body stands within `decisions.STANDOFF_GAP_MM` of the robot's at the end: the
 search keeps clear of every mover, so one that already stands at the robot (a mover that does not
 give way stands while its step would overlap the robot) leaves it no way, where a robot would back
 away. So a stand-off is a limit of this planner, not of what the robot sees.
@@ -37,7 +37,8 @@ import numpy as np
 
 from ground_station.jitcache import numba
 from ground_station.lab.nav import oracle
-from ground_station.lab.nav.obstacle_twin import step_movers
+from ground_station.lab.nav.decisions import STANDOFF_GAP_MM
+from ground_station.lab.nav.obstacle_twin import hits_discs, step_movers
 from ground_station.lab.nav.planned import budget_periods
 from ground_station.lab.nav.scenario import Episode, rollout_arrays
 from ground_station.learn.sector.kernels import GOAL_TOL_MM
@@ -46,7 +47,6 @@ from ground_station.maps import GridMap
 REPLAN_UNITS = 4  # 1 s at 50 ms periods: the robot's planner worker re-plans about as often
 LEG_SLACK_UNITS = 40  # 10 s: later arrivals at a waypoint are not searched on from
 HORIZON_SLACK_UNITS = 120  # 30 s beyond twice the route left at full speed
-STANDOFF_GAP_MM = 60.0  # as `qnav bench decisions` counts a mover at the robot's body
 SIGHT_STEP_MM = 20.0  # the line of sight is sampled this often (under half the thinnest wall cell)
 
 
@@ -89,6 +89,7 @@ def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
     k = t = since = 0  # the waypoint next, the period, units since the last search
     seen: dict[int, tuple[int, np.ndarray]] = {}  # mover -> (period of its last sighting, its state then)
     plan: list[tuple[float, float]] = []
+    no_discs = np.zeros((0, 3))  # contact with the movers only (the plan keeps clear of the discs)
     while t + unit <= budget:
         new = False
         for m in range(movers.shape[0]):
@@ -103,9 +104,8 @@ def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
         for p in range(1, unit + 1):
             rx, ry = x + (nx - x) * p / unit, y + (ny - y) * p / unit
             step_movers(movers, occ, cell, discs, rx, ry, float(radius_mm), period_s)
-            for m in range(movers.shape[0]):
-                if (rx - movers[m, 0]) ** 2 + (ry - movers[m, 1]) ** 2 < (radius_mm + movers[m, 4]) ** 2:
-                    return "collision", t + p
+            if hits_discs(rx, ry, float(radius_mm), no_discs, movers):
+                return "collision", t + p
         t, since, x, y = t + unit, since + 1, nx, ny
         while k < len(wps) and (x - wps[k, 0]) ** 2 + (y - wps[k, 1]) ** 2 <= GOAL_TOL_MM ** 2:
             k += 1  # as the search counts them: at lattice points, at once
