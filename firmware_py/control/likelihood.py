@@ -47,17 +47,54 @@ class LikelihoodField:
         two_s2 = 2 * sigma_mm * sigma_mm
         inside = bytearray(self.nx * self.ny)
         signed = array("f", bytes(4 * self.nx * self.ny))  # mm to the nearest wall surface, < 0 inside a wall
+        far = math.log(z_hit * math.exp(-max_mm * max_mm / two_s2) + z_floor)  # d capped: most squares
+        # Every square of one map cell looks at the same cells around it (`distance_mm`, `depth_mm`):
+        # their rectangles are listed once per cell, so a square in open floor costs a lookup, not a
+        # scan of (2 reach + 1)^2 cells (the build was 1 s for a 16 x 16 map of 0.5 m cells)
+        near: dict[tuple[int, int], tuple[bool, list[tuple[float, float, float, float]]]] = {}
+        xs = [(ix + 0.5) * res_mm - self.margin for ix in range(self.nx)]
+        runs: list[tuple[int, int, int]] = []  # (col, first ix, end ix): the squares of one map column
+        for ix, px in enumerate(xs):
+            col = math.floor(px / c)
+            if runs and runs[-1][0] == col:
+                runs[-1] = (col, runs[-1][1], ix + 1)
+            else:
+                runs.append((col, ix, ix + 1))
+        hypot = math.hypot
         for iy in range(self.ny):
             py = (iy + 0.5) * res_mm - self.margin
-            for ix in range(self.nx):
-                px = (ix + 0.5) * res_mm - self.margin
-                d = self.distance_mm(px, py, reach)
-                if d == 0.0:  # inside a wall: as far from its surface as from the nearest free space
-                    inside[iy * self.nx + ix] = 1
-                    d = self.depth_mm(px, py, reach)
-                d = min(d, max_mm)
-                table[iy * self.nx + ix] = math.log(z_hit * math.exp(-d * d / two_s2) + z_floor)
-                signed[iy * self.nx + ix] = -d if inside[iy * self.nx + ix] else d
+            row = grid.height - 1 - math.floor(py / c)
+            base = iy * self.nx
+            for col, first, end in runs:
+                found = near.get((col, row))
+                if found is None:
+                    found = near[(col, row)] = self._rects(col, row, reach)
+                wall, rects = found
+                # a rectangle's distance along y is the same for the whole run
+                across = [(x0, x1, max(y0 - py, 0.0, py - y1)) for x0, x1, y0, y1 in rects]
+                for ix in range(first, end):
+                    px = xs[ix]
+                    d = math.inf
+                    for x0, x1, dy in across:
+                        dx = x0 - px
+                        if dx <= 0.0:
+                            dx = px - x1
+                            if dx <= 0.0:
+                                dx = 0.0
+                        e = hypot(dx, dy)
+                        if e < d:
+                            d = e
+                    inner = wall
+                    if d == 0.0 and not wall:  # on a free cell's edge with a wall: counted in the wall
+                        inner, d = True, self.depth_mm(px, py, reach)
+                    if inner:  # inside a wall: as far from its surface as from the nearest free space
+                        inside[base + ix] = 1
+                    if d >= max_mm:
+                        d = max_mm
+                        table[base + ix] = far
+                    else:
+                        table[base + ix] = math.log(z_hit * math.exp(-d * d / two_s2) + z_floor)
+                    signed[base + ix] = -d if inner else d
         self.table = table
         self.signed = signed.tolist()
         # the cone model's lookup: by_mm[i] is the field's value at i + 0.5 mm, the middle of the
@@ -67,6 +104,26 @@ class LikelihoodField:
         self.values = table.tolist()  # the same as a list: indexing it is faster in the weighing loop
         # squares inside an occupied cell or off the map (negative information: a reading saw through a wall)
         self.inside = inside
+
+    def _rects(self, col: int, row: int, reach: int) -> tuple[bool, list[tuple[float, float, float, float]]]:
+        """For the squares of cell (col, row): whether it is a wall (occupied or off the map) and the
+        cells `distance_mm` (free cell: the occupied ones) or `depth_mm` (a wall: the free ones of the
+        map) looks at from there, as (x0, x1, y0, y1) mm in the order they look."""
+        g = self.grid
+        c = g.cell_mm
+        wall = g.occupied(col, row)
+        if wall:
+            rows = range(max(0, row - reach), min(g.height - 1, row + reach) + 1)
+            cols = range(max(0, col - reach), min(g.width - 1, col + reach) + 1)
+        else:
+            rows, cols = range(row - reach, row + reach + 1), range(col - reach, col + reach + 1)
+        out = []
+        for r in rows:
+            y0 = (g.height - 1 - r) * c
+            for cc in cols:
+                if g.occupied(cc, r) != wall:
+                    out.append((float(cc * c), float(cc * c + c), float(y0), float(y0 + c)))
+        return wall, out
 
     def distance_mm(self, px: float, py: float, reach: int = 2) -> float:
         """Distance from a world point (mm) to the nearest occupied cell or

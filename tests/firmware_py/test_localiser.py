@@ -100,6 +100,34 @@ def test_field_values_by_hand(block):
     assert log_p(block, -1000, 750) == pytest.approx(math.log(Z_FLOOR))
 
 
+@pytest.mark.parametrize(("rows", "cell", "res", "max_mm"), [
+    (["..@.", "@...", "...@", ".@@."], 500, 25, 400.0),  # reach 1
+    ([".@..@", ".....", "@@..."], 250, 24, 400.0),  # reach 2, squares not aligned with the cells
+    (["....", "@...", "...."], 300, 40, 400.0),  # squares centred on a free cell's edge with a wall (x = 300)
+])
+def test_field_squares_equal_the_per_point_distances(rows, cell, res, max_mm):
+    """The field is built a map cell at a time (rectangles listed once per cell); each square must hold
+    what `distance_mm` / `depth_mm` give for its centre, as a point-by-point build would."""
+    f = LikelihoodField(grid_from_rows(rows, cell), res, SIGMA, Z_HIT, Z_FLOOR, max_mm)
+    reach = max(1, math.ceil(max_mm / cell))
+    assert f.res == res
+    walls = 0
+    for iy in range(f.ny):
+        py = (iy + 0.5) * f.res - f.margin
+        for ix in range(f.nx):
+            px = (ix + 0.5) * f.res - f.margin
+            d = f.distance_mm(px, py, reach)
+            inner = d == 0.0
+            if inner:
+                d = f.depth_mm(px, py, reach)
+            d = min(d, max_mm)
+            i = iy * f.nx + ix
+            walls += inner
+            assert f.inside[i] == inner and f.signed[i] == pytest.approx(-d if inner else d, abs=1e-3), (px, py)
+            assert f.values[i] == pytest.approx(value(d), abs=1e-6), (px, py)
+    assert 0 < walls < f.nx * f.ny
+
+
 def test_one_reading_by_hand():
     """One 500 mm cell, robot at its centre heading east: only the front
     sensor reads. The cone reports its nearest echo, so the reading's error
