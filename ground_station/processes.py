@@ -22,18 +22,19 @@ from ground_station.subprocs import (
     stop_process,
 )
 
-ROBOT_MAIN = "firmware_py.cli"  # the console scripts' entry points (pyproject.toml [project.scripts])
-SIM_MAIN = "sim_bridge.cli"
+ROBOT_MAIN = "firmware_py.cli:program"  # the console scripts' entry points (pyproject.toml [project.scripts])
+SIM_MAIN = "sim_bridge.cli:main"
 
 
-def program_argv(module: str, name: str, *, die_with_parent: bool = False) -> list[str]:
-    """argv prefix running `module.main()` as program `name` (its argv[0], so its
-    usage and error lines read as usual), with SIGINT restored; `die_with_parent`:
-    SIGTERM when this process dies (subprocs.die_with_parent_code)."""
+def program_argv(entry: str, name: str, *, die_with_parent: bool = False) -> list[str]:
+    """argv prefix running entry point `entry` ("module:function") as program `name` (its argv[0], so
+    its usage and error lines read as usual), with SIGINT restored; `die_with_parent`: SIGTERM when
+    this process dies (subprocs.die_with_parent_code)."""
+    module, func = entry.split(":")
     return [sys.executable, "-c",
             (die_with_parent_code() if die_with_parent else "")
             + "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-            f"sys.argv[0] = {name!r}; from {module} import main; sys.exit(main())"]
+            f"sys.argv[0] = {name!r}; from {module} import {func}; sys.exit({func}())"]
 
 
 def qnav_robot(*args: str | Path, die_with_parent: bool = False) -> list[str]:

@@ -208,6 +208,25 @@ def test_firmware_imports_only_stdlib_and_the_robot_dependencies():
     assert not bad, "firmware_py imports outside its allowed dependencies:\n" + "\n".join(bad)
 
 
+def test_the_robot_program_runs_without_numpy_where_the_station_has_it():
+    """`qnav-robot` as the HIL rigs start it (processes.qnav_robot), with MAVLink on, in this environment
+    where numpy is installed: it runs as on the robot (firmware_py.cli.program), loading pymavlink's
+    mavutil but never numpy (pymavlink's numpy-only extras left out)."""
+    import subprocess
+
+    from ground_station.processes import qnav_robot
+    from ground_station.subprocs import free_udp_port
+
+    argv = qnav_robot("--can", "virtual:no-numpy", "--policy", "policies:sector", "--mavlink",
+                      f"udpout:127.0.0.1:{free_udp_port()}", "--duration", "0.3", "-q")
+    run = subprocess.run([argv[0], "-X", "importtime", *argv[1:]], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr[-2000:]
+    loaded = {line.rsplit("|", 1)[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
+    assert "pymavlink.mavutil" in loaded and "firmware_py.mavlink.node" in loaded, sorted(loaded)[:50]
+    # importtime lists the barred attempt as "numpy" (microseconds); numpy itself loads numpy._core etc.
+    assert not {m for m in loaded if m.startswith("numpy.")}, "the robot program loaded numpy"
+
+
 def test_only_jitcache_imports_numba():
     """numba keys a cached kernel on its own file's timestamp, not its callees' (ground_station/jitcache.py):
     a module importing numba itself would cache its kernels beside its file, stale once a callee changes."""

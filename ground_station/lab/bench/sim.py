@@ -90,7 +90,7 @@ def measure_remote(occ, cell_size_m: float, ticks: int) -> dict:
 
     plant = _plant(occ, cell_size_m)
     with CanHub("bench-sim") as hub:
-        ctl = ChildProcess([*program_argv("ground_station.lab.rigs.reflex", "reflex"), "--can", hub.spec], None).start()
+        ctl = ChildProcess([*program_argv("ground_station.lab.rigs.reflex:main", "reflex"), "--can", hub.spec], None).start()
         bus = open_bus(hub.spec)
         try:
             stats = run_lockstep(plant, bus, ticks * robot_spec.CONTROL_PERIOD_US / 1e6,

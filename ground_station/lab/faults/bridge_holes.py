@@ -145,7 +145,7 @@ class _Monitor:
         from ground_station.processes import program_argv
 
         self.proc = subprocess.Popen(
-            [*program_argv("ground_station.cli", "qnav"), "monitor", "--plain", "--foxglove", "--port",
+            [*program_argv("ground_station.cli:main", "qnav"), "monitor", "--plain", "--foxglove", "--port",
              str(ws_port), "--mavlink", f"udpout:127.0.0.1:{robot_port}", "--no-tlog", "--map", "paper10",
              "--duration", "120", *flags],
             cwd=cwd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

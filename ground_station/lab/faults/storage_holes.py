@@ -409,7 +409,7 @@ def log_pull_plain_names(res: ScenarioResult, count: int, seed: int, progress: A
             content = rng.randbytes(rng.randint(0, 600)).replace(b"\0", b"x")
             before = _tree(tmp)
             port = free_udp_port()
-            argv = [*program_argv("ground_station.cli", "qnav"), "log", "pull", "--mavlink",
+            argv = [*program_argv("ground_station.cli:main", "qnav"), "log", "pull", "--mavlink",
                     f"udpout:127.0.0.1:{port}", "--no-tlog", "--timeout", "15", "--out", str(out),
                     *([bad] if on_cli else [])]
             with _HostileRobot(port, listing, content, tmp):

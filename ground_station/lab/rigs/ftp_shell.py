@@ -175,7 +175,7 @@ def robot_ftp_process(root: Path, url: str, key_file: Path | None = None, extra:
     args = ["--root", str(root), "--mavlink", url]
     if key_file is not None:
         args += ["--signing-key", str(key_file)]
-    child = ChildProcess([*program_argv("ground_station.lab.rigs.ftp_shell", "qnav-ftp-shell"), *args, *(extra or [])],
+    child = ChildProcess([*program_argv("ground_station.lab.rigs.ftp_shell:main", "qnav-ftp-shell"), *args, *(extra or [])],
                          log or root.parent / f"{root.name}.log")
     proc = child.start().proc
     assert proc is not None
