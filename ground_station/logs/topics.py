@@ -244,12 +244,14 @@ class RunTopics:
         from firmware_py import can_protocol as cp
 
         name, sig = None, None
-        try:
-            import can
+        # only an id our DBC has is decoded (most frames of a run are not: DroneCAN's, ODrive's)
+        if cp.frame_name(arbitration_id) is not None:
+            try:
+                import can
 
-            name, sig = cp.decode(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
-        except Exception:  # noqa: BLE001 - a frame our DBC refuses is still logged raw
-            name = None
+                name, sig = cp.decode(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+            except Exception:  # noqa: BLE001 - a frame our DBC refuses is still logged raw
+                name = None
         if name == "SimTick" and sig is not None:
             self._sim_tick = (t_bus, int(sig["Tick_SimTimeUs"]))
         if self._sim_tick is None:
