@@ -11,7 +11,7 @@ import sys
 import numpy as np
 
 from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, PERIOD_S
-from ground_station.lab.nav.foresight import sees, solve_seen
+from ground_station.lab.nav.foresight import _back_off, sees, solve_seen
 from ground_station.lab.nav.oracle import mover_tracks, solve, solve_path
 from ground_station.lab.nav.scenario import (
     MOVER_SPEED_MM_S,
@@ -261,13 +261,21 @@ def test_seeing_every_mover_the_limited_oracle_drives_the_oracles_time() -> None
     assert seen(ep, OPEN, 2000.0) == ("success", best)
 
 
-def test_a_robot_that_sees_a_mover_too_late_does_not_make_the_oracles_time() -> None:
-    # seeing 300 mm beyond the bodies, a mover is on it before a way round can be planned: the mover (it
-    # does not give way) stands at the robot's body, which then has no way that keeps clear of it: a
-    # stand-off to the end of the budget, where the oracle that knew the walks arrives
+def test_a_mover_standing_at_the_robot_is_let_by_and_one_it_cannot_let_by_is_a_stand_off() -> None:
+    # seeing 300 mm beyond the bodies, the robot finds the mover coming down at it on its way: the mover
+    # (it does not give way) stands at its body, the search finds no way that keeps clear of it, so the
+    # robot backs off: a body's width aside (along the mover's way it would follow), and the mover walks on
     ep = crossing_episode()
-    assert oracle(ep, OPEN) > 0
-    assert seen(ep, OPEN, 300.0) == ("stand-off", budget_of(ep))
+    assert oracle(ep, OPEN) > 0 and seen(ep, OPEN, 300.0)[0] == "success"
+    occ = np.ascontiguousarray(OPEN.occ, dtype=np.uint8)
+    down = np.array([[4750.0, 3050.0, 0.0, -500.0, 150.0, 0.0]])  # 316 mm from the robot's centre, coming
+    assert _back_off(occ, CELL, 150, np.zeros((0, 3)), down, 4650.0, 2750.0, PERIOD_S) == (4550.0, 2750.0)
+    # in the dead end of the one-cell corridor with a mover walking in: no way aside or back, the mover
+    # stands at it to the end of the budget (the oracle that knew its walk finds no way either)
+    start, (mx, my) = centre(CORRIDOR, 1, 1), centre(CORRIDOR, 5, 1)
+    pinned = episode(CORRIDOR, start, [centre(CORRIDOR, 9, 3)], ((mx, my, -300.0, 0.0, 150.0, 0.0),))
+    assert oracle(pinned, CORRIDOR) == -1
+    assert seen(pinned, CORRIDOR, 2000.0) == ("stand-off", budget_of(pinned))
     # no way at all and no mover near: a plain timeout
     walled = grid(["@@@@@@@", "@..@..@", "@..@..@", "@@@@@@@"])
     shut = episode(walled, centre(walled, 1, 1), [centre(walled, 5, 2)])

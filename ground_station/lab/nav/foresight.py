@@ -14,19 +14,20 @@ The robot drives the plan one lattice step (a time unit, `oracle.UNIT_PERIODS` p
 against the true movers, stepped with the robot where it is (as the twin steps them: one that does
 not give way stands while a step would overlap the robot); it re-plans every `REPLAN_UNITS` units,
 at once when a mover it had not seen shows, and after the plan runs out. Where the search finds no
-way with what it knows it stays `REPLAN_UNITS` units and searches again. A robot's disc touching a
-mover's is a collision and ends the episode; the goal within the budget a success; else a timeout,
-or a stand-off where a mover's body stands within `decisions.STANDOFF_GAP_MM` of the robot's at the end: the
-search keeps clear of every mover, so one that already stands at the robot (a mover that does not
-give way stands while its step would overlap the robot) leaves it no way, where a robot would back
-away. So a stand-off is a limit of this planner, not of what the robot sees.
+way with what it knows (its ways keep clear of every mover, so a mover that does not give way and
+stands at the robot, its step overlapping the robot, leaves none) it backs off one unit (`_back_off`:
+out of the movers' way, judged 2 s on) and searches again. A robot's disc touching a mover's is a
+collision and ends the episode; the goal within the budget a success; else a timeout, or a
+stand-off where a mover's body stands within `decisions.STANDOFF_GAP_MM` of the robot's at the end
+(pinned where it cannot back off, as in a dead end).
 
 It keeps the oracle's relaxations (turns in no time, drives sideways, on the lattice) and its
 keep-clear margins, and bounds the search's work: each search looks at most twice the route left
 (at full speed) + 30 s ahead, and continues from arrivals at a waypoint within `LEG_SLACK_UNITS` of
 the first (`oracle._search`). So a figure here is what such a planner allows, not a bound on a
-controller: one that backs away from a stand-off can do better (the bench's controllers win some
-episodes it does not), one that turns and sees less does worse.
+controller: the search never uses a mover's standing for the robot (a controller that drives at
+movers that do not give way can be quicker, and the bench's controllers win some episodes it does
+not), one that turns and sees less does worse.
 """
 
 from __future__ import annotations
@@ -42,11 +43,14 @@ from ground_station.lab.nav.obstacle_twin import hits_discs, step_movers
 from ground_station.lab.nav.planned import budget_periods
 from ground_station.lab.nav.scenario import Episode, rollout_arrays
 from ground_station.learn.sector.kernels import GOAL_TOL_MM
+from ground_station.learn.sector.twin import disc_hits
 from ground_station.maps import GridMap
 
 REPLAN_UNITS = 4  # 1 s at 50 ms periods: the robot's planner worker re-plans about as often
 LEG_SLACK_UNITS = 40  # 10 s: later arrivals at a waypoint are not searched on from
 HORIZON_SLACK_UNITS = 120  # 30 s beyond twice the route left at full speed
+BACK_OFF_UNITS = 8  # 2 s: how long after its way out a back-off is judged
+BACK_OFF_STEPS = 4  # the longest way out looked at: 400 mm, more than a body's width aside
 SIGHT_STEP_MM = 20.0  # the line of sight is sampled this often (under half the thinnest wall cell)
 
 
@@ -118,7 +122,7 @@ def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
 def _plan(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, seen: dict, t: int, x: float,
           y: float, wps: np.ndarray, after_mm: float, budget: int, lattice: tuple, period_s: float) -> list:
     """The next lattice points, one per time unit: the search's way from (x, y) at period t with the
-    movers seen so far, or staying REPLAN_UNITS units where it finds none."""
+    movers seen so far, or the back-off's one (`_back_off`) where it finds none."""
     known = np.zeros((len(seen), 6))
     for n, (when, state) in enumerate(seen.values()):
         s = state[None, :].copy()
@@ -131,5 +135,39 @@ def _plan(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, see
     period, way = oracle.search_from(occ, cell, radius_mm, discs, tracks, x, y, wps, units, lattice,
                                      leg_slack=LEG_SLACK_UNITS)
     if period < 0 or len(way) < 2:
-        return [(x, y)] * REPLAN_UNITS
+        return [_back_off(occ, cell, radius_mm, discs, known, x, y, period_s)]
     return [(wx, wy) for _p, wx, wy in way[1:]]
+
+
+def _back_off(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, known: np.ndarray, x: float,
+              y: float, period_s: float) -> tuple[float, float]:
+    """Where the robot goes for one time unit when the search finds no way: the first lattice step of
+    the way out that leaves it farthest from the nearest mover it knows of: staying, or 1 ..
+    `BACK_OFF_STEPS` steps straight along an axis, then waiting to `BACK_OFF_UNITS` units after the
+    last; every period clear of the map, the discs and those movers. The movers are stepped with the
+    robot where it is: one that does not give way stands while its step would overlap the robot, so
+    one standing at the robot walks on once the robot is out of its way (a body's width aside, not
+    straight back, where it follows). Then it searches again."""
+    h, w = occ.shape
+    unit = oracle.UNIT_PERIODS
+    best, best_gap = (x, y), -math.inf
+    for dx, dy in ((0.0, 0.0), (oracle.LATTICE_MM, 0.0), (-oracle.LATTICE_MM, 0.0), (0.0, oracle.LATTICE_MM),
+                   (0.0, -oracle.LATTICE_MM)):
+        for steps in range(1 if dx == dy == 0.0 else BACK_OFF_STEPS):
+            movers = known.copy()
+            clear = True
+            px, py = x, y
+            for p in range(1, (steps + 1) * unit + 1 if dx or dy else 1):
+                px, py = x + dx * p / unit, y + dy * p / unit
+                step_movers(movers, occ, cell, discs, px, py, float(radius_mm), period_s)
+                if disc_hits(occ, h, w, cell, px, py, radius_mm) or hits_discs(px, py, radius_mm, discs, movers):
+                    clear = False
+                    break
+            if not clear:
+                break  # farther along this axis is no clearer
+            for _ in range(BACK_OFF_UNITS * unit):
+                step_movers(movers, occ, cell, discs, px, py, float(radius_mm), period_s)
+            gap = min((math.hypot(px - m[0], py - m[1]) - m[4] for m in movers), default=math.inf)
+            if gap > best_gap + 1e-6:  # ties keep the earlier: staying, then the fewer steps
+                best, best_gap = (x + dx, y + dy), gap
+    return best
