@@ -9,19 +9,53 @@ Stdlib only: the tests of every package import it.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import signal
 import socket
 import subprocess
+import tempfile
 import threading
+import time
+from pathlib import Path
+
+PORT_HOLD_S = 120.0  # a port handed out here is not handed out again for this long, by any process
+PORTS_DIR = Path(tempfile.gettempdir()) / "qnav-ports"  # one file per port handed out, its mtime when
 
 
 def free_port(kind: socket.SocketKind = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
-    """A TCP (or, with kind=SOCK_DGRAM, UDP) port that was free a moment ago on `host`."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind((host, 0))
-        port: int = s.getsockname()[1]
-        return port
+    """A TCP (or, with kind=SOCK_DGRAM, UDP) port that was free a moment ago on `host`, and not handed
+    out by this function in any process on the machine in the last PORT_HOLD_S: the kernel may offer a
+    port again once it is closed, and two launchers given the same port would both bind it without an
+    error (pymavlink's udpin sets SO_REUSEADDR, with which a second UDP socket takes the port's
+    datagrams and the first hears nothing: a robot that never answers, beside other tests)."""
+    port = 0
+    for _ in range(50):
+        with socket.socket(socket.AF_INET, kind) as s:
+            s.bind((host, 0))
+            port = s.getsockname()[1]
+        if _reserve(port):
+            break
+    return port
+
+
+def _reserve(port: int, now: float | None = None) -> bool:
+    """Mark `port` handed out (PORTS_DIR/<port>) unless it was within PORT_HOLD_S; True if taken. Where
+    the marks cannot be kept (no shared temp directory) every port is taken: the kernel's choice."""
+    now = time.time() if now is None else now
+    try:
+        PORTS_DIR.mkdir(exist_ok=True)
+        with open(PORTS_DIR / ".lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released on close
+            mark = PORTS_DIR / str(port)
+            with contextlib.suppress(FileNotFoundError):
+                if now - mark.stat().st_mtime < PORT_HOLD_S:
+                    return False
+            mark.touch()
+            os.utime(mark, (now, now))
+            return True
+    except OSError:
+        return True
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:
