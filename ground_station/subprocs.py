@@ -36,7 +36,7 @@ def free_port(kind: socket.SocketKind = socket.SOCK_STREAM, host: str = "127.0.0
             port = s.getsockname()[1]
         if _reserve(port):
             break
-    return port
+    return port  # (50 offers all held: the last, the kernel's choice)
 
 
 def _reserve(port: int, now: float | None = None) -> bool:

@@ -49,7 +49,7 @@ class LikelihoodField:
         signed = array("f", bytes(4 * self.nx * self.ny))  # mm to the nearest wall surface, < 0 inside a wall
         far = math.log(z_hit * math.exp(-max_mm * max_mm / two_s2) + z_floor)  # d capped: most squares
         # Every square of one map cell looks at the same cells around it (`distance_mm`, `depth_mm`):
-        # their rectangles are listed once per cell, so a square in open floor costs a lookup, not a
+        # they are listed once per cell (`_cells_near`), so a square in open floor costs a lookup, not a
         # scan of (2 reach + 1)^2 cells (the build was 1 s for a 16 x 16 map of 0.5 m cells)
         near: dict[tuple[int, int], tuple[bool, list[tuple[float, float, float, float]]]] = {}
         xs = [(ix + 0.5) * res_mm - self.margin for ix in range(self.nx)]
@@ -68,7 +68,8 @@ class LikelihoodField:
             for col, first, end in runs:
                 found = near.get((col, row))
                 if found is None:
-                    found = near[(col, row)] = self._rects(col, row, reach)
+                    wall = grid.occupied(col, row)
+                    found = near[(col, row)] = (wall, self._cells_near(col, row, reach, walls=not wall))
                 wall, rects = found
                 # a rectangle's distance along y is the same for the whole run
                 across = [(x0, x1, max(y0 - py, 0.0, py - y1)) for x0, x1, y0, y1 in rects]
@@ -105,71 +106,48 @@ class LikelihoodField:
         # squares inside an occupied cell or off the map (negative information: a reading saw through a wall)
         self.inside = inside
 
-    def _rects(self, col: int, row: int, reach: int) -> tuple[bool, list[tuple[float, float, float, float]]]:
-        """For the squares of cell (col, row): whether it is a wall (occupied or off the map) and the
-        cells `distance_mm` (free cell: the occupied ones) or `depth_mm` (a wall: the free ones of the
-        map) looks at from there, as (x0, x1, y0, y1) mm in the order they look."""
+    def _cells_near(self, col: int, row: int, reach: int, walls: bool) -> list[tuple[float, float, float, float]]:
+        """The cells within `reach` of cell (col, row), as (x0, x1, y0, y1) mm: with `walls` the
+        occupied ones and the outside of the map (`distance_mm`), else the map's free ones
+        (`depth_mm`)."""
         g = self.grid
         c = g.cell_mm
-        wall = g.occupied(col, row)
-        if wall:
+        if walls:
+            rows, cols = range(row - reach, row + reach + 1), range(col - reach, col + reach + 1)
+        else:
             rows = range(max(0, row - reach), min(g.height - 1, row + reach) + 1)
             cols = range(max(0, col - reach), min(g.width - 1, col + reach) + 1)
-        else:
-            rows, cols = range(row - reach, row + reach + 1), range(col - reach, col + reach + 1)
-        out = []
-        for r in rows:
-            y0 = (g.height - 1 - r) * c
-            for cc in cols:
-                if g.occupied(cc, r) != wall:
-                    out.append((float(cc * c), float(cc * c + c), float(y0), float(y0 + c)))
-        return wall, out
+        return [(float(cc * c), float(cc * c + c), float((g.height - 1 - r) * c), float((g.height - r) * c))
+                for r in rows for cc in cols if g.occupied(cc, r) == walls]
+
+    @staticmethod
+    def _nearest(px: float, py: float, cells: list[tuple[float, float, float, float]]) -> float:
+        """Distance from (px, py) to the nearest of `cells` (inf for none)."""
+        best = math.inf
+        for x0, x1, y0, y1 in cells:
+            d = math.hypot(max(x0 - px, 0.0, px - x1), max(y0 - py, 0.0, py - y1))
+            if d < best:
+                best = d
+        return best
+
+    def _cell_of(self, px: float, py: float) -> tuple[int, int]:
+        c = self.grid.cell_mm
+        return math.floor(px / c), self.grid.height - 1 - math.floor(py / c)
 
     def distance_mm(self, px: float, py: float, reach: int = 2) -> float:
         """Distance from a world point (mm) to the nearest occupied cell or
         the map's edge, looking `reach` cells around (exact below reach * cell)."""
-        g = self.grid
-        c = g.cell_mm
-        col = math.floor(px / c)
-        row = g.height - 1 - math.floor(py / c)
-        if g.occupied(col, row):
+        col, row = self._cell_of(px, py)
+        if self.grid.occupied(col, row):
             return 0.0
-        best = math.inf
-        for r in range(row - reach, row + reach + 1):
-            y0 = (g.height - 1 - r) * c
-            y1 = y0 + c
-            dy = max(y0 - py, 0.0, py - y1)
-            for cc in range(col - reach, col + reach + 1):
-                if not g.occupied(cc, r):
-                    continue
-                x0 = cc * c
-                dx = max(x0 - px, 0.0, px - (x0 + c))
-                d = math.hypot(dx, dy)
-                if d < best:
-                    best = d
-        return best
+        return self._nearest(px, py, self._cells_near(col, row, reach, walls=True))
 
     def depth_mm(self, px: float, py: float, reach: int = 2) -> float:
         """Distance from a world point inside an occupied cell or off the map to the nearest free
         cell of the map, looking `reach` cells around (inf when there is none that near). A reading
         ends on a wall's surface: an end point deep inside the wall (a pose too near the wall, or a
         heading that looks into it) explains it as badly as one short of it."""
-        g = self.grid
-        c = g.cell_mm
-        col = math.floor(px / c)
-        row = g.height - 1 - math.floor(py / c)
-        best = math.inf
-        for r in range(max(0, row - reach), min(g.height - 1, row + reach) + 1):
-            y0 = (g.height - 1 - r) * c
-            dy = max(y0 - py, 0.0, py - (y0 + c))
-            for cc in range(max(0, col - reach), min(g.width - 1, col + reach) + 1):
-                if g.occupied(cc, r):
-                    continue
-                x0 = cc * c
-                d = math.hypot(max(x0 - px, 0.0, px - (x0 + c)), dy)
-                if d < best:
-                    best = d
-        return best
+        return self._nearest(px, py, self._cells_near(*self._cell_of(px, py), reach, walls=False))
 
     def free(self, x_mm: float, y_mm: float, clearance_mm: float) -> bool:
         """A robot centred here would not overlap a wall (for uniform draws)."""

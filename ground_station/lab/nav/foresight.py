@@ -115,8 +115,12 @@ def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
             k += 1  # as the search counts them: at lattice points, at once
         if k == len(wps):
             return "success", t
-    gap = min((math.hypot(x - m[0], y - m[1]) - m[4] - radius_mm for m in movers), default=math.inf)
-    return ("stand-off" if gap <= STANDOFF_GAP_MM else "timeout"), t
+    return ("stand-off" if _body_gap(x, y, radius_mm, movers) <= STANDOFF_GAP_MM else "timeout"), t
+
+
+def _body_gap(x: float, y: float, radius_mm: float, movers: np.ndarray) -> float:
+    """The gap between a robot's body at (x, y) and the nearest mover's (inf with none)."""
+    return min((math.hypot(x - m[0], y - m[1]) - m[4] - radius_mm for m in movers), default=math.inf)
 
 
 def _plan(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, seen: dict, t: int, x: float,
@@ -153,11 +157,11 @@ def _back_off(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray,
     best, best_gap = (x, y), -math.inf
     for dx, dy in ((0.0, 0.0), (oracle.LATTICE_MM, 0.0), (-oracle.LATTICE_MM, 0.0), (0.0, oracle.LATTICE_MM),
                    (0.0, -oracle.LATTICE_MM)):
-        for steps in range(1 if dx == dy == 0.0 else BACK_OFF_STEPS):
+        for steps in ([0] if dx == dy == 0.0 else range(1, BACK_OFF_STEPS + 1)):
             movers = known.copy()
             clear = True
             px, py = x, y
-            for p in range(1, (steps + 1) * unit + 1 if dx or dy else 1):
+            for p in range(1, steps * unit + 1):
                 px, py = x + dx * p / unit, y + dy * p / unit
                 step_movers(movers, occ, cell, discs, px, py, float(radius_mm), period_s)
                 if disc_hits(occ, h, w, cell, px, py, radius_mm) or hits_discs(px, py, radius_mm, discs, movers):
@@ -167,7 +171,7 @@ def _back_off(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray,
                 break  # farther along this axis is no clearer
             for _ in range(BACK_OFF_UNITS * unit):
                 step_movers(movers, occ, cell, discs, px, py, float(radius_mm), period_s)
-            gap = min((math.hypot(px - m[0], py - m[1]) - m[4] for m in movers), default=math.inf)
+            gap = _body_gap(px, py, radius_mm, movers)
             if gap > best_gap + 1e-6:  # ties keep the earlier: staying, then the fewer steps
                 best, best_gap = (x + dx, y + dy), gap
     return best
