@@ -29,6 +29,7 @@ defined in `a`) points at `a`. Parent packages are not implied edges: the
 from __future__ import annotations
 
 import ast
+import os
 import pathlib
 import sys
 
@@ -225,6 +226,26 @@ def test_the_robot_program_runs_without_numpy_where_the_station_has_it():
     assert "pymavlink.mavutil" in loaded and "firmware_py.mavlink.node" in loaded, sorted(loaded)[:50]
     # importtime lists the barred attempt as "numpy" (microseconds); numpy itself loads numpy._core etc.
     assert not {m for m in loaded if m.startswith("numpy.")}, "the robot program loaded numpy"
+    # and of pymavlink's dialects only ours: not mavutil's default "all", nor MAVLink 1's (63 ms of CPU; the
+    # barred attempt is listed, in microseconds)
+    own_us = {line.rsplit("|", 1)[-1].strip(): int(line.split(":", 1)[1].split("|")[0])
+              for line in run.stderr.splitlines() if line.startswith("import time:") and "dialects.v" in line}
+    assert "pymavlink.dialects.v20.development" in own_us and "pymavlink.dialects.v20.all" not in own_us, own_us
+    assert own_us.get("pymavlink.dialects.v10.all", 0) < 1000, own_us
+
+
+def test_the_station_loads_only_our_mavlink_dialect():
+    """A station command's link (ground_station.mavlink.link.mavutil) makes our dialect mavutil's default:
+    mavutil imports its default at import ("all", 45 ms of CPU in every MAVLink command)."""
+    import subprocess
+
+    code = "from ground_station.mavlink.link import mavutil; print(mavutil().mavlink.__name__)"
+    run = subprocess.run([sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT, env={k: v for k, v in os.environ.items() if k != "MAVLINK_DIALECT"})
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.strip() == "pymavlink.dialects.v20.development", run.stdout
+    loaded = {line.rsplit("|", 1)[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
+    assert "pymavlink.mavutil" in loaded and "pymavlink.dialects.v20.all" not in loaded
 
 
 def test_only_jitcache_imports_numba():
