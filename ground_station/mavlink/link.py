@@ -67,6 +67,14 @@ def mavutil():
     user's own MAVLINK_DIALECT stands, every connection names DIALECT anyway)."""
     os.environ["MAVLINK20"] = "1"
     os.environ.setdefault("MAVLINK_DIALECT", DIALECT)
+    if "pymavlink.mavutil" not in sys.modules and "numpy" not in sys.modules:
+        # pymavlink's mavextra loads numpy for a Quaternion no command of ours calls (0.1 s of CPU in every
+        # MAVLink command): it leaves it out, as where numpy is not installed; numpy stays importable after
+        sys.modules["numpy"] = None  # type: ignore[assignment]  # None in sys.modules: "not installed"
+        try:
+            from pymavlink import mavutil as mu
+        finally:
+            del sys.modules["numpy"]
     from pymavlink import mavutil as mu
 
     return mu
