@@ -338,10 +338,9 @@ class Sitl:
         heard by the GCS there, not by us."""
         if not info.mavlink.startswith(("udpin:", "tcpin:")):
             return None
-        import os
+        from ground_station.mavlink.link import mavutil as link_mavutil
 
-        os.environ.setdefault("MAVLINK20", "1")
-        from pymavlink import mavutil
+        mavutil = link_mavutil()
 
         deadline = time.monotonic() + self.opts.probe_timeout_s
         conn = None

@@ -237,7 +237,8 @@ def test_the_robot_program_runs_without_numpy_where_the_station_has_it():
 def test_the_station_loads_only_our_mavlink_dialect_and_no_numpy_for_it():
     """A station command's link (ground_station.mavlink.link.mavutil) makes our dialect mavutil's default
     (mavutil imports its default at import: "all", 45 ms of CPU in every MAVLink command) and keeps
-    pymavlink's numpy extras out (0.1 s); numpy imports as before once something asks for it."""
+    pymavlink's numpy extras (0.1 s) and MAVLink 1's "all" (20 ms) out; numpy imports as before once
+    something asks for it."""
     import subprocess
 
     code = ("from ground_station.mavlink.link import mavutil; print(mavutil().mavlink.__name__); import sys; "
@@ -246,8 +247,22 @@ def test_the_station_loads_only_our_mavlink_dialect_and_no_numpy_for_it():
                          timeout=60, cwd=ROOT, env={k: v for k, v in os.environ.items() if k != "MAVLINK_DIALECT"})
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.split() == ["pymavlink.dialects.v20.development", "False", "0.0"], run.stdout
-    loaded = {line.rsplit("|", 1)[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
-    assert "pymavlink.mavutil" in loaded and "pymavlink.dialects.v20.all" not in loaded
+    own_us = {line.rsplit("|", 1)[-1].strip(): int(line.split(":", 1)[1].split("|")[0])
+              for line in run.stderr.splitlines() if line.startswith("import time:") and "pymavlink." in line}
+    assert "pymavlink.mavutil" in own_us and "pymavlink.dialects.v20.all" not in own_us
+    assert own_us.get("pymavlink.dialects.v10.all", 0) < 1000, own_us  # the barred attempt: microseconds
+
+
+def test_the_monitor_imports_pymavlink_through_the_station_link():
+    """`qnav monitor`'s sources import pymavlink as every station link does (link.mavutil): not the
+    default "all" dialect (a module-level `from pymavlink import mavutil` loaded it, and numpy)."""
+    import subprocess
+
+    code = "import ground_station.monitor.sources, sys; print('numpy' in sys.modules)"
+    run = subprocess.run([sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT, env={k: v for k, v in os.environ.items() if k != "MAVLINK_DIALECT"})
+    assert run.returncode == 0 and run.stdout.split() == ["False"], run.stdout + run.stderr[-2000:]
+    assert "| pymavlink.dialects.v20.all" not in run.stderr
 
 
 def test_only_jitcache_imports_numba():

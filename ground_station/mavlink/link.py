@@ -67,14 +67,18 @@ def mavutil():
     user's own MAVLINK_DIALECT stands, every connection names DIALECT anyway)."""
     os.environ["MAVLINK20"] = "1"
     os.environ.setdefault("MAVLINK_DIALECT", DIALECT)
-    if "pymavlink.mavutil" not in sys.modules and "numpy" not in sys.modules:
-        # pymavlink's mavextra loads numpy for a Quaternion no command of ours calls (0.1 s of CPU in every
-        # MAVLink command): it leaves it out, as where numpy is not installed; numpy stays importable after
-        sys.modules["numpy"] = None  # type: ignore[assignment]  # None in sys.modules: "not installed"
+    if "pymavlink.mavutil" not in sys.modules:
+        # what mavutil loads at import only if it can and no command of ours uses, left out as where it is
+        # not installed, importable as before afterwards: numpy, for mavextra's Quaternion (0.1 s of CPU in
+        # every MAVLink command), and MAVLink 1's "all" dialect, for pyinstaller's sake (20 ms)
+        barred = [m for m in ("numpy", "pymavlink.dialects.v10.all") if m not in sys.modules]
+        for m in barred:
+            sys.modules[m] = None  # type: ignore[assignment]  # None in sys.modules: "not installed"
         try:
             from pymavlink import mavutil as mu
         finally:
-            del sys.modules["numpy"]
+            for m in barred:
+                del sys.modules[m]
     from pymavlink import mavutil as mu
 
     return mu
