@@ -511,8 +511,9 @@ class MavShell:
         # replace the codec and lose the signing setup.
         os.environ["MAVLINK20"] = "1"
         # ... and our dialect mavutil's default: it imports its default at import ("all", 45 ms of CPU at
-        # every robot start, a dialect the robot never uses)
-        os.environ.setdefault("MAVLINK_DIALECT", DIALECT)
+        # every robot start, a dialect the robot never uses; set, not defaulted: a station process that
+        # imported pymavlink first has MAVLINK_DIALECT=all in the environment its children inherit)
+        os.environ["MAVLINK_DIALECT"] = DIALECT
         from pymavlink import mavutil
 
         self.node = node
