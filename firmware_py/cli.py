@@ -444,12 +444,9 @@ def program() -> int:
     installed (firmware_py's dependencies leave it out). Where the station's packages share the
     environment (HIL, the demo) pymavlink would load it for extras the robot never calls (mavextra's
     Quaternion: 0.18 s of CPU at every start); barred, pymavlink leaves them out as it does without
-    numpy, and anything on the robot's path that needed numpy would fail here as on the robot. The same
-    for MAVLink 1's "all" dialect, which mavutil imports for pyinstaller's sake when it can (18 ms of CPU;
-    the robot speaks MAVLink 2 in its own dialect, MavShell)."""
-    for unused in ("numpy", "pymavlink.dialects.v10.all"):
-        if unused not in sys.modules:
-            sys.modules[unused] = None  # type: ignore[assignment]  # None in sys.modules: "not installed"
+    numpy, and anything on the robot's path that needed numpy would fail here as on the robot."""
+    if "numpy" not in sys.modules:
+        sys.modules["numpy"] = None  # type: ignore[assignment]  # None in sys.modules: "not installed"
     return main()
 
 

@@ -338,9 +338,10 @@ class Sitl:
         heard by the GCS there, not by us."""
         if not info.mavlink.startswith(("udpin:", "tcpin:")):
             return None
-        from ground_station.mavlink.link import mavutil as link_mavutil
+        import os
 
-        mavutil = link_mavutil()
+        os.environ.setdefault("MAVLINK20", "1")
+        from pymavlink import mavutil
 
         deadline = time.monotonic() + self.opts.probe_timeout_s
         conn = None

@@ -29,7 +29,6 @@ defined in `a`) points at `a`. Parent packages are not implied edges: the
 from __future__ import annotations
 
 import ast
-import os
 import pathlib
 import sys
 
@@ -220,53 +219,12 @@ def test_the_robot_program_runs_without_numpy_where_the_station_has_it():
 
     argv = qnav_robot("--can", "virtual:no-numpy", "--policy", "policies:sector", "--mavlink",
                       f"udpout:127.0.0.1:{free_udp_port()}", "--duration", "0.3", "-q")
-    # MAVLINK_DIALECT=all: what pymavlink leaves in the environment of a process that imported it, for its
-    # children (the HIL rigs' own process often has)
-    run = subprocess.run([argv[0], "-X", "importtime", *argv[1:]], capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "MAVLINK_DIALECT": "all"})
+    run = subprocess.run([argv[0], "-X", "importtime", *argv[1:]], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0, run.stderr[-2000:]
     loaded = {line.rsplit("|", 1)[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
     assert "pymavlink.mavutil" in loaded and "firmware_py.mavlink.node" in loaded, sorted(loaded)[:50]
     # importtime lists the barred attempt as "numpy" (microseconds); numpy itself loads numpy._core etc.
     assert not {m for m in loaded if m.startswith("numpy.")}, "the robot program loaded numpy"
-    # and of pymavlink's dialects only ours: not mavutil's default "all", nor MAVLink 1's (63 ms of CPU; the
-    # barred attempt is listed, in microseconds)
-    own_us = {line.rsplit("|", 1)[-1].strip(): int(line.split(":", 1)[1].split("|")[0])
-              for line in run.stderr.splitlines() if line.startswith("import time:") and "dialects.v" in line}
-    assert "pymavlink.dialects.v20.development" in own_us and "pymavlink.dialects.v20.all" not in own_us, own_us
-    assert own_us.get("pymavlink.dialects.v10.all", 0) < 1000, own_us
-
-
-def test_the_station_loads_only_our_mavlink_dialect_and_no_numpy_for_it():
-    """A station command's link (ground_station.mavlink.link.mavutil) makes our dialect mavutil's default
-    (mavutil imports its default at import: "all", 45 ms of CPU in every MAVLink command) and keeps
-    pymavlink's numpy extras (0.1 s) and MAVLink 1's "all" (20 ms) out; numpy imports as before once
-    something asks for it; also where the environment says MAVLINK_DIALECT=all, as pymavlink leaves it for
-    the children of a process that imported it."""
-    import subprocess
-
-    code = ("from ground_station.mavlink.link import mavutil; print(mavutil().mavlink.__name__); import sys; "
-            "print('numpy' in sys.modules); import numpy; print(numpy.zeros(2).sum())")
-    run = subprocess.run([sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True,
-                         timeout=60, cwd=ROOT, env={**os.environ, "MAVLINK_DIALECT": "all"})
-    assert run.returncode == 0, run.stderr[-2000:]
-    assert run.stdout.split() == ["pymavlink.dialects.v20.development", "False", "0.0"], run.stdout
-    own_us = {line.rsplit("|", 1)[-1].strip(): int(line.split(":", 1)[1].split("|")[0])
-              for line in run.stderr.splitlines() if line.startswith("import time:") and "pymavlink." in line}
-    assert "pymavlink.mavutil" in own_us and "pymavlink.dialects.v20.all" not in own_us
-    assert own_us.get("pymavlink.dialects.v10.all", 0) < 1000, own_us  # the barred attempt: microseconds
-
-
-def test_the_monitor_imports_pymavlink_through_the_station_link():
-    """`qnav monitor`'s sources import pymavlink as every station link does (link.mavutil): not the
-    default "all" dialect (a module-level `from pymavlink import mavutil` loaded it, and numpy)."""
-    import subprocess
-
-    code = "import ground_station.monitor.sources, sys; print('numpy' in sys.modules)"
-    run = subprocess.run([sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True,
-                         timeout=60, cwd=ROOT, env={**os.environ, "MAVLINK_DIALECT": "all"})
-    assert run.returncode == 0 and run.stdout.split() == ["False"], run.stdout + run.stderr[-2000:]
-    assert "| pymavlink.dialects.v20.all" not in run.stderr
 
 
 def test_only_jitcache_imports_numba():

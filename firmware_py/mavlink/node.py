@@ -510,10 +510,6 @@ class MavShell:
         # MAVLink 2 from the first frame: pymavlink's v1 -> v2 switch would
         # replace the codec and lose the signing setup.
         os.environ["MAVLINK20"] = "1"
-        # ... and our dialect mavutil's default: it imports its default at import ("all", 45 ms of CPU at
-        # every robot start, a dialect the robot never uses; set, not defaulted: a station process that
-        # imported pymavlink first has MAVLINK_DIALECT=all in the environment its children inherit)
-        os.environ["MAVLINK_DIALECT"] = DIALECT
         from pymavlink import mavutil
 
         self.node = node

@@ -62,25 +62,8 @@ class LinkError(Exception):
 
 
 def mavutil():
-    """pymavlink's mavutil, imported in MAVLink 2 mode, our dialect its default: mavutil imports its default
-    at import, "all" unless MAVLINK_DIALECT names another (45 ms of CPU for a dialect no connection of ours
-    uses: every one names DIALECT). Set, not defaulted: pymavlink sets MAVLINK_DIALECT=all in its own
-    process's environment, and every process that process starts inherits it."""
+    """pymavlink's mavutil, imported in MAVLink 2 mode."""
     os.environ["MAVLINK20"] = "1"
-    os.environ["MAVLINK_DIALECT"] = DIALECT
-    if "pymavlink.mavutil" not in sys.modules:
-        # what mavutil loads at import only if it can and no command of ours uses, left out as where it is
-        # not installed, importable as before afterwards: its Quaternion (numpy: 0.1 s of CPU in every
-        # MAVLink command), and MAVLink 1's "all" dialect, for pyinstaller's sake (20 ms). pymavlink's own
-        # modules, not numpy: another thread may import numpy meanwhile (sitl, the demo)
-        barred = [m for m in ("pymavlink.quaternion", "pymavlink.dialects.v10.all") if m not in sys.modules]
-        for m in barred:
-            sys.modules[m] = None  # type: ignore[assignment]  # None in sys.modules: "not installed"
-        try:
-            from pymavlink import mavutil as mu
-        finally:
-            for m in barred:
-                del sys.modules[m]
     from pymavlink import mavutil as mu
 
     return mu

@@ -80,11 +80,9 @@ def _robot_wall_clock(unix_us: int | None) -> str | None:
 
 
 def _analyse(path: str, progress: bool, sysid: int | None, clock: str) -> RunRecord:
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
     from tqdm import tqdm
-
-    from ground_station.mavlink.link import mavutil as link_mavutil
-
-    mavutil = link_mavutil()
 
     rec = RunRecord(path=path, clock=clock, view=VehicleView(sysid=sysid))
     view = rec.view

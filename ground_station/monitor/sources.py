@@ -21,12 +21,13 @@ import time
 from collections.abc import Callable
 from typing import IO, Protocol
 
-from firmware_py.mavlink.dialect import mavlink2 as mavlink
-from firmware_py.vehicle import Mode
-from ground_station.mavlink import link
-from ground_station.monitor.model import POLICY_ID_HALVES, VehicleView
+os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: MAVLink 2 from the start
 
-mavutil = link.mavutil()  # pymavlink's, in MAVLink 2 from the start, as every station link imports it
+from pymavlink import mavutil  # noqa: E402
+
+from firmware_py.mavlink.dialect import mavlink2 as mavlink  # noqa: E402
+from firmware_py.vehicle import Mode  # noqa: E402
+from ground_station.monitor.model import POLICY_ID_HALVES, VehicleView  # noqa: E402
 
 HEARTBEAT_PERIOD_S = 1.0
 COMMANDS = ("arm", "disarm", "hold")
