@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 PORT_HOLD_S = 120.0  # a port handed out here is not handed out again for this long, by any process
-PORTS_DIR = Path(tempfile.gettempdir()) / "qnav-ports"  # one file per port handed out, its mtime when
+PORTS_DIR = Path(tempfile.gettempdir()) / "qnav-ports"  # a file per port handed out, its mtime: when
 
 
 def free_port(kind: socket.SocketKind = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
