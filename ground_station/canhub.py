@@ -15,7 +15,7 @@ import sys
 import time
 from types import TracebackType
 
-from ground_station.subprocs import die_with_parent_code, free_port, stop_process
+from ground_station.subprocs import die_with_parent_code, exit_code, free_port, stop_process
 
 
 class CanHub:
@@ -59,7 +59,7 @@ class CanHub:
                                       stderr=subprocess.DEVNULL, env=env, start_new_session=True)
         deadline = time.monotonic() + self.start_timeout_s
         while time.monotonic() < deadline:
-            if self._proc.poll() is not None:  # port taken meanwhile, or can_remote broken
+            if exit_code(self._proc) is not None:  # port taken meanwhile, or can_remote broken
                 self._proc = None
                 return False
             try:
@@ -77,7 +77,7 @@ class CanHub:
 
     @property
     def running(self) -> bool:
-        return self._proc is not None and self._proc.poll() is None
+        return self._proc is not None and exit_code(self._proc) is None
 
     def __enter__(self) -> CanHub:
         return self.start()

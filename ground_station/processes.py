@@ -18,8 +18,10 @@ from pathlib import Path
 
 from ground_station.subprocs import (
     die_with_parent_code,
+    exit_code,
     signal_process,
     stop_process,
+    wait_exit,
 )
 
 ROBOT_MAIN = "firmware_py.cli:program"  # the console scripts' entry points (pyproject.toml [project.scripts])
@@ -71,11 +73,11 @@ class ChildProcess:
 
     @property
     def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
+        return self.proc is not None and exit_code(self.proc) is None
 
     @property
-    def returncode(self) -> int | None:
-        return None if self.proc is None else self.proc.poll()
+    def returncode(self) -> int | None:  # exit_code, not poll(): see subprocs.exit_code
+        return None if self.proc is None else exit_code(self.proc)
 
     def wait(self, timeout_s: float | None = None) -> int:
         """Its exit code; raises subprocess.TimeoutExpired if it still runs after timeout_s."""
@@ -88,13 +90,11 @@ class ChildProcess:
         proc = self.proc
         if proc is None:
             return None
-        if proc.poll() is None:
+        if exit_code(proc) is None:
             signal_process(proc, signal.SIGINT, group=self.own_group)
-            try:
-                proc.wait(timeout=grace_s)
-            except subprocess.TimeoutExpired:
+            if wait_exit(proc, grace_s) is None:
                 stop_process(proc, 5.0, signal.SIGTERM, group=self.own_group)
-        return proc.returncode
+        return exit_code(proc)
 
     def log_text(self) -> str:
         try:
