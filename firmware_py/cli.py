@@ -36,6 +36,7 @@ from firmware_py.control.node import RobotNode
 from firmware_py.helpformat import DefaultsHelpFormatter
 from firmware_py.mavlink.extension import MavlinkExtension
 from firmware_py.plugins import EXIT_FAULT, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, Extension, UsageError
+from firmware_py.stackdump import dump_stacks_on_sigusr1
 from firmware_py.vehicle import VehicleConfig
 
 if TYPE_CHECKING:  # loaded lazily (see _load_policy)
@@ -430,6 +431,7 @@ def _run(args: argparse.Namespace, onboard: Any) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    dump_stacks_on_sigusr1()
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="qnav-robot %(levelname)s %(message)s", stream=sys.stderr)
     try:

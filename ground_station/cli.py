@@ -12,6 +12,7 @@ import argparse
 import sys
 from typing import NoReturn
 
+from firmware_py.stackdump import dump_stacks_on_sigusr1
 from ground_station import commands
 from ground_station.commands import add_module_subparsers
 from ground_station.errors import CliError
@@ -43,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     # the first word not an option is the command (qnav has no options of its own but -h)
     args = build_parser(next((a for a in argv if not a.startswith("-")), None)).parse_args(argv)
+    dump_stacks_on_sigusr1()
     try:
         return int(args.func(args) or 0)
     except CliError as exc:

@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from firmware_py.helpformat import DefaultsHelpFormatter
+from firmware_py.stackdump import dump_stacks_on_sigusr1
 from sim_bridge.profiles import PROFILES, PlantProfile
 
 EPILOG = """examples:
@@ -261,6 +262,7 @@ def main(argv: list[str] | None = None) -> int:
 
     require_station("qnav-sim")  # pymunk, numpy, the maps: one line, not a traceback
     args = build_parser().parse_args(argv)
+    dump_stacks_on_sigusr1()
     try:
         return run(args)
     except CliError as exc:

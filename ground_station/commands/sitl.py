@@ -67,14 +67,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import contextlib
-    import faulthandler
     import signal
-
-    # `kill -USR1 PID` prints every thread's stack to stderr: a bring-up that does not answer Ctrl-C
-    # says where it is
-    with contextlib.suppress(OSError, ValueError, AttributeError):  # no file descriptor behind stderr (in-process)
-        faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)
 
     from ground_station.sitl import Sitl, SitlOptions, connection_help, describe_exits
 

@@ -184,7 +184,16 @@ def test_demo_ctrl_c_stops_every_process(tmp_path):
         assert proc.poll() is None, "demo ended before the robot was found"
         assert len(_processes_mentioning(str(out))) >= 2  # qnav-sim and qnav-robot
         proc.send_signal(signal.SIGINT)
-        stdout, _ = proc.communicate(timeout=60)
+        try:
+            stdout, _ = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:  # where each process is: their stacks in their logs
+            from tests.support.hang import stacks_and_logs
+
+            pids = [proc.pid] + [int(line.split(":")[0]) for line in _processes_mentioning(str(out))]
+            report = stacks_and_logs(pids, out)
+            proc.kill()
+            _, said = proc.communicate()  # all its stderr since the robot was found (communicate loses none)
+            pytest.fail(f"qnav demo still running 60 s after SIGINT:\n{said[-4000:]}\n{report}")
     finally:
         if proc.poll() is None:
             proc.kill()

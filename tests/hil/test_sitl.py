@@ -7,6 +7,7 @@ and SIGTERM stop every process."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
@@ -242,7 +243,20 @@ def test_sitl_ctrl_c_in_a_terminal_stops_everything_cleanly_and_writes_every_fil
                     text += os.read(master, 65536)
                 except OSError:
                     break
-        assert proc.wait(timeout=30) == 0, text.decode(errors="replace")[-2000:]
+        try:
+            code = proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:  # where each process is: their stacks in their logs and on the pty
+            from ground_station.lab.rigs import other_processes
+            from tests.support.hang import stacks_and_logs
+
+            pids = [proc.pid] + [pid for pid, cmd in other_processes() if str(out) in cmd]
+            report = stacks_and_logs(pids, out)
+            with contextlib.suppress(OSError):
+                while select.select([master], [], [], 0.2)[0]:
+                    text += os.read(master, 65536)
+            pytest.fail(f"qnav sitl still running 90 s after Ctrl-C:\n{text.decode(errors='replace')[-4000:]}"
+                        f"\n{report}")
+        assert code == 0, text.decode(errors="replace")[-2000:]
     finally:
         if proc.poll() is None:
             proc.kill()
