@@ -141,8 +141,7 @@ class Plant:
         self._answered_tick: int | None = None  # counter of the last tick the controller answered (lockstep)
         self._last_cmd = (0, 0)
         self.obstacles: Any = None  # a sim_bridge.obstacles.ObstacleLayer: its movers move once per period
-        self._in_step = False
-        self._interrupt_pending = False
+        self._interrupt_pending = False  # a SIGINT waiting for a safe point (interrupt)
         if self.odrive is not None:
             self.odrive.step(0, self.encoders.wheel_turns())
         self.record()
@@ -232,22 +231,21 @@ class Plant:
         dt_us = robot_spec.PHYSICS_DT_US
         dt_s = dt_us / 1e6
         world, motors, encoders = self.world, self.motors, self.encoders
-        self._in_step = True
-        try:
-            self._physics(dt_us, dt_s, world, motors, encoders)
-        finally:
-            self._in_step = False
-        if self._interrupt_pending:
-            self._interrupt_pending = False
-            raise KeyboardInterrupt
+        self._physics(dt_us, dt_s, world, motors, encoders)
+        self.check_interrupt()
 
     def interrupt(self) -> None:
-        """SIGINT handler body: raise KeyboardInterrupt now, or at the end of
-        the physics step if one is running (raised inside a pymunk contact
-        callback, cffi would print and swallow it and the sim would run on)."""
-        if self._in_step:
-            self._interrupt_pending = True
-        else:
+        """SIGINT handler body: KeyboardInterrupt at the next `check_interrupt` (the end of a
+        physics step, or between two of the run loop's bus reads), never where the signal lands:
+        raised inside a pymunk contact callback cffi would print and swallow it (the sim ran on);
+        raised inside a bus call, between a python-can-remote frame's header and its body, the
+        stream to the hub is out of step and the bus's shutdown fails."""
+        self._interrupt_pending = True
+
+    def check_interrupt(self) -> None:
+        """Raise the KeyboardInterrupt a SIGINT asked for (`interrupt`), if any."""
+        if self._interrupt_pending:
+            self._interrupt_pending = False
             raise KeyboardInterrupt
 
     def _physics(self, dt_us: int, dt_s: float, world: Any, motors: Any, encoders: Any) -> None:
@@ -330,6 +328,7 @@ def run_lockstep(plant: Plant, bus: can.BusABC, duration_s: float, *,
         answered = False
         while not answered:
             msg = io.recv(min(deadline, next_resend) - now)
+            plant.check_interrupt()  # within resend_s of a Ctrl-C, however long the controller takes
             if msg is not None:
                 answered = plant.handle(msg, lockstep=True)
             now = time.perf_counter()
@@ -414,6 +413,7 @@ def run_paced(plant: Plant, bus: can.BusABC, duration_s: float, speed: float = 1
             if remaining <= 0:
                 break
             msg = io.recv(remaining)
+            plant.check_interrupt()
             if msg is not None:
                 plant.handle(msg, lockstep=False)
         while (msg := io.recv(0.0)) is not None:  # frames that arrived meanwhile

@@ -312,3 +312,27 @@ def test_lockstep_with_a_max_speed_answers_every_tick_and_is_never_faster():
     assert stats.wall_s - stats.start_wait_s >= 0.095
     with pytest.raises(ValueError, match="max_speed"):
         run_lockstep(plant, None, 1.0, max_speed=0.0)  # refused before the bus is used
+
+
+@pytest.mark.parametrize("mode", ["lockstep, no controller", "paced"])
+def test_a_sigint_ends_the_run_between_bus_calls_within_a_wait(mode):
+    """The SIGINT handler only asks (Plant.interrupt); the loop raises KeyboardInterrupt itself between
+    two bus reads or at a period's end: never inside a bus call (a python-can-remote stream out of
+    step), and in lockstep without waiting out the controller's 30 s to answer."""
+    plant = Plant(ARENA, SimConfig(seed=3), Pose(1.0, 1.0, 0.0))
+    bus = open_bus(f"virtual:test_sigint_{mode[:5]}")
+    timer = threading.Timer(0.5, plant.interrupt)
+    try:
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            if mode == "paced":
+                run_paced(plant, bus, 30.0, speed=1.0)
+            else:
+                run_lockstep(plant, bus, 30.0, start_timeout_s=30.0)
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        timer.cancel()
+        bus.shutdown()
+    if mode == "paced":
+        assert 0.3 <= plant.time_us / 1e6 <= 1.5  # it ran until the interrupt, then stopped
