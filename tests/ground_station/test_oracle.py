@@ -12,7 +12,14 @@ import numpy as np
 
 from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, PERIOD_S
 from ground_station.lab.nav.foresight import _back_off, sees, solve_seen
-from ground_station.lab.nav.oracle import mover_tracks, solve, solve_path
+from ground_station.lab.nav.oracle import (
+    REVERSE_UNITS,
+    TURN_UNITS,
+    mover_tracks,
+    solve,
+    solve_kinematic,
+    solve_path,
+)
 from ground_station.lab.nav.scenario import (
     MOVER_SPEED_MM_S,
     Episode,
@@ -64,6 +71,22 @@ def test_an_empty_room_takes_the_straight_drive_at_full_speed() -> None:
     assert via == (3 + 9 + 2) * 5
 
 
+def kinematic(ep: Episode, gm: GridMap) -> int:
+    return solve_kinematic(ep, gm, 150, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S)
+
+
+def test_the_robots_moves_turn_in_place_and_reverse_at_the_twins_rates() -> None:
+    # quarter turn at 1.23 rad/s: 1.28 s, 25.5 periods -> 6 units of 5; a 100 mm step back at 200 mm/s: 2 units
+    assert (TURN_UNITS, REVERSE_UNITS) == (6, 2)
+    x, y = centre(ROOM, 1, 2)
+    assert kinematic(episode(ROOM, (x, y), [(x + 1000, y)]), ROOM) == 45  # ahead, as the oracle
+    # 1000 mm behind: 9 steps back (18 units) beat a half turn (12) and 9 ahead
+    assert kinematic(episode(ROOM, (x + 1000, y), [(x, y)]), ROOM) == 9 * REVERSE_UNITS * 5
+    # up to the waypoint: a quarter turn and 3 steps; then 2 steps back down and a quarter turn, 9 ahead
+    # (141 mm off the goal): 28 units, where the oracle (sideways, turning in no time) took 14
+    assert kinematic(episode(ROOM, (x, y), [(x, y + 400), (x + 1000, y)]), ROOM) == (6 + 3 + 4 + 6 + 9) * 5
+
+
 # a one-cell corridor (row 1) closed at both ends; the robot comes in from below at column 9
 CORRIDOR = grid(["@@@@@@@@@@@@",
                  "@..........@",
@@ -87,6 +110,9 @@ def test_a_walker_in_the_only_corridor_is_followed_if_it_is_slower() -> None:
                    CORRIDOR)
     assert empty > 0 and slow > empty  # it waited for its moment
     assert fast == -1
+    # the robot's moves: the quarter turn at the door, after it has waited for its moment as well
+    assert kinematic(corridor_episode(300.0), CORRIDOR) >= slow + TURN_UNITS * 5
+    assert kinematic(corridor_episode(600.0), CORRIDOR) == -1
 
 
 def test_the_walkers_track_is_the_movers_own_model() -> None:
@@ -145,7 +171,8 @@ def test_bench_ceiling_reports_the_oracle_beside_the_controllers(tmp_path) -> No
     out = tmp_path / "c.json"
     r = subprocess.run([sys.executable, "-m", "ground_station", "bench", "ceiling", "--map", "maze-12x12-s306",
                         "--obstacles", "6", "--movers", "3", "--no-yield", "--episodes", "2", "--controllers",
-                        "seek_local", "--foresight", "2000", "--workers", "1", "--json", str(out), "--draw",
+                        "seek_local", "--foresight", "2000", "--kinematic", "--workers", "1", "--json", str(out),
+                        "--draw",
                         str(tmp_path / "d")], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     assert "oracle (privileged)" in r.stdout and "oracle seeing 2000 mm" in r.stdout and "seek_local" in r.stdout
@@ -168,6 +195,13 @@ def test_bench_ceiling_reports_the_oracle_beside_the_controllers(tmp_path) -> No
     both = [row for row in rows if row["seen_s"] is not None and row["oracle_s"] is not None]
     assert res["seen"]["both_finished"] == len(both)
     assert res["seen"]["as_quick_as_oracle"] == sum(row["seen_s"] == row["oracle_s"] for row in both)
+    # --kinematic: the robot's-moves oracle's time per episode, never quicker than the oracle's
+    assert "oracle, robot's moves" in r.stdout
+    kin = [row["kinematic_s"] for row in rows]
+    assert res["kinematic"]["right"] == sum(k is not None for k in kin) == res["per_map"]["maze-12x12-s306"]["kinematic"]
+    assert all(row["oracle_s"] is not None and k >= row["oracle_s"] for row, k in zip(rows, kin, strict=True) if k is not None)
+    assert s["paired_with_kinematic"]["a_only"] == sum(row["seek_local"] == "success" and row["kinematic_s"] is None
+                                                       for row in rows)
     # --draw: one PNG per episode seek_local got wrong and the oracle right (none, maybe: the drawing
     # itself is checked below)
     folder = tmp_path / "d"

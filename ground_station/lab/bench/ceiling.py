@@ -27,13 +27,19 @@ The gap between the two is what knowing the movers beyond the sensors is worth;
 a controller's failures that one solved are the ones a robot could win from its
 own sightings.
 
+`--kinematic` runs the oracle once more with a differential-drive robot's moves instead of its
+relaxation (`oracle.solve_kinematic`: heading in four axis directions, quarter turns in place and
+reversing at the twin's rates): the gap to the oracle is what turning in no time and driving sideways
+are worth; each controller is paired with it too.
+
 Prints a table and writes JSON (`--json`): `scenario`, `oracle` and each
 controller's summary (as `qnav bench nav`'s, with `right` and the failures
 the oracle solved), `per_map` (episodes, right for the oracle and each
 controller), and `episodes`: one row per episode (map, index on it, the
 oracle's time in s or null, the label, each controller's outcome; with
 `--foresight`, `seen` (the limited oracle's summary) and per row `seen` and
-`seen_s`: its outcome and time).
+`seen_s`: its outcome and time; with `--kinematic`, `kinematic` (its summary, with its turn and
+reverse time units) and per row `kinematic_s`).
 """
 
 from __future__ import annotations
@@ -63,6 +69,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--foresight", type=float, default=None, metavar="MM",
                    help="also the oracle limited to the movers the robot has seen within MM in line of sight, "
                         "re-planned as it drives (2000: the range sensors' reach)")
+    p.add_argument("--kinematic", action="store_true",
+                   help="also the oracle restricted to a differential-drive robot's moves: heading in four axis "
+                        "directions, quarter turns in place and reversing at the twin's rates")
     p.add_argument("--episodes", type=int, default=40, help="episodes per map (default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
     p.add_argument("--policy", default="policies:sector", metavar="FILE",
@@ -83,16 +92,19 @@ def ceiling_job(job: dict) -> list[Any]:
     controller's rows (`episodes.run_job`)."""
     from ground_station.lab.nav.episodes import run_job
 
-    if job["kind"] not in ("oracle", "seen"):
+    if job["kind"] not in ("oracle", "seen", "kinematic"):
         return run_job(job)
     from firmware_py import robot_spec
     from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, PERIOD_S
     from ground_station.lab.nav.foresight import solve_seen
-    from ground_station.lab.nav.oracle import solve
+    from ground_station.lab.nav.oracle import solve, solve_kinematic
     from ground_station.maps import load_map
 
     maps = {name: load_map(spec) for name, spec in job["maps"].items()}
     r = robot_spec.ROBOT_RADIUS_MM
+    if job["kind"] == "kinematic":
+        return [solve_kinematic(ep, maps[ep.map], r, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S, job["budget_scale"])
+                for ep in job["episodes"]]
     if job["kind"] == "seen":
         return [list(solve_seen(ep, maps[ep.map], r, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S, job["see_mm"],
                                 job["budget_scale"])) for ep in job["episodes"]]
@@ -114,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
         summarise,
         wilson95,
     )
+    from ground_station.lab.nav.oracle import REVERSE_UNITS, TURN_UNITS, UNIT_PERIODS
     from ground_station.lab.nav.scenario import (
         MOVER_SPEED_MM_S,
         MoverStyle,
@@ -166,6 +179,9 @@ def run(args: argparse.Namespace) -> int:
     if args.foresight is not None:
         jobs += [{**base, "kind": "seen", "controller": "seen", "episodes": c, "see_mm": args.foresight,
                   "budget_scale": args.budget_scale} for c in chunks]
+    if args.kinematic:
+        jobs += [{**base, "kind": "kinematic", "controller": "kinematic", "episodes": c,
+                  "budget_scale": args.budget_scale} for c in chunks]
     jobs += [{**base, "kind": "twin", "controller": c.name, "episodes": ch} for c in ctrls for ch in chunks]
     with engine_from_args(args) as engine:
         out, stats = engine.map(ceiling_job, jobs, desc="episodes", unit="batch")
@@ -180,6 +196,9 @@ def run(args: argparse.Namespace) -> int:
     seen = by.get("seen")  # --foresight: (outcome, period) each
     seen_right = [(o == "success") != nl for (o, _p), nl in zip(seen, none_label, strict=True)] if seen else None
 
+    kin = by.get("kinematic")  # --kinematic: periods each (-1: no way found)
+    kin_right = [(p >= 0) != nl for p, nl in zip(kin, none_label, strict=True)] if kin else None
+
     won_by = {c.name: [answered_right(row) for row in by[c.name]] for c in ctrls}
     index: dict[str, int] = {}
     rows: list[dict[str, Any]] = []
@@ -189,6 +208,8 @@ def run(args: argparse.Namespace) -> int:
                      **({"detour": bool(ep.blocked["detour"])} if ep.blocked else {}),
                      **({"seen": seen[len(rows)][0], "seen_s": round(seen[len(rows)][1] * PERIOD_S, 2)
                          if seen[len(rows)][0] == "success" else None} if seen else {}),
+                     **({"kinematic_s": round(kin[len(rows)] * PERIOD_S, 2) if kin[len(rows)] >= 0 else None}
+                        if kin else {}),
                      **{c.name: by[c.name][len(rows)]["outcome"] for c in ctrls}})
     n = len(eps)
     k = sum(oracle_right)
@@ -223,6 +244,22 @@ def run(args: argparse.Namespace) -> int:
                       f"collisions {outs['collision']}, stand-offs {outs['stand-off']}, timeouts "
                       f"{outs['timeout']}: knowing only the movers it has seen; as quick as the oracle in "
                       f"{result['seen']['as_quick_as_oracle']} of the {len(both)} both finished"))
+    if kin and kin_right is not None:
+        kk = sum(kin_right)
+        both_k = [(o_p, k_p) for o_p, k_p in zip(periods, kin, strict=True) if o_p >= 0 and k_p >= 0]
+        slower = sorted(k_p / o_p for o_p, k_p in both_k if o_p > 0)
+        result["kinematic"] = {"episodes": n, "right": kk, "right_rate": kk / n, "right_ci95": wilson95(kk, n),
+                               "turn_units": TURN_UNITS, "reverse_units": REVERSE_UNITS,
+                               "won_oracle_not": sum(1 for a, b in zip(kin_right, oracle_right, strict=True)
+                                                     if a and not b),
+                               "both_finished": len(both_k),
+                               "time_over_oracle_median": slower[len(slower) // 2] if slower else None}
+        lo, hi = wilson95(kk, n)
+        ratio = f"{slower[len(slower) // 2]:.2f}" if slower else "-"
+        table.append(("oracle, robot's moves", f"n={n} right {kk} ({kk / n:.3f}) [{lo:.3f}, {hi:.3f}]: heading in "
+                      f"4 axis directions, quarter turns in place ({TURN_UNITS * UNIT_PERIODS * PERIOD_S:g} s), "
+                      f"reversing ({REVERSE_UNITS * UNIT_PERIODS * PERIOD_S:g} s a step); median time "
+                      f"{ratio} x the oracle's where both finished ({len(both_k)})"))
     if any(none_label):
         table.append(("  without a detour", f"the oracle found a way in {result['oracle']['found_without_detour']} "
                                             f"of {sum(none_label)} (the label says none: 0 expected)"))
@@ -244,6 +281,11 @@ def run(args: argparse.Namespace) -> int:
             result[c.name]["paired_with_seen"] = paired
             by_seen = (f", the oracle seeing {args.foresight:g} mm {paired['b_only']} (paired: {paired['a_only']} vs "
                        f"{paired['b_only']}, p = {paired['p_exact']:.2g})")
+        if kin_right is not None:
+            paired = mcnemar_exact([{"success": w} for w in won], [{"success": o} for o in kin_right])
+            result[c.name]["paired_with_kinematic"] = paired
+            by_seen += (f", the robot's-moves oracle {paired['b_only']} (paired: {paired['a_only']} vs "
+                        f"{paired['b_only']}, p = {paired['p_exact']:.2g})")
         lo, hi = wilson95(sum(won), n)
         table.append((c.name, f"right {sum(won)} ({sum(won) / n:.3f}) [{lo:.3f}, {hi:.3f}], collisions "
                               f"{s['outcomes'].get('collision', 0)}; of its {n - sum(won)} failures the oracle "
@@ -260,6 +302,7 @@ def run(args: argparse.Namespace) -> int:
         idx = [i for i, ep in enumerate(eps) if ep.map == name]
         pm = {"episodes": len(idx), "oracle": sum(oracle_right[i] for i in idx),
               **({"seen": sum(seen_right[i] for i in idx)} if seen_right is not None else {}),
+              **({"kinematic": sum(kin_right[i] for i in idx)} if kin_right is not None else {}),
               **{c.name: sum(won_by[c.name][i] for i in idx) for c in ctrls}}
         result["per_map"][name] = pm
         table.append((f"  {name}", ", ".join(f"{key} {v}" for key, v in pm.items())))

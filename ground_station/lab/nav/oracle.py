@@ -31,6 +31,13 @@ searched; nor making one that gives way step aside), keeps `keep_clear_mm`
 from movers, moves only on the lattice and counts a waypoint only at lattice
 points. So an episode it does not solve may
 still be solvable; one it solves needs a robot as quick to turn.
+
+`solve_kinematic` drops the first relaxation: the same search over (time unit, heading, lattice point)
+with the heading one of the four axis directions, and per unit a stay, one step ahead, a 90-degree
+turn in place (`TURN_UNITS`, at the twin's turn rate) or one step back (`REVERSE_UNITS`, at its
+reverse speed), as a differential-drive robot moves on the lattice. Stays and turns keep the robot's
+disc where it is (it turns about its centre), so they are checked as stays; a step back checks its
+start point over its first unit and its end point over its second (each with the step's slack).
 """
 
 from __future__ import annotations
@@ -44,7 +51,7 @@ from ground_station.lab.nav.obstacle_twin import hits_discs, step_movers
 from ground_station.lab.nav.planned import budget_periods
 from ground_station.lab.nav.scenario import Episode, rollout_arrays
 from ground_station.learn.sector.kernels import FWD_MM_PER_PERIOD, GOAL_TOL_MM
-from ground_station.learn.sector.twin import disc_hits
+from ground_station.learn.sector.twin import ACTION_V_MM_S, ACTION_W_RAD_S, disc_hits
 from ground_station.maps import GridMap
 from sim_bridge.obstacles import YIELD_MARGIN_MM
 
@@ -57,6 +64,12 @@ FAR_MM = -1.0e9  # where the robot is for the movers' walk: nowhere near (none s
 # point at -x, +x, -y, +y, or the leg's start (the start, or where the previous leg's waypoint was passed)
 _STAYED, _FROM_W, _FROM_E, _FROM_S, _FROM_N, _LEG_START = 1, 2, 3, 4, 5, 6
 _BACK = {_STAYED: (0, 0), _FROM_W: (0, -1), _FROM_E: (0, 1), _FROM_S: (-1, 0), _FROM_N: (1, 0)}  # (dj, di) back
+# solve_kinematic: the twin's turn in place (90 degrees) and reverse (one lattice step), in time units
+_PERIOD_S = FWD_MM_PER_PERIOD / float(ACTION_V_MM_S[0])
+TURN_UNITS = math.ceil(math.pi / 2 / float(ACTION_W_RAD_S[1]) / _PERIOD_S / UNIT_PERIODS)
+REVERSE_UNITS = math.ceil(LATTICE_MM / abs(float(ACTION_V_MM_S[3])) / _PERIOD_S / UNIT_PERIODS)
+_HEAD_DI = np.array([1, 0, -1, 0], dtype=np.int64)  # heading 0: +x, 1: +y, 2: -x, 3: -y
+_HEAD_DJ = np.array([0, 1, 0, -1], dtype=np.int64)
 
 
 def keep_clear_mm(mover: np.ndarray, period_s: float) -> float:
@@ -279,3 +292,125 @@ def search_from(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarra
         t, j, i = t - 1, j + dj, i + di
         back.append((t, j, i))
     return period, [(t * UNIT_PERIODS, ox + i * LATTICE_MM, oy + j * LATTICE_MM) for t, j, i in reversed(back)]
+
+
+@numba.njit(cache=True)
+def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, unit, wps, tol, ox, oy, free,
+                      step_ok, stay, depart, arrive, done, reach, nxt, turn_units, rev_units, di, dj):
+    """`_search` over (time unit, heading, point) with a differential drive's moves (module docstring):
+    the earliest period the goal is reached, or -1."""
+    h, w = occ.shape
+    ny, nx = free.shape
+    units = stay.shape[0]
+    nodisc = np.zeros((0, 5))
+    half = unit // 2
+    slack = lattice * half / unit
+    for j in range(ny):
+        for i in range(nx):
+            x = ox + i * lattice
+            y = oy + j * lattice
+            free[j, i] = not disc_hits(occ, h, w, cell, x, y, radius) and not hits_discs(x, y, radius, discs, nodisc)
+    for j in range(ny):
+        for i in range(nx):
+            for m in range(2):
+                i2, j2 = i + 1 - m, j + m
+                if i2 >= nx or j2 >= ny or not free[j, i] or not free[j2, i2]:
+                    continue
+                good = True
+                for p in range(1, unit):
+                    x = ox + (i + p / unit * (1 - m)) * lattice
+                    y = oy + (j + p / unit * m) * lattice
+                    if disc_hits(occ, h, w, cell, x, y, radius) or hits_discs(x, y, radius, discs, nodisc):
+                        good = False
+                        break
+                step_ok[j, i, m] = good
+    i0 = int(round((x0 - ox) / lattice))
+    j0 = int(round((y0 - oy) / lattice))
+    if not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
+        return -1
+    reach[0, h0, j0, i0] = True
+    ahead = max(turn_units, rev_units)
+    for k in range(wps.shape[0]):
+        wx, wy = wps[k, 0], wps[k, 1]
+        nxt[:] = False
+        first = -1
+        for t in range(units + 1):
+            for tt in range(t, min(units, t + ahead)):
+                if not done[tt]:
+                    _rows(tt, radius, tracks, ox, oy, lattice, unit, slack, half, free, stay, depart, arrive)
+                    done[tt] = True
+            for d in range(4):
+                for j in range(ny):
+                    for i in range(nx):
+                        if not reach[t, d, j, i]:
+                            continue
+                        x = ox + i * lattice
+                        y = oy + j * lattice
+                        if (x - wx) ** 2 + (y - wy) ** 2 <= tol * tol:
+                            if k == wps.shape[0] - 1:
+                                return t * unit
+                            nxt[t, d, j, i] = True  # the next leg starts here, now, with this heading
+                            if first < 0:
+                                first = t
+                            continue
+                        if t == units:
+                            continue
+                        if stay[t, j, i]:
+                            reach[t + 1, d, j, i] = True
+                        i2, j2 = i + di[d], j + dj[d]  # one step ahead
+                        if (_step_free(step_ok, j, i, j2, i2) and depart[t, j, i]
+                                and arrive[t, j2, i2]):
+                            reach[t + 1, d, j2, i2] = True
+                        if t + turn_units <= units:  # a quarter turn in place, either way
+                            good = True
+                            for u in range(t, t + turn_units):
+                                if not stay[u, j, i]:
+                                    good = False
+                                    break
+                            if good:
+                                reach[t + turn_units, (d + 1) % 4, j, i] = True
+                                reach[t + turn_units, (d + 3) % 4, j, i] = True
+                        i2, j2 = i - di[d], j - dj[d]  # one step back
+                        back = t + rev_units - 1  # its last unit, near the point it backs to
+                        if (t + rev_units <= units and _step_free(step_ok, j, i, j2, i2) and depart[t, j, i]
+                                and arrive[t, j, i] and depart[back, j2, i2] and arrive[back, j2, i2]):
+                            reach[t + rev_units, d, j2, i2] = True
+        if first < 0:
+            return -1
+        reach[:] = nxt
+    return -1
+
+
+@numba.njit(cache=True, inline="always")
+def _step_free(step_ok, j, i, j2, i2) -> bool:
+    """Whether the axis step between lattice points (j, i) and (j2, i2) is on the lattice and clear of
+    the map and the discs (`step_ok`, either direction)."""
+    ny, nx = step_ok.shape[0], step_ok.shape[1]
+    if not (0 <= i2 < nx and 0 <= j2 < ny):
+        return False
+    return step_ok[j, min(i, i2), 0] if j == j2 else step_ok[min(j, j2), i, 1]
+
+
+def solve_kinematic(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
+                    period_s: float, budget_scale: float = 1.0) -> int:
+    """`solve` for a differential-drive robot (module docstring): the earliest period the goal is
+    reached through the waypoints within the budget, starting with the axis heading nearest the
+    episode's, or -1."""
+    discs, movers, wps, _, plan_len = rollout_arrays(ep, True)
+    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
+    cell = gm.cell_size_m * 1000.0
+    budget = int(budget_scale * budget_periods(plan_len, budget_base, budget_factor))
+    tracks = mover_tracks(movers, occ, cell, discs, budget, period_s)
+    x0, y0, heading = ep.start
+    h0 = int(round((heading % (2 * math.pi)) / (math.pi / 2))) % 4
+    ox, oy, nx, ny = lattice_of(float(x0), float(y0), occ.shape, cell)
+    units = budget // UNIT_PERIODS
+    free = np.zeros((ny, nx), dtype=np.bool_)
+    step_ok = np.zeros((ny, nx, 2), dtype=np.bool_)
+    stay, depart, arrive = (np.zeros((units, ny, nx), dtype=np.bool_) for _ in range(3))
+    done = np.zeros(units, dtype=np.bool_)
+    reach, nxt = (np.zeros((units + 1, 4, ny, nx), dtype=np.bool_) for _ in range(2))
+    return int(_kinematic_search(occ, cell, float(radius_mm), discs, tracks, float(x0), float(y0), h0, LATTICE_MM,
+                                 UNIT_PERIODS, np.ascontiguousarray(wps, dtype=np.float64), float(GOAL_TOL_MM), ox,
+                                 oy, free, step_ok, stay, depart, arrive, done, reach, nxt, TURN_UNITS,
+                                 REVERSE_UNITS, _HEAD_DI, _HEAD_DJ))
