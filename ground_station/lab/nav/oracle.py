@@ -132,32 +132,11 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
     when the search first reaches it (`done`). A leg is searched until `leg_slack` units after its
     waypoint was first reached (later arrivals there are not continued from: a re-planning caller's
     bound on the work; `solve_path` without one searches them all)."""
-    h, w = occ.shape
     ny, nx = free.shape
     units = stay.shape[0]
-    nodisc = np.zeros((0, 5))
     half = unit // 2  # periods 1 .. half near A, half + 1 .. unit near B
     slack = lattice * half / unit  # the farthest the robot is from the point it is counted at
-    for j in range(ny):
-        for i in range(nx):
-            x = ox + i * lattice
-            y = oy + j * lattice
-            free[j, i] = not disc_hits(occ, h, w, cell, x, y, radius) and not hits_discs(x, y, radius, discs, nodisc)
-    # axis steps clear of the map and the discs at each period on the way: +x, +y (the reverse is the same)
-    for j in range(ny):
-        for i in range(nx):
-            for m in range(2):
-                i2, j2 = i + 1 - m, j + m
-                if i2 >= nx or j2 >= ny or not free[j, i] or not free[j2, i2]:
-                    continue
-                good = True
-                for p in range(1, unit):
-                    x = ox + (i + p / unit * (1 - m)) * lattice
-                    y = oy + (j + p / unit * m) * lattice
-                    if disc_hits(occ, h, w, cell, x, y, radius) or hits_discs(x, y, radius, discs, nodisc):
-                        good = False
-                        break
-                step_ok[j, i, m] = good
+    _static(occ, cell, radius, discs, lattice, unit, ox, oy, free, step_ok)
     i0 = int(round((x0 - ox) / lattice))
     j0 = int(round((y0 - oy) / lattice))
     if not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
@@ -210,6 +189,34 @@ def _search(occ, cell, radius, discs, tracks, x0, y0, lattice, unit, wps, tol, o
 
 
 @numba.njit(cache=True)
+def _static(occ, cell, radius, discs, lattice, unit, ox, oy, free, step_ok) -> None:
+    """The lattice points clear of the map and the discs (`free`), and the axis steps clear of them at
+    each period on the way (`step_ok[j, i, 0]`: to +x, `[..., 1]`: to +y; the reverse is the same)."""
+    h, w = occ.shape
+    ny, nx = free.shape
+    nodisc = np.zeros((0, 5))
+    for j in range(ny):
+        for i in range(nx):
+            x = ox + i * lattice
+            y = oy + j * lattice
+            free[j, i] = not disc_hits(occ, h, w, cell, x, y, radius) and not hits_discs(x, y, radius, discs, nodisc)
+    for j in range(ny):
+        for i in range(nx):
+            for m in range(2):
+                i2, j2 = i + 1 - m, j + m
+                if i2 >= nx or j2 >= ny or not free[j, i] or not free[j2, i2]:
+                    continue
+                good = True
+                for p in range(1, unit):
+                    x = ox + (i + p / unit * (1 - m)) * lattice
+                    y = oy + (j + p / unit * m) * lattice
+                    if disc_hits(occ, h, w, cell, x, y, radius) or hits_discs(x, y, radius, discs, nodisc):
+                        good = False
+                        break
+                step_ok[j, i, m] = good
+
+
+@numba.njit(cache=True)
 def _rows(t, radius, tracks, ox, oy, lattice, unit, slack, half, free, stay, depart, arrive) -> None:
     """Time unit t's stay, depart and arrive for every free lattice point (`_search`)."""
     ny, nx = free.shape
@@ -241,16 +248,23 @@ def solve(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget
     return solve_path(ep, gm, radius_mm, budget_base, budget_factor, period_s, budget_scale, path=False)[0]
 
 
+def _episode(ep: Episode, gm: GridMap, budget_base: float, budget_factor: float, period_s: float,
+             budget_scale: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, int, np.ndarray]:
+    """An episode as the searches take it: (occ, cell mm, discs, waypoints, budget in periods, the
+    movers' walks over it: `mover_tracks`)."""
+    discs, movers, wps, _, plan_len = rollout_arrays(ep, True)
+    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
+    cell = gm.cell_size_m * 1000.0
+    budget = int(budget_scale * budget_periods(plan_len, budget_base, budget_factor))
+    return occ, cell, discs, wps, budget, mover_tracks(movers, occ, cell, discs, budget, period_s)
+
+
 def solve_path(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
                period_s: float, budget_scale: float = 1.0,
                path: bool = True) -> tuple[int, list[tuple[int, float, float]]]:
     """`solve`, and with `path` the way found: (period, x, y) at every time unit from the start
     (the robot moves straight between them at an even speed), [] when none."""
-    discs, movers, wps, _, plan_len = rollout_arrays(ep, True)
-    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
-    cell = gm.cell_size_m * 1000.0
-    budget = int(budget_scale * budget_periods(plan_len, budget_base, budget_factor))
-    tracks = mover_tracks(movers, occ, cell, discs, budget, period_s)
+    occ, cell, discs, wps, budget, tracks = _episode(ep, gm, budget_base, budget_factor, period_s, budget_scale)
     x0, y0, _ = ep.start
     return search_from(occ, cell, radius_mm, discs, tracks, float(x0), float(y0), wps, budget // UNIT_PERIODS,
                        lattice_of(float(x0), float(y0), occ.shape, cell), path)
@@ -299,31 +313,11 @@ def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, uni
                       step_ok, stay, depart, arrive, done, reach, nxt, turn_units, rev_units, di, dj):
     """`_search` over (time unit, heading, point) with a differential drive's moves (module docstring):
     the earliest period the goal is reached, or -1."""
-    h, w = occ.shape
     ny, nx = free.shape
     units = stay.shape[0]
-    nodisc = np.zeros((0, 5))
     half = unit // 2
     slack = lattice * half / unit
-    for j in range(ny):
-        for i in range(nx):
-            x = ox + i * lattice
-            y = oy + j * lattice
-            free[j, i] = not disc_hits(occ, h, w, cell, x, y, radius) and not hits_discs(x, y, radius, discs, nodisc)
-    for j in range(ny):
-        for i in range(nx):
-            for m in range(2):
-                i2, j2 = i + 1 - m, j + m
-                if i2 >= nx or j2 >= ny or not free[j, i] or not free[j2, i2]:
-                    continue
-                good = True
-                for p in range(1, unit):
-                    x = ox + (i + p / unit * (1 - m)) * lattice
-                    y = oy + (j + p / unit * m) * lattice
-                    if disc_hits(occ, h, w, cell, x, y, radius) or hits_discs(x, y, radius, discs, nodisc):
-                        good = False
-                        break
-                step_ok[j, i, m] = good
+    _static(occ, cell, radius, discs, lattice, unit, ox, oy, free, step_ok)
     i0 = int(round((x0 - ox) / lattice))
     j0 = int(round((y0 - oy) / lattice))
     if not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
@@ -396,11 +390,7 @@ def solve_kinematic(ep: Episode, gm: GridMap, radius_mm: float, budget_base: flo
     """`solve` for a differential-drive robot (module docstring): the earliest period the goal is
     reached through the waypoints within the budget, starting with the axis heading nearest the
     episode's, or -1."""
-    discs, movers, wps, _, plan_len = rollout_arrays(ep, True)
-    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
-    cell = gm.cell_size_m * 1000.0
-    budget = int(budget_scale * budget_periods(plan_len, budget_base, budget_factor))
-    tracks = mover_tracks(movers, occ, cell, discs, budget, period_s)
+    occ, cell, discs, wps, budget, tracks = _episode(ep, gm, budget_base, budget_factor, period_s, budget_scale)
     x0, y0, heading = ep.start
     h0 = int(round((heading % (2 * math.pi)) / (math.pi / 2))) % 4
     ox, oy, nx, ny = lattice_of(float(x0), float(y0), occ.shape, cell)
