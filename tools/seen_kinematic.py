@@ -1,0 +1,304 @@
+"""Issue 47 experiment: the seeing oracle (`qnav bench ceiling --foresight`) with a differential-drive
+robot's moves (`qnav bench ceiling --kinematic`'s), on `qnav bench nav`'s episodes.
+
+`ground_station.lab.nav.foresight.solve_seen` re-plans the oracle's search from the movers the robot
+has seen; here that search is `oracle.solve_kinematic`'s over (time unit, heading, point), with the way
+kept (how each state was first reached), the heading carried from plan to plan, re-plans only between
+whole moves (a quarter turn or a step back spans several units), and the back-off along the heading
+(stay, or 1..4 steps ahead, or back at reverse speed) instead of along any axis. Prints, per map and in
+all, the episodes it finishes and how the others end.
+
+    .venv/bin/python tools/seen_kinematic.py maze-12x12-s306 maze-16x16-s304 maze-20x20-s305 --workers 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from ground_station.jitcache import numba
+from ground_station.lab.nav import oracle
+from ground_station.lab.nav.decisions import STANDOFF_GAP_MM
+from ground_station.lab.nav.foresight import (
+    BACK_OFF_STEPS,
+    BACK_OFF_UNITS,
+    HORIZON_SLACK_UNITS,
+    LEG_SLACK_UNITS,
+    REPLAN_UNITS,
+    _body_gap,
+    sees,
+)
+from ground_station.lab.nav.obstacle_twin import hits_discs, step_movers
+from ground_station.lab.nav.oracle import (
+    LATTICE_MM,
+    REVERSE_UNITS,
+    TURN_UNITS,
+    UNIT_PERIODS,
+    _clear,
+    _rows,
+    _static,
+    _step_free,
+)
+from ground_station.lab.nav.planned import budget_periods
+from ground_station.lab.nav.scenario import rollout_arrays
+from ground_station.learn.sector.kernels import GOAL_TOL_MM
+from ground_station.learn.sector.twin import disc_hits
+
+DI = np.array([1, 0, -1, 0], dtype=np.int64)
+DJ = np.array([0, 1, 0, -1], dtype=np.int64)
+STAY, AHEAD, LEFT, RIGHT, BACK, LEG = 1, 2, 3, 4, 5, 6
+
+
+@numba.njit(cache=True)
+def _mk(reach, came, k, t, d, j, i, code):
+    if not reach[t, d, j, i]:
+        reach[t, d, j, i] = True
+        came[k, t, d, j, i] = code
+
+
+@numba.njit(cache=True)
+def _kpath_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, unit, wps, tol, ox, oy, free, step_ok,
+                  stay, depart, arrive, done, reach, nxt, turn_units, rev_units, di, dj, came, goal, leg_slack):
+    ny, nx = free.shape
+    units = stay.shape[0]
+    half = unit // 2
+    slack = lattice * half / unit
+    _static(occ, cell, radius, discs, lattice, unit, ox, oy, free, step_ok)
+    i0 = int(round((x0 - ox) / lattice))
+    j0 = int(round((y0 - oy) / lattice))
+    if i0 < 0 or j0 < 0 or i0 >= nx or j0 >= ny or not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
+        return -1
+    _mk(reach, came, 0, 0, h0, j0, i0, LEG)
+    ahead = max(turn_units, rev_units)
+    nwp = wps.shape[0]
+    for k in range(nwp):
+        wx, wy = wps[k, 0], wps[k, 1]
+        nxt[:] = False
+        first = -1
+        for t in range(units + 1):
+            if first >= 0 and t > first + leg_slack:
+                break
+            for tt in range(t, min(units, t + ahead)):
+                if not done[tt]:
+                    _rows(tt, radius, tracks, ox, oy, lattice, unit, slack, half, free, stay, depart, arrive)
+                    done[tt] = True
+            for d in range(4):
+                for j in range(ny):
+                    for i in range(nx):
+                        if not reach[t, d, j, i]:
+                            continue
+                        x = ox + i * lattice
+                        y = oy + j * lattice
+                        if (x - wx) ** 2 + (y - wy) ** 2 <= tol * tol:
+                            if k == nwp - 1:
+                                goal[0], goal[1], goal[2], goal[3] = t, d, j, i
+                                return t * unit
+                            if k + 1 < nwp:
+                                _mk(nxt, came, k + 1, t, d, j, i, LEG)
+                            if first < 0:
+                                first = t
+                            continue
+                        if t == units:
+                            continue
+                        if stay[t, j, i]:
+                            _mk(reach, came, k, t + 1, d, j, i, STAY)
+                        i2, j2 = i + di[d], j + dj[d]
+                        if _step_free(step_ok, j, i, j2, i2) and depart[t, j, i] and arrive[t, j2, i2]:
+                            _mk(reach, came, k, t + 1, d, j2, i2, AHEAD)
+                        if t + turn_units <= units:
+                            good = True
+                            for u in range(t, t + turn_units):
+                                if not stay[u, j, i]:
+                                    good = False
+                                    break
+                            if good:
+                                _mk(reach, came, k, t + turn_units, (d + 1) % 4, j, i, LEFT)
+                                _mk(reach, came, k, t + turn_units, (d + 3) % 4, j, i, RIGHT)
+                        i2, j2 = i - di[d], j - dj[d]
+                        back = t + rev_units - 1
+                        if (t + rev_units <= units and _step_free(step_ok, j, i, j2, i2) and depart[t, j, i]
+                                and arrive[t, j, i] and depart[back, j2, i2] and arrive[back, j2, i2]):
+                            _mk(reach, came, k, t + rev_units, d, j2, i2, BACK)
+        if first < 0:
+            return -1
+        reach[:] = nxt
+    return -1
+
+
+def ksearch_path(occ, cell, radius, discs, tracks, x0, y0, h0, wps, units, lattice, leg_slack):
+    """[(x, y, heading, boundary)] one per time unit after the start, or None."""
+    ox, oy, nx, ny = lattice
+    free = np.zeros((ny, nx), dtype=np.bool_)
+    step_ok = np.zeros((ny, nx, 2), dtype=np.bool_)
+    stay, depart, arrive = (np.zeros((units, ny, nx), dtype=np.bool_) for _ in range(3))
+    done = np.zeros(units, dtype=np.bool_)
+    reach, nxt = (np.zeros((units + 1, 4, ny, nx), dtype=np.bool_) for _ in range(2))
+    nwp = len(wps)
+    came = np.zeros((nwp, units + 1, 4, ny, nx), dtype=np.int8)
+    goal = np.zeros(4, dtype=np.int64)
+    p = _kpath_search(occ, cell, float(radius), discs, tracks, x0, y0, h0, LATTICE_MM, UNIT_PERIODS,
+                      np.ascontiguousarray(wps, dtype=np.float64), float(GOAL_TOL_MM), ox, oy, free, step_ok, stay,
+                      depart, arrive, done, reach, nxt, TURN_UNITS, REVERSE_UNITS, DI, DJ, came, goal, int(leg_slack))
+    if p < 0:
+        return None
+    k, (t, d, j, i) = nwp - 1, (int(v) for v in goal)
+    moves = []  # (t_end, d, j, i, code) backwards
+    while True:
+        how = int(came[k, t, d, j, i])
+        if how == LEG:
+            if k == 0:
+                break
+            k -= 1
+            continue
+        moves.append((t, d, j, i, how))
+        if how == STAY:
+            t -= 1
+        elif how == AHEAD:
+            t, j, i = t - 1, j - DJ[d], i - DI[d]
+        elif how == LEFT:
+            t, d = t - TURN_UNITS, (d + 3) % 4
+        elif how == RIGHT:
+            t, d = t - TURN_UNITS, (d + 1) % 4
+        elif how == BACK:
+            t, j, i = t - REVERSE_UNITS, j + DJ[d], i + DI[d]
+    out = []
+    px, py = x0, y0
+    for _t_end, d, j, i, how in reversed(moves):
+        x, y = ox + i * LATTICE_MM, oy + j * LATTICE_MM
+        n = 1 if how in (STAY, AHEAD) else (TURN_UNITS if how in (LEFT, RIGHT) else REVERSE_UNITS)
+        for u in range(1, n + 1):
+            out.append((px + (x - px) * u / n, py + (y - py) * u / n, d, u == n))
+        px, py = x, y
+    return out
+
+
+def solve_seen_kin(ep: Any, gm: Any, radius_mm: float, budget_base: float, budget_factor: float,
+                   period_s: float, see_mm: float) -> tuple[str, int]:
+    """foresight.solve_seen with the robot's moves (module docstring): (outcome, period)."""
+    discs, movers, wps, remaining, plan_len = rollout_arrays(ep, True)
+    occ = np.ascontiguousarray(gm.occ, dtype=np.uint8)
+    cell = gm.cell_size_m * 1000.0
+    budget = int(budget_periods(plan_len, budget_base, budget_factor))
+    unit = UNIT_PERIODS
+    x0, y0, th = ep.start
+    hd = int(round((th % (2 * math.pi)) / (math.pi / 2))) % 4
+    lattice = oracle.lattice_of(float(x0), float(y0), occ.shape, cell)
+    x, y = float(x0), float(y0)
+    k = t = since = 0
+    seen = {}
+    plan = []
+    at_boundary = True
+    no_discs = np.zeros((0, 3))
+    h, w = occ.shape
+    while t + unit <= budget:
+        new = False
+        for m in range(movers.shape[0]):
+            if sees(occ, cell, discs, x, y, movers[m, 0], movers[m, 1], see_mm + movers[m, 4]):
+                new = new or m not in seen
+                seen[m] = (t, movers[m].copy())
+        if at_boundary and (new or since >= REPLAN_UNITS or not plan):
+            known = np.zeros((len(seen), 6))
+            for n, (when, state) in enumerate(seen.values()):
+                s = state[None, :].copy()
+                for _ in range(t - when):
+                    step_movers(s, occ, cell, discs, oracle.FAR_MM, oracle.FAR_MM, 0.0, period_s)
+                known[n] = s[0]
+            to_go = math.hypot(wps[k, 0] - x, wps[k, 1] - y) + remaining[k]
+            units = min((budget - t) // unit, int(2 * to_go / LATTICE_MM) + HORIZON_SLACK_UNITS)
+            tracks = oracle.mover_tracks(known, occ, cell, discs, units * unit, period_s)
+            way = ksearch_path(occ, cell, radius_mm, discs, tracks, x, y, hd, wps[k:], units, lattice, LEG_SLACK_UNITS) \
+                if units > 0 else None
+            plan = way if way else _kback_off(occ, cell, radius_mm, discs, known, x, y, hd, period_s)
+            since = 0
+        nx_, ny_, nd, at_boundary = plan.pop(0)
+        for p in range(1, unit + 1):
+            rx, ry = x + (nx_ - x) * p / unit, y + (ny_ - y) * p / unit
+            step_movers(movers, occ, cell, discs, rx, ry, float(radius_mm), period_s)
+            if hits_discs(rx, ry, float(radius_mm), no_discs, movers):
+                return "collision", t + p
+        t, since, x, y, hd = t + unit, since + 1, nx_, ny_, nd
+        if at_boundary:
+            while k < len(wps) and (x - wps[k, 0]) ** 2 + (y - wps[k, 1]) ** 2 <= GOAL_TOL_MM ** 2:
+                k += 1
+            if k == len(wps):
+                return "success", t
+    return ("stand-off" if _body_gap(x, y, radius_mm, movers) <= STANDOFF_GAP_MM else "timeout"), t
+
+
+def _kback_off(occ, cell, radius_mm, discs, known, x, y, hd, period_s):
+    """Stay one unit, or drive 1..BACK_OFF_STEPS steps ahead or back along the heading: the way that
+    leaves the robot farthest from the nearest known mover BACK_OFF_UNITS after; its first whole move."""
+    h, w = occ.shape
+    unit = UNIT_PERIODS
+    dx, dy = DI[hd] * LATTICE_MM, DJ[hd] * LATTICE_MM
+    best, best_gap = [(x, y, hd, True)], -math.inf
+    for sign, per_step in ((0, 1), (1, 1), (-1, REVERSE_UNITS)):
+        for steps in ([1] if sign == 0 else range(1, BACK_OFF_STEPS + 1)):
+            mv = known.copy()
+            clear = True
+            px, py = x, y
+            n = steps * per_step * unit
+            for p in range(1, n + 1):
+                px, py = x + sign * dx * steps * p / n, y + sign * dy * steps * p / n
+                step_movers(mv, occ, cell, discs, px, py, float(radius_mm), period_s)
+                if disc_hits(occ, h, w, cell, px, py, radius_mm) or hits_discs(px, py, radius_mm, discs, mv):
+                    clear = False
+                    break
+            if not clear:
+                break
+            for _ in range(BACK_OFF_UNITS * unit):
+                step_movers(mv, occ, cell, discs, px, py, float(radius_mm), period_s)
+            gap = _body_gap(px, py, radius_mm, mv)
+            if gap > best_gap + 1e-6:
+                best_gap = gap
+                if sign == 0:
+                    best = [(x, y, hd, True)]
+                else:  # its first step (a step back takes REVERSE_UNITS units)
+                    fx, fy = x + sign * dx, y + sign * dy
+                    best = [(x + (fx - x) * u / per_step, y + (fy - y) * u / per_step, hd, u == per_step)
+                            for u in range(1, per_step + 1)]
+    return best
+
+
+def _run_map(job: tuple[str, int, int, float]) -> list[str]:
+    from firmware_py import robot_spec
+    from ground_station.lab.nav.episodes import BUDGET_BASE, BUDGET_FACTOR, PERIOD_S
+    from ground_station.lab.nav.scenario import MOVER_SPEED_MM_S, MoverStyle, episodes
+    from ground_station.maps import load_map
+
+    name, n, seed, see = job
+    gm = load_map(name)
+    eps = episodes(gm, n, seed, 6, 3, movers=MoverStyle(speed=MOVER_SPEED_MM_S, yields=False))
+    return [solve_seen_kin(ep, gm, robot_spec.ROBOT_RADIUS_MM, BUDGET_BASE, BUDGET_FACTOR, PERIOD_S, see)[0]
+            for ep in eps]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("maps", nargs="+", help="built-in map names or .map files (6 discs + 3 non-yielding movers)")
+    p.add_argument("--episodes", type=int, default=40, help="episodes per map (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
+    p.add_argument("--see", type=float, default=2000.0, metavar="MM", help="sight (default %(default)s mm)")
+    p.add_argument("--workers", type=int, default=1, help="processes, one map each (default %(default)s)")
+    args = p.parse_args()
+    if args.episodes < 1 or args.workers < 1 or not args.see > 0:
+        p.error("--episodes and --workers must be >= 1, --see positive")
+    jobs = [(m, args.episodes, args.seed, args.see) for m in args.maps]
+    with ProcessPoolExecutor(args.workers) as ex:
+        results = list(ex.map(_run_map, jobs))
+    total: Counter[str] = Counter()
+    for name, outs in zip(args.maps, results, strict=True):
+        c = Counter(outs)
+        total.update(c)
+        print(f"{name}: {c['success']} of {len(outs)} ({dict(c)})")
+    n = sum(total.values())
+    print(f"all: {total['success']} of {n} ({dict(total)}), seeing {args.see:g} mm, seed {args.seed}")
+
+
+if __name__ == "__main__":
+    main()
