@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from ground_station.jitcache import numba
 from ground_station.lab.nav import oracle
 from ground_station.lab.nav.decisions import STANDOFF_GAP_MM
 from ground_station.lab.nav.foresight import (
@@ -31,7 +30,7 @@ from ground_station.lab.nav.foresight import (
     LEG_SLACK_UNITS,
     REPLAN_UNITS,
     _body_gap,
-    sees,
+    look,
 )
 from ground_station.lab.nav.obstacle_twin import hits_discs, step_movers
 from ground_station.lab.nav.oracle import (
@@ -39,95 +38,15 @@ from ground_station.lab.nav.oracle import (
     REVERSE_UNITS,
     TURN_UNITS,
     UNIT_PERIODS,
-    _clear,
-    _rows,
-    _static,
-    _step_free,
 )
 from ground_station.lab.nav.planned import budget_periods
 from ground_station.lab.nav.scenario import rollout_arrays
 from ground_station.learn.sector.kernels import GOAL_TOL_MM
 from ground_station.learn.sector.twin import disc_hits
 
-DI = np.array([1, 0, -1, 0], dtype=np.int64)
-DJ = np.array([0, 1, 0, -1], dtype=np.int64)
-STAY, AHEAD, LEFT, RIGHT, BACK, LEG = 1, 2, 3, 4, 5, 6
-
-
-@numba.njit(cache=True)
-def _mk(reach, came, k, t, d, j, i, code):
-    if not reach[t, d, j, i]:
-        reach[t, d, j, i] = True
-        came[k, t, d, j, i] = code
-
-
-@numba.njit(cache=True)
-def _kpath_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, unit, wps, tol, ox, oy, free, step_ok,
-                  stay, depart, arrive, done, reach, nxt, turn_units, rev_units, di, dj, came, goal, leg_slack):
-    ny, nx = free.shape
-    units = stay.shape[0]
-    half = unit // 2
-    slack = lattice * half / unit
-    _static(occ, cell, radius, discs, lattice, unit, ox, oy, free, step_ok)
-    i0 = int(round((x0 - ox) / lattice))
-    j0 = int(round((y0 - oy) / lattice))
-    if i0 < 0 or j0 < 0 or i0 >= nx or j0 >= ny or not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
-        return -1
-    _mk(reach, came, 0, 0, h0, j0, i0, LEG)
-    ahead = max(turn_units, rev_units)
-    nwp = wps.shape[0]
-    for k in range(nwp):
-        wx, wy = wps[k, 0], wps[k, 1]
-        nxt[:] = False
-        first = -1
-        for t in range(units + 1):
-            if first >= 0 and t > first + leg_slack:
-                break
-            for tt in range(t, min(units, t + ahead)):
-                if not done[tt]:
-                    _rows(tt, radius, tracks, ox, oy, lattice, unit, slack, half, free, stay, depart, arrive)
-                    done[tt] = True
-            for d in range(4):
-                for j in range(ny):
-                    for i in range(nx):
-                        if not reach[t, d, j, i]:
-                            continue
-                        x = ox + i * lattice
-                        y = oy + j * lattice
-                        if (x - wx) ** 2 + (y - wy) ** 2 <= tol * tol:
-                            if k == nwp - 1:
-                                goal[0], goal[1], goal[2], goal[3] = t, d, j, i
-                                return t * unit
-                            if k + 1 < nwp:
-                                _mk(nxt, came, k + 1, t, d, j, i, LEG)
-                            if first < 0:
-                                first = t
-                            continue
-                        if t == units:
-                            continue
-                        if stay[t, j, i]:
-                            _mk(reach, came, k, t + 1, d, j, i, STAY)
-                        i2, j2 = i + di[d], j + dj[d]
-                        if _step_free(step_ok, j, i, j2, i2) and depart[t, j, i] and arrive[t, j2, i2]:
-                            _mk(reach, came, k, t + 1, d, j2, i2, AHEAD)
-                        if t + turn_units <= units:
-                            good = True
-                            for u in range(t, t + turn_units):
-                                if not stay[u, j, i]:
-                                    good = False
-                                    break
-                            if good:
-                                _mk(reach, came, k, t + turn_units, (d + 1) % 4, j, i, LEFT)
-                                _mk(reach, came, k, t + turn_units, (d + 3) % 4, j, i, RIGHT)
-                        i2, j2 = i - di[d], j - dj[d]
-                        back = t + rev_units - 1
-                        if (t + rev_units <= units and _step_free(step_ok, j, i, j2, i2) and depart[t, j, i]
-                                and arrive[t, j, i] and depart[back, j2, i2] and arrive[back, j2, i2]):
-                            _mk(reach, came, k, t + rev_units, d, j2, i2, BACK)
-        if first < 0:
-            return -1
-        reach[:] = nxt
-    return -1
+DI, DJ = oracle.HEAD_DI, oracle.HEAD_DJ
+STAY, AHEAD, LEFT, RIGHT, BACK, LEG = (oracle._K_STAYED, oracle._K_AHEAD, oracle._K_LEFT, oracle._K_RIGHT,
+                                       oracle._K_BACK, oracle._LEG_START)
 
 
 def ksearch_path(occ, cell, radius, discs, tracks, x0, y0, h0, wps, units, lattice, leg_slack):
@@ -141,7 +60,7 @@ def ksearch_path(occ, cell, radius, discs, tracks, x0, y0, h0, wps, units, latti
     nwp = len(wps)
     came = np.zeros((nwp, units + 1, 4, ny, nx), dtype=np.int8)
     goal = np.zeros(4, dtype=np.int64)
-    p = _kpath_search(occ, cell, float(radius), discs, tracks, x0, y0, h0, LATTICE_MM, UNIT_PERIODS,
+    p = oracle._kinematic_search(occ, cell, float(radius), discs, tracks, x0, y0, h0, LATTICE_MM, UNIT_PERIODS,
                       np.ascontiguousarray(wps, dtype=np.float64), float(GOAL_TOL_MM), ox, oy, free, step_ok, stay,
                       depart, arrive, done, reach, nxt, TURN_UNITS, REVERSE_UNITS, DI, DJ, came, goal, int(leg_slack))
     if p < 0:
@@ -196,11 +115,7 @@ def solve_seen_kin(ep: Any, gm: Any, radius_mm: float, budget_base: float, budge
     no_discs = np.zeros((0, 3))
     h, w = occ.shape
     while t + unit <= budget:
-        new = False
-        for m in range(movers.shape[0]):
-            if sees(occ, cell, discs, x, y, movers[m, 0], movers[m, 1], see_mm + movers[m, 4]):
-                new = new or m not in seen
-                seen[m] = (t, movers[m].copy())
+        new = look(occ, cell, discs, x, y, movers, see_mm, t, seen)
         if at_boundary and (new or since >= REPLAN_UNITS or not plan):
             known = np.zeros((len(seen), 6))
             for n, (when, state) in enumerate(seen.values()):

@@ -95,11 +95,7 @@ def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
     plan: list[tuple[float, float]] = []
     no_discs = np.zeros((0, 3))  # contact with the movers only (the plan keeps clear of the discs)
     while t + unit <= budget:
-        new = False
-        for m in range(movers.shape[0]):
-            if sees(occ, cell, discs, x, y, movers[m, 0], movers[m, 1], see_mm + movers[m, 4]):
-                new = new or m not in seen
-                seen[m] = (t, movers[m].copy())
+        new = look(occ, cell, discs, x, y, movers, see_mm, t, seen)
         if new or since >= REPLAN_UNITS or not plan:
             plan = _plan(occ, cell, radius_mm, discs, seen, t, x, y, wps[k:], remaining[k], budget, lattice,
                          period_s)
@@ -116,6 +112,18 @@ def solve_seen(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, b
         if k == len(wps):
             return "success", t
     return ("stand-off" if _body_gap(x, y, radius_mm, movers) <= STANDOFF_GAP_MM else "timeout"), t
+
+
+def look(occ: np.ndarray, cell: float, discs: np.ndarray, x: float, y: float, movers: np.ndarray, see_mm: float,
+         t: int, seen: dict) -> bool:
+    """Note in `seen` (mover -> (period, its state then)) each mover the robot at (x, y) sees at period t;
+    whether one of them is seen for the first time."""
+    new = False
+    for m in range(movers.shape[0]):
+        if sees(occ, cell, discs, x, y, movers[m, 0], movers[m, 1], see_mm + movers[m, 4]):
+            new = new or m not in seen
+            seen[m] = (t, movers[m].copy())
+    return new
 
 
 def _body_gap(x: float, y: float, radius_mm: float, movers: np.ndarray) -> float:

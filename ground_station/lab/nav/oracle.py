@@ -68,8 +68,11 @@ _BACK = {_STAYED: (0, 0), _FROM_W: (0, -1), _FROM_E: (0, 1), _FROM_S: (-1, 0), _
 _PERIOD_S = FWD_MM_PER_PERIOD / float(ACTION_V_MM_S[0])
 TURN_UNITS = math.ceil(math.pi / 2 / float(ACTION_W_RAD_S[1]) / _PERIOD_S / UNIT_PERIODS)
 REVERSE_UNITS = math.ceil(LATTICE_MM / abs(float(ACTION_V_MM_S[3])) / _PERIOD_S / UNIT_PERIODS)
-_HEAD_DI = np.array([1, 0, -1, 0], dtype=np.int64)  # heading 0: +x, 1: +y, 2: -x, 3: -y
-_HEAD_DJ = np.array([0, 1, 0, -1], dtype=np.int64)
+HEAD_DI = np.array([1, 0, -1, 0], dtype=np.int64)  # heading 0: +x, 1: +y, 2: -x, 3: -y
+HEAD_DJ = np.array([0, 1, 0, -1], dtype=np.int64)
+# how _kinematic_search first reached a state (its `came`): a stay, a step ahead, a quarter turn left
+# (from heading d - 1) or right (from d + 1), a step back; _LEG_START as _search's
+_K_STAYED, _K_AHEAD, _K_LEFT, _K_RIGHT, _K_BACK = 1, 2, 3, 4, 5
 
 
 def keep_clear_mm(mover: np.ndarray, period_s: float) -> float:
@@ -310,9 +313,12 @@ def search_from(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarra
 
 @numba.njit(cache=True)
 def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, unit, wps, tol, ox, oy, free,
-                      step_ok, stay, depart, arrive, done, reach, nxt, turn_units, rev_units, di, dj):
+                      step_ok, stay, depart, arrive, done, reach, nxt, turn_units, rev_units, di, dj, came, goal,
+                      leg_slack):
     """`_search` over (time unit, heading, point) with a differential drive's moves (module docstring):
-    the earliest period the goal is reached, or -1."""
+    the earliest period the goal is reached, or -1. With `came` of one slice per waypoint, how each
+    state was first reached (_K_STAYED .. _LEG_START) and `goal` the goal's (t, heading, j, i), as
+    `_search` keeps its way; `leg_slack` as there."""
     ny, nx = free.shape
     units = stay.shape[0]
     half = unit // 2
@@ -320,15 +326,19 @@ def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, uni
     _static(occ, cell, radius, discs, lattice, unit, ox, oy, free, step_ok)
     i0 = int(round((x0 - ox) / lattice))
     j0 = int(round((y0 - oy) / lattice))
-    if not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
+    if i0 < 0 or j0 < 0 or i0 >= nx or j0 >= ny or not free[j0, i0] or not _clear(x0, y0, radius, tracks, 0, 0):
         return -1
-    reach[0, h0, j0, i0] = True
+    nwp = wps.shape[0]
+    keep = came.shape[0] == nwp
+    _kmark(reach, came, keep, 0, 0, h0, j0, i0, _LEG_START)
     ahead = max(turn_units, rev_units)
-    for k in range(wps.shape[0]):
+    for k in range(nwp):
         wx, wy = wps[k, 0], wps[k, 1]
         nxt[:] = False
         first = -1
         for t in range(units + 1):
+            if first >= 0 and t > first + leg_slack:
+                break
             for tt in range(t, min(units, t + ahead)):
                 if not done[tt]:
                     _rows(tt, radius, tracks, ox, oy, lattice, unit, slack, half, free, stay, depart, arrive)
@@ -341,38 +351,48 @@ def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, uni
                         x = ox + i * lattice
                         y = oy + j * lattice
                         if (x - wx) ** 2 + (y - wy) ** 2 <= tol * tol:
-                            if k == wps.shape[0] - 1:
+                            if k == nwp - 1:
+                                goal[0], goal[1], goal[2], goal[3] = t, d, j, i
                                 return t * unit
-                            nxt[t, d, j, i] = True  # the next leg starts here, now, with this heading
+                            if k + 1 < nwp:
+                                _kmark(nxt, came, keep, k + 1, t, d, j, i, _LEG_START)
                             if first < 0:
                                 first = t
                             continue
                         if t == units:
                             continue
                         if stay[t, j, i]:
-                            reach[t + 1, d, j, i] = True
-                        i2, j2 = i + di[d], j + dj[d]  # one step ahead
-                        if (_step_free(step_ok, j, i, j2, i2) and depart[t, j, i]
-                                and arrive[t, j2, i2]):
-                            reach[t + 1, d, j2, i2] = True
-                        if t + turn_units <= units:  # a quarter turn in place, either way
+                            _kmark(reach, came, keep, k, t + 1, d, j, i, _K_STAYED)
+                        i2, j2 = i + di[d], j + dj[d]
+                        if _step_free(step_ok, j, i, j2, i2) and depart[t, j, i] and arrive[t, j2, i2]:
+                            _kmark(reach, came, keep, k, t + 1, d, j2, i2, _K_AHEAD)
+                        if t + turn_units <= units:
                             good = True
                             for u in range(t, t + turn_units):
                                 if not stay[u, j, i]:
                                     good = False
                                     break
                             if good:
-                                reach[t + turn_units, (d + 1) % 4, j, i] = True
-                                reach[t + turn_units, (d + 3) % 4, j, i] = True
-                        i2, j2 = i - di[d], j - dj[d]  # one step back
-                        back = t + rev_units - 1  # its last unit, near the point it backs to
+                                _kmark(reach, came, keep, k, t + turn_units, (d + 1) % 4, j, i, _K_LEFT)
+                                _kmark(reach, came, keep, k, t + turn_units, (d + 3) % 4, j, i, _K_RIGHT)
+                        i2, j2 = i - di[d], j - dj[d]
+                        back = t + rev_units - 1
                         if (t + rev_units <= units and _step_free(step_ok, j, i, j2, i2) and depart[t, j, i]
                                 and arrive[t, j, i] and depart[back, j2, i2] and arrive[back, j2, i2]):
-                            reach[t + rev_units, d, j2, i2] = True
+                            _kmark(reach, came, keep, k, t + rev_units, d, j2, i2, _K_BACK)
         if first < 0:
             return -1
         reach[:] = nxt
     return -1
+
+
+@numba.njit(cache=True, inline="always")
+def _kmark(reach, came, keep, k, t, d, j, i, code) -> None:
+    """(t, heading d, j, i) reached on leg k; with `keep`, how, the first time (`_kinematic_search`)."""
+    if not reach[t, d, j, i]:
+        reach[t, d, j, i] = True
+        if keep:
+            came[k, t, d, j, i] = code
 
 
 @numba.njit(cache=True, inline="always")
@@ -403,4 +423,5 @@ def solve_kinematic(ep: Episode, gm: GridMap, radius_mm: float, budget_base: flo
     return int(_kinematic_search(occ, cell, float(radius_mm), discs, tracks, float(x0), float(y0), h0, LATTICE_MM,
                                  UNIT_PERIODS, np.ascontiguousarray(wps, dtype=np.float64), float(GOAL_TOL_MM), ox,
                                  oy, free, step_ok, stay, depart, arrive, done, reach, nxt, TURN_UNITS,
-                                 REVERSE_UNITS, _HEAD_DI, _HEAD_DJ))
+                                 REVERSE_UNITS, HEAD_DI, HEAD_DJ, np.zeros((0, 1, 1, 1, 1), dtype=np.int8),
+                                 np.zeros(4, dtype=np.int64), units + 1))
