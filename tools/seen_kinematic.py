@@ -105,7 +105,7 @@ def solve_seen_kin(ep: Any, gm: Any, radius_mm: float, budget_base: float, budge
     budget = int(budget_periods(plan_len, budget_base, budget_factor))
     unit = UNIT_PERIODS
     x0, y0, th = ep.start
-    hd = int(round((th % (2 * math.pi)) / (math.pi / 2))) % 4
+    hd = oracle.axis_heading(th)
     lattice = oracle.lattice_of(float(x0), float(y0), occ.shape, cell)
     x, y = float(x0), float(y0)
     k = t = since = 0
@@ -113,7 +113,6 @@ def solve_seen_kin(ep: Any, gm: Any, radius_mm: float, budget_base: float, budge
     plan = []
     at_boundary = True
     no_discs = np.zeros((0, 3))
-    h, w = occ.shape
     while t + unit <= budget:
         new = look(occ, cell, discs, x, y, movers, see_mm, t, seen)
         if at_boundary and (new or since >= REPLAN_UNITS or not plan):

@@ -405,6 +405,11 @@ def _step_free(step_ok, j, i, j2, i2) -> bool:
     return step_ok[j, min(i, i2), 0] if j == j2 else step_ok[min(j, j2), i, 1]
 
 
+def axis_heading(heading_rad: float) -> int:
+    """The axis direction (0: +x, 1: +y, 2: -x, 3: -y; HEAD_DI/HEAD_DJ) nearest a heading."""
+    return int(round((heading_rad % (2 * math.pi)) / (math.pi / 2))) % 4
+
+
 def solve_kinematic(ep: Episode, gm: GridMap, radius_mm: float, budget_base: float, budget_factor: float,
                     period_s: float, budget_scale: float = 1.0) -> int:
     """`solve` for a differential-drive robot (module docstring): the earliest period the goal is
@@ -412,7 +417,7 @@ def solve_kinematic(ep: Episode, gm: GridMap, radius_mm: float, budget_base: flo
     episode's, or -1."""
     occ, cell, discs, wps, budget, tracks = _episode(ep, gm, budget_base, budget_factor, period_s, budget_scale)
     x0, y0, heading = ep.start
-    h0 = int(round((heading % (2 * math.pi)) / (math.pi / 2))) % 4
+    h0 = axis_heading(heading)
     ox, oy, nx, ny = lattice_of(float(x0), float(y0), occ.shape, cell)
     units = budget // UNIT_PERIODS
     free = np.zeros((ny, nx), dtype=np.bool_)
