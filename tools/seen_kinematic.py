@@ -14,9 +14,11 @@ all, the episodes it finishes and how the others end.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -199,6 +201,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default %(default)s)")
     p.add_argument("--see", type=float, default=2000.0, metavar="MM", help="sight (default %(default)s mm)")
     p.add_argument("--workers", type=int, default=1, help="processes, one map each (default %(default)s)")
+    p.add_argument("--json", type=Path, metavar="FILE", help="write each episode's outcome (map, index, outcome)")
     args = p.parse_args()
     if args.episodes < 1 or args.workers < 1 or not args.see > 0:
         p.error("--episodes and --workers must be >= 1, --see positive")
@@ -212,6 +215,10 @@ def main() -> None:
         print(f"{name}: {c['success']} of {len(outs)} ({dict(c)})")
     n = sum(total.values())
     print(f"all: {total['success']} of {n} ({dict(total)}), seeing {args.see:g} mm, seed {args.seed}")
+    if args.json is not None:
+        rows = [{"map": name, "index": i, "outcome": out}
+                for name, outs in zip(args.maps, results, strict=True) for i, out in enumerate(outs)]
+        args.json.write_text(json.dumps({"see_mm": args.see, "seed": args.seed, "episodes": rows}, indent=1))
 
 
 if __name__ == "__main__":
