@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from ground_station.lab.faults.common import RobotProcess, ScenarioResult, register, trials
+from ground_station.subprocs import exit_code
 
 CASES = ("evil_origin_hold", "evil_origin_guided", "read_only_guided", "no_token_guided", "goal_in_hold",
          "target_in_hold", "guided_goal")
@@ -186,8 +187,8 @@ class _Monitor:
         """'' once the bridge serves and a status line shows the robot; else why not."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                return f"qnav monitor exited {self.proc.returncode}: {' | '.join(self.errors[-3:])}"
+            if (code := exit_code(self.proc)) is not None:
+                return f"qnav monitor exited {code}: {' | '.join(self.errors[-3:])}"
             if self.stderr_has("Foxglove bridge on ws://") and self.status:
                 return ""
             time.sleep(0.1)

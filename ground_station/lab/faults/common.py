@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ground_station.processes import ChildProcess, qnav_robot
-from ground_station.subprocs import free_udp_port, signal_process
+from ground_station.subprocs import exit_code, free_udp_port, signal_process
 
 MAX_FAILURES_KEPT = 20
 
@@ -163,6 +163,6 @@ class RobotProcess(ChildProcess):
     def kill9(self) -> None:
         """The crash: SIGKILL, no clean-up in the child."""
         proc = self.proc
-        if proc is not None and proc.poll() is None:
+        if proc is not None and exit_code(proc) is None:
             signal_process(proc, signal.SIGKILL, group=self.own_group)
             proc.wait(timeout=10)

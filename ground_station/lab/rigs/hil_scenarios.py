@@ -58,7 +58,7 @@ from firmware_py.mavlink.dialect import NAME as DIALECT
 from firmware_py.policy import load_policy
 from firmware_py.vehicle import CtrlState
 from ground_station.learn.export import with_metadata
-from ground_station.subprocs import free_udp_port, stop_process
+from ground_station.subprocs import exit_code, free_udp_port, stop_process
 
 REPO = Path(__file__).resolve().parents[3]
 BIN = Path(sys.executable).parent
@@ -138,7 +138,7 @@ def _wait_for_receiver(channel: str, before: int, proc: subprocess.Popen, timeou
     """Until `proc` (candump) has its socket bound on `channel`: one more receiver than `before`.
     A fixed sleep lost the first SimTick's frames when user-mode Linux was slow to start it."""
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and proc.poll() is None:
+    while time.monotonic() < deadline and exit_code(proc) is None:
         if _can_receivers(channel) > before:
             return
         time.sleep(0.02)
@@ -398,7 +398,7 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
         # the monitor listens (the robot's clock is the sim's: paused, it sends nothing)
         mode = procs.start("qnav_mode", [BIN / "qnav", "mode", "auto", *link, "--no-tlog", "--timeout", "20"])
         until = time.monotonic() + 30
-        while mode.poll() is None and "mode auto" not in procs.log("qnav_mode") and time.monotonic() < until:
+        while exit_code(mode) is None and "mode auto" not in procs.log("qnav_mode") and time.monotonic() < until:
             time.sleep(0.005)
         if speed is None:  # paced, the sim's clock is the wall's: it would catch up in a burst
             sim.send_signal(signal.SIGSTOP)
@@ -406,21 +406,21 @@ def mission(can: str, work: Path, *, robot_mavlink: str | None = None, gcs_mavli
             steps["mode_auto"] = {"exit": _wait(mode, 30), "out": procs.log("qnav_mode")[-600:]}
             mon = procs.start("qnav_monitor", [BIN / "qnav", "monitor", "--plain", *link, "--tlog", tlog])
             until = time.monotonic() + 20
-            while time.monotonic() < until and mon.poll() is None and "recording to" not in procs.log("qnav_monitor"):
+            while time.monotonic() < until and exit_code(mon) is None and "recording to" not in procs.log("qnav_monitor"):
                 time.sleep(0.05)
             time.sleep(0.3)
         finally:
             sim.send_signal(signal.SIGCONT)
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and procs.log("mission_robot").count("-> GOAL_REACHED") < n_targets:
-            if rob.poll() is not None or sim.poll() is not None:
+            if exit_code(rob) is not None or exit_code(sim) is not None:
                 break
             time.sleep(0.2)
         # the last MISSION_ITEM_REACHED on its way: over a 57600-baud radio at 3x sim pacing the
         # telemetry queues for seconds behind the robot, so wait for the monitor to have it
         until = time.monotonic() + 30
         while time.monotonic() < until and f"reached={n_targets}" not in procs.log("qnav_monitor") \
-                and mon.poll() is None:
+                and exit_code(mon) is None:
             time.sleep(0.2)
         time.sleep(0.5)
         stop_process(mon, timeout_s=10, sig=signal.SIGINT)
@@ -475,7 +475,7 @@ def replan(can: str, work: Path, *, disc: tuple[float, float, float] = REPLAN_DI
                                                "--follow", "--follow-timeout", follow_timeout_s, "--mavlink", f"udpin:127.0.0.1:{port}", "--tlog", work / "follow.tlog",
                                                "--timeout", "30"])
         until = time.monotonic() + 30
-        while time.monotonic() < until and follow.poll() is None and "following" not in procs.log("replan_follow"):
+        while time.monotonic() < until and exit_code(follow) is None and "following" not in procs.log("replan_follow"):
             time.sleep(0.05)
         deadline = time.monotonic() + 40
         tries = 0
