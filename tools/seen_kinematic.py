@@ -28,17 +28,16 @@ from ground_station.lab.nav.decisions import STANDOFF_GAP_MM
 from ground_station.lab.nav.foresight import (
     BACK_OFF_STEPS,
     BACK_OFF_UNITS,
-    HORIZON_SLACK_UNITS,
     LEG_SLACK_UNITS,
     REPLAN_UNITS,
     _body_gap,
     look,
+    seen_tracks,
 )
 from ground_station.lab.nav.obstacle_twin import hits_discs, step_movers
 from ground_station.lab.nav.oracle import (
     LATTICE_MM,
     REVERSE_UNITS,
-    TURN_UNITS,
     UNIT_PERIODS,
 )
 from ground_station.lab.nav.planned import budget_periods
@@ -47,55 +46,6 @@ from ground_station.learn.sector.kernels import GOAL_TOL_MM
 from ground_station.learn.sector.twin import disc_hits
 
 DI, DJ = oracle.HEAD_DI, oracle.HEAD_DJ
-STAY, AHEAD, LEFT, RIGHT, BACK, LEG = (oracle._K_STAYED, oracle._K_AHEAD, oracle._K_LEFT, oracle._K_RIGHT,
-                                       oracle._K_BACK, oracle._LEG_START)
-
-
-def ksearch_path(occ, cell, radius, discs, tracks, x0, y0, h0, wps, units, lattice, leg_slack):
-    """[(x, y, heading, boundary)] one per time unit after the start, or None."""
-    ox, oy, nx, ny = lattice
-    free = np.zeros((ny, nx), dtype=np.bool_)
-    step_ok = np.zeros((ny, nx, 2), dtype=np.bool_)
-    stay, depart, arrive = (np.zeros((units, ny, nx), dtype=np.bool_) for _ in range(3))
-    done = np.zeros(units, dtype=np.bool_)
-    reach, nxt = (np.zeros((units + 1, 4, ny, nx), dtype=np.bool_) for _ in range(2))
-    nwp = len(wps)
-    came = np.zeros((nwp, units + 1, 4, ny, nx), dtype=np.int8)
-    goal = np.zeros(4, dtype=np.int64)
-    p = oracle._kinematic_search(occ, cell, float(radius), discs, tracks, x0, y0, h0, LATTICE_MM, UNIT_PERIODS,
-                      np.ascontiguousarray(wps, dtype=np.float64), float(GOAL_TOL_MM), ox, oy, free, step_ok, stay,
-                      depart, arrive, done, reach, nxt, TURN_UNITS, REVERSE_UNITS, DI, DJ, came, goal, int(leg_slack))
-    if p < 0:
-        return None
-    k, (t, d, j, i) = nwp - 1, (int(v) for v in goal)
-    moves = []  # (t_end, d, j, i, code) backwards
-    while True:
-        how = int(came[k, t, d, j, i])
-        if how == LEG:
-            if k == 0:
-                break
-            k -= 1
-            continue
-        moves.append((t, d, j, i, how))
-        if how == STAY:
-            t -= 1
-        elif how == AHEAD:
-            t, j, i = t - 1, j - DJ[d], i - DI[d]
-        elif how == LEFT:
-            t, d = t - TURN_UNITS, (d + 3) % 4
-        elif how == RIGHT:
-            t, d = t - TURN_UNITS, (d + 1) % 4
-        elif how == BACK:
-            t, j, i = t - REVERSE_UNITS, j + DJ[d], i + DI[d]
-    out = []
-    px, py = x0, y0
-    for _t_end, d, j, i, how in reversed(moves):
-        x, y = ox + i * LATTICE_MM, oy + j * LATTICE_MM
-        n = 1 if how in (STAY, AHEAD) else (TURN_UNITS if how in (LEFT, RIGHT) else REVERSE_UNITS)
-        for u in range(1, n + 1):
-            out.append((px + (x - px) * u / n, py + (y - py) * u / n, d, u == n))
-        px, py = x, y
-    return out
 
 
 def solve_seen_kin(ep: Any, gm: Any, radius_mm: float, budget_base: float, budget_factor: float,
@@ -118,17 +68,10 @@ def solve_seen_kin(ep: Any, gm: Any, radius_mm: float, budget_base: float, budge
     while t + unit <= budget:
         new = look(occ, cell, discs, x, y, movers, see_mm, t, seen)
         if at_boundary and (new or since >= REPLAN_UNITS or not plan):
-            known = np.zeros((len(seen), 6))
-            for n, (when, state) in enumerate(seen.values()):
-                s = state[None, :].copy()
-                for _ in range(t - when):
-                    step_movers(s, occ, cell, discs, oracle.FAR_MM, oracle.FAR_MM, 0.0, period_s)
-                known[n] = s[0]
-            to_go = math.hypot(wps[k, 0] - x, wps[k, 1] - y) + remaining[k]
-            units = min((budget - t) // unit, int(2 * to_go / LATTICE_MM) + HORIZON_SLACK_UNITS)
-            tracks = oracle.mover_tracks(known, occ, cell, discs, units * unit, period_s)
-            way = ksearch_path(occ, cell, radius_mm, discs, tracks, x, y, hd, wps[k:], units, lattice, LEG_SLACK_UNITS) \
-                if units > 0 else None
+            known, units, tracks = seen_tracks(occ, cell, discs, seen, t, x, y, wps[k], remaining[k], budget,
+                                               period_s)
+            way = oracle.kinematic_search_from(occ, cell, radius_mm, discs, tracks, x, y, hd, wps[k:], units, lattice,
+                                               leg_slack=LEG_SLACK_UNITS)[1] if units > 0 else []
             plan = way if way else _kback_off(occ, cell, radius_mm, discs, known, x, y, hd, period_s)
             since = 0
         nx_, ny_, nd, at_boundary = plan.pop(0)

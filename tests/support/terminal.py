@@ -51,12 +51,17 @@ class PtySession:
             return False
         return True
 
-    def read_until(self, marker: bytes, timeout_s: float) -> bool:
+    def read_until(self, marker: bytes | None, timeout_s: float) -> bool:
+        """Read until `marker` is in the output (None: for the whole timeout); whether it is."""
         deadline = time.monotonic() + timeout_s
-        while marker not in self.output and time.monotonic() < deadline:
+        while (marker is None or marker not in self.output) and time.monotonic() < deadline:
             if not self.read(0.2):
                 break
-        return marker in self.output
+        return marker is not None and marker in self.output
+
+    def read_for(self, seconds: float) -> None:
+        """Keep reading for `seconds` (or until the terminal closes): what it prints meanwhile is kept."""
+        self.read_until(None, seconds)
 
     def text(self) -> str:
         return self.output.decode(errors="replace")

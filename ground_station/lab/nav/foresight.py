@@ -135,20 +135,28 @@ def _plan(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, see
           y: float, wps: np.ndarray, after_mm: float, budget: int, lattice: tuple, period_s: float) -> list:
     """The next lattice points, one per time unit: the search's way from (x, y) at period t with the
     movers seen so far, or the back-off's one (`_back_off`) where it finds none."""
+    known, units, tracks = seen_tracks(occ, cell, discs, seen, t, x, y, wps[0], after_mm, budget, period_s)
+    period, way = oracle.search_from(occ, cell, radius_mm, discs, tracks, x, y, wps, units, lattice,
+                                     leg_slack=LEG_SLACK_UNITS)
+    if period < 0 or len(way) < 2:
+        return [_back_off(occ, cell, radius_mm, discs, known, x, y, period_s)]
+    return [(wx, wy) for _p, wx, wy in way[1:]]
+
+
+def seen_tracks(occ: np.ndarray, cell: float, discs: np.ndarray, seen: dict, t: int, x: float, y: float,
+                waypoint: np.ndarray, after_mm: float, budget: int, period_s: float) -> tuple[np.ndarray, int, np.ndarray]:
+    """What a search at period t from (x, y) plans with: the movers seen so far, each walked on from its
+    last sighting to now (`known`, rows as `movers`), the horizon in time units (twice the way left,
+    `waypoint` then `after_mm`, plus HORIZON_SLACK_UNITS, within the budget), and their tracks over it."""
     known = np.zeros((len(seen), 6))
     for n, (when, state) in enumerate(seen.values()):
         s = state[None, :].copy()
         for _ in range(t - when):  # on from its last sighting, as it walks with the robot far away
             step_movers(s, occ, cell, discs, oracle.FAR_MM, oracle.FAR_MM, 0.0, period_s)
         known[n] = s[0]
-    to_go = math.hypot(wps[0, 0] - x, wps[0, 1] - y) + after_mm
+    to_go = math.hypot(waypoint[0] - x, waypoint[1] - y) + after_mm
     units = min((budget - t) // oracle.UNIT_PERIODS, int(2 * to_go / oracle.LATTICE_MM) + HORIZON_SLACK_UNITS)
-    tracks = oracle.mover_tracks(known, occ, cell, discs, units * oracle.UNIT_PERIODS, period_s)
-    period, way = oracle.search_from(occ, cell, radius_mm, discs, tracks, x, y, wps, units, lattice,
-                                     leg_slack=LEG_SLACK_UNITS)
-    if period < 0 or len(way) < 2:
-        return [_back_off(occ, cell, radius_mm, discs, known, x, y, period_s)]
-    return [(wx, wy) for _p, wx, wy in way[1:]]
+    return known, units, oracle.mover_tracks(known, occ, cell, discs, units * oracle.UNIT_PERIODS, period_s)
 
 
 def _back_off(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, known: np.ndarray, x: float,

@@ -354,8 +354,8 @@ def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, uni
                             if k == nwp - 1:
                                 goal[0], goal[1], goal[2], goal[3] = t, d, j, i
                                 return t * unit
-                            if k + 1 < nwp:
-                                _kmark(nxt, came, keep, k + 1, t, d, j, i, _LEG_START)
+                            # the next leg starts here, now, with this heading
+                            _kmark(nxt, came, keep, k + 1, t, d, j, i, _LEG_START)
                             if first < 0:
                                 first = t
                             continue
@@ -363,10 +363,10 @@ def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, uni
                             continue
                         if stay[t, j, i]:
                             _kmark(reach, came, keep, k, t + 1, d, j, i, _K_STAYED)
-                        i2, j2 = i + di[d], j + dj[d]
+                        i2, j2 = i + di[d], j + dj[d]  # one step ahead
                         if _step_free(step_ok, j, i, j2, i2) and depart[t, j, i] and arrive[t, j2, i2]:
                             _kmark(reach, came, keep, k, t + 1, d, j2, i2, _K_AHEAD)
-                        if t + turn_units <= units:
+                        if t + turn_units <= units:  # a quarter turn in place, either way
                             good = True
                             for u in range(t, t + turn_units):
                                 if not stay[u, j, i]:
@@ -375,8 +375,8 @@ def _kinematic_search(occ, cell, radius, discs, tracks, x0, y0, h0, lattice, uni
                             if good:
                                 _kmark(reach, came, keep, k, t + turn_units, (d + 1) % 4, j, i, _K_LEFT)
                                 _kmark(reach, came, keep, k, t + turn_units, (d + 3) % 4, j, i, _K_RIGHT)
-                        i2, j2 = i - di[d], j - dj[d]
-                        back = t + rev_units - 1
+                        i2, j2 = i - di[d], j - dj[d]  # one step back
+                        back = t + rev_units - 1  # its last unit, near the point it backs to
                         if (t + rev_units <= units and _step_free(step_ok, j, i, j2, i2) and depart[t, j, i]
                                 and arrive[t, j, i] and depart[back, j2, i2] and arrive[back, j2, i2]):
                             _kmark(reach, came, keep, k, t + rev_units, d, j2, i2, _K_BACK)
@@ -417,16 +417,60 @@ def solve_kinematic(ep: Episode, gm: GridMap, radius_mm: float, budget_base: flo
     episode's, or -1."""
     occ, cell, discs, wps, budget, tracks = _episode(ep, gm, budget_base, budget_factor, period_s, budget_scale)
     x0, y0, heading = ep.start
-    h0 = axis_heading(heading)
-    ox, oy, nx, ny = lattice_of(float(x0), float(y0), occ.shape, cell)
-    units = budget // UNIT_PERIODS
+    return kinematic_search_from(occ, cell, radius_mm, discs, tracks, float(x0), float(y0), axis_heading(heading),
+                                 wps, budget // UNIT_PERIODS, lattice_of(float(x0), float(y0), occ.shape, cell),
+                                 path=False)[0]
+
+
+def kinematic_search_from(occ: np.ndarray, cell: float, radius_mm: float, discs: np.ndarray, tracks: np.ndarray,
+                          x0: float, y0: float, h0: int, wps: np.ndarray, units: int,
+                          lattice: tuple[float, float, int, int], path: bool = True,
+                          leg_slack: int | None = None) -> tuple[int, list[tuple[float, float, int, bool]]]:
+    """`search_from` with the robot's moves (`_kinematic_search`), from axis heading `h0`: (the earliest
+    period the last waypoint is reached or -1, with `path` the way: (x, y, heading, whether a whole move
+    ends there) at every time unit after the start, a turn's or a step back's units spread evenly
+    over its move)."""
+    ox, oy, nx, ny = lattice
     free = np.zeros((ny, nx), dtype=np.bool_)
     step_ok = np.zeros((ny, nx, 2), dtype=np.bool_)
     stay, depart, arrive = (np.zeros((units, ny, nx), dtype=np.bool_) for _ in range(3))
     done = np.zeros(units, dtype=np.bool_)
     reach, nxt = (np.zeros((units + 1, 4, ny, nx), dtype=np.bool_) for _ in range(2))
-    return int(_kinematic_search(occ, cell, float(radius_mm), discs, tracks, float(x0), float(y0), h0, LATTICE_MM,
-                                 UNIT_PERIODS, np.ascontiguousarray(wps, dtype=np.float64), float(GOAL_TOL_MM), ox,
-                                 oy, free, step_ok, stay, depart, arrive, done, reach, nxt, TURN_UNITS,
-                                 REVERSE_UNITS, HEAD_DI, HEAD_DJ, np.zeros((0, 1, 1, 1, 1), dtype=np.int8),
-                                 np.zeros(4, dtype=np.int64), units + 1))
+    nwp = len(wps)
+    came = np.zeros((nwp if path else 0, units + 1, 4, ny, nx), dtype=np.int8)
+    goal = np.zeros(4, dtype=np.int64)
+    period = int(_kinematic_search(occ, cell, float(radius_mm), discs, tracks, x0, y0, h0, LATTICE_MM, UNIT_PERIODS,
+                                   np.ascontiguousarray(wps, dtype=np.float64), float(GOAL_TOL_MM), ox, oy, free,
+                                   step_ok, stay, depart, arrive, done, reach, nxt, TURN_UNITS, REVERSE_UNITS,
+                                   HEAD_DI, HEAD_DJ, came, goal, units + 1 if leg_slack is None else int(leg_slack)))
+    if period < 0 or not path:
+        return period, []
+
+    k, (t, d, j, i) = nwp - 1, (int(v) for v in goal)
+    moves = []  # (heading, j, i, move code) at each whole move's end, backwards
+    while True:
+        how = int(came[k, t, d, j, i])
+        if how == _LEG_START:
+            if k == 0:
+                break  # the start
+            k -= 1  # the previous leg ended here, then: its waypoint passed
+            continue
+        moves.append((d, j, i, how))
+        if how == _K_STAYED:
+            t -= 1
+        elif how == _K_AHEAD:
+            t, j, i = t - 1, j - HEAD_DJ[d], i - HEAD_DI[d]
+        elif how == _K_LEFT:
+            t, d = t - TURN_UNITS, (d + 3) % 4
+        elif how == _K_RIGHT:
+            t, d = t - TURN_UNITS, (d + 1) % 4
+        else:  # _K_BACK
+            t, j, i = t - REVERSE_UNITS, j + HEAD_DJ[d], i + HEAD_DI[d]
+    way = []
+    px, py = x0, y0
+    for d, j, i, how in reversed(moves):
+        x, y = ox + i * LATTICE_MM, oy + j * LATTICE_MM
+        n = 1 if how in (_K_STAYED, _K_AHEAD) else (TURN_UNITS if how in (_K_LEFT, _K_RIGHT) else REVERSE_UNITS)
+        way += [(px + (x - px) * u / n, py + (y - py) * u / n, d, u == n) for u in range(1, n + 1)]
+        px, py = x, y
+    return period, way
